@@ -1,0 +1,55 @@
+"""The ``lfstudio`` command line: one module per subcommand.
+
+A subcommand module defines ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``.
+Register it by adding its module name to :data:`COMMANDS` (the CLI name is the module name with
+``_`` replaced by ``-``). ``lfstudio`` with no arguments opens the GUI.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from lfstudio import __version__
+from lfstudio.errors import InputError, LfError
+
+#: subcommand modules, in the order ``lfstudio --help`` lists them
+COMMANDS: list[str] = [
+    "gui",
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="lfstudio",
+        description="Plan, capture, calibrate, process and export dense light fields. "
+                    "Without a command, opens the application window.",
+    )
+    parser.add_argument("--version", action="version", version=f"lfstudio {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        module = importlib.import_module(f"lfstudio.cli.{name}")
+        p = sub.add_parser(name.replace("_", "-"), help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0].startswith("-") and argv[0] not in ("-h", "--help", "--version"):
+        argv = ["gui", *argv]
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except InputError as exc:
+        print(f"lfstudio {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except LfError as exc:
+        print(f"lfstudio {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"lfstudio {args.command}: interrupted", file=sys.stderr)
+        return 130

@@ -1,0 +1,240 @@
+"""``dataset.json``: the versioned manifest of a dataset folder, and its validation.
+
+Layout of the manifest (JSON; every length in mm unless the key says otherwise)::
+
+    {"format": "lfstudio-dataset", "version": 1, "created": "2026-11-21T22:00:00+00:00",
+     "rig": {...}, "camera": {"name": ..., "sensor_px": [w, h], "sensor_mm": [w, h],
+     "pixel_pitch_um": ...}, "lens": {"name": ..., "focal_length_mm": ...}, "plan": {...},
+     "grid": {"columns": C, "rows": R, "spacing_mm": [h, v], "order": "row-meander"},
+     "views": [{"row": r, "column": c, "commanded_mm": [x, y], "reported_mm": [x, y] | null,
+                "captured_at": iso8601 | null, "exposure_s": float | null,
+                "file": "raw/r00_c000.dng" | null, "sha256": hex | null,
+                "status": "pending" | "done" | "failed" | "skipped", ...}, ...]}
+
+Stages add their own top-level keys (``processing``, ``calibration`` summary, ...) and per-view keys;
+unknown keys are kept as they are.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+from pathlib import Path
+from typing import Any, Iterable
+
+from lfstudio.dataset.atomic import atomic_write_json
+from lfstudio.dataset.paths import resolve_inside, view_stem
+from lfstudio.errors import DatasetError
+
+FORMAT = "lfstudio-dataset"
+VERSION = 1
+MANIFEST_NAME = "dataset.json"
+VIEW_STATUSES = ("pending", "done", "failed", "skipped")
+
+
+def now_iso() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _is_pair(x: Any) -> bool:
+    return isinstance(x, (list, tuple)) and len(x) == 2 and all(_is_number(v) for v in x)
+
+
+def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str]:
+    """Every problem in ``manifest`` as ``"dataset.json: <field>: <what is wrong>"``; empty if valid.
+
+    With ``root``, file names are also checked to stay inside the folder.
+    """
+    f = MANIFEST_NAME
+    if not isinstance(manifest, dict):
+        return [f"{f}: top level must be a JSON object"]
+    problems: list[str] = []
+    if manifest.get("format") != FORMAT:
+        problems.append(f"{f}: format: must be {FORMAT!r}, found {manifest.get('format')!r}")
+    version = manifest.get("version")
+    if not isinstance(version, int) or version < 1:
+        problems.append(f"{f}: version: must be a positive integer, found {version!r}")
+    elif version > VERSION:
+        problems.append(f"{f}: version: {version} is newer than this lfstudio understands ({VERSION}); update lfstudio")
+    for key in ("rig", "camera", "lens", "grid"):
+        if not isinstance(manifest.get(key), dict):
+            problems.append(f"{f}: {key}: missing or not an object")
+    grid = manifest.get("grid") if isinstance(manifest.get("grid"), dict) else {}
+    cols, rows = grid.get("columns"), grid.get("rows")
+    for name, val in (("grid.columns", cols), ("grid.rows", rows)):
+        if grid and (not isinstance(val, int) or isinstance(val, bool) or val < 1):
+            problems.append(f"{f}: {name}: must be a positive integer, found {val!r}")
+    if grid and "spacing_mm" in grid and not _is_pair(grid["spacing_mm"]):
+        problems.append(f"{f}: grid.spacing_mm: must be [horizontal, vertical] numbers")
+    views = manifest.get("views")
+    if not isinstance(views, list):
+        problems.append(f"{f}: views: missing or not a list")
+        return problems
+    seen: set[tuple[int, int]] = set()
+    files: set[str] = set()
+    for i, v in enumerate(views):
+        where = f"{f}: views[{i}]"
+        if not isinstance(v, dict):
+            problems.append(f"{where}: must be an object")
+            continue
+        r, c = v.get("row"), v.get("column")
+        if not isinstance(r, int) or not isinstance(c, int) or r < 0 or c < 0:
+            problems.append(f"{where}: row/column: must be non-negative integers, found {r!r}/{c!r}")
+            continue
+        where = f"{f}: views[{i}] (row {r}, column {c})"
+        if isinstance(rows, int) and isinstance(cols, int) and (r >= rows or c >= cols):
+            problems.append(f"{where}: outside the {cols} x {rows} grid")
+        if (r, c) in seen:
+            problems.append(f"{where}: appears more than once")
+        seen.add((r, c))
+        status = v.get("status")
+        if status not in VIEW_STATUSES:
+            problems.append(f"{where}: status: must be one of {', '.join(VIEW_STATUSES)}, found {status!r}")
+        if "commanded_mm" in v and v["commanded_mm"] is not None and not _is_pair(v["commanded_mm"]):
+            problems.append(f"{where}: commanded_mm: must be [x, y] in mm")
+        if v.get("reported_mm") is not None and not _is_pair(v["reported_mm"]):
+            problems.append(f"{where}: reported_mm: must be [x, y] in mm or null")
+        file = v.get("file")
+        if file is not None:
+            if not isinstance(file, str) or not file:
+                problems.append(f"{where}: file: must be a relative path string or null")
+            else:
+                if root is not None:
+                    try:
+                        resolve_inside(root, file, what="file")
+                    except DatasetError as exc:
+                        problems.append(f"{where}: file: {exc}")
+                if file in files:
+                    problems.append(f"{where}: file: {file!r} is used by another view too")
+                files.add(file)
+        if status == "done" and not file:
+            problems.append(f"{where}: file: a view with status 'done' needs a file")
+    return problems
+
+
+class Dataset:
+    """A dataset folder on disk. Construct with :meth:`create` or :meth:`open`.
+
+    ``manifest`` is the parsed ``dataset.json`` (plain JSON types); change it, then :meth:`save`.
+    """
+
+    def __init__(self, root: str | Path, manifest: dict[str, Any]):
+        self.root = Path(root).resolve()
+        self.manifest = manifest
+
+    # -- construction -------------------------------------------------------------------------
+    @classmethod
+    def create(cls, root: str | Path, *, camera: dict, lens: dict, grid: dict, rig: dict | None = None,
+               plan: dict | None = None, views: Iterable[dict] | None = None, exist_ok: bool = False,
+               **extra: Any) -> "Dataset":
+        """Make a new dataset folder with ``raw/`` and ``thumbs/`` and write its manifest.
+
+        Without ``views``, one pending view per grid cell is listed (row-major).
+        """
+        root = Path(root)
+        if (root / MANIFEST_NAME).exists() and not exist_ok:
+            raise DatasetError(f"{root}: already holds a dataset ({MANIFEST_NAME} exists); "
+                               "open it to resume, or choose another folder")
+        root.mkdir(parents=True, exist_ok=True)
+        for sub in ("raw", "thumbs"):
+            (root / sub).mkdir(exist_ok=True)
+        if views is None:
+            views = [{"row": r, "column": c, "commanded_mm": None, "reported_mm": None,
+                      "captured_at": None, "exposure_s": None, "file": None, "sha256": None,
+                      "status": "pending"}
+                     for r in range(int(grid["rows"])) for c in range(int(grid["columns"]))]
+        manifest = {"format": FORMAT, "version": VERSION, "created": now_iso(),
+                    "rig": dict(rig or {}), "camera": dict(camera), "lens": dict(lens),
+                    "plan": dict(plan or {}), "grid": dict(grid), **extra, "views": list(views)}
+        ds = cls(root, manifest)
+        problems = validate_manifest(manifest, ds.root)
+        if problems:
+            raise DatasetError(f"{root}: cannot create dataset", problems)
+        ds.save()
+        return ds
+
+    @classmethod
+    def open(cls, root: str | Path) -> "Dataset":
+        """Read and validate ``root/dataset.json``; raise :class:`DatasetError` listing every problem."""
+        root = Path(root)
+        path = root / MANIFEST_NAME
+        if not root.is_dir():
+            raise DatasetError(f"{root}: not a folder; choose the dataset folder (the one holding {MANIFEST_NAME})")
+        if not path.is_file():
+            raise DatasetError(f"{path}: not found; {root} is not an lfstudio dataset "
+                               "(import a folder of images with 'lfstudio import-images')")
+        try:
+            manifest = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise DatasetError(f"{path}: cannot be read as JSON ({exc})") from None
+        problems = validate_manifest(manifest, root)
+        if problems:
+            raise DatasetError(f"{path}: invalid manifest", problems)
+        return cls(root, manifest)
+
+    # -- access -----------------------------------------------------------------------------------
+    @property
+    def manifest_path(self) -> Path:
+        return self.root / MANIFEST_NAME
+
+    @property
+    def views(self) -> list[dict[str, Any]]:
+        return self.manifest["views"]
+
+    @property
+    def grid(self) -> dict[str, Any]:
+        return self.manifest["grid"]
+
+    @property
+    def camera(self) -> dict[str, Any]:
+        return self.manifest["camera"]
+
+    @property
+    def lens(self) -> dict[str, Any]:
+        return self.manifest["lens"]
+
+    def view(self, row: int, column: int) -> dict[str, Any]:
+        for v in self.views:
+            if v["row"] == row and v["column"] == column:
+                return v
+        raise KeyError(f"no view at row {row}, column {column}")
+
+    def done_views(self) -> list[dict[str, Any]]:
+        return [v for v in self.views if v.get("status") == "done"]
+
+    def path_of(self, view_or_relative: dict | str) -> Path:
+        """Absolute path of a view's file (or of a relative name), refused if outside the folder."""
+        rel = view_or_relative.get("file") if isinstance(view_or_relative, dict) else view_or_relative
+        if not rel:
+            raise DatasetError(f"{self.manifest_path}: view has no file yet")
+        return resolve_inside(self.root, rel)
+
+    def raw_name(self, row: int, column: int, suffix: str) -> str:
+        """Relative name for a view's raw file, e.g. ``raw/r07_c042.dng``."""
+        return f"raw/{view_stem(row, column)}{suffix}"
+
+    def focal_length_px(self, image_width_px: int | None = None) -> float:
+        """Focal length in pixels of an image ``image_width_px`` wide (default: the full sensor)."""
+        cam, lens = self.camera, self.lens
+        try:
+            f_mm = float(lens["focal_length_mm"])
+            sensor_w_px = float(cam["sensor_px"][0])
+            pitch_mm = float(cam["pixel_pitch_um"]) / 1000.0 if cam.get("pixel_pitch_um") else \
+                float(cam["sensor_mm"][0]) / sensor_w_px
+        except (KeyError, TypeError, ValueError, IndexError):
+            raise DatasetError(f"{self.manifest_path}: camera.sensor_px, camera.pixel_pitch_um (or sensor_mm) "
+                               "and lens.focal_length_mm are needed for the focal length in pixels; "
+                               "add them or give the focal length in pixels explicitly") from None
+        scale = 1.0 if image_width_px is None else image_width_px / sensor_w_px
+        return f_mm / pitch_mm * scale
+
+    # -- writing ----------------------------------------------------------------------------------
+    def save(self) -> None:
+        """Write the manifest atomically (temporary file, fsync, rename)."""
+        self.manifest["modified"] = now_iso()
+        atomic_write_json(self.manifest_path, self.manifest)

@@ -1,0 +1,40 @@
+"""Errors an operator reads. Every message names the field or file and says how to fix it."""
+
+from __future__ import annotations
+
+
+class LfError(Exception):
+    """Base class for every error lfstudio reports to a person (CLI exit message, GUI dialog)."""
+
+
+class InputError(LfError, ValueError):
+    """A value given by the user is out of range or inconsistent.
+
+    ``field`` is the name the user knows (a CLI option or a GUI label), ``valid`` the accepted range.
+    """
+
+    def __init__(self, field: str, message: str, valid: str | None = None):
+        self.field = field
+        self.valid = valid
+        text = f"{field}: {message}"
+        if valid:
+            text += f" (valid: {valid})"
+        super().__init__(text)
+
+
+class DatasetError(LfError):
+    """A dataset folder or one of its files is missing, corrupt or inconsistent.
+
+    ``problems`` lists every problem found as ``"file: field: what is wrong"`` strings.
+    """
+
+    def __init__(self, message: str, problems: list[str] | None = None):
+        self.problems = list(problems or [])
+        text = message
+        if self.problems:
+            text += "\n" + "\n".join(f"  - {p}" for p in self.problems)
+        super().__init__(text)
+
+
+class DeviceError(LfError):
+    """A device (axis controller, camera) failed, timed out or refused a command."""

@@ -1,0 +1,73 @@
+"""Run a core job (``fn(..., progress=, cancel=)``) on a worker thread and report through Qt signals."""
+
+from __future__ import annotations
+
+import threading
+import traceback
+from typing import Any, Callable
+
+from PySide6.QtCore import QObject, Signal
+
+from lfstudio.errors import LfError
+from lfstudio.jobs import Cancelled, CancelToken, EtaEstimator
+
+
+class JobRunner(QObject):
+    """Runs one job at a time off the GUI thread.
+
+    Signals arrive on the GUI thread (queued): ``progress(done, total, message, eta_s or -1)``,
+    then exactly one of ``finished(result)``, ``failed(message)`` or ``cancelled()``.
+    """
+
+    progress = Signal(int, int, str, float)
+    finished = Signal(object)
+    failed = Signal(str)
+    cancelled = Signal()
+
+    def __init__(self, parent: QObject | None = None):
+        super().__init__(parent)
+        self._thread: threading.Thread | None = None
+        self._cancel: CancelToken | None = None
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def start(self, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
+        """Call ``fn(*args, progress=..., cancel=..., **kwargs)`` on a new thread."""
+        if self.running:
+            raise RuntimeError("a job is already running")
+        cancel = CancelToken()
+        eta = EtaEstimator()
+        self._cancel = cancel
+
+        def progress(done: int, total: int, message: str = "") -> None:
+            left = eta.update(done, total)
+            self.progress.emit(int(done), int(total), str(message), -1.0 if left is None else float(left))
+
+        def body() -> None:
+            try:
+                result = fn(*args, progress=progress, cancel=cancel, **kwargs)
+            except Cancelled:
+                self.cancelled.emit()
+            except LfError as exc:
+                self.failed.emit(str(exc))
+            except Exception as exc:  # an unexpected bug: say so plainly, keep the details in the log
+                traceback.print_exc()
+                self.failed.emit(f"Unexpected error: {type(exc).__name__}: {exc}")
+            else:
+                self.finished.emit(result)
+
+        self._thread = threading.Thread(target=body, name=f"job-{getattr(fn, '__name__', 'job')}", daemon=True)
+        self._thread.start()
+
+    def cancel(self) -> None:
+        if self._cancel is not None:
+            self._cancel.cancel()
+
+    def wait(self, timeout_s: float | None = None) -> bool:
+        """Join the worker thread (for shutdown); True if it has ended."""
+        if self._thread is None:
+            return True
+        self._thread.join(timeout_s)
+        return not self._thread.is_alive()

@@ -1,0 +1,135 @@
+"""The main window: dock panels around a central view, menus, status bar."""
+
+from __future__ import annotations
+
+import importlib
+import logging
+from typing import Any
+
+from PySide6.QtCore import Qt
+from PySide6.QtGui import QAction, QKeySequence
+from PySide6.QtWidgets import QDockWidget, QMainWindow, QMenu, QMessageBox, QWidget
+
+from lfstudio import __version__
+from lfstudio.gui.panels import CENTRAL, PANELS, PanelSpec
+from lfstudio.gui.settings import settings
+from lfstudio.gui.state import AppState
+
+log = logging.getLogger(__name__)
+
+MENU_ORDER = ("File", "View", "Rig", "Dataset", "Help")
+_AREAS = {"left": Qt.LeftDockWidgetArea, "right": Qt.RightDockWidgetArea,
+          "bottom": Qt.BottomDockWidgetArea, "top": Qt.TopDockWidgetArea}
+
+
+def load_target(target: str) -> Any:
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+class MainWindow(QMainWindow):
+    def __init__(self, state: AppState, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.state = state
+        self.setWindowTitle("lfstudio — simulated studio" if state.simulated else "lfstudio")
+        self.setObjectName("MainWindow")
+        self.setDockNestingEnabled(True)
+        self.resize(1500, 950)
+        self._menus: dict[str, QMenu] = {}
+        for name in MENU_ORDER:
+            self.menu(name)
+        self.panels: dict[str, QWidget] = {}
+        self.docks: dict[str, QDockWidget] = {}
+
+        self.central = load_target(CENTRAL)(state)
+        self.setCentralWidget(self.central)
+        for spec in PANELS:
+            self._add_panel(spec)
+        for widget in [self.central, *self.panels.values()]:
+            install = getattr(widget, "install_menus", None)
+            if install is not None:
+                install(self)
+        self._install_base_menus()
+
+        state.statusMessage.connect(lambda text, ms: self.statusBar().showMessage(text, ms))
+        state.errorOccurred.connect(self.show_error)
+        self.statusBar().showMessage("Ready — simulated studio" if state.simulated else "Ready")
+        self._restore_geometry()
+
+    # -- structure ---------------------------------------------------------------------------------
+    def menu(self, name: str) -> QMenu:
+        """The top-level menu ``name`` (created on first use, in MENU_ORDER where listed)."""
+        if name not in self._menus:
+            menu = QMenu(f"&{name}", self)
+            menu.setObjectName(f"menu{name}")
+            help_menu = self._menus.get("Help")
+            if help_menu is not None and name not in MENU_ORDER:
+                self.menuBar().insertMenu(help_menu.menuAction(), menu)
+            else:
+                self.menuBar().addMenu(menu)
+            self._menus[name] = menu
+        return self._menus[name]
+
+    def _add_panel(self, spec: PanelSpec) -> None:
+        try:
+            widget = load_target(spec.target)(self.state)
+        except Exception as exc:  # a broken panel must not take the whole window down
+            log.exception("panel %s failed to load", spec.title)
+            self.state.report_error(f"{spec.title} panel", f"The {spec.title} panel could not start: {exc}")
+            return
+        dock = QDockWidget(spec.title, self)
+        dock.setObjectName(spec.object_name)
+        dock.setWidget(widget)
+        dock.setFeatures(QDockWidget.DockWidgetMovable | QDockWidget.DockWidgetFloatable
+                         | QDockWidget.DockWidgetClosable)
+        self.addDockWidget(_AREAS.get(spec.area, Qt.LeftDockWidgetArea), dock)
+        dock.setVisible(spec.visible)
+        self.panels[spec.object_name] = widget
+        self.docks[spec.object_name] = dock
+        self.menu("View").addAction(dock.toggleViewAction())
+
+    def _install_base_menus(self) -> None:
+        file_menu = self.menu("File")
+        file_menu.addSeparator()
+        quit_action = QAction("&Quit", self)
+        quit_action.setShortcut(QKeySequence.Quit)
+        quit_action.setToolTip("Close lfstudio")
+        quit_action.triggered.connect(self.close)
+        file_menu.addAction(quit_action)
+
+        about = QAction("&About lfstudio", self)
+        about.triggered.connect(self._about)
+        self.menu("Help").addAction(about)
+
+    def _about(self) -> None:
+        QMessageBox.about(self, "About lfstudio",
+                          f"<b>lfstudio {__version__}</b><p>Dense light-field acquisition: plan, capture, "
+                          "self-calibrate, process and export.</p>")
+
+    def show_error(self, title: str, message: str) -> None:
+        self.statusBar().showMessage(f"{title}: {message.splitlines()[0] if message else ''}", 10000)
+        box = QMessageBox(QMessageBox.Warning, title, message, QMessageBox.Ok, self)
+        box.setObjectName("errorBox")
+        box.open()  # non-modal: never blocks the event loop
+
+    # -- persistence -------------------------------------------------------------------------------
+    def _restore_geometry(self) -> None:
+        s = settings()
+        geometry, window_state = s.value("window/geometry"), s.value("window/state")
+        if geometry is not None:
+            self.restoreGeometry(geometry)
+        if window_state is not None:
+            self.restoreState(window_state)
+
+    def closeEvent(self, event) -> None:
+        s = settings()
+        s.setValue("window/geometry", self.saveGeometry())
+        s.setValue("window/state", self.saveState())
+        for widget in [self.central, *self.panels.values()]:
+            shutdown = getattr(widget, "shutdown", None)
+            if shutdown is not None:
+                try:
+                    shutdown()
+                except Exception:
+                    log.exception("shutdown of %s failed", type(widget).__name__)
+        super().closeEvent(event)

@@ -1,0 +1,26 @@
+"""The dock panels of the main window. Add a panel by appending a :class:`PanelSpec` to :data:`PANELS`.
+
+A panel class is constructed as ``Panel(state: AppState)`` and is a ``QWidget``. It may define
+``install_menus(window)`` to add its actions to the window's menus (``window.menu("Rig")``), and
+``shutdown()`` to stop its threads when the window closes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class PanelSpec:
+    title: str
+    object_name: str      # stable name: dock geometry is saved under it
+    target: str           # "module:ClassName"
+    area: str = "left"    # left | right | bottom | top
+    visible: bool = True  # shown on first start
+
+
+PANELS: list[PanelSpec] = [
+]
+
+#: the central widget, "module:ClassName" constructed as ``Cls(state)``
+CENTRAL = "lfstudio.gui.views.welcome:WelcomeView"

@@ -1,0 +1,40 @@
+"""One application state shared by all panels; panels react to its signals."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from PySide6.QtCore import QObject, Signal
+
+
+class AppState(QObject):
+    """What the whole window shares: the current plan, the open dataset, the devices.
+
+    Panels read attributes and connect to the signals; they never call each other.
+    """
+
+    planChanged = Signal(object)        # the current scene plan (lfstudio.planning) or None
+    datasetChanged = Signal(object)     # the open lfstudio.dataset.Dataset or None
+    statusMessage = Signal(str, int)    # text, timeout in ms (0: until replaced)
+    errorOccurred = Signal(str, str)    # title, message an operator understands
+
+    def __init__(self, simulated: bool = True, parent: QObject | None = None):
+        super().__init__(parent)
+        self.simulated = simulated
+        self.plan: Any = None
+        self.dataset: Any = None
+        self.devices: dict[str, Any] = {}   # "rig", "camera": Qt device adapters, when connected
+
+    def set_plan(self, plan: Any) -> None:
+        self.plan = plan
+        self.planChanged.emit(plan)
+
+    def set_dataset(self, dataset: Any) -> None:
+        self.dataset = dataset
+        self.datasetChanged.emit(dataset)
+
+    def show_status(self, text: str, timeout_ms: int = 5000) -> None:
+        self.statusMessage.emit(text, timeout_ms)
+
+    def report_error(self, title: str, message: str) -> None:
+        self.errorOccurred.emit(title, message)

@@ -1,0 +1,109 @@
+"""Long jobs: plain functions that take a progress callback and a cancel token.
+
+A job looks like ``def run(..., progress: Progress = no_progress, cancel: CancelToken | None = None)``.
+It calls ``progress(done, total, message)`` now and then and ``cancel.check()`` at safe points;
+``check`` raises :class:`Cancelled`. The GUI bridges this to Qt signals (``lfstudio.gui.bridge``),
+the CLI to a terminal progress bar (:class:`TerminalProgress`).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from typing import Callable, Protocol
+
+
+class Cancelled(Exception):
+    """Raised inside a job when its cancel token was set."""
+
+
+class CancelToken:
+    """Thread-safe cancel flag shared by the caller and the job."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+
+    def cancel(self) -> None:
+        self._event.set()
+
+    @property
+    def cancelled(self) -> bool:
+        return self._event.is_set()
+
+    def check(self) -> None:
+        if self._event.is_set():
+            raise Cancelled()
+
+    def wait(self, timeout_s: float) -> bool:
+        """Sleep up to ``timeout_s`` seconds; return True early if cancelled."""
+        return self._event.wait(timeout_s)
+
+
+class Progress(Protocol):
+    def __call__(self, done: int, total: int, message: str = "") -> None: ...
+
+
+def no_progress(done: int, total: int, message: str = "") -> None:
+    """Progress callback that ignores everything."""
+
+
+class EtaEstimator:
+    """Remaining-time estimate from the rate of finished items (items may start late, e.g. on resume)."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self._clock = clock
+        self._t0: float | None = None
+        self._done0 = 0
+
+    def update(self, done: int, total: int) -> float | None:
+        """Return the estimated seconds left, or None while no rate is known yet."""
+        now = self._clock()
+        if self._t0 is None:
+            self._t0, self._done0 = now, done
+            return None
+        finished = done - self._done0
+        if finished <= 0:
+            return None
+        rate = finished / max(now - self._t0, 1e-9)
+        return max(total - done, 0) / rate
+
+
+def format_duration(seconds: float | None) -> str:
+    """'1 h 02 min', '3 min 05 s', '12 s' or '–' when unknown."""
+    if seconds is None:
+        return "–"
+    s = int(round(seconds))
+    if s >= 3600:
+        return f"{s // 3600} h {(s % 3600) // 60:02d} min"
+    if s >= 60:
+        return f"{s // 60} min {s % 60:02d} s"
+    return f"{s} s"
+
+
+class TerminalProgress:
+    """A one-line progress bar with ETA on stderr (plain lines when stderr is not a terminal)."""
+
+    def __init__(self, label: str, stream=None, width: int = 30) -> None:
+        self.label = label
+        self.stream = stream or sys.stderr
+        self.width = width
+        self.eta = EtaEstimator()
+        self._tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self._last_line = 0.0
+
+    def __call__(self, done: int, total: int, message: str = "") -> None:
+        eta = self.eta.update(done, total)
+        frac = done / total if total else 1.0
+        bar = "#" * int(frac * self.width)
+        line = (f"{self.label} [{bar:<{self.width}}] {done}/{total} {frac:6.1%}"
+                f"  ETA {format_duration(eta)}  {message}")
+        now = time.monotonic()
+        if self._tty:
+            self.stream.write("\r" + line[:160].ljust(160))
+            if done >= total:
+                self.stream.write("\n")
+        elif done >= total or now - self._last_line > 2.0:
+            self.stream.write(line + "\n")
+            self._last_line = now
+        self.stream.flush()

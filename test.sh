@@ -1,0 +1,9 @@
+#!/usr/bin/env bash
+# Set everything up (first time only) and run the whole test suite, Qt offscreen.
+# Extra arguments go to pytest, e.g. ./test.sh -k planner
+set -euo pipefail
+here="$(cd "$(dirname "$0")" && pwd)"
+source "$here/tools/setup-env.sh"
+export QT_QPA_PLATFORM="${QT_QPA_PLATFORM:-offscreen}"
+cd "$here"
+exec "$LFSTUDIO_PY" -m pytest "$@"

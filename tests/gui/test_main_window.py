@@ -1,0 +1,33 @@
+from PySide6.QtWidgets import QDockWidget
+
+from lfstudio.gui.app import create_window
+from lfstudio.gui.imageutil import qimage_to_rgb
+from lfstudio.gui.panels import PANELS
+
+
+def test_main_window_has_menus_and_panels(qtbot):
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    window.show()
+    qtbot.waitExposed(window)
+    titles = [a.text().replace("&", "") for a in window.menuBar().actions()]
+    assert titles[:3] == ["File", "View", "Rig"] and titles[-1] == "Help"
+    docks = window.findChildren(QDockWidget)
+    assert {d.objectName() for d in docks} == {p.object_name for p in PANELS}
+    assert "simulated" in window.windowTitle()
+
+
+def test_window_renders_not_blank(qtbot):
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    window.show()
+    qtbot.waitExposed(window)
+    pixels = qimage_to_rgb(window.grab().toImage())
+    assert pixels.std() > 5  # text, frames and panels, not a flat fill
+
+
+def test_error_is_shown_not_raised(qtbot):
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    window.state.report_error("Test", "something the operator must read")
+    qtbot.waitUntil(lambda: "something the operator must read" in window.statusBar().currentMessage())

@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# Create or refresh ./.venv with lfstudio and its test tools. Sourced by run.sh and test.sh.
+# Idempotent: re-installs only when pyproject.toml changed since the last install.
+set -euo pipefail
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+venv="${LFSTUDIO_VENV:-$here/.venv}"
+
+py="${PYTHON:-}"
+if [ -z "$py" ]; then
+  for cand in python3.13 python3.12 python3.11 python3; do
+    if command -v "$cand" >/dev/null 2>&1 && "$cand" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
+      py="$cand"; break
+    fi
+  done
+fi
+if [ -z "$py" ]; then
+  echo "lfstudio needs Python 3.11 or newer (python3.11 not found). Install it, or set PYTHON=/path/to/python3.11." >&2
+  exit 1
+fi
+
+# Qt needs a few system libraries even offscreen; install them when we can (Debian/Ubuntu as root).
+need_pkgs=()
+for lib in libEGL.so.1:libegl1 libGL.so.1:libgl1 libfontconfig.so.1:libfontconfig1 libxkbcommon.so.0:libxkbcommon0 libdbus-1.so.3:libdbus-1-3 libglib-2.0.so.0:libglib2.0-0; do
+  so="${lib%%:*}"; pkg="${lib##*:}"
+  if ! ldconfig -p 2>/dev/null | grep -q "$so"; then need_pkgs+=("$pkg"); fi
+done
+if [ "${#need_pkgs[@]}" -gt 0 ]; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "Installing system libraries for Qt: ${need_pkgs[*]}"
+    DEBIAN_FRONTEND=noninteractive apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need_pkgs[@]}" >/dev/null
+  else
+    echo "Warning: missing system libraries for Qt: ${need_pkgs[*]} (install them with your package manager)." >&2
+  fi
+fi
+
+if [ ! -x "$venv/bin/python" ]; then
+  echo "Creating virtual environment in $venv"
+  "$py" -m venv "$venv"
+fi
+stamp="$venv/.lfstudio-installed"
+want="$(cat "$here/pyproject.toml" | sha256sum | cut -d' ' -f1)"
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+  echo "Installing lfstudio and its dependencies into $venv (first run takes a minute)"
+  "$venv/bin/python" -m pip install -q --disable-pip-version-check --upgrade pip >/dev/null
+  "$venv/bin/python" -m pip install -q --disable-pip-version-check -e "$here[test]"
+  echo "$want" > "$stamp"
+fi
+export LFSTUDIO_PY="$venv/bin/python"
