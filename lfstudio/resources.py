@@ -16,3 +16,26 @@ def user_config_dir() -> Path:
         return Path(env)
     base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
     return Path(base) / "lfstudio"
+
+
+PRESET_KINDS = ("cameras", "lenses", "rigs")
+
+
+def load_presets(kind: str) -> dict[str, dict]:
+    """Presets of ``kind`` ("cameras", "lenses", "rigs"): shipped ones, then the user's, which
+    override by name. A broken user file raises :class:`lfstudio.errors.InputError` naming it."""
+    import tomllib
+
+    from lfstudio.errors import InputError
+
+    if kind not in PRESET_KINDS:
+        raise ValueError(f"unknown preset kind {kind!r}")
+    presets: dict[str, dict] = {}
+    for path in (PRESETS_DIR / f"{kind}.toml", user_config_dir() / "presets" / f"{kind}.toml"):
+        if not path.is_file():
+            continue
+        try:
+            presets.update(tomllib.loads(path.read_text(encoding="utf-8")))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            raise InputError(str(path), f"cannot read preset file: {exc}", "a TOML file of [\"Name\"] tables")
+    return presets

@@ -1,0 +1,1 @@
+"""Devices: motion controllers and cameras. Synchronous drivers + one generic threaded worker."""

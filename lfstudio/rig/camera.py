@@ -1,0 +1,47 @@
+"""The camera interface every camera driver implements."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CaptureResult:
+    """Files a capture produced (already on disk at their final names) and how long each step took."""
+
+    files: tuple[Path, ...]          # the main file first (RAW), then sidecars (JPEG preview, ...)
+    trigger_s: float = 0.0           # from the call to the shutter opening
+    exposure_s: float = 0.0
+    transfer_s: float = 0.0          # download / write of the files
+    metadata: dict[str, Any] = field(default_factory=dict)   # ISO, shutter, ground truth (simulated), ...
+
+    @property
+    def path(self) -> Path:
+        return self.files[0]
+
+
+@runtime_checkable
+class Camera(Protocol):
+    """Blocking camera driver; run it through :class:`lfstudio.rig.worker.DeviceWorker`."""
+
+    name: str
+
+    def connect(self) -> None: ...
+    def disconnect(self) -> None: ...
+    def settings(self) -> dict[str, Any]:
+        """Current settings, e.g. {"iso": 100, "shutter_s": 0.5, "aperture": 16, "format": "RAW"}."""
+        ...
+    def set_setting(self, name: str, value: Any) -> None: ...
+    def capture(self, stem_path: Path) -> CaptureResult:
+        """Take one picture and store it as ``stem_path`` + the driver's suffix (e.g. ``.dng``).
+
+        The file is complete (size checked) and atomically in place when this returns.
+        """
+        ...
+    def preview(self) -> np.ndarray | None:
+        """A live-view frame (H x W x 3 uint8) or None when the camera has none."""
+        ...

@@ -1,0 +1,87 @@
+"""The motion-controller interface every axis driver implements, and the rig's axis configuration.
+
+Drivers are synchronous and know nothing about threads or Qt; :mod:`lfstudio.rig.worker` runs them
+on a thread. Positions are in mm in the rig's frame: x horizontal (0 at the left end of travel),
+y vertical (0 at the top end of travel), unless the profile says otherwise.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+
+class RigState(str, enum.Enum):
+    DISCONNECTED = "disconnected"
+    IDLE = "idle"
+    MOVING = "moving"
+    JOGGING = "jogging"
+    HOMING = "homing"
+    HOLD = "hold"
+    ALARM = "alarm"
+
+
+@dataclass(frozen=True)
+class AxisConfig:
+    """One linear axis. ``soft_min_mm``/``soft_max_mm``: no target outside this range is ever sent."""
+
+    name: str                      # "horizontal" | "vertical"
+    letter: str                    # controller axis letter driving it ("X", "Y", "Z", ...)
+    travel_mm: float
+    soft_min_mm: float
+    soft_max_mm: float
+    max_speed_mm_s: float
+    acceleration_mm_s2: float
+    repeatability_um: float
+    settle_s: float = 0.3
+
+    def contains(self, position_mm: float, tolerance_mm: float = 1e-9) -> bool:
+        return self.soft_min_mm - tolerance_mm <= position_mm <= self.soft_max_mm + tolerance_mm
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """A rig profile (``resources/presets/rigs.toml``)."""
+
+    name: str
+    horizontal: AxisConfig
+    vertical: AxisConfig
+    label: str = ""
+    homing: bool = True            # False: no limit switches, set the origin explicitly instead
+
+
+@dataclass(frozen=True)
+class RigStatus:
+    """A snapshot of the rig. ``position_mm`` is (x, y) as reported by the controller (None if unknown)."""
+
+    state: RigState
+    position_mm: tuple[float, float] | None = None
+    homed: bool = False            # homed or origin set: motion is allowed
+    message: str = ""              # alarm / error text an operator understands, "" when fine
+    extra: dict = field(default_factory=dict)   # driver-specific fields (feed, buffer, pins, ...)
+
+
+@runtime_checkable
+class MotionController(Protocol):
+    """What the scan engine and the GUI need from an axis controller. All methods block; every
+    wait has a timeout and raises :class:`lfstudio.errors.DeviceError` subclasses on failure."""
+
+    config: RigConfig
+
+    def connect(self) -> None: ...
+    def disconnect(self) -> None: ...
+    def home(self) -> None: ...
+    def set_origin(self) -> None: ...
+    def move_to(self, x_mm: float, y_mm: float, timeout_s: float | None = None) -> RigStatus:
+        """Move to the absolute target and return once Idle *and* at the target within tolerance."""
+        ...
+    def jog(self, dx_mm: float, dy_mm: float, speed_mm_s: float | None = None) -> None: ...
+    def jog_cancel(self) -> None: ...
+    def feed_hold(self) -> None: ...
+    def resume(self) -> None: ...
+    def stop(self) -> None:
+        """Stop all motion now (hold + jog cancel, then reset if needed). Safe from any thread."""
+        ...
+    def reset(self) -> None: ...
+    def status(self) -> RigStatus: ...
