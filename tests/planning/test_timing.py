@@ -1,0 +1,22 @@
+import math
+
+import pytest
+
+from lfstudio.planning.optics import move_time_s, view_period_s
+
+
+def test_triangular_move():
+    # 4 mm at 500 mm/s² never reaches 200 mm/s: t = 2 sqrt(d/a)
+    assert move_time_s(4, 200, 500) == pytest.approx(2 * math.sqrt(4 / 500))
+
+
+def test_trapezoidal_move():
+    # 1000 mm: 0.4 s ramp up, 0.4 s down (80 mm each way), 920 mm at 200 mm/s
+    assert move_time_s(1000, 200, 500) == pytest.approx(0.8 + 920 / 200)
+    assert move_time_s(-1000, 200, 500) == move_time_s(1000, 200, 500)
+    assert move_time_s(0, 200, 500) == 0
+
+
+def test_view_period_transfer_overlaps_move():
+    assert view_period_s(0.18, 0.3, 0.5, 2.5) == pytest.approx(3.0)
+    assert view_period_s(3.0, 0.3, 0.5, 2.5) == pytest.approx(3.8)
