@@ -1,0 +1,153 @@
+"""Qt adapter over :class:`lfstudio.rig.worker.DeviceWorker`: device calls and snapshots as signals.
+
+Every signal is delivered on the GUI thread (queued), so slots may touch widgets::
+
+    device = QtDevice(DeviceWorker(controller, name="rig"))
+    device.statusChanged.connect(panel.show_status)
+    device.errorOccurred.connect(panel.show_error)
+    device.run("move_to", 10.0, 5.0, on_result=lambda status: ..., on_error=lambda text: ...)
+    device.stop_now()          # bypasses the queue, runs on the calling (GUI) thread
+"""
+
+from __future__ import annotations
+
+import logging
+import traceback
+from concurrent.futures import CancelledError, Future
+from typing import Any, Callable
+
+from PySide6.QtCore import QObject, Qt, Signal, Slot
+
+from lfstudio.errors import LfError
+from lfstudio.rig.worker import DeviceWorker, DeviceFault
+
+log = logging.getLogger(__name__)
+
+
+def error_text(exc: BaseException) -> str:
+    """The message an operator reads for an exception from a device call."""
+    if isinstance(exc, LfError):
+        return str(exc)
+    if isinstance(exc, CancelledError):
+        return "cancelled"
+    traceback.print_exception(exc)
+    return f"Unexpected error: {type(exc).__name__}: {exc}"
+
+
+class QtDevice(QObject):
+    """Signals (all on the GUI thread):
+
+    - ``statusChanged(snapshot)``: the driver's status (rate-bounded by the worker)
+    - ``faultOccurred(str)``: the status call itself failed (e.g. connection lost)
+    - ``callStarted(str)`` / ``callFinished(str, result)`` / ``callFailed(str, message)``
+    - ``errorOccurred(str)``: any call failed (operator message)
+    - ``busyChanged(bool)``: calls are running or queued
+    """
+
+    statusChanged = Signal(object)
+    faultOccurred = Signal(str)
+    callStarted = Signal(str)
+    callFinished = Signal(str, object)
+    callFailed = Signal(str, str)
+    errorOccurred = Signal(str)
+    busyChanged = Signal(bool)
+    _deliver = Signal(object)   # a zero-argument callable to run on the GUI thread
+
+    def __init__(self, worker: DeviceWorker, parent: QObject | None = None):
+        super().__init__(parent)
+        self.worker = worker
+        self._pending = 0
+        self._closed = False
+        self._deliver.connect(self._run_delivered, Qt.QueuedConnection)
+        self._unsubscribe = worker.subscribe(self._on_snapshot)
+
+    @property
+    def name(self) -> str:
+        return self.worker.name
+
+    @property
+    def driver(self) -> Any:
+        return self.worker.driver
+
+    @property
+    def latest(self) -> Any:
+        return self.worker.latest
+
+    # -- worker thread -> GUI thread ---------------------------------------------------------------
+    def _post(self, fn: Callable[[], None]) -> None:
+        if not self._closed:
+            self._deliver.emit(fn)
+
+    @Slot(object)
+    def _run_delivered(self, fn: Callable[[], None]) -> None:
+        try:
+            fn()
+        except Exception:
+            log.exception("%s: GUI callback failed", self.name)
+
+    def _on_snapshot(self, snapshot: Any) -> None:
+        def deliver() -> None:
+            if isinstance(snapshot, DeviceFault):
+                self.faultOccurred.emit(snapshot.message)
+            self.statusChanged.emit(snapshot)
+        self._post(deliver)
+
+    # -- calls -------------------------------------------------------------------------------------
+    def run(self, fn_or_name: str | Callable[..., Any], *args: Any, timeout_s: float | None = None,
+            on_result: Callable[[Any], None] | None = None, on_error: Callable[[str], None] | None = None,
+            **kwargs: Any) -> Future:
+        """Submit a driver call; its result/error arrive as signals (and the optional callbacks)
+        on the GUI thread. Returns the Future (do not block on it from the GUI thread)."""
+        name = fn_or_name if isinstance(fn_or_name, str) else getattr(fn_or_name, "__name__", "call")
+        future = self.worker.submit(fn_or_name, *args, timeout_s=timeout_s, **kwargs)
+        self._pending += 1
+        if self._pending == 1:
+            self.busyChanged.emit(True)
+        self.callStarted.emit(name)
+
+        def done(fut: Future) -> None:
+            try:
+                result = fut.result()
+            except BaseException as exc:  # noqa: BLE001
+                message = error_text(exc)
+
+                def failed() -> None:
+                    self._call_done()
+                    self.callFailed.emit(name, message)
+                    self.errorOccurred.emit(message)
+                    if on_error is not None:
+                        on_error(message)
+                self._post(failed)
+            else:
+                def finished() -> None:
+                    self._call_done()
+                    self.callFinished.emit(name, result)
+                    if on_result is not None:
+                        on_result(result)
+                self._post(finished)
+
+        future.add_done_callback(done)
+        return future
+
+    def _call_done(self) -> None:
+        self._pending = max(0, self._pending - 1)
+        if self._pending == 0:
+            self.busyChanged.emit(False)
+
+    @property
+    def busy(self) -> bool:
+        return self._pending > 0
+
+    def stop_now(self) -> None:
+        """STOP: the driver's stop() right now on this thread; queued calls fail."""
+        try:
+            self.worker.stop_now()
+        except Exception as exc:  # noqa: BLE001 - show it, the operator must know STOP failed
+            self.errorOccurred.emit(f"STOP failed: {error_text(exc)}")
+
+    def close(self, disconnect: bool = True) -> None:
+        if self._closed:
+            return
+        self._unsubscribe()
+        self.worker.close(disconnect=disconnect)
+        self._closed = True

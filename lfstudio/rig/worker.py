@@ -1,0 +1,303 @@
+"""One generic threaded worker for every device driver (axis controller, camera, ...).
+
+A driver is a plain synchronous object; :class:`DeviceWorker` runs its methods in order on one
+thread and hands back :class:`concurrent.futures.Future` objects::
+
+    worker = DeviceWorker(controller, name="rig")
+    fut = worker.submit("move_to", 100.0, 20.0, timeout_s=60)   # returns at once
+    status = worker.call("status")                               # submit + wait for the result
+    worker.subscribe(lambda snapshot: ...)                       # status snapshots, rate-bounded
+    worker.stop_now()                                            # driver.stop() on *this* thread
+    worker.close()
+
+Contract:
+
+- Calls run one at a time, in submission order, on the worker thread.
+- ``timeout_s``: when a call runs longer, its future fails with a :class:`DeviceError` naming the
+  command. The driver call itself cannot be interrupted; the queue moves on when it returns.
+- ``stop_now()`` calls ``driver.stop()`` on the caller's thread (never queued) and fails every call
+  still waiting in the queue ("cancelled by STOP").
+- Snapshots: the result of ``driver.<status_method>()``, or ``error_snapshot(message)`` when that
+  raises, are passed to subscribers at most ``publish_hz`` times per second. The worker polls
+  while idle. While a long call runs, a driver may report fresher snapshots itself by calling the
+  ``status_listener`` attribute the worker sets on it (if the driver has such an attribute).
+- Subscriber callbacks run on the worker thread and must be quick; the Qt adapter
+  (:mod:`lfstudio.gui.devices`) turns them into queued signals.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from concurrent.futures import Future, InvalidStateError
+from dataclasses import dataclass
+from typing import Any, Callable
+
+from lfstudio.errors import DeviceError, LfError
+
+log = logging.getLogger(__name__)
+
+Subscriber = Callable[[Any], None]
+
+
+@dataclass(frozen=True)
+class DeviceFault:
+    """The generic snapshot published when a driver's status call fails."""
+
+    device: str
+    message: str
+
+
+@dataclass
+class _Call:
+    name: str
+    fn: Callable[..., Any]
+    args: tuple
+    kwargs: dict
+    future: Future
+    timeout_s: float | None
+
+
+_CLOSE = object()
+
+
+def describe_call(name: str, args: tuple, kwargs: dict) -> str:
+    """``move_to(10, 5)`` style text for messages."""
+    parts = [_short(a) for a in args] + [f"{k}={_short(v)}" for k, v in kwargs.items()]
+    return f"{name}({', '.join(parts)})"
+
+
+def _short(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:g}"
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+class DeviceWorker:
+    """Runs one driver's calls on one thread; see the module docstring for the contract."""
+
+    def __init__(self, driver: Any, name: str | None = None, status_method: str | None = "status",
+                 publish_hz: float = 10.0,
+                 error_snapshot: Callable[[str], Any] | None = None,
+                 stop_method: str = "stop"):
+        if publish_hz <= 0:
+            raise ValueError("publish_hz must be positive")
+        self.driver = driver
+        self.name = name or type(driver).__name__
+        self.publish_hz = float(publish_hz)
+        self._status_method = status_method
+        self._stop_method = stop_method
+        self._error_snapshot = error_snapshot or (lambda message: DeviceFault(self.name, message))
+        self._queue: queue.Queue = queue.Queue()
+        self._subscribers: list[Subscriber] = []
+        self._sub_lock = threading.Lock()
+        self._publish_lock = threading.Lock()
+        self._last_publish = float("-inf")
+        self._pending: Any = None
+        self._has_pending = False
+        self._latest: Any = None
+        self._current: str | None = None
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name=f"device-{self.name}", daemon=True)
+        if hasattr(driver, "status_listener"):
+            try:
+                driver.status_listener = self._offer
+            except AttributeError:  # read-only property: the driver does not want it
+                pass
+        self._thread.start()
+
+    # -- calls -------------------------------------------------------------------------------------
+    def submit(self, fn_or_name: str | Callable[..., Any], *args: Any, timeout_s: float | None = None,
+               **kwargs: Any) -> Future:
+        """Queue ``driver.<name>(*args, **kwargs)`` (or ``fn(*args, **kwargs)``); returns its Future."""
+        if isinstance(fn_or_name, str):
+            fn = getattr(self.driver, fn_or_name, None)
+            if fn is None or not callable(fn):
+                raise AttributeError(f"{self.name}: the driver has no command {fn_or_name!r}")
+            name = fn_or_name
+        else:
+            fn = fn_or_name
+            name = getattr(fn, "__name__", "call")
+        future: Future = Future()
+        if self._closed:
+            future.set_exception(DeviceError(f"{self.name}: {name} refused: the device connection is closed"))
+            return future
+        self._queue.put(_Call(name, fn, args, kwargs, future, timeout_s))
+        return future
+
+    def call(self, fn_or_name: str | Callable[..., Any], *args: Any, timeout_s: float | None = None,
+             **kwargs: Any) -> Any:
+        """Submit and wait for the result (raises the call's exception)."""
+        return self.submit(fn_or_name, *args, timeout_s=timeout_s, **kwargs).result()
+
+    def stop_now(self) -> None:
+        """Run ``driver.stop()`` on this thread, bypassing the queue; fail every queued call."""
+        self._drop_queued("cancelled by STOP")
+        stop = getattr(self.driver, self._stop_method, None)
+        if stop is not None:
+            stop()
+
+    @property
+    def busy(self) -> bool:
+        """True while a call runs or waits in the queue."""
+        return self._current is not None or not self._queue.empty()
+
+    @property
+    def current_command(self) -> str | None:
+        return self._current
+
+    @property
+    def latest(self) -> Any:
+        """The most recent snapshot (published or not), or None."""
+        return self._latest
+
+    # -- snapshots ---------------------------------------------------------------------------------
+    def subscribe(self, callback: Subscriber) -> Callable[[], None]:
+        """Receive snapshots (on the worker thread); returns a function that unsubscribes."""
+        with self._sub_lock:
+            self._subscribers.append(callback)
+
+        def unsubscribe() -> None:
+            with self._sub_lock:
+                if callback in self._subscribers:
+                    self._subscribers.remove(callback)
+        return unsubscribe
+
+    def _offer(self, snapshot: Any) -> None:
+        """Take a fresh snapshot; publish it now if the rate bound allows, else keep it pending."""
+        with self._publish_lock:
+            self._latest = snapshot
+            self._pending = snapshot
+            self._has_pending = True
+        self._flush()
+
+    def _flush(self, force: bool = False) -> None:
+        with self._publish_lock:
+            if not self._has_pending:
+                return
+            now = time.monotonic()
+            if not force and now - self._last_publish < 1.0 / self.publish_hz:
+                return
+            snapshot = self._pending
+            self._has_pending = False
+            self._pending = None
+            self._last_publish = now
+        with self._sub_lock:
+            subscribers = list(self._subscribers)
+        for callback in subscribers:
+            try:
+                callback(snapshot)
+            except Exception:  # a broken subscriber must not kill the device thread
+                log.exception("%s: snapshot subscriber failed", self.name)
+
+    def _poll_status(self) -> None:
+        if self._status_method is None:
+            return
+        method = getattr(self.driver, self._status_method, None)
+        if method is None:
+            return
+        try:
+            snapshot = method()
+        except Exception as exc:
+            snapshot = self._error_snapshot(_message(exc))
+        self._offer(snapshot)
+
+    # -- thread ------------------------------------------------------------------------------------
+    def _run(self) -> None:
+        period = 1.0 / self.publish_hz
+        next_poll = time.monotonic()
+        while True:
+            wait = max(0.0, next_poll - time.monotonic())
+            try:
+                item = self._queue.get(timeout=wait) if wait > 0 else self._queue.get_nowait()
+            except queue.Empty:
+                item = None
+            if item is _CLOSE:
+                return
+            if item is not None:
+                self._execute(item)
+                continue
+            # idle: poll the status at the publishing rate
+            self._poll_status()
+            self._flush()
+            next_poll = time.monotonic() + period
+
+    def _execute(self, call: _Call) -> None:
+        if not call.future.set_running_or_notify_cancel():
+            return
+        self._current = call.name
+        timer = None
+        if call.timeout_s is not None:
+            text = describe_call(call.name, call.args, call.kwargs)
+            timer = threading.Timer(call.timeout_s, _fail, args=(call.future, DeviceError(
+                f"{self.name}: {text} timed out after {call.timeout_s:g} s; "
+                "check the device's cable and power, then reconnect")))
+            timer.daemon = True
+            timer.start()
+        try:
+            result = call.fn(*call.args, **call.kwargs)
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
+            _fail(call.future, exc)
+        else:
+            try:
+                call.future.set_result(result)
+            except InvalidStateError:  # already failed by its timeout
+                pass
+        finally:
+            if timer is not None:
+                timer.cancel()
+            self._current = None
+        self._poll_status()
+        self._flush()
+
+    def _drop_queued(self, reason: str) -> None:
+        while True:
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            if item is _CLOSE:
+                self._queue.put(_CLOSE)
+                return
+            _fail(item.future, DeviceError(f"{self.name}: {describe_call(item.name, item.args, item.kwargs)} "
+                                           f"{reason}"))
+
+    def close(self, disconnect: bool = True, timeout_s: float = 10.0) -> None:
+        """Fail queued calls, optionally run ``driver.disconnect()`` last, and end the thread."""
+        if self._closed:
+            return
+        self._closed = True
+        self._drop_queued("cancelled: the device connection is closing")
+        if disconnect and hasattr(self.driver, "disconnect"):
+            fut: Future = Future()
+            self._queue.put(_Call("disconnect", self.driver.disconnect, (), {}, fut, None))
+        self._queue.put(_CLOSE)
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout_s)
+        if hasattr(self.driver, "status_listener"):
+            try:
+                self.driver.status_listener = None
+            except AttributeError:
+                pass
+
+    def __enter__(self) -> "DeviceWorker":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def _fail(future: Future, exc: BaseException) -> None:
+    try:
+        future.set_exception(exc)
+    except InvalidStateError:
+        pass
+
+
+def _message(exc: BaseException) -> str:
+    if isinstance(exc, LfError):
+        return str(exc)
+    return f"{type(exc).__name__}: {exc}"

@@ -1,0 +1,57 @@
+"""QtDevice: worker results, errors and snapshots arrive as signals on the GUI thread."""
+
+from __future__ import annotations
+
+import threading
+
+from PySide6.QtCore import QThread
+
+from lfstudio.errors import DeviceError
+from lfstudio.gui.devices import QtDevice
+from lfstudio.rig.worker import DeviceWorker
+
+
+class Driver:
+    def __init__(self):
+        self.stopped = False
+
+    def add(self, a, b):
+        return a + b
+
+    def fail(self):
+        raise DeviceError("rig: alarm 1, hard limit")
+
+    def status(self):
+        return {"thread": threading.current_thread().name}
+
+    def stop(self):
+        self.stopped = True
+
+
+def test_signals_on_gui_thread(qtbot):
+    device = QtDevice(DeviceWorker(Driver(), name="d", publish_hz=50))
+    gui_thread = QThread.currentThread()
+    seen = {}
+
+    def on_status(snapshot):
+        seen["status_thread"] = QThread.currentThread() is gui_thread
+        seen["status"] = snapshot
+
+    device.statusChanged.connect(on_status)
+    results = []
+    with qtbot.waitSignal(device.callFinished, timeout=5000) as blocker:
+        device.run("add", 2, 3, on_result=lambda r: results.append((r, QThread.currentThread() is gui_thread)))
+    assert blocker.args == ["add", 5]
+    assert results == [(5, True)]
+    qtbot.waitUntil(lambda: "status" in seen, timeout=5000)
+    assert seen["status_thread"] and seen["status"]["thread"] == "device-d"
+
+    errors = []
+    with qtbot.waitSignal(device.errorOccurred, timeout=5000) as blocker:
+        device.run("fail", on_error=errors.append)
+    assert "hard limit" in blocker.args[0] and errors == [blocker.args[0]]
+    assert not device.busy
+
+    device.stop_now()
+    assert device.driver.stopped
+    device.close()

@@ -1,0 +1,157 @@
+"""DeviceWorker: order, timeouts, STOP bypass, rate-bounded snapshots, any driver."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from lfstudio.errors import DeviceError
+from lfstudio.rig.worker import DeviceFault, DeviceWorker
+
+
+class Recorder:
+    """A plain synchronous driver that records what ran on which thread."""
+
+    def __init__(self):
+        self.log: list[tuple[str, object]] = []
+        self.threads: set[str] = set()
+        self.release = threading.Event()
+        self.entered = threading.Event()
+        self.stopped = threading.Event()
+        self.stop_thread: str | None = None
+        self.polls = 0
+        self.fail_status = False
+
+    def do(self, value):
+        self.threads.add(threading.current_thread().name)
+        self.log.append(("do", value))
+        return value * 2
+
+    def block(self):
+        self.entered.set()
+        self.release.wait(10)
+        self.log.append(("block", None))
+        return "released"
+
+    def boom(self):
+        raise DeviceError("axis X: cable unplugged")
+
+    def stop(self):
+        self.stop_thread = threading.current_thread().name
+        self.stopped.set()
+        self.release.set()
+
+    def status(self):
+        self.polls += 1
+        if self.fail_status:
+            raise DeviceError("no answer")
+        return {"polls": self.polls}
+
+
+@pytest.fixture
+def worker():
+    driver = Recorder()
+    w = DeviceWorker(driver, name="rec", publish_hz=20)
+    yield w
+    driver.release.set()
+    w.close()
+
+
+def test_calls_run_in_order_on_one_thread(worker):
+    futures = [worker.submit("do", i) for i in range(50)]
+    assert [f.result(5) for f in futures] == [2 * i for i in range(50)]
+    assert [v for k, v in worker.driver.log] == list(range(50))
+    assert worker.driver.threads == {"device-rec"}
+    assert worker.call(lambda a, b=0: a + b, 3, b=4) == 7
+
+
+def test_driver_errors_reach_the_future(worker):
+    with pytest.raises(DeviceError, match="cable unplugged"):
+        worker.call("boom")
+    assert worker.call("do", 1) == 2  # the worker survives
+    with pytest.raises(AttributeError, match="no command 'fly'"):
+        worker.submit("fly")
+
+
+def test_timeout_fails_future_naming_command_and_queue_moves_on_after_return(worker):
+    slow = worker.submit("block", timeout_s=0.05)
+    after = worker.submit("do", 21)
+    with pytest.raises(DeviceError, match=r"block\(\) timed out after 0.05 s"):
+        slow.result(5)
+    assert not after.done()  # the driver has not returned yet: the queue waits
+    worker.driver.release.set()
+    assert after.result(5) == 42
+    assert worker.driver.log == [("block", None), ("do", 21)]
+
+
+def test_stop_now_bypasses_queue_and_drops_queued_calls(worker):
+    running = worker.submit("block")
+    assert worker.driver.entered.wait(5)
+    queued = [worker.submit("do", i) for i in range(3)]
+    worker.stop_now()
+    assert worker.driver.stop_thread == threading.current_thread().name
+    assert running.result(5) == "released"
+    for f in queued:
+        with pytest.raises(DeviceError, match="cancelled by STOP"):
+            f.result(5)
+    assert ("do", 0) not in worker.driver.log
+    assert worker.call("do", 5) == 10  # usable again after STOP
+
+
+def test_snapshots_are_rate_bounded_and_polled_while_idle():
+    driver = Recorder()
+    w = DeviceWorker(driver, name="rate", publish_hz=10)
+    times: list[float] = []
+    got = threading.Event()
+
+    def on_snapshot(snapshot):
+        times.append(time.monotonic())
+        if len(times) >= 4:
+            got.set()
+    w.subscribe(on_snapshot)
+    # a driver pushing snapshots far faster than the bound
+    for i in range(2000):
+        w._offer({"pushed": i})
+    assert got.wait(5)
+    w.close()
+    gaps = [b - a for a, b in zip(times, times[1:])]
+    assert min(gaps) >= 0.1 - 0.01   # never faster than publish_hz
+    assert driver.polls >= 1         # idle polling happened
+
+
+def test_failing_status_publishes_generic_fault():
+    driver = Recorder()
+    driver.fail_status = True
+    w = DeviceWorker(driver, name="flaky", publish_hz=50)
+    seen = []
+    ev = threading.Event()
+    w.subscribe(lambda s: (seen.append(s), ev.set()))
+    assert ev.wait(5)
+    w.close()
+    assert isinstance(seen[0], DeviceFault) and "no answer" in seen[0].message and seen[0].device == "flaky"
+
+
+def test_status_listener_hook_and_close():
+    class Pushing:
+        status_listener = None
+
+        def work(self):
+            for i in range(3):
+                self.status_listener({"step": i})
+            return "done"
+
+        def disconnect(self):
+            self.disconnected = True
+
+    driver = Pushing()
+    w = DeviceWorker(driver, name="push", status_method=None, publish_hz=1000)
+    seen = []
+    w.subscribe(seen.append)
+    assert w.call("work") == "done"
+    assert {"step": 0} in seen
+    w.close()
+    assert driver.disconnected and driver.status_listener is None
+    with pytest.raises(DeviceError, match="closed"):
+        w.call("work")
