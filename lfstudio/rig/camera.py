@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+import inspect
+from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -36,12 +37,27 @@ class Camera(Protocol):
         """Current settings, e.g. {"iso": 100, "shutter_s": 0.5, "aperture": 16, "format": "RAW"}."""
         ...
     def set_setting(self, name: str, value: Any) -> None: ...
-    def capture(self, stem_path: Path) -> CaptureResult:
+    def capture(self, stem_path: Path, on_exposed: Callable[[], None] | None = None) -> CaptureResult:
         """Take one picture and store it as ``stem_path`` + the driver's suffix (e.g. ``.dng``).
 
         The file is complete (size checked) and atomically in place when this returns.
+
+        ``on_exposed`` (optional keyword): the driver calls it once, from the calling thread, as soon
+        as the shutter has closed, before the download/transfer. The scan engine uses it to start
+        the next move while the file is still transferring (pipelined scan). A driver that cannot
+        tell may call it just before returning; drivers written before this keyword existed simply
+        lack it and the engine waits for ``capture`` to return.
         """
         ...
     def preview(self) -> np.ndarray | None:
         """A live-view frame (H x W x 3 uint8) or None when the camera has none."""
         ...
+
+
+def supports_on_exposed(camera: Any) -> bool:
+    """True when ``camera.capture`` accepts the ``on_exposed`` keyword (pipelined transfer)."""
+    try:
+        params = inspect.signature(camera.capture).parameters
+    except (TypeError, ValueError):
+        return False
+    return "on_exposed" in params or any(p.kind is p.VAR_KEYWORD for p in params.values())

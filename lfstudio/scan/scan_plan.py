@@ -1,0 +1,229 @@
+"""The scan plan: which grid positions, where in the rig's travel, in which order. Pure data.
+
+Rows and columns count from 0; row 0 is the top row (y = origin_y), column 0 the leftmost
+(x = origin_x). View (row r, column c) is commanded to
+``(origin_x + c * spacing_x, origin_y + r * spacing_y)`` in mm in the rig's frame.
+
+Orders:
+
+* ``row-meander`` (default): row 0 left→right, row 1 right→left, ... (the paper's meander);
+* ``column-meander``: column 0 top→bottom, column 1 bottom→top, ...;
+* ``raster``: every row left→right.
+
+A plan may be restricted to a ``subset`` of grid cells (re-capture, resume); the order of the
+remaining views is the order of the full grid with the others left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any, Iterable
+
+from lfstudio.errors import InputError
+from lfstudio.rig.motion import RigConfig
+
+ORDERS = ("row-meander", "column-meander", "raster")
+DEFAULT_ORDER = "row-meander"
+
+
+@dataclass(frozen=True)
+class PlannedView:
+    """One position of the scan, in capture order (``index`` counts from 0 over the plan's views)."""
+
+    index: int
+    row: int
+    column: int
+    x_mm: float
+    y_mm: float
+
+    @property
+    def position_mm(self) -> tuple[float, float]:
+        return (self.x_mm, self.y_mm)
+
+    @property
+    def cell(self) -> tuple[int, int]:
+        return (self.row, self.column)
+
+
+def grid_order(columns: int, rows: int, order: str = DEFAULT_ORDER) -> list[tuple[int, int]]:
+    """Every ``(row, column)`` of a ``columns`` x ``rows`` grid in capture ``order``."""
+    if order == "row-meander":
+        return [(r, c if r % 2 == 0 else columns - 1 - c) for r in range(rows) for c in range(columns)]
+    if order == "column-meander":
+        return [(r if c % 2 == 0 else rows - 1 - r, c) for c in range(columns) for r in range(rows)]
+    if order == "raster":
+        return [(r, c) for r in range(rows) for c in range(columns)]
+    raise InputError("order", f"unknown scan order {order!r}", ", ".join(ORDERS))
+
+
+@dataclass(frozen=True)
+class ScanPlan:
+    """A grid of camera positions and the order to visit them."""
+
+    columns: int
+    rows: int
+    spacing_mm: tuple[float, float]            # (horizontal, vertical) distance between neighbours
+    origin_mm: tuple[float, float] = (0.0, 0.0)   # position of view (row 0, column 0)
+    order: str = DEFAULT_ORDER
+    settle_s: float = 0.3
+    subset: frozenset[tuple[int, int]] | None = field(default=None)   # (row, column) cells; None: all
+
+    def __post_init__(self) -> None:
+        for name, val in (("grid columns", self.columns), ("grid rows", self.rows)):
+            if not isinstance(val, int) or isinstance(val, bool) or val < 1:
+                raise InputError(name, f"must be a positive whole number, got {val!r}", "1 or more")
+        sx, sy = (float(v) for v in self.spacing_mm)
+        if self.columns > 1 and not sx > 0:
+            raise InputError("horizontal spacing_mm", f"must be positive, got {sx:g}", "> 0 mm")
+        if self.rows > 1 and not sy > 0:
+            raise InputError("vertical spacing_mm", f"must be positive, got {sy:g}", "> 0 mm")
+        if self.order not in ORDERS:
+            raise InputError("order", f"unknown scan order {self.order!r}", ", ".join(ORDERS))
+        if not self.settle_s >= 0:
+            raise InputError("settle_s", f"must be zero or positive, got {self.settle_s!r}", ">= 0 s")
+        object.__setattr__(self, "spacing_mm", (sx, sy))
+        object.__setattr__(self, "origin_mm", (float(self.origin_mm[0]), float(self.origin_mm[1])))
+        if self.subset is not None:
+            cells = frozenset((int(r), int(c)) for r, c in self.subset)
+            bad = sorted(rc for rc in cells if not (0 <= rc[0] < self.rows and 0 <= rc[1] < self.columns))
+            if bad:
+                raise InputError("subset", f"view row {bad[0][0]}, column {bad[0][1]} is outside the "
+                                 f"{self.columns} x {self.rows} grid",
+                                 f"rows 0-{self.rows - 1}, columns 0-{self.columns - 1}")
+            object.__setattr__(self, "subset", cells)
+
+    # -- construction -------------------------------------------------------------------------------
+    @classmethod
+    def centered(cls, columns: int, rows: int, spacing_mm: tuple[float, float], rig: RigConfig, *,
+                 offset_mm: tuple[float, float] = (0.0, 0.0), order: str = DEFAULT_ORDER,
+                 settle_s: float | None = None, subset: Iterable[tuple[int, int]] | None = None,
+                 check: bool = True) -> "ScanPlan":
+        """A grid centred in the rig's soft-limit range, shifted by ``offset_mm``; checked against
+        the limits (raises :class:`InputError` naming the field) unless ``check`` is False."""
+        h, v = rig.horizontal, rig.vertical
+        sx, sy = float(spacing_mm[0]), float(spacing_mm[1])
+        x0 = (h.soft_min_mm + h.soft_max_mm) / 2 - (columns - 1) * sx / 2 + float(offset_mm[0])
+        y0 = (v.soft_min_mm + v.soft_max_mm) / 2 - (rows - 1) * sy / 2 + float(offset_mm[1])
+        if settle_s is None:
+            settle_s = max(h.settle_s, v.settle_s)
+        plan = cls(columns, rows, (sx, sy), (x0, y0), order, float(settle_s),
+                   None if subset is None else frozenset(subset))
+        if check:
+            plan.check_limits(rig)
+        return plan
+
+    @classmethod
+    def from_scene_plan(cls, scene_plan: Any, rig: RigConfig, *, order: str | None = None,
+                        offset_mm: tuple[float, float] = (0.0, 0.0), settle_s: float | None = None) -> "ScanPlan":
+        """The scan of a planner plan (``lfstudio.planning.scene_plan.ScenePlan`` or its grid dict):
+        its grid and spacing centred in the rig's travel."""
+        grid = scene_plan.grid_dict() if hasattr(scene_plan, "grid_dict") else dict(scene_plan)
+        try:
+            columns, rows = int(grid["columns"]), int(grid["rows"])
+            spacing = tuple(float(s) for s in grid["spacing_mm"])
+        except (KeyError, TypeError, ValueError):
+            raise InputError("plan grid", "needs columns, rows and spacing_mm [h, v]") from None
+        if settle_s is None:
+            settle_s = grid.get("settle_s")
+        return cls.centered(columns, rows, spacing, rig, offset_mm=offset_mm,
+                            order=order or grid.get("order") or DEFAULT_ORDER, settle_s=settle_s)
+
+    @classmethod
+    def from_grid_dict(cls, grid: dict[str, Any]) -> "ScanPlan":
+        """The inverse of :meth:`grid_dict` (a dataset manifest's ``grid``)."""
+        try:
+            return cls(int(grid["columns"]), int(grid["rows"]), tuple(grid["spacing_mm"]),
+                       tuple(grid.get("origin_mm", (0.0, 0.0))), grid.get("order", DEFAULT_ORDER),
+                       float(grid.get("settle_s", 0.3)))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError("grid", f"incomplete grid description ({exc})",
+                             "columns, rows, spacing_mm, origin_mm, order") from None
+
+    def with_subset(self, cells: Iterable[tuple[int, int]] | None) -> "ScanPlan":
+        return replace(self, subset=None if cells is None else frozenset(cells))
+
+    # -- queries ---------------------------------------------------------------------------------
+    @property
+    def total_cells(self) -> int:
+        return self.columns * self.rows
+
+    def position_mm(self, row: int, column: int) -> tuple[float, float]:
+        return (self.origin_mm[0] + column * self.spacing_mm[0], self.origin_mm[1] + row * self.spacing_mm[1])
+
+    def extent_mm(self) -> tuple[float, float, float, float]:
+        """``(x_min, x_max, y_min, y_max)`` of the full grid."""
+        x0, y0 = self.origin_mm
+        return (x0, x0 + (self.columns - 1) * self.spacing_mm[0], y0, y0 + (self.rows - 1) * self.spacing_mm[1])
+
+    def views(self) -> list[PlannedView]:
+        """The plan's views in capture order, with their commanded positions."""
+        cells = grid_order(self.columns, self.rows, self.order)
+        if self.subset is not None:
+            cells = [rc for rc in cells if rc in self.subset]
+        return [PlannedView(i, r, c, *self.position_mm(r, c)) for i, (r, c) in enumerate(cells)]
+
+    def __len__(self) -> int:
+        return self.total_cells if self.subset is None else len(self.subset)
+
+    def path_mm(self) -> list[tuple[float, float]]:
+        """The commanded positions in order (for drawing the path preview)."""
+        return [v.position_mm for v in self.views()]
+
+    def check_limits(self, rig: RigConfig) -> None:
+        """Raise :class:`InputError` naming the field if any position lies outside the soft limits."""
+        x_min, x_max, y_min, y_max = self.extent_mm()
+        h, v = rig.horizontal, rig.vertical
+        width = (self.columns - 1) * self.spacing_mm[0]
+        height = (self.rows - 1) * self.spacing_mm[1]
+        if width > h.soft_max_mm - h.soft_min_mm + 1e-9:
+            raise InputError("grid columns / horizontal spacing_mm",
+                             f"{self.columns} columns x {self.spacing_mm[0]:g} mm span {width:g} mm, more than "
+                             f"the {h.soft_max_mm - h.soft_min_mm:g} mm horizontal travel of {rig.label or rig.name}",
+                             f"at most {int((h.soft_max_mm - h.soft_min_mm) // max(self.spacing_mm[0], 1e-9)) + 1} "
+                             "columns at this spacing")
+        if height > v.soft_max_mm - v.soft_min_mm + 1e-9:
+            raise InputError("grid rows / vertical spacing_mm",
+                             f"{self.rows} rows x {self.spacing_mm[1]:g} mm span {height:g} mm, more than "
+                             f"the {v.soft_max_mm - v.soft_min_mm:g} mm vertical travel of {rig.label or rig.name}",
+                             f"at most {int((v.soft_max_mm - v.soft_min_mm) // max(self.spacing_mm[1], 1e-9)) + 1} "
+                             "rows at this spacing")
+        if not (h.contains(x_min, 1e-6) and h.contains(x_max, 1e-6)):
+            raise InputError("horizontal origin/offset_mm",
+                             f"the grid spans x = {x_min:g} … {x_max:g} mm, outside the horizontal soft limits",
+                             f"{h.soft_min_mm:g} … {h.soft_max_mm:g} mm")
+        if not (v.contains(y_min, 1e-6) and v.contains(y_max, 1e-6)):
+            raise InputError("vertical origin/offset_mm",
+                             f"the grid spans y = {y_min:g} … {y_max:g} mm, outside the vertical soft limits",
+                             f"{v.soft_min_mm:g} … {v.soft_max_mm:g} mm")
+
+    def grid_dict(self) -> dict[str, Any]:
+        """The manifest's ``grid`` object."""
+        return {"columns": self.columns, "rows": self.rows, "spacing_mm": list(self.spacing_mm),
+                "origin_mm": list(self.origin_mm), "order": self.order, "settle_s": self.settle_s}
+
+    def move_distances_mm(self) -> list[tuple[float, float]]:
+        """(|dx|, |dy|) of each move between consecutive views (len = views - 1)."""
+        path = self.path_mm()
+        return [(abs(b[0] - a[0]), abs(b[1] - a[1])) for a, b in zip(path, path[1:])]
+
+    def estimate_duration_s(self, rig: RigConfig, exposure_s: float, transfer_s: float,
+                            pipelined: bool = True) -> float:
+        """Critical-path duration of the scan: per view, the longer axis move + settle, exposure and
+        (pipelined) the transfer overlapping the next move and settle."""
+        from lfstudio.planning.optics import move_time_s, view_period_s
+
+        moves = [0.0] + [max(move_time_s(dx, rig.horizontal.max_speed_mm_s, rig.horizontal.acceleration_mm_s2),
+                             move_time_s(dy, rig.vertical.max_speed_mm_s, rig.vertical.acceleration_mm_s2))
+                         for dx, dy in self.move_distances_mm()]
+        if not moves[1:] and len(self) == 0:
+            return 0.0
+        if not pipelined:
+            return sum(m + self.settle_s + exposure_s + transfer_s for m in moves)
+        # the first move+settle is not overlapped; the last transfer is not either
+        total = 0.0
+        for i, m in enumerate(moves):
+            if i == 0:
+                total += m + self.settle_s + exposure_s
+            else:
+                total += view_period_s(m, self.settle_s, exposure_s, transfer_s)
+        return total + transfer_s
