@@ -1,0 +1,141 @@
+"""Crash safety of a dataset folder: the journal, checksums, free disk space, crash leftovers.
+
+The journal ``journal.jsonl`` holds one line per finished view, appended and fsync'd before the
+view counts as captured::
+
+    {"seq": 17, "row": 0, "column": 16, "set": {"status": "done", "file": "raw/r00_c016.dng", ...}}
+
+``seq`` grows by one per line. The manifest records the last sequence number it already contains
+(``journal_seq``); opening a dataset replays the lines after it, so a ``kill -9`` between a journal
+line and the next manifest save loses nothing. A torn last line (the process died while writing
+it) is ignored: its view was not finished. Saving the manifest folds the journal in and empties it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any, Iterator
+
+from lfstudio.dataset.atomic import is_temporary
+
+JOURNAL_NAME = "journal.jsonl"
+#: folders of a dataset that hold view files and may hold crash leftovers
+DATA_FOLDERS = ("", "raw", "thumbs", "processed")
+
+
+def read_journal(path: str | os.PathLike) -> tuple[list[dict[str, Any]], list[str]]:
+    """The journal's records in order and the problems found (torn or corrupt lines).
+
+    A torn *last* line is expected after a crash and not reported as a problem.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return [], []
+    records: list[dict[str, Any]] = []
+    problems: list[str] = []
+    data = path.read_bytes()
+    lines = data.split(b"\n")
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        last = i == len(lines) - 1   # no newline after it: the write did not finish
+        try:
+            rec = json.loads(line.decode("utf-8"))
+            if not (isinstance(rec, dict) and isinstance(rec.get("seq"), int) and isinstance(rec.get("row"), int)
+                    and isinstance(rec.get("column"), int) and isinstance(rec.get("set"), dict)):
+                raise ValueError("needs seq, row, column and set")
+        except (UnicodeDecodeError, ValueError) as exc:
+            if not last:
+                problems.append(f"{JOURNAL_NAME}: line {i + 1}: unreadable record ignored ({exc})")
+            continue
+        if last:
+            continue   # complete JSON but no newline: treat as torn too (its fsync never returned)
+        records.append(rec)
+    return records, problems
+
+
+class Journal:
+    """Append-only, fsync'd journal file. Not thread-safe on its own (the Dataset holds a lock)."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self._fh = None
+
+    def append(self, record: dict[str, Any]) -> None:
+        if self._fh is None:
+            self._repair_tail()
+            self._fh = open(self.path, "ab", buffering=0)
+        line = json.dumps(record, separators=(",", ":"), allow_nan=False).encode("utf-8") + b"\n"
+        self._fh.write(line)
+        os.fsync(self._fh.fileno())
+
+    def _repair_tail(self) -> None:
+        """Cut a torn last line so the next record starts on a line of its own."""
+        try:
+            data = self.path.read_bytes()
+        except FileNotFoundError:
+            return
+        if data and not data.endswith(b"\n"):
+            keep = data.rfind(b"\n") + 1
+            with open(self.path, "rb+") as fh:
+                fh.truncate(keep)
+                os.fsync(fh.fileno())
+
+    def clear(self) -> None:
+        """Empty the journal (after its records were folded into a saved manifest)."""
+        self.close()
+        if self.path.exists():
+            with open(self.path, "wb") as fh:
+                os.fsync(fh.fileno())
+
+    def close(self) -> None:
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
+
+
+def sha256_file(path: str | os.PathLike, chunk_bytes: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while True:
+            block = fh.read(chunk_bytes)
+            if not block:
+                break
+            h.update(block)
+    return h.hexdigest()
+
+
+def free_bytes(path: str | os.PathLike) -> int:
+    """Free space for an unprivileged writer on the file system holding ``path``."""
+    p = Path(path)
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return shutil.disk_usage(p).free
+
+
+def temporary_files(root: str | os.PathLike) -> Iterator[Path]:
+    """Temporary files left by an interrupted atomic write (``.NAME.XXXX.tmpSUFFIX``)."""
+    root = Path(root)
+    for sub in DATA_FOLDERS:
+        folder = root / sub if sub else root
+        if not folder.is_dir():
+            continue
+        for entry in folder.iterdir():
+            if entry.is_file() and is_temporary(entry):
+                yield entry
+
+
+def clean_temporary_files(root: str | os.PathLike) -> list[Path]:
+    """Delete crash leftovers; return what was removed."""
+    removed = []
+    for p in list(temporary_files(root)):
+        try:
+            p.unlink()
+            removed.append(p)
+        except FileNotFoundError:
+            pass
+    return removed
