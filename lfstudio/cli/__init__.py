@@ -17,6 +17,7 @@ from lfstudio.errors import InputError, LfError
 #: subcommand modules, in the order ``lfstudio --help`` lists them
 COMMANDS: list[str] = [
     "gui",
+    "plan",
 ]
 
 

@@ -1,0 +1,487 @@
+"""The scene plan: every input of SPEC "The optics" in one value, and everything it implies.
+
+``ScenePlan`` holds the inputs (units in the names); :meth:`ScenePlan.validate` rejects impossible
+input with an :class:`~lfstudio.errors.InputError` naming the field; :meth:`ScenePlan.derive`
+returns a :class:`PlanResult` with every output and the soft problems as :class:`PlanWarning`
+objects (each tied to the input field it concerns, so the GUI can show it next to that field).
+
+The depth-of-field figures use the thin-lens approximation H ≈ f²/(N·c) throughout, so that the
+aperture formula and the sharp-range formulas are exact inverses of each other (SPEC formulas
+(3)–(6)); the exact hyperfocal distance f + f²/(N·c) is larger by one focal length.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from lfstudio.errors import InputError
+from lfstudio.planning import optics
+
+PLAN_FORMAT = "lfstudio-plan"
+PLAN_VERSION = 1
+
+AXES = ("horizontal", "vertical")
+
+#: how each input is called on the command line (InputError names fields by their attribute name;
+#: the CLI translates with this table)
+CLI_OPTION = {
+    "camera_name": "--camera", "sensor_px": "--sensor-px", "sensor_mm": "--sensor-mm",
+    "pixel_pitch_um": "--pixel-pitch-um", "lens_name": "--lens", "focal_length_mm": "--focal-length-mm",
+    "near_m": "--near-m", "far_m": "--far-m", "coc_mm": "--coc-mm", "f_number": "--f-number",
+    "focus_m": "--focus-m", "grid_columns": "--grid", "grid_rows": "--grid", "spacing_mm": "--spacing-mm",
+    "rig_name": "--rig", "repeatability_um": "--repeatability-um", "travel_mm": "--travel-mm",
+    "max_speed_mm_s": "--max-speed-mm-s", "acceleration_mm_s2": "--acceleration-mm-s2",
+    "settle_s": "--settle-s", "exposure_s": "--exposure-s", "transfer_s": "--transfer-s",
+    "max_error_px": "--max-error-px", "max_disparity_px": "--max-disparity-px",
+    "target_parallax_fraction": "--parallax-fraction", "raw_bits": "--raw-bits",
+    "bytes_per_image": "--bytes-per-image",
+}
+
+
+@dataclass(frozen=True)
+class PlanWarning:
+    """A soft problem of a plan. ``field`` is the ScenePlan attribute it concerns; ``severity`` is
+    "error" (the plan cannot be run as is), "warning" (it runs, but misses a goal) or "info"."""
+
+    field: str
+    message: str
+    severity: str = "warning"
+
+    def to_dict(self) -> dict[str, str]:
+        return {"field": self.field, "message": self.message, "severity": self.severity}
+
+
+@dataclass(frozen=True)
+class ScenePlan:
+    """Inputs of a scene plan. Defaults are the paper's setup (see :func:`presets.reference_plan`).
+
+    Pairs are (horizontal, vertical), or (width, height) for sensors. ``pixel_pitch_um`` None means
+    "derive from sensor_mm / sensor_px"; ``f_number`` None means "use the aperture the scene needs";
+    ``focus_m`` None means "focus where the sharp range centres on the scene"; ``bytes_per_image``
+    None means "an uncompressed raw frame of ``raw_bits`` per pixel".
+    """
+
+    camera_name: str = "Sony A7R II (reference)"
+    sensor_px: tuple[int, int] = (7952, 5304)
+    sensor_mm: tuple[float, float] = (35.9, 24.0)
+    pixel_pitch_um: float | None = 4.53
+    lens_name: str = "50 mm (reference)"
+    focal_length_mm: float = 50.0
+    near_m: float = 1.77
+    far_m: float = 4.77
+    coc_mm: float = 0.029
+    f_number: float | None = None
+    focus_m: float | None = None
+    grid_columns: int = 101
+    grid_rows: int = 21
+    spacing_mm: tuple[float, float] = (4.0, 6.0)
+    rig_name: str = "Reference gantry"
+    repeatability_um: tuple[float, float] = (80.0, 50.0)
+    travel_mm: tuple[float, float] = (4000.0, 500.0)
+    max_speed_mm_s: tuple[float, float] = (200.0, 100.0)
+    acceleration_mm_s2: tuple[float, float] = (500.0, 300.0)
+    settle_s: float = 0.3
+    exposure_s: float = 0.5
+    transfer_s: float = 2.5
+    max_error_px: float = 0.5
+    max_disparity_px: float = 1.0
+    target_parallax_fraction: float | None = None
+    raw_bits: int = 14
+    bytes_per_image: int | None = None
+
+    # -- derived inputs ----------------------------------------------------------------------------
+    @property
+    def pixel_pitch_used_um(self) -> float:
+        """The pixel pitch the formulas use: the given one, else sensor width / pixels."""
+        if self.pixel_pitch_um is not None:
+            return float(self.pixel_pitch_um)
+        return self.sensor_mm[0] / self.sensor_px[0] * 1000.0
+
+    @property
+    def images(self) -> int:
+        return int(self.grid_columns) * int(self.grid_rows)
+
+    def replace(self, **changes: Any) -> "ScenePlan":
+        return dataclasses.replace(self, **changes)
+
+    # -- validation --------------------------------------------------------------------------------
+    def validate(self, check_travel: bool = True) -> None:
+        """Raise :class:`InputError` (field = attribute name, with the valid range) for the first
+        impossible input. With ``check_travel``, a grid wider than the rig's travel is one too."""
+        def number(name: str, value: Any, lo: float, hi: float, lo_open: bool = True,
+                   integer: bool = False) -> None:
+            valid = f"{'>' if lo_open else '≥'} {lo:g} and ≤ {hi:g}" + (", a whole number" if integer else "")
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise InputError(name, f"{value!r} is not a number", valid)
+            if integer and (not isinstance(value, int) and not float(value).is_integer()):
+                raise InputError(name, f"{value:g} is not a whole number", valid)
+            if not math.isfinite(value) or value > hi or value < lo or (lo_open and value == lo):
+                raise InputError(name, f"{value:g} is out of range", valid)
+
+        def pair(name: str, value: Any, lo: float, hi: float, lo_open: bool = True, integer: bool = False) -> None:
+            if not isinstance(value, (tuple, list)) or len(value) != 2:
+                raise InputError(name, f"{value!r} is not a pair", "two numbers: horizontal, vertical")
+            for v in value:
+                number(name, v, lo, hi, lo_open, integer)
+
+        pair("sensor_px", self.sensor_px, 0, 100_000, integer=True)
+        pair("sensor_mm", self.sensor_mm, 0, 200)
+        if self.pixel_pitch_um is not None:
+            number("pixel_pitch_um", self.pixel_pitch_um, 0.1, 100)
+        number("focal_length_mm", self.focal_length_mm, 1, 2000, lo_open=False)
+        number("near_m", self.near_m, 0, 10_000)
+        if self.near_m * 1000.0 <= 4.0 * self.focal_length_mm:
+            raise InputError("near_m", f"{self.near_m:g} m is too close for a {self.focal_length_mm:g} mm lens "
+                             "(the formulas assume distances much larger than the focal length)",
+                             f"> {4 * self.focal_length_mm / 1000:g} m (4 × focal length)")
+        number("far_m", self.far_m, 0, 10_000)
+        if self.far_m <= self.near_m:
+            raise InputError("far_m", f"{self.far_m:g} m is not beyond the near distance {self.near_m:g} m",
+                             f"> {self.near_m:g} m (the near distance) and ≤ 10000 m")
+        number("coc_mm", self.coc_mm, 0.001, 1, lo_open=False)
+        if self.f_number is not None:
+            number("f_number", self.f_number, 0.5, 128, lo_open=False)
+        if self.focus_m is not None:
+            number("focus_m", self.focus_m, 0, 10_000)
+            if self.focus_m * 1000.0 <= self.focal_length_mm:
+                raise InputError("focus_m", f"{self.focus_m:g} m is inside the focal length",
+                                 f"> {self.focal_length_mm / 1000:g} m")
+        number("grid_columns", self.grid_columns, 1, 100_000, lo_open=False, integer=True)
+        number("grid_rows", self.grid_rows, 1, 100_000, lo_open=False, integer=True)
+        pair("spacing_mm", self.spacing_mm, 0, 100_000)
+        pair("repeatability_um", self.repeatability_um, 0, 100_000, lo_open=False)
+        pair("travel_mm", self.travel_mm, 0, 1_000_000)
+        pair("max_speed_mm_s", self.max_speed_mm_s, 0, 100_000)
+        pair("acceleration_mm_s2", self.acceleration_mm_s2, 0, 1_000_000)
+        number("settle_s", self.settle_s, 0, 3600, lo_open=False)
+        number("exposure_s", self.exposure_s, 0, 3600, lo_open=False)
+        number("transfer_s", self.transfer_s, 0, 3600, lo_open=False)
+        number("max_error_px", self.max_error_px, 0, 100)
+        number("max_disparity_px", self.max_disparity_px, 0, 100_000)
+        if self.target_parallax_fraction is not None:
+            number("target_parallax_fraction", self.target_parallax_fraction, 0, 100)
+        number("raw_bits", self.raw_bits, 1, 64, lo_open=False, integer=True)
+        if self.bytes_per_image is not None:
+            number("bytes_per_image", self.bytes_per_image, 1, 1e12, lo_open=False, integer=True)
+        if check_travel:
+            problem = self.travel_problem()
+            if problem is not None:
+                raise InputError(*problem)
+
+    def travel_problem(self) -> tuple[str, str, str] | None:
+        """(field, message, valid) when the grid does not fit the rig's travel, else None."""
+        for i, (axis, count_field) in enumerate((("horizontal", "grid_columns"), ("vertical", "grid_rows"))):
+            count = int(getattr(self, count_field))
+            need = optics.baseline_mm(count, self.spacing_mm[i])
+            if need > self.travel_mm[i] + 1e-9:
+                most = int(math.floor(self.travel_mm[i] / self.spacing_mm[i] + 1e-9)) + 1
+                noun = "columns" if i == 0 else "rows"
+                return (count_field,
+                        f"{count} {noun} at {self.spacing_mm[i]:g} mm span {need:g} mm, beyond the "
+                        f"{self.travel_mm[i]:g} mm {axis} travel of the rig",
+                        f"≤ {most} {noun} at this spacing")
+        return None
+
+    # -- outputs -----------------------------------------------------------------------------------
+    def derive(self, check_travel: bool = True) -> "PlanResult":
+        """Validate and compute every output. Soft problems become ``PlanResult.warnings``."""
+        self.validate(check_travel=check_travel)
+        return _derive(self)
+
+    # -- files and manifests -----------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON- and TOML-safe dict (lists for pairs, unset optional values left out), versioned."""
+        out: dict[str, Any] = {"format": PLAN_FORMAT, "version": PLAN_VERSION}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if value is None:
+                continue
+            out[f.name] = list(value) if isinstance(value, tuple) else value
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], base: "ScenePlan | None" = None) -> "ScenePlan":
+        """The plan ``data`` describes (missing fields from ``base``, else the defaults). Raises
+        :class:`InputError` for a foreign format, a newer version or a field of the wrong shape."""
+        if not isinstance(data, dict):
+            raise InputError("plan", "is not a table of fields", "a plan file written by lfstudio")
+        fmt = data.get("format", PLAN_FORMAT)
+        if fmt != PLAN_FORMAT:
+            raise InputError("plan", f"format {fmt!r} is not a scene plan", f"format = {PLAN_FORMAT!r}")
+        version = data.get("version", PLAN_VERSION)
+        if not isinstance(version, int) or version > PLAN_VERSION:
+            raise InputError("plan", f"version {version!r} is newer than this lfstudio understands",
+                             f"version ≤ {PLAN_VERSION}")
+        base = base or cls()
+        changes: dict[str, Any] = {}
+        for f in dataclasses.fields(cls):
+            if f.name not in data:
+                continue
+            value = data[f.name]
+            current = getattr(base, f.name)
+            if isinstance(current, tuple) or f.name in _PAIR_FIELDS:
+                if not isinstance(value, (list, tuple)) or len(value) != 2:
+                    raise InputError(f.name, f"{value!r} is not a pair", "[horizontal, vertical]")
+                conv = int if f.name == "sensor_px" else float
+                try:
+                    value = (conv(value[0]), conv(value[1]))
+                except (TypeError, ValueError):
+                    raise InputError(f.name, f"{value!r} is not a pair of numbers", "[horizontal, vertical]")
+            elif f.name in ("camera_name", "lens_name", "rig_name"):
+                value = str(value)
+            elif isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise InputError(f.name, f"{value!r} is not a number", "a number")
+            elif f.name in _INT_FIELDS:
+                if not float(value).is_integer():
+                    raise InputError(f.name, f"{value!r} is not a whole number", "a whole number")
+                value = int(value)
+            else:
+                value = float(value)
+            changes[f.name] = value
+        return dataclasses.replace(base, **changes)
+
+    def camera_dict(self) -> dict[str, Any]:
+        """The dataset manifest's ``camera`` entry."""
+        return {"name": self.camera_name, "sensor_px": [int(v) for v in self.sensor_px],
+                "sensor_mm": [float(v) for v in self.sensor_mm], "pixel_pitch_um": self.pixel_pitch_used_um}
+
+    def lens_dict(self) -> dict[str, Any]:
+        """The dataset manifest's ``lens`` entry."""
+        return {"name": self.lens_name, "focal_length_mm": float(self.focal_length_mm)}
+
+    def grid_dict(self) -> dict[str, Any]:
+        """The dataset manifest's ``grid`` entry (meander order: left→right, then right→left)."""
+        return {"columns": int(self.grid_columns), "rows": int(self.grid_rows),
+                "spacing_mm": [float(v) for v in self.spacing_mm], "order": "row-meander"}
+
+
+_INT_FIELDS = {"grid_columns", "grid_rows", "raw_bits", "bytes_per_image"}
+_PAIR_FIELDS = {"sensor_px", "sensor_mm", "spacing_mm", "repeatability_um", "travel_mm", "max_speed_mm_s",
+                "acceleration_mm_s2"}
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """Everything a plan implies. Distances in m, pairs as {"horizontal": h, "vertical": v} dicts.
+    ``dof_far_m`` is ``math.inf`` when the sharp range reaches infinity (``None`` in JSON)."""
+
+    pixel_pitch_um: float
+    image_px: tuple[int, int]
+    f_number_required: float
+    focus_distance_m: float
+    f_number_used: float
+    focus_used_m: float
+    hyperfocal_m: float
+    dof_near_m: float
+    dof_far_m: float
+    scene_sharp: bool
+    airy_disk_um: float
+    diffraction_f_number: float          # where the Airy disk reaches 2 pixels
+    min_distance_m: float
+    min_distance_axis: str
+    reposition_error_px: dict[str, float]
+    neighbour_disparity_px: dict[str, float]        # between near and far (what "dense" is about)
+    neighbour_disparity_near_px: dict[str, float]   # of the near distance against infinity
+    neighbour_disparity_far_px: dict[str, float]    # of the far distance against infinity
+    baseline_mm: dict[str, float]
+    row_parallax_px: float
+    row_parallax_fraction: float
+    column_parallax_px: float
+    column_parallax_fraction: float
+    images: int
+    fits_travel: bool
+    capture_time_s: float
+    bytes_per_image: int
+    storage_bytes: int
+    proposed_spacing_mm: dict[str, float]           # for max_disparity_px between near and far
+    proposed_grid: dict[str, int] | None            # for target_parallax_fraction
+    warnings: list[PlanWarning] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe (infinity becomes None)."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name == "warnings":
+                value = [w.to_dict() for w in value]
+            elif isinstance(value, tuple):
+                value = list(value)
+            elif isinstance(value, float) and not math.isfinite(value):
+                value = None
+            out[f.name] = value
+        return out
+
+    def warnings_for(self, field_name: str) -> list[PlanWarning]:
+        return [w for w in self.warnings if w.field == field_name]
+
+
+def capture_time_s(plan: ScenePlan) -> float:
+    """Estimated capture time of the whole grid in meander order: per view the pipelined
+    :func:`optics.view_period_s` of its move (horizontal along a row, vertical at a row change),
+    plus the last view's transfer. Equals the sum over the path, in closed form."""
+    (sp_h, sp_v), (v_h, v_v), (a_h, a_v) = plan.spacing_mm, plan.max_speed_mm_s, plan.acceleration_mm_s2
+    step_h = optics.view_period_s(optics.move_time_s(sp_h, v_h, a_h), plan.settle_s, plan.exposure_s, plan.transfer_s)
+    step_v = optics.view_period_s(optics.move_time_s(sp_v, v_v, a_v), plan.settle_s, plan.exposure_s, plan.transfer_s)
+    first = optics.view_period_s(0.0, plan.settle_s, plan.exposure_s, plan.transfer_s)
+    cols, rows = int(plan.grid_columns), int(plan.grid_rows)
+    return first + rows * (cols - 1) * step_h + (rows - 1) * step_v + plan.transfer_s
+
+
+def _fmt_m(value_m: float) -> str:
+    return "∞" if math.isinf(value_m) else f"{value_m:.2f} m"
+
+
+def _derive(p: ScenePlan) -> PlanResult:
+    warnings: list[PlanWarning] = []
+    pitch = p.pixel_pitch_used_um
+    f = float(p.focal_length_mm)
+    near_mm, far_mm = p.near_m * 1000.0, p.far_m * 1000.0
+    width_px, height_px = int(p.sensor_px[0]), int(p.sensor_px[1])
+
+    if p.pixel_pitch_um is not None:
+        derived = p.sensor_mm[0] / p.sensor_px[0] * 1000.0
+        if abs(derived - p.pixel_pitch_um) > 0.05 * p.pixel_pitch_um:
+            warnings.append(PlanWarning(
+                "pixel_pitch_um", f"pixel pitch {p.pixel_pitch_um:g} µm does not match the sensor "
+                f"({p.sensor_mm[0]:g} mm / {width_px} px = {derived:.2f} µm): check the camera data"))
+
+    # depth of field
+    n_required = optics.f_number_for_range(near_mm, far_mm, f, p.coc_mm)
+    focus_mm = optics.focus_for_range_mm(near_mm, far_mm)
+    n_used = float(p.f_number) if p.f_number is not None else n_required
+    focus_used_mm = p.focus_m * 1000.0 if p.focus_m is not None else focus_mm
+    h_mm = optics.hyperfocal_mm(f, n_used, p.coc_mm, exact=False)
+    dof_near = optics.dof_near_mm(h_mm, focus_used_mm)
+    dof_far = optics.dof_far_mm(h_mm, focus_used_mm)
+    tol = 1e-6
+    sharp = dof_near <= near_mm * (1 + tol) and dof_far >= far_mm * (1 - tol)
+    if p.focus_m is not None and focus_used_mm >= h_mm:
+        warnings.append(PlanWarning(
+            "focus_m", f"focus {p.focus_m:g} m is at or beyond the hyperfocal distance {h_mm / 1000:.2f} m: "
+            f"sharp from {dof_near / 1000:.2f} m to infinity; focusing at {h_mm / 1000:.2f} m reaches "
+            f"closer ({h_mm / 2000:.2f} m)"))
+    elif p.focus_m is None and p.f_number is not None and focus_used_mm >= h_mm:
+        warnings.append(PlanWarning("f_number", f"at f/{n_used:g} the focus {focus_used_mm / 1000:.2f} m is beyond "
+                                    f"the hyperfocal distance {h_mm / 1000:.2f} m: sharp to infinity", "info"))
+    if not sharp:
+        target = "f_number" if p.f_number is not None else "focus_m"
+        fix = (f"the scene needs f/{n_required:.1f} focused at {focus_mm / 1000:.2f} m"
+               if p.f_number is not None and n_used < n_required - 1e-9
+               else f"focus at {focus_mm / 1000:.2f} m (or stop down further)")
+        warnings.append(PlanWarning(
+            target, f"f/{n_used:g} focused at {focus_used_mm / 1000:.2f} m keeps only "
+            f"{dof_near / 1000:.2f} m – {_fmt_m(dof_far / 1000)} sharp, not the scene "
+            f"{p.near_m:g} – {p.far_m:g} m: {fix}"))
+
+    kind, airy_um = optics.diffraction_check(n_used, p.coc_mm, pitch)
+    n_diffraction = optics.diffraction_limit_f_number(2.0 * pitch)
+    n_name = "f_number"
+    if kind == "coc":
+        warnings.append(PlanWarning(
+            n_name, f"at f/{n_used:.1f} the Airy disk ({airy_um:.0f} µm) is larger than the circle of confusion "
+            f"({p.coc_mm * 1000:g} µm): diffraction, not focus, limits sharpness; reduce the scene depth "
+            f"or accept a larger circle of confusion"))
+    elif kind == "pixels":
+        warnings.append(PlanWarning(
+            n_name, f"at f/{n_used:.1f} the Airy disk ({airy_um:.0f} µm) spans more than 2 pixels "
+            f"({2 * pitch:.1f} µm): images are diffraction-limited beyond f/{n_diffraction:.1f}", "info"))
+
+    # repositioning error
+    eps = {a: float(p.repeatability_um[i]) for i, a in enumerate(AXES)}
+    worst_axis = max(AXES, key=lambda a: eps[a])
+    z_min_mm = optics.min_distance_mm(eps[worst_axis], f, pitch, p.max_error_px)
+    reposition = {a: optics.reposition_error_px(eps[a], near_mm, f, pitch) for a in AXES}
+    if reposition[worst_axis] > p.max_error_px * (1 + 1e-9):
+        warnings.append(PlanWarning(
+            "near_m", f"the {worst_axis} axis' repeatability ({eps[worst_axis]:g} µm) shows as "
+            f"{reposition[worst_axis]:.2f} px at {p.near_m:g} m (target {p.max_error_px:g} px): keep the scene "
+            f"beyond {z_min_mm / 1000:.2f} m or use a shorter lens"))
+
+    # disparity and parallax
+    spacing = {a: float(p.spacing_mm[i]) for i, a in enumerate(AXES)}
+    counts = {"horizontal": int(p.grid_columns), "vertical": int(p.grid_rows)}
+    neighbour = {a: optics.disparity_px(spacing[a], near_mm, far_mm, f, pitch) for a in AXES}
+    neighbour_near = {a: optics.disparity_px(spacing[a], near_mm, math.inf, f, pitch) for a in AXES}
+    neighbour_far = {a: optics.disparity_px(spacing[a], far_mm, math.inf, f, pitch) for a in AXES}
+    baseline = {a: optics.baseline_mm(counts[a], spacing[a]) for a in AXES}
+    row_px = optics.disparity_px(baseline["horizontal"], near_mm, far_mm, f, pitch)
+    col_px = optics.disparity_px(baseline["vertical"], near_mm, far_mm, f, pitch)
+    proposed_spacing = {a: optics.spacing_for_disparity_mm(p.max_disparity_px, near_mm, far_mm, f, pitch)
+                        for a in AXES}
+    for a in AXES:
+        if counts[a] > 1 and neighbour[a] > p.max_disparity_px * (1 + 1e-9):
+            warnings.append(PlanWarning(
+                "spacing_mm", f"{a} neighbour disparity is {neighbour[a]:.1f} px (wanted ≤ {p.max_disparity_px:g} px "
+                f"for dense sampling): a spacing of {proposed_spacing[a]:.3g} mm would give it", "info"))
+    proposed_grid = None
+    if p.target_parallax_fraction is not None:
+        proposed_grid = {
+            "columns": optics.positions_for_parallax(p.target_parallax_fraction * width_px, spacing["horizontal"],
+                                                     near_mm, far_mm, f, pitch),
+            "rows": optics.positions_for_parallax(p.target_parallax_fraction * height_px, spacing["vertical"],
+                                                  near_mm, far_mm, f, pitch)}
+
+    travel = p.travel_problem()
+    if travel is not None:
+        warnings.append(PlanWarning(travel[0], f"{travel[1]} ({travel[2]})", "error"))
+
+    per_image = int(p.bytes_per_image) if p.bytes_per_image is not None else \
+        optics.raw_bytes_per_image(width_px, height_px, int(p.raw_bits))
+
+    return PlanResult(
+        pixel_pitch_um=pitch, image_px=(width_px, height_px),
+        f_number_required=n_required, focus_distance_m=focus_mm / 1000.0,
+        f_number_used=n_used, focus_used_m=focus_used_mm / 1000.0, hyperfocal_m=h_mm / 1000.0,
+        dof_near_m=dof_near / 1000.0, dof_far_m=dof_far / 1000.0, scene_sharp=sharp,
+        airy_disk_um=airy_um, diffraction_f_number=n_diffraction,
+        min_distance_m=z_min_mm / 1000.0, min_distance_axis=worst_axis,
+        reposition_error_px=reposition, neighbour_disparity_px=neighbour,
+        neighbour_disparity_near_px=neighbour_near, neighbour_disparity_far_px=neighbour_far,
+        baseline_mm=baseline,
+        row_parallax_px=row_px, row_parallax_fraction=row_px / width_px,
+        column_parallax_px=col_px, column_parallax_fraction=col_px / height_px,
+        images=p.images, fits_travel=travel is None, capture_time_s=capture_time_s(p),
+        bytes_per_image=per_image, storage_bytes=per_image * p.images,
+        proposed_spacing_mm=proposed_spacing, proposed_grid=proposed_grid, warnings=warnings)
+
+
+# -- plan files ------------------------------------------------------------------------------------
+
+
+def save_plan(path: "str | Any", plan: ScenePlan) -> None:
+    """Write ``plan`` atomically: TOML for a ``.toml`` name, JSON otherwise."""
+    from pathlib import Path
+
+    from lfstudio.dataset.atomic import atomic_write_json, atomic_write_text
+
+    path = Path(path)
+    if path.suffix.lower() == ".toml":
+        import tomli_w
+
+        atomic_write_text(path, "# lfstudio scene plan\n" + tomli_w.dumps(plan.to_dict()))
+    else:
+        atomic_write_json(path, plan.to_dict())
+
+
+def load_plan(path: "str | Any") -> ScenePlan:
+    """Read a plan file (TOML or JSON, by content). Raises :class:`InputError` naming the file."""
+    import json
+    import tomllib
+    from pathlib import Path
+
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(str(path), f"cannot read the plan file: {exc}", "a .toml or .json plan file") from None
+    try:
+        data = json.loads(text) if text.lstrip().startswith("{") else tomllib.loads(text)
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(str(path), f"not a plan file: {exc}", "a .toml or .json plan file") from None
+    try:
+        return ScenePlan.from_dict(data)
+    except InputError as exc:
+        raise InputError(f"{path}: {exc.field}", str(exc).split(": ", 1)[-1]) from None
