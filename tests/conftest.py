@@ -40,3 +40,56 @@ def run_cli():
                               text=True, timeout=timeout, env=env, cwd=kw.pop("cwd", REPO_ROOT), **kw)
 
     return run
+
+
+# -- virtual studio datasets (lfstudio.sim) ---------------------------------------------------------
+#: the scene and camera of the ``tiny_dataset`` fixtures: 5 x 3 views, 640 px wide, known orientation error
+TINY_DATASET_ARGS = dict(columns=5, rows=3, spacing_mm=(4.0, 6.0), width_px=640,
+                         rotation_deg=(1.0, -1.5, 0.7), pp_offset_px=(0.0, 0.0), seed=7)
+
+
+@pytest.fixture(scope="session")
+def _tiny_dataset_cache(tmp_path_factory):
+    """Renders each variant once per session; tests get their own copy."""
+    cache: dict = {}
+
+    def get(fmt: str, **overrides):
+        from lfstudio.sim.virtual_dataset import make_virtual_dataset
+
+        key = (fmt, tuple(sorted((k, repr(v)) for k, v in overrides.items())))
+        if key not in cache:
+            root = tmp_path_factory.mktemp(f"tiny_{fmt}") / "dataset"
+            make_virtual_dataset(root, fmt=fmt, **{**TINY_DATASET_ARGS, **overrides})
+            cache[key] = root
+        return cache[key]
+
+    return get
+
+
+@pytest.fixture
+def make_tiny_dataset(_tiny_dataset_cache, tmp_path):
+    """``make_tiny_dataset(fmt="png"|"dng", **make_virtual_dataset overrides) -> Dataset`` (a fresh copy
+    in tmp_path; ``ground_truth.json`` at its root)."""
+    import shutil
+
+    from lfstudio.dataset import Dataset
+
+    def make(fmt: str = "png", **overrides):
+        src = _tiny_dataset_cache(fmt, **overrides)
+        dst = tmp_path / f"tiny_{fmt}_{len(list(tmp_path.glob('tiny_*')))}"
+        shutil.copytree(src, dst)
+        return Dataset.open(dst)
+
+    return make
+
+
+@pytest.fixture
+def tiny_dataset(make_tiny_dataset):
+    """A 5 x 3 virtual-studio dataset (640 px wide, 16-bit linear PNG views) with ground truth."""
+    return make_tiny_dataset("png")
+
+
+@pytest.fixture
+def tiny_dataset_dng(make_tiny_dataset):
+    """The same scene as ``tiny_dataset`` stored as 14-bit Bayer DNG files."""
+    return make_tiny_dataset("dng")

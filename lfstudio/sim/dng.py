@@ -1,0 +1,148 @@
+"""A minimal Bayer DNG writer (uncompressed, one IFD) that rawpy/LibRaw reads back bit-exact.
+
+The simulated camera writes its RAW files with it; tests and the processing stage read them with
+rawpy like any camera's RAW. The mosaic is RGGB: row 0 holds R G R G ..., row 1 holds G B G B ...
+
+Pixel values: ``black_level`` is the sensor's zero, ``white_level`` its clipping point (14-bit:
+16383). :func:`mosaic_from_rgb` maps linear RGB in [0, 1] (1 = clipping for a neutral grey) to
+such a mosaic, scaling each channel by the camera's channel sensitivity ``neutral`` (what a real
+sensor does: green is most sensitive). The DNG's AsShotNeutral is that same ``neutral``, so a raw
+converter's "camera white balance" undoes it and gives back the linear RGB.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from lfstudio.dataset.atomic import atomic_write_with
+
+#: linear sRGB (D65) -> XYZ
+SRGB_TO_XYZ = np.array([[0.4124564, 0.3575761, 0.1804375],
+                        [0.2126729, 0.7151522, 0.0721750],
+                        [0.0193339, 0.1191920, 0.9503041]])
+#: DNG ColorMatrix1 (XYZ -> camera) of a camera whose native space is linear sRGB primaries
+XYZ_TO_SRGB = np.linalg.inv(SRGB_TO_XYZ)
+
+#: channel sensitivities of the simulated sensor (R, G, B), relative to green; also AsShotNeutral
+DEFAULT_NEUTRAL = (0.52, 1.0, 0.71)
+
+CFA_COLOURS = {"R": 0, "G": 1, "B": 2}
+
+# DNG / TIFF-EP tag codes
+_MAKE = 271
+_MODEL = 272
+_CFA_REPEAT_PATTERN_DIM = 33421
+_CFA_PATTERN = 33422
+_EXPOSURE_TIME = 33434
+_FNUMBER = 33437
+_ISO = 34855
+_DNG_VERSION = 50706
+_DNG_BACKWARD_VERSION = 50707
+_UNIQUE_CAMERA_MODEL = 50708
+_BLACK_LEVEL = 50714
+_WHITE_LEVEL = 50717
+_COLOR_MATRIX1 = 50721
+_AS_SHOT_NEUTRAL = 50728
+_CALIBRATION_ILLUMINANT1 = 50778
+_PHOTOMETRIC_CFA = 32803
+
+
+def _rational(values: Sequence[float], denominator: int = 10000) -> list[int]:
+    out: list[int] = []
+    for v in values:
+        out += [int(round(float(v) * denominator)), denominator]
+    return out
+
+
+def mosaic_from_rgb(linear_rgb: np.ndarray, black_level: int = 512, white_level: int = 16383,
+                    neutral: Sequence[float] = DEFAULT_NEUTRAL, pattern: str = "RGGB") -> np.ndarray:
+    """Sample an H x W x 3 linear RGB float image (1.0 = clipping) into an H x W uint16 Bayer mosaic.
+
+    Each photosite keeps the channel its filter passes, scaled by ``neutral`` (channel
+    sensitivity), mapped to ``black_level .. white_level``, rounded and clipped. H and W must be
+    even.
+    """
+    rgb = np.asarray(linear_rgb, dtype=np.float32)
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"linear_rgb must be H x W x 3, got shape {rgb.shape}")
+    h, w = rgb.shape[:2]
+    if h % 2 or w % 2:
+        raise ValueError(f"a Bayer mosaic needs even width and height, got {w} x {h}")
+    colours = [CFA_COLOURS[c] for c in pattern.upper()]
+    span = float(white_level - black_level)
+    mosaic = np.empty((h, w), dtype=np.float32)
+    for i, colour in enumerate(colours):
+        dy, dx = divmod(i, 2)
+        mosaic[dy::2, dx::2] = rgb[dy::2, dx::2, colour] * (float(neutral[colour]) * span)
+    mosaic += black_level
+    np.clip(mosaic, 0, white_level, out=mosaic)
+    return np.rint(mosaic).astype(np.uint16)
+
+
+def rgb_from_mosaic_nearest(mosaic: np.ndarray, black_level: int = 512, white_level: int = 16383,
+                            neutral: Sequence[float] = DEFAULT_NEUTRAL) -> np.ndarray:
+    """A quick half-resolution RGB (H/2 x W/2 x 3 float32, 1.0 = clipping) from an RGGB mosaic."""
+    m = mosaic.astype(np.float32) - black_level
+    span = float(white_level - black_level)
+    r = m[0::2, 0::2] / (neutral[0] * span)
+    g = (m[0::2, 1::2] + m[1::2, 0::2]) / (2 * neutral[1] * span)
+    b = m[1::2, 1::2] / (neutral[2] * span)
+    return np.dstack([r, g, b])
+
+
+def write_dng(path: str | os.PathLike, mosaic: np.ndarray, *, black_level: int = 512,
+              white_level: int = 16383, bits_per_sample: int = 14, pattern: str = "RGGB",
+              color_matrix1: np.ndarray | None = None, as_shot_neutral: Sequence[float] = DEFAULT_NEUTRAL,
+              camera_model: str = "lfstudio Virtual Studio", make: str = "lfstudio",
+              exposure_s: float | None = None, f_number: float | None = None, iso: int | None = None,
+              description: str | None = None) -> Path:
+    """Write ``mosaic`` (H x W uint16 Bayer data) as an uncompressed DNG at ``path``, atomically.
+
+    ``color_matrix1`` is the DNG ColorMatrix1 (XYZ -> camera, D65); default: a camera whose native
+    primaries are linear sRGB. ``as_shot_neutral`` is the camera-space colour of a neutral grey.
+    The samples are stored in 16-bit words (``bits_per_sample`` only bounds the levels): packed
+    14-bit TIFF strips are not written by tifffile. Returns the path.
+    """
+    import tifffile
+
+    mosaic = np.asarray(mosaic)
+    if mosaic.ndim != 2:
+        raise ValueError(f"mosaic must be a 2-D array, got shape {mosaic.shape}")
+    if mosaic.dtype != np.uint16:
+        raise ValueError(f"mosaic must be uint16, got {mosaic.dtype}")
+    if not 0 <= black_level < white_level < 2 ** bits_per_sample:
+        raise ValueError(f"need 0 <= black_level < white_level < 2**{bits_per_sample}, "
+                         f"got {black_level}, {white_level}")
+    cm = XYZ_TO_SRGB if color_matrix1 is None else np.asarray(color_matrix1, dtype=float)
+    cfa = bytes(CFA_COLOURS[c] for c in pattern.upper())
+    tags = [
+        (_MAKE, "s", 0, make, True),
+        (_MODEL, "s", 0, camera_model, True),
+        (_CFA_REPEAT_PATTERN_DIM, "H", 2, (2, 2), True),
+        (_CFA_PATTERN, "B", 4, cfa, True),
+        (_DNG_VERSION, "B", 4, (1, 4, 0, 0), True),
+        (_DNG_BACKWARD_VERSION, "B", 4, (1, 1, 0, 0), True),
+        (_UNIQUE_CAMERA_MODEL, "s", 0, camera_model, True),
+        (_BLACK_LEVEL, "I", 1, (int(black_level),), True),
+        (_WHITE_LEVEL, "I", 1, (int(white_level),), True),
+        (_COLOR_MATRIX1, "2i", 9, _rational(cm.ravel()), True),
+        (_CALIBRATION_ILLUMINANT1, "H", 1, (21,), True),          # D65
+        (_AS_SHOT_NEUTRAL, "2I", 3, _rational(as_shot_neutral), True),
+    ]
+    if exposure_s is not None:
+        tags.append((_EXPOSURE_TIME, "2I", 1, _rational([exposure_s], 1_000_000), True))
+    if f_number is not None:
+        tags.append((_FNUMBER, "2I", 1, _rational([f_number], 100), True))
+    if iso is not None:
+        tags.append((_ISO, "H", 1, (int(iso),), True))
+
+    def _write(tmp: Path) -> None:
+        tifffile.imwrite(tmp, mosaic, photometric=_PHOTOMETRIC_CFA,
+                         compression=None, metadata=None, software="lfstudio",
+                         description=description, extratags=tags)
+
+    return atomic_write_with(path, _write)

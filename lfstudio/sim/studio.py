@@ -1,0 +1,330 @@
+"""The virtual studio: a synthetic 3-D scene of textured planar layers with exact ground truth,
+rendered for any camera position on the acquisition plane.
+
+Conventions (also in ``docs/conventions.md``; the calibration relies on them):
+
+* **Rig frame**: x to the right, y down, z into the scene (right-handed). The acquisition plane is
+  z = 0. Camera positions on it are given in **mm** (``x_mm``, ``y_mm``, as the rig reports them);
+  scene geometry (layer depths, world points) is in **metres**. The camera centre of a view is
+  ``C = (x_mm / 1000, y_mm / 1000, 0)`` m.
+* **Intrinsics**: ``K_true = [[f, 0, cx], [0, f, cy], [0, 0, 1]]`` with ``f = focal_length_mm /
+  (sensor_width_mm / width_px)`` px, ``cx = (width_px - 1) / 2 + pp_offset_px[0]``,
+  ``cy = (height_px - 1) / 2 + pp_offset_px[1]``. Pixel (0, 0) is the centre of the top-left pixel.
+* **Orientation error**: ``rotation_deg = [rx, ry, rz]``,
+  ``R = scipy.spatial.transform.Rotation.from_euler("xyz", rotation_deg, degrees=True).as_matrix()``.
+  A world point X (m) is captured at pixel ``p ~ K_true · R · (X − C)``.
+* **Ideal (rectified) camera**: ``K0`` = same f, principal point at the image centre, no rotation:
+  ``p_rect ~ K0 · (X − C)``. The rectifying homography (captured pixel → rectified pixel) is
+  ``H = K0 · Rᵀ · K_true⁻¹``, the same for every view.
+* **Disparity**: in rectified views, moving the camera by ``b`` mm to the right moves the image of a
+  point at depth Z by ``disparity_px(Z, b) = f · b / (1000 · Z)`` px to the *left* (u decreases);
+  moving it down by ``b`` mm moves the image up by the same amount.
+
+Rendering composites the layers back to front, each warped with its plane-induced homography
+(``cv2.warpPerspective`` into the layer's bounding box, premultiplied alpha). Output: float32 linear
+RGB in [0, 1] (1 = sensor clipping). Deterministic for a seed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from lfstudio.sim import textures
+
+#: the reference sensor's aspect ratio (7952 x 5304)
+REFERENCE_ASPECT = 5304 / 7952
+DEFAULT_WIDTH_PX = 2000
+#: camera positions the reference grid covers (101 x 21 views at 4 x 6 mm from the origin)
+REFERENCE_REGION_MM = (0.0, 400.0, 0.0, 120.0)
+
+
+def rotation_matrix(rotation_deg: tuple[float, float, float] | list[float]) -> np.ndarray:
+    """R from ``[rx, ry, rz]`` degrees (scipy ``from_euler("xyz", ..., degrees=True)``)."""
+    return Rotation.from_euler("xyz", [float(v) for v in rotation_deg], degrees=True).as_matrix()
+
+
+@dataclass(frozen=True)
+class Layer:
+    """A textured fronto-parallel plane at ``depth_m``.
+
+    Texture pixel (s, t) has its centre at world ``(origin_m[0] + s * pixel_m, origin_m[1] + t *
+    pixel_m, depth_m)``. ``rgba`` is uint16 premultiplied RGBA (alpha 65535 = opaque).
+    ``reflect``: the texture continues mirrored beyond its border (the background).
+    """
+
+    name: str
+    kind: str              # "background" | "layer" | "object"
+    depth_m: float
+    origin_m: tuple[float, float]
+    pixel_m: float
+    rgba: np.ndarray
+    reflect: bool = False
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        h, w = self.rgba.shape[:2]
+        return w * self.pixel_m, h * self.pixel_m
+
+    def describe(self) -> dict[str, Any]:
+        w_m, h_m = self.size_m
+        return {"name": self.name, "kind": self.kind, "depth_m": self.depth_m,
+                "x_range_m": [self.origin_m[0], self.origin_m[0] + w_m],
+                "y_range_m": [self.origin_m[1], self.origin_m[1] + h_m],
+                "texture_px": [int(self.rgba.shape[1]), int(self.rgba.shape[0])], "pixel_m": self.pixel_m}
+
+
+def _premultiplied_rgba(rgb: np.ndarray, alpha: np.ndarray | None = None) -> np.ndarray:
+    h, w = rgb.shape[:2]
+    a = np.ones((h, w), np.float32) if alpha is None else alpha.astype(np.float32)
+    out = np.empty((h, w, 4), np.uint16)
+    out[..., :3] = np.rint(np.clip(rgb, 0, 1) * a[..., None] * 65535.0)
+    out[..., 3] = np.rint(a * 65535.0)
+    return out
+
+
+class VirtualStudio:
+    """A synthetic scene plus the camera that looks at it (intrinsics, orientation error).
+
+    ``near_m``/``far_m``: nearest and farthest scene distance (the plan's M_F, M_B).
+    ``view_region_mm``: ``(x_min, x_max, y_min, y_max)`` of the camera positions that must see the
+    background in every pixel (the grid's extent; the scene is centred on it).
+    ``texture_density``: texture pixels per image pixel at each layer's depth (capped so that no
+    texture exceeds ``max_texture_px`` pixels).
+    """
+
+    def __init__(self, *, width_px: int = DEFAULT_WIDTH_PX, height_px: int | None = None,
+                 focal_length_mm: float = 50.0, sensor_width_mm: float = 35.9,
+                 near_m: float = 1.77, far_m: float = 4.77,
+                 rotation_deg: tuple[float, float, float] | list[float] = (0.0, 0.0, 0.0),
+                 pp_offset_px: tuple[float, float] | list[float] = (0.0, 0.0),
+                 view_region_mm: tuple[float, float, float, float] = REFERENCE_REGION_MM,
+                 seed: int = 0, n_layers: int = 4, n_objects: int = 4,
+                 texture_density: float = 1.0, max_texture_px: float = 40e6):
+        if not 0 < near_m < far_m:
+            raise ValueError(f"need 0 < near_m < far_m, got near_m={near_m}, far_m={far_m}")
+        if width_px < 16:
+            raise ValueError(f"width_px must be at least 16, got {width_px}")
+        self.width_px = int(width_px)
+        self.height_px = int(height_px) if height_px else int(round(self.width_px * REFERENCE_ASPECT / 2)) * 2
+        self.focal_length_mm = float(focal_length_mm)
+        self.sensor_width_mm = float(sensor_width_mm)
+        self.near_m, self.far_m = float(near_m), float(far_m)
+        self.rotation_deg = [float(v) for v in rotation_deg]
+        self.pp_offset_px = [float(v) for v in pp_offset_px]
+        self.view_region_mm = tuple(float(v) for v in view_region_mm)
+        self.seed = int(seed)
+        self.texture_density = float(texture_density)
+        self.max_texture_px = float(max_texture_px)
+        self.n_layers, self.n_objects = int(n_layers), int(n_objects)
+        self.f_px = self.focal_length_mm / (self.sensor_width_mm / self.width_px)
+        w, h = self.width_px, self.height_px
+        self.K0 = np.array([[self.f_px, 0, (w - 1) / 2], [0, self.f_px, (h - 1) / 2], [0, 0, 1]])
+        self.K_true = self.K0.copy()
+        self.K_true[0, 2] += self.pp_offset_px[0]
+        self.K_true[1, 2] += self.pp_offset_px[1]
+        self.R = rotation_matrix(self.rotation_deg)
+        self.H = self.K0 @ self.R.T @ np.linalg.inv(self.K_true)
+        self.H /= self.H[2, 2]
+        self.layers: list[Layer] = self._build_scene(n_layers, n_objects)
+
+    # -- geometry -----------------------------------------------------------------------------------
+    @staticmethod
+    def camera_centre_m(x_mm: float, y_mm: float) -> np.ndarray:
+        return np.array([x_mm / 1000.0, y_mm / 1000.0, 0.0])
+
+    def camera_matrices(self, ideal: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """(K, R) of the captured camera, or of the ideal one (K0, identity) with ``ideal``."""
+        return (self.K0, np.eye(3)) if ideal else (self.K_true, self.R)
+
+    def project(self, points_m: np.ndarray, x_mm: float, y_mm: float, ideal: bool = False) -> np.ndarray:
+        """Pixel coordinates (N x 2) of world points (N x 3, m) seen from camera position (x_mm, y_mm)."""
+        K, R = self.camera_matrices(ideal)
+        X = np.atleast_2d(np.asarray(points_m, float)) - self.camera_centre_m(x_mm, y_mm)
+        p = (K @ R @ X.T).T
+        return p[:, :2] / p[:, 2:3]
+
+    def disparity_px(self, depth_m: float | np.ndarray, baseline_mm: float) -> float | np.ndarray:
+        """Disparity in (rectified) pixels of a point at ``depth_m`` between views ``baseline_mm`` apart."""
+        return self.f_px * (baseline_mm / 1000.0) / np.asarray(depth_m, float) if np.ndim(depth_m) \
+            else self.f_px * (baseline_mm / 1000.0) / float(depth_m)
+
+    def layer_homography(self, layer: Layer, x_mm: float, y_mm: float, ideal: bool = False) -> np.ndarray:
+        """3 x 3 homography from the layer's texture pixels to image pixels for this view."""
+        K, R = self.camera_matrices(ideal)
+        c = self.camera_centre_m(x_mm, y_mm)
+        plane = np.array([[layer.pixel_m, 0.0, layer.origin_m[0] - c[0]],
+                          [0.0, layer.pixel_m, layer.origin_m[1] - c[1]],
+                          [0.0, 0.0, layer.depth_m - c[2]]])
+        return K @ R @ plane
+
+    def _frustum_box_m(self, depth_m: float, margin: float = 0.0) -> tuple[float, float, float, float]:
+        """(x0, x1, y0, y1) at ``depth_m`` seen by any view in the region, captured or ideal."""
+        x0r, x1r, y0r, y1r = self.view_region_mm
+        w, h = self.width_px, self.height_px
+        corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], float).T
+        xs, ys = [], []
+        for K, R in (self.camera_matrices(False), self.camera_matrices(True)):
+            d = R.T @ np.linalg.inv(K) @ corners           # ray directions in the rig frame
+            for cx_mm in (x0r, x1r):
+                for cy_mm in (y0r, y1r):
+                    c = self.camera_centre_m(cx_mm, cy_mm)
+                    t = depth_m / d[2]
+                    xs += list(c[0] + d[0] * t)
+                    ys += list(c[1] + d[1] * t)
+        x0, x1, y0, y1 = min(xs), max(xs), min(ys), max(ys)
+        mx, my = (x1 - x0) * margin, (y1 - y0) * margin
+        return x0 - mx, x1 + mx, y0 - my, y1 + my
+
+    def _pixel_m(self, depth_m: float, width_m: float, height_m: float) -> float:
+        pixel_m = depth_m / (self.f_px * self.texture_density)
+        n = (width_m / pixel_m) * (height_m / pixel_m)
+        if n > self.max_texture_px:
+            pixel_m *= float(np.sqrt(n / self.max_texture_px))
+        return pixel_m
+
+    # -- the scene ----------------------------------------------------------------------------------
+    def layer_depths(self) -> tuple[list[float], list[float]]:
+        """Depths (m) of the intermediate layers and of the small objects, spaced evenly in 1/Z."""
+        inv_n, inv_f = 1.0 / self.near_m, 1.0 / self.far_m
+        return ([1.0 / (inv_f + (inv_n - inv_f) * t) for t in (0.22, 0.45, 0.65, 0.82)],
+                [1.0 / (inv_f + (inv_n - inv_f) * t) for t in (1.0, 0.96, 0.92, 0.88, 0.9, 0.94)])
+
+    def _build_scene(self, n_layers: int, n_objects: int) -> list[Layer]:
+        seeds = np.random.SeedSequence(self.seed).spawn(1 + n_layers + n_objects)
+        layers: list[Layer] = []
+        # background: covers every view of the region, plus a margin
+        x0, x1, y0, y1 = self._frustum_box_m(self.far_m, margin=0.04)
+        pm = self._pixel_m(self.far_m, x1 - x0, y1 - y0)
+        tw, th = int(np.ceil((x1 - x0) / pm)) + 1, int(np.ceil((y1 - y0) / pm)) + 1
+        rng = np.random.default_rng(seeds[0])
+        rgb = textures.detailed_texture(rng, th, tw)
+        layers.append(Layer("background", "background", self.far_m, (x0, y0), pm, _premultiplied_rgba(rgb),
+                            reflect=True))
+
+        mid_depths, obj_depths = self.layer_depths()
+        kinds = ("foliage", "frame", "foliage", "board")
+        for i in range(n_layers):
+            rng = np.random.default_rng(seeds[1 + i])
+            depth = mid_depths[i % len(mid_depths)] if i < len(mid_depths) else \
+                float(rng.uniform(self.near_m * 1.2, self.far_m * 0.9))
+            kind = kinds[i % len(kinds)]
+            fx0, fx1, fy0, fy1 = self._frustum_box_m(depth)
+            fw, fh = fx1 - fx0, fy1 - fy0
+            if kind == "foliage":
+                w_m, h_m = fw * 1.05, fh * rng.uniform(0.35, 0.5)
+                lx = fx0 - fw * 0.025
+                ly = fy1 - h_m if (i // 2) % 2 == 0 else fy0       # bottom or top band
+            elif kind == "frame":
+                w_m, h_m = fw * rng.uniform(0.3, 0.4), fh * rng.uniform(0.5, 0.7)
+                lx = fx0 + fw * rng.uniform(0.02, 0.15)
+                ly = fy0 + fh * rng.uniform(0.1, 0.3)
+            else:
+                w_m, h_m = fw * rng.uniform(0.2, 0.3), fh * rng.uniform(0.3, 0.45)
+                lx = fx0 + fw * rng.uniform(0.6, 0.72)
+                ly = fy0 + fh * rng.uniform(0.1, 0.4)
+            pm = self._pixel_m(depth, w_m, h_m)
+            tw, th = max(4, int(round(w_m / pm))), max(4, int(round(h_m / pm)))
+            rgb = textures.detailed_texture(rng, th, tw, text=kind != "foliage")
+            if kind == "foliage":
+                green = np.array([0.35, 0.9, 0.3], np.float32)
+                rgb = rgb * (0.4 + 0.6 * green)
+                alpha = textures.blob_mask(rng, th, tw, coverage=0.45)
+                alpha *= textures.shape_mask(th, tw, "rounded")
+            else:
+                alpha = textures.shape_mask(th, tw, "frame" if kind == "frame" else "rounded", rng)
+            layers.append(Layer(f"{kind}-{i}", "layer", float(depth), (lx, ly), pm,
+                                _premultiplied_rgba(rgb, alpha)))
+
+        # small objects in front, inside the central part of the field
+        for j in range(n_objects):
+            rng = np.random.default_rng(seeds[1 + n_layers + j])
+            depth = obj_depths[j % len(obj_depths)]
+            fx0, fx1, fy0, fy1 = self._frustum_box_m(depth)
+            fw, fh = fx1 - fx0, fy1 - fy0
+            size_m = min(fw, fh) * rng.uniform(0.08, 0.16)
+            w_m, h_m = size_m * rng.uniform(0.8, 1.5), size_m * rng.uniform(0.8, 1.5)
+            cx = fx0 + fw * (0.15 + 0.7 * (j + rng.uniform(0.2, 0.8)) / max(1, n_objects))
+            cy = fy0 + fh * rng.uniform(0.25, 0.75)
+            pm = self._pixel_m(depth, w_m, h_m)
+            tw, th = max(4, int(round(w_m / pm))), max(4, int(round(h_m / pm)))
+            rgb = textures.detailed_texture(rng, th, tw)
+            alpha = textures.shape_mask(th, tw, "disc" if j % 2 == 0 else "rounded")
+            layers.append(Layer(f"object-{j}", "object", float(depth), (cx - w_m / 2, cy - h_m / 2), pm,
+                                _premultiplied_rgba(rgb, alpha)))
+        layers.sort(key=lambda layer: -layer.depth_m)      # back to front
+        return layers
+
+    # -- rendering ----------------------------------------------------------------------------------
+    def render(self, x_mm: float, y_mm: float, *, ideal: bool = False, with_depth: bool = False
+               ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+        """Render the view from camera position (x_mm, y_mm): H x W x 3 float32 linear RGB in [0, 1].
+
+        ``ideal``: render with the ideal camera (K0, no rotation) instead of the captured one.
+        ``with_depth``: also return the H x W float32 depth map (m, z of the visible surface).
+        """
+        w, h = self.width_px, self.height_px
+        out = np.zeros((h, w, 3), np.float32)
+        depth = np.full((h, w), self.far_m, np.float32) if with_depth else None
+        scale = np.float32(1.0 / 65535.0)
+        for layer in self.layers:
+            P = self.layer_homography(layer, x_mm, y_mm, ideal)
+            if layer.reflect:
+                warped = cv2.warpPerspective(layer.rgba[..., :3], P, (w, h), flags=cv2.INTER_LINEAR,
+                                             borderMode=cv2.BORDER_REFLECT_101)
+                np.multiply(warped, scale, out=out, dtype=np.float32, casting="unsafe")
+                if depth is not None:
+                    depth[:] = layer.depth_m
+                continue
+            th, tw = layer.rgba.shape[:2]
+            corners = np.array([[-1, -1, 1], [tw, -1, 1], [-1, th, 1], [tw, th, 1]], float).T
+            pc = P @ corners
+            u, v = pc[0] / pc[2], pc[1] / pc[2]
+            x0, x1 = max(0, int(np.floor(u.min()))), min(w, int(np.ceil(u.max())) + 1)
+            y0, y1 = max(0, int(np.floor(v.min()))), min(h, int(np.ceil(v.max())) + 1)
+            if x1 <= x0 or y1 <= y0:
+                continue
+            T = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+            warped = cv2.warpPerspective(layer.rgba, T @ P, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR,
+                                         borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
+            wf = warped.astype(np.float32)
+            wf *= scale
+            alpha = wf[..., 3:4]
+            roi = out[y0:y1, x0:x1]
+            roi *= 1.0 - alpha
+            roi += wf[..., :3]
+            if depth is not None:
+                depth[y0:y1, x0:x1][alpha[..., 0] > 0.5] = layer.depth_m
+        return (out, depth) if with_depth else out
+
+    def depth_map(self, x_mm: float, y_mm: float, *, ideal: bool = False) -> np.ndarray:
+        """H x W float32 depth (m) of the visible surface in the view from (x_mm, y_mm)."""
+        return self.render(x_mm, y_mm, ideal=ideal, with_depth=True)[1]
+
+    # -- ground truth -------------------------------------------------------------------------------
+    def ground_truth(self) -> dict[str, Any]:
+        """Everything a calibration needs to be checked against (JSON-able)."""
+        return {
+            "conventions": "rig frame x right, y down, z into the scene; camera positions in mm, scene in m; "
+                           "p ~ K_true R (X - C); rectified p ~ K0 (X - C); H = K0 R^T K_true^-1 maps captured "
+                           "to rectified pixels; R = Rotation.from_euler('xyz', rotation_deg, degrees=True)",
+            "image_size_px": [self.width_px, self.height_px],
+            "focal_length_px": self.f_px,
+            "focal_length_mm": self.focal_length_mm,
+            "sensor_width_mm": self.sensor_width_mm,
+            "rotation_deg": list(self.rotation_deg),
+            "R": self.R.tolist(),
+            "pp_offset_px": list(self.pp_offset_px),
+            "K_true": self.K_true.tolist(),
+            "K0": self.K0.tolist(),
+            "H": self.H.tolist(),
+            "near_m": self.near_m,
+            "far_m": self.far_m,
+            "seed": self.seed,
+            "view_region_mm": list(self.view_region_mm),
+            "layers": [layer.describe() for layer in self.layers],
+        }

@@ -1,0 +1,235 @@
+"""Render a whole dataset from the virtual studio straight to disk (no rig, no scan engine).
+
+The result is a real :class:`lfstudio.dataset.Dataset` folder (``raw/r00_c000.dng`` or 16-bit
+linear PNG per view, every view ``done``) plus ``ground_truth.json`` at its root with the true
+orientation, intrinsics, rectifying homography, per-view true positions and layer depths (see
+:mod:`lfstudio.sim.studio` for the conventions). Used by tests, benchmarks and demos.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import os
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any, Callable
+
+import cv2
+import numpy as np
+
+from lfstudio.dataset import Dataset
+from lfstudio.dataset.atomic import atomic_write_json, atomic_write_with
+from lfstudio.dataset.paths import view_stem
+from lfstudio.errors import InputError
+from lfstudio.jobs import CancelToken
+from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
+from lfstudio.sim.sensor import SensorModel
+from lfstudio.sim.studio import DEFAULT_WIDTH_PX, VirtualStudio
+
+GROUND_TRUTH_NAME = "ground_truth.json"
+BLACK_LEVEL = 512
+WHITE_LEVEL = 16383
+SIM_CAMERA_NAME = "Simulated studio camera"
+
+
+def camera_dict(studio: VirtualStudio) -> dict[str, Any]:
+    """The manifest's ``camera`` entry for a studio (so ``Dataset.focal_length_px()`` is right)."""
+    return {"name": SIM_CAMERA_NAME, "sensor_px": [studio.width_px, studio.height_px],
+            "sensor_mm": [studio.sensor_width_mm, studio.sensor_width_mm * studio.height_px / studio.width_px],
+            "pixel_pitch_um": studio.sensor_width_mm / studio.width_px * 1000.0,
+            "raw_format": "DNG", "bits": 14, "simulated": True}
+
+
+def lens_dict(studio: VirtualStudio) -> dict[str, Any]:
+    return {"name": f"{studio.focal_length_mm:g} mm (simulated)", "focal_length_mm": studio.focal_length_mm}
+
+
+def meander_order(columns: int, rows: int) -> list[tuple[int, int]]:
+    """(row, column) in capture order: left to right on even rows, right to left on odd rows."""
+    return [(r, c) for r in range(rows) for c in (range(columns) if r % 2 == 0 else range(columns - 1, -1, -1))]
+
+
+def write_view_file(path: Path, sensor_rgb: np.ndarray, fmt: str, exposure_s: float | None = None) -> Path:
+    """Store one rendered view: a Bayer DNG (14-bit) or a 16-bit linear RGB PNG, atomically."""
+    if fmt == "dng":
+        mosaic = mosaic_from_rgb(sensor_rgb, BLACK_LEVEL, WHITE_LEVEL, DEFAULT_NEUTRAL)
+        return write_dng(path, mosaic, black_level=BLACK_LEVEL, white_level=WHITE_LEVEL,
+                         as_shot_neutral=DEFAULT_NEUTRAL, exposure_s=exposure_s)
+    if fmt == "png":
+        img16 = np.rint(np.clip(sensor_rgb, 0.0, 1.0) * 65535.0).astype(np.uint16)
+        bgr = cv2.cvtColor(img16, cv2.COLOR_RGB2BGR)
+
+        def _write(tmp: Path) -> None:
+            if not cv2.imwrite(str(tmp), bgr):
+                raise OSError(f"{path}: cv2.imwrite failed")
+
+        return atomic_write_with(path, _write)
+    raise InputError("fmt", f"unknown format {fmt!r}", ["dng", "png"])
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+# -- worker-side rendering (one studio per process) -------------------------------------------------
+_WORKER_STUDIO: VirtualStudio | None = None
+
+
+def _init_worker(studio_kwargs: dict[str, Any]) -> None:
+    global _WORKER_STUDIO
+    cv2.setNumThreads(1)
+    _WORKER_STUDIO = VirtualStudio(**studio_kwargs)
+
+
+def _render_and_write(studio: VirtualStudio, sensor: SensorModel, job: dict[str, Any]) -> dict[str, Any]:
+    rgb = studio.render(*job["true_mm"])
+    recorded, gain = sensor.apply(rgb, job["shot"])
+    path = Path(job["path"])
+    write_view_file(path, recorded, job["fmt"], job["exposure_s"])
+    return {"sha256": _sha256(path), "gain": gain}
+
+
+def _worker_job(sensor: SensorModel, job: dict[str, Any]) -> dict[str, Any]:
+    assert _WORKER_STUDIO is not None
+    return _render_and_write(_WORKER_STUDIO, sensor, job)
+
+
+def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
+                         spacing_mm: tuple[float, float] = (4.0, 6.0),
+                         origin_mm: tuple[float, float] = (0.0, 0.0),
+                         width_px: int = DEFAULT_WIDTH_PX,
+                         rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                         pp_offset_px: tuple[float, float] = (0.0, 0.0),
+                         position_noise_um: tuple[float, float] = (0.0, 0.0),
+                         seed: int = 0, fmt: str = "dng",
+                         near_m: float = 1.77, far_m: float = 4.77,
+                         focal_length_mm: float = 50.0, sensor_width_mm: float = 35.9,
+                         flicker: float = 0.0, vignetting: float = 0.0, noise: float = 0.0,
+                         exposure_s: float = 0.5, workers: int = 1,
+                         studio: VirtualStudio | None = None,
+                         progress: Callable[[int, int, str], None] | None = None,
+                         cancel: CancelToken | None = None) -> Dataset:
+    """Render a ``columns`` x ``rows`` grid into a new dataset folder at ``root`` and return it.
+
+    View (row r, column c) is commanded at ``origin_mm + (c * spacing_mm[0], r * spacing_mm[1])``
+    and rendered at that position plus Gaussian noise of ``position_noise_um`` (x, y) sigma.
+    ``reported_mm`` equals the commanded position (what a controller reports). ``workers`` > 1
+    renders in that many processes. ``studio`` (optional) overrides the scene parameters.
+    """
+    fmt = fmt.lower()
+    if fmt not in ("dng", "png"):
+        raise InputError("fmt", f"unknown format {fmt!r}", ["dng", "png"])
+    if columns < 1 or rows < 1:
+        raise InputError("grid", f"columns and rows must be at least 1, got {columns} x {rows}")
+    sx, sy = float(spacing_mm[0]), float(spacing_mm[1])
+    ox, oy = float(origin_mm[0]), float(origin_mm[1])
+    noise_mm = (position_noise_um[0] / 1000.0, position_noise_um[1] / 1000.0)
+    margin_mm = 4 * max(noise_mm) + 0.5
+    region = (ox - margin_mm, ox + (columns - 1) * sx + margin_mm, oy - margin_mm, oy + (rows - 1) * sy + margin_mm)
+    studio_kwargs = dict(width_px=width_px, focal_length_mm=focal_length_mm, sensor_width_mm=sensor_width_mm,
+                         near_m=near_m, far_m=far_m, rotation_deg=tuple(rotation_deg),
+                         pp_offset_px=tuple(pp_offset_px), view_region_mm=region, seed=seed)
+    if studio is None:
+        studio = VirtualStudio(**studio_kwargs)
+    else:
+        studio_kwargs = studio_init_kwargs(studio)
+    if fmt == "dng" and studio.width_px % 2:
+        raise InputError("width_px", f"a Bayer DNG needs an even width, got {studio.width_px}")
+    sensor = SensorModel(flicker=flicker, vignetting=vignetting, noise=noise, seed=seed)
+
+    rng = np.random.default_rng([seed, 0x9051])
+    root = Path(root)
+    suffix = ".dng" if fmt == "dng" else ".png"
+    order = meander_order(columns, rows)
+    jobs: list[dict[str, Any]] = []
+    for shot, (r, c) in enumerate(order):
+        commanded = (ox + c * sx, oy + r * sy)
+        true = (commanded[0] + noise_mm[0] * rng.standard_normal(),
+                commanded[1] + noise_mm[1] * rng.standard_normal())
+        rel = f"raw/{view_stem(r, c)}{suffix}"
+        jobs.append({"row": r, "column": c, "shot": shot, "commanded_mm": commanded, "true_mm": true,
+                     "rel": rel, "path": str(root / rel), "fmt": fmt, "exposure_s": exposure_s})
+
+    (root / "raw").mkdir(parents=True, exist_ok=True)
+    total = len(jobs)
+    results: list[dict[str, Any]] = []
+    if progress:
+        progress(0, total, "rendering views")
+    if workers > 1 and total > 1:
+        with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker,
+                                 initargs=(studio_kwargs,)) as pool:
+            futures = [pool.submit(_worker_job, sensor, job) for job in jobs]
+            try:
+                for i, fut in enumerate(futures):
+                    if cancel is not None:
+                        cancel.check()
+                    results.append(fut.result())
+                    if progress:
+                        progress(i + 1, total, f"rendered {jobs[i]['rel']}")
+            except BaseException:
+                for fut in futures:
+                    fut.cancel()
+                raise
+    else:
+        for i, job in enumerate(jobs):
+            if cancel is not None:
+                cancel.check()
+            results.append(_render_and_write(studio, sensor, job))
+            if progress:
+                progress(i + 1, total, f"rendered {job['rel']}")
+
+    start = _dt.datetime.now(_dt.timezone.utc)
+    views = []
+    for job, res in zip(jobs, results):
+        t = start + _dt.timedelta(seconds=job["shot"] * (exposure_s + 0.5))
+        views.append({"row": job["row"], "column": job["column"],
+                      "commanded_mm": [round(v, 6) for v in job["commanded_mm"]],
+                      "reported_mm": [round(v, 3) for v in job["commanded_mm"]],
+                      "captured_at": t.isoformat(timespec="milliseconds"), "exposure_s": exposure_s,
+                      "file": job["rel"], "sha256": res["sha256"], "status": "done"})
+    views.sort(key=lambda v: (v["row"], v["column"]))
+    grid = {"columns": int(columns), "rows": int(rows), "spacing_mm": [sx, sy], "order": "row-meander"}
+    rig = {"name": "virtual studio", "simulated": True, "origin_mm": [ox, oy]}
+    plan = {"near_m": near_m, "far_m": far_m, "focal_length_mm": focal_length_mm}
+    ds = Dataset.create(root, camera=camera_dict(studio), lens=lens_dict(studio), grid=grid, rig=rig, plan=plan,
+                        views=views, exist_ok=True)
+    truth = studio.ground_truth()
+    truth.update({
+        "format": fmt,
+        "black_level": BLACK_LEVEL if fmt == "dng" else 0,
+        "white_level": WHITE_LEVEL if fmt == "dng" else 65535,
+        "as_shot_neutral": list(DEFAULT_NEUTRAL) if fmt == "dng" else [1.0, 1.0, 1.0],
+        "sensor": {"flicker": flicker, "vignetting": vignetting, "noise": noise,
+                   "full_well_e": sensor.full_well_e},
+        "position_noise_um": list(position_noise_um),
+        "views": [{"row": j["row"], "column": j["column"], "shot": j["shot"], "file": j["rel"],
+                   "commanded_mm": list(j["commanded_mm"]), "true_mm": list(j["true_mm"]), "gain": res["gain"]}
+                  for j, res in zip(jobs, results)],
+    })
+    atomic_write_json(root / GROUND_TRUTH_NAME, truth)
+    return ds
+
+
+def studio_init_kwargs(studio: VirtualStudio) -> dict[str, Any]:
+    """Arguments that rebuild ``studio`` (same scene, same camera) in another process."""
+    return dict(width_px=studio.width_px, height_px=studio.height_px, focal_length_mm=studio.focal_length_mm,
+                sensor_width_mm=studio.sensor_width_mm, near_m=studio.near_m, far_m=studio.far_m,
+                rotation_deg=tuple(studio.rotation_deg), pp_offset_px=tuple(studio.pp_offset_px),
+                view_region_mm=studio.view_region_mm, seed=studio.seed, n_layers=studio.n_layers,
+                n_objects=studio.n_objects, texture_density=studio.texture_density,
+                max_texture_px=studio.max_texture_px)
+
+
+def load_ground_truth(root: str | os.PathLike) -> dict[str, Any]:
+    """``ground_truth.json`` of a virtual dataset, with R, K_true, K0 and H as numpy arrays."""
+    import json
+
+    truth = json.loads((Path(root) / GROUND_TRUTH_NAME).read_text(encoding="utf-8"))
+    for key in ("R", "K_true", "K0", "H"):
+        truth[key] = np.array(truth[key], float)
+    return truth

@@ -1,0 +1,114 @@
+"""make_virtual_dataset: a real dataset folder with ground truth; the sensor model as configured."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+import cv2
+import numpy as np
+import pytest
+import rawpy
+
+from lfstudio.dataset import Dataset
+from lfstudio.errors import InputError
+from lfstudio.sim.sensor import SensorModel
+from lfstudio.sim.studio import VirtualStudio
+from lfstudio.sim.virtual_dataset import load_ground_truth, make_virtual_dataset, meander_order
+
+
+def test_tiny_dataset_png_is_a_valid_dataset_with_ground_truth(tiny_dataset):
+    ds = Dataset.open(tiny_dataset.root)
+    assert ds.grid["columns"] == 5 and ds.grid["rows"] == 3
+    assert len(ds.done_views()) == 15
+    v = ds.view(1, 3)
+    assert v["file"] == "raw/r01_c003.png"
+    assert v["commanded_mm"] == [12.0, 6.0]
+    path = ds.path_of(v)
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == v["sha256"]
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    assert img.dtype == np.uint16 and img.shape == (426, 640, 3)
+    truth = load_ground_truth(ds.root)
+    assert ds.focal_length_px(640) == pytest.approx(truth["focal_length_px"])
+    assert truth["rotation_deg"] == [1.0, -1.5, 0.7]
+    K0, K, R, H = truth["K0"], truth["K_true"], truth["R"], truth["H"]
+    H2 = K0 @ R.T @ np.linalg.inv(K)
+    np.testing.assert_allclose(H, H2 / H2[2, 2], atol=1e-12)
+    assert len(truth["views"]) == 15
+    assert {"true_mm", "commanded_mm", "row", "column", "file"} <= set(truth["views"][0])
+    depths = [layer["depth_m"] for layer in truth["layers"]]
+    assert min(depths) == pytest.approx(1.77) and max(depths) == pytest.approx(4.77)
+
+
+def test_tiny_dataset_png_matches_the_render(tiny_dataset):
+    truth = load_ground_truth(tiny_dataset.root)
+    studio = VirtualStudio(width_px=640, rotation_deg=truth["rotation_deg"], pp_offset_px=truth["pp_offset_px"],
+                           view_region_mm=truth["view_region_mm"], seed=truth["seed"])
+    view = next(v for v in truth["views"] if v["row"] == 2 and v["column"] == 1)
+    expected = studio.render(*view["true_mm"])
+    img = cv2.imread(str(tiny_dataset.root / view["file"]), cv2.IMREAD_UNCHANGED)
+    got = cv2.cvtColor(img, cv2.COLOR_BGR2RGB).astype(np.float32) / 65535.0
+    assert np.abs(got - np.clip(expected, 0, 1)).max() < 1e-4
+
+
+def test_tiny_dataset_dng_opens_in_rawpy(tiny_dataset_dng):
+    v = tiny_dataset_dng.view(0, 0)
+    assert v["file"].endswith(".dng")
+    with rawpy.imread(str(tiny_dataset_dng.path_of(v))) as raw:
+        assert raw.raw_image.shape == (426, 640)
+        assert raw.white_level == 16383
+
+
+def test_position_noise_flicker_and_meander(tmp_path):
+    ds = make_virtual_dataset(tmp_path / "d", 4, 2, width_px=96, fmt="png", position_noise_um=(80, 50),
+                              flicker=0.05, seed=3)
+    truth = json.loads((ds.root / "ground_truth.json").read_text())
+    offsets = np.array([np.subtract(v["true_mm"], v["commanded_mm"]) for v in truth["views"]])
+    assert np.all(np.abs(offsets) < 0.5) and np.all(np.abs(offsets).max(axis=0) > 0.005)
+    gains = [v["gain"] for v in truth["views"]]
+    assert len(set(gains)) == len(gains)
+    shots = sorted(truth["views"], key=lambda v: v["shot"])
+    assert [(v["row"], v["column"]) for v in shots] == meander_order(4, 2)
+    assert meander_order(3, 2) == [(0, 0), (0, 1), (0, 2), (1, 2), (1, 1), (1, 0)]
+
+
+def test_bad_arguments_raise_input_error(tmp_path):
+    with pytest.raises(InputError):
+        make_virtual_dataset(tmp_path / "x", 2, 2, width_px=64, fmt="tiff")
+    with pytest.raises(InputError, match="even"):
+        make_virtual_dataset(tmp_path / "y", 2, 2, width_px=65, fmt="dng")
+
+
+def test_flicker_is_measurable_as_configured():
+    sensor = SensorModel(flicker=0.04, seed=1)
+    rgb = np.full((16, 16, 3), 0.4, np.float32)
+    gains = []
+    for shot in range(200):
+        out, gain = sensor.apply(rgb, shot)
+        assert float(out.mean()) == pytest.approx(0.4 * gain, rel=1e-5)
+        gains.append(float(out.mean()) / 0.4)
+    assert np.std(gains) == pytest.approx(0.04, rel=0.2)
+    assert sensor.shot_gain(7) == SensorModel(flicker=0.04, seed=1).shot_gain(7)
+    assert SensorModel().shot_gain(3) == 1.0
+
+
+def test_vignetting_is_measurable_as_configured():
+    studio = VirtualStudio(width_px=200, view_region_mm=(0, 4, 0, 4), n_layers=0, n_objects=0)
+    rgb = studio.render(2.0, 2.0)
+    out, _ = SensorModel(vignetting=0.3, noise=0.001, seed=2).apply(rgb, 0)
+    ratio = out / np.maximum(rgb, 1e-3)
+    h, w = ratio.shape[:2]
+    centre = float(np.median(ratio[h // 2 - 3:h // 2 + 3, w // 2 - 3:w // 2 + 3]))
+    corner = float(np.median(ratio[:4, :4]))
+    assert centre == pytest.approx(1.0, abs=0.02)
+    assert corner / centre == pytest.approx(0.7, abs=0.03)
+
+
+def test_noise_level_is_as_configured():
+    rgb = np.full((64, 64, 3), 0.25, np.float32)
+    sensor = SensorModel(noise=0.002, full_well_e=20000, seed=0)
+    out, _ = sensor.apply(rgb, 0)
+    expected = np.sqrt(0.25 * 20000 + (0.002 * 20000) ** 2) / 20000
+    assert float(out.std()) == pytest.approx(expected, rel=0.05)
+    again, _ = sensor.apply(rgb, 0)
+    assert np.array_equal(out, again)
