@@ -18,6 +18,7 @@ from lfstudio.errors import InputError, LfError
 COMMANDS: list[str] = [
     "gui",
     "plan",
+    "process",
 ]
 
 

@@ -1,0 +1,96 @@
+"""Where per-view tasks run: a ``concurrent.futures`` executor, chosen by :func:`open_executor`.
+
+- default: a local process pool (``spawn``, so it is safe under the GUI's threads), one worker per
+  core, each single-threaded (OpenCV and LibRaw's OpenMP) so that workers scale with cores;
+- ``cluster="tcp://HOST:PORT"``: a Dask distributed scheduler; ``client.get_executor()`` is a
+  concurrent.futures executor. Workers must see the dataset folder at the same path and have
+  lfstudio installed;
+- ``workers=0``: run inline in this process (debugging, previews).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import os
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any, Iterator
+
+from lfstudio.errors import InputError
+
+
+@dataclass
+class ExecutorInfo:
+    executor: cf.Executor
+    workers: int
+    description: str
+    separate_processes: bool
+
+
+class InlineExecutor(cf.Executor):
+    """Runs each task at submit time in the calling thread."""
+
+    def submit(self, fn, /, *args, **kwargs) -> cf.Future:
+        future: cf.Future = cf.Future()
+        future.set_running_or_notify_cancel()
+        try:
+            future.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
+            future.set_exception(exc)
+        return future
+
+
+def _init_local_worker() -> None:
+    # before anything in this fresh process loads LibRaw (its OpenMP reads this once)
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+def default_workers() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+@contextmanager
+def open_executor(workers: int | None = None, cluster: str | None = None,
+                  connect_timeout_s: float = 10.0) -> Iterator[ExecutorInfo]:
+    """An executor for the run; shut down (or disconnected) on exit."""
+    if workers is not None and workers < 0:
+        raise InputError("--workers", f"{workers} is negative", "0 (inline) or more")
+    if cluster:
+        yield from _dask(cluster, connect_timeout_s)
+        return
+    if workers == 0:
+        yield ExecutorInfo(InlineExecutor(), 1, "inline (this process)", False)
+        return
+    n = workers or default_workers()
+    pool = cf.ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn"),
+                                  initializer=_init_local_worker)
+    try:
+        yield ExecutorInfo(pool, n, f"local process pool ({n} worker{'s' if n != 1 else ''})", True)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _dask(address: str, timeout_s: float) -> Iterator[ExecutorInfo]:
+    try:
+        from distributed import Client
+    except ImportError:  # pragma: no cover - a dependency
+        raise InputError("--cluster", "needs the 'distributed' package (pip install 'dask[distributed]')") from None
+    try:
+        client = Client(address, timeout=timeout_s, set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise InputError("--cluster", f"cannot reach the Dask scheduler at {address} ({exc})",
+                         "tcp://HOST:PORT of a running 'dask scheduler'") from None
+    try:
+        info: dict[str, Any] = client.scheduler_info()
+        threads = sum(int(w.get("nthreads", 1)) for w in info.get("workers", {}).values())
+        if threads == 0:
+            raise InputError("--cluster", f"the Dask scheduler at {address} has no workers; start some with "
+                             f"'dask worker {address}'")
+        executor = client.get_executor(pure=False)
+        yield ExecutorInfo(executor, threads, f"Dask cluster {address} ({threads} worker threads)", True)
+    finally:
+        client.close()

@@ -1,0 +1,282 @@
+"""Process a dataset: every captured view through the profile's steps, on an executor.
+
+:func:`process_dataset` computes the reference statistics once (colour levels, de-flicker
+reference, shading coefficients), then sends one task per view to a local process pool or a Dask
+cluster (:mod:`lfstudio.processing.executors`). Views already processed with the same effective
+profile (same hash) whose output exists are skipped, so a crashed or cancelled run resumes. A view
+that fails is reported and the others go on. Results are recorded per view in the manifest
+(``view["processed"]``) and the run in ``manifest["processing"]``; the manifest is saved
+atomically every few seconds and at the end.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from lfstudio.dataset import Dataset, view_stem
+from lfstudio.dataset.manifest import now_iso
+from lfstudio.errors import DatasetError, InputError
+from lfstudio.jobs import CancelToken, Cancelled, Progress, no_progress
+from lfstudio.processing import executors
+from lfstudio.processing.profile import PROFILE_NAME, Profile
+from lfstudio.processing.worker import RunPlan, ViewResult, ViewTask, process_view, render
+
+SAVE_EVERY_S = 3.0
+
+
+@dataclass
+class ProcessReport:
+    processed: int = 0
+    skipped: int = 0
+    failed: list[tuple[int, int, str]] = field(default_factory=list)
+    gains: dict[tuple[int, int], float] = field(default_factory=dict)
+    elapsed_s: float = 0.0
+    executor: str = ""
+    output_folder: str = ""
+    profile_sha256: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.failed
+
+    def summary(self) -> str:
+        text = (f"{self.processed} processed, {self.skipped} already done (skipped), {len(self.failed)} failed "
+                f"in {self.elapsed_s:.1f} s on {self.executor}; output in {self.output_folder}")
+        if self.gains:
+            g = np.array(list(self.gains.values()))
+            text += f"\nde-flicker gains: {g.min():.4f} .. {g.max():.4f} (median {np.median(g):.4f})"
+        return text
+
+
+def _open(dataset: Dataset | str | Path) -> Dataset:
+    return dataset if isinstance(dataset, Dataset) else Dataset.open(dataset)
+
+
+def capturable_views(ds: Dataset) -> list[dict]:
+    """Views that have a capture to process (status done, file present in the manifest)."""
+    return [v for v in ds.views if v.get("status") == "done" and v.get("file")]
+
+
+def reference_view(ds: Dataset, profile: Profile) -> dict:
+    views = capturable_views(ds)
+    if not views:
+        raise DatasetError(f"{ds.manifest_path}: no captured views to process; scan or import images first")
+    ref = profile.reference
+    if ref.row >= 0 or ref.column >= 0:
+        for v in views:
+            if v["row"] == ref.row and v["column"] == ref.column:
+                return v
+        raise InputError("processing.toml: [reference] row/column",
+                         f"no captured view at row {ref.row}, column {ref.column}",
+                         "a captured view, or -1/-1 for the middle of the grid")
+    rows, cols = int(ds.grid["rows"]), int(ds.grid["columns"])
+    r0, c0 = (rows - 1) / 2.0, (cols - 1) / 2.0
+    return min(views, key=lambda v: ((v["row"] - r0) ** 2 + (v["column"] - c0) ** 2, v["row"], v["column"]))
+
+
+def output_name(profile: Profile, row: int, column: int) -> str:
+    ext = ".png" if profile.output.format == "png" else ".tif"
+    return f"{profile.output.folder.strip('/') or 'processed'}/{view_stem(row, column)}{ext}"
+
+
+def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> RunPlan:
+    """Reference statistics and everything the tasks share (decodes the reference view once)."""
+    from lfstudio.processing.steps import color, debayer, deflicker, rectify, resample, shading
+
+    ref = reference_view(ds, profile)
+    ref_path = ds.path_of(ref)
+    full_size = debayer.full_size_px(ref_path)
+    scale = debayer.processing_scale(ref_path, profile.debayer)
+    out_size = resample.output_size(full_size, profile.resample.scale if profile.resample.enabled else scale)
+    homography = None
+    extra: dict[str, Any] = {}
+    if profile.rectify.enabled:
+        cal = rectify.load_calibration(ds.root)
+        if cal is None:
+            raise InputError("processing.toml: [rectify]",
+                             f"{ds.root / rectify.CALIBRATION_NAME} not found; calibrate the dataset first "
+                             "('lfstudio calibrate') or switch rectification off (enabled = false)")
+        if list(cal["image_size_px"]) != list(full_size):
+            raise DatasetError(f"{ds.root / rectify.CALIBRATION_NAME}: image_size_px {cal['image_size_px']} does not "
+                               f"match the captures ({full_size[0]} x {full_size[1]} px); re-run the calibration")
+        homography = np.asarray(cal["homography"], float).tolist()
+        extra["homography"] = [round(v, 12) for row in homography for v in row]
+    flat_path = None
+    if profile.shading.enabled and profile.shading.flat_file:
+        p = Path(profile.shading.flat_file)
+        flat_path = p if p.is_absolute() else ds.root / p
+        if not flat_path.is_file():
+            raise InputError("processing.toml: [shading] flat_file",
+                             f"{flat_path} not found; capture a flat image (uniformly lit white card) and give its path")
+        extra["flat_mtime"] = flat_path.stat().st_mtime_ns
+    extra["reference"] = [ref["row"], ref["column"], ref.get("sha256")]
+    sha = profile.sha256(extra)
+
+    plan = RunPlan(root=str(ds.root), profile=profile.to_dict(), profile_sha256=sha, full_size_wh=tuple(full_size),
+                   processing_scale=scale, output_size_wh=tuple(out_size), homography=homography,
+                   camera=dict(ds.camera), lens=dict(ds.lens), flat_path=str(flat_path) if flat_path else None,
+                   single_thread=single_thread)
+    needs_reference = profile.color.enabled or profile.deflicker.enabled or \
+        (profile.shading.enabled and profile.shading.mode == "model" and not profile.shading.coefficients)
+    if not needs_reference:
+        return plan
+    img = debayer.decode(ref_path, profile.debayer)
+    if profile.deflicker.enabled:
+        plan.reference_small = deflicker.small_luminance(img, profile.deflicker.size_px)
+    if profile.shading.enabled:
+        flat = debayer.decode(flat_path, profile.debayer) if flat_path else None
+        factor, coeffs = shading.correction(profile.shading, (img.shape[1], img.shape[0]), flat)
+        plan.shading_coefficients = coeffs
+        if profile.color.enabled:
+            img = np.clip(img.astype(np.float32) * factor, 0, 65535).astype(np.uint16)
+    if profile.color.enabled:
+        plan.black_rgb, plan.white_rgb = color.levels(img, profile.color, scale)
+    return plan
+
+
+def _skip(view: dict, sha: str, root: Path) -> bool:
+    done = view.get("processed")
+    if not isinstance(done, dict) or done.get("status") != "done" or done.get("profile_sha256") != sha:
+        return False
+    return bool(done.get("file")) and (root / done["file"]).is_file()
+
+
+def _record(ds: Dataset, view: dict, result: ViewResult, sha: str) -> None:
+    if result.ok:
+        view["processed"] = {"status": "done", "file": result.out_file, "profile_sha256": sha,
+                             "gain": round(result.gain, 6), "gain_support": round(result.gain_support, 4),
+                             "stats": result.stats, "processed_at": now_iso(),
+                             "timings_s": {k: round(v, 4) for k, v in result.timings_s.items()}}
+    else:
+        view["processed"] = {"status": "failed", "error": result.error, "profile_sha256": sha,
+                             "processed_at": now_iso()}
+
+
+def process_dataset(dataset: Dataset | str | Path, profile: Profile | None = None, *, workers: int | None = None,
+                    cluster: str | None = None, force: bool = False,
+                    progress: Progress = no_progress, cancel: CancelToken | None = None,
+                    on_view: Callable[[ViewResult], None] | None = None) -> ProcessReport:
+    """Process every captured view of ``dataset``; see the module docstring. Raises :class:`Cancelled`."""
+    t_start = time.monotonic()
+    cancel = cancel or CancelToken()
+    ds = _open(dataset)
+    profile = profile or Profile.for_dataset(ds.root)
+    progress(0, len(capturable_views(ds)), "reading the reference view")
+    separate = bool(cluster) or workers != 0
+    plan = make_plan(ds, profile, single_thread=separate)
+    sha = plan.profile_sha256
+    profile.save(ds.root / PROFILE_NAME)
+
+    views = capturable_views(ds)
+    todo = [v for v in views if force or not _skip(v, sha, ds.root)]
+    report = ProcessReport(skipped=len(views) - len(todo), profile_sha256=sha,
+                           output_folder=str(ds.root / profile.output.folder))
+    ref = reference_view(ds, profile)
+    ds.manifest["processing"] = {
+        "profile_file": PROFILE_NAME, "profile_sha256": sha, "profile": profile.to_dict(),
+        "reference": {"row": ref["row"], "column": ref["column"],
+                      "black_rgb": plan.black_rgb, "white_rgb": plan.white_rgb},
+        "shading_coefficients": plan.shading_coefficients,
+        "rectified": plan.homography is not None,
+        "output_size_px": list(plan.output_size_wh), "started_at": now_iso(), "finished_at": None,
+    }
+    ds.save()
+    total = len(views)
+    done = report.skipped
+    progress(done, total, f"{report.skipped} already processed" if report.skipped else "starting workers")
+    by_index = {(v["row"], v["column"]): v for v in todo}
+    last_save = time.monotonic()
+
+    def finish(result: ViewResult) -> None:
+        nonlocal done, last_save
+        _record(ds, by_index[(result.row, result.column)], result, sha)
+        done += 1
+        stem = view_stem(result.row, result.column)
+        if result.ok:
+            report.processed += 1
+            report.gains[(result.row, result.column)] = result.gain
+            progress(done, total, f"{stem} gain {result.gain:.4f}")
+        else:
+            report.failed.append((result.row, result.column, result.error or "failed"))
+            progress(done, total, f"{stem} FAILED")
+        if on_view is not None:
+            on_view(result)
+        if time.monotonic() - last_save > SAVE_EVERY_S:  # batch the manifest writes
+            ds.save()
+            last_save = time.monotonic()
+
+    try:
+        if todo:
+            with executors.open_executor(workers, cluster) as info:
+                report.executor = info.description
+                _run(info, plan, profile, todo, finish, cancel)
+        else:
+            report.executor = "nothing to do"
+    finally:
+        ds.manifest["processing"]["finished_at"] = now_iso()
+        ds.manifest["processing"]["summary"] = {"processed": report.processed, "skipped": report.skipped,
+                                                "failed": len(report.failed)}
+        ds.save()
+    report.elapsed_s = time.monotonic() - t_start
+    return report
+
+
+def _run(info: executors.ExecutorInfo, plan: RunPlan, profile: Profile, todo: list[dict],
+         finish: Callable[[ViewResult], None], cancel: CancelToken) -> None:
+    """Submit a bounded window of tasks, collect results as they come, stop early on cancel."""
+    window = max(2, 2 * info.workers)
+    queue = list(todo)
+    pending: dict[cf.Future, dict] = {}
+    cancelled = False
+    try:
+        while queue or pending:
+            while queue and len(pending) < window and not cancel.cancelled:
+                v = queue.pop(0)
+                task = ViewTask(v["row"], v["column"], v["file"], output_name(profile, v["row"], v["column"]))
+                pending[info.executor.submit(process_view, plan, task)] = v
+            if cancel.cancelled:
+                cancelled = True
+                queue.clear()
+                for f in list(pending):
+                    if f.cancel():
+                        del pending[f]
+            if not pending:
+                break
+            finished, _ = cf.wait(list(pending), timeout=0.25, return_when=cf.FIRST_COMPLETED)
+            for f in finished:
+                v = pending.pop(f)
+                try:
+                    result = f.result()
+                except cf.CancelledError:
+                    continue
+                except Exception as exc:  # the worker process died (e.g. killed, out of memory)
+                    result = ViewResult(v["row"], v["column"], error=f"{v['file']}: worker failed "
+                                        f"({type(exc).__name__}: {exc})")
+                finish(result)
+    finally:
+        for f in pending:
+            f.cancel()
+    if cancelled or cancel.cancelled:
+        raise Cancelled()
+
+
+def preview(dataset: Dataset | str | Path, profile: Profile, row: int | None = None,
+            column: int | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(before, after, info) of one view without writing anything: ``before`` is the decoded capture
+    resized to the output size, ``after`` the processed view (both uint16 RGB)."""
+    from lfstudio.processing.steps import debayer, resample
+
+    ds = _open(dataset)
+    plan = make_plan(ds, profile)
+    view = reference_view(ds, profile) if row is None else ds.view(row, column)
+    path = ds.path_of(view)
+    after, info = render(plan, path)
+    before = resample.apply(debayer.decode(path, profile.debayer), plan.output_size_wh)
+    info["row"], info["column"] = view["row"], view["column"]
+    return before, after, info

@@ -1,0 +1,102 @@
+"""Step 6: rectification with the dataset's calibration, combined with the lens maps into ONE remap.
+
+``calibration.json`` holds ``homography``: a 3×3 matrix mapping a captured full-resolution pixel to
+the rectified pixel (same image size). Pixel convention everywhere here: OpenCV's, the centre of
+the top-left pixel is (0, 0). An image scaled by ``s`` (half-size debayer) has pixel centres at
+``x_s = s·(x + 0.5) − 0.5``; :func:`scale_homography` conjugates H with that map (C·H·C⁻¹), which
+equals the plain S·H·S⁻¹ only in the pixel-corner convention.
+
+The output pixel p is filled from the captured image at ``lens(H⁻¹·p)`` per channel; the maps are
+built once per run (fixed-point ``CV_16SC2``) and the warp stays in uint16 (float warps are ~8×
+slower).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from lfstudio.errors import DatasetError
+
+CALIBRATION_NAME = "calibration.json"
+INTERPOLATIONS = {"linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4}
+
+
+def load_calibration(root: str | Path) -> dict[str, Any] | None:
+    """``calibration.json`` of a dataset (checked), or None when the dataset has none."""
+    path = Path(root) / CALIBRATION_NAME
+    if not path.is_file():
+        return None
+    try:
+        cal = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{path}: cannot be read as JSON ({exc}); re-run the calibration") from None
+    problems = []
+    H = np.asarray(cal.get("homography", None), dtype=float) if isinstance(cal, dict) else None
+    if H is None or H.shape != (3, 3) or not np.all(np.isfinite(H)) or abs(np.linalg.det(H)) < 1e-12:
+        problems.append(f"{CALIBRATION_NAME}: homography: must be an invertible 3x3 matrix of numbers")
+    size = cal.get("image_size_px") if isinstance(cal, dict) else None
+    if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v > 0 for v in size)):
+        problems.append(f"{CALIBRATION_NAME}: image_size_px: must be [width, height] in pixels")
+    if problems:
+        raise DatasetError(f"{path}: invalid calibration; re-run the calibration", problems)
+    return cal
+
+
+def pixel_scale_matrix(s: float) -> np.ndarray:
+    """C with C·(x, y, 1) = (s(x+0.5)−0.5, s(y+0.5)−0.5, 1): full-res pixel → pixel of an image scaled by s."""
+    t = 0.5 * s - 0.5
+    return np.array([[s, 0.0, t], [0.0, s, t], [0.0, 0.0, 1.0]])
+
+
+def scale_homography(H: np.ndarray, s: float) -> np.ndarray:
+    """The homography ``H`` (full-res pixels) for images scaled by ``s`` (pixel-centre convention)."""
+    C = pixel_scale_matrix(s)
+    return C @ np.asarray(H, dtype=float) @ np.linalg.inv(C)
+
+
+def build_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | None, lens) -> list | None:
+    """Remap maps for an image of ``size_wh`` (= full size × ``scale``): one pair for all channels,
+    or three (R, G, B) with lateral CA; None if there is nothing to warp."""
+    if H_full is None and lens is None:
+        return None
+    w, h = size_wh
+    xs = np.arange(w, dtype=np.float64)
+    maps = []
+    qx = np.empty((h, w), np.float64)
+    qy = np.empty((h, w), np.float64)
+    if H_full is not None:
+        Hinv = np.linalg.inv(scale_homography(H_full, scale))
+        for y in range(h):  # row by row: bounded memory for 40 MP frames
+            den = Hinv[2, 0] * xs + (Hinv[2, 1] * y + Hinv[2, 2])
+            qx[y] = (Hinv[0, 0] * xs + (Hinv[0, 1] * y + Hinv[0, 2])) / den
+            qy[y] = (Hinv[1, 0] * xs + (Hinv[1, 1] * y + Hinv[1, 2])) / den
+    else:
+        qx[:] = xs[None, :]
+        qy[:] = np.arange(h, dtype=np.float64)[:, None]
+    if lens is None:
+        maps = [(qx.astype(np.float32), qy.astype(np.float32))]
+    else:
+        inv = 1.0 / scale
+        fx, fy = (qx + 0.5) * inv - 0.5, (qy + 0.5) * inv - 0.5   # -> full-resolution pixels
+        del qx, qy
+        maps = [(((mx + 0.5) * scale - 0.5).astype(np.float32), ((my + 0.5) * scale - 0.5).astype(np.float32))
+                for mx, my in lens.source_coords(fx, fy)]
+    return [cv2.convertMaps(mx, my, cv2.CV_16SC2) for mx, my in maps]
+
+
+def apply_maps(img: np.ndarray, maps: list | None, interpolation: str = "linear") -> np.ndarray:
+    """Warp ``img`` (uint16 or float32, (h, w[, c])) with maps from :func:`build_maps`; outside: 0."""
+    if maps is None:
+        return img
+    inter = INTERPOLATIONS[interpolation]
+    if len(maps) == 1:
+        m1, m2 = maps[0]
+        return cv2.remap(img, m1, m2, inter, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    channels = [cv2.remap(plane, m1, m2, inter, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+                for plane, (m1, m2) in zip(cv2.split(img), maps)]
+    return cv2.merge(channels)
