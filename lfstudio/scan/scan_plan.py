@@ -124,7 +124,7 @@ class ScanPlan:
         except (KeyError, TypeError, ValueError):
             raise InputError("plan grid", "needs columns, rows and spacing_mm [h, v]") from None
         if settle_s is None:
-            settle_s = grid.get("settle_s")
+            settle_s = grid.get("settle_s", getattr(scene_plan, "settle_s", None))
         return cls.centered(columns, rows, spacing, rig, offset_mm=offset_mm,
                             order=order or grid.get("order") or DEFAULT_ORDER, settle_s=settle_s)
 

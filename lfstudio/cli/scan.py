@@ -1,0 +1,191 @@
+"""``lfstudio scan``: capture a grid of views into a dataset folder (crash-safe, resumable)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+from lfstudio.errors import DatasetError, InputError
+
+HELP = "capture a grid of views into a dataset folder (meander order, pipelined, resumable)"
+
+EXIT_FAULT = 3
+
+
+def _pair(text: str, option: str, kind=float, sep: str = "x") -> tuple:
+    parts = text.lower().replace("×", "x").split(sep)
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        return kind(parts[0]), kind(parts[1])
+    except ValueError:
+        example = "101x21" if kind is int else "4x6"
+        raise InputError(option, f"cannot read {text!r}", f"two numbers like {example}") from None
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rig", default="sim", metavar="sim|PORT",
+                   help="axis controller: 'sim' (simulated GRBL on a pseudo-terminal), 'instant' (no timing) "
+                        "or a serial port such as /dev/ttyUSB0 (default: sim)")
+    p.add_argument("--camera", default="sim", metavar="sim|gphoto2|folder:PATH",
+                   help="camera: 'sim' (renders the virtual studio), 'gphoto2' (tethered USB), "
+                        "'folder:PATH' (hot folder) or 'instant' (default: sim)")
+    p.add_argument("--rig-profile", default=None, metavar="NAME",
+                   help="rig profile from the presets (default: the reference gantry)")
+    p.add_argument("--grid", metavar="CxR", help="columns x rows, e.g. 101x21 (default: from --plan or 101x21)")
+    p.add_argument("--spacing-mm", metavar="HxV", help="horizontal x vertical spacing in mm, e.g. 4x6")
+    p.add_argument("--offset-mm", metavar="HxV", default="0x0",
+                   help="shift of the grid from the centre of the travel in mm (default 0x0)")
+    p.add_argument("--order", choices=("row-meander", "column-meander", "raster"), default=None,
+                   help="capture order (default: row-meander)")
+    p.add_argument("--settle-s", type=float, default=None, help="settle time after each move (default: rig profile)")
+    p.add_argument("--plan", metavar="PLAN", help="a scene plan file saved by the planner (grid, spacing, camera, lens)")
+    p.add_argument("--out", required=True, metavar="DATASET", help="the dataset folder to create (or resume)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted scan in DATASET: captures only the views not done yet")
+    p.add_argument("--time-scale", type=float, default=1.0, metavar="X",
+                   help="multiply every simulated duration: 1 real time, 0.1 ten times faster, 0 as fast as possible")
+    p.add_argument("--exposure-s", type=float, default=0.5, help="simulated camera exposure time (default 0.5)")
+    p.add_argument("--transfer-s", type=float, default=2.5, help="simulated camera transfer time (default 2.5)")
+    p.add_argument("--retries", type=int, default=2, help="retries per view before the scan stops (default 2)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulated devices")
+
+
+def _build_plan(args: argparse.Namespace, rig_config, existing=None):
+    from lfstudio.scan.scan_plan import ScanPlan
+
+    if args.time_scale < 0:
+        raise InputError("--time-scale", f"must be zero or positive, got {args.time_scale:g}", ">= 0")
+    scene = None
+    if args.plan:
+        from lfstudio.planning.scene_plan import load_plan
+
+        scene = load_plan(args.plan)
+    if existing is not None:
+        base = ScanPlan.from_grid_dict(existing.grid)
+        grid = (base.columns, base.rows)
+        spacing = base.spacing_mm
+        if args.grid and _pair(args.grid, "--grid", int) != grid:
+            raise InputError("--grid", f"{args.grid} differs from the dataset's {grid[0]}x{grid[1]}",
+                             "leave it out with --resume, or scan into a new --out folder")
+        if args.spacing_mm and _pair(args.spacing_mm, "--spacing-mm") != spacing:
+            raise InputError("--spacing-mm", f"{args.spacing_mm} differs from the dataset's "
+                             f"{spacing[0]:g}x{spacing[1]:g}", "leave it out with --resume")
+        settle = base.settle_s if args.settle_s is None else args.settle_s
+        plan = ScanPlan(base.columns, base.rows, base.spacing_mm, base.origin_mm, args.order or base.order, settle)
+        plan.check_limits(rig_config)
+        return plan, scene
+    if scene is not None:
+        grid = (scene.grid_columns, scene.grid_rows)
+        spacing = tuple(scene.spacing_mm)
+    else:
+        grid, spacing = (101, 21), (4.0, 6.0)
+    if args.grid:
+        grid = _pair(args.grid, "--grid", int)
+    if args.spacing_mm:
+        spacing = _pair(args.spacing_mm, "--spacing-mm")
+    if grid[0] < 1 or grid[1] < 1:
+        raise InputError("--grid", f"{args.grid}: needs at least one column and one row", "e.g. 101x21")
+    if spacing[0] <= 0 or spacing[1] <= 0:
+        raise InputError("--spacing-mm", f"{args.spacing_mm}: spacing must be positive", "e.g. 4x6")
+    offset = _pair(args.offset_mm, "--offset-mm")
+    settle = args.settle_s
+    if settle is None and scene is not None:
+        settle = scene.settle_s
+    try:
+        plan = ScanPlan.centered(grid[0], grid[1], spacing, rig_config, offset_mm=offset,
+                                 order=args.order or "row-meander", settle_s=settle)
+    except InputError as exc:
+        field = {"grid columns / horizontal spacing_mm": "--grid/--spacing-mm",
+                 "grid rows / vertical spacing_mm": "--grid/--spacing-mm",
+                 "horizontal origin/offset_mm": "--offset-mm", "vertical origin/offset_mm": "--offset-mm",
+                 "grid columns": "--grid", "grid rows": "--grid"}.get(exc.field, exc.field)
+        raise InputError(field, str(exc).split(": ", 1)[-1]) from None
+    return plan, scene
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from lfstudio.dataset import Dataset
+    from lfstudio.jobs import TerminalProgress, format_duration
+    from lfstudio.rig.profile import DEFAULT_RIG, load_rig
+    from lfstudio.scan.devices import open_devices
+    from lfstudio.scan.engine import ScanEngine, create_scan_dataset
+    from lfstudio.scan.events import EventKind, ScanState
+
+    rig_config = load_rig(args.rig_profile or DEFAULT_RIG)
+    out = Path(args.out)
+    existing = None
+    if args.resume:
+        if not (out / "dataset.json").is_file():
+            raise InputError("--out", f"{out} holds no dataset to resume", "the folder of an interrupted scan")
+        existing = Dataset.open(out)
+    elif (out / "dataset.json").exists():
+        raise InputError("--out", f"{out} already holds a dataset",
+                         "add --resume to continue it, or choose a new folder")
+    plan, scene = _build_plan(args, rig_config, existing)
+
+    devices = open_devices(args.rig, args.camera, rig_config, time_scale=args.time_scale,
+                           exposure_s=args.exposure_s, transfer_s=args.transfer_s, seed=args.seed)
+    try:
+        if existing is None:
+            camera = scene.camera_dict() if scene is not None else {"name": getattr(devices.camera, "name", args.camera)}
+            camera.setdefault("driver", args.camera)
+            lens = scene.lens_dict() if scene is not None else {"name": "unknown"}
+            rig = {"name": rig_config.name, "label": rig_config.label, "port": args.rig}
+            dataset = create_scan_dataset(out, plan, rig=rig, camera=camera, lens=lens,
+                                          scene_plan=scene.to_dict() if scene is not None else None)
+        else:
+            dataset = existing
+        engine = ScanEngine(dataset, plan, devices.rig, devices.camera, retries=args.retries,
+                            time_scale=args.time_scale)
+        todo = engine.remaining
+        print(f"lfstudio scan: {devices.description}; {plan.columns}x{plan.rows} grid, "
+              f"{dataset.status_counts()['done']} done, {todo} to capture into {dataset.root}", file=sys.stderr)
+        if todo == 0:
+            print("lfstudio scan: nothing to do, every view is captured", file=sys.stderr)
+            return 0
+        bar = TerminalProgress("scan")
+        paused = threading.Event()
+
+        def on_event(ev) -> None:
+            if ev.kind is EventKind.VIEW_DONE:
+                bar(ev.done, ev.total, f"r{ev.row:02d} c{ev.column:03d}")
+            elif ev.kind is EventKind.VIEW_FAILED:
+                print(f"\nlfstudio scan: view r{ev.row:02d} c{ev.column:03d}: {ev.message}"
+                      + (" (retrying)" if ev.will_retry else ""), file=sys.stderr)
+            elif ev.kind is EventKind.STATE and ev.state is ScanState.PAUSED:
+                paused.set()
+            elif ev.kind is EventKind.LOG:
+                print(f"lfstudio scan: {ev.message}", file=sys.stderr)
+
+        engine.subscribe(on_event)
+        previous = signal.signal(signal.SIGINT, lambda *a: engine.abort())
+        try:
+            engine.start()
+            while not engine.wait(0.2) in (ScanState.FINISHED, ScanState.FAILED):
+                if paused.is_set():
+                    # no operator at a terminal: a fault ends the run, --resume continues it
+                    fault = engine.fault
+                    engine.abort()
+                    engine.wait()
+                    if fault is not None:
+                        print(f"\nlfstudio scan: stopped: {fault}\nlfstudio scan: run again with --resume "
+                              "to continue.", file=sys.stderr)
+                        return EXIT_FAULT
+                    paused.clear()
+        finally:
+            signal.signal(signal.SIGINT, previous)
+        state = engine.state
+        counts = dataset.status_counts()
+        if state is ScanState.FAILED:
+            raise DatasetError(engine.message)
+        print(f"lfstudio scan: {engine.message} ({format_duration(engine._active_s)})", file=sys.stderr)
+        if counts["done"] + counts["skipped"] == len(dataset.views):
+            return 0
+        return 130 if engine._abort_req else 1
+    finally:
+        devices.close()
