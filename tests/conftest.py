@@ -93,3 +93,16 @@ def tiny_dataset(make_tiny_dataset):
 def tiny_dataset_dng(make_tiny_dataset):
     """The same scene as ``tiny_dataset`` stored as 14-bit Bayer DNG files."""
     return make_tiny_dataset("dng")
+
+@pytest.fixture
+def sim_rig():
+    """``(controller, simulator)``: the reference rig's GRBL simulator on a real pty (time_scale 0.02,
+    so moves take 1/50 of real time), connected and homed. Closed after the test."""
+    from lfstudio.rig.connect import open_rig
+    from lfstudio.rig.profile import load_rig
+
+    controller, simulator = open_rig("sim", load_rig(), time_scale=0.02, seed=1, timeout_s=1.0)
+    controller.home()
+    yield controller, simulator
+    controller.disconnect()
+    simulator.close()

@@ -8,8 +8,11 @@ y vertical (0 at the top end of travel), unless the profile says otherwise.
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
+
+from lfstudio.errors import InputError
 
 
 class RigState(str, enum.Enum):
@@ -85,3 +88,33 @@ class MotionController(Protocol):
         ...
     def reset(self) -> None: ...
     def status(self) -> RigStatus: ...
+
+
+class SoftLimitError(InputError):
+    """A target outside the rig's soft limits; nothing was sent to the controller."""
+
+
+def check_target(config: RigConfig, x_mm: float, y_mm: float) -> tuple[float, float]:
+    """Return (x, y) as floats if both are finite and inside the soft limits, else raise
+    :class:`SoftLimitError` naming the axis and the valid range. Call before sending any target."""
+    result = []
+    for axis, value, label in ((config.horizontal, x_mm, "x"), (config.vertical, y_mm, "y")):
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise SoftLimitError(f"target {label} ({axis.name})", f"{value!r} is not a number") from None
+        if not math.isfinite(v):
+            raise SoftLimitError(f"target {label} ({axis.name})", f"{value!r} is not a finite number")
+        if not axis.contains(v):
+            raise SoftLimitError(f"target {label} ({axis.name})",
+                                 f"{v:g} mm is outside the soft limits; nothing was sent",
+                                 f"{axis.soft_min_mm:g} … {axis.soft_max_mm:g} mm")
+        result.append(min(max(v, axis.soft_min_mm), axis.soft_max_mm))
+    return result[0], result[1]
+
+
+def clamp_target(config: RigConfig, x_mm: float, y_mm: float) -> tuple[float, float]:
+    """The nearest point inside the soft limits (for jogging up to a limit)."""
+    h, v = config.horizontal, config.vertical
+    return (min(max(float(x_mm), h.soft_min_mm), h.soft_max_mm),
+            min(max(float(y_mm), v.soft_min_mm), v.soft_max_mm))

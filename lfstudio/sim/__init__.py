@@ -1,1 +1,1 @@
-"""Simulators: the virtual studio (scene + renderer with ground truth), the simulated camera, the DNG writer."""
+"""Simulators: the virtual studio (scene + renderer with ground truth), the simulated camera, the DNG writer, the GRBL controller on a pty."""

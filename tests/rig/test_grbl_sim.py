@@ -1,0 +1,221 @@
+"""The GRBL driver against the simulated controller over a real pseudo-terminal."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+import serial
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from lfstudio.errors import DeviceError
+from lfstudio.rig.connect import open_rig
+from lfstudio.rig.grbl import ConnectionLost, GrblAlarm, MotionStopped, PositionError
+from lfstudio.rig.motion import MotionController, RigState, SoftLimitError
+from lfstudio.rig.profile import load_rig
+from lfstudio.rig.worker import DeviceWorker
+from lfstudio.sim.grbl_controller import GrblSimulator
+
+
+def inside(rig, target):
+    return rig.horizontal.contains(target[0]) and rig.vertical.contains(target[1])
+
+
+def test_simulator_speaks_grbl_on_a_pty():
+    rig = load_rig()
+    with GrblSimulator(rig, time_scale=0) as sim:
+        assert sim.port.startswith("/dev/")
+        with serial.Serial(sim.port, 115200, timeout=1) as port:
+            assert b"Grbl 1.1h" in port.read_until(b"unlock]\r\n")
+            port.write(b"?")
+            assert port.readline().startswith(b"<Alarm|MPos:")
+            port.write(b"$I\n")
+            assert port.readline() == b"[VER:1.1h.20190825:]\r\n"
+            port.write(b"G0 X10\n")  # locked until homed or unlocked
+            assert port.read_until(b"error:9\r\n").endswith(b"error:9\r\n")
+
+
+def test_handshake_home_move_and_ground_truth(sim_rig):
+    controller, sim = sim_rig
+    assert isinstance(controller, MotionController)
+    assert controller.version.startswith("1.1") and controller.settings[110] == 200 * 60
+    status = controller.move_to(1234.5, 321.0)
+    assert status.state is RigState.IDLE and status.homed
+    assert status.position_mm == pytest.approx((1234.5, 321.0), abs=0.02)
+    true_x, true_y = sim.true_position_mm()
+    assert abs(true_x - 1234.5) < 5 * 0.080 and abs(true_y - 321.0) < 5 * 0.050
+    assert (true_x, true_y) != (1234.5, 321.0)  # the repeatability error is there
+    assert sim.records[-1].target_mm == pytest.approx((1234.5, 321.0))
+
+
+def test_no_motion_before_homing_and_nothing_sent_outside_soft_limits():
+    rig = load_rig()
+    controller, sim = open_rig("sim", rig, time_scale=0, timeout_s=1.0)
+    try:
+        assert controller.status().state is RigState.ALARM
+        with pytest.raises(DeviceError, match="home the rig"):
+            controller.move_to(10, 10)
+        controller.unlock()
+        with pytest.raises(DeviceError, match="position is unknown"):
+            controller.jog(5, 0)
+        controller.home()
+        with pytest.raises(SoftLimitError, match=r"4000.5 mm is outside the soft limits.*0 … 4000 mm"):
+            controller.move_to(4000.5, 10)
+        with pytest.raises(SoftLimitError, match="target y"):
+            controller.move_to(10, -0.1)
+        with pytest.raises(SoftLimitError, match="not a finite number"):
+            controller.move_to(float("nan"), 1)
+        assert sim.records == []
+        controller.move_to(3990, 495)
+        controller.jog(100, 100)          # clamped to the soft limits
+        assert sim.records[-1].target_mm == (4000.0, 500.0)
+        controller.jog(10, 10)            # already at the limit: nothing is sent
+        assert len(sim.records) == 2
+    finally:
+        controller.disconnect()
+        sim.close()
+
+
+def test_rig_without_switches_needs_an_origin():
+    rig = load_rig("Desktop slider 1 m")   # X and Z axes, no homing
+    controller, sim = open_rig("sim", rig, time_scale=0, timeout_s=1.0)
+    try:
+        with pytest.raises(DeviceError, match="no limit switches"):
+            controller.home()
+        with pytest.raises(DeviceError, match="set the origin first"):
+            controller.move_to(1, 1)
+        controller.set_origin()
+        status = controller.move_to(500, 100)
+        assert status.position_mm == pytest.approx((500, 100))
+        assert sim.lines_received[-1].startswith("G90 G0 X500.000 Z100.000")
+        assert sim.reported_position_mm() == pytest.approx((500, 100))
+    finally:
+        controller.disconnect()
+        sim.close()
+
+
+def test_jog_and_jog_cancel(sim_rig):
+    controller, sim = sim_rig
+    controller.jog(3000, 0, speed_mm_s=100)
+    assert controller.status().state is RigState.JOGGING
+    controller.jog_cancel()
+    status = controller.status()
+    assert status.state is RigState.IDLE and 0 < status.position_mm[0] < 3000
+
+
+def test_stop_mid_move_from_another_thread(sim_rig):
+    controller, sim = sim_rig
+    sim.time_scale = 0.2     # the move takes ~4 s: STOP surely lands mid-move
+    moving = threading.Event()
+    worker = DeviceWorker(controller, name="rig", publish_hz=20)
+    worker.subscribe(lambda s: moving.set() if s.state is RigState.MOVING else None)
+    try:
+        future = worker.submit("move_to", 3900, 450)
+        assert moving.wait(10)
+        worker.stop_now()
+        with pytest.raises(MotionStopped, match="stopped by STOP"):
+            future.result(10)
+        status = worker.call("status")
+        assert status.state is RigState.IDLE and status.homed
+        assert 0 < status.position_mm[0] < 3900
+        assert worker.call("move_to", 100, 100).position_mm == pytest.approx((100, 100))  # usable again
+    finally:
+        worker.close(disconnect=False)
+
+
+def test_fault_alarm_mid_move(sim_rig):
+    controller, sim = sim_rig
+    sim.inject("alarm_mid_move")
+    with pytest.raises(GrblAlarm, match="hard limit"):
+        controller.move_to(2000, 200)
+    status = controller.status()
+    assert status.state is RigState.ALARM and not status.homed and "home" in status.message
+    with pytest.raises(DeviceError):
+        controller.move_to(10, 10)
+    controller.home()                       # recovery: reset + home
+    assert controller.move_to(10, 10).state is RigState.IDLE
+
+
+def test_fault_position_error(sim_rig):
+    controller, sim = sim_rig
+    sim.inject("position_error")
+    with pytest.raises(PositionError, match=r"stopped at \(499.500, 50.000\).*target \(500.000, 50.000\)"):
+        controller.move_to(500, 50)
+    assert controller.move_to(500, 50).position_mm == pytest.approx((500, 50))
+
+
+def test_fault_garbage_is_ignored(sim_rig):
+    controller, sim = sim_rig
+    sim.inject("garbage")
+    for i in range(6):
+        assert controller.move_to(10 + i, 5).position_mm == pytest.approx((10 + i, 5))
+    assert controller.garbage_lines > 0
+
+
+def test_fault_silent_then_reconnect(sim_rig):
+    controller, sim = sim_rig
+    sim.inject("silent")
+    with pytest.raises(ConnectionLost, match="did not"):
+        controller.move_to(20, 20)
+    status = controller.status()
+    assert status.state is RigState.DISCONNECTED and "connect again" in status.message
+    with pytest.raises(ConnectionLost):
+        controller.jog(1, 0)
+    sim.clear_faults()
+    controller.connect()
+    assert controller.status().state is RigState.IDLE and not controller.status().homed
+    controller.home()
+    assert controller.move_to(20, 20).homed
+
+
+def test_fault_drop(sim_rig):
+    controller, sim = sim_rig
+    sim.inject("drop")
+    with pytest.raises(ConnectionLost, match="lost"):
+        controller.move_to(30, 30)
+    assert controller.status().state is RigState.DISCONNECTED
+    with pytest.raises(DeviceError, match="cannot open"):
+        controller.connect()
+
+
+def test_unknown_fault_is_refused():
+    with pytest.raises(ValueError, match="drop, silent"):
+        GrblSimulator(load_rig()).inject("fire")
+
+
+_rig = load_rig()
+commands = st.one_of(
+    st.tuples(st.just("move"), st.floats(-500, 4500, allow_nan=False), st.floats(-100, 600, allow_nan=False)),
+    st.tuples(st.just("jog"), st.floats(-5000, 5000, allow_nan=False), st.floats(-700, 700, allow_nan=False)),
+    st.tuples(st.just("origin"), st.just(0.0), st.just(0.0)),
+)
+
+
+@pytest.fixture(scope="module")
+def instant_rig():
+    controller, sim = open_rig("sim", _rig, time_scale=0, timeout_s=1.0)
+    controller.home()
+    yield controller, sim
+    controller.disconnect()
+    sim.close()
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(commands, min_size=1, max_size=8))
+def test_property_no_target_outside_soft_limits_is_ever_sent(instant_rig, sequence):
+    controller, sim = instant_rig
+    for kind, a, b in sequence:
+        try:
+            if kind == "move":
+                controller.move_to(a, b)
+            elif kind == "jog":
+                controller.jog(a, b)
+                controller.jog_cancel()
+            else:
+                controller.home()
+        except SoftLimitError:
+            assert not inside(_rig, (a, b))
+    assert sim.records, "some motion reached the controller"
+    bad = [r for r in sim.records if not inside(_rig, r.target_mm)]
+    assert bad == []

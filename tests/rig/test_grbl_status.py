@@ -1,0 +1,98 @@
+"""GRBL 1.1 status-report parsing: every field, any order, garbage around it."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lfstudio.rig.grbl import parse_status
+
+coord = st.floats(min_value=-9999, max_value=9999, allow_nan=False).map(lambda v: round(v, 3))
+triple = st.tuples(coord, coord, coord)
+noise = st.text(alphabet=st.characters(blacklist_characters="<>\r\n", min_codepoint=0, max_codepoint=255),
+                max_size=12)
+
+
+def fmt(values):
+    return ",".join(f"{v:.3f}" for v in values)
+
+
+@st.composite
+def reports(draw):
+    state = draw(st.sampled_from(["Idle", "Run", "Hold:0", "Hold:1", "Jog", "Alarm", "Door:2", "Check",
+                                  "Home", "Sleep"]))
+    fields = {}
+    if draw(st.booleans()):
+        fields["MPos"] = draw(triple)
+    else:
+        fields["WPos"] = draw(triple)
+    if draw(st.booleans()):
+        fields["WCO"] = draw(triple)
+    if draw(st.booleans()):
+        fields["Bf"] = (draw(st.integers(0, 15)), draw(st.integers(0, 128)))
+    if draw(st.booleans()):
+        fields["Ln"] = draw(st.integers(0, 99999))
+    if draw(st.booleans()):
+        fields["FS"] = (draw(st.integers(0, 20000)), draw(st.integers(0, 1000)))
+    elif draw(st.booleans()):
+        fields["F"] = draw(st.integers(0, 20000))
+    if draw(st.booleans()):
+        fields["Pn"] = "".join(draw(st.lists(st.sampled_from("XYZPDHRS"), min_size=1, max_size=4, unique=True)))
+    if draw(st.booleans()):
+        fields["Ov"] = (draw(st.integers(10, 200)), draw(st.integers(25, 100)), draw(st.integers(10, 200)))
+    if draw(st.booleans()):
+        fields["A"] = draw(st.sampled_from(["S", "SFM", "C"]))
+    order = draw(st.permutations(list(fields)))
+    return state, fields, order
+
+
+def render(key, value):
+    if key in ("MPos", "WPos", "WCO"):
+        return f"{key}:{fmt(value)}"
+    if isinstance(value, tuple):
+        return f"{key}:{','.join(str(v) for v in value)}"
+    return f"{key}:{value}"
+
+
+@settings(max_examples=100, deadline=None)
+@given(reports(), noise, noise)
+def test_every_field_any_order_with_garbage(report, before, after):
+    state, fields, order = report
+    text = before + "<" + "|".join([state] + [render(k, fields[k]) for k in order]) + ">" + after
+    st_ = parse_status(text)
+    assert st_ is not None
+    name, _, sub = state.partition(":")
+    assert st_.state == name and st_.substate == (int(sub) if sub else None)
+    for key, attr in (("MPos", "mpos"), ("WPos", "wpos"), ("WCO", "wco")):
+        assert getattr(st_, attr) == (tuple(fields[key]) if key in fields else None)
+    if "Bf" in fields:
+        assert (st_.planner_free, st_.rx_free) == fields["Bf"]
+    if "FS" in fields:
+        assert (st_.feed_mm_min, st_.spindle_rpm) == fields["FS"]
+    if "F" in fields:
+        assert st_.feed_mm_min == fields["F"]
+    assert st_.line_number == fields.get("Ln")
+    assert st_.pins == fields.get("Pn", "")
+    assert st_.overrides == fields.get("Ov")
+    assert st_.accessories == fields.get("A", "")
+    assert st_.unknown == ()
+
+
+def test_work_position_from_mpos_and_last_wco():
+    st_ = parse_status("<Idle|MPos:10.000,20.000,0.000|FS:0,0>")
+    assert st_.work_position((1.0, 2.0, 0.0)) == (9.0, 18.0, 0.0)
+    with_wco = parse_status("<Idle|MPos:10.000,20.000,0.000|WCO:5.000,5.000,0.000>")
+    assert with_wco.work_position((1.0, 2.0, 0.0)) == (5.0, 15.0, 0.0)
+
+
+@pytest.mark.parametrize("text", ["", "ok", "<>", "<Flying|MPos:1,2,3>", "garbage <Idle", "Idle|MPos:1,2,3>",
+                                  "<Hold:x|MPos:0,0,0>"])
+def test_not_a_report(text):
+    assert parse_status(text) is None
+
+
+def test_malformed_fields_are_skipped_not_fatal():
+    st_ = parse_status("\x00\xff<Run|MPos:1.000,abc,3|FS:100,0|Zz:9|Bf:15>")
+    assert st_.state == "Run" and st_.mpos is None and st_.feed_mm_min == 100
+    assert set(st_.unknown) == {"MPos:1.000,abc,3", "Zz:9", "Bf:15"}
