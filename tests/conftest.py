@@ -94,6 +94,7 @@ def tiny_dataset_dng(make_tiny_dataset):
     """The same scene as ``tiny_dataset`` stored as 14-bit Bayer DNG files."""
     return make_tiny_dataset("dng")
 
+
 @pytest.fixture
 def sim_rig():
     """``(controller, simulator)``: the reference rig's GRBL simulator on a real pty (time_scale 0.02,
