@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 
 from lfstudio.dataset import Dataset
-from tests.processing._dng import write_bayer_dng
+from lfstudio.sim.dng import mosaic_from_rgb, write_dng
+
+
+def write_bayer_dng(path, rgb_linear: np.ndarray) -> None:
+    """A 14-bit RGGB DNG of a linear RGB image (1 = clipping), through the simulated camera's writer."""
+    write_dng(path, mosaic_from_rgb(rgb_linear), as_shot_neutral=(0.52, 1.0, 0.71))
 
 
 def scene(w: int, h: int, seed: int = 0) -> np.ndarray:

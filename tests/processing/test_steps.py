@@ -11,8 +11,7 @@ from hypothesis import strategies as st
 from lfstudio.errors import InputError
 from lfstudio.processing.profile import ColorStep, DebayerStep, DeflickerStep, LensStep, Profile, ShadingStep
 from lfstudio.processing.steps import color, debayer, deflicker, lens, rectify, resample, shading
-from tests.processing._dng import write_bayer_dng
-from tests.processing.conftest import scene
+from tests.processing.conftest import scene, write_bayer_dng
 
 
 # -- profile -----------------------------------------------------------------------------------
@@ -63,10 +62,14 @@ def test_debayer_is_linear_16bit(tmp_path):
 
 def test_debayer_fixed_white_balance_scales_channels(tmp_path):
     write_bayer_dng(tmp_path / "g.dng", np.full((32, 48, 3), 0.25, np.float32))
-    img = debayer.decode(tmp_path / "g.dng", DebayerStep(white_balance="fixed", wb_multipliers=[2, 1, 1, 1],
-                                                                   color_space="raw"))
-    r, g, b = img.reshape(-1, 3).mean(axis=0)
-    assert r / g == pytest.approx(2.0, rel=0.02) and b / g == pytest.approx(1.0, rel=0.02)
+    unit = debayer.decode(tmp_path / "g.dng", DebayerStep(white_balance="fixed", wb_multipliers=[1, 1, 1, 1],
+                                                          color_space="raw"))
+    red2 = debayer.decode(tmp_path / "g.dng", DebayerStep(white_balance="fixed", wb_multipliers=[2, 1, 1, 1],
+                                                          color_space="raw"))
+    ratio = red2.reshape(-1, 3).mean(axis=0) / unit.reshape(-1, 3).mean(axis=0)
+    assert ratio == pytest.approx([2.0, 1.0, 1.0], rel=0.02)
+    camera = debayer.decode(tmp_path / "g.dng", DebayerStep(white_balance="camera"))
+    assert camera.reshape(-1, 3).mean(axis=0) == pytest.approx([0.25 * 65535] * 3, rel=0.02)  # neutral grey
 
 
 def test_png_and_8bit_inputs_are_accepted(tmp_path):

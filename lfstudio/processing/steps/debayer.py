@@ -31,7 +31,9 @@ def processing_scale(path: str | Path, step: DebayerStep) -> float:
 def _params(step: DebayerStep):
     import rawpy
 
-    kw = dict(gamma=(1, 1), no_auto_bright=True, output_bps=16, user_flip=0,
+    # adjust_maximum_thr=0: scale by the RAW's white level, never by the image's own maximum (LibRaw's
+    # default rescales images with clipped pixels: a brightness jump between views of one scene)
+    kw = dict(gamma=(1, 1), no_auto_bright=True, output_bps=16, user_flip=0, adjust_maximum_thr=0.0,
               half_size=step.half_size,
               output_color=rawpy.ColorSpace.raw if step.color_space == "raw" else rawpy.ColorSpace.sRGB,
               demosaic_algorithm=getattr(rawpy.DemosaicAlgorithm, step.demosaic))
