@@ -18,6 +18,8 @@ from lfstudio.errors import InputError, LfError
 COMMANDS: list[str] = [
     "gui",
     "plan",
+    "rig",
+    "sim_rig",
     "scan",
     "info",
     "process",

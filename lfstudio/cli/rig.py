@@ -1,0 +1,122 @@
+"""``lfstudio rig``: run rig commands in order on one connection and print the state after each."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from lfstudio.errors import DeviceError, InputError
+
+HELP = "talk to the axis controller: status, home, unlock, origin, move X Y, jog DX DY (in order)"
+
+#: command word -> names of its numeric arguments
+COMMAND_ARGS = {"status": (), "home": (), "unlock": (), "origin": (), "reset": (),
+                "move": ("X", "Y"), "jog": ("DX", "DY")}
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--port", required=True, metavar="PORT",
+                   help="serial port of the controller (/dev/ttyUSB0, /dev/pts/N printed by 'lfstudio sim-rig', "
+                        "COM3) or 'sim' to start the built-in simulated controller in this process")
+    p.add_argument("--rig", default=None, metavar="NAME", help="rig profile (default: the reference gantry)")
+    p.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    p.add_argument("--time-scale", type=float, default=1.0, metavar="X",
+                   help="with --port sim: 1 real time, 0.1 ten times faster, 0 instant (default 1)")
+    p.add_argument("--timeout-s", type=float, default=3.0, help="longest wait for any answer (default 3 s)")
+    p.add_argument("commands", nargs=argparse.REMAINDER, metavar="COMMAND [ARGS]",
+                   help="status | home | unlock | origin | reset | move X Y | jog DX DY  (mm; several in a row)")
+    p.epilog = "example: lfstudio rig --port sim home move 10 5 status"
+
+
+def parse_commands(words: list[str]) -> list[tuple[str, tuple[float, ...]]]:
+    """``["home", "move", "10", "5"]`` -> ``[("home", ()), ("move", (10.0, 5.0))]``; InputError if malformed."""
+    if not words:
+        raise InputError("COMMAND", "no command given", " | ".join(COMMAND_ARGS))
+    out: list[tuple[str, tuple[float, ...]]] = []
+    i = 0
+    while i < len(words):
+        word = words[i].lower()
+        if word not in COMMAND_ARGS:
+            raise InputError("COMMAND", f"unknown command {words[i]!r}", ", ".join(COMMAND_ARGS))
+        names = COMMAND_ARGS[word]
+        values = words[i + 1:i + 1 + len(names)]
+        if len(values) < len(names):
+            raise InputError(word, f"needs {' '.join(names)} (mm)", f"{word} {' '.join(names)}")
+        numbers = []
+        for name, text in zip(names, values):
+            try:
+                numbers.append(float(text))
+            except ValueError:
+                raise InputError(f"{word} {name}", f"{text!r} is not a number in mm") from None
+        out.append((word, tuple(numbers)))
+        i += 1 + len(names)
+    return out
+
+
+def describe(status) -> str:
+    pos = ("x=? y=?" if status.position_mm is None
+           else f"x={status.position_mm[0]:.3f} y={status.position_mm[1]:.3f} mm")
+    text = f"{status.state.value:<12} {pos}  {'homed' if status.homed else 'not homed'}"
+    if status.message:
+        text += f"  — {status.message}"
+    return text
+
+
+def _wait_idle(controller, timeout_s: float = 600.0):
+    from lfstudio.rig.motion import RigState
+
+    deadline = time.monotonic() + timeout_s
+    status = controller.status()
+    while status.state in (RigState.JOGGING, RigState.MOVING):
+        if time.monotonic() > deadline:
+            raise DeviceError("the jog did not end in time; motion stopped")
+        time.sleep(0.05)
+        status = controller.status()
+    return status
+
+
+def run(args: argparse.Namespace) -> int:
+    from lfstudio.rig.connect import open_rig
+    from lfstudio.rig.profile import DEFAULT_RIG, load_rig
+
+    commands = parse_commands(args.commands)
+    if args.time_scale < 0:
+        raise InputError("--time-scale", f"must be zero or positive, got {args.time_scale:g}", ">= 0")
+    rig = load_rig(args.rig or DEFAULT_RIG)
+    controller, simulator = open_rig(args.port, rig, time_scale=args.time_scale, baudrate=args.baud,
+                                     timeout_s=args.timeout_s)
+    try:
+        if simulator is not None:
+            print(f"simulated GRBL controller on {simulator.port} (rig {rig.name!r})", flush=True)
+        for word, values in commands:
+            if word == "status":
+                status = controller.status()
+            elif word == "home":
+                controller.home()
+                status = controller.status()
+            elif word == "unlock":
+                controller.unlock()
+                status = controller.status()
+            elif word == "reset":
+                controller.reset()
+                status = controller.status()
+            elif word == "origin":
+                controller.set_origin()
+                status = controller.status()
+            elif word == "move":
+                status = controller.move_to(*values)
+            else:  # jog
+                controller.jog(*values)
+                status = _wait_idle(controller)
+            label = word + ("" if not values else " " + " ".join(f"{v:g}" for v in values))
+            print(f"{label:<20} {describe(status)}", flush=True)
+    except KeyboardInterrupt:
+        controller.stop()
+        raise
+    finally:
+        try:
+            controller.disconnect()
+        finally:
+            if simulator is not None:
+                simulator.close()
+    return 0

@@ -1,0 +1,48 @@
+"""``lfstudio sim-rig``: run the simulated GRBL controller on a pseudo-terminal until Ctrl-C."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+from lfstudio.errors import InputError
+
+HELP = "start the simulated GRBL controller on a pseudo-terminal and print its port path"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rig", default=None, metavar="NAME", help="rig profile (default: the reference gantry)")
+    p.add_argument("--time-scale", type=float, default=1.0, metavar="X",
+                   help="1 real time, 0.1 ten times faster, 0 instant (default 1)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the start position and repeatability errors")
+
+
+def run(args: argparse.Namespace) -> int:
+    from lfstudio.rig.profile import DEFAULT_RIG, load_rig
+    from lfstudio.sim.grbl_controller import GrblSimulator
+
+    if args.time_scale < 0:
+        raise InputError("--time-scale", f"must be zero or positive, got {args.time_scale:g}", ">= 0")
+    rig = load_rig(args.rig or DEFAULT_RIG)
+    done = threading.Event()
+    sim = GrblSimulator(rig, time_scale=args.time_scale, seed=args.seed)
+    port = sim.start()
+    previous = signal.signal(signal.SIGTERM, lambda *_: done.set())
+    try:
+        print(port, flush=True)
+        print(f"simulated GRBL 1.1 controller for rig {rig.name!r} on {port}; connect with\n"
+              f"  lfstudio rig --port {port} home status\n"
+              "or any serial terminal (115200 baud). Ctrl-C stops it.", file=sys.stderr, flush=True)
+        while not done.wait(0.5):
+            if not sim.running:
+                print("the simulated controller stopped", file=sys.stderr)
+                return 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        sim.close()
+    print("simulated controller stopped", file=sys.stderr)
+    return 0
