@@ -260,19 +260,28 @@ class VirtualStudio:
         return layers
 
     # -- rendering ----------------------------------------------------------------------------------
-    def render(self, x_mm: float, y_mm: float, *, ideal: bool = False, with_depth: bool = False
-               ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    def render(self, x_mm: float, y_mm: float, *, ideal: bool = False, with_depth: bool = False,
+               scale: float = 1.0) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """Render the view from camera position (x_mm, y_mm): H x W x 3 float32 linear RGB in [0, 1].
 
         ``ideal``: render with the ideal camera (K0, no rotation) instead of the captured one.
         ``with_depth``: also return the H x W float32 depth map (m, z of the visible surface).
+        ``scale`` < 1: a smaller image of the same view (previews; textures are not filtered).
         """
         w, h = self.width_px, self.height_px
+        S = None
+        if scale != 1.0:
+            w, h = max(2, int(round(w * scale))), max(2, int(round(h * scale)))
+            sx, sy = w / self.width_px, h / self.height_px
+            # pixel centres: u' + 0.5 = (u + 0.5) * s
+            S = np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
         out = np.zeros((h, w, 3), np.float32)
         depth = np.full((h, w), self.far_m, np.float32) if with_depth else None
         scale = np.float32(1.0 / 65535.0)
         for layer in self.layers:
             P = self.layer_homography(layer, x_mm, y_mm, ideal)
+            if S is not None:
+                P = S @ P
             if layer.reflect:
                 warped = cv2.warpPerspective(layer.rgba[..., :3], P, (w, h), flags=cv2.INTER_LINEAR,
                                              borderMode=cv2.BORDER_REFLECT_101)
