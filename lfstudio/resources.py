@@ -5,7 +5,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-RESOURCES_DIR = Path(__file__).resolve().parent.parent / "resources"
+import sys
+
+# In a PyInstaller bundle the resources sit in the bundle folder; otherwise next to the package.
+RESOURCES_DIR = (Path(getattr(sys, "_MEIPASS")) if hasattr(sys, "_MEIPASS")
+                 else Path(__file__).resolve().parent.parent) / "resources"
 PRESETS_DIR = RESOURCES_DIR / "presets"
 
 
