@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
-
 import sys
+from pathlib import Path
 
 # In a PyInstaller bundle the resources sit in the bundle folder; otherwise next to the package.
 RESOURCES_DIR = (Path(getattr(sys, "_MEIPASS")) if hasattr(sys, "_MEIPASS")
