@@ -22,6 +22,8 @@ COMMANDS: list[str] = [
     "sim_rig",
     "scan",
     "info",
+    "calibrate",
+    "simulate_calibration",
     "process",
 ]
 

@@ -1,0 +1,159 @@
+"""Self-calibrate a dataset: pick views and pairs, detect and match features, fit, report, save.
+
+``calibrate_dataset(dataset, ...)`` is a long job (``progress``, ``cancel``); it returns a
+:class:`CalibrationRun` whose ``document`` is what :func:`save_calibration` writes to
+``DATASET/calibration.json``.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from lfstudio.calibration.features import DEFAULT_MAX_FEATURES, DEFAULT_WORK_WIDTH_PX, FeatureCache, Features, match_pair
+from lfstudio.calibration.fit import CalibrationError, FitResult, PairMatches, fit_rectification
+from lfstudio.calibration.pairs import Pair, make_pairs, parse_views
+from lfstudio.calibration.report import build_report
+from lfstudio.dataset.atomic import atomic_write_json
+from lfstudio.dataset.paths import view_stem
+from lfstudio.errors import DatasetError
+from lfstudio.jobs import CancelToken, Progress, no_progress
+
+CALIBRATION_NAME = "calibration.json"
+
+
+@dataclass
+class CalibrationRun:
+    document: dict[str, Any]
+    fit: FitResult
+    matches: list[PairMatches]
+    pairs: list[Pair]
+    views: list[tuple[int, int]]
+
+
+def available_views(dataset) -> list[tuple[int, int]]:
+    """Views that have a captured image file."""
+    return sorted((int(v["row"]), int(v["column"])) for v in dataset.views
+                  if v.get("status") == "done" and v.get("file"))
+
+
+def select_views(dataset, views: str | Sequence[tuple[int, int]] | None) -> list[tuple[int, int]]:
+    avail = available_views(dataset)
+    if not avail:
+        raise DatasetError(f"{dataset.root}: no captured views to calibrate from; scan first")
+    grid = dataset.grid
+    if views is None or isinstance(views, str):
+        return parse_views(views, int(grid["columns"]), int(grid["rows"]), avail)
+    chosen = sorted(set((int(r), int(c)) for r, c in views))
+    missing = [view_stem(*v) for v in chosen if v not in set(avail)]
+    if missing:
+        raise DatasetError(f"{dataset.root}: views without a captured image: {', '.join(missing)}")
+    return chosen
+
+
+def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = None, *,
+                      estimate_principal_point: bool = False, focal_length_px: float | None = None,
+                      max_width_px: int | None = DEFAULT_WORK_WIDTH_PX, max_features: int = DEFAULT_MAX_FEATURES,
+                      neighbours_only: bool = False, ratio: float = 0.8, threads: int = 2,
+                      pairs: Sequence[Pair] | None = None, progress: Progress = no_progress,
+                      cancel: CancelToken | None = None) -> CalibrationRun:
+    """Run the whole self-calibration on ``dataset`` (an open :class:`lfstudio.dataset.Dataset`)."""
+    chosen = select_views(dataset, views)
+    spacing = dataset.grid.get("spacing_mm") or [1.0, 1.0]
+    pair_list = list(pairs) if pairs is not None else make_pairs(chosen, spacing, neighbours_only=neighbours_only)
+    if not pair_list:
+        raise CalibrationError(f"the chosen views ({', '.join(view_stem(*v) for v in chosen)}) form no pair in a "
+                               "common row or column; choose at least two views of one row and two of one column")
+    needed = sorted({p.a for p in pair_list} | {p.b for p in pair_list})
+    total_steps = len(needed) + len(pair_list) + 1
+    done = 0
+    cache = FeatureCache(dataset.root, max_width_px, max_features)
+
+    def check() -> None:
+        if cancel is not None:
+            cancel.check()
+
+    feats: dict[tuple[int, int], Features] = {}
+    progress(0, total_steps, "detecting features")
+
+    def one(v):
+        check()
+        return v, cache.get(view_stem(*v), dataset.path_of(dataset.view(*v)))[0]
+
+    with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
+        futures = [pool.submit(one, v) for v in needed]
+        try:
+            for fut in futures:
+                v, f = fut.result()
+                feats[v] = f
+                done += 1
+                progress(done, total_steps, f"features {view_stem(*v)}: {f.count}")
+        except BaseException:
+            for fut in futures:
+                fut.cancel()
+            raise
+    sizes = {f.image_size_px for f in feats.values()}
+    if len(sizes) > 1:
+        raise DatasetError(f"{dataset.root}: the chosen views have different image sizes {sorted(sizes)}; "
+                           "calibrate views of one camera setting")
+    image_size = next(iter(sizes))
+    if focal_length_px is None:
+        focal_length_px = dataset.focal_length_px(image_size[0])
+
+    matches: list[PairMatches] = []
+    for p in pair_list:
+        check()
+        m = match_pair(feats[p.a], feats[p.b], p.direction, ratio=ratio)
+        matches.append(PairMatches(p.a, p.b, p.direction, m.xy_a, m.xy_b, raw_matches=m.candidates,
+                                   baseline_mm=p.baseline_mm))
+        done += 1
+        progress(done, total_steps, f"matched {view_stem(*p.a)}–{view_stem(*p.b)}: {m.inliers}/{m.candidates}")
+    check()
+    progress(done, total_steps, "fitting orientation")
+    fit = fit_rectification(matches, focal_length_px, image_size, estimate_principal_point=estimate_principal_point)
+    settings = {"max_width_px": max_width_px, "max_features": max_features, "ratio": ratio,
+                "neighbours_only": neighbours_only, "estimate_principal_point": estimate_principal_point,
+                "work_scale": float(max(f.scale for f in feats.values()))}
+    doc = build_report(fit, matches, views=needed, feature_counts={v: f.count for v, f in feats.items()},
+                       settings=settings,
+                       created=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
+    progress(total_steps, total_steps, "done")
+    return CalibrationRun(doc, fit, matches, pair_list, needed)
+
+
+def save_calibration(dataset, document: dict[str, Any]) -> Path:
+    """Write ``calibration.json`` atomically into the dataset and note it in the manifest."""
+    path = Path(dataset.root) / CALIBRATION_NAME
+    atomic_write_json(path, document)
+    dataset.manifest["calibration"] = {"file": CALIBRATION_NAME, "created": document.get("created"),
+                                       "rotation_deg": document["rotation_deg"],
+                                       "residual_after_rms_px": document["residual_px"]["after"]["rms"]}
+    dataset.save()
+    return path
+
+
+def load_calibration(dataset_or_root) -> dict[str, Any] | None:
+    """The dataset's ``calibration.json`` or None when it has none."""
+    root = Path(getattr(dataset_or_root, "root", dataset_or_root))
+    path = root / CALIBRATION_NAME
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{path}: cannot be read ({exc}); run 'lfstudio calibrate' again") from None
+
+
+def homography_for(document: dict[str, Any], image_size_px: Sequence[int] | None = None) -> np.ndarray:
+    """The document's homography, expressed for images of ``image_size_px`` (default: full resolution)."""
+    from lfstudio.calibration.model import scale_homography
+    H = np.array(document["homography"], float)
+    if image_size_px is None or list(image_size_px) == list(document["image_size_px"]):
+        return H
+    return scale_homography(H, document["image_size_px"], image_size_px)

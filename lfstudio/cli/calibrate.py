@@ -1,0 +1,63 @@
+"""``lfstudio calibrate DATASET``: self-calibrate the camera orientation from the images alone."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from lfstudio.errors import InputError
+
+HELP = "self-calibrate the camera orientation (and principal point) from the dataset's images"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dataset", metavar="DATASET", help="dataset folder (holds dataset.json)")
+    p.add_argument("--views", metavar="SPEC", default="2x3",
+                   help="views to use: ROWSxCOLUMNS spread over the grid (default 2x3, the paper's array), "
+                        "'all', or names like r00_c000,r00_c050,r20_c000")
+    p.add_argument("--neighbours-only", action="store_true",
+                   help="pair only adjacent views of the chosen array (default: every pair within a row/column, "
+                        "several baselines)")
+    p.add_argument("--estimate-principal-point", action="store_true",
+                   help="also estimate the principal point (weakly determined; off in the paper)")
+    p.add_argument("--focal-length-px", type=float, metavar="F",
+                   help="focal length in full-resolution pixels (default: from the dataset's camera and lens)")
+    p.add_argument("--work-width-px", type=int, default=2000, metavar="PX",
+                   help="width at which features are detected (default 2000; 0 = full resolution)")
+    p.add_argument("--threads", type=int, default=2, help="feature-detection threads (default 2)")
+    p.add_argument("--no-save", action="store_true", help="print the result but do not write calibration.json")
+    p.add_argument("--json", action="store_true", help="print the calibration document as JSON instead of text")
+
+
+def run(args: argparse.Namespace) -> int:
+    from lfstudio.calibration.calibrate import calibrate_dataset, save_calibration
+    from lfstudio.calibration.report import format_report
+    from lfstudio.dataset import Dataset
+    from lfstudio.jobs import TerminalProgress
+
+    if args.focal_length_px is not None and not args.focal_length_px > 0:
+        raise InputError("--focal-length-px", f"{args.focal_length_px} must be positive", "> 0 pixels")
+    if args.work_width_px < 0:
+        raise InputError("--work-width-px", f"{args.work_width_px} must not be negative", "0 (full) or ≥ 200")
+    if 0 < args.work_width_px < 200:
+        raise InputError("--work-width-px", f"{args.work_width_px} is too small for reliable features",
+                         "0 (full) or ≥ 200")
+    ds = Dataset.open(args.dataset)
+    run_ = calibrate_dataset(ds, args.views, estimate_principal_point=args.estimate_principal_point,
+                             focal_length_px=args.focal_length_px, max_width_px=args.work_width_px or None,
+                             neighbours_only=args.neighbours_only, threads=max(1, args.threads),
+                             progress=TerminalProgress("calibrate"))
+    doc = run_.document
+    if not args.no_save:
+        path = save_calibration(ds, doc)
+        print(f"wrote {path}", file=sys.stderr)
+    if args.json:
+        json.dump(doc, sys.stdout, indent=1)
+        sys.stdout.write("\n")
+    else:
+        print(format_report(doc))
+        if not args.no_save:
+            print(f"\nsaved {Path(ds.root) / 'calibration.json'}")
+    return 0

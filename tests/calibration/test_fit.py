@@ -1,0 +1,53 @@
+import numpy as np
+import pytest
+
+from lfstudio.calibration.fit import CalibrationError, PairMatches, fit_rectification
+from lfstudio.calibration.model import rotation_angle_deg, rotation_matrix
+from lfstudio.calibration.simulate import SimulationConfig, evaluate_trial, make_trial
+
+EXACT = SimulationConfig(position_noise_um=0.0, feature_noise_px=0.0, points_per_pair=150)
+
+
+def _err(fit, trial):
+    return rotation_angle_deg(rotation_matrix(fit.rotation_deg), rotation_matrix(trial.rotation_deg))
+
+
+@pytest.mark.parametrize("rot", [[0.3, -0.2, 0.5], [5.0, -5.0, 5.0], [-8.0, 7.0, 9.0]])
+def test_exact_correspondences_give_the_exact_rotation_even_from_far(rot):
+    trial = make_trial(np.random.default_rng(2), 0.0, EXACT, rotation_deg=rot)
+    fit = fit_rectification(trial.matches, EXACT.focal_length_px, EXACT.image_size_px)
+    assert _err(fit, trial) < 1e-3
+    assert np.sqrt(np.mean(fit.residual_after_px ** 2)) < 1e-3
+    assert np.sqrt(np.mean(fit.residual_before_px ** 2)) > 5
+
+
+def test_principal_point_estimation_rectifies_exact_data_with_a_shifted_centre():
+    trial = make_trial(np.random.default_rng(3), 50.0, EXACT)
+    fixed = evaluate_trial(trial, EXACT, False)
+    free = evaluate_trial(trial, EXACT, True)
+    assert free["true_residual_px"] < 0.01 < fixed["true_residual_px"]
+    assert free["rotation_error_deg"] < 0.01
+
+
+def test_noise_floor_and_rotation_accuracy_with_the_papers_noise():
+    cfg = SimulationConfig()
+    rows = [evaluate_trial(make_trial(np.random.default_rng(s), 0.0, cfg), cfg, False) for s in range(4)]
+    for r in rows:
+        assert 0.65 < r["residual_px"] < 0.95          # feature + position noise floor (RMS)
+        assert r["true_residual_px"] < 0.4
+        assert r["rotation_error_deg"] < 0.12
+
+
+def test_thirty_percent_wrong_matches_do_not_break_the_fit():
+    cfg = SimulationConfig(outlier_fraction=0.3)
+    trial = make_trial(np.random.default_rng(7), 0.0, cfg, rotation_deg=[2.0, -3.0, 4.0])
+    fit = fit_rectification(trial.matches, cfg.focal_length_px, cfg.image_size_px)
+    assert _err(fit, trial) < 0.12
+    assert 0.6 < fit.inlier.mean() < 0.75               # the wrong ones were trimmed
+
+
+def test_too_few_matches_is_a_clear_error_naming_the_pairs():
+    trial = make_trial(np.random.default_rng(1), 0.0, EXACT)
+    few = [PairMatches(m.view_a, m.view_b, m.direction, m.xy_a[:1], m.xy_b[:1]) for m in trial.matches[:3]]
+    with pytest.raises(CalibrationError, match="too few feature matches.*r00_c000–r00_c050"):
+        fit_rectification(few, EXACT.focal_length_px, EXACT.image_size_px)

@@ -1,0 +1,40 @@
+import pytest
+
+from lfstudio.calibration.pairs import make_pairs, parse_views, sparse_subset, spread_indices
+from lfstudio.errors import InputError
+
+
+def test_default_is_the_papers_2x3_array_over_the_reference_grid():
+    views = sparse_subset(101, 21)
+    assert views == [(0, 0), (0, 50), (0, 100), (20, 0), (20, 50), (20, 100)]
+    pairs = make_pairs(views, (4.0, 6.0))
+    hor = [p for p in pairs if p.direction == "h"]
+    ver = [p for p in pairs if p.direction == "v"]
+    assert len(hor) == 6 and len(ver) == 3
+    assert sorted({p.baseline_mm for p in hor}) == [200.0, 400.0]   # several baselines
+    assert {p.baseline_mm for p in ver} == {120.0}
+    assert all(p.a[1] < p.b[1] for p in hor) and all(p.a[0] < p.b[0] for p in ver)
+
+
+def test_neighbours_only_and_denser_arrays():
+    views = sparse_subset(101, 21, 3, 5)
+    assert len(views) == 15 and spread_indices(21, 3) == [0, 10, 20]
+    assert len(make_pairs(views, neighbours_only=True)) == 3 * 4 + 5 * 2
+    assert len(make_pairs(views)) == 3 * 10 + 5 * 3
+
+
+def test_subset_snaps_to_captured_views():
+    avail = [(r, c) for r in (1, 19) for c in range(0, 101, 7)]
+    views = sparse_subset(101, 21, 2, 3, avail)
+    assert views == [(1, 0), (1, 49), (1, 98), (19, 0), (19, 49), (19, 98)]
+
+
+def test_parse_views_forms_and_errors():
+    avail = [(r, c) for r in range(3) for c in range(4)]
+    assert parse_views("all", 4, 3, avail) == avail
+    assert parse_views("2x2", 4, 3, avail) == [(0, 0), (0, 3), (2, 0), (2, 3)]
+    assert parse_views("r00_c001, r2c3", 4, 3, avail) == [(0, 1), (2, 3)]
+    with pytest.raises(InputError, match="--views"):
+        parse_views("banana", 4, 3, avail)
+    with pytest.raises(InputError, match="r05_c001"):
+        parse_views("r05_c001", 4, 3, avail)
