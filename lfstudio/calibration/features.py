@@ -27,7 +27,7 @@ from lfstudio.errors import DatasetError
 
 RAW_SUFFIXES = {".dng", ".arw", ".cr2", ".cr3", ".nef", ".raf", ".orf", ".rw2", ".pef", ".srw", ".raw", ".3fr",
                 ".iiq", ".erf", ".kdc", ".mrw", ".nrw", ".x3f"}
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 DEFAULT_WORK_WIDTH_PX = 2000
 DEFAULT_MAX_FEATURES = 6000
 
@@ -62,12 +62,12 @@ def read_grey(path: str | Path, max_width_px: int | None = DEFAULT_WORK_WIDTH_PX
         import rawpy
         try:
             with rawpy.imread(str(path)) as raw:
-                rgb = raw.postprocess(half_size=True, use_camera_wb=True, no_auto_bright=True, output_bps=16,
-                                      gamma=(2.222, 4.5))
-                sizes = raw.sizes
+                sizes = raw.sizes   # read before postprocess: half_size changes them
                 full = (int(sizes.width), int(sizes.height))
                 if sizes.flip in (5, 6):
                     full = (full[1], full[0])
+                rgb = raw.postprocess(half_size=True, use_camera_wb=True, no_auto_bright=True, output_bps=16,
+                                      gamma=(2.222, 4.5))
         except Exception as exc:  # rawpy raises several LibRaw error types
             raise DatasetError(f"{path}: cannot be read as a RAW file ({exc}); re-copy it from the camera") from None
         grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
@@ -150,9 +150,12 @@ class MatchResult:
 
 
 def _ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float) -> dict[int, int]:
-    matcher = cv2.BFMatcher(cv2.NORM_L2)
+    if len(da) * len(db) > 4_000_000:   # approximate nearest neighbours (kd-trees) for large sets
+        matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})
+    else:
+        matcher = cv2.BFMatcher(cv2.NORM_L2)
     out: dict[int, int] = {}
-    for m in matcher.knnMatch(da, db, k=2):
+    for m in matcher.knnMatch(np.ascontiguousarray(da, np.float32), np.ascontiguousarray(db, np.float32), k=2):
         if len(m) == 2 and m[0].distance < ratio * m[1].distance:
             out[m[0].queryIdx] = m[0].trainIdx
         elif len(m) == 1:
