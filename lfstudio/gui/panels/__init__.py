@@ -20,6 +20,7 @@ class PanelSpec:
 
 
 PANELS: list[PanelSpec] = [
+    PanelSpec("Processing", "processingPanel", "lfstudio.gui.panels.processing:ProcessingPanel", "right"),
 ]
 
 #: the central widget, "module:ClassName" constructed as ``Cls(state)``

@@ -1,0 +1,560 @@
+"""Dataset → Process…: the processing profile editor, a before/after preview, and the run itself.
+
+The editor is generated from the profile's dataclasses (one checkable group per step). The
+preview renders one view with the current profile off the GUI thread (``JobRunner``) and shows it
+split: the capture on the left of the divider, the processed view on the right. "Pick white" /
+"Pick black" then a click on the preview set the colour step's points (full-resolution pixels of
+the capture). Process runs :func:`lfstudio.processing.pipeline.process_dataset` on a local pool or
+a Dask cluster with progress, ETA and Cancel; when it ends, ``state.datasetChanged`` is emitted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PySide6.QtCore import QPointF, QRectF, Qt, Signal
+from PySide6.QtGui import QColor, QImage, QPainter, QPen
+from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QFileDialog, QFormLayout,
+                               QGroupBox, QHBoxLayout, QLabel, QLineEdit, QMessageBox, QPushButton,
+                               QScrollArea, QSizePolicy, QSpinBox, QSplitter, QVBoxLayout, QWidget)
+
+from lfstudio.errors import InputError
+from lfstudio.gui.bridge import JobRunner
+from lfstudio.gui.imageutil import rgb_to_qimage
+from lfstudio.gui.settings import settings
+from lfstudio.gui.widgets import JobProgressWidget
+from lfstudio.processing.profile import _CHOICES, PROFILE_NAME, STEP_TYPES, Profile
+
+STEP_TITLES = {
+    "debayer": "1  Debayer (RAW → linear 16-bit)", "lens": "2  Lens distortion and lateral CA",
+    "color": "3  Colour: black and white point", "shading": "4  Shading (flat field / vignetting)",
+    "deflicker": "5  De-flicker (gain to the reference)", "rectify": "6  Rectification (calibration)",
+    "resample": "7  Downsampling (area)", "reference": "Reference view", "output": "Output",
+}
+TIPS = {
+    "white_balance": "camera: as shot; fixed: the multipliers below; daylight: LibRaw's daylight balance",
+    "wb_multipliers": "R G B G2 multipliers for fixed white balance",
+    "half_size": "Each 2x2 Bayer block becomes one pixel: 4x faster, half resolution (no demosaicing)",
+    "color_space": "srgb: the camera's colour matrix is applied (linear); raw: camera RGB",
+    "source": "lensfun: database by camera and lens name; opencv: the coefficients below",
+    "dist_coeffs": "OpenCV k1 k2 p1 p2 [k3 [k4 k5 k6]] in full-resolution pixels",
+    "mode": "How the step gets its numbers",
+    "black_point_px": "x y of a black patch in the capture (full-resolution pixels); use Pick black",
+    "white_point_px": "x y of a white patch in the capture (full-resolution pixels); use Pick white",
+    "white_output": "The white point maps to this fraction of 65535 (headroom for highlights)",
+    "flat_file": "A RAW or PNG of a uniformly lit white card, relative to the dataset folder",
+    "coefficients": "k1 k2 k3 of V(r) = 1 + k1 r² + k2 r⁴ + k3 r⁶; empty: fitted to the flat file",
+    "statistic": "median_ratio: median of per-pixel ratios (robust); median: ratio of medians",
+    "size_px": "Width of the reduced luminance image the gain is measured on",
+    "scale": "Output size relative to the full-resolution capture (0.5: half, as in the paper)",
+    "row": "Row of the reference view (-1: middle of the grid)",
+    "column": "Column of the reference view (-1: middle of the grid)",
+    "png_compression": "zlib level 0..9: 1 is fast, 9 is ~10 % smaller",
+}
+
+
+def to_display(img: np.ndarray) -> np.ndarray:
+    """uint16 linear RGB -> uint8 with a 2.2 gamma (what the eye expects)."""
+    f = np.clip(img.astype(np.float32) / 65535.0, 0.0, 1.0)
+    return (np.power(f, 1 / 2.2) * 255.0 + 0.5).astype(np.uint8)
+
+
+class SplitView(QWidget):
+    """Before (left of the divider) / after (right) of one view; drag to move the divider.
+
+    In pick mode a click emits ``picked(x, y)`` in image pixels instead of moving the divider.
+    """
+
+    picked = Signal(float, float)
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.before: QImage | None = None
+        self.after: QImage | None = None
+        self.split = 0.5
+        self.pick_mode: str | None = None
+        self.marks: dict[str, tuple[float, float]] = {}
+        self.setMinimumSize(420, 300)
+        self.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Expanding)
+        self.setMouseTracking(True)
+        self.setToolTip("Left: capture, right: processed. Drag to move the divider.")
+
+    def set_images(self, before: np.ndarray, after: np.ndarray) -> None:
+        self.before, self.after = rgb_to_qimage(to_display(before)), rgb_to_qimage(to_display(after))
+        self.update()
+
+    def image_rect(self) -> QRectF:
+        if self.after is None:
+            return QRectF()
+        w, h = self.after.width(), self.after.height()
+        s = min(self.width() / w, self.height() / h)
+        return QRectF((self.width() - w * s) / 2, (self.height() - h * s) / 2, w * s, h * s)
+
+    def to_image(self, pos: QPointF) -> tuple[float, float] | None:
+        r = self.image_rect()
+        if r.isEmpty() or not r.contains(pos):
+            return None
+        s = r.width() / self.after.width()
+        return (pos.x() - r.x()) / s - 0.5, (pos.y() - r.y()) / s - 0.5
+
+    def paintEvent(self, event) -> None:
+        p = QPainter(self)
+        p.fillRect(self.rect(), QColor(32, 32, 32))
+        if self.after is None:
+            p.setPen(QColor(200, 200, 200))
+            p.drawText(self.rect(), Qt.AlignCenter, "Preview: choose a view and press Update preview")
+            return
+        r = self.image_rect()
+        split = 1.0 if self.pick_mode else self.split
+        sx = r.x() + r.width() * split
+        p.save()
+        p.setClipRect(QRectF(r.x(), r.y(), sx - r.x(), r.height()))
+        p.drawImage(r, self.before)
+        p.restore()
+        p.save()
+        p.setClipRect(QRectF(sx, r.y(), r.right() - sx, r.height()))
+        p.drawImage(r, self.after)
+        p.restore()
+        p.setPen(QPen(QColor(255, 210, 0), 2))
+        if not self.pick_mode:
+            p.drawLine(QPointF(sx, r.y()), QPointF(sx, r.bottom()))
+            p.drawText(QRectF(r.x() + 6, r.y() + 4, 200, 20), Qt.AlignLeft, "capture")
+            p.drawText(QRectF(r.right() - 206, r.y() + 4, 200, 20), Qt.AlignRight, "processed")
+        else:
+            p.drawText(QRectF(r.x() + 6, r.y() + 4, 400, 20), Qt.AlignLeft, f"click the {self.pick_mode} patch")
+        s = r.width() / self.after.width()
+        for name, (x, y) in self.marks.items():
+            c = QPointF(r.x() + (x + 0.5) * s, r.y() + (y + 0.5) * s)
+            p.setPen(QPen(QColor(255, 255, 255) if name == "black" else QColor(0, 0, 0), 2))
+            p.drawEllipse(c, 7, 7)
+            p.drawText(c + QPointF(9, -9), name)
+
+    def mousePressEvent(self, event) -> None:
+        pos = event.position()
+        if self.pick_mode:
+            xy = self.to_image(pos)
+            if xy is not None:
+                self.picked.emit(*xy)
+            return
+        self._drag(pos)
+
+    def mouseMoveEvent(self, event) -> None:
+        if event.buttons() & Qt.LeftButton and not self.pick_mode:
+            self._drag(event.position())
+
+    def _drag(self, pos: QPointF) -> None:
+        r = self.image_rect()
+        if r.width() > 0:
+            self.split = float(np.clip((pos.x() - r.x()) / r.width(), 0.0, 1.0))
+            self.update()
+
+
+class StepEditor(QGroupBox):
+    """One profile section: a checkable group (when the step has ``enabled``) with a field per setting."""
+
+    def __init__(self, name: str, step: Any, parent: QWidget | None = None):
+        super().__init__(STEP_TITLES.get(name, name), parent)
+        self.name = name
+        self.setObjectName(f"step_{name}")
+        self.fields: dict[str, QWidget] = {}
+        form = QFormLayout(self)
+        self.form = form
+        form.setFieldGrowthPolicy(QFormLayout.AllNonFixedFieldsGrow)
+        for f in dataclasses.fields(step):
+            value = getattr(step, f.name)
+            if f.name == "enabled":
+                self.setCheckable(True)
+                self.setChecked(bool(value))
+                continue
+            widget = self._widget(f.name, value)
+            widget.setToolTip(TIPS.get(f.name, f.name.replace("_", " ")))
+            self.fields[f.name] = widget
+            form.addRow(f.name.replace("_", " "), widget)
+        if self.isCheckable():  # a switched-off step folds away
+            self.toggled.connect(self._fold)
+            self._fold(self.isChecked())
+
+    def _fold(self, on: bool) -> None:
+        for row in range(self.form.rowCount()):
+            self.form.setRowVisible(row, on)
+
+    def _widget(self, key: str, value: Any) -> QWidget:
+        choices = _CHOICES.get((self.name, key))
+        if choices:
+            w = QComboBox()
+            w.addItems(list(choices))
+            w.setCurrentText(str(value))
+        elif isinstance(value, bool):
+            w = QCheckBox()
+            w.setChecked(value)
+        elif isinstance(value, int):
+            w = QSpinBox()
+            w.setRange(-1, 100000)
+            w.setValue(value)
+        elif isinstance(value, float):
+            w = QDoubleSpinBox()
+            w.setDecimals(4)
+            w.setRange(-1e6, 1e6)
+            w.setValue(value)
+        elif isinstance(value, list):
+            w = QLineEdit(" ".join(f"{v:g}" for v in value))
+        else:
+            w = QLineEdit(str(value))
+        return w
+
+    def set_value(self, key: str, value: Any) -> None:
+        w = self.fields[key]
+        if isinstance(w, QComboBox):
+            w.setCurrentText(str(value))
+        elif isinstance(w, QCheckBox):
+            w.setChecked(bool(value))
+        elif isinstance(w, (QSpinBox, QDoubleSpinBox)):
+            w.setValue(value)
+        else:
+            w.setText(" ".join(f"{v:g}" for v in value) if isinstance(value, list) else str(value))
+
+    def values(self) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        if self.isCheckable():
+            out["enabled"] = self.isChecked()
+        for key, w in self.fields.items():
+            if isinstance(w, QComboBox):
+                out[key] = w.currentText()
+            elif isinstance(w, QCheckBox):
+                out[key] = w.isChecked()
+            elif isinstance(w, QSpinBox):
+                out[key] = int(w.value())
+            elif isinstance(w, QDoubleSpinBox):
+                out[key] = float(w.value())
+            else:
+                text = w.text().strip()
+                default = getattr(STEP_TYPES[self.name](), key)
+                if isinstance(default, list):
+                    try:
+                        out[key] = [float(t) for t in text.replace(",", " ").split()]
+                    except ValueError:
+                        raise InputError(f"{STEP_TITLES.get(self.name, self.name)}: {key.replace('_', ' ')}",
+                                         f"{text!r} is not a list of numbers", "numbers separated by spaces")
+                else:
+                    out[key] = text
+        return out
+
+
+def _preview_job(root: str, profile: Profile, row: int, column: int, *, progress, cancel):
+    from lfstudio.processing.pipeline import preview
+
+    progress(0, 1, "rendering preview")
+    result = preview(root, profile, row, column)
+    progress(1, 1, "preview ready")
+    return result
+
+
+def _process_job(root: str, profile: Profile, workers: int | None, cluster: str | None, force: bool, *,
+                 progress, cancel):
+    from lfstudio.processing.pipeline import process_dataset
+
+    return process_dataset(root, profile, workers=workers, cluster=cluster, force=force,
+                           progress=progress, cancel=cancel)
+
+
+class ProcessDialog(QDialog):
+    """Profile editor + before/after preview + run with progress, ETA and Cancel."""
+
+    def __init__(self, state, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.state = state
+        self.setObjectName("processDialog")
+        self.setWindowTitle("Process views")
+        self.resize(1250, 800)
+        ds = state.dataset
+        self.root = str(ds.root)
+        profile = Profile.for_dataset(self.root) if (Path(self.root) / PROFILE_NAME).is_file() else Profile()
+        self.preview_scale = 1.0  # preview pixels per full-resolution pixel
+
+        # -- profile editor (left) --
+        self.editors: dict[str, StepEditor] = {}
+        editor_box = QWidget()
+        ed_lay = QVBoxLayout(editor_box)
+        for name in ("debayer", "lens", "color", "shading", "deflicker", "rectify", "resample", "reference",
+                     "output"):
+            ed = StepEditor(name, getattr(profile, name))
+            self.editors[name] = ed
+            ed_lay.addWidget(ed)
+        ed_lay.addStretch(1)
+        scroll = QScrollArea()
+        scroll.setWidget(editor_box)
+        scroll.setWidgetResizable(True)
+        scroll.setMinimumWidth(400)
+        profile_buttons = QHBoxLayout()
+        for text, tip, slot in (("Load…", "Load a processing profile (TOML)", self.load_profile),
+                                ("Save as…", "Save this profile to a TOML file", self.save_profile),
+                                ("Defaults", "Reset every step to the built-in defaults", self.reset_profile)):
+            b = QPushButton(text)
+            b.setToolTip(tip)
+            b.clicked.connect(slot)
+            profile_buttons.addWidget(b)
+        left = QWidget()
+        l_lay = QVBoxLayout(left)
+        l_lay.setContentsMargins(0, 0, 0, 0)
+        l_lay.addWidget(QLabel(f"<b>Profile</b> (saved as {PROFILE_NAME} in the dataset)"))
+        l_lay.addWidget(scroll, 1)
+        l_lay.addLayout(profile_buttons)
+
+        # -- preview (right) --
+        self.split_view = SplitView()
+        self.split_view.picked.connect(self._picked)
+        self.row_spin, self.col_spin = QSpinBox(), QSpinBox()
+        self.row_spin.setRange(0, max(0, int(ds.grid["rows"]) - 1))
+        self.col_spin.setRange(0, max(0, int(ds.grid["columns"]) - 1))
+        self.row_spin.setValue(int(ds.grid["rows"]) // 2)
+        self.col_spin.setValue(int(ds.grid["columns"]) // 2)
+        self.row_spin.setToolTip("Row of the view to preview")
+        self.col_spin.setToolTip("Column of the view to preview")
+        self.preview_button = QPushButton("Update preview")
+        self.preview_button.setToolTip("Process the chosen view with this profile (nothing is written)")
+        self.preview_button.setShortcut("F5")
+        self.preview_button.clicked.connect(self.update_preview)
+        self.pick_white = QPushButton("Pick white")
+        self.pick_white.setToolTip("Then click a white patch in the preview: sets the colour step's white point")
+        self.pick_black = QPushButton("Pick black")
+        self.pick_black.setToolTip("Then click a black patch in the preview: sets the colour step's black point")
+        for b, name in ((self.pick_white, "white"), (self.pick_black, "black")):
+            b.setCheckable(True)
+            b.setEnabled(False)
+            b.toggled.connect(lambda on, n=name: self._pick_mode(n, on))
+        self.preview_info = QLabel("")
+        self.preview_info.setWordWrap(True)
+        pv_bar = QHBoxLayout()
+        pv_bar.addWidget(QLabel("Row"))
+        pv_bar.addWidget(self.row_spin)
+        pv_bar.addWidget(QLabel("Column"))
+        pv_bar.addWidget(self.col_spin)
+        pv_bar.addWidget(self.preview_button)
+        pv_bar.addStretch(1)
+        pv_bar.addWidget(self.pick_white)
+        pv_bar.addWidget(self.pick_black)
+        right = QWidget()
+        r_lay = QVBoxLayout(right)
+        r_lay.setContentsMargins(0, 0, 0, 0)
+        r_lay.addLayout(pv_bar)
+        r_lay.addWidget(self.split_view, 1)
+        r_lay.addWidget(self.preview_info)
+
+        splitter = QSplitter()
+        splitter.addWidget(left)
+        splitter.addWidget(right)
+        splitter.setStretchFactor(1, 1)
+        splitter.setSizes([430, 820])
+
+        # -- run (bottom) --
+        s = settings()
+        self.workers_spin = QSpinBox()
+        self.workers_spin.setRange(0, 256)
+        self.workers_spin.setSpecialValueText("in this process")
+        from lfstudio.processing.executors import default_workers
+        self.workers_spin.setValue(int(s.value("process/workers", default_workers())))
+        self.workers_spin.setToolTip("Local worker processes (one per core is fastest)")
+        self.cluster_edit = QLineEdit(str(s.value("process/cluster", "")))
+        self.cluster_edit.setPlaceholderText("tcp://HOST:8786 (empty: this computer)")
+        self.cluster_edit.setToolTip("Address of a Dask scheduler; its workers must see the dataset at the same path")
+        self.force_check = QCheckBox("Redo finished views")
+        self.force_check.setToolTip("Process every view again, even those already done with this profile")
+        self.process_button = QPushButton("Process")
+        self.process_button.setDefault(True)
+        self.process_button.setToolTip("Process every captured view into the dataset's processed/ folder")
+        self.process_button.clicked.connect(self.start_processing)
+        run_bar = QHBoxLayout()
+        run_bar.addWidget(QLabel("Workers"))
+        run_bar.addWidget(self.workers_spin)
+        run_bar.addWidget(QLabel("Cluster"))
+        run_bar.addWidget(self.cluster_edit, 1)
+        run_bar.addWidget(self.force_check)
+        run_bar.addWidget(self.process_button)
+        self.runner = JobRunner(self)
+        self.progress = JobProgressWidget(self.runner)
+        self.result_label = QLabel(self._status_text())
+        self.result_label.setWordWrap(True)
+        self.result_label.setObjectName("processResult")
+
+        lay = QVBoxLayout(self)
+        lay.addWidget(splitter, 1)
+        lay.addLayout(run_bar)
+        lay.addWidget(self.progress)
+        lay.addWidget(self.result_label)
+
+        self.preview_runner = JobRunner(self)
+        self.preview_runner.finished.connect(self._preview_done)
+        self.preview_runner.failed.connect(self._preview_failed)
+        self.runner.finished.connect(self._process_done)
+        self.runner.failed.connect(self._process_failed)
+        self.runner.cancelled.connect(self._process_cancelled)
+        self._set_marks()
+
+    # -- profile -----------------------------------------------------------------------------------
+    def profile(self) -> Profile:
+        """The profile in the editor; raises InputError naming the field."""
+        return Profile.from_dict({name: ed.values() for name, ed in self.editors.items()}, "Process dialog")
+
+    def set_profile(self, profile: Profile) -> None:
+        for name, ed in self.editors.items():
+            step = getattr(profile, name)
+            if ed.isCheckable():
+                ed.setChecked(step.enabled)
+            for key in ed.fields:
+                ed.set_value(key, getattr(step, key))
+        self._set_marks()
+
+    def load_profile(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Load processing profile", self.root, "TOML (*.toml)")
+        if path:
+            try:
+                self.set_profile(Profile.load(path))
+            except InputError as exc:
+                QMessageBox.warning(self, "Load profile", str(exc))
+
+    def save_profile(self) -> None:
+        try:
+            profile = self.profile()
+        except InputError as exc:
+            QMessageBox.warning(self, "Save profile", str(exc))
+            return
+        path, _ = QFileDialog.getSaveFileName(self, "Save processing profile", self.root, "TOML (*.toml)")
+        if path:
+            profile.save(path)
+
+    def reset_profile(self) -> None:
+        self.set_profile(Profile())
+
+    # -- preview -----------------------------------------------------------------------------------
+    def update_preview(self) -> None:
+        if self.preview_runner.running:
+            return
+        try:
+            profile = self.profile()
+        except InputError as exc:
+            self.preview_info.setText(f"<span style='color:#c00'>{exc}</span>")
+            return
+        self.preview_button.setEnabled(False)
+        self.preview_info.setText("Rendering the preview…")
+        self.preview_runner.start(_preview_job, self.root, profile, self.row_spin.value(), self.col_spin.value())
+
+    def _preview_done(self, result) -> None:
+        before, after, info = result
+        self.preview_button.setEnabled(True)
+        profile = self.profile()
+        self.preview_scale = profile.resample.scale if profile.resample.enabled else 1.0
+        self.split_view.set_images(before, after)
+        self._set_marks()
+        for b in (self.pick_white, self.pick_black):
+            b.setEnabled(True)
+        t = info["timings_s"]
+        self.preview_info.setText(
+            f"View row {info['row']}, column {info['column']}: {after.shape[1]} × {after.shape[0]} px, "
+            f"de-flicker gain {info['gain']:.4f}; decode {t['decode']:.2f} s, steps {t['process']:.2f} s")
+
+    def _preview_failed(self, message: str) -> None:
+        self.preview_button.setEnabled(True)
+        self.preview_info.setText(f"<span style='color:#c00'>{message}</span>")
+
+    def _pick_mode(self, name: str, on: bool) -> None:
+        other = self.pick_black if name == "white" else self.pick_white
+        if on:
+            other.setChecked(False)
+            self.split_view.pick_mode = name
+        elif self.split_view.pick_mode == name:
+            self.split_view.pick_mode = None
+        self.split_view.update()
+
+    def _picked(self, x: float, y: float) -> None:
+        name = self.split_view.pick_mode
+        s = self.preview_scale
+        full = [round((x + 0.5) / s - 0.5, 1), round((y + 0.5) / s - 0.5, 1)]
+        color = self.editors["color"]
+        color.setChecked(True)
+        color.set_value("mode", "points")
+        color.set_value(f"{name}_point_px", full)
+        (self.pick_white if name == "white" else self.pick_black).setChecked(False)
+        self._set_marks()
+        self.state.show_status(f"{name} point set to x {full[0]:g}, y {full[1]:g} (full-resolution pixels)")
+
+    def _set_marks(self) -> None:
+        marks = {}
+        try:
+            values = self.editors["color"].values()
+        except InputError:
+            values = {}
+        if values.get("mode") == "points":
+            s = self.preview_scale
+            for name in ("white", "black"):
+                x, y = values[f"{name}_point_px"]
+                marks[name] = ((x + 0.5) * s - 0.5, (y + 0.5) * s - 0.5)
+        self.split_view.marks = marks
+        self.split_view.update()
+
+    # -- run ---------------------------------------------------------------------------------------
+    def _status_text(self) -> str:
+        ds = self.state.dataset
+        views = [v for v in ds.views if v.get("status") == "done" and v.get("file")]
+        done = sum(1 for v in views if (v.get("processed") or {}).get("status") == "done")
+        failed = sum(1 for v in views if (v.get("processed") or {}).get("status") == "failed")
+        text = f"{len(views)} captured views: {done} processed"
+        if failed:
+            text += f", {failed} failed"
+        return text + "."
+
+    def start_processing(self) -> None:
+        if self.runner.running:
+            return
+        try:
+            profile = self.profile()
+        except InputError as exc:
+            QMessageBox.warning(self, "Process", str(exc))
+            return
+        cluster = self.cluster_edit.text().strip() or None
+        workers = None if cluster else self.workers_spin.value()
+        s = settings()
+        s.setValue("process/workers", self.workers_spin.value())
+        s.setValue("process/cluster", self.cluster_edit.text().strip())
+        self.process_button.setEnabled(False)
+        self.result_label.setText("Processing…")
+        self.progress.started()
+        self.runner.start(_process_job, self.root, profile, workers, cluster, self.force_check.isChecked())
+
+    def _reload_dataset(self) -> None:
+        from lfstudio.dataset import Dataset
+        from lfstudio.errors import LfError
+
+        try:
+            self.state.set_dataset(Dataset.open(self.root))
+        except LfError as exc:
+            self.state.report_error("Process", str(exc))
+
+    def _process_done(self, report) -> None:
+        self.process_button.setEnabled(True)
+        self._reload_dataset()
+        text = report.summary().replace("\n", "<br>")
+        if report.failed:
+            text += "<br><span style='color:#c00'>Failed views:<br>" + "<br>".join(
+                f"row {r}, column {c}: {msg}" for r, c, msg in report.failed[:10]) + "</span>"
+        self.result_label.setText(text)
+        self.state.show_status(f"Processing done: {report.processed} processed, {len(report.failed)} failed")
+
+    def _process_failed(self, message: str) -> None:
+        self.process_button.setEnabled(True)
+        self.result_label.setText(f"<span style='color:#c00'>{message}</span>")
+
+    def _process_cancelled(self) -> None:
+        self.process_button.setEnabled(True)
+        self._reload_dataset()
+        self.result_label.setText("Cancelled. " + self._status_text() + " Process again to resume.")
+
+    def done(self, result: int) -> None:
+        if self.runner.running:
+            answer = QMessageBox.question(self, "Process", "Processing is running. Cancel it and close?")
+            if answer != QMessageBox.Yes:
+                return
+            self.runner.cancel()
+        super().done(result)
