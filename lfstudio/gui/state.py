@@ -17,6 +17,8 @@ class AppState(QObject):
     datasetChanged = Signal(object)     # the open lfstudio.dataset.Dataset or None
     statusMessage = Signal(str, int)    # text, timeout in ms (0: until replaced)
     errorOccurred = Signal(str, str)    # title, message an operator understands
+    scanEvent = Signal(object)          # lfstudio.scan.events.ScanEvent from the running scan (GUI thread)
+    recaptureRequested = Signal(object)  # list of (row, column) to capture again (grid view → scan panel)
 
     def __init__(self, simulated: bool = True, parent: QObject | None = None):
         super().__init__(parent)

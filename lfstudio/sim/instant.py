@@ -85,9 +85,13 @@ class InstantCamera:
 
     name = "Instant camera"
 
-    def __init__(self, position_mm: Callable[[], tuple[float, float]] | None = None, size_px: tuple[int, int] = (64, 48)):
+    def __init__(self, position_mm: Callable[[], tuple[float, float]] | None = None, size_px: tuple[int, int] = (64, 48),
+                 render: Callable[[float, float], np.ndarray] | None = None):
+        """``render(x_mm, y_mm)`` (optional) returns the RGB uint8 image to write instead of the gradient,
+        e.g. a small :class:`lfstudio.sim.studio.VirtualStudio` rendering."""
         self.position_mm = position_mm or (lambda: (0.0, 0.0))
         self.size_px = size_px
+        self.render = render
         self._connected = False
         w, h = size_px
         yy, xx = np.mgrid[0:h, 0:w]
@@ -110,7 +114,10 @@ class InstantCamera:
         if not self._connected:
             raise DeviceError("instant camera: not connected")
         x, y = self.position_mm()
-        img = np.roll(self._base, (int(y) % self.size_px[1], int(x) % self.size_px[0]), axis=(0, 1))
+        if self.render is not None:
+            img = cv2.cvtColor(np.ascontiguousarray(self.render(x, y)), cv2.COLOR_RGB2BGR)
+        else:
+            img = np.roll(self._base, (int(y) % self.size_px[1], int(x) % self.size_px[0]), axis=(0, 1))
         if on_exposed is not None:
             on_exposed()
         path = Path(f"{stem_path}.png")

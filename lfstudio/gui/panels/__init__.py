@@ -20,8 +20,9 @@ class PanelSpec:
 
 
 PANELS: list[PanelSpec] = [
+    PanelSpec("Scan", "scanPanel", "lfstudio.gui.panels.scan:ScanPanel", "right"),
     PanelSpec("Processing", "processingPanel", "lfstudio.gui.panels.processing:ProcessingPanel", "right"),
 ]
 
 #: the central widget, "module:ClassName" constructed as ``Cls(state)``
-CENTRAL = "lfstudio.gui.views.welcome:WelcomeView"
+CENTRAL = "lfstudio.gui.views.grid_view:GridView"

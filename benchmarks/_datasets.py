@@ -1,0 +1,54 @@
+"""Helpers shared by the scan benchmarks: build a captured dataset quickly with the instant devices."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import numpy as np  # noqa: E402
+
+from lfstudio.rig.profile import load_rig  # noqa: E402
+from lfstudio.scan.engine import ScanEngine, create_scan_dataset  # noqa: E402
+from lfstudio.scan.events import ScanState  # noqa: E402
+from lfstudio.scan.scan_plan import ScanPlan  # noqa: E402
+from lfstudio.sim.instant import InstantCamera, InstantRig  # noqa: E402
+
+
+def studio_renderer(plan: ScanPlan, width_px: int = 192):
+    """Render the virtual studio (small) from a position of ``plan``'s grid."""
+    from lfstudio.sim.studio import VirtualStudio
+
+    studio = VirtualStudio(width_px=width_px, view_region_mm=(0.0, max((plan.columns - 1) * plan.spacing_mm[0], 1.0),
+                                                               0.0, max((plan.rows - 1) * plan.spacing_mm[1], 1.0)))
+    x0, y0 = plan.origin_mm
+
+    def render(x_mm: float, y_mm: float) -> np.ndarray:
+        rgb = studio.render(x_mm - x0, y_mm - y0)
+        return (np.clip(rgb, 0, 1) ** (1 / 2.2) * 255).astype(np.uint8)
+    return render
+
+
+def captured_dataset(root: Path, columns: int = 101, rows: int = 21, studio: bool = True):
+    """A fully captured ``columns`` x ``rows`` dataset at ``root`` (reused when it is already there)."""
+    from lfstudio.dataset import Dataset
+
+    if (root / "dataset.json").is_file():
+        ds = Dataset.open(root)
+        if ds.status_counts()["done"] == columns * rows:
+            return ds
+    rig_cfg = load_rig()
+    plan = ScanPlan.centered(columns, rows, (4.0, 6.0), rig_cfg, settle_s=0.0)
+    ds = create_scan_dataset(root, plan, rig={"name": rig_cfg.name}, camera={"name": "instant"},
+                             lens={"name": "virtual 50 mm", "focal_length_mm": 50.0}) \
+        if not (root / "dataset.json").is_file() else Dataset.open(root)
+    rig = InstantRig(rig_cfg)
+    rig.connect()
+    cam = InstantCamera(rig.true_position_mm, render=studio_renderer(plan) if studio else None)
+    cam.connect()
+    engine = ScanEngine(ds, plan, rig, cam, time_scale=0.0)
+    engine.start()
+    if engine.wait() is not ScanState.FINISHED:
+        raise RuntimeError(engine.message)
+    return ds

@@ -1,0 +1,627 @@
+"""The Scan panel: grid set-up (from the current plan), path preview, Start/Pause/Resume/Abort/Skip,
+progress with ETA, the current view with its step timings, and the log of events.
+
+The engine (:class:`lfstudio.scan.engine.ScanEngine`) runs on its own threads; its events reach
+this panel through a queued Qt signal and are re-published as ``AppState.scanEvent`` for the grid.
+Devices: the rig and camera connected in the Rig/Camera panels (``state.devices``), or, in the
+simulated studio, a built-in simulated rig and camera started off the GUI thread.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+from PySide6.QtCore import QObject, QPointF, QRectF, Qt, QTimer, Signal
+from PySide6.QtGui import QAction, QBrush, QColor, QKeySequence, QPainter, QPainterPath, QPen
+from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
+                               QLabel, QLineEdit, QMessageBox, QPlainTextEdit, QProgressBar, QPushButton,
+                               QSizePolicy, QSpinBox, QToolButton, QVBoxLayout, QWidget)
+
+from lfstudio.errors import InputError, LfError
+from lfstudio.gui.bridge import JobRunner
+from lfstudio.gui.settings import settings
+from lfstudio.jobs import format_duration
+from lfstudio.scan.events import EventKind, ScanState
+from lfstudio.scan.scan_plan import ORDERS, ScanPlan
+
+log = logging.getLogger(__name__)
+
+ACTIVE_KEY = "scan/active_dataset"
+
+
+class EngineBridge(QObject):
+    """Carries engine events (from its threads) to the GUI thread."""
+
+    event = Signal(object)
+
+
+class PathPreview(QWidget):
+    """The scan path: grid positions joined in capture order; done views filled, the current one ringed."""
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.setObjectName("pathPreview")
+        self.setMinimumHeight(110)
+        self.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Expanding)
+        self.plan: ScanPlan | None = None
+        self.travel_mm: tuple[float, float, float, float] | None = None
+        self.current: tuple[int, int] | None = None
+        self.done: set[tuple[int, int]] = set()
+        self.setToolTip("Capture order: the camera visits the grid along this line, starting at the green dot")
+
+    def set_plan(self, plan: ScanPlan | None, travel_mm: tuple[float, float, float, float] | None = None) -> None:
+        self.plan = plan
+        self.travel_mm = travel_mm
+        self.update()
+
+    def paintEvent(self, event) -> None:
+        p = QPainter(self)
+        p.setRenderHint(QPainter.Antialiasing)
+        p.fillRect(self.rect(), QColor(30, 32, 36))
+        plan = self.plan
+        if plan is None:
+            p.setPen(QColor(160, 160, 160))
+            p.drawText(self.rect(), Qt.AlignCenter, "no grid")
+            p.end()
+            return
+        margin = 12.0
+        w, h = self.width() - 2 * margin, self.height() - 2 * margin - 14
+        cols, rows = plan.columns, plan.rows
+        sx, sy = plan.spacing_mm
+        width_mm = max((cols - 1) * sx, 1e-9)
+        height_mm = max((rows - 1) * sy, 1e-9)
+        scale = min(w / width_mm if cols > 1 else 1e9, h / height_mm if rows > 1 else 1e9)
+        if scale > 1e8:
+            scale = 1.0
+        ox = margin + (w - (cols - 1) * sx * scale) / 2
+        oy = margin + (h - (rows - 1) * sy * scale) / 2
+
+        def pt(r: int, c: int) -> QPointF:
+            return QPointF(ox + c * sx * scale, oy + r * sy * scale)
+
+        views = plan.views()
+        path = QPainterPath()
+        if views:
+            path.moveTo(pt(views[0].row, views[0].column))
+            for v in views[1:]:
+                path.lineTo(pt(v.row, v.column))
+        p.setPen(QPen(QColor(110, 150, 220), 1.2))
+        p.drawPath(path)
+        dot = max(1.5, min(4.0, sx * scale / 3))
+        no_pen = QPen(Qt.NoPen)
+        p.setPen(no_pen)
+        if len(views) <= 5000:
+            done_brush, todo_brush = QBrush(QColor(70, 180, 90)), QBrush(QColor(140, 144, 152))
+            for v in views:
+                p.setBrush(done_brush if (v.row, v.column) in self.done else todo_brush)
+                p.drawEllipse(pt(v.row, v.column), dot, dot)
+        if views:
+            p.setBrush(QBrush(QColor(60, 220, 90)))
+            p.drawEllipse(pt(views[0].row, views[0].column), dot + 2, dot + 2)
+        if self.current is not None:
+            p.setPen(QPen(QColor(255, 176, 32), 2))
+            p.setBrush(Qt.NoBrush)
+            p.drawEllipse(pt(*self.current), dot + 4, dot + 4)
+        x0, x1, y0, y1 = plan.extent_mm()
+        p.setPen(QColor(190, 190, 190))
+        p.drawText(QRectF(4, self.height() - 16, self.width() - 8, 14), Qt.AlignLeft | Qt.AlignVCenter,
+                   f"x {x0:.0f}…{x1:.0f} mm · y {y0:.0f}…{y1:.0f} mm · {plan.order}")
+        p.end()
+
+
+class ScanPanel(QWidget):
+    """See the module docstring."""
+
+    def __init__(self, state, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.state = state
+        self.setObjectName("scanPanel")
+        self.engine = None
+        self.session = None
+        self._pending_recapture: list[tuple[int, int]] = []
+        self.bridge = EngineBridge(self)
+        self.bridge.event.connect(self._on_event, Qt.QueuedConnection)
+        self.opener = JobRunner(self)
+        self.opener.finished.connect(self._devices_ready)
+        self.opener.failed.connect(self._devices_failed)
+        self._build()
+        self._load_settings()
+        state.planChanged.connect(self._on_plan)
+        state.recaptureRequested.connect(self.recapture)
+        state.datasetChanged.connect(self._on_dataset)
+        self._update_preview()
+        self._update_buttons()
+        QTimer.singleShot(0, self.offer_resume)
+
+    # -- layout ------------------------------------------------------------------------------------
+    def _build(self) -> None:
+        grid_box = QGroupBox("Grid")
+        form = QFormLayout(grid_box)
+        self.columns = QSpinBox()
+        self.columns.setRange(1, 10000)
+        self.columns.setValue(101)
+        self.rows = QSpinBox()
+        self.rows.setRange(1, 10000)
+        self.rows.setValue(21)
+        size_row = QHBoxLayout()
+        size_row.addWidget(self.columns)
+        size_row.addWidget(QLabel("×"))
+        size_row.addWidget(self.rows)
+        self.columns.setToolTip("Columns (horizontal positions)")
+        self.rows.setToolTip("Rows (vertical positions)")
+        form.addRow("Views (columns × rows)", size_row)
+        self.spacing_h = self._mm_spin(4.0, "Horizontal spacing between neighbouring views")
+        self.spacing_v = self._mm_spin(6.0, "Vertical spacing between neighbouring views")
+        sp_row = QHBoxLayout()
+        sp_row.addWidget(self.spacing_h)
+        sp_row.addWidget(QLabel("×"))
+        sp_row.addWidget(self.spacing_v)
+        form.addRow("Spacing (mm)", sp_row)
+        self.offset_h = self._mm_spin(0.0, "Shift of the grid from the centre of the horizontal travel", lo=-5000)
+        self.offset_v = self._mm_spin(0.0, "Shift of the grid from the centre of the vertical travel", lo=-5000)
+        off_row = QHBoxLayout()
+        off_row.addWidget(self.offset_h)
+        off_row.addWidget(QLabel("×"))
+        off_row.addWidget(self.offset_v)
+        form.addRow("Offset from centre (mm)", off_row)
+        self.order = QComboBox()
+        self.order.addItems(ORDERS)
+        self.order.setToolTip("row-meander: left→right, then right→left on the next row (fastest, the default)")
+        form.addRow("Order", self.order)
+        self.settle = QDoubleSpinBox()
+        self.settle.setRange(0.0, 30.0)
+        self.settle.setDecimals(2)
+        self.settle.setSingleStep(0.05)
+        self.settle.setValue(0.3)
+        self.settle.setSuffix(" s")
+        self.settle.setToolTip("Wait after each move before the exposure, for vibrations to die down")
+        form.addRow("Settle", self.settle)
+        self.from_plan = QPushButton("Take grid from the plan")
+        self.from_plan.setObjectName("fromPlanButton")
+        self.from_plan.setToolTip("Copy grid, spacing and settle time from the Planner's current plan")
+        self.from_plan.clicked.connect(lambda: self._on_plan(self.state.plan))
+        form.addRow(self.from_plan)
+        self.summary = QLabel("")
+        self.summary.setObjectName("scanSummary")
+        self.summary.setWordWrap(True)
+        form.addRow(self.summary)
+
+        self.preview = PathPreview()
+
+        out_box = QGroupBox("Dataset")
+        out_form = QFormLayout(out_box)
+        self.folder = QLineEdit()
+        self.folder.setObjectName("datasetFolder")
+        self.folder.setPlaceholderText("folder for the new dataset")
+        self.folder.setToolTip("The dataset folder: created for a new scan; an existing one is resumed")
+        browse = QToolButton()
+        browse.setText("…")
+        browse.setToolTip("Choose the dataset folder")
+        browse.clicked.connect(self._browse)
+        f_row = QHBoxLayout()
+        f_row.addWidget(self.folder, 1)
+        f_row.addWidget(browse)
+        out_form.addRow("Folder", f_row)
+        self.time_scale = QDoubleSpinBox()
+        self.time_scale.setRange(0.0, 10.0)
+        self.time_scale.setDecimals(2)
+        self.time_scale.setSingleStep(0.1)
+        self.time_scale.setValue(1.0)
+        self.time_scale.setToolTip("Simulated studio only: multiplies every simulated duration "
+                                   "(1 real time, 0.1 ten times faster, 0 as fast as possible)")
+        if self.state.simulated:
+            out_form.addRow("Simulation time scale", self.time_scale)
+
+        buttons = QHBoxLayout()
+        self.start_button = self._button("Start", "startButton", "Start the scan (Ctrl+R); resumes an existing dataset",
+                                         self.start)
+        self.pause_button = self._button("Pause", "pauseButton", "Pause after the current view (Ctrl+P)", self.pause)
+        self.resume_button = self._button("Resume", "resumeButton",
+                                          "Continue (after a fault: reconnects the device and retries)", self.resume)
+        self.abort_button = self._button("Abort", "abortButton",
+                                         "Stop after the current view; everything captured is kept", self.abort)
+        self.skip_button = self._button("Skip view", "skipButton",
+                                        "Leave out the view the scan stopped at and go on", self.skip)
+        for b in (self.start_button, self.pause_button, self.resume_button, self.abort_button, self.skip_button):
+            buttons.addWidget(b)
+
+        self.state_label = QLabel("Idle")
+        self.state_label.setObjectName("scanState")
+        self.state_label.setWordWrap(True)
+        self.progress = QProgressBar()
+        self.progress.setObjectName("scanProgress")
+        self.progress.setFormat("%v / %m views (%p%)")
+        self.eta = QLabel("ETA –")
+        self.eta.setObjectName("scanEta")
+        self.eta.setMinimumWidth(120)
+        prog_row = QHBoxLayout()
+        prog_row.addWidget(self.progress, 1)
+        prog_row.addWidget(self.eta)
+        self.current = QLabel("Current view: –")
+        self.current.setObjectName("currentView")
+        self.timings = QLabel("Step times: –")
+        self.timings.setObjectName("stepTimings")
+        self.timings.setWordWrap(True)
+        self.log_view = QPlainTextEdit()
+        self.log_view.setObjectName("scanLog")
+        self.log_view.setReadOnly(True)
+        self.log_view.setMaximumBlockCount(5000)
+        self.log_view.setPlaceholderText("Scan events appear here")
+
+        lay = QVBoxLayout(self)
+        lay.addWidget(grid_box)
+        lay.addWidget(self.preview, 1)
+        lay.addWidget(out_box)
+        lay.addLayout(buttons)
+        lay.addWidget(self.state_label)
+        lay.addLayout(prog_row)
+        lay.addWidget(self.current)
+        lay.addWidget(self.timings)
+        lay.addWidget(self.log_view, 2)
+
+        for w in (self.columns, self.rows):
+            w.valueChanged.connect(self._update_preview)
+        for w in (self.spacing_h, self.spacing_v, self.offset_h, self.offset_v, self.settle):
+            w.valueChanged.connect(self._update_preview)
+        self.order.currentIndexChanged.connect(self._update_preview)
+
+    def _mm_spin(self, value: float, tip: str, lo: float = 0.0) -> QDoubleSpinBox:
+        s = QDoubleSpinBox()
+        s.setRange(lo, 5000.0)
+        s.setDecimals(2)
+        s.setValue(value)
+        s.setToolTip(tip)
+        return s
+
+    def _button(self, text: str, name: str, tip: str, slot) -> QPushButton:
+        b = QPushButton(text)
+        b.setObjectName(name)
+        b.setToolTip(tip)
+        b.clicked.connect(slot)
+        return b
+
+    def install_menus(self, window) -> None:
+        menu = window.menu("Rig")
+        menu.addSeparator()
+        for text, shortcut, tip, slot in (
+                ("Start scan", "Ctrl+R", "Start (or resume) the scan set up in the Scan panel", self.start),
+                ("Pause scan", "Ctrl+P", "Pause after the current view", self.pause),
+                ("Resume scan", "Ctrl+Shift+R", "Continue a paused scan", self.resume),
+                ("Abort scan", "Ctrl+.", "Stop after the current view", self.abort)):
+            a = QAction(text, self)
+            a.setShortcut(QKeySequence(shortcut))
+            a.setToolTip(tip)
+            a.triggered.connect(slot)
+            menu.addAction(a)
+            setattr(self, f"action_{text.split()[0].lower()}", a)
+
+    # -- settings ----------------------------------------------------------------------------------
+    def _load_settings(self) -> None:
+        s = settings()
+        self.folder.setText(str(s.value("scan/folder", str(Path.home() / "lfstudio-scan"))))
+        try:
+            self.time_scale.setValue(float(s.value("scan/time_scale", 1.0)))
+            self.order.setCurrentText(str(s.value("scan/order", "row-meander")))
+        except (TypeError, ValueError):
+            pass
+
+    def _save_settings(self) -> None:
+        s = settings()
+        s.setValue("scan/folder", self.folder.text())
+        s.setValue("scan/time_scale", self.time_scale.value())
+        s.setValue("scan/order", self.order.currentText())
+
+    def _browse(self) -> None:
+        folder = QFileDialog.getExistingDirectory(self, "Dataset folder", str(Path(self.folder.text()).parent))
+        if folder:
+            self.folder.setText(folder)
+
+    # -- plan --------------------------------------------------------------------------------------
+    def rig_config(self):
+        from lfstudio.rig.profile import load_rig
+
+        dev = self.state.devices.get("rig")
+        cfg = getattr(getattr(dev, "driver", None), "config", None)
+        return cfg if cfg is not None else load_rig()
+
+    def current_plan(self, check: bool = True) -> ScanPlan:
+        return ScanPlan.centered(self.columns.value(), self.rows.value(),
+                                 (self.spacing_h.value(), self.spacing_v.value()), self.rig_config(),
+                                 offset_mm=(self.offset_h.value(), self.offset_v.value()),
+                                 order=self.order.currentText(), settle_s=self.settle.value(), check=check)
+
+    def _on_plan(self, plan: Any) -> None:
+        if plan is None or self.running:
+            return
+        grid = plan.grid_dict() if hasattr(plan, "grid_dict") else {}
+        if not grid:
+            return
+        self.columns.setValue(int(grid["columns"]))
+        self.rows.setValue(int(grid["rows"]))
+        self.spacing_h.setValue(float(grid["spacing_mm"][0]))
+        self.spacing_v.setValue(float(grid["spacing_mm"][1]))
+        if getattr(plan, "settle_s", None) is not None:
+            self.settle.setValue(float(plan.settle_s))
+        self._log(f"grid taken from the plan: {grid['columns']} × {grid['rows']}, "
+                  f"{grid['spacing_mm'][0]:g} × {grid['spacing_mm'][1]:g} mm")
+
+    def _on_dataset(self, dataset: Any) -> None:
+        if dataset is None or self.running:
+            return
+        try:
+            base = ScanPlan.from_grid_dict(dataset.grid)
+        except InputError:
+            return
+        self.folder.setText(str(dataset.root))
+        self.columns.setValue(base.columns)
+        self.rows.setValue(base.rows)
+        self.spacing_h.setValue(base.spacing_mm[0])
+        self.spacing_v.setValue(base.spacing_mm[1])
+        self.order.setCurrentText(base.order)
+        self.preview.done = {(v["row"], v["column"]) for v in dataset.views if v.get("status") == "done"}
+        self._set_progress(sum(1 for v in dataset.views if v.get("status") == "done"), len(dataset.views))
+
+    def _update_preview(self) -> None:
+        try:
+            plan = self.current_plan(check=False)
+        except InputError as exc:
+            self.summary.setText(f"<span style='color:#e06060'>{exc}</span>")
+            self.preview.set_plan(None)
+            return
+        self.preview.set_plan(plan)
+        rig = self.rig_config()
+        try:
+            plan.check_limits(rig)
+            problem = ""
+        except InputError as exc:
+            problem = f"<br><span style='color:#e06060'>{exc}</span>"
+        exposure = getattr(self.state.plan, "exposure_s", 0.5)
+        transfer = getattr(self.state.plan, "transfer_s", 2.5)
+        est = plan.estimate_duration_s(rig, exposure, transfer)
+        self.summary.setText(f"{len(plan)} views · about {format_duration(est)} at {exposure:g} s exposure "
+                             f"and {transfer:g} s transfer{problem}")
+
+    # -- running -----------------------------------------------------------------------------------
+    @property
+    def running(self) -> bool:
+        return self.engine is not None and self.engine.state not in (ScanState.FINISHED, ScanState.FAILED)
+
+    def start(self, recapture: list[tuple[int, int]] | None = None) -> None:
+        if self.running or self.opener.running:
+            return
+        folder = self.folder.text().strip()
+        if not folder:
+            self.state.report_error("Scan", "Dataset folder: choose a folder for the dataset first.")
+            return
+        try:
+            plan = self.current_plan()
+        except InputError as exc:
+            self.state.report_error("Scan", f"{exc}\n\nChange the grid, spacing or offset in the Scan panel.")
+            return
+        self._save_settings()
+        self._start_plan = plan
+        self._start_recapture = list(recapture) if recapture else None
+        devices = self.state.devices
+        if devices.get("rig") is not None and devices.get("camera") is not None:
+            self._devices_ready(None)
+            return
+        if self.session is not None:
+            self._devices_ready(self.session)
+            return
+        if not self.state.simulated:
+            self.state.report_error("Scan", "No rig or camera connected: connect them in the Rig and Camera "
+                                            "panels, then start the scan.")
+            return
+        self._log("starting the simulated studio (GRBL simulator on a pseudo-terminal, simulated camera)…")
+        self.state_label.setText("Connecting the simulated rig and camera…")
+        self.start_button.setEnabled(False)
+        rig = self.rig_config()
+        scale = self.time_scale.value()
+        exposure = getattr(self.state.plan, "exposure_s", 0.5)
+        transfer = getattr(self.state.plan, "transfer_s", 2.5)
+
+        def open_session(progress=None, cancel=None):
+            from lfstudio.sim.session import SimulatedSession
+
+            return SimulatedSession(rig, time_scale=scale, exposure_s=exposure, transfer_s=transfer).start()
+
+        self.opener.start(open_session)
+
+    def _devices_failed(self, message: str) -> None:
+        self.state_label.setText("Could not connect the devices")
+        self.state.report_error("Scan: connecting the devices", message)
+        self._update_buttons()
+
+    def _devices_ready(self, session: Any) -> None:
+        from lfstudio.dataset import Dataset
+        from lfstudio.scan.engine import ScanEngine, check_resume_matches, create_scan_dataset
+
+        if session is not None:
+            self.session = session
+            rig, camera = session.rig, session.camera
+            scale = session.time_scale
+        else:
+            rig = self.state.devices["rig"].worker
+            camera = self.state.devices["camera"].worker
+            scale = self.time_scale.value() if self.state.simulated else 1.0
+        plan = self._start_plan
+        folder = Path(self.folder.text().strip())
+        try:
+            if (folder / "dataset.json").is_file():
+                current = self.state.dataset
+                dataset = current if current is not None and Path(current.root) == folder.resolve() \
+                    else Dataset.open(folder)
+                problems = check_resume_matches(dataset, plan)
+                if problems:
+                    raise InputError("Dataset folder", f"{folder} holds another scan: " + "; ".join(problems),
+                                     "choose a new folder, or set the grid to the dataset's")
+                base = ScanPlan.from_grid_dict(dataset.grid)
+                plan = ScanPlan(base.columns, base.rows, base.spacing_mm, base.origin_mm, plan.order, plan.settle_s)
+            else:
+                scene = self.state.plan
+                camera_info = scene.camera_dict() if hasattr(scene, "camera_dict") else \
+                    {"name": getattr(getattr(camera, "driver", camera), "name", "camera")}
+                lens_info = scene.lens_dict() if hasattr(scene, "lens_dict") else {"name": "unknown"}
+                cfg = self.rig_config()
+                dataset = create_scan_dataset(folder, plan, rig={"name": cfg.name, "label": cfg.label},
+                                              camera=camera_info, lens=lens_info,
+                                              scene_plan=scene.to_dict() if hasattr(scene, "to_dict") else None)
+            if self._start_recapture:
+                plan = plan.with_subset(self._start_recapture)
+            engine = ScanEngine(dataset, plan, rig, camera, time_scale=scale, recapture=bool(self._start_recapture))
+        except LfError as exc:
+            self.state.report_error("Scan", str(exc))
+            self._update_buttons()
+            return
+        if engine.remaining == 0:
+            self.state.set_dataset(dataset)
+            self.state_label.setText("Every view of this dataset is captured.")
+            self._log("nothing to capture: every view is done")
+            self._update_buttons()
+            return
+        self.engine = engine
+        engine.subscribe(self.bridge.event.emit)
+        if self.state.dataset is not dataset:
+            self.state.set_dataset(dataset)
+        self.preview.done = {(v["row"], v["column"]) for v in dataset.views if v.get("status") == "done"}
+        self.preview.set_plan(plan.with_subset(None))
+        settings().setValue(ACTIVE_KEY, str(dataset.root))
+        self._log(f"scan of {dataset.root}: {engine.remaining} views to capture"
+                  + ("" if engine.pipelined else " (camera without exposure signal: transfer not overlapped)"))
+        engine.start()
+        self._update_buttons()
+
+    def pause(self) -> None:
+        if self.engine is not None:
+            self.engine.pause()
+
+    def resume(self) -> None:
+        if self.engine is not None and self.engine.state is ScanState.PAUSED:
+            self.engine.resume()
+        elif not self.running:
+            self.start()
+
+    def abort(self) -> None:
+        if self.engine is not None:
+            self.engine.abort()
+
+    def skip(self) -> None:
+        if self.engine is not None and self.engine.state is ScanState.PAUSED:
+            self.engine.skip()
+            self.engine.resume()
+
+    def recapture(self, cells: list[tuple[int, int]]) -> None:
+        cells = [tuple(c) for c in cells]
+        if self.running:
+            self.engine.recapture(cells)
+            self._log(f"{len(cells)} view(s) queued for re-capture")
+        else:
+            self._log(f"re-capturing {len(cells)} view(s)")
+            self.start(recapture=cells)
+
+    def offer_resume(self) -> None:
+        """On start: if a scan was interrupted (crash, power cut), offer to resume it."""
+        path = settings().value(ACTIVE_KEY, "")
+        if not path or self.running:
+            return
+        from lfstudio.dataset import Dataset
+
+        try:
+            ds = Dataset.open(path)
+        except LfError:
+            settings().remove(ACTIVE_KEY)
+            return
+        counts = ds.status_counts()
+        if counts["pending"] == 0:
+            settings().remove(ACTIVE_KEY)
+            return
+        box = QMessageBox(QMessageBox.Question, "Resume interrupted scan",
+                          f"The scan of {path} was interrupted: {counts['done']} of {len(ds.views)} views are "
+                          f"captured, {counts['pending']} are missing.\n\nResume it now?",
+                          QMessageBox.Yes | QMessageBox.No, self)
+        box.setObjectName("resumeBox")
+        box.button(QMessageBox.Yes).setText("Resume scan")
+        box.button(QMessageBox.No).setText("Not now")
+        self.resume_box = box
+
+        def answered(button) -> None:
+            self.state.set_dataset(ds)
+            if box.standardButton(button) == QMessageBox.Yes:
+                self.folder.setText(str(ds.root))
+                self.start()
+        box.buttonClicked.connect(answered)
+        box.open()
+
+    # -- events ------------------------------------------------------------------------------------
+    def _on_event(self, ev) -> None:
+        self.state.scanEvent.emit(ev)
+        kind = ev.kind
+        if kind is EventKind.STATE:
+            self._show_state(ev.state, ev.message)
+            self._log(ev.describe())
+        elif kind is EventKind.VIEW_STARTED:
+            self.current.setText(f"Current view: row {ev.row}, column {ev.column} "
+                                 f"(#{ev.index + 1 if ev.index is not None else '?'}) — moving")
+            self.preview.current = (ev.row, ev.column)
+            self.preview.update()
+        elif kind is EventKind.VIEW_EXPOSED:
+            self.current.setText(f"Current view: row {ev.row}, column {ev.column} — exposed, transferring")
+        elif kind is EventKind.VIEW_DONE:
+            self._set_progress(ev.done, ev.total)
+            self.eta.setText(f"ETA {format_duration(ev.eta_s)}")
+            self.timings.setText("Step times: " + ", ".join(f"{k} {v:.2f} s" for k, v in ev.timings_s.items()))
+            self.preview.done.add((ev.row, ev.column))
+            self.preview.update()
+            self._log(ev.describe())
+        elif kind in (EventKind.VIEW_FAILED, EventKind.FAULT, EventKind.VIEW_SKIPPED, EventKind.LOG):
+            self._log(("⚠ " if kind in (EventKind.FAULT, EventKind.VIEW_FAILED) else "") + ev.describe())
+
+    def _show_state(self, st: ScanState, message: str) -> None:
+        colors = {ScanState.RUNNING: "#60c070", ScanState.PAUSED: "#f0b030", ScanState.PAUSING: "#f0b030",
+                  ScanState.STOPPING: "#f0b030", ScanState.FAILED: "#e06060", ScanState.FINISHED: "#80a0ff"}
+        fault = self.engine is not None and self.engine.fault is not None and st is ScanState.PAUSED
+        color = "#e06060" if fault else colors.get(st, "#c0c0c0")
+        self.state_label.setText(f"<b style='color:{color}'>{st.value.capitalize()}</b> {message}")
+        if st is ScanState.FINISHED and self.engine is not None:
+            if self.engine.dataset.status_counts()["pending"] == 0:
+                settings().remove(ACTIVE_KEY)
+            self.current.setText("Current view: –")
+            self.preview.current = None
+            self.eta.setText("ETA –")
+            if self._pending_recapture:
+                cells, self._pending_recapture = self._pending_recapture, []
+                QTimer.singleShot(0, lambda: self.start(recapture=cells))
+        if fault:
+            self.state.report_error("Scan paused", message)
+        self._update_buttons()
+
+    def _set_progress(self, done: int, total: int) -> None:
+        self.progress.setRange(0, max(total, 1))
+        self.progress.setValue(done)
+
+    def _update_buttons(self) -> None:
+        st = self.engine.state if self.engine is not None else ScanState.IDLE
+        running = self.running
+        self.start_button.setEnabled(not running and not self.opener.running)
+        self.pause_button.setEnabled(st is ScanState.RUNNING)
+        self.resume_button.setEnabled(st is ScanState.PAUSED)
+        self.abort_button.setEnabled(st in (ScanState.RUNNING, ScanState.PAUSING, ScanState.PAUSED))
+        self.skip_button.setEnabled(st is ScanState.PAUSED and self.engine is not None and self.engine.fault is not None)
+        for w in (self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v,
+                  self.order, self.settle, self.folder, self.from_plan, self.time_scale):
+            w.setEnabled(not running)
+
+    def _log(self, text: str) -> None:
+        from datetime import datetime
+
+        self.log_view.appendPlainText(f"{datetime.now():%H:%M:%S}  {text}")
+
+    def shutdown(self) -> None:
+        if self.engine is not None and self.running:
+            self.engine.abort()
+            self.engine.wait(30)
+        if self.session is not None:
+            self.session.close()
+            self.session = None

@@ -1,0 +1,708 @@
+"""The central thumbnail grid: every view of the open dataset laid out as on the rig (row x column).
+
+One custom-painted scroll area (no widget per view). At low zoom the whole grid is drawn from one
+mosaic image (one small tile per view, filled in as thumbnails load); zoomed in, only the visible
+views are drawn from their full thumbnails. Thumbnails are decoded off the GUI thread
+(``QImageReader`` with a scaled size, visible views first) and cached (LRU). Cells are coloured by
+state: pending, capturing, done, failed, skipped. Double-click opens a view full size; selected
+views can be queued for re-capture (the Scan panel does it through ``AppState.recaptureRequested``).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PySide6.QtCore import QObject, QPoint, QRect, QRectF, QSize, Qt, QTimer, Signal
+from PySide6.QtGui import (QAction, QBrush, QColor, QImage, QImageReader, QKeySequence, QPainter, QPen,
+                           QPixmap)
+from PySide6.QtWidgets import (QAbstractScrollArea, QDialog, QFileDialog, QHBoxLayout, QLabel, QMenu,
+                               QPushButton, QScrollArea, QSizePolicy, QStackedWidget, QToolButton,
+                               QVBoxLayout, QWidget)
+
+from lfstudio.gui.settings import settings
+
+log = logging.getLogger(__name__)
+
+PENDING, CAPTURING, DONE, FAILED, SKIPPED = range(5)
+STATUS_CODES = {"pending": PENDING, "done": DONE, "failed": FAILED, "skipped": SKIPPED}
+STATE_NAMES = {PENDING: "pending", CAPTURING: "capturing", DONE: "done", FAILED: "failed", SKIPPED: "skipped"}
+STATE_COLORS = {PENDING: QColor(70, 74, 82), CAPTURING: QColor(255, 176, 32), DONE: QColor(70, 180, 90),
+                FAILED: QColor(220, 60, 60), SKIPPED: QColor(40, 42, 46)}
+TILE_W, TILE_H = 48, 32          # mosaic tile (low zoom)
+FULL_ZOOM_PX = 56                # from this cell width on, draw the full thumbnails
+MAX_RECENT = 8
+
+
+class ThumbLoader(QObject):
+    """Decodes thumbnails on one background thread; newest requests first. ``loaded(key, QImage)``."""
+
+    loaded = Signal(object, QImage)
+
+    def __init__(self, parent: QObject | None = None):
+        super().__init__(parent)
+        self._stack: list[tuple[Any, str, QSize]] = []
+        self._queued: set[Any] = set()
+        self._cond = threading.Condition()
+        self._stop = False
+        self._generation = 0
+        self._thread = threading.Thread(target=self._run, name="thumb-loader", daemon=True)
+        self._thread.start()
+
+    def request(self, key: Any, path: str, size: QSize) -> None:
+        with self._cond:
+            if key in self._queued:
+                return
+            self._queued.add(key)
+            self._stack.append((key, path, size))
+            self._cond.notify()
+
+    def clear(self) -> None:
+        with self._cond:
+            self._stack.clear()
+            self._queued.clear()
+            self._generation += 1
+
+    def stop(self) -> None:
+        with self._cond:
+            self._stop = True
+            self._stack.clear()
+            self._cond.notify()
+        self._thread.join(2)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._stop or self._stack)
+                if self._stop:
+                    return
+                key, path, size = self._stack.pop()
+                generation = self._generation
+            reader = QImageReader(path)
+            src = reader.size()
+            if src.isValid() and size.isValid():
+                reader.setScaledSize(src.scaled(size, Qt.KeepAspectRatio))
+            image = reader.read()
+            with self._cond:
+                self._queued.discard(key)
+                if generation != self._generation:
+                    continue
+            if not image.isNull():
+                self.loaded.emit(key, image)
+
+
+class GridCanvas(QAbstractScrollArea):
+    """Paints the grid; zoom with Ctrl+wheel or +/-; click/drag selects; double-click opens."""
+
+    selectionChanged = Signal(int)
+    viewActivated = Signal(int, int)       # row, column (double-click)
+    zoomChanged = Signal(float)
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.setObjectName("gridCanvas")
+        self.viewport().setMouseTracking(True)
+        self.setFocusPolicy(Qt.StrongFocus)
+        self.rows = 0
+        self.columns = 0
+        self.root: Path | None = None
+        self.status = np.zeros((0, 0), np.int8)
+        self.thumbs: dict[tuple[int, int], str] = {}
+        self.selected: set[tuple[int, int]] = set()
+        self.cell_px = 24.0
+        self.gap_px = 1.0
+        self._fit = True
+        self.mosaic: QImage | None = None
+        self._mosaic_has: np.ndarray = np.zeros((0, 0), bool)
+        self._cache: OrderedDict[tuple[int, int], QImage] = OrderedDict()
+        self._cache_max = 400
+        self._drag_from: tuple[int, int] | None = None
+        self._drag_to: tuple[int, int] | None = None
+        self.loader = ThumbLoader(self)
+        self.loader.loaded.connect(self._on_loaded)
+        self.setToolTip("Thumbnails as on the rig. Ctrl+wheel or +/- zooms, F fits; click or drag to select, "
+                        "double-click opens a view full size")
+        self._tip_cell: tuple[int, int] | None = None
+
+    # -- data --------------------------------------------------------------------------------------
+    def set_dataset(self, dataset: Any) -> None:
+        self.loader.clear()
+        self._cache.clear()
+        self.selected.clear()
+        if dataset is None:
+            self.rows = self.columns = 0
+            self.status = np.zeros((0, 0), np.int8)
+            self.thumbs = {}
+            self.mosaic = None
+            self.root = None
+        else:
+            grid = dataset.grid
+            self.rows, self.columns = int(grid["rows"]), int(grid["columns"])
+            self.root = dataset.root
+            self.status = np.zeros((self.rows, self.columns), np.int8)
+            self.thumbs = {}
+            for v in dataset.views:
+                r, c = v["row"], v["column"]
+                if 0 <= r < self.rows and 0 <= c < self.columns:
+                    self.status[r, c] = STATUS_CODES.get(v.get("status"), PENDING)
+                    if v.get("thumb") and v.get("status") == "done":
+                        self.thumbs[(r, c)] = v["thumb"]
+            self.mosaic = QImage(self.columns * TILE_W, self.rows * TILE_H, QImage.Format_RGB32)
+            self.mosaic.fill(QColor(0, 0, 0))
+            self._mosaic_has = np.zeros((self.rows, self.columns), bool)
+        self._fit = True
+        self.selectionChanged.emit(0)
+        self._relayout()
+
+    def set_cell(self, row: int, column: int, state: int, thumb: str | None = None) -> None:
+        if not (0 <= row < self.rows and 0 <= column < self.columns):
+            return
+        self.status[row, column] = state
+        if thumb:
+            self.thumbs[(row, column)] = thumb
+            self._cache.pop((row, column), None)
+            self._mosaic_has[row, column] = False
+            self._request((row, column), full=False)
+        self.viewport().update(self._cell_rect(row, column).adjusted(-2, -2, 2, 2))
+
+    # -- geometry ----------------------------------------------------------------------------------
+    def _pitch(self) -> tuple[float, float]:
+        w = self.cell_px
+        h = w * TILE_H / TILE_W
+        return w + self.gap_px, h + self.gap_px
+
+    def content_size(self) -> QSize:
+        px, py = self._pitch()
+        return QSize(int(self.columns * px) + 1, int(self.rows * py) + 1)
+
+    def fit(self) -> None:
+        self._fit = True
+        self._relayout()
+
+    def set_zoom(self, cell_px: float, anchor: QPoint | None = None) -> None:
+        cell_px = float(min(max(cell_px, 2.0), 640.0))
+        anchor = anchor or QPoint(self.viewport().width() // 2, self.viewport().height() // 2)
+        px, py = self._pitch()
+        fx = (self.horizontalScrollBar().value() + anchor.x()) / max(px, 1e-9)
+        fy = (self.verticalScrollBar().value() + anchor.y()) / max(py, 1e-9)
+        self._fit = False
+        self.cell_px = cell_px
+        self.gap_px = 1.0 if cell_px >= 8 else 0.0
+        self._relayout()
+        px, py = self._pitch()
+        self.horizontalScrollBar().setValue(int(fx * px - anchor.x()))
+        self.verticalScrollBar().setValue(int(fy * py - anchor.y()))
+
+    def zoom_by(self, factor: float) -> None:
+        self.set_zoom(self.cell_px * factor)
+
+    def _relayout(self) -> None:
+        vp = self.viewport().size()
+        if self._fit and self.columns and self.rows:
+            cw = (vp.width() - 2) / self.columns
+            ch = (vp.height() - 2) / self.rows * TILE_W / TILE_H
+            self.cell_px = max(2.0, min(cw, ch) - 1.0)
+            self.gap_px = 1.0 if self.cell_px >= 8 else 0.0
+        size = self.content_size()
+        self.horizontalScrollBar().setRange(0, max(0, size.width() - vp.width()))
+        self.verticalScrollBar().setRange(0, max(0, size.height() - vp.height()))
+        self.horizontalScrollBar().setPageStep(vp.width())
+        self.verticalScrollBar().setPageStep(vp.height())
+        self.zoomChanged.emit(self.cell_px)
+        self.viewport().update()
+
+    def resizeEvent(self, event) -> None:
+        super().resizeEvent(event)
+        self._relayout()
+
+    def _offset(self) -> tuple[float, float]:
+        size = self.content_size()
+        vp = self.viewport().size()
+        ox = -self.horizontalScrollBar().value() + max(0, (vp.width() - size.width()) // 2)
+        oy = -self.verticalScrollBar().value() + max(0, (vp.height() - size.height()) // 2)
+        return ox, oy
+
+    def _cell_rect(self, row: int, column: int) -> QRect:
+        px, py = self._pitch()
+        ox, oy = self._offset()
+        return QRectF(ox + column * px, oy + row * py, px - self.gap_px, py - self.gap_px).toAlignedRect()
+
+    def cell_at(self, pos: QPoint) -> tuple[int, int] | None:
+        px, py = self._pitch()
+        ox, oy = self._offset()
+        c = int((pos.x() - ox) // px)
+        r = int((pos.y() - oy) // py)
+        if 0 <= r < self.rows and 0 <= c < self.columns:
+            return r, c
+        return None
+
+    def _visible_range(self) -> tuple[int, int, int, int]:
+        px, py = self._pitch()
+        ox, oy = self._offset()
+        vp = self.viewport().size()
+        c0 = max(0, int(-ox // px))
+        c1 = min(self.columns, int((vp.width() - ox) // px) + 1)
+        r0 = max(0, int(-oy // py))
+        r1 = min(self.rows, int((vp.height() - oy) // py) + 1)
+        return r0, r1, c0, c1
+
+    # -- thumbnails ------------------------------------------------------------------------------
+    def _request(self, cell: tuple[int, int], full: bool) -> None:
+        rel = self.thumbs.get(cell)
+        if rel is None or self.root is None:
+            return
+        size = QSize(160, 160) if full else QSize(TILE_W, TILE_H)
+        self.loader.request((cell, full), str(self.root / rel), size)
+
+    def _on_loaded(self, key: Any, image: QImage) -> None:
+        (r, c), full = key
+        if not (0 <= r < self.rows and 0 <= c < self.columns) or self.mosaic is None:
+            return
+        if full:
+            self._cache[(r, c)] = image
+            self._cache.move_to_end((r, c))
+            while len(self._cache) > self._cache_max:
+                self._cache.popitem(last=False)
+        if not self._mosaic_has[r, c]:   # a full thumbnail fills the mosaic tile too
+            painter = QPainter(self.mosaic)
+            target = QRect(c * TILE_W, r * TILE_H, TILE_W, TILE_H)
+            painter.fillRect(target, Qt.black)
+            scaled = image.size().scaled(target.size(), Qt.KeepAspectRatio)
+            painter.drawImage(QRect(target.x() + (TILE_W - scaled.width()) // 2,
+                                    target.y() + (TILE_H - scaled.height()) // 2, scaled.width(), scaled.height()),
+                              image)
+            painter.end()
+            self._mosaic_has[r, c] = True
+        self.viewport().update(self._cell_rect(r, c))
+
+    # -- painting ----------------------------------------------------------------------------------
+    def paintEvent(self, event) -> None:
+        p = QPainter(self.viewport())
+        p.fillRect(event.rect(), QColor(24, 25, 28))
+        if not self.rows or self.mosaic is None:
+            p.end()
+            return
+        r0, r1, c0, c1 = self._visible_range()
+        full = self.cell_px >= FULL_ZOOM_PX
+        px, py = self._pitch()
+        ox, oy = self._offset()
+        p.setRenderHint(QPainter.SmoothPixmapTransform, self.cell_px < TILE_W)
+        if not full:
+            # the whole visible block of the mosaic in one call; gaps drawn as grid lines after
+            src = QRectF(c0 * TILE_W, r0 * TILE_H, (c1 - c0) * TILE_W, (r1 - r0) * TILE_H)
+            dst = QRectF(ox + c0 * px, oy + r0 * py, (c1 - c0) * px, (r1 - r0) * py)
+            p.drawImage(dst, self.mosaic, src)
+        status = self.status
+        thin = self.cell_px < 8
+        for r in range(r0, r1):
+            row_status = status[r]
+            for c in range(c0, c1):
+                st = int(row_status[c])
+                rect = QRectF(ox + c * px, oy + r * py, px - self.gap_px, py - self.gap_px)
+                if st == DONE:
+                    if full:
+                        img = self._cache.get((r, c))
+                        if img is not None:
+                            self._cache.move_to_end((r, c))
+                            p.drawImage(rect, img)
+                        else:
+                            if self._mosaic_has[r, c]:
+                                p.drawImage(rect, self.mosaic, QRectF(c * TILE_W, r * TILE_H, TILE_W, TILE_H))
+                            self._request((r, c), full=True)
+                    elif not self._mosaic_has[r, c]:
+                        p.fillRect(rect, STATE_COLORS[DONE].darker(160))
+                        self._request((r, c), full=False)
+                else:
+                    p.fillRect(rect, STATE_COLORS[st])
+                if st != DONE and not thin and st != PENDING:
+                    p.setPen(QPen(STATE_COLORS[st].lighter(130), 2))
+                    p.drawRect(rect.adjusted(1, 1, -1, -1))
+        if self.gap_px:
+            p.setPen(QColor(24, 25, 28))
+        # selection and rubber band
+        if self.selected:
+            p.setPen(QPen(QColor(80, 160, 255), 2 if not thin else 1))
+            p.setBrush(QColor(80, 160, 255, 60))
+            for (r, c) in self.selected:
+                if r0 <= r < r1 and c0 <= c < c1:
+                    p.drawRect(QRectF(ox + c * px, oy + r * py, px - self.gap_px, py - self.gap_px))
+        band = self._band()
+        if band is not None:
+            (ra, ca), (rb, cb) = band
+            p.setPen(QPen(QColor(80, 160, 255), 1, Qt.DashLine))
+            p.setBrush(Qt.NoBrush)
+            p.drawRect(QRectF(ox + ca * px, oy + ra * py, (cb - ca + 1) * px, (rb - ra + 1) * py))
+        if full:
+            p.setPen(QColor(230, 230, 230))
+            font = p.font()
+            font.setPointSizeF(max(6.0, min(9.0, self.cell_px / 14)))
+            p.setFont(font)
+            for r in range(r0, r1):
+                for c in range(c0, c1):
+                    rect = QRectF(ox + c * px + 3, oy + r * py + 2, px - 6, 14)
+                    p.drawText(rect, Qt.AlignLeft | Qt.AlignTop, f"r{r:02d} c{c:03d}")
+        p.end()
+
+    # -- interaction -------------------------------------------------------------------------------
+    def _band(self):
+        if self._drag_from is None or self._drag_to is None:
+            return None
+        (ra, ca), (rb, cb) = self._drag_from, self._drag_to
+        return (min(ra, rb), min(ca, cb)), (max(ra, rb), max(ca, cb))
+
+    def mousePressEvent(self, event) -> None:
+        if event.button() == Qt.LeftButton:
+            cell = self.cell_at(event.position().toPoint())
+            if not event.modifiers() & (Qt.ControlModifier | Qt.ShiftModifier):
+                self.selected.clear()
+            self._drag_from = self._drag_to = cell
+            self.viewport().update()
+        super().mousePressEvent(event)
+
+    def mouseMoveEvent(self, event) -> None:
+        cell = self.cell_at(event.position().toPoint())
+        if self._drag_from is not None and cell is not None and cell != self._drag_to:
+            self._drag_to = cell
+            self.viewport().update()
+        if cell != self._tip_cell:
+            self._tip_cell = cell
+            if cell is not None:
+                r, c = cell
+                self.setToolTip(f"row {r}, column {c}: {STATE_NAMES[int(self.status[r, c])]}")
+        super().mouseMoveEvent(event)
+
+    def mouseReleaseEvent(self, event) -> None:
+        band = self._band()
+        if event.button() == Qt.LeftButton and band is not None:
+            (ra, ca), (rb, cb) = band
+            cells = {(r, c) for r in range(ra, rb + 1) for c in range(ca, cb + 1)}
+            if event.modifiers() & Qt.ControlModifier and len(cells) == 1 and cells <= self.selected:
+                self.selected -= cells
+            else:
+                self.selected |= cells
+            self.selectionChanged.emit(len(self.selected))
+        self._drag_from = self._drag_to = None
+        self.viewport().update()
+        super().mouseReleaseEvent(event)
+
+    def mouseDoubleClickEvent(self, event) -> None:
+        cell = self.cell_at(event.position().toPoint())
+        if cell is not None:
+            self.viewActivated.emit(*cell)
+
+    def wheelEvent(self, event) -> None:
+        if event.modifiers() & Qt.ControlModifier:
+            steps = event.angleDelta().y() / 120.0
+            self.set_zoom(self.cell_px * (1.25 ** steps), event.position().toPoint())
+            event.accept()
+            return
+        super().wheelEvent(event)
+
+    def keyPressEvent(self, event) -> None:
+        key = event.key()
+        if key in (Qt.Key_Plus, Qt.Key_Equal):
+            self.zoom_by(1.25)
+        elif key == Qt.Key_Minus:
+            self.zoom_by(0.8)
+        elif key == Qt.Key_F:
+            self.fit()
+        elif key == Qt.Key_Escape:
+            self.selected.clear()
+            self.selectionChanged.emit(0)
+            self.viewport().update()
+        elif key == Qt.Key_A and event.modifiers() & Qt.ControlModifier:
+            self.selected = {(r, c) for r in range(self.rows) for c in range(self.columns)}
+            self.selectionChanged.emit(len(self.selected))
+            self.viewport().update()
+        else:
+            super().keyPressEvent(event)
+
+    def scrollContentsBy(self, dx: int, dy: int) -> None:
+        self.viewport().update()
+
+    def shutdown(self) -> None:
+        self.loader.stop()
+
+
+class ImageDialog(QDialog):
+    """One view at full size (decoded off the GUI thread)."""
+
+    decoded = Signal(QImage, str)
+
+    def __init__(self, path: Path, title: str, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.setWindowTitle(title)
+        self.setObjectName("viewDialog")
+        self.resize(1000, 700)
+        self.label = QLabel("Loading…")
+        self.label.setAlignment(Qt.AlignCenter)
+        self.info = QLabel(str(path))
+        area = QScrollArea()
+        area.setWidget(self.label)
+        area.setWidgetResizable(True)
+        lay = QVBoxLayout(self)
+        lay.addWidget(area, 1)
+        lay.addWidget(self.info)
+        self.decoded.connect(self._show)
+        threading.Thread(target=self._decode, args=(path,), daemon=True, name="view-decode").start()
+
+    def _decode(self, path: Path) -> None:
+        try:
+            from lfstudio.gui.imageutil import rgb_to_qimage
+
+            rgb = load_view_rgb8(path)
+            self.decoded.emit(rgb_to_qimage(rgb), f"{path.name}: {rgb.shape[1]} x {rgb.shape[0]} px")
+        except Exception as exc:
+            self.decoded.emit(QImage(), f"{path}: cannot be decoded ({exc})")
+
+    def _show(self, image: QImage, text: str) -> None:
+        self.info.setText(text)
+        if image.isNull():
+            self.label.setText(text)
+            return
+        self.label.setPixmap(QPixmap.fromImage(image))
+
+
+def load_view_rgb8(path: Path) -> np.ndarray:
+    """An 8-bit RGB rendering of a view file (RAW via rawpy at half size, images via OpenCV)."""
+    import cv2
+
+    suffix = path.suffix.lower()
+    if suffix in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"):
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+        if img is None:
+            raise OSError("unreadable image")
+        if img.dtype != np.uint8:
+            img = (img.astype(np.float32) * (255.0 / max(float(img.max()), 1.0))).astype(np.uint8)
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    import rawpy
+
+    with rawpy.imread(str(path)) as raw:
+        return raw.postprocess(half_size=True, use_camera_wb=True, output_bps=8)
+
+
+class GridView(QWidget):
+    """The central widget: a friendly empty state, or the grid of the open dataset with its toolbar."""
+
+    def __init__(self, state, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.state = state
+        self.setObjectName("gridView")
+        self.stack = QStackedWidget()
+        self.empty = QLabel(
+            "<h2>No dataset open</h2>"
+            "<p>Plan a scene in the <b>Planner</b>, then start a scan in the <b>Scan</b> panel:<br>"
+            "its views appear here as they are captured, laid out as on the rig.</p>"
+            "<p><b>File → Open dataset…</b> (Ctrl+O) shows an existing capture.</p>")
+        self.empty.setObjectName("gridEmpty")
+        self.empty.setAlignment(Qt.AlignCenter)
+        self.empty.setWordWrap(True)
+        self.canvas = GridCanvas()
+        page = QWidget()
+        bar = QHBoxLayout()
+        bar.setContentsMargins(4, 2, 4, 2)
+        self.title = QLabel("")
+        self.title.setObjectName("gridTitle")
+        self.counts = QLabel("")
+        self.counts.setObjectName("gridCounts")
+        bar.addWidget(self.title)
+        bar.addSpacing(12)
+        bar.addWidget(self.counts, 1)
+        for state_code in (PENDING, CAPTURING, DONE, FAILED, SKIPPED):
+            swatch = QLabel(f"<span style='color:{STATE_COLORS[state_code].name()}'>■</span> "
+                            f"{STATE_NAMES[state_code]}")
+            bar.addWidget(swatch)
+        bar.addSpacing(12)
+        self.fit_button = self._tool("Fit", "Show the whole grid (F)", self.canvas.fit)
+        self.zoom_out_button = self._tool("−", "Zoom out (-)", lambda: self.canvas.zoom_by(0.8))
+        self.zoom_in_button = self._tool("+", "Zoom in (+)", lambda: self.canvas.zoom_by(1.25))
+        self.one_button = self._tool("1:1", "Thumbnails at their own size", lambda: self.canvas.set_zoom(160))
+        for b in (self.fit_button, self.zoom_out_button, self.zoom_in_button, self.one_button):
+            bar.addWidget(b)
+        self.recapture_button = QPushButton("Re-capture selected")
+        self.recapture_button.setObjectName("recaptureButton")
+        self.recapture_button.setToolTip("Queue the selected views for capture again (Scan panel)")
+        self.recapture_button.setEnabled(False)
+        self.recapture_button.clicked.connect(self.request_recapture)
+        bar.addWidget(self.recapture_button)
+        lay = QVBoxLayout(page)
+        lay.setContentsMargins(0, 0, 0, 0)
+        lay.setSpacing(0)
+        lay.addLayout(bar)
+        lay.addWidget(self.canvas, 1)
+        self.stack.addWidget(self.empty)
+        self.stack.addWidget(page)
+        outer = QVBoxLayout(self)
+        outer.setContentsMargins(0, 0, 0, 0)
+        outer.addWidget(self.stack)
+        self.canvas.selectionChanged.connect(self._on_selection)
+        self.canvas.viewActivated.connect(self.open_view)
+        state.datasetChanged.connect(self.set_dataset)
+        scan_event = getattr(state, "scanEvent", None)
+        if scan_event is not None:
+            scan_event.connect(self.on_scan_event)
+        self._recent_menu: QMenu | None = None
+        self._counts_timer = QTimer(self)
+        self._counts_timer.setSingleShot(True)
+        self._counts_timer.setInterval(200)
+        self._counts_timer.timeout.connect(self._update_counts)
+        self.set_dataset(state.dataset)
+
+    def _tool(self, text: str, tip: str, slot) -> QToolButton:
+        b = QToolButton()
+        b.setText(text)
+        b.setToolTip(tip)
+        b.clicked.connect(slot)
+        b.setSizePolicy(QSizePolicy.Fixed, QSizePolicy.Fixed)
+        return b
+
+    # -- state -------------------------------------------------------------------------------------
+    def set_dataset(self, dataset: Any) -> None:
+        self.canvas.set_dataset(dataset)
+        if dataset is None:
+            self.stack.setCurrentWidget(self.empty)
+            return
+        self.stack.setCurrentIndex(1)
+        grid = dataset.grid
+        self.title.setText(f"<b>{dataset.root.name}</b> — {grid['columns']} × {grid['rows']} views")
+        self.title.setToolTip(str(dataset.root))
+        self._update_counts()
+        add_recent_dataset(str(dataset.root))
+        self._fill_recent()
+
+    def _update_counts(self) -> None:
+        st = self.canvas.status
+        if st.size == 0:
+            self.counts.setText("")
+            return
+        n = {k: int((st == k).sum()) for k in STATE_NAMES}
+        self.counts.setText(f"{n[DONE]} done · {n[PENDING] + n[CAPTURING]} to capture · {n[FAILED]} failed"
+                            + (f" · {n[SKIPPED]} skipped" if n[SKIPPED] else ""))
+
+    def on_scan_event(self, ev: Any) -> None:
+        kind = getattr(ev.kind, "value", ev.kind)
+        if ev.row is None:
+            return
+        if kind == "view-started":
+            self.canvas.set_cell(ev.row, ev.column, CAPTURING)
+        elif kind == "view-done":
+            self.canvas.set_cell(ev.row, ev.column, DONE, ev.thumb)
+        elif kind == "view-skipped":
+            self.canvas.set_cell(ev.row, ev.column, FAILED if "failed" in ev.message else SKIPPED)
+        elif kind in ("view-failed", "fault"):
+            self.canvas.set_cell(ev.row, ev.column, FAILED if not ev.will_retry else CAPTURING)
+        self._counts_timer.start()
+
+    def _on_selection(self, n: int) -> None:
+        self.recapture_button.setEnabled(n > 0)
+        self.recapture_button.setText(f"Re-capture {n} selected" if n else "Re-capture selected")
+
+    def request_recapture(self) -> None:
+        cells = sorted(self.canvas.selected)
+        if not cells:
+            return
+        signal = getattr(self.state, "recaptureRequested", None)
+        if signal is not None:
+            signal.emit(cells)
+        for r, c in cells:
+            if self.canvas.status[r, c] != DONE:
+                self.canvas.set_cell(r, c, PENDING)
+        self.state.show_status(f"{len(cells)} view(s) queued for re-capture in the Scan panel")
+        self.canvas.selected.clear()
+        self._on_selection(0)
+        self.canvas.viewport().update()
+
+    def open_view(self, row: int, column: int) -> None:
+        ds = self.state.dataset
+        if ds is None:
+            return
+        try:
+            view = ds.view(row, column)
+        except KeyError:
+            return
+        if view.get("status") != "done" or not view.get("file"):
+            self.state.show_status(f"row {row}, column {column} has not been captured yet")
+            return
+        try:
+            path = ds.path_of(view)
+        except Exception as exc:
+            self.state.report_error("Open view", str(exc))
+            return
+        dlg = ImageDialog(path, f"View row {row}, column {column} — {view['file']}", self)
+        dlg.setAttribute(Qt.WA_DeleteOnClose)
+        dlg.show()
+        self._last_dialog = dlg
+
+    # -- menus -------------------------------------------------------------------------------------
+    def install_menus(self, window) -> None:
+        file_menu = window.menu("File")
+        open_action = QAction("&Open dataset…", self)
+        open_action.setShortcut(QKeySequence.Open)
+        open_action.setToolTip("Open a dataset folder (the one holding dataset.json)")
+        open_action.triggered.connect(self.choose_dataset)
+        file_menu.addAction(open_action)
+        self._recent_menu = file_menu.addMenu("Recent datasets")
+        self._recent_menu.setToolTip("Datasets opened recently")
+        self._fill_recent()
+        view_menu = window.menu("View")
+        for text, shortcut, slot in (("Zoom grid to fit", "Ctrl+0", self.canvas.fit),
+                                     ("Zoom grid in", "Ctrl++", lambda: self.canvas.zoom_by(1.25)),
+                                     ("Zoom grid out", "Ctrl+-", lambda: self.canvas.zoom_by(0.8))):
+            a = QAction(text, self)
+            a.setShortcut(QKeySequence(shortcut))
+            a.triggered.connect(slot)
+            view_menu.addAction(a)
+        recap = QAction("Re-capture selected views", self)
+        recap.setToolTip("Queue the views selected in the grid for capture again")
+        recap.triggered.connect(self.request_recapture)
+        window.menu("Dataset").addAction(recap)
+
+    def choose_dataset(self) -> None:
+        start = settings().value("datasets/last_dir", "")
+        folder = QFileDialog.getExistingDirectory(self, "Open dataset folder", str(start or ""))
+        if folder:
+            settings().setValue("datasets/last_dir", str(Path(folder).parent))
+            self.open_dataset(folder)
+
+    def open_dataset(self, folder: str) -> bool:
+        from lfstudio.dataset import Dataset
+        from lfstudio.errors import LfError
+
+        try:
+            ds = Dataset.open(folder)
+        except LfError as exc:
+            self.state.report_error("Open dataset", str(exc))
+            return False
+        self.state.set_dataset(ds)
+        self.state.show_status(f"Opened {folder}")
+        return True
+
+    def _fill_recent(self) -> None:
+        if self._recent_menu is None:
+            return
+        self._recent_menu.clear()
+        paths = recent_datasets()
+        for path in paths:
+            a = self._recent_menu.addAction(path)
+            a.triggered.connect(lambda checked=False, p=path: self.open_dataset(p))
+        self._recent_menu.setEnabled(bool(paths))
+
+    def shutdown(self) -> None:
+        self.canvas.shutdown()
+
+
+def recent_datasets() -> list[str]:
+    value = settings().value("datasets/recent", [])
+    if isinstance(value, str):
+        value = [value]
+    return [str(v) for v in (value or []) if v]
+
+
+def add_recent_dataset(path: str) -> None:
+    items = [p for p in recent_datasets() if p != path]
+    items.insert(0, path)
+    settings().setValue("datasets/recent", items[:MAX_RECENT])

@@ -1,0 +1,189 @@
+"""Scan panel and grid view on a real Qt event loop, with the instant simulated devices."""
+
+from __future__ import annotations
+
+import pytest
+from PySide6.QtCore import QPoint, Qt
+
+from lfstudio.dataset import Dataset
+from lfstudio.gui.devices import QtDevice
+from lfstudio.gui.panels.scan import ACTIVE_KEY, ScanPanel
+from lfstudio.gui.settings import settings
+from lfstudio.gui.state import AppState
+from lfstudio.gui.views.grid_view import CAPTURING, DONE, PENDING, GridView, recent_datasets
+from lfstudio.rig.profile import load_rig
+from lfstudio.rig.worker import DeviceWorker
+from lfstudio.scan.engine import ScanEngine, create_scan_dataset
+from lfstudio.scan.scan_plan import ScanPlan
+from lfstudio.sim.instant import InstantCamera, InstantRig
+
+RIG = load_rig()
+
+
+def scanned(root, cols=4, rows=3, stop_after=None):
+    plan = ScanPlan.centered(cols, rows, (4.0, 6.0), RIG, settle_s=0.0)
+    ds = create_scan_dataset(root, plan, rig={"name": RIG.name}, camera={"name": "instant"}, lens={"name": "t"})
+    rig = InstantRig(RIG)
+    rig.connect()
+    cam = InstantCamera(rig.true_position_mm)
+    cam.connect()
+    if stop_after is not None:
+        plan = plan.with_subset([v.cell for v in plan.views()[:stop_after]])
+    engine = ScanEngine(ds, plan, rig, cam, time_scale=0.0)
+    engine.start()
+    engine.wait(30)
+    return Dataset.open(root)
+
+
+@pytest.fixture
+def instant_devices():
+    rig = InstantRig(RIG)
+    rig.connect()
+    cam = InstantCamera(rig.true_position_mm)
+    cam.connect()
+    devices = {"rig": QtDevice(DeviceWorker(rig, name="rig")),
+               "camera": QtDevice(DeviceWorker(cam, name="camera", status_method=None))}
+    yield devices, rig, cam
+    for d in devices.values():
+        d.close(disconnect=False)
+
+
+def test_grid_view_empty_state_then_dataset_painted(qtbot, tmp_path):
+    state = AppState()
+    view = GridView(state)
+    qtbot.addWidget(view)
+    view.resize(800, 500)
+    view.show()
+    assert view.stack.currentWidget() is view.empty
+    ds = scanned(tmp_path / "ds", stop_after=7)
+    state.set_dataset(ds)
+    assert view.stack.currentIndex() == 1
+    canvas = view.canvas
+    assert (canvas.status == DONE).sum() == 7 and (canvas.status == PENDING).sum() == 5
+    assert "7 done" in view.counts.text() and "5 to capture" in view.counts.text()
+    qtbot.waitUntil(lambda: canvas._mosaic_has.sum() == 7, timeout=5000)
+    img = canvas.viewport().grab().toImage()
+    # the first cell shows a thumbnail (not the background, not the pending colour)
+    r = canvas._cell_rect(0, 0)
+    c = img.pixelColor(r.center())
+    assert c.name() not in ("#18191c", "#464a52")
+    assert str(tmp_path / "ds") in recent_datasets()[0]
+
+
+def test_grid_zoom_selection_and_recapture_request(qtbot, tmp_path):
+    state = AppState()
+    view = GridView(state)
+    qtbot.addWidget(view)
+    view.resize(900, 600)
+    view.show()
+    state.set_dataset(scanned(tmp_path / "ds"))
+    canvas = view.canvas
+    fit_px = canvas.cell_px
+    canvas.set_zoom(400)
+    assert canvas.cell_px == 400 and canvas.horizontalScrollBar().maximum() > 0
+    qtbot.waitUntil(lambda: len(canvas._cache) > 0, timeout=5000)   # full thumbnails for visible cells
+    canvas.fit()
+    qtbot.waitUntil(lambda: canvas.cell_px == pytest.approx(fit_px), timeout=2000)
+    a = canvas._cell_rect(0, 1).center()
+    b = canvas._cell_rect(1, 2).center()
+    qtbot.mousePress(canvas.viewport(), Qt.LeftButton, pos=a)
+    qtbot.mouseMove(canvas.viewport(), pos=b)
+    qtbot.mouseRelease(canvas.viewport(), Qt.LeftButton, pos=b)
+    assert canvas.selected == {(0, 1), (0, 2), (1, 1), (1, 2)}
+    assert view.recapture_button.isEnabled()
+    with qtbot.waitSignal(state.recaptureRequested) as sig:
+        qtbot.mouseClick(view.recapture_button, Qt.LeftButton)
+    assert sig.args[0] == [(0, 1), (0, 2), (1, 1), (1, 2)]
+    assert not canvas.selected
+
+
+def test_double_click_opens_the_view_full_size(qtbot, tmp_path):
+    state = AppState()
+    view = GridView(state)
+    qtbot.addWidget(view)
+    view.resize(800, 500)
+    view.show()
+    state.set_dataset(scanned(tmp_path / "ds"))
+    pos = view.canvas._cell_rect(1, 1).center()
+    qtbot.mouseDClick(view.canvas.viewport(), Qt.LeftButton, pos=pos)
+    dlg = view._last_dialog
+    qtbot.waitUntil(lambda: dlg.label.pixmap() is not None and not dlg.label.pixmap().isNull(), timeout=5000)
+    assert "64 x 48 px" in dlg.info.text()
+    dlg.close()
+
+
+def test_scan_panel_runs_a_scan_and_the_grid_follows(qtbot, tmp_path, instant_devices):
+    devices, rig, cam = instant_devices
+    state = AppState()
+    state.devices.update(devices)
+    panel = ScanPanel(state)
+    grid = GridView(state)
+    qtbot.addWidget(panel)
+    qtbot.addWidget(grid)
+    panel.columns.setValue(5)
+    panel.rows.setValue(2)
+    panel.settle.setValue(0.0)
+    panel.time_scale.setValue(0.0)
+    panel.folder.setText(str(tmp_path / "scan1"))
+    assert "10 views" in panel.summary.text()
+    qtbot.mouseClick(panel.start_button, Qt.LeftButton)
+    assert panel.engine is not None
+    qtbot.waitUntil(lambda: not panel.running, timeout=20000)
+    assert panel.progress.value() == 10 and panel.progress.maximum() == 10
+    assert "Finished" in panel.state_label.text()
+    assert "Step times:" in panel.timings.text() and "move" in panel.timings.text()
+    assert "done (10/10)" in panel.log_view.toPlainText()
+    assert (grid.canvas.status == DONE).sum() == 10
+    assert settings().value(ACTIVE_KEY, "") in ("", None)      # a complete scan is not offered for resume
+    assert Dataset.open(tmp_path / "scan1").status_counts()["done"] == 10
+    assert cam.captures == 10
+
+
+def test_scan_panel_pause_resume_and_recapture(qtbot, tmp_path, instant_devices):
+    devices, rig, cam = instant_devices
+    state = AppState()
+    state.devices.update(devices)
+    panel = ScanPanel(state)
+    qtbot.addWidget(panel)
+    panel.columns.setValue(6)
+    panel.rows.setValue(2)
+    panel.settle.setValue(0.0)
+    panel.folder.setText(str(tmp_path / "scan2"))
+    panel.start()
+    panel.pause()
+    qtbot.waitUntil(lambda: panel.engine.state.value == "paused", timeout=20000)
+    assert panel.resume_button.isEnabled() and not panel.pause_button.isEnabled()
+    assert "Paused" in panel.state_label.text()
+    qtbot.mouseClick(panel.resume_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: not panel.running, timeout=20000)
+    before = cam.captures
+    state.recaptureRequested.emit([(1, 3), (0, 0)])
+    qtbot.waitUntil(lambda: panel.engine is not None and not panel.running and cam.captures == before + 2,
+                    timeout=20000)
+    assert "re-capturing 2 view(s)" in panel.log_view.toPlainText()
+
+
+def test_interrupted_scan_is_offered_for_resume_on_start(qtbot, tmp_path):
+    ds = scanned(tmp_path / "half", stop_after=5)
+    settings().setValue(ACTIVE_KEY, str(ds.root))
+    state = AppState()
+    panel = ScanPanel(state)
+    qtbot.addWidget(panel)
+    qtbot.waitUntil(lambda: getattr(panel, "resume_box", None) is not None and panel.resume_box.isVisible(),
+                    timeout=5000)
+    text = panel.resume_box.text()
+    assert "5 of 12 views" in text and "7 are missing" in text
+    panel.resume_box.close()
+
+
+def test_grid_follows_scan_events(qtbot, tmp_path):
+    from lfstudio.scan.events import EventKind, ScanEvent
+
+    state = AppState()
+    view = GridView(state)
+    qtbot.addWidget(view)
+    state.set_dataset(scanned(tmp_path / "ds", stop_after=0))
+    state.scanEvent.emit(ScanEvent(EventKind.VIEW_STARTED, row=0, column=2))
+    assert view.canvas.status[0, 2] == CAPTURING
+    state.scanEvent.emit(ScanEvent(EventKind.VIEW_FAILED, "camera timeout", row=0, column=2, will_retry=False))
+    assert view.canvas.status[0, 2] == 3
