@@ -30,17 +30,13 @@ from lfstudio.errors import DeviceError, InputError
 from lfstudio.rig.camera import CaptureResult
 from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
 from lfstudio.sim.sensor import SensorModel
-from lfstudio.sim.studio import VirtualStudio
+from lfstudio.sim.studio import DEMO_PP_OFFSET_PX, DEMO_ROTATION_DEG, VirtualStudio
 
 BLACK_LEVEL = 512
 WHITE_LEVEL = 16383
 REFERENCE_EXPOSURE = {"shutter_s": 0.5, "iso": 100, "aperture": 16.0}
 ISO_VALUES = (50, 100, 200, 400, 800, 1600, 3200, 6400)
 FAULTS = ("capture_fails", "silent")
-#: the orientation error and principal-point offset of the demo studio's camera (the ground truth
-#: a calibration of a simulated scan should find)
-DEMO_ROTATION_DEG = (1.0, -1.5, 0.7)
-DEMO_PP_OFFSET_PX = (8.0, -5.0)
 
 
 @dataclass(frozen=True)
@@ -66,7 +62,8 @@ class SimulatedCamera:
 
     ``studio``: the scene (built on :meth:`connect` from ``studio_kwargs`` when None: the demo
     scene with :data:`DEMO_ROTATION_DEG` / :data:`DEMO_PP_OFFSET_PX`). ``position_mm``: called at
-    each shot for the camera position (default: always (0, 0)).
+    each shot for the camera position (default: always (0, 0)). ``faults``: injected at start,
+    ``{"capture_fails": 2, "silent": None}`` (count; None = until cleared) or a list of names (once each).
     """
 
     name = "Simulated camera"
@@ -78,7 +75,8 @@ class SimulatedCamera:
                  time_scale: float = 1.0, iso: int = 100, aperture: float = 16.0,
                  noise: float = 0.002, flicker: float = 0.0, vignetting: float = 0.0, seed: int = 0,
                  preview_width_px: int = 640, silent_hang_s: float = 600.0,
-                 studio_kwargs: dict[str, Any] | None = None):
+                 studio_kwargs: dict[str, Any] | None = None,
+                 faults: dict[str, int | None] | Any = None):
         self.studio = studio
         self.studio_kwargs = dict(studio_kwargs or {"rotation_deg": DEMO_ROTATION_DEG,
                                                     "pp_offset_px": DEMO_PP_OFFSET_PX})
@@ -100,11 +98,15 @@ class SimulatedCamera:
         self._faults: dict[str, int | None] = {}
         self._lock = threading.Lock()
         self._abort = threading.Event()
+        if faults:
+            items = faults.items() if isinstance(faults, dict) else ((name, 1) for name in faults)
+            for fault, count in items:
+                self.inject(fault, count)
 
     # -- connection ---------------------------------------------------------------------------------
     def connect(self) -> None:
         if self.studio is None:
-            self.studio = VirtualStudio(**self.studio_kwargs)
+            self.studio = VirtualStudio(**self.studio_kwargs)   # ~2 s at 2000 px: on the device thread
         self._abort.clear()
         self._connected = True
         self._message = ""

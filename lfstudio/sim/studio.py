@@ -43,6 +43,21 @@ DEFAULT_WIDTH_PX = 2000
 REFERENCE_REGION_MM = (0.0, 400.0, 0.0, 120.0)
 
 
+#: the orientation error and principal-point offset of the demo studio's camera: the ground truth a
+#: calibration of a simulated scan should recover
+DEMO_ROTATION_DEG = (1.0, -1.5, 0.7)
+DEMO_PP_OFFSET_PX = (8.0, -5.0)
+
+
+def demo_studio(**overrides: Any) -> "VirtualStudio":
+    """The studio the simulated camera shows by default: the reference scene (1.77 … 4.77 m, grid
+    region 400 x 120 mm from the origin) seen with a known orientation error and principal-point
+    offset (:data:`DEMO_ROTATION_DEG`, :data:`DEMO_PP_OFFSET_PX`)."""
+    kwargs: dict[str, Any] = {"rotation_deg": DEMO_ROTATION_DEG, "pp_offset_px": DEMO_PP_OFFSET_PX}
+    kwargs.update(overrides)
+    return VirtualStudio(**kwargs)
+
+
 def rotation_matrix(rotation_deg: tuple[float, float, float] | list[float]) -> np.ndarray:
     """R from ``[rx, ry, rz]`` degrees (scipy ``from_euler("xyz", ..., degrees=True)``)."""
     return Rotation.from_euler("xyz", [float(v) for v in rotation_deg], degrees=True).as_matrix()

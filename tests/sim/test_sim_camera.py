@@ -143,3 +143,17 @@ def test_flicker_varies_per_shot_and_is_recorded(studio, tmp_path):
         means.append(_develop_half(result.path).mean())
     assert len(set(gains)) == 4
     np.testing.assert_allclose(np.array(means) / means[0], np.array(gains) / gains[0], rtol=0.01)
+
+
+def test_faults_given_at_construction(studio, tmp_path):
+    cam = SimulatedCamera(studio, time_scale=0.0, faults={"capture_fails": 2})
+    cam.connect()
+    for _ in range(2):
+        with pytest.raises(DeviceError):
+            cam.capture(tmp_path / "q")
+    assert cam.capture(tmp_path / "q").path.exists()
+    cam2 = SimulatedCamera(studio, time_scale=0.0, faults=["capture_fails"])
+    cam2.connect()
+    with pytest.raises(DeviceError):
+        cam2.capture(tmp_path / "r")
+    assert cam2.capture(tmp_path / "r").path.exists()
