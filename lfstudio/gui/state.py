@@ -19,6 +19,7 @@ class AppState(QObject):
     errorOccurred = Signal(str, str)    # title, message an operator understands
     scanEvent = Signal(object)          # lfstudio.scan.events.ScanEvent from the running scan (GUI thread)
     recaptureRequested = Signal(object)  # list of (row, column) to capture again (grid view → scan panel)
+    devicesChanged = Signal(str)        # a device ("rig", "camera", ...) was connected or removed
 
     def __init__(self, simulated: bool = True, parent: QObject | None = None):
         super().__init__(parent)
@@ -34,6 +35,14 @@ class AppState(QObject):
     def set_dataset(self, dataset: Any) -> None:
         self.dataset = dataset
         self.datasetChanged.emit(dataset)
+
+    def set_device(self, name: str, device: Any) -> None:
+        """Store (or with None remove) ``devices[name]`` and announce it with ``devicesChanged``."""
+        if device is None:
+            self.devices.pop(name, None)
+        else:
+            self.devices[name] = device
+        self.devicesChanged.emit(name)
 
     def show_status(self, text: str, timeout_ms: int = 5000) -> None:
         self.statusMessage.emit(text, timeout_ms)

@@ -1,0 +1,577 @@
+"""The Rig panel: connect, home / set origin, live position, jog (buttons, hold, keys), go-to, STOP.
+
+All driver calls go through a :class:`lfstudio.rig.worker.DeviceWorker` wrapped in a
+:class:`lfstudio.gui.devices.QtDevice`; the GUI thread never waits for the controller. STOP calls
+``driver.stop()`` directly (it only writes realtime bytes), bypassing the queue.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from PySide6.QtCore import QPointF, QRectF, Qt, QTimer, Signal
+from PySide6.QtGui import QAction, QBrush, QColor, QFont, QKeySequence, QPainter, QPen
+from PySide6.QtWidgets import (QButtonGroup, QComboBox, QDoubleSpinBox, QFormLayout, QGridLayout,
+                               QGroupBox, QHBoxLayout, QLabel, QPushButton, QRadioButton, QSizePolicy,
+                               QToolButton, QVBoxLayout, QWidget)
+
+from lfstudio.gui.devices import QtDevice
+from lfstudio.gui.settings import settings
+from lfstudio.gui.state import AppState
+from lfstudio.rig.motion import RigConfig, RigState, RigStatus
+from lfstudio.rig.worker import DeviceFault, DeviceWorker
+
+log = logging.getLogger(__name__)
+
+SIMULATED = "Simulated"
+STEP_SIZES_MM = (0.1, 1.0, 10.0, 100.0)
+FINE_STEP_MM = 0.1
+HOLD_MS = 350                   # press longer than this: continuous jog until release
+_STATE_COLOURS = {RigState.IDLE: "#2e7d32", RigState.MOVING: "#1565c0", RigState.JOGGING: "#1565c0",
+                  RigState.HOMING: "#1565c0", RigState.HOLD: "#b35900", RigState.ALARM: "#b00020",
+                  RigState.DISCONNECTED: "#6b7280"}
+
+
+class RigDiagram(QWidget):
+    """The travel, the soft limits (dashed) and the camera position (red dot), y pointing down."""
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.config: RigConfig | None = None
+        self.position_mm: tuple[float, float] | None = None
+        self.target_mm: tuple[float, float] | None = None
+        self.setMinimumSize(220, 90)
+        self.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Preferred)
+        self.setToolTip("The rig seen from the front: travel (grey), soft limits (dashed), camera (red)")
+
+    def sizeHint(self):  # noqa: N802 - Qt naming
+        from PySide6.QtCore import QSize
+        return QSize(320, 110)
+
+    def set_config(self, config: RigConfig | None) -> None:
+        self.config = config
+        self.update()
+
+    def set_position(self, position_mm: tuple[float, float] | None) -> None:
+        self.position_mm = position_mm
+        self.update()
+
+    def set_target(self, target_mm: tuple[float, float] | None) -> None:
+        self.target_mm = target_mm
+        self.update()
+
+    def _map(self, area: QRectF, x_mm: float, y_mm: float) -> QPointF:
+        h, v = self.config.horizontal, self.config.vertical
+        return QPointF(area.left() + area.width() * x_mm / h.travel_mm,
+                       area.top() + area.height() * y_mm / v.travel_mm)
+
+    def paintEvent(self, event) -> None:  # noqa: N802
+        p = QPainter(self)
+        p.setRenderHint(QPainter.Antialiasing)
+        fm = p.fontMetrics()
+        area = QRectF(8, 6, self.width() - 16, self.height() - 12 - fm.height())
+        p.fillRect(self.rect(), QColor("#f7f8fa"))
+        if self.config is None:
+            p.setPen(QColor("#6b7280"))
+            p.drawText(self.rect(), Qt.AlignCenter, "no rig")
+            return
+        h, v = self.config.horizontal, self.config.vertical
+        p.setPen(QPen(QColor("#9aa1ab"), 1))
+        p.setBrush(QBrush(QColor("#e3e6eb")))
+        p.drawRect(area)
+        soft = QRectF(self._map(area, h.soft_min_mm, v.soft_min_mm), self._map(area, h.soft_max_mm, v.soft_max_mm))
+        p.setBrush(Qt.NoBrush)
+        p.setPen(QPen(QColor("#b35900"), 1, Qt.DashLine))
+        p.drawRect(soft.adjusted(1, 1, -1, -1))
+        p.setPen(QColor("#4b5563"))
+        p.drawText(QRectF(area.left(), area.bottom() + 1, area.width(), fm.height()), Qt.AlignLeft,
+                   f"0 ← x {h.travel_mm:g} mm →")
+        p.drawText(QRectF(area.left(), area.bottom() + 1, area.width(), fm.height()), Qt.AlignRight,
+                   f"y ↓ {v.travel_mm:g} mm")
+        if self.target_mm is not None:
+            t = self._map(area, *self.target_mm)
+            p.setPen(QPen(QColor("#1565c0"), 1))
+            p.drawLine(QPointF(t.x() - 6, t.y()), QPointF(t.x() + 6, t.y()))
+            p.drawLine(QPointF(t.x(), t.y() - 6), QPointF(t.x(), t.y() + 6))
+        if self.position_mm is not None:
+            c = self._map(area, min(max(self.position_mm[0], 0), h.travel_mm),
+                          min(max(self.position_mm[1], 0), v.travel_mm))
+            p.setPen(QPen(QColor("#7f0000"), 1))
+            p.setBrush(QBrush(QColor("#e53935")))
+            p.drawEllipse(c, 5, 5)
+
+
+class RigPanel(QWidget):
+    """Dock panel "Rig". ``state.devices["rig"]`` holds the QtDevice while connected (and
+    ``state.devices["rig_simulator"]`` the GrblSimulator in simulated mode)."""
+
+    connectedChanged = Signal(bool)
+
+    def __init__(self, state: AppState, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.state = state
+        self.device: QtDevice | None = None
+        self.simulator: Any = None
+        self.sim_time_scale = 1.0          # simulated rig: real-time motion (tests speed it up)
+        self.last_status: RigStatus | None = None
+        self._hold_timer = QTimer(self)
+        self._hold_timer.setSingleShot(True)
+        self._hold_timer.timeout.connect(self._start_continuous)
+        self._pressed: tuple[int, int] | None = None
+        self._continuous = False
+        self.setFocusPolicy(Qt.StrongFocus)
+        self.setObjectName("rigPanel")
+        from lfstudio.rig.profile import DEFAULT_RIG, load_rig
+        s = settings()
+        try:
+            self.rig_config = load_rig(str(s.value("rig/profile", DEFAULT_RIG)))
+        except Exception:
+            self.rig_config = load_rig(DEFAULT_RIG)
+        self._build()
+        self._make_actions()
+        self.refresh_ports()
+        self._update_enabled()
+
+    # -- layout ------------------------------------------------------------------------------------
+    def _build(self) -> None:
+        root = QVBoxLayout(self)
+        root.setContentsMargins(6, 6, 6, 6)
+        root.setSpacing(6)
+
+        self.stop_button = QPushButton("STOP")
+        self.stop_button.setObjectName("stopButton")
+        self.stop_button.setMinimumHeight(46)
+        self.stop_button.setToolTip("Stop all motion now (Esc). Never waits behind other commands.")
+        self.stop_button.setFocusPolicy(Qt.NoFocus)
+        self.stop_button.clicked.connect(self.stop)
+        root.addWidget(self.stop_button)
+
+        conn = QGroupBox("Connection")
+        cl = QGridLayout(conn)
+        self.port_combo = QComboBox()
+        self.port_combo.setToolTip("Serial port of the axis controller, or the built-in simulated controller")
+        self.port_combo.setSizeAdjustPolicy(QComboBox.AdjustToMinimumContentsLengthWithIcon)
+        self.port_combo.setMinimumContentsLength(14)
+        self.port_combo.setEditable(True)
+        self.refresh_button = QToolButton()
+        self.refresh_button.setText("↻")
+        self.refresh_button.setToolTip("Look for serial ports again")
+        self.refresh_button.clicked.connect(self.refresh_ports)
+        self.connect_button = QPushButton("Connect")
+        self.connect_button.setToolTip("Connect to the controller on the chosen port")
+        self.connect_button.clicked.connect(self.toggle_connection)
+        self.rig_label = QLabel(self.rig_config.label or self.rig_config.name)
+        self.rig_label.setWordWrap(True)
+        cl.addWidget(QLabel("Port"), 0, 0)
+        cl.addWidget(self.port_combo, 0, 1)
+        cl.addWidget(self.refresh_button, 0, 2)
+        cl.addWidget(self.connect_button, 0, 3)
+        cl.addWidget(self.rig_label, 1, 0, 1, 4)
+        cl.setColumnStretch(1, 1)
+        root.addWidget(conn)
+
+        pos = QGroupBox("Position")
+        pl = QGridLayout(pos)
+        big = QFont("DejaVu Sans Mono")
+        big.setStyleHint(QFont.Monospace)
+        big.setPointSize(15)
+        big.setBold(True)
+        self.x_label = QLabel("—")
+        self.y_label = QLabel("—")
+        for lab in (self.x_label, self.y_label):
+            lab.setFont(big)
+            lab.setProperty("role", "value")
+            lab.setAlignment(Qt.AlignRight | Qt.AlignVCenter)
+            lab.setMinimumWidth(120)
+        self.x_label.setToolTip("Horizontal position in mm from the left end")
+        self.y_label.setToolTip("Vertical position in mm from the top end (down is positive)")
+        self.state_label = QLabel("disconnected")
+        self.state_label.setAlignment(Qt.AlignCenter)
+        self.state_label.setMinimumWidth(90)
+        self.message_label = QLabel("")
+        self.message_label.setWordWrap(True)
+        self.message_label.setProperty("role", "error")
+        self.home_button = QPushButton("Home")
+        self.home_button.setToolTip("Run the homing cycle ($H): find the limit switches; allows motion (Ctrl+H)")
+        self.home_button.clicked.connect(self.home)
+        self.origin_button = QPushButton("Set origin")
+        self.origin_button.setToolTip("Make the current position (0, 0) — for rigs without limit switches")
+        self.origin_button.clicked.connect(self.set_origin)
+        self.recover_button = QPushButton("Recover")
+        self.recover_button.setToolTip("Leave the alarm or reconnect after a lost connection")
+        self.recover_button.clicked.connect(self.recover)
+        self.recover_button.setVisible(False)
+        pl.addWidget(QLabel("x"), 0, 0)
+        pl.addWidget(self.x_label, 0, 1)
+        pl.addWidget(QLabel("mm"), 0, 2)
+        pl.addWidget(self.state_label, 0, 3, 2, 1)
+        pl.addWidget(QLabel("y"), 1, 0)
+        pl.addWidget(self.y_label, 1, 1)
+        pl.addWidget(QLabel("mm"), 1, 2)
+        buttons = QHBoxLayout()
+        buttons.addWidget(self.home_button)
+        buttons.addWidget(self.origin_button)
+        buttons.addWidget(self.recover_button)
+        pl.addLayout(buttons, 2, 0, 1, 4)
+        pl.addWidget(self.message_label, 3, 0, 1, 4)
+        pl.setColumnStretch(1, 1)
+        root.addWidget(pos)
+
+        self.diagram = RigDiagram()
+        self.diagram.set_config(self.rig_config)
+        root.addWidget(self.diagram)
+
+        jog = QGroupBox("Jog")
+        jl = QVBoxLayout(jog)
+        steps = QHBoxLayout()
+        steps.addWidget(QLabel("Step"))
+        self.step_group = QButtonGroup(self)
+        saved_step = float(settings().value("rig/step_mm", 10.0))
+        for size in STEP_SIZES_MM:
+            b = QRadioButton(f"{size:g} mm")
+            b.setFocusPolicy(Qt.NoFocus)
+            b.setToolTip(f"Each click or arrow key moves {size:g} mm; holding a button jogs continuously")
+            b.setProperty("step_mm", size)
+            b.setChecked(abs(size - saved_step) < 1e-9)
+            self.step_group.addButton(b)
+            steps.addWidget(b)
+        if self.step_group.checkedButton() is None:
+            self.step_group.buttons()[2].setChecked(True)
+        self.step_group.buttonToggled.connect(lambda *_: settings().setValue("rig/step_mm", self.step_mm))
+        steps.addStretch(1)
+        jl.addLayout(steps)
+        pad = QGridLayout()
+        self.jog_buttons: dict[tuple[int, int], QPushButton] = {}
+        for (dx, dy), (r, c), text, tip in (((0, -1), (0, 1), "▲", "up (y −)"), ((-1, 0), (1, 0), "◀", "left (x −)"),
+                                            ((1, 0), (1, 2), "▶", "right (x +)"), ((0, 1), (2, 1), "▼", "down (y +)")):
+            b = QPushButton(text)
+            b.setFocusPolicy(Qt.NoFocus)
+            b.setMinimumSize(44, 34)
+            b.setToolTip(f"Jog {tip}: click for one step, hold to move until released (arrow keys; "
+                         f"Shift for {FINE_STEP_MM:g} mm steps)")
+            b.pressed.connect(lambda d=(dx, dy): self._jog_pressed(d))
+            b.released.connect(self._jog_released)
+            pad.addWidget(b, r, c)
+            self.jog_buttons[(dx, dy)] = b
+        centre = QLabel("jog")
+        centre.setAlignment(Qt.AlignCenter)
+        centre.setProperty("role", "value")
+        pad.addWidget(centre, 1, 1)
+        padbox = QHBoxLayout()
+        padbox.addStretch(1)
+        padbox.addLayout(pad)
+        padbox.addStretch(1)
+        jl.addLayout(padbox)
+        root.addWidget(jog)
+
+        goto = QGroupBox("Go to")
+        gl = QHBoxLayout(goto)
+        self.goto_x = QDoubleSpinBox()
+        self.goto_y = QDoubleSpinBox()
+        for spin, axis, key in ((self.goto_x, self.rig_config.horizontal, "rig/goto_x"),
+                                (self.goto_y, self.rig_config.vertical, "rig/goto_y")):
+            spin.setDecimals(3)
+            spin.setRange(axis.soft_min_mm, axis.soft_max_mm)
+            spin.setSuffix(" mm")
+            spin.setValue(float(settings().value(key, axis.soft_min_mm)))
+            spin.setToolTip(f"{axis.name} target, inside the soft limits {axis.soft_min_mm:g} … {axis.soft_max_mm:g} mm")
+            spin.valueChanged.connect(lambda v, k=key: settings().setValue(k, v))
+        self.goto_button = QPushButton("Go")
+        self.goto_button.setToolTip("Move to this position (absolute, rig frame)")
+        self.goto_button.clicked.connect(self.go_to)
+        gl.addWidget(QLabel("x"))
+        gl.addWidget(self.goto_x, 1)
+        gl.addWidget(QLabel("y"))
+        gl.addWidget(self.goto_y, 1)
+        gl.addWidget(self.goto_button)
+        root.addWidget(goto)
+        root.addStretch(1)
+
+    def _make_actions(self) -> None:
+        self.stop_action = QAction("&STOP all motion", self)
+        self.stop_action.setShortcut(QKeySequence(Qt.Key_Escape))
+        self.stop_action.setShortcutContext(Qt.WindowShortcut)
+        self.stop_action.setToolTip("Stop the rig now (feed hold + jog cancel)")
+        self.stop_action.triggered.connect(self.stop)
+        self.addAction(self.stop_action)
+        self.connect_action = QAction("&Connect rig", self)
+        self.connect_action.setToolTip("Connect to (or disconnect from) the axis controller")
+        self.connect_action.triggered.connect(self.toggle_connection)
+        self.home_action = QAction("&Home rig", self)
+        self.home_action.setShortcut(QKeySequence("Ctrl+H"))
+        self.home_action.setToolTip("Run the homing cycle")
+        self.home_action.triggered.connect(self.home)
+        self.origin_action = QAction("Set &origin here", self)
+        self.origin_action.setToolTip("Make the current position (0, 0)")
+        self.origin_action.triggered.connect(self.set_origin)
+        self.recover_action = QAction("&Recover (unlock / reconnect)", self)
+        self.recover_action.setToolTip("Leave an alarm or reconnect after a lost connection")
+        self.recover_action.triggered.connect(self.recover)
+
+    def install_menus(self, window) -> None:
+        menu = window.menu("Rig")
+        for action in (self.connect_action, self.home_action, self.origin_action, self.recover_action):
+            menu.addAction(action)
+        menu.addSeparator()
+        menu.addAction(self.stop_action)
+
+    # -- connection --------------------------------------------------------------------------------
+    @property
+    def connected(self) -> bool:
+        return self.device is not None
+
+    def refresh_ports(self) -> None:
+        from lfstudio.rig.connect import available_ports
+
+        current = self.port_combo.currentText()
+        self.port_combo.clear()
+        self.port_combo.addItem(SIMULATED, "sim")
+        self.port_combo.setItemData(0, "GRBL simulator on a pseudo-terminal (the simulated studio)", Qt.ToolTipRole)
+        try:
+            ports = available_ports()
+        except Exception:  # noqa: BLE001 - listing ports must never break the panel
+            ports = []
+        for port in ports:
+            self.port_combo.addItem(port.device, port.device)
+            self.port_combo.setItemData(self.port_combo.count() - 1, port.description, Qt.ToolTipRole)
+        wanted = current or ("" if self.state.simulated else str(settings().value("rig/port", "")))
+        if self.state.simulated and not current:
+            wanted = SIMULATED
+        index = self.port_combo.findText(wanted) if wanted else -1
+        if index >= 0:
+            self.port_combo.setCurrentIndex(index)
+        elif wanted:
+            self.port_combo.setEditText(wanted)
+
+    def _chosen_port(self) -> str:
+        text = self.port_combo.currentText().strip()
+        return "sim" if text in (SIMULATED, "", "sim") else text
+
+    def toggle_connection(self) -> None:
+        if self.connected:
+            self.disconnect_rig()
+        else:
+            self.connect_rig()
+
+    def connect_rig(self) -> None:
+        """Start the simulator if chosen, then connect on the device thread."""
+        from lfstudio.rig.grbl import GrblController
+
+        if self.connected:
+            return
+        port = self._chosen_port()
+        settings().setValue("rig/port", self.port_combo.currentText())
+        if port == "sim":
+            from lfstudio.sim.grbl_controller import GrblSimulator
+            self.simulator = GrblSimulator(self.rig_config, time_scale=self.sim_time_scale)
+            path = self.simulator.start()
+            self.state.set_device("rig_simulator", self.simulator)
+        else:
+            path = port
+        controller = GrblController(path, self.rig_config)
+        worker = DeviceWorker(controller, name="rig", publish_hz=10,
+                              error_snapshot=lambda message: RigStatus(RigState.DISCONNECTED, message=message))
+        self.device = QtDevice(worker, self)
+        self.device.statusChanged.connect(self._on_status)
+        self.device.busyChanged.connect(lambda _busy: self._update_enabled())
+        self._show_message(f"Connecting to {port if port != 'sim' else 'the simulated controller'} …", "warning")
+        self.connect_button.setText("Disconnect")
+        self.connect_action.setText("Dis&connect rig")
+        self.device.run("connect", on_result=lambda _r: self._connected(port),
+                        on_error=self._connect_failed)
+        self.state.set_device("rig", self.device)
+        self._update_enabled()
+
+    def _connected(self, port: str) -> None:
+        self._show_message("")
+        self.state.show_status(f"Rig connected ({'simulated' if port == 'sim' else port})")
+        self.connectedChanged.emit(True)
+
+    def _connect_failed(self, message: str) -> None:
+        self.disconnect_rig()
+        self._show_message(message, "error")
+        self.state.report_error("Rig", message)
+
+    def disconnect_rig(self) -> None:
+        device, self.device = self.device, None
+        if device is not None:
+            device.stop_now()
+            device.close(disconnect=True)
+            device.deleteLater()
+        if self.simulator is not None:
+            self.simulator.close()
+            self.simulator = None
+        self.state.set_device("rig", None)
+        self.state.set_device("rig_simulator", None)
+        self.connect_button.setText("Connect")
+        self.connect_action.setText("&Connect rig")
+        self.last_status = None
+        self._on_status(RigStatus(RigState.DISCONNECTED))
+        self.connectedChanged.emit(False)
+
+    def shutdown(self) -> None:
+        self._hold_timer.stop()
+        if self.device is not None or self.simulator is not None:
+            self.disconnect_rig()
+
+    # -- commands ----------------------------------------------------------------------------------
+    def _run(self, method: str, *args, done_message: str = "", **kwargs) -> None:
+        if self.device is None:
+            self._show_message("Connect the rig first (Rig ▸ Connect rig)", "error")
+            return
+        self._show_message("")
+
+        def ok(_result) -> None:
+            if done_message:
+                self.state.show_status(done_message)
+
+        self.device.run(method, *args, on_result=ok, on_error=self._command_failed, **kwargs)
+
+    def _command_failed(self, message: str) -> None:
+        self._show_message(message, "error")
+        self.state.show_status(f"Rig: {message.splitlines()[0]}", 10000)
+
+    def stop(self) -> None:
+        """STOP: the driver's stop on this thread (never queued), queued commands dropped."""
+        self._hold_timer.stop()
+        self._pressed = None
+        self._continuous = False
+        self.diagram.set_target(None)
+        if self.device is not None:
+            self.device.stop_now()
+            self.state.show_status("Rig: STOP", 5000)
+
+    def home(self) -> None:
+        self._run("home", done_message="Rig homed")
+
+    def set_origin(self) -> None:
+        self._run("set_origin", done_message="Rig origin set here")
+
+    def recover(self) -> None:
+        st = self.last_status
+        if self.device is None:
+            self.connect_rig()
+        elif st is not None and st.state is RigState.DISCONNECTED:
+            if self.simulator is not None and not self.simulator.running:
+                self.disconnect_rig()          # the simulated port vanished: start a new one
+                self.connect_rig()
+            else:
+                self._run("connect", done_message="Rig reconnected: home it (or set the origin) before moving")
+        elif self.rig_config.homing:
+            self._run("home", done_message="Rig homed")
+        else:
+            self._run("unlock", done_message="Rig unlocked: set the origin before moving")
+
+    def go_to(self) -> None:
+        x, y = self.goto_x.value(), self.goto_y.value()
+        self.diagram.set_target((x, y))
+        self._run("move_to", x, y, done_message=f"Rig at ({x:g}, {y:g}) mm")
+
+    @property
+    def step_mm(self) -> float:
+        b = self.step_group.checkedButton()
+        return float(b.property("step_mm")) if b is not None else 1.0
+
+    def jog_step(self, dx: int, dy: int, step_mm: float | None = None) -> None:
+        step = self.step_mm if step_mm is None else step_mm
+        self._run("jog", dx * step, dy * step)
+
+    def _jog_pressed(self, direction: tuple[int, int]) -> None:
+        self._pressed = direction
+        self._continuous = False
+        self._hold_timer.start(HOLD_MS)
+
+    def _start_continuous(self) -> None:
+        if self._pressed is None or self.device is None:
+            return
+        self._continuous = True
+        dx, dy = self._pressed
+        far = 1e6                                  # clamped to the soft limit by the driver
+        h, v = self.rig_config.horizontal, self.rig_config.vertical
+        fraction = {0.1: 0.05, 1.0: 0.2, 10.0: 0.5, 100.0: 1.0}.get(self.step_mm, 0.5)
+        speed = fraction * (h.max_speed_mm_s if dx else v.max_speed_mm_s)
+        self._run("jog", dx * far, dy * far, speed_mm_s=speed)
+
+    def _jog_released(self) -> None:
+        direction, self._pressed = self._pressed, None
+        if self._hold_timer.isActive():
+            self._hold_timer.stop()
+            if direction is not None:
+                self.jog_step(*direction)
+        elif self._continuous:
+            self._continuous = False
+            if self.device is not None:
+                self._run("jog_cancel")
+
+    def keyPressEvent(self, event) -> None:  # noqa: N802
+        keys = {Qt.Key_Left: (-1, 0), Qt.Key_Right: (1, 0), Qt.Key_Up: (0, -1), Qt.Key_Down: (0, 1)}
+        direction = keys.get(event.key())
+        if direction is None:
+            super().keyPressEvent(event)
+            return
+        event.accept()
+        if event.isAutoRepeat() and self.device is not None and self.device.busy:
+            return                                # don't pile up steps while the rig is busy
+        fine = bool(event.modifiers() & Qt.ShiftModifier)
+        self.jog_step(*direction, step_mm=FINE_STEP_MM if fine else None)
+
+    # -- status ------------------------------------------------------------------------------------
+    def _on_status(self, snapshot: Any) -> None:
+        if isinstance(snapshot, DeviceFault):
+            snapshot = RigStatus(RigState.DISCONNECTED, message=snapshot.message)
+        if not isinstance(snapshot, RigStatus):
+            return
+        self.last_status = snapshot
+        if snapshot.position_mm is not None:
+            self.x_label.setText(f"{snapshot.position_mm[0]:.3f}")
+            self.y_label.setText(f"{snapshot.position_mm[1]:.3f}")
+        else:
+            self.x_label.setText("—")
+            self.y_label.setText("—")
+        text = snapshot.state.value + ("" if snapshot.homed or snapshot.state is RigState.DISCONNECTED
+                                       else "\nnot homed")
+        self.state_label.setText(text)
+        colour = _STATE_COLOURS.get(snapshot.state, "#333")
+        self.state_label.setStyleSheet(f"color: white; background: {colour}; border-radius: 4px; "
+                                       "padding: 4px 8px; font-weight: 600;")
+        self.diagram.set_position(snapshot.position_mm)
+        if snapshot.state is RigState.IDLE and snapshot.position_mm is not None and self.diagram.target_mm:
+            tx, ty = self.diagram.target_mm
+            if abs(tx - snapshot.position_mm[0]) < 0.05 and abs(ty - snapshot.position_mm[1]) < 0.05:
+                self.diagram.set_target(None)
+        problem = snapshot.state in (RigState.ALARM, RigState.DISCONNECTED) and self.device is not None
+        # the Home button already recovers an alarm on a rig with switches
+        show_recover = problem and (snapshot.state is RigState.DISCONNECTED or not self.rig_config.homing)
+        if problem:
+            self._show_message(snapshot.message or snapshot.state.value, "error")
+        elif snapshot.message and not self.message_label.text():
+            self._show_message(snapshot.message, "warning")
+        elif not snapshot.message and self.message_label.property("role") == "warning":
+            self._show_message("")
+        self.recover_button.setVisible(show_recover)
+        if show_recover:
+            self.recover_button.setText("Reconnect" if snapshot.state is RigState.DISCONNECTED else "Unlock")
+        self._update_enabled()
+
+    def _show_message(self, text: str, role: str = "error") -> None:
+        self.message_label.setText(text)
+        if self.message_label.property("role") != role:
+            self.message_label.setProperty("role", role)
+            self.message_label.style().unpolish(self.message_label)
+            self.message_label.style().polish(self.message_label)
+
+    def _update_enabled(self) -> None:
+        st = self.last_status
+        live = self.device is not None and st is not None and st.state is not RigState.DISCONNECTED
+        can_move = live and st.homed and st.state in (RigState.IDLE, RigState.JOGGING)
+        self.port_combo.setEnabled(self.device is None)
+        self.refresh_button.setEnabled(self.device is None)
+        self.home_button.setEnabled(live and self.rig_config.homing)
+        self.home_action.setEnabled(live and self.rig_config.homing)
+        self.origin_button.setEnabled(live and st.state is RigState.IDLE)
+        self.origin_action.setEnabled(live and st.state is RigState.IDLE)
+        self.recover_action.setEnabled(self.device is not None)
+        for b in self.jog_buttons.values():
+            b.setEnabled(can_move or (b.isDown() and live))
+        self.goto_button.setEnabled(can_move)

@@ -1,0 +1,90 @@
+"""The Rig panel on the simulated rig: connect, home, jog (click, keys, hold), go-to, STOP mid-move,
+a dropped connection and its recovery. Real pty, real worker thread, real Qt event loop."""
+
+from __future__ import annotations
+
+import pytest
+from PySide6.QtCore import Qt
+
+from lfstudio.gui.devices import QtDevice
+from lfstudio.gui.panels.rig import RigPanel
+from lfstudio.gui.state import AppState
+from lfstudio.rig.motion import RigState
+
+T = 10000  # ms; generous for a loaded machine, the waits end as soon as the condition holds
+
+
+def pos(panel):
+    return panel.last_status.position_mm
+
+
+def state_is(panel, state):
+    return panel.last_status is not None and panel.last_status.state is state
+
+
+@pytest.fixture
+def panel(qtbot):
+    state = AppState(simulated=True)
+    p = RigPanel(state)
+    p.sim_time_scale = 0.02
+    qtbot.addWidget(p)
+    p.show()
+    yield p
+    p.shutdown()
+
+
+def test_jog_and_stop_mid_move(qtbot, panel):
+    assert panel.port_combo.currentText() == "Simulated"
+    assert panel.stop_button.objectName() == "stopButton" and panel.stop_button.isVisible()
+    qtbot.mouseClick(panel.connect_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: state_is(panel, RigState.ALARM), timeout=T)   # a homing rig boots locked
+    assert isinstance(panel.state.devices["rig"], QtDevice)
+    sim = panel.state.devices["rig_simulator"]
+    assert "home the rig" in panel.message_label.text()
+    assert not panel.goto_button.isEnabled()           # no motion before homing
+
+    qtbot.mouseClick(panel.home_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: state_is(panel, RigState.IDLE) and panel.last_status.homed, timeout=T)
+    assert pos(panel) == (0.0, 0.0) and panel.x_label.text() == "0.000"
+
+    ten = next(b for b in panel.step_group.buttons() if b.property("step_mm") == 10.0)
+    ten.setChecked(True)
+    qtbot.mouseClick(panel.jog_buttons[(1, 0)], Qt.LeftButton)           # one 10 mm step right
+    qtbot.waitUntil(lambda: pos(panel) == (10.0, 0.0) and state_is(panel, RigState.IDLE), timeout=T)
+    panel.setFocus()
+    qtbot.keyClick(panel, Qt.Key_Down, Qt.ShiftModifier)                 # fine step down
+    qtbot.waitUntil(lambda: pos(panel) == (10.0, 0.1), timeout=T)
+
+    sim.time_scale = 0.5                                                 # slow enough to catch it moving
+    qtbot.mousePress(panel.jog_buttons[(1, 0)], Qt.LeftButton)           # hold: continuous jog
+    qtbot.waitUntil(lambda: state_is(panel, RigState.JOGGING), timeout=T)
+    qtbot.mouseRelease(panel.jog_buttons[(1, 0)], Qt.LeftButton)
+    qtbot.waitUntil(lambda: state_is(panel, RigState.IDLE), timeout=T)
+    assert 10.0 < pos(panel)[0] < 4000.0
+
+    panel.goto_x.setValue(3000)
+    panel.goto_y.setValue(400)
+    qtbot.mouseClick(panel.goto_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: state_is(panel, RigState.MOVING), timeout=T)
+    qtbot.mouseClick(panel.stop_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: "stopped by STOP" in panel.message_label.text(), timeout=T)
+    qtbot.waitUntil(lambda: state_is(panel, RigState.IDLE), timeout=T)
+    x, y = pos(panel)
+    assert x < 3000 and y < 400 and panel.last_status.homed
+    assert sim.reported_position_mm() == pytest.approx((x, y), abs=1e-3)
+
+
+def test_dropped_connection_shows_message_and_recovers(qtbot, panel):
+    panel.connect_rig()
+    qtbot.waitUntil(lambda: state_is(panel, RigState.ALARM), timeout=T)
+    old_sim = panel.state.devices["rig_simulator"]
+    old_sim.inject("drop")
+    qtbot.waitUntil(lambda: state_is(panel, RigState.DISCONNECTED), timeout=T)
+    assert "connect again" in panel.message_label.text()
+    assert panel.recover_button.isVisible() and panel.recover_button.text() == "Reconnect"
+    qtbot.mouseClick(panel.recover_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: state_is(panel, RigState.ALARM), timeout=T)
+    assert panel.state.devices["rig_simulator"] is not old_sim
+    assert not panel.recover_button.isVisible()
+    panel.disconnect_rig()
+    assert "rig" not in panel.state.devices and "rig_simulator" not in panel.state.devices
