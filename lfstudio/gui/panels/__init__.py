@@ -22,7 +22,7 @@ class PanelSpec:
 PANELS: list[PanelSpec] = [
     PanelSpec("Scan", "scanPanel", "lfstudio.gui.panels.scan:ScanPanel", "right"),
     PanelSpec("Processing", "processingPanel", "lfstudio.gui.panels.processing:ProcessingPanel", "right"),
-    PanelSpec("Rig", "rigDock", "lfstudio.gui.panels.rig:RigPanel", "right"),
+    PanelSpec("Rig", "rigDock", "lfstudio.gui.panels.rig:RigPanel", "left"),
 ]
 
 #: the central widget, "module:ClassName" constructed as ``Cls(state)``

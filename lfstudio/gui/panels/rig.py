@@ -131,7 +131,7 @@ class RigPanel(QWidget):
         self._build()
         self._make_actions()
         self.refresh_ports()
-        self._update_enabled()
+        self._on_status(RigStatus(RigState.DISCONNECTED))
 
     # -- layout ------------------------------------------------------------------------------------
     def _build(self) -> None:
