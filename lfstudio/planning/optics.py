@@ -118,6 +118,12 @@ def focus_for_range_mm(near_mm: float, far_mm: float) -> float:
     return 2.0 * near_mm * far_mm / (near_mm + far_mm)
 
 
+def blur_diameter_mm(depth_mm: float, focus_mm: float, focal_length_mm: float, f_number: float) -> float:
+    """Blur-circle diameter on the sensor of a point at depth Z when focused at s:
+    b = f²/N · |1/s − 1/Z| (the same approximation as the formulas above: b = c exactly at D_N, D_F)."""
+    return focal_length_mm ** 2 / f_number * abs(1.0 / focus_mm - 1.0 / depth_mm)
+
+
 # -- repositioning error ---------------------------------------------------------------------------
 
 

@@ -411,11 +411,12 @@ def _derive(p: ScenePlan) -> PlanResult:
     col_px = optics.disparity_px(baseline["vertical"], near_mm, far_mm, f, pitch)
     proposed_spacing = {a: optics.spacing_for_disparity_mm(p.max_disparity_px, near_mm, far_mm, f, pitch)
                         for a in AXES}
-    for a in AXES:
-        if counts[a] > 1 and neighbour[a] > p.max_disparity_px * (1 + 1e-9):
-            warnings.append(PlanWarning(
-                "spacing_mm", f"{a} neighbour disparity is {neighbour[a]:.1f} px (wanted ≤ {p.max_disparity_px:g} px "
-                f"for dense sampling): a spacing of {proposed_spacing[a]:.3g} mm would give it", "info"))
+    too_sparse = [a for a in AXES if counts[a] > 1 and neighbour[a] > p.max_disparity_px * (1 + 1e-9)]
+    if too_sparse:
+        what = " and ".join(f"{neighbour[a]:.1f} px {a}ly" for a in too_sparse)
+        warnings.append(PlanWarning(
+            "spacing_mm", f"neighbours differ by {what} (wanted ≤ {p.max_disparity_px:g} px for dense sampling): "
+            f"a spacing of {proposed_spacing[too_sparse[0]]:.3g} mm would give it", "info"))
     proposed_grid = None
     if p.target_parallax_fraction is not None:
         proposed_grid = {

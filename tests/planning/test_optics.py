@@ -135,3 +135,11 @@ def test_grid_from_parallax_covers_it_minimally(spacing, steps, near, extra):
     assert n == steps + 2
     assert optics.disparity_px(optics.baseline_mm(n, spacing), near, far, F_MM, PITCH_UM) >= wanted
     assert optics.disparity_px(optics.baseline_mm(n - 1, spacing), near, far, F_MM, PITCH_UM) < wanted
+
+
+def test_blur_is_the_coc_at_the_dof_limits():
+    h = optics.hyperfocal_mm(50, 11, 0.03, exact=False)
+    s = 3000.0
+    for limit in (optics.dof_near_mm(h, s), optics.dof_far_mm(h, s)):
+        assert optics.blur_diameter_mm(limit, s, 50, 11) == pytest.approx(0.03)
+    assert optics.blur_diameter_mm(s, s, 50, 11) == 0

@@ -20,6 +20,8 @@ class PanelSpec:
 
 
 PANELS: list[PanelSpec] = [
+    PanelSpec("Planner", "plannerDock", "lfstudio.gui.panels.planner:PlannerPanel", "left"),
+    PanelSpec("Plan plots", "planPlotsDock", "lfstudio.gui.panels.planner:PlanPlotsPanel", "bottom"),
     PanelSpec("Scan", "scanPanel", "lfstudio.gui.panels.scan:ScanPanel", "right"),
     PanelSpec("Processing", "processingPanel", "lfstudio.gui.panels.processing:ProcessingPanel", "right"),
     PanelSpec("Rig", "rigDock", "lfstudio.gui.panels.rig:RigPanel", "left"),

@@ -1,0 +1,779 @@
+"""The scene planner: inputs with units and ranges, live outputs, warnings next to their field, and
+the "Plan plots" dock (depth of field and disparity against depth).
+
+The panel builds a :class:`~lfstudio.planning.scene_plan.ScenePlan` from its fields on every edit
+(debounced), derives it, shows the outputs and publishes valid plans with ``state.set_plan``.
+The plots panel draws whatever plan the state holds.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PySide6.QtCore import Qt, QTimer, Signal
+from PySide6.QtGui import QAction, QKeySequence
+from PySide6.QtWidgets import (QAbstractSpinBox, QComboBox, QDoubleSpinBox, QFileDialog, QFrame, QGridLayout,
+                               QGroupBox, QHBoxLayout, QLabel, QPushButton, QScrollArea, QSizePolicy, QSpinBox,
+                               QVBoxLayout, QWidget)
+
+from lfstudio.errors import InputError, LfError
+from lfstudio.jobs import format_duration
+from lfstudio.planning import optics
+from lfstudio.planning.presets import (camera_fields, lens_fields, reference_plan, rig_fields)
+from lfstudio.planning.scene_plan import PlanResult, ScenePlan, load_plan, save_plan
+from lfstudio.resources import load_presets
+
+log = logging.getLogger(__name__)
+
+SETTINGS_KEY = "planner/plan"
+CUSTOM = "Custom"
+DEBOUNCE_MS = 80
+
+_PANEL_STYLE = """
+QAbstractSpinBox[severity="error"], QComboBox[severity="error"] { border: 1px solid #b00020; background: #fff0f0; }
+QAbstractSpinBox[severity="warning"] { border: 1px solid #c77700; background: #fff8ec; }
+QLabel[msg="error"] { color: #b00020; }
+QLabel[msg="warning"] { color: #9a5b00; }
+QLabel[msg="info"] { color: #4a5a70; }
+QLabel#planStatus[ok="true"] { color: #1b6e2a; font-weight: 600; }
+QLabel#planStatus[ok="false"] { color: #b00020; font-weight: 600; }
+QLabel[role="value"] { font-family: "DejaVu Sans Mono", monospace; }
+QLabel[role="value"][flag="bad"] { color: #b00020; }
+QLabel[role="value"][flag="warn"] { color: #9a5b00; }
+QLabel[role="outlabel"] { color: #3c4450; }
+"""
+
+_SEVERITY_RANK = {"info": 0, "warning": 1, "error": 2}
+
+
+@dataclass(frozen=True)
+class _Input:
+    """One input row: the ScenePlan attribute(s) it edits and how."""
+
+    key: str                    # row key (= ScenePlan attribute, or "grid" for columns × rows)
+    label: str
+    kind: str                   # "double" | "int" | "pair" | "ipair"
+    lo: float
+    hi: float
+    decimals: int = 2
+    step: float = 1.0
+    suffix: str = ""
+    special: str = ""           # text shown at the minimum: means None ("auto")
+    tip: str = ""
+
+
+_CAMERA_INPUTS = [
+    _Input("sensor_px", "Sensor", "ipair", 1, 100000, suffix=" px", tip="Sensor size in pixels (width × height)"),
+    _Input("sensor_mm", "Sensor size", "pair", 0.1, 200, 2, 0.1, " mm", tip="Sensor size in mm (width × height)"),
+    _Input("pixel_pitch_um", "Pixel pitch", "double", 0.0, 100, 3, 0.01, " µm", "auto",
+           "The sensor's own pixel pitch; 'auto' derives it from sensor mm / px"),
+    _Input("raw_bits", "Raw depth", "int", 1, 32, suffix=" bit", tip="Bits per raw sample (for the disk estimate)"),
+]
+_LENS_INPUTS = [
+    _Input("focal_length_mm", "Focal length", "double", 1, 2000, 1, 1, " mm", tip="Focal length f of the lens"),
+]
+_SCENE_INPUTS = [
+    _Input("near_m", "Near", "double", 0.01, 10000, 2, 0.05, " m",
+           tip="Nearest scene point, measured from the plane the camera moves in"),
+    _Input("far_m", "Far", "double", 0.01, 10000, 2, 0.1, " m", tip="Farthest scene point (the back wall)"),
+    _Input("coc_mm", "Circle of confusion", "double", 0.001, 1, 3, 0.001, " mm",
+           tip="Largest blur still counted as sharp (0.029 mm is usual for full frame)"),
+    _Input("f_number", "f-number", "double", 0.0, 128, 1, 0.5, "", "auto (needed)",
+           "Aperture to evaluate; 'auto' uses the one the scene needs"),
+    _Input("focus_m", "Focus", "double", 0.0, 10000, 2, 0.05, " m", "auto (centred)",
+           "Focus distance; 'auto' centres the sharp range on the scene"),
+]
+_GRID_INPUTS = [
+    _Input("grid", "Grid", "ipair", 1, 100000, suffix="", tip="Columns × rows of camera positions"),
+    _Input("spacing_mm", "Spacing", "pair", 0.001, 100000, 3, 0.5, " mm",
+           tip="Distance between neighbouring positions (horizontal × vertical)"),
+    _Input("repeatability_um", "Repeatability", "pair", 0, 100000, 0, 5, " µm",
+           tip="Repositioning error of each axis (horizontal × vertical)"),
+    _Input("travel_mm", "Travel", "pair", 0.1, 1000000, 0, 10, " mm", tip="Usable travel of each axis"),
+    _Input("max_speed_mm_s", "Speed", "pair", 0.1, 100000, 0, 5, " mm/s", tip="Maximum speed of each axis"),
+    _Input("acceleration_mm_s2", "Acceleration", "pair", 0.1, 1000000, 0, 10, " mm/s²",
+           tip="Acceleration of each axis"),
+    _Input("settle_s", "Settle", "double", 0, 3600, 2, 0.05, " s", tip="Wait after each move before exposing"),
+    _Input("exposure_s", "Exposure", "double", 0, 3600, 3, 0.1, " s", tip="Exposure time per view"),
+    _Input("transfer_s", "Transfer", "double", 0, 3600, 2, 0.1, " s",
+           tip="Trigger + download time per image (overlaps the next move)"),
+]
+_TARGET_INPUTS = [
+    _Input("max_error_px", "Max. repositioning error", "double", 0.01, 100, 2, 0.1, " px",
+           tip="Largest image shift the axes' repeatability may cause (SPEC: 0.5 px)"),
+    _Input("max_disparity_px", "Max. neighbour disparity", "double", 0.01, 100000, 2, 0.25, " px",
+           tip="Wanted disparity between neighbouring views over the scene depth: proposes the spacing"),
+    _Input("target_parallax_fraction", "Wanted parallax", "double", 0.0, 10000, 1, 1, " %", "off",
+           tip="Wanted parallax as a percentage of the image size: proposes the grid"),
+]
+
+#: ScenePlan attribute -> input row key (most are the same)
+_ROW_OF_FIELD = {"grid_columns": "grid", "grid_rows": "grid"}
+
+
+def _row_of(field: str) -> str:
+    return _ROW_OF_FIELD.get(field, field)
+
+
+def style_prop(widget: QWidget, name: str) -> str:
+    """The style property ``name`` last set with :func:`_set_prop` ("" if never); kept on the Python
+    side so code and tests read the field's state without a QVariant round trip."""
+    return getattr(widget, "_lf_style", {}).get(name, "")
+
+
+def _set_prop(widget: QWidget, name: str, value: str) -> None:
+    """Set a string property used by the style sheet and re-polish the widget if it changed."""
+    props = widget.__dict__.setdefault("_lf_style", {})
+    if props.get(name) != value:
+        props[name] = value
+        widget.setProperty(name, value)
+        widget.style().unpolish(widget)
+        widget.style().polish(widget)
+
+
+class _Row:
+    """The widgets of one input row: spin box(es) and the message line under them."""
+
+    def __init__(self, spec: _Input, spins: list[QAbstractSpinBox], message: QLabel):
+        self.spec = spec
+        self.spins = spins
+        self.message = message
+
+
+class PlannerPanel(QWidget):
+    """Inputs → live outputs; warnings next to their field; valid plans published to the state."""
+
+    planEvaluated = Signal(object, object)   # (ScenePlan, PlanResult or None) after every evaluation
+
+    def __init__(self, state, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.state = state
+        self.setObjectName("plannerPanel")
+        self.setStyleSheet(_PANEL_STYLE)
+        self.rows: dict[str, _Row] = {}
+        self.combos: dict[str, QComboBox] = {}
+        self.outputs: dict[str, QLabel] = {}
+        self.plan: ScenePlan | None = None
+        self.result: PlanResult | None = None
+        self.error: InputError | None = None
+        self._custom_names = {"camera_name": "custom camera", "lens_name": "custom lens", "rig_name": "custom rig"}
+        self._extra: dict[str, Any] = {}        # plan fields without a widget (bytes_per_image)
+        self._loading = False
+        self._timer = QTimer(self)
+        self._timer.setSingleShot(True)
+        self._timer.setInterval(DEBOUNCE_MS)
+        self._timer.timeout.connect(self.evaluate)
+        self._presets = self._load_presets()
+        self._build()
+        self.set_plan(self._restore_plan())
+        self.evaluate()
+
+    # -- construction ------------------------------------------------------------------------------
+    def _load_presets(self) -> dict[str, list[str]]:
+        names = {}
+        for kind in ("cameras", "lenses", "rigs"):
+            try:
+                names[kind] = list(load_presets(kind))
+            except InputError as exc:      # a broken user preset file: say so, keep going
+                names[kind] = []
+                QTimer.singleShot(0, lambda e=exc: self.state.report_error("Presets", str(e)))
+        return names
+
+    def _build(self) -> None:
+        outer = QVBoxLayout(self)
+        outer.setContentsMargins(4, 4, 4, 4)
+        outer.setSpacing(6)
+        outer.addWidget(self._build_results())
+
+        body = QWidget()
+        body.setObjectName("plannerInputs")
+        lay = QVBoxLayout(body)
+        lay.setContentsMargins(0, 0, 4, 0)
+        lay.setSpacing(6)
+        lay.addWidget(self._group("Camera and lens", [("camera_name", "Camera", "cameras"), *_CAMERA_INPUTS,
+                                                       ("lens_name", "Lens", "lenses"), *_LENS_INPUTS]))
+        lay.addWidget(self._group("Scene and aperture", _SCENE_INPUTS))
+        lay.addWidget(self._group("Grid, rig and timing", [("rig_name", "Rig", "rigs"), *_GRID_INPUTS]))
+        lay.addWidget(self._group("Targets", _TARGET_INPUTS))
+        buttons = QHBoxLayout()
+        self.reference_button = QPushButton("Reference setup")
+        self.reference_button.setToolTip("Reset every input to the paper's setup (A7R II, 50 mm, 101 × 21 at 4 × 6 mm)")
+        self.reference_button.clicked.connect(lambda: self.set_plan(reference_plan()))
+        self.apply_spacing_button = QPushButton("Use proposed spacing")
+        self.apply_spacing_button.setToolTip("Set the spacing to the one that gives the wanted neighbour disparity")
+        self.apply_spacing_button.clicked.connect(self.apply_proposed_spacing)
+        buttons.addWidget(self.reference_button)
+        buttons.addWidget(self.apply_spacing_button)
+        buttons.addStretch(1)
+        lay.addLayout(buttons)
+        lay.addStretch(1)
+
+        scroll = QScrollArea()
+        scroll.setObjectName("plannerScroll")
+        scroll.setWidgetResizable(True)
+        scroll.setFrameShape(QFrame.NoFrame)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarAlwaysOff)
+        scroll.setWidget(body)
+        outer.addWidget(scroll, 1)
+        self.setMinimumWidth(430)
+
+    def _group(self, title: str, items: list) -> QGroupBox:
+        box = QGroupBox(title)
+        grid = QGridLayout(box)
+        grid.setContentsMargins(8, 8, 8, 6)
+        grid.setHorizontalSpacing(8)
+        grid.setVerticalSpacing(3)
+        grid.setColumnStretch(1, 1)
+        grid.setColumnStretch(3, 1)
+        r = 0
+        for item in items:
+            if isinstance(item, tuple):
+                key, label, kind = item
+                combo = QComboBox()
+                combo.setObjectName(f"{key}Combo")
+                combo.addItems(self._presets[kind] + [CUSTOM])
+                combo.setToolTip(f"{label} preset (yours go in ~/.config/lfstudio/presets/{kind}.toml)")
+                combo.currentTextChanged.connect(lambda text, k=key: self._preset_chosen(k, text))
+                self.combos[key] = combo
+                grid.addWidget(QLabel(label), r, 0)
+                grid.addWidget(combo, r, 1, 1, 3)
+                message = self._message_label()
+                grid.addWidget(message, r + 1, 0, 1, 4)
+                self.rows[key] = _Row(_Input(key, label, "combo", 0, 0), [], message)
+                r += 2
+                continue
+            spec: _Input = item
+            label = QLabel(spec.label)
+            label.setToolTip(spec.tip)
+            grid.addWidget(label, r, 0)
+            spins = self._spins(spec)
+            if len(spins) == 1:
+                grid.addWidget(spins[0], r, 1, 1, 3)
+            else:
+                grid.addWidget(spins[0], r, 1)
+                times = QLabel("×")
+                times.setAlignment(Qt.AlignCenter)
+                grid.addWidget(times, r, 2)
+                grid.addWidget(spins[1], r, 3)
+            message = self._message_label()
+            grid.addWidget(message, r + 1, 0, 1, 4)
+            self.rows[spec.key] = _Row(spec, spins, message)
+            r += 2
+        return box
+
+    @staticmethod
+    def _message_label() -> QLabel:
+        label = QLabel("")
+        label.setWordWrap(True)
+        label.setVisible(False)
+        label.setTextInteractionFlags(Qt.TextSelectableByMouse)
+        return label
+
+    def _spins(self, spec: _Input) -> list[QAbstractSpinBox]:
+        count = 2 if spec.kind in ("pair", "ipair") else 1
+        spins: list[QAbstractSpinBox] = []
+        for i in range(count):
+            if spec.kind in ("int", "ipair"):
+                box: QAbstractSpinBox = QSpinBox()
+                box.setRange(int(spec.lo), int(spec.hi))
+            else:
+                box = QDoubleSpinBox()
+                box.setDecimals(spec.decimals)
+                box.setRange(spec.lo, spec.hi)
+                box.setSingleStep(spec.step)
+            box.setSuffix(spec.suffix)
+            if spec.special:
+                box.setSpecialValueText(spec.special)
+            box.setKeyboardTracking(True)
+            box.setAccelerated(True)
+            box.setMinimumWidth(96)
+            box.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Fixed)
+            axis = ("horizontal", "vertical")[i] if count == 2 else ""
+            if spec.key in ("sensor_px", "sensor_mm"):
+                axis = ("width", "height")[i]
+            if spec.key == "grid":
+                axis = ("columns", "rows")[i]
+            box.setObjectName(f"{spec.key}{'_' + axis if axis else ''}")
+            box.setToolTip(f"{spec.tip}{' — ' + axis if axis else ''}. Range {spec.lo:g} … {spec.hi:g}"
+                           f"{spec.suffix.strip() and ' ' + spec.suffix.strip()}")
+            box.valueChanged.connect(self._changed)
+            spins.append(box)
+        return spins
+
+    def _build_results(self) -> QGroupBox:
+        box = QGroupBox("Plan")
+        box.setObjectName("planResults")
+        grid = QGridLayout(box)
+        grid.setContentsMargins(8, 8, 8, 6)
+        grid.setHorizontalSpacing(10)
+        grid.setVerticalSpacing(2)
+        self.status_label = QLabel("")
+        self.status_label.setObjectName("planStatus")
+        self.status_label.setWordWrap(True)
+        grid.addWidget(self.status_label, 0, 0, 1, 2)
+        items = [
+            ("aperture", "Aperture needed", "f-number that keeps the whole scene sharp, and where to focus"),
+            ("sharp", "Sharp range", "Depth of field at the f-number and focus used"),
+            ("hyperfocal", "Hyperfocal", "Hyperfocal distance at the f-number used (≈ f²/(N·c))"),
+            ("min_distance", "Min. distance", "Closest scene distance at which the less precise axis stays "
+                                              "below the repositioning-error target"),
+            ("reposition", "Error at near", "Repositioning error in pixels at the near distance (h / v)"),
+            ("neighbour", "Neighbour disp.", "Disparity between neighbouring views from near to far (h / v)"),
+            ("row_parallax", "Row parallax", "Parallax of the whole row from near to far"),
+            ("column_parallax", "Column parallax", "Parallax of the whole column from near to far"),
+            ("proposed_spacing", "Spacing for target", "Spacing that gives the wanted neighbour disparity (h / v)"),
+            ("proposed_grid", "Grid for target", "Grid that gives the wanted parallax at this spacing"),
+            ("images", "Images", "Number of views, and whether the grid fits the travel"),
+            ("time", "Capture time", "Estimated scan time in meander order (transfers overlap moves)"),
+            ("disk", "Disk space", "Raw files of the whole grid"),
+        ]
+        for i, (key, label, tip) in enumerate(items, start=1):
+            name = QLabel(label)
+            name.setProperty("role", "outlabel")
+            name.setToolTip(tip)
+            value = QLabel("—")
+            value.setObjectName(f"out_{key}")
+            value.setProperty("role", "value")
+            value.setToolTip(tip)
+            value.setTextInteractionFlags(Qt.TextSelectableByMouse)
+            grid.addWidget(name, i, 0)
+            grid.addWidget(value, i, 1)
+            self.outputs[key] = value
+        grid.setColumnStretch(1, 1)
+        return box
+
+    # -- plan <-> widgets --------------------------------------------------------------------------
+    def _value(self, key: str, i: int = 0) -> float:
+        return self.rows[key].spins[i].value()
+
+    def _optional(self, key: str) -> float | None:
+        box = self.rows[key].spins[0]
+        return None if box.value() == box.minimum() else box.value()
+
+    def current_plan(self) -> ScenePlan:
+        """The plan the fields describe (never raises; validation comes in :meth:`evaluate`)."""
+        pair = lambda k: (self._value(k, 0), self._value(k, 1))  # noqa: E731
+        parallax = self._optional("target_parallax_fraction")
+        names = {}
+        for key, combo in self.combos.items():
+            text = combo.currentText()
+            names[key] = self._custom_names[key] if text == CUSTOM else text
+        return ScenePlan(
+            camera_name=names["camera_name"], sensor_px=(int(self._value("sensor_px", 0)), int(self._value("sensor_px", 1))),
+            sensor_mm=pair("sensor_mm"), pixel_pitch_um=self._optional("pixel_pitch_um"),
+            lens_name=names["lens_name"], focal_length_mm=self._value("focal_length_mm"),
+            near_m=self._value("near_m"), far_m=self._value("far_m"), coc_mm=self._value("coc_mm"),
+            f_number=self._optional("f_number"), focus_m=self._optional("focus_m"),
+            grid_columns=int(self._value("grid", 0)), grid_rows=int(self._value("grid", 1)),
+            spacing_mm=pair("spacing_mm"), rig_name=names["rig_name"], repeatability_um=pair("repeatability_um"),
+            travel_mm=pair("travel_mm"), max_speed_mm_s=pair("max_speed_mm_s"),
+            acceleration_mm_s2=pair("acceleration_mm_s2"), settle_s=self._value("settle_s"),
+            exposure_s=self._value("exposure_s"), transfer_s=self._value("transfer_s"),
+            max_error_px=self._value("max_error_px"), max_disparity_px=self._value("max_disparity_px"),
+            target_parallax_fraction=None if parallax is None else parallax / 100.0,
+            raw_bits=int(self._value("raw_bits")), **self._extra)
+
+    def set_plan(self, plan: ScenePlan) -> None:
+        """Show ``plan`` in the fields (values beyond a field's range are clamped to it)."""
+        self._loading = True
+        try:
+            values: dict[str, Any] = {
+                "sensor_px": plan.sensor_px, "sensor_mm": plan.sensor_mm, "pixel_pitch_um": plan.pixel_pitch_um,
+                "raw_bits": plan.raw_bits, "focal_length_mm": plan.focal_length_mm, "near_m": plan.near_m,
+                "far_m": plan.far_m, "coc_mm": plan.coc_mm, "f_number": plan.f_number, "focus_m": plan.focus_m,
+                "grid": (plan.grid_columns, plan.grid_rows), "spacing_mm": plan.spacing_mm,
+                "repeatability_um": plan.repeatability_um, "travel_mm": plan.travel_mm,
+                "max_speed_mm_s": plan.max_speed_mm_s, "acceleration_mm_s2": plan.acceleration_mm_s2,
+                "settle_s": plan.settle_s, "exposure_s": plan.exposure_s, "transfer_s": plan.transfer_s,
+                "max_error_px": plan.max_error_px, "max_disparity_px": plan.max_disparity_px,
+                "target_parallax_fraction": None if plan.target_parallax_fraction is None
+                else plan.target_parallax_fraction * 100.0}
+            for key, value in values.items():
+                spins = self.rows[key].spins
+                vals = value if isinstance(value, (tuple, list)) else (value,)
+                for box, v in zip(spins, vals):
+                    box.blockSignals(True)
+                    box.setValue(box.minimum() if v is None else v)
+                    box.blockSignals(False)
+            for key, name in (("camera_name", plan.camera_name), ("lens_name", plan.lens_name),
+                              ("rig_name", plan.rig_name)):
+                combo = self.combos[key]
+                combo.blockSignals(True)
+                if combo.findText(name) >= 0 and name != CUSTOM:
+                    combo.setCurrentText(name)
+                else:
+                    self._custom_names[key] = name
+                    combo.setCurrentText(CUSTOM)
+                combo.blockSignals(False)
+            self._extra = {"bytes_per_image": plan.bytes_per_image} if plan.bytes_per_image is not None else {}
+        finally:
+            self._loading = False
+        self._changed()
+
+    def _preset_chosen(self, key: str, name: str) -> None:
+        if self._loading or name == CUSTOM:
+            self._changed()
+            return
+        try:
+            fields = {"camera_name": camera_fields, "lens_name": lens_fields, "rig_name": rig_fields}[key](name)
+        except InputError as exc:
+            self._show_message(key, [("error", str(exc))])
+            return
+        self.set_plan(self.current_plan().replace(**fields))
+
+    def _sync_combos(self, plan: ScenePlan) -> None:
+        """Switch a preset combo to "Custom" once its fields no longer match the preset."""
+        loaders = {"camera_name": camera_fields, "lens_name": lens_fields, "rig_name": rig_fields}
+        for key, combo in self.combos.items():
+            name = combo.currentText()
+            if name == CUSTOM:
+                continue
+            try:
+                fields = loaders[key](name)
+            except InputError:
+                continue
+            if any(_differs(getattr(plan, k), v) for k, v in fields.items() if k != key):
+                combo.blockSignals(True)
+                self._custom_names[key] = f"{name} (modified)"
+                combo.setCurrentText(CUSTOM)
+                combo.blockSignals(False)
+
+    # -- evaluation --------------------------------------------------------------------------------
+    def _changed(self, *args) -> None:
+        if not self._loading:
+            self._timer.start()
+
+    def evaluate(self) -> None:
+        """Derive the plan from the fields now; show outputs, errors and warnings; publish it if valid."""
+        self._timer.stop()
+        plan = self.current_plan()
+        self._sync_combos(plan)
+        plan = self.current_plan()
+        try:
+            result, error = plan.derive(check_travel=False), None
+        except InputError as exc:
+            result, error = None, exc
+        self.plan, self.result, self.error = plan, result, error
+        self._show(plan, result, error)
+        self._remember(plan)
+        if result is not None and result.fits_travel and plan != self.state.plan:
+            self.state.set_plan(plan)
+        self.planEvaluated.emit(plan, result)
+
+    def _show(self, plan: ScenePlan, result: PlanResult | None, error: InputError | None) -> None:
+        messages: dict[str, list[tuple[str, str]]] = {}
+        if error is not None:
+            text = str(error)
+            prefix = f"{error.field}: "
+            messages.setdefault(_row_of(error.field), []).append(
+                ("error", text[len(prefix):] if text.startswith(prefix) else text))
+        if result is not None:
+            for w in result.warnings:
+                messages.setdefault(_row_of(w.field), []).append((w.severity, w.message))
+        for key in self.rows:
+            self._show_message(key, messages.get(key, []))
+        self.apply_spacing_button.setEnabled(result is not None)
+        if result is None:
+            label = self.rows.get(_row_of(error.field)).spec.label if error and _row_of(error.field) in self.rows \
+                else (error.field if error else "")
+            self._set_status(False, f"✖ Fix {label}: the plan is not valid")
+            for value in self.outputs.values():
+                value.setText("—")
+                _set_prop(value, "flag", "")
+            return
+        self._fill_outputs(plan, result)
+        errors = [w for w in result.warnings if w.severity == "error"]
+        warnings = [w for w in result.warnings if w.severity == "warning"]
+        if errors:
+            self._set_status(False, "✖ The grid does not fit the rig's travel")
+        elif warnings:
+            self._set_status(True, f"✔ Plan valid — {len(warnings)} warning{'s' if len(warnings) > 1 else ''} below")
+        else:
+            self._set_status(True, "✔ Plan valid")
+
+    def _set_status(self, ok: bool, text: str) -> None:
+        self.status_label.setText(text)
+        _set_prop(self.status_label, "ok", "true" if ok else "false")
+
+    def _show_message(self, key: str, items: list[tuple[str, str]]) -> None:
+        row = self.rows.get(key)
+        if row is None:
+            return
+        worst = max((s for s, _ in items), key=lambda s: _SEVERITY_RANK.get(s, 0), default="")
+        marks = {"error": "✖", "warning": "⚠", "info": "ℹ"}
+        row.message.setText("\n".join(f"{marks.get(s, '')} {m}" for s, m in items))
+        row.message.setVisible(bool(items))
+        _set_prop(row.message, "msg", worst)
+        widgets = row.spins or ([self.combos[key]] if key in self.combos else [])
+        for w in widgets:
+            _set_prop(w, "severity", worst if worst in ("error", "warning") else "")
+
+    def _fill_outputs(self, plan: ScenePlan, r: PlanResult) -> None:
+        def put(key: str, text: str, flag: str = "") -> None:
+            self.outputs[key].setText(text)
+            _set_prop(self.outputs[key], "flag", flag)
+
+        far = "∞" if math.isinf(r.dof_far_m) else f"{r.dof_far_m:.2f}"
+        put("aperture", f"f/{r.f_number_required:.1f} focused at {r.focus_distance_m:.2f} m")
+        put("sharp", f"{r.dof_near_m:.2f} – {far} m at f/{r.f_number_used:.1f}",
+            "" if r.scene_sharp else "bad")
+        put("hyperfocal", f"{r.hyperfocal_m:.2f} m")
+        put("min_distance", f"{r.min_distance_m:.2f} m ({r.min_distance_axis} axis)",
+            "warn" if r.min_distance_m > plan.near_m * (1 + 1e-9) else "")
+        rep = r.reposition_error_px
+        put("reposition", f"{rep['horizontal']:.2f} / {rep['vertical']:.2f} px",
+            "warn" if max(rep.values()) > plan.max_error_px * (1 + 1e-9) else "")
+        nd = r.neighbour_disparity_px
+        put("neighbour", f"{nd['horizontal']:.2f} / {nd['vertical']:.2f} px")
+        put("row_parallax", f"{r.row_parallax_px:.0f} px ({100 * r.row_parallax_fraction:.1f} % of width)")
+        put("column_parallax", f"{r.column_parallax_px:.0f} px ({100 * r.column_parallax_fraction:.1f} % of height)")
+        ps = r.proposed_spacing_mm
+        put("proposed_spacing", f"{ps['horizontal']:.3g} / {ps['vertical']:.3g} mm for ≤ {plan.max_disparity_px:g} px")
+        put("proposed_grid", "— (set a wanted parallax)" if r.proposed_grid is None
+            else f"{r.proposed_grid['columns']} × {r.proposed_grid['rows']} for "
+                 f"{100 * plan.target_parallax_fraction:g} %")
+        put("images", f"{plan.grid_columns} × {plan.grid_rows} = {r.images}"
+            + ("" if r.fits_travel else "  — beyond travel"), "" if r.fits_travel else "bad")
+        put("time", f"{format_duration(r.capture_time_s)} ({r.capture_time_s / max(r.images, 1):.2f} s/view)")
+        put("disk", f"{_bytes(r.storage_bytes)} ({_bytes(r.bytes_per_image)}/image)")
+
+    def apply_proposed_spacing(self) -> None:
+        if self.result is None:
+            return
+        ps = self.result.proposed_spacing_mm
+        self.set_plan(self.current_plan().replace(spacing_mm=(ps["horizontal"], ps["vertical"])))
+
+    # -- persistence and files -----------------------------------------------------------------------
+    def _restore_plan(self) -> ScenePlan:
+        from lfstudio.gui.settings import settings
+
+        text = settings().value(SETTINGS_KEY)
+        if text:
+            try:
+                return ScenePlan.from_dict(json.loads(str(text)))
+            except (ValueError, InputError) as exc:
+                log.warning("last plan not restored: %s", exc)
+        try:
+            return reference_plan()
+        except InputError:
+            return ScenePlan()
+
+    def _remember(self, plan: ScenePlan) -> None:
+        from lfstudio.gui.settings import settings
+
+        settings().setValue(SETTINGS_KEY, json.dumps(plan.to_dict()))
+
+    def save_plan_file(self, path: str | Path) -> bool:
+        try:
+            save_plan(path, self.current_plan())
+        except (OSError, LfError) as exc:
+            self.state.report_error("Save plan", f"Could not write {path}: {exc}. Choose another folder.")
+            return False
+        self.state.show_status(f"Plan saved to {path}")
+        return True
+
+    def open_plan_file(self, path: str | Path) -> bool:
+        try:
+            plan = load_plan(path)
+        except LfError as exc:
+            self.state.report_error("Open plan", str(exc))
+            return False
+        self.set_plan(plan)
+        self.evaluate()
+        self.state.show_status(f"Plan loaded from {path}")
+        return True
+
+    def _open_dialog(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Open plan", str(Path.home()), "Plan files (*.toml *.json)")
+        if path:
+            self.open_plan_file(path)
+
+    def _save_dialog(self) -> None:
+        path, chosen = QFileDialog.getSaveFileName(self, "Save plan as", str(Path.home() / "plan.toml"),
+                                                   "TOML plan (*.toml);;JSON plan (*.json)")
+        if path:
+            if not Path(path).suffix:
+                path += ".json" if "json" in chosen.lower() else ".toml"
+            self.save_plan_file(path)
+
+    def install_menus(self, window) -> None:
+        menu = window.menu("File")
+        open_action = QAction("Open plan…", window)
+        open_action.setObjectName("actionOpenPlan")
+        open_action.setShortcut(QKeySequence("Ctrl+Shift+O"))
+        open_action.setToolTip("Load a scene plan (.toml or .json) into the Planner")
+        open_action.triggered.connect(self._open_dialog)
+        save_action = QAction("Save plan as…", window)
+        save_action.setObjectName("actionSavePlan")
+        save_action.setShortcut(QKeySequence("Ctrl+Shift+S"))
+        save_action.setToolTip("Write the Planner's plan to a .toml or .json file")
+        save_action.triggered.connect(self._save_dialog)
+        reset_action = QAction("Reset plan to the reference setup", window)
+        reset_action.setObjectName("actionReferencePlan")
+        reset_action.setToolTip("The paper's setup: A7R II, 50 mm, 1.77–4.77 m, 101 × 21 at 4 × 6 mm")
+        reset_action.triggered.connect(lambda: self.set_plan(reference_plan()))
+        for action in (open_action, save_action, reset_action):
+            menu.addAction(action)
+        menu.addSeparator()
+
+    def shutdown(self) -> None:
+        self._timer.stop()
+        if self.plan is not None:
+            self._remember(self.current_plan())
+
+
+def _differs(a: Any, b: Any) -> bool:
+    if isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)):
+        return any(_differs(x, y) for x, y in zip(a, b))
+    if a is None or b is None:
+        return a is not b
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        return abs(float(a) - float(b)) > 1e-6 * max(1.0, abs(float(b)))
+    return a != b
+
+
+def _bytes(n: float) -> str:
+    for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= size:
+            return f"{n / size:.1f} {unit}"
+    return f"{int(n)} B"
+
+
+# -- plots -------------------------------------------------------------------------------------------
+
+_COLORS = {"scene": (70, 130, 200, 45), "sharp": (60, 160, 90, 50), "blur": "#1f5fa8", "coc": "#b00020",
+           "pixels": "#7a7a7a", "airy": "#9a5b00", "h": "#1f5fa8", "v": "#6a3d9a", "row": "#c0392b",
+           "col": "#e67e22", "focus": "#2e7d32", "zmin": "#b00020"}
+
+
+class PlanPlotsPanel(QWidget):
+    """Depth of field (blur against distance, with the scene and the sharp range) and disparity against
+    depth (neighbour spacing and whole row/column, with the 0.5 px and 1 px lines) of the state's plan."""
+
+    def __init__(self, state, parent: QWidget | None = None):
+        super().__init__(parent)
+        import pyqtgraph as pg
+
+        self.state = state
+        self.setObjectName("planPlotsPanel")
+        pg.setConfigOptions(antialias=True, background="w", foreground="#30343a")
+        lay = QVBoxLayout(self)
+        lay.setContentsMargins(4, 4, 4, 4)
+        lay.setSpacing(4)
+        self.dof_plot = pg.PlotWidget()
+        self.dof_plot.setObjectName("dofPlot")
+        self.disparity_plot = pg.PlotWidget()
+        self.disparity_plot.setObjectName("disparityPlot")
+        for plot in (self.dof_plot, self.disparity_plot):
+            plot.setMinimumSize(320, 220)
+            plot.showGrid(x=True, y=True, alpha=0.25)
+            plot.setMenuEnabled(False)
+            lay.addWidget(plot, 1)
+        self.dof_plot.setTitle("Depth of field: blur against distance")
+        self.dof_plot.setLabel("bottom", "distance from the camera plane", units="m")
+        self.dof_plot.setLabel("left", "blur circle", units="µm")
+        self.disparity_plot.setTitle("Disparity against depth (log scale)")
+        self.disparity_plot.setLabel("bottom", "depth", units="m")
+        self.disparity_plot.setLabel("left", "disparity against infinity (px)")
+        self.disparity_plot.setLogMode(x=False, y=True)
+        self.note = QLabel("")
+        self.note.setWordWrap(True)
+        lay.addWidget(self.note)
+        state.planChanged.connect(self.draw)
+        self.draw(state.plan)
+
+    def draw(self, plan: ScenePlan | None) -> None:
+        import pyqtgraph as pg
+
+        self.dof_plot.clear()
+        self.disparity_plot.clear()
+        if plan is None:
+            self.note.setText("No valid plan yet: fill in the Planner.")
+            return
+        try:
+            r = plan.derive()
+        except InputError as exc:
+            self.note.setText(str(exc))
+            return
+        f, pitch = plan.focal_length_mm, r.pixel_pitch_um
+        near_mm, far_mm = plan.near_m * 1000, plan.far_m * 1000
+        x_lo = max(0.5 * min(near_mm, r.min_distance_m * 1000), 4 * f + 1)
+        x_hi = max(far_mm * 1.6, near_mm * 2)
+        z_mm = np.geomspace(x_lo, x_hi, 600)
+        z_m = z_mm / 1000.0
+
+        # depth of field
+        p = self.dof_plot
+        p.addLegend(offset=(-10, 10), labelTextSize="8pt")
+        coc_um = plan.coc_mm * 1000
+        blur_um = np.array([optics.blur_diameter_mm(z, r.focus_used_m * 1000, f, r.f_number_used) * 1000
+                            for z in z_mm])
+        y_top = max(3 * coc_um, r.airy_disk_um * 1.3)
+        scene = pg.LinearRegionItem((plan.near_m, plan.far_m), movable=False, brush=pg.mkBrush(*_COLORS["scene"]),
+                                    pen=pg.mkPen(_COLORS["scene"][:3], width=1))
+        p.addItem(scene)
+        sharp_far = min(r.dof_far_m, x_hi / 1000 * 2)
+        sharp = pg.LinearRegionItem((r.dof_near_m, sharp_far), movable=False, brush=pg.mkBrush(*_COLORS["sharp"]),
+                                    pen=pg.mkPen(None))
+        sharp.setZValue(-5)
+        p.addItem(sharp)
+        p.plot(z_m, np.minimum(blur_um, y_top * 2), pen=pg.mkPen(_COLORS["blur"], width=2),
+               name=f"blur at f/{r.f_number_used:.1f}, focus {r.focus_used_m:.2f} m")
+        p.addItem(pg.InfiniteLine(coc_um, angle=0, pen=pg.mkPen(_COLORS["coc"], width=1.5, style=Qt.DashLine),
+                                  label=f"circle of confusion {coc_um:g} µm",
+                                  labelOpts={"position": 0.2, "color": _COLORS["coc"], "anchors": [(0, 1), (0, 1)]}))
+        p.addItem(pg.InfiniteLine(2 * pitch, angle=0, pen=pg.mkPen(_COLORS["pixels"], width=1, style=Qt.DotLine),
+                                  label="2 pixels", labelOpts={"position": 0.9, "color": _COLORS["pixels"],
+                                                               "anchors": [(1, 1), (1, 1)]}))
+        p.plot([z_m[0], z_m[-1]], [r.airy_disk_um, r.airy_disk_um], pen=pg.mkPen(_COLORS["airy"], width=1,
+                                                                                  style=Qt.DashDotLine),
+               name=f"Airy disk {r.airy_disk_um:.0f} µm")
+        p.addItem(pg.InfiniteLine(r.focus_used_m, angle=90, pen=pg.mkPen(_COLORS["focus"], width=1),
+                                  label=f"focus {r.focus_used_m:.2f} m",
+                                  labelOpts={"position": 0.93, "color": _COLORS["focus"]}))
+        # legend entries for the shaded ranges
+        far_text = "∞" if math.isinf(r.dof_far_m) else f"{r.dof_far_m:.2f}"
+        p.plot([], [], pen=pg.mkPen(_COLORS["scene"][:3], width=8), name=f"scene {plan.near_m:g}–{plan.far_m:g} m")
+        p.plot([], [], pen=pg.mkPen(_COLORS["sharp"][:3], width=8), name=f"sharp {r.dof_near_m:.2f}–{far_text} m")
+        p.setXRange(x_lo / 1000, x_hi / 1000, padding=0)
+        p.setYRange(0, y_top, padding=0.02)
+
+        # disparity against depth
+        q = self.disparity_plot
+        q.addLegend(offset=(-10, 10), labelTextSize="8pt")
+        q.addItem(pg.LinearRegionItem((plan.near_m, plan.far_m), movable=False, brush=pg.mkBrush(*_COLORS["scene"]),
+                                      pen=pg.mkPen(None)))
+        curves = [("h", f"neighbour, horizontal ({plan.spacing_mm[0]:g} mm)", plan.spacing_mm[0]),
+                  ("v", f"neighbour, vertical ({plan.spacing_mm[1]:g} mm)", plan.spacing_mm[1]),
+                  ("row", f"whole row ({r.baseline_mm['horizontal']:g} mm)", r.baseline_mm["horizontal"]),
+                  ("col", f"whole column ({r.baseline_mm['vertical']:g} mm)", r.baseline_mm["vertical"])]
+        y_values = []
+        for key, name, b in curves:
+            if b <= 0:
+                continue
+            d = np.array([optics.disparity_px(b, z, math.inf, f, pitch) for z in z_mm])
+            y_values.append(d)
+            q.plot(z_m, d, pen=pg.mkPen(_COLORS[key], width=2 if key in ("h", "row") else 1.5), name=name)
+        for value, style in ((1.0, Qt.DashLine), (0.5, Qt.DotLine)):
+            q.addItem(pg.InfiniteLine(math.log10(value), angle=0, pen=pg.mkPen("#b00020", width=1, style=style),
+                                      label=f"{value:g} px", labelOpts={"position": 0.04, "color": "#b00020",
+                                                                        "anchors": [(0, 1), (0, 1)]}))
+        q.addItem(pg.InfiniteLine(r.min_distance_m, angle=90, pen=pg.mkPen(_COLORS["zmin"], width=1,
+                                                                           style=Qt.DashDotLine),
+                                  label=f"Z min {r.min_distance_m:.2f} m",
+                                  labelOpts={"position": 0.5, "color": _COLORS["zmin"], "rotateAxis": (1, 0)}))
+        if y_values:
+            lo = min(0.3, float(min(v.min() for v in y_values)))
+            hi = float(max(v.max() for v in y_values))
+            q.setYRange(math.log10(lo), math.log10(hi * 1.5), padding=0)
+        q.setXRange(x_lo / 1000, x_hi / 1000, padding=0)
+        nd = r.neighbour_disparity_px
+        self.note.setText(f"Neighbour disparity over the scene: {nd['horizontal']:.2f} px horizontal, "
+                          f"{nd['vertical']:.2f} px vertical; row parallax {r.row_parallax_px:.0f} px "
+                          f"({100 * r.row_parallax_fraction:.1f} % of the width).")

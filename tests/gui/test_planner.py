@@ -1,0 +1,168 @@
+"""The Planner panel: typing into fields changes outputs and warnings; files; QSettings; plots."""
+
+import json
+
+import pytest
+from PySide6.QtCore import Qt
+
+from lfstudio.gui.app import create_window
+from lfstudio.gui.imageutil import qimage_to_rgb
+from lfstudio.gui.panels.planner import style_prop
+from lfstudio.planning.presets import reference_plan
+from lfstudio.planning.scene_plan import ScenePlan, load_plan, save_plan
+
+
+@pytest.fixture
+def window(qtbot):
+    w = create_window(simulated=True)
+    qtbot.addWidget(w)
+    w.resize(1500, 950)
+    w.show()
+    qtbot.waitExposed(w)
+    return w
+
+
+def planner(window):
+    return window.panels["plannerDock"]
+
+
+def type_into(qtbot, box, text):
+    """Select the field's text and type like a user (keyboard tracking fires on every key)."""
+    box.setFocus()
+    box.selectAll()
+    qtbot.keyClicks(box.lineEdit(), text)
+
+
+def test_reference_plan_shown_and_published(window, qtbot):
+    p = planner(window)
+    qtbot.waitUntil(lambda: window.state.plan is not None)
+    assert window.state.plan == reference_plan()
+    assert p.outputs["aperture"].text().startswith("f/15.3")
+    assert "2121" in p.outputs["images"].text()
+    assert "1.77 m" in p.outputs["min_distance"].text()
+
+
+def test_typing_changes_outputs_and_warnings(window, qtbot):
+    p = planner(window)
+    near = p.rows["near_m"].spins[0]
+    assert not p.rows["near_m"].message.isVisible()
+    type_into(qtbot, near, "1.2")
+    qtbot.waitUntil(lambda: p.plan is not None and p.plan.near_m == pytest.approx(1.2))
+    # 80 µm at 1.2 m is 0.74 px > 0.5 px: a warning next to the near field, the field marked
+    qtbot.waitUntil(lambda: p.rows["near_m"].message.isVisible())
+    assert "1.77 m" in p.rows["near_m"].message.text()
+    assert style_prop(near, "severity") == "warning"
+    assert p.outputs["reposition"].text().startswith("0.74")
+    assert window.state.plan.near_m == pytest.approx(1.2)       # still valid: published
+
+    fnum = p.rows["f_number"].spins[0]
+    type_into(qtbot, fnum, "8")
+    qtbot.waitUntil(lambda: p.plan.f_number == 8)
+    qtbot.waitUntil(lambda: "sharp" in p.rows["f_number"].message.text())
+    assert style_prop(p.outputs["sharp"], "flag") == "bad"
+
+
+def test_invalid_input_marks_field_and_keeps_last_valid_plan(window, qtbot):
+    p = planner(window)
+    qtbot.waitUntil(lambda: window.state.plan is not None)
+    published = window.state.plan
+    far = p.rows["far_m"].spins[0]
+    type_into(qtbot, far, "1.5")              # not beyond the near distance 1.77 m
+    qtbot.waitUntil(lambda: p.error is not None)
+    assert p.error.field == "far_m"
+    assert style_prop(far, "severity") == "error"
+    assert "near distance" in p.rows["far_m"].message.text()
+    assert p.outputs["aperture"].text() == "—"
+    assert "Far" in p.status_label.text()
+    assert window.state.plan == published     # an invalid plan is never published
+    type_into(qtbot, far, "6")
+    qtbot.waitUntil(lambda: p.error is None)
+    assert style_prop(far, "severity") == ""
+    assert window.state.plan.far_m == 6
+
+
+def test_grid_beyond_travel_is_marked_not_published(window, qtbot):
+    p = planner(window)
+    qtbot.waitUntil(lambda: window.state.plan is not None)
+    type_into(qtbot, p.rows["grid"].spins[0], "2000")
+    qtbot.waitUntil(lambda: p.plan.grid_columns == 2000)
+    assert "travel" in p.rows["grid"].message.text()
+    assert style_prop(p.rows["grid"].spins[0], "severity") == "error"
+    assert "beyond travel" in p.outputs["images"].text()
+    assert window.state.plan.grid_columns == 101
+
+
+def test_presets_fill_fields_and_edits_switch_to_custom(window, qtbot):
+    p = planner(window)
+    p.combos["camera_name"].setCurrentText("Nikon Z7 II")
+    qtbot.waitUntil(lambda: p.plan.camera_name == "Nikon Z7 II")
+    assert p.rows["sensor_px"].spins[0].value() == 8256
+    p.combos["rig_name"].setCurrentText("Desktop slider 1 m")
+    qtbot.waitUntil(lambda: p.plan.rig_name == "Desktop slider 1 m")
+    assert p.rows["repeatability_um"].spins[0].value() == 20
+    type_into(qtbot, p.rows["sensor_px"].spins[0], "6000")
+    qtbot.waitUntil(lambda: p.plan.sensor_px[0] == 6000)
+    assert p.combos["camera_name"].currentText() == "Custom"
+    assert "Nikon Z7 II" in p.plan.camera_name
+
+
+def test_proposed_spacing_button(window, qtbot):
+    p = planner(window)
+    qtbot.mouseClick(p.apply_spacing_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: p.plan.spacing_mm[0] < 1)
+    assert p.result.neighbour_disparity_px["horizontal"] == pytest.approx(1.0, abs=0.01)
+
+
+def test_plan_file_round_trip_through_the_panel(window, qtbot, tmp_path):
+    p = planner(window)
+    plan = reference_plan().replace(near_m=2.5, far_m=8.0, f_number=16.0, grid_columns=51, grid_rows=11)
+    path = tmp_path / "scene.toml"
+    save_plan(path, plan)
+    assert p.open_plan_file(path)
+    assert p.current_plan() == plan
+    assert p.rows["f_number"].spins[0].value() == 16
+    out = tmp_path / "again.json"
+    assert p.save_plan_file(out)
+    assert load_plan(out) == plan
+    assert json.loads(out.read_text())["format"] == "lfstudio-plan"
+
+
+def test_bad_plan_file_reports_without_raising(window, qtbot, tmp_path):
+    p = planner(window)
+    bad = tmp_path / "bad.toml"
+    bad.write_text("this is = not [toml")
+    with qtbot.waitSignal(window.state.errorOccurred) as sig:
+        assert not p.open_plan_file(bad)
+    assert "bad.toml" in sig.args[1]
+
+
+def test_last_plan_returns_on_start(qtbot):
+    w1 = create_window(simulated=True)
+    qtbot.addWidget(w1)
+    p1 = w1.panels["plannerDock"]
+    p1.set_plan(reference_plan().replace(near_m=3.0, far_m=9.0, grid_columns=31))
+    p1.evaluate()
+    w1.close()
+    w2 = create_window(simulated=True)
+    qtbot.addWidget(w2)
+    plan = w2.panels["plannerDock"].current_plan()
+    assert (plan.near_m, plan.far_m, plan.grid_columns) == (3.0, 9.0, 31)
+
+
+def test_file_menu_has_plan_actions(window):
+    texts = [a.text() for a in window.menu("File").actions()]
+    assert "Open plan…" in texts and "Save plan as…" in texts
+    assert all(a.toolTip() for a in window.menu("File").actions() if a.text())
+
+
+def test_plots_follow_the_plan_and_are_not_blank(window, qtbot):
+    plots = window.panels["planPlotsDock"]
+    qtbot.waitUntil(lambda: window.state.plan is not None)
+    assert plots.dof_plot.getPlotItem().listDataItems()
+    assert len(plots.disparity_plot.getPlotItem().listDataItems()) == 4
+    before = plots.note.text()
+    planner(window).set_plan(reference_plan().replace(spacing_mm=(8.0, 6.0)))
+    qtbot.waitUntil(lambda: plots.note.text() != before)
+    assert "31.38 px horizontal" in plots.note.text()
+    pixels = qimage_to_rgb(plots.grab().toImage())
+    assert pixels.std() > 10
