@@ -34,6 +34,9 @@ class MainWindow(QMainWindow):
         self.setWindowTitle("lfstudio — simulated studio" if state.simulated else "lfstudio")
         self.setObjectName("MainWindow")
         self.setDockNestingEnabled(True)
+        # side panels run the full height; a bottom dock (plots) sits under the central view only
+        self.setCorner(Qt.BottomLeftCorner, Qt.LeftDockWidgetArea)
+        self.setCorner(Qt.BottomRightCorner, Qt.RightDockWidgetArea)
         self.resize(1500, 950)
         self._menus: dict[str, QMenu] = {}
         for name in MENU_ORDER:

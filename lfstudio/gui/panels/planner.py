@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtGui import QAction, QKeySequence
-from PySide6.QtWidgets import (QAbstractSpinBox, QComboBox, QDoubleSpinBox, QFileDialog, QFrame, QGridLayout,
+from PySide6.QtWidgets import (QAbstractSpinBox, QBoxLayout, QComboBox, QDoubleSpinBox, QFileDialog, QFrame, QGridLayout,
                                QGroupBox, QHBoxLayout, QLabel, QPushButton, QScrollArea, QSizePolicy, QSpinBox,
                                QVBoxLayout, QWidget)
 
@@ -36,8 +36,9 @@ CUSTOM = "Custom"
 DEBOUNCE_MS = 80
 
 _PANEL_STYLE = """
-QAbstractSpinBox[severity="error"], QComboBox[severity="error"] { border: 1px solid #b00020; background: #fff0f0; }
-QAbstractSpinBox[severity="warning"] { border: 1px solid #c77700; background: #fff8ec; }
+QComboBox[severity="error"] { color: #b00020; }
+QLabel[mark="error"] { color: #b00020; font-weight: 600; }
+QLabel[mark="warning"] { color: #8a4b00; font-weight: 600; }
 QLabel[msg="error"] { color: #b00020; }
 QLabel[msg="warning"] { color: #9a5b00; }
 QLabel[msg="info"] { color: #4a5a70; }
@@ -137,6 +138,23 @@ def _set_prop(widget: QWidget, name: str, value: str) -> None:
         widget.style().polish(widget)
 
 
+_TINTS = {"error": ("#ffe3e6", "#b00020"), "warning": ("#fff1d6", "#8a4b00")}
+
+
+def _tint(box: QAbstractSpinBox, mark: str) -> None:
+    """Colour a spin box's field (a palette, so the native frame and arrows stay as they are)."""
+    from PySide6.QtGui import QColor, QPalette
+    from PySide6.QtWidgets import QApplication
+
+    palette = QPalette(QApplication.palette(box))
+    if mark:
+        base, text = _TINTS[mark]
+        palette.setColor(QPalette.Base, QColor(base))
+        palette.setColor(QPalette.Text, QColor(text))
+    box.setPalette(palette)
+    box.lineEdit().setPalette(palette)
+
+
 class _Row:
     """The widgets of one input row: spin box(es) and the message line under them."""
 
@@ -144,6 +162,7 @@ class _Row:
         self.spec = spec
         self.spins = spins
         self.message = message
+        self.label: QLabel | None = None
 
 
 class PlannerPanel(QWidget):
@@ -241,11 +260,13 @@ class PlannerPanel(QWidget):
                 combo.setToolTip(f"{label} preset (yours go in ~/.config/lfstudio/presets/{kind}.toml)")
                 combo.currentTextChanged.connect(lambda text, k=key: self._preset_chosen(k, text))
                 self.combos[key] = combo
-                grid.addWidget(QLabel(label), r, 0)
+                name = QLabel(label)
+                grid.addWidget(name, r, 0)
                 grid.addWidget(combo, r, 1, 1, 3)
                 message = self._message_label()
                 grid.addWidget(message, r + 1, 0, 1, 4)
                 self.rows[key] = _Row(_Input(key, label, "combo", 0, 0), [], message)
+                self.rows[key].label = name
                 r += 2
                 continue
             spec: _Input = item
@@ -264,6 +285,7 @@ class PlannerPanel(QWidget):
             message = self._message_label()
             grid.addWidget(message, r + 1, 0, 1, 4)
             self.rows[spec.key] = _Row(spec, spins, message)
+            self.rows[spec.key].label = label
             r += 2
         return box
 
@@ -511,8 +533,13 @@ class PlannerPanel(QWidget):
         row.message.setVisible(bool(items))
         _set_prop(row.message, "msg", worst)
         widgets = row.spins or ([self.combos[key]] if key in self.combos else [])
+        mark = worst if worst in ("error", "warning") else ""
         for w in widgets:
-            _set_prop(w, "severity", worst if worst in ("error", "warning") else "")
+            _set_prop(w, "severity", mark)
+            if isinstance(w, QAbstractSpinBox):
+                _tint(w, mark)
+        if row.label is not None:
+            _set_prop(row.label, "mark", mark)
 
     def _fill_outputs(self, plan: ScenePlan, r: PlanResult) -> None:
         def put(key: str, text: str, flag: str = "") -> None:
@@ -621,6 +648,9 @@ class PlannerPanel(QWidget):
         for action in (open_action, save_action, reset_action):
             menu.addAction(action)
         menu.addSeparator()
+        plots = getattr(window, "docks", {}).get("planPlotsDock")
+        if plots is not None:       # first start: give the plots room (a saved layout overrides this)
+            window.resizeDocks([plots], [560], Qt.Vertical)
 
     def shutdown(self) -> None:
         self._timer.stop()
@@ -666,15 +696,18 @@ class PlanPlotsPanel(QWidget):
         lay = QVBoxLayout(self)
         lay.setContentsMargins(4, 4, 4, 4)
         lay.setSpacing(4)
+        self.plots_layout = QBoxLayout(QBoxLayout.LeftToRight)   # side by side when wide, stacked when tall
+        self.plots_layout.setSpacing(6)
+        lay.addLayout(self.plots_layout, 1)
         self.dof_plot = pg.PlotWidget()
         self.dof_plot.setObjectName("dofPlot")
         self.disparity_plot = pg.PlotWidget()
         self.disparity_plot.setObjectName("disparityPlot")
         for plot in (self.dof_plot, self.disparity_plot):
-            plot.setMinimumSize(320, 220)
+            plot.setMinimumSize(300, 200)
             plot.showGrid(x=True, y=True, alpha=0.25)
             plot.setMenuEnabled(False)
-            lay.addWidget(plot, 1)
+            self.plots_layout.addWidget(plot, 1)
         self.dof_plot.setTitle("Depth of field: blur against distance")
         self.dof_plot.setLabel("bottom", "distance from the camera plane", units="m")
         self.dof_plot.setLabel("left", "blur circle", units="µm")
@@ -687,6 +720,11 @@ class PlanPlotsPanel(QWidget):
         lay.addWidget(self.note)
         state.planChanged.connect(self.draw)
         self.draw(state.plan)
+
+    def resizeEvent(self, event) -> None:
+        wide = event.size().width() > 1.4 * event.size().height()
+        self.plots_layout.setDirection(QBoxLayout.LeftToRight if wide else QBoxLayout.TopToBottom)
+        super().resizeEvent(event)
 
     def draw(self, plan: ScenePlan | None) -> None:
         import pyqtgraph as pg
@@ -710,7 +748,7 @@ class PlanPlotsPanel(QWidget):
 
         # depth of field
         p = self.dof_plot
-        p.addLegend(offset=(-10, 10), labelTextSize="8pt")
+        p.addLegend(offset=(-6, 6), labelTextSize="8pt", brush=pg.mkBrush(255, 255, 255, 215), pen=pg.mkPen("#c8ccd3"))
         coc_um = plan.coc_mm * 1000
         blur_um = np.array([optics.blur_diameter_mm(z, r.focus_used_m * 1000, f, r.f_number_used) * 1000
                             for z in z_mm])
@@ -746,7 +784,7 @@ class PlanPlotsPanel(QWidget):
 
         # disparity against depth
         q = self.disparity_plot
-        q.addLegend(offset=(-10, 10), labelTextSize="8pt")
+        q.addLegend(offset=(-6, 6), labelTextSize="8pt", brush=pg.mkBrush(255, 255, 255, 215), pen=pg.mkPen("#c8ccd3"))
         q.addItem(pg.LinearRegionItem((plan.near_m, plan.far_m), movable=False, brush=pg.mkBrush(*_COLORS["scene"]),
                                       pen=pg.mkPen(None)))
         curves = [("h", f"neighbour, horizontal ({plan.spacing_mm[0]:g} mm)", plan.spacing_mm[0]),
@@ -760,16 +798,16 @@ class PlanPlotsPanel(QWidget):
             d = np.array([optics.disparity_px(b, z, math.inf, f, pitch) for z in z_mm])
             y_values.append(d)
             q.plot(z_m, d, pen=pg.mkPen(_COLORS[key], width=2 if key in ("h", "row") else 1.5), name=name)
-        for value, style in ((1.0, Qt.DashLine), (0.5, Qt.DotLine)):
+        for value, style, anchor in ((1.0, Qt.DashLine, (0, 1)), (0.5, Qt.DotLine, (0, 0))):
             q.addItem(pg.InfiniteLine(math.log10(value), angle=0, pen=pg.mkPen("#b00020", width=1, style=style),
-                                      label=f"{value:g} px", labelOpts={"position": 0.04, "color": "#b00020",
-                                                                        "anchors": [(0, 1), (0, 1)]}))
+                                      label=f"{value:g} px", labelOpts={"position": 0.03, "color": "#b00020",
+                                                                        "anchors": [anchor, anchor]}))
         q.addItem(pg.InfiniteLine(r.min_distance_m, angle=90, pen=pg.mkPen(_COLORS["zmin"], width=1,
                                                                            style=Qt.DashDotLine),
                                   label=f"Z min {r.min_distance_m:.2f} m",
                                   labelOpts={"position": 0.5, "color": _COLORS["zmin"], "rotateAxis": (1, 0)}))
         if y_values:
-            lo = min(0.3, float(min(v.min() for v in y_values)))
+            lo = min(0.2, float(min(v.min() for v in y_values)))
             hi = float(max(v.max() for v in y_values))
             q.setYRange(math.log10(lo), math.log10(hi * 1.5), padding=0)
         q.setXRange(x_lo / 1000, x_hi / 1000, padding=0)
