@@ -86,6 +86,10 @@ class MainWindow(QMainWindow):
         dock.setFeatures(QDockWidget.DockWidgetMovable | QDockWidget.DockWidgetFloatable
                          | QDockWidget.DockWidgetClosable)
         self.addDockWidget(_AREAS.get(spec.area, Qt.LeftDockWidgetArea), dock)
+        first = self.docks.get(spec.tab_with)
+        if first is not None:           # a tab behind an earlier panel: both keep the full height
+            self.tabifyDockWidget(first, dock)
+            first.raise_()
         dock.setVisible(spec.visible)
         self.panels[spec.object_name] = widget
         self.docks[spec.object_name] = dock

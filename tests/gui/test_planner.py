@@ -166,3 +166,14 @@ def test_plots_follow_the_plan_and_are_not_blank(window, qtbot):
     assert "31.38 px horizontal" in plots.note.text()
     pixels = qimage_to_rgb(plots.grab().toImage())
     assert pixels.std() > 10
+
+
+def test_planner_keeps_full_height_at_1500x950(window):
+    """Panels that share the left area are tabs, so the Planner is not squeezed by them."""
+    dock = window.docks["plannerDock"]
+    others = [d for name, d in window.docks.items()
+              if name != "plannerDock" and window.dockWidgetArea(d) == window.dockWidgetArea(dock)]
+    tabbed = window.tabifiedDockWidgets(dock)
+    assert all(d in tabbed for d in others)
+    assert dock.height() > 700
+    assert window.height() <= 960

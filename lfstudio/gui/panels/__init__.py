@@ -17,6 +17,7 @@ class PanelSpec:
     target: str           # "module:ClassName"
     area: str = "left"    # left | right | bottom | top
     visible: bool = True  # shown on first start
+    tab_with: str = ""    # object_name of an earlier panel to share a tabbed dock with (same area)
 
 
 PANELS: list[PanelSpec] = [
@@ -24,7 +25,7 @@ PANELS: list[PanelSpec] = [
     PanelSpec("Plan plots", "planPlotsDock", "lfstudio.gui.panels.planner:PlanPlotsPanel", "bottom"),
     PanelSpec("Scan", "scanPanel", "lfstudio.gui.panels.scan:ScanPanel", "right"),
     PanelSpec("Processing", "processingPanel", "lfstudio.gui.panels.processing:ProcessingPanel", "right"),
-    PanelSpec("Rig", "rigDock", "lfstudio.gui.panels.rig:RigPanel", "left"),
+    PanelSpec("Rig", "rigDock", "lfstudio.gui.panels.rig:RigPanel", "left", tab_with="plannerDock"),
 ]
 
 #: the central widget, "module:ClassName" constructed as ``Cls(state)``
