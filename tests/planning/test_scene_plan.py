@@ -163,3 +163,28 @@ def test_presets_fill_the_plan():
     with pytest.raises(InputError) as info:
         plan_from_presets(camera="No such camera")
     assert info.value.field == "camera_name"
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+pos = st.floats(min_value=1e-3, max_value=1e5, allow_nan=False)
+pair = st.tuples(pos, pos)
+
+
+@settings(max_examples=80, deadline=None)
+@given(near=pos, far=pos, f=st.floats(min_value=1, max_value=2000), coc=st.floats(min_value=0.001, max_value=1),
+       fnum=st.one_of(st.none(), st.floats(min_value=0, max_value=128)), focus=st.one_of(st.none(), pos),
+       cols=st.integers(min_value=1, max_value=100_000), rows=st.integers(min_value=1, max_value=100_000),
+       spacing=pair, travel=pair, speed=pair, accel=pair)
+def test_any_input_derives_or_names_a_field(near, far, f, coc, fnum, focus, cols, rows, spacing, travel, speed, accel):
+    plan = ScenePlan(near_m=near, far_m=far, focal_length_mm=f, coc_mm=coc, f_number=fnum, focus_m=focus,
+                     grid_columns=cols, grid_rows=rows, spacing_mm=spacing, travel_mm=travel,
+                     max_speed_mm_s=speed, acceleration_mm_s2=accel)
+    try:
+        r = plan.derive(check_travel=False)
+    except InputError as exc:
+        assert exc.field in {f.name for f in __import__("dataclasses").fields(ScenePlan)}
+        return
+    json.dumps(r.to_dict(), allow_nan=False)
+    assert r.images == cols * rows and r.capture_time_s > 0
