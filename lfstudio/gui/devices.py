@@ -145,9 +145,11 @@ class QtDevice(QObject):
         except Exception as exc:  # noqa: BLE001 - show it, the operator must know STOP failed
             self.errorOccurred.emit(f"STOP failed: {error_text(exc)}")
 
-    def close(self, disconnect: bool = True) -> None:
+    def close(self, disconnect: bool = True, timeout_s: float = 2.0) -> None:
+        """Fail queued calls, disconnect last, end the thread (waits at most ``timeout_s``: a driver
+        call still running finishes on its own thread)."""
         if self._closed:
             return
         self._unsubscribe()
-        self.worker.close(disconnect=disconnect)
+        self.worker.close(disconnect=disconnect, timeout_s=timeout_s)
         self._closed = True

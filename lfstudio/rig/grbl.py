@@ -522,7 +522,7 @@ class GrblController:
             message = "Motion held: resume, or STOP to cancel the move"
         elif not self._homed:
             message = ("Not homed: home the rig before moving" if self.config.homing
-                       else "No origin: jog to the origin and set it before moving")
+                       else "No origin: with the carriage at the left/top end of its travel, set the origin")
         extra = {"grbl_state": st.state if st.substate is None else f"{st.state}:{st.substate}",
                  "feed_mm_min": st.feed_mm_min, "planner_free": st.planner_free, "pins": st.pins,
                  "overrides": st.overrides, "mpos": st.mpos}
@@ -545,8 +545,8 @@ class GrblController:
 
     def home(self) -> None:
         if not self.config.homing:
-            raise DeviceError(f"rig {self.config.name!r} has no limit switches: jog to the origin and "
-                              "use 'set origin' instead of homing")
+            raise DeviceError(f"rig {self.config.name!r} has no limit switches: park the carriage at the "
+                              "left/top end of its travel and use 'set origin' instead of homing")
         with self._io:
             self._prepare_for_command()
             if self._critical:

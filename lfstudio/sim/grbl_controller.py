@@ -46,6 +46,7 @@ RX_BUFFER = 128
 SWITCH_OUTSIDE_MM = 1.0
 PULLOFF_MM = 1.0
 STEPS_PER_MM = 100.0
+_FLOAT_SETTINGS = {11, 12, 24, 25, 27}
 FAULTS = ("drop", "silent", "garbage", "alarm_mid_move", "position_error")
 _WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
 
@@ -90,7 +91,8 @@ class GrblSimulator:
         # physical position: anywhere inside the travel at power-up
         self._phys = np.zeros(3)
         for ix, axis in zip(self._ix, self._axes):
-            self._phys[ix] = float(self._rng.uniform(0.02, 0.15) * axis.travel_mm)
+            # a rig with switches stands anywhere near home; one without is parked at its origin end
+            self._phys[ix] = float(self._rng.uniform(0.02, 0.15) * axis.travel_mm) if rig.homing else 0.0
         self._offset = self._phys.copy()            # machine offset: MPos 0 at power-up
         self._g54 = np.zeros(3)
         self._g92 = np.zeros(3)
@@ -340,7 +342,8 @@ class GrblSimulator:
         if self._state not in ("Idle", "Alarm"):
             return b"error:8\r\n"
         if line == "$$":
-            body = "".join(f"${k}={v}\r\n" for k, v in self._settings.items())
+            body = "".join(f"${k}={v:.3f}\r\n" if k in _FLOAT_SETTINGS or k >= 100 else f"${k}={int(v)}\r\n"
+                           for k, v in self._settings.items())
             return body.encode() + b"ok\r\n"
         if line == "$I":
             return b"[VER:1.1h.20190825:]\r\n[OPT:V,15,128]\r\nok\r\n"

@@ -230,3 +230,58 @@ def test_property_no_target_outside_soft_limits_is_ever_sent(instant_rig, sequen
     assert sim.records, "some motion reached the controller"
     bad = [r for r in sim.records if not inside(_rig, r.target_mm)]
     assert bad == []
+
+
+def test_simulator_gcode_dialect_over_raw_serial():
+    rig = load_rig()
+    with GrblSimulator(rig, time_scale=0) as sim:
+        with serial.Serial(sim.port, 115200, timeout=1) as port:
+            def ask(line: bytes) -> bytes:
+                port.write(line + b"\n")
+                return _line_starting(port, b"ok") if not line.startswith(b"!") else b""
+
+            def answer(line: bytes) -> bytes:
+                port.write(line + b"\n")
+                for _ in range(30):
+                    got = port.readline()
+                    if got.startswith((b"ok", b"error", b"ALARM")) or not got:
+                        return got
+                return b""
+
+            assert answer(b"$H") == b"ok\r\n"
+            port.write(b"$$\n")
+            settings_lines = []
+            while (got := port.readline()) not in (b"ok\r\n", b""):
+                settings_lines.append(got)
+            assert b"$110=12000.000\r\n" in settings_lines and b"$22=1\r\n" in settings_lines
+            assert answer(b"G1 X10") == b"error:22\r\n"          # G1 needs a feed rate
+            assert answer(b"G91 G0 X5 Y2") == b"ok\r\n"          # relative
+            assert answer(b"G0 X5") == b"ok\r\n"
+            assert sim.reported_position_mm() == pytest.approx((10, 2))
+            assert answer(b"G90 G92 X0 Y0") == b"ok\r\n"          # work offset: here is (0, 0)
+            assert sim.reported_position_mm() == pytest.approx((0, 0))
+            assert answer(b"G92.1") == b"ok\r\n"
+            assert answer(b"G10 L20 P1 X1 Y1") == b"ok\r\n"
+            assert sim.reported_position_mm() == pytest.approx((1, 1))
+            assert answer(b"$J=G90 X9999 F1000") == b"error:15\r\n"   # jog beyond the travel
+            assert answer(b"$J=G90 X20") == b"error:22\r\n"          # jog without feed
+            assert answer(b"G7") == b"error:20\r\n"
+            assert answer(b"$H X") == b"error:3\r\n"
+
+
+def test_feed_hold_and_resume_through_the_driver(sim_rig):
+    controller, sim = sim_rig
+    sim.time_scale = 0.1
+    seen: dict[RigState, threading.Event] = {s: threading.Event() for s in RigState}
+    worker = DeviceWorker(controller, name="rig", publish_hz=50)
+    worker.subscribe(lambda s: seen[s.state].set())
+    try:
+        future = worker.submit("move_to", 2000, 100)
+        assert seen[RigState.MOVING].wait(10)
+        controller.feed_hold()
+        assert seen[RigState.HOLD].wait(10)
+        assert not future.done()
+        controller.resume()
+        assert future.result(30).position_mm == pytest.approx((2000, 100))
+    finally:
+        worker.close(disconnect=False)
