@@ -49,6 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="multiply every simulated duration: 1 real time, 0.1 ten times faster, 0 as fast as possible")
     p.add_argument("--exposure-s", type=float, default=0.5, help="simulated camera exposure time (default 0.5)")
     p.add_argument("--transfer-s", type=float, default=2.5, help="simulated camera transfer time (default 2.5)")
+    p.add_argument("--sim-width-px", type=int, default=None, metavar="PX",
+                   help="simulated camera image width in pixels (default 2000; smaller renders faster)")
     p.add_argument("--retries", type=int, default=2, help="retries per view before the scan stops (default 2)")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated devices")
 
@@ -106,6 +108,20 @@ def _build_plan(args: argparse.Namespace, rig_config, existing=None):
     return plan, scene
 
 
+def describe_camera(camera, scene) -> tuple[dict, dict]:
+    """The manifest's camera and lens entries: from the scene plan, else from the simulated studio."""
+    if scene is not None:
+        return scene.camera_dict(), scene.lens_dict()
+    studio = getattr(camera, "studio", None)
+    if studio is not None:
+        from lfstudio.sim.virtual_dataset import camera_dict, lens_dict
+
+        cam = camera_dict(studio)
+        cam["name"] = getattr(camera, "name", cam.get("name"))
+        return cam, lens_dict(studio)
+    return {"name": getattr(camera, "name", "camera")}, {"name": "unknown"}
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -129,12 +145,12 @@ def run(args: argparse.Namespace) -> int:
     plan, scene = _build_plan(args, rig_config, existing)
 
     devices = open_devices(args.rig, args.camera, rig_config, time_scale=args.time_scale,
-                           exposure_s=args.exposure_s, transfer_s=args.transfer_s, seed=args.seed)
+                           exposure_s=args.exposure_s, transfer_s=args.transfer_s, seed=args.seed,
+                           view_region_mm=plan.extent_mm(), sim_width_px=args.sim_width_px)
     try:
         if existing is None:
-            camera = scene.camera_dict() if scene is not None else {"name": getattr(devices.camera, "name", args.camera)}
+            camera, lens = describe_camera(devices.camera, scene)
             camera.setdefault("driver", args.camera)
-            lens = scene.lens_dict() if scene is not None else {"name": "unknown"}
             rig = {"name": rig_config.name, "label": rig_config.label, "port": args.rig}
             dataset = create_scan_dataset(out, plan, rig=rig, camera=camera, lens=lens,
                                           scene_plan=scene.to_dict() if scene is not None else None)

@@ -39,7 +39,9 @@ class ScanDevices:
 
 
 def open_devices(rig_spec: str, camera_spec: str, rig_config: RigConfig, *, time_scale: float = 1.0,
-                 exposure_s: float = 0.5, transfer_s: float = 2.5, seed: int = 0) -> ScanDevices:
+                 exposure_s: float = 0.5, transfer_s: float = 2.5, seed: int = 0,
+                 view_region_mm: tuple[float, float, float, float] | None = None,
+                 sim_width_px: int | None = None) -> ScanDevices:
     """Connect (and home, for the simulator) the devices; raise :class:`DeviceError`/:class:`InputError`."""
     if camera_spec == "sim" and rig_spec != "sim":
         raise InputError("--camera", "the simulated camera needs the simulated rig (it renders from its position)",
@@ -48,7 +50,8 @@ def open_devices(rig_spec: str, camera_spec: str, rig_config: RigConfig, *, time
         from lfstudio.sim.session import SimulatedSession
 
         session = SimulatedSession(rig_config, time_scale=time_scale, seed=seed, exposure_s=exposure_s,
-                                   transfer_s=transfer_s).start()
+                                   transfer_s=transfer_s, view_region_mm=view_region_mm,
+                                   image_width_px=sim_width_px).start()
         if camera_spec == "sim":
             return ScanDevices(session.rig, session.camera, session,
                                f"simulated rig on {session.port}, simulated camera")

@@ -423,9 +423,10 @@ class ScanEngine:
                     fault, self._store_fault = self._store_fault, None
                 self.fault = fault
             done_text = f"{self.done} of {self.total} views captured"
+            with self._cond:
+                self._resume_req = False      # before announcing: a listener may resume at once
             self._set_state(ScanState.PAUSED, str(self.fault) if self.fault else f"Paused: {done_text}.")
             with self._cond:
-                self._resume_req = False
                 self._cond.wait_for(lambda: self._resume_req or self._abort_req)
                 if self._abort_req:
                     continue
@@ -448,6 +449,7 @@ class ScanEngine:
     def _recover(self, fault: ScanFault) -> None:
         """After a fault: reconnect the faulty device when it does not answer, then check the rig."""
         if fault.device == "camera":
+            self._free_hung_camera()
             try:
                 self.camera.call("disconnect", timeout_s=30)
             except Exception:
@@ -527,8 +529,7 @@ class ScanEngine:
         self._emit(EventKind.VIEW_STARTED, index=view.index, row=view.row, column=view.column,
                    extra={"position_mm": view.position_mm, "attempt": attempt})
         try:
-            status = self.rig.call("move_to", view.x_mm, view.y_mm, self.move_timeout_s,
-                                   timeout_s=self.move_timeout_s + 10)
+            status = self.rig.call("move_to", view.x_mm, view.y_mm, timeout_s=self.move_timeout_s)
         except Exception as exc:
             exc._scan_device = "rig"  # type: ignore[attr-defined]
             raise
@@ -554,8 +555,8 @@ class ScanEngine:
         fut.add_done_callback(lambda _f: exposed.set())
         exposed.wait()
         if fut.done() and fut.exception() is not None:
-            exc = fut.exception()
-            raise exc
+            self._free_hung_camera(fut.exception())
+            raise fut.exception()
         t_exposed = time.monotonic()
         self._prev_future = fut
         pos = getattr(status, "position_mm", None)
@@ -567,6 +568,16 @@ class ScanEngine:
         self._emit(EventKind.VIEW_EXPOSED, index=view.index, row=view.row, column=view.column,
                    timings_s=dict(job.timings_s))
         self._store_q.put(job)
+
+    def _free_hung_camera(self, exc: BaseException | None = None) -> None:
+        """A capture that timed out may still hang in the driver: stop it so the camera is usable."""
+        if exc is not None and "timed out" not in str(exc):
+            return
+        if self.camera.current_command == "capture":
+            try:
+                self.camera.stop_now()
+            except Exception as exc:
+                log.debug("stopping the camera: %s", exc)
 
     # -- store thread ------------------------------------------------------------------------------
     def _store_loop(self) -> None:
@@ -599,6 +610,7 @@ class ScanEngine:
         try:
             result: CaptureResult = job.future.result()
         except Exception as exc:
+            self._free_hung_camera(exc)
             message = _error_text(exc)
             if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
                 self._store_failed(job, ScanFault(f"Disk full while storing view r{view.row:02d} "
@@ -634,8 +646,8 @@ class ScanEngine:
         if self._last_done_t is not None:
             timings["period"] = now - self._last_done_t
         self._last_done_t = now
-        exposure = result.exposure_s or (result.metadata.get("exposure_s") if isinstance(result.metadata, dict)
-                                         else None)
+        meta = result.metadata if isinstance(result.metadata, dict) else {}
+        exposure = meta.get("shutter_s") or meta.get("exposure_s") or result.exposure_s
         fields = {"status": "done", "file": rel, "sha256": sha, "captured_at": now_iso(),
                   "exposure_s": float(exposure) if exposure else None,
                   "commanded_mm": [view.x_mm, view.y_mm], "reported_mm": job.reported_mm,

@@ -26,14 +26,16 @@ class SimulatedSession:
     """Start/stop the simulated rig and camera together (also a context manager)."""
 
     def __init__(self, rig: RigConfig, *, time_scale: float = 1.0, seed: int = 0, exposure_s: float = 0.5,
-                 transfer_s: float = 2.5, camera_faults: Any = None, studio: Any = None, home: bool = True,
+                 transfer_s: float = 2.5, studio: Any = None, home: bool = True,
+                 view_region_mm: tuple[float, float, float, float] | None = None, image_width_px: int | None = None,
                  camera_kwargs: dict[str, Any] | None = None):
         self.rig_config = rig
         self.time_scale = float(time_scale)
         self.seed = seed
         self.exposure_s = exposure_s
         self.transfer_s = transfer_s
-        self.camera_faults = camera_faults
+        self.view_region_mm = view_region_mm
+        self.image_width_px = image_width_px
         self.studio = studio
         self.home = home
         self.camera_kwargs = dict(camera_kwargs or {})
@@ -42,28 +44,40 @@ class SimulatedSession:
         self.rig: Any = None
         self.camera: Any = None
 
+    def studio_kwargs(self) -> dict[str, Any]:
+        """The virtual studio of the simulated camera: the demo orientation error, centred on the grid."""
+        from lfstudio.sim.sim_camera import DEMO_PP_OFFSET_PX, DEMO_ROTATION_DEG
+
+        kw: dict[str, Any] = {"rotation_deg": DEMO_ROTATION_DEG, "pp_offset_px": DEMO_PP_OFFSET_PX}
+        if self.view_region_mm is not None:
+            kw["view_region_mm"] = tuple(float(v) for v in self.view_region_mm)
+        if self.image_width_px:
+            kw["width_px"] = int(self.image_width_px)
+        return kw
+
+    def set_view_region(self, view_region_mm: tuple[float, float, float, float]) -> None:
+        """Centre the virtual scene on a (new) grid: ``(x_min, x_max, y_min, y_max)`` in mm."""
+        self.view_region_mm = tuple(float(v) for v in view_region_mm)
+        if self.camera is not None and self.studio is None:
+            self.camera.studio = None
+            self.camera.studio_kwargs = self.studio_kwargs()
+            self.camera.connect()
+
     def start(self) -> "SimulatedSession":
-        from lfstudio.rig.grbl import GrblController
-        from lfstudio.sim.grbl_controller import GrblSimulator
+        from lfstudio.rig.connect import open_rig
         from lfstudio.sim.sim_camera import SimulatedCamera
-        from lfstudio.sim.studio import VirtualStudio
 
         try:
-            self.simulator = GrblSimulator(self.rig_config, time_scale=self.time_scale, seed=self.seed)
-            self.port = self.simulator.start()
-            self.rig = GrblController(self.port, self.rig_config)
-            self.rig.connect()
+            self.rig, self.simulator = open_rig("sim", self.rig_config, time_scale=self.time_scale, seed=self.seed)
+            self.port = self.simulator.port
             if self.home:
                 if self.rig_config.homing:
                     self.rig.home()
                 else:
                     self.rig.set_origin()
-            if self.studio is None:
-                self.studio = VirtualStudio()
-            kwargs = dict(position_mm=self.simulator.true_position_mm, exposure_s=self.exposure_s,
-                          transfer_s=self.transfer_s, time_scale=self.time_scale)
-            if self.camera_faults is not None:
-                kwargs["faults"] = self.camera_faults
+            kwargs: dict[str, Any] = dict(position_mm=self.simulator.true_position_mm, exposure_s=self.exposure_s,
+                                          transfer_s=self.transfer_s, time_scale=self.time_scale, seed=self.seed,
+                                          studio_kwargs=self.studio_kwargs())
             kwargs.update(self.camera_kwargs)
             self.camera = SimulatedCamera(self.studio, **kwargs)
             self.camera.connect()

@@ -1,0 +1,70 @@
+"""A real ``kill -9`` of a scanning ``lfstudio scan`` process at a random moment, then ``--resume``:
+every view exactly once, no partial or stray file, a valid manifest."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from lfstudio.dataset import Dataset
+from lfstudio.dataset.paths import view_stem
+from lfstudio.dataset.store import temporary_files
+from tests.conftest import REPO_ROOT
+
+ARGS = ["--rig", "sim", "--camera", "sim", "--grid", "4x3", "--spacing-mm", "4x6", "--time-scale", "0.02",
+        "--sim-width-px", "96"]
+
+
+def journal_lines(root) -> int:
+    try:
+        return (root / "journal.jsonl").read_bytes().count(b"\n")
+    except FileNotFoundError:
+        return 0
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_kill_9_at_a_random_moment_then_resume(run_cli, tmp_path, seed):
+    rng = random.Random(seed * 7919 + os.getpid())
+    out = tmp_path / "ds"
+    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    proc = subprocess.Popen([sys.executable, "-m", "lfstudio", "scan", *ARGS, "--out", str(out)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, cwd=REPO_ROOT)
+    # pick the moment: after a random number of finished views, plus a random fraction of a view
+    after_views = rng.randint(0, 9)
+    deadline = time.monotonic() + 60
+    while proc.poll() is None and time.monotonic() < deadline:
+        if (out / "dataset.json").is_file() and journal_lines(out) >= after_views:
+            break
+        time.sleep(0.002)       # polling the journal, not synchronising on a duration
+    time.sleep(rng.uniform(0.0, 0.08))
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(10)
+    proc.stderr.close()
+    assert (out / "dataset.json").is_file()
+
+    crashed = Dataset.open(out)            # valid as it is, journal replayed
+    before = {(v["row"], v["column"]): v["sha256"] for v in crashed.views if v["status"] == "done"}
+    crashed.close()
+
+    r = run_cli("scan", *ARGS, "--out", out, "--resume", timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert f"{len(before)} done, {12 - len(before)} to capture" in r.stderr or len(before) == 12
+
+    ds = Dataset.open(out)
+    assert ds.status_counts()["done"] == 12
+    assert ds.verify_files() == []
+    assert list(temporary_files(out)) == []
+    # views captured before the crash were not captured again
+    for cell, sha in before.items():
+        assert ds.view(*cell)["sha256"] == sha
+    expected_raw = {f"{view_stem(r_, c)}{suffix}" for r_ in range(3) for c in range(4)
+                    for suffix in (".dng", ".jpg", ".truth.json")}
+    assert {p.name for p in (out / "raw").iterdir()} == expected_raw
+    assert {p.name for p in (out / "thumbs").iterdir()} == {f"{view_stem(r_, c)}.jpg" for r_ in range(3)
+                                                            for c in range(4)}
