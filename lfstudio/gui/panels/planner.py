@@ -188,6 +188,10 @@ class PlannerPanel(QWidget):
         self._timer.setSingleShot(True)
         self._timer.setInterval(DEBOUNCE_MS)
         self._timer.timeout.connect(self.evaluate)
+        self._save_timer = QTimer(self)            # the last plan goes to QSettings a moment after edits stop
+        self._save_timer.setSingleShot(True)
+        self._save_timer.setInterval(1000)
+        self._save_timer.timeout.connect(lambda: self._remember(self.current_plan()))
         self._presets = self._load_presets()
         self._build()
         self.set_plan(self._restore_plan())
@@ -483,7 +487,7 @@ class PlannerPanel(QWidget):
             result, error = None, exc
         self.plan, self.result, self.error = plan, result, error
         self._show(plan, result, error)
-        self._remember(plan)
+        self._save_timer.start()
         if result is not None and result.fits_travel and plan != self.state.plan:
             self.state.set_plan(plan)
         self.planEvaluated.emit(plan, result)
@@ -654,8 +658,8 @@ class PlannerPanel(QWidget):
 
     def shutdown(self) -> None:
         self._timer.stop()
-        if self.plan is not None:
-            self._remember(self.current_plan())
+        self._save_timer.stop()
+        self._remember(self.current_plan())
 
 
 def _differs(a: Any, b: Any) -> bool:
@@ -684,7 +688,12 @@ _COLORS = {"scene": (70, 130, 200, 45), "sharp": (60, 160, 90, 50), "blur": "#1f
 
 class PlanPlotsPanel(QWidget):
     """Depth of field (blur against distance, with the scene and the sharp range) and disparity against
-    depth (neighbour spacing and whole row/column, with the 0.5 px and 1 px lines) of the state's plan."""
+    depth (neighbour spacing and whole row/column, with the 0.5 px and 1 px lines) of the state's plan.
+
+    The plot items are built once and updated in place; plan changes are coalesced, so typing in the
+    Planner never queues up redraws."""
+
+    REDRAW_MS = 30
 
     def __init__(self, state, parent: QWidget | None = None):
         super().__init__(parent)
@@ -692,53 +701,133 @@ class PlanPlotsPanel(QWidget):
 
         self.state = state
         self.setObjectName("planPlotsPanel")
-        pg.setConfigOptions(antialias=True, background="w", foreground="#30343a")
         lay = QVBoxLayout(self)
         lay.setContentsMargins(4, 4, 4, 4)
         lay.setSpacing(4)
         self.plots_layout = QBoxLayout(QBoxLayout.LeftToRight)   # side by side when wide, stacked when tall
         self.plots_layout.setSpacing(6)
         lay.addLayout(self.plots_layout, 1)
-        self.dof_plot = pg.PlotWidget()
+        # colours set per plot: pyqtgraph's global options would restyle other panels' image views
+        self.dof_plot = pg.PlotWidget(background="w")
         self.dof_plot.setObjectName("dofPlot")
-        self.disparity_plot = pg.PlotWidget()
+        self.disparity_plot = pg.PlotWidget(background="w")
         self.disparity_plot.setObjectName("disparityPlot")
         for plot in (self.dof_plot, self.disparity_plot):
+            for side in ("left", "bottom"):
+                axis = plot.getAxis(side)
+                axis.setPen(pg.mkPen("#30343a"))
+                axis.setTextPen(pg.mkPen("#30343a"))
             plot.setMinimumSize(300, 200)
             plot.showGrid(x=True, y=True, alpha=0.25)
             plot.setMenuEnabled(False)
             self.plots_layout.addWidget(plot, 1)
-        self.dof_plot.setTitle("Depth of field: blur against distance")
-        self.dof_plot.setLabel("bottom", "distance from the camera plane", units="m")
-        self.dof_plot.setLabel("left", "blur circle", units="µm")
-        self.disparity_plot.setTitle("Disparity against depth (log scale)")
-        self.disparity_plot.setLabel("bottom", "depth", units="m")
-        self.disparity_plot.setLabel("left", "disparity against infinity (px)")
-        self.disparity_plot.setLogMode(x=False, y=True)
         self.note = QLabel("")
         self.note.setWordWrap(True)
         lay.addWidget(self.note)
-        state.planChanged.connect(self.draw)
+        self._build_dof()
+        self._build_disparity()
+        self._pending = None
+        self._timer = QTimer(self)
+        self._timer.setSingleShot(True)
+        self._timer.setInterval(self.REDRAW_MS)
+        self._timer.timeout.connect(lambda: self.draw(self._pending))
+        state.planChanged.connect(self._schedule)
         self.draw(state.plan)
+
+    def _legend(self, plot):
+        import pyqtgraph as pg
+
+        return plot.addLegend(offset=(-6, 6), labelTextSize="8pt", brush=pg.mkBrush(255, 255, 255, 215),
+                              pen=pg.mkPen("#c8ccd3"), labelTextColor="#30343a")
+
+    def _build_dof(self) -> None:
+        import pyqtgraph as pg
+
+        p = self.dof_plot
+        p.setTitle("Depth of field: blur against distance", color="#30343a", size="10pt")
+        p.setLabel("bottom", "distance from the camera plane", units="m")
+        p.setLabel("left", "blur circle", units="µm")
+        self._legend(p)
+        self.scene_region = pg.LinearRegionItem((1, 2), movable=False, brush=pg.mkBrush(*_COLORS["scene"]),
+                                                pen=pg.mkPen(_COLORS["scene"][:3], width=1))
+        self.sharp_region = pg.LinearRegionItem((1, 2), movable=False, brush=pg.mkBrush(*_COLORS["sharp"]),
+                                                pen=pg.mkPen(None))
+        self.sharp_region.setZValue(-5)
+        p.addItem(self.scene_region)
+        p.addItem(self.sharp_region)
+        self.blur_curve = p.plot([], [], pen=pg.mkPen(_COLORS["blur"], width=2), name="blur circle", antialias=True)
+        self.airy_curve = p.plot([], [], pen=pg.mkPen(_COLORS["airy"], width=1, style=Qt.DashDotLine),
+                                 name="Airy disk (diffraction)")
+        p.plot([], [], pen=pg.mkPen(_COLORS["scene"][:3], width=8), name="scene near – far")
+        p.plot([], [], pen=pg.mkPen(_COLORS["sharp"][:3], width=8), name="sharp range")
+        self.coc_line = pg.InfiniteLine(29, angle=0, pen=pg.mkPen(_COLORS["coc"], width=1.5, style=Qt.DashLine),
+                                        label="circle of confusion {value:.0f} µm",
+                                        labelOpts={"position": 0.2, "color": _COLORS["coc"],
+                                                   "anchors": [(0, 1), (0, 1)]})
+        self.pixels_line = pg.InfiniteLine(9, angle=0, pen=pg.mkPen(_COLORS["pixels"], width=1, style=Qt.DotLine),
+                                           label="2 pixels", labelOpts={"position": 0.9, "color": _COLORS["pixels"],
+                                                                        "anchors": [(1, 1), (1, 1)]})
+        self.focus_line = pg.InfiniteLine(2, angle=90, pen=pg.mkPen(_COLORS["focus"], width=1),
+                                          label="focus {value:.2f} m",
+                                          labelOpts={"position": 0.93, "color": _COLORS["focus"]})
+        for item in (self.coc_line, self.pixels_line, self.focus_line):
+            p.addItem(item)
+
+    def _build_disparity(self) -> None:
+        import pyqtgraph as pg
+
+        q = self.disparity_plot
+        q.setTitle("Disparity against depth (log scale)", color="#30343a", size="10pt")
+        q.setLabel("bottom", "depth", units="m")
+        q.setLabel("left", "disparity against infinity (px)")
+        q.setLogMode(x=False, y=True)
+        self._legend(q)
+        self.disparity_scene = pg.LinearRegionItem((1, 2), movable=False, brush=pg.mkBrush(*_COLORS["scene"]),
+                                                   pen=pg.mkPen(None))
+        q.addItem(self.disparity_scene)
+        self.disparity_curves = {}
+        for key, name in (("h", "neighbour, horizontal"), ("v", "neighbour, vertical"), ("row", "whole row"),
+                          ("col", "whole column")):
+            self.disparity_curves[key] = q.plot(
+                [], [], pen=pg.mkPen(_COLORS[key], width=2 if key in ("h", "row") else 1.5), name=name,
+                antialias=True)
+        for value, style, anchor in ((1.0, Qt.DashLine, (0, 1)), (0.5, Qt.DotLine, (0, 0))):
+            q.addItem(pg.InfiniteLine(math.log10(value), angle=0, pen=pg.mkPen("#b00020", width=1, style=style),
+                                      label=f"{value:g} px", labelOpts={"position": 0.03, "color": "#b00020",
+                                                                        "anchors": [anchor, anchor]}))
+        self.zmin_line = pg.InfiniteLine(1.77, angle=90, pen=pg.mkPen(_COLORS["zmin"], width=1, style=Qt.DashDotLine),
+                                         label="Z min {value:.2f} m",
+                                         labelOpts={"position": 0.5, "color": _COLORS["zmin"], "rotateAxis": (1, 0)})
+        q.addItem(self.zmin_line)
 
     def resizeEvent(self, event) -> None:
         wide = event.size().width() > 1.4 * event.size().height()
         self.plots_layout.setDirection(QBoxLayout.LeftToRight if wide else QBoxLayout.TopToBottom)
         super().resizeEvent(event)
 
-    def draw(self, plan: ScenePlan | None) -> None:
-        import pyqtgraph as pg
+    def _schedule(self, plan) -> None:
+        self._pending = plan
+        self._timer.start()
 
-        self.dof_plot.clear()
-        self.disparity_plot.clear()
-        if plan is None:
-            self.note.setText("No valid plan yet: fill in the Planner.")
-            return
+    def draw(self, plan: ScenePlan | None) -> None:
+        """Update every item for ``plan`` (None: empty plots and a hint)."""
+        self._timer.stop()
         try:
-            r = plan.derive()
+            r = plan.derive() if plan is not None else None
         except InputError as exc:
+            r = None
             self.note.setText(str(exc))
+        visible = r is not None
+        for item in (self.scene_region, self.sharp_region, self.coc_line, self.pixels_line, self.focus_line,
+                     self.disparity_scene, self.zmin_line):
+            item.setVisible(visible)
+        if r is None:
+            for curve in (self.blur_curve, self.airy_curve, *self.disparity_curves.values()):
+                curve.setData([], [])
+            if plan is None:
+                self.note.setText("No valid plan yet: fill in the Planner.")
             return
+
         f, pitch = plan.focal_length_mm, r.pixel_pitch_um
         near_mm, far_mm = plan.near_m * 1000, plan.far_m * 1000
         x_lo = max(0.5 * min(near_mm, r.min_distance_m * 1000), 4 * f + 1)
@@ -747,71 +836,42 @@ class PlanPlotsPanel(QWidget):
         z_m = z_mm / 1000.0
 
         # depth of field
-        p = self.dof_plot
-        p.addLegend(offset=(-6, 6), labelTextSize="8pt", brush=pg.mkBrush(255, 255, 255, 215), pen=pg.mkPen("#c8ccd3"))
         coc_um = plan.coc_mm * 1000
-        blur_um = np.array([optics.blur_diameter_mm(z, r.focus_used_m * 1000, f, r.f_number_used) * 1000
-                            for z in z_mm])
         y_top = max(3 * coc_um, r.airy_disk_um * 1.3)
-        scene = pg.LinearRegionItem((plan.near_m, plan.far_m), movable=False, brush=pg.mkBrush(*_COLORS["scene"]),
-                                    pen=pg.mkPen(_COLORS["scene"][:3], width=1))
-        p.addItem(scene)
-        sharp_far = min(r.dof_far_m, x_hi / 1000 * 2)
-        sharp = pg.LinearRegionItem((r.dof_near_m, sharp_far), movable=False, brush=pg.mkBrush(*_COLORS["sharp"]),
-                                    pen=pg.mkPen(None))
-        sharp.setZValue(-5)
-        p.addItem(sharp)
-        p.plot(z_m, np.minimum(blur_um, y_top * 2), pen=pg.mkPen(_COLORS["blur"], width=2),
-               name=f"blur at f/{r.f_number_used:.1f}, focus {r.focus_used_m:.2f} m")
-        p.addItem(pg.InfiniteLine(coc_um, angle=0, pen=pg.mkPen(_COLORS["coc"], width=1.5, style=Qt.DashLine),
-                                  label=f"circle of confusion {coc_um:g} µm",
-                                  labelOpts={"position": 0.2, "color": _COLORS["coc"], "anchors": [(0, 1), (0, 1)]}))
-        p.addItem(pg.InfiniteLine(2 * pitch, angle=0, pen=pg.mkPen(_COLORS["pixels"], width=1, style=Qt.DotLine),
-                                  label="2 pixels", labelOpts={"position": 0.9, "color": _COLORS["pixels"],
-                                                               "anchors": [(1, 1), (1, 1)]}))
-        p.plot([z_m[0], z_m[-1]], [r.airy_disk_um, r.airy_disk_um], pen=pg.mkPen(_COLORS["airy"], width=1,
-                                                                                  style=Qt.DashDotLine),
-               name=f"Airy disk {r.airy_disk_um:.0f} µm")
-        p.addItem(pg.InfiniteLine(r.focus_used_m, angle=90, pen=pg.mkPen(_COLORS["focus"], width=1),
-                                  label=f"focus {r.focus_used_m:.2f} m",
-                                  labelOpts={"position": 0.93, "color": _COLORS["focus"]}))
-        # legend entries for the shaded ranges
+        blur_um = optics.blur_diameter_mm(z_mm, r.focus_used_m * 1000, f, r.f_number_used) * 1000
+        self.blur_curve.setData(z_m, np.minimum(blur_um, y_top * 2))
+        self.airy_curve.setData([z_m[0], z_m[-1]], [r.airy_disk_um, r.airy_disk_um])
+        self.scene_region.setRegion((plan.near_m, plan.far_m))
+        self.sharp_region.setRegion((r.dof_near_m, min(r.dof_far_m, x_hi / 500.0)))
+        self.coc_line.setValue(coc_um)
+        self.pixels_line.setValue(2 * pitch)
+        self.focus_line.setValue(r.focus_used_m)
         far_text = "∞" if math.isinf(r.dof_far_m) else f"{r.dof_far_m:.2f}"
-        p.plot([], [], pen=pg.mkPen(_COLORS["scene"][:3], width=8), name=f"scene {plan.near_m:g}–{plan.far_m:g} m")
-        p.plot([], [], pen=pg.mkPen(_COLORS["sharp"][:3], width=8), name=f"sharp {r.dof_near_m:.2f}–{far_text} m")
-        p.setXRange(x_lo / 1000, x_hi / 1000, padding=0)
-        p.setYRange(0, y_top, padding=0.02)
+        self.dof_plot.setTitle(f"Depth of field at f/{r.f_number_used:.1f}: sharp {r.dof_near_m:.2f} – {far_text} m, "
+                               f"scene {plan.near_m:g} – {plan.far_m:g} m", color="#30343a", size="10pt")
+        self.dof_plot.setXRange(x_lo / 1000, x_hi / 1000, padding=0)
+        self.dof_plot.setYRange(0, y_top, padding=0.02)
 
         # disparity against depth
-        q = self.disparity_plot
-        q.addLegend(offset=(-6, 6), labelTextSize="8pt", brush=pg.mkBrush(255, 255, 255, 215), pen=pg.mkPen("#c8ccd3"))
-        q.addItem(pg.LinearRegionItem((plan.near_m, plan.far_m), movable=False, brush=pg.mkBrush(*_COLORS["scene"]),
-                                      pen=pg.mkPen(None)))
-        curves = [("h", f"neighbour, horizontal ({plan.spacing_mm[0]:g} mm)", plan.spacing_mm[0]),
-                  ("v", f"neighbour, vertical ({plan.spacing_mm[1]:g} mm)", plan.spacing_mm[1]),
-                  ("row", f"whole row ({r.baseline_mm['horizontal']:g} mm)", r.baseline_mm["horizontal"]),
-                  ("col", f"whole column ({r.baseline_mm['vertical']:g} mm)", r.baseline_mm["vertical"])]
+        self.disparity_scene.setRegion((plan.near_m, plan.far_m))
+        baselines = {"h": plan.spacing_mm[0], "v": plan.spacing_mm[1],
+                     "row": r.baseline_mm["horizontal"], "col": r.baseline_mm["vertical"]}
         y_values = []
-        for key, name, b in curves:
+        for key, b in baselines.items():
             if b <= 0:
+                self.disparity_curves[key].setData([], [])
                 continue
-            d = np.array([optics.disparity_px(b, z, math.inf, f, pitch) for z in z_mm])
+            d = optics.disparity_px(b, z_mm, math.inf, f, pitch)
             y_values.append(d)
-            q.plot(z_m, d, pen=pg.mkPen(_COLORS[key], width=2 if key in ("h", "row") else 1.5), name=name)
-        for value, style, anchor in ((1.0, Qt.DashLine, (0, 1)), (0.5, Qt.DotLine, (0, 0))):
-            q.addItem(pg.InfiniteLine(math.log10(value), angle=0, pen=pg.mkPen("#b00020", width=1, style=style),
-                                      label=f"{value:g} px", labelOpts={"position": 0.03, "color": "#b00020",
-                                                                        "anchors": [anchor, anchor]}))
-        q.addItem(pg.InfiniteLine(r.min_distance_m, angle=90, pen=pg.mkPen(_COLORS["zmin"], width=1,
-                                                                           style=Qt.DashDotLine),
-                                  label=f"Z min {r.min_distance_m:.2f} m",
-                                  labelOpts={"position": 0.5, "color": _COLORS["zmin"], "rotateAxis": (1, 0)}))
-        if y_values:
-            lo = min(0.2, float(min(v.min() for v in y_values)))
-            hi = float(max(v.max() for v in y_values))
-            q.setYRange(math.log10(lo), math.log10(hi * 1.5), padding=0)
-        q.setXRange(x_lo / 1000, x_hi / 1000, padding=0)
+            self.disparity_curves[key].setData(z_m, d)
+        self.zmin_line.setValue(r.min_distance_m)
+        lo = min(0.2, float(min(v.min() for v in y_values)))
+        hi = float(max(v.max() for v in y_values))
+        self.disparity_plot.setYRange(math.log10(lo), math.log10(hi * 1.5), padding=0)
+        self.disparity_plot.setXRange(x_lo / 1000, x_hi / 1000, padding=0)
         nd = r.neighbour_disparity_px
-        self.note.setText(f"Neighbour disparity over the scene: {nd['horizontal']:.2f} px horizontal, "
-                          f"{nd['vertical']:.2f} px vertical; row parallax {r.row_parallax_px:.0f} px "
-                          f"({100 * r.row_parallax_fraction:.1f} % of the width).")
+        self.note.setText(
+            f"Spacing {plan.spacing_mm[0]:g} × {plan.spacing_mm[1]:g} mm: neighbour disparity over the scene "
+            f"{nd['horizontal']:.2f} px horizontal, {nd['vertical']:.2f} px vertical; row parallax "
+            f"{r.row_parallax_px:.0f} px ({100 * r.row_parallax_fraction:.1f} % of the width) over "
+            f"{r.baseline_mm['horizontal']:g} mm.")
