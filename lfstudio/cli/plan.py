@@ -211,13 +211,19 @@ def run(args: argparse.Namespace) -> int:
         from lfstudio.planning.scene_plan import save_plan
 
         save_plan(args.save, plan)
-    if args.json:
-        out = result.to_dict()
-        out["plan"] = plan.to_dict()
-        json.dump(out, sys.stdout, ensure_ascii=False, allow_nan=False)
-        sys.stdout.write("\n")
-    else:
-        print(format_table(plan, result))
-        if args.save:
-            print(f"\nplan saved to {args.save}")
+    try:
+        if args.json:
+            out = result.to_dict()
+            out["plan"] = plan.to_dict()
+            json.dump(out, sys.stdout, ensure_ascii=False, allow_nan=False)
+            sys.stdout.write("\n")
+        else:
+            print(format_table(plan, result))
+            if args.save:
+                print(f"\nplan saved to {args.save}")
+        sys.stdout.flush()
+    except BrokenPipeError:             # `lfstudio plan | head`: the reader left, that is fine
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return 0
