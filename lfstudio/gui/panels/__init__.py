@@ -26,6 +26,8 @@ PANELS: list[PanelSpec] = [
     PanelSpec("Scan", "scanPanel", "lfstudio.gui.panels.scan:ScanPanel", "right"),
     PanelSpec("Processing", "processingPanel", "lfstudio.gui.panels.processing:ProcessingPanel", "right"),
     PanelSpec("Rig", "rigDock", "lfstudio.gui.panels.rig:RigPanel", "left", tab_with="plannerDock"),
+    PanelSpec("Calibration", "calibrationPanel", "lfstudio.gui.panels.calibration:CalibrationPanel", "right",
+              tab_with="processingPanel"),
 ]
 
 #: the central widget, "module:ClassName" constructed as ``Cls(state)``

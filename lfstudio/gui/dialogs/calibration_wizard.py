@@ -1,0 +1,639 @@
+"""The calibration wizard: choose views → detect and match (progress, ETA, cancel) → fit → results.
+
+Results: the numbers, residual histograms before/after, residual vectors over an image, a per-view
+residual map over the grid, epipolar-plane images before/after rectification and two neighbouring
+views with horizontal guide lines. *Accept and save* writes ``calibration.json`` into the dataset.
+All image reading and fitting runs on worker threads (:class:`lfstudio.gui.bridge.JobRunner`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import QPointF, QRectF, QSize, Qt, Signal
+from PySide6.QtGui import QBrush, QColor, QFont, QPainter, QPen
+from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QFormLayout, QGridLayout, QGroupBox,
+                               QHBoxLayout, QLabel, QPlainTextEdit, QPushButton, QSizePolicy, QSlider, QSpinBox,
+                               QStackedWidget, QTabWidget, QVBoxLayout, QWidget)
+
+from lfstudio.calibration.calibrate import available_views, calibrate_dataset, save_calibration
+from lfstudio.calibration.epi import dataset_epis, load_preview, preview_homography, rectify_image
+from lfstudio.calibration.pairs import make_pairs, sparse_subset
+from lfstudio.calibration.report import format_report
+from lfstudio.dataset.paths import view_stem
+from lfstudio.errors import LfError
+from lfstudio.gui.bridge import JobRunner
+from lfstudio.gui.settings import settings
+from lfstudio.gui.widgets import JobProgressWidget
+
+PAGE_VIEWS, PAGE_RUN, PAGE_RESULTS = range(3)
+
+
+class GridPicker(QWidget):
+    """The capture grid as cells; click a captured view to add it to / remove it from the selection."""
+
+    selectionChanged = Signal()
+
+    def __init__(self, columns: int, rows: int, available: set[tuple[int, int]], parent: QWidget | None = None):
+        super().__init__(parent)
+        self.columns, self.rows = max(1, columns), max(1, rows)
+        self.available = set(available)
+        self.selected: set[tuple[int, int]] = set()
+        self.setMinimumSize(300, 120)
+        self.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Expanding)
+        self.setToolTip("Click captured views (grey) to select or deselect them; blue = used for calibration")
+        self.setMouseTracking(True)
+
+    def sizeHint(self) -> QSize:
+        return QSize(min(900, 12 * self.columns + 40), min(420, 16 * self.rows + 40))
+
+    def set_selected(self, views) -> None:
+        self.selected = {v for v in views if v in self.available}
+        self.update()
+        self.selectionChanged.emit()
+
+    def _geometry(self) -> tuple[float, float, float]:
+        margin = 28.0
+        cell = min((self.width() - margin - 6) / self.columns, (self.height() - margin - 6) / self.rows)
+        return max(cell, 1.0), margin, margin
+
+    def cell_at(self, pos) -> tuple[int, int] | None:
+        cell, x0, y0 = self._geometry()
+        c, r = int((pos.x() - x0) // cell), int((pos.y() - y0) // cell)
+        if 0 <= r < self.rows and 0 <= c < self.columns:
+            return r, c
+        return None
+
+    def mousePressEvent(self, event) -> None:
+        v = self.cell_at(event.position())
+        if v is not None and v in self.available:
+            self.selected ^= {v}
+            self.update()
+            self.selectionChanged.emit()
+
+    def mouseMoveEvent(self, event) -> None:
+        v = self.cell_at(event.position())
+        self.setToolTip(f"{view_stem(*v)}{'' if v in self.available else ' (not captured)'}" if v else
+                        "Click captured views to select them")
+
+    def paintEvent(self, event) -> None:
+        p = QPainter(self)
+        p.fillRect(self.rect(), self.palette().window())
+        cell, x0, y0 = self._geometry()
+        gap = 1.0 if cell > 4 else 0.0
+        for r in range(self.rows):
+            for c in range(self.columns):
+                v = (r, c)
+                color = QColor(40, 110, 220) if v in self.selected else \
+                    QColor(185, 185, 185) if v in self.available else QColor(245, 245, 245)
+                p.fillRect(QRectF(x0 + c * cell, y0 + r * cell, cell - gap, cell - gap), color)
+        p.setPen(QPen(QColor(90, 90, 90)))
+        f = QFont(self.font())
+        f.setPointSizeF(max(7.0, f.pointSizeF() - 1))
+        p.setFont(f)
+        step_c = max(1, int(np.ceil(40 / cell)))
+        for c in range(0, self.columns, step_c):
+            p.drawText(QPointF(x0 + c * cell, y0 - 6), str(c))
+        step_r = max(1, int(np.ceil(16 / cell)))
+        for r in range(0, self.rows, step_r):
+            p.drawText(QPointF(2, y0 + r * cell + min(cell, 14) - 2), str(r))
+        p.end()
+
+
+def _calibration_job(dataset, views, *, preview_width_px: int = 900, progress, cancel, **kwargs) -> dict:
+    run = calibrate_dataset(dataset, views, progress=progress, cancel=cancel, **kwargs)
+    first = run.matches[0].view_a if run.matches else run.views[0]
+    img, full = load_preview(dataset.path_of(dataset.view(*first)), preview_width_px)
+    return {"run": run, "preview": img, "preview_view": first, "full_size": full}
+
+
+def _inspection_job(dataset, document, row: int, column: int, y_frac: float, x_frac: float, *, progress,
+                    cancel) -> dict:
+    epis = dataset_epis(dataset, document, row=row, column=column, y_frac=y_frac, x_frac=x_frac, count=24,
+                        width_px=800, progress=progress, cancel=cancel)
+    neighbours = None
+    hv = (epis.get("horizontal") or {}).get("views") or []
+    if len(hv) >= 2:
+        k = max(0, len(hv) // 2 - 1)
+        a, b = hv[k], hv[k + 1]
+        ia, full = load_preview(dataset.path_of(dataset.view(*a)), 800)
+        ib, _ = load_preview(dataset.path_of(dataset.view(*b)), 800)
+        H = preview_homography(np.asarray(document["homography"], float), full, ia)
+        neighbours = {"views": (a, b), "before": (ia, ib), "after": (rectify_image(ia, H), rectify_image(ib, H))}
+    return {"epis": epis, "neighbours": neighbours}
+
+
+def _image_plot(title: str) -> tuple[pg.PlotItem, pg.ImageItem]:
+    plot = pg.PlotItem(title=title)
+    plot.invertY(True)
+    plot.setAspectLocked(False)
+    plot.hideButtons()
+    item = pg.ImageItem(axisOrder="row-major")
+    plot.addItem(item)
+    return plot, item
+
+
+class CalibrationWizard(QDialog):
+    """Modeless wizard over ``state.dataset``; ``accepted_document`` is set when saved."""
+
+    def __init__(self, state, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.state = state
+        self.dataset = state.dataset
+        self.setWindowTitle("Calibrate — self-calibration of the camera orientation")
+        self.setObjectName("calibrationWizard")
+        self.resize(1150, 800)
+        self.result: dict | None = None
+        self.accepted_document: dict | None = None
+        self.runner = JobRunner(self)
+        self.inspect_runner = JobRunner(self)
+
+        grid = self.dataset.grid
+        self.available = set(available_views(self.dataset))
+        self.stack = QStackedWidget()
+        self.stack.addWidget(self._build_views_page(int(grid["columns"]), int(grid["rows"])))
+        self.stack.addWidget(self._build_run_page())
+        self.stack.addWidget(self._build_results_page())
+
+        self.back_button = QPushButton("< Back")
+        self.back_button.setToolTip("Return to the choice of views")
+        self.next_button = QPushButton("Detect, match and fit >")
+        self.next_button.setToolTip("Detect SIFT features in the chosen views, match them and fit the orientation")
+        self.next_button.setDefault(True)
+        self.accept_button = QPushButton("Accept and save")
+        self.accept_button.setToolTip("Write calibration.json into the dataset (processing will rectify with it)")
+        self.close_button = QPushButton("Close")
+        self.close_button.setToolTip("Close without saving (a running job is cancelled)")
+        self.step_label = QLabel()
+        self.step_label.setObjectName("stepLabel")
+        buttons = QHBoxLayout()
+        buttons.addWidget(self.step_label, 1)
+        for b in (self.back_button, self.next_button, self.accept_button, self.close_button):
+            buttons.addWidget(b)
+        lay = QVBoxLayout(self)
+        lay.addWidget(self.stack, 1)
+        lay.addLayout(buttons)
+
+        self.back_button.clicked.connect(self.go_back)
+        self.next_button.clicked.connect(self.start_calibration)
+        self.accept_button.clicked.connect(self.accept_and_save)
+        self.close_button.clicked.connect(self.close)
+        self.runner.progress.connect(self._on_progress)
+        self.runner.finished.connect(self._on_finished)
+        self.runner.failed.connect(self._on_failed)
+        self.runner.cancelled.connect(self._on_cancelled)
+        self.inspect_runner.finished.connect(self._show_inspection)
+        self.inspect_runner.failed.connect(lambda msg: self.inspect_status.setText(f"Could not build the EPIs: {msg}"))
+        self.inspect_runner.progress.connect(
+            lambda d, t, m, e: self.inspect_status.setText(f"{m} ({d}/{t})"))
+        self._restore_settings()
+        self._set_page(PAGE_VIEWS)
+
+    # -- page 1: views ------------------------------------------------------------------------------
+    def _build_views_page(self, columns: int, rows: int) -> QWidget:
+        page = QWidget()
+        self.picker = GridPicker(columns, rows, self.available)
+        self.picker.selectionChanged.connect(self._update_selection_label)
+        presets = QHBoxLayout()
+        for text, tip, spec in (("2 × 3 (paper)", "First and last row; first, middle and last column", (2, 3)),
+                                ("3 × 5", "A denser array: 3 rows × 5 columns spread over the grid", (3, 5)),
+                                ("All captured", "Every captured view (slow on a full grid)", "all"),
+                                ("Clear", "Deselect every view", "none")):
+            b = QPushButton(text)
+            b.setToolTip(tip)
+            b.clicked.connect(lambda _=False, s=spec: self.apply_preset(s))
+            presets.addWidget(b)
+        presets.addStretch(1)
+        self.selection_label = QLabel()
+        self.selection_label.setObjectName("selectionLabel")
+
+        opts = QGroupBox("Options")
+        form = QFormLayout(opts)
+        self.estimate_pp = QCheckBox("Estimate the principal point too")
+        self.estimate_pp.setToolTip("Weakly determined: a principal-point shift looks like a small rotation. "
+                                    "The paper leaves it at the image centre.")
+        self.neighbours_only = QCheckBox("Pair only adjacent views of the array")
+        self.neighbours_only.setToolTip("Off: every pair within a row / column (several baselines)")
+        self.focal_px = QDoubleSpinBox()
+        self.focal_px.setRange(0.0, 1e6)
+        self.focal_px.setDecimals(1)
+        self.focal_px.setSuffix(" px")
+        self.focal_px.setSpecialValueText("from camera and lens")
+        self.focal_px.setToolTip("Focal length in full-resolution pixels; 0 = computed from the dataset's "
+                                 "camera (pixel pitch) and lens (focal length)")
+        self.work_width = QSpinBox()
+        self.work_width.setRange(400, 20000)
+        self.work_width.setSingleStep(200)
+        self.work_width.setSuffix(" px")
+        self.work_width.setToolTip("Features are detected on images downscaled to this width")
+        form.addRow(self.estimate_pp)
+        form.addRow(self.neighbours_only)
+        form.addRow("Focal length:", self.focal_px)
+        form.addRow("Detection width:", self.work_width)
+        self.neighbours_only.toggled.connect(self._update_selection_label)
+
+        lay = QVBoxLayout(page)
+        lay.addWidget(QLabel("<b>1. Choose the views.</b> Pairs are formed within each row (rows must line "
+                             "up) and each column (columns must line up)."))
+        lay.addLayout(presets)
+        lay.addWidget(self.picker, 1)
+        lay.addWidget(self.selection_label)
+        lay.addWidget(opts)
+        return page
+
+    def apply_preset(self, spec) -> None:
+        grid = self.dataset.grid
+        if spec == "all":
+            views = self.available
+        elif spec == "none":
+            views = set()
+        else:
+            views = sparse_subset(int(grid["columns"]), int(grid["rows"]), spec[0], spec[1], self.available)
+        self.picker.set_selected(views)
+
+    def selected_pairs(self):
+        return make_pairs(self.picker.selected, self.dataset.grid.get("spacing_mm") or (1, 1),
+                          neighbours_only=self.neighbours_only.isChecked())
+
+    def _update_selection_label(self) -> None:
+        pairs = self.selected_pairs()
+        nh = sum(p.direction == "h" for p in pairs)
+        nv = len(pairs) - nh
+        text = f"{len(self.picker.selected)} views · {nh} horizontal + {nv} vertical pairs"
+        if nh == 0 or nv == 0:
+            text += " — choose at least two views in one row and two in one column"
+        self.selection_label.setText(text)
+        if self.stack.currentIndex() == PAGE_VIEWS:
+            self.next_button.setEnabled(nh > 0 and nv > 0 and not self.runner.running)
+
+    # -- page 2: run ---------------------------------------------------------------------------------
+    def _build_run_page(self) -> QWidget:
+        page = QWidget()
+        self.job_widget = JobProgressWidget(self.runner)
+        self.log = QPlainTextEdit()
+        self.log.setReadOnly(True)
+        self.log.setObjectName("calibrationLog")
+        self.error_label = QLabel()
+        self.error_label.setWordWrap(True)
+        self.error_label.setStyleSheet("color: #b00020;")
+        self.error_label.setObjectName("errorLabel")
+        lay = QVBoxLayout(page)
+        lay.addWidget(QLabel("<b>2. Detect and match features, fit the orientation.</b> Features are cached in "
+                             "the dataset (cache/features), so a second run is fast."))
+        lay.addWidget(self.job_widget)
+        lay.addWidget(self.error_label)
+        lay.addWidget(self.log, 1)
+        return page
+
+    def start_calibration(self) -> None:
+        if self.runner.running:
+            return
+        views = sorted(self.picker.selected)
+        self._save_settings()
+        self.error_label.setText("")
+        self.log.clear()
+        self._set_page(PAGE_RUN)
+        self.job_widget.started()
+        kwargs: dict[str, Any] = {"estimate_principal_point": self.estimate_pp.isChecked(),
+                                  "neighbours_only": self.neighbours_only.isChecked(),
+                                  "max_width_px": self.work_width.value()}
+        if self.focal_px.value() > 0:
+            kwargs["focal_length_px"] = self.focal_px.value()
+        self.log.appendPlainText(f"views: {', '.join(view_stem(*v) for v in views)}")
+        self.runner.start(_calibration_job, self.dataset, views, **kwargs)
+
+    def _on_progress(self, done: int, total: int, message: str, eta: float) -> None:
+        if message:
+            self.log.appendPlainText(message)
+
+    def _on_failed(self, message: str) -> None:
+        self.error_label.setText(message)
+        self.log.appendPlainText("failed: " + message)
+        self._update_buttons()
+
+    def _on_cancelled(self) -> None:
+        self.error_label.setText("Cancelled. Go back to change the views or start again.")
+        self._update_buttons()
+
+    def _on_finished(self, result: dict) -> None:
+        self.result = result
+        self._fill_results(result)
+        self._set_page(PAGE_RESULTS)
+
+    # -- page 3: results -------------------------------------------------------------------------------
+    def _build_results_page(self) -> QWidget:
+        page = QWidget()
+        self.headline = QLabel()
+        self.headline.setObjectName("headline")
+        self.headline.setWordWrap(True)
+        self.tabs = QTabWidget()
+        self.tabs.setObjectName("resultTabs")
+
+        self.report_text = QPlainTextEdit()
+        self.report_text.setReadOnly(True)
+        self.report_text.setFont(QFont("monospace"))
+        self.report_text.setLineWrapMode(QPlainTextEdit.NoWrap)
+        self.tabs.addTab(self.report_text, "Numbers")
+
+        res = QWidget()
+        self.res_plots = pg.GraphicsLayoutWidget()
+        self.hist_before = self.res_plots.addPlot(0, 0, title="Residuals before (px)")
+        self.hist_after = self.res_plots.addPlot(0, 1, title="Residuals after (px)")
+        self.heat = self.res_plots.addPlot(1, 0, title="Per-view RMS after (px) over the grid")
+        self.heat.invertY(True)
+        self.heat.setLabel("bottom", "column")
+        self.heat.setLabel("left", "row")
+        self.vectors = self.res_plots.addPlot(1, 1, title="Residual vectors")
+        self.vectors.invertY(True)
+        self.vectors.setAspectLocked(True)
+        self.vector_image = pg.ImageItem(axisOrder="row-major")
+        self.vectors.addItem(self.vector_image)
+        self.vector_lines = pg.PlotDataItem(connect="pairs", pen=pg.mkPen((0, 200, 60), width=1.5))
+        self.vectors.addItem(self.vector_lines)
+        self.vector_mode = QComboBox()
+        self.vector_mode.addItems(["after calibration", "before calibration"])
+        self.vector_mode.setToolTip("Which residuals to draw as vectors")
+        self.vector_gain = QSpinBox()
+        self.vector_gain.setRange(1, 500)
+        self.vector_gain.setValue(50)
+        self.vector_gain.setPrefix("× ")
+        self.vector_gain.setToolTip("Vector length = residual × this factor (preview pixels)")
+        self.vector_mode.currentIndexChanged.connect(self._draw_vectors)
+        self.vector_gain.valueChanged.connect(self._draw_vectors)
+        row = QHBoxLayout()
+        row.addWidget(QLabel("Vectors:"))
+        row.addWidget(self.vector_mode)
+        row.addWidget(self.vector_gain)
+        row.addStretch(1)
+        rl = QVBoxLayout(res)
+        rl.addLayout(row)
+        rl.addWidget(self.res_plots, 1)
+        self.tabs.addTab(res, "Residuals")
+
+        insp = QWidget()
+        controls = QGridLayout()
+        self.epi_row = QSpinBox()
+        self.epi_row.setToolTip("Grid row whose views form the horizontal EPI")
+        self.epi_column = QSpinBox()
+        self.epi_column.setToolTip("Grid column whose views form the vertical EPI")
+        self.epi_y = QSlider(Qt.Horizontal)
+        self.epi_y.setRange(0, 100)
+        self.epi_y.setValue(50)
+        self.epi_y.setToolTip("Image row of the horizontal EPI (0 = top, 100 = bottom)")
+        self.epi_x = QSlider(Qt.Horizontal)
+        self.epi_x.setRange(0, 100)
+        self.epi_x.setValue(50)
+        self.epi_x.setToolTip("Image column of the vertical EPI (0 = left, 100 = right)")
+        self.epi_button = QPushButton("Update")
+        self.epi_button.setToolTip("Read the views and build the EPIs and the neighbouring-view check")
+        self.epi_button.clicked.connect(self.start_inspection)
+        self.inspect_status = QLabel()
+        controls.addWidget(QLabel("Grid row:"), 0, 0)
+        controls.addWidget(self.epi_row, 0, 1)
+        controls.addWidget(QLabel("image row %:"), 0, 2)
+        controls.addWidget(self.epi_y, 0, 3)
+        controls.addWidget(QLabel("Grid column:"), 1, 0)
+        controls.addWidget(self.epi_column, 1, 1)
+        controls.addWidget(QLabel("image column %:"), 1, 2)
+        controls.addWidget(self.epi_x, 1, 3)
+        controls.addWidget(self.epi_button, 0, 4, 2, 1)
+        controls.setColumnStretch(3, 1)
+        self.epi_plots = pg.GraphicsLayoutWidget()
+        self.epi_items = {}
+        for i, (key, title) in enumerate((("h_before", "Horizontal EPI before"), ("h_after", "Horizontal EPI after"))):
+            plot, item = _image_plot(title)
+            self.epi_plots.addItem(plot, i, 0, 1, 2)
+            self.epi_items[key] = item
+        for j, (key, title) in enumerate((("v_before", "Vertical EPI before"), ("v_after", "Vertical EPI after"))):
+            plot, item = _image_plot(title)
+            self.epi_plots.addItem(plot, 2, j)
+            self.epi_items[key] = item
+        il = QVBoxLayout(insp)
+        il.addLayout(controls)
+        il.addWidget(self.inspect_status)
+        il.addWidget(self.epi_plots, 1)
+        self.tabs.addTab(insp, "EPIs")
+
+        nb = QWidget()
+        self.pair_rectified = QCheckBox("Rectified")
+        self.pair_rectified.setChecked(True)
+        self.pair_rectified.setToolTip("Show the two views rectified with the result (off: as captured)")
+        self.pair_rectified.toggled.connect(self._draw_neighbours)
+        self.pair_label = QLabel()
+        self.pair_plots = pg.GraphicsLayoutWidget()
+        self.pair_items = []
+        self.pair_plot_items = []
+        for k in range(2):
+            plot, item = _image_plot("")
+            plot.setAspectLocked(True)
+            self.pair_plots.addItem(plot, 0, k)
+            self.pair_items.append(item)
+            self.pair_plot_items.append(plot)
+        self.pair_plot_items[1].setXLink(self.pair_plot_items[0])
+        self.pair_plot_items[1].setYLink(self.pair_plot_items[0])
+        nl = QVBoxLayout(nb)
+        top = QHBoxLayout()
+        top.addWidget(self.pair_rectified)
+        top.addWidget(self.pair_label, 1)
+        nl.addLayout(top)
+        nl.addWidget(self.pair_plots, 1)
+        self.tabs.addTab(nb, "Neighbouring views")
+
+        lay = QVBoxLayout(page)
+        lay.addWidget(self.headline)
+        lay.addWidget(self.tabs, 1)
+        return page
+
+    def _fill_results(self, result: dict) -> None:
+        doc = result["run"].document
+        fit = result["run"].fit
+        rx, ry, rz = doc["rotation_deg"]
+        before, after = doc["residual_px"]["before"], doc["residual_px"]["after"]
+        warn = f" <span style='color:#b00020'>{len(doc['warnings'])} warning(s) — see Numbers.</span>" \
+            if doc["warnings"] else ""
+        self.headline.setText(
+            f"<b>3. Result.</b> rx {rx:+.3f}°, ry {ry:+.3f}°, rz {rz:+.3f}° · principal point "
+            f"({doc['principal_point_px'][0]:.1f}, {doc['principal_point_px'][1]:.1f}) px · residual RMS "
+            f"<b>{before['rms']:.2f} → {after['rms']:.2f} px</b> over {after['count']} matches.{warn}")
+        self.report_text.setPlainText(format_report(doc))
+
+        inl = fit.inlier
+        for plot, data, color in ((self.hist_before, fit.residual_before_px[inl], (200, 60, 60)),
+                                  (self.hist_after, fit.residual_after_px[inl], (40, 160, 70))):
+            plot.clear()
+            if data.size:
+                lim = float(np.percentile(np.abs(data), 99.5)) or 1.0
+                counts, edges = np.histogram(np.clip(data, -lim, lim), bins=41, range=(-lim, lim))
+                plot.addItem(pg.BarGraphItem(x0=edges[:-1], x1=edges[1:], height=counts, brush=color))
+            plot.setLabel("bottom", "v-difference (row pairs) / u-difference (column pairs) [px]")
+            plot.setLabel("left", "matches")
+
+        self.heat.clear()
+        views = [v for v in doc["views"] if v["residual_px"]["after"]["rms"] is not None]
+        if views:
+            values = np.array([v["residual_px"]["after"]["rms"] for v in views])
+            cmap = pg.colormap.get("viridis")
+            top = max(float(values.max()), 1.0)   # colour scale 0 … max(1 px, worst view)
+            brushes = [pg.mkBrush(cmap.map(val / top, mode="qcolor")) for val in values]
+            scatter = pg.ScatterPlotItem(x=[v["column"] for v in views], y=[v["row"] for v in views], symbol="s",
+                                         size=34, brush=brushes, pen=pg.mkPen("k"))
+            self.heat.addItem(scatter)
+            for v, val in zip(views, values):
+                t = pg.TextItem(f"{val:.2f}", color="w" if val / top < 0.6 else "k", anchor=(0.5, 0.5))
+                t.setPos(v["column"], v["row"])
+                self.heat.addItem(t)
+            grid = self.dataset.grid
+            self.heat.setXRange(-1, int(grid["columns"]), padding=0.05)
+            self.heat.setYRange(-1, int(grid["rows"]), padding=0.1)
+        self.vector_image.setImage(result["preview"], autoLevels=True)
+        self.vectors.setTitle(f"Residual vectors over {view_stem(*result['preview_view'])} "
+                              "(rows: vertical, columns: horizontal)")
+        self._draw_vectors()
+
+        grid = self.dataset.grid
+        self.epi_row.setRange(0, int(grid["rows"]) - 1)
+        self.epi_column.setRange(0, int(grid["columns"]) - 1)
+        rows = sorted({r for r, _ in self.available})
+        cols = sorted({c for _, c in self.available})
+        self.epi_row.setValue(rows[len(rows) // 2] if rows else 0)
+        self.epi_column.setValue(cols[len(cols) // 2] if cols else 0)
+        self.start_inspection()
+
+    def _draw_vectors(self) -> None:
+        if not self.result:
+            return
+        run = self.result["run"]
+        fit = run.fit
+        img = self.result["preview"]
+        s = img.shape[1] / self.result["full_size"][0]
+        use_after = self.vector_mode.currentIndex() == 0
+        r_all = fit.residual_after_px if use_after else fit.residual_before_px
+        gain = self.vector_gain.value() * s
+        xs, ys = [], []
+        for m, sl in zip(run.matches, fit.pair_slices):
+            keep = fit.inlier[sl]
+            p = (m.xy_a[keep] + 0.5) * s - 0.5
+            r = r_all[sl][keep]
+            if m.direction == "h":
+                x1, y1 = p[:, 0], p[:, 1] + gain * r
+            else:
+                x1, y1 = p[:, 0] + gain * r, p[:, 1]
+            xs.append(np.column_stack([p[:, 0], x1]).ravel())
+            ys.append(np.column_stack([p[:, 1], y1]).ravel())
+        color = (0, 200, 60) if use_after else (230, 60, 60)
+        self.vector_lines.setPen(pg.mkPen(color, width=1.5))
+        if xs:
+            self.vector_lines.setData(np.concatenate(xs), np.concatenate(ys))
+
+    def start_inspection(self) -> None:
+        if not self.result or self.inspect_runner.running:
+            return
+        self.inspect_status.setText("Reading views…")
+        self.inspect_runner.start(_inspection_job, self.dataset, self.result["run"].document, self.epi_row.value(),
+                                  self.epi_column.value(), self.epi_y.value() / 100.0, self.epi_x.value() / 100.0)
+
+    def _show_inspection(self, out: dict) -> None:
+        self.inspection = out
+        epis = out["epis"]
+        notes = []
+        for key, prefix in (("horizontal", "h"), ("vertical", "v")):
+            e = epis.get(key)
+            for when in ("before", "after"):
+                item = self.epi_items[f"{prefix}_{when}"]
+                if e is None or e.get(when) is None:
+                    item.clear()
+                    continue
+                item.setImage(e[when], autoLevels=True)
+                item.getViewBox().setRange(xRange=(0, e[when].shape[1]), yRange=(0, e[when].shape[0]), padding=0.02)
+            if e is None:
+                notes.append(f"no {key} EPI: fewer than two captured views in that grid "
+                             f"{'row' if key == 'horizontal' else 'column'}")
+            else:
+                notes.append(f"{key}: {len(e['views'])} views {view_stem(*e['views'][0])} … {view_stem(*e['views'][-1])}")
+        self.inspect_status.setText("Straight, unbroken lines after rectification mean a good calibration. "
+                                    + "; ".join(notes))
+        self._draw_neighbours()
+
+    def _draw_neighbours(self) -> None:
+        nb = getattr(self, "inspection", {}).get("neighbours") if hasattr(self, "inspection") else None
+        if not nb:
+            self.pair_label.setText("Needs two captured views next to each other in the chosen grid row.")
+            return
+        imgs = nb["after" if self.pair_rectified.isChecked() else "before"]
+        h, w = imgs[0].shape
+        for plot, item, img, v in zip(self.pair_plot_items, self.pair_items, imgs, nb["views"]):
+            item.setImage(img, autoLevels=True)
+            plot.setTitle(view_stem(*v) + (" rectified" if self.pair_rectified.isChecked() else " as captured"))
+            plot.setRange(xRange=(0, w), yRange=(0, h), padding=0.02)
+            for line in [i for i in plot.items if isinstance(i, pg.InfiniteLine)]:
+                plot.removeItem(line)
+            for y in np.linspace(h * 0.08, h * 0.92, 12):
+                plot.addItem(pg.InfiniteLine(pos=float(y), angle=0, pen=pg.mkPen((255, 60, 60, 170), width=1)))
+        self.pair_label.setText("Horizontal guide lines: the same scene detail should touch the same line in both "
+                                "views after rectification.")
+
+    # -- navigation and saving -----------------------------------------------------------------------------
+    def _set_page(self, index: int) -> None:
+        self.stack.setCurrentIndex(index)
+        self.step_label.setText(("Step 1 of 3: views", "Step 2 of 3: detect, match, fit",
+                                 "Step 3 of 3: inspect and accept")[index])
+        self._update_buttons()
+
+    def _update_buttons(self) -> None:
+        index = self.stack.currentIndex()
+        running = self.runner.running
+        self.back_button.setEnabled(index > PAGE_VIEWS and not running)
+        self.next_button.setVisible(index == PAGE_VIEWS)
+        self.accept_button.setEnabled(index == PAGE_RESULTS and self.result is not None)
+        if index == PAGE_VIEWS:
+            self._update_selection_label()
+
+    def go_back(self) -> None:
+        if not self.runner.running:
+            self._set_page(PAGE_VIEWS)
+
+    def accept_and_save(self) -> None:
+        if not self.result:
+            return
+        doc = self.result["run"].document
+        try:
+            path = save_calibration(self.dataset, doc)
+        except (LfError, OSError) as exc:
+            self.state.report_error("Save calibration", f"{exc}\nCheck that the dataset folder is writable.")
+            return
+        self.accepted_document = doc
+        self.state.show_status(f"Calibration saved to {path}", 8000)
+        self.state.set_dataset(self.dataset)
+        self.accept()
+
+    def closeEvent(self, event) -> None:
+        self.shutdown()
+        super().closeEvent(event)
+
+    def reject(self) -> None:
+        self.shutdown()
+        super().reject()
+
+    def shutdown(self) -> None:
+        self._save_settings()
+        for r in (self.runner, self.inspect_runner):
+            if r.running:
+                r.cancel()
+                r.wait(10.0)
+
+    # -- settings --------------------------------------------------------------------------------------
+    def _restore_settings(self) -> None:
+        s = settings()
+        self.estimate_pp.setChecked(s.value("calibration/estimate_pp", False, type=bool))
+        self.neighbours_only.setChecked(s.value("calibration/neighbours_only", False, type=bool))
+        self.work_width.setValue(int(s.value("calibration/work_width_px", 2000)))
+        self.focal_px.setValue(0.0)
+        self.apply_preset((2, 3))
+
+    def _save_settings(self) -> None:
+        s = settings()
+        s.setValue("calibration/estimate_pp", self.estimate_pp.isChecked())
+        s.setValue("calibration/neighbours_only", self.neighbours_only.isChecked())
+        s.setValue("calibration/work_width_px", self.work_width.value())

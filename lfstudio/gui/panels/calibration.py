@@ -1,0 +1,83 @@
+"""The Calibration panel: the open dataset's calibration at a glance, and Dataset → Calibrate…."""
+
+from __future__ import annotations
+
+from PySide6.QtGui import QAction, QKeySequence
+from PySide6.QtWidgets import QLabel, QPushButton, QVBoxLayout, QWidget
+
+from lfstudio.errors import LfError
+
+
+class CalibrationPanel(QWidget):
+    def __init__(self, state, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.state = state
+        self.wizard = None
+        self.summary = QLabel()
+        self.summary.setWordWrap(True)
+        self.summary.setObjectName("calibrationSummary")
+        self.button = QPushButton("Calibrate…")
+        self.button.setToolTip("Self-calibrate the camera orientation from this dataset's images (Ctrl+Shift+K)")
+        self.button.clicked.connect(self.open_wizard)
+        lay = QVBoxLayout(self)
+        lay.addWidget(self.summary)
+        lay.addWidget(self.button)
+        lay.addStretch(1)
+        state.datasetChanged.connect(self.refresh)
+        self.refresh(state.dataset)
+
+    def install_menus(self, window) -> None:
+        self.action = QAction("&Calibrate…", window)
+        self.action.setObjectName("actionCalibrate")
+        self.action.setShortcut(QKeySequence("Ctrl+Shift+K"))
+        self.action.setToolTip("Self-calibrate the camera orientation from the open dataset's images; "
+                               "inspect residuals and EPIs, then save calibration.json")
+        self.action.setStatusTip(self.action.toolTip())
+        self.action.triggered.connect(self.open_wizard)
+        window.menu("Dataset").addAction(self.action)
+        self.refresh(self.state.dataset)
+
+    def refresh(self, dataset=None) -> None:
+        dataset = self.state.dataset
+        enabled = dataset is not None
+        self.button.setEnabled(enabled)
+        if getattr(self, "action", None) is not None:
+            self.action.setEnabled(enabled)
+        if dataset is None:
+            self.summary.setText("No dataset open. Open or capture one, then calibrate it.")
+            return
+        from lfstudio.calibration.calibrate import load_calibration
+        try:
+            doc = load_calibration(dataset)
+        except LfError as exc:
+            self.summary.setText(f"calibration.json is unreadable: {exc}")
+            return
+        if doc is None:
+            self.summary.setText("<b>Not calibrated yet.</b> Views will not be rectified until you calibrate.")
+            return
+        rx, ry, rz = doc["rotation_deg"]
+        after = doc["residual_px"]["after"]
+        before = doc["residual_px"]["before"]
+        warn = f"<br><span style='color:#b00020'>{len(doc['warnings'])} warning(s)</span>" if doc.get("warnings") else ""
+        self.summary.setText(f"<b>Calibrated</b> {doc.get('created') or ''}<br>rx {rx:+.3f}° ry {ry:+.3f}° "
+                             f"rz {rz:+.3f}°<br>residual RMS {before['rms']:.2f} → {after['rms']:.2f} px "
+                             f"({len(doc.get('views_used', []))} views){warn}")
+
+    def open_wizard(self) -> None:
+        if self.state.dataset is None:
+            self.state.report_error("Calibrate", "No dataset is open. Use File → Open dataset… first.")
+            return
+        from lfstudio.gui.dialogs.calibration_wizard import CalibrationWizard
+        if self.wizard is not None and self.wizard.isVisible():
+            self.wizard.raise_()
+            return
+        try:
+            self.wizard = CalibrationWizard(self.state, self.window())
+        except LfError as exc:
+            self.state.report_error("Calibrate", str(exc))
+            return
+        self.wizard.show()
+
+    def shutdown(self) -> None:
+        if self.wizard is not None:
+            self.wizard.shutdown()
