@@ -12,6 +12,7 @@ atomically every few seconds and at the end.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +26,7 @@ from lfstudio.errors import DatasetError, InputError
 from lfstudio.jobs import CancelToken, Cancelled, Progress, no_progress
 from lfstudio.processing import executors
 from lfstudio.processing.profile import PROFILE_NAME, Profile
-from lfstudio.processing.worker import RunPlan, ViewResult, ViewTask, process_view, render
+from lfstudio.processing.worker import RunPlan, ViewResult, ViewTask, process_view, render, warm_up
 
 SAVE_EVERY_S = 3.0
 
@@ -168,8 +169,17 @@ def process_dataset(dataset: Dataset | str | Path, profile: Profile | None = Non
     ds = _open(dataset)
     profile = profile or Profile.for_dataset(ds.root)
     progress(0, len(capturable_views(ds)), "reading the reference view")
-    separate = bool(cluster) or workers != 0
-    plan = make_plan(ds, profile, single_thread=separate)
+    with contextlib.ExitStack() as stack:
+        info = stack.enter_context(executors.open_executor(workers, cluster))
+        if info.separate_processes:  # workers start and import while this process reads the reference
+            for _ in range(info.workers):
+                info.executor.submit(warm_up)
+        return _process(ds, profile, info, force, progress, cancel, on_view, t_start)
+
+
+def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force: bool, progress: Progress,
+             cancel: CancelToken, on_view, t_start: float) -> ProcessReport:
+    plan = make_plan(ds, profile, single_thread=info.separate_processes)
     sha = plan.profile_sha256
     profile.save(ds.root / PROFILE_NAME)
 
@@ -213,9 +223,8 @@ def process_dataset(dataset: Dataset | str | Path, profile: Profile | None = Non
 
     try:
         if todo:
-            with executors.open_executor(workers, cluster) as info:
-                report.executor = info.description
-                _run(info, plan, profile, todo, finish, cancel)
+            report.executor = info.description
+            _run(info, plan, profile, todo, finish, cancel)
         else:
             report.executor = "nothing to do"
     finally:

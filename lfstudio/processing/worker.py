@@ -89,6 +89,7 @@ class _Prepared:
     profile: Profile
     maps: list | None
     factor_map: np.ndarray | None   # shading factor in the output frame
+    level_map: tuple | None = None  # (per-pixel multiplier, offset): shading folded into the levels
 
 
 def _factor_map_captured(plan: RunPlan, profile: Profile) -> np.ndarray | None:
@@ -129,7 +130,12 @@ def prepare(plan: RunPlan) -> _Prepared:
         if factor.ndim == 2:
             factor = factor[:, :, None]
         factor = np.ascontiguousarray(factor, np.float32)
-    prepared = _Prepared(profile, maps, factor)
+    levels = None
+    if factor is not None:
+        from lfstudio.processing.steps import color
+        levels = color.level_map(factor, plan.black_rgb, plan.white_rgb, profile.color.white_output,
+                                 profile.color.enabled)
+    prepared = _Prepared(profile, maps, factor, levels)
     _CACHE.clear()  # one run at a time per process: keep memory bounded
     _CACHE[plan.profile_sha256] = prepared
     return prepared
@@ -155,8 +161,11 @@ def render(plan: RunPlan, capture_path: str | Path) -> tuple[np.ndarray, dict[st
         gain, support = deflicker.gain(plan.reference_small, small, profile.deflicker)
     img = rectify.apply_maps(img, prep.maps, profile.rectify.interpolation)
     img = resample.apply(img, plan.output_size_wh)
-    img = color.apply(img, gain=gain, factor_map=prep.factor_map, black=plan.black_rgb, white=plan.white_rgb,
-                      white_output=profile.color.white_output, enabled=profile.color.enabled)
+    if prep.level_map is not None:
+        img = color.apply_map(img, *prep.level_map, gain=gain)
+    else:
+        img = color.apply(img, gain=gain, black=plan.black_rgb, white=plan.white_rgb,
+                          white_output=profile.color.white_output, enabled=profile.color.enabled)
     t3 = time.perf_counter()
     info = {"gain": gain, "gain_support": support,
             "timings_s": {"prepare": t1 - t0, "decode": t2 - t1, "process": t3 - t2}}
@@ -194,6 +203,14 @@ def _single_thread() -> None:
     import cv2
 
     cv2.setNumThreads(1)
+
+
+def warm_up() -> None:
+    """Load the heavy modules in a fresh worker (submitted while the pipeline reads the reference)."""
+    _single_thread()
+    import rawpy  # noqa: F401
+
+    from lfstudio.processing.steps import color, debayer, deflicker, rectify, resample  # noqa: F401
 
 
 def process_view(plan: RunPlan, task: ViewTask) -> ViewResult:

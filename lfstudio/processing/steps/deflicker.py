@@ -19,6 +19,10 @@ _LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 def small_luminance(img: np.ndarray, size_px: int) -> np.ndarray:
     """Luminance (0..1) of ``img`` reduced by area averaging to ``size_px`` wide (float32)."""
     h, w = img.shape[:2]
+    step = w // (4 * size_px)
+    if step > 1:  # thin out first: area-averaging 40 MP to 256 px is 30 ms per view for nothing
+        img = img[::step, ::step]
+        h, w = img.shape[:2]
     sw = min(size_px, w)
     sh = max(1, int(round(h * sw / w)))
     small = cv2.resize(img, (sw, sh), interpolation=cv2.INTER_AREA).astype(np.float32)
