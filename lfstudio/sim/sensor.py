@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -34,10 +35,7 @@ class SensorModel:
         """H x W float32 falloff (1 at the centre, ``1 - vignetting`` in the corners) or None."""
         if self.vignetting <= 0:
             return None
-        y = (np.arange(height_px, dtype=np.float32) - (height_px - 1) / 2)[:, None]
-        x = (np.arange(width_px, dtype=np.float32) - (width_px - 1) / 2)[None, :]
-        r2 = (x * x + y * y) / (((width_px - 1) / 2) ** 2 + ((height_px - 1) / 2) ** 2)
-        return (1.0 - self.vignetting * r2).astype(np.float32)
+        return _vignetting_map(float(self.vignetting), int(height_px), int(width_px))
 
     def apply(self, rgb: np.ndarray, shot: int) -> tuple[np.ndarray, float]:
         """Return (the image as the sensor records it, float32 linear, 1 = clipping; the shot's gain).
@@ -51,7 +49,23 @@ class SensorModel:
             out *= vig[..., None]
         if self.noise > 0:
             rng = np.random.default_rng([self.seed, 0x0015E, int(shot)])
-            electrons = np.clip(out, 0, None) * np.float32(self.full_well_e)
-            sigma = np.sqrt(electrons + (self.noise * self.full_well_e) ** 2) / np.float32(self.full_well_e)
-            out += sigma.astype(np.float32) * rng.standard_normal(out.shape, dtype=np.float32)
+            fw = np.float32(self.full_well_e)
+            # sigma = sqrt(signal_e + read_e^2) / full_well, in place to stay fast on large frames
+            sigma = np.maximum(out, 0)
+            sigma *= fw
+            sigma += np.float32((self.noise * self.full_well_e) ** 2)
+            np.sqrt(sigma, out=sigma)
+            sigma *= rng.standard_normal(out.shape, dtype=np.float32)
+            sigma /= fw
+            out += sigma
         return out, gain
+
+
+@lru_cache(maxsize=4)
+def _vignetting_map(vignetting: float, height_px: int, width_px: int) -> np.ndarray:
+    y = (np.arange(height_px, dtype=np.float32) - (height_px - 1) / 2)[:, None]
+    x = (np.arange(width_px, dtype=np.float32) - (width_px - 1) / 2)[None, :]
+    r2 = (x * x + y * y) / np.float32(((width_px - 1) / 2) ** 2 + ((height_px - 1) / 2) ** 2)
+    vig = (1.0 - vignetting * r2).astype(np.float32)
+    vig.setflags(write=False)
+    return vig

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
+import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -161,8 +162,9 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
     if progress:
         progress(0, total, "rendering views")
     if workers > 1 and total > 1:
-        with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker,
-                                 initargs=(studio_kwargs,)) as pool:
+        # spawn, not fork: a forked child inherits OpenCV's thread pool in an unusable state and hangs
+        with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker, initargs=(studio_kwargs,),
+                                 mp_context=multiprocessing.get_context("spawn")) as pool:
             futures = [pool.submit(_worker_job, sensor, job) for job in jobs]
             try:
                 for i, fut in enumerate(futures):

@@ -112,3 +112,10 @@ def test_noise_level_is_as_configured():
     assert float(out.std()) == pytest.approx(expected, rel=0.05)
     again, _ = sensor.apply(rgb, 0)
     assert np.array_equal(out, again)
+
+
+def test_two_processes_render_the_same_files_as_one(tmp_path):
+    kw = dict(width_px=64, fmt="dng", rotation_deg=(0.5, 0.2, 0.1), noise=0.002, seed=5)
+    one = make_virtual_dataset(tmp_path / "one", 2, 2, **kw)
+    two = make_virtual_dataset(tmp_path / "two", 2, 2, workers=2, **kw)
+    assert [v["sha256"] for v in one.views] == [v["sha256"] for v in two.views]
