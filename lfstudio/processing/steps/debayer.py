@@ -1,8 +1,7 @@
 """Step 1: RAW → linear 16-bit RGB with rawpy (LibRaw); ordinary PNG/TIFF images are read as they are.
 
 Linear output: ``gamma=(1, 1)``, ``no_auto_bright``, ``output_bps=16``; the RAW's white level maps
-to 65535. The sensor orientation is kept (``user_flip=0``): a camera on a gantry does not rotate,
-and an orientation tag that flips between shots would break the calibration.
+to 65535. The RAW's orientation tag is applied, as the calibration does when it reads the views.
 """
 
 from __future__ import annotations
@@ -33,7 +32,7 @@ def _params(step: DebayerStep):
 
     # adjust_maximum_thr=0: scale by the RAW's white level, never by the image's own maximum (LibRaw's
     # default rescales images with clipped pixels: a brightness jump between views of one scene)
-    kw = dict(gamma=(1, 1), no_auto_bright=True, output_bps=16, user_flip=0, adjust_maximum_thr=0.0,
+    kw = dict(gamma=(1, 1), no_auto_bright=True, output_bps=16, adjust_maximum_thr=0.0,
               half_size=step.half_size,
               output_color=rawpy.ColorSpace.raw if step.color_space == "raw" else rawpy.ColorSpace.sRGB,
               demosaic_algorithm=getattr(rawpy.DemosaicAlgorithm, step.demosaic))
@@ -52,7 +51,8 @@ def full_size_px(path: str | Path) -> tuple[int, int]:
 
         try:
             with rawpy.imread(str(path)) as raw:
-                return int(raw.sizes.width), int(raw.sizes.height)
+                w, h = int(raw.sizes.width), int(raw.sizes.height)
+                return (h, w) if raw.sizes.flip in (5, 6) else (w, h)  # portrait orientation tag
         except Exception as exc:
             raise DatasetError(f"{path}: cannot be read as a RAW file ({exc}); re-capture or remove the view") from None
     img = read_image(path)
