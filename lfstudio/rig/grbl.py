@@ -402,6 +402,7 @@ class GrblController:
             return "error"
         m = _ALARM_RE.match(line)
         if m:
+            self._last_t = 0.0
             self._alarm_code = int(m.group(1))
             self._homed = False
             if self._alarm_code in (1, 2):
@@ -413,6 +414,7 @@ class GrblController:
                 self._store_status(st)
                 return "status"
         if line.startswith("Grbl ") or "Grbl 1." in line:
+            self._last_t = 0.0
             self._critical = False
             self._stop_pending = False
             return "banner"
@@ -457,10 +459,10 @@ class GrblController:
             while True:
                 now = time.monotonic()
                 if poll and now >= next_poll:
-                    self._write(b"?")
-                    next_poll = now + self.poll_period_s
                     if self._stop_event.is_set():
                         raise MotionStopped(f"{line!r} interrupted by STOP")
+                    self._write(b"?")
+                    next_poll = now + self.poll_period_s
                 got = self._readline(min(deadline, next_poll))
                 if got is None:
                     now = time.monotonic()
@@ -485,8 +487,26 @@ class GrblController:
                 if kind in ("info", "msg"):
                     infos.append(got)
 
+    def _drain(self) -> None:
+        """Handle lines that already arrived (push messages, a report to an abandoned query) so
+        the next answer read is the answer to the next question."""
+        ser = self._serial
+        try:
+            waiting = ser.in_waiting if ser is not None else 0
+        except (serial.SerialException, OSError) as exc:
+            raise self._mark_lost(f"connection to the rig on {self.port} lost ({exc}); check the cable, "
+                                  "then connect again") from exc
+        if waiting:
+            self._rx += ser.read(waiting)
+        while b"\n" in self._rx:
+            line = self._readline(0.0)
+            if line is None:
+                break
+            self._dispatch(line)
+
     def _query_status(self) -> GrblStatus:
         with self._io:
+            self._drain()
             self._write(b"?")
             deadline = time.monotonic() + self.timeout_s
             while True:
@@ -727,6 +747,7 @@ class GrblController:
             log.warning("STOP could not be written: %s", exc)
         self._stop_pending = last != "Home"
         self._jog_target = None
+        self._last_t = 0.0                  # the next status() asks the controller
         self._stop_event.set()
 
     def _stop_time_s(self) -> float:

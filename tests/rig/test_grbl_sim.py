@@ -285,3 +285,26 @@ def test_feed_hold_and_resume_through_the_driver(sim_rig):
         assert future.result(30).position_mm == pytest.approx((2000, 100))
     finally:
         worker.close(disconnect=False)
+
+
+def test_stop_during_homing_aborts_it_with_an_alarm(sim_rig):
+    controller, sim = sim_rig
+    controller.reset()
+    controller.unlock()
+    sim.time_scale = 0.2
+    homing = threading.Event()
+    worker = DeviceWorker(controller, name="rig", publish_hz=50)
+    worker.subscribe(lambda s: homing.set() if s.state is RigState.HOMING else None)
+    try:
+        future = worker.submit("home")
+        assert homing.wait(10)
+        worker.stop_now()
+        with pytest.raises(MotionStopped, match="interrupted by STOP"):
+            future.result(10)
+        status = worker.call("status")
+        assert status.state is RigState.ALARM and not status.homed and "homing" in status.message
+        sim.time_scale = 0.02
+        worker.call("home")
+        assert worker.call("status").homed
+    finally:
+        worker.close(disconnect=False)
