@@ -20,6 +20,7 @@ class AppState(QObject):
     scanEvent = Signal(object)          # lfstudio.scan.events.ScanEvent from the running scan (GUI thread)
     recaptureRequested = Signal(object)  # list of (row, column) to capture again (grid view → scan panel)
     devicesChanged = Signal(str)        # a device ("rig", "camera", ...) was connected or removed
+    cameraFrame = Signal(object, str)   # an RGB uint8 image from the camera (test shot) and its caption
 
     def __init__(self, simulated: bool = True, parent: QObject | None = None):
         super().__init__(parent)

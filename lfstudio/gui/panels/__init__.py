@@ -29,6 +29,9 @@ PANELS: list[PanelSpec] = [
     PanelSpec("Rig", "rigDock", "lfstudio.gui.panels.rig:RigPanel", "left", tab_with="plannerDock"),
     PanelSpec("Calibration", "calibrationPanel", "lfstudio.gui.panels.calibration:CalibrationPanel", "right",
               tab_with="processingPanel"),
+    PanelSpec("Camera", "cameraDock", "lfstudio.gui.panels.camera:CameraPanel", "left", tab_with="rigDock"),
+    PanelSpec("Live view", "liveViewDock", "lfstudio.gui.views.live_view:LiveView", "bottom",
+              tab_with="planPlotsDock"),
 ]
 
 #: the central widget, "module:ClassName" constructed as ``Cls(state)``

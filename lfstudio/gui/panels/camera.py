@@ -1,0 +1,435 @@
+"""Camera panel: choose the camera (simulated studio / USB via gphoto2 / hot folder), its settings,
+connect it (it then appears as ``state.devices["camera"]`` for the scan and the live view), and
+take a test shot that the Live view shows."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import shlex
+from pathlib import Path
+from typing import Any
+
+from PySide6.QtCore import Qt
+from PySide6.QtGui import QAction, QKeySequence
+from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
+                               QLabel, QLineEdit, QPushButton, QSpinBox, QStackedWidget, QVBoxLayout, QWidget)
+
+from lfstudio.errors import InputError
+from lfstudio.gui.devices import QtDevice
+from lfstudio.gui.settings import settings
+from lfstudio.gui.state import AppState
+from lfstudio.resources import user_config_dir
+from lfstudio.rig.worker import DeviceWorker
+
+KINDS = (("sim", "Simulated studio camera"), ("gphoto2", "USB camera (gphoto2)"),
+         ("folder", "Hot folder (vendor software)"))
+ISO_CHOICES = ("50", "100", "200", "400", "800", "1600", "3200", "6400")
+
+
+def test_shot(driver: Any, folder: Path) -> tuple[Any, Any]:
+    """Capture into ``folder`` and make an 8-bit preview of the file (runs on the camera's thread)."""
+    from lfstudio.rig.preview import preview_image
+
+    stem = folder / _dt.datetime.now().strftime("test_%Y%m%d_%H%M%S_%f")
+    result = driver.capture(stem)
+    return result, preview_image(result.path)
+
+
+def simulated_position(state: AppState):
+    """The camera position the simulated camera asks for: the GRBL simulator's true position when the
+    Rig panel runs one, else (0, 0)."""
+    def position() -> tuple[float, float]:
+        sim = state.devices.get("rig_simulator")
+        if sim is not None and hasattr(sim, "true_position_mm"):
+            try:
+                return tuple(sim.true_position_mm())
+            except Exception:  # noqa: BLE001 - the simulator is closing: fall back to the origin
+                return (0.0, 0.0)
+        return (0.0, 0.0)
+    return position
+
+
+class CameraPanel(QWidget):
+    def __init__(self, state: AppState, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.state = state
+        self.device: QtDevice | None = None
+        s = settings()
+
+        self.kind = QComboBox()
+        for key, label in KINDS:
+            self.kind.addItem(label, key)
+        self.kind.setToolTip("Which camera to use: the simulated studio (renders the virtual scene from the "
+                             "simulated rig's position), a USB camera through libgphoto2, or a folder that "
+                             "the camera's own software saves into")
+        index = self.kind.findData(s.value("camera/kind", "sim" if state.simulated else "gphoto2"))
+        self.kind.setCurrentIndex(max(0, index))
+
+        # simulated
+        self.sim_width = QSpinBox()
+        self.sim_width.setRange(320, 7952)
+        self.sim_width.setSingleStep(100)
+        self.sim_width.setValue(int(s.value("camera/sim_width_px", 2000)))
+        self.sim_width.setSuffix(" px")
+        self.sim_width.setToolTip("Width of the simulated images (the reference sensor is 7952 px; 2000 renders fast)")
+        self.sim_noise = QDoubleSpinBox()
+        self.sim_noise.setRange(0, 5)
+        self.sim_noise.setDecimals(2)
+        self.sim_noise.setSingleStep(0.05)
+        self.sim_noise.setSuffix(" %")
+        self.sim_noise.setValue(float(s.value("camera/sim_noise_pct", 0.2)))
+        self.sim_noise.setToolTip("Read noise in % of the clipping level (shot noise is always added with it)")
+        self.sim_flicker = QDoubleSpinBox()
+        self.sim_flicker.setRange(0, 20)
+        self.sim_flicker.setDecimals(1)
+        self.sim_flicker.setSuffix(" %")
+        self.sim_flicker.setValue(float(s.value("camera/sim_flicker_pct", 1.0)))
+        self.sim_flicker.setToolTip("Light flicker: the brightness of each shot varies by this standard deviation")
+        self.sim_vignetting = QDoubleSpinBox()
+        self.sim_vignetting.setRange(0, 80)
+        self.sim_vignetting.setDecimals(0)
+        self.sim_vignetting.setSuffix(" %")
+        self.sim_vignetting.setValue(float(s.value("camera/sim_vignetting_pct", 20)))
+        self.sim_vignetting.setToolTip("Light lost in the image corners")
+        self.sim_time_scale = QDoubleSpinBox()
+        self.sim_time_scale.setRange(0, 1)
+        self.sim_time_scale.setDecimals(2)
+        self.sim_time_scale.setSingleStep(0.1)
+        self.sim_time_scale.setValue(float(s.value("camera/sim_time_scale", 1.0)))
+        self.sim_time_scale.setToolTip("Simulated exposure/transfer delays: 1 = real time, 0 = none")
+        self.sim_truth = QLabel("")
+        self.sim_truth.setWordWrap(True)
+        self.sim_truth.setTextInteractionFlags(Qt.TextSelectableByMouse)
+        sim_page = QWidget()
+        f = QFormLayout(sim_page)
+        f.setContentsMargins(0, 0, 0, 0)
+        f.addRow("Image width", self.sim_width)
+        f.addRow("Noise", self.sim_noise)
+        f.addRow("Flicker", self.sim_flicker)
+        f.addRow("Vignetting", self.sim_vignetting)
+        f.addRow("Time scale", self.sim_time_scale)
+        f.addRow(self.sim_truth)
+
+        # gphoto2
+        gp_page = QWidget()
+        gl = QVBoxLayout(gp_page)
+        gl.setContentsMargins(0, 0, 0, 0)
+        gp_info = QLabel("Connect the camera by USB, switch it on and set its USB mode to <b>PC Remote</b>. "
+                         "Pictures go to the camera's memory and are downloaded after each shot.")
+        gp_info.setWordWrap(True)
+        gl.addWidget(gp_info)
+        gl.addStretch(1)
+
+        # hot folder
+        self.folder_edit = QLineEdit(str(s.value("camera/hot_folder", "")))
+        self.folder_edit.setPlaceholderText("folder the camera software saves into")
+        self.folder_edit.setToolTip("New files appearing here are taken as the shots")
+        browse = QPushButton("Browse…")
+        browse.setToolTip("Choose the hot folder")
+        browse.clicked.connect(self._browse)
+        row = QHBoxLayout()
+        row.addWidget(self.folder_edit, 1)
+        row.addWidget(browse)
+        self.trigger_edit = QLineEdit(str(s.value("camera/trigger_command", "")))
+        self.trigger_edit.setPlaceholderText('optional, e.g. vendorcli --capture')
+        self.trigger_edit.setToolTip("Command run for each shot, split into arguments like a shell would but "
+                                     "never run through a shell; leave empty to trigger by hand")
+        self.folder_timeout = QDoubleSpinBox()
+        self.folder_timeout.setRange(1, 600)
+        self.folder_timeout.setValue(float(s.value("camera/hot_timeout_s", 30)))
+        self.folder_timeout.setSuffix(" s")
+        self.folder_timeout.setToolTip("How long to wait for the new file")
+        folder_page = QWidget()
+        ff = QFormLayout(folder_page)
+        ff.setContentsMargins(0, 0, 0, 0)
+        ff.addRow("Folder", row)
+        ff.addRow("Trigger command", self.trigger_edit)
+        ff.addRow("Timeout", self.folder_timeout)
+
+        self.pages = QStackedWidget()
+        for page in (sim_page, gp_page, folder_page):
+            self.pages.addWidget(page)
+        self.kind.currentIndexChanged.connect(self._kind_changed)
+
+        self.connect_button = QPushButton("Connect")
+        self.connect_button.setToolTip("Connect or disconnect the camera (Ctrl+Shift+K)")
+        self.connect_button.clicked.connect(self.toggle_connection)
+        self.status_label = QLabel("Not connected")
+        self.status_label.setWordWrap(True)
+
+        # exposure
+        self.iso = QComboBox()
+        self.iso.addItems(ISO_CHOICES)
+        self.iso.setCurrentText(str(s.value("camera/iso", "100")))
+        self.iso.setToolTip("Sensor sensitivity")
+        self.shutter = QDoubleSpinBox()
+        self.shutter.setRange(0.0001, 60)
+        self.shutter.setDecimals(4)
+        self.shutter.setValue(float(s.value("camera/shutter_s", 0.5)))
+        self.shutter.setSuffix(" s")
+        self.shutter.setToolTip("Exposure time")
+        self.aperture = QDoubleSpinBox()
+        self.aperture.setRange(1.0, 32.0)
+        self.aperture.setDecimals(1)
+        self.aperture.setValue(float(s.value("camera/aperture", 16.0)))
+        self.aperture.setPrefix("f/")
+        self.aperture.setToolTip("f-number (the Planner proposes the one that keeps the scene sharp)")
+        self.apply_button = QPushButton("Apply to camera")
+        self.apply_button.setToolTip("Send ISO, shutter and aperture to the connected camera")
+        self.apply_button.clicked.connect(self.apply_settings)
+        exposure = QGroupBox("Exposure")
+        ef = QFormLayout(exposure)
+        ef.addRow("ISO", self.iso)
+        ef.addRow("Shutter", self.shutter)
+        ef.addRow("Aperture", self.aperture)
+        ef.addRow(self.apply_button)
+
+        self.shot_button = QPushButton("Test shot")
+        self.shot_button.setToolTip("Take one picture, show it in the Live view (Ctrl+T)")
+        self.shot_button.clicked.connect(self.take_test_shot)
+        self.shot_label = QLabel("")
+        self.shot_label.setWordWrap(True)
+        self.shot_label.setTextInteractionFlags(Qt.TextSelectableByMouse)
+
+        layout = QVBoxLayout(self)
+        top = QFormLayout()
+        top.addRow("Camera", self.kind)
+        layout.addLayout(top)
+        layout.addWidget(self.pages)
+        buttons = QHBoxLayout()
+        buttons.addWidget(self.connect_button)
+        buttons.addWidget(self.shot_button)
+        layout.addLayout(buttons)
+        layout.addWidget(self.status_label)
+        layout.addWidget(exposure)
+        layout.addWidget(self.shot_label)
+        layout.addStretch(1)
+
+        self.connect_action = QAction("Connect &camera", self)
+        self.connect_action.setShortcut(QKeySequence("Ctrl+Shift+K"))
+        self.connect_action.setToolTip("Connect or disconnect the camera chosen in the Camera panel")
+        self.connect_action.triggered.connect(self.toggle_connection)
+        self.shot_action = QAction("&Test shot", self)
+        self.shot_action.setShortcut(QKeySequence("Ctrl+T"))
+        self.shot_action.setToolTip("Take one picture with the connected camera and show it in the Live view")
+        self.shot_action.triggered.connect(self.take_test_shot)
+
+        state.planChanged.connect(lambda _plan: self._show_truth())
+        self._kind_changed()
+
+    def install_menus(self, window: Any) -> None:
+        menu = window.menu("Rig")
+        menu.addSeparator()
+        menu.addAction(self.connect_action)
+        menu.addAction(self.shot_action)
+
+    # -- choices -------------------------------------------------------------------------------------
+    def current_kind(self) -> str:
+        return str(self.kind.currentData())
+
+    def _kind_changed(self) -> None:
+        self.pages.setCurrentIndex(self.kind.currentIndex())
+        settings().setValue("camera/kind", self.current_kind())
+        self._show_truth()
+        self._update_enabled()
+
+    def _browse(self) -> None:
+        folder = QFileDialog.getExistingDirectory(self, "Hot folder", self.folder_edit.text())
+        if folder:
+            self.folder_edit.setText(folder)
+
+    def _studio_kwargs(self) -> dict[str, Any]:
+        """The virtual scene follows the current plan (distances, lens, sensor, grid extent)."""
+        from lfstudio.sim.studio import DEMO_PP_OFFSET_PX, DEMO_ROTATION_DEG, REFERENCE_REGION_MM
+
+        kw: dict[str, Any] = {"width_px": self.sim_width.value() // 2 * 2, "rotation_deg": DEMO_ROTATION_DEG,
+                              "pp_offset_px": DEMO_PP_OFFSET_PX, "view_region_mm": REFERENCE_REGION_MM}
+        plan = self.state.plan
+        if plan is not None:
+            try:
+                kw.update(near_m=float(plan.near_m), far_m=float(plan.far_m),
+                          focal_length_mm=float(plan.focal_length_mm), sensor_width_mm=float(plan.sensor_mm[0]))
+                cols, rows = int(plan.grid_columns), int(plan.grid_rows)
+                sx, sy = (float(v) for v in plan.spacing_mm)
+                kw["view_region_mm"] = (0.0, max(1.0, (cols - 1) * sx), 0.0, max(1.0, (rows - 1) * sy))
+            except (AttributeError, TypeError, ValueError, IndexError):
+                pass
+        return kw
+
+    def _show_truth(self) -> None:
+        if self.current_kind() != "sim":
+            return
+        kw = self._studio_kwargs()
+        rx, ry, rz = kw["rotation_deg"]
+        px, py = kw["pp_offset_px"]
+        self.sim_truth.setText(f"Ground truth: orientation error ({rx:g}°, {ry:g}°, {rz:g}°), principal point "
+                               f"offset ({px:g}, {py:g}) px; scene {kw.get('near_m', 1.77):g} … "
+                               f"{kw.get('far_m', 4.77):g} m. Files: .dng + .jpg + .truth.json")
+
+    def _save_settings(self) -> None:
+        s = settings()
+        s.setValue("camera/sim_width_px", self.sim_width.value())
+        s.setValue("camera/sim_noise_pct", self.sim_noise.value())
+        s.setValue("camera/sim_flicker_pct", self.sim_flicker.value())
+        s.setValue("camera/sim_vignetting_pct", self.sim_vignetting.value())
+        s.setValue("camera/sim_time_scale", self.sim_time_scale.value())
+        s.setValue("camera/hot_folder", self.folder_edit.text())
+        s.setValue("camera/trigger_command", self.trigger_edit.text())
+        s.setValue("camera/hot_timeout_s", self.folder_timeout.value())
+        s.setValue("camera/iso", self.iso.currentText())
+        s.setValue("camera/shutter_s", self.shutter.value())
+        s.setValue("camera/aperture", self.aperture.value())
+
+    def build_driver(self) -> Any:
+        """The driver for the chosen camera (not yet connected). Raises InputError for bad fields."""
+        kind = self.current_kind()
+        if kind == "sim":
+            from lfstudio.sim.sim_camera import SimulatedCamera
+
+            return SimulatedCamera(None, simulated_position(self.state), studio_kwargs=self._studio_kwargs(),
+                                   exposure_s=self.shutter.value(), iso=int(self.iso.currentText()),
+                                   aperture=self.aperture.value(), time_scale=self.sim_time_scale.value(),
+                                   noise=self.sim_noise.value() / 100, flicker=self.sim_flicker.value() / 100,
+                                   vignetting=self.sim_vignetting.value() / 100)
+        if kind == "gphoto2":
+            from lfstudio.rig.gphoto import GPhotoCamera
+
+            return GPhotoCamera()
+        from lfstudio.rig.hotfolder import HotFolderCamera
+
+        folder = self.folder_edit.text().strip()
+        if not folder:
+            raise InputError("Folder", "choose the folder the camera software saves into")
+        try:
+            argv = shlex.split(self.trigger_edit.text())
+        except ValueError as exc:
+            raise InputError("Trigger command", f"cannot be split into arguments ({exc})") from None
+        return HotFolderCamera(folder, argv or None, timeout_s=self.folder_timeout.value())
+
+    # -- connection ----------------------------------------------------------------------------------
+    @property
+    def connected(self) -> bool:
+        return self.device is not None
+
+    def toggle_connection(self) -> None:
+        if self.connected:
+            self.disconnect_camera()
+        else:
+            self.connect_camera()
+
+    def connect_camera(self) -> None:
+        if self.connected:
+            return
+        self._save_settings()
+        try:
+            driver = self.build_driver()
+        except Exception as exc:  # noqa: BLE001 - a missing library or bad field: say so
+            self._show(str(exc), "error")
+            self.state.report_error("Camera", str(exc))
+            return
+        worker = DeviceWorker(driver, name="camera", status_method="status", publish_hz=4)
+        self.device = QtDevice(worker, self)
+        self.device.statusChanged.connect(self._on_status)
+        self.device.busyChanged.connect(lambda _b: self._update_enabled())
+        self._show("Connecting…" + (" (building the virtual scene)" if self.current_kind() == "sim" else ""),
+                   "warning")
+        self.connect_button.setText("Disconnect")
+        self.connect_action.setText("Disconnect &camera")
+        self.device.run("connect", timeout_s=60, on_result=lambda _r: self._connected(),
+                        on_error=self._connect_failed)
+        self.state.set_device("camera", self.device)
+        self._update_enabled()
+
+    def _connected(self) -> None:
+        name = self.kind.currentText()
+        self._show(f"Connected: {name}", "ok")
+        self.state.show_status(f"Camera connected ({name})")
+        if self.current_kind() != "folder":
+            self.device.run("settings", on_result=self._show_settings, on_error=lambda _m: None)
+
+    def _connect_failed(self, message: str) -> None:
+        self.disconnect_camera()
+        self._show(message, "error")
+        self.state.report_error("Camera", message)
+
+    def disconnect_camera(self) -> None:
+        device, self.device = self.device, None
+        if device is not None:
+            device.stop_now()
+            device.close(disconnect=True)
+            device.deleteLater()
+        self.state.set_device("camera", None)
+        self.connect_button.setText("Connect")
+        self.connect_action.setText("Connect &camera")
+        self._show("Not connected", "")
+        self._update_enabled()
+
+    def shutdown(self) -> None:
+        if self.device is not None:
+            self.disconnect_camera()
+
+    def _on_status(self, snapshot: Any) -> None:
+        message = getattr(snapshot, "message", "")
+        if message:
+            self._show(message, "error")
+
+    def _show_settings(self, values: Any) -> None:
+        if not isinstance(values, dict):
+            return
+        if "iso" in values and str(values["iso"]) in ISO_CHOICES:
+            self.iso.setCurrentText(str(values["iso"]))
+        if isinstance(values.get("shutter_s"), (int, float)):
+            self.shutter.setValue(float(values["shutter_s"]))
+        if isinstance(values.get("aperture"), (int, float)):
+            self.aperture.setValue(float(values["aperture"]))
+
+    def _show(self, text: str, kind: str) -> None:
+        colours = {"ok": "#2a7a2a", "warning": "#a06000", "error": "#c02020", "": "#555555"}
+        self.status_label.setText(text)
+        self.status_label.setStyleSheet(f"color: {colours.get(kind, '#555555')};")
+
+    def _update_enabled(self) -> None:
+        connected = self.connected
+        busy = connected and self.device.busy
+        for w in (self.kind, self.pages):
+            w.setEnabled(not connected)
+        self.shot_button.setEnabled(connected and not busy)
+        self.shot_action.setEnabled(connected and not busy)
+        self.apply_button.setEnabled(connected and not busy and self.current_kind() != "folder")
+
+    # -- actions -------------------------------------------------------------------------------------
+    def apply_settings(self) -> None:
+        if self.device is None:
+            return
+        self._save_settings()
+        for name, value in (("iso", int(self.iso.currentText())), ("shutter_s", self.shutter.value()),
+                            ("aperture", self.aperture.value())):
+            self.device.run("set_setting", name, value, timeout_s=20,
+                            on_error=lambda m, n=name: self._show(f"{n}: {m}", "error"))
+        self.device.run("settings", on_result=lambda v: (self._show_settings(v), self._show("Settings applied", "ok")),
+                        on_error=lambda m: None)
+
+    def take_test_shot(self) -> None:
+        if self.device is None:
+            self.state.show_status("Test shot: connect a camera first")
+            return
+        folder = user_config_dir() / "test_shots"
+        folder.mkdir(parents=True, exist_ok=True)
+        self._show("Taking a test shot…", "warning")
+        self.device.run(test_shot, self.device.driver, folder, timeout_s=120,
+                        on_result=self._shot_done, on_error=lambda m: (self._show(m, "error"),
+                                                                       self.state.report_error("Test shot", m)))
+
+    def _shot_done(self, outcome: Any) -> None:
+        result, image = outcome
+        size_mb = result.path.stat().st_size / 1e6 if result.path.exists() else 0
+        text = (f"{result.path.name}: {size_mb:.1f} MB; exposure {result.exposure_s:.2f} s, transfer "
+                f"{result.transfer_s:.2f} s")
+        truth = result.metadata.get("ground_truth") if isinstance(result.metadata, dict) else None
+        if truth:
+            x, y = truth["true_position_mm"]
+            text += f"; camera at ({x:.3f}, {y:.3f}) mm"
+        self.shot_label.setText(f"Last test shot: {text}\n{result.path}")
+        self._show("Connected", "ok")
+        self.state.cameraFrame.emit(image, f"test shot {result.path.name}")
+        self.state.show_status(f"Test shot saved: {result.path}")

@@ -1,0 +1,82 @@
+"""Image checks for live view and test shots (Qt-free): a focus measure, clipping, histograms, and
+a quick 8-bit preview of a captured file (RAW via rawpy at half size, or an ordinary image)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+RAW_SUFFIXES = {".dng", ".arw", ".cr2", ".cr3", ".nef", ".raf", ".orf", ".rw2", ".pef", ".iiq", ".3fr"}
+
+
+@dataclass(frozen=True)
+class FrameStats:
+    sharpness: float          # variance of the Laplacian of the grey image (higher = sharper)
+    sharpness_centre: float   # the same on the central third (where one usually focuses)
+    clipped_high: float       # fraction of pixels with a channel at 255 (blown highlights)
+    clipped_low: float        # fraction of pixels with every channel at 0 (crushed shadows)
+    mean: float               # mean grey level, 0..255
+
+
+def _grey(rgb: np.ndarray) -> np.ndarray:
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) if rgb.ndim == 3 else rgb
+
+
+def sharpness(rgb: np.ndarray) -> float:
+    """Variance of the Laplacian: a standard focus measure; compare values of the same scene only."""
+    return float(cv2.Laplacian(_grey(rgb).astype(np.float32), cv2.CV_32F, ksize=3).var())
+
+
+def frame_stats(rgb: np.ndarray, high: int = 255, low: int = 0) -> FrameStats:
+    """Focus and exposure figures of an 8-bit RGB (or grey) frame."""
+    grey = _grey(rgb)
+    h, w = grey.shape
+    centre = rgb[h // 3: 2 * h // 3 or h, w // 3: 2 * w // 3 or w]
+    if rgb.ndim == 3:
+        hi = float(np.mean(rgb.max(axis=2) >= high))
+        lo = float(np.mean(rgb.max(axis=2) <= low))
+    else:
+        hi, lo = float(np.mean(rgb >= high)), float(np.mean(rgb <= low))
+    return FrameStats(sharpness(rgb), sharpness(centre), hi, lo, float(grey.mean()))
+
+
+def histograms(rgb: np.ndarray, bins: int = 64) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Bin centres (0..255) and one normalised histogram per channel (R, G, B) or one for grey."""
+    edges = np.linspace(0, 256, bins + 1)
+    chans = [rgb[..., i] for i in range(rgb.shape[2])] if rgb.ndim == 3 else [rgb]
+    hists = [np.histogram(c, bins=edges)[0].astype(np.float64) / max(1, c.size) for c in chans]
+    return (edges[:-1] + edges[1:]) / 2, hists
+
+
+def clipping_overlay(rgb: np.ndarray, high: int = 255, low: int = 0) -> np.ndarray:
+    """A copy with blown highlights painted red and crushed shadows painted blue."""
+    out = rgb.copy()
+    peak = rgb.max(axis=2)
+    out[peak >= high] = (255, 0, 0)
+    out[peak <= low] = (0, 0, 255)
+    return out
+
+
+def preview_image(path: str | Path, max_width_px: int = 1600) -> np.ndarray:
+    """An sRGB uint8 preview of a captured file: RAW developed at half size, other images read."""
+    path = Path(path)
+    if path.suffix.lower() in RAW_SUFFIXES:
+        import rawpy
+
+        with rawpy.imread(str(path)) as raw:
+            rgb = raw.postprocess(half_size=True, use_camera_wb=True, no_auto_bright=True, output_bps=8,
+                                  adjust_maximum_thr=0.0, user_flip=0)
+    else:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise ValueError(f"{path}: not an image OpenCV can read")
+        if img.dtype == np.uint16:
+            img = (img / 257.0).round().astype(np.uint8)
+        rgb = cv2.cvtColor(img, cv2.COLOR_BGR2RGB) if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
+    h, w = rgb.shape[:2]
+    if w > max_width_px:
+        rgb = cv2.resize(rgb, (max_width_px, round(h * max_width_px / w)), interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(rgb)

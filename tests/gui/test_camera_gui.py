@@ -1,0 +1,97 @@
+"""Camera panel and Live view with the real simulated camera on its device worker (offscreen Qt)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lfstudio.gui.panels.camera import CameraPanel, simulated_position
+from lfstudio.gui.settings import settings
+from lfstudio.gui.state import AppState
+from lfstudio.gui.views.live_view import LiveView
+
+
+@pytest.fixture
+def panels(qtbot):
+    state = AppState()
+    settings().setValue("camera/kind", "sim")
+    panel = CameraPanel(state)
+    live = LiveView(state)
+    qtbot.addWidget(panel)
+    qtbot.addWidget(live)
+    panel.sim_width.setValue(320)
+    panel.sim_time_scale.setValue(0.0)
+    yield state, panel, live
+    live.shutdown()
+    panel.shutdown()
+
+
+def test_connect_test_shot_reaches_live_view(qtbot, panels):
+    state, panel, live = panels
+    panel.connect_camera()
+    assert state.devices["camera"] is panel.device
+    qtbot.waitUntil(lambda: panel.status_label.text().startswith("Connected"), timeout=30000)
+    with qtbot.waitSignal(state.cameraFrame, timeout=30000) as blocker:
+        panel.take_test_shot()
+    image, caption = blocker.args
+    assert image.dtype == np.uint8 and image.ndim == 3
+    assert live.frame is not None and live.frame.shape == image.shape
+    assert "test shot" in caption and ".dng" in panel.shot_label.text()
+    assert "Sharpness" in live.sharp_label.text() and live.stats.sharpness > 0
+    panel.disconnect_camera()
+    assert "camera" not in state.devices
+
+
+def test_live_view_polls_preview_through_the_worker(qtbot, panels):
+    state, panel, live = panels
+    live.live_button.setChecked(True)               # no camera yet: refused with a message
+    qtbot.waitUntil(lambda: not live.live_button.isChecked(), timeout=5000)
+    assert "Camera panel" in live.message.textItem.toPlainText()
+    panel.connect_camera()
+    qtbot.waitUntil(lambda: panel.status_label.text().startswith("Connected"), timeout=30000)
+    live.live_button.setChecked(True)
+    qtbot.waitUntil(lambda: live.caption == "live", timeout=30000)
+    assert live.frame.shape[1] <= 640
+    assert live.live_action.isChecked()
+    live.live_button.setChecked(False)
+
+
+def test_clipping_warning_and_overlay(qtbot, panels):
+    _, _, live = panels
+    frame = np.full((60, 80, 3), 120, np.uint8)
+    frame[:20] = 255
+    live.show_frame(frame, "synthetic")
+    assert "highlights clipped" in live.clip_label.text()
+    shown = live.image_item.image
+    assert tuple(shown[0, 0]) == (255, 0, 0)            # clipped pixels painted red
+    live.clip_check.setChecked(False)
+    assert tuple(live.image_item.image[0, 0]) == (255, 255, 255)
+    live.show_frame(np.full((60, 80, 3), 120, np.uint8), "ok")
+    assert "Exposure OK" in live.clip_label.text()
+
+
+def test_hot_folder_needs_a_folder_and_settings_persist(qtbot, panels):
+    state, panel, _ = panels
+    panel.kind.setCurrentIndex(panel.kind.findData("folder"))
+    errors = []
+    state.errorOccurred.connect(lambda title, message: errors.append(message))
+    panel.folder_edit.setText("")
+    panel.connect_camera()
+    assert errors and "Folder" in errors[0] and not panel.connected
+    assert settings().value("camera/kind") == "folder"
+    panel.trigger_edit.setText('tool "unterminated')
+    panel.folder_edit.setText("/tmp")
+    panel.connect_camera()
+    assert "Trigger command" in errors[-1]
+
+
+def test_simulated_position_follows_the_rig_simulator():
+    state = AppState()
+    pos = simulated_position(state)
+    assert pos() == (0.0, 0.0)
+
+    class FakeSim:                                    # stands in for the GRBL simulator's one method
+        def true_position_mm(self):
+            return (12.5, 3.0)
+    state.set_device("rig_simulator", FakeSim())
+    assert pos() == (12.5, 3.0)
