@@ -88,3 +88,20 @@ def test_dropped_connection_shows_message_and_recovers(qtbot, panel):
     assert not panel.recover_button.isVisible()
     panel.disconnect_rig()
     assert "rig" not in panel.state.devices and "rig_simulator" not in panel.state.devices
+
+
+def test_rig_without_switches_sets_an_origin(qtbot, panel):
+    panel.rig_combo.setCurrentText("Desktop slider 1 m")
+    assert panel.goto_x.maximum() == 1000 and panel.goto_y.maximum() == 300
+    panel.connect_rig()
+    assert not panel.rig_combo.isEnabled()
+    qtbot.waitUntil(lambda: state_is(panel, RigState.IDLE), timeout=T)
+    assert not panel.home_button.isEnabled() and not panel.goto_button.isEnabled()
+    assert "set the origin" in panel.message_label.text()
+    qtbot.mouseClick(panel.origin_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: panel.last_status is not None and panel.last_status.homed, timeout=T)
+    panel.goto_x.setValue(500)
+    panel.goto_y.setValue(100)
+    qtbot.mouseClick(panel.goto_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: pos(panel) == (500.0, 100.0) and state_is(panel, RigState.IDLE), timeout=T)
+    assert panel.message_label.text() == ""

@@ -161,13 +161,22 @@ class RigPanel(QWidget):
         self.connect_button = QPushButton("Connect")
         self.connect_button.setToolTip("Connect to the controller on the chosen port")
         self.connect_button.clicked.connect(self.toggle_connection)
+        from lfstudio.rig.profile import rig_names
+        self.rig_combo = QComboBox()
+        self.rig_combo.addItems(rig_names())
+        self.rig_combo.setCurrentText(self.rig_config.name)
+        self.rig_combo.setToolTip("Rig profile: travel, soft limits, speeds, axis letters "
+                                  "(resources/presets/rigs.toml)")
+        self.rig_combo.currentTextChanged.connect(self._rig_chosen)
         self.rig_label = QLabel(self.rig_config.label or self.rig_config.name)
         self.rig_label.setWordWrap(True)
         cl.addWidget(QLabel("Port"), 0, 0)
         cl.addWidget(self.port_combo, 0, 1)
         cl.addWidget(self.refresh_button, 0, 2)
         cl.addWidget(self.connect_button, 0, 3)
-        cl.addWidget(self.rig_label, 1, 0, 1, 4)
+        cl.addWidget(QLabel("Rig"), 1, 0)
+        cl.addWidget(self.rig_combo, 1, 1, 1, 3)
+        cl.addWidget(self.rig_label, 2, 0, 1, 4)
         cl.setColumnStretch(1, 1)
         root.addWidget(conn)
 
@@ -287,6 +296,25 @@ class RigPanel(QWidget):
         gl.addWidget(self.goto_button)
         root.addWidget(goto)
         root.addStretch(1)
+
+    def _rig_chosen(self, name: str) -> None:
+        from lfstudio.rig.profile import load_rig
+
+        if self.device is not None or not name:
+            return
+        try:
+            self.rig_config = load_rig(name)
+        except Exception as exc:  # noqa: BLE001 - a broken user preset: say which, keep the old one
+            self._show_message(str(exc), "error")
+            return
+        settings().setValue("rig/profile", name)
+        self.rig_label.setText(self.rig_config.label or name)
+        self.diagram.set_config(self.rig_config)
+        for spin, axis in ((self.goto_x, self.rig_config.horizontal), (self.goto_y, self.rig_config.vertical)):
+            spin.setRange(axis.soft_min_mm, axis.soft_max_mm)
+            spin.setToolTip(f"{axis.name} target, inside the soft limits {axis.soft_min_mm:g} … "
+                            f"{axis.soft_max_mm:g} mm")
+        self._update_enabled()
 
     def _make_actions(self) -> None:
         self.stop_action = QAction("&STOP all motion", self)
@@ -566,6 +594,7 @@ class RigPanel(QWidget):
         live = self.device is not None and st is not None and st.state is not RigState.DISCONNECTED
         can_move = live and st.homed and st.state in (RigState.IDLE, RigState.JOGGING)
         self.port_combo.setEnabled(self.device is None)
+        self.rig_combo.setEnabled(self.device is None)
         self.refresh_button.setEnabled(self.device is None)
         self.home_button.setEnabled(live and self.rig_config.homing)
         self.home_action.setEnabled(live and self.rig_config.homing)
