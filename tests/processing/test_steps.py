@@ -225,3 +225,31 @@ def test_resample_is_an_area_average():
     img[0, 0] = 40000
     out = resample.apply(img, resample.output_size((4, 4), 0.5))
     assert out.shape == (2, 2, 3) and out[0, 0, 0] == 10000 and out[1, 1, 0] == 0
+
+
+def test_lens_and_rectification_are_one_warp():
+    w, h = 160, 120
+    truth = scene(w, h, seed=9)
+    K = np.array([[150.0, 0, (w - 1) / 2], [0, 150.0, (h - 1) / 2], [0, 0, 1]])
+    dist = np.array([-0.2, 0.05, 0.0, 0.0, 0.0])
+    H = np.array([[1.0, 0.015, -2.0], [-0.01, 1.0, 1.5], [1e-5, 0.0, 1.0]])
+    # captured pixel q_d -> undistorted q_u -> rectified H·q_u, where the true scene is
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    qu = cv2.undistortPoints(np.c_[xs.ravel(), ys.ravel()].reshape(-1, 1, 2), K, dist, P=K).reshape(-1, 2)
+    r = cv2.perspectiveTransform(qu.reshape(-1, 1, 2).astype(np.float64), H).reshape(h, w, 2).astype(np.float32)
+    captured = cv2.remap(truth, r[..., 0], r[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    step = LensStep(enabled=True, source="opencv", fx_px=150, fy_px=150, cx_px=(w - 1) / 2, cy_px=(h - 1) / 2,
+                    dist_coeffs=dist.tolist(), tca=False)
+    maps = rectify.build_maps((w, h), 1.0, H, lens.lens_model(step, (w, h)))
+    assert len(maps) == 1  # one remap for all channels
+    out = rectify.apply_maps((captured * 65535).astype(np.uint16), maps).astype(np.float64) / 65535
+    inner = (slice(20, -20), slice(25, -25))
+    assert np.abs(out[inner] - truth[inner]).mean() < 0.005
+    assert np.abs(captured[inner] - truth[inner]).mean() > 0.01
+    # at half resolution (half-size debayering) the same maps, scaled with the pixel-centre convention
+    half = cv2.resize(captured, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    maps_half = rectify.build_maps((w // 2, h // 2), 0.5, H, lens.lens_model(step, (w, h)))
+    out_half = rectify.apply_maps((half * 65535).astype(np.uint16), maps_half).astype(np.float64) / 65535
+    truth_half = cv2.resize(truth, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    inner = (slice(10, -10), slice(13, -13))
+    assert np.abs(out_half[inner] - truth_half[inner]).mean() < 0.01
