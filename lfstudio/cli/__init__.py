@@ -25,6 +25,8 @@ COMMANDS: list[str] = [
     "calibrate",
     "simulate_calibration",
     "process",
+    "camera",
+    "virtual_dataset",
 ]
 
 

@@ -1,0 +1,79 @@
+"""``lfstudio camera``: connect a camera, show its settings, take a test shot."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from lfstudio.errors import InputError
+
+HELP = "take a test shot with a camera (sim, gphoto2, folder:PATH) and print its files and timings"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("stem", help="where to store the shot, without suffix (e.g. /tmp/test -> /tmp/test.dng)")
+    p.add_argument("--camera", default="sim", metavar="sim|gphoto2|folder:PATH",
+                   help="simulated studio camera, USB camera via gphoto2, or a hot folder (default: sim)")
+    p.add_argument("--trigger", nargs=argparse.REMAINDER, default=None,
+                   help="hot folder: the trigger command and its arguments (must come last)")
+    p.add_argument("--position-mm", default="0,0", metavar="X,Y", help="simulated camera: position on the rig")
+    p.add_argument("--width", type=int, default=2000, metavar="PX", help="simulated camera: image width")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="camera setting before the shot, e.g. --set iso=200 --set shutter_s=0.25")
+
+
+def _open(args: argparse.Namespace):
+    spec = args.camera
+    if spec == "sim":
+        from lfstudio.sim.sim_camera import SimulatedCamera
+        from lfstudio.sim.studio import demo_studio
+
+        try:
+            x, y = (float(v) for v in args.position_mm.split(","))
+        except ValueError:
+            raise InputError("--position-mm", f"cannot read {args.position_mm!r}", "X,Y in mm") from None
+        if not 16 <= args.width <= 12000:
+            raise InputError("--width", f"{args.width} px is out of range", "16 .. 12000")
+        return SimulatedCamera(demo_studio(width_px=args.width // 2 * 2), lambda: (x, y), time_scale=0.0)
+    if spec == "gphoto2":
+        from lfstudio.rig.gphoto import GPhotoCamera
+
+        return GPhotoCamera()
+    if spec.startswith("folder:") and len(spec) > 7:
+        from lfstudio.rig.hotfolder import HotFolderCamera
+
+        return HotFolderCamera(spec[7:], args.trigger or None)
+    raise InputError("--camera", f"unknown camera {spec!r}", "sim, gphoto2, folder:PATH")
+
+
+def _value(text: str):
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    camera = _open(args)
+    camera.connect()
+    try:
+        for item in args.set:
+            name, sep, value = item.partition("=")
+            if not sep:
+                raise InputError("--set", f"cannot read {item!r}", "NAME=VALUE")
+            camera.set_setting(name.strip(), _value(value.strip()))
+        result = camera.capture(Path(args.stem))
+        out = {"files": [str(f) for f in result.files], "trigger_s": round(result.trigger_s, 3),
+               "exposure_s": round(result.exposure_s, 3), "transfer_s": round(result.transfer_s, 3),
+               "settings": camera.settings()}
+        truth = result.metadata.get("ground_truth")
+        if truth:
+            out["true_position_mm"] = truth["true_position_mm"]
+        print(json.dumps(out, indent=1))
+    finally:
+        camera.disconnect()
+    return 0
