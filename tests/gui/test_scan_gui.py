@@ -128,9 +128,9 @@ def test_scan_panel_runs_a_scan_and_the_grid_follows(qtbot, tmp_path, instant_de
     assert "10 views" in panel.summary.text()
     qtbot.mouseClick(panel.start_button, Qt.LeftButton)
     assert panel.engine is not None
-    qtbot.waitUntil(lambda: not panel.running, timeout=20000)
+    qtbot.waitUntil(lambda: "Finished" in panel.state_label.text(), timeout=20000)   # events delivered
+    assert not panel.running
     assert panel.progress.value() == 10 and panel.progress.maximum() == 10
-    assert "Finished" in panel.state_label.text()
     assert "Step times:" in panel.timings.text() and "move" in panel.timings.text()
     assert "done (10/10)" in panel.log_view.toPlainText()
     assert (grid.canvas.status == DONE).sum() == 10
@@ -151,15 +151,15 @@ def test_scan_panel_pause_resume_and_recapture(qtbot, tmp_path, instant_devices)
     panel.folder.setText(str(tmp_path / "scan2"))
     panel.start()
     panel.pause()
-    qtbot.waitUntil(lambda: panel.engine.state.value == "paused", timeout=20000)
+    qtbot.waitUntil(lambda: "Paused" in panel.state_label.text(), timeout=20000)
+    assert panel.engine.state.value == "paused"
     assert panel.resume_button.isEnabled() and not panel.pause_button.isEnabled()
-    assert "Paused" in panel.state_label.text()
     qtbot.mouseClick(panel.resume_button, Qt.LeftButton)
-    qtbot.waitUntil(lambda: not panel.running, timeout=20000)
+    qtbot.waitUntil(lambda: "Finished" in panel.state_label.text(), timeout=20000)
     before = cam.captures
     state.recaptureRequested.emit([(1, 3), (0, 0)])
-    qtbot.waitUntil(lambda: panel.engine is not None and not panel.running and cam.captures == before + 2,
-                    timeout=20000)
+    qtbot.waitUntil(lambda: cam.captures == before + 2 and "Finished" in panel.state_label.text()
+                    and not panel.running, timeout=20000)
     assert "re-capturing 2 view(s)" in panel.log_view.toPlainText()
 
 
