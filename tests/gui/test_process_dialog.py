@@ -27,7 +27,7 @@ def test_preview_pick_and_process(qtbot, make_dataset):
     ds = make_dataset(rows=1, cols=3, gains={(0, 0): 1.1}, w=96, h=64)
     window, dialog = _dialog(qtbot, ds)
     dialog.editors["rectify"].setChecked(False)  # no calibration in this dataset
-    dialog.workers_spin.setValue(0)
+    dialog.workers_spin.setValue(2)                # a real process pool under the GUI
     with qtbot.waitSignal(dialog.preview_runner.finished, timeout=30000):
         dialog.update_preview()
     assert "gain" in dialog.preview_info.text()
@@ -49,6 +49,7 @@ def test_preview_pick_and_process(qtbot, make_dataset):
     with qtbot.waitSignal(dialog.runner.finished, timeout=60000):
         dialog.process_button.click()
     assert "3 processed" in dialog.result_label.text()
+    assert "process pool (2 workers)" in dialog.result_label.text()
     assert changed and changed[-1].view(0, 0)["processed"]["status"] == "done"
     assert "3</b> of 3" in window.panels["processingPanel"].summary.text()
     assert Dataset.open(ds.root).manifest["processing"]["profile"]["rectify"]["enabled"] is False
