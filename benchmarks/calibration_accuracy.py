@@ -10,6 +10,11 @@ rotation error against the truth (median, p99), plus the time per trial.
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
 import argparse
 import time
 
