@@ -115,6 +115,18 @@ class SimulatedCamera:
         self._connected = False
         self._abort.set()
 
+    def set_view_region(self, view_region_mm: tuple[float, float, float, float]) -> None:
+        """Centre the virtual scene on the grid a scan will visit (``(x_min, x_max, y_min, y_max)``
+        mm); rebuilds the scene (same seed and camera) only when the region changes."""
+        region = tuple(float(v) for v in view_region_mm)
+        if self.studio is not None and tuple(self.studio.view_region_mm) == region:
+            return
+        kwargs = self.studio.init_kwargs() if self.studio is not None else dict(self.studio_kwargs)
+        kwargs["view_region_mm"] = region
+        self.studio_kwargs = kwargs
+        if self.studio is not None:
+            self.studio = VirtualStudio(**kwargs)
+
     def stop(self) -> None:
         """Abort a hanging or waiting capture now (called from another thread by STOP)."""
         self._abort.set()

@@ -147,6 +147,15 @@ class VirtualStudio:
         self.H /= self.H[2, 2]
         self.layers: list[Layer] = self._build_scene(n_layers, n_objects)
 
+    def init_kwargs(self) -> dict[str, Any]:
+        """Arguments that rebuild this studio (same scene and camera), e.g. in another process."""
+        return dict(width_px=self.width_px, height_px=self.height_px, focal_length_mm=self.focal_length_mm,
+                    sensor_width_mm=self.sensor_width_mm, near_m=self.near_m, far_m=self.far_m,
+                    rotation_deg=tuple(self.rotation_deg), pp_offset_px=tuple(self.pp_offset_px),
+                    view_region_mm=self.view_region_mm, seed=self.seed, n_layers=self.n_layers,
+                    n_objects=self.n_objects, texture_density=self.texture_density,
+                    max_texture_px=self.max_texture_px)
+
     # -- geometry -----------------------------------------------------------------------------------
     @staticmethod
     def camera_centre_m(x_mm: float, y_mm: float) -> np.ndarray:

@@ -219,12 +219,7 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
 
 def studio_init_kwargs(studio: VirtualStudio) -> dict[str, Any]:
     """Arguments that rebuild ``studio`` (same scene, same camera) in another process."""
-    return dict(width_px=studio.width_px, height_px=studio.height_px, focal_length_mm=studio.focal_length_mm,
-                sensor_width_mm=studio.sensor_width_mm, near_m=studio.near_m, far_m=studio.far_m,
-                rotation_deg=tuple(studio.rotation_deg), pp_offset_px=tuple(studio.pp_offset_px),
-                view_region_mm=studio.view_region_mm, seed=studio.seed, n_layers=studio.n_layers,
-                n_objects=studio.n_objects, texture_density=studio.texture_density,
-                max_texture_px=studio.max_texture_px)
+    return studio.init_kwargs()
 
 
 def load_ground_truth(root: str | os.PathLike) -> dict[str, Any]:

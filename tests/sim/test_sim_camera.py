@@ -157,3 +157,17 @@ def test_faults_given_at_construction(studio, tmp_path):
     with pytest.raises(DeviceError):
         cam2.capture(tmp_path / "r")
     assert cam2.capture(tmp_path / "r").path.exists()
+
+
+def test_set_view_region_recentres_the_scene(tmp_path):
+    cam = SimulatedCamera(None, lambda: (2000.0, 200.0), time_scale=0.0, noise=0.0,
+                          studio_kwargs={"width_px": 96, "rotation_deg": (0.5, 0, 0), "view_region_mm": (0, 8, 0, 6)})
+    cam.connect()
+    before = cam.studio
+    cam.set_view_region((0, 8, 0, 6))
+    assert cam.studio is before                     # same region: no rebuild
+    cam.set_view_region((1980.0, 2020.0, 180.0, 220.0))
+    assert cam.studio.view_region_mm == (1980.0, 2020.0, 180.0, 220.0)
+    assert cam.studio.rotation_deg == [0.5, 0.0, 0.0] and cam.studio.width_px == 96
+    depth = cam.studio.depth_map(2000.0, 200.0)
+    assert depth.min() < cam.studio.far_m           # the scene's layers are in view at the new grid

@@ -446,6 +446,8 @@ class ScanPanel(QWidget):
             rig = self.state.devices["rig"].worker
             camera = self.state.devices["camera"].worker
             scale = self.time_scale.value() if self.state.simulated else 1.0
+            if hasattr(camera.driver, "set_view_region"):   # simulated camera: centre its scene on this grid
+                camera.submit("set_view_region", self._start_plan.with_subset(None).extent_mm())
         plan = self._start_plan
         folder = Path(self.folder.text().strip())
         try:
