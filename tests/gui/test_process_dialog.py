@@ -70,3 +70,11 @@ def test_processing_without_calibration_says_how_to_fix(qtbot, make_dataset):
     with qtbot.waitSignal(dialog.runner.failed, timeout=30000):
         dialog.process_button.click()
     assert "calibrate" in dialog.result_label.text()
+
+
+def test_broken_profile_file_is_reported_and_defaults_are_used(qtbot, make_dataset):
+    ds = make_dataset(rows=1, cols=2)
+    (ds.root / "processing.toml").write_text("[resample]\nscale = 7\n")
+    window, dialog = _dialog(qtbot, ds)
+    qtbot.waitUntil(lambda: "scale" in window.statusBar().currentMessage())
+    assert dialog.profile() == dialog.profile().__class__()

@@ -11,7 +11,6 @@ a Dask cluster with progress, ETA and Cancel; when it ends, ``state.datasetChang
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -271,7 +270,12 @@ class ProcessDialog(QDialog):
         self.resize(1250, 800)
         ds = state.dataset
         self.root = str(ds.root)
-        profile = Profile.for_dataset(self.root) if (Path(self.root) / PROFILE_NAME).is_file() else Profile()
+        try:
+            profile = Profile.for_dataset(self.root)
+        except InputError as exc:  # a hand-edited processing.toml with a mistake: say so, start from defaults
+            state.report_error("Processing profile", f"{exc}\n\nThe dialog starts from the defaults; "
+                                                     "saving or processing replaces the file.")
+            profile = Profile()
         self.preview_scale = 1.0  # preview pixels per full-resolution pixel
 
         # -- profile editor (left) --
