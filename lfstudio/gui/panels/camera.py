@@ -12,7 +12,7 @@ from typing import Any
 from PySide6.QtCore import Qt
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
-                               QLabel, QLineEdit, QPushButton, QSpinBox, QStackedWidget, QVBoxLayout, QWidget)
+                               QLabel, QLineEdit, QPushButton, QSizePolicy, QSpinBox, QStackedWidget, QVBoxLayout, QWidget)
 
 from lfstudio.errors import InputError
 from lfstudio.gui.devices import QtDevice
@@ -228,7 +228,12 @@ class CameraPanel(QWidget):
         return str(self.kind.currentData())
 
     def _kind_changed(self) -> None:
-        self.pages.setCurrentIndex(self.kind.currentIndex())
+        current = self.kind.currentIndex()
+        self.pages.setCurrentIndex(current)
+        for i in range(self.pages.count()):       # the stack takes the height of the shown page only
+            policy = QSizePolicy.Preferred if i == current else QSizePolicy.Ignored
+            self.pages.widget(i).setSizePolicy(policy, policy)
+        self.pages.adjustSize()
         settings().setValue("camera/kind", self.current_kind())
         self._show_truth()
         self._update_enabled()
