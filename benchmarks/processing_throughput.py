@@ -17,11 +17,18 @@ import concurrent.futures as cf
 import json
 import multiprocessing
 import os
+import resource
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+
+def cpu_s() -> float:
+    """CPU seconds used by this process and its finished children (robust to other load)."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
 def decode_encode(path: str, out: str, half_size: bool) -> float:
@@ -94,12 +101,15 @@ def main() -> int:
     print(f"{n} DNG views of {size[0]} x {size[1]} px; cores: {os.cpu_count()}; profile: debayer AHD, shading, "
           "colour, de-flicker, rectify, half resolution; 16-bit PNG out", flush=True)
 
-    results, step_share = {}, {}
+    results, step_share, cpu = {}, {}, {}
     for workers in (1, 2):
+        c0 = cpu_s()
         t_base = baseline(paths, root / "baseline", workers)
+        c1 = cpu_s()
         t0 = time.perf_counter()
         report = process_dataset(root, profile, workers=workers, force=True)
         t_pipe = time.perf_counter() - t0
+        cpu[workers] = (c1 - c0, cpu_s() - c1)
         assert report.ok, report.failed
         results[workers] = (t_base, t_pipe)
         views = json.loads((root / "dataset.json").read_text())["views"]
@@ -116,6 +126,10 @@ def main() -> int:
     print(f"pipeline overhead over decode+encode, 2 workers: {100 * (p2 / b2 - 1):5.1f} %")
     print(f"per view, inside the workers: steps (gain, warp, resample, levels) / (decode + encode): "
           f"{100 * step_share[1]:4.1f} % (1 worker), {100 * step_share[2]:4.1f} % (2 workers)")
+    for w in (1, 2):
+        cb, cp = cpu[w]
+        print(f"CPU time, {w} worker(s): pipeline {cp:6.1f} s, decode+encode {cb:6.1f} s -> overhead "
+              f"{100 * (cp / cb - 1):5.1f} % (includes worker start-up and the reference view)")
     print(f"load average during the run: {os.getloadavg()[0]:.1f} (figures mean little above ~{os.cpu_count()})")
     return 0
 
