@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from lfstudio.dataset.atomic import atomic_write_json
-from lfstudio.dataset.paths import resolve_inside, view_stem
+from lfstudio.dataset.paths import InsideChecker, resolve_inside, view_stem
 from lfstudio.dataset.store import JOURNAL_NAME, Journal, read_journal, sha256_file
 from lfstudio.errors import DatasetError
 
@@ -81,6 +81,7 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
         return problems
     seen: set[tuple[int, int]] = set()
     files: set[str] = set()
+    inside = InsideChecker(root) if root is not None else None
     for i, v in enumerate(views):
         where = f"{f}: views[{i}]"
         if not isinstance(v, dict):
@@ -108,9 +109,9 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
             if not isinstance(file, str) or not file:
                 problems.append(f"{where}: file: must be a relative path string or null")
             else:
-                if root is not None:
+                if inside is not None:
                     try:
-                        resolve_inside(root, file, what="file")
+                        inside.check(file, what="file")
                     except DatasetError as exc:
                         problems.append(f"{where}: file: {exc}")
                 if file in files:
@@ -126,9 +127,9 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
         if v.get("captured_at") is not None and not isinstance(v["captured_at"], str):
             problems.append(f"{where}: captured_at: must be an ISO 8601 time string or null")
         thumb = v.get("thumb")
-        if thumb is not None and root is not None:
+        if thumb is not None and inside is not None:
             try:
-                resolve_inside(root, thumb, what="thumb")
+                inside.check(thumb, what="thumb")
             except DatasetError as exc:
                 problems.append(f"{where}: thumb: {exc}")
     seq = manifest.get("journal_seq", 0)
@@ -204,7 +205,7 @@ class Dataset:
             raise DatasetError(f"{path}: invalid manifest", problems)
         ds = cls(root, manifest)
         ds._replay_journal()
-        problems = validate_manifest(ds.manifest, root)
+        problems = validate_manifest(ds.manifest, root) if ds.replayed else []
         if problems:
             raise DatasetError(f"{path}: invalid after replaying {JOURNAL_NAME}", problems)
         return ds

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path, PurePosixPath
 
 from lfstudio.errors import DatasetError
@@ -28,3 +29,31 @@ def resolve_inside(root: str | Path, relative: str, *, what: str = "file") -> Pa
     if full != root_path and root_path not in full.parents:
         raise DatasetError(f"{what} {relative!r} points outside the dataset folder {root_path}")
     return full
+
+
+class InsideChecker:
+    """:func:`resolve_inside` for many names at once: the dataset folder and each sub-folder are
+    resolved once; a file is resolved on its own only when it is a symlink (validating 2121 views
+    takes milliseconds instead of seconds)."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root).resolve()
+        self._root_text = str(self.root)
+        self._dirs: dict[str, bool] = {}     # sub-folder -> inside the root after resolving
+
+    def _inside(self, path: str) -> bool:
+        return path == self._root_text or path.startswith(self._root_text.rstrip(os.sep) + os.sep)
+
+    def check(self, relative: str, *, what: str = "file") -> None:
+        text = str(relative).replace("\\", "/")
+        parts = text.split("/")
+        if not text or text.startswith("/") or ".." in parts or ":" in parts[0]:
+            raise DatasetError(f"{what} {relative!r} must be a relative path inside the dataset folder")
+        parent = "/".join(p for p in parts[:-1] if p not in ("", "."))
+        inside = self._dirs.get(parent)
+        if inside is None:
+            folder = os.path.realpath(os.path.join(self._root_text, parent)) if parent else self._root_text
+            inside = self._dirs[parent] = self._inside(folder)
+        full = os.path.join(self._root_text, parent, parts[-1])
+        if not inside or (os.path.islink(full) and not self._inside(os.path.realpath(full))):
+            raise DatasetError(f"{what} {relative!r} points outside the dataset folder {self.root}")

@@ -59,9 +59,7 @@ class SimulatedSession:
         """Centre the virtual scene on a (new) grid: ``(x_min, x_max, y_min, y_max)`` in mm."""
         self.view_region_mm = tuple(float(v) for v in view_region_mm)
         if self.camera is not None and self.studio is None:
-            self.camera.studio = None
-            self.camera.studio_kwargs = self.studio_kwargs()
-            self.camera.connect()
+            self.camera.set_view_region(self.view_region_mm)
 
     def start(self) -> "SimulatedSession":
         from lfstudio.rig.connect import open_rig

@@ -139,3 +139,13 @@ def test_summary_counts(tmp_path):
     s = ds.summary()
     assert (s["views"], s["done"], s["failed"], s["missing"], s["complete"]) == (6, 1, 1, 4, False)
     assert s["raw_bytes"] > 0
+
+
+def test_symlink_leading_outside_is_refused(tmp_path):
+    ds = make(tmp_path)
+    outside = tmp_path / "outside.dng"
+    outside.write_bytes(b"x")
+    (ds.root / "raw" / "r00_c000.dng").symlink_to(outside)
+    ds.view(0, 0).update(status="done", file="raw/r00_c000.dng")
+    problems = validate_manifest(ds.manifest, ds.root)
+    assert any("points outside the dataset folder" in p for p in problems)

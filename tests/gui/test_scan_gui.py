@@ -127,7 +127,7 @@ def test_scan_panel_runs_a_scan_and_the_grid_follows(qtbot, tmp_path, instant_de
     panel.folder.setText(str(tmp_path / "scan1"))
     assert "10 views" in panel.summary.text()
     qtbot.mouseClick(panel.start_button, Qt.LeftButton)
-    assert panel.engine is not None
+    qtbot.waitUntil(lambda: panel.engine is not None, timeout=10000)
     qtbot.waitUntil(lambda: "Finished" in panel.state_label.text(), timeout=20000)   # events delivered
     assert not panel.running
     assert panel.progress.value() == 10 and panel.progress.maximum() == 10
@@ -150,6 +150,7 @@ def test_scan_panel_pause_resume_and_recapture(qtbot, tmp_path, instant_devices)
     panel.settle.setValue(0.0)
     panel.folder.setText(str(tmp_path / "scan2"))
     panel.start()
+    qtbot.waitUntil(lambda: panel.engine is not None, timeout=10000)
     panel.pause()
     qtbot.waitUntil(lambda: "Paused" in panel.state_label.text(), timeout=20000)
     assert panel.engine.state.value == "paused"

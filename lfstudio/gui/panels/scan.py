@@ -10,11 +10,14 @@ simulated studio, a built-in simulated rig and camera started off the GUI thread
 from __future__ import annotations
 
 import logging
+import threading
+import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
 from PySide6.QtCore import QObject, QPointF, QRectF, Qt, QTimer, Signal
-from PySide6.QtGui import QAction, QBrush, QColor, QKeySequence, QPainter, QPainterPath, QPen
+from PySide6.QtGui import QAction, QBrush, QColor, QKeySequence, QPainter, QPainterPath, QPen, QPixmap
 from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
                                QLabel, QLineEdit, QMessageBox, QPlainTextEdit, QProgressBar, QPushButton,
                                QSizePolicy, QSpinBox, QToolButton, QVBoxLayout, QWidget)
@@ -32,13 +35,39 @@ ACTIVE_KEY = "scan/active_dataset"
 
 
 class EngineBridge(QObject):
-    """Carries engine events (from its threads) to the GUI thread."""
+    """Carries engine events (from its threads) to the GUI thread without flooding its event queue:
+    events collect in a deque and one queued ``wake`` signal asks the GUI to drain them in slices."""
 
-    event = Signal(object)
+    wake = Signal()
+
+    def __init__(self, parent: QObject | None = None):
+        super().__init__(parent)
+        self._events: deque = deque()
+        self._lock = threading.Lock()
+        self._pending = False
+
+    def push(self, ev) -> None:
+        with self._lock:
+            self._events.append(ev)
+            if self._pending:
+                return
+            self._pending = True
+        self.wake.emit()
+
+    def take(self) -> list:
+        with self._lock:
+            events = list(self._events)
+            self._events.clear()
+            self._pending = False
+        return events
 
 
 class PathPreview(QWidget):
-    """The scan path: grid positions joined in capture order; done views filled, the current one ringed."""
+    """The scan path: grid positions joined in capture order; done views filled, the current one ringed.
+
+    The path and the dots are drawn once into cached pixmaps (done dots are added one at a time), so
+    repainting during a 2121-view scan costs two pixmap blits.
+    """
 
     def __init__(self, parent: QWidget | None = None):
         super().__init__(parent)
@@ -46,37 +75,60 @@ class PathPreview(QWidget):
         self.setMinimumHeight(110)
         self.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Expanding)
         self.plan: ScanPlan | None = None
-        self.travel_mm: tuple[float, float, float, float] | None = None
         self.current: tuple[int, int] | None = None
         self.done: set[tuple[int, int]] = set()
+        self._base: QPixmap | None = None
+        self._overlay: QPixmap | None = None
+        self._geom: tuple[float, float, float, float, float, float] | None = None
         self.setToolTip("Capture order: the camera visits the grid along this line, starting at the green dot")
 
-    def set_plan(self, plan: ScanPlan | None, travel_mm: tuple[float, float, float, float] | None = None) -> None:
+    def set_plan(self, plan: ScanPlan | None) -> None:
         self.plan = plan
-        self.travel_mm = travel_mm
+        self._base = None
         self.update()
 
-    def paintEvent(self, event) -> None:
-        p = QPainter(self)
-        p.setRenderHint(QPainter.Antialiasing)
-        p.fillRect(self.rect(), QColor(30, 32, 36))
+    def set_done(self, cells) -> None:
+        self.done = set(cells)
+        self._base = None
+        self.update()
+
+    def mark_done(self, row: int, column: int) -> None:
+        self.done.add((row, column))
+        if self._overlay is not None and self._geom is not None:
+            p = QPainter(self._overlay)
+            p.setRenderHint(QPainter.Antialiasing)
+            p.setPen(QPen(Qt.NoPen))
+            p.setBrush(QBrush(QColor(70, 180, 90)))
+            ox, oy, sx, sy, scale, dot = self._geom
+            p.drawEllipse(QPointF(ox + column * sx * scale, oy + row * sy * scale), dot, dot)
+            p.end()
+
+    def _rebuild(self) -> None:
         plan = self.plan
+        self._base = QPixmap(self.size())
+        self._base.fill(QColor(30, 32, 36))
+        self._overlay = QPixmap(self.size())
+        self._overlay.fill(Qt.transparent)
+        p = QPainter(self._base)
+        p.setRenderHint(QPainter.Antialiasing)
         if plan is None:
             p.setPen(QColor(160, 160, 160))
             p.drawText(self.rect(), Qt.AlignCenter, "no grid")
             p.end()
+            self._geom = None
             return
         margin = 12.0
         w, h = self.width() - 2 * margin, self.height() - 2 * margin - 14
         cols, rows = plan.columns, plan.rows
         sx, sy = plan.spacing_mm
-        width_mm = max((cols - 1) * sx, 1e-9)
-        height_mm = max((rows - 1) * sy, 1e-9)
-        scale = min(w / width_mm if cols > 1 else 1e9, h / height_mm if rows > 1 else 1e9)
+        width_mm, height_mm = (cols - 1) * sx, (rows - 1) * sy
+        scale = min(w / width_mm if width_mm > 0 else 1e9, h / height_mm if height_mm > 0 else 1e9)
         if scale > 1e8:
             scale = 1.0
-        ox = margin + (w - (cols - 1) * sx * scale) / 2
-        oy = margin + (h - (rows - 1) * sy * scale) / 2
+        ox = margin + (w - width_mm * scale) / 2
+        oy = margin + (h - height_mm * scale) / 2
+        dot = max(1.5, min(4.0, sx * scale / 3))
+        self._geom = (ox, oy, sx, sy, scale, dot)
 
         def pt(r: int, c: int) -> QPointF:
             return QPointF(ox + c * sx * scale, oy + r * sy * scale)
@@ -89,26 +141,102 @@ class PathPreview(QWidget):
                 path.lineTo(pt(v.row, v.column))
         p.setPen(QPen(QColor(110, 150, 220), 1.2))
         p.drawPath(path)
-        dot = max(1.5, min(4.0, sx * scale / 3))
-        no_pen = QPen(Qt.NoPen)
-        p.setPen(no_pen)
-        if len(views) <= 5000:
-            done_brush, todo_brush = QBrush(QColor(70, 180, 90)), QBrush(QColor(140, 144, 152))
-            for v in views:
-                p.setBrush(done_brush if (v.row, v.column) in self.done else todo_brush)
-                p.drawEllipse(pt(v.row, v.column), dot, dot)
+        p.setPen(QPen(Qt.NoPen))
+        p.setBrush(QBrush(QColor(140, 144, 152)))
+        many = len(views) > 400
+        p.setRenderHint(QPainter.Antialiasing, not many)     # thousands of dots: plain squares are 10x cheaper
+        for v in views:
+            c = pt(v.row, v.column)
+            if many:
+                p.drawRect(QRectF(c.x() - dot, c.y() - dot, 2 * dot, 2 * dot))
+            else:
+                p.drawEllipse(c, dot, dot)
+        p.setRenderHint(QPainter.Antialiasing)
         if views:
             p.setBrush(QBrush(QColor(60, 220, 90)))
             p.drawEllipse(pt(views[0].row, views[0].column), dot + 2, dot + 2)
-        if self.current is not None:
-            p.setPen(QPen(QColor(255, 176, 32), 2))
-            p.setBrush(Qt.NoBrush)
-            p.drawEllipse(pt(*self.current), dot + 4, dot + 4)
         x0, x1, y0, y1 = plan.extent_mm()
         p.setPen(QColor(190, 190, 190))
         p.drawText(QRectF(4, self.height() - 16, self.width() - 8, 14), Qt.AlignLeft | Qt.AlignVCenter,
                    f"x {x0:.0f}…{x1:.0f} mm · y {y0:.0f}…{y1:.0f} mm · {plan.order}")
         p.end()
+        for r, c in list(self.done):
+            self.mark_done(r, c)
+
+    def resizeEvent(self, event) -> None:
+        self._base = None
+        super().resizeEvent(event)
+
+    def paintEvent(self, event) -> None:
+        if self._base is None or self._base.size() != self.size():
+            self._rebuild()
+        p = QPainter(self)
+        p.drawPixmap(0, 0, self._base)
+        p.drawPixmap(0, 0, self._overlay)
+        if self.current is not None and self._geom is not None:
+            ox, oy, sx, sy, scale, dot = self._geom
+            r, c = self.current
+            p.setRenderHint(QPainter.Antialiasing)
+            p.setPen(QPen(QColor(255, 176, 32), 2))
+            p.setBrush(QBrush(Qt.NoBrush))
+            p.drawEllipse(QPointF(ox + c * sx * scale, oy + r * sy * scale), dot + 4, dot + 4)
+        p.end()
+
+
+def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
+    """Off the GUI thread: connect the devices (simulated studio if needed), open or create the
+    dataset and build the engine. Returns ``{"session", "dataset", "engine"}``."""
+    from lfstudio.dataset import Dataset
+    from lfstudio.scan.engine import ScanEngine, check_resume_matches, create_scan_dataset
+
+    plan: ScanPlan = job["plan"]
+    folder: Path = job["folder"]
+    session = job["session"]
+    started_session = None
+    if job["shared"] is not None:
+        rig, camera = job["shared"]
+        if hasattr(camera.driver, "set_view_region"):   # simulated camera: centre its scene on this grid
+            camera.call("set_view_region", plan.extent_mm(), timeout_s=30)
+    else:
+        if session is None:
+            from lfstudio.sim.session import SimulatedSession
+
+            session = started_session = SimulatedSession(
+                job["rig_cfg"], time_scale=job["time_scale"], exposure_s=job["exposure_s"],
+                transfer_s=job["transfer_s"], view_region_mm=plan.extent_mm()).start()
+        elif session.view_region_mm != plan.extent_mm():
+            session.set_view_region(plan.extent_mm())
+        rig, camera = session.rig, session.camera
+    try:
+        if (folder / "dataset.json").is_file():
+            current = job["current"]
+            dataset = current if current is not None and Path(current.root) == folder.resolve() \
+                else Dataset.open(folder)
+            problems = check_resume_matches(dataset, plan)
+            if problems:
+                raise InputError("Dataset folder", f"{folder} holds another scan: " + "; ".join(problems),
+                                 "choose a new folder, or set the grid to the dataset's")
+            base = ScanPlan.from_grid_dict(dataset.grid)
+            plan = ScanPlan(base.columns, base.rows, base.spacing_mm, base.origin_mm, plan.order, plan.settle_s)
+        else:
+            from lfstudio.cli.scan import describe_camera
+
+            scene = job["scene"]
+            camera_info, lens_info = describe_camera(getattr(camera, "driver", camera),
+                                                     scene if hasattr(scene, "camera_dict") else None)
+            cfg = job["rig_cfg"]
+            dataset = create_scan_dataset(folder, plan, rig={"name": cfg.name, "label": cfg.label},
+                                          camera=camera_info, lens=lens_info,
+                                          scene_plan=scene.to_dict() if hasattr(scene, "to_dict") else None)
+        if job["recapture"]:
+            plan = plan.with_subset(job["recapture"])
+        engine = ScanEngine(dataset, plan, rig, camera, time_scale=job["time_scale"],
+                            recapture=bool(job["recapture"]))
+    except BaseException:
+        if started_session is not None:
+            started_session.close()
+        raise
+    return {"session": session, "dataset": dataset, "engine": engine}
 
 
 class ScanPanel(QWidget):
@@ -122,7 +250,10 @@ class ScanPanel(QWidget):
         self.session = None
         self._pending_recapture: list[tuple[int, int]] = []
         self.bridge = EngineBridge(self)
-        self.bridge.event.connect(self._on_event, Qt.QueuedConnection)
+        self.bridge.wake.connect(self._drain, Qt.QueuedConnection)
+        self._backlog: deque = deque()
+        self._draining = False
+        self._log_lines: list[str] = []
         self.opener = JobRunner(self)
         self.opener.finished.connect(self._devices_ready)
         self.opener.failed.connect(self._devices_failed)
@@ -355,12 +486,18 @@ class ScanPanel(QWidget):
         except InputError:
             return
         self.folder.setText(str(dataset.root))
+        fields = (self.columns, self.rows, self.spacing_h, self.spacing_v, self.order)
+        for w in fields:
+            w.blockSignals(True)
         self.columns.setValue(base.columns)
         self.rows.setValue(base.rows)
         self.spacing_h.setValue(base.spacing_mm[0])
         self.spacing_v.setValue(base.spacing_mm[1])
         self.order.setCurrentText(base.order)
-        self.preview.done = {(v["row"], v["column"]) for v in dataset.views if v.get("status") == "done"}
+        for w in fields:
+            w.blockSignals(False)
+        self._update_preview()
+        self.preview.set_done((v["row"], v["column"]) for v in dataset.views if v.get("status") == "done")
         self._set_progress(sum(1 for v in dataset.views if v.get("status") == "done"), len(dataset.views))
 
     def _update_preview(self) -> None:
@@ -389,6 +526,8 @@ class ScanPanel(QWidget):
         return self.engine is not None and self.engine.state not in (ScanState.FINISHED, ScanState.FAILED)
 
     def start(self, recapture: list[tuple[int, int]] | None = None) -> None:
+        """Start (or resume) the scan set up in the panel. Devices, dataset and engine are prepared
+        off the GUI thread; the engine starts when they are ready."""
         if self.running or self.opener.running:
             return
         folder = self.folder.text().strip()
@@ -401,82 +540,34 @@ class ScanPanel(QWidget):
             self.state.report_error("Scan", f"{exc}\n\nChange the grid, spacing or offset in the Scan panel.")
             return
         self._save_settings()
-        self._start_plan = plan
-        self._start_recapture = list(recapture) if recapture else None
         devices = self.state.devices
-        if devices.get("rig") is not None and devices.get("camera") is not None:
-            self._devices_ready(None)
-            return
-        if self.session is not None:
-            self._devices_ready(self.session)
-            return
-        if not self.state.simulated:
+        shared = devices.get("rig") is not None and devices.get("camera") is not None
+        if not shared and self.session is None and not self.state.simulated:
             self.state.report_error("Scan", "No rig or camera connected: connect them in the Rig and Camera "
                                             "panels, then start the scan.")
             return
-        self._log("starting the simulated studio (GRBL simulator on a pseudo-terminal, simulated camera)…")
-        self.state_label.setText("Connecting the simulated rig and camera…")
+        rig_devices = (devices["rig"].worker, devices["camera"].worker) if shared else None
+        scene = self.state.plan
+        current = self.state.dataset
+        job = dict(plan=plan, folder=Path(folder), recapture=list(recapture) if recapture else None,
+                   rig_cfg=self.rig_config(), scene=scene, current=current, shared=rig_devices,
+                   session=self.session, time_scale=self.time_scale.value() if self.state.simulated else 1.0,
+                   exposure_s=getattr(scene, "exposure_s", 0.5), transfer_s=getattr(scene, "transfer_s", 2.5))
+        if not shared and self.session is None:
+            self._log("starting the simulated studio (GRBL simulator on a pseudo-terminal, simulated camera)…")
+            self.state_label.setText("Connecting the simulated rig and camera…")
         self.start_button.setEnabled(False)
-        rig = self.rig_config()
-        scale = self.time_scale.value()
-        exposure = getattr(self.state.plan, "exposure_s", 0.5)
-        transfer = getattr(self.state.plan, "transfer_s", 2.5)
-
-        def open_session(progress=None, cancel=None):
-            from lfstudio.sim.session import SimulatedSession
-
-            return SimulatedSession(rig, time_scale=scale, exposure_s=exposure, transfer_s=transfer).start()
-
-        self.opener.start(open_session)
+        self.opener.start(prepare_scan, job)
 
     def _devices_failed(self, message: str) -> None:
-        self.state_label.setText("Could not connect the devices")
-        self.state.report_error("Scan: connecting the devices", message)
+        self.state_label.setText("Could not start the scan")
+        self.state.report_error("Scan", message)
         self._update_buttons()
 
-    def _devices_ready(self, session: Any) -> None:
-        from lfstudio.dataset import Dataset
-        from lfstudio.scan.engine import ScanEngine, check_resume_matches, create_scan_dataset
-
-        if session is not None:
-            self.session = session
-            rig, camera = session.rig, session.camera
-            scale = session.time_scale
-        else:
-            rig = self.state.devices["rig"].worker
-            camera = self.state.devices["camera"].worker
-            scale = self.time_scale.value() if self.state.simulated else 1.0
-            if hasattr(camera.driver, "set_view_region"):   # simulated camera: centre its scene on this grid
-                camera.submit("set_view_region", self._start_plan.with_subset(None).extent_mm())
-        plan = self._start_plan
-        folder = Path(self.folder.text().strip())
-        try:
-            if (folder / "dataset.json").is_file():
-                current = self.state.dataset
-                dataset = current if current is not None and Path(current.root) == folder.resolve() \
-                    else Dataset.open(folder)
-                problems = check_resume_matches(dataset, plan)
-                if problems:
-                    raise InputError("Dataset folder", f"{folder} holds another scan: " + "; ".join(problems),
-                                     "choose a new folder, or set the grid to the dataset's")
-                base = ScanPlan.from_grid_dict(dataset.grid)
-                plan = ScanPlan(base.columns, base.rows, base.spacing_mm, base.origin_mm, plan.order, plan.settle_s)
-            else:
-                scene = self.state.plan
-                camera_info = scene.camera_dict() if hasattr(scene, "camera_dict") else \
-                    {"name": getattr(getattr(camera, "driver", camera), "name", "camera")}
-                lens_info = scene.lens_dict() if hasattr(scene, "lens_dict") else {"name": "unknown"}
-                cfg = self.rig_config()
-                dataset = create_scan_dataset(folder, plan, rig={"name": cfg.name, "label": cfg.label},
-                                              camera=camera_info, lens=lens_info,
-                                              scene_plan=scene.to_dict() if hasattr(scene, "to_dict") else None)
-            if self._start_recapture:
-                plan = plan.with_subset(self._start_recapture)
-            engine = ScanEngine(dataset, plan, rig, camera, time_scale=scale, recapture=bool(self._start_recapture))
-        except LfError as exc:
-            self.state.report_error("Scan", str(exc))
-            self._update_buttons()
-            return
+    def _devices_ready(self, prepared: dict) -> None:
+        if prepared.get("session") is not None:
+            self.session = prepared["session"]
+        dataset, engine = prepared["dataset"], prepared["engine"]
         if engine.remaining == 0:
             self.state.set_dataset(dataset)
             self.state_label.setText("Every view of this dataset is captured.")
@@ -484,11 +575,11 @@ class ScanPanel(QWidget):
             self._update_buttons()
             return
         self.engine = engine
-        engine.subscribe(self.bridge.event.emit)
+        engine.subscribe(self.bridge.push)
         if self.state.dataset is not dataset:
             self.state.set_dataset(dataset)
-        self.preview.done = {(v["row"], v["column"]) for v in dataset.views if v.get("status") == "done"}
-        self.preview.set_plan(plan.with_subset(None))
+        self.preview.set_done((v["row"], v["column"]) for v in dataset.views if v.get("status") == "done")
+        self.preview.set_plan(engine.plan.with_subset(None))
         settings().setValue(ACTIVE_KEY, str(dataset.root))
         self._log(f"scan of {dataset.root}: {engine.remaining} views to capture"
                   + ("" if engine.pipelined else " (camera without exposure signal: transfer not overlapped)"))
@@ -557,7 +648,35 @@ class ScanPanel(QWidget):
         box.open()
 
     # -- events ------------------------------------------------------------------------------------
-    def _on_event(self, ev) -> None:
+    def _drain(self) -> None:
+        """Handle queued engine events for at most ~15 ms, then yield to the event loop."""
+        self._backlog.extend(self.bridge.take())
+        t_end = time.perf_counter() + 0.015
+        self._draining = True
+        last_done = None
+        try:
+            while self._backlog and time.perf_counter() < t_end:
+                ev = self._backlog.popleft()
+                if ev.kind is EventKind.VIEW_DONE:
+                    last_done = ev
+                self._on_event(ev, batched=True)
+        finally:
+            self._draining = False
+        if last_done is not None:
+            self._show_done(last_done)
+        if self._log_lines:
+            self.log_view.appendPlainText("\n".join(self._log_lines))
+            self._log_lines = []
+        if self._backlog:
+            QTimer.singleShot(0, self._drain)
+
+    def _show_done(self, ev) -> None:
+        self._set_progress(ev.done, ev.total)
+        self.eta.setText(f"ETA {format_duration(ev.eta_s)}")
+        self.timings.setText("Step times: " + ", ".join(f"{k} {v:.2f} s" for k, v in ev.timings_s.items()))
+        self.preview.update()
+
+    def _on_event(self, ev, batched: bool = False) -> None:
         self.state.scanEvent.emit(ev)
         kind = ev.kind
         if kind is EventKind.STATE:
@@ -571,11 +690,9 @@ class ScanPanel(QWidget):
         elif kind is EventKind.VIEW_EXPOSED:
             self.current.setText(f"Current view: row {ev.row}, column {ev.column} — exposed, transferring")
         elif kind is EventKind.VIEW_DONE:
-            self._set_progress(ev.done, ev.total)
-            self.eta.setText(f"ETA {format_duration(ev.eta_s)}")
-            self.timings.setText("Step times: " + ", ".join(f"{k} {v:.2f} s" for k, v in ev.timings_s.items()))
-            self.preview.done.add((ev.row, ev.column))
-            self.preview.update()
+            self.preview.mark_done(ev.row, ev.column)
+            if not batched:
+                self._show_done(ev)
             self._log(ev.describe())
         elif kind in (EventKind.VIEW_FAILED, EventKind.FAULT, EventKind.VIEW_SKIPPED, EventKind.LOG):
             self._log(("⚠ " if kind in (EventKind.FAULT, EventKind.VIEW_FAILED) else "") + ev.describe())
@@ -618,7 +735,11 @@ class ScanPanel(QWidget):
     def _log(self, text: str) -> None:
         from datetime import datetime
 
-        self.log_view.appendPlainText(f"{datetime.now():%H:%M:%S}  {text}")
+        line = f"{datetime.now():%H:%M:%S}  {text}"
+        if self._draining:
+            self._log_lines.append(line)
+        else:
+            self.log_view.appendPlainText(line)
 
     def shutdown(self) -> None:
         if self.engine is not None and self.running:

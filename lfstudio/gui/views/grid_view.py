@@ -240,14 +240,15 @@ class GridCanvas(QAbstractScrollArea):
             return r, c
         return None
 
-    def _visible_range(self) -> tuple[int, int, int, int]:
+    def _visible_range(self, rect: QRect | None = None) -> tuple[int, int, int, int]:
+        """Rows r0..r1-1 and columns c0..c1-1 that touch ``rect`` (default: the whole viewport)."""
         px, py = self._pitch()
         ox, oy = self._offset()
-        vp = self.viewport().size()
-        c0 = max(0, int(-ox // px))
-        c1 = min(self.columns, int((vp.width() - ox) // px) + 1)
-        r0 = max(0, int(-oy // py))
-        r1 = min(self.rows, int((vp.height() - oy) // py) + 1)
+        rect = rect if rect is not None else self.viewport().rect()
+        c0 = max(0, int((rect.left() - ox) // px))
+        c1 = min(self.columns, int((rect.right() + 1 - ox) // px) + 1)
+        r0 = max(0, int((rect.top() - oy) // py))
+        r1 = min(self.rows, int((rect.bottom() + 1 - oy) // py) + 1)
         return r0, r1, c0, c1
 
     # -- thumbnails ------------------------------------------------------------------------------
@@ -286,7 +287,10 @@ class GridCanvas(QAbstractScrollArea):
         if not self.rows or self.mosaic is None:
             p.end()
             return
-        r0, r1, c0, c1 = self._visible_range()
+        r0, r1, c0, c1 = self._visible_range(event.rect())
+        if r1 <= r0 or c1 <= c0:
+            p.end()
+            return
         full = self.cell_px >= FULL_ZOOM_PX
         px, py = self._pitch()
         ox, oy = self._offset()

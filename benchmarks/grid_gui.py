@@ -1,0 +1,165 @@
+"""The thumbnail grid with the reference 101 x 21 = 2121 views: time to open the dataset to a painted
+grid (target < 1 s), time until every thumbnail tile is in, process memory (target < 500 MB), and the
+GUI thread's longest stall during a running scan (``lfstudio.gui.heartbeat.Heartbeat``, target < 50 ms).
+
+    python benchmarks/grid_gui.py [--dataset DIR] [--scan-views 2121]
+
+The dataset (virtual-studio thumbnails) is built once in a temporary folder unless --dataset is given.
+The running scan uses the instant rig and camera through the Scan panel: the heaviest event rate the
+GUI can get (hundreds of views per second), a worst case for the GUI thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from _datasets import captured_dataset  # noqa: E402
+
+
+def rss_mb() -> float:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--dataset", help="an existing 2121-view dataset to open")
+    ap.add_argument("--scan-views", type=int, default=2121, help="views of the scan run under the heartbeat")
+    args = ap.parse_args()
+    tmp = tempfile.mkdtemp(prefix="lfstudio-grid-bench-")
+    os.environ["LFSTUDIO_CONFIG_DIR"] = str(Path(tmp) / "config")
+    root = Path(args.dataset) if args.dataset else Path(tmp) / "ref101x21"
+    if not args.dataset:
+        print("building a 101 x 21 dataset with virtual-studio thumbnails…", flush=True)
+        captured_dataset(root, 101, 21)
+
+    from PySide6.QtCore import QEventLoop, QTimer
+    from PySide6.QtWidgets import QApplication
+
+    from lfstudio.dataset import Dataset
+    from lfstudio.gui.app import create_window
+    from lfstudio.gui.devices import QtDevice
+    from lfstudio.gui.heartbeat import Heartbeat
+    from lfstudio.rig.profile import load_rig
+    from lfstudio.rig.worker import DeviceWorker
+    from lfstudio.sim.instant import InstantCamera, InstantRig
+
+    app = QApplication.instance() or QApplication([])
+    window = create_window(simulated=True)
+    window.resize(1600, 1000)
+    window.show()
+    app.processEvents()
+    canvas = window.central.canvas
+    painted = {"t": None}
+    orig_paint = canvas.paintEvent
+
+    def paint(event):
+        orig_paint(event)
+        if painted["t"] is None and canvas.rows:
+            painted["t"] = time.perf_counter()
+    canvas.paintEvent = paint
+
+    def spin_until(cond, timeout_s: float) -> bool:
+        """Run the event loop (idle-waiting, as the application does) until ``cond()`` holds."""
+        loop = QEventLoop()
+        check = QTimer()
+        check.setInterval(20)
+        check.timeout.connect(lambda: loop.quit() if cond() else None)
+        QTimer.singleShot(int(timeout_s * 1000), loop.quit)
+        if not cond():
+            check.start()
+            loop.exec()
+            check.stop()
+        return cond()
+
+    rss0 = rss_mb()
+    t0 = time.perf_counter()
+    window.state.set_dataset(Dataset.open(root))
+    canvas.viewport().repaint()
+    spin_until(lambda: painted["t"] is not None, 10)
+    t_painted = painted["t"] - t0
+    spin_until(lambda: canvas._mosaic_has.all(), 60)
+    t_all = time.perf_counter() - t0
+    window.grab().save(str(Path(tmp) / "grid.png"))
+    canvas.set_zoom(160)
+    spin_until(lambda: len(canvas._cache) >= 12, 10)
+    canvas.fit()
+    rss1 = rss_mb()
+    print(f"open 2121-view dataset to a painted grid   {t_painted * 1000:.0f} ms   (target < 1000 ms: "
+          f"{'OK' if t_painted < 1.0 else 'MISSED'})")
+    print(f"all 2121 thumbnail tiles loaded            {t_all * 1000:.0f} ms")
+    print(f"memory (RSS) after open                    {rss1:.0f} MB (before: {rss0:.0f} MB; target < 500 MB: "
+          f"{'OK' if rss1 < 500 else 'MISSED'})")
+
+    # a running scan under the heartbeat
+    rig_cfg = load_rig()
+    rig = InstantRig(rig_cfg)
+    rig.connect()
+    cam = InstantCamera(rig.true_position_mm)
+    cam.connect()
+    state = window.state
+    state.devices["rig"] = QtDevice(DeviceWorker(rig, name="rig"))
+    state.devices["camera"] = QtDevice(DeviceWorker(cam, name="camera", status_method=None))
+    panel = window.panels["scanPanel"]
+    cols = min(101, args.scan_views)
+    rows = max(1, args.scan_views // cols)
+    panel.columns.setValue(cols)
+    panel.rows.setValue(rows)
+    panel.settle.setValue(0.0)
+    panel.time_scale.setValue(0.0)
+    panel.folder.setText(str(Path(tmp) / "scan"))
+    heart = Heartbeat(interval_ms=10, warn_ms=1e9)
+    stall_log = []
+    orig_tick = heart._tick
+
+    def tick():
+        before = heart._last
+        orig_tick()
+        stall_log.append(((before or 0) - t, (heart._last - before) * 1000 - heart.interval_ms))
+    heart._timer.timeout.disconnect()
+    heart._timer.timeout.connect(tick)
+    first_done = {}
+    state.scanEvent.connect(lambda ev: first_done.setdefault("t", time.perf_counter())
+                            if ev.kind.value == "view-done" else None)
+    heart.start()
+    t = time.perf_counter()
+    panel.start()
+    spin_until(lambda: "Finished" in panel.state_label.text(), 600)
+    scan_s = time.perf_counter() - t
+    heart.stop()
+    views = cols * rows
+    print(f"scan through the GUI                       {views} views in {scan_s:.1f} s "
+          f"({views / scan_s:.0f} views/s, instant devices)")
+    t_run = first_done.get("t", t) - t
+    running = [ms for at, ms in stall_log if at >= t_run]
+    starting = [ms for at, ms in stall_log if at < t_run]
+    max_run = max(running, default=0.0)
+    print(f"GUI thread max stall while the scan runs   {max_run:.1f} ms   (target < 50 ms: "
+          f"{'OK' if max_run < 50 else 'MISSED'}; ticks > 50 ms: {sum(1 for ms in running if ms > 50)} "
+          f"of {len(running)})")
+    print(f"GUI thread max stall while it starts       {max(starting, default=0.0):.1f} ms (Start click to first "
+          f"view, {t_run * 1000:.0f} ms: devices, dataset and engine are prepared off the GUI thread)")
+    worst = sorted(stall_log, key=lambda x: -x[1])[:3]
+    print("worst stalls                               " + ", ".join(f"{ms:.0f} ms at {at:.2f} s" for at, ms in worst))
+    print(f"memory (RSS) after the scan                {rss_mb():.0f} MB")
+    print(f"screenshot                                 {Path(tmp) / 'grid.png'}")
+    for d in state.devices.values():
+        d.close(disconnect=False)
+    window.close()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
