@@ -120,7 +120,7 @@ def prepare(plan: RunPlan) -> _Prepared:
     factor = _factor_map_captured(plan, profile)
     if factor is not None:
         if maps is not None:
-            if factor.shape[2] == 1 and len(maps) == 1:
+            if factor.shape[2] == 1 and (isinstance(maps, rectify.HomographyWarp) or len(maps) == 1):
                 factor = rectify.apply_maps(factor[:, :, 0], maps, profile.rectify.interpolation)[:, :, None]
             else:
                 if factor.shape[2] == 1:

@@ -14,6 +14,7 @@ slower).
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -59,11 +60,23 @@ def scale_homography(H: np.ndarray, s: float) -> np.ndarray:
     return C @ np.asarray(H, dtype=float) @ np.linalg.inv(C)
 
 
-def build_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | None, lens) -> list | None:
+@dataclass(frozen=True)
+class HomographyWarp:
+    """Rectification alone: ``cv2.warpPerspective`` computes its coordinates block by block, in
+    cache; ~1.5x faster than streaming full-frame precomputed maps."""
+
+    H: np.ndarray           # captured pixel -> output pixel, at the processing scale
+    size_wh: tuple[int, int]
+
+
+def build_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | None, lens) -> list | HomographyWarp | None:
     """Remap maps for an image of ``size_wh`` (= full size × ``scale``): one pair for all channels,
-    or three (R, G, B) with lateral CA; None if there is nothing to warp."""
+    or three (R, G, B) with lateral CA; a :class:`HomographyWarp` when there is no lens model;
+    None if there is nothing to warp."""
     if H_full is None and lens is None:
         return None
+    if lens is None:
+        return HomographyWarp(scale_homography(H_full, scale), tuple(size_wh))
     w, h = size_wh
     xs = np.arange(w, dtype=np.float64)
     maps = []
@@ -90,10 +103,13 @@ def build_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | None
 
 
 def apply_maps(img: np.ndarray, maps: list | None, interpolation: str = "linear") -> np.ndarray:
-    """Warp ``img`` (uint16 or float32, (h, w[, c])) with maps from :func:`build_maps`; outside: 0."""
+    """Warp ``img`` (uint16 or float32, (h, w[, c])) as :func:`build_maps` says; outside: 0."""
     if maps is None:
         return img
     inter = INTERPOLATIONS[interpolation]
+    if isinstance(maps, HomographyWarp):
+        return cv2.warpPerspective(img, maps.H, maps.size_wh, flags=inter, borderMode=cv2.BORDER_CONSTANT,
+                                   borderValue=0)
     if len(maps) == 1:
         m1, m2 = maps[0]
         return cv2.remap(img, m1, m2, inter, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
