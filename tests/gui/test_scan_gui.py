@@ -78,12 +78,17 @@ def test_grid_zoom_selection_and_recapture_request(qtbot, tmp_path):
     view.show()
     state.set_dataset(scanned(tmp_path / "ds"))
     canvas = view.canvas
+    qtbot.waitExposed(view)
+    canvas.fit()
     fit_px = canvas.cell_px
     canvas.set_zoom(400)
     assert canvas.cell_px == 400 and canvas.horizontalScrollBar().maximum() > 0
     qtbot.waitUntil(lambda: len(canvas._cache) > 0, timeout=5000)   # full thumbnails for visible cells
     canvas.fit()
-    qtbot.waitUntil(lambda: canvas.cell_px == pytest.approx(fit_px), timeout=2000)
+    # fit: the whole grid is visible again, no scrolling
+    qtbot.waitUntil(lambda: canvas.horizontalScrollBar().maximum() == 0
+                    and canvas.verticalScrollBar().maximum() == 0, timeout=2000)
+    assert canvas.cell_px < 400 and canvas.cell_px == pytest.approx(fit_px, rel=0.1)
     a = canvas._cell_rect(0, 1).center()
     b = canvas._cell_rect(1, 2).center()
     qtbot.mousePress(canvas.viewport(), Qt.LeftButton, pos=a)
@@ -188,3 +193,24 @@ def test_grid_follows_scan_events(qtbot, tmp_path):
     assert view.canvas.status[0, 2] == CAPTURING
     state.scanEvent.emit(ScanEvent(EventKind.VIEW_FAILED, "camera timeout", row=0, column=2, will_retry=False))
     assert view.canvas.status[0, 2] == 3
+
+
+def test_scan_panel_starts_the_simulated_studio_when_no_devices_are_connected(qtbot, tmp_path):
+    state = AppState(simulated=True)
+    panel = ScanPanel(state)
+    qtbot.addWidget(panel)
+    panel.columns.setValue(2)
+    panel.rows.setValue(1)
+    panel.settle.setValue(0.0)
+    panel.time_scale.setValue(0.0)
+    panel.folder.setText(str(tmp_path / "simscan"))
+    panel.start()
+    qtbot.waitUntil(lambda: "Finished" in panel.state_label.text(), timeout=60000)
+    try:
+        assert panel.session is not None and panel.session.port.startswith("/dev/")   # a real pty
+        ds = Dataset.open(tmp_path / "simscan")
+        assert ds.status_counts()["done"] == 2
+        assert ds.view(0, 1)["file"] == "raw/r00_c001.dng"
+        assert ds.camera["name"] == "Simulated camera" and ds.camera.get("sensor_px")
+    finally:
+        panel.shutdown()

@@ -272,10 +272,7 @@ class GridCanvas(QAbstractScrollArea):
             painter = QPainter(self.mosaic)
             target = QRect(c * TILE_W, r * TILE_H, TILE_W, TILE_H)
             painter.fillRect(target, Qt.black)
-            scaled = image.size().scaled(target.size(), Qt.KeepAspectRatio)
-            painter.drawImage(QRect(target.x() + (TILE_W - scaled.width()) // 2,
-                                    target.y() + (TILE_H - scaled.height()) // 2, scaled.width(), scaled.height()),
-                              image)
+            painter.drawImage(target, image)   # stretched: no letterbox lines between tiles
             painter.end()
             self._mosaic_has[r, c] = True
         self.viewport().update(self._cell_rect(r, c))
@@ -515,11 +512,15 @@ class GridView(QWidget):
         self.counts.setObjectName("gridCounts")
         bar.addWidget(self.title)
         bar.addSpacing(12)
-        bar.addWidget(self.counts, 1)
-        for state_code in (PENDING, CAPTURING, DONE, FAILED, SKIPPED):
-            swatch = QLabel(f"<span style='color:{STATE_COLORS[state_code].name()}'>■</span> "
-                            f"{STATE_NAMES[state_code]}")
-            bar.addWidget(swatch)
+        bar.addWidget(self.counts)
+        bar.addSpacing(16)
+        bar.addStretch(1)
+        legend = QLabel("&nbsp;&nbsp;".join(
+            f"<span style='color:{STATE_COLORS[code].name()}'>■</span>&nbsp;{STATE_NAMES[code]}"
+            for code in (PENDING, CAPTURING, DONE, FAILED, SKIPPED)))
+        legend.setObjectName("gridLegend")
+        legend.setToolTip("Colours of the views: pending, being captured, done, failed, skipped by the operator")
+        bar.addWidget(legend)
         bar.addSpacing(12)
         self.fit_button = self._tool("Fit", "Show the whole grid (F)", self.canvas.fit)
         self.zoom_out_button = self._tool("−", "Zoom out (-)", lambda: self.canvas.zoom_by(0.8))
