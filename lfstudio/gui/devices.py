@@ -150,6 +150,6 @@ class QtDevice(QObject):
         call still running finishes on its own thread)."""
         if self._closed:
             return
+        self._closed = True          # nothing more is posted to the GUI thread from now on
         self._unsubscribe()
         self.worker.close(disconnect=disconnect, timeout_s=timeout_s)
-        self._closed = True

@@ -112,6 +112,7 @@ class RigPanel(QWidget):
         super().__init__(parent)
         self.state = state
         self.device: QtDevice | None = None
+        self._retired: list[QtDevice] = []
         self.simulator: Any = None
         self.sim_time_scale = 1.0          # simulated rig: real-time motion (tests speed it up)
         self.last_status: RigStatus | None = None
@@ -400,7 +401,7 @@ class RigPanel(QWidget):
         controller = GrblController(path, self.rig_config)
         worker = DeviceWorker(controller, name="rig", publish_hz=10,
                               error_snapshot=lambda message: RigStatus(RigState.DISCONNECTED, message=message))
-        self.device = QtDevice(worker, self)
+        self.device = QtDevice(worker)
         self.device.statusChanged.connect(self._on_status)
         self.device.busyChanged.connect(lambda _busy: self._update_enabled())
         self._show_message(f"Connecting to {port if port != 'sim' else 'the simulated controller'} …", "warning")
@@ -426,7 +427,7 @@ class RigPanel(QWidget):
         if device is not None:
             device.stop_now()
             device.close(disconnect=True)
-            device.deleteLater()
+            self._retired.append(device)   # released with the panel, on the GUI thread
         if self.simulator is not None:
             self.simulator.close()
             self.simulator = None
