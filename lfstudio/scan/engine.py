@@ -425,7 +425,7 @@ class ScanEngine:
             done_text = f"{self.done} of {self.total} views captured"
             with self._cond:
                 self._resume_req = False      # before announcing: a listener may resume at once
-            self._set_state(ScanState.PAUSED, str(self.fault) if self.fault else f"Paused: {done_text}.")
+            self._set_state(ScanState.PAUSED, str(self.fault) if self.fault else f"{done_text}; Resume continues.")
             with self._cond:
                 self._cond.wait_for(lambda: self._resume_req or self._abort_req)
                 if self._abort_req:

@@ -62,8 +62,8 @@ class ScanEvent:
         if self.kind is EventKind.STATE:
             return f"{self.state.value if self.state else ''}: {self.message}".rstrip(": ")
         if self.kind is EventKind.VIEW_DONE:
-            steps = " ".join(f"{k} {v:.2f}s" for k, v in self.timings_s.items())
-            return f"{where} done ({self.done}/{self.total}) {steps}"
+            period = self.timings_s.get("period")
+            return f"{where} done ({self.done}/{self.total})" + (f", {period:.2f} s per view" if period else "")
         if self.kind is EventKind.VIEW_STARTED:
             return f"{where} moving"
         if self.kind is EventKind.VIEW_EXPOSED:

@@ -703,6 +703,10 @@ class ScanPanel(QWidget):
         fault = self.engine is not None and self.engine.fault is not None and st is ScanState.PAUSED
         color = "#e06060" if fault else colors.get(st, "#c0c0c0")
         self.state_label.setText(f"<b style='color:{color}'>{st.value.capitalize()}</b> {message}")
+        if st in (ScanState.PAUSED, ScanState.FINISHED, ScanState.FAILED):
+            self.current.setText("Current view: –")
+            self.preview.current = None
+            self.preview.update()
         if st is ScanState.FINISHED and self.engine is not None:
             if self.engine.dataset.status_counts()["pending"] == 0:
                 settings().remove(ACTIVE_KEY)
