@@ -8,8 +8,12 @@ HELP = "open the application window (default)"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--simulated", action="store_true", default=True,
-                   help="use the built-in simulated studio (simulated rig and camera); the default")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--simulated", dest="simulated", action="store_true", default=True,
+                      help="start on the built-in simulated studio: the simulated rig and camera are "
+                           "connected at start (the default)")
+    mode.add_argument("--hardware", dest="simulated", action="store_false",
+                      help="start without the simulated studio; connect the real rig and camera in their panels")
     p.add_argument("--dataset", metavar="DIR", help="open this dataset folder on start")
     p.add_argument("--screenshot", metavar="PNG",
                    help="render the main window to this PNG file once it is shown, then quit")

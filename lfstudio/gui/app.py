@@ -61,6 +61,8 @@ def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str 
         except LfError as exc:
             window.state.report_error("Open dataset", str(exc))
     window.show()
+    if simulated:
+        QTimer.singleShot(0, window.connect_simulated_studio)
     if screenshot:
         def grab() -> None:
             window.grab().save(screenshot)

@@ -119,6 +119,18 @@ class MainWindow(QMainWindow):
         box.setObjectName("errorBox")
         box.open()  # non-modal: never blocks the event loop
 
+    def connect_simulated_studio(self) -> None:
+        """Connect the simulated rig and camera (the built-in studio), as ``lfstudio`` does on start.
+
+        Homing stays the operator's step, as on the real rig."""
+        rig, camera = self.panels.get("rigDock"), self.panels.get("cameraDock")
+        if rig is not None and not rig.connected and rig._chosen_port() == "sim":
+            rig.connect_rig()
+        if camera is not None and not camera.connected and camera.current_kind() == "sim":
+            camera.connect_camera()
+        self.statusBar().showMessage("Simulated studio: rig and camera connecting. Home the rig "
+                                     "(Rig → Home) before jogging or scanning.", 15000)
+
     # -- persistence -------------------------------------------------------------------------------
     def _restore_geometry(self) -> None:
         s = settings()
@@ -127,6 +139,10 @@ class MainWindow(QMainWindow):
             self.restoreGeometry(geometry)
         if window_state is not None:
             self.restoreState(window_state)
+        else:  # first start: the panels of the first steps in front
+            for name in ("plannerDock", "planPlotsDock", "scanPanel"):
+                if name in self.docks:
+                    self.docks[name].raise_()
 
     def closeEvent(self, event) -> None:
         s = settings()

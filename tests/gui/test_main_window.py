@@ -31,3 +31,23 @@ def test_error_is_shown_not_raised(qtbot):
     qtbot.addWidget(window)
     window.state.report_error("Test", "something the operator must read")
     qtbot.waitUntil(lambda: "something the operator must read" in window.statusBar().currentMessage())
+
+
+def test_simulated_studio_connects_rig_and_camera(qtbot):
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    rig, camera = window.panels["rigDock"], window.panels["cameraDock"]
+    rig.sim_time_scale = 0.02
+    window.connect_simulated_studio()
+    qtbot.waitUntil(lambda: window.state.devices.get("rig_simulator") is not None, timeout=10000)
+    qtbot.waitUntil(lambda: camera.connected and "Connected" in camera.status_label.text(), timeout=60000)
+    assert rig.connected and window.state.devices.get("rig") is rig.device
+    assert window.state.devices.get("camera") is camera.device
+    window.close()
+
+
+def test_gui_hardware_flag(run_cli):
+    from lfstudio.cli import build_parser
+
+    assert build_parser().parse_args(["gui"]).simulated is True
+    assert build_parser().parse_args(["gui", "--hardware"]).simulated is False
