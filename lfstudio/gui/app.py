@@ -69,5 +69,5 @@ def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str 
             print(f"saved {screenshot}")
             window.close()
             app.quit()
-        QTimer.singleShot(1500, grab)
+        QTimer.singleShot(3000, grab)
     return app.exec()

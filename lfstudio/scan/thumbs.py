@@ -98,6 +98,15 @@ def _from_raw(path: Path, width_px: int) -> np.ndarray | None:
         return cv2.cvtColor((rgb * 255).astype(np.uint8), cv2.COLOR_RGB2BGR)
 
 
+def thumbnail_array(path: str | Path, width_px: int = THUMB_WIDTH_PX) -> np.ndarray | None:
+    """A BGR uint8 thumbnail of one image or RAW file, at most ``width_px`` wide (None if undecodable).
+
+    For views without a stored thumbnail (datasets rendered or imported rather than scanned)."""
+    path = Path(path)
+    img = _from_image_file(path, width_px) if path.suffix.lower() in _IMAGE_SUFFIXES else _from_raw(path, width_px)
+    return None if img is None else _resize(img, width_px)
+
+
 def make_thumbnail(files: Sequence[Path], out_path: Path, width_px: int = THUMB_WIDTH_PX,
                    preview: np.ndarray | None = None) -> Path | None:
     """Write a JPEG thumbnail of a capture to ``out_path`` (atomically); None if nothing decodable.

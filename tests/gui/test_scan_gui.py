@@ -214,3 +214,20 @@ def test_scan_panel_starts_the_simulated_studio_when_no_devices_are_connected(qt
         assert ds.camera["name"] == "Simulated camera" and ds.camera.get("sensor_px")
     finally:
         panel.shutdown()
+
+
+@pytest.mark.parametrize("fmt", ["png", "dng"])
+def test_grid_shows_views_without_stored_thumbnails(qtbot, make_tiny_dataset, fmt):
+    """Rendered or imported datasets have no thumbs/: the grid decodes the view files themselves."""
+    ds = make_tiny_dataset(fmt)
+    assert not any(v.get("thumb") for v in ds.views)
+    state = AppState()
+    view = GridView(state)
+    qtbot.addWidget(view)
+    view.resize(900, 500)
+    view.show()
+    state.set_dataset(Dataset.open(ds.root))
+    qtbot.waitUntil(lambda: bool(view.canvas._mosaic_has.all()), timeout=20000)
+    tile = view.canvas.mosaic.copy(0, 0, 40, 30)
+    from lfstudio.gui.imageutil import qimage_to_rgb
+    assert qimage_to_rgb(tile).std() > 5   # image content, not a flat status colour

@@ -38,6 +38,17 @@ FULL_ZOOM_PX = 56                # from this cell width on, draw the full thumbn
 MAX_RECENT = 8
 
 
+def _file_thumbnail(path: str, width_px: int) -> QImage:
+    from lfstudio.gui.imageutil import rgb_to_qimage
+    from lfstudio.scan.thumbs import thumbnail_array
+
+    try:
+        bgr = thumbnail_array(path, width_px)
+    except Exception:  # an unreadable file stays a coloured cell; the dataset check reports it
+        return QImage()
+    return QImage() if bgr is None else rgb_to_qimage(np.ascontiguousarray(bgr[..., ::-1]))
+
+
 class ThumbLoader(QObject):
     """Decodes thumbnails on one background thread; newest requests first. ``loaded(key, QImage)``."""
 
@@ -82,11 +93,14 @@ class ThumbLoader(QObject):
                     return
                 key, path, size = self._stack.pop()
                 generation = self._generation
-            reader = QImageReader(path)
-            src = reader.size()
-            if src.isValid() and size.isValid():
-                reader.setScaledSize(src.scaled(size, Qt.KeepAspectRatio))
-            image = reader.read()
+            if "/thumbs/" in path.replace("\\", "/"):
+                reader = QImageReader(path)
+                src = reader.size()
+                if src.isValid() and size.isValid():
+                    reader.setScaledSize(src.scaled(size, Qt.KeepAspectRatio))
+                image = reader.read()
+            else:  # no stored thumbnail: decode the view's own file (RAW or 16-bit image) small
+                image = _file_thumbnail(path, max(size.width(), 1))
             with self._cond:
                 self._queued.discard(key)
                 if generation != self._generation:
@@ -149,8 +163,8 @@ class GridCanvas(QAbstractScrollArea):
                 r, c = v["row"], v["column"]
                 if 0 <= r < self.rows and 0 <= c < self.columns:
                     self.status[r, c] = STATUS_CODES.get(v.get("status"), PENDING)
-                    if v.get("thumb") and v.get("status") == "done":
-                        self.thumbs[(r, c)] = v["thumb"]
+                    if v.get("status") == "done" and (v.get("thumb") or v.get("file")):
+                        self.thumbs[(r, c)] = v.get("thumb") or v["file"]
             self.mosaic = QImage(self.columns * TILE_W, self.rows * TILE_H, QImage.Format_RGB32)
             self.mosaic.fill(QColor(0, 0, 0))
             self._mosaic_has = np.zeros((self.rows, self.columns), bool)
