@@ -98,6 +98,7 @@ class DeviceWorker:
         self._last_publish = float("-inf")
         self._pending: Any = None
         self._has_pending = False
+        self._flush_timer: threading.Timer | None = None
         self._latest: Any = None
         self._current: str | None = None
         self._closed = False
@@ -179,7 +180,14 @@ class DeviceWorker:
             if not self._has_pending:
                 return
             now = time.monotonic()
-            if not force and now - self._last_publish < 1.0 / self.publish_hz:
+            wait_s = self._last_publish + 1.0 / self.publish_hz - now
+            if not force and wait_s > 0:
+                # held back by the rate bound: publish it when the window opens, even if the
+                # device thread is busy in a long call by then (a late "no answer" must show)
+                if self._flush_timer is None:
+                    self._flush_timer = threading.Timer(wait_s, self._timed_flush)
+                    self._flush_timer.daemon = True
+                    self._flush_timer.start()
                 return
             snapshot = self._pending
             self._has_pending = False
@@ -192,6 +200,12 @@ class DeviceWorker:
                 callback(snapshot)
             except Exception:  # a broken subscriber must not kill the device thread
                 log.exception("%s: snapshot subscriber failed", self.name)
+
+    def _timed_flush(self) -> None:
+        with self._publish_lock:
+            self._flush_timer = None
+        if not self._closed:
+            self._flush()
 
     def _poll_status(self) -> None:
         if self._status_method is None:
@@ -277,6 +291,10 @@ class DeviceWorker:
         self._queue.put(_CLOSE)
         if threading.current_thread() is not self._thread:
             self._thread.join(timeout_s)
+        with self._publish_lock:
+            if self._flush_timer is not None:
+                self._flush_timer.cancel()
+                self._flush_timer = None
         if hasattr(self.driver, "status_listener"):
             try:
                 self.driver.status_listener = None

@@ -155,3 +155,23 @@ def test_status_listener_hook_and_close():
     assert driver.disconnected and driver.status_listener is None
     with pytest.raises(DeviceError, match="closed"):
         w.call("work")
+
+
+def test_snapshot_held_by_the_rate_bound_is_published_during_a_long_call():
+    """A status pushed right after another (inside the rate window) must not wait for the call to end."""
+    seen_last = threading.Event()
+
+    class Slow:
+        status_listener = None
+
+        def long_call(self):
+            self.status_listener({"step": "first"})
+            self.status_listener({"step": "camera does not answer"})   # inside the 0.1 s window
+            return seen_last.wait(10)      # still inside the call: was the second one published?
+
+    w = DeviceWorker(Slow(), name="slow", status_method=None, publish_hz=10)
+    w.subscribe(lambda s: s.get("step") == "camera does not answer" and seen_last.set())
+    try:
+        assert w.call("long_call") is True
+    finally:
+        w.close()
