@@ -180,13 +180,21 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
     H = homography(params)
     residual_after = signed_residuals(H, xy_a, xy_b, horizontal)
     sigma = max(1.4826 * float(np.median(np.abs(residual_after[inlier]))), 0.0)
+    # formal standard errors (Gauss-Newton, independent residuals of spread sigma): how well these
+    # views determine each parameter; small baselines leave pan and tilt weakly determined
+    try:
+        std = sigma * np.sqrt(np.diag(np.linalg.pinv(sol.jac.T @ sol.jac)))
+    except (np.linalg.LinAlgError, ValueError):
+        std = np.full(len(params), np.inf)
     pp = nominal + (params[3:5] if len(params) > 3 else 0.0)
     return FitResult(rotation_deg=np.asarray(params[:3], float), principal_point_px=np.asarray(pp, float),
                      focal_length_px=f, image_size_px=(w, h), homography=H,
                      estimate_principal_point=estimate_principal_point,
                      residual_before_px=residual_before, residual_after_px=residual_after, inlier=inlier,
                      pair_slices=slices, sigma_px=sigma, success=bool(sol.success), message=str(sol.message),
-                     evaluations=int(evaluations), extra={"start_deg": x0.tolist()})
+                     evaluations=int(evaluations),
+                     extra={"start_deg": x0.tolist(), "rotation_std_deg": [float(x) for x in std[:3]],
+                            "principal_point_std_px": [float(x) for x in std[3:5]] if len(std) > 3 else None})
 
 
 def _vname(view: tuple[int, int]) -> str:

@@ -19,6 +19,7 @@ from lfstudio.dataset.paths import view_stem
 FORMAT = "lfstudio-calibration"
 VERSION = 1
 MIN_PAIR_MATCHES = 20
+WEAK_ANGLE_STD_DEG = 0.05   # warn when the views determine an angle worse than this
 
 
 def stats(residuals: np.ndarray) -> dict[str, float | int | None]:
@@ -94,6 +95,14 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
                             f"calibration (limit {limit:.2f} px); the view may have moved or be blurred")
     if not fit.success:
         warnings.append(f"the optimiser did not report convergence: {fit.message}")
+    std = fit.extra.get("rotation_std_deg")
+    if std is not None:
+        weak = [f"{name} ±{sd:.3f}°" for name, sd in zip(("rx (tilt)", "ry (pan)", "rz (roll)"), std)
+                if not sd <= WEAK_ANGLE_STD_DEG]
+        if weak:
+            warnings.append(f"these views determine {', '.join(weak)} only (formal standard error; the true "
+                            f"uncertainty is larger): use views farther apart (wider baselines, e.g. --views 2x3 "
+                            f"across the whole grid) for rectification that holds over wide baselines")
     if overall["after"]["vertical"]["count"] == 0:
         warnings.append("no vertical pairs: the tilt angle (rx) is not constrained; use views from two or more rows")
 
@@ -104,6 +113,7 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
         "created": created,
         "rotation_deg": [float(a) for a in fit.rotation_deg],
         "rotation_convention": ROTATION_CONVENTION,
+        "rotation_std_deg": None if std is None else [float(x) for x in std],
         "principal_point_px": [float(p) for p in fit.principal_point_px],
         "principal_point_offset_px": [float(p) for p in fit.principal_point_px - nominal],
         "principal_point_estimated": bool(fit.estimate_principal_point),
@@ -132,8 +142,11 @@ def format_report(doc: dict[str, Any]) -> str:
     """A readable summary of a calibration document."""
     rx, ry, rz = doc["rotation_deg"]
     cx, cy = doc["principal_point_px"]
+    std = doc.get("rotation_std_deg")
     lines = [
         f"rotation      rx {rx:+.4f}°  ry {ry:+.4f}°  rz {rz:+.4f}°   (Euler 'xyz', see docs/conventions.md)",
+        *([f"  std. error  rx ±{std[0]:.4f}°  ry ±{std[1]:.4f}°  rz ±{std[2]:.4f}°   (formal, from the fit)"]
+          if std else []),
         f"principal pt  ({cx:.1f}, {cy:.1f}) px  {'estimated' if doc['principal_point_estimated'] else 'nominal centre'}"
         f"   focal length {doc['focal_length_px']:.1f} px   image {doc['image_size_px'][0]} × {doc['image_size_px'][1]} px",
         "",

@@ -51,3 +51,22 @@ def test_too_few_matches_is_a_clear_error_naming_the_pairs():
     few = [PairMatches(m.view_a, m.view_b, m.direction, m.xy_a[:1], m.xy_b[:1]) for m in trial.matches[:3]]
     with pytest.raises(CalibrationError, match="too few feature matches.*r00_c000–r00_c050"):
         fit_rectification(few, EXACT.focal_length_px, EXACT.image_size_px)
+
+
+def test_standard_errors_grow_when_the_baselines_shrink_and_the_report_warns():
+    from lfstudio.calibration.report import WEAK_ANGLE_STD_DEG, build_report
+
+    wide = SimulationConfig(feature_noise_px=0.5, position_noise_um=0.0)               # 2 x 3 over 101 x 21
+    narrow = SimulationConfig(feature_noise_px=0.5, position_noise_um=0.0, columns=3, rows=2)   # 8 x 6 mm
+    stds = {}
+    for name, cfg in (("wide", wide), ("narrow", narrow)):
+        trial = make_trial(np.random.default_rng(5), 0.0, cfg)
+        fit = fit_rectification(trial.matches, cfg.focal_length_px, cfg.image_size_px)
+        stds[name] = np.array(fit.extra["rotation_std_deg"])
+        doc = build_report(fit, trial.matches, views=sorted({m.view_a for m in trial.matches}
+                                                          | {m.view_b for m in trial.matches}))
+        assert doc["rotation_std_deg"] == pytest.approx(list(stds[name]))
+        weak = any("determine" in w for w in doc["warnings"])
+        assert weak == bool((stds[name] > WEAK_ANGLE_STD_DEG).any())
+    assert (stds["wide"] < WEAK_ANGLE_STD_DEG).all()
+    assert stds["narrow"][:2].max() > 5 * stds["wide"][:2].max()
