@@ -197,6 +197,9 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
         rig, camera = job["shared"]
         if hasattr(camera.driver, "set_view_region"):   # simulated camera: centre its scene on this grid
             camera.call("set_view_region", plan.extent_mm(), timeout_s=30)
+            camera.call("set_setting", "time_scale", job["time_scale"], timeout_s=30)
+        if job.get("simulator") is not None:            # the Rig panel's simulated controller
+            job["simulator"].time_scale = float(job["time_scale"])
     else:
         if session is None:
             from lfstudio.sim.session import SimulatedSession
@@ -547,10 +550,12 @@ class ScanPanel(QWidget):
                                             "panels, then start the scan.")
             return
         rig_devices = (devices["rig"].worker, devices["camera"].worker) if shared else None
+        simulator = devices.get("rig_simulator") if shared and self.state.simulated else None
         scene = self.state.plan
         current = self.state.dataset
         job = dict(plan=plan, folder=Path(folder), recapture=list(recapture) if recapture else None,
                    rig_cfg=self.rig_config(), scene=scene, current=current, shared=rig_devices,
+                   simulator=simulator,
                    session=self.session, time_scale=self.time_scale.value() if self.state.simulated else 1.0,
                    exposure_s=getattr(scene, "exposure_s", 0.5), transfer_s=getattr(scene, "transfer_s", 2.5))
         if not shared and self.session is None:
