@@ -7,6 +7,21 @@ from PySide6.QtWidgets import QHBoxLayout, QLabel, QProgressBar, QPushButton, QW
 from lfstudio.jobs import format_duration
 
 
+def set_progress_async(bar: QProgressBar, value: int, maximum: int | None = None) -> None:
+    """Set a progress bar without the synchronous repaint ``QProgressBar.setValue`` does.
+
+    That repaint flushes every pending paint of the window on the spot (e.g. a busy grid view),
+    which stalls the GUI thread; with updates off it becomes an ordinary, coalesced update."""
+    bar.setUpdatesEnabled(False)
+    try:
+        if maximum is not None and bar.maximum() != maximum:
+            bar.setRange(0, maximum)
+        bar.setValue(value)
+    finally:
+        bar.setUpdatesEnabled(True)
+    bar.update()
+
+
 class JobProgressWidget(QWidget):
     """Progress bar + ETA + Cancel for a :class:`lfstudio.gui.bridge.JobRunner`."""
 
@@ -43,8 +58,7 @@ class JobProgressWidget(QWidget):
         self.runner.cancel()
 
     def _on_progress(self, done: int, total: int, message: str, eta_s: float) -> None:
-        self.bar.setRange(0, max(total, 1))
-        self.bar.setValue(done)
+        set_progress_async(self.bar, done, max(total, 1))
         self.eta_label.setText(f"ETA {format_duration(None if eta_s < 0 else eta_s)}")
         self.message_label.setText(message)
 
