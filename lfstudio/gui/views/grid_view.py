@@ -292,6 +292,41 @@ class GridCanvas(QAbstractScrollArea):
         self.viewport().update(self._cell_rect(r, c))
 
     # -- painting ----------------------------------------------------------------------------------
+    def _paint_overview(self, p: QPainter, r0: int, r1: int, c0: int, c1: int, px: float, py: float,
+                        ox: float, oy: float, thin: bool) -> None:
+        """Zoomed out: the thumbnail mosaic, then one status image over it (transparent where a
+        thumbnail shows), gap lines and the few highlighted cells — a handful of calls, not one per cell."""
+        src = QRectF(c0 * TILE_W, r0 * TILE_H, (c1 - c0) * TILE_W, (r1 - r0) * TILE_H)
+        dst = QRectF(ox + c0 * px, oy + r0 * py, (c1 - c0) * px, (r1 - r0) * py)
+        p.drawImage(dst, self.mosaic, src)
+        block = self.status[r0:r1, c0:c1]
+        has = self._mosaic_has[r0:r1, c0:c1]
+        rgba = np.zeros(block.shape + (4,), np.uint8)
+        for st, colour in STATE_COLORS.items():
+            rgba[block == st] = (colour.red(), colour.green(), colour.blue(), 255)
+        waiting = (block == DONE) & ~has
+        dark = STATE_COLORS[DONE].darker(160)
+        rgba[waiting] = (dark.red(), dark.green(), dark.blue(), 255)
+        rgba[(block == DONE) & has, 3] = 0
+        overlay = QImage(rgba.data, rgba.shape[1], rgba.shape[0], rgba.strides[0], QImage.Format_RGBA8888)
+        p.setRenderHint(QPainter.SmoothPixmapTransform, False)
+        p.drawImage(dst, overlay)
+        if self.gap_px:
+            background = QColor(24, 25, 28)
+            for c in range(c0, c1):
+                p.fillRect(QRectF(ox + (c + 1) * px - self.gap_px, dst.top(), self.gap_px, dst.height()), background)
+            for r in range(r0, r1):
+                p.fillRect(QRectF(dst.left(), oy + (r + 1) * py - self.gap_px, dst.width(), self.gap_px), background)
+        if not thin:
+            for r, c in np.argwhere((block != PENDING) & (block != DONE)):
+                st = int(block[r, c])
+                p.setPen(QPen(STATE_COLORS[st].lighter(130), 2))
+                p.setBrush(Qt.NoBrush)
+                rect = QRectF(ox + (c0 + c) * px, oy + (r0 + r) * py, px - self.gap_px, py - self.gap_px)
+                p.drawRect(rect.adjusted(1, 1, -1, -1))
+        for r, c in np.argwhere(waiting):
+            self._request((r0 + int(r), c0 + int(c)), full=False)
+
     def paintEvent(self, event) -> None:
         p = QPainter(self.viewport())
         p.fillRect(event.rect(), QColor(24, 25, 28))
@@ -306,14 +341,12 @@ class GridCanvas(QAbstractScrollArea):
         px, py = self._pitch()
         ox, oy = self._offset()
         p.setRenderHint(QPainter.SmoothPixmapTransform, self.cell_px < TILE_W)
-        if not full:
-            # the whole visible block of the mosaic in one call; gaps drawn as grid lines after
-            src = QRectF(c0 * TILE_W, r0 * TILE_H, (c1 - c0) * TILE_W, (r1 - r0) * TILE_H)
-            dst = QRectF(ox + c0 * px, oy + r0 * py, (c1 - c0) * px, (r1 - r0) * py)
-            p.drawImage(dst, self.mosaic, src)
         status = self.status
         thin = self.cell_px < 8
-        for r in range(r0, r1):
+        if not full:
+            self._paint_overview(p, r0, r1, c0, c1, px, py, ox, oy, thin)
+        rows_to_paint = range(r0, r1) if full else range(0)
+        for r in rows_to_paint:
             row_status = status[r]
             for c in range(c0, c1):
                 st = int(row_status[c])
