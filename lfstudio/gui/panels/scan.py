@@ -84,13 +84,23 @@ class PathPreview(QWidget):
         self.setToolTip("Capture order: the camera visits the grid along this line, starting at the green dot")
 
     def set_plan(self, plan: ScanPlan | None) -> None:
+        if plan == self.plan and self._base is not None:
+            return                      # the same grid: keep the drawn path
         self.plan = plan
         self._base = None
         self.update()
 
     def set_done(self, cells) -> None:
-        self.done = set(cells)
-        self._base = None
+        cells = set(cells)
+        if cells == self.done:
+            return
+        if self.done <= cells and self._overlay is not None:   # only additions: paint just those
+            new = cells - self.done
+            self.done = cells
+            self._paint_done(list(new))
+        else:
+            self.done = cells
+            self._base = None
         self.update()
 
     def mark_done(self, row: int, column: int) -> None:
@@ -384,6 +394,12 @@ class ScanPanel(QWidget):
         self.timings = QLabel("Step times: –")
         self.timings.setObjectName("stepTimings")
         self.timings.setWordWrap(True)
+        # text that changes with every view must not re-lay the panel out (that would redraw the path
+        # preview on the GUI thread mid-scan): room for two lines, and no say in the panel's width
+        for label in (self.state_label, self.timings):
+            label.setMinimumHeight(2 * label.fontMetrics().lineSpacing() + 4)
+            label.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)
+        self.current.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)
         self.log_view = QPlainTextEdit()
         self.log_view.setObjectName("scanLog")
         self.log_view.setReadOnly(True)
