@@ -124,7 +124,7 @@ class MainWindow(QMainWindow):
 
         Homing stays the operator's step, as on the real rig."""
         rig, camera = self.panels.get("rigDock"), self.panels.get("cameraDock")
-        if rig is not None and not rig.connected and rig._chosen_port() == "sim":
+        if rig is not None and not rig.connected and rig.chosen_port() == "sim":
             rig.connect_rig()
         if camera is not None and not camera.connected and camera.current_kind() == "sim":
             camera.connect_camera()

@@ -373,7 +373,8 @@ class RigPanel(QWidget):
         elif wanted:
             self.port_combo.setEditText(wanted)
 
-    def _chosen_port(self) -> str:
+    def chosen_port(self) -> str:
+        """The port to connect to: a device path, or "sim" for the built-in simulated controller."""
         text = self.port_combo.currentText().strip()
         return "sim" if text in (SIMULATED, "", "sim") else text
 
@@ -389,7 +390,7 @@ class RigPanel(QWidget):
 
         if self.connected:
             return
-        port = self._chosen_port()
+        port = self.chosen_port()
         settings().setValue("rig/port", self.port_combo.currentText())
         if port == "sim":
             from lfstudio.sim.grbl_controller import GrblSimulator
