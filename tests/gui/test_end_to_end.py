@@ -29,11 +29,15 @@ def test_first_session_on_the_simulated_studio(qtbot, tmp_path):
     scan.settle.setValue(0.0)
     scan.time_scale.setValue(0.0)
     scan.folder.setText(str(tmp_path / "first"))
+    scales_during_scan = []
+    window.state.scanEvent.connect(lambda ev: scales_during_scan.append(simulator.time_scale)
+                                   if ev.kind.value == "view-started" else None)
     qtbot.mouseClick(scan.start_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: "Finished" in scan.state_label.text(), timeout=120000)
     ds = Dataset.open(tmp_path / "first")
     assert ds.status_counts()["done"] == 6
-    assert simulator.time_scale == 0.0               # the scan's time scale reached the shared simulator
+    assert scales_during_scan and set(scales_during_scan) == {0.0}   # the scan's time scale reached the simulator
+    assert simulator.time_scale == 0.02              # and was given back when the scan finished
     assert all((ds.root / v["file"]).is_file() and v["sha256"] for v in ds.views)
     qtbot.waitUntil(lambda: (window.central.canvas.status == DONE).sum() == 6, timeout=10000)
     window.close()

@@ -209,12 +209,16 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     folder: Path = job["folder"]
     session = job["session"]
     started_session = None
+    restore = None
     if job["shared"] is not None:
         rig, camera = job["shared"]
         if hasattr(camera.driver, "set_view_region"):   # simulated camera: centre its scene on this grid
             camera.call("set_view_region", plan.extent_mm(), timeout_s=30)
+            camera_scale = getattr(camera.driver, "time_scale", None)
             camera.call("set_setting", "time_scale", job["time_scale"], timeout_s=30)
+            restore = {"camera": (camera, camera_scale)}
         if job.get("simulator") is not None:            # the Rig panel's simulated controller
+            restore = dict(restore or {}, simulator=(job["simulator"], job["simulator"].time_scale))
             job["simulator"].time_scale = float(job["time_scale"])
     else:
         if session is None:
@@ -254,8 +258,26 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     except BaseException:
         if started_session is not None:
             started_session.close()
+        restore_time_scales(restore)
         raise
-    return {"session": session, "dataset": dataset, "engine": engine}
+    return {"session": session, "dataset": dataset, "engine": engine, "restore": restore}
+
+
+def restore_time_scales(restore: dict | None) -> None:
+    """Give the panels' simulated devices back the time scales they had before the scan (the Scan
+    panel's time scale applies to the scan only)."""
+    if not restore:
+        return
+    if "simulator" in restore:
+        simulator, scale = restore["simulator"]
+        simulator.time_scale = scale
+    if "camera" in restore:
+        camera, scale = restore["camera"]
+        if scale is not None:
+            try:
+                camera.submit("set_setting", "time_scale", scale)
+            except Exception:   # a closed camera needs no restoring
+                pass
 
 
 class ScanPanel(QWidget):
@@ -595,7 +617,9 @@ class ScanPanel(QWidget):
         if prepared.get("session") is not None:
             self.session = prepared["session"]
         dataset, engine = prepared["dataset"], prepared["engine"]
+        self._restore = prepared.get("restore")
         if engine.remaining == 0:
+            self._restore_time_scales()
             self.state.set_dataset(dataset)
             self.state_label.setText("Every view of this dataset is captured.")
             self._log("nothing to capture: every view is done")
@@ -734,6 +758,8 @@ class ScanPanel(QWidget):
             self.current.setText("Current view: –")
             self.preview.current = None
             self.preview.update()
+        if st in (ScanState.FINISHED, ScanState.FAILED):
+            self._restore_time_scales()
         if st is ScanState.FINISHED and self.engine is not None:
             if self.engine.dataset.status_counts()["pending"] == 0:
                 settings().remove(ACTIVE_KEY)
@@ -746,6 +772,10 @@ class ScanPanel(QWidget):
         if fault:
             self.state.report_error("Scan paused", message)
         self._update_buttons()
+
+    def _restore_time_scales(self) -> None:
+        restore, self._restore = getattr(self, "_restore", None), None
+        restore_time_scales(restore)
 
     def _set_progress(self, done: int, total: int) -> None:
         set_progress_async(self.progress, done, max(total, 1))
