@@ -27,6 +27,7 @@ COMMANDS: list[str] = [
     "process",
     "camera",
     "virtual_dataset",
+    "import_images",
 ]
 
 

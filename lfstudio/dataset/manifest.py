@@ -331,6 +331,10 @@ class Dataset:
             pitch_mm = float(cam["pixel_pitch_um"]) / 1000.0 if cam.get("pixel_pitch_um") else \
                 float(cam["sensor_mm"][0]) / sensor_w_px
         except (KeyError, TypeError, ValueError, IndexError):
+            # imported datasets may know only the focal length in pixels of the full-size image
+            if lens.get("focal_length_px") and cam.get("sensor_px"):
+                scale = 1.0 if image_width_px is None else image_width_px / float(cam["sensor_px"][0])
+                return float(lens["focal_length_px"]) * scale
             raise DatasetError(f"{self.manifest_path}: camera.sensor_px, camera.pixel_pitch_um (or sensor_mm) "
                                "and lens.focal_length_mm are needed for the focal length in pixels; "
                                "add them or give the focal length in pixels explicitly") from None

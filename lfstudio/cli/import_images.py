@@ -1,0 +1,73 @@
+"""``lfstudio import-images``: build a dataset from another rig's folder of images."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from lfstudio.errors import InputError
+
+HELP = "import another rig's images (PNG, TIFF, JPEG, camera RAW) as a dataset that calibrates, processes and exports"
+
+
+def parse_pair(text: str, option: str, kind=float, example: str = "4x6") -> tuple:
+    """``"CxR"``/``"HxV"`` (also ``"C,R"``) as two numbers of ``kind``; InputError naming ``option``."""
+    parts = str(text).lower().replace("×", "x").replace(",", "x").split("x")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        values = tuple(kind(p.strip()) for p in parts)
+        if kind is float and not all(math.isfinite(v) for v in values):
+            raise ValueError
+    except ValueError:
+        raise InputError(option, f"cannot read {text!r}", f"two {'whole numbers' if kind is int else 'numbers'} "
+                         f"like {example}") from None
+    return values
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("folder", metavar="FOLDER", help="folder holding the other rig's images, one per view")
+    p.add_argument("--grid", required=True, metavar="CxR", help="columns x rows of the capture grid, e.g. 9x5")
+    p.add_argument("--spacing-mm", required=True, metavar="HxV",
+                   help="distance between neighbouring views in mm, horizontal x vertical, e.g. 4x6")
+    p.add_argument("--order", choices=("row-major", "meander"), default="row-major",
+                   help="how the sorted files fill the grid: row-major (every row left to right, default) or "
+                        "meander (odd rows right to left)")
+    p.add_argument("--pattern", metavar="GLOB",
+                   help="which files to take, e.g. '*.png' (default: every PNG/TIFF/JPEG/RAW file); files are "
+                        "sorted naturally (img2 before img10)")
+    p.add_argument("--focal-length-mm", type=float, metavar="F", help="lens focal length in mm (with --pixel-pitch-um)")
+    p.add_argument("--pixel-pitch-um", type=float, metavar="P", help="sensor pixel size in µm")
+    p.add_argument("--focal-length-px", type=float, metavar="F",
+                   help="focal length in pixels of these images (instead of --focal-length-mm/--pixel-pitch-um)")
+    p.add_argument("--out", required=True, metavar="DATASET", help="the new dataset folder")
+    p.add_argument("--overwrite", action="store_true", help="replace DATASET if it exists")
+    p.add_argument("--copy", action="store_true",
+                   help="always copy the files (default: hard-link them when on the same file system)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from lfstudio.dataset import Dataset
+    from lfstudio.export.import_images import ImportOptions, import_images
+    from lfstudio.jobs import TerminalProgress
+
+    cols, rows = parse_pair(args.grid, "--grid", int, "9x5")
+    options = ImportOptions(folder=Path(args.folder), out=Path(args.out), grid=(cols, rows),
+                            spacing_mm=parse_pair(args.spacing_mm, "--spacing-mm", float, "4x6"),
+                            order=args.order, pattern=args.pattern, focal_length_mm=args.focal_length_mm,
+                            pixel_pitch_um=args.pixel_pitch_um, focal_length_px=args.focal_length_px,
+                            overwrite=args.overwrite, link=not args.copy)
+    root = import_images(options, progress=TerminalProgress("importing"))
+    ds = Dataset.open(root)
+    record = ds.manifest.get("import", {})
+    w, h = ds.camera["sensor_px"]
+    print(f"{root}: {len(ds.views)} views ({cols}x{rows}, {args.order}), {w}x{h} px, "
+          f"{record.get('linked', 0)} hard-linked, {len(ds.views) - record.get('linked', 0)} copied; "
+          f"focal length from {record.get('intrinsics', 'none')}")
+    for warning in record.get("warnings", []):
+        print(f"warning: {warning}", file=sys.stderr)
+    print(f"next: lfstudio calibrate {root}")
+    return 0

@@ -1,0 +1,511 @@
+"""Import another rig's images (PNG, TIFF, JPEG, camera RAW) as an lfstudio dataset.
+
+A folder of images, one per view, becomes a dataset folder (``docs/dataset-format.md``) that
+calibrates, processes and exports like one captured here:
+
+- the images are listed (``pattern`` glob or every supported image), **sorted naturally**
+  (``img2`` before ``img10``) and assigned to the grid in ``order``: ``row-major`` (every row left
+  to right) or ``meander`` (odd rows right to left, as a gantry scans);
+- every file's size is read from its header (one size for all, else an error naming the file);
+- the intrinsics come from ``focal_length_mm`` + ``pixel_pitch_um``, from ``focal_length_px``, or
+  from the first image's EXIF; without any, the import still works and says calibration will need a
+  focal length;
+- the files are hard-linked (same file system) or copied into ``raw/`` under the dataset's names
+  (``raw/r00_c000.png``), their sha256 recorded, every view ``done``, commanded positions from the
+  grid spacing;
+- the dataset is built in a temporary sibling folder ``.NAME.partial-XXXX`` and renamed at the end:
+  a cancel or an error leaves nothing under ``out`` (and removes the temporary folder).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import io
+import math
+import os
+import re
+import shutil
+import struct
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+from lfstudio.errors import InputError
+from lfstudio.jobs import CancelToken, Progress, no_progress
+
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
+RAW_SUFFIXES = (".dng", ".arw", ".cr2", ".cr3", ".nef", ".nrw", ".raf", ".orf", ".rw2", ".pef", ".srw", ".raw",
+                ".3fr", ".iiq", ".erf", ".kdc", ".mrw", ".mos", ".x3f")
+SUPPORTED_SUFFIXES = IMAGE_SUFFIXES + RAW_SUFFIXES
+ORDERS = ("row-major", "meander")
+#: the manifest's ``grid.order`` for each import order (see docs/dataset-format.md)
+GRID_ORDER = {"row-major": "raster", "meander": "row-meander"}
+SUPPORTED_TEXT = "PNG, TIFF, JPEG or camera RAW (DNG, ARW, CR2, NEF, ...)"
+
+
+@dataclass
+class ImportOptions:
+    folder: Path
+    out: Path
+    grid: tuple[int, int]                   # (columns, rows)
+    spacing_mm: tuple[float, float]         # (horizontal, vertical)
+    order: str = "row-major"                # "row-major" | "meander"
+    pattern: str | None = None              # glob; None = every supported image in the folder
+    focal_length_mm: float | None = None
+    pixel_pitch_um: float | None = None
+    focal_length_px: float | None = None
+    overwrite: bool = False
+    link: bool = True                       # hard-link when on the same file system (else copy)
+
+
+@dataclass
+class ImportPlan:
+    """What an import will do, found before anything is written (:func:`plan_import`)."""
+
+    files: list[Path]                       # in natural order
+    cells: list[tuple[int, int]]            # (row, column) of each file
+    image_size_px: tuple[int, int]          # (width, height) shared by every file
+    camera: dict[str, Any]
+    lens: dict[str, Any]
+    intrinsics: str                         # where the focal length comes from (or "none")
+    warnings: list[str] = field(default_factory=list)
+    bytes_total: int = 0
+
+
+# -- listing ------------------------------------------------------------------------------------------
+def natural_key(name: str) -> list:
+    """Sort key that orders digit runs by value: ``img2`` < ``img10``; case-insensitive otherwise."""
+    return [int(t) if i % 2 else t.lower() for i, t in enumerate(re.split(r"(\d+)", name))]
+
+
+def find_images(folder: str | os.PathLike, pattern: str | None = None) -> list[Path]:
+    """Image files of ``folder`` (``pattern``: a glob relative to it) in natural order.
+
+    Hidden files are skipped. Without a pattern, files of other types are ignored; with one, a
+    matched file that is not a supported image is an error (the pattern should say what to take).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError("folder", f"{folder} is not a folder", "a folder holding the other rig's images")
+    if pattern:
+        try:
+            matched = [p for p in folder.glob(pattern) if p.is_file() and not p.name.startswith(".")]
+        except (ValueError, NotImplementedError) as exc:
+            raise InputError("--pattern", f"{pattern!r} is not a usable glob ({exc})", "e.g. '*.png' or 'cam_*.tif'")
+        bad = [p for p in matched if p.suffix.lower() not in SUPPORTED_SUFFIXES]
+        if bad:
+            raise InputError("--pattern", f"{pattern!r} also matches {bad[0].name}, which is not a {SUPPORTED_TEXT} "
+                             "image; narrow the pattern", "e.g. '*.png'")
+        files = matched
+    else:
+        files = [p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")
+                 and p.suffix.lower() in SUPPORTED_SUFFIXES]
+    return sorted(files, key=lambda p: natural_key(p.relative_to(folder).as_posix()))
+
+
+def grid_cells(columns: int, rows: int, order: str = "row-major") -> list[tuple[int, int]]:
+    """(row, column) of the i-th image: ``row-major`` or ``meander`` (odd rows right to left)."""
+    if order not in ORDERS:
+        raise InputError("--order", f"unknown order {order!r}", " | ".join(ORDERS))
+    return [(r, c if order == "row-major" or r % 2 == 0 else columns - 1 - c)
+            for r in range(rows) for c in range(columns)]
+
+
+def describe_selection(folder: Path, pattern: str | None) -> str:
+    return f"in {folder} matching {pattern!r}" if pattern else f"in {folder} (every PNG, TIFF, JPEG and RAW file)"
+
+
+def count_message(files: Sequence[Path], grid: tuple[int, int], folder: Path, pattern: str | None) -> str | None:
+    """None when the number of files fills the grid; else the operator's explanation and fix."""
+    cols, rows = grid
+    need = cols * rows
+    if len(files) == need:
+        return None
+    what = f"found {len(files)} image{'s' if len(files) != 1 else ''} {describe_selection(folder, pattern)}, " \
+           f"but a {cols}x{rows} grid needs {need}"
+    by_suffix: dict[str, int] = {}
+    for p in files:
+        by_suffix[p.suffix.lower()] = by_suffix.get(p.suffix.lower(), 0) + 1
+    if len(by_suffix) > 1:
+        kinds = ", ".join(f"{n} {s}" for s, n in sorted(by_suffix.items()))
+        match = [s for s, n in by_suffix.items() if n == need]
+        hint = f"; choose one kind with --pattern '*{match[0]}'" if match else "; choose one kind with --pattern"
+        return f"{what} (the folder mixes {kinds}){hint}"
+    return f"{what}; check --grid (columns x rows) or select the files with --pattern"
+
+
+# -- file headers -------------------------------------------------------------------------------------
+def _png_size(fh) -> tuple[int, int]:
+    head = fh.read(24)
+    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        raise ValueError("not a PNG file")
+    w, h = struct.unpack(">II", head[16:24])
+    return int(w), int(h)
+
+
+def _jpeg_size(fh) -> tuple[int, int]:
+    if fh.read(2) != b"\xff\xd8":
+        raise ValueError("not a JPEG file")
+    while True:
+        b = fh.read(1)
+        while b and b != b"\xff":
+            b = fh.read(1)
+        while b == b"\xff":
+            b = fh.read(1)
+        if not b:
+            raise ValueError("no frame header (truncated JPEG)")
+        marker = b[0]
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            continue
+        length_bytes = fh.read(2)
+        if len(length_bytes) < 2:
+            raise ValueError("truncated JPEG")
+        length = struct.unpack(">H", length_bytes)[0]
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            data = fh.read(5)
+            if len(data) < 5:
+                raise ValueError("truncated JPEG frame header")
+            h, w = struct.unpack(">HH", data[1:5])
+            return int(w), int(h)
+        fh.seek(length - 2, os.SEEK_CUR)
+
+
+def image_size_px(path: str | os.PathLike) -> tuple[int, int]:
+    """(width, height) of an image from its header (RAW: LibRaw's size with the orientation applied).
+
+    Raises ``ValueError``/``OSError`` when the file cannot be read as its type."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in RAW_SUFFIXES:
+        import rawpy
+
+        try:
+            with rawpy.imread(str(path)) as raw:
+                w, h = int(raw.sizes.width), int(raw.sizes.height)
+                return (h, w) if raw.sizes.flip in (5, 6) else (w, h)
+        except Exception as exc:  # LibRaw raises several error types
+            raise ValueError(f"LibRaw cannot read it ({type(exc).__name__})") from None
+    with open(path, "rb") as fh:
+        if suffix == ".png":
+            return _png_size(fh)
+        if suffix in (".jpg", ".jpeg"):
+            return _jpeg_size(fh)
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tif:
+            page = tif.pages[0]
+            return int(page.imagewidth), int(page.imagelength)
+    except Exception as exc:  # tifffile raises TiffFileError, struct.error, ...
+        raise ValueError(f"not a readable TIFF ({exc})") from None
+
+
+# -- EXIF ---------------------------------------------------------------------------------------------
+def _rational(value: Any) -> float | None:
+    try:
+        if isinstance(value, (tuple, list)):
+            num, den = value[0], value[1]
+            return float(num) / float(den) if den else None
+        return float(value)
+    except (TypeError, ValueError, IndexError):
+        return None
+
+
+def _exif_from_tiff(tif) -> dict[str, Any]:
+    page = tif.pages[0]
+    out: dict[str, Any] = {}
+    for key in ("Make", "Model"):
+        tag = page.tags.get(key)
+        if tag is not None and isinstance(tag.value, str):
+            out[key] = tag.value.strip("\x00 ")
+    tag = page.tags.get("ExifTag")
+    if tag is not None and isinstance(tag.value, dict):
+        out.update(tag.value)
+    return out
+
+
+def read_exif(path: str | os.PathLike) -> dict[str, Any]:
+    """The EXIF tags of a JPEG or a TIFF-based file (TIFF, DNG, ARW, NEF, ...); {} when there are none."""
+    import tifffile
+
+    path = Path(path)
+    try:
+        if path.suffix.lower() in (".jpg", ".jpeg"):
+            data = path.read_bytes()[:1 << 20]
+            i = data.find(b"Exif\x00\x00")
+            if i < 0:
+                return {}
+            with tifffile.TiffFile(io.BytesIO(data[i + 6:])) as tif:
+                return _exif_from_tiff(tif)
+        if path.suffix.lower() == ".png":
+            return {}
+        with tifffile.TiffFile(path) as tif:
+            return _exif_from_tiff(tif)
+    except Exception:  # no EXIF, or a format tifffile cannot parse (CR3, RAF, ...): not an error
+        return {}
+
+
+def intrinsics_from_exif(exif: dict[str, Any], width_px: int) -> tuple[float | None, float | None, float | None]:
+    """(focal_length_mm, pixel_pitch_um, focal_length_px) as far as EXIF tells them (None: unknown)."""
+    f_mm = _rational(exif.get("FocalLength"))
+    f_mm = f_mm if f_mm and f_mm > 0 else None
+    pitch_um = None
+    res = _rational(exif.get("FocalPlaneXResolution"))
+    unit_mm = {2: 25.4, 3: 10.0, 4: 1.0}.get(int(exif.get("FocalPlaneResolutionUnit", 2) or 2))
+    if res and res > 0 and unit_mm:
+        pitch_um = unit_mm / res * 1000.0
+    f_px = None
+    if f_mm and pitch_um:
+        f_px = f_mm / (pitch_um / 1000.0)
+    else:
+        f35 = _rational(exif.get("FocalLengthIn35mmFilm"))
+        if f35 and f35 > 0:
+            f_px = f35 / 36.0 * width_px   # 35 mm equivalent: a 36 mm wide frame
+    return f_mm, pitch_um, f_px
+
+
+# -- options ------------------------------------------------------------------------------------------
+def _positive(value: float | None, name: str) -> float | None:
+    if value is None:
+        return None
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(name, f"{value!r} is not a number", "a positive number") from None
+    if not (math.isfinite(v) and v > 0):
+        raise InputError(name, f"{value!r} must be a positive number", "> 0")
+    return v
+
+
+def check_options(options: ImportOptions) -> None:
+    """Raise :class:`InputError` for an option that cannot work (nothing is read or written)."""
+    try:
+        cols, rows = (int(v) for v in options.grid)
+    except (TypeError, ValueError):
+        raise InputError("--grid", f"{options.grid!r} is not columns x rows", "e.g. 9x5") from None
+    if cols < 1 or rows < 1:
+        raise InputError("--grid", f"needs at least one column and one row, got {cols}x{rows}", "e.g. 9x5")
+    try:
+        h, v = (float(x) for x in options.spacing_mm)
+    except (TypeError, ValueError):
+        raise InputError("--spacing-mm", f"{options.spacing_mm!r} is not HxV in mm", "e.g. 4x6") from None
+    if not (math.isfinite(h) and math.isfinite(v) and h >= 0 and v >= 0) or (cols > 1 and h == 0) \
+            or (rows > 1 and v == 0):
+        raise InputError("--spacing-mm", f"{h:g}x{v:g} mm: the spacing between neighbouring views must be "
+                         "positive", "e.g. 4x6")
+    if options.order not in ORDERS:
+        raise InputError("--order", f"unknown order {options.order!r}", " | ".join(ORDERS))
+    f_mm = _positive(options.focal_length_mm, "--focal-length-mm")
+    _positive(options.pixel_pitch_um, "--pixel-pitch-um")
+    f_px = _positive(options.focal_length_px, "--focal-length-px")
+    if f_mm is not None and f_px is not None:
+        raise InputError("--focal-length-px", "give the focal length either in mm (with --pixel-pitch-um) "
+                         "or in pixels, not both")
+    if f_mm is not None and options.pixel_pitch_um is None:
+        raise InputError("--pixel-pitch-um", "is needed with --focal-length-mm (the sensor's pixel size in µm), "
+                         "or give --focal-length-px instead", "e.g. 4.5")
+    out = Path(options.out)
+    folder = Path(options.folder)
+    if not folder.is_dir():
+        raise InputError("folder", f"{folder} is not a folder", "a folder holding the other rig's images")
+    if out.exists() and not options.overwrite:
+        raise InputError("--out", f"{out} already exists; choose a new folder or allow overwriting (--overwrite)")
+    if out.exists() and not out.is_dir():
+        raise InputError("--out", f"{out} is a file; choose a folder name for the new dataset")
+    try:
+        folder.resolve().relative_to(out.resolve())
+        contains = True
+    except ValueError:
+        contains = False
+    if contains:
+        raise InputError("--out", f"{out} holds the images being imported; choose another folder for the dataset")
+
+
+def plan_import(options: ImportOptions, *, progress: Progress = no_progress,
+                cancel: CancelToken | None = None) -> ImportPlan:
+    """List and check the files (count, readable, one size) and resolve the intrinsics; writes nothing."""
+    check_options(options)
+    folder = Path(options.folder)
+    cols, rows = (int(v) for v in options.grid)
+    files = find_images(folder, options.pattern)
+    msg = count_message(files, (cols, rows), folder, options.pattern)
+    if msg:
+        raise InputError("--grid", msg)
+    size: tuple[int, int] | None = None
+    first: Path | None = None
+    total_bytes = 0
+    for i, path in enumerate(files):
+        if cancel is not None:
+            cancel.check()
+        try:
+            s = image_size_px(path)
+            total_bytes += path.stat().st_size
+        except (OSError, ValueError) as exc:
+            raise InputError("folder", f"{path.name}: cannot be read as an image ({exc}); re-copy it or leave it "
+                             "out with --pattern") from None
+        if size is None:
+            size, first = s, path
+        elif s != size:
+            raise InputError("folder", f"{path.name} is {s[0]}x{s[1]} px but {first.name} is {size[0]}x{size[1]} "
+                             "px; every view must have one size (re-export the images at one size or leave the "
+                             "odd one out with --pattern)")
+        progress(i + 1, len(files), f"checked {path.name}")
+    assert size is not None and first is not None
+    camera, lens, source, warnings = _intrinsics(options, first, size)
+    return ImportPlan(files=files, cells=grid_cells(cols, rows, options.order), image_size_px=size, camera=camera,
+                      lens=lens, intrinsics=source, warnings=warnings, bytes_total=total_bytes)
+
+
+def _intrinsics(options: ImportOptions, first: Path, size: tuple[int, int]):
+    w, h = size
+    exif = read_exif(first)
+    make, model = str(exif.get("Make", "")).strip(), str(exif.get("Model", "")).strip()
+    name = model if model.lower().startswith(make.lower()) else f"{make} {model}".strip()
+    kind = first.suffix.lower().lstrip(".").upper()
+    camera: dict[str, Any] = {"name": name or f"imported ({kind})", "sensor_px": [w, h], "raw_format": kind,
+                              "imported": True}
+    lens: dict[str, Any] = {"name": str(exif.get("LensModel", "")).strip() or "unknown (imported)"}
+    e_mm, e_pitch, e_px = intrinsics_from_exif(exif, w)
+    pitch = options.pixel_pitch_um if options.pixel_pitch_um is not None else e_pitch
+    warnings: list[str] = []
+    if options.focal_length_px is not None:
+        source = "--focal-length-px"
+        lens["focal_length_px"] = float(options.focal_length_px)
+        if pitch:
+            lens["focal_length_mm"] = float(options.focal_length_px) * pitch / 1000.0
+    elif options.focal_length_mm is not None:
+        source = "--focal-length-mm and --pixel-pitch-um"
+        lens["focal_length_mm"] = float(options.focal_length_mm)
+    elif e_mm and e_pitch:
+        source = f"EXIF of {first.name} (FocalLength, FocalPlaneXResolution)"
+        lens["focal_length_mm"] = e_mm
+    elif e_px:
+        source = f"EXIF of {first.name} (FocalLengthIn35mmFilm)"
+        lens["focal_length_px"] = e_px
+        if e_mm:
+            lens["focal_length_mm"] = e_mm
+    else:
+        source = "none"
+        if e_mm:
+            lens["focal_length_mm"] = e_mm
+        warnings.append("no focal length in pixels is known (no --focal-length-mm/--pixel-pitch-um, no "
+                        "--focal-length-px, nothing usable in EXIF): calibration will need one "
+                        "('lfstudio calibrate DATASET --focal-length-px F'), or import again with it")
+    if pitch:
+        camera["pixel_pitch_um"] = float(pitch)
+        camera["sensor_mm"] = [w * pitch / 1000.0, h * pitch / 1000.0]
+    return camera, lens, source, warnings
+
+
+# -- copying ------------------------------------------------------------------------------------------
+def _link_or_copy(src: Path, dst: Path, link: bool, cancel: CancelToken | None) -> tuple[str, bool]:
+    """Put ``src`` at ``dst`` (hard link if allowed and possible, else a copy); its sha256 and whether linked."""
+    h = hashlib.sha256()
+    if link:
+        try:
+            os.link(src, dst)
+        except OSError:
+            pass
+        else:
+            with open(dst, "rb") as fh:
+                for chunk in iter(lambda: fh.read(1 << 20), b""):
+                    h.update(chunk)
+            return h.hexdigest(), True
+    with open(src, "rb") as fi, open(dst, "wb") as fo:
+        for chunk in iter(lambda: fi.read(1 << 20), b""):
+            if cancel is not None:
+                cancel.check()
+            h.update(chunk)
+            fo.write(chunk)
+        fo.flush()
+        os.fsync(fo.fileno())
+    shutil.copystat(src, dst)
+    return h.hexdigest(), False
+
+
+def _iso_mtime(path: Path) -> str:
+    t = path.stat().st_mtime
+    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+def import_images(options: ImportOptions, *, progress: Progress | None = None,
+                  cancel: CancelToken | None = None) -> Path:
+    """Build a dataset at ``options.out`` from ``options.folder``'s images; returns the dataset root.
+
+    Raises :class:`InputError` naming the option and the fix (count vs grid, mixed sizes, unreadable
+    file, ``out`` exists without ``overwrite``); :class:`lfstudio.jobs.Cancelled` when cancelled.
+    Nothing is left under ``out`` (nor a temporary folder) unless the import finished.
+    """
+    from lfstudio.dataset import Dataset, view_stem
+    from lfstudio.dataset.store import free_bytes
+
+    progress = progress or no_progress
+    check_options(options)
+    n_files = int(options.grid[0]) * int(options.grid[1])
+    total = 2 * n_files + 1
+
+    def check_progress(done: int, _total: int, message: str = "") -> None:
+        progress(done, total, message)
+
+    plan = plan_import(options, progress=check_progress, cancel=cancel)
+    out = Path(options.out).absolute()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if free_bytes(out.parent) < plan.bytes_total + (64 << 20):
+        raise InputError("--out", f"{out.parent} has {free_bytes(out.parent) / 1e9:.1f} GB free, the images need "
+                         f"{plan.bytes_total / 1e9:.1f} GB; free space or choose another disk")
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    try:
+        (tmp / "raw").mkdir()
+        sx, sy = (float(v) for v in options.spacing_mm)
+        views = []
+        linked = 0
+        for i, (src, (r, c)) in enumerate(zip(plan.files, plan.cells)):
+            if cancel is not None:
+                cancel.check()
+            rel = f"raw/{view_stem(r, c)}{src.suffix.lower()}"   # = Dataset.raw_name(r, c, suffix)
+            sha, was_linked = _link_or_copy(src, tmp / rel, options.link, cancel)
+            linked += was_linked
+            views.append({"row": r, "column": c, "commanded_mm": [c * sx, r * sy], "reported_mm": None,
+                          "captured_at": _iso_mtime(src), "exposure_s": None, "file": rel, "sha256": sha,
+                          "status": "done", "source_file": src.relative_to(Path(options.folder)).as_posix()})
+            progress(n_files + i + 1, total, f"{'linked' if was_linked else 'copied'} {src.name} → {rel}")
+        views.sort(key=lambda v: (v["row"], v["column"]))
+        cols, rows = (int(v) for v in options.grid)
+        grid = {"columns": cols, "rows": rows, "spacing_mm": [sx, sy], "origin_mm": [0.0, 0.0],
+                "order": GRID_ORDER[options.order]}
+        record = {"folder": str(Path(options.folder).absolute()), "pattern": options.pattern,
+                  "order": options.order, "files": len(plan.files), "linked": linked,
+                  "intrinsics": plan.intrinsics, "warnings": list(plan.warnings),
+                  "imported_at": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
+        ds = Dataset.create(tmp, camera=plan.camera, lens=plan.lens, grid=grid,
+                            rig={"name": "imported", "imported": True}, views=views, exist_ok=True,
+                            **{"import": record})
+        ds.close()
+        if cancel is not None:
+            cancel.check()
+        progress(total - 1, total, "moving into place")
+        _move_into_place(tmp, out, options.overwrite)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    progress(total, total, f"imported {len(plan.files)} views into {out}")
+    return out
+
+
+def _move_into_place(tmp: Path, out: Path, overwrite: bool) -> None:
+    if out.exists() or out.is_symlink():
+        if not overwrite:
+            raise InputError("--out", f"{out} appeared while importing; choose a new folder or allow overwriting")
+        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+        os.replace(out, old / "previous")
+        try:
+            os.replace(tmp, out)
+        except BaseException:
+            os.replace(old / "previous", out)
+            shutil.rmtree(old, ignore_errors=True)
+            raise
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, out)
