@@ -28,6 +28,8 @@ COMMANDS: list[str] = [
     "camera",
     "virtual_dataset",
     "import_images",
+    "export",
+    "import_hevc",
 ]
 
 

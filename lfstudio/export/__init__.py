@@ -1,0 +1,216 @@
+"""Export a dataset as files other tools read, and import an exported HEVC stream back.
+
+Formats (``FORMATS``):
+
+- ``png``: a folder with one 16-bit RGB PNG per view (``rRR_cCCC.png``) and ``manifest.json``
+  (grid, spacing, commanded/reported positions, calibration, intrinsics), views row-major.
+- ``hevc``: one x265 stream (12-bit 4:4:4, CRF 8 by default) with the views in meander order
+  (first row left→right, next right→left, …) and a sidecar ``FILE.json`` mapping frame → view;
+  :func:`import_hevc` restores the views as 16-bit PNGs in a new dataset.
+- ``hci``: the HCI 4D light-field benchmark layout of a sub-array (``parameters.cfg``,
+  ``input_Cam000.png`` … row-major).
+
+Every export is a long job (``progress(done, total, message)``, ``cancel``: a
+:class:`lfstudio.jobs.CancelToken`). It writes into a temporary sibling ``.NAME.partial-XXXX`` and
+renames it at the end, so nothing ever appears half-written under the final name; an existing
+output is refused unless ``overwrite``. Qt-free.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+from lfstudio.dataset import Dataset
+from lfstudio.errors import InputError
+from lfstudio.export import common
+from lfstudio.jobs import CancelToken, Progress, no_progress
+
+FORMATS = ("png", "hevc", "hci")
+HEVC_SUFFIXES = (".mp4", ".mkv", ".hevc", ".mov")
+
+
+@dataclass
+class ExportOptions:
+    format: str                      # one of FORMATS
+    out: Path                        # png/hci: a folder to create; hevc: the .mp4/.mkv/.hevc file to create
+    views: str | Sequence[tuple[int, int]] | None = None   # None = all available; str: "all", "r0-8,c10-18",
+                                     # "2x3", "r00_c000,r00_c050" (see common.select_views)
+    source: str = "auto"             # "raw" | "processed" | "auto" (processed when every chosen view has it)
+    crf: int = 8                     # hevc
+    bit_depth: int = 12              # hevc: 10 or 12
+    hci_size: tuple[int, int] = (9, 9)        # hci sub-array (columns, rows)
+    hci_center: tuple[int, int] | None = None # hci (row, column) of the centre view; None = grid centre
+    overwrite: bool = False          # False: an existing `out` raises InputError("out", ...)
+    hci_bit_depth: int = 8           # hci: 8 (sRGB, like the benchmark) or 16 (linear)
+
+
+@dataclass
+class ExportEstimate:
+    views: list[tuple[int, int]]     # in export order (meander for hevc, row-major for hci/png)
+    source: str                      # resolved "raw" | "processed"
+    image_size_px: tuple[int, int]   # (width, height) of the exported frames
+    bytes_estimate: int              # predicted size of the output
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass
+class ExportReport:
+    out: Path
+    views: int
+    bytes_written: int
+    seconds: float
+    format: str = ""
+    source: str = ""
+    compression_ratio_vs_png: float | None = None   # hevc: 16-bit PNG bytes / HEVC bytes
+    psnr_db: float | None = None                    # hevc: decoded frames vs the source, 16-bit scale
+    files: list[Path] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    def summary(self) -> str:
+        text = (f"exported {self.views} views ({self.source}) as {self.format} to {self.out}: "
+                f"{_fmt_bytes(self.bytes_written)} in {self.seconds:.1f} s")
+        if self.compression_ratio_vs_png is not None:
+            text += f"; {self.compression_ratio_vs_png:.1f}x smaller than 16-bit PNG"
+        if self.psnr_db is not None:
+            text += f"; PSNR {self.psnr_db:.1f} dB (16-bit scale)"
+        return text
+
+
+def _fmt_bytes(n: float) -> str:
+    for unit in ("B", "kB", "MB", "GB"):
+        if n < 1000 or unit == "GB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000.0
+    return f"{n:.1f} GB"
+
+
+def _open(dataset) -> Dataset:
+    return dataset if isinstance(dataset, Dataset) else Dataset.open(dataset)
+
+
+def _check_options(options: ExportOptions) -> ExportOptions:
+    fmt = str(options.format).lower()
+    if fmt not in FORMATS:
+        raise InputError("format", f"unknown format {options.format!r}", ", ".join(FORMATS))
+    if options.out is None or str(options.out).strip() == "":
+        raise InputError("out", "no output path given", "a folder (png, hci) or a .mp4/.mkv/.hevc file (hevc)")
+    out = Path(options.out).expanduser()
+    if fmt == "hevc":
+        if out.suffix.lower() not in HEVC_SUFFIXES:
+            raise InputError("out", f"{out.name}: an HEVC export is a video file", ", ".join(HEVC_SUFFIXES))
+        if options.bit_depth not in (10, 12):
+            raise InputError("bit_depth", f"{options.bit_depth} is not supported", "10 or 12")
+        if not 0 <= int(options.crf) <= 51:
+            raise InputError("crf", f"{options.crf} is out of range", "0..51 (lower is better; 8 default)")
+    if fmt == "hci":
+        cols, rows = options.hci_size
+        if int(cols) < 1 or int(rows) < 1:
+            raise InputError("hci_size", f"{cols}x{rows} must be at least 1x1", "e.g. 9x9")
+    options.format = fmt
+    options.out = out
+    return options
+
+
+def _plan(ds: Dataset, options: ExportOptions) -> tuple[list[tuple[int, int]], str, tuple[int, int]]:
+    """(views in export order, resolved source, view size (w, h))."""
+    if options.format == "hci":
+        from lfstudio.export import hci
+
+        views = hci.sub_array(ds, options)
+    else:
+        views = common.select_views(ds, options.views)
+    source = common.resolve_source(ds, views, options.source)
+    size = common.image_size_px(common.source_path(ds, views[0], source))
+    if options.format == "hevc":
+        views = common.meander(views)
+    return views, source, size
+
+
+def estimate_export(dataset, options: ExportOptions) -> ExportEstimate:
+    """What an export would write (views, order, source, frame size, bytes) without writing; fast."""
+    ds = _open(dataset)
+    options = _check_options(options)
+    views, source, size = _plan(ds, options)
+    warnings: list[str] = []
+    if source == "raw":
+        warnings.append("raw views are exported without processing (linear 16-bit decode, no lens/colour/"
+                        "rectification); process the dataset first for finished views")
+    out = options.out
+    frame_size = size
+    if options.format == "png":
+        from lfstudio.export import png
+
+        nbytes = png.estimate_png_bytes(ds, views, source, size)
+    elif options.format == "hevc":
+        from lfstudio.export import hevc
+
+        frame_size, pad = hevc.even_size(size)
+        if pad != (0, 0):
+            warnings.append(f"x265 needs even frame sizes: {size[0]} x {size[1]} px views are padded to "
+                            f"{frame_size[0]} x {frame_size[1]} px (edge pixels repeated; import removes them)")
+        nbytes = hevc.estimate_bytes(len(views), frame_size, options.crf, options.bit_depth)
+    else:
+        from lfstudio.export import hci
+
+        nbytes = hci.estimate_bytes(len(views), size, options.hci_bit_depth)
+        warnings += hci.warnings(ds, views, size)
+    if (out.exists() or out.is_symlink()) and not options.overwrite:
+        warnings.append(f"{out} already exists and will only be replaced if you allow overwriting")
+    return ExportEstimate(views=list(views), source=source, image_size_px=tuple(frame_size),
+                          bytes_estimate=int(nbytes), warnings=warnings)
+
+
+def export_dataset(dataset, options: ExportOptions, *, progress: Progress | None = None,
+                   cancel: CancelToken | None = None) -> ExportReport:
+    """Export ``dataset`` as ``options`` say; see the module docstring. Raises
+    :class:`lfstudio.jobs.Cancelled` (nothing left behind), InputError, DatasetError."""
+    t0 = time.monotonic()
+    progress = progress or no_progress
+    cancel = cancel or CancelToken()
+    ds = _open(dataset)
+    options = _check_options(options)
+    out = options.out
+    views, source, size = _plan(ds, options)
+    report = ExportReport(out=out, views=len(views), bytes_written=0, seconds=0.0, format=options.format,
+                          source=source)
+    if options.format == "png":
+        from lfstudio.export import png
+
+        common.check_out(out, options.overwrite)
+        progress(0, len(views), "exporting 16-bit PNG")
+        report.files = png.export_png(ds, views, source, size, out, options.overwrite, progress, cancel)
+    elif options.format == "hevc":
+        from lfstudio.export import hevc
+
+        sidecar = hevc.sidecar_path(out)
+        common.check_out(out, options.overwrite, also=[sidecar])
+        result = hevc.export_hevc(ds, views, source, size, out, options, progress, cancel)
+        report.files = [out, sidecar]
+        report.compression_ratio_vs_png = result["compression_ratio_vs_png"]
+        report.psnr_db = result["psnr_db"]
+    else:
+        from lfstudio.export import hci
+
+        common.check_out(out, options.overwrite)
+        report.files = hci.export_hci(ds, views, source, size, out, options, progress, cancel)
+        report.warnings += hci.warnings(ds, views, size)
+    report.bytes_written = sum(common.folder_bytes(p) for p in report.files if p.exists())
+    report.seconds = time.monotonic() - t0
+    return report
+
+
+def import_hevc(file, out, *, progress: Progress | None = None, cancel: CancelToken | None = None,
+                overwrite: bool = False) -> Path:
+    """Restore the views of an HEVC export (``file`` + ``file.json``) as 16-bit PNGs in a new
+    dataset at ``out``; returns the dataset root."""
+    from lfstudio.export import hevc
+
+    return hevc.import_hevc(Path(file), Path(out), progress=progress or no_progress,
+                            cancel=cancel or CancelToken(), overwrite=overwrite)
+
+
+__all__ = ["FORMATS", "ExportOptions", "ExportEstimate", "ExportReport", "estimate_export", "export_dataset",
+           "import_hevc"]

@@ -1,0 +1,79 @@
+"""``lfstudio export DATASET --format png|hevc|hci --out PATH``: write the views for other tools."""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+
+from lfstudio.errors import InputError
+
+HELP = "export the views as 16-bit PNG + manifest, an HEVC stream (meander order) or the HCI benchmark layout"
+
+#: ExportOptions field -> the option the user typed (error messages name what the user knows)
+_OPTION = {"format": "--format", "out": "--out", "views": "--views", "source": "--source", "crf": "--crf",
+           "bit_depth": "--bit-depth", "hci_size": "--hci-size", "hci_center": "--hci-center",
+           "hci_bit_depth": "--hci-bit-depth"}
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dataset", metavar="DATASET", help="the dataset folder (holding dataset.json)")
+    p.add_argument("--format", required=True, metavar="FORMAT",
+                   help="png (16-bit PNG per view + manifest.json), hevc (x265 12-bit 4:4:4, meander order, "
+                        "sidecar FILE.json) or hci (HCI benchmark layout of a sub-array)")
+    p.add_argument("--out", required=True, metavar="PATH",
+                   help="png/hci: a new folder; hevc: a new .mp4/.mkv/.hevc file (its sidecar is PATH.json)")
+    p.add_argument("--views", metavar="SUBSET",
+                   help="views to export: 'all' (default), rows/columns like r0-8,c10-18, an array like 3x5 "
+                        "spread over the grid, or names like r00_c000,r00_c001")
+    p.add_argument("--source", default="auto", metavar="SRC",
+                   help="raw, processed, or auto (default: processed when every chosen view is processed)")
+    p.add_argument("--crf", type=int, default=8, help="hevc: constant rate factor, lower is better (default 8)")
+    p.add_argument("--bit-depth", type=int, default=12, help="hevc: 10 or 12 bits (default 12)")
+    p.add_argument("--hci-size", default="9x9", metavar="CxR",
+                   help="hci: sub-array columns x rows (default 9x9; ignored with --views)")
+    p.add_argument("--hci-center", metavar="ROW,COLUMN",
+                   help="hci: grid row,column of the centre view (default: the grid centre)")
+    p.add_argument("--hci-bit-depth", type=int, default=8,
+                   help="hci: 8 (sRGB PNG like the benchmark, default) or 16 (linear 16-bit PNG)")
+    p.add_argument("--overwrite", action="store_true", help="replace PATH if it exists (default: refuse)")
+    p.add_argument("--estimate", action="store_true", help="print the size estimate and exit without writing")
+
+
+def _pair(text: str, option: str, sep: str) -> tuple[int, int]:
+    m = re.fullmatch(rf"\s*(\d+)\s*[{sep}]\s*(\d+)\s*", text or "")
+    if not m:
+        raise InputError(option, f"cannot read {text!r}", "two whole numbers like 9x9" if "x" in sep else "ROW,COLUMN")
+    return int(m.group(1)), int(m.group(2))
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from lfstudio.dataset import Dataset
+    from lfstudio.export import ExportOptions, estimate_export, export_dataset
+    from lfstudio.jobs import TerminalProgress
+
+    options = ExportOptions(format=args.format, out=Path(args.out), views=args.views, source=args.source,
+                            crf=args.crf, bit_depth=args.bit_depth,
+                            hci_size=_pair(args.hci_size, "--hci-size", "x×"),
+                            hci_center=_pair(args.hci_center, "--hci-center", ",") if args.hci_center else None,
+                            overwrite=args.overwrite, hci_bit_depth=args.hci_bit_depth)
+    try:
+        ds = Dataset.open(args.dataset)
+        est = estimate_export(ds, options)
+        w, h = est.image_size_px
+        print(f"{len(est.views)} views ({est.source}), {w} x {h} px, about {est.bytes_estimate / 1e6:.1f} MB "
+              f"-> {options.out}", file=sys.stderr)
+        for warning in est.warnings:
+            print(f"note: {warning}", file=sys.stderr)
+        if args.estimate:
+            return 0
+        report = export_dataset(ds, options, progress=TerminalProgress("export"))
+    except InputError as exc:
+        if exc.field in _OPTION:
+            raise InputError(_OPTION[exc.field], str(exc).split(": ", 1)[1] if ": " in str(exc) else str(exc)) \
+                from None
+        raise
+    print(report.summary())
+    return 0

@@ -1,0 +1,373 @@
+"""What every export format shares: choosing and ordering views, reading a view as 16-bit RGB,
+describing the light field (grid, positions, calibration, intrinsics), and the atomic output
+(a temporary sibling ``.NAME.partial-XXXX`` renamed into place at the end)."""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import os
+import re
+import shutil
+import struct
+import tempfile
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+import cv2
+import numpy as np
+
+from lfstudio.dataset import Dataset
+from lfstudio.dataset.paths import view_stem
+from lfstudio.errors import DatasetError, InputError
+
+View = tuple[int, int]   # (row, column)
+EXPORT_FORMAT = "lfstudio-export"
+EXPORT_VERSION = 1
+PARTIAL_MARK = ".partial-"
+
+_RANGE_PART = re.compile(r"^\s*([rc])\s*(\d+)\s*(?:-\s*(\d+))?\s*$", re.IGNORECASE)
+
+
+def now_iso() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+# -- views ------------------------------------------------------------------------------------------
+def available_views(ds: Dataset) -> list[View]:
+    """Views with a captured file (status done), row-major."""
+    return sorted((int(v["row"]), int(v["column"])) for v in ds.views if v.get("status") == "done" and v.get("file"))
+
+
+def _parse_ranges(text: str) -> tuple[set[int] | None, set[int] | None] | None:
+    """``"r0-8,c10-18"`` → (rows, columns); None when ``text`` is not in the range syntax."""
+    rows: set[int] | None = None
+    cols: set[int] | None = None
+    for part in text.split(","):
+        m = _RANGE_PART.match(part)
+        if not m:
+            return None
+        lo = int(m.group(2))
+        hi = int(m.group(3)) if m.group(3) is not None else lo
+        if hi < lo:
+            raise InputError("views", f"{part.strip()!r}: range runs backwards", "e.g. r0-8,c10-18")
+        values = set(range(lo, hi + 1))
+        if m.group(1).lower() == "r":
+            rows = (rows or set()) | values
+        else:
+            cols = (cols or set()) | values
+    return rows, cols
+
+
+def select_views(ds: Dataset, views: str | Sequence[View] | None) -> list[View]:
+    """The chosen views, row-major. ``None``/``""``/``"all"``: every captured view. A string may be
+    rows/columns ranges (``"r0-8,c10-18"``, ``"r3"``, ``"c0-4,c10"``: the captured views in those
+    rows and columns) or anything :func:`lfstudio.calibration.pairs.parse_views` reads (``"2x3"``,
+    view names ``"r00_c000,r00_c050"``). A sequence of (row, column) must all be captured."""
+    avail = available_views(ds)
+    if not avail:
+        raise DatasetError(f"{ds.root}: no captured views to export; scan or import images first")
+    cols_n, rows_n = int(ds.grid["columns"]), int(ds.grid["rows"])
+    if views is None or (isinstance(views, str) and views.strip().lower() in ("", "all")):
+        return avail
+    if isinstance(views, str):
+        ranges = _parse_ranges(views)
+        if ranges is not None:
+            rows, cols = ranges
+            for name, chosen, n in (("rows", rows, rows_n), ("columns", cols, cols_n)):
+                if chosen and max(chosen) >= n:
+                    raise InputError("views", f"{name} up to {max(chosen)} asked, the grid has {n} {name}",
+                                     f"{name} 0-{n - 1}")
+            out = [v for v in avail if (rows is None or v[0] in rows) and (cols is None or v[1] in cols)]
+            if not out:
+                raise InputError("views", f"{views!r} selects no captured view", "rows/columns with captures")
+            return out
+        from lfstudio.calibration.pairs import parse_views
+
+        return sorted(parse_views(views, cols_n, rows_n, avail))
+    chosen = sorted({(int(r), int(c)) for r, c in views})
+    if not chosen:
+        raise InputError("views", "no view chosen", "at least one captured view")
+    have = set(avail)
+    missing = [view_stem(*v) for v in chosen if v not in have]
+    if missing:
+        shown = ", ".join(missing[:8]) + (f" and {len(missing) - 8} more" if len(missing) > 8 else "")
+        raise InputError("views", f"no captured image for {shown}", "captured views of this dataset")
+    return chosen
+
+
+def meander(views: Sequence[View]) -> list[View]:
+    """Meander order: the first chosen row left→right, the next right→left, and so on, so that
+    neighbouring frames are neighbouring views (alternation counts the chosen rows, so a sub-array
+    starting at an odd grid row still starts left→right)."""
+    by_row: dict[int, list[int]] = {}
+    for r, c in views:
+        by_row.setdefault(r, []).append(c)
+    out: list[View] = []
+    for i, r in enumerate(sorted(by_row)):
+        cols = sorted(by_row[r], reverse=bool(i % 2))
+        out += [(r, c) for c in cols]
+    return out
+
+
+# -- sources ----------------------------------------------------------------------------------------
+def processed_file(ds: Dataset, view: dict) -> Path | None:
+    p = view.get("processed")
+    if isinstance(p, dict) and p.get("status") == "done" and p.get("file"):
+        try:
+            path = ds.path_of(p["file"])
+        except DatasetError:
+            return None
+        return path if path.is_file() else None
+    return None
+
+
+def resolve_source(ds: Dataset, views: Sequence[View], source: str) -> str:
+    source = (source or "auto").lower()
+    if source not in ("auto", "raw", "processed"):
+        raise InputError("source", f"unknown source {source!r}", "raw, processed or auto")
+    if source == "raw":
+        return "raw"
+    missing = [view_stem(*v) for v in views if processed_file(ds, ds.view(*v)) is None]
+    if source == "processed" and missing:
+        shown = ", ".join(missing[:6]) + (f" and {len(missing) - 6} more" if len(missing) > 6 else "")
+        raise InputError("source", f"processed views missing for {shown}",
+                         "process the dataset first ('lfstudio process'), or export --source raw")
+    return "raw" if missing else "processed"
+
+
+def source_path(ds: Dataset, view: View, source: str) -> Path:
+    v = ds.view(*view)
+    if source == "processed":
+        path = processed_file(ds, v)
+        if path is None:
+            raise DatasetError(f"{ds.root}: {view_stem(*view)} has no processed file; process the dataset again")
+        return path
+    path = ds.path_of(v)
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing (row {view[0]}, column {view[1]}); re-capture the view or leave it out")
+    return path
+
+
+def png_header(path: Path) -> tuple[int, int, int, int] | None:
+    """(width, height, bit depth, colour type) of a PNG from its IHDR, or None if not a PNG."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(26)
+    except OSError:
+        return None
+    if len(head) < 26 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        return None
+    w, h = struct.unpack(">II", head[16:24])
+    return int(w), int(h), head[24], head[25]
+
+
+def image_size_px(path: Path) -> tuple[int, int]:
+    """(width, height) a view file decodes to, read cheaply (PNG header, RAW metadata)."""
+    hdr = png_header(path)
+    if hdr is not None:
+        return hdr[0], hdr[1]
+    from lfstudio.processing.steps import debayer
+
+    return debayer.full_size_px(path)
+
+
+def debayer_step(ds: Dataset):
+    """The dataset's debayer settings (its processing.toml, else the defaults), full size."""
+    import dataclasses
+
+    from lfstudio.processing.profile import Profile
+
+    try:
+        step = Profile.for_dataset(ds.root).debayer
+    except Exception:   # an unreadable profile must not block an export of raw views
+        from lfstudio.processing.profile import DebayerStep
+        step = DebayerStep()
+    return dataclasses.replace(step, half_size=False)
+
+
+def read_view(path: Path, debayer=None) -> np.ndarray:
+    """(h, w, 3) uint16 RGB of a view file: RAW through rawpy (linear 16-bit, as processing
+    decodes it), images as they are (8-bit scaled to 16)."""
+    from lfstudio.processing.steps import debayer as _debayer
+
+    if _debayer.is_raw(path):
+        if debayer is None:
+            from lfstudio.processing.profile import DebayerStep
+            debayer = DebayerStep()
+        return _debayer.decode(path, debayer)
+    return _debayer.read_image(path)
+
+
+def write_png16(path: Path, rgb: np.ndarray, compression: int = 1) -> None:
+    """Write (h, w, 3) uint16 RGB as a 16-bit PNG (not atomic: callers write into a temporary folder)."""
+    bgr = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)
+    if not cv2.imwrite(str(path), bgr, [cv2.IMWRITE_PNG_COMPRESSION, int(compression)]):
+        raise OSError(f"{path}: cannot write the PNG (disk full or folder not writable?)")
+
+
+def png16_bytes(rgb: np.ndarray, compression: int = 1) -> int:
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR),
+                           [cv2.IMWRITE_PNG_COMPRESSION, int(compression)])
+    if not ok:
+        raise OSError("cannot encode a PNG")
+    return int(buf.size)
+
+
+# -- description --------------------------------------------------------------------------------------
+def intrinsics(ds: Dataset, image_size: tuple[int, int]) -> dict[str, Any]:
+    """Pinhole intrinsics of the exported images (square pixels, principal point at the centre
+    unless the calibration estimated it)."""
+    w, h = int(image_size[0]), int(image_size[1])
+    cam, lens = ds.camera, ds.lens
+    out: dict[str, Any] = {"image_size_px": [w, h], "focal_length_mm": lens.get("focal_length_mm"),
+                           "sensor_mm": cam.get("sensor_mm"), "sensor_px": cam.get("sensor_px")}
+    try:
+        f_px = ds.focal_length_px(w)
+    except DatasetError:
+        f_px = None
+    out["focal_length_px"] = f_px
+    sensor_px = cam.get("sensor_px")
+    scale = w / float(sensor_px[0]) if sensor_px else 1.0
+    pitch = cam.get("pixel_pitch_um")
+    if pitch is None and cam.get("sensor_mm") and sensor_px:
+        pitch = float(cam["sensor_mm"][0]) / float(sensor_px[0]) * 1000.0
+    out["pixel_pitch_um"] = float(pitch) / scale if pitch else None
+    out["principal_point_px"] = [(w - 1) / 2.0, (h - 1) / 2.0]
+    return out
+
+
+def describe(ds: Dataset, views: Sequence[View], source: str, image_size: tuple[int, int],
+             files: dict[View, str] | None = None) -> dict[str, Any]:
+    """The manifest part every format writes: grid, spacing, positions, calibration, intrinsics."""
+    from lfstudio.calibration.calibrate import load_calibration
+
+    grid = dict(ds.grid)
+    rig = ds.manifest.get("rig", {}) or {}
+    if "origin_mm" not in grid and rig.get("origin_mm") is not None:
+        grid["origin_mm"] = rig["origin_mm"]
+    processing = ds.manifest.get("processing") or {}
+    entries = []
+    for v in views:
+        rec = ds.view(*v)
+        e = {"row": v[0], "column": v[1], "commanded_mm": rec.get("commanded_mm"),
+             "reported_mm": rec.get("reported_mm"), "captured_at": rec.get("captured_at"),
+             "exposure_s": rec.get("exposure_s")}
+        if files is not None:
+            e["file"] = files[v]
+        entries.append(e)
+    return {"format": EXPORT_FORMAT, "version": EXPORT_VERSION, "created": now_iso(),
+            "dataset": {"path": str(ds.root), "created": ds.manifest.get("created")},
+            "source": source,
+            "rectified": bool(source == "processed" and processing.get("rectified")),
+            "color": "linear RGB (16-bit, 65535 = white)",
+            "grid": grid, "camera": dict(ds.camera), "lens": dict(ds.lens), "plan": dict(ds.manifest.get("plan") or {}),
+            "image_size_px": [int(image_size[0]), int(image_size[1])],
+            "intrinsics": intrinsics(ds, image_size),
+            "calibration": load_calibration(ds),
+            "views": entries}
+
+
+# -- atomic output ------------------------------------------------------------------------------------
+def check_out(out: Path, overwrite: bool, *, also: Sequence[Path] = ()) -> None:
+    """Refuse an existing output (and its companions) unless ``overwrite``."""
+    for p in (out, *also):
+        if (p.exists() or p.is_symlink()) and not overwrite:
+            raise InputError("out", f"{p} already exists; choose another name or allow overwriting (--overwrite)")
+
+
+def partial_name(out: Path) -> str:
+    return f".{out.name}{PARTIAL_MARK}"
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+
+
+def _replace(tmp: Path, final: Path, overwrite: bool) -> None:
+    if final.exists() or final.is_symlink():
+        if not overwrite:
+            raise InputError("out", f"{final} appeared while exporting; choose another name or allow overwriting")
+        if final.is_dir() and not final.is_symlink():
+            old = final.with_name(f".{final.name}.old-{os.getpid()}")
+            os.replace(final, old)
+            os.replace(tmp, final)
+            shutil.rmtree(old, ignore_errors=True)
+            return
+    os.replace(tmp, final)
+
+
+def _fsync_dir(folder: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _chmod_default(path: Path, folder: bool) -> None:
+    """mkdtemp/mkstemp create private (0700/0600) entries; exports get the usual permissions."""
+    with contextlib.suppress(OSError):
+        os.chmod(path, (0o777 if folder else 0o666) & ~_umask())
+
+
+@contextlib.contextmanager
+def partial_folder(out: Path, overwrite: bool) -> Iterator[Path]:
+    """Yield a temporary sibling folder of ``out``; on success it becomes ``out`` (replacing an
+    old one when ``overwrite``), on any exception (cancel included) it is removed."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=partial_name(out), dir=out.parent))
+    _chmod_default(tmp, True)
+    try:
+        yield tmp
+        for p in tmp.iterdir():
+            if p.is_file():
+                with open(p, "rb") as fh:
+                    os.fsync(fh.fileno())
+        _replace(tmp, out, overwrite)
+        _fsync_dir(out.parent)
+    except BaseException:
+        _remove(tmp)
+        raise
+
+
+@contextlib.contextmanager
+def partial_files(outs: Sequence[Path], overwrite: bool) -> Iterator[list[Path]]:
+    """Temporary sibling names for several files written together (e.g. a video and its sidecar);
+    renamed into place in order at the end, all removed on any exception."""
+    tmps: list[Path] = []
+    try:
+        for out in outs:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            fd, name = tempfile.mkstemp(prefix=partial_name(out), dir=out.parent)
+            os.close(fd)
+            tmps.append(Path(name))
+            _chmod_default(Path(name), False)
+        yield tmps
+        for t in tmps:
+            with open(t, "rb") as fh:
+                os.fsync(fh.fileno())
+        for t, out in zip(tmps, outs):
+            _replace(t, out, overwrite)
+        _fsync_dir(outs[0].parent)
+    except BaseException:
+        for t in tmps:
+            _remove(t)
+        raise
+
+
+def folder_bytes(path: Path) -> int:
+    if path.is_file():
+        return path.stat().st_size
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())

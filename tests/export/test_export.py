@@ -1,0 +1,247 @@
+"""Export core: view choice and order, PNG/HEVC/HCI outputs, HEVC round trip, atomic output."""
+
+from __future__ import annotations
+
+import configparser
+import json
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lfstudio.errors import InputError
+from lfstudio.export import ExportOptions, estimate_export, export_dataset, import_hevc
+from lfstudio.export import common, hci
+from lfstudio.jobs import CancelToken, Cancelled
+
+SMALL = dict(width_px=241)   # odd width: the HEVC export must pad (x265 needs even sizes)
+
+
+@pytest.fixture
+def small(make_tiny_dataset):
+    """5 x 3 views, 241 x 160 px, 16-bit linear PNG."""
+    return make_tiny_dataset("png", **SMALL)
+
+
+def _read16(path: Path) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    assert img is not None and img.dtype == np.uint16, path
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def _source(ds, r, c) -> np.ndarray:
+    return _read16(ds.path_of(ds.view(r, c)))
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return [p.name for p in folder.iterdir() if common.PARTIAL_MARK in p.name]
+
+
+# -- views and order ----------------------------------------------------------------------------------
+def test_orders_and_subsets(small, tmp_path):
+    est = estimate_export(small, ExportOptions("hevc", tmp_path / "a.mp4"))
+    assert est.views[:6] == [(0, 0), (0, 1), (0, 2), (0, 3), (0, 4), (1, 4)]
+    assert est.views[5:10] == [(1, 4), (1, 3), (1, 2), (1, 1), (1, 0)]
+    assert est.views[10:] == [(2, c) for c in range(5)]
+    assert est.image_size_px == (242, 160) and est.source == "raw"
+    assert any("padded" in w for w in est.warnings)
+    est = estimate_export(small, ExportOptions("png", tmp_path / "p", views="r1-2,c1-3"))
+    assert est.views == [(r, c) for r in (1, 2) for c in (1, 2, 3)]
+    assert est.image_size_px == (241, 160) and est.bytes_estimate > 0
+    est = estimate_export(small, ExportOptions("hevc", tmp_path / "a.mkv", views="r1-2,c1-3"))
+    assert est.views == [(1, 1), (1, 2), (1, 3), (2, 3), (2, 2), (2, 1)]   # the first chosen row runs left→right
+    est = estimate_export(small, ExportOptions("hci", tmp_path / "h", hci_size=(3, 3)))
+    assert est.views == [(r, c) for r in range(3) for c in range(1, 4)]
+    with pytest.raises(InputError) as exc:
+        estimate_export(small, ExportOptions("png", tmp_path / "p", views="r0-7"))
+    assert exc.value.field == "views"
+    with pytest.raises(InputError) as exc:
+        estimate_export(small, ExportOptions("hci", tmp_path / "h", hci_size=(3, 3), hci_center=(0, 2)))
+    assert exc.value.field == "hci_center"
+    with pytest.raises(InputError) as exc:
+        estimate_export(small, ExportOptions("hevc", tmp_path / "a.avi"))
+    assert exc.value.field == "out"
+    with pytest.raises(InputError) as exc:
+        estimate_export(small, ExportOptions("png", tmp_path / "p", source="processed"))
+    assert exc.value.field == "source" and "lfstudio process" in str(exc.value)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.sets(st.tuples(st.integers(0, 6), st.integers(0, 9)), min_size=1, max_size=40))
+def test_meander_visits_each_view_once_snaking(views):
+    order = common.meander(views)
+    assert sorted(order) == sorted(views)
+    rows = sorted({r for r, _ in views})
+    for k, r in enumerate(rows):
+        cols = [c for rr, c in order if rr == r]
+        assert cols == sorted(cols, reverse=bool(k % 2))
+    # rows come one after the other
+    assert [r for r, _ in order] == sorted(r for r, _ in order)
+
+
+def test_hci_names_widen_past_1000_views():
+    assert hci.cam_name(7, 81) == "input_Cam007.png"
+    assert hci.cam_name(999, 1000) == "input_Cam999.png"
+    assert hci.cam_name(7, 1001) == "input_Cam0007.png"
+    assert hci.cam_name(2120, 2121) == "input_Cam2120.png"
+
+
+# -- png ----------------------------------------------------------------------------------------------
+def test_png_export_manifest_and_pixels(small, tmp_path):
+    out = tmp_path / "out" / "png"
+    seen = []
+    report = export_dataset(small, ExportOptions("png", out, views="r0-1,c0-1"),
+                            progress=lambda d, t, m="": seen.append((d, t)))
+    assert seen[-1] == (4, 4)
+    assert report.views == 4 and report.bytes_written > 0 and out.is_dir()
+    umask = os.umask(0)
+    os.umask(umask)
+    assert out.stat().st_mode & 0o777 == 0o777 & ~umask   # not the temporary folder's private 0700
+    doc = json.loads((out / "manifest.json").read_text())
+    assert doc["grid"]["columns"] == 5 and doc["grid"]["spacing_mm"] == [4.0, 6.0]
+    assert [(v["row"], v["column"]) for v in doc["views"]] == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    v = doc["views"][3]
+    assert v["file"] == "r01_c001.png" and v["commanded_mm"] == small.view(1, 1)["commanded_mm"]
+    assert doc["intrinsics"]["image_size_px"] == [241, 160]
+    assert doc["intrinsics"]["focal_length_px"] == pytest.approx(small.focal_length_px(241))
+    for e in doc["views"]:
+        assert np.array_equal(_read16(out / e["file"]), _source(small, e["row"], e["column"]))
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "r00_c000.png", "r00_c001.png",
+                                                     "r01_c000.png", "r01_c001.png"]
+    assert _leftovers(out.parent) == []
+
+
+def test_png_export_decodes_dng_like_processing(make_tiny_dataset, tmp_path):
+    from lfstudio.processing.profile import DebayerStep
+    from lfstudio.processing.steps import debayer
+
+    ds = make_tiny_dataset("dng", width_px=160)
+    out = tmp_path / "png"
+    export_dataset(ds, ExportOptions("png", out, views="r00_c000"))
+    got = _read16(out / "r00_c000.png")
+    want = debayer.decode(ds.path_of(ds.view(0, 0)), DebayerStep())
+    assert got.shape == (want.shape[0], want.shape[1], 3) and np.array_equal(got, want)
+
+
+# -- atomic output --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("fmt,name", [("png", "p"), ("hevc", "v.mp4"), ("hci", "h")])
+def test_cancel_leaves_nothing_behind(small, tmp_path, fmt, name):
+    cancel = CancelToken()
+    exports = tmp_path / "exports"
+    exports.mkdir()
+    out = exports / name
+
+    def progress(done, total, message=""):
+        if done >= 2:
+            cancel.cancel()
+
+    with pytest.raises(Cancelled):
+        export_dataset(small, ExportOptions(fmt, out, hci_size=(3, 3)), progress=progress, cancel=cancel)
+    assert list(exports.iterdir()) == []
+
+
+def test_overwrite_refused_unless_allowed(small, tmp_path):
+    out = tmp_path / "p"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    with pytest.raises(InputError) as exc:
+        export_dataset(small, ExportOptions("png", out, views="r00_c000"))
+    assert exc.value.field == "out" and "already exists" in str(exc.value)
+    assert (out / "keep.txt").read_text() == "mine"
+    export_dataset(small, ExportOptions("png", out, views="r00_c000", overwrite=True))
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "r00_c000.png"]
+    video = tmp_path / "v.mkv"
+    (tmp_path / "v.mkv.json").write_text("{}")
+    with pytest.raises(InputError) as exc:   # the sidecar counts too
+        export_dataset(small, ExportOptions("hevc", video, views="r00_c000"))
+    assert exc.value.field == "out" and not video.exists()
+    assert _leftovers(tmp_path) == []
+
+
+# -- hevc -----------------------------------------------------------------------------------------------
+def test_hevc_round_trip_12bit_meander(small, tmp_path):
+    video = tmp_path / "lf.mp4"
+    report = export_dataset(small, ExportOptions("hevc", video))
+    assert report.psnr_db is not None and report.psnr_db >= 45.0
+    assert report.compression_ratio_vs_png is not None and report.compression_ratio_vs_png > 2.0
+    side = json.loads((tmp_path / "lf.mp4.json").read_text())
+    assert side["frames"] == [list(v) for v in common.meander([(r, c) for r in range(3) for c in range(5)])]
+    assert side["encoding"]["bit_depth"] == 12 and side["encoding"]["pix_fmt"] == "yuv444p12le"
+    assert side["pad_px"] == [1, 0] and side["frame_size_px"] == [242, 160]
+
+    back = import_hevc(video, tmp_path / "restored")
+    from lfstudio.dataset import Dataset
+
+    ds = Dataset.open(back)
+    assert ds.grid["columns"] == 5 and ds.status_counts()["done"] == 15
+    sources = {(r, c): _source(small, r, c).astype(np.float64) for r in range(3) for c in range(5)}
+    for (r, c), src in sources.items():
+        v = ds.view(r, c)
+        assert v["commanded_mm"] == small.view(r, c)["commanded_mm"]
+        got = _read16(ds.path_of(v)).astype(np.float64)
+        assert got.shape == src.shape
+        mse = {k: float(np.mean((got - s) ** 2)) for k, s in sources.items()}
+        assert 10 * np.log10(65535.0 ** 2 / mse[(r, c)]) >= 45.0
+        assert min(mse, key=mse.get) == (r, c)     # the frame landed on its own view, not a neighbour
+    with pytest.raises(InputError):
+        import_hevc(video, back)                   # refuses to overwrite the restored dataset
+
+
+def test_import_hevc_needs_its_sidecar(small, tmp_path):
+    video = tmp_path / "one.mkv"
+    export_dataset(small, ExportOptions("hevc", video, views="r0,c0-1", bit_depth=10))
+    (tmp_path / "one.mkv.json").rename(tmp_path / "elsewhere.json")
+    with pytest.raises(InputError) as exc:
+        import_hevc(video, tmp_path / "ds")
+    assert exc.value.field == "file" and "one.mkv.json" in str(exc.value)
+    assert not (tmp_path / "ds").exists() and _leftovers(tmp_path) == []
+
+
+# -- hci ------------------------------------------------------------------------------------------------
+def read_hci(folder: Path) -> tuple[dict, np.ndarray]:
+    """A small reader following the HCI toolkit (lightfield-analysis/python-tools file_io)."""
+    cfg = configparser.ConfigParser()
+    cfg.read(folder / "parameters.cfg")
+    p = {"width": cfg.getint("intrinsics", "image_resolution_x_px"),
+         "height": cfg.getint("intrinsics", "image_resolution_y_px"),
+         "focal_length_mm": cfg.getfloat("intrinsics", "focal_length_mm"),
+         "sensor_size_mm": cfg.getfloat("intrinsics", "sensor_size_mm"),
+         "fstop": cfg.getfloat("intrinsics", "fstop"),
+         "num_cams_x": cfg.getint("extrinsics", "num_cams_x"), "num_cams_y": cfg.getint("extrinsics", "num_cams_y"),
+         "baseline_mm": cfg.getfloat("extrinsics", "baseline_mm"),
+         "focus_distance_m": cfg.getfloat("extrinsics", "focus_distance_m"),
+         "disp_min": cfg.getfloat("meta", "disp_min"), "disp_max": cfg.getfloat("meta", "disp_max")}
+    for key in ("center_cam_x_m", "center_cam_y_m", "center_cam_z_m", "center_cam_rx_rad", "center_cam_ry_rad",
+                "center_cam_rz_rad"):
+        p[key] = cfg.getfloat("extrinsics", key)
+    for key in ("frustum_disp_min", "frustum_disp_max", "depth_map_scale"):
+        p[key] = cfg.getfloat("meta", key)
+    for key in ("scene", "category", "date", "version", "authors", "contact"):
+        p[key] = cfg.get("meta", key)
+    lf = np.zeros((p["num_cams_y"], p["num_cams_x"], p["height"], p["width"], 3), np.uint8)
+    names = sorted(f for f in os.listdir(folder) if f.startswith("input_") and f.endswith(".png"))
+    assert len(names) == p["num_cams_x"] * p["num_cams_y"]
+    for idx, name in enumerate(names):
+        img = cv2.imread(str(folder / name), cv2.IMREAD_UNCHANGED)
+        lf[idx // p["num_cams_x"], idx % p["num_cams_x"]] = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return p, lf
+
+
+def test_hci_export_readable_by_toolkit_reader(small, tmp_path):
+    out = tmp_path / "hci"
+    export_dataset(small, ExportOptions("hci", out, hci_size=(3, 2), hci_center=(1, 3)))
+    p, lf = read_hci(out)
+    assert (p["num_cams_x"], p["num_cams_y"], p["width"], p["height"]) == (3, 2, 241, 160)
+    assert p["baseline_mm"] == 4.0 and p["focal_length_mm"] == 50.0 and p["sensor_size_mm"] == 35.9
+    # the plan's near/far (1.77 / 4.77 m) as neighbour disparities in these 241 px images
+    f_px = 50.0 / (35.9 / 241)
+    assert p["disp_max"] == pytest.approx(f_px * 4.0 / 1770.0, abs=1e-3)
+    assert p["disp_min"] == pytest.approx(f_px * 4.0 / 4770.0, abs=1e-3)
+    assert p["center_cam_x_m"] == pytest.approx(small.view(1, 3)["commanded_mm"][0] / 1000)
+    for i, r in enumerate((1, 2)):   # even count: the centre is the upper of the middle two
+        for j, c in enumerate((2, 3, 4)):
+            assert np.array_equal(lf[i, j], hci.to_srgb8(_source(small, r, c)))

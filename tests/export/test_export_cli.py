@@ -1,0 +1,59 @@
+"""``lfstudio export`` and ``lfstudio import-hevc`` in a subprocess: outputs, exit codes, one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+
+def _one_error_line(proc, *words):
+    lines = [ln for ln in proc.stderr.splitlines() if "error" in ln]
+    assert len(lines) == 1, proc.stderr
+    for w in words:
+        assert w in lines[0], lines[0]
+    assert "Traceback" not in proc.stderr
+
+
+def test_export_png_then_refuses_to_overwrite(make_tiny_dataset, run_cli, tmp_path):
+    ds = make_tiny_dataset("png", width_px=241)
+    out = tmp_path / "exports" / "png"
+    proc = run_cli("export", ds.root, "--format", "png", "--out", out, "--views", "r0,c0-2")
+    assert proc.returncode == 0, proc.stderr
+    assert "exported 3 views" in proc.stdout
+    doc = json.loads((out / "manifest.json").read_text())
+    assert [v["file"] for v in doc["views"]] == ["r00_c000.png", "r00_c001.png", "r00_c002.png"]
+    proc = run_cli("export", ds.root, "--format", "png", "--out", out)
+    assert proc.returncode == 2
+    _one_error_line(proc, "--out", "already exists", "--overwrite")
+
+
+def test_export_bad_input_exit_2(make_tiny_dataset, run_cli, tmp_path):
+    ds = make_tiny_dataset("png", width_px=241)
+    for args, words in [
+        (["--format", "tiff", "--out", tmp_path / "x"], ("--format", "png, hevc, hci")),
+        (["--format", "hevc", "--out", tmp_path / "x.avi"], ("--out", ".mp4")),
+        (["--format", "hevc", "--out", tmp_path / "x.mp4", "--bit-depth", "8"], ("--bit-depth", "10 or 12")),
+        (["--format", "png", "--out", tmp_path / "x", "--views", "r0-9"], ("--views",)),
+        (["--format", "png", "--out", tmp_path / "x", "--source", "processed"], ("--source", "lfstudio process")),
+        (["--format", "hci", "--out", tmp_path / "x", "--hci-size", "nine"], ("--hci-size",)),
+        (["--format", "hci", "--out", tmp_path / "x", "--hci-size", "3x3", "--hci-center", "0,0"], ("--hci-center",)),
+    ]:
+        proc = run_cli("export", ds.root, *args)
+        assert proc.returncode == 2, (args, proc.stderr)
+        _one_error_line(proc, *words)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [ds.root.name]
+
+
+def test_export_hevc_and_import_back(make_tiny_dataset, run_cli, tmp_path):
+    ds = make_tiny_dataset("png", width_px=241)
+    video = tmp_path / "lf.mkv"
+    proc = run_cli("export", ds.root, "--format", "hevc", "--out", video, "--views", "r1-2,c0-1")
+    assert proc.returncode == 0, proc.stderr
+    assert "smaller than 16-bit PNG" in proc.stdout and "PSNR" in proc.stdout
+    proc = run_cli("import-hevc", video, "--out", tmp_path / "back")
+    assert proc.returncode == 0, proc.stderr
+    assert "restored 4 views" in proc.stdout
+    assert sorted(p.name for p in (tmp_path / "back" / "raw").iterdir()) == \
+        ["r01_c000.png", "r01_c001.png", "r02_c000.png", "r02_c001.png"]
+    proc = run_cli("import-hevc", tmp_path / "missing.mp4", "--out", tmp_path / "b2")
+    assert proc.returncode == 2
+    _one_error_line(proc, "FILE", "missing.mp4")
