@@ -66,7 +66,8 @@ def run(args: argparse.Namespace) -> int:
     w, h = ds.camera["sensor_px"]
     print(f"{root}: {len(ds.views)} views ({cols}x{rows}, {args.order}), {w}x{h} px, "
           f"{record.get('linked', 0)} hard-linked, {len(ds.views) - record.get('linked', 0)} copied; "
-          f"focal length from {record.get('intrinsics', 'none')}")
+          + ("focal length not known" if record.get("intrinsics", "none") == "none"
+             else f"focal length from {record['intrinsics']}"))
     for warning in record.get("warnings", []):
         print(f"warning: {warning}", file=sys.stderr)
     print(f"next: lfstudio calibrate {root}")

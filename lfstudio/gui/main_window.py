@@ -52,6 +52,8 @@ class MainWindow(QMainWindow):
             install = getattr(widget, "install_menus", None)
             if install is not None:
                 install(self)
+        from lfstudio.gui.dialogs import import_dialog
+        import_dialog.install_menus(self)
         self._install_base_menus()
 
         state.statusMessage.connect(lambda text, ms: self.statusBar().showMessage(text, ms))

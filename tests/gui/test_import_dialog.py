@@ -1,0 +1,94 @@
+"""File → Import images… on a real Qt event loop: live count, import, overwrite question, open the dataset."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+from PySide6.QtWidgets import QMessageBox
+
+from lfstudio.dataset import Dataset
+from lfstudio.gui.app import create_window
+from lfstudio.gui.dialogs.import_dialog import ImportHevcDialog, ImportImagesDialog
+
+
+def _images(folder: Path, n: int, size=(48, 32)) -> Path:
+    folder.mkdir()
+    for i in range(n):
+        img = np.full((size[1], size[0], 3), 10 * i, np.uint8)   # view i has grey level 10·i
+        cv2.imwrite(str(folder / f"frame{i + 1}.png"), img)
+    return folder
+
+
+def _menu_action(window, text):
+    actions = {a.text().replace("&", ""): a for a in window.menu("File").actions()}
+    assert text in actions, sorted(actions)
+    return actions[text]
+
+
+def test_import_images_dialog_imports_and_opens_the_dataset(qtbot, tmp_path):
+    folder = _images(tmp_path / "rig", 6)
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    _menu_action(window, "Import images…").trigger()
+    dialog = window.findChild(ImportImagesDialog, "importImagesDialog")
+    assert dialog is not None and dialog.isVisible()
+
+    dialog.folder_edit.setText(str(folder))
+    dialog.columns_spin.setValue(3)
+    dialog.rows_spin.setValue(3)
+    qtbot.waitUntil(lambda: "Found 6 images" in dialog.count_label.text())   # the debounced live count
+    assert "grid needs 9" in dialog.count_label.text()
+    dialog.rows_spin.setValue(2)
+    dialog.order_combo.setCurrentText("meander")
+    dialog.intrinsics_combo.setCurrentIndex(2)
+    dialog.focal_px.setValue(800.0)
+    dialog.spacing_h.setValue(5.0)
+    assert dialog.recount() == 6 and "✓" in dialog.count_label.text()
+
+    # a destination that exists: nothing happens until the operator confirms
+    out = tmp_path / "ds"
+    out.mkdir()
+    dialog.out_edit.setText(str(out))
+    dialog.import_button.click()
+    box = dialog.findChild(QMessageBox, "confirmOverwrite")
+    assert box is not None and box.isVisible() and not dialog.runner.running
+    with qtbot.waitSignal(dialog.runner.finished, timeout=30000):
+        box.button(QMessageBox.Yes).click()
+    assert "Imported 6 views (3 × 2, 48 × 32 px)" in dialog.message.text()
+    ds = Dataset.open(out)
+    # meander: frame4 is the first of the reversed second row -> row 1, column 2
+    assert ds.view(1, 2)["source_file"] == "frame4.png" and ds.view(1, 0)["source_file"] == "frame6.png"
+    assert ds.view(0, 1)["commanded_mm"] == [5.0, 0.0]
+    assert ds.focal_length_px(48) == 800.0
+
+    assert dialog.open_button.isEnabled()
+    with qtbot.waitSignal(window.state.datasetChanged, timeout=5000):
+        dialog.open_button.click()
+    assert window.state.dataset is not None and window.state.dataset.root == out.resolve()
+
+    # a wrong grid is reported in the dialog, never raised
+    dialog.show()
+    dialog.columns_spin.setValue(4)
+    dialog.out_edit.setText(str(tmp_path / "other"))
+    with qtbot.waitSignal(dialog.runner.failed, timeout=30000):
+        dialog.import_button.click()
+    assert "grid needs 8" in dialog.message.text() and not (tmp_path / "other").exists()
+    # the fields persist
+    again = ImportImagesDialog(window.state)
+    qtbot.addWidget(again)
+    assert again.folder_edit.text() == str(folder) and again.order_combo.currentText() == "meander"
+
+
+def test_import_hevc_dialog_reports_a_missing_file(qtbot, tmp_path):
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    _menu_action(window, "Import HEVC…").trigger()
+    dialog = window.findChild(ImportHevcDialog, "importHevcDialog")
+    assert dialog is not None
+    dialog.file_edit.setText(str(tmp_path / "missing.mp4"))
+    dialog.out_edit.setText(str(tmp_path / "ds"))
+    dialog.import_button.click()
+    assert "HEVC file" in dialog.message.text() and "is not a file" in dialog.message.text()
+    assert not dialog.runner.running and not (tmp_path / "ds").exists()
