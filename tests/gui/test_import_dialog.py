@@ -81,14 +81,29 @@ def test_import_images_dialog_imports_and_opens_the_dataset(qtbot, tmp_path):
     assert again.folder_edit.text() == str(folder) and again.order_combo.currentText() == "meander"
 
 
-def test_import_hevc_dialog_reports_a_missing_file(qtbot, tmp_path):
+def test_import_hevc_dialog_restores_an_export(qtbot, tmp_path):
+    from lfstudio.export import ExportOptions, export_dataset
+    from lfstudio.sim.virtual_dataset import make_virtual_dataset
+
+    src = make_virtual_dataset(tmp_path / "src", 3, 2, width_px=64, fmt="png")
+    video = tmp_path / "lf.mp4"
+    export_dataset(src, ExportOptions("hevc", video))
     window = create_window(simulated=True)
     qtbot.addWidget(window)
     _menu_action(window, "Import HEVC…").trigger()
     dialog = window.findChild(ImportHevcDialog, "importHevcDialog")
-    assert dialog is not None
+    assert dialog is not None and dialog.isVisible()
     dialog.file_edit.setText(str(tmp_path / "missing.mp4"))
     dialog.out_edit.setText(str(tmp_path / "ds"))
     dialog.import_button.click()
     assert "HEVC file" in dialog.message.text() and "is not a file" in dialog.message.text()
     assert not dialog.runner.running and not (tmp_path / "ds").exists()
+
+    dialog.file_edit.setText(str(video))
+    with qtbot.waitSignal(dialog.runner.finished, timeout=60000):
+        dialog.import_button.click()
+    ds = Dataset.open(tmp_path / "ds")
+    assert len(ds.done_views()) == 6 and "Imported 6 views into" in dialog.message.text()
+    with qtbot.waitSignal(window.state.datasetChanged, timeout=5000):
+        dialog.open_button.click()
+    assert window.state.dataset.root == (tmp_path / "ds").resolve()

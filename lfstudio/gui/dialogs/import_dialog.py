@@ -166,7 +166,13 @@ class _ImportDialogBase(QDialog):
         self.state.show_status(f"Imported {root}")
 
     def summary(self, root: Path) -> str:
-        return f"Imported into {root}."
+        from lfstudio.dataset import Dataset
+
+        try:
+            n = len(Dataset.open(root).done_views())
+        except LfError:
+            return f"Imported into {root}."
+        return f"Imported {n} views into {root}."
 
     def _failed(self, message: str) -> None:
         self.import_button.setEnabled(True)
