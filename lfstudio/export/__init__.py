@@ -68,6 +68,7 @@ class ExportReport:
     psnr_db: float | None = None                    # hevc: decoded frames vs the source, 16-bit scale
     files: list[Path] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    details: dict = field(default_factory=dict)     # hevc: encode_s, verify_s, video_bytes, png_bytes, frames
 
     def summary(self) -> str:
         text = (f"exported {self.views} views ({self.source}) as {self.format} to {self.out}: "
@@ -191,6 +192,7 @@ def export_dataset(dataset, options: ExportOptions, *, progress: Progress | None
         report.files = [out, sidecar]
         report.compression_ratio_vs_png = result["compression_ratio_vs_png"]
         report.psnr_db = result["psnr_db"]
+        report.details = result
     else:
         from lfstudio.export import hci
 

@@ -214,6 +214,29 @@ def png16_bytes(rgb: np.ndarray, compression: int = 1) -> int:
     return int(buf.size)
 
 
+def ordered_map(fn, items: Sequence, cancel, workers: int = 2, window: int = 4) -> Iterator:
+    """``fn(item)`` for each item on ``workers`` threads (decoding and PNG compression release the
+    GIL), yielded in order; at most ``window`` in flight; ``cancel.check()`` between items (the
+    ones in flight finish first, then :class:`Cancelled` propagates)."""
+    import concurrent.futures as cf
+
+    items = list(items)
+    with cf.ThreadPoolExecutor(max(1, workers)) as pool:
+        pending: list = []
+        nxt = 0
+        try:
+            while nxt < len(items) or pending:
+                while nxt < len(items) and len(pending) < window:
+                    cancel.check()
+                    pending.append(pool.submit(fn, items[nxt]))
+                    nxt += 1
+                yield pending.pop(0).result()
+                cancel.check()
+        finally:
+            for f in pending:
+                f.cancel()
+
+
 # -- description --------------------------------------------------------------------------------------
 def intrinsics(ds: Dataset, image_size: tuple[int, int]) -> dict[str, Any]:
     """Pinhole intrinsics of the exported images (square pixels, principal point at the centre

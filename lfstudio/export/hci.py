@@ -19,6 +19,7 @@ from __future__ import annotations
 import configparser
 import datetime as _dt
 import io
+import contextlib
 import json
 import math
 from pathlib import Path
@@ -47,8 +48,11 @@ def cam_name(index: int, count: int) -> str:
 def sub_array(ds: Dataset, options) -> list[common.View]:
     """The chosen sub-array, row-major: ``options.views`` when given (must be a full rectangle of
     captured views), else ``hci_size`` (columns, rows) around ``hci_center`` (row, column) or the
-    grid centre."""
-    if options.views is not None and not (isinstance(options.views, str) and not options.views.strip()):
+    grid centre. ``None``/``"all"`` mean no explicit subset."""
+    chosen = options.views
+    if isinstance(chosen, str) and chosen.strip().lower() in ("", "all"):
+        chosen = None    # "all" means "no explicit subset": the sub-array from hci_size/hci_center
+    if chosen is not None:
         views = common.select_views(ds, options.views)
         rows = sorted({r for r, _ in views})
         cols = sorted({c for _, c in views})
@@ -222,8 +226,8 @@ def export_hci(ds: Dataset, views: Sequence[common.View], source: str, size: tup
     names = {}
     progress(0, n, "exporting HCI layout")
     with common.partial_folder(out, options.overwrite) as tmp:
-        for i, v in enumerate(views):
-            cancel.check()
+        def write(item: tuple[int, common.View]) -> tuple[common.View, str]:
+            i, v = item
             rgb = common.read_view(common.source_path(ds, v, source), debayer)
             if (rgb.shape[1], rgb.shape[0]) != tuple(size):
                 raise DatasetError(f"row {v[0]}, column {v[1]}: {rgb.shape[1]} x {rgb.shape[0]} px, the other views "
@@ -231,11 +235,15 @@ def export_hci(ds: Dataset, views: Sequence[common.View], source: str, size: tup
             name = cam_name(i, n)
             if bit_depth == 8:
                 if not cv2.imwrite(str(tmp / name), cv2.cvtColor(to_srgb8(rgb), cv2.COLOR_RGB2BGR)):
-                    raise OSError(f"{tmp / name}: cannot write the PNG")
+                    raise OSError(f"{tmp / name}: cannot write the PNG (disk full or folder not writable?)")
             else:
                 common.write_png16(tmp / name, rgb)
-            names[v] = name
-            progress(i + 1, n, name)
+            return v, name
+
+        with contextlib.closing(common.ordered_map(write, list(enumerate(views)), cancel)) as results:
+            for k, (v, name) in enumerate(results):
+                names[v] = name
+                progress(k + 1, n, name)
         (tmp / PARAMETERS_NAME).write_text(parameters_text(ds, views, size, source), encoding="utf-8")
         doc: dict[str, Any] = common.describe(ds, views, source, size, names)
         doc["kind"] = "hci"

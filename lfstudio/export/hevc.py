@@ -15,6 +15,7 @@ import concurrent.futures as cf
 import hashlib
 import json
 import math
+import time
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -34,8 +35,8 @@ X265_PARAMS = "psy-rd=0:psy-rdoq=0:log-level=error"
 VERIFY_FRAMES = 8             # PSNR is measured on up to this many frames, spread over the stream
 PNG_SAMPLES = 4               # frames encoded as PNG to estimate the 16-bit PNG size (raw sources)
 #: HEVC bytes per frame pixel at CRF 8, 12-bit 4:4:4 (measured on virtual-studio views; each +6 CRF
-#: roughly halves it)
-BYTES_PER_PX_CRF8 = 0.12
+#: roughly halves it): 0.089 at 2000 px with sensor noise 0.002 (benchmarks/export_hevc.py)
+BYTES_PER_PX_CRF8 = 0.1
 
 
 def sidecar_path(video: Path) -> Path:
@@ -98,6 +99,7 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
         return rgb
 
     progress(0, steps, "encoding HEVC")
+    t0 = time.monotonic()
     with common.partial_files([out, sidecar], options.overwrite) as (tmp_video, tmp_sidecar):
         container = av.open(str(tmp_video), "w", format=container_fmt)
         try:
@@ -135,6 +137,7 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
         finally:
             container.close()
         video_bytes = tmp_video.stat().st_size
+        t_encoded = time.monotonic()
 
         # verify: decode the kept frames back and compare on the 16-bit scale
         mses = []
@@ -150,6 +153,7 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
             raise DatasetError(f"{out.name}: only {last + 1 - len(kept)} of the encoded frames decode back; "
                                "the encoder failed (disk full?)")
         psnr = psnr_db(float(np.mean(mses))) if mses else None
+        t_verified = time.monotonic()
         if png_bytes is None:
             png_bytes = int(np.mean(png_sample_bytes) * n) if png_sample_bytes else None
         ratio = png_bytes / video_bytes if png_bytes and video_bytes else None
@@ -171,7 +175,9 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
                           "png16_bytes_estimated": not known_png,
                           "compression_ratio_vs_png": ratio, "psnr_db": psnr, "psnr_frames": len(mses)}
         tmp_sidecar.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n", encoding="utf-8")
-    return {"compression_ratio_vs_png": ratio, "psnr_db": psnr, "video_bytes": video_bytes, "png_bytes": png_bytes}
+    return {"compression_ratio_vs_png": ratio, "psnr_db": psnr, "video_bytes": video_bytes, "png_bytes": png_bytes,
+            "png_bytes_estimated": not known_png, "frames": n, "frame_size_px": list(frame_size),
+            "encode_s": t_encoded - t0, "verify_s": t_verified - t_encoded, "psnr_frames": len(mses)}
 
 
 def _is_png16(path: Path) -> bool:

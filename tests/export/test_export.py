@@ -245,3 +245,28 @@ def test_hci_export_readable_by_toolkit_reader(small, tmp_path):
     for i, r in enumerate((1, 2)):   # even count: the centre is the upper of the middle two
         for j, c in enumerate((2, 3, 4)):
             assert np.array_equal(lf[i, j], hci.to_srgb8(_source(small, r, c)))
+
+
+# -- processed source -------------------------------------------------------------------------------------
+def test_processed_views_are_copied_and_auto_falls_back_to_raw(small, tmp_path):
+    from lfstudio.dataset import Dataset
+    from lfstudio.processing.pipeline import process_dataset
+    from lfstudio.processing.profile import Profile
+
+    profile = Profile()
+    profile.rectify.enabled = False
+    profile.deflicker.enabled = False
+    assert process_dataset(small.root, profile, workers=0).ok
+    ds = Dataset.open(small.root)
+    out = tmp_path / "exports" / "png"
+    est = estimate_export(ds, ExportOptions("png", out, views="r0,c0-1"))
+    assert est.source == "processed" and not any("without processing" in w for w in est.warnings)
+    report = export_dataset(ds, ExportOptions("png", out, views="r0,c0-1"))
+    assert report.source == "processed"
+    for c in (0, 1):
+        src = ds.root / ds.view(0, c)["processed"]["file"]
+        assert (out / f"r00_c00{c}.png").read_bytes() == src.read_bytes()
+    assert json.loads((out / "manifest.json").read_text())["source"] == "processed"
+    (ds.root / ds.view(0, 1)["processed"]["file"]).unlink()
+    est = estimate_export(ds, ExportOptions("hevc", tmp_path / "v.mp4", views="r0,c0-1"))
+    assert est.source == "raw" and any("without processing" in w for w in est.warnings)
