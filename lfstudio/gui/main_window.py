@@ -11,6 +11,7 @@ from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import QDockWidget, QMainWindow, QMenu, QMessageBox, QWidget
 
 from lfstudio import __version__
+from lfstudio.errors import LfError
 from lfstudio.gui.panels import CENTRAL, PANELS, PanelSpec
 from lfstudio.gui.settings import settings
 from lfstudio.gui.state import AppState
@@ -100,6 +101,8 @@ class MainWindow(QMainWindow):
     def _install_base_menus(self) -> None:
         file_menu = self.menu("File")
         file_menu.addSeparator()
+        self._install_export_action(file_menu)
+        file_menu.addSeparator()
         quit_action = QAction("&Quit", self)
         quit_action.setShortcut(QKeySequence.Quit)
         quit_action.setToolTip("Close lfstudio")
@@ -109,6 +112,48 @@ class MainWindow(QMainWindow):
         about = QAction("&About lfstudio", self)
         about.triggered.connect(self._about)
         self.menu("Help").addAction(about)
+
+    def _install_export_action(self, menu: QMenu) -> None:
+        self.export_dialog = None
+        self.export_action = QAction("&Export dataset…", self)
+        self.export_action.setObjectName("actionExport")
+        self.export_action.setShortcut(QKeySequence("Ctrl+E"))
+        self.export_action.triggered.connect(self.open_export_dialog)
+        menu.addAction(self.export_action)
+        self.state.datasetChanged.connect(self._update_export_action)
+        self._update_export_action(self.state.dataset)
+
+    def _update_export_action(self, dataset) -> None:
+        if dataset is None:
+            tip = "Export dataset: no dataset is open. Open one (File → Open dataset…) or scan one first."
+        else:
+            tip = (f"Export {dataset.root.name} as 16-bit PNG, HEVC 12-bit 4:4:4 or the HCI benchmark layout, "
+                   "with a size estimate first")
+        self.export_action.setEnabled(dataset is not None)
+        self.export_action.setToolTip(tip)
+        self.export_action.setStatusTip(tip)
+
+    def open_export_dialog(self) -> None:
+        """File → Export dataset…: the export dialog for the open dataset (one at a time)."""
+        if self.state.dataset is None:
+            self.state.report_error("Export dataset", "No dataset is open: open a dataset folder first "
+                                    "(File → Open dataset…) or scan one.")
+            return
+        from lfstudio.gui.dialogs.export_dialog import ExportDialog
+
+        dialog = self.export_dialog
+        if dialog is not None and dialog.isVisible():
+            if dialog.dataset.root == self.state.dataset.root or dialog.runner.running:
+                dialog.raise_()
+                dialog.activateWindow()
+                return
+            dialog.close()
+        try:
+            self.export_dialog = ExportDialog(self.state, self)
+        except LfError as exc:
+            self.state.report_error("Export dataset", str(exc))
+            return
+        self.export_dialog.show()
 
     def _about(self) -> None:
         QMessageBox.about(self, "About lfstudio",
@@ -150,7 +195,7 @@ class MainWindow(QMainWindow):
         s = settings()
         s.setValue("window/geometry", self.saveGeometry())
         s.setValue("window/state", self.saveState())
-        for widget in [self.central, *self.panels.values()]:
+        for widget in [self.central, *self.panels.values(), getattr(self, "export_dialog", None)]:
             shutdown = getattr(widget, "shutdown", None)
             if shutdown is not None:
                 try:

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
-from PySide6.QtWidgets import QHBoxLayout, QLabel, QProgressBar, QPushButton, QWidget
+import numpy as np
+from PySide6.QtCore import QPointF, QRectF, QSize, Signal
+from PySide6.QtGui import QColor, QFont, QPainter, QPen
+from PySide6.QtWidgets import QHBoxLayout, QLabel, QProgressBar, QPushButton, QSizePolicy, QWidget
 
+from lfstudio.dataset.paths import view_stem
 from lfstudio.jobs import format_duration
 
 
@@ -66,3 +70,95 @@ class JobProgressWidget(QWidget):
         self.cancel_button.setEnabled(False)
         if self.bar.maximum() == 0:
             self.bar.setRange(0, 1)
+
+
+class GridPicker(QWidget):
+    """The capture grid as cells; click a captured view to add it to / remove it from the selection.
+
+    ``cellClicked(row, column)`` is emitted for every click on a captured view; with
+    ``toggle_on_click=False`` the selection is left to the owner (e.g. "click sets the centre").
+    ``marked`` (a view or None) is drawn with a dark outline.
+    """
+
+    selectionChanged = Signal()
+    cellClicked = Signal(int, int)
+
+    def __init__(self, columns: int, rows: int, available: set[tuple[int, int]], parent: QWidget | None = None,
+                 tooltip: str = "Click captured views (grey) to select or deselect them; blue = used for calibration"):
+        super().__init__(parent)
+        self.columns, self.rows = max(1, columns), max(1, rows)
+        self.available = set(available)
+        self.selected: set[tuple[int, int]] = set()
+        self.marked: tuple[int, int] | None = None
+        self.toggle_on_click = True
+        self.base_tooltip = tooltip
+        self.setMinimumSize(300, 120)
+        self.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Expanding)
+        self.setToolTip(tooltip)
+        self.setMouseTracking(True)
+
+    def sizeHint(self) -> QSize:
+        return QSize(min(900, 12 * self.columns + 40), min(420, 16 * self.rows + 40))
+
+    def set_selected(self, views) -> None:
+        self.selected = {v for v in views if v in self.available}
+        self.update()
+        self.selectionChanged.emit()
+
+    def _geometry(self) -> tuple[float, float, float]:
+        margin = 28.0
+        cell = min((self.width() - margin - 6) / self.columns, (self.height() - margin - 6) / self.rows)
+        return max(cell, 1.0), margin, margin
+
+    def cell_at(self, pos) -> tuple[int, int] | None:
+        cell, x0, y0 = self._geometry()
+        c, r = int((pos.x() - x0) // cell), int((pos.y() - y0) // cell)
+        if 0 <= r < self.rows and 0 <= c < self.columns:
+            return r, c
+        return None
+
+    def cell_center(self, row: int, column: int) -> QPointF:
+        """Where the cell of (row, column) is drawn (widget coordinates), e.g. to click it in a test."""
+        cell, x0, y0 = self._geometry()
+        return QPointF(x0 + (column + 0.5) * cell, y0 + (row + 0.5) * cell)
+
+    def mousePressEvent(self, event) -> None:
+        v = self.cell_at(event.position())
+        if v is not None and v in self.available:
+            if self.toggle_on_click:
+                self.selected ^= {v}
+                self.update()
+                self.selectionChanged.emit()
+            self.cellClicked.emit(*v)
+
+    def mouseMoveEvent(self, event) -> None:
+        v = self.cell_at(event.position())
+        self.setToolTip(f"{view_stem(*v)}{'' if v in self.available else ' (not captured)'}" if v else
+                        self.base_tooltip)
+
+    def paintEvent(self, event) -> None:
+        p = QPainter(self)
+        p.fillRect(self.rect(), self.palette().window())
+        cell, x0, y0 = self._geometry()
+        gap = 1.0 if cell > 4 else 0.0
+        for r in range(self.rows):
+            for c in range(self.columns):
+                v = (r, c)
+                color = QColor(40, 110, 220) if v in self.selected else \
+                    QColor(185, 185, 185) if v in self.available else QColor(245, 245, 245)
+                p.fillRect(QRectF(x0 + c * cell, y0 + r * cell, cell - gap, cell - gap), color)
+        if self.marked is not None:
+            r, c = self.marked
+            p.setPen(QPen(QColor(20, 20, 20), 2.0))
+            p.drawRect(QRectF(x0 + c * cell + 1, y0 + r * cell + 1, cell - gap - 2, cell - gap - 2))
+        p.setPen(QPen(QColor(90, 90, 90)))
+        f = QFont(self.font())
+        f.setPointSizeF(max(7.0, f.pointSizeF() - 1))
+        p.setFont(f)
+        step_c = max(1, int(np.ceil(40 / cell)))
+        for c in range(0, self.columns, step_c):
+            p.drawText(QPointF(x0 + c * cell, y0 - 6), str(c))
+        step_r = max(1, int(np.ceil(16 / cell)))
+        for r in range(0, self.rows, step_r):
+            p.drawText(QPointF(2, y0 + r * cell + min(cell, 14) - 2), str(r))
+        p.end()

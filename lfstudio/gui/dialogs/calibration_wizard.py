@@ -12,10 +12,10 @@ from typing import Any
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QPointF, QRectF, QSize, Qt, Signal
-from PySide6.QtGui import QBrush, QColor, QFont, QPainter, QPen
+from PySide6.QtCore import Qt
+from PySide6.QtGui import QFont
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QFormLayout, QGridLayout, QGroupBox,
-                               QHBoxLayout, QLabel, QPlainTextEdit, QPushButton, QSizePolicy, QSlider, QSpinBox,
+                               QHBoxLayout, QLabel, QPlainTextEdit, QPushButton, QSlider, QSpinBox,
                                QStackedWidget, QTabWidget, QVBoxLayout, QWidget)
 
 from lfstudio.calibration.calibrate import available_views, calibrate_dataset, save_calibration
@@ -26,80 +26,9 @@ from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import LfError
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.settings import settings
-from lfstudio.gui.widgets import JobProgressWidget
+from lfstudio.gui.widgets import GridPicker, JobProgressWidget
 
 PAGE_VIEWS, PAGE_RUN, PAGE_RESULTS = range(3)
-
-
-class GridPicker(QWidget):
-    """The capture grid as cells; click a captured view to add it to / remove it from the selection."""
-
-    selectionChanged = Signal()
-
-    def __init__(self, columns: int, rows: int, available: set[tuple[int, int]], parent: QWidget | None = None):
-        super().__init__(parent)
-        self.columns, self.rows = max(1, columns), max(1, rows)
-        self.available = set(available)
-        self.selected: set[tuple[int, int]] = set()
-        self.setMinimumSize(300, 120)
-        self.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Expanding)
-        self.setToolTip("Click captured views (grey) to select or deselect them; blue = used for calibration")
-        self.setMouseTracking(True)
-
-    def sizeHint(self) -> QSize:
-        return QSize(min(900, 12 * self.columns + 40), min(420, 16 * self.rows + 40))
-
-    def set_selected(self, views) -> None:
-        self.selected = {v for v in views if v in self.available}
-        self.update()
-        self.selectionChanged.emit()
-
-    def _geometry(self) -> tuple[float, float, float]:
-        margin = 28.0
-        cell = min((self.width() - margin - 6) / self.columns, (self.height() - margin - 6) / self.rows)
-        return max(cell, 1.0), margin, margin
-
-    def cell_at(self, pos) -> tuple[int, int] | None:
-        cell, x0, y0 = self._geometry()
-        c, r = int((pos.x() - x0) // cell), int((pos.y() - y0) // cell)
-        if 0 <= r < self.rows and 0 <= c < self.columns:
-            return r, c
-        return None
-
-    def mousePressEvent(self, event) -> None:
-        v = self.cell_at(event.position())
-        if v is not None and v in self.available:
-            self.selected ^= {v}
-            self.update()
-            self.selectionChanged.emit()
-
-    def mouseMoveEvent(self, event) -> None:
-        v = self.cell_at(event.position())
-        self.setToolTip(f"{view_stem(*v)}{'' if v in self.available else ' (not captured)'}" if v else
-                        "Click captured views to select them")
-
-    def paintEvent(self, event) -> None:
-        p = QPainter(self)
-        p.fillRect(self.rect(), self.palette().window())
-        cell, x0, y0 = self._geometry()
-        gap = 1.0 if cell > 4 else 0.0
-        for r in range(self.rows):
-            for c in range(self.columns):
-                v = (r, c)
-                color = QColor(40, 110, 220) if v in self.selected else \
-                    QColor(185, 185, 185) if v in self.available else QColor(245, 245, 245)
-                p.fillRect(QRectF(x0 + c * cell, y0 + r * cell, cell - gap, cell - gap), color)
-        p.setPen(QPen(QColor(90, 90, 90)))
-        f = QFont(self.font())
-        f.setPointSizeF(max(7.0, f.pointSizeF() - 1))
-        p.setFont(f)
-        step_c = max(1, int(np.ceil(40 / cell)))
-        for c in range(0, self.columns, step_c):
-            p.drawText(QPointF(x0 + c * cell, y0 - 6), str(c))
-        step_r = max(1, int(np.ceil(16 / cell)))
-        for r in range(0, self.rows, step_r):
-            p.drawText(QPointF(2, y0 + r * cell + min(cell, 14) - 2), str(r))
-        p.end()
 
 
 def _calibration_job(dataset, views, *, preview_width_px: int = 900, progress, cancel, **kwargs) -> dict:
