@@ -22,6 +22,7 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import io
+import logging
 import math
 import os
 import re
@@ -237,8 +238,14 @@ def read_exif(path: str | os.PathLike) -> dict[str, Any]:
             i = data.find(b"Exif\x00\x00")
             if i < 0:
                 return {}
-            with tifffile.TiffFile(io.BytesIO(data[i + 6:])) as tif:
-                return _exif_from_tiff(tif)
+            quiet = logging.getLogger("tifffile")   # an EXIF block has no image data: tifffile warns
+            level = quiet.level
+            quiet.setLevel(logging.CRITICAL)
+            try:
+                with tifffile.TiffFile(io.BytesIO(data[i + 6:])) as tif:
+                    return _exif_from_tiff(tif)
+            finally:
+                quiet.setLevel(level)
         if path.suffix.lower() == ".png":
             return {}
         with tifffile.TiffFile(path) as tif:
@@ -256,6 +263,8 @@ def intrinsics_from_exif(exif: dict[str, Any], width_px: int) -> tuple[float | N
     unit_mm = {2: 25.4, 3: 10.0, 4: 1.0}.get(int(exif.get("FocalPlaneResolutionUnit", 2) or 2))
     if res and res > 0 and unit_mm:
         pitch_um = unit_mm / res * 1000.0
+        if not 2.0 <= width_px * pitch_um / 1000.0 <= 80.0:
+            pitch_um = None   # stale after resizing (an implausible sensor width): not for these pixels
     f_px = None
     if f_mm and pitch_um:
         f_px = f_mm / (pitch_um / 1000.0)

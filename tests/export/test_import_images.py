@@ -246,3 +246,49 @@ def test_cli_imports_and_bad_input_exits_2_with_one_line(render, tmp_path, run_c
     bad = run_cli("import-images", folder, "--grid", "4by3", "--spacing-mm", "100x120", "--out", tmp_path / "x")
     assert bad.returncode == 2 and "--grid: cannot read '4by3'" in bad.stderr
     assert not (tmp_path / "x").exists()
+
+
+# -- EXIF ------------------------------------------------------------------------------------------------
+def _exif_app1(make: str, model: str, focal_mm: float, pitch_um: float, f35_mm: int) -> bytes:
+    """A JPEG APP1 Exif segment: little-endian TIFF, IFD0 (Make, Model, ExifIFD) → Exif IFD."""
+    import struct
+
+    def ifd(entries, data_offset):
+        head, data = struct.pack("<H", len(entries)), b""
+        for tag, typ, count, val in sorted(entries):
+            if len(val) <= 4:
+                head += struct.pack("<HHI", tag, typ, count) + val.ljust(4, b"\0")
+            else:
+                head += struct.pack("<HHII", tag, typ, count, data_offset + len(data))
+                data += val
+        return head + struct.pack("<I", 0), data
+
+    text = [(271, 2, len(make) + 1, make.encode() + b"\0"), (272, 2, len(model) + 1, model.encode() + b"\0")]
+    ifd0_size = 2 + 12 * 3 + 4
+    data0_len = sum(len(v) for *_, v in text if len(v) > 4)
+    exif_at = 8 + ifd0_size + data0_len
+    ifd0, data0 = ifd(text + [(34665, 4, 1, struct.pack("<I", exif_at))], 8 + ifd0_size)
+    exif_entries = [(37386, 5, 1, struct.pack("<II", int(focal_mm * 1000), 1000)),
+                    (41486, 5, 1, struct.pack("<II", int(1e6 / pitch_um), 1000)),     # pixels per mm
+                    (41488, 3, 1, struct.pack("<H", 4)), (41989, 3, 1, struct.pack("<H", f35_mm))]
+    exif, data1 = ifd(exif_entries, exif_at + 2 + 12 * len(exif_entries) + 4)
+    payload = b"Exif\0\0II*\0" + struct.pack("<I", 8) + ifd0 + data0 + exif + data1
+    return b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload
+
+
+def test_intrinsics_come_from_exif_and_stale_pitch_is_not_trusted(tmp_path):
+    for width, expected_px in ((4000, 50.0 / 0.0045), (48, 75.0 / 36.0 * 48)):
+        folder = tmp_path / f"w{width}"
+        folder.mkdir()
+        ok, jpg = cv2.imencode(".jpg", np.zeros((8, width, 3), np.uint8))
+        data = jpg.tobytes()
+        for i in range(2):
+            (folder / f"DSC{i:04d}.JPG").write_bytes(data[:2] + _exif_app1("Sony", "ILCE-7RM2", 50.0, 4.5, 75)
+                                                     + data[2:])
+        ds = Dataset.open(import_images(ImportOptions(folder, tmp_path / f"ds{width}", (2, 1), (4.0, 4.0))))
+        assert ds.camera["name"] == "Sony ILCE-7RM2" and ds.camera["sensor_px"] == [width, 8]
+        assert ds.focal_length_px(width) == pytest.approx(expected_px, rel=1e-3)
+        assert "EXIF of DSC0000.JPG" in ds.manifest["import"]["intrinsics"]
+        assert not ds.manifest["import"]["warnings"]
+    # 4000 px wide at 4.5 µm = 18 mm: a plausible sensor, so FocalLength + FocalPlaneXResolution are used;
+    # 48 px "at 4.5 µm" = 0.2 mm: the image was resized, so the 35 mm equivalent (75 mm) is used instead
