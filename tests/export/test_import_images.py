@@ -18,7 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lfstudio.calibration.calibrate import calibrate_dataset
+from lfstudio.calibration.calibrate import calibrate_dataset, save_calibration
 from lfstudio.calibration.model import rotation_angle_deg, rotation_matrix
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.store import sha256_file
@@ -26,6 +26,8 @@ from lfstudio.errors import InputError
 from lfstudio.export.import_images import (ImportOptions, find_images, grid_cells, image_size_px, import_images,
                                            natural_key)
 from lfstudio.jobs import Cancelled, CancelToken
+from lfstudio.processing.pipeline import process_dataset
+from lfstudio.processing.profile import Profile
 from lfstudio.sim.virtual_dataset import load_ground_truth, make_virtual_dataset, meander_order
 
 COLS, ROWS = 4, 3
@@ -124,13 +126,19 @@ def test_meander_jpeg_import_matches_the_render_by_content(render, tmp_path):
     assert ds.view(1, 3)["source_file"] == "shot5.jpg"   # the first view of the second (reversed) row
 
 
-def test_imported_dataset_calibrates_close_to_the_truth(render, imported_png):
+def test_imported_dataset_calibrates_close_to_the_truth_and_processes(render, imported_png):
     ds, _ = imported_png
     run = calibrate_dataset(ds, "2x3", max_width_px=None)
     assert len(run.views) == 6
     truth = load_ground_truth(render.root)
     err = rotation_angle_deg(rotation_matrix(run.document["rotation_deg"]), rotation_matrix(truth["rotation_deg"]))
     assert err < 0.1
+    # and it processes like our own captures: decode (PNG), colour, de-flicker, rectify, resample
+    save_calibration(ds, run.document)
+    report = process_dataset(ds.root, Profile(), workers=0)
+    assert report.processed == COLS * ROWS and not report.failed
+    out = cv2.imread(str(ds.root / "processed" / "r01_c002.png"), cv2.IMREAD_UNCHANGED)
+    assert out.dtype == np.uint16 and out.shape[1] == WIDTH // 2
 
 
 def test_tiff_and_dng_are_read_and_focal_length_in_pixels_is_kept(tmp_path):
