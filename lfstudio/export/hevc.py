@@ -32,6 +32,7 @@ FRAME_RATE = 25
 COLORSPACE = "ITU709"
 COLOR_RANGE = "JPEG"          # full range
 X265_PARAMS = "psy-rd=0:psy-rdoq=0:log-level=error"
+X265_PRESET = "medium"
 VERIFY_FRAMES = 8             # PSNR is measured on up to this many frames, spread over the stream
 PNG_SAMPLES = 4               # frames encoded as PNG to estimate the 16-bit PNG size (raw sources)
 #: HEVC bytes per frame pixel at CRF 8, 12-bit 4:4:4 (measured on virtual-studio views; each +6 CRF
@@ -84,7 +85,6 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
     debayer = common.debayer_step(ds) if source == "raw" else None
     verify_idx = set(_spread(n, VERIFY_FRAMES))
     png_idx = set(_spread(n, PNG_SAMPLES))
-    kept: dict[int, np.ndarray] = {}
     png_sample_bytes: list[int] = []
     known_png = source == "processed" and all(_is_png16(common.source_path(ds, v, source)) for v in views)
     png_bytes = sum(common.source_path(ds, v, source).stat().st_size for v in views) if known_png else None
@@ -98,6 +98,10 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
                                f"{size[0]} x {size[1]} px; export views of one camera setting")
         return rgb
 
+    def load_for_encode(i: int) -> tuple[np.ndarray, int | None]:
+        rgb = load(views[i])   # the PNG size sample is taken here, on the reader thread, beside x265
+        return rgb, (common.png16_bytes(rgb) if i in png_idx and png_bytes is None else None)
+
     progress(0, steps, "encoding HEVC")
     t0 = time.monotonic()
     with common.partial_files([out, sidecar], options.overwrite) as (tmp_video, tmp_sidecar):
@@ -106,23 +110,21 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
             stream = container.add_stream("libx265", rate=FRAME_RATE)
             stream.width, stream.height = frame_size
             stream.pix_fmt = fmt
-            stream.options = {"crf": str(int(options.crf)), "x265-params": X265_PARAMS}
+            stream.options = {"crf": str(int(options.crf)), "preset": X265_PRESET, "x265-params": X265_PARAMS}
             cc = stream.codec_context
             cc.color_range = 2      # AVCOL_RANGE_JPEG (full)
             cc.colorspace = 1       # AVCOL_SPC_BT709
             cc.color_primaries = 1
             cc.color_trc = 8        # AVCOL_TRC_LINEAR: the samples are linear light
             with cf.ThreadPoolExecutor(1) as reader:   # read/decode the next view while x265 encodes
-                ahead = [reader.submit(load, v) for v in views[:2]]
+                ahead = [reader.submit(load_for_encode, i) for i in range(min(2, n))]
                 for i, v in enumerate(views):
                     cancel.check()
-                    rgb = ahead.pop(0).result()
+                    rgb, sample = ahead.pop(0).result()
                     if i + 2 < n:
-                        ahead.append(reader.submit(load, views[i + 2]))
-                    if i in verify_idx:
-                        kept[i] = rgb
-                    if i in png_idx and png_bytes is None:
-                        png_sample_bytes.append(common.png16_bytes(rgb))
+                        ahead.append(reader.submit(load_for_encode, i + 2))
+                    if sample is not None:
+                        png_sample_bytes.append(sample)
                     if pad != (0, 0):
                         rgb = np.pad(rgb, ((0, pad[1]), (0, pad[0]), (0, 0)), mode="edge")
                     frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb48le")
@@ -139,19 +141,22 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
         video_bytes = tmp_video.stat().st_size
         t_encoded = time.monotonic()
 
-        # verify: decode the kept frames back and compare on the 16-bit scale
+        # verify: decode frames spread over the stream and compare them with their views read again
+        # (not kept from the encode: a full-size 16-bit frame is 250 MB)
         mses = []
         last = max(verify_idx) if verify_idx else -1
         done = n
-        for i, rgb in _decode(tmp_video, size, upto=last, cancel=cancel, want=set(kept)):
-            if i in kept:
-                d = rgb.astype(np.float64) - kept.pop(i).astype(np.float64)
-                mses.append(float(np.mean(d * d)))
+        todo = set(verify_idx)
+        for i, rgb in _decode(tmp_video, size, upto=last, cancel=cancel, want=set(verify_idx)):
+            if i in todo:
+                src = load(views[i])
+                d = rgb.astype(np.float32) - src.astype(np.float32)
+                mses.append(float(np.mean(np.square(d), dtype=np.float64)))
+                todo.discard(i)
                 done += 1
                 progress(done, steps, f"verified frame {i}")
-        if kept:
-            raise DatasetError(f"{out.name}: only {last + 1 - len(kept)} of the encoded frames decode back; "
-                               "the encoder failed (disk full?)")
+        if todo:
+            raise DatasetError(f"{out.name}: frame {min(todo)} does not decode back; the encoder failed (disk full?)")
         psnr = psnr_db(float(np.mean(mses))) if mses else None
         t_verified = time.monotonic()
         if png_bytes is None:
@@ -168,7 +173,7 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
         doc["frame_size_px"] = list(frame_size)
         doc["pad_px"] = list(pad)
         doc["encoding"] = {"codec": "hevc", "encoder": "libx265", "container": container_fmt, "crf": int(options.crf),
-                           "bit_depth": int(options.bit_depth), "pix_fmt": fmt, "x265_params": X265_PARAMS,
+                           "bit_depth": int(options.bit_depth), "pix_fmt": fmt, "x265_params": X265_PARAMS, "preset": X265_PRESET,
                            "frame_rate": FRAME_RATE, "colorspace": "bt709", "color_range": "full",
                            "transfer": "linear", "rgb_scale": 65535}
         doc["figures"] = {"video_bytes": video_bytes, "png16_bytes": png_bytes,

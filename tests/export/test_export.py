@@ -267,6 +267,16 @@ def test_processed_views_are_copied_and_auto_falls_back_to_raw(small, tmp_path):
         src = ds.root / ds.view(0, c)["processed"]["file"]
         assert (out / f"r00_c00{c}.png").read_bytes() == src.read_bytes()
     assert json.loads((out / "manifest.json").read_text())["source"] == "processed"
+    video = tmp_path / "exports" / "proc.mkv"
+    report = export_dataset(ds, ExportOptions("hevc", video, views="r0,c0-1"))
+    assert report.source == "processed" and report.psnr_db >= 45.0
+    assert report.details["png_bytes"] == sum((ds.root / ds.view(0, c)["processed"]["file"]).stat().st_size
+                                              for c in (0, 1))   # the ratio is against the real PNGs
+    back = Dataset.open(import_hevc(video, tmp_path / "restored"))
+    v = back.view(0, 1)
+    assert v["file"] == "processed/r00_c001.png" and v["processed"]["status"] == "done"
+    assert back.manifest["processing"]["restored_from_hevc"] is True
+    assert back.view(1, 1)["status"] == "skipped" and back.status_counts()["done"] == 2
     (ds.root / ds.view(0, 1)["processed"]["file"]).unlink()
     est = estimate_export(ds, ExportOptions("hevc", tmp_path / "v.mp4", views="r0,c0-1"))
     assert est.source == "raw" and any("without processing" in w for w in est.warnings)
