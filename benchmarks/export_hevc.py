@@ -8,6 +8,8 @@ psycho-visual tuning (psy-rd on) against ours (psy-rd=0) at the same CRF.
 from __future__ import annotations
 
 import argparse
+import os
+import resource
 import shutil
 import sys
 import tempfile
@@ -19,6 +21,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from lfstudio.dataset import Dataset  # noqa: E402
 from lfstudio.export import ExportOptions, estimate_export, export_dataset, hevc  # noqa: E402
 from lfstudio.sim.virtual_dataset import make_virtual_dataset  # noqa: E402
+
+
+def _cpu_s() -> float:
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
 
 
 def main() -> int:
@@ -52,13 +59,18 @@ def main() -> int:
               f"({png_view_bytes / n / (w * h * 6):.2f} of uncompressed), {n / (time.monotonic() - t):.2f} views/s")
 
         est = estimate_export(ds, ExportOptions("hevc", work / "lf.mp4", crf=args.crf))
+        cpu0 = _cpu_s()
         rep = export_dataset(ds, ExportOptions("hevc", work / "lf.mp4", crf=args.crf))
+        cpu = _cpu_s() - cpu0
         d = rep.details
         video = d["video_bytes"]
         fps = n / d["encode_s"]
         print(f"HEVC 12-bit 4:4:4 CRF {args.crf} ({hevc.X265_PARAMS}):")
         print(f"  encode speed        {fps:.2f} frames/s at {w} px ({d['encode_s']:.1f} s for {n} frames, "
               f"incl. reading the PNGs); verify {d['verify_s']:.1f} s")
+        print(f"  CPU time            {cpu / n:.2f} CPU-s per frame (encode + verify; machine load "
+              f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores: an idle 2-core machine would reach "
+              f"~{2 * n / cpu:.2f} frames/s)")
         print(f"  size                {video / 1e6:.2f} MB = {video / n / (w * h):.4f} bytes/px "
               f"(estimate before export {est.bytes_estimate / 1e6:.2f} MB, ratio {est.bytes_estimate / video:.2f})")
         print(f"  vs 16-bit PNG       {png_view_bytes / video:.1f}x smaller (written PNGs); "
