@@ -337,7 +337,8 @@ class Dataset:
                 return float(lens["focal_length_px"]) * scale
             raise DatasetError(f"{self.manifest_path}: camera.sensor_px, camera.pixel_pitch_um (or sensor_mm) "
                                "and lens.focal_length_mm are needed for the focal length in pixels; "
-                               "add them or give the focal length in pixels explicitly") from None
+                               "add them, or give the focal length in pixels (lfstudio calibrate --focal-length-px F; "
+                               "for imported images: lens.focal_length_px)") from None
         scale = 1.0 if image_width_px is None else image_width_px / sensor_w_px
         return f_mm / pitch_mm * scale
 
