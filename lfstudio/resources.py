@@ -6,9 +6,25 @@ import os
 import sys
 from pathlib import Path
 
-# In a PyInstaller bundle the resources sit in the bundle folder; otherwise next to the package.
-RESOURCES_DIR = (Path(getattr(sys, "_MEIPASS")) if hasattr(sys, "_MEIPASS")
-                 else Path(__file__).resolve().parent.parent) / "resources"
+
+def _find_resources() -> Path:
+    """The shipped resources: a PyInstaller bundle has them in its folder; a source checkout next to
+    the package; ``pip install .``/pipx under ``PREFIX/share/lfstudio/resources`` (pyproject's
+    data-files; PREFIX is the venv, ``~/.local`` for ``--user``, or ``sys.prefix``)."""
+    if hasattr(sys, "_MEIPASS"):
+        return Path(getattr(sys, "_MEIPASS")) / "resources"
+    here = Path(__file__).resolve()
+    candidates = [here.parent.parent / "resources"]              # checkout (and editable installs)
+    if len(here.parents) > 4:                                    # PREFIX/lib/pythonX.Y/site-packages/lfstudio
+        candidates.append(here.parents[4] / "share" / "lfstudio" / "resources")
+    candidates.append(Path(sys.prefix) / "share" / "lfstudio" / "resources")
+    for path in candidates:
+        if (path / "presets").is_dir():
+            return path
+    return candidates[0]
+
+
+RESOURCES_DIR = _find_resources()
 PRESETS_DIR = RESOURCES_DIR / "presets"
 
 

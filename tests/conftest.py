@@ -16,8 +16,9 @@ SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
 
 @pytest.fixture(autouse=True)
 def _isolated_config(tmp_path_factory, monkeypatch):
-    """Every test gets its own user config folder (QSettings, presets, logs)."""
+    """Every test gets its own user config folder (QSettings, presets) and log folder."""
     monkeypatch.setenv("LFSTUDIO_CONFIG_DIR", str(tmp_path_factory.mktemp("config")))
+    monkeypatch.setenv("LFSTUDIO_LOG_DIR", str(tmp_path_factory.mktemp("logs")))
 
 
 @pytest.fixture

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import logging
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +25,8 @@ from lfstudio.dataset.atomic import atomic_write_json
 from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import DatasetError
 from lfstudio.jobs import CancelToken, Progress, no_progress
+
+log = logging.getLogger(__name__)
 
 CALIBRATION_NAME = "calibration.json"
 
@@ -71,6 +74,7 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
         raise CalibrationError(f"the chosen views ({', '.join(view_stem(*v) for v in chosen)}) form no pair in a "
                                "common row or column; choose at least two views of one row and two of one column")
     needed = sorted({p.a for p in pair_list} | {p.b for p in pair_list})
+    log.info("calibration of %s started: %d views, %d pairs", dataset.root, len(needed), len(pair_list))
     total_steps = len(needed) + len(pair_list) + 1
     done = 0
     cache = FeatureCache(dataset.root, max_width_px, max_features)
@@ -124,6 +128,8 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
                        settings=settings,
                        created=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
     progress(total_steps, total_steps, "done")
+    log.info("calibration of %s finished: rotation %s deg, residual rms %.3f px", dataset.root,
+             doc.get("rotation_deg"), doc.get("residual_px", {}).get("after", {}).get("rms", float("nan")))
     return CalibrationRun(doc, fit, matches, pair_list, needed)
 
 
@@ -135,6 +141,7 @@ def save_calibration(dataset, document: dict[str, Any]) -> Path:
                                        "rotation_deg": document["rotation_deg"],
                                        "residual_after_rms_px": document["residual_px"]["after"]["rms"]}
     dataset.save()
+    log.info("calibration saved to %s", path)
     return path
 
 

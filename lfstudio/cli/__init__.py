@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import sys
 
 from lfstudio import __version__
@@ -30,6 +31,7 @@ COMMANDS: list[str] = [
     "import_images",
     "export",
     "import_hevc",
+    "doctor",
 ]
 
 
@@ -40,6 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "Without a command, opens the application window.",
     )
     parser.add_argument("--version", action="version", version=f"lfstudio {__version__}")
+    parser.add_argument("--debug", action="store_true",
+                        help="log everything (device traffic included) to the console too; the log file "
+                             "always gets it (`lfstudio doctor` prints where the log file is)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
         module = importlib.import_module(f"lfstudio.cli.{name}")
@@ -51,18 +56,32 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    # --debug is global: accepted anywhere (lfstudio --debug, lfstudio scan --debug ...)
+    debug = "--debug" in argv
+    argv = [a for a in argv if a != "--debug"]
     if not argv or argv[0].startswith("-") and argv[0] not in ("-h", "--help", "--version"):
         argv = ["gui", *argv]
     parser = build_parser()
     args = parser.parse_args(argv)
+    from lfstudio.support.logs import setup_logging
+
+    setup_logging(debug=debug)
+    log = logging.getLogger("lfstudio.cli")
+    log.info("lfstudio %s: %s", __version__, " ".join(argv))
     try:
         return int(args._run(args) or 0)
     except InputError as exc:
+        log.info("%s: input error: %s", args.command, exc)
         print(f"lfstudio {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except LfError as exc:
+        log.info("%s failed: %s", args.command, exc)   # the file only: the console gets the line below
         print(f"lfstudio {args.command}: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
+        log.info("%s interrupted", args.command)
         print(f"lfstudio {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Exception:
+        log.info("%s crashed", args.command, exc_info=True)  # the file; Python prints it on the console
+        raise

@@ -3,31 +3,25 @@
 from __future__ import annotations
 
 import logging
-import os
 import sys
-import traceback
 
-from lfstudio.resources import RESOURCES_DIR, user_config_dir
+from lfstudio import __version__
+from lfstudio.resources import RESOURCES_DIR
 
 log = logging.getLogger("lfstudio")
 
 
-def _install_excepthook(state) -> None:
-    """Unexpected exceptions in slots become a message box and a log entry, never a crash or a traceback."""
-    log_path = user_config_dir() / "lfstudio.log"
+def app_icon():
+    """The lfstudio icon (all PNG sizes of resources/icons/hicolor, or the SVG)."""
+    from PySide6.QtGui import QIcon
 
-    def hook(exc_type, exc, tb):
-        text = "".join(traceback.format_exception(exc_type, exc, tb))
-        try:
-            log_path.parent.mkdir(parents=True, exist_ok=True)
-            with open(log_path, "a", encoding="utf-8") as fh:
-                fh.write(text + "\n")
-        except OSError:
-            pass
-        sys.__stderr__.write(text)
-        state.report_error("Unexpected error", f"{exc_type.__name__}: {exc}\n\nDetails were written to {log_path}.")
-
-    sys.excepthook = hook
+    icon = QIcon()
+    hicolor = RESOURCES_DIR / "icons" / "hicolor"
+    for png in sorted(hicolor.glob("*/apps/lfstudio.png")):
+        icon.addFile(str(png))
+    if icon.isNull() and (RESOURCES_DIR / "icons" / "lfstudio.svg").is_file():
+        icon.addFile(str(RESOURCES_DIR / "icons" / "lfstudio.svg"))
+    return icon
 
 
 def create_window(simulated: bool = True):
@@ -39,23 +33,32 @@ def create_window(simulated: bool = True):
     # thread; a shorter switch interval hands it back to the GUI sooner (fewer visible stalls)
     sys.setswitchinterval(0.001)
     state = AppState(simulated=simulated)
-    return MainWindow(state)
+    window = MainWindow(state)
+    window.setWindowIcon(app_icon())
+    return window
 
 
 def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str | None = None) -> int:
     from PySide6.QtCore import QTimer
     from PySide6.QtWidgets import QApplication
 
-    logging.basicConfig(level=logging.DEBUG if os.environ.get("LFSTUDIO_DEBUG") else logging.INFO,
-                        format="%(asctime)s %(name)s %(levelname)s: %(message)s")
+    from lfstudio.gui.crash import install_exception_hooks
+    from lfstudio.support.logs import is_configured, setup_logging
+
+    if not is_configured():          # the CLI sets it up (with --debug); direct callers get the defaults
+        setup_logging()
     app = QApplication.instance() or QApplication(sys.argv[:1])
     app.setApplicationName("lfstudio")
     app.setOrganizationName("lfstudio")
+    app.setApplicationVersion(__version__)
+    app.setDesktopFileName("lfstudio")      # Wayland/X11: match the window to lfstudio.desktop (and its icon)
+    app.setWindowIcon(app_icon())
     style = RESOURCES_DIR / "style.qss"
     if style.is_file():
         app.setStyleSheet(style.read_text(encoding="utf-8"))
     window = create_window(simulated=simulated)
-    _install_excepthook(window.state)
+    window.exception_reporter = install_exception_hooks(window)
+    log.info("lfstudio %s window open (%s)", __version__, "simulated studio" if simulated else "hardware")
     if dataset:
         from lfstudio.dataset import Dataset
         from lfstudio.errors import LfError

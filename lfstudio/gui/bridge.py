@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import logging
 import threading
-import traceback
 from typing import Any, Callable
 
 from PySide6.QtCore import QObject, Signal
 
 from lfstudio.errors import LfError
 from lfstudio.jobs import Cancelled, CancelToken, EtaEstimator
+
+log = logging.getLogger(__name__)
 
 
 class JobRunner(QObject):
@@ -53,7 +55,7 @@ class JobRunner(QObject):
             except LfError as exc:
                 self.failed.emit(str(exc))
             except Exception as exc:  # an unexpected bug: say so plainly, keep the details in the log
-                traceback.print_exc()
+                log.error("job %s failed unexpectedly", getattr(fn, "__name__", fn), exc_info=True)
                 self.failed.emit(f"Unexpected error: {type(exc).__name__}: {exc}")
             else:
                 self.finished.emit(result)

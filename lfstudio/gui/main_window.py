@@ -10,7 +10,6 @@ from PySide6.QtCore import Qt
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import QDockWidget, QMainWindow, QMenu, QMessageBox, QWidget
 
-from lfstudio import __version__
 from lfstudio.errors import LfError
 from lfstudio.gui.panels import CENTRAL, PANELS, PanelSpec
 from lfstudio.gui.settings import settings
@@ -103,15 +102,37 @@ class MainWindow(QMainWindow):
         file_menu.addSeparator()
         self._install_export_action(file_menu)
         file_menu.addSeparator()
+        prefs = QAction("&Settings…", self)
+        prefs.setObjectName("actionSettings")
+        prefs.setShortcut(QKeySequence("Ctrl+,"))
+        prefs.setToolTip("Default folders and the default camera, lens and rig presets")
+        prefs.triggered.connect(self.open_settings)
+        file_menu.addAction(prefs)
         quit_action = QAction("&Quit", self)
         quit_action.setShortcut(QKeySequence.Quit)
         quit_action.setToolTip("Close lfstudio")
         quit_action.triggered.connect(self.close)
         file_menu.addAction(quit_action)
 
+        help_menu = self.menu("Help")
+        guide = QAction("&User guide", self)
+        guide.setObjectName("actionUserGuide")
+        guide.setShortcut(QKeySequence.HelpContents)
+        guide.setToolTip("Read the user guide (planning, rig, cameras, scanning, calibration, processing)")
+        guide.triggered.connect(self.show_user_guide)
+        logs = QAction("Show &log folder", self)
+        logs.setObjectName("actionShowLogFolder")
+        logs.setToolTip("Open the folder with lfstudio's log files (send them with a problem report)")
+        logs.triggered.connect(self.show_log_folder)
         about = QAction("&About lfstudio", self)
-        about.triggered.connect(self._about)
-        self.menu("Help").addAction(about)
+        about.setObjectName("actionAbout")
+        about.setToolTip("lfstudio's version and the versions of Qt, OpenCV, LibRaw, FFmpeg, libgphoto2 …")
+        about.triggered.connect(self.show_about)
+        help_menu.addSeparator()
+        for action in (guide, logs):
+            help_menu.addAction(action)
+        help_menu.addSeparator()
+        help_menu.addAction(about)
 
     def _install_export_action(self, menu: QMenu) -> None:
         self.export_dialog = None
@@ -155,10 +176,45 @@ class MainWindow(QMainWindow):
             return
         self.export_dialog.show()
 
-    def _about(self) -> None:
-        QMessageBox.about(self, "About lfstudio",
-                          f"<b>lfstudio {__version__}</b><p>Dense light-field acquisition: plan, capture, "
-                          "self-calibrate, process and export.</p>")
+    def open_settings(self):
+        from lfstudio.gui.dialogs.settings_dialog import SettingsDialog, apply_to_window
+
+        dialog = SettingsDialog(self)
+        old = dialog.values()
+
+        def accepted() -> None:
+            new = dialog.values()
+            dialog.store()
+            applied = apply_to_window(self, old, new)
+            self.statusBar().showMessage("Settings saved" + (f"; applied to {', '.join(applied)}" if applied else ""),
+                                         8000)
+
+        dialog.accepted.connect(accepted)
+        dialog.open()
+        return dialog
+
+    def show_user_guide(self):
+        from lfstudio.gui.dialogs.help_dialogs import UserGuideDialog
+
+        dialog = UserGuideDialog(self)
+        dialog.show()
+        return dialog
+
+    def show_about(self):
+        from lfstudio.gui.dialogs.help_dialogs import AboutDialog
+
+        dialog = AboutDialog(self)
+        dialog.show()
+        return dialog
+
+    def show_log_folder(self) -> None:
+        from lfstudio.gui.crash import open_log_folder
+        from lfstudio.support.logs import log_dir
+
+        if not open_log_folder():
+            self.show_error("Log folder", f"No file manager could be opened. The log files are in {log_dir()}")
+        else:
+            self.statusBar().showMessage(f"Log files: {log_dir()}", 10000)
 
     def show_error(self, title: str, message: str) -> None:
         self.statusBar().showMessage(f"{title}: {message.splitlines()[0] if message else ''}", 10000)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +28,8 @@ from lfstudio.jobs import CancelToken, Cancelled, Progress, no_progress
 from lfstudio.processing import executors
 from lfstudio.processing.profile import PROFILE_NAME, Profile
 from lfstudio.processing.worker import RunPlan, ViewResult, ViewTask, process_view, render, warm_up
+
+log = logging.getLogger(__name__)
 
 SAVE_EVERY_S = 3.0
 
@@ -169,6 +172,7 @@ def process_dataset(dataset: Dataset | str | Path, profile: Profile | None = Non
     ds = _open(dataset)
     profile = profile or Profile.for_dataset(ds.root)
     progress(0, len(capturable_views(ds)), "reading the reference view")
+    log.info("processing of %s started (%d captured views)", ds.root, len(capturable_views(ds)))
     with contextlib.ExitStack() as stack:
         info = stack.enter_context(executors.open_executor(workers, cluster))
         if info.separate_processes:  # workers start and import while this process reads the reference
@@ -233,6 +237,7 @@ def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force:
                                                 "failed": len(report.failed)}
         ds.save()
     report.elapsed_s = time.monotonic() - t_start
+    log.info("processing of %s finished: %s", ds.root, report.summary().replace("\n", "; "))
     return report
 
 

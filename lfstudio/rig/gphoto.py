@@ -12,6 +12,7 @@ layer stays thin: no logic beyond the calls, the size check and the messages.
 
 from __future__ import annotations
 
+import logging
 import os
 import threading
 import time
@@ -23,6 +24,8 @@ import numpy as np
 
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.rig.camera import CaptureResult
+
+log = logging.getLogger(__name__)
 
 #: our setting names -> gphoto2 config widget names tried in order (bodies name them differently)
 SETTING_WIDGETS = {
@@ -188,10 +191,12 @@ class GPhotoCamera:
             self._busy = True
             try:
                 t0 = self._clock()
+                log.debug("gphoto2: capture for %s", stem_path.name)
                 try:
                     where = camera.capture(gp.GP_CAPTURE_IMAGE)
                 except gp.GPhoto2Error as exc:
                     self._message = gp_message(exc, "capture")
+                    log.debug("gphoto2: capture failed: %s", exc)
                     raise DeviceError(self._message) from None
                 t_exposed = self._clock()
                 if on_exposed is not None:
@@ -226,6 +231,8 @@ class GPhotoCamera:
                     except gp.GPhoto2Error:
                         pass          # RAM captures may already be gone
                 t_done = self._clock()
+                log.debug("gphoto2: %s/%s -> %s (%d bytes, exposure %.2f s, transfer %.2f s)", where.folder,
+                          where.name, dest.name, size, t_exposed - t0, t_done - t_exposed)
                 self.shots += 1
                 self._message = ""
                 return CaptureResult(files=(dest,), trigger_s=0.0, exposure_s=t_exposed - t0,

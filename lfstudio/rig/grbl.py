@@ -29,6 +29,8 @@ from lfstudio.planning.optics import move_time_s
 from lfstudio.rig.motion import RigConfig, RigState, RigStatus, check_target, clamp_target
 
 log = logging.getLogger(__name__)
+#: status polls and reports (several a second): shown only with --debug (lfstudio.support.logs)
+status_log = logging.getLogger(__name__ + ".status")
 
 AXIS_LETTERS = "XYZABC"
 
@@ -361,6 +363,7 @@ class GrblController:
         ser = self._serial
         if ser is None or self._lost:
             raise ConnectionLost(self._lost or f"the rig on {self.port} is not connected: connect first")
+        (status_log if data == b"?" else log).debug("%s > %r", self.port, data)
         try:
             with self._wlock:
                 ser.write(data)
@@ -378,6 +381,7 @@ class GrblController:
                 del self._rx[:nl + 1]
                 line = raw.decode("ascii", "replace").strip()
                 if line:
+                    (status_log if line.startswith("<") else log).debug("%s < %s", self.port, line)
                     return line
                 continue
             if time.monotonic() >= deadline:
@@ -740,6 +744,7 @@ class GrblController:
             return
         last = self._last.state if self._last is not None else ""
         data = b"\x18" if last == "Home" else b"!\x85"
+        log.debug("%s > %r (STOP)", self.port, data)
         try:
             with self._wlock:
                 ser.write(data)

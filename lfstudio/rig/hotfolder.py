@@ -9,6 +9,7 @@ view's name. Names that look temporary or partial (``.x``, ``~x``, ``x.tmp``, ``
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 import subprocess
@@ -20,6 +21,8 @@ from typing import Any, Callable, Sequence
 
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.rig.camera import CaptureResult
+
+log = logging.getLogger(__name__)
 
 DEFAULT_EXTENSIONS = (".dng", ".arw", ".cr2", ".cr3", ".nef", ".raf", ".orf", ".rw2", ".pef", ".iiq",
                       ".3fr", ".tif", ".tiff", ".jpg", ".jpeg", ".png")
@@ -175,6 +178,7 @@ class HotFolderCamera:
             self.shots += 1
             self._message = ""
             t_done = self._clock()
+            log.debug("hot folder: %s arrived as %s", self.folder, dest.name)
             return CaptureResult(files=(dest,), trigger_s=t_triggered - t0, exposure_s=0.0,
                                  transfer_s=t_done - t_appeared,
                                  metadata={"source": str(src), "bytes": size, "format": dest.suffix[1:].upper()})

@@ -243,6 +243,7 @@ class DeviceWorker:
         if not call.future.set_running_or_notify_cancel():
             return
         self._current = call.name
+        log.debug("%s: %s", self.name, describe_call(call.name, call.args, call.kwargs))
         timer = None
         if call.timeout_s is not None:
             text = describe_call(call.name, call.args, call.kwargs)

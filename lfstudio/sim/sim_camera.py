@@ -16,6 +16,7 @@ Faults (:meth:`SimulatedCamera.inject`): ``"capture_fails"`` (the capture raises
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from dataclasses import dataclass
@@ -31,6 +32,8 @@ from lfstudio.rig.camera import CaptureResult
 from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
 from lfstudio.sim.sensor import SensorModel
 from lfstudio.sim.studio import DEMO_PP_OFFSET_PX, DEMO_ROTATION_DEG, VirtualStudio
+
+log = logging.getLogger(__name__)
 
 BLACK_LEVEL = 512
 WHITE_LEVEL = 16383
@@ -283,6 +286,7 @@ class SimulatedCamera:
             if size < mosaic.nbytes:
                 raise DeviceError(f"{raw_path}: incomplete file ({size} bytes); retry the shot")
             self._message = ""
+            log.debug("simulated camera: captured %s", raw_path.name)
             return CaptureResult(files=(raw_path, jpg_path, truth_path), trigger_s=t_open - t_call,
                                  exposure_s=t_closed - t_open, transfer_s=t_done - t_closed,
                                  metadata={"iso": self.iso, "shutter_s": self.exposure_s,

@@ -478,7 +478,9 @@ class ScanPanel(QWidget):
     # -- settings ----------------------------------------------------------------------------------
     def _load_settings(self) -> None:
         s = settings()
-        self.folder.setText(str(s.value("scan/folder", str(Path.home() / "lfstudio-scan"))))
+        from lfstudio.gui.preferences import datasets_folder
+
+        self.folder.setText(str(s.value("scan/folder", str(datasets_folder() / "lfstudio-scan"))))
         try:
             self.time_scale.setValue(float(s.value("scan/time_scale", 1.0)))
             self.order.setCurrentText(str(s.value("scan/order", "row-meander")))

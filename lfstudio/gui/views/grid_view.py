@@ -714,7 +714,9 @@ class GridView(QWidget):
         window.menu("Dataset").addAction(recap)
 
     def choose_dataset(self) -> None:
-        start = settings().value("datasets/last_dir", "")
+        from lfstudio.gui.preferences import datasets_folder
+
+        start = settings().value("datasets/last_dir", "") or str(datasets_folder())
         folder = QFileDialog.getExistingDirectory(self, "Open dataset folder", str(start or ""))
         if folder:
             settings().setValue("datasets/last_dir", str(Path(folder).parent))

@@ -1,0 +1,106 @@
+"""Help menu dialogs: About (component versions) and the user guide (README rendered in the app)."""
+
+from __future__ import annotations
+
+import threading
+
+from PySide6.QtCore import Qt, Signal
+from PySide6.QtGui import QGuiApplication
+from PySide6.QtWidgets import (QDialog, QDialogButtonBox, QHBoxLayout, QLabel, QPushButton, QTableWidget,
+                               QTableWidgetItem, QTextBrowser, QVBoxLayout, QWidget, QHeaderView,
+                               QAbstractItemView)
+
+from lfstudio import __version__
+
+
+class AboutDialog(QDialog):
+    """lfstudio's version and every component's, gathered off the GUI thread (imports take a moment)."""
+
+    versionsReady = Signal(object)      # list of (name, text)
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.setObjectName("aboutDialog")
+        self.setWindowTitle("About lfstudio")
+        self.setAttribute(Qt.WA_DeleteOnClose)
+        from lfstudio.gui.app import app_icon
+
+        icon = QLabel()
+        icon.setPixmap(app_icon().pixmap(96, 96))
+        title = QLabel(f"<h2>lfstudio {__version__}</h2><p>Dense light-field acquisition with a two-axis "
+                       "camera gantry: plan, capture, self-calibrate, process and export.</p>")
+        title.setWordWrap(True)
+        head = QHBoxLayout()
+        head.addWidget(icon, 0, Qt.AlignTop)
+        head.addWidget(title, 1)
+
+        self.table = QTableWidget(0, 2)
+        self.table.setObjectName("versionsTable")
+        self.table.setHorizontalHeaderLabels(["Component", "Version"])
+        self.table.verticalHeader().setVisible(False)
+        self.table.horizontalHeader().setSectionResizeMode(0, QHeaderView.ResizeToContents)
+        self.table.horizontalHeader().setStretchLastSection(True)
+        self.table.setEditTriggers(QAbstractItemView.NoEditTriggers)
+        self.table.setToolTip("The versions of lfstudio and the libraries it uses (include them in bug reports)")
+        self.status = QLabel("Reading component versions…")
+
+        buttons = QDialogButtonBox(QDialogButtonBox.Close)
+        self.copy_button = QPushButton("&Copy versions")
+        self.copy_button.setToolTip("Copy this list to the clipboard (for a bug report)")
+        self.copy_button.clicked.connect(self.copy_versions)
+        buttons.addButton(self.copy_button, QDialogButtonBox.ActionRole)
+        buttons.rejected.connect(self.reject)
+
+        lay = QVBoxLayout(self)
+        lay.addLayout(head)
+        lay.addWidget(self.table, 1)
+        lay.addWidget(self.status)
+        lay.addWidget(buttons)
+        self.resize(640, 520)
+        self.rows: list[tuple[str, str]] = []
+        self.versionsReady.connect(self._fill, Qt.QueuedConnection)
+        threading.Thread(target=self._gather, name="about-versions", daemon=True).start()
+
+    def _gather(self) -> None:
+        from lfstudio.support.versions import versions
+
+        self.versionsReady.emit(versions())
+
+    def _fill(self, rows) -> None:
+        self.rows = list(rows)
+        self.table.setRowCount(len(self.rows))
+        for i, (name, text) in enumerate(self.rows):
+            self.table.setItem(i, 0, QTableWidgetItem(name))
+            item = QTableWidgetItem(text)
+            item.setToolTip(text)
+            self.table.setItem(i, 1, item)
+        self.status.setText(f"{len(self.rows)} entries")
+
+    def text(self) -> str:
+        return "\n".join(f"{name}: {text}" for name, text in self.rows)
+
+    def copy_versions(self) -> None:
+        QGuiApplication.clipboard().setText(self.text())
+        self.copy_button.setText("Copied")
+
+
+class UserGuideDialog(QDialog):
+    """The README's user guide, rendered from Markdown (also in a bundle or an installed copy)."""
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        from lfstudio.support.userguide import user_guide_markdown
+
+        self.setObjectName("userGuideDialog")
+        self.setWindowTitle("lfstudio user guide")
+        self.setAttribute(Qt.WA_DeleteOnClose)
+        self.browser = QTextBrowser()
+        self.browser.setObjectName("userGuideBrowser")
+        self.browser.setOpenExternalLinks(True)
+        self.browser.setMarkdown(user_guide_markdown())
+        buttons = QDialogButtonBox(QDialogButtonBox.Close)
+        buttons.rejected.connect(self.reject)
+        lay = QVBoxLayout(self)
+        lay.addWidget(self.browser, 1)
+        lay.addWidget(buttons)
+        self.resize(860, 760)

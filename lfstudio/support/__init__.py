@@ -1,0 +1,4 @@
+"""Supportability: the log file, component versions (``lfstudio doctor``, Help → About), the user guide.
+
+Qt-free like the rest of the core; the GUI's crash dialog and Help menu build on these.
+"""

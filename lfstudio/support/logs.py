@@ -1,0 +1,108 @@
+"""Where lfstudio logs, and the one place that sets logging up (CLI and GUI alike).
+
+Every module logs through ``logging.getLogger(__name__)``. :func:`setup_logging` sends
+
+- everything from DEBUG up to a rotating file ``lfstudio.log`` in :func:`log_dir` (device traffic: the
+  lines sent to and read from the GRBL controller, every call on a device worker, camera captures;
+  INFO: scan, calibration, processing and export milestones);
+- WARNING and up to the console, or everything with ``--debug``.
+
+The rig's status polling (``?`` and its ``<Idle|...>`` reports, several a second) goes to the
+``lfstudio.rig.grbl.status`` logger, which only ``--debug`` lets through, so the file keeps weeks of
+commands rather than hours of polls.
+"""
+
+from __future__ import annotations
+
+import logging
+import logging.handlers
+import os
+import sys
+from pathlib import Path
+
+LOG_FILE_NAME = "lfstudio.log"
+MAX_BYTES = 5_000_000       # per file; with BACKUP_COUNT older files: at most 30 MB of logs
+BACKUP_COUNT = 5
+FILE_FORMAT = "%(asctime)s %(levelname)-7s %(threadName)s %(name)s: %(message)s"
+CONSOLE_FORMAT = "%(asctime)s %(name)s %(levelname)s: %(message)s"
+#: loggers that are quiet unless --debug (high-rate traffic)
+CHATTY_LOGGERS = ("lfstudio.rig.grbl.status",)
+
+_HANDLER_TAG = "_lfstudio_handler"
+
+
+def log_dir() -> Path:
+    """``$LFSTUDIO_LOG_DIR``, else the platform's user log folder (``~/.local/state/lfstudio/log`` on
+    Linux, ``~/Library/Logs/lfstudio`` on macOS, ``%LOCALAPPDATA%\\lfstudio\\Logs`` on Windows)."""
+    env = os.environ.get("LFSTUDIO_LOG_DIR")
+    if env:
+        return Path(env)
+    import platformdirs
+
+    return Path(platformdirs.user_log_dir("lfstudio", appauthor=False))
+
+
+def log_file() -> Path:
+    """The current log file (older ones sit next to it as ``lfstudio.log.1`` ...)."""
+    return log_dir() / LOG_FILE_NAME
+
+
+def debug_requested() -> bool:
+    """``$LFSTUDIO_DEBUG`` set to anything but empty/0."""
+    return os.environ.get("LFSTUDIO_DEBUG", "") not in ("", "0")
+
+
+def is_configured() -> bool:
+    """True once :func:`setup_logging` ran in this process."""
+    return any(getattr(h, _HANDLER_TAG, False) for h in logging.getLogger().handlers)
+
+
+def setup_logging(debug: bool = False, console: bool = True) -> Path | None:
+    """Configure the root logger: rotating file (DEBUG) + console (WARNING, DEBUG with ``debug``).
+
+    Idempotent: a second call replaces the handlers of the first. Returns the log file path, or None
+    when the log folder cannot be created (then only the console logs, with a warning)."""
+    debug = debug or debug_requested()
+    root = logging.getLogger()
+    for handler in list(root.handlers):
+        if getattr(handler, _HANDLER_TAG, False):
+            root.removeHandler(handler)
+            handler.close()
+    root.setLevel(logging.DEBUG)
+    for name in CHATTY_LOGGERS:
+        logging.getLogger(name).setLevel(logging.DEBUG if debug else logging.INFO)
+
+    if console:
+        stream = logging.StreamHandler(sys.stderr)
+        stream.setLevel(logging.DEBUG if debug else logging.WARNING)
+        stream.setFormatter(logging.Formatter(CONSOLE_FORMAT))
+        setattr(stream, _HANDLER_TAG, True)
+        root.addHandler(stream)
+
+    path = log_file()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handler = logging.handlers.RotatingFileHandler(path, maxBytes=MAX_BYTES, backupCount=BACKUP_COUNT,
+                                                       encoding="utf-8", delay=True)
+    except OSError as exc:
+        logging.getLogger(__name__).warning("cannot write the log file %s (%s); logging to the console only",
+                                            path, exc)
+        return None
+    handler.setLevel(logging.DEBUG)
+    handler.setFormatter(logging.Formatter(FILE_FORMAT))
+    setattr(handler, _HANDLER_TAG, True)
+    root.addHandler(handler)
+    # third-party libraries stay at INFO in the file (PIL, asyncio, distributed chatter)
+    for name in ("PIL", "asyncio", "distributed", "tornado", "fsspec", "matplotlib"):
+        logging.getLogger(name).setLevel(logging.INFO)
+    return path
+
+
+def flush_logs() -> None:
+    """Flush our handlers (before showing a crash dialog that names the log)."""
+    for handler in logging.getLogger().handlers:
+        if getattr(handler, _HANDLER_TAG, False):
+            try:
+                handler.flush()
+            except Exception:  # noqa: BLE001 - never fail while reporting a failure
+                pass

@@ -1,0 +1,70 @@
+"""The user guide: the README's "User guide" section, wherever lfstudio runs from.
+
+Source checkout: ``README.md`` next to the package. PyInstaller bundle: ``README.md`` is shipped in
+the bundle folder. Installed (``pip install .``, pipx): ``PREFIX/share/lfstudio/README.md``, else the
+package's long description read back from the installed metadata.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+PROJECT_URL = "https://github.com/lfstudio/lfstudio#user-guide"
+
+
+def readme_path() -> Path | None:
+    """README.md of a checkout, bundle or installed copy (``PREFIX/share/lfstudio``), or None."""
+    from lfstudio.resources import RESOURCES_DIR
+
+    if hasattr(sys, "_MEIPASS"):
+        candidates = [Path(getattr(sys, "_MEIPASS")) / "README.md"]
+    else:
+        candidates = [Path(__file__).resolve().parents[2] / "README.md", RESOURCES_DIR.parent / "README.md"]
+    for path in candidates:
+        if path.is_file():
+            return path
+    return None
+
+
+def readme_markdown() -> str:
+    path = readme_path()
+    if path is not None:
+        return path.read_text(encoding="utf-8")
+    try:
+        from importlib.metadata import metadata
+
+        text = metadata("lfstudio").get_payload()  # the long description (README.md)
+        if isinstance(text, str) and text.strip():
+            return text
+    except Exception:  # noqa: BLE001 - not installed: fall through
+        pass
+    return f"# lfstudio\n\nThe user guide is not shipped with this installation: see {PROJECT_URL}\n"
+
+
+def section(markdown: str, title: str, level: int = 2) -> str:
+    """The text of the ``level`` heading ``title`` up to the next heading of the same or higher level."""
+    lines = markdown.splitlines()
+    start = None
+    fenced = False
+    for i, line in enumerate(lines):
+        if line.lstrip().startswith("```"):
+            fenced = not fenced
+        if fenced:
+            continue
+        hashes = len(line) - len(line.lstrip("#"))
+        if start is None:
+            if hashes == level and line[hashes:].strip() == title:
+                start = i
+        elif 0 < hashes <= level and line[hashes:hashes + 1] == " ":
+            return "\n".join(lines[start:i]).strip() + "\n"
+    return "\n".join(lines[start:]).strip() + "\n" if start is not None else ""
+
+
+def user_guide_markdown() -> str:
+    """The "User guide" section (with the install and troubleshooting sections when present)."""
+    text = readme_markdown()
+    parts = [section(text, t) for t in ("User guide", "Installing on a studio workstation",
+                                        "When something goes wrong")]
+    parts = [p for p in parts if p]
+    return "\n\n".join(parts) if parts else text
