@@ -129,7 +129,8 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
                        created=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
     progress(total_steps, total_steps, "done")
     log.info("calibration of %s finished: rotation %s deg, residual rms %.3f px", dataset.root,
-             doc.get("rotation_deg"), doc.get("residual_px", {}).get("after", {}).get("rms", float("nan")))
+             [round(float(a), 3) for a in doc.get("rotation_deg") or ()],
+             doc.get("residual_px", {}).get("after", {}).get("rms", float("nan")))
     return CalibrationRun(doc, fit, matches, pair_list, needed)
 
 

@@ -254,6 +254,7 @@ class GrblController:
         self._wlock = threading.Lock()
         self._rx = bytearray()
         self._stop_event = threading.Event()
+        self._homing_reset = threading.Event()   # STOP sent a reset during homing
         self._stop_pending = False
         self._homed = False
         self._critical = False          # "Reset to continue": only a soft reset helps
@@ -485,6 +486,8 @@ class GrblController:
                 if kind == "error":
                     raise GrblError(int(got.split(":")[1]), line)
                 if kind == "alarm":
+                    if self._stop_event.is_set() or self._homing_reset.is_set():  # STOP's own alarm (recorded)
+                        raise MotionStopped(f"{line!r} interrupted by STOP")
                     raise GrblAlarm(self._alarm_code or 0, f"during {line!r}")
                 if kind == "banner" and self._stop_event.is_set():
                     raise MotionStopped(f"{line!r} interrupted by STOP")
@@ -578,6 +581,7 @@ class GrblController:
             h, v = self.config.horizontal, self.config.vertical
             timeout = 1.5 * (h.travel_mm / (h.max_speed_mm_s / 2) + v.travel_mm / (v.max_speed_mm_s / 2)) + 10.0
             self._stop_event.clear()
+            self._homing_reset.clear()
             self._command("$H", timeout_s=timeout, poll=True)
             self._homed = True
             self._alarm_code = None
@@ -745,6 +749,8 @@ class GrblController:
         last = self._last.state if self._last is not None else ""
         data = b"\x18" if last == "Home" else b"!\x85"
         log.debug("%s > %r (STOP)", self.port, data)
+        if last == "Home":                  # the ALARM:6 reply may be read before _stop_event is set below
+            self._homing_reset.set()
         try:
             with self._wlock:
                 ser.write(data)

@@ -50,7 +50,9 @@ def _libraw(rawpy) -> str:
 
 def _gphoto2(gp) -> str:
     libs = gp.gp_library_version(gp.GP_VERSION_SHORT)
-    return f"{libs[0] if libs else '?'} (python-gphoto2 {gp.__version__})"
+    abilities = gp.CameraAbilitiesList()
+    abilities.load()                  # the camera drivers (camlibs): none loaded means a broken install
+    return f"{libs[0] if libs else '?'} (python-gphoto2 {gp.__version__}; {len(abilities)} camera models)"
 
 
 def _lensfun(lensfunpy) -> str:

@@ -34,13 +34,14 @@ def hooks(window, monkeypatch):
     monkeypatch.setattr(sys, "excepthook", sys.excepthook)
     monkeypatch.setattr(threading, "excepthook", threading.excepthook)
     root = logging.getLogger()
-    before = list(root.handlers)
+    before, level = list(root.handlers), root.level
     path = setup_logging()
     yield install_exception_hooks(window), path
     for h in list(root.handlers):
         if h not in before:
             root.removeHandler(h)
             h.close()
+    root.setLevel(level)
 
 
 def _crash_dialogs(window):
