@@ -30,10 +30,11 @@ class JobRunner(QObject):
         super().__init__(parent)
         self._thread: threading.Thread | None = None
         self._cancel: CancelToken | None = None
+        self._active = False    # False before the final signal is emitted: its slots see "not running"
 
     @property
     def running(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
+        return self._active and self._thread is not None and self._thread.is_alive()
 
     def start(self, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
         """Call ``fn(*args, progress=..., cancel=..., **kwargs)`` on a new thread."""
@@ -51,16 +52,21 @@ class JobRunner(QObject):
             try:
                 result = fn(*args, progress=progress, cancel=cancel, **kwargs)
             except Cancelled:
+                self._active = False
                 self.cancelled.emit()
             except LfError as exc:
+                self._active = False
                 self.failed.emit(str(exc))
             except Exception as exc:  # an unexpected bug: say so plainly, keep the details in the log
                 log.error("job %s failed unexpectedly", getattr(fn, "__name__", fn), exc_info=True)
+                self._active = False
                 self.failed.emit(f"Unexpected error: {type(exc).__name__}: {exc}")
             else:
+                self._active = False
                 self.finished.emit(result)
 
         self._thread = threading.Thread(target=body, name=f"job-{getattr(fn, '__name__', 'job')}", daemon=True)
+        self._active = True
         self._thread.start()
 
     def cancel(self) -> None:
