@@ -256,9 +256,16 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
     out = Path(out).expanduser()
     doc = read_sidecar(video)
     common.check_out(out, overwrite)
-    frames = [(int(r), int(c)) for r, c in doc["frames"]]
-    by_frame = {e.get("frame", i): e for i, e in enumerate(doc.get("views", []))}
-    size = doc["image_size_px"]
+    try:
+        frames = [(int(r), int(c)) for r, c in doc["frames"]]
+        size = [int(v) for v in doc["image_size_px"]][:2]
+        int(doc["grid"]["columns"]), int(doc["grid"]["rows"])
+    except (TypeError, ValueError, KeyError) as exc:
+        raise DatasetError(f"{sidecar_path(video)}: frames/image_size_px/grid cannot be read ({exc}); "
+                           "the sidecar is damaged: export again") from None
+    if len(set(frames)) != len(frames):
+        raise DatasetError(f"{sidecar_path(video)}: frames: a view appears twice; the sidecar is damaged")
+    by_frame = {e.get("frame", i): e for i, e in enumerate(doc.get("views", [])) if isinstance(e, dict)}
     enc = doc.get("encoding", {})
     colorspace = {"bt709": "ITU709", "bt601": "ITU601"}.get(enc.get("colorspace", "bt709"), COLORSPACE)
     color_range = "JPEG" if enc.get("color_range", "full") == "full" else "MPEG"

@@ -199,6 +199,13 @@ def test_import_hevc_needs_its_sidecar(small, tmp_path):
         import_hevc(video, tmp_path / "ds")
     assert exc.value.field == "file" and "one.mkv.json" in str(exc.value)
     assert not (tmp_path / "ds").exists() and _leftovers(tmp_path) == []
+    doc = json.loads((tmp_path / "elsewhere.json").read_text())
+    doc["frames"][1] = ["one", 0]
+    (tmp_path / "one.mkv.json").write_text(json.dumps(doc))
+    from lfstudio.errors import DatasetError
+    with pytest.raises(DatasetError, match="damaged"):
+        import_hevc(video, tmp_path / "ds")
+    assert not (tmp_path / "ds").exists() and _leftovers(tmp_path) == []
 
 
 # -- hci ------------------------------------------------------------------------------------------------

@@ -16,6 +16,9 @@ def _one_error_line(proc, *words):
 def test_export_png_then_refuses_to_overwrite(make_tiny_dataset, run_cli, tmp_path):
     ds = make_tiny_dataset("png", width_px=241)
     out = tmp_path / "exports" / "png"
+    proc = run_cli("export", ds.root, "--format", "hevc", "--out", tmp_path / "x.mp4", "--estimate")
+    assert proc.returncode == 0 and "15 views (raw), 242 x 160 px, about" in proc.stderr
+    assert not (tmp_path / "x.mp4").exists()
     proc = run_cli("export", ds.root, "--format", "png", "--out", out, "--views", "r0,c0-2")
     assert proc.returncode == 0, proc.stderr
     assert "exported 3 views" in proc.stdout
