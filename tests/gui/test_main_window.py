@@ -51,3 +51,14 @@ def test_gui_hardware_flag(run_cli):
 
     assert build_parser().parse_args(["gui"]).simulated is True
     assert build_parser().parse_args(["gui", "--hardware"]).simulated is False
+
+
+def test_every_menu_shortcut_is_unique(qtbot):
+    """Two actions on one key make Qt fire neither ("ambiguous shortcut")."""
+    from collections import Counter
+
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    keys = Counter(a.shortcut().toString() for m in window.menuBar().actions() if m.menu()
+                   for a in m.menu().actions() if not a.shortcut().isEmpty())
+    assert keys and [k for k, n in keys.items() if n > 1] == []

@@ -17,7 +17,7 @@ class CalibrationPanel(QWidget):
         self.summary.setWordWrap(True)
         self.summary.setObjectName("calibrationSummary")
         self.button = QPushButton("Calibrate…")
-        self.button.setToolTip("Self-calibrate the camera orientation from this dataset's images (Ctrl+Shift+K)")
+        self.button.setToolTip("Self-calibrate the camera orientation from this dataset's images (Ctrl+Shift+C)")
         self.button.clicked.connect(self.open_wizard)
         lay = QVBoxLayout(self)
         lay.addWidget(self.summary)
@@ -29,7 +29,7 @@ class CalibrationPanel(QWidget):
     def install_menus(self, window) -> None:
         self.action = QAction("&Calibrate…", window)
         self.action.setObjectName("actionCalibrate")
-        self.action.setShortcut(QKeySequence("Ctrl+Shift+K"))
+        self.action.setShortcut(QKeySequence("Ctrl+Shift+C"))
         self.action.setToolTip("Self-calibrate the camera orientation from the open dataset's images; "
                                "inspect residuals and EPIs, then save calibration.json")
         self.action.setStatusTip(self.action.toolTip())
