@@ -66,6 +66,7 @@ def test_a_whole_day_in_the_simulated_studio(qtbot, tmp_path):
     qtbot.waitUntil(lambda: "Finished" in scan.state_label.text(), timeout=120000)
     assert state.dataset is not None and state.dataset.root == root
     assert Dataset.open(root).status_counts()["done"] == COLUMNS * ROWS
+    assert window.central.minimumSizeHint().width() < 600      # the grid's header never widens the window
 
     # -- calibrate: Dataset → Calibrate…, the paper's 2 × 3 views, accept ---------------------------------
     _action(window, "Dataset", "Calibrate…").trigger()

@@ -567,6 +567,8 @@ class GridView(QWidget):
             for code in (PENDING, CAPTURING, DONE, FAILED, SKIPPED)))
         legend.setObjectName("gridLegend")
         legend.setToolTip("Colours of the views: pending, being captured, done, failed, skipped by the operator")
+        for label in (self.title, self.counts, legend):   # clipped when narrow: never widen the window
+            label.setMinimumWidth(8)
         bar.addWidget(legend)
         bar.addSpacing(12)
         self.fit_button = self._tool("Fit", "Show the whole grid (F)", self.canvas.fit)
