@@ -15,7 +15,8 @@ from typing import Any
 from PySide6.QtCore import QTimer, QUrl, Signal
 from PySide6.QtGui import QDesktopServices
 from PySide6.QtWidgets import (QComboBox, QDialog, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout, QLabel,
-                               QLineEdit, QMessageBox, QPushButton, QSpinBox, QStackedWidget, QVBoxLayout, QWidget)
+                               QLineEdit, QMessageBox, QPushButton, QSizePolicy, QSpinBox, QStackedWidget,
+                               QVBoxLayout, QWidget)
 
 from lfstudio.calibration.calibrate import available_views
 from lfstudio.errors import LfError
@@ -263,7 +264,7 @@ class ExportDialog(QDialog):
                                   ".hevc)")
         self.path_label = QLabel()
         self.path_label.setObjectName("pathLabel")
-        self.path_label.setWordWrap(True)
+        self.path_label.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)   # a long path is clipped
         form.addRow("Folder:", row)
         form.addRow("Name:", self.name_edit)
         form.addRow("", self.path_label)
@@ -394,6 +395,7 @@ class ExportDialog(QDialog):
         exists = " <span style='color:#b35900'>(exists: you will be asked before it is replaced)</span>" \
             if existing_outputs(self.format, out) else ""
         self.path_label.setText(f"→ {out}{exists}")
+        self.path_label.setToolTip(str(out))
         self._update_export_button()
 
     def _update_export_button(self) -> None:
@@ -527,7 +529,7 @@ class ExportDialog(QDialog):
                  f"in {format_duration(report.seconds)}."]
         ratio = getattr(report, "compression_ratio_vs_png", None)
         if ratio:
-            parts.append(f"1 : {ratio:.0f} of the 16-bit PNG size.")
+            parts.append(f"{ratio:.0f}× smaller than 16-bit PNG.")
         psnr = getattr(report, "psnr_db", None)
         if psnr is not None:
             parts.append(f"PSNR {psnr:.1f} dB against the source views.")
