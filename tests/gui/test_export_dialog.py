@@ -156,6 +156,13 @@ def test_hci_sub_array_follows_a_click_on_the_grid(qtbot, tiny_dataset, tmp_path
     qtbot.waitUntil(lambda: dialog.estimate is not None and len(dialog.estimate.views) == 9, timeout=20000)
     assert dialog.picker.selected == {(r, c) for r in range(3) for c in range(2, 5)}
     assert "3 × 3 sub-array" in dialog.views_label.text()
+    corner = dialog.picker.cell_center(0, 0)        # near the edge: the sub-array stays inside the grid
+    qtbot.mouseClick(dialog.picker, Qt.LeftButton, pos=QPoint(int(corner.x()), int(corner.y())))
+    assert (dialog.hci_center_row.value(), dialog.hci_center_column.value()) == (1, 1)
+    qtbot.waitUntil(lambda: dialog.estimate is not None and (0, 0) in dialog.picker.selected, timeout=20000)
+    dialog.hci_center_column.setValue(4)            # typed off the edge: the field and the fix are named
+    qtbot.waitUntil(lambda: dialog.estimate_error is not None, timeout=20000)
+    assert "hci_center" in dialog.estimate_error and not dialog.export_button.isEnabled()
     dialog.format_combo.setCurrentIndex(FORMAT_KEYS.index("hevc"))   # back: the operator's own selection
     assert dialog.name_edit.text().endswith(".mp4")
     assert len(dialog.picker.selected) == 15

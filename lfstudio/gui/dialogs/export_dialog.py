@@ -349,9 +349,15 @@ class ExportDialog(QDialog):
         self.picker.set_selected(views)
 
     def _cell_clicked(self, row: int, column: int) -> None:
-        if self.format == "hci":            # a click centres the sub-array on that view
-            self.hci_center_row.setValue(row)
-            self.hci_center_column.setValue(column)
+        """HCI: a click centres the sub-array on that view (moved inside the grid near its edges)."""
+        if self.format != "hci":
+            return
+        grid = self.dataset.grid
+        for spin, value, size, n in ((self.hci_center_row, row, self.hci_rows.value(), int(grid["rows"])),
+                                     (self.hci_center_column, column, self.hci_columns.value(),
+                                      int(grid["columns"]))):
+            lo, hi = (size - 1) // 2, n - 1 - size // 2
+            spin.setValue(min(max(value, lo), hi) if lo <= hi else value)
 
     def _format_changed(self) -> None:
         fmt = self.format
