@@ -1,7 +1,8 @@
 """What the Settings dialog stores (QSettings keys) and the getters the panels use.
 
 - ``paths/datasets``: the folder new scans are created in and "Open dataset" starts in (default: home);
-- ``paths/export``: the folder exports go to by default;
+- ``export/folder``: the folder File → Export dataset… writes to (the export dialog also stores its
+  last folder there; empty: next to the dataset);
 - ``defaults/camera``, ``defaults/lens``, ``defaults/rig``: preset names (resources/presets/*.toml
   plus the user's); the rig one is also the Rig panel's profile (``rig/profile``).
 
@@ -15,7 +16,7 @@ from pathlib import Path
 from lfstudio.gui.settings import settings
 
 DATASETS_KEY = "paths/datasets"
-EXPORT_KEY = "paths/export"
+EXPORT_KEY = "export/folder"          # shared with gui/dialogs/export_dialog.py
 PRESET_KEYS = {"cameras": "defaults/camera", "lenses": "defaults/lens", "rigs": "defaults/rig"}
 
 
@@ -23,8 +24,10 @@ def datasets_folder() -> Path:
     return Path(str(settings().value(DATASETS_KEY, str(Path.home()))))
 
 
-def export_folder() -> Path:
-    return Path(str(settings().value(EXPORT_KEY, str(Path.home() / "lfstudio-exports"))))
+def export_folder() -> Path | None:
+    """The export destination folder, or None: next to the exported dataset."""
+    value = str(settings().value(EXPORT_KEY, "") or "")
+    return Path(value) if value else None
 
 
 def default_preset(kind: str) -> str:

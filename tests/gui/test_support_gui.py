@@ -104,7 +104,7 @@ def test_help_menu_has_guide_log_folder_and_about(qtbot, window):
     about.close()
 
 
-def test_settings_round_trip_and_apply(qtbot, window, tmp_path):
+def test_settings_round_trip_and_apply(qtbot, window, tmp_path, tiny_dataset):
     from lfstudio.gui import preferences
     from lfstudio.gui.dialogs.settings_dialog import SettingsDialog
 
@@ -123,3 +123,7 @@ def test_settings_round_trip_and_apply(qtbot, window, tmp_path):
     assert window.panels["rigDock"].rig_config.name == rig_name          # and to the Rig panel
     again = SettingsDialog(window)                                        # a new dialog shows the stored values
     assert again.values() == dialog.values()
+    window.state.set_dataset(tiny_dataset)                                # the export dialog starts there
+    window.open_export_dialog()
+    assert window.export_dialog.folder_edit.text() == str(tmp_path / "exports")
+    window.export_dialog.close()

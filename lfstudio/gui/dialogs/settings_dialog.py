@@ -30,8 +30,11 @@ class SettingsDialog(QDialog):
         form = QFormLayout(folders)
         self.datasets_edit = self._folder_row(form, "Datasets", str(preferences.datasets_folder()),
                                               "New scans are created in this folder; Open dataset starts here")
-        self.export_edit = self._folder_row(form, "Exports", str(preferences.export_folder()),
-                                            "Exports (light-field videos, image stacks) are written here by default")
+        export = preferences.export_folder()
+        self.export_edit = self._folder_row(form, "Exports", str(export) if export else "",
+                                            "File → Export dataset… writes here by default (it also remembers "
+                                            "the last folder you exported to); empty: next to the dataset")
+        self.export_edit.setPlaceholderText("next to the dataset")
 
         presets = QGroupBox("Defaults for new plans")
         pform = QFormLayout(presets)
@@ -96,7 +99,10 @@ class SettingsDialog(QDialog):
     def store(self) -> None:
         s = settings()
         for key, value in self.values().items():
-            s.setValue(key, value)
+            if value or key != preferences.EXPORT_KEY:
+                s.setValue(key, value)
+            else:
+                s.remove(key)
         if self.values()[preferences.PRESET_KEYS["rigs"]]:
             s.setValue("rig/profile", self.values()[preferences.PRESET_KEYS["rigs"]])
         s.sync()
