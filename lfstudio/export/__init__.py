@@ -18,6 +18,7 @@ output is refused unless ``overwrite``. Qt-free.
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +28,8 @@ from lfstudio.dataset import Dataset
 from lfstudio.errors import InputError
 from lfstudio.export import common
 from lfstudio.jobs import CancelToken, Progress, no_progress
+
+log = logging.getLogger(__name__)
 
 FORMATS = ("png", "hevc", "hci")
 HEVC_SUFFIXES = (".mp4", ".mkv", ".hevc", ".mov")
@@ -177,6 +180,7 @@ def export_dataset(dataset, options: ExportOptions, *, progress: Progress | None
     views, source, size = _plan(ds, options)
     report = ExportReport(out=out, views=len(views), bytes_written=0, seconds=0.0, format=options.format,
                           source=source)
+    log.info("export of %s started: %d views (%s) as %s to %s", ds.root, len(views), source, options.format, out)
     if options.format == "png":
         from lfstudio.export import png
 
@@ -201,6 +205,8 @@ def export_dataset(dataset, options: ExportOptions, *, progress: Progress | None
         report.warnings += hci.warnings(ds, views, size)
     report.bytes_written = sum(common.folder_bytes(p) for p in report.files if p.exists())
     report.seconds = time.monotonic() - t0
+    log.info("export to %s finished: %d files, %d bytes in %.1f s", out, len(report.files), report.bytes_written,
+             report.seconds)
     return report
 
 
