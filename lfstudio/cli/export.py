@@ -59,8 +59,12 @@ def run(args: argparse.Namespace) -> int:
                             hci_size=_pair(args.hci_size, "--hci-size", "x×"),
                             hci_center=_pair(args.hci_center, "--hci-center", ",") if args.hci_center else None,
                             overwrite=args.overwrite, hci_bit_depth=args.hci_bit_depth)
+    root = Path(args.dataset)
+    if not (root / "dataset.json").is_file():
+        raise InputError("DATASET", f"{root} is not a dataset folder (no dataset.json in it)",
+                         "a folder made by 'lfstudio scan', 'virtual-dataset' or 'import-images'")
     try:
-        ds = Dataset.open(args.dataset)
+        ds = Dataset.open(root)
         est = estimate_export(ds, options)
         w, h = est.image_size_px
         print(f"{len(est.views)} views ({est.source}), {w} x {h} px, about {est.bytes_estimate / 1e6:.1f} MB "

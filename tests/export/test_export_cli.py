@@ -43,6 +43,9 @@ def test_export_bad_input_exit_2(make_tiny_dataset, run_cli, tmp_path):
         proc = run_cli("export", ds.root, *args)
         assert proc.returncode == 2, (args, proc.stderr)
         _one_error_line(proc, *words)
+    proc = run_cli("export", tmp_path / "nowhere", "--format", "png", "--out", tmp_path / "x")
+    assert proc.returncode == 2
+    _one_error_line(proc, "DATASET", "nowhere", "dataset.json")
     assert sorted(p.name for p in tmp_path.iterdir()) == [ds.root.name]
 
 
