@@ -238,9 +238,10 @@ def ordered_map(fn, items: Sequence, cancel, workers: int = 2, window: int = 4) 
 
 
 # -- description --------------------------------------------------------------------------------------
-def intrinsics(ds: Dataset, image_size: tuple[int, int]) -> dict[str, Any]:
-    """Pinhole intrinsics of the exported images (square pixels, principal point at the centre
-    unless the calibration estimated it)."""
+def intrinsics(ds: Dataset, image_size: tuple[int, int], calibration: dict | None = None) -> dict[str, Any]:
+    """Pinhole intrinsics of the exported images: square pixels; focal length and principal point
+    from ``calibration`` (scaled to these images) when given, else from the camera and lens with the
+    principal point at the image centre. (Rectification H = K·R·K⁻¹ keeps K.)"""
     w, h = int(image_size[0]), int(image_size[1])
     cam, lens = ds.camera, ds.lens
     out: dict[str, Any] = {"image_size_px": [w, h], "focal_length_mm": lens.get("focal_length_mm"),
@@ -257,6 +258,21 @@ def intrinsics(ds: Dataset, image_size: tuple[int, int]) -> dict[str, Any]:
         pitch = float(cam["sensor_mm"][0]) / float(sensor_px[0]) * 1000.0
     out["pixel_pitch_um"] = float(pitch) / scale if pitch else None
     out["principal_point_px"] = [(w - 1) / 2.0, (h - 1) / 2.0]
+    out["principal_point_from"] = "image centre"
+    cal = calibration
+    try:
+        if cal and cal.get("image_size_px") and cal.get("principal_point_px"):
+            # the calibration's K at full resolution, scaled with x_s = s·(x + 0.5) − 0.5 (OpenCV centres)
+            sx = w / float(cal["image_size_px"][0])
+            sy = h / float(cal["image_size_px"][1])
+            cx, cy = (float(v) for v in cal["principal_point_px"])
+            out["principal_point_px"] = [sx * (cx + 0.5) - 0.5, sy * (cy + 0.5) - 0.5]
+            out["principal_point_from"] = ("calibration (estimated)" if cal.get("principal_point_estimated")
+                                           else "calibration (nominal centre)")
+            if cal.get("focal_length_px"):
+                out["focal_length_px"] = float(cal["focal_length_px"]) * sx
+    except (TypeError, ValueError, IndexError, ZeroDivisionError):
+        pass
     return out
 
 
@@ -265,6 +281,7 @@ def describe(ds: Dataset, views: Sequence[View], source: str, image_size: tuple[
     """The manifest part every format writes: grid, spacing, positions, calibration, intrinsics."""
     from lfstudio.calibration.calibrate import load_calibration
 
+    calibration = load_calibration(ds)
     grid = dict(ds.grid)
     rig = ds.manifest.get("rig", {}) or {}
     if "origin_mm" not in grid and rig.get("origin_mm") is not None:
@@ -286,8 +303,8 @@ def describe(ds: Dataset, views: Sequence[View], source: str, image_size: tuple[
             "color": "linear RGB (16-bit, 65535 = white)",
             "grid": grid, "camera": dict(ds.camera), "lens": dict(ds.lens), "plan": dict(ds.manifest.get("plan") or {}),
             "image_size_px": [int(image_size[0]), int(image_size[1])],
-            "intrinsics": intrinsics(ds, image_size),
-            "calibration": load_calibration(ds),
+            "intrinsics": intrinsics(ds, image_size, calibration),
+            "calibration": calibration,
             "views": entries}
 
 

@@ -117,12 +117,12 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
             cc.color_primaries = 1
             cc.color_trc = 8        # AVCOL_TRC_LINEAR: the samples are linear light
             with cf.ThreadPoolExecutor(1) as reader:   # read/decode the next view while x265 encodes
-                ahead = [reader.submit(load_for_encode, i) for i in range(min(2, n))]
+                ahead = [reader.submit(load_for_encode, 0)] if n else []   # one view ahead: 250 MB at full size
                 for i, v in enumerate(views):
                     cancel.check()
                     rgb, sample = ahead.pop(0).result()
-                    if i + 2 < n:
-                        ahead.append(reader.submit(load_for_encode, i + 2))
+                    if i + 1 < n:
+                        ahead.append(reader.submit(load_for_encode, i + 1))
                     if sample is not None:
                         png_sample_bytes.append(sample)
                     if pad != (0, 0):

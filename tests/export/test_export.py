@@ -287,3 +287,23 @@ def test_processed_views_are_copied_and_auto_falls_back_to_raw(small, tmp_path):
     (ds.root / ds.view(0, 1)["processed"]["file"]).unlink()
     est = estimate_export(ds, ExportOptions("hevc", tmp_path / "v.mp4", views="r0,c0-1"))
     assert est.source == "raw" and any("without processing" in w for w in est.warnings)
+
+
+def test_calibration_travels_with_the_export(small, tmp_path):
+    from lfstudio.dataset.atomic import atomic_write_json
+
+    doc = {"created": "2026-11-22T00:00:00+00:00", "rotation_deg": [1.0, -1.5, 0.7], "image_size_px": [482, 320],
+           "principal_point_px": [250.5, 150.5], "principal_point_estimated": True, "focal_length_px": 671.3,
+           "homography": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "residual_px": {"after": {"rms": 0.4}}}
+    atomic_write_json(small.root / "calibration.json", doc)
+    out = tmp_path / "exports" / "png"
+    export_dataset(small, ExportOptions("png", out, views="r00_c000"))
+    m = json.loads((out / "manifest.json").read_text())
+    assert m["calibration"] == doc
+    # half the calibration's size: x_s = 0.5 (x + 0.5) - 0.5
+    assert m["intrinsics"]["principal_point_px"] == pytest.approx([125.0, 75.0])
+    assert m["intrinsics"]["focal_length_px"] == pytest.approx(671.3 / 2)
+    assert m["intrinsics"]["principal_point_from"] == "calibration (estimated)"
+    export_dataset(small, ExportOptions("hci", tmp_path / "exports" / "hci", hci_size=(3, 3)))
+    p, _ = read_hci(tmp_path / "exports" / "hci")
+    assert (p["center_cam_rx_rad"], p["center_cam_ry_rad"]) == pytest.approx((0.0174533, -0.0261799), abs=1e-6)
