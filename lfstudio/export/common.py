@@ -333,11 +333,14 @@ def _replace(tmp: Path, final: Path, overwrite: bool) -> None:
         if not overwrite:
             raise InputError("out", f"{final} appeared while exporting; choose another name or allow overwriting")
         if final.is_dir() and not final.is_symlink():
-            old = final.with_name(f".{final.name}.old-{os.getpid()}")
-            os.replace(final, old)
+            # move the old folder aside first: the new one takes its name in one rename
+            old = Path(tempfile.mkdtemp(prefix=f".{final.name}.old-", dir=final.parent))
+            os.replace(final, old / final.name)
             os.replace(tmp, final)
             shutil.rmtree(old, ignore_errors=True)
             return
+        if tmp.is_dir():      # a file (or symlink) where the new folder goes
+            final.unlink()
     os.replace(tmp, final)
 
 

@@ -154,6 +154,15 @@ def test_overwrite_refused_unless_allowed(small, tmp_path):
     assert (out / "keep.txt").read_text() == "mine"
     export_dataset(small, ExportOptions("png", out, views="r00_c000", overwrite=True))
     assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "r00_c000.png"]
+    (tmp_path / "was_a_file").write_text("x")       # overwrite replaces a file by a folder, and back
+    export_dataset(small, ExportOptions("png", tmp_path / "was_a_file", views="r00_c000", overwrite=True))
+    assert (tmp_path / "was_a_file" / "manifest.json").is_file()
+    export_dataset(small, ExportOptions("hevc", tmp_path / "was_a_dir.mkv", views="r00_c000"))
+    (tmp_path / "was_a_dir.mkv").unlink()
+    (tmp_path / "was_a_dir.mkv").mkdir()
+    export_dataset(small, ExportOptions("hevc", tmp_path / "was_a_dir.mkv", views="r00_c000", overwrite=True))
+    assert (tmp_path / "was_a_dir.mkv").is_file()
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
     video = tmp_path / "v.mkv"
     (tmp_path / "v.mkv.json").write_text("{}")
     with pytest.raises(InputError) as exc:   # the sidecar counts too
