@@ -317,7 +317,38 @@ def check_out(out: Path, overwrite: bool, *, also: Sequence[Path] = ()) -> None:
 
 
 def partial_name(out: Path) -> str:
-    return f".{out.name}{PARTIAL_MARK}"
+    """Prefix of the temporary sibling: ``.NAME.partial-PID-`` (the pid lets a later export tell
+    the leftovers of a killed export from those of one still running)."""
+    return f".{out.name}{PARTIAL_MARK}{os.getpid()}-"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_partials(out: Path) -> list[Path]:
+    """Remove temporary siblings of ``out`` left by exports whose process is gone (killed, power
+    cut); those of running exports stay. Returns what was removed."""
+    removed = []
+    prefix = f".{out.name}{PARTIAL_MARK}"
+    try:
+        siblings = list(out.parent.iterdir())
+    except OSError:
+        return removed
+    for p in siblings:
+        if not p.name.startswith(prefix):
+            continue
+        pid_text = p.name[len(prefix):].split("-", 1)[0]
+        if pid_text.isdigit() and int(pid_text) != os.getpid() and not _pid_alive(int(pid_text)):
+            _remove(p)
+            removed.append(p)
+    return removed
 
 
 def _remove(path: Path) -> None:
@@ -370,6 +401,7 @@ def partial_folder(out: Path, overwrite: bool) -> Iterator[Path]:
     """Yield a temporary sibling folder of ``out``; on success it becomes ``out`` (replacing an
     old one when ``overwrite``), on any exception (cancel included) it is removed."""
     out.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_partials(out)
     tmp = Path(tempfile.mkdtemp(prefix=partial_name(out), dir=out.parent))
     _chmod_default(tmp, True)
     try:
@@ -393,6 +425,7 @@ def partial_files(outs: Sequence[Path], overwrite: bool) -> Iterator[list[Path]]
     try:
         for out in outs:
             out.parent.mkdir(parents=True, exist_ok=True)
+            remove_stale_partials(out)
             fd, name = tempfile.mkstemp(prefix=partial_name(out), dir=out.parent)
             os.close(fd)
             tmps.append(Path(name))

@@ -316,3 +316,22 @@ def test_calibration_travels_with_the_export(small, tmp_path):
     export_dataset(small, ExportOptions("hci", tmp_path / "exports" / "hci", hci_size=(3, 3)))
     p, _ = read_hci(tmp_path / "exports" / "hci")
     assert (p["center_cam_rx_rad"], p["center_cam_ry_rad"]) == pytest.approx((0.0174533, -0.0261799), abs=1e-6)
+
+
+def test_leftovers_of_a_killed_export_are_removed_by_the_next(small, tmp_path):
+    import subprocess
+    import sys
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead_pid = int(dead.stdout)      # that process has exited: its pid is free (unless reused, then kept)
+    exports = tmp_path / "exports"
+    stale = exports / f".p.partial-{dead_pid}-abcd"
+    stale.mkdir(parents=True)
+    (stale / "r00_c000.png").write_bytes(b"half")
+    stale_video = exports / f".v.mkv.partial-{dead_pid}-efgh"
+    stale_video.write_bytes(b"half")
+    running = exports / f".p.partial-{os.getppid()}-live"   # a running process's export is left alone
+    running.mkdir()
+    export_dataset(small, ExportOptions("png", exports / "p", views="r00_c000"))
+    export_dataset(small, ExportOptions("hevc", exports / "v.mkv", views="r00_c000"))
+    assert not stale.exists() and not stale_video.exists() and running.is_dir()
