@@ -78,7 +78,7 @@ def test_doctor_with_debug_checks_everything_and_logs(run_cli):
     r = run_cli("--debug", "doctor")
     assert r.returncode == 0, r.stdout + r.stderr
     for name in ("Qt", "OpenCV", "LibRaw", "FFmpeg", "RAW decoding", "HEVC encoding", "lens database",
-                 "resources", "simulated rig"):
+                 "resources", "simulated rig", "dask cluster"):
         assert any(line.startswith("ok   " + name) for line in r.stdout.splitlines()), name
     assert "doctor: all required parts work" in r.stdout
     assert "lfstudio.rig.grbl DEBUG" in r.stderr          # --debug: traffic on the console too
