@@ -89,7 +89,7 @@ def test_exception_in_a_thread_shows_dialog(qtbot, window, hooks):
     assert window.isVisible()
 
 
-def test_help_menu_has_guide_log_folder_and_about(qtbot, window):
+def test_help_menu_has_guide_log_folder_and_about(qtbot, window, tmp_path, monkeypatch):
     names = {a.objectName() for a in window.menu("Help").actions()}
     assert {"actionUserGuide", "actionShowLogFolder", "actionAbout"} <= names
     about = window.show_about()
@@ -98,8 +98,14 @@ def test_help_menu_has_guide_log_folder_and_about(qtbot, window):
     for name in ("lfstudio", "Python", "Qt", "OpenCV", "LibRaw", "FFmpeg", "numpy", "libgphoto2"):
         assert f"\n{name}: " in "\n" + text, name
     assert "PySide6" in text
+    monkeypatch.chdir(tmp_path)          # pictures must load from the README's folder, not the cwd
     guide = window.show_user_guide()
     assert "Planning a scene" in guide.browser.toPlainText()
+    from PySide6.QtCore import QUrl
+    from PySide6.QtGui import QImage, QTextDocument
+
+    picture = guide.browser.loadResource(QTextDocument.ImageResource, QUrl("docs/screenshot.png"))
+    assert picture is not None and not QImage.fromData(picture).isNull()     # the guide's pictures load
     guide.close()
     about.close()
 

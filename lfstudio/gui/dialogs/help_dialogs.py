@@ -89,7 +89,7 @@ class UserGuideDialog(QDialog):
 
     def __init__(self, parent: QWidget | None = None):
         super().__init__(parent)
-        from lfstudio.support.userguide import user_guide_markdown
+        from lfstudio.support.userguide import readme_path, user_guide_markdown
 
         self.setObjectName("userGuideDialog")
         self.setWindowTitle("lfstudio user guide")
@@ -97,6 +97,9 @@ class UserGuideDialog(QDialog):
         self.browser = QTextBrowser()
         self.browser.setObjectName("userGuideBrowser")
         self.browser.setOpenExternalLinks(True)
+        readme = readme_path()
+        if readme is not None:          # the guide's pictures and linked docs/*.md sit next to README.md
+            self.browser.setSearchPaths([str(readme.parent)])
         self.browser.setMarkdown(user_guide_markdown())
         buttons = QDialogButtonBox(QDialogButtonBox.Close)
         buttons.rejected.connect(self.reject)
