@@ -76,8 +76,10 @@ class ExportReport:
     def summary(self) -> str:
         text = (f"exported {self.views} views ({self.source}) as {self.format} to {self.out}: "
                 f"{_fmt_bytes(self.bytes_written)} in {self.seconds:.1f} s")
-        if self.compression_ratio_vs_png is not None:
-            text += f"; {self.compression_ratio_vs_png:.1f}x smaller than 16-bit PNG"
+        ratio = self.compression_ratio_vs_png
+        if ratio is not None:
+            text += f"; {ratio:.1f}x smaller than 16-bit PNG" if ratio >= 1 else \
+                f"; {1 / ratio:.1f}x larger than 16-bit PNG (tiny frames)"
         if self.psnr_db is not None:
             text += f"; PSNR {self.psnr_db:.1f} dB (16-bit scale)"
         return text
@@ -153,8 +155,9 @@ def estimate_export(dataset, options: ExportOptions) -> ExportEstimate:
 
         frame_size, pad = hevc.even_size(size)
         if pad != (0, 0):
-            warnings.append(f"x265 needs even frame sizes: {size[0]} x {size[1]} px views are padded to "
-                            f"{frame_size[0]} x {frame_size[1]} px (edge pixels repeated; import removes them)")
+            warnings.append(f"x265 needs even frame sizes of at least {hevc.MIN_FRAME_PX} px: {size[0]} x {size[1]} px "
+                            f"views are padded to {frame_size[0]} x {frame_size[1]} px (edge pixels repeated; "
+                            "import removes them)")
         nbytes = hevc.estimate_bytes(len(views), frame_size, options.crf, options.bit_depth)
     else:
         from lfstudio.export import hci

@@ -44,11 +44,14 @@ def sidecar_path(video: Path) -> Path:
     return Path(video).with_name(Path(video).name + ".json")
 
 
+MIN_FRAME_PX = 16             # x265 refuses smaller frames
+
+
 def even_size(size: Sequence[int]) -> tuple[tuple[int, int], tuple[int, int]]:
-    """((width, height) rounded up to even, (pad right, pad bottom))."""
+    """((width, height) x265 accepts: even and at least 16 px, (pad right, pad bottom))."""
     w, h = int(size[0]), int(size[1])
-    pad = (w % 2, h % 2)
-    return (w + pad[0], h + pad[1]), pad
+    fw, fh = max(w + w % 2, MIN_FRAME_PX), max(h + h % 2, MIN_FRAME_PX)
+    return (fw, fh), (fw - w, fh - h)
 
 
 def estimate_bytes(frames: int, frame_size: Sequence[int], crf: int, bit_depth: int) -> int:
@@ -136,6 +139,10 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
                 cancel.check()
                 for packet in stream.encode():
                     container.mux(packet)
+        except av.error.FFmpegError as exc:
+            raise DatasetError(f"{out.name}: the HEVC encoder failed on {frame_size[0]} x {frame_size[1]} px "
+                               f"{fmt} frames ({exc}); check the disk space and the options (--crf, --bit-depth)") \
+                from None
         finally:
             container.close()
         video_bytes = tmp_video.stat().st_size

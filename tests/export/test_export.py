@@ -335,3 +335,33 @@ def test_leftovers_of_a_killed_export_are_removed_by_the_next(small, tmp_path):
     export_dataset(small, ExportOptions("png", exports / "p", views="r00_c000"))
     export_dataset(small, ExportOptions("hevc", exports / "v.mkv", views="r00_c000"))
     assert not stale.exists() and not stale_video.exists() and running.is_dir()
+
+
+def test_tiny_odd_frames_are_padded_for_x265_and_cropped_back(tmp_path):
+    from lfstudio.dataset import Dataset
+    from lfstudio.export import hevc
+
+    assert hevc.even_size((241, 160)) == ((242, 160), (1, 0))
+    assert hevc.even_size((11, 9)) == ((16, 16), (5, 7))
+    root = tmp_path / "tiny"
+    (root / "raw").mkdir(parents=True)
+    views = []
+    for c in range(2):
+        yy, xx = np.mgrid[0:9, 0:11]
+        img = np.stack([xx * 5000 + 1000 * c, yy * 6000, (xx + yy) * 2500], axis=2).astype(np.uint16)
+        cv2.imwrite(str(root / "raw" / f"r00_c00{c}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        views.append({"row": 0, "column": c, "commanded_mm": [4.0 * c, 0.0], "reported_mm": None,
+                      "captured_at": None, "exposure_s": None, "file": f"raw/r00_c00{c}.png", "sha256": None,
+                      "status": "done"})
+    ds = Dataset.create(root, camera={"name": "tiny"}, lens={"name": "tiny"},
+                        grid={"columns": 2, "rows": 1, "spacing_mm": [4.0, 4.0]}, views=views)
+    video = tmp_path / "tiny.mkv"
+    report = export_dataset(ds, ExportOptions("hevc", video))
+    assert json.loads((tmp_path / "tiny.mkv.json").read_text())["pad_px"] == [5, 7]
+    assert report.psnr_db >= 45.0
+    back = Dataset.open(import_hevc(video, tmp_path / "back"))
+    for c in range(2):
+        got = _read16(back.path_of(back.view(0, c))).astype(float)
+        src = _source(ds, 0, c).astype(float)
+        assert got.shape == (9, 11, 3)
+        assert 10 * np.log10(65535.0 ** 2 / np.mean((got - src) ** 2)) >= 45.0
