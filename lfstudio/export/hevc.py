@@ -81,6 +81,7 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
     """Encode ``views`` (already in meander order) into ``out`` + sidecar; returns the figures."""
     import av
 
+    _ffmpeg_errors_in_exceptions()
     n = len(views)
     frame_size, pad = even_size(size)
     fmt = pix_fmt(options.bit_depth)
@@ -192,6 +193,15 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
             "encode_s": t_encoded - t0, "verify_s": t_verified - t_encoded, "psnr_frames": len(mses)}
 
 
+def _ffmpeg_errors_in_exceptions() -> None:
+    """Let PyAV keep FFmpeg's error-level log lines, so its exceptions say what went wrong ("last
+    error log: [libx265] ...") instead of only an errno (PyAV keeps FFmpeg's log off by default)."""
+    import av.logging
+
+    if av.logging.get_level() is None:
+        av.logging.set_level(av.logging.ERROR)
+
+
 def _is_png16(path: Path) -> bool:
     hdr = common.png_header(path)
     return hdr is not None and hdr[2] == 16 and hdr[3] == 2
@@ -203,6 +213,7 @@ def _decode(video: Path, size: Sequence[int], *, upto: int | None = None, cancel
     frames in ``want`` when given)."""
     import av
 
+    _ffmpeg_errors_in_exceptions()
     w, h = int(size[0]), int(size[1])
     try:
         container = av.open(str(video))
