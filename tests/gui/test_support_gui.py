@@ -106,6 +106,7 @@ def test_help_menu_has_guide_log_folder_and_about(qtbot, window, tmp_path, monke
 
     picture = guide.browser.loadResource(QTextDocument.ImageResource, QUrl("docs/screenshot.png"))
     assert picture is not None and not QImage.fromData(picture).isNull()     # the guide's pictures load
+    assert guide.fit_images(760) == 0 and guide.fit_images(300) >= 5         # ... already fitted to the page
     guide.close()
     about.close()
 

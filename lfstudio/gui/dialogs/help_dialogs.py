@@ -101,9 +101,40 @@ class UserGuideDialog(QDialog):
         if readme is not None:          # the guide's pictures and linked docs/*.md sit next to README.md
             self.browser.setSearchPaths([str(readme.parent)])
         self.browser.setMarkdown(user_guide_markdown())
+        self.fit_images(760)
         buttons = QDialogButtonBox(QDialogButtonBox.Close)
         buttons.rejected.connect(self.reject)
         lay = QVBoxLayout(self)
         lay.addWidget(self.browser, 1)
         lay.addWidget(buttons)
         self.resize(860, 760)
+
+    def fit_images(self, max_width_px: int) -> int:
+        """Scale the guide's pictures (full-window screenshots) down to ``max_width_px``; returns how many."""
+        from PySide6.QtCore import QUrl
+        from PySide6.QtGui import QImage, QTextCursor, QTextDocument
+
+        doc = self.browser.document()
+        scaled = 0
+        block = doc.begin()
+        while block.isValid():
+            it = block.begin()
+            while not it.atEnd():
+                frag = it.fragment()
+                fmt = frag.charFormat()
+                if fmt.isImageFormat():
+                    img = fmt.toImageFormat()
+                    data = self.browser.loadResource(QTextDocument.ImageResource, QUrl(img.name()))
+                    image = QImage.fromData(data) if data is not None else QImage()
+                    shown_px = img.width() if img.width() > 0 else image.width()
+                    if not image.isNull() and shown_px > max_width_px:
+                        img.setWidth(max_width_px)
+                        img.setHeight(image.height() * max_width_px / image.width())
+                        cursor = QTextCursor(doc)
+                        cursor.setPosition(frag.position())
+                        cursor.setPosition(frag.position() + frag.length(), QTextCursor.KeepAnchor)
+                        cursor.setCharFormat(img)
+                        scaled += 1
+                it += 1
+            block = block.next()
+        return scaled
