@@ -269,6 +269,7 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
                 overwrite: bool = False) -> Path:
     from lfstudio.calibration.calibrate import CALIBRATION_NAME
     from lfstudio.dataset.manifest import MANIFEST_NAME
+    from lfstudio.scan.thumbs import THUMB_WIDTH_PX, make_thumbnail
 
     video = Path(video).expanduser()
     out = Path(out).expanduser()
@@ -294,6 +295,7 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
     progress(0, n, f"decoding {video.name}")
     with common.partial_folder(out, overwrite) as tmp:
         (tmp / folder).mkdir(parents=True, exist_ok=True)
+        (tmp / "thumbs").mkdir(exist_ok=True)
         records: dict[common.View, dict[str, Any]] = {}
         count = 0
         for i, rgb in _decode(video, size, cancel=cancel, colorspace=colorspace, color_range=color_range):
@@ -303,10 +305,15 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
             r, c = frames[i]
             rel = f"{folder}/{view_stem(r, c)}.png"
             common.write_png16(tmp / rel, rgb)
+            thumb = f"thumbs/{view_stem(r, c)}.jpg"
+            small = _resize_width(rgb, THUMB_WIDTH_PX)
+            if make_thumbnail([], tmp / thumb, preview=small) is None:
+                thumb = None
             e = by_frame.get(i, {})
             rec = {"row": r, "column": c, "commanded_mm": e.get("commanded_mm"), "reported_mm": e.get("reported_mm"),
                    "captured_at": e.get("captured_at"), "exposure_s": e.get("exposure_s"), "file": rel,
-                   "sha256": _sha256(tmp / rel), "status": "done", "restored_from": {"video": video.name, "frame": i}}
+                   "sha256": _sha256(tmp / rel), "status": "done", "thumb": thumb,
+                   "restored_from": {"video": video.name, "frame": i}}
             if processed:
                 rec["processed"] = {"status": "done", "file": rel, "restored_from_hevc": True}
             records[(r, c)] = rec
@@ -339,6 +346,15 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
                        rig={"name": "imported from HEVC", "origin_mm": grid.get("origin_mm")},
                        plan=doc.get("plan") or {}, views=views, **extra).close()
     return out
+
+
+def _resize_width(rgb: np.ndarray, width_px: int) -> np.ndarray:
+    import cv2
+
+    h, w = rgb.shape[:2]
+    if w <= width_px:
+        return rgb
+    return cv2.resize(rgb, (width_px, max(1, round(h * width_px / w))), interpolation=cv2.INTER_AREA)
 
 
 def _sha256(path: Path) -> str:
