@@ -16,6 +16,7 @@ import hashlib
 import json
 import math
 import time
+from fractions import Fraction
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -33,6 +34,10 @@ COLORSPACE = "ITU709"
 COLOR_RANGE = "JPEG"          # full range
 X265_PARAMS = "psy-rd=0:psy-rdoq=0:log-level=error"
 X265_PRESET = "medium"
+#: streams this short are encoded without B-frames: x265 derives the first frames' DTS from a
+#: reorder history that a stream shorter than its B-frame delay never fills, and FFmpeg then
+#: refuses the garbage DTS ("pts (0) < dts (1024...)", EINVAL) now and then
+SHORT_STREAM_FRAMES = 16
 VERIFY_FRAMES = 8             # PSNR is measured on up to this many frames, spread over the stream
 PNG_SAMPLES = 4               # frames encoded as PNG to estimate the 16-bit PNG size (raw sources)
 #: HEVC bytes per frame pixel at CRF 8, 12-bit 4:4:4 (measured on virtual-studio views; each +6 CRF
@@ -83,6 +88,7 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
 
     _ffmpeg_errors_in_exceptions()
     n = len(views)
+    x265_params = X265_PARAMS + (":bframes=0" if n <= SHORT_STREAM_FRAMES else "")
     frame_size, pad = even_size(size)
     fmt = pix_fmt(options.bit_depth)
     container_fmt = CONTAINERS[out.suffix.lower()]
@@ -112,9 +118,10 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
         container = av.open(str(tmp_video), "w", format=container_fmt)
         try:
             stream = container.add_stream("libx265", rate=FRAME_RATE)
+            time_base = Fraction(1, FRAME_RATE)
             stream.width, stream.height = frame_size
             stream.pix_fmt = fmt
-            stream.options = {"crf": str(int(options.crf)), "preset": X265_PRESET, "x265-params": X265_PARAMS}
+            stream.options = {"crf": str(int(options.crf)), "preset": X265_PRESET, "x265-params": x265_params}
             cc = stream.codec_context
             cc.color_range = 2      # AVCOL_RANGE_JPEG (full)
             cc.colorspace = 1       # AVCOL_SPC_BT709
@@ -134,6 +141,7 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
                     frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb), format="rgb48le")
                     frame = frame.reformat(format=fmt, dst_colorspace=COLORSPACE, dst_color_range=COLOR_RANGE)
                     frame.pts = i
+                    frame.time_base = time_base
                     for packet in stream.encode(frame):
                         container.mux(packet)
                     progress(i + 1, steps, f"frame {i + 1}/{n} {view_stem(*v)}")
@@ -181,7 +189,7 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
         doc["frame_size_px"] = list(frame_size)
         doc["pad_px"] = list(pad)
         doc["encoding"] = {"codec": "hevc", "encoder": "libx265", "container": container_fmt, "crf": int(options.crf),
-                           "bit_depth": int(options.bit_depth), "pix_fmt": fmt, "x265_params": X265_PARAMS, "preset": X265_PRESET,
+                           "bit_depth": int(options.bit_depth), "pix_fmt": fmt, "x265_params": x265_params, "preset": X265_PRESET,
                            "frame_rate": FRAME_RATE, "colorspace": "bt709", "color_range": "full",
                            "transfer": "linear", "rgb_scale": 65535}
         doc["figures"] = {"video_bytes": video_bytes, "png16_bytes": png_bytes,
