@@ -2,7 +2,7 @@
 16-bit PNG (written for real, not estimated) and PSNR on the 16-bit scale; also x265's default
 psycho-visual tuning (psy-rd on) against ours (psy-rd=0) at the same CRF.
 
-    ./.venv/bin/python benchmarks/export_hevc.py [--width 2000] [--columns 8 --rows 2] [--noise 0.002]
+    ./.venv/bin/python benchmarks/export_hevc.py [--width 2000] [--columns 8 --rows 3] [--noise 0.002]
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--width", type=int, default=2000, help="view width in px (default 2000)")
     ap.add_argument("--columns", type=int, default=8)
-    ap.add_argument("--rows", type=int, default=2)
+    ap.add_argument("--rows", type=int, default=3)
     ap.add_argument("--noise", type=float, default=0.002,
                     help="sensor read noise, fraction of white (default 0.002; 0 = noiseless render)")
     ap.add_argument("--crf", type=int, default=8)

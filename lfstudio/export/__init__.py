@@ -18,6 +18,7 @@ output is refused unless ``overwrite``. Qt-free.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -115,9 +116,10 @@ def _check_options(options: ExportOptions) -> ExportOptions:
         cols, rows = options.hci_size
         if int(cols) < 1 or int(rows) < 1:
             raise InputError("hci_size", f"{cols}x{rows} must be at least 1x1", "e.g. 9x9")
-    options.format = fmt
-    options.out = out
-    return options
+        if int(options.hci_bit_depth) not in (8, 16):
+            raise InputError("hci_bit_depth", f"{options.hci_bit_depth} is not supported",
+                             "8 (sRGB, like the benchmark) or 16 (linear)")
+    return dataclasses.replace(options, format=fmt, out=out)   # the caller's options stay as they were
 
 
 def _plan(ds: Dataset, options: ExportOptions) -> tuple[list[tuple[int, int]], str, tuple[int, int]]:
