@@ -145,6 +145,10 @@ def warnings(ds: Dataset, views: Sequence[common.View], size: Sequence[int]) -> 
     return out
 
 
+#: sensor width written when a dataset knows its focal length only in pixels (a 35 mm-format frame)
+NOMINAL_SENSOR_MM = 36.0
+
+
 def _center(views: Sequence[common.View]) -> common.View:
     rows = sorted({r for r, _ in views})
     cols = sorted({c for _, c in views})
@@ -170,12 +174,22 @@ def parameters_text(ds: Dataset, views: Sequence[common.View], size: Sequence[in
     if cal and not rectified and cal.get("rotation_deg"):
         rot = [math.radians(float(a)) for a in cal["rotation_deg"]]
     disp = disparity_range(ds, size)
+    f_mm = p["focal_length_mm"]
+    sensor_w_mm = float(sensor_mm[0])
+    nominal_sensor = False
+    if not (f_mm and sensor_w_mm > 0):
+        # a dataset that knows its focal length only in pixels (imported with --focal-length-px, or
+        # calibrated): HCI's tools use focal_length_mm / sensor_size_mm · image_resolution_x_px, so a
+        # nominal 36 mm sensor with the matching focal length gives them the right geometry
+        f_px = common.intrinsics(ds, (w, h), cal).get("focal_length_px")
+        if f_px:
+            sensor_w_mm, f_mm, nominal_sensor = NOMINAL_SENSOR_MM, float(f_px) * NOMINAL_SENSOR_MM / w, True
     cfg = configparser.ConfigParser()
     cfg.optionxform = str
     cfg["intrinsics"] = {
         "image_resolution_x_px": str(w), "image_resolution_y_px": str(h),
-        "focal_length_mm": f"{p['focal_length_mm'] or 0.0:.6g}",
-        "sensor_size_mm": f"{float(sensor_mm[0]):.6g}",
+        "focal_length_mm": f"{f_mm or 0.0:.6g}",
+        "sensor_size_mm": f"{sensor_w_mm:.6g}",
         "fstop": f"{p['fstop'] or 0.0:.4g}"}
     cfg["extrinsics"] = {
         "focus_distance_m": f"{p['focus_m'] or 0.0:.6g}",
@@ -199,6 +213,9 @@ def parameters_text(ds: Dataset, views: Sequence[common.View], size: Sequence[in
               "# Views are parallel (no sensor shift): disparity is zero at infinity;\n"
               "# depth_m = baseline_mm * focal_length_mm / (disparity_px * sensor_size_mm / image_resolution_x_px) / 1000.\n"
               "# disp_min/disp_max: neighbour disparity (px) of the planned far/near distance.\n")
+    if nominal_sensor:
+        buf.write(f"# The dataset gives its focal length in pixels only: sensor_size_mm is a nominal "
+                  f"{NOMINAL_SENSOR_MM:g} mm and\n# focal_length_mm the matching value (only their ratio is meaningful).\n")
     cfg.write(buf)
     return buf.getvalue()
 

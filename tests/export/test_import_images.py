@@ -161,6 +161,18 @@ def test_tiff_and_dng_are_read_and_focal_length_in_pixels_is_kept(tmp_path):
         assert ds.focal_length_px(20) == pytest.approx(617.0)
         assert ds.view(0, 1)["file"] == f"raw/r00_c001{folder.suffix or '.' + folder.name}"
         assert ds.manifest["import"]["intrinsics"] == "--focal-length-px"
+    # HCI export of a dataset that knows its focal length only in pixels: a nominal 36 mm sensor with
+    # the matching focal length, so HCI's f_mm / sensor_mm · width is the real focal length in pixels
+    import configparser
+
+    from lfstudio.export import ExportOptions, export_dataset
+
+    export_dataset(Dataset.open(tmp_path / "tif_ds"), ExportOptions("hci", tmp_path / "hci", hci_size=(2, 1)))
+    cfg = configparser.ConfigParser()
+    cfg.read(tmp_path / "hci" / "parameters.cfg")
+    intr = cfg["intrinsics"]
+    assert intr.getfloat("sensor_size_mm") == 36.0
+    assert intr.getfloat("focal_length_mm") / 36.0 * intr.getint("image_resolution_x_px") == pytest.approx(1234.0, rel=1e-5)
 
 
 def test_without_intrinsics_the_import_warns_that_calibration_needs_them(render, tmp_path):
