@@ -124,6 +124,8 @@ def _check_options(options: ExportOptions) -> ExportOptions:
 
 def _plan(ds: Dataset, options: ExportOptions) -> tuple[list[tuple[int, int]], str, tuple[int, int]]:
     """(views in export order, resolved source, view size (w, h))."""
+    common.refuse_out_over_inputs(options.out, common.dataset_entries(ds), "the dataset being exported",
+                                  "a path outside the dataset, e.g. next to it")
     if options.format == "hci":
         from lfstudio.export import hci
 

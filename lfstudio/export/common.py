@@ -316,6 +316,34 @@ def check_out(out: Path, overwrite: bool, *, also: Sequence[Path] = ()) -> None:
             raise InputError("out", f"{p} already exists; choose another name or allow overwriting (--overwrite)")
 
 
+def _is_or_holds(out: Path, path: Path) -> bool:
+    out, path = out.absolute().resolve(), path.absolute().resolve()
+    return out == path or out in path.parents
+
+
+def refuse_out_over_inputs(out: Path, inputs: Sequence[Path], what: str, fix: str) -> None:
+    """Refuse an ``out`` that is, or holds, one of ``inputs``: replacing it (``--overwrite``) would
+    delete what is being read (e.g. ``export DATASET --out DATASET``)."""
+    for p in inputs:
+        if _is_or_holds(out, p):
+            raise InputError("out", f"{out} is or holds {what} ({p}); writing there would delete it", fix)
+
+
+def dataset_entries(ds: Dataset) -> list[Path]:
+    """The dataset folder and everything in it lfstudio reads: manifest, journal, calibration,
+    profile, data folders and every view's capture and processed file."""
+    root = ds.root
+    entries = [root] + [root / name for name in ("dataset.json", "journal.jsonl", "calibration.json",
+                                                 "processing.toml", "ground_truth.json", "raw", "processed",
+                                                 "thumbs", "cache")]
+    for v in ds.views:
+        for rel in (v.get("file"), (v.get("processed") or {}).get("file") if isinstance(v.get("processed"), dict)
+                    else None):
+            if rel:
+                entries.append(root / rel)
+    return entries
+
+
 def partial_name(out: Path) -> str:
     """Prefix of the temporary sibling: ``.NAME.partial-PID-`` (the pid lets a later export tell
     the leftovers of a killed export from those of one still running)."""

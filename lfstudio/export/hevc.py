@@ -282,6 +282,8 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
     video = Path(video).expanduser()
     out = Path(out).expanduser()
     doc = read_sidecar(video)
+    common.refuse_out_over_inputs(out, [video, sidecar_path(video)], "the video being imported",
+                                  "a new folder for the dataset")
     common.check_out(out, overwrite)
     try:
         frames = [(int(r), int(c)) for r, c in doc["frames"]]

@@ -171,6 +171,23 @@ def test_overwrite_refused_unless_allowed(small, tmp_path):
     assert _leftovers(tmp_path) == []
 
 
+def test_out_over_the_dataset_or_video_is_refused_even_with_overwrite(small, tmp_path):
+    before = sorted(p.name for p in small.root.iterdir())
+    for out in (small.root, small.root.parent, small.root / "raw", small.root / "dataset.json"):
+        with pytest.raises(InputError) as exc:
+            export_dataset(small, ExportOptions("png", out, views="r00_c000", overwrite=True))
+        assert exc.value.field == "out" and "dataset being exported" in str(exc.value), out
+    with pytest.raises(InputError):
+        estimate_export(small, ExportOptions("hci", small.root, hci_size=(1, 1)))
+    assert sorted(p.name for p in small.root.iterdir()) == before
+    export_dataset(small, ExportOptions("png", small.root / "exports" / "p", views="r00_c000"))  # beside: fine
+    video = tmp_path / "v" / "lf.mkv"
+    export_dataset(small, ExportOptions("hevc", video, views="r00_c000"))
+    with pytest.raises(InputError) as exc:
+        import_hevc(video, video.parent, overwrite=True)
+    assert exc.value.field == "out" and video.is_file()
+
+
 # -- hevc -----------------------------------------------------------------------------------------------
 def test_hevc_round_trip_12bit_meander(small, tmp_path):
     video = tmp_path / "lf.mp4"
