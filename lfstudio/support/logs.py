@@ -5,7 +5,7 @@ Every module logs through ``logging.getLogger(__name__)``. :func:`setup_logging`
 - everything from DEBUG up to a rotating file ``lfstudio.log`` in :func:`log_dir` (device traffic: the
   lines sent to and read from the GRBL controller, every call on a device worker, camera captures;
   INFO: scan, calibration, processing and export milestones);
-- WARNING and up to the console, or everything with ``--debug``.
+- WARNING and up to the console (FFmpeg's own log lines only with ``--debug``), or everything with ``--debug``.
 
 The rig's status polling (``?`` and its ``<Idle|...>`` reports, several a second) goes to the
 ``lfstudio.rig.grbl.status`` logger, which only ``--debug`` lets through, so the file keeps weeks of
@@ -27,6 +27,13 @@ FILE_FORMAT = "%(asctime)s %(levelname)-7s %(threadName)s %(name)s: %(message)s"
 CONSOLE_FORMAT = "%(asctime)s %(name)s %(levelname)s: %(message)s"
 #: loggers that are quiet unless --debug (high-rate traffic)
 CHATTY_LOGGERS = ("lfstudio.rig.grbl.status",)
+#: loggers kept off the console unless --debug (the file still gets them): FFmpeg's own error lines
+#: (PyAV logs them as ``libav.*``) repeat what our error message already says ("last error log: ...")
+FILE_ONLY_LOGGERS = ("libav",)
+
+
+def _console_filter(record: logging.LogRecord) -> bool:
+    return not any(record.name == n or record.name.startswith(n + ".") for n in FILE_ONLY_LOGGERS)
 
 _HANDLER_TAG = "_lfstudio_handler"
 
@@ -75,6 +82,8 @@ def setup_logging(debug: bool = False, console: bool = True) -> Path | None:
     if console:
         stream = logging.StreamHandler(sys.stderr)
         stream.setLevel(logging.DEBUG if debug else logging.WARNING)
+        if not debug:
+            stream.addFilter(_console_filter)
         stream.setFormatter(logging.Formatter(CONSOLE_FORMAT))
         setattr(stream, _HANDLER_TAG, True)
         root.addHandler(stream)
