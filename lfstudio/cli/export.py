@@ -67,10 +67,11 @@ def run(args: argparse.Namespace) -> int:
         ds = Dataset.open(root)
         est = estimate_export(ds, options)
         w, h = est.image_size_px
+        stream = sys.stdout if args.estimate else sys.stderr   # --estimate: the estimate is the output
         print(f"{len(est.views)} views ({est.source}), {w} x {h} px, about {est.bytes_estimate / 1e6:.1f} MB "
-              f"-> {options.out}", file=sys.stderr)
+              f"-> {options.out}", file=stream)
         for warning in est.warnings:
-            print(f"note: {warning}", file=sys.stderr)
+            print(f"note: {warning}", file=stream)
         if args.estimate:
             return 0
         report = export_dataset(ds, options, progress=TerminalProgress("export"))
