@@ -84,7 +84,14 @@ def select_views(ds: Dataset, views: str | Sequence[View] | None) -> list[View]:
             return out
         from lfstudio.calibration.pairs import parse_views
 
-        return sorted(parse_views(views, cols_n, rows_n, avail))
+        try:
+            return sorted(parse_views(views, cols_n, rows_n, avail))
+        except InputError as exc:
+            if not (exc.valid or "").startswith("ROWSxCOLUMNS"):
+                raise
+            message = str(exc)[len(exc.field) + 2:].rsplit(" (valid: ", 1)[0]   # name the range syntax too
+            raise InputError("views", message, "'all', rows/columns like r0-8,c10-18, an array like 3x5 "
+                             "(rows x columns), or view names like r00_c000,r00_c050") from None
     chosen = sorted({(int(r), int(c)) for r, c in views})
     if not chosen:
         raise InputError("views", "no view chosen", "at least one captured view")

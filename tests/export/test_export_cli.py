@@ -17,7 +17,7 @@ def test_export_png_then_refuses_to_overwrite(make_tiny_dataset, run_cli, tmp_pa
     ds = make_tiny_dataset("png", width_px=241)
     out = tmp_path / "exports" / "png"
     proc = run_cli("export", ds.root, "--format", "hevc", "--out", tmp_path / "x.mp4", "--estimate")
-    assert proc.returncode == 0 and "15 views (raw), 242 x 160 px, about" in proc.stderr
+    assert proc.returncode == 0 and "15 views (raw), 242 x 160 px, about" in proc.stdout   # the output asked for
     assert not (tmp_path / "x.mp4").exists()
     proc = run_cli("export", ds.root, "--format", "png", "--out", out, "--views", "r0,c0-2")
     assert proc.returncode == 0, proc.stderr
@@ -36,6 +36,7 @@ def test_export_bad_input_exit_2(make_tiny_dataset, run_cli, tmp_path):
         (["--format", "hevc", "--out", tmp_path / "x.avi"], ("--out", ".mp4")),
         (["--format", "hevc", "--out", tmp_path / "x.mp4", "--bit-depth", "8"], ("--bit-depth", "10 or 12")),
         (["--format", "png", "--out", tmp_path / "x", "--views", "r0-9"], ("--views",)),
+        (["--format", "png", "--out", tmp_path / "x", "--views", "rows1"], ("--views", "'rows1'", "r0-8,c10-18")),
         (["--format", "png", "--out", tmp_path / "x", "--source", "processed"], ("--source", "lfstudio process")),
         (["--format", "hci", "--out", tmp_path / "x", "--hci-size", "nine"], ("--hci-size",)),
         (["--format", "hci", "--out", tmp_path / "x", "--hci-bit-depth", "12"], ("--hci-bit-depth", "8 (sRGB")),
@@ -64,3 +65,11 @@ def test_export_hevc_and_import_back(make_tiny_dataset, run_cli, tmp_path):
     proc = run_cli("import-hevc", tmp_path / "missing.mp4", "--out", tmp_path / "b2")
     assert proc.returncode == 2
     _one_error_line(proc, "FILE", "missing.mp4")
+    (tmp_path / "junk.mkv").write_bytes(b"not a video")       # FFmpeg's own log line stays in the log file
+    (tmp_path / "junk.mkv.json").write_text((tmp_path / "lf.mkv.json").read_text())
+    proc = run_cli("import-hevc", tmp_path / "junk.mkv", "--out", tmp_path / "b3")
+    assert proc.returncode != 0 and "libav" not in proc.stderr, proc.stderr
+    _one_error_line(proc, "junk.mkv", "cannot be opened")
+    proc = run_cli("export", ds.root, "--format", "png", "--out", ds.root, "--overwrite")
+    assert proc.returncode == 2 and (ds.root / "dataset.json").is_file()
+    _one_error_line(proc, "--out", "dataset being exported")
