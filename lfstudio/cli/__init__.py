@@ -78,6 +78,12 @@ def main(argv: list[str] | None = None) -> int:
         log.info("%s failed: %s", args.command, exc)   # the file only: the console gets the line below
         print(f"lfstudio {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:       # a folder that cannot be written, a full disk, ...: one line, not a traceback
+        log.info("%s failed", args.command, exc_info=True)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"lfstudio {args.command}: error: {where}{exc.strerror or exc} (check that the folder exists, "
+              "is writable and has free space; details in the log)", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         log.info("%s interrupted", args.command)
         print(f"lfstudio {args.command}: interrupted", file=sys.stderr)

@@ -27,6 +27,10 @@ def test_export_png_then_refuses_to_overwrite(make_tiny_dataset, run_cli, tmp_pa
     proc = run_cli("export", ds.root, "--format", "png", "--out", out)
     assert proc.returncode == 2
     _one_error_line(proc, "--out", "already exists", "--overwrite")
+    (tmp_path / "a_file").write_text("x")          # a destination that cannot be created: one line, no traceback
+    proc = run_cli("export", ds.root, "--format", "png", "--out", tmp_path / "a_file" / "png", "--views", "r0")
+    assert proc.returncode == 1
+    _one_error_line(proc, "a_file", "writable")
 
 
 def test_export_bad_input_exit_2(make_tiny_dataset, run_cli, tmp_path):
