@@ -14,6 +14,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import logging
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -181,8 +182,21 @@ def process_dataset(dataset: Dataset | str | Path, profile: Profile | None = Non
         return _process(ds, profile, info, force, progress, cancel, on_view, t_start)
 
 
+def _refuse_output_over_captures(ds: Dataset, profile: Profile) -> None:
+    """A dataset whose captures already sit where processing writes (``import-hevc`` of an export of
+    processed views restores them as ``processed/rRR_cCCC.png``) would have them overwritten."""
+    for v in capturable_views(ds):
+        out = output_name(profile, v["row"], v["column"])
+        if os.path.normpath(str(v["file"])) == os.path.normpath(out):
+            raise InputError("processing.toml: [output] folder",
+                             f"the captures are the files processing would write (e.g. {out}; restored from an "
+                             "HEVC export of processed views, they are processed already): export them as they "
+                             "are, or set another [output] folder", 'e.g. folder = "reprocessed"')
+
+
 def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force: bool, progress: Progress,
              cancel: CancelToken, on_view, t_start: float) -> ProcessReport:
+    _refuse_output_over_captures(ds, profile)
     plan = make_plan(ds, profile, single_thread=info.separate_processes)
     sha = plan.profile_sha256
     profile.save(ds.root / PROFILE_NAME)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from lfstudio.dataset import Dataset
+from lfstudio.errors import InputError
 from lfstudio.jobs import Cancelled, CancelToken
 from lfstudio.processing.pipeline import process_dataset
 from lfstudio.processing.profile import PROFILE_NAME, Profile
@@ -54,6 +55,17 @@ def test_chain_writes_16bit_views_and_records_them(make_dataset):
     for key, img in outs.items():
         rel = np.abs(img[inner] - ref[inner]).mean() / ref[inner].mean()
         assert rel < 0.01, (key, rel)
+
+
+def test_captures_where_the_output_goes_are_not_overwritten(make_dataset):
+    """import-hevc of processed views restores them as processed/rRR_cCCC.png captures: processing
+    must refuse instead of overwriting its own input (here the same clash via [output] folder)."""
+    ds = make_dataset(rows=1, cols=2, fmt="png")
+    before = (ds.root / "raw" / "r00_c000.png").read_bytes()
+    with pytest.raises(InputError) as exc:
+        process_dataset(ds.root, plain_profile(output__folder="raw"), workers=0)
+    assert "[output] folder" in exc.value.field and "raw/r00_c000.png" in str(exc.value)
+    assert (ds.root / "raw" / "r00_c000.png").read_bytes() == before
 
 
 def test_resume_skips_views_done_with_the_same_profile(make_dataset):
