@@ -25,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="png/hci: a new folder; hevc: a new .mp4/.mkv/.hevc file (its sidecar is PATH.json)")
     p.add_argument("--views", metavar="SUBSET",
                    help="views to export: 'all' (default), rows/columns like r0-8,c10-18, an array like 3x5 "
-                        "spread over the grid, or names like r00_c000,r00_c001")
+                        "(rows x columns) spread over the grid, or names like r00_c000,r00_c001")
     p.add_argument("--source", default="auto", metavar="SRC",
                    help="raw, processed, or auto (default: processed when every chosen view is processed)")
     p.add_argument("--crf", type=int, default=8, help="hevc: constant rate factor, lower is better (default 8)")
