@@ -20,6 +20,7 @@ calibrates, processes and exports like one captured here:
 from __future__ import annotations
 
 import datetime as _dt
+import fnmatch
 import hashlib
 import io
 import logging
@@ -82,7 +83,8 @@ def natural_key(name: str) -> list:
 
 
 def find_images(folder: str | os.PathLike, pattern: str | None = None) -> list[Path]:
-    """Image files of ``folder`` (``pattern``: a glob relative to it) in natural order.
+    """Image files of ``folder`` (``pattern``: a glob relative to it; without a ``/`` it matches
+    names case-insensitively, so ``*.jpg`` takes ``IMG_0001.JPG``) in natural order.
 
     Hidden files are skipped. Without a pattern, files of other types are ignored; with one, a
     matched file that is not a supported image is an error (the pattern should say what to take).
@@ -92,7 +94,11 @@ def find_images(folder: str | os.PathLike, pattern: str | None = None) -> list[P
         raise InputError("folder", f"{folder} is not a folder", "a folder holding the other rig's images")
     if pattern:
         try:
-            matched = [p for p in folder.glob(pattern) if p.is_file() and not p.name.startswith(".")]
+            if "/" in pattern or os.sep in pattern:
+                candidates = list(folder.glob(pattern))
+            else:   # case-insensitive, as cameras write IMG_0001.JPG and operators type '*.jpg'
+                candidates = [p for p in folder.iterdir() if fnmatch.fnmatchcase(p.name.lower(), pattern.lower())]
+            matched = [p for p in candidates if p.is_file() and not p.name.startswith(".")]
         except (ValueError, NotImplementedError) as exc:
             raise InputError("--pattern", f"{pattern!r} is not a usable glob ({exc})", "e.g. '*.png' or 'cam_*.tif'")
         bad = [p for p in matched if p.suffix.lower() not in SUPPORTED_SUFFIXES]

@@ -23,8 +23,8 @@ from lfstudio.calibration.model import rotation_angle_deg, rotation_matrix
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.store import sha256_file
 from lfstudio.errors import InputError
-from lfstudio.export.import_images import (ImportOptions, find_images, grid_cells, image_size_px, import_images,
-                                           natural_key)
+from lfstudio.export.import_images import (ImportOptions, count_message, find_images, grid_cells, image_size_px,
+                                           import_images, natural_key)
 from lfstudio.jobs import Cancelled, CancelToken
 from lfstudio.processing.pipeline import process_dataset
 from lfstudio.processing.profile import Profile
@@ -200,6 +200,17 @@ def test_count_mismatch_says_the_numbers_and_the_pattern(render, tmp_path):
     with pytest.raises(InputError, match="notes.txt, which is not"):
         import_images(ImportOptions(folder, tmp_path / "d", (COLS, ROWS), SPACING, pattern="*"))
     assert not [p for p in tmp_path.iterdir() if p.name in "abcd" or p.name.startswith(".")]
+
+
+def test_pattern_matches_camera_upper_case_names(tmp_path):
+    """Cameras write IMG_0001.JPG + IMG_0001.DNG; the mixed-kind hint says --pattern '*.dng', which
+    must then take the .DNG files (it found none: glob is case-sensitive)."""
+    for i in (1, 2, 10):
+        (tmp_path / f"IMG_{i}.JPG").write_bytes(b"")
+        (tmp_path / f"IMG_{i}.DNG").write_bytes(b"")
+    assert [p.name for p in find_images(tmp_path, "*.dng")] == ["IMG_1.DNG", "IMG_2.DNG", "IMG_10.DNG"]
+    assert [p.name for p in find_images(tmp_path, "img_1*.JPG")] == ["IMG_1.JPG", "IMG_10.JPG"]
+    assert "--pattern '*.dng'" in count_message(find_images(tmp_path), (3, 1), tmp_path, None)
 
 
 def test_mixed_sizes_and_unreadable_files_are_named(render, tmp_path):
