@@ -23,6 +23,7 @@ import datetime as _dt
 import fnmatch
 import hashlib
 import io
+import json
 import logging
 import math
 import os
@@ -373,6 +374,23 @@ def plan_import(options: ImportOptions, *, progress: Progress = no_progress,
                       lens=lens, intrinsics=source, warnings=warnings, bytes_total=total_bytes)
 
 
+def _export_manifest_focal_px(folder: Path, size: tuple[int, int]) -> float | None:
+    """The focal length (px) an lfstudio PNG export recorded for these images, or None (not such an
+    export, another image size, or unknown)."""
+    from lfstudio.export.common import EXPORT_FORMAT
+    from lfstudio.export.png import MANIFEST_NAME
+
+    try:
+        doc = json.loads((folder / MANIFEST_NAME).read_text(encoding="utf-8"))
+        intr = doc["intrinsics"]
+        if doc.get("format") != EXPORT_FORMAT or tuple(int(v) for v in intr["image_size_px"]) != tuple(size):
+            return None
+        f_px = float(intr["focal_length_px"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return f_px if math.isfinite(f_px) and f_px > 0 else None
+
+
 def _intrinsics(options: ImportOptions, first: Path, size: tuple[int, int]):
     w, h = size
     exif = read_exif(first)
@@ -393,6 +411,9 @@ def _intrinsics(options: ImportOptions, first: Path, size: tuple[int, int]):
     elif options.focal_length_mm is not None:
         source = "--focal-length-mm and --pixel-pitch-um"
         lens["focal_length_mm"] = float(options.focal_length_mm)
+    elif (exported := _export_manifest_focal_px(first.parent, size)) is not None:
+        source = "manifest.json of the lfstudio PNG export"
+        lens["focal_length_px"] = exported
     elif e_mm and e_pitch:
         source = f"EXIF of {first.name} (FocalLength, FocalPlaneXResolution)"
         lens["focal_length_mm"] = e_mm

@@ -115,6 +115,18 @@ def test_png_export_manifest_and_pixels(small, tmp_path):
     assert _leftovers(out.parent) == []
 
 
+def test_png_export_imports_back_with_its_focal_length(small, tmp_path):
+    from lfstudio.dataset import Dataset
+    from lfstudio.export.import_images import ImportOptions, import_images
+
+    out = tmp_path / "png"
+    export_dataset(small, ExportOptions("png", out))
+    ds = Dataset.open(import_images(ImportOptions(out, tmp_path / "again", (5, 3), (4.0, 6.0))))
+    assert ds.manifest["import"]["intrinsics"] == "manifest.json of the lfstudio PNG export"
+    assert ds.focal_length_px(241) == pytest.approx(small.focal_length_px(241))
+    assert np.array_equal(_read16(ds.path_of(ds.view(2, 4))), _source(small, 2, 4))
+
+
 def test_png_export_decodes_dng_like_processing(make_tiny_dataset, tmp_path):
     from lfstudio.processing.profile import DebayerStep
     from lfstudio.processing.steps import debayer
