@@ -75,7 +75,7 @@ class ExportReport:
     details: dict = field(default_factory=dict)     # hevc: encode_s, verify_s, video_bytes, png_bytes, frames
 
     def summary(self) -> str:
-        text = (f"exported {self.views} views ({self.source}) as {self.format} to {self.out}: "
+        text = (f"exported {self.views} view{'' if self.views == 1 else 's'} ({self.source}) as {self.format} to {self.out}: "
                 f"{_fmt_bytes(self.bytes_written)} in {self.seconds:.1f} s")
         ratio = self.compression_ratio_vs_png
         if ratio is not None:

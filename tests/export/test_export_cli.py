@@ -77,3 +77,12 @@ def test_export_hevc_and_import_back(make_tiny_dataset, run_cli, tmp_path):
     proc = run_cli("export", ds.root, "--format", "png", "--out", ds.root, "--overwrite")
     assert proc.returncode == 2 and (ds.root / "dataset.json").is_file()
     _one_error_line(proc, "--out", "dataset being exported")
+
+
+def test_report_summary_counts_views_in_words():
+    from pathlib import Path
+
+    from lfstudio.export import ExportReport
+
+    assert ExportReport(Path("out"), 1, 2048, 0.5, "png", "raw").summary().startswith("exported 1 view (raw) as png")
+    assert ExportReport(Path("out"), 3, 2048, 0.5, "png", "raw").summary().startswith("exported 3 views (raw)")
