@@ -13,6 +13,7 @@ import logging
 import threading
 import time
 from collections import deque
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -209,17 +210,19 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     folder: Path = job["folder"]
     session = job["session"]
     started_session = None
-    restore = None
+    restore: list = []          # calls that give the shared simulated devices their time scales back
     if job["shared"] is not None:
         rig, camera = job["shared"]
         if hasattr(camera.driver, "set_view_region"):   # simulated camera: centre its scene on this grid
             camera.call("set_view_region", plan.extent_mm(), timeout_s=30)
             camera_scale = getattr(camera.driver, "time_scale", None)
             camera.call("set_setting", "time_scale", job["time_scale"], timeout_s=30)
-            restore = {"camera": (camera, camera_scale)}
-        if job.get("simulator") is not None:            # the Rig panel's simulated controller
-            restore = dict(restore or {}, simulator=(job["simulator"], job["simulator"].time_scale))
-            job["simulator"].time_scale = float(job["time_scale"])
+            if camera_scale is not None:
+                restore.append(partial(camera.submit, "set_setting", "time_scale", camera_scale))
+        simulator = job.get("simulator")
+        if simulator is not None:                        # the Rig panel's simulated controller
+            restore.append(partial(setattr, simulator, "time_scale", simulator.time_scale))
+            simulator.time_scale = float(job["time_scale"])
     else:
         if session is None:
             from lfstudio.sim.session import SimulatedSession
@@ -263,21 +266,14 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     return {"session": session, "dataset": dataset, "engine": engine, "restore": restore}
 
 
-def restore_time_scales(restore: dict | None) -> None:
+def restore_time_scales(restore: list | None) -> None:
     """Give the panels' simulated devices back the time scales they had before the scan (the Scan
-    panel's time scale applies to the scan only)."""
-    if not restore:
-        return
-    if "simulator" in restore:
-        simulator, scale = restore["simulator"]
-        simulator.time_scale = scale
-    if "camera" in restore:
-        camera, scale = restore["camera"]
-        if scale is not None:
-            try:
-                camera.submit("set_setting", "time_scale", scale)
-            except Exception:   # a closed camera needs no restoring
-                pass
+    panel's time scale applies to the scan only): run the calls ``prepare_scan`` recorded."""
+    for undo in restore or ():
+        try:
+            undo()
+        except Exception:   # a closed camera needs no restoring
+            pass
 
 
 class ScanPanel(QWidget):
@@ -289,6 +285,7 @@ class ScanPanel(QWidget):
         self.setObjectName("scanPanel")
         self.engine = None
         self.session = None
+        self._restore: list | None = None     # see prepare_scan / restore_time_scales
         self._pending_recapture: list[tuple[int, int]] = []
         self.bridge = EngineBridge(self)
         self.bridge.wake.connect(self._drain, Qt.QueuedConnection)
@@ -776,7 +773,7 @@ class ScanPanel(QWidget):
         self._update_buttons()
 
     def _restore_time_scales(self) -> None:
-        restore, self._restore = getattr(self, "_restore", None), None
+        restore, self._restore = self._restore, None
         restore_time_scales(restore)
 
     def _set_progress(self, done: int, total: int) -> None:
