@@ -35,6 +35,30 @@ def scanned(root, cols=4, rows=3, stop_after=None):
     return Dataset.open(root)
 
 
+def grid_view(qtbot, size=None):
+    """A GridView on a fresh AppState; shown at ``size`` (w, h) when given."""
+    state = AppState()
+    view = GridView(state)
+    qtbot.addWidget(view)
+    if size is not None:
+        view.resize(*size)
+        view.show()
+    return state, view
+
+
+def scan_panel(qtbot, devices, columns, rows, folder):
+    """A Scan panel on the instant devices, set to a ``columns`` x ``rows`` grid without settling."""
+    state = AppState()
+    state.devices.update(devices)
+    panel = ScanPanel(state)
+    qtbot.addWidget(panel)
+    panel.columns.setValue(columns)
+    panel.rows.setValue(rows)
+    panel.settle.setValue(0.0)
+    panel.folder.setText(str(folder))
+    return state, panel
+
+
 @pytest.fixture
 def instant_devices():
     rig = InstantRig(RIG)
@@ -49,11 +73,7 @@ def instant_devices():
 
 
 def test_grid_view_empty_state_then_dataset_painted(qtbot, tmp_path):
-    state = AppState()
-    view = GridView(state)
-    qtbot.addWidget(view)
-    view.resize(800, 500)
-    view.show()
+    state, view = grid_view(qtbot, (800, 500))
     assert view.stack.currentWidget() is view.empty
     ds = scanned(tmp_path / "ds", stop_after=7)
     state.set_dataset(ds)
@@ -71,11 +91,7 @@ def test_grid_view_empty_state_then_dataset_painted(qtbot, tmp_path):
 
 
 def test_grid_zoom_selection_and_recapture_request(qtbot, tmp_path):
-    state = AppState()
-    view = GridView(state)
-    qtbot.addWidget(view)
-    view.resize(900, 600)
-    view.show()
+    state, view = grid_view(qtbot, (900, 600))
     state.set_dataset(scanned(tmp_path / "ds"))
     canvas = view.canvas
     qtbot.waitExposed(view)
@@ -103,11 +119,7 @@ def test_grid_zoom_selection_and_recapture_request(qtbot, tmp_path):
 
 
 def test_double_click_opens_the_view_full_size(qtbot, tmp_path):
-    state = AppState()
-    view = GridView(state)
-    qtbot.addWidget(view)
-    view.resize(800, 500)
-    view.show()
+    state, view = grid_view(qtbot, (800, 500))
     state.set_dataset(scanned(tmp_path / "ds"))
     pos = view.canvas._cell_rect(1, 1).center()
     qtbot.mouseDClick(view.canvas.viewport(), Qt.LeftButton, pos=pos)
@@ -119,17 +131,10 @@ def test_double_click_opens_the_view_full_size(qtbot, tmp_path):
 
 def test_scan_panel_runs_a_scan_and_the_grid_follows(qtbot, tmp_path, instant_devices):
     devices, rig, cam = instant_devices
-    state = AppState()
-    state.devices.update(devices)
-    panel = ScanPanel(state)
+    state, panel = scan_panel(qtbot, devices, 5, 2, tmp_path / "scan1")
     grid = GridView(state)
-    qtbot.addWidget(panel)
     qtbot.addWidget(grid)
-    panel.columns.setValue(5)
-    panel.rows.setValue(2)
-    panel.settle.setValue(0.0)
     panel.time_scale.setValue(0.0)
-    panel.folder.setText(str(tmp_path / "scan1"))
     assert "10 views" in panel.summary.text()
     qtbot.mouseClick(panel.start_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: panel.engine is not None, timeout=10000)
@@ -146,14 +151,7 @@ def test_scan_panel_runs_a_scan_and_the_grid_follows(qtbot, tmp_path, instant_de
 
 def test_scan_panel_pause_resume_and_recapture(qtbot, tmp_path, instant_devices):
     devices, rig, cam = instant_devices
-    state = AppState()
-    state.devices.update(devices)
-    panel = ScanPanel(state)
-    qtbot.addWidget(panel)
-    panel.columns.setValue(6)
-    panel.rows.setValue(2)
-    panel.settle.setValue(0.0)
-    panel.folder.setText(str(tmp_path / "scan2"))
+    state, panel = scan_panel(qtbot, devices, 6, 2, tmp_path / "scan2")
     panel.start()
     qtbot.waitUntil(lambda: panel.engine is not None, timeout=10000)
     panel.pause()
@@ -185,9 +183,7 @@ def test_interrupted_scan_is_offered_for_resume_on_start(qtbot, tmp_path):
 def test_grid_follows_scan_events(qtbot, tmp_path):
     from lfstudio.scan.events import EventKind, ScanEvent
 
-    state = AppState()
-    view = GridView(state)
-    qtbot.addWidget(view)
+    state, view = grid_view(qtbot)
     state.set_dataset(scanned(tmp_path / "ds", stop_after=0))
     state.scanEvent.emit(ScanEvent(EventKind.VIEW_STARTED, row=0, column=2))
     assert view.canvas.status[0, 2] == CAPTURING
@@ -221,11 +217,7 @@ def test_grid_shows_views_without_stored_thumbnails(qtbot, make_tiny_dataset, fm
     """Rendered or imported datasets have no thumbs/: the grid decodes the view files themselves."""
     ds = make_tiny_dataset(fmt)
     assert not any(v.get("thumb") for v in ds.views)
-    state = AppState()
-    view = GridView(state)
-    qtbot.addWidget(view)
-    view.resize(900, 500)
-    view.show()
+    state, view = grid_view(qtbot, (900, 500))
     state.set_dataset(Dataset.open(ds.root))
     qtbot.waitUntil(lambda: bool(view.canvas._mosaic_has.all()), timeout=20000)
     tile = view.canvas.mosaic.copy(0, 0, 40, 30)
