@@ -13,6 +13,7 @@ class CalibrationPanel(QWidget):
         super().__init__(parent)
         self.state = state
         self.wizard = None
+        self.action: QAction | None = None      # Dataset → Calibrate…, made in install_menus
         self.summary = QLabel()
         self.summary.setWordWrap(True)
         self.summary.setObjectName("calibrationSummary")
@@ -35,13 +36,13 @@ class CalibrationPanel(QWidget):
         self.action.setStatusTip(self.action.toolTip())
         self.action.triggered.connect(self.open_wizard)
         window.menu("Dataset").addAction(self.action)
-        self.refresh(self.state.dataset)
+        self.action.setEnabled(self.state.dataset is not None)
 
     def refresh(self, dataset=None) -> None:
         dataset = self.state.dataset
         enabled = dataset is not None
         self.button.setEnabled(enabled)
-        if getattr(self, "action", None) is not None:
+        if self.action is not None:
             self.action.setEnabled(enabled)
         if dataset is None:
             self.summary.setText("No dataset open. Open or capture one, then calibrate it.")
