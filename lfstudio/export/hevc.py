@@ -12,7 +12,6 @@ sidecar, removed on import). The sidecar ``FILE.json`` (e.g. ``scene.mp4.json``)
 from __future__ import annotations
 
 import concurrent.futures as cf
-import hashlib
 import json
 import math
 import time
@@ -24,6 +23,7 @@ import numpy as np
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.paths import view_stem
+from lfstudio.dataset.store import sha256_file
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.export import common
 from lfstudio.jobs import CancelToken, Progress
@@ -322,7 +322,7 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
             e = by_frame.get(i, {})
             rec = {"row": r, "column": c, "commanded_mm": e.get("commanded_mm"), "reported_mm": e.get("reported_mm"),
                    "captured_at": e.get("captured_at"), "exposure_s": e.get("exposure_s"), "file": rel,
-                   "sha256": _sha256(tmp / rel), "status": "done", "thumb": thumb,
+                   "sha256": sha256_file(tmp / rel), "status": "done", "thumb": thumb,
                    "restored_from": {"video": video.name, "frame": i}}
             if processed:
                 rec["processed"] = {"status": "done", "file": rel, "restored_from_hevc": True}
@@ -365,12 +365,3 @@ def _resize_width(rgb: np.ndarray, width_px: int) -> np.ndarray:
     if w <= width_px:
         return rgb
     return cv2.resize(rgb, (width_px, max(1, round(h * width_px / w))), interpolation=cv2.INTER_AREA)
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-

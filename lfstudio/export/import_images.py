@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
+from lfstudio.dataset.store import sha256_file
 from lfstudio.errors import InputError
 from lfstudio.jobs import CancelToken, Progress, no_progress
 
@@ -438,17 +439,14 @@ def _intrinsics(options: ImportOptions, first: Path, size: tuple[int, int]):
 # -- copying ------------------------------------------------------------------------------------------
 def _link_or_copy(src: Path, dst: Path, link: bool, cancel: CancelToken | None) -> tuple[str, bool]:
     """Put ``src`` at ``dst`` (hard link if allowed and possible, else a copy); its sha256 and whether linked."""
-    h = hashlib.sha256()
     if link:
         try:
             os.link(src, dst)
         except OSError:
             pass
         else:
-            with open(dst, "rb") as fh:
-                for chunk in iter(lambda: fh.read(1 << 20), b""):
-                    h.update(chunk)
-            return h.hexdigest(), True
+            return sha256_file(dst), True
+    h = hashlib.sha256()   # a copy is hashed while it is written: one read of the source
     with open(src, "rb") as fi, open(dst, "wb") as fo:
         for chunk in iter(lambda: fi.read(1 << 20), b""):
             if cancel is not None:

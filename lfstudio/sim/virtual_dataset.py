@@ -9,7 +9,6 @@ orientation, intrinsics, rectifying homography, per-view true positions and laye
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
 import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor
@@ -22,6 +21,7 @@ import numpy as np
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.atomic import atomic_write_json, atomic_write_with
 from lfstudio.dataset.paths import view_stem
+from lfstudio.dataset.store import sha256_file
 from lfstudio.errors import InputError
 from lfstudio.jobs import CancelToken
 from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
@@ -69,14 +69,6 @@ def write_view_file(path: Path, sensor_rgb: np.ndarray, fmt: str, exposure_s: fl
     raise InputError("fmt", f"unknown format {fmt!r}", ["dng", "png"])
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 # -- worker-side rendering (one studio per process) -------------------------------------------------
 _WORKER_STUDIO: VirtualStudio | None = None
 
@@ -92,7 +84,7 @@ def _render_and_write(studio: VirtualStudio, sensor: SensorModel, job: dict[str,
     recorded, gain = sensor.apply(rgb, job["shot"])
     path = Path(job["path"])
     write_view_file(path, recorded, job["fmt"], job["exposure_s"])
-    return {"sha256": _sha256(path), "gain": gain}
+    return {"sha256": sha256_file(path), "gain": gain}
 
 
 def _worker_job(sensor: SensorModel, job: dict[str, Any]) -> dict[str, Any]:
