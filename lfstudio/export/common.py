@@ -397,12 +397,17 @@ def _remove(path: Path) -> None:
 def _replace(tmp: Path, final: Path, overwrite: bool) -> None:
     if final.exists() or final.is_symlink():
         if not overwrite:
-            raise InputError("out", f"{final} appeared while exporting; choose another name or allow overwriting")
+            raise InputError("out", f"{final} appeared meanwhile; choose another name or allow overwriting")
         if final.is_dir() and not final.is_symlink():
             # move the old folder aside first: the new one takes its name in one rename
             old = Path(tempfile.mkdtemp(prefix=f".{final.name}.old-", dir=final.parent))
             os.replace(final, old / final.name)
-            os.replace(tmp, final)
+            try:
+                os.replace(tmp, final)
+            except BaseException:
+                os.replace(old / final.name, final)   # the rename failed: put the old folder back
+                shutil.rmtree(old, ignore_errors=True)
+                raise
             shutil.rmtree(old, ignore_errors=True)
             return
         if tmp.is_dir():      # a file (or symlink) where the new folder goes

@@ -30,7 +30,6 @@ import os
 import re
 import shutil
 import struct
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -474,6 +473,7 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
     """
     from lfstudio.dataset import Dataset, view_stem
     from lfstudio.dataset.store import free_bytes
+    from lfstudio.export.common import partial_folder
 
     progress = progress or no_progress
     check_options(options)
@@ -489,8 +489,7 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
     if free_bytes(out.parent) < plan.bytes_total + (64 << 20):
         raise InputError("--out", f"{out.parent} has {free_bytes(out.parent) / 1e9:.1f} GB free, the images need "
                          f"{plan.bytes_total / 1e9:.1f} GB; free space or choose another disk")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
-    try:
+    with partial_folder(out, options.overwrite) as tmp:
         (tmp / "raw").mkdir()
         sx, sy = (float(v) for v in options.spacing_mm)
         views = []
@@ -520,26 +519,6 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
         if cancel is not None:
             cancel.check()
         progress(total - 1, total, "moving into place")
-        _move_into_place(tmp, out, options.overwrite)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     progress(total, total, f"imported {len(plan.files)} views into {out}")
     return out
 
-
-def _move_into_place(tmp: Path, out: Path, overwrite: bool) -> None:
-    if out.exists() or out.is_symlink():
-        if not overwrite:
-            raise InputError("--out", f"{out} appeared while importing; choose a new folder or allow overwriting")
-        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
-        os.replace(out, old / "previous")
-        try:
-            os.replace(tmp, out)
-        except BaseException:
-            os.replace(old / "previous", out)
-            shutil.rmtree(old, ignore_errors=True)
-            raise
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.replace(tmp, out)
