@@ -88,7 +88,6 @@ class ViewResult:
 class _Prepared:
     profile: Profile
     maps: list | None
-    factor_map: np.ndarray | None   # shading factor in the output frame
     level_map: tuple | None = None  # (per-pixel multiplier, offset): shading folded into the levels
 
 
@@ -135,7 +134,7 @@ def prepare(plan: RunPlan) -> _Prepared:
         from lfstudio.processing.steps import color
         levels = color.level_map(factor, plan.black_rgb, plan.white_rgb, profile.color.white_output,
                                  profile.color.enabled)
-    prepared = _Prepared(profile, maps, factor, levels)
+    prepared = _Prepared(profile, maps, levels)
     _CACHE.clear()  # one run at a time per process: keep memory bounded
     _CACHE[plan.profile_sha256] = prepared
     return prepared

@@ -52,28 +52,29 @@ def apply(img: np.ndarray, *, gain: float = 1.0, factor_map: np.ndarray | None =
           black=(0.0, 0.0, 0.0), white=(65535.0, 65535.0, 65535.0), white_output: float = 1.0,
           enabled: bool = True) -> np.ndarray:
     """Shading factor, de-flicker gain and black/white levels in one pass; uint16 out (clipped)."""
-    black = np.asarray(black, np.float64) if enabled else np.zeros(3)
-    white = np.asarray(white, np.float64) if enabled else np.full(3, 65535.0)
-    out_scale = white_output if enabled else 1.0
-    scale = out_scale * 65535.0 / (white - black)
+    if factor_map is not None:
+        return apply_map(img, *level_map(factor_map, black, white, white_output, enabled), gain)
+    black, scale = _black_and_scale(black, white, white_output, enabled)
     # cv2.transform: out_c = m_c · in_c + offset_c, saturating to the output depth
     M = np.zeros((3, 4), np.float64)
     M[[0, 1, 2], [0, 1, 2]] = gain * scale
     M[:, 3] = -black * scale
-    if factor_map is None:
-        if np.allclose(M[:, :3], np.eye(3)) and not M[:, 3].any():
-            return img
-        return cv2.transform(img, M)  # uint16 in, uint16 out, rounded and saturated
-    per_pixel, offset = level_map(factor_map, black, white, white_output, True)
-    return apply_map(img, per_pixel, offset, gain)
+    if np.allclose(M[:, :3], np.eye(3)) and not M[:, 3].any():
+        return img
+    return cv2.transform(img, M)  # uint16 in, uint16 out, rounded and saturated
+
+
+def _black_and_scale(black, white, white_output: float, enabled: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(black level, scale per channel): ``out = (in − black) · scale``; identity when disabled."""
+    black = np.asarray(black, np.float64) if enabled else np.zeros(3)
+    white = np.asarray(white, np.float64) if enabled else np.full(3, 65535.0)
+    return black, (white_output if enabled else 1.0) * 65535.0 / (white - black)
 
 
 def level_map(factor_map: np.ndarray, black, white, white_output: float = 1.0, enabled: bool = True):
     """(per-pixel multiplier (h, w, 3) float32, offset) folding a shading factor map into the levels;
     compute once per run, then :func:`apply_map` per view."""
-    black = np.asarray(black, np.float64) if enabled else np.zeros(3)
-    white = np.asarray(white, np.float64) if enabled else np.full(3, 65535.0)
-    scale = (white_output if enabled else 1.0) * 65535.0 / (white - black)
+    black, scale = _black_and_scale(black, white, white_output, enabled)
     per_pixel = np.ascontiguousarray(factor_map * scale.astype(np.float32), np.float32)
     if per_pixel.shape[2] != 3:
         per_pixel = np.ascontiguousarray(np.repeat(per_pixel, 3, axis=2))
