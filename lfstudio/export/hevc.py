@@ -277,7 +277,7 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
                 overwrite: bool = False) -> Path:
     from lfstudio.calibration.calibrate import CALIBRATION_NAME
     from lfstudio.dataset.manifest import MANIFEST_NAME
-    from lfstudio.scan.thumbs import THUMB_WIDTH_PX, make_thumbnail
+    from lfstudio.scan.thumbs import make_thumbnail
 
     video = Path(video).expanduser()
     out = Path(out).expanduser()
@@ -316,8 +316,7 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
             rel = f"{folder}/{view_stem(r, c)}.png"
             common.write_png16(tmp / rel, rgb)
             thumb = f"thumbs/{view_stem(r, c)}.jpg"
-            small = _resize_width(rgb, THUMB_WIDTH_PX)
-            if make_thumbnail([], tmp / thumb, preview=small) is None:
+            if make_thumbnail([], tmp / thumb, preview=rgb) is None:
                 thumb = None
             e = by_frame.get(i, {})
             rec = {"row": r, "column": c, "commanded_mm": e.get("commanded_mm"), "reported_mm": e.get("reported_mm"),
@@ -357,11 +356,3 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
                        plan=doc.get("plan") or {}, views=views, **extra).close()
     return out
 
-
-def _resize_width(rgb: np.ndarray, width_px: int) -> np.ndarray:
-    import cv2
-
-    h, w = rgb.shape[:2]
-    if w <= width_px:
-        return rgb
-    return cv2.resize(rgb, (width_px, max(1, round(h * width_px / w))), interpolation=cv2.INTER_AREA)

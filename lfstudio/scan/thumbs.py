@@ -111,13 +111,13 @@ def make_thumbnail(files: Sequence[Path], out_path: Path, width_px: int = THUMB_
                    preview: np.ndarray | None = None) -> Path | None:
     """Write a JPEG thumbnail of a capture to ``out_path`` (atomically); None if nothing decodable.
 
-    ``files``: the capture's files (RAW first, sidecars after). ``preview``: an RGB uint8 array
-    the camera already has (used first when given).
+    ``files``: the capture's files (RAW first, sidecars after). ``preview``: an RGB array the
+    camera (or a decoded frame) already has, uint8 or 16-bit at any size (used first when given).
     """
     img = None
     if preview is not None:
-        img = cv2.cvtColor(_to_uint8(np.asarray(preview)), cv2.COLOR_RGB2BGR) if np.ndim(preview) == 3 \
-            else _to_uint8(np.asarray(preview))
+        small = _resize(np.asarray(preview), width_px)   # first: the 8-bit scaling's percentile is then cheap
+        img = cv2.cvtColor(_to_uint8(small), cv2.COLOR_RGB2BGR) if small.ndim == 3 else _to_uint8(small)
     if img is None:
         for f in list(files)[1:]:
             if Path(f).suffix.lower() in _IMAGE_SUFFIXES:
