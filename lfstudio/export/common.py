@@ -169,6 +169,12 @@ def png_header(path: Path) -> tuple[int, int, int, int] | None:
     return int(w), int(h), head[24], head[25]
 
 
+def is_png16_rgb(path: Path) -> bool:
+    """A 16-bit truecolour PNG without alpha (what every export writes)."""
+    hdr = png_header(path)
+    return hdr is not None and hdr[2] == 16 and hdr[3] == 2
+
+
 def image_size_px(path: Path) -> tuple[int, int]:
     """(width, height) a view file decodes to, read cheaply (PNG header, RAW metadata)."""
     hdr = png_header(path)

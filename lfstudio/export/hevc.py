@@ -96,7 +96,7 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
     verify_idx = set(_spread(n, VERIFY_FRAMES))
     png_idx = set(_spread(n, PNG_SAMPLES))
     png_sample_bytes: list[int] = []
-    known_png = source == "processed" and all(_is_png16(common.source_path(ds, v, source)) for v in views)
+    known_png = source == "processed" and all(common.is_png16_rgb(common.source_path(ds, v, source)) for v in views)
     png_bytes = sum(common.source_path(ds, v, source).stat().st_size for v in views) if known_png else None
     sidecar = sidecar_path(out)
     steps = n + len(verify_idx)
@@ -208,11 +208,6 @@ def _ffmpeg_errors_in_exceptions() -> None:
 
     if av.logging.get_level() is None:
         av.logging.set_level(av.logging.ERROR)
-
-
-def _is_png16(path: Path) -> bool:
-    hdr = common.png_header(path)
-    return hdr is not None and hdr[2] == 16 and hdr[3] == 2
 
 
 def _decode(video: Path, size: Sequence[int], *, upto: int | None = None, cancel: CancelToken | None = None,

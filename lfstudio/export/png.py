@@ -20,11 +20,6 @@ from lfstudio.jobs import CancelToken, Progress
 MANIFEST_NAME = "manifest.json"
 
 
-def _is_png16_rgb(path: Path) -> bool:
-    hdr = common.png_header(path)
-    return hdr is not None and hdr[2] == 16 and hdr[3] == 2   # 16-bit, truecolour without alpha
-
-
 def write_views(ds: Dataset, views: Sequence[common.View], source: str, folder: Path, size: tuple[int, int],
                 progress: Progress, cancel: CancelToken, *, total: int | None = None,
                 label: str = "png") -> dict[common.View, str]:
@@ -38,7 +33,7 @@ def write_views(ds: Dataset, views: Sequence[common.View], source: str, folder: 
         src = common.source_path(ds, v, source)
         name = f"{view_stem(*v)}.png"
         dst = folder / name
-        if source == "processed" and _is_png16_rgb(src):
+        if source == "processed" and common.is_png16_rgb(src):
             hdr = common.png_header(src)
             if (hdr[0], hdr[1]) != tuple(size):
                 raise DatasetError(f"{src}: {hdr[0]} x {hdr[1]} px, the other views are {size[0]} x {size[1]} px; "
@@ -76,7 +71,7 @@ def estimate_png_bytes(ds: Dataset, views: Sequence[common.View], source: str, s
         total = 0
         for v in views:
             p = common.source_path(ds, v, source)
-            total += p.stat().st_size if _is_png16_rgb(p) else int(size[0] * size[1] * 6 * PNG_RATIO)
+            total += p.stat().st_size if common.is_png16_rgb(p) else int(size[0] * size[1] * 6 * PNG_RATIO)
         return total + 4096
     return int(len(views) * size[0] * size[1] * 6 * PNG_RATIO) + 4096
 
