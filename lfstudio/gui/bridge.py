@@ -17,10 +17,12 @@ log = logging.getLogger(__name__)
 class JobRunner(QObject):
     """Runs one job at a time off the GUI thread.
 
+    ``started()`` is emitted by :meth:`start` itself (on the caller's thread, before the job runs).
     Signals arrive on the GUI thread (queued): ``progress(done, total, message, eta_s or -1)``,
     then exactly one of ``finished(result)``, ``failed(message)`` or ``cancelled()``.
     """
 
+    started = Signal()
     progress = Signal(int, int, str, float)
     finished = Signal(object)
     failed = Signal(str)
@@ -67,11 +69,18 @@ class JobRunner(QObject):
 
         self._thread = threading.Thread(target=body, name=f"job-{getattr(fn, '__name__', 'job')}", daemon=True)
         self._active = True
+        self.started.emit()
         self._thread.start()
 
     def cancel(self) -> None:
         if self._cancel is not None:
             self._cancel.cancel()
+
+    def stop(self, timeout_s: float | None = None) -> bool:
+        """Cancel a running job and join its thread (for closing and shutdown); True if it has ended."""
+        if self.running:
+            self.cancel()
+        return self.wait(timeout_s)
 
     def wait(self, timeout_s: float | None = None) -> bool:
         """Join the worker thread (for shutdown); True if it has ended."""

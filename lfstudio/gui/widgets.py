@@ -27,7 +27,7 @@ def set_progress_async(bar: QProgressBar, value: int, maximum: int | None = None
 
 
 class JobProgressWidget(QWidget):
-    """Progress bar + ETA + Cancel for a :class:`lfstudio.gui.bridge.JobRunner`."""
+    """Progress bar + ETA + Cancel for a :class:`lfstudio.gui.bridge.JobRunner` (reset by its ``started``)."""
 
     def __init__(self, runner, parent: QWidget | None = None):
         super().__init__(parent)
@@ -47,6 +47,7 @@ class JobProgressWidget(QWidget):
         lay.addWidget(self.message_label, 2)
         lay.addWidget(self.cancel_button)
         self.cancel_button.clicked.connect(self._cancel)
+        runner.started.connect(self.started)
         runner.progress.connect(self._on_progress)
         for sig in (runner.finished, runner.failed, runner.cancelled):
             sig.connect(self._on_end)

@@ -224,7 +224,6 @@ class CalibrationWizard(QDialog):
         self.error_label.setText("")
         self.log.clear()
         self._set_page(PAGE_RUN)
-        self.job_widget.started()
         kwargs: dict[str, Any] = {"estimate_principal_point": self.estimate_pp.isChecked(),
                                   "neighbours_only": self.neighbours_only.isChecked(),
                                   "max_width_px": self.work_width.value()}

@@ -511,7 +511,6 @@ class ExportDialog(QDialog):
         self.report = None
         self.open_folder_button.setEnabled(False)
         self.result_label.setText(f"Exporting to {options.out}…")
-        self.progress.started()
         self.exporting = True
         self.runner.wait(5.0)               # a cancelled job's thread ends right after its signal
         self.runner.start(_export_job, self.dataset.root, options)

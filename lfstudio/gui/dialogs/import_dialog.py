@@ -154,7 +154,6 @@ class _ImportDialogBase(QDialog):
         self.open_button.setEnabled(False)
         self.import_button.setEnabled(False)
         self.show_message("Importing…")
-        self.progress.started()
         self.runner.start(fn, *args)
 
     def _done(self, root) -> None:

@@ -524,7 +524,6 @@ class ProcessDialog(QDialog):
         s.setValue("process/cluster", self.cluster_edit.text().strip())
         self.process_button.setEnabled(False)
         self.result_label.setText("Processing…")
-        self.progress.started()
         self.runner.start(_process_job, self.root, profile, workers, cluster, self.force_check.isChecked())
 
     def _reload_dataset(self) -> None:
