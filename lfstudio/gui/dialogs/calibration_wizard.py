@@ -536,20 +536,14 @@ class CalibrationWizard(QDialog):
         self.state.set_dataset(self.dataset)
         self.accept()
 
-    def closeEvent(self, event) -> None:
-        self.shutdown()
-        super().closeEvent(event)
-
-    def reject(self) -> None:
+    def reject(self) -> None:   # also the title bar's × (QDialog.closeEvent calls reject)
         self.shutdown()
         super().reject()
 
     def shutdown(self) -> None:
         self._save_settings()
         for r in (self.runner, self.inspect_runner):
-            if r.running:
-                r.cancel()
-                r.wait(10.0)
+            r.stop(10.0)
 
     # -- settings --------------------------------------------------------------------------------------
     def _restore_settings(self) -> None:

@@ -617,6 +617,4 @@ class ExportDialog(QDialog):
 
     def shutdown(self) -> None:
         for r in (self.runner, self.estimate_runner):
-            if r.running:
-                r.cancel()
-                r.wait(30)
+            r.stop(30)

@@ -195,16 +195,8 @@ class _ImportDialogBase(QDialog):
         self.state.show_status(f"Opened {self.result_root}")
         self.accept()
 
-    def closeEvent(self, event) -> None:
-        if self.runner.running:   # closing cancels; the importer removes its temporary folder
-            self.runner.cancel()
-            self.runner.wait(10.0)
-        super().closeEvent(event)
-
-    def reject(self) -> None:
-        if self.runner.running:
-            self.runner.cancel()
-            self.runner.wait(10.0)
+    def reject(self) -> None:   # also Close and the title bar's ×: closing cancels; the importer cleans up
+        self.runner.stop(10.0)
         super().reject()
 
 
