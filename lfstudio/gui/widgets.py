@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from PySide6.QtCore import QPointF, QRectF, QSize, Signal
 from PySide6.QtGui import QColor, QFont, QPainter, QPen
-from PySide6.QtWidgets import QHBoxLayout, QLabel, QProgressBar, QPushButton, QSizePolicy, QWidget
+from PySide6.QtWidgets import QHBoxLayout, QLabel, QMessageBox, QProgressBar, QPushButton, QSizePolicy, QWidget
 
 from lfstudio.dataset.paths import view_stem
 from lfstudio.jobs import format_duration
@@ -24,6 +24,17 @@ def set_progress_async(bar: QProgressBar, value: int, maximum: int | None = None
     finally:
         bar.setUpdatesEnabled(True)
     bar.update()
+
+
+def confirm_cancel_running(parent: QWidget, runner, title: str, question: str) -> bool:
+    """For a dialog's ``done()``: True when it may close — no job runs, or the operator said Yes to
+    ``question`` and the job has been asked to cancel."""
+    if not runner.running:
+        return True
+    if QMessageBox.question(parent, title, question) != QMessageBox.Yes:
+        return False
+    runner.cancel()
+    return True
 
 
 class JobProgressWidget(QWidget):

@@ -24,7 +24,7 @@ from lfstudio.export import ExportOptions, estimate_export, export_dataset
 from lfstudio.export.common import select_views
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.settings import settings
-from lfstudio.gui.widgets import GridPicker, JobProgressWidget
+from lfstudio.gui.widgets import GridPicker, JobProgressWidget, confirm_cancel_running
 from lfstudio.jobs import format_duration
 
 #: format key, menu text, what it is
@@ -94,10 +94,8 @@ class ExportDialog(QDialog):
         self.estimate_error: str | None = None
         self.report = None
         self._estimate_dirty = False
-        self._estimating = False
         self._auto_name = ""
         self._pending_options: ExportOptions | None = None
-        self.exporting = False          # from Export until the job's last signal (its thread may outlive it)
         self._user_selection: set[tuple[int, int]] | None = None
         self.overwrite_box: QMessageBox | None = None
 
@@ -123,6 +121,11 @@ class ExportDialog(QDialog):
 
         self._restore_settings()
         self._format_changed()
+
+    @property
+    def exporting(self) -> bool:
+        """From Export until the job's last signal (JobRunner.running is False in that signal's slots)."""
+        return self.runner.running
 
     # -- construction --------------------------------------------------------------------------------
     def _build_format_box(self) -> QGroupBox:
@@ -417,7 +420,7 @@ class ExportDialog(QDialog):
     # -- estimate ------------------------------------------------------------------------------------
     def update_estimate(self) -> None:
         """Recompute the size estimate off the GUI thread (one at a time; the latest options win)."""
-        if self._estimating:
+        if self.estimate_runner.running:
             self._estimate_dirty = True
             return
         self._estimate_dirty = False
@@ -426,12 +429,9 @@ class ExportDialog(QDialog):
         except LfError as exc:
             self._estimate_failed(str(exc))
             return
-        self.estimate_runner.wait(5.0)      # the last job's thread ends right after its signal
-        self._estimating = True
         self.estimate_runner.start(_estimate_job, self.dataset, options)
 
     def _estimate_done(self, est) -> None:
-        self._estimating = False
         if self._estimate_dirty:
             self.update_estimate()
             return
@@ -449,7 +449,6 @@ class ExportDialog(QDialog):
         self._destination_changed()         # the destination may have appeared or gone meanwhile
 
     def _estimate_failed(self, message: str) -> None:
-        self._estimating = False
         if self._estimate_dirty:
             self.update_estimate()
             return
@@ -511,15 +510,12 @@ class ExportDialog(QDialog):
         self.report = None
         self.open_folder_button.setEnabled(False)
         self.result_label.setText(f"Exporting to {options.out}…")
-        self.exporting = True
-        self.runner.wait(5.0)               # a cancelled job's thread ends right after its signal
         self.runner.start(_export_job, self.dataset.root, options)
         self._update_export_button()
         self.format_combo.setEnabled(False)
 
     def _export_done(self, report) -> None:
         self.report = report
-        self.exporting = False
         self.format_combo.setEnabled(True)
         self._update_export_button()
         self.open_folder_button.setEnabled(True)
@@ -541,13 +537,11 @@ class ExportDialog(QDialog):
         return " ".join(parts)
 
     def _export_failed(self, message: str) -> None:
-        self.exporting = False
         self.format_combo.setEnabled(True)
         self._update_export_button()
         self.result_label.setText(f"<span style='color:#b00020'>Export failed: {message}</span>")
 
     def _export_cancelled(self) -> None:
-        self.exporting = False
         self.format_combo.setEnabled(True)
         self._update_export_button()
         self.result_label.setText(f"Cancelled: nothing was written to {self.out_path()}.")
@@ -606,12 +600,9 @@ class ExportDialog(QDialog):
             s.setValue("export/folder", self.folder_edit.text().strip())
 
     def done(self, result: int) -> None:
-        if self.exporting:
-            answer = QMessageBox.question(self, "Export", "The export is running. Cancel it and close? "
-                                          "Nothing is left under the destination name.")
-            if answer != QMessageBox.Yes:
-                return
-            self.runner.cancel()
+        if not confirm_cancel_running(self, self.runner, "Export", "The export is running. Cancel it and close? "
+                                      "Nothing is left under the destination name."):
+            return
         self._save_settings()
         super().done(result)
 

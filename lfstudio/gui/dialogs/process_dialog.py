@@ -24,7 +24,7 @@ from lfstudio.errors import InputError
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.imageutil import rgb_to_qimage
 from lfstudio.gui.settings import settings
-from lfstudio.gui.widgets import JobProgressWidget
+from lfstudio.gui.widgets import JobProgressWidget, confirm_cancel_running
 from lfstudio.processing.profile import _CHOICES, PROFILE_NAME, STEP_TYPES, Profile
 
 STEP_TITLES = {
@@ -555,9 +555,6 @@ class ProcessDialog(QDialog):
         self.result_label.setText("Cancelled. " + self._status_text() + " Process again to resume.")
 
     def done(self, result: int) -> None:
-        if self.runner.running:
-            answer = QMessageBox.question(self, "Process", "Processing is running. Cancel it and close?")
-            if answer != QMessageBox.Yes:
-                return
-            self.runner.cancel()
+        if not confirm_cancel_running(self, self.runner, "Process", "Processing is running. Cancel it and close?"):
+            return
         super().done(result)
