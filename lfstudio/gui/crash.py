@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import sys
+from html import escape
 import threading
 import traceback
 
@@ -47,10 +48,10 @@ class CrashDialog(QDialog):
         icon = QLabel()
         icon.setPixmap(self.style().standardIcon(QStyle.SP_MessageBoxWarning).pixmap(40, 40))
         self.message = QLabel(
-            f"<b>Something went wrong inside lfstudio.</b><p>{_escape(summary)}</p>"
+            f"<b>Something went wrong inside lfstudio.</b><p>{escape(summary, quote=False)}</p>"
             "<p>lfstudio keeps running. A running scan continues; every view already captured is "
             "saved in the dataset. If something no longer works, save your work and restart lfstudio.</p>"
-            f"<p>The details are in the log file:<br><code>{_escape(log_path)}</code><br>"
+            f"<p>The details are in the log file:<br><code>{escape(log_path, quote=False)}</code><br>"
             "Please send it (or the copied details) with a short note of what you were doing.</p>")
         self.message.setWordWrap(True)
         self.message.setTextInteractionFlags(Qt.TextSelectableByMouse)
@@ -108,10 +109,6 @@ class CrashDialog(QDialog):
         self.details += f"\n--- and {self.repeats} more ---\n{details}"
         self.text.setPlainText(self.details)
         self.setWindowTitle(f"lfstudio: unexpected error (+{self.repeats} more)")
-
-
-def _escape(text: str) -> str:
-    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
 
 
 def open_log_folder() -> bool:
