@@ -16,7 +16,7 @@ from pathlib import Path
 from lfstudio.gui.settings import settings
 
 DATASETS_KEY = "paths/datasets"
-EXPORT_KEY = "export/folder"          # shared with gui/dialogs/export_dialog.py
+EXPORT_KEY = "export/folder"          # also the export dialog's last folder
 PRESET_KEYS = {"cameras": "defaults/camera", "lenses": "defaults/lens", "rigs": "defaults/rig"}
 
 

@@ -23,6 +23,7 @@ from lfstudio.errors import LfError
 from lfstudio.export import ExportOptions, estimate_export, export_dataset
 from lfstudio.export.common import select_views
 from lfstudio.gui.bridge import JobRunner
+from lfstudio.gui.preferences import EXPORT_KEY
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import GridPicker, JobProgressWidget, confirm_cancel_running
 from lfstudio.jobs import format_duration
@@ -584,7 +585,7 @@ class ExportDialog(QDialog):
         self.hci_rows.setValue(int(s.value("export/hci_rows", 9)))
         self.hci_center_row.setValue(int(grid["rows"]) // 2)
         self.hci_center_column.setValue(int(grid["columns"]) // 2)
-        folder = str(s.value("export/folder", "") or self.dataset.root.parent)
+        folder = str(s.value(EXPORT_KEY, "") or self.dataset.root.parent)
         self.folder_edit.setText(folder)
         self.picker.set_selected(self.available)
 
@@ -597,7 +598,7 @@ class ExportDialog(QDialog):
         s.setValue("export/hci_columns", self.hci_columns.value())
         s.setValue("export/hci_rows", self.hci_rows.value())
         if self.folder_edit.text().strip():
-            s.setValue("export/folder", self.folder_edit.text().strip())
+            s.setValue(EXPORT_KEY, self.folder_edit.text().strip())
 
     def done(self, result: int) -> None:
         if not confirm_cancel_running(self, self.runner, "Export", "The export is running. Cancel it and close? "
