@@ -85,13 +85,18 @@ class _ImportDialogBase(QDialog):
         self.runner.failed.connect(self._failed)
         self.runner.cancelled.connect(self._cancelled)
 
-    def _buttons(self) -> QHBoxLayout:
-        lay = QHBoxLayout()
+    def _lay_out(self, form: QFormLayout) -> None:
+        """The dialog's fields, then progress, message and the buttons."""
+        lay = QVBoxLayout(self)
+        lay.addLayout(form)
+        lay.addWidget(self.progress)
+        lay.addWidget(self.message)
         lay.addStretch(1)
-        lay.addWidget(self.open_button)
-        lay.addWidget(self.import_button)
-        lay.addWidget(self.close_button)
-        return lay
+        buttons = QHBoxLayout()
+        buttons.addStretch(1)
+        for button in (self.open_button, self.import_button, self.close_button):
+            buttons.addWidget(button)
+        lay.addLayout(buttons)
 
     def _browse_out(self) -> None:
         start = self.out_edit.text() or str(settings().value("datasets/last_dir", ""))
@@ -204,7 +209,6 @@ class ImportImagesDialog(_ImportDialogBase):
     """Folder, grid, spacing, order, pattern, intrinsics, destination; live file count; run."""
 
     settings_prefix = "import_images"
-    action_text = "Import"
 
     def __init__(self, state, parent: QWidget | None = None):
         super().__init__(state, parent)
@@ -289,12 +293,7 @@ class ImportImagesDialog(_ImportDialogBase):
         form.addRow("", self.intrinsics_stack)
         form.addRow("Destination", _path_row(self.out_edit, self.out_button))
         form.addRow("", self.copy_check)
-        lay = QVBoxLayout(self)
-        lay.addLayout(form)
-        lay.addWidget(self.progress)
-        lay.addWidget(self.message)
-        lay.addStretch(1)
-        lay.addLayout(self._buttons())
+        self._lay_out(form)
         self.resize(720, 480)
 
         self._recount_timer = QTimer(self)
@@ -401,7 +400,6 @@ class ImportHevcDialog(_ImportDialogBase):
     """An HEVC export (``lfstudio export --format hevc``) back to a dataset of 16-bit PNG views."""
 
     settings_prefix = "import_hevc"
-    action_text = "Import"
 
     def __init__(self, state, parent: QWidget | None = None):
         super().__init__(state, parent)
@@ -417,12 +415,7 @@ class ImportHevcDialog(_ImportDialogBase):
         form.setFieldGrowthPolicy(QFormLayout.AllNonFixedFieldsGrow)
         form.addRow("HEVC file", _path_row(self.file_edit, self.file_button))
         form.addRow("Destination", _path_row(self.out_edit, self.out_button))
-        lay = QVBoxLayout(self)
-        lay.addLayout(form)
-        lay.addWidget(self.progress)
-        lay.addWidget(self.message)
-        lay.addStretch(1)
-        lay.addLayout(self._buttons())
+        self._lay_out(form)
         self.resize(680, 240)
 
     def _browse_file(self) -> None:
