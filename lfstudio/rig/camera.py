@@ -11,6 +11,17 @@ import numpy as np
 
 
 @dataclass(frozen=True)
+class CameraStatus:
+    """A snapshot of a camera for the GUI (what the device worker publishes)."""
+
+    connected: bool
+    model: str = ""
+    shots: int = 0
+    busy: bool = False
+    message: str = ""          # last error an operator understands, "" when fine
+
+
+@dataclass(frozen=True)
 class CaptureResult:
     """Files a capture produced (already on disk at their final names) and how long each step took."""
 

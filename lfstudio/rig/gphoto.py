@@ -16,14 +16,13 @@ import logging
 import os
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
 from lfstudio.errors import DeviceError, InputError
-from lfstudio.rig.camera import CaptureResult
+from lfstudio.rig.camera import CameraStatus, CaptureResult
 
 log = logging.getLogger(__name__)
 
@@ -58,15 +57,6 @@ def gp_message(exc: BaseException, action: str) -> str:
     code = getattr(exc, "code", None)
     hint = _GP_MESSAGES.get(code) if isinstance(code, int) else None
     return f"camera: {action} failed: {hint or exc}" + (f" [gphoto2 {code}]" if code is not None else "")
-
-
-@dataclass(frozen=True)
-class GPhotoStatus:
-    connected: bool
-    model: str = ""
-    shots: int = 0
-    busy: bool = False
-    message: str = ""
 
 
 class GPhotoCamera:
@@ -131,8 +121,8 @@ class GPhotoCamera:
             raise DeviceError("camera: not connected; connect the camera first (Camera panel: Connect)")
         return self._camera
 
-    def status(self) -> GPhotoStatus:
-        return GPhotoStatus(self._camera is not None, self._model, self.shots, self._busy, self._message)
+    def status(self) -> CameraStatus:
+        return CameraStatus(self._camera is not None, self._model, self.shots, self._busy, self._message)
 
     # -- settings -----------------------------------------------------------------------------------
     def _find_widget(self, config: Any, names: tuple[str, ...]) -> Any:

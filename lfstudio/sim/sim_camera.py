@@ -19,7 +19,6 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -28,7 +27,7 @@ import numpy as np
 
 from lfstudio.dataset.atomic import atomic_write_json, atomic_write_with
 from lfstudio.errors import DeviceError, InputError
-from lfstudio.rig.camera import CaptureResult
+from lfstudio.rig.camera import CameraStatus, CaptureResult
 from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
 from lfstudio.sim.sensor import SensorModel
 from lfstudio.sim.studio import DEMO_PP_OFFSET_PX, DEMO_ROTATION_DEG, VirtualStudio
@@ -40,17 +39,6 @@ WHITE_LEVEL = 16383
 REFERENCE_EXPOSURE = {"shutter_s": 0.5, "iso": 100, "aperture": 16.0}
 ISO_VALUES = (50, 100, 200, 400, 800, 1600, 3200, 6400)
 FAULTS = ("capture_fails", "silent")
-
-
-@dataclass(frozen=True)
-class CameraStatus:
-    """A snapshot of a camera for the GUI (what the device worker publishes)."""
-
-    connected: bool
-    model: str = ""
-    shots: int = 0
-    busy: bool = False
-    message: str = ""          # last error an operator understands, "" when fine
 
 
 def srgb8(linear_rgb: np.ndarray) -> np.ndarray:
