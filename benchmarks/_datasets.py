@@ -1,8 +1,9 @@
-"""Helpers shared by the scan benchmarks: build a captured dataset quickly with the instant devices."""
+"""Helpers shared by the scan benchmarks: instant devices, a timed engine run, a captured dataset."""
 
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
@@ -14,6 +15,28 @@ from lfstudio.scan.engine import ScanEngine, create_scan_dataset  # noqa: E402
 from lfstudio.scan.events import ScanState  # noqa: E402
 from lfstudio.scan.scan_plan import ScanPlan  # noqa: E402
 from lfstudio.sim.instant import InstantCamera, InstantRig  # noqa: E402
+
+
+def instant_devices(rig_cfg, render=None):
+    """A connected :class:`InstantRig` and an :class:`InstantCamera` that photographs from its position."""
+    rig = InstantRig(rig_cfg)
+    rig.connect()
+    cam = InstantCamera(rig.true_position_mm, render=render)
+    cam.connect()
+    return rig, cam
+
+
+def timed_scan(engine: ScanEngine) -> float | None:
+    """Run ``engine`` to its end: the wall time in seconds, or None (after printing why) when the
+    scan did not finish."""
+    t = time.perf_counter()
+    engine.start()
+    state = engine.wait()
+    total_s = time.perf_counter() - t
+    if state is not ScanState.FINISHED:
+        print(f"scan did not finish: {engine.message}")
+        return None
+    return total_s
 
 
 def studio_renderer(plan: ScanPlan, width_px: int = 192):
@@ -43,10 +66,7 @@ def captured_dataset(root: Path, columns: int = 101, rows: int = 21, studio: boo
     ds = create_scan_dataset(root, plan, rig={"name": rig_cfg.name}, camera={"name": "instant"},
                              lens={"name": "virtual 50 mm", "focal_length_mm": 50.0}) \
         if not (root / "dataset.json").is_file() else Dataset.open(root)
-    rig = InstantRig(rig_cfg)
-    rig.connect()
-    cam = InstantCamera(rig.true_position_mm, render=studio_renderer(plan) if studio else None)
-    cam.connect()
+    rig, cam = instant_devices(rig_cfg, render=studio_renderer(plan) if studio else None)
     engine = ScanEngine(ds, plan, rig, cam, time_scale=0.0)
     engine.start()
     if engine.wait() is not ScanState.FINISHED:

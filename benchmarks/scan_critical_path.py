@@ -13,15 +13,15 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from _datasets import timed_scan  # noqa: E402
 from lfstudio.planning.optics import move_time_s  # noqa: E402
 from lfstudio.rig.profile import load_rig  # noqa: E402
 from lfstudio.scan.engine import ScanEngine, create_scan_dataset  # noqa: E402
-from lfstudio.scan.events import EventKind, ScanState  # noqa: E402
+from lfstudio.scan.events import EventKind  # noqa: E402
 from lfstudio.scan.scan_plan import ScanPlan  # noqa: E402
 from lfstudio.sim.session import SimulatedSession  # noqa: E402
 
@@ -50,12 +50,8 @@ def main() -> int:
         periods = []
         engine.subscribe(lambda ev: periods.append(ev.timings_s.get("period"))
                          if ev.kind is EventKind.VIEW_DONE else None)
-        t = time.perf_counter()
-        engine.start()
-        state = engine.wait()
-        total_s = time.perf_counter() - t
-        if state is not ScanState.FINISHED:
-            print(f"scan did not finish: {engine.message}")
+        total_s = timed_scan(engine)
+        if total_s is None:
             return 1
     critical_s = plan.estimate_duration_s(rig, exposure_s=trigger_s + EXPOSURE_S, transfer_s=TRANSFER_S) * scale
     serial_s = plan.estimate_duration_s(rig, exposure_s=trigger_s + EXPOSURE_S, transfer_s=TRANSFER_S,

@@ -15,11 +15,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from _datasets import instant_devices, timed_scan  # noqa: E402
 from lfstudio.rig.profile import load_rig  # noqa: E402
 from lfstudio.scan.engine import ScanEngine, create_scan_dataset  # noqa: E402
-from lfstudio.scan.events import ScanState  # noqa: E402
 from lfstudio.scan.scan_plan import ScanPlan  # noqa: E402
-from lfstudio.sim.instant import InstantCamera, InstantRig  # noqa: E402
 
 TARGET_MS = 5.0
 
@@ -34,22 +33,15 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         ds = create_scan_dataset(Path(tmp) / "ds", plan, rig={"name": rig_cfg.name}, camera={"name": "instant"},
                                  lens={"name": "none"})
-        rig = InstantRig(rig_cfg)
-        rig.connect()
-        cam = InstantCamera(rig.true_position_mm)
-        cam.connect()
+        rig, cam = instant_devices(rig_cfg)
         # the camera's own work (encoding a 64 x 48 PNG) is not engine overhead: measure it alone
         t = time.perf_counter()
         for i in range(200):
             cam.capture(Path(tmp) / f"probe{i % 4}")
         camera_ms = (time.perf_counter() - t) / 200 * 1000
         engine = ScanEngine(ds, plan, rig, cam, time_scale=0.0)
-        t = time.perf_counter()
-        engine.start()
-        state = engine.wait()
-        total_s = time.perf_counter() - t
-        if state is not ScanState.FINISHED:
-            print(f"scan did not finish: {engine.message}")
+        total_s = timed_scan(engine)
+        if total_s is None:
             return 1
     n = len(plan)
     per_view_ms = total_s / n * 1000
