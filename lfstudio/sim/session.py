@@ -46,9 +46,9 @@ class SimulatedSession:
 
     def studio_kwargs(self) -> dict[str, Any]:
         """The virtual studio of the simulated camera: the demo orientation error, centred on the grid."""
-        from lfstudio.sim.sim_camera import DEMO_PP_OFFSET_PX, DEMO_ROTATION_DEG
+        from lfstudio.sim.studio import demo_studio_kwargs
 
-        kw: dict[str, Any] = {"rotation_deg": DEMO_ROTATION_DEG, "pp_offset_px": DEMO_PP_OFFSET_PX}
+        kw = demo_studio_kwargs()
         if self.view_region_mm is not None:
             kw["view_region_mm"] = tuple(float(v) for v in self.view_region_mm)
         if self.image_width_px:

@@ -30,7 +30,7 @@ from lfstudio.errors import DeviceError, InputError
 from lfstudio.rig.camera import CameraStatus, CaptureResult
 from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
 from lfstudio.sim.sensor import SensorModel
-from lfstudio.sim.studio import DEMO_PP_OFFSET_PX, DEMO_ROTATION_DEG, VirtualStudio
+from lfstudio.sim.studio import VirtualStudio, demo_studio_kwargs
 
 log = logging.getLogger(__name__)
 
@@ -69,8 +69,7 @@ class SimulatedCamera:
                  studio_kwargs: dict[str, Any] | None = None,
                  faults: dict[str, int | None] | Any = None):
         self.studio = studio
-        self.studio_kwargs = dict(studio_kwargs or {"rotation_deg": DEMO_ROTATION_DEG,
-                                                    "pp_offset_px": DEMO_PP_OFFSET_PX})
+        self.studio_kwargs = dict(studio_kwargs or demo_studio_kwargs())
         self.position_mm: Callable[[], tuple[float, float]] = position_mm or (lambda: (0.0, 0.0))
         self.exposure_s = float(exposure_s)
         self.transfer_s = float(transfer_s)

@@ -49,13 +49,16 @@ DEMO_ROTATION_DEG = (1.0, -1.5, 0.7)
 DEMO_PP_OFFSET_PX = (8.0, -5.0)
 
 
+def demo_studio_kwargs(**overrides: Any) -> dict[str, Any]:
+    """:class:`VirtualStudio` arguments of the demo studio (see :func:`demo_studio`), with ``overrides``."""
+    return {"rotation_deg": DEMO_ROTATION_DEG, "pp_offset_px": DEMO_PP_OFFSET_PX, **overrides}
+
+
 def demo_studio(**overrides: Any) -> "VirtualStudio":
     """The studio the simulated camera shows by default: the reference scene (1.77 … 4.77 m, grid
     region 400 x 120 mm from the origin) seen with a known orientation error and principal-point
     offset (:data:`DEMO_ROTATION_DEG`, :data:`DEMO_PP_OFFSET_PX`)."""
-    kwargs: dict[str, Any] = {"rotation_deg": DEMO_ROTATION_DEG, "pp_offset_px": DEMO_PP_OFFSET_PX}
-    kwargs.update(overrides)
-    return VirtualStudio(**kwargs)
+    return VirtualStudio(**demo_studio_kwargs(**overrides))
 
 
 def rotation_matrix(rotation_deg: tuple[float, float, float] | list[float]) -> np.ndarray:

@@ -130,7 +130,7 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
     if studio is None:
         studio = VirtualStudio(**studio_kwargs)
     else:
-        studio_kwargs = studio_init_kwargs(studio)
+        studio_kwargs = studio.init_kwargs()
     if fmt == "dng" and studio.width_px % 2:
         raise InputError("width_px", f"a Bayer DNG needs an even width, got {studio.width_px}")
     sensor = SensorModel(flicker=flicker, vignetting=vignetting, noise=noise, seed=seed)
@@ -207,11 +207,6 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
     })
     atomic_write_json(root / GROUND_TRUTH_NAME, truth)
     return ds
-
-
-def studio_init_kwargs(studio: VirtualStudio) -> dict[str, Any]:
-    """Arguments that rebuild ``studio`` (same scene, same camera) in another process."""
-    return studio.init_kwargs()
 
 
 def load_ground_truth(root: str | os.PathLike) -> dict[str, Any]:
