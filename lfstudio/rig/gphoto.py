@@ -21,6 +21,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from lfstudio.dataset.atomic import atomic_write_with
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.rig.camera import CameraStatus, CaptureResult
 
@@ -193,28 +194,27 @@ class GPhotoCamera:
                     on_exposed()
                 suffix = os.path.splitext(where.name)[1].lower() or ".raw"
                 dest = stem_path.with_name(stem_path.name + suffix)
-                tmp = dest.with_name(f".{dest.name}.tmp{suffix}")
-                dest.parent.mkdir(parents=True, exist_ok=True)
                 try:
                     expected = int(camera.file_get_info(where.folder, where.name).file.size)
                 except (gp.GPhoto2Error, AttributeError, TypeError, ValueError):
                     expected = None
-                try:
-                    camera_file = camera.file_get(where.folder, where.name, gp.GP_FILE_TYPE_NORMAL, gp.CameraFile())
-                    camera_file.save(str(tmp))
-                except gp.GPhoto2Error as exc:
-                    tmp.unlink(missing_ok=True)
-                    self._message = gp_message(exc, f"download of {where.folder}/{where.name}")
-                    raise DeviceError(self._message) from None
-                size = tmp.stat().st_size if tmp.exists() else 0
-                if size == 0 or (expected is not None and size != expected):
-                    tmp.unlink(missing_ok=True)
-                    self._message = (f"camera: download of {where.name} incomplete ({size} of "
-                                     f"{expected if expected is not None else '?'} bytes); retry the shot")
-                    raise DeviceError(self._message)
-                with open(tmp, "rb+") as fh:
-                    os.fsync(fh.fileno())
-                os.replace(tmp, dest)
+
+                def download(tmp: Path) -> None:
+                    try:
+                        camera_file = camera.file_get(where.folder, where.name, gp.GP_FILE_TYPE_NORMAL,
+                                                      gp.CameraFile())
+                        camera_file.save(str(tmp))
+                    except gp.GPhoto2Error as exc:
+                        self._message = gp_message(exc, f"download of {where.folder}/{where.name}")
+                        raise DeviceError(self._message) from None
+                    got = tmp.stat().st_size if tmp.exists() else 0
+                    if got == 0 or (expected is not None and got != expected):
+                        self._message = (f"camera: download of {where.name} incomplete ({got} of "
+                                         f"{expected if expected is not None else '?'} bytes); retry the shot")
+                        raise DeviceError(self._message)
+
+                atomic_write_with(dest, download)      # size checked before the file takes its name
+                size = dest.stat().st_size
                 if self.delete_from_camera:
                     try:
                         camera.file_delete(where.folder, where.name)

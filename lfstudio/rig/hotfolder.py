@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from lfstudio.dataset.atomic import atomic_write_with
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.rig.camera import CaptureResult
 
@@ -214,9 +215,7 @@ class HotFolderCamera:
 
     def _transfer(self, src: Path, dest: Path, size: int) -> None:
         """Move (or copy) ``src`` to ``dest`` atomically, and check the size arrived complete."""
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        tmp = dest.with_name(f".{dest.name}.tmp{dest.suffix}")
-        try:
+        def move(tmp: Path) -> None:
             if self.keep_source:
                 shutil.copyfile(src, tmp)
             else:
@@ -225,17 +224,13 @@ class HotFolderCamera:
                 except OSError:                    # another file system: copy, then remove
                     shutil.copyfile(src, tmp)
                     src.unlink()
-            with open(tmp, "rb+") as fh:
-                os.fsync(fh.fileno())
             got = tmp.stat().st_size
             if got != size:
                 raise DeviceError(f"{src}: {got} bytes arrived of {size}; the file changed while it was "
                                   "being moved; retry the shot")
-            os.replace(tmp, dest)
+
+        try:
+            atomic_write_with(dest, move)
         except OSError as exc:
-            tmp.unlink(missing_ok=True)
             raise DeviceError(f"cannot move {src} to {dest}: {exc.strerror or exc}; check free disk space "
                               "and permissions") from None
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
