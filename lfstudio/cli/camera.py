@@ -23,6 +23,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _open(args: argparse.Namespace):
+    """The connected camera ``--camera`` names (the same names as ``lfstudio scan --camera``)."""
     spec = args.camera
     if spec == "sim":
         from lfstudio.sim.sim_camera import SimulatedCamera
@@ -34,16 +35,12 @@ def _open(args: argparse.Namespace):
             raise InputError("--position-mm", f"cannot read {args.position_mm!r}", "X,Y in mm") from None
         if not 16 <= args.width <= 12000:
             raise InputError("--width", f"{args.width} px is out of range", "16 .. 12000")
-        return SimulatedCamera(demo_studio(width_px=args.width // 2 * 2), lambda: (x, y), time_scale=0.0)
-    if spec == "gphoto2":
-        from lfstudio.rig.gphoto import GPhotoCamera
+        camera = SimulatedCamera(demo_studio(width_px=args.width // 2 * 2), lambda: (x, y), time_scale=0.0)
+        camera.connect()
+        return camera
+    from lfstudio.scan.devices import open_camera
 
-        return GPhotoCamera()
-    if spec.startswith("folder:") and len(spec) > 7:
-        from lfstudio.rig.hotfolder import HotFolderCamera
-
-        return HotFolderCamera(spec[7:], args.trigger or None)
-    raise InputError("--camera", f"unknown camera {spec!r}", "sim, gphoto2, folder:PATH")
+    return open_camera(spec, trigger_command=args.trigger or None)
 
 
 def _value(text: str):
@@ -59,7 +56,6 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     camera = _open(args)
-    camera.connect()
     try:
         for item in args.set:
             name, sep, value = item.partition("=")

@@ -83,8 +83,9 @@ def open_devices(rig_spec: str, camera_spec: str, rig_config: RigConfig, *, time
     return ScanDevices(rig, camera, None, f"rig {rig_spec}, camera {camera_spec}")
 
 
-def open_camera(spec: str, *, position_mm: Any = None) -> Any:
-    """A connected camera driver: ``instant``, ``gphoto2`` or ``folder:PATH``."""
+def open_camera(spec: str, *, position_mm: Any = None, trigger_command: Any = None) -> Any:
+    """A connected camera driver: ``instant``, ``gphoto2`` or ``folder:PATH`` (``trigger_command``:
+    the hot folder's trigger, an argument list)."""
     if spec == "instant":
         from lfstudio.sim.instant import InstantCamera
 
@@ -100,7 +101,7 @@ def open_camera(spec: str, *, position_mm: Any = None) -> Any:
             from lfstudio.rig.hotfolder import HotFolderCamera
         except ImportError as exc:
             raise DeviceError(f"--camera folder: the driver is not available ({exc})") from None
-        cam = HotFolderCamera(spec.split(":", 1)[1])
+        cam = HotFolderCamera(spec.split(":", 1)[1], trigger_command)
     else:
         raise InputError("--camera", f"unknown camera {spec!r}", "sim, gphoto2, folder:PATH, instant")
     cam.connect()
