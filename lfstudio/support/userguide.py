@@ -7,24 +7,18 @@ package's long description read back from the installed metadata.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 PROJECT_URL = "https://github.com/lfstudio/lfstudio#user-guide"
 
 
 def readme_path() -> Path | None:
-    """README.md of a checkout, bundle or installed copy (``PREFIX/share/lfstudio``), or None."""
+    """README.md of a checkout, bundle or installed copy (``PREFIX/share/lfstudio``), or None: it
+    sits next to the resources folder in each (:data:`lfstudio.resources.RESOURCES_DIR` finds that)."""
     from lfstudio.resources import RESOURCES_DIR
 
-    if hasattr(sys, "_MEIPASS"):
-        candidates = [Path(getattr(sys, "_MEIPASS")) / "README.md"]
-    else:
-        candidates = [Path(__file__).resolve().parents[2] / "README.md", RESOURCES_DIR.parent / "README.md"]
-    for path in candidates:
-        if path.is_file():
-            return path
-    return None
+    path = RESOURCES_DIR.parent / "README.md"
+    return path if path.is_file() else None
 
 
 def readme_markdown() -> str:
