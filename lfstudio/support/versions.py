@@ -22,15 +22,13 @@ class Component:
     purpose: str = ""
 
 
-def _attr(*names: str) -> Callable:
+def _attr(name: str) -> Callable:
+    """module -> ``str(module.NAME)`` (dotted names followed; a callable is called)."""
     def get(mod):
-        for name in names:
-            value = mod
-            for part in name.split("."):
-                value = getattr(value, part)
-            if callable(value):
-                value = value()
-            return str(value)
+        value = mod
+        for part in name.split("."):
+            value = getattr(value, part)
+        return str(value() if callable(value) else value)
     return get
 
 
