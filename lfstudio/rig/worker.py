@@ -13,7 +13,7 @@ thread and hands back :class:`concurrent.futures.Future` objects::
 Contract:
 
 - Calls run one at a time, in submission order, on the worker thread.
-- ``timeout_s``: when a call runs longer, its future fails with a :class:`DeviceError` naming the
+- ``timeout_s``: when a call runs longer, its future fails with :class:`CallTimedOut` (a DeviceError) naming the
   command. The driver call itself cannot be interrupted; the queue moves on when it returns.
 - ``stop_now()`` calls ``driver.stop()`` on the caller's thread (never queued) and fails every call
   still waiting in the queue ("cancelled by STOP").
@@ -40,6 +40,10 @@ from lfstudio.errors import DeviceError, LfError
 log = logging.getLogger(__name__)
 
 Subscriber = Callable[[Any], None]
+
+
+class CallTimedOut(DeviceError):
+    """A call ran longer than its ``timeout_s`` (the driver may still be stuck in it)."""
 
 
 @dataclass(frozen=True)
@@ -247,7 +251,7 @@ class DeviceWorker:
         timer = None
         if call.timeout_s is not None:
             text = describe_call(call.name, call.args, call.kwargs)
-            timer = threading.Timer(call.timeout_s, _fail, args=(call.future, DeviceError(
+            timer = threading.Timer(call.timeout_s, _fail, args=(call.future, CallTimedOut(
                 f"{self.name}: {text} timed out after {call.timeout_s:g} s; "
                 "check the device's cable and power, then reconnect")))
             timer.daemon = True

@@ -38,7 +38,7 @@ from lfstudio.dataset.store import clean_temporary_files, free_bytes, sha256_fil
 from lfstudio.errors import DeviceError, LfError
 from lfstudio.rig.camera import CaptureResult, supports_on_exposed
 from lfstudio.rig.motion import RigState
-from lfstudio.rig.worker import DeviceWorker
+from lfstudio.rig.worker import CallTimedOut, DeviceWorker
 from lfstudio.scan.events import EventKind, ScanEvent, ScanState
 from lfstudio.scan.scan_plan import PlannedView, ScanPlan
 from lfstudio.scan.thumbs import THUMB_WIDTH_PX, make_thumbnail
@@ -571,7 +571,7 @@ class ScanEngine:
 
     def _free_hung_camera(self, exc: BaseException | None = None) -> None:
         """A capture that timed out may still hang in the driver: stop it so the camera is usable."""
-        if exc is not None and "timed out" not in str(exc):
+        if exc is not None and not isinstance(exc, CallTimedOut):
             return
         if self.camera.current_command == "capture":
             try:
