@@ -236,10 +236,6 @@ def test_simulator_gcode_dialect_over_raw_serial():
     rig = load_rig()
     with GrblSimulator(rig, time_scale=0) as sim:
         with serial.Serial(sim.port, 115200, timeout=1) as port:
-            def ask(line: bytes) -> bytes:
-                port.write(line + b"\n")
-                return _line_starting(port, b"ok") if not line.startswith(b"!") else b""
-
             def answer(line: bytes) -> bytes:
                 port.write(line + b"\n")
                 for _ in range(30):
