@@ -1,4 +1,4 @@
-"""``lfstudio export DATASET --format png|hevc|hci --out PATH``: write the views for other tools."""
+"""``lfstudio export DATASET --format png|hevc|hci|colmap|nerfstudio --out PATH``: write the views for other tools."""
 
 from __future__ import annotations
 
@@ -8,21 +8,28 @@ import sys
 
 from lfstudio.errors import InputError
 
-HELP = "export the views as 16-bit PNG + manifest, an HEVC stream (meander order) or the HCI benchmark layout"
+HELP = ("export the views as 16-bit PNG + manifest, an HEVC stream (meander order), the HCI benchmark layout, "
+        "a COLMAP model or a nerfstudio transforms.json (with the rig's known poses)")
 
 #: ExportOptions field -> the option the user typed (error messages name what the user knows)
 _OPTION = {"format": "--format", "out": "--out", "views": "--views", "source": "--source", "crf": "--crf",
            "bit_depth": "--bit-depth", "hci_size": "--hci-size", "hci_center": "--hci-center",
-           "hci_bit_depth": "--hci-bit-depth"}
+           "hci_bit_depth": "--hci-bit-depth", "image_bit_depth": "--image-bit-depth", "holdout": "--holdout"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", metavar="DATASET", help="the dataset folder (holding dataset.json)")
-    p.add_argument("--format", required=True, metavar="FORMAT",
+    from lfstudio.export import FORMATS
+    from lfstudio.export.nerfstudio import HOLDOUT_HELP
+
+    p.add_argument("--format", required=True, choices=FORMATS, type=str.lower,
                    help="png (16-bit PNG per view + manifest.json), hevc (x265 12-bit 4:4:4, meander order, "
-                        "sidecar FILE.json) or hci (HCI benchmark layout of a sub-array)")
+                        "sidecar FILE.json), hci (HCI benchmark layout of a sub-array), colmap (COLMAP text "
+                        "model sparse/0/*.txt + images/, known poses, metres) or nerfstudio (transforms.json + "
+                        "images/, known poses, train/test split)")
     p.add_argument("--out", required=True, metavar="PATH",
-                   help="png/hci: a new folder; hevc: a new .mp4/.mkv/.hevc file (its sidecar is PATH.json)")
+                   help="png/hci/colmap/nerfstudio: a new folder; hevc: a new .mp4/.mkv/.hevc file "
+                        "(its sidecar is PATH.json)")
     p.add_argument("--views", metavar="SUBSET",
                    help="views to export: 'all' (default), rows/columns like r0-8,c10-18, an array like 3x5 "
                         "(rows x columns) spread over the grid, or names like r00_c000,r00_c001")
@@ -36,6 +43,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="hci: grid row,column of the centre view (default: the grid centre)")
     p.add_argument("--hci-bit-depth", type=int, default=8,
                    help="hci: 8 (sRGB PNG like the benchmark, default) or 16 (linear 16-bit PNG)")
+    p.add_argument("--image-bit-depth", type=int, default=8,
+                   help="colmap/nerfstudio: 8 (sRGB PNG, what view-synthesis tools expect, default) or 16 "
+                        "(linear 16-bit PNG)")
+    p.add_argument("--holdout", default="none", metavar="SPLIT",
+                   help=f"nerfstudio: views held out of training for evaluation: {HOLDOUT_HELP} (default none)")
     p.add_argument("--overwrite", action="store_true", help="replace PATH if it exists (default: refuse)")
     p.add_argument("--estimate", action="store_true", help="print the size estimate and exit without writing")
 
@@ -58,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
                             crf=args.crf, bit_depth=args.bit_depth,
                             hci_size=_pair(args.hci_size, "--hci-size", "x×"),
                             hci_center=_pair(args.hci_center, "--hci-center", ",") if args.hci_center else None,
-                            overwrite=args.overwrite, hci_bit_depth=args.hci_bit_depth)
+                            overwrite=args.overwrite, hci_bit_depth=args.hci_bit_depth,
+                            image_bit_depth=args.image_bit_depth, holdout=args.holdout)
     root = Path(args.dataset)
     if not (root / "dataset.json").is_file():
         raise InputError("DATASET", f"{root} is not a dataset folder (no dataset.json in it)",

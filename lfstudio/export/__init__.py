@@ -9,6 +9,10 @@ Formats (``FORMATS``):
   :func:`import_hevc` restores the views as 16-bit PNGs in a new dataset.
 - ``hci``: the HCI 4D light-field benchmark layout of a sub-array (``parameters.cfg``,
   ``input_Cam000.png`` … row-major).
+- ``colmap``: a COLMAP text model (``sparse/0/cameras.txt``, ``images.txt``, ``points3D.txt``)
+  with the rig's known poses (reported positions, calibrated rotation) beside ``images/``.
+- ``nerfstudio``: ``transforms.json`` (nerfstudio / instant-ngp) with the same poses, a hold-out
+  split, beside ``images/``.
 
 Every export is a long job (``progress(done, total, message)``, ``cancel``: a
 :class:`lfstudio.jobs.CancelToken`). It writes into a temporary sibling ``.NAME.partial-XXXX`` and
@@ -32,7 +36,8 @@ from lfstudio.jobs import CancelToken, Progress, no_progress
 
 log = logging.getLogger(__name__)
 
-FORMATS = ("png", "hevc", "hci")
+FORMATS = ("png", "hevc", "hci", "colmap", "nerfstudio")
+POSED_FORMATS = ("colmap", "nerfstudio")
 HEVC_SUFFIXES = (".mp4", ".mkv", ".hevc", ".mov")
 
 
@@ -49,6 +54,8 @@ class ExportOptions:
     hci_center: tuple[int, int] | None = None # hci (row, column) of the centre view; None = grid centre
     overwrite: bool = False          # False: an existing `out` raises InputError("out", ...)
     hci_bit_depth: int = 8           # hci: 8 (sRGB, like the benchmark) or 16 (linear)
+    image_bit_depth: int = 8         # colmap/nerfstudio images: 8 (sRGB, what their tools expect) or 16 (linear)
+    holdout: str = "none"            # nerfstudio: "none", "centre" or "every-K" (held out of training)
 
 
 @dataclass
@@ -103,7 +110,8 @@ def _check_options(options: ExportOptions) -> ExportOptions:
     if fmt not in FORMATS:
         raise InputError("format", f"unknown format {options.format!r}", ", ".join(FORMATS))
     if options.out is None or str(options.out).strip() == "":
-        raise InputError("out", "no output path given", "a folder (png, hci) or a .mp4/.mkv/.hevc file (hevc)")
+        raise InputError("out", "no output path given",
+                         "a folder (png, hci, colmap, nerfstudio) or a .mp4/.mkv/.hevc file (hevc)")
     out = Path(options.out).expanduser()
     if fmt == "hevc":
         if out.suffix.lower() not in HEVC_SUFFIXES:
@@ -119,6 +127,13 @@ def _check_options(options: ExportOptions) -> ExportOptions:
         if int(options.hci_bit_depth) not in (8, 16):
             raise InputError("hci_bit_depth", f"{options.hci_bit_depth} is not supported",
                              "8 (sRGB, like the benchmark) or 16 (linear)")
+    if fmt in POSED_FORMATS and int(options.image_bit_depth) not in (8, 16):
+        raise InputError("image_bit_depth", f"{options.image_bit_depth} is not supported",
+                         "8 (sRGB, what view-synthesis tools expect) or 16 (linear)")
+    if fmt == "nerfstudio":
+        from lfstudio.export import nerfstudio
+
+        nerfstudio.parse_holdout(options.holdout)
     return dataclasses.replace(options, format=fmt, out=out)   # the caller's options stay as they were
 
 
@@ -137,6 +152,21 @@ def _plan(ds: Dataset, options: ExportOptions) -> tuple[list[tuple[int, int]], s
     if options.format == "hevc":
         views = common.meander(views)
     return views, source, size
+
+
+def _posed_warnings(ds: Dataset, views, source: str, size, options: ExportOptions) -> list[str]:
+    """What a COLMAP / nerfstudio export should say about its poses (and checks they can be made)."""
+    from lfstudio.export import poses
+
+    cam = poses.camera_for(ds, size, common.is_rectified(ds, source))
+    out = list(cam.warnings) + poses.position_warnings(ds, views)
+    if options.format == "nerfstudio":
+        from lfstudio.export import nerfstudio
+
+        n = len(nerfstudio.held_out(views, options.holdout))
+        if n:
+            out.append(f"{n} view{'' if n == 1 else 's'} held out of training (val/test_filenames)")
+    return out
 
 
 def estimate_export(dataset, options: ExportOptions) -> ExportEstimate:
@@ -163,11 +193,14 @@ def estimate_export(dataset, options: ExportOptions) -> ExportEstimate:
                             f"views are padded to {frame_size[0]} x {frame_size[1]} px (edge pixels repeated; "
                             "import removes them)")
         nbytes = hevc.estimate_bytes(len(views), frame_size, options.crf, options.bit_depth)
-    else:
+    elif options.format == "hci":
         from lfstudio.export import hci
 
         nbytes = hci.estimate_bytes(len(views), size, options.hci_bit_depth)
         warnings += hci.warnings(ds, views, size)
+    else:
+        nbytes = common.images_bytes_estimate(len(views), size, options.image_bit_depth) + 200 * len(views) + 8192
+        warnings += _posed_warnings(ds, views, source, size, options)
     if (out.exists() or out.is_symlink()) and not options.overwrite:
         warnings.append(f"{out} already exists and will only be replaced if you allow overwriting")
     return ExportEstimate(views=list(views), source=source, image_size_px=tuple(frame_size),
@@ -204,12 +237,24 @@ def export_dataset(dataset, options: ExportOptions, *, progress: Progress | None
         report.compression_ratio_vs_png = result["compression_ratio_vs_png"]
         report.psnr_db = result["psnr_db"]
         report.details = result
-    else:
+    elif options.format == "hci":
         from lfstudio.export import hci
 
         common.check_out(out, options.overwrite)
         report.files = hci.export_hci(ds, views, source, size, out, options, progress, cancel)
         report.warnings += hci.warnings(ds, views, size)
+    elif options.format == "colmap":
+        from lfstudio.export import colmap
+
+        common.check_out(out, options.overwrite)
+        report.warnings += _posed_warnings(ds, views, source, size, options)
+        report.files = colmap.export_colmap(ds, views, source, size, out, options, progress, cancel)
+    else:
+        from lfstudio.export import nerfstudio
+
+        common.check_out(out, options.overwrite)
+        report.warnings += _posed_warnings(ds, views, source, size, options)
+        report.files = nerfstudio.export_nerfstudio(ds, views, source, size, out, options, progress, cancel)
     report.bytes_written = sum(common.folder_bytes(p) for p in report.files if p.exists())
     report.seconds = time.monotonic() - t0
     log.info("export to %s finished: %d files, %d bytes in %.1f s", out, len(report.files), report.bytes_written,
@@ -227,5 +272,5 @@ def import_hevc(file, out, *, progress: Progress | None = None, cancel: CancelTo
                             cancel=cancel or CancelToken(), overwrite=overwrite)
 
 
-__all__ = ["FORMATS", "ExportOptions", "ExportEstimate", "ExportReport", "estimate_export", "export_dataset",
+__all__ = ["FORMATS", "POSED_FORMATS", "ExportOptions", "ExportEstimate", "ExportReport", "estimate_export", "export_dataset",
            "import_hevc"]

@@ -19,24 +19,20 @@ from __future__ import annotations
 import configparser
 import datetime as _dt
 import io
-import contextlib
 import json
 import math
 from pathlib import Path
 from typing import Any, Sequence
 
-import cv2
-import numpy as np
 
 from lfstudio.dataset import Dataset
-from lfstudio.errors import DatasetError, InputError
+from lfstudio.errors import InputError
 from lfstudio.export import common
 from lfstudio.jobs import CancelToken, Progress
 
 PARAMETERS_NAME = "parameters.cfg"
 MANIFEST_NAME = "lfstudio_manifest.json"
 DEFAULT_COC_MM = 0.029
-HCI_PNG_RATIO = 0.45   # 8-bit PNG of a natural scene / uncompressed
 
 
 def cam_name(index: int, count: int) -> str:
@@ -91,8 +87,7 @@ def sub_array(ds: Dataset, options) -> list[common.View]:
 
 
 def estimate_bytes(n: int, size: Sequence[int], bit_depth: int = 8) -> int:
-    per_px = 3 * HCI_PNG_RATIO if bit_depth == 8 else 6 * 0.7
-    return int(n * int(size[0]) * int(size[1]) * per_px) + 8192
+    return common.images_bytes_estimate(n, size, bit_depth) + 8192
 
 
 def _plan_numbers(ds: Dataset) -> dict[str, float | None]:
@@ -220,17 +215,7 @@ def parameters_text(ds: Dataset, views: Sequence[common.View], size: Sequence[in
     return buf.getvalue()
 
 
-_SRGB_LUT: np.ndarray | None = None
-
-
-def to_srgb8(rgb16: np.ndarray) -> np.ndarray:
-    """Linear 16-bit → 8-bit sRGB through a 65536-entry table."""
-    global _SRGB_LUT
-    if _SRGB_LUT is None:
-        x = np.arange(65536, dtype=np.float64) / 65535.0
-        s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-        _SRGB_LUT = np.clip(np.rint(s * 255.0), 0, 255).astype(np.uint8)
-    return _SRGB_LUT[rgb16]
+to_srgb8 = common.to_srgb8   # the benchmark's 8-bit sRGB (kept here: tests and callers use hci.to_srgb8)
 
 
 def export_hci(ds: Dataset, views: Sequence[common.View], source: str, size: tuple[int, int], out: Path,
@@ -238,29 +223,11 @@ def export_hci(ds: Dataset, views: Sequence[common.View], source: str, size: tup
     bit_depth = int(getattr(options, "hci_bit_depth", 8) or 8)
     if bit_depth not in (8, 16):
         raise InputError("hci_bit_depth", f"{bit_depth} is not supported", "8 (sRGB, like the benchmark) or 16 (linear)")
-    debayer = common.debayer_step(ds) if source == "raw" else None
     n = len(views)
-    names = {}
+    names = {v: cam_name(i, n) for i, v in enumerate(views)}
     progress(0, n, "exporting HCI layout")
     with common.partial_folder(out, options.overwrite) as tmp:
-        def write(item: tuple[int, common.View]) -> tuple[common.View, str]:
-            i, v = item
-            rgb = common.read_view(common.source_path(ds, v, source), debayer)
-            if (rgb.shape[1], rgb.shape[0]) != tuple(size):
-                raise DatasetError(f"row {v[0]}, column {v[1]}: {rgb.shape[1]} x {rgb.shape[0]} px, the other views "
-                                   f"are {size[0]} x {size[1]} px; export views of one camera setting")
-            name = cam_name(i, n)
-            if bit_depth == 8:
-                if not cv2.imwrite(str(tmp / name), cv2.cvtColor(to_srgb8(rgb), cv2.COLOR_RGB2BGR)):
-                    raise OSError(f"{tmp / name}: cannot write the PNG (disk full or folder not writable?)")
-            else:
-                common.write_png16(tmp / name, rgb)
-            return v, name
-
-        with contextlib.closing(common.ordered_map(write, list(enumerate(views)), cancel)) as results:
-            for k, (v, name) in enumerate(results):
-                names[v] = name
-                progress(k + 1, n, name)
+        common.write_images(ds, views, source, size, tmp, names, bit_depth, progress, cancel)
         (tmp / PARAMETERS_NAME).write_text(parameters_text(ds, views, size, source), encoding="utf-8")
         doc: dict[str, Any] = common.describe(ds, views, source, size, names)
         doc["kind"] = "hci"

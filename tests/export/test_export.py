@@ -140,7 +140,8 @@ def test_png_export_decodes_dng_like_processing(make_tiny_dataset, tmp_path):
 
 
 # -- atomic output --------------------------------------------------------------------------------------
-@pytest.mark.parametrize("fmt,name", [("png", "p"), ("hevc", "v.mp4"), ("hci", "h")])
+@pytest.mark.parametrize("fmt,name", [("png", "p"), ("hevc", "v.mp4"), ("hci", "h"), ("colmap", "c"),
+                                      ("nerfstudio", "n")])
 def test_cancel_leaves_nothing_behind(small, tmp_path, fmt, name):
     cancel = CancelToken()
     exports = tmp_path / "exports"

@@ -36,7 +36,10 @@ def test_export_png_then_refuses_to_overwrite(make_tiny_dataset, run_cli, tmp_pa
 def test_export_bad_input_exit_2(make_tiny_dataset, run_cli, tmp_path):
     ds = make_tiny_dataset("png", width_px=241)
     for args, words in [
-        (["--format", "tiff", "--out", tmp_path / "x"], ("--format", "png, hevc, hci")),
+        (["--format", "tiff", "--out", tmp_path / "x"], ("--format", "'png', 'hevc', 'hci', 'colmap', 'nerfstudio'")),
+        (["--format", "colmap", "--out", tmp_path / "x", "--image-bit-depth", "12"], ("--image-bit-depth", "8 (sRGB")),
+        (["--format", "nerfstudio", "--out", tmp_path / "x", "--holdout", "every-1"], ("--holdout", "every-K")),
+        (["--format", "nerfstudio", "--out", tmp_path / "x", "--holdout", "every-9"], ("--holdout", "no view")),
         (["--format", "hevc", "--out", tmp_path / "x.avi"], ("--out", ".mp4")),
         (["--format", "hevc", "--out", tmp_path / "x.mp4", "--bit-depth", "8"], ("--bit-depth", "10 or 12")),
         (["--format", "png", "--out", tmp_path / "x", "--views", "r0-9"], ("--views",)),
@@ -86,3 +89,20 @@ def test_report_summary_counts_views_in_words():
 
     assert ExportReport(Path("out"), 1, 2048, 0.5, "png", "raw").summary().startswith("exported 1 view (raw) as png")
     assert ExportReport(Path("out"), 3, 2048, 0.5, "png", "raw").summary().startswith("exported 3 views (raw)")
+
+
+def test_export_colmap_and_nerfstudio(make_tiny_dataset, run_cli, tmp_path):
+    ds = make_tiny_dataset("png", width_px=241)
+    proc = run_cli("export", ds.root, "--format", "colmap", "--out", tmp_path / "c", "--views", "r1")
+    assert proc.returncode == 0, proc.stderr
+    assert "5 views (raw)" in proc.stderr and "no calibration" in proc.stderr and "as colmap" in proc.stdout
+    assert sorted(p.name for p in (tmp_path / "c" / "sparse" / "0").iterdir()) == \
+        ["cameras.txt", "images.txt", "points3D.txt"]
+    images = (tmp_path / "c" / "sparse" / "0" / "images.txt").read_text().splitlines()
+    assert [ln.split()[-1] for ln in images if ln and not ln.startswith("#")] == \
+        [f"r01_c00{c}.png" for c in range(5)]
+    proc = run_cli("export", ds.root, "--format", "NERFSTUDIO", "--out", tmp_path / "n", "--holdout", "centre")
+    assert proc.returncode == 0, proc.stderr
+    assert "1 view held out" in proc.stderr
+    meta = json.loads((tmp_path / "n" / "transforms.json").read_text())
+    assert meta["test_filenames"] == ["images/r01_c002.png"] and len(meta["frames"]) == 15
