@@ -10,6 +10,10 @@ thread and hands back :class:`concurrent.futures.Future` objects::
     worker.stop_now()                                            # driver.stop() on *this* thread
     worker.close()
 
+    lease = worker.claim("the scan of studio_day (started 14:02)")   # one owner at a time
+    lease.call("move_to", 100.0, 20.0)        # the owner's calls run; everybody else's are refused
+    lease.release()
+
 Contract:
 
 - Calls run one at a time, in submission order, on the worker thread.
@@ -23,6 +27,10 @@ Contract:
   ``status_listener`` attribute the worker sets on it (if the driver has such an attribute).
 - Subscriber callbacks run on the worker thread and must be quick; the Qt adapter
   (:mod:`lfstudio.gui.devices`) turns them into queued signals.
+- Interlock: ``claim(holder)`` gives one owner (a running scan) a :class:`Lease`. While it is held,
+  ``submit``/``call`` from anybody else fail with :class:`DeviceBusy`, whose message names the
+  holder; calls accepted before the claim still run in order. ``stop_now()`` is never refused: it
+  runs, and tells the lease's ``on_stop`` callback (the scan pauses instead of moving on).
 """
 
 from __future__ import annotations
@@ -44,6 +52,46 @@ Subscriber = Callable[[Any], None]
 
 class CallTimedOut(DeviceError):
     """A call ran longer than its ``timeout_s`` (the driver may still be stuck in it)."""
+
+
+class DeviceBusy(DeviceError):
+    """A command was refused because another owner (a running scan) holds the device.
+
+    ``holder`` says who, e.g. "the scan of studio_day (started 14:02)"."""
+
+    def __init__(self, message: str, holder: str):
+        super().__init__(message)
+        self.holder = holder
+
+
+class Lease:
+    """The right to command a claimed :class:`DeviceWorker` (see :meth:`DeviceWorker.claim`).
+
+    ``submit``/``call`` work like the worker's; ``release()`` gives the device back (idempotent).
+    """
+
+    def __init__(self, worker: "DeviceWorker", holder: str, on_stop: Callable[[], None] | None):
+        self.worker = worker
+        self.holder = holder
+        self.on_stop = on_stop
+        self.released = False
+
+    def submit(self, fn_or_name: str | Callable[..., Any], *args: Any, timeout_s: float | None = None,
+               **kwargs: Any) -> Future:
+        return self.worker._submit(fn_or_name, args, kwargs, timeout_s, self)
+
+    def call(self, fn_or_name: str | Callable[..., Any], *args: Any, timeout_s: float | None = None,
+             **kwargs: Any) -> Any:
+        return self.submit(fn_or_name, *args, timeout_s=timeout_s, **kwargs).result()
+
+    def release(self) -> None:
+        self.worker._release(self)
+
+    def __enter__(self) -> "Lease":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.release()
 
 
 @dataclass(frozen=True)
@@ -106,6 +154,8 @@ class DeviceWorker:
         self._latest: Any = None
         self._current: str | None = None
         self._closed = False
+        self._lease: Lease | None = None
+        self._lease_lock = threading.Lock()
         self._thread = threading.Thread(target=self._run, name=f"device-{self.name}", daemon=True)
         if hasattr(driver, "status_listener"):
             try:
@@ -117,7 +167,13 @@ class DeviceWorker:
     # -- calls -------------------------------------------------------------------------------------
     def submit(self, fn_or_name: str | Callable[..., Any], *args: Any, timeout_s: float | None = None,
                **kwargs: Any) -> Future:
-        """Queue ``driver.<name>(*args, **kwargs)`` (or ``fn(*args, **kwargs)``); returns its Future."""
+        """Queue ``driver.<name>(*args, **kwargs)`` (or ``fn(*args, **kwargs)``); returns its Future.
+
+        While another owner holds the device (:meth:`claim`), the Future fails with :class:`DeviceBusy`."""
+        return self._submit(fn_or_name, args, kwargs, timeout_s, None)
+
+    def _submit(self, fn_or_name: str | Callable[..., Any], args: tuple, kwargs: dict, timeout_s: float | None,
+                lease: Lease | None) -> Future:
         if isinstance(fn_or_name, str):
             fn = getattr(self.driver, fn_or_name, None)
             if fn is None or not callable(fn):
@@ -130,7 +186,18 @@ class DeviceWorker:
         if self._closed:
             future.set_exception(DeviceError(f"{self.name}: {name} refused: the device connection is closed"))
             return future
-        self._queue.put(_Call(name, fn, args, kwargs, future, timeout_s))
+        with self._lease_lock:
+            holder = self._lease
+            if holder is not None and holder is not lease:
+                future.set_exception(DeviceBusy(
+                    f"{self.name}: {describe_call(name, args, kwargs)} refused: the {self.name} is in use by "
+                    f"{holder.holder}; STOP is always available", holder.holder))
+                return future
+            if lease is not None and lease.released:
+                future.set_exception(DeviceError(f"{self.name}: {name} refused: the lease of {lease.holder} "
+                                                 "was released"))
+                return future
+            self._queue.put(_Call(name, fn, args, kwargs, future, timeout_s))
         return future
 
     def call(self, fn_or_name: str | Callable[..., Any], *args: Any, timeout_s: float | None = None,
@@ -139,11 +206,47 @@ class DeviceWorker:
         return self.submit(fn_or_name, *args, timeout_s=timeout_s, **kwargs).result()
 
     def stop_now(self) -> None:
-        """Run ``driver.stop()`` on this thread, bypassing the queue; fail every queued call."""
+        """Run ``driver.stop()`` on this thread, bypassing the queue; fail every queued call.
+
+        Never refused, whoever holds the device. The holder's ``on_stop`` is told first, so that it
+        knows why its running command is about to fail."""
+        lease = self._lease
+        if lease is not None and lease.on_stop is not None:
+            try:
+                lease.on_stop()
+            except Exception:  # the holder's bookkeeping must never keep STOP from running
+                log.exception("%s: on_stop of %s failed", self.name, lease.holder)
         self._drop_queued("cancelled by STOP")
         stop = getattr(self.driver, self._stop_method, None)
         if stop is not None:
             stop()
+
+    # -- ownership ---------------------------------------------------------------------------------
+    def claim(self, holder: str, on_stop: Callable[[], None] | None = None) -> Lease:
+        """Make ``holder`` the only one whose calls run until the lease is released.
+
+        Raises :class:`DeviceBusy` when someone else holds it. ``on_stop`` is called (on the caller
+        of :meth:`stop_now`, before the driver stops) when STOP is pressed while the lease is held."""
+        with self._lease_lock:
+            if self._lease is not None:
+                raise DeviceBusy(f"{self.name}: cannot be taken by {holder}: it is in use by "
+                                 f"{self._lease.holder}", self._lease.holder)
+            if self._closed:
+                raise DeviceError(f"{self.name}: cannot be taken by {holder}: the device connection is closed")
+            self._lease = Lease(self, holder, on_stop)
+            return self._lease
+
+    def _release(self, lease: Lease) -> None:
+        with self._lease_lock:
+            lease.released = True
+            if self._lease is lease:
+                self._lease = None
+
+    @property
+    def holder(self) -> str | None:
+        """Who holds the device (see :meth:`claim`), or None."""
+        lease = self._lease
+        return None if lease is None else lease.holder
 
     @property
     def busy(self) -> bool:

@@ -1,26 +1,43 @@
 """The scan engine: runs a :class:`ScanPlan` on a rig and a camera into a dataset folder.
 
+States and requests: the engine's states and what moves it between them are ONE table,
+:data:`lfstudio.scan.events.TRANSITIONS`. The operator's requests (``start``, ``pause``,
+``resume``, ``abort``, ``skip``, ``recapture``) may come from any thread: each is checked against
+the table at once (an illegal one raises :class:`ScanRequestRefused`, naming the state and the
+request) and queued to the engine thread, which applies it (or refuses it, through the returned
+Future, when an earlier request changed the state meanwhile). The store thread and STOP post their
+news to the same queue. Only the engine thread changes the state; any exception in its own code
+ends the scan in ``failed`` with a message (the dataset stays valid and resumable).
+
 Threads:
 
 * the **engine thread** owns the state machine and, per view, moves the rig, waits for it to
   settle and triggers the camera; as soon as the camera reports the shutter closed
-  (``Camera.capture(..., on_exposed=)``), it moves on to the next view;
+  (``Camera.capture(..., on_exposed=)``), it moves on to the next view. While it waits for a device
+  it keeps applying requests;
 * the **store thread** waits for each capture's file (download/transfer), checksums it, writes its
   thumbnail and journals the view (fsync'd) — overlapping the next move and settle;
 * the devices run on their :class:`lfstudio.rig.worker.DeviceWorker` threads (the engine makes
   its own workers for bare drivers).
 
+Interlock: while the scan owns the rig (running, pausing, stopping: :data:`OWNS_RIG`) it holds the
+rig worker's lease (:meth:`DeviceWorker.claim`), so every other motion command is refused with a
+message naming the scan (:attr:`ScanEngine.label`); STOP is always accepted and pauses the scan.
+A paused scan gives the rig back, so the operator can home it or clear a fault before Resume.
+
 Checkpoints (where a pause or an abort lands) are between views: a pause finishes the current
 view, waits until every file is stored, then reports ``paused``. A device fault retries the view
 with backoff; when the retries are used up the scan pauses with the device's message, and
 ``resume()`` reconnects the device and retries the view. Too little free disk space pauses too.
-Listeners get :class:`ScanEvent` objects on the engine's threads.
+Listeners get :class:`ScanEvent` objects on the engine's threads (a listener that raises is logged
+and otherwise ignored).
 """
 
 from __future__ import annotations
 
 import errno
 import logging
+import math
 import queue
 import threading
 import time
@@ -38,8 +55,9 @@ from lfstudio.dataset.store import clean_temporary_files, free_bytes, sha256_fil
 from lfstudio.errors import DeviceError, LfError
 from lfstudio.rig.camera import CaptureResult, supports_on_exposed
 from lfstudio.rig.motion import RigState
-from lfstudio.rig.worker import CallTimedOut, DeviceWorker
-from lfstudio.scan.events import EventKind, ScanEvent, ScanState
+from lfstudio.rig.worker import CallTimedOut, DeviceWorker, Lease
+from lfstudio.scan.events import (OWNS_RIG, TERMINAL, TRANSITIONS, EventKind, ScanEvent, ScanRequestRefused,
+                                  ScanState, Trigger, next_state)
 from lfstudio.scan.scan_plan import PlannedView, ScanPlan
 from lfstudio.scan.thumbs import THUMB_WIDTH_PX, make_thumbnail
 
@@ -48,6 +66,7 @@ log = logging.getLogger(__name__)
 Listener = Callable[[ScanEvent], None]
 DONE_STATUSES = ("done", "skipped")
 _STOP = object()
+_RETRY = "retry"            # inbox: a view whose transfer failed, to capture again (from the store thread)
 
 
 class ScanFault(LfError):
@@ -56,6 +75,10 @@ class ScanFault(LfError):
     def __init__(self, message: str, device: str = ""):
         super().__init__(message)
         self.device = device
+
+
+class _Interrupted(Exception):
+    """A view's attempt ended because the scan is pausing or stopping (STOP, pause, abort, a fault)."""
 
 
 @dataclass
@@ -70,6 +93,15 @@ class _Job:
     timings_s: dict[str, float] = field(default_factory=dict)
 
 
+@dataclass
+class _Message:
+    """One entry of the engine thread's inbox: a request, a fault, a retry or a crash."""
+
+    kind: Trigger | str
+    payload: Any = None
+    future: Future | None = None
+
+
 def _as_worker(device: Any, name: str) -> tuple[DeviceWorker, bool]:
     if isinstance(device, DeviceWorker):
         return device, False
@@ -82,6 +114,17 @@ def _error_text(exc: BaseException) -> str:
     return text if text else type(exc).__name__
 
 
+def non_finite_fields(value: Any, where: str = "") -> list[str]:
+    """Dotted names of the NaN/infinite numbers in a JSON-like value (``lens.focal_length_mm``)."""
+    if isinstance(value, float):
+        return [] if math.isfinite(value) else [where or "(value)"]
+    if isinstance(value, dict):
+        return [f for k, v in value.items() for f in non_finite_fields(v, f"{where}.{k}" if where else str(k))]
+    if isinstance(value, (list, tuple)):
+        return [f for i, v in enumerate(value) for f in non_finite_fields(v, f"{where}[{i}]")]
+    return []
+
+
 class ScanEngine:
     """Capture ``plan`` with ``rig`` and ``camera`` into ``dataset``.
 
@@ -89,6 +132,11 @@ class ScanEngine:
     :class:`DeviceWorker` already running them (the GUI shares its workers). By default only views
     not yet ``done``/``skipped`` in the dataset are captured (resume); ``recapture=True`` captures
     every view of the plan (use a plan subset for chosen views).
+
+    Requests (:meth:`start`, :meth:`pause`, :meth:`resume`, :meth:`abort`, :meth:`skip`,
+    :meth:`recapture`) return at once with a Future that resolves (to the state after it) when the
+    engine thread has applied the request; they raise :class:`ScanRequestRefused` when the current
+    state does not allow them.
     """
 
     def __init__(self, dataset: Dataset, plan: ScanPlan, rig: Any, camera: Any, *,
@@ -111,14 +159,17 @@ class ScanEngine:
         self.checkpoint_s = float(checkpoint_s)
         self.free_bytes_fn = free_bytes_fn
         self._pipelined = supports_on_exposed(self.camera.driver)
+        #: who holds the rig while this scan runs, as motion commands refused meanwhile name it
+        self.label = f"the scan of {Path(dataset.root).name}"
 
+        # the state machine: changed by the engine thread only (see _transition), guarded by _cond
         self._cond = threading.Condition()
         self._state = ScanState.IDLE
-        self._pause_req = False
-        self._abort_req = False
-        self._resume_req = False
+        self._inbox: deque[_Message] = deque()
         self.fault: ScanFault | None = None
         self.message = ""
+        self.aborted = False             # an abort was applied (the engine thread sets it)
+        self._lease: Lease | None = None
         self._listeners: list[Listener] = []
         self._listeners_lock = threading.Lock()
 
@@ -128,17 +179,18 @@ class ScanEngine:
         if missing:
             raise LfError(f"{dataset.manifest_path}: the plan has views the dataset does not list "
                           f"(first: row {missing[0][0]}, column {missing[0][1]}); scan into a new dataset folder")
+        # owned by the engine thread
         self._queue: deque[PlannedView] = deque(todo)
+        self._retry: deque[PlannedView] = deque()    # failed during transfer (news from the store thread)
         self._attempts: dict[tuple[int, int], int] = {}
         self._last_error: dict[tuple[int, int], str] = {}
-        self._retry: deque[tuple[PlannedView, str]] = deque()   # failed during transfer, from the store thread
-        self._store_fault: ScanFault | None = None
         self._skip_cells: set[tuple[int, int]] = set()
         self._current: PlannedView | None = None
+        self._prev_future: Future | None = None
+        # shared with the store thread (under _cond)
         self._last_file_bytes = 0
         self._store_q: queue.Queue = queue.Queue(maxsize=2)
         self._inflight = 0
-        self._prev_future: Future | None = None
         self.total = len(dataset.views)
         self.done = sum(1 for v in dataset.views if v.get("status") == "done")
         self.captured_this_run = 0
@@ -148,6 +200,7 @@ class ScanEngine:
         self._last_save = time.monotonic()
         self._thread: threading.Thread | None = None
         self._store_thread: threading.Thread | None = None
+        self._start_future: Future | None = None
 
     # -- listeners ---------------------------------------------------------------------------------
     def subscribe(self, listener: Listener) -> Callable[[], None]:
@@ -187,86 +240,121 @@ class ScanEngine:
         """True when the camera tells when the shutter closed, so transfer overlaps the next move."""
         return self._pipelined
 
-    def _set_state(self, state: ScanState, message: str = "") -> None:
-        with self._cond:
-            if state is self._state and message == self.message:
-                return
-            now = time.monotonic()
-            if state is ScanState.RUNNING and self._active_since is None:
-                self._active_since = now
-            elif state is not ScanState.RUNNING and self._state is ScanState.RUNNING and self._active_since:
-                self._active_s += now - self._active_since
-                self._active_since = None
-            self._state = state
-            self.message = message
-            self._cond.notify_all()
-        log.info("scan %s%s", state.value, f": {message}" if message else "")
-        self._emit(EventKind.STATE, message, state=state)
+    @property
+    def active_s(self) -> float:
+        """Seconds spent running so far (paused time excluded)."""
+        return self._active_s + (time.monotonic() - self._active_since if self._active_since else 0.0)
+
+    @property
+    def _abort_req(self) -> bool:
+        """Older name of :attr:`aborted` (read-only)."""
+        return self.aborted
 
     def eta_s(self) -> float | None:
         """Seconds left at the pace of this run so far (paused time excluded)."""
-        active = self._active_s + (time.monotonic() - self._active_since if self._active_since else 0.0)
         if self.captured_this_run == 0:
             return None
-        return self.remaining * active / self.captured_this_run
+        return self.remaining * self.active_s / self.captured_this_run
 
-    # -- commands (any thread) ---------------------------------------------------------------------
-    def start(self) -> None:
+    def _transition(self, trigger: Trigger, message: str | None = None) -> None:
+        """Move along :data:`TRANSITIONS` (engine thread only); ``message`` None keeps the current one.
+
+        The rig is given back before a state that does not own it is announced, and taken after
+        one that does."""
+        if threading.current_thread() is not self._thread:
+            raise RuntimeError(f"scan state changed off the engine thread ({trigger.value})")
+        with self._cond:
+            old = self._state
+            new = next_state(old, trigger)
+            text = self.message if message is None else message
+            if new is old and text == self.message:
+                return
+        if new not in OWNS_RIG:
+            self._release_rig()
+        with self._cond:
+            now = time.monotonic()
+            if new is ScanState.RUNNING and self._active_since is None:
+                self._active_since = now
+            elif new is not ScanState.RUNNING and self._active_since is not None:
+                self._active_s += now - self._active_since
+                self._active_since = None
+            self._state = new
+            self.message = text
+            self._cond.notify_all()
+        log.info("scan %s%s", new.value, f": {text}" if text else "")
+        self._emit(EventKind.STATE, text, state=new, extra={"scan": self.label})
+        if new in OWNS_RIG and self._lease is None and new is self._state:
+            self._claim_rig()
+
+    # -- rig ownership -----------------------------------------------------------------------------
+    def _claim_rig(self) -> None:
+        try:
+            self._lease = self.rig.claim(self.label, on_stop=self._stop_pressed)
+        except DeviceError as exc:
+            self._raise_fault(ScanFault(f"Rig: {_error_text(exc)}. Stop that first, then Resume.", "rig"))
+
+    def _release_rig(self) -> None:
+        lease, self._lease = self._lease, None
+        if lease is not None:
+            lease.release()
+
+    def _stop_pressed(self) -> None:
+        """The rig's STOP was pressed (any thread): pause instead of moving on."""
+        self._post(_Message(Trigger.FAULT, (ScanFault(
+            "STOP pressed: the rig stopped. Check the rig and the scene, then Resume to go on "
+            "(or Abort).", "rig"), None)))
+
+    # -- requests (any thread) ---------------------------------------------------------------------
+    def _post(self, message: _Message) -> None:
+        with self._cond:
+            self._inbox.append(message)
+            self._cond.notify_all()
+
+    def _request(self, trigger: Trigger, payload: Any = None) -> Future:
+        future: Future = Future()
+        with self._cond:
+            if trigger not in TRANSITIONS[self._state]:
+                raise ScanRequestRefused(trigger, self._state)
+            self._inbox.append(_Message(trigger, payload, future))
+            self._cond.notify_all()
+        return future
+
+    def start(self) -> Future:
+        """Start the engine thread; the Future resolves when the scan runs."""
         with self._cond:
             if self._thread is not None:
-                raise RuntimeError("a scan engine runs once; create a new one to scan again")
+                raise ScanRequestRefused(Trigger.START, self._state, "this scan was started already; create a "
+                                         "new engine to scan again")
+            if Trigger.START not in TRANSITIONS[self._state]:
+                raise ScanRequestRefused(Trigger.START, self._state)
+            self.label = f"the scan of {Path(self.dataset.root).name} (started {time.strftime('%H:%M')})"
+            self._start_future = Future()
             self._thread = threading.Thread(target=self._run, name="scan-engine", daemon=True)
             self._store_thread = threading.Thread(target=self._store_loop, name="scan-store", daemon=True)
         self._store_thread.start()
         self._thread.start()
+        return self._start_future
 
-    def pause(self) -> None:
+    def pause(self) -> Future:
         """Pause after the current view (its file is stored before the state becomes ``paused``)."""
-        with self._cond:
-            if self._state in (ScanState.RUNNING, ScanState.IDLE):
-                self._pause_req = True
-                self._cond.notify_all()
-        if self._state is ScanState.RUNNING:
-            self._set_state(ScanState.PAUSING, "finishing the current view")
+        return self._request(Trigger.PAUSE)
 
-    def resume(self) -> None:
+    def resume(self) -> Future:
         """Continue a paused scan (after a fault: reconnect the device and retry the view)."""
-        with self._cond:
-            self._pause_req = False
-            self._resume_req = True
-            self._cond.notify_all()
+        return self._request(Trigger.RESUME)
 
-    def abort(self) -> None:
+    def abort(self) -> Future:
         """Stop after the current view; everything captured so far stays in the dataset."""
-        with self._cond:
-            self._abort_req = True
-            self._cond.notify_all()
-        if self._state in (ScanState.RUNNING, ScanState.PAUSING):
-            self._set_state(ScanState.STOPPING, "finishing the current view")
+        return self._request(Trigger.ABORT)
 
-    def skip(self, cells: Iterable[tuple[int, int]] | None = None) -> None:
+    def skip(self, cells: Iterable[tuple[int, int]] | None = None) -> Future:
         """Leave views out. ``None``: the view a fault paused on (recorded as ``failed``), or the next
         view. Given cells not yet captured are recorded as ``skipped``."""
-        with self._cond:
-            if cells is None:
-                if self._queue:
-                    cells = [self._queue[0].cell]
-                else:
-                    cells = []
-            self._skip_cells.update((int(r), int(c)) for r, c in cells)
-            self._cond.notify_all()
+        return self._request(Trigger.SKIP, None if cells is None else [(int(r), int(c)) for r, c in cells])
 
-    def recapture(self, cells: Iterable[tuple[int, int]]) -> None:
-        """Queue views again (in plan order, after the views still to do); their status becomes pending."""
-        wanted = {(int(r), int(c)) for r, c in cells}
-        with self._cond:
-            queued = {v.cell for v in self._queue}
-            for v in self.plan.with_subset(None).views():
-                if v.cell in wanted and v.cell not in queued:
-                    self._queue.append(v)
-                    self._attempts.pop(v.cell, None)
-            self._skip_cells -= wanted
-            self._cond.notify_all()
+    def recapture(self, cells: Iterable[tuple[int, int]]) -> Future:
+        """Queue views again (in plan order, after the views still to do)."""
+        return self._request(Trigger.RECAPTURE, {(int(r), int(c)) for r, c in cells})
 
     def wait(self, timeout_s: float | None = None) -> ScanState:
         """Block until the scan finished or failed (or ``timeout_s``); return the state."""
@@ -279,30 +367,154 @@ class ScanEngine:
         with self._cond:
             return self._cond.wait_for(lambda: self._state in states, timeout_s)
 
+    # -- the engine thread's inbox -----------------------------------------------------------------
+    def _wake(self, *_: Any) -> None:
+        with self._cond:
+            self._cond.notify_all()
+
+    def _wait(self, done: Callable[[], bool], timeout_s: float | None = None) -> bool:
+        """Apply requests until ``done()`` (checked under the lock) or ``timeout_s``; True if done."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            self._handle_inbox()
+            with self._cond:
+                if self._inbox:
+                    continue
+                if done():
+                    return True
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    return False
+                self._cond.wait(left)
+
+    def _await(self, future: Future, timeout_s: float | None = None) -> bool:
+        future.add_done_callback(self._wake)
+        return self._wait(future.done, timeout_s)
+
+    def _handle_inbox(self) -> None:
+        while True:
+            with self._cond:
+                if not self._inbox:
+                    return
+                message = self._inbox.popleft()
+            self._apply(message)
+
+    def _apply(self, message: _Message) -> None:
+        kind, payload, future = message.kind, message.payload, message.future
+        if kind == _RETRY:
+            self._retry.append(payload)
+            return
+        if kind is Trigger.CRASH:
+            raise payload
+        if kind not in TRANSITIONS[self._state]:
+            refused = ScanRequestRefused(kind, self._state)
+            if future is not None:
+                future.set_exception(refused)
+            self._emit(EventKind.LOG, str(refused))
+            return
+        if kind is Trigger.PAUSE:
+            self._transition(kind, "finishing the current view")
+        elif kind is Trigger.ABORT:
+            self.aborted = True
+            self._transition(kind, "finishing the current view")
+        elif kind is Trigger.RESUME:
+            self._transition(kind, "resumed")
+        elif kind is Trigger.SKIP:
+            cells = payload if payload is not None else [self._queue[0].cell] if self._queue else []
+            self._skip_cells.update(cells)
+            self._transition(kind)
+        elif kind is Trigger.RECAPTURE:
+            queued = {v.cell for v in self._queue}
+            for v in self.plan.with_subset(None).views():
+                if v.cell in payload and v.cell not in queued:
+                    self._queue.append(v)
+                    self._attempts.pop(v.cell, None)
+            self._skip_cells -= payload
+            self._transition(kind)
+        elif kind is Trigger.FAULT:
+            fault, requeue = payload
+            if requeue is not None:
+                self._queue.appendleft(requeue)
+            self._raise_fault(fault)
+        else:
+            raise ScanRequestRefused(kind, self._state, "not a request")
+        if future is not None:
+            future.set_result(self._state)
+
+    def _raise_fault(self, fault: ScanFault) -> None:
+        """Pause on a fault at the next checkpoint, telling the operator what happened."""
+        self.fault = fault
+        self._emit(EventKind.FAULT, str(fault), extra={"device": fault.device})
+        self._transition(Trigger.FAULT, None if self._state is not ScanState.RUNNING else "finishing the current view")
+
     # -- engine thread -----------------------------------------------------------------------------
     def _run(self) -> None:
         try:
             self._prepare()
-            self._set_state(ScanState.RUNNING, f"{self.remaining} views to capture")
+            self._transition(Trigger.START, f"{self.remaining} views to capture")
+            if self._start_future is not None:
+                self._start_future.set_result(self._state)
             self._check_rig_ready()
             self._loop()
-        except Exception as exc:  # a bug or an unexpected library error: keep the dataset valid
-            log.error("scan failed:\n%s", traceback.format_exc())
-            self._drain_store()
-            self._finish_storage()
-            self._set_state(ScanState.FAILED, f"Unexpected error: {type(exc).__name__}: {exc}. "
-                                              "Everything captured so far is saved; resume the scan to go on.")
+        except BaseException as exc:  # a bug or an unexpected library error: keep the dataset valid
+            self._crash(exc)
         finally:
-            self._store_q.put(_STOP)
-            if self._store_thread is not None:
-                self._store_thread.join(30)
-            if self._own_rig:
-                self.rig.close(disconnect=False)
-            if self._own_camera:
-                self.camera.close(disconnect=False)
+            try:
+                if self._state not in TERMINAL:     # cannot happen; never leave a waiter hanging
+                    self._crash(RuntimeError("the scan engine ended without finishing"))
+            finally:
+                self._close()
+
+    def _crash(self, exc: BaseException) -> None:
+        # the operator reads the state's message; the traceback goes to the log file (not the console)
+        log.info("scan failed:\n%s", "".join(traceback.format_exception(exc)))
+        with self._cond:        # let the store thread finish what it holds (bounded: it may be the culprit)
+            self._cond.wait_for(lambda: self._inflight == 0, self.capture_timeout_s + 30)
+        problems = []
+        try:
+            self._finish_storage()
+        except Exception as save_exc:
+            problems = non_finite_fields(self.dataset.manifest)
+            if not problems:
+                log.error("saving the manifest after the failure failed: %s", save_exc)
+        if problems:
+            message = (f"{self.dataset.manifest_path} cannot be saved: {', '.join(problems[:3])} "
+                       f"{'is' if len(problems) == 1 else 'are'} not a number (NaN or infinite). Correct "
+                       "it in the file, then resume the scan; every captured view is kept in the journal.")
+        else:
+            message = (f"Unexpected error: {type(exc).__name__}: {exc}. Everything captured so far is saved; "
+                       "resume the scan to go on.")
+        try:
+            self._transition(Trigger.CRASH, message)
+        except Exception:   # already ended, or the announcement itself failed: still end in FAILED
+            log.exception("announcing the failure failed")
+            self._release_rig()
+            with self._cond:
+                if self._state not in TERMINAL:
+                    self._state, self.message = ScanState.FAILED, message
+                self._cond.notify_all()
+
+    def _close(self) -> None:
+        """After the last state: refuse requests still queued, stop the store thread, close own workers."""
+        self._release_rig()
+        if self._start_future is not None and not self._start_future.done():
+            self._start_future.set_exception(ScanRequestRefused(Trigger.START, self._state, self.message))
+        with self._cond:
+            left, self._inbox = list(self._inbox), deque()
+        for message in left:
+            if message.future is not None and isinstance(message.kind, Trigger):
+                message.future.set_exception(ScanRequestRefused(message.kind, self._state))
+        self._store_q.put(_STOP)
+        if self._store_thread is not None:
+            self._store_thread.join(30)
+        if self._own_rig:
+            self.rig.close(disconnect=False)
+        if self._own_camera:
+            self.camera.close(disconnect=False)
 
     def _prepare(self) -> None:
-        """Remove crash leftovers: temporary files, and files of views the journal never finished."""
+        """Remove crash leftovers (temporary files, files of views the journal never finished) and
+        make sure the manifest can be written before the rig moves."""
         removed = clean_temporary_files(self.dataset.root)
         unfinished = {view_stem(v["row"], v["column"]) for v in self.dataset.views
                       if v.get("status") not in DONE_STATUSES}
@@ -318,10 +530,23 @@ class ScanEngine:
             self._emit(EventKind.LOG, f"removed {len(removed)} unfinished file(s) left by an interrupted scan")
         (self.dataset.root / "raw").mkdir(exist_ok=True)
         (self.dataset.root / "thumbs").mkdir(exist_ok=True)
+        self.dataset.save()
+
+    def _rig_call(self, name: str, *args: Any, timeout_s: float) -> Any:
+        """A rig command through the scan's lease (while it holds one), applying requests meanwhile."""
+        target = self._lease if self._lease is not None else self.rig
+        future = target.submit(name, *args, timeout_s=timeout_s)
+        self._await(future)
+        return future.result()
+
+    def _camera_call(self, name: str, *args: Any, timeout_s: float) -> Any:
+        future = self.camera.submit(name, *args, timeout_s=timeout_s)
+        self._await(future)
+        return future.result()
 
     def _rig_problem(self) -> ScanFault | None:
         try:
-            status = self.rig.call("status", timeout_s=30)
+            status = self._rig_call("status", timeout_s=30)
         except Exception as exc:
             return ScanFault(f"Rig: {_error_text(exc)}. Check the cable and power, reconnect, then Resume.", "rig")
         if status.state is RigState.ALARM:
@@ -334,9 +559,11 @@ class ScanEngine:
         return None
 
     def _check_rig_ready(self) -> None:
+        if self._state is not ScanState.RUNNING:
+            return
         problem = self._rig_problem()
         if problem is not None:
-            self._fault(problem)
+            self._raise_fault(problem)
 
     def _loop(self) -> None:
         while True:
@@ -346,47 +573,43 @@ class ScanEngine:
             if view is None:
                 # nothing queued: wait for the store stage (it may hand views back for a retry)
                 self._drain_store()
-                if self._retry or self._store_fault or self._queue:
+                if self._retry or self._queue:
                     continue
                 break
             self._current = view
             try:
                 self._capture_view(view)
             except ScanFault as fault:
-                with self._cond:
-                    self._queue.appendleft(view)
+                self._queue.appendleft(view)
+                self._raise_fault(fault)
+            except _Interrupted:
+                self._queue.appendleft(view)
+            finally:
                 self._current = None
-                self._fault(fault)
-                continue
-            self._current = None
         self._drain_store()
         self._finish_storage()
-        with self._cond:
-            remaining = self.remaining
-        self._finish(remaining)
+        self._finish()
 
-    def _finish(self, remaining: int) -> None:
+    def _finish(self) -> None:
         counts = self.dataset.status_counts()
         text = (f"{counts['done']} of {self.total} views captured" +
                 (f", {counts['failed']} failed" if counts["failed"] else "") +
                 (f", {counts['skipped']} skipped" if counts["skipped"] else ""))
-        if self._abort_req and remaining:
-            self._set_state(ScanState.FINISHED, f"Aborted: {text}. Resume the scan to capture the rest.")
+        if self._state is ScanState.STOPPING and self.remaining:
+            self._transition(Trigger.DONE, f"Aborted: {text}. Resume the scan to capture the rest.")
         else:
-            self._set_state(ScanState.FINISHED, f"Finished: {text}.")
+            self._transition(Trigger.DONE, f"Finished: {text}.")
 
     def _next_view(self) -> PlannedView | None:
-        with self._cond:
-            if self._retry:
-                view, _ = self._retry.popleft()
-                return view
-            while self._queue:
-                view = self._queue.popleft()
-                if view.cell in self._skip_cells:
-                    self._record_skip(view)
-                    continue
-                return view
-            return None
+        if self._retry:
+            return self._retry.popleft()
+        while self._queue:
+            view = self._queue.popleft()
+            if view.cell in self._skip_cells:
+                self._record_skip(view)
+                continue
+            return view
+        return None
 
     def _record_skip(self, view: PlannedView) -> None:
         self._skip_cells.discard(view.cell)
@@ -400,73 +623,56 @@ class ScanEngine:
 
     def _checkpoint(self) -> bool:
         """Between views: act on pause/abort/faults. True when the scan must end."""
-        if self._store_fault is not None:
-            with self._cond:
-                fault, self._store_fault = self._store_fault, None
-            self._fault(fault)
+        self._handle_inbox()
         while True:
-            with self._cond:
-                abort, pause = self._abort_req, self._pause_req
-            if abort:
-                self._set_state(ScanState.STOPPING, "finishing the current view")
+            state = self._state
+            if state is ScanState.RUNNING:
+                return False
+            if state is ScanState.STOPPING:
                 self._drain_store()
                 self._finish_storage()
-                self._finish(self.remaining)
+                self._finish()
                 return True
-            if not pause:
-                return False
-            self._set_state(ScanState.PAUSING, "finishing the current view")
-            self._drain_store()
-            self._finish_storage()
-            if self._store_fault is not None:
-                with self._cond:
-                    fault, self._store_fault = self._store_fault, None
-                self.fault = fault
-            done_text = f"{self.done} of {self.total} views captured"
-            with self._cond:
-                self._resume_req = False      # before announcing: a listener may resume at once
-            self._set_state(ScanState.PAUSED, str(self.fault) if self.fault else f"{done_text}; Resume continues.")
-            with self._cond:
-                self._cond.wait_for(lambda: self._resume_req or self._abort_req)
-                if self._abort_req:
+            if state is ScanState.PAUSING:
+                self._drain_store()
+                if self._state is not ScanState.PAUSING:
                     continue
-                self._resume_req = False
-            fault, self.fault = self.fault, None
-            self._set_state(ScanState.RUNNING, "resumed")
-            if fault is not None:
-                try:
-                    self._recover(fault)
-                except ScanFault as again:
-                    self._fault(again)
-
-    def _fault(self, fault: ScanFault) -> None:
-        """Pause on a fault at the next checkpoint, telling the operator what happened."""
-        self.fault = fault
-        with self._cond:
-            self._pause_req = True
-        self._emit(EventKind.FAULT, str(fault), extra={"device": fault.device})
+                self._finish_storage()
+                done_text = f"{self.done} of {self.total} views captured"
+                self._transition(Trigger.CHECKPOINT,
+                                 str(self.fault) if self.fault else f"{done_text}; Resume continues.")
+                continue
+            # paused: wait for resume or abort
+            self._wait(lambda: self._state is not ScanState.PAUSED)
+            if self._state is ScanState.RUNNING:
+                fault, self.fault = self.fault, None
+                if fault is not None:
+                    try:
+                        self._recover(fault)
+                    except ScanFault as again:
+                        self._raise_fault(again)
 
     def _recover(self, fault: ScanFault) -> None:
         """After a fault: reconnect the faulty device when it does not answer, then check the rig."""
         if fault.device == "camera":
             self._free_hung_camera()
             try:
-                self.camera.call("disconnect", timeout_s=30)
+                self._camera_call("disconnect", timeout_s=30)
             except Exception:
                 pass
             try:
-                self.camera.call("connect", timeout_s=60)
+                self._camera_call("connect", timeout_s=60)
             except Exception as exc:
                 raise ScanFault(f"Camera: reconnecting failed: {_error_text(exc)}. Check its cable, power and "
                                 "USB mode, then Resume.", "camera") from None
         elif fault.device == "rig":
             try:
-                connected = self.rig.call("status", timeout_s=10).state is not RigState.DISCONNECTED
+                connected = self._rig_call("status", timeout_s=10).state is not RigState.DISCONNECTED
             except Exception:
                 connected = False
             if not connected:
                 try:
-                    self.rig.call("connect", timeout_s=60)
+                    self._rig_call("connect", timeout_s=60)
                 except Exception as exc:
                     raise ScanFault(f"Rig: reconnecting failed: {_error_text(exc)}. Check the cable and power, "
                                     "then Resume.", "rig") from None
@@ -484,19 +690,28 @@ class ScanEngine:
             try:
                 self._attempt(view, attempt)
                 return
-            except ScanFault:
+            except (ScanFault, _Interrupted):
                 raise
             except Exception as exc:
                 device = getattr(exc, "_scan_device", "camera")
                 message = _error_text(exc)
+                self._handle_inbox()
+                if self._state is not ScanState.RUNNING:
+                    # STOP, a pause, an abort or a fault came in: no retry now (the view is queued again)
+                    self._attempts[cell] = attempt - 1
+                    self._emit(EventKind.LOG, f"view r{view.row:02d} c{view.column:03d}: {message} "
+                                              f"({self._state.value}; captured after Resume)")
+                    raise _Interrupted() from None
                 will_retry = attempt <= self.retries
                 self._last_error[cell] = message
                 self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
                            will_retry=will_retry, extra={"attempt": attempt, "device": device})
                 if not will_retry:
                     raise ScanFault(self._fault_text(device, message, attempt), device) from None
-                self._last_error[cell] = message
-                self._wait_interruptible(self.backoff_s * 2 ** (attempt - 1) * min(1.0, self.time_scale))
+                self._wait(lambda: self._state is not ScanState.RUNNING,
+                           self.backoff_s * 2 ** (attempt - 1) * min(1.0, self.time_scale))
+                if self._state is not ScanState.RUNNING:
+                    raise _Interrupted()
 
     @staticmethod
     def _fault_text(device: str, message: str, attempts: int) -> str:
@@ -516,44 +731,43 @@ class ScanEngine:
             raise ScanFault(f"Disk almost full: {free / 2**20:.0f} MB free in {self.dataset.root}, "
                             f"{need / 2**20:.0f} MB needed per view. Free disk space, then Resume.", "disk")
 
-    def _wait_interruptible(self, seconds: float) -> bool:
-        """Sleep ``seconds`` unless an abort comes first (then True)."""
-        if seconds <= 0:
-            return self._abort_req
-        with self._cond:
-            return self._cond.wait_for(lambda: self._abort_req, seconds)
-
     def _attempt(self, view: PlannedView, attempt: int) -> None:
         self._check_disk()
         t0 = time.monotonic()
         self._emit(EventKind.VIEW_STARTED, index=view.index, row=view.row, column=view.column,
                    extra={"position_mm": view.position_mm, "attempt": attempt})
+        self._handle_inbox()
+        if self._state is not ScanState.RUNNING:     # STOP, a pause or an abort came in: do not move
+            self._attempts[view.cell] = attempt - 1
+            raise _Interrupted()
         try:
-            status = self.rig.call("move_to", view.x_mm, view.y_mm, timeout_s=self.move_timeout_s)
+            status = self._rig_call("move_to", view.x_mm, view.y_mm, timeout_s=self.move_timeout_s)
         except Exception as exc:
             exc._scan_device = "rig"  # type: ignore[attr-defined]
             raise
         t_moved = time.monotonic()
         settle = self.plan.settle_s * self.time_scale
-        if settle > 0:
-            self._wait_interruptible(settle)   # an abort still captures this view: the rig is there
+        if settle > 0:   # an abort shortens it; this view is still captured: the rig is there
+            self._wait(lambda: self._state is ScanState.STOPPING, settle)
         t_settled = time.monotonic()
         # the camera must have finished the previous transfer before it can expose again
         prev = self._prev_future
         if prev is not None:
-            try:
-                prev.exception(timeout=self.capture_timeout_s + 10)
-            except Exception:
-                pass
+            self._await(prev, self.capture_timeout_s + 10)
         t_ready = time.monotonic()
         exposed = threading.Event()
+
+        def on_exposed(*_: Any) -> None:
+            exposed.set()
+            self._wake()
+
         stem = self.dataset.root / "raw" / view_stem(view.row, view.column)
         if self._pipelined:
-            fut = self.camera.submit("capture", stem, on_exposed=exposed.set, timeout_s=self.capture_timeout_s)
+            fut = self.camera.submit("capture", stem, on_exposed=on_exposed, timeout_s=self.capture_timeout_s)
         else:
             fut = self.camera.submit("capture", stem, timeout_s=self.capture_timeout_s)
-        fut.add_done_callback(lambda _f: exposed.set())
-        exposed.wait()
+        fut.add_done_callback(on_exposed)
+        self._wait(exposed.is_set)
         if fut.done() and fut.exception() is not None:
             self._free_hung_camera(fut.exception())
             raise fut.exception()
@@ -581,29 +795,26 @@ class ScanEngine:
 
     # -- store thread ------------------------------------------------------------------------------
     def _store_loop(self) -> None:
-        while True:
-            job = self._store_q.get()
-            if job is _STOP:
-                return
-            try:
-                self._store(job)
-            except Exception as exc:
-                log.error("storing a view failed:\n%s", traceback.format_exc())
-                self._store_failed(job, ScanFault(f"Storing view r{job.view.row:02d} c{job.view.column:03d} "
-                                                  f"failed: {_error_text(exc)}.", "disk"))
-            finally:
-                with self._cond:
-                    self._inflight -= 1
-                    self._cond.notify_all()
+        try:
+            while True:
+                job = self._store_q.get()
+                if job is _STOP:
+                    return
+                try:
+                    self._store(job)
+                except Exception as exc:
+                    log.info("storing a view failed:\n%s", traceback.format_exc())   # the fault says it
+                    self._store_failed(job, ScanFault(f"Storing view r{job.view.row:02d} c{job.view.column:03d} "
+                                                      f"failed: {_error_text(exc)}.", "disk"))
+                finally:
+                    with self._cond:
+                        self._inflight -= 1
+                        self._cond.notify_all()
+        except BaseException as exc:  # the store stage itself broke: the engine thread fails the scan
+            self._post(_Message(Trigger.CRASH, exc))
 
     def _store_failed(self, job: _Job, fault: ScanFault) -> None:
-        with self._cond:
-            self._store_fault = fault
-            self._pause_req = True
-            self._queue.appendleft(job.view)
-            self._cond.notify_all()
-        self._emit(EventKind.FAULT, str(fault), row=job.view.row, column=job.view.column,
-                   extra={"device": fault.device})
+        self._post(_Message(Trigger.FAULT, (fault, job.view)))
 
     def _store(self, job: _Job) -> None:
         view = job.view
@@ -621,9 +832,7 @@ class ScanEngine:
             self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
                        will_retry=will_retry, extra={"attempt": job.attempt, "device": "camera"})
             if will_retry:
-                with self._cond:
-                    self._retry.append((view, message))
-                    self._cond.notify_all()
+                self._post(_Message(_RETRY, view))
             else:
                 self._store_failed(job, ScanFault(self._fault_text("camera", message, job.attempt), "camera"))
             return
@@ -658,7 +867,6 @@ class ScanEngine:
             fields["sidecars"] = sidecars
         self.dataset.record_view(view.row, view.column, **fields)
         with self._cond:
-            self._attempts.pop(view.cell, None)
             self.done += 1
             self.captured_this_run += 1
         if time.monotonic() - self._last_save > self.checkpoint_s:
@@ -668,8 +876,8 @@ class ScanEngine:
                    timings_s=timings, file=rel, thumb=fields["thumb"])
 
     def _drain_store(self) -> None:
-        with self._cond:
-            self._cond.wait_for(lambda: self._inflight == 0)
+        """Wait (applying requests) until every exposed view is stored."""
+        self._wait(lambda: self._inflight == 0)
 
     def _finish_storage(self) -> None:
         try:

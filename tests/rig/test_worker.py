@@ -8,7 +8,7 @@ import time
 import pytest
 
 from lfstudio.errors import DeviceError
-from lfstudio.rig.worker import DeviceFault, DeviceWorker
+from lfstudio.rig.worker import DeviceBusy, DeviceFault, DeviceWorker
 
 
 class Recorder:
@@ -175,3 +175,45 @@ def test_snapshot_held_by_the_rate_bound_is_published_during_a_long_call():
         assert w.call("long_call") is True
     finally:
         w.close()
+
+
+def test_a_claimed_worker_refuses_everybody_else_but_never_stop(worker):
+    stops = []
+    lease = worker.claim("the scan of day1 (started 14:02)", on_stop=lambda: stops.append(worker.driver.stopped.is_set()))
+    assert worker.holder == "the scan of day1 (started 14:02)"
+    refused = worker.submit("do", 1)
+    with pytest.raises(DeviceBusy) as info:
+        refused.result(5)
+    text = str(info.value)
+    assert "do(1) refused" in text and "in use by the scan of day1 (started 14:02)" in text
+    assert "STOP is always available" in text and info.value.holder == "the scan of day1 (started 14:02)"
+    assert ("do", 1) not in worker.driver.log                 # never reached the driver
+    with pytest.raises(DeviceBusy, match="in use by the scan of day1"):
+        worker.claim("a second scan")
+    assert lease.call("do", 2) == 4                           # the holder's calls run
+
+    running = lease.submit("block")
+    assert worker.driver.entered.wait(5)
+    worker.stop_now()                                         # STOP from anybody, while claimed
+    assert running.result(5) == "released" and worker.driver.stopped.is_set()
+    assert stops == [False]                                   # the holder heard of it before the driver stopped
+
+    lease.release()
+    assert worker.holder is None and worker.call("do", 3) == 6
+    with pytest.raises(DeviceError, match="released"):
+        lease.call("do", 4)
+    with worker.claim("another owner") as again:              # claimable again; a context manager releases
+        assert again.call("do", 5) == 10
+    assert worker.holder is None
+
+
+def test_calls_accepted_before_a_claim_still_run_in_order(worker):
+    running = worker.submit("block")
+    assert worker.driver.entered.wait(5)
+    queued = worker.submit("do", 7)
+    lease = worker.claim("a scan")
+    mine = lease.submit("do", 8)
+    worker.driver.release.set()
+    assert running.result(5) == "released" and queued.result(5) == 14 and mine.result(5) == 16
+    assert [k for k, _ in worker.driver.log] == ["block", "do", "do"]
+    lease.release()

@@ -28,7 +28,7 @@ from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import set_progress_async
 from lfstudio.jobs import format_duration
-from lfstudio.scan.events import EventKind, ScanState
+from lfstudio.scan.events import EventKind, ScanRequestRefused, ScanState
 from lfstudio.scan.scan_plan import ORDERS, ScanPlan
 
 log = logging.getLogger(__name__)
@@ -636,30 +636,39 @@ class ScanPanel(QWidget):
         engine.start()
         self._update_buttons()
 
+    def _request(self, name: str, *args) -> bool:
+        """Ask the engine (pause, resume, ...); a request its state no longer allows goes to the log."""
+        try:
+            getattr(self.engine, name)(*args)
+        except ScanRequestRefused as exc:
+            self._log(str(exc))
+            return False
+        return True
+
     def pause(self) -> None:
         if self.engine is not None:
-            self.engine.pause()
+            self._request("pause")
 
     def resume(self) -> None:
         if self.engine is not None and self.engine.state is ScanState.PAUSED:
-            self.engine.resume()
+            self._request("resume")
         elif not self.running:
             self.start()
 
     def abort(self) -> None:
         if self.engine is not None:
-            self.engine.abort()
+            self._request("abort")
 
     def skip(self) -> None:
         if self.engine is not None and self.engine.state is ScanState.PAUSED:
-            self.engine.skip()
-            self.engine.resume()
+            if self._request("skip"):
+                self._request("resume")
 
     def recapture(self, cells: list[tuple[int, int]]) -> None:
         cells = [tuple(c) for c in cells]
         if self.running:
-            self.engine.recapture(cells)
-            self._log(f"{len(cells)} view(s) queued for re-capture")
+            if self._request("recapture", cells):
+                self._log(f"{len(cells)} view(s) queued for re-capture")
         else:
             self._log(f"re-capturing {len(cells)} view(s)")
             self.start(recapture=cells)
@@ -802,7 +811,7 @@ class ScanPanel(QWidget):
 
     def shutdown(self) -> None:
         if self.engine is not None and self.running:
-            self.engine.abort()
+            self._request("abort")
             self.engine.wait(30)
         if self.session is not None:
             self.session.close()
