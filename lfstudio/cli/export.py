@@ -14,7 +14,7 @@ HELP = ("export the views as 16-bit PNG + manifest, an HEVC stream (meander orde
 #: ExportOptions field -> the option the user typed (error messages name what the user knows)
 _OPTION = {"format": "--format", "out": "--out", "views": "--views", "source": "--source", "crf": "--crf",
            "bit_depth": "--bit-depth", "hci_size": "--hci-size", "hci_center": "--hci-center",
-           "hci_bit_depth": "--hci-bit-depth", "image_bit_depth": "--image-bit-depth", "holdout": "--holdout"}
+           "hci_bit_depth": "--hci-bit-depth", "image_bit_depth": "--image-bit-depth", "holdout": "--holdout", "authors": "--authors"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -43,6 +43,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="hci: grid row,column of the centre view (default: the grid centre)")
     p.add_argument("--hci-bit-depth", type=int, default=8,
                    help="hci: 8 (sRGB PNG like the benchmark, default) or 16 (linear 16-bit PNG)")
+    p.add_argument("--authors", default="", metavar="NAMES",
+                   help="hci: the authors written to parameters.cfg (default: the dataset's 'authors', else empty)")
     p.add_argument("--image-bit-depth", type=int, default=8,
                    help="colmap/nerfstudio: 8 (sRGB PNG, what view-synthesis tools expect, default) or 16 "
                         "(linear 16-bit PNG)")
@@ -71,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
                             hci_size=_pair(args.hci_size, "--hci-size", "x×"),
                             hci_center=_pair(args.hci_center, "--hci-center", ",") if args.hci_center else None,
                             overwrite=args.overwrite, hci_bit_depth=args.hci_bit_depth,
-                            image_bit_depth=args.image_bit_depth, holdout=args.holdout)
+                            image_bit_depth=args.image_bit_depth, holdout=args.holdout, authors=args.authors)
     root = Path(args.dataset)
     if not (root / "dataset.json").is_file():
         raise InputError("DATASET", f"{root} is not a dataset folder (no dataset.json in it)",

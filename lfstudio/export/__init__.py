@@ -56,6 +56,7 @@ class ExportOptions:
     hci_bit_depth: int = 8           # hci: 8 (sRGB, like the benchmark) or 16 (linear)
     image_bit_depth: int = 8         # colmap/nerfstudio images: 8 (sRGB, what their tools expect) or 16 (linear)
     holdout: str = "none"            # nerfstudio: "none", "centre" or "every-K" (held out of training)
+    authors: str = ""                # hci: [meta] authors (default: the manifest's "authors", else empty)
 
 
 @dataclass
@@ -197,7 +198,7 @@ def estimate_export(dataset, options: ExportOptions) -> ExportEstimate:
         from lfstudio.export import hci
 
         nbytes = hci.estimate_bytes(len(views), size, options.hci_bit_depth)
-        warnings += hci.warnings(ds, views, size)
+        warnings += hci.warnings(ds, views, size, source)
     else:
         nbytes = common.images_bytes_estimate(len(views), size, options.image_bit_depth) + 200 * len(views) + 8192
         warnings += _posed_warnings(ds, views, source, size, options)
@@ -241,8 +242,8 @@ def export_dataset(dataset, options: ExportOptions, *, progress: Progress | None
         from lfstudio.export import hci
 
         common.check_out(out, options.overwrite)
-        report.files = hci.export_hci(ds, views, source, size, out, options, progress, cancel)
-        report.warnings += hci.warnings(ds, views, size)
+        report.files, notes = hci.export_hci(ds, views, source, size, out, options, progress, cancel)
+        report.warnings += notes
     elif options.format == "colmap":
         from lfstudio.export import colmap
 

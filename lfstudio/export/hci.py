@@ -8,10 +8,18 @@ benchmark toolkit's ``file_io.read_parameters``) and ``input_Cam000.png`` … in
 the benchmark's (``hci_bit_depth=16``: linear 16-bit). ``lfstudio_manifest.json`` adds our own
 description (positions, calibration, intrinsics).
 
-Disparities follow the toolkit's meaning (pixels between horizontally neighbouring views, positive
-for near points) for our views, which are parallel (no sensor shift): zero disparity lies at
-infinity, so ``disp_min``/``disp_max`` are the neighbour disparities of the plan's far and near
-distances, and depth = baseline·f / (disparity·pixel size). ``focus_distance_m`` is the lens focus.
+Disparities follow the toolkit's meaning: pixels between horizontally neighbouring views, positive
+for near points, ``disparity = baseline·f·max(w, h)/sensor · (1/Z − 1/focus_distance_m)`` (the
+toolkit's ``depth2disp``/``disp2depth``). Our views are parallel (no sensor shift), so zero disparity
+lies at infinity: ``focus_distance_m`` is :data:`FOCUS_AT_INFINITY_M` (1e9 m; the formulas' 1/focus
+term is then under a millionth of 1/Z for any depth up to 1 km, and nothing divides by zero) — *not* the lens focus, which
+the toolkit would take for the zero-disparity plane (``lens_focus_distance_m`` in ``[meta]`` keeps
+it). The views are not shifted to put zero disparity at a finite plane: that would resample every
+view once more (blur that differs from view to view, lost borders) for no gain in geometry.
+``focal_length_mm``/``sensor_size_mm`` are chosen so that ``focal_length_mm/sensor_size_mm·max(w, h)``
+is the exported camera's focal length in pixels (:func:`lfstudio.export.poses.camera_for`).
+``disp_min``/``disp_max``: the neighbour disparities of the plan's far and near distance, or, for a
+dataset without a plan (a CLI scan), measured from the views (:func:`measured_disparity_range`).
 """
 
 from __future__ import annotations
@@ -21,12 +29,15 @@ import datetime as _dt
 import io
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
+import numpy as np
 
 from lfstudio.dataset import Dataset
-from lfstudio.errors import InputError
+from lfstudio.dataset.paths import view_stem
+from lfstudio.errors import DatasetError, InputError
 from lfstudio.export import common
 from lfstudio.jobs import CancelToken, Progress
 
@@ -111,37 +122,104 @@ def _plan_numbers(ds: Dataset) -> dict[str, float | None]:
             "fstop": float(fstop) if isinstance(fstop, (int, float)) else None}
 
 
-def disparity_range(ds: Dataset, size: Sequence[int]) -> tuple[float, float] | None:
-    """(disp_min, disp_max) in pixels of the exported images between horizontal neighbours for the
-    plan's far and near distances (parallel views: zero at infinity); None without a plan."""
-    from lfstudio.planning import optics
+#: focus_distance_m written for parallel views: the toolkit's 1/focus term vanishes (zero disparity at
+#: infinity) without dividing by zero (``inf`` would give inf/inf = nan in depth2disp)
+FOCUS_AT_INFINITY_M = 1e9
+#: sensor size written when a dataset knows its focal length only in pixels (a 35 mm-format frame)
+NOMINAL_SENSOR_MM = 36.0
+#: matches needed to trust a measured disparity range
+MIN_MATCHES = 30
 
-    p = _plan_numbers(ds)
-    sensor_mm = ds.camera.get("sensor_mm")
-    spacing = ds.grid.get("spacing_mm")
-    if not (p["near_m"] and p["far_m"] and p["focal_length_mm"] and sensor_mm and spacing):
+
+@dataclass(frozen=True)
+class DisparityRange:
+    d_min_px: float           # neighbour disparity (px of the exported images) of the farthest point
+    d_max_px: float           # ... of the nearest point
+    source: str               # "plan" | "measured"
+    detail: str = ""
+
+
+def _focal_px(ds: Dataset, size: Sequence[int], source: str) -> float | None:
+    """Focal length in pixels of the exported images (the camera every export describes)."""
+    from lfstudio.export import poses
+
+    try:
+        return poses.camera_for(ds, size, common.is_rectified(ds, source)).fx_px
+    except DatasetError:
         return None
-    pitch_um = float(sensor_mm[0]) / int(size[0]) * 1000.0
-    b = float(spacing[0])
-    d_far = optics.disparity_px(b, p["far_m"] * 1000.0, math.inf, p["focal_length_mm"], pitch_um)
-    d_near = optics.disparity_px(b, p["near_m"] * 1000.0, math.inf, p["focal_length_mm"], pitch_um)
-    return d_far, d_near
 
 
-def warnings(ds: Dataset, views: Sequence[common.View], size: Sequence[int]) -> list[str]:
+def disparity_range(ds: Dataset, views: Sequence[common.View], source: str, size: Sequence[int], *,
+                    measure: bool = True) -> DisparityRange | None:
+    """Neighbour disparity range of the exported images: from the plan's near/far distance, else
+    (``measure``) measured from the views; None when neither is possible."""
+    p = _plan_numbers(ds)
+    spacing = ds.grid.get("spacing_mm")
+    f_px = _focal_px(ds, size, source)
+    if p["near_m"] and p["far_m"] and f_px and spacing:
+        k = f_px * float(spacing[0]) / 1000.0            # px · m: d = f·b · (1/Z − 0)
+        return DisparityRange(k / p["far_m"], k / p["near_m"], "plan",
+                              f"the plan's far {p['far_m']:g} m and near {p['near_m']:g} m")
+    return measured_disparity_range(ds, views, source, size) if measure else None
+
+
+def measured_disparity_range(ds: Dataset, views: Sequence[common.View], source: str,
+                             size: Sequence[int]) -> DisparityRange | None:
+    """Neighbour disparity range measured from SIFT matches between the outer views of the
+    sub-array's centre row (rectified with the calibration when they are raw): horizontal shift /
+    column distance, 2nd and 98th percentile, in pixels of the exported images. None with one
+    column or too few matches.
+
+    Hook: the quality check (``lfstudio.quality``, being built) measures disparities over the whole
+    grid; once it stores them in the dataset, read them here first."""
+    from lfstudio.calibration.calibrate import homography_for, load_calibration
+    from lfstudio.calibration.features import detect, match_pair
+    from lfstudio.calibration.model import apply_homography
+
+    rows = sorted({r for r, _ in views})
+    row = rows[(len(rows) - 1) // 2]
+    cols = sorted(c for r, c in views if r == row)
+    if len(cols) < 2:
+        return None
+    a, b = (row, cols[0]), (row, cols[-1])
+    fa = detect(common.source_path(ds, a, source))
+    fb = detect(common.source_path(ds, b, source))
+    m = match_pair(fa, fb, "horizontal")
+    xa, xb = m.xy_a, m.xy_b
+    cal = load_calibration(ds)
+    if source == "raw" and cal and cal.get("homography"):
+        H = homography_for(cal, fa.image_size_px)
+        xa, xb = apply_homography(H, xa), apply_homography(H, xb)
+    if len(xa) < MIN_MATCHES:
+        return None
+    d = (xa[:, 0] - xb[:, 0]) / (cols[-1] - cols[0]) * (float(size[0]) / float(fa.image_size_px[0]))
+    lo, hi = (float(v) for v in np.percentile(d, [2, 98]))
+    return DisparityRange(lo, hi, "measured", f"{len(d)} matches between {view_stem(*a)} and {view_stem(*b)}")
+
+
+def warnings(ds: Dataset, views: Sequence[common.View], size: Sequence[int], source: str,
+             disparities: DisparityRange | None = None, measured: bool = False) -> list[str]:
+    """Notes on an HCI export (``measured``: ``disparities`` is the export's final answer)."""
     out = []
-    if disparity_range(ds, size) is None:
-        out.append("the dataset has no scene plan (near/far distance): disp_min/disp_max in parameters.cfg are 0; "
-                   "edit them by hand")
+    if disparities is None and not measured:
+        disparities = disparity_range(ds, views, source, size, measure=False)
+    if disparities is None and not measured:
+        out.append("the dataset has no scene plan (near/far distance): disp_min/disp_max will be measured from "
+                   "feature matches in the views")
+    elif disparities is None:
+        out.append("the dataset has no scene plan and too few feature matches to measure disparities: "
+                   "disp_min/disp_max in parameters.cfg are 0; edit them by hand")
+    elif disparities.source == "measured":
+        out.append(f"disp_min/disp_max measured from the views ({disparities.detail}): "
+                   f"{disparities.d_min_px:.3f} … {disparities.d_max_px:.3f} px")
+    if _focal_px(ds, size, source) is None:
+        out.append("the dataset has no focal length: focal_length_mm and sensor_size_mm in parameters.cfg are 0; "
+                   "give it one (lens focal length, or calibrate with --focal-length-px)")
     sp = ds.grid.get("spacing_mm") or [0, 0]
     if sp and len(sp) == 2 and abs(float(sp[0]) - float(sp[1])) > 1e-9:
         out.append(f"horizontal and vertical spacing differ ({sp[0]} / {sp[1]} mm); HCI has one baseline_mm "
                    "(the horizontal one); baseline_y_mm holds the vertical")
     return out
-
-
-#: sensor width written when a dataset knows its focal length only in pixels (a 35 mm-format frame)
-NOMINAL_SENSOR_MM = 36.0
 
 
 def _center(views: Sequence[common.View]) -> common.View:
@@ -150,7 +228,8 @@ def _center(views: Sequence[common.View]) -> common.View:
     return rows[(len(rows) - 1) // 2], cols[(len(cols) - 1) // 2]
 
 
-def parameters_text(ds: Dataset, views: Sequence[common.View], size: Sequence[int], source: str) -> str:
+def parameters_text(ds: Dataset, views: Sequence[common.View], size: Sequence[int], source: str,
+                    disparities: DisparityRange | None = None, authors: str = "") -> str:
     """The ``parameters.cfg`` text."""
     from lfstudio.calibration.calibrate import load_calibration
 
@@ -158,59 +237,60 @@ def parameters_text(ds: Dataset, views: Sequence[common.View], size: Sequence[in
     rows = sorted({r for r, _ in views})
     cols = sorted({c for _, c in views})
     p = _plan_numbers(ds)
-    sensor_mm = ds.camera.get("sensor_mm") or [0.0, 0.0]
     spacing = ds.grid.get("spacing_mm") or [0.0, 0.0]
     center = ds.view(*_center(views))
     pos = center.get("reported_mm") or center.get("commanded_mm") or [0.0, 0.0]
     rot = [0.0, 0.0, 0.0]
-    processing = ds.manifest.get("processing") or {}
-    rectified = source == "processed" and bool(processing.get("rectified"))
+    rectified = common.is_rectified(ds, source)
     cal = load_calibration(ds)
     if cal and not rectified and cal.get("rotation_deg"):
         rot = [math.radians(float(a)) for a in cal["rotation_deg"]]
-    disp = disparity_range(ds, size)
+    # the toolkit's focal length in pixels is focal_length_mm / sensor_size_mm · max(w, h): write the
+    # lens focal length and the sensor size that make it the exported camera's (a nominal 36 mm
+    # sensor when the dataset knows its focal length in pixels only)
+    f_px = _focal_px(ds, size, source)
     f_mm = p["focal_length_mm"]
-    sensor_w_mm = float(sensor_mm[0])
-    nominal_sensor = False
-    if not (f_mm and sensor_w_mm > 0):
-        # a dataset that knows its focal length only in pixels (imported with --focal-length-px, or
-        # calibrated): HCI's tools use focal_length_mm / sensor_size_mm · image_resolution_x_px, so a
-        # nominal 36 mm sensor with the matching focal length gives them the right geometry
-        f_px = common.intrinsics(ds, (w, h), cal).get("focal_length_px")
-        if f_px:
-            sensor_w_mm, f_mm, nominal_sensor = NOMINAL_SENSOR_MM, float(f_px) * NOMINAL_SENSOR_MM / w, True
+    nominal_sensor = not f_mm
+    if f_px and not f_mm:
+        f_mm = f_px * NOMINAL_SENSOR_MM / max(w, h)
+    sensor_mm = f_mm * max(w, h) / f_px if f_px and f_mm else 0.0
     cfg = configparser.ConfigParser()
     cfg.optionxform = str
     cfg["intrinsics"] = {
         "image_resolution_x_px": str(w), "image_resolution_y_px": str(h),
-        "focal_length_mm": f"{f_mm or 0.0:.6g}",
-        "sensor_size_mm": f"{sensor_w_mm:.6g}",
+        "focal_length_mm": f"{f_mm or 0.0:.8g}",
+        "sensor_size_mm": f"{sensor_mm:.8g}",
         "fstop": f"{p['fstop'] or 0.0:.4g}"}
     cfg["extrinsics"] = {
-        "focus_distance_m": f"{p['focus_m'] or 0.0:.6g}",
+        "focus_distance_m": f"{FOCUS_AT_INFINITY_M:g}",
         "center_cam_x_m": f"{float(pos[0]) / 1000.0:.6g}", "center_cam_y_m": f"{float(pos[1]) / 1000.0:.6g}",
         "center_cam_z_m": "0",
         "center_cam_rx_rad": f"{rot[0]:.8g}", "center_cam_ry_rad": f"{rot[1]:.8g}", "center_cam_rz_rad": f"{rot[2]:.8g}",
         "baseline_mm": f"{float(spacing[0]):.6g}", "baseline_y_mm": f"{float(spacing[1]):.6g}",
         "num_cams_x": str(len(cols)), "num_cams_y": str(len(rows)),
         "first_row": str(rows[0]), "first_column": str(cols[0])}
-    d_min, d_max = disp if disp is not None else (0.0, 0.0)
+    d_min, d_max = (disparities.d_min_px, disparities.d_max_px) if disparities is not None else (0.0, 0.0)
     cfg["meta"] = {
         "disp_min": f"{d_min:.4f}", "disp_max": f"{d_max:.4f}",
         "frustum_disp_min": f"{d_min:.4f}", "frustum_disp_max": f"{d_max:.4f}",
+        "disp_range_from": disparities.source if disparities is not None else "none",
         "zero_disparity_distance_m": "inf",
+        "lens_focus_distance_m": f"{p['focus_m'] or 0.0:.6g}",
         "depth_map_scale": "1",
         "scene": ds.root.name, "category": "lfstudio",
-        "date": _dt.date.today().isoformat(), "version": "lfstudio-hci-1",
-        "authors": str((ds.manifest.get("rig") or {}).get("name") or "lfstudio"), "contact": ""}
+        "date": _dt.date.today().isoformat(), "version": "lfstudio-hci-2",
+        "authors": str(authors or ds.manifest.get("authors") or ""), "contact": ""}
     buf = io.StringIO()
     buf.write("# HCI 4D light-field benchmark parameters written by lfstudio.\n"
-              "# Views are parallel (no sensor shift): disparity is zero at infinity;\n"
-              "# depth_m = baseline_mm * focal_length_mm / (disparity_px * sensor_size_mm / image_resolution_x_px) / 1000.\n"
-              "# disp_min/disp_max: neighbour disparity (px) of the planned far/near distance.\n")
-    if nominal_sensor:
-        buf.write(f"# The dataset gives its focal length in pixels only: sensor_size_mm is a nominal "
-                  f"{NOMINAL_SENSOR_MM:g} mm and\n# focal_length_mm the matching value (only their ratio is meaningful).\n")
+              "# Views are parallel (no sensor shift): disparity is zero at infinity, so focus_distance_m is\n"
+              f"# {FOCUS_AT_INFINITY_M:g} m (the toolkit's 1/focus_distance_m term vanishes); the lens focus is\n"
+              "# lens_focus_distance_m in [meta]. disparity_px = baseline_mm/1000 * focal_length_mm *\n"
+              "# max(w, h) / sensor_size_mm * (1/depth_m - 1/focus_distance_m), as the toolkit's depth2disp.\n"
+              "# disp_min/disp_max: neighbour disparity (px) of the farthest/nearest scene point\n"
+              "# (disp_range_from: plan = the planned far/near distance, measured = feature matches).\n")
+    if nominal_sensor and f_px:
+        buf.write(f"# The dataset gives its focal length in pixels only: focal_length_mm is that of a nominal "
+                  f"{NOMINAL_SENSOR_MM:g} mm\n# sensor over max(w, h); only their ratio is meaningful.\n")
     cfg.write(buf)
     return buf.getvalue()
 
@@ -219,19 +299,23 @@ to_srgb8 = common.to_srgb8   # the benchmark's 8-bit sRGB (kept here: tests and 
 
 
 def export_hci(ds: Dataset, views: Sequence[common.View], source: str, size: tuple[int, int], out: Path,
-               options, progress: Progress, cancel: CancelToken) -> list[Path]:
+               options, progress: Progress, cancel: CancelToken) -> tuple[list[Path], list[str]]:
+    """Write the layout; returns (files, notes for the user)."""
     bit_depth = int(getattr(options, "hci_bit_depth", 8) or 8)
     if bit_depth not in (8, 16):
         raise InputError("hci_bit_depth", f"{bit_depth} is not supported", "8 (sRGB, like the benchmark) or 16 (linear)")
     n = len(views)
     names = {v: cam_name(i, n) for i, v in enumerate(views)}
     progress(0, n, "exporting HCI layout")
+    disparities = disparity_range(ds, views, source, size)
+    notes = warnings(ds, views, size, source, disparities, measured=True)
     with common.partial_folder(out, options.overwrite) as tmp:
         common.write_images(ds, views, source, size, tmp, names, bit_depth, progress, cancel)
-        (tmp / PARAMETERS_NAME).write_text(parameters_text(ds, views, size, source), encoding="utf-8")
+        (tmp / PARAMETERS_NAME).write_text(parameters_text(ds, views, size, source, disparities,
+                                                           getattr(options, "authors", "")), encoding="utf-8")
         doc: dict[str, Any] = common.describe(ds, views, source, size, names)
         doc["kind"] = "hci"
         doc["bit_depth"] = bit_depth
         doc["color"] = "sRGB (8-bit)" if bit_depth == 8 else doc["color"]
         (tmp / MANIFEST_NAME).write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n", encoding="utf-8")
-    return [out / PARAMETERS_NAME, out / MANIFEST_NAME] + [out / names[v] for v in views]
+    return [out / PARAMETERS_NAME, out / MANIFEST_NAME] + [out / names[v] for v in views], notes

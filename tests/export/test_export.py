@@ -396,3 +396,70 @@ def test_tiny_odd_frames_are_padded_for_x265_and_cropped_back(tmp_path):
         src = _source(ds, 0, c).astype(float)
         assert got.shape == (9, 11, 3)
         assert 10 * np.log10(65535.0 ** 2 / np.mean((got - src) ** 2)) >= 45.0
+
+
+# -- hci: the toolkit's zero-disparity convention ------------------------------------------------------------
+def toolkit_depth2disp(depth_m, p):
+    """The HCI toolkit's BaseScene.depth2disp (evaluation-toolkit, toolkit/scenes/base_scene.py)."""
+    f = (p["baseline_mm"] / 1000.0) * p["focal_length_mm"] * max(p["width"], p["height"])
+    return (f * p["focus_distance_m"] / depth_m - f) / p["focus_distance_m"] / p["sensor_size_mm"]
+
+
+def toolkit_disp2depth(disp_px, p):
+    """The HCI toolkit's BaseScene.disp2depth."""
+    q = p["baseline_mm"] * p["focal_length_mm"] * max(p["width"], p["height"])
+    return 1.0 / ((1000.0 * p["sensor_size_mm"]) * disp_px / q + (1.0 / p["focus_distance_m"]))
+
+
+def _check_toolkit_round_trip(p, near_m, far_m, tolerance=0.02):
+    for depth, disp in ((near_m, p["disp_max"]), (far_m, p["disp_min"])):
+        assert toolkit_depth2disp(depth, p) == pytest.approx(disp, rel=tolerance), (depth, disp)
+        assert toolkit_disp2depth(disp, p) == pytest.approx(depth, rel=tolerance), (depth, disp)
+        # float32 depth maps (the benchmark's .pfm) convert as well: no overflow, no 1/0, no nan
+        d32 = toolkit_depth2disp(np.full((2, 2), depth, np.float32), p)
+        assert np.isfinite(d32).all() and d32[0, 0] == pytest.approx(disp, rel=tolerance)
+
+
+def test_hci_zero_disparity_at_infinity_round_trips_with_the_toolkit(make_tiny_dataset, tmp_path):
+    ds = make_tiny_dataset("png")                              # rendered 1.77 ... 4.77 m, plan stored
+    truth = json.loads((ds.root / "ground_truth.json").read_text())
+    out = tmp_path / "hci"
+    report = export_dataset(ds, ExportOptions("hci", out, hci_size=(5, 3)))
+    p, _ = read_hci(out)
+    _check_toolkit_round_trip(p, truth["near_m"], truth["far_m"])
+    # the true neighbour disparity of the nearest plane, f·b/Z in these 640 px views
+    assert p["disp_max"] == pytest.approx(truth["focal_length_px"] * 0.004 / truth["near_m"], abs=1e-4)
+    # what the export used to write (the lens focus as focus_distance_m) fails the same check
+    cfg = configparser.ConfigParser()
+    cfg.read(out / "parameters.cfg")
+    lens_focus = cfg.getfloat("meta", "lens_focus_distance_m")
+    assert 1.77 < lens_focus < 4.77
+    with pytest.raises(AssertionError):
+        _check_toolkit_round_trip({**p, "focus_distance_m": lens_focus}, truth["near_m"], truth["far_m"])
+    assert cfg.get("meta", "disp_range_from") == "plan" and p["authors"] == ""
+    assert not any("disp_min" in w for w in report.warnings)
+
+
+def test_hci_without_a_plan_measures_its_disparities(make_tiny_dataset, tmp_path):
+    from lfstudio.dataset import Dataset
+
+    ds = make_tiny_dataset("png")
+    truth = json.loads((ds.root / "ground_truth.json").read_text())
+    ds.manifest["plan"] = {}                                    # a CLI scan stores no plan
+    ds.manifest["authors"] = "Studio A"
+    ds.save()
+    ds = Dataset.open(ds.root)
+    est = estimate_export(ds, ExportOptions("hci", tmp_path / "h", hci_size=(5, 3)))
+    assert any("no scene plan" in w and "measured" in w for w in est.warnings)
+    report = export_dataset(ds, ExportOptions("hci", tmp_path / "h", hci_size=(5, 3)))
+    assert any(w.startswith("disp_min/disp_max measured from the views") for w in report.warnings)
+    p, _ = read_hci(tmp_path / "h")
+    assert p["authors"] == "Studio A"
+    # the nearest and farthest scene planes' neighbour disparity, measured within 5 %
+    f_b = truth["focal_length_px"] * 0.004
+    assert p["disp_max"] == pytest.approx(f_b / truth["near_m"], rel=0.05)
+    assert p["disp_min"] == pytest.approx(f_b / truth["far_m"], rel=0.05)
+    _check_toolkit_round_trip(p, f_b / p["disp_max"], f_b / p["disp_min"])
+    export_dataset(ds, ExportOptions("hci", tmp_path / "one", hci_size=(1, 1), authors="Jane Doe"))
+    p, _ = read_hci(tmp_path / "one")
+    assert (p["disp_min"], p["disp_max"], p["authors"]) == (0.0, 0.0, "Jane Doe")   # nothing to measure from
