@@ -11,10 +11,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 
 from lfstudio.rig.profile import load_rig  # noqa: E402
-from lfstudio.scan.engine import ScanEngine, create_scan_dataset  # noqa: E402
+from lfstudio.scan.engine import ScanEngine  # noqa: E402
 from lfstudio.scan.events import ScanState  # noqa: E402
 from lfstudio.scan.scan_plan import ScanPlan  # noqa: E402
 from lfstudio.sim.instant import InstantCamera, InstantRig  # noqa: E402
+from lfstudio.studio.session import create_scan_dataset  # noqa: E402
 
 
 def instant_devices(rig_cfg, render=None):

@@ -18,8 +18,8 @@ import sys
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from lfstudio.rig.connect import open_rig  # noqa: E402
 from lfstudio.rig.profile import load_rig  # noqa: E402
+from lfstudio.studio.devices import open_rig  # noqa: E402
 
 
 def stats_ms(samples: list[float]) -> tuple[float, float]:
@@ -42,7 +42,8 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=2.0, help="duration of the status-rate run (default 2)")
     args = ap.parse_args()
 
-    controller, sim = open_rig("sim", load_rig(), time_scale=0.0)
+    link = open_rig("sim", load_rig(), time_scale=0.0)
+    controller, sim = link.controller, link.simulator
     try:
         controller.home()
         line = stats_ms(timed(lambda: controller._command("G90"), args.n))
@@ -55,8 +56,7 @@ def main() -> int:
             count += 1
         rate_hz = count / (time.perf_counter() - t0)
     finally:
-        controller.disconnect()
-        sim.close()
+        link.close()
 
     poll_hz = 1.0 / controller.poll_period_s
     print(f"GRBL driver <-> simulator over a pty, {args.n} round trips each")

@@ -20,10 +20,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from _datasets import timed_scan  # noqa: E402
 from lfstudio.planning.optics import move_time_s  # noqa: E402
 from lfstudio.rig.profile import load_rig  # noqa: E402
-from lfstudio.scan.engine import ScanEngine, create_scan_dataset  # noqa: E402
+from lfstudio.scan.engine import ScanEngine  # noqa: E402
 from lfstudio.scan.events import EventKind  # noqa: E402
 from lfstudio.scan.scan_plan import ScanPlan  # noqa: E402
-from lfstudio.sim.session import SimulatedSession  # noqa: E402
+from lfstudio.studio.devices import open_studio  # noqa: E402
+from lfstudio.studio.session import create_scan_dataset  # noqa: E402
 
 SETTLE_S, EXPOSURE_S, TRANSFER_S = 0.3, 0.5, 2.5
 
@@ -39,8 +40,8 @@ def main() -> int:
     plan = ScanPlan.centered(args.columns, args.rows, (4.0, 6.0), rig, settle_s=SETTLE_S)
     scale = args.time_scale
     with tempfile.TemporaryDirectory() as tmp, \
-            SimulatedSession(rig, time_scale=scale, exposure_s=EXPOSURE_S, transfer_s=TRANSFER_S,
-                             view_region_mm=plan.extent_mm(), image_width_px=args.width_px) as sim:
+            open_studio("sim", "sim", rig, time_scale=scale, exposure_s=EXPOSURE_S, transfer_s=TRANSFER_S,
+                        view_region_mm=plan.extent_mm(), sim_width_px=args.width_px) as sim:
         first = plan.views()[0]
         sim.rig.move_to(first.x_mm, first.y_mm)     # the approach from home is not part of the scan
         trigger_s = sim.camera.trigger_s

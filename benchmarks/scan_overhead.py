@@ -17,8 +17,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from _datasets import instant_devices, timed_scan  # noqa: E402
 from lfstudio.rig.profile import load_rig  # noqa: E402
-from lfstudio.scan.engine import ScanEngine, create_scan_dataset  # noqa: E402
+from lfstudio.scan.engine import ScanEngine  # noqa: E402
 from lfstudio.scan.scan_plan import ScanPlan  # noqa: E402
+from lfstudio.studio.session import create_scan_dataset  # noqa: E402
 
 TARGET_MS = 5.0
 

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import os
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
 
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+# port/camera lock files of this test run (and of the lfstudio processes it starts) in a folder of
+# its own, so tests never meet the locks of an lfstudio running beside them
+os.environ.setdefault("LFSTUDIO_RUNTIME_DIR", tempfile.mkdtemp(prefix="lfstudio-test-runtime-"))
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
@@ -100,11 +104,10 @@ def tiny_dataset_dng(make_tiny_dataset):
 def sim_rig():
     """``(controller, simulator)``: the reference rig's GRBL simulator on a real pty (time_scale 0.02,
     so moves take 1/50 of real time), connected and homed. Closed after the test."""
-    from lfstudio.rig.connect import open_rig
     from lfstudio.rig.profile import load_rig
+    from lfstudio.studio.devices import open_rig
 
-    controller, simulator = open_rig("sim", load_rig(), time_scale=0.02, seed=1, timeout_s=1.0)
-    controller.home()
-    yield controller, simulator
-    controller.disconnect()
-    simulator.close()
+    link = open_rig("sim", load_rig(), time_scale=0.02, seed=1, timeout_s=1.0)
+    link.controller.home()
+    yield link.controller, link.simulator
+    link.close()

@@ -23,11 +23,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _open(args: argparse.Namespace):
-    """The connected camera ``--camera`` names (the same names as ``lfstudio scan --camera``)."""
-    spec = args.camera
-    if spec == "sim":
-        from lfstudio.sim.sim_camera import SimulatedCamera
-        from lfstudio.sim.studio import demo_studio
+    """The connected camera ``--camera`` names (the same names as ``lfstudio scan --camera``), as a
+    :class:`lfstudio.studio.devices.CameraLink` (a gphoto2 camera or hot folder is locked for this process)."""
+    from lfstudio.studio.devices import CameraSpec, open_camera
+
+    spec = CameraSpec.parse(args.camera)
+    position = None
+    options = None
+    if spec.kind == "sim":
+        from lfstudio.studio.simulated import studio_kwargs_for
 
         try:
             x, y = (float(v) for v in args.position_mm.split(","))
@@ -35,12 +39,10 @@ def _open(args: argparse.Namespace):
             raise InputError("--position-mm", f"cannot read {args.position_mm!r}", "X,Y in mm") from None
         if not 16 <= args.width <= 12000:
             raise InputError("--width", f"{args.width} px is out of range", "16 .. 12000")
-        camera = SimulatedCamera(demo_studio(width_px=args.width // 2 * 2), lambda: (x, y), time_scale=0.0)
-        camera.connect()
-        return camera
-    from lfstudio.scan.devices import open_camera
-
-    return open_camera(spec, trigger_command=args.trigger or None)
+        position = lambda: (x, y)  # noqa: E731
+        options = {"studio_kwargs": studio_kwargs_for(width_px=args.width), "time_scale": 0.0}
+    return open_camera(spec, position_mm=position, doing="test shot", trigger_command=args.trigger or None,
+                       options=options)
 
 
 def _value(text: str):
@@ -55,7 +57,8 @@ def _value(text: str):
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    camera = _open(args)
+    link = _open(args)
+    camera = link.camera
     try:
         for item in args.set:
             name, sep, value = item.partition("=")
@@ -71,5 +74,5 @@ def run(args: argparse.Namespace) -> int:
             out["true_position_mm"] = truth["true_position_mm"]
         print(json.dumps(out, indent=1))
     finally:
-        camera.disconnect()
+        link.close()
     return 0

@@ -22,7 +22,7 @@ def _check_raw(tmp: Path) -> str:
     import numpy as np
     import rawpy
 
-    from lfstudio.sim.dng import write_dng
+    from lfstudio.studio.simulated import write_dng
 
     mosaic = np.full((64, 96), 4000, np.uint16)
     path = write_dng(tmp / "doctor.dng", mosaic)
@@ -80,16 +80,15 @@ def _check_resources(tmp: Path) -> str:
 
 def _check_simulator(tmp: Path) -> str:
     """The simulated GRBL controller on a pty, as the simulated studio starts it."""
-    from lfstudio.rig.connect import open_rig
     from lfstudio.rig.profile import load_rig
+    from lfstudio.studio.devices import open_rig
 
-    controller, simulator = open_rig("sim", load_rig(), time_scale=0.01, seed=1, timeout_s=2.0)
+    link = open_rig("sim", load_rig(), doing="doctor check", time_scale=0.01, seed=1, timeout_s=2.0)
     try:
-        controller.home()
-        state = controller.status().state
+        link.controller.home()
+        state = link.controller.status().state
     finally:
-        controller.disconnect()
-        simulator.close()
+        link.close()
     return f"simulated rig homed over a pty ({state.name})"
 
 

@@ -25,7 +25,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timeout-s", type=float, default=3.0, help="longest wait for any answer (default 3 s)")
     p.add_argument("commands", nargs=argparse.REMAINDER, metavar="COMMAND [ARGS]",
                    help="status | home | unlock | origin | reset | move X Y | jog DX DY  (mm; several in a row)")
-    p.epilog = "example: lfstudio rig --port sim home move 10 5 status"
+    p.epilog = ("example: lfstudio rig --port sim home move 10 5 status. A port in use by another lfstudio "
+                "process (a running scan, the window) is refused, naming it")
 
 
 def parse_commands(words: list[str]) -> list[tuple[str, tuple[float, ...]]]:
@@ -76,18 +77,19 @@ def _wait_idle(controller, timeout_s: float = 600.0):
 
 
 def run(args: argparse.Namespace) -> int:
-    from lfstudio.rig.connect import open_rig
     from lfstudio.rig.profile import DEFAULT_RIG, load_rig
+    from lfstudio.studio.devices import open_rig
 
     commands = parse_commands(args.commands)
     if args.time_scale < 0:
         raise InputError("--time-scale", f"must be zero or positive, got {args.time_scale:g}", ">= 0")
     rig = load_rig(args.rig or DEFAULT_RIG)
-    controller, simulator = open_rig(args.port, rig, time_scale=args.time_scale, baudrate=args.baud,
-                                     timeout_s=args.timeout_s)
+    link = open_rig(args.port, rig, doing="rig commands: " + " ".join(args.commands), time_scale=args.time_scale,
+                    baudrate=args.baud, timeout_s=args.timeout_s)
+    controller = link.controller
     try:
-        if simulator is not None:
-            print(f"simulated GRBL controller on {simulator.port} (rig {rig.name!r})", flush=True)
+        if link.simulator is not None:
+            print(f"simulated GRBL controller on {link.port} (rig {rig.name!r})", flush=True)
         for word, values in commands:
             if word == "status":
                 status = controller.status()
@@ -114,9 +116,5 @@ def run(args: argparse.Namespace) -> int:
         controller.stop()
         raise
     finally:
-        try:
-            controller.disconnect()
-        finally:
-            if simulator is not None:
-                simulator.close()
+        link.close()
     return 0

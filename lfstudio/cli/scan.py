@@ -26,14 +26,21 @@ def _pair(text: str, option: str, kind=float, sep: str = "x") -> tuple:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--rig", default="sim", metavar="sim|PORT",
+    p.add_argument("--rig", default=None, metavar="sim|PORT",
                    help="axis controller: 'sim' (simulated GRBL on a pseudo-terminal), 'instant' (no timing) "
-                        "or a serial port such as /dev/ttyUSB0 (default: sim)")
-    p.add_argument("--camera", default="sim", metavar="sim|gphoto2|folder:PATH",
+                        "or a serial port such as /dev/ttyUSB0 (default: sim; with --resume the dataset's own rig)")
+    p.add_argument("--camera", default=None, metavar="sim|gphoto2|folder:PATH",
                    help="camera: 'sim' (renders the virtual studio), 'gphoto2' (tethered USB), "
-                        "'folder:PATH' (hot folder) or 'instant' (default: sim)")
+                        "'folder:PATH' (hot folder) or 'instant' (default: sim; with --resume the dataset's own camera)")
     p.add_argument("--rig-profile", default=None, metavar="NAME",
-                   help="rig profile from the presets (default: the reference gantry)")
+                   help="rig profile from the presets (default: the reference gantry; with --resume the dataset's)")
+    p.add_argument("--home", action="store_true",
+                   help="home the rig ($H) before the first view (with --resume: before continuing)")
+    p.add_argument("--origin-here", action="store_true",
+                   help="rig without limit switches: make the carriage's current position the origin (0, 0) "
+                        "before the first view (park it at the left/top end of its travel first)")
+    p.add_argument("--allow-device-change", action="store_true",
+                   help="with --resume: continue with other devices than the dataset's own (recorded per view)")
     p.add_argument("--grid", metavar="CxR", help="columns x rows, e.g. 101x21 (default: from --plan or 101x21)")
     p.add_argument("--spacing-mm", metavar="HxV", help="horizontal x vertical spacing in mm, e.g. 4x6")
     p.add_argument("--offset-mm", metavar="HxV", default="0x0",
@@ -53,13 +60,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="simulated camera image width in pixels (default 2000; smaller renders faster)")
     p.add_argument("--retries", type=int, default=2, help="retries per view before the scan stops (default 2)")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated devices")
+    p.epilog = ("a second scan of the same DATASET, or of the same rig port or camera, is refused while this one "
+                "runs; on a real rig add --home (or --origin-here for a rig without limit switches)")
 
 
 def _build_plan(args: argparse.Namespace, rig_config, existing=None):
+    """The scan plan and the scene plan (or None) from the options; with ``existing``, the dataset's grid."""
     from lfstudio.scan.scan_plan import ScanPlan
+    from lfstudio.studio.session import resume_plan
 
-    if args.time_scale < 0:
-        raise InputError("--time-scale", f"must be zero or positive, got {args.time_scale:g}", ">= 0")
     scene = None
     if args.plan:
         from lfstudio.planning.scene_plan import load_plan
@@ -75,8 +84,7 @@ def _build_plan(args: argparse.Namespace, rig_config, existing=None):
         if args.spacing_mm and _pair(args.spacing_mm, "--spacing-mm") != spacing:
             raise InputError("--spacing-mm", f"{args.spacing_mm} differs from the dataset's "
                              f"{spacing[0]:g}x{spacing[1]:g}", "leave it out with --resume")
-        settle = base.settle_s if args.settle_s is None else args.settle_s
-        plan = ScanPlan(base.columns, base.rows, base.spacing_mm, base.origin_mm, args.order or base.order, settle)
+        plan = resume_plan(existing, order=args.order, settle_s=args.settle_s)
         plan.check_limits(rig_config)
         return plan, scene
     if scene is not None:
@@ -108,58 +116,26 @@ def _build_plan(args: argparse.Namespace, rig_config, existing=None):
     return plan, scene
 
 
-def describe_camera(camera, scene) -> tuple[dict, dict]:
-    """The manifest's camera and lens entries: from the scene plan, else from the simulated studio."""
-    if scene is not None:
-        return scene.camera_dict(), scene.lens_dict()
-    studio = getattr(camera, "studio", None)
-    if studio is not None:
-        from lfstudio.sim.virtual_dataset import camera_dict, lens_dict
-
-        cam = camera_dict(studio)
-        cam["name"] = getattr(camera, "name", cam.get("name"))
-        return cam, lens_dict(studio)
-    return {"name": getattr(camera, "name", "camera")}, {"name": "unknown"}
-
-
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from lfstudio.dataset import Dataset
     from lfstudio.jobs import TerminalProgress, format_duration
-    from lfstudio.rig.profile import DEFAULT_RIG, load_rig
-    from lfstudio.scan.devices import open_devices
-    from lfstudio.scan.engine import ScanEngine, create_scan_dataset
+    from lfstudio.rig.profile import load_rig
     from lfstudio.scan.events import EventKind, ScanState
+    from lfstudio.studio.session import ScanRequest, ScanSession
 
-    rig_config = load_rig(args.rig_profile or DEFAULT_RIG)
-    out = Path(args.out)
-    existing = None
-    if args.resume:
-        if not (out / "dataset.json").is_file():
-            raise InputError("--out", f"{out} holds no dataset to resume", "the folder of an interrupted scan")
-        existing = Dataset.open(out)
-    elif (out / "dataset.json").exists():
-        raise InputError("--out", f"{out} already holds a dataset",
-                         "add --resume to continue it, or choose a new folder")
-    plan, scene = _build_plan(args, rig_config, existing)
-
-    devices = open_devices(args.rig, args.camera, rig_config, time_scale=args.time_scale,
-                           exposure_s=args.exposure_s, transfer_s=args.transfer_s, seed=args.seed,
-                           view_region_mm=plan.extent_mm(), sim_width_px=args.sim_width_px)
+    request = ScanRequest(Path(args.out), resume=args.resume, rig=args.rig, camera=args.camera,
+                          rig_config=load_rig(args.rig_profile) if args.rig_profile else None, home=args.home,
+                          origin_here=args.origin_here, allow_device_change=args.allow_device_change,
+                          retries=args.retries, time_scale=args.time_scale, exposure_s=args.exposure_s,
+                          transfer_s=args.transfer_s, seed=args.seed, sim_width_px=args.sim_width_px)
+    session = ScanSession(request, doing="scanning",
+                          log_line=lambda text: print(f"lfstudio scan: {text}", file=sys.stderr))
     try:
-        if existing is None:
-            camera, lens = describe_camera(devices.camera, scene)
-            camera.setdefault("driver", args.camera)
-            rig = {"name": rig_config.name, "label": rig_config.label, "port": args.rig}
-            dataset = create_scan_dataset(out, plan, rig=rig, camera=camera, lens=lens,
-                                          scene_plan=scene.to_dict() if scene is not None else None)
-        else:
-            dataset = existing
-        engine = ScanEngine(dataset, plan, devices.rig, devices.camera, retries=args.retries,
-                            time_scale=args.time_scale)
+        engine = session.open(lambda existing, rig_config: _build_plan(args, rig_config, existing))
+        dataset, plan = session.dataset, session.plan
         todo = engine.remaining
-        print(f"lfstudio scan: {devices.description}; {plan.columns}x{plan.rows} grid, "
+        print(f"lfstudio scan: {session.studio.description}; {plan.columns}x{plan.rows} grid, "
               f"{dataset.status_counts()['done']} done, {todo} to capture into {dataset.root}", file=sys.stderr)
         if todo == 0:
             print("lfstudio scan: nothing to do, every view is captured", file=sys.stderr)
@@ -199,9 +175,9 @@ def run(args: argparse.Namespace) -> int:
         counts = dataset.status_counts()
         if state is ScanState.FAILED:
             raise DatasetError(engine.message)
-        print(f"lfstudio scan: {engine.message} ({format_duration(engine._active_s)})", file=sys.stderr)
+        print(f"lfstudio scan: {engine.message} ({format_duration(engine.active_s)})", file=sys.stderr)
         if counts["done"] + counts["skipped"] == len(dataset.views):
             return 0
-        return 130 if engine._abort_req else 1
+        return 130 if engine.aborted else 1
     finally:
-        devices.close()
+        session.close()

@@ -21,19 +21,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from lfstudio.rig.profile import DEFAULT_RIG, load_rig
-    from lfstudio.sim.grbl_controller import GrblSimulator
+    from lfstudio.studio.simulated import serve_sim_rig
 
     if args.time_scale < 0:
         raise InputError("--time-scale", f"must be zero or positive, got {args.time_scale:g}", ">= 0")
     rig = load_rig(args.rig or DEFAULT_RIG)
     done = threading.Event()
-    sim = GrblSimulator(rig, time_scale=args.time_scale, seed=args.seed)
-    port = sim.start()
+    sim, truth = serve_sim_rig(rig, time_scale=args.time_scale, seed=args.seed)
+    port = sim.port
     previous = signal.signal(signal.SIGTERM, lambda *_: done.set())
     try:
         print(port, flush=True)
         print(f"simulated GRBL 1.1 controller for rig {rig.name!r} on {port}; connect with\n"
               f"  lfstudio rig --port {port} home status\n"
+              f"  lfstudio scan --rig {port} --home --camera sim ...   (the simulated camera follows it)\n"
               "or any serial terminal (115200 baud). Ctrl-C stops it.", file=sys.stderr, flush=True)
         while not done.wait(0.5):
             if not sim.running:
@@ -43,6 +44,8 @@ def run(args: argparse.Namespace) -> int:
         pass
     finally:
         signal.signal(signal.SIGTERM, previous)
+        if truth is not None:
+            truth.close()
         sim.close()
     print("simulated controller stopped", file=sys.stderr)
     return 0

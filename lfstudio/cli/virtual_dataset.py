@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from lfstudio.jobs import TerminalProgress
-    from lfstudio.sim.virtual_dataset import GROUND_TRUTH_NAME, make_virtual_dataset
+    from lfstudio.studio.simulated import GROUND_TRUTH_NAME, make_virtual_dataset
 
     cols, rows = (int(v) for v in _numbers(args.grid, "--grid", 2))
     if cols < 1 or rows < 1:

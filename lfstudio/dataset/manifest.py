@@ -9,7 +9,16 @@ Layout of the manifest (JSON; every length in mm unless the key says otherwise):
      "views": [{"row": r, "column": c, "commanded_mm": [x, y], "reported_mm": [x, y] | null,
                 "captured_at": iso8601 | null, "exposure_s": float | null,
                 "file": "raw/r00_c000.dng" | null, "sha256": hex | null,
-                "status": "pending" | "done" | "failed" | "skipped", ...}, ...]}
+                "status": "pending" | "done" | "failed" | "skipped", ...}, ...],
+     "devices": {"rig": {"kind": "grbl" | "sim" | "instant", "profile": ..., "port": ..., "firmware": ...},
+                 "camera": {"kind": "sim" | "gphoto2" | "folder" | "instant", "spec": ..., "model": ...,
+                            "serial": ...}},
+     "device_changes": [{"at": iso8601, "devices": {...}, "differences": [...]}, ...]}
+
+``devices`` (optional; datasets made before it existed lack it) records which rig and camera
+captured the dataset; a resume opens them again. When a resume continues with other devices (only
+when the operator says so), the change is appended to ``device_changes`` and every view captured
+with them carries its own ``devices`` record (a view without one was captured with ``devices``).
 
 Stages add their own top-level keys (``processing``, ``calibration`` summary, ...) and per-view keys;
 unknown keys are kept as they are.
@@ -68,6 +77,12 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
     for key in ("rig", "camera", "lens", "grid"):
         if not isinstance(manifest.get(key), dict):
             problems.append(f"{f}: {key}: missing or not an object")
+    devices = manifest.get("devices")
+    if devices is not None and not (isinstance(devices, dict) and all(isinstance(devices.get(k), dict)
+                                                                       for k in ("rig", "camera"))):
+        problems.append(f"{f}: devices: must be an object with 'rig' and 'camera' objects")
+    if not isinstance(manifest.get("device_changes", []), list):
+        problems.append(f"{f}: device_changes: must be a list")
     grid = manifest.get("grid") if isinstance(manifest.get("grid"), dict) else {}
     cols, rows = grid.get("columns"), grid.get("rows")
     for name, val in (("grid.columns", cols), ("grid.rows", rows)):
@@ -126,6 +141,8 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
             problems.append(f"{where}: exposure_s: must be a non-negative number or null")
         if v.get("captured_at") is not None and not isinstance(v["captured_at"], str):
             problems.append(f"{where}: captured_at: must be an ISO 8601 time string or null")
+        if v.get("devices") is not None and not isinstance(v["devices"], dict):
+            problems.append(f"{where}: devices: must be an object or null")
         thumb = v.get("thumb")
         if thumb is not None and inside is not None:
             try:
@@ -154,6 +171,9 @@ class Dataset:
         self._journal = Journal(self.root / JOURNAL_NAME)
         self._index: dict[tuple[int, int], dict[str, Any]] = {}
         self._index_of: list | None = None
+        #: the device record of views captured from now on when they are not the dataset's own
+        #: ``devices`` (None: they are); :meth:`record_view` stores it with every view marked done
+        self.capture_devices: dict[str, Any] | None = None
 
     # -- construction -------------------------------------------------------------------------
     @classmethod
@@ -358,6 +378,9 @@ class Dataset:
         """
         with self._lock:
             view = self.view(row, column)
+            if fields.get("status") == "done" and "devices" not in fields and (
+                    self.capture_devices is not None or view.get("devices") is not None):
+                fields = {**fields, "devices": self.capture_devices}
             self._seq += 1
             self._journal.append({"seq": self._seq, "row": row, "column": column, "set": fields})
             view.update(fields)

@@ -328,6 +328,9 @@ class GrblController:
                 self.settings[int(m.group(1))] = float(m.group(2))
         self._read_offsets()
         self._critical = any("Reset to continue" in m for m in self.messages[-2:]) and status.state == "Alarm"
+        # a homing controller ($22=1) starts locked in ALARM and leaves it only through $H (or an explicit
+        # $X): not in alarm now means an earlier connection homed it and it has not been reset since
+        self._homed = bool(self.config.homing and self.settings.get(22) == 1 and status.state != "Alarm")
 
     def _read_offsets(self) -> None:
         offsets: dict[str, tuple[float, ...]] = {}

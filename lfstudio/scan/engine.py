@@ -886,32 +886,3 @@ class ScanEngine:
             self._emit(EventKind.LOG, f"saving {self.dataset.manifest_path} failed ({exc}); "
                                       "the journal keeps every captured view")
         self._last_save = time.monotonic()
-
-
-def dataset_views(plan: ScanPlan) -> list[dict[str, Any]]:
-    """One pending manifest entry per grid cell of ``plan`` (row-major), with its commanded position."""
-    full = plan.with_subset(None)
-    return [{"row": r, "column": c, "commanded_mm": list(full.position_mm(r, c)), "reported_mm": None,
-             "captured_at": None, "exposure_s": None, "file": None, "sha256": None, "status": "pending"}
-            for r in range(plan.rows) for c in range(plan.columns)]
-
-
-def create_scan_dataset(root: str | Path, plan: ScanPlan, *, rig: dict, camera: dict, lens: dict,
-                        scene_plan: dict | None = None) -> Dataset:
-    """A new dataset folder for ``plan`` with every view pending."""
-    return Dataset.create(root, camera=camera, lens=lens, grid=plan.grid_dict(), rig=rig, plan=scene_plan or {},
-                          views=dataset_views(plan))
-
-
-def check_resume_matches(dataset: Dataset, plan: ScanPlan) -> list[str]:
-    """Differences between an existing dataset's grid and ``plan`` that make resuming into it wrong."""
-    g = dataset.grid
-    problems = []
-    if (g.get("columns"), g.get("rows")) != (plan.columns, plan.rows):
-        problems.append(f"grid: the dataset is {g.get('columns')} x {g.get('rows')}, "
-                        f"the scan asks for {plan.columns} x {plan.rows}")
-    spacing = g.get("spacing_mm")
-    if spacing and any(abs(float(a) - b) > 1e-6 for a, b in zip(spacing, plan.spacing_mm)):
-        problems.append(f"spacing_mm: the dataset has {spacing[0]:g} x {spacing[1]:g} mm, "
-                        f"the scan asks for {plan.spacing_mm[0]:g} x {plan.spacing_mm[1]:g} mm")
-    return problems

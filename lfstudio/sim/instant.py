@@ -3,7 +3,7 @@
 They implement :class:`lfstudio.rig.motion.MotionController` and :class:`lfstudio.rig.camera.Camera`
 without any timing, so what is left of a scan's duration is the engine's own overhead
 (``benchmarks/scan_overhead.py``). For realistic timing use the GRBL simulator and the simulated
-camera (:mod:`lfstudio.sim.session`).
+camera, wired together by :mod:`lfstudio.studio.devices`.
 """
 
 from __future__ import annotations

@@ -13,7 +13,8 @@ from lfstudio.gui.state import AppState
 from lfstudio.gui.views.grid_view import CAPTURING, DONE, PENDING, GridView, recent_datasets
 from lfstudio.rig.profile import load_rig
 from lfstudio.rig.worker import DeviceWorker
-from lfstudio.scan.engine import ScanEngine, create_scan_dataset
+from lfstudio.scan.engine import ScanEngine
+from lfstudio.studio.session import create_scan_dataset
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.sim.instant import InstantCamera, InstantRig
 
@@ -203,7 +204,7 @@ def test_scan_panel_starts_the_simulated_studio_when_no_devices_are_connected(qt
     panel.start()
     qtbot.waitUntil(lambda: "Finished" in panel.state_label.text(), timeout=60000)
     try:
-        assert panel.session is not None and panel.session.port.startswith("/dev/")   # a real pty
+        assert panel.studio is not None and panel.studio.port.startswith("/dev/")   # a real pty
         ds = Dataset.open(tmp_path / "simscan")
         assert ds.status_counts()["done"] == 2
         assert ds.view(0, 1)["file"] == "raw/r00_c001.dng"

@@ -11,10 +11,11 @@ import rawpy
 
 from lfstudio.dataset import Dataset
 from lfstudio.rig.profile import load_rig
-from lfstudio.scan.engine import ScanEngine, create_scan_dataset
+from lfstudio.scan.engine import ScanEngine
 from lfstudio.scan.events import EventKind, ScanState
 from lfstudio.scan.scan_plan import ScanPlan, grid_order
-from lfstudio.sim.session import SimulatedSession
+from lfstudio.studio.devices import open_studio
+from lfstudio.studio.session import create_scan_dataset
 
 RIG = load_rig()
 
@@ -22,8 +23,8 @@ RIG = load_rig()
 @pytest.fixture
 def studio(tmp_path):
     plan = ScanPlan.centered(4, 3, (4.0, 6.0), RIG, settle_s=0.0)
-    session = SimulatedSession(RIG, time_scale=0.0, exposure_s=0.5, transfer_s=2.5,
-                               view_region_mm=plan.extent_mm(), image_width_px=96).start()
+    session = open_studio("sim", "sim", RIG, time_scale=0.0, exposure_s=0.5, transfer_s=2.5,
+                          view_region_mm=plan.extent_mm(), sim_width_px=96)
     ds = create_scan_dataset(tmp_path / "ds", plan, rig={"name": RIG.name}, camera={"name": "sim"},
                              lens={"name": "virtual"})
     yield session, plan, ds

@@ -12,7 +12,8 @@ import pytest
 from lfstudio.dataset import Dataset
 from lfstudio.rig.profile import load_rig
 from lfstudio.rig.worker import DeviceBusy, DeviceWorker
-from lfstudio.scan.engine import ScanEngine, create_scan_dataset
+from lfstudio.scan.engine import ScanEngine
+from lfstudio.studio.session import create_scan_dataset
 from lfstudio.scan.events import (OWNS_RIG, REQUESTS, TERMINAL, TRANSITIONS, EventKind, ScanRequestRefused,
                                   ScanState, Trigger, allowed_requests, next_state)
 from lfstudio.scan.scan_plan import ScanPlan

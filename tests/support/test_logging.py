@@ -32,19 +32,19 @@ def test_log_dir_follows_env_override(tmp_path, monkeypatch):
 
 
 def test_grbl_exchange_is_logged_at_debug(configured_logging, tmp_path, monkeypatch):
-    from lfstudio.rig.connect import open_rig
     from lfstudio.rig.profile import load_rig
+    from lfstudio.studio.devices import open_rig
 
     monkeypatch.setenv("LFSTUDIO_LOG_DIR", str(tmp_path / "logs"))
     path = configured_logging(debug=False)
     assert path == tmp_path / "logs" / "lfstudio.log"
-    controller, simulator = open_rig("sim", load_rig(), time_scale=0.02, seed=1, timeout_s=1.0)
+    link = open_rig("sim", load_rig(), time_scale=0.02, seed=1, timeout_s=1.0)
+    controller = link.controller
     try:
         controller.home()
         controller.move_to(2.0, 1.0)
     finally:
-        controller.disconnect()
-        simulator.close()
+        link.close()
     logging.getLogger("lfstudio.scan.engine").info("scan running")
     logs.flush_logs()
     text = path.read_text(encoding="utf-8")

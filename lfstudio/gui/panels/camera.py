@@ -54,6 +54,7 @@ class CameraPanel(QWidget):
         super().__init__(parent)
         self.state = state
         self.device: QtDevice | None = None
+        self.link: Any = None          # the CameraLink (driver + lock) while connected
         s = settings()
 
         self.kind = QComboBox()
@@ -245,7 +246,7 @@ class CameraPanel(QWidget):
 
     def _studio_kwargs(self) -> dict[str, Any]:
         """The virtual scene follows the current plan (distances, lens, sensor, grid extent)."""
-        from lfstudio.sim.studio import DEMO_PP_OFFSET_PX, DEMO_ROTATION_DEG, REFERENCE_REGION_MM
+        from lfstudio.studio.simulated import DEMO_PP_OFFSET_PX, DEMO_ROTATION_DEG, REFERENCE_REGION_MM
 
         kw: dict[str, Any] = {"width_px": self.sim_width.value() // 2 * 2, "rotation_deg": DEMO_ROTATION_DEG,
                               "pp_offset_px": DEMO_PP_OFFSET_PX, "view_region_mm": REFERENCE_REGION_MM}
@@ -285,23 +286,23 @@ class CameraPanel(QWidget):
         s.setValue("camera/shutter_s", self.shutter.value())
         s.setValue("camera/aperture", self.aperture.value())
 
-    def build_driver(self) -> Any:
-        """The driver for the chosen camera (not yet connected). Raises InputError for bad fields."""
+    def build_link(self) -> Any:
+        """The chosen camera, not yet connected, as a :class:`lfstudio.studio.devices.CameraLink` (a USB
+        camera or hot folder locked for this window). Raises InputError for bad fields, LockBusy when
+        another lfstudio process uses the camera."""
+        from lfstudio.studio.devices import CameraSpec, open_camera
+
         kind = self.current_kind()
+        doing = "the lfstudio window"
         if kind == "sim":
-            from lfstudio.sim.sim_camera import SimulatedCamera
-
-            return SimulatedCamera(None, simulated_position(self.state), studio_kwargs=self._studio_kwargs(),
-                                   exposure_s=self.shutter.value(), iso=int(self.iso.currentText()),
-                                   aperture=self.aperture.value(), time_scale=self.sim_time_scale.value(),
-                                   noise=self.sim_noise.value() / 100, flicker=self.sim_flicker.value() / 100,
-                                   vignetting=self.sim_vignetting.value() / 100)
+            options = dict(studio_kwargs=self._studio_kwargs(), exposure_s=self.shutter.value(),
+                           iso=int(self.iso.currentText()), aperture=self.aperture.value(),
+                           time_scale=self.sim_time_scale.value(), noise=self.sim_noise.value() / 100,
+                           flicker=self.sim_flicker.value() / 100, vignetting=self.sim_vignetting.value() / 100)
+            return open_camera(CameraSpec("sim"), position_mm=simulated_position(self.state), doing=doing,
+                               options=options, connect=False)
         if kind == "gphoto2":
-            from lfstudio.rig.gphoto import GPhotoCamera
-
-            return GPhotoCamera()
-        from lfstudio.rig.hotfolder import HotFolderCamera
-
+            return open_camera(CameraSpec("gphoto2"), doing=doing, connect=False)
         folder = self.folder_edit.text().strip()
         if not folder:
             raise InputError("Folder", "choose the folder the camera software saves into")
@@ -309,7 +310,8 @@ class CameraPanel(QWidget):
             argv = shlex.split(self.trigger_edit.text())
         except ValueError as exc:
             raise InputError("Trigger command", f"cannot be split into arguments ({exc})") from None
-        return HotFolderCamera(folder, argv or None, timeout_s=self.folder_timeout.value())
+        return open_camera(CameraSpec("folder", folder), doing=doing, trigger_command=argv or None,
+                           options={"timeout_s": self.folder_timeout.value()}, connect=False)
 
     # -- connection ----------------------------------------------------------------------------------
     @property
@@ -327,12 +329,12 @@ class CameraPanel(QWidget):
             return
         self._save_settings()
         try:
-            driver = self.build_driver()
-        except Exception as exc:  # noqa: BLE001 - a missing library or bad field: say so
+            self.link = self.build_link()
+        except Exception as exc:  # noqa: BLE001 - a missing library, a bad field, a busy camera: say so
             self._show(str(exc), "error")
             self.state.report_error("Camera", str(exc))
             return
-        worker = DeviceWorker(driver, name="camera", status_method="status", publish_hz=4)
+        worker = DeviceWorker(self.link.camera, name="camera", status_method="status", publish_hz=4)
         self.device = QtDevice(worker, self)
         self.device.statusChanged.connect(self._on_status)
         self.device.busyChanged.connect(lambda _b: self._update_enabled())
@@ -343,6 +345,7 @@ class CameraPanel(QWidget):
         self.device.run("connect", timeout_s=60, on_result=lambda _r: self._connected(),
                         on_error=self._connect_failed)
         self.state.set_device("camera", self.device)
+        self.state.set_device("camera_link", self.link)
         self._update_enabled()
 
     def _connected(self) -> None:
@@ -363,7 +366,11 @@ class CameraPanel(QWidget):
             device.stop_now()
             device.close(disconnect=True)
             device.deleteLater()
+        link, self.link = self.link, None
+        if link is not None:
+            link.close(disconnect=False)  # the camera's lock (the worker disconnected the driver)
         self.state.set_device("camera", None)
+        self.state.set_device("camera_link", None)
         self.connect_button.setText("Connect")
         self.connect_action.setText("Connect &camera")
         self._show("Not connected", "")

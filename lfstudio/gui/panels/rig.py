@@ -16,6 +16,7 @@ from PySide6.QtWidgets import (QButtonGroup, QComboBox, QDoubleSpinBox, QFormLay
                                QGroupBox, QHBoxLayout, QLabel, QPushButton, QRadioButton, QSizePolicy,
                                QToolButton, QVBoxLayout, QWidget)
 
+from lfstudio.errors import LfError
 from lfstudio.gui.devices import QtDevice
 from lfstudio.gui.settings import settings
 from lfstudio.gui.state import AppState
@@ -114,6 +115,7 @@ class RigPanel(QWidget):
         self.device: QtDevice | None = None
         self._retired: list[QtDevice] = []
         self.simulator: Any = None
+        self.link: Any = None          # lfstudio.studio.devices.RigLink while connected (driver, simulator, lock)
         self.sim_time_scale = 1.0          # simulated rig: real-time motion (tests speed it up)
         self.last_status: RigStatus | None = None
         self._hold_timer = QTimer(self)
@@ -386,20 +388,23 @@ class RigPanel(QWidget):
 
     def connect_rig(self) -> None:
         """Start the simulator if chosen, then connect on the device thread."""
-        from lfstudio.rig.grbl import GrblController
+        from lfstudio.studio.devices import open_rig
 
         if self.connected:
             return
         port = self.chosen_port()
         settings().setValue("rig/port", self.port_combo.currentText())
-        if port == "sim":
-            from lfstudio.sim.grbl_controller import GrblSimulator
-            self.simulator = GrblSimulator(self.rig_config, time_scale=self.sim_time_scale)
-            path = self.simulator.start()
+        try:   # the simulator for "sim"; the port locked for this window (refused while another process has it)
+            self.link = open_rig(port, self.rig_config, doing="the lfstudio window", time_scale=self.sim_time_scale,
+                                 connect=False)
+        except LfError as exc:
+            self._show_message(str(exc), "error")
+            self.state.report_error("Rig", str(exc))
+            return
+        self.simulator = self.link.simulator
+        if self.simulator is not None:
             self.state.set_device("rig_simulator", self.simulator)
-        else:
-            path = port
-        controller = GrblController(path, self.rig_config)
+        controller = self.link.controller
         worker = DeviceWorker(controller, name="rig", publish_hz=10,
                               error_snapshot=lambda message: RigStatus(RigState.DISCONNECTED, message=message))
         self.device = QtDevice(worker)
@@ -411,6 +416,7 @@ class RigPanel(QWidget):
         self.device.run("connect", on_result=lambda _r: self._connected(port),
                         on_error=self._connect_failed)
         self.state.set_device("rig", self.device)
+        self.state.set_device("rig_link", self.link)
         self._update_enabled()
 
     def _connected(self, port: str) -> None:
@@ -429,11 +435,13 @@ class RigPanel(QWidget):
             device.stop_now()
             device.close(disconnect=True)
             self._retired.append(device)   # released with the panel, on the GUI thread
-        if self.simulator is not None:
-            self.simulator.close()
-            self.simulator = None
+        link, self.link = self.link, None
+        if link is not None:
+            link.close(disconnect=False)  # the simulator and the port's lock (the worker disconnected)
+        self.simulator = None
         self.state.set_device("rig", None)
         self.state.set_device("rig_simulator", None)
+        self.state.set_device("rig_link", None)
         self.connect_button.setText("Connect")
         self.connect_action.setText("&Connect rig")
         self.last_status = None
@@ -442,7 +450,7 @@ class RigPanel(QWidget):
 
     def shutdown(self) -> None:
         self._hold_timer.stop()
-        if self.device is not None or self.simulator is not None:
+        if self.device is not None or self.link is not None:
             self.disconnect_rig()
 
     # -- commands ----------------------------------------------------------------------------------

@@ -4,7 +4,9 @@ progress with ETA, the current view with its step timings, and the log of events
 The engine (:class:`lfstudio.scan.engine.ScanEngine`) runs on its own threads; its events reach
 this panel through a queued Qt signal and are re-published as ``AppState.scanEvent`` for the grid.
 Devices: the rig and camera connected in the Rig/Camera panels (``state.devices``), or, in the
-simulated studio, a built-in simulated rig and camera started off the GUI thread.
+simulated studio, a built-in simulated rig and camera started off the GUI thread. The scan itself
+runs as a :class:`lfstudio.studio.session.ScanSession` (dataset lock for the whole run, resume with
+the dataset's own devices: other devices only when the operator agrees, rig checks).
 """
 
 from __future__ import annotations
@@ -201,18 +203,19 @@ class PathPreview(QWidget):
 
 
 def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
-    """Off the GUI thread: connect the devices (simulated studio if needed), open or create the
-    dataset and build the engine. Returns ``{"session", "dataset", "engine"}``."""
-    from lfstudio.dataset import Dataset
-    from lfstudio.scan.engine import ScanEngine, check_resume_matches, create_scan_dataset
+    """Off the GUI thread: the simulated studio if needed, then a :class:`ScanSession` on the panel's
+    devices (dataset lock, dataset created or resumed with its own devices, rig checks) and its engine.
+    Returns ``{"studio", "session", "dataset", "engine", "restore"}``."""
+    from lfstudio.studio.devices import link_for_camera, link_for_rig, open_studio
+    from lfstudio.studio.session import DeviceChangeRefused, ScanRequest, ScanSession, SharedDevices
 
     plan: ScanPlan = job["plan"]
     folder: Path = job["folder"]
-    session = job["session"]
-    started_session = None
+    studio = job["studio"]
+    started_studio = None
     restore: list = []          # calls that give the shared simulated devices their time scales back
     if job["shared"] is not None:
-        rig, camera = job["shared"]
+        rig, camera, rig_link, camera_link = job["shared"]
         if hasattr(camera.driver, "set_view_region"):   # simulated camera: centre its scene on this grid
             camera.call("set_view_region", plan.extent_mm(), timeout_s=30)
             camera_scale = getattr(camera.driver, "time_scale", None)
@@ -223,47 +226,35 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
         if simulator is not None:                        # the Rig panel's simulated controller
             restore.append(partial(setattr, simulator, "time_scale", simulator.time_scale))
             simulator.time_scale = float(job["time_scale"])
+        rig_link = rig_link or link_for_rig(rig.driver, job["rig_cfg"], simulated=simulator is not None)
+        camera_link = camera_link or link_for_camera(camera.driver)
+        devices = SharedDevices(rig, camera, {"rig": rig_link.record(), "camera": camera_link.record()},
+                                port=rig_link.port)
     else:
-        if session is None:
-            from lfstudio.sim.session import SimulatedSession
-
-            session = started_session = SimulatedSession(
-                job["rig_cfg"], time_scale=job["time_scale"], exposure_s=job["exposure_s"],
-                transfer_s=job["transfer_s"], view_region_mm=plan.extent_mm()).start()
-        elif session.view_region_mm != plan.extent_mm():
-            session.set_view_region(plan.extent_mm())
-        rig, camera = session.rig, session.camera
-    try:
-        if (folder / "dataset.json").is_file():
-            current = job["current"]
-            dataset = current if current is not None and Path(current.root) == folder.resolve() \
-                else Dataset.open(folder)
-            problems = check_resume_matches(dataset, plan)
-            if problems:
-                raise InputError("Dataset folder", f"{folder} holds another scan: " + "; ".join(problems),
-                                 "choose a new folder, or set the grid to the dataset's")
-            base = ScanPlan.from_grid_dict(dataset.grid)
-            plan = ScanPlan(base.columns, base.rows, base.spacing_mm, base.origin_mm, plan.order, plan.settle_s)
+        if studio is None:
+            studio = started_studio = open_studio(
+                "sim", "sim", job["rig_cfg"], doing="the lfstudio window", time_scale=job["time_scale"],
+                exposure_s=job["exposure_s"], transfer_s=job["transfer_s"], view_region_mm=plan.extent_mm())
         else:
-            from lfstudio.cli.scan import describe_camera
-
-            scene = job["scene"]
-            camera_info, lens_info = describe_camera(getattr(camera, "driver", camera),
-                                                     scene if hasattr(scene, "camera_dict") else None)
-            cfg = job["rig_cfg"]
-            dataset = create_scan_dataset(folder, plan, rig={"name": cfg.name, "label": cfg.label},
-                                          camera=camera_info, lens=lens_info,
-                                          scene_plan=scene.to_dict() if hasattr(scene, "to_dict") else None)
-        if job["recapture"]:
-            plan = plan.with_subset(job["recapture"])
-        engine = ScanEngine(dataset, plan, rig, camera, time_scale=job["time_scale"],
-                            recapture=bool(job["recapture"]))
+            studio.set_view_region(plan.extent_mm())
+        devices = SharedDevices(studio.rig, studio.camera, studio.record(), port=studio.port)
+    request = ScanRequest(folder, resume=(folder / "dataset.json").is_file(), rig_config=job["rig_cfg"],
+                          allow_device_change=job.get("allow_device_change", False), recapture=job["recapture"],
+                          time_scale=job["time_scale"])
+    session = ScanSession(request, doing="scanning", devices=devices)
+    scene = job["scene"]
+    try:
+        engine = session.open(lambda existing, cfg: (plan, scene if hasattr(scene, "camera_dict") else None))
+    except DeviceChangeRefused as exc:        # the operator decides (ScanPanel._devices_ready)
+        restore_time_scales(restore)
+        return {"studio": studio, "refused": exc}
     except BaseException:
-        if started_session is not None:
-            started_session.close()
+        if started_studio is not None:
+            started_studio.close()
         restore_time_scales(restore)
         raise
-    return {"session": session, "dataset": dataset, "engine": engine, "restore": restore}
+    return {"studio": studio, "session": session, "dataset": session.dataset, "engine": engine,
+            "restore": restore}
 
 
 def restore_time_scales(restore: list | None) -> None:
@@ -284,9 +275,11 @@ class ScanPanel(QWidget):
         self.state = state
         self.setObjectName("scanPanel")
         self.engine = None
-        self.session = None
+        self.studio = None              # the simulated studio this panel started (kept between scans)
+        self.scan_session = None        # the ScanSession of the current scan (holds the dataset's lock)
         self._restore: list | None = None     # see prepare_scan / restore_time_scales
         self._pending_recapture: list[tuple[int, int]] = []
+        self._last_start: list[tuple[int, int]] | None = None
         self.bridge = EngineBridge(self)
         self.bridge.wake.connect(self._drain, Qt.QueuedConnection)
         self._backlog: deque = deque()
@@ -571,7 +564,7 @@ class ScanPanel(QWidget):
     def running(self) -> bool:
         return self.engine is not None and self.engine.state not in (ScanState.FINISHED, ScanState.FAILED)
 
-    def start(self, recapture: list[tuple[int, int]] | None = None) -> None:
+    def start(self, recapture: list[tuple[int, int]] | None = None, allow_device_change: bool = False) -> None:
         """Start (or resume) the scan set up in the panel. Devices, dataset and engine are prepared
         off the GUI thread; the engine starts when they are ready."""
         if self.running or self.opener.running:
@@ -588,23 +581,24 @@ class ScanPanel(QWidget):
         self._save_settings()
         devices = self.state.devices
         shared = devices.get("rig") is not None and devices.get("camera") is not None
-        if not shared and self.session is None and not self.state.simulated:
+        if not shared and self.studio is None and not self.state.simulated:
             self.state.report_error("Scan", "No rig or camera connected: connect them in the Rig and Camera "
                                             "panels, then start the scan.")
             return
-        rig_devices = (devices["rig"].worker, devices["camera"].worker) if shared else None
+        rig_devices = (devices["rig"].worker, devices["camera"].worker, devices.get("rig_link"),
+                       devices.get("camera_link")) if shared else None
         simulator = devices.get("rig_simulator") if shared and self.state.simulated else None
         scene = self.state.plan
-        current = self.state.dataset
         job = dict(plan=plan, folder=Path(folder), recapture=list(recapture) if recapture else None,
-                   rig_cfg=self.rig_config(), scene=scene, current=current, shared=rig_devices,
-                   simulator=simulator,
-                   session=self.session, time_scale=self.time_scale.value() if self.state.simulated else 1.0,
-                   exposure_s=getattr(scene, "exposure_s", 0.5), transfer_s=getattr(scene, "transfer_s", 2.5))
-        if not shared and self.session is None:
+                   rig_cfg=self.rig_config(), scene=scene, shared=rig_devices, simulator=simulator,
+                   studio=self.studio, time_scale=self.time_scale.value() if self.state.simulated else 1.0,
+                   exposure_s=getattr(scene, "exposure_s", 0.5), transfer_s=getattr(scene, "transfer_s", 2.5),
+                   allow_device_change=allow_device_change)
+        if not shared and self.studio is None:
             self._log("starting the simulated studio (GRBL simulator on a pseudo-terminal, simulated camera)…")
             self.state_label.setText("Connecting the simulated rig and camera…")
         self.start_button.setEnabled(False)
+        self._last_start = (list(recapture) if recapture else None)
         self.opener.start(prepare_scan, job)
 
     def _devices_failed(self, message: str) -> None:
@@ -613,11 +607,20 @@ class ScanPanel(QWidget):
         self._update_buttons()
 
     def _devices_ready(self, prepared: dict) -> None:
-        if prepared.get("session") is not None:
-            self.session = prepared["session"]
+        if prepared.get("studio") is not None:
+            self.studio = prepared["studio"]
+        refused = prepared.get("refused")
+        if refused is not None:
+            self._ask_device_change(refused)
+            self._update_buttons()
+            return
         dataset, engine = prepared["dataset"], prepared["engine"]
         self._restore = prepared.get("restore")
+        self.scan_session = prepared["session"]
+        for note in self.scan_session.notes:
+            self._log(note)
         if engine.remaining == 0:
+            self._end_session()
             self._restore_time_scales()
             self.state.set_dataset(dataset)
             self.state_label.setText("Every view of this dataset is captured.")
@@ -644,6 +647,33 @@ class ScanPanel(QWidget):
             self._log(str(exc))
             return False
         return True
+
+    def _ask_device_change(self, refused) -> None:
+        """A resume with other devices than the dataset's: continue only if the operator says so."""
+        self.state_label.setText("The dataset was captured with other devices")
+        self._log(str(refused))
+        box = QMessageBox(QMessageBox.Warning, "Resume with other devices?",
+                          f"{refused}\n\nContinue the scan with the connected devices? The change is recorded in "
+                          "the dataset (for every view captured with them).",
+                          QMessageBox.Yes | QMessageBox.No, self)
+        box.setObjectName("deviceChangeBox")
+        box.button(QMessageBox.Yes).setText("Resume with these devices")
+        box.button(QMessageBox.No).setText("Cancel")
+        box.setDefaultButton(QMessageBox.No)
+        self.device_change_box = box
+        recapture = self._last_start
+
+        def answered(button) -> None:
+            if box.standardButton(button) == QMessageBox.Yes:
+                self.start(recapture=recapture, allow_device_change=True)
+        box.buttonClicked.connect(answered)
+        box.open()
+
+    def _end_session(self) -> None:
+        """Release the dataset's lock (the devices stay with their panels / the simulated studio)."""
+        session, self.scan_session = self.scan_session, None
+        if session is not None:
+            session.close()
 
     def pause(self) -> None:
         if self.engine is not None:
@@ -688,6 +718,13 @@ class ScanPanel(QWidget):
         counts = ds.status_counts()
         if counts["pending"] == 0:
             settings().remove(ACTIVE_KEY)
+            return
+        from lfstudio.studio.locks import DATASET_LOCK_NAME, holder_of
+
+        holder = holder_of(Path(path) / DATASET_LOCK_NAME)
+        if holder is not None:        # it is not interrupted: another lfstudio is scanning it right now
+            self._log(f"the scan of {path} is running in {holder.describe()}; not offering to resume it here")
+            self.state.show_status(f"{path} is being scanned by {holder.describe()}", 15000)
             return
         box = QMessageBox(QMessageBox.Question, "Resume interrupted scan",
                           f"The scan of {path} was interrupted: {counts['done']} of {len(ds.views)} views are "
@@ -768,6 +805,7 @@ class ScanPanel(QWidget):
             self.preview.update()
         if st in (ScanState.FINISHED, ScanState.FAILED):
             self._restore_time_scales()
+            self._end_session()
         if st is ScanState.FINISHED and self.engine is not None:
             if self.engine.dataset.status_counts()["pending"] == 0:
                 settings().remove(ACTIVE_KEY)
@@ -813,6 +851,7 @@ class ScanPanel(QWidget):
         if self.engine is not None and self.running:
             self._request("abort")
             self.engine.wait(30)
-        if self.session is not None:
-            self.session.close()
-            self.session = None
+        self._end_session()
+        if self.studio is not None:
+            self.studio.close()
+            self.studio = None

@@ -1,0 +1,398 @@
+"""Device descriptions -> running drivers, with their OS-level locks (the one place that does this).
+
+The words an operator uses (CLI options, the GUI's choices)::
+
+    rig:     sim | instant | PORT        (/dev/ttyUSB0, /dev/pts/N from `lfstudio sim-rig`, COM3, a pyserial URL)
+    camera:  sim | instant | gphoto2 | folder:PATH
+
+``sim`` starts the GRBL simulator on a pseudo-terminal in this process and drives it with the real
+GRBL driver; ``instant`` is a rig/camera that takes no time (tests, benchmarks). A serial port is
+locked for this process (:func:`lfstudio.studio.locks.port_lock`), and so are a gphoto2 camera and
+a hot folder: a second lfstudio process asking for them is refused with the holder's name.
+
+::
+
+    with open_studio("sim", "sim", rig_config, doing="scanning D") as studio:
+        studio.rig, studio.camera        # connected drivers (the rig homed when it is simulated here)
+        studio.record()                  # what the dataset records about them
+
+The simulated camera renders from the carriage's true position: the in-process simulator's, the
+instant rig's, or that of the ``lfstudio sim-rig`` serving the port (see :mod:`lfstudio.studio.simulated`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+from lfstudio.errors import DeviceError, InputError
+from lfstudio.rig.motion import RigConfig
+from lfstudio.studio.locks import Lock, camera_lock, port_lock
+
+log = logging.getLogger(__name__)
+
+SIM = "sim"
+INSTANT = "instant"
+RIG_CHOICES = "sim, instant or a serial port such as /dev/ttyUSB0"
+CAMERA_CHOICES = "sim, gphoto2, folder:PATH, instant"
+
+
+@dataclass(frozen=True)
+class RigSpec:
+    """``kind``: "sim" (simulator in this process), "instant", or "serial" (``port``)."""
+
+    kind: str
+    port: str = ""
+
+    @classmethod
+    def parse(cls, text: str, option: str = "--rig") -> "RigSpec":
+        word = (text or "").strip()
+        if not word:
+            raise InputError(option, "no rig given", RIG_CHOICES)
+        if word.lower() in (SIM, INSTANT):
+            return cls(word.lower())
+        return cls("serial", word)
+
+    @property
+    def text(self) -> str:
+        return self.port if self.kind == "serial" else self.kind
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """``kind``: "sim", "instant", "gphoto2" or "folder" (``folder`` set)."""
+
+    kind: str
+    folder: str = ""
+
+    @classmethod
+    def parse(cls, text: str, option: str = "--camera") -> "CameraSpec":
+        word = (text or "").strip()
+        if word.lower() in (SIM, INSTANT, "gphoto2"):
+            return cls(word.lower())
+        if word.startswith("folder:") and len(word) > len("folder:"):
+            return cls("folder", word.split(":", 1)[1])
+        raise InputError(option, f"unknown camera {text!r}", CAMERA_CHOICES)
+
+    @property
+    def text(self) -> str:
+        return f"folder:{self.folder}" if self.kind == "folder" else self.kind
+
+
+def close_quietly(obj: Any, what: str) -> None:
+    """Disconnect/close a device without hiding the problem that made us close it."""
+    if obj is None:
+        return
+    try:
+        (obj.disconnect if hasattr(obj, "disconnect") else obj.close)()
+    except Exception as exc:  # noqa: BLE001
+        log.debug("closing %s: %s", what, exc)
+
+
+class RigLink:
+    """An opened rig: ``controller`` (the driver), ``simulator`` (the in-process GRBL simulator or
+    None), ``port`` (what the driver opened) and the port's lock. :meth:`close` ends all of them."""
+
+    def __init__(self, spec: RigSpec, config: RigConfig, controller: Any, simulator: Any = None,
+                 lock: Lock | None = None):
+        self.spec = spec
+        self.config = config
+        self.controller = controller
+        self.simulator = simulator
+        self.lock = lock
+        self.port = getattr(controller, "port", "") or spec.text
+
+    @property
+    def simulated(self) -> bool:
+        return self.spec.kind == SIM
+
+    def describe(self) -> str:
+        if self.spec.kind == SIM:
+            return f"simulated rig on {self.port}"
+        if self.spec.kind == INSTANT:
+            return "instant rig"
+        return f"rig on {self.port}"
+
+    def record(self) -> dict[str, Any]:
+        """What a dataset records about this rig (see docs/dataset-format.md, ``devices.rig``)."""
+        kind = {SIM: "sim", INSTANT: "instant"}.get(self.spec.kind, "grbl")
+        rec: dict[str, Any] = {"kind": kind, "profile": self.config.name}
+        if self.spec.kind == "serial":
+            rec["port"] = self.spec.port
+        version = str(getattr(self.controller, "version", "") or "").rstrip(":")
+        if version:
+            rec["firmware"] = f"GRBL {version}"
+        return rec
+
+    def close(self, disconnect: bool = True) -> None:
+        """Disconnect the driver (``disconnect=False``: its DeviceWorker does that), stop the
+        simulator, release the port."""
+        if disconnect:
+            close_quietly(self.controller, "the rig")
+        if self.simulator is not None:
+            close_quietly(self.simulator, "the GRBL simulator")
+            self.simulator = None
+        if self.lock is not None:
+            self.lock.release()
+
+
+def open_rig(spec: RigSpec | str, config: RigConfig, *, doing: str = "", time_scale: float = 1.0, seed: int = 0,
+             connect: bool = True, lock: bool = True, **controller_options: Any) -> RigLink:
+    """Open the rig ``spec`` names: start the simulator for ``sim``, take the port's lock (raises
+    :class:`lfstudio.studio.locks.LockBusy` naming the holder), build the driver and, with
+    ``connect``, connect it (in this thread; the GUI connects on the device's worker instead)."""
+    spec = RigSpec.parse(spec) if isinstance(spec, str) else spec
+    if spec.kind == INSTANT:
+        from lfstudio.studio.simulated import InstantRig
+
+        rig = InstantRig(config)
+        if connect:
+            rig.connect()
+        return RigLink(spec, config, rig)
+    from lfstudio.rig.grbl import GrblController
+
+    simulator = None
+    port_lk: Lock | None = None
+    try:
+        if spec.kind == SIM:
+            from lfstudio.studio.simulated import start_simulator
+
+            simulator = start_simulator(config, time_scale=time_scale, seed=seed)
+            port = simulator.port
+        else:
+            port = spec.port
+        if lock:
+            port_lk = port_lock(port, doing).acquire()
+        controller = GrblController(port, config, **controller_options)
+        link = RigLink(spec, config, controller, simulator, port_lk)
+        if connect:
+            controller.connect()
+    except BaseException:
+        if port_lk is not None:
+            port_lk.release()
+        if simulator is not None:
+            close_quietly(simulator, "the GRBL simulator")
+        raise
+    return link
+
+
+@dataclass
+class CameraLink:
+    """An opened camera driver and its lock (None for the simulated and instant cameras)."""
+
+    spec: CameraSpec
+    camera: Any
+    lock: Lock | None = None
+
+    def record(self) -> dict[str, Any]:
+        """What a dataset records about this camera (``devices.camera``): kind, model and serial when
+        the driver tells them (``identity()`` or ``status().model``), the hot folder."""
+        rec: dict[str, Any] = {"kind": self.spec.kind, "spec": self.spec.text}
+        if self.spec.kind in (SIM, INSTANT):       # its settings (image size, ...) are not its identity
+            rec["model"] = getattr(self.camera, "name", self.spec.kind)
+            return rec
+        if self.spec.kind == "folder":
+            rec["folder"] = self.spec.folder
+        identity = getattr(self.camera, "identity", None)
+        info: dict[str, Any] = {}
+        if callable(identity):
+            try:
+                info = dict(identity() or {})
+            except Exception as exc:  # noqa: BLE001 - a record without the model is still a record
+                log.debug("camera identity: %s", exc)
+        if not info.get("model"):
+            try:
+                model = getattr(self.camera.status(), "model", "") if hasattr(self.camera, "status") else ""
+            except Exception:  # noqa: BLE001
+                model = ""
+            if model:
+                info["model"] = model
+        for key in ("model", "serial", "lens"):
+            if info.get(key):
+                rec[key] = str(info[key])
+        rec.setdefault("model", getattr(self.camera, "name", self.spec.kind))
+        return rec
+
+    def close(self, disconnect: bool = True) -> None:
+        """Disconnect the driver (``disconnect=False``: its DeviceWorker does that), release the camera."""
+        if disconnect:
+            close_quietly(self.camera, "the camera")
+        if self.lock is not None:
+            self.lock.release()
+
+
+def open_camera(spec: CameraSpec | str, *, position_mm: Callable[[], tuple[float, float]] | None = None,
+                doing: str = "", trigger_command: Sequence[str] | None = None, connect: bool = True,
+                options: dict[str, Any] | None = None, lock: bool = True) -> CameraLink:
+    """Open the camera ``spec`` names (connected with ``connect``; the GUI connects on the device's
+    worker instead). ``position_mm``: where the simulated/instant camera is (required for ``sim``);
+    ``options``: keyword arguments of the driver (the simulated camera's exposure_s, transfer_s,
+    time_scale, seed, studio_kwargs, ...; the hot folder's timeout_s); ``trigger_command``: the hot
+    folder's trigger, an argument list."""
+    options = dict(options or {})
+    spec = CameraSpec.parse(spec) if isinstance(spec, str) else spec
+    lk: Lock | None = None
+    if spec.kind == SIM:
+        if position_mm is None:
+            raise InputError("--camera", "the simulated camera renders from the simulated rig's true position",
+                             "--rig sim, or the port 'lfstudio sim-rig' printed")
+        from lfstudio.studio.simulated import simulated_camera
+
+        cam = simulated_camera(position_mm, **options)
+    elif spec.kind == INSTANT:
+        from lfstudio.studio.simulated import InstantCamera
+
+        cam = InstantCamera(position_mm, **options)
+    elif spec.kind == "gphoto2":
+        try:
+            from lfstudio.rig.gphoto import GPhotoCamera
+        except ImportError as exc:
+            raise DeviceError(f"--camera gphoto2: the driver is not available ({exc})") from None
+        if lock:
+            lk = camera_lock("gphoto2", doing).acquire()
+        try:
+            cam = GPhotoCamera(**options)
+        except BaseException:
+            if lk is not None:
+                lk.release()
+            raise
+    else:
+        from pathlib import Path
+
+        from lfstudio.rig.hotfolder import HotFolderCamera
+
+        if lock:
+            lk = camera_lock(f"folder-{Path(spec.folder).resolve()}", doing).acquire()
+        cam = HotFolderCamera(spec.folder, list(trigger_command) if trigger_command else None, **options)
+    link = CameraLink(spec, cam, lk)
+    if connect:
+        try:
+            cam.connect()
+        except BaseException:
+            link.close()
+            raise
+    return link
+
+
+def link_for_rig(controller: Any, config: RigConfig, simulated: bool = False) -> RigLink:
+    """A :class:`RigLink` (without lock) for a driver opened elsewhere, its kind told by its type."""
+    from lfstudio.studio.simulated import InstantRig
+
+    if isinstance(controller, InstantRig):
+        return RigLink(RigSpec(INSTANT), config, controller)
+    port = getattr(controller, "port", "") or "?"
+    return RigLink(RigSpec(SIM) if simulated else RigSpec("serial", port), config, controller)
+
+
+def link_for_camera(camera: Any) -> CameraLink:
+    """A :class:`CameraLink` (without lock) for a camera driver opened elsewhere, its kind told by its type."""
+    from lfstudio.rig.hotfolder import HotFolderCamera
+    from lfstudio.studio.simulated import InstantCamera, SimulatedCamera
+
+    if isinstance(camera, SimulatedCamera):
+        return CameraLink(CameraSpec(SIM), camera)
+    if isinstance(camera, InstantCamera):
+        return CameraLink(CameraSpec(INSTANT), camera)
+    if isinstance(camera, HotFolderCamera):
+        return CameraLink(CameraSpec("folder", str(camera.folder)), camera)
+    return CameraLink(CameraSpec("gphoto2"), camera)
+
+
+@dataclass
+class Studio:
+    """A connected rig and camera, ready for a scan (see the module docstring). ``notes``: lines
+    for the operator about how the devices were set up."""
+
+    rig_link: RigLink
+    camera_link: CameraLink
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def rig(self) -> Any:
+        return self.rig_link.controller
+
+    @property
+    def camera(self) -> Any:
+        return self.camera_link.camera
+
+    @property
+    def simulator(self) -> Any:
+        return self.rig_link.simulator
+
+    @property
+    def port(self) -> str:
+        return self.rig_link.port
+
+    @property
+    def description(self) -> str:
+        cam = {"sim": "simulated camera", "instant": "instant camera"}.get(self.camera_link.spec.kind,
+                                                                           f"camera {self.camera_link.spec.text}")
+        return f"{self.rig_link.describe()}, {cam}"
+
+    def record(self) -> dict[str, Any]:
+        """``{"rig": {...}, "camera": {...}}``: the dataset's device record."""
+        return {"rig": self.rig_link.record(), "camera": self.camera_link.record()}
+
+    def set_view_region(self, view_region_mm: tuple[float, float, float, float]) -> None:
+        """Centre the simulated camera's virtual scene on a grid extent (other cameras: nothing)."""
+        if hasattr(self.camera, "set_view_region"):
+            self.camera.set_view_region(tuple(float(v) for v in view_region_mm))
+
+    def close(self) -> None:
+        self.camera_link.close()
+        self.rig_link.close()
+
+    def __enter__(self) -> "Studio":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def open_studio(rig: RigSpec | str, camera: CameraSpec | str, rig_config: RigConfig, *, doing: str = "",
+                time_scale: float = 1.0, exposure_s: float = 0.5, transfer_s: float = 2.5, seed: int = 0,
+                view_region_mm: tuple[float, float, float, float] | None = None, sim_width_px: int | None = None,
+                trigger_command: Sequence[str] | None = None, camera_options: dict[str, Any] | None = None,
+                **controller_options: Any) -> Studio:
+    """Connect the rig and the camera. A rig simulated in this process is homed (or given its
+    origin) at once: the simulated studio starts ready. Everything opened is closed again when a
+    step fails. Raises InputError / DeviceError / LockBusy with one operator line."""
+    rig_spec = RigSpec.parse(rig) if isinstance(rig, str) else rig
+    cam_spec = CameraSpec.parse(camera) if isinstance(camera, str) else camera
+    link = open_rig(rig_spec, rig_config, doing=doing, time_scale=time_scale, seed=seed, **controller_options)
+    notes: list[str] = []
+    try:
+        position = None
+        if link.simulator is not None:
+            if rig_config.homing:
+                link.controller.home()
+            else:
+                link.controller.set_origin()
+            position = link.simulator.true_position_mm
+        elif rig_spec.kind == INSTANT:
+            position = link.controller.true_position_mm
+        elif cam_spec.kind in (SIM, INSTANT):
+            from lfstudio.studio.simulated import truth_source
+
+            position = truth_source(link.port)
+            if position is None and cam_spec.kind == SIM:
+                raise InputError("--camera", f"the simulated camera needs the simulated rig, and {link.port} is "
+                                 "not a port of 'lfstudio sim-rig' running on this machine",
+                                 "--rig sim, or the port 'lfstudio sim-rig' printed")
+            if position is not None:
+                notes.append(f"the simulated camera follows the true position of the simulated controller on "
+                             f"{link.port}")
+        options: dict[str, Any] = {}
+        if cam_spec.kind == SIM:
+            from lfstudio.studio.simulated import studio_kwargs_for
+
+            options = dict(exposure_s=exposure_s, transfer_s=transfer_s, time_scale=time_scale, seed=seed,
+                           studio_kwargs=studio_kwargs_for(view_region_mm, sim_width_px))
+        options.update(camera_options or {})
+        cam_link = open_camera(cam_spec, position_mm=position, doing=doing, trigger_command=trigger_command,
+                               options=options)
+    except BaseException:
+        link.close()
+        raise
+    return Studio(link, cam_link, notes)

@@ -1,0 +1,505 @@
+"""One scan session: dataset lock -> dataset (new or resumed) -> devices -> homing -> scan engine.
+
+The CLI (``lfstudio scan``) and the GUI's Scan panel both run a scan through :class:`ScanSession`::
+
+    session = ScanSession(ScanRequest(folder, resume=True, home=True), doing="lfstudio scan")
+    try:
+        engine = session.open(plan_for)       # plan_for(existing_dataset_or_None, rig_config) -> (plan, scene)
+        engine.start(); engine.wait()
+    finally:
+        session.close()                       # devices, then the dataset lock
+
+What :meth:`ScanSession.open` guarantees, in this order:
+
+1. **One process per dataset**: ``DATASET/dataset.lock`` is held from before the first file is
+   read until :meth:`close` (:mod:`lfstudio.studio.locks`); a second scan or resume of the same
+   folder is refused naming the holder, and touches no file of it.
+2. **A resume uses the dataset's own devices** (``dataset.json`` → ``devices``): without device
+   options they are opened again; other devices (the simulator included) are refused unless the
+   request says ``allow_device_change``, and then the change is recorded (``device_changes`` and
+   each view's ``devices``). A dataset without a device record resumes with a warning.
+3. **Homing policy** (:func:`prepare_rig`): ``home`` homes before the first view (``$H``; a rig
+   without limit switches is refused: park it and use ``origin_here``); without it a rig in ALARM or
+   not homed is refused with one line naming ``--home`` and ``lfstudio rig --port P home``. A resume
+   that did not home checks that the rig stands where the dataset's last view left it.
+4. The engine gets a plan of the views still to capture (``recapture`` cells again).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from lfstudio.dataset import Dataset
+from lfstudio.dataset.manifest import MANIFEST_NAME, now_iso
+from lfstudio.errors import DeviceError, InputError, LfError
+from lfstudio.rig.motion import RigConfig, RigState
+from lfstudio.scan.scan_plan import ScanPlan
+from lfstudio.studio.devices import SIM, CameraSpec, RigSpec, Studio, open_studio
+from lfstudio.studio.locks import Lock, dataset_lock
+
+log = logging.getLogger(__name__)
+
+#: how far (mm) a resumed rig may stand from the path where the last run stopped
+RESUME_TOLERANCE_MM = 0.5
+ALLOW_CHANGE_OPTION = "--allow-device-change"
+
+PlanFor = Callable[[Dataset | None, RigConfig], tuple[ScanPlan, Any]]
+
+
+# -- the dataset of a scan -------------------------------------------------------------------------
+def dataset_views(plan: ScanPlan) -> list[dict[str, Any]]:
+    """One pending manifest entry per grid cell of ``plan`` (row-major), with its commanded position."""
+    full = plan.with_subset(None)
+    return [{"row": r, "column": c, "commanded_mm": list(full.position_mm(r, c)), "reported_mm": None,
+             "captured_at": None, "exposure_s": None, "file": None, "sha256": None, "status": "pending"}
+            for r in range(plan.rows) for c in range(plan.columns)]
+
+
+def create_scan_dataset(root: str | Path, plan: ScanPlan, *, rig: dict, camera: dict, lens: dict,
+                        scene_plan: dict | None = None, devices: dict | None = None) -> Dataset:
+    """A new dataset folder for ``plan`` with every view pending (``devices``: the device record)."""
+    extra = {"devices": devices} if devices else {}
+    return Dataset.create(root, camera=camera, lens=lens, grid=plan.grid_dict(), rig=rig, plan=scene_plan or {},
+                          views=dataset_views(plan), **extra)
+
+
+def check_resume_matches(dataset: Dataset, plan: ScanPlan) -> list[str]:
+    """Differences between an existing dataset's grid and ``plan`` that make resuming into it wrong."""
+    g = dataset.grid
+    problems = []
+    if (g.get("columns"), g.get("rows")) != (plan.columns, plan.rows):
+        problems.append(f"grid: the dataset is {g.get('columns')} x {g.get('rows')}, "
+                        f"the scan asks for {plan.columns} x {plan.rows}")
+    spacing = g.get("spacing_mm")
+    if spacing and any(abs(float(a) - b) > 1e-6 for a, b in zip(spacing, plan.spacing_mm)):
+        problems.append(f"spacing_mm: the dataset has {spacing[0]:g} x {spacing[1]:g} mm, "
+                        f"the scan asks for {plan.spacing_mm[0]:g} x {plan.spacing_mm[1]:g} mm")
+    return problems
+
+
+def resume_plan(dataset: Dataset, *, order: str | None = None, settle_s: float | None = None) -> ScanPlan:
+    """The plan of an existing dataset (its grid), with another capture order or settle time if given."""
+    base = ScanPlan.from_grid_dict(dataset.grid)
+    return ScanPlan(base.columns, base.rows, base.spacing_mm, base.origin_mm, order or base.order,
+                    base.settle_s if settle_s is None else settle_s)
+
+
+def describe_camera(camera: Any, scene: Any = None) -> tuple[dict, dict]:
+    """The manifest's camera and lens entries: from the scene plan, else from the simulated studio,
+    else the driver's name."""
+    if scene is not None and hasattr(scene, "camera_dict"):
+        return scene.camera_dict(), scene.lens_dict()
+    from lfstudio.studio.simulated import describe_simulated_camera
+
+    described = describe_simulated_camera(camera)
+    if described is not None:
+        return described
+    return {"name": getattr(camera, "name", "camera")}, {"name": "unknown"}
+
+
+# -- device records --------------------------------------------------------------------------------
+def recorded_devices(dataset: Dataset) -> dict[str, Any] | None:
+    """The devices that captured ``dataset``: its ``devices`` record, else what datasets made before
+    it existed kept (``rig.port``, ``camera.driver``), else None."""
+    devices = dataset.manifest.get("devices")
+    if isinstance(devices, dict) and isinstance(devices.get("rig"), dict) and isinstance(devices.get("camera"), dict):
+        return devices
+    port = dataset.manifest.get("rig", {}).get("port")
+    driver = dataset.camera.get("driver")
+    if port and driver:
+        rig_kind = port if port in ("sim", "instant") else "grbl"
+        rig = {"kind": rig_kind, "profile": dataset.manifest.get("rig", {}).get("name", "")}
+        if rig_kind == "grbl":
+            rig["port"] = port
+        try:
+            cam = CameraSpec.parse(driver)
+        except InputError:
+            return None
+        return {"rig": rig, "camera": {"kind": cam.kind, "spec": cam.text}}
+    return None
+
+
+def rig_spec_of(record: dict[str, Any]) -> str:
+    """The ``--rig`` word that opens a recorded rig again."""
+    return record.get("port") if record.get("kind") == "grbl" else record.get("kind", SIM)
+
+
+def device_differences(recorded: dict[str, Any], current: dict[str, Any]) -> list[str]:
+    """What makes ``current`` other devices than ``recorded`` (an empty list: the same devices).
+
+    A rig is the same when its kind, profile and firmware agree (the port name may change between
+    sessions: USB ports are renumbered); a camera when its kind, model, serial and hot folder agree.
+    Fields one side does not know are not compared."""
+    out = []
+    for dev, keys in (("rig", ("kind", "profile", "firmware")), ("camera", ("kind", "model", "serial", "folder"))):
+        a, b = recorded.get(dev, {}), current.get(dev, {})
+        for key in keys:
+            if key in ("kind",) or (a.get(key) and b.get(key)):
+                if a.get(key) != b.get(key):
+                    out.append(f"{dev} {key}: the dataset was captured with {a.get(key)!r}, this scan has "
+                               f"{b.get(key)!r}")
+    return out
+
+
+def describe_devices(record: dict[str, Any]) -> str:
+    rig, cam = record.get("rig", {}), record.get("camera", {})
+    rig_text = {"sim": "the simulated rig", "instant": "the instant rig"}.get(
+        rig.get("kind"), f"the rig on {rig.get('port', '?')}" + (f" ({rig['firmware']})" if rig.get("firmware") else ""))
+    cam_text = {"sim": "the simulated camera", "instant": "the instant camera"}.get(
+        cam.get("kind"), f"camera {cam.get('spec', cam.get('kind', '?'))}" +
+        (f" ({cam['model']})" if cam.get("model") else ""))
+    return f"{rig_text} and {cam_text}"
+
+
+# -- homing policy ---------------------------------------------------------------------------------
+def _last_position(dataset: Dataset, plan: ScanPlan, ahead: int = 3) -> tuple[tuple[float, float], str, list]:
+    """Where the last run left the rig: the reported position of the last captured view, its name,
+    and the commanded positions of the next ``ahead`` views in plan order (the run may have been on
+    its way there: the rig moves on while a view is still transferring)."""
+    done = [v for v in dataset.views if v.get("status") == "done" and v.get("reported_mm") and v.get("captured_at")]
+    last = max(done, key=lambda v: v["captured_at"])
+    order = [(v.row, v.column) for v in plan.with_subset(None).views()]
+    statuses = {(v["row"], v["column"]): v.get("status") for v in dataset.views}
+    following: list[tuple[int, int]] = []
+    if (last["row"], last["column"]) in order:
+        i = order.index((last["row"], last["column"]))
+        following = [cell for cell in order[i + 1:] if statuses.get(cell) not in ("done", "skipped")][:ahead]
+    return ((float(last["reported_mm"][0]), float(last["reported_mm"][1])), f"r{last['row']:02d} c{last['column']:03d}",
+            [plan.position_mm(*cell) for cell in following])
+
+
+def _distance_to_path(p: tuple[float, float], path: list[tuple[float, float]]) -> float:
+    """Distance (mm) from ``p`` to the polyline through ``path``."""
+    best = math.dist(p, path[0])
+    for a, b in zip(path, path[1:]):
+        dx, dy = b[0] - a[0], b[1] - a[1]
+        length2 = dx * dx + dy * dy
+        t = 0.0 if length2 == 0 else max(0.0, min(1.0, ((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / length2))
+        best = min(best, math.dist(p, (a[0] + t * dx, a[1] + t * dy)))
+    return best
+
+
+def cli_homing_hint(port: str, config: RigConfig) -> str:
+    """How to home from the command line (the end of a "not homed" line)."""
+    if config.homing:
+        return f"add --home to this command, or first run 'lfstudio rig --port {port} home'"
+    return ("park the carriage at the left/top end of its travel and add --origin-here to this command "
+            "(a rig without limit switches cannot home)")
+
+
+def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, origin_here: bool = False,
+                resume_from: tuple[Dataset, ScanPlan] | None = None, how_to_home: str | None = None,
+                tolerance_mm: float = RESUME_TOLERANCE_MM) -> list[str]:
+    """Apply the homing policy to a connected rig (see the module docstring); returns lines for the
+    operator. ``rig``: the driver, or its :class:`~lfstudio.rig.worker.DeviceWorker`. ``how_to_home``:
+    the end of a "not homed" line (default: the CLI's). Raises InputError/DeviceError with one line."""
+    if hasattr(rig, "call") and hasattr(rig, "driver"):          # a DeviceWorker: call through its queue
+        rig = _WorkerCalls(rig)
+    fix = how_to_home or cli_homing_hint(port, config)
+    notes: list[str] = []
+    if home and origin_here:
+        raise InputError("--home/--origin-here", "give one of them",
+                         "--home for a rig with limit switches, --origin-here for one without")
+    if home:
+        if not config.homing:
+            raise InputError("--home", f"rig profile {config.name!r} has no limit switches, so it cannot home",
+                             "park the carriage at the left/top end of its travel and use --origin-here")
+        rig.home()
+        notes.append("rig homed")
+        return notes
+    if origin_here:
+        if config.homing:
+            raise InputError("--origin-here", f"rig profile {config.name!r} homes with its limit switches",
+                             "--home")
+        if rig.status().state is RigState.ALARM:
+            rig.unlock()
+        rig.set_origin()
+        notes.append("origin (0, 0) set at the carriage's current position")
+        return notes
+    status = rig.status()
+    if status.state is RigState.ALARM:
+        reason = status.message if status.message.startswith("ALARM") else \
+            "locked since it was powered up or reset" if config.homing else "locked"
+        raise DeviceError(f"the rig on {port} is in ALARM ({reason}): {fix}")
+    if status.state is RigState.DISCONNECTED:
+        raise DeviceError(f"the rig on {port} is not connected: {status.message}")
+    if not status.homed:
+        raise DeviceError(f"the rig on {port} is not homed (its position is unknown): {fix}")
+    if resume_from is not None and status.position_mm is not None:
+        dataset, plan = resume_from
+        if any(v.get("status") == "done" and v.get("reported_mm") and v.get("captured_at") for v in dataset.views):
+            last, name, ahead = _last_position(dataset, plan)
+            off = _distance_to_path(status.position_mm, [last, *ahead])
+            if off > tolerance_mm:
+                x, y = status.position_mm
+                raise DeviceError(
+                    f"the rig reports ({x:.3f}, {y:.3f}) mm, but the dataset's last view {name} was captured at "
+                    f"({last[0]:.3f}, {last[1]:.3f}) mm ({off:.2f} mm away, tolerance {tolerance_mm:g} mm): it was "
+                    f"moved or lost its position. To resume from a known position: {fix} "
+                    f"(or move it back to ({last[0]:.3f}, {last[1]:.3f}) mm)")
+            notes.append(f"rig at ({status.position_mm[0]:.3f}, {status.position_mm[1]:.3f}) mm, where the last "
+                         f"run left it (last view {name}): continuing")
+    return notes
+
+
+class _WorkerCalls:
+    """``worker.call(name, ...)`` spelled ``rig.name(...)`` (homing may take minutes)."""
+
+    def __init__(self, worker: Any):
+        self._worker = worker
+
+    def __getattr__(self, name: str) -> Callable[..., Any]:
+        return lambda *args: self._worker.call(name, *args, timeout_s=600)
+
+
+# -- the session -----------------------------------------------------------------------------------
+class DeviceChangeRefused(LfError):
+    """A resume with other devices than the dataset's own, without the operator's explicit consent."""
+
+    def __init__(self, root: Path, recorded: dict, current: dict, differences: list[str], how_to_allow: str):
+        self.recorded, self.current, self.differences = recorded, current, differences
+        super().__init__(f"{root} was captured with {describe_devices(recorded)}; this resume has other devices "
+                         f"({'; '.join(differences)}). {how_to_allow}")
+
+
+@dataclass
+class SharedDevices:
+    """Devices opened elsewhere (the GUI's Rig and Camera panels, its simulated studio): drivers or
+    their DeviceWorkers, the device record (:meth:`lfstudio.studio.devices.Studio.record`), the rig's
+    port, and how the operator homes it there."""
+
+    rig: Any
+    camera: Any
+    record: dict[str, Any]
+    port: str = ""
+    how_to_home: str = "home it in the Rig panel (Rig → Home), then start again"
+
+
+@dataclass
+class ScanRequest:
+    """What to scan with. ``rig``/``camera``: device words (:mod:`lfstudio.studio.devices`); None
+    means ``sim`` for a new dataset and the dataset's own devices for a resume. ``rig_config``: None
+    means the dataset's rig profile (resume) or the default profile."""
+
+    folder: Path
+    resume: bool = False
+    rig: str | None = None
+    camera: str | None = None
+    rig_config: RigConfig | None = None
+    home: bool = False
+    origin_here: bool = False
+    allow_device_change: bool = False
+    recapture: Sequence[tuple[int, int]] | None = None
+    retries: int = 2
+    time_scale: float = 1.0
+    exposure_s: float = 0.5
+    transfer_s: float = 2.5
+    seed: int = 0
+    sim_width_px: int | None = None
+    trigger_command: Sequence[str] | None = None
+    camera_options: dict[str, Any] = field(default_factory=dict)
+    engine_options: dict[str, Any] = field(default_factory=dict)
+
+
+class ScanSession:
+    """See the module docstring. ``doing``: how the holder of the locks describes itself
+    (``"lfstudio scan"``, ``"the lfstudio window"``). ``notes``: lines for the operator."""
+
+    def __init__(self, request: ScanRequest, *, doing: str = "scanning", devices: SharedDevices | None = None,
+                 log_line: Callable[[str], None] | None = None):
+        self.request = request
+        self.shared = devices
+        self.folder = Path(request.folder)
+        self.doing = doing
+        self.notes: list[str] = []
+        self._log_line = log_line
+        self.lock: Lock | None = None
+        self.studio: Studio | None = None    # the devices this session opened (None with shared devices)
+        self.dataset: Dataset | None = None
+        self.plan: ScanPlan | None = None
+        self.engine: Any = None
+        self.rig_config: RigConfig | None = None
+        self._created_folder = False
+
+    def note(self, text: str) -> None:
+        self.notes.append(text)
+        log.info("scan session: %s", text)
+        if self._log_line is not None:
+            self._log_line(text)
+
+    # -- steps -------------------------------------------------------------------------------------
+    def lock_dataset(self) -> Lock:
+        """Take the dataset folder's lock (creating the folder for a new scan); check the folder."""
+        req = self.request
+        manifest = self.folder / MANIFEST_NAME
+        if req.resume and not manifest.is_file():
+            raise InputError("--out", f"{self.folder} holds no dataset to resume", "the folder of an interrupted scan")
+        if not req.resume and manifest.exists():
+            raise InputError("--out", f"{self.folder} already holds a dataset",
+                             "add --resume to continue it, or choose a new folder")
+        if not self.folder.exists():
+            self.folder.mkdir(parents=True)
+            self._created_folder = True
+        self.lock = dataset_lock(self.folder, f"{self.doing} {self.folder}").acquire()
+        if self.lock.taken_over is not None:
+            self.note(f"took over the lock of {self.folder} left by {self.lock.taken_over.describe()}, "
+                      "which is no longer running")
+        if not req.resume and manifest.exists():      # created by another process in the meantime
+            raise InputError("--out", f"{self.folder} already holds a dataset",
+                             "add --resume to continue it, or choose a new folder")
+        return self.lock
+
+    def _device_words(self, existing: Dataset | None) -> tuple[str, str, dict | None]:
+        """The rig and camera words to open, and the record to compare them with (resume)."""
+        req = self.request
+        if existing is None:
+            return req.rig or SIM, req.camera or SIM, None
+        record = recorded_devices(existing)
+        if self.shared is not None:
+            if record is None:
+                self.note(f"warning: {existing.manifest_path} does not record which devices captured it (made by "
+                          "an older lfstudio); resuming with the connected devices, recorded from now on")
+            return "", "", record
+        if record is None:
+            rig, cam = req.rig or SIM, req.camera or SIM
+            self.note(f"warning: {existing.manifest_path} does not record which devices captured it (made by an "
+                      f"older lfstudio); resuming with --rig {rig} --camera {cam}, recorded from now on")
+            return rig, cam, None
+        rig = req.rig or rig_spec_of(record["rig"])
+        cam = req.camera or record["camera"].get("spec") or record["camera"].get("kind", SIM)
+        if req.rig is None or req.camera is None:
+            self.note(f"resuming with the dataset's own devices: {describe_devices(record)}")
+        return rig, cam, record
+
+    def open(self, plan_for: PlanFor) -> Any:
+        """Run steps 1-4 of the module docstring; returns the (not started) :class:`ScanEngine`.
+        On any error everything taken so far is released again."""
+        try:
+            return self._open(plan_for)
+        except BaseException:
+            self.close()
+            raise
+
+    def _open(self, plan_for: PlanFor) -> Any:
+        from lfstudio.rig.profile import DEFAULT_RIG, load_rig
+        from lfstudio.scan.engine import ScanEngine
+
+        req = self.request
+        if req.time_scale < 0:
+            raise InputError("--time-scale", f"must be zero or positive, got {req.time_scale:g}", ">= 0")
+        for words, parse in ((req.rig, RigSpec.parse), (req.camera, CameraSpec.parse)):
+            if words is not None:
+                parse(words)              # a typo is reported before any folder is made
+        self.lock_dataset()
+        existing = Dataset.open(self.folder) if req.resume else None
+        rig_words, cam_words, record = self._device_words(existing)
+        config = req.rig_config
+        if config is None:
+            profile = (record or {}).get("rig", {}).get("profile") if record else None
+            if not profile and existing is not None:
+                profile = existing.manifest.get("rig", {}).get("name")
+            try:
+                config = load_rig(profile or DEFAULT_RIG)
+            except InputError:
+                config = load_rig(DEFAULT_RIG)
+                self.note(f"the dataset's rig profile {profile!r} is not installed; using {DEFAULT_RIG!r}")
+        self.rig_config = config
+        plan, scene = plan_for(existing, config)
+        if existing is not None:
+            problems = check_resume_matches(existing, plan)
+            if problems:
+                raise InputError("--out", f"{self.folder} holds another scan: " + "; ".join(problems),
+                                 "choose a new folder, or set the grid to the dataset's")
+            plan = resume_plan(existing, order=plan.order, settle_s=plan.settle_s)
+        if self.shared is None:
+            rig_spec, cam_spec = RigSpec.parse(rig_words), CameraSpec.parse(cam_words)
+            studio = self.studio = open_studio(
+                rig_spec, cam_spec, config, doing=f"{self.doing} {self.folder}", time_scale=req.time_scale,
+                exposure_s=req.exposure_s, transfer_s=req.transfer_s, seed=req.seed,
+                view_region_mm=plan.extent_mm(), sim_width_px=req.sim_width_px,
+                trigger_command=req.trigger_command, camera_options=req.camera_options)
+            for line in studio.notes:
+                self.note(line)
+            rig, camera, current, port = studio.rig, studio.camera, studio.record(), studio.port
+            fresh = studio.simulator is not None or rig_spec.kind == "instant"   # set up just now, homed
+            how_to_home = None
+            rig_text, cam_text = rig_spec.text, cam_spec.text
+        else:
+            rig, camera, current, port = self.shared.rig, self.shared.camera, self.shared.record, self.shared.port
+            fresh = current.get("rig", {}).get("kind") == "instant"
+            how_to_home = self.shared.how_to_home
+            rig_text, cam_text = rig_spec_of(current["rig"]), current["camera"].get("spec", "")
+        if record is not None:
+            self._check_devices(existing, record, current)
+        if not fresh:
+            for line in prepare_rig(rig, config, port, home=req.home, origin_here=req.origin_here,
+                                    resume_from=(existing, plan) if existing is not None else None,
+                                    how_to_home=how_to_home):
+                self.note(line)
+        elif req.home or req.origin_here:
+            self.note("the simulated rig was homed when it started")
+        if existing is None:
+            camera_info, lens = describe_camera(getattr(camera, "driver", camera), scene)
+            camera_info.setdefault("driver", cam_text)
+            rig_info = {"name": config.name, "label": config.label, "port": rig_text}
+            dataset = create_scan_dataset(self.folder, plan, rig=rig_info, camera=camera_info, lens=lens,
+                                          scene_plan=scene.to_dict() if hasattr(scene, "to_dict") else None,
+                                          devices=current)
+        else:
+            dataset = existing
+            if record is None:
+                dataset.manifest["devices"] = current
+                dataset.save()
+        self.dataset = dataset
+        if req.recapture:
+            plan = plan.with_subset(req.recapture)
+        self.plan = plan
+        self.engine = ScanEngine(dataset, plan, rig, camera, retries=req.retries,
+                                 time_scale=req.time_scale, recapture=bool(req.recapture), **req.engine_options)
+        return self.engine
+
+    def _check_devices(self, dataset: Dataset, record: dict, current: dict) -> None:
+        differences = device_differences(record, current)
+        if not differences:
+            if record.get("rig", {}).get("port") != current.get("rig", {}).get("port") and \
+                    current["rig"].get("kind") == "grbl":
+                self.note(f"the rig's port changed from {record['rig'].get('port')} to {current['rig'].get('port')} "
+                          "(same profile and firmware)")
+            dataset.capture_devices = None
+            return
+        if not self.request.allow_device_change:
+            how = ("Connect the dataset's own devices in the Rig and Camera panels, or agree to continue with these "
+                   "(the change is recorded in the dataset)" if self.shared is not None else
+                   "Resume without --rig/--camera to use the dataset's own devices, or add "
+                   f"{ALLOW_CHANGE_OPTION} to continue with these (the change is recorded in the dataset)")
+            raise DeviceChangeRefused(dataset.root, record, current, differences, how)
+        change = {"at": now_iso(), "devices": current, "differences": differences}
+        dataset.manifest.setdefault("device_changes", []).append(change)
+        dataset.save()
+        dataset.capture_devices = current
+        self.note(f"device change recorded in {dataset.manifest_path}: " + "; ".join(differences))
+
+    def close(self) -> None:
+        """Close the devices, then release the dataset lock (idempotent)."""
+        studio, self.studio = self.studio, None
+        if studio is not None:
+            studio.close()
+        dataset = self.dataset
+        if dataset is not None:
+            dataset.close()
+        lock, self.lock = self.lock, None
+        if lock is None:
+            return
+        if self._created_folder and self.dataset is None and \
+                [p.name for p in self.folder.iterdir()] == [lock.path.name]:
+            lock.remove()                 # a new scan that never started leaves no folder behind
+            try:
+                self.folder.rmdir()
+            except OSError:
+                pass
+        else:
+            lock.release()

@@ -1,0 +1,176 @@
+"""The simulated studio, wired: the one door from the rest of lfstudio to :mod:`lfstudio.sim`.
+
+Nothing outside ``lfstudio/sim/`` and ``lfstudio/studio/`` imports the simulators (an import rule
+test keeps it so); whatever the CLI or the GUI needs from them is named here.
+
+- :func:`start_simulator`: the GRBL simulator on a pseudo-terminal (its port is a real pty that the
+  real GRBL driver opens, byte for byte the real protocol).
+- :func:`simulated_camera`: the camera that renders the virtual studio from a position source.
+- The simulated camera needs the carriage's *true* position. In this process that is the
+  simulator's :meth:`~lfstudio.sim.grbl_controller.GrblSimulator.true_position_mm`; for a simulator
+  in another process (``lfstudio sim-rig``), :class:`TruthServer` answers it on a Unix socket in the
+  runtime folder, next to the port's lock, and :func:`truth_source` finds it from the port name.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import socket
+import socketserver
+import threading
+from pathlib import Path
+from typing import Any, Callable
+
+from lfstudio.errors import DeviceError
+from lfstudio.rig.motion import RigConfig
+from lfstudio.sim.dng import write_dng
+from lfstudio.sim.grbl_controller import GrblSimulator
+from lfstudio.sim.instant import InstantCamera, InstantRig
+from lfstudio.sim.sim_camera import SimulatedCamera
+from lfstudio.sim.studio import (DEMO_PP_OFFSET_PX, DEMO_ROTATION_DEG, REFERENCE_REGION_MM, demo_studio,
+                                 demo_studio_kwargs)
+from lfstudio.sim.virtual_dataset import (GROUND_TRUTH_NAME, camera_dict, lens_dict, load_ground_truth,
+                                          make_virtual_dataset)
+from lfstudio.studio.locks import port_device, runtime_dir
+
+log = logging.getLogger(__name__)
+
+__all__ = ["DEMO_PP_OFFSET_PX", "DEMO_ROTATION_DEG", "GROUND_TRUTH_NAME", "REFERENCE_REGION_MM", "GrblSimulator",
+           "InstantCamera", "InstantRig", "SimulatedCamera", "TruthServer", "camera_dict", "demo_studio",
+           "demo_studio_kwargs", "describe_simulated_camera", "lens_dict", "load_ground_truth",
+           "make_virtual_dataset", "simulated_camera", "start_simulator", "truth_source", "write_dng"]
+
+PositionSource = Callable[[], tuple[float, float]]
+
+
+def start_simulator(rig: RigConfig, *, time_scale: float = 1.0, seed: int = 0) -> GrblSimulator:
+    """A running GRBL simulator for ``rig``; ``.port`` is its pty. The caller closes it."""
+    sim = GrblSimulator(rig, time_scale=time_scale, seed=seed)
+    sim.start()
+    return sim
+
+
+def studio_kwargs_for(view_region_mm: tuple[float, float, float, float] | None = None,
+                      width_px: int | None = None) -> dict[str, Any]:
+    """The demo virtual studio (its orientation error and principal point offset), centred on a grid
+    extent ``(x_min, x_max, y_min, y_max)`` in mm, rendering ``width_px`` wide images."""
+    kw = demo_studio_kwargs()
+    if view_region_mm is not None:
+        kw["view_region_mm"] = tuple(float(v) for v in view_region_mm)
+    if width_px:
+        kw["width_px"] = int(width_px) // 2 * 2
+    return kw
+
+
+def simulated_camera(position_mm: PositionSource, *, studio_kwargs: dict[str, Any] | None = None,
+                     **options: Any) -> SimulatedCamera:
+    """A (not yet connected) simulated camera photographing the virtual studio from ``position_mm()``."""
+    return SimulatedCamera(None, position_mm, studio_kwargs=studio_kwargs or studio_kwargs_for(), **options)
+
+
+def describe_simulated_camera(camera: Any) -> tuple[dict, dict] | None:
+    """The manifest's camera and lens entries of a (connected) simulated camera; None for other cameras."""
+    studio = getattr(camera, "studio", None)
+    if studio is None or not isinstance(camera, SimulatedCamera):
+        return None
+    cam = camera_dict(studio)
+    cam["name"] = getattr(camera, "name", cam.get("name"))
+    return cam, lens_dict(studio)
+
+
+# -- the true position across processes ----------------------------------------------------------
+def truth_socket_path(port: str) -> Path:
+    """Where ``lfstudio sim-rig`` on ``port`` answers the carriage's true position."""
+    from lfstudio.studio.locks import _key
+
+    return runtime_dir() / f"sim-{_key(port_device(port) or port)}.sock"
+
+
+class TruthServer:
+    """Answers ``?`` with ``{"x_mm": .., "y_mm": ..}`` (the simulator's true position) on a Unix socket."""
+
+    def __init__(self, simulator: GrblSimulator):
+        self.simulator = simulator
+        self.path = truth_socket_path(simulator.port or "")
+        self._server: socketserver.UnixStreamServer | None = None
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> "TruthServer":
+        sim = self.simulator
+
+        class Handler(socketserver.StreamRequestHandler):
+            def handle(self) -> None:
+                for line in self.rfile:
+                    if line.strip() != b"?":
+                        return
+                    x, y = sim.true_position_mm()
+                    self.wfile.write(json.dumps({"x_mm": x, "y_mm": y}).encode() + b"\n")
+                    self.wfile.flush()
+
+        self.path.unlink(missing_ok=True)
+        self._server = socketserver.ThreadingUnixStreamServer(str(self.path), Handler)
+        self._server.daemon_threads = True
+        self._thread = threading.Thread(target=self._server.serve_forever, name="sim-truth", daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        server, self._server = self._server, None
+        if server is not None:
+            server.shutdown()
+            server.server_close()
+            self.path.unlink(missing_ok=True)
+
+
+class _TruthClient:
+    """The true position from a :class:`TruthServer` (one short exchange per call)."""
+
+    def __init__(self, path: Path, port: str):
+        self.path = path
+        self.port = port
+
+    def __call__(self) -> tuple[float, float]:
+        try:
+            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+                s.settimeout(5.0)
+                s.connect(str(self.path))
+                s.sendall(b"?\n")
+                data = b""
+                while not data.endswith(b"\n"):
+                    chunk = s.recv(256)
+                    if not chunk:
+                        break
+                    data += chunk
+            answer = json.loads(data)
+            return float(answer["x_mm"]), float(answer["y_mm"])
+        except (OSError, ValueError, KeyError) as exc:
+            raise DeviceError(f"simulated camera: the simulated controller on {self.port} does not tell its "
+                              f"position any more ({exc}); is 'lfstudio sim-rig' still running?") from None
+
+
+def truth_source(port: str) -> PositionSource | None:
+    """The true-position source of the ``lfstudio sim-rig`` serving ``port``; None if there is none."""
+    if not hasattr(socket, "AF_UNIX"):
+        return None
+    path = truth_socket_path(port)
+    if not path.exists():
+        return None
+    client = _TruthClient(path, port)
+    try:
+        client()
+    except DeviceError:
+        return None
+    return client
+
+
+def serve_sim_rig(rig: RigConfig, *, time_scale: float = 1.0, seed: int = 0) -> tuple[GrblSimulator, TruthServer | None]:
+    """``lfstudio sim-rig``: a simulator plus its true-position server (None where Unix sockets are missing)."""
+    sim = start_simulator(rig, time_scale=time_scale, seed=seed)
+    server = None
+    if hasattr(socket, "AF_UNIX"):
+        try:
+            server = TruthServer(sim).start()
+        except OSError as exc:     # the port still works; only the simulated camera cannot follow it
+            log.warning("the simulated controller's true position is not published: %s", exc)
+    return sim, server

@@ -1,0 +1,85 @@
+"""OS-level locks with real processes: the second is refused naming the holder; a dead holder's lock
+is taken over; a serial port is also locked on its device node (like pyserial's exclusive=True)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tty
+
+import pytest
+import serial
+
+from lfstudio.studio.locks import LockBusy, dataset_lock, holder_of, port_lock
+from tests.studio.conftest import cli_env
+
+HOLD = """
+import sys
+from lfstudio.studio.locks import {factory}
+lock = {factory}(sys.argv[1], "testing the lock").acquire()
+print("held", flush=True)
+sys.stdin.read()
+"""
+
+
+def hold_in_child(factory: str, target) -> subprocess.Popen:
+    proc = subprocess.Popen([sys.executable, "-c", HOLD.format(factory=factory), str(target)],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=cli_env())
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_dataset_lock_refuses_a_second_process_then_takes_over_from_a_dead_one(tmp_path):
+    child = hold_in_child("dataset_lock", tmp_path)
+    try:
+        with pytest.raises(LockBusy) as refused:
+            dataset_lock(tmp_path, "second").acquire()
+        text = str(refused.value)
+        assert f"pid {child.pid}" in text and "testing the lock" in text and str(tmp_path) in text
+        holder = holder_of(tmp_path / "dataset.lock")
+        assert holder is not None and holder.pid == child.pid
+    finally:
+        child.kill()                     # kill -9: no clean-up runs in the holder
+        child.wait(10)
+        child.stdin.close()
+        child.stdout.close()
+    assert holder_of(tmp_path / "dataset.lock") is None       # the kernel dropped its flock
+    lock = dataset_lock(tmp_path, "third").acquire()
+    try:
+        assert lock.taken_over is not None and lock.taken_over.pid == child.pid
+        assert holder_of(tmp_path / "dataset.lock").pid == os.getpid()
+    finally:
+        lock.release()
+    assert (tmp_path / "dataset.lock").read_text() == ""       # released: no holder named any more
+
+
+def test_port_lock_refuses_a_second_process_and_locks_the_device_node():
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    port = os.ttyname(slave)
+    try:
+        child = hold_in_child("port_lock", port)
+        try:
+            with pytest.raises(LockBusy, match=f"rig port {port} is in use by .*pid {child.pid}"):
+                port_lock(port).acquire()
+            # another program locking the port the way pyserial does (exclusive=True) is kept out too
+            with pytest.raises(serial.SerialException, match="exclusively lock"):
+                serial.Serial(port, exclusive=True)
+        finally:
+            child.kill()
+            child.wait(10)
+            child.stdin.close()
+            child.stdout.close()
+        # and the other way round: a port another program holds exclusively is refused
+        other = serial.Serial(port, exclusive=True)
+        try:
+            with pytest.raises(LockBusy, match="another program"):
+                port_lock(port).acquire()
+        finally:
+            other.close()
+        with port_lock(port, "now free"):
+            pass
+    finally:
+        os.close(master)
+        os.close(slave)

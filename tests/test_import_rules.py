@@ -1,0 +1,30 @@
+"""The layering rules of pyproject.toml's [tool.importlinter] contracts hold (run with lint-imports),
+and at run time the CLI loads neither Qt nor lfstudio.gui."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from tests.conftest import REPO_ROOT
+
+
+def test_import_linter_contracts_are_kept():
+    lint = Path(sys.executable).with_name("lint-imports")
+    assert lint.exists(), "import-linter is missing: it is part of the test extras (pip install -e '.[test]')"
+    r = subprocess.run([str(lint), "--no-cache"], cwd=REPO_ROOT, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "0 broken" in r.stdout
+
+
+def test_the_cli_loads_no_gui_and_no_qt():
+    code = ("import sys\n"
+            "import lfstudio.__main__\n"
+            "from lfstudio.cli import build_parser\n"
+            "build_parser()\n"          # imports every subcommand module
+            "bad = sorted(m for m in sys.modules if m.startswith(('lfstudio.gui', 'PySide6', 'pyqtgraph')))\n"
+            "print(bad)\n")
+    r = subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]"
