@@ -166,3 +166,34 @@ def test_hci_sub_array_follows_a_click_on_the_grid(qtbot, tiny_dataset, tmp_path
     dialog.format_combo.setCurrentIndex(FORMAT_KEYS.index("hevc"))   # back: the operator's own selection
     assert dialog.name_edit.text().endswith(".mp4")
     assert len(dialog.picker.selected) == 15
+
+
+def test_nerfstudio_and_colmap_exports_from_the_dialog(qtbot, tiny_dataset, tmp_path):
+    window, dialog = _open_dialog(qtbot, tiny_dataset)
+    dialog.resize(900, 780)
+    dialog.format_combo.setCurrentIndex(FORMAT_KEYS.index("nerfstudio"))
+    assert dialog.name_edit.text() == f"{tiny_dataset.root.name}_nerfstudio"
+    dialog.holdout_combo.setCurrentIndex(dialog.holdout_combo.findData("centre"))
+    qtbot.waitUntil(lambda: dialog.estimate is not None and "held out" in dialog.warnings_label.text(), timeout=20000)
+    assert "no calibration" in dialog.warnings_label.text()     # the tiny dataset is not calibrated
+    dialog.folder_edit.setText(str(tmp_path))
+    dialog.grab().save("/tmp/export-nerfstudio-dialog.png")
+    with qtbot.waitSignal(dialog.runner.finished, timeout=60000):
+        dialog.export_button.click()
+    meta = json.loads((tmp_path / f"{tiny_dataset.root.name}_nerfstudio" / "transforms.json").read_text())
+    assert meta["test_filenames"] == ["images/r01_c002.png"] and len(meta["frames"]) == 15
+    assert "Exported 15 views" in dialog.result_label.text()
+
+    dialog.format_combo.setCurrentIndex(FORMAT_KEYS.index("colmap"))
+    dialog.image_depth_combos[0].setCurrentIndex(1)             # 16-bit: both pages follow
+    assert dialog.image_depth_combos[1].currentData() == 16
+    dialog.subset_edit.setText("r1")
+    dialog.subset_button.click()
+    qtbot.waitUntil(lambda: dialog.estimate is not None and len(dialog.estimate.views) == 5, timeout=20000)
+    with qtbot.waitSignal(dialog.runner.finished, timeout=60000):
+        dialog.export_button.click()
+    out = tmp_path / f"{tiny_dataset.root.name}_colmap"
+    assert (out / "sparse" / "0" / "images.txt").is_file()
+    assert cv2.imread(str(out / "images" / "r01_c000.png"), cv2.IMREAD_UNCHANGED).dtype == np.uint16
+    s = settings()
+    assert s.value("export/holdout") == "centre" and int(s.value("export/image_bit_depth")) == 16

@@ -39,7 +39,17 @@ FORMAT_INFO = (
      "lfstudio import-hevc restores the views."),
     ("hci", "HCI benchmark — parameters.cfg + input_Cam*.png",
      "The HCI 4D light-field benchmark layout for a sub-array (e.g. 9 × 9): parameters.cfg with the real "
-     "intrinsics and extrinsics and input_Cam000.png … in row-major order."),
+     "intrinsics and extrinsics and input_Cam000.png … in row-major order. Zero disparity lies at infinity "
+     "(our views are parallel); disp_min/disp_max come from the plan or are measured from the views."),
+    ("colmap", "COLMAP model — images/ + sparse/0 with the rig's poses",
+     "A COLMAP text model (cameras.txt, images.txt, empty points3D.txt) beside images/: one pinhole camera at "
+     "the exported size, every view's pose from its reported axis position and the calibrated rotation "
+     "(rectified views: the rectified camera), in metres. For NeRF / Gaussian-splatting tools: no "
+     "structure-from-motion needed."),
+    ("nerfstudio", "nerfstudio — transforms.json with the rig's poses",
+     "transforms.json (nerfstudio / instant-ngp: fl_x, fl_y, cx, cy, w, h, per-frame transform_matrix in the "
+     "OpenGL convention) beside images/, the same poses as the COLMAP export, with views held out of training "
+     "as ground-truth novel views."),
 )
 FORMAT_KEYS = tuple(k for k, _, _ in FORMAT_INFO)
 SOURCES = (("auto", "Auto — processed views when every chosen view has one"),
@@ -56,7 +66,8 @@ def format_bytes(n: float) -> str:
 
 
 def default_name(dataset_name: str, fmt: str) -> str:
-    return {"png": f"{dataset_name}_png", "hevc": f"{dataset_name}.mp4", "hci": f"{dataset_name}_hci"}[fmt]
+    return {"png": f"{dataset_name}_png", "hevc": f"{dataset_name}.mp4", "hci": f"{dataset_name}_hci",
+            "colmap": f"{dataset_name}_colmap", "nerfstudio": f"{dataset_name}_nerfstudio"}[fmt]
 
 
 def existing_outputs(fmt: str, out: Path) -> list[Path]:
@@ -136,7 +147,8 @@ class ExportDialog(QDialog):
         self.format_combo.setObjectName("formatCombo")
         for key, text, _ in FORMAT_INFO:
             self.format_combo.addItem(text, key)
-        self.format_combo.setToolTip("What to write: a PNG tree, one HEVC video, or the HCI benchmark layout")
+        self.format_combo.setToolTip("What to write: a PNG tree, one HEVC video, the HCI benchmark layout, a COLMAP "
+                                     "model or a nerfstudio transforms.json")
         self.format_info = QLabel()
         self.format_info.setWordWrap(True)
         self.format_info.setObjectName("formatInfo")
@@ -199,14 +211,48 @@ class ExportDialog(QDialog):
         cl.addWidget(self.hci_center_row)
         cl.addWidget(QLabel("column"))
         cl.addWidget(self.hci_center_column)
-        cl.addStretch(1)
+        cl.addSpacing(16)
+        cl.addWidget(QLabel("authors"))
+        self.hci_authors = QLineEdit()
+        self.hci_authors.setPlaceholderText("written to parameters.cfg")
+        self.hci_authors.setToolTip("The [meta] authors of parameters.cfg (empty: the dataset's, if any)")
+        cl.addWidget(self.hci_authors, 1)
         self.options_stack.addWidget(hci)
+
+        self.image_depth_combos: list[QComboBox] = []
+        for fmt in ("colmap", "nerfstudio"):
+            page = QWidget()
+            pl = QHBoxLayout(page)
+            pl.setContentsMargins(0, 0, 0, 0)
+            combo = QComboBox()
+            combo.addItem("8-bit sRGB", 8)
+            combo.addItem("16-bit linear", 16)
+            combo.setToolTip("Images: 8-bit sRGB PNG (what view-synthesis tools expect) or linear 16-bit PNG")
+            combo.currentIndexChanged.connect(self._image_depth_changed)
+            self.image_depth_combos.append(combo)
+            pl.addWidget(QLabel("Images"))
+            pl.addWidget(combo)
+            if fmt == "nerfstudio":
+                pl.addSpacing(16)
+                pl.addWidget(QLabel("Hold out"))
+                self.holdout_combo = QComboBox()
+                self.holdout_combo.setObjectName("holdoutCombo")
+                self.holdout_combo.addItem("none (nerfstudio splits)", "none")
+                self.holdout_combo.addItem("the centre view", "centre")
+                for k in (2, 3, 4, 8):
+                    self.holdout_combo.addItem(f"every {k}th row and column", f"every-{k}")
+                self.holdout_combo.setToolTip("Views kept out of training as ground-truth novel views "
+                                              "(val/test_filenames); each is surrounded by training views")
+                pl.addWidget(self.holdout_combo)
+            pl.addStretch(1)
+            self.options_stack.addWidget(page)
         form.addRow("Options:", self.options_stack)
         self._options_form = form
 
         self.format_combo.currentIndexChanged.connect(self._format_changed)
-        for w in (self.source_combo, self.bit_depth_combo):
+        for w in (self.source_combo, self.bit_depth_combo, self.holdout_combo):
             w.currentIndexChanged.connect(self._options_changed)
+        self.hci_authors.textChanged.connect(self._options_changed)
         for w in (self.crf_spin, self.hci_columns, self.hci_rows, self.hci_center_row, self.hci_center_column):
             w.valueChanged.connect(self._options_changed)
         return box
@@ -336,9 +382,14 @@ class ExportDialog(QDialog):
         if fmt == "hci":
             kwargs.update(hci_size=(self.hci_columns.value(), self.hci_rows.value()),
                           hci_center=(self.hci_center_row.value(), self.hci_center_column.value()))
+            kwargs.update(authors=self.hci_authors.text().strip())
             views = None
         else:
             views = self.selected_views()
+        if fmt in ("colmap", "nerfstudio"):
+            kwargs.update(image_bit_depth=int(self.image_depth_combos[0].currentData()))
+        if fmt == "nerfstudio":
+            kwargs.update(holdout=str(self.holdout_combo.currentData()))
         return ExportOptions(format=fmt, out=self.out_path(), views=views,
                              source=str(self.source_combo.currentData()), overwrite=overwrite, **kwargs)
 
@@ -384,6 +435,13 @@ class ExportDialog(QDialog):
             self.name_edit.setText(self._auto_name)
         elif fmt == "hevc" and Path(name).suffix.lower() not in HEVC_SUFFIXES:
             self.name_edit.setText(name + ".mp4")
+        self._options_changed()
+
+    def _image_depth_changed(self, index: int) -> None:
+        """COLMAP and nerfstudio share one image bit depth: both combos follow the last change."""
+        for combo in self.image_depth_combos:
+            if combo.currentIndex() != index:
+                combo.setCurrentIndex(index)
         self._options_changed()
 
     def _selection_changed(self) -> None:
@@ -583,6 +641,10 @@ class ExportDialog(QDialog):
         grid = self.dataset.grid
         self.hci_columns.setValue(int(s.value("export/hci_columns", 9)))
         self.hci_rows.setValue(int(s.value("export/hci_rows", 9)))
+        self.hci_authors.setText(str(s.value("export/hci_authors", "") or ""))
+        self.image_depth_combos[0].setCurrentIndex(1 if int(s.value("export/image_bit_depth", 8)) == 16 else 0)
+        holdout = str(s.value("export/holdout", "none"))
+        self.holdout_combo.setCurrentIndex(max(0, self.holdout_combo.findData(holdout)))
         self.hci_center_row.setValue(int(grid["rows"]) // 2)
         self.hci_center_column.setValue(int(grid["columns"]) // 2)
         folder = str(s.value(EXPORT_KEY, "") or self.dataset.root.parent)
@@ -597,6 +659,9 @@ class ExportDialog(QDialog):
         s.setValue("export/bit_depth", int(self.bit_depth_combo.currentData()))
         s.setValue("export/hci_columns", self.hci_columns.value())
         s.setValue("export/hci_rows", self.hci_rows.value())
+        s.setValue("export/hci_authors", self.hci_authors.text().strip())
+        s.setValue("export/image_bit_depth", int(self.image_depth_combos[0].currentData()))
+        s.setValue("export/holdout", str(self.holdout_combo.currentData()))
         if self.folder_edit.text().strip():
             s.setValue(EXPORT_KEY, self.folder_edit.text().strip())
 
