@@ -1,136 +1,87 @@
-"""Processing throughput at about 4000 x 2700 DNG input, and the pipeline's overhead.
+"""Processing throughput at 4000 x 2668 px DNG input: the default path against the former one, per
+core, and the scaling from one local worker to two.
 
-Prints views/s with one local worker and with two (target: >= 1.8x scaling on two free cores), and
-the pipeline's time over its unavoidable parts, RAW decode + output encode alone, done the same
-way (one worker process, one thread each) on the same files (target: <= 15 %).
+    ./.venv/bin/python benchmarks/processing_throughput.py [--views 150] [--width 4000]
 
-    ./.venv/bin/python benchmarks/processing_throughput.py [--views 10] [--width 4000]
-
-Takes a few minutes: renders a virtual-studio dataset once (cached in /tmp), then runs each
-configuration once. The machine must be otherwise idle for the scaling figure to mean anything.
+Three runs in this one invocation, each on a dataset of hard-linked virtual-studio DNGs (6 distinct
+renders, cached in /tmp): the former default path (LibRaw AHD, zlib's default PNG strategy: the
+profile still selects it) on one worker with views/2 views, the default path on one worker with
+``--views`` views and on two workers with twice as many. Per run: wall and CPU seconds (this process
+plus its worker processes), views per CPU-second (the per-core speed, robust to other load), and
+the time until the first view is finished (start-up plus one view: an upper bound of the start-up,
+target < 5 % of the run). Targets: >= 2x the former path's views per CPU-second; two workers
+>= 1.8x one worker's views per wall second (only meaningful when the machine gives us two cores:
+the line prints how many cores the run got, CPU-s per wall-s, and the load average).
+Quality of each path against the ground truth: benchmarks/processing_quality.py.
 """
 
 from __future__ import annotations
 
 import argparse
-import concurrent.futures as cf
 import json
-import multiprocessing
-import os
-import resource
 import sys
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from _measure import Timer, load_text  # noqa: E402
+from _processing import default_profile, linked, rendered, todays_profile  # noqa: E402
 
-def cpu_s() -> float:
-    """CPU seconds used by this process and its finished children (robust to other load)."""
-    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+UNIQUE_VIEWS = 6
 
 
-def decode_encode(path: str, out: str, half_size: bool) -> float:
-    """The unavoidable part of one view: decode the RAW, write a half-resolution 16-bit PNG."""
-    import cv2
+def run(root: Path, source, n_views: int, profile, workers: int, label: str) -> dict:
+    from lfstudio.processing.pipeline import process_dataset
 
-    from lfstudio.processing.profile import DebayerStep
-    from lfstudio.processing.steps import debayer
-    from lfstudio.processing.worker import _single_thread
-
-    _single_thread()
+    ds = linked(root, source, n_views)
+    first: dict[str, float] = {}
     t0 = time.perf_counter()
-    img = debayer.decode(path, DebayerStep(half_size=half_size))
-    small = img if half_size else img[::2, ::2]
-    cv2.imwrite(out, cv2.cvtColor(small, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 1])
-    return time.perf_counter() - t0
-
-
-def baseline(paths: list[Path], out_dir: Path, workers: int) -> float:
-    from lfstudio.processing.executors import _init_local_worker
-
-    out_dir.mkdir(exist_ok=True)
-    t0 = time.perf_counter()
-    with cf.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                initializer=_init_local_worker) as pool:
-        list(pool.map(decode_encode, map(str, paths), [str(out_dir / (p.stem + ".png")) for p in paths],
-                      [False] * len(paths)))
-    return time.perf_counter() - t0
-
-
-def make_dataset(root: Path, n_views: int, width_px: int):
-    from lfstudio.dataset import Dataset
-    from lfstudio.sim.virtual_dataset import load_ground_truth, make_virtual_dataset
-
-    marker = root / "ready.json"
-    if marker.is_file() and json.loads(marker.read_text()) == [n_views, width_px]:
-        return Dataset.open(root)
-    import shutil
-
-    shutil.rmtree(root, ignore_errors=True)
-    print(f"rendering {n_views} views at {width_px} px wide (once; cached in {root}) ...", flush=True)
-    ds = make_virtual_dataset(root, columns=n_views, rows=1, width_px=width_px, rotation_deg=(1.0, -1.5, 0.7),
-                              seed=3, fmt="dng", flicker=0.03, vignetting=0.2, noise=0.002, workers=1)
-    truth = load_ground_truth(root)
-    (root / "calibration.json").write_text(json.dumps(
-        {"homography": truth["H"].tolist(), "image_size_px": truth["image_size_px"]}))
-    marker.write_text(json.dumps([n_views, width_px]))
-    return ds
+    with Timer() as span:
+        report = process_dataset(ds.root, profile, workers=workers, force=True,
+                                 on_view=lambda r: first.setdefault("t", time.perf_counter()))
+    assert report.ok and report.processed == n_views, report.failed
+    views = json.loads((ds.root / "dataset.json").read_text())["views"]
+    steps = {k: sum(v["processed"]["timings_s"][k] for v in views) for k in ("decode", "process", "encode")}
+    start = first["t"] - t0
+    r = {"label": label, "views": n_views, "workers": workers, "wall_s": span.wall_s, "cpu_s": span.cpu_s,
+         "per_cpu_s": n_views / span.cpu_s, "per_s": n_views / span.wall_s, "start_share": start / span.wall_s,
+         "cores": span.cores_used, "load": span.load_1min, "steps": steps}
+    total_steps = sum(steps.values())
+    print(f"{label:44s} {n_views:4d} views {span.wall_s:7.1f} s wall {span.cpu_s:7.1f} CPU-s  "
+          f"{r['per_s']:5.2f} views/s  {r['per_cpu_s']:5.3f} views/CPU-s  cores used {r['cores']:4.2f}  "
+          f"first view after {start:4.1f} s = {100 * r['start_share']:4.1f} % of the run  load {span.load_1min:.1f}  "
+          f"[in the workers: decode {100 * steps['decode'] / total_steps:.0f} %, steps "
+          f"{100 * steps['process'] / total_steps:.0f} %, encode {100 * steps['encode'] / total_steps:.0f} % of wall]",
+          flush=True)
+    return r
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--views", type=int, default=10)
+    ap.add_argument("--views", type=int, default=150, help="views of the one-worker run of the default path")
     ap.add_argument("--width", type=int, default=4000)
     ap.add_argument("--root", default="/tmp/lfstudio-bench-processing")
     args = ap.parse_args()
-
-    from lfstudio.processing.pipeline import process_dataset
-    from lfstudio.processing.profile import Profile
-
     root = Path(args.root)
-    ds = make_dataset(root, args.views, args.width)
-    paths = [ds.path_of(v) for v in ds.views]
-    size = json.loads((root / "calibration.json").read_text())["image_size_px"]
-    profile = Profile()  # every default step: debayer, colour, de-flicker, rectify, half resolution
-    profile.shading.enabled = True
-    profile.shading.mode = "model"
-    profile.shading.coefficients = [-0.2]
-    n = len(paths)
-    print(f"{n} DNG views of {size[0]} x {size[1]} px; cores: {os.cpu_count()}; profile: debayer AHD, shading, "
-          "colour, de-flicker, rectify, half resolution; 16-bit PNG out", flush=True)
-
-    results, step_share, cpu = {}, {}, {}
-    for workers in (1, 2):
-        c0 = cpu_s()
-        t_base = baseline(paths, root / "baseline", workers)
-        c1 = cpu_s()
-        t0 = time.perf_counter()
-        report = process_dataset(root, profile, workers=workers, force=True)
-        t_pipe = time.perf_counter() - t0
-        cpu[workers] = (c1 - c0, cpu_s() - c1)
-        assert report.ok, report.failed
-        results[workers] = (t_base, t_pipe)
-        views = json.loads((root / "dataset.json").read_text())["views"]
-        t = {k: sum(v["processed"]["timings_s"][k] for v in views) for k in ("decode", "process", "encode")}
-        step_share[workers] = t["process"] / (t["decode"] + t["encode"])
-        print(f"{workers} worker(s): pipeline {t_pipe:6.2f} s = {n / t_pipe:5.2f} views/s; "
-              f"decode+encode alone {t_base:6.2f} s = {n / t_base:5.2f} views/s", flush=True)
-
-    (b1, p1), (b2, p2) = results[1], results[2]
+    source = rendered(root / "rendered", UNIQUE_VIEWS, args.width)
+    size = json.loads((source.root / "calibration.json").read_text())["image_size_px"]
+    print(f"DNG views of {size[0]} x {size[1]} px ({UNIQUE_VIEWS} distinct renders, hard-linked); profile: debayer, "
+          f"shading model, colour, de-flicker, rectify, half resolution, 16-bit PNG; {load_text()}", flush=True)
+    work = root / "run"
+    old = run(work, source, max(10, args.views // 2), todays_profile(), 1, "former path (AHD, zlib default), 1 worker")
+    new1 = run(work, source, args.views, default_profile(), 1, "default path, 1 worker")
+    new2 = run(work, source, 2 * args.views, default_profile(), 2, "default path, 2 workers")
     print()
-    print(f"scaling 2 workers / 1 worker (pipeline):       {p1 / p2:5.2f}x   (target >= 1.8)")
-    print(f"scaling 2 workers / 1 worker (decode+encode):  {b1 / b2:5.2f}x   (what the machine allows)")
-    print(f"pipeline overhead over decode+encode, 1 worker: {100 * (p1 / b1 - 1):5.1f} %  (target <= 15 %)")
-    print(f"pipeline overhead over decode+encode, 2 workers: {100 * (p2 / b2 - 1):5.1f} %")
-    print(f"per view, inside the workers: steps (gain, warp, resample, levels) / (decode + encode): "
-          f"{100 * step_share[1]:4.1f} % (1 worker), {100 * step_share[2]:4.1f} % (2 workers)")
-    for w in (1, 2):
-        cb, cp = cpu[w]
-        print(f"CPU time, {w} worker(s): pipeline {cp:6.1f} s, decode+encode {cb:6.1f} s -> overhead "
-              f"{100 * (cp / cb - 1):5.1f} % (includes worker start-up and the reference view)")
-    print(f"load average during the run: {os.getloadavg()[0]:.1f} (figures mean little above ~{os.cpu_count()})")
+    speed = new1["per_cpu_s"] / old["per_cpu_s"]
+    scaling = new2["per_s"] / new1["per_s"]
+    print(f"per core: default path / former path, views per CPU-second: {speed:5.2f}x   (target >= 2)")
+    print(f"scaling: 2 workers / 1 worker, views per wall second:      {scaling:5.2f}x   (target >= 1.8; the "
+          f"2-worker run got {new2['cores']:.2f} cores of {2}, load average {new2['load']:.1f})")
+    worst = max(r["start_share"] for r in (old, new1, new2))
+    print(f"start-up + first view, worst of the runs:                 {100 * worst:5.1f} %  of its run (target < 5 %)")
+    print(load_text())
     return 0
 
 

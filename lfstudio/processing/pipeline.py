@@ -90,6 +90,21 @@ def output_name(profile: Profile, row: int, column: int) -> str:
     return f"{profile.output.folder.strip('/') or 'processed'}/{view_stem(row, column)}{ext}"
 
 
+def split_demosaic(ref_path: Path, profile: Profile, full_size_wh, out_size_wh) -> bool:
+    """Whether views are demosaiced at the output size (luminance at full resolution, colour
+    differences at half; see :mod:`lfstudio.processing.worker`): demosaic ``auto``, an RGB Bayer
+    RAW, and an output at most half the capture's size."""
+    from lfstudio.processing.steps import debayer
+
+    step = profile.debayer
+    if step.demosaic != "auto" or step.half_size or not debayer.is_raw(ref_path):
+        return False
+    (fw, fh), (ow, oh) = full_size_wh, out_size_wh
+    if 2 * ow > fw + 1 or 2 * oh > fh + 1:
+        return False
+    return debayer.read_bayer(ref_path, step) is not None
+
+
 def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> RunPlan:
     """Reference statistics and everything the tasks share (decodes the reference view once)."""
     from lfstudio.processing.steps import color, debayer, deflicker, rectify, resample, shading
@@ -126,12 +141,15 @@ def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> Run
     plan = RunPlan(root=str(ds.root), profile=profile.to_dict(), profile_sha256=sha, full_size_wh=tuple(full_size),
                    processing_scale=scale, output_size_wh=tuple(out_size), homography=homography,
                    camera=dict(ds.camera), lens=dict(ds.lens), flat_path=str(flat_path) if flat_path else None,
-                   single_thread=single_thread)
+                   single_thread=single_thread, split_demosaic=split_demosaic(ref_path, profile, full_size, out_size))
     needs_reference = profile.color.enabled or profile.deflicker.enabled or \
         (profile.shading.enabled and profile.shading.mode == "model" and not profile.shading.coefficients)
     if not needs_reference:
         return plan
-    img = debayer.decode(ref_path, profile.debayer)
+    bayer = debayer.read_bayer(ref_path, profile.debayer) if plan.split_demosaic else None
+    # the reference's statistics from the same demosaic the views get
+    img = debayer.decode(ref_path, profile.debayer) if bayer is None else \
+        debayer.output_rgb(debayer.demosaic_ea(bayer), bayer.rgb_cam)
     if profile.deflicker.enabled:
         plan.reference_small = deflicker.small_luminance(img, profile.deflicker.size_px)
     if profile.shading.enabled:
@@ -305,6 +323,7 @@ def preview(dataset: Dataset | str | Path, profile: Profile, row: int | None = N
     view = reference_view(ds, profile) if row is None else ds.view(row, column)
     path = ds.path_of(view)
     after, info = render(plan, path)
+    after = after.copy()   # render's image lives in a buffer the next render reuses
     before = resample.apply(debayer.decode(path, profile.debayer), plan.output_size_wh)
     info["row"], info["column"] = view["row"], view["column"]
     return before, after, info

@@ -32,6 +32,7 @@ PIPELINE_VERSION = 1
 class OutputStep:
     format: str = "png"             # png | tiff
     png_compression: int = 1        # zlib level 0..9 (1: fast, files ~10 % larger than 9)
+    png_strategy: str = "auto"      # auto (Huffman-only when not >2 % larger) | huffman (fastest) | deflate
     folder: str = "processed"
 
 
@@ -47,7 +48,7 @@ class DebayerStep:
     white_balance: str = "camera"   # camera | fixed | daylight
     wb_multipliers: list[float] = field(default_factory=lambda: [2.0, 1.0, 1.5, 1.0])  # R G B G2 for "fixed"
     half_size: bool = False         # 2x2 Bayer block -> one pixel, no interpolation (fast)
-    demosaic: str = "AHD"           # AHD | LINEAR | VNG | PPG | DHT | AAHD
+    demosaic: str = "auto"          # auto (at the output's resolution, see debayer.py) | AHD | LINEAR | VNG | PPG | DHT | AAHD
     color_space: str = "srgb"       # srgb (camera matrix applied, linear) | raw (camera RGB, no matrix)
 
 
@@ -129,7 +130,8 @@ PAPER_STEPS = ("debayer", "lens", "color", "shading", "deflicker", "rectify", "r
 _CHOICES = {
     ("output", "format"): ("png", "tiff"),
     ("debayer", "white_balance"): ("camera", "fixed", "daylight"),
-    ("debayer", "demosaic"): ("AHD", "LINEAR", "VNG", "PPG", "DHT", "AAHD"),
+    ("debayer", "demosaic"): ("auto", "AHD", "LINEAR", "VNG", "PPG", "DHT", "AAHD"),
+    ("output", "png_strategy"): ("auto", "huffman", "deflate"),
     ("debayer", "color_space"): ("srgb", "raw"),
     ("lens", "source"): ("lensfun", "opencv"),
     ("color", "mode"): ("auto", "points", "values"),
@@ -255,6 +257,7 @@ class Profile:
         if not self.shading.enabled or self.shading.mode == "model" and self.shading.coefficients:
             out["shading"].pop("flat_file", None)
         out["output"].pop("png_compression", None)  # lossless either way: same pixels
+        out["output"].pop("png_strategy", None)
         return out
 
     def sha256(self, extra: dict[str, Any] | None = None) -> str:

@@ -35,6 +35,7 @@ CFA_COLOURS = {"R": 0, "G": 1, "B": 2}
 # DNG / TIFF-EP tag codes
 _MAKE = 271
 _MODEL = 272
+_ORIENTATION = 274
 _CFA_REPEAT_PATTERN_DIM = 33421
 _CFA_PATTERN = 33422
 _EXPOSURE_TIME = 33434
@@ -99,11 +100,12 @@ def write_dng(path: str | os.PathLike, mosaic: np.ndarray, *, black_level: int =
               color_matrix1: np.ndarray | None = None, as_shot_neutral: Sequence[float] = DEFAULT_NEUTRAL,
               camera_model: str = "lfstudio Virtual Studio", make: str = "lfstudio",
               exposure_s: float | None = None, f_number: float | None = None, iso: int | None = None,
-              description: str | None = None) -> Path:
+              description: str | None = None, orientation: int | None = None) -> Path:
     """Write ``mosaic`` (H x W uint16 Bayer data) as an uncompressed DNG at ``path``, atomically.
 
     ``color_matrix1`` is the DNG ColorMatrix1 (XYZ -> camera, D65); default: a camera whose native
     primaries are linear sRGB. ``as_shot_neutral`` is the camera-space colour of a neutral grey.
+    ``orientation``: the TIFF Orientation tag (e.g. 6: display rotated 90 degrees clockwise).
     The samples are stored in 16-bit words (``bits_per_sample`` only bounds the levels): packed
     14-bit TIFF strips are not written by tifffile. Returns the path.
     """
@@ -133,6 +135,8 @@ def write_dng(path: str | os.PathLike, mosaic: np.ndarray, *, black_level: int =
         (_CALIBRATION_ILLUMINANT1, "H", 1, (21,), True),          # D65
         (_AS_SHOT_NEUTRAL, "2I", 3, _rational(as_shot_neutral), True),
     ]
+    if orientation is not None:
+        tags.append((_ORIENTATION, "H", 1, (int(orientation),), True))
     if exposure_s is not None:
         tags.append((_EXPOSURE_TIME, "2I", 1, _rational([exposure_s], 1_000_000), True))
     if f_number is not None:

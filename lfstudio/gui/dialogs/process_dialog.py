@@ -37,6 +37,9 @@ TIPS = {
     "white_balance": "camera: as shot; fixed: the multipliers below; daylight: LibRaw's daylight balance",
     "wb_multipliers": "R G B G2 multipliers for fixed white balance",
     "half_size": "Each 2x2 Bayer block becomes one pixel: 4x faster, half resolution (no demosaicing)",
+    "demosaic": "auto: at the output's resolution (luminance full size, colour at half; fast, at least AHD's "
+                "quality for half-size output); or one of LibRaw's algorithms at full size",
+    "png_strategy": "auto: zlib's fast Huffman-only coding unless it makes bigger files; the pixels are the same",
     "color_space": "srgb: the camera's colour matrix is applied (linear); raw: camera RGB",
     "source": "lensfun: database by camera and lens name; opencv: the coefficients below",
     "dist_coeffs": "OpenCV k1 k2 p1 p2 [k3 [k4 k5 k6]] in full-resolution pixels",

@@ -81,8 +81,23 @@ def level_map(factor_map: np.ndarray, black, white, white_output: float = 1.0, e
     return per_pixel, tuple(float(v) for v in black * scale) + (0.0,)
 
 
-def apply_map(img: np.ndarray, per_pixel: np.ndarray, offset: tuple, gain: float = 1.0) -> np.ndarray:
+def apply_map(img: np.ndarray, per_pixel: np.ndarray, offset: tuple, gain: float = 1.0,
+              dst: np.ndarray | None = None) -> np.ndarray:
     """``img · gain · per_pixel − offset`` saturated to uint16: one u16×f32 pass and one saturating
-    pass (OpenCV SIMD, ~3× numpy)."""
+    pass (OpenCV SIMD, ~3× numpy). ``dst``: a uint16 array of the result's shape to write into."""
     f = cv2.multiply(img, per_pixel, scale=float(gain), dtype=cv2.CV_32F)
-    return cv2.subtract(f, offset, dtype=cv2.CV_16U)
+    return cv2.subtract(f, offset, dst=dst, dtype=cv2.CV_16U)
+
+
+def apply_camera(x: np.ndarray, rgb_cam: np.ndarray, *, gain: float = 1.0, level_map: tuple | None = None,
+                 black=(0.0, 0.0, 0.0), white=(65535.0, 65535.0, 65535.0), white_output: float = 1.0,
+                 enabled: bool = True, dst: np.ndarray | None = None) -> np.ndarray:
+    """Camera RGB (float32, white-balanced, 65535 = white level) to the output: the colour matrix
+    ``rgb_cam``, then the shading factor (``level_map`` from :func:`level_map`) or the levels, and
+    the gain; uint16 out, rounded and saturated (into ``dst`` when given)."""
+    if level_map is not None:
+        y = cv2.transform(x, np.asarray(rgb_cam, np.float64))
+        return apply_map(y, *level_map, gain=gain, dst=dst)
+    black, scale = _black_and_scale(black, white, white_output, enabled)
+    y = cv2.transform(x, (gain * scale)[:, None] * np.asarray(rgb_cam, np.float64))
+    return cv2.subtract(y, tuple(float(v) for v in black * scale) + (0.0,), dst=dst, dtype=cv2.CV_16U)

@@ -16,8 +16,9 @@ from lfstudio.processing.profile import DeflickerStep
 _LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 
 
-def small_luminance(img: np.ndarray, size_px: int) -> np.ndarray:
-    """Luminance (0..1) of ``img`` reduced by area averaging to ``size_px`` wide (float32)."""
+def small_luminance(img: np.ndarray, size_px: int, rgb_cam: np.ndarray | None = None) -> np.ndarray:
+    """Luminance (0..1) of ``img`` reduced by area averaging to ``size_px`` wide (float32).
+    ``rgb_cam``: ``img`` is camera RGB, this matrix makes it output RGB (folded into the weights)."""
     h, w = img.shape[:2]
     step = w // (4 * size_px)
     if step > 1:  # thin out first: area-averaging 40 MP to 256 px is 30 ms per view for nothing
@@ -27,7 +28,7 @@ def small_luminance(img: np.ndarray, size_px: int) -> np.ndarray:
     sh = max(1, int(round(h * sw / w)))
     small = cv2.resize(img, (sw, sh), interpolation=cv2.INTER_AREA).astype(np.float32)
     if small.ndim == 3:
-        small = small @ _LUMA
+        small = small @ (_LUMA if rgb_cam is None else (_LUMA @ np.asarray(rgb_cam, np.float32)).astype(np.float32))
     return small / 65535.0
 
 

@@ -8,7 +8,9 @@ equals the plain S·H·S⁻¹ only in the pixel-corner convention.
 
 The output pixel p is filled from the captured image at ``lens(H⁻¹·p)`` per channel; the maps are
 built once per run (fixed-point ``CV_16SC2``) and the warp stays in uint16 (float warps are ~8×
-slower).
+slower). ``build_maps(..., offsets_px=...)`` gives one warp per channel for images whose channels
+are sampled at different sub-pixel positions (the R and B sites of a Bayer mosaic on its
+half-resolution grid): the offset is folded into the warp, so no extra resampling pass.
 """
 
 from __future__ import annotations
@@ -69,17 +71,35 @@ class HomographyWarp:
     size_wh: tuple[int, int]
 
 
-def build_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | None, lens) -> list | HomographyWarp | None:
+def build_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | None, lens,
+               offsets_px: list[tuple[float, float]] | None = None) -> list | HomographyWarp | None:
     """Remap maps for an image of ``size_wh`` (= full size × ``scale``): one pair for all channels,
     or three (R, G, B) with lateral CA; a :class:`HomographyWarp` when there is no lens model;
-    None if there is nothing to warp."""
+    None if there is nothing to warp.
+
+    ``offsets_px``: per channel, where the samples of that channel sit relative to the pixel grid
+    (dx, dy in pixels of this image; the sample of index i lies at i + offset). Then the result is
+    a list of one single-channel warp per channel (each usable with :func:`apply_maps`), and the
+    warp is built even when there is nothing else to correct."""
+    if offsets_px is not None:
+        if lens is None:
+            H = np.eye(3) if H_full is None else scale_homography(H_full, scale)
+            return [HomographyWarp(H @ np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]]), tuple(size_wh))
+                    for dx, dy in offsets_px]
+        maps = _source_maps(size_wh, scale, H_full, lens)
+        return [[cv2.convertMaps(mx - np.float32(dx), my - np.float32(dy), cv2.CV_16SC2)]
+                for (mx, my), (dx, dy) in zip(maps if len(maps) == 3 else maps * 3, offsets_px)]
     if H_full is None and lens is None:
         return None
     if lens is None:
         return HomographyWarp(scale_homography(H_full, scale), tuple(size_wh))
+    return [cv2.convertMaps(mx, my, cv2.CV_16SC2) for mx, my in _source_maps(size_wh, scale, H_full, lens)]
+
+
+def _source_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | None, lens) -> list:
+    """Float32 (map_x, map_y) source positions per channel (1 or 3) for a lens model and an optional H."""
     w, h = size_wh
     xs = np.arange(w, dtype=np.float64)
-    maps = []
     qx = np.empty((h, w), np.float64)
     qy = np.empty((h, w), np.float64)
     if H_full is not None:
@@ -91,28 +111,26 @@ def build_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | None
     else:
         qx[:] = xs[None, :]
         qy[:] = np.arange(h, dtype=np.float64)[:, None]
-    if lens is None:
-        maps = [(qx.astype(np.float32), qy.astype(np.float32))]
-    else:
-        inv = 1.0 / scale
-        fx, fy = (qx + 0.5) * inv - 0.5, (qy + 0.5) * inv - 0.5   # -> full-resolution pixels
-        del qx, qy
-        maps = [(((mx + 0.5) * scale - 0.5).astype(np.float32), ((my + 0.5) * scale - 0.5).astype(np.float32))
-                for mx, my in lens.source_coords(fx, fy)]
-    return [cv2.convertMaps(mx, my, cv2.CV_16SC2) for mx, my in maps]
+    inv = 1.0 / scale
+    fx, fy = (qx + 0.5) * inv - 0.5, (qy + 0.5) * inv - 0.5   # -> full-resolution pixels
+    del qx, qy
+    return [(((mx + 0.5) * scale - 0.5).astype(np.float32), ((my + 0.5) * scale - 0.5).astype(np.float32))
+            for mx, my in lens.source_coords(fx, fy)]
 
 
-def apply_maps(img: np.ndarray, maps: list | None, interpolation: str = "linear") -> np.ndarray:
-    """Warp ``img`` (uint16 or float32, (h, w[, c])) as :func:`build_maps` says; outside: 0."""
+def apply_maps(img: np.ndarray, maps: list | None, interpolation: str = "linear",
+               dst: np.ndarray | None = None) -> np.ndarray:
+    """Warp ``img`` (uint16 or float32, (h, w[, c])) as :func:`build_maps` says; outside: 0.
+    ``dst``: an array of the result's shape and type to write into (reused across views)."""
     if maps is None:
         return img
     inter = INTERPOLATIONS[interpolation]
     if isinstance(maps, HomographyWarp):
-        return cv2.warpPerspective(img, maps.H, maps.size_wh, flags=inter, borderMode=cv2.BORDER_CONSTANT,
+        return cv2.warpPerspective(img, maps.H, maps.size_wh, dst=dst, flags=inter, borderMode=cv2.BORDER_CONSTANT,
                                    borderValue=0)
     if len(maps) == 1:
         m1, m2 = maps[0]
-        return cv2.remap(img, m1, m2, inter, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        return cv2.remap(img, m1, m2, inter, dst=dst, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     channels = [cv2.remap(plane, m1, m2, inter, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
                 for plane, (m1, m2) in zip(cv2.split(img), maps)]
     return cv2.merge(channels)

@@ -12,8 +12,9 @@ def output_size(full_size_wh: tuple[int, int], scale: float) -> tuple[int, int]:
     return max(1, int(round(w * scale))), max(1, int(round(h * scale)))
 
 
-def apply(img: np.ndarray, size_wh: tuple[int, int]) -> np.ndarray:
-    """``img`` resized to ``size_wh`` by area averaging (unchanged if it already has that size)."""
+def apply(img: np.ndarray, size_wh: tuple[int, int], dst: np.ndarray | None = None) -> np.ndarray:
+    """``img`` resized to ``size_wh`` by area averaging (unchanged if it already has that size);
+    ``dst``: an array of the result's shape and type to write into."""
     if (img.shape[1], img.shape[0]) == tuple(size_wh):
         return img
-    return cv2.resize(img, tuple(size_wh), interpolation=cv2.INTER_AREA)
+    return cv2.resize(img, tuple(size_wh), dst=dst, interpolation=cv2.INTER_AREA)
