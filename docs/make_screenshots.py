@@ -1,6 +1,6 @@
 """Render the README's "A day in the studio" screenshots from the real windows, offscreen.
 
-    python docs/make_screenshots.py            # writes docs/day-*.png (about a minute)
+    python docs/make_screenshots.py            # writes docs/screenshot.png and docs/day-*.png (about a minute)
 
 It drives the same steps as ``tests/gui/test_whole_day.py`` on the simulated studio (plan → scan →
 calibrate → process → export) in a temporary folder and grabs the window or dialog after each step.
@@ -36,11 +36,11 @@ def wait_until(condition, timeout_s: float = 120.0, what: str = "") -> None:
         QTest.qWait(20)
 
 
-def save(widget, name: str) -> None:
+def save(widget, name: str, max_width_px: int = MAX_WIDTH_PX) -> None:
     QTest.qWait(300)                       # let queued repaints land
     image = widget.grab().toImage()
-    if image.width() > MAX_WIDTH_PX:
-        image = image.scaledToWidth(MAX_WIDTH_PX, Qt.SmoothTransformation)
+    if image.width() > max_width_px:
+        image = image.scaledToWidth(max_width_px, Qt.SmoothTransformation)
     path = HERE / name
     image.save(str(path))
     if path.stat().st_size > 150_000:     # a palette PNG (no dithering: flat UI stays flat) is much smaller
@@ -88,13 +88,14 @@ def main() -> int:
     rig.home()
     wait_until(lambda: "homed" in window.statusBar().currentMessage().lower(), what="homing")
     window.docks["scanPanel"].raise_()
-    for name in ("planPlotsDock", "liveViewDock"):
-        window.docks[name].hide()          # room for the grid
     scan.time_scale.setValue(0.0)
     scan.folder.setText(str(work / "studio_day"))
     scan.start_button.click()
     wait_until(lambda: "Finished" in scan.state_label.text(), what="the scan")
     QTest.qWait(1500)                      # thumbnails
+    save(window, "screenshot.png", 1400)   # the README's first picture: the default layout
+    for name in ("planPlotsDock", "liveViewDock"):
+        window.docks[name].hide()          # room for the grid
     save(window, "day-2-scan.png")
 
     # 3. calibrate

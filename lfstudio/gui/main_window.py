@@ -1,4 +1,10 @@
-"""The main window: dock panels around a central view, menus, status bar."""
+"""The main window: dock panels around a central view, menus, status bar, and an always-visible STOP.
+
+The STOP toolbar cannot be moved, hidden or closed, so STOP (Esc) is in sight with every panel
+layout; it triggers the Rig panel's STOP. It also says when a scan owns the rig. Quitting while a
+scan is active asks first (non-blocking dialog): stopping the scan lets the current view finish,
+then the window closes; Cancel keeps the scan running.
+"""
 
 from __future__ import annotations
 
@@ -6,14 +12,15 @@ import importlib
 import logging
 from typing import Any
 
-from PySide6.QtCore import Qt
+from PySide6.QtCore import Qt, QTimer
 from PySide6.QtGui import QAction, QKeySequence
-from PySide6.QtWidgets import QDockWidget, QMainWindow, QMenu, QMessageBox, QWidget
+from PySide6.QtWidgets import QDockWidget, QLabel, QMainWindow, QMenu, QMessageBox, QToolBar, QWidget
 
 from lfstudio.errors import LfError
 from lfstudio.gui.panels import CENTRAL, PANELS, PanelSpec
 from lfstudio.gui.settings import settings
 from lfstudio.gui.state import AppState
+from lfstudio.scan.events import ScanState
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +62,10 @@ class MainWindow(QMainWindow):
         from lfstudio.gui.dialogs import import_dialog
         import_dialog.install_menus(self)
         self._install_base_menus()
+        self._quit_box: QMessageBox | None = None
+        self._quit_after_scan = False
+        self._install_stop_toolbar()
+        state.scanStateChanged.connect(self._on_scan_state)
 
         state.statusMessage.connect(lambda text, ms: self.statusBar().showMessage(text, ms))
         state.errorOccurred.connect(self.show_error)
@@ -133,6 +144,53 @@ class MainWindow(QMainWindow):
             help_menu.addAction(action)
         help_menu.addSeparator()
         help_menu.addAction(about)
+
+    def _install_stop_toolbar(self) -> None:
+        """STOP, always in sight: a toolbar that cannot be moved, floated, hidden or closed."""
+        action = getattr(self.panels.get("rigDock"), "stop_action", None)
+        if action is None:          # no Rig panel: stop the connected rig directly
+            action = QAction("&STOP all motion", self)
+            action.setShortcut(QKeySequence(Qt.Key_Escape))
+            action.triggered.connect(self.stop_rig)
+            self.addAction(action)
+        action.setIconText("STOP (Esc)")
+        self.stop_action = action
+        bar = QToolBar("STOP", self)
+        bar.setObjectName("stopToolBar")
+        bar.setMovable(False)
+        bar.setFloatable(False)
+        bar.setContextMenuPolicy(Qt.PreventContextMenu)
+        bar.toggleViewAction().setVisible(False)       # not in the toolbar/dock context menu either
+        bar.addAction(action)
+        self.stop_button = bar.widgetForAction(action)
+        self.stop_button.setObjectName("stopToolButton")
+        self.stop_button.setToolTip("Stop all motion now (Esc), whatever runs: a jog, a go-to, homing or a scan "
+                                    "(the scan pauses). Never waits behind other commands.")
+        self.scan_lock_label = QLabel("")
+        self.scan_lock_label.setObjectName("scanLockLabel")
+        self.scan_lock_label.setContentsMargins(12, 0, 12, 0)
+        bar.addWidget(self.scan_lock_label)
+        self.addToolBar(Qt.TopToolBarArea, bar)
+        self.stop_toolbar = bar
+
+    def stop_rig(self) -> None:
+        """STOP without a Rig panel: the connected rig's stop, bypassing its queue."""
+        device = self.state.devices.get("rig")
+        if device is not None:
+            device.stop_now()
+            self.statusBar().showMessage("Rig: STOP", 5000)
+
+    def _on_scan_state(self, scan_state: ScanState) -> None:
+        label = self.state.scan_label or "the scan"
+        if self.state.scan_owns_rig:
+            text = f"{label[0].upper()}{label[1:]} has the rig: motion controls are locked until it ends or is paused."
+        elif scan_state is ScanState.PAUSED:
+            text = f"{label[0].upper()}{label[1:]} is paused: the rig is free (Resume in the Scan panel)."
+        else:
+            text = ""
+        self.scan_lock_label.setText(text)
+        if self._quit_after_scan and not self.state.scan_active:
+            QTimer.singleShot(0, self.close)
 
     def _install_export_action(self, menu: QMenu) -> None:
         self.export_dialog = None
@@ -242,12 +300,60 @@ class MainWindow(QMainWindow):
             self.restoreGeometry(geometry)
         if window_state is not None:
             self.restoreState(window_state)
+            self.stop_toolbar.setVisible(True)          # STOP stays in sight whatever was saved
         else:  # first start: the panels of the first steps in front
             for name in ("plannerDock", "planPlotsDock", "scanPanel"):
                 if name in self.docks:
                     self.docks[name].raise_()
 
+    def ask_quit_during_scan(self) -> QMessageBox:
+        """The question asked when the window is closed during a scan (non-blocking)."""
+        box = self._quit_box
+        if box is not None and box.isVisible():
+            box.raise_()
+            return box
+        label = self.state.scan_label or "the scan"
+        done, total = self.state.scan_progress
+        dataset = self.state.dataset
+        folder = str(dataset.root) if dataset is not None else "the dataset folder"
+        how = "paused" if self.state.scan_state is ScanState.PAUSED else "running"
+        box = QMessageBox(QMessageBox.Warning, "Quit during a scan",
+                          f"{label[0].upper()}{label[1:]} is {how}: {done} of {total} views captured.",
+                          QMessageBox.NoButton, self)
+        box.setObjectName("quitDuringScanBox")
+        box.setInformativeText(
+            "If you quit now, the scan stops after the current view. Everything captured stays in "
+            f"{folder} and can be resumed: lfstudio offers it at its next start (or choose this folder in "
+            f"the Scan panel and press Start), or run: lfstudio scan --out {folder} --resume")
+        stop = box.addButton("Stop the scan and quit", QMessageBox.DestructiveRole)
+        keep = box.addButton("Cancel: keep scanning", QMessageBox.RejectRole)
+        stop.setObjectName("stopAndQuitButton")
+        keep.setObjectName("keepScanningButton")
+        box.setDefaultButton(keep)
+        box.setEscapeButton(keep)
+        box.buttonClicked.connect(lambda button: self._quit_answered(button is stop))
+        self._quit_box = box
+        box.open()
+        return box
+
+    def _quit_answered(self, stop_scan: bool) -> None:
+        if not stop_scan:
+            self.statusBar().showMessage("Not quitting: the scan goes on.", 5000)
+            return
+        self._quit_after_scan = True
+        scan = self.panels.get("scanPanel")
+        if scan is not None and hasattr(scan, "abort"):
+            scan.abort()
+        self.statusBar().showMessage("Stopping the scan after the current view; lfstudio closes when it has "
+                                     "stopped.", 0)
+        if not self.state.scan_active:
+            QTimer.singleShot(0, self.close)
+
     def closeEvent(self, event) -> None:
+        if self.state.scan_active and not self._quit_after_scan:
+            event.ignore()
+            self.ask_quit_during_scan()
+            return
         s = settings()
         s.setValue("window/geometry", self.saveGeometry())
         s.setValue("window/state", self.saveState())

@@ -1,10 +1,17 @@
-"""One application state shared by all panels; panels react to its signals."""
+"""One application state shared by all panels; panels react to its signals.
+
+It also follows the running scan from its events (``scanEvent``): ``scan_state`` and
+``scanStateChanged`` tell the panels when the scan owns the rig (motion controls locked, see
+:data:`lfstudio.scan.events.OWNS_RIG`) and when a scan is active (quitting asks first).
+"""
 
 from __future__ import annotations
 
 from typing import Any
 
 from PySide6.QtCore import QObject, Signal
+
+from lfstudio.scan.events import OWNS_RIG, TERMINAL, EventKind, ScanState
 
 
 class AppState(QObject):
@@ -18,6 +25,7 @@ class AppState(QObject):
     statusMessage = Signal(str, int)    # text, timeout in ms (0: until replaced)
     errorOccurred = Signal(str, str)    # title, message an operator understands
     scanEvent = Signal(object)          # lfstudio.scan.events.ScanEvent from the running scan (GUI thread)
+    scanStateChanged = Signal(object)   # the scan's ScanState changed (see scan_owns_rig, scan_active)
     recaptureRequested = Signal(object)  # list of (row, column) to capture again (grid view → scan panel)
     devicesChanged = Signal(str)        # a device ("rig", "camera", ...) was connected or removed
     cameraFrame = Signal(object, str)   # an RGB uint8 image from the camera (test shot) and its caption
@@ -28,6 +36,10 @@ class AppState(QObject):
         self.plan: Any = None
         self.dataset: Any = None
         self.devices: dict[str, Any] = {}   # "rig", "camera": Qt device adapters, when connected
+        self.scan_state: ScanState | None = None   # of the latest scan, from its events
+        self.scan_label = ""                 # "the scan of studio_day (started 14:02)"
+        self.scan_progress = (0, 0)          # views done, views in the dataset
+        self.scanEvent.connect(self._follow_scan)
 
     def set_plan(self, plan: Any) -> None:
         self.plan = plan
@@ -50,3 +62,31 @@ class AppState(QObject):
 
     def report_error(self, title: str, message: str) -> None:
         self.errorOccurred.emit(title, message)
+
+    # -- the running scan --------------------------------------------------------------------------
+    def _follow_scan(self, ev: Any) -> None:
+        if ev.total:
+            self.scan_progress = (ev.done, ev.total)
+        if ev.kind is not EventKind.STATE or ev.state is None:
+            return
+        self.scan_label = ev.extra.get("scan", self.scan_label)
+        if ev.state is not self.scan_state:
+            self.scan_state = ev.state
+            self.scanStateChanged.emit(ev.state)
+
+    @property
+    def scan_owns_rig(self) -> bool:
+        """True while the scan holds the rig: every motion command but STOP is refused."""
+        return self.scan_state in OWNS_RIG
+
+    @property
+    def scan_active(self) -> bool:
+        """True from the scan's start until it finished or failed (paused included)."""
+        return self.scan_state is not None and self.scan_state not in TERMINAL
+
+    def motion_lock_reason(self) -> str:
+        """Why motion controls are disabled now, for their tooltips ("" while they are not)."""
+        if not self.scan_owns_rig:
+            return ""
+        return (f"Disabled while {self.scan_label or 'the scan'} runs: the scan owns the rig until it ends "
+                "or is paused. STOP (Esc) is always available.")

@@ -2,7 +2,12 @@
 
 All driver calls go through a :class:`lfstudio.rig.worker.DeviceWorker` wrapped in a
 :class:`lfstudio.gui.devices.QtDevice`; the GUI thread never waits for the controller. STOP calls
-``driver.stop()`` directly (it only writes realtime bytes), bypassing the queue.
+``driver.stop()`` directly (it only writes realtime bytes), bypassing the queue; its action
+(``stop_action``, Esc) is also the main window's always-visible STOP button.
+
+While a scan owns the rig (``AppState.scan_owns_rig``) every motion control — jog buttons and keys,
+Go, Home, Set origin, Recover, Connect/Disconnect and their menu entries — is disabled, with a
+tooltip saying why; the core refuses such commands anyway (the scan holds the rig worker's lease).
 """
 
 from __future__ import annotations
@@ -133,6 +138,10 @@ class RigPanel(QWidget):
             self.rig_config = load_rig(DEFAULT_RIG)
         self._build()
         self._make_actions()
+        self._lock_shown: str | None = None
+        self._problem_shown = ""           # the message of a status problem (alarm, no connection) shown now
+        self._base_tips = [(w, w.toolTip()) for w in self._motion_controls()]
+        state.scanStateChanged.connect(lambda _state: self._update_enabled())
         self.refresh_ports()
         self._on_status(RigStatus(RigState.DISCONNECTED))
 
@@ -149,6 +158,12 @@ class RigPanel(QWidget):
         self.stop_button.setFocusPolicy(Qt.NoFocus)
         self.stop_button.clicked.connect(self.stop)
         root.addWidget(self.stop_button)
+        self.lock_label = QLabel("")
+        self.lock_label.setObjectName("rigLockLabel")
+        self.lock_label.setWordWrap(True)
+        self.lock_label.setProperty("role", "warning")
+        self.lock_label.setVisible(False)
+        root.addWidget(self.lock_label)
 
         conn = QGroupBox("Connection")
         cl = QGridLayout(conn)
@@ -339,6 +354,12 @@ class RigPanel(QWidget):
         self.recover_action = QAction("&Recover (unlock / reconnect)", self)
         self.recover_action.setToolTip("Leave an alarm or reconnect after a lost connection")
         self.recover_action.triggered.connect(self.recover)
+
+    def _motion_controls(self) -> list:
+        """Everything that commands the rig except STOP (disabled while a scan owns the rig)."""
+        return [self.connect_button, self.home_button, self.origin_button, self.recover_button, self.goto_button,
+                *self.jog_buttons.values(), self.connect_action, self.home_action, self.origin_action,
+                self.recover_action]
 
     def install_menus(self, window) -> None:
         menu = window.menu("Rig")
@@ -549,6 +570,9 @@ class RigPanel(QWidget):
             super().keyPressEvent(event)
             return
         event.accept()
+        if self.state.scan_owns_rig:                  # the scan has the rig: say so, send nothing
+            self.state.show_status(self.state.motion_lock_reason(), 8000)
+            return
         if event.isAutoRepeat() and self.device is not None and self.device.busy:
             return                                # don't pile up steps while the rig is busy
         fine = bool(event.modifiers() & Qt.ShiftModifier)
@@ -583,6 +607,10 @@ class RigPanel(QWidget):
         show_recover = problem and (snapshot.state is RigState.DISCONNECTED or not self.rig_config.homing)
         if problem:
             self._show_message(snapshot.message or snapshot.state.value, "error")
+            self._problem_shown = self.message_label.text()
+        elif self._problem_shown and self.message_label.text() == self._problem_shown:
+            self._show_message("")          # the alarm or lost connection it named is over
+            self._problem_shown = ""
         elif snapshot.message and not self.message_label.text():
             self._show_message(snapshot.message, "warning")
         elif not snapshot.message and self.message_label.property("role") == "warning":
@@ -601,16 +629,36 @@ class RigPanel(QWidget):
 
     def _update_enabled(self) -> None:
         st = self.last_status
+        free = not self.state.scan_owns_rig
         live = self.device is not None and st is not None and st.state is not RigState.DISCONNECTED
-        can_move = live and st.homed and st.state in (RigState.IDLE, RigState.JOGGING)
+        can_move = free and live and st.homed and st.state in (RigState.IDLE, RigState.JOGGING)
         self.port_combo.setEnabled(self.device is None)
         self.rig_combo.setEnabled(self.device is None)
         self.refresh_button.setEnabled(self.device is None)
-        self.home_button.setEnabled(live and self.rig_config.homing)
-        self.home_action.setEnabled(live and self.rig_config.homing)
-        self.origin_button.setEnabled(live and st.state is RigState.IDLE)
-        self.origin_action.setEnabled(live and st.state is RigState.IDLE)
-        self.recover_action.setEnabled(self.device is not None)
+        self.connect_button.setEnabled(free)
+        self.connect_action.setEnabled(free)
+        self.home_button.setEnabled(free and live and self.rig_config.homing)
+        self.home_action.setEnabled(free and live and self.rig_config.homing)
+        self.origin_button.setEnabled(free and live and st.state is RigState.IDLE)
+        self.origin_action.setEnabled(free and live and st.state is RigState.IDLE)
+        self.recover_button.setEnabled(free)
+        self.recover_action.setEnabled(free and self.device is not None)
         for b in self.jog_buttons.values():
-            b.setEnabled(can_move or (b.isDown() and live))
+            b.setEnabled(can_move or (free and b.isDown() and live))
         self.goto_button.setEnabled(can_move)
+        self._show_lock(self.state.motion_lock_reason())
+
+    def _show_lock(self, reason: str) -> None:
+        """The lock note and the "why disabled" tooltips, when the scan takes or gives back the rig."""
+        if reason == self._lock_shown:
+            return
+        self._lock_shown = reason
+        locked = bool(reason)
+        if locked:
+            self._hold_timer.stop()
+            self._pressed = None
+        self.lock_label.setText(f"<b>Rig locked by {self.state.scan_label or 'the scan'}</b>: motion controls "
+                                "return when it ends or is paused. STOP (Esc) always works." if locked else "")
+        self.lock_label.setVisible(locked)
+        for widget, tip in self._base_tips:
+            widget.setToolTip(f"{tip}\n\n{reason}" if locked else tip)
