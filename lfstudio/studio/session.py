@@ -21,7 +21,7 @@ What :meth:`ScanSession.open` guarantees, in this order:
 3. **Homing policy** (:func:`prepare_rig`): ``home`` homes before the first view (``$H``; a rig
    without limit switches is refused: park it and use ``origin_here``); without it a rig in ALARM or
    not homed is refused with one line naming ``--home`` and ``lfstudio rig --port P home``. A resume
-   that did not home checks that the rig stands where the dataset's last view left it.
+   on the dataset's own rig that did not home checks that the rig stands where the last run left it.
 4. The engine gets a plan of the views still to capture (``recapture`` cells again).
 """
 
@@ -262,8 +262,9 @@ class DeviceChangeRefused(LfError):
 
     def __init__(self, root: Path, recorded: dict, current: dict, differences: list[str], how_to_allow: str):
         self.recorded, self.current, self.differences = recorded, current, differences
-        super().__init__(f"{root} was captured with {describe_devices(recorded)}; this resume has other devices "
-                         f"({'; '.join(differences)}). {how_to_allow}")
+        before, now = describe_devices(recorded), describe_devices(current)
+        detail = f" ({'; '.join(differences)})" if before == now else ""
+        super().__init__(f"{root} was captured with {before}; this resume has {now}{detail}. {how_to_allow}")
 
 
 @dataclass
@@ -433,11 +434,14 @@ class ScanSession:
             fresh = current.get("rig", {}).get("kind") == "instant"
             how_to_home = self.shared.how_to_home
             rig_text, cam_text = rig_spec_of(current["rig"]), current["camera"].get("spec", "")
+        same_rig = False
         if record is not None:
             self._check_devices(existing, record, current)
+            same_rig = not any(d.startswith("rig ") for d in device_differences(record, current))
         if not fresh:
+            # where the last run left the rig means something only for the same rig
             for line in prepare_rig(rig, config, port, home=req.home, origin_here=req.origin_here,
-                                    resume_from=(existing, plan) if existing is not None else None,
+                                    resume_from=(existing, plan) if existing is not None and same_rig else None,
                                     how_to_home=how_to_home):
                 self.note(line)
         elif req.home or req.origin_here:
@@ -472,8 +476,7 @@ class ScanSession:
             dataset.capture_devices = None
             return
         if not self.request.allow_device_change:
-            how = ("Connect the dataset's own devices in the Rig and Camera panels, or agree to continue with these "
-                   "(the change is recorded in the dataset)" if self.shared is not None else
+            how = ("To resume with its own devices, connect them in the Rig and Camera panels." if self.shared is not None else
                    "Resume without --rig/--camera to use the dataset's own devices, or add "
                    f"{ALLOW_CHANGE_OPTION} to continue with these (the change is recorded in the dataset)")
             raise DeviceChangeRefused(dataset.root, record, current, differences, how)

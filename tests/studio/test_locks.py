@@ -83,3 +83,17 @@ def test_port_lock_refuses_a_second_process_and_locks_the_device_node():
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_a_camera_in_use_is_refused_naming_its_holder(run_cli, tmp_path):
+    child = hold_in_child("camera_lock", "gphoto2")
+    try:
+        r = run_cli("camera", tmp_path / "shot", "--camera", "gphoto2")
+        assert r.returncode == 1 and "Traceback" not in r.stderr
+        assert "camera gphoto2 is in use by" in r.stderr and f"pid {child.pid}" in r.stderr
+        assert not list(tmp_path.iterdir())
+    finally:
+        child.kill()
+        child.wait(10)
+        child.stdin.close()
+        child.stdout.close()

@@ -36,15 +36,26 @@ def test_shot(driver: Any, folder: Path) -> tuple[Any, Any]:
 
 
 def simulated_position(state: AppState):
-    """The camera position the simulated camera asks for: the GRBL simulator's true position when the
-    Rig panel runs one, else (0, 0)."""
+    """The camera position the simulated camera asks for: the true position of the GRBL simulator the
+    Rig panel runs, or of the ``lfstudio sim-rig`` whose port it is connected to; else (0, 0)."""
+    sources: dict[str, Any] = {}
+
     def position() -> tuple[float, float]:
         sim = state.devices.get("rig_simulator")
-        if sim is not None and hasattr(sim, "true_position_mm"):
-            try:
+        try:
+            if sim is not None and hasattr(sim, "true_position_mm"):
                 return tuple(sim.true_position_mm())
-            except Exception:  # noqa: BLE001 - the simulator is closing: fall back to the origin
-                return (0.0, 0.0)
+            link = state.devices.get("rig_link")
+            port = getattr(link, "port", "")
+            if port:
+                if port not in sources:
+                    from lfstudio.studio.simulated import truth_source
+
+                    sources[port] = truth_source(port)
+                if sources[port] is not None:
+                    return tuple(sources[port]())
+        except Exception:  # noqa: BLE001 - the simulator is closing: fall back to the origin
+            return (0.0, 0.0)
         return (0.0, 0.0)
     return position
 

@@ -1,0 +1,97 @@
+"""The scan session's rules in one process: device records and what counts as other devices, the
+per-view device record surviving a crash (journal), the homing policy on real GRBL-protocol rigs."""
+
+from __future__ import annotations
+
+import pytest
+
+from lfstudio.dataset import Dataset
+from lfstudio.errors import DeviceError, InputError
+from lfstudio.rig.motion import RigState
+from lfstudio.rig.profile import load_rig
+from lfstudio.scan.scan_plan import ScanPlan
+from lfstudio.studio.devices import open_rig
+from lfstudio.studio.session import (create_scan_dataset, device_differences, prepare_rig, recorded_devices,
+                                     rig_spec_of)
+
+REAL = {"rig": {"kind": "grbl", "profile": "Reference gantry", "port": "/dev/ttyUSB0", "firmware": "GRBL 1.1h"},
+        "camera": {"kind": "gphoto2", "spec": "gphoto2", "model": "Sony ILCE-7RM2", "serial": "123"}}
+
+
+def with_(record: dict, dev: str, **changes) -> dict:
+    return {**record, dev: {**record[dev], **changes}}
+
+
+def test_what_counts_as_other_devices():
+    assert device_differences(REAL, REAL) == []
+    assert device_differences(REAL, with_(REAL, "rig", port="/dev/ttyUSB1")) == []   # USB renumbered
+    assert device_differences(REAL, with_(REAL, "camera", serial=None)) == []        # not told: not compared
+    sim = {"rig": {"kind": "sim", "profile": "Reference gantry"}, "camera": {"kind": "sim", "spec": "sim"}}
+    assert [d.split(":")[0] for d in device_differences(REAL, sim)] == ["rig kind", "camera kind"]
+    other_body = device_differences(REAL, with_(REAL, "camera", serial="456"))
+    assert other_body == ["camera serial: the dataset was captured with '123', this scan has '456'"]
+    assert rig_spec_of(REAL["rig"]) == "/dev/ttyUSB0" and rig_spec_of(sim["rig"]) == "sim"
+
+
+def test_datasets_made_before_the_device_record_are_read_from_their_old_fields(tmp_path):
+    plan = ScanPlan(2, 1, (4.0, 6.0))
+    old = create_scan_dataset(tmp_path / "old", plan, rig={"name": "Reference gantry", "port": "/dev/ttyACM0"},
+                              camera={"name": "x", "driver": "folder:/data/in"}, lens={})
+    assert recorded_devices(old) == {"rig": {"kind": "grbl", "profile": "Reference gantry", "port": "/dev/ttyACM0"},
+                                     "camera": {"kind": "folder", "spec": "folder:/data/in"}}
+    gui = create_scan_dataset(tmp_path / "gui", plan, rig={"name": "Reference gantry"}, camera={"name": "x"}, lens={})
+    assert recorded_devices(gui) is None
+
+
+def test_per_view_devices_are_journalled_and_cleared_when_the_own_devices_return(tmp_path):
+    plan = ScanPlan(3, 1, (4.0, 6.0))
+    ds = create_scan_dataset(tmp_path / "ds", plan, rig={}, camera={}, lens={}, devices=REAL)
+    done = {"status": "done", "file": "raw/r00_c000.dng"}
+    other = with_(REAL, "camera", serial="456")
+    ds.capture_devices = other
+    ds.record_view(0, 0, **done)
+    ds.record_view(0, 1, **{**done, "file": "raw/r00_c001.dng"})
+    ds.capture_devices = None                       # the dataset's own camera is back: re-capture (0, 1)
+    ds.record_view(0, 1, **{**done, "file": "raw/r00_c001.dng"})
+    ds.record_view(0, 2, status="failed")
+    ds.close()                                      # no save: what a crash leaves, the journal only
+    again = Dataset.open(tmp_path / "ds")
+    assert again.replayed == 4
+    assert again.view(0, 0)["devices"] == other
+    assert again.view(0, 1)["devices"] is None and "devices" not in again.view(0, 2)
+
+
+def test_homing_policy_on_a_rig_with_limit_switches():
+    config = load_rig()
+    link = open_rig("sim", config, time_scale=0, timeout_s=1.0)
+    try:
+        rig = link.controller
+        assert rig.status().state is RigState.ALARM
+        with pytest.raises(DeviceError, match=r"ALARM .*add --home to this command, or first run 'lfstudio rig "
+                                              rf"--port {link.port} home'"):
+            prepare_rig(rig, config, link.port)
+        with pytest.raises(InputError, match="--origin-here: .* homes with its limit switches"):
+            prepare_rig(rig, config, link.port, origin_here=True)
+        assert prepare_rig(rig, config, link.port, home=True) == ["rig homed"]
+        assert prepare_rig(rig, config, link.port) == []            # homed: nothing to say
+        rig.disconnect()
+        rig.connect()                                               # a new connection: the controller's word
+        assert rig.status().homed and prepare_rig(rig, config, link.port) == []
+    finally:
+        link.close()
+
+
+def test_homing_policy_on_a_rig_without_limit_switches():
+    config = load_rig("Desktop slider 1 m")
+    link = open_rig("sim", config, time_scale=0, timeout_s=1.0)
+    try:
+        rig = link.controller
+        with pytest.raises(InputError, match="--home: .* has no limit switches.*--origin-here"):
+            prepare_rig(rig, config, link.port, home=True)
+        with pytest.raises(DeviceError, match="not homed .*--origin-here"):
+            prepare_rig(rig, config, link.port)
+        assert prepare_rig(rig, config, link.port, origin_here=True) == [
+            "origin (0, 0) set at the carriage's current position"]
+        assert rig.status().homed and rig.status().position_mm == (0.0, 0.0)
+    finally:
+        link.close()
