@@ -35,16 +35,31 @@ def shared_data() -> Path:
 
 @pytest.fixture
 def run_cli():
-    """Run ``python -m lfstudio ARGS`` in a subprocess; returns CompletedProcess (text)."""
+    """Run ``python -m lfstudio ARGS`` in a subprocess; returns CompletedProcess (text).
+    ``env={"NAME": value}`` adds to this process's environment (None removes NAME)."""
     import subprocess
 
     def run(*args: str, timeout: float = 120, **kw):
         env = dict(os.environ)
+        for name, value in kw.pop("env", {}).items():
+            if value is None:
+                env.pop(name, None)
+            else:
+                env[name] = value
         env["PYTHONPATH"] = str(REPO_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
         return subprocess.run([sys.executable, "-m", "lfstudio", *map(str, args)], capture_output=True,
                               text=True, timeout=timeout, env=env, cwd=kw.pop("cwd", REPO_ROOT), **kw)
 
     return run
+
+
+@pytest.fixture
+def vcamera(tmp_path, monkeypatch):
+    """libgphoto2's own virtual PTP camera for this test, in this process and in ``run_cli``
+    subprocesses (see tests/vcamera.py); skips when python-gphoto2 or its vusb library is missing."""
+    from tests.vcamera import use_vcamera
+
+    return use_vcamera(tmp_path / "vcamera", monkeypatch)
 
 
 # -- virtual studio datasets (lfstudio.sim) ---------------------------------------------------------

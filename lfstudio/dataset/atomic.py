@@ -1,11 +1,12 @@
 """Atomic file writes: write a temporary file in the same folder, fsync it, rename it over the
-target, fsync the folder. A reader (or a crash) sees the old file or the new one, never a half."""
+target, fsync the folder. A reader (or a crash) sees the old file or the new one, never a half.
+Files get the permissions of any file the user creates (0666 minus the umask)."""
 
 from __future__ import annotations
 
 import json
 import os
-import tempfile
+import secrets
 from pathlib import Path
 from typing import Any, Callable
 
@@ -23,6 +24,20 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
+def _create_temporary(path: Path) -> Path:
+    """A new empty file beside ``path`` under a temporary name, created with the user's umask
+    (0666 & ~umask, as any ordinary file; mkstemp would make it 0600 and the rename keeps that)."""
+    for _ in range(100):
+        tmp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{path.suffix}")
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
+        except FileExistsError:
+            continue
+        os.close(fd)
+        return tmp
+    raise FileExistsError(f"{path.parent}: no free temporary name for {path.name}")
+
+
 def atomic_write_with(path: str | os.PathLike, write: Callable[[Path], None]) -> Path:
     """Let ``write(tmp_path)`` produce the file under a temporary name, then move it into place.
 
@@ -31,9 +46,7 @@ def atomic_write_with(path: str | os.PathLike, write: Callable[[Path], None]) ->
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+    tmp_path = _create_temporary(path)
     try:
         write(tmp_path)
         with open(tmp_path, "rb+") as fh:

@@ -1,4 +1,9 @@
-"""The camera interface every camera driver implements."""
+"""The camera interface every camera driver implements, and the types it returns.
+
+Beyond :class:`Camera`, a driver may offer ``describe_settings() -> list[CameraSetting]`` (what the
+camera offers, so a GUI builds its controls from data) and ``identity() -> dict`` (model, serial,
+lens as the camera reports them; the dataset records it).
+"""
 
 from __future__ import annotations
 
@@ -30,10 +35,30 @@ class CaptureResult:
     exposure_s: float = 0.0
     transfer_s: float = 0.0          # download / write of the files
     metadata: dict[str, Any] = field(default_factory=dict)   # ISO, shutter, ground truth (simulated), ...
+    #: extra fields for this view's manifest entry (JSON-safe), e.g. the camera's identity and the
+    #: exposure settings it reported for this shot; the scan engine merges them into the view record
+    record: dict[str, Any] = field(default_factory=dict)
 
     @property
     def path(self) -> Path:
         return self.files[0]
+
+
+@dataclass(frozen=True)
+class CameraSetting:
+    """One setting a camera offers, as data a GUI builds its control from (cf. python-microscope's
+    ``describe_settings``). ``set_setting(name, v)`` accepts one of ``values`` (matched by value,
+    e.g. 0.01 finds "1/100") or one of the camera's own ``choices`` texts."""
+
+    name: str                         # the key of settings() and set_setting(): "shutter_s", "aperture", ...
+    label: str                        # what the camera calls it, e.g. "Shutter Speed"
+    type: str                         # "float", "int" or "str": the type of ``value`` and ``values``
+    value: Any                        # current value in our units (the camera's text where it has none, "Auto")
+    choices: tuple[str, ...] = ()     # the camera's texts for the values it offers, in its order
+    values: tuple[Any, ...] = ()      # each choice in our units (its text where it has no number: "Bulb")
+    range: tuple[float, float, float] | None = None   # (min, max, step) of a continuous setting
+    read_only: bool = False
+    unit: str = ""                    # "s", "EV", "" (ISO, f-number)
 
 
 @runtime_checkable

@@ -865,6 +865,7 @@ class ScanEngine:
         sidecars = [Path(f).resolve().relative_to(self.dataset.root).as_posix() for f in result.files[1:]]
         if sidecars:
             fields["sidecars"] = sidecars
+        fields = {**getattr(result, "record", {}), **fields}   # the driver's extras (camera, its settings)
         self.dataset.record_view(view.row, view.column, **fields)
         with self._cond:
             self.done += 1

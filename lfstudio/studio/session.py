@@ -90,15 +90,17 @@ def resume_plan(dataset: Dataset, *, order: str | None = None, settle_s: float |
 
 def describe_camera(camera: Any, scene: Any = None) -> tuple[dict, dict]:
     """The manifest's camera and lens entries: from the scene plan, else from the simulated studio,
-    else the driver's name."""
+    else the driver's name; with what a real camera reports of itself (model, serial, lens)."""
+    identity = camera.identity() if callable(getattr(camera, "identity", None)) else {}
     if scene is not None and hasattr(scene, "camera_dict"):
-        return scene.camera_dict(), scene.lens_dict()
+        return {**identity, **scene.camera_dict()}, scene.lens_dict()
     from lfstudio.studio.simulated import describe_simulated_camera
 
     described = describe_simulated_camera(camera)
     if described is not None:
         return described
-    return {"name": getattr(camera, "name", "camera")}, {"name": "unknown"}
+    return ({"name": identity.get("model") or getattr(camera, "name", "camera"), **identity},
+            {"name": identity.get("lens") or "unknown"})
 
 
 # -- device records --------------------------------------------------------------------------------

@@ -1,209 +1,137 @@
-"""The gphoto2 driver against a fake python-gphoto2 module (the library boundary only)."""
+"""The gphoto2 driver's pure parts: reading the camera's setting texts, matching a value against the
+offered choices, and the operator's message for every libgphoto2 error code. Everything that talks
+to a camera runs against libgphoto2's virtual PTP camera in test_gphoto_vusb.py."""
 
 from __future__ import annotations
 
-import types
-
-import cv2
-import numpy as np
 import pytest
 
-from lfstudio.errors import DeviceError, InputError
-from lfstudio.rig.camera import Camera
-from lfstudio.rig.gphoto import GPhotoCamera, gp_message
+from lfstudio.errors import InputError
+from lfstudio.rig.gphoto import (SETTINGS, _GP_MESSAGES, gp_message, match_choice, parse_ev, parse_f_number,
+                                 parse_iso, parse_shutter_s)
 
 
-class FakeError(Exception):
+@pytest.mark.parametrize("text,seconds", [
+    ("1/100", 0.01), ("0.0100s", 0.01), ("1.0000s", 1.0), ("1/4000", 0.00025), ("30", 30.0), ('2.5"', 2.5),
+    ("1/3 s", 1 / 3), ("0.3", 0.3), ("1/8000s", 0.000125), ("2 sec", 2.0),
+    ("Bulb", None), ("bulb", None), ("Auto", None), ("Time", None), ("", None), ("0", None), ("1/0", None)])
+def test_shutter_texts_of_real_bodies(text, seconds):
+    assert parse_shutter_s(text) == (pytest.approx(seconds) if seconds else None)
+
+
+@pytest.mark.parametrize("text,value", [("f/8", 8.0), ("8", 8.0), ("F5.6", 5.6), ("f/2.8", 2.8), ("f 11", 11.0),
+                                        ("implicit auto", None), ("", None)])
+def test_f_number_texts(text, value):
+    assert parse_f_number(text) == value
+
+
+@pytest.mark.parametrize("text,value", [("100", 100), ("ISO 3200", 3200), ("100.0", 100), ("Auto", None),
+                                        ("Auto ISO", None), ("Hi 1", None), ("1/3", None)])
+def test_iso_texts(text, value):
+    assert parse_iso(text) == value
+
+
+@pytest.mark.parametrize("text,value", [("+1", 1.0), ("-0.3", -0.3), ("0", 0.0), ("+1/3", 1 / 3), ("-2/3 EV", -2 / 3)])
+def test_exposure_compensation_texts(text, value):
+    assert parse_ev(text) == pytest.approx(value)
+
+
+SONY_SHUTTER = ("30", "25", "1", "0.8", "1/2", "1/60", "1/100", "1/125", "1/250", "1/4000", "Bulb")
+VUSB_SHUTTER = ("1.0000s", "0.1000s", "0.0500s", "0.0200s", "0.0100s", "0.0050s", "0.0025s", "0.0012s", "0.0001s")
+
+
+@pytest.mark.parametrize("choices,wanted,found", [
+    (SONY_SHUTTER, 0.01, "1/100"), (SONY_SHUTTER, "0.01 s", "1/100"), (SONY_SHUTTER, "1/100", "1/100"),
+    (SONY_SHUTTER, 0.0167, "1/60"), (SONY_SHUTTER, 0.5, "1/2"), (SONY_SHUTTER, 30, "30"),
+    (SONY_SHUTTER, "bulb", "Bulb"), (VUSB_SHUTTER, 0.01, "0.0100s"), (VUSB_SHUTTER, "1/100", "0.0100s"),
+    (VUSB_SHUTTER, 0.0012, "0.0012s"), (VUSB_SHUTTER, "1 s", "1.0000s")])
+def test_shutter_is_matched_by_value(choices, wanted, found):
+    assert match_choice("shutter_s", SETTINGS["shutter_s"], wanted, choices) == found
+
+
+@pytest.mark.parametrize("choices,wanted,found", [
+    (("f/2.8", "f/4", "f/5.6", "f/8", "f/11"), 8, "f/8"), (("2.8", "4", "5.6", "8"), 8, "8"),
+    (("f/2.8", "f/4", "f/5.6", "f/8"), "f/5.6", "f/5.6"), (("f/2.8", "f/4", "f/5.6", "f/8"), 5.7, "f/5.6"),
+    (("f/7.1", "f/8"), "7.1", "f/7.1")])
+def test_aperture_is_matched_by_value(choices, wanted, found):
+    assert match_choice("aperture", SETTINGS["aperture"], wanted, choices) == found
+
+
+def test_iso_is_matched_exactly_and_words_by_text():
+    choices = ("Auto", "100", "200", "400", "800")
+    spec = SETTINGS["iso"]
+    assert match_choice("iso", spec, 400, choices) == "400"
+    assert match_choice("iso", spec, "ISO 200", choices) == "200"
+    assert match_choice("iso", spec, "auto", choices) == "Auto"
+    with pytest.raises(InputError, match=r"iso: 250 is not offered by the camera \(valid: Auto, 100, 200, 400, 800\)"):
+        match_choice("iso", spec, 250, choices)
+
+
+def test_text_settings_match_ignoring_case_and_spacing_or_one_containing_choice():
+    spec = SETTINGS["format"]
+    choices = ("JPEG Fine", "RAW", "RAW + JPEG Fine", "RAW + JPEG Normal")
+    assert match_choice("format", spec, "raw", choices) == "RAW"
+    assert match_choice("format", spec, "raw+jpegfine", choices) == "RAW + JPEG Fine"
+    assert match_choice("format", spec, "normal", choices) == "RAW + JPEG Normal"     # the one containing it
+    with pytest.raises(InputError, match="not offered"):
+        match_choice("format", spec, "RAW + JPEG", choices)               # two choices contain it: ask
+    with pytest.raises(InputError, match="not offered"):
+        match_choice("format", spec, "TIFF", choices)
+
+
+def test_a_value_between_two_choices_is_refused_with_the_list():
+    with pytest.raises(InputError) as err:
+        match_choice("shutter_s", SETTINGS["shutter_s"], 0.003, VUSB_SHUTTER, "Nikon DSC D750")
+    assert str(err.value) == ("shutter_s: 0.003 s is not offered by Nikon DSC D750 (valid: "
+                              + ", ".join(VUSB_SHUTTER) + ")")
+
+
+class GpError(Exception):
+    """libgphoto2's exception as python-gphoto2 raises it (code + libgphoto2's text)."""
+
     def __init__(self, code):
-        super().__init__(f"[{code}] error")
+        try:
+            import gphoto2
+
+            self.string = gphoto2.gp_result_as_string(code)
+        except ImportError:
+            self.string = "Unknown error"
+        super().__init__(f"[{code}] {self.string}")
         self.code = code
 
 
-class FakeWidget:
-    def __init__(self, value, choices):
-        self.value, self.choices = value, choices
-
-    def get_value(self):
-        return self.value
-
-    def set_value(self, v):
-        self.value = v
-
-    def get_choices(self):
-        return iter(self.choices)
+@pytest.mark.parametrize("code", sorted(_GP_MESSAGES))
+def test_every_known_code_has_an_operator_message(code):
+    text = gp_message(GpError(code), "capture")
+    assert text.startswith("camera: capture failed: ") and text.endswith(f"[gphoto2 {code}]")
+    assert "Traceback" not in text and "GPhoto2Error" not in text and "Unknown error" not in text
 
 
-class FakeConfig:
-    def __init__(self, widgets):
-        self.widgets = widgets
-
-    def get_child_by_name(self, name):
-        if name not in self.widgets:
-            raise FakeError(-2)
-        return self.widgets[name]
+@pytest.mark.parametrize("code,words", [
+    (-3, "the card or the camera's buffer is full"), (-105, "no camera found"), (-53, "busy with another program"),
+    (-7, "USB input/output error"), (-110, "the camera is busy"), (-52, "check the cable"),
+    (-115, "card is full"), (-6, "'PC Remote'"), (-108, "retry the shot")])
+def test_the_messages_say_what_happened(code, words):
+    assert words in gp_message(GpError(code), "capture")
 
 
-class FakeCameraFile:
-    def __init__(self, data=b""):
-        self.data = data
-
-    def save(self, path):
-        with open(path, "wb") as fh:
-            fh.write(self.data)
-
-    def get_data_and_size(self):
-        return self.data
+def test_out_of_memory_is_not_what_the_operator_reads():
+    assert "memory" not in gp_message(GpError(-3), "capture").split("[")[0].lower()
 
 
-class FakeCamera:
-    """Behaves like a Sony body over PTP: capture to RAM as capt0000.arw, download, delete."""
-
-    def __init__(self, world):
-        self.world = world
-
-    def init(self):
-        self.world.calls.append("init")
-        if self.world.init_error:
-            raise FakeError(self.world.init_error)
-
-    def exit(self):
-        self.world.calls.append("exit")
-
-    def get_summary(self):
-        return "Manufacturer: Sony\nModel: ILCE-7RM2\n"
-
-    def get_config(self):
-        return self.world.config
-
-    def set_config(self, config):
-        self.world.calls.append("set_config")
-
-    def capture(self, kind):
-        self.world.calls.append("capture")
-        if self.world.capture_errors:
-            raise FakeError(self.world.capture_errors.pop(0))
-        return types.SimpleNamespace(folder="/", name="capt0000.arw")
-
-    def file_get_info(self, folder, name):
-        return types.SimpleNamespace(file=types.SimpleNamespace(size=self.world.announced_size))
-
-    def file_get(self, folder, name, kind, camera_file):
-        self.world.calls.append(f"file_get {folder}{name}")
-        return FakeCameraFile(self.world.payload)
-
-    def file_delete(self, folder, name):
-        self.world.calls.append(f"file_delete {folder}{name}")
-
-    def capture_preview(self, camera_file):
-        ok, jpg = cv2.imencode(".jpg", np.full((24, 32, 3), (0, 0, 200), np.uint8))
-        return FakeCameraFile(jpg.tobytes())
+def test_a_camera_that_did_not_answer_says_how_long_it_was_waited_for():
+    assert "the camera did not answer within 30 s" in gp_message(GpError(-10), "capture", waited_s=30.2)
+    assert "did not answer in time" in gp_message(GpError(-10), "capture")
 
 
-def make_fake_gp():
-    world = types.SimpleNamespace(calls=[], init_error=None, capture_errors=[], payload=b"ARW" * 1000,
-                                  announced_size=3000,
-                                  config=FakeConfig({"iso": FakeWidget("100", ["100", "200", "400"]),
-                                                     "shutterspeed": FakeWidget("1/2", ["1/250", "1/2", "1"]),
-                                                     "f-number": FakeWidget("f/16", ["f/8", "f/16"]),
-                                                     "capturetarget": FakeWidget("Memory card",
-                                                                                 ["Internal RAM", "Memory card"])}))
-    gp = types.SimpleNamespace(GPhoto2Error=FakeError, GP_CAPTURE_IMAGE=0, GP_FILE_TYPE_NORMAL=1,
-                               Camera=lambda: FakeCamera(world), CameraFile=FakeCameraFile)
-    return gp, world
+def test_libgphoto2s_own_words_are_quoted():
+    text = gp_message(GpError(-1), "capture", camera_said="PTP Store Full")
+    assert text == ("camera: capture failed: the camera reported 'PTP Store Full': check its screen; switch it "
+                    "off and on if it repeats [gphoto2 -1]")
+    text = gp_message(GpError(-3), "capture", camera_said="Camera memorycard ran full during capture.")
+    assert "(libgphoto2: 'Camera memorycard ran full during capture.')" in text
 
 
-def test_one_session_capture_download_rename_delete(tmp_path):
-    gp, world = make_fake_gp()
-    cam = GPhotoCamera(gp)
-    assert isinstance(cam, Camera)
-    cam.connect()
-    cam.connect()                                   # idempotent: still one session
-    assert world.calls.count("init") == 1
-    assert world.config.widgets["capturetarget"].value == "Internal RAM"
-    assert cam.status().model == "ILCE-7RM2"
-    exposed = []
-    r1 = cam.capture(tmp_path / "raw" / "r00_c000", on_exposed=lambda: exposed.append(1))
-    r2 = cam.capture(tmp_path / "raw" / "r00_c001")
-    assert r1.path == tmp_path / "raw" / "r00_c000.arw" and r1.path.read_bytes() == world.payload
-    assert r2.path.name == "r00_c001.arw"
-    assert exposed == [1]
-    assert world.calls.count("init") == 1 and world.calls.count("file_delete /capt0000.arw") == 2
-    assert not list((tmp_path / "raw").glob(".*"))
-    cam.disconnect()
-    assert world.calls[-1] == "exit"
-
-
-def test_incomplete_download_is_refused(tmp_path):
-    gp, world = make_fake_gp()
-    world.announced_size = 5000                     # the camera says more than arrived
-    cam = GPhotoCamera(gp)
-    cam.connect()
-    with pytest.raises(DeviceError, match="incomplete"):
-        cam.capture(tmp_path / "v")
-    assert not list(tmp_path.iterdir())
-
-
-@pytest.mark.parametrize("code,text", [(-105, "PC Remote"), (-53, "another program"), (-52, "cable")])
-def test_connect_errors_say_what_to_do(code, text):
-    gp, world = make_fake_gp()
-    world.init_error = code
-    cam = GPhotoCamera(gp)
-    with pytest.raises(DeviceError, match=text):
-        cam.connect()
-    assert not cam.status().connected
-
-
-def test_busy_camera_message_and_recovery(tmp_path):
-    gp, world = make_fake_gp()
-    world.capture_errors = [-110]
-    cam = GPhotoCamera(gp)
-    cam.connect()
-    with pytest.raises(DeviceError, match="busy"):
-        cam.capture(tmp_path / "a")
-    assert "busy" in cam.status().message
-    assert cam.capture(tmp_path / "a").path.exists()
-    assert cam.status().message == ""
-
-
-def test_settings_map_to_widgets_and_validate_choices():
-    gp, world = make_fake_gp()
-    cam = GPhotoCamera(gp)
-    with pytest.raises(DeviceError, match="not connected"):
-        cam.settings()
-    cam.connect()
-    assert cam.settings()["iso"] == "100"
-    cam.set_setting("iso", 400)
-    assert world.config.widgets["iso"].value == "400"
-    cam.set_setting("shutter_s", 1 / 250)
-    assert world.config.widgets["shutterspeed"].value == "1/250"
-    with pytest.raises(InputError, match="not offered"):
-        cam.set_setting("iso", 123)
-    with pytest.raises(InputError):
-        cam.set_setting("zoom", 2)
-    with pytest.raises(DeviceError, match="no setting"):
-        cam.set_setting("format", "RAW")
-
-
-def test_preview_decodes_to_rgb():
-    gp, _ = make_fake_gp()
-    cam = GPhotoCamera(gp)
-    cam.connect()
-    img = cam.preview()
-    assert img.shape == (24, 32, 3) and img[0, 0, 0] > 150 and img[0, 0, 2] < 50   # red in RGB order
-
-
-def test_real_module_reports_no_camera():
-    """With the real python-gphoto2 and no camera on this machine: the clear 'no camera' message."""
-    pytest.importorskip("gphoto2")
-    cam = GPhotoCamera()
-    try:
-        cam.connect()
-    except DeviceError as exc:
-        assert "no camera found" in str(exc) or "another program" in str(exc)
-    else:
-        cam.disconnect()
-        pytest.skip("a real camera is connected to this machine")
-
-
-def test_gp_message_unknown_code():
-    assert "gphoto2 -999" in gp_message(FakeError(-999), "capture")
+def test_an_unknown_code_still_says_what_to_do():
+    text = gp_message(GpError(-999), "capture")
+    assert "switch the camera off and on, reconnect it and retry" in text and text.endswith("[gphoto2 -999]")
