@@ -245,11 +245,6 @@ class ScanEngine:
         """Seconds spent running so far (paused time excluded)."""
         return self._active_s + (time.monotonic() - self._active_since if self._active_since else 0.0)
 
-    @property
-    def _abort_req(self) -> bool:
-        """Older name of :attr:`aborted` (read-only)."""
-        return self.aborted
-
     def eta_s(self) -> float | None:
         """Seconds left at the pace of this run so far (paused time excluded)."""
         if self.captured_this_run == 0:
@@ -259,8 +254,8 @@ class ScanEngine:
     def _transition(self, trigger: Trigger, message: str | None = None) -> None:
         """Move along :data:`TRANSITIONS` (engine thread only); ``message`` None keeps the current one.
 
-        The rig is given back before a state that does not own it is announced, and taken after
-        one that does."""
+        The rig is given back before a state that does not own it is announced, and taken before
+        one that does (if someone else holds it, the scan pauses naming the holder)."""
         if threading.current_thread() is not self._thread:
             raise RuntimeError(f"scan state changed off the engine thread ({trigger.value})")
         with self._cond:
@@ -269,8 +264,11 @@ class ScanEngine:
             text = self.message if message is None else message
             if new is old and text == self.message:
                 return
+        busy: ScanFault | None = None
         if new not in OWNS_RIG:
             self._release_rig()
+        elif old not in OWNS_RIG and self._lease is None:
+            busy = self._claim_rig()
         with self._cond:
             now = time.monotonic()
             if new is ScanState.RUNNING and self._active_since is None:
@@ -283,15 +281,18 @@ class ScanEngine:
             self._cond.notify_all()
         log.info("scan %s%s", new.value, f": {text}" if text else "")
         self._emit(EventKind.STATE, text, state=new, extra={"scan": self.label})
-        if new in OWNS_RIG and self._lease is None and new is self._state:
-            self._claim_rig()
+        if busy is not None:
+            self._raise_fault(busy)
 
     # -- rig ownership -----------------------------------------------------------------------------
-    def _claim_rig(self) -> None:
+    def _claim_rig(self) -> ScanFault | None:
+        """Take the rig worker's lease; the fault to pause on when someone else holds it."""
         try:
             self._lease = self.rig.claim(self.label, on_stop=self._stop_pressed)
         except DeviceError as exc:
-            self._raise_fault(ScanFault(f"Rig: {_error_text(exc)}. Stop that first, then Resume.", "rig"))
+            text = _error_text(exc)       # "rig: cannot be taken by ...: it is in use by ..."
+            return ScanFault(f"{text[:1].upper()}{text[1:]}. Stop that first, then Resume.", "rig")
+        return None
 
     def _release_rig(self) -> None:
         lease, self._lease = self._lease, None
