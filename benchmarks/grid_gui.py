@@ -23,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from _datasets import captured_dataset  # noqa: E402
+from _qt import spin_until  # noqa: E402
 
 
 def rss_mb() -> float:
@@ -45,7 +46,6 @@ def main() -> int:
         print("building a 101 x 21 dataset with virtual-studio thumbnails…", flush=True)
         captured_dataset(root, 101, 21)
 
-    from PySide6.QtCore import QEventLoop, QTimer
     from PySide6.QtWidgets import QApplication
 
     from lfstudio.dataset import Dataset
@@ -70,19 +70,6 @@ def main() -> int:
         if painted["t"] is None and canvas.rows:
             painted["t"] = time.perf_counter()
     canvas.paintEvent = paint
-
-    def spin_until(cond, timeout_s: float) -> bool:
-        """Run the event loop (idle-waiting, as the application does) until ``cond()`` holds."""
-        loop = QEventLoop()
-        check = QTimer()
-        check.setInterval(20)
-        check.timeout.connect(lambda: loop.quit() if cond() else None)
-        QTimer.singleShot(int(timeout_s * 1000), loop.quit)
-        if not cond():
-            check.start()
-            loop.exec()
-            check.stop()
-        return cond()
 
     rss0 = rss_mb()
     t0 = time.perf_counter()

@@ -33,13 +33,26 @@ def resolve_inside(root: str | Path, relative: str, *, what: str = "file") -> Pa
 
 class InsideChecker:
     """:func:`resolve_inside` for many names at once: the dataset folder and each sub-folder are
-    resolved once; a file is resolved on its own only when it is a symlink (validating 2121 views
-    takes milliseconds instead of seconds)."""
+    resolved once, and listed once for the symlinks in them (the listing says which entries are
+    links, no system call per file); a file is resolved on its own only when it is a symlink
+    (validating 8241 views takes milliseconds, and time linear in the views)."""
 
     def __init__(self, root: str | Path):
         self.root = Path(root).resolve()
         self._root_text = str(self.root)
         self._dirs: dict[str, bool] = {}     # sub-folder -> inside the root after resolving
+        self._links: dict[str, frozenset[str]] = {}   # sub-folder -> names of the symlinks in it
+
+    def _symlinks(self, parent: str) -> frozenset[str]:
+        links = self._links.get(parent)
+        if links is None:
+            try:
+                with os.scandir(os.path.join(self._root_text, parent)) as entries:
+                    links = frozenset(e.name for e in entries if e.is_symlink())
+            except OSError:
+                links = frozenset()
+            self._links[parent] = links
+        return links
 
     def _inside(self, path: str) -> bool:
         return path == self._root_text or path.startswith(self._root_text.rstrip(os.sep) + os.sep)
@@ -55,5 +68,5 @@ class InsideChecker:
             folder = os.path.realpath(os.path.join(self._root_text, parent)) if parent else self._root_text
             inside = self._dirs[parent] = self._inside(folder)
         full = os.path.join(self._root_text, parent, parts[-1])
-        if not inside or (os.path.islink(full) and not self._inside(os.path.realpath(full))):
+        if not inside or (parts[-1] in self._symlinks(parent) and not self._inside(os.path.realpath(full))):
             raise DatasetError(f"{what} {relative!r} points outside the dataset folder {self.root}")

@@ -24,7 +24,7 @@ from lfstudio.dataset.atomic import is_temporary
 
 JOURNAL_NAME = "journal.jsonl"
 #: folders of a dataset that hold view files and may hold crash leftovers
-DATA_FOLDERS = ("", "raw", "thumbs", "processed")
+DATA_FOLDERS = ("", "raw", "thumbs", "thumbs/generated", "processed")
 
 
 def read_journal(path: str | os.PathLike) -> tuple[list[dict[str, Any]], list[str]]:

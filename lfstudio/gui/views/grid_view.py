@@ -40,10 +40,10 @@ MAX_RECENT = 8
 
 def _file_thumbnail(path: str, width_px: int) -> QImage:
     from lfstudio.gui.imageutil import rgb_to_qimage
-    from lfstudio.scan.thumbs import thumbnail_array
+    from lfstudio.scan.thumbs import cached_thumbnail
 
     try:
-        bgr = thumbnail_array(path, width_px)
+        bgr = cached_thumbnail(path, width_px)
     except Exception:  # an unreadable file stays a coloured cell; the dataset check reports it
         return QImage()
     return QImage() if bgr is None else rgb_to_qimage(np.ascontiguousarray(bgr[..., ::-1]))
