@@ -105,8 +105,9 @@ def test_rig_command_refused_while_a_scan_runs(sim_rig_port, start_cli, run_cli,
 
 def test_two_scans_of_one_dataset_the_second_is_refused_and_touches_nothing(start_cli, run_cli, tmp_path):
     out = tmp_path / "ds"
-    first = start_cli("scan", "--rig", "sim", "--camera", "sim", "--grid", "6x3", "--spacing-mm", "4x6",
-                      "--out", out, "--time-scale", "1", "--sim-width-px", "64")
+    # 30 views of ~1 s: the first scan still runs while the others are tried (it is stopped after that)
+    first = start_cli("scan", "--rig", "sim", "--camera", "sim", "--grid", "10x3", "--spacing-mm", "4x6",
+                      "--out", out, "--time-scale", "0.3", "--sim-width-px", "64")
     wait_for_views(first, out, 2)
     before = files_of(out)
     lock_text = (out / "dataset.lock").read_text()
@@ -125,7 +126,7 @@ def test_two_scans_of_one_dataset_the_second_is_refused_and_touches_nothing(star
     r = run_cli("scan", "--out", out, "--resume", *FAST)
     assert r.returncode == 0, r.stderr
     ds = Dataset.open(out)
-    assert ds.status_counts()["done"] == 18 and ds.verify_files() == []
+    assert ds.status_counts()["done"] == 30 and ds.verify_files() == []
 
 
 def partial_dataset(root: Path, rig: str, camera: str, cells: int, **request) -> Dataset:
