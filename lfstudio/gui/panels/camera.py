@@ -425,11 +425,14 @@ class CameraPanel(QWidget):
         if self.device is None:
             return
         self._save_settings()
+        refused: list[str] = []        # one line per setting the camera refused (kept, not covered by "applied")
         for name, value in (("iso", int(self.iso.currentText())), ("shutter_s", self.shutter.value()),
                             ("aperture", self.aperture.value())):
             self.device.run("set_setting", name, value, timeout_s=20,
-                            on_error=lambda m, n=name: self._show(f"{n}: {m}", "error"))
-        self.device.run("settings", on_result=lambda v: (self._show_settings(v), self._show("Settings applied", "ok")),
+                            on_error=lambda m, n=name: (refused.append(m if m.startswith(n) else f"{n}: {m}"),
+                                                        self._show("\n".join(refused), "error")))
+        self.device.run("settings", on_result=lambda v: (self._show_settings(v), None if refused else
+                                                         self._show("Settings applied", "ok")),
                         on_error=lambda m: None)
 
     def take_test_shot(self) -> None:
