@@ -24,6 +24,7 @@ COMMANDS: list[str] = [
     "scan",
     "info",
     "calibrate",
+    "check",
     "simulate_calibration",
     "process",
     "camera",

@@ -23,11 +23,23 @@ Conventions (also in ``docs/conventions.md``; the calibration relies on them):
 Rendering composites the layers back to front, each warped with its plane-induced homography
 (``cv2.warpPerspective`` into the layer's bounding box, premultiplied alpha). Output: float32 linear
 RGB in [0, 1] (1 = sensor clipping). Deterministic for a seed.
+
+**Fault injection** (ground truth for the dataset quality check, :mod:`lfstudio.quality`): a
+:class:`ViewFault` spoils one view of a grid the way a real capture goes wrong —
+
+* ``blur``: motion blur of ``blur_px`` full-resolution pixels along ``blur_angle_deg`` (0 =
+  horizontal: the carriage still vibrating, a too-short settle time), :func:`motion_blur`;
+* ``luminance``: the light changed by the factor ``gain`` for this shot (a flash or lamp step);
+* ``displaced``: the camera stood ``offset_mm`` away from where the rig reported it;
+* ``skipped``: the rig skipped the move, so the view shows the previous view's position (in
+  capture order) while the manifest says it moved.
+
+:func:`parse_fault` reads the command-line form ``KIND:ROW,COLUMN[:VALUE]``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import cv2
@@ -59,6 +71,113 @@ def demo_studio(**overrides: Any) -> "VirtualStudio":
     region 400 x 120 mm from the origin) seen with a known orientation error and principal-point
     offset (:data:`DEMO_ROTATION_DEG`, :data:`DEMO_PP_OFFSET_PX`)."""
     return VirtualStudio(**demo_studio_kwargs(**overrides))
+
+
+FAULT_KINDS = ("blur", "luminance", "displaced", "skipped")
+
+
+@dataclass(frozen=True)
+class ViewFault:
+    """A defect injected into the view at (``row``, ``column``); see the module docstring."""
+
+    kind: str
+    row: int
+    column: int
+    blur_px: float = 0.0                       # blur: length of the motion, full-resolution pixels
+    blur_angle_deg: float = 0.0                # blur: direction (0 = along the rows)
+    gain: float = 1.0                          # luminance: light factor of this shot
+    offset_mm: tuple[float, float] = (0.0, 0.0)  # displaced: true minus reported position
+
+    def __post_init__(self) -> None:
+        if self.kind not in FAULT_KINDS:
+            raise ValueError(f"unknown fault kind {self.kind!r}; one of {', '.join(FAULT_KINDS)}")
+        if self.row < 0 or self.column < 0:
+            raise ValueError(f"fault at row {self.row}, column {self.column}: must be non-negative")
+        if self.kind == "blur" and not self.blur_px > 0:
+            raise ValueError(f"a blur fault needs a positive length in pixels, got {self.blur_px}")
+        if self.kind == "luminance" and not (self.gain > 0 and self.gain != 1.0):
+            raise ValueError(f"a luminance fault needs a positive factor other than 1, got {self.gain}")
+
+    @property
+    def cell(self) -> tuple[int, int]:
+        return self.row, self.column
+
+    def describe(self) -> dict[str, Any]:
+        """JSON form (``ground_truth.json``: ``faults``): the kind, the view and the fault's own figures."""
+        out: dict[str, Any] = {"kind": self.kind, "row": self.row, "column": self.column}
+        keep = {"blur": ("blur_px", "blur_angle_deg"), "luminance": ("gain",), "displaced": ("offset_mm",),
+                "skipped": ()}[self.kind]
+        out.update({k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items() if k in keep})
+        return out
+
+    def spoil_image(self, rgb: np.ndarray) -> np.ndarray:
+        """The rendered linear image as this fault leaves it (blur, luminance); others unchanged."""
+        if self.kind == "blur":
+            return motion_blur(rgb, self.blur_px, self.blur_angle_deg)
+        if self.kind == "luminance":
+            return rgb * np.float32(self.gain)
+        return rgb
+
+    def true_position_mm(self, intended_mm: tuple[float, float],
+                         previous_mm: tuple[float, float] | None) -> tuple[float, float]:
+        """Where the camera really stood: ``intended_mm`` (the reported position plus the rig's
+        random error) moved by this fault; ``previous_mm``: the previous shot's true position."""
+        if self.kind == "displaced":
+            return intended_mm[0] + self.offset_mm[0], intended_mm[1] + self.offset_mm[1]
+        if self.kind == "skipped":
+            if previous_mm is None:
+                raise ValueError(f"view row {self.row}, column {self.column} is the first shot: the rig "
+                                 "cannot skip the move to it")
+            return previous_mm
+        return intended_mm
+
+
+def parse_fault(text: str) -> ViewFault:
+    """``KIND:ROW,COLUMN[:VALUE]``: ``blur:1,2:6`` (6 px), ``blur:1,2:6,90`` (vertical),
+    ``luminance:0,3:1.3``, ``displaced:2,2:1.0,0`` (mm), ``skipped:1,1``. ValueError names the fix."""
+    parts = text.strip().split(":")
+    usage = ("KIND:ROW,COLUMN[:VALUE], e.g. blur:1,2:6  luminance:0,3:1.3  displaced:2,2:1.0,0  skipped:1,1 "
+             f"(kinds: {', '.join(FAULT_KINDS)})")
+    try:
+        kind = parts[0].strip().lower()
+        row, column = (int(v) for v in parts[1].split(","))
+        values = [float(v) for v in parts[2].split(",")] if len(parts) > 2 and parts[2].strip() else []
+        if len(parts) > 3:
+            raise ValueError
+    except (IndexError, ValueError):
+        raise ValueError(f"cannot read fault {text!r}; write {usage}") from None
+    need = {"blur": (1, 2), "luminance": (1, 1), "displaced": (1, 2), "skipped": (0, 0)}.get(kind)
+    if need is None:
+        raise ValueError(f"unknown fault kind {kind!r} in {text!r}; write {usage}")
+    if not need[0] <= len(values) <= need[1]:
+        raise ValueError(f"fault {text!r}: {kind} takes {need[0]}–{need[1]} number(s) after the view; write {usage}")
+    if kind == "blur":
+        return ViewFault("blur", row, column, blur_px=values[0], blur_angle_deg=values[1] if len(values) > 1 else 0.0)
+    if kind == "luminance":
+        return ViewFault("luminance", row, column, gain=values[0])
+    if kind == "displaced":
+        return ViewFault("displaced", row, column, offset_mm=(values[0], values[1] if len(values) > 1 else 0.0))
+    return ViewFault("skipped", row, column)
+
+
+def motion_blur(rgb: np.ndarray, length_px: float, angle_deg: float = 0.0) -> np.ndarray:
+    """``rgb`` smeared by a straight motion of ``length_px`` pixels along ``angle_deg`` (box
+    profile, fractional ends weighted; the image size and mean brightness are kept)."""
+    length = float(length_px)
+    if length <= 0:
+        return rgb
+    half = int(np.ceil(length / 2.0))
+    size = 2 * half + 1
+    x = np.arange(size, dtype=np.float64) - half
+    # weight of each pixel = its overlap with the segment [-length/2, length/2]
+    line = np.clip(np.minimum(x + 0.5, length / 2.0) - np.maximum(x - 0.5, -length / 2.0), 0.0, 1.0)
+    kernel = np.zeros((size, size), np.float32)
+    kernel[half, :] = line
+    if angle_deg % 180.0:
+        rot = cv2.getRotationMatrix2D((float(half), float(half)), float(angle_deg), 1.0)
+        kernel = cv2.warpAffine(kernel, rot, (size, size), flags=cv2.INTER_LINEAR)
+    kernel /= kernel.sum()
+    return cv2.filter2D(np.asarray(rgb, np.float32), -1, kernel, borderType=cv2.BORDER_REFLECT_101)
 
 
 def rotation_matrix(rotation_deg: tuple[float, float, float] | list[float]) -> np.ndarray:

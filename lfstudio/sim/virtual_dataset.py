@@ -4,6 +4,10 @@ The result is a real :class:`lfstudio.dataset.Dataset` folder (``raw/r00_c000.dn
 linear PNG per view, every view ``done``) plus ``ground_truth.json`` at its root with the true
 orientation, intrinsics, rectifying homography, per-view true positions and layer depths (see
 :mod:`lfstudio.sim.studio` for the conventions). Used by tests, benchmarks and demos.
+
+``faults`` (:class:`lfstudio.sim.studio.ViewFault`) spoil chosen views (blur, luminance step,
+displacement, a skipped move); ``ground_truth.json`` lists them under ``faults`` and each view's
+``true_mm`` is where the camera really stood.
 """
 
 from __future__ import annotations
@@ -13,7 +17,7 @@ import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import cv2
 import numpy as np
@@ -26,7 +30,7 @@ from lfstudio.errors import InputError
 from lfstudio.jobs import CancelToken
 from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
 from lfstudio.sim.sensor import SensorModel
-from lfstudio.sim.studio import DEFAULT_WIDTH_PX, VirtualStudio
+from lfstudio.sim.studio import DEFAULT_WIDTH_PX, ViewFault, VirtualStudio
 
 GROUND_TRUTH_NAME = "ground_truth.json"
 BLACK_LEVEL = 512
@@ -81,6 +85,9 @@ def _init_worker(studio_kwargs: dict[str, Any]) -> None:
 
 def _render_and_write(studio: VirtualStudio, sensor: SensorModel, job: dict[str, Any]) -> dict[str, Any]:
     rgb = studio.render(*job["true_mm"])
+    fault: ViewFault | None = job.get("fault")
+    if fault is not None:
+        rgb = fault.spoil_image(rgb)
     recorded, gain = sensor.apply(rgb, job["shot"])
     path = Path(job["path"])
     write_view_file(path, recorded, job["fmt"], job["exposure_s"])
@@ -105,6 +112,7 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
                          flicker: float = 0.0, vignetting: float = 0.0, noise: float = 0.0,
                          exposure_s: float = 0.5, workers: int = 1,
                          studio: VirtualStudio | None = None,
+                         faults: Sequence[ViewFault] = (),
                          progress: Callable[[int, int, str], None] | None = None,
                          cancel: CancelToken | None = None) -> Dataset:
     """Render a ``columns`` x ``rows`` grid into a new dataset folder at ``root`` and return it.
@@ -113,6 +121,7 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
     and rendered at that position plus Gaussian noise of ``position_noise_um`` (x, y) sigma.
     ``reported_mm`` equals the commanded position (what a controller reports). ``workers`` > 1
     renders in that many processes. ``studio`` (optional) overrides the scene parameters.
+    ``faults``: defects injected into chosen views (at most one per view; see the module docstring).
     """
     fmt = fmt.lower()
     if fmt not in ("dng", "png"):
@@ -122,7 +131,15 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
     sx, sy = float(spacing_mm[0]), float(spacing_mm[1])
     ox, oy = float(origin_mm[0]), float(origin_mm[1])
     noise_mm = (position_noise_um[0] / 1000.0, position_noise_um[1] / 1000.0)
-    margin_mm = 4 * max(noise_mm) + 0.5
+    fault_at: dict[tuple[int, int], ViewFault] = {}
+    for fault in faults:
+        if not (0 <= fault.row < rows and 0 <= fault.column < columns):
+            raise InputError("faults", f"fault {fault.kind} at row {fault.row}, column {fault.column} is outside "
+                                       f"the {columns} x {rows} grid")
+        if fault.cell in fault_at:
+            raise InputError("faults", f"two faults at row {fault.row}, column {fault.column}", "one per view")
+        fault_at[fault.cell] = fault
+    margin_mm = 4 * max(noise_mm) + 0.5 + max([abs(v) for f in faults for v in f.offset_mm], default=0.0)
     region = (ox - margin_mm, ox + (columns - 1) * sx + margin_mm, oy - margin_mm, oy + (rows - 1) * sy + margin_mm)
     studio_kwargs = dict(width_px=width_px, focal_length_mm=focal_length_mm, sensor_width_mm=sensor_width_mm,
                          near_m=near_m, far_m=far_m, rotation_deg=tuple(rotation_deg),
@@ -144,9 +161,15 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
         commanded = (ox + c * sx, oy + r * sy)
         true = (commanded[0] + noise_mm[0] * rng.standard_normal(),
                 commanded[1] + noise_mm[1] * rng.standard_normal())
+        fault = fault_at.get((r, c))
+        if fault is not None:
+            try:
+                true = fault.true_position_mm(true, jobs[-1]["true_mm"] if jobs else None)
+            except ValueError as exc:
+                raise InputError("faults", str(exc), "a view captured after another one") from None
         rel = f"raw/{view_stem(r, c)}{suffix}"
         jobs.append({"row": r, "column": c, "shot": shot, "commanded_mm": commanded, "true_mm": true,
-                     "rel": rel, "path": str(root / rel), "fmt": fmt, "exposure_s": exposure_s})
+                     "rel": rel, "path": str(root / rel), "fmt": fmt, "exposure_s": exposure_s, "fault": fault})
 
     (root / "raw").mkdir(parents=True, exist_ok=True)
     total = len(jobs)
@@ -201,6 +224,7 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
         "sensor": {"flicker": flicker, "vignetting": vignetting, "noise": noise,
                    "full_well_e": sensor.full_well_e},
         "position_noise_um": list(position_noise_um),
+        "faults": [f.describe() for f in faults],
         "views": [{"row": j["row"], "column": j["column"], "shot": j["shot"], "file": j["rel"],
                    "commanded_mm": list(j["commanded_mm"]), "true_mm": list(j["true_mm"]), "gain": res["gain"]}
                   for j, res in zip(jobs, results)],

@@ -1,0 +1,576 @@
+"""The dataset quality check: judge every view from its pixels and write ``quality.json`` + pictures.
+
+``check_dataset(dataset, ...)`` is a long job (``progress``, ``cancel``). It decodes each view once,
+in row-major order on a few threads (:mod:`lfstudio.quality.measure`), tracks its corners into the
+neighbours decoded before it (:mod:`lfstudio.quality.tracks`), keeps only two rows of working
+images in memory, then
+
+* compares each view's focus and brightness with its 8 neighbours (sharpness, exposure) and
+  reports the de-flicker gain against the processing profile's reference view;
+* solves all tracks for the true position of every view and the depth of every track
+  (:mod:`lfstudio.quality.positions`): the position error against the manifest (after the best
+  global affine fit, outliers ignored), the per-view track residual after rectification, the rig's
+  measured repeatability, and the scene's depth and neighbour-disparity range against the plan and
+  the ``disp_min``/``disp_max`` the exports write;
+* computes the disparity map of the centre view (:mod:`lfstudio.quality.disparity`).
+
+It judges the pixels alone: checksums are not consulted, so a view edited after capture is judged by
+what it now shows. :class:`GridCheck` holds the incremental state and is shared with the scan-time
+checker (:mod:`lfstudio.quality.live`). The document layout is described in ``docs/quality.md``.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import logging
+import math
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
+
+import numpy as np
+
+from lfstudio.dataset.atomic import atomic_write_json
+from lfstudio.dataset.paths import view_stem
+from lfstudio.errors import DatasetError
+from lfstudio.jobs import CancelToken, Progress, no_progress
+from lfstudio.quality import verdicts
+from lfstudio.quality.disparity import DisparityMap, disparity_map, partner_cells, steps_for
+from lfstudio.quality.measure import DEFAULT_WORK_WIDTH_PX, ViewMeasures, measure_view, sharpness_ratio, \
+    exposure_ratio, deflicker_gain
+from lfstudio.quality.positions import fit_tracks, robust_affine, solve_positions
+from lfstudio.quality.tracks import WINDOW, Star, star_neighbours, to_observations, track_star
+from lfstudio.quality.verdicts import Thresholds
+
+log = logging.getLogger(__name__)
+
+Cell = tuple[int, int]
+QUALITY_NAME = "quality.json"
+PICTURES_FOLDER = "quality"
+FORMAT = "lfstudio-quality"
+VERSION = 1
+#: the 8 views around a view: the ones its focus and brightness are compared with
+RING: tuple[Cell, ...] = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0))
+MIN_TRACK_VIEWS = 3          # tracks seen in fewer views do not count for the depth range
+RANGE_SIGMAS = 1.5           # see depth_range
+SOLVE_TRACKS_PER_VIEW = 250  # tracks per view the position solve uses (all of them give the depths)
+
+
+@dataclass
+class Geometry:
+    """What the manifest says about the grid: commanded positions, spacing, optics, the plan."""
+
+    columns: int
+    rows: int
+    spacing_mm: tuple[float, float]
+    commanded_mm: dict[Cell, tuple[float, float]]
+    focal_length_sensor_px: float | None      # for an image as wide as the sensor (sensor_width_px)
+    sensor_width_px: float | None
+    near_m: float | None
+    far_m: float | None
+    repeatability_um: tuple[float, float]
+
+    @classmethod
+    def from_dataset(cls, ds) -> "Geometry":
+        grid = ds.grid
+        cols, rows = int(grid["columns"]), int(grid["rows"])
+        spacing = tuple(float(v) for v in (grid.get("spacing_mm") or (1.0, 1.0)))
+        origin = (ds.manifest.get("rig") or {}).get("origin_mm") or (0.0, 0.0)
+        commanded: dict[Cell, tuple[float, float]] = {}
+        for v in ds.views:
+            cell = (int(v["row"]), int(v["column"]))
+            cmd = v.get("commanded_mm")
+            commanded[cell] = (float(cmd[0]), float(cmd[1])) if cmd else \
+                (float(origin[0]) + cell[1] * spacing[0], float(origin[1]) + cell[0] * spacing[1])
+        try:
+            f_sensor = float(ds.focal_length_px())
+        except DatasetError:
+            f_sensor = None
+        sensor = (ds.camera or {}).get("sensor_px") if isinstance(ds.camera, dict) else None
+        sensor_w = float(sensor[0]) if isinstance(sensor, (list, tuple)) and sensor else None
+        plan = ds.manifest.get("plan") or {}
+        near, far = plan.get("near_m"), plan.get("far_m")
+        near = float(near) if isinstance(near, (int, float)) and near > 0 else None
+        far = float(far) if isinstance(far, (int, float)) and far > 0 else None
+        rep = plan.get("repeatability_um")
+        rep = (float(rep[0]), float(rep[1])) if isinstance(rep, (list, tuple)) and len(rep) == 2 else \
+            verdicts.DEFAULT_REPEATABILITY_UM
+        return cls(cols, rows, (spacing[0], spacing[1]), commanded, f_sensor, sensor_w, near, far, rep)
+
+    def focal_length_px(self, image_width_px: float) -> float | None:
+        """The focal length in pixels of a capture ``image_width_px`` wide (None: the manifest lacks it)."""
+        if self.focal_length_sensor_px is None:
+            return None
+        return self.focal_length_sensor_px * (image_width_px / self.sensor_width_px if self.sensor_width_px else 1.0)
+
+    def guess_depth_m(self) -> float:
+        if self.near_m and self.far_m:
+            return 2.0 / (1.0 / self.near_m + 1.0 / self.far_m)
+        return self.near_m or self.far_m or 1e6
+
+
+@dataclass
+class PositionFit:
+    """Positions, errors and residuals of a set of views, from one solve."""
+
+    cells: list[Cell]
+    measured_mm: dict[Cell, tuple[float, float]]
+    error_mm: dict[Cell, tuple[float, float]]
+    inlier: dict[Cell, bool]                       # not an outlier of the global affine fit
+    residual_rms_px: dict[Cell, float]             # full-resolution px
+    tracks: dict[Cell, int]
+    s_px_per_mm: np.ndarray                        # working px per mm, per track (NaN: undetermined)
+    s_sigma: np.ndarray                            # its standard error
+    track_views: np.ndarray                        # how many views see each track
+    sigma_px: float
+
+
+class GridCheck:
+    """Measured views of one dataset, their neighbour tracks, and the judgements built from them."""
+
+    def __init__(self, geometry: Geometry, thresholds: Thresholds | None = None, *,
+                 homography_full: np.ndarray | None = None, calibration_size_px: Sequence[int] | None = None):
+        self.geometry = geometry
+        self.thresholds = thresholds or Thresholds()
+        self.homography_full = homography_full
+        self.calibration_size_px = tuple(calibration_size_px) if calibration_size_px is not None else None
+        self.measures: dict[Cell, ViewMeasures] = {}
+        self.stars: dict[Cell, Star] = {}
+        self._h_work: dict[tuple[int, int], np.ndarray | None] = {}
+
+    # -- geometry of the working images ---------------------------------------------------------------
+    def homography_work(self, m: ViewMeasures) -> np.ndarray | None:
+        """The rectifying homography for ``m``'s working image (None without a calibration)."""
+        if self.homography_full is None or m.grey8 is None:
+            return None
+        size = m.work_size_px
+        if size not in self._h_work:
+            from lfstudio.calibration.model import pixel_scale_matrix
+            full = self.calibration_size_px or m.full_size_px
+            # calibration pixels → this capture's full pixels → working pixels
+            S_cal = pixel_scale_matrix(m.full_size_px[0] / float(full[0]))
+            S_work = pixel_scale_matrix(1.0 / m.work_scale)
+            to_work = S_work @ S_cal
+            self._h_work[size] = to_work @ self.homography_full @ np.linalg.inv(to_work)
+        return self._h_work[size]
+
+    def focal_length_work_px(self, m: ViewMeasures) -> float | None:
+        f = self.geometry.focal_length_px(m.full_size_px[0])
+        return None if f is None else f / m.work_scale
+
+    # -- incremental ---------------------------------------------------------------------------------
+    def add(self, m: ViewMeasures, known: Callable[[Cell], bool] | None = None) -> Star:
+        """Store ``m`` and track it into the neighbours ``known`` accepts (default: every stored one
+        that still has its working image)."""
+        self.measures[m.cell] = m
+        ok = known or (lambda c: c in self.measures and c != m.cell)
+        nbs = [c for c in star_neighbours(m.cell, lambda c: ok(c) and c in self.measures
+                                          and self.measures[c].grey8 is not None)]
+        f_work = self.focal_length_work_px(m) or float(m.work_size_px[0])
+        here = self.geometry.commanded_mm.get(m.cell, (0.0, 0.0))
+        offsets = [tuple(np.subtract(self.geometry.commanded_mm.get(c, here), here)) for c in nbs]
+        star = track_star(m, [self.measures[c] for c in nbs], offsets, f_work, self.geometry.guess_depth_m())
+        self.stars[m.cell] = star
+        return star
+
+    def drop_images(self, keep: Callable[[Cell], bool]) -> None:
+        for cell, m in self.measures.items():
+            if m.grey8 is not None and not keep(cell):
+                m.grey8 = None
+
+    def ring(self, cell: Cell) -> list[ViewMeasures]:
+        r, c = cell
+        return [self.measures[(r + dr, c + dc)] for dr, dc in RING if (r + dr, c + dc) in self.measures]
+
+    def relative(self, cell: Cell) -> tuple[float | None, float | None]:
+        """(sharpness ratio, exposure ratio) of ``cell`` against its measured ring."""
+        m = self.measures[cell]
+        ring = self.ring(cell)
+        return sharpness_ratio(m, ring), exposure_ratio(m, ring)
+
+    # -- positions -----------------------------------------------------------------------------------
+    def solve(self, cells: Iterable[Cell] | None = None, fixed: Iterable[Cell] = (),
+              known_mm: dict[Cell, tuple[float, float]] | None = None) -> PositionFit:
+        """Solve the positions of ``cells`` (default: all measured) from the stars among them.
+
+        ``fixed`` views keep their ``known_mm`` position (default: the commanded one)."""
+        cells = sorted(self.measures if cells is None else (c for c in cells if c in self.measures))
+        index = {c: i for i, c in enumerate(cells)}
+        H = next((self.homography_work(self.measures[c]) for c in cells if self.measures[c].grey8 is not None),
+                 next(iter(self._h_work.values()), None))
+        stars = [self.stars[c] for c in cells if c in self.stars]
+        obs = to_observations(stars, index, H)
+        few = to_observations(stars, index, H, max_per_star=SOLVE_TRACKS_PER_VIEW)
+        known = known_mm or {}
+        initial = np.array([known.get(c, self.geometry.commanded_mm.get(c, (0.0, 0.0))) for c in cells],
+                           float).reshape(-1, 2)
+        fixed_set = set(fixed)
+        sol = solve_positions(few, initial, fixed=np.array([c in fixed_set for c in cells], bool))
+        tf = fit_tracks(obs, sol.positions_mm, sol.sigma_px)
+        commanded = np.array([self.geometry.commanded_mm.get(c, (0.0, 0.0)) for c in cells], float).reshape(-1, 2)
+        measured = {c: (float(sol.positions_mm[i, 0]), float(sol.positions_mm[i, 1])) for c, i in index.items()}
+        observed = np.asarray(sol.observed, bool) & ~np.array([c in fixed_set for c in cells], bool)
+        errors: dict[Cell, tuple[float, float]] = {}
+        inlier: dict[Cell, bool] = {}
+        if observed.any():
+            A, w = robust_affine(commanded, sol.positions_mm, use=np.asarray(sol.observed, bool))
+            err = sol.positions_mm - np.column_stack([commanded, np.ones(len(cells))]) @ A.T
+            for c, i in index.items():
+                if observed[i]:
+                    errors[c] = (float(err[i, 0]), float(err[i, 1]))
+                    inlier[c] = bool(w[i] > 0)
+        residual: dict[Cell, float] = {}
+        tracks: dict[Cell, int] = {}
+        if obs.count:
+            # robust RMS per view: a mismatched point counts at 3 sigma, not at its full size
+            rn = np.minimum(np.hypot(tf.residual_px[:, 0], tf.residual_px[:, 1]), 3.0 * sol.sigma_px)
+            used = tf.weight > 0
+            n = np.bincount(obs.view[used], minlength=len(cells))
+            ss = np.bincount(obs.view[used], rn[used] ** 2, minlength=len(cells))
+            for c, i in index.items():
+                if n[i]:
+                    residual[c] = float(np.sqrt(ss[i] / n[i])) * self.measures[c].work_scale
+                    tracks[c] = int(n[i])
+        return PositionFit(cells, measured, errors, inlier, residual, tracks, tf.s_px_per_mm, tf.s_sigma,
+                           tf.views, float(sol.sigma_px))
+
+
+# -- the whole-dataset check --------------------------------------------------------------------------
+@dataclass
+class QualityReport:
+    document: dict[str, Any]
+    disparity: DisparityMap | None = None
+    track_disparity_px: np.ndarray = field(default_factory=lambda: np.zeros(0))   # full-res px per step
+    path: Path | None = None
+
+    @property
+    def views(self) -> list[dict[str, Any]]:
+        return self.document["views"]
+
+    def flagged(self, verdict: str | None = None) -> list[Cell]:
+        """Views whose verdict is ``verdict`` (default: warn or fail)."""
+        want = {verdict} if verdict else {verdicts.WARN, verdicts.FAIL}
+        return [(v["row"], v["column"]) for v in self.views if v["verdict"] in want]
+
+
+def calibration_homography(dataset) -> tuple[np.ndarray | None, list[int] | None, dict[str, Any] | None]:
+    """The dataset's rectifying homography (full resolution) and its image size, or Nones."""
+    from lfstudio.calibration.calibrate import homography_for, load_calibration
+
+    doc = load_calibration(dataset)
+    if not doc:
+        return None, None, None
+    try:
+        return homography_for(doc), [int(v) for v in doc["image_size_px"]], doc
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DatasetError(f"{Path(dataset.root) / 'calibration.json'}: incomplete ({exc}); run "
+                           "'lfstudio calibrate' again") from None
+
+
+def choose_views(dataset, views: str | Sequence[Cell] | None) -> tuple[list[Cell], list[Cell]]:
+    """(views to judge, views to decode: those plus the neighbours they are compared with)."""
+    done = sorted((int(v["row"]), int(v["column"])) for v in dataset.views
+                  if v.get("status") == "done" and v.get("file"))
+    if views is None or (isinstance(views, str) and views.strip().lower() in ("", "all")):
+        chosen = done
+    elif isinstance(views, str):
+        from lfstudio.calibration.pairs import parse_views
+        chosen = parse_views(views, int(dataset.grid["columns"]), int(dataset.grid["rows"]), done)
+    else:
+        have = set(done)
+        chosen = sorted({(int(r), int(c)) for r, c in views if (int(r), int(c)) in have})
+    have = set(done)
+    around = set(chosen)
+    for r, c in chosen:
+        around |= {(r + dr, c + dc) for dr, dc in set(WINDOW) | set(RING) if (r + dr, c + dc) in have}
+    return chosen, sorted(around)
+
+
+def centre_cell(cells: Iterable[Cell], columns: int, rows: int) -> Cell | None:
+    cells = list(cells)
+    if not cells:
+        return None
+    r0, c0 = (rows - 1) / 2.0, (columns - 1) / 2.0
+    return min(cells, key=lambda v: ((v[0] - r0) ** 2 + (v[1] - c0) ** 2, v))
+
+
+def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresholds: Thresholds | None = None,
+                  work_width_px: int = DEFAULT_WORK_WIDTH_PX, threads: int = 2, disparity: bool = True,
+                  write: bool = True, progress: Progress = no_progress,
+                  cancel: CancelToken | None = None) -> QualityReport:
+    """Check ``dataset`` (an open :class:`lfstudio.dataset.Dataset`); write ``quality.json`` and the
+    pictures into it unless ``write`` is False. ``views``: ``None``/``"all"``, a view list spec as
+    ``lfstudio calibrate --views`` reads it, or (row, column) pairs."""
+    t_start, c_start = time.perf_counter(), time.process_time()
+    thresholds = thresholds or Thresholds()
+    geometry = Geometry.from_dataset(dataset)
+    chosen, decode = choose_views(dataset, views)
+    if not chosen:
+        raise DatasetError(f"{dataset.root}: no captured views to check; scan first")
+    H_full, cal_size, cal_doc = calibration_homography(dataset)
+    grid = GridCheck(geometry, thresholds, homography_full=H_full, calibration_size_px=cal_size)
+
+    def check_cancel() -> None:
+        if cancel is not None:
+            cancel.check()
+
+    # the de-flicker reference of the processing profile
+    from lfstudio.processing.pipeline import reference_view
+    from lfstudio.processing.profile import Profile
+
+    profile = Profile.for_dataset(dataset.root)
+    try:
+        ref = reference_view(dataset, profile)
+        ref_cell: Cell | None = (int(ref["row"]), int(ref["column"]))
+    except Exception:  # a profile naming a view that is not there: no gain, the check still runs
+        ref_cell = None
+    centre = centre_cell(decode, geometry.columns, geometry.rows) if disparity else None
+    keep_forever: set[Cell] = set()
+    if centre is not None:
+        keep_forever = {centre} | {c for c, _, _ in partner_cells(centre, set(decode), geometry.columns,
+                                                                  geometry.rows, 4, 4)}
+    total = len(decode) + 3
+    done_n = 0
+    progress(0, total, "reading views")
+    paths = {(int(v["row"]), int(v["column"])): dataset.path_of(v) for v in dataset.views
+             if (int(v["row"]), int(v["column"])) in set(decode)}
+
+    def measure(cell: Cell) -> ViewMeasures:
+        check_cancel()
+        return measure_view(paths[cell], *cell, work_width_px=work_width_px)
+
+    ref_measures: ViewMeasures | None = None
+    gains: dict[Cell, float] = {}
+    rows = sorted({r for r, _ in decode})
+    with ThreadPoolExecutor(max_workers=max(1, threads), thread_name_prefix="quality") as pool:
+        if ref_cell is not None and ref_cell in paths:
+            ref_measures = measure(ref_cell)
+        for r in rows:
+            row_cells = [c for c in decode if c[0] == r]
+            futures = [pool.submit(measure, c) for c in row_cells]
+            try:
+                measured = [f.result() for f in futures]
+            except BaseException:
+                for f in futures:
+                    f.cancel()
+                raise
+            for m in measured:
+                grid.measures[m.cell] = m
+                if ref_measures is not None:
+                    gains[m.cell] = deflicker_gain(ref_measures, m, profile.deflicker)
+                m.small_luminance = None
+            # stars: into neighbours earlier in row-major order
+            order = {c: i for i, c in enumerate(sorted(grid.measures))}
+
+            def star(m: ViewMeasures) -> Star:
+                check_cancel()
+                return grid.add(m, known=lambda c, k=m.cell: c in order and order[c] < order[k])
+
+            list(pool.map(star, measured))
+            grid.drop_images(lambda c, r=r: c[0] >= r or c in keep_forever)
+            done_n += len(measured)
+            progress(done_n, total, f"row {r}: {len(measured)} views read and tracked")
+    check_cancel()
+    progress(done_n, total, "solving the positions")
+    fit = grid.solve(decode)
+    done_n += 1
+    check_cancel()
+
+    # neighbour disparity of the tracks (full resolution, one horizontal step) and depth
+    any_m = grid.measures[chosen[0]]
+    f_work = grid.focal_length_work_px(any_m)
+    good = np.isfinite(fit.s_px_per_mm) & (fit.s_px_per_mm > 0) & (fit.track_views >= MIN_TRACK_VIEWS) \
+        & np.isfinite(fit.s_sigma)
+    s = fit.s_px_per_mm[good]
+    to_full = geometry.spacing_mm[0] * any_m.work_scale          # px/mm (working) → px per step (full)
+    step_disp_full = s * to_full
+    step_disp_sigma = fit.s_sigma[good] * to_full
+    disp_map = None
+    if centre is not None and centre in grid.measures and grid.measures[centre].grey8 is not None:
+        progress(done_n, total, "disparity map of the centre view")
+        images = {c: grid.measures[c].grey8 for c in keep_forever if c in grid.measures
+                  and grid.measures[c].grey8 is not None}
+        max_s = float(np.percentile(s, 99.5)) if s.size else (f_work or 1000.0) / (1000.0 * 1.0)
+        step_h = max_s * geometry.spacing_mm[0]
+        step_v = max_s * geometry.spacing_mm[1]
+        parts = partner_cells(centre, set(images), geometry.columns, geometry.rows, steps_for(step_h), steps_for(step_v))
+        here = geometry.commanded_mm[centre]
+        baselines = {c: float(np.hypot(*np.subtract(geometry.commanded_mm[c], here))) for c, _, _ in parts}
+        if parts:
+            disp_map = disparity_map(centre, images, parts, baselines, geometry.spacing_mm[0], any_m.work_scale,
+                                     {"h": step_h, "v": step_v}, grid.homography_work(grid.measures[centre]))
+    done_n += 1
+    grid.drop_images(lambda c: False)
+    check_cancel()
+
+    doc = build_document(dataset, grid, fit, chosen, gains, ref_cell, step_disp_full, step_disp_sigma, disp_map,
+                         cal_doc, settings={"work_width_px": work_width_px, "views": views if isinstance(views, str)
+                                            else ("all" if views is None else [view_stem(*c) for c in chosen])})
+    report = QualityReport(doc, disp_map, step_disp_full)
+    doc["timing_s"] = {"wall": round(time.perf_counter() - t_start, 3), "cpu": round(time.process_time() - c_start, 3)}
+    if write:
+        progress(done_n, total, "writing quality.json and pictures")
+        report.path = write_report(dataset, report)
+    done_n += 1
+    progress(total, total, "done")
+    log.info("quality check of %s: %s", dataset.root, doc["summary"])
+    return report
+
+
+def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell], gains: dict[Cell, float],
+                   ref_cell: Cell | None, step_disp_full: np.ndarray, step_disp_sigma: np.ndarray,
+                   disp_map: DisparityMap | None, cal_doc: dict | None, settings: dict[str, Any]) -> dict[str, Any]:
+    """The ``quality.json`` document (plain JSON types)."""
+    t = grid.thresholds
+    g = grid.geometry
+    limits = t.position_limits_mm(g.repeatability_um, g.spacing_mm)
+    typical_residual = float(np.median(list(fit.residual_rms_px.values()))) if fit.residual_rms_px else None
+    f_full = g.focal_length_px(grid.measures[chosen[0]].full_size_px[0])
+    depth = depth_range(step_disp_full, step_disp_sigma, g, f_full, t)
+    near_m = depth.get("near_m")
+    views_out = []
+    chosen_set = set(chosen)
+    for v in sorted(dataset.views, key=lambda v: (v["row"], v["column"])):
+        cell = (int(v["row"]), int(v["column"]))
+        if cell not in chosen_set:
+            if v.get("status") != "done" or not v.get("file"):
+                if settings.get("views") in (None, "all"):
+                    views_out.append({"row": cell[0], "column": cell[1], "view": view_stem(*cell),
+                                      "verdict": verdicts.FAIL, "status": v.get("status"),
+                                      "reasons": [f"not captured (status {v.get('status')})"], "checks": {}})
+            continue
+        m = grid.measures[cell]
+        sharp, expo = grid.relative(cell)
+        err = fit.error_mm.get(cell)
+        err_px = None
+        if err is not None and near_m and f_full:
+            err_px = f_full * math.hypot(*err) / (1000.0 * near_m)
+        checks = {
+            "sharpness": verdicts.sharpness(sharp, t),
+            "exposure": verdicts.exposure(expo, t, gains.get(cell)),
+            "clipping": verdicts.clipping(m.clipped_fraction, m.crushed_fraction, t),
+            "position": verdicts.position(err, limits, err_px, fit.measured_mm.get(cell)),
+            "residual": verdicts.residual(fit.residual_rms_px.get(cell), typical_residual, t),
+        }
+        checks["exposure"]["level"] = m.level
+        checks["position"]["tracks"] = fit.tracks.get(cell, 0)
+        verdict = verdicts.worst(c["verdict"] for c in checks.values())
+        reasons = [f"{name}: {c['why']}" for name, c in checks.items() if c["verdict"] in (verdicts.WARN, verdicts.FAIL)]
+        views_out.append({"row": cell[0], "column": cell[1], "view": view_stem(*cell), "verdict": verdict,
+                          "status": "done", "file": v.get("file"), "reasons": reasons, "checks": checks})
+    # repeatability: the spread of the position errors of the views that fit the grid
+    errs = np.array([fit.error_mm[c] for c in fit.error_mm if fit.inlier.get(c)], float).reshape(-1, 2)
+    repeat: dict[str, Any]
+    if len(errs) >= 5:
+        dof = len(errs) / max(len(errs) - 3, 1)           # 3 affine parameters per axis were fitted
+        sx, sy = (float(np.sqrt(np.mean(errs[:, i] ** 2) * dof)) * 1000.0 for i in (0, 1))
+        repeat = {"x_um": sx, "y_um": sy, "rms_um": float(np.sqrt((sx * sx + sy * sy) / 2)), "views": int(len(errs)),
+                  "planned_um": list(g.repeatability_um),
+                  "why": "RMS of the measured position errors of the views that fit the grid (global affine "
+                         "removed), per axis"}
+    else:
+        repeat = {"x_um": None, "y_um": None, "rms_um": None, "views": int(len(errs)),
+                  "planned_um": list(g.repeatability_um), "why": "too few located views (need 5)"}
+    counts = {k: sum(1 for v in views_out if v["verdict"] == k) for k in (verdicts.PASS, verdicts.WARN, verdicts.FAIL)}
+    flagged = [v["view"] for v in views_out if v["verdict"] in (verdicts.WARN, verdicts.FAIL)]
+    verdict = verdicts.worst([v["verdict"] for v in views_out] + [depth["verdict"]])
+    disparity_doc: dict[str, Any] | None = None
+    if disp_map is not None:
+        d = disp_map.disparity_px
+        fin = d[np.isfinite(d)]
+        disparity_doc = {"view": view_stem(*disp_map.cell), "row": disp_map.cell[0], "column": disp_map.cell[1],
+                         "unit": "full-resolution px between horizontal neighbours",
+                         "valid_fraction": disp_map.valid_fraction(),
+                         "median_px": float(np.median(fin)) if fin.size else None,
+                         "p1_px": float(np.percentile(fin, 1)) if fin.size else None,
+                         "p99_px": float(np.percentile(fin, 99)) if fin.size else None,
+                         "partners": disp_map.partners,
+                         "rectified": cal_doc is not None}
+    doc = {
+        "format": FORMAT, "version": VERSION,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "dataset": str(dataset.root),
+        "verdict": verdict,
+        "summary": {"views": len(views_out), **counts, "flagged": flagged},
+        "thresholds": {**t.as_dict(), "position_warn_mm": limits[0], "position_fail_mm": limits[1]},
+        "calibration": {"used": cal_doc is not None,
+                        "rotation_deg": cal_doc.get("rotation_deg") if cal_doc else None,
+                        "note": None if cal_doc else "no calibration.json: positions and residuals are measured "
+                                                     "in the captured (unrectified) images"},
+        "deflicker_reference": view_stem(*ref_cell) if ref_cell else None,
+        "repeatability": repeat,
+        "depth_range": depth,
+        "disparity_map": disparity_doc,
+        "tracks": {"residual_sigma_px": fit.sigma_px, "typical_view_residual_px": typical_residual,
+                   "count": int(np.count_nonzero(np.isfinite(fit.s_px_per_mm)))},
+        "settings": settings,
+        "views": views_out,
+    }
+    return doc
+
+
+def depth_range(step_disp_full: np.ndarray, step_disp_sigma: np.ndarray, g: Geometry, f_full: float | None,
+                t: Thresholds) -> dict[str, Any]:
+    """Measured neighbour-disparity and depth range of the tracks against the plan.
+
+    The range is the 1st to 99th percentile of the tracks' disparities, each moved inwards by
+    :data:`RANGE_SIGMAS` of its own standard error first, so that measurement noise does not widen it.
+    """
+    out: dict[str, Any] = {"planned_near_m": g.near_m, "planned_far_m": g.far_m}
+    if step_disp_full.size < 20 or not f_full:
+        out.update({"verdict": verdicts.NA, "why": "too few tracks (or no focal length) to measure depth"})
+        return out
+    d_lo = float(np.percentile(step_disp_full + RANGE_SIGMAS * step_disp_sigma, 1.0))
+    d_hi = float(np.percentile(step_disp_full - RANGE_SIGMAS * step_disp_sigma, 99.0))
+    # depth = f · b / (1000 · d) with f in full-resolution px and b the horizontal spacing
+    fb = f_full * g.spacing_mm[0] / 1000.0
+    near = fb / d_hi if d_hi > 0 else None
+    far = fb / d_lo if d_lo > 0 else None
+    hist, edges = np.histogram(step_disp_full, bins=40, range=(min(0.0, d_lo), d_hi * 1.25 if d_hi > 0 else 1.0))
+    out.update({"near_m": near, "far_m": far, "disparity_min_px": d_lo, "disparity_max_px": d_hi,
+                "disparity_unit": "full-resolution px between horizontal neighbours",
+                "histogram": {"counts": [int(c) for c in hist], "edges_px": [float(e) for e in edges]},
+                "tracks": int(step_disp_full.size)})
+    problems = []
+    if near is not None and g.near_m and near < g.near_m * (1 - t.depth_tolerance):
+        problems.append(f"the scene comes to {near:.2f} m, nearer than the planned {g.near_m:.2f} m: the depth "
+                        "of field and the repositioning budget were planned for the plan's range")
+    if far is not None and g.far_m and far > g.far_m * (1 + t.depth_tolerance):
+        problems.append(f"the scene reaches {far:.2f} m, beyond the planned {g.far_m:.2f} m")
+    if problems:
+        out.update({"verdict": verdicts.WARN, "why": "; ".join(problems)})
+    else:
+        span = f"{near:.2f} – {far:.2f} m" if near and far else "measured"
+        plan = f" (planned {g.near_m:.2f} – {g.far_m:.2f} m)" if g.near_m and g.far_m else ""
+        out.update({"verdict": verdicts.PASS, "why": f"scene depth {span}{plan}"})
+    return out
+
+
+def write_report(dataset, report: QualityReport) -> Path:
+    """Write the pictures into ``DATASET/quality/`` and ``DATASET/quality.json`` (atomically)."""
+    from lfstudio.quality.pictures import write_pictures
+
+    root = Path(dataset.root)
+    pictures = write_pictures(root / PICTURES_FOLDER, report, dataset)
+    report.document["pictures"] = {k: f"{PICTURES_FOLDER}/{Path(p).name}" for k, p in pictures.items()}
+    path = atomic_write_json(root / QUALITY_NAME, report.document)
+    return path
+
+
+def load_quality(dataset_or_root) -> dict[str, Any] | None:
+    """The dataset's ``quality.json`` or None when it has none."""
+    import json
+
+    root = Path(getattr(dataset_or_root, "root", dataset_or_root))
+    path = root / QUALITY_NAME
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: cannot be read ({exc}); run 'lfstudio check' again") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise DatasetError(f"{path}: not a quality report; run 'lfstudio check' again")
+    return doc

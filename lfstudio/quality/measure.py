@@ -1,0 +1,163 @@
+"""What one view's own pixels say: focus energy, brightness, clipping, and the corners to track.
+
+A view is decoded once (RAW: LibRaw's half-size mode through the processing stage's debayer step,
+linear, camera white balance, no colour matrix; PNG/TIFF/JPEG as stored) and measured:
+
+* **focus** — the energy of the Laplacian of the lightly smoothed, brightness-normalised
+  ``sqrt(luminance)`` image in a grid of tiles (:data:`TILES`), at the decoded resolution (at most
+  ``focus_max_width_px`` wide). Dividing by the image's median brightness makes it independent of
+  exposure; comparing tiles with the same tiles of the neighbouring views (which see nearly the
+  same scene) makes it independent of scene content (:func:`sharpness_ratio`);
+* **brightness** — the median linear luminance (0 … 1 of full scale), and the de-flicker step's
+  small luminance image for the gain against the reference view;
+* **clipping** — the fraction of pixels with a colour channel at ≥ 98 % of full scale (after white
+  balance), and of crushed pixels (every channel ≤ 0.2 % of full scale);
+* **corners** for tracking: ``cv2.goodFeaturesToTrack`` on an 8-bit working image (``sqrt``
+  luminance stretched between its 0.5 and 99.8 percentiles, so a brighter view looks the same)
+  at most ``work_width_px`` wide.
+
+Coordinates of the working image relate to the full-resolution capture by ``work_scale`` (full
+pixels per working pixel; pixel centres at integers: ``x_full = (x_work + 0.5)·s − 0.5``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from lfstudio.processing.profile import DebayerStep, DeflickerStep
+from lfstudio.processing.steps import debayer, deflicker
+
+#: focus tiles across and down
+TILES = (8, 6)
+DEFAULT_WORK_WIDTH_PX = 1000
+DEFAULT_FOCUS_MAX_WIDTH_PX = 4000
+MAX_CORNERS = 1000
+CLIP_LEVEL = 0.98
+CRUSH_LEVEL = 0.002
+_LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
+_DECODE = DebayerStep(half_size=True, color_space="raw", white_balance="camera")
+_DEFLICKER = DeflickerStep()
+
+
+@dataclass
+class ViewMeasures:
+    """One view's pixel measurements and its working image (``grey8``, dropped once tracked)."""
+
+    row: int
+    column: int
+    full_size_px: tuple[int, int]      # (w, h) of the full-resolution capture
+    work_scale: float                  # full-resolution pixels per working pixel
+    focus_tiles: np.ndarray            # TILES[1] x TILES[0] focus energy
+    level: float                       # median linear luminance, 0 … 1
+    clipped_fraction: float
+    crushed_fraction: float
+    small_luminance: np.ndarray | None  # de-flicker step's reduced luminance (dropped once used)
+    corners: np.ndarray                # (n, 2) float32, working-image pixels
+    grey8: np.ndarray | None           # working image (uint8)
+
+    @property
+    def cell(self) -> tuple[int, int]:
+        return self.row, self.column
+
+    @property
+    def work_size_px(self) -> tuple[int, int]:
+        assert self.grey8 is not None
+        return int(self.grey8.shape[1]), int(self.grey8.shape[0])
+
+
+def decode_linear(path: str | Path) -> tuple[np.ndarray, tuple[int, int]]:
+    """(h, w, 3) uint16 linear RGB (RAW at half size) and the full-resolution (w, h)."""
+    path = Path(path)
+    rgb = debayer.decode(path, _DECODE)
+    if debayer.is_raw(path):
+        full = debayer.full_size_px(path)
+    else:
+        full = (int(rgb.shape[1]), int(rgb.shape[0]))
+    return rgb, full
+
+
+def _resize_to_width(img: np.ndarray, width_px: int) -> np.ndarray:
+    h, w = img.shape[:2]
+    if w <= width_px:
+        return img
+    return cv2.resize(img, (int(width_px), max(1, int(round(h * width_px / w)))), interpolation=cv2.INTER_AREA)
+
+
+def focus_tiles(root_luminance: np.ndarray) -> np.ndarray:
+    """Tile energies of the Laplacian of ``root_luminance`` (``sqrt`` of linear luminance)."""
+    g = root_luminance
+    med = float(np.median(g[::4, ::4]))
+    g = g * np.float32(1.0 / max(med, 1e-4))
+    lap = cv2.Laplacian(cv2.GaussianBlur(g, (0, 0), 0.8), cv2.CV_32F, ksize=1)
+    return cv2.resize(lap * lap, TILES, interpolation=cv2.INTER_AREA).astype(np.float64)
+
+
+def working_grey8(root_luminance: np.ndarray) -> np.ndarray:
+    sub = root_luminance[::4, ::4]
+    lo, hi = (float(x) for x in np.percentile(sub, (0.5, 99.8)))
+    if hi <= lo:
+        hi = lo + 1e-3
+    out = (root_luminance - np.float32(lo)) * np.float32(255.0 / (hi - lo))
+    return np.clip(out, 0.0, 255.0, out=out).astype(np.uint8)
+
+
+def detect_corners(grey8: np.ndarray, max_corners: int = MAX_CORNERS) -> np.ndarray:
+    min_distance = max(4.0, grey8.shape[1] / 125.0)
+    c = cv2.goodFeaturesToTrack(grey8, maxCorners=int(max_corners), qualityLevel=0.01, minDistance=min_distance,
+                                blockSize=7)
+    if c is None:
+        return np.zeros((0, 2), np.float32)
+    return c.reshape(-1, 2).astype(np.float32)
+
+
+def measure_view(path: str | Path, row: int, column: int, *, work_width_px: int = DEFAULT_WORK_WIDTH_PX,
+                 focus_max_width_px: int = DEFAULT_FOCUS_MAX_WIDTH_PX) -> ViewMeasures:
+    """Decode the view at ``path`` and measure it (raises :class:`lfstudio.errors.DatasetError`
+    naming the file when it cannot be read)."""
+    rgb16, full = decode_linear(path)
+    rgb16 = _resize_to_width(rgb16, focus_max_width_px)
+    peak = cv2.max(cv2.max(rgb16[..., 0], rgb16[..., 1]), rgb16[..., 2])   # numpy's max(axis=2) is 10x slower
+    clipped = float(np.count_nonzero(peak >= int(CLIP_LEVEL * 65535))) / peak.size
+    crushed = float(np.count_nonzero(peak <= int(CRUSH_LEVEL * 65535))) / peak.size
+    lum = (rgb16.astype(np.float32) @ (_LUMA / np.float32(65535.0)))
+    level = float(np.median(lum[::2, ::2]))
+    root = np.sqrt(np.maximum(lum, 0.0, out=lum), out=lum)
+    tiles = focus_tiles(root)
+    work = _resize_to_width(root, work_width_px)
+    grey8 = working_grey8(work)
+    small = deflicker.small_luminance(rgb16, _DEFLICKER.size_px)
+    return ViewMeasures(row=int(row), column=int(column), full_size_px=(int(full[0]), int(full[1])),
+                        work_scale=float(full[0]) / float(grey8.shape[1]), focus_tiles=tiles, level=level,
+                        clipped_fraction=clipped, crushed_fraction=crushed, small_luminance=small,
+                        corners=detect_corners(grey8), grey8=grey8)
+
+
+def sharpness_ratio(view: ViewMeasures, neighbours: list[ViewMeasures]) -> float | None:
+    """The view's focus energy relative to its neighbours' (1 = as sharp; 0.5 = half the detail
+    energy), over the tiles where the neighbours hold more detail than the median tile; None
+    without neighbours."""
+    if not neighbours:
+        return None
+    ref = np.median(np.stack([n.focus_tiles for n in neighbours]), axis=0)
+    textured = ref >= np.median(ref)
+    if not textured.any() or float(ref[textured].sum()) <= 0:
+        return None
+    ratios = view.focus_tiles[textured] / np.maximum(ref[textured], 1e-12)
+    return float(np.median(ratios))
+
+
+def exposure_ratio(view: ViewMeasures, neighbours: list[ViewMeasures]) -> float | None:
+    """The view's median luminance over its neighbours' median (1 = as bright)."""
+    levels = [n.level for n in neighbours if n.level > 0]
+    if not levels or view.level <= 0:
+        return None
+    return float(view.level / np.median(levels))
+
+
+def deflicker_gain(reference: ViewMeasures, view: ViewMeasures, step: DeflickerStep = _DEFLICKER) -> float:
+    """The gain the processing stage's de-flicker ``step`` would apply to ``view``."""
+    return float(deflicker.gain(reference.small_luminance, view.small_luminance, step)[0])
