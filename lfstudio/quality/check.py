@@ -40,7 +40,7 @@ from lfstudio.quality import verdicts
 from lfstudio.quality.disparity import DisparityMap, disparity_map, partner_cells, steps_for
 from lfstudio.quality.measure import DEFAULT_WORK_WIDTH_PX, ViewMeasures, measure_view, sharpness_ratio, \
     exposure_ratio, deflicker_gain
-from lfstudio.quality.positions import fit_tracks, robust_affine, solve_positions
+from lfstudio.quality.positions import fit_tracks, position_errors, solve_positions
 from lfstudio.quality.tracks import WINDOW, Star, star_neighbours, to_observations, track_star
 from lfstudio.quality.verdicts import Thresholds
 
@@ -208,19 +208,22 @@ class GridCheck:
                            float).reshape(-1, 2)
         fixed_set = set(fixed)
         sol = solve_positions(few, initial, fixed=np.array([c in fixed_set for c in cells], bool))
-        tf = fit_tracks(obs, sol.positions_mm, sol.sigma_px)
         commanded = np.array([self.geometry.commanded_mm.get(c, (0.0, 0.0)) for c in cells], float).reshape(-1, 2)
         measured = {c: (float(sol.positions_mm[i, 0]), float(sol.positions_mm[i, 1])) for c, i in index.items()}
         observed = np.asarray(sol.observed, bool) & ~np.array([c in fixed_set for c in cells], bool)
         errors: dict[Cell, tuple[float, float]] = {}
         inlier: dict[Cell, bool] = {}
+        scale = 1.0
         if observed.any():
-            A, w = robust_affine(commanded, sol.positions_mm, use=np.asarray(sol.observed, bool))
-            err = sol.positions_mm - np.column_stack([commanded, np.ones(len(cells))]) @ A.T
+            err, w, scale = position_errors(commanded, sol.positions_mm, use=np.asarray(sol.observed, bool))
+            if fixed_set or not 0.5 < scale < 2.0:
+                scale = 1.0                          # fixed views set the scale themselves
             for c, i in index.items():
                 if observed[i]:
                     errors[c] = (float(err[i, 0]), float(err[i, 1]))
                     inlier[c] = bool(w[i] > 0)
+        # depths with the commanded scale (the weak prior alone lets a displaced view stretch the grid)
+        tf = fit_tracks(obs, sol.positions_mm / scale, sol.sigma_px)
         residual: dict[Cell, float] = {}
         tracks: dict[Cell, int] = {}
         if obs.count:

@@ -242,3 +242,14 @@ def robust_affine(source_mm: np.ndarray, target_mm: np.ndarray, *, floor_mm: flo
             break
         A = A_new
     return A, w
+
+
+def position_errors(commanded_mm: np.ndarray, measured_mm: np.ndarray, use: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Each view's error in the commanded frame — measured position mapped back through the robust
+    affine fit (:func:`robust_affine`) minus the commanded one —, the fit's weights (0: outlier) and
+    its scale (divide the measured positions by it to give track depths the commanded scale)."""
+    c = np.asarray(commanded_mm, float)
+    A, w = robust_affine(c, measured_mm, use=use)
+    back = np.linalg.solve(A[:, :2], (np.asarray(measured_mm, float) - A[:, 2]).T).T
+    return back - c, w, float(np.sqrt(abs(np.linalg.det(A[:, :2]))))

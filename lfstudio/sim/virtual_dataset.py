@@ -139,7 +139,7 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
         if fault.cell in fault_at:
             raise InputError("faults", f"two faults at row {fault.row}, column {fault.column}", "one per view")
         fault_at[fault.cell] = fault
-    margin_mm = 4 * max(noise_mm) + 0.5 + max([abs(v) for f in faults for v in f.offset_mm], default=0.0)
+    margin_mm = 4 * max(noise_mm) + 0.5      # faults keep the scene: a faulty dataset = the clean one + defects
     region = (ox - margin_mm, ox + (columns - 1) * sx + margin_mm, oy - margin_mm, oy + (rows - 1) * sy + margin_mm)
     studio_kwargs = dict(width_px=width_px, focal_length_mm=focal_length_mm, sensor_width_mm=sensor_width_mm,
                          near_m=near_m, far_m=far_m, rotation_deg=tuple(rotation_deg),
@@ -217,6 +217,7 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
                         views=views, exist_ok=True)
     truth = studio.ground_truth()
     truth.update({
+        "studio": {k: list(v) if isinstance(v, tuple) else v for k, v in studio_kwargs.items()},
         "format": fmt,
         "black_level": BLACK_LEVEL if fmt == "dng" else 0,
         "white_level": WHITE_LEVEL if fmt == "dng" else 65535,
@@ -241,3 +242,24 @@ def load_ground_truth(root: str | os.PathLike) -> dict[str, Any]:
     for key in ("R", "K_true", "K0", "H"):
         truth[key] = np.array(truth[key], float)
     return truth
+
+
+def true_disparity_px(root: str | os.PathLike, row: int, column: int, size_px: tuple[int, int], *,
+                      rectified: bool) -> np.ndarray:
+    """Ground-truth disparity map (H x W float32) of view (``row``, ``column``) of a virtual dataset,
+    sampled at ``size_px`` (w, h): full-resolution pixels between *horizontal* neighbours, i.e.
+    ``f · spacing_x / (1000 · Z)`` of the visible surface, as the view was captured (``rectified``
+    False) or after rectification (True: the ideal camera). What a measured disparity map is checked
+    against (:mod:`lfstudio.quality.disparity`)."""
+    truth = load_ground_truth(root)
+    kwargs = dict(truth["studio"])
+    studio = VirtualStudio(**{k: tuple(v) if isinstance(v, list) else v for k, v in kwargs.items()})
+    view = next((v for v in truth["views"] if v["row"] == row and v["column"] == column), None)
+    if view is None:
+        raise InputError("row/column", f"the dataset has no view at row {row}, column {column}")
+    depth = studio.depth_map(*view["true_mm"], ideal=rectified)
+    depth = cv2.resize(depth, (int(size_px[0]), int(size_px[1])), interpolation=cv2.INTER_NEAREST)
+    from lfstudio.dataset import Dataset
+
+    spacing_x = float(Dataset.open(root).grid["spacing_mm"][0])
+    return (studio.f_px * spacing_x / (1000.0 * depth)).astype(np.float32)
