@@ -126,6 +126,9 @@ class PositionFit:
     track_views: np.ndarray                        # how many views see each track
     sigma_px: float
 
+    def typical_residual_px(self) -> float | None:
+        return float(np.median(list(self.residual_rms_px.values()))) if self.residual_rms_px else None
+
 
 class GridCheck:
     """Measured views of one dataset, their neighbour tracks, and the judgements built from them."""
@@ -164,6 +167,11 @@ class GridCheck:
     def add(self, m: ViewMeasures, known: Callable[[Cell], bool] | None = None) -> Star:
         """Store ``m`` and track it into the neighbours ``known`` accepts (default: every stored one
         that still has its working image)."""
+        if m.cell in self.measures:
+            # a view captured again: what other views tracked into its old image no longer holds
+            for star in self.stars.values():
+                if m.cell in star.neighbours:
+                    star.xy[1 + star.neighbours.index(m.cell)] = np.nan
         self.measures[m.cell] = m
         ok = known or (lambda c: c in self.measures and c != m.cell)
         nbs = [c for c in star_neighbours(m.cell, lambda c: ok(c) and c in self.measures
@@ -190,12 +198,39 @@ class GridCheck:
         ring = self.ring(cell)
         return sharpness_ratio(m, ring), exposure_ratio(m, ring)
 
+    def judge_view(self, cell: Cell, fit: "PositionFit | None", typical_residual_px: float | None,
+                   near_m: float | None, deflicker_gain: float | None = None) -> dict[str, Any]:
+        """The ``quality.json`` entry of a measured view: every check with its verdict and why."""
+        t, g = self.thresholds, self.geometry
+        m = self.measures[cell]
+        sharp, expo = self.relative(cell)
+        err = fit.error_mm.get(cell) if fit is not None else None
+        f_full = g.focal_length_px(m.full_size_px[0])
+        err_px = f_full * math.hypot(*err) / (1000.0 * near_m) if err is not None and near_m and f_full else None
+        checks = {
+            "sharpness": verdicts.sharpness(sharp, t),
+            "exposure": verdicts.exposure(expo, t, deflicker_gain),
+            "clipping": verdicts.clipping(m.clipped_fraction, m.crushed_fraction, t),
+            "position": verdicts.position(err, t.position_limits_mm(g.repeatability_um, g.spacing_mm), err_px,
+                                          fit.measured_mm.get(cell) if fit is not None else None),
+            "residual": verdicts.residual(fit.residual_rms_px.get(cell) if fit is not None else None,
+                                          typical_residual_px, t),
+        }
+        checks["exposure"]["level"] = m.level
+        checks["position"]["tracks"] = fit.tracks.get(cell, 0) if fit is not None else 0
+        reasons = [f"{name}: {c['why']}" for name, c in checks.items() if c["verdict"] in (verdicts.WARN, verdicts.FAIL)]
+        return {"row": cell[0], "column": cell[1], "view": view_stem(*cell),
+                "verdict": verdicts.worst(c["verdict"] for c in checks.values()), "status": "done",
+                "reasons": reasons, "checks": checks}
+
     # -- positions -----------------------------------------------------------------------------------
     def solve(self, cells: Iterable[Cell] | None = None, fixed: Iterable[Cell] = (),
               known_mm: dict[Cell, tuple[float, float]] | None = None) -> PositionFit:
         """Solve the positions of ``cells`` (default: all measured) from the stars among them.
 
-        ``fixed`` views keep their ``known_mm`` position (default: the commanded one)."""
+        Without ``fixed`` views the errors are taken after the robust global affine fit; ``fixed``
+        views keep their ``known_mm`` position (default: the commanded one) and anchor the frame, so
+        the other views' errors are their positions minus the commanded ones."""
         cells = sorted(self.measures if cells is None else (c for c in cells if c in self.measures))
         index = {c: i for i, c in enumerate(cells)}
         H = next((self.homography_work(self.measures[c]) for c in cells if self.measures[c].grey8 is not None),
@@ -215,9 +250,12 @@ class GridCheck:
         inlier: dict[Cell, bool] = {}
         scale = 1.0
         if observed.any():
-            err, w, scale = position_errors(commanded, sol.positions_mm, use=np.asarray(sol.observed, bool))
-            if fixed_set or not 0.5 < scale < 2.0:
-                scale = 1.0                          # fixed views set the scale themselves
+            if fixed_set:
+                # the fixed views anchor the frame: no global map to remove
+                err, w = sol.positions_mm - commanded, np.ones(len(cells))
+            else:
+                err, w, scale = position_errors(commanded, sol.positions_mm, use=np.asarray(sol.observed, bool))
+                scale = scale if 0.5 < scale < 2.0 else 1.0
             for c, i in index.items():
                 if observed[i]:
                     errors[c] = (float(err[i, 0]), float(err[i, 1]))
@@ -429,7 +467,7 @@ def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell
     t = grid.thresholds
     g = grid.geometry
     limits = t.position_limits_mm(g.repeatability_um, g.spacing_mm)
-    typical_residual = float(np.median(list(fit.residual_rms_px.values()))) if fit.residual_rms_px else None
+    typical_residual = fit.typical_residual_px()
     f_full = g.focal_length_px(grid.measures[chosen[0]].full_size_px[0])
     depth = depth_range(step_disp_full, step_disp_sigma, g, f_full, t)
     near_m = depth.get("near_m")
@@ -444,25 +482,9 @@ def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell
                                       "verdict": verdicts.FAIL, "status": v.get("status"),
                                       "reasons": [f"not captured (status {v.get('status')})"], "checks": {}})
             continue
-        m = grid.measures[cell]
-        sharp, expo = grid.relative(cell)
-        err = fit.error_mm.get(cell)
-        err_px = None
-        if err is not None and near_m and f_full:
-            err_px = f_full * math.hypot(*err) / (1000.0 * near_m)
-        checks = {
-            "sharpness": verdicts.sharpness(sharp, t),
-            "exposure": verdicts.exposure(expo, t, gains.get(cell)),
-            "clipping": verdicts.clipping(m.clipped_fraction, m.crushed_fraction, t),
-            "position": verdicts.position(err, limits, err_px, fit.measured_mm.get(cell)),
-            "residual": verdicts.residual(fit.residual_rms_px.get(cell), typical_residual, t),
-        }
-        checks["exposure"]["level"] = m.level
-        checks["position"]["tracks"] = fit.tracks.get(cell, 0)
-        verdict = verdicts.worst(c["verdict"] for c in checks.values())
-        reasons = [f"{name}: {c['why']}" for name, c in checks.items() if c["verdict"] in (verdicts.WARN, verdicts.FAIL)]
-        views_out.append({"row": cell[0], "column": cell[1], "view": view_stem(*cell), "verdict": verdict,
-                          "status": "done", "file": v.get("file"), "reasons": reasons, "checks": checks})
+        entry = grid.judge_view(cell, fit, typical_residual, near_m, gains.get(cell))
+        entry["file"] = v.get("file")
+        views_out.append(entry)
     # repeatability: the spread of the position errors of the views that fit the grid
     errs = np.array([fit.error_mm[c] for c in fit.error_mm if fit.inlier.get(c)], float).reshape(-1, 2)
     repeat: dict[str, Any]

@@ -1,0 +1,229 @@
+"""Scan-time checking: judge each view as the scan captures it, on a thread of its own.
+
+``LiveChecker(dataset)`` listens to the scan engine's events (``engine.subscribe(checker.on_event)``,
+see :mod:`lfstudio.scan.events`): a ``view-done`` event only puts the view on a queue, so the scan
+never waits for the check. The checker's thread (at a lower CPU priority where the system allows it)
+decodes the view, compares its focus and brightness with the neighbours captured before it, tracks
+it into them and locates it with the neighbours around it (:class:`lfstudio.quality.check.GridCheck`,
+the same measurements as ``lfstudio check``), then tells its listeners the view's verdict at once.
+
+Verdicts can change as neighbours arrive (the first view of a scan has nothing to be compared with
+yet): every listener call carries the view's current ``quality.json``-style entry, and views whose
+verdict changed are published again. Listeners run on the checker's thread; a GUI posts them to
+its own thread. :meth:`LiveChecker.document` returns what has been judged so far in the layout of
+``quality.json`` (no dataset-wide figures: those come from the full check after the scan).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import threading
+from typing import Any, Callable
+
+import numpy as np
+
+from lfstudio.dataset.paths import resolve_inside
+from lfstudio.errors import LfError
+from lfstudio.quality import verdicts
+from lfstudio.quality.check import RING, Geometry, GridCheck, PositionFit, calibration_homography
+from lfstudio.quality.measure import DEFAULT_WORK_WIDTH_PX, measure_view
+from lfstudio.quality.positions import robust_affine
+from lfstudio.quality.tracks import WINDOW
+from lfstudio.quality.verdicts import Thresholds
+
+log = logging.getLogger(__name__)
+
+Cell = tuple[int, int]
+Listener = Callable[[dict[str, Any]], None]
+#: views kept with their working image: this many rows around the newest view
+KEEP_ROWS = 1
+MIN_LOCATED = 4        # views a free local position solve needs before it judges positions
+MIN_ANCHORS = 2        # located neighbours that anchor a new view's position
+
+
+class LiveChecker:
+    """Checks views of ``dataset`` as they arrive (see the module docstring)."""
+
+    def __init__(self, dataset, *, thresholds: Thresholds | None = None,
+                 work_width_px: int = DEFAULT_WORK_WIDTH_PX, lower_priority: bool = True):
+        self.dataset = dataset
+        self.work_width_px = int(work_width_px)
+        H, size, _doc = calibration_homography(dataset)
+        self.grid = GridCheck(Geometry.from_dataset(dataset), thresholds, homography_full=H, calibration_size_px=size)
+        self.results: dict[Cell, dict[str, Any]] = {}
+        self.errors: dict[Cell, str] = {}
+        # where each located view stood, in the frame of the first views (mm), and the robust affine
+        # map from the commanded positions into that frame
+        self.measured_mm: dict[Cell, tuple[float, float]] = {}
+        self._residual_px: dict[Cell, float | None] = {}
+        self._tracks: dict[Cell, int] = {}
+        self._frame = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+        self._listeners: list[Listener] = []
+        self._lock = threading.Lock()
+        self._queue: queue.Queue = queue.Queue()
+        self._pending = 0
+        self._idle = threading.Condition(self._lock)
+        self._lower = lower_priority
+        self._thread = threading.Thread(target=self._run, name="quality-live", daemon=True)
+        self._thread.start()
+
+    # -- inputs (any thread, never blocking) ---------------------------------------------------------
+    def on_event(self, event: Any) -> None:
+        """A scan engine listener: queue each finished view."""
+        kind = getattr(getattr(event, "kind", None), "value", getattr(event, "kind", None))
+        if kind == "view-done" and event.row is not None and event.file:
+            self.submit(int(event.row), int(event.column or 0), event.file)
+
+    def submit(self, row: int, column: int, file: str | None = None) -> None:
+        """Queue view (``row``, ``column``) (``file``: relative to the dataset; default: the manifest's)."""
+        with self._lock:
+            self._pending += 1
+        self._queue.put((int(row), int(column), file))
+
+    def subscribe(self, listener: Listener) -> Callable[[], None]:
+        """Call ``listener(entry)`` (on the checker's thread) for each new or changed view verdict."""
+        with self._lock:
+            self._listeners.append(listener)
+
+        def unsubscribe() -> None:
+            with self._lock:
+                if listener in self._listeners:
+                    self._listeners.remove(listener)
+        return unsubscribe
+
+    def wait_idle(self, timeout_s: float | None = None) -> bool:
+        """Block until every queued view is judged (True) or ``timeout_s`` passed (False)."""
+        with self._idle:
+            return self._idle.wait_for(lambda: self._pending == 0, timeout_s)
+
+    def close(self, timeout_s: float | None = 10.0) -> None:
+        """Stop the thread after the views already queued (joins it up to ``timeout_s``)."""
+        self._queue.put(None)
+        self._thread.join(timeout_s)
+
+    # -- results --------------------------------------------------------------------------------------
+    def flagged(self) -> dict[Cell, dict[str, Any]]:
+        with self._lock:
+            return {c: e for c, e in self.results.items() if e["verdict"] in (verdicts.WARN, verdicts.FAIL)}
+
+    def document(self) -> dict[str, Any]:
+        """The views judged so far, in the layout of ``quality.json``."""
+        t = self.grid.thresholds
+        g = self.grid.geometry
+        warn, fail = t.position_limits_mm(g.repeatability_um, g.spacing_mm)
+        with self._lock:
+            views = [dict(self.results[c]) for c in sorted(self.results)]
+        typical = [v["checks"]["residual"]["value"] for v in views if v["checks"]["residual"]["value"] is not None]
+        return {"format": "lfstudio-quality", "live": True, "grid": {"columns": g.columns, "rows": g.rows},
+                "thresholds": {**t.as_dict(), "position_warn_mm": warn, "position_fail_mm": fail},
+                "tracks": {"typical_view_residual_px": sorted(typical)[len(typical) // 2] if typical else None},
+                "views": views}
+
+    # -- the checker's thread ---------------------------------------------------------------------------
+    def _run(self) -> None:
+        if self._lower and hasattr(os, "setpriority"):
+            try:   # Linux: a thread's id is a process id for setpriority; the scan keeps its CPU share
+                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+            except (OSError, AttributeError):
+                pass
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            row, column, file = item
+            try:
+                self._check((row, column), file)
+            except LfError as exc:
+                self.errors[(row, column)] = str(exc)
+                log.warning("live check of row %d, column %d: %s", row, column, exc)
+            except Exception:   # a bug must not stop the checks of the next views
+                log.exception("live check of row %d, column %d failed", row, column)
+            finally:
+                with self._idle:
+                    self._pending -= 1
+                    self._idle.notify_all()
+
+    def _refit_frame(self) -> None:
+        cells = sorted(self.measured_mm)
+        cmd = np.array([self.grid.geometry.commanded_mm[c] for c in cells], float)
+        meas = np.array([self.measured_mm[c] for c in cells], float)
+        self._frame, _ = robust_affine(cmd, meas)
+
+    def _located(self, cells) -> PositionFit:
+        """The position figures of the located ``cells``: errors in the commanded frame."""
+        A = self._frame
+        errors, measured = {}, {}
+        for c in cells:
+            if c in self.measured_mm:
+                p = np.asarray(self.measured_mm[c], float)
+                back = np.linalg.solve(A[:, :2], p - A[:, 2])
+                cmd = self.grid.geometry.commanded_mm[c]
+                errors[c] = (float(back[0] - cmd[0]), float(back[1] - cmd[1]))
+                measured[c] = self.measured_mm[c]
+        return PositionFit(sorted(errors), measured, errors, {c: True for c in errors},
+                           {c: v for c, v in self._residual_px.items() if c in errors and v is not None},
+                           {c: self._tracks.get(c, 0) for c in errors}, np.zeros(0), np.zeros(0), np.zeros(0, int),
+                           float("nan"))
+
+    def _path(self, cell: Cell, file: str | None):
+        if file is None:
+            file = self.dataset.view(*cell).get("file")
+        if not file:
+            raise LfError(f"row {cell[0]}, column {cell[1]} has no file to check")
+        return resolve_inside(self.dataset.root, file)
+
+    def _check(self, cell: Cell, file: str | None) -> None:
+        grid = self.grid
+        m = measure_view(self._path(cell, file), *cell, work_width_px=self.work_width_px)
+        m.small_luminance = None
+        grid.add(m)
+        r = cell[0]
+        grid.drop_images(lambda c: abs(c[0] - r) <= KEEP_ROWS)
+        # the views whose judgement this one can change: its ring and its position window
+        around = {(r + dr, cell[1] + dc) for dr, dc in set(RING) | set(WINDOW)} | {cell}
+        window = sorted(c for c in around if c in grid.measures)
+        anchors = [c for c in window if c != cell and c in self.measured_mm]
+        fit = None
+        if len(anchors) >= MIN_ANCHORS:
+            # neighbours already located anchor the new view where they really stood
+            fit = grid.solve([cell, *anchors], fixed=anchors, known_mm=self.measured_mm)
+            new = [cell] if cell in fit.error_mm else []
+        elif len(window) >= MIN_LOCATED:
+            # the first views of a scan: solve the window freely; its frame becomes the scan's frame
+            fit = grid.solve(window)
+            new = [c for c in fit.error_mm if c not in self.measured_mm]
+            if len(fit.error_mm) < MIN_LOCATED:
+                fit, new = None, []
+        else:
+            new = []
+        if fit is not None:
+            for c in new:
+                self.measured_mm[c] = fit.measured_mm[c]
+                self._residual_px[c] = fit.residual_rms_px.get(c)
+                self._tracks[c] = fit.tracks.get(c, 0)
+            self._refit_frame()
+        located = self._located(around)
+        with self._lock:
+            typical = sorted(v for v in self._residual_px.values() if v is not None)
+        typical_px = typical[len(typical) // 2] if typical else None
+        changed = []
+        for c in [cell] + [c for c in window if c != cell]:
+            old = self.results.get(c)
+            if c != cell and old is None:
+                continue          # a neighbour not judged yet (queued behind this one)
+            entry = grid.judge_view(c, located, typical_px, grid.geometry.near_m)
+            entry["file"] = file if c == cell else old.get("file")
+            with self._lock:
+                self.results[c] = entry
+            if c == cell or entry["verdict"] != old["verdict"] or entry["reasons"] != old["reasons"]:
+                changed.append(entry)
+        with self._lock:
+            listeners = list(self._listeners)
+        for entry in changed:
+            for listener in listeners:
+                try:
+                    listener(entry)
+                except Exception:
+                    log.exception("live quality listener failed")
