@@ -66,6 +66,7 @@ class LiveChecker:
         self._pending = 0
         self._idle = threading.Condition(self._lock)
         self._lower = lower_priority
+        self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="quality-live", daemon=True)
         self._thread.start()
 
@@ -98,10 +99,14 @@ class LiveChecker:
         with self._idle:
             return self._idle.wait_for(lambda: self._pending == 0, timeout_s)
 
-    def close(self, timeout_s: float | None = 10.0) -> None:
-        """Stop the thread after the views already queued (joins it up to ``timeout_s``)."""
+    def close(self, timeout_s: float | None = 10.0, drain: bool = True) -> None:
+        """Stop the thread after the views already queued (``drain``) or after the current one,
+        dropping the rest; join it up to ``timeout_s`` (0: do not wait)."""
+        if not drain:
+            self._stop.set()
         self._queue.put(None)
-        self._thread.join(timeout_s)
+        if timeout_s != 0:
+            self._thread.join(timeout_s)
 
     # -- results --------------------------------------------------------------------------------------
     def flagged(self) -> dict[Cell, dict[str, Any]]:
@@ -132,6 +137,11 @@ class LiveChecker:
             item = self._queue.get()
             if item is None:
                 return
+            if self._stop.is_set():
+                with self._idle:
+                    self._pending -= 1
+                    self._idle.notify_all()
+                continue
             row, column, file = item
             try:
                 self._check((row, column), file)

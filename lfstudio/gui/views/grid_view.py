@@ -6,6 +6,11 @@ views are drawn from their full thumbnails. Thumbnails are decoded off the GUI t
 (``QImageReader`` with a scaled size, visible views first) and cached (LRU). Cells are coloured by
 state: pending, capturing, done, failed, skipped. Double-click opens a view full size; selected
 views can be queued for re-capture (the Scan panel does it through ``AppState.recaptureRequested``).
+
+Quality (:mod:`lfstudio.gui.views.quality`): the verdicts of the last ``Check dataset`` (or of the
+scan-time check, view by view as the scan captures them) outline flagged views (orange: warn, red:
+fail) and can colour the grid as a heat map (sharpness, exposure, position error, residual);
+clicking a flagged view shows it beside its neighbours.
 """
 
 from __future__ import annotations
@@ -25,6 +30,8 @@ from PySide6.QtWidgets import (QAbstractScrollArea, QDialog, QFileDialog, QHBoxL
                                QVBoxLayout, QWidget)
 
 from lfstudio.gui.settings import settings
+from lfstudio.gui.views.quality import (OVERLAY_KEY, DisparityDialog, LiveQuality, NeighboursDialog, QualityBar,
+                                        run_check)
 
 log = logging.getLogger(__name__)
 
@@ -35,6 +42,8 @@ STATE_COLORS = {PENDING: QColor(70, 74, 82), CAPTURING: QColor(255, 176, 32), DO
                 FAILED: QColor(220, 60, 60), SKIPPED: QColor(40, 42, 46)}
 TILE_W, TILE_H = 48, 32          # mosaic tile (low zoom)
 FULL_ZOOM_PX = 56                # from this cell width on, draw the full thumbnails
+FLAG_COLORS = {"warn": QColor(255, 170, 0), "fail": QColor(230, 60, 60)}
+OVERLAY_ALPHA = 175
 MAX_RECENT = 8
 
 
@@ -106,7 +115,10 @@ class ThumbLoader(QObject):
                 if generation != self._generation:
                     continue
             if not image.isNull():
-                self.loaded.emit(key, image)
+                try:
+                    self.loaded.emit(key, image)
+                except RuntimeError:     # the grid was deleted while this thumbnail was decoded
+                    return
 
 
 class GridCanvas(QAbstractScrollArea):
@@ -114,6 +126,7 @@ class GridCanvas(QAbstractScrollArea):
 
     selectionChanged = Signal(int)
     viewActivated = Signal(int, int)       # row, column (double-click)
+    flaggedClicked = Signal(int, int)      # row, column of a flagged view clicked alone
     zoomChanged = Signal(float)
 
     def __init__(self, parent: QWidget | None = None):
@@ -141,12 +154,71 @@ class GridCanvas(QAbstractScrollArea):
         self.setToolTip("Thumbnails as on the rig. Ctrl+wheel or +/- zooms, F fits; click or drag to select, "
                         "double-click opens a view full size")
         self._tip_cell: tuple[int, int] | None = None
+        self.quality: dict[tuple[int, int], dict] = {}     # cell -> quality.json view entry
+        self.quality_doc: dict | None = None               # thresholds etc. for the heat-map scales
+        self.overlay_key = ""
+        self._overlay: np.ndarray | None = None            # rows x columns x 4 (RGBA) heat map
+
+    # -- quality -----------------------------------------------------------------------------------
+    def set_quality(self, doc: dict | None) -> None:
+        """Show the verdicts of a quality document (``quality.json`` layout); None clears them."""
+        self.quality_doc = doc
+        self.quality = {(int(v["row"]), int(v["column"])): v for v in (doc or {}).get("views", [])
+                        if v.get("checks")}
+        self._rebuild_overlay()
+
+    def update_quality(self, entry: dict, doc: dict | None = None) -> None:
+        """One view's new verdict (scan-time check)."""
+        if doc is not None and self.quality_doc is None:
+            self.quality_doc = doc
+        cell = (int(entry["row"]), int(entry["column"]))
+        self.quality[cell] = entry
+        self._rebuild_overlay()
+
+    def set_overlay(self, key: str) -> None:
+        self.overlay_key = key or ""
+        self._rebuild_overlay()
+
+    def flagged(self) -> list[tuple[int, int]]:
+        return sorted(c for c, e in self.quality.items() if e.get("verdict") in FLAG_COLORS)
+
+    def _rebuild_overlay(self) -> None:
+        self._overlay = None
+        if self.overlay_key and self.quality_doc is not None and self.rows and self.columns:
+            from lfstudio.quality.pictures import HEATMAPS, heatmap_colour
+
+            h = HEATMAPS[self.overlay_key]
+            rgba = np.zeros((self.rows, self.columns, 4), np.uint8)
+            for (r, c), entry in self.quality.items():
+                value = h.value(entry)
+                if value is not None and 0 <= r < self.rows and 0 <= c < self.columns:
+                    rgba[r, c, :3] = heatmap_colour(self.quality_doc, self.overlay_key, value)
+                    rgba[r, c, 3] = OVERLAY_ALPHA
+            self._overlay = rgba
+        self.viewport().update()
+
+    def _paint_quality(self, p: QPainter, r0: int, r1: int, c0: int, c1: int, px: float, py: float,
+                       ox: float, oy: float, thin: bool) -> None:
+        if self._overlay is not None:
+            block = np.ascontiguousarray(self._overlay[r0:r1, c0:c1])
+            img = QImage(block.data, block.shape[1], block.shape[0], block.strides[0], QImage.Format_RGBA8888)
+            p.setRenderHint(QPainter.SmoothPixmapTransform, False)
+            p.drawImage(QRectF(ox + c0 * px, oy + r0 * py, (c1 - c0) * px, (r1 - r0) * py), img)
+        p.setBrush(Qt.NoBrush)
+        for (r, c), entry in self.quality.items():
+            colour = FLAG_COLORS.get(entry.get("verdict"))
+            if colour is None or not (r0 <= r < r1 and c0 <= c < c1):
+                continue
+            p.setPen(QPen(colour, 1 if thin else 3))
+            rect = QRectF(ox + c * px, oy + r * py, px - self.gap_px, py - self.gap_px)
+            p.drawRect(rect.adjusted(1, 1, -1, -1) if not thin else rect)
 
     # -- data --------------------------------------------------------------------------------------
     def set_dataset(self, dataset: Any) -> None:
         self.loader.clear()
         self._cache.clear()
         self.selected.clear()
+        self.quality, self.quality_doc, self._overlay = {}, None, None
         if dataset is None:
             self.rows = self.columns = 0
             self.status = np.zeros((0, 0), np.int8)
@@ -369,8 +441,8 @@ class GridCanvas(QAbstractScrollArea):
                 if st != DONE and not thin and st != PENDING:
                     p.setPen(QPen(STATE_COLORS[st].lighter(130), 2))
                     p.drawRect(rect.adjusted(1, 1, -1, -1))
-        if self.gap_px:
-            p.setPen(QColor(24, 25, 28))
+        if self.quality or self._overlay is not None:
+            self._paint_quality(p, r0, r1, c0, c1, px, py, ox, oy, thin)
         # selection and rubber band
         if self.selected:
             p.setPen(QPen(QColor(80, 160, 255), 2 if not thin else 1))
@@ -420,7 +492,13 @@ class GridCanvas(QAbstractScrollArea):
             self._tip_cell = cell
             if cell is not None:
                 r, c = cell
-                self.setToolTip(f"row {r}, column {c}: {STATE_NAMES[int(self.status[r, c])]}")
+                tip = f"row {r}, column {c}: {STATE_NAMES[int(self.status[r, c])]}"
+                entry = self.quality.get(cell)
+                if entry is not None:
+                    tip += f"\ncheck: {entry['verdict']}" + "".join(f"\n  {x}" for x in entry.get("reasons", []))
+                    if entry.get("verdict") in FLAG_COLORS:
+                        tip += "\n(click: compare with its neighbours)"
+                self.setToolTip(tip)
         super().mouseMoveEvent(event)
 
     def mouseReleaseEvent(self, event) -> None:
@@ -433,6 +511,10 @@ class GridCanvas(QAbstractScrollArea):
             else:
                 self.selected |= cells
             self.selectionChanged.emit(len(self.selected))
+            if len(cells) == 1 and not event.modifiers() & (Qt.ControlModifier | Qt.ShiftModifier):
+                cell = next(iter(cells))
+                if (self.quality.get(cell) or {}).get("verdict") in FLAG_COLORS:
+                    self.flaggedClicked.emit(*cell)
         self._drag_from = self._drag_to = None
         self.viewport().update()
         super().mouseReleaseEvent(event)
@@ -583,10 +665,14 @@ class GridView(QWidget):
         self.recapture_button.setEnabled(False)
         self.recapture_button.clicked.connect(self.request_recapture)
         bar.addWidget(self.recapture_button)
+        self.quality_bar = QualityBar()
+        self.live: LiveQuality | None = None
+        self._neighbours: NeighboursDialog | None = None
         lay = QVBoxLayout(page)
         lay.setContentsMargins(0, 0, 0, 0)
         lay.setSpacing(0)
         lay.addLayout(bar)
+        lay.addWidget(self.quality_bar)
         lay.addWidget(self.canvas, 1)
         self.stack.addWidget(self.empty)
         self.stack.addWidget(page)
@@ -595,6 +681,20 @@ class GridView(QWidget):
         outer.addWidget(self.stack)
         self.canvas.selectionChanged.connect(self._on_selection)
         self.canvas.viewActivated.connect(self.open_view)
+        self.canvas.flaggedClicked.connect(self.compare_with_neighbours)
+        qb = self.quality_bar
+        qb.check_button.clicked.connect(self.run_check)
+        qb.runner.finished.connect(self._check_finished)
+        qb.runner.failed.connect(self._check_failed)
+        qb.runner.cancelled.connect(self._check_cancelled)
+        qb.overlayChanged.connect(self._set_overlay)
+        qb.selectFlagged.connect(self.select_flagged)
+        qb.showDisparity.connect(self.show_disparity)
+        saved = settings().value(OVERLAY_KEY, "") or ""
+        index = qb.overlay.findData(saved)
+        if index > 0:
+            qb.overlay.setCurrentIndex(index)
+            self.canvas.set_overlay(saved)
         state.datasetChanged.connect(self.set_dataset)
         scan_event = getattr(state, "scanEvent", None)
         if scan_event is not None:
@@ -617,9 +717,12 @@ class GridView(QWidget):
     # -- state -------------------------------------------------------------------------------------
     def set_dataset(self, dataset: Any) -> None:
         self.canvas.set_dataset(dataset)
+        self._stop_live()
         if dataset is None:
+            self.quality_bar.set_available(False, False)
             self.stack.setCurrentWidget(self.empty)
             return
+        self._load_quality(dataset)
         self.stack.setCurrentIndex(1)
         grid = dataset.grid
         self.title.setText(f"<b>{dataset.root.name}</b> — {grid['columns']} × {grid['rows']} views")
@@ -641,6 +744,8 @@ class GridView(QWidget):
         kind = getattr(ev.kind, "value", ev.kind)
         if ev.row is None:
             return
+        if kind == "view-done" and self.quality_bar.live_box.isChecked():
+            self._live_checker().on_event(ev)
         if kind == "view-started":
             self.canvas.set_cell(ev.row, ev.column, CAPTURING)
         elif kind == "view-done":
@@ -656,7 +761,10 @@ class GridView(QWidget):
         self.recapture_button.setText(f"Re-capture {n} selected" if n else "Re-capture selected")
 
     def request_recapture(self) -> None:
-        cells = sorted(self.canvas.selected)
+        self.recapture(sorted(self.canvas.selected))
+
+    def recapture(self, cells: list[tuple[int, int]]) -> None:
+        """Queue ``cells`` for capture again (the Scan panel listens to ``AppState.recaptureRequested``)."""
         if not cells:
             return
         signal = getattr(self.state, "recaptureRequested", None)
@@ -747,7 +855,108 @@ class GridView(QWidget):
             a.triggered.connect(lambda checked=False, p=path: self.open_dataset(p))
         self._recent_menu.setEnabled(bool(paths))
 
+    # -- quality -----------------------------------------------------------------------------------
+    def _load_quality(self, dataset: Any) -> None:
+        from lfstudio.errors import LfError
+        from lfstudio.quality import load_quality
+
+        try:
+            doc = load_quality(dataset)
+        except LfError as exc:
+            self.state.show_status(str(exc), 10000)
+            doc = None
+        self.canvas.set_quality(doc)
+        has_map = bool(doc and (doc.get("pictures") or {}).get("disparity"))
+        self.quality_bar.set_available(True, has_map)
+        self.quality_bar.set_summary(self.canvas.quality, live=False)
+
+    def run_check(self) -> None:
+        ds = self.state.dataset
+        runner = self.quality_bar.runner
+        if ds is None or runner.running:
+            return
+        self.quality_bar.check_button.setEnabled(False)
+        runner.start(run_check, str(ds.root))
+
+    def _check_finished(self, doc: dict) -> None:
+        ds = self.state.dataset
+        self.quality_bar.check_button.setEnabled(ds is not None)
+        if ds is None or str(ds.root) != doc.get("dataset"):
+            return                     # another dataset was opened meanwhile
+        self.canvas.set_quality(doc)
+        self.quality_bar.set_available(True, bool((doc.get("pictures") or {}).get("disparity")))
+        self.quality_bar.set_summary(self.canvas.quality, live=False)
+        s = doc["summary"]
+        self.state.show_status(f"Check: {doc['verdict']} — {s['pass']} pass, {s['warn']} warn, {s['fail']} fail; "
+                               f"report in {Path(doc['dataset']) / 'quality' / 'report.html'}", 10000)
+
+    def _check_failed(self, message: str) -> None:
+        self.quality_bar.check_button.setEnabled(self.state.dataset is not None)
+        self.state.report_error("Check dataset", message)
+
+    def _check_cancelled(self) -> None:
+        self.quality_bar.check_button.setEnabled(self.state.dataset is not None)
+        self.state.show_status("Check cancelled; nothing was written")
+
+    def _set_overlay(self, key: str) -> None:
+        settings().setValue(OVERLAY_KEY, key)
+        self.canvas.set_overlay(key)
+
+    def select_flagged(self) -> None:
+        flagged = self.canvas.flagged()
+        self.canvas.selected = set(flagged)
+        self.canvas.selectionChanged.emit(len(flagged))
+        self.canvas.viewport().update()
+        self.state.show_status(f"{len(flagged)} flagged view(s) selected: Re-capture selected queues them")
+
+    def show_disparity(self) -> None:
+        doc = self.canvas.quality_doc or {}
+        ds = self.state.dataset
+        rel = (doc.get("pictures") or {}).get("disparity")
+        if ds is None or not rel:
+            self.state.show_status("No disparity map yet: run Check dataset")
+            return
+        dlg = DisparityDialog(Path(ds.root) / rel, doc.get("disparity_map"), self)
+        dlg.setAttribute(Qt.WA_DeleteOnClose)
+        dlg.show()
+        self._disparity_dialog = dlg
+
+    def compare_with_neighbours(self, row: int, column: int) -> None:
+        ds = self.state.dataset
+        if ds is None:
+            return
+        if self._neighbours is None:
+            self._neighbours = NeighboursDialog(self)
+            self._neighbours.recaptureRequested.connect(self.recapture)
+        self._neighbours.show_view(ds, (row, column), self.canvas.quality.get((row, column)))
+        self._neighbours.show()
+        self._neighbours.raise_()
+
+    def _live_checker(self) -> LiveQuality:
+        ds = self.state.dataset
+        if self.live is None or self.live.root != Path(ds.root):
+            self._stop_live()
+            live = self.live = LiveQuality(ds, self)
+            live.verdict.connect(lambda entry, source=live: self._on_live_verdict(source, entry))
+        return self.live
+
+    def _on_live_verdict(self, source: LiveQuality, entry: dict) -> None:
+        if source is not self.live:
+            return                      # a late verdict of a scan whose dataset is no longer shown
+        self.canvas.update_quality(entry, self.live.document() if self.canvas.quality_doc is None else None)
+        self.quality_bar.set_summary(self.canvas.quality, live=True)
+        if entry.get("verdict") == "fail":
+            self.state.show_status(f"View r{entry['row']:02d} c{entry['column']:03d} failed the check: "
+                                   + "; ".join(entry.get("reasons", [])), 10000)
+
+    def _stop_live(self) -> None:
+        if self.live is not None:
+            self.live.shutdown()
+            self.live = None
+
     def shutdown(self) -> None:
+        self._stop_live()
+        self.quality_bar.shutdown()
         self.canvas.shutdown()
 
 

@@ -1,0 +1,290 @@
+"""The grid view's quality tools: run the dataset check, show its verdicts, compare a flagged view
+with its neighbours, show the disparity map, check views during a scan.
+
+* :class:`QualityBar` — "Check dataset" (``lfstudio.quality.check_dataset`` through a
+  :class:`~lfstudio.gui.bridge.JobRunner`: off the GUI thread, progress, ETA, Cancel), the heat-map
+  overlay choice (:data:`lfstudio.quality.pictures.HEATMAPS`), "Select flagged", "Disparity map…" and
+  "Check during scan";
+* :class:`LiveQuality` — a :class:`lfstudio.quality.live.LiveChecker` whose verdicts arrive on the GUI
+  thread as a Qt signal;
+* :class:`NeighboursDialog` — a flagged view in the middle of its 8 neighbours, with the reasons and
+  a "Re-capture this view" button; :class:`DisparityDialog` — the centre view's disparity map.
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from typing import Any
+
+from PySide6.QtCore import QObject, Qt, Signal
+from PySide6.QtGui import QImage, QPixmap
+from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QGridLayout, QHBoxLayout, QLabel, QPushButton,
+                               QScrollArea, QSizePolicy, QVBoxLayout, QWidget)
+
+from lfstudio.gui.bridge import JobRunner
+from lfstudio.gui.settings import settings
+from lfstudio.gui.widgets import JobProgressWidget
+
+LIVE_KEY = "quality/check_during_scan"
+OVERLAY_KEY = "quality/overlay"
+VERDICT_COLOURS = {"warn": "#ffaa00", "fail": "#e63c3c", "pass": "#46b45a", "n/a": "#8a8f98"}
+
+
+def run_check(root: str, *, progress, cancel) -> dict[str, Any]:
+    """The ``Check dataset`` job: a fresh read of the dataset, checked and written (worker thread)."""
+    from lfstudio.dataset import Dataset
+    from lfstudio.quality import check_dataset
+
+    return check_dataset(Dataset.open(root), progress=progress, cancel=cancel).document
+
+
+class LiveQuality(QObject):
+    """Checks the views of a running scan; ``verdict(entry)`` arrives on the GUI thread."""
+
+    verdict = Signal(object)
+
+    def __init__(self, dataset, parent: QObject | None = None):
+        super().__init__(parent)
+        from lfstudio.quality.live import LiveChecker
+
+        self.root = Path(dataset.root)
+        self.checker = LiveChecker(dataset)
+        self.checker.subscribe(self.verdict.emit)     # emitted on the checker's thread: queued to ours
+
+    def on_event(self, event: Any) -> None:
+        self.checker.on_event(event)
+
+    def document(self) -> dict[str, Any]:
+        return self.checker.document()
+
+    def shutdown(self) -> None:
+        """Stop checking (views still queued are dropped); never waits on the GUI thread."""
+        self.checker.close(timeout_s=0.0, drain=False)
+
+
+class QualityBar(QWidget):
+    """The quality row of the grid view's toolbar (see the module docstring)."""
+
+    overlayChanged = Signal(str)          # "" or a HEATMAPS key
+    selectFlagged = Signal()
+    showDisparity = Signal()
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        from lfstudio.quality.pictures import HEATMAPS
+
+        self.setObjectName("qualityBar")
+        self.runner = JobRunner(self)
+        self.check_button = QPushButton("Check dataset")
+        self.check_button.setObjectName("checkButton")
+        self.check_button.setToolTip("Judge every view from its pixels: sharpness, exposure, position, track "
+                                     "residual; the scene's depth and the disparity map (writes quality.json)")
+        self.overlay = QComboBox()
+        self.overlay.setObjectName("overlayCombo")
+        self.overlay.addItem("No heat map", "")
+        for key, h in HEATMAPS.items():
+            self.overlay.addItem(h.title.split(" (")[0], key)
+        self.overlay.setToolTip("Colour the grid by one measured figure (the same scale as the report's heat maps)")
+        self.overlay.currentIndexChanged.connect(lambda i: self.overlayChanged.emit(self.overlay.itemData(i)))
+        self.select_button = QPushButton("Select flagged")
+        self.select_button.setObjectName("selectFlaggedButton")
+        self.select_button.setToolTip("Select every view the check flagged (then Re-capture selected)")
+        self.select_button.clicked.connect(self.selectFlagged)
+        self.disparity_button = QPushButton("Disparity map…")
+        self.disparity_button.setObjectName("disparityButton")
+        self.disparity_button.setToolTip("The centre view's disparity in false colour (from the last check)")
+        self.disparity_button.clicked.connect(self.showDisparity)
+        self.live_box = QCheckBox("Check during scan")
+        self.live_box.setObjectName("liveCheckBox")
+        self.live_box.setToolTip("Judge each view as the scan captures it (on a background thread; the scan "
+                                 "never waits for it) and flag failing views at once")
+        self.live_box.setChecked(settings().value(LIVE_KEY, True, type=bool))
+        self.live_box.toggled.connect(lambda on: settings().setValue(LIVE_KEY, bool(on)))
+        self.summary = QLabel("")
+        self.summary.setObjectName("qualitySummary")
+        self.summary.setMinimumWidth(8)
+        self.progress = JobProgressWidget(self.runner)
+        self.progress.setVisible(False)
+        self.runner.started.connect(lambda: self.progress.setVisible(True))
+        for sig in (self.runner.finished, self.runner.failed, self.runner.cancelled):
+            sig.connect(lambda *a: self.progress.setVisible(False))
+        lay = QHBoxLayout(self)
+        lay.setContentsMargins(4, 0, 4, 2)
+        for w in (self.check_button, self.overlay, self.select_button, self.disparity_button, self.live_box):
+            w.setSizePolicy(QSizePolicy.Fixed, QSizePolicy.Fixed)
+            lay.addWidget(w)
+        lay.addSpacing(8)
+        lay.addWidget(self.summary, 1)
+        lay.addWidget(self.progress, 2)
+        self.set_available(False, False)
+
+    def set_available(self, dataset: bool, report: bool) -> None:
+        self.check_button.setEnabled(dataset and not self.runner.running)
+        self.disparity_button.setEnabled(report)
+
+    def set_summary(self, entries: dict, live: bool) -> None:
+        fail = sum(1 for e in entries.values() if e["verdict"] == "fail")
+        warn = sum(1 for e in entries.values() if e["verdict"] == "warn")
+        if not entries:
+            self.summary.setText("")
+            return
+        where = "checked during the scan" if live else "checked"
+        text = f"{len(entries)} views {where}: "
+        text += (f"<span style='color:{VERDICT_COLOURS['fail']}'>{fail} fail</span> · "
+                 f"<span style='color:{VERDICT_COLOURS['warn']}'>{warn} warn</span>") if fail or warn else \
+            f"<span style='color:{VERDICT_COLOURS['pass']}'>all pass</span>"
+        self.summary.setText(text)
+        self.select_button.setEnabled(bool(fail or warn))
+
+    def shutdown(self) -> None:
+        self.runner.stop(5.0)
+
+
+class _Decoder(QObject):
+    """Decodes small previews of view files on a thread; ``decoded(cell, QImage)``."""
+
+    decoded = Signal(object, QImage)
+
+    def start(self, jobs: list[tuple[tuple[int, int], Path]], width_px: int) -> None:
+        threading.Thread(target=self._run, args=(jobs, width_px), daemon=True, name="neighbour-decode").start()
+
+    def _run(self, jobs, width_px: int) -> None:
+        import numpy as np
+
+        from lfstudio.gui.imageutil import rgb_to_qimage
+        from lfstudio.scan.thumbs import thumbnail_array
+
+        for cell, path in jobs:
+            try:
+                bgr = thumbnail_array(path, width_px)
+            except Exception:
+                bgr = None
+            self.decoded.emit(cell, QImage() if bgr is None else rgb_to_qimage(np.ascontiguousarray(bgr[..., ::-1])))
+
+
+class NeighboursDialog(QDialog):
+    """A flagged view in the middle of its 8 neighbours, with why it was flagged."""
+
+    recaptureRequested = Signal(object)     # [(row, column)]
+
+    TILE_PX = 300
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.setObjectName("neighboursDialog")
+        self.setWindowTitle("View and its neighbours")
+        self.cell: tuple[int, int] | None = None
+        self.tiles: dict[tuple[int, int], QLabel] = {}
+        self.grid = QGridLayout()
+        self.grid.setSpacing(4)
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                label = QLabel()
+                label.setAlignment(Qt.AlignCenter)
+                label.setMinimumSize(self.TILE_PX // 2, self.TILE_PX // 3)
+                label.setStyleSheet("background:#202226;color:#9aa0a8")
+                self.grid.addWidget(label, dr + 1, dc + 1)
+                self.tiles[(dr, dc)] = label
+        self.reasons = QLabel("")
+        self.reasons.setObjectName("neighboursReasons")
+        self.reasons.setWordWrap(True)
+        self.reasons.setTextFormat(Qt.RichText)
+        self.recapture_button = QPushButton("Re-capture this view")
+        self.recapture_button.setObjectName("recaptureThisButton")
+        self.recapture_button.setToolTip("Queue this view for capture again (Scan panel)")
+        self.recapture_button.clicked.connect(lambda: self.cell and self.recaptureRequested.emit([self.cell]))
+        close = QPushButton("Close")
+        close.clicked.connect(self.close)
+        buttons = QHBoxLayout()
+        buttons.addStretch(1)
+        buttons.addWidget(self.recapture_button)
+        buttons.addWidget(close)
+        lay = QVBoxLayout(self)
+        lay.addLayout(self.grid, 1)
+        lay.addWidget(self.reasons)
+        lay.addLayout(buttons)
+        self.decoder = _Decoder(self)
+        self.decoder.decoded.connect(self._on_decoded)
+        self.resize(3 * self.TILE_PX + 40, 2 * self.TILE_PX + 160)
+
+    def show_view(self, dataset, cell: tuple[int, int], entry: dict | None) -> None:
+        """Show ``cell`` of ``dataset`` among its neighbours (``entry``: its quality verdict or None)."""
+        self.cell = cell
+        r, c = cell
+        self.setWindowTitle(f"View r{r:02d} c{c:03d} and its neighbours")
+        jobs = []
+        for (dr, dc), label in self.tiles.items():
+            label.setPixmap(QPixmap())
+            n = (r + dr, c + dc)
+            try:
+                v = dataset.view(*n)
+            except KeyError:
+                label.setText("")
+                continue
+            if v.get("status") != "done" or not v.get("file"):
+                label.setText(f"r{n[0]:02d} c{n[1]:03d}\n{v.get('status')}")
+                continue
+            label.setText(f"r{n[0]:02d} c{n[1]:03d}\nloading…")
+            try:
+                jobs.append((n, dataset.path_of(v)))
+            except Exception as exc:
+                label.setText(f"r{n[0]:02d} c{n[1]:03d}\n{exc}")
+        self.tiles[(0, 0)].setStyleSheet("background:#202226;color:#9aa0a8;border:3px solid "
+                                         f"{VERDICT_COLOURS.get((entry or {}).get('verdict', 'n/a'))}")
+        if entry:
+            colour = VERDICT_COLOURS.get(entry["verdict"], "#ccc")
+            lines = "".join(f"<li>{r_}</li>" for r_ in entry.get("reasons", [])) or "<li>no check flagged it</li>"
+            self.reasons.setText(f"<b style='color:{colour}'>{entry['verdict'].upper()}</b> — r{r:02d} c{c:03d}"
+                                 f"<ul>{lines}</ul>")
+        else:
+            self.reasons.setText(f"r{r:02d} c{c:03d}: not checked yet")
+        self.decoder.start(jobs, self.TILE_PX)
+
+    def _on_decoded(self, cell, image: QImage) -> None:
+        if self.cell is None:
+            return
+        d = (cell[0] - self.cell[0], cell[1] - self.cell[1])
+        label = self.tiles.get(d)
+        if label is None:
+            return
+        if image.isNull():
+            label.setText(f"r{cell[0]:02d} c{cell[1]:03d}\ncannot be decoded")
+            return
+        label.setPixmap(QPixmap.fromImage(image.scaledToWidth(self.TILE_PX, Qt.SmoothTransformation)))
+        label.setToolTip(f"row {cell[0]}, column {cell[1]}")
+
+
+class DisparityDialog(QDialog):
+    """The disparity map of the centre view from the last check (``quality/disparity.png``)."""
+
+    def __init__(self, path: Path, info: dict | None, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.setObjectName("disparityDialog")
+        self.setWindowTitle("Disparity map of the centre view")
+        self.resize(1040, 800)
+        self.image = QLabel()
+        self.image.setAlignment(Qt.AlignCenter)
+        pix = QPixmap(str(path))
+        if pix.isNull():
+            self.image.setText(f"{path}: cannot be read; run Check dataset again")
+        else:
+            self.image.setPixmap(pix)
+        area = QScrollArea()
+        area.setWidget(self.image)
+        area.setWidgetResizable(True)
+        text = QLabel(self._caption(info))
+        text.setWordWrap(True)
+        lay = QVBoxLayout(self)
+        lay.addWidget(area, 1)
+        lay.addWidget(text)
+
+    @staticmethod
+    def _caption(info: dict | None) -> str:
+        if not info:
+            return ""
+        parts = [f"view {info['view']}", f"median {info['median_px']:.2f} px" if info.get("median_px") else "",
+                 f"{info['valid_fraction']:.0%} of pixels matched",
+                 "rectified" if info.get("rectified") else "not rectified (no calibration)"]
+        return ("Disparity between horizontal neighbours at full resolution (near = red): "
+                + ", ".join(p for p in parts if p))
