@@ -45,7 +45,8 @@ def format_report(doc: dict) -> str:
              f"repeatability x {num(rep.get('x_um'), '.0f')} µm, y {num(rep.get('y_um'), '.0f')} µm measured "
              f"(planned {', '.join(f'{v:g}' for v in rep.get('planned_um', []))} µm)",
              f"depth         {depth.get('verdict', 'n/a')}: {depth.get('why', '')}",
-             f"disparity     {num(depth.get('disparity_min_px'), '.2f')} … {num(depth.get('disparity_max_px'), '.2f')} px "
+             f"disparity     {num(depth.get('disparity_min_px'), '.2f')} … "
+             f"{num(depth.get('disparity_max_px'), '.2f')} px "
              "between horizontal neighbours"
              + (f" (exports write {depth['export_disp_min_px']:.2f} … {depth['export_disp_max_px']:.2f})"
                 if depth.get("export_disp_min_px") is not None else "")]

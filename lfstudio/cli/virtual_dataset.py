@@ -37,6 +37,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flicker", type=float, default=0.0, help="per-shot gain sigma, e.g. 0.01 (default 0)")
     p.add_argument("--vignetting", type=float, default=0.0, help="corner light loss, e.g. 0.2 (default 0)")
     p.add_argument("--noise", type=float, default=0.0, help="read noise, fraction of white, e.g. 0.002 (default 0)")
+    p.add_argument("--fault", action="append", default=[], metavar="KIND:ROW,COL[:VALUE]",
+                   help="spoil a view (repeatable): blur:ROW,COL:PX (motion blur, PX[,ANGLE]), "
+                        "luminance:ROW,COL:FACTOR, displaced:ROW,COL:DX[,DY] (mm), skipped:ROW,COL (the rig did "
+                        "not move: the view repeats the previous one); ground truth lists them")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=1, help="processes rendering in parallel (default 1)")
 
@@ -45,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from lfstudio.jobs import TerminalProgress
-    from lfstudio.studio.simulated import GROUND_TRUTH_NAME, make_virtual_dataset
+    from lfstudio.studio.simulated import GROUND_TRUTH_NAME, make_virtual_dataset, parse_fault
 
     cols, rows = (int(v) for v in _numbers(args.grid, "--grid", 2))
     if cols < 1 or rows < 1:
@@ -56,6 +60,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--near-m", f"must be positive and below --far-m ({args.far_m:g})")
     if args.workers < 1:
         raise InputError("--workers", "must be at least 1")
+    try:
+        faults = [parse_fault(text) for text in args.fault]
+    except ValueError as exc:
+        raise InputError("--fault", str(exc)) from None
     folder = Path(args.folder)
     if (folder / "dataset.json").exists():
         raise InputError("folder", f"{folder} already holds a dataset", "a new folder")
@@ -66,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
                               position_noise_um=_numbers(args.position_noise_um, "--position-noise-um", 2),
                               near_m=args.near_m, far_m=args.far_m, flicker=args.flicker,
                               vignetting=args.vignetting, noise=args.noise, seed=args.seed, workers=args.workers,
+                              faults=faults,
                               progress=TerminalProgress("rendering"))
     print(f"{ds.root}: {len(ds.views)} views ({args.format.upper()}, {args.width} px wide); "
           f"ground truth in {ds.root / GROUND_TRUTH_NAME}", file=sys.stdout)

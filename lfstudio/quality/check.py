@@ -34,7 +34,7 @@ import numpy as np
 
 from lfstudio.dataset.atomic import atomic_write_json
 from lfstudio.dataset.paths import view_stem
-from lfstudio.errors import DatasetError
+from lfstudio.errors import DatasetError, LfError
 from lfstudio.jobs import CancelToken, Progress, no_progress
 from lfstudio.quality import verdicts
 from lfstudio.quality.disparity import DisparityMap, disparity_map, partner_cells, steps_for
@@ -55,7 +55,7 @@ VERSION = 1
 RING: tuple[Cell, ...] = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0))
 MIN_TRACK_VIEWS = 3          # tracks seen in fewer views do not count for the depth range
 RANGE_SIGMAS = 1.5           # see depth_range
-SOLVE_TRACKS_PER_VIEW = 250  # tracks per view the position solve uses (all of them give the depths)
+SOLVE_TRACKS_PER_VIEW = 120  # tracks per view the position solve uses (all of them give the depths)
 
 
 @dataclass
@@ -167,9 +167,9 @@ class GridCheck:
     def add(self, m: ViewMeasures, known: Callable[[Cell], bool] | None = None) -> Star:
         """Store ``m`` and track it into the neighbours ``known`` accepts (default: every stored one
         that still has its working image)."""
-        if m.cell in self.measures:
+        if m.cell in self.stars:
             # a view captured again: what other views tracked into its old image no longer holds
-            for star in self.stars.values():
+            for star in list(self.stars.values()):
                 if m.cell in star.neighbours:
                     star.xy[1 + star.neighbours.index(m.cell)] = np.nan
         self.measures[m.cell] = m
@@ -218,7 +218,8 @@ class GridCheck:
         }
         checks["exposure"]["level"] = m.level
         checks["position"]["tracks"] = fit.tracks.get(cell, 0) if fit is not None else 0
-        reasons = [f"{name}: {c['why']}" for name, c in checks.items() if c["verdict"] in (verdicts.WARN, verdicts.FAIL)]
+        reasons = [f"{name}: {c['why']}" for name, c in checks.items()
+                   if c["verdict"] in (verdicts.WARN, verdicts.FAIL)]
         return {"row": cell[0], "column": cell[1], "view": view_stem(*cell),
                 "verdict": verdicts.worst(c["verdict"] for c in checks.values()), "status": "done",
                 "reasons": reasons, "checks": checks}
@@ -284,6 +285,7 @@ class QualityReport:
     document: dict[str, Any]
     disparity: DisparityMap | None = None
     track_disparity_px: np.ndarray = field(default_factory=lambda: np.zeros(0))   # full-res px per step
+    depth_scale_m_px: float | None = None      # depth (m) = this / disparity (full-res px per step)
     path: Path | None = None
 
     @property
@@ -380,39 +382,59 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
 
     def measure(cell: Cell) -> ViewMeasures:
         check_cancel()
+        if ref_measures is not None and cell == ref_measures.cell:
+            return ref_measures
         return measure_view(paths[cell], *cell, work_width_px=work_width_px)
 
     ref_measures: ViewMeasures | None = None
     gains: dict[Cell, float] = {}
-    rows = sorted({r for r, _ in decode})
+    unreadable: dict[Cell, str] = {}
+    order = {c: i for i, c in enumerate(decode)}          # row-major
+    futures: dict[Cell, Any] = {}
+
+    def task(cell: Cell) -> Cell:
+        """Read one view, then track it into the neighbours before it (their tasks started first)."""
+        try:
+            m = measure(cell)
+        except LfError as exc:
+            unreadable[cell] = str(exc)
+            return cell
+        if ref_measures is not None:
+            gains[cell] = deflicker_gain(ref_measures, m, profile.deflicker)
+        if m is not ref_measures:
+            m.small_luminance = None
+        grid.measures[cell] = m
+        r, c = cell
+        for dr, dc in WINDOW:
+            nb = (r + dr, c + dc)
+            if nb in futures and order[nb] < order[cell]:
+                futures[nb].result()
+        check_cancel()
+        grid.add(m, known=lambda n: n in order and order[n] < order[cell] and n not in unreadable)
+        return cell
+
     with ThreadPoolExecutor(max_workers=max(1, threads), thread_name_prefix="quality") as pool:
         if ref_cell is not None and ref_cell in paths:
-            ref_measures = measure(ref_cell)
-        for r in rows:
-            row_cells = [c for c in decode if c[0] == r]
-            futures = [pool.submit(measure, c) for c in row_cells]
             try:
-                measured = [f.result() for f in futures]
-            except BaseException:
-                for f in futures:
-                    f.cancel()
-                raise
-            for m in measured:
-                grid.measures[m.cell] = m
-                if ref_measures is not None:
-                    gains[m.cell] = deflicker_gain(ref_measures, m, profile.deflicker)
-                m.small_luminance = None
-            # stars: into neighbours earlier in row-major order
-            order = {c: i for i, c in enumerate(sorted(grid.measures))}
-
-            def star(m: ViewMeasures) -> Star:
-                check_cancel()
-                return grid.add(m, known=lambda c, k=m.cell: c in order and order[c] < order[k])
-
-            list(pool.map(star, measured))
-            grid.drop_images(lambda c, r=r: c[0] >= r or c in keep_forever)
-            done_n += len(measured)
-            progress(done_n, total, f"row {r}: {len(measured)} views read and tracked")
+                ref_measures = measure(ref_cell)
+            except LfError:
+                ref_measures = None          # reported with the view itself below
+        for cell in decode:
+            futures[cell] = pool.submit(task, cell)
+        try:
+            row_left = {r: sum(1 for c in decode if c[0] == r) for r in {c[0] for c in decode}}
+            for cell in decode:
+                futures[cell].result()
+                done_n += 1
+                row_left[cell[0]] -= 1
+                if row_left[cell[0]] == 0:
+                    # every view of this row is tracked: the row above is needed no more
+                    grid.drop_images(lambda c, r=cell[0]: c[0] >= r or c in keep_forever)
+                progress(done_n, total, f"read and tracked {view_stem(*cell)}")
+        except BaseException:
+            for f in futures.values():
+                f.cancel()
+            raise
     check_cancel()
     progress(done_n, total, "solving the positions")
     fit = grid.solve(decode)
@@ -420,7 +442,10 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
     check_cancel()
 
     # neighbour disparity of the tracks (full resolution, one horizontal step) and depth
-    any_m = grid.measures[chosen[0]]
+    readable = [c for c in chosen if c in grid.measures]
+    if not readable:
+        raise DatasetError(f"{dataset.root}: none of the views to check can be read", [unreadable[c] for c in chosen])
+    any_m = grid.measures[readable[0]]
     f_work = grid.focal_length_work_px(any_m)
     good = np.isfinite(fit.s_px_per_mm) & (fit.s_px_per_mm > 0) & (fit.track_views >= MIN_TRACK_VIEWS) \
         & np.isfinite(fit.s_sigma)
@@ -436,7 +461,8 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
         max_s = float(np.percentile(s, 99.5)) if s.size else (f_work or 1000.0) / (1000.0 * 1.0)
         step_h = max_s * geometry.spacing_mm[0]
         step_v = max_s * geometry.spacing_mm[1]
-        parts = partner_cells(centre, set(images), geometry.columns, geometry.rows, steps_for(step_h), steps_for(step_v))
+        parts = partner_cells(centre, set(images), geometry.columns, geometry.rows, steps_for(step_h),
+                              steps_for(step_v))
         here = geometry.commanded_mm[centre]
         baselines = {c: float(np.hypot(*np.subtract(geometry.commanded_mm[c], here))) for c, _, _ in parts}
         if parts:
@@ -446,10 +472,13 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
     grid.drop_images(lambda c: False)
     check_cancel()
 
-    doc = build_document(dataset, grid, fit, chosen, gains, ref_cell, step_disp_full, step_disp_sigma, disp_map,
-                         cal_doc, settings={"work_width_px": work_width_px, "views": views if isinstance(views, str)
-                                            else ("all" if views is None else [view_stem(*c) for c in chosen])})
-    report = QualityReport(doc, disp_map, step_disp_full)
+    named = views if isinstance(views, str) else ("all" if views is None else [view_stem(*c) for c in chosen])
+    settings = {"work_width_px": work_width_px, "views": named}
+    doc = build_document(dataset, grid, fit, chosen, unreadable, gains, ref_cell, step_disp_full, step_disp_sigma,
+                         disp_map, cal_doc, settings)
+    f_full = geometry.focal_length_px(any_m.full_size_px[0])
+    report = QualityReport(doc, disp_map, step_disp_full,
+                           f_full * geometry.spacing_mm[0] / 1000.0 if f_full else None)
     doc["timing_s"] = {"wall": round(time.perf_counter() - t_start, 3), "cpu": round(time.process_time() - c_start, 3)}
     if write:
         progress(done_n, total, "writing quality.json and pictures")
@@ -460,7 +489,8 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
     return report
 
 
-def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell], gains: dict[Cell, float],
+def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell], unreadable: dict[Cell, str],
+                   gains: dict[Cell, float],
                    ref_cell: Cell | None, step_disp_full: np.ndarray, step_disp_sigma: np.ndarray,
                    disp_map: DisparityMap | None, cal_doc: dict | None, settings: dict[str, Any]) -> dict[str, Any]:
     """The ``quality.json`` document (plain JSON types)."""
@@ -468,7 +498,7 @@ def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell
     g = grid.geometry
     limits = t.position_limits_mm(g.repeatability_um, g.spacing_mm)
     typical_residual = fit.typical_residual_px()
-    f_full = g.focal_length_px(grid.measures[chosen[0]].full_size_px[0])
+    f_full = g.focal_length_px(grid.measures[next(c for c in chosen if c in grid.measures)].full_size_px[0])
     depth = depth_range(step_disp_full, step_disp_sigma, g, f_full, t)
     near_m = depth.get("near_m")
     views_out = []
@@ -481,6 +511,11 @@ def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell
                     views_out.append({"row": cell[0], "column": cell[1], "view": view_stem(*cell),
                                       "verdict": verdicts.FAIL, "status": v.get("status"),
                                       "reasons": [f"not captured (status {v.get('status')})"], "checks": {}})
+            continue
+        if cell in unreadable:
+            views_out.append({"row": cell[0], "column": cell[1], "view": view_stem(*cell), "verdict": verdicts.FAIL,
+                              "status": v.get("status"), "file": v.get("file"),
+                              "reasons": [f"cannot be read: {unreadable[cell]}"], "checks": {}})
             continue
         entry = grid.judge_view(cell, fit, typical_residual, near_m, gains.get(cell))
         entry["file"] = v.get("file")

@@ -116,12 +116,19 @@ def disparity_map(centre: Cell, images: dict[Cell, np.ndarray], partners: list[t
             continue
         estimates.append(d * np.float32(work_scale * spacing_x_mm / baseline))
         used.append({"view": list(cell), "direction": direction, "steps": steps, "baseline_mm": baseline})
-    if estimates:
-        stack = np.stack(estimates)
-        finite = np.isfinite(stack).any(axis=0)
-        out = np.full(c_img.shape, np.nan, np.float32)
-        with np.errstate(all="ignore"):
-            out[finite] = np.nanmedian(stack[:, finite], axis=0)
-    else:
-        out = np.full(c_img.shape, np.nan, np.float32)
+    out = nan_median(np.stack(estimates)) if estimates else np.full(c_img.shape, np.nan, np.float32)
     return DisparityMap(centre, out, c_img, used)
+
+
+def nan_median(stack: np.ndarray) -> np.ndarray:
+    """Per-pixel median over axis 0 ignoring NaN (NaN where every estimate is NaN); for the few
+    estimates here much faster than ``np.nanmedian``."""
+    s = np.sort(stack, axis=0)                        # NaN sorts last
+    n = np.isfinite(stack).sum(axis=0)
+    lo = np.clip((n - 1) // 2, 0, len(stack) - 1)
+    hi = np.clip(n // 2, 0, len(stack) - 1)
+    a = np.take_along_axis(s, lo[None], axis=0)[0]
+    b = np.take_along_axis(s, hi[None], axis=0)[0]
+    out = (a + b) * np.float32(0.5)
+    out[n == 0] = np.nan
+    return out.astype(np.float32)

@@ -1,17 +1,18 @@
 """What one view's own pixels say: focus energy, brightness, clipping, and the corners to track.
 
-A view is decoded once (RAW: LibRaw's half-size mode through the processing stage's debayer step,
-linear, camera white balance, no colour matrix; PNG/TIFF/JPEG as stored) and measured:
+A view is read once (:func:`read_luminance`: a RAW file's mosaic averaged over each 2 x 2 Bayer
+block — LibRaw's half-size resolution, no demosaicing —; PNG/TIFF/JPEG as the processing stage
+reads them) and measured:
 
 * **focus** — the energy of the Laplacian of the lightly smoothed, brightness-normalised
-  ``sqrt(luminance)`` image in a grid of tiles (:data:`TILES`), at the decoded resolution (at most
+  ``sqrt(luminance)`` image in a grid of tiles (:data:`TILES`), at the read resolution (at most
   ``focus_max_width_px`` wide). Dividing by the image's median brightness makes it independent of
   exposure; comparing tiles with the same tiles of the neighbouring views (which see nearly the
   same scene) makes it independent of scene content (:func:`sharpness_ratio`);
 * **brightness** — the median linear luminance (0 … 1 of full scale), and the de-flicker step's
   small luminance image for the gain against the reference view;
-* **clipping** — the fraction of pixels with a colour channel at ≥ 98 % of full scale (after white
-  balance), and of crushed pixels (every channel ≤ 0.2 % of full scale);
+* **clipping** — the fraction of raw pixels at ≥ 98 % of the white level (images: pixels with a
+  colour channel at ≥ 98 % of full scale), and of crushed pixels (≤ 0.2 % of full scale);
 * **corners** for tracking: ``cv2.goodFeaturesToTrack`` on an 8-bit working image (``sqrt``
   luminance stretched between its 0.5 and 99.8 percentiles, so a brighter view looks the same)
   at most ``work_width_px`` wide.
@@ -28,18 +29,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from lfstudio.processing.profile import DebayerStep, DeflickerStep
+from lfstudio.errors import DatasetError
+from lfstudio.processing.profile import DeflickerStep
 from lfstudio.processing.steps import debayer, deflicker
 
 #: focus tiles across and down
 TILES = (8, 6)
 DEFAULT_WORK_WIDTH_PX = 1000
 DEFAULT_FOCUS_MAX_WIDTH_PX = 4000
-MAX_CORNERS = 1000
+MAX_CORNERS = 600
 CLIP_LEVEL = 0.98
 CRUSH_LEVEL = 0.002
 _LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
-_DECODE = DebayerStep(half_size=True, color_space="raw", white_balance="camera")
 _DEFLICKER = DeflickerStep()
 
 
@@ -69,15 +70,61 @@ class ViewMeasures:
         return int(self.grey8.shape[1]), int(self.grey8.shape[0])
 
 
-def decode_linear(path: str | Path) -> tuple[np.ndarray, tuple[int, int]]:
-    """(h, w, 3) uint16 linear RGB (RAW at half size) and the full-resolution (w, h)."""
+@dataclass
+class Luminance:
+    """A view's linear luminance (0 … 1 of full scale) and its clipping, from one read of the file."""
+
+    image: np.ndarray                  # (h, w) float32; RAW: one value per 2 x 2 Bayer block
+    full_size_px: tuple[int, int]      # (w, h) of the full-resolution capture
+    clipped_fraction: float
+    crushed_fraction: float
+
+
+#: LibRaw's orientation codes → numpy rotations (counter-clockwise quarter turns)
+_FLIP_TURNS = {3: 2, 5: 1, 6: -1}
+
+
+def _raw_luminance(path: Path) -> Luminance:
+    import rawpy
+
+    try:
+        with rawpy.imread(str(path)) as raw:
+            mosaic = raw.raw_image_visible
+            black = float(np.mean(raw.black_level_per_channel))
+            white = float(raw.white_level)
+            flip = int(raw.sizes.flip)
+            h, w = mosaic.shape
+            span = max(white - black, 1.0)
+            clipped = float(np.count_nonzero(mosaic >= black + CLIP_LEVEL * span)) / mosaic.size
+            # the mean of each 2 x 2 Bayer block (R + 2 G + B) / 4: luminance without demosaicing
+            quads = cv2.resize(mosaic[: h // 2 * 2, : w // 2 * 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    except Exception as exc:   # rawpy raises several LibRaw error types
+        raise DatasetError(f"{path}: cannot be read as a RAW file ({exc}); re-capture the view or remove it "
+                           "from the dataset") from None
+    lum = (quads.astype(np.float32) - np.float32(black)) * np.float32(1.0 / span)
+    crushed = float(np.count_nonzero(lum <= CRUSH_LEVEL)) / lum.size
+    full = (w, h)
+    if flip in _FLIP_TURNS:
+        lum = np.ascontiguousarray(np.rot90(lum, _FLIP_TURNS[flip]))
+        if flip in (5, 6):
+            full = (h, w)
+    return Luminance(lum, full, clipped, crushed)
+
+
+def read_luminance(path: str | Path) -> Luminance:
+    """Linear luminance of a view file. RAW: the raw mosaic averaged over each 2 x 2 Bayer block
+    (the resolution of LibRaw's half-size mode; no demosaicing, no white balance: the checks compare
+    a view with its neighbours, so a fixed colour weighting is fine), clipping counted on the raw
+    pixels. PNG/TIFF/JPEG: as the processing stage reads them, Rec. 709 luminance."""
     path = Path(path)
-    rgb = debayer.decode(path, _DECODE)
     if debayer.is_raw(path):
-        full = debayer.full_size_px(path)
-    else:
-        full = (int(rgb.shape[1]), int(rgb.shape[0]))
-    return rgb, full
+        return _raw_luminance(path)
+    rgb16 = debayer.read_image(path)
+    peak = cv2.max(cv2.max(rgb16[..., 0], rgb16[..., 1]), rgb16[..., 2])   # numpy's max(axis=2) is 10x slower
+    clipped = float(np.count_nonzero(peak >= int(CLIP_LEVEL * 65535))) / peak.size
+    crushed = float(np.count_nonzero(peak <= int(CRUSH_LEVEL * 65535))) / peak.size
+    lum = rgb16.astype(np.float32) @ (_LUMA / np.float32(65535.0))
+    return Luminance(lum, (int(rgb16.shape[1]), int(rgb16.shape[0])), clipped, crushed)
 
 
 def _resize_to_width(img: np.ndarray, width_px: int) -> np.ndarray:
@@ -118,22 +165,18 @@ def measure_view(path: str | Path, row: int, column: int, *, work_width_px: int 
                  focus_max_width_px: int = DEFAULT_FOCUS_MAX_WIDTH_PX) -> ViewMeasures:
     """Decode the view at ``path`` and measure it (raises :class:`lfstudio.errors.DatasetError`
     naming the file when it cannot be read)."""
-    rgb16, full = decode_linear(path)
-    rgb16 = _resize_to_width(rgb16, focus_max_width_px)
-    peak = cv2.max(cv2.max(rgb16[..., 0], rgb16[..., 1]), rgb16[..., 2])   # numpy's max(axis=2) is 10x slower
-    clipped = float(np.count_nonzero(peak >= int(CLIP_LEVEL * 65535))) / peak.size
-    crushed = float(np.count_nonzero(peak <= int(CRUSH_LEVEL * 65535))) / peak.size
-    lum = (rgb16.astype(np.float32) @ (_LUMA / np.float32(65535.0)))
-    level = float(np.median(lum[::2, ::2]))
-    root = np.sqrt(np.maximum(lum, 0.0, out=lum), out=lum)
+    lum = read_luminance(path)
+    full = lum.full_size_px
+    image = _resize_to_width(lum.image, focus_max_width_px)
+    level = float(np.median(image[::4, ::4]))
+    small = deflicker.small_luminance(image * np.float32(65535.0), _DEFLICKER.size_px)
+    root = np.sqrt(np.maximum(image, 0.0), dtype=np.float32)
     tiles = focus_tiles(root)
-    work = _resize_to_width(root, work_width_px)
-    grey8 = working_grey8(work)
-    small = deflicker.small_luminance(rgb16, _DEFLICKER.size_px)
+    grey8 = working_grey8(_resize_to_width(root, work_width_px))
     return ViewMeasures(row=int(row), column=int(column), full_size_px=(int(full[0]), int(full[1])),
                         work_scale=float(full[0]) / float(grey8.shape[1]), focus_tiles=tiles, level=level,
-                        clipped_fraction=clipped, crushed_fraction=crushed, small_luminance=small,
-                        corners=detect_corners(grey8), grey8=grey8)
+                        clipped_fraction=lum.clipped_fraction, crushed_fraction=lum.crushed_fraction,
+                        small_luminance=small, corners=detect_corners(grey8), grey8=grey8)
 
 
 def sharpness_ratio(view: ViewMeasures, neighbours: list[ViewMeasures]) -> float | None:

@@ -33,8 +33,7 @@ class Heatmap:
     unit: str
     value: Callable[[dict[str, Any]], float | None]     # from one view entry of quality.json
     range: Callable[[dict[str, Any]], tuple[float, float]]  # from the document (thresholds)
-    colormap: int
-    reverse: bool = False     # True: low values are bad (drawn hot)
+    colormap: int            # OpenCV colour map; the scale runs from range[0] to range[1]
 
 
 def _check_value(name: str, key: str = "value") -> Callable[[dict[str, Any]], float | None]:
@@ -62,10 +61,10 @@ HEATMAPS: dict[str, Heatmap] = {h.key: h for h in (
             lambda d: (-1.5 * 100 * d["thresholds"]["exposure_fail"], 1.5 * 100 * d["thresholds"]["exposure_fail"]),
             cv2.COLORMAP_TWILIGHT_SHIFTED),
     Heatmap("position", "Position error", "µm", _position_um,
-            lambda d: (0.0, 1500.0 * d["thresholds"]["position_fail_mm"]), cv2.COLORMAP_INFERNO, reverse=True),
+            lambda d: (0.0, 1500.0 * d["thresholds"]["position_fail_mm"]), cv2.COLORMAP_INFERNO),
     Heatmap("residual", "Track residual", "px", _check_value("residual"),
             lambda d: (0.0, max(4 * (d.get("tracks", {}).get("typical_view_residual_px") or 0.25), 0.5)),
-            cv2.COLORMAP_INFERNO, reverse=True),
+            cv2.COLORMAP_INFERNO),
 )}
 
 
@@ -90,8 +89,6 @@ def heatmap_colour(doc: dict[str, Any], key: str, value: float) -> tuple[int, in
     lo, hi = h.range(doc)
     t = (value - lo) / (hi - lo) if hi > lo else 0.5
     t = min(max(t, 0.0), 1.0)
-    if not h.reverse and h.colormap == cv2.COLORMAP_INFERNO:
-        t = t                                   # low sharpness = dark, sharp = bright
     b, g, r = _lut(h.colormap)[int(round(t * 255))]
     return int(r), int(g), int(b)
 
@@ -167,9 +164,10 @@ def heatmaps_sheet(doc: dict[str, Any]) -> np.ndarray:
 
 
 def disparity_picture(disparity_px: np.ndarray, image8: np.ndarray, depth_note: str = "",
-                      range_px: tuple[float, float] | None = None, focal_baseline_m_px: float | None = None,
+                      range_px: tuple[float, float] | None = None, depth_scale_m_px: float | None = None,
                       ) -> np.ndarray:
-    """False-colour disparity (TURBO: near = red) over the grey image, with a colour bar in px (and m)."""
+    """False-colour disparity (TURBO: near = red) over the grey image, with a colour bar in px and,
+    with ``depth_scale_m_px`` (depth = scale / disparity), in metres."""
     d = disparity_px
     fin = d[np.isfinite(d)]
     if range_px is None:
@@ -193,8 +191,8 @@ def disparity_picture(disparity_px: np.ndarray, image8: np.ndarray, depth_note: 
     for frac in (0.0, 0.25, 0.5, 0.75, 1.0):
         val = lo + frac * (hi - lo)
         label = f"{val:.2f} px"
-        if focal_baseline_m_px and val > 0:
-            label += f" ({focal_baseline_m_px / val:.2f} m)"
+        if depth_scale_m_px and val > 0:
+            label += f" ({depth_scale_m_px / val:.2f} m)"
         x = int(20 + frac * (bw - 1))
         cv2.line(canvas, (x, h + 22), (x, h + 27), (0, 0, 0), 1)
         _text(canvas, label, (min(max(2, x - 40), w - 9 * len(label)), h + 42), 0.42)
@@ -276,17 +274,14 @@ def write_pictures(folder: Path, report, dataset) -> dict[str, Path]:
         marks = []
         from lfstudio.export.hci import disparity_range
 
-        full = (report.disparity.image8.shape[1], report.disparity.image8.shape[0]) if report.disparity else None
-        views = [v for v in dataset.views if v.get("status") == "done" and v.get("file")]
-        size = _full_size(dataset, views)
+        size = _sensor_size(dataset)
         planned = disparity_range(dataset, size) if size else None
         if planned:
             depth["export_disp_min_px"], depth["export_disp_max_px"] = float(planned[0]), float(planned[1])
             marks += [(planned[0], f"planned far {planned[0]:.2f}", (40, 140, 40)),
                       (planned[1], f"planned near {planned[1]:.2f}", (40, 140, 40))]
-        marks += [(depth["disparity_min_px"], "measured p1", (40, 40, 200)),
-                  (depth["disparity_max_px"], "measured p99", (40, 40, 200))]
-        del full
+        marks += [(depth["disparity_min_px"], "measured far", (40, 40, 200)),
+                  (depth["disparity_max_px"], "measured near", (40, 40, 200))]
         charts.append(bar_chart(depth["histogram"]["counts"], depth["histogram"]["edges_px"],
                                 title="Neighbour disparity of the tracked points",
                                 x_label="px between horizontal neighbours (full resolution)", marks=marks))
@@ -297,22 +292,17 @@ def write_pictures(folder: Path, report, dataset) -> dict[str, Path]:
     out["histograms"] = _write_png(folder / "histograms.png", np.hstack(charts))
     if report.disparity is not None:
         d = report.disparity
-        fb = None
-        geo_f = doc.get("_focal_baseline_m_px")
-        if isinstance(geo_f, (int, float)):
-            fb = float(geo_f)
         note = (f"view {doc['disparity_map']['view']}; " if doc.get("disparity_map") else "") + \
             ("rectified with calibration.json" if doc["calibration"]["used"] else "not rectified (no calibration)")
-        out["disparity"] = _write_png(folder / "disparity.png", disparity_picture(d.disparity_px, d.image8, note,
-                                                                                 focal_baseline_m_px=fb))
+        out["disparity"] = _write_png(folder / "disparity.png", disparity_picture(
+            d.disparity_px, d.image8, note, depth_scale_m_px=report.depth_scale_m_px))
         out["disparity_data"] = atomic_write_with(folder / "disparity.npy",
                                                   lambda p: np.save(p, d.disparity_px.astype(np.float16)))
-    doc.pop("_focal_baseline_m_px", None)
     out["report"] = write_html(folder / "report.html", doc, {k: p for k, p in out.items() if p.suffix == ".png"})
     return out
 
 
-def _full_size(dataset, views) -> tuple[int, int] | None:
+def _sensor_size(dataset) -> tuple[int, int] | None:
     cam = dataset.camera if isinstance(dataset.camera, dict) else {}
     size = cam.get("sensor_px")
     if isinstance(size, (list, tuple)) and len(size) == 2:

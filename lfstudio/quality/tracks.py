@@ -1,8 +1,8 @@
 """Feature tracks between neighbouring views: each view's corners followed into the views next to it.
 
 A view's *star*: its corners (:mod:`lfstudio.quality.measure`) tracked with pyramidal Lucas–Kanade
-(``cv2.calcOpticalFlowPyrLK``, forward and back: a point that does not return within
-:data:`ROUND_TRIP_PX` of where it started is dropped) into up to :data:`STAR_SIZE` neighbours that
+(``cv2.calcOpticalFlowPyrLK``; a point whose matching error is far above the median is dropped and,
+with :data:`BACK_CHECK` one that does not track back to where it started) into up to :data:`STAR_SIZE` neighbours that
 are already known — the ones captured earlier during a scan, or earlier in row-major order for a
 whole dataset — chosen from :data:`WINDOW` (the 8 around it and two steps along the row), nearest
 first. Every corner found in at least one neighbour becomes a track of the position model
@@ -31,8 +31,12 @@ Cell = tuple[int, int]
 #: neighbour offsets (rows, columns) a star may use
 WINDOW: tuple[Cell, ...] = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-2, -1, 0, 1, 2)
                                  if (dr, dc) != (0, 0) and (abs(dc) < 2 or dr == 0))
-STAR_SIZE = 4
+STAR_SIZE = 3
 ROUND_TRIP_PX = 0.15
+#: track back as well (drop points that do not return): twice the cost; the position solve is robust anyway
+BACK_CHECK = False
+#: a forward-only track is kept when its Lucas–Kanade error is below this many times the median
+LK_ERROR_FACTOR = 3.0
 _LK = dict(winSize=(11, 11), maxLevel=3,
            criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03))
 
@@ -71,13 +75,17 @@ def track_star(view: ViewMeasures, neighbours: Sequence[ViewMeasures], offsets_m
                 continue
             shift = -focal_length_work_px * np.asarray(off, np.float32) / (1000.0 * guess_depth_m)
             guess = pts + shift.astype(np.float32)
-            fwd, st, _ = cv2.calcOpticalFlowPyrLK(view.grey8, nb.grey8, pts, guess.copy(),
-                                                  flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **_LK)
-            back, st2, _ = cv2.calcOpticalFlowPyrLK(nb.grey8, view.grey8, fwd, pts.copy(),
+            fwd, st, err = cv2.calcOpticalFlowPyrLK(view.grey8, nb.grey8, pts, guess.copy(),
                                                     flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **_LK)
             h, w = view.grey8.shape
-            ok = (st[:, 0] == 1) & (st2[:, 0] == 1) & (np.hypot(*(back - pts).T) < ROUND_TRIP_PX) \
-                & (fwd[:, 0] >= 0) & (fwd[:, 1] >= 0) & (fwd[:, 0] <= w - 1) & (fwd[:, 1] <= h - 1)
+            ok = (st[:, 0] == 1) & (fwd[:, 0] >= 0) & (fwd[:, 1] >= 0) & (fwd[:, 0] <= w - 1) & (fwd[:, 1] <= h - 1)
+            if BACK_CHECK:
+                back, st2, _ = cv2.calcOpticalFlowPyrLK(nb.grey8, view.grey8, fwd, pts.copy(),
+                                                        flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **_LK)
+                ok &= (st2[:, 0] == 1) & (np.hypot(*(back - pts).T) < ROUND_TRIP_PX)
+            else:
+                e = err[:, 0]
+                ok &= e < LK_ERROR_FACTOR * np.median(e[ok]) if ok.any() else ok
             out[i][ok] = fwd[ok]
     return Star(view.cell, [n.cell for n in neighbours], out)
 

@@ -28,8 +28,8 @@ from lfstudio.sim.dng import write_dng
 from lfstudio.sim.grbl_controller import GrblSimulator
 from lfstudio.sim.instant import InstantCamera, InstantRig
 from lfstudio.sim.sim_camera import SimulatedCamera
-from lfstudio.sim.studio import (DEMO_PP_OFFSET_PX, DEMO_ROTATION_DEG, REFERENCE_REGION_MM, demo_studio,
-                                 demo_studio_kwargs)
+from lfstudio.sim.studio import (DEMO_PP_OFFSET_PX, DEMO_ROTATION_DEG, REFERENCE_REGION_MM, ViewFault, demo_studio,
+                                 demo_studio_kwargs, parse_fault)
 from lfstudio.sim.virtual_dataset import (GROUND_TRUTH_NAME, camera_dict, lens_dict, load_ground_truth,
                                           make_virtual_dataset)
 from lfstudio.studio.locks import port_device, runtime_dir
@@ -39,7 +39,8 @@ log = logging.getLogger(__name__)
 __all__ = ["DEMO_PP_OFFSET_PX", "DEMO_ROTATION_DEG", "GROUND_TRUTH_NAME", "REFERENCE_REGION_MM", "GrblSimulator",
            "InstantCamera", "InstantRig", "SimulatedCamera", "TruthServer", "camera_dict", "demo_studio",
            "demo_studio_kwargs", "describe_simulated_camera", "lens_dict", "load_ground_truth",
-           "make_virtual_dataset", "simulated_camera", "start_simulator", "truth_source", "write_dng"]
+           "make_virtual_dataset", "parse_fault", "simulated_camera", "start_simulator", "truth_source",
+           "ViewFault", "write_dng"]
 
 PositionSource = Callable[[], tuple[float, float]]
 

@@ -188,3 +188,24 @@ def test_lfstudio_check_names_the_problem_without_a_traceback(tmp_path, run_cli)
     assert "nothing-here" in res.stderr
     res = run_cli("check", tmp_path, "--work-width-px", "50")
     assert res.returncode == 2 and "--work-width-px" in res.stderr
+
+
+def test_an_unreadable_view_fails_and_the_others_are_still_checked(quality_dataset):
+    ds = quality_dataset("clean")
+    ds.path_of(ds.view(2, 4)).write_bytes(b"not an image")
+    report = check_dataset(ds, write=False)
+    flagged = _flagged(report)
+    assert set(flagged) == {(2, 4)}
+    assert flagged[(2, 4)]["verdict"] == "fail" and flagged[(2, 4)]["reasons"][0].startswith("cannot be read")
+    assert "r02_c004" in flagged[(2, 4)]["reasons"][0]
+
+
+def test_raw_dng_views_are_judged_too(quality_dataset):
+    faults = [ViewFault("blur", 1, 3, blur_px=6.0), ViewFault("luminance", 3, 1, gain=1.3)]
+    ds = quality_dataset("dng", fmt="dng", faults=faults)
+    report = check_dataset(ds, write=False)
+    flagged = _flagged(report)
+    assert set(flagged) == {(1, 3), (3, 1)}, {k: v["reasons"] for k, v in flagged.items()}
+    assert "sharpness" in _failing_checks(flagged[(1, 3)]) and "exposure" in _failing_checks(flagged[(3, 1)])
+    assert flagged[(3, 1)]["checks"]["exposure"]["value"] == pytest.approx(1.3, rel=0.03)
+    assert report.document["depth_range"]["near_m"] == pytest.approx(1.77, rel=0.05)

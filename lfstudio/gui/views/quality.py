@@ -76,10 +76,11 @@ class QualityBar(QWidget):
 
         self.setObjectName("qualityBar")
         self.runner = JobRunner(self)
-        self.check_button = QPushButton("Check dataset")
+        self.check_button = QPushButton("Check")
         self.check_button.setObjectName("checkButton")
-        self.check_button.setToolTip("Judge every view from its pixels: sharpness, exposure, position, track "
-                                     "residual; the scene's depth and the disparity map (writes quality.json)")
+        self.check_button.setToolTip("Check dataset: judge every view from its pixels — sharpness, exposure, "
+                                     "position, track residual — and the scene's depth and disparity map "
+                                     "(writes quality.json and quality/report.html)")
         self.overlay = QComboBox()
         self.overlay.setObjectName("overlayCombo")
         self.overlay.addItem("No heat map", "")
@@ -91,14 +92,15 @@ class QualityBar(QWidget):
         self.select_button.setObjectName("selectFlaggedButton")
         self.select_button.setToolTip("Select every view the check flagged (then Re-capture selected)")
         self.select_button.clicked.connect(self.selectFlagged)
-        self.disparity_button = QPushButton("Disparity map…")
+        self.disparity_button = QPushButton("Disparity…")
         self.disparity_button.setObjectName("disparityButton")
-        self.disparity_button.setToolTip("The centre view's disparity in false colour (from the last check)")
+        self.disparity_button.setToolTip("Disparity map: the centre view's disparity in false colour (from the "
+                                         "last check)")
         self.disparity_button.clicked.connect(self.showDisparity)
-        self.live_box = QCheckBox("Check during scan")
+        self.live_box = QCheckBox("During scan")
         self.live_box.setObjectName("liveCheckBox")
-        self.live_box.setToolTip("Judge each view as the scan captures it (on a background thread; the scan "
-                                 "never waits for it) and flag failing views at once")
+        self.live_box.setToolTip("Check during the scan: judge each view as the scan captures it (on a "
+                                 "background thread; the scan never waits for it) and flag failing views at once")
         self.live_box.setChecked(settings().value(LIVE_KEY, True, type=bool))
         self.live_box.toggled.connect(lambda on: settings().setValue(LIVE_KEY, bool(on)))
         self.summary = QLabel("")
