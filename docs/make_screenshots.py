@@ -1,9 +1,12 @@
 """Render the README's "A day in the studio" screenshots from the real windows, offscreen.
 
-    python docs/make_screenshots.py            # writes docs/screenshot.png and docs/day-*.png (about a minute)
+    python docs/make_screenshots.py            # writes docs/screenshot.png, docs/day-*.png, docs/quality-*.png
+    python docs/make_screenshots.py quality    # only the quality check's pictures (docs/quality-*.png)
 
 It drives the same steps as ``tests/gui/test_whole_day.py`` on the simulated studio (plan → scan →
 calibrate → process → export) in a temporary folder and grabs the window or dialog after each step.
+The quality pictures come from a virtual-studio dataset with injected faults (a blurred, a brighter,
+a displaced view and a skipped step), calibrated and checked in the window.
 """
 
 from __future__ import annotations
@@ -55,9 +58,46 @@ def type_into(box, text: str) -> None:
     QTest.keyClicks(box.lineEdit(), text)
 
 
+def quality_shots() -> None:
+    """docs/quality-heatmap.png (the grid coloured by sharpness, flagged views outlined) and
+    docs/quality-disparity.png (the disparity map of the centre view)."""
+    from lfstudio.calibration.calibrate import calibrate_dataset, save_calibration
+    from lfstudio.gui.app import create_window
+    from lfstudio.sim.studio import DEMO_ROTATION_DEG, ViewFault
+    from lfstudio.sim.virtual_dataset import make_virtual_dataset
+
+    work = Path(tempfile.mkdtemp(prefix="lfstudio-shots-quality-"))
+    faults = [ViewFault("blur", 1, 2, blur_px=6.0), ViewFault("luminance", 3, 6, gain=1.3),
+              ViewFault("displaced", 2, 4, offset_mm=(1.0, 0.0)), ViewFault("skipped", 4, 3)]
+    ds = make_virtual_dataset(work / "studio_check", 9, 5, width_px=1000, fmt="png", rotation_deg=DEMO_ROTATION_DEG,
+                              faults=faults)
+    save_calibration(ds, calibrate_dataset(ds, "2x3").document)
+    window = create_window(simulated=True)
+    window.resize(1500, 900)
+    window.show()
+    for dock in window.docks.values():
+        dock.hide()                        # the grid alone fills the window
+    grid = window.central
+    grid.open_dataset(str(ds.root))
+    bar = grid.quality_bar
+    bar.check_button.click()
+    wait_until(lambda: not bar.runner.running and grid.canvas.quality, what="the quality check")
+    bar.overlay.setCurrentIndex(bar.overlay.findData("sharpness"))
+    wait_until(lambda: grid.canvas._mosaic_has.all(), what="the thumbnails")
+    save(grid, "quality-heatmap.png")
+    grid.show_disparity()
+    dialog = grid._disparity_dialog
+    dialog.resize(1060, 800)
+    save(dialog, "quality-disparity.png")
+    window.close()
+
+
 def main() -> int:
     app = QApplication.instance() or QApplication(sys.argv[:1])
     app.setStyleSheet((HERE.parent / "resources" / "style.qss").read_text(encoding="utf-8"))
+    if sys.argv[1:] == ["quality"]:
+        quality_shots()
+        return 0
     from lfstudio.gui.app import create_window
     from lfstudio.gui.dialogs.calibration_wizard import CalibrationWizard
     from lfstudio.gui.dialogs.export_dialog import FORMAT_KEYS, ExportDialog
@@ -141,6 +181,7 @@ def main() -> int:
     save(export, "day-5-export.png")
     print(export.report.summary())
     window.close()
+    quality_shots()
     return 0
 
 

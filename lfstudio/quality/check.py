@@ -463,8 +463,10 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
         step_v = max_s * geometry.spacing_mm[1]
         parts = partner_cells(centre, set(images), geometry.columns, geometry.rows, steps_for(step_h),
                               steps_for(step_v))
-        here = geometry.commanded_mm[centre]
-        baselines = {c: float(np.hypot(*np.subtract(geometry.commanded_mm[c], here))) for c, _, _ in parts}
+        # baselines between where the views really were (measured), else where the manifest says
+        def where(c: Cell) -> np.ndarray:
+            return np.add(geometry.commanded_mm[c], fit.error_mm.get(c, (0.0, 0.0)))
+        baselines = {c: float(np.hypot(*(where(c) - where(centre)))) for c, _, _ in parts}
         if parts:
             disp_map = disparity_map(centre, images, parts, baselines, geometry.spacing_mm[0], any_m.work_scale,
                                      {"h": step_h, "v": step_v}, grid.homography_work(grid.measures[centre]))

@@ -43,7 +43,7 @@ STATE_COLORS = {PENDING: QColor(70, 74, 82), CAPTURING: QColor(255, 176, 32), DO
 TILE_W, TILE_H = 48, 32          # mosaic tile (low zoom)
 FULL_ZOOM_PX = 56                # from this cell width on, draw the full thumbnails
 FLAG_COLORS = {"warn": QColor(255, 170, 0), "fail": QColor(230, 60, 60)}
-OVERLAY_ALPHA = 175
+OVERLAY_ALPHA = 215
 MAX_RECENT = 8
 
 
