@@ -500,8 +500,14 @@ def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell
     g = grid.geometry
     limits = t.position_limits_mm(g.repeatability_um, g.spacing_mm)
     typical_residual = fit.typical_residual_px()
-    f_full = g.focal_length_px(grid.measures[next(c for c in chosen if c in grid.measures)].full_size_px[0])
+    full_size = grid.measures[next(c for c in chosen if c in grid.measures)].full_size_px
+    f_full = g.focal_length_px(full_size[0])
     depth = depth_range(step_disp_full, step_disp_sigma, g, f_full, t)
+    from lfstudio.export.hci import disparity_range
+
+    planned = disparity_range(dataset, [], "raw", full_size, measure=False)
+    if planned is not None:       # what the exports write as disp_min / disp_max for these images
+        depth["export_disp_min_px"], depth["export_disp_max_px"] = float(planned.d_min_px), float(planned.d_max_px)
     near_m = depth.get("near_m")
     views_out = []
     chosen_set = set(chosen)

@@ -1,8 +1,8 @@
 """What one view's own pixels say: focus energy, brightness, clipping, and the corners to track.
 
-A view is read once (:func:`read_luminance`: a RAW file's mosaic averaged over each 2 x 2 Bayer
-block — LibRaw's half-size resolution, no demosaicing —; PNG/TIFF/JPEG as the processing stage
-reads them) and measured:
+A view is read once (:func:`read_luminance`: a RAW file's white-balanced Bayer mosaic averaged over
+each 2 x 2 block — LibRaw's half-size resolution, no demosaicing —; PNG/TIFF/JPEG as the processing
+stage reads them) and measured:
 
 * **focus** — the energy of the Laplacian of the lightly smoothed, brightness-normalised
   ``sqrt(luminance)`` image in a grid of tiles (:data:`TILES`), at the read resolution (at most
@@ -11,8 +11,9 @@ reads them) and measured:
   same scene) makes it independent of scene content (:func:`sharpness_ratio`);
 * **brightness** — the median linear luminance (0 … 1 of full scale), and the de-flicker step's
   small luminance image for the gain against the reference view;
-* **clipping** — the fraction of raw pixels at ≥ 98 % of the white level (images: pixels with a
-  colour channel at ≥ 98 % of full scale), and of crushed pixels (≤ 0.2 % of full scale);
+* **clipping** — the fraction of pixels at ≥ 98 % of full scale after white balance (RAW: of the
+  mosaic's pixels, as LibRaw clips them; images: with a colour channel there), and of crushed pixels
+  (≤ 0.2 % of full scale);
 * **corners** for tracking: ``cv2.goodFeaturesToTrack`` on an 8-bit working image (``sqrt``
   luminance stretched between its 0.5 and 99.8 percentiles, so a brighter view looks the same)
   at most ``work_width_px`` wide.
@@ -29,8 +30,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from lfstudio.errors import DatasetError
-from lfstudio.processing.profile import DeflickerStep
+from lfstudio.processing.profile import DebayerStep, DeflickerStep
 from lfstudio.processing.steps import debayer, deflicker
 
 #: focus tiles across and down
@@ -80,51 +80,42 @@ class Luminance:
     crushed_fraction: float
 
 
-#: LibRaw's orientation codes → numpy rotations (counter-clockwise quarter turns)
-_FLIP_TURNS = {3: 2, 5: 1, 6: -1}
+#: how RAW views are read: camera white balance, camera colours (no matrix: luminance only)
+_BAYER = DebayerStep(color_space="raw", half_size=True)
 
 
-def _raw_luminance(path: Path) -> Luminance:
-    import rawpy
-
-    try:
-        with rawpy.imread(str(path)) as raw:
-            mosaic = raw.raw_image_visible
-            black = float(np.mean(raw.black_level_per_channel))
-            white = float(raw.white_level)
-            flip = int(raw.sizes.flip)
-            h, w = mosaic.shape
-            span = max(white - black, 1.0)
-            clipped = float(np.count_nonzero(mosaic >= black + CLIP_LEVEL * span)) / mosaic.size
-            # the mean of each 2 x 2 Bayer block (R + 2 G + B) / 4: luminance without demosaicing
-            quads = cv2.resize(mosaic[: h // 2 * 2, : w // 2 * 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-    except Exception as exc:   # rawpy raises several LibRaw error types
-        raise DatasetError(f"{path}: cannot be read as a RAW file ({exc}); re-capture the view or remove it "
-                           "from the dataset") from None
-    lum = (quads.astype(np.float32) - np.float32(black)) * np.float32(1.0 / span)
-    crushed = float(np.count_nonzero(lum <= CRUSH_LEVEL)) / lum.size
-    full = (w, h)
-    if flip in _FLIP_TURNS:
-        lum = np.ascontiguousarray(np.rot90(lum, _FLIP_TURNS[flip]))
-        if flip in (5, 6):
-            full = (h, w)
-    return Luminance(lum, full, clipped, crushed)
-
-
-def read_luminance(path: str | Path) -> Luminance:
-    """Linear luminance of a view file. RAW: the raw mosaic averaged over each 2 x 2 Bayer block
-    (the resolution of LibRaw's half-size mode; no demosaicing, no white balance: the checks compare
-    a view with its neighbours, so a fixed colour weighting is fine), clipping counted on the raw
-    pixels. PNG/TIFF/JPEG: as the processing stage reads them, Rec. 709 luminance."""
-    path = Path(path)
-    if debayer.is_raw(path):
-        return _raw_luminance(path)
-    rgb16 = debayer.read_image(path)
+def _rgb_luminance(rgb16: np.ndarray, full_size_px: tuple[int, int]) -> Luminance:
     peak = cv2.max(cv2.max(rgb16[..., 0], rgb16[..., 1]), rgb16[..., 2])   # numpy's max(axis=2) is 10x slower
     clipped = float(np.count_nonzero(peak >= int(CLIP_LEVEL * 65535))) / peak.size
     crushed = float(np.count_nonzero(peak <= int(CRUSH_LEVEL * 65535))) / peak.size
     lum = rgb16.astype(np.float32) @ (_LUMA / np.float32(65535.0))
-    return Luminance(lum, (int(rgb16.shape[1]), int(rgb16.shape[0])), clipped, crushed)
+    return Luminance(lum, full_size_px, clipped, crushed)
+
+
+def _raw_luminance(path: Path) -> Luminance:
+    bayer = debayer.read_bayer(path, _BAYER)
+    if bayer is None:            # not an RGB Bayer mosaic: LibRaw develops it at half size
+        return _rgb_luminance(debayer.decode(path, _BAYER), debayer.full_size_px(path))
+    mosaic = bayer.mosaic
+    h, w = mosaic.shape
+    clipped = float(np.count_nonzero(mosaic >= int(CLIP_LEVEL * 65535))) / mosaic.size
+    # the mean of each white-balanced 2 x 2 Bayer block (R + 2 G + B) / 4: luminance without demosaicing
+    quads = cv2.resize(mosaic, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    lum = quads.astype(np.float32) * np.float32(1.0 / 65535.0)
+    crushed = float(np.count_nonzero(quads <= int(CRUSH_LEVEL * 65535))) / quads.size
+    return Luminance(lum, (w, h), clipped, crushed)
+
+
+def read_luminance(path: str | Path) -> Luminance:
+    """Linear luminance of a view file. RAW: the processing stage's white-balanced Bayer mosaic
+    (:func:`lfstudio.processing.steps.debayer.read_bayer`) averaged over each 2 x 2 block — the
+    resolution of LibRaw's half-size mode, no demosaicing —; PNG/TIFF/JPEG as the processing stage
+    reads them, Rec. 709 luminance."""
+    path = Path(path)
+    if debayer.is_raw(path):
+        return _raw_luminance(path)
+    rgb16 = debayer.read_image(path)
+    return _rgb_luminance(rgb16, (int(rgb16.shape[1]), int(rgb16.shape[0])))
 
 
 def _resize_to_width(img: np.ndarray, width_px: int) -> np.ndarray:

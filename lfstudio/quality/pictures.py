@@ -272,14 +272,9 @@ def write_pictures(folder: Path, report, dataset) -> dict[str, Path]:
     charts = []
     if depth.get("histogram"):
         marks = []
-        from lfstudio.export.hci import disparity_range
-
-        size = _sensor_size(dataset)
-        planned = disparity_range(dataset, size) if size else None
-        if planned:
-            depth["export_disp_min_px"], depth["export_disp_max_px"] = float(planned[0]), float(planned[1])
-            marks += [(planned[0], f"planned far {planned[0]:.2f}", (40, 140, 40)),
-                      (planned[1], f"planned near {planned[1]:.2f}", (40, 140, 40))]
+        if depth.get("export_disp_min_px") is not None:
+            lo, hi = depth["export_disp_min_px"], depth["export_disp_max_px"]
+            marks += [(lo, f"planned far {lo:.2f}", (40, 140, 40)), (hi, f"planned near {hi:.2f}", (40, 140, 40))]
         marks += [(depth["disparity_min_px"], "measured far", (40, 40, 200)),
                   (depth["disparity_max_px"], "measured near", (40, 40, 200))]
         charts.append(bar_chart(depth["histogram"]["counts"], depth["histogram"]["edges_px"],
@@ -300,14 +295,6 @@ def write_pictures(folder: Path, report, dataset) -> dict[str, Path]:
                                                   lambda p: np.save(p, d.disparity_px.astype(np.float16)))
     out["report"] = write_html(folder / "report.html", doc, {k: p for k, p in out.items() if p.suffix == ".png"})
     return out
-
-
-def _sensor_size(dataset) -> tuple[int, int] | None:
-    cam = dataset.camera if isinstance(dataset.camera, dict) else {}
-    size = cam.get("sensor_px")
-    if isinstance(size, (list, tuple)) and len(size) == 2:
-        return int(size[0]), int(size[1])
-    return None
 
 
 def write_html(path: Path, doc: dict[str, Any], pictures: dict[str, Path]) -> Path:

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from lfstudio.rig.profile import load_rig
-from lfstudio.scan.engine import ScanEngine, create_scan_dataset
+from lfstudio.scan.engine import ScanEngine
+from lfstudio.studio.session import create_scan_dataset
 from lfstudio.scan.events import EventKind, ScanState
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.sim.instant import InstantCamera, InstantRig
