@@ -28,3 +28,20 @@ def test_the_cli_loads_no_gui_and_no_qt():
     r = subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "[]"
+
+
+def test_every_part_of_lfstudio_is_under_the_contracts():
+    """A new package (or top-level module) of lfstudio must be added to the contracts that cover
+    "everything but ..." (pyproject.toml), so no rule silently misses it."""
+    import pkgutil
+    import tomllib
+
+    import lfstudio
+
+    parts = {f"lfstudio.{m.name}" for m in pkgutil.iter_modules(lfstudio.__path__)}
+    contracts = {c["id"]: c for c in tomllib.loads((REPO_ROOT / "pyproject.toml").read_text())["tool"]
+                 ["importlinter"]["contracts"]}
+    everything_but = {"core-no-qt": {"lfstudio.gui"}, "sim-behind-studio": {"lfstudio.sim", "lfstudio.studio"}}
+    for cid, exempt in everything_but.items():
+        missing = sorted(parts - exempt - set(contracts[cid]["source_modules"]))
+        assert not missing, f"pyproject.toml contract {cid!r}: add {missing} to its source_modules"

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -383,7 +384,12 @@ class ScanSession:
         On any error everything taken so far is released again."""
         try:
             return self._open(plan_for)
-        except BaseException:
+        except BaseException as exc:
+            if isinstance(exc, KeyboardInterrupt) and self.studio is not None:
+                try:                      # Ctrl-C while homing or checking: no motion left running
+                    self.studio.rig.stop()
+                except Exception as stop_exc:  # noqa: BLE001
+                    log.warning("stopping the rig after Ctrl-C: %s", stop_exc)
             self.close()
             raise
 
@@ -420,6 +426,10 @@ class ScanSession:
             plan = resume_plan(existing, order=plan.order, settle_s=plan.settle_s)
         if self.shared is None:
             rig_spec, cam_spec = RigSpec.parse(rig_words), CameraSpec.parse(cam_words)
+            if record is not None and req.rig is None and rig_spec.kind == "serial" and \
+                    rig_spec.port.startswith("/") and not os.path.exists(rig_spec.port):
+                raise DeviceError(f"the dataset was captured with the rig on {rig_spec.port}, which is not there now: "
+                                  "connect the rig, or give the port it has now with --rig PORT")
             studio = self.studio = open_studio(
                 rig_spec, cam_spec, config, doing=f"{self.doing} {self.folder}", time_scale=req.time_scale,
                 exposure_s=req.exposure_s, transfer_s=req.transfer_s, seed=req.seed,

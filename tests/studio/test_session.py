@@ -95,3 +95,15 @@ def test_homing_policy_on_a_rig_without_limit_switches():
         assert rig.status().homed and rig.status().position_mm == (0.0, 0.0)
     finally:
         link.close()
+
+
+def test_resume_on_a_recorded_port_that_is_gone_says_so(tmp_path):
+    from lfstudio.studio.session import ScanRequest, ScanSession
+
+    plan = ScanPlan(2, 1, (4.0, 6.0))
+    gone = with_(REAL, "rig", port=str(tmp_path / "ttyUSB9"))
+    create_scan_dataset(tmp_path / "ds", plan, rig={"name": "Reference gantry"}, camera={}, lens={}, devices=gone)
+    session = ScanSession(ScanRequest(tmp_path / "ds", resume=True))
+    with pytest.raises(DeviceError, match=r"captured with the rig on .*ttyUSB9, which is not there now.*--rig PORT"):
+        session.open(lambda existing, cfg: (plan, None))
+    assert session.lock is None                     # released again
