@@ -25,13 +25,16 @@ class InputError(LfError, ValueError):
 class DatasetError(LfError):
     """A dataset folder or one of its files is missing, corrupt or inconsistent.
 
-    ``problems`` lists every problem found as ``"file: field: what is wrong"`` strings.
+    ``problems`` lists every problem found as ``"file: field: what is wrong"`` strings (one problem is
+    told on the message's line, several on a line each).
     """
 
     def __init__(self, message: str, problems: list[str] | None = None):
         self.problems = list(problems or [])
         text = message
-        if self.problems:
+        if len(self.problems) == 1:         # one problem: one line
+            text += f": {self.problems[0]}"
+        elif self.problems:
             text += "\n" + "\n".join(f"  - {p}" for p in self.problems)
         super().__init__(text)
 

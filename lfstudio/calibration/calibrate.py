@@ -22,7 +22,7 @@ from lfstudio.calibration.fit import CalibrationError, FitResult, PairMatches, f
 from lfstudio.calibration.pairs import Pair, make_pairs, parse_views
 from lfstudio.calibration.report import build_report
 from lfstudio.dataset.atomic import atomic_write_json
-from lfstudio.dataset.paths import view_stem
+from lfstudio.dataset.paths import resolve_inside, view_stem
 from lfstudio.errors import DatasetError
 from lfstudio.jobs import CancelToken, Progress, no_progress
 
@@ -136,7 +136,7 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
 
 def save_calibration(dataset, document: dict[str, Any]) -> Path:
     """Write ``calibration.json`` atomically into the dataset and note it in the manifest."""
-    path = Path(dataset.root) / CALIBRATION_NAME
+    path = resolve_inside(dataset.root, CALIBRATION_NAME)
     atomic_write_json(path, document)
     dataset.manifest["calibration"] = {"file": CALIBRATION_NAME, "created": document.get("created"),
                                        "rotation_deg": document["rotation_deg"],
@@ -149,7 +149,7 @@ def save_calibration(dataset, document: dict[str, Any]) -> Path:
 def load_calibration(dataset_or_root) -> dict[str, Any] | None:
     """The dataset's ``calibration.json`` or None when it has none."""
     root = Path(getattr(dataset_or_root, "root", dataset_or_root))
-    path = root / CALIBRATION_NAME
+    path = resolve_inside(root, CALIBRATION_NAME)      # a symlink leading outside the dataset is refused
     if not path.is_file():
         return None
     try:

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from lfstudio.dataset.atomic import atomic_write_with
+from lfstudio.dataset.paths import folder_inside
 from lfstudio.errors import DatasetError
 
 RAW_SUFFIXES = {".dng", ".arw", ".cr2", ".cr3", ".nef", ".raf", ".orf", ".rw2", ".pef", ".srw", ".raw", ".3fr",
@@ -108,7 +109,7 @@ class FeatureCache:
 
     def __init__(self, root: str | Path, max_width_px: int | None = DEFAULT_WORK_WIDTH_PX,
                  max_features: int = DEFAULT_MAX_FEATURES):
-        self.folder = Path(root) / "cache" / "features"
+        self.folder = folder_inside(root, "cache/features", create=False)   # refused when it leads outside
         self.max_width_px = max_width_px
         self.max_features = max_features
 

@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from lfstudio.dataset.atomic import atomic_write_bytes
-from lfstudio.dataset.paths import InsideChecker, resolve_inside, view_stem
+from lfstudio.dataset.paths import InsideChecker, check_dataset_entries, resolve_inside, view_stem
 from lfstudio.dataset.store import JOURNAL_NAME, Journal, read_journal, sha256_file
 from lfstudio.errors import DatasetError
 
@@ -152,6 +152,14 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
                 inside.check(thumb, what="thumb")
             except DatasetError as exc:
                 problems.append(f"{where}: thumb: {exc}")
+        processed = v.get("processed")
+        if processed is not None and not isinstance(processed, dict):
+            problems.append(f"{where}: processed: must be an object or null")
+        elif processed is not None and processed.get("file") is not None and inside is not None:
+            try:
+                inside.check(processed["file"], what="processed.file")
+            except DatasetError as exc:
+                problems.append(f"{where}: processed.file: {exc}")
     seq = manifest.get("journal_seq", 0)
     if not isinstance(seq, int) or isinstance(seq, bool) or seq < 0:
         problems.append(f"{f}: journal_seq: must be a non-negative integer, found {seq!r}")
@@ -257,6 +265,7 @@ class Dataset:
         Without ``views``, one pending view per grid cell is listed (row-major).
         """
         root = Path(root)
+        check_dataset_entries(root)
         if (root / MANIFEST_NAME).exists() and not exist_ok:
             raise DatasetError(f"{root}: already holds a dataset ({MANIFEST_NAME} exists); "
                                "open it to resume, or choose another folder")
@@ -288,6 +297,7 @@ class Dataset:
         if not path.is_file():
             raise DatasetError(f"{path}: not found; {root} is not an lfstudio dataset "
                                "(import a folder of images with 'lfstudio import-images')")
+        check_dataset_entries(root)
         try:
             text = path.read_text(encoding="utf-8")
             gc_was_on = gc.isenabled()

@@ -1,9 +1,19 @@
-"""File names inside a dataset. Names come from the grid index; nothing may point outside."""
+"""File names inside a dataset, and THE path guard: nothing lfstudio writes, deletes or reads
+under a dataset may lead outside its folder.
+
+:func:`resolve_inside` is the one check (resolve with symlinks, contain, refuse with one line naming
+the path); every stage calls it, or a helper here built on it, before it touches a file by a name
+that comes from the dataset (manifest entries, ``processing.toml``'s output folder, the folders
+``raw/``, ``thumbs/``, ``processed/``, ``cache/`` and files like ``calibration.json`` that may be
+symlinks). :func:`check_dataset_entries` runs it on the dataset's own files and folders when a
+dataset is opened, so a symlink that leads elsewhere is refused before any stage starts.
+"""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path, PurePosixPath
+from typing import Any
 
 from lfstudio.errors import DatasetError
 
@@ -15,20 +25,55 @@ def view_stem(row: int, column: int) -> str:
     return f"r{row:02d}_c{column:03d}"
 
 
+#: the dataset's own files and folders (beside the views' files): none may be a symlink leading outside
+DATASET_ENTRIES = ("dataset.json", "journal.jsonl", "dataset.lock", "calibration.json", "processing.toml",
+                   "quality.json", "raw", "thumbs", "processed", "cache")
+
+
+def relative_name_problem(relative: Any) -> str | None:
+    """Why ``relative`` cannot name something inside a folder (empty, absolute, ``..``, a drive), or
+    None. For settings that name a place in a dataset before the dataset is known."""
+    text = str(relative).replace("\\", "/") if isinstance(relative, (str, os.PathLike)) else None
+    if not text:
+        return "must be a relative path inside the dataset folder"
+    rel = PurePosixPath(text)
+    if rel.is_absolute() or ".." in rel.parts or (rel.parts and ":" in rel.parts[0]):
+        return "must be a relative path inside the dataset folder (no '..', not absolute)"
+    return None
+
+
 def resolve_inside(root: str | Path, relative: str, *, what: str = "file") -> Path:
     """Return ``root/relative`` resolved, or raise :class:`DatasetError` if it leaves ``root``.
 
     ``relative`` is a manifest entry (POSIX separators). Absolute paths, ``..`` and symlinks that
-    lead outside the dataset folder are refused.
+    lead outside the dataset folder are refused with one line naming the path.
     """
     root_path = Path(root).resolve()
+    problem = relative_name_problem(relative)
+    if problem:
+        raise DatasetError(f"{what} {relative!r} {problem}; refused")
     rel = PurePosixPath(str(relative).replace("\\", "/"))
-    if not str(relative) or rel.is_absolute() or ".." in rel.parts or (rel.parts and ":" in rel.parts[0]):
-        raise DatasetError(f"{what} {relative!r} must be a relative path inside the dataset folder")
     full = (root_path / Path(*rel.parts)).resolve()
     if full != root_path and root_path not in full.parents:
-        raise DatasetError(f"{what} {relative!r} points outside the dataset folder {root_path}")
+        raise DatasetError(f"{what} {relative!r} points outside the dataset folder {root_path} "
+                           f"(it leads to {full}); refused: make it a real file or folder inside the dataset")
     return full
+
+
+def folder_inside(root: str | Path, relative: str, *, what: str = "folder", create: bool = True) -> Path:
+    """The dataset's sub-folder ``relative`` (``raw``, ``processed``, ``cache/features``) resolved and
+    checked by :func:`resolve_inside`, created when missing (``create``)."""
+    path = resolve_inside(root, relative, what=what)
+    if create:
+        path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def check_dataset_entries(root: str | Path) -> None:
+    """Refuse a dataset whose own files or folders (:data:`DATASET_ENTRIES`) lead outside it."""
+    for name in DATASET_ENTRIES:
+        if os.path.islink(os.path.join(root, name)):
+            resolve_inside(root, name, what="file" if "." in name else "folder")
 
 
 class InsideChecker:

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from lfstudio.dataset.atomic import is_temporary
+from lfstudio.dataset.paths import resolve_inside
 
 JOURNAL_NAME = "journal.jsonl"
 #: folders of a dataset that hold view files and may hold crash leftovers
@@ -121,7 +122,7 @@ def temporary_files(root: str | os.PathLike) -> Iterator[Path]:
     """Temporary files left by an interrupted atomic write (``.NAME.XXXX.tmpSUFFIX``)."""
     root = Path(root)
     for sub in DATA_FOLDERS:
-        folder = root / sub if sub else root
+        folder = resolve_inside(root, sub, what="folder") if sub else root   # never delete outside it
         if not folder.is_dir():
             continue
         for entry in folder.iterdir():

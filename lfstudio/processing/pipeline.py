@@ -24,6 +24,7 @@ import numpy as np
 
 from lfstudio.dataset import Dataset, view_stem
 from lfstudio.dataset.manifest import now_iso
+from lfstudio.dataset.paths import folder_inside
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.jobs import CancelToken, Cancelled, Progress, no_progress
 from lfstudio.processing import executors
@@ -163,11 +164,11 @@ def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> Run
     return plan
 
 
-def _skip(view: dict, sha: str, root: Path) -> bool:
+def _skip(view: dict, sha: str, ds: Dataset) -> bool:
     done = view.get("processed")
     if not isinstance(done, dict) or done.get("status") != "done" or done.get("profile_sha256") != sha:
         return False
-    return bool(done.get("file")) and (root / done["file"]).is_file()
+    return bool(done.get("file")) and ds.path_of(done["file"]).is_file()
 
 
 def _record(ds: Dataset, view: dict, result: ViewResult, sha: str) -> None:
@@ -215,12 +216,14 @@ def _refuse_output_over_captures(ds: Dataset, profile: Profile) -> None:
 def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force: bool, progress: Progress,
              cancel: CancelToken, on_view, t_start: float) -> ProcessReport:
     _refuse_output_over_captures(ds, profile)
+    # every processed view is written in this folder: refused when it (a symlink) leads outside the dataset
+    folder_inside(ds.root, profile.output.folder.strip("/") or "processed", what="processing.toml: [output] folder")
     plan = make_plan(ds, profile, single_thread=info.separate_processes)
     sha = plan.profile_sha256
     profile.save(ds.root / PROFILE_NAME)
 
     views = capturable_views(ds)
-    todo = [v for v in views if force or not _skip(v, sha, ds.root)]
+    todo = [v for v in views if force or not _skip(v, sha, ds)]
     report = ProcessReport(skipped=len(views) - len(todo), profile_sha256=sha,
                            output_folder=str(ds.root / profile.output.folder))
     ref = reference_view(ds, profile)

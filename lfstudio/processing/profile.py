@@ -21,6 +21,7 @@ from typing import Any
 import tomli_w
 
 from lfstudio.dataset.atomic import atomic_write_text
+from lfstudio.dataset.paths import relative_name_problem
 from lfstudio.errors import InputError
 
 PROFILE_NAME = "processing.toml"
@@ -189,6 +190,10 @@ class Profile:
                     ok = len(value) in length if isinstance(length, tuple) else len(value) == length
                     if not ok:
                         raise InputError(where, f"has {len(value)} numbers", f"{length} numbers")
+        folder_problem = relative_name_problem(self.output.folder) if self.output.folder else None
+        if folder_problem:
+            raise InputError(f"{source}: [output] folder", f"{self.output.folder!r} {folder_problem}",
+                             'a folder name such as "processed"')
         if not 0 < self.resample.scale <= 1:
             raise InputError(f"{source}: [resample] scale", f"{self.resample.scale} is out of range", "0 < scale <= 1")
         if not 0 <= self.output.png_compression <= 9:

@@ -50,7 +50,7 @@ from typing import Any, Callable, Iterable
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.manifest import now_iso
-from lfstudio.dataset.paths import view_stem
+from lfstudio.dataset.paths import folder_inside, view_stem
 from lfstudio.dataset.store import clean_temporary_files, free_bytes, sha256_file
 from lfstudio.errors import DeviceError, LfError
 from lfstudio.rig.camera import CaptureResult, supports_on_exposed
@@ -482,6 +482,8 @@ class ScanEngine:
             message = (f"{self.dataset.manifest_path} cannot be saved: {', '.join(problems[:3])} "
                        f"{'is' if len(problems) == 1 else 'are'} not a number (NaN or infinite). Correct "
                        "it in the file, then resume the scan; every captured view is kept in the journal.")
+        elif isinstance(exc, LfError):      # an operator's message (a path refused, a dataset problem)
+            message = f"{_error_text(exc).rstrip('.')}. Everything captured so far is saved."
         else:
             message = (f"Unexpected error: {type(exc).__name__}: {exc}. Everything captured so far is saved; "
                        "resume the scan to go on.")
@@ -516,21 +518,18 @@ class ScanEngine:
     def _prepare(self) -> None:
         """Remove crash leftovers (temporary files, files of views the journal never finished) and
         make sure the manifest can be written before the rig moves."""
-        removed = clean_temporary_files(self.dataset.root)
+        root = self.dataset.root
+        folders = [folder_inside(root, sub) for sub in ("raw", "thumbs")]   # refused when they lead outside
+        removed = clean_temporary_files(root)
         unfinished = {view_stem(v["row"], v["column"]) for v in self.dataset.views
                       if v.get("status") not in DONE_STATUSES}
-        for sub in ("raw", "thumbs"):
-            folder = self.dataset.root / sub
-            if not folder.is_dir():
-                continue
+        for folder in folders:
             for p in folder.iterdir():
                 if p.is_file() and p.name.split(".")[0] in unfinished:
                     p.unlink(missing_ok=True)
                     removed.append(p)
         if removed:
             self._emit(EventKind.LOG, f"removed {len(removed)} unfinished file(s) left by an interrupted scan")
-        (self.dataset.root / "raw").mkdir(exist_ok=True)
-        (self.dataset.root / "thumbs").mkdir(exist_ok=True)
         self.dataset.save()
 
     def _rig_call(self, name: str, *args: Any, timeout_s: float) -> Any:

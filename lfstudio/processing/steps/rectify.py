@@ -23,6 +23,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from lfstudio.dataset.paths import resolve_inside
 from lfstudio.errors import DatasetError
 
 CALIBRATION_NAME = "calibration.json"
@@ -31,7 +32,7 @@ INTERPOLATIONS = {"linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos
 
 def load_calibration(root: str | Path) -> dict[str, Any] | None:
     """``calibration.json`` of a dataset (checked), or None when the dataset has none."""
-    path = Path(root) / CALIBRATION_NAME
+    path = resolve_inside(root, CALIBRATION_NAME)      # a symlink leading outside the dataset is refused
     if not path.is_file():
         return None
     try:

@@ -1,0 +1,136 @@
+"""Fault matrix, paths: every stage refuses a dataset whose names or symlinks lead outside its folder,
+with one line naming the path, and touches nothing outside (nothing written, deleted or read there).
+
+One parametrised test per stage; each case sets up one hostile path (a symlinked folder or file,
+``..`` in a manifest entry or in ``processing.toml``) and runs the real command."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import pytest
+
+from tests.faults.conftest import assert_one_line_error, manifest_of, set_pending, write_manifest
+
+
+def _link_folder(root, name, outside):
+    """Move ``root/name`` (if any) outside and leave a symlink to it in its place."""
+    target = outside.path / name
+    if (root / name).exists():
+        shutil.move(str(root / name), str(target))
+    else:
+        target.mkdir()
+    os.symlink(target, root / name)
+
+
+def _link_file(root, name, outside, text="{}"):
+    target = outside.path / name
+    if (root / name).exists():
+        shutil.move(str(root / name), str(target))
+    else:
+        target.write_text(text)
+    os.symlink(target, root / name)
+
+
+def _manifest_entry(root, key, value):
+    m = manifest_of(root)
+    view = next(v for v in m["views"] if v["status"] == "done")
+    if key == "processed.file":
+        view["processed"] = {"status": "done", "file": value, "profile_sha256": "0" * 64}
+    else:
+        view[key] = value
+    write_manifest(root, m)
+
+
+def _profile(root, folder):
+    (root / "processing.toml").write_text(f'[output]\nfolder = "{folder}"\n')
+
+
+# -- scan --resume --------------------------------------------------------------------------------------
+SCAN_CASES = {
+    # the issue's case: raw/ a symlink and views pending -> the resume's clean-up must not delete there
+    "raw folder symlink": (lambda root, out: _link_folder(root, "raw", out), 1, "'raw' points outside"),
+    "thumbs folder symlink": (lambda root, out: _link_folder(root, "thumbs", out), 1, "'thumbs' points outside"),
+    "journal symlink": (lambda root, out: _link_file(root, "journal.jsonl", out, ""), 1,
+                        "'journal.jsonl' points outside"),
+    "manifest file ..": (lambda root, out: _manifest_entry(root, "file", "../outside/keep.txt"), 1,
+                         "../outside/keep.txt"),
+    "manifest thumb ..": (lambda root, out: _manifest_entry(root, "thumb", "../outside/keep.txt"), 1,
+                          "../outside/keep.txt"),
+}
+
+
+@pytest.mark.parametrize("case", list(SCAN_CASES))
+def test_scan_resume_refuses_paths_leading_outside(case, scanned, outside, run_cli):
+    root = scanned(3, 2)
+    set_pending(root, {(1, 0), (1, 1), (1, 2)})        # an interrupted scan: its files are still there
+    setup, status, needle = SCAN_CASES[case]
+    setup(root, outside)
+    outside.mark()
+    proc = run_cli("scan", "--resume", "--out", root)
+    assert_one_line_error(proc, status, needle)
+    assert outside.unchanged(), "something outside the dataset changed"
+    if (outside.path / "raw").is_dir():                 # the pending views' old files were not deleted there
+        assert len(list((outside.path / "raw").iterdir())) == 6
+
+
+# -- process ----------------------------------------------------------------------------------------------
+PROCESS_CASES = {
+    "output folder ..": (lambda root, out: _profile(root, "../outside"), 2, "[output] folder"),
+    "output folder absolute": (lambda root, out: _profile(root, str(out.path)), 2, "[output] folder"),
+    "output folder symlink": (lambda root, out: (_profile(root, "mine"), _link_folder(root, "mine", out)), 1,
+                              "'mine' points outside"),
+    "processed folder symlink": (lambda root, out: _link_folder(root, "processed", out), 1,
+                                 "'processed' points outside"),
+    "calibration.json symlink": (lambda root, out: _link_file(root, "calibration.json", out), 1,
+                                 "'calibration.json' points outside"),
+    "processing.toml symlink": (lambda root, out: _link_file(root, "processing.toml", out, "[output]\n"), 1,
+                                "'processing.toml' points outside"),
+    "manifest processed.file ..": (lambda root, out: _manifest_entry(root, "processed.file",
+                                                                     "../outside/r00_c000.png"), 1,
+                                   "processed.file"),
+    "manifest symlink": (lambda root, out: _link_file(root, "dataset.json", out), 1,
+                         "'dataset.json' points outside"),
+}
+
+
+@pytest.mark.parametrize("case", list(PROCESS_CASES))
+def test_process_refuses_paths_leading_outside(case, tiny_dataset, outside, run_cli):
+    root = tiny_dataset.root
+    setup, status, needle = PROCESS_CASES[case]
+    setup(root, outside)
+    outside.mark()
+    proc = run_cli("process", root, "--workers", "0")
+    assert_one_line_error(proc, status, needle)
+    assert outside.unchanged(), "something outside the dataset changed"
+
+
+# -- calibrate, export, info ------------------------------------------------------------------------------
+OTHER_CASES = {
+    "calibrate cache symlink": ("calibrate", lambda root, out: _link_folder(root, "cache", out), 1,
+                                "'cache' points outside"),
+    "calibrate calibration.json symlink": ("calibrate", lambda root, out: _link_file(root, "calibration.json", out),
+                                           1, "'calibration.json' points outside"),
+    "export manifest file ..": ("export", lambda root, out: _manifest_entry(root, "file", "../outside/keep.txt"),
+                                1, "../outside/keep.txt"),
+    "export raw file symlink": ("export", lambda root, out: _link_file(root, "raw/r00_c000.png", out), 1,
+                                "points outside"),
+    "info raw folder symlink": ("info", lambda root, out: _link_folder(root, "raw", out), 1,
+                                "'raw' points outside"),
+}
+
+
+@pytest.mark.parametrize("case", list(OTHER_CASES))
+def test_calibrate_export_info_refuse_paths_leading_outside(case, tiny_dataset, outside, run_cli, tmp_path):
+    root = tiny_dataset.root
+    command, setup, status, needle = OTHER_CASES[case]
+    (outside.path / "raw").mkdir() if "raw file" in case else None
+    setup(root, outside)
+    outside.mark()
+    args = {"calibrate": ("calibrate", root), "export": ("export", root, "--format", "png", "--out", tmp_path / "ex"),
+            "info": ("info", root, "--verify")}[command]
+    proc = run_cli(*args)
+    assert_one_line_error(proc, status, needle)
+    assert outside.unchanged(), "something outside the dataset changed"
+    assert not (tmp_path / "ex").exists()
