@@ -2,7 +2,7 @@
 simulator on a pty (4 mm moves at the rig's speed and acceleration), settle 0.3 s, exposure 0.5 s,
 transfer 2.5 s (plus the simulated camera's 0.05 s trigger delay). The critical path is the slowest
 chain of unavoidable steps when the transfer overlaps the next move and settle
-(``lfstudio.planning.optics.view_period_s`` per view). ``--time-scale`` shortens every simulated
+(``lfstudio.optics.view_period_s`` per view). ``--time-scale`` shortens every simulated
 duration by the same factor, so the ratio keeps its meaning. Target: within 3 % (ratio <= 1.03).
 
     python benchmarks/scan_critical_path.py [--columns 12 --rows 3 --time-scale 0.2]
@@ -18,7 +18,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from _datasets import timed_scan  # noqa: E402
-from lfstudio.planning.optics import move_time_s  # noqa: E402
+from lfstudio.optics import move_time_s  # noqa: E402
 from lfstudio.rig.profile import load_rig  # noqa: E402
 from lfstudio.scan.engine import ScanEngine  # noqa: E402
 from lfstudio.scan.events import EventKind  # noqa: E402

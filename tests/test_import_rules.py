@@ -45,3 +45,16 @@ def test_every_part_of_lfstudio_is_under_the_contracts():
     for cid, exempt in everything_but.items():
         missing = sorted(parts - exempt - set(contracts[cid]["source_modules"]))
         assert not missing, f"pyproject.toml contract {cid!r}: add {missing} to its source_modules"
+
+
+def test_docs_architecture_lists_the_layers_of_the_contract():
+    """docs/architecture.md's layer list is the one lint-imports checks (top to bottom, same groups)."""
+    import re
+    import tomllib
+
+    contracts = tomllib.loads((REPO_ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+    layers = next(c for c in contracts if c["id"] == "layers")["layers"]
+    doc = (REPO_ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    block = re.search(r"<!-- layers .*?-->\s*```\n(.*?)```", doc, re.S)
+    assert block, "docs/architecture.md lost its layer list"
+    assert [line.strip() for line in block.group(1).splitlines() if line.strip()] == layers

@@ -111,7 +111,7 @@ def _plan_numbers(ds: Dataset) -> dict[str, float | None]:
     focus = plan.get("focus_m")
     fstop = plan.get("f_number")
     if near and far and f_mm:
-        from lfstudio.planning import optics
+        from lfstudio import optics
 
         if not isinstance(focus, (int, float)):
             focus = optics.focus_for_range_mm(near * 1000.0, far * 1000.0) / 1000.0

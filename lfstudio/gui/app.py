@@ -11,21 +11,9 @@ from lfstudio.resources import RESOURCES_DIR
 log = logging.getLogger("lfstudio")
 
 
-def app_icon():
-    """The lfstudio icon (all PNG sizes of resources/icons/hicolor, or the SVG)."""
-    from PySide6.QtGui import QIcon
-
-    icon = QIcon()
-    hicolor = RESOURCES_DIR / "icons" / "hicolor"
-    for png in sorted(hicolor.glob("*/apps/lfstudio.png")):
-        icon.addFile(str(png))
-    if icon.isNull() and (RESOURCES_DIR / "icons" / "lfstudio.svg").is_file():
-        icon.addFile(str(RESOURCES_DIR / "icons" / "lfstudio.svg"))
-    return icon
-
-
 def create_window(simulated: bool = True):
     """Build the application state and main window (a QApplication must exist)."""
+    from lfstudio.gui.icons import app_icon
     from lfstudio.gui.main_window import MainWindow
     from lfstudio.gui.state import AppState
 
@@ -43,6 +31,7 @@ def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str 
     from PySide6.QtWidgets import QApplication
 
     from lfstudio.gui.crash import install_exception_hooks
+    from lfstudio.gui.icons import app_icon
     from lfstudio.support.logs import is_configured, setup_logging
 
     if not is_configured():          # the CLI sets it up (with --debug); direct callers get the defaults

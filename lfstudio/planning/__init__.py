@@ -1,1 +1,2 @@
-"""Scene planning: the optics of SPEC "The optics" as pure functions, and the plan object."""
+"""Scene planning: the plan object (inputs -> grid, aperture, focus, time, warnings) and the camera/lens/rig
+presets. The formulas themselves are in :mod:`lfstudio.optics` (one layer below every stage)."""

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from lfstudio.errors import InputError
-from lfstudio.planning import optics
+from lfstudio import optics
 
 PLAN_FORMAT = "lfstudio-plan"
 PLAN_VERSION = 1

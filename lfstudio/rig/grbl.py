@@ -25,7 +25,7 @@ from typing import Callable
 import serial
 
 from lfstudio.errors import DeviceError
-from lfstudio.planning.optics import move_time_s
+from lfstudio.optics import move_time_s
 from lfstudio.rig.motion import RigConfig, RigState, RigStatus, check_target, clamp_target
 
 log = logging.getLogger(__name__)

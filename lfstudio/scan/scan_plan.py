@@ -210,7 +210,7 @@ class ScanPlan:
                             pipelined: bool = True) -> float:
         """Critical-path duration of the scan: per view, the longer axis move + settle, exposure and
         (pipelined) the transfer overlapping the next move and settle."""
-        from lfstudio.planning.optics import move_time_s, view_period_s
+        from lfstudio.optics import move_time_s, view_period_s
 
         moves = [0.0] + [max(move_time_s(dx, rig.horizontal.max_speed_mm_s, rig.horizontal.acceleration_mm_s2),
                              move_time_s(dy, rig.vertical.max_speed_mm_s, rig.vertical.acceleration_mm_s2))

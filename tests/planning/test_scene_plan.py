@@ -6,7 +6,7 @@ import math
 import pytest
 
 from lfstudio.errors import InputError
-from lfstudio.planning import optics
+from lfstudio import optics
 from lfstudio.planning.presets import camera_names, plan_from_presets, reference_plan
 from lfstudio.planning.scene_plan import PLAN_VERSION, ScenePlan, capture_time_s, load_plan, save_plan
 

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from lfstudio.errors import InputError
-from lfstudio.planning.optics import move_time_s
+from lfstudio.optics import move_time_s
 from lfstudio.rig.profile import load_rig
 from lfstudio.scan.scan_plan import ORDERS, ScanPlan, grid_order
 

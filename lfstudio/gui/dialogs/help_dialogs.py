@@ -11,6 +11,7 @@ from PySide6.QtWidgets import (QDialog, QDialogButtonBox, QHBoxLayout, QLabel, Q
                                QAbstractItemView)
 
 from lfstudio import __version__
+from lfstudio.gui.icons import app_icon
 
 
 class AboutDialog(QDialog):
@@ -23,8 +24,6 @@ class AboutDialog(QDialog):
         self.setObjectName("aboutDialog")
         self.setWindowTitle("About lfstudio")
         self.setAttribute(Qt.WA_DeleteOnClose)
-        from lfstudio.gui.app import app_icon
-
         icon = QLabel()
         icon.setPixmap(app_icon().pixmap(96, 96))
         title = QLabel(f"<h2>lfstudio {__version__}</h2><p>Dense light-field acquisition with a two-axis "

@@ -24,7 +24,7 @@ from PySide6.QtWidgets import (QAbstractSpinBox, QBoxLayout, QComboBox, QDoubleS
 
 from lfstudio.errors import InputError, LfError
 from lfstudio.jobs import format_duration
-from lfstudio.planning import optics
+from lfstudio import optics
 from lfstudio.planning.presets import (camera_fields, lens_fields, reference_plan, rig_fields)
 from lfstudio.planning.scene_plan import PlanResult, ScenePlan, load_plan, save_plan
 from lfstudio.resources import load_presets

@@ -1,5 +1,8 @@
 """Pure optics and timing formulas of SPEC "The optics". Units are in the names; no hidden conversions.
 
+A base module (it imports nothing of lfstudio): planning, the rig driver, the scan plan, export and
+the GUI all use it, so none of them imports another stage for a formula.
+
 Symbols (SPEC): f focal length, s_p pixel pitch (the sensor's own pitch, not a "Bayer" pitch),
 Z depth from the acquisition plane, Δ spacing between neighbouring camera positions,
 B = (n − 1)·Δ the baseline of a row, c circle of confusion, N f-number, ε repositioning error.

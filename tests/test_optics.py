@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lfstudio.planning import optics
+from lfstudio import optics
 
 F_MM, PITCH_UM = 50.0, 4.53
 

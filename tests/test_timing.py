@@ -2,7 +2,7 @@ import math
 
 import pytest
 
-from lfstudio.planning.optics import move_time_s, view_period_s
+from lfstudio.optics import move_time_s, view_period_s
 
 
 def test_triangular_move():
