@@ -60,6 +60,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="simulated camera image width in pixels (default 2000; smaller renders faster)")
     p.add_argument("--retries", type=int, default=2, help="retries per view before the scan stops (default 2)")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated devices")
+    p.add_argument("--check", action="store_true",
+                   help="check each view as it arrives (lfstudio check's measurements, on a background thread the "
+                        "scan never waits for) and name failing views at once; the full report: lfstudio check")
     p.epilog = ("a second scan of the same DATASET, or of the same rig port or camera, is refused while this one "
                 "runs; on a real rig add --home (or --origin-here for a rig without limit switches)")
 
@@ -116,6 +119,27 @@ def _build_plan(args: argparse.Namespace, rig_config, existing=None):
     return plan, scene
 
 
+def _start_check(dataset, engine):
+    """Scan-time check (:mod:`lfstudio.quality.live`): a failing view is named as soon as it is judged."""
+    from lfstudio.quality.live import LiveChecker
+
+    checker = LiveChecker(dataset)
+    checker.subscribe(lambda e: e["verdict"] == "fail" and print(
+        f"\nlfstudio scan: check: {e['view']} fails: " + "; ".join(e["reasons"]), file=sys.stderr))
+    engine.subscribe(checker.on_event)
+    return checker
+
+
+def _finish_check(checker, dataset) -> None:
+    checker.wait_idle()
+    checker.close()
+    flagged = checker.flagged()
+    names = ", ".join(f"{e['view']} ({e['verdict']})" for e in flagged.values())
+    print(f"lfstudio scan: check: {len(checker.results)} views checked, "
+          + (f"{len(flagged)} flagged: {names}" if flagged else "none flagged")
+          + f"; the full report: lfstudio check {dataset.root}", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -155,6 +179,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"lfstudio scan: {ev.message}", file=sys.stderr)
 
         engine.subscribe(on_event)
+        checker = _start_check(dataset, engine) if args.check else None
         previous = signal.signal(signal.SIGINT, lambda *a: engine.abort())
         try:
             engine.start()
@@ -171,6 +196,8 @@ def run(args: argparse.Namespace) -> int:
                     paused.clear()
         finally:
             signal.signal(signal.SIGINT, previous)
+        if checker is not None:
+            _finish_check(checker, dataset)
         state = engine.state
         counts = dataset.status_counts()
         if state is ScanState.FAILED:

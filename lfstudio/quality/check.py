@@ -55,6 +55,7 @@ VERSION = 1
 RING: tuple[Cell, ...] = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0))
 MIN_TRACK_VIEWS = 3          # tracks seen in fewer views do not count for the depth range
 RANGE_SIGMAS = 1.5           # see depth_range
+PRECISE_FRACTION = 0.5       # the depth range uses this better-measured share of the tracks
 SOLVE_TRACKS_PER_VIEW = 120  # tracks per view the position solve uses (all of them give the depths)
 
 
@@ -449,6 +450,9 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
     f_work = grid.focal_length_work_px(any_m)
     good = np.isfinite(fit.s_px_per_mm) & (fit.s_px_per_mm > 0) & (fit.track_views >= MIN_TRACK_VIEWS) \
         & np.isfinite(fit.s_sigma)
+    if PRECISE_FRACTION < 1.0 and good.sum() > 100:
+        # the depth range from the better-measured tracks (the noise of the others widens it)
+        good &= fit.s_sigma <= np.quantile(fit.s_sigma[good], PRECISE_FRACTION)
     s = fit.s_px_per_mm[good]
     to_full = geometry.spacing_mm[0] * any_m.work_scale          # px/mm (working) → px per step (full)
     step_disp_full = s * to_full
@@ -583,8 +587,9 @@ def depth_range(step_disp_full: np.ndarray, step_disp_sigma: np.ndarray, g: Geom
                 t: Thresholds) -> dict[str, Any]:
     """Measured neighbour-disparity and depth range of the tracks against the plan.
 
-    The range is the 1st to 99th percentile of the tracks' disparities, each moved inwards by
-    :data:`RANGE_SIGMAS` of its own standard error first, so that measurement noise does not widen it.
+    The range is the 1st to 99th percentile of the tracks' disparities (the better-measured
+    :data:`PRECISE_FRACTION` of them), each moved inwards by :data:`RANGE_SIGMAS` of its own standard
+    error first, so that measurement noise does not widen it.
     """
     out: dict[str, Any] = {"planned_near_m": g.near_m, "planned_far_m": g.far_m}
     if step_disp_full.size < 20 or not f_full:
