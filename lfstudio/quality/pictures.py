@@ -125,8 +125,8 @@ def draw_heatmap(doc: dict[str, Any], key: str, width_px: int = 520) -> np.ndarr
                 t = min(max((val - lo) / (hi - lo) if hi > lo else 0.5, 0.0), 1.0)
                 colour = tuple(int(x) for x in lut[int(round(t * 255))])
             cv2.rectangle(img, (x0, y0), (x0 + cell - 1, y0 + cell - 1), colour, -1)
-            verdict = ((v or {}).get("checks", {}).get(key) or {}).get("verdict") if key != "exposure" or v else None
-            if v and verdict in VERDICT_BGR:
+            verdict = ((v or {}).get("checks", {}).get(key) or {}).get("verdict")
+            if verdict in VERDICT_BGR:
                 cv2.rectangle(img, (x0, y0), (x0 + cell - 1, y0 + cell - 1), VERDICT_BGR[verdict],
                               2 if cell >= 10 else 1)
             if v and v.get("status") not in (None, "done"):
