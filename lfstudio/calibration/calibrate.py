@@ -2,14 +2,16 @@
 
 ``calibrate_dataset(dataset, ...)`` is a long job (``progress``, ``cancel``); it returns a
 :class:`CalibrationRun` whose ``document`` is what :func:`save_calibration` writes to
-``DATASET/calibration.json``.
+``DATASET/calibration.json``. Detection runs on ``threads`` threads, matching too
+(:func:`lfstudio.calibration.features.match_pairs`); the views' position errors enter the fit with
+the rig's repeatability (:func:`position_sigma_um`) as their prior.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import logging
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,8 +19,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from lfstudio.calibration.features import DEFAULT_MAX_FEATURES, DEFAULT_WORK_WIDTH_PX, FeatureCache, Features, match_pair
-from lfstudio.calibration.fit import CalibrationError, FitResult, PairMatches, fit_rectification
+from lfstudio.calibration.features import DEFAULT_MAX_FEATURES, DEFAULT_WORK_WIDTH_PX, FeatureCache, Features, match_pairs
+from lfstudio.calibration.fit import DEFAULT_POSITION_SIGMA_UM, CalibrationError, FitResult, PairMatches, fit_rectification
+from lfstudio.calibration.model import CALIBRATION_NAME, load_calibration
 from lfstudio.calibration.pairs import Pair, make_pairs, parse_views
 from lfstudio.calibration.report import build_report
 from lfstudio.dataset.atomic import atomic_write_json
@@ -28,7 +31,8 @@ from lfstudio.jobs import CancelToken, Progress, no_progress
 
 log = logging.getLogger(__name__)
 
-CALIBRATION_NAME = "calibration.json"
+__all__ = ["CALIBRATION_NAME", "CalibrationRun", "available_views", "calibrate_dataset", "grid_extent_mm",
+           "homography_for", "load_calibration", "position_sigma_um", "save_calibration", "select_views"]
 
 
 @dataclass
@@ -60,16 +64,52 @@ def select_views(dataset, views: str | Sequence[tuple[int, int]] | None) -> list
     return chosen
 
 
+def position_sigma_um(dataset) -> tuple[float, float]:
+    """The rig's repeatability (horizontal, vertical) in µm: the manifest's ``rig.repeatability_um``
+    (a number or a pair) when it has one, else the reference gantry's (80, 50)."""
+    value = (dataset.manifest.get("rig") or {}).get("repeatability_um")
+    try:
+        if isinstance(value, (int, float)):
+            return float(value), float(value)
+        if isinstance(value, (list, tuple)) and len(value) == 2:
+            return float(value[0]), float(value[1])
+    except (TypeError, ValueError):
+        pass
+    return DEFAULT_POSITION_SIGMA_UM
+
+
+def grid_extent_mm(dataset) -> tuple[float | None, float | None]:
+    """Baselines of the grid's full row and full column (None for a single column / row)."""
+    grid = dataset.grid
+    spacing = grid.get("spacing_mm") or [1.0, 1.0]
+    cols, rows = int(grid["columns"]), int(grid["rows"])
+    return ((cols - 1) * float(spacing[0]) if cols > 1 else None,
+            (rows - 1) * float(spacing[1]) if rows > 1 else None)
+
+
 def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = None, *,
-                      estimate_principal_point: bool = False, focal_length_px: float | None = None,
+                      principal_point: str = "auto", estimate_principal_point: bool | None = None,
+                      focal_length_px: float | None = None,
                       max_width_px: int | None = DEFAULT_WORK_WIDTH_PX, max_features: int = DEFAULT_MAX_FEATURES,
-                      neighbours_only: bool = False, ratio: float = 0.8, threads: int = 2,
+                      pair_set: str = "all", neighbours_only: bool = False,
+                      position_sigma: Sequence[float] | None = None, ratio: float = 0.8, threads: int = 2,
                       pairs: Sequence[Pair] | None = None, progress: Progress = no_progress,
                       cancel: CancelToken | None = None) -> CalibrationRun:
-    """Run the whole self-calibration on ``dataset`` (an open :class:`lfstudio.dataset.Dataset`)."""
+    """Run the whole self-calibration on ``dataset`` (an open :class:`lfstudio.dataset.Dataset`).
+
+    ``views``: a :func:`lfstudio.calibration.pairs.parse_views` spec (default: the default array)
+    or (row, column) pairs; ``pair_set``: which pairs of them (``neighbours_only`` is the older
+    spelling of "neighbours"); ``principal_point``: "auto" (estimated where observable) or
+    "centre" (``estimate_principal_point``: the older True/False); ``position_sigma``: the rig's
+    repeatability in µm (default :func:`position_sigma_um`).
+    """
+    if neighbours_only:
+        pair_set = "neighbours"
+    if estimate_principal_point is not None:
+        principal_point = "auto" if estimate_principal_point else "centre"
     chosen = select_views(dataset, views)
     spacing = dataset.grid.get("spacing_mm") or [1.0, 1.0]
-    pair_list = list(pairs) if pairs is not None else make_pairs(chosen, spacing, neighbours_only=neighbours_only)
+    pair_list = list(pairs) if pairs is not None else make_pairs(chosen, spacing, pair_set=pair_set)
     if not pair_list:
         raise CalibrationError(f"the chosen views ({', '.join(view_stem(*v) for v in chosen)}) form no pair in a "
                                "common row or column; choose at least two views of one row and two of one column")
@@ -110,26 +150,36 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
     if focal_length_px is None:
         focal_length_px = dataset.focal_length_px(image_size[0])
 
-    matches: list[PairMatches] = []
-    for p in pair_list:
-        check()
-        m = match_pair(feats[p.a], feats[p.b], p.direction, ratio=ratio)
-        matches.append(PairMatches(p.a, p.b, p.direction, m.xy_a, m.xy_b, raw_matches=m.candidates,
-                                   baseline_mm=p.baseline_mm))
-        done += 1
-        progress(done, total_steps, f"matched {view_stem(*p.a)}–{view_stem(*p.b)}: {m.inliers}/{m.candidates}")
+    lock = threading.Lock()
+
+    def matched(i, m) -> None:
+        nonlocal done
+        p = pair_list[i]
+        with lock:
+            done += 1
+            progress(done, total_steps, f"matched {view_stem(*p.a)}–{view_stem(*p.b)}: {m.inliers}/{m.candidates}")
+
+    results = match_pairs(feats, [(p.a, p.b, p.direction) for p in pair_list], ratio=ratio, threads=threads,
+                          on_done=matched, check=check)
+    matches = [PairMatches(p.a, p.b, p.direction, m.xy_a, m.xy_b, raw_matches=m.candidates, baseline_mm=p.baseline_mm)
+               for p, m in zip(pair_list, results)]
     check()
     progress(done, total_steps, "fitting orientation")
-    fit = fit_rectification(matches, focal_length_px, image_size, estimate_principal_point=estimate_principal_point)
+    sigma_um = tuple(position_sigma) if position_sigma is not None else position_sigma_um(dataset)
+    fit = fit_rectification(matches, focal_length_px, image_size, principal_point=principal_point,
+                            position_sigma_um=sigma_um)
     settings = {"max_width_px": max_width_px, "max_features": max_features, "ratio": ratio,
-                "neighbours_only": neighbours_only, "estimate_principal_point": estimate_principal_point,
+                "pair_set": pair_set, "neighbours_only": pair_set == "neighbours",
+                "principal_point": principal_point, "estimate_principal_point": principal_point == "auto",
+                "position_sigma_um": list(sigma_um),
                 "work_scale": float(max(f.scale for f in feats.values()))}
     doc = build_report(fit, matches, views=needed, feature_counts={v: f.count for v, f in feats.items()},
-                       settings=settings,
+                       settings=settings, grid_extent_mm=grid_extent_mm(dataset),
                        created=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
     progress(total_steps, total_steps, "done")
-    log.info("calibration of %s finished: rotation %s deg, residual rms %.3f px", dataset.root,
+    log.info("calibration of %s finished: rotation %s deg ± %s, residual rms %.3f px", dataset.root,
              [round(float(a), 3) for a in doc.get("rotation_deg") or ()],
+             [round(float(a), 3) for a in doc.get("rotation_std_deg") or ()],
              doc.get("residual_px", {}).get("after", {}).get("rms", float("nan")))
     return CalibrationRun(doc, fit, matches, pair_list, needed)
 
@@ -144,18 +194,6 @@ def save_calibration(dataset, document: dict[str, Any]) -> Path:
     dataset.save()
     log.info("calibration saved to %s", path)
     return path
-
-
-def load_calibration(dataset_or_root) -> dict[str, Any] | None:
-    """The dataset's ``calibration.json`` or None when it has none."""
-    root = Path(getattr(dataset_or_root, "root", dataset_or_root))
-    path = resolve_inside(root, CALIBRATION_NAME)      # a symlink leading outside the dataset is refused
-    if not path.is_file():
-        return None
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise DatasetError(f"{path}: cannot be read ({exc}); run 'lfstudio calibrate' again") from None
 
 
 def homography_for(document: dict[str, Any], image_size_px: Sequence[int] | None = None) -> np.ndarray:

@@ -10,14 +10,22 @@ geometric check suited to the rig: the two views differ by a pure translation an
 orientation, so every correspondence line ``a → b`` passes through one epipole. A 2-point RANSAC
 finds that epipole; a match is kept if ``b`` lies within a threshold of the line through ``a`` and
 the epipole and moves the way the camera moved (scene points shift left when the camera moves right).
+
+:func:`match_pairs` matches many pairs at once on a thread pool: one nearest-neighbour index per
+view (FLANN kd-trees for large sets, brute force for small ones), built once and used by one task
+only (no concurrent queries on one index), forward queries ``a → b`` first, then the mutual check's
+reverse queries only for the descriptors of ``b`` that some ``a`` chose. OpenCV releases the GIL
+while it searches, so two threads use both cores.
 """
 
 from __future__ import annotations
 
 import json
 import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Sequence
 
 import cv2
 import numpy as np
@@ -150,18 +158,44 @@ class MatchResult:
     epipole: np.ndarray | None
 
 
-def _ratio_matches(da: np.ndarray, db: np.ndarray, ratio: float) -> dict[int, int]:
-    if len(da) * len(db) > 4_000_000:   # approximate nearest neighbours (kd-trees) for large sets
-        matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})
-    else:
-        matcher = cv2.BFMatcher(cv2.NORM_L2)
-    out: dict[int, int] = {}
-    for m in matcher.knnMatch(np.ascontiguousarray(da, np.float32), np.ascontiguousarray(db, np.float32), k=2):
-        if len(m) == 2 and m[0].distance < ratio * m[1].distance:
-            out[m[0].queryIdx] = m[0].trainIdx
-        elif len(m) == 1:
-            out[m[0].queryIdx] = m[0].trainIdx
-    return out
+#: above this many descriptor pairs (query × index) a FLANN kd-tree index replaces brute force
+_FLANN_ABOVE = 4_000_000
+
+
+class DescriptorIndex:
+    """Nearest-neighbour search over one view's descriptors; the kd-tree is built on first use.
+
+    Not for concurrent use: :func:`match_pairs` gives each index to one task.
+    """
+
+    def __init__(self, descriptors: np.ndarray):
+        self.descriptors = np.ascontiguousarray(descriptors, np.float32)
+        self._flann = None
+
+    def knn2(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The two nearest neighbours of each query: indices (n × 2, -1 = none) and squared distances."""
+        q = np.ascontiguousarray(queries, np.float32)
+        n = len(q)
+        idx = np.full((n, 2), -1, np.int64)
+        dist = np.full((n, 2), np.inf, np.float32)
+        if n == 0 or len(self.descriptors) == 0:
+            return idx, dist
+        if len(self.descriptors) >= 2 and n * len(self.descriptors) > _FLANN_ABOVE:
+            if self._flann is None:
+                self._flann = cv2.flann_Index(self.descriptors, {"algorithm": 1, "trees": 4})
+            i, d = self._flann.knnSearch(q, 2, params={"checks": 64})
+            return i.astype(np.int64), d.astype(np.float32)
+        for row, ms in enumerate(cv2.BFMatcher(cv2.NORM_L2).knnMatch(q, self.descriptors, k=2)):
+            for k, m in enumerate(ms[:2]):
+                idx[row, k] = m.trainIdx
+                dist[row, k] = m.distance * m.distance
+        return idx, dist
+
+
+def _ratio(idx: np.ndarray, dist: np.ndarray, ratio: float) -> np.ndarray:
+    """Per query: the index of its match if it passes Lowe's ratio test, else -1."""
+    ok = (idx[:, 0] >= 0) & ((idx[:, 1] < 0) | (dist[:, 0] < ratio * ratio * dist[:, 1]))
+    return np.where(ok, idx[:, 0], -1)
 
 
 def epipole_ransac(xy_a: np.ndarray, xy_b: np.ndarray, direction: str, threshold_px: float,
@@ -184,6 +218,10 @@ def epipole_ransac(xy_a: np.ndarray, xy_b: np.ndarray, direction: str, threshold
     j = rng.integers(0, n, iterations)
     keep = i != j
     e = np.cross(lines[i[keep]], lines[j[keep]])                 # M × 3 candidate epipoles
+    # two matches on one line (SIFT repeats a keypoint with another orientation) give e = 0, which
+    # every line "passes through": not a candidate
+    scale = np.linalg.norm(lines[i[keep]], axis=1) * np.linalg.norm(lines[j[keep]], axis=1)
+    e = e[np.linalg.norm(e, axis=1) > 1e-9 * np.maximum(scale, 1e-300)]
     best = np.zeros(n, bool)
     best_e = None
     for chunk in range(0, len(e), 100):
@@ -198,24 +236,103 @@ def epipole_ransac(xy_a: np.ndarray, xy_b: np.ndarray, direction: str, threshold
     return best, best_e
 
 
+def _finish(fa: Features, fb: Features, direction: str, pairs: np.ndarray, threshold_work_px: float) -> MatchResult:
+    """Geometric check of candidate index pairs (k × 2: index in a, index in b)."""
+    if not len(pairs):
+        empty = np.zeros((0, 2))
+        return MatchResult(empty, empty, 0, 0, None)
+    xy_a = fa.xy[pairs[:, 0]].astype(np.float64)
+    xy_b = fb.xy[pairs[:, 1]].astype(np.float64)
+    threshold = threshold_work_px * max(fa.scale, fb.scale)
+    mask, e = epipole_ransac(xy_a, xy_b, direction, threshold)
+    return MatchResult(xy_a[mask], xy_b[mask], len(pairs), int(mask.sum()), e)
+
+
 def match_pair(fa: Features, fb: Features, direction: str, *, ratio: float = 0.8, mutual: bool = True,
                threshold_work_px: float = 1.5) -> MatchResult:
     """Match two views' features; keep geometrically consistent matches (see module docstring)."""
     if fa.count < 2 or fb.count < 2:
         empty = np.zeros((0, 2))
         return MatchResult(empty, empty, 0, 0, None)
-    ab = _ratio_matches(fa.descriptors, fb.descriptors, ratio)
-    if mutual:
-        ba = _ratio_matches(fb.descriptors, fa.descriptors, ratio)
-        pairs = [(i, j) for i, j in ab.items() if ba.get(j) == i]
-    else:
-        pairs = list(ab.items())
-    if not pairs:
-        empty = np.zeros((0, 2))
-        return MatchResult(empty, empty, 0, 0, None)
-    idx = np.array(pairs)
-    xy_a = fa.xy[idx[:, 0]].astype(np.float64)
-    xy_b = fb.xy[idx[:, 1]].astype(np.float64)
-    threshold = threshold_work_px * max(fa.scale, fb.scale)
-    mask, e = epipole_ransac(xy_a, xy_b, direction, threshold)
-    return MatchResult(xy_a[mask], xy_b[mask], len(pairs), int(mask.sum()), e)
+    return match_pairs({"a": fa, "b": fb}, [("a", "b", direction)], ratio=ratio, mutual=mutual,
+                       threshold_work_px=threshold_work_px, threads=1)[0]
+
+
+def match_pairs(features: dict, pairs: Sequence[tuple], *, ratio: float = 0.8, mutual: bool = True,
+                threshold_work_px: float = 1.5, threads: int = 2,
+                on_done: Callable[[int, MatchResult], None] | None = None,
+                check: Callable[[], None] | None = None) -> list[MatchResult]:
+    """Match every ``(key_a, key_b, direction)`` of ``pairs`` (keys into ``features``) in parallel.
+
+    ``on_done(i, result)`` is called (from a worker thread) as each pair finishes; ``check()`` is
+    called between tasks and may raise (cancel). Results are in the order of ``pairs``.
+    """
+    indexes = {k: DescriptorIndex(f.descriptors) for k, f in features.items()}
+    forward: dict[int, np.ndarray] = {}
+    reverse: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    live = [i for i, (a, b, _) in enumerate(pairs) if features[a].count >= 2 and features[b].count >= 2]
+
+    def grouped(key_of) -> dict:
+        out: dict = {}
+        for i in live:
+            out.setdefault(key_of(i), []).append(i)
+        return out
+
+    def forward_task(jobs):
+        for i in jobs:
+            if check:
+                check()
+            a, b, _ = pairs[i]
+            forward[i] = _ratio(*indexes[b].knn2(features[a].descriptors), ratio)
+
+    def reverse_task(jobs):
+        for i in jobs:
+            if check:
+                check()
+            a, b, _ = pairs[i]
+            chosen = np.unique(forward[i][forward[i] >= 0])
+            back = _ratio(*indexes[a].knn2(features[b].descriptors[chosen]), ratio) if mutual else None
+            reverse[i] = (chosen, back)
+
+    results: list[MatchResult | None] = [None] * len(pairs)
+
+    def finish_task(i):
+        if check:
+            check()
+        a, b, direction = pairs[i]
+        best = forward[i]
+        q = np.nonzero(best >= 0)[0]
+        cand = np.column_stack([q, best[q]]) if len(q) else np.zeros((0, 2), np.int64)
+        if mutual and len(cand):
+            chosen, back = reverse[i]
+            back_of = np.full(features[b].count, -2, np.int64)
+            back_of[chosen] = back
+            cand = cand[back_of[cand[:, 1]] == cand[:, 0]]
+        results[i] = _finish(features[a], features[b], direction, cand, threshold_work_px)
+        if on_done:
+            on_done(i, results[i])
+
+    workers = max(1, int(threads))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for task, groups in ((forward_task, grouped(lambda i: pairs[i][1])),
+                             (reverse_task, grouped(lambda i: pairs[i][0]))):
+            futures = [pool.submit(task, jobs) for jobs in _balanced(groups, features)]
+            _wait_all(futures)
+        _wait_all([pool.submit(finish_task, i) for i in live])
+    empty = np.zeros((0, 2))
+    return [r if r is not None else MatchResult(empty, empty, 0, 0, None) for r in results]
+
+
+def _balanced(groups: dict, features: dict) -> list[list[int]]:
+    """The jobs of each index as one task, largest first (so two threads finish together)."""
+    return [jobs for _, jobs in sorted(groups.items(), key=lambda kv: -len(kv[1]) * features[kv[0]].count)]
+
+
+def _wait_all(futures) -> None:
+    try:
+        for fut in futures:
+            fut.result()
+    except BaseException:
+        for fut in futures:
+            fut.cancel()
+        raise

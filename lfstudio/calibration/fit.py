@@ -1,15 +1,35 @@
-"""Fit the shared orientation error (and optionally the principal point) from feature matches.
+"""Fit the shared orientation error (and the principal point when observable) from feature matches.
 
 Model: ``H = K0 · Rᵀ · K_true⁻¹`` (see :mod:`lfstudio.calibration.model`). The residual of a match
 ``(a, b)`` of a *horizontal* pair (same row) is ``v(H·a) − v(H·b)``; of a *vertical* pair (same
-column) ``u(H·a) − u(H·b)``, in pixels of the rectified full-resolution image. H is a pure rotation
-homography whose scale is fixed by the focal length, so residuals cannot shrink by a degenerate
-scaling; the angles are bounded anyway (default ±15°) and the principal point to a few percent of
-the width. Outliers are handled by a robust loss (soft L1) and a trimmed refit at 3 robust sigmas.
+column) ``u(H·a) − u(H·b)``, in pixels of the rectified full-resolution image.
 
-The principal point is only weakly observable (to first order a shift of it is the same as a small
-rotation), so when it is estimated a weak prior pulls it to the nominal centre
-(``pp_prior_sigma_px``), and the rotation is first fitted with the nominal centre.
+Steps:
+
+1. Start: the linear epipole closed form (:mod:`lfstudio.calibration.linear`) or, when a coarse
+   grid over the angles explains the matches better (short baselines), the grid's best point.
+2. Robust rotation fit (soft L1, angles bounded to ±``max_angle_deg``), trimmed twice at 3 robust
+   sigmas: finds the inliers.
+3. Refinement with the rig's position errors in the model. A camera ``η`` mm off its nominal row
+   (column) shifts every match of a horizontal (vertical) pair by ``d / B · (η_b − η_a)`` px, where
+   ``d`` is the match's disparity and ``B`` the pair's baseline in mm: errors shared by all matches
+   of a view, which independent-residual fits ignore (their stated errors were 8× too small on
+   short baselines). The offsets of every view are estimated jointly with the angles, with the
+   rig's repeatability as their prior (raised when the data show larger offsets), and each pair's
+   residuals weighted by its own observed spread. Gauss-Newton on the inliers, then one re-trim.
+4. The covariance of the angles (and the principal point) is the inverse of that problem's
+   information matrix with the view offsets marginalised out, scaled by the observed residuals:
+   measured, not assumed. A floor per angle covers systematic feature errors the model cannot see
+   (``SYSTEMATIC_PX``: SIFT's sub-pixel bias, half-size RAW reading, lens residuals): the angle a
+   pattern of that size, shaped like the angle's own effect, would fake. It matters only on short
+   baselines, where the angles barely move the matches (and barely matter for the grid).
+   :mod:`lfstudio.calibration.uncertainty` turns the covariance into pixels.
+
+The principal point: to first order a shift of it translates every view alike, which no residual
+sees, so it is nearly unobservable from a translating rig. ``principal_point="auto"`` estimates it
+only when the information matrix determines it to ``PP_OBSERVABLE_STD_PX`` (and 4× better than its
+prior); otherwise it stays at the nominal centre, and its prior uncertainty (``PP_PRIOR_FRACTION`` of
+the width) is propagated into the stated uncertainty of the angles.
 """
 
 from __future__ import annotations
@@ -21,8 +41,23 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
+from lfstudio.calibration.linear import linear_rotation
 from lfstudio.calibration.model import apply_homography, nominal_principal_point, rectifying_homography
 from lfstudio.errors import LfError
+
+#: the reference rig's repeatability (horizontal, vertical axis), the default prior of the view offsets
+DEFAULT_POSITION_SIGMA_UM = (80.0, 50.0)
+#: prior of the principal point offset, as a fraction of the image width (1 σ; 159 px on the
+#: reference 7952 px sensor, 0.72 mm: a generous tolerance for where a lens centres on a sensor)
+PP_PRIOR_FRACTION = 0.02
+#: the principal point is estimated only if the views determine it at least this well (1 σ, px)
+PP_OBSERVABLE_STD_PX = 10.0
+PRINCIPAL_POINT_MODES = ("auto", "centre")
+#: the robust first fit (which finds the outliers) uses at most this many matches
+ROBUST_SAMPLE = 20000
+_MIN_SIGMA_PX = 1e-6
+#: systematic feature error (px at full resolution) behind the per-angle floor of the covariance
+SYSTEMATIC_PX = 0.01
 
 
 class CalibrationError(LfError):
@@ -57,7 +92,7 @@ class FitResult:
     focal_length_px: float
     image_size_px: tuple[int, int]
     homography: np.ndarray
-    estimate_principal_point: bool
+    estimate_principal_point: bool     # True when the principal point was estimated (observable)
     residual_before_px: np.ndarray     # per match, concatenated over pairs (signed)
     residual_after_px: np.ndarray
     inlier: np.ndarray                 # bool per match (used in the final fit)
@@ -66,7 +101,21 @@ class FitResult:
     success: bool
     message: str
     evaluations: int = 0
+    covariance: np.ndarray | None = None          # 5 × 5 over [rx, ry, rz (deg), cx, cy offset (px)]
+    principal_point_reason: str = ""
+    view_offsets_mm: dict = field(default_factory=dict)   # view -> [x, y] estimated position error (mm)
+    position_sigma_mm: tuple[float, float] = (0.0, 0.0)   # the prior used (after the data check)
     extra: dict = field(default_factory=dict)
+
+    @property
+    def params(self) -> np.ndarray:
+        """[rx, ry, rz, cx offset, cy offset]: the parameter vector of :attr:`covariance`."""
+        nominal = nominal_principal_point(self.image_size_px)
+        return np.concatenate([self.rotation_deg, self.principal_point_px - nominal])
+
+    @property
+    def rotation_std_deg(self) -> np.ndarray | None:
+        return None if self.covariance is None else np.sqrt(np.diag(self.covariance)[:3])
 
 
 def signed_residuals(H: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray, horizontal: np.ndarray) -> np.ndarray:
@@ -75,6 +124,72 @@ def signed_residuals(H: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray, horizont
     pb = apply_homography(H, xy_b)
     d = pa - pb
     return np.where(horizontal, d[:, 1], d[:, 0])
+
+
+def _warp_row(H: np.ndarray, x: np.ndarray, y: np.ndarray, row: int) -> tuple[np.ndarray, np.ndarray]:
+    """Coordinate ``row`` (0: u, 1: v) of H·(x, y) and the squared norm of its gradient in (x, y)."""
+    w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+    w = np.where(np.abs(w) < 1e-12, 1e-12, w)
+    c = (H[row, 0] * x + H[row, 1] * y + H[row, 2]) / w
+    gx = (H[row, 0] - c * H[2, 0]) / w
+    gy = (H[row, 1] - c * H[2, 1]) / w
+    return c, gx * gx + gy * gy
+
+
+def _warp_both(H: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+    w = np.where(np.abs(w) < 1e-12, 1e-12, w)
+    return (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w, (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w, w
+
+
+class _Split:
+    """Matches split by direction into flat coordinate arrays (fast repeated evaluation)."""
+
+    def __init__(self, xy_a: np.ndarray, xy_b: np.ndarray, horizontal: np.ndarray):
+        self.horizontal = np.asarray(horizontal, bool)
+        self.h_idx = np.nonzero(self.horizontal)[0]
+        self.v_idx = np.nonzero(~self.horizontal)[0]
+        self.parts = []
+        for idx, row in ((self.h_idx, 1), (self.v_idx, 0)):
+            self.parts.append((idx, row, np.ascontiguousarray(xy_a[idx, 0]), np.ascontiguousarray(xy_a[idx, 1]),
+                               np.ascontiguousarray(xy_b[idx, 0]), np.ascontiguousarray(xy_b[idx, 1])))
+        self.n = len(self.horizontal)
+
+    def evaluate(self, H: np.ndarray, with_disparity: bool = False):
+        """Normalised residuals (see :func:`normalised_residuals`) and, optionally, |disparity| / gain."""
+        r = np.empty(self.n)
+        disp = np.empty(self.n) if with_disparity else None
+        for idx, row, xa, ya, xb, yb in self.parts:
+            if not len(idx):
+                continue
+            ca, ga = _warp_row(H, xa, ya, row)
+            cb, gb = _warp_row(H, xb, yb, row)
+            g = np.sqrt(0.5 * (ga + gb))
+            r[idx] = (ca - cb) / g
+            if with_disparity:
+                other = 1 - row
+                oa = _warp_row(H, xa, ya, other)[0]
+                ob = _warp_row(H, xb, yb, other)[0]
+                disp[idx] = np.abs(oa - ob) / g
+        return (r, disp) if with_disparity else r
+
+
+def normalised_residuals(H: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray, horizontal: np.ndarray) -> np.ndarray:
+    """:func:`signed_residuals` divided by how much H scales the features' noise (Sampson-style).
+
+    Minimising the plain residuals lets H shrink the noise where it can (a homography's local scale
+    varies by a few per cent over the image): a bias ∝ σ²/d² in pan and roll that dominated short
+    baselines (neighbours-only pair sets: 4× the stated error). The normalised residual's noise does
+    not depend on H. Still in pixels (the scale is ≈ 1).
+    """
+    return _Split(np.asarray(xy_a, float), np.asarray(xy_b, float), horizontal).evaluate(H)
+
+
+def homography_of(params: Sequence[float], focal_length_px: float, image_size_px: Sequence[int]) -> np.ndarray:
+    """H for ``params`` = [rx, ry, rz] or [rx, ry, rz, cx offset, cy offset] (offsets from the nominal centre)."""
+    params = np.asarray(params, float)
+    pp = nominal_principal_point(image_size_px) + (params[3:5] if len(params) > 3 else 0.0)
+    return rectifying_homography(params[:3], focal_length_px, image_size_px, pp)
 
 
 def _batched_residuals(Hs: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray, horizontal: np.ndarray) -> np.ndarray:
@@ -89,16 +204,201 @@ def _batched_residuals(Hs: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray, horiz
     return np.where(horizontal[None, :], va - vb, ua - ub)
 
 
+@dataclass
+class _Data:
+    """Concatenated matches with the bookkeeping the refinement needs."""
+
+    xy_a: np.ndarray
+    xy_b: np.ndarray
+    horizontal: np.ndarray
+    pair: np.ndarray          # pair index per match
+    baseline_mm: np.ndarray   # per pair
+    eta_a: np.ndarray         # per pair: column of view a's offset (-1: none)
+    eta_b: np.ndarray
+    eta_axis: np.ndarray      # per offset column: 0 = x (vertical pairs), 1 = y (horizontal pairs)
+    eta_view: list            # per offset column: the view
+
+    def subset(self, sel: np.ndarray) -> "_Data":
+        return _Data(self.xy_a[sel], self.xy_b[sel], self.horizontal[sel], self.pair[sel], self.baseline_mm,
+                     self.eta_a, self.eta_b, self.eta_axis, self.eta_view)
+
+
+def _make_data(used: Sequence[PairMatches], with_offsets: bool) -> _Data:
+    xy_a = np.concatenate([m.xy_a for m in used]).astype(float)
+    xy_b = np.concatenate([m.xy_b for m in used]).astype(float)
+    horizontal = np.concatenate([np.full(m.count, m.direction == "h") for m in used])
+    pair = np.concatenate([np.full(m.count, i) for i, m in enumerate(used)])
+    baseline = np.array([float(m.baseline_mm) for m in used])
+    columns: dict[tuple, int] = {}
+    eta_a = np.full(len(used), -1)
+    eta_b = np.full(len(used), -1)
+    for i, m in enumerate(used):
+        if not with_offsets or not baseline[i] > 0:
+            continue
+        axis = 1 if m.direction == "h" else 0
+        eta_a[i] = columns.setdefault((m.view_a, axis), len(columns))
+        eta_b[i] = columns.setdefault((m.view_b, axis), len(columns))
+    keys = sorted(columns, key=columns.get)
+    return _Data(xy_a, xy_b, horizontal, pair, baseline, eta_a, eta_b,
+                 np.array([k[1] for k in keys], int), [k[0] for k in keys])
+
+
+class _Problem:
+    """The linearised refinement: residuals, Jacobian, information matrix (offsets marginalised)."""
+
+    def __init__(self, data: _Data, f: float, size: tuple[int, int], pp_prior_sigma_px: float):
+        self.data = data
+        self.f = f
+        self.size = size
+        self.pp_prior_sigma = pp_prior_sigma_px
+        self.split = _Split(data.xy_a, data.xy_b, data.horizontal)
+        self.ka = data.eta_a[data.pair]
+        self.kb = data.eta_b[data.pair]
+        self.has = self.ka >= 0
+        base = data.baseline_mm[data.pair]
+        self.inv_base = np.where(self.has & (base > 0), 1.0 / np.where(base > 0, base, 1.0), 0.0)
+
+    def residuals(self, params: np.ndarray) -> np.ndarray:
+        return self.split.evaluate(homography_of(params, self.f, self.size))
+
+    def residuals_and_coupling(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised residuals and, per match, d / B (px per mm of relative position error; 0 where
+        no offsets are modelled)."""
+        r, disp = self.split.evaluate(homography_of(params, self.f, self.size), with_disparity=True)
+        return r, disp * self.inv_base
+
+    def jacobian(self, params: np.ndarray, r0: np.ndarray | None = None) -> np.ndarray:
+        """Forward differences (steps 1e-4° and 0.01 px)."""
+        r0 = self.residuals(params) if r0 is None else r0
+        steps = np.array([1e-4, 1e-4, 1e-4, 0.01, 0.01])[:len(params)]
+        J = np.empty((len(r0), len(params)))
+        for k, h in enumerate(steps):
+            e = np.zeros(len(params))
+            e[k] = h
+            J[:, k] = (self.residuals(params + e) - r0) / h
+        return J
+
+    def normal(self, params, weights, sigma_pos_mm) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Full normal matrix and right-hand side over [δparams, offsets]; also r0 and the coupling."""
+        d = self.data
+        r0, c = self.residuals_and_coupling(params)
+        J = self.jacobian(params, r0)
+        n_p, n_e = J.shape[1], len(d.eta_axis)
+        ka, kb, has = self.ka, self.kb, self.has
+        N = np.zeros((n_p + n_e, n_p + n_e))
+        rhs = np.zeros(n_p + n_e)
+        wJ = J * weights[:, None]
+        N[:n_p, :n_p] = J.T @ wJ
+        rhs[:n_p] = -wJ.T @ r0
+        if n_p > 3:   # weak prior of the principal point offset
+            N[3:5, 3:5] += np.eye(2) / self.pp_prior_sigma ** 2
+            rhs[3:5] -= params[3:5] / self.pp_prior_sigma ** 2
+        if n_e:
+            # the model residual is r0 + J δp − c (η_b − η_a): columns −c at b, +c at a
+            wc = (weights * c)[has]
+            ka_h, kb_h = ka[has], kb[has]
+            for k in range(n_p):
+                v = wc * J[has, k]
+                N[k, n_p:] = np.bincount(ka_h, v, n_e) - np.bincount(kb_h, v, n_e)
+            N[n_p:, :n_p] = N[:n_p, n_p:].T
+            s = np.bincount(d.pair[has], wc * c[has], len(d.baseline_mm))     # per pair Σ w c²
+            Nee = np.zeros((n_e, n_e))
+            for i in np.nonzero(s)[0]:
+                a, b = d.eta_a[i], d.eta_b[i]
+                Nee[a, a] += s[i]
+                Nee[b, b] += s[i]
+                Nee[a, b] -= s[i]
+                Nee[b, a] -= s[i]
+            sig = np.where(d.eta_axis == 0, sigma_pos_mm[0], sigma_pos_mm[1])
+            Nee += np.diag(1.0 / sig ** 2)
+            N[n_p:, n_p:] = Nee
+            wr = wc * r0[has]
+            rhs[n_p:] = np.bincount(kb_h, wr, n_e) - np.bincount(ka_h, wr, n_e)
+        return N, rhs, r0, c
+
+    def model_residuals(self, params, offsets) -> np.ndarray:
+        """Residuals after the estimated view offsets are taken out."""
+        if not len(offsets):
+            return self.residuals(params)
+        r0, c = self.residuals_and_coupling(params)
+        has = self.has
+        out = r0.copy()
+        out[has] -= c[has] * (offsets[self.kb[has]] - offsets[self.ka[has]])
+        return out
+
+
+def _pair_sigmas(resid: np.ndarray, pair: np.ndarray, n_pairs: int, fallback: float) -> np.ndarray:
+    counts = np.bincount(pair, minlength=n_pairs)
+    ss = np.bincount(pair, resid * resid, n_pairs)
+    sig = np.sqrt(np.where(counts > 0, ss / np.maximum(counts, 1), fallback ** 2))
+    return np.maximum(sig, _MIN_SIGMA_PX)
+
+
+def _refine(problem: _Problem, params: np.ndarray, sigma_px: float, sigma_pos_mm: np.ndarray,
+            iterations: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss-Newton with view offsets and per-pair weights; the offset prior rises to what the data show.
+
+    Returns (params, offsets, per-pair sigmas, offset prior used, full inverse normal matrix).
+    """
+    d = problem.data
+    n_pairs = len(d.baseline_mm)
+    sig_pair = np.full(n_pairs, max(sigma_px, _MIN_SIGMA_PX))
+    prior = np.asarray(sigma_pos_mm, float).copy()
+    offsets = np.zeros(len(d.eta_axis))
+    cov = None
+    for it in range(iterations):
+        w = 1.0 / sig_pair[d.pair] ** 2
+        N, rhs, r0, c = problem.normal(params, w, prior)
+        try:
+            cov = np.linalg.inv(N)
+        except np.linalg.LinAlgError:
+            cov = np.linalg.pinv(N)
+        z = cov @ rhs
+        n_p = len(params)
+        params = params + z[:n_p]
+        offsets = z[n_p:]
+        resid = problem.model_residuals(params, offsets)
+        old = (sig_pair, prior.copy())
+        sig_pair = _pair_sigmas(resid, d.pair, n_pairs, sigma_px)
+        if len(offsets):
+            # expectation-maximisation of the offset variance per axis, never below the rig's value
+            second = offsets ** 2 + np.diag(cov)[n_p:]
+            for axis in (0, 1):
+                sel = d.eta_axis == axis
+                if sel.any():
+                    prior[axis] = max(float(sigma_pos_mm[axis]), float(np.sqrt(second[sel].mean())))
+        settled = np.max(np.abs(z[:n_p])) < 1e-6 and np.allclose(sig_pair, old[0], rtol=0.01) \
+            and np.allclose(prior, old[1], rtol=0.01)
+        if it >= 1 and settled:
+            break
+    # the information at the solution, with the final weights and prior
+    w = 1.0 / sig_pair[d.pair] ** 2
+    N, _, _, _ = problem.normal(params, w, prior)
+    try:
+        cov = np.linalg.inv(N)
+    except np.linalg.LinAlgError:
+        cov = np.linalg.pinv(N)
+    return params, offsets, sig_pair, prior, cov
+
+
 def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, image_size_px: Sequence[int], *,
-                      estimate_principal_point: bool = False, max_angle_deg: float = 15.0,
-                      max_pp_offset_px: float | None = None, pp_prior_sigma_px: float | None = None,
+                      principal_point: str = "auto", estimate_principal_point: bool | None = None,
+                      position_sigma_um: Sequence[float] | None = DEFAULT_POSITION_SIGMA_UM,
+                      max_angle_deg: float = 15.0, pp_prior_sigma_px: float | None = None,
                       min_matches: int = 8, trim_sigmas: float = 3.0) -> FitResult:
-    """Estimate ``rotation_deg`` (and the principal point) from the matches of several pairs.
+    """Estimate ``rotation_deg`` (and the principal point when observable) with its covariance.
 
     ``focal_length_px`` and ``image_size_px`` ([w, h]) refer to the full-resolution captured image.
-    Raises :class:`CalibrationError` when there are too few matches overall or in either direction
-    where both are needed.
+    ``principal_point``: ``"auto"`` (estimated only when the views determine it) or ``"centre"``
+    (held at the nominal centre). ``estimate_principal_point`` (older spelling): True = "auto",
+    False = "centre". ``position_sigma_um``: the rig's repeatability (x, y) in µm, the prior of each
+    view's position error (None or 0: exact positions). Raises :class:`CalibrationError` when there
+    are too few matches overall or in either direction where both are needed.
     """
+    if estimate_principal_point is not None:
+        principal_point = "auto" if estimate_principal_point else "centre"
+    if principal_point not in PRINCIPAL_POINT_MODES:
+        raise CalibrationError(f"principal point mode {principal_point!r}: use one of {', '.join(PRINCIPAL_POINT_MODES)}")
     w, h = int(image_size_px[0]), int(image_size_px[1])
     f = float(focal_length_px)
     if not (f > 0):
@@ -113,88 +413,164 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
             f"too few feature matches to calibrate: {n_h} in rows, {n_v} in columns (need at least "
             f"{min_matches} in total, and both directions for all three angles); pairs: {names}. "
             "Use views with more texture and overlap, or more views (--views)")
-    xy_a = np.concatenate([m.xy_a for m in used]).astype(float)
-    xy_b = np.concatenate([m.xy_b for m in used]).astype(float)
-    horizontal = np.concatenate([np.full(m.count, m.direction == "h") for m in used])
+    pos_sigma_mm = np.array([float(s) / 1000.0 for s in (position_sigma_um or (0.0, 0.0))])
+    with_offsets = bool(np.all(pos_sigma_mm > 0))
+    data = _make_data(used, with_offsets)
+    xy_a, xy_b, horizontal = data.xy_a, data.xy_b, data.horizontal
+    # slices over ``matches`` (empty pairs included), matching the concatenation order of ``used``
     slices, start = [], 0
     for m in matches:
         slices.append(slice(start, start + m.count))
         start += m.count
 
-    nominal = nominal_principal_point((w, h))
-    max_pp = float(max_pp_offset_px if max_pp_offset_px is not None else 0.05 * w)
-    prior_sigma = float(pp_prior_sigma_px if pp_prior_sigma_px is not None else 0.02 * w)
+    prior_sigma = float(pp_prior_sigma_px if pp_prior_sigma_px is not None else PP_PRIOR_FRACTION * w)
     residual_before = signed_residuals(np.eye(3), xy_a, xy_b, horizontal)
+    everything = _Split(xy_a, xy_b, horizontal)
 
-    def homography(params: np.ndarray) -> np.ndarray:
-        pp = nominal + params[3:5] if len(params) > 3 else nominal
-        return rectifying_homography(params[:3], f, (w, h), pp)
-
-    def residual_fn(params, sel):
-        r = signed_residuals(homography(params), xy_a[sel], xy_b[sel], horizontal[sel])
-        if len(params) > 3:
-            r = np.concatenate([r, params[3:5] / prior_sigma])
-        return r
-
-    # 1. coarse start: the grid point with the smallest median |residual| (robust to outliers)
+    # 1. start: the linear closed form, or the best point of a coarse grid if that explains more
     rng = np.random.default_rng(0)
     sub = np.arange(total) if total <= 1500 else np.sort(rng.choice(total, 1500, replace=False))
     steps = np.arange(-max_angle_deg * 2 / 3, max_angle_deg * 2 / 3 + 1e-9, max_angle_deg / 3)
     grid = np.array(list(itertools.product(steps, steps, steps)))
-    Hs = np.stack([rectifying_homography(g, f, (w, h)) for g in grid])
+    linear = linear_rotation(used, f, (w, h))
+    candidates = grid if linear is None or np.any(np.abs(linear.rotation_deg) > max_angle_deg) \
+        else np.vstack([grid, linear.rotation_deg[None, :]])
+    Hs = np.stack([homography_of(g, f, (w, h)) for g in candidates])
     med = np.median(np.abs(_batched_residuals(Hs, xy_a[sub], xy_b[sub], horizontal[sub])), axis=1)
-    x0 = grid[int(np.argmin(med))]
+    x0 = candidates[int(np.argmin(med))]
     bounds3 = (np.full(3, -max_angle_deg), np.full(3, max_angle_deg))
 
-    # 2. robust rotation fit with the nominal principal point, then trimmed refits
-    all_sel = np.ones(total, bool)
+    # 2. robust rotation fit with the nominal principal point, then trimmed refits: the inliers
+    #    (on at most ROBUST_SAMPLE matches: the refinement below uses them all)
+    sample = np.arange(total) if total <= ROBUST_SAMPLE else np.sort(rng.choice(total, ROBUST_SAMPLE, replace=False))
+
+    def solve(p, sel, scale):
+        split = _Split(xy_a[sel], xy_b[sel], horizontal[sel])
+        return least_squares(lambda q: split.evaluate(homography_of(q, f, (w, h))), np.clip(p, *bounds3),
+                             bounds=bounds3, loss="soft_l1", f_scale=scale, x_scale=1.0, method="trf")
+
     spread = max(1.4826 * float(np.min(med)), 1.0)
-    sol = least_squares(residual_fn, x0, args=(all_sel,), bounds=bounds3, loss="soft_l1",
-                        f_scale=spread, x_scale=1.0, method="trf")
+    sol = solve(x0, sample, spread)
     evaluations = sol.nfev
     params = sol.x
-    inlier = all_sel
     sigma = spread
     for _ in range(2):
-        r = residual_fn(params, all_sel)[:total]
+        r = everything.evaluate(homography_of(params, f, (w, h)))
         sigma = max(1.4826 * float(np.median(np.abs(r))), 0.05)
         inlier = np.abs(r) <= max(trim_sigmas * sigma, 0.5)
         if inlier.sum() < min_matches:
             raise CalibrationError(f"only {int(inlier.sum())} of {total} matches agree with one orientation; "
                                    "the matches are mostly wrong (repetitive texture?) — check the views")
-        sol = least_squares(residual_fn, params, args=(inlier,), bounds=bounds3, loss="soft_l1",
-                            f_scale=sigma, x_scale=1.0, method="trf")
+        sol = solve(params, sample[inlier[sample]], sigma)
         params = sol.x
         evaluations += sol.nfev
+    robust_params = params.copy()
 
-    # 3. optionally free the principal point, starting from the rotation-only solution
-    if estimate_principal_point:
-        lo = np.concatenate([bounds3[0], [-max_pp, -max_pp]])
-        hi = np.concatenate([bounds3[1], [max_pp, max_pp]])
-        x5 = np.concatenate([params, [0.0, 0.0]])
-        sol = least_squares(residual_fn, x5, args=(inlier,), bounds=(lo, hi), loss="soft_l1",
-                            f_scale=sigma, x_scale=np.array([0.01, 0.01, 0.01, 1.0, 1.0]), method="trf")
-        params = sol.x
-        evaluations += sol.nfev
+    # 3. refinement with the view offsets; re-trim once with the offsets taken out
+    def refine(p, sel):
+        return _refine(_Problem(data.subset(sel), f, (w, h), prior_sigma), p, sigma, pos_sigma_mm)
 
-    H = homography(params)
+    params, offsets, sig_pair, pos_used, cov_full = refine(params, inlier)
+    resid_all = _Problem(data, f, (w, h), prior_sigma).model_residuals(params, offsets)
+    retrim = np.abs(resid_all) <= np.maximum(trim_sigmas * sig_pair[data.pair], 0.5)
+    if retrim.sum() >= min_matches and np.count_nonzero(retrim != inlier) > 0.002 * total:
+        inlier = retrim
+        params, offsets, sig_pair, pos_used, cov_full = refine(params, inlier)
+
+    # 4. the principal point: free it and see how well the views determine it
+    problem = _Problem(data.subset(inlier), f, (w, h), prior_sigma)
+    p5 = np.concatenate([params, [0.0, 0.0]])
+    limit = observable_limit_px(prior_sigma)
+    estimated = False
+    pp_std = None
+    if principal_point == "auto":
+        free = _refine(problem, p5, sigma, pos_sigma_mm)
+        pp_std = np.sqrt(np.diag(free[4])[3:5])
+        estimated = pp_observable(pp_std, prior_sigma)
+    if estimated:
+        params, offsets, sig_pair, pos_used, cov_full = free
+        covariance = cov_full[:5, :5]
+        reason = (f"estimated: the views determine it to ±{pp_std.max():.1f} px (1σ; the limit is "
+                  f"{limit:.1f} px)")
+    else:
+        # held: its prior uncertainty moves the fitted angles by G·Δpp (G from the information matrix
+        # at the rotation-only solution)
+        w_in = 1.0 / sig_pair[data.pair[inlier]] ** 2
+        N5, _, _, _ = problem.normal(p5, w_in, pos_used)
+        cov5 = _inverse(N5)[:5, :5]
+        if pp_std is None:
+            pp_std = np.sqrt(np.diag(cov5)[3:5])
+        info = np.linalg.inv(cov5)          # marginal information over the five parameters
+        Sigma_n = np.linalg.inv(info[:3, :3])
+        G = -Sigma_n @ info[:3, 3:5]
+        S_pp = np.eye(2) * prior_sigma ** 2
+        covariance = np.zeros((5, 5))
+        covariance[:3, :3] = cov_full[:3, :3] + G @ S_pp @ G.T
+        covariance[:3, 3:5] = G @ S_pp
+        covariance[3:5, :3] = (G @ S_pp).T
+        covariance[3:5, 3:5] = S_pp
+        why = ("not requested" if principal_point == "centre" else
+               f"not observable from these views (they determine it only to ±{pp_std.max():.0f} px, 1σ; "
+               f"the limit is {limit:.1f} px)")
+        reason = f"held at the image centre: {why}; its uncertainty (±{prior_sigma:.0f} px) is included"
+
+    # the cross-check: the closed form again, on the matches the fit kept
+    kept = [PairMatches(m.view_a, m.view_b, m.direction, m.xy_a[inlier[sl]], m.xy_b[inlier[sl]])
+            for m, sl in zip(matches, slices) if m.count]
+    check = linear_rotation(kept, f, (w, h))
+    H = homography_of(params, f, (w, h))
     residual_after = signed_residuals(H, xy_a, xy_b, horizontal)
     sigma = max(1.4826 * float(np.median(np.abs(residual_after[inlier]))), 0.0)
-    # formal standard errors (Gauss-Newton, independent residuals of spread sigma): how well these
-    # views determine each parameter; small baselines leave pan and tilt weakly determined
+    # the formal error of independent residuals (the old statement), kept to show what it misses
+    J3 = _Problem(data.subset(inlier), f, (w, h), prior_sigma).jacobian(params[:3])
     try:
-        std = sigma * np.sqrt(np.diag(np.linalg.pinv(sol.jac.T @ sol.jac)))
+        formal = sigma * np.sqrt(np.diag(np.linalg.pinv(J3.T @ J3)))
     except (np.linalg.LinAlgError, ValueError):
-        std = np.full(len(params), np.inf)
+        formal = np.full(3, np.inf)
+    # the floor: the angle a systematic SYSTEMATIC_PX pattern shaped like the angle's effect would fake
+    reach = np.percentile(np.abs(J3), 99, axis=0) if len(J3) else np.zeros(3)
+    floor = SYSTEMATIC_PX / np.maximum(reach, 1e-9)
+    covariance[:3, :3] += np.diag(floor ** 2)
+    view_offsets: dict = {}
+    for k, (view, axis) in enumerate(zip(data.eta_view, data.eta_axis)):
+        view_offsets.setdefault(view, [0.0, 0.0])[int(axis)] = float(offsets[k]) if k < len(offsets) else 0.0
+    nominal = nominal_principal_point((w, h))
     pp = nominal + (params[3:5] if len(params) > 3 else 0.0)
+    std = np.sqrt(np.diag(covariance))
     return FitResult(rotation_deg=np.asarray(params[:3], float), principal_point_px=np.asarray(pp, float),
-                     focal_length_px=f, image_size_px=(w, h), homography=H,
-                     estimate_principal_point=estimate_principal_point,
+                     focal_length_px=f, image_size_px=(w, h), homography=H, estimate_principal_point=estimated,
                      residual_before_px=residual_before, residual_after_px=residual_after, inlier=inlier,
                      pair_slices=slices, sigma_px=sigma, success=bool(sol.success), message=str(sol.message),
-                     evaluations=int(evaluations),
-                     extra={"start_deg": x0.tolist(), "rotation_std_deg": [float(x) for x in std[:3]],
-                            "principal_point_std_px": [float(x) for x in std[3:5]] if len(std) > 3 else None})
+                     evaluations=int(evaluations), covariance=covariance, principal_point_reason=reason,
+                     view_offsets_mm=view_offsets, position_sigma_mm=(float(pos_used[0]), float(pos_used[1]))
+                     if with_offsets else (0.0, 0.0),
+                     extra={"start_deg": [float(x) for x in x0],
+                            "robust_deg": [float(x) for x in robust_params],
+                            "linear_start_deg": None if linear is None else [float(x) for x in linear.rotation_deg],
+                            "linear_deg": None if check is None else [float(x) for x in check.rotation_deg],
+                            "rotation_std_deg": [float(x) for x in std[:3]],
+                            "formal_rotation_std_deg": [float(x) for x in formal],
+                            "principal_point_std_px": [float(x) for x in pp_std],
+                            "systematic_floor_deg": [float(x) for x in floor],
+                            "pair_sigma_px": [float(x) for x in sig_pair]})
+
+
+def observable_limit_px(prior_sigma_px: float) -> float:
+    """The 1σ a principal point must be determined to, to be estimated: ``PP_OBSERVABLE_STD_PX`` and
+    4× better than its prior."""
+    return min(PP_OBSERVABLE_STD_PX, 0.25 * float(prior_sigma_px))
+
+
+def pp_observable(pp_std_px: Sequence[float], prior_sigma_px: float) -> bool:
+    """Whether the views determine both coordinates of the principal point (see :func:`observable_limit_px`)."""
+    return bool(np.all(np.asarray(pp_std_px, float) <= observable_limit_px(prior_sigma_px)))
+
+
+def _inverse(N: np.ndarray) -> np.ndarray:
+    try:
+        return np.linalg.inv(N)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(N)
 
 
 def _vname(view: tuple[int, int]) -> str:

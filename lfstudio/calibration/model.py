@@ -11,14 +11,23 @@ Conventions (see ``docs/conventions.md``):
 - the ideal (rectified) camera ``K0`` has the same f and the nominal centre: ``p_rect ~ K0 · (X − C)``;
 - so the rectifying homography (captured full-resolution pixel → rectified pixel) is
   ``H = K0 · Rᵀ · K_true⁻¹``.
+
+Also the fields of ``calibration.json`` that describe how far to trust it
+(:class:`CalibrationUncertainty`, key ``uncertainty``; files written before it existed have none and
+still load). scipy is imported only where a rotation is computed, so reading a document stays cheap.
 """
 
 from __future__ import annotations
 
-from typing import Sequence
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+from lfstudio.dataset.paths import resolve_inside
+from lfstudio.errors import DatasetError
 
 ROTATION_CONVENTION = (
     "R = scipy.spatial.transform.Rotation.from_euler('xyz', rotation_deg, degrees=True).as_matrix(); "
@@ -29,15 +38,18 @@ ROTATION_CONVENTION = (
 
 def rotation_matrix(rotation_deg: Sequence[float]) -> np.ndarray:
     """3 × 3 orientation error R from ``[rx, ry, rz]`` in degrees (extrinsic x-y-z)."""
+    from scipy.spatial.transform import Rotation
     return Rotation.from_euler("xyz", np.asarray(rotation_deg, dtype=float), degrees=True).as_matrix()
 
 
 def rotation_deg_from_matrix(R: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
     return Rotation.from_matrix(R).as_euler("xyz", degrees=True)
 
 
 def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
     """Angle of the rotation taking R_a to R_b (geodesic distance), degrees."""
+    from scipy.spatial.transform import Rotation
     return float(np.degrees(Rotation.from_matrix(R_a.T @ R_b).magnitude()))
 
 
@@ -96,3 +108,78 @@ def project(points_m: np.ndarray, centre_m: np.ndarray, R: np.ndarray, K: np.nda
     cam = (np.asarray(points_m) - np.asarray(centre_m)) @ R.T
     p = cam @ K.T
     return p[:, :2] / p[:, 2:3], cam[:, 2]
+
+
+# -- calibration.json -----------------------------------------------------------------------------------
+CALIBRATION_NAME = "calibration.json"
+
+
+def load_calibration(dataset_or_root) -> dict[str, Any] | None:
+    """The dataset's ``calibration.json`` or None when it has none (JSON only: cheap to call from a GUI)."""
+    root = Path(getattr(dataset_or_root, "root", dataset_or_root))
+    path = resolve_inside(root, CALIBRATION_NAME)      # a symlink leading outside the dataset is refused
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{path}: cannot be read ({exc}); run 'lfstudio calibrate' again") from None
+
+
+UNCERTAINTY_KEY = "uncertainty"
+#: the order of :attr:`CalibrationUncertainty.covariance`
+PARAMETERS = ("rx_deg", "ry_deg", "rz_deg", "cx_offset_px", "cy_offset_px")
+
+
+@dataclass(frozen=True)
+class CalibrationUncertainty:
+    """What a calibration's stated uncertainty is, as ``calibration.json`` stores it under ``uncertainty``.
+
+    ``rotation_std_deg``: 1 σ per angle; ``covariance``: 5 × 5 over :data:`PARAMETERS` (the
+    principal-point rows hold its prior when it was held at the centre). ``corner_error_px``: the
+    1σ and 2σ bounds (68.3 % / 95.4 % quantiles) of the largest rectification error at the four image
+    corners, for a pair as far apart as the grid's first and last column (``row_baseline_mm``, rows
+    must agree) and one as far apart as its first and last row (``column_baseline_mm``), at the
+    nearest scene depth (``row_disparity_px`` / ``column_disparity_px`` between those views).
+    ``degenerate``: the views cannot fix the rotation well enough for the whole grid (see warnings).
+    ``formal_rotation_std_deg``: the older statement (independent residuals), for comparison.
+    ``linear_rotation_deg``: the linear epipole closed form, the cross-check, and
+    ``linear_residual_px`` the RMS residual it leaves on the matches the fit kept.
+    """
+
+    rotation_std_deg: tuple[float, float, float]
+    covariance: tuple[tuple[float, ...], ...] | None = None
+    corner_error_px: tuple[float, float] | None = None
+    row_baseline_mm: float | None = None
+    column_baseline_mm: float | None = None
+    row_disparity_px: float | None = None
+    column_disparity_px: float | None = None
+    position_sigma_um: tuple[float, float] | None = None
+    feature_sigma_px: float | None = None
+    formal_rotation_std_deg: tuple[float, float, float] | None = None
+    principal_point_std_px: tuple[float, float] | None = None
+    linear_rotation_deg: tuple[float, float, float] | None = None
+    linear_residual_px: float | None = None
+    degenerate: bool = False
+    method: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        out = asdict(self)
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in out.items()}
+
+    @classmethod
+    def from_document(cls, document: dict[str, Any]) -> "CalibrationUncertainty | None":
+        """The document's uncertainty; for older files (no ``uncertainty``) the formal
+        ``rotation_std_deg`` alone when present, else None."""
+        u = document.get(UNCERTAINTY_KEY)
+        if isinstance(u, dict) and isinstance(u.get("rotation_std_deg"), list):
+            def tup(key):
+                v = u.get(key)
+                return tuple(tuple(r) if isinstance(r, list) else r for r in v) if isinstance(v, list) else v
+            known = {k: tup(k) for k in cls.__dataclass_fields__ if k in u}
+            return cls(**known)
+        std = document.get("rotation_std_deg")
+        if isinstance(std, list) and len(std) == 3:
+            return cls(rotation_std_deg=tuple(float(x) for x in std), formal_rotation_std_deg=tuple(std),
+                       method="formal (independent residuals; written before measured uncertainties)")
+        return None

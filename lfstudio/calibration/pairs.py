@@ -1,9 +1,21 @@
 """Which views and which pairs the self-calibration uses.
 
 A *horizontal* pair is two views of the same row (their rows must line up after rectification),
-a *vertical* pair two views of the same column (their columns must line up). The default is the
-paper's sparse 2 × 3 array spread over the whole grid (rows 0 and last, columns first, middle and
-last), which gives pairs with several baselines; denser arrays and explicit view lists work too.
+a *vertical* pair two views of the same column (their columns must line up).
+
+Views: the default is a 3 × 5 array spread over the whole grid (first, middle and last row; five
+columns from first to last; the long axis gets five), denser than the paper's 2 × 3 (still
+available as ``"2x3"``): the rig's position errors, not the features, limit the accuracy, and every
+further view averages them down. Denser arrays and explicit view lists work too.
+
+Pair sets within each row and column of the chosen views (:data:`PAIR_SETS`):
+
+- ``"all"`` (default): every combination — the full-row/column pair (the longest baseline, which
+  fixes pan and tilt), the neighbours (short baselines: small disparities, robust matching) and
+  everything between;
+- ``"spanning"``: neighbours plus every pair with an end view (fewer pairs, same longest baselines);
+- ``"neighbours"``: adjacent views only. Degenerate: the shortest baselines cannot fix the rotation
+  for the whole grid (the report warns with the expected error at the corners).
 """
 
 from __future__ import annotations
@@ -16,6 +28,10 @@ from typing import Iterable, Sequence
 from lfstudio.errors import InputError
 
 View = tuple[int, int]   # (row, column)
+
+PAIR_SETS = ("all", "spanning", "neighbours")
+#: the default array, (views along the short axis of the grid, views along the long axis)
+DEFAULT_ARRAY = (3, 5)
 
 
 @dataclass(frozen=True)
@@ -63,13 +79,38 @@ def sparse_subset(columns: int, rows: int, n_rows: int = 2, n_columns: int = 3,
     return [(r, c) for r in pick_rows for c in pick_cols if (r, c) in avail]
 
 
-def make_pairs(views: Iterable[View], spacing_mm: Sequence[float] = (1.0, 1.0), *,
-               neighbours_only: bool = False, max_pairs_per_line: int | None = None) -> list[Pair]:
-    """All horizontal pairs within each row and vertical pairs within each column of ``views``.
+def default_subset(columns: int, rows: int, available: Iterable[View] | None = None) -> list[View]:
+    """The default array (:data:`DEFAULT_ARRAY`: 3 × 5, five along the grid's longer axis), capped by the grid."""
+    short, long_ = DEFAULT_ARRAY
+    n_rows, n_cols = (min(short, rows), min(long_, columns)) if columns >= rows else \
+        (min(long_, rows), min(short, columns))
+    return sparse_subset(columns, rows, n_rows, n_cols, available)
 
-    ``neighbours_only`` keeps only adjacent views of the subset (shortest baselines); otherwise all
-    combinations (several baselines). Pairs are ordered: rows first, then columns.
+
+def line_pairs(indices: Sequence[int], pair_set: str = "all") -> list[tuple[int, int]]:
+    """Index pairs (i < j) of one row's columns or one column's rows for a pair set (:data:`PAIR_SETS`)."""
+    idx = sorted(set(indices))
+    if pair_set == "neighbours":
+        return list(zip(idx, idx[1:]))
+    if pair_set == "all":
+        return list(combinations(idx, 2))
+    if pair_set == "spanning":
+        ends = {idx[0], idx[-1]} if idx else set()
+        return sorted({(a, b) for a, b in zip(idx, idx[1:])} | {(a, b) for a, b in combinations(idx, 2)
+                                                               if a in ends or b in ends})
+    raise InputError("--pairs", f"unknown pair set {pair_set!r}", ", ".join(PAIR_SETS))
+
+
+def make_pairs(views: Iterable[View], spacing_mm: Sequence[float] = (1.0, 1.0), *, pair_set: str = "all",
+               neighbours_only: bool = False, max_pairs_per_line: int | None = None) -> list[Pair]:
+    """Horizontal pairs within each row and vertical pairs within each column of ``views``.
+
+    ``pair_set`` chooses which (:data:`PAIR_SETS`; default every combination, several baselines);
+    ``neighbours_only`` is the older spelling of ``pair_set="neighbours"``. Pairs are ordered: rows
+    first, then columns.
     """
+    if neighbours_only:
+        pair_set = "neighbours"
     vs = sorted(set(views))
     by_row: dict[int, list[int]] = {}
     by_col: dict[int, list[int]] = {}
@@ -78,11 +119,11 @@ def make_pairs(views: Iterable[View], spacing_mm: Sequence[float] = (1.0, 1.0), 
         by_col.setdefault(c, []).append(r)
     pairs: list[Pair] = []
     for r, cols in sorted(by_row.items()):
-        combos = list(zip(cols, cols[1:])) if neighbours_only else list(combinations(cols, 2))
+        combos = line_pairs(cols, pair_set)
         combos = combos[:max_pairs_per_line] if max_pairs_per_line else combos
         pairs += [Pair((r, c1), (r, c2), "h", (c2 - c1) * float(spacing_mm[0])) for c1, c2 in combos]
     for c, rws in sorted(by_col.items()):
-        combos = list(zip(rws, rws[1:])) if neighbours_only else list(combinations(rws, 2))
+        combos = line_pairs(rws, pair_set)
         combos = combos[:max_pairs_per_line] if max_pairs_per_line else combos
         pairs += [Pair((r1, c), (r2, c), "v", (r2 - r1) * float(spacing_mm[1])) for r1, r2 in combos]
     return pairs
@@ -93,15 +134,18 @@ _VIEW = re.compile(r"^\s*r(\d+)[_\s]*c(\d+)\s*$", re.IGNORECASE)
 
 
 def parse_views(spec: str | None, columns: int, rows: int, available: Iterable[View]) -> list[View]:
-    """Views from a user spec: ``"2x3"`` (rows × columns spread over the grid, the default), ``"all"``,
-    or a comma list of view names ``"r00_c000,r00_c050,r20_c000"``."""
+    """Views from a user spec: ``"default"`` (the default array, see :func:`default_subset`; also
+    None or empty), ``"2x3"`` (rows × columns spread over the grid), ``"all"``, or a comma list of
+    view names ``"r00_c000,r00_c050,r20_c000"``."""
     avail = sorted(set(available))
     field = "--views"
     if spec is None or not spec.strip():
-        spec = "2x3"
+        spec = "default"
     text = spec.strip().lower()
     if text == "all":
         return avail
+    if text == "default":
+        return default_subset(columns, rows, avail)
     m = _ARRAY.match(text)
     if m:
         n_rows, n_cols = int(m.group(1)), int(m.group(2))
@@ -113,7 +157,7 @@ def parse_views(spec: str | None, columns: int, rows: int, available: Iterable[V
         mv = _VIEW.match(part)
         if not mv:
             raise InputError(field, f"cannot read {part.strip()!r}",
-                             "ROWSxCOLUMNS like 2x3, 'all', or view names like r00_c000,r00_c050")
+                             "ROWSxCOLUMNS like 2x3, 'default', 'all', or view names like r00_c000,r00_c050")
         v = (int(mv.group(1)), int(mv.group(2)))
         if v not in set(avail):
             raise InputError(field, f"view r{v[0]:02d}_c{v[1]:03d} has no captured image in this dataset")

@@ -96,7 +96,7 @@ def plot_sweep(results: Sequence[dict], path: str | Path) -> Path:
     key = "with_principal_point"
     if all(key in res for res in results):
         s = [res[key] for res in results]
-        series.append({"x": r, "y": [x["residual_px"]["mean"] for x in s], "label": "residual mean (PP estimated)",
+        series.append({"x": r, "y": [x["residual_px"]["mean"] for x in s], "label": "residual mean (PP auto)",
                        "color": (150, 60, 150), "dashed": True})
     top = max(max(s["y"]) for s in series)
     img = line_chart(series, y_range=(0.0, top * 1.35), title=f"Residual after self-calibration vs principal-point shift "

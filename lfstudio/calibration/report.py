@@ -4,6 +4,11 @@ Residual statistics (``mean``, ``median``, ``p99``) are of the **absolute** resi
 root mean square. A residual is the v-difference of a horizontal match or the u-difference of a
 vertical match, in full-resolution pixels of the rectified image. ``before`` is the captured image
 (no rectification), ``after`` the rectified one; both over the same matches (those the fit kept).
+
+The uncertainty (:class:`lfstudio.calibration.model.CalibrationUncertainty`, key ``uncertainty``)
+is the fit's measured covariance per angle and as the rectification error it allows at the image
+corners across the whole grid; warnings say when the views cannot fix the rotation for the grid
+(``degenerate``) or determine an angle only loosely (fine for this grid, not for reuse).
 """
 
 from __future__ import annotations
@@ -13,13 +18,16 @@ from typing import Any, Sequence
 import numpy as np
 
 from lfstudio.calibration.fit import FitResult, PairMatches
-from lfstudio.calibration.model import ROTATION_CONVENTION
+from lfstudio.calibration.model import ROTATION_CONVENTION, UNCERTAINTY_KEY, CalibrationUncertainty, \
+    rotation_angle_deg, rotation_matrix
+from lfstudio.calibration.uncertainty import describe_fit, nearest_disparity_per_mm, rig_floor_px
 from lfstudio.dataset.paths import view_stem
 
 FORMAT = "lfstudio-calibration"
 VERSION = 1
 MIN_PAIR_MATCHES = 20
-WEAK_ANGLE_STD_DEG = 0.05   # warn when the views determine an angle worse than this
+WEAK_ANGLE_STD_DEG = 0.05   # note when the views determine an angle worse than this (1σ)
+ANGLE_NAMES = ("rx (tilt)", "ry (pan)", "rz (roll)")
 
 
 def stats(residuals: np.ndarray) -> dict[str, float | int | None]:
@@ -46,8 +54,13 @@ def _name(v: Sequence[int]) -> str:
 
 def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Sequence[tuple[int, int]],
                  feature_counts: dict[tuple[int, int], int] | None = None, settings: dict | None = None,
-                 high_residual_px: float | None = None, created: str | None = None) -> dict[str, Any]:
-    """The ``calibration.json`` document (plain JSON types)."""
+                 high_residual_px: float | None = None, created: str | None = None,
+                 grid_extent_mm: Sequence[float | None] | None = None) -> dict[str, Any]:
+    """The ``calibration.json`` document (plain JSON types).
+
+    ``grid_extent_mm``: (full row, full column) baselines of the dataset's grid, for the error at the
+    corners; default: the longest baselines among the pairs.
+    """
     hor_all = np.concatenate([np.full(m.count, m.direction == "h") for m in matches]) if matches else np.zeros(0, bool)
     inl = fit.inlier
     before, after = fit.residual_before_px, fit.residual_after_px
@@ -87,6 +100,8 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
         entry = {"view": _name(v), "row": int(v[0]), "column": int(v[1]),
                  "features": int((feature_counts or {}).get(v, 0)),
                  "residual_px": {"before": stats(rb), "after": stats(ra)}}
+        if v in fit.view_offsets_mm:
+            entry["position_offset_um"] = [round(1000.0 * float(x), 1) for x in fit.view_offsets_mm[v]]
         views_out.append(entry)
         if ra.size == 0:
             warnings.append(f"view {_name(v)}: no usable matches with any other view; it did not take part")
@@ -95,14 +110,12 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
                             f"calibration (limit {limit:.2f} px); the view may have moved or be blurred")
     if not fit.success:
         warnings.append(f"the optimiser did not report convergence: {fit.message}")
-    std = fit.extra.get("rotation_std_deg")
-    if std is not None:
-        weak = [f"{name} ±{sd:.3f}°" for name, sd in zip(("rx (tilt)", "ry (pan)", "rz (roll)"), std)
-                if not sd <= WEAK_ANGLE_STD_DEG]
-        if weak:
-            warnings.append(f"these views determine {', '.join(weak)} only (formal standard error; the true "
-                            f"uncertainty is larger): use views farther apart (wider baselines, e.g. --views 2x3 "
-                            f"across the whole grid) for rectification that holds over wide baselines")
+    if grid_extent_mm is None:
+        grid_extent_mm = tuple(max([m.baseline_mm for m in matches if m.direction == d], default=0.0) or None
+                               for d in ("h", "v"))
+    uncertainty = describe_fit(fit, matches, *grid_extent_mm) if fit.covariance is not None else None
+    if uncertainty is not None:
+        warnings += _uncertainty_warnings(fit, matches, uncertainty)
     if overall["after"]["vertical"]["count"] == 0:
         warnings.append("no vertical pairs: the tilt angle (rx) is not constrained; use views from two or more rows")
 
@@ -113,10 +126,12 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
         "created": created,
         "rotation_deg": [float(a) for a in fit.rotation_deg],
         "rotation_convention": ROTATION_CONVENTION,
-        "rotation_std_deg": None if std is None else [float(x) for x in std],
+        "rotation_std_deg": None if uncertainty is None else list(uncertainty.rotation_std_deg),
         "principal_point_px": [float(p) for p in fit.principal_point_px],
         "principal_point_offset_px": [float(p) for p in fit.principal_point_px - nominal],
         "principal_point_estimated": bool(fit.estimate_principal_point),
+        "principal_point_reason": fit.principal_point_reason,
+        UNCERTAINTY_KEY: None if uncertainty is None else uncertainty.to_json(),
         "focal_length_px": float(fit.focal_length_px),
         "image_size_px": [int(w), int(h)],
         "homography": [[float(x) for x in row] for row in fit.homography],
@@ -134,6 +149,58 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
     return doc
 
 
+def _uncertainty_warnings(fit: FitResult, matches: Sequence[PairMatches], u: CalibrationUncertainty) -> list[str]:
+    out = []
+    c1, c2 = u.corner_error_px or (None, None)
+    span = " and ".join(x for x in (f"{u.row_baseline_mm:g} mm along a row" if u.row_baseline_mm else "",
+                                    f"{u.column_baseline_mm:g} mm along a column" if u.column_baseline_mm else "")
+                        if x)
+    if u.degenerate:
+        floor = rig_floor_px(fit, nearest_disparity_per_mm(matches, fit.homography, fit.inlier))
+        out.append(f"these views cannot fix the rotation for this grid: rows and columns may be off by up to "
+                   f"{c1:.2f} px at the image corners (1σ; {c2:.2f} px at 2σ) between views {span} apart, more "
+                   f"than the rig's own ±{floor:.2f} px — the pairs' baselines are too short for the grid "
+                   "(neighbours only?); use views spread over the whole grid and every pair between them "
+                   "(--views default)")
+    else:
+        weak = [f"{name} ±{sd:.3f}°" for name, sd in zip(ANGLE_NAMES, u.rotation_std_deg)
+                if not sd <= WEAK_ANGLE_STD_DEG]
+        if weak:
+            out.append(f"these views determine {', '.join(weak)} only (1σ): enough for this grid (rows and "
+                       f"columns within {c1:.2f} px at the corners, 1σ) but not for reuse on a wider scan "
+                       "(longer baselines need longer-baseline views)")
+    return out
+
+
+def uncertainty_lines(doc: dict[str, Any]) -> list[str]:
+    """The uncertainty of a calibration document as text lines (the CLI report; the wizard shows the same)."""
+    u = CalibrationUncertainty.from_document(doc)
+    if u is None:
+        return []
+    sx, sy, sz = u.rotation_std_deg
+    measured = u.covariance is not None
+    out = [f"  uncertainty rx ±{sx:.4f}°  ry ±{sy:.4f}°  rz ±{sz:.4f}°   (1σ, "
+           + ("measured: the views' position errors and the observed residuals)" if measured
+              else "formal only: written before measured uncertainties)")]
+    if u.corner_error_px:
+        span = ", ".join(x for x in (f"full row {u.row_baseline_mm:g} mm" if u.row_baseline_mm else "",
+                                     f"full column {u.column_baseline_mm:g} mm" if u.column_baseline_mm else "")
+                         if x)
+        out.append(f"  at corners  ≤ {u.corner_error_px[0]:.3f} px (1σ), ≤ {u.corner_error_px[1]:.3f} px (2σ): "
+                   f"rectification error at the image corners across the grid ({span}, nearest scene)")
+    if u.linear_rotation_deg:
+        diff = rotation_angle_deg(rotation_matrix(u.linear_rotation_deg), rotation_matrix(doc["rotation_deg"]))
+        lx, ly, lz = u.linear_rotation_deg
+        fit_rms = (doc.get("residual_px", {}).get("after") or {}).get("rms")
+        if u.linear_residual_px is not None and fit_rms and u.linear_residual_px > 2 * fit_rms + 0.05:
+            out.append(f"  closed form not usable with these baselines (the linear epipole method leaves "
+                       f"{u.linear_residual_px:.3g} px RMS against the fit's {fit_rms:.2f} px)")
+        else:
+            out.append(f"  closed form rx {lx:+.4f}°  ry {ly:+.4f}°  rz {lz:+.4f}°   (linear epipole method, the "
+                       f"cross-check: {diff:.4f}° from the fit)")
+    return out
+
+
 def _fmt(x: Any, digits: int = 2) -> str:
     return "–" if x is None else f"{x:.{digits}f}"
 
@@ -142,13 +209,14 @@ def format_report(doc: dict[str, Any]) -> str:
     """A readable summary of a calibration document."""
     rx, ry, rz = doc["rotation_deg"]
     cx, cy = doc["principal_point_px"]
-    std = doc.get("rotation_std_deg")
-    lines = [
-        f"rotation      rx {rx:+.4f}°  ry {ry:+.4f}°  rz {rz:+.4f}°   (Euler 'xyz', see docs/conventions.md)",
-        *([f"  std. error  rx ±{std[0]:.4f}°  ry ±{std[1]:.4f}°  rz ±{std[2]:.4f}°   (formal, from the fit)"]
-          if std else []),
-        f"principal pt  ({cx:.1f}, {cy:.1f}) px  {'estimated' if doc['principal_point_estimated'] else 'nominal centre'}"
-        f"   focal length {doc['focal_length_px']:.1f} px   image {doc['image_size_px'][0]} × {doc['image_size_px'][1]} px",
+    lines = [f"rotation      rx {rx:+.4f}°  ry {ry:+.4f}°  rz {rz:+.4f}°   (Euler 'xyz', see docs/conventions.md)"]
+    lines += uncertainty_lines(doc)
+    pp_text = doc.get("principal_point_reason") or ("estimated" if doc["principal_point_estimated"]
+                                                    else "nominal centre")
+    lines += [
+        f"principal pt  ({cx:.1f}, {cy:.1f}) px   focal length {doc['focal_length_px']:.1f} px   "
+        f"image {doc['image_size_px'][0]} × {doc['image_size_px'][1]} px",
+        f"  {pp_text}",
         "",
         "residuals (full-resolution px; mean/median/p99 of |r|, rms)",
         f"  {'':19} {'mean':>8} {'median':>8} {'rms':>8} {'p99':>8} {'count':>7}",

@@ -14,19 +14,28 @@ HELP = "self-calibrate the camera orientation (and principal point) from the dat
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", metavar="DATASET", help="dataset folder (holds dataset.json)")
-    p.add_argument("--views", metavar="SPEC", default="2x3",
-                   help="views to use: ROWSxCOLUMNS spread over the grid (default 2x3, the paper's array), "
-                        "'all', or names like r00_c000,r00_c050,r20_c000")
-    p.add_argument("--neighbours-only", action="store_true",
-                   help="pair only adjacent views of the chosen array (default: every pair within a row/column, "
-                        "several baselines)")
+    p.add_argument("--views", metavar="SPEC", default="default",
+                   help="views to use: 'default' (a 3x5 array spread over the grid: first, middle and last row, "
+                        "five columns), ROWSxCOLUMNS such as 2x3 (the paper's array), 'all', or names like "
+                        "r00_c000,r00_c050,r20_c000")
+    p.add_argument("--pairs", choices=("all", "spanning", "neighbours"), default="all",
+                   help="which pairs within each row and column of the views: every pair (default), neighbours "
+                        "plus every pair with an end view ('spanning'), or adjacent views only ('neighbours': "
+                        "short baselines, warned about on a wide grid)")
+    p.add_argument("--neighbours-only", action="store_true", help="the same as --pairs neighbours")
+    p.add_argument("--principal-point", choices=("auto", "centre"), default="auto",
+                   help="'auto' (default): estimate the principal point only when the views determine it (the "
+                        "report says which and why); 'centre': hold it at the image centre")
     p.add_argument("--estimate-principal-point", action="store_true",
-                   help="also estimate the principal point (weakly determined; off in the paper)")
+                   help="the same as --principal-point auto (the default; kept for older scripts)")
+    p.add_argument("--position-sigma-um", metavar="SX,SY",
+                   help="the rig's repeatability in micrometres, horizontal,vertical: the prior of each view's "
+                        "position error (default: the dataset's rig, else the reference gantry's 80,50)")
     p.add_argument("--focal-length-px", type=float, metavar="F",
                    help="focal length in full-resolution pixels (default: from the dataset's camera and lens)")
     p.add_argument("--work-width-px", type=int, default=2000, metavar="PX",
                    help="width at which features are detected (default 2000; 0 = full resolution)")
-    p.add_argument("--threads", type=int, default=2, help="feature-detection threads (default 2)")
+    p.add_argument("--threads", type=int, default=2, help="threads for feature detection and matching (default 2)")
     p.add_argument("--no-save", action="store_true", help="print the result but do not write calibration.json")
     p.add_argument("--json", action="store_true", help="print the calibration document as JSON instead of text")
 
@@ -34,6 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from lfstudio.calibration.calibrate import calibrate_dataset, save_calibration
     from lfstudio.calibration.report import format_report
+    from lfstudio.cli.import_images import parse_pair
     from lfstudio.dataset import Dataset
     from lfstudio.jobs import TerminalProgress
 
@@ -44,11 +54,17 @@ def run(args: argparse.Namespace) -> int:
     if 0 < args.work_width_px < 200:
         raise InputError("--work-width-px", f"{args.work_width_px} is too small for reliable features",
                          "0 (full) or ≥ 200")
+    sigma = None
+    if args.position_sigma_um is not None:
+        sigma = parse_pair(args.position_sigma_um, "--position-sigma-um", example="80,50")
+        if not all(0 <= s <= 100_000 for s in sigma):
+            raise InputError("--position-sigma-um", f"{args.position_sigma_um} out of range", "0 … 100000 µm each")
     ds = Dataset.open(args.dataset)
-    run_ = calibrate_dataset(ds, args.views, estimate_principal_point=args.estimate_principal_point,
-                             focal_length_px=args.focal_length_px, max_width_px=args.work_width_px or None,
-                             neighbours_only=args.neighbours_only, threads=max(1, args.threads),
-                             progress=TerminalProgress("calibrate"))
+    run_ = calibrate_dataset(ds, args.views, principal_point="auto" if args.estimate_principal_point
+                             else args.principal_point, focal_length_px=args.focal_length_px,
+                             max_width_px=args.work_width_px or None,
+                             pair_set="neighbours" if args.neighbours_only else args.pairs, position_sigma=sigma,
+                             threads=max(1, args.threads), progress=TerminalProgress("calibrate"))
     doc = run_.document
     if not args.no_save:
         path = save_calibration(ds, doc)

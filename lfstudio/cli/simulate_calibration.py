@@ -31,8 +31,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="principal-point shift radius in full-resolution pixels, at a random angle (default 0)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--points-per-pair", type=int, default=300, help="3-D points seen by each pair (default 300)")
+    p.add_argument("--views", metavar="SPEC", default="2x3",
+                   help="the calibration's views over the 101 x 21 grid: ROWSxCOLUMNS (default 2x3, the paper's), "
+                        "'default' (what lfstudio calibrate uses), '2x101' (two full rows), or view names")
+    p.add_argument("--pairs", choices=("all", "spanning", "neighbours"), default="all",
+                   help="which pairs of those views (default all; see lfstudio calibrate --pairs)")
     p.add_argument("--mode", choices=("both", "fixed", "estimated"), default="both",
-                   help="principal point fixed at the centre (the paper), estimated, or both (default)")
+                   help="principal point held at the centre (the paper), estimated where observable (as lfstudio "
+                        "calibrate does), or both (default)")
     p.add_argument("--outliers", type=float, default=0.0, metavar="FRACTION",
                    help="share of matches replaced by random wrong ones (default 0)")
     p.add_argument("--sweep", metavar="RADII", help="run for several shifts, e.g. 0:50:5 (Figure 3)")
@@ -41,17 +47,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _row(label: str, s: dict) -> str:
-    return (f"{label:24} {s['residual_px']['mean']:8.3f} {s['residual_px']['p1']:8.3f} {s['residual_px']['p99']:8.3f}"
-            f" {s['residual_mean_abs_px']['mean']:9.3f} {s['true_residual_px']['mean']:9.3f}"
-            f" {s['true_residual_px']['p99']:9.3f} {s['rotation_error_deg']['median']:9.4f}"
-            f" {s['rotation_error_deg']['p99']:9.4f}")
+    cov = s["coverage"]["true_residual"]
+    return (f"{label:20} {s['residual_px']['mean']:8.3f} {s['residual_px']['p99']:8.3f}"
+            f" {s['true_residual_px']['mean']:9.3f} {s['true_residual_px']['p99']:9.3f}"
+            f" {s['rotation_error_deg']['median']:9.4f} {s['rotation_error_deg']['p99']:9.4f}"
+            f" {s['stated_true_residual_px']['median_1sigma']:8.3f} {100 * cov[0]:6.0f}% {100 * cov[1]:5.0f}%"
+            f" {s['pp_error_px']['estimated_trials']:6d}")
 
 
-HEADER = (f"{'':24} {'res mean':>8} {'res p1':>8} {'res p99':>8} {'mean|r|':>9} {'true mean':>9} "
-          f"{'true p99':>9} {'rot med°':>9} {'rot p99°':>9}")
+def _linear_row(s: dict) -> str:
+    lin = s["linear"]
+    return (f"{'linear epipole':20} {'':8} {'':8} {lin['true_residual_px']['mean']:9.3f} "
+            f"{lin['true_residual_px']['p99']:9.3f} {lin['rotation_error_deg']['median']:9.4f} "
+            f"{lin['rotation_error_deg']['p99']:9.4f}")
+
+
+HEADER = (f"{'':20} {'res mean':>8} {'res p99':>8} {'true mean':>9} {'true p99':>9} {'rot med°':>9} {'rot p99°':>9} "
+          f"{'stated1σ':>8} {'cov1σ':>7} {'cov2σ':>6} {'PP est':>6}")
+LEGEND = ("res: RMS residual per trial (px); true: rectification error of the ideal rig on the evaluation set "
+          "(every pair of a 3 x 5 array over the grid; px RMS per trial); rot: angle to the true orientation; "
+          "stated1σ: median stated 68 % bound of the true error; cov: trials whose true error is within the "
+          "stated 1σ / 2σ bounds; PP est: trials where the principal point was estimated (observable)")
 
 
 def run(args: argparse.Namespace) -> int:
+    from lfstudio.calibration.pairs import parse_views
     from lfstudio.calibration.simulate import SimulationConfig, simulate, sweep
     from lfstudio.jobs import TerminalProgress
 
@@ -65,12 +85,18 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--outliers", f"{args.outliers} out of range", "0 … 0.6")
     if args.plot and not args.sweep:
         raise InputError("--plot", "needs --sweep (the figure plots several shifts)")
-    modes = {"both": (False, True), "fixed": (False,), "estimated": (True,)}[args.mode]
-    cfg = SimulationConfig(points_per_pair=args.points_per_pair, outlier_fraction=args.outliers)
+    modes = {"both": ("centre", "auto"), "fixed": ("centre",), "estimated": ("auto",)}[args.mode]
+    cfg = SimulationConfig(points_per_pair=args.points_per_pair, outlier_fraction=args.outliers, views=args.views,
+                           pair_set=args.pairs)
+    parse_views(args.views, cfg.columns, cfg.rows, [(r, c) for r in range(cfg.rows) for c in range(cfg.columns)])
+    pairs = cfg.pairs()
+    if not any(p.direction == "h" for p in pairs) or not any(p.direction == "v" for p in pairs):
+        raise InputError("--views", f"{args.views!r} gives no pairs in one direction", "views in ≥ 2 rows and ≥ 2 columns")
     progress = TerminalProgress("simulate")
+    labels = (("without_principal_point", "PP fixed (paper)"), ("with_principal_point", "PP auto"))
     if args.sweep:
         radii = _radii(args.sweep)
-        results = sweep(radii, args.trials, args.seed, cfg, modes, progress)
+        results = sweep(radii, args.trials, args.seed, cfg, modes, progress, linear=True)
         if args.plot:
             from lfstudio.calibration.plot import plot_sweep
             plot_sweep(results, args.plot)
@@ -79,25 +105,32 @@ def run(args: argparse.Namespace) -> int:
             json.dump({"sweep": results}, sys.stdout, indent=1)
             sys.stdout.write("\n")
             return 0
-        print("residuals: RMS per trial in full-resolution px (mean|r| = mean absolute); rotation error in degrees")
+        print(f"{args.trials} trials per shift, views {args.views} ({len(pairs)} pairs, {args.pairs}); " + LEGEND)
         print(f"{'pp shift':>8} " + HEADER)
         for res in results:
-            for key, label in (("without_principal_point", "PP fixed"), ("with_principal_point", "PP estimated")):
+            for key, label in labels:
                 if key in res:
                     print(f"{res['pp_shift_px']:8.1f} " + _row(label, res[key]))
+            first = res.get("without_principal_point") or res.get("with_principal_point")
+            if "linear" in first:
+                print(f"{res['pp_shift_px']:8.1f} " + _linear_row(first))
         return 0
-    result = simulate(args.trials, args.pp_shift_px, args.seed, cfg, modes, progress)
+    result = simulate(args.trials, args.pp_shift_px, args.seed, cfg, modes, progress, linear=True)
     if args.json:
         json.dump(result, sys.stdout, indent=1)
         sys.stdout.write("\n")
         return 0
-    print(f"{args.trials} trials, principal-point shift {args.pp_shift_px:g} px, seed {args.seed}; "
-          "residuals: RMS per trial in full-resolution px (mean|r| = mean absolute), "
-          f"before calibration {result['residual_before_px']['mean']:.1f} px")
+    print(f"{args.trials} trials, principal-point shift {args.pp_shift_px:g} px, seed {args.seed}, views {args.views} "
+          f"({result['views']} views, {result['pairs']} pairs, {args.pairs}); residual before calibration "
+          f"{result['residual_before_px']['mean']:.1f} px")
+    print(LEGEND)
     print(HEADER)
-    for key, label in (("without_principal_point", "PP fixed (paper)"), ("with_principal_point", "PP estimated")):
+    for key, label in labels:
         if key in result:
             print(_row(label, result[key]))
+    first = result.get("without_principal_point") or result.get("with_principal_point")
+    if "linear" in first:
+        print(_linear_row(first))
     if result["failures"]:
         print(f"{result['failures']} fits failed")
     return 0

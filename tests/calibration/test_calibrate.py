@@ -53,8 +53,23 @@ def test_cli_calibrate_writes_json_and_reports(layered, run_cli):
     assert text.returncode == 0 and "rotation" in text.stdout and "r00_c000–r00_c001" in text.stdout
 
 
+def test_cli_calibrate_options(layered, run_cli):
+    proc = run_cli("calibrate", layered.root, "--views", "all", "--pairs", "neighbours", "--principal-point", "centre",
+                   "--position-sigma-um", "20,10", "--json", "--no-save")
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(proc.stdout)
+    assert len(doc["pairs"]) == 2 * 2 + 3 and doc["settings"]["pair_set"] == "neighbours"
+    assert doc["uncertainty"]["position_sigma_um"][1] >= 10.0 and doc["settings"]["position_sigma_um"] == [20, 10]
+    assert not doc["principal_point_estimated"] and "not requested" in doc["principal_point_reason"]
+    assert len(doc["uncertainty"]["covariance"]) == 5 and doc["uncertainty"]["corner_error_px"][1] > 0
+    text = run_cli("calibrate", layered.root, "--no-save")
+    assert "uncertainty rx ±" in text.stdout and "at corners" in text.stdout
+
+
 def test_cli_calibrate_bad_input(layered, run_cli, tmp_path):
     proc = run_cli("calibrate", layered.root, "--views", "r09_c009")
     assert proc.returncode == 2 and "--views" in proc.stderr and "Traceback" not in proc.stderr
+    proc = run_cli("calibrate", layered.root, "--position-sigma-um", "eighty")
+    assert proc.returncode == 2 and "--position-sigma-um" in proc.stderr and "Traceback" not in proc.stderr
     proc = run_cli("calibrate", tmp_path)
     assert proc.returncode == 1 and "dataset.json" in proc.stderr

@@ -1,6 +1,6 @@
 import numpy as np
 
-from lfstudio.calibration.features import FeatureCache, detect, epipole_ransac, match_pair
+from lfstudio.calibration.features import FeatureCache, detect, epipole_ransac, match_pair, match_pairs
 from lfstudio.calibration.model import apply_homography, rectifying_homography
 from tests.calibration.synthetic import LayeredScene, make_layered_dataset
 
@@ -66,3 +66,28 @@ def test_feature_cache_is_reused_and_invalidated(tmp_path):
     os.utime(ds.path_of(v), ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
     _, cached3 = cache.get("r00_c000", ds.path_of(v))
     assert not cached3
+
+
+def test_matching_many_pairs_on_threads_gives_each_pair_s_own_result(tmp_path):
+    paths = _views(tmp_path, [(0.0, 0.0, 0.0), (0.1, 0.0, 0.0), (0.2, 0.0, 0.0), (0.0, 0.06, 0.0)])
+    feats = {k: detect(p, None) for k, p in enumerate(paths)}
+    pairs = [(0, 1, "h"), (1, 2, "h"), (0, 2, "h"), (0, 3, "v")]
+    done = []
+    many = match_pairs(feats, pairs, threads=2, on_done=lambda i, r: done.append(i))
+    assert sorted(done) == [0, 1, 2, 3]
+    for (a, b, d), m in zip(pairs, many):
+        one = match_pair(feats[a], feats[b], d)
+        assert m.candidates == one.candidates and np.array_equal(m.xy_a, one.xy_a) and m.inliers > 30
+        assert m.epipole is not None and np.linalg.norm(m.epipole) > 0
+
+
+def test_repeated_keypoints_do_not_make_a_null_epipole():
+    # SIFT repeats a keypoint with a second orientation: two identical matches span no epipole
+    rng = np.random.default_rng(2)
+    a = rng.uniform(0, 1000, (60, 2))
+    b = a + np.column_stack([-rng.uniform(5, 60, 60), np.zeros(60)])
+    b[30:] = rng.uniform(0, 1000, (30, 2))                      # half of them wrong
+    a = np.vstack([a, a[:1]]).repeat(1, axis=0)
+    b = np.vstack([b, b[:1]])
+    mask, e = epipole_ransac(np.repeat(a, 2, axis=0), np.repeat(b, 2, axis=0), "h", threshold_px=1.0)
+    assert np.linalg.norm(e) > 0 and mask.reshape(-1, 2)[30:60].mean() < 0.2

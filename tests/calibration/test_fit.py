@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from lfstudio.calibration.fit import CalibrationError, PairMatches, fit_rectification
-from lfstudio.calibration.model import rotation_angle_deg, rotation_matrix
+from lfstudio.calibration.model import nominal_principal_point, rotation_angle_deg, rotation_matrix
 from lfstudio.calibration.simulate import SimulationConfig, evaluate_trial, make_trial
 
 EXACT = SimulationConfig(position_noise_um=0.0, feature_noise_px=0.0, points_per_pair=150)
@@ -21,12 +21,28 @@ def test_exact_correspondences_give_the_exact_rotation_even_from_far(rot):
     assert np.sqrt(np.mean(fit.residual_before_px ** 2)) > 5
 
 
-def test_principal_point_estimation_rectifies_exact_data_with_a_shifted_centre():
+def test_principal_point_is_held_when_the_views_cannot_determine_it():
+    # exact matches, centre 50 px off: freed, it slides along a ridge the residuals cannot see
     trial = make_trial(np.random.default_rng(3), 50.0, EXACT)
-    fixed = evaluate_trial(trial, EXACT, False)
-    free = evaluate_trial(trial, EXACT, True)
-    assert free["true_residual_px"] < 0.01 < fixed["true_residual_px"]
-    assert free["rotation_error_deg"] < 0.01
+    fit = fit_rectification(trial.matches, EXACT.focal_length_px, EXACT.image_size_px, principal_point="auto",
+                            position_sigma_um=(0.0, 0.0))
+    assert not fit.estimate_principal_point
+    assert "not observable" in fit.principal_point_reason and "held at the image centre" in fit.principal_point_reason
+    assert np.allclose(fit.principal_point_px, nominal_principal_point(EXACT.image_size_px))
+    assert max(fit.extra["principal_point_std_px"]) > 10.0
+    held = evaluate_trial(trial, EXACT, "auto")
+    assert not held["pp_estimated"] and held["covered"]["eval_2"] and held["covered"]["corner_2"]
+
+
+def test_an_observable_principal_point_is_estimated(monkeypatch):
+    import lfstudio.calibration.fit as fit_module
+
+    trial = make_trial(np.random.default_rng(3), 50.0, EXACT)
+    fixed = evaluate_trial(trial, EXACT, "centre")
+    monkeypatch.setattr(fit_module, "pp_observable", lambda std, prior: True)
+    free = evaluate_trial(trial, EXACT, "auto")
+    assert free["pp_estimated"] and not fixed["pp_estimated"]
+    assert free["true_residual_used_px"] < 0.01 < fixed["true_residual_used_px"]   # the pairs it saw: exact
 
 
 def test_noise_floor_and_rotation_accuracy_with_the_papers_noise():

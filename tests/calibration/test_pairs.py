@@ -1,6 +1,6 @@
 import pytest
 
-from lfstudio.calibration.pairs import make_pairs, parse_views, sparse_subset, spread_indices
+from lfstudio.calibration.pairs import default_subset, line_pairs, make_pairs, parse_views, sparse_subset, spread_indices
 from lfstudio.errors import InputError
 
 
@@ -38,3 +38,17 @@ def test_parse_views_forms_and_errors():
         parse_views("banana", 4, 3, avail)
     with pytest.raises(InputError, match="r05_c001"):
         parse_views("r05_c001", 4, 3, avail)
+
+
+def test_default_array_and_pair_sets():
+    views = default_subset(101, 21)
+    assert views == sparse_subset(101, 21, 3, 5) and parse_views(None, 101, 21, views) == views
+    assert parse_views("default", 101, 21, views) == views
+    assert default_subset(3, 9) == sparse_subset(3, 9, 5, 3)          # five along the longer axis
+    assert default_subset(4, 2) == sparse_subset(4, 2, 2, 4)          # capped by the grid
+    assert line_pairs([0, 25, 50, 75, 100], "spanning") == [(0, 25), (0, 50), (0, 75), (0, 100), (25, 50),
+                                                            (25, 100), (50, 75), (50, 100), (75, 100)]
+    assert line_pairs([0, 50, 100], "neighbours") == [(0, 50), (50, 100)]
+    assert make_pairs(views, pair_set="neighbours") == make_pairs(views, neighbours_only=True)
+    with pytest.raises(InputError, match="--pairs"):
+        make_pairs(views, pair_set="some")

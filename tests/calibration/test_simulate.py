@@ -31,3 +31,16 @@ def test_cli_json_and_sweep_plot(run_cli, tmp_path):
     assert "PP fixed" in proc.stdout
     bad = run_cli("simulate-calibration", "--trials", "0")
     assert bad.returncode == 2 and "--trials" in bad.stderr
+
+
+def test_cli_subsample_pair_set_and_coverage_columns(run_cli):
+    proc = run_cli("simulate-calibration", "--trials", "2", "--views", "3x5", "--pairs", "spanning", "--mode", "fixed",
+                   "--json")
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["views"] == 15 and out["pairs"] == 3 * 9 + 5 * 3 and "3 x 5" in out["evaluation_set"]
+    assert {"true_residual", "corner", "angle"} <= set(out["coverage"]) and "linear" in out
+    text = run_cli("simulate-calibration", "--trials", "2", "--views", "default")
+    assert text.returncode == 0 and "cov2σ" in text.stdout and "linear epipole" in text.stdout
+    bad = run_cli("simulate-calibration", "--views", "1x5")
+    assert bad.returncode == 2 and "--views" in bad.stderr

@@ -25,7 +25,8 @@ def test_menu_entry_opens_the_wizard_for_the_open_dataset(qtbot, tiny_dataset):
     wizard = window.findChild(CalibrationWizard)
     assert wizard is not None and wizard.isVisible()
     assert wizard.stack.currentIndex() == PAGE_VIEWS
-    assert len(wizard.picker.selected) == 6 and "6 horizontal + 3 vertical" in wizard.selection_label.text()
+    # the default array: 3 x 5 over the 5 x 3 grid, every pair in each row (3 x 10) and column (5 x 3)
+    assert len(wizard.picker.selected) == 15 and "30 horizontal + 15 vertical" in wizard.selection_label.text()
     wizard.close()
 
 
@@ -36,6 +37,7 @@ def test_wizard_runs_shows_results_and_saves(qtbot, tiny_dataset):
     qtbot.addWidget(wizard)
     wizard.show()
     # the grid picker toggles a captured view on click
+    wizard.apply_preset((2, 3))
     before = set(wizard.picker.selected)
     cell, x0, y0 = wizard.picker._geometry()
     qtbot.mouseClick(wizard.picker, Qt.LeftButton, pos=QPoint(int(x0 + 1.5 * cell), int(y0 + 1.5 * cell)))
@@ -46,6 +48,12 @@ def test_wizard_runs_shows_results_and_saves(qtbot, tiny_dataset):
         assert wizard.stack.currentIndex() == PAGE_RUN
     assert wizard.stack.currentIndex() == PAGE_RESULTS
     assert "→" in wizard.headline.text() and "rotation" in wizard.report_text.toPlainText()
+    doc = wizard.result["run"].document
+    std = doc["uncertainty"]["rotation_std_deg"]
+    assert f"± {std[0]:.3f}°" in wizard.headline.text()               # per angle, as the CLI prints it
+    corner = doc["uncertainty"]["corner_error_px"]
+    assert f"≤ {corner[0]:.3f} px (1σ)" in wizard.uncertainty_label.text()
+    assert "principal point" in wizard.uncertainty_label.text()
     assert len(wizard.vector_lines.xData) > 20
     qtbot.waitUntil(lambda: hasattr(wizard, "inspection"), timeout=60_000)
     assert wizard.epi_items["h_after"].image is not None and wizard.epi_items["h_before"].image.shape[0] == 5

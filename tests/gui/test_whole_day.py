@@ -68,10 +68,10 @@ def test_a_whole_day_in_the_simulated_studio(qtbot, tmp_path):
     assert Dataset.open(root).status_counts()["done"] == COLUMNS * ROWS
     assert window.central.minimumSizeHint().width() < 600      # the grid's header never widens the window
 
-    # -- calibrate: Dataset → Calibrate…, the paper's 2 × 3 views, accept ---------------------------------
+    # -- calibrate: Dataset → Calibrate…, the default views (3 × 4 of the 4 × 3 grid), accept ------------
     _action(window, "Dataset", "Calibrate…").trigger()
     wizard = window.findChild(CalibrationWizard)
-    assert wizard is not None and len(wizard.picker.selected) == 6
+    assert wizard is not None and len(wizard.picker.selected) == 12
     with qtbot.waitSignal(wizard.runner.finished, timeout=60000):
         qtbot.mouseClick(wizard.next_button, Qt.LeftButton)
     assert wizard.stack.currentIndex() == PAGE_RESULTS and "→" in wizard.headline.text()

@@ -1,9 +1,11 @@
 """The calibration wizard: choose views → detect and match (progress, ETA, cancel) → fit → results.
 
-Results: the numbers, residual histograms before/after, residual vectors over an image, a per-view
-residual map over the grid, epipolar-plane images before/after rectification and two neighbouring
-views with horizontal guide lines. *Accept and save* writes ``calibration.json`` into the dataset.
-All image reading and fitting runs on worker threads (:class:`lfstudio.gui.bridge.JobRunner`).
+Results: the angles with their measured uncertainty (1σ per angle, and the rectification error it
+allows at the image corners across the grid, 1σ/2σ — the same lines as the CLI report), the numbers,
+residual histograms before/after, residual vectors over an image, a per-view residual map over the
+grid, epipolar-plane images before/after rectification and two neighbouring views with horizontal
+guide lines. *Accept and save* writes ``calibration.json`` into the dataset. All image reading and
+fitting runs on worker threads (:class:`lfstudio.gui.bridge.JobRunner`).
 """
 
 from __future__ import annotations
@@ -20,8 +22,9 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QF
 
 from lfstudio.calibration.calibrate import available_views, calibrate_dataset, save_calibration
 from lfstudio.calibration.epi import dataset_epis, load_preview, preview_homography, rectify_image
-from lfstudio.calibration.pairs import make_pairs, sparse_subset
-from lfstudio.calibration.report import format_report
+from lfstudio.calibration.model import CalibrationUncertainty
+from lfstudio.calibration.pairs import PAIR_SETS, default_subset, make_pairs, sparse_subset
+from lfstudio.calibration.report import format_report, uncertainty_lines
 from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import LfError
 from lfstudio.gui.bridge import JobRunner
@@ -62,6 +65,23 @@ def _image_plot(title: str) -> tuple[pg.PlotItem, pg.ImageItem]:
     item = pg.ImageItem(axisOrder="row-major")
     plot.addItem(item)
     return plot, item
+
+
+def uncertainty_html(doc: dict) -> str:
+    """The uncertainty lines of the CLI report (:func:`lfstudio.calibration.report.uncertainty_lines`)
+    and the principal point's status, as rich text; red when the views cannot fix the rotation."""
+    import html
+
+    u = CalibrationUncertainty.from_document(doc)
+    rows = [html.escape(line.strip()) for line in uncertainty_lines(doc)[1:]]
+    rows.append("principal point " + html.escape(doc.get("principal_point_reason") or
+                                                 ("estimated" if doc.get("principal_point_estimated")
+                                                  else "at the image centre")))
+    text = "<br>".join(rows)
+    if u is not None and u.degenerate:
+        text = ("<span style='color:#b00020'><b>These views cannot fix the rotation for this grid</b> "
+                "(see the warnings in Numbers).</span><br>" + text)
+    return text
 
 
 class CalibrationWizard(QDialog):
@@ -126,7 +146,10 @@ class CalibrationWizard(QDialog):
         self.picker = GridPicker(columns, rows, self.available)
         self.picker.selectionChanged.connect(self._update_selection_label)
         presets = QHBoxLayout()
-        for text, tip, spec in (("2 × 3 (paper)", "First and last row; first, middle and last column", (2, 3)),
+        for text, tip, spec in (("Default", "The default array: 3 × 5 spread over the whole grid (first, middle and "
+                                 "last row; five columns): the rig's position errors average out over more views",
+                                 "default"),
+                                ("2 × 3 (paper)", "First and last row; first, middle and last column", (2, 3)),
                                 ("3 × 5", "A denser array: 3 rows × 5 columns spread over the grid", (3, 5)),
                                 ("All captured", "Every captured view (slow on a full grid)", "all"),
                                 ("Clear", "Deselect every view", "none")):
@@ -140,11 +163,17 @@ class CalibrationWizard(QDialog):
 
         opts = QGroupBox("Options")
         form = QFormLayout(opts)
-        self.estimate_pp = QCheckBox("Estimate the principal point too")
-        self.estimate_pp.setToolTip("Weakly determined: a principal-point shift looks like a small rotation. "
-                                    "The paper leaves it at the image centre.")
-        self.neighbours_only = QCheckBox("Pair only adjacent views of the array")
-        self.neighbours_only.setToolTip("Off: every pair within a row / column (several baselines)")
+        self.estimate_pp = QCheckBox("Estimate the principal point where the views determine it")
+        self.estimate_pp.setToolTip("A translating rig barely sees the principal point: it is estimated only when "
+                                    "the fit determines it to 10 px, otherwise held at the image centre (the result "
+                                    "says which and why). Off: always at the centre.")
+        self.pair_set = QComboBox()
+        for key, text in (("all", "every pair in each row and column"),
+                          ("spanning", "neighbours and every pair with an end view"),
+                          ("neighbours", "adjacent views only (short baselines)")):
+            self.pair_set.addItem(text, key)
+        self.pair_set.setToolTip("Which pairs of the chosen views are matched. Long baselines fix pan and tilt for "
+                                 "the whole grid; adjacent views alone are warned about on a wide grid.")
         self.focal_px = QDoubleSpinBox()
         self.focal_px.setRange(0.0, 1e6)
         self.focal_px.setDecimals(1)
@@ -158,10 +187,10 @@ class CalibrationWizard(QDialog):
         self.work_width.setSuffix(" px")
         self.work_width.setToolTip("Features are detected on images downscaled to this width")
         form.addRow(self.estimate_pp)
-        form.addRow(self.neighbours_only)
+        form.addRow("Pairs:", self.pair_set)
         form.addRow("Focal length:", self.focal_px)
         form.addRow("Detection width:", self.work_width)
-        self.neighbours_only.toggled.connect(self._update_selection_label)
+        self.pair_set.currentIndexChanged.connect(self._update_selection_label)
 
         lay = QVBoxLayout(page)
         lay.addWidget(QLabel("<b>1. Choose the views.</b> Pairs are formed within each row (rows must line "
@@ -178,13 +207,15 @@ class CalibrationWizard(QDialog):
             views = self.available
         elif spec == "none":
             views = set()
+        elif spec == "default":
+            views = default_subset(int(grid["columns"]), int(grid["rows"]), self.available)
         else:
             views = sparse_subset(int(grid["columns"]), int(grid["rows"]), spec[0], spec[1], self.available)
         self.picker.set_selected(views)
 
     def selected_pairs(self):
         return make_pairs(self.picker.selected, self.dataset.grid.get("spacing_mm") or (1, 1),
-                          neighbours_only=self.neighbours_only.isChecked())
+                          pair_set=self.pair_set.currentData())
 
     def _update_selection_label(self) -> None:
         pairs = self.selected_pairs()
@@ -224,8 +255,8 @@ class CalibrationWizard(QDialog):
         self.error_label.setText("")
         self.log.clear()
         self._set_page(PAGE_RUN)
-        kwargs: dict[str, Any] = {"estimate_principal_point": self.estimate_pp.isChecked(),
-                                  "neighbours_only": self.neighbours_only.isChecked(),
+        kwargs: dict[str, Any] = {"principal_point": "auto" if self.estimate_pp.isChecked() else "centre",
+                                  "pair_set": self.pair_set.currentData(),
                                   "max_width_px": self.work_width.value()}
         if self.focal_px.value() > 0:
             kwargs["focal_length_px"] = self.focal_px.value()
@@ -256,6 +287,13 @@ class CalibrationWizard(QDialog):
         self.headline = QLabel()
         self.headline.setObjectName("headline")
         self.headline.setWordWrap(True)
+        self.uncertainty_label = QLabel()
+        self.uncertainty_label.setObjectName("uncertaintyLabel")
+        self.uncertainty_label.setWordWrap(True)
+        self.uncertainty_label.setTextInteractionFlags(Qt.TextSelectableByMouse)
+        self.uncertainty_label.setToolTip("Measured: the fit's covariance with every view's position error in the "
+                                          "model and the residuals' observed spread; 1σ covers the truth 68 % of "
+                                          "the time, 2σ 95 % (checked by lfstudio simulate-calibration)")
         self.tabs = QTabWidget()
         self.tabs.setObjectName("resultTabs")
 
@@ -371,6 +409,7 @@ class CalibrationWizard(QDialog):
 
         lay = QVBoxLayout(page)
         lay.addWidget(self.headline)
+        lay.addWidget(self.uncertainty_label)
         lay.addWidget(self.tabs, 1)
         return page
 
@@ -381,10 +420,13 @@ class CalibrationWizard(QDialog):
         before, after = doc["residual_px"]["before"], doc["residual_px"]["after"]
         warn = f" <span style='color:#b00020'>{len(doc['warnings'])} warning(s) — see Numbers.</span>" \
             if doc["warnings"] else ""
+        u = CalibrationUncertainty.from_document(doc)
+        std = u.rotation_std_deg if u else (float("nan"),) * 3
         self.headline.setText(
-            f"<b>3. Result.</b> rx {rx:+.3f}°, ry {ry:+.3f}°, rz {rz:+.3f}° · principal point "
-            f"({doc['principal_point_px'][0]:.1f}, {doc['principal_point_px'][1]:.1f}) px · residual RMS "
+            f"<b>3. Result.</b> rx {rx:+.3f}° ± {std[0]:.3f}°, ry {ry:+.3f}° ± {std[1]:.3f}°, "
+            f"rz {rz:+.3f}° ± {std[2]:.3f}° (1σ) · residual RMS "
             f"<b>{before['rms']:.2f} → {after['rms']:.2f} px</b> over {after['count']} matches.{warn}")
+        self.uncertainty_label.setText(uncertainty_html(doc))
         self.report_text.setPlainText(format_report(doc))
 
         inl = fit.inlier
@@ -548,14 +590,15 @@ class CalibrationWizard(QDialog):
     # -- settings --------------------------------------------------------------------------------------
     def _restore_settings(self) -> None:
         s = settings()
-        self.estimate_pp.setChecked(s.value("calibration/estimate_pp", False, type=bool))
-        self.neighbours_only.setChecked(s.value("calibration/neighbours_only", False, type=bool))
+        self.estimate_pp.setChecked(s.value("calibration/principal_point", "auto") == "auto")
+        pair_set = s.value("calibration/pair_set", "all")
+        self.pair_set.setCurrentIndex(PAIR_SETS.index(pair_set) if pair_set in PAIR_SETS else 0)
         self.work_width.setValue(int(s.value("calibration/work_width_px", 2000)))
         self.focal_px.setValue(0.0)
-        self.apply_preset((2, 3))
+        self.apply_preset("default")
 
     def _save_settings(self) -> None:
         s = settings()
-        s.setValue("calibration/estimate_pp", self.estimate_pp.isChecked())
-        s.setValue("calibration/neighbours_only", self.neighbours_only.isChecked())
+        s.setValue("calibration/principal_point", "auto" if self.estimate_pp.isChecked() else "centre")
+        s.setValue("calibration/pair_set", self.pair_set.currentData())
         s.setValue("calibration/work_width_px", self.work_width.value())

@@ -1,4 +1,6 @@
-"""The Calibration panel: the open dataset's calibration at a glance, and Dataset → Calibrate…."""
+"""The Calibration panel: the open dataset's calibration at a glance (angles with their 1σ, the error
+at the image corners, warnings), and Dataset → Calibrate…. Reads ``calibration.json`` through
+:mod:`lfstudio.calibration.model` only (JSON; no scipy/OpenCV import on the GUI thread)."""
 
 from __future__ import annotations
 
@@ -47,21 +49,34 @@ class CalibrationPanel(QWidget):
         if dataset is None:
             self.summary.setText("No dataset open. Open or capture one, then calibrate it.")
             return
-        from lfstudio.calibration.calibrate import load_calibration
+        from lfstudio.calibration.model import CalibrationUncertainty, load_calibration
         try:
             doc = load_calibration(dataset)
+            rx, ry, rz = doc["rotation_deg"] if doc is not None else (0.0, 0.0, 0.0)
+            after = doc["residual_px"]["after"] if doc is not None else None
+            before = doc["residual_px"]["before"] if doc is not None else None
         except LfError as exc:
             self.summary.setText(f"calibration.json is unreadable: {exc}")
+            return
+        except (KeyError, TypeError, ValueError) as exc:
+            self.summary.setText(f"calibration.json is incomplete ({exc}); calibrate again")
             return
         if doc is None:
             self.summary.setText("<b>Not calibrated yet.</b> Views will not be rectified until you calibrate.")
             return
-        rx, ry, rz = doc["rotation_deg"]
-        after = doc["residual_px"]["after"]
-        before = doc["residual_px"]["before"]
+        u = CalibrationUncertainty.from_document(doc)
+        if u is not None:
+            sx, sy, sz = u.rotation_std_deg
+            angles = f"rx {rx:+.3f}° ± {sx:.3f}°<br>ry {ry:+.3f}° ± {sy:.3f}°<br>rz {rz:+.3f}° ± {sz:.3f}° (1σ)"
+        else:
+            angles = f"rx {rx:+.3f}° ry {ry:+.3f}° rz {rz:+.3f}°"
+        corners = ""
+        if u is not None and u.corner_error_px:
+            corners = (f"<br>at the image corners ≤ {u.corner_error_px[0]:.2f} px (1σ), "
+                       f"≤ {u.corner_error_px[1]:.2f} px (2σ)")
         warn = f"<br><span style='color:#b00020'>{len(doc['warnings'])} warning(s)</span>" if doc.get("warnings") else ""
-        self.summary.setText(f"<b>Calibrated</b> {doc.get('created') or ''}<br>rx {rx:+.3f}° ry {ry:+.3f}° "
-                             f"rz {rz:+.3f}°<br>residual RMS {before['rms']:.2f} → {after['rms']:.2f} px "
+        self.summary.setText(f"<b>Calibrated</b> {doc.get('created') or ''}<br>{angles}{corners}<br>residual RMS "
+                             f"{before['rms']:.2f} → {after['rms']:.2f} px "
                              f"({len(doc.get('views_used', []))} views){warn}")
 
     def open_wizard(self) -> None:
