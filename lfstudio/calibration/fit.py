@@ -223,7 +223,8 @@ class _Data:
                      self.eta_a, self.eta_b, self.eta_axis, self.eta_view)
 
 
-def _make_data(used: Sequence[PairMatches], with_offsets: bool) -> _Data:
+def _make_data(used: Sequence[PairMatches], axes: tuple[bool, bool]) -> _Data:
+    """``axes``: whether x (vertical pairs) and y (horizontal pairs) position errors are modelled."""
     xy_a = np.concatenate([m.xy_a for m in used]).astype(float)
     xy_b = np.concatenate([m.xy_b for m in used]).astype(float)
     horizontal = np.concatenate([np.full(m.count, m.direction == "h") for m in used])
@@ -233,9 +234,9 @@ def _make_data(used: Sequence[PairMatches], with_offsets: bool) -> _Data:
     eta_a = np.full(len(used), -1)
     eta_b = np.full(len(used), -1)
     for i, m in enumerate(used):
-        if not with_offsets or not baseline[i] > 0:
-            continue
         axis = 1 if m.direction == "h" else 0
+        if not axes[axis] or not baseline[i] > 0:
+            continue
         eta_a[i] = columns.setdefault((m.view_a, axis), len(columns))
         eta_b[i] = columns.setdefault((m.view_b, axis), len(columns))
     keys = sorted(columns, key=columns.get)
@@ -347,12 +348,8 @@ def _refine(problem: _Problem, params: np.ndarray, sigma_px: float, sigma_pos_mm
     offsets = np.zeros(len(d.eta_axis))
     cov = None
     for it in range(iterations):
-        w = 1.0 / sig_pair[d.pair] ** 2
-        N, rhs, r0, c = problem.normal(params, w, prior)
-        try:
-            cov = np.linalg.inv(N)
-        except np.linalg.LinAlgError:
-            cov = np.linalg.pinv(N)
+        N, rhs, _, _ = problem.normal(params, 1.0 / sig_pair[d.pair] ** 2, prior)
+        cov = _inverse(N)
         z = cov @ rhs
         n_p = len(params)
         params = params + z[:n_p]
@@ -372,12 +369,7 @@ def _refine(problem: _Problem, params: np.ndarray, sigma_px: float, sigma_pos_mm
         if it >= 1 and settled:
             break
     # the information at the solution, with the final weights and prior
-    w = 1.0 / sig_pair[d.pair] ** 2
-    N, _, _, _ = problem.normal(params, w, prior)
-    try:
-        cov = np.linalg.inv(N)
-    except np.linalg.LinAlgError:
-        cov = np.linalg.pinv(N)
+    cov = _inverse(problem.normal(params, 1.0 / sig_pair[d.pair] ** 2, prior)[0])
     return params, offsets, sig_pair, prior, cov
 
 
@@ -414,8 +406,7 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
             f"{min_matches} in total, and both directions for all three angles); pairs: {names}. "
             "Use views with more texture and overlap, or more views (--views)")
     pos_sigma_mm = np.array([float(s) / 1000.0 for s in (position_sigma_um or (0.0, 0.0))])
-    with_offsets = bool(np.all(pos_sigma_mm > 0))
-    data = _make_data(used, with_offsets)
+    data = _make_data(used, (bool(pos_sigma_mm[0] > 0), bool(pos_sigma_mm[1] > 0)))
     xy_a, xy_b, horizontal = data.xy_a, data.xy_b, data.horizontal
     # slices over ``matches`` (empty pairs included), matching the concatenation order of ``used``
     slices, start = [], 0
@@ -542,8 +533,7 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
                      residual_before_px=residual_before, residual_after_px=residual_after, inlier=inlier,
                      pair_slices=slices, sigma_px=sigma, success=bool(sol.success), message=str(sol.message),
                      evaluations=int(evaluations), covariance=covariance, principal_point_reason=reason,
-                     view_offsets_mm=view_offsets, position_sigma_mm=(float(pos_used[0]), float(pos_used[1]))
-                     if with_offsets else (0.0, 0.0),
+                     view_offsets_mm=view_offsets, position_sigma_mm=(float(pos_used[0]), float(pos_used[1])),
                      extra={"start_deg": [float(x) for x in x0],
                             "robust_deg": [float(x) for x in robust_params],
                             "linear_start_deg": None if linear is None else [float(x) for x in linear.rotation_deg],

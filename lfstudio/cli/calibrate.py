@@ -15,9 +15,9 @@ HELP = "self-calibrate the camera orientation (and principal point) from the dat
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", metavar="DATASET", help="dataset folder (holds dataset.json)")
     p.add_argument("--views", metavar="SPEC", default="default",
-                   help="views to use: 'default' (a 3x5 array spread over the grid: first, middle and last row, "
-                        "five columns), ROWSxCOLUMNS such as 2x3 (the paper's array), 'all', or names like "
-                        "r00_c000,r00_c050,r20_c000")
+                   help="views to use: 'default' (a 5x5 array spread over the whole grid, capped by its size), "
+                        "ROWSxCOLUMNS such as 2x3 (the paper's array) or 5x9 (slower, more accurate), 'all', or "
+                        "names like r00_c000,r00_c050,r20_c000")
     p.add_argument("--pairs", choices=("all", "spanning", "neighbours"), default="all",
                    help="which pairs within each row and column of the views: every pair (default), neighbours "
                         "plus every pair with an end view ('spanning'), or adjacent views only ('neighbours': "

@@ -42,7 +42,7 @@ def test_parse_views_forms_and_errors():
 
 def test_default_array_and_pair_sets():
     views = default_subset(101, 21)
-    assert views == sparse_subset(101, 21, 3, 5) and parse_views(None, 101, 21, views) == views
+    assert views == sparse_subset(101, 21, 5, 5) and parse_views(None, 101, 21, views) == views
     assert parse_views("default", 101, 21, views) == views
     assert default_subset(3, 9) == sparse_subset(3, 9, 5, 3)          # five along the longer axis
     assert default_subset(4, 2) == sparse_subset(4, 2, 2, 4)          # capped by the grid

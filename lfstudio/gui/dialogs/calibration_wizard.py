@@ -146,9 +146,8 @@ class CalibrationWizard(QDialog):
         self.picker = GridPicker(columns, rows, self.available)
         self.picker.selectionChanged.connect(self._update_selection_label)
         presets = QHBoxLayout()
-        for text, tip, spec in (("Default", "The default array: 3 × 5 spread over the whole grid (first, middle and "
-                                 "last row; five columns): the rig's position errors average out over more views",
-                                 "default"),
+        for text, tip, spec in (("Default", "The default array: 5 × 5 spread over the whole grid (capped by its "
+                                 "size): the rig's position errors average out over more views", "default"),
                                 ("2 × 3 (paper)", "First and last row; first, middle and last column", (2, 3)),
                                 ("3 × 5", "A denser array: 3 rows × 5 columns spread over the grid", (3, 5)),
                                 ("All captured", "Every captured view (slow on a full grid)", "all"),
