@@ -22,9 +22,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import argparse
-import os
-import time
 
+from _measure import Timer, load_text
 from lfstudio.calibration.pairs import default_subset
 from lfstudio.calibration.simulate import SimulationConfig, simulate
 
@@ -40,12 +39,18 @@ def main() -> None:
     args = ap.parse_args()
     shifts = [float(r) for r in args.shifts.split(",")]
     d = default_subset(101, 21)
-    print(f"{args.trials} trials per row, seed {args.seed}; load average {os.getloadavg()[0]:.1f} on "
-          f"{os.cpu_count()} cores; default = {len({r for r, _ in d})} × {len({c for _, c in d})} views, every pair\n")
+    print(f"{args.trials} trials per row, seed {args.seed}; {load_text()}; default = {len({r for r, _ in d})} × "
+          f"{len({c for _, c in d})} views, every pair\n")
     print("| pp shift | views (pairs) | true error mean | true p99 | rot. median | rot. p99 | coverage 1σ | 2σ "
           "| PP estimated | fit CPU | linear: true mean | true p99 | rot. median | rot. p99 |")
     print("| --- " * 14 + "|")
-    t0, c0 = time.perf_counter(), time.process_time()
+    with Timer() as span:
+        _table(args, shifts)
+    print(f"\n{args.trials} trials per row; {span.wall_s:.0f} s wall, {span.cpu_s:.0f} s CPU, {load_text()}; "
+          "true error = RMS over the evaluation set per trial (px), coverage against the stated bounds")
+
+
+def _table(args, shifts) -> None:
     for k, shift in enumerate(shifts):
         for j, (views, pairs, label) in enumerate(SUBSAMPLES):
             cfg = SimulationConfig(views=views, pair_set=pairs)
@@ -60,8 +65,6 @@ def main() -> None:
                   f"{s['fit_cpu_s']['mean']:.2f} s | {lin['true_residual_px']['mean']:.3f} | "
                   f"{lin['true_residual_px']['p99']:.3f} | {lin['rotation_error_deg']['median']:.4f}° | "
                   f"{lin['rotation_error_deg']['p99']:.4f}° |", flush=True)
-    print(f"\n{args.trials} trials per row; {time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU; "
-          "true error = RMS over the evaluation set per trial (px), coverage against the stated bounds")
 
 
 if __name__ == "__main__":

@@ -19,10 +19,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import argparse
 import json
-import os
 import tempfile
 import time
 
+from _measure import Timer, load_text
 from lfstudio.calibration.calibrate import calibrate_dataset
 from lfstudio.calibration.model import rotation_angle_deg, rotation_matrix
 from lfstudio.dataset import Dataset
@@ -33,9 +33,9 @@ ROT = (1.5, -2.0, 2.5)
 
 
 def _timed(ds):
-    t0, c0 = time.perf_counter(), time.process_time()
-    run = calibrate_dataset(ds, "all")
-    return run, time.perf_counter() - t0, time.process_time() - c0
+    with Timer() as span:
+        run = calibrate_dataset(ds, "all")
+    return run, span.wall_s, span.cpu_s
 
 
 def main() -> None:
@@ -56,7 +56,7 @@ def main() -> None:
     ds = Dataset.open(root)
     for cache in (root / "cache" / "features").glob("*.npz"):
         cache.unlink()
-    print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())} (2 cores)")
+    print(f"before: {load_text()}")
     run, cold, cold_cpu = _timed(ds)
     _, warm, warm_cpu = _timed(ds)
     truth = json.loads((root / "ground_truth.json").read_text())
@@ -70,7 +70,7 @@ def main() -> None:
         key = name.split()[0]
         target = f"   target < {targets[key]:.0f} s   ratio {wall / targets[key]:.2f}" if key in targets else ""
         print(f"calibrate {name:28} wall {wall:5.1f} s   CPU {cpu:5.1f} s{target}")
-    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    print(f"after: {load_text()}")
     u = doc["uncertainty"]
     print(f"rotation error vs truth: {err:.4f}°   stated 1σ per angle {', '.join(f'{s:.4f}°' for s in u['rotation_std_deg'])}"
           f"   residual RMS {doc['residual_px']['before']['rms']:.2f} -> {doc['residual_px']['after']['rms']:.2f} px")
