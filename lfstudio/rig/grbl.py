@@ -5,11 +5,39 @@ send ``?``, read until the status report) holds ``_io``; realtime bytes for STOP
 0x18) are written without it, so :meth:`GrblController.stop` works from any thread at any time.
 
 Safety rules enforced here, before anything is sent:
-- every target is inside the rig's soft limits (:func:`lfstudio.rig.motion.check_target`);
-- no motion before ``$H`` homing or an explicit origin in this session;
+- every target is inside the rig profile's soft limits (:func:`lfstudio.rig.motion.check_target`)
+  and, when the controller has its own soft limits on (``$20=1``), inside the controller's
+  machine travel (``$130``/``$131``/``$132``), checked in machine coordinates: a target GRBL would
+  answer with ALARM 2 is refused here with the limit named, and nothing is sent;
+- no motion before a reference: ``$H`` homing or an explicit origin in this connection, or a
+  homing controller (``$22=1``) that is not in alarm and still carries the mark lfstudio sets after
+  homing (tool number ``T1``, see :data:`HOMED_MARK`; GRBL clears it on every reset and power-up,
+  so a board unlocked with ``$X`` or reset by opening its port is not taken as homed);
 - a move is complete only when the controller is Idle *and* reports the target within tolerance;
-- every wait has a timeout; a silent or vanished controller leaves the driver "disconnected"
+- every wait has a timeout, computed from the controller's own rates and accelerations
+  (``$110..``/``$120..``, read with ``$$`` on connect) and extended while the axes make progress or
+  the operator holds the motion; a silent or vanished controller leaves the driver "disconnected"
   with a message, and :meth:`connect` recovers.
+
+Frame: our positions are GRBL *work* coordinates (G54), 0 at the left/bottom end of the travel,
+positive inwards. GRBL's machine coordinates after homing are negative: 0 at the home switch,
+``-$130`` at the far end (``HOMING_FORCE_SET_ORIGIN`` builds, OPT flag ``Z``: 0 at the switch on
+the side ``$23`` selects). :meth:`GrblController.home` therefore stores the G54 offset so that
+``work = machine - (most negative machine position)``, i.e. ``x = MPos + $130`` by default; the
+frame then covers ``0 … $130`` and GRBL's soft limits and ours agree. Without limit switches,
+:meth:`GrblController.set_origin` makes the current position ``(0, 0)`` (``G10 L20 P1``); keep
+``$20=0`` there (GRBL allows soft limits only with homing) and the profile's limits apply.
+
+STOP (:meth:`GrblController.stop`): feed hold and jog cancel at once; then, on the driver's thread,
+wait until the hold is complete (``Hold:0``; ``Hold:1`` means still decelerating) and only then
+soft-reset to drop the rest of the move. A reset after the hold is complete keeps GRBL's position
+(no ALARM 3); the result reports where the rig really stopped.
+
+A board that restarts (banner ``Grbl 1.1h ['$' for help]``, e.g. DTR on opening the port) is
+reported: :attr:`GrblController.board_resets`, ``locked`` while it waits in ALARM
+(``[MSG:'$H'|'$X' to unlock]`` when homing is enabled), and the reference (homed/origin) is
+dropped. Every line from the controller goes through :func:`parse_line`, which never raises:
+malformed lines are logged and ignored.
 """
 
 from __future__ import annotations
@@ -26,7 +54,7 @@ import serial
 
 from lfstudio.errors import DeviceError
 from lfstudio.optics import move_time_s
-from lfstudio.rig.motion import RigConfig, RigState, RigStatus, check_target, clamp_target
+from lfstudio.rig.motion import RigConfig, RigState, RigStatus, SoftLimitError, check_target, clamp_target
 
 log = logging.getLogger(__name__)
 #: status polls and reports (several a second): shown only with --debug (lfstudio.support.logs)
@@ -90,9 +118,16 @@ _STATE_MAP = {"Idle": RigState.IDLE, "Run": RigState.MOVING, "Jog": RigState.JOG
               "Home": RigState.HOMING, "Hold": RigState.HOLD, "Door": RigState.HOLD,
               "Alarm": RigState.ALARM, "Check": RigState.IDLE, "Sleep": RigState.IDLE}
 _STATUS_RE = re.compile(r"<([^<>]*)>")
-_ERROR_RE = re.compile(r"^error:(\d+)$")
-_ALARM_RE = re.compile(r"^ALARM:(\d+)$")
-_SETTING_RE = re.compile(r"^\$(\d+)=([-+]?[\d.]+)")
+_ERROR_RE = re.compile(r"error:(\d{1,4})")
+_ALARM_RE = re.compile(r"ALARM:(\d{1,4})")
+_SETTING_RE = re.compile(r"\$(\d{1,4})=(.*)")
+_PARAM_RE = re.compile(r"\[(G5[4-9]|G28|G30|G92|TLO|PRB):([^\]]*)\]")
+_BANNER_RE = re.compile(r"Grbl (\S+) \[.*\]")
+_NUMBER_RE = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)")
+_HOLD_COMPLETE, _HOLD_DECELERATING = 0, 1   # the substates of Hold in GRBL 1.1 status reports
+#: set after our own $H: GRBL clears the tool number on every reset and power-up, so a homing
+#: controller that still reports T1 and is not in alarm was homed by lfstudio and not reset since
+HOMED_MARK = "T1"
 
 
 class GrblError(DeviceError):
@@ -131,7 +166,7 @@ class GrblStatus:
     """One parsed ``<State|...>`` report. Positions are tuples over the controller's axes."""
 
     state: str                                   # Idle, Run, Hold, Jog, Alarm, Door, Check, Home, Sleep
-    substate: int | None = None                  # Hold:0/1, Door:0..3
+    substate: int | None = None                  # Hold:0 complete / Hold:1 decelerating, Door:0..3
     mpos: tuple[float, ...] | None = None
     wpos: tuple[float, ...] | None = None
     wco: tuple[float, ...] | None = None
@@ -155,6 +190,15 @@ class GrblStatus:
         if offset is None:
             return self.mpos
         return tuple(m - o for m, o in zip(self.mpos, offset))
+
+    def machine_position(self, wco: tuple[float, ...] | None) -> tuple[float, ...] | None:
+        """MPos from the report: given directly, or WPos + WCO (this report's or the last known)."""
+        if self.mpos is not None:
+            return self.mpos
+        offset = self.wco or wco
+        if self.wpos is None or offset is None:
+            return None
+        return tuple(w + o for w, o in zip(self.wpos, offset))
 
 
 STATES = tuple(_STATE_MAP)
@@ -180,10 +224,9 @@ def parse_status(text: str) -> GrblStatus | None:
             continue
         values: dict = {"state": state}
         if sub:
-            try:
-                values["substate"] = int(sub)
-            except ValueError:
+            if not (sub.isdigit() and len(sub) <= 2):
                 continue
+            values["substate"] = int(sub)
         unknown = []
         for part in parts[1:]:
             key, sep, val = part.partition(":")
@@ -226,6 +269,105 @@ def parse_status(text: str) -> GrblStatus | None:
     return None
 
 
+@dataclass(frozen=True)
+class GrblLine:
+    """One line from the controller, classified by :func:`parse_line`.
+
+    ``kind``: ok, error, alarm, status, banner, msg, setting, param, info or garbage.
+    ``code``: N of ``error:N``/``ALARM:N``; ``key``/``value``: a ``$N=value`` setting;
+    ``name``/``values``: a ``[G54:x,y,z]`` parameter (name) or the banner's version (name);
+    ``status``: the parsed report of a status line."""
+
+    kind: str
+    text: str
+    code: int | None = None
+    key: int | None = None
+    value: float | None = None
+    name: str = ""
+    values: tuple[float, ...] = ()
+    status: GrblStatus | None = None
+
+
+def _number(text: str) -> float:
+    """A finite number in GRBL's format (no exponent, no inf/nan), else ValueError."""
+    if not _NUMBER_RE.fullmatch(text.strip()):
+        raise ValueError(text)
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(text)
+    return value
+
+
+def parse_line(line: str) -> GrblLine:
+    """Classify one line (without its line end) from a GRBL 1.1 controller. Never raises:
+    anything malformed (``$1=.``, ``[G54:1..2,0,0]``, ``ALARM:`` with a thousand digits) is
+    ``garbage``, which the driver logs and ignores."""
+    text = line.strip()
+    try:
+        if text == "ok":
+            return GrblLine("ok", text)
+        if m := _ERROR_RE.fullmatch(text):
+            return GrblLine("error", text, code=int(m.group(1)))
+        if m := _ALARM_RE.fullmatch(text):
+            return GrblLine("alarm", text, code=int(m.group(1)))
+        if text.startswith("<"):
+            st = parse_status(text) if text.endswith(">") else None
+            return GrblLine("status", text, status=st) if st is not None else GrblLine("garbage", text)
+        if m := _BANNER_RE.fullmatch(text):
+            return GrblLine("banner", text, name=m.group(1))
+        if text.startswith("[MSG:") and text.endswith("]"):
+            return GrblLine("msg", text, name=text[5:-1])
+        if m := _PARAM_RE.fullmatch(text):
+            name, body = m.group(1), m.group(2)
+            coords, _, extra = body.partition(":")          # [PRB:x,y,z:1]
+            values = tuple(_number(v) for v in coords.split(","))
+            if extra and not extra.isdigit():
+                raise ValueError(body)
+            return GrblLine("param", text, name=name, values=values)
+        if text.startswith("[") and text.endswith("]"):
+            return GrblLine("info", text)
+        if m := _SETTING_RE.fullmatch(text):
+            return GrblLine("setting", text, key=int(m.group(1)), value=_number(m.group(2)))
+        if text.startswith(">") and text.endswith(("ok", "]")) or text.startswith("$N"):
+            return GrblLine("info", text)                   # startup-line echo, $N listings
+    except (ValueError, OverflowError):
+        pass
+    return GrblLine("garbage", text)
+
+
+@dataclass(frozen=True)
+class FirmwareLimits:
+    """What the controller itself enforces, from its ``$$`` settings (None: not reported)."""
+
+    max_rate_mm_min: dict[str, float]            # $110.. per axis letter
+    acceleration_mm_s2: dict[str, float]         # $120..
+    max_travel_mm: dict[str, float]              # $130..
+    soft_limits: bool                            # $20
+    hard_limits: bool                            # $21
+    homing: bool                                 # $22
+    homing_dir_mask: int                         # $23: bit set = that axis homes towards negative
+    force_origin: bool = False                   # built with HOMING_FORCE_SET_ORIGIN (OPT flag Z)
+
+    @classmethod
+    def from_settings(cls, settings: dict[int, float], options: str = "") -> "FirmwareLimits":
+        def per_axis(base: int) -> dict[str, float]:
+            return {letter: float(settings[base + i]) for i, letter in enumerate(AXIS_LETTERS)
+                    if base + i in settings}
+
+        return cls(per_axis(110), per_axis(120), per_axis(130), settings.get(20, 0) == 1,
+                   settings.get(21, 0) == 1, settings.get(22, 0) == 1, int(settings.get(23, 0)),
+                   "Z" in options)
+
+    def machine_range(self, letter: str) -> tuple[float, float] | None:
+        """(lowest, highest) machine coordinate GRBL's soft limits allow on this axis, or None."""
+        travel = self.max_travel_mm.get(letter)
+        if travel is None or travel <= 0:
+            return None
+        if self.force_origin and self.homing_dir_mask & (1 << AXIS_LETTERS.index(letter)):
+            return 0.0, travel
+        return -travel, 0.0
+
+
 class GrblController:
     """A :class:`lfstudio.rig.motion.MotionController` for GRBL 1.1 on a serial port.
 
@@ -234,11 +376,16 @@ class GrblController:
     motion (GRBL recommends ≤ 5–10 Hz on real hardware; the pty simulator takes more).
     ``status_listener``: set by :class:`lfstudio.rig.worker.DeviceWorker`; called with fresh
     :class:`RigStatus` snapshots while a long command waits.
+
+    After :meth:`connect`: :attr:`settings` (``$$``), :attr:`firmware` (what GRBL enforces),
+    :attr:`warnings` (where the rig profile and the controller disagree), :attr:`board_resets`
+    (banners seen), :attr:`reference` ("homed" after our own ``$H``, "origin" after
+    :meth:`set_origin`, "" otherwise), :attr:`locked` (the last report said Alarm).
     """
 
     def __init__(self, port: str, rig: RigConfig, baudrate: int = 115200, *, timeout_s: float = 3.0,
                  poll_hz: float = 20.0, tolerance_mm: float = 0.02, max_status_hz: float = 50.0,
-                 idle_grace_s: float = 0.5):
+                 idle_grace_s: float = 0.5, stall_s: float = 3.0):
         self.port = port
         self.config = rig
         self.baudrate = baudrate
@@ -247,7 +394,9 @@ class GrblController:
         self.tolerance_mm = tolerance_mm
         self.min_status_interval_s = 1.0 / max_status_hz
         self.idle_grace_s = idle_grace_s
+        self.stall_s = stall_s
         self.status_listener: Callable[[RigStatus], None] | None = None
+        self._letters = (rig.horizontal.letter, rig.vertical.letter)
         self._ix = (AXIS_LETTERS.index(rig.horizontal.letter), AXIS_LETTERS.index(rig.vertical.letter))
         self._serial: serial.Serial | None = None
         self._io = threading.RLock()
@@ -255,27 +404,46 @@ class GrblController:
         self._rx = bytearray()
         self._stop_event = threading.Event()
         self._homing_reset = threading.Event()   # STOP sent a reset during homing
+        self._homing = False                     # $H is running (GRBL sends no reports meanwhile)
         self._stop_pending = False
-        self._homed = False
-        self._critical = False          # "Reset to continue": only a soft reset helps
+        self._banner_expected = False            # we reset, or an alarm may make GRBL reset itself
+        self._unanswered = 0                     # lines whose ok/error we stopped waiting for
+        self._banners = 0
+        self.reference = ""                      # "homed" | "origin" | "": set by us in this connection
+        self._critical = False                   # "Reset to continue": only a soft reset helps
         self._alarm_code: int | None = None
-        self._lost = ""                 # why the connection is unusable ("" when fine)
+        self._lost = ""                          # why the connection is unusable ("" when fine)
         self._last: GrblStatus | None = None
         self._last_t = 0.0
         self._wco: tuple[float, ...] | None = None
         self._jog_target: tuple[float, float] | None = None
         self.settings: dict[int, float] = {}
+        self.firmware = FirmwareLimits.from_settings({})
+        self.options = ""
+        self.warnings: list[str] = []
         self.version = ""
-        self.messages: list[str] = []   # [MSG:...] push messages, newest last
+        self.messages: list[str] = []            # [MSG:...] push messages, newest last
         self.garbage_lines = 0
+        self.board_resets = 0                    # banners we did not cause (board restarted)
+        self.alarms: list[int] = []              # every ALARM:N of this connection, oldest first
 
     # -- connection --------------------------------------------------------------------------------
     @property
     def connected(self) -> bool:
         return self._serial is not None and not self._lost
 
+    @property
+    def _homed(self) -> bool:
+        return bool(self.reference)
+
+    @property
+    def locked(self) -> bool:
+        """The controller reports Alarm: it accepts only ``$H``, ``$X``, settings and reset."""
+        return self._last is not None and self._last.state == "Alarm"
+
     def connect(self) -> None:
-        """Open the port and shake hands: a status report, ``$I`` (must be GRBL 1.1), ``$$``, ``$#``."""
+        """Open the port and shake hands: wait for the controller (a board may reboot when its port
+        opens, see ``board_resets``), then ``$I`` (must be GRBL 1.1), ``$$`` and ``$#``."""
         with self._io:
             self._close_port()
             try:
@@ -287,57 +455,107 @@ class GrblController:
                                   "the port name (lfstudio rig --port ...), or use 'sim'") from exc
             self._lost = ""
             self._rx.clear()
-            self._homed = False
+            self.reference = ""
             self._critical = False
             self._alarm_code = None
+            self._last = None
             self._stop_event.clear()
             self._stop_pending = False
+            self._banner_expected = False
+            self._unanswered = 0
+            self.board_resets = 0
+            self.alarms = []
+            self.messages = []
             try:
-                self._serial.reset_input_buffer()
                 self._handshake()
             except DeviceError:
                 self._close_port()
                 raise
 
     def _handshake(self) -> None:
-        # an Arduino resets when the port opens and talks ~1-2 s later: ask until a report comes
-        deadline = time.monotonic() + max(self.timeout_s, 2.5)
+        # an Arduino resets when the port opens and talks ~1-2 s later (bytes sent while it boots
+        # are lost): ask until a report comes. Lines before it (banner, [MSG:...], error:7 and the
+        # settings of a fresh EEPROM) are dispatched in order.
+        start = time.monotonic()
+        deadline = start + max(self.timeout_s, 2.5) + 1.0
         status = None
+        reset_sent = False
         while status is None:
-            if time.monotonic() > deadline:
+            now = time.monotonic()
+            if now > deadline:
                 raise ConnectionLost(f"no GRBL controller answers on {self.port}: check that the controller "
-                                     "is powered, the port and the baud rate ({self.baudrate})".replace(
-                                         "{self.baudrate}", str(self.baudrate)))
+                                     f"is powered, the port and the baud rate ({self.baudrate})")
+            if not reset_sent and now - start > max(self.timeout_s, 2.5) - 0.5:
+                # after a hard/soft-limit alarm GRBL answers nothing, not even '?', until a reset
+                log.warning("the controller on %s does not answer: sending a reset", self.port)
+                self._banner_expected = True
+                self._write(b"\x18")
+                reset_sent = True
             self._write(b"?")
             end = time.monotonic() + 0.25
             while status is None and time.monotonic() < end:
                 line = self._readline(end)
-                if line is not None:
-                    kind = self._dispatch(line)
-                    if kind == "status":
-                        status = self._last
+                if line is not None and self._dispatch(line).kind == "status":
+                    status = self._last
         info = self._command("$I")
         ver = next((i for i in info if i.startswith("[VER:")), "")
         self.version = ver[5:-1] if ver else ""
+        opt = next((i for i in info if i.startswith("[OPT:")), "")
+        self.options = opt[5:-1].split(",")[0] if opt else ""
         if not self.version.startswith("1.1"):
             raise DeviceError(f"the controller on {self.port} is not GRBL 1.1 (it reports "
                               f"{self.version or 'no version'}); lfstudio speaks GRBL 1.1")
+        self.settings = {}
         for line in self._command("$$"):
-            m = _SETTING_RE.match(line)
-            if m:
-                self.settings[int(m.group(1))] = float(m.group(2))
+            parsed = parse_line(line)
+            if parsed.kind == "setting" and parsed.value is not None and parsed.key is not None:
+                self.settings[parsed.key] = parsed.value
+        self.firmware = FirmwareLimits.from_settings(self.settings, self.options)
         self._read_offsets()
-        self._critical = any("Reset to continue" in m for m in self.messages[-2:]) and status.state == "Alarm"
-        # a homing controller ($22=1) starts locked in ALARM and leaves it only through $H (or an explicit
-        # $X): not in alarm now means an earlier connection homed it and it has not been reset since
-        self._homed = bool(self.config.homing and self.settings.get(22) == 1 and status.state != "Alarm")
+        self._critical = False               # it answered: not stuck in a critical alarm
+        modes = next((i for i in self._command("$G") if i.startswith("[GC:")), "")
+        if (self.config.homing and self.firmware.homing and status.state != "Alarm"
+                and HOMED_MARK in modes[4:-1].split()):
+            self.reference = "homed"         # homed by an earlier connection, not reset since
+        self.warnings = self._compare_profile()
+        for text in self.warnings:
+            log.warning("rig %s on %s: %s", self.config.name, self.port, text)
+
+    def _compare_profile(self) -> list[str]:
+        """Where the rig profile and the controller's own settings disagree (operator-readable)."""
+        out = []
+        fw = self.firmware
+        for axis in (self.config.horizontal, self.config.vertical):
+            i = AXIS_LETTERS.index(axis.letter)
+            name = f"{axis.name} axis ({axis.letter})"
+            rate = fw.max_rate_mm_min.get(axis.letter)
+            if rate is not None and abs(rate / 60.0 - axis.max_speed_mm_s) > 0.01 * axis.max_speed_mm_s:
+                out.append(f"{name}: the rig profile says {axis.max_speed_mm_s:g} mm/s, the controller's "
+                           f"${110 + i} = {rate:g} mm/min ({rate / 60.0:.4g} mm/s); moves run at the "
+                           "controller's rate and their timeouts follow it")
+            acc = fw.acceleration_mm_s2.get(axis.letter)
+            if acc is not None and abs(acc - axis.acceleration_mm_s2) > 0.01 * axis.acceleration_mm_s2:
+                out.append(f"{name}: the rig profile says {axis.acceleration_mm_s2:g} mm/s², the controller's "
+                           f"${120 + i} = {acc:g} mm/s²")
+            travel = fw.max_travel_mm.get(axis.letter)
+            if fw.soft_limits and travel is not None and axis.soft_max_mm - min(axis.soft_min_mm, 0) > travel:
+                out.append(f"{name}: the rig profile's soft limits reach {axis.soft_max_mm:g} mm but the "
+                           f"controller's travel is ${130 + i} = {travel:g} mm ($20 = 1): targets beyond the "
+                           "controller's travel are refused")
+        if self.config.homing and not fw.homing and self.settings:
+            out.append("the rig profile expects limit switches (homing) but homing is off in the controller "
+                       "($22 = 0): enable it ($22=1) or use 'set origin'")
+        if not self.config.homing and fw.homing:
+            out.append("homing is on in the controller ($22 = 1) but the rig profile has no limit switches: "
+                       "the controller starts locked; unlock it, then set the origin")
+        return out
 
     def _read_offsets(self) -> None:
         offsets: dict[str, tuple[float, ...]] = {}
         for line in self._command("$#"):
-            m = re.match(r"^\[(G54|G92):([-\d.,]+)", line)
-            if m:
-                offsets[m.group(1)] = _floats(m.group(2))
+            parsed = parse_line(line)
+            if parsed.kind == "param" and parsed.name in ("G54", "G92"):
+                offsets[parsed.name] = parsed.values
         if "G54" in offsets:
             g92 = offsets.get("G92", tuple(0.0 for _ in offsets["G54"]))
             self._wco = tuple(a + b for a, b in zip(offsets["G54"], g92))
@@ -346,7 +564,7 @@ class GrblController:
         with self._io:
             self._close_port()
             self._lost = ""
-            self._homed = False
+            self.reference = ""
 
     def _close_port(self) -> None:
         ser, self._serial = self._serial, None
@@ -358,7 +576,7 @@ class GrblController:
 
     def _mark_lost(self, reason: str) -> ConnectionLost:
         self._lost = reason
-        self._homed = False
+        self.reference = ""
         log.warning("rig connection lost: %s", reason)
         return ConnectionLost(reason)
 
@@ -385,7 +603,7 @@ class GrblController:
                 del self._rx[:nl + 1]
                 line = raw.decode("ascii", "replace").strip()
                 if line:
-                    (status_log if line.startswith("<") else log).debug("%s < %s", self.port, line)
+                    (status_log if line.startswith("<") else log).debug("%s < %s", self.port, line[:200])
                     return line
                 continue
             if time.monotonic() >= deadline:
@@ -402,42 +620,56 @@ class GrblController:
                 if len(self._rx) > 1 << 16:      # a flood of noise without line ends
                     del self._rx[:-1024]
 
-    def _dispatch(self, line: str) -> str:
-        """Classify a line and record its side effects; returns its kind."""
-        if line == "ok":
-            return "ok"
-        if _ERROR_RE.match(line):
-            return "error"
-        m = _ALARM_RE.match(line)
-        if m:
+    def _dispatch(self, line: str) -> GrblLine:
+        """Classify a line and record its side effects."""
+        parsed = parse_line(line)
+        kind = parsed.kind
+        if kind in ("ok", "error") and self._unanswered > 0:
+            self._unanswered -= 1                # the late answer to a line we gave up on
+            return GrblLine("stale", parsed.text, code=parsed.code)
+        if kind == "alarm":
             self._last_t = 0.0
-            self._alarm_code = int(m.group(1))
-            self._homed = False
-            if self._alarm_code in (1, 2):
+            self._alarm_code = parsed.code
+            self.alarms.append(parsed.code or 0)
+            self.reference = ""
+            self._banner_expected = True         # GRBL resets itself after most alarms
+            if parsed.code in (1, 2):
                 self._critical = True
-            return "alarm"
-        if "<" in line and ">" in line:
-            st = parse_status(line)
-            if st is not None:
-                self._store_status(st)
-                return "status"
-        if line.startswith("Grbl ") or "Grbl 1." in line:
+        elif kind == "status":
+            assert parsed.status is not None
+            self._store_status(parsed.status)
+        elif kind == "banner":
             self._last_t = 0.0
             self._critical = False
             self._stop_pending = False
-            return "banner"
-        if line.startswith("[MSG:"):
-            self.messages = (self.messages + [line[5:-1]])[-20:]
-            if "Reset to continue" in line:
+            self._unanswered = 0                 # a restarted GRBL owes no answers
+            self._banners += 1
+            if self._banner_expected:
+                self._banner_expected = False
+            else:                                # the board restarted: position and reference are gone
+                self.board_resets += 1
+                if self.reference:
+                    log.warning("the controller on %s restarted (%s): home the rig or set the origin again",
+                                self.port, parsed.text)
+                self.reference = ""
+                self._jog_target = None
+        elif kind == "msg":
+            self.messages = (self.messages + [parsed.name])[-20:]
+            if "Reset to continue" in parsed.name:
                 self._critical = True
-            return "msg"
-        if line.startswith("[") and line.endswith("]"):
-            return "info"
-        if _SETTING_RE.match(line):
-            return "info"
-        self.garbage_lines += 1
-        log.debug("ignored line from the controller: %r", line)
-        return "garbage"
+        elif kind == "garbage":
+            self.garbage_lines += 1
+            log.debug("ignored line from the controller: %r", line[:200])
+        return parsed
+
+    def _announce(self, state: RigState, message: str) -> None:
+        """Tell the status listener about a state the controller does not report itself."""
+        if self.status_listener is not None:
+            last = self._rig_status(self._last)
+            try:
+                self.status_listener(RigStatus(state, last.position_mm, False, message, dict(last.extra)))
+            except Exception:  # noqa: BLE001
+                log.exception("status listener failed")
 
     def _store_status(self, st: GrblStatus) -> None:
         self._last = st
@@ -445,7 +677,7 @@ class GrblController:
         if st.wco is not None:
             self._wco = st.wco
         if st.state == "Alarm":
-            self._homed = False
+            self.reference = ""
         if self.status_listener is not None:
             try:
                 self.status_listener(self._rig_status(st))
@@ -456,14 +688,30 @@ class GrblController:
     def _command(self, line: str, timeout_s: float | None = None, poll: bool = False) -> list[str]:
         """Send one line and wait for ``ok``; returns the lines that came before it.
 
+        ``poll``: a long command (``$H``): watch for STOP meanwhile and ask ``?`` (GRBL answers
+        no report until homing ends, so silence is not a lost connection then; ``timeout_s`` is).
         Raises GrblError on ``error:N``, GrblAlarm on ``ALARM:N``, ConnectionLost on silence."""
         timeout_s = self.timeout_s if timeout_s is None else timeout_s
         with self._io:
+            if self._unanswered:
+                self._drain()
+            banners = self._banners
             self._write(line.encode("ascii") + b"\n")
+            try:
+                return self._exchange(line, timeout_s, poll)
+            except GrblError:
+                raise                            # the answer itself
+            except BaseException:
+                if self._banners == banners:     # GRBL still owes the answer: _dispatch skips it
+                    self._unanswered += 1
+                raise
+
+    def _exchange(self, line: str, timeout_s: float, poll: bool) -> list[str]:
+        """Read the answer to ``line`` (just sent); see :meth:`_command`."""
+        with self._io:
             infos: list[str] = []
             deadline = time.monotonic() + timeout_s
             next_poll = time.monotonic() + self.poll_period_s if poll else math.inf
-            last_answer = time.monotonic()
             while True:
                 now = time.monotonic()
                 if poll and now >= next_poll:
@@ -477,25 +725,37 @@ class GrblController:
                     if now >= deadline:
                         raise self._mark_lost(f"the controller did not answer {line!r} within {timeout_s:g} s; "
                                               "check its power and cable, then connect again")
-                    if poll and now - last_answer > self.timeout_s:
-                        raise self._mark_lost(f"the controller stopped answering during {line!r}; "
-                                              "check its power and cable, then connect again")
                     continue
-                last_answer = time.monotonic()
-                kind = self._dispatch(got)
+                parsed = self._dispatch(got)
+                kind = parsed.kind
                 if kind == "ok":
                     self._last_t = 0.0      # the state may have changed: the next status() asks
                     return infos
                 if kind == "error":
-                    raise GrblError(int(got.split(":")[1]), line)
+                    raise GrblError(parsed.code or 0, line)
                 if kind == "alarm":
+                    if parsed.code not in (1, 2):
+                        self._await_restart()   # GRBL resets itself; bytes sent meanwhile are lost
                     if self._stop_event.is_set() or self._homing_reset.is_set():  # STOP's own alarm (recorded)
                         raise MotionStopped(f"{line!r} interrupted by STOP")
                     raise GrblAlarm(self._alarm_code or 0, f"during {line!r}")
                 if kind == "banner" and self._stop_event.is_set():
                     raise MotionStopped(f"{line!r} interrupted by STOP")
-                if kind in ("info", "msg"):
+                if kind == "banner":
+                    raise DeviceError(f"the controller restarted while running {line!r}; "
+                                      "home the rig or set the origin again")
+                if kind in ("info", "msg", "setting", "param"):
                     infos.append(got)
+
+    def _await_restart(self) -> None:
+        """After an alarm that makes GRBL reset itself (homing and probe failures, a reset while
+        moving): dispatch lines until its banner, so nothing is sent while it re-initialises."""
+        deadline = time.monotonic() + self.timeout_s
+        while self._banner_expected:
+            got = self._readline(deadline)
+            if got is None:
+                return
+            self._dispatch(got)
 
     def _drain(self) -> None:
         """Handle lines that already arrived (push messages, a report to an abandoned query) so
@@ -515,18 +775,38 @@ class GrblController:
             self._dispatch(line)
 
     def _query_status(self) -> GrblStatus:
+        """Ask ``?`` and wait for the report. After a critical alarm (ALARM 1/2, "Reset to
+        continue") GRBL answers nothing, not even ``?``, until a reset: the last known state is
+        returned as Alarm without asking."""
         with self._io:
             self._drain()
+            if self._critical:
+                return self._critical_status()
             self._write(b"?")
             deadline = time.monotonic() + self.timeout_s
+            ask_again = time.monotonic() + 0.5
             while True:
-                got = self._readline(deadline)
+                got = self._readline(min(deadline, ask_again))
                 if got is None:
+                    if time.monotonic() < deadline:  # a '?' sent while GRBL resets is lost: ask again
+                        self._write(b"?")
+                        ask_again = time.monotonic() + 0.5
+                        continue
                     raise self._mark_lost(f"the controller did not send a status report within "
                                           f"{self.timeout_s:g} s; check its power and cable, then connect again")
-                if self._dispatch(got) == "status":
+                if self._dispatch(got).kind == "status":
                     assert self._last is not None
                     return self._last
+                if self._critical:
+                    return self._critical_status()
+
+    def _critical_status(self) -> GrblStatus:
+        last = self._last
+        st = GrblStatus("Alarm", mpos=last.mpos if last else None, wpos=last.wpos if last else None,
+                        wco=last.wco if last else None)
+        if last is None or last.state != "Alarm":
+            self._store_status(st)
+        return self._last or st
 
     def _rig_status(self, st: GrblStatus | None) -> RigStatus:
         if self._serial is None or self._lost:
@@ -544,24 +824,27 @@ class GrblController:
             if self._alarm_code is not None:
                 message = f"ALARM {self._alarm_code}: {GRBL_ALARMS.get(self._alarm_code, 'unknown alarm')}"
             else:
-                message = ("The controller is locked (alarm): home the rig"
-                           if self.config.homing else "The controller is locked (alarm): unlock it")
+                started = "restarted and is" if self.board_resets else "is"
+                message = (f"The controller {started} locked (alarm): home the rig" if self.config.homing
+                           else f"The controller {started} locked (alarm): unlock it, then set the origin")
             if self._critical:
                 message += " (reset first)"
         elif st.state in ("Hold", "Door"):
             message = "Motion held: resume, or STOP to cancel the move"
-        elif not self._homed:
+        elif not self.reference:
             message = ("Not homed: home the rig before moving" if self.config.homing
-                       else "No origin: with the carriage at the left/top end of its travel, set the origin")
+                       else "No origin: with the carriage at the left/bottom end of its travel, set the origin")
         extra = {"grbl_state": st.state if st.substate is None else f"{st.state}:{st.substate}",
                  "feed_mm_min": st.feed_mm_min, "planner_free": st.planner_free, "pins": st.pins,
-                 "overrides": st.overrides, "mpos": st.mpos}
-        return RigStatus(state, position, self._homed, message, extra)
+                 "overrides": st.overrides, "mpos": st.machine_position(self._wco),
+                 "reference": self.reference, "locked": st.state == "Alarm", "alarm_code": self._alarm_code,
+                 "board_resets": self.board_resets, "warnings": list(self.warnings)}
+        return RigStatus(state, position, bool(self.reference), message, extra)
 
     # -- MotionController --------------------------------------------------------------------------
     def status(self) -> RigStatus:
         """A fresh status (at most ``max_status_hz`` queries per second; cached in between).
-        Also completes a pending STOP (reset once the hold has come to rest)."""
+        Also completes a pending STOP (reset once the hold is complete)."""
         if self._serial is None or self._lost:
             return self._rig_status(None)
         with self._io:
@@ -569,27 +852,77 @@ class GrblController:
                 self._query_status()
             last = self._last
             if self._stop_pending and last is not None and (
-                    last.state in ("Idle", "Alarm") or (last.state == "Hold" and last.substate == 1)):
+                    last.state in ("Idle", "Alarm") or (last.state == "Hold" and last.substate == _HOLD_COMPLETE)):
                 self._finish_stop()
             return self._rig_status(self._last)
 
+    def _axis_rate_mm_s(self, axis) -> float:
+        rate = self.firmware.max_rate_mm_min.get(axis.letter)
+        return rate / 60.0 if rate and rate > 0 else axis.max_speed_mm_s
+
+    def _axis_accel_mm_s2(self, axis) -> float:
+        acc = self.firmware.acceleration_mm_s2.get(axis.letter)
+        return acc if acc and acc > 0 else axis.acceleration_mm_s2
+
+    def expected_move_s(self, dx_mm: float, dy_mm: float) -> float:
+        """How long GRBL takes for a straight rapid move by (dx, dy): its planner limits the speed and
+        acceleration along the line so that no axis exceeds its own ``$11x``/``$12x``."""
+        d = math.hypot(dx_mm, dy_mm)
+        if d < 1e-9:
+            return 0.0
+        speed = accel = math.inf
+        for axis, delta in ((self.config.horizontal, dx_mm), (self.config.vertical, dy_mm)):
+            share = abs(delta) / d
+            if share > 1e-12:
+                speed = min(speed, self._axis_rate_mm_s(axis) / share)
+                accel = min(accel, self._axis_accel_mm_s2(axis) / share)
+        return move_time_s(d, speed, accel)
+
+    def _homing_time_s(self) -> float:
+        """Upper bound of GRBL's homing cycle from its settings: search 1.5 x travel at $25 per
+        axis, locate 5 x pull-off at $24 twice, pull-offs and debounce delays."""
+        seek = self.settings.get(25, 0.0) / 60.0
+        feed = self.settings.get(24, 0.0) / 60.0
+        pulloff = self.settings.get(27, 1.0)
+        travel = self.firmware.max_travel_mm
+        if seek <= 0 or feed <= 0 or not travel:
+            h, v = self.config.horizontal, self.config.vertical
+            return 1.5 * (h.travel_mm / (h.max_speed_mm_s / 2) + v.travel_mm / (v.max_speed_mm_s / 2)) + 10.0
+        search = sum(1.5 * t / seek for t in travel.values())
+        locate = 3 * (5 * pulloff / feed + 2 * pulloff / seek)
+        return search + locate + 6 * self.settings.get(26, 250.0) / 1000.0 + 10.0
+
     def home(self) -> None:
+        """``$H``, then store the G54 offset that makes GRBL's machine envelope our ``0 … $13x``
+        frame (see the module docstring). Reference "homed"."""
         if not self.config.homing:
             raise DeviceError(f"rig {self.config.name!r} has no limit switches: park the carriage at the "
-                              "left/top end of its travel and use 'set origin' instead of homing")
+                              "left/bottom end of its travel and use 'set origin' instead of homing")
         with self._io:
             self._prepare_for_command()
             if self._critical:
                 self.reset()
-            h, v = self.config.horizontal, self.config.vertical
-            timeout = 1.5 * (h.travel_mm / (h.max_speed_mm_s / 2) + v.travel_mm / (v.max_speed_mm_s / 2)) + 10.0
             self._stop_event.clear()
             self._homing_reset.clear()
-            self._command("$H", timeout_s=timeout, poll=True)
-            self._homed = True
+            self._homing = True
+            self._announce(RigState.HOMING, "Homing")   # GRBL sends no status report until it is done
+            try:
+                self._command("$H", timeout_s=self._homing_time_s(), poll=True)
+            finally:
+                self._homing = False
             self._alarm_code = None
             self._critical = False
             self._jog_target = None
+            words = []
+            for letter in self._letters:
+                span = self.firmware.machine_range(letter)
+                if span is not None:
+                    words.append(f"{letter}{span[0]:.3f}")
+            if words:
+                self._command("G10 L2 P1 " + " ".join(words))
+                self._read_offsets()
+            self._command(HOMED_MARK)
+            self.reference = "homed"
             self._query_status()
 
     def unlock(self) -> None:
@@ -612,9 +945,9 @@ class GrblController:
                 raise DeviceError("the controller is in alarm: unlock it first, then set the origin")
             if st.state != "Idle":
                 raise DeviceError(f"set the origin only when the rig is idle (it is {st.state.lower()})")
-            self._command(f"G10 L20 P1 {self.config.horizontal.letter}0 {self.config.vertical.letter}0")
+            self._command(f"G10 L20 P1 {self._letters[0]}0 {self._letters[1]}0")
             self._read_offsets()
-            self._homed = True
+            self.reference = "origin"
             self._query_status()
 
     def _prepare_for_command(self) -> None:
@@ -632,7 +965,7 @@ class GrblController:
             raise GrblAlarm(self._alarm_code or 0, "motion refused") if self._alarm_code else DeviceError(
                 "motion refused: the controller is locked (alarm); " +
                 ("home the rig" if self.config.homing else "unlock it and set the origin"))
-        if not self._homed:
+        if not self.reference:
             raise DeviceError("motion refused: the position is unknown; " +
                               ("home the rig first" if self.config.homing else "set the origin first"))
         return st
@@ -643,40 +976,98 @@ class GrblController:
             raise DeviceError("the controller's status report has no position")
         return pos[self._ix[0]], pos[self._ix[1]]
 
+    def firmware_range_mm(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
+        """The controller's own soft-limit travel in our frame ((x_lo, x_hi), (y_lo, y_hi)), or None
+        when GRBL's soft limits are off (``$20=0``) or its travel is unknown."""
+        if not self.firmware.soft_limits:
+            return None
+        out = []
+        for letter, ix in zip(self._letters, self._ix):
+            span = self.firmware.machine_range(letter)
+            if span is None:
+                return None
+            w = self._wco[ix] if self._wco is not None and len(self._wco) > ix else 0.0
+            out.append((span[0] - w, span[1] - w))
+        return out[0], out[1]
+
+    def check_target(self, x_mm: float, y_mm: float) -> tuple[float, float]:
+        """The profile's soft limits, then (``$20=1``) the controller's own travel: raise
+        :class:`SoftLimitError` naming the limit; nothing is sent for a refused target."""
+        x_mm, y_mm = check_target(self.config, x_mm, y_mm)
+        span = self.firmware_range_mm()
+        if span is None:
+            return x_mm, y_mm
+        for label, axis, value, (lo, hi), i in (("x", self.config.horizontal, x_mm, span[0], self._ix[0]),
+                                                ("y", self.config.vertical, y_mm, span[1], self._ix[1])):
+            rounded = round(value, 3)                # what goes on the wire
+            if not (lo - 1e-6 <= rounded <= hi + 1e-6):
+                travel = self.firmware.max_travel_mm[axis.letter]
+                raise SoftLimitError(f"target {label} ({axis.name})",
+                                     f"{value:g} mm is beyond the controller's soft limit (${130 + i} = "
+                                     f"{travel:g} mm of travel, $20 = 1); nothing was sent", f"{lo:g} … {hi:g} mm")
+        return x_mm, y_mm
+
+    def _clamp(self, x_mm: float, y_mm: float) -> tuple[float, float]:
+        x, y = clamp_target(self.config, x_mm, y_mm)
+        span = self.firmware_range_mm()
+        if span is not None:
+            x = min(max(x, span[0][0]), span[0][1])
+            y = min(max(y, span[1][0]), span[1][1])
+        return x, y
+
     def move_to(self, x_mm: float, y_mm: float, timeout_s: float | None = None) -> RigStatus:
+        """Rapid (``G0``) to the target in our frame; returns when Idle there.
+
+        ``timeout_s`` (default: from the controller's rates, see :meth:`expected_move_s`) ends the
+        wait only while the axes make no progress; time spent in a feed hold does not count."""
         x_mm, y_mm = check_target(self.config, x_mm, y_mm)
         with self._io:
             st = self._require_motion_allowed()
+            x_mm, y_mm = self.check_target(x_mm, y_mm)
             if st.state == "Jog":
                 self._cancel_jog_locked()
                 st = self._last or st
             if st.state not in ("Idle",):
                 raise DeviceError(f"move refused: the rig is {st.state.lower()}, not idle")
             x0, y0 = self._position(st)
-            h, v = self.config.horizontal, self.config.vertical
+            expected = self.expected_move_s(x_mm - x0, y_mm - y0)
             if timeout_s is None:
-                timeout_s = 2.0 * max(move_time_s(x_mm - x0, h.max_speed_mm_s, h.acceleration_mm_s2),
-                                      move_time_s(y_mm - y0, v.max_speed_mm_s, v.acceleration_mm_s2)) + 5.0
-            line = f"G90 G0 {h.letter}{x_mm:.3f} {v.letter}{y_mm:.3f}"
+                timeout_s = 1.5 * expected + 5.0
+            h, v = self.config.horizontal, self.config.vertical
+            line = f"G90 G54 G0 {h.letter}{x_mm:.3f} {v.letter}{y_mm:.3f}"
             self._command(line)
-        return self._wait_arrival((x_mm, y_mm), time.monotonic() + timeout_s, line)
+        return self._wait_arrival((x_mm, y_mm), timeout_s, line)
 
-    def _wait_arrival(self, target: tuple[float, float], deadline: float, line: str) -> RigStatus:
+    def _wait_arrival(self, target: tuple[float, float], timeout_s: float, line: str) -> RigStatus:
+        start = time.monotonic()
+        deadline = start + timeout_s
         idle_off_since: float | None = None
         idle_polls = 0
+        last_pos: tuple[float, float] | None = None
+        last_progress = start
+        held_since: float | None = None
         while True:
             if self._stop_event.is_set():
                 with self._io:
-                    self._finish_stop()
+                    st = self._finish_stop()
                 raise MotionStopped(f"move to ({target[0]:g}, {target[1]:g}) mm stopped by STOP; "
-                                    "the rig is idle at its current position")
+                                    + self._where(st))
             with self._io:
                 st = self._query_status()
             if st.state == "Alarm":
                 raise GrblAlarm(self._alarm_code or 0, f"move to ({target[0]:g}, {target[1]:g}) mm")
             now = time.monotonic()
+            pos = self._position(st)
+            if last_pos is None or max(abs(pos[0] - last_pos[0]), abs(pos[1] - last_pos[1])) > 1e-4:
+                last_pos, last_progress = pos, now
+            if st.state in ("Hold", "Door"):            # held by the operator: the clock stops
+                held_since = held_since or now
+            elif held_since is not None:
+                deadline += now - held_since
+                last_progress = now
+                held_since = None
             if st.state == "Idle":
-                x, y = self._position(st)
+                x, y = pos
                 if abs(x - target[0]) <= self.tolerance_mm and abs(y - target[1]) <= self.tolerance_mm:
                     return self._rig_status(st)
                 idle_polls += 1
@@ -688,13 +1079,27 @@ class GrblController:
                         "check the axes for lost steps or obstruction, then home again")
             else:
                 idle_off_since, idle_polls = None, 0
-            if now > deadline:
+            if held_since is None and now > deadline and now - last_progress > self.stall_s:
                 self.stop()
                 with self._io:
-                    self._finish_stop()
+                    st = self._finish_stop()
                 raise DeviceError(f"move to ({target[0]:g}, {target[1]:g}) mm did not finish in time "
-                                  f"(state {st.state}); motion stopped. Check the axes and try again")
+                                  f"(expected within {timeout_s:.3g} s, no progress for {self.stall_s:g} s); "
+                                  f"motion stopped, {self._where(st)}. Check the axes and try again")
             self._stop_event.wait(self.poll_period_s)
+
+    def _where(self, st: GrblStatus | None) -> str:
+        """Where STOP left the rig, truthfully."""
+        if st is None:
+            return "the rig's position is unknown"
+        if st.state == "Alarm":
+            return (f"but the controller is in ALARM {self._alarm_code or ''}".rstrip() +
+                    ": its position is lost; home the rig again")
+        try:
+            x, y = self._position(st)
+        except DeviceError:
+            return f"the rig is {st.state.lower()}"
+        return f"the rig is {st.state.lower()} at ({x:.3f}, {y:.3f}) mm"
 
     def jog(self, dx_mm: float, dy_mm: float, speed_mm_s: float | None = None) -> None:
         """Jog by (dx, dy) mm, clamped to the soft limits (``$J=`` with an absolute target)."""
@@ -709,15 +1114,16 @@ class GrblController:
                 x0, y0 = self._jog_target
             else:
                 x0, y0 = self._position(st)
-            x, y = clamp_target(self.config, x0 + dx_mm, y0 + dy_mm)
+            x, y = self._clamp(x0 + dx_mm, y0 + dy_mm)
             if abs(x - x0) < 1e-6 and abs(y - y0) < 1e-6:
                 return                      # already at the soft limit in that direction
             h, v = self.config.horizontal, self.config.vertical
-            limits = [a.max_speed_mm_s for a, d in ((h, x - x0), (v, y - y0)) if abs(d) > 1e-9]
+            limits = [min(a.max_speed_mm_s, self._axis_rate_mm_s(a))
+                      for a, d in ((h, x - x0), (v, y - y0)) if abs(d) > 1e-9]
             speed = min(limits) if speed_mm_s is None else min(float(speed_mm_s), min(limits))
             if not speed > 0:
                 raise DeviceError(f"jog speed: {speed_mm_s} must be positive")
-            check_target(self.config, x, y)
+            self.check_target(x, y)
             self._command(f"$J=G90 G21 {h.letter}{x:.3f} {v.letter}{y:.3f} F{speed * 60:.0f}")
             self._jog_target = (x, y)
 
@@ -745,46 +1151,58 @@ class GrblController:
 
     def stop(self) -> None:
         """STOP now: feed hold + jog cancel (a reset during homing). Never waits for the lock;
-        the flush of the held move (soft reset) follows on the driver's thread."""
+        the flush of the held move (soft reset once the hold is complete) follows on the driver's
+        thread (:meth:`status` or the waiting command)."""
         ser = self._serial
         if ser is None or self._lost:
             return
-        last = self._last.state if self._last is not None else ""
-        data = b"\x18" if last == "Home" else b"!\x85"
+        homing = self._homing or (self._last is not None and self._last.state == "Home")
+        data = b"\x18" if homing else b"!\x85"   # GRBL ignores a feed hold while homing
         log.debug("%s > %r (STOP)", self.port, data)
-        if last == "Home":                  # the ALARM:6 reply may be read before _stop_event is set below
+        if homing:                          # the ALARM:6 reply may be read before _stop_event is set below
             self._homing_reset.set()
+            self._banner_expected = True
         try:
             with self._wlock:
                 ser.write(data)
         except (serial.SerialException, OSError) as exc:
             log.warning("STOP could not be written: %s", exc)
-        self._stop_pending = last != "Home"
+        self._stop_pending = not homing
         self._jog_target = None
         self._last_t = 0.0                  # the next status() asks the controller
         self._stop_event.set()
 
     def _stop_time_s(self) -> float:
-        h, v = self.config.horizontal, self.config.vertical
-        return max(h.max_speed_mm_s / h.acceleration_mm_s2, v.max_speed_mm_s / v.acceleration_mm_s2)
+        """The longest deceleration from full speed on either axis, from the controller's settings."""
+        return max(self._axis_rate_mm_s(a) / self._axis_accel_mm_s2(a)
+                   for a in (self.config.horizontal, self.config.vertical))
 
-    def _finish_stop(self) -> None:
-        """After STOP: wait for the hold to come to rest, then soft-reset to drop the rest of the move."""
-        deadline = time.monotonic() + self.timeout_s + 2 * self._stop_time_s()
+    def _finish_stop(self) -> GrblStatus:
+        """After STOP: wait until the hold is complete (``Hold:0``), then soft-reset to drop the rest
+        of the move; a jog cancel ends Idle by itself. Returns the final status."""
+        start = time.monotonic()
+        deadline = start + self.timeout_s + 3 * self._stop_time_s()
+        hold_resent = False
         while True:
             st = self._query_status()
             if st.state in ("Idle", "Alarm"):
                 break
-            if st.state == "Hold" and st.substate == 1:
+            if st.state == "Hold" and st.substate == _HOLD_COMPLETE:
                 self._soft_reset_locked()
                 break
-            if time.monotonic() > deadline:
+            now = time.monotonic()
+            if st.state == "Run" and not hold_resent and now - start > 0.5:
+                self._write(b"!")           # the hold did not arrive (noise on the line): again
+                hold_resent = True
+            if now > deadline:
+                log.warning("the rig did not come to rest within %.1f s after STOP (state %s); resetting",
+                            now - start, st.state)
                 self._soft_reset_locked()
                 break
             time.sleep(self.poll_period_s / 2)
         self._stop_pending = False
         self._stop_event.clear()
-        self._query_status()
+        return self._query_status()
 
     def reset(self) -> None:
         """Soft reset (Ctrl-X): clears the planner and a critical alarm; waits for the banner."""
@@ -793,6 +1211,7 @@ class GrblController:
             self._query_status()
 
     def _soft_reset_locked(self) -> None:
+        self._banner_expected = True
         self._write(b"\x18")
         self._jog_target = None
         deadline = time.monotonic() + self.timeout_s
@@ -801,10 +1220,13 @@ class GrblController:
             if got is None:
                 raise self._mark_lost("the controller did not restart after a reset; check its power, "
                                       "then connect again")
-            if self._dispatch(got) == "banner":
+            if self._dispatch(got).kind == "banner":
                 break
-        # drain the push messages that follow the banner ([MSG:...], ALARM:3)
+        # drain the push messages that follow the banner ([MSG:...])
         end = time.monotonic() + 0.05
         while (got := self._readline(end)) is not None:
             self._dispatch(got)
         self._critical = False
+        self._read_offsets()                 # a reset clears G92 (G54 is kept in EEPROM)
+        if self.reference == "homed" and self._query_status().state == "Idle":
+            self._command(HOMED_MARK)        # the reset cleared the mark, not the position

@@ -2,21 +2,33 @@
 
 The simulator opens a pty (``os.openpty`` + ``tty.setraw``); :meth:`GrblSimulator.start` returns the
 slave path (``/dev/pts/N``), which pyserial or a terminal opens like a real serial port. Everything
-the real driver does runs against it byte for byte.
+the real driver does runs against it byte for byte. Where it and the real GRBL 1.1h firmware
+(its official simulator, ``tests/grbl_firmware.py``) could disagree, the firmware is right: the
+protocol tests (``tests/rig/test_grbl_protocol.py``) run the same checks against both.
 
-Model (the rig frame: x horizontal, mm from the left end; y vertical, mm from the top end, down):
+Model (the rig frame: x horizontal, y vertical, mm from the end of travel where GRBL's machine
+coordinates are lowest):
 
 - The two rig axes are driven by the profile's controller letters (X/Y/Z); the third stays still.
-- Physical carriage position ``phys`` (mm from the end of travel); limit switches sit 1 mm outside
-  the travel at both ends. ``MPos = phys - machine offset`` (0 at power-up, 0 at the home position
-  after ``$H``); ``WPos = MPos - WCO`` (``G10 L20``/``G92`` set WCO).
-- Moves: straight lines, trapezoidal speed profile limited per axis by the profile's speed and
-  acceleration, in real time divided by ``time_scale`` (0: every move completes instantly).
-- Homing (``$H``): each axis seeks its min switch, pulls off 1 mm, and that point becomes MPos 0.
-  A homing rig powers up in Alarm (``[MSG:'$H'|'$X' to unlock]``); soft limits (machine travel)
-  apply once homed; hard limits always (ALARM:1, critical: reset to continue).
+- Physical carriage position ``phys`` (mm from the low end of travel); limit switches trigger 1 mm
+  outside the travel at both ends. ``MPos = phys - machine offset``: 0 at power-up; after ``$H``
+  GRBL's negative frame: ``$23`` (default here: the rig's axes home towards the low end, the
+  rig's origin) puts MPos ``-$13x + $27`` at the low-end switch, or ``-$27`` at the high end. ``WPos = MPos - WCO`` (``G10 L2``,
+  ``G10 L20``, ``G92`` set WCO; G54 survives resets and power cycles like GRBL's EEPROM, G92 not).
+- Moves: straight lines, trapezoidal speed profile limited per axis by ``$11x``/``$12x``, in real
+  time divided by ``time_scale`` (0: every move completes instantly).
+- Homing (``$H``, needs ``$22=1``): each axis seeks its switch at ``$25``, pulls off ``$27``.
+  With ``$22=1`` the controller powers up in Alarm (``[MSG:'$H'|'$X' to unlock]``). Soft limits
+  (``$20=1``, needs ``$22=1``) check every target against ``-$13x … 0`` in machine coordinates,
+  homed or not, as GRBL does: a jog answers error:15, a move raises ALARM 2. Hard limits (``$21``)
+  raise ALARM 1. ALARM 1 and 2 are critical: nothing is answered, not even ``?``, until a reset.
+- Feed hold: ``Hold:1`` while decelerating, ``Hold:0`` once at rest (also ``!`` when idle); a
+  reset in ``Hold:0`` keeps the position, a reset while moving raises ALARM 3.
 - :meth:`true_position_mm` is where the camera really is: WPos plus a repeatability error drawn
   per completed move (Gaussian, σ = the axis repeatability; seeded).
+- Output sent while no client has the port open is lost, as on a real serial port;
+  ``reset_on_open=True`` reboots the controller each time a client opens the port (an Arduino's
+  DTR reset); :meth:`power_cycle` does it by hand.
 - Fault injection: :meth:`inject` with "drop", "silent", "garbage", "alarm_mid_move",
   "position_error"; :meth:`clear_faults` ends "silent"/"garbage".
 """
@@ -78,12 +90,13 @@ class GrblSimulator:
     """GRBL 1.1 on a pty. ``start()`` → port path; ``close()``. Thread-safe accessors."""
 
     def __init__(self, rig: RigConfig, time_scale: float = 1.0, seed: int = 0,
-                 tick_s: float = 0.005):
+                 tick_s: float = 0.005, reset_on_open: bool = False):
         if time_scale < 0:
             raise ValueError("time_scale must be >= 0")
         self.rig = rig
         self.time_scale = float(time_scale)
         self.tick_s = tick_s
+        self.reset_on_open = reset_on_open
         self._rng = np.random.default_rng(seed)
         self._lock = threading.RLock()
         self._ix = [AXES.index(rig.horizontal.letter), AXES.index(rig.vertical.letter)]
@@ -91,7 +104,8 @@ class GrblSimulator:
         # physical position: anywhere inside the travel at power-up
         self._phys = np.zeros(3)
         for ix, axis in zip(self._ix, self._axes):
-            # a rig with switches stands anywhere near home; one without is parked at its origin end
+            # a rig with switches stands anywhere near its home switches (at the low end: $23 has
+            # the rig's axes set); one without is parked at its origin end
             self._phys[ix] = float(self._rng.uniform(0.02, 0.15) * axis.travel_mm) if rig.homing else 0.0
         self._offset = self._phys.copy()            # machine offset: MPos 0 at power-up
         self._g54 = np.zeros(3)
@@ -99,7 +113,8 @@ class GrblSimulator:
         self._error_mm = np.zeros(2)                # repeatability error of the last completed move
         self._homed = False
         self._critical = False                      # hard/soft limit alarm: only reset helps
-        self._alarm = rig.homing                    # a homing rig boots locked
+        self._settings = self._default_settings()
+        self._alarm = self._settings[22] == 1      # homing enabled: boots locked (HOMING_INIT_LOCK)
         self._state = "Alarm" if self._alarm else "Idle"
         self._hold = False
         self._planner: deque[_Segment] = deque()
@@ -109,9 +124,11 @@ class GrblSimulator:
         self._modal_g = "G0"
         self._absolute = True
         self._feed_mm_min = 0.0
-        self._settings = self._default_settings()
-        self._reports = 0
-        self._wco_changed = True
+        self._tool = 0
+        self._wco_counter = 0                       # GRBL's report counters (WCO / Ov refresh)
+        self._ovr_counter = 0
+        self._answer_on_reset = b""                 # the answer of a line a critical alarm interrupted
+        self._report_after_homing = False
         self._in = bytearray()
         self._lines: deque[str] = deque()
         self._out = bytearray()
@@ -119,8 +136,12 @@ class GrblSimulator:
         self._garbage_left = 0
         self.records: list[SimRecord] = []
         self.lines_received: list[str] = []
+        self.lines_sent: list[str] = []         # what the controller said (also while nobody listened)
+        self.realtime_received: list[bytes] = []   # realtime bytes received, except '?' 
+        self.boots = 1
+        self._client_open = False
+        self._client_changed = threading.Condition()
         self._master: int | None = None
-        self._slave: int | None = None
         self._port: str | None = None
         self._thread: threading.Thread | None = None
         self._running = threading.Event()
@@ -134,11 +155,10 @@ class GrblSimulator:
         master, slave = os.openpty()
         tty.setraw(slave)
         os.set_blocking(master, False)
-        self._master, self._slave = master, slave
+        self._master = master
         self._port = os.ttyname(slave)
-        self._emit(BANNER)
-        if self._alarm:
-            self._emit(UNLOCK_MSG)
+        os.close(slave)                   # the port is free for a client; nobody listens yet
+        self._boot_messages()
         self._running.set()
         self._last_tick = time.monotonic()
         self._thread = threading.Thread(target=self._serve, name="grbl-sim", daemon=True)
@@ -160,14 +180,48 @@ class GrblSimulator:
         self._close_fds()
 
     def _close_fds(self) -> None:
-        for name in ("_master", "_slave"):
-            fd = getattr(self, name)
-            if fd is not None:
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
-                setattr(self, name, None)
+        fd, self._master = self._master, None
+        if fd is not None:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def power_cycle(self) -> None:
+        """Switch the controller off and on: motion stops, MPos is 0 where the carriage stands,
+        G92 and the parser state are cleared; settings and G54 are kept (EEPROM); with homing
+        enabled it boots locked."""
+        with self._lock:
+            self._planner.clear()
+            self._homing_phases.clear()
+            self._motion = None
+            self._hold = self._jog_cancel = False
+            self._lines.clear()
+            self._in.clear()
+            self._out.clear()
+            self._offset = self._phys.copy()
+            self._g92[:] = 0
+            self._modal_g, self._absolute, self._feed_mm_min, self._tool = "G0", True, 0.0, 0
+            self._homed = self._critical = False
+            self._alarm = self._settings[22] == 1
+            self._state = "Alarm" if self._alarm else "Idle"
+            self._wco_counter = self._ovr_counter = 0
+            self.boots += 1
+            self._boot_messages()
+
+    def _boot_messages(self) -> None:
+        self._emit(BANNER)
+        if self._alarm:
+            self._emit(UNLOCK_MSG)
+
+    def set_settings(self, settings: dict[int, float]) -> None:
+        """Change ``$N`` settings directly (as if written earlier and kept in EEPROM); they apply
+        from now on (``$22``/``$20`` locking at the next :meth:`power_cycle`)."""
+        with self._lock:
+            for key, value in settings.items():
+                if key not in self._settings:
+                    raise KeyError(f"no GRBL setting ${key}")
+                self._settings[key] = int(value) if float(value).is_integer() else float(value)
 
     def __enter__(self) -> "GrblSimulator":
         self.start()
@@ -209,6 +263,11 @@ class GrblSimulator:
                 self._garbage_left = 40
             self._faults.add(fault)
 
+    def push_line(self, text: str) -> None:
+        """Send one unsolicited line to the client now (noise, a message from another firmware)."""
+        with self._lock:
+            self._emit(text.encode("latin-1", "replace") + b"\r\n")
+
     def clear_faults(self) -> None:
         with self._lock:
             self._faults.clear()
@@ -221,31 +280,52 @@ class GrblSimulator:
                 master = self._master
                 if master is None:
                     return
-                want_write = bool(self._out)
+                poller = select.poll()
+                poller.register(master, select.POLLIN | (select.POLLOUT if self._out else 0))
                 try:
-                    r, w, _ = select.select([master], [master] if want_write else [], [], self.tick_s)
+                    events = dict(poller.poll(self.tick_s * 1000)).get(master, 0)
                 except (OSError, ValueError):
                     return
-                if r:
+                if events & select.POLLHUP:           # no client has the port open right now
+                    if self._client_open:
+                        self._set_client_open(False)
+                    with self._lock:
+                        self._out.clear()             # nobody listens: a UART's output is lost
+                        self._advance()
+                        self._process_lines()
+                    time.sleep(self.tick_s)
+                    continue
+                if not self._client_open:
+                    self._set_client_open(True)
+                    if self.reset_on_open:            # DTR toggles when the port opens: the board reboots
+                        self.power_cycle()
+                data = b""
+                if events & select.POLLIN:
                     try:
                         data = os.read(master, 4096)
                     except BlockingIOError:
-                        data = b""
+                        pass
                     except OSError as exc:
-                        if exc.errno == errno.EIO:   # no client has the port open right now
-                            data = b""
-                            time.sleep(self.tick_s)
-                        else:
+                        if exc.errno != errno.EIO:
                             return
-                    if data:
-                        with self._lock:
-                            self._receive(data)
                 with self._lock:
+                    if data:
+                        self._receive(data)
                     self._advance()
                     self._process_lines()
                     self._flush_out(master)
         finally:
             self._running.clear()
+
+    def _set_client_open(self, value: bool) -> None:
+        with self._client_changed:
+            self._client_open = value
+            self._client_changed.notify_all()
+
+    def wait_port_closed(self, timeout_s: float = 10.0) -> bool:
+        """Block until the simulator has seen the client close the port (True) or the timeout."""
+        with self._client_changed:
+            return self._client_changed.wait_for(lambda: not self._client_open, timeout_s)
 
     def _flush_out(self, master: int) -> None:
         if not self._out:
@@ -263,6 +343,9 @@ class GrblSimulator:
     def _emit(self, data: bytes) -> None:
         if "silent" in self._faults:
             return
+        self.lines_sent += [t for t in data.decode("ascii", "replace").split("\r\n") if t]
+        if not self._client_open:
+            return                                # nobody listens: a UART's output is lost
         if self._garbage_left > 0 and self._rng.random() < 0.5:
             self._garbage_left -= 1
             self._out += self._garbage() + b"\r\n"
@@ -278,8 +361,20 @@ class GrblSimulator:
         if "silent" in self._faults:
             return
         for byte in data:
+            if self._critical and byte != 0x18:
+                if byte not in (0x0A, 0x0D) and byte < 0x80 and byte not in b"?!~" and len(self._in) < RX_BUFFER:
+                    self._in.append(byte)         # GRBL's serial buffer fills; nothing is executed
+                elif byte in (0x0A, 0x0D) and self._in:
+                    self._lines.append(self._in.decode("ascii", "replace"))
+                    self._in.clear()
+                continue                          # critical alarm: not even '?' is answered until reset
+            if byte in b"!~\x18" or byte >= 0x80:
+                self.realtime_received.append(bytes([byte]))
             if byte == 0x3F:                      # '?'
-                self._emit(self._status_report())
+                if self._state == "Home":
+                    self._report_after_homing = True   # GRBL reports only once homing ends
+                else:
+                    self._emit(self._status_report())
             elif byte == 0x21:                    # '!'
                 self._feed_hold()
             elif byte == 0x7E:                    # '~'
@@ -301,7 +396,7 @@ class GrblSimulator:
 
     def _process_lines(self) -> None:
         while self._lines:
-            if self._state in ("Home",):
+            if self._state in ("Home",) or self._critical:
                 return                            # $H blocks the parser until it is done
             line = self._lines[0]
             if self._is_motion_line(line) and len(self._planner) >= PLANNER_BLOCKS:
@@ -321,8 +416,6 @@ class GrblSimulator:
         line = "".join(raw.split()).upper()
         if not line:
             return b"ok\r\n"
-        if self._critical:
-            return b"error:9\r\n"
         if line.startswith("$"):
             return self._system(line)
         if self._alarm:
@@ -333,33 +426,40 @@ class GrblSimulator:
 
     # -- $ commands --------------------------------------------------------------------------------
     def _system(self, line: str) -> bytes | None:
-        if line.startswith("$J="):
-            if self._alarm:
-                return b"error:9\r\n"
+        # the state checks of GRBL 1.1h's system_execute_line
+        if line.startswith("$J"):
             if self._state not in ("Idle", "Jog"):
                 return b"error:8\r\n"
+            if not line.startswith("$J="):
+                return b"error:3\r\n"
             return self._gcode(line[3:], jog=True)
-        if self._state not in ("Idle", "Alarm"):
-            return b"error:8\r\n"
-        if line == "$$":
-            body = "".join(f"${k}={v:.3f}\r\n" if k in _FLOAT_SETTINGS or k >= 100 else f"${k}={int(v)}\r\n"
-                           for k, v in self._settings.items())
-            return body.encode() + b"ok\r\n"
-        if line == "$I":
-            return b"[VER:1.1h.20190825:]\r\n[OPT:V,15,128]\r\nok\r\n"
-        if line == "$G":
-            return (f"[GC:{self._modal_g} G54 G17 G21 {'G90' if self._absolute else 'G91'} G94 M5 M9 T0 "
-                    f"F{self._feed_mm_min:g} S0]\r\nok\r\n").encode()
-        if line == "$#":
-            g54 = ",".join(f"{v:.3f}" for v in self._g54)
-            g92 = ",".join(f"{v:.3f}" for v in self._g92)
-            return f"[G54:{g54}]\r\n[G92:{g92}]\r\nok\r\n".encode()
-        if line == "$X":
-            if self._alarm:
+        if line in ("$$", "$G", "$X"):
+            if line == "$$":
+                if self._state == "Run" or self._state.startswith("Hold"):
+                    return b"error:8\r\n"
+                body = "".join(f"${k}={v:.3f}\r\n" if k in _FLOAT_SETTINGS or k >= 100 else f"${k}={int(v)}\r\n"
+                               for k, v in self._settings.items())
+                return body.encode() + b"ok\r\n"
+            if line == "$G":
+                return (f"[GC:{self._modal_g} G54 G17 G21 {'G90' if self._absolute else 'G91'} G94 M5 M9 "
+                        f"T{self._tool} F{self._feed_mm_min:g} S0]\r\nok\r\n").encode()
+            if self._state == "Alarm":
                 self._alarm = False
                 self._state = "Idle"
                 return b"[MSG:Caution: Unlocked]\r\nok\r\n"
             return b"ok\r\n"
+        if self._state not in ("Idle", "Alarm"):
+            return b"error:8\r\n"
+        if line == "$I":
+            return b"[VER:1.1h.20190830:]\r\n[OPT:V,15,128]\r\nok\r\n"
+        if line == "$#":
+            def coords(v) -> str:
+                return ",".join(f"{x:.3f}" for x in v)
+            zero = np.zeros(3)
+            params = [f"[G54:{coords(self._g54)}]"] + [f"[G{n}:{coords(zero)}]" for n in range(55, 60)]
+            params += [f"[G28:{coords(zero)}]", f"[G30:{coords(zero)}]", f"[G92:{coords(self._g92)}]",
+                       "[TLO:0.000]", f"[PRB:{coords(zero)}:0]"]
+            return ("\r\n".join(params) + "\r\nok\r\n").encode()
         if line == "$H":
             if self._settings[22] != 1:
                 return b"error:5\r\n"
@@ -371,14 +471,19 @@ class GrblSimulator:
             if key not in self._settings:
                 return b"error:3\r\n"
             value = float(m.group(2))
+            if key == 20 and value and self._settings[22] != 1:
+                return b"error:10\r\n"              # soft limits need homing
             self._settings[key] = int(value) if value.is_integer() else value
+            if key == 22 and not value:
+                self._settings[20] = 0                # GRBL turns soft limits off with homing
             return b"ok\r\n"
         return b"error:3\r\n"
 
     def _default_settings(self) -> dict[int, float | int]:
         s: dict[int, float | int] = {0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010,
                                      12: 0.002, 13: 0, 20: 1 if self.rig.homing else 0,
-                                     21: 1, 22: 1 if self.rig.homing else 0, 23: 0, 24: 25.0,
+                                     21: 1, 22: 1 if self.rig.homing else 0,
+                                     23: sum(1 << ix for ix in self._ix), 24: 25.0,
                                      25: round(30.0 * min(self.rig.horizontal.max_speed_mm_s, self.rig.vertical.max_speed_mm_s), 3),
                                      26: 250, 27: PULLOFF_MM, 30: 1000, 31: 0, 32: 0}
         rates = [500.0, 500.0, 500.0]
@@ -433,7 +538,7 @@ class GrblSimulator:
                     g92 = True
                 elif code == 92.1:
                     self._g92[:] = 0
-                    self._wco_changed = True
+                    self._wco_counter = 0
                 elif code == 53:
                     g53 = True
                 elif code in (4, 17, 21, 54, 94):
@@ -453,7 +558,10 @@ class GrblSimulator:
                 l_word = value
             elif letter == "P":
                 p_word = value
-            elif letter in "NST":
+            elif letter == "T":
+                if not jog:
+                    self._tool = int(value)       # modal; cleared by a reset, as in GRBL
+            elif letter in "NS":
                 pass
             else:
                 return b"error:20\r\n"
@@ -470,12 +578,12 @@ class GrblSimulator:
                     self._g54[i] = self._mpos()[i] - self._g92[i] - v
                 else:
                     self._g54[i] = v
-            self._wco_changed = True
+            self._wco_counter = 0
             return b"ok\r\n"
         if g92:
             for i, v in axes.items():
                 self._g92[i] = self._mpos()[i] - self._g54[i] - v
-            self._wco_changed = True
+            self._wco_counter = 0
             return b"ok\r\n"
         if not jog:
             self._absolute = absolute
@@ -500,13 +608,14 @@ class GrblSimulator:
         work = target - wco
         kind = "jog" if jog else motion
         self.records.append(SimRecord(kind, (float(work[self._ix[0]]), float(work[self._ix[1]])), line))
-        if self._homed and self._settings[20] == 1 and not self._within_travel(target):
+        if kind == "G1" and self._feed_mm_min <= 0:
+            return b"error:22\r\n"
+        if self._settings[20] == 1 and not self._within_travel(target):   # homed or not, as GRBL
             if jog:
                 return b"error:15\r\n"
             self._raise_alarm(2, critical=True)
+            self._answer_on_reset = b"ok\r\n"        # GRBL answers the line after the reset
             return None
-        if kind == "G1" and self._feed_mm_min <= 0:
-            return b"error:22\r\n"
         feed_mm_s = (feed if jog else (self._feed_mm_min if kind == "G1" else 1e9)) / 60.0
         target = np.round(target * STEPS_PER_MM) / STEPS_PER_MM
         self._planner.append(_Segment(target, feed_mm_s, kind))
@@ -517,14 +626,13 @@ class GrblSimulator:
         return b"ok\r\n"
 
     def _within_travel(self, mpos: np.ndarray) -> bool:
-        for ix, axis in zip(self._ix, self._axes):
-            if not (-1e-6 <= mpos[ix] <= axis.travel_mm + 1e-6):
-                return False
-        return True
+        """GRBL's soft-limit envelope: every axis inside -$13x … 0 (machine coordinates)."""
+        return all(-self._settings[130 + i] - 1e-6 <= mpos[i] <= 1e-6 for i in range(3))
 
     # -- motion ------------------------------------------------------------------------------------
     def _mpos(self) -> np.ndarray:
-        return self._phys - self._offset
+        """Machine position: a whole number of steps, as GRBL counts it."""
+        return np.round((self._phys - self._offset) * STEPS_PER_MM) / STEPS_PER_MM
 
     def _wpos(self) -> np.ndarray:
         return self._mpos() - self._g54 - self._g92
@@ -548,7 +656,12 @@ class GrblSimulator:
         if self._homing_phases:
             kind, ix, speed = self._homing_phases.popleft()
             target = self._mpos().copy()
-            target[ix] = (-SWITCH_OUTSIDE_MM - self._offset[ix]) if kind == "seek" else target[ix] + PULLOFF_MM
+            towards_low = bool(int(self._settings[23]) & (1 << ix))
+            if kind == "seek":                     # to the switch's trigger point
+                trigger = -SWITCH_OUTSIDE_MM if towards_low else self._switch_high(ix)
+                target[ix] = trigger - self._offset[ix]
+            else:                                  # pull off by $27, away from the switch
+                target[ix] += float(self._settings[27]) * (1 if towards_low else -1)
             return _Motion(_Segment(target, speed, "home"))
         if self._planner:
             return _Motion(self._planner[0])
@@ -565,8 +678,8 @@ class GrblSimulator:
             if dt <= 0:
                 return
             if self._hold and (self._motion is None or self._motion.speed_mm_s <= 0):
-                if self._state == "Hold:0":
-                    self._state = "Hold:1"
+                if self._state == "Hold:1":           # decelerated to rest: the hold is complete
+                    self._state = "Hold:0"
                     self._draw_repeatability()
                 return
             if self._jog_cancel and (self._motion is None or self._motion.speed_mm_s <= 0):
@@ -587,6 +700,7 @@ class GrblSimulator:
         dist = float(np.linalg.norm(delta))
         if dist < 1e-9:
             m.speed_mm_s = 0.0
+            self._phys = self._offset + seg.target
             self._finish_segment()
             return dt
         unit = delta / dist
@@ -635,8 +749,9 @@ class GrblSimulator:
         if self._settings[21] != 1:
             return False
         for ix, axis in zip(self._ix, self._axes):
-            if self._phys[ix] <= -SWITCH_OUTSIDE_MM or self._phys[ix] >= axis.travel_mm + SWITCH_OUTSIDE_MM:
-                self._phys[ix] = min(max(self._phys[ix], -SWITCH_OUTSIDE_MM), axis.travel_mm + SWITCH_OUTSIDE_MM)
+            # pressing a switch past its trigger point (reaching it is allowed: GRBL's machine 0)
+            if self._phys[ix] < -SWITCH_OUTSIDE_MM - 1e-6 or self._phys[ix] > self._switch_high(ix) + 1e-6:
+                self._phys[ix] = min(max(self._phys[ix], -SWITCH_OUTSIDE_MM), self._switch_high(ix))
                 self._raise_alarm(1, critical=True)
                 return True
         return False
@@ -681,16 +796,20 @@ class GrblSimulator:
             self._jog_cancel = True
         elif self._state == "Run":
             self._hold = True
-            self._state = "Hold:0"
+            self._state = "Hold:1"        # decelerating; Hold:0 once at rest
+        elif self._state == "Idle":
+            self._hold = True
+            self._state = "Hold:0"        # nothing moves: the hold is complete at once
+            return
         else:
             return
         if self.time_scale == 0:
             self._advance(instant=True)
 
     def _cycle_start(self) -> None:
-        if self._state.startswith("Hold"):
+        if self._state == "Hold:0":       # GRBL resumes only a complete hold
             self._hold = False
-            self._state = "Run"
+            self._state = "Run" if (self._planner or self._motion is not None) else "Idle"
             if self.time_scale == 0:
                 self._advance(instant=True)
 
@@ -702,7 +821,11 @@ class GrblSimulator:
 
     def _soft_reset(self) -> None:
         homing = self._state == "Home"
-        moving = self._motion is not None and self._motion.speed_mm_s > 0 or homing
+        # GRBL's mc_reset: an alarm when the steppers may be running (cycle, jog, homing, or a hold
+        # still decelerating); the position is then lost
+        moving = self._state in ("Run", "Jog", "Home", "Hold:1")
+        answer, self._answer_on_reset = self._answer_on_reset, b""
+        self._report_after_homing = False
         self._planner.clear()
         self._homing_phases.clear()
         self._motion = None
@@ -710,14 +833,16 @@ class GrblSimulator:
         self._jog_cancel = False
         self._lines.clear()
         self._in.clear()
-        self._modal_g, self._absolute, self._feed_mm_min = "G0", True, 0.0
+        self._modal_g, self._absolute, self._feed_mm_min, self._tool = "G0", True, 0.0, 0
         self._g92[:] = 0
         self._critical = False
-        self._emit(BANNER)
+        self._wco_counter = self._ovr_counter = 0
         if moving:
             self._homed = False
             self._alarm = True
             self._emit(b"ALARM:6\r\n" if homing else b"ALARM:3\r\n")
+        self._emit(answer)
+        self._emit(BANNER)
         if self._alarm:
             self._state = "Alarm"
             self._emit(UNLOCK_MSG)
@@ -739,24 +864,41 @@ class GrblSimulator:
             self._emit(b"[MSG:Reset to continue]\r\n")
 
     # -- homing ------------------------------------------------------------------------------------
+    def _switch_high(self, ix: int) -> float:
+        """Physical position (mm) where the high-end limit switch of machine axis ``ix`` triggers."""
+        axis = self._axes[self._ix.index(ix)] if ix in self._ix else None
+        return (axis.travel_mm if axis is not None else 0.0) + SWITCH_OUTSIDE_MM
+
     def _start_homing(self) -> None:
         self._state = "Home"
         self._alarm = False
+        self._answer_on_reset = b"ok\r\n"        # a reset aborts homing: ALARM:6, then the ok
         self._homing_phases.clear()
-        for ix, axis in reversed(list(zip(self._ix, self._axes))):   # vertical first, like Z in GRBL
-            speed = axis.max_speed_mm_s / 2   # $25 is shared in GRBL; per axis here, half the max rate
-            self._homing_phases.append(("seek", ix, speed))
-            self._homing_phases.append(("pulloff", ix, speed / 4))
+        seek = float(self._settings[25]) / 60.0
+        for ix in reversed(self._ix):              # vertical first, like Z in GRBL
+            self._homing_phases.append(("seek", ix, seek))
+            self._homing_phases.append(("pulloff", ix, seek))
         if self.time_scale == 0:
             self._advance(instant=True)
 
     def _finish_homing(self) -> None:
+        """GRBL's negative machine frame: MPos -$27 at the switch on the high end, or
+        -$13x + $27 at the switch on the low end ($23 bit set)."""
         for ix in self._ix:
-            self._offset[ix] = self._phys[ix]      # MPos 0 at the pull-off point
+            pulloff = float(self._settings[27])
+            if int(self._settings[23]) & (1 << ix):
+                mpos = -float(self._settings[130 + ix]) + pulloff
+            else:
+                mpos = -pulloff
+            self._offset[ix] = self._phys[ix] - mpos
+        self._answer_on_reset = b""
+        if self._report_after_homing:
+            self._report_after_homing = False
+            self._emit(self._status_report())
         self._homed = True
         self._alarm = False
         self._state = "Idle"
-        self._wco_changed = True
+        self._wco_counter = 0
         self._draw_repeatability()
         self._emit(b"ok\r\n")
 
@@ -765,27 +907,36 @@ class GrblSimulator:
         return self._state
 
     def _status_report(self) -> bytes:
-        self._reports += 1
+        """GRBL 1.1h's report: MPos or WPos ($10 bit 0), Bf ($10 bit 1), FS, Pn when a pin is
+        active, WCO every 10th report when idle (30th when busy) and after an offset change, Ov on
+        the report after WCO and every 10th (20th) after that."""
         mpos = self._mpos()
+        busy = self._state not in ("Idle", "Alarm")
         fields = [self._state_text()]
-        if self._settings[10] & 1:
+        if int(self._settings[10]) & 1:
             fields.append("MPos:" + ",".join(f"{v:.3f}" for v in mpos))
         else:
             fields.append("WPos:" + ",".join(f"{v:.3f}" for v in self._wpos()))
-        fields.append(f"Bf:{PLANNER_BLOCKS - len(self._planner)},{RX_BUFFER - len(self._in)}")
+        if int(self._settings[10]) & 2:
+            fields.append(f"Bf:{PLANNER_BLOCKS - len(self._planner)},{RX_BUFFER - len(self._in)}")
         speed = self._motion.speed_mm_s * 60.0 if self._motion is not None else 0.0
         fields.append(f"FS:{speed:.0f},0")
         pins = ""
-        for ix, axis in zip(self._ix, self._axes):
-            if self._phys[ix] <= -SWITCH_OUTSIDE_MM + 1e-6 or self._phys[ix] >= axis.travel_mm + SWITCH_OUTSIDE_MM - 1e-6:
+        for ix in self._ix:
+            if self._phys[ix] <= -SWITCH_OUTSIDE_MM + 1e-6 or self._phys[ix] >= self._switch_high(ix) - 1e-6:
                 pins += AXES[ix]
         if pins:
             fields.append(f"Pn:{pins}")
-        if self._wco_changed or self._reports % 10 == 0:
-            self._wco_changed = False
+        if self._wco_counter > 0:
+            self._wco_counter -= 1
+        else:
+            self._wco_counter = 29 if busy else 9
+            if self._ovr_counter == 0:
+                self._ovr_counter = 1
             fields.append("WCO:" + ",".join(f"{v:.3f}" for v in self._g54 + self._g92))
-        elif self._reports % 10 == 5:
+        if self._ovr_counter > 0:
+            self._ovr_counter -= 1
+        else:
+            self._ovr_counter = 19 if busy else 9
             fields.append("Ov:100,100,100")
         return ("<" + "|".join(fields) + ">\r\n").encode()
-
-

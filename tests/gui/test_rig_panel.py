@@ -45,22 +45,22 @@ def test_jog_and_stop_mid_move(qtbot, panel):
 
     qtbot.mouseClick(panel.home_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: state_is(panel, RigState.IDLE) and panel.last_status.homed, timeout=T)
-    assert pos(panel) == (0.0, 0.0) and panel.x_label.text() == "0.000"
+    assert pos(panel) == (1.0, 1.0) and panel.x_label.text() == "1.000"   # home: 1 mm pull-off ($27)
 
     ten = next(b for b in panel.step_group.buttons() if b.property("step_mm") == 10.0)
     ten.setChecked(True)
     qtbot.mouseClick(panel.jog_buttons[(1, 0)], Qt.LeftButton)           # one 10 mm step right
-    qtbot.waitUntil(lambda: pos(panel) == (10.0, 0.0) and state_is(panel, RigState.IDLE), timeout=T)
+    qtbot.waitUntil(lambda: pos(panel) == (11.0, 1.0) and state_is(panel, RigState.IDLE), timeout=T)
     panel.setFocus()
     qtbot.keyClick(panel, Qt.Key_Down, Qt.ShiftModifier)                 # fine step down
-    qtbot.waitUntil(lambda: pos(panel) == (10.0, 0.1), timeout=T)
+    qtbot.waitUntil(lambda: pos(panel) == (11.0, 1.1), timeout=T)
 
     sim.time_scale = 0.5                                                 # slow enough to catch it moving
     qtbot.mousePress(panel.jog_buttons[(1, 0)], Qt.LeftButton)           # hold: continuous jog
     qtbot.waitUntil(lambda: state_is(panel, RigState.JOGGING), timeout=T)
     qtbot.mouseRelease(panel.jog_buttons[(1, 0)], Qt.LeftButton)
     qtbot.waitUntil(lambda: state_is(panel, RigState.IDLE), timeout=T)
-    assert 10.0 < pos(panel)[0] < 4000.0
+    assert 11.0 < pos(panel)[0] < 4000.0
 
     panel.goto_x.setValue(3000)
     panel.goto_y.setValue(400)

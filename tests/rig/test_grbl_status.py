@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -96,3 +98,59 @@ def test_malformed_fields_are_skipped_not_fatal():
     st_ = parse_status("\x00\xff<Run|MPos:1.000,abc,3|FS:100,0|Zz:9|Bf:15>")
     assert st_.state == "Run" and st_.mpos is None and st_.feed_mm_min == 100
     assert set(st_.unknown) == {"MPos:1.000,abc,3", "Zz:9", "Bf:15"}
+
+
+# -- every line from the controller: parse_line never raises ------------------------------------
+from lfstudio.rig.grbl import GrblLine, parse_line  # noqa: E402
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.text(max_size=300))
+def test_parse_line_never_raises_on_any_text(text):
+    parsed = parse_line(text)
+    assert isinstance(parsed, GrblLine) and parsed.kind in (
+        "ok", "error", "alarm", "status", "banner", "msg", "setting", "param", "info", "garbage")
+
+
+lines_like_grbl = st.one_of(
+    st.builds(lambda k, v: f"${k}={v}", st.integers(-5, 99999), st.text("0123456789.-+e", max_size=12)),
+    st.builds(lambda n, v: f"[{n}:{v}]", st.sampled_from(["G54", "G92", "G28", "PRB", "TLO", "VER", "MSG"]),
+              st.text("0123456789.,-:", max_size=30)),
+    st.builds(lambda p, d: f"{p}:{d}", st.sampled_from(["error", "ALARM"]), st.text("0123456789", max_size=5000)),
+    st.builds(lambda body: f"<{body}>", st.text("IdleRunHold:0123456789|MPosWCO,.-FSBfPnXYZ", max_size=80)),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(lines_like_grbl)
+def test_parse_line_on_near_misses_of_every_kind(text):
+    parsed = parse_line(text)                       # never raises; malformed numbers are garbage
+    if parsed.kind == "setting":
+        assert parsed.key is not None and parsed.value is not None and math.isfinite(parsed.value)
+    if parsed.kind in ("error", "alarm"):
+        assert parsed.code is not None and 0 <= parsed.code <= 9999
+    if parsed.kind == "param":
+        assert parsed.values and all(math.isfinite(v) for v in parsed.values)
+
+
+@pytest.mark.parametrize("text, kind", [
+    ("$1=.", "garbage"), ("$1=1.2.3", "garbage"), ("$110=1e999", "garbage"), ("$110=nan", "garbage"),
+    ("[G54:1..2,0,0]", "garbage"), ("[G54:,,]", "garbage"), ("ALARM:" + "9" * 5000, "garbage"),
+    ("error:" + "1" * 5000, "garbage"), ("ALARM:", "garbage"), ("<Idle|MPos:1,2,3", "garbage"),
+    ("Grbl 1.1h ['$' for help]", "banner"), ("[MSG:'$H'|'$X' to unlock]", "msg"), ("ok", "ok"),
+    ("error:7", "error"), ("ALARM:3", "alarm"), ("$110=500.000", "setting"), ("$22=1", "setting"),
+    ("[G54:-200.000,-200.000,0.000]", "param"), ("[PRB:0.000,0.000,0.000:0]", "param"),
+    ("[VER:1.1h.20190830:]", "info"), ("[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]", "info"),
+    ("<Hold:0|MPos:-29.920,0.000,0.000|FS:0,0>", "status"),
+])
+def test_parse_line_examples(text, kind):
+    parsed = parse_line(text)
+    assert parsed.kind == kind
+    if text == "$110=500.000":
+        assert (parsed.key, parsed.value) == (110, 500.0)
+    if text.startswith("[G54:-200"):
+        assert (parsed.name, parsed.values) == ("G54", (-200.0, -200.0, 0.0))
+    if text.startswith("<Hold:0"):
+        assert (parsed.status.state, parsed.status.substate) == ("Hold", 0)
+    if text.startswith("Grbl"):
+        assert parsed.name == "1.1h"
