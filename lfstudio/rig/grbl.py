@@ -346,6 +346,7 @@ class FirmwareLimits:
     hard_limits: bool                            # $21
     homing: bool                                 # $22
     homing_dir_mask: int                         # $23: bit set = that axis homes towards negative
+    pulloff_mm: float = 1.0                      # $27
     force_origin: bool = False                   # built with HOMING_FORCE_SET_ORIGIN (OPT flag Z)
 
     @classmethod
@@ -356,16 +357,30 @@ class FirmwareLimits:
 
         return cls(per_axis(110), per_axis(120), per_axis(130), settings.get(20, 0) == 1,
                    settings.get(21, 0) == 1, settings.get(22, 0) == 1, int(settings.get(23, 0)),
-                   "Z" in options)
+                   float(settings.get(27, 1.0)), "Z" in options)
 
     def machine_range(self, letter: str) -> tuple[float, float] | None:
         """(lowest, highest) machine coordinate GRBL's soft limits allow on this axis, or None."""
         travel = self.max_travel_mm.get(letter)
         if travel is None or travel <= 0:
             return None
-        if self.force_origin and self.homing_dir_mask & (1 << AXIS_LETTERS.index(letter)):
+        if self.force_origin and self.homes_low(letter):
             return 0.0, travel
         return -travel, 0.0
+
+    def homes_low(self, letter: str) -> bool:
+        """The axis homes towards its low end (``$23`` bit set); else towards its high end."""
+        return bool(self.homing_dir_mask & (1 << AXIS_LETTERS.index(letter)))
+
+    def safe_machine_range(self, letter: str) -> tuple[float, float] | None:
+        """:meth:`machine_range` less the pull-off (``$27``) on the home switch's side when hard limits
+        are on (``$21=1``): GRBL's envelope ends where the home switch triggers, and touching it
+        then raises ALARM 1. The carriage may go as far as its home position, not further."""
+        span = self.machine_range(letter)
+        if span is None or not (self.homing and self.hard_limits):
+            return span
+        lo, hi = span
+        return (lo + self.pulloff_mm, hi) if self.homes_low(letter) else (lo, hi - self.pulloff_mm)
 
 
 class GrblController:
@@ -976,14 +991,15 @@ class GrblController:
             raise DeviceError("the controller's status report has no position")
         return pos[self._ix[0]], pos[self._ix[1]]
 
-    def firmware_range_mm(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    def firmware_range_mm(self, safe: bool = True) -> tuple[tuple[float, float], tuple[float, float]] | None:
         """The controller's own soft-limit travel in our frame ((x_lo, x_hi), (y_lo, y_hi)), or None
-        when GRBL's soft limits are off (``$20=0``) or its travel is unknown."""
+        when GRBL's soft limits are off (``$20=0``) or its travel is unknown. ``safe``: without the
+        pull-off at the home switch when hard limits are on (see ``FirmwareLimits.safe_machine_range``)."""
         if not self.firmware.soft_limits:
             return None
         out = []
         for letter, ix in zip(self._letters, self._ix):
-            span = self.firmware.machine_range(letter)
+            span = (self.firmware.safe_machine_range if safe else self.firmware.machine_range)(letter)
             if span is None:
                 return None
             w = self._wco[ix] if self._wco is not None and len(self._wco) > ix else 0.0
@@ -994,17 +1010,24 @@ class GrblController:
         """The profile's soft limits, then (``$20=1``) the controller's own travel: raise
         :class:`SoftLimitError` naming the limit; nothing is sent for a refused target."""
         x_mm, y_mm = check_target(self.config, x_mm, y_mm)
-        span = self.firmware_range_mm()
-        if span is None:
+        span, envelope = self.firmware_range_mm(), self.firmware_range_mm(safe=False)
+        if span is None or envelope is None:
             return x_mm, y_mm
-        for label, axis, value, (lo, hi), i in (("x", self.config.horizontal, x_mm, span[0], self._ix[0]),
-                                                ("y", self.config.vertical, y_mm, span[1], self._ix[1])):
+        for k, (label, axis, value) in enumerate((("x", self.config.horizontal, x_mm),
+                                                  ("y", self.config.vertical, y_mm))):
             rounded = round(value, 3)                # what goes on the wire
-            if not (lo - 1e-6 <= rounded <= hi + 1e-6):
-                travel = self.firmware.max_travel_mm[axis.letter]
-                raise SoftLimitError(f"target {label} ({axis.name})",
-                                     f"{value:g} mm is beyond the controller's soft limit (${130 + i} = "
-                                     f"{travel:g} mm of travel, $20 = 1); nothing was sent", f"{lo:g} … {hi:g} mm")
+            (lo, hi), (env_lo, env_hi) = span[k], envelope[k]
+            if lo - 1e-6 <= rounded <= hi + 1e-6:
+                continue
+            i = self._ix[k]
+            if env_lo - 1e-6 <= rounded <= env_hi + 1e-6:
+                problem = (f"{value:g} mm is on the home switch, within the pull-off ($27 = "
+                           f"{self.firmware.pulloff_mm:g} mm) of where it triggers; with hard limits on "
+                           "($21 = 1) touching it raises ALARM 1. Nothing was sent")
+            else:
+                problem = (f"{value:g} mm is beyond the controller's soft limit (${130 + i} = "
+                           f"{self.firmware.max_travel_mm[axis.letter]:g} mm of travel, $20 = 1); nothing was sent")
+            raise SoftLimitError(f"target {label} ({axis.name})", problem, f"{lo:g} … {hi:g} mm")
         return x_mm, y_mm
 
     def _clamp(self, x_mm: float, y_mm: float) -> tuple[float, float]:

@@ -482,7 +482,7 @@ class GrblSimulator:
     def _default_settings(self) -> dict[int, float | int]:
         s: dict[int, float | int] = {0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010,
                                      12: 0.002, 13: 0, 20: 1 if self.rig.homing else 0,
-                                     21: 1, 22: 1 if self.rig.homing else 0,
+                                     21: 0, 22: 1 if self.rig.homing else 0,
                                      23: sum(1 << ix for ix in self._ix), 24: 25.0,
                                      25: round(30.0 * min(self.rig.horizontal.max_speed_mm_s, self.rig.vertical.max_speed_mm_s), 3),
                                      26: 250, 27: PULLOFF_MM, 30: 1000, 31: 0, 32: 0}

@@ -415,6 +415,22 @@ def test_soft_limits_map_our_frame_onto_grbls_negative_machine_frame(grbl, conne
     assert c.alarms == [] and c.status().state is RigState.IDLE
 
 
+def test_with_hard_limits_the_driver_keeps_off_the_home_switch(grbl, connect):
+    """GRBL's envelope ends where the home switch triggers; with $21 = 1 touching it is ALARM 1:
+    the driver's range stops at the home position (the pull-off, $27 = 1 mm, from the switch)."""
+    grbl.configure({**HOMING, 21: 1})
+    c = connect(HOMING_RIG)
+    c.home()
+    assert c.firmware_range_mm() == ((0.0, 199.0), (0.0, 199.0))
+    assert c.move_to(0.0, 199.0).position_mm == pytest.approx((0.0, 199.0))
+    sent = len(grbl.lines_received)
+    with pytest.raises(SoftLimitError, match=r"target x \(horizontal\): 199.5 mm is on the home switch, within "
+                                             r"the pull-off \(\$27 = 1 mm\).*valid: 0 … 199 mm"):
+        c.move_to(199.5, 10.0)
+    c.jog(0.0, 10.0)                                # y is at its home position: clamped, nothing sent
+    assert len(grbl.lines_received) == sent and c.alarms == []
+
+
 def test_grbl_soft_limits_in_machine_coordinates_raw(grbl, raw):
     """GRBL checks every target against -$130 … 0 whether homed or not: a jog is refused with
     error:15, a move raises ALARM 2; then nothing is answered, not even '?', until a reset, and the
