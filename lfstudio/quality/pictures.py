@@ -10,6 +10,7 @@ definitions (:func:`heatmap_values`, :func:`heatmap_colour`), so the screen and 
 from __future__ import annotations
 
 import base64
+import functools
 import html
 import math
 from dataclasses import dataclass
@@ -79,8 +80,11 @@ def heatmap_values(doc: dict[str, Any], key: str) -> dict[tuple[int, int], float
     return out
 
 
+@functools.lru_cache(maxsize=8)
 def _lut(colormap: int) -> np.ndarray:
-    return cv2.applyColorMap(np.arange(256, dtype=np.uint8).reshape(-1, 1), colormap).reshape(256, 3)
+    lut = cv2.applyColorMap(np.arange(256, dtype=np.uint8).reshape(-1, 1), colormap).reshape(256, 3)
+    lut.setflags(write=False)
+    return lut
 
 
 def heatmap_colour(doc: dict[str, Any], key: str, value: float) -> tuple[int, int, int]:

@@ -173,7 +173,11 @@ class GridCanvas(QAbstractScrollArea):
             self.quality_doc = doc
         cell = (int(entry["row"]), int(entry["column"]))
         self.quality[cell] = entry
-        self._rebuild_overlay()
+        if self._overlay is None:
+            self._rebuild_overlay()
+        else:                     # one cell changed: no need to recolour the whole grid
+            self._colour_cell(cell, entry)
+        self.viewport().update(self._cell_rect(*cell).adjusted(-3, -3, 3, 3))
 
     def set_overlay(self, key: str) -> None:
         self.overlay_key = key or ""
@@ -185,17 +189,23 @@ class GridCanvas(QAbstractScrollArea):
     def _rebuild_overlay(self) -> None:
         self._overlay = None
         if self.overlay_key and self.quality_doc is not None and self.rows and self.columns:
-            from lfstudio.quality.pictures import HEATMAPS, heatmap_colour
-
-            h = HEATMAPS[self.overlay_key]
-            rgba = np.zeros((self.rows, self.columns, 4), np.uint8)
-            for (r, c), entry in self.quality.items():
-                value = h.value(entry)
-                if value is not None and 0 <= r < self.rows and 0 <= c < self.columns:
-                    rgba[r, c, :3] = heatmap_colour(self.quality_doc, self.overlay_key, value)
-                    rgba[r, c, 3] = OVERLAY_ALPHA
-            self._overlay = rgba
+            self._overlay = np.zeros((self.rows, self.columns, 4), np.uint8)
+            for cell, entry in self.quality.items():
+                self._colour_cell(cell, entry)
         self.viewport().update()
+
+    def _colour_cell(self, cell: tuple[int, int], entry: dict) -> None:
+        from lfstudio.quality.pictures import HEATMAPS, heatmap_colour
+
+        r, c = cell
+        if self._overlay is None or not (0 <= r < self.rows and 0 <= c < self.columns):
+            return
+        value = HEATMAPS[self.overlay_key].value(entry)
+        if value is None:
+            self._overlay[r, c] = 0
+        else:
+            self._overlay[r, c, :3] = heatmap_colour(self.quality_doc, self.overlay_key, value)
+            self._overlay[r, c, 3] = OVERLAY_ALPHA
 
     def _paint_quality(self, p: QPainter, r0: int, r1: int, c0: int, c1: int, px: float, py: float,
                        ox: float, oy: float, thin: bool) -> None:
