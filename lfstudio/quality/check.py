@@ -2,7 +2,7 @@
 
 ``check_dataset(dataset, ...)`` is a long job (``progress``, ``cancel``). It decodes each view once,
 in row-major order on a few threads (:mod:`lfstudio.quality.measure`), tracks its corners into the
-neighbours decoded before it (:mod:`lfstudio.quality.tracks`), keeps only two rows of working
+neighbours decoded before it (:mod:`lfstudio.quality.tracks`), keeps only three rows of working
 images in memory, then
 
 * compares each view's focus and brightness with its 8 neighbours (sharpness, exposure) and
@@ -429,8 +429,8 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
                 done_n += 1
                 row_left[cell[0]] -= 1
                 if row_left[cell[0]] == 0:
-                    # every view of this row is tracked: the row above is needed no more
-                    grid.drop_images(lambda c, r=cell[0]: c[0] >= r or c in keep_forever)
+                    # every view of this row is tracked: the views two rows up are needed no more
+                    grid.drop_images(lambda c, r=cell[0]: c[0] >= r - 1 or c in keep_forever)
                 progress(done_n, total, f"read and tracked {view_stem(*cell)}")
         except BaseException:
             for f in futures.values():
@@ -575,7 +575,8 @@ def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell
         "repeatability": repeat,
         "depth_range": depth,
         "disparity_map": disparity_doc,
-        "tracks": {"residual_sigma_px": fit.sigma_px, "typical_view_residual_px": typical_residual,
+        "tracks": {"residual_sigma_px": fit.sigma_px if np.isfinite(fit.sigma_px) else None,
+                   "typical_view_residual_px": typical_residual,
                    "count": int(np.count_nonzero(np.isfinite(fit.s_px_per_mm)))},
         "settings": settings,
         "views": views_out,

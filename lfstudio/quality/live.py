@@ -38,7 +38,7 @@ log = logging.getLogger(__name__)
 Cell = tuple[int, int]
 Listener = Callable[[dict[str, Any]], None]
 #: views kept with their working image: this many rows around the newest view
-KEEP_ROWS = 1
+KEEP_ROWS = 2
 MIN_LOCATED = 4        # views a free local position solve needs before it judges positions
 MIN_ANCHORS = 2        # located neighbours that anchor a new view's position
 

@@ -205,12 +205,17 @@ def fit_tracks(obs: Observations, positions_mm: np.ndarray, sigma_px: float = 1.
     return TrackFit(a, np.where(ok, s, np.nan), s_sigma, r, w_eff, np.bincount(obs.track, minlength=nT))
 
 
+def _rot90(v: np.ndarray) -> np.ndarray:
+    return np.array([-v[1], v[0]])
+
+
 def robust_affine(source_mm: np.ndarray, target_mm: np.ndarray, *, floor_mm: float = 0.01,
                   use: np.ndarray | None = None, iterations: int = 20) -> tuple[np.ndarray, np.ndarray]:
     """The 2-D affine map A (2 x 3) with ``target ≈ A · [source, 1]`` fitted with Tukey weights, so
     that a few far-off points (displaced views) do not bend it; also the final weights (0 = outlier).
 
-    Falls back to a translation (or the identity) when there are too few points for an affine map.
+    Sources on one line (a single row or column of views) get the affine map along the line and a
+    similarity across it; with too few points, a translation.
     """
     src = np.asarray(source_mm, float)
     dst = np.asarray(target_mm, float)
@@ -220,27 +225,36 @@ def robust_affine(source_mm: np.ndarray, target_mm: np.ndarray, *, floor_mm: flo
     if use.sum() == 0:
         return A, np.zeros(n)
     A[:, 2] = np.median(dst[use] - src[use], axis=0)
-    X = np.column_stack([src, np.ones(n)])
-    rank = np.linalg.matrix_rank(X[use] - X[use].mean(0)) if use.sum() > 1 else 0
+    mean = src[use].mean(axis=0)
+    centred = src - mean
+    _, sv, vt = np.linalg.svd(centred[use], full_matrices=False) if use.sum() > 1 else (None, np.zeros(2), np.eye(2))
+    rank = int(np.count_nonzero(sv > 1e-6 * max(float(sv.max(initial=0.0)), 1e-9)))
+    u = vt[0]
     w = use.astype(float)
     for _ in range(iterations):
-        res = dst - X @ A.T
+        res = dst - src @ A[:, :2].T - A[:, 2]
         rn = np.hypot(res[:, 0], res[:, 1])
         scale = max(1.4826 * float(np.median(rn[use])), floor_mm)
         c = 4.685 * scale
         w = np.where(use & (rn < c), (1 - (rn / c) ** 2) ** 2, 0.0)
-        if (w > 0).sum() < 3 or rank < 2:
-            # translation only
+        sw = np.sqrt(w)[:, None]
+        if rank >= 2 and (w > 0).sum() >= 4:
+            B, *_ = np.linalg.lstsq(np.column_stack([centred, np.ones(n)]) * sw, dst * sw, rcond=None)
+            lin, offset = B[:2].T, B[2]
+        elif rank == 1 and (w > 0).sum() >= 3:
+            along = centred @ u
+            B, *_ = np.linalg.lstsq(np.column_stack([along, np.ones(n)]) * sw, dst * sw, rcond=None)
+            p, offset = B[0], B[1]
+            lin = np.outer(p, u) + np.outer(_rot90(p), _rot90(u))
+        else:
             t = np.average(dst - src, axis=0, weights=np.maximum(w, 1e-12)) if w.sum() > 0 else A[:, 2]
             A = np.array([[1.0, 0.0, t[0]], [0.0, 1.0, t[1]]])
             continue
-        sw = np.sqrt(w)[:, None]
-        sol, *_ = np.linalg.lstsq(X * sw, dst * sw, rcond=None)
-        A_new = sol.T
-        if np.abs(A_new - A).max() < 1e-9:
-            A = A_new
-            break
+        A_new = np.column_stack([lin, offset - lin @ mean])
+        done = np.abs(A_new - A).max() < 1e-9
         A = A_new
+        if done:
+            break
     return A, w
 
 

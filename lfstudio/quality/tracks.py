@@ -4,7 +4,7 @@ A view's *star*: its corners (:mod:`lfstudio.quality.measure`) tracked with pyra
 (``cv2.calcOpticalFlowPyrLK``; a point whose matching error is far above the median is dropped and,
 with :data:`BACK_CHECK` one that does not track back to where it started) into up to :data:`STAR_SIZE` neighbours that
 are already known — the ones captured earlier during a scan, or earlier in row-major order for a
-whole dataset — chosen from :data:`WINDOW` (the 8 around it and two steps along the row), nearest
+whole dataset — chosen from :data:`WINDOW` (the 8 around it and two steps along the row or column), nearest
 first. Every corner found in at least one neighbour becomes a track of the position model
 (:mod:`lfstudio.quality.positions`). The search starts where a point at ``guess_depth_m`` would
 be, so large shifts (a skipped step) are found too.
@@ -29,8 +29,8 @@ from lfstudio.quality.positions import Observations
 Cell = tuple[int, int]
 
 #: neighbour offsets (rows, columns) a star may use
-WINDOW: tuple[Cell, ...] = tuple((dr, dc) for dr in (-1, 0, 1) for dc in (-2, -1, 0, 1, 2)
-                                 if (dr, dc) != (0, 0) and (abs(dc) < 2 or dr == 0))
+WINDOW: tuple[Cell, ...] = tuple((dr, dc) for dr in (-2, -1, 0, 1, 2) for dc in (-2, -1, 0, 1, 2)
+                                 if (dr, dc) != (0, 0) and (abs(dc) < 2 or dr == 0) and (abs(dr) < 2 or dc == 0))
 STAR_SIZE = 3
 ROUND_TRIP_PX = 0.15
 #: track back as well (drop points that do not return): twice the cost; the position solve is robust anyway

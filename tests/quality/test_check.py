@@ -209,3 +209,27 @@ def test_raw_dng_views_are_judged_too(quality_dataset):
     assert "sharpness" in _failing_checks(flagged[(1, 3)]) and "exposure" in _failing_checks(flagged[(3, 1)])
     assert flagged[(3, 1)]["checks"]["exposure"]["value"] == pytest.approx(1.3, rel=0.03)
     assert report.document["depth_range"]["near_m"] == pytest.approx(1.77, rel=0.05)
+
+
+@pytest.mark.parametrize("columns, rows, fault", [
+    (7, 1, ViewFault("displaced", 0, 3, offset_mm=(1.0, 0.0))),
+    (1, 7, ViewFault("displaced", 3, 0, offset_mm=(0.0, 1.0))),
+])
+def test_a_single_row_or_column_is_checked_too(tmp_path, columns, rows, fault):
+    from lfstudio.sim.virtual_dataset import make_virtual_dataset
+
+    ds = make_virtual_dataset(tmp_path / "line", columns, rows, width_px=480, fmt="png", seed=1, faults=[fault])
+    report = check_dataset(ds, write=False)
+    assert set(_flagged(report)) == {fault.cell}
+    error = _flagged(report)[fault.cell]["checks"]["position"]["error_mm"]
+    assert np.hypot(*error) == pytest.approx(1.0, rel=0.2)
+
+
+def test_a_single_view_writes_a_report_without_position_checks(tmp_path):
+    from lfstudio.sim.virtual_dataset import make_virtual_dataset
+
+    ds = make_virtual_dataset(tmp_path / "one", 1, 1, width_px=320, fmt="png", seed=1)
+    report = check_dataset(ds)
+    assert report.views[0]["verdict"] == "pass"
+    assert report.views[0]["checks"]["position"]["verdict"] == "n/a"
+    assert load_quality(ds)["summary"]["views"] == 1
