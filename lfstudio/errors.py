@@ -41,3 +41,8 @@ class DatasetError(LfError):
 
 class DeviceError(LfError):
     """A device (axis controller, camera) failed, timed out or refused a command."""
+
+
+class DeviceTimeout(DeviceError):
+    """A device did not answer in time (a silent camera, a controller that stopped talking): waiting
+    for it again does not help, so a scan stops at once instead of retrying."""

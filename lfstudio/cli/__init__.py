@@ -36,8 +36,15 @@ COMMANDS: list[str] = [
 ]
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors (an unknown option, a value out of range) as one line, exit status 2."""
+
+    def error(self, message: str) -> None:     # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="lfstudio",
         description="Plan, capture, calibrate, process and export dense light fields. "
                     "Without a command, opens the application window.",
@@ -81,9 +88,13 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except OSError as exc:       # a folder that cannot be written, a full disk, ...: one line, not a traceback
         log.info("%s failed", args.command, exc_info=True)
+        from lfstudio.dataset.storage import storage_error
+
+        disk = storage_error(exc, then="run the command again (what is finished is kept)")
         where = f"{exc.filename}: " if exc.filename else ""
-        print(f"lfstudio {args.command}: error: {where}{exc.strerror or exc} (check that the folder exists, "
-              "is writable and has free space; details in the log)", file=sys.stderr)
+        text = str(disk) if disk is not None else (f"{where}{exc.strerror or exc} (check that the folder exists, "
+                                                   "is writable and has free space; details in the log)")
+        print(f"lfstudio {args.command}: error: {text}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         log.info("%s interrupted", args.command)

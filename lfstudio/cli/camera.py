@@ -6,6 +6,7 @@ import argparse
 import json
 
 from lfstudio.errors import InputError
+from lfstudio.numbers import WIDTH_PX, Number, parse_numbers
 
 HELP = "take a test shot with a camera (sim, gphoto2, folder:PATH) and print its files and timings"
 
@@ -17,7 +18,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trigger", nargs=argparse.REMAINDER, default=None,
                    help="hot folder: the trigger command and its arguments (must come last)")
     p.add_argument("--position-mm", default="0,0", metavar="X,Y", help="simulated camera: position on the rig")
-    p.add_argument("--width", type=int, default=2000, metavar="PX", help="simulated camera: image width")
+    p.add_argument("--width", type=WIDTH_PX.option("--width"), default=2000, metavar="PX",
+                   help="simulated camera: image width")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="camera setting before the shot, e.g. --set iso=200 --set shutter_s=0.25")
 
@@ -33,10 +35,7 @@ def _open(args: argparse.Namespace):
     if spec.kind == "sim":
         from lfstudio.studio.simulated import studio_kwargs_for
 
-        try:
-            x, y = (float(v) for v in args.position_mm.split(","))
-        except ValueError:
-            raise InputError("--position-mm", f"cannot read {args.position_mm!r}", "X,Y in mm") from None
+        x, y = parse_numbers("--position-mm", args.position_mm, Number("mm", -1e6, 1e6), 2, "X,Y in mm")
         if not 16 <= args.width <= 12000:
             raise InputError("--width", f"{args.width} px is out of range", "16 .. 12000")
         position = lambda: (x, y)  # noqa: E731

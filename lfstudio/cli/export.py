@@ -7,6 +7,9 @@ import re
 import sys
 
 from lfstudio.errors import InputError
+from lfstudio.numbers import Number
+
+BITS = Number("bits", 1, 16, integer=True)   # each format checks its own depths
 
 HELP = ("export the views as 16-bit PNG + manifest, an HEVC stream (meander order), the HCI benchmark layout, "
         "a COLMAP model or a nerfstudio transforms.json (with the rig's known poses)")
@@ -35,17 +38,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(rows x columns) spread over the grid, or names like r00_c000,r00_c001")
     p.add_argument("--source", default="auto", metavar="SRC",
                    help="raw, processed, or auto (default: processed when every chosen view is processed)")
-    p.add_argument("--crf", type=int, default=8, help="hevc: constant rate factor, lower is better (default 8)")
-    p.add_argument("--bit-depth", type=int, default=12, help="hevc: 10 or 12 bits (default 12)")
+    p.add_argument("--crf", type=Number("", 0, 51, integer=True).option("--crf"), default=8,
+                   help="hevc: constant rate factor, lower is better (default 8)")
+    p.add_argument("--bit-depth", type=BITS.option("--bit-depth"), default=12, help="hevc: 10 or 12 bits (default 12)")
     p.add_argument("--hci-size", default="9x9", metavar="CxR",
                    help="hci: sub-array columns x rows (default 9x9; ignored with --views)")
     p.add_argument("--hci-center", metavar="ROW,COLUMN",
                    help="hci: grid row,column of the centre view (default: the grid centre)")
-    p.add_argument("--hci-bit-depth", type=int, default=8,
+    p.add_argument("--hci-bit-depth", type=BITS.option("--hci-bit-depth"), default=8,
                    help="hci: 8 (sRGB PNG like the benchmark, default) or 16 (linear 16-bit PNG)")
     p.add_argument("--authors", default="", metavar="NAMES",
                    help="hci: the authors written to parameters.cfg (default: the dataset's 'authors', else empty)")
-    p.add_argument("--image-bit-depth", type=int, default=8,
+    p.add_argument("--image-bit-depth", type=BITS.option("--image-bit-depth"), default=8,
                    help="colmap/nerfstudio: 8 (sRGB PNG, what view-synthesis tools expect, default) or 16 "
                         "(linear 16-bit PNG)")
     p.add_argument("--holdout", default="none", metavar="SPLIT",

@@ -7,6 +7,7 @@ import math
 import sys
 
 from lfstudio.errors import InputError
+from lfstudio.numbers import Number, check_grid
 
 HELP = "import another rig's images (PNG, TIFF, JPEG, camera RAW) as a dataset that calibrates, processes and exports"
 
@@ -37,9 +38,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pattern", metavar="GLOB",
                    help="which files to take, e.g. '*.png' (default: every PNG/TIFF/JPEG/RAW file); files are "
                         "sorted naturally (img2 before img10)")
-    p.add_argument("--focal-length-mm", type=float, metavar="F", help="lens focal length in mm (with --pixel-pitch-um)")
-    p.add_argument("--pixel-pitch-um", type=float, metavar="P", help="sensor pixel size in µm")
-    p.add_argument("--focal-length-px", type=float, metavar="F",
+    p.add_argument("--focal-length-mm", type=Number("mm", 0, 10_000, low_open=True).option("--focal-length-mm"), metavar="F",
+                   help="lens focal length in mm (with --pixel-pitch-um)")
+    p.add_argument("--pixel-pitch-um", type=Number("µm", 0, 1000, low_open=True).option("--pixel-pitch-um"), metavar="P",
+                   help="sensor pixel size in µm")
+    p.add_argument("--focal-length-px", type=Number("px", 0, 1e6, low_open=True).option("--focal-length-px"), metavar="F",
                    help="focal length in pixels of these images (instead of --focal-length-mm/--pixel-pitch-um)")
     p.add_argument("--out", required=True, metavar="DATASET", help="the new dataset folder")
     p.add_argument("--overwrite", action="store_true", help="replace DATASET if it exists")
@@ -54,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.export.import_images import ImportOptions, import_images
     from lfstudio.jobs import TerminalProgress
 
-    cols, rows = parse_pair(args.grid, "--grid", int, "9x5")
+    cols, rows = check_grid("--grid", *parse_pair(args.grid, "--grid", int, "9x5"))
     options = ImportOptions(folder=Path(args.folder), out=Path(args.out), grid=(cols, rows),
                             spacing_mm=parse_pair(args.spacing_mm, "--spacing-mm", float, "4x6"),
                             order=args.order, pattern=args.pattern, focal_length_mm=args.focal_length_mm,

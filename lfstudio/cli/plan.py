@@ -113,10 +113,13 @@ def build_plan(args: argparse.Namespace):
     return plan.replace(**changes)
 
 
-def _option_error(exc: InputError) -> InputError:
+def _option_error(exc: InputError, args: argparse.Namespace | None = None) -> InputError:
+    """The error naming the option that set the field, or the plan file's field when it came from --plan."""
     from lfstudio.planning.scene_plan import CLI_OPTION
 
     option = CLI_OPTION.get(exc.field, exc.field)
+    if args is not None and args.plan and getattr(args, option.lstrip("-").replace("-", "_"), None) is None:
+        option = f"{args.plan}: {exc.field}"
     message = str(exc).split(": ", 1)[-1]
     if exc.valid and message.endswith(f" (valid: {exc.valid})"):
         message = message[: -len(f" (valid: {exc.valid})")]
@@ -206,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
         plan = build_plan(args)
         result = plan.derive()
     except InputError as exc:
-        raise _option_error(exc) from None
+        raise _option_error(exc, args) from None
     if args.save:
         from lfstudio.planning.scene_plan import save_plan
 

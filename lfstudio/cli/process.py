@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from lfstudio.numbers import WORKERS
+
 HELP = "process the captured views (debayer, lens, colour, shading, de-flicker, rectify, downsample)"
 
 
@@ -16,7 +18,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cluster", metavar="ADDR",
                    help="Dask scheduler address, e.g. tcp://10.0.0.5:8786 (workers must see the dataset "
                         "folder at the same path); default: a local process pool")
-    p.add_argument("--workers", metavar="N", type=int,
+    p.add_argument("--workers", metavar="N", type=WORKERS.option("--workers"),
                    help="local worker processes (default: one per core; 0: run in this process)")
     p.add_argument("--force", action="store_true",
                    help="process every view again, even those already done with the same profile")

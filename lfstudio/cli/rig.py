@@ -6,10 +6,14 @@ import argparse
 import time
 
 from lfstudio.errors import DeviceError, InputError
+from lfstudio.numbers import TIME_SCALE, TIMEOUT_S, Number
 
 HELP = "talk to the axis controller: status, home, unlock, origin, move X Y, jog DX DY (in order)"
 
 #: command word -> names of its numeric arguments
+#: a move or jog argument: any finite number of mm (the soft limits are checked against the rig profile)
+POSITION_MM = Number("mm", -1e6, 1e6)
+BAUD = Number("baud", 300, 4_000_000, integer=True)
 COMMAND_ARGS = {"status": (), "home": (), "unlock": (), "origin": (), "reset": (),
                 "move": ("X", "Y"), "jog": ("DX", "DY")}
 
@@ -19,10 +23,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="serial port of the controller (/dev/ttyUSB0, /dev/pts/N printed by 'lfstudio sim-rig', "
                         "COM3) or 'sim' to start the built-in simulated controller in this process")
     p.add_argument("--rig", default=None, metavar="NAME", help="rig profile (default: the reference gantry)")
-    p.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
-    p.add_argument("--time-scale", type=float, default=1.0, metavar="X",
+    p.add_argument("--baud", type=BAUD.option("--baud"), default=115200, help="baud rate (default 115200)")
+    p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",
                    help="with --port sim: 1 real time, 0.1 ten times faster, 0 instant (default 1)")
-    p.add_argument("--timeout-s", type=float, default=3.0, help="longest wait for any answer (default 3 s)")
+    p.add_argument("--timeout-s", type=TIMEOUT_S.option("--timeout-s"), default=3.0,
+                   help="longest wait for any answer (default 3 s)")
     p.add_argument("commands", nargs=argparse.REMAINDER, metavar="COMMAND [ARGS]",
                    help="status | home | unlock | origin | reset | move X Y | jog DX DY  (mm; several in a row)")
     p.epilog = ("example: lfstudio rig --port sim home move 10 5 status. A port in use by another lfstudio "
@@ -43,12 +48,7 @@ def parse_commands(words: list[str]) -> list[tuple[str, tuple[float, ...]]]:
         values = words[i + 1:i + 1 + len(names)]
         if len(values) < len(names):
             raise InputError(word, f"needs {' '.join(names)} (mm)", f"{word} {' '.join(names)}")
-        numbers = []
-        for name, text in zip(names, values):
-            try:
-                numbers.append(float(text))
-            except ValueError:
-                raise InputError(f"{word} {name}", f"{text!r} is not a number in mm") from None
+        numbers = [POSITION_MM.parse(f"{word} {name}", text) for name, text in zip(names, values)]
         out.append((word, tuple(numbers)))
         i += 1 + len(names)
     return out
@@ -80,10 +80,13 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.rig.profile import DEFAULT_RIG, load_rig
     from lfstudio.studio.devices import open_rig
 
+    from lfstudio.rig.motion import check_target
+
     commands = parse_commands(args.commands)
-    if args.time_scale < 0:
-        raise InputError("--time-scale", f"must be zero or positive, got {args.time_scale:g}", ">= 0")
     rig = load_rig(args.rig or DEFAULT_RIG)
+    for word, values in commands:           # a target outside the soft limits is refused before connecting
+        if word == "move":
+            check_target(rig, *values)
     link = open_rig(args.port, rig, doing="rig commands: " + " ".join(args.commands), time_scale=args.time_scale,
                     baudrate=args.baud, timeout_s=args.timeout_s)
     controller = link.controller

@@ -8,21 +8,12 @@ import sys
 import threading
 
 from lfstudio.errors import DatasetError, InputError
+from lfstudio.numbers import (EXPOSURE_S, OFFSET_MM, RETRIES, SEED, SETTLE_S, SPACING_MM, TIME_SCALE, TRANSFER_S,
+                              WIDTH_PX, grid_option, numbers_option)
 
 HELP = "capture a grid of views into a dataset folder (meander order, pipelined, resumable)"
 
 EXIT_FAULT = 3
-
-
-def _pair(text: str, option: str, kind=float, sep: str = "x") -> tuple:
-    parts = text.lower().replace("×", "x").split(sep)
-    try:
-        if len(parts) != 2:
-            raise ValueError
-        return kind(parts[0]), kind(parts[1])
-    except ValueError:
-        example = "101x21" if kind is int else "4x6"
-        raise InputError(option, f"cannot read {text!r}", f"two numbers like {example}") from None
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -41,25 +32,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "before the first view (park it at the left/top end of its travel first)")
     p.add_argument("--allow-device-change", action="store_true",
                    help="with --resume: continue with other devices than the dataset's own (recorded per view)")
-    p.add_argument("--grid", metavar="CxR", help="columns x rows, e.g. 101x21 (default: from --plan or 101x21)")
-    p.add_argument("--spacing-mm", metavar="HxV", help="horizontal x vertical spacing in mm, e.g. 4x6")
-    p.add_argument("--offset-mm", metavar="HxV", default="0x0",
+    p.add_argument("--grid", metavar="CxR", type=grid_option("--grid"),
+                   help="columns x rows, e.g. 101x21 (default: from --plan or 101x21)")
+    p.add_argument("--spacing-mm", metavar="HxV", type=numbers_option("--spacing-mm", SPACING_MM),
+                   help="horizontal x vertical spacing in mm, e.g. 4x6")
+    p.add_argument("--offset-mm", metavar="HxV", default=(0.0, 0.0), type=numbers_option("--offset-mm", OFFSET_MM),
                    help="shift of the grid from the centre of the travel in mm (default 0x0)")
     p.add_argument("--order", choices=("row-meander", "column-meander", "raster"), default=None,
                    help="capture order (default: row-meander)")
-    p.add_argument("--settle-s", type=float, default=None, help="settle time after each move (default: rig profile)")
+    p.add_argument("--settle-s", type=SETTLE_S.option("--settle-s"), default=None,
+                   help="settle time after each move (default: rig profile)")
     p.add_argument("--plan", metavar="PLAN", help="a scene plan file saved by the planner (grid, spacing, camera, lens)")
     p.add_argument("--out", required=True, metavar="DATASET", help="the dataset folder to create (or resume)")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted scan in DATASET: captures only the views not done yet")
-    p.add_argument("--time-scale", type=float, default=1.0, metavar="X",
+    p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",
                    help="multiply every simulated duration: 1 real time, 0.1 ten times faster, 0 as fast as possible")
-    p.add_argument("--exposure-s", type=float, default=0.5, help="simulated camera exposure time (default 0.5)")
-    p.add_argument("--transfer-s", type=float, default=2.5, help="simulated camera transfer time (default 2.5)")
-    p.add_argument("--sim-width-px", type=int, default=None, metavar="PX",
+    p.add_argument("--exposure-s", type=EXPOSURE_S.option("--exposure-s"), default=0.5,
+                   help="simulated camera exposure time (default 0.5)")
+    p.add_argument("--transfer-s", type=TRANSFER_S.option("--transfer-s"), default=2.5,
+                   help="simulated camera transfer time (default 2.5)")
+    p.add_argument("--sim-width-px", type=WIDTH_PX.option("--sim-width-px"), default=None, metavar="PX",
                    help="simulated camera image width in pixels (default 2000; smaller renders faster)")
-    p.add_argument("--retries", type=int, default=2, help="retries per view before the scan stops (default 2)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the simulated devices")
+    p.add_argument("--retries", type=RETRIES.option("--retries"), default=2,
+                   help="retries per view before the scan stops (default 2)")
+    p.add_argument("--seed", type=SEED.option("--seed"), default=0, help="seed of the simulated devices")
     p.add_argument("--check", action="store_true",
                    help="check each view as it arrives (lfstudio check's measurements, on a background thread the "
                         "scan never waits for) and name failing views at once; the full report: lfstudio check")
@@ -77,15 +74,19 @@ def _build_plan(args: argparse.Namespace, rig_config, existing=None):
         from lfstudio.planning.scene_plan import load_plan
 
         scene = load_plan(args.plan)
+        try:
+            scene.validate(check_travel=False)        # the rig's travel is checked by the scan plan below
+        except InputError as exc:
+            raise InputError(f"{args.plan}: {exc.field}", str(exc).split(": ", 1)[-1]) from None
     if existing is not None:
         base = ScanPlan.from_grid_dict(existing.grid)
         grid = (base.columns, base.rows)
         spacing = base.spacing_mm
-        if args.grid and _pair(args.grid, "--grid", int) != grid:
-            raise InputError("--grid", f"{args.grid} differs from the dataset's {grid[0]}x{grid[1]}",
+        if args.grid and args.grid != grid:
+            raise InputError("--grid", f"{args.grid[0]}x{args.grid[1]} differs from the dataset's {grid[0]}x{grid[1]}",
                              "leave it out with --resume, or scan into a new --out folder")
-        if args.spacing_mm and _pair(args.spacing_mm, "--spacing-mm") != spacing:
-            raise InputError("--spacing-mm", f"{args.spacing_mm} differs from the dataset's "
+        if args.spacing_mm and args.spacing_mm != spacing:
+            raise InputError("--spacing-mm", f"{args.spacing_mm[0]:g}x{args.spacing_mm[1]:g} differs from the dataset's "
                              f"{spacing[0]:g}x{spacing[1]:g}", "leave it out with --resume")
         plan = resume_plan(existing, order=args.order, settle_s=args.settle_s)
         plan.check_limits(rig_config)
@@ -96,14 +97,10 @@ def _build_plan(args: argparse.Namespace, rig_config, existing=None):
     else:
         grid, spacing = (101, 21), (4.0, 6.0)
     if args.grid:
-        grid = _pair(args.grid, "--grid", int)
+        grid = args.grid
     if args.spacing_mm:
-        spacing = _pair(args.spacing_mm, "--spacing-mm")
-    if grid[0] < 1 or grid[1] < 1:
-        raise InputError("--grid", f"{args.grid}: needs at least one column and one row", "e.g. 101x21")
-    if spacing[0] <= 0 or spacing[1] <= 0:
-        raise InputError("--spacing-mm", f"{args.spacing_mm}: spacing must be positive", "e.g. 4x6")
-    offset = _pair(args.offset_mm, "--offset-mm")
+        spacing = args.spacing_mm
+    offset = args.offset_mm
     settle = args.settle_s
     if settle is None and scene is not None:
         settle = scene.settle_s
@@ -114,7 +111,9 @@ def _build_plan(args: argparse.Namespace, rig_config, existing=None):
         field = {"grid columns / horizontal spacing_mm": "--grid/--spacing-mm",
                  "grid rows / vertical spacing_mm": "--grid/--spacing-mm",
                  "horizontal origin/offset_mm": "--offset-mm", "vertical origin/offset_mm": "--offset-mm",
-                 "grid columns": "--grid", "grid rows": "--grid"}.get(exc.field, exc.field)
+                 "grid columns": "--grid", "grid rows": "--grid", "grid": "--grid",
+                 "horizontal spacing_mm": "--spacing-mm", "vertical spacing_mm": "--spacing-mm",
+                 "settle_s": "--settle-s"}.get(exc.field, exc.field)
         raise InputError(field, str(exc).split(": ", 1)[-1]) from None
     return plan, scene
 

@@ -7,24 +7,23 @@ import signal
 import sys
 import threading
 
-from lfstudio.errors import InputError
+from lfstudio.numbers import SEED, TIME_SCALE
 
 HELP = "start the simulated GRBL controller on a pseudo-terminal and print its port path"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rig", default=None, metavar="NAME", help="rig profile (default: the reference gantry)")
-    p.add_argument("--time-scale", type=float, default=1.0, metavar="X",
+    p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",
                    help="1 real time, 0.1 ten times faster, 0 instant (default 1)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the start position and repeatability errors")
+    p.add_argument("--seed", type=SEED.option("--seed"), default=0,
+                   help="seed of the start position and repeatability errors")
 
 
 def run(args: argparse.Namespace) -> int:
     from lfstudio.rig.profile import DEFAULT_RIG, load_rig
     from lfstudio.studio.simulated import serve_sim_rig
 
-    if args.time_scale < 0:
-        raise InputError("--time-scale", f"must be zero or positive, got {args.time_scale:g}", ">= 0")
     rig = load_rig(args.rig or DEFAULT_RIG)
     done = threading.Event()
     sim, truth = serve_sim_rig(rig, time_scale=args.time_scale, seed=args.seed)

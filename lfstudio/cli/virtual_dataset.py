@@ -6,25 +6,25 @@ import argparse
 import sys
 
 from lfstudio.errors import InputError
+from lfstudio.numbers import SEED, WIDTH_PX, Number, grid_option, parse_numbers
+
+DISTANCE_M = Number("m", 0, 10_000, low_open=True)
+FRACTION = Number("", 0, 1)
 
 HELP = "render a light-field dataset of the virtual studio directly to disk (DNG or PNG) with ground truth"
 
 
 def _numbers(text: str, option: str, n: int) -> tuple[float, ...]:
-    try:
-        values = tuple(float(v) for v in text.replace("x", ",").split(","))
-        if len(values) != n:
-            raise ValueError
-    except ValueError:
-        raise InputError(option, f"cannot read {text!r}", f"{n} comma-separated numbers") from None
-    return values
+    return parse_numbers(option, text, Number(), n, ",".join(["1"] * n))
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("folder", help="new dataset folder")
-    p.add_argument("--grid", default="5x3", metavar="CxR", help="columns x rows (default 5x3; the reference is 101x21)")
+    p.add_argument("--grid", default=(5, 3), type=grid_option("--grid"), metavar="CxR",
+                   help="columns x rows (default 5x3; the reference is 101x21)")
     p.add_argument("--spacing-mm", default="4x6", metavar="HxV", help="spacing in mm (default 4x6)")
-    p.add_argument("--width", type=int, default=2000, metavar="PX", help="image width in pixels (default 2000)")
+    p.add_argument("--width", type=WIDTH_PX.option("--width"), default=2000, metavar="PX",
+                   help="image width in pixels (default 2000)")
     p.add_argument("--format", choices=("dng", "png"), default="dng",
                    help="14-bit Bayer DNG or 16-bit linear PNG (default dng)")
     p.add_argument("--rotation-deg", default="1,-1.5,0.7", metavar="RX,RY,RZ",
@@ -32,17 +32,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pp-offset-px", default="0,0", metavar="DX,DY", help="true principal-point offset (default 0,0)")
     p.add_argument("--position-noise-um", default="0,0", metavar="SX,SY",
                    help="camera-position error sigma in micrometres (default 0,0; the reference rig: 80,50)")
-    p.add_argument("--near-m", type=float, default=1.77, help="nearest scene distance (default 1.77)")
-    p.add_argument("--far-m", type=float, default=4.77, help="farthest scene distance (default 4.77)")
-    p.add_argument("--flicker", type=float, default=0.0, help="per-shot gain sigma, e.g. 0.01 (default 0)")
-    p.add_argument("--vignetting", type=float, default=0.0, help="corner light loss, e.g. 0.2 (default 0)")
-    p.add_argument("--noise", type=float, default=0.0, help="read noise, fraction of white, e.g. 0.002 (default 0)")
+    p.add_argument("--near-m", type=DISTANCE_M.option("--near-m"), default=1.77,
+                   help="nearest scene distance (default 1.77)")
+    p.add_argument("--far-m", type=DISTANCE_M.option("--far-m"), default=4.77,
+                   help="farthest scene distance (default 4.77)")
+    p.add_argument("--flicker", type=FRACTION.option("--flicker"), default=0.0,
+                   help="per-shot gain sigma, e.g. 0.01 (default 0)")
+    p.add_argument("--vignetting", type=FRACTION.option("--vignetting"), default=0.0,
+                   help="corner light loss, e.g. 0.2 (default 0)")
+    p.add_argument("--noise", type=FRACTION.option("--noise"), default=0.0,
+                   help="read noise, fraction of white, e.g. 0.002 (default 0)")
     p.add_argument("--fault", action="append", default=[], metavar="KIND:ROW,COL[:VALUE]",
                    help="spoil a view (repeatable): blur:ROW,COL:PX (motion blur, PX[,ANGLE]), "
                         "luminance:ROW,COL:FACTOR, displaced:ROW,COL:DX[,DY] (mm), skipped:ROW,COL (the rig did "
                         "not move: the view repeats the previous one); ground truth lists them")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=1, help="processes rendering in parallel (default 1)")
+    p.add_argument("--seed", type=SEED.option("--seed"), default=0)
+    p.add_argument("--workers", type=Number("", 1, 256, integer=True).option("--workers"), default=1,
+                   help="processes rendering in parallel (default 1)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -51,9 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.jobs import TerminalProgress
     from lfstudio.studio.simulated import GROUND_TRUTH_NAME, make_virtual_dataset, parse_fault
 
-    cols, rows = (int(v) for v in _numbers(args.grid, "--grid", 2))
-    if cols < 1 or rows < 1:
-        raise InputError("--grid", f"needs at least one column and row, got {args.grid}")
+    cols, rows = args.grid
     if not 16 <= args.width <= 12000:
         raise InputError("--width", f"{args.width} px is out of range", "16 .. 12000")
     if not 0 < args.near_m < args.far_m:

@@ -52,8 +52,10 @@ def atomic_write_with(path: str | os.PathLike, write: Callable[[Path], None]) ->
         with open(tmp_path, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp_path, path)
-    except BaseException:
+    except BaseException as exc:
         tmp_path.unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.filename == str(tmp_path):
+            exc.filename = str(path)          # the operator knows the file, not its temporary name
         raise
     _fsync_dir(path.parent)
     return path

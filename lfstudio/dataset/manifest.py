@@ -41,6 +41,7 @@ from lfstudio.dataset.atomic import atomic_write_bytes
 from lfstudio.dataset.paths import InsideChecker, check_dataset_entries, resolve_inside, view_stem
 from lfstudio.dataset.store import JOURNAL_NAME, Journal, read_journal, sha256_file
 from lfstudio.errors import DatasetError
+from lfstudio.numbers import MAX_GRID_SIDE, Number, non_finite_fields
 
 FORMAT = "lfstudio-dataset"
 VERSION = 1
@@ -59,6 +60,23 @@ def _is_number(x: Any) -> bool:
 
 def _is_pair(x: Any) -> bool:
     return isinstance(x, (list, tuple)) and len(x) == 2 and all(_is_number(v) for v in x)
+
+
+#: camera and lens numbers the stages compute with: (number, how many)
+_CAMERA_NUMBERS = {("camera", "sensor_px"): (Number("px", 1, 1_000_000, integer=True), 2),
+                   ("camera", "sensor_mm"): (Number("mm", 0, 1000, low_open=True), 2),
+                   ("camera", "pixel_pitch_um"): (Number("µm", 0, 1000, low_open=True), 1),
+                   ("lens", "focal_length_mm"): (Number("mm", 0, 100_000, low_open=True), 1),
+                   ("lens", "focal_length_px"): (Number("px", 0, 1e9, low_open=True), 1)}
+
+
+def _constant(seen: list[str]) -> Any:
+    """A ``json.loads`` hook for ``NaN``/``Infinity``/``-Infinity``: parsed, and noted in ``seen``
+    (checking costs nothing when a manifest has none)."""
+    def parse(name: str) -> float:
+        seen.append(name)
+        return float(name.replace("Infinity", "inf"))
+    return parse
 
 
 def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str]:
@@ -80,6 +98,18 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
     for key in ("rig", "camera", "lens", "grid"):
         if not isinstance(manifest.get(key), dict):
             problems.append(f"{f}: {key}: missing or not an object")
+    for key in ("plan", "processing", "calibration"):           # written by the stages; optional
+        if manifest.get(key) is not None and not isinstance(manifest[key], dict):
+            problems.append(f"{f}: {key}: must be an object")
+    for (obj, key), (number, count) in _CAMERA_NUMBERS.items():    # optional, but numbers when given
+        value = manifest.get(obj, {}).get(key) if isinstance(manifest.get(obj), dict) else None
+        if value is None:
+            continue
+        values = [value] if count == 1 else value if isinstance(value, list) and len(value) == count else None
+        problem = f"must be {count} numbers" if values is None else \
+            next((p for p in map(number.problem, values) if p), None)
+        if problem:
+            problems.append(f"{f}: {obj}.{key}: {problem} (valid: {number.valid()}{' each' if count > 1 else ''})")
     devices = manifest.get("devices")
     if devices is not None and not (isinstance(devices, dict) and all(isinstance(devices.get(k), dict)
                                                                        for k in ("rig", "camera"))):
@@ -89,8 +119,10 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
     grid = manifest.get("grid") if isinstance(manifest.get("grid"), dict) else {}
     cols, rows = grid.get("columns"), grid.get("rows")
     for name, val in (("grid.columns", cols), ("grid.rows", rows)):
-        if grid and (not isinstance(val, int) or isinstance(val, bool) or val < 1):
+        if isinstance(manifest.get("grid"), dict) and (not isinstance(val, int) or isinstance(val, bool) or val < 1):
             problems.append(f"{f}: {name}: must be a positive integer, found {val!r}")
+        elif isinstance(val, int) and val > MAX_GRID_SIDE:
+            problems.append(f"{f}: {name}: {val} is more than lfstudio handles (valid: 1 … {MAX_GRID_SIDE})")
     if grid and "spacing_mm" in grid and not _is_pair(grid["spacing_mm"]):
         problems.append(f"{f}: grid.spacing_mm: must be [horizontal, vertical] numbers")
     views = manifest.get("views")
@@ -298,17 +330,25 @@ class Dataset:
             raise DatasetError(f"{path}: not found; {root} is not an lfstudio dataset "
                                "(import a folder of images with 'lfstudio import-images')")
         check_dataset_entries(root)
+        constants: list[str] = []
         try:
             text = path.read_text(encoding="utf-8")
             gc_was_on = gc.isenabled()
             gc.disable()     # parsing makes ~25 objects per view: no collector passes over them meanwhile
             try:
-                manifest = json.loads(text)
+                manifest = json.loads(text, parse_constant=_constant(constants))
             finally:
                 if gc_was_on:
                     gc.enable()
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise DatasetError(f"{path}: cannot be read as JSON ({exc})") from None
+        except RecursionError:
+            raise DatasetError(f"{path}: cannot be read: nested too deeply to be an lfstudio manifest") from None
+        if constants:                            # NaN/Infinity: not JSON, and no stage can use them
+            fields = non_finite_fields(manifest)
+            raise DatasetError(f"{path}: {', '.join(fields[:3])}{' and more' if len(fields) > 3 else ''}: "
+                               f"not a finite number (NaN or infinite); correct {'it' if len(fields) == 1 else 'them'}"
+                               " in the file")
         problems = validate_manifest(manifest, root)
         if problems:
             raise DatasetError(f"{path}: invalid manifest", problems)

@@ -27,7 +27,7 @@ def view_stem(row: int, column: int) -> str:
 
 #: the dataset's own files and folders (beside the views' files): none may be a symlink leading outside
 DATASET_ENTRIES = ("dataset.json", "journal.jsonl", "dataset.lock", "calibration.json", "processing.toml",
-                   "quality.json", "raw", "thumbs", "processed", "cache")
+                   "quality.json", "raw", "thumbs", "thumbs/generated", "processed", "cache")
 
 
 def relative_name_problem(relative: Any) -> str | None:

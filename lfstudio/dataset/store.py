@@ -28,6 +28,10 @@ JOURNAL_NAME = "journal.jsonl"
 DATA_FOLDERS = ("", "raw", "thumbs", "thumbs/generated", "processed")
 
 
+def _not_a_number(name: str) -> float:
+    raise ValueError(f"{name} is not a finite number")
+
+
 def read_journal(path: str | os.PathLike) -> tuple[list[dict[str, Any]], list[str]]:
     """The journal's records in order and the problems found (torn or corrupt lines).
 
@@ -45,7 +49,7 @@ def read_journal(path: str | os.PathLike) -> tuple[list[dict[str, Any]], list[st
             continue
         last = i == len(lines) - 1   # no newline after it: the write did not finish
         try:
-            rec = json.loads(line.decode("utf-8"))
+            rec = json.loads(line.decode("utf-8"), parse_constant=_not_a_number)
             if not (isinstance(rec, dict) and isinstance(rec.get("seq"), int) and isinstance(rec.get("row"), int)
                     and isinstance(rec.get("column"), int) and isinstance(rec.get("set"), dict)):
                 raise ValueError("needs seq, row, column and set")
@@ -71,8 +75,14 @@ class Journal:
             self._repair_tail()
             self._fh = open(self.path, "ab", buffering=0)
         line = json.dumps(record, separators=(",", ":"), allow_nan=False).encode("utf-8") + b"\n"
-        self._fh.write(line)
-        os.fsync(self._fh.fileno())
+        try:
+            rest = memoryview(line)
+            while rest:                        # a full disk may take part of the line: the rest raises ENOSPC
+                rest = rest[self._fh.write(rest):]
+            os.fsync(self._fh.fileno())
+        except BaseException:
+            self.close()                       # the next append cuts the torn line first (_repair_tail)
+            raise
 
     def _repair_tail(self) -> None:
         """Cut a torn last line so the next record starts on a line of its own."""
@@ -118,10 +128,10 @@ def free_bytes(path: str | os.PathLike) -> int:
     return shutil.disk_usage(p).free
 
 
-def temporary_files(root: str | os.PathLike) -> Iterator[Path]:
-    """Temporary files left by an interrupted atomic write (``.NAME.XXXX.tmpSUFFIX``)."""
+def temporary_files(root: str | os.PathLike, folders: tuple[str, ...] = DATA_FOLDERS) -> Iterator[Path]:
+    """Temporary files left by an interrupted atomic write (``.NAME.XXXX.tmpSUFFIX``) in ``folders``."""
     root = Path(root)
-    for sub in DATA_FOLDERS:
+    for sub in folders:
         folder = resolve_inside(root, sub, what="folder") if sub else root   # never delete outside it
         if not folder.is_dir():
             continue
@@ -130,10 +140,10 @@ def temporary_files(root: str | os.PathLike) -> Iterator[Path]:
                 yield entry
 
 
-def clean_temporary_files(root: str | os.PathLike) -> list[Path]:
-    """Delete crash leftovers; return what was removed."""
+def clean_temporary_files(root: str | os.PathLike, folders: tuple[str, ...] = DATA_FOLDERS) -> list[Path]:
+    """Delete crash leftovers in ``folders`` of the dataset; return what was removed."""
     removed = []
-    for p in list(temporary_files(root)):
+    for p in list(temporary_files(root, folders)):
         try:
             p.unlink()
             removed.append(p)

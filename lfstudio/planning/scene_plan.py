@@ -19,6 +19,7 @@ from typing import Any
 
 from lfstudio.errors import InputError
 from lfstudio import optics
+from lfstudio.numbers import Number, check_grid
 
 PLAN_FORMAT = "lfstudio-plan"
 PLAN_VERSION = 1
@@ -27,6 +28,10 @@ AXES = ("horizontal", "vertical")
 
 #: how each input is called on the command line (InputError names fields by their attribute name;
 #: the CLI translates with this table)
+#: the unit of a field, from its name's suffix (for messages)
+_UNITS = (("_mm_s2", "mm/s²"), ("_mm_s", "mm/s"), ("_mm", "mm"), ("_um", "µm"), ("_px", "px"), ("_m", "m"),
+          ("_s", "s"))
+
 CLI_OPTION = {
     "camera_name": "--camera", "sensor_px": "--sensor-px", "sensor_mm": "--sensor-mm",
     "pixel_pitch_um": "--pixel-pitch-um", "lens_name": "--lens", "focal_length_mm": "--focal-length-mm",
@@ -113,13 +118,8 @@ class ScenePlan:
         impossible input. With ``check_travel``, a grid wider than the rig's travel is one too."""
         def number(name: str, value: Any, lo: float, hi: float, lo_open: bool = True,
                    integer: bool = False) -> None:
-            valid = f"{'>' if lo_open else '≥'} {lo:g} and ≤ {hi:g}" + (", a whole number" if integer else "")
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise InputError(name, f"{value!r} is not a number", valid)
-            if integer and (not isinstance(value, int) and not float(value).is_integer()):
-                raise InputError(name, f"{value:g} is not a whole number", valid)
-            if not math.isfinite(value) or value > hi or value < lo or (lo_open and value == lo):
-                raise InputError(name, f"{value:g} is out of range", valid)
+            unit = next((u for suffix, u in _UNITS if name.endswith(suffix)), "")
+            Number(unit, lo, hi, lo_open, integer).check(name, value)
 
         def pair(name: str, value: Any, lo: float, hi: float, lo_open: bool = True, integer: bool = False) -> None:
             if not isinstance(value, (tuple, list)) or len(value) != 2:
@@ -151,6 +151,7 @@ class ScenePlan:
                                  f"> {self.focal_length_mm / 1000:g} m")
         number("grid_columns", self.grid_columns, 1, 100_000, lo_open=False, integer=True)
         number("grid_rows", self.grid_rows, 1, 100_000, lo_open=False, integer=True)
+        check_grid("grid_columns", self.grid_columns, self.grid_rows)
         pair("spacing_mm", self.spacing_mm, 0, 100_000)
         pair("repeatability_um", self.repeatability_um, 0, 100_000, lo_open=False)
         pair("travel_mm", self.travel_mm, 0, 1_000_000)
@@ -225,21 +226,12 @@ class ScenePlan:
             if isinstance(current, tuple) or f.name in _PAIR_FIELDS:
                 if not isinstance(value, (list, tuple)) or len(value) != 2:
                     raise InputError(f.name, f"{value!r} is not a pair", "[horizontal, vertical]")
-                conv = int if f.name == "sensor_px" else float
-                try:
-                    value = (conv(value[0]), conv(value[1]))
-                except (TypeError, ValueError):
-                    raise InputError(f.name, f"{value!r} is not a pair of numbers", "[horizontal, vertical]")
+                kind = Number(integer=f.name == "sensor_px")
+                value = (kind.check(f.name, value[0]), kind.check(f.name, value[1]))
             elif f.name in ("camera_name", "lens_name", "rig_name"):
                 value = str(value)
-            elif isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise InputError(f.name, f"{value!r} is not a number", "a number")
-            elif f.name in _INT_FIELDS:
-                if not float(value).is_integer():
-                    raise InputError(f.name, f"{value!r} is not a whole number", "a whole number")
-                value = int(value)
-            else:
-                value = float(value)
+            else:                                # finite (a plan file may say nan or inf), whole where it must be
+                value = Number(integer=f.name in _INT_FIELDS).check(f.name, value)
             changes[f.name] = value
         return dataclasses.replace(base, **changes)
 

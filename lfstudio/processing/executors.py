@@ -1,7 +1,8 @@
 """Where per-view tasks run: a ``concurrent.futures`` executor, chosen by :func:`open_executor`.
 
 - default: a local process pool (``spawn``, so it is safe under the GUI's threads), one worker per
-  core, each single-threaded (OpenCV and LibRaw's OpenMP) so that workers scale with cores;
+  core, each single-threaded (OpenCV and LibRaw's OpenMP) so that workers scale with cores; the
+  workers die with the process that started them (:func:`die_with_parent`), even after ``kill -9``;
 - ``cluster="tcp://HOST:PORT"``: a Dask distributed scheduler; ``client.get_executor()`` is a
   concurrent.futures executor. Workers must see the dataset folder at the same path and have
   lfstudio installed;
@@ -11,8 +12,13 @@
 from __future__ import annotations
 
 import concurrent.futures as cf
+import ctypes
 import multiprocessing
 import os
+import signal
+import sys
+import threading
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Iterator
@@ -41,9 +47,40 @@ class InlineExecutor(cf.Executor):
         return future
 
 
-def _init_local_worker() -> None:
+def _init_local_worker(parent_pid: int | None = None) -> None:
     # before anything in this fresh process loads LibRaw (its OpenMP reads this once)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    if parent_pid is not None:
+        die_with_parent(parent_pid)
+
+
+#: prctl option: the signal this process gets when its parent dies (linux/prctl.h)
+_PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """End this (worker) process when ``parent_pid`` dies, however it dies (``kill -9`` included):
+    on Linux the kernel sends SIGKILL (``prctl(PR_SET_PDEATHSIG)``); elsewhere a daemon thread
+    watches the parent. A worker killed mid-write leaves only a temporary file (atomic writes),
+    which the next run cleans up."""
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            ok = libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0
+        except (OSError, AttributeError):
+            ok = False
+        if ok:
+            if os.getppid() != parent_pid:       # it died before prctl took effect
+                os._exit(1)
+            return
+    threading.Thread(target=_watch_parent, args=(parent_pid,), name="parent-watch", daemon=True).start()
+
+
+def _watch_parent(parent_pid: int, period_s: float = 1.0) -> None:
+    while True:
+        if os.getppid() != parent_pid:           # re-parented: the parent is gone
+            os._exit(1)
+        time.sleep(period_s)
 
 
 def default_workers() -> int:
@@ -67,7 +104,7 @@ def open_executor(workers: int | None = None, cluster: str | None = None,
         return
     n = workers or default_workers()
     pool = cf.ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn"),
-                                  initializer=_init_local_worker)
+                                  initializer=_init_local_worker, initargs=(os.getpid(),))
     try:
         yield ExecutorInfo(pool, n, f"local process pool ({n} worker{'s' if n != 1 else ''})", True)
     finally:

@@ -15,6 +15,7 @@ import concurrent.futures as cf
 import contextlib
 import logging
 import os
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +26,8 @@ import numpy as np
 from lfstudio.dataset import Dataset, view_stem
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import folder_inside
+from lfstudio.dataset.storage import StorageError, storage_error
+from lfstudio.dataset.store import clean_temporary_files
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.jobs import CancelToken, Cancelled, Progress, no_progress
 from lfstudio.processing import executors
@@ -217,7 +220,9 @@ def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force:
              cancel: CancelToken, on_view, t_start: float) -> ProcessReport:
     _refuse_output_over_captures(ds, profile)
     # every processed view is written in this folder: refused when it (a symlink) leads outside the dataset
-    folder_inside(ds.root, profile.output.folder.strip("/") or "processed", what="processing.toml: [output] folder")
+    folder = profile.output.folder.strip("/") or "processed"
+    folder_inside(ds.root, folder, what="processing.toml: [output] folder")
+    clean_temporary_files(ds.root, (folder,))        # left by a run that was killed
     plan = make_plan(ds, profile, single_thread=info.separate_processes)
     sha = plan.profile_sha256
     profile.save(ds.root / PROFILE_NAME)
@@ -244,6 +249,8 @@ def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force:
 
     def finish(result: ViewResult) -> None:
         nonlocal done, last_save
+        if result.disk:             # stop, keep what is processed (recorded below), run again later
+            raise StorageError(result.error or "disk problem", kind="disk")
         _record(ds, by_index[(result.row, result.column)], result, sha)
         done += 1
         stem = view_stem(result.row, result.column)
@@ -257,7 +264,11 @@ def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force:
         if on_view is not None:
             on_view(result)
         if time.monotonic() - last_save > SAVE_EVERY_S:  # batch the manifest writes
-            ds.save()
+            try:
+                ds.save()
+            except OSError as exc:
+                raise storage_error(exc, ds.manifest_path, doing="saving",
+                                    then="run 'lfstudio process' again (views already processed are kept)") or exc
             last_save = time.monotonic()
 
     try:
@@ -270,7 +281,12 @@ def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force:
         ds.manifest["processing"]["finished_at"] = now_iso()
         ds.manifest["processing"]["summary"] = {"processed": report.processed, "skipped": report.skipped,
                                                 "failed": len(report.failed)}
-        ds.save()
+        try:
+            ds.save()
+        except OSError as exc:      # a full disk: the run's own error (if any) is the one to tell
+            if sys.exc_info()[1] is None:
+                raise
+            log.info("saving %s after the run stopped failed: %s", ds.manifest_path, exc)
     report.elapsed_s = time.monotonic() - t_start
     log.info("processing of %s finished: %s", ds.root, report.summary().replace("\n", "; "))
     return report

@@ -23,8 +23,12 @@ import tomli_w
 from lfstudio.dataset.atomic import atomic_write_text
 from lfstudio.dataset.paths import relative_name_problem
 from lfstudio.errors import InputError
+from lfstudio.numbers import Number
 
 PROFILE_NAME = "processing.toml"
+#: any number in a profile: finite and of a sane size (each step checks its own range on top)
+PROFILE_FLOAT = Number("", -1e9, 1e9)
+PROFILE_INT = Number("", -1_000_000_000, 1_000_000_000, integer=True)
 #: bump when the processing code changes its output for the same profile
 PIPELINE_VERSION = 1
 
@@ -200,15 +204,13 @@ class Profile:
             raise InputError(f"{source}: [output] png_compression", "out of range", "0..9")
         if not 0 <= self.deflicker.low < self.deflicker.high <= 1:
             raise InputError(f"{source}: [deflicker] low/high", "need 0 <= low < high <= 1")
-        if self.deflicker.size_px < 16:
-            raise InputError(f"{source}: [deflicker] size_px", "too small", ">= 16")
+        Number("px", 16, 16_384, integer=True).check(f"{source}: [deflicker] size_px", self.deflicker.size_px)
         if not 0 < self.color.white_output <= 1:
             raise InputError(f"{source}: [color] white_output", "out of range", "0 < value <= 1")
         if not 0 <= self.color.black_percentile < self.color.white_percentile <= 100:
             raise InputError(f"{source}: [color] black_percentile/white_percentile",
                              "need 0 <= black < white <= 100")
-        if self.color.patch_px < 1:
-            raise InputError(f"{source}: [color] patch_px", "too small", ">= 1")
+        Number("px", 1, 1001, integer=True).check(f"{source}: [color] patch_px", self.color.patch_px)
         if self.shading.enabled and self.shading.mode == "flat" and not self.shading.flat_file:
             raise InputError(f"{source}: [shading] flat_file",
                              "shading mode 'flat' needs a flat image (a RAW or PNG of a uniformly lit white card)")
@@ -239,6 +241,8 @@ class Profile:
             text = path.read_text(encoding="utf-8")
         except OSError as exc:
             raise InputError(str(path), f"cannot be read ({exc.strerror}); give an existing profile file") from None
+        except UnicodeDecodeError as exc:
+            raise InputError(str(path), f"is not UTF-8 text (byte {exc.start}); save it as a UTF-8 TOML file") from None
         return cls.from_toml(text, str(path))
 
     def save(self, path: str | Path) -> Path:
@@ -296,11 +300,11 @@ def _coerce(where: str, default: Any, value: Any) -> Any:
     if isinstance(default, int):
         if isinstance(value, bool) or not isinstance(value, int):
             raise InputError(where, f"must be a whole number, found {value!r}")
-        return value
+        return PROFILE_INT.check(where, value)
     if isinstance(default, float):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise InputError(where, f"must be a number, found {value!r}")
-        return float(value)
+        return PROFILE_FLOAT.check(where, value)
     if isinstance(default, str):
         if not isinstance(value, str):
             raise InputError(where, f"must be a text, found {value!r}")
@@ -309,5 +313,5 @@ def _coerce(where: str, default: Any, value: Any) -> Any:
         if not isinstance(value, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                                   for v in value):
             raise InputError(where, f"must be a list of numbers, found {value!r}")
-        return [float(v) for v in value]
+        return [PROFILE_FLOAT.check(where, v) for v in value]
     return value

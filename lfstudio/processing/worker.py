@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from lfstudio.dataset.storage import disk_problem, storage_error
 from lfstudio.errors import LfError
 from lfstudio.processing.profile import Profile
 
@@ -95,6 +96,7 @@ class ViewResult:
     stats: dict = field(default_factory=dict)
     timings_s: dict = field(default_factory=dict)
     error: str | None = None
+    disk: bool = False           # the error is the disk's (full, read-only, ...): the run stops, it is not the view's
 
     @property
     def ok(self) -> bool:
@@ -389,8 +391,13 @@ def process_view(plan: RunPlan, task: ViewTask) -> ViewResult:
         result.gain, result.gain_support = info["gain"], info["gain_support"]
         result.timings_s = info["timings_s"]
         result.stats = image_stats(img)
-    except LfError as exc:
-        result.error = str(exc)
+    except (LfError, OSError) as exc:
+        out = Path(plan.root) / task.out_file
+        disk = storage_error(exc, out, then="run 'lfstudio process' again (views already processed are kept)") \
+            or disk_problem(out.parent, 2**20)
+        result.disk = disk is not None
+        result.error = str(disk) if disk is not None else \
+            str(exc) if isinstance(exc, LfError) else f"{task.file}: {type(exc).__name__}: {exc}"
     except MemoryError:
         result.error = f"{task.file}: out of memory; use fewer workers (--workers) or half_size debayering"
     except Exception as exc:  # a bug or a broken file: report it with the view, keep the run going

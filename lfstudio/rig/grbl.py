@@ -130,6 +130,11 @@ _HOLD_COMPLETE, _HOLD_DECELERATING = 0, 1   # the substates of Hold in GRBL 1.1 
 HOMED_MARK = "T1"
 
 
+def _os_reason(exc: BaseException) -> str:
+    """An OS error in words ("Input/output error"), without Python's "[Errno 5]"."""
+    return getattr(exc, "strerror", None) or str(exc)
+
+
 class GrblError(DeviceError):
     """The controller refused a line with ``error:N``."""
 
@@ -605,7 +610,7 @@ class GrblController:
             with self._wlock:
                 ser.write(data)
         except (serial.SerialException, OSError) as exc:
-            raise self._mark_lost(f"connection to the rig on {self.port} lost ({exc}); check the cable, "
+            raise self._mark_lost(f"connection to the rig on {self.port} lost ({_os_reason(exc)}); check the cable, "
                                   "then connect again") from exc
 
     def _readline(self, deadline: float) -> str | None:
@@ -628,7 +633,7 @@ class GrblController:
             try:
                 chunk = ser.read(max(1, ser.in_waiting or 1))
             except (serial.SerialException, OSError, TypeError) as exc:
-                raise self._mark_lost(f"connection to the rig on {self.port} lost ({exc}); check the cable, "
+                raise self._mark_lost(f"connection to the rig on {self.port} lost ({_os_reason(exc)}); check the cable, "
                                       "then connect again") from exc
             if chunk:
                 self._rx += chunk
@@ -779,7 +784,7 @@ class GrblController:
         try:
             waiting = ser.in_waiting if ser is not None else 0
         except (serial.SerialException, OSError) as exc:
-            raise self._mark_lost(f"connection to the rig on {self.port} lost ({exc}); check the cable, "
+            raise self._mark_lost(f"connection to the rig on {self.port} lost ({_os_reason(exc)}); check the cable, "
                                   "then connect again") from exc
         if waiting:
             self._rx += ser.read(waiting)

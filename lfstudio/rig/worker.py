@@ -36,6 +36,7 @@ Contract:
 from __future__ import annotations
 
 import logging
+import os
 import queue
 import threading
 import time
@@ -43,14 +44,14 @@ from concurrent.futures import Future, InvalidStateError
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from lfstudio.errors import DeviceError, LfError
+from lfstudio.errors import DeviceError, DeviceTimeout, LfError
 
 log = logging.getLogger(__name__)
 
 Subscriber = Callable[[Any], None]
 
 
-class CallTimedOut(DeviceError):
+class CallTimedOut(DeviceTimeout):
     """A call ran longer than its ``timeout_s`` (the driver may still be stuck in it)."""
 
 
@@ -116,15 +117,23 @@ _CLOSE = object()
 
 
 def describe_call(name: str, args: tuple, kwargs: dict) -> str:
-    """``move_to(10, 5)`` style text for messages."""
-    parts = [_short(a) for a in args] + [f"{k}={_short(v)}" for k, v in kwargs.items()]
+    """``move_to(10, 5)`` style text for messages: numbers and words as given, a path by its file name,
+    callbacks left out (an operator never reads a Python repr)."""
+    parts = [_short(a) for a in args if not callable(a)] + \
+        [f"{k}={_short(v)}" for k, v in kwargs.items() if not callable(v)]
     return f"{name}({', '.join(parts)})"
 
 
 def _short(value: Any) -> str:
+    if isinstance(value, bool) or value is None:
+        return str(value)
     if isinstance(value, float):
         return f"{value:g}"
-    text = repr(value)
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, os.PathLike):
+        return os.path.basename(os.fspath(value))
+    text = repr(value) if isinstance(value, str) else type(value).__name__
     return text if len(text) <= 40 else text[:37] + "..."
 
 
@@ -355,8 +364,8 @@ class DeviceWorker:
         if call.timeout_s is not None:
             text = describe_call(call.name, call.args, call.kwargs)
             timer = threading.Timer(call.timeout_s, _fail, args=(call.future, CallTimedOut(
-                f"{self.name}: {text} timed out after {call.timeout_s:g} s; "
-                "check the device's cable and power, then reconnect")))
+                f"{self.name}: no answer to {text} within {call.timeout_s:g} s; "
+                f"check the {self.name}'s cable and power, then reconnect")))
             timer.daemon = True
             timer.start()
         try:

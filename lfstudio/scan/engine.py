@@ -35,9 +35,7 @@ and otherwise ignored).
 
 from __future__ import annotations
 
-import errno
 import logging
-import math
 import queue
 import threading
 import time
@@ -51,8 +49,10 @@ from typing import Any, Callable, Iterable
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import folder_inside, view_stem
+from lfstudio.dataset.storage import disk_problem, megabytes, mount_point, storage_error
 from lfstudio.dataset.store import clean_temporary_files, free_bytes, sha256_file
-from lfstudio.errors import DeviceError, LfError
+from lfstudio.errors import DeviceError, DeviceTimeout, LfError
+from lfstudio.numbers import RETRIES, TIME_SCALE, TIMEOUT_S, Number, non_finite_fields
 from lfstudio.rig.camera import CaptureResult, supports_on_exposed
 from lfstudio.rig.motion import RigState
 from lfstudio.rig.worker import CallTimedOut, DeviceWorker, Lease
@@ -66,6 +66,12 @@ log = logging.getLogger(__name__)
 Listener = Callable[[ScanEvent], None]
 DONE_STATUSES = ("done", "skipped")
 _STOP = object()
+#: what the operator does about a device's fault
+_FIX = {"rig": "Check the axis controller's cable, power and alarms, reconnect it, then Resume.",
+        "camera": "Check the camera's cable, power, battery and card, reconnect it, then Resume.",
+        "disk": "Free disk space or choose another folder, then Resume."}
+#: a camera's download time when it does not tell it (a RAW over USB takes a few seconds)
+TRANSFER_ALLOWANCE_S = 30.0
 _RETRY = "retry"            # inbox: a view whose transfer failed, to capture again (from the store thread)
 
 
@@ -114,15 +120,19 @@ def _error_text(exc: BaseException) -> str:
     return text if text else type(exc).__name__
 
 
-def non_finite_fields(value: Any, where: str = "") -> list[str]:
-    """Dotted names of the NaN/infinite numbers in a JSON-like value (``lens.focal_length_mm``)."""
-    if isinstance(value, float):
-        return [] if math.isfinite(value) else [where or "(value)"]
-    if isinstance(value, dict):
-        return [f for k, v in value.items() for f in non_finite_fields(v, f"{where}.{k}" if where else str(k))]
-    if isinstance(value, (list, tuple)):
-        return [f for i, v in enumerate(value) for f in non_finite_fields(v, f"{where}[{i}]")]
-    return []
+def _stored_view_bytes(dataset: Dataset, sample: int = 8) -> int:
+    """Bytes of the largest of the last ``sample`` views stored in ``dataset`` (file, sidecars, thumbnail)."""
+    done = [v for v in dataset.views if v.get("status") == "done" and v.get("file")][-sample:]
+    largest = 0
+    for v in done:
+        total = 0
+        for rel in (v.get("file"), *(v.get("sidecars") or ()), v.get("thumb")):
+            try:
+                total += dataset.path_of(rel).stat().st_size if rel else 0
+            except (OSError, LfError):
+                pass
+        largest = max(largest, total)
+    return largest
 
 
 class ScanEngine:
@@ -142,19 +152,19 @@ class ScanEngine:
     def __init__(self, dataset: Dataset, plan: ScanPlan, rig: Any, camera: Any, *,
                  recapture: bool = False, retries: int = 2, backoff_s: float = 0.5,
                  move_timeout_s: float = 300.0, capture_timeout_s: float = 120.0,
-                 min_free_bytes: int = 256 * 2**20, time_scale: float = 1.0,
+                 min_free_bytes: int = 8 * 2**20, time_scale: float = 1.0,
                  thumb_width_px: int = THUMB_WIDTH_PX, checkpoint_s: float = 5.0,
                  free_bytes_fn: Callable[[Path], int] = free_bytes):
         self.dataset = dataset
         self.plan = plan
         self.rig, self._own_rig = _as_worker(rig, "rig")
         self.camera, self._own_camera = _as_worker(camera, "camera")
-        self.retries = int(retries)
-        self.backoff_s = float(backoff_s)
-        self.move_timeout_s = float(move_timeout_s)
-        self.capture_timeout_s = float(capture_timeout_s)
+        self.retries = RETRIES.check("retries", retries)
+        self.backoff_s = Number("s", 0, 600).check("backoff_s", backoff_s)
+        self.move_timeout_s = TIMEOUT_S.check("move_timeout_s", move_timeout_s)
+        self.capture_timeout_s = TIMEOUT_S.check("capture_timeout_s", capture_timeout_s)
         self.min_free_bytes = int(min_free_bytes)
-        self.time_scale = max(0.0, float(time_scale))
+        self.time_scale = TIME_SCALE.check("time_scale", time_scale)
         self.thumb_width_px = int(thumb_width_px)
         self.checkpoint_s = float(checkpoint_s)
         self.free_bytes_fn = free_bytes_fn
@@ -188,7 +198,9 @@ class ScanEngine:
         self._current: PlannedView | None = None
         self._prev_future: Future | None = None
         # shared with the store thread (under _cond)
-        self._last_file_bytes = 0
+        self._view_bytes = _stored_view_bytes(dataset)   # the largest view stored so far (file, sidecars, thumb)
+        self._unrecorded: list[tuple[PlannedView, dict[str, Any]]] = []   # stored, journal refused (disk)
+        self._capture_timeout: float | None = None      # per capture, from the camera's exposure + transfer
         self._store_q: queue.Queue = queue.Queue(maxsize=2)
         self._inflight = 0
         self.total = len(dataset.views)
@@ -233,7 +245,7 @@ class ScanEngine:
     @property
     def remaining(self) -> int:
         """Views still queued in this run (including the one being captured)."""
-        return len(self._queue) + len(self._retry) + (1 if self._current is not None else 0)
+        return len(self._queue) + len(self._retry) + len(self._unrecorded) + (1 if self._current is not None else 0)
 
     @property
     def pipelined(self) -> bool:
@@ -530,7 +542,23 @@ class ScanEngine:
                     removed.append(p)
         if removed:
             self._emit(EventKind.LOG, f"removed {len(removed)} unfinished file(s) left by an interrupted scan")
-        self.dataset.save()
+        try:
+            self.dataset.save()            # the manifest can be written: checked before the rig moves
+        except OSError as exc:
+            raise storage_error(exc, self.dataset.manifest_path, doing="saving") or exc
+        self._repair_thumbnails()
+
+    def _repair_thumbnails(self) -> None:
+        """Thumbnails of captured views a full disk kept from being written (the views are kept)."""
+        missing = [v for v in self.dataset.views if v.get("status") == "done" and v.get("file") and not v.get("thumb")]
+        for v in missing:
+            rel = f"thumbs/{view_stem(v['row'], v['column'])}.jpg"
+            try:
+                files = [self.dataset.path_of(f) for f in (v["file"], *(v.get("sidecars") or ()))]
+                if make_thumbnail(files, self.dataset.root / rel, self.thumb_width_px) is not None:
+                    self.dataset.record_view(v["row"], v["column"], thumb=rel)
+            except Exception as exc:       # a thumbnail is a convenience: the scan goes on without it
+                log.info("thumbnail of %s not made: %s", v["file"], exc)
 
     def _rig_call(self, name: str, *args: Any, timeout_s: float) -> Any:
         """A rig command through the scan's lease (while it holds one), applying requests meanwhile."""
@@ -653,7 +681,21 @@ class ScanEngine:
                         self._raise_fault(again)
 
     def _recover(self, fault: ScanFault) -> None:
-        """After a fault: reconnect the faulty device when it does not answer, then check the rig."""
+        """After a fault: journal the views the disk refused to record, reconnect the faulty device when
+        it does not answer, then check the rig."""
+        with self._cond:
+            kept, self._unrecorded = self._unrecorded, []
+        for i, (view, fields) in enumerate(kept):
+            refused = self._record(view, fields)
+            if refused is not None:
+                with self._cond:
+                    self._unrecorded[:0] = kept[i:]
+                raise refused
+            self._emit(EventKind.VIEW_DONE, "recorded after the disk fault (kept meanwhile)", index=view.index,
+                       row=view.row, column=view.column, eta_s=self.eta_s(), timings_s=fields.get("timings_s", {}),
+                       file=fields["file"], thumb=fields.get("thumb"))
+        if fault.device == "disk":
+            self._repair_thumbnails()
         if fault.device == "camera":
             self._free_hung_camera()
             try:
@@ -694,7 +736,16 @@ class ScanEngine:
                 raise
             except Exception as exc:
                 device = getattr(exc, "_scan_device", "camera")
+                disk = self._disk_fault(exc, self.dataset.root / "raw", "storing the capture of "
+                                        f"r{view.row:02d} c{view.column:03d}")
+                if disk is not None:            # the disk's fault, never the camera's: no retry
+                    raise disk from None
                 message = _error_text(exc)
+                if isinstance(exc, DeviceTimeout):     # a device that does not answer: waiting again won't help
+                    self._last_error[cell] = message
+                    self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
+                               will_retry=False, extra={"attempt": attempt, "device": device})
+                    raise self._silent(device, view) from None
                 self._handle_inbox()
                 if self._state is not ScanState.RUNNING:
                     # STOP, a pause, an abort or a fault came in: no retry now (the view is queued again)
@@ -713,23 +764,75 @@ class ScanEngine:
                 if self._state is not ScanState.RUNNING:
                     raise _Interrupted()
 
+    def _silent(self, device: str, view: PlannedView) -> ScanFault:
+        """The fault of a device that stopped answering during ``view`` (no retry: it would wait again)."""
+        where = f"view r{view.row:02d} c{view.column:03d}"
+        if device == "rig":
+            what = (f"Rig does not answer: the move to ({view.x_mm:g}, {view.y_mm:g}) mm for {where} did not end "
+                    f"within {self.move_timeout_s:g} s.")
+        else:
+            what = (f"Camera does not answer: the picture of {where} did not arrive within "
+                    f"{self.capture_call_timeout_s():g} s (exposure and transfer, twice over, plus 10 s).")
+        return ScanFault(f"{what} {_FIX[device]}", device)
+
     @staticmethod
     def _fault_text(device: str, message: str, attempts: int) -> str:
         what = "Rig" if device == "rig" else "Camera" if device == "camera" else "Disk"
-        fix = {"rig": "Check the axis controller's cable, power and alarms, reconnect it, then Resume.",
-               "camera": "Check the camera's cable, power, battery and card, reconnect it, then Resume.",
-               "disk": "Free disk space or choose another folder, then Resume."}.get(device, "Then Resume.")
-        return f"{what} failed {attempts} time(s): {message}. {fix}"
+        return f"{what} failed {attempts} time(s): {message}. {_FIX.get(device, 'Then Resume.')}"
+
+    def need_bytes(self) -> int:
+        """Free space the next view needs: room for two views at the size of the largest stored so far
+        (its file, sidecars and thumbnail) plus a copy of the manifest (a save writes a whole new one);
+        at least ``min_free_bytes``."""
+        try:
+            manifest = self.dataset.manifest_path.stat().st_size
+        except OSError:
+            manifest = 0
+        return max(self.min_free_bytes, 2 * self._view_bytes + 2 * manifest + 2**20)
+
+    def capture_call_timeout_s(self) -> float:
+        """How long a capture may take before the camera counts as silent: twice its exposure and
+        transfer times (from its settings; a transfer it does not tell counts as
+        :data:`TRANSFER_ALLOWANCE_S`) plus 10 s for the trigger and the bus, at most
+        ``capture_timeout_s``. A camera that does not even answer for its settings is silent already."""
+        if self._capture_timeout is None:
+            try:
+                settings = self._camera_call("settings", timeout_s=10)
+            except DeviceTimeout:
+                raise
+            except Exception as exc:
+                log.info("camera settings not read (%s)", exc)
+                settings = {}
+            settings = settings if isinstance(settings, dict) else {}
+            exposure = settings.get("shutter_s", settings.get("exposure_s"))
+            transfer = settings.get("transfer_s")
+            exposure = float(exposure) if Number().problem(exposure) is None else 1.0
+            transfer = float(transfer) if Number().problem(transfer) is None else TRANSFER_ALLOWANCE_S
+            scale = getattr(self.camera.driver, "time_scale", 1.0)        # a simulated camera's own pace
+            scale = min(1.0, float(scale)) if Number(low=0).problem(scale) is None else 1.0
+            self._capture_timeout = min(self.capture_timeout_s, 2 * (exposure + transfer) * scale + 10.0)
+            log.info("capture timeout %.1f s (exposure %g s, transfer %g s)", self._capture_timeout, exposure, transfer)
+        return self._capture_timeout
 
     def _check_disk(self) -> None:
-        need = max(self.min_free_bytes, 3 * self._last_file_bytes)
+        need = self.need_bytes()
         try:
             free = self.free_bytes_fn(self.dataset.root)
         except OSError as exc:
             raise ScanFault(f"Disk: cannot check free space in {self.dataset.root}: {exc}.", "disk") from None
         if free < need:
-            raise ScanFault(f"Disk almost full: {free / 2**20:.0f} MB free in {self.dataset.root}, "
-                            f"{need / 2**20:.0f} MB needed per view. Free disk space, then Resume.", "disk")
+            per_view = f"a view takes about {megabytes(self._view_bytes)} here" if self._view_bytes else \
+                "no view captured yet"
+            raise ScanFault(f"Disk almost full: {megabytes(free)} free on the disk at {mount_point(self.dataset.root)}; "
+                            f"{megabytes(need)} needed to go on ({per_view}). Free disk space, then Resume.", "disk")
+
+    def _disk_fault(self, exc: BaseException, folder: Path, doing: str) -> ScanFault | None:
+        """The disk fault ``exc`` stands for: a storage error, or a device error while the disk cannot
+        take the write (read-only, not writable, full) — a device is never blamed for the disk."""
+        problem = storage_error(exc, doing=doing, need_bytes=self.need_bytes(), at=folder)
+        if problem is None and isinstance(exc, (DeviceError, OSError)) and not isinstance(exc, DeviceTimeout):
+            problem = disk_problem(folder if folder.is_dir() else self.dataset.root, min(self.need_bytes(), 2**20))
+        return None if problem is None else ScanFault(str(problem), "disk")
 
     def _attempt(self, view: PlannedView, attempt: int) -> None:
         self._check_disk()
@@ -753,7 +856,7 @@ class ScanEngine:
         # the camera must have finished the previous transfer before it can expose again
         prev = self._prev_future
         if prev is not None:
-            self._await(prev, self.capture_timeout_s + 10)
+            self._await(prev, self.capture_call_timeout_s() + 10)
         t_ready = time.monotonic()
         exposed = threading.Event()
 
@@ -762,10 +865,11 @@ class ScanEngine:
             self._wake()
 
         stem = self.dataset.root / "raw" / view_stem(view.row, view.column)
+        timeout_s = self.capture_call_timeout_s()
         if self._pipelined:
-            fut = self.camera.submit("capture", stem, on_exposed=on_exposed, timeout_s=self.capture_timeout_s)
+            fut = self.camera.submit("capture", stem, on_exposed=on_exposed, timeout_s=timeout_s)
         else:
-            fut = self.camera.submit("capture", stem, timeout_s=self.capture_timeout_s)
+            fut = self.camera.submit("capture", stem, timeout_s=timeout_s)
         fut.add_done_callback(on_exposed)
         self._wait(exposed.is_set)
         if fut.done() and fut.exception() is not None:
@@ -804,8 +908,10 @@ class ScanEngine:
                     self._store(job)
                 except Exception as exc:
                     log.info("storing a view failed:\n%s", traceback.format_exc())   # the fault says it
-                    self._store_failed(job, ScanFault(f"Storing view r{job.view.row:02d} c{job.view.column:03d} "
-                                                      f"failed: {_error_text(exc)}.", "disk"))
+                    where = f"r{job.view.row:02d} c{job.view.column:03d}"
+                    fault = self._disk_fault(exc, self.dataset.root / "raw", f"storing view {where}") or \
+                        ScanFault(f"Storing view {where} failed: {_error_text(exc)}.", "disk")
+                    self._store_failed(job, fault)
                 finally:
                     with self._cond:
                         self._inflight -= 1
@@ -813,8 +919,9 @@ class ScanEngine:
         except BaseException as exc:  # the store stage itself broke: the engine thread fails the scan
             self._post(_Message(Trigger.CRASH, exc))
 
-    def _store_failed(self, job: _Job, fault: ScanFault) -> None:
-        self._post(_Message(Trigger.FAULT, (fault, job.view)))
+    def _store_failed(self, job: _Job | None, fault: ScanFault) -> None:
+        """Pause on ``fault``; ``job``'s view is captured again (None: it is kept, nothing to redo)."""
+        self._post(_Message(Trigger.FAULT, (fault, None if job is None else job.view)))
 
     def _store(self, job: _Job) -> None:
         view = job.view
@@ -823,12 +930,16 @@ class ScanEngine:
         except Exception as exc:
             self._free_hung_camera(exc)
             message = _error_text(exc)
-            if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
-                self._store_failed(job, ScanFault(f"Disk full while storing view r{view.row:02d} "
-                                                  f"c{view.column:03d}: {message}. Free disk space, then Resume.",
-                                                  "disk"))
+            disk = self._disk_fault(exc, self.dataset.root / "raw", f"storing view r{view.row:02d} c{view.column:03d}")
+            if disk is not None:          # the view is captured again after Resume (its file never arrived)
+                self._store_failed(job, disk)
                 return
-            will_retry = job.attempt <= self.retries
+            will_retry = job.attempt <= self.retries and not isinstance(exc, DeviceTimeout)
+            if isinstance(exc, DeviceTimeout):
+                self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
+                           will_retry=False, extra={"attempt": job.attempt, "device": "camera"})
+                self._store_failed(job, self._silent("camera", view))
+                return
             self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
                        will_retry=will_retry, extra={"attempt": job.attempt, "device": "camera"})
             if will_retry:
@@ -840,14 +951,18 @@ class ScanEngine:
         path = Path(result.path).resolve()
         rel = path.relative_to(self.dataset.root).as_posix()
         sha = sha256_file(path)
-        self._last_file_bytes = path.stat().st_size
+        view_bytes = sum(Path(f).stat().st_size for f in result.files if Path(f).is_file())
         thumb_rel = f"thumbs/{view_stem(view.row, view.column)}.jpg"
         preview = result.metadata.get("preview") if isinstance(result.metadata, dict) else None
+        later: ScanFault | None = None        # a disk fault after the capture is safe: recorded, then pause
         try:
             thumb = make_thumbnail(result.files, self.dataset.root / thumb_rel, self.thumb_width_px, preview)
-        except Exception:
-            log.exception("thumbnail of %s failed", rel)
-            thumb = None
+            view_bytes += thumb.stat().st_size if thumb is not None else 0
+        except Exception as exc:
+            log.info("thumbnail of %s failed: %s", rel, exc)
+            thumb = None                      # made again when the scan resumes (_repair_thumbnails)
+            later = self._disk_fault(exc, self.dataset.root / "thumbs", f"writing the thumbnail of {rel}")
+        self._view_bytes = max(self._view_bytes, view_bytes)
         timings = dict(job.timings_s)
         timings["transfer"] = t_transferred - job.exposed_at
         now = time.monotonic()
@@ -866,15 +981,40 @@ class ScanEngine:
         if sidecars:
             fields["sidecars"] = sidecars
         fields = {**getattr(result, "record", {}), **fields}   # the driver's extras (camera, its settings)
-        self.dataset.record_view(view.row, view.column, **fields)
-        with self._cond:
-            self.done += 1
-            self.captured_this_run += 1
-        if time.monotonic() - self._last_save > self.checkpoint_s:
-            self.dataset.save()
+        refused = self._record(view, fields)
+        if refused is not None:
+            with self._cond:
+                self._unrecorded.append((view, fields))
+            self._store_failed(None, refused)
+            return
+        if later is None and time.monotonic() - self._last_save > self.checkpoint_s:
+            try:
+                self.dataset.save()
+            except Exception as exc:              # the journal holds the view: it is kept whatever happens here
+                later = self._disk_fault(exc, self.dataset.root, f"saving {self.dataset.manifest_path.name}") or \
+                    ScanFault(f"Saving {self.dataset.manifest_path} failed: {_error_text(exc)}.", "disk")
             self._last_save = time.monotonic()
         self._emit(EventKind.VIEW_DONE, index=view.index, row=view.row, column=view.column, eta_s=self.eta_s(),
                    timings_s=timings, file=rel, thumb=fields["thumb"])
+        if later is not None:
+            self._store_failed(None, later)
+
+    def _record(self, view: PlannedView, fields: dict[str, Any]) -> ScanFault | None:
+        """Journal a stored view (store thread, or the engine thread on Resume); the fault when the
+        journal cannot be written. Such a view is kept in memory with its files (``_unrecorded``) and
+        journaled on Resume, not captured again; the scan pauses on the fault meanwhile."""
+        was_done = self.dataset.view(view.row, view.column).get("status") == "done"
+        try:
+            self.dataset.record_view(view.row, view.column, **fields)
+        except Exception as exc:
+            return self._disk_fault(exc, self.dataset.root, f"recording view r{view.row:02d} c{view.column:03d} "
+                                    "in the journal") or \
+                ScanFault(f"Recording view r{view.row:02d} c{view.column:03d} failed: {_error_text(exc)}.", "disk")
+        with self._cond:
+            if not was_done:                   # a view captured again (recapture) still counts once
+                self.done += 1
+            self.captured_this_run += 1
+        return None
 
     def _drain_store(self) -> None:
         """Wait (applying requests) until every exposed view is stored."""

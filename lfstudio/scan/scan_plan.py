@@ -20,6 +20,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Iterable
 
 from lfstudio.errors import InputError
+from lfstudio.numbers import OFFSET_MM, SETTLE_S, SPACING_MM, Number, check_grid
 from lfstudio.rig.motion import RigConfig
 
 ORDERS = ("row-meander", "column-meander", "raster")
@@ -72,17 +73,16 @@ class ScanPlan:
         for name, val in (("grid columns", self.columns), ("grid rows", self.rows)):
             if not isinstance(val, int) or isinstance(val, bool) or val < 1:
                 raise InputError(name, f"must be a positive whole number, got {val!r}", "1 or more")
-        sx, sy = (float(v) for v in self.spacing_mm)
-        if self.columns > 1 and not sx > 0:
-            raise InputError("horizontal spacing_mm", f"must be positive, got {sx:g}", "> 0 mm")
-        if self.rows > 1 and not sy > 0:
-            raise InputError("vertical spacing_mm", f"must be positive, got {sy:g}", "> 0 mm")
+        check_grid("grid", self.columns, self.rows)          # bounded before any view is listed
+        sx, sy = ((SPACING_MM if count > 1 else Number("mm")).check(f"{axis} spacing_mm", v)   # one view: any
+                  for axis, v, count in (("horizontal", self.spacing_mm[0], self.columns),
+                                         ("vertical", self.spacing_mm[1], self.rows)))
         if self.order not in ORDERS:
             raise InputError("order", f"unknown scan order {self.order!r}", ", ".join(ORDERS))
-        if not self.settle_s >= 0:
-            raise InputError("settle_s", f"must be zero or positive, got {self.settle_s!r}", ">= 0 s")
+        SETTLE_S.check("settle_s", self.settle_s)
         object.__setattr__(self, "spacing_mm", (sx, sy))
-        object.__setattr__(self, "origin_mm", (float(self.origin_mm[0]), float(self.origin_mm[1])))
+        object.__setattr__(self, "origin_mm", tuple(OFFSET_MM.check(f"{axis} origin_mm", v)
+                                                    for axis, v in zip(("horizontal", "vertical"), self.origin_mm)))
         if self.subset is not None:
             cells = frozenset((int(r), int(c)) for r, c in self.subset)
             bad = sorted(rc for rc in cells if not (0 <= rc[0] < self.rows and 0 <= rc[1] < self.columns))
@@ -121,7 +121,7 @@ class ScanPlan:
         try:
             columns, rows = int(grid["columns"]), int(grid["rows"])
             spacing = tuple(float(s) for s in grid["spacing_mm"])
-        except (KeyError, TypeError, ValueError):
+        except (KeyError, TypeError, ValueError, OverflowError):
             raise InputError("plan grid", "needs columns, rows and spacing_mm [h, v]") from None
         if settle_s is None:
             settle_s = grid.get("settle_s", getattr(scene_plan, "settle_s", None))
@@ -135,7 +135,7 @@ class ScanPlan:
             return cls(int(grid["columns"]), int(grid["rows"]), tuple(grid["spacing_mm"]),
                        tuple(grid.get("origin_mm", (0.0, 0.0))), grid.get("order", DEFAULT_ORDER),
                        float(grid.get("settle_s", 0.3)))
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise InputError("grid", f"incomplete grid description ({exc})",
                              "columns, rows, spacing_mm, origin_mm, order") from None
 

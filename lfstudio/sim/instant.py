@@ -121,7 +121,10 @@ class InstantCamera:
         if on_exposed is not None:
             on_exposed()
         path = Path(f"{stem_path}.png")
-        atomic_write_with(path, lambda tmp: cv2.imwrite(str(tmp), img))
+        def write(tmp: Path) -> None:
+            if not cv2.imwrite(str(tmp), img):     # e.g. a full disk: never a short file under the view's name
+                raise OSError(f"{path}: the image could not be written")
+        atomic_write_with(path, write)
         self.captures += 1
         return CaptureResult(files=(path,), metadata={"position_mm": (x, y)})
 

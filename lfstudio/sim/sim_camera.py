@@ -27,6 +27,7 @@ import numpy as np
 
 from lfstudio.dataset.atomic import atomic_write_json, atomic_write_with
 from lfstudio.errors import DeviceError, InputError
+from lfstudio.numbers import EXPOSURE_S, TIME_SCALE, TRANSFER_S
 from lfstudio.rig.camera import CameraStatus, CaptureResult
 from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
 from lfstudio.sim.sensor import SensorModel
@@ -71,10 +72,10 @@ class SimulatedCamera:
         self.studio = studio
         self.studio_kwargs = dict(studio_kwargs or demo_studio_kwargs())
         self.position_mm: Callable[[], tuple[float, float]] = position_mm or (lambda: (0.0, 0.0))
-        self.exposure_s = float(exposure_s)
-        self.transfer_s = float(transfer_s)
-        self.trigger_s = float(trigger_s)
-        self.time_scale = float(time_scale)
+        self.exposure_s = EXPOSURE_S.check("exposure_s", exposure_s)
+        self.transfer_s = TRANSFER_S.check("transfer_s", transfer_s)
+        self.trigger_s = TRANSFER_S.check("trigger_s", trigger_s)
+        self.time_scale = TIME_SCALE.check("time_scale", time_scale)
         self.iso = int(iso)
         self.aperture = float(aperture)
         self.sensor = SensorModel(flicker=flicker, vignetting=vignetting, noise=noise, seed=seed)

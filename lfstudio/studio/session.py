@@ -37,6 +37,7 @@ from typing import Any, Callable, Sequence
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.manifest import MANIFEST_NAME, now_iso
 from lfstudio.errors import DeviceError, InputError, LfError
+from lfstudio.numbers import EXPOSURE_S, RETRIES, TIME_SCALE, TRANSFER_S
 from lfstudio.rig.motion import RigConfig, RigState
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.studio.devices import SIM, CameraSpec, RigSpec, Studio, open_studio
@@ -398,8 +399,10 @@ class ScanSession:
         from lfstudio.scan.engine import ScanEngine
 
         req = self.request
-        if req.time_scale < 0:
-            raise InputError("--time-scale", f"must be zero or positive, got {req.time_scale:g}", ">= 0")
+        for option, number, value in (("--time-scale", TIME_SCALE, req.time_scale), ("--retries", RETRIES, req.retries),
+                                      ("--exposure-s", EXPOSURE_S, req.exposure_s),
+                                      ("--transfer-s", TRANSFER_S, req.transfer_s)):
+            number.check(option, value)        # before any folder, lock or device
         for words, parse in ((req.rig, RigSpec.parse), (req.camera, CameraSpec.parse)):
             if words is not None:
                 parse(words)              # a typo is reported before any folder is made

@@ -143,15 +143,13 @@ class SmallDisk:
         """Take the free space but ``leave_bytes`` with a filler file (removed to make room again)."""
         filler = self.path / "filler.bin"
         free = shutil.disk_usage(self.path).free - leave_bytes
-        with open(filler, "ab") as fh:
-            block = b"\0" * 65536
-            while free > 0:
-                try:
-                    fh.write(block[:min(len(block), free)])
-                    fh.flush()
-                except OSError:
-                    break
-                free -= len(block)
+        block = b"\0" * 65536
+        try:
+            with open(filler, "ab", buffering=0) as fh:
+                while free > 0:
+                    free -= fh.write(block[:min(len(block), free)])
+        except OSError:            # full before the count said so (the file system's own blocks)
+            pass
         return filler
 
     def unmount(self) -> None:

@@ -130,7 +130,7 @@ def test_too_little_free_disk_space_pauses_with_a_message_then_resumes(setup):
 
     def on(ev):
         if ev.kind is EventKind.VIEW_DONE and ev.done == 4:
-            free["bytes"] = 50 * 2**20          # the disk fills up
+            free["bytes"] = 5 * 2**20           # the disk fills up: less than the 8 MB floor
         if ev.kind is EventKind.STATE and ev.state is ScanState.PAUSED:
             paused.set()
     engine.subscribe(on)

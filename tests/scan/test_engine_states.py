@@ -10,6 +10,7 @@ import threading
 import pytest
 
 from lfstudio.dataset import Dataset
+from lfstudio.errors import DatasetError
 from lfstudio.rig.profile import load_rig
 from lfstudio.rig.worker import DeviceBusy, DeviceWorker
 from lfstudio.scan.engine import ScanEngine
@@ -237,7 +238,12 @@ def test_a_nan_in_a_resumed_dataset_fails_the_scan_before_the_rig_moves(make):
         if v["status"] == "skipped":
             v["status"] = "pending"
     ds.manifest_path.write_text(json.dumps(manifest))          # json writes NaN; our writer refuses it
+    with pytest.raises(DatasetError, match=r"lens\.focal_length_mm: not a finite number"):
+        Dataset.open(ds.root)                                 # the loader refuses it, naming the field...
+    manifest["lens"]["focal_length_mm"] = 50.0
+    ds.manifest_path.write_text(json.dumps(manifest))
     resumed = Dataset.open(ds.root)
+    resumed.lens["focal_length_mm"] = float("nan")            # ...and a NaN put there in memory fails the scan
     assert resumed.status_counts()["pending"] == 3
     again = ScanEngine(resumed, engine.plan, rig, cam, time_scale=0.0)
     moves_before = rig.true_position_mm()

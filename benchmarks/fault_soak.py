@@ -1,0 +1,230 @@
+"""Fault soak: N random kill -9 / fault trials of a scan; every view captured before a fault must be kept
+exactly once and nothing outside the dataset touched.
+
+Each trial runs ``lfstudio scan`` (instant rig, simulated camera, 5 x 3 views of 96 px, time scale 0.05)
+in a subprocess and hits it with one fault at a random moment:
+
+* ``kill``: kill -9 after a random number of journaled views and a random extra delay (inside a
+  move, an exposure, a transfer or a store);
+* ``kill-twice``: the same, then kill -9 of the resume too;
+* ``disk-full`` (root only: a real tmpfs): the dataset on a disk sized to fill up after a random
+  number of views (the scan stops on its free-space floor), then made larger;
+* ``disk-fills`` (root only): another program takes all the free space of the dataset's tmpfs at a
+  random moment (a real ENOSPC at whichever write comes next: capture, thumbnail, journal,
+  manifest), then frees it again.
+
+Then ``lfstudio scan --resume`` completes the dataset and the trial counts:
+
+* lost: a view done before the fault that is not done after, or whose file or checksum changed;
+* duplicated: a view done before the fault that was captured again (its capture time changed), or
+  a second file for one view;
+* outside: files beside the dataset that appeared, changed or vanished (a sentinel folder next to it).
+
+Usage (from the repository root): ``./.venv/bin/python benchmarks/fault_soak.py [--trials 50] [--seed 1]``.
+Prints one line per trial and ``N trials, 0 lost, 0 duplicated, 0 outside``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from _measure import Timer, load_text  # noqa: E402
+
+from lfstudio.dataset import Dataset  # noqa: E402
+from lfstudio.dataset.store import read_journal, temporary_files  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+GRID = (5, 3)
+SCAN = ["--rig", "instant", "--camera", "sim", "--sim-width-px", "96"]
+
+
+def cli(*args: object) -> list[str]:
+    return [sys.executable, "-m", "lfstudio", *map(str, args)]
+
+
+def env() -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+
+
+def snapshot(folder: Path) -> dict[str, str]:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def captured(root: Path) -> dict[tuple[int, int], tuple]:
+    if not (root / "dataset.json").is_file():
+        return {}
+    return {(v["row"], v["column"]): (v["file"], v["sha256"], v["captured_at"])
+            for v in Dataset.open(root).views if v.get("status") == "done"}
+
+
+def journaled(root: Path) -> int:
+    try:
+        return len(read_journal(root / "journal.jsonl")[0]) + sum(
+            1 for v in json.loads((root / "dataset.json").read_text())["views"] if v.get("status") == "done")
+    except (OSError, ValueError, KeyError):
+        return 0
+
+
+def kill_scan_at_random(out: Path, rnd: random.Random, resume: bool) -> None:
+    args = cli("scan", "--resume", "--time-scale", "0.05", "--sim-width-px", "96", "--out", out) if resume else \
+        cli("scan", *SCAN, "--time-scale", "0.05", "--grid", f"{GRID[0]}x{GRID[1]}", "--out", out)
+    start = journaled(out)
+    proc = subprocess.Popen(args, cwd=REPO, env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    target = start + rnd.randint(0, GRID[0] * GRID[1] - start)
+    deadline = time.monotonic() + 120
+    while proc.poll() is None and journaled(out) < target and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(rnd.uniform(0.0, 0.4))
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGKILL)
+    proc.wait(60)
+
+
+def can_mount() -> bool:
+    if os.geteuid() != 0:
+        return False
+    probe = Path(tempfile.mkdtemp(prefix="lfstudio-soak-probe-"))
+    ok = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(probe)], capture_output=True).returncode == 0
+    if ok:
+        subprocess.run(["umount", str(probe)], capture_output=True)
+    probe.rmdir()
+    return ok
+
+
+def disk_full(work: Path, rnd: random.Random) -> Path:
+    """The scan on a tmpfs that fills after a random number of views; the disk made larger afterwards."""
+    disk = work / "disk"
+    disk.mkdir()
+    size = 8 * 2**20 + rnd.randint(0, 250 * 1024)         # the 8 MB floor plus room for some views (~20 kB each)
+    subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(disk)], check=True)
+    out = disk / "ds"
+    (disk / "beside").mkdir()
+    (disk / "beside" / "keep.txt").write_text("not the dataset's\n")
+    subprocess.run(cli("scan", *SCAN, "--time-scale", "0", "--grid", f"{GRID[0]}x{GRID[1]}", "--out", out),
+                   cwd=REPO, env=env(), capture_output=True, timeout=300)
+    return out
+
+
+def fill(folder: Path) -> Path:
+    """Take every free byte of ``folder``'s disk with a filler file."""
+    filler = folder / "filler.bin"
+    try:
+        with open(filler, "ab", buffering=0) as fh:
+            while True:
+                fh.write(b"\0" * 65536)
+    except OSError:            # the disk is full (raised by a write or by the close)
+        pass
+    return filler
+
+
+def disk_fills(work: Path, rnd: random.Random) -> Path:
+    """The scan on a roomy tmpfs that another program fills up at a random moment (a real ENOSPC at
+    whatever write comes next); the filler is removed afterwards."""
+    disk = work / "disk"
+    disk.mkdir()
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=32m", "tmpfs", str(disk)], check=True)
+    out = disk / "ds"
+    (disk / "beside").mkdir()
+    (disk / "beside" / "keep.txt").write_text("not the dataset's\n")
+    proc = subprocess.Popen(cli("scan", *SCAN, "--time-scale", "0.05", "--grid", f"{GRID[0]}x{GRID[1]}", "--out", out),
+                            cwd=REPO, env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    target = rnd.randint(0, GRID[0] * GRID[1] - 1)
+    deadline = time.monotonic() + 120
+    while proc.poll() is None and journaled(out) < target and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(rnd.uniform(0.0, 0.3))
+    filler = fill(disk)
+    proc.wait(120)
+    filler.unlink()
+    return out
+
+
+def trial(i: int, kind: str, rnd: random.Random, work: Path) -> dict:
+    outside = work / "beside"
+    outside.mkdir(parents=True)
+    (outside / "keep.txt").write_text("not the dataset's\n")
+    before_outside = snapshot(outside)
+    if kind in ("disk-full", "disk-fills"):
+        out = disk_full(work, rnd) if kind == "disk-full" else disk_fills(work, rnd)
+        outside = out.parent / "beside"
+        before_outside = snapshot(outside)
+    else:
+        out = work / "ds"
+        kill_scan_at_random(out, rnd, resume=False)
+    before = captured(out)
+    if kind == "kill-twice" and len(before) < GRID[0] * GRID[1]:
+        kill_scan_at_random(out, rnd, resume=True)
+        middle = captured(out)       # the views the killed resume added count too; the first ones keep their record
+        before = {**{c: v for c, v in middle.items() if c not in before}, **before}
+    if kind == "disk-full":
+        subprocess.run(["mount", "-o", "remount,size=64m", str(out.parent)], check=True)
+    if (out / "dataset.json").is_file():
+        again = cli("scan", "--resume", "--time-scale", "0", "--sim-width-px", "96", "--out", out)
+    else:                               # killed before the dataset existed: the operator starts again
+        again = cli("scan", *SCAN, "--time-scale", "0", "--grid", f"{GRID[0]}x{GRID[1]}", "--out", out)
+    done = subprocess.run(again, cwd=REPO, env=env(), capture_output=True, text=True, timeout=300)
+    after = captured(out)
+    lost = [c for c, v in before.items() if c not in after or after[c][:2] != v[:2]]
+    duplicated = [c for c, v in before.items() if c in after and after[c][:2] == v[:2] and after[c][2] != v[2]]
+    stems = [p.name.split(".")[0] for p in (out / "raw").glob("*.dng")]
+    duplicated += [s for s in set(stems) if stems.count(s) > 1]
+    incomplete = GRID[0] * GRID[1] - len(after)
+    problems = Dataset.open(out).verify_files() + [str(p) for p in temporary_files(out)]
+    outside_changed = snapshot(outside) != before_outside
+    return {"kind": kind, "before": len(before), "lost": len(lost), "duplicated": len(duplicated),
+            "outside": int(outside_changed), "incomplete": incomplete, "problems": problems,
+            "resume_rc": done.returncode, "stderr": done.stderr.strip().splitlines()[-1:] if done.returncode else []}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--trials", type=int, default=50)
+    parser.add_argument("--seed", type=int, default=1)
+    args = parser.parse_args()
+    rnd = random.Random(args.seed)
+    kinds = ["kill", "kill", "kill-twice"] + (["disk-full", "disk-fills"] if can_mount() else [])
+    totals = {"lost": 0, "duplicated": 0, "outside": 0, "incomplete": 0, "problems": 0}
+    counts: dict[str, int] = {}
+    timer = Timer()
+    span = timer.__enter__()
+    for i in range(args.trials):
+        kind = rnd.choice(kinds)
+        counts[kind] = counts.get(kind, 0) + 1
+        with tempfile.TemporaryDirectory(prefix="lfstudio-soak-", ignore_cleanup_errors=True) as tmp:
+            try:
+                result = trial(i, kind, rnd, Path(tmp))
+            finally:
+                if (Path(tmp) / "disk").is_mount():
+                    subprocess.run(["umount", "-l", str(Path(tmp) / "disk")], capture_output=True)
+        for key in ("lost", "duplicated", "outside", "incomplete"):
+            totals[key] += result[key]
+        totals["problems"] += len(result["problems"])
+        print(f"trial {i + 1:3d} {kind:<10} {result['before']:2d} views before the fault: lost {result['lost']}, "
+              f"duplicated {result['duplicated']}, outside {result['outside']}, incomplete {result['incomplete']}"
+              + (f", problems {result['problems'][:2]}" if result["problems"] else "")
+              + (f", resume exit {result['resume_rc']} {result['stderr']}" if result["resume_rc"] else ""), flush=True)
+    timer.__exit__(None, None, None)
+    print(f"fault kinds: {', '.join(f'{k} {n}' for k, n in sorted(counts.items()))}; {span.wall_s:.0f} s wall, "
+          f"{span.cpu_s:.0f} s CPU (this process and its scans); {load_text()}")
+    if totals["incomplete"] or totals["problems"]:
+        print(f"{totals['incomplete']} views not completed by the resume, {totals['problems']} file problems")
+    print(f"{args.trials} trials, {totals['lost']} lost, {totals['duplicated']} duplicated, {totals['outside']} outside")
+    return 0 if not any(totals.values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

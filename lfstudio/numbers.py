@@ -1,0 +1,184 @@
+"""Validated numbers: every number a person or a file hands lfstudio goes through here.
+
+A CLI option, a GUI field, a rig or processing profile, a scene plan, a manifest: each numeric
+field is described once by a :class:`Number` (its range, its unit, whole or not) and checked by
+:meth:`Number.check`, which refuses NaN, infinities, values out of range and non-numbers with one
+:class:`~lfstudio.errors.InputError` line naming the field, the value, and the valid range with its
+unit::
+
+    SETTLE_S = Number("s", 0, 600)
+    SETTLE_S.check("--settle-s", 1e300)  # InputError: --settle-s: 1e+300 s is out of range (valid: 0 … 600 s)
+
+:meth:`Number.option` is the ``type=`` of an argparse option (the parser reports the line and exits
+with status 2 before any device is opened). Sizes that allocate memory are bounded here too, before
+anything is allocated: :func:`check_grid` (columns, rows and their product).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+from dataclasses import dataclass
+from typing import Any, Callable
+
+from lfstudio.errors import InputError
+
+#: the most views a grid may have (a 101 x 21 reference scan has 2121; a manifest entry is ~400 bytes)
+MAX_VIEWS = 200_000
+#: the most columns or rows of a grid
+MAX_GRID_SIDE = 20_000
+
+
+def _fmt(value: float) -> str:
+    return f"{value:g}"
+
+
+@dataclass(frozen=True)
+class Number:
+    """The rules of one numeric field: ``low`` … ``high`` (None: unbounded), ``low_open``: the low end
+    itself is excluded (``> 0``), ``integer``: a whole number. ``unit`` goes into every message."""
+
+    unit: str = ""
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    integer: bool = False
+
+    def valid(self) -> str:
+        """The accepted range as an operator reads it: ``0 … 600 s``, ``> 0 mm``, ``whole number ≥ 1``."""
+        unit = f" {self.unit}" if self.unit else ""
+        kind = "whole number " if self.integer else ""
+        if self.low is not None and self.high is not None and not self.low_open:
+            text = f"{_fmt(self.low)} … {_fmt(self.high)}{unit}"
+            return f"{kind}{text}" if kind else text
+        parts = []
+        if self.low is not None:
+            parts.append(f"{'>' if self.low_open else '≥'} {_fmt(self.low)}{unit}")
+        if self.high is not None:
+            parts.append(f"≤ {_fmt(self.high)}{unit}")
+        return (kind + " and ".join(parts)).strip() or f"a finite number{unit}"
+
+    def problem(self, value: Any) -> str | None:
+        """What is wrong with ``value`` (without the field's name), or None when it is valid."""
+        unit = f" {self.unit}" if self.unit else ""
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return f"{value!r} is not a number"
+        if isinstance(value, int) and abs(value) > 2 ** 63:      # (str() of a huge int may itself fail)
+            return f"a {int(value.bit_length() * 0.30103) + 1}-digit number is out of range"
+        if not math.isfinite(value):
+            return f"{value!r} is not a finite number" if isinstance(value, float) else f"{value} is not a number"
+        if self.integer and not float(value).is_integer():
+            return f"{_fmt(value)}{unit} is not a whole number"
+        if (self.low is not None and (value < self.low or (self.low_open and value == self.low))) or \
+                (self.high is not None and value > self.high):
+            return f"{_fmt(value)}{unit} is out of range"
+        return None
+
+    def check(self, field: str, value: Any) -> Any:
+        """``value`` as an int (``integer``) or float, or :class:`InputError` naming ``field``."""
+        problem = self.problem(value)
+        if problem:
+            raise InputError(field, problem, self.valid())
+        return int(value) if self.integer else float(value)
+
+    def parse(self, field: str, text: str) -> Any:
+        """A number typed by a person (``"0.5"``, ``" 12 "``), checked."""
+        try:
+            value: Any = int(text) if self.integer else float(text)
+        except (TypeError, ValueError):
+            try:
+                value = float(text)           # "2.5" for a whole number: told as not whole, not as unreadable
+            except (TypeError, ValueError):
+                raise InputError(field, f"{text!r} is not a number", self.valid()) from None
+        return self.check(field, value)
+
+    def option(self, option: str) -> Callable[[str], Any]:
+        """The ``type=`` of an argparse option: the text parsed and checked; a refusal is argparse's
+        one-line error (exit status 2)."""
+        return _as_option(option, lambda text: self.parse(option, text))
+
+
+# -- fields several places share (CLI, GUI, profiles, plans, the engine) -----------------------------------------
+TIME_SCALE = Number("", 0, 1000)                    # factor on every simulated duration (0: as fast as possible)
+SETTLE_S = Number("s", 0, 3600)
+EXPOSURE_S = Number("s", 0, 3600)
+TRANSFER_S = Number("s", 0, 3600)
+TIMEOUT_S = Number("s", 0, 86400, low_open=True)
+RETRIES = Number("", 0, 100, integer=True)
+SPACING_MM = Number("mm", 0.001, 100_000)          # below a micrometre no rig repeats
+OFFSET_MM = Number("mm", -100_000, 100_000)
+WIDTH_PX = Number("px", 16, 100_000, integer=True)
+SEED = Number("", 0, 2 ** 32 - 1, integer=True)
+WORKERS = Number("", 0, 4096, integer=True)
+
+
+
+def parse_numbers(field: str, text: str, number: Number, count: int = 2, example: str = "4x6") -> tuple:
+    """``count`` numbers typed as one word (``4x6``, ``4×6``, ``4,6``), each checked by ``number``."""
+    parts = re.split(r"[x×,]", str(text).strip().lower())
+    if len(parts) != count or not all(p.strip() for p in parts):
+        raise InputError(field, f"cannot read {text!r}", f"{count} numbers like {example}")
+    return tuple(number.parse(field, p.strip()) for p in parts)
+
+
+def numbers_option(option: str, number: Number, count: int = 2, example: str = "4x6") -> Callable[[str], tuple]:
+    """The ``type=`` of an option of ``count`` numbers (see :func:`parse_numbers`)."""
+    return _as_option(option, lambda text: parse_numbers(option, text, number, count, example))
+
+
+def grid_option(option: str) -> Callable[[str], tuple[int, int]]:
+    """The ``type=`` of a ``CxR`` grid option, bounded by :func:`check_grid`."""
+    whole = Number("", integer=True)
+    return _as_option(option, lambda text: check_grid(option, *parse_numbers(option, text, whole, 2, "101x21")))
+
+
+def _as_option(option: str, parse: Callable[[str], Any]) -> Callable[[str], Any]:
+    """``parse`` as an argparse ``type=``: an InputError becomes argparse's one-line error (exit 2)."""
+    def convert(text: str) -> Any:
+        try:
+            return parse(text)
+        except InputError as exc:
+            message = str(exc)
+            raise argparse.ArgumentTypeError(message[len(option) + 2:] if message.startswith(f"{option}: ")
+                                             else message) from None
+    convert.__name__ = option.lstrip("-").replace("-", "_")
+    return convert
+
+
+def check_number(field: str, value: Any, *, unit: str = "", low: float | None = None, high: float | None = None,
+                 low_open: bool = False, integer: bool = False) -> Any:
+    """:meth:`Number.check` for a field described in place."""
+    return Number(unit, low, high, low_open, integer).check(field, value)
+
+
+def check_grid(field: str, columns: Any, rows: Any) -> tuple[int, int]:
+    """A grid's ``columns`` x ``rows``: whole numbers ≥ 1, each ≤ :data:`MAX_GRID_SIDE` and at most
+    :data:`MAX_VIEWS` views together. Call before anything is allocated per view."""
+    side = Number("", 1, MAX_GRID_SIDE, integer=True)
+    for name, value in (("columns", columns), ("rows", rows)):
+        problem = side.problem(value)
+        if problem:
+            raise InputError(field, f"{name}: {problem}", side.valid())
+    c, r = int(columns), int(rows)
+    if c * r > MAX_VIEWS:
+        raise InputError(field, f"{c} x {r} is {c * r} views, more than lfstudio handles in one dataset",
+                         f"at most {MAX_VIEWS} views; split the scan into several datasets")
+    return c, r
+
+
+def non_finite_fields(value: Any, where: str = "") -> list[str]:
+    """Dotted names of the NaN/infinite numbers in a JSON-like value (``lens.focal_length_mm``), in
+    document order; any depth (no recursion)."""
+    found: list[str] = []
+    stack: list[tuple[Any, str]] = [(value, where)]
+    while stack:
+        item, name = stack.pop()
+        if isinstance(item, float):
+            if not math.isfinite(item):
+                found.append(name or "(value)")
+        elif isinstance(item, dict):
+            stack.extend((v, f"{name}.{k}" if name else str(k)) for k, v in reversed(list(item.items())))
+        elif isinstance(item, (list, tuple)):
+            stack.extend((v, f"{name}[{i}]") for i, v in reversed(list(enumerate(item))))
+    return found

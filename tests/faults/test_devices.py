@@ -1,0 +1,100 @@
+"""Fault matrix, devices: the serial port vanishing mid-scan (USB unplugged) and a camera that stops
+answering, through the scan session the CLI and the window use. The scan stops with a message naming
+the device and the operation in words (no Python internals), within the time the operation allows, and
+every view captured before is kept exactly once when the scan resumes."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+from lfstudio.dataset import Dataset
+from lfstudio.rig.profile import load_rig
+from lfstudio.scan.engine import ScanEngine
+from lfstudio.scan.events import EventKind, ScanState
+from lfstudio.scan.scan_plan import ScanPlan, grid_order
+from lfstudio.studio.devices import open_studio
+from lfstudio.studio.session import ScanRequest, ScanSession, create_scan_dataset
+
+RIG = load_rig()
+T = 60
+
+
+def captured(root):
+    return {(v["row"], v["column"]): (v["file"], v["sha256"], v["captured_at"])
+            for v in Dataset.open(root).views if v.get("status") == "done"}
+
+
+def _paused(engine):
+    paused = threading.Event()
+    engine.subscribe(lambda ev: paused.set() if ev.kind is EventKind.STATE and ev.state is ScanState.PAUSED else None)
+    return paused
+
+
+def test_the_serial_port_vanishing_mid_scan_keeps_every_view_and_a_new_session_resumes(tmp_path):
+    plan = ScanPlan.centered(4, 3, (4.0, 6.0), RIG, settle_s=0.0)
+    studio = open_studio("sim", "sim", RIG, time_scale=0.0, view_region_mm=plan.extent_mm(), sim_width_px=96)
+    ds = create_scan_dataset(tmp_path / "ds", plan, rig={"name": RIG.name}, camera={"name": "sim"},
+                             lens={"name": "virtual"})
+    engine = ScanEngine(ds, plan, studio.rig, studio.camera, time_scale=0.0, backoff_s=0.01, retries=1)
+    paused = _paused(engine)
+    engine.subscribe(lambda ev: studio.simulator.inject("drop") if ev.kind is EventKind.VIEW_DONE and ev.done == 4
+                     else None)
+    try:
+        engine.start()
+        assert paused.wait(T), engine.message
+        assert engine.fault.device == "rig" and engine.message.startswith("Rig"), engine.message
+        for internal in ("Traceback", "PosixPath", "<bound", "Errno"):
+            assert internal not in engine.message
+        engine.resume()                             # the port is gone: reconnecting fails, said in words
+        assert paused.wait(T)
+        engine.abort()
+        assert engine.wait(T) is ScanState.FINISHED
+        assert engine.message.startswith("Aborted") and "Resume the scan" in engine.message
+    finally:
+        studio.close()
+    before = captured(ds.root)
+    assert 4 <= len(before) < 12
+    again = open_studio("sim", "sim", RIG, time_scale=0.0, view_region_mm=plan.extent_mm(), sim_width_px=96)
+    try:
+        resumed = ScanEngine(Dataset.open(ds.root), plan, again.rig, again.camera, time_scale=0.0)
+        events = []
+        resumed.subscribe(events.append)
+        resumed.start()
+        assert resumed.wait(T) is ScanState.FINISHED, resumed.message
+    finally:
+        again.close()
+    after = captured(ds.root)
+    assert len(after) == 12 and {cell: after[cell] for cell in before} == before
+    assert sorted((e.row, e.column) for e in events if e.kind is EventKind.VIEW_DONE) == \
+        sorted(set(grid_order(4, 3)) - set(before))
+    assert Dataset.open(ds.root).verify_files() == []
+
+
+def test_a_silent_camera_stops_the_scan_within_its_capture_time_naming_it_in_words(tmp_path):
+    """The simulated camera's own "silent" fault (it stops answering) through the scan session: the
+    capture's timeout comes from the camera's exposure and transfer (here 0.2 + 0.3 s: 2 x 0.5 + 10 s),
+    not a fixed two minutes, and the scan pauses at once (waiting again would not help)."""
+    request = ScanRequest(tmp_path / "ds", rig="instant", camera="sim", time_scale=1.0, exposure_s=0.2,
+                          transfer_s=0.3, sim_width_px=96, camera_options={"faults": {"silent": None}})
+    session = ScanSession(request, doing="test")
+    try:
+        engine = session.open(lambda existing, rig: (ScanPlan.centered(2, 1, (4.0, 6.0), rig, settle_s=0.0), None))
+        assert engine.capture_call_timeout_s() == 11.0
+        paused = _paused(engine)
+        events: list = []
+        engine.subscribe(events.append)
+        engine.start()
+        assert paused.wait(T), engine.message
+        assert engine.message.startswith("Camera does not answer: the picture of view r00 c000 did not arrive "
+                                         "within 11 s"), engine.message
+        for internal in ("PosixPath", "<bound", "on_exposed", "timed out after"):
+            assert internal not in engine.message
+        failures = [e for e in events if e.kind is EventKind.VIEW_FAILED]
+        assert all(not f.will_retry for f in failures)
+        engine.abort()
+        assert engine.wait(T) is ScanState.FINISHED
+    finally:
+        session.close()
+    assert Dataset.open(Path(tmp_path / "ds")).verify_files() == []
+

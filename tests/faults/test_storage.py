@@ -1,0 +1,243 @@
+"""Fault matrix, storage: a full disk (ENOSPC) at each write of each stage, a read-only disk (EROFS), on
+real file systems (a small tmpfs; root only, skipped elsewhere). Every case: the run stops with one line
+naming the disk (never the camera), keeps everything captured or computed, and resumes without doing it
+again — every captured view kept exactly once."""
+
+from __future__ import annotations
+
+import inspect
+import shutil
+import subprocess
+import threading
+
+import pytest
+
+from lfstudio.dataset import Dataset
+from lfstudio.rig.profile import load_rig
+from lfstudio.scan import engine as engine_module
+from lfstudio.scan.engine import ScanEngine
+from lfstudio.scan.events import EventKind, ScanState
+from lfstudio.scan.scan_plan import ScanPlan, grid_order
+from lfstudio.studio.devices import open_studio
+from lfstudio.studio.session import create_scan_dataset
+from tests.faults.conftest import assert_one_line_error, manifest_of
+
+RIG = load_rig()
+T = 60
+
+
+# -- the scan engine: ENOSPC at each of its writes, EROFS between views --------------------------------------
+@pytest.fixture
+def disk_scan(small_disk):
+    """A 4 x 3 scan of the simulated studio into a dataset on a 4 MB tmpfs."""
+    disk = small_disk(4 * 2**20)
+    plan = ScanPlan.centered(4, 3, (4.0, 6.0), RIG, settle_s=0.0)
+    studio = open_studio("sim", "sim", RIG, time_scale=0.0, exposure_s=0.5, transfer_s=2.5,
+                         view_region_mm=plan.extent_mm(), sim_width_px=96)
+    ds = create_scan_dataset(disk.path / "ds", plan, rig={"name": RIG.name}, camera={"name": "sim"},
+                             lens={"name": "virtual"})
+    engine = ScanEngine(ds, plan, studio.rig, studio.camera, time_scale=0.0, backoff_s=0.01, checkpoint_s=0.0,
+                        min_free_bytes=64 * 1024)
+    events: list = []
+    engine.subscribe(events.append)
+    yield disk, studio, ds, engine, events
+    if engine.state not in (ScanState.FINISHED, ScanState.FAILED, ScanState.IDLE):
+        engine.abort()
+    engine.wait(T)
+    studio.close()
+
+
+def _fill_before(disk, fn):
+    """``fn`` preceded, the first time only, by filling the disk: its write meets a real ENOSPC."""
+    state = {"armed": True}
+
+    def wrapper(*args, **kwargs):
+        if state["armed"]:
+            state["armed"] = False
+            disk.fill()
+        return fn(*args, **kwargs)
+    wrapper.__signature__ = inspect.signature(fn)
+    return wrapper
+
+
+def _arm(write, disk, studio, ds, monkeypatch):
+    """Fill the disk just before the scan's ``write`` of the 6th view (r01_c002 in row-meander order;
+    the 5 before are stored). Returns the camera's captures per view name."""
+    camera = studio.camera
+    real_capture = camera.capture
+    captures: dict[str, int] = {}
+
+    def capture(stem_path, on_exposed=None):
+        captures[stem_path.name] = captures.get(stem_path.name, 0) + 1
+        if stem_path.name != "r01_c002" or write != "capture" or captures[stem_path.name] > 1:
+            return real_capture(stem_path, on_exposed=on_exposed)
+
+        def exposed():
+            disk.fill()                  # after the shutter closed, before the camera writes the file
+            on_exposed()
+        return real_capture(stem_path, on_exposed=exposed)
+    monkeypatch.setattr(camera, "capture", capture)
+    if write == "thumbnail":
+        real = engine_module.make_thumbnail
+        filling = _fill_before(disk, real)
+        monkeypatch.setattr(engine_module, "make_thumbnail", lambda files, out, *a, **k: (
+            filling if out.stem == "r01_c002" else real)(files, out, *a, **k))
+    elif write in ("journal", "manifest"):
+        name = "record_view" if write == "journal" else "save"
+        real = getattr(ds, name)
+        calls = {"n": 0}
+
+        def wrapped(*a, **k):
+            calls["n"] += 1
+            if calls["n"] == 6:
+                disk.fill()
+            return real(*a, **k)
+        monkeypatch.setattr(ds, name, wrapped)
+    return captures
+
+
+@pytest.mark.parametrize("write", ["capture", "thumbnail", "journal", "manifest"])
+def test_a_full_disk_at_each_write_of_a_scan_stops_keeps_and_resumes(write, disk_scan, monkeypatch):
+    disk, studio, ds, engine, events = disk_scan
+    captures = _arm(write, disk, studio, ds, monkeypatch)
+    paused = threading.Event()
+    engine.subscribe(lambda ev: paused.set() if ev.kind is EventKind.STATE and ev.state is ScanState.PAUSED else None)
+    engine.start()
+    assert paused.wait(T), engine.message
+    assert engine.fault is not None and engine.fault.device == "disk", engine.message
+    assert "is full" in engine.message and f"the disk at {disk.path} (tmpfs" in engine.message, engine.message
+    assert "camera" not in engine.message.lower()
+    assert not any(e.kind is EventKind.VIEW_FAILED and e.extra.get("device") == "camera" for e in events)
+    stored_before = {f"r{r:02d}_c{c:03d}" for r, c in ((e.row, e.column) for e in events
+                                                         if e.kind is EventKind.VIEW_DONE)}
+    (disk.path / "filler.bin").unlink()          # the operator frees space
+    engine.resume()
+    assert engine.wait(T) is ScanState.FINISHED, engine.message
+    done = [(e.row, e.column) for e in events if e.kind is EventKind.VIEW_DONE]
+    assert sorted(done) == sorted(grid_order(4, 3)) and len(done) == 12     # each view exactly once
+    # a view stored before the fault is never captured again; a view is captured again only when its
+    # own file never arrived: the one whose capture met the full disk, and pipelined captures still in
+    # flight when the disk filled up
+    assert all(captures[name] == 1 for name in stored_before), (captures, stored_before)
+    if write == "capture":
+        assert captures["r01_c002"] == 2, captures
+    # (in flight: one capture exposing, two waiting for the store thread)
+    assert sum(captures.values()) <= 12 + 3, captures
+    again = Dataset.open(ds.root)
+    assert again.status_counts()["done"] == 12 and again.verify_files() == []
+    assert all(v.get("thumb") for v in again.views)       # a thumbnail the full disk kept back is made later
+    assert engine.done == 12
+
+
+def test_a_folder_turning_unwritable_mid_scan_is_the_disks_fault_then_resumes(disk_scan):
+    """The raw folder made immutable (``chattr +i``: every new file refused, as on a disk that turned
+    read-only) while the scan runs: a disk fault, never the camera's; Resume after it is fixed."""
+    disk, studio, ds, engine, events = disk_scan
+    paused = threading.Event()
+
+    def on(ev):
+        if ev.kind is EventKind.VIEW_DONE and ev.done == 4:
+            subprocess.run(["chattr", "+i", str(ds.root / "raw")], check=True)
+        if ev.kind is EventKind.STATE and ev.state is ScanState.PAUSED:
+            paused.set()
+    engine.subscribe(on)
+    engine.start()
+    try:
+        assert paused.wait(T), engine.message
+    finally:
+        subprocess.run(["chattr", "-i", str(ds.root / "raw")], check=True)
+    assert engine.fault.device == "disk" and "does not allow this write" in engine.message, engine.message
+    assert "camera" not in engine.message.lower()
+    assert not any(e.kind is EventKind.VIEW_FAILED and e.extra.get("device") == "camera" for e in events)
+    engine.resume()
+    assert engine.wait(T) is ScanState.FINISHED, engine.message
+    done = [(e.row, e.column) for e in events if e.kind is EventKind.VIEW_DONE]
+    assert sorted(done) == sorted(grid_order(4, 3)) and len(done) == 12
+    assert Dataset.open(ds.root).verify_files() == []
+
+
+def test_the_free_space_floor_comes_from_the_views_captured_so_far(disk_scan):
+    disk, studio, ds, engine, events = disk_scan
+    assert engine.need_bytes() == max(64 * 1024, 2 * 0 + 2 * ds.manifest_path.stat().st_size + 2**20)
+    engine.start()
+    assert engine.wait(T) is ScanState.FINISHED
+    view = ds.view(0, 0)
+    size = sum((ds.root / rel).stat().st_size for rel in (view["file"], *view["sidecars"], view["thumb"]))
+    assert engine.need_bytes() >= 2 * size + 2 * ds.manifest_path.stat().st_size
+    assert engine.need_bytes() < 2 * size + 2 * ds.manifest_path.stat().st_size + 2**20 + 4096 * 8
+
+
+# -- the command line: scan, process, export, calibrate on a full or read-only disk ------------------------------
+def test_scan_fills_the_disk_stops_with_one_line_then_resumes_without_capturing_again(small_disk, run_cli):
+    disk = small_disk(12 * 2**20)          # room for the 8 MB floor and a dozen views of ~250 kB
+    out = disk.path / "ds"
+    proc = run_cli("scan", "--rig", "instant", "--camera", "sim", "--sim-width-px", "400", "--time-scale", "0",
+                   "--grid", "6x4", "--out", out, timeout=120)
+    assert_one_line_error(proc, 3, "Disk almost full", str(disk.path), "needed to go on")
+    assert "camera's cable" not in proc.stderr
+    first = {(v["row"], v["column"]): (v["sha256"], v["captured_at"]) for v in Dataset.open(out).views
+             if v["status"] == "done"}
+    assert 0 < len(first) < 24
+    subprocess_remount(disk, 32 * 2**20)
+    again = run_cli("scan", "--resume", "--time-scale", "0", "--sim-width-px", "400", "--out", out, timeout=120)
+    assert again.returncode == 0, again.stderr
+    ds = Dataset.open(out)
+    assert ds.status_counts()["done"] == 24 and ds.verify_files() == []
+    kept = {(v["row"], v["column"]): (v["sha256"], v["captured_at"]) for v in ds.views if (v["row"], v["column"]) in first}
+    assert kept == first                         # nothing captured before the full disk was captured again
+
+
+def subprocess_remount(disk, size_bytes):
+    subprocess.run(["mount", "-o", f"remount,size={size_bytes}", str(disk.path)], check=True, capture_output=True)
+
+
+def test_scan_resume_on_a_read_only_disk_is_one_line_and_touches_nothing(small_disk, scanned, run_cli):
+    disk = small_disk(4 * 2**20)
+    src = scanned(3, 2)
+    m = manifest_of(src)
+    shutil.copytree(src, disk.path / "ds")
+    from tests.faults.conftest import set_pending
+    set_pending(disk.path / "ds", {(1, 0), (1, 1), (1, 2)})
+    disk.read_only()
+    proc = run_cli("scan", "--resume", "--out", disk.path / "ds")
+    assert_one_line_error(proc, 1, "read-only", str(disk.path))
+    assert manifest_of(disk.path / "ds")["views"][0] == m["views"][0]
+
+
+def test_process_on_a_full_disk_stops_keeps_the_views_processed_and_resumes(small_disk, tiny_dataset, run_cli):
+    disk = small_disk(64 * 2**20)
+    root = disk.path / "ds"
+    shutil.copytree(tiny_dataset.root, root)
+    (root / "processing.toml").write_text("[rectify]\nenabled = false\n")    # not calibrated
+    used = sum(p.stat().st_size for p in root.rglob("*") if p.is_file())
+    filler = disk.fill(leave_bytes=1200 * 1024)          # room for a few processed views, not for all 15
+    proc = run_cli("process", root, "--workers", "0", timeout=300)
+    assert_one_line_error(proc, 1, "Disk problem", str(disk.path))
+    kept = [v for v in Dataset.open(root).views if (v.get("processed") or {}).get("status") == "done"]
+    filler.unlink()
+    again = run_cli("process", root, "--workers", "0", timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert f"{len(kept)} already done (skipped)" in again.stdout, (used, again.stdout)
+    assert all((v.get("processed") or {}).get("status") == "done" for v in Dataset.open(root).views)
+
+
+@pytest.mark.parametrize("fault", ["full", "read-only"])
+def test_export_to_a_full_or_read_only_disk_is_one_line_and_leaves_nothing_half_written(fault, small_disk,
+                                                                                       tiny_dataset, run_cli):
+    disk = small_disk(1 * 2**20)
+    before = manifest_of(tiny_dataset.root)
+    if fault == "read-only":
+        disk.read_only()
+    proc = run_cli("export", tiny_dataset.root, "--format", "png", "--out", disk.path / "export", timeout=300)
+    assert_one_line_error(proc, 1, "full" if fault == "full" else "read-only", str(disk.path))
+    assert not (disk.path / "export").exists()
+    assert [p.name for p in disk.path.iterdir()] == []                   # no partial folder left either
+    assert manifest_of(tiny_dataset.root) == before
+
+
+def test_calibrate_on_a_read_only_dataset_is_one_line(small_disk, tiny_dataset, run_cli):
+    disk = small_disk(64 * 2**20)
+    shutil.copytree(tiny_dataset.root, disk.path / "ds")
+    disk.read_only()
+    proc = run_cli("calibrate", disk.path / "ds", "--views", "3x3", timeout=300)
+    assert_one_line_error(proc, 1, "read-only", str(disk.path))
