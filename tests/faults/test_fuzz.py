@@ -218,3 +218,52 @@ def test_a_mutated_rig_profile_is_refused_or_keeps_targets_in_the_travel(data):
         assert 0 <= axis.soft_min_mm < axis.soft_max_mm <= axis.travel_mm
     with pytest.raises(SoftLimitError):
         check_target(rig, 5000, -40)                     # the issue's move: never sent
+
+
+# -- a controller's $$ and $# answers ---------------------------------------------------------------------------------
+def _hostile_grbl():
+    from lfstudio.sim.grbl_controller import GrblSimulator
+
+    class HostileGrbl(GrblSimulator):
+        """Our GRBL simulator, whose ``$$`` and ``$#`` answers carry extra lines the test chooses
+        (malformed settings and parameters, huge codes, noise) before the real ones."""
+
+        extra: dict[str, list[str]] = {"$$": [], "$#": []}
+
+        def _system(self, line):
+            out = super()._system(line)
+            if out is not None and line in self.extra:
+                out = "".join(f"{text}\r\n" for text in self.extra[line]).encode("utf-8", "replace") + out
+            return out
+    return HostileGrbl
+
+
+answer_lines = st.one_of(
+    st.builds(lambda k, v: f"${k}={v}", st.integers(-5, 10 ** 6), st.text("0123456789.-+enaif", max_size=12)),
+    st.builds(lambda n, v: f"[{n}:{v}]", st.sampled_from(["G54", "G55", "G92", "G28", "PRB", "TLO", "VER", "OPT"]),
+              st.text("0123456789.,-:e", max_size=30)),
+    st.builds(lambda d: f"ALARM:{d}", st.text("0123456789", min_size=5, max_size=5000)),
+    st.text(st.characters(blacklist_characters="\r\n", blacklist_categories=("Cs",)), max_size=60),
+).filter(lambda text: text.strip() not in ("ok",) and not text.strip().startswith(("error:", "<", "Grbl")))
+
+
+@settings(max_examples=25, deadline=None)
+@given(settings_lines=st.lists(answer_lines, max_size=4), param_lines=st.lists(answer_lines, max_size=4))
+def test_connect_survives_hostile_settings_and_parameter_answers(settings_lines, param_lines):
+    from lfstudio.rig.grbl import GrblController
+    from lfstudio.rig.profile import load_rig
+
+    rig = load_rig()
+    sim = _hostile_grbl()(rig, time_scale=0.0, seed=1)
+    sim.extra = {"$$": settings_lines, "$#": param_lines}
+    port = sim.start()
+    controller = GrblController(port, rig, timeout_s=1.0)
+    try:
+        controller.connect()                     # refused (DeviceError) or connected, never another exception
+        status = controller.status()
+        assert status.position_mm is None or all(math.isfinite(v) for v in status.position_mm)
+    except LfError:
+        pass
+    finally:
+        controller.disconnect()
+        sim.close()

@@ -134,3 +134,22 @@ def test_calibrate_export_info_refuse_paths_leading_outside(case, tiny_dataset, 
     assert_one_line_error(proc, status, needle)
     assert outside.unchanged(), "something outside the dataset changed"
     assert not (tmp_path / "ex").exists()
+
+
+def test_every_file_a_scan_process_and_export_write_gets_the_users_umask(run_cli, tmp_path):
+    """Dataset and export files are shared (Dask workers, another account on a studio share): they get
+    the permissions of any file the user creates (0666 minus the umask), never 0600."""
+    umask = lambda: os.umask(0o002)            # noqa: E731 - group-writable, as on a shared workstation
+    out, export = tmp_path / "ds", tmp_path / "export"
+    profile = tmp_path / "profile.toml"
+    profile.write_text("[rectify]\nenabled = false\n[deflicker]\nsize_px = 16\n")    # not calibrated
+    for args in (("scan", "--rig", "instant", "--camera", "instant", "--grid", "3x2", "--out", out),
+                 ("process", out, "--workers", "0", "--profile", profile),
+                 ("export", out, "--format", "png", "--out", export)):
+        proc = run_cli(*args, preexec_fn=umask)
+        assert proc.returncode == 0, proc.stderr
+    profile.chmod(0o664)                          # written by the test, not by lfstudio
+    assert len(list((out / "processed").iterdir())) == 6 and len(list(export.rglob("*.png"))) == 6
+    modes = {str(p.relative_to(tmp_path)): p.stat().st_mode & 0o777 for p in tmp_path.rglob("*")
+             if p.is_file() and p.name != "dataset.lock"}
+    assert modes and all(mode == 0o664 for mode in modes.values()), {k: oct(v) for k, v in modes.items() if v != 0o664}
