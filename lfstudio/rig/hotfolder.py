@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from lfstudio.dataset.atomic import atomic_write_with
-from lfstudio.errors import DeviceError, InputError
+from lfstudio.errors import DeviceError, DeviceTimeout, InputError
 from lfstudio.rig.camera import CaptureResult
 
 log = logging.getLogger(__name__)
@@ -209,7 +209,7 @@ class HotFolderCamera:
                 growing = [n for n in last]
                 hint = (f"; {growing[0]} kept changing" if growing else
                         "; check that the camera software saves into this folder")
-                raise DeviceError(f"hot folder {self.folder}: no new complete file within {self.timeout_s:g} s{hint}")
+                raise DeviceTimeout(f"hot folder {self.folder}: no new complete file within {self.timeout_s:g} s{hint}")
             if self._wait(self.poll_s):
                 raise DeviceError(f"hot folder {self.folder}: stopped while waiting for the file")
 

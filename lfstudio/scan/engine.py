@@ -745,7 +745,7 @@ class ScanEngine:
                     self._last_error[cell] = message
                     self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
                                will_retry=False, extra={"attempt": attempt, "device": device})
-                    raise self._silent(device, view) from None
+                    raise self._silent(device, view, exc) from None
                 self._handle_inbox()
                 if self._state is not ScanState.RUNNING:
                     # STOP, a pause, an abort or a fault came in: no retry now (the view is queued again)
@@ -764,10 +764,13 @@ class ScanEngine:
                 if self._state is not ScanState.RUNNING:
                     raise _Interrupted()
 
-    def _silent(self, device: str, view: PlannedView) -> ScanFault:
-        """The fault of a device that stopped answering during ``view`` (no retry: it would wait again)."""
+    def _silent(self, device: str, view: PlannedView, exc: BaseException | None = None) -> ScanFault:
+        """The fault of a device that stopped answering during ``view`` (no retry: it would wait again).
+        ``exc``: the driver's own timeout (a hot folder that got no file), told as it is."""
         where = f"view r{view.row:02d} c{view.column:03d}"
-        if device == "rig":
+        if exc is not None and not isinstance(exc, CallTimedOut):
+            what = f"{device.capitalize()} does not answer ({where}): {_error_text(exc).rstrip('.')}."
+        elif device == "rig":
             what = (f"Rig does not answer: the move to ({view.x_mm:g}, {view.y_mm:g}) mm for {where} did not end "
                     f"within {self.move_timeout_s:g} s.")
         else:
@@ -938,7 +941,7 @@ class ScanEngine:
             if isinstance(exc, DeviceTimeout):
                 self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
                            will_retry=False, extra={"attempt": job.attempt, "device": "camera"})
-                self._store_failed(job, self._silent("camera", view))
+                self._store_failed(job, self._silent("camera", view, exc))
                 return
             self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
                        will_retry=will_retry, extra={"attempt": job.attempt, "device": "camera"})

@@ -98,3 +98,27 @@ def test_a_silent_camera_stops_the_scan_within_its_capture_time_naming_it_in_wor
         session.close()
     assert Dataset.open(Path(tmp_path / "ds")).verify_files() == []
 
+
+
+def test_a_hot_folder_that_gets_no_file_stops_the_scan_at_once_with_its_own_words(tmp_path):
+    """A hot-folder camera (the vendor software never drops the picture) is a silent camera too: its
+    own wait ends the capture, and the scan pauses at once with the folder's words, not after retries."""
+    folder = tmp_path / "incoming"
+    folder.mkdir()
+    request = ScanRequest(tmp_path / "ds", rig="instant", camera=f"folder:{folder}", time_scale=0.0)
+    session = ScanSession(request, doing="test")
+    try:
+        engine = session.open(lambda existing, rig: (ScanPlan.centered(2, 1, (4.0, 6.0), rig, settle_s=0.0), None))
+        engine.camera.call("set_setting", "timeout_s", 0.3)
+        paused = _paused(engine)
+        events: list = []
+        engine.subscribe(events.append)
+        engine.start()
+        assert paused.wait(T), engine.message
+        assert engine.message.startswith(f"Camera does not answer (view r00 c000): hot folder {folder}: no new "
+                                         "complete file within 0.3 s"), engine.message
+        assert [e.will_retry for e in events if e.kind is EventKind.VIEW_FAILED] == [False]
+        engine.abort()
+        assert engine.wait(T) is ScanState.FINISHED
+    finally:
+        session.close()
