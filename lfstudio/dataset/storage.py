@@ -119,6 +119,9 @@ def storage_error(exc: BaseException, path: str | os.PathLike | None = None, *, 
     disk = describe_disk(where)
     need = f"; about {megabytes(need_bytes)} needed" if need_bytes and kind == "full" else ""
     what = f"{doing} {target}" if target is not None else doing
+    if kind == "not writable":            # the folder's permissions, not the disk as a whole
+        folder = Path(where) if Path(where).is_dir() else Path(where).parent
+        disk, told = f"the folder {folder}", f"{told} ({describe_disk(where)})"
     return StorageError(f"Disk problem while {what}: {disk} {told}{need}. Everything written so far is kept: "
                         f"{_FIX[kind]}, then {then}.", kind=kind, path=target, disk=str(mount_point(where)),
                         need_bytes=need_bytes, errno_=exc.errno)

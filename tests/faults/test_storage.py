@@ -6,8 +6,10 @@ again — every captured view kept exactly once."""
 from __future__ import annotations
 
 import inspect
+import os
 import shutil
 import subprocess
+import sys
 import threading
 
 import pytest
@@ -20,7 +22,7 @@ from lfstudio.scan.events import EventKind, ScanState
 from lfstudio.scan.scan_plan import ScanPlan, grid_order
 from lfstudio.studio.devices import open_studio
 from lfstudio.studio.session import create_scan_dataset
-from tests.faults.conftest import assert_one_line_error, manifest_of
+from tests.faults.conftest import assert_one_line_error, manifest_of, set_pending
 
 RIG = load_rig()
 T = 60
@@ -196,7 +198,6 @@ def test_scan_resume_on_a_read_only_disk_is_one_line_and_touches_nothing(small_d
     src = scanned(3, 2)
     m = manifest_of(src)
     shutil.copytree(src, disk.path / "ds")
-    from tests.faults.conftest import set_pending
     set_pending(disk.path / "ds", {(1, 0), (1, 1), (1, 2)})
     disk.read_only()
     proc = run_cli("scan", "--resume", "--out", disk.path / "ds")
@@ -241,3 +242,24 @@ def test_calibrate_on_a_read_only_dataset_is_one_line(small_disk, tiny_dataset, 
     disk.read_only()
     proc = run_cli("calibrate", disk.path / "ds", "--views", "3x3", timeout=300)
     assert_one_line_error(proc, 1, "read-only", str(disk.path))
+
+
+@pytest.mark.skipif(os.geteuid() != 0 or not shutil.which("setpriv"), reason="needs root and setpriv")
+def test_a_dataset_this_user_may_not_write_is_the_folders_problem_not_the_cameras(scanned, tmp_path):
+    """EACCES on a real file system: the dataset belongs to another user and the scan runs without the
+    power to override file permissions (root without CAP_DAC_OVERRIDE)."""
+    from tests.conftest import REPO_ROOT
+
+    root = scanned(3, 2)
+    set_pending(root, {(1, 0), (1, 1), (1, 2)})
+    for p in [root, *root.rglob("*")]:
+        os.chown(p, 65534, 65534)
+        p.chmod(0o755 if p.is_dir() else 0o644)            # others may read, not write
+    before = manifest_of(root)
+    env = {**os.environ, "PYTHONPATH": str(REPO_ROOT)}
+    proc = subprocess.run(["setpriv", "--bounding-set=-dac_override,-dac_read_search", "--", sys.executable, "-m",
+                           "lfstudio", "scan", "--resume", "--out", str(root)], capture_output=True, text=True,
+                          timeout=120, env=env, cwd=REPO_ROOT)
+    assert_one_line_error(proc, 1, f"the folder {root} is not writable for this user")
+    assert "camera" not in proc.stderr.lower()
+    assert manifest_of(root) == before
