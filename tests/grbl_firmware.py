@@ -105,6 +105,8 @@ def _source_hash(src: Path) -> str:
 def build_firmware_simulator(source: Path | None = None, cache_root: Path | None = None) -> Path:
     """Build (once per source hash) and return the path of ``grbl_sim.exe``."""
     src = source or find_grbl_source()
+    if not (src / "grbl" / "grbl-sim" / "Makefile").is_file():
+        raise FirmwareUnavailable(f"{src} holds no GRBL sources (grbl/grbl-sim/Makefile is missing)")
     make = shutil.which("make")
     cc = shutil.which("cc") or shutil.which("gcc")
     if make is None or cc is None:
@@ -115,7 +117,14 @@ def build_firmware_simulator(source: Path | None = None, cache_root: Path | None
     exe = root / key / "grbl" / "grbl-sim" / "grbl_sim.exe"
     if exe.is_file():
         return exe
-    root.mkdir(parents=True, exist_ok=True)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError:                               # no writable home (CI user): a private temp folder
+        root = Path(tempfile.gettempdir()) / f"lfstudio-grbl-sim-{os.getuid()}"
+        exe = root / key / "grbl" / "grbl-sim" / "grbl_sim.exe"
+        if exe.is_file():
+            return exe
+        root.mkdir(mode=0o700, parents=True, exist_ok=True)
     with open(root / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)             # one build at a time (parallel sessions)
         if exe.is_file():

@@ -16,7 +16,8 @@ from lfstudio.scan.events import ScanState
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.sim.instant import InstantCamera
 from lfstudio.studio.session import create_scan_dataset
-from tests.grbl_firmware import FIRMWARE_DEFAULTS, REPO_ROOT, find_grbl_source
+from tests.grbl_firmware import (FIRMWARE_DEFAULTS, REPO_ROOT, FirmwareUnavailable, build_firmware_simulator,
+                                 find_grbl_source)
 
 GANTRY = load_rig()                         # the reference gantry: 4 m x 0.5 m, 200 mm/s, switches
 #: limit switches 1 mm beyond both ends of GRBL's default 200 mm travel, powered up 20 mm from home
@@ -33,6 +34,18 @@ def test_the_official_simulator_is_built_outside_the_repo_from_untouched_sources
     assert REPO_ROOT not in grbl_firmware_exe.parents
     assert grbl_firmware_exe.name == "grbl_sim.exe"
     assert not list((find_grbl_source() / "grbl").rglob("*.o"))          # nothing built in the sources
+
+
+def test_the_harness_reports_why_it_cannot_build(tmp_path):
+    with pytest.raises(FirmwareUnavailable, match="holds no GRBL sources"):
+        build_firmware_simulator(tmp_path, cache_root=tmp_path / "cache")
+    sim_dir = tmp_path / "grbl" / "grbl-sim"
+    sim_dir.mkdir(parents=True)
+    (sim_dir / "Makefile").write_text("main:\n\t@echo 'grbl_sim.c:1: error: broken on purpose' >&2; exit 1\n"
+                                      "lfstudio_shim.o:\n\ttrue\n")
+    with pytest.raises(FirmwareUnavailable, match="(broken on purpose|build-essential)"):
+        build_firmware_simulator(tmp_path, cache_root=tmp_path / "cache")
+    assert not list((tmp_path / "cache").glob("*/grbl"))        # nothing half-built left in the cache
 
 
 def test_a_fresh_board_boots_with_error_7_and_its_defaults_and_the_handshake_copes(grbl_firmware):
