@@ -185,7 +185,7 @@ class GridCheck:
         return star
 
     def drop_images(self, keep: Callable[[Cell], bool]) -> None:
-        for cell, m in self.measures.items():
+        for cell, m in list(self.measures.items()):       # reading threads may be adding views
             if m.grey8 is not None and not keep(cell):
                 m.grey8 = None
 
