@@ -130,6 +130,7 @@ def _start_check(dataset, engine):
 
 
 def _finish_check(checker, dataset) -> None:
+    checker.settle()                    # every view located together, as lfstudio check does
     checker.wait_idle()
     checker.close()
     flagged = checker.flagged()

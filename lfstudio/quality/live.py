@@ -9,7 +9,9 @@ the same measurements as ``lfstudio check``), then tells its listeners the view'
 
 Verdicts can change as neighbours arrive (the first view of a scan has nothing to be compared with
 yet): every listener call carries the view's current ``quality.json``-style entry, and views whose
-verdict changed are published again. Listeners run on the checker's thread; a GUI posts them to
+verdict changed are published again. A new view is located against the neighbours already located;
+when a row is complete (and on :meth:`LiveChecker.settle`, e.g. when the scan ends) every view so
+far is located together, as ``lfstudio check`` does, which keeps small errors from adding up. Listeners run on the checker's thread; a GUI posts them to
 its own thread. :meth:`LiveChecker.document` returns what has been judged so far in the layout of
 ``quality.json`` (no dataset-wide figures: those come from the full check after the scan).
 """
@@ -37,6 +39,7 @@ log = logging.getLogger(__name__)
 
 Cell = tuple[int, int]
 Listener = Callable[[dict[str, Any]], None]
+_SETTLE = object()             # queue item: solve every view checked so far
 #: views kept with their working image: this many rows around the newest view
 KEEP_ROWS = 2
 MIN_LOCATED = 4        # views a free local position solve needs before it judges positions
@@ -60,6 +63,8 @@ class LiveChecker:
         self._residual_px: dict[Cell, float | None] = {}
         self._tracks: dict[Cell, int] = {}
         self._frame = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+        self._last_row: int | None = None
+        self._solved = 0               # views in the last solve of all views
         self._listeners: list[Listener] = []
         self._lock = threading.Lock()
         self._queue: queue.Queue = queue.Queue()
@@ -82,6 +87,13 @@ class LiveChecker:
         with self._lock:
             self._pending += 1
         self._queue.put((int(row), int(column), file))
+
+    def settle(self) -> None:
+        """Queue a solve of every view checked so far (as at each new row): the final positions after
+        a scan. Does not wait (:meth:`wait_idle` does)."""
+        with self._lock:
+            self._pending += 1
+        self._queue.put(_SETTLE)
 
     def subscribe(self, listener: Listener) -> Callable[[], None]:
         """Call ``listener(entry)`` (on the checker's thread) for each new or changed view verdict."""
@@ -142,8 +154,21 @@ class LiveChecker:
                     self._pending -= 1
                     self._idle.notify_all()
                 continue
+            if item is _SETTLE:
+                try:
+                    self._resolve_all()
+                except Exception:
+                    log.exception("live check: solving all views failed")
+                finally:
+                    with self._idle:
+                        self._pending -= 1
+                        self._idle.notify_all()
+                continue
             row, column, file = item
             try:
+                if self._last_row is not None and row != self._last_row:
+                    self._resolve_all()            # a row is complete: locate every view together
+                self._last_row = row
                 self._check((row, column), file)
             except LfError as exc:
                 self.errors[(row, column)] = str(exc)
@@ -154,6 +179,53 @@ class LiveChecker:
                 with self._idle:
                     self._pending -= 1
                     self._idle.notify_all()
+
+    def _resolve_all(self) -> None:
+        """Solve every view checked so far together (like ``lfstudio check``), take the positions as
+        the new anchors and publish the verdicts this changes."""
+        cells = sorted(self.grid.measures)
+        if len(cells) < MIN_LOCATED or len(cells) == self._solved:
+            return
+        self._solved = len(cells)
+        fit = self.grid.solve(cells)
+        if len(fit.error_mm) < MIN_LOCATED:
+            return
+        self.measured_mm = {c: fit.measured_mm[c] for c in fit.error_mm}
+        self._residual_px = {c: fit.residual_rms_px.get(c) for c in fit.error_mm}
+        self._tracks = {c: fit.tracks.get(c, 0) for c in fit.error_mm}
+        self._refit_frame()
+        self._publish(self._rejudge(sorted(self.results)))
+
+    def _rejudge(self, cells) -> list[dict[str, Any]]:
+        """Judge ``cells`` again with the current positions; the entries whose verdict changed."""
+        located = self._located(cells)
+        typical_px = self._typical_residual()
+        changed = []
+        for c in cells:
+            old = self.results.get(c)
+            if old is None or c not in self.grid.measures:
+                continue
+            entry = self.grid.judge_view(c, located, typical_px, self.grid.geometry.near_m)
+            entry["file"] = old.get("file")
+            with self._lock:
+                self.results[c] = entry
+            if entry["verdict"] != old["verdict"] or entry["reasons"] != old["reasons"]:
+                changed.append(entry)
+        return changed
+
+    def _typical_residual(self) -> float | None:
+        values = sorted(v for v in self._residual_px.values() if v is not None)
+        return values[len(values) // 2] if values else None
+
+    def _publish(self, entries: list[dict[str, Any]]) -> None:
+        with self._lock:
+            listeners = list(self._listeners)
+        for entry in entries:
+            for listener in listeners:
+                try:
+                    listener(entry)
+                except Exception:
+                    log.exception("live quality listener failed")
 
     def _refit_frame(self) -> None:
         cells = sorted(self.measured_mm)
@@ -214,26 +286,8 @@ class LiveChecker:
                 self._residual_px[c] = fit.residual_rms_px.get(c)
                 self._tracks[c] = fit.tracks.get(c, 0)
             self._refit_frame()
-        located = self._located(around)
+        entry = self.grid.judge_view(cell, self._located([cell]), self._typical_residual(), grid.geometry.near_m)
+        entry["file"] = file
         with self._lock:
-            typical = sorted(v for v in self._residual_px.values() if v is not None)
-        typical_px = typical[len(typical) // 2] if typical else None
-        changed = []
-        for c in [cell] + [c for c in window if c != cell]:
-            old = self.results.get(c)
-            if c != cell and old is None:
-                continue          # a neighbour not judged yet (queued behind this one)
-            entry = grid.judge_view(c, located, typical_px, grid.geometry.near_m)
-            entry["file"] = file if c == cell else old.get("file")
-            with self._lock:
-                self.results[c] = entry
-            if c == cell or entry["verdict"] != old["verdict"] or entry["reasons"] != old["reasons"]:
-                changed.append(entry)
-        with self._lock:
-            listeners = list(self._listeners)
-        for entry in changed:
-            for listener in listeners:
-                try:
-                    listener(entry)
-                except Exception:
-                    log.exception("live quality listener failed")
+            self.results[cell] = entry
+        self._publish([entry] + self._rejudge([c for c in window if c != cell]))

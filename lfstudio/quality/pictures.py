@@ -23,7 +23,7 @@ import numpy as np
 from lfstudio.dataset.atomic import atomic_write_text, atomic_write_with
 
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
-VERDICT_BGR = {"warn": (0, 170, 255), "fail": (40, 40, 230)}
+VERDICT_BGR = {"warn": (0, 215, 255), "fail": (40, 40, 230)}
 MISSING_BGR = (70, 70, 70)
 
 

@@ -8,7 +8,7 @@ state: pending, capturing, done, failed, skipped. Double-click opens a view full
 views can be queued for re-capture (the Scan panel does it through ``AppState.recaptureRequested``).
 
 Quality (:mod:`lfstudio.gui.views.quality`): the verdicts of the last ``Check dataset`` (or of the
-scan-time check, view by view as the scan captures them) outline flagged views (orange: warn, red:
+scan-time check, view by view as the scan captures them) outline flagged views (yellow: warn, red:
 fail) and can colour the grid as a heat map (sharpness, exposure, position error, residual);
 clicking a flagged view shows it beside its neighbours.
 """
@@ -42,7 +42,7 @@ STATE_COLORS = {PENDING: QColor(70, 74, 82), CAPTURING: QColor(255, 176, 32), DO
                 FAILED: QColor(220, 60, 60), SKIPPED: QColor(40, 42, 46)}
 TILE_W, TILE_H = 48, 32          # mosaic tile (low zoom)
 FULL_ZOOM_PX = 56                # from this cell width on, draw the full thumbnails
-FLAG_COLORS = {"warn": QColor(255, 170, 0), "fail": QColor(230, 60, 60)}
+FLAG_COLORS = {"warn": QColor(255, 225, 0), "fail": QColor(230, 60, 60)}   # yellow: not the amber of "capturing"
 OVERLAY_ALPHA = 215
 MAX_RECENT = 8
 
@@ -752,6 +752,9 @@ class GridView(QWidget):
 
     def on_scan_event(self, ev: Any) -> None:
         kind = getattr(ev.kind, "value", ev.kind)
+        if kind == "state" and getattr(ev.state, "value", ev.state) in ("paused", "finished") \
+                and self.live is not None:
+            self.live.checker.settle()     # every view checked so far located together
         if ev.row is None:
             return
         if kind == "view-done" and self.quality_bar.live_box.isChecked():

@@ -28,7 +28,7 @@ from lfstudio.gui.widgets import JobProgressWidget
 
 LIVE_KEY = "quality/check_during_scan"
 OVERLAY_KEY = "quality/overlay"
-VERDICT_COLOURS = {"warn": "#ffaa00", "fail": "#e63c3c", "pass": "#46b45a", "n/a": "#8a8f98"}
+VERDICT_COLOURS = {"warn": "#c89b00", "fail": "#e63c3c", "pass": "#46b45a", "n/a": "#8a8f98"}
 
 
 def run_check(root: str, *, progress, cancel) -> dict[str, Any]:
