@@ -14,6 +14,7 @@ its name and arguments which unit it takes and returns.
 from __future__ import annotations
 
 import math
+from typing import Iterable
 
 #: wavelength used for the diffraction estimate (green, the middle of the visible band)
 DIFFRACTION_WAVELENGTH_UM = 0.55
@@ -38,6 +39,32 @@ def view_period_s(move_s: float, settle_s: float, exposure_s: float, transfer_s:
     """Critical-path time of one view of a pipelined scan: the transfer of the previous view overlaps
     this view's move and settle; the camera is needed again only for the exposure."""
     return exposure_s + max(transfer_s, move_s + settle_s)
+
+
+def scan_duration_s(moves: Iterable[tuple[float, int]], settle_s: float, exposure_s: float, transfer_s: float,
+                    pipelined: bool = True) -> float:
+    """Estimated duration of a scan (the planner's capture time and the scan plan's estimate).
+
+    ``moves``: (move time in s, how many views are reached by such a move) in path order; the first
+    view's move comes first (0 s when the rig already stands there). Pipelined (the scan engine):
+    the first view's move, settle and exposure, then :func:`view_period_s` per further view, then
+    the last view's transfer. Not pipelined: move, settle, exposure and transfer of every view add up.
+    """
+    total, views = 0.0, 0
+    for move_s, count in moves:
+        count = int(count)
+        if count <= 0:
+            continue
+        if not pipelined:
+            total += count * (move_s + settle_s + exposure_s + transfer_s)
+        else:
+            if views == 0:      # nothing to overlap before the first view
+                total += move_s + settle_s + exposure_s
+                count -= 1
+                views += 1
+            total += count * view_period_s(move_s, settle_s, exposure_s, transfer_s)
+        views += count
+    return total + transfer_s if pipelined and views else total
 
 
 # -- projection and disparity ----------------------------------------------------------------------

@@ -50,8 +50,15 @@ VIEW_STATUSES = ("pending", "done", "failed", "skipped")
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
 
 
-def now_iso() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+def now_iso(at_s: float | None = None) -> str:
+    """Every timestamp lfstudio writes: UTC, ISO 8601 with milliseconds; now, or the POSIX time ``at_s``."""
+    when = _dt.datetime.now(_dt.timezone.utc) if at_s is None else _dt.datetime.fromtimestamp(at_s, _dt.timezone.utc)
+    return when.isoformat(timespec="milliseconds")
+
+
+def is_done(view: dict[str, Any]) -> bool:
+    """A view record that has been captured: status ``done`` and a file (the one test of it)."""
+    return view.get("status") == "done" and isinstance(view.get("file"), str) and bool(view["file"])
 
 
 def _is_number(x: Any) -> bool:
@@ -459,7 +466,8 @@ class Dataset:
         return problems
 
     def done_views(self) -> list[dict[str, Any]]:
-        return [v for v in self.views if v.get("status") == "done"]
+        """The captured views (:func:`is_done`), in manifest order."""
+        return [v for v in self.views if is_done(v)]
 
     def path_of(self, view_or_relative: dict | str) -> Path:
         """Absolute path of a view's file (or of a relative name), refused if outside the folder."""

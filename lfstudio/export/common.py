@@ -5,7 +5,6 @@ describing the light field (grid, positions, calibration, intrinsics), and the a
 from __future__ import annotations
 
 import contextlib
-import datetime as _dt
 import os
 import re
 import shutil
@@ -18,6 +17,7 @@ import cv2
 import numpy as np
 
 from lfstudio.dataset import Dataset
+from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import DatasetError, InputError
 
@@ -29,14 +29,10 @@ PARTIAL_MARK = ".partial-"
 _RANGE_PART = re.compile(r"^\s*([rc])\s*(\d+)\s*(?:-\s*(\d+))?\s*$", re.IGNORECASE)
 
 
-def now_iso() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-
-
 # -- views ------------------------------------------------------------------------------------------
 def available_views(ds: Dataset) -> list[View]:
     """Views with a captured file (status done), row-major."""
-    return sorted((int(v["row"]), int(v["column"])) for v in ds.views if v.get("status") == "done" and v.get("file"))
+    return sorted((int(v["row"]), int(v["column"])) for v in ds.done_views())
 
 
 def _parse_ranges(text: str) -> tuple[set[int] | None, set[int] | None] | None:

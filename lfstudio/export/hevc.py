@@ -22,6 +22,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from lfstudio.dataset import Dataset
+from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.dataset.store import sha256_file
 from lfstudio.errors import DatasetError, InputError
@@ -333,7 +334,7 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
                                                      "captured_at": None, "exposure_s": None, "file": None,
                                                      "sha256": None, "status": "skipped",
                                                      "note": "not in the HEVC export"})
-        extra: dict[str, Any] = {"imported_from": {"kind": "hevc", "file": video.name, "at": common.now_iso(),
+        extra: dict[str, Any] = {"imported_from": {"kind": "hevc", "file": video.name, "at": now_iso(),
                                                    "source": doc.get("source"), "encoding": enc,
                                                    "figures": doc.get("figures")}}
         if processed:

@@ -19,7 +19,6 @@ calibrates, processes and exports like one captured here:
 
 from __future__ import annotations
 
-import datetime as _dt
 import fnmatch
 import hashlib
 import io
@@ -34,6 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
+from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.store import sha256_file
 from lfstudio.errors import InputError
 from lfstudio.jobs import CancelToken, Progress, no_progress
@@ -459,8 +459,7 @@ def _link_or_copy(src: Path, dst: Path, link: bool, cancel: CancelToken | None) 
 
 
 def _iso_mtime(path: Path) -> str:
-    t = path.stat().st_mtime
-    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).isoformat(timespec="milliseconds")
+    return now_iso(path.stat().st_mtime)
 
 
 def import_images(options: ImportOptions, *, progress: Progress | None = None,
@@ -511,7 +510,7 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
         record = {"folder": str(Path(options.folder).absolute()), "pattern": options.pattern,
                   "order": options.order, "files": len(plan.files), "linked": linked,
                   "intrinsics": plan.intrinsics, "warnings": list(plan.warnings),
-                  "imported_at": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
+                  "imported_at": now_iso()}
         ds = Dataset.create(tmp, camera=plan.camera, lens=plan.lens, grid=grid,
                             rig={"name": "imported", "imported": True}, views=views, exist_ok=True,
                             **{"import": record})

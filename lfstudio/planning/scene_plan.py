@@ -311,15 +311,13 @@ class PlanResult:
 
 
 def capture_time_s(plan: ScenePlan) -> float:
-    """Estimated capture time of the whole grid in meander order: per view the pipelined
-    :func:`optics.view_period_s` of its move (horizontal along a row, vertical at a row change),
-    plus the last view's transfer. Equals the sum over the path, in closed form."""
+    """Estimated capture time of the whole grid in meander order (:func:`optics.scan_duration_s`):
+    a horizontal move between the views of a row, a vertical one at each row change."""
     (sp_h, sp_v), (v_h, v_v), (a_h, a_v) = plan.spacing_mm, plan.max_speed_mm_s, plan.acceleration_mm_s2
-    step_h = optics.view_period_s(optics.move_time_s(sp_h, v_h, a_h), plan.settle_s, plan.exposure_s, plan.transfer_s)
-    step_v = optics.view_period_s(optics.move_time_s(sp_v, v_v, a_v), plan.settle_s, plan.exposure_s, plan.transfer_s)
-    first = optics.view_period_s(0.0, plan.settle_s, plan.exposure_s, plan.transfer_s)
     cols, rows = int(plan.grid_columns), int(plan.grid_rows)
-    return first + rows * (cols - 1) * step_h + (rows - 1) * step_v + plan.transfer_s
+    moves = [(0.0, 1), (optics.move_time_s(sp_h, v_h, a_h), rows * (cols - 1)),
+             (optics.move_time_s(sp_v, v_v, a_v), rows - 1)]
+    return optics.scan_duration_s(moves, plan.settle_s, plan.exposure_s, plan.transfer_s)
 
 
 def _fmt_m(value_m: float) -> str:

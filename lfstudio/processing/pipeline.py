@@ -67,13 +67,8 @@ def _open(dataset: Dataset | str | Path) -> Dataset:
     return dataset if isinstance(dataset, Dataset) else Dataset.open(dataset)
 
 
-def capturable_views(ds: Dataset) -> list[dict]:
-    """Views that have a capture to process (status done, file present in the manifest)."""
-    return [v for v in ds.views if v.get("status") == "done" and v.get("file")]
-
-
 def reference_view(ds: Dataset, profile: Profile) -> dict:
-    views = capturable_views(ds)
+    views = ds.done_views()
     if not views:
         raise DatasetError(f"{ds.manifest_path}: no captured views to process; scan or import images first")
     ref = profile.reference
@@ -194,8 +189,8 @@ def process_dataset(dataset: Dataset | str | Path, profile: Profile | None = Non
     cancel = cancel or CancelToken()
     ds = _open(dataset)
     profile = profile or Profile.for_dataset(ds.root)
-    progress(0, len(capturable_views(ds)), "reading the reference view")
-    log.info("processing of %s started (%d captured views)", ds.root, len(capturable_views(ds)))
+    progress(0, len(ds.done_views()), "reading the reference view")
+    log.info("processing of %s started (%d captured views)", ds.root, len(ds.done_views()))
     with contextlib.ExitStack() as stack:
         info = stack.enter_context(executors.open_executor(workers, cluster))
         if info.separate_processes:  # workers start and import while this process reads the reference
@@ -207,7 +202,7 @@ def process_dataset(dataset: Dataset | str | Path, profile: Profile | None = Non
 def _refuse_output_over_captures(ds: Dataset, profile: Profile) -> None:
     """A dataset whose captures already sit where processing writes (``import-hevc`` of an export of
     processed views restores them as ``processed/rRR_cCCC.png``) would have them overwritten."""
-    for v in capturable_views(ds):
+    for v in ds.done_views():
         out = output_name(profile, v["row"], v["column"])
         if os.path.normpath(str(v["file"])) == os.path.normpath(out):
             raise InputError("processing.toml: [output] folder",
@@ -227,7 +222,7 @@ def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force:
     sha = plan.profile_sha256
     profile.save(ds.root / PROFILE_NAME)
 
-    views = capturable_views(ds)
+    views = ds.done_views()
     todo = [v for v in views if force or not _skip(v, sha, ds)]
     report = ProcessReport(skipped=len(views) - len(todo), profile_sha256=sha,
                            output_folder=str(ds.root / profile.output.folder))

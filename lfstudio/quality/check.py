@@ -21,7 +21,6 @@ checker (:mod:`lfstudio.quality.live`). The document layout is described in ``do
 
 from __future__ import annotations
 
-import datetime as _dt
 import logging
 import math
 import time
@@ -33,6 +32,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from lfstudio.dataset.atomic import atomic_write_json
+from lfstudio.dataset.manifest import is_done, now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import DatasetError, LfError
 from lfstudio.jobs import CancelToken, Progress, no_progress
@@ -315,8 +315,7 @@ def calibration_homography(dataset) -> tuple[np.ndarray | None, list[int] | None
 
 def choose_views(dataset, views: str | Sequence[Cell] | None) -> tuple[list[Cell], list[Cell]]:
     """(views to judge, views to decode: those plus the neighbours they are compared with)."""
-    done = sorted((int(v["row"]), int(v["column"])) for v in dataset.views
-                  if v.get("status") == "done" and v.get("file"))
+    done = sorted((int(v["row"]), int(v["column"])) for v in dataset.done_views())
     if views is None or (isinstance(views, str) and views.strip().lower() in ("", "all")):
         chosen = done
     elif isinstance(views, str):
@@ -518,7 +517,7 @@ def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell
     for v in sorted(dataset.views, key=lambda v: (v["row"], v["column"])):
         cell = (int(v["row"]), int(v["column"]))
         if cell not in chosen_set:
-            if v.get("status") != "done" or not v.get("file"):
+            if not is_done(v):
                 if settings.get("views") in (None, "all"):
                     views_out.append({"row": cell[0], "column": cell[1], "view": view_stem(*cell),
                                       "verdict": verdicts.FAIL, "status": v.get("status"),
@@ -562,7 +561,7 @@ def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell
                          "rectified": cal_doc is not None}
     doc = {
         "format": FORMAT, "version": VERSION,
-        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "created": now_iso(),
         "dataset": str(dataset.root),
         "verdict": verdict,
         "summary": {"views": len(views_out), **counts, "flagged": flagged},

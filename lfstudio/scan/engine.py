@@ -204,7 +204,7 @@ class ScanEngine:
         self._store_q: queue.Queue = queue.Queue(maxsize=2)
         self._inflight = 0
         self.total = len(dataset.views)
-        self.done = sum(1 for v in dataset.views if v.get("status") == "done")
+        self.done = len(dataset.done_views())
         self.captured_this_run = 0
         self._active_s = 0.0
         self._active_since: float | None = None

@@ -208,22 +208,13 @@ class ScanPlan:
 
     def estimate_duration_s(self, rig: RigConfig, exposure_s: float, transfer_s: float,
                             pipelined: bool = True) -> float:
-        """Critical-path duration of the scan: per view, the longer axis move + settle, exposure and
-        (pipelined) the transfer overlapping the next move and settle."""
-        from lfstudio.optics import move_time_s, view_period_s
+        """Critical-path duration of the scan (:func:`lfstudio.optics.scan_duration_s`): per view
+        the longer axis move + settle, exposure and (pipelined) the transfer overlapping the next
+        move and settle."""
+        from lfstudio.optics import move_time_s, scan_duration_s
 
-        moves = [0.0] + [max(move_time_s(dx, rig.horizontal.max_speed_mm_s, rig.horizontal.acceleration_mm_s2),
-                             move_time_s(dy, rig.vertical.max_speed_mm_s, rig.vertical.acceleration_mm_s2))
-                         for dx, dy in self.move_distances_mm()]
-        if not moves[1:] and len(self) == 0:
-            return 0.0
-        if not pipelined:
-            return sum(m + self.settle_s + exposure_s + transfer_s for m in moves)
-        # the first move+settle is not overlapped; the last transfer is not either
-        total = 0.0
-        for i, m in enumerate(moves):
-            if i == 0:
-                total += m + self.settle_s + exposure_s
-            else:
-                total += view_period_s(m, self.settle_s, exposure_s, transfer_s)
-        return total + transfer_s
+        h, v = rig.horizontal, rig.vertical
+        moves = [(0.0, 1)] + [(max(move_time_s(dx, h.max_speed_mm_s, h.acceleration_mm_s2),
+                                   move_time_s(dy, v.max_speed_mm_s, v.acceleration_mm_s2)), 1)
+                              for dx, dy in self.move_distances_mm()]
+        return scan_duration_s(moves[:len(self)], self.settle_s, exposure_s, transfer_s, pipelined)

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from lfstudio.dataset.atomic import atomic_write_with
-from lfstudio.dataset.manifest import MANIFEST_NAME
+from lfstudio.dataset.manifest import MANIFEST_NAME, is_done
 
 log = logging.getLogger(__name__)
 
@@ -249,8 +249,7 @@ class CacheFiller:
         except (OSError, ValueError, AttributeError):
             return []
         return [self.root / v["file"] for v in views
-                if isinstance(v, dict) and v.get("status") == "done" and isinstance(v.get("file"), str)
-                and not v.get("thumb")]
+                if isinstance(v, dict) and is_done(v) and not v.get("thumb")]
 
     def _claim(self, path: Path) -> tuple[Future, bool]:
         with self._lock:

@@ -12,9 +12,9 @@ displacement, a skipped move); ``ground_truth.json`` lists them under ``faults``
 
 from __future__ import annotations
 
-import datetime as _dt
 import multiprocessing
 import os
+import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -24,6 +24,7 @@ import numpy as np
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.atomic import atomic_write_json, atomic_write_with
+from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.dataset.store import sha256_file
 from lfstudio.errors import InputError
@@ -200,14 +201,13 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
             if progress:
                 progress(i + 1, total, f"rendered {job['rel']}")
 
-    start = _dt.datetime.now(_dt.timezone.utc)
+    start_s = time.time()
     views = []
     for job, res in zip(jobs, results):
-        t = start + _dt.timedelta(seconds=job["shot"] * (exposure_s + 0.5))
         views.append({"row": job["row"], "column": job["column"],
                       "commanded_mm": [round(v, 6) for v in job["commanded_mm"]],
                       "reported_mm": [round(v, 3) for v in job["commanded_mm"]],
-                      "captured_at": t.isoformat(timespec="milliseconds"), "exposure_s": exposure_s,
+                      "captured_at": now_iso(start_s + job["shot"] * (exposure_s + 0.5)), "exposure_s": exposure_s,
                       "file": job["rel"], "sha256": res["sha256"], "status": "done"})
     views.sort(key=lambda v: (v["row"], v["column"]))
     grid = {"columns": int(columns), "rows": int(rows), "spacing_mm": [sx, sy], "order": "row-meander"}

@@ -164,7 +164,7 @@ def _last_position(dataset: Dataset, plan: ScanPlan, ahead: int = 3) -> tuple[tu
     """Where the last run left the rig: the reported position of the last captured view, its name,
     and the commanded positions of the next ``ahead`` views in plan order (the run may have been on
     its way there: the rig moves on while a view is still transferring)."""
-    done = [v for v in dataset.views if v.get("status") == "done" and v.get("reported_mm") and v.get("captured_at")]
+    done = [v for v in dataset.done_views() if v.get("reported_mm") and v.get("captured_at")]
     last = max(done, key=lambda v: v["captured_at"])
     order = [(v.row, v.column) for v in plan.with_subset(None).views()]
     statuses = {(v["row"], v["column"]): v.get("status") for v in dataset.views}
@@ -235,7 +235,7 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
         raise DeviceError(f"the rig on {port} is not homed (its position is unknown): {fix}")
     if resume_from is not None and status.position_mm is not None:
         dataset, plan = resume_from
-        if any(v.get("status") == "done" and v.get("reported_mm") and v.get("captured_at") for v in dataset.views):
+        if any(v.get("reported_mm") and v.get("captured_at") for v in dataset.done_views()):
             last, name, ahead = _last_position(dataset, plan)
             off = _distance_to_path(status.position_mm, [last, *ahead])
             if off > tolerance_mm:

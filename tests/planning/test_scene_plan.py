@@ -45,13 +45,26 @@ def test_capture_time_is_the_meander_sum():
                 move = optics.move_time_s(y - pos[1], p.max_speed_mm_s[1], p.acceleration_mm_s2[1])
             else:
                 move = optics.move_time_s(x - pos[0], p.max_speed_mm_s[0], p.acceleration_mm_s2[0])
-            total += optics.view_period_s(move, p.settle_s, p.exposure_s, p.transfer_s)
+            if pos is None:     # the first view: no earlier transfer to overlap
+                total += move + p.settle_s + p.exposure_s
+            else:
+                total += optics.view_period_s(move, p.settle_s, p.exposure_s, p.transfer_s)
             pos = (x, y)
     total += p.transfer_s
     assert capture_time_s(p) == pytest.approx(total)
-    # with the reference timing the transfer (2.5 s) dominates every step: 3.0 s per view
+    # with the reference timing the transfer (2.5 s) dominates every step after the first (settle
+    # 0.3 s + exposure 0.5 s): 3.0 s per view
     ref = reference_plan()
-    assert capture_time_s(ref) == pytest.approx(3.0 * 2121 + 2.5)
+    assert capture_time_s(ref) == pytest.approx(0.3 + 0.5 + 3.0 * 2120 + 2.5)
+    # the scan plan of the same grid estimates the same time (one estimate, lfstudio.optics.scan_duration_s)
+    from lfstudio.rig.profile import load_rig
+    from lfstudio.scan.scan_plan import ScanPlan
+
+    rig = load_rig()
+    scan = ScanPlan(5, 3, p.spacing_mm, settle_s=p.settle_s)
+    same_rig = p.replace(max_speed_mm_s=(rig.horizontal.max_speed_mm_s, rig.vertical.max_speed_mm_s),
+                         acceleration_mm_s2=(rig.horizontal.acceleration_mm_s2, rig.vertical.acceleration_mm_s2))
+    assert scan.estimate_duration_s(rig, p.exposure_s, p.transfer_s) == pytest.approx(capture_time_s(same_rig))
 
 
 @pytest.mark.parametrize("changes, field", [

@@ -504,7 +504,7 @@ class ProcessDialog(QDialog):
     # -- run ---------------------------------------------------------------------------------------
     def _status_text(self) -> str:
         ds = self.state.dataset
-        views = [v for v in ds.views if v.get("status") == "done" and v.get("file")]
+        views = ds.done_views()
         done = sum(1 for v in views if (v.get("processed") or {}).get("status") == "done")
         failed = sum(1 for v in views if (v.get("processed") or {}).get("status") == "failed")
         text = f"{len(views)} captured views: {done} processed"

@@ -41,7 +41,7 @@ class ProcessingPanel(QWidget):
         if ds is None:
             self.summary.setText("No dataset open. Open or scan a dataset, then process its views.")
             return
-        views = [v for v in ds.views if v.get("status") == "done" and v.get("file")]
+        views = ds.done_views()
         done = [v["processed"] for v in views if (v.get("processed") or {}).get("status") == "done"]
         failed = sum(1 for v in views if (v.get("processed") or {}).get("status") == "failed")
         text = f"<b>{len(done)}</b> of {len(views)} captured views processed"

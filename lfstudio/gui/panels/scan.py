@@ -536,8 +536,9 @@ class ScanPanel(QWidget):
         for w in fields:
             w.blockSignals(False)
         self._update_preview()
-        self.preview.set_done((v["row"], v["column"]) for v in dataset.views if v.get("status") == "done")
-        self._set_progress(sum(1 for v in dataset.views if v.get("status") == "done"), len(dataset.views))
+        done = dataset.done_views()
+        self.preview.set_done((v["row"], v["column"]) for v in done)
+        self._set_progress(len(done), len(dataset.views))
 
     def _update_preview(self) -> None:
         try:
@@ -631,7 +632,7 @@ class ScanPanel(QWidget):
         engine.subscribe(self.bridge.push)
         if self.state.dataset is not dataset:
             self.state.set_dataset(dataset)
-        self.preview.set_done((v["row"], v["column"]) for v in dataset.views if v.get("status") == "done")
+        self.preview.set_done((v["row"], v["column"]) for v in dataset.done_views())
         self.preview.set_plan(engine.plan.with_subset(None))
         settings().setValue(ACTIVE_KEY, str(dataset.root))
         self._log(f"scan of {dataset.root}: {engine.remaining} views to capture"

@@ -29,6 +29,7 @@ from PySide6.QtWidgets import (QAbstractScrollArea, QDialog, QFileDialog, QHBoxL
                                QPushButton, QScrollArea, QSizePolicy, QStackedWidget, QToolButton,
                                QVBoxLayout, QWidget)
 
+from lfstudio.dataset.manifest import is_done
 from lfstudio.gui.settings import settings
 from lfstudio.gui.views.quality import (OVERLAY_KEY, DisparityDialog, LiveQuality, NeighboursDialog, QualityBar,
                                         run_check)
@@ -245,7 +246,7 @@ class GridCanvas(QAbstractScrollArea):
                 r, c = v["row"], v["column"]
                 if 0 <= r < self.rows and 0 <= c < self.columns:
                     self.status[r, c] = STATUS_CODES.get(v.get("status"), PENDING)
-                    if v.get("status") == "done" and (v.get("thumb") or v.get("file")):
+                    if is_done(v):
                         self.thumbs[(r, c)] = v.get("thumb") or v["file"]
             self.mosaic = QImage(self.columns * TILE_W, self.rows * TILE_H, QImage.Format_RGB32)
             self.mosaic.fill(QColor(0, 0, 0))
@@ -799,7 +800,7 @@ class GridView(QWidget):
             view = ds.view(row, column)
         except KeyError:
             return
-        if view.get("status") != "done" or not view.get("file"):
+        if not is_done(view):
             self.state.show_status(f"row {row}, column {column} has not been captured yet")
             return
         try:

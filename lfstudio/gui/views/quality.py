@@ -22,6 +22,7 @@ from PySide6.QtGui import QImage, QPixmap
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QGridLayout, QHBoxLayout, QLabel, QPushButton,
                                QScrollArea, QSizePolicy, QVBoxLayout, QWidget)
 
+from lfstudio.dataset.manifest import is_done
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import JobProgressWidget
@@ -224,7 +225,7 @@ class NeighboursDialog(QDialog):
             except KeyError:
                 label.setText("")
                 continue
-            if v.get("status") != "done" or not v.get("file"):
+            if not is_done(v):
                 label.setText(f"r{n[0]:02d} c{n[1]:03d}\n{v.get('status')}")
                 continue
             label.setText(f"r{n[0]:02d} c{n[1]:03d}\nloading…")
