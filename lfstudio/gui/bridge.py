@@ -1,4 +1,17 @@
-"""Run a core job (``fn(..., progress=, cancel=)``) on a worker thread and report through Qt signals."""
+"""The one way from other threads to the GUI thread, and the one way to run a job off it.
+
+Background threads (device workers, the scan engine, jobs, thumbnail and image decoders, the live
+quality checker, the exception hook) never touch widgets. They hand what they have to a
+:class:`GuiInbox`; the GUI thread gets it, in order, in batches:
+
+    inbox = GuiInbox(handle_batch, parent)   # handle_batch(items: list) runs on the GUI thread
+    inbox.post(item)                         # from any thread; returns at once
+
+However many items arrive, one queued wake-up is pending at a time, so a flood (a fast scan's
+events, a device's status snapshots) costs one slot call per turn of the event loop, not one per
+item. :class:`JobRunner` runs a core job (``fn(..., progress=, cancel=)``) on a worker thread and
+reports it through its own inbox as Qt signals.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +19,7 @@ import logging
 import threading
 from typing import Any, Callable
 
-from PySide6.QtCore import QObject, Signal
+from PySide6.QtCore import QObject, Qt, Signal, Slot
 
 from lfstudio.errors import LfError
 from lfstudio.jobs import Cancelled, CancelToken, EtaEstimator
@@ -14,12 +27,54 @@ from lfstudio.jobs import Cancelled, CancelToken, EtaEstimator
 log = logging.getLogger(__name__)
 
 
+class GuiInbox(QObject):
+    """Items posted from any thread, handed to ``handler(items)`` on the thread that owns the inbox
+    (the GUI thread), in posting order. :meth:`close` drops everything posted afterwards."""
+
+    _wake = Signal()
+
+    def __init__(self, handler: Callable[[list], None], parent: QObject | None = None):
+        super().__init__(parent)
+        self._handler = handler
+        self._items: list = []
+        self._lock = threading.Lock()
+        self._pending = False
+        self._closed = False
+        self._wake.connect(self._drain, Qt.QueuedConnection)
+
+    def post(self, item: Any) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._items.append(item)
+            if self._pending:
+                return
+            self._pending = True
+        try:
+            self._wake.emit()
+        except RuntimeError:          # the inbox's Qt object is gone (its window closed meanwhile)
+            pass
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed = True
+            self._items = []
+
+    @Slot()
+    def _drain(self) -> None:
+        with self._lock:
+            items, self._items = self._items, []
+            self._pending = False
+        if items:
+            self._handler(items)      # an exception goes to sys.excepthook (the crash dialog), as in any slot
+
+
 class JobRunner(QObject):
     """Runs one job at a time off the GUI thread.
 
     ``started()`` is emitted by :meth:`start` itself (on the caller's thread, before the job runs).
-    Signals arrive on the GUI thread (queued): ``progress(done, total, message, eta_s or -1)``,
-    then exactly one of ``finished(result)``, ``failed(message)`` or ``cancelled()``.
+    Signals arrive on the GUI thread: ``progress(done, total, message, eta_s or -1)``, then exactly
+    one of ``finished(result)``, ``failed(message)`` or ``cancelled()``.
     """
 
     started = Signal()
@@ -33,6 +88,8 @@ class JobRunner(QObject):
         self._thread: threading.Thread | None = None
         self._cancel: CancelToken | None = None
         self._active = False    # False before the final signal is emitted: its slots see "not running"
+        self._job = 0           # which start() the reports belong to
+        self._inbox = GuiInbox(self._deliver, self)
 
     @property
     def running(self) -> bool:
@@ -45,32 +102,37 @@ class JobRunner(QObject):
         cancel = CancelToken()
         eta = EtaEstimator()
         self._cancel = cancel
+        self._job += 1
+        job = self._job
+        post = self._inbox.post
 
         def progress(done: int, total: int, message: str = "") -> None:
             left = eta.update(done, total)
-            self.progress.emit(int(done), int(total), str(message), -1.0 if left is None else float(left))
+            post((job, "progress", (int(done), int(total), str(message), -1.0 if left is None else float(left))))
 
         def body() -> None:
             try:
                 result = fn(*args, progress=progress, cancel=cancel, **kwargs)
             except Cancelled:
-                self._active = False
-                self.cancelled.emit()
+                post((job, "cancelled", ()))
             except LfError as exc:
-                self._active = False
-                self.failed.emit(str(exc))
+                post((job, "failed", (str(exc),)))
             except Exception as exc:  # an unexpected bug: say so plainly, keep the details in the log
                 log.error("job %s failed unexpectedly", getattr(fn, "__name__", fn), exc_info=True)
-                self._active = False
-                self.failed.emit(f"Unexpected error: {type(exc).__name__}: {exc}")
+                post((job, "failed", (f"Unexpected error: {type(exc).__name__}: {exc}",)))
             else:
-                self._active = False
-                self.finished.emit(result)
+                post((job, "finished", (result,)))
 
         self._thread = threading.Thread(target=body, name=f"job-{getattr(fn, '__name__', 'job')}", daemon=True)
         self._active = True
         self.started.emit()
         self._thread.start()
+
+    def _deliver(self, reports: list) -> None:
+        for job, kind, args in reports:
+            if kind != "progress" and job == self._job:
+                self._active = False
+            getattr(self, kind).emit(*args)
 
     def cancel(self) -> None:
         if self._cancel is not None:
@@ -88,3 +150,15 @@ class JobRunner(QObject):
             return True
         self._thread.join(timeout_s)
         return not self._thread.is_alive()
+
+
+def run_off_gui(parent: QObject, fn: Callable[[], Any], on_result: Callable[[Any], None],
+                on_error: Callable[[str], None] | None = None) -> JobRunner:
+    """``fn()`` (no progress, no cancel) on a worker thread; ``on_result(value)`` or
+    ``on_error(message)`` on the GUI thread. The runner lives as long as ``parent``."""
+    runner = JobRunner(parent)
+    runner.finished.connect(on_result)
+    if on_error is not None:
+        runner.failed.connect(on_error)
+    runner.start(lambda progress, cancel: fn())
+    return runner

@@ -16,10 +16,12 @@ from html import escape
 import threading
 import traceback
 
-from PySide6.QtCore import QObject, Qt, Signal, Slot
+from PySide6.QtCore import QObject, Qt
 from PySide6.QtGui import QFontDatabase, QGuiApplication
 from PySide6.QtWidgets import (QDialog, QDialogButtonBox, QHBoxLayout, QLabel, QPlainTextEdit, QPushButton,
                                QStyle, QVBoxLayout, QWidget)
+
+from lfstudio.gui.bridge import GuiInbox
 
 log = logging.getLogger(__name__)
 
@@ -126,14 +128,12 @@ def open_log_folder() -> bool:
 class ExceptionReporter(QObject):
     """Receives exceptions from any thread and shows them on the GUI thread."""
 
-    reported = Signal(str, str)          # summary, details (queued to the GUI thread)
-
     def __init__(self, parent_widget: QWidget | None = None):
         super().__init__()
         self.parent_widget = parent_widget
         self.dialogs: list[CrashDialog] = []
         self.count = 0
-        self.reported.connect(self._show, Qt.QueuedConnection)
+        self._inbox = GuiInbox(self._show_all, self)     # (summary, details), from any thread
 
     def report(self, exc_type, exc, tb, where: str) -> None:
         """Log and (queued) show one exception; callable from any thread, never raises."""
@@ -144,11 +144,14 @@ class ExceptionReporter(QObject):
             log.error("unhandled exception %s", where, exc_info=(exc_type, exc, tb))
             flush_logs()
             summary = f"{exc_type.__name__}: {exc}" if str(exc) else exc_type.__name__
-            self.reported.emit(f"{summary} ({where})", format_details(exc_type, exc, tb, where))
+            self._inbox.post((f"{summary} ({where})", format_details(exc_type, exc, tb, where)))
         except Exception:  # noqa: BLE001 - the reporter itself must never raise into Qt
             traceback.print_exc(file=sys.__stderr__)
 
-    @Slot(str, str)
+    def _show_all(self, reports: list[tuple[str, str]]) -> None:
+        for summary, details in reports:
+            self._show(summary, details)
+
     def _show(self, summary: str, details: str) -> None:
         from lfstudio.support.logs import log_file
 

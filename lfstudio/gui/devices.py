@@ -16,9 +16,10 @@ import traceback
 from concurrent.futures import CancelledError, Future
 from typing import Any, Callable
 
-from PySide6.QtCore import QObject, Qt, Signal, Slot
+from PySide6.QtCore import QObject, Signal
 
 from lfstudio.errors import LfError
+from lfstudio.gui.bridge import GuiInbox
 from lfstudio.rig.worker import DeviceWorker, DeviceFault
 
 log = logging.getLogger(__name__)
@@ -51,14 +52,13 @@ class QtDevice(QObject):
     callFailed = Signal(str, str)
     errorOccurred = Signal(str)
     busyChanged = Signal(bool)
-    _deliver = Signal(object)   # a zero-argument callable to run on the GUI thread
 
     def __init__(self, worker: DeviceWorker, parent: QObject | None = None):
         super().__init__(parent)
         self.worker = worker
         self._pending = 0
         self._closed = False
-        self._deliver.connect(self._run_delivered, Qt.QueuedConnection)
+        self._inbox = GuiInbox(self._run_delivered, self)     # zero-argument callables to run on the GUI thread
         self._unsubscribe = worker.subscribe(self._on_snapshot)
 
     @property
@@ -76,14 +76,14 @@ class QtDevice(QObject):
     # -- worker thread -> GUI thread ---------------------------------------------------------------
     def _post(self, fn: Callable[[], None]) -> None:
         if not self._closed:
-            self._deliver.emit(fn)
+            self._inbox.post(fn)
 
-    @Slot(object)
-    def _run_delivered(self, fn: Callable[[], None]) -> None:
-        try:
-            fn()
-        except Exception:
-            log.exception("%s: GUI callback failed", self.name)
+    def _run_delivered(self, fns: list[Callable[[], None]]) -> None:
+        for fn in fns:
+            try:
+                fn()
+            except Exception:
+                log.exception("%s: GUI callback failed", self.name)
 
     def _on_snapshot(self, snapshot: Any) -> None:
         def deliver() -> None:

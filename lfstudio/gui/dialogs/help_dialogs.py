@@ -2,22 +2,19 @@
 
 from __future__ import annotations
 
-import threading
-
-from PySide6.QtCore import Qt, Signal
+from PySide6.QtCore import Qt
 from PySide6.QtGui import QGuiApplication
 from PySide6.QtWidgets import (QDialog, QDialogButtonBox, QHBoxLayout, QLabel, QPushButton, QTableWidget,
                                QTableWidgetItem, QTextBrowser, QVBoxLayout, QWidget, QHeaderView,
                                QAbstractItemView)
 
 from lfstudio import __version__
+from lfstudio.gui.bridge import run_off_gui
 from lfstudio.gui.icons import app_icon
 
 
 class AboutDialog(QDialog):
     """lfstudio's version and every component's, gathered off the GUI thread (imports take a moment)."""
-
-    versionsReady = Signal(object)      # list of (name, text)
 
     def __init__(self, parent: QWidget | None = None):
         super().__init__(parent)
@@ -57,13 +54,9 @@ class AboutDialog(QDialog):
         lay.addWidget(buttons)
         self.resize(640, 520)
         self.rows: list[tuple[str, str]] = []
-        self.versionsReady.connect(self._fill, Qt.QueuedConnection)
-        threading.Thread(target=self._gather, name="about-versions", daemon=True).start()
-
-    def _gather(self) -> None:
         from lfstudio.support.versions import versions
 
-        self.versionsReady.emit(versions())
+        self._gathering = run_off_gui(self, versions, self._fill)     # imports take a moment
 
     def _fill(self, rows) -> None:
         self.rows = list(rows)

@@ -12,21 +12,20 @@ the dataset's own devices: other devices only when the operator agrees, rig chec
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections import deque
 from functools import partial
 from pathlib import Path
 from typing import Any
 
-from PySide6.QtCore import QObject, QPointF, QRectF, Qt, QTimer, Signal
+from PySide6.QtCore import QPointF, QRectF, Qt, QTimer
 from PySide6.QtGui import QAction, QBrush, QColor, QKeySequence, QPainter, QPainterPath, QPen, QPixmap
 from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
                                QLabel, QLineEdit, QMessageBox, QPlainTextEdit, QProgressBar, QPushButton,
                                QSizePolicy, QSpinBox, QToolButton, QVBoxLayout, QWidget)
 
 from lfstudio.errors import InputError, LfError
-from lfstudio.gui.bridge import JobRunner
+from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import set_progress_async
 from lfstudio.jobs import format_duration
@@ -36,34 +35,6 @@ from lfstudio.scan.scan_plan import ORDERS, ScanPlan
 log = logging.getLogger(__name__)
 
 ACTIVE_KEY = "scan/active_dataset"
-
-
-class EngineBridge(QObject):
-    """Carries engine events (from its threads) to the GUI thread without flooding its event queue:
-    events collect in a deque and one queued ``wake`` signal asks the GUI to drain them in slices."""
-
-    wake = Signal()
-
-    def __init__(self, parent: QObject | None = None):
-        super().__init__(parent)
-        self._events: deque = deque()
-        self._lock = threading.Lock()
-        self._pending = False
-
-    def push(self, ev) -> None:
-        with self._lock:
-            self._events.append(ev)
-            if self._pending:
-                return
-            self._pending = True
-        self.wake.emit()
-
-    def take(self) -> list:
-        with self._lock:
-            events = list(self._events)
-            self._events.clear()
-            self._pending = False
-        return events
 
 
 class PathPreview(QWidget):
@@ -280,9 +251,8 @@ class ScanPanel(QWidget):
         self._restore: list | None = None     # see prepare_scan / restore_time_scales
         self._pending_recapture: list[tuple[int, int]] = []
         self._last_start: list[tuple[int, int]] | None = None
-        self.bridge = EngineBridge(self)
-        self.bridge.wake.connect(self._drain, Qt.QueuedConnection)
         self._backlog: deque = deque()
+        self.bridge = GuiInbox(self._take_events, self)     # engine events, from its threads
         self._draining = False
         self._log_lines: list[str] = []
         self.opener = JobRunner(self)
@@ -629,7 +599,7 @@ class ScanPanel(QWidget):
             self._update_buttons()
             return
         self.engine = engine
-        engine.subscribe(self.bridge.push)
+        engine.subscribe(self.bridge.post)
         if self.state.dataset is not dataset:
             self.state.set_dataset(dataset)
         self.preview.set_done((v["row"], v["column"]) for v in dataset.done_views())
@@ -745,9 +715,13 @@ class ScanPanel(QWidget):
         box.open()
 
     # -- events ------------------------------------------------------------------------------------
+    def _take_events(self, events: list) -> None:
+        self._backlog.extend(events)
+        if not self._draining:
+            self._drain()
+
     def _drain(self) -> None:
         """Handle queued engine events for at most ~15 ms, then yield to the event loop."""
-        self._backlog.extend(self.bridge.take())
         t_end = time.perf_counter() + 0.015
         self._draining = True
         last_done = None

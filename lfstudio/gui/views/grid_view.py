@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections import OrderedDict
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,7 @@ from PySide6.QtWidgets import (QAbstractScrollArea, QDialog, QFileDialog, QHBoxL
                                QVBoxLayout, QWidget)
 
 from lfstudio.dataset.manifest import is_done
+from lfstudio.gui.bridge import GuiInbox, run_off_gui
 from lfstudio.gui.settings import settings
 from lfstudio.gui.views.quality import (OVERLAY_KEY, DisparityDialog, LiveQuality, NeighboursDialog, QualityBar,
                                         run_check)
@@ -71,6 +73,7 @@ class ThumbLoader(QObject):
         self._cond = threading.Condition()
         self._stop = False
         self._generation = 0
+        self._inbox = GuiInbox(lambda done: [self.loaded.emit(key, image) for key, image in done], self)
         self._thread = threading.Thread(target=self._run, name="thumb-loader", daemon=True)
         self._thread.start()
 
@@ -116,10 +119,7 @@ class ThumbLoader(QObject):
                 if generation != self._generation:
                     continue
             if not image.isNull():
-                try:
-                    self.loaded.emit(key, image)
-                except RuntimeError:     # the grid was deleted while this thumbnail was decoded
-                    return
+                self._inbox.post((key, image))
 
 
 class GridCanvas(QAbstractScrollArea):
@@ -572,8 +572,6 @@ class GridCanvas(QAbstractScrollArea):
 class ImageDialog(QDialog):
     """One view at full size (decoded off the GUI thread)."""
 
-    decoded = Signal(QImage, str)
-
     def __init__(self, path: Path, title: str, parent: QWidget | None = None):
         super().__init__(parent)
         self.setWindowTitle(title)
@@ -588,17 +586,17 @@ class ImageDialog(QDialog):
         lay = QVBoxLayout(self)
         lay.addWidget(area, 1)
         lay.addWidget(self.info)
-        self.decoded.connect(self._show)
-        threading.Thread(target=self._decode, args=(path,), daemon=True, name="view-decode").start()
+        self._decoding = run_off_gui(self, partial(self._decode, path), lambda shown: self._show(*shown))
 
-    def _decode(self, path: Path) -> None:
+    @staticmethod
+    def _decode(path: Path) -> tuple[QImage, str]:
         try:
             from lfstudio.gui.imageutil import rgb_to_qimage
 
             rgb = load_view_rgb8(path)
-            self.decoded.emit(rgb_to_qimage(rgb), f"{path.name}: {rgb.shape[1]} x {rgb.shape[0]} px")
+            return rgb_to_qimage(rgb), f"{path.name}: {rgb.shape[1]} x {rgb.shape[0]} px"
         except Exception as exc:
-            self.decoded.emit(QImage(), f"{path}: cannot be decoded ({exc})")
+            return QImage(), f"{path}: cannot be decoded ({exc})"
 
     def _show(self, image: QImage, text: str) -> None:
         self.info.setText(text)

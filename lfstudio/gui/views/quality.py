@@ -23,7 +23,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QGridLayout, QHBox
                                QScrollArea, QSizePolicy, QVBoxLayout, QWidget)
 
 from lfstudio.dataset.manifest import is_done
-from lfstudio.gui.bridge import JobRunner
+from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import JobProgressWidget
 
@@ -51,7 +51,8 @@ class LiveQuality(QObject):
 
         self.root = Path(dataset.root)
         self.checker = LiveChecker(dataset)
-        self.checker.subscribe(self.verdict.emit)     # emitted on the checker's thread: queued to ours
+        self._inbox = GuiInbox(lambda entries: [self.verdict.emit(e) for e in entries], self)
+        self.checker.subscribe(self._inbox.post)      # called on the checker's thread
 
     def on_event(self, event: Any) -> None:
         self.checker.on_event(event)
@@ -149,6 +150,10 @@ class _Decoder(QObject):
 
     decoded = Signal(object, QImage)
 
+    def __init__(self, parent: QObject | None = None):
+        super().__init__(parent)
+        self._inbox = GuiInbox(lambda done: [self.decoded.emit(cell, image) for cell, image in done], self)
+
     def start(self, jobs: list[tuple[tuple[int, int], Path]], width_px: int) -> None:
         threading.Thread(target=self._run, args=(jobs, width_px), daemon=True, name="neighbour-decode").start()
 
@@ -163,7 +168,7 @@ class _Decoder(QObject):
                 bgr = thumbnail_array(path, width_px)
             except Exception:
                 bgr = None
-            self.decoded.emit(cell, QImage() if bgr is None else rgb_to_qimage(np.ascontiguousarray(bgr[..., ::-1])))
+            self._inbox.post((cell, QImage() if bgr is None else rgb_to_qimage(np.ascontiguousarray(bgr[..., ::-1]))))
 
 
 class NeighboursDialog(QDialog):
