@@ -17,7 +17,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from lfstudio.dataset import Dataset  # noqa: E402
-from lfstudio.processing.profile import Profile  # noqa: E402
+from lfstudio.dataset.profile import Profile  # noqa: E402
 
 VIGNETTING = 0.2
 

@@ -52,7 +52,8 @@ def area_first(ds, profile, views) -> dict:
     """AHD at full size, area-averaged to the output size, warped there; shading and the
     pipeline's own de-flicker gains of the AHD run."""
     from lfstudio.processing.pipeline import make_plan
-    from lfstudio.processing.steps import debayer, rectify, resample, shading
+    from lfstudio.dataset import images
+    from lfstudio.processing.steps import rectify, resample, shading
 
     p = profile.copy()
     p.debayer.demosaic = "AHD"
@@ -63,7 +64,7 @@ def area_first(ds, profile, views) -> dict:
     factor = shading.correction_from_model((out_w, out_h), plan.shading_coefficients or p.shading.coefficients)
     outs = {}
     for v, gain in views:
-        img = resample.apply(debayer.decode(ds.path_of(v), p.debayer), (out_w, out_h))
+        img = resample.apply(images.develop(ds.path_of(v), p.debayer), (out_w, out_h))
         img = rectify.apply_maps(img, warp).astype(np.float32) * factor * gain
         outs[(v["row"], v["column"])] = img
     return outs

@@ -15,7 +15,10 @@ os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 os.environ.setdefault("LFSTUDIO_RUNTIME_DIR", tempfile.mkdtemp(prefix="lfstudio-test-runtime-"))
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
+#: real files from outside the project: ``shared/data`` beside the checkout, or beside the folder of
+#: a git worktree's checkout (``wt/NAME`` next to ``shared``)
+SHARED_DATA = next((p / "shared" / "data" for p in (REPO_ROOT.parent, REPO_ROOT.parent.parent)
+                    if (p / "shared" / "data").is_dir()), REPO_ROOT.parent / "shared" / "data")
 
 
 @pytest.fixture(autouse=True)

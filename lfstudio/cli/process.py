@@ -30,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.errors import InputError
     from lfstudio.jobs import TerminalProgress
     from lfstudio.processing.pipeline import process_dataset
-    from lfstudio.processing.profile import Profile
+    from lfstudio.dataset.profile import Profile
 
     if args.workers is not None and args.workers < 0:
         raise InputError("--workers", f"{args.workers} is negative", "0 (in this process) or more")

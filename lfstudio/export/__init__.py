@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
-from lfstudio.dataset import Dataset
+from lfstudio.dataset import Dataset, images
 from lfstudio.errors import InputError
 from lfstudio.export import common
 from lfstudio.jobs import CancelToken, Progress, no_progress
@@ -149,7 +149,7 @@ def _plan(ds: Dataset, options: ExportOptions) -> tuple[list[tuple[int, int]], s
     else:
         views = common.select_views(ds, options.views)
     source = common.resolve_source(ds, views, options.source)
-    size = common.image_size_px(common.source_path(ds, views[0], source))
+    size = images.full_size_px(common.source_path(ds, views[0], source))
     if options.format == "hevc":
         views = common.meander(views)
     return views, source, size

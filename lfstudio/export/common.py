@@ -8,7 +8,6 @@ import contextlib
 import os
 import re
 import shutil
-import struct
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator, Sequence
@@ -16,7 +15,7 @@ from typing import Any, Iterator, Sequence
 import cv2
 import numpy as np
 
-from lfstudio.dataset import Dataset
+from lfstudio.dataset import Dataset, images
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import DatasetError, InputError
@@ -152,60 +151,23 @@ def source_path(ds: Dataset, view: View, source: str) -> Path:
     return path
 
 
-def png_header(path: Path) -> tuple[int, int, int, int] | None:
-    """(width, height, bit depth, colour type) of a PNG from its IHDR, or None if not a PNG."""
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(26)
-    except OSError:
-        return None
-    if len(head) < 26 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
-        return None
-    w, h = struct.unpack(">II", head[16:24])
-    return int(w), int(h), head[24], head[25]
-
-
 def is_png16_rgb(path: Path) -> bool:
     """A 16-bit truecolour PNG without alpha (what every export writes)."""
-    hdr = png_header(path)
+    hdr = images.png_header(path)
     return hdr is not None and hdr[2] == 16 and hdr[3] == 2
-
-
-def image_size_px(path: Path) -> tuple[int, int]:
-    """(width, height) a view file decodes to, read cheaply (PNG header, RAW metadata)."""
-    hdr = png_header(path)
-    if hdr is not None:
-        return hdr[0], hdr[1]
-    from lfstudio.processing.steps import debayer
-
-    return debayer.full_size_px(path)
 
 
 def debayer_step(ds: Dataset):
     """The dataset's debayer settings (its processing.toml, else the defaults), full size."""
     import dataclasses
 
-    from lfstudio.processing.profile import Profile
+    from lfstudio.dataset.profile import Profile
 
     try:
         step = Profile.for_dataset(ds.root).debayer
     except Exception:   # an unreadable profile must not block an export of raw views
-        from lfstudio.processing.profile import DebayerStep
-        step = DebayerStep()
+        step = images.DEFAULT_DEBAYER
     return dataclasses.replace(step, half_size=False)
-
-
-def read_view(path: Path, debayer=None) -> np.ndarray:
-    """(h, w, 3) uint16 RGB of a view file: RAW through rawpy (linear 16-bit, as processing
-    decodes it), images as they are (8-bit scaled to 16)."""
-    from lfstudio.processing.steps import debayer as _debayer
-
-    if _debayer.is_raw(path):
-        if debayer is None:
-            from lfstudio.processing.profile import DebayerStep
-            debayer = DebayerStep()
-        return _debayer.decode(path, debayer)
-    return _debayer.read_image(path)
 
 
 def write_png16(path: Path, rgb: np.ndarray, compression: int = 1) -> None:
@@ -254,13 +216,13 @@ def write_images(ds: Dataset, views: Sequence[View], source: str, size: Sequence
         src = source_path(ds, v, source)
         dst = folder / names[v]
         if bit_depth == 16 and source == "processed" and is_png16_rgb(src):
-            hdr = png_header(src)
+            hdr = images.png_header(src)
             if (hdr[0], hdr[1]) != tuple(size):
                 raise DatasetError(f"{src}: {hdr[0]} x {hdr[1]} px, the other views are {size[0]} x {size[1]} px; "
                                    "process the dataset again so that every view has the same size")
             shutil.copyfile(src, dst)
             return names[v]
-        rgb = read_view(src, debayer)
+        rgb = images.develop(src, debayer or images.DEFAULT_DEBAYER)
         if (rgb.shape[1], rgb.shape[0]) != tuple(size):
             raise DatasetError(f"{src}: {rgb.shape[1]} x {rgb.shape[0]} px, the other views are "
                                f"{size[0]} x {size[1]} px; export views of one camera setting")

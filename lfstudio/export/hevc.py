@@ -21,7 +21,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from lfstudio.dataset import Dataset
+from lfstudio.dataset import Dataset, images
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.dataset.store import sha256_file
@@ -103,7 +103,7 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
     steps = n + len(verify_idx)
 
     def load(v: common.View) -> np.ndarray:
-        rgb = common.read_view(common.source_path(ds, v, source), debayer)
+        rgb = images.develop(common.source_path(ds, v, source), debayer or images.DEFAULT_DEBAYER)
         if (rgb.shape[1], rgb.shape[0]) != tuple(size):
             raise DatasetError(f"{view_stem(*v)}: {rgb.shape[1]} x {rgb.shape[0]} px, the other views are "
                                f"{size[0]} x {size[1]} px; export views of one camera setting")

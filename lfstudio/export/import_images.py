@@ -28,24 +28,20 @@ import math
 import os
 import re
 import shutil
-import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
+from lfstudio.dataset import images
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.store import sha256_file
-from lfstudio.errors import InputError
+from lfstudio.errors import DatasetError, InputError
 from lfstudio.jobs import CancelToken, Progress, no_progress
 
-IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
-RAW_SUFFIXES = (".dng", ".arw", ".cr2", ".cr3", ".nef", ".nrw", ".raf", ".orf", ".rw2", ".pef", ".srw", ".raw",
-                ".3fr", ".iiq", ".erf", ".kdc", ".mrw", ".mos", ".x3f")
-SUPPORTED_SUFFIXES = IMAGE_SUFFIXES + RAW_SUFFIXES
 ORDERS = ("row-major", "meander")
 #: the manifest's ``grid.order`` for each import order (see docs/dataset-format.md)
 GRID_ORDER = {"row-major": "raster", "meander": "row-meander"}
-SUPPORTED_TEXT = "PNG, TIFF, JPEG or camera RAW (DNG, ARW, CR2, NEF, ...)"
+SUPPORTED_TEXT = "PNG, TIFF, JPEG or camera RAW (any format LibRaw reads)"
 
 
 @dataclass
@@ -87,8 +83,11 @@ def find_images(folder: str | os.PathLike, pattern: str | None = None) -> list[P
     """Image files of ``folder`` (``pattern``: a glob relative to it; without a ``/`` it matches
     names case-insensitively, so ``*.jpg`` takes ``IMG_0001.JPG``) in natural order.
 
-    Hidden files are skipped. Without a pattern, files of other types are ignored; with one, a
-    matched file that is not a supported image is an error (the pattern should say what to take).
+    Hidden files are skipped. What a file is, is found by reading it (:mod:`lfstudio.dataset.images`),
+    not from its name: without a pattern, text files (notes, XMP sidecars) are ignored and every
+    other file is taken (one that is neither an image nor a RAW LibRaw reads is refused by name when
+    the import reads it); with a pattern, a matched text file is an error (the pattern should say
+    what to take).
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -102,14 +101,13 @@ def find_images(folder: str | os.PathLike, pattern: str | None = None) -> list[P
             matched = [p for p in candidates if p.is_file() and not p.name.startswith(".")]
         except (ValueError, NotImplementedError) as exc:
             raise InputError("--pattern", f"{pattern!r} is not a usable glob ({exc})", "e.g. '*.png' or 'cam_*.tif'")
-        bad = [p for p in matched if p.suffix.lower() not in SUPPORTED_SUFFIXES]
+        bad = [p for p in matched if images.is_text(p)]
         if bad:
             raise InputError("--pattern", f"{pattern!r} also matches {bad[0].name}, which is not a {SUPPORTED_TEXT} "
                              "image; narrow the pattern", "e.g. '*.png'")
         files = matched
     else:
-        files = [p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")
-                 and p.suffix.lower() in SUPPORTED_SUFFIXES]
+        files = [p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".") and not images.is_text(p)]
     return sorted(files, key=lambda p: natural_key(p.relative_to(folder).as_posix()))
 
 
@@ -142,72 +140,6 @@ def count_message(files: Sequence[Path], grid: tuple[int, int], folder: Path, pa
         hint = f"; choose one kind with --pattern '*{match[0]}'" if match else "; choose one kind with --pattern"
         return f"{what} (the folder mixes {kinds}){hint}"
     return f"{what}; check --grid (columns x rows) or select the files with --pattern"
-
-
-# -- file headers -------------------------------------------------------------------------------------
-def _png_size(fh) -> tuple[int, int]:
-    head = fh.read(24)
-    if len(head) < 24 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
-        raise ValueError("not a PNG file")
-    w, h = struct.unpack(">II", head[16:24])
-    return int(w), int(h)
-
-
-def _jpeg_size(fh) -> tuple[int, int]:
-    if fh.read(2) != b"\xff\xd8":
-        raise ValueError("not a JPEG file")
-    while True:
-        b = fh.read(1)
-        while b and b != b"\xff":
-            b = fh.read(1)
-        while b == b"\xff":
-            b = fh.read(1)
-        if not b:
-            raise ValueError("no frame header (truncated JPEG)")
-        marker = b[0]
-        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
-            continue
-        length_bytes = fh.read(2)
-        if len(length_bytes) < 2:
-            raise ValueError("truncated JPEG")
-        length = struct.unpack(">H", length_bytes)[0]
-        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
-            data = fh.read(5)
-            if len(data) < 5:
-                raise ValueError("truncated JPEG frame header")
-            h, w = struct.unpack(">HH", data[1:5])
-            return int(w), int(h)
-        fh.seek(length - 2, os.SEEK_CUR)
-
-
-def image_size_px(path: str | os.PathLike) -> tuple[int, int]:
-    """(width, height) of an image from its header (RAW: LibRaw's size with the orientation applied).
-
-    Raises ``ValueError``/``OSError`` when the file cannot be read as its type."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix in RAW_SUFFIXES:
-        import rawpy
-
-        try:
-            with rawpy.imread(str(path)) as raw:
-                w, h = int(raw.sizes.width), int(raw.sizes.height)
-                return (h, w) if raw.sizes.flip in (5, 6) else (w, h)
-        except Exception as exc:  # LibRaw raises several error types
-            raise ValueError(f"LibRaw cannot read it ({type(exc).__name__})") from None
-    with open(path, "rb") as fh:
-        if suffix == ".png":
-            return _png_size(fh)
-        if suffix in (".jpg", ".jpeg"):
-            return _jpeg_size(fh)
-    import tifffile
-
-    try:
-        with tifffile.TiffFile(path) as tif:
-            page = tif.pages[0]
-            return int(page.imagewidth), int(page.imagelength)
-    except Exception as exc:  # tifffile raises TiffFileError, struct.error, ...
-        raise ValueError(f"not a readable TIFF ({exc})") from None
 
 
 # -- EXIF ---------------------------------------------------------------------------------------------
@@ -356,10 +288,11 @@ def plan_import(options: ImportOptions, *, progress: Progress = no_progress,
         if cancel is not None:
             cancel.check()
         try:
-            s = image_size_px(path)
+            s = images.full_size_px(path)
             total_bytes += path.stat().st_size
-        except (OSError, ValueError) as exc:
-            raise InputError("folder", f"{path.name}: cannot be read as an image ({exc}); re-copy it or leave it "
+        except (OSError, ValueError, DatasetError) as exc:
+            why = exc.reason if isinstance(exc, images.NotACapture) else "damaged or truncated"
+            raise InputError("folder", f"{path.name}: cannot be read as an image ({why}); re-copy it or leave it "
                              "out with --pattern") from None
         if size is None:
             size, first = s, path

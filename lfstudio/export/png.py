@@ -7,8 +7,6 @@ import json
 from pathlib import Path
 from typing import Any, Sequence
 
-import numpy as np
-
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.paths import view_stem
 from lfstudio.export import common
@@ -46,9 +44,3 @@ def estimate_png_bytes(ds: Dataset, views: Sequence[common.View], source: str, s
             total += p.stat().st_size if common.is_png16_rgb(p) else common.images_bytes_estimate(1, size, 16)
         return total + 4096
     return common.images_bytes_estimate(len(views), size, 16) + 4096
-
-
-def read_png16(path: Path) -> np.ndarray:
-    from lfstudio.processing.steps.debayer import read_image
-
-    return read_image(path)

@@ -23,15 +23,15 @@ from typing import Any, Callable
 
 import numpy as np
 
-from lfstudio.dataset import Dataset, view_stem
+from lfstudio.dataset import Dataset, images, view_stem
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import folder_inside
+from lfstudio.dataset.profile import PROFILE_NAME, Profile
 from lfstudio.dataset.storage import StorageError, storage_error
 from lfstudio.dataset.store import clean_temporary_files
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.jobs import CancelToken, Cancelled, Progress, no_progress
 from lfstudio.processing import executors
-from lfstudio.processing.profile import PROFILE_NAME, Profile
 from lfstudio.processing.worker import RunPlan, ViewResult, ViewTask, process_view, render, warm_up
 
 log = logging.getLogger(__name__)
@@ -93,15 +93,13 @@ def split_demosaic(ref_path: Path, profile: Profile, full_size_wh, out_size_wh) 
     """Whether views are demosaiced at the output size (luminance at full resolution, colour
     differences at half; see :mod:`lfstudio.processing.worker`): demosaic ``auto``, an RGB Bayer
     RAW, and an output at most half the capture's size."""
-    from lfstudio.processing.steps import debayer
-
     step = profile.debayer
-    if step.demosaic != "auto" or step.half_size or not debayer.is_raw(ref_path):
+    if step.demosaic != "auto" or step.half_size or not images.is_raw(ref_path):
         return False
     (fw, fh), (ow, oh) = full_size_wh, out_size_wh
     if 2 * ow > fw + 1 or 2 * oh > fh + 1:
         return False
-    return debayer.read_bayer(ref_path, step) is not None
+    return images.read_bayer(ref_path, step) is not None
 
 
 def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> RunPlan:
@@ -110,7 +108,7 @@ def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> Run
 
     ref = reference_view(ds, profile)
     ref_path = ds.path_of(ref)
-    full_size = debayer.full_size_px(ref_path)
+    full_size = images.full_size_px(ref_path)
     scale = debayer.processing_scale(ref_path, profile.debayer)
     out_size = resample.output_size(full_size, profile.resample.scale if profile.resample.enabled else scale)
     homography = None
@@ -145,14 +143,14 @@ def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> Run
         (profile.shading.enabled and profile.shading.mode == "model" and not profile.shading.coefficients)
     if not needs_reference:
         return plan
-    bayer = debayer.read_bayer(ref_path, profile.debayer) if plan.split_demosaic else None
+    bayer = images.read_bayer(ref_path, profile.debayer) if plan.split_demosaic else None
     # the reference's statistics from the same demosaic the views get
-    img = debayer.decode(ref_path, profile.debayer) if bayer is None else \
+    img = images.develop(ref_path, profile.debayer) if bayer is None else \
         debayer.output_rgb(debayer.demosaic_ea(bayer), bayer.rgb_cam)
     if profile.deflicker.enabled:
         plan.reference_small = deflicker.small_luminance(img, profile.deflicker.size_px)
     if profile.shading.enabled:
-        flat = debayer.decode(flat_path, profile.debayer) if flat_path else None
+        flat = images.develop(flat_path, profile.debayer) if flat_path else None
         factor, coeffs = shading.correction(profile.shading, (img.shape[1], img.shape[0]), flat)
         plan.shading_coefficients = coeffs
         if profile.color.enabled:
@@ -330,7 +328,7 @@ def preview(dataset: Dataset | str | Path, profile: Profile, row: int | None = N
             column: int | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """(before, after, info) of one view without writing anything: ``before`` is the decoded capture
     resized to the output size, ``after`` the processed view (both uint16 RGB)."""
-    from lfstudio.processing.steps import debayer, resample
+    from lfstudio.processing.steps import resample
 
     ds = _open(dataset)
     plan = make_plan(ds, profile)
@@ -338,6 +336,6 @@ def preview(dataset: Dataset | str | Path, profile: Profile, row: int | None = N
     path = ds.path_of(view)
     after, info = render(plan, path)
     after = after.copy()   # render's image lives in a buffer the next render reuses
-    before = resample.apply(debayer.decode(path, profile.debayer), plan.output_size_wh)
+    before = resample.apply(images.develop(path, profile.debayer), plan.output_size_wh)
     info["row"], info["column"] = view["row"], view["column"]
     return before, after, info

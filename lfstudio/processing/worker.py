@@ -11,7 +11,7 @@ the decoded view) → ONE remap (lens + rectification) → area resample → sha
 black/white levels in one pass → encode.
 
 When the plan demosaics at the output size (``RunPlan.split_demosaic``: demosaic ``auto``, a Bayer
-RAW, output at most half the capture): the mosaic (:func:`debayer.read_bayer`) → OpenCV's
+RAW, output at most half the capture): the mosaic (:func:`lfstudio.dataset.images.read_bayer`) → OpenCV's
 edge-aware demosaic; its green plane (the luminance) is warped at full resolution and area-averaged
 to the output size; the colour differences R − G and B − G are taken at the R and B sites (a
 half-resolution grid each) and warped there, each with its own sub-pixel position folded into the
@@ -39,9 +39,10 @@ from typing import Any
 
 import numpy as np
 
+from lfstudio.dataset import images
+from lfstudio.dataset.profile import Profile
 from lfstudio.dataset.storage import disk_problem, storage_error
 from lfstudio.errors import LfError
-from lfstudio.processing.profile import Profile
 
 #: per-process cache: profile hash -> _Prepared
 _CACHE: dict[str, "_Prepared"] = {}
@@ -131,14 +132,14 @@ class _Prepared:
 
 
 def _factor_map_captured(plan: RunPlan, profile: Profile) -> np.ndarray | None:
-    from lfstudio.processing.steps import debayer, shading
+    from lfstudio.processing.steps import shading
 
     if not profile.shading.enabled:
         return None
     size = plan.processing_size_wh
     if profile.shading.mode == "model":
         return shading.correction_from_model(size, plan.shading_coefficients)
-    flat = debayer.decode(plan.flat_path, profile.debayer)
+    flat = images.develop(plan.flat_path, profile.debayer)
     factor, _ = shading.correction(profile.shading, size, flat)
     return factor
 
@@ -195,7 +196,7 @@ def render(plan: RunPlan, capture_path: str | Path) -> tuple[np.ndarray, dict[st
     bayer = None
     if plan.split_demosaic:
         w, h = plan.full_size_wh
-        bayer = debayer.read_bayer(capture_path, profile.debayer, out=buf.get("mosaic", (h, w)))
+        bayer = images.read_bayer(capture_path, profile.debayer, out=buf.get("mosaic", (h, w)))
     if bayer is not None:
         _check_size(capture_path, bayer.mosaic.shape, plan.full_size_wh)
         img = debayer.demosaic_ea(bayer, dst=buf.get("demosaic", bayer.mosaic.shape + (3,)))
@@ -203,7 +204,7 @@ def render(plan: RunPlan, capture_path: str | Path) -> tuple[np.ndarray, dict[st
         gain, support = _deflicker_gain(plan, profile, img, bayer.rgb_cam)
         out = _render_split(plan, prep, bayer, img, gain)
     else:
-        img = debayer.decode(capture_path, profile.debayer)
+        img = images.develop(capture_path, profile.debayer)
         t2 = time.perf_counter()
         _check_size(capture_path, img.shape, plan.processing_size_wh)
         gain, support = _deflicker_gain(plan, profile, img, None)

@@ -361,7 +361,7 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
 
     # the de-flicker reference of the processing profile
     from lfstudio.processing.pipeline import reference_view
-    from lfstudio.processing.profile import Profile
+    from lfstudio.dataset.profile import Profile
 
     profile = Profile.for_dataset(dataset.root)
     try:

@@ -30,8 +30,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from lfstudio.processing.profile import DebayerStep, DeflickerStep
-from lfstudio.processing.steps import debayer, deflicker
+from lfstudio.dataset import images
+from lfstudio.dataset.profile import DebayerStep, DeflickerStep
+from lfstudio.processing.steps import deflicker
 
 #: focus tiles across and down
 TILES = (8, 6)
@@ -93,9 +94,9 @@ def _rgb_luminance(rgb16: np.ndarray, full_size_px: tuple[int, int]) -> Luminanc
 
 
 def _raw_luminance(path: Path) -> Luminance:
-    bayer = debayer.read_bayer(path, _BAYER)
+    bayer = images.read_bayer(path, _BAYER)
     if bayer is None:            # not an RGB Bayer mosaic: LibRaw develops it at half size
-        return _rgb_luminance(debayer.decode(path, _BAYER), debayer.full_size_px(path))
+        return _rgb_luminance(images.develop(path, _BAYER), images.full_size_px(path))
     mosaic = bayer.mosaic
     h, w = mosaic.shape
     clipped = float(np.count_nonzero(mosaic >= int(CLIP_LEVEL * 65535))) / mosaic.size
@@ -108,13 +109,13 @@ def _raw_luminance(path: Path) -> Luminance:
 
 def read_luminance(path: str | Path) -> Luminance:
     """Linear luminance of a view file. RAW: the processing stage's white-balanced Bayer mosaic
-    (:func:`lfstudio.processing.steps.debayer.read_bayer`) averaged over each 2 x 2 block — the
+    (:func:`lfstudio.dataset.images.read_bayer`) averaged over each 2 x 2 block — the
     resolution of LibRaw's half-size mode, no demosaicing —; PNG/TIFF/JPEG as the processing stage
     reads them, Rec. 709 luminance."""
     path = Path(path)
-    if debayer.is_raw(path):
+    if images.is_raw(path):
         return _raw_luminance(path)
-    rgb16 = debayer.read_image(path)
+    rgb16 = images.read_image(path)
     return _rgb_luminance(rgb16, (int(rgb16.shape[1]), int(rgb16.shape[0])))
 
 

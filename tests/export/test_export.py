@@ -128,14 +128,14 @@ def test_png_export_imports_back_with_its_focal_length(small, tmp_path):
 
 
 def test_png_export_decodes_dng_like_processing(make_tiny_dataset, tmp_path):
-    from lfstudio.processing.profile import DebayerStep
-    from lfstudio.processing.steps import debayer
+    from lfstudio.dataset.profile import DebayerStep
+    from lfstudio.dataset import images
 
     ds = make_tiny_dataset("dng", width_px=160)
     out = tmp_path / "png"
     export_dataset(ds, ExportOptions("png", out, views="r00_c000"))
     got = _read16(out / "r00_c000.png")
-    want = debayer.decode(ds.path_of(ds.view(0, 0)), DebayerStep())
+    want = images.develop(ds.path_of(ds.view(0, 0)), DebayerStep())
     assert got.shape == (want.shape[0], want.shape[1], 3) and np.array_equal(got, want)
 
 
@@ -298,7 +298,7 @@ def test_hci_export_readable_by_toolkit_reader(small, tmp_path):
 def test_processed_views_are_copied_and_auto_falls_back_to_raw(small, tmp_path):
     from lfstudio.dataset import Dataset
     from lfstudio.processing.pipeline import process_dataset
-    from lfstudio.processing.profile import Profile
+    from lfstudio.dataset.profile import Profile
 
     profile = Profile()
     profile.rectify.enabled = False

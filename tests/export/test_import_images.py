@@ -23,11 +23,12 @@ from lfstudio.calibration.model import rotation_angle_deg, rotation_matrix
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.store import sha256_file
 from lfstudio.errors import InputError
-from lfstudio.export.import_images import (ImportOptions, count_message, find_images, grid_cells, image_size_px,
-                                           import_images, natural_key)
+from lfstudio.dataset.images import full_size_px as image_size_px
+from lfstudio.export.import_images import (ImportOptions, count_message, find_images, grid_cells, import_images,
+                                           natural_key)
 from lfstudio.jobs import Cancelled, CancelToken
 from lfstudio.processing.pipeline import process_dataset
-from lfstudio.processing.profile import Profile
+from lfstudio.dataset.profile import Profile
 from lfstudio.sim.virtual_dataset import load_ground_truth, make_virtual_dataset, meander_order
 
 COLS, ROWS = 4, 3

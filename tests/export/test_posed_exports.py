@@ -180,7 +180,7 @@ def test_colmap_raw_views_pycolmap_poses_and_projections(calibrated, tmp_path):
 
 def test_colmap_rectified_views_use_the_rectified_camera(calibrated, tmp_path):
     from lfstudio.processing.pipeline import process_dataset
-    from lfstudio.processing.profile import Profile
+    from lfstudio.dataset.profile import Profile
 
     profile = Profile()                          # rectified and halved (320 x 213), as processing does
     profile.color.enabled = False

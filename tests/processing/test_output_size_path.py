@@ -1,6 +1,6 @@
 """Demosaicing at the output's resolution (demosaic ``auto``), reused buffers and the PNG strategy.
 
-The mosaic read by :func:`debayer.read_bayer` must carry LibRaw's own numbers (compared with
+The mosaic read by :func:`lfstudio.dataset.images.read_bayer` must carry LibRaw's own numbers (compared with
 LibRaw's output), the split path must be at least as close to the virtual studio's ground truth as
 LibRaw's AHD, and reusing work arrays from view to view must never leak one view into another.
 """
@@ -16,7 +16,8 @@ import rawpy
 
 from lfstudio.processing import worker
 from lfstudio.processing.pipeline import make_plan, process_dataset
-from lfstudio.processing.profile import DebayerStep, Profile
+from lfstudio.dataset.profile import DebayerStep, Profile
+from lfstudio.dataset import images
 from lfstudio.processing.steps import debayer
 from lfstudio.sim.dng import mosaic_from_rgb, write_dng
 from lfstudio.sim.studio import VirtualStudio
@@ -36,7 +37,7 @@ def libraw_half(path, step: DebayerStep) -> np.ndarray:
         return raw.postprocess(**kw).astype(np.float64)
 
 
-def half_from(bayer: debayer.Bayer) -> np.ndarray:
+def half_from(bayer: images.Bayer) -> np.ndarray:
     m = bayer.mosaic.astype(np.float64)
     greens = [divmod(i, 2) for i, c in enumerate(bayer.pattern) if c == "G"]
     (ry, rx), (by, bx) = bayer.site("R"), bayer.site("B")
@@ -52,7 +53,7 @@ def test_mosaic_carries_libraws_levels_for_every_pattern(tmp_path, pattern, step
     rgb = scene(64, 48, seed=1) * 1.6          # some pixels clip: saturation must match too
     path = tmp_path / "v.dng"
     write_dng(path, mosaic_from_rgb(rgb, pattern=pattern), pattern=pattern)
-    bayer = debayer.read_bayer(path, step)
+    bayer = images.read_bayer(path, step)
     assert bayer is not None and bayer.pattern == pattern and bayer.mosaic.dtype == np.uint16
     mine, theirs = half_from(bayer), libraw_half(path, step)
     assert mine.shape == theirs.shape
@@ -64,9 +65,9 @@ def test_mosaic_buffer_is_reused_and_other_files_fall_back(tmp_path):
     path = tmp_path / "v.dng"
     write_dng(path, mosaic_from_rgb(scene(64, 48)))
     buf = np.empty((48, 64), np.uint16)
-    assert debayer.read_bayer(path, DebayerStep(), out=buf).mosaic is buf
+    assert images.read_bayer(path, DebayerStep(), out=buf).mosaic is buf
     cv2.imwrite(str(tmp_path / "v.png"), np.zeros((4, 4, 3), np.uint16))
-    assert debayer.read_bayer(tmp_path / "v.png", DebayerStep()) is None   # LibRaw-free images: decode()
+    assert images.read_bayer(tmp_path / "v.png", DebayerStep()) is None   # LibRaw-free images: decode()
 
 
 @pytest.mark.parametrize("orientation", [3, 6, 8])
@@ -74,9 +75,9 @@ def test_rotated_captures_keep_their_colours_and_orientation(tmp_path, orientati
     rgb = scene(64, 48, seed=4)
     path = tmp_path / "v.dng"
     write_dng(path, mosaic_from_rgb(rgb), orientation=orientation)
-    bayer = debayer.read_bayer(path, DebayerStep())
+    bayer = images.read_bayer(path, DebayerStep())
     full = debayer.output_rgb(debayer.demosaic_ea(bayer), bayer.rgb_cam).astype(np.float64)
-    libraw = debayer.decode(path, DebayerStep(demosaic="AHD")).astype(np.float64)
+    libraw = images.develop(path, DebayerStep(demosaic="AHD")).astype(np.float64)
     turned = orientation in (6, 8)
     assert full.shape == libraw.shape and full.shape[:2] == (rgb.shape[1::-1] if turned else rgb.shape[:2])
     inner = (slice(3, -3), slice(3, -3))

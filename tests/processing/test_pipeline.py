@@ -10,7 +10,7 @@ from lfstudio.dataset import Dataset
 from lfstudio.errors import InputError
 from lfstudio.jobs import Cancelled, CancelToken
 from lfstudio.processing.pipeline import process_dataset
-from lfstudio.processing.profile import PROFILE_NAME, Profile
+from lfstudio.dataset.profile import PROFILE_NAME, Profile
 
 
 def read_rgb(path) -> np.ndarray:

@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lfstudio.errors import InputError
-from lfstudio.processing.profile import ColorStep, DebayerStep, DeflickerStep, LensStep, Profile, ShadingStep
+from lfstudio.dataset.profile import ColorStep, DebayerStep, DeflickerStep, LensStep, Profile, ShadingStep
+from lfstudio.dataset import images
 from lfstudio.processing.steps import color, debayer, deflicker, lens, rectify, resample, shading
 from tests.processing.conftest import scene, write_bayer_dng
 
@@ -49,26 +50,26 @@ def test_debayer_is_linear_16bit(tmp_path):
     flat = np.full((32, 48, 3), 0.5, np.float32)
     flat[:, 24:] = 0.25
     write_bayer_dng(tmp_path / "a.dng", flat)
-    img = debayer.decode(tmp_path / "a.dng", DebayerStep())
+    img = images.develop(tmp_path / "a.dng", DebayerStep())
     assert img.dtype == np.uint16 and img.shape == (32, 48, 3)
     left, right = img[4:-4, 4:20].mean(), img[4:-4, 28:-4].mean()
     assert left == pytest.approx(0.5 * 65535, rel=0.01)
     assert right / left == pytest.approx(0.5, rel=0.01)  # linear: no gamma
-    half = debayer.decode(tmp_path / "a.dng", DebayerStep(half_size=True))
+    half = images.develop(tmp_path / "a.dng", DebayerStep(half_size=True))
     assert half.shape == (16, 24, 3)
-    assert debayer.full_size_px(tmp_path / "a.dng") == (48, 32)
+    assert images.full_size_px(tmp_path / "a.dng") == (48, 32)
     assert debayer.processing_scale(tmp_path / "a.dng", DebayerStep(half_size=True)) == 0.5
 
 
 def test_debayer_fixed_white_balance_scales_channels(tmp_path):
     write_bayer_dng(tmp_path / "g.dng", np.full((32, 48, 3), 0.25, np.float32))
-    unit = debayer.decode(tmp_path / "g.dng", DebayerStep(white_balance="fixed", wb_multipliers=[1, 1, 1, 1],
+    unit = images.develop(tmp_path / "g.dng", DebayerStep(white_balance="fixed", wb_multipliers=[1, 1, 1, 1],
                                                           color_space="raw"))
-    red2 = debayer.decode(tmp_path / "g.dng", DebayerStep(white_balance="fixed", wb_multipliers=[2, 1, 1, 1],
+    red2 = images.develop(tmp_path / "g.dng", DebayerStep(white_balance="fixed", wb_multipliers=[2, 1, 1, 1],
                                                           color_space="raw"))
     ratio = red2.reshape(-1, 3).mean(axis=0) / unit.reshape(-1, 3).mean(axis=0)
     assert ratio == pytest.approx([2.0, 1.0, 1.0], rel=0.02)
-    camera = debayer.decode(tmp_path / "g.dng", DebayerStep(white_balance="camera"))
+    camera = images.develop(tmp_path / "g.dng", DebayerStep(white_balance="camera"))
     assert camera.reshape(-1, 3).mean(axis=0) == pytest.approx([0.25 * 65535] * 3, rel=0.02)  # neutral grey
 
 
@@ -76,7 +77,7 @@ def test_png_and_8bit_inputs_are_accepted(tmp_path):
     rgb8 = np.zeros((8, 10, 3), np.uint8)
     rgb8[..., 0] = 255
     cv2.imwrite(str(tmp_path / "a.png"), cv2.cvtColor(rgb8, cv2.COLOR_RGB2BGR))
-    img = debayer.decode(tmp_path / "a.png", DebayerStep())
+    img = images.develop(tmp_path / "a.png", DebayerStep())
     assert img.dtype == np.uint16 and img[0, 0].tolist() == [65535, 0, 0]
 
 
@@ -84,8 +85,8 @@ def test_real_camera_dng(shared_data):
     path = shared_data / "raw" / "colorchart.dng"
     if not path.is_file():
         pytest.skip("colorchart.dng not present")
-    img = debayer.decode(path, DebayerStep(half_size=True))
-    w, h = debayer.full_size_px(path)
+    img = images.develop(path, DebayerStep(half_size=True))
+    w, h = images.full_size_px(path)
     assert img.shape == ((h + 1) // 2, (w + 1) // 2, 3) and img.dtype == np.uint16
     assert 500 < img.mean() < 60000
 

@@ -10,7 +10,7 @@ import pytest
 
 from lfstudio.dataset import Dataset
 from lfstudio.processing.pipeline import process_dataset
-from lfstudio.processing.profile import Profile
+from lfstudio.dataset.profile import Profile
 from lfstudio.sim.studio import VirtualStudio
 from lfstudio.sim.virtual_dataset import load_ground_truth
 

@@ -25,7 +25,7 @@ from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.imageutil import rgb_to_qimage
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import JobProgressWidget, confirm_cancel_running
-from lfstudio.processing.profile import _CHOICES, PROFILE_NAME, STEP_TYPES, Profile
+from lfstudio.dataset.profile import _CHOICES, PROFILE_NAME, STEP_TYPES, Profile
 
 STEP_TITLES = {
     "debayer": "1  Debayer (RAW → linear 16-bit)", "lens": "2  Lens distortion and lateral CA",

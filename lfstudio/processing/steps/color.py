@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from lfstudio.errors import InputError
-from lfstudio.processing.profile import ColorStep
+from lfstudio.dataset.profile import ColorStep
 
 
 def patch_mean(img: np.ndarray, point_px, scale: float, patch_px: int, field: str) -> np.ndarray:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from lfstudio.processing.profile import DeflickerStep
+from lfstudio.dataset.profile import DeflickerStep
 
 _LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from lfstudio.errors import InputError
-from lfstudio.processing.profile import LensStep
+from lfstudio.dataset.profile import LensStep
 
 Coords = tuple[np.ndarray, np.ndarray]
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from lfstudio.processing.profile import ShadingStep
+from lfstudio.dataset.profile import ShadingStep
 
 MIN_FLAT = 0.05  # of the centre level: darker flat pixels are not trusted (factor capped at 20)
 

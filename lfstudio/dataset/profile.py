@@ -6,6 +6,11 @@ parameter of a step that is switched off does not make finished views look stale
 
 Coordinates of picked points are in full-resolution captured pixels (OpenCV convention: the centre
 of the top-left pixel is (0, 0)).
+
+``processing.toml`` is a file of the dataset folder that more than the processing stage reads (an
+export of raw views develops them with its ``[debayer]`` settings, the quality check reads the
+de-flicker reference), so its model lives here, below every stage; the steps themselves are in
+:mod:`lfstudio.processing`.
 """
 
 from __future__ import annotations

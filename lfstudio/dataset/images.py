@@ -1,0 +1,333 @@
+"""Reading a capture: the one place lfstudio decodes an image file.
+
+What a file is, is decided by trying it, never by its name: a file LibRaw opens is a camera RAW
+(every format LibRaw reads, whatever its suffix: a Canon ``.CRW``, a Minolta ``.MRW``, a DNG named
+``.nef``); otherwise a file OpenCV has a decoder for (PNG, TIFF, JPEG, ...) is an ordinary image;
+anything else is not a capture (:class:`NotACapture`, naming the file). The answer is remembered
+per file, size and modification time.
+
+- :func:`kind`, :func:`is_raw`: ``"raw"`` or ``"image"``;
+- :func:`full_size_px`: (width, height) the file decodes to at full resolution, from its headers
+  (RAW: LibRaw's size with the orientation tag applied);
+- :func:`read_image`: an ordinary image as (h, w, 3) uint16 RGB (16-bit kept, 8-bit scaled by 257);
+- :func:`develop`: any capture as (h, w, 3) uint16 linear RGB: a RAW developed by LibRaw with the
+  ``[debayer]`` settings of a processing profile (:class:`lfstudio.dataset.profile.DebayerStep`),
+  an ordinary image as :func:`read_image`;
+- :func:`read_bayer`: a RAW's Bayer mosaic with LibRaw's black level, white balance and scaling
+  (the processing demosaics it at the output's resolution; the quality check reads luminance from it).
+
+Linear output: ``gamma=(1, 1)``, ``no_auto_bright``, ``output_bps=16``; the RAW's white level maps
+to 65535. The RAW's orientation tag is applied.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from lfstudio.dataset.profile import DebayerStep
+from lfstudio.errors import DatasetError
+
+#: the LibRaw algorithm a full-resolution develop uses for each profile choice that is not one
+FULL_SIZE_DEMOSAIC = {"auto": "AHD"}
+#: what :func:`develop` and :func:`read_bayer` use when no profile is given
+DEFAULT_DEBAYER = DebayerStep()
+
+
+class NotACapture(DatasetError):
+    """A file that is neither a RAW LibRaw reads nor an image OpenCV reads; ``reason`` says so."""
+
+    def __init__(self, path: str | os.PathLike, reason: str = "neither LibRaw (camera RAW) nor OpenCV (PNG, "
+                                                               "TIFF, JPEG) reads it"):
+        self.path, self.reason = Path(path), reason
+        super().__init__(f"{self.path}: not an image: {reason}")
+
+
+# -- what a file is ----------------------------------------------------------------------------------
+@functools.lru_cache(maxsize=4096)
+def _kind(path: str, size: int, mtime_ns: int) -> str | None:
+    import rawpy
+
+    try:
+        with rawpy.imread(path):
+            return "raw"
+    except Exception:   # LibRaw raises several error types for a file it does not read
+        pass
+    return "image" if cv2.haveImageReader(path) else None
+
+
+def kind(path: str | os.PathLike) -> str:
+    """``"raw"`` (LibRaw opens it) or ``"image"`` (OpenCV has a decoder for it); :class:`NotACapture`
+    otherwise, or when the file cannot be opened at all."""
+    path = Path(path)
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise NotACapture(path, exc.strerror or "cannot be opened") from None
+    found = _kind(str(path), st.st_size, st.st_mtime_ns)
+    if found is None:
+        raise NotACapture(path)
+    return found
+
+
+def is_text(path: str | os.PathLike) -> bool:
+    """A text file (notes, XMP sidecars, JSON): its first 4 KiB are UTF-8 without a NUL byte. Every
+    image and RAW format starts with binary data; an empty file is not text."""
+    import codecs
+
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return False
+    if not head or b"\x00" in head:
+        return False
+    try:
+        codecs.getincrementaldecoder("utf-8")().decode(head, final=False)
+    except UnicodeDecodeError:
+        return False
+    return True
+
+
+def is_raw(path: str | os.PathLike) -> bool:
+    """True for a file LibRaw reads; False for anything else (an image, or no capture at all)."""
+    try:
+        return kind(path) == "raw"
+    except NotACapture:
+        return False
+
+
+# -- sizes -------------------------------------------------------------------------------------------
+def full_size_px(path: str | os.PathLike) -> tuple[int, int]:
+    """(width, height) of the full-resolution image the file decodes to, read cheaply (LibRaw's
+    sizes, the PNG/JPEG/TIFF header); :class:`DatasetError` naming the file if unreadable
+    (:class:`NotACapture` when it is no image at all)."""
+    path = Path(path)
+    if kind(path) == "raw":
+        import rawpy
+
+        try:
+            with rawpy.imread(str(path)) as raw:
+                w, h = int(raw.sizes.width), int(raw.sizes.height)
+                return (h, w) if raw.sizes.flip in (5, 6) else (w, h)  # portrait orientation tag
+        except Exception as exc:
+            raise DatasetError(f"{path}: cannot be read as a RAW file ({exc}); re-capture or remove the view") from None
+    size = _header_size_px(path)
+    if size is not None:
+        return size
+    img = read_image(path)
+    return int(img.shape[1]), int(img.shape[0])
+
+
+def png_header(path: str | os.PathLike) -> tuple[int, int, int, int] | None:
+    """(width, height, bit depth, colour type) of a PNG from its IHDR, or None if not a PNG."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(26)
+    except OSError:
+        return None
+    if len(head) < 26 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        return None
+    return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big"), head[24], head[25]
+
+
+def _header_size_px(path: Path) -> tuple[int, int] | None:
+    """(width, height) from a PNG, JPEG or TIFF header, or None (another format, or not readable so)."""
+    png = png_header(path)
+    if png is not None:
+        return png[0], png[1]
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4)
+            if head[:2] == b"\xff\xd8":
+                fh.seek(0)
+                return _jpeg_size(fh)
+        if head[:4] in (b"II*\x00", b"MM\x00*"):
+            import tifffile
+
+            with tifffile.TiffFile(path) as tif:
+                page = tif.pages[0]
+                return int(page.imagewidth), int(page.imagelength)
+    except Exception:  # a truncated or odd header: the decoder decides
+        return None
+    return None
+
+
+def _jpeg_size(fh) -> tuple[int, int] | None:
+    fh.read(2)
+    while True:
+        b = fh.read(1)
+        while b and b != b"\xff":
+            b = fh.read(1)
+        while b == b"\xff":
+            b = fh.read(1)
+        if not b:
+            return None
+        marker = b[0]
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            continue
+        length_bytes = fh.read(2)
+        if len(length_bytes) < 2:
+            return None
+        length = int.from_bytes(length_bytes, "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            data = fh.read(5)
+            if len(data) < 5:
+                return None
+            return int.from_bytes(data[3:5], "big"), int.from_bytes(data[1:3], "big")
+        fh.seek(length - 2, os.SEEK_CUR)
+
+
+# -- decoding ----------------------------------------------------------------------------------------
+def read_image(path: str | os.PathLike) -> np.ndarray:
+    """A PNG/TIFF/JPEG as (h, w, 3) uint16 RGB (8-bit images scaled by 257, 16-bit kept)."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise DatasetError(f"{path}: cannot be read as an image; check the file or re-capture the view")
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
+    elif img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
+    else:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    if img.dtype == np.uint8:
+        img = img.astype(np.uint16) * 257
+    elif img.dtype != np.uint16:
+        img = np.clip(img.astype(np.float64) * (65535.0 if img.dtype.kind == "f" else 1.0), 0, 65535) \
+            .astype(np.uint16)
+    return img
+
+
+def _params(step: DebayerStep):
+    import rawpy
+
+    # adjust_maximum_thr=0: scale by the RAW's white level, never by the image's own maximum (LibRaw's
+    # default rescales images with clipped pixels: a brightness jump between views of one scene)
+    kw = dict(gamma=(1, 1), no_auto_bright=True, output_bps=16, adjust_maximum_thr=0.0,
+              half_size=step.half_size,
+              output_color=rawpy.ColorSpace.raw if step.color_space == "raw" else rawpy.ColorSpace.sRGB,
+              demosaic_algorithm=getattr(rawpy.DemosaicAlgorithm, FULL_SIZE_DEMOSAIC.get(step.demosaic, step.demosaic)))
+    if step.white_balance == "camera":
+        kw["use_camera_wb"] = True
+    elif step.white_balance == "fixed":
+        kw["user_wb"] = [float(v) for v in step.wb_multipliers]
+    return rawpy.Params(**kw)
+
+
+def develop(path: str | os.PathLike, step: DebayerStep = DEFAULT_DEBAYER) -> np.ndarray:
+    """(h, w, 3) uint16 linear RGB of one capture: a RAW developed by LibRaw with ``step``'s settings
+    (``half_size``: one pixel per 2 x 2 block), an ordinary image as it is."""
+    path = Path(path)
+    if not is_raw(path):
+        return read_image(path)
+    import rawpy
+
+    try:
+        with rawpy.imread(str(path)) as raw:
+            return raw.postprocess(_params(step))
+    except (rawpy.LibRawError, OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: cannot be decoded as a RAW file ({type(exc).__name__}: {exc}); "
+                           "re-capture the view or remove it from the dataset") from None
+
+
+# -- the mosaic itself (demosaic at the resolution the output needs) ---------------------------------
+#: OpenCV's edge-aware Bayer conversion to RGB for each 2 x 2 pattern (top-left colours, R G B);
+#: OpenCV names a pattern by its second row's second and third pixels
+_EA_CODES = {"RGGB": cv2.COLOR_BayerBG2RGB_EA, "BGGR": cv2.COLOR_BayerRG2RGB_EA,
+             "GRBG": cv2.COLOR_BayerGB2RGB_EA, "GBRG": cv2.COLOR_BayerGR2RGB_EA}
+#: LibRaw's orientation codes we turn the mosaic for (3: 180 degrees, 5: 90 counter-clockwise, 6: 90 clockwise)
+_ROTATIONS = {3: cv2.ROTATE_180, 5: cv2.ROTATE_90_COUNTERCLOCKWISE, 6: cv2.ROTATE_90_CLOCKWISE}
+
+
+@dataclass
+class Bayer:
+    """An RGB Bayer mosaic in display orientation, black level subtracted, white-balanced and
+    scaled as LibRaw scales its 16-bit output (uint16, saturated), plus what it takes to finish it."""
+
+    mosaic: np.ndarray       # (h, w) uint16
+    pattern: str             # colours of the top-left 2 x 2 block, row by row: "RGGB", "GRBG", ...
+    rgb_cam: np.ndarray      # 3 x 3: camera RGB -> output RGB (identity for color_space "raw")
+
+    def site(self, colour: str) -> tuple[int, int]:
+        """(dy, dx) of ``colour`` ("R" or "B") in the 2 x 2 block."""
+        return divmod(self.pattern.index(colour), 2)
+
+    @property
+    def ea_code(self) -> int:
+        return _EA_CODES[self.pattern]
+
+
+def _white_balance(raw, step: DebayerStep) -> np.ndarray:
+    """LibRaw's channel multipliers (R G B G2) for the profile's white balance setting."""
+    if step.white_balance == "fixed":
+        mul = np.array(step.wb_multipliers, np.float64)
+    else:
+        mul = np.array(raw.daylight_whitebalance, np.float64)
+        if step.white_balance == "camera":
+            cam = np.array(raw.camera_whitebalance, np.float64)
+            if cam[0] > 0 and cam[1] > 0 and cam[2] > 0:
+                mul = cam
+    if mul[1] <= 0:
+        mul[1] = 1.0
+    if mul[3] <= 0:
+        mul[3] = mul[1]
+    return mul
+
+
+def read_bayer(path: str | os.PathLike, step: DebayerStep = DEFAULT_DEBAYER,
+               out: np.ndarray | None = None) -> Bayer | None:
+    """The capture's :class:`Bayer` mosaic, written into ``out`` when it has the right shape (a
+    buffer reused across views); None when the file is not an RGB Bayer RAW this can handle (then
+    develop it with LibRaw, :func:`develop`)."""
+    path = Path(path)
+    if not is_raw(path):
+        return None
+    import rawpy
+
+    try:
+        with rawpy.imread(str(path)) as raw:
+            desc = raw.color_desc.decode("ascii", "replace")
+            pattern_idx = np.asarray(raw.raw_pattern)
+            if raw.raw_type != rawpy.RawType.Flat or desc not in ("RGBG", "RGB") or pattern_idx.shape != (2, 2) \
+                    or raw.sizes.pixel_aspect != 1.0 or raw.sizes.flip not in (0, *_ROTATIONS):
+                return None
+            pattern = "".join("RGBG"[int(i)] for i in pattern_idx.ravel())
+            if pattern not in _EA_CODES:
+                return None
+            visible = raw.raw_image_visible
+            h, w = visible.shape
+            if h % 2 or w % 2:
+                return None
+            black = np.asarray(raw.black_level_per_channel, np.float64)
+            white = float(raw.white_level)
+            mul = _white_balance(raw, step)
+            # LibRaw's scale_colors (highlight mode clip): (raw - black_c) * mul_c / min(mul) * 65535 / (white - black)
+            scale = mul / mul.min() * 65535.0 / max(white - black.min(), 1.0)
+            rgb_cam = np.eye(3) if step.color_space == "raw" else np.asarray(raw.color_matrix, np.float64)[:, :3]
+            flip = raw.sizes.flip
+            mosaic = out if flip == 0 and out is not None and out.shape == (h, w) and out.dtype == np.uint16 \
+                else np.empty((h, w), np.uint16)
+            pairs_in = visible.reshape(h, w // 2, 2)          # (even column, odd column) as two channels
+            pairs_out = mosaic.reshape(h, w // 2, 2)
+            for dy in (0, 1):
+                c0, c1 = (int(pattern_idx[dy, dx]) for dx in (0, 1))
+                M = np.array([[scale[c0], 0.0, -black[c0] * scale[c0]], [0.0, scale[c1], -black[c1] * scale[c1]]])
+                cv2.transform(pairs_in[dy::2], M, dst=pairs_out[dy::2])   # rounded, saturated to 0..65535
+    except (rawpy.LibRawError, OSError, ValueError) as exc:
+        raise DatasetError(f"{path}: cannot be decoded as a RAW file ({type(exc).__name__}: {exc}); "
+                           "re-capture the view or remove it from the dataset") from None
+    if flip:
+        mosaic = cv2.rotate(mosaic, _ROTATIONS[flip])
+        pattern = _rotate_pattern(pattern, flip)
+    return Bayer(mosaic, pattern, rgb_cam)
+
+
+def _rotate_pattern(pattern: str, flip: int) -> str:
+    block = np.array(list(pattern)).reshape(2, 2)
+    turned = {3: np.rot90(block, 2), 5: np.rot90(block, 1), 6: np.rot90(block, -1)}[flip]
+    return "".join(turned.ravel())
