@@ -79,12 +79,12 @@ def imported_dataset(root: Path, files: list[Path], n_views: int):
 
 def former_thumbnail(path: Path, width_px: int = 160) -> np.ndarray | None:
     """The thumbnail as it was made before: 8-bit scaling measured on the full image, then resized."""
-    from lfstudio.scan import thumbs
+    from lfstudio.dataset import images
 
     if path.suffix.lower() in (".jpg", ".jpeg", ".dng"):
-        return thumbs.thumbnail_array(path, width_px)   # not changed for these but the JPEG decode size
+        return images.thumbnail_array(path, width_px)   # not changed for these but the JPEG decode size
     img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
-    return thumbs._resize(thumbs._to_uint8(img), width_px)
+    return images.shrink(images._to_uint8(img), width_px)
 
 
 def main() -> int:
@@ -100,12 +100,12 @@ def main() -> int:
     root = imported_dataset(base / "dataset", files, args.views).root
     print(f"{args.views} views ({args.format}, {args.width} px wide, no stored thumbnails); {load_text()}", flush=True)
 
-    from lfstudio.scan import thumbs
+    from lfstudio.dataset import images, thumbs
 
     cv2.setNumThreads(1)
     sample = [root / f"raw/r00_c{c:03d}{files[0].suffix}" for c in range(UNIQUE)]
     per_view = {}
-    for name, make in (("former", former_thumbnail), ("now", thumbs.thumbnail_array)):
+    for name, make in (("former", former_thumbnail), ("now", images.thumbnail_array)):
         make(sample[0], 160)
         with Timer() as span:
             for p in sample * 2:

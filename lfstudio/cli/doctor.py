@@ -18,16 +18,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _check_raw(tmp: Path) -> str:
-    """A small Bayer DNG written by our writer and decoded by LibRaw."""
+    """A small Bayer DNG written by our writer, recognised and decoded by LibRaw (lfstudio's image reader)."""
     import numpy as np
-    import rawpy
 
+    from lfstudio.dataset import images
     from lfstudio.studio.simulated import write_dng
 
     mosaic = np.full((64, 96), 4000, np.uint16)
     path = write_dng(tmp / "doctor.dng", mosaic)
-    with rawpy.imread(str(path)) as raw:
-        rgb = raw.postprocess(output_bps=16, no_auto_bright=True, gamma=(1, 1))
+    if images.kind(path) != "raw":
+        raise RuntimeError("LibRaw does not recognise the DNG")
+    rgb = images.develop(path)
     if rgb.shape[:2] != mosaic.shape:
         raise RuntimeError(f"decoded {rgb.shape}, wrote {mosaic.shape}")
     return f"DNG {mosaic.shape[1]}x{mosaic.shape[0]} decoded to {rgb.dtype} RGB"

@@ -14,7 +14,10 @@ per file, size and modification time.
   ``[debayer]`` settings of a processing profile (:class:`lfstudio.dataset.profile.DebayerStep`),
   an ordinary image as :func:`read_image`;
 - :func:`read_bayer`: a RAW's Bayer mosaic with LibRaw's black level, white balance and scaling
-  (the processing demosaics it at the output's resolution; the quality check reads luminance from it).
+  (the processing demosaics it at the output's resolution; the quality check reads luminance from it);
+- :func:`thumbnail_array`, :func:`thumbnail_from_array`: small BGR pictures for the grid
+  (:mod:`lfstudio.dataset.thumbs` writes and caches them); :func:`preview_rgb8`: an 8-bit picture to
+  look at (test shots, a view at full size).
 
 Linear output: ``gamma=(1, 1)``, ``no_auto_bright``, ``output_bps=16``; the RAW's white level maps
 to 65535. The RAW's orientation tag is applied.
@@ -331,3 +334,160 @@ def _rotate_pattern(pattern: str, flip: int) -> str:
     block = np.array(list(pattern)).reshape(2, 2)
     turned = {3: np.rot90(block, 2), 5: np.rot90(block, 1), 6: np.rot90(block, -1)}[flip]
     return "".join(turned.ravel())
+
+
+# -- small 8-bit pictures: thumbnails and previews -----------------------------------------------------
+_JPEG_REDUCED = ((8, cv2.IMREAD_REDUCED_COLOR_8), (4, cv2.IMREAD_REDUCED_COLOR_4), (2, cv2.IMREAD_REDUCED_COLOR_2))
+
+
+def shrink(rgb_or_bgr: np.ndarray, width_px: int) -> np.ndarray:
+    """The image at most ``width_px`` wide (area interpolation), aspect kept; as it is when narrower."""
+    h, w = rgb_or_bgr.shape[:2]
+    if w <= width_px:
+        return rgb_or_bgr
+    height = max(1, round(h * width_px / w))
+    return cv2.resize(rgb_or_bgr, (width_px, height), interpolation=cv2.INTER_AREA)
+
+
+def _to_uint8(img: np.ndarray) -> np.ndarray:
+    """8-bit for display: the 99.5th percentile of a deeper image becomes white."""
+    if img.dtype == np.uint8:
+        return img
+    a = img.astype(np.float32)
+    hi = float(np.percentile(a, 99.5)) or 1.0
+    return np.clip(a * (255.0 / hi), 0, 255).astype(np.uint8)
+
+
+def _reduced_jpeg(read, width_px: int) -> np.ndarray | None:
+    """A JPEG decoded at the smallest of 1/8, 1/4, 1/2 that is still ``width_px`` wide (libjpeg
+    scales while decoding); ``read(flags)`` decodes with OpenCV's flags."""
+    try:
+        small = read(cv2.IMREAD_REDUCED_COLOR_8)
+    except cv2.error:
+        return None
+    if small is None:
+        return None
+    if small.shape[1] >= width_px:
+        return small
+    full_w = small.shape[1] * 8
+    for factor, flags in _JPEG_REDUCED[1:]:
+        if full_w // factor >= width_px:
+            return read(flags)
+    return read(cv2.IMREAD_COLOR)
+
+
+def _is_jpeg(path: Path) -> bool:
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(2) == b"\xff\xd8"
+    except OSError:
+        return False
+
+
+def _thumb_from_image(path: Path, width_px: int) -> np.ndarray | None:
+    """BGR uint8, decoded at reduced size where the format allows it, made small before measuring."""
+    if _is_jpeg(path):
+        img = _reduced_jpeg(lambda flags: cv2.imread(str(path), flags), width_px)
+        if img is not None:
+            return img
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    if img is None:
+        return None
+    return _to_uint8(shrink(img, width_px))
+
+
+def _thumb_from_raw(path: Path, width_px: int) -> np.ndarray | None:
+    """BGR uint8 from a RAW file: the embedded JPEG preview if large enough, else a strided decode."""
+    import rawpy
+
+    try:
+        raw = rawpy.imread(str(path))
+    except Exception:
+        return None
+    with raw:
+        try:
+            thumb = raw.extract_thumb()
+            if thumb.format == rawpy.ThumbFormat.JPEG:
+                data = np.frombuffer(thumb.data, np.uint8)
+                img = _reduced_jpeg(lambda flags: cv2.imdecode(data, flags), width_px)
+                if img is not None and img.shape[1] >= width_px:
+                    return img
+            elif thumb.format == rawpy.ThumbFormat.BITMAP and thumb.data.shape[1] >= width_px:
+                return cv2.cvtColor(np.ascontiguousarray(thumb.data), cv2.COLOR_RGB2BGR)
+        except Exception:
+            pass
+        try:
+            mosaic = raw.raw_image_visible
+            colors = raw.raw_colors_visible
+            black = float(np.mean(raw.black_level_per_channel))
+            white = float(raw.white_level)
+        except Exception:
+            return None
+        h, w = mosaic.shape
+        step = max(1, (w // 2) // (width_px * 2)) * 2     # even stride keeps the Bayer phase
+        # one RGB pixel per 2x2 block, blocks taken every `step` pixels
+        out = np.zeros((len(range(0, h - 1, step)), len(range(0, w - 1, step)), 3), np.float32)
+        count = np.zeros_like(out)
+        for dy in (0, 1):
+            for dx in (0, 1):
+                vals = mosaic[dy:h - 1 + dy:step, dx:w - 1 + dx:step][: out.shape[0], : out.shape[1]]
+                ch = int(colors[dy, dx])
+                ch = 1 if ch == 3 else ch      # second green
+                out[..., ch] += vals
+                count[..., ch] += 1
+        rgb = out / np.maximum(count, 1)
+        rgb = (rgb - black) / max(white - black, 1.0)
+        # a rough grey-world balance and gamma: this is a thumbnail, not a rendering
+        means = rgb.reshape(-1, 3).mean(axis=0) + 1e-6
+        rgb = rgb * (means.mean() / means)
+        rgb = np.clip(rgb / max(float(np.percentile(rgb, 99)), 1e-6), 0, 1) ** (1 / 2.2)
+        return cv2.cvtColor((rgb * 255).astype(np.uint8), cv2.COLOR_RGB2BGR)
+
+
+def thumbnail_array(path: str | os.PathLike, width_px: int) -> np.ndarray | None:
+    """A BGR uint8 thumbnail of one capture, at most ``width_px`` wide (None if undecodable): an image
+    decoded at reduced size where its format allows it, a RAW's embedded preview, else a strided
+    decode of its mosaic (each 2 x 2 Bayer block one pixel, only every n-th block read). Made small
+    first, measured (8-bit scaling) after."""
+    path = Path(path)
+    try:
+        found = kind(path)
+    except NotACapture:
+        return None
+    img = _thumb_from_image(path, width_px) if found == "image" else _thumb_from_raw(path, width_px)
+    return None if img is None else shrink(img, width_px)
+
+
+def thumbnail_from_array(rgb: np.ndarray, width_px: int) -> np.ndarray:
+    """A BGR uint8 thumbnail of an RGB (or grey) array, uint8 or 16-bit at any size (a camera's
+    preview, a decoded video frame): made small first, then scaled to 8 bits."""
+    small = shrink(np.asarray(rgb), width_px)
+    return cv2.cvtColor(_to_uint8(small), cv2.COLOR_RGB2BGR) if small.ndim == 3 else _to_uint8(small)
+
+
+def preview_rgb8(path: str | os.PathLike, max_width_px: int | None = None, stretch: bool = False) -> np.ndarray:
+    """An 8-bit sRGB picture of a capture to look at (test shots, a view at full size): a RAW
+    developed by LibRaw at half size with the camera's white balance and no automatic brightening
+    (clipping stays visible), an ordinary image as it is (16-bit divided by 257, or with ``stretch``
+    scaled so that its brightest pixel is white: linear views); at most ``max_width_px`` wide."""
+    path = Path(path)
+    if kind(path) == "raw":
+        import rawpy
+
+        try:
+            with rawpy.imread(str(path)) as raw:
+                rgb = raw.postprocess(half_size=True, use_camera_wb=True, no_auto_bright=True, output_bps=8,
+                                      adjust_maximum_thr=0.0)
+        except Exception as exc:  # LibRaw raises several error types
+            raise DatasetError(f"{path}: cannot be decoded as a RAW file ({type(exc).__name__}: {exc})") from None
+    else:
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+        if img is None:
+            raise DatasetError(f"{path}: cannot be read as an image; check the file")
+        if img.dtype != np.uint8:
+            scale = 255.0 / max(float(img.max()), 1.0) if stretch else 1.0 / 257.0
+            img = np.clip(img.astype(np.float32) * scale, 0, 255).round().astype(np.uint8)
+        rgb = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    if max_width_px is not None:
+        rgb = shrink(rgb, max_width_px)
+    return np.ascontiguousarray(rgb)

@@ -273,7 +273,7 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
                 overwrite: bool = False) -> Path:
     from lfstudio.calibration.calibrate import CALIBRATION_NAME
     from lfstudio.dataset.manifest import MANIFEST_NAME
-    from lfstudio.scan.thumbs import make_thumbnail
+    from lfstudio.dataset.thumbs import make_thumbnail
 
     video = Path(video).expanduser()
     out = Path(out).expanduser()

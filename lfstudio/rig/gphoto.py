@@ -41,16 +41,12 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from lfstudio.dataset import images
 from lfstudio.dataset.atomic import atomic_write_with
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.rig.camera import CameraSetting, CameraStatus, CaptureResult
 
 log = logging.getLogger(__name__)
-
-#: suffixes of camera RAW files: such a file is a capture's main file, the rest are sidecars
-RAW_SUFFIXES = frozenset({".arw", ".srf", ".sr2", ".nef", ".nrw", ".cr2", ".cr3", ".crw", ".raf", ".orf",
-                          ".rw2", ".pef", ".dng", ".srw", ".x3f", ".3fr", ".iiq", ".erf", ".mrw", ".raw"})
-
 
 # -- reading the camera's texts ---------------------------------------------------------------------
 def _ratio_or_number(text: str) -> float | None:
@@ -573,7 +569,6 @@ class GPhotoCamera:
                 if on_exposed is not None:
                     on_exposed()
                 shot = [first, *self._files_added(camera, first)]
-                shot.sort(key=lambda w: os.path.splitext(w.name)[1].lower() not in RAW_SUFFIXES)  # RAW first
                 files: list[Path] = []
                 sizes: list[int] = []
                 for where in shot:
@@ -583,6 +578,9 @@ class GPhotoCamera:
                         dest = stem_path.with_name(f"{stem_path.name}_{len(files)}{suffix}")
                     sizes.append(self._download(camera, where, dest))
                     files.append(dest)
+                # the capture's main file first (a RAW: LibRaw reads it), its sidecars (JPEG ...) after
+                order = sorted(range(len(files)), key=lambda i: not images.is_raw(files[i]))
+                shot, files, sizes = [shot[i] for i in order], [files[i] for i in order], [sizes[i] for i in order]
                 if self.delete_from_camera:
                     for where in shot:
                         try:

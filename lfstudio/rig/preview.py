@@ -1,17 +1,13 @@
-"""Image checks for live view and test shots (Qt-free): a focus measure, clipping, histograms, and
-a quick 8-bit preview of a captured file (RAW via rawpy at half size, or an ordinary image)."""
+"""Image checks for live view and test shots (Qt-free): a focus measure, clipping, histograms. A test
+shot's file becomes an 8-bit picture through :func:`lfstudio.dataset.images.preview_rgb8`."""
 
 from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
-
-RAW_SUFFIXES = {".dng", ".arw", ".cr2", ".cr3", ".nef", ".raf", ".orf", ".rw2", ".pef", ".iiq", ".3fr"}
-
 
 @dataclass(frozen=True)
 class FrameStats:
@@ -71,25 +67,3 @@ def clipping_overlay(rgb: np.ndarray, high: int = 255, low: int = 0) -> np.ndarr
     out[peak >= high] = (255, 0, 0)
     out[peak <= low] = (0, 0, 255)
     return out
-
-
-def preview_image(path: str | Path, max_width_px: int = 1600) -> np.ndarray:
-    """An sRGB uint8 preview of a captured file: RAW developed at half size, other images read."""
-    path = Path(path)
-    if path.suffix.lower() in RAW_SUFFIXES:
-        import rawpy
-
-        with rawpy.imread(str(path)) as raw:
-            rgb = raw.postprocess(half_size=True, use_camera_wb=True, no_auto_bright=True, output_bps=8,
-                                  adjust_maximum_thr=0.0, user_flip=0)
-    else:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise ValueError(f"{path}: not an image OpenCV can read")
-        if img.dtype == np.uint16:
-            img = (img / 257.0).round().astype(np.uint8)
-        rgb = cv2.cvtColor(img, cv2.COLOR_BGR2RGB) if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
-    h, w = rgb.shape[:2]
-    if w > max_width_px:
-        rgb = cv2.resize(rgb, (max_width_px, round(h * max_width_px / w)), interpolation=cv2.INTER_AREA)
-    return np.ascontiguousarray(rgb)

@@ -59,7 +59,7 @@ from lfstudio.rig.worker import CallTimedOut, DeviceWorker, Lease
 from lfstudio.scan.events import (OWNS_RIG, TERMINAL, TRANSITIONS, EventKind, ScanEvent, ScanRequestRefused,
                                   ScanState, Trigger, next_state)
 from lfstudio.scan.scan_plan import PlannedView, ScanPlan
-from lfstudio.scan.thumbs import THUMB_WIDTH_PX, make_thumbnail
+from lfstudio.dataset.thumbs import THUMB_WIDTH_PX, make_thumbnail
 
 log = logging.getLogger(__name__)
 

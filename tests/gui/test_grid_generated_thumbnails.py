@@ -9,7 +9,7 @@ import numpy as np
 from lfstudio.dataset import Dataset
 from lfstudio.gui.state import AppState
 from lfstudio.gui.views.grid_view import GridView
-from lfstudio.scan import thumbs
+from lfstudio.dataset import thumbs
 
 
 def imported(root, columns=4, rows=2) -> Dataset:

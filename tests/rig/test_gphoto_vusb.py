@@ -209,7 +209,7 @@ def test_raw_plus_jpeg_downloads_and_records_both(tmp_path, monkeypatch):
     camera's storage); capture, downloads and deletes go through the real PTP stack."""
     import gphoto2 as gp
 
-    from lfstudio.scan.thumbs import make_thumbnail
+    from lfstudio.dataset.thumbs import make_thumbnail
 
     vcam = use_vcamera(tmp_path / "vcamera", monkeypatch, dngs=3)
     raw_names = [p.name for p in vcam.dngs]

@@ -28,11 +28,11 @@ ISO_CHOICES = ("50", "100", "200", "400", "800", "1600", "3200", "6400")
 
 def test_shot(driver: Any, folder: Path) -> tuple[Any, Any]:
     """Capture into ``folder`` and make an 8-bit preview of the file (runs on the camera's thread)."""
-    from lfstudio.rig.preview import preview_image
+    from lfstudio.dataset.images import preview_rgb8
 
     stem = folder / _dt.datetime.now().strftime("test_%Y%m%d_%H%M%S_%f")
     result = driver.capture(stem)
-    return result, preview_image(result.path)
+    return result, preview_rgb8(result.path, 1600)
 
 
 def simulated_position(state: AppState):

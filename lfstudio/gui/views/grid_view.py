@@ -30,6 +30,7 @@ from PySide6.QtWidgets import (QAbstractScrollArea, QDialog, QFileDialog, QHBoxL
                                QPushButton, QScrollArea, QSizePolicy, QStackedWidget, QToolButton,
                                QVBoxLayout, QWidget)
 
+from lfstudio.dataset import images
 from lfstudio.dataset.manifest import is_done
 from lfstudio.gui.bridge import GuiInbox, run_off_gui
 from lfstudio.gui.settings import settings
@@ -52,7 +53,7 @@ MAX_RECENT = 8
 
 def _file_thumbnail(path: str, width_px: int) -> QImage:
     from lfstudio.gui.imageutil import rgb_to_qimage
-    from lfstudio.scan.thumbs import cached_thumbnail
+    from lfstudio.dataset.thumbs import cached_thumbnail
 
     try:
         bgr = cached_thumbnail(path, width_px)
@@ -593,7 +594,7 @@ class ImageDialog(QDialog):
         try:
             from lfstudio.gui.imageutil import rgb_to_qimage
 
-            rgb = load_view_rgb8(path)
+            rgb = images.preview_rgb8(path, stretch=True)
             return rgb_to_qimage(rgb), f"{path.name}: {rgb.shape[1]} x {rgb.shape[0]} px"
         except Exception as exc:
             return QImage(), f"{path}: cannot be decoded ({exc})"
@@ -604,24 +605,6 @@ class ImageDialog(QDialog):
             self.label.setText(text)
             return
         self.label.setPixmap(QPixmap.fromImage(image))
-
-
-def load_view_rgb8(path: Path) -> np.ndarray:
-    """An 8-bit RGB rendering of a view file (RAW via rawpy at half size, images via OpenCV)."""
-    import cv2
-
-    suffix = path.suffix.lower()
-    if suffix in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp"):
-        img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
-        if img is None:
-            raise OSError("unreadable image")
-        if img.dtype != np.uint8:
-            img = (img.astype(np.float32) * (255.0 / max(float(img.max()), 1.0))).astype(np.uint8)
-        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    import rawpy
-
-    with rawpy.imread(str(path)) as raw:
-        return raw.postprocess(half_size=True, use_camera_wb=True, output_bps=8)
 
 
 class GridView(QWidget):

@@ -161,7 +161,7 @@ class _Decoder(QObject):
         import numpy as np
 
         from lfstudio.gui.imageutil import rgb_to_qimage
-        from lfstudio.scan.thumbs import thumbnail_array
+        from lfstudio.dataset.images import thumbnail_array
 
         for cell, path in jobs:
             try:

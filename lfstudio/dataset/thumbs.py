@@ -29,119 +29,15 @@ from typing import Sequence
 import cv2
 import numpy as np
 
+from lfstudio.dataset import images
 from lfstudio.dataset.atomic import atomic_write_with
 from lfstudio.dataset.manifest import MANIFEST_NAME, is_done
 
 log = logging.getLogger(__name__)
 
 THUMB_WIDTH_PX = 160
-_IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp"}
 #: where generated thumbnails are cached, relative to the dataset folder
 GENERATED_DIR = "thumbs/generated"
-_JPEG_REDUCED = ((8, cv2.IMREAD_REDUCED_COLOR_8), (4, cv2.IMREAD_REDUCED_COLOR_4), (2, cv2.IMREAD_REDUCED_COLOR_2))
-
-
-def _resize(rgb_or_bgr: np.ndarray, width_px: int) -> np.ndarray:
-    h, w = rgb_or_bgr.shape[:2]
-    if w <= width_px:
-        return rgb_or_bgr
-    height = max(1, round(h * width_px / w))
-    return cv2.resize(rgb_or_bgr, (width_px, height), interpolation=cv2.INTER_AREA)
-
-
-def _to_uint8(img: np.ndarray) -> np.ndarray:
-    if img.dtype == np.uint8:
-        return img
-    a = img.astype(np.float32)
-    hi = float(np.percentile(a, 99.5)) or 1.0
-    return np.clip(a * (255.0 / hi), 0, 255).astype(np.uint8)
-
-
-def _reduced_jpeg(read, width_px: int) -> np.ndarray | None:
-    """A JPEG decoded at the smallest of 1/8, 1/4, 1/2 that is still ``width_px`` wide (libjpeg
-    scales while decoding); ``read(flags)`` decodes with OpenCV's flags."""
-    try:
-        small = read(cv2.IMREAD_REDUCED_COLOR_8)
-    except cv2.error:
-        return None
-    if small is None:
-        return None
-    if small.shape[1] >= width_px:
-        return small
-    full_w = small.shape[1] * 8
-    for factor, flags in _JPEG_REDUCED[1:]:
-        if full_w // factor >= width_px:
-            return read(flags)
-    return read(cv2.IMREAD_COLOR)
-
-
-def _from_image_file(path: Path, width_px: int) -> np.ndarray | None:
-    """BGR uint8, decoded at reduced size where the format allows it, made small before measuring."""
-    if path.suffix.lower() in (".jpg", ".jpeg"):
-        img = _reduced_jpeg(lambda flags: cv2.imread(str(path), flags), width_px)
-        if img is not None:
-            return img
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
-    if img is None:
-        return None
-    return _to_uint8(_resize(img, width_px))
-
-
-def _from_raw(path: Path, width_px: int) -> np.ndarray | None:
-    """BGR uint8 from a RAW file: the embedded JPEG preview if large enough, else a strided decode."""
-    import rawpy
-
-    try:
-        raw = rawpy.imread(str(path))
-    except Exception:
-        return None
-    with raw:
-        try:
-            thumb = raw.extract_thumb()
-            if thumb.format == rawpy.ThumbFormat.JPEG:
-                data = np.frombuffer(thumb.data, np.uint8)
-                img = _reduced_jpeg(lambda flags: cv2.imdecode(data, flags), width_px)
-                if img is not None and img.shape[1] >= width_px:
-                    return img
-            elif thumb.format == rawpy.ThumbFormat.BITMAP and thumb.data.shape[1] >= width_px:
-                return cv2.cvtColor(np.ascontiguousarray(thumb.data), cv2.COLOR_RGB2BGR)
-        except Exception:
-            pass
-        try:
-            mosaic = raw.raw_image_visible
-            colors = raw.raw_colors_visible
-            black = float(np.mean(raw.black_level_per_channel))
-            white = float(raw.white_level)
-        except Exception:
-            return None
-        h, w = mosaic.shape
-        step = max(1, (w // 2) // (width_px * 2)) * 2     # even stride keeps the Bayer phase
-        # one RGB pixel per 2x2 block, blocks taken every `step` pixels
-        out = np.zeros((len(range(0, h - 1, step)), len(range(0, w - 1, step)), 3), np.float32)
-        count = np.zeros_like(out)
-        for dy in (0, 1):
-            for dx in (0, 1):
-                vals = mosaic[dy:h - 1 + dy:step, dx:w - 1 + dx:step][: out.shape[0], : out.shape[1]]
-                ch = int(colors[dy, dx])
-                ch = 1 if ch == 3 else ch      # second green
-                out[..., ch] += vals
-                count[..., ch] += 1
-        rgb = out / np.maximum(count, 1)
-        rgb = (rgb - black) / max(white - black, 1.0)
-        # a rough grey-world balance and gamma: this is a thumbnail, not a rendering
-        means = rgb.reshape(-1, 3).mean(axis=0) + 1e-6
-        rgb = rgb * (means.mean() / means)
-        rgb = np.clip(rgb / max(float(np.percentile(rgb, 99)), 1e-6), 0, 1) ** (1 / 2.2)
-        return cv2.cvtColor((rgb * 255).astype(np.uint8), cv2.COLOR_RGB2BGR)
-
-
-def thumbnail_array(path: str | Path, width_px: int = THUMB_WIDTH_PX) -> np.ndarray | None:
-    """A BGR uint8 thumbnail of one image or RAW file, at most ``width_px`` wide (None if undecodable).
-
-    For views without a stored thumbnail (datasets rendered or imported rather than scanned)."""
-    path = Path(path)
-    img = _from_image_file(path, width_px) if path.suffix.lower() in _IMAGE_SUFFIXES else _from_raw(path, width_px)
-    return None if img is None else _resize(img, width_px)
 
 
 def make_thumbnail(files: Sequence[Path], out_path: Path, width_px: int = THUMB_WIDTH_PX,
@@ -150,23 +46,30 @@ def make_thumbnail(files: Sequence[Path], out_path: Path, width_px: int = THUMB_
 
     ``files``: the capture's files (RAW first, sidecars after). ``preview``: an RGB array the
     camera (or a decoded frame) already has, uint8 or 16-bit at any size (used first when given).
+    Otherwise the first sidecar that is an ordinary image, then the capture itself
+    (:func:`lfstudio.dataset.images.thumbnail_array`).
     """
     img = None
     if preview is not None:
-        small = _resize(np.asarray(preview), width_px)   # first: the 8-bit scaling's percentile is then cheap
-        img = cv2.cvtColor(_to_uint8(small), cv2.COLOR_RGB2BGR) if small.ndim == 3 else _to_uint8(small)
+        img = images.thumbnail_from_array(preview, width_px)
     if img is None:
         for f in list(files)[1:]:
-            if Path(f).suffix.lower() in _IMAGE_SUFFIXES:
-                img = _from_image_file(Path(f), width_px)
+            if _is_image(Path(f)):
+                img = images.thumbnail_array(Path(f), width_px)
                 if img is not None:
                     break
     if img is None and files:
-        main = Path(files[0])
-        img = _from_image_file(main, width_px) if main.suffix.lower() in _IMAGE_SUFFIXES else _from_raw(main, width_px)
+        img = images.thumbnail_array(Path(files[0]), width_px)
     if img is None:
         return None
-    return _write_jpeg(out_path, _resize(img, width_px))
+    return _write_jpeg(out_path, img)
+
+
+def _is_image(path: Path) -> bool:
+    try:
+        return images.kind(path) == "image"
+    except images.NotACapture:
+        return False
 
 
 def _write_jpeg(out_path: Path, img: np.ndarray) -> Path:
@@ -215,7 +118,7 @@ def _make_cached(root: Path, path: Path, width_px: int) -> np.ndarray | None:
         img = cv2.imread(str(target), cv2.IMREAD_COLOR)
         if img is not None:
             return img
-    img = thumbnail_array(path, width_px)
+    img = images.thumbnail_array(path, width_px)
     if img is None:
         return None
     try:
@@ -309,7 +212,7 @@ def cached_thumbnail(path: str | Path, width_px: int = THUMB_WIDTH_PX) -> np.nda
     path = Path(path)
     root = dataset_root(path)
     if root is None:
-        return thumbnail_array(path, width_px)
+        return images.thumbnail_array(path, width_px)
     cache_width = max(THUMB_WIDTH_PX, width_px)
     with _filler_lock:
         if _filler is None or _filler.root != root or _filler.width_px != cache_width:
@@ -318,4 +221,4 @@ def cached_thumbnail(path: str | Path, width_px: int = THUMB_WIDTH_PX) -> np.nda
             _filler = CacheFiller(root, cache_width)
         filler = _filler
     img = filler.get(path)
-    return None if img is None else _resize(img, width_px)
+    return None if img is None else images.shrink(img, width_px)

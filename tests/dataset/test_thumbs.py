@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from lfstudio.dataset import Dataset
-from lfstudio.scan import thumbs
+from lfstudio.dataset import images, thumbs
 from lfstudio.sim.dng import mosaic_from_rgb, write_dng
 
 
@@ -27,7 +27,7 @@ def test_16bit_image_is_scaled_on_its_small_version(tmp_path):
     img = (_scene(1200, 800) * 4000).astype(np.uint16)      # a dark linear 16-bit capture
     img[0, 0] = 65535                                       # one hot pixel must not set the scale
     cv2.imwrite(str(tmp_path / "v.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-    t = thumbs.thumbnail_array(tmp_path / "v.png", 160)
+    t = images.thumbnail_array(tmp_path / "v.png", 160)
     assert t.shape == (107, 160, 3) and t.dtype == np.uint8
     left, right = t[20:60, 10:70].reshape(-1, 3).mean(axis=0), t[20:60, 90:150].reshape(-1, 3).mean(axis=0)
     assert left[2] > 200 and left[0] < 40                  # red (BGR), scaled up to near full range
@@ -38,7 +38,7 @@ def test_16bit_image_is_scaled_on_its_small_version(tmp_path):
 def test_jpeg_is_decoded_at_the_smallest_size_still_wide_enough(tmp_path, width_px):
     rgb8 = (_scene(width_px, width_px * 2 // 3) * 400).clip(0, 255).astype(np.uint8)
     cv2.imwrite(str(tmp_path / "v.jpg"), cv2.cvtColor(rgb8, cv2.COLOR_RGB2BGR))
-    t = thumbs.thumbnail_array(tmp_path / "v.jpg", 160)
+    t = images.thumbnail_array(tmp_path / "v.jpg", 160)
     full = cv2.resize(cv2.imread(str(tmp_path / "v.jpg")), (160, t.shape[0]), interpolation=cv2.INTER_AREA)
     assert t.shape == full.shape
     assert np.abs(t.astype(int) - full).mean() < 3
@@ -47,7 +47,7 @@ def test_jpeg_is_decoded_at_the_smallest_size_still_wide_enough(tmp_path, width_
 def test_raw_thumbnail_from_the_mosaic_keeps_the_colours(tmp_path):
     path = tmp_path / "v.dng"
     write_dng(path, mosaic_from_rgb(_scene(1000, 666)))
-    t = thumbs.thumbnail_array(path, 160)
+    t = images.thumbnail_array(path, 160)
     assert t.shape[1] <= 160 and t.shape[1] >= 80
     h, w = t.shape[:2]
     left, right = t[h // 8: h // 2, w // 8: w // 3].reshape(-1, 3).mean(axis=0), \
