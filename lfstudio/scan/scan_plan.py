@@ -172,29 +172,21 @@ class ScanPlan:
     def check_limits(self, rig: RigConfig) -> None:
         """Raise :class:`InputError` naming the field if any position lies outside the soft limits."""
         x_min, x_max, y_min, y_max = self.extent_mm()
-        h, v = rig.horizontal, rig.vertical
-        width = (self.columns - 1) * self.spacing_mm[0]
-        height = (self.rows - 1) * self.spacing_mm[1]
-        if width > h.soft_max_mm - h.soft_min_mm + 1e-9:
-            raise InputError("grid columns / horizontal spacing_mm",
-                             f"{self.columns} columns x {self.spacing_mm[0]:g} mm span {width:g} mm, more than "
-                             f"the {h.soft_max_mm - h.soft_min_mm:g} mm horizontal travel of {rig.label or rig.name}",
-                             f"at most {int((h.soft_max_mm - h.soft_min_mm) // max(self.spacing_mm[0], 1e-9)) + 1} "
-                             "columns at this spacing")
-        if height > v.soft_max_mm - v.soft_min_mm + 1e-9:
-            raise InputError("grid rows / vertical spacing_mm",
-                             f"{self.rows} rows x {self.spacing_mm[1]:g} mm span {height:g} mm, more than "
-                             f"the {v.soft_max_mm - v.soft_min_mm:g} mm vertical travel of {rig.label or rig.name}",
-                             f"at most {int((v.soft_max_mm - v.soft_min_mm) // max(self.spacing_mm[1], 1e-9)) + 1} "
-                             "rows at this spacing")
-        if not (h.contains(x_min, 1e-6) and h.contains(x_max, 1e-6)):
-            raise InputError("horizontal origin/offset_mm",
-                             f"the grid spans x = {x_min:g} … {x_max:g} mm, outside the horizontal soft limits",
-                             f"{h.soft_min_mm:g} … {h.soft_max_mm:g} mm")
-        if not (v.contains(y_min, 1e-6) and v.contains(y_max, 1e-6)):
-            raise InputError("vertical origin/offset_mm",
-                             f"the grid spans y = {y_min:g} … {y_max:g} mm, outside the vertical soft limits",
-                             f"{v.soft_min_mm:g} … {v.soft_max_mm:g} mm")
+        for side, axis, n, what, spacing in (("horizontal", rig.horizontal, self.columns, "columns", self.spacing_mm[0]),
+                                             ("vertical", rig.vertical, self.rows, "rows", self.spacing_mm[1])):
+            travel = axis.soft_max_mm - axis.soft_min_mm
+            span = (n - 1) * spacing
+            if span > travel + 1e-9:
+                raise InputError(f"grid {what} / {side} spacing_mm",
+                                 f"{n} {what} x {spacing:g} mm span {span:g} mm, more than "
+                                 f"the {travel:g} mm {side} travel of {rig.label or rig.name}",
+                                 f"at most {int(travel // max(spacing, 1e-9)) + 1} {what} at this spacing")
+        for side, axis, lo, hi, coord in (("horizontal", rig.horizontal, x_min, x_max, "x"),
+                                          ("vertical", rig.vertical, y_min, y_max, "y")):
+            if not (axis.contains(lo, 1e-6) and axis.contains(hi, 1e-6)):
+                raise InputError(f"{side} origin/offset_mm",
+                                 f"the grid spans {coord} = {lo:g} … {hi:g} mm, outside the {side} soft limits",
+                                 f"{axis.soft_min_mm:g} … {axis.soft_max_mm:g} mm")
 
     def grid_dict(self) -> dict[str, Any]:
         """The manifest's ``grid`` object."""
