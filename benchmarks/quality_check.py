@@ -39,7 +39,8 @@ def main() -> int:
     args = ap.parse_args()
     cols, rows = (int(v) for v in args.grid.lower().split("x"))
 
-    from lfstudio.calibration.calibrate import calibrate_dataset, save_calibration
+    from lfstudio.calibration.calibrate import calibrate_dataset
+    from lfstudio.calibration.model import save_calibration
     from lfstudio.dataset import Dataset
     from lfstudio.quality import check_dataset
     from lfstudio.sim.studio import DEMO_ROTATION_DEG

@@ -61,7 +61,8 @@ def type_into(box, text: str) -> None:
 def quality_shots() -> None:
     """docs/quality-heatmap.png (the grid coloured by sharpness, flagged views outlined) and
     docs/quality-disparity.png (the disparity map of the centre view)."""
-    from lfstudio.calibration.calibrate import calibrate_dataset, save_calibration
+    from lfstudio.calibration.calibrate import calibrate_dataset
+    from lfstudio.calibration.model import save_calibration
     from lfstudio.gui.app import create_window
     from lfstudio.sim.studio import DEMO_ROTATION_DEG, ViewFault
     from lfstudio.sim.virtual_dataset import make_virtual_dataset

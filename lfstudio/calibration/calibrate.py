@@ -1,38 +1,33 @@
 """Self-calibrate a dataset: pick views and pairs, detect and match features, fit, report, save.
 
 ``calibrate_dataset(dataset, ...)`` is a long job (``progress``, ``cancel``); it returns a
-:class:`CalibrationRun` whose ``document`` is what :func:`save_calibration` writes to
-``DATASET/calibration.json``. Detection runs on ``threads`` threads, matching too
+:class:`CalibrationRun` whose ``document`` is what :func:`lfstudio.calibration.model.save_calibration`
+writes to ``DATASET/calibration.json`` (the model module reads and writes that file). Detection runs on ``threads`` threads, matching too
 (:func:`lfstudio.calibration.features.match_pairs`); the views' position errors enter the fit with
 the rig's repeatability (:func:`position_sigma_um`) as their prior.
 """
 
 from __future__ import annotations
 
-import datetime as _dt
 import logging
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Sequence
-
-import numpy as np
 
 from lfstudio.calibration.features import DEFAULT_MAX_FEATURES, DEFAULT_WORK_WIDTH_PX, FeatureCache, Features, match_pairs
 from lfstudio.calibration.fit import DEFAULT_POSITION_SIGMA_UM, CalibrationError, FitResult, PairMatches, fit_rectification
-from lfstudio.calibration.model import CALIBRATION_NAME, load_calibration
 from lfstudio.calibration.pairs import Pair, make_pairs, parse_views
 from lfstudio.calibration.report import build_report
-from lfstudio.dataset.atomic import atomic_write_json
-from lfstudio.dataset.paths import resolve_inside, view_stem
+from lfstudio.dataset.manifest import now_iso
+from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import DatasetError
 from lfstudio.jobs import CancelToken, Progress, no_progress
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CALIBRATION_NAME", "CalibrationRun", "available_views", "calibrate_dataset", "grid_extent_mm",
-           "homography_for", "load_calibration", "position_sigma_um", "save_calibration", "select_views"]
+__all__ = ["CalibrationRun", "available_views", "calibrate_dataset", "grid_extent_mm", "position_sigma_um",
+           "select_views"]
 
 
 @dataclass
@@ -175,31 +170,10 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
                 "work_scale": float(max(f.scale for f in feats.values()))}
     doc = build_report(fit, matches, views=needed, feature_counts={v: f.count for v, f in feats.items()},
                        settings=settings, grid_extent_mm=grid_extent_mm(dataset),
-                       created=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
+                       created=now_iso())
     progress(total_steps, total_steps, "done")
     log.info("calibration of %s finished: rotation %s deg ± %s, residual rms %.3f px", dataset.root,
              [round(float(a), 3) for a in doc.get("rotation_deg") or ()],
              [round(float(a), 3) for a in doc.get("rotation_std_deg") or ()],
              doc.get("residual_px", {}).get("after", {}).get("rms", float("nan")))
     return CalibrationRun(doc, fit, matches, pair_list, needed)
-
-
-def save_calibration(dataset, document: dict[str, Any]) -> Path:
-    """Write ``calibration.json`` atomically into the dataset and note it in the manifest."""
-    path = resolve_inside(dataset.root, CALIBRATION_NAME)
-    atomic_write_json(path, document)
-    dataset.manifest["calibration"] = {"file": CALIBRATION_NAME, "created": document.get("created"),
-                                       "rotation_deg": document["rotation_deg"],
-                                       "residual_after_rms_px": document["residual_px"]["after"]["rms"]}
-    dataset.save()
-    log.info("calibration saved to %s", path)
-    return path
-
-
-def homography_for(document: dict[str, Any], image_size_px: Sequence[int] | None = None) -> np.ndarray:
-    """The document's homography, expressed for images of ``image_size_px`` (default: full resolution)."""
-    from lfstudio.calibration.model import scale_homography
-    H = np.array(document["homography"], float)
-    if image_size_px is None or list(image_size_px) == list(document["image_size_px"]):
-        return H
-    return scale_homography(H, document["image_size_px"], image_size_px)

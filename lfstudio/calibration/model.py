@@ -20,14 +20,19 @@ still load). scipy is imported only where a rotation is computed, so reading a d
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
-from lfstudio.dataset.paths import resolve_inside
+from lfstudio.dataset import Dataset
+from lfstudio.dataset.atomic import atomic_write_json
+from lfstudio.dataset.paths import CALIBRATION_NAME, resolve_inside
 from lfstudio.errors import DatasetError
+
+log = logging.getLogger(__name__)
 
 ROTATION_CONVENTION = (
     "R = scipy.spatial.transform.Rotation.from_euler('xyz', rotation_deg, degrees=True).as_matrix(); "
@@ -94,13 +99,17 @@ def pixel_scale_matrix(scale: float) -> np.ndarray:
     return np.array([[s, 0.0, o], [0.0, s, o], [0.0, 0.0, 1.0]])
 
 
-def scale_homography(H: np.ndarray, from_size_px: Sequence[int], to_size_px: Sequence[int]) -> np.ndarray:
-    """The full-resolution homography H expressed for images of ``to_size_px`` (same aspect).
-
-    ``H_to = S · H · S⁻¹`` with ``S`` = :func:`pixel_scale_matrix` (to_width / from_width).
-    """
-    S = pixel_scale_matrix(float(to_size_px[0]) / float(from_size_px[0]))
+def homography_at_scale(H: np.ndarray, scale: float) -> np.ndarray:
+    """The full-resolution homography H for images scaled by ``scale`` (e.g. 0.5: half-size
+    debayering): ``S · H · S⁻¹`` with ``S`` = :func:`pixel_scale_matrix` (pixel-centre convention;
+    it equals the plain scaling only in the pixel-corner convention)."""
+    S = pixel_scale_matrix(scale)
     return S @ np.asarray(H, dtype=float) @ np.linalg.inv(S)
+
+
+def scale_homography(H: np.ndarray, from_size_px: Sequence[int], to_size_px: Sequence[int]) -> np.ndarray:
+    """The homography H of images of ``from_size_px`` expressed for images of ``to_size_px`` (same aspect)."""
+    return homography_at_scale(H, float(to_size_px[0]) / float(from_size_px[0]))
 
 
 def project(points_m: np.ndarray, centre_m: np.ndarray, R: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -111,19 +120,65 @@ def project(points_m: np.ndarray, centre_m: np.ndarray, R: np.ndarray, K: np.nda
 
 
 # -- calibration.json -----------------------------------------------------------------------------------
-CALIBRATION_NAME = "calibration.json"
+
+
+def calibration_problems(document: Any) -> list[str]:
+    """What makes a ``calibration.json`` document unusable (empty when it is fine): its homography
+    must be an invertible 3 × 3 matrix of numbers, its ``image_size_px`` [width, height] in pixels."""
+    if not isinstance(document, dict):
+        return [f"{CALIBRATION_NAME}: must be a JSON object"]
+    problems = []
+    try:
+        H = np.asarray(document.get("homography"), dtype=float)
+        ok = H.shape == (3, 3) and bool(np.all(np.isfinite(H))) and abs(np.linalg.det(H)) >= 1e-12
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        problems.append(f"{CALIBRATION_NAME}: homography: must be an invertible 3x3 matrix of numbers")
+    size = document.get("image_size_px")
+    if not (isinstance(size, list) and len(size) == 2
+            and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+        problems.append(f"{CALIBRATION_NAME}: image_size_px: must be [width, height] in pixels")
+    return problems
 
 
 def load_calibration(dataset_or_root) -> dict[str, Any] | None:
-    """The dataset's ``calibration.json`` or None when it has none (JSON only: cheap to call from a GUI)."""
-    root = Path(getattr(dataset_or_root, "root", dataset_or_root))
-    path = resolve_inside(root, CALIBRATION_NAME)      # a symlink leading outside the dataset is refused
+    """The dataset's ``calibration.json`` (checked: :func:`calibration_problems`), or None when it has
+    none (JSON only: cheap to call from a GUI). :class:`DatasetError` naming the file and the fix."""
+    path = resolve_inside(Dataset.root_of(dataset_or_root), CALIBRATION_NAME)      # a symlink leading outside the dataset is refused
     if not path.is_file():
         return None
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        document = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise DatasetError(f"{path}: cannot be read ({exc}); run 'lfstudio calibrate' again") from None
+    problems = calibration_problems(document)
+    if problems:
+        raise DatasetError(f"{path}: invalid calibration; run 'lfstudio calibrate' again", problems)
+    return document
+
+
+def save_calibration(dataset, document: dict[str, Any]) -> Path:
+    """Write ``calibration.json`` atomically into the dataset and note it in the manifest."""
+    problems = calibration_problems(document)
+    if problems:
+        raise DatasetError("the calibration result cannot be saved", problems)
+    path = resolve_inside(dataset.root, CALIBRATION_NAME)
+    atomic_write_json(path, document)
+    dataset.manifest["calibration"] = {"file": CALIBRATION_NAME, "created": document.get("created"),
+                                       "rotation_deg": document["rotation_deg"],
+                                       "residual_after_rms_px": document["residual_px"]["after"]["rms"]}
+    dataset.save()
+    log.info("calibration saved to %s", path)
+    return path
+
+
+def homography_for(document: dict[str, Any], image_size_px: Sequence[int] | None = None) -> np.ndarray:
+    """The document's homography, expressed for images of ``image_size_px`` (default: full resolution)."""
+    H = np.array(document["homography"], float)
+    if image_size_px is None or list(image_size_px) == list(document["image_size_px"]):
+        return H
+    return scale_homography(H, document["image_size_px"], image_size_px)
 
 
 UNCERTAINTY_KEY = "uncertainty"

@@ -45,7 +45,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lfstudio.calibration.calibrate import calibrate_dataset, save_calibration
+    from lfstudio.calibration.calibrate import calibrate_dataset
+    from lfstudio.calibration.model import save_calibration
     from lfstudio.calibration.report import format_report
     from lfstudio.cli.import_images import parse_pair
     from lfstudio.dataset import Dataset

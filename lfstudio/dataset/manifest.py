@@ -32,6 +32,7 @@ import itertools
 import json
 import math
 import operator
+import os
 import re
 import threading
 from pathlib import Path
@@ -325,6 +326,16 @@ class Dataset:
             raise DatasetError(f"{root}: cannot create dataset", problems)
         ds.save()
         return ds
+
+    @classmethod
+    def of(cls, dataset_or_root: "Dataset | str | os.PathLike") -> "Dataset":
+        """``dataset_or_root`` itself when it is a Dataset, else the dataset opened from that folder."""
+        return dataset_or_root if isinstance(dataset_or_root, Dataset) else cls.open(dataset_or_root)
+
+    @staticmethod
+    def root_of(dataset_or_root: "Dataset | str | os.PathLike") -> Path:
+        """The folder of a Dataset or a folder given as it is (a Path's own ``.root`` is "/")."""
+        return dataset_or_root.root if isinstance(dataset_or_root, Dataset) else Path(dataset_or_root)
 
     @classmethod
     def open(cls, root: str | Path) -> "Dataset":

@@ -25,8 +25,10 @@ def view_stem(row: int, column: int) -> str:
     return f"r{row:02d}_c{column:03d}"
 
 
+#: the dataset's calibration file (its contents: :mod:`lfstudio.calibration.model`, which reads and writes it)
+CALIBRATION_NAME = "calibration.json"
 #: the dataset's own files and folders (beside the views' files): none may be a symlink leading outside
-DATASET_ENTRIES = ("dataset.json", "journal.jsonl", "dataset.lock", "calibration.json", "processing.toml",
+DATASET_ENTRIES = ("dataset.json", "journal.jsonl", "dataset.lock", CALIBRATION_NAME, "processing.toml",
                    "quality.json", "raw", "thumbs", "thumbs/generated", "processed", "cache")
 
 

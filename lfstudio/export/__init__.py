@@ -102,10 +102,6 @@ def _fmt_bytes(n: float) -> str:
     return f"{n:.1f} GB"
 
 
-def _open(dataset) -> Dataset:
-    return dataset if isinstance(dataset, Dataset) else Dataset.open(dataset)
-
-
 def _check_options(options: ExportOptions) -> ExportOptions:
     fmt = str(options.format).lower()
     if fmt not in FORMATS:
@@ -172,7 +168,7 @@ def _posed_warnings(ds: Dataset, views, source: str, size, options: ExportOption
 
 def estimate_export(dataset, options: ExportOptions) -> ExportEstimate:
     """What an export would write (views, order, source, frame size, bytes) without writing; fast."""
-    ds = _open(dataset)
+    ds = Dataset.of(dataset)
     options = _check_options(options)
     views, source, size = _plan(ds, options)
     warnings: list[str] = []
@@ -215,7 +211,7 @@ def export_dataset(dataset, options: ExportOptions, *, progress: Progress | None
     t0 = time.monotonic()
     progress = progress or no_progress
     cancel = cancel or CancelToken()
-    ds = _open(dataset)
+    ds = Dataset.of(dataset)
     options = _check_options(options)
     out = options.out
     views, source, size = _plan(ds, options)

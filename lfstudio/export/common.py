@@ -17,7 +17,7 @@ import numpy as np
 
 from lfstudio.dataset import Dataset, images
 from lfstudio.dataset.manifest import now_iso
-from lfstudio.dataset.paths import view_stem
+from lfstudio.dataset.paths import DATASET_ENTRIES, view_stem
 from lfstudio.errors import DatasetError, InputError
 
 View = tuple[int, int]   # (row, column)
@@ -324,7 +324,7 @@ def is_rectified(ds: Dataset, source: str) -> bool:
 def describe(ds: Dataset, views: Sequence[View], source: str, image_size: tuple[int, int],
              files: dict[View, str] | None = None) -> dict[str, Any]:
     """The manifest part every format writes: grid, spacing, positions, calibration, intrinsics."""
-    from lfstudio.calibration.calibrate import load_calibration
+    from lfstudio.calibration.model import load_calibration
 
     calibration = load_calibration(ds)
     grid = dict(ds.grid)
@@ -375,12 +375,11 @@ def refuse_out_over_inputs(out: Path, inputs: Sequence[Path], what: str, fix: st
 
 
 def dataset_entries(ds: Dataset) -> list[Path]:
-    """The dataset folder and everything in it lfstudio reads: manifest, journal, calibration,
-    profile, data folders and every view's capture and processed file."""
+    """The dataset folder and everything in it lfstudio reads: its own files and folders
+    (:data:`lfstudio.dataset.paths.DATASET_ENTRIES`: manifest, journal, calibration, profile, data
+    folders), a virtual dataset's ground truth and every view's capture and processed file."""
     root = ds.root
-    entries = [root] + [root / name for name in ("dataset.json", "journal.jsonl", "calibration.json",
-                                                 "processing.toml", "ground_truth.json", "raw", "processed",
-                                                 "thumbs", "cache")]
+    entries = [root] + [root / name for name in (*DATASET_ENTRIES, "ground_truth.json")]
     for v in ds.views:
         for rel in (v.get("file"), (v.get("processed") or {}).get("file") if isinstance(v.get("processed"), dict)
                     else None):

@@ -172,7 +172,7 @@ def measured_disparity_range(ds: Dataset, views: Sequence[common.View], source: 
 
     Hook: the quality check (``lfstudio.quality``, being built) measures disparities over the whole
     grid; once it stores them in the dataset, read them here first."""
-    from lfstudio.calibration.calibrate import homography_for, load_calibration
+    from lfstudio.calibration.model import homography_for, load_calibration
     from lfstudio.calibration.features import detect, match_pair
     from lfstudio.calibration.model import apply_homography
 
@@ -231,7 +231,7 @@ def _center(views: Sequence[common.View]) -> common.View:
 def parameters_text(ds: Dataset, views: Sequence[common.View], size: Sequence[int], source: str,
                     disparities: DisparityRange | None = None, authors: str = "") -> str:
     """The ``parameters.cfg`` text."""
-    from lfstudio.calibration.calibrate import load_calibration
+    from lfstudio.calibration.model import load_calibration
 
     w, h = int(size[0]), int(size[1])
     rows = sorted({r for r, _ in views})

@@ -271,7 +271,7 @@ def read_sidecar(video: Path) -> dict[str, Any]:
 
 def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelToken,
                 overwrite: bool = False) -> Path:
-    from lfstudio.calibration.calibrate import CALIBRATION_NAME
+    from lfstudio.calibration.model import CALIBRATION_NAME
     from lfstudio.dataset.manifest import MANIFEST_NAME
     from lfstudio.dataset.thumbs import make_thumbnail
 

@@ -3,7 +3,7 @@
 Conventions (``docs/conventions.md``): rig frame x right, y down, z into the scene, metres; a view's
 camera centre is ``C = (x_mm, y_mm, 0) / 1000`` from its *reported* axis position (the commanded one
 when the controller reported none). The calibration (``calibration.json``, read through
-:func:`lfstudio.calibration.calibrate.load_calibration`) gives one orientation error ``R``
+:func:`lfstudio.calibration.model.load_calibration`) gives one orientation error ``R``
 (``rotation_deg``, scipy ``from_euler("xyz")``) that maps rig-frame directions to camera-frame
 directions and the intrinsics ``K_true`` (focal length, principal point): a world point X is seen at
 ``p ~ K_true · R · (X − C)``. The rectified views (processed with rectification) are those of the
@@ -85,7 +85,7 @@ def camera_for(ds: Dataset, size: Sequence[int], rectified: bool, calibration: d
     (K_true, R), or the ideal rectified one (K0, identity) when ``rectified``. Without a calibration,
     the camera and lens of the manifest with the principal point at the centre and no rotation
     (a warning says so)."""
-    from lfstudio.calibration.calibrate import load_calibration
+    from lfstudio.calibration.model import load_calibration
     from lfstudio.calibration.model import rotation_matrix
 
     w, h = int(size[0]), int(size[1])

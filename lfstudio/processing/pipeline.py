@@ -23,6 +23,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from lfstudio.calibration.model import CALIBRATION_NAME, load_calibration
 from lfstudio.dataset import Dataset, images, view_stem
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import folder_inside
@@ -61,10 +62,6 @@ class ProcessReport:
             g = np.array(list(self.gains.values()))
             text += f"\nde-flicker gains: {g.min():.4f} .. {g.max():.4f} (median {np.median(g):.4f})"
         return text
-
-
-def _open(dataset: Dataset | str | Path) -> Dataset:
-    return dataset if isinstance(dataset, Dataset) else Dataset.open(dataset)
 
 
 def reference_view(ds: Dataset, profile: Profile) -> dict:
@@ -114,13 +111,13 @@ def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> Run
     homography = None
     extra: dict[str, Any] = {}
     if profile.rectify.enabled:
-        cal = rectify.load_calibration(ds.root)
+        cal = load_calibration(ds)
         if cal is None:
             raise InputError("processing.toml: [rectify]",
-                             f"{ds.root / rectify.CALIBRATION_NAME} not found; calibrate the dataset first "
+                             f"{ds.root / CALIBRATION_NAME} not found; calibrate the dataset first "
                              "('lfstudio calibrate') or switch rectification off (enabled = false)")
         if list(cal["image_size_px"]) != list(full_size):
-            raise DatasetError(f"{ds.root / rectify.CALIBRATION_NAME}: image_size_px {cal['image_size_px']} does not "
+            raise DatasetError(f"{ds.root / CALIBRATION_NAME}: image_size_px {cal['image_size_px']} does not "
                                f"match the captures ({full_size[0]} x {full_size[1]} px); re-run the calibration")
         homography = np.asarray(cal["homography"], float).tolist()
         extra["homography"] = [round(v, 12) for row in homography for v in row]
@@ -185,7 +182,7 @@ def process_dataset(dataset: Dataset | str | Path, profile: Profile | None = Non
     """Process every captured view of ``dataset``; see the module docstring. Raises :class:`Cancelled`."""
     t_start = time.monotonic()
     cancel = cancel or CancelToken()
-    ds = _open(dataset)
+    ds = Dataset.of(dataset)
     profile = profile or Profile.for_dataset(ds.root)
     progress(0, len(ds.done_views()), "reading the reference view")
     log.info("processing of %s started (%d captured views)", ds.root, len(ds.done_views()))
@@ -330,7 +327,7 @@ def preview(dataset: Dataset | str | Path, profile: Profile, row: int | None = N
     resized to the output size, ``after`` the processed view (both uint16 RGB)."""
     from lfstudio.processing.steps import resample
 
-    ds = _open(dataset)
+    ds = Dataset.of(dataset)
     plan = make_plan(ds, profile)
     view = reference_view(ds, profile) if row is None else ds.view(row, column)
     path = ds.path_of(view)

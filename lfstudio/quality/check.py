@@ -301,7 +301,7 @@ class QualityReport:
 
 def calibration_homography(dataset) -> tuple[np.ndarray | None, list[int] | None, dict[str, Any] | None]:
     """The dataset's rectifying homography (full resolution) and its image size, or Nones."""
-    from lfstudio.calibration.calibrate import homography_for, load_calibration
+    from lfstudio.calibration.model import homography_for, load_calibration
 
     doc = load_calibration(dataset)
     if not doc:
@@ -636,8 +636,9 @@ def load_quality(dataset_or_root) -> dict[str, Any] | None:
     """The dataset's ``quality.json`` or None when it has none."""
     import json
 
-    root = Path(getattr(dataset_or_root, "root", dataset_or_root))
-    path = root / QUALITY_NAME
+    from lfstudio.dataset import Dataset
+
+    path = Dataset.root_of(dataset_or_root) / QUALITY_NAME
     if not path.is_file():
         return None
     try:

@@ -4,7 +4,8 @@ import cv2
 import numpy as np
 import pytest
 
-from lfstudio.calibration.calibrate import calibrate_dataset, load_calibration, save_calibration
+from lfstudio.calibration.calibrate import calibrate_dataset
+from lfstudio.calibration.model import load_calibration, save_calibration
 from lfstudio.calibration.fit import CalibrationError
 from lfstudio.calibration.model import rotation_angle_deg, rotation_matrix
 from lfstudio.dataset import Dataset

@@ -40,3 +40,41 @@ def test_scaled_homography_commutes_with_resizing(rot):
 def test_rotation_convention_is_extrinsic_xyz():
     R = rotation_matrix([0, 0, 90])
     assert np.allclose(R @ [1, 0, 0], [0, 1, 0], atol=1e-12)   # x turns into y (down) for +rz
+
+
+# -- calibration.json: one validating loader and saver ----------------------------------------------
+def _doc(H, size=(482, 320)):
+    return {"created": "2026-11-22T00:00:00+00:00", "rotation_deg": [0.5, -0.2, 0.1], "image_size_px": list(size),
+            "focal_length_px": 671.3, "homography": np.asarray(H, float).tolist(),
+            "residual_px": {"after": {"rms": 0.3}}}
+
+
+def test_one_loader_refuses_a_broken_file_for_every_stage(make_tiny_dataset):
+    """calibrate's saver, processing's rectification, export and the quality check read the one
+    validating loader: a singular homography is refused naming the file, everywhere."""
+    import pytest
+
+    from lfstudio.calibration.model import CALIBRATION_NAME, homography_for, load_calibration, save_calibration
+    from lfstudio.dataset.atomic import atomic_write_json
+    from lfstudio.dataset.profile import Profile
+    from lfstudio.errors import DatasetError
+    from lfstudio.export import ExportOptions, export_dataset
+    from lfstudio.processing.pipeline import make_plan
+
+    ds = make_tiny_dataset("png", width_px=482)
+    H = rectifying_homography([0.5, -0.2, 0.1], 671.3, (482, 320))
+    save_calibration(ds, _doc(H))
+    for where in (ds, ds.root, str(ds.root)):           # a Dataset, a Path (whose .root is "/"), a str
+        doc = load_calibration(where)
+        assert doc is not None and np.allclose(homography_for(doc), H)
+    # the same homography for half-size images, through the one scaling (pixel centres)
+    assert np.allclose(homography_for(doc, (241, 160)), scale_homography(H, (482, 320), (241, 160)))
+    with pytest.raises(DatasetError, match="homography"):
+        save_calibration(ds, _doc(np.zeros((3, 3))))
+    atomic_write_json(ds.root / CALIBRATION_NAME, _doc(np.zeros((3, 3))))
+    for read in (lambda: load_calibration(ds),
+                 lambda: make_plan(ds, Profile()),
+                 lambda: export_dataset(ds, ExportOptions("png", ds.root.parent / "out", views="r00_c000"))):
+        with pytest.raises(DatasetError, match=r"calibration\.json: invalid calibration.*homography: must be an invertible 3x3"):
+            read()
+    assert not (ds.root.parent / "out").exists()

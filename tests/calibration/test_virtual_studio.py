@@ -8,7 +8,7 @@ import pytest
 from lfstudio.calibration.calibrate import calibrate_dataset
 from lfstudio.calibration.fit import PairMatches, fit_rectification
 from lfstudio.calibration.model import rotation_angle_deg, rotation_matrix
-from lfstudio.processing.steps.rectify import load_calibration as processing_load_calibration
+from lfstudio.calibration.model import load_calibration as processing_load_calibration
 from lfstudio.sim.virtual_dataset import make_virtual_dataset
 
 ROT = (1.2, -2.0, 2.5)

@@ -18,7 +18,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lfstudio.calibration.calibrate import calibrate_dataset, save_calibration
+from lfstudio.calibration.calibrate import calibrate_dataset
+from lfstudio.calibration.model import save_calibration
 from lfstudio.calibration.model import rotation_angle_deg, rotation_matrix
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.store import sha256_file

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from lfstudio.errors import InputError
 from lfstudio.dataset.profile import ColorStep, DebayerStep, DeflickerStep, LensStep, Profile, ShadingStep
+from lfstudio.calibration.model import homography_at_scale, pixel_scale_matrix
 from lfstudio.dataset import images
 from lfstudio.processing.steps import color, debayer, deflicker, lens, rectify, resample, shading
 from tests.processing.conftest import scene, write_bayer_dng
@@ -205,8 +206,8 @@ def test_known_homography_is_undone():
 @given(st.floats(0.25, 1.0), st.floats(-0.05, 0.05), st.floats(-20, 20), st.floats(0, 3000), st.floats(0, 2000))
 def test_scaled_homography_agrees_with_full_resolution(s, shear, tx, x, y):
     H = np.array([[1.0, shear, tx], [-shear, 1.0, -tx / 2], [1e-6, 2e-6, 1.0]])
-    Hs = rectify.scale_homography(H, s)
-    C = rectify.pixel_scale_matrix(s)
+    Hs = homography_at_scale(H, s)
+    C = pixel_scale_matrix(s)
     full = H @ [x, y, 1.0]
     full /= full[2]
     # a point at full resolution, seen in the scaled image, maps to the scaled image of its target
@@ -217,7 +218,7 @@ def test_scaled_homography_agrees_with_full_resolution(s, shear, tx, x, y):
 
 def test_half_size_pixel_centres():
     # with s = 0.5, the centre of a 2x2 block (full-res 0.5, 0.5) is half-res pixel 0
-    assert (rectify.pixel_scale_matrix(0.5) @ [0.5, 0.5, 1.0])[:2] == pytest.approx([0.0, 0.0])
+    assert (pixel_scale_matrix(0.5) @ [0.5, 0.5, 1.0])[:2] == pytest.approx([0.0, 0.0])
 
 
 # -- 7 resample --------------------------------------------------------------------------------

@@ -133,7 +133,8 @@ def test_only_the_chosen_views_are_judged(quality_dataset):
 
 
 def test_a_calibrated_dataset_is_checked_in_the_rectified_frame(quality_dataset):
-    from lfstudio.calibration.calibrate import calibrate_dataset, save_calibration
+    from lfstudio.calibration.calibrate import calibrate_dataset
+    from lfstudio.calibration.model import save_calibration
 
     fault, _ = FAULTS["displaced"]
     ds = quality_dataset("displaced", faults=[fault])

@@ -20,7 +20,8 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QF
                                QHBoxLayout, QLabel, QPlainTextEdit, QPushButton, QSlider, QSpinBox,
                                QStackedWidget, QTabWidget, QVBoxLayout, QWidget)
 
-from lfstudio.calibration.calibrate import available_views, calibrate_dataset, save_calibration
+from lfstudio.calibration.calibrate import available_views, calibrate_dataset
+from lfstudio.calibration.model import save_calibration
 from lfstudio.calibration.epi import dataset_epis, load_preview, preview_homography, rectify_image
 from lfstudio.calibration.model import CalibrationUncertainty
 from lfstudio.calibration.pairs import PAIR_SETS, default_subset, make_pairs, sparse_subset

@@ -15,52 +15,14 @@ half-resolution grid): the offset is folded into the warp, so no extra resamplin
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 
-from lfstudio.dataset.paths import resolve_inside
-from lfstudio.errors import DatasetError
+from lfstudio.calibration.model import homography_at_scale
 
-CALIBRATION_NAME = "calibration.json"
 INTERPOLATIONS = {"linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC, "lanczos": cv2.INTER_LANCZOS4}
-
-
-def load_calibration(root: str | Path) -> dict[str, Any] | None:
-    """``calibration.json`` of a dataset (checked), or None when the dataset has none."""
-    path = resolve_inside(root, CALIBRATION_NAME)      # a symlink leading outside the dataset is refused
-    if not path.is_file():
-        return None
-    try:
-        cal = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DatasetError(f"{path}: cannot be read as JSON ({exc}); re-run the calibration") from None
-    problems = []
-    H = np.asarray(cal.get("homography", None), dtype=float) if isinstance(cal, dict) else None
-    if H is None or H.shape != (3, 3) or not np.all(np.isfinite(H)) or abs(np.linalg.det(H)) < 1e-12:
-        problems.append(f"{CALIBRATION_NAME}: homography: must be an invertible 3x3 matrix of numbers")
-    size = cal.get("image_size_px") if isinstance(cal, dict) else None
-    if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v > 0 for v in size)):
-        problems.append(f"{CALIBRATION_NAME}: image_size_px: must be [width, height] in pixels")
-    if problems:
-        raise DatasetError(f"{path}: invalid calibration; re-run the calibration", problems)
-    return cal
-
-
-def pixel_scale_matrix(s: float) -> np.ndarray:
-    """C with C·(x, y, 1) = (s(x+0.5)−0.5, s(y+0.5)−0.5, 1): full-res pixel → pixel of an image scaled by s."""
-    t = 0.5 * s - 0.5
-    return np.array([[s, 0.0, t], [0.0, s, t], [0.0, 0.0, 1.0]])
-
-
-def scale_homography(H: np.ndarray, s: float) -> np.ndarray:
-    """The homography ``H`` (full-res pixels) for images scaled by ``s`` (pixel-centre convention)."""
-    C = pixel_scale_matrix(s)
-    return C @ np.asarray(H, dtype=float) @ np.linalg.inv(C)
 
 
 @dataclass(frozen=True)
@@ -84,7 +46,7 @@ def build_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | None
     warp is built even when there is nothing else to correct."""
     if offsets_px is not None:
         if lens is None:
-            H = np.eye(3) if H_full is None else scale_homography(H_full, scale)
+            H = np.eye(3) if H_full is None else homography_at_scale(H_full, scale)
             return [HomographyWarp(H @ np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]]), tuple(size_wh))
                     for dx, dy in offsets_px]
         maps = _source_maps(size_wh, scale, H_full, lens)
@@ -93,7 +55,7 @@ def build_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | None
     if H_full is None and lens is None:
         return None
     if lens is None:
-        return HomographyWarp(scale_homography(H_full, scale), tuple(size_wh))
+        return HomographyWarp(homography_at_scale(H_full, scale), tuple(size_wh))
     return [cv2.convertMaps(mx, my, cv2.CV_16SC2) for mx, my in _source_maps(size_wh, scale, H_full, lens)]
 
 
@@ -104,7 +66,7 @@ def _source_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | No
     qx = np.empty((h, w), np.float64)
     qy = np.empty((h, w), np.float64)
     if H_full is not None:
-        Hinv = np.linalg.inv(scale_homography(H_full, scale))
+        Hinv = np.linalg.inv(homography_at_scale(H_full, scale))
         for y in range(h):  # row by row: bounded memory for 40 MP frames
             den = Hinv[2, 0] * xs + (Hinv[2, 1] * y + Hinv[2, 2])
             qx[y] = (Hinv[0, 0] * xs + (Hinv[0, 1] * y + Hinv[0, 2])) / den
