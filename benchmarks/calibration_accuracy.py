@@ -24,7 +24,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import argparse
 
 from _measure import Timer, load_text
-from lfstudio.calibration.pairs import default_subset
+from lfstudio.calibration.pairs import DEFAULT_VIEWS
+from lfstudio.dataset.grid import Grid
 from lfstudio.calibration.simulate import SimulationConfig, simulate
 
 SUBSAMPLES = (("2x3", "all", "2 × 3 (paper)"), ("3x5", "all", "3 × 5"), ("default", "all", "default"),
@@ -38,7 +39,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     shifts = [float(r) for r in args.shifts.split(",")]
-    d = default_subset(101, 21)
+    d = Grid(101, 21).select(DEFAULT_VIEWS, Grid(101, 21).views())
     print(f"{args.trials} trials per row, seed {args.seed}; {load_text()}; default = {len({r for r, _ in d})} × "
           f"{len({c for _, c in d})} views, every pair\n")
     print("| pp shift | views (pairs) | true error mean | true p99 | rot. median | rot. p99 | coverage 1σ | 2σ "

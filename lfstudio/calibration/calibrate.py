@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 from lfstudio.calibration.features import DEFAULT_MAX_FEATURES, DEFAULT_WORK_WIDTH_PX, FeatureCache, Features, match_pairs
 from lfstudio.calibration.fit import DEFAULT_POSITION_SIGMA_UM, CalibrationError, FitResult, PairMatches, fit_rectification
-from lfstudio.calibration.pairs import Pair, make_pairs, parse_views
+from lfstudio.calibration.pairs import DEFAULT_VIEWS, Pair, make_pairs
 from lfstudio.calibration.report import build_report
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
@@ -26,8 +26,7 @@ from lfstudio.jobs import CancelToken, Progress, no_progress
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CalibrationRun", "available_views", "calibrate_dataset", "grid_extent_mm", "position_sigma_um",
-           "select_views"]
+__all__ = ["CalibrationRun", "calibrate_dataset", "position_sigma_um"]
 
 
 @dataclass
@@ -37,26 +36,6 @@ class CalibrationRun:
     matches: list[PairMatches]
     pairs: list[Pair]
     views: list[tuple[int, int]]
-
-
-def available_views(dataset) -> list[tuple[int, int]]:
-    """Views that have a captured image file."""
-    return sorted((int(v["row"]), int(v["column"])) for v in dataset.views
-                  if v.get("status") == "done" and v.get("file"))
-
-
-def select_views(dataset, views: str | Sequence[tuple[int, int]] | None) -> list[tuple[int, int]]:
-    avail = available_views(dataset)
-    if not avail:
-        raise DatasetError(f"{dataset.root}: no captured views to calibrate from; scan first")
-    grid = dataset.grid
-    if views is None or isinstance(views, str):
-        return parse_views(views, int(grid["columns"]), int(grid["rows"]), avail)
-    chosen = sorted(set((int(r), int(c)) for r, c in views))
-    missing = [view_stem(*v) for v in chosen if v not in set(avail)]
-    if missing:
-        raise DatasetError(f"{dataset.root}: views without a captured image: {', '.join(missing)}")
-    return chosen
 
 
 def position_sigma_um(dataset) -> tuple[float, float]:
@@ -73,15 +52,6 @@ def position_sigma_um(dataset) -> tuple[float, float]:
     return DEFAULT_POSITION_SIGMA_UM
 
 
-def grid_extent_mm(dataset) -> tuple[float | None, float | None]:
-    """Baselines of the grid's full row and full column (None for a single column / row)."""
-    grid = dataset.grid
-    spacing = grid.get("spacing_mm") or [1.0, 1.0]
-    cols, rows = int(grid["columns"]), int(grid["rows"])
-    return ((cols - 1) * float(spacing[0]) if cols > 1 else None,
-            (rows - 1) * float(spacing[1]) if rows > 1 else None)
-
-
 def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = None, *,
                       principal_point: str = "auto", estimate_principal_point: bool | None = None,
                       focal_length_px: float | None = None,
@@ -92,8 +62,8 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
                       cancel: CancelToken | None = None) -> CalibrationRun:
     """Run the whole self-calibration on ``dataset`` (an open :class:`lfstudio.dataset.Dataset`).
 
-    ``views``: a :func:`lfstudio.calibration.pairs.parse_views` spec (default: the default array)
-    or (row, column) pairs; ``pair_set``: which pairs of them (``neighbours_only`` is the older
+    ``views``: a selection (:meth:`lfstudio.dataset.Dataset.select`; default: the default array,
+    :data:`lfstudio.calibration.pairs.DEFAULT_VIEWS`) or (row, column) pairs; ``pair_set``: which pairs of them (``neighbours_only`` is the older
     spelling of "neighbours"); ``principal_point``: "auto" (estimated where observable) or
     "centre" (``estimate_principal_point``: the older True/False); ``position_sigma``: the rig's
     repeatability in µm (default :func:`position_sigma_um`).
@@ -102,8 +72,8 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
         pair_set = "neighbours"
     if estimate_principal_point is not None:
         principal_point = "auto" if estimate_principal_point else "centre"
-    chosen = select_views(dataset, views)
-    spacing = dataset.grid.get("spacing_mm") or [1.0, 1.0]
+    chosen = dataset.select(views, default=DEFAULT_VIEWS, field_name="--views")
+    spacing = dataset.grid.step_mm
     pair_list = list(pairs) if pairs is not None else make_pairs(chosen, spacing, pair_set=pair_set)
     if not pair_list:
         raise CalibrationError(f"the chosen views ({', '.join(view_stem(*v) for v in chosen)}) form no pair in a "
@@ -169,7 +139,7 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
                 "position_sigma_um": list(sigma_um),
                 "work_scale": float(max(f.scale for f in feats.values()))}
     doc = build_report(fit, matches, views=needed, feature_counts={v: f.count for v, f in feats.items()},
-                       settings=settings, grid_extent_mm=grid_extent_mm(dataset),
+                       settings=settings, grid_extent_mm=dataset.grid.baselines_mm,
                        created=now_iso())
     progress(total_steps, total_steps, "done")
     log.info("calibration of %s finished: rotation %s deg ± %s, residual rms %.3f px", dataset.root,

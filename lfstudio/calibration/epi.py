@@ -19,7 +19,8 @@ import cv2
 import numpy as np
 
 from lfstudio.calibration.features import read_grey
-from lfstudio.calibration.model import scale_homography
+from lfstudio.calibration.model import homography_for, scale_homography
+from lfstudio.dataset.paths import view_stem
 from lfstudio.jobs import CancelToken, Progress, no_progress
 
 
@@ -90,12 +91,11 @@ def dataset_epis(dataset, calibration: dict | None, *, row: int, column: int, y_
     passes through image row ``y_frac`` (0 top … 1 bottom) and image column ``x_frac``.
     Returns ``{"horizontal": {"before", "after", "views"}, "vertical": {...}, "y_px", "x_px"}``.
     """
-    done_views = {(int(v["row"]), int(v["column"])): v for v in dataset.views
-                  if v.get("status") == "done" and v.get("file")}
+    done_views = {(int(v["row"]), int(v["column"])): v for v in dataset.done_views()}
     grid = dataset.grid
-    cols = consecutive([c for (r, c) in done_views if r == row], int(grid["columns"]) // 2, count)
-    rows = consecutive([r for (r, c) in done_views if c == column], int(grid["rows"]) // 2, count)
-    H_full = None if calibration is None else np.asarray(calibration["homography"], float)
+    cols = consecutive([c for (r, c) in done_views if r == row], grid.columns // 2, count)
+    rows = consecutive([r for (r, c) in done_views if c == column], grid.rows // 2, count)
+    H_full = None if calibration is None else homography_for(calibration)
     total = len(cols) + len(rows)
     out: dict = {}
     cache: dict[tuple[int, int], tuple[np.ndarray, tuple[int, int]]] = {}
@@ -108,7 +108,7 @@ def dataset_epis(dataset, calibration: dict | None, *, row: int, column: int, y_
                 cancel.check()
             cache[v] = load_preview(dataset.path_of(done_views[v]), width_px)
             n += 1
-            progress(n, total, f"reading r{v[0]:02d}_c{v[1]:03d}")
+            progress(n, total, f"reading {view_stem(*v)}")
         return cache[v]
 
     for key, views in (("horizontal", [(row, c) for c in cols]), ("vertical", [(r, column) for r in rows])):

@@ -43,6 +43,7 @@ from scipy.optimize import least_squares
 
 from lfstudio.calibration.linear import linear_rotation
 from lfstudio.calibration.model import apply_homography, nominal_principal_point, rectifying_homography
+from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import LfError
 
 #: the reference rig's repeatability (horizontal, vertical axis), the default prior of the view offsets
@@ -400,7 +401,7 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
     n_h = sum(m.count for m in used if m.direction == "h")
     n_v = sum(m.count for m in used if m.direction == "v")
     if total < min_matches or n_h < min_matches // 2 or (n_v < min_matches // 2 and n_h < 2 * min_matches):
-        names = ", ".join(f"{_vname(m.view_a)}–{_vname(m.view_b)} ({m.count})" for m in matches) or "none"
+        names = ", ".join(f"{view_stem(*m.view_a)}–{view_stem(*m.view_b)} ({m.count})" for m in matches) or "none"
         raise CalibrationError(
             f"too few feature matches to calibrate: {n_h} in rows, {n_v} in columns (need at least "
             f"{min_matches} in total, and both directions for all three angles); pairs: {names}. "
@@ -562,6 +563,3 @@ def _inverse(N: np.ndarray) -> np.ndarray:
     except np.linalg.LinAlgError:
         return np.linalg.pinv(N)
 
-
-def _vname(view: tuple[int, int]) -> str:
-    return f"r{view[0]:02d}_c{view[1]:03d}"

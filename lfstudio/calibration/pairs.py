@@ -3,8 +3,8 @@
 A *horizontal* pair is two views of the same row (their rows must line up after rectification),
 a *vertical* pair two views of the same column (their columns must line up).
 
-Views: the default is a 5 × 5 array spread over the whole grid (rows and columns from first to last,
-capped by the grid), denser than the paper's 2 × 3 (still available as ``"2x3"``): the rig's
+Views (chosen by :meth:`lfstudio.dataset.Dataset.select`): the default is a 5 × 5 array spread over
+the whole grid (rows and columns from first to last, capped by the grid), denser than the paper's 2 × 3 (still available as ``"2x3"``): the rig's
 position errors, not the features, limit the accuracy, and every further view averages them down
 (simulated true error on the reference rig: 2 × 3 0.11 px, 3 × 5 0.077 px, 5 × 5 0.054 px, 5 × 9
 0.045 px mean; see ``benchmarks/calibration_accuracy.py``), while detection and matching time grow with
@@ -22,18 +22,19 @@ Pair sets within each row and column of the chosen views (:data:`PAIR_SETS`):
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from itertools import combinations
 from typing import Iterable, Sequence
 
+from lfstudio.dataset.grid import View
 from lfstudio.errors import InputError
-
-View = tuple[int, int]   # (row, column)
 
 PAIR_SETS = ("all", "spanning", "neighbours")
 #: the default array, (views along the short axis of the grid, views along the long axis)
 DEFAULT_ARRAY = (5, 5)
+#: the views the calibration uses without a selection: the default array spread over the grid,
+#: capped by it (a selection of :meth:`lfstudio.dataset.grid.Grid.select`)
+DEFAULT_VIEWS = f"{DEFAULT_ARRAY[0]}x{DEFAULT_ARRAY[1]}"
 
 
 @dataclass(frozen=True)
@@ -46,47 +47,6 @@ class Pair:
     @property
     def steps(self) -> int:
         return abs(self.b[1] - self.a[1]) if self.direction == "h" else abs(self.b[0] - self.a[0])
-
-
-def spread_indices(n_total: int, n_pick: int) -> list[int]:
-    """``n_pick`` indices spread evenly over ``0 … n_total−1`` including both ends."""
-    if n_pick <= 1 or n_total <= 1:
-        return [0] if n_total >= 1 and n_pick >= 1 else []
-    n_pick = min(n_pick, n_total)
-    return sorted({round(i * (n_total - 1) / (n_pick - 1)) for i in range(n_pick)})
-
-
-def _nearest(index: int, available: Sequence[int]) -> int:
-    return min(available, key=lambda a: (abs(a - index), a))
-
-
-def sparse_subset(columns: int, rows: int, n_rows: int = 2, n_columns: int = 3,
-                  available: Iterable[View] | None = None) -> list[View]:
-    """The ``n_rows × n_columns`` array spread over the grid (the paper uses 2 × 3).
-
-    With ``available`` (views that have images), each chosen row/column index snaps to the nearest
-    index whose whole sub-array is available where possible, otherwise views are dropped.
-    """
-    want_rows = spread_indices(rows, n_rows)
-    want_cols = spread_indices(columns, n_columns)
-    if available is None:
-        return [(r, c) for r in want_rows for c in want_cols]
-    avail = set(available)
-    rows_av = sorted({r for r, _ in avail})
-    cols_av = sorted({c for _, c in avail})
-    if not rows_av:
-        return []
-    pick_rows = sorted({_nearest(r, rows_av) for r in want_rows})
-    pick_cols = sorted({_nearest(c, cols_av) for c in want_cols})
-    return [(r, c) for r in pick_rows for c in pick_cols if (r, c) in avail]
-
-
-def default_subset(columns: int, rows: int, available: Iterable[View] | None = None) -> list[View]:
-    """The default array (:data:`DEFAULT_ARRAY`: 5 × 5 spread over the grid), capped by the grid."""
-    short, long_ = DEFAULT_ARRAY
-    n_rows, n_cols = (min(short, rows), min(long_, columns)) if columns >= rows else \
-        (min(long_, rows), min(short, columns))
-    return sparse_subset(columns, rows, n_rows, n_cols, available)
 
 
 def line_pairs(indices: Sequence[int], pair_set: str = "all") -> list[tuple[int, int]]:
@@ -123,45 +83,9 @@ def make_pairs(views: Iterable[View], spacing_mm: Sequence[float] = (1.0, 1.0), 
     for r, cols in sorted(by_row.items()):
         combos = line_pairs(cols, pair_set)
         combos = combos[:max_pairs_per_line] if max_pairs_per_line else combos
-        pairs += [Pair((r, c1), (r, c2), "h", (c2 - c1) * float(spacing_mm[0])) for c1, c2 in combos]
+        pairs += [Pair(View(r, c1), View(r, c2), "h", (c2 - c1) * float(spacing_mm[0])) for c1, c2 in combos]
     for c, rws in sorted(by_col.items()):
         combos = line_pairs(rws, pair_set)
         combos = combos[:max_pairs_per_line] if max_pairs_per_line else combos
-        pairs += [Pair((r1, c), (r2, c), "v", (r2 - r1) * float(spacing_mm[1])) for r1, r2 in combos]
+        pairs += [Pair(View(r1, c), View(r2, c), "v", (r2 - r1) * float(spacing_mm[1])) for r1, r2 in combos]
     return pairs
-
-
-_ARRAY = re.compile(r"^\s*(\d+)\s*[x×]\s*(\d+)\s*$")
-_VIEW = re.compile(r"^\s*r(\d+)[_\s]*c(\d+)\s*$", re.IGNORECASE)
-
-
-def parse_views(spec: str | None, columns: int, rows: int, available: Iterable[View]) -> list[View]:
-    """Views from a user spec: ``"default"`` (the default array, see :func:`default_subset`; also
-    None or empty), ``"2x3"`` (rows × columns spread over the grid), ``"all"``, or a comma list of
-    view names ``"r00_c000,r00_c050,r20_c000"``."""
-    avail = sorted(set(available))
-    field = "--views"
-    if spec is None or not spec.strip():
-        spec = "default"
-    text = spec.strip().lower()
-    if text == "all":
-        return avail
-    if text == "default":
-        return default_subset(columns, rows, avail)
-    m = _ARRAY.match(text)
-    if m:
-        n_rows, n_cols = int(m.group(1)), int(m.group(2))
-        if n_rows < 1 or n_cols < 1:
-            raise InputError(field, f"{spec!r} needs at least one row and one column", "e.g. 2x3")
-        return sparse_subset(columns, rows, n_rows, n_cols, avail)
-    out: list[View] = []
-    for part in text.split(","):
-        mv = _VIEW.match(part)
-        if not mv:
-            raise InputError(field, f"cannot read {part.strip()!r}",
-                             "ROWSxCOLUMNS like 2x3, 'default', 'all', or view names like r00_c000,r00_c050")
-        v = (int(mv.group(1)), int(mv.group(2)))
-        if v not in set(avail):
-            raise InputError(field, f"view r{v[0]:02d}_c{v[1]:03d} has no captured image in this dataset")
-        out.append(v)
-    return sorted(set(out))

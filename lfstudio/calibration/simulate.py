@@ -5,7 +5,7 @@ f = 50 mm (11 038 px); random 3-D points in the scene volume 1.77 m … 4.77 m; 
 σ = 80 µm (x and y, the two axes' repeatability); feature noise σ = 0.5 px per coordinate of each
 feature; orientation error drawn per angle with σ = 2.5° and kept within ±5°; principal point shifted
 by ``pp_shift_px`` at a uniformly random angle. The views (``SimulationConfig.views``, default the
-paper's 2 × 3: rows 0 and 20, columns 0, 50 and 100; any :func:`lfstudio.calibration.pairs.parse_views`
+paper's 2 × 3: rows 0 and 20, columns 0, 50 and 100; any :meth:`lfstudio.dataset.grid.Grid.select`
 spec such as ``"3x5"``, ``"default"`` or ``"2x101"`` for two full rows) and the pair set
 (``pair_set``: all, spanning, neighbours) give the pairs. The fit is told the rig's repeatability
 (``position_noise_um``) as its prior.
@@ -44,9 +44,10 @@ from lfstudio.calibration.fit import CalibrationError, PairMatches, fit_rectific
 from lfstudio.calibration.linear import linear_rotation
 from lfstudio.calibration.model import (intrinsics, nominal_principal_point, project, rotation_angle_deg,
                                         rotation_matrix)
-from lfstudio.calibration.pairs import PAIR_SETS, Pair, make_pairs, parse_views, sparse_subset
+from lfstudio.calibration.pairs import DEFAULT_VIEWS, PAIR_SETS, Pair, make_pairs
 from lfstudio.calibration.uncertainty import (Probes, corner_probes, error_bounds, metric_of,
                                               nearest_disparity_per_mm, probe_errors, probe_jacobian)
+from lfstudio.dataset.grid import Grid, View
 from lfstudio.jobs import CancelToken, Progress, no_progress
 
 #: the fixed evaluation set: every pair of this array (rows × columns) spread over the grid
@@ -68,7 +69,7 @@ class SimulationConfig:
     rotation_sigma_deg: float = 2.5
     rotation_max_deg: float = 5.0
     points_per_pair: int = 300
-    views: str = "2x3"                        # parse_views spec over the grid: "2x3", "3x5", "default", "2x101"
+    views: str = "2x3"                        # a selection (Grid.select) over the grid: "2x3", "3x5", "default", "2x101"
     pair_set: str = "all"                     # PAIR_SETS
     outlier_fraction: float = 0.0             # share of matches replaced by random wrong ones
     eval_points_per_pair: int = 100
@@ -77,9 +78,13 @@ class SimulationConfig:
     def focal_length_px(self) -> float:
         return self.focal_length_mm / (self.pixel_pitch_um / 1000.0)
 
-    def chosen_views(self) -> list[tuple[int, int]]:
-        grid = [(r, c) for r in range(self.rows) for c in range(self.columns)]
-        return parse_views(self.views, self.columns, self.rows, grid)
+    @property
+    def grid(self) -> Grid:
+        return Grid(self.columns, self.rows, (float(self.spacing_mm[0]), float(self.spacing_mm[1])))
+
+    def chosen_views(self) -> list[View]:
+        grid = self.grid
+        return grid.select(self.views, grid.views(), default=DEFAULT_VIEWS, field_name="--views")
 
     def pairs(self) -> list[Pair]:
         if self.pair_set not in PAIR_SETS:
@@ -87,7 +92,7 @@ class SimulationConfig:
         return make_pairs(self.chosen_views(), spacing_mm=self.spacing_mm, pair_set=self.pair_set)
 
     def eval_pairs(self) -> list[Pair]:
-        return make_pairs(sparse_subset(self.columns, self.rows, *EVAL_ARRAY), spacing_mm=self.spacing_mm)
+        return make_pairs(self.grid.spread(*EVAL_ARRAY), spacing_mm=self.spacing_mm)
 
 
 @dataclass

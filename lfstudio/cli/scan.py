@@ -79,7 +79,7 @@ def _build_plan(args: argparse.Namespace, rig_config, existing=None):
         except InputError as exc:
             raise InputError(f"{args.plan}: {exc.field}", str(exc).split(": ", 1)[-1]) from None
     if existing is not None:
-        base = ScanPlan.from_grid_dict(existing.grid)
+        base = ScanPlan.from_grid(existing.grid)
         grid = (base.columns, base.rows)
         spacing = base.spacing_mm
         if args.grid and args.grid != grid:

@@ -71,7 +71,6 @@ LEGEND = ("res: RMS residual per trial (px); true: rectification error of the id
 
 
 def run(args: argparse.Namespace) -> int:
-    from lfstudio.calibration.pairs import parse_views
     from lfstudio.calibration.simulate import SimulationConfig, simulate, sweep
     from lfstudio.jobs import TerminalProgress
 
@@ -88,8 +87,7 @@ def run(args: argparse.Namespace) -> int:
     modes = {"both": ("centre", "auto"), "fixed": ("centre",), "estimated": ("auto",)}[args.mode]
     cfg = SimulationConfig(points_per_pair=args.points_per_pair, outlier_fraction=args.outliers, views=args.views,
                            pair_set=args.pairs)
-    parse_views(args.views, cfg.columns, cfg.rows, [(r, c) for r in range(cfg.rows) for c in range(cfg.columns)])
-    pairs = cfg.pairs()
+    pairs = cfg.pairs()        # reads --views (an InputError naming it when it cannot)
     if not any(p.direction == "h" for p in pairs) or not any(p.direction == "v" for p in pairs):
         raise InputError("--views", f"{args.views!r} gives no pairs in one direction", "views in ≥ 2 rows and ≥ 2 columns")
     progress = TerminalProgress("simulate")

@@ -36,9 +36,10 @@ import os
 import re
 import threading
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Sequence
 
 from lfstudio.dataset.atomic import atomic_write_bytes
+from lfstudio.dataset.grid import Grid, View
 from lfstudio.dataset.paths import InsideChecker, check_dataset_entries, resolve_inside, view_stem
 from lfstudio.dataset.store import JOURNAL_NAME, Journal, read_journal, sha256_file
 from lfstudio.errors import DatasetError
@@ -404,8 +405,13 @@ class Dataset:
         return self.manifest["views"]
 
     @property
-    def grid(self) -> dict[str, Any]:
-        return self.manifest["grid"]
+    def grid(self) -> Grid:
+        """The typed grid (:class:`lfstudio.dataset.grid.Grid`) of ``dataset.json`` → ``grid``."""
+        raw = self.manifest["grid"]
+        cached = getattr(self, "_grid", None)
+        if cached is None or cached[0] is not raw:
+            cached = self._grid = (raw, Grid.from_manifest(raw))
+        return cached[1]
 
     @property
     def camera(self) -> dict[str, Any]:
@@ -445,7 +451,7 @@ class Dataset:
                 size += self.path_of(v).stat().st_size
             except (OSError, DatasetError):
                 pass
-        grid = self.grid
+        grid = self.manifest["grid"]
         return {"path": str(self.root), "format": self.manifest.get("format"), "version": self.manifest.get("version"),
                 "created": self.manifest.get("created"), "modified": self.manifest.get("modified"),
                 "rig": self.manifest.get("rig", {}).get("name"), "camera": self.camera.get("name"),
@@ -477,8 +483,22 @@ class Dataset:
         return problems
 
     def done_views(self) -> list[dict[str, Any]]:
-        """The captured views (:func:`is_done`), in manifest order."""
+        """The captured views' records (:func:`is_done`), in manifest order."""
         return [v for v in self.views if is_done(v)]
+
+    def captured_views(self) -> list[View]:
+        """The captured views (:func:`is_done`) as grid cells, row-major."""
+        return sorted(View(int(v["row"]), int(v["column"])) for v in self.done_views())
+
+    def select(self, spec: str | Iterable[Sequence[int]] | None, *, default: str = "all",
+               field_name: str = "views") -> list[View]:
+        """The captured views a selection chooses (:meth:`lfstudio.dataset.grid.Grid.select`:
+        ``"all"``, ``"r0-8,c10-18"``, ``"2x3"``, ``"r00_c000,r00_c050"`` or (row, column) pairs),
+        row-major; :class:`DatasetError` when nothing is captured yet."""
+        captured = self.captured_views()
+        if not captured:
+            raise DatasetError(f"{self.root}: no captured views yet; scan or import images first")
+        return self.grid.select(spec, captured, default=default, field_name=field_name)
 
     def path_of(self, view_or_relative: dict | str) -> Path:
         """Absolute path of a view's file (or of a relative name), refused if outside the folder."""

@@ -12,6 +12,7 @@ dataset is opened, so a symlink that leads elsewhere is refused before any stage
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -19,10 +20,23 @@ from lfstudio.errors import DatasetError
 
 
 def view_stem(row: int, column: int) -> str:
-    """``r07_c042`` for row 7, column 42 (rows and columns count from 0)."""
+    """``r07_c042`` for row 7, column 42 (rows and columns count from 0): the one place a view's
+    name is built (:func:`parse_view_stem` reads it back)."""
     if row < 0 or column < 0:
         raise ValueError(f"grid index must be non-negative, got row {row}, column {column}")
     return f"r{row:02d}_c{column:03d}"
+
+
+_VIEW_STEM = re.compile(r"^\s*r(\d+)[_\s]*c(\d+)\s*$", re.IGNORECASE)
+
+
+def parse_view_stem(text: str) -> tuple[int, int]:
+    """(row, column) of a view name: ``r07_c042``, also typed as ``r7c42`` or ``R07 C042``;
+    ValueError when ``text`` is no view name."""
+    m = _VIEW_STEM.match(str(text))
+    if not m:
+        raise ValueError(f"{text!r} is not a view name like r07_c042")
+    return int(m.group(1)), int(m.group(2))
 
 
 #: the dataset's calibration file (its contents: :mod:`lfstudio.calibration.model`, which reads and writes it)

@@ -46,7 +46,7 @@ class ExportOptions:
     format: str                      # one of FORMATS
     out: Path                        # png/hci: a folder to create; hevc: the .mp4/.mkv/.hevc file to create
     views: str | Sequence[tuple[int, int]] | None = None   # None = all available; str: "all", "r0-8,c10-18",
-                                     # "2x3", "r00_c000,r00_c050" (see common.select_views)
+                                     # "2x3", "r00_c000,r00_c050" (see Dataset.select)
     source: str = "auto"             # "raw" | "processed" | "auto" (processed when every chosen view has it)
     crf: int = 8                     # hevc
     bit_depth: int = 12              # hevc: 10 or 12
@@ -143,7 +143,7 @@ def _plan(ds: Dataset, options: ExportOptions) -> tuple[list[tuple[int, int]], s
 
         views = hci.sub_array(ds, options)
     else:
-        views = common.select_views(ds, options.views)
+        views = ds.select(options.views)
     source = common.resolve_source(ds, views, options.source)
     size = images.full_size_px(common.source_path(ds, views[0], source))
     if options.format == "hevc":

@@ -1,4 +1,4 @@
-"""What every export format shares: choosing and ordering views, reading a view as 16-bit RGB,
+"""What every export format shares: ordering views (chosen by :meth:`lfstudio.dataset.Dataset.select`),
 describing the light field (grid, positions, calibration, intrinsics), and the atomic output
 (a temporary sibling ``.NAME.partial-XXXX`` renamed into place at the end)."""
 
@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -16,88 +15,17 @@ import cv2
 import numpy as np
 
 from lfstudio.dataset import Dataset, images
+from lfstudio.dataset.grid import View
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import DATASET_ENTRIES, view_stem
 from lfstudio.errors import DatasetError, InputError
 
-View = tuple[int, int]   # (row, column)
 EXPORT_FORMAT = "lfstudio-export"
 EXPORT_VERSION = 1
 PARTIAL_MARK = ".partial-"
 
-_RANGE_PART = re.compile(r"^\s*([rc])\s*(\d+)\s*(?:-\s*(\d+))?\s*$", re.IGNORECASE)
-
 
 # -- views ------------------------------------------------------------------------------------------
-def available_views(ds: Dataset) -> list[View]:
-    """Views with a captured file (status done), row-major."""
-    return sorted((int(v["row"]), int(v["column"])) for v in ds.done_views())
-
-
-def _parse_ranges(text: str) -> tuple[set[int] | None, set[int] | None] | None:
-    """``"r0-8,c10-18"`` → (rows, columns); None when ``text`` is not in the range syntax."""
-    rows: set[int] | None = None
-    cols: set[int] | None = None
-    for part in text.split(","):
-        m = _RANGE_PART.match(part)
-        if not m:
-            return None
-        lo = int(m.group(2))
-        hi = int(m.group(3)) if m.group(3) is not None else lo
-        if hi < lo:
-            raise InputError("views", f"{part.strip()!r}: range runs backwards", "e.g. r0-8,c10-18")
-        values = set(range(lo, hi + 1))
-        if m.group(1).lower() == "r":
-            rows = (rows or set()) | values
-        else:
-            cols = (cols or set()) | values
-    return rows, cols
-
-
-def select_views(ds: Dataset, views: str | Sequence[View] | None) -> list[View]:
-    """The chosen views, row-major. ``None``/``""``/``"all"``: every captured view. A string may be
-    rows/columns ranges (``"r0-8,c10-18"``, ``"r3"``, ``"c0-4,c10"``: the captured views in those
-    rows and columns) or anything :func:`lfstudio.calibration.pairs.parse_views` reads (``"2x3"``,
-    view names ``"r00_c000,r00_c050"``). A sequence of (row, column) must all be captured."""
-    avail = available_views(ds)
-    if not avail:
-        raise DatasetError(f"{ds.root}: no captured views to export; scan or import images first")
-    cols_n, rows_n = int(ds.grid["columns"]), int(ds.grid["rows"])
-    if views is None or (isinstance(views, str) and views.strip().lower() in ("", "all")):
-        return avail
-    if isinstance(views, str):
-        ranges = _parse_ranges(views)
-        if ranges is not None:
-            rows, cols = ranges
-            for name, chosen, n in (("rows", rows, rows_n), ("columns", cols, cols_n)):
-                if chosen and max(chosen) >= n:
-                    raise InputError("views", f"{name} up to {max(chosen)} asked, the grid has {n} {name}",
-                                     f"{name} 0-{n - 1}")
-            out = [v for v in avail if (rows is None or v[0] in rows) and (cols is None or v[1] in cols)]
-            if not out:
-                raise InputError("views", f"{views!r} selects no captured view", "rows/columns with captures")
-            return out
-        from lfstudio.calibration.pairs import parse_views
-
-        try:
-            return sorted(parse_views(views, cols_n, rows_n, avail))
-        except InputError as exc:
-            if not (exc.valid or "").startswith("ROWSxCOLUMNS"):
-                raise
-            message = str(exc)[len(exc.field) + 2:].rsplit(" (valid: ", 1)[0]   # name the range syntax too
-            raise InputError("views", message, "'all', rows/columns like r0-8,c10-18, an array like 3x5 "
-                             "(rows x columns), or view names like r00_c000,r00_c050") from None
-    chosen = sorted({(int(r), int(c)) for r, c in views})
-    if not chosen:
-        raise InputError("views", "no view chosen", "at least one captured view")
-    have = set(avail)
-    missing = [view_stem(*v) for v in chosen if v not in have]
-    if missing:
-        shown = ", ".join(missing[:8]) + (f" and {len(missing) - 8} more" if len(missing) > 8 else "")
-        raise InputError("views", f"no captured image for {shown}", "captured views of this dataset")
-    return chosen
-
-
 def meander(views: Sequence[View]) -> list[View]:
     """Meander order: the first chosen row left→right, the next right→left, and so on, so that
     neighbouring frames are neighbouring views (alternation counts the chosen rows, so a sub-array
@@ -108,7 +36,7 @@ def meander(views: Sequence[View]) -> list[View]:
     out: list[View] = []
     for i, r in enumerate(sorted(by_row)):
         cols = sorted(by_row[r], reverse=bool(i % 2))
-        out += [(r, c) for c in cols]
+        out += [View(r, c) for c in cols]
     return out
 
 
@@ -327,7 +255,7 @@ def describe(ds: Dataset, views: Sequence[View], source: str, image_size: tuple[
     from lfstudio.calibration.model import load_calibration
 
     calibration = load_calibration(ds)
-    grid = dict(ds.grid)
+    grid = dict(ds.manifest["grid"])
     rig = ds.manifest.get("rig", {}) or {}
     if "origin_mm" not in grid and rig.get("origin_mm") is not None:
         grid["origin_mm"] = rig["origin_mm"]

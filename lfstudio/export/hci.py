@@ -60,7 +60,7 @@ def sub_array(ds: Dataset, options) -> list[common.View]:
     if isinstance(chosen, str) and chosen.strip().lower() in ("", "all"):
         chosen = None    # "all" means "no explicit subset": the sub-array from hci_size/hci_center
     if chosen is not None:
-        views = common.select_views(ds, options.views)
+        views = ds.select(options.views)
         rows = sorted({r for r, _ in views})
         cols = sorted({c for _, c in views})
         have = set(views)
@@ -71,7 +71,7 @@ def sub_array(ds: Dataset, options) -> list[common.View]:
                              "a range like r6-14,c46-54 with every view captured")
         return [(r, c) for r in rows for c in cols]
     n_cols, n_rows = int(options.hci_size[0]), int(options.hci_size[1])
-    g_cols, g_rows = int(ds.grid["columns"]), int(ds.grid["rows"])
+    g_cols, g_rows = ds.grid.columns, ds.grid.rows
     if n_cols > g_cols or n_rows > g_rows:
         raise InputError("hci_size", f"{n_cols}x{n_rows} is larger than the {g_cols} x {g_rows} grid",
                          f"up to {g_cols}x{g_rows}")
@@ -87,7 +87,7 @@ def sub_array(ds: Dataset, options) -> list[common.View]:
                              f"rows {(n_rows - 1) // 2}-{g_rows - 1 - n_rows // 2}, "
                              f"columns {(n_cols - 1) // 2}-{g_cols - 1 - n_cols // 2}")
     views = [(r, c) for r in range(r0, r0 + n_rows) for c in range(c0, c0 + n_cols)]
-    have = set(common.available_views(ds))
+    have = set(ds.captured_views())
     missing = [v for v in views if v not in have]
     if missing:
         from lfstudio.dataset.paths import view_stem
@@ -154,7 +154,7 @@ def disparity_range(ds: Dataset, views: Sequence[common.View], source: str, size
     """Neighbour disparity range of the exported images: from the plan's near/far distance, else
     (``measure``) measured from the views; None when neither is possible."""
     p = _plan_numbers(ds)
-    spacing = ds.grid.get("spacing_mm")
+    spacing = ds.grid.spacing_mm
     f_px = _focal_px(ds, size, source)
     if p["near_m"] and p["far_m"] and f_px and spacing:
         k = f_px * float(spacing[0]) / 1000.0            # px · m: d = f·b · (1/Z − 0)
@@ -215,7 +215,7 @@ def warnings(ds: Dataset, views: Sequence[common.View], size: Sequence[int], sou
     if _focal_px(ds, size, source) is None:
         out.append("the dataset has no focal length: focal_length_mm and sensor_size_mm in parameters.cfg are 0; "
                    "give it one (lens focal length, or calibrate with --focal-length-px)")
-    sp = ds.grid.get("spacing_mm") or [0, 0]
+    sp = ds.grid.spacing_mm or (0.0, 0.0)
     if sp and len(sp) == 2 and abs(float(sp[0]) - float(sp[1])) > 1e-9:
         out.append(f"horizontal and vertical spacing differ ({sp[0]} / {sp[1]} mm); HCI has one baseline_mm "
                    "(the horizontal one); baseline_y_mm holds the vertical")
@@ -237,7 +237,7 @@ def parameters_text(ds: Dataset, views: Sequence[common.View], size: Sequence[in
     rows = sorted({r for r, _ in views})
     cols = sorted({c for _, c in views})
     p = _plan_numbers(ds)
-    spacing = ds.grid.get("spacing_mm") or [0.0, 0.0]
+    spacing = ds.grid.spacing_mm or (0.0, 0.0)
     center = ds.view(*_center(views))
     pos = center.get("reported_mm") or center.get("commanded_mm") or [0.0, 0.0]
     rot = [0.0, 0.0, 0.0]

@@ -25,6 +25,7 @@ import numpy as np
 
 from lfstudio.calibration.model import CALIBRATION_NAME, load_calibration
 from lfstudio.dataset import Dataset, images, view_stem
+from lfstudio.dataset.grid import View
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import folder_inside
 from lfstudio.dataset.profile import PROFILE_NAME, Profile
@@ -76,7 +77,7 @@ def reference_view(ds: Dataset, profile: Profile) -> dict:
         raise InputError("processing.toml: [reference] row/column",
                          f"no captured view at row {ref.row}, column {ref.column}",
                          "a captured view, or -1/-1 for the middle of the grid")
-    rows, cols = int(ds.grid["rows"]), int(ds.grid["columns"])
+    rows, cols = ds.grid.rows, ds.grid.columns
     r0, c0 = (rows - 1) / 2.0, (cols - 1) / 2.0
     return min(views, key=lambda v: ((v["row"] - r0) ** 2 + (v["column"] - c0) ** 2, v["row"], v["column"]))
 
@@ -241,15 +242,15 @@ def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force:
         nonlocal done, last_save
         if result.disk:             # stop, keep what is processed (recorded below), run again later
             raise StorageError(result.error or "disk problem", kind="disk")
-        _record(ds, by_index[(result.row, result.column)], result, sha)
+        _record(ds, by_index[result.view], result, sha)
         done += 1
-        stem = view_stem(result.row, result.column)
+        stem = result.view.name
         if result.ok:
             report.processed += 1
-            report.gains[(result.row, result.column)] = result.gain
+            report.gains[result.view] = result.gain
             progress(done, total, f"{stem} gain {result.gain:.4f}")
         else:
-            report.failed.append((result.row, result.column, result.error or "failed"))
+            report.failed.append((*result.view, result.error or "failed"))
             progress(done, total, f"{stem} FAILED")
         if on_view is not None:
             on_view(result)
@@ -293,7 +294,7 @@ def _run(info: executors.ExecutorInfo, plan: RunPlan, profile: Profile, todo: li
         while queue or pending:
             while queue and len(pending) < window and not cancel.cancelled:
                 v = queue.pop(0)
-                task = ViewTask(v["row"], v["column"], v["file"], output_name(profile, v["row"], v["column"]))
+                task = ViewTask(View(v["row"], v["column"]), v["file"], output_name(profile, v["row"], v["column"]))
                 pending[info.executor.submit(process_view, plan, task)] = v
             if cancel.cancelled:
                 cancelled = True
@@ -311,7 +312,7 @@ def _run(info: executors.ExecutorInfo, plan: RunPlan, profile: Profile, todo: li
                 except cf.CancelledError:
                     continue
                 except Exception as exc:  # the worker process died (e.g. killed, out of memory)
-                    result = ViewResult(v["row"], v["column"], error=f"{v['file']}: worker failed "
+                    result = ViewResult(View(v["row"], v["column"]), error=f"{v['file']}: worker failed "
                                         f"({type(exc).__name__}: {exc})")
                 finish(result)
     finally:

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from lfstudio.dataset import images
+from lfstudio.dataset.grid import View
 from lfstudio.dataset.profile import Profile
 from lfstudio.dataset.storage import disk_problem, storage_error
 from lfstudio.errors import LfError
@@ -81,16 +82,14 @@ class RunPlan:
 
 @dataclass
 class ViewTask:
-    row: int
-    column: int
+    view: View       # the grid cell
     file: str        # capture, relative to the dataset folder
     out_file: str    # processed view, relative to the dataset folder
 
 
 @dataclass
 class ViewResult:
-    row: int
-    column: int
+    view: View
     out_file: str | None = None
     gain: float = 1.0
     gain_support: float = 0.0    # fraction of the small image the gain was measured on
@@ -379,7 +378,7 @@ def warm_up() -> None:
 
 def process_view(plan: RunPlan, task: ViewTask) -> ViewResult:
     """Process one view and write it; never raises (errors come back in ``ViewResult.error``)."""
-    result = ViewResult(task.row, task.column)
+    result = ViewResult(task.view)
     try:
         if plan.single_thread:
             _single_thread()

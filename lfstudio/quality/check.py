@@ -76,8 +76,8 @@ class Geometry:
     @classmethod
     def from_dataset(cls, ds) -> "Geometry":
         grid = ds.grid
-        cols, rows = int(grid["columns"]), int(grid["rows"])
-        spacing = tuple(float(v) for v in (grid.get("spacing_mm") or (1.0, 1.0)))
+        cols, rows = grid.columns, grid.rows
+        spacing = grid.step_mm
         origin = (ds.manifest.get("rig") or {}).get("origin_mm") or (0.0, 0.0)
         commanded: dict[Cell, tuple[float, float]] = {}
         for v in ds.views:
@@ -315,13 +315,10 @@ def calibration_homography(dataset) -> tuple[np.ndarray | None, list[int] | None
 
 def choose_views(dataset, views: str | Sequence[Cell] | None) -> tuple[list[Cell], list[Cell]]:
     """(views to judge, views to decode: those plus the neighbours they are compared with)."""
-    done = sorted((int(v["row"]), int(v["column"])) for v in dataset.done_views())
-    if views is None or (isinstance(views, str) and views.strip().lower() in ("", "all")):
-        chosen = done
-    elif isinstance(views, str):
-        from lfstudio.calibration.pairs import parse_views
-        chosen = parse_views(views, int(dataset.grid["columns"]), int(dataset.grid["rows"]), done)
-    else:
+    done = dataset.captured_views()
+    if views is None or isinstance(views, str):
+        chosen = dataset.grid.select(views, done, field_name="--views")
+    else:       # views without a capture are left out (a live check asks for what it has)
         have = set(done)
         chosen = sorted({(int(r), int(c)) for r, c in views if (int(r), int(c)) in have})
     have = set(done)

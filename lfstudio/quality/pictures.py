@@ -269,7 +269,7 @@ def _write_png(path: Path, img: np.ndarray) -> Path:
 def write_pictures(folder: Path, report, dataset) -> dict[str, Path]:
     """Write heatmaps.png, disparity.png (+ disparity.npy), histograms.png and report.html."""
     doc = report.document
-    doc.setdefault("grid", {"columns": int(dataset.grid["columns"]), "rows": int(dataset.grid["rows"])})
+    doc.setdefault("grid", {"columns": dataset.grid.columns, "rows": dataset.grid.rows})
     folder.mkdir(parents=True, exist_ok=True)
     out: dict[str, Path] = {"heatmaps": _write_png(folder / "heatmaps.png", heatmaps_sheet(doc))}
     depth = doc.get("depth_range") or {}

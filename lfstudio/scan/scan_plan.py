@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any, Iterable
 
+from lfstudio.dataset.grid import Grid, View
 from lfstudio.errors import InputError
 from lfstudio.numbers import OFFSET_MM, SETTLE_S, SPACING_MM, Number, check_grid
 from lfstudio.rig.motion import RigConfig
@@ -36,6 +37,11 @@ class PlannedView:
     column: int
     x_mm: float
     y_mm: float
+
+    @property
+    def view(self) -> View:
+        """The grid cell (:class:`lfstudio.dataset.grid.View`: its name, its place in the grid)."""
+        return View(self.row, self.column)
 
     @property
     def position_mm(self) -> tuple[float, float]:
@@ -129,12 +135,18 @@ class ScanPlan:
                             order=order or grid.get("order") or DEFAULT_ORDER, settle_s=settle_s)
 
     @classmethod
+    def from_grid(cls, grid: Grid) -> "ScanPlan":
+        """The scan of a dataset's grid (:attr:`lfstudio.dataset.Dataset.grid`)."""
+        if grid.spacing_mm is None:
+            raise InputError("grid", "the dataset's grid has no spacing_mm", "columns, rows, spacing_mm, origin_mm, order")
+        return cls(grid.columns, grid.rows, grid.spacing_mm, grid.origin_mm or (0.0, 0.0), grid.order or DEFAULT_ORDER,
+                   0.3 if grid.settle_s is None else grid.settle_s)
+
+    @classmethod
     def from_grid_dict(cls, grid: dict[str, Any]) -> "ScanPlan":
         """The inverse of :meth:`grid_dict` (a dataset manifest's ``grid``)."""
         try:
-            return cls(int(grid["columns"]), int(grid["rows"]), tuple(grid["spacing_mm"]),
-                       tuple(grid.get("origin_mm", (0.0, 0.0))), grid.get("order", DEFAULT_ORDER),
-                       float(grid.get("settle_s", 0.3)))
+            return cls.from_grid(Grid.from_manifest(grid))
         except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise InputError("grid", f"incomplete grid description ({exc})",
                              "columns, rows, spacing_mm, origin_mm, order") from None

@@ -261,5 +261,5 @@ def true_disparity_px(root: str | os.PathLike, row: int, column: int, size_px: t
     depth = cv2.resize(depth, (int(size_px[0]), int(size_px[1])), interpolation=cv2.INTER_NEAREST)
     from lfstudio.dataset import Dataset
 
-    spacing_x = float(Dataset.open(root).grid["spacing_mm"][0])
+    spacing_x = Dataset.open(root).grid.step_mm[0]
     return (studio.f_px * spacing_x / (1000.0 * depth)).astype(np.float32)

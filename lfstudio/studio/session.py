@@ -73,10 +73,10 @@ def check_resume_matches(dataset: Dataset, plan: ScanPlan) -> list[str]:
     """Differences between an existing dataset's grid and ``plan`` that make resuming into it wrong."""
     g = dataset.grid
     problems = []
-    if (g.get("columns"), g.get("rows")) != (plan.columns, plan.rows):
-        problems.append(f"grid: the dataset is {g.get('columns')} x {g.get('rows')}, "
+    if (g.columns, g.rows) != (plan.columns, plan.rows):
+        problems.append(f"grid: the dataset is {g.columns} x {g.rows}, "
                         f"the scan asks for {plan.columns} x {plan.rows}")
-    spacing = g.get("spacing_mm")
+    spacing = g.spacing_mm
     if spacing and any(abs(float(a) - b) > 1e-6 for a, b in zip(spacing, plan.spacing_mm)):
         problems.append(f"spacing_mm: the dataset has {spacing[0]:g} x {spacing[1]:g} mm, "
                         f"the scan asks for {plan.spacing_mm[0]:g} x {plan.spacing_mm[1]:g} mm")
@@ -85,7 +85,7 @@ def check_resume_matches(dataset: Dataset, plan: ScanPlan) -> list[str]:
 
 def resume_plan(dataset: Dataset, *, order: str | None = None, settle_s: float | None = None) -> ScanPlan:
     """The plan of an existing dataset (its grid), with another capture order or settle time if given."""
-    base = ScanPlan.from_grid_dict(dataset.grid)
+    base = ScanPlan.from_grid(dataset.grid)
     return ScanPlan(base.columns, base.rows, base.spacing_mm, base.origin_mm, order or base.order,
                     base.settle_s if settle_s is None else settle_s)
 

@@ -1,7 +1,22 @@
 import pytest
 
-from lfstudio.calibration.pairs import default_subset, line_pairs, make_pairs, parse_views, sparse_subset, spread_indices
+from lfstudio.calibration.pairs import DEFAULT_VIEWS, line_pairs, make_pairs
+from lfstudio.dataset.grid import Grid, spread_indices
 from lfstudio.errors import InputError
+
+
+def sparse_subset(columns, rows, n_rows=2, n_columns=3, available=None):
+    """The calibration's arrays, now Grid.spread (one home for choosing views)."""
+    return Grid(columns, rows).spread(n_rows, n_columns, available)
+
+
+def parse_views(spec, columns, rows, available):
+    """The calibration's --views, now Grid.select with the calibration's default (Dataset.select)."""
+    return Grid(columns, rows).select(spec, available, default=DEFAULT_VIEWS, field_name="--views")
+
+
+def default_subset(columns, rows):
+    return parse_views(None, columns, rows, Grid(columns, rows).views())
 
 
 def test_default_is_the_papers_2x3_array_over_the_reference_grid():

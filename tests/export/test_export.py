@@ -216,7 +216,7 @@ def test_hevc_round_trip_12bit_meander(small, tmp_path):
     from lfstudio.dataset import Dataset
 
     ds = Dataset.open(back)
-    assert ds.grid["columns"] == 5 and ds.status_counts()["done"] == 15
+    assert ds.grid.columns == 5 and ds.status_counts()["done"] == 15
     assert cv2.imread(str(ds.root / ds.view(2, 3)["thumb"])).shape[1] == 160   # the grid view's thumbnails
     sources = {(r, c): _source(small, r, c).astype(np.float64) for r in range(3) for c in range(5)}
     for (r, c), src in sources.items():

@@ -107,7 +107,7 @@ def test_row_major_png_import_puts_every_view_in_its_grid_place(render, imported
         got = cv2.imread(str(ds.path_of(v)), cv2.IMREAD_UNCHANGED)
         assert got.dtype == np.uint16 and np.array_equal(got, truth_image(render, r, c)), (r, c)
     assert ds.view(0, 1)["source_file"] == "shot2.png" and ds.view(2, 1)["source_file"] == "shot10.png"
-    assert ds.grid["order"] == "raster" and ds.grid["spacing_mm"] == list(SPACING)
+    assert ds.grid.order == "raster" and ds.grid.spacing_mm == tuple(SPACING)
     assert ds.camera["sensor_px"] == [WIDTH, 320]
     assert ds.focal_length_px(WIDTH) == pytest.approx(50.0 / SENSOR_W_MM * WIDTH)
     assert not ds.verify_files()
@@ -118,7 +118,7 @@ def test_row_major_png_import_puts_every_view_in_its_grid_place(render, imported
 def test_meander_jpeg_import_matches_the_render_by_content(render, tmp_path):
     folder = write_foreign(render, tmp_path / "jpeg", "meander", ".jpg", eight_bit=True)
     ds = Dataset.open(import_images(options(folder, tmp_path / "ds", order="meander")))
-    assert ds.grid["order"] == "row-meander"
+    assert ds.grid.order == "row-meander"
     truths = {(r, c): truth_image(render, r, c).astype(np.float32) / 257.0 for r in range(ROWS) for c in range(COLS)}
     for v in ds.views:
         got = cv2.imread(str(ds.path_of(v)), cv2.IMREAD_UNCHANGED).astype(np.float32)

@@ -19,7 +19,7 @@ from lfstudio.sim.virtual_dataset import load_ground_truth, make_virtual_dataset
 
 def test_tiny_dataset_png_is_a_valid_dataset_with_ground_truth(tiny_dataset):
     ds = Dataset.open(tiny_dataset.root)
-    assert ds.grid["columns"] == 5 and ds.grid["rows"] == 3
+    assert ds.grid.columns == 5 and ds.grid.rows == 3
     assert len(ds.done_views()) == 15
     v = ds.view(1, 3)
     assert v["file"] == "raw/r01_c003.png"

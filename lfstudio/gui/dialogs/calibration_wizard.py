@@ -20,11 +20,11 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QF
                                QHBoxLayout, QLabel, QPlainTextEdit, QPushButton, QSlider, QSpinBox,
                                QStackedWidget, QTabWidget, QVBoxLayout, QWidget)
 
-from lfstudio.calibration.calibrate import available_views, calibrate_dataset
+from lfstudio.calibration.calibrate import calibrate_dataset
 from lfstudio.calibration.model import save_calibration
 from lfstudio.calibration.epi import dataset_epis, load_preview, preview_homography, rectify_image
 from lfstudio.calibration.model import CalibrationUncertainty
-from lfstudio.calibration.pairs import PAIR_SETS, default_subset, make_pairs, sparse_subset
+from lfstudio.calibration.pairs import DEFAULT_VIEWS, PAIR_SETS, make_pairs
 from lfstudio.calibration.report import format_report, uncertainty_lines
 from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import LfError
@@ -101,9 +101,9 @@ class CalibrationWizard(QDialog):
         self.inspect_runner = JobRunner(self)
 
         grid = self.dataset.grid
-        self.available = set(available_views(self.dataset))
+        self.available = set(self.dataset.captured_views())
         self.stack = QStackedWidget()
-        self.stack.addWidget(self._build_views_page(int(grid["columns"]), int(grid["rows"])))
+        self.stack.addWidget(self._build_views_page(grid.columns, grid.rows))
         self.stack.addWidget(self._build_run_page())
         self.stack.addWidget(self._build_results_page())
 
@@ -208,13 +208,13 @@ class CalibrationWizard(QDialog):
         elif spec == "none":
             views = set()
         elif spec == "default":
-            views = default_subset(int(grid["columns"]), int(grid["rows"]), self.available)
+            views = grid.select(DEFAULT_VIEWS, self.available)
         else:
-            views = sparse_subset(int(grid["columns"]), int(grid["rows"]), spec[0], spec[1], self.available)
+            views = grid.spread(spec[0], spec[1], self.available)
         self.picker.set_selected(views)
 
     def selected_pairs(self):
-        return make_pairs(self.picker.selected, self.dataset.grid.get("spacing_mm") or (1, 1),
+        return make_pairs(self.picker.selected, self.dataset.grid.step_mm,
                           pair_set=self.pair_set.currentData())
 
     def _update_selection_label(self) -> None:
@@ -455,16 +455,16 @@ class CalibrationWizard(QDialog):
                 t.setPos(v["column"], v["row"])
                 self.heat.addItem(t)
             grid = self.dataset.grid
-            self.heat.setXRange(-1, int(grid["columns"]), padding=0.05)
-            self.heat.setYRange(-1, int(grid["rows"]), padding=0.1)
+            self.heat.setXRange(-1, grid.columns, padding=0.05)
+            self.heat.setYRange(-1, grid.rows, padding=0.1)
         self.vector_image.setImage(result["preview"], autoLevels=True)
         self.vectors.setTitle(f"Residual vectors over {view_stem(*result['preview_view'])} "
                               "(rows: vertical, columns: horizontal)")
         self._draw_vectors()
 
         grid = self.dataset.grid
-        self.epi_row.setRange(0, int(grid["rows"]) - 1)
-        self.epi_column.setRange(0, int(grid["columns"]) - 1)
+        self.epi_row.setRange(0, grid.rows - 1)
+        self.epi_column.setRange(0, grid.columns - 1)
         rows = sorted({r for r, _ in self.available})
         cols = sorted({c for _, c in self.available})
         self.epi_row.setValue(rows[len(rows) // 2] if rows else 0)

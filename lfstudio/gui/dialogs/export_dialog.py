@@ -18,10 +18,8 @@ from PySide6.QtWidgets import (QComboBox, QDialog, QFileDialog, QFormLayout, QGr
                                QLineEdit, QMessageBox, QPushButton, QSizePolicy, QSpinBox, QStackedWidget,
                                QVBoxLayout, QWidget)
 
-from lfstudio.calibration.calibrate import available_views
 from lfstudio.errors import LfError
 from lfstudio.export import ExportOptions, estimate_export, export_dataset
-from lfstudio.export.common import select_views
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.preferences import EXPORT_KEY
 from lfstudio.gui.settings import settings
@@ -192,13 +190,13 @@ class ExportDialog(QDialog):
         cl.setContentsMargins(0, 0, 0, 0)
         grid = self.dataset.grid
         self.hci_columns, self.hci_rows = QSpinBox(), QSpinBox()
-        self.hci_columns.setRange(1, int(grid["columns"]))
-        self.hci_rows.setRange(1, int(grid["rows"]))
+        self.hci_columns.setRange(1, grid.columns)
+        self.hci_rows.setRange(1, grid.rows)
         self.hci_columns.setToolTip("Columns of the exported sub-array (num_cams_x)")
         self.hci_rows.setToolTip("Rows of the exported sub-array (num_cams_y)")
         self.hci_center_row, self.hci_center_column = QSpinBox(), QSpinBox()
-        self.hci_center_row.setRange(0, int(grid["rows"]) - 1)
-        self.hci_center_column.setRange(0, int(grid["columns"]) - 1)
+        self.hci_center_row.setRange(0, grid.rows - 1)
+        self.hci_center_column.setRange(0, grid.columns - 1)
         for s in (self.hci_center_row, self.hci_center_column):
             s.setToolTip("Grid view at the centre of the sub-array; or click a view on the grid below")
         cl.addWidget(QLabel("Sub-array"))
@@ -260,8 +258,8 @@ class ExportDialog(QDialog):
     def _build_views_box(self) -> QGroupBox:
         box = QGroupBox("Views")
         grid = self.dataset.grid
-        self.available = set(available_views(self.dataset))
-        self.picker = GridPicker(int(grid["columns"]), int(grid["rows"]), self.available,
+        self.available = set(self.dataset.captured_views())
+        self.picker = GridPicker(grid.columns, grid.rows, self.available,
                                  tooltip="Click captured views (grey) to add them to or remove them from the "
                                          "export; blue = exported")
         self.picker.setObjectName("exportPicker")
@@ -395,7 +393,7 @@ class ExportDialog(QDialog):
 
     def apply_subset(self) -> None:
         try:
-            views = select_views(self.dataset, self.subset_edit.text().strip() or "all")
+            views = self.dataset.select(self.subset_edit.text().strip() or "all")
         except LfError as exc:
             self.views_label.setText(f"<span style='color:#b00020'>{exc}</span>")
             return
@@ -408,9 +406,9 @@ class ExportDialog(QDialog):
         if self.format != "hci":
             return
         grid = self.dataset.grid
-        for spin, value, size, n in ((self.hci_center_row, row, self.hci_rows.value(), int(grid["rows"])),
+        for spin, value, size, n in ((self.hci_center_row, row, self.hci_rows.value(), grid.rows),
                                      (self.hci_center_column, column, self.hci_columns.value(),
-                                      int(grid["columns"]))):
+                                      grid.columns)):
             lo, hi = (size - 1) // 2, n - 1 - size // 2
             spin.setValue(min(max(value, lo), hi) if lo <= hi else value)
 
@@ -624,7 +622,7 @@ class ExportDialog(QDialog):
             return                          # the dialog stays on the dataset it was opened for
         self.dataset = dataset
         old = self.available
-        self.available = set(available_views(dataset))
+        self.available = set(dataset.captured_views())
         self.picker.available = self.available
         keep = self.picker.selected | (self.available - old) if self.picker.selected == old else self.picker.selected
         self.picker.set_selected(keep)
@@ -645,8 +643,8 @@ class ExportDialog(QDialog):
         self.image_depth_combos[0].setCurrentIndex(1 if int(s.value("export/image_bit_depth", 8)) == 16 else 0)
         holdout = str(s.value("export/holdout", "none"))
         self.holdout_combo.setCurrentIndex(max(0, self.holdout_combo.findData(holdout)))
-        self.hci_center_row.setValue(int(grid["rows"]) // 2)
-        self.hci_center_column.setValue(int(grid["columns"]) // 2)
+        self.hci_center_row.setValue(grid.rows // 2)
+        self.hci_center_column.setValue(grid.columns // 2)
         folder = str(s.value(EXPORT_KEY, "") or self.dataset.root.parent)
         self.folder_edit.setText(folder)
         self.picker.set_selected(self.available)

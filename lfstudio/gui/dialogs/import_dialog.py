@@ -387,7 +387,7 @@ class ImportImagesDialog(_ImportDialogBase):
             return super().summary(root)
         record = ds.manifest.get("import", {})
         w, h = ds.camera.get("sensor_px", ["?", "?"])
-        text = (f"Imported {len(ds.views)} views ({ds.grid['columns']} × {ds.grid['rows']}, {w} × {h} px) into "
+        text = (f"Imported {len(ds.views)} views ({ds.grid.columns} × {ds.grid.rows}, {w} × {h} px) into "
                 f"{root}; {record.get('linked', 0)} hard-linked. ")
         source = record.get("intrinsics", "none")
         text += "Focal length: not known." if source == "none" else f"Focal length from {source}."

@@ -491,7 +491,7 @@ class ScanPanel(QWidget):
         if dataset is None or self.running:
             return
         try:
-            base = ScanPlan.from_grid_dict(dataset.grid)
+            base = ScanPlan.from_grid(dataset.grid)
         except InputError:
             return
         self.folder.setText(str(dataset.root))

@@ -239,7 +239,7 @@ class GridCanvas(QAbstractScrollArea):
             self.root = None
         else:
             grid = dataset.grid
-            self.rows, self.columns = int(grid["rows"]), int(grid["columns"])
+            self.rows, self.columns = grid.rows, grid.columns
             self.root = dataset.root
             self.status = np.zeros((self.rows, self.columns), np.int8)
             self.thumbs = {}
@@ -717,7 +717,7 @@ class GridView(QWidget):
         self._load_quality(dataset)
         self.stack.setCurrentIndex(1)
         grid = dataset.grid
-        self.title.setText(f"<b>{dataset.root.name}</b> — {grid['columns']} × {grid['rows']} views")
+        self.title.setText(f"<b>{dataset.root.name}</b> — {grid.columns} × {grid.rows} views")
         self.title.setToolTip(str(dataset.root))
         self._update_counts()
         add_recent_dataset(str(dataset.root))

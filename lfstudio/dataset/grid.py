@@ -1,0 +1,203 @@
+"""The grid of camera positions and a view on it: the typed model every stage uses.
+
+- :class:`View`: a cell of the grid, ``(row, column)`` (a tuple, so it sorts row-major and unpacks
+  as ``r, c = view``), with its name ``r07_c042`` (:func:`lfstudio.dataset.paths.view_stem`) and
+  :meth:`View.parse` of such a name;
+- :class:`Grid`: columns × rows, spacing, origin and scan order as ``dataset.json`` → ``grid``
+  stores them (:meth:`Grid.from_manifest`; the file's format does not change), the commanded
+  position of a view, the baselines, an array of views spread over the grid (:meth:`Grid.spread`)
+  and the one reader of a view selection (:meth:`Grid.select`), which ``Dataset.select``, the
+  calibration, the export and the quality check share.
+
+A selection (``spec``) is ``"all"``; rows/columns ranges ``"r0-8,c10-18"``, ``"r3"``,
+``"c0-4,c10"`` (the available views in those rows and columns); an array ``"2x3"`` (rows ×
+columns spread over the grid, each snapped to available views); view names
+``"r00_c000,r00_c050"``; or a sequence of (row, column). ``None``/``""`` mean the caller's default.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from typing import Any, Iterable, NamedTuple, Sequence
+
+from lfstudio.dataset.paths import parse_view_stem, view_stem
+from lfstudio.errors import InputError
+
+#: what a selection may be (shown when one cannot be read)
+SELECTION_SYNTAX = ("'all', rows/columns like r0-8,c10-18, an array like 3x5 (rows x columns), or view names "
+                    "like r00_c000,r00_c050")
+_ARRAY = re.compile(r"^\s*(\d+)\s*[x×]\s*(\d+)\s*$")
+_RANGE_PART = re.compile(r"^\s*([rc])\s*(\d+)\s*(?:-\s*(\d+))?\s*$", re.IGNORECASE)
+
+
+class View(NamedTuple):
+    """A cell of the grid (row 0 at the top, column 0 at the left)."""
+
+    row: int
+    column: int
+
+    @property
+    def name(self) -> str:
+        """``r07_c042``: the stem of the view's files."""
+        return view_stem(self.row, self.column)
+
+    @classmethod
+    def parse(cls, name: str) -> "View":
+        """The view a name like ``r07_c042`` (also ``r7c42``, ``R07 C042``) stands for; ValueError if none."""
+        return cls(*parse_view_stem(name))
+
+
+def spread_indices(n_total: int, n_pick: int) -> list[int]:
+    """``n_pick`` indices spread evenly over ``0 … n_total−1`` including both ends."""
+    if n_pick <= 1 or n_total <= 1:
+        return [0] if n_total >= 1 and n_pick >= 1 else []
+    n_pick = min(n_pick, n_total)
+    return sorted({round(i * (n_total - 1) / (n_pick - 1)) for i in range(n_pick)})
+
+
+def _nearest(index: int, available: Sequence[int]) -> int:
+    return min(available, key=lambda a: (abs(a - index), a))
+
+
+@dataclass(frozen=True)
+class Grid:
+    columns: int
+    rows: int
+    spacing_mm: tuple[float, float] | None = None      # (horizontal, vertical) between neighbours; None: unknown
+    origin_mm: tuple[float, float] | None = None       # position of view (0, 0); None: not recorded
+    order: str | None = None                           # the order views were taken (docs/dataset-format.md); None: unknown
+    settle_s: float | None = None                      # the scan's settle time, when a scan recorded it
+    extra: dict[str, Any] = field(default_factory=dict, compare=False)   # other keys of the manifest's grid
+
+    @classmethod
+    def from_manifest(cls, grid: dict[str, Any]) -> "Grid":
+        """The typed grid of ``dataset.json`` → ``grid`` (validated by the manifest's reader)."""
+        known = {"columns", "rows", "spacing_mm", "origin_mm", "order", "settle_s"}
+        origin, spacing = grid.get("origin_mm"), grid.get("spacing_mm")
+        return cls(int(grid["columns"]), int(grid["rows"]),
+                   None if spacing is None else (float(spacing[0]), float(spacing[1])),
+                   None if origin is None else (float(origin[0]), float(origin[1])),
+                   None if grid.get("order") is None else str(grid["order"]),
+                   None if grid.get("settle_s") is None else float(grid["settle_s"]),
+                   {k: v for k, v in grid.items() if k not in known})
+
+    # -- cells -------------------------------------------------------------------------------------
+    def views(self) -> list[View]:
+        """Every cell, row-major."""
+        return [View(r, c) for r in range(self.rows) for c in range(self.columns)]
+
+    def __contains__(self, view: object) -> bool:
+        return isinstance(view, tuple) and len(view) == 2 and 0 <= view[0] < self.rows and 0 <= view[1] < self.columns
+
+    @property
+    def centre(self) -> View:
+        return View((self.rows - 1) // 2, (self.columns - 1) // 2)
+
+    @property
+    def step_mm(self) -> tuple[float, float]:
+        """The spacing, or 1 mm each way when the manifest records none (baselines in grid steps)."""
+        return self.spacing_mm or (1.0, 1.0)
+
+    def position_mm(self, view: Sequence[int]) -> tuple[float, float]:
+        """Commanded position of a view: origin + (column × horizontal, row × vertical step)."""
+        (ox, oy), (sx, sy) = self.origin_mm or (0.0, 0.0), self.step_mm
+        return ox + view[1] * sx, oy + view[0] * sy
+
+    @property
+    def baselines_mm(self) -> tuple[float | None, float | None]:
+        """Baselines of a full row and a full column (None for a single column / row)."""
+        sx, sy = self.step_mm
+        return ((self.columns - 1) * sx if self.columns > 1 else None, (self.rows - 1) * sy if self.rows > 1 else None)
+
+    def spread(self, n_rows: int, n_columns: int, available: Iterable[Sequence[int]] | None = None) -> list[View]:
+        """An ``n_rows × n_columns`` array spread over the grid, first to last row and column (the
+        paper's calibration uses 2 × 3). With ``available`` (views that have images), each chosen
+        row/column index snaps to the nearest index whose views are available where possible,
+        otherwise views are dropped."""
+        want_rows = spread_indices(self.rows, n_rows)
+        want_cols = spread_indices(self.columns, n_columns)
+        if available is None:
+            return [View(r, c) for r in want_rows for c in want_cols]
+        avail = {View(*v) for v in available}
+        rows_av = sorted({v.row for v in avail})
+        cols_av = sorted({v.column for v in avail})
+        if not rows_av:
+            return []
+        pick_rows = sorted({_nearest(r, rows_av) for r in want_rows})
+        pick_cols = sorted({_nearest(c, cols_av) for c in want_cols})
+        return [View(r, c) for r in pick_rows for c in pick_cols if (r, c) in avail]
+
+    # -- a selection -------------------------------------------------------------------------------
+    def select(self, spec: str | Iterable[Sequence[int]] | None, available: Iterable[Sequence[int]], *,
+               default: str = "all", field_name: str = "views") -> list[View]:
+        """The views ``spec`` chooses among ``available`` (see the module docstring), row-major;
+        ``None``/``""``/``"default"``: ``default``. :class:`InputError` naming ``field_name`` when the
+        spec cannot be read, leaves the grid, selects nothing or names a view without an image."""
+        avail = sorted({View(int(r), int(c)) for r, c in available})
+        if spec is not None and not isinstance(spec, str):
+            return self._chosen(spec, avail, field_name)
+        text = (spec or "").strip()
+        if not text or text.lower() == "default":
+            text = default
+        if text.lower() == "all":
+            return avail
+        m = _ARRAY.match(text)
+        if m:
+            n_rows, n_cols = int(m.group(1)), int(m.group(2))
+            if n_rows < 1 or n_cols < 1:
+                raise InputError(field_name, f"{text!r} needs at least one row and one column", "e.g. 2x3")
+            return self.spread(n_rows, n_cols, avail)
+        ranges = self._ranges(text, field_name)
+        if ranges is not None:
+            rows, cols = ranges
+            out = [v for v in avail if (rows is None or v.row in rows) and (cols is None or v.column in cols)]
+            if not out:
+                raise InputError(field_name, f"{text!r} selects no captured view", "rows/columns with captures")
+            return out
+        have = set(avail)
+        out = []
+        for part in text.split(","):
+            try:
+                view = View.parse(part)
+            except ValueError:
+                raise InputError(field_name, f"cannot read {part.strip()!r}", SELECTION_SYNTAX) from None
+            if view not in have:
+                raise InputError(field_name, f"view {view.name} has no captured image in this dataset")
+            out.append(view)
+        return sorted(set(out))
+
+    def _ranges(self, text: str, field_name: str) -> tuple[set[int] | None, set[int] | None] | None:
+        """``"r0-8,c10-18"`` → (rows, columns) inside the grid; None when ``text`` is not ranges."""
+        rows: set[int] | None = None
+        cols: set[int] | None = None
+        for part in text.split(","):
+            m = _RANGE_PART.match(part)
+            if not m:
+                return None
+            lo = int(m.group(2))
+            hi = int(m.group(3)) if m.group(3) is not None else lo
+            if hi < lo:
+                raise InputError(field_name, f"{part.strip()!r}: range runs backwards", "e.g. r0-8,c10-18")
+            values = set(range(lo, hi + 1))
+            if m.group(1).lower() == "r":
+                rows = (rows or set()) | values
+            else:
+                cols = (cols or set()) | values
+        for name, chosen, n in (("rows", rows, self.rows), ("columns", cols, self.columns)):
+            if chosen and max(chosen) >= n:
+                raise InputError(field_name, f"{name} up to {max(chosen)} asked, the grid has {n} {name}",
+                                 f"{name} 0-{n - 1}")
+        return rows, cols
+
+    @staticmethod
+    def _chosen(views: Iterable[Sequence[int]], avail: list[View], field_name: str) -> list[View]:
+        chosen = sorted({View(int(r), int(c)) for r, c in views})
+        if not chosen:
+            raise InputError(field_name, "no view chosen", "at least one captured view")
+        have = set(avail)
+        missing = [v.name for v in chosen if v not in have]
+        if missing:
+            shown = ", ".join(missing[:8]) + (f" and {len(missing) - 8} more" if len(missing) > 8 else "")
+            raise InputError(field_name, f"no captured image for {shown}", "captured views of this dataset")
+        return chosen
