@@ -18,15 +18,15 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from lfstudio.calibration.features import read_grey
 from lfstudio.calibration.model import homography_for, scale_homography
+from lfstudio.dataset import images
 from lfstudio.dataset.paths import view_stem
 from lfstudio.jobs import CancelToken, Progress, no_progress
 
 
 def load_preview(path: str | Path, width_px: int = 1000) -> tuple[np.ndarray, tuple[int, int]]:
     """Grey uint8 preview ``width_px`` wide (at most) and the full-resolution size."""
-    grey, full, _ = read_grey(path, width_px)
+    grey, full, _ = images.read_grey(path, width_px)
     return grey, full
 
 

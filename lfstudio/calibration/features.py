@@ -30,12 +30,11 @@ from typing import Callable, Sequence
 import cv2
 import numpy as np
 
+from lfstudio.dataset import images
 from lfstudio.dataset.atomic import atomic_write_with
 from lfstudio.dataset.paths import folder_inside
 from lfstudio.errors import DatasetError
 
-RAW_SUFFIXES = {".dng", ".arw", ".cr2", ".cr3", ".nef", ".raf", ".orf", ".rw2", ".pef", ".srw", ".raw", ".3fr",
-                ".iiq", ".erf", ".kdc", ".mrw", ".nrw", ".x3f"}
 CACHE_VERSION = 2
 DEFAULT_WORK_WIDTH_PX = 2000
 DEFAULT_MAX_FEATURES = 6000
@@ -53,55 +52,10 @@ class Features:
         return int(len(self.xy))
 
 
-def _normalise_to_u8(grey: np.ndarray) -> np.ndarray:
-    if grey.dtype == np.uint8:
-        return grey
-    g = grey.astype(np.float32)
-    lo, hi = np.percentile(g[::4, ::4], (0.5, 99.8))
-    if hi <= lo:
-        hi = lo + 1.0
-    return np.clip((g - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
-
-
-def read_grey(path: str | Path, max_width_px: int | None = DEFAULT_WORK_WIDTH_PX) -> tuple[np.ndarray, tuple[int, int], float]:
-    """Grey uint8 image at (at most) ``max_width_px``; also the full-resolution size and the scale
-    (full-resolution pixels per returned pixel)."""
-    path = Path(path)
-    if path.suffix.lower() in RAW_SUFFIXES:
-        import rawpy
-        try:
-            with rawpy.imread(str(path)) as raw:
-                sizes = raw.sizes   # read before postprocess: half_size changes them
-                full = (int(sizes.width), int(sizes.height))
-                if sizes.flip in (5, 6):
-                    full = (full[1], full[0])
-                rgb = raw.postprocess(half_size=True, use_camera_wb=True, no_auto_bright=True, output_bps=16,
-                                      gamma=(2.222, 4.5))
-        except Exception as exc:  # rawpy raises several LibRaw error types
-            raise DatasetError(f"{path}: cannot be read as a RAW file ({exc}); re-copy it from the camera") from None
-        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-    else:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH)
-        if img is None:
-            raise DatasetError(f"{path}: cannot be read as an image (missing or corrupt); re-copy it or "
-                               "exclude the view")
-        if img.ndim == 3:
-            img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2GRAY)
-        grey = img
-        full = (int(img.shape[1]), int(img.shape[0]))
-    grey = _normalise_to_u8(grey)
-    h, w = grey.shape[:2]
-    if max_width_px and w > max_width_px:
-        new_w = int(max_width_px)
-        new_h = max(1, int(round(h * new_w / w)))
-        grey = cv2.resize(grey, (new_w, new_h), interpolation=cv2.INTER_AREA)
-    return grey, full, full[0] / grey.shape[1]
-
-
 def detect(path: str | Path, max_width_px: int | None = DEFAULT_WORK_WIDTH_PX,
            max_features: int = DEFAULT_MAX_FEATURES) -> Features:
     """SIFT keypoints and descriptors of one view (coordinates in full-resolution pixels)."""
-    grey, full, scale = read_grey(path, max_width_px)
+    grey, full, scale = images.read_grey(path, max_width_px)
     sift = cv2.SIFT_create(nfeatures=int(max_features))
     kps, desc = sift.detectAndCompute(grey, None)
     if desc is None or not kps:

@@ -15,6 +15,7 @@ per file, size and modification time.
   an ordinary image as :func:`read_image`;
 - :func:`read_bayer`: a RAW's Bayer mosaic with LibRaw's black level, white balance and scaling
   (the processing demosaics it at the output's resolution; the quality check reads luminance from it);
+- :func:`read_grey`: a capture as a grey 8-bit working image for feature detection;
 - :func:`thumbnail_array`, :func:`thumbnail_from_array`: small BGR pictures for the grid
   (:mod:`lfstudio.dataset.thumbs` writes and caches them); :func:`preview_rgb8`: an 8-bit picture to
   look at (test shots, a view at full size).
@@ -491,3 +492,48 @@ def preview_rgb8(path: str | os.PathLike, max_width_px: int | None = None, stret
     if max_width_px is not None:
         rgb = shrink(rgb, max_width_px)
     return np.ascontiguousarray(rgb)
+
+
+# -- grey for features -------------------------------------------------------------------------------
+def _normalise_to_u8(grey: np.ndarray) -> np.ndarray:
+    if grey.dtype == np.uint8:
+        return grey
+    g = grey.astype(np.float32)
+    lo, hi = np.percentile(g[::4, ::4], (0.5, 99.8))
+    if hi <= lo:
+        hi = lo + 1.0
+    return np.clip((g - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
+
+
+def read_grey(path: str | os.PathLike, max_width_px: int | None) -> tuple[np.ndarray, tuple[int, int], float]:
+    """A capture as a grey uint8 image for feature detection, at most ``max_width_px`` wide (a RAW
+    developed at half size with the camera's white balance and a gamma; the 0.5 … 99.8 percentiles
+    stretched to 0 … 255); also the full-resolution size and the scale (full-resolution pixels per
+    returned pixel)."""
+    path = Path(path)
+    if is_raw(path):
+        import rawpy
+        try:
+            with rawpy.imread(str(path)) as raw:
+                sizes = raw.sizes   # read before postprocess: half_size changes them
+                full = (int(sizes.width), int(sizes.height))
+                if sizes.flip in (5, 6):
+                    full = (full[1], full[0])
+                rgb = raw.postprocess(half_size=True, use_camera_wb=True, no_auto_bright=True, output_bps=16,
+                                      gamma=(2.222, 4.5))
+        except Exception as exc:  # rawpy raises several LibRaw error types
+            raise DatasetError(f"{path}: cannot be read as a RAW file ({exc}); re-copy it from the camera") from None
+        grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    else:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH)
+        if img is None:
+            raise DatasetError(f"{path}: cannot be read as an image (missing or corrupt); re-copy it or "
+                               "exclude the view")
+        if img.ndim == 3:
+            img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2GRAY)
+        grey = img
+        full = (int(img.shape[1]), int(img.shape[0]))
+    grey = _normalise_to_u8(grey)
+    if max_width_px:
+        grey = shrink(grey, int(max_width_px))
+    return grey, full, full[0] / grey.shape[1]

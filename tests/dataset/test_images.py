@@ -62,6 +62,9 @@ def test_a_raw_under_any_name_develops_like_the_dng(files):
     step = DebayerStep(white_balance="camera")
     assert np.array_equal(images.develop(d / "v_named.crw", step), images.develop(d / "v.dng", step))
     assert images.read_bayer(d / "v_named.crw") is not None and images.read_bayer(d / "a16.png") is None
+    grey, full, scale = images.read_grey(d / "v_named.crw", None)         # what the calibration detects on
+    same, _, _ = images.read_grey(d / "v.dng", None)
+    assert np.array_equal(grey, same) and grey.dtype == np.uint8 and full == (40, 24) and scale == 2.0
 
 
 def _real_raw_folder(shared_data, tmp_path, suffix: str, n: int = 2):
