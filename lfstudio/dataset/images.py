@@ -377,7 +377,8 @@ def _reduced_jpeg(read, width_px: int) -> np.ndarray | None:
     return read(cv2.IMREAD_COLOR)
 
 
-def _is_jpeg(path: Path) -> bool:
+def is_jpeg(path: str | os.PathLike) -> bool:
+    """The file starts like a JPEG (SOI marker), whatever its name."""
     try:
         with open(path, "rb") as fh:
             return fh.read(2) == b"\xff\xd8"
@@ -387,7 +388,7 @@ def _is_jpeg(path: Path) -> bool:
 
 def _thumb_from_image(path: Path, width_px: int) -> np.ndarray | None:
     """BGR uint8, decoded at reduced size where the format allows it, made small before measuring."""
-    if _is_jpeg(path):
+    if is_jpeg(path):
         img = _reduced_jpeg(lambda flags: cv2.imread(str(path), flags), width_px)
         if img is not None:
             return img
@@ -464,6 +465,13 @@ def thumbnail_from_array(rgb: np.ndarray, width_px: int) -> np.ndarray:
     preview, a decoded video frame): made small first, then scaled to 8 bits."""
     small = shrink(np.asarray(rgb), width_px)
     return cv2.cvtColor(_to_uint8(small), cv2.COLOR_RGB2BGR) if small.ndim == 3 else _to_uint8(small)
+
+
+def decode_frame(data: bytes | memoryview) -> np.ndarray | None:
+    """A camera's live-view frame (JPEG, or any format OpenCV decodes, in memory) as (h, w, 3) uint8
+    RGB; None when it cannot be decoded."""
+    img = cv2.imdecode(np.frombuffer(memoryview(data), np.uint8), cv2.IMREAD_COLOR)
+    return None if img is None else cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
 def preview_rgb8(path: str | os.PathLike, max_width_px: int | None = None, stretch: bool = False) -> np.ndarray:

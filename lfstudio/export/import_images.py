@@ -172,7 +172,7 @@ def read_exif(path: str | os.PathLike) -> dict[str, Any]:
 
     path = Path(path)
     try:
-        if path.suffix.lower() in (".jpg", ".jpeg"):
+        if images.is_jpeg(path):
             data = path.read_bytes()[:1 << 20]
             i = data.find(b"Exif\x00\x00")
             if i < 0:
@@ -185,7 +185,7 @@ def read_exif(path: str | os.PathLike) -> dict[str, Any]:
                     return _exif_from_tiff(tif)
             finally:
                 quiet.setLevel(level)
-        if path.suffix.lower() == ".png":
+        if images.png_header(path) is not None:
             return {}
         with tifffile.TiffFile(path) as tif:
             return _exif_from_tiff(tif)

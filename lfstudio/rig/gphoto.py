@@ -612,8 +612,6 @@ class GPhotoCamera:
 
     def preview(self) -> np.ndarray | None:
         """A live-view frame (RGB uint8) or None if the body has no live view over USB."""
-        import cv2
-
         camera = self._require()
         self._camera_said.clear()
         try:
@@ -623,5 +621,4 @@ class GPhotoCamera:
             if getattr(exc, "code", None) == -6:
                 return None
             raise DeviceError(gp_message(exc, "live view", camera_said=self._said())) from None
-        img = cv2.imdecode(np.frombuffer(memoryview(data), np.uint8), cv2.IMREAD_COLOR)
-        return None if img is None else cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        return images.decode_frame(data)

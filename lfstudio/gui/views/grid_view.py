@@ -3,7 +3,8 @@
 One custom-painted scroll area (no widget per view). At low zoom the whole grid is drawn from one
 mosaic image (one small tile per view, filled in as thumbnails load); zoomed in, only the visible
 views are drawn from their full thumbnails. Thumbnails are decoded off the GUI thread
-(``QImageReader`` with a scaled size, visible views first) and cached (LRU). Cells are coloured by
+(:func:`lfstudio.dataset.images.thumbnail_array`, reduced-size JPEG decoding, visible views first)
+and cached (LRU). Cells are coloured by
 state: pending, capturing, done, failed, skipped. Double-click opens a view full size; selected
 views can be queued for re-capture (the Scan panel does it through ``AppState.recaptureRequested``).
 
@@ -24,7 +25,7 @@ from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QObject, QPoint, QRect, QRectF, QSize, Qt, QTimer, Signal
-from PySide6.QtGui import (QAction, QBrush, QColor, QImage, QImageReader, QKeySequence, QPainter, QPen,
+from PySide6.QtGui import (QAction, QBrush, QColor, QImage, QKeySequence, QPainter, QPen,
                            QPixmap)
 from PySide6.QtWidgets import (QAbstractScrollArea, QDialog, QFileDialog, QHBoxLayout, QLabel, QMenu,
                                QPushButton, QScrollArea, QSizePolicy, QStackedWidget, QToolButton,
@@ -52,11 +53,14 @@ MAX_RECENT = 8
 
 
 def _file_thumbnail(path: str, width_px: int) -> QImage:
-    from lfstudio.gui.imageutil import rgb_to_qimage
+    """A view's stored thumbnail (``thumbs/``) decoded small, or a thumbnail made from the view's own
+    file (RAW or 16-bit image) and cached in the dataset."""
     from lfstudio.dataset.thumbs import cached_thumbnail
+    from lfstudio.gui.imageutil import rgb_to_qimage
 
     try:
-        bgr = cached_thumbnail(path, width_px)
+        stored = "/thumbs/" in path.replace("\\", "/")
+        bgr = images.thumbnail_array(path, width_px) if stored else cached_thumbnail(path, width_px)
     except Exception:  # an unreadable file stays a coloured cell; the dataset check reports it
         return QImage()
     return QImage() if bgr is None else rgb_to_qimage(np.ascontiguousarray(bgr[..., ::-1]))
@@ -107,14 +111,7 @@ class ThumbLoader(QObject):
                     return
                 key, path, size = self._stack.pop()
                 generation = self._generation
-            if "/thumbs/" in path.replace("\\", "/"):
-                reader = QImageReader(path)
-                src = reader.size()
-                if src.isValid() and size.isValid():
-                    reader.setScaledSize(src.scaled(size, Qt.KeepAspectRatio))
-                image = reader.read()
-            else:  # no stored thumbnail: decode the view's own file (RAW or 16-bit image) small
-                image = _file_thumbnail(path, max(size.width(), 1))
+            image = _file_thumbnail(path, max(size.width(), 1))
             with self._cond:
                 self._queued.discard(key)
                 if generation != self._generation:
