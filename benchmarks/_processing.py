@@ -43,7 +43,7 @@ def rendered(root: Path, n_views: int, width_px: int) -> Dataset:
 def linked(root: Path, source: Dataset, n_views: int) -> Dataset:
     """A fresh ``n_views`` x 1 dataset at ``root`` whose captures are hard links to ``source``'s."""
     shutil.rmtree(root, ignore_errors=True)
-    src_views = [v for v in source.views if v.get("status") == "done"]
+    src_views = source.done_views()
     views = []
     (root / "raw").mkdir(parents=True)
     for c in range(n_views):

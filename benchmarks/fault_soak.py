@@ -68,7 +68,7 @@ def captured(root: Path) -> dict[tuple[int, int], tuple]:
     if not (root / "dataset.json").is_file():
         return {}
     return {(v["row"], v["column"]): (v["file"], v["sha256"], v["captured_at"])
-            for v in Dataset.open(root).views if v.get("status") == "done"}
+            for v in Dataset.open(root).done_views()}
 
 
 def journaled(root: Path) -> int:

@@ -47,7 +47,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from lfstudio.dataset import Dataset
-from lfstudio.dataset.manifest import now_iso
+from lfstudio.dataset.manifest import is_done, now_iso
 from lfstudio.dataset.paths import folder_inside, view_stem
 from lfstudio.dataset.storage import disk_problem, megabytes, mount_point, storage_error
 from lfstudio.dataset.store import clean_temporary_files, free_bytes, sha256_file
@@ -122,7 +122,7 @@ def _error_text(exc: BaseException) -> str:
 
 def _stored_view_bytes(dataset: Dataset, sample: int = 8) -> int:
     """Bytes of the largest of the last ``sample`` views stored in ``dataset`` (file, sidecars, thumbnail)."""
-    done = [v for v in dataset.views if v.get("status") == "done" and v.get("file")][-sample:]
+    done = dataset.done_views()[-sample:]
     largest = 0
     for v in done:
         total = 0
@@ -550,7 +550,7 @@ class ScanEngine:
 
     def _repair_thumbnails(self) -> None:
         """Thumbnails of captured views a full disk kept from being written (the views are kept)."""
-        missing = [v for v in self.dataset.views if v.get("status") == "done" and v.get("file") and not v.get("thumb")]
+        missing = [v for v in self.dataset.done_views() if not v.get("thumb")]
         for v in missing:
             rel = f"thumbs/{view_stem(v['row'], v['column'])}.jpg"
             try:
@@ -1006,7 +1006,7 @@ class ScanEngine:
         """Journal a stored view (store thread, or the engine thread on Resume); the fault when the
         journal cannot be written. Such a view is kept in memory with its files (``_unrecorded``) and
         journaled on Resume, not captured again; the scan pauses on the fault meanwhile."""
-        was_done = self.dataset.view(view.row, view.column).get("status") == "done"
+        was_done = is_done(self.dataset.view(view.row, view.column))
         try:
             self.dataset.record_view(view.row, view.column, **fields)
         except Exception as exc:

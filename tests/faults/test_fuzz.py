@@ -94,7 +94,7 @@ def run_stages(root: Path, tmp: Path) -> None:
     from lfstudio.calibration.calibrate import calibrate_dataset, load_calibration
     from lfstudio.export import ExportOptions, estimate_export, export_dataset
     from lfstudio.processing.pipeline import process_dataset
-    from lfstudio.processing.profile import Profile
+    from lfstudio.dataset.profile import Profile
 
     try:
         ds = Dataset.open(root)
@@ -150,7 +150,7 @@ def test_a_manifest_that_is_not_json_of_a_dataset_is_one_error(fuzz_dataset, tmp
 def test_a_mutated_processing_profile_is_refused_or_valid(data):
     import tomli_w
 
-    from lfstudio.processing.profile import Profile
+    from lfstudio.dataset.profile import Profile
 
     base = Profile().to_dict()
     path = data.draw(st.sampled_from([p for p in paths_of(base) if p]), label="path")
@@ -171,7 +171,7 @@ def test_a_mutated_processing_profile_is_refused_or_valid(data):
 @given(st.binary(max_size=200))
 def test_a_profile_or_plan_file_of_any_bytes_is_one_error(tmp_path, raw):
     from lfstudio.planning.scene_plan import load_plan
-    from lfstudio.processing.profile import Profile
+    from lfstudio.dataset.profile import Profile
 
     path = tmp_path / "f.toml"
     path.write_bytes(raw)
