@@ -91,7 +91,8 @@ def fuzz_dataset(tmp_path_factory):
 def run_stages(root: Path, tmp: Path) -> None:
     """What info, process, export and calibrate do with a dataset, in this process; LfError is the
     refusal an operator reads, anything else fails the test."""
-    from lfstudio.calibration.calibrate import calibrate_dataset, load_calibration
+    from lfstudio.calibration.calibrate import calibrate_dataset
+    from lfstudio.calibration.model import load_calibration
     from lfstudio.export import ExportOptions, estimate_export, export_dataset
     from lfstudio.processing.pipeline import process_dataset
     from lfstudio.dataset.profile import Profile
