@@ -14,6 +14,7 @@ log = logging.getLogger("lfstudio")
 def create_window(simulated: bool = True):
     """Build the application state and main window (a QApplication must exist)."""
     from lfstudio.gui.icons import app_icon
+    from lfstudio.gui.heartbeat import keep_out_of_gc
     from lfstudio.gui.main_window import MainWindow
     from lfstudio.gui.state import AppState
 
@@ -23,6 +24,7 @@ def create_window(simulated: bool = True):
     state = AppState(simulated=simulated)
     window = MainWindow(state)
     window.setWindowIcon(app_icon())
+    keep_out_of_gc()          # the window lives as long as the app: keep full GC passes (stalls) small
     return window
 
 
@@ -31,6 +33,7 @@ def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str 
     from PySide6.QtWidgets import QApplication
 
     from lfstudio.gui.crash import install_exception_hooks
+    from lfstudio.gui.heartbeat import install_watchdog
     from lfstudio.gui.icons import app_icon
     from lfstudio.support.logs import is_configured, setup_logging
 
@@ -47,6 +50,7 @@ def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str 
         app.setStyleSheet(style.read_text(encoding="utf-8"))
     window = create_window(simulated=simulated)
     window.exception_reporter = install_exception_hooks(window)
+    window.watchdog = install_watchdog(window)     # GUI stalls > 50 ms go to the log with their source
     log.info("lfstudio %s window open (%s)", __version__, "simulated studio" if simulated else "hardware")
     if dataset:
         from lfstudio.dataset import Dataset

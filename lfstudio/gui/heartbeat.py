@@ -1,42 +1,248 @@
-"""Detect GUI-thread stalls: a timer that should fire every ``interval_ms`` measures its lateness."""
+"""Detect GUI-thread stalls and say where they came from.
+
+:class:`Heartbeat` is a timer that should fire every ``interval_ms``; how late each tick comes is a
+stall of the GUI thread (``max_stall_ms``, ``stalls``). With ``watch=True`` it is also a watchdog:
+
+- a sampler thread looks at the GUI thread every ``sample_ms`` while a tick is overdue and records
+  its Python stack (``sys._current_frames``), so a stall is reported with the code that ran;
+- with ``events=True`` also an application-wide event filter notes which Qt event was being
+  delivered to which object, for stalls spent in Qt's own C++ code (painting, layout), where the
+  Python stack shows only the event loop. It runs Python for every event (so it takes the GIL for
+  each), which itself slows a busy GUI: use it to find a source, not to measure.
+
+Each stall longer than ``warn_ms`` becomes a :class:`Stall` (logged as a warning) with ``where``: the
+innermost lfstudio frames seen most often during it, else the Qt event. The sampler needs the GIL to
+look; the application sets a short switch interval (``gui/app.py``), so it gets it within a
+millisecond or two even while the GUI thread runs Python code.
+
+One stall source no code change removes: Python's cyclic garbage collector. A full collection walks
+every tracked object, ~60 ms of GUI-thread CPU with the window and a 2121-view dataset open, at a
+moment no one chooses (often while a dataset opens). :func:`keep_out_of_gc` moves the objects that
+live long (the window, an opened dataset) out of its reach (``gc.freeze``); they are still freed by
+reference counting when dropped (a dataset holds no reference cycles).
+
+The application runs a watchdog all the time (:func:`install_watchdog`): stalls over 50 ms go to the
+log file with their source. ``LFSTUDIO_WATCHDOG=1`` adds the Qt event tap and logs them as warnings;
+``benchmarks/grid_gui.py`` prints the worst stalls of a scan with their sources.
+"""
 
 from __future__ import annotations
 
+import collections
+import gc
 import logging
+import os
+import sys
+import threading
 import time
+from dataclasses import dataclass
 
-from PySide6.QtCore import QObject, QTimer
+from PySide6.QtCore import QCoreApplication, QEvent, QObject, QTimer
 
 log = logging.getLogger(__name__)
 
+ENV_VAR = "LFSTUDIO_WATCHDOG"
+_PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))   # .../lfstudio
+_THIS_FILE = os.path.abspath(__file__)
+
+
+@dataclass(frozen=True)
+class Stall:
+    """One late heartbeat: ``duration_ms`` beyond the interval, ending ``at_s`` after start()."""
+
+    at_s: float
+    duration_ms: float
+    cpu_ms: float       # CPU time the GUI thread itself used meanwhile (the rest: waiting for the GIL or a core)
+    where: str          # the code (innermost lfstudio frames) or the Qt event the GUI thread was in
+    samples: int        # how many stack samples the watchdog took during the stall (0: not watched)
+
+    def __str__(self) -> str:
+        return f"{self.duration_ms:.0f} ms (GUI thread CPU {self.cpu_ms:.0f} ms) at {self.at_s:.2f} s in {self.where}"
+
+
+def _event_name(event_type: int) -> str:
+    try:
+        return QEvent.Type(event_type).name
+    except ValueError:
+        return f"event {event_type}"
+
+
+def _describe_receiver(obj: QObject) -> str:
+    name = obj.objectName()
+    cls = type(obj).__name__
+    return f"{cls} '{name}'" if name else cls
+
+
+def _where(frame) -> str:
+    """Where ``frame``'s thread is: its innermost frames that belong to lfstudio (up to three,
+    innermost first), or, when none does, its three innermost frames."""
+    ours: list[str] = []
+    innermost: list[str] = []
+    f = frame
+    while f is not None and len(ours) < 3:
+        code = f.f_code
+        path = os.path.abspath(code.co_filename)
+        if len(innermost) < 3:
+            innermost.append(f"{os.path.basename(path)}:{f.f_lineno} {code.co_name}" if not innermost
+                             else code.co_name)
+        if path.startswith(_PACKAGE_DIR) and path != _THIS_FILE:
+            rel = os.path.relpath(path, os.path.dirname(_PACKAGE_DIR))
+            ours.append(f"{rel}:{f.f_lineno} {code.co_name}" if not ours else f"{code.co_name}")
+        f = f.f_back
+    return " ← ".join(ours or innermost) or "?"
+
+
+class _EventTap(QObject):
+    """Application-wide event filter: remembers the event whose delivery started last."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.current: tuple[int, str] | None = None
+
+    def eventFilter(self, obj: QObject, event: QEvent) -> bool:   # noqa: N802 (Qt name)
+        self.current = (int(event.type()), _describe_receiver(obj))
+        return False
+
 
 class Heartbeat(QObject):
-    """Records the longest gap between timer ticks beyond the interval (``max_stall_ms``)."""
+    """Records the longest gap between timer ticks beyond the interval (``max_stall_ms``) and every
+    stall over ``warn_ms`` (``stalls``, each a :class:`Stall`; with ``watch`` they say where)."""
 
-    def __init__(self, interval_ms: int = 10, warn_ms: float = 50.0, parent: QObject | None = None):
+    def __init__(self, interval_ms: int = 10, warn_ms: float = 50.0, watch: bool = False, events: bool = False,
+                 sample_ms: float = 2.0, record: bool = False, log_level: int = logging.WARNING,
+                 parent: QObject | None = None):
         super().__init__(parent)
         self.interval_ms = interval_ms
         self.warn_ms = warn_ms
+        self.watch = watch
+        self.events = events
+        self.log_level = log_level
+        self.sample_ms = sample_ms
         self.max_stall_ms = 0.0
-        self.stalls: list[float] = []
-        self._last = None
+        self.max_cpu_ms = 0.0       # most CPU time the GUI thread used between two ticks (load-independent)
+        self.cpu_ms = 0.0           # CPU time of the GUI thread from start() to the last tick
+        self.ticks = 0
+        self.stalls: list[Stall] = []
+        self.record = record
+        self.tick_log: list[tuple[float, float, float]] = []   # with ``record``: (s after start(), stall ms, CPU ms)
+        self._started = 0.0
+        self._last: float | None = None
+        self._started_cpu = self._last_cpu = 0.0
         self._timer = QTimer(self)
         self._timer.setInterval(interval_ms)
         self._timer.timeout.connect(self._tick)
+        self._lock = threading.Lock()
+        self._samples: list[str] = []
+        self._sampler: threading.Thread | None = None
+        self._stop_sampling = threading.Event()
+        self._gui_ident = threading.get_ident()
+        self._tap: _EventTap | None = None
+        self.on_sample = None       # called (from the sampler thread) after each sample; for tests
 
     def start(self) -> None:
-        self._last = time.perf_counter()
+        self._gui_ident = threading.get_ident()
+        self._started = self._last = time.perf_counter()
+        self._started_cpu = self._last_cpu = time.thread_time()
         self._timer.start()
+        if self.watch and self._sampler is None:
+            app = QCoreApplication.instance()
+            if app is not None and self.events:
+                self._tap = _EventTap()
+                app.installEventFilter(self._tap)
+            self._stop_sampling.clear()
+            self._sampler = threading.Thread(target=self._sample_loop, name="gui-watchdog", daemon=True)
+            self._sampler.start()
 
     def stop(self) -> None:
         self._timer.stop()
+        if self._sampler is not None:
+            self._stop_sampling.set()
+            self._sampler.join(2)
+            self._sampler = None
+        if self._tap is not None:
+            app = QCoreApplication.instance()
+            if app is not None:
+                app.removeEventFilter(self._tap)
+            self._tap = None
 
+    def worst(self, n: int = 3) -> list[Stall]:
+        return sorted(self.stalls, key=lambda s: -s.duration_ms)[:n]
+
+    # -- the GUI thread ------------------------------------------------------------------------------
     def _tick(self) -> None:
-        now = time.perf_counter()
+        now, now_cpu = time.perf_counter(), time.thread_time()
         stall_ms = (now - self._last) * 1000.0 - self.interval_ms
-        self._last = now
+        cpu_ms = (now_cpu - self._last_cpu) * 1000.0
+        self._last, self._last_cpu = now, now_cpu
+        self.ticks += 1
+        self.cpu_ms = (now_cpu - self._started_cpu) * 1000.0
+        self.max_cpu_ms = max(self.max_cpu_ms, cpu_ms)
+        with self._lock:
+            samples, self._samples = self._samples, []
+        if self.record:
+            self.tick_log.append((now - self._started, stall_ms, cpu_ms))
         if stall_ms > self.max_stall_ms:
             self.max_stall_ms = stall_ms
         if stall_ms > self.warn_ms:
-            self.stalls.append(stall_ms)
-            log.warning("GUI thread stalled for %.0f ms", stall_ms)
+            if samples:
+                where, _ = collections.Counter(samples).most_common(1)[0]
+            else:
+                where = "not watched" if not self.watch else "no sample (the watchdog did not get to run)"
+            stall = Stall(at_s=now - self._started, duration_ms=stall_ms, cpu_ms=cpu_ms, where=where,
+                          samples=len(samples))
+            self.stalls.append(stall)
+            log.log(self.log_level, "GUI thread stalled for %.0f ms (its own CPU %.0f ms) in %s", stall_ms, cpu_ms,
+                    where)
+
+    # -- the sampler thread --------------------------------------------------------------------------
+    def _sample_loop(self) -> None:
+        period_s = self.sample_ms / 1000.0
+        overdue_s = (self.interval_ms + min(self.warn_ms, 20.0) / 2) / 1000.0
+        wait_s = period_s
+        while not self._stop_sampling.wait(wait_s):
+            last = self._last
+            late_s = time.perf_counter() - last if last is not None else 0.0
+            if last is None or late_s < overdue_s:     # sleep until this tick would be overdue
+                wait_s = max(period_s, overdue_s - late_s)
+                continue
+            wait_s = period_s
+            frame = sys._current_frames().get(self._gui_ident)
+            where = _where(frame) if frame is not None else "?"
+            if self._tap is not None and self._tap.current is not None:
+                event_type, receiver = self._tap.current
+                where = f"{where} [Qt {_event_name(event_type)} → {receiver}]"
+            del frame
+            with self._lock:
+                if self._last == last:      # still the same overdue tick
+                    self._samples.append(where)
+            hook = self.on_sample
+            if hook is not None:
+                hook(where)
+
+
+def install_watchdog(parent: QObject) -> Heartbeat:
+    """The application's watchdog: every GUI stall over 50 ms goes to the log with its source (the
+    log file; the console too with ``--debug``). ``LFSTUDIO_WATCHDOG=1`` (or a threshold in ms, e.g.
+    ``=30``) also names the Qt event of each stall and logs them as warnings: for finding a source."""
+    value = os.environ.get(ENV_VAR, "").strip()
+    diagnose = value not in ("", "0")
+    try:
+        warn_ms = float(value) if diagnose and value != "1" else 50.0
+    except ValueError:
+        warn_ms = 50.0
+    heart = Heartbeat(interval_ms=20, warn_ms=warn_ms, watch=True, events=diagnose,
+                      log_level=logging.WARNING if diagnose else logging.INFO, parent=parent)
+    heart.start()
+    app = QCoreApplication.instance()
+    if app is not None:
+        app.aboutToQuit.connect(heart.stop)
+    if diagnose:
+        log.warning("GUI watchdog: stalls over %.0f ms are logged with their source and Qt event", warn_ms)
+    return heart
+
+
+def keep_out_of_gc() -> None:
+    """Freeze every object alive now out of the cyclic garbage collector's full collections (see the
+    module docstring). Young garbage is collected first (cheap), so little of it is kept for good."""
+    gc.collect(1)
+    gc.freeze()

@@ -1,8 +1,13 @@
 """One application state shared by all panels; panels react to its signals.
 
-It also follows the running scan from its events (``scanEvent``): ``scan_state`` and
-``scanStateChanged`` tell the panels when the scan owns the rig (motion controls locked, see
-:data:`lfstudio.scan.events.OWNS_RIG`) and when a scan is active (quitting asks first).
+It also follows the running scan from its events: ``scan_state`` and ``scanStateChanged`` tell the
+panels when the scan owns the rig (motion controls locked, see :data:`lfstudio.scan.events.OWNS_RIG`)
+and when a scan is active (quitting asks first).
+
+Scan events reach listeners as lists, in order (``scanEvents``): the Scan panel publishes the events
+of one drain together (:meth:`AppState.publish_scan_events`), so a fast scan costs each listener one
+Python call per drain, not one per event. Listen to ``scanEvents``; ``scanEvent`` (one event) is for
+publishing a single event and is forwarded as a list of one.
 """
 
 from __future__ import annotations
@@ -11,6 +16,7 @@ from typing import Any
 
 from PySide6.QtCore import QObject, Signal
 
+from lfstudio.gui.heartbeat import keep_out_of_gc
 from lfstudio.scan.events import OWNS_RIG, TERMINAL, EventKind, ScanState
 
 
@@ -24,7 +30,8 @@ class AppState(QObject):
     datasetChanged = Signal(object)     # the open lfstudio.dataset.Dataset or None
     statusMessage = Signal(str, int)    # text, timeout in ms (0: until replaced)
     errorOccurred = Signal(str, str)    # title, message an operator understands
-    scanEvent = Signal(object)          # lfstudio.scan.events.ScanEvent from the running scan (GUI thread)
+    scanEvent = Signal(object)          # publish one lfstudio.scan.events.ScanEvent (forwarded to scanEvents)
+    scanEvents = Signal(object)         # list of ScanEvents of the running scan, in order (GUI thread): listen here
     scanStateChanged = Signal(object)   # the scan's ScanState changed (see scan_owns_rig, scan_active)
     recaptureRequested = Signal(object)  # list of (row, column) to capture again (grid view → scan panel)
     devicesChanged = Signal(str)        # a device ("rig", "camera", ...) was connected or removed
@@ -39,7 +46,8 @@ class AppState(QObject):
         self.scan_state: ScanState | None = None   # of the latest scan, from its events
         self.scan_label = ""                 # "the scan of studio_day (started 14:02)"
         self.scan_progress = (0, 0)          # views done, views in the dataset
-        self.scanEvent.connect(self._follow_scan)
+        self.scanEvents.connect(self._follow_scan_events)
+        self.scanEvent.connect(lambda ev: self.scanEvents.emit([ev]))
 
     def set_plan(self, plan: Any) -> None:
         self.plan = plan
@@ -48,6 +56,7 @@ class AppState(QObject):
     def set_dataset(self, dataset: Any) -> None:
         self.dataset = dataset
         self.datasetChanged.emit(dataset)
+        keep_out_of_gc()          # its thousands of view records need no full collections (stalls)
 
     def set_device(self, name: str, device: Any) -> None:
         """Store (or with None remove) ``devices[name]`` and announce it with ``devicesChanged``."""
@@ -64,6 +73,15 @@ class AppState(QObject):
         self.errorOccurred.emit(title, message)
 
     # -- the running scan --------------------------------------------------------------------------
+    def publish_scan_events(self, events: list) -> None:
+        """Hand scan events (in order) to every listener of ``scanEvents`` at once."""
+        if events:
+            self.scanEvents.emit(list(events))
+
+    def _follow_scan_events(self, events: list) -> None:
+        for ev in events:
+            self._follow_scan(ev)
+
     def _follow_scan(self, ev: Any) -> None:
         if ev.total:
             self.scan_progress = (ev.done, ev.total)

@@ -30,8 +30,8 @@ def test_first_session_on_the_simulated_studio(qtbot, tmp_path):
     scan.time_scale.setValue(0.0)
     scan.folder.setText(str(tmp_path / "first"))
     scales_during_scan = []
-    window.state.scanEvent.connect(lambda ev: scales_during_scan.append(simulator.time_scale)
-                                   if ev.kind.value == "view-started" else None)
+    window.state.scanEvents.connect(lambda events: scales_during_scan.extend(
+        simulator.time_scale for ev in events if ev.kind.value == "view-started"))
     qtbot.mouseClick(scan.start_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: "Finished" in scan.state_label.text(), timeout=120000)
     ds = Dataset.open(tmp_path / "first")

@@ -19,7 +19,7 @@ import numpy as np
 from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import (QAbstractSpinBox, QBoxLayout, QComboBox, QDoubleSpinBox, QFileDialog, QFrame, QGridLayout,
-                               QGroupBox, QHBoxLayout, QLabel, QPushButton, QScrollArea, QSizePolicy, QSpinBox,
+                               QGraphicsItem, QGroupBox, QHBoxLayout, QLabel, QPushButton, QScrollArea, QSizePolicy, QSpinBox,
                                QVBoxLayout, QWidget)
 
 from lfstudio.errors import InputError, LfError
@@ -539,6 +539,8 @@ class PlannerPanel(QWidget):
         widgets = row.spins or ([self.combos[key]] if key in self.combos else [])
         mark = worst if worst in ("error", "warning") else ""
         for w in widgets:
+            if style_prop(w, "severity") == mark and hasattr(w, "_lf_style"):
+                continue                # unchanged: no re-polish, no new palette (each repaints the field)
             _set_prop(w, "severity", mark)
             if isinstance(w, QAbstractSpinBox):
                 _tint(w, mark)
@@ -690,8 +692,14 @@ class PlanPlotsPanel(QWidget):
     """Depth of field (blur against distance, with the scene and the sharp range) and disparity against
     depth (neighbour spacing and whole row/column, with the 0.5 px and 1 px lines) of the state's plan.
 
-    The plot items are built once and updated in place; plan changes are coalesced, so typing in the
-    Planner never queues up redraws."""
+    Typing in the Planner must cost less than a frame (16.7 ms, ``benchmarks/planner_update.py``):
+
+    - the plot items are built once and updated in place (``setData``, ``setValue``, ``setRegion``);
+      plan changes are coalesced, so typing never queues up redraws;
+    - the axes are cached as pixmaps (re-drawing their tick labels is most of a plot's paint) and
+      the view ranges are sticky (:func:`sticky_range`): they move only when the curves leave them
+      or would fill too little of them, so most keystrokes leave the axes as they are;
+    - titles and the note are set only when their text changes."""
 
     REDRAW_MS = 30
 
@@ -720,12 +728,15 @@ class PlanPlotsPanel(QWidget):
             plot.setMinimumSize(300, 200)
             plot.showGrid(x=True, y=True, alpha=0.25)
             plot.setMenuEnabled(False)
+            for side in ("left", "bottom"):         # painted from a pixmap until their range changes
+                plot.getAxis(side).setCacheMode(QGraphicsItem.DeviceCoordinateCache)
             self.plots_layout.addWidget(plot, 1)
         self.note = QLabel("")
         self.note.setWordWrap(True)
         lay.addWidget(self.note)
         self._build_dof()
         self._build_disparity()
+        self._texts: dict[str, str] = {}                     # titles and note as last set
         self._pending = None
         self._timer = QTimer(self)
         self._timer.setSingleShot(True)
@@ -816,7 +827,7 @@ class PlanPlotsPanel(QWidget):
             r = plan.derive() if plan is not None else None
         except InputError as exc:
             r = None
-            self.note.setText(str(exc))
+            self._set_note(str(exc))
         visible = r is not None
         for item in (self.scene_region, self.sharp_region, self.coc_line, self.pixels_line, self.focus_line,
                      self.disparity_scene, self.zmin_line):
@@ -825,7 +836,7 @@ class PlanPlotsPanel(QWidget):
             for curve in (self.blur_curve, self.airy_curve, *self.disparity_curves.values()):
                 curve.setData([], [])
             if plan is None:
-                self.note.setText("No valid plan yet: fill in the Planner.")
+                self._set_note("No valid plan yet: fill in the Planner.")
             return
 
         f, pitch = plan.focal_length_mm, r.pixel_pitch_um
@@ -847,10 +858,10 @@ class PlanPlotsPanel(QWidget):
         self.pixels_line.setValue(2 * pitch)
         self.focus_line.setValue(r.focus_used_m)
         far_text = "∞" if math.isinf(r.dof_far_m) else f"{r.dof_far_m:.2f}"
-        self.dof_plot.setTitle(f"Depth of field at f/{r.f_number_used:.1f}: sharp {r.dof_near_m:.2f} – {far_text} m, "
-                               f"scene {plan.near_m:g} – {plan.far_m:g} m", color="#30343a", size="10pt")
-        self.dof_plot.setXRange(x_lo / 1000, x_hi / 1000, padding=0)
-        self.dof_plot.setYRange(0, y_top, padding=0.02)
+        self._set_title(self.dof_plot, f"Depth of field at f/{r.f_number_used:.1f}: sharp {r.dof_near_m:.2f} – "
+                                       f"{far_text} m, scene {plan.near_m:g} – {plan.far_m:g} m")
+        self._set_range("dof", "x", x_lo / 1000, x_hi / 1000)
+        self._set_range("dof", "y", -0.02 * y_top, 1.02 * y_top)
 
         # disparity against depth
         self.disparity_scene.setRegion((plan.near_m, plan.far_m))
@@ -867,11 +878,61 @@ class PlanPlotsPanel(QWidget):
         self.zmin_line.setValue(r.min_distance_m)
         lo = min(0.2, float(min(v.min() for v in y_values)))
         hi = float(max(v.max() for v in y_values))
-        self.disparity_plot.setYRange(math.log10(lo), math.log10(hi * 1.5), padding=0)
-        self.disparity_plot.setXRange(x_lo / 1000, x_hi / 1000, padding=0)
+        self._set_range("disparity", "y", math.log10(lo), math.log10(hi * 1.5))
+        self._set_range("disparity", "x", x_lo / 1000, x_hi / 1000)
         nd = r.neighbour_disparity_px
-        self.note.setText(
+        self._set_note(
             f"Spacing {plan.spacing_mm[0]:g} × {plan.spacing_mm[1]:g} mm: neighbour disparity over the scene "
             f"{nd['horizontal']:.2f} px horizontal, {nd['vertical']:.2f} px vertical; row parallax "
             f"{r.row_parallax_px:.0f} px ({100 * r.row_parallax_fraction:.1f} % of the width) over "
             f"{r.baseline_mm['horizontal']:g} mm.")
+
+    def _set_note(self, text: str) -> None:
+        if self._texts.get("note") != text:
+            self._texts["note"] = text
+            self.note.setText(text)
+
+    def _set_title(self, plot, text: str) -> None:
+        key = plot.objectName()
+        if self._texts.get(key) != text:
+            self._texts[key] = text
+            plot.setTitle(text, color="#30343a", size="10pt")
+
+    def _set_range(self, plot: str, axis: str, lo: float, hi: float) -> None:
+        """Show at least ``lo`` … ``hi`` on ``axis`` of ``plot`` ("dof" or "disparity"; the disparity
+        plot's y in log10 units), keeping the current range when it still fits (:func:`sticky_range`)."""
+        current = self.view_range(plot, axis)
+        new = sticky_range(current, lo, hi)
+        if new == current:
+            return
+        target = self.dof_plot if plot == "dof" else self.disparity_plot
+        if axis == "x":
+            target.setXRange(*new, padding=0)
+        else:
+            target.setYRange(*new, padding=0)
+
+    def view_range(self, plot: str, axis: str) -> tuple[float, float]:
+        """The range ``axis`` of ``plot`` ("dof" or "disparity") shows now (after a mouse zoom too)."""
+        target = self.dof_plot if plot == "dof" else self.disparity_plot
+        x, y = target.getPlotItem().getViewBox().viewRange()
+        lo, hi = x if axis == "x" else y
+        return float(lo), float(hi)
+
+
+#: a sticky range is kept while the wanted one fills at least this share of it
+STICKY_FILL = 0.7
+
+
+def sticky_range(current: tuple[float, float] | None, lo: float, hi: float) -> tuple[float, float]:
+    """The range to show for data spanning ``lo`` … ``hi``: the ``current`` one while the data lies
+    inside it and spans at least :data:`STICKY_FILL` of it, else exactly ``lo`` … ``hi``.
+
+    Re-drawing an axis (new ticks, new labels) is most of what a plot update costs; keeping the range
+    while the operator types small changes keeps the axes' cached pictures valid."""
+    if hi <= lo:
+        hi = lo + 1e-9
+    if current is not None:
+        c_lo, c_hi = current
+        if c_lo <= lo and hi <= c_hi and (hi - lo) >= STICKY_FILL * (c_hi - c_lo):
+            return current
+    return (float(lo), float(hi))

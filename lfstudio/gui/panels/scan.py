@@ -2,7 +2,8 @@
 progress with ETA, the current view with its step timings, and the log of events.
 
 The engine (:class:`lfstudio.scan.engine.ScanEngine`) runs on its own threads; its events reach
-this panel through a queued Qt signal and are re-published as ``AppState.scanEvent`` for the grid.
+this panel through a queued Qt signal and are re-published, a drain's worth at a time, as
+``AppState.scanEvents`` for the grid (at most 1000 / FRAME_MS drains a second: see ``_drain``).
 Devices: the rig and camera connected in the Rig/Camera panels (``state.devices``), or, in the
 simulated studio, a built-in simulated rig and camera started off the GUI thread. The scan itself
 runs as a :class:`lfstudio.studio.session.ScanSession` (dataset lock for the whole run, resume with
@@ -18,8 +19,9 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from PySide6.QtCore import QPointF, QRectF, Qt, QTimer
-from PySide6.QtGui import QAction, QBrush, QColor, QKeySequence, QPainter, QPainterPath, QPen, QPixmap
+from PySide6.QtGui import QAction, QBrush, QColor, QKeySequence, QPainter, QPen, QPixmap, QPolygonF
 from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
                                QLabel, QLineEdit, QMessageBox, QPlainTextEdit, QProgressBar, QPushButton,
                                QSizePolicy, QSpinBox, QToolButton, QVBoxLayout, QWidget)
@@ -30,18 +32,22 @@ from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import set_progress_async
 from lfstudio.jobs import format_duration
 from lfstudio.scan.events import EventKind, ScanRequestRefused, ScanState
-from lfstudio.scan.scan_plan import ORDERS, ScanPlan
+from lfstudio.scan.scan_plan import ORDERS, ScanPlan, grid_order
 
 log = logging.getLogger(__name__)
 
 ACTIVE_KEY = "scan/active_dataset"
+FRAME_MS = 40             # engine events are shown at most 25 times a second (each drain repaints)
+DRAIN_BUDGET_S = 0.010    # GUI time one drain may take before it yields to painting and input
 
 
 class PathPreview(QWidget):
     """The scan path: grid positions joined in capture order; done views filled, the current one ringed.
 
     The path and the dots are drawn once into cached pixmaps (done dots are added one at a time), so
-    repainting during a 2121-view scan costs two pixmap blits.
+    repainting during a 2121-view scan costs two pixmap blits. Drawing them is a handful of painter
+    calls whatever the grid's size: the positions are computed with numpy and handed to Qt as one
+    polyline and one point set (:func:`_points`), never one call per view.
     """
 
     def __init__(self, parent: QWidget | None = None):
@@ -55,6 +61,7 @@ class PathPreview(QWidget):
         self._base: QPixmap | None = None
         self._overlay: QPixmap | None = None
         self._geom: tuple[float, float, float, float, float, float] | None = None
+        self.rebuilds = 0               # how often the path was drawn anew (tests, benchmarks)
         self.setToolTip("Capture order: the camera visits the grid along this line, starting at the green dot")
 
     def set_plan(self, plan: ScanPlan | None) -> None:
@@ -72,9 +79,11 @@ class PathPreview(QWidget):
             new = cells - self.done
             self.done = cells
             self._paint_done(list(new))
-        else:
+        else:                           # some views are no longer done: a fresh overlay, same path
             self.done = cells
-            self._base = None
+            if self._overlay is not None:
+                self._overlay.fill(Qt.transparent)
+                self._paint_done(list(cells))
         self.update()
 
     def mark_done(self, row: int, column: int) -> None:
@@ -82,20 +91,18 @@ class PathPreview(QWidget):
         self._paint_done([(row, column)])
 
     def _paint_done(self, cells) -> None:
-        """Fill the dots of ``cells`` on the overlay, with one painter for all of them."""
+        """Fill the dots of ``cells`` on the overlay, with one painter call for all of them."""
         if self._overlay is None or self._geom is None or not cells:
             return
-        p = QPainter(self._overlay)
-        p.setRenderHint(QPainter.Antialiasing, len(cells) <= 400)   # thousands: plain dots, 10x cheaper
-        p.setPen(QPen(Qt.NoPen))
-        p.setBrush(QBrush(QColor(70, 180, 90)))
         ox, oy, sx, sy, scale, dot = self._geom
-        for row, column in cells:
-            p.drawEllipse(QPointF(ox + column * sx * scale, oy + row * sy * scale), dot, dot)
+        rc = np.asarray(cells, dtype=float).reshape(-1, 2)
+        p = QPainter(self._overlay)
+        _draw_dots(p, ox + rc[:, 1] * sx * scale, oy + rc[:, 0] * sy * scale, dot, QColor(70, 180, 90))
         p.end()
 
     def _rebuild(self) -> None:
         plan = self.plan
+        self.rebuilds += 1
         self._base = QPixmap(self.size())
         self._base.fill(QColor(30, 32, 36))
         self._overlay = QPixmap(self.size())
@@ -121,31 +128,19 @@ class PathPreview(QWidget):
         dot = max(1.5, min(4.0, sx * scale / 3))
         self._geom = (ox, oy, sx, sy, scale, dot)
 
-        def pt(r: int, c: int) -> QPointF:
-            return QPointF(ox + c * sx * scale, oy + r * sy * scale)
-
-        views = plan.views()
-        path = QPainterPath()
-        if views:
-            path.moveTo(pt(views[0].row, views[0].column))
-            for v in views[1:]:
-                path.lineTo(pt(v.row, v.column))
-        p.setPen(QPen(QColor(110, 150, 220), 1.2))
-        p.drawPath(path)
-        p.setPen(QPen(Qt.NoPen))
-        p.setBrush(QBrush(QColor(140, 144, 152)))
-        many = len(views) > 400
-        p.setRenderHint(QPainter.Antialiasing, not many)     # thousands of dots: plain squares are 10x cheaper
-        for v in views:
-            c = pt(v.row, v.column)
-            if many:
-                p.drawRect(QRectF(c.x() - dot, c.y() - dot, 2 * dot, 2 * dot))
-            else:
-                p.drawEllipse(c, dot, dot)
-        p.setRenderHint(QPainter.Antialiasing)
-        if views:
+        cells = grid_order(cols, rows, plan.order)
+        if plan.subset is not None:
+            cells = [rc for rc in cells if rc in plan.subset]
+        rc = np.asarray(cells, dtype=float).reshape(-1, 2)
+        x, y = ox + rc[:, 1] * sx * scale, oy + rc[:, 0] * sy * scale
+        if len(rc):
+            p.setPen(QPen(QColor(110, 150, 220), 1.2))
+            p.drawPolyline(_points(x, y))
+            _draw_dots(p, x, y, dot, QColor(140, 144, 152))
+            p.setRenderHint(QPainter.Antialiasing)
+            p.setPen(QPen(Qt.NoPen))
             p.setBrush(QBrush(QColor(60, 220, 90)))
-            p.drawEllipse(pt(views[0].row, views[0].column), dot + 2, dot + 2)
+            p.drawEllipse(QPointF(x[0], y[0]), dot + 2, dot + 2)
         x0, x1, y0, y1 = plan.extent_mm()
         p.setPen(QColor(190, 190, 190))
         p.drawText(QRectF(4, self.height() - 16, self.width() - 8, 14), Qt.AlignLeft | Qt.AlignVCenter,
@@ -171,6 +166,26 @@ class PathPreview(QWidget):
             p.setBrush(QBrush(Qt.NoBrush))
             p.drawEllipse(QPointF(ox + c * sx * scale, oy + r * sy * scale), dot + 4, dot + 4)
         p.end()
+
+
+def _points(x: np.ndarray, y: np.ndarray) -> QPolygonF:
+    """A QPolygonF of the points (x, y), filled from numpy in one copy (no Python loop)."""
+    import pyqtgraph.functions as pgf
+
+    return pgf.arrayToQPolygonF(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(y, dtype=float))
+
+
+def _draw_dots(p: QPainter, x: np.ndarray, y: np.ndarray, radius: float, colour: QColor) -> None:
+    """Dots of ``radius`` at (x, y) in one call: a wide pen's points, round and antialiased for a few
+    hundred, plain squares for thousands (10x cheaper, and too small to tell apart)."""
+    many = len(x) > 400
+    pen = QPen(colour, 2 * radius)
+    pen.setCapStyle(Qt.SquareCap if many else Qt.RoundCap)
+    p.save()
+    p.setRenderHint(QPainter.Antialiasing, not many)
+    p.setPen(pen)
+    p.drawPoints(_points(x, y))
+    p.restore()
 
 
 def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
@@ -251,9 +266,16 @@ class ScanPanel(QWidget):
         self._restore: list | None = None     # see prepare_scan / restore_time_scales
         self._pending_recapture: list[tuple[int, int]] = []
         self._last_start: list[tuple[int, int]] | None = None
+        self._drain_timer = QTimer(self)
+        self._drain_timer.setSingleShot(True)
+        self._drain_timer.timeout.connect(self._drain)
+        self._last_drain_s = 0.0
         self._backlog: deque = deque()
         self.bridge = GuiInbox(self._take_events, self)     # engine events, from its threads
         self._draining = False
+        self._done_batch: list[tuple[int, int]] = []     # views done in this drain (path preview)
+        self._to_publish: list = []                      # this drain's events for AppState.scanEvents
+        self._current_text: str | None = None           # the current view's line, as of this drain
         self._log_lines: list[str] = []
         self.opener = JobRunner(self)
         self.opener.finished.connect(self._devices_ready)
@@ -716,13 +738,23 @@ class ScanPanel(QWidget):
 
     # -- events ------------------------------------------------------------------------------------
     def _take_events(self, events: list) -> None:
+        """The engine's events (from the inbox): handled at most once a frame, see :meth:`_wake`."""
         self._backlog.extend(events)
-        if not self._draining:
-            self._drain()
+        self._wake()
+
+    def _wake(self) -> None:
+        """Engine events are waiting: drain them now if the last drain was a frame ago, else when
+        that frame is over (at most 1000 / FRAME_MS times a second however fast views come)."""
+        if self._drain_timer.isActive() or self._draining:
+            return
+        wait_ms = FRAME_MS - (time.perf_counter() - self._last_drain_s) * 1000.0
+        self._drain_timer.start(max(0, int(wait_ms)))
 
     def _drain(self) -> None:
-        """Handle queued engine events for at most ~15 ms, then yield to the event loop."""
-        t_end = time.perf_counter() + 0.015
+        """Handle queued engine events for at most DRAIN_BUDGET_S, then yield to the event loop.
+        What shows the latest state (current view, progress, done dots) is drawn once per drain."""
+        self._last_drain_s = time.perf_counter()
+        t_end = self._last_drain_s + DRAIN_BUDGET_S
         self._draining = True
         last_done = None
         try:
@@ -733,13 +765,20 @@ class ScanPanel(QWidget):
                 self._on_event(ev, batched=True)
         finally:
             self._draining = False
+            self._publish_pending()
+        if self._done_batch:
+            cells, self._done_batch = self._done_batch, []
+            self.preview.set_done(self.preview.done | set(cells))
+        if self._current_text is not None:
+            self.current.setText(self._current_text)
+            self._current_text = None
         if last_done is not None:
             self._show_done(last_done)
         if self._log_lines:
             self.log_view.appendPlainText("\n".join(self._log_lines))
             self._log_lines = []
-        if self._backlog:
-            QTimer.singleShot(0, self._drain)
+        if self._backlog:                    # more than a slice: go on after the pending paints
+            self._drain_timer.start(0)
 
     def _show_done(self, ev) -> None:
         self._set_progress(ev.done, ev.total)
@@ -748,25 +787,43 @@ class ScanPanel(QWidget):
         self.preview.update()
 
     def _on_event(self, ev, batched: bool = False) -> None:
-        self.state.scanEvent.emit(ev)
         kind = ev.kind
+        if not batched:
+            self.state.publish_scan_events([ev])
+        elif kind is EventKind.STATE:       # listeners see every event before a state change is acted on
+            self._publish_pending()
+            self.state.publish_scan_events([ev])
+        else:
+            self._to_publish.append(ev)
         if kind is EventKind.STATE:
             self._show_state(ev.state, ev.message)
             self._log(ev.describe())
         elif kind is EventKind.VIEW_STARTED:
-            self.current.setText(f"Current view: row {ev.row}, column {ev.column} "
-                                 f"(#{ev.index + 1 if ev.index is not None else '?'}) — moving")
+            self._set_current(f"Current view: row {ev.row}, column {ev.column} "
+                              f"(#{ev.index + 1 if ev.index is not None else '?'}) — moving", batched)
             self.preview.current = (ev.row, ev.column)
             self.preview.update()
         elif kind is EventKind.VIEW_EXPOSED:
-            self.current.setText(f"Current view: row {ev.row}, column {ev.column} — exposed, transferring")
+            self._set_current(f"Current view: row {ev.row}, column {ev.column} — exposed, transferring", batched)
         elif kind is EventKind.VIEW_DONE:
-            self.preview.mark_done(ev.row, ev.column)
-            if not batched:
+            if batched:
+                self._done_batch.append((ev.row, ev.column))
+            else:
+                self.preview.mark_done(ev.row, ev.column)
                 self._show_done(ev)
             self._log(ev.describe())
         elif kind in (EventKind.VIEW_FAILED, EventKind.FAULT, EventKind.VIEW_SKIPPED, EventKind.LOG):
             self._log(("⚠ " if kind in (EventKind.FAULT, EventKind.VIEW_FAILED) else "") + ev.describe())
+
+    def _publish_pending(self) -> None:
+        events, self._to_publish = self._to_publish, []
+        self.state.publish_scan_events(events)
+
+    def _set_current(self, text: str, batched: bool) -> None:
+        if batched:
+            self._current_text = text       # shown once, at the end of the drain
+        else:
+            self.current.setText(text)
 
     def _show_state(self, st: ScanState, message: str) -> None:
         colors = {ScanState.RUNNING: "#60c070", ScanState.PAUSED: "#f0b030", ScanState.PAUSING: "#f0b030",
@@ -775,6 +832,7 @@ class ScanPanel(QWidget):
         color = "#e06060" if fault else colors.get(st, "#c0c0c0")
         self.state_label.setText(f"<b style='color:{color}'>{st.value.capitalize()}</b> {message}")
         if st in (ScanState.PAUSED, ScanState.FINISHED, ScanState.FAILED):
+            self._current_text = None
             self.current.setText("Current view: –")
             self.preview.current = None
             self.preview.update()

@@ -16,8 +16,11 @@ clicking a flagged view shows it beside its neighbours.
 
 from __future__ import annotations
 
+import atexit
 import logging
+import os
 import threading
+import weakref
 from collections import OrderedDict
 from functools import partial
 from pathlib import Path
@@ -48,7 +51,10 @@ STATE_COLORS = {PENDING: QColor(70, 74, 82), CAPTURING: QColor(255, 176, 32), DO
 TILE_W, TILE_H = 48, 32          # mosaic tile (low zoom)
 FULL_ZOOM_PX = 56                # from this cell width on, draw the full thumbnails
 FLAG_COLORS = {"warn": QColor(255, 225, 0), "fail": QColor(230, 60, 60)}   # yellow: not the amber of "capturing"
+FLAG_CODES = {"warn": 1, "fail": 2}       # GridCanvas._verdicts: 0 for a pass or no verdict
 OVERLAY_ALPHA = 215
+FRAME_MS = 40                    # the grid repaints what changed at most 25 times a second
+VERDICT_MS = 100                 # scan-time verdicts are shown in batches at most this often
 MAX_RECENT = 8
 
 
@@ -66,35 +72,87 @@ def _file_thumbnail(path: str, width_px: int) -> QImage:
     return QImage() if bgr is None else rgb_to_qimage(np.ascontiguousarray(bgr[..., ::-1]))
 
 
-class ThumbLoader(QObject):
-    """Decodes thumbnails on one background thread; newest requests first. ``loaded(key, QImage)``."""
+def _outlines(x: np.ndarray, y: np.ndarray, w: float, h: float):
+    """One QPainterPath of the outlines of w x h rectangles at (x, y), built from numpy in one go
+    (a painter call per flagged view would cost thousands of Python calls on a big grid)."""
+    import pyqtgraph.functions as pgf
 
-    loaded = Signal(object, QImage)
+    xs = np.stack([x, x + w, x + w, x, x], axis=1).ravel().astype(float)
+    ys = np.stack([y, y, y + h, y + h, y], axis=1).ravel().astype(float)
+    connect = np.tile(np.array([1, 1, 1, 1, 0], dtype=np.int32), len(x))
+    return pgf.arrayToQPath(xs, ys, connect=connect)
+
+
+_LOADERS: "weakref.WeakSet[ThumbLoader]" = weakref.WeakSet()
+
+
+@atexit.register
+def _stop_loaders() -> None:
+    """Let every loader finish its thumbnail before the interpreter ends: a daemon thread killed
+    inside Qt's decoder aborts the process ("terminate called without an active exception")."""
+    for loader in list(_LOADERS):
+        try:
+            loader.stop()
+        except RuntimeError:        # its Qt object is gone already; so is the thread's work
+            pass
+
+
+class ThumbLoader(QObject):
+    """Decodes thumbnails on one background thread; newest requests first.
+
+    Decoded images reach the GUI thread in batches (:class:`~lfstudio.gui.bridge.GuiInbox`); ``ready``
+    says some are waiting and the grid takes them all (:meth:`take`) once a frame: during a fast scan the
+    GUI handles a batch, not one Python call (and one GIL hand-over) per thumbnail."""
+
+    ready = Signal()
 
     def __init__(self, parent: QObject | None = None):
         super().__init__(parent)
+        _LOADERS.add(self)
         self._stack: list[tuple[Any, str, QSize]] = []
         self._queued: set[Any] = set()
         self._cond = threading.Condition()
         self._stop = False
         self._generation = 0
-        self._inbox = GuiInbox(lambda done: [self.loaded.emit(key, image) for key, image in done], self)
+        self._done: list[tuple[Any, QImage]] = []       # arrived on the GUI thread, not taken yet
+        self._inbox = GuiInbox(self._arrived, self)
         self._thread = threading.Thread(target=self._run, name="thumb-loader", daemon=True)
         self._thread.start()
 
     def request(self, key: Any, path: str, size: QSize) -> None:
+        self.request_many([(key, path, size)])
+
+    def request_many(self, items: list[tuple[Any, str, QSize]]) -> None:
+        """Queue several (key, path, size) at once (one lock, one wake-up)."""
         with self._cond:
-            if key in self._queued:
-                return
-            self._queued.add(key)
-            self._stack.append((key, path, size))
-            self._cond.notify()
+            added = False
+            for key, path, size in items:
+                if key in self._queued:
+                    continue
+                self._queued.add(key)
+                self._stack.append((key, path, size))
+                added = True
+            if added:
+                self._cond.notify()
+
+    def take(self) -> list[tuple[Any, QImage]]:
+        """The thumbnails decoded since the last call (GUI thread), oldest first."""
+        done, self._done = self._done, []
+        return done
+
+    def _arrived(self, items: list) -> None:
+        """GUI thread (the inbox): keep the batch for :meth:`take` and say so once."""
+        generation = self._generation
+        self._done.extend((key, image) for g, key, image in items if g == generation)
+        if self._done:
+            self.ready.emit()
 
     def clear(self) -> None:
         with self._cond:
             self._stack.clear()
             self._queued.clear()
             self._generation += 1
+        self._done.clear()
 
     def stop(self) -> None:
         with self._cond:
@@ -114,10 +172,9 @@ class ThumbLoader(QObject):
             image = _file_thumbnail(path, max(size.width(), 1))
             with self._cond:
                 self._queued.discard(key)
-                if generation != self._generation:
+                if generation != self._generation or image.isNull():
                     continue
-            if not image.isNull():
-                self._inbox.post((key, image))
+            self._inbox.post((generation, key, image))
 
 
 class GridCanvas(QAbstractScrollArea):
@@ -149,7 +206,12 @@ class GridCanvas(QAbstractScrollArea):
         self._drag_from: tuple[int, int] | None = None
         self._drag_to: tuple[int, int] | None = None
         self.loader = ThumbLoader(self)
-        self.loader.loaded.connect(self._on_loaded)
+        self._dirty: list[tuple[int, int]] = []          # cells changed since the last frame
+        self._frame_timer = QTimer(self)
+        self._frame_timer.setSingleShot(True)
+        self._frame_timer.setInterval(FRAME_MS)
+        self._frame_timer.timeout.connect(self._frame)
+        self.loader.ready.connect(self._thumbnails_ready, Qt.QueuedConnection)
         self.setToolTip("Thumbnails as on the rig. Ctrl+wheel or +/- zooms, F fits; click or drag to select, "
                         "double-click opens a view full size")
         self._tip_cell: tuple[int, int] | None = None
@@ -157,6 +219,7 @@ class GridCanvas(QAbstractScrollArea):
         self.quality_doc: dict | None = None               # thresholds etc. for the heat-map scales
         self.overlay_key = ""
         self._overlay: np.ndarray | None = None            # rows x columns x 4 (RGBA) heat map
+        self._verdicts = np.zeros((0, 0), np.int8)          # rows x columns FLAG_CODES, for painting
 
     # -- quality -----------------------------------------------------------------------------------
     def set_quality(self, doc: dict | None) -> None:
@@ -164,19 +227,33 @@ class GridCanvas(QAbstractScrollArea):
         self.quality_doc = doc
         self.quality = {(int(v["row"]), int(v["column"])): v for v in (doc or {}).get("views", [])
                         if v.get("checks")}
+        self._verdicts = np.zeros((self.rows, self.columns), np.int8)
+        for cell, entry in self.quality.items():
+            self._set_verdict(cell, entry)
         self._rebuild_overlay()
 
     def update_quality(self, entry: dict, doc: dict | None = None) -> None:
-        """One view's new verdict (scan-time check)."""
+        """One view's new verdict (scan-time check): that cell alone is recoloured and repainted."""
+        self.update_quality_many([entry], doc)
+
+    def update_quality_many(self, entries: list[dict], doc: dict | None = None) -> None:
+        """New verdicts of some views (scan-time check, coalesced): only their cells change."""
         if doc is not None and self.quality_doc is None:
             self.quality_doc = doc
-        cell = (int(entry["row"]), int(entry["column"]))
-        self.quality[cell] = entry
-        if self._overlay is None:
-            self._rebuild_overlay()
-        else:                     # one cell changed: no need to recolour the whole grid
-            self._colour_cell(cell, entry)
-        self.viewport().update(self._cell_rect(*cell).adjusted(-3, -3, 3, 3))
+            if self.overlay_key:
+                self._rebuild_overlay()
+        for entry in entries:
+            cell = (int(entry["row"]), int(entry["column"]))
+            self.quality[cell] = entry
+            self._set_verdict(cell, entry)
+            if self._overlay is not None:
+                self._colour_cell(cell, entry)
+            self._mark_dirty(*cell)
+
+    def _set_verdict(self, cell: tuple[int, int], entry: dict) -> None:
+        r, c = cell
+        if 0 <= r < self.rows and 0 <= c < self.columns and self._verdicts.shape == (self.rows, self.columns):
+            self._verdicts[r, c] = FLAG_CODES.get(entry.get("verdict"), 0)
 
     def set_overlay(self, key: str) -> None:
         self.overlay_key = key or ""
@@ -214,20 +291,24 @@ class GridCanvas(QAbstractScrollArea):
             p.setRenderHint(QPainter.SmoothPixmapTransform, False)
             p.drawImage(QRectF(ox + c0 * px, oy + r0 * py, (c1 - c0) * px, (r1 - r0) * py), img)
         p.setBrush(Qt.NoBrush)
-        for (r, c), entry in self.quality.items():
-            colour = FLAG_COLORS.get(entry.get("verdict"))
-            if colour is None or not (r0 <= r < r1 and c0 <= c < c1):
+        block = self._verdicts[r0:r1, c0:c1]       # only the cells being painted, found with numpy
+        for code, colour in ((FLAG_CODES["warn"], FLAG_COLORS["warn"]), (FLAG_CODES["fail"], FLAG_COLORS["fail"])):
+            cells = np.argwhere(block == code)
+            if not len(cells):
                 continue
             p.setPen(QPen(colour, 1 if thin else 3))
-            rect = QRectF(ox + c * px, oy + r * py, px - self.gap_px, py - self.gap_px)
-            p.drawRect(rect.adjusted(1, 1, -1, -1) if not thin else rect)
+            inset = 0 if thin else 1
+            p.drawPath(_outlines(ox + (c0 + cells[:, 1]) * px + inset, oy + (r0 + cells[:, 0]) * py + inset,
+                                 px - self.gap_px - 2 * inset, py - self.gap_px - 2 * inset))
 
     # -- data --------------------------------------------------------------------------------------
     def set_dataset(self, dataset: Any) -> None:
         self.loader.clear()
+        self._dirty = []
         self._cache.clear()
         self.selected.clear()
         self.quality, self.quality_doc, self._overlay = {}, None, None
+        self._verdicts = np.zeros((0, 0), np.int8)
         if dataset is None:
             self.rows = self.columns = 0
             self.status = np.zeros((0, 0), np.int8)
@@ -246,6 +327,7 @@ class GridCanvas(QAbstractScrollArea):
                     self.status[r, c] = STATUS_CODES.get(v.get("status"), PENDING)
                     if is_done(v):
                         self.thumbs[(r, c)] = v.get("thumb") or v["file"]
+            self._verdicts = np.zeros((self.rows, self.columns), np.int8)
             self.mosaic = QImage(self.columns * TILE_W, self.rows * TILE_H, QImage.Format_RGB32)
             self.mosaic.fill(QColor(0, 0, 0))
             self._mosaic_has = np.zeros((self.rows, self.columns), bool)
@@ -262,7 +344,7 @@ class GridCanvas(QAbstractScrollArea):
             self._cache.pop((row, column), None)
             self._mosaic_has[row, column] = False
             self._request((row, column), full=False)
-        self.viewport().update(self._cell_rect(row, column).adjusted(-2, -2, 2, 2))
+        self._mark_dirty(row, column)
 
     # -- geometry ----------------------------------------------------------------------------------
     def _pitch(self) -> tuple[float, float]:
@@ -348,29 +430,64 @@ class GridCanvas(QAbstractScrollArea):
 
     # -- thumbnails ------------------------------------------------------------------------------
     def _request(self, cell: tuple[int, int], full: bool) -> None:
-        rel = self.thumbs.get(cell)
-        if rel is None or self.root is None:
+        self._request_many([cell], full)
+
+    def _request_many(self, cells: list[tuple[int, int]], full: bool) -> None:
+        if self.root is None or not cells:
             return
         size = QSize(160, 160) if full else QSize(TILE_W, TILE_H)
-        self.loader.request((cell, full), str(self.root / rel), size)
+        root = str(self.root)              # os.path.join: 2121 pathlib joins cost ~20 ms on opening
+        items = [((cell, full), os.path.join(root, self.thumbs[cell]), size) for cell in cells if cell in self.thumbs]
+        self.loader.request_many(items)
 
-    def _on_loaded(self, key: Any, image: QImage) -> None:
-        (r, c), full = key
-        if not (0 <= r < self.rows and 0 <= c < self.columns) or self.mosaic is None:
-            return
-        if full:
-            self._cache[(r, c)] = image
-            self._cache.move_to_end((r, c))
-            while len(self._cache) > self._cache_max:
-                self._cache.popitem(last=False)
-        if not self._mosaic_has[r, c]:   # a full thumbnail fills the mosaic tile too
-            painter = QPainter(self.mosaic)
-            target = QRect(c * TILE_W, r * TILE_H, TILE_W, TILE_H)
-            painter.fillRect(target, Qt.black)
-            painter.drawImage(target, image)   # stretched: no letterbox lines between tiles
+    def _thumbnails_ready(self) -> None:
+        if not self._frame_timer.isActive():
+            self._frame_timer.start()
+
+    def _take_loaded(self) -> None:
+        """Put every thumbnail the loader has finished into the cache and the mosaic (one painter)."""
+        painter = None
+        for ((r, c), full), image in self.loader.take():
+            if not (0 <= r < self.rows and 0 <= c < self.columns) or self.mosaic is None:
+                continue
+            if full:
+                self._cache[(r, c)] = image
+                self._cache.move_to_end((r, c))
+                while len(self._cache) > self._cache_max:
+                    self._cache.popitem(last=False)
+            if not self._mosaic_has[r, c]:   # a full thumbnail fills the mosaic tile too
+                if painter is None:
+                    painter = QPainter(self.mosaic)
+                target = QRect(c * TILE_W, r * TILE_H, TILE_W, TILE_H)
+                painter.fillRect(target, Qt.black)
+                painter.drawImage(target, image)   # stretched: no letterbox lines between tiles
+                self._mosaic_has[r, c] = True
+            self._dirty.append((r, c))
+        if painter is not None:
             painter.end()
-            self._mosaic_has[r, c] = True
-        self.viewport().update(self._cell_rect(r, c))
+
+    # -- repainting: changed cells are collected and repainted together, once a frame ---------------
+    def _mark_dirty(self, row: int, column: int) -> None:
+        """Repaint the cell at the next frame (with every other cell changed until then)."""
+        if 0 <= row < self.rows and 0 <= column < self.columns:
+            self._dirty.append((row, column))
+            if not self._frame_timer.isActive():
+                self._frame_timer.start()
+
+    def _frame(self) -> None:
+        """Once a frame (FRAME_MS) while cells change: thumbnails that arrived go into the mosaic, then
+        one repaint of the block holding every changed cell, however many scan events, verdicts and
+        thumbnails came in meanwhile."""
+        self._take_loaded()
+        if not self._dirty:
+            return
+        cells = np.asarray(self._dirty)
+        self._dirty = []
+        (r0, c0), (r1, c1) = cells.min(axis=0), cells.max(axis=0)
+        px, py = self._pitch()
+        ox, oy = self._offset()
+        rect = QRectF(ox + c0 * px, oy + r0 * py, (c1 - c0 + 1) * px, (r1 - r0 + 1) * py)
+        self.viewport().update(rect.toAlignedRect().adjusted(-2, -2, 2, 2))
 
     # -- painting ----------------------------------------------------------------------------------
     def _paint_overview(self, p: QPainter, r0: int, r1: int, c0: int, c1: int, px: float, py: float,
@@ -405,8 +522,7 @@ class GridCanvas(QAbstractScrollArea):
                 p.setBrush(Qt.NoBrush)
                 rect = QRectF(ox + (c0 + c) * px, oy + (r0 + r) * py, px - self.gap_px, py - self.gap_px)
                 p.drawRect(rect.adjusted(1, 1, -1, -1))
-        for r, c in np.argwhere(waiting):
-            self._request((r0 + int(r), c0 + int(c)), full=False)
+        self._request_many([(r0 + int(r), c0 + int(c)) for r, c in np.argwhere(waiting)], full=False)
 
     def paintEvent(self, event) -> None:
         p = QPainter(self.viewport())
@@ -685,14 +801,19 @@ class GridView(QWidget):
             qb.overlay.setCurrentIndex(index)
             self.canvas.set_overlay(saved)
         state.datasetChanged.connect(self.set_dataset)
-        scan_event = getattr(state, "scanEvent", None)
-        if scan_event is not None:
-            scan_event.connect(self.on_scan_event)
+        scan_events = getattr(state, "scanEvents", None)
+        if scan_events is not None:
+            scan_events.connect(self.on_scan_events)
         self._recent_menu: QMenu | None = None
         self._counts_timer = QTimer(self)
         self._counts_timer.setSingleShot(True)
         self._counts_timer.setInterval(200)
         self._counts_timer.timeout.connect(self._update_counts)
+        self._verdict_batch: list[dict] = []     # scan-time verdicts not shown yet
+        self._verdict_timer = QTimer(self)
+        self._verdict_timer.setSingleShot(True)
+        self._verdict_timer.setInterval(VERDICT_MS)
+        self._verdict_timer.timeout.connect(self._show_live_verdicts)
         self.set_dataset(state.dataset)
 
     def _tool(self, text: str, tip: str, slot) -> QToolButton:
@@ -729,6 +850,10 @@ class GridView(QWidget):
         self.counts.setText(f"{n[DONE]} done · {n[PENDING] + n[CAPTURING]} to capture · {n[FAILED]} failed"
                             + (f" · {n[SKIPPED]} skipped" if n[SKIPPED] else ""))
 
+    def on_scan_events(self, events: list) -> None:
+        for ev in events:
+            self.on_scan_event(ev)
+
     def on_scan_event(self, ev: Any) -> None:
         kind = getattr(ev.kind, "value", ev.kind)
         if kind == "state" and getattr(ev.state, "value", ev.state) in ("paused", "finished") \
@@ -746,7 +871,8 @@ class GridView(QWidget):
             self.canvas.set_cell(ev.row, ev.column, FAILED if "failed" in ev.message else SKIPPED)
         elif kind in ("view-failed", "fault"):
             self.canvas.set_cell(ev.row, ev.column, FAILED if not ev.will_retry else CAPTURING)
-        self._counts_timer.start()
+        if not self._counts_timer.isActive():     # at most every 200 ms, also while views keep coming
+            self._counts_timer.start()
 
     def _on_selection(self, n: int) -> None:
         self.recapture_button.setEnabled(n > 0)
@@ -935,13 +1061,25 @@ class GridView(QWidget):
     def _on_live_verdict(self, source: LiveQuality, entry: dict) -> None:
         if source is not self.live:
             return                      # a late verdict of a scan whose dataset is no longer shown
-        self.canvas.update_quality(entry, self.live.document() if self.canvas.quality_doc is None else None)
+        self._verdict_batch.append(entry)
+        if not self._verdict_timer.isActive():   # verdicts are shown together, a few times a second
+            self._verdict_timer.start()
+
+    def _show_live_verdicts(self) -> None:
+        entries, self._verdict_batch = self._verdict_batch, []
+        if not entries or self.live is None:
+            return
+        self.canvas.update_quality_many(entries, self.live.document() if self.canvas.quality_doc is None else None)
         self.quality_bar.set_summary(self.canvas.quality, live=True)
-        if entry.get("verdict") == "fail":
+        failed = [e for e in entries if e.get("verdict") == "fail"]
+        if failed:
+            entry = failed[-1]
             self.state.show_status(f"View r{entry['row']:02d} c{entry['column']:03d} failed the check: "
                                    + "; ".join(entry.get("reasons", [])), 10000)
 
     def _stop_live(self) -> None:
+        self._verdict_timer.stop()
+        self._verdict_batch = []
         if self.live is not None:
             self.live.shutdown()
             self.live = None

@@ -1,0 +1,391 @@
+"""The GUI thread only paints: the watchdog names what stalls it; the work behind the stalls found with
+it (planner plots, the scan path, the grid, scan events, opening a dataset) is done in place, once a
+frame or off the GUI thread. Behaviour only: timing figures are in benchmarks/ (grid_gui.py,
+planner_update.py), not here."""
+
+from __future__ import annotations
+
+import gc
+import json
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+
+import numpy as np
+import pytest
+from PySide6.QtWidgets import QGraphicsItem
+
+from lfstudio.dataset import Dataset
+from lfstudio.gui.heartbeat import Heartbeat, keep_out_of_gc
+from lfstudio.gui.imageutil import qimage_to_rgb
+from lfstudio.gui.panels.planner import STICKY_FILL, PlanPlotsPanel, sticky_range
+from lfstudio.gui.panels.scan import PathPreview
+from lfstudio.gui.state import AppState
+from lfstudio.gui.views.grid_view import DONE, GridView
+from lfstudio.planning.presets import reference_plan
+from lfstudio.rig.profile import load_rig
+from lfstudio.scan.events import EventKind, ScanEvent
+from lfstudio.scan.scan_plan import ScanPlan
+from lfstudio.sim.instant import InstantCamera, InstantRig
+from lfstudio.studio.session import create_scan_dataset
+
+RIG = load_rig()
+
+
+# -- the watchdog --------------------------------------------------------------------------------------
+def _hold_the_gui_thread(heart: Heartbeat, sampled: threading.Event) -> None:
+    """Runs on the GUI thread: busy until the watchdog has seen this function and the heartbeat's
+    tick is overdue by more than its warning threshold (no sleep: the GUI thread computes)."""
+    limit = time.perf_counter() + 30.0
+    overdue_s = (heart.interval_ms + heart.warn_ms) / 1000.0 + 0.005
+    x = 0
+    while time.perf_counter() < limit:
+        x += 1
+        if sampled.is_set() and time.perf_counter() - heart._last > overdue_s:
+            return
+
+
+def test_watchdog_names_the_code_that_stalled_the_gui_thread(qtbot):
+    from PySide6.QtCore import QTimer
+
+    heart = Heartbeat(interval_ms=10, warn_ms=20, watch=True)
+    sampled = threading.Event()
+    heart.on_sample = lambda where: sampled.set() if "_hold_the_gui_thread" in where else None
+    heart.start()
+    try:
+        QTimer.singleShot(0, lambda: _hold_the_gui_thread(heart, sampled))
+        qtbot.waitUntil(lambda: bool(heart.stalls), timeout=30000)
+    finally:
+        heart.stop()
+    stall = heart.stalls[0]
+    assert stall.duration_ms > heart.warn_ms
+    assert "_hold_the_gui_thread" in stall.where and stall.samples >= 1
+    assert stall.cpu_ms > 0                      # the GUI thread itself was busy (not waiting)
+    assert heart.max_stall_ms >= stall.duration_ms and heart.max_cpu_ms > 0
+    assert "_hold_the_gui_thread" in str(stall)
+
+
+def test_heartbeat_without_watch_records_stalls_but_no_source(qtbot):
+    from PySide6.QtCore import QTimer
+
+    heart = Heartbeat(interval_ms=10, warn_ms=20, record=True)
+    heart.start()
+    QTimer.singleShot(0, lambda: _spin_past(heart))
+    qtbot.waitUntil(lambda: bool(heart.stalls), timeout=30000)
+    heart.stop()
+    assert heart.stalls[0].where == "not watched" and heart.stalls[0].samples == 0
+    assert heart.tick_log and all(len(t) == 3 for t in heart.tick_log)
+
+
+def _spin_past(heart: Heartbeat) -> None:
+    limit = time.perf_counter() + 30.0
+    while time.perf_counter() < limit and time.perf_counter() - heart._last < (heart.interval_ms + heart.warn_ms) / 1000 + 0.01:
+        pass
+
+
+def test_the_application_watchdog_and_its_diagnosis_mode(qtbot, monkeypatch):
+    from PySide6.QtCore import QObject
+
+    from lfstudio.gui.heartbeat import install_watchdog
+
+    parent = QObject()
+    monkeypatch.delenv("LFSTUDIO_WATCHDOG", raising=False)
+    heart = install_watchdog(parent)
+    try:
+        assert heart.watch and not heart.events and heart.warn_ms == 50.0
+        assert heart._sampler is not None and heart._timer.isActive()
+    finally:
+        heart.stop()
+    monkeypatch.setenv("LFSTUDIO_WATCHDOG", "30")
+    heart = install_watchdog(parent)
+    try:
+        assert heart.events and heart.warn_ms == 30.0 and heart._tap is not None
+    finally:
+        heart.stop()
+    assert heart._sampler is None and heart._tap is None
+
+
+def test_keep_out_of_gc_freezes_what_is_alive():
+    gc.unfreeze()
+    records = [{"row": i, "column": i} for i in range(5000)]
+    keep_out_of_gc()
+    try:
+        assert gc.get_freeze_count() >= len(records)
+    finally:
+        gc.unfreeze()
+
+
+def test_opening_a_dataset_freezes_its_records(qtbot, tmp_path):
+    ds = create_scan_dataset(tmp_path / "ds", ScanPlan.centered(20, 10, (4.0, 6.0), RIG), rig={"name": RIG.name},
+                             camera={"name": "instant"}, lens={"name": "t"})
+    gc.unfreeze()
+    try:
+        AppState().set_dataset(Dataset.open(ds.root))
+        assert gc.get_freeze_count() >= 200          # at least one object per view record
+    finally:
+        gc.unfreeze()
+
+
+# -- planner plots -----------------------------------------------------------------------------------
+def test_sticky_range_keeps_a_range_the_data_fills_and_moves_otherwise():
+    assert sticky_range(None, 1.0, 5.0) == (1.0, 5.0)
+    assert sticky_range((1.0, 5.0), 1.2, 4.9) == (1.0, 5.0)            # inside, fills 92 %
+    assert sticky_range((1.0, 5.0), 0.9, 4.9) == (0.9, 4.9)            # leaves it below
+    assert sticky_range((1.0, 5.0), 2.0, 3.0) == (2.0, 3.0)            # fills too little of it
+    lo, hi = 1.0, 1.0 + 4.0 * STICKY_FILL
+    assert sticky_range((1.0, 5.0), lo, hi) == (1.0, 5.0)              # the threshold itself keeps it
+
+
+def test_plan_plots_update_their_items_in_place(qtbot):
+    state = AppState()
+    plots = PlanPlotsPanel(state)
+    qtbot.addWidget(plots)
+    plots.resize(900, 450)
+    plots.show()
+    plan = reference_plan()
+    plots.draw(plan)
+    dof_items = list(plots.dof_plot.getPlotItem().items)
+    disparity_items = list(plots.disparity_plot.getPlotItem().items)
+    curves = dict(plots.disparity_curves)
+    blur = plots.blur_curve
+    blur_before = blur.getData()[1].copy()
+    h_before = curves["h"].getData()[1].copy()
+    x_range = plots.view_range("dof", "x")
+
+    plots.draw(plan.replace(near_m=1.8, spacing_mm=(4.1, 6.0)))        # a keystroke's worth of change
+
+    assert plots.dof_plot.getPlotItem().items == dof_items             # no item added or replaced
+    assert plots.disparity_plot.getPlotItem().items == disparity_items
+    assert plots.blur_curve is blur and plots.disparity_curves == curves
+    assert not np.allclose(curves["h"].getData()[1], h_before)         # new data in the same curve
+    assert plots.scene_region.getRegion()[0] == pytest.approx(1.8)
+    assert plots.view_range("dof", "x") == x_range                     # small change: axes left as they are
+    assert not np.array_equal(blur.getData()[1], blur_before)          # focus moved with the near distance
+    for plot in (plots.dof_plot, plots.disparity_plot):
+        for side in ("left", "bottom"):
+            assert plot.getAxis(side).cacheMode() == QGraphicsItem.DeviceCoordinateCache
+
+    plots.draw(plan.replace(near_m=0.4, far_m=30.0))                   # a different scene: ranges follow
+    lo, hi = plots.view_range("dof", "x")
+    assert lo < 0.4 and hi >= 30.0
+
+
+def test_plan_plots_keep_the_note_and_title_when_nothing_changed(qtbot):
+    state = AppState()
+    plots = PlanPlotsPanel(state)
+    qtbot.addWidget(plots)
+    plan = reference_plan()
+    plots.draw(plan)
+    texts = []
+    plots.note.setText = lambda text, _orig=plots.note.setText: (texts.append(text), _orig(text))
+    plots.draw(plan)
+    assert texts == []                                                 # same text: not set again
+    plots.draw(plan.replace(spacing_mm=(8.0, 6.0)))
+    assert len(texts) == 1 and "8 × 6 mm" in texts[0]
+
+
+# -- the scan path -----------------------------------------------------------------------------------
+def _dot_rgb(preview: PathPreview, row: int, column: int) -> tuple[int, int, int]:
+    img = qimage_to_rgb(preview.grab().toImage())
+    ox, oy, sx, sy, scale, dot = preview._geom
+    x, y = int(round(ox + column * sx * scale)), int(round(oy + row * sy * scale))
+    return tuple(int(v) for v in img[y, x])
+
+
+def test_path_preview_draws_the_path_once_and_adds_done_dots(qtbot):
+    preview = PathPreview()
+    qtbot.addWidget(preview)
+    preview.resize(420, 200)
+    preview.show()
+    qtbot.waitExposed(preview)
+    plan = ScanPlan(101, 21, (4.0, 6.0))
+    preview.set_plan(plan)
+    grey = _dot_rgb(preview, 5, 7)              # grab() paints the widget
+    assert preview.rebuilds == 1
+    preview.set_done({(0, c) for c in range(101)} | {(5, 7)})        # a scan's progress: only additions
+    green = _dot_rgb(preview, 5, 7)
+    assert green[1] > green[0] + 60 and green != grey                  # the done dot is green now
+    preview.set_done({(0, c) for c in range(101)})                     # (5, 7) no longer done
+    assert _dot_rgb(preview, 5, 7) == grey
+    preview.set_plan(ScanPlan(101, 21, (4.0, 6.0)))                    # the same grid again
+    preview.grab()
+    assert preview.rebuilds == 1                                       # the path was never drawn again
+    preview.resize(500, 220)
+    preview.grab()
+    assert preview.rebuilds == 2                                       # a new size needs a new drawing
+
+
+def test_path_preview_shows_the_order_it_is_given(qtbot):
+    """Row-meander: the line joins (0, last) with (1, last); raster draws no such vertical link."""
+    shots = {}
+    for order in ("row-meander", "raster"):
+        preview = PathPreview()
+        qtbot.addWidget(preview)
+        preview.resize(300, 150)
+        preview.set_plan(ScanPlan(6, 3, (10.0, 10.0), order=order))
+        img = qimage_to_rgb(preview.grab().toImage())
+        ox, oy, sx, sy, scale, dot = preview._geom
+        x = int(round(ox + 5 * sx * scale))
+        y = int(round(oy + 0.5 * sy * scale))                           # between rows 0 and 1 at the last column
+        shots[order] = img[y - 1:y + 2, x - 1:x + 2].reshape(-1, 3).max(axis=0)
+    assert shots["row-meander"][2] > shots["raster"][2] + 60            # the blue path line is there
+
+
+# -- scan events -------------------------------------------------------------------------------------
+def test_a_burst_of_scan_events_reaches_every_listener_in_order_and_draws_once(qtbot, tmp_path):
+    from lfstudio.gui.panels.scan import ScanPanel
+
+    state = AppState()
+    panel = ScanPanel(state)
+    qtbot.addWidget(panel)
+    panel.resize(420, 800)
+    panel.show()
+    plan = ScanPlan(20, 5, (4.0, 6.0))
+    panel.preview.set_plan(plan)
+    panel.preview.grab()
+    rebuilds = panel.preview.rebuilds
+    batches: list[list] = []
+    state.scanEvents.connect(batches.append)
+    views = plan.views()
+    events = []
+    for v in views:
+        events.append(ScanEvent(EventKind.VIEW_STARTED, row=v.row, column=v.column, index=v.index,
+                                done=v.index, total=len(views)))
+        events.append(ScanEvent(EventKind.VIEW_DONE, row=v.row, column=v.column, index=v.index,
+                                done=v.index + 1, total=len(views)))
+    for ev in events:                       # as the engine's threads push them
+        panel.bridge.post(ev)
+    qtbot.waitUntil(lambda: sum(len(b) for b in batches) == len(events), timeout=30000)
+    received = [ev for b in batches for ev in b]
+    assert received == events                                          # all of them, in order
+    assert len(batches) < len(events) / 4                              # in batches, not one call each
+    assert panel.preview.done == {v.cell for v in views}
+    last = views[-1]
+    assert f"row {last.row}, column {last.column}" in panel.current.text()
+    assert panel.progress.value() == len(views)
+    assert panel.preview.rebuilds == rebuilds                          # done dots added, path kept
+
+
+def test_state_forwards_a_single_event_as_a_list(qtbot):
+    state = AppState()
+    got = []
+    state.scanEvents.connect(got.append)
+    ev = ScanEvent(EventKind.VIEW_STARTED, row=0, column=1)
+    state.scanEvent.emit(ev)
+    assert got == [[ev]]
+
+
+# -- the grid ----------------------------------------------------------------------------------------
+def _grid_of(qtbot, root, columns: int, rows: int, scan: bool = False, size=(900, 500)):
+    """A shown GridView on a new ``columns`` x ``rows`` dataset at ``root`` (captured with the instant
+    devices when ``scan``); returns (state, view) once the dataset is open."""
+    plan = ScanPlan.centered(columns, rows, (4.0, 6.0), RIG, settle_s=0.0)
+    ds = create_scan_dataset(root, plan, rig={"name": RIG.name}, camera={"name": "instant"}, lens={"name": "t"})
+    if scan:
+        from lfstudio.scan.engine import ScanEngine
+
+        rig = InstantRig(RIG)
+        rig.connect()
+        cam = InstantCamera(rig.true_position_mm)
+        cam.connect()
+        engine = ScanEngine(ds, plan, rig, cam, time_scale=0.0)
+        engine.start()
+        engine.wait(60)
+    state = AppState()
+    view = GridView(state)
+    qtbot.addWidget(view)
+    view.resize(*size)
+    view.show()
+    qtbot.waitExposed(view)
+    return state, view
+
+
+def test_grid_repaints_changed_cells_once_a_frame(qtbot, tmp_path):
+    state, view = _grid_of(qtbot, tmp_path / "ds", 30, 10)
+    state.set_dataset(Dataset.open(tmp_path / "ds"))
+    canvas = view.canvas
+    paints = []
+    original = canvas.paintEvent
+    canvas.paintEvent = lambda event: (paints.append(event.rect()), original(event))
+    canvas.repaint()
+    paints.clear()
+    state.publish_scan_events([ScanEvent(EventKind.VIEW_FAILED, row=r, column=c, will_retry=False)
+                               for r in range(3) for c in range(30)])
+    qtbot.waitUntil(lambda: bool(paints), timeout=10000)
+    qtbot.waitUntil(lambda: not canvas._frame_timer.isActive(), timeout=10000)
+    assert (canvas.status[:3] != 0).all() and (canvas.status[3:] == 0).all()
+    assert len(paints) <= 2                         # 90 changed cells: one repaint (two at a frame edge)
+    r3 = canvas._cell_rect(3, 0)
+    assert all(rect.top() < r3.top() for rect in paints)     # of the changed rows only
+
+
+def test_scan_time_verdicts_are_painted_from_the_verdict_array(qtbot, tmp_path):
+    state, view = _grid_of(qtbot, tmp_path / "ds", 8, 4)
+    state.set_dataset(Dataset.open(tmp_path / "ds"))
+    canvas = view.canvas
+    canvas.set_zoom(80)
+    entries = [{"row": 1, "column": 2, "verdict": "fail", "checks": {"sharpness": {"value": 0.2}}},
+               {"row": 2, "column": 5, "verdict": "warn", "checks": {"sharpness": {"value": 0.8}}},
+               {"row": 0, "column": 0, "verdict": "pass", "checks": {"sharpness": {"value": 1.0}}}]
+    canvas.update_quality_many(entries)
+    assert canvas.flagged() == [(1, 2), (2, 5)]
+    assert canvas._verdicts[1, 2] == 2 and canvas._verdicts[2, 5] == 1 and canvas._verdicts[0, 0] == 0
+    img = qimage_to_rgb(canvas.viewport().grab().toImage())
+
+    def edge(row, column):
+        rect = canvas._cell_rect(row, column)
+        return tuple(int(v) for v in img[rect.center().y(), rect.left() + 1])
+
+    fail, warn, passed = edge(1, 2), edge(2, 5), edge(0, 0)
+    assert fail[0] > 200 and fail[1] < 100                             # red outline
+    assert warn[0] > 200 and warn[1] > 200 and warn[2] < 100           # yellow outline
+    assert passed != fail and passed != warn
+
+
+def test_decoded_thumbnails_are_taken_by_the_gui_and_fill_the_mosaic(qtbot, tmp_path):
+    state, view = _grid_of(qtbot, tmp_path / "ds", 6, 3, scan=True, size=(700, 400))
+    taken = []
+    original = view.canvas.loader.take
+    view.canvas.loader.take = lambda: (lambda got: (taken.append(len(got)), got)[1])(original())
+    state.set_dataset(Dataset.open(tmp_path / "ds"))
+    qtbot.waitUntil(lambda: view.canvas._mosaic_has.all(), timeout=30000)
+    assert sum(taken) >= 18 and (view.canvas.status == DONE).all()     # every tile, through take()
+
+# -- opening a dataset ---------------------------------------------------------------------------------
+def test_opening_a_dataset_imports_no_scipy_or_calibration_code_on_the_gui_thread(tmp_path):
+    """Opening a dataset (with a calibration.json) reads it without importing the calibration
+    pipeline (scipy.optimize, OpenCV features): measured in a fresh interpreter."""
+    from lfstudio.dataset.atomic import atomic_write_json
+
+    root = tmp_path / "ds"
+    plan = ScanPlan.centered(6, 3, (4.0, 6.0), RIG, settle_s=0.0)
+    create_scan_dataset(root, plan, rig={"name": RIG.name}, camera={"name": "instant"}, lens={"name": "t"})
+    atomic_write_json(root / "calibration.json", {
+        "created": "2026-11-20T10:00:00", "rotation_deg": [0.1, -0.2, 0.05], "homography": np.eye(3).tolist(),
+        "image_size_px": [640, 426], "residual_px": {"before": {"rms": 2.5}, "after": {"rms": 0.3}},
+        "views_used": [[0, 0], [0, 1]], "warnings": []})
+    script = textwrap.dedent("""
+        import json, sys
+        from PySide6.QtWidgets import QApplication
+        app = QApplication([])
+        from lfstudio.gui.app import create_window
+        window = create_window(simulated=False)
+        window.show()
+        app.processEvents()
+        before = set(sys.modules)
+        assert window.central.open_dataset(sys.argv[1])
+        app.processEvents()
+        panel = window.panels["calibrationPanel"]
+        print(json.dumps({"new": sorted(set(sys.modules) - before), "summary": panel.summary.text()}))
+    """)
+    out = subprocess.run([sys.executable, "-c", script, str(root)], capture_output=True, text=True, timeout=120,
+                         env={**__import__("os").environ, "QT_QPA_PLATFORM": "offscreen"})
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    heavy = [m for m in result["new"] if m.split(".")[0] in ("scipy", "cv2", "rawpy")
+             or m.startswith(("lfstudio.calibration.calibrate", "lfstudio.calibration.fit",
+                              "lfstudio.calibration.features"))]
+    assert heavy == []
+    assert "Calibrated" in result["summary"]
