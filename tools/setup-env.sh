@@ -19,15 +19,44 @@ if [ -z "$py" ]; then
 fi
 
 # Qt needs a few system libraries even offscreen; install them when we can (Debian/Ubuntu as root).
+# The linker cache is read once into a variable and each library matched exactly ("<TAB>name (").
+# Not `ldconfig -p | grep -q name`: under pipefail that reports a present library as missing
+# whenever grep exits on its match before ldconfig has written the rest (ldconfig gets SIGPIPE).
+ld_cache="$(ldconfig -p 2>/dev/null || /sbin/ldconfig -p 2>/dev/null || true)"
+have_lib() { [[ $'\n'"$ld_cache" == *$'\n\t'"$1 ("* ]]; }
 need_pkgs=()
-for lib in libEGL.so.1:libegl1 libGL.so.1:libgl1 libfontconfig.so.1:libfontconfig1 libxkbcommon.so.0:libxkbcommon0 libdbus-1.so.3:libdbus-1-3 libglib-2.0.so.0:libglib2.0-0; do
-  so="${lib%%:*}"; pkg="${lib##*:}"
-  if ! ldconfig -p 2>/dev/null | grep -q "$so"; then need_pkgs+=("$pkg"); fi
-done
+if [ -n "$ld_cache" ]; then
+  for lib in libEGL.so.1:libegl1 libGL.so.1:libgl1 libfontconfig.so.1:libfontconfig1 libxkbcommon.so.0:libxkbcommon0 libdbus-1.so.3:libdbus-1-3 libglib-2.0.so.0:libglib2.0-0; do
+    so="${lib%%:*}"; pkg="${lib##*:}"
+    if ! have_lib "$so"; then need_pkgs+=("$pkg"); fi
+  done
+fi
+
+# apt_step "what it does" apt-get ARGS...: run one apt-get step quietly; on failure say which step
+# failed and why (another package manager holding apt's lock, or apt's own last lines).
+apt_step() {
+  local what="$1"; shift
+  local out rc=0
+  echo "  $what: $*"
+  out="$(DEBIAN_FRONTEND=noninteractive "$@" 2>&1)" || rc=$?
+  [ "$rc" -eq 0 ] && return 0
+  local lock
+  lock="$(printf '%s\n' "$out" | sed -n 's/^E: \(Could not get lock .*\)$/\1/p; s/^E: \(Unable to acquire the dpkg frontend lock .*\)$/\1/p' | head -n 1)"
+  if [ -n "$lock" ]; then
+    echo "Could not install system libraries for Qt: '$*' ($what) failed because another package manager is running: $lock. Wait for it to finish, then run this again." >&2
+  else
+    echo "Could not install system libraries for Qt: '$*' ($what) failed with exit code $rc. apt-get said:" >&2
+    printf '%s\n' "$out" | tail -n 8 | sed 's/^/    /' >&2
+  fi
+  return "$rc"
+}
 if [ "${#need_pkgs[@]}" -gt 0 ]; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-    echo "Installing system libraries for Qt: ${need_pkgs[*]}"
-    DEBIAN_FRONTEND=noninteractive apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need_pkgs[@]}" >/dev/null
+    echo "Qt needs system libraries that are missing: ${need_pkgs[*]}. Installing them with apt-get (running as root):"
+    if ! { apt_step "refresh the package lists" apt-get update -qq \
+           && apt_step "install" apt-get install -y -qq "${need_pkgs[@]}"; }; then
+      echo "Continuing without them: the command line works, the GUI and its tests need them (install them yourself: apt-get install ${need_pkgs[*]})." >&2
+    fi
   else
     echo "Warning: missing system libraries for Qt: ${need_pkgs[*]} (install them with your package manager)." >&2
   fi
