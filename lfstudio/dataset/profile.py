@@ -21,7 +21,7 @@ import json
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import tomli_w
 
@@ -153,6 +153,31 @@ _LENGTHS = {("debayer", "wb_multipliers"): 4, ("lens", "dist_coeffs"): (4, 5, 8)
             ("color", "white_point_px"): 2, ("color", "black_rgb"): 3, ("color", "white_rgb"): 3}
 
 
+#: ranges of the numeric settings: what :meth:`Profile.validate` accepts and what an editor lets one enter
+LIMITS: dict[tuple[str, str], Number] = {
+    ("output", "png_compression"): Number("", 0, 9, integer=True),
+    ("reference", "row"): Number("", -1, integer=True), ("reference", "column"): Number("", -1, integer=True),
+    ("lens", "focal_length_mm"): Number("mm", 0, 10_000), ("lens", "aperture"): Number("", 0, 1000, low_open=True),
+    ("lens", "distance_m"): Number("m", 0, 1e9, low_open=True),
+    ("lens", "fx_px"): Number("px", 0, 1e6), ("lens", "fy_px"): Number("px", 0, 1e6),
+    ("lens", "cx_px"): Number("px", 0, 1e6), ("lens", "cy_px"): Number("px", 0, 1e6),
+    ("lens", "tca_red_scale"): Number("", 0, 2, low_open=True),
+    ("lens", "tca_blue_scale"): Number("", 0, 2, low_open=True),
+    ("color", "black_percentile"): Number("%", 0, 100), ("color", "white_percentile"): Number("%", 0, 100),
+    ("color", "patch_px"): Number("px", 1, 1001, integer=True),
+    ("color", "white_output"): Number("", 0, 1, low_open=True),
+    ("shading", "blur_px"): Number("px", 0, 10_000),
+    ("deflicker", "size_px"): Number("px", 16, 16_384, integer=True),
+    ("deflicker", "low"): Number("", 0, 1), ("deflicker", "high"): Number("", 0, 1),
+    ("resample", "scale"): Number("", 0, 1, low_open=True),
+}
+
+
+def file_field(source: str) -> Callable[[str, str], str]:
+    """How a profile file names a setting in messages: ``processing.toml: [color] white_output``."""
+    return lambda step, key: f"{source}: [{step}] {key}"
+
+
 @dataclass
 class Profile:
     output: OutputStep = field(default_factory=OutputStep)
@@ -170,27 +195,33 @@ class Profile:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any], source: str = PROFILE_NAME) -> "Profile":
-        """Build and validate a profile; unknown or mistyped keys raise :class:`InputError`."""
+    def from_dict(cls, data: dict[str, Any], source: str = PROFILE_NAME,
+                  field: Callable[[str, str], str] | None = None) -> "Profile":
+        """Build and validate a profile; unknown or mistyped keys raise :class:`InputError`.
+
+        ``field(step, key)`` names a setting in messages (default: as in the file,
+        ``processing.toml: [color] white_output``; an editor passes the labels it shows)."""
         if not isinstance(data, dict):
             raise InputError(source, "must be a table of steps")
+        field = field or file_field(source)
         steps: dict[str, Any] = {}
         for name, values in data.items():
             if name not in STEP_TYPES:
                 raise InputError(f"{source}: [{name}]", "unknown section", ", ".join(STEP_TYPES))
             if not isinstance(values, dict):
                 raise InputError(f"{source}: [{name}]", "must be a table")
-            steps[name] = _build_step(name, STEP_TYPES[name], values, source)
+            steps[name] = _build_step(name, STEP_TYPES[name], values, field)
         profile = cls(**steps)
-        profile.validate(source)
+        profile.validate(source, field)
         return profile
 
-    def validate(self, source: str = PROFILE_NAME) -> None:
+    def validate(self, source: str = PROFILE_NAME, field: Callable[[str, str], str] | None = None) -> None:
+        field = field or file_field(source)
         for name in STEP_TYPES:
             step = getattr(self, name)
             for f in dataclasses.fields(step):
                 value = getattr(step, f.name)
-                where = f"{source}: [{name}] {f.name}"
+                where = field(name, f.name)
                 choices = _CHOICES.get((name, f.name))
                 if choices and value not in choices:
                     raise InputError(where, f"{value!r} is not known", ", ".join(choices))
@@ -199,31 +230,25 @@ class Profile:
                     ok = len(value) in length if isinstance(length, tuple) else len(value) == length
                     if not ok:
                         raise InputError(where, f"has {len(value)} numbers", f"{length} numbers")
+                limits = LIMITS.get((name, f.name))
+                if limits is not None:
+                    limits.check(where, value)
         folder_problem = relative_name_problem(self.output.folder) if self.output.folder else None
         if folder_problem:
-            raise InputError(f"{source}: [output] folder", f"{self.output.folder!r} {folder_problem}",
+            raise InputError(field("output", "folder"), f"{self.output.folder!r} {folder_problem}",
                              'a folder name such as "processed"')
-        if not 0 < self.resample.scale <= 1:
-            raise InputError(f"{source}: [resample] scale", f"{self.resample.scale} is out of range", "0 < scale <= 1")
-        if not 0 <= self.output.png_compression <= 9:
-            raise InputError(f"{source}: [output] png_compression", "out of range", "0..9")
-        if not 0 <= self.deflicker.low < self.deflicker.high <= 1:
-            raise InputError(f"{source}: [deflicker] low/high", "need 0 <= low < high <= 1")
-        Number("px", 16, 16_384, integer=True).check(f"{source}: [deflicker] size_px", self.deflicker.size_px)
-        if not 0 < self.color.white_output <= 1:
-            raise InputError(f"{source}: [color] white_output", "out of range", "0 < value <= 1")
-        if not 0 <= self.color.black_percentile < self.color.white_percentile <= 100:
-            raise InputError(f"{source}: [color] black_percentile/white_percentile",
-                             "need 0 <= black < white <= 100")
-        Number("px", 1, 1001, integer=True).check(f"{source}: [color] patch_px", self.color.patch_px)
+        if not self.deflicker.low < self.deflicker.high:
+            raise InputError(field("deflicker", "low/high"), "need low < high")
+        if not self.color.black_percentile < self.color.white_percentile:
+            raise InputError(field("color", "black_percentile/white_percentile"), "need black < white")
         if self.shading.enabled and self.shading.mode == "flat" and not self.shading.flat_file:
-            raise InputError(f"{source}: [shading] flat_file",
+            raise InputError(field("shading", "flat_file"),
                              "shading mode 'flat' needs a flat image (a RAW or PNG of a uniformly lit white card)")
         if self.shading.coefficients and len(self.shading.coefficients) > 3:
-            raise InputError(f"{source}: [shading] coefficients", "too many", "up to 3 numbers k1 k2 k3")
+            raise InputError(field("shading", "coefficients"), "too many", "up to 3 numbers k1 k2 k3")
         if self.shading.enabled and self.shading.mode == "model" and not self.shading.coefficients \
                 and not self.shading.flat_file:
-            raise InputError(f"{source}: [shading] coefficients",
+            raise InputError(field("shading", "coefficients"),
                              "mode 'model' needs coefficients or a flat_file to fit them to")
 
     # -- files ---------------------------------------------------------------------------------
@@ -284,12 +309,12 @@ class Profile:
         return Profile.from_dict(self.to_dict())
 
 
-def _build_step(name: str, step_type: type, values: dict[str, Any], source: str) -> Any:
+def _build_step(name: str, step_type: type, values: dict[str, Any], field: Callable[[str, str], str]) -> Any:
     defaults = step_type()
     kwargs: dict[str, Any] = {}
     known = {f.name for f in dataclasses.fields(step_type)}
     for key, value in values.items():
-        where = f"{source}: [{name}] {key}"
+        where = field(name, key)
         if key not in known:
             raise InputError(where, "unknown setting", ", ".join(sorted(known)))
         default = getattr(defaults, key)

@@ -17,10 +17,12 @@ def create_window(simulated: bool = True):
     from lfstudio.gui.heartbeat import keep_out_of_gc
     from lfstudio.gui.main_window import MainWindow
     from lfstudio.gui.state import AppState
+    from lfstudio.gui.widgets import install_wheel_guard
 
     # background Python threads (scan engine, device workers, jobs) share the GIL with the GUI
     # thread; a shorter switch interval hands it back to the GUI sooner (fewer visible stalls)
     sys.setswitchinterval(0.001)
+    install_wheel_guard()
     state = AppState(simulated=simulated)
     window = MainWindow(state)
     window.setWindowIcon(app_icon())

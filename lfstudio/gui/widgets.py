@@ -1,11 +1,14 @@
-"""Small reusable widgets."""
+"""Small reusable widgets, and :class:`WheelGuard`, the application-wide rule for the mouse wheel."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
-from PySide6.QtCore import QPointF, QRectF, QSize, Signal
+from PySide6.QtCore import QEvent, QObject, QPointF, QRectF, QSize, Qt, QTimer, Signal
 from PySide6.QtGui import QColor, QFont, QPainter, QPen
-from PySide6.QtWidgets import QHBoxLayout, QLabel, QMessageBox, QProgressBar, QPushButton, QSizePolicy, QWidget
+from PySide6.QtWidgets import (QAbstractSpinBox, QApplication, QComboBox, QHBoxLayout, QLabel, QMessageBox,
+                               QProgressBar, QPushButton, QSizePolicy, QWidget)
 
 from lfstudio.dataset.paths import view_stem
 from lfstudio.jobs import format_duration
@@ -26,6 +29,38 @@ def set_progress_async(bar: QProgressBar, value: int, maximum: int | None = None
     bar.update()
 
 
+class WheelGuard(QObject):
+    """Spin boxes and combo boxes take the mouse wheel only when they have keyboard focus.
+
+    Without focus the wheel goes on to what contains them (a scroll area scrolls), so scrolling a
+    long form never changes a value the pointer happens to pass over. Installed once on the
+    application (:func:`install_wheel_guard`); it also stops the wheel from giving them focus
+    (``Qt.WheelFocus`` becomes ``Qt.StrongFocus``: click or Tab first)."""
+
+    GUARDED = (QAbstractSpinBox, QComboBox)
+
+    def eventFilter(self, obj: QObject, event: QEvent) -> bool:
+        kind = event.type()
+        if kind == QEvent.Type.Polish and isinstance(obj, self.GUARDED) \
+                and obj.focusPolicy() == Qt.FocusPolicy.WheelFocus:
+            obj.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
+        elif kind == QEvent.Type.Wheel and isinstance(obj, self.GUARDED) and not obj.hasFocus():
+            event.ignore()   # handled here, not accepted: Qt passes it on to the parent widgets
+            return True
+        return False
+
+
+def install_wheel_guard(app: QApplication | None = None) -> WheelGuard:
+    """Install the :class:`WheelGuard` on the application (once; later calls return the same one)."""
+    app = app or QApplication.instance()
+    guard = app.findChild(WheelGuard, "wheelGuard")
+    if guard is None:
+        guard = WheelGuard(app)
+        guard.setObjectName("wheelGuard")
+        app.installEventFilter(guard)
+    return guard
+
+
 def confirm_cancel_running(parent: QWidget, runner, title: str, question: str) -> bool:
     """For a dialog's ``done()``: True when it may close — no job runs, or the operator said Yes to
     ``question`` and the job has been asked to cancel."""
@@ -38,7 +73,10 @@ def confirm_cancel_running(parent: QWidget, runner, title: str, question: str) -
 
 
 class JobProgressWidget(QWidget):
-    """Progress bar + ETA + Cancel for a :class:`lfstudio.gui.bridge.JobRunner` (reset by its ``started``)."""
+    """Progress bar + ETA + Cancel for a :class:`lfstudio.gui.bridge.JobRunner` (reset by its ``started``).
+
+    The ETA counts down every second between progress reports (a slow item does not freeze it);
+    when the job ends it gives way to how long the job took, or to "cancelled" / "failed"."""
 
     def __init__(self, runner, parent: QWidget | None = None):
         super().__init__(parent)
@@ -58,15 +96,27 @@ class JobProgressWidget(QWidget):
         lay.addWidget(self.message_label, 2)
         lay.addWidget(self.cancel_button)
         self.cancel_button.clicked.connect(self._cancel)
+        self._started_at = 0.0
+        self._eta_at: float | None = None     # time.monotonic() when the job should end, if known
+        self._tick = QTimer(self)
+        self._tick.setInterval(1000)
+        self._tick.timeout.connect(self._show_eta)
         runner.started.connect(self.started)
         runner.progress.connect(self._on_progress)
-        for sig in (runner.finished, runner.failed, runner.cancelled):
-            sig.connect(self._on_end)
+        runner.finished.connect(lambda _result: self._on_end(f"took {format_duration(self._elapsed_s())}"))
+        runner.failed.connect(lambda _message: self._on_end("failed"))
+        runner.cancelled.connect(lambda: self._on_end("cancelled", "Cancelled"))
 
     def started(self) -> None:
         self.bar.setRange(0, 0)
+        self._started_at, self._eta_at = time.monotonic(), None
         self.eta_label.setText("ETA –")
+        self.message_label.setText("")
         self.cancel_button.setEnabled(True)
+        self._tick.start()
+
+    def _elapsed_s(self) -> float:
+        return time.monotonic() - self._started_at
 
     def _cancel(self) -> None:
         self.cancel_button.setEnabled(False)
@@ -75,10 +125,21 @@ class JobProgressWidget(QWidget):
 
     def _on_progress(self, done: int, total: int, message: str, eta_s: float) -> None:
         set_progress_async(self.bar, done, max(total, 1))
-        self.eta_label.setText(f"ETA {format_duration(None if eta_s < 0 else eta_s)}")
-        self.message_label.setText(message)
+        self._eta_at = None if eta_s < 0 else time.monotonic() + eta_s
+        self._show_eta()
+        if self.cancel_button.isEnabled():     # keep "Cancelling…" until the job stops
+            self.message_label.setText(message)
 
-    def _on_end(self, *args) -> None:
+    def _show_eta(self) -> None:
+        left = None if self._eta_at is None else max(0.0, self._eta_at - time.monotonic())
+        self.eta_label.setText(f"ETA {format_duration(left)}")
+
+    def _on_end(self, outcome: str, message: str | None = None) -> None:
+        self._tick.stop()
+        self._eta_at = None
+        self.eta_label.setText(outcome)
+        if message is not None:
+            self.message_label.setText(message)
         self.cancel_button.setEnabled(False)
         if self.bar.maximum() == 0:
             self.bar.setRange(0, 1)

@@ -50,6 +50,7 @@ def test_preview_pick_and_process(qtbot, make_dataset):
         dialog.process_button.click()
     assert "3 processed" in dialog.result_label.text()
     assert "process pool (2 workers)" in dialog.result_label.text()
+    assert dialog.progress.eta_label.text().startswith("took ")   # not an ETA left over from the run
     assert changed and changed[-1].view(0, 0)["processed"]["status"] == "done"
     assert "3</b> of 3" in window.panels["processingPanel"].summary.text()
     assert Dataset.open(ds.root).manifest["processing"]["profile"]["rectify"]["enabled"] is False
@@ -78,3 +79,97 @@ def test_broken_profile_file_is_reported_and_defaults_are_used(qtbot, make_datas
     window, dialog = _dialog(qtbot, ds)
     qtbot.waitUntil(lambda: "scale" in window.statusBar().currentMessage())
     assert dialog.profile() == dialog.profile().__class__()
+
+
+def _shown(label) -> str:
+    """The text a rich-text label displays (markup rendered, entities decoded)."""
+    from PySide6.QtGui import QTextDocument
+
+    doc = QTextDocument()
+    doc.setHtml(label.text())
+    return doc.toPlainText()
+
+
+def _spin(dialog, step, key):
+    return dialog.editors[step].fields[key]
+
+
+def test_wheel_scrolls_the_profile_and_changes_a_value_only_after_a_click(qtbot, make_dataset):
+    """A wheel turned over the profile scrolls it; the field under the pointer keeps its value."""
+    from PySide6.QtCore import QPointF
+    from PySide6.QtTest import QTest
+    from PySide6.QtWidgets import QScrollArea
+
+    ds = make_dataset(rows=1, cols=2)
+    window, dialog = _dialog(qtbot, ds)
+    qtbot.waitExposed(dialog)
+    spin = _spin(dialog, "color", "white_output")
+    scroll = spin.parentWidget()
+    while not isinstance(scroll, QScrollArea):
+        scroll = scroll.parentWidget()
+    scroll.ensureWidgetVisible(spin)
+    bar = scroll.verticalScrollBar()
+    assert bar.maximum() > bar.value()          # there is more profile below to scroll to
+    start = bar.value()
+
+    def wheel_over_spin(notches: int) -> None:
+        centre = spin.mapTo(dialog, spin.rect().center())
+        for _ in range(notches):
+            QTest.wheelEvent(dialog.windowHandle(), QPointF(centre), QPoint(0, -120))
+
+    wheel_over_spin(3)
+    qtbot.waitUntil(lambda: bar.value() > start)
+    assert spin.value() == 0.9 and not spin.hasFocus()
+
+    scroll.ensureWidgetVisible(spin)
+    qtbot.mouseClick(spin, Qt.LeftButton)       # the operator picks the field on purpose
+    assert spin.hasFocus()
+    wheel_over_spin(30)                          # far more than the value allows
+    qtbot.waitUntil(lambda: spin.value() < 0.9)
+    assert 0 < spin.value() <= 1                # the widget holds what the profile accepts
+    assert dialog.profile().color.white_output == spin.value()
+
+
+def test_every_number_field_holds_only_what_the_profile_accepts(qtbot, make_dataset):
+    from lfstudio.processing.profile import LIMITS
+
+    ds = make_dataset(rows=1, cols=2)
+    window, dialog = _dialog(qtbot, ds)
+    checked = 0
+    for (step, key), limits in LIMITS.items():
+        spin = _spin(dialog, step, key)
+        for extreme in (-1e9, 1e9):
+            spin.setValue(extreme)
+            assert limits.problem(spin.value()) is None, (step, key, spin.value(), limits.valid())
+        checked += 1
+        spin.setValue(spin.minimum())
+    assert checked == len(LIMITS)
+
+
+def test_messages_name_the_fields_as_the_dialog_labels_them(qtbot, make_dataset):
+    from PySide6.QtWidgets import QLabel
+
+    ds = make_dataset(rows=1, cols=2)
+    window, dialog = _dialog(qtbot, ds)
+    deflicker = dialog.editors["deflicker"]
+    assert deflicker.form.labelForField(deflicker.fields["low"]).text() == "low"
+    deflicker.fields["low"].setValue(0.6)
+    deflicker.fields["high"].setValue(0.5)
+    dialog.process_button.click()               # refused before anything runs, on the dialog itself
+    text = _shown(dialog.result_label)
+    assert "De-flicker (gain to the reference) › low/high: need low < high" in text, text
+    assert "[deflicker]" not in text and not dialog.runner.running
+    dialog.update_preview()
+    assert "De-flicker (gain to the reference) › low/high: need low < high" in _shown(dialog.preview_info)
+    # the group title and row label the message names are the ones on screen
+    assert deflicker.title().endswith("De-flicker (gain to the reference)")
+    assert isinstance(deflicker.form.labelForField(deflicker.fields["high"]), QLabel)
+
+
+def test_close_button_closes_the_idle_dialog(qtbot, make_dataset):
+    ds = make_dataset(rows=1, cols=2)
+    window, dialog = _dialog(qtbot, ds)
+    qtbot.waitExposed(dialog)
+    assert dialog.close_button.text().replace("&", "") == "Close"
+    qtbot.mouseClick(dialog.close_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: not dialog.isVisible())

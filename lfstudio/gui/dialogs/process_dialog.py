@@ -11,13 +11,14 @@ a Dask cluster with progress, ETA and Cancel; when it ends, ``state.datasetChang
 from __future__ import annotations
 
 import dataclasses
+import html
 from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QPointF, QRectF, Qt, Signal
 from PySide6.QtGui import QColor, QImage, QPainter, QPen
-from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QFileDialog, QFormLayout,
-                               QGroupBox, QHBoxLayout, QLabel, QLineEdit, QMessageBox, QPushButton,
+from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDialogButtonBox, QDoubleSpinBox, QFileDialog,
+                               QFormLayout, QGroupBox, QHBoxLayout, QLabel, QLineEdit, QMessageBox, QPushButton,
                                QScrollArea, QSizePolicy, QSpinBox, QSplitter, QVBoxLayout, QWidget)
 
 from lfstudio.errors import InputError
@@ -25,7 +26,7 @@ from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.imageutil import rgb_to_qimage
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import JobProgressWidget, confirm_cancel_running
-from lfstudio.dataset.profile import _CHOICES, PROFILE_NAME, STEP_TYPES, Profile
+from lfstudio.dataset.profile import _CHOICES, LIMITS, PROFILE_NAME, STEP_TYPES, Profile
 
 STEP_TITLES = {
     "debayer": "1  Debayer (RAW → linear 16-bit)", "lens": "2  Lens distortion and lateral CA",
@@ -56,6 +57,22 @@ TIPS = {
     "column": "Column of the reference view (-1: middle of the grid)",
     "png_compression": "zlib level 0..9: 1 is fast, 9 is ~10 % smaller",
 }
+FLOAT_DECIMALS = 4
+
+
+def key_label(key: str) -> str:
+    return key.replace("_", " ")
+
+
+def field_label(step: str, key: str) -> str:
+    """A setting as the dialog shows it: the step's title (without its number) › the row's label,
+    e.g. "Colour: black and white point › white output" (used in every message about a field)."""
+    return f"{STEP_TITLES.get(step, step).lstrip('0123456789 ')} › {key_label(key)}"
+
+
+def _error_html(message: object) -> str:
+    """A message in red for a rich-text label (escaped: "need low < high" must not start a tag)."""
+    return f"<span style='color:#c00'>{html.escape(str(message))}</span>"
 
 
 def to_display(img: np.ndarray) -> np.ndarray:
@@ -174,7 +191,7 @@ class StepEditor(QGroupBox):
             widget = self._widget(f.name, value)
             widget.setToolTip(TIPS.get(f.name, f.name.replace("_", " ")))
             self.fields[f.name] = widget
-            form.addRow(f.name.replace("_", " "), widget)
+            form.addRow(key_label(f.name), widget)
         if self.isCheckable():  # a switched-off step folds away
             self.toggled.connect(self._fold)
             self._fold(self.isChecked())
@@ -194,18 +211,32 @@ class StepEditor(QGroupBox):
             w.setChecked(value)
         elif isinstance(value, int):
             w = QSpinBox()
-            w.setRange(-1, 100000)
+            low, high = self._range(key, -1, 100000, 1)
+            w.setRange(int(low), int(high))
             w.setValue(value)
         elif isinstance(value, float):
             w = QDoubleSpinBox()
-            w.setDecimals(4)
-            w.setRange(-1e6, 1e6)
+            w.setDecimals(FLOAT_DECIMALS)
+            low, high = self._range(key, -1e6, 1e6, 10.0 ** -FLOAT_DECIMALS)
+            w.setRange(low, high)
             w.setValue(value)
         elif isinstance(value, list):
             w = QLineEdit(" ".join(f"{v:g}" for v in value))
         else:
             w = QLineEdit(str(value))
         return w
+
+    def _range(self, key: str, low: float, high: float, step: float) -> tuple[float, float]:
+        """The spin box's range: the profile's limits for this setting (an open bound moved in by
+        one step), else [low, high]; so the widget never holds a value the profile refuses."""
+        limits = LIMITS.get((self.name, key))
+        if limits is None:
+            return low, high
+        if limits.low is not None:
+            low = limits.low + step if limits.low_open else limits.low
+        if limits.high is not None:
+            high = limits.high
+        return low, high
 
     def set_value(self, key: str, value: Any) -> None:
         w = self.fields[key]
@@ -238,8 +269,8 @@ class StepEditor(QGroupBox):
                     try:
                         out[key] = [float(t) for t in text.replace(",", " ").split()]
                     except ValueError:
-                        raise InputError(f"{STEP_TITLES.get(self.name, self.name)}: {key.replace('_', ' ')}",
-                                         f"{text!r} is not a list of numbers", "numbers separated by spaces")
+                        raise InputError(field_label(self.name, key), f"{text!r} is not a list of numbers",
+                                         "numbers separated by spaces")
                 else:
                     out[key] = text
         return out
@@ -380,6 +411,11 @@ class ProcessDialog(QDialog):
         run_bar.addWidget(self.cluster_edit, 1)
         run_bar.addWidget(self.force_check)
         run_bar.addWidget(self.process_button)
+        close_box = QDialogButtonBox(QDialogButtonBox.Close)
+        self.close_button = close_box.button(QDialogButtonBox.Close)
+        self.close_button.setToolTip("Close the dialog (while processing runs, asks whether to cancel it)")
+        close_box.rejected.connect(self.reject)
+        run_bar.addWidget(close_box)
         self.runner = JobRunner(self)
         self.progress = JobProgressWidget(self.runner)
         self.result_label = QLabel(self._status_text())
@@ -403,7 +439,8 @@ class ProcessDialog(QDialog):
     # -- profile -----------------------------------------------------------------------------------
     def profile(self) -> Profile:
         """The profile in the editor; raises InputError naming the field."""
-        return Profile.from_dict({name: ed.values() for name, ed in self.editors.items()}, "Process dialog")
+        return Profile.from_dict({name: ed.values() for name, ed in self.editors.items()}, "Process dialog",
+                                 field=field_label)
 
     def set_profile(self, profile: Profile) -> None:
         for name, ed in self.editors.items():
@@ -442,7 +479,7 @@ class ProcessDialog(QDialog):
         try:
             profile = self.profile()
         except InputError as exc:
-            self.preview_info.setText(f"<span style='color:#c00'>{exc}</span>")
+            self.preview_info.setText(_error_html(exc))
             return
         self.preview_button.setEnabled(False)
         self.preview_info.setText("Rendering the preview…")
@@ -464,7 +501,7 @@ class ProcessDialog(QDialog):
 
     def _preview_failed(self, message: str) -> None:
         self.preview_button.setEnabled(True)
-        self.preview_info.setText(f"<span style='color:#c00'>{message}</span>")
+        self.preview_info.setText(_error_html(message))
 
     def _pick_mode(self, name: str, on: bool) -> None:
         other = self.pick_black if name == "white" else self.pick_white
@@ -518,7 +555,7 @@ class ProcessDialog(QDialog):
         try:
             profile = self.profile()
         except InputError as exc:
-            QMessageBox.warning(self, "Process", str(exc))
+            self.result_label.setText(_error_html(exc))
             return
         cluster = self.cluster_edit.text().strip() or None
         workers = None if cluster else self.workers_spin.value()
@@ -544,13 +581,13 @@ class ProcessDialog(QDialog):
         text = report.summary().replace("\n", "<br>")
         if report.failed:
             text += "<br><span style='color:#c00'>Failed views:<br>" + "<br>".join(
-                f"row {r}, column {c}: {msg}" for r, c, msg in report.failed[:10]) + "</span>"
+                f"row {r}, column {c}: {html.escape(msg)}" for r, c, msg in report.failed[:10]) + "</span>"
         self.result_label.setText(text)
         self.state.show_status(f"Processing done: {report.processed} processed, {len(report.failed)} failed")
 
     def _process_failed(self, message: str) -> None:
         self.process_button.setEnabled(True)
-        self.result_label.setText(f"<span style='color:#c00'>{message}</span>")
+        self.result_label.setText(_error_html(message))
 
     def _process_cancelled(self) -> None:
         self.process_button.setEnabled(True)
