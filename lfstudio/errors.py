@@ -39,6 +39,11 @@ class DatasetError(LfError):
         super().__init__(text)
 
 
+class DatasetNotFound(DatasetError):
+    """The path given as a dataset is not a folder or holds no ``dataset.json``: a mistake in what
+    was typed (the command line exits 2, as for any bad input), not a damaged dataset."""
+
+
 class DeviceError(LfError):
     """A device (axis controller, camera) failed, timed out or refused a command."""
 

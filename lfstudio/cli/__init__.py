@@ -13,7 +13,7 @@ import logging
 import sys
 
 from lfstudio import __version__
-from lfstudio.errors import InputError, LfError
+from lfstudio.errors import DatasetNotFound, InputError, LfError
 
 #: subcommand modules, in the order ``lfstudio --help`` lists them
 COMMANDS: list[str] = [
@@ -43,11 +43,19 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
+#: exit codes of every command (one convention, printed at the end of every --help)
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_CODES_HELP = ("Exit codes: 0 done; 1 the work failed (a device, a damaged dataset, the disk); "
+                   "2 bad input (an option or value, or a path that does not exist or is not a dataset: "
+                   "the message names it and what is valid); 130 interrupted (Ctrl+C).")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="lfstudio",
         description="Plan, capture, calibrate, process and export dense light fields. "
                     "Without a command, opens the application window.",
+        epilog=EXIT_CODES_HELP,
     )
     parser.add_argument("--version", action="version", version=f"lfstudio {__version__}")
     parser.add_argument("--debug", action="store_true",
@@ -58,8 +66,39 @@ def build_parser() -> argparse.ArgumentParser:
         module = importlib.import_module(f"lfstudio.cli.{name}")
         p = sub.add_parser(name.replace("_", "-"), help=module.HELP, description=module.HELP)
         module.add_arguments(p)
+        p.epilog = f"{p.epilog} {EXIT_CODES_HELP}" if p.epilog else EXIT_CODES_HELP
         p.set_defaults(_run=module.run)
     return parser
+
+
+def attach_dash_values(parser: argparse.ArgumentParser, argv: list[str]) -> list[str]:
+    """``--spacing-mm -4x6`` -> ``--spacing-mm=-4x6``: argparse takes a value that starts with '-'
+    for an option and stops with a usage dump ("expected one argument"); attached, the value
+    reaches the command's own check, which names the option and what is valid in one line.
+    Only for options that take one value, and never when the next word is itself an option."""
+    sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+    command = sub.choices.get(argv[0]) if sub and argv else None
+    if command is None:
+        return argv
+    known = {o for a in command._actions for o in a.option_strings}
+    takes_value = {o for a in command._actions if a.option_strings and a.nargs is None
+                   and not isinstance(a, (argparse._StoreConstAction, argparse._HelpAction, argparse._VersionAction))
+                   for o in a.option_strings}
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        word = argv[i]
+        if word == "--":
+            out.extend(argv[i:])
+            break
+        if word in takes_value and i + 1 < len(argv) and argv[i + 1].startswith("-") \
+                and argv[i + 1] != "--" and argv[i + 1].split("=", 1)[0] not in known:
+            out.append(f"{word}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(word)
+        i += 1
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -70,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     if not argv or argv[0].startswith("-") and argv[0] not in ("-h", "--help", "--version"):
         argv = ["gui", *argv]
     parser = build_parser()
+    argv = attach_dash_values(parser, argv)
     args = parser.parse_args(argv)
     from lfstudio.support.logs import setup_logging
 
@@ -78,14 +118,14 @@ def main(argv: list[str] | None = None) -> int:
     log.info("lfstudio %s: %s", __version__, " ".join(argv))
     try:
         return int(args._run(args) or 0)
-    except InputError as exc:
+    except (InputError, DatasetNotFound) as exc:
         log.info("%s: input error: %s", args.command, exc)
         print(f"lfstudio {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     except LfError as exc:
         log.info("%s failed: %s", args.command, exc)   # the file only: the console gets the line below
         print(f"lfstudio {args.command}: error: {exc}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     except OSError as exc:       # a folder that cannot be written, a full disk, ...: one line, not a traceback
         log.info("%s failed", args.command, exc_info=True)
         from lfstudio.dataset.storage import storage_error
@@ -95,11 +135,11 @@ def main(argv: list[str] | None = None) -> int:
         text = str(disk) if disk is not None else (f"{where}{exc.strerror or exc} (check that the folder exists, "
                                                    "is writable and has free space; details in the log)")
         print(f"lfstudio {args.command}: error: {text}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     except KeyboardInterrupt:
         log.info("%s interrupted", args.command)
         print(f"lfstudio {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except Exception:
         log.info("%s crashed", args.command, exc_info=True)  # the file; Python prints it on the console
         raise

@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.calibration.calibrate import calibrate_dataset
     from lfstudio.calibration.model import save_calibration
     from lfstudio.calibration.report import format_report
-    from lfstudio.cli.import_images import parse_pair
+    from lfstudio.cli.args import number_pair
     from lfstudio.dataset import Dataset
     from lfstudio.jobs import TerminalProgress
 
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
                          "0 (full) or ≥ 200")
     sigma = None
     if args.position_sigma_um is not None:
-        sigma = parse_pair(args.position_sigma_um, "--position-sigma-um", example="80,50")
+        sigma = number_pair(args.position_sigma_um, "--position-sigma-um", example="80,50")
         if not all(0 <= s <= 100_000 for s in sigma):
             raise InputError("--position-sigma-um", f"{args.position_sigma_um} out of range", "0 … 100000 µm each")
     ds = Dataset.open(args.dataset)

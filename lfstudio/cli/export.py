@@ -79,9 +79,6 @@ def run(args: argparse.Namespace) -> int:
                             overwrite=args.overwrite, hci_bit_depth=args.hci_bit_depth,
                             image_bit_depth=args.image_bit_depth, holdout=args.holdout, authors=args.authors)
     root = Path(args.dataset)
-    if not (root / "dataset.json").is_file():
-        raise InputError("DATASET", f"{root} is not a dataset folder (no dataset.json in it)",
-                         "a folder made by 'lfstudio scan', 'virtual-dataset' or 'import-images'")
     try:
         ds = Dataset.open(root)
         est = estimate_export(ds, options)

@@ -3,34 +3,18 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 
-from lfstudio.errors import InputError
-from lfstudio.numbers import Number, check_grid
+from lfstudio.numbers import SPACING_MM, Number, grid_option, numbers_option
 
 HELP = "import another rig's images (PNG, TIFF, JPEG, camera RAW) as a dataset that calibrates, processes and exports"
 
 
-def parse_pair(text: str, option: str, kind=float, example: str = "4x6") -> tuple:
-    """``"CxR"``/``"HxV"`` (also ``"C,R"``) as two numbers of ``kind``; InputError naming ``option``."""
-    parts = str(text).lower().replace("×", "x").replace(",", "x").split("x")
-    try:
-        if len(parts) != 2:
-            raise ValueError
-        values = tuple(kind(p.strip()) for p in parts)
-        if kind is float and not all(math.isfinite(v) for v in values):
-            raise ValueError
-    except ValueError:
-        raise InputError(option, f"cannot read {text!r}", f"two {'whole numbers' if kind is int else 'numbers'} "
-                         f"like {example}") from None
-    return values
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("folder", metavar="FOLDER", help="folder holding the other rig's images, one per view")
-    p.add_argument("--grid", required=True, metavar="CxR", help="columns x rows of the capture grid, e.g. 9x5")
-    p.add_argument("--spacing-mm", required=True, metavar="HxV",
+    p.add_argument("--grid", required=True, type=grid_option("--grid"), metavar="CxR",
+                   help="columns x rows of the capture grid, e.g. 9x5")
+    p.add_argument("--spacing-mm", required=True, type=numbers_option("--spacing-mm", SPACING_MM, 2, "4x6"), metavar="HxV",
                    help="distance between neighbouring views in mm, horizontal x vertical, e.g. 4x6")
     p.add_argument("--order", choices=("row-major", "meander"), default="row-major",
                    help="how the sorted files fill the grid: row-major (every row left to right, default) or "
@@ -57,9 +41,9 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.export.import_images import ImportOptions, import_images
     from lfstudio.jobs import TerminalProgress
 
-    cols, rows = check_grid("--grid", *parse_pair(args.grid, "--grid", int, "9x5"))
+    cols, rows = args.grid
     options = ImportOptions(folder=Path(args.folder), out=Path(args.out), grid=(cols, rows),
-                            spacing_mm=parse_pair(args.spacing_mm, "--spacing-mm", float, "4x6"),
+                            spacing_mm=args.spacing_mm,
                             order=args.order, pattern=args.pattern, focal_length_mm=args.focal_length_mm,
                             pixel_pitch_um=args.pixel_pitch_um, focal_length_px=args.focal_length_px,
                             overwrite=args.overwrite, link=not args.copy)

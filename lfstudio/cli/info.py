@@ -25,6 +25,20 @@ def _size(n: int) -> str:
     return str(n)
 
 
+def _files_line(summary: dict) -> str:
+    """Size of the views' files by folder, e.g. 'raw/ 83.5 MB' or, for a dataset restored from a
+    video, 'processed/ 83.5 MB (restored from bust.mkv); raw/ empty'."""
+    by_folder = summary["view_file_bytes"]
+    if not by_folder:
+        return "none yet (no view captured)"
+    text = ", ".join(f"{folder} {_size(n)}" for folder, n in sorted(by_folder.items()))
+    if summary.get("imported_from"):
+        text += f" (restored from {summary['imported_from']})"
+    if "raw/" not in by_folder:
+        text += "; raw/ empty"
+    return text
+
+
 def run(args: argparse.Namespace) -> int:
     from lfstudio.dataset import Dataset
 
@@ -46,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
               f"order {g.get('order') or 'row-meander'}")
         print(f"views     {summary['done']} done, {summary['missing']} missing, {summary['failed']} failed, "
               f"{summary['skipped']} skipped (of {summary['views']})")
-        print(f"raw files {_size(summary['raw_bytes'])}")
+        print(f"files     {_files_line(summary)}")
         if summary["journal_replayed"]:
             print(f"journal   {summary['journal_replayed']} view(s) recovered from journal.jsonl "
                   "(the scan was interrupted; resume it with 'lfstudio scan --resume')")

@@ -16,8 +16,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rig", default=None, metavar="NAME", help="rig profile (default: the reference gantry)")
     p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",
                    help="1 real time, 0.1 ten times faster, 0 instant (default 1)")
-    p.add_argument("--seed", type=SEED.option("--seed"), default=0,
-                   help="seed of the start position and repeatability errors")
+    p.add_argument("--seed", type=SEED.option("--seed"), default=0, metavar="N",
+                   help="seed of the start position and repeatability errors (default 0)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from lfstudio.errors import InputError
-from lfstudio.numbers import SEED, WIDTH_PX, Number, grid_option, parse_numbers
+from lfstudio.numbers import SEED, SPACING_MM, WIDTH_PX, Number, grid_option, numbers_option, parse_numbers
 
 DISTANCE_M = Number("m", 0, 10_000, low_open=True)
 FRACTION = Number("", 0, 1)
@@ -22,7 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("folder", help="new dataset folder")
     p.add_argument("--grid", default=(5, 3), type=grid_option("--grid"), metavar="CxR",
                    help="columns x rows (default 5x3; the reference is 101x21)")
-    p.add_argument("--spacing-mm", default="4x6", metavar="HxV", help="spacing in mm (default 4x6)")
+    p.add_argument("--spacing-mm", default="4x6", type=numbers_option("--spacing-mm", SPACING_MM, 2, "4x6"),
+                   metavar="HxV", help="spacing in mm, horizontal x vertical (default 4x6)")
     p.add_argument("--width", type=WIDTH_PX.option("--width"), default=2000, metavar="PX",
                    help="image width in pixels (default 2000)")
     p.add_argument("--format", choices=("dng", "png"), default="dng",
@@ -46,7 +47,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="spoil a view (repeatable): blur:ROW,COL:PX (motion blur, PX[,ANGLE]), "
                         "luminance:ROW,COL:FACTOR, displaced:ROW,COL:DX[,DY] (mm), skipped:ROW,COL (the rig did "
                         "not move: the view repeats the previous one); ground truth lists them")
-    p.add_argument("--seed", type=SEED.option("--seed"), default=0)
+    p.add_argument("--seed", type=SEED.option("--seed"), default=0, metavar="N",
+                   help="random seed of the scene's texture, the flicker, the noise and the position errors: "
+                        "the same seed renders the same dataset (default 0)")
     p.add_argument("--workers", type=Number("", 1, 256, integer=True).option("--workers"), default=1,
                    help="processes rendering in parallel (default 1)")
 
@@ -71,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     folder = Path(args.folder)
     if (folder / "dataset.json").exists():
         raise InputError("folder", f"{folder} already holds a dataset", "a new folder")
-    ds = make_virtual_dataset(folder, cols, rows, spacing_mm=_numbers(args.spacing_mm, "--spacing-mm", 2),
+    ds = make_virtual_dataset(folder, cols, rows, spacing_mm=args.spacing_mm,
                               width_px=args.width, fmt=args.format,
                               rotation_deg=_numbers(args.rotation_deg, "--rotation-deg", 3),
                               pp_offset_px=_numbers(args.pp_offset_px, "--pp-offset-px", 2),

@@ -42,7 +42,7 @@ from lfstudio.dataset.atomic import atomic_write_bytes
 from lfstudio.dataset.grid import Grid, View
 from lfstudio.dataset.paths import InsideChecker, check_dataset_entries, resolve_inside, view_stem
 from lfstudio.dataset.store import JOURNAL_NAME, Journal, read_journal, sha256_file
-from lfstudio.errors import DatasetError
+from lfstudio.errors import DatasetError, DatasetNotFound
 from lfstudio.numbers import MAX_GRID_SIDE, Number, non_finite_fields
 
 FORMAT = "lfstudio-dataset"
@@ -344,10 +344,10 @@ class Dataset:
         root = Path(root)
         path = root / MANIFEST_NAME
         if not root.is_dir():
-            raise DatasetError(f"{root}: not a folder; choose the dataset folder (the one holding {MANIFEST_NAME})")
+            raise DatasetNotFound(f"{root}: not a folder; choose the dataset folder (the one holding {MANIFEST_NAME})")
         if not path.is_file():
-            raise DatasetError(f"{path}: not found; {root} is not an lfstudio dataset "
-                               "(import a folder of images with 'lfstudio import-images')")
+            raise DatasetNotFound(f"{path}: not found; {root} is not an lfstudio dataset "
+                                  "(import a folder of images with 'lfstudio import-images')")
         check_dataset_entries(root)
         constants: list[str] = []
         try:
@@ -445,12 +445,14 @@ class Dataset:
     def summary(self) -> dict[str, Any]:
         """What ``lfstudio info`` prints: grid, devices, counts per status, size on disk."""
         counts = self.status_counts()
-        size = 0
+        folder_bytes: dict[str, int] = {}     # the captured views' files by the folder they are in
         for v in self.done_views():
             try:
-                size += self.path_of(v).stat().st_size
+                size = self.path_of(v).stat().st_size
             except (OSError, DatasetError):
-                pass
+                continue
+            folder = Path(v["file"]).parts[0] + "/" if len(Path(v["file"]).parts) > 1 else "./"
+            folder_bytes[folder] = folder_bytes.get(folder, 0) + size
         grid = self.manifest["grid"]
         return {"path": str(self.root), "format": self.manifest.get("format"), "version": self.manifest.get("version"),
                 "created": self.manifest.get("created"), "modified": self.manifest.get("modified"),
@@ -459,7 +461,9 @@ class Dataset:
                                                        "spacing_mm": grid.get("spacing_mm"), "order": grid.get("order")},
                 "views": len(self.views), **counts, "missing": counts["pending"],
                 "complete": counts["done"] + counts["skipped"] == len(self.views),
-                "raw_bytes": size, "journal_replayed": self.replayed, "journal_problems": list(self.journal_problems)}
+                "raw_bytes": folder_bytes.get("raw/", 0), "view_file_bytes": folder_bytes,
+                "imported_from": (self.manifest.get("imported_from") or {}).get("file"),
+                "journal_replayed": self.replayed, "journal_problems": list(self.journal_problems)}
 
     def verify_files(self, checksums: bool = True) -> list[str]:
         """Problems with the files of done views, by file: missing, empty, checksum mismatch."""

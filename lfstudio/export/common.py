@@ -295,11 +295,16 @@ def _is_or_holds(out: Path, path: Path) -> bool:
 
 
 def refuse_out_over_inputs(out: Path, inputs: Sequence[Path], what: str, fix: str) -> None:
-    """Refuse an ``out`` that is, or holds, one of ``inputs``: replacing it (``--overwrite``) would
-    delete what is being read (e.g. ``export DATASET --out DATASET``)."""
-    for p in inputs:
+    """Refuse an ``out`` that is, or holds, one of ``inputs`` (the first: the whole input, e.g. the
+    dataset folder): replacing it (``--overwrite``) would delete what is being read (e.g.
+    ``export DATASET --out DATASET``). The message names each path once."""
+    for i, p in enumerate(inputs):
         if _is_or_holds(out, p):
-            raise InputError("out", f"{out} is or holds {what} ({p}); writing there would delete it", fix)
+            if out.absolute().resolve() != p.absolute().resolve():
+                where = f"holds {what} ({p})"
+            else:     # the same path: name it once
+                where = f"is {what}" if i == 0 else f"is part of {what}"
+            raise InputError("out", f"{out} {where}; writing there would delete it", fix)
 
 
 def dataset_entries(ds: Dataset) -> list[Path]:

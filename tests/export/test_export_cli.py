@@ -54,7 +54,7 @@ def test_export_bad_input_exit_2(make_tiny_dataset, run_cli, tmp_path):
         _one_error_line(proc, *words)
     proc = run_cli("export", tmp_path / "nowhere", "--format", "png", "--out", tmp_path / "x")
     assert proc.returncode == 2
-    _one_error_line(proc, "DATASET", "nowhere", "dataset.json")
+    _one_error_line(proc, "nowhere", "dataset.json")
     assert sorted(p.name for p in tmp_path.iterdir()) == [ds.root.name]
 
 
@@ -79,7 +79,15 @@ def test_export_hevc_and_import_back(make_tiny_dataset, run_cli, tmp_path):
     _one_error_line(proc, "junk.mkv", "cannot be opened")
     proc = run_cli("export", ds.root, "--format", "png", "--out", ds.root, "--overwrite")
     assert proc.returncode == 2 and (ds.root / "dataset.json").is_file()
-    _one_error_line(proc, "--out", "dataset being exported")
+    _one_error_line(proc, "--out", f"{ds.root} is the dataset being exported")
+    assert proc.stderr.count(str(ds.root)) == 1                # each path named once
+    proc = run_cli("export", ds.root, "--format", "png", "--out", ds.root / "raw", "--overwrite")
+    assert proc.returncode == 2 and any((ds.root / "raw").iterdir())
+    _one_error_line(proc, "--out", f"{ds.root / 'raw'} is part of the dataset being exported")
+    assert proc.stderr.count(str(ds.root)) == 1
+    proc = run_cli("export", ds.root, "--format", "png", "--out", ds.root.parent, "--overwrite")
+    assert proc.returncode == 2 and ds.root.is_dir()
+    _one_error_line(proc, "--out", f"{ds.root.parent} holds the dataset being exported ({ds.root})")
 
 
 def test_report_summary_counts_views_in_words():
