@@ -73,4 +73,4 @@ def test_cli_calibrate_bad_input(layered, run_cli, tmp_path):
     proc = run_cli("calibrate", layered.root, "--position-sigma-um", "eighty")
     assert proc.returncode == 2 and "--position-sigma-um" in proc.stderr and "Traceback" not in proc.stderr
     proc = run_cli("calibrate", tmp_path)
-    assert proc.returncode == 1 and "dataset.json" in proc.stderr
+    assert proc.returncode == 2 and "dataset.json" in proc.stderr

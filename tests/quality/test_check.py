@@ -185,7 +185,7 @@ def test_lfstudio_check_prints_json_and_exits_0_with_flagged_views(quality_datas
 
 def test_lfstudio_check_names_the_problem_without_a_traceback(tmp_path, run_cli):
     res = run_cli("check", tmp_path / "nothing-here")
-    assert res.returncode == 1 and "Traceback" not in res.stderr
+    assert res.returncode == 2 and "Traceback" not in res.stderr   # a DATASET that does not exist: bad input
     assert "nothing-here" in res.stderr
     res = run_cli("check", tmp_path, "--work-width-px", "50")
     assert res.returncode == 2 and "--work-width-px" in res.stderr
