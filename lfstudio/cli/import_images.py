@@ -5,15 +5,14 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lfstudio.numbers import SPACING_MM, Number, grid_option, numbers_option
+from lfstudio.numbers import SPACING_MM, Number, check_grid, numbers_option, parse_numbers
 
 HELP = "import another rig's images (PNG, TIFF, JPEG, camera RAW) as a dataset that calibrates, processes and exports"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("folder", metavar="FOLDER", help="folder holding the other rig's images, one per view")
-    p.add_argument("--grid", required=True, type=grid_option("--grid"), metavar="CxR",
-                   help="columns x rows of the capture grid, e.g. 9x5")
+    p.add_argument("--grid", required=True, metavar="CxR", help="columns x rows of the capture grid, e.g. 9x5")
     p.add_argument("--spacing-mm", required=True, type=numbers_option("--spacing-mm", SPACING_MM, 2, "4x6"), metavar="HxV",
                    help="distance between neighbouring views in mm, horizontal x vertical, e.g. 4x6")
     p.add_argument("--order", choices=("row-major", "meander"), default="row-major",
@@ -41,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.export.import_images import ImportOptions, import_images
     from lfstudio.jobs import TerminalProgress
 
-    cols, rows = args.grid
+    # read after the other options: a grid's size is checked before anything is allocated per view
+    cols, rows = check_grid("--grid", *parse_numbers("--grid", args.grid, Number("", integer=True), 2, "9x5"))
     options = ImportOptions(folder=Path(args.folder), out=Path(args.out), grid=(cols, rows),
                             spacing_mm=args.spacing_mm,
                             order=args.order, pattern=args.pattern, focal_length_mm=args.focal_length_mm,
