@@ -11,7 +11,7 @@ def test_info_reports_files_by_folder_and_an_empty_raw_folder_as_empty(make_tiny
     from lfstudio.dataset import Dataset
     from lfstudio.export import ExportOptions, export_dataset, import_hevc
     from lfstudio.processing.pipeline import process_dataset
-    from lfstudio.processing.profile import Profile
+    from lfstudio.dataset.profile import Profile
 
     ds = make_tiny_dataset("png", width_px=241)
     raw_total = sum(ds.path_of(v).stat().st_size for v in ds.done_views())

@@ -131,7 +131,7 @@ def test_wheel_scrolls_the_profile_and_changes_a_value_only_after_a_click(qtbot,
 
 
 def test_every_number_field_holds_only_what_the_profile_accepts(qtbot, make_dataset):
-    from lfstudio.processing.profile import LIMITS
+    from lfstudio.dataset.profile import LIMITS
 
     ds = make_dataset(rows=1, cols=2)
     window, dialog = _dialog(qtbot, ds)

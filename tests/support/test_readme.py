@@ -34,7 +34,7 @@ def test_quick_start_lists_the_libraries_the_rest_of_the_readme_refers_to():
 
 
 def test_walk_through_image_sizes_follow_from_the_image_width_it_sets():
-    from lfstudio.processing.profile import Profile
+    from lfstudio.dataset.profile import Profile
     from lfstudio.processing.steps.resample import output_size
     from lfstudio.sim.studio import VirtualStudio
 
