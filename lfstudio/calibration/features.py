@@ -159,7 +159,10 @@ def epipole_ransac(xy_a: np.ndarray, xy_b: np.ndarray, direction: str, threshold
     """Inlier mask of matches consistent with a pure translation (one epipole), and the epipole.
 
     ``direction`` "h": b is to the right of a (points move left, −u); "v": b is below a (points move up).
+    Any other direction is a programming error (ValueError), not a looser check.
     """
+    if direction not in ("h", "v"):
+        raise ValueError(f"direction {direction!r}: 'h' or 'v'")
     n = len(xy_a)
     if n < 3:
         return np.zeros(n, bool), None

@@ -90,7 +90,6 @@ def sub_array(ds: Dataset, options) -> list[common.View]:
     have = set(ds.captured_views())
     missing = [v for v in views if v not in have]
     if missing:
-        from lfstudio.dataset.paths import view_stem
         raise InputError("hci_center", f"the sub-array has {len(missing)} views without a capture "
                          f"({', '.join(view_stem(*v) for v in missing[:4])}{' …' if len(missing) > 4 else ''})",
                          "a centre whose whole sub-array is captured")
@@ -172,9 +171,8 @@ def measured_disparity_range(ds: Dataset, views: Sequence[common.View], source: 
 
     Hook: the quality check (``lfstudio.quality``, being built) measures disparities over the whole
     grid; once it stores them in the dataset, read them here first."""
-    from lfstudio.calibration.model import homography_for, load_calibration
     from lfstudio.calibration.features import detect, match_pair
-    from lfstudio.calibration.model import apply_homography
+    from lfstudio.calibration.model import apply_homography, homography_for, load_calibration
 
     rows = sorted({r for r, _ in views})
     row = rows[(len(rows) - 1) // 2]
@@ -184,7 +182,7 @@ def measured_disparity_range(ds: Dataset, views: Sequence[common.View], source: 
     a, b = (row, cols[0]), (row, cols[-1])
     fa = detect(common.source_path(ds, a, source))
     fb = detect(common.source_path(ds, b, source))
-    m = match_pair(fa, fb, "horizontal")
+    m = match_pair(fa, fb, "h")          # b is to the right of a
     xa, xb = m.xy_a, m.xy_b
     cal = load_calibration(ds)
     if source == "raw" and cal and cal.get("homography"):

@@ -463,3 +463,29 @@ def test_hci_without_a_plan_measures_its_disparities(make_tiny_dataset, tmp_path
     export_dataset(ds, ExportOptions("hci", tmp_path / "one", hci_size=(1, 1), authors="Jane Doe"))
     p, _ = read_hci(tmp_path / "one")
     assert (p["disp_min"], p["disp_max"], p["authors"]) == (0.0, 0.0, "Jane Doe")   # nothing to measure from
+
+
+def test_hci_measures_only_matches_that_move_the_way_the_rig_steps(make_tiny_dataset):
+    """The outer views of the centre row are matched as a horizontal pair ("h": the right view's
+    points move left). With the two views swapped every match moves right, against the rig's step:
+    the geometric check keeps none and nothing is measured (a vertical check would keep them all
+    and report negative disparities)."""
+    ds = make_tiny_dataset("png")
+    views = [(r, c) for r in range(3) for c in range(5)]
+    size = (640, 427)
+    assert hci.measured_disparity_range(ds, views, "raw", size).d_min_px > 0
+    left, right = ds.path_of(ds.view(1, 0)), ds.path_of(ds.view(1, 4))
+    swap = left.with_name("swap.png")
+    left.rename(swap)
+    right.rename(left)
+    swap.rename(right)
+    assert hci.measured_disparity_range(ds, views, "raw", size) is None
+
+
+def test_feature_matching_refuses_an_unknown_direction():
+    from lfstudio.calibration.features import epipole_ransac
+
+    xy = np.array([[10.0, 10.0], [50.0, 20.0], [30.0, 40.0]])
+    for direction in ("horizontal", "vertical", "x"):
+        with pytest.raises(ValueError, match="'h' or 'v'"):
+            epipole_ransac(xy, xy - [2.0, 0.0], direction, 1.0)
