@@ -12,7 +12,8 @@ calibrates, processes and exports like one captured here:
   focal length;
 - the files are hard-linked (same file system) or copied into ``raw/`` under the dataset's names
   (``raw/r00_c000.png``), their sha256 recorded, every view ``done``, commanded positions from the
-  grid spacing;
+  grid spacing; each gets its grid thumbnail (``thumbs/r00_c000.jpg``) while it is being read, on
+  every core, so the imported dataset opens with all its thumbnails;
 - the dataset is built in a temporary sibling folder ``.NAME.partial-XXXX`` and renamed at the end:
   a cancel or an error leaves nothing under ``out`` (and removes the temporary folder).
 """
@@ -28,15 +29,20 @@ import math
 import os
 import re
 import shutil
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
 from lfstudio.dataset import images
 from lfstudio.dataset.manifest import now_iso
+from lfstudio.dataset.paths import view_stem
 from lfstudio.dataset.store import sha256_file
+from lfstudio.dataset.thumbs import make_thumbnail
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.jobs import CancelToken, Progress, no_progress
+
+log = logging.getLogger(__name__)
 
 ORDERS = ("row-major", "meander")
 #: the manifest's ``grid.order`` for each import order (see docs/dataset-format.md)
@@ -403,7 +409,7 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
     file, ``out`` exists without ``overwrite``); :class:`lfstudio.jobs.Cancelled` when cancelled.
     Nothing is left under ``out`` (nor a temporary folder) unless the import finished.
     """
-    from lfstudio.dataset import Dataset, view_stem
+    from lfstudio.dataset import Dataset
     from lfstudio.dataset.store import free_bytes
     from lfstudio.export.common import partial_folder
 
@@ -426,16 +432,39 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
         sx, sy = (float(v) for v in options.spacing_mm)
         views = []
         linked = 0
-        for i, (src, (r, c)) in enumerate(zip(plan.files, plan.cells)):
-            if cancel is not None:
-                cancel.check()
-            rel = f"raw/{view_stem(r, c)}{src.suffix.lower()}"   # = Dataset.raw_name(r, c, suffix)
+
+        def bring(src: Path, rel: str, thumb_rel: str) -> tuple[str, bool, str | None]:
             sha, was_linked = _link_or_copy(src, tmp / rel, options.link, cancel)
-            linked += was_linked
-            views.append({"row": r, "column": c, "commanded_mm": [c * sx, r * sy], "reported_mm": None,
-                          "captured_at": _iso_mtime(src), "exposure_s": None, "file": rel, "sha256": sha,
-                          "status": "done", "source_file": src.relative_to(Path(options.folder)).as_posix()})
-            progress(n_files + i + 1, total, f"{'linked' if was_linked else 'copied'} {src.name} → {rel}")
+            try:    # made while the file is in the page cache: the grid shows it at once
+                thumb = make_thumbnail([tmp / rel], tmp / thumb_rel)
+            except Exception as exc:  # a thumbnail is a convenience: the grid makes one later
+                log.info("no thumbnail of %s: %s", src, exc)
+                thumb = None
+            return sha, was_linked, thumb_rel if thumb is not None else None
+
+        # each file is linked or copied, hashed and given its thumbnail on a pool of threads (hashing,
+        # copying and decoding release the GIL); results are taken in order
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1, thread_name_prefix="import") as pool:
+            jobs = []
+            for src, (r, c) in zip(plan.files, plan.cells):
+                stem = view_stem(r, c)
+                rel = f"raw/{stem}{src.suffix.lower()}"   # = Dataset.raw_name(r, c, suffix)
+                jobs.append(pool.submit(bring, src, rel, f"thumbs/{stem}.jpg"))
+            try:
+                for i, (job, src, (r, c)) in enumerate(zip(jobs, plan.files, plan.cells)):
+                    if cancel is not None:
+                        cancel.check()
+                    sha, was_linked, thumb = job.result()
+                    rel = f"raw/{view_stem(r, c)}{src.suffix.lower()}"
+                    linked += was_linked
+                    views.append({"row": r, "column": c, "commanded_mm": [c * sx, r * sy], "reported_mm": None,
+                                  "captured_at": _iso_mtime(src), "exposure_s": None, "file": rel, "sha256": sha,
+                                  "thumb": thumb, "status": "done",
+                                  "source_file": src.relative_to(Path(options.folder)).as_posix()})
+                    progress(n_files + i + 1, total, f"{'linked' if was_linked else 'copied'} {src.name} → {rel}")
+            except BaseException:
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
         views.sort(key=lambda v: (v["row"], v["column"]))
         cols, rows = (int(v) for v in options.grid)
         grid = {"columns": cols, "rows": rows, "spacing_mm": [sx, sy], "origin_mm": [0.0, 0.0],

@@ -34,6 +34,44 @@ def test_16bit_image_is_scaled_on_its_small_version(tmp_path):
     assert right[0] > 200 and right[2] < 40                # blue
 
 
+_FILTERS = {"none": cv2.IMWRITE_PNG_FILTER_NONE, "sub": cv2.IMWRITE_PNG_FILTER_SUB, "up": cv2.IMWRITE_PNG_FILTER_UP,
+            "mixed": cv2.IMWRITE_PNG_FILTER_NONE | cv2.IMWRITE_PNG_FILTER_SUB | cv2.IMWRITE_PNG_FILTER_UP}
+
+
+@pytest.mark.parametrize("filters", sorted(_FILTERS))
+@pytest.mark.parametrize("depth, channels", [(16, 3), (8, 3), (16, 1), (8, 4)])
+def test_png_pixels_inflated_in_one_call_match_libpng(tmp_path, filters, depth, channels):
+    """The fast PNG path (libdeflate + numpy unfiltering) gives libpng's pixels, for PNGs libpng
+    itself wrote with each filter choice."""
+    rng = np.random.default_rng(depth * 10 + channels)
+    img = cv2.GaussianBlur((rng.random((67, 91, 3)) * 65535).astype(np.uint16), (5, 5), 2)
+    if depth == 8:
+        img = (img >> 8).astype(np.uint8)
+    img = {1: img[..., 0], 3: img, 4: np.dstack([img, img[..., :1]])}[channels]
+    path = tmp_path / "v.png"
+    assert cv2.imwrite(str(path), np.ascontiguousarray(img), [cv2.IMWRITE_PNG_FILTER, _FILTERS[filters]])
+    got = images._png_small(path, 1000)               # full size: every row, compared pixel for pixel
+    want = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    assert got is not None and got.dtype == want.dtype and got.shape == want.shape
+    assert np.array_equal(got, want)
+    small = images._png_small(path, 30)               # thumbnail size: a subset of the rows
+    ref = cv2.resize(want, (30, small.shape[0]), interpolation=cv2.INTER_AREA).astype(float)
+    assert small.shape == (round(67 * 30 / 91), 30, 3)
+    assert np.abs(small - ref).mean() < 0.03 * float(want.max())
+
+
+def test_paeth_filtered_png_and_a_damaged_one_are_left_to_libpng(tmp_path):
+    img = (_scene(300, 200) * 40000).astype(np.uint16)
+    paeth = tmp_path / "paeth.png"
+    cv2.imwrite(str(paeth), img, [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_PAETH])
+    assert images._png_small(paeth, 160) is None
+    assert images.thumbnail_array(paeth, 160).shape == (107, 160, 3)      # OpenCV decodes it
+    cut = tmp_path / "cut.png"
+    cv2.imwrite(str(cut), img, [cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB])
+    cut.write_bytes(cut.read_bytes()[: cut.stat().st_size // 2])
+    assert images._png_small(cut, 160) is None
+
+
 @pytest.mark.parametrize("width_px", [1600, 900, 500])
 def test_jpeg_is_decoded_at_the_smallest_size_still_wide_enough(tmp_path, width_px):
     rgb8 = (_scene(width_px, width_px * 2 // 3) * 400).clip(0, 255).astype(np.uint8)

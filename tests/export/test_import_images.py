@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 from lfstudio.calibration.calibrate import calibrate_dataset
 from lfstudio.calibration.model import save_calibration
 from lfstudio.calibration.model import rotation_angle_deg, rotation_matrix
-from lfstudio.dataset import Dataset
+from lfstudio.dataset import Dataset, images, view_stem
 from lfstudio.dataset.store import sha256_file
 from lfstudio.errors import InputError
 from lfstudio.dataset.images import full_size_px as image_size_px
@@ -112,6 +112,12 @@ def test_row_major_png_import_puts_every_view_in_its_grid_place(render, imported
     assert ds.focal_length_px(WIDTH) == pytest.approx(50.0 / SENSOR_W_MM * WIDTH)
     assert not ds.verify_files()
     assert calls[-1][0] == calls[-1][1] and all(a[0] <= b[0] for a, b in zip(calls, calls[1:]))
+    for v in ds.views:                                 # each view's thumbnail, made during the import
+        thumb = cv2.imread(str(ds.root / v["thumb"]))
+        want = images.thumbnail_array(ds.path_of(v), 160)
+        assert v["thumb"] == f"thumbs/{view_stem(v['row'], v['column'])}.jpg" and thumb.shape == want.shape
+        blocks = [cv2.resize(t, (16, 11), interpolation=cv2.INTER_AREA).astype(int) for t in (thumb, want)]
+        assert np.abs(blocks[0] - blocks[1]).mean() < 3, v["thumb"]          # the same picture (JPEG q85)
     assert not [p for p in ds.root.parent.iterdir() if p.name.startswith(".")]   # no temporary left
 
 
