@@ -4,9 +4,10 @@ and 8241 (201 x 41) views. Target: a save < 50 ms at 8241 views; open time linea
     python benchmarks/manifest_save.py [--repeat 5]
 
 Per grid: open (wall and CPU), the first save after opening (every view encoded), saves after 2
-views changed (a real scan between two checkpoints) and after 400 (the instant-device worst case),
-and the former save (``json.dumps(indent=1)``: Python's pure-Python encoder) for comparison, in
-this invocation. Saves include the atomic write (temporary file, fsync, rename, folder fsync).
+views changed and after 400 (the instant-device worst case), the former save (``json.dumps(indent=1)``:
+Python's pure-Python encoder) for comparison, in this invocation; and the scan's periodic
+``Dataset.checkpoint`` (journal-first: the manifest is rewritten only when the journal has grown
+past half of it) after 2 views recorded through ``record_view`` and after 2 changed directly. Saves include the atomic write (temporary file, fsync, rename, folder fsync).
 Medians of ``--repeat`` runs; CPU is this thread's.
 """
 
@@ -68,7 +69,7 @@ def main() -> int:
             runs = [timed(lambda: Dataset.open(root)) for _ in range(args.repeat)]
             opened[n] = median(runs)
             rows_out = [("open", opened[n])]
-            first, two, many, former = [], [], [], []
+            first, two, many, former, scan, direct = [], [], [], [], [], []
             for i in range(args.repeat):
                 ds = Dataset.open(root)
                 first.append(timed(ds.save))
@@ -81,13 +82,24 @@ def main() -> int:
                 former.append(timed(lambda: atomic_write_text(
                     ds.manifest_path, json.dumps(ds.manifest, indent=1, allow_nan=False) + "\n")))
                 ds.save()
+                for j in range(2):   # a scan between two checkpoints: views journaled by record_view
+                    v = ds.views[(i * 991 + j * 17) % n]
+                    ds.record_view(v["row"], v["column"], attempts=i + 3, timings_s={**v["timings_s"], "store": 0.002})
+                scan.append(timed(ds.checkpoint))
+                for j in range(2):   # views changed directly (not through record_view): journaled whole
+                    ds.views[(i * 983 + j * 19) % n]["attempts"] = i + 4
+                direct.append(timed(ds.checkpoint))
+                ds.save()
+                ds.close()
             rows_out += [("save, first after open", median(first)), ("save, 2 views changed", median(two)),
-                         ("save, 400 views changed", median(many)), ("former save (indent=1)", median(former))]
+                         ("save, 400 views changed", median(many)), ("former save (indent=1)", median(former)),
+                         ("checkpoint, 2 views recorded", median(scan)),
+                         ("checkpoint, 2 views changed", median(direct))]
             size_mb = (root / "dataset.json").stat().st_size / 1e6
             print(f"{columns} x {rows} = {n} views ({size_mb:.1f} MB manifest):")
             for label, (wall, cpu) in rows_out:
                 mark = ""
-                if label.startswith("save") and n == 8241:
+                if label.startswith(("save", "checkpoint")) and n == 8241:
                     mark = f"   (target < {TARGET_MS:g} ms: {'OK' if wall < TARGET_MS else 'MISSED'})"
                 print(f"  {label:26s} {wall:7.1f} ms wall {cpu:7.1f} ms CPU{mark}", flush=True)
     (w1, c1), (w2, c2) = opened[2121], opened[8241]

@@ -5,6 +5,10 @@ view counts as captured::
 
     {"seq": 17, "row": 0, "column": 16, "set": {"status": "done", "file": "raw/r00_c016.dng", ...}}
 
+and, from a checkpoint (``Dataset.checkpoint``), whole views that changed otherwise::
+
+    {"seq": 18, "row": 0, "column": 3, "view": {"row": 0, "column": 3, "status": "failed", ...}}
+
 ``seq`` grows by one per line. The manifest records the last sequence number it already contains
 (``journal_seq``); opening a dataset replays the lines after it, so a ``kill -9`` between a journal
 line and the next manifest save loses nothing. A torn last line (the process died while writing
@@ -51,8 +55,9 @@ def read_journal(path: str | os.PathLike) -> tuple[list[dict[str, Any]], list[st
         try:
             rec = json.loads(line.decode("utf-8"), parse_constant=_not_a_number)
             if not (isinstance(rec, dict) and isinstance(rec.get("seq"), int) and isinstance(rec.get("row"), int)
-                    and isinstance(rec.get("column"), int) and isinstance(rec.get("set"), dict)):
-                raise ValueError("needs seq, row, column and set")
+                    and isinstance(rec.get("column"), int)
+                    and isinstance(rec.get("set", rec.get("view")), dict)):
+                raise ValueError("needs seq, row, column and set (or view)")
         except (UnicodeDecodeError, ValueError) as exc:
             if not last:
                 problems.append(f"{JOURNAL_NAME}: line {i + 1}: unreadable record ignored ({exc})")
@@ -69,12 +74,29 @@ class Journal:
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         self._fh = None
+        self._size: int | None = None
+
+    def size_bytes(self) -> int:
+        """The journal's length in bytes (0 when there is none)."""
+        if self._size is None:
+            try:
+                self._size = self.path.stat().st_size
+            except FileNotFoundError:
+                self._size = 0
+        return self._size
 
     def append(self, record: dict[str, Any]) -> None:
+        self.append_many([record])
+
+    def append_many(self, records: list[dict[str, Any]]) -> None:
+        """Append ``records`` (one line each) with one write and one fsync: durable when this returns."""
         if self._fh is None:
             self._repair_tail()
             self._fh = open(self.path, "ab", buffering=0)
-        line = json.dumps(record, separators=(",", ":"), allow_nan=False).encode("utf-8") + b"\n"
+            self._size = None
+        dumps = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+        line = "".join(dumps(r) + "\n" for r in records).encode("utf-8")
+        self.size_bytes()
         try:
             rest = memoryview(line)
             while rest:                        # a full disk may take part of the line: the rest raises ENOSPC
@@ -82,7 +104,9 @@ class Journal:
             os.fsync(self._fh.fileno())
         except BaseException:
             self.close()                       # the next append cuts the torn line first (_repair_tail)
+            self._size = None
             raise
+        self._size = (self._size or 0) + len(line)
 
     def _repair_tail(self) -> None:
         """Cut a torn last line so the next record starts on a line of its own."""
@@ -102,6 +126,7 @@ class Journal:
         if self.path.exists():
             with open(self.path, "wb") as fh:
                 os.fsync(fh.fileno())
+        self._size = 0
 
     def close(self) -> None:
         if self._fh is not None:

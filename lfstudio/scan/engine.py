@@ -992,7 +992,7 @@ class ScanEngine:
             return
         if later is None and time.monotonic() - self._last_save > self.checkpoint_s:
             try:
-                self.dataset.save()
+                self.dataset.checkpoint()      # journal-first: the manifest is rewritten only now and then
             except Exception as exc:              # the journal holds the view: it is kept whatever happens here
                 later = self._disk_fault(exc, self.dataset.root, f"saving {self.dataset.manifest_path.name}") or \
                     ScanFault(f"Saving {self.dataset.manifest_path} failed: {_error_text(exc)}.", "disk")

@@ -163,3 +163,77 @@ def test_open_checks_symlinks_once_per_folder_and_still_refuses_an_escape(tmp_pa
     ds.save()
     with pytest.raises(DatasetError, match="outside"):
         Dataset.open(ds.root)
+
+
+# -- journal-first checkpoints -------------------------------------------------------------------------
+def reopened(ds: Dataset) -> dict:
+    """The manifest as a crash right now would leave it: a fresh open of the folder (file + journal)."""
+    return as_json(Dataset.open(ds.root).manifest)
+
+
+def test_checkpoint_journals_changed_views_and_leaves_the_manifest_file_alone(tmp_path):
+    ds = _dataset(tmp_path)
+    ds.save()
+    before = ds.manifest_path.read_bytes()
+    ds.record_view(0, 1, status="done", file="raw/r00_c001.dng", timings_s={"move": 0.5})
+    journal = ds.root / "journal.jsonl"
+    size = journal.stat().st_size
+    ds.checkpoint()                              # the record_view line already holds that view
+    assert journal.stat().st_size == size and ds.manifest_path.read_bytes() == before
+    v = ds.view(1, 2)                            # changed behind record_view's back: a key set, a key gone
+    v["status"] = "failed"
+    del v["exposure_s"]
+    ds.checkpoint()
+    assert ds.manifest_path.read_bytes() == before
+    last = json.loads(journal.read_text().splitlines()[-1])
+    assert last["view"] == as_json(v) and (last["row"], last["column"]) == (1, 2)
+    assert reopened(ds) == {**as_json(ds.manifest), "modified": on_disk(ds)["modified"]}
+    assert "exposure_s" not in Dataset.open(ds.root).view(1, 2)
+    ds.save()                                    # folds the journal into the file
+    assert journal.stat().st_size == 0 and on_disk(ds) == as_json(ds.manifest)
+
+
+def test_checkpoint_rewrites_the_manifest_for_new_top_level_keys_and_a_long_journal(tmp_path, monkeypatch):
+    ds = _dataset(tmp_path, columns=20, rows=10)
+    ds.save()
+    ds.manifest["processing"] = {"profile": "default"}
+    ds.checkpoint()
+    assert on_disk(ds)["processing"] == {"profile": "default"}
+    from lfstudio.dataset import manifest as manifest_module
+
+    monkeypatch.setattr(manifest_module, "JOURNAL_MIN_BYTES", 20_000)      # a journal of ~80 lines, not ~4000
+    limit = max(manifest_module.JOURNAL_MIN_BYTES, ds.manifest_path.stat().st_size // 2)
+    journal = ds.root / "journal.jsonl"
+    i = 0
+    while (journal.stat().st_size if journal.exists() else 0) <= limit:   # views changed over and over
+        ds.views[i % 200]["attempts"] = i
+        ds.checkpoint()
+        i += 1
+    before = ds.manifest_path.read_bytes()
+    ds.views[0]["attempts"] = -1
+    ds.checkpoint()                              # past the limit: written out, journal emptied
+    assert ds.manifest_path.read_bytes() != before and journal.stat().st_size == 0
+    assert on_disk(ds) == as_json(ds.manifest)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 11), st.sampled_from(["record", "set", "delete", "checkpoint", "save"]),
+                          st.integers(0, 5)), max_size=30))
+def test_whatever_mix_of_changes_and_checkpoints_a_reopen_sees_exactly_the_durable_ones(tmp_path_factory, steps):
+    """record_view is durable when it returns, a checkpoint or save makes everything durable, a
+    change made directly to a view only with the next checkpoint or save."""
+    ds = _dataset(tmp_path_factory.mktemp("mix"))
+    durable = as_json(ds.manifest["views"])
+    for index, action, value in steps:
+        v = ds.views[index]
+        if action == "record":
+            ds.record_view(v["row"], v["column"], attempts=value)
+            durable[index]["attempts"] = value
+        elif action == "set":
+            v["exposure_s"] = float(value)
+        elif action == "delete":
+            v.pop("exposure_s", None)
+        else:
+            getattr(ds, action)()
+            durable = as_json(ds.manifest["views"])
+        assert reopened(ds)["views"] == durable
