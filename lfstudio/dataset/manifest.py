@@ -137,6 +137,12 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
             problems.append(f"{f}: {name}: {val} is more than lfstudio handles (valid: 1 … {MAX_GRID_SIDE})")
     if grid and "spacing_mm" in grid and not _is_pair(grid["spacing_mm"]):
         problems.append(f"{f}: grid.spacing_mm: must be [horizontal, vertical] numbers")
+    if grid.get("origin_mm") is not None and not _is_pair(grid["origin_mm"]):   # what Grid.from_manifest reads
+        problems.append(f"{f}: grid.origin_mm: must be [x, y] numbers or null")
+    if grid.get("order") is not None and not isinstance(grid["order"], str):
+        problems.append(f"{f}: grid.order: must be a string or null")
+    if grid.get("settle_s") is not None and not (_is_number(grid["settle_s"]) and grid["settle_s"] >= 0):
+        problems.append(f"{f}: grid.settle_s: must be a non-negative number or null")
     views = manifest.get("views")
     if not isinstance(views, list):
         problems.append(f"{f}: views: missing or not a list")
