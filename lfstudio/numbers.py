@@ -146,6 +146,9 @@ def _as_option(option: str, parse: Callable[[str], Any]) -> Callable[[str], Any]
     return convert
 
 
+as_option = _as_option      # for other readers of typed text (paths: lfstudio.dataset.paths.path_option)
+
+
 def check_number(field: str, value: Any, *, unit: str = "", low: float | None = None, high: float | None = None,
                  low_open: bool = False, integer: bool = False) -> Any:
     """:meth:`Number.check` for a field described in place."""

@@ -9,12 +9,13 @@ from pathlib import Path
 
 from lfstudio.errors import InputError
 from lfstudio.numbers import Number
+from lfstudio.dataset.paths import path_option
 
 HELP = "self-calibrate the camera orientation (and principal point) from the dataset's images"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("dataset", metavar="DATASET", help="dataset folder (holds dataset.json)")
+    p.add_argument("dataset", metavar="DATASET", type=path_option("DATASET"), help="dataset folder (holds dataset.json)")
     p.add_argument("--views", metavar="SPEC", default="default",
                    help="views to use: 'default' (a 5x5 array spread over the whole grid, capped by its size), "
                         "ROWSxCOLUMNS such as 2x3 (the paper's array) or 5x9 (slower, more accurate), 'all', or "

@@ -7,12 +7,13 @@ import json
 
 from lfstudio.errors import InputError
 from lfstudio.numbers import WIDTH_PX, Number, parse_numbers
+from lfstudio.dataset.paths import path_option
 
 HELP = "take a test shot with a camera (sim, gphoto2, folder:PATH) and print its files and timings"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("stem", help="where to store the shot, without suffix (e.g. /tmp/test -> /tmp/test.dng)")
+    p.add_argument("stem", type=path_option("stem"), help="where to store the shot, without suffix (e.g. /tmp/test -> /tmp/test.dng)")
     p.add_argument("--camera", default="sim", metavar="sim|gphoto2|folder:PATH",
                    help="simulated studio camera, USB camera via gphoto2, or a hot folder (default: sim)")
     p.add_argument("--trigger", nargs=argparse.REMAINDER, default=None,

@@ -12,12 +12,13 @@ import json
 import sys
 
 from lfstudio.errors import InputError
+from lfstudio.dataset.paths import path_option
 
 HELP = "check a dataset's views from their pixels (sharpness, exposure, position, residual, depth); write quality.json"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("dataset", metavar="DATASET", help="dataset folder (holds dataset.json)")
+    p.add_argument("dataset", metavar="DATASET", type=path_option("DATASET"), help="dataset folder (holds dataset.json)")
     p.add_argument("--views", metavar="SPEC", default="all",
                    help="views to judge: 'all' (default) or names like r00_c000,r01_c002 (their neighbours are "
                         "read too, to compare with)")

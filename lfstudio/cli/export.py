@@ -8,6 +8,7 @@ import sys
 
 from lfstudio.errors import InputError
 from lfstudio.numbers import Number
+from lfstudio.dataset.paths import path_option
 
 BITS = Number("bits", 1, 16, integer=True)   # each format checks its own depths
 
@@ -21,7 +22,7 @@ _OPTION = {"format": "--format", "out": "--out", "views": "--views", "source": "
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("dataset", metavar="DATASET", help="the dataset folder (holding dataset.json)")
+    p.add_argument("dataset", metavar="DATASET", type=path_option("DATASET"), help="the dataset folder (holding dataset.json)")
     from lfstudio.export import FORMATS
     from lfstudio.export.nerfstudio import HOLDOUT_HELP
 
@@ -30,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "sidecar FILE.json), hci (HCI benchmark layout of a sub-array), colmap (COLMAP text "
                         "model sparse/0/*.txt + images/, known poses, metres) or nerfstudio (transforms.json + "
                         "images/, known poses, train/test split)")
-    p.add_argument("--out", required=True, metavar="PATH",
+    p.add_argument("--out", required=True, metavar="PATH", type=path_option("--out"),
                    help="png/hci/colmap/nerfstudio: a new folder; hevc: a new .mp4/.mkv/.hevc file "
                         "(its sidecar is PATH.json)")
     p.add_argument("--views", metavar="SUBSET",

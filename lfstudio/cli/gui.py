@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from lfstudio.dataset.paths import path_option
 
 HELP = "open the application window (default)"
 
@@ -14,7 +15,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                            "connected at start (the default)")
     mode.add_argument("--hardware", dest="simulated", action="store_false",
                       help="start without the simulated studio; connect the real rig and camera in their panels")
-    p.add_argument("--dataset", metavar="DIR", help="open this dataset folder on start")
+    p.add_argument("--dataset", metavar="DIR", type=path_option("--dataset"), help="open this dataset folder on start")
     p.add_argument("--screenshot", metavar="PNG",
                    help="render the main window to this PNG file once it is shown, then quit")
 

@@ -5,13 +5,14 @@ from __future__ import annotations
 import argparse
 import sys
 
+from lfstudio.dataset.paths import path_option
 from lfstudio.numbers import SPACING_MM, Number, check_grid, numbers_option, parse_numbers
 
 HELP = "import another rig's images (PNG, TIFF, JPEG, camera RAW) as a dataset that calibrates, processes and exports"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("folder", metavar="FOLDER", help="folder holding the other rig's images, one per view")
+    p.add_argument("folder", metavar="FOLDER", type=path_option("FOLDER"), help="folder holding the other rig's images, one per view")
     p.add_argument("--grid", required=True, metavar="CxR", help="columns x rows of the capture grid, e.g. 9x5")
     p.add_argument("--spacing-mm", required=True, type=numbers_option("--spacing-mm", SPACING_MM, 2, "4x6"), metavar="HxV",
                    help="distance between neighbouring views in mm, horizontal x vertical, e.g. 4x6")
@@ -27,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="sensor pixel size in µm")
     p.add_argument("--focal-length-px", type=Number("px", 0, 1e6, low_open=True).option("--focal-length-px"), metavar="F",
                    help="focal length in pixels of these images (instead of --focal-length-mm/--pixel-pitch-um)")
-    p.add_argument("--out", required=True, metavar="DATASET", help="the new dataset folder")
+    p.add_argument("--out", required=True, metavar="DATASET", type=path_option("--out"), help="the new dataset folder")
     p.add_argument("--overwrite", action="store_true", help="replace DATASET if it exists")
     p.add_argument("--copy", action="store_true",
                    help="always copy the files (default: hard-link them when on the same file system)")

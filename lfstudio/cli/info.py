@@ -6,12 +6,13 @@ import argparse
 import json
 
 from lfstudio.errors import DatasetError
+from lfstudio.dataset.paths import path_option
 
 HELP = "summarise a dataset folder: grid, devices, views done/missing/failed, size"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("dataset", metavar="DATASET", help="the dataset folder (holding dataset.json)")
+    p.add_argument("dataset", metavar="DATASET", type=path_option("DATASET"), help="the dataset folder (holding dataset.json)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--verify", action="store_true",
                    help="also check every captured file exists and matches its sha256 (reads all files)")

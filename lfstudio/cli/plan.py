@@ -8,6 +8,7 @@ import math
 import sys
 
 from lfstudio.errors import InputError
+from lfstudio.dataset.paths import path_option
 
 HELP = "plan a scene: aperture, depth of field, disparity, parallax, capture time and disk space"
 
@@ -27,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.error = one_line_error
     g = p.add_argument_group("camera and lens")
-    g.add_argument("--plan", metavar="FILE", help="start from this plan file (.toml or .json) instead of the reference setup")
+    g.add_argument("--plan", metavar="FILE", type=path_option("--plan"), help="start from this plan file (.toml or .json) instead of the reference setup")
     g.add_argument("--camera", metavar="NAME", help="camera preset (see --list-presets)")
     g.add_argument("--sensor-px", metavar="WxH", help="sensor size in pixels, e.g. 7952x5304")
     g.add_argument("--sensor-mm", metavar="WxH", help="sensor size in mm, e.g. 35.9x24")
@@ -61,7 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--parallax-fraction", type=float, metavar="F",
                    help="wanted parallax as a fraction of the image size: proposes the grid")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
-    p.add_argument("--save", metavar="FILE", help="also write the plan to FILE (.toml or .json)")
+    p.add_argument("--save", metavar="FILE", type=path_option("--save"), help="also write the plan to FILE (.toml or .json)")
     p.add_argument("--list-presets", action="store_true", help="list camera, lens and rig presets and exit")
 
 

@@ -6,13 +6,14 @@ import argparse
 import sys
 
 from lfstudio.numbers import WORKERS
+from lfstudio.dataset.paths import path_option
 
 HELP = "process the captured views (debayer, lens, colour, shading, de-flicker, rectify, downsample)"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("dataset", metavar="DATASET", help="the dataset folder (holding dataset.json)")
-    p.add_argument("--profile", metavar="FILE",
+    p.add_argument("dataset", metavar="DATASET", type=path_option("DATASET"), help="the dataset folder (holding dataset.json)")
+    p.add_argument("--profile", metavar="FILE", type=path_option("--profile"),
                    help="processing profile (TOML); default: DATASET/processing.toml, or built-in defaults. "
                         "The profile used is saved as DATASET/processing.toml")
     p.add_argument("--cluster", metavar="ADDR",
@@ -22,7 +23,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="local worker processes (default: one per core; 0: run in this process)")
     p.add_argument("--force", action="store_true",
                    help="process every view again, even those already done with the same profile")
-    p.add_argument("--write-profile", metavar="FILE",
+    p.add_argument("--write-profile", metavar="FILE", type=path_option("--write-profile"),
                    help="write the effective profile (defaults or --profile) to FILE and exit")
 
 

@@ -7,6 +7,7 @@ import signal
 import sys
 import threading
 
+from lfstudio.dataset.paths import path_option
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.numbers import (EXPOSURE_S, OFFSET_MM, RETRIES, SEED, SETTLE_S, SPACING_MM, TIME_SCALE, TRANSFER_S,
                               WIDTH_PX, grid_option, numbers_option)
@@ -42,8 +43,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="capture order (default: row-meander)")
     p.add_argument("--settle-s", type=SETTLE_S.option("--settle-s"), default=None,
                    help="settle time after each move (default: rig profile)")
-    p.add_argument("--plan", metavar="PLAN", help="a scene plan file saved by the planner (grid, spacing, camera, lens)")
-    p.add_argument("--out", required=True, metavar="DATASET", help="the dataset folder to create (or resume)")
+    p.add_argument("--plan", metavar="PLAN", type=path_option("--plan"), help="a scene plan file saved by the planner (grid, spacing, camera, lens)")
+    p.add_argument("--out", required=True, metavar="DATASET", type=path_option("--out"), help="the dataset folder to create (or resume)")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted scan in DATASET: captures only the views not done yet")
     p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",

@@ -7,6 +7,7 @@ import json
 import sys
 
 from lfstudio.errors import InputError
+from lfstudio.dataset.paths import path_option
 
 HELP = "reproduce the paper's synthetic calibration experiment (Figure 3) with known ground truth"
 
@@ -42,7 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--outliers", type=float, default=0.0, metavar="FRACTION",
                    help="share of matches replaced by random wrong ones (default 0)")
     p.add_argument("--sweep", metavar="RADII", help="run for several shifts, e.g. 0:50:5 (Figure 3)")
-    p.add_argument("--plot", metavar="FILE.png", help="with --sweep: draw Figure 3 into this PNG")
+    p.add_argument("--plot", metavar="FILE.png", type=path_option("--plot"), help="with --sweep: draw Figure 3 into this PNG")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
 
 

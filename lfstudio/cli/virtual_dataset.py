@@ -7,6 +7,7 @@ import sys
 
 from lfstudio.errors import InputError
 from lfstudio.numbers import SEED, SPACING_MM, WIDTH_PX, Number, grid_option, numbers_option, parse_numbers
+from lfstudio.dataset.paths import path_option
 
 DISTANCE_M = Number("m", 0, 10_000, low_open=True)
 FRACTION = Number("", 0, 1)
@@ -19,7 +20,7 @@ def _numbers(text: str, option: str, n: int) -> tuple[float, ...]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("folder", help="new dataset folder")
+    p.add_argument("folder", type=path_option("folder"), help="new dataset folder")
     p.add_argument("--grid", default=(5, 3), type=grid_option("--grid"), metavar="CxR",
                    help="columns x rows (default 5x3; the reference is 101x21)")
     p.add_argument("--spacing-mm", default="4x6", type=numbers_option("--spacing-mm", SPACING_MM, 2, "4x6"),

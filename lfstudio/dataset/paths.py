@@ -7,6 +7,11 @@ that comes from the dataset (manifest entries, ``processing.toml``'s output fold
 ``raw/``, ``thumbs/``, ``processed/``, ``cache/`` and files like ``calibration.json`` that may be
 symlinks). :func:`check_dataset_entries` runs it on the dataset's own files and folders when a
 dataset is opened, so a symlink that leads elsewhere is refused before any stage starts.
+
+:func:`expand_path` is THE reading of a path the operator typed (GUI fields and CLI arguments alike):
+``~`` and environment variables expanded, so ``~/datasets/day1`` never becomes a folder named ``~``.
+:func:`new_dataset_folder_problem` says why a folder cannot receive a new dataset (it holds other
+files), before anything is written into it.
 """
 
 from __future__ import annotations
@@ -14,9 +19,10 @@ from __future__ import annotations
 import os
 import re
 from pathlib import Path, PurePosixPath
-from typing import Any
+from typing import Any, Callable
 
-from lfstudio.errors import DatasetError
+from lfstudio.errors import DatasetError, InputError
+from lfstudio.numbers import as_option
 
 
 def view_stem(row: int, column: int) -> str:
@@ -44,6 +50,61 @@ CALIBRATION_NAME = "calibration.json"
 #: the dataset's own files and folders (beside the views' files): none may be a symlink leading outside
 DATASET_ENTRIES = ("dataset.json", "journal.jsonl", "dataset.lock", CALIBRATION_NAME, "processing.toml",
                    "quality.json", "raw", "thumbs", "thumbs/generated", "processed", "cache")
+
+
+_VARIABLE = re.compile(r"\$(?:(\w+)|\{([^}]*)\})")
+
+
+def expand_path(text: str | os.PathLike, field: str = "path", *, absolute: bool = False) -> Path:
+    """The path the operator means by ``text``: ``~`` / ``~user`` become the home folder and
+    ``$NAME`` / ``${NAME}`` the environment variable's value; spaces around it are dropped.
+
+    An empty text, an unset variable or an unknown ``~user`` is refused (:class:`InputError` naming
+    ``field``): left as they are they would become folders literally named ``$NAME`` or ``~user``.
+    A relative path stays relative to the working folder unless ``absolute`` (what the GUI shows).
+    """
+    raw = os.fspath(text).strip() if isinstance(text, (str, os.PathLike)) else ""
+    if not raw:
+        raise InputError(field, "no path given", "a folder or file, e.g. ~/datasets/day1")
+    for match in _VARIABLE.finditer(raw):
+        name = match.group(1) or match.group(2)
+        if name not in os.environ:
+            raise InputError(field, f"{raw!r} uses the environment variable ${name}, which is not set",
+                             "set it, or type the path without it")
+    expanded = os.path.expanduser(os.path.expandvars(raw))
+    if expanded.startswith("~"):
+        user = expanded[1:].split("/", 1)[0].split(os.sep, 1)[0]
+        raise InputError(field, f"{raw!r}: there is no user {user!r} whose home folder ~{user} could mean",
+                         "~/… for your own home folder, or a full path")
+    path = Path(expanded)
+    return path.absolute() if absolute else path
+
+
+def path_option(option: str) -> Callable[[str], str]:
+    """The argparse ``type=`` of a path argument: :func:`expand_path` on what was typed (a quoted
+    ``'~/x'`` or ``'$HOME/x'`` reaches us unexpanded by the shell); a refusal is one line, exit 2."""
+    return as_option(option, lambda text: str(expand_path(text, option)))
+
+
+def new_dataset_folder_problem(folder: str | Path) -> str | None:
+    """Why a new dataset cannot be created in ``folder``, or None (missing or empty are fine).
+
+    A folder that holds other files but no dataset is refused: a scan would mix its views, thumbnails
+    and manifest into the operator's own files. (``dataset.lock`` alone is a scan that never started.)
+    """
+    folder = Path(folder)
+    if not folder.exists():
+        return None
+    if not folder.is_dir():
+        return f"{folder} is a file, not a folder"
+    if (folder / "dataset.json").exists():
+        return f"{folder} already holds a dataset"
+    others = sorted(p.name for p in folder.iterdir() if p.name != "dataset.lock")
+    if others:
+        shown = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
+        return (f"{folder} is not empty ({shown}) and holds no dataset: a new dataset there would mix its "
+                "files with these")
+    return None
 
 
 def relative_name_problem(relative: Any) -> str | None:

@@ -72,7 +72,9 @@ class CameraSpec:
         if word.lower() in (SIM, INSTANT, "gphoto2"):
             return cls(word.lower())
         if word.startswith("folder:") and len(word) > len("folder:"):
-            return cls("folder", word.split(":", 1)[1])
+            from lfstudio.dataset.paths import expand_path
+
+            return cls("folder", str(expand_path(word.split(":", 1)[1], option)))
         raise InputError(option, f"unknown camera {text!r}", CAMERA_CHOICES)
 
     @property

@@ -42,3 +42,34 @@ def test_info_reports_manifest_problems_by_field(run_cli, tmp_path):
     assert r.returncode == 1
     assert "views[0] (row 0, column 5): outside the 2 x 1 grid" in r.stderr
     assert "a view with status 'done' needs a file" in r.stderr
+
+
+def test_scan_expands_a_quoted_tilde_and_variables_in_paths(run_cli, tmp_path):
+    """A quoted '~/x' or '$HOME/x' reaches lfstudio unexpanded by the shell: it must still mean the
+    home folder, not a folder literally named '~' in the working folder."""
+    home, cwd = tmp_path / "home", tmp_path / "cwd"
+    home.mkdir()
+    cwd.mkdir()
+    r = run_cli("scan", "--rig", "instant", "--camera", "instant", "--grid", "2x1", "--out", "~/datasets/day1",
+                "--time-scale", "0", env={"HOME": str(home)}, cwd=cwd)
+    assert r.returncode == 0, r.stderr
+    assert (home / "datasets" / "day1" / "dataset.json").is_file()
+    info = run_cli("info", "$HOME/datasets/day1", env={"HOME": str(home)}, cwd=cwd)
+    assert info.returncode == 0 and "2 done" in info.stdout, info.stderr
+    assert list(cwd.iterdir()) == []                # no '~' or '$HOME' folder made here
+    r = run_cli("info", "$LFS_UNSET_VARIABLE/day1", env={"LFS_UNSET_VARIABLE": None}, cwd=cwd)
+    assert r.returncode == 2 and "$LFS_UNSET_VARIABLE, which is not set" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_scan_into_a_folder_holding_other_files_is_refused(run_cli, tmp_path):
+    mine = tmp_path / "Documents"
+    mine.mkdir()
+    (mine / "thesis.pdf").write_bytes(b"%PDF")
+    r = run_cli("scan", "--rig", "instant", "--camera", "instant", "--grid", "2x1", "--out", mine,
+                "--time-scale", "0")
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--out" in lines[0] and "not empty (thesis.pdf)" in lines[0]
+    assert "an empty or new folder" in lines[0]
+    assert sorted(p.name for p in mine.iterdir()) == ["thesis.pdf"]          # nothing written there

@@ -18,9 +18,11 @@ from PySide6.QtWidgets import (QComboBox, QDialog, QFileDialog, QFormLayout, QGr
                                QLineEdit, QMessageBox, QPushButton, QSizePolicy, QSpinBox, QStackedWidget,
                                QVBoxLayout, QWidget)
 
+from lfstudio.dataset.paths import expand_path
 from lfstudio.errors import LfError
 from lfstudio.export import ExportOptions, estimate_export, export_dataset
 from lfstudio.gui.bridge import JobRunner
+from lfstudio.gui.path_field import expand_on_edit
 from lfstudio.gui.preferences import EXPORT_KEY
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import GridPicker, JobProgressWidget, confirm_cancel_running
@@ -108,6 +110,7 @@ class ExportDialog(QDialog):
         self._pending_options: ExportOptions | None = None
         self._user_selection: set[tuple[int, int]] | None = None
         self.overwrite_box: QMessageBox | None = None
+        self._running_out: Path | None = None
 
         self.runner = JobRunner(self)
         self.estimate_runner = JobRunner(self)
@@ -300,7 +303,8 @@ class ExportDialog(QDialog):
         row = QHBoxLayout()
         self.folder_edit = QLineEdit()
         self.folder_edit.setObjectName("folderEdit")
-        self.folder_edit.setToolTip("The folder the export is written into")
+        self.folder_edit.setToolTip("The folder the export is written into (~ and $VARIABLES are expanded)")
+        expand_on_edit(self.folder_edit, "Folder")
         self.browse_button = QPushButton("Browse…")
         self.browse_button.setToolTip("Choose the destination folder")
         self.browse_button.clicked.connect(self.choose_folder)
@@ -364,7 +368,9 @@ class ExportDialog(QDialog):
         return str(self.format_combo.currentData())
 
     def out_path(self) -> Path:
-        return Path(self.folder_edit.text().strip()).expanduser() / self.name_edit.text().strip()
+        """The destination: the folder as typed (``~`` and ``$VARIABLES`` expanded, absolute) and the
+        name; InputError naming "Folder" when the folder names no path."""
+        return expand_path(self.folder_edit.text(), "Folder", absolute=True) / self.name_edit.text().strip()
 
     def selected_views(self) -> list[tuple[int, int]] | None:
         """The picked views (None when every captured view is picked)."""
@@ -457,7 +463,13 @@ class ExportDialog(QDialog):
         self._estimate_timer.start()
 
     def _destination_changed(self) -> None:
-        out = self.out_path()
+        try:
+            out = self.out_path()
+        except LfError as exc:
+            self.path_label.setText(f"<span style='color:#b00020'>{exc}</span>")
+            self.path_label.setToolTip(str(exc))
+            self._update_export_button()
+            return
         exists = " <span style='color:#b35900'>(exists: you will be asked before it is replaced)</span>" \
             if existing_outputs(self.format, out) else ""
         self.path_label.setText(f"→ {out}{exists}")
@@ -566,6 +578,7 @@ class ExportDialog(QDialog):
         self._save_settings()
         self.report = None
         self.open_folder_button.setEnabled(False)
+        self._running_out = options.out
         self.result_label.setText(f"Exporting to {options.out}…")
         self.runner.start(_export_job, self.dataset.root, options)
         self._update_export_button()
@@ -601,7 +614,7 @@ class ExportDialog(QDialog):
     def _export_cancelled(self) -> None:
         self.format_combo.setEnabled(True)
         self._update_export_button()
-        self.result_label.setText(f"Cancelled: nothing was written to {self.out_path()}.")
+        self.result_label.setText(f"Cancelled: nothing was written to {self._running_out}.")
 
     def export_folder(self) -> Path | None:
         if self.report is None:

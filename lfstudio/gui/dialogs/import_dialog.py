@@ -17,8 +17,10 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QF
                                QHBoxLayout, QLabel, QLineEdit, QMessageBox, QPushButton, QSpinBox,
                                QStackedWidget, QVBoxLayout, QWidget)
 
+from lfstudio.dataset.paths import expand_path
 from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import JobRunner
+from lfstudio.gui.path_field import expand_on_edit, field_path
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import JobProgressWidget
 
@@ -61,6 +63,7 @@ class _ImportDialogBase(QDialog):
         self.out_edit = QLineEdit(str(settings().value(f"{self.settings_prefix}/out", "")))
         self.out_edit.setPlaceholderText("a new dataset folder")
         self.out_edit.setToolTip("The dataset folder to create (it must not exist, or you confirm replacing it)")
+        expand_on_edit(self.out_edit, "Destination")
         self.out_button = QPushButton("Browse…")
         self.out_button.setToolTip("Choose where the new dataset goes")
         self.out_button.clicked.connect(self._browse_out)
@@ -124,7 +127,11 @@ class _ImportDialogBase(QDialog):
         if not out_text:
             self.show_message("Destination: choose a folder for the new dataset", ok=False)
             return
-        out = Path(out_text).expanduser()
+        try:
+            out = field_path(self.out_edit, "Destination")
+        except InputError as exc:
+            self.show_message(str(exc), ok=False)
+            return
         if out.exists():
             self._ask_overwrite(out)
             return
@@ -219,6 +226,7 @@ class ImportImagesDialog(_ImportDialogBase):
         self.folder_edit = QLineEdit(str(s.value(f"{p}/folder", "")))
         self.folder_edit.setPlaceholderText("folder holding one image per view")
         self.folder_edit.setToolTip("The other rig's images: PNG, TIFF, JPEG or camera RAW, one file per view")
+        expand_on_edit(self.folder_edit, "Image folder")
         self.folder_button = QPushButton("Browse…")
         self.folder_button.setToolTip("Choose the folder of images")
         self.folder_button.clicked.connect(self._browse_folder)
@@ -324,7 +332,7 @@ class ImportImagesDialog(_ImportDialogBase):
             self.count_label.setStyleSheet("")
             return None
         try:
-            files = find_images(Path(text).expanduser(), self.pattern_edit.text().strip() or None)
+            files = find_images(expand_path(text, "Image folder", absolute=True), self.pattern_edit.text().strip() or None)
         except InputError as exc:
             self.count_label.setText(str(exc).split(": ", 1)[-1])
             self.count_label.setStyleSheet(BAD_STYLE)
@@ -347,8 +355,8 @@ class ImportImagesDialog(_ImportDialogBase):
 
         mode = self.intrinsics_combo.currentIndex()
         return ImportOptions(
-            folder=Path(self.folder_edit.text().strip()).expanduser(),
-            out=Path(self.out_edit.text().strip()).expanduser(),
+            folder=field_path(self.folder_edit, "Image folder"),
+            out=field_path(self.out_edit, "Destination"),
             grid=(self.columns_spin.value(), self.rows_spin.value()),
             spacing_mm=(self.spacing_h.value(), self.spacing_v.value()),
             order=self.order_combo.currentText(), pattern=self.pattern_edit.text().strip() or None,
@@ -408,6 +416,7 @@ class ImportHevcDialog(_ImportDialogBase):
         self.file_edit = QLineEdit(str(settings().value(f"{self.settings_prefix}/file", "")))
         self.file_edit.setPlaceholderText("an .mp4/.mkv/.hevc exported by lfstudio (with its .json sidecar)")
         self.file_edit.setToolTip("The HEVC stream; its sidecar JSON maps frames to views")
+        expand_on_edit(self.file_edit, "HEVC file")
         self.file_button = QPushButton("Browse…")
         self.file_button.clicked.connect(self._browse_file)
         self.import_button.setToolTip("Decode every frame into a new dataset of 16-bit PNG views")
@@ -427,15 +436,17 @@ class ImportHevcDialog(_ImportDialogBase):
                 self.out_edit.setText(str(Path(path).with_suffix("")) + "_dataset")
 
     def job(self, overwrite: bool):
-        file = Path(self.file_edit.text().strip()).expanduser()
-        if not self.file_edit.text().strip() or not file.is_file():
+        if not self.file_edit.text().strip():
+            raise InputError("HEVC file", "choose the exported .mp4/.mkv/.hevc file")
+        file = field_path(self.file_edit, "HEVC file")
+        if not file.is_file():
             raise InputError("HEVC file", f"{file} is not a file" if self.file_edit.text().strip() else
                              "choose the exported .mp4/.mkv/.hevc file")
         fn = hevc_importer()
         if fn is None:
             raise InputError("HEVC file", "HEVC import is not available in this lfstudio build "
                              "(lfstudio.export.import_hevc is missing); update lfstudio")
-        out = Path(self.out_edit.text().strip()).expanduser()
+        out = field_path(self.out_edit, "Destination")
 
         def run(*, progress, cancel):
             return fn(file, out, progress=progress, cancel=cancel, overwrite=overwrite)

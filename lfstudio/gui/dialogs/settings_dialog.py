@@ -13,7 +13,9 @@ from pathlib import Path
 from PySide6.QtWidgets import (QComboBox, QDialog, QDialogButtonBox, QFileDialog, QFormLayout, QGroupBox,
                                QHBoxLayout, QLabel, QLineEdit, QPushButton, QVBoxLayout, QWidget)
 
+from lfstudio.errors import InputError
 from lfstudio.gui import preferences
+from lfstudio.gui.path_field import expand_on_edit, field_path
 from lfstudio.gui.settings import settings
 
 log = logging.getLogger(__name__)
@@ -75,6 +77,7 @@ class SettingsDialog(QDialog):
         edit = QLineEdit(value)
         edit.setObjectName(f"{label.lower()}Folder")
         edit.setToolTip(tip)
+        expand_on_edit(edit, label)
         browse = QPushButton("Browse…")
         browse.setToolTip(f"Choose the {label.lower()} folder")
         browse.clicked.connect(lambda: self._browse(edit, label))
@@ -90,8 +93,8 @@ class SettingsDialog(QDialog):
             edit.setText(folder)
 
     def values(self) -> dict[str, str]:
-        out = {preferences.DATASETS_KEY: self.datasets_edit.text().strip(),
-               preferences.EXPORT_KEY: self.export_edit.text().strip()}
+        out = {preferences.DATASETS_KEY: _typed(self.datasets_edit, "Datasets"),
+               preferences.EXPORT_KEY: _typed(self.export_edit, "Exports")}
         for kind, combo in self.preset_combos.items():
             out[preferences.PRESET_KEYS[kind]] = str(combo.currentData() or "")
         return out
@@ -109,8 +112,18 @@ class SettingsDialog(QDialog):
         log.info("settings changed: %s", self.values())
 
 
+def _typed(edit: QLineEdit, label: str) -> str:
+    """The folder typed in ``edit`` as the absolute path it means ("" when empty; as typed when it
+    names no path, e.g. an unset variable)."""
+    if not edit.text().strip():
+        return ""
+    try:
+        return str(field_path(edit, label))
+    except InputError:
+        return edit.text().strip()
+
+
 def _preset_names(kind: str) -> list[str]:
-    from lfstudio.errors import InputError
     from lfstudio.resources import load_presets
 
     try:

@@ -14,8 +14,10 @@ from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
                                QLabel, QLineEdit, QPushButton, QSizePolicy, QSpinBox, QStackedWidget, QVBoxLayout, QWidget)
 
+from lfstudio.dataset.paths import expand_path
 from lfstudio.errors import InputError
 from lfstudio.gui.devices import QtDevice
+from lfstudio.gui.path_field import expand_on_edit
 from lfstudio.gui.settings import settings
 from lfstudio.gui.state import AppState
 from lfstudio.resources import user_config_dir
@@ -135,7 +137,9 @@ class CameraPanel(QWidget):
         # hot folder
         self.folder_edit = QLineEdit(str(s.value("camera/hot_folder", "")))
         self.folder_edit.setPlaceholderText("folder the camera software saves into")
-        self.folder_edit.setToolTip("New files appearing here are taken as the shots")
+        self.folder_edit.setToolTip("New files appearing here are taken as the shots "
+                                    "(~ and $VARIABLES are expanded)")
+        expand_on_edit(self.folder_edit, "Folder")
         browse = QPushButton("Browse…")
         browse.setToolTip("Choose the hot folder")
         browse.clicked.connect(self._browse)
@@ -314,9 +318,9 @@ class CameraPanel(QWidget):
                                options=options, connect=False)
         if kind == "gphoto2":
             return open_camera(CameraSpec("gphoto2"), doing=doing, connect=False)
-        folder = self.folder_edit.text().strip()
-        if not folder:
+        if not self.folder_edit.text().strip():
             raise InputError("Folder", "choose the folder the camera software saves into")
+        folder = str(expand_path(self.folder_edit.text(), "Folder", absolute=True))
         try:
             argv = shlex.split(self.trigger_edit.text())
         except ValueError as exc:

@@ -26,8 +26,10 @@ from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayo
                                QLabel, QLineEdit, QMessageBox, QPlainTextEdit, QProgressBar, QPushButton,
                                QSizePolicy, QSpinBox, QToolButton, QVBoxLayout, QWidget)
 
+from lfstudio.dataset.paths import new_dataset_folder_problem
 from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import GuiInbox, JobRunner
+from lfstudio.gui.path_field import expand_on_edit, field_path
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import set_progress_async
 from lfstudio.jobs import format_duration
@@ -349,7 +351,9 @@ class ScanPanel(QWidget):
         self.folder = QLineEdit()
         self.folder.setObjectName("datasetFolder")
         self.folder.setPlaceholderText("folder for the new dataset")
-        self.folder.setToolTip("The dataset folder: created for a new scan; an existing one is resumed")
+        self.folder.setToolTip("The dataset folder: created for a new scan; an existing one is resumed. "
+                               "~ and $VARIABLES are expanded; the absolute path is shown")
+        expand_on_edit(self.folder, "Dataset folder")
         browse = QToolButton()
         browse.setText("…")
         browse.setToolTip("Choose the dataset folder")
@@ -562,9 +566,17 @@ class ScanPanel(QWidget):
         off the GUI thread; the engine starts when they are ready."""
         if self.running or self.opener.running:
             return
-        folder = self.folder.text().strip()
-        if not folder:
+        if not self.folder.text().strip():
             self.state.report_error("Scan", "Dataset folder: choose a folder for the dataset first.")
+            return
+        try:
+            folder = field_path(self.folder, "Dataset folder")
+        except InputError as exc:
+            self.state.report_error("Scan", str(exc))
+            return
+        problem = None if (folder / "dataset.json").is_file() else new_dataset_folder_problem(folder)
+        if problem:
+            self._ask_other_folder(folder, problem, recapture)
             return
         try:
             plan = self.current_plan()
@@ -582,7 +594,7 @@ class ScanPanel(QWidget):
                        devices.get("camera_link")) if shared else None
         simulator = devices.get("rig_simulator") if shared and self.state.simulated else None
         scene = self.state.plan
-        job = dict(plan=plan, folder=Path(folder), recapture=list(recapture) if recapture else None,
+        job = dict(plan=plan, folder=folder, recapture=list(recapture) if recapture else None,
                    rig_cfg=self.rig_config(), scene=scene, shared=rig_devices, simulator=simulator,
                    studio=self.studio, time_scale=self.time_scale.value() if self.state.simulated else 1.0,
                    exposure_s=getattr(scene, "exposure_s", 0.5), transfer_s=getattr(scene, "transfer_s", 2.5),
@@ -593,6 +605,28 @@ class ScanPanel(QWidget):
         self.start_button.setEnabled(False)
         self._last_start = (list(recapture) if recapture else None)
         self.opener.start(prepare_scan, job)
+
+    def _ask_other_folder(self, folder: Path, problem: str, recapture) -> None:
+        """A new scan into a folder holding other files: offer a new sub-folder of it, or let the
+        operator choose another folder (nothing is written into ``folder``)."""
+        sub = next(folder / name for name in ("lfstudio-scan", *(f"lfstudio-scan-{i}" for i in range(2, 1000)))
+                   if new_dataset_folder_problem(folder / name) is None)
+        self.state_label.setText("Choose a folder for the new dataset")
+        self._log(f"not scanning into {folder}: {problem}")
+        box = QMessageBox(QMessageBox.Warning, "Folder is not empty",
+                          f"{problem}.\n\nScan into the new folder {sub} instead, or choose an empty folder "
+                          "(Dataset → Folder).", QMessageBox.Yes | QMessageBox.Cancel, self)
+        box.setObjectName("folderNotEmptyBox")
+        box.button(QMessageBox.Yes).setText(f"Scan into {sub.name}")
+        box.setDefaultButton(QMessageBox.Cancel)
+        self.folder_box = box
+
+        def answered(button) -> None:
+            if box.standardButton(button) == QMessageBox.Yes:
+                self.folder.setText(str(sub))
+                self.start(recapture=recapture)
+        box.buttonClicked.connect(answered)
+        box.open()
 
     def _devices_failed(self, message: str) -> None:
         self.state_label.setText("Could not start the scan")
