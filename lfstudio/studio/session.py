@@ -190,6 +190,11 @@ def _distance_to_path(p: tuple[float, float], path: list[tuple[float, float]]) -
     return best
 
 
+class RigNotHomed(DeviceError):
+    """The rig is not homed (or locked in ALARM) and can home: homing first would let the scan go on
+    (the GUI offers it; the CLI's line names ``--home``)."""
+
+
 def cli_homing_hint(port: str, config: RigConfig) -> str:
     """How to home from the command line (the end of a "not homed" line)."""
     if config.homing:
@@ -231,11 +236,12 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
     if status.state is RigState.ALARM:
         reason = status.message if status.message.startswith("ALARM") else \
             "locked since it was powered up or reset" if config.homing else "locked"
-        raise DeviceError(f"the rig on {port} is in ALARM ({reason}): {fix}")
+        raise (RigNotHomed if config.homing else DeviceError)(f"the rig on {port} is in ALARM ({reason}): {fix}")
     if status.state is RigState.DISCONNECTED:
         raise DeviceError(f"the rig on {port} is not connected: {status.message}")
     if not status.homed:
-        raise DeviceError(f"the rig on {port} is not homed (its position is unknown): {fix}")
+        raise (RigNotHomed if config.homing else DeviceError)(
+            f"the rig on {port} is not homed (its position is unknown): {fix}")
     if resume_from is not None and status.position_mm is not None:
         dataset, plan = resume_from
         if any(v.get("reported_mm") and v.get("captured_at") for v in dataset.done_views()):

@@ -78,7 +78,7 @@ def test_hot_folder_needs_a_folder_and_settings_persist(qtbot, panels):
     panel.folder_edit.setText("")
     panel.connect_camera()
     assert errors and "Folder" in errors[0] and not panel.connected
-    assert settings().value("camera/kind") == "folder"
+    assert settings().value(panel.kind_key) == "folder"
     panel.trigger_edit.setText('tool "unterminated')
     panel.folder_edit.setText("/tmp")
     panel.connect_camera()

@@ -10,7 +10,7 @@ from lfstudio.gui.state import AppState
 
 
 def test_test_shot_and_settings_the_camera_refuses(qtbot, vcamera):
-    state = AppState()
+    state = AppState(simulated=False)           # a hardware session: its camera choice is gphoto2
     settings().setValue("camera/kind", "gphoto2")
     panel = CameraPanel(state)
     qtbot.addWidget(panel)

@@ -76,7 +76,7 @@ class CameraPanel(QWidget):
         self.kind.setToolTip("Which camera to use: the simulated studio (renders the virtual scene from the "
                              "simulated rig's position), a USB camera through libgphoto2, or a folder that "
                              "the camera's own software saves into")
-        index = self.kind.findData(s.value("camera/kind", "sim" if state.simulated else "gphoto2"))
+        index = self.kind.findData(s.value(self.kind_key, "sim" if state.simulated else "gphoto2"))
         self.kind.setCurrentIndex(max(0, index))
 
         # simulated
@@ -240,6 +240,12 @@ class CameraPanel(QWidget):
         menu.addAction(self.shot_action)
 
     # -- choices -------------------------------------------------------------------------------------
+    @property
+    def kind_key(self) -> str:
+        """Where the camera choice is kept: the simulated studio (``gui --simulated``) and the
+        hardware session each remember their own, so neither inherits the other's camera."""
+        return "camera/kind_simulated" if self.state.simulated else "camera/kind"
+
     def current_kind(self) -> str:
         return str(self.kind.currentData())
 
@@ -250,7 +256,7 @@ class CameraPanel(QWidget):
             policy = QSizePolicy.Preferred if i == current else QSizePolicy.Ignored
             self.pages.widget(i).setSizePolicy(policy, policy)
         self.pages.adjustSize()
-        settings().setValue("camera/kind", self.current_kind())
+        settings().setValue(self.kind_key, self.current_kind())
         self._show_truth()
         self._update_enabled()
 

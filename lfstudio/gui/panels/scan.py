@@ -12,6 +12,7 @@ the dataset's own devices: other devices only when the operator agrees, rig chec
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from collections import deque
@@ -39,6 +40,7 @@ from lfstudio.scan.scan_plan import ORDERS, ScanPlan, grid_order
 log = logging.getLogger(__name__)
 
 ACTIVE_KEY = "scan/active_dataset"
+GRID_KEY = "scan/grid"    # the panel's grid as last set (JSON): restored with the Planner's plan after a restart
 FRAME_MS = 40             # engine events are shown at most 25 times a second (each drain repaints)
 DRAIN_BUDGET_S = 0.010    # GUI time one drain may take before it yields to painting and input
 
@@ -195,7 +197,7 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     devices (dataset lock, dataset created or resumed with its own devices, rig checks) and its engine.
     Returns ``{"studio", "session", "dataset", "engine", "restore"}``."""
     from lfstudio.studio.devices import link_for_camera, link_for_rig, open_studio
-    from lfstudio.studio.session import DeviceChangeRefused, ScanRequest, ScanSession, SharedDevices
+    from lfstudio.studio.session import DeviceChangeRefused, RigNotHomed, ScanRequest, ScanSession, SharedDevices
 
     plan: ScanPlan = job["plan"]
     folder: Path = job["folder"]
@@ -228,7 +230,7 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
         devices = SharedDevices(studio.rig, studio.camera, studio.record(), port=studio.port)
     request = ScanRequest(folder, resume=(folder / "dataset.json").is_file(), rig_config=job["rig_cfg"],
                           allow_device_change=job.get("allow_device_change", False), recapture=job["recapture"],
-                          time_scale=job["time_scale"])
+                          time_scale=job["time_scale"], home=job.get("home", False))
     session = ScanSession(request, doing="scanning", devices=devices)
     scene = job["scene"]
     try:
@@ -236,6 +238,9 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     except DeviceChangeRefused as exc:        # the operator decides (ScanPanel._devices_ready)
         restore_time_scales(restore)
         return {"studio": studio, "refused": exc}
+    except RigNotHomed as exc:                # the operator may home first (ScanPanel._ask_home)
+        restore_time_scales(restore)
+        return {"studio": studio, "not_homed": exc}
     except BaseException:
         if started_studio is not None:
             started_studio.close()
@@ -284,6 +289,11 @@ class ScanPanel(QWidget):
         self.opener.failed.connect(self._devices_failed)
         self._build()
         self._load_settings()
+        if not self._restore_grid() and state.plan is not None:
+            self._on_plan(state.plan)       # first start: the Planner's plan (published before this panel existed)
+        for w in (self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v, self.settle):
+            w.valueChanged.connect(self._save_grid)
+        self.order.currentIndexChanged.connect(self._save_grid)
         state.planChanged.connect(self._on_plan)
         state.recaptureRequested.connect(self.recapture)
         state.datasetChanged.connect(self._on_dataset)
@@ -479,6 +489,27 @@ class ScanPanel(QWidget):
         s.setValue("scan/time_scale", self.time_scale.value())
         s.setValue("scan/order", self.order.currentText())
 
+    def _grid_fields(self) -> dict[str, Any]:
+        return {"columns": self.columns.value(), "rows": self.rows.value(),
+                "spacing_mm": [self.spacing_h.value(), self.spacing_v.value()],
+                "offset_mm": [self.offset_h.value(), self.offset_v.value()], "settle_s": self.settle.value()}
+
+    def _save_grid(self, *args) -> None:
+        settings().setValue(GRID_KEY, json.dumps(self._grid_fields()))
+
+    def _restore_grid(self) -> bool:
+        """Set the grid fields as they were when lfstudio closed; False when nothing (valid) was saved."""
+        try:
+            saved = json.loads(str(settings().value(GRID_KEY, "") or "null"))
+            values = (int(saved["columns"]), int(saved["rows"]), *map(float, saved["spacing_mm"]),
+                      *map(float, saved["offset_mm"]), float(saved["settle_s"]))
+        except (TypeError, ValueError, KeyError):
+            return False
+        for w, v in zip((self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v,
+                         self.settle), values):
+            w.setValue(v)
+        return True
+
     def _browse(self) -> None:
         folder = QFileDialog.getExistingDirectory(self, "Dataset folder", str(Path(self.folder.text()).parent))
         if folder:
@@ -561,9 +592,10 @@ class ScanPanel(QWidget):
     def running(self) -> bool:
         return self.engine is not None and self.engine.state not in (ScanState.FINISHED, ScanState.FAILED)
 
-    def start(self, recapture: list[tuple[int, int]] | None = None, allow_device_change: bool = False) -> None:
+    def start(self, recapture: list[tuple[int, int]] | None = None, allow_device_change: bool = False,
+              home: bool = False) -> None:
         """Start (or resume) the scan set up in the panel. Devices, dataset and engine are prepared
-        off the GUI thread; the engine starts when they are ready."""
+        off the GUI thread; the engine starts when they are ready. ``home``: home the rig first."""
         if self.running or self.opener.running:
             return
         if not self.folder.text().strip():
@@ -598,12 +630,13 @@ class ScanPanel(QWidget):
                    rig_cfg=self.rig_config(), scene=scene, shared=rig_devices, simulator=simulator,
                    studio=self.studio, time_scale=self.time_scale.value() if self.state.simulated else 1.0,
                    exposure_s=getattr(scene, "exposure_s", 0.5), transfer_s=getattr(scene, "transfer_s", 2.5),
-                   allow_device_change=allow_device_change)
+                   allow_device_change=allow_device_change, home=home)
         if not shared and self.studio is None:
             self._log("starting the simulated studio (GRBL simulator on a pseudo-terminal, simulated camera)…")
             self.state_label.setText("Connecting the simulated rig and camera…")
         self.start_button.setEnabled(False)
         self._last_start = (list(recapture) if recapture else None)
+        self._last_allow_change = allow_device_change
         self.opener.start(prepare_scan, job)
 
     def _ask_other_folder(self, folder: Path, problem: str, recapture) -> None:
@@ -639,6 +672,10 @@ class ScanPanel(QWidget):
         refused = prepared.get("refused")
         if refused is not None:
             self._ask_device_change(refused)
+            self._update_buttons()
+            return
+        if prepared.get("not_homed") is not None:
+            self._ask_home(prepared["not_homed"])
             self._update_buttons()
             return
         dataset, engine = prepared["dataset"], prepared["engine"]
@@ -693,6 +730,30 @@ class ScanPanel(QWidget):
         def answered(button) -> None:
             if box.standardButton(button) == QMessageBox.Yes:
                 self.start(recapture=recapture, allow_device_change=True)
+        box.buttonClicked.connect(answered)
+        box.open()
+
+    def _ask_home(self, problem) -> None:
+        """The rig is not homed (e.g. after a restart, when the interrupted scan is offered): home it
+        now as the scan's first step, or leave it to the operator."""
+        self.state_label.setText("The rig is not homed")
+        self._log(str(problem))
+        box = QMessageBox(QMessageBox.Question, "Home the rig first?",
+                          f"{problem}.\n\nHome the rig now (it drives to its limit switches) and then start "
+                          "the scan?", QMessageBox.Yes | QMessageBox.No, self)
+        box.setObjectName("homeFirstBox")
+        box.button(QMessageBox.Yes).setText("Home, then scan")
+        box.button(QMessageBox.No).setText("Cancel")
+        box.setDefaultButton(QMessageBox.Yes)
+        self.home_box = box
+        recapture, allow = self._last_start, getattr(self, "_last_allow_change", False)
+
+        def answered(button) -> None:
+            if box.standardButton(button) == QMessageBox.Yes:
+                self._log("homing the rig before the scan")
+                self.start(recapture=recapture, allow_device_change=allow, home=True)
+            else:
+                self.state_label.setText("Not started: home the rig (Rig → Home), then Start")
         box.buttonClicked.connect(answered)
         box.open()
 
