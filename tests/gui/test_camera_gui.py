@@ -46,7 +46,7 @@ def test_live_view_polls_preview_through_the_worker(qtbot, panels):
     state, panel, live = panels
     live.live_button.setChecked(True)               # no camera yet: refused with a message
     qtbot.waitUntil(lambda: not live.live_button.isChecked(), timeout=5000)
-    assert "Camera panel" in live.message.textItem.toPlainText()
+    assert "Camera panel" in live.message.text()
     panel.connect_camera()
     qtbot.waitUntil(lambda: panel.status_label.text().startswith("Connected"), timeout=30000)
     live.live_button.setChecked(True)

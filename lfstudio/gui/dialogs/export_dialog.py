@@ -12,11 +12,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from PySide6.QtCore import QTimer, QUrl, Signal
+from PySide6.QtCore import Qt, QTimer, QUrl, Signal
 from PySide6.QtGui import QDesktopServices
-from PySide6.QtWidgets import (QComboBox, QDialog, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout, QLabel,
-                               QLineEdit, QMessageBox, QPushButton, QSizePolicy, QSpinBox, QStackedWidget,
-                               QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (QComboBox, QDialog, QFileDialog, QFormLayout, QFrame, QGroupBox, QHBoxLayout,
+                               QLabel, QLineEdit, QMessageBox, QPushButton, QScrollArea, QSizePolicy, QSpinBox,
+                               QStackedWidget, QVBoxLayout, QWidget)
 
 from lfstudio.dataset.paths import expand_path
 from lfstudio.errors import LfError
@@ -167,7 +167,9 @@ class ExportDialog(QDialog):
         form.addRow("Source:", self.source_combo)
 
         self.options_stack = QStackedWidget()
-        self.options_stack.addWidget(QWidget())                 # png: nothing more
+        png_page = QLabel("none: every view as it is, 16-bit RGB")          # the row stays: no layout jump
+        png_page.setStyleSheet("color: #555;")
+        self.options_stack.addWidget(png_page)
 
         hevc = QWidget()
         hl = QHBoxLayout(hevc)
@@ -353,10 +355,24 @@ class ExportDialog(QDialog):
         buttons.addStretch(1)
         for b in (self.open_folder_button, self.export_button, self.close_button):
             buttons.addWidget(b)
+        # every line keeps its room whether it has text or not, so the dialog never jumps between states
+        lines = self.fontMetrics().lineSpacing()
+        for label in (self.estimate_label, self.warnings_label, self.result_label):
+            label.setMinimumHeight(2 * lines + 4)
+            label.setAlignment(Qt.AlignLeft | Qt.AlignTop)
+        self.warnings_area = QScrollArea()           # however many warnings: the same room (scrolls)
+        self.warnings_area.setObjectName("warningsArea")
+        self.warnings_area.setWidget(self.warnings_label)
+        self.warnings_area.setWidgetResizable(True)
+        self.warnings_area.setFrameShape(QFrame.NoFrame)
+        self.warnings_area.setHorizontalScrollBarPolicy(Qt.ScrollBarAlwaysOff)
+        self.warnings_area.setFixedHeight(3 * lines + 6)
+        self.format_info.setMinimumHeight(4 * lines + 4)
+        self.format_info.setAlignment(Qt.AlignLeft | Qt.AlignTop)
         lay = QVBoxLayout(area)
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addWidget(self.estimate_label)
-        lay.addWidget(self.warnings_label)
+        lay.addWidget(self.warnings_area)
         lay.addWidget(self.progress)
         lay.addWidget(self.result_label)
         lay.addLayout(buttons)
@@ -422,7 +438,6 @@ class ExportDialog(QDialog):
         fmt = self.format
         self.format_info.setText(FORMAT_INFO[FORMAT_KEYS.index(fmt)][2])
         self.options_stack.setCurrentIndex(FORMAT_KEYS.index(fmt))
-        self._options_form.setRowVisible(self.options_stack, fmt != "png")
         hci = fmt == "hci"
         self.picker.toggle_on_click = not hci
         for w in (self.all_button, self.clear_button):
@@ -459,6 +474,8 @@ class ExportDialog(QDialog):
         self.estimate = None
         self.estimate_error = None
         self.estimate_label.setText("Estimating…")
+        if not self.exporting:              # the last export's line was about other options
+            self.result_label.setText("")
         self._update_export_button()
         self._estimate_timer.start()
 
@@ -511,7 +528,6 @@ class ExportDialog(QDialog):
             f"<b>{len(est.views)} views</b> · {w} × {h} px · from the {est.source} views · "
             f"about <b>{format_bytes(est.bytes_estimate)}</b>")
         self.warnings_label.setText("<br>".join(f"⚠ {w}" for w in est.warnings))
-        self.warnings_label.setVisible(bool(est.warnings))
         if self.format == "hci":            # show exactly the sub-array that will be written
             self.picker.set_selected(est.views)
         self._update_views_label(len(est.views))
@@ -524,7 +540,7 @@ class ExportDialog(QDialog):
         self.estimate = None
         self.estimate_error = message
         self.estimate_label.setText(f"<span style='color:#b00020'>{message}</span>")
-        self.warnings_label.setVisible(False)
+        self.warnings_label.setText("")
         self._update_export_button()
 
     def _update_views_label(self, count: int) -> None:

@@ -141,7 +141,7 @@ class RigPanel(QWidget):
         self._lock_shown: str | None = None
         self._problem_shown = ""           # the message of a status problem (alarm, no connection) shown now
         self._base_tips = [(w, w.toolTip()) for w in self._motion_controls()]
-        state.scanStateChanged.connect(lambda _state: self._update_enabled())
+        state.scanStateChanged.connect(self._on_scan_state)
         self.refresh_ports()
         self._on_status(RigStatus(RigState.DISCONNECTED))
 
@@ -618,6 +618,14 @@ class RigPanel(QWidget):
         self.recover_button.setVisible(show_recover)
         if show_recover:
             self.recover_button.setText("Reconnect" if snapshot.state is RigState.DISCONNECTED else "Unlock")
+        self._update_enabled()
+
+    def _on_scan_state(self, scan_state: Any) -> None:
+        """A scan starting ends what an earlier command's failure said ("stopped by STOP", ...):
+        problems the rig still has are shown again by its status."""
+        if self.state.scan_owns_rig and self.message_label.property("role") == "error" \
+                and self.message_label.text() != self._problem_shown:
+            self._show_message("")
         self._update_enabled()
 
     def _show_message(self, text: str, role: str = "error") -> None:

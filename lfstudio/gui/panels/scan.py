@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QPointF, QRectF, Qt, QTimer
-from PySide6.QtGui import QAction, QBrush, QColor, QKeySequence, QPainter, QPen, QPixmap, QPolygonF
+from PySide6.QtGui import QAction, QBrush, QColor, QKeySequence, QPainter, QPen, QPixmap, QPolygonF, QTextCursor
 from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
                                QLabel, QLineEdit, QMessageBox, QPlainTextEdit, QProgressBar, QPushButton,
                                QSizePolicy, QSpinBox, QToolButton, QVBoxLayout, QWidget)
@@ -284,6 +284,9 @@ class ScanPanel(QWidget):
         self._to_publish: list = []                      # this drain's events for AppState.scanEvents
         self._current_text: str | None = None           # the current view's line, as of this drain
         self._log_lines: list[str] = []
+        self._log_follow = True         # the log shows its newest line (see _append_log)
+        self._resumable = False         # the last scan ended with views still to capture (Resume continues it)
+        self._rig_device = None         # the rig whose status may end a paused scan's rig fault
         self.opener = JobRunner(self)
         self.opener.finished.connect(self._devices_ready)
         self.opener.failed.connect(self._devices_failed)
@@ -297,6 +300,8 @@ class ScanPanel(QWidget):
         state.planChanged.connect(self._on_plan)
         state.recaptureRequested.connect(self.recapture)
         state.datasetChanged.connect(self._on_dataset)
+        state.devicesChanged.connect(self._follow_rig)
+        self._follow_rig("rig")
         self._update_preview()
         self._update_buttons()
         QTimer.singleShot(0, self.offer_resume)
@@ -692,6 +697,7 @@ class ScanPanel(QWidget):
             self._update_buttons()
             return
         self.engine = engine
+        self._resumable = False
         engine.subscribe(self.bridge.post)
         if self.state.dataset is not dataset:
             self.state.set_dataset(dataset)
@@ -870,7 +876,7 @@ class ScanPanel(QWidget):
         if last_done is not None:
             self._show_done(last_done)
         if self._log_lines:
-            self.log_view.appendPlainText("\n".join(self._log_lines))
+            self._append_log("\n".join(self._log_lines))
             self._log_lines = []
         if self._backlog:                    # more than a slice: go on after the pending paints
             self._drain_timer.start(0)
@@ -934,6 +940,7 @@ class ScanPanel(QWidget):
         if st in (ScanState.FINISHED, ScanState.FAILED):
             self._restore_time_scales()
             self._end_session()
+            self._resumable = self.engine is not None and self.engine.dataset.status_counts()["pending"] > 0
         if st is ScanState.FINISHED and self.engine is not None:
             if self.engine.dataset.status_counts()["pending"] == 0:
                 settings().remove(ACTIVE_KEY)
@@ -947,6 +954,37 @@ class ScanPanel(QWidget):
             self.state.report_error("Scan paused", message)
         self._update_buttons()
 
+    def _follow_rig(self, name: str) -> None:
+        """Listen to the connected rig's status (see :meth:`_rig_status`)."""
+        if name != "rig":
+            return
+        device = self.state.devices.get("rig")
+        if device is self._rig_device:
+            return
+        if self._rig_device is not None:
+            try:
+                self._rig_device.statusChanged.disconnect(self._rig_status)
+            except (RuntimeError, TypeError):
+                pass
+        self._rig_device = device
+        if device is not None and hasattr(device, "statusChanged"):
+            device.statusChanged.connect(self._rig_status)
+
+    def _rig_status(self, snapshot: Any) -> None:
+        """A scan paused by a rig fault (alarm, not homed) says so only while it is true: once the
+        rig is homed and idle again the line says that Resume continues."""
+        engine = self.engine
+        fault = getattr(engine, "fault", None) if engine is not None else None
+        if engine is None or engine.state is not ScanState.PAUSED or getattr(fault, "device", "") != "rig":
+            return
+        from lfstudio.rig.motion import RigState
+
+        if getattr(snapshot, "homed", False) and getattr(snapshot, "state", None) is RigState.IDLE:
+            text = "<b style='color:#f0b030'>Paused</b> The rig is ready again (homed): press Resume to continue."
+            if self.state_label.text() != text:
+                self.state_label.setText(text)
+                self._log("the rig is homed again: Resume continues the scan")
+
     def _restore_time_scales(self) -> None:
         restore, self._restore = self._restore, None
         restore_time_scales(restore)
@@ -959,7 +997,9 @@ class ScanPanel(QWidget):
         running = self.running
         self.start_button.setEnabled(not running and not self.opener.running)
         self.pause_button.setEnabled(st is ScanState.RUNNING)
-        self.resume_button.setEnabled(st is ScanState.PAUSED)
+        # "Resume the scan" (after Abort, a failure or a restart) is always a button that works
+        self.resume_button.setEnabled(st is ScanState.PAUSED or (not running and not self.opener.running
+                                                                   and self._resumable))
         self.abort_button.setEnabled(st in (ScanState.RUNNING, ScanState.PAUSING, ScanState.PAUSED))
         self.skip_button.setEnabled(st is ScanState.PAUSED and self.engine is not None and self.engine.fault is not None)
         for w in (self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v,
@@ -973,7 +1013,22 @@ class ScanPanel(QWidget):
         if self._draining:
             self._log_lines.append(line)
         else:
-            self.log_view.appendPlainText(line)
+            self._append_log(line)
+
+    def _append_log(self, text: str) -> None:
+        """Add lines to the log, following them like a terminal: when the log was scrolled to its end
+        it stays there (wherever the text cursor is), otherwise it stays where the operator scrolled."""
+        bar = self.log_view.verticalScrollBar()
+        if self.log_view.isVisible():       # hidden (a tab behind another panel): as it was when last seen
+            self._log_follow = bar.value() >= bar.maximum() - 1
+        kept = bar.value()
+        self.log_view.appendPlainText(text)
+        if self._log_follow:
+            if not self.log_view.textCursor().hasSelection():
+                self.log_view.moveCursor(QTextCursor.End)     # where Qt scrolls to when the log is shown
+            bar.setValue(bar.maximum())
+        else:
+            bar.setValue(min(kept, bar.maximum()))
 
     def shutdown(self) -> None:
         if self.engine is not None and self.running:

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import Qt, QTimer
+from PySide6.QtCore import QEvent, Qt, QTimer
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import (QCheckBox, QHBoxLayout, QLabel, QPushButton, QSizePolicy, QSpinBox, QVBoxLayout,
                                QWidget)
@@ -66,10 +66,15 @@ class LiveView(QWidget):
         self.viewbox = self.graphics.addViewBox(lockAspect=True, invertY=True, enableMenu=False)
         self.image_item = pg.ImageItem(axisOrder="row-major")
         self.viewbox.addItem(self.image_item)
-        self.message = pg.TextItem("No frame yet: connect a camera, then press Live or take a test shot",
-                                   color="#bbbbbb", anchor=(0.5, 0.5))
-        self.viewbox.addItem(self.message)
-        self.message.setPos(0, 0)
+        # what to do next, over the picture area: word-wrapped to its width (never clipped), centred
+        self.message = QLabel(self.graphics)
+        self.message.setObjectName("liveViewMessage")
+        self.message.setAlignment(Qt.AlignCenter)
+        self.message.setWordWrap(True)
+        self.message.setAttribute(Qt.WA_TransparentForMouseEvents)
+        self.message.setStyleSheet("color: #d0d0d0; background: rgba(32, 32, 32, 200); border-radius: 6px; "
+                                   "padding: 8px;")
+        self.graphics.installEventFilter(self)
 
         self.hist = pg.PlotWidget()
         self.hist.setMenuEnabled(False)
@@ -117,6 +122,24 @@ class LiveView(QWidget):
 
         state.cameraFrame.connect(self.show_frame)
         state.devicesChanged.connect(self._devices_changed)
+        self._set_message(self._placeholder())
+
+    def _placeholder(self) -> str:
+        """The empty view's line: what the operator can do now."""
+        if self._camera() is None:
+            return "No camera connected: connect one in the Camera panel, then press Live or take a test shot."
+        return "Camera connected: press Live (Ctrl+L) for its preview, or take a test shot in the Camera panel."
+
+    def eventFilter(self, obj: Any, event: Any) -> bool:
+        if obj is self.graphics and event.type() == QEvent.Resize:
+            self._place_message()
+        return False
+
+    def _place_message(self) -> None:
+        area = self.graphics.rect()
+        width = max(60, min(area.width() - 24, 560))
+        height = min(self.message.heightForWidth(width), max(20, area.height() - 8))
+        self.message.setGeometry((area.width() - width) // 2, max(4, (area.height() - height) // 2), width, height)
 
     def install_menus(self, window: Any) -> None:
         window.menu("Rig").addAction(self.live_action)
@@ -163,17 +186,21 @@ class LiveView(QWidget):
         self._set_message(f"Live view stopped: {message}")
 
     def _devices_changed(self, name: str) -> None:
-        if name == "camera" and self._camera() is None:
+        if name != "camera":
+            return
+        if self._camera() is None:
             self.live_button.setChecked(False)
             self._in_flight = False
+        if self.frame is None:                  # the empty view says what can be done with this camera now
+            self._set_message(self._placeholder())
 
     # -- display -------------------------------------------------------------------------------------
     def _set_message(self, text: str) -> None:
         self.message.setText(text)
         self.message.setVisible(bool(text))
-        if self.frame is not None:
-            h, w = self.frame.shape[:2]
-            self.message.setPos(w / 2, h / 2)
+        if text:
+            self._place_message()
+            self.message.raise_()
 
     def show_frame(self, frame: np.ndarray, caption: str = "") -> None:
         """Show an RGB uint8 frame and update the sharpness, histogram and clipping readouts."""
