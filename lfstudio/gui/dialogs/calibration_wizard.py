@@ -2,7 +2,9 @@
 
 Results: the angles with their measured uncertainty (1σ per angle, and the rectification error it
 allows at the image corners across the grid, 1σ/2σ — the same lines as the CLI report), the numbers,
-residual histograms before/after, residual vectors over an image, a per-view residual map over the
+residual histograms before/after (axes in px as they are: no SI scaling), the residuals binned per
+image region over an image (mean vector and RMS per region: readable at tens of thousands of
+matches, :func:`residual_field`), a per-view residual map over the
 grid, epipolar-plane images before/after rectification and two neighbouring views with horizontal
 guide lines. *Accept and save* writes ``calibration.json`` into the dataset. All image reading and
 fitting runs on worker threads (:class:`lfstudio.gui.bridge.JobRunner`).
@@ -56,6 +58,50 @@ def _inspection_job(dataset, document, row: int, column: int, y_frac: float, x_f
         H = preview_homography(np.asarray(document["homography"], float), full, ia)
         neighbours = {"views": (a, b), "before": (ia, ib), "after": (rectify_image(ia, H), rectify_image(ib, H))}
     return {"epis": epis, "neighbours": neighbours}
+
+
+def plain_px_axis(axis: pg.AxisItem, label: str) -> None:
+    """An axis in pixels, numbered as they are: pyqtgraph would otherwise read residuals of ±0.5 px
+    as "±500 (x0.001)" (its SI-prefix scaling of values below 1; turning it off must come before
+    any range is set, pyqtgraph issue 2899)."""
+    if hasattr(axis, "setSIPrefixEnableRanges"):
+        axis.setSIPrefixEnableRanges(())
+    axis.enableAutoSIPrefix(False)
+    axis.setLabel(label, units="px")
+
+
+def residual_field(points_px: np.ndarray, residual_px: np.ndarray, vertical: np.ndarray, size_px: tuple[int, int],
+                   cells: tuple[int, int] = (12, 8), min_count: int = 3) -> dict[str, np.ndarray]:
+    """The residuals of many matches summarised per image region (``cells`` = columns, rows).
+
+    ``points_px`` (n, 2) are the matches' x, y in an image of ``size_px`` (width, height);
+    ``residual_px`` (n,) their residuals, measured vertically (``vertical``: row pairs) or horizontally
+    (column pairs). Returns ``centres`` (m, 2) and ``mean`` (m, 2: mean horizontal, mean vertical
+    residual) of the regions holding at least ``min_count`` matches, and ``rms`` (rows, columns) per
+    region (NaN where too few), ``count`` likewise."""
+    cols, rows = cells
+    w, h = size_px
+    pts = np.asarray(points_px, float).reshape(-1, 2)
+    res = np.asarray(residual_px, float).ravel()
+    vert = np.asarray(vertical, bool).ravel()
+    ci = np.clip((pts[:, 0] / max(w, 1) * cols).astype(int), 0, cols - 1)
+    ri = np.clip((pts[:, 1] / max(h, 1) * rows).astype(int), 0, rows - 1)
+    flat = ri * cols + ci
+    n = rows * cols
+    count = np.bincount(flat, minlength=n).astype(float)
+    sq = np.bincount(flat, res * res, minlength=n)
+    sums, nums = [], []
+    for sel in (~vert, vert):             # horizontal residuals (column pairs), vertical ones (row pairs)
+        sums.append(np.bincount(flat[sel], res[sel], minlength=n))
+        nums.append(np.bincount(flat[sel], minlength=n).astype(float))
+    ok = count >= min_count
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.column_stack([np.where(k > 0, s / k, 0.0) for s, k in zip(sums, nums)])
+        rms = np.where(ok, np.sqrt(sq / count), np.nan)
+    idx = np.flatnonzero(ok)
+    centres = np.column_stack([(idx % cols + 0.5) * w / cols, (idx // cols + 0.5) * h / rows])
+    return {"centres": centres, "mean": mean[idx], "rms": rms.reshape(rows, cols),
+            "count": count.reshape(rows, cols)}
 
 
 def _image_plot(title: str) -> tuple[pg.PlotItem, pg.ImageItem]:
@@ -300,13 +346,15 @@ class CalibrationWizard(QDialog):
         self.report_text = QPlainTextEdit()
         self.report_text.setReadOnly(True)
         self.report_text.setFont(QFont("monospace"))
-        self.report_text.setLineWrapMode(QPlainTextEdit.NoWrap)
+        self.report_text.setLineWrapMode(QPlainTextEdit.WidgetWidth)    # long warnings wrap, never cut off
         self.tabs.addTab(self.report_text, "Numbers")
 
         res = QWidget()
         self.res_plots = pg.GraphicsLayoutWidget()
         self.hist_before = self.res_plots.addPlot(0, 0, title="Residuals before (px)")
         self.hist_after = self.res_plots.addPlot(0, 1, title="Residuals after (px)")
+        for plot in (self.hist_before, self.hist_after):
+            plain_px_axis(plot.getAxis("bottom"), "v-difference (row pairs) / u-difference (column pairs)")
         self.heat = self.res_plots.addPlot(1, 0, title="Per-view RMS after (px) over the grid")
         self.heat.invertY(True)
         self.heat.setLabel("bottom", "column")
@@ -316,8 +364,15 @@ class CalibrationWizard(QDialog):
         self.vectors.setAspectLocked(True)
         self.vector_image = pg.ImageItem(axisOrder="row-major")
         self.vectors.addItem(self.vector_image)
-        self.vector_lines = pg.PlotDataItem(connect="pairs", pen=pg.mkPen((0, 200, 60), width=1.5))
+        self.region_rms = pg.ImageItem(axisOrder="row-major")      # RMS per region, over the image
+        self.region_rms.setOpacity(0.45)
+        self.region_rms.setLookupTable(pg.colormap.get("inferno").getLookupTable(nPts=256))
+        self.vectors.addItem(self.region_rms)
+        self.vector_lines = pg.PlotDataItem(connect="pairs", pen=pg.mkPen((0, 200, 60), width=2.5))
         self.vectors.addItem(self.vector_lines)
+        self.vector_roots = pg.ScatterPlotItem(size=5, pen=None, brush=pg.mkBrush(255, 255, 255, 220))
+        self.vectors.addItem(self.vector_roots)
+        self.field: dict | None = None
         self.vector_mode = QComboBox()
         self.vector_mode.addItems(["after calibration", "before calibration"])
         self.vector_mode.setToolTip("Which residuals to draw as vectors")
@@ -325,7 +380,8 @@ class CalibrationWizard(QDialog):
         self.vector_gain.setRange(1, 500)
         self.vector_gain.setValue(50)
         self.vector_gain.setPrefix("× ")
-        self.vector_gain.setToolTip("Vector length = residual × this factor (preview pixels)")
+        self.vector_gain.setToolTip("Arrow length = mean residual of the region × this factor (preview pixels); "
+                                    "set so the longest arrow fills most of its region")
         self.vector_mode.currentIndexChanged.connect(self._draw_vectors)
         self.vector_gain.valueChanged.connect(self._draw_vectors)
         row = QHBoxLayout()
@@ -437,7 +493,6 @@ class CalibrationWizard(QDialog):
                 lim = float(np.percentile(np.abs(data), 99.5)) or 1.0
                 counts, edges = np.histogram(np.clip(data, -lim, lim), bins=41, range=(-lim, lim))
                 plot.addItem(pg.BarGraphItem(x0=edges[:-1], x1=edges[1:], height=counts, brush=color))
-            plot.setLabel("bottom", "v-difference (row pairs) / u-difference (column pairs) [px]")
             plot.setLabel("left", "matches")
 
         self.heat.clear()
@@ -458,9 +513,10 @@ class CalibrationWizard(QDialog):
             self.heat.setXRange(-1, grid.columns, padding=0.05)
             self.heat.setYRange(-1, grid.rows, padding=0.1)
         self.vector_image.setImage(result["preview"], autoLevels=True)
-        self.vectors.setTitle(f"Residual vectors over {view_stem(*result['preview_view'])} "
-                              "(rows: vertical, columns: horizontal)")
-        self._draw_vectors()
+        self.vectors.setTitle(f"Mean residual per region over {view_stem(*result['preview_view'])} "
+                              "(arrows; colour: RMS)")
+        self.field = None
+        self._draw_vectors(auto_gain=True)
 
         grid = self.dataset.grid
         self.epi_row.setRange(0, grid.rows - 1)
@@ -471,7 +527,9 @@ class CalibrationWizard(QDialog):
         self.epi_column.setValue(cols[len(cols) // 2] if cols else 0)
         self.start_inspection()
 
-    def _draw_vectors(self) -> None:
+    def _draw_vectors(self, *args, auto_gain: bool = False) -> None:
+        """The chosen residuals (after / before) binned per image region (:func:`residual_field`): an
+        arrow per region from its centre, its mean residual × the gain, over the region's RMS."""
         if not self.result:
             return
         run = self.result["run"]
@@ -480,22 +538,37 @@ class CalibrationWizard(QDialog):
         s = img.shape[1] / self.result["full_size"][0]
         use_after = self.vector_mode.currentIndex() == 0
         r_all = fit.residual_after_px if use_after else fit.residual_before_px
-        gain = self.vector_gain.value() * s
-        xs, ys = [], []
+        points, residuals, vertical = [], [], []
         for m, sl in zip(run.matches, fit.pair_slices):
             keep = fit.inlier[sl]
-            p = (m.xy_a[keep] + 0.5) * s - 0.5
-            r = r_all[sl][keep]
-            if m.direction == "h":
-                x1, y1 = p[:, 0], p[:, 1] + gain * r
-            else:
-                x1, y1 = p[:, 0] + gain * r, p[:, 1]
-            xs.append(np.column_stack([p[:, 0], x1]).ravel())
-            ys.append(np.column_stack([p[:, 1], y1]).ravel())
-        color = (0, 200, 60) if use_after else (230, 60, 60)
-        self.vector_lines.setPen(pg.mkPen(color, width=1.5))
-        if xs:
-            self.vector_lines.setData(np.concatenate(xs), np.concatenate(ys))
+            points.append((m.xy_a[keep] + 0.5) * s - 0.5)
+            residuals.append(r_all[sl][keep])
+            vertical.append(np.full(int(keep.sum()), m.direction == "h"))
+        h, w = img.shape[:2]
+        if not points:
+            self.vector_lines.setData([], [])
+            self.vector_roots.setData([], [])
+            return
+        field = self.field = residual_field(np.concatenate(points), np.concatenate(residuals),
+                                            np.concatenate(vertical), (w, h))
+        rows, cols = field["rms"].shape
+        if auto_gain and len(field["mean"]):
+            longest = float(np.max(np.hypot(field["mean"][:, 0], field["mean"][:, 1]))) or 1.0
+            self.vector_gain.blockSignals(True)      # the longest arrow about 0.9 of a region
+            self.vector_gain.setValue(int(np.clip(0.9 * min(w / cols, h / rows) / longest, 1, 500)))
+            self.vector_gain.blockSignals(False)
+        gain = self.vector_gain.value()
+        rms = field["rms"]
+        top = float(np.nanmax(rms)) if np.isfinite(rms).any() else 1.0
+        self.region_rms.setImage(np.nan_to_num(rms, nan=0.0), levels=(0.0, max(top, 1e-6)))
+        self.region_rms.setRect(0, 0, w, h)
+        c, v = field["centres"], field["mean"]
+        end = c + gain * v
+        color = (0, 220, 70) if use_after else (240, 70, 70)
+        self.vector_lines.setPen(pg.mkPen(color, width=2.5))
+        self.vector_lines.setData(np.column_stack([c[:, 0], end[:, 0]]).ravel(),
+                                  np.column_stack([c[:, 1], end[:, 1]]).ravel())
+        self.vector_roots.setData(c[:, 0], c[:, 1])
 
     def start_inspection(self) -> None:
         if not self.result or self.inspect_runner.running:

@@ -17,6 +17,7 @@ clicking a flagged view shows it beside its neighbours.
 from __future__ import annotations
 
 import atexit
+import html
 import logging
 import os
 import threading
@@ -28,7 +29,7 @@ from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QObject, QPoint, QRect, QRectF, QSize, Qt, QTimer, Signal
-from PySide6.QtGui import (QAction, QBrush, QColor, QImage, QKeySequence, QPainter, QPen,
+from PySide6.QtGui import (QAction, QBrush, QColor, QFont, QFontMetrics, QImage, QKeySequence, QPainter, QPen,
                            QPixmap)
 from PySide6.QtWidgets import (QAbstractScrollArea, QDialog, QFileDialog, QHBoxLayout, QLabel, QMenu,
                                QPushButton, QScrollArea, QSizePolicy, QStackedWidget, QToolButton,
@@ -56,6 +57,7 @@ OVERLAY_ALPHA = 215
 FRAME_MS = 40                    # the grid repaints what changed at most 25 times a second
 VERDICT_MS = 100                 # scan-time verdicts are shown in batches at most this often
 MAX_RECENT = 8
+TITLE_SHARE = 0.45               # of the view's width the dataset's name may take in the title bar
 
 
 def _file_thumbnail(path: str, width_px: int) -> QImage:
@@ -754,8 +756,12 @@ class GridView(QWidget):
             for code in (PENDING, CAPTURING, DONE, FAILED, SKIPPED)))
         legend.setObjectName("gridLegend")
         legend.setToolTip("Colours of the views: pending, being captured, done, failed, skipped by the operator")
-        for label in (self.title, self.counts, legend):   # clipped when narrow: never widen the window
+        # when the bar is narrow the legend gives way first, then the counts; the dataset's name keeps
+        # its width (up to TITLE_SHARE of the view, beyond that elided in the middle): see _fit_title
+        for label in (self.title, self.counts, legend):   # never widen the window
             label.setMinimumWidth(8)
+        legend.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)
+        self._title_parts: tuple[str, str] | None = None
         bar.addWidget(legend)
         bar.addSpacing(12)
         self.fit_button = self._tool("Fit", "Show the whole grid (F)", self.canvas.fit)
@@ -835,11 +841,30 @@ class GridView(QWidget):
         self._load_quality(dataset)
         self.stack.setCurrentIndex(1)
         grid = dataset.grid
-        self.title.setText(f"<b>{dataset.root.name}</b> — {grid.columns} × {grid.rows} views")
+        self._title_parts = (dataset.root.name, f" — {grid.columns} × {grid.rows} views")
         self.title.setToolTip(str(dataset.root))
+        self._fit_title()
         self._update_counts()
         add_recent_dataset(str(dataset.root))
         self._fill_recent()
+
+    def resizeEvent(self, event) -> None:
+        super().resizeEvent(event)
+        self._fit_title()
+
+    def _fit_title(self) -> None:
+        """The title bar's dataset name, whole when it fits in TITLE_SHARE of the view's width,
+        else elided in the middle (the tooltip has the full path)."""
+        if self._title_parts is None:
+            return
+        name, rest = self._title_parts
+        bold = QFont(self.title.font())
+        bold.setBold(True)
+        fm_bold, fm = QFontMetrics(bold), self.title.fontMetrics()
+        room = max(60, int(self.width() * TITLE_SHARE))
+        shown = fm_bold.elidedText(name, Qt.ElideMiddle, max(20, room - fm.horizontalAdvance(rest) - 4))
+        self.title.setText(f"<b>{html.escape(shown)}</b>{html.escape(rest)}")
+        self.title.setMinimumWidth(min(room, fm_bold.horizontalAdvance(shown) + fm.horizontalAdvance(rest) + 8))
 
     def _update_counts(self) -> None:
         st = self.canvas.status
