@@ -15,6 +15,15 @@ from tests.gui.test_scan_gui import instant_devices, scan_panel  # noqa: F401  (
 T = 60000  # ms; generous for a loaded machine, the waits end as soon as the condition holds
 
 
+def set_up_scan(scan, columns: int, rows: int, folder) -> None:
+    """The window's Scan panel set to a small grid, no settling, simulated time 0."""
+    scan.columns.setValue(columns)
+    scan.rows.setValue(rows)
+    scan.settle.setValue(0.0)
+    scan.time_scale.setValue(0.0)
+    scan.folder.setText(str(folder))
+
+
 def test_stopped_by_stop_goes_when_the_next_scan_starts(qtbot, tmp_path):
     window, rig, camera, scan = homed_simulated_studio(qtbot)
     simulator = window.state.devices["rig_simulator"]
@@ -25,11 +34,7 @@ def test_stopped_by_stop_goes_when_the_next_scan_starts(qtbot, tmp_path):
     qtbot.mouseClick(window.stop_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: "stopped by STOP" in rig.message_label.text(), timeout=T)
     simulator.time_scale = 0.0
-    scan.columns.setValue(2)
-    scan.rows.setValue(1)
-    scan.settle.setValue(0.0)
-    scan.time_scale.setValue(0.0)
-    scan.folder.setText(str(tmp_path / "later"))
+    set_up_scan(scan, 2, 1, tmp_path / "later")
     seen = []
     window.state.scanStateChanged.connect(lambda st: seen.append((st, rig.message_label.text())))
     qtbot.mouseClick(scan.start_button, Qt.LeftButton)
@@ -44,11 +49,7 @@ def test_a_scan_paused_by_a_rig_alarm_says_so_only_until_the_rig_is_homed(qtbot,
     window, rig, camera, scan = homed_simulated_studio(qtbot)
     simulator = window.state.devices["rig_simulator"]
     simulator.time_scale = 0.0
-    scan.columns.setValue(3)
-    scan.rows.setValue(2)
-    scan.settle.setValue(0.0)
-    scan.time_scale.setValue(0.0)
-    scan.folder.setText(str(tmp_path / "alarm"))
+    set_up_scan(scan, 3, 2, tmp_path / "alarm")
     simulator.inject("alarm_mid_move")
     qtbot.mouseClick(scan.start_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: scan.engine is not None and scan.engine.state.value == "paused", timeout=T)
