@@ -56,9 +56,11 @@ PP_OBSERVABLE_STD_PX = 10.0
 PRINCIPAL_POINT_MODES = ("auto", "centre")
 #: the robust first fit (which finds the outliers) uses at most this many matches
 ROBUST_SAMPLE = 20000
-_MIN_SIGMA_PX = 1e-6
 #: systematic feature error (px at full resolution) behind the per-angle floor of the covariance
 SYSTEMATIC_PX = 0.01
+#: no pair's residuals are weighted as if its matches were better than the systematic error: with
+#: near-perfect features the weights would otherwise grow without bound and the refinement diverge
+_MIN_SIGMA_PX = SYSTEMATIC_PX
 
 
 class CalibrationError(LfError):
