@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 from lfstudio.calibration.features import DEFAULT_MAX_FEATURES, DEFAULT_WORK_WIDTH_PX, FeatureCache, Features, match_pairs
 from lfstudio.calibration.fit import DEFAULT_POSITION_SIGMA_UM, CalibrationError, FitResult, PairMatches, fit_rectification
-from lfstudio.calibration.pairs import DEFAULT_VIEWS, Pair, make_pairs
+from lfstudio.calibration.pairs import DEFAULT_PAIR_SET, DEFAULT_VIEWS, Pair, make_pairs
 from lfstudio.calibration.report import build_report
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
@@ -56,15 +56,16 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
                       principal_point: str = "auto", estimate_principal_point: bool | None = None,
                       focal_length_px: float | None = None,
                       max_width_px: int | None = DEFAULT_WORK_WIDTH_PX, max_features: int = DEFAULT_MAX_FEATURES,
-                      pair_set: str = "all", neighbours_only: bool = False,
+                      pair_set: str = DEFAULT_PAIR_SET, neighbours_only: bool = False,
                       position_sigma: Sequence[float] | None = None, ratio: float = 0.8, threads: int = 2,
                       pairs: Sequence[Pair] | None = None, progress: Progress = no_progress,
                       cancel: CancelToken | None = None) -> CalibrationRun:
     """Run the whole self-calibration on ``dataset`` (an open :class:`lfstudio.dataset.Dataset`).
 
     ``views``: a selection (:meth:`lfstudio.dataset.Dataset.select`; default: the default array,
-    :data:`lfstudio.calibration.pairs.DEFAULT_VIEWS`) or (row, column) pairs; ``pair_set``: which pairs of them (``neighbours_only`` is the older
-    spelling of "neighbours"); ``principal_point``: "auto" (estimated where observable) or
+    :data:`lfstudio.calibration.pairs.DEFAULT_VIEWS`) or (row, column) pairs; ``pair_set``: which pairs
+    of them (default :data:`lfstudio.calibration.pairs.DEFAULT_PAIR_SET`; ``neighbours_only`` is the
+    older spelling of "neighbours"); ``principal_point``: "auto" (estimated where observable) or
     "centre" (``estimate_principal_point``: the older True/False); ``position_sigma``: the rig's
     repeatability in µm (default :func:`position_sigma_um`).
     """

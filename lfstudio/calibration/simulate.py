@@ -44,7 +44,7 @@ from lfstudio.calibration.fit import CalibrationError, PairMatches, fit_rectific
 from lfstudio.calibration.linear import linear_rotation
 from lfstudio.calibration.model import (intrinsics, nominal_principal_point, project, rotation_angle_deg,
                                         rotation_matrix)
-from lfstudio.calibration.pairs import DEFAULT_VIEWS, PAIR_SETS, Pair, make_pairs
+from lfstudio.calibration.pairs import DEFAULT_PAIR_SET, DEFAULT_VIEWS, PAIR_SETS, Pair, make_pairs
 from lfstudio.calibration.uncertainty import (Probes, corner_probes, error_bounds, metric_of,
                                               nearest_disparity_per_mm, probe_errors, probe_jacobian)
 from lfstudio.dataset.grid import Grid, View
@@ -69,8 +69,8 @@ class SimulationConfig:
     rotation_sigma_deg: float = 2.5
     rotation_max_deg: float = 5.0
     points_per_pair: int = 300
-    views: str = "2x3"                        # a selection (Grid.select) over the grid: "2x3", "3x5", "default", "2x101"
-    pair_set: str = "all"                     # PAIR_SETS
+    views: str = "2x3"                        # a selection (Grid.select) over the grid: "2x3", "3x5", "default", "2x101", "10x4e"
+    pair_set: str = DEFAULT_PAIR_SET          # PAIR_SETS ("spanning" = "all" for the 2 × 3 array)
     outlier_fraction: float = 0.0             # share of matches replaced by random wrong ones
     eval_points_per_pair: int = 100
 

@@ -17,12 +17,13 @@ HELP = "self-calibrate the camera orientation (and principal point) from the dat
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", metavar="DATASET", type=path_option("DATASET"), help="dataset folder (holds dataset.json)")
     p.add_argument("--views", metavar="SPEC", default="default",
-                   help="views to use: 'default' (a 5x5 array spread over the whole grid, capped by its size), "
-                        "ROWSxCOLUMNS such as 2x3 (the paper's array) or 5x9 (slower, more accurate), 'all', or "
-                        "names like r00_c000,r00_c050,r20_c000")
-    p.add_argument("--pairs", choices=("all", "spanning", "neighbours"), default="all",
-                   help="which pairs within each row and column of the views: every pair (default), neighbours "
-                        "plus every pair with an end view ('spanning'), or adjacent views only ('neighbours': "
+                   help="views to use: 'default' (10x4e: ten rows spread over the grid x the first two and last "
+                        "two columns, capped by its size), ROWSxCOLUMNS such as 2x3 (the paper's array) or 5x5 "
+                        "(an 'e' after a count puts those rows/columns at the ends), 'all', or names like "
+                        "r00_c000,r00_c050,r20_c000")
+    p.add_argument("--pairs", choices=("all", "spanning", "neighbours"), default="spanning",
+                   help="which pairs within each row and column of the views: neighbours plus every pair with an "
+                        "end view ('spanning', default), every pair ('all'), or adjacent views only ('neighbours': "
                         "short baselines, warned about on a wide grid)")
     p.add_argument("--neighbours-only", action="store_true", help="the same as --pairs neighbours")
     p.add_argument("--principal-point", choices=("auto", "centre"), default="auto",
@@ -37,8 +38,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    metavar="F",
                    help="focal length in full-resolution pixels (default: from the dataset's camera and lens)")
     p.add_argument("--work-width-px", type=Number("px", 0, 100_000, integer=True).option("--work-width-px"),
-                   default=2000, metavar="PX",
-                   help="width at which features are detected (default 2000; 0 = full resolution)")
+                   default=None, metavar="PX",
+                   help="width at which features are detected (default 1400, "
+                        "lfstudio.calibration.features.DEFAULT_WORK_WIDTH_PX; 0 = full resolution)")
     p.add_argument("--threads", type=Number("", 1, 256, integer=True).option("--threads"), default=2,
                    help="threads for feature detection and matching (default 2)")
     p.add_argument("--no-save", action="store_true", help="print the result but do not write calibration.json")
@@ -47,6 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from lfstudio.calibration.calibrate import calibrate_dataset
+    from lfstudio.calibration.features import DEFAULT_WORK_WIDTH_PX
     from lfstudio.calibration.model import save_calibration
     from lfstudio.calibration.report import format_report
     from lfstudio.cli.args import number_pair
@@ -55,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.focal_length_px is not None and not args.focal_length_px > 0:
         raise InputError("--focal-length-px", f"{args.focal_length_px} must be positive", "> 0 pixels")
+    if args.work_width_px is None:
+        args.work_width_px = DEFAULT_WORK_WIDTH_PX
     if args.work_width_px < 0:
         raise InputError("--work-width-px", f"{args.work_width_px} must not be negative", "0 (full) or ≥ 200")
     if 0 < args.work_width_px < 200:

@@ -34,9 +34,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--points-per-pair", type=int, default=300, help="3-D points seen by each pair (default 300)")
     p.add_argument("--views", metavar="SPEC", default="2x3",
                    help="the calibration's views over the 101 x 21 grid: ROWSxCOLUMNS (default 2x3, the paper's), "
-                        "'default' (what lfstudio calibrate uses), '2x101' (two full rows), or view names")
-    p.add_argument("--pairs", choices=("all", "spanning", "neighbours"), default="all",
-                   help="which pairs of those views (default all; see lfstudio calibrate --pairs)")
+                        "'default' (what lfstudio calibrate uses: 10x4e), '2x101' (two full rows), or view names")
+    p.add_argument("--pairs", choices=("all", "spanning", "neighbours"), default="spanning",
+                   help="which pairs of those views (default spanning, as lfstudio calibrate; for the 2x3 array "
+                        "the same as all)")
     p.add_argument("--mode", choices=("both", "fixed", "estimated"), default="both",
                    help="principal point held at the centre (the paper), estimated where observable (as lfstudio "
                         "calibrate does), or both (default)")

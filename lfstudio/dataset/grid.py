@@ -11,7 +11,9 @@
 
 A selection (``spec``) is ``"all"``; rows/columns ranges ``"r0-8,c10-18"``, ``"r3"``,
 ``"c0-4,c10"`` (the available views in those rows and columns); an array ``"2x3"`` (rows ×
-columns spread over the grid, each snapped to available views); view names
+columns spread over the grid, each snapped to available views; an ``e`` after a count puts those
+rows or columns at the ends of the grid instead, half at each end, side by side: ``"10x4e"`` is ten
+rows spread over the grid × the first two and last two columns); view names
 ``"r00_c000,r00_c050"``; or a sequence of (row, column). ``None``/``""`` mean the caller's default.
 """
 
@@ -25,9 +27,9 @@ from lfstudio.dataset.paths import parse_view_stem, view_stem
 from lfstudio.errors import InputError
 
 #: what a selection may be (shown when one cannot be read)
-SELECTION_SYNTAX = ("'all', rows/columns like r0-8,c10-18, an array like 3x5 (rows x columns), or view names "
-                    "like r00_c000,r00_c050")
-_ARRAY = re.compile(r"^\s*(\d+)\s*[x×]\s*(\d+)\s*$")
+SELECTION_SYNTAX = ("'all', rows/columns like r0-8,c10-18, an array like 3x5 (rows x columns; 10x4e: the columns at "
+                    "the ends), or view names like r00_c000,r00_c050")
+_ARRAY = re.compile(r"^\s*(\d+)\s*(e?)\s*[x×]\s*(\d+)\s*(e?)\s*$", re.IGNORECASE)
 _RANGE_PART = re.compile(r"^\s*([rc])\s*(\d+)\s*(?:-\s*(\d+))?\s*$", re.IGNORECASE)
 
 
@@ -54,6 +56,14 @@ def spread_indices(n_total: int, n_pick: int) -> list[int]:
         return [0] if n_total >= 1 and n_pick >= 1 else []
     n_pick = min(n_pick, n_total)
     return sorted({round(i * (n_total - 1) / (n_pick - 1)) for i in range(n_pick)})
+
+
+def end_indices(n_total: int, n_pick: int) -> list[int]:
+    """``n_pick`` indices at the two ends of ``0 … n_total−1``, side by side: the first ⌈n/2⌉ and
+    the last ⌊n/2⌋ (the longest baselines, each end measured more than once)."""
+    n_pick = max(0, min(n_pick, n_total))
+    first = (n_pick + 1) // 2
+    return sorted(set(range(first)) | set(range(n_total - (n_pick - first), n_total)))
 
 
 def _nearest(index: int, available: Sequence[int]) -> int:
@@ -110,22 +120,30 @@ class Grid:
         sx, sy = self.step_mm
         return ((self.columns - 1) * sx if self.columns > 1 else None, (self.rows - 1) * sy if self.rows > 1 else None)
 
-    def spread(self, n_rows: int, n_columns: int, available: Iterable[Sequence[int]] | None = None) -> list[View]:
+    def spread(self, n_rows: int, n_columns: int, available: Iterable[Sequence[int]] | None = None, *,
+               ends: tuple[bool, bool] = (False, False)) -> list[View]:
         """An ``n_rows × n_columns`` array spread over the grid, first to last row and column (the
-        paper's calibration uses 2 × 3). With ``available`` (views that have images), each chosen
-        row/column index snaps to the nearest index whose views are available where possible,
-        otherwise views are dropped."""
-        want_rows = spread_indices(self.rows, n_rows)
-        want_cols = spread_indices(self.columns, n_columns)
+        paper's calibration uses 2 × 3); ``ends`` (rows, columns): those at the two ends instead
+        (:func:`end_indices`). With ``available`` (views that have images), each chosen
+        row/column index snaps to the nearest index whose views are available where possible
+        (at the ends: the outermost available ones), otherwise views are dropped."""
         if available is None:
+            want_rows = (end_indices if ends[0] else spread_indices)(self.rows, n_rows)
+            want_cols = (end_indices if ends[1] else spread_indices)(self.columns, n_columns)
             return [View(r, c) for r in want_rows for c in want_cols]
         avail = {View(*v) for v in available}
         rows_av = sorted({v.row for v in avail})
         cols_av = sorted({v.column for v in avail})
         if not rows_av:
             return []
-        pick_rows = sorted({_nearest(r, rows_av) for r in want_rows})
-        pick_cols = sorted({_nearest(c, cols_av) for c in want_cols})
+
+        def pick(n_total: int, n: int, have: list[int], at_ends: bool) -> list[int]:
+            if at_ends:
+                return [have[i] for i in end_indices(len(have), n)]
+            return sorted({_nearest(i, have) for i in spread_indices(n_total, n)})
+
+        pick_rows = pick(self.rows, n_rows, rows_av, ends[0])
+        pick_cols = pick(self.columns, n_columns, cols_av, ends[1])
         return [View(r, c) for r in pick_rows for c in pick_cols if (r, c) in avail]
 
     # -- a selection -------------------------------------------------------------------------------
@@ -144,10 +162,10 @@ class Grid:
             return avail
         m = _ARRAY.match(text)
         if m:
-            n_rows, n_cols = int(m.group(1)), int(m.group(2))
+            n_rows, n_cols = int(m.group(1)), int(m.group(3))
             if n_rows < 1 or n_cols < 1:
                 raise InputError(field_name, f"{text!r} needs at least one row and one column", "e.g. 2x3")
-            return self.spread(n_rows, n_cols, avail)
+            return self.spread(n_rows, n_cols, avail, ends=(bool(m.group(2)), bool(m.group(4))))
         ranges = self._ranges(text, field_name)
         if ranges is not None:
             rows, cols = ranges

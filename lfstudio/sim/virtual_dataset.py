@@ -17,7 +17,7 @@ import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import cv2
 import numpy as np
@@ -114,6 +114,7 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
                          exposure_s: float = 0.5, workers: int = 1,
                          studio: VirtualStudio | None = None,
                          faults: Sequence[ViewFault] = (),
+                         only_views: Iterable[Sequence[int]] | None = None,
                          progress: Callable[[int, int, str], None] | None = None,
                          cancel: CancelToken | None = None) -> Dataset:
     """Render a ``columns`` x ``rows`` grid into a new dataset folder at ``root`` and return it.
@@ -123,6 +124,9 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
     ``reported_mm`` equals the commanded position (what a controller reports). ``workers`` > 1
     renders in that many processes. ``studio`` (optional) overrides the scene parameters.
     ``faults``: defects injected into chosen views (at most one per view; see the module docstring).
+    ``only_views``: render and record only these (row, column) views of the grid (the others stay
+    uncaptured; every view's position error is drawn as if all were, so a view's image does not
+    depend on which others are rendered).
     """
     fmt = fmt.lower()
     if fmt not in ("dng", "png"):
@@ -172,6 +176,11 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
         jobs.append({"row": r, "column": c, "shot": shot, "commanded_mm": commanded, "true_mm": true,
                      "rel": rel, "path": str(root / rel), "fmt": fmt, "exposure_s": exposure_s, "fault": fault})
 
+    if only_views is not None:
+        keep = {(int(r), int(c)) for r, c in only_views}
+        jobs = [job for job in jobs if (job["row"], job["column"]) in keep]
+        if not jobs:
+            raise InputError("only_views", "no view of the grid chosen", f"views inside the {columns} x {rows} grid")
     (root / "raw").mkdir(parents=True, exist_ok=True)
     total = len(jobs)
     results: list[dict[str, Any]] = []

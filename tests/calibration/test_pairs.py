@@ -1,6 +1,6 @@
 import pytest
 
-from lfstudio.calibration.pairs import DEFAULT_VIEWS, line_pairs, make_pairs
+from lfstudio.calibration.pairs import DEFAULT_PAIR_SET, DEFAULT_VIEWS, line_pairs, make_pairs
 from lfstudio.dataset.grid import Grid, spread_indices
 from lfstudio.errors import InputError
 
@@ -57,10 +57,17 @@ def test_parse_views_forms_and_errors():
 
 def test_default_array_and_pair_sets():
     views = default_subset(101, 21)
-    assert views == sparse_subset(101, 21, 5, 5) and parse_views(None, 101, 21, views) == views
+    # ten rows spread over the grid x the first two and last two columns: the longest baselines,
+    # each end measured twice (the roll is fixed by how the views' position errors line up)
+    assert views == Grid(101, 21).spread(10, 4, ends=(False, True)) and parse_views(None, 101, 21, views) == views
+    assert sorted({c for _, c in views}) == [0, 1, 99, 100] and len({r for r, _ in views}) == 10
     assert parse_views("default", 101, 21, views) == views
-    assert default_subset(3, 9) == sparse_subset(3, 9, 5, 3)          # five along the longer axis
-    assert default_subset(4, 2) == sparse_subset(4, 2, 2, 4)          # capped by the grid
+    assert default_subset(3, 9) == Grid(3, 9).views()                 # capped by the grid: every view
+    assert default_subset(4, 2) == sparse_subset(4, 2, 2, 4)
+    pairs = make_pairs(views, (4.0, 6.0), pair_set=DEFAULT_PAIR_SET)
+    hor = [p for p in pairs if p.direction == "h"]
+    assert len(hor) == 10 * 6 and max(p.baseline_mm for p in hor) == 400.0 and min(p.baseline_mm for p in hor) == 4.0
+    assert max(p.baseline_mm for p in pairs if p.direction == "v") == 120.0
     assert line_pairs([0, 25, 50, 75, 100], "spanning") == [(0, 25), (0, 50), (0, 75), (0, 100), (25, 50),
                                                             (25, 100), (50, 75), (50, 100), (75, 100)]
     assert line_pairs([0, 50, 100], "neighbours") == [(0, 50), (50, 100)]

@@ -56,6 +56,11 @@ def test_one_selection_for_every_stage(tmp_path):
     assert ds.select("all") == ds.select(None) == ds.captured_views()
     assert ds.select("r1-2,c1-3") == [(1, 1), (1, 3), (2, 1), (2, 2), (2, 3)]
     assert ds.select("2x3") == [(0, 0), (0, 2), (0, 4), (2, 0), (2, 2), (2, 4)]
+    # columns (rows) at the two ends of the grid, side by side
+    assert ds.select("2x2e") == [(0, 0), (0, 4), (2, 0), (2, 4)]
+    assert ds.select("1x3E") == [(0, 0), (0, 1), (0, 4)]
+    assert ds.select("2ex4e") == [(0, 0), (0, 1), (0, 3), (0, 4), (2, 0), (2, 1), (2, 3), (2, 4)] == \
+        [v for v in ds.grid.spread(2, 4, ends=(True, True)) if v.row != 1]
     assert ds.select("r00_c001, r2c3") == [(0, 1), (2, 3)]
     assert ds.select([(2, 4), (0, 0)]) == [(0, 0), (2, 4)]
     for spec, words in (("r1_c2", "r01_c002 has no captured image"), ("r0-7", "rows up to 7 asked"),
@@ -67,6 +72,6 @@ def test_one_selection_for_every_stage(tmp_path):
     # the stages ask the same reader: the calibration with its own default and option name
     from lfstudio.calibration.pairs import DEFAULT_VIEWS
 
-    assert ds.select(None, default=DEFAULT_VIEWS) == ds.grid.spread(5, 5, ds.captured_views())
+    assert ds.select(None, default=DEFAULT_VIEWS) == ds.grid.select(DEFAULT_VIEWS, ds.captured_views())
     with pytest.raises(InputError, match="--views"):
         ds.select("banana", field_name="--views")

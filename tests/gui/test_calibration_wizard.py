@@ -25,8 +25,9 @@ def test_menu_entry_opens_the_wizard_for_the_open_dataset(qtbot, tiny_dataset):
     wizard = window.findChild(CalibrationWizard)
     assert wizard is not None and wizard.isVisible()
     assert wizard.stack.currentIndex() == PAGE_VIEWS
-    # the default array: 3 x 5 over the 5 x 3 grid, every pair in each row (3 x 10) and column (5 x 3)
-    assert len(wizard.picker.selected) == 15 and "30 horizontal + 15 vertical" in wizard.selection_label.text()
+    # the default views over the 5 x 3 grid: every row x the first two and last two columns; the
+    # default pair set (spanning) is every pair in each row (3 x 6) and column (4 x 3)
+    assert len(wizard.picker.selected) == 12 and "18 horizontal + 12 vertical" in wizard.selection_label.text()
     wizard.close()
 
 

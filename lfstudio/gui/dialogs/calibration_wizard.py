@@ -25,8 +25,9 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QF
 from lfstudio.calibration.calibrate import calibrate_dataset
 from lfstudio.calibration.model import save_calibration
 from lfstudio.calibration.epi import dataset_epis, load_preview, preview_homography, rectify_image
+from lfstudio.calibration.features import DEFAULT_WORK_WIDTH_PX
 from lfstudio.calibration.model import CalibrationUncertainty
-from lfstudio.calibration.pairs import DEFAULT_VIEWS, PAIR_SETS, make_pairs
+from lfstudio.calibration.pairs import DEFAULT_PAIR_SET, DEFAULT_VIEWS, PAIR_SETS, make_pairs
 from lfstudio.calibration.report import format_report, uncertainty_lines
 from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import LfError
@@ -193,8 +194,9 @@ class CalibrationWizard(QDialog):
         self.picker = GridPicker(columns, rows, self.available)
         self.picker.selectionChanged.connect(self._update_selection_label)
         presets = QHBoxLayout()
-        for text, tip, spec in (("Default", "The default array: 5 × 5 spread over the whole grid (capped by its "
-                                 "size): the rig's position errors average out over more views", "default"),
+        for text, tip, spec in (("Default", "The default views: ten rows spread over the grid × the first two and "
+                                 "last two columns (capped by its size): the rig's position errors average out over "
+                                 "many views far apart", "default"),
                                 ("2 × 3 (paper)", "First and last row; first, middle and last column", (2, 3)),
                                 ("3 × 5", "A denser array: 3 rows × 5 columns spread over the grid", (3, 5)),
                                 ("All captured", "Every captured view (slow on a full grid)", "all"),
@@ -664,9 +666,9 @@ class CalibrationWizard(QDialog):
     def _restore_settings(self) -> None:
         s = settings()
         self.estimate_pp.setChecked(s.value("calibration/principal_point", "auto") == "auto")
-        pair_set = s.value("calibration/pair_set", "all")
+        pair_set = s.value("calibration/pair_set", DEFAULT_PAIR_SET)
         self.pair_set.setCurrentIndex(PAIR_SETS.index(pair_set) if pair_set in PAIR_SETS else 0)
-        self.work_width.setValue(int(s.value("calibration/work_width_px", 2000)))
+        self.work_width.setValue(int(s.value("calibration/work_width_px", DEFAULT_WORK_WIDTH_PX)))
         self.focal_px.setValue(0.0)
         self.apply_preset("default")
 
