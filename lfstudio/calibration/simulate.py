@@ -304,6 +304,7 @@ def summarise(rows: list[dict]) -> dict:
         lt = np.array([x["true_residual_px"] for x in lin])
         lr = np.array([x["rotation_error_deg"] for x in lin])
         out["linear"] = {"trials": len(lin), "true_residual_px": {"mean": float(lt.mean()),
+                                                                  "rms": float(np.sqrt(np.mean(lt ** 2))),
                                                                   "p99": float(np.percentile(lt, 99))},
                          "rotation_error_deg": {"median": float(np.median(lr)), "p99": float(np.percentile(lr, 99))},
                          "fit_cpu_s": {"mean": float(np.mean([x["fit_cpu_s"] for x in lin]))}}

@@ -44,3 +44,21 @@ def test_cli_subsample_pair_set_and_coverage_columns(run_cli):
     assert text.returncode == 0 and "cov2σ" in text.stdout and "linear epipole" in text.stdout
     bad = run_cli("simulate-calibration", "--views", "1x5")
     assert bad.returncode == 2 and "--views" in bad.stderr
+
+
+def test_the_default_views_beat_an_even_array_of_fewer_views_and_position_noise_sets_the_error():
+    from lfstudio.calibration.pairs import DEFAULT_PAIR_SET, DEFAULT_VIEWS
+    from lfstudio.calibration.simulate import SimulationConfig, simulate
+
+    def rms(**kw):
+        out = simulate(6, 0.0, 3, SimulationConfig(**kw), modes=("auto",))["with_principal_point"]
+        return out["true_residual_px"]["rms"], out
+
+    default, out = rms(views=DEFAULT_VIEWS, pair_set=DEFAULT_PAIR_SET)
+    even, _ = rms(views="5x5", pair_set="all")
+    exact_features, _ = rms(views=DEFAULT_VIEWS, pair_set=DEFAULT_PAIR_SET, feature_noise_px=0.0)
+    exact_positions, _ = rms(views=DEFAULT_VIEWS, pair_set=DEFAULT_PAIR_SET, position_noise_um=0.0)
+    assert default < 0.8 * even and default < 0.06
+    assert abs(exact_features - default) < 0.15 * default      # the features are not the limit
+    assert exact_positions < 0.25 * default                    # the rig's position noise is
+    assert out["coverage"]["true_residual"][1] >= 0.85

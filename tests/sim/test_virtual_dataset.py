@@ -119,3 +119,20 @@ def test_two_processes_render_the_same_files_as_one(tmp_path):
     one = make_virtual_dataset(tmp_path / "one", 2, 2, **kw)
     two = make_virtual_dataset(tmp_path / "two", 2, 2, workers=2, **kw)
     assert [v["sha256"] for v in one.views] == [v["sha256"] for v in two.views]
+
+
+def test_only_some_views_of_a_grid_are_rendered_each_as_in_the_whole_grid(tmp_path):
+    from lfstudio.dataset.grid import Grid
+
+    whole = make_virtual_dataset(tmp_path / "whole", 5, 3, width_px=96, fmt="png", seed=4, position_noise_um=(80, 50))
+    chosen = Grid(5, 3).select("2x2e", Grid(5, 3).views())
+    part = make_virtual_dataset(tmp_path / "part", 5, 3, width_px=96, fmt="png", seed=4, position_noise_um=(80, 50),
+                                only_views=chosen)
+    assert part.grid.columns == 5 and part.grid.rows == 3
+    assert sorted(part.captured_views()) == sorted(chosen) == [(0, 0), (0, 4), (2, 0), (2, 4)]
+    for v in chosen:      # the same position error and image as in the whole grid
+        a = cv2.imread(str(whole.path_of(whole.view(*v))), cv2.IMREAD_UNCHANGED)
+        b = cv2.imread(str(part.path_of(part.view(*v))), cv2.IMREAD_UNCHANGED)
+        assert np.array_equal(a, b)
+    with pytest.raises(InputError, match="only_views"):
+        make_virtual_dataset(tmp_path / "none", 5, 3, width_px=96, fmt="png", only_views=[(7, 7)])
