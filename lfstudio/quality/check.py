@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -389,23 +390,29 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
     order = {c: i for i, c in enumerate(decode)}          # row-major
     futures: dict[Cell, Any] = {}
 
+    measured_evt = {cell: threading.Event() for cell in decode}
+
     def task(cell: Cell) -> Cell:
-        """Read one view, then track it into the neighbours before it (their tasks started first)."""
+        """Read one view, then track it into the neighbours before it once they are read (their
+        tasks started first; tracking needs only their images, so neighbours track in parallel)."""
         try:
-            m = measure(cell)
-        except LfError as exc:
-            unreadable[cell] = str(exc)
-            return cell
-        if ref_measures is not None:
-            gains[cell] = deflicker_gain(ref_measures, m, profile.deflicker)
-        if m is not ref_measures:
-            m.small_luminance = None
-        grid.measures[cell] = m
+            try:
+                m = measure(cell)
+            except LfError as exc:
+                unreadable[cell] = str(exc)
+                return cell
+            if ref_measures is not None:
+                gains[cell] = deflicker_gain(ref_measures, m, profile.deflicker)
+            if m is not ref_measures:
+                m.small_luminance = None
+            grid.measures[cell] = m
+        finally:
+            measured_evt[cell].set()
         r, c = cell
         for dr, dc in WINDOW:
             nb = (r + dr, c + dc)
-            if nb in futures and order[nb] < order[cell]:
-                futures[nb].result()
+            if nb in measured_evt and order[nb] < order[cell]:
+                measured_evt[nb].wait()
         check_cancel()
         grid.add(m, known=lambda n: n in order and order[n] < order[cell] and n not in unreadable)
         return cell
@@ -431,6 +438,8 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
         except BaseException:
             for f in futures.values():
                 f.cancel()
+            for evt in measured_evt.values():       # release tasks waiting for a cancelled neighbour
+                evt.set()
             raise
     check_cancel()
     progress(done_n, total, "solving the positions")
