@@ -379,7 +379,7 @@ class CalibrationWizard(QDialog):
         self.vector_mode.addItems(["after calibration", "before calibration"])
         self.vector_mode.setToolTip("Which residuals to draw as vectors")
         self.vector_gain = QSpinBox()
-        self.vector_gain.setRange(1, 500)
+        self.vector_gain.setRange(1, 100_000)      # a good calibration leaves residuals of hundredths of a px
         self.vector_gain.setValue(50)
         self.vector_gain.setPrefix("× ")
         self.vector_gain.setToolTip("Arrow length = mean residual of the region × this factor (preview pixels); "
@@ -557,7 +557,7 @@ class CalibrationWizard(QDialog):
         if auto_gain and len(field["mean"]):
             longest = float(np.max(np.hypot(field["mean"][:, 0], field["mean"][:, 1]))) or 1.0
             self.vector_gain.blockSignals(True)      # the longest arrow about 0.9 of a region
-            self.vector_gain.setValue(int(np.clip(0.9 * min(w / cols, h / rows) / longest, 1, 500)))
+            self.vector_gain.setValue(int(np.clip(0.9 * min(w / cols, h / rows) / longest, 1, 100_000)))
             self.vector_gain.blockSignals(False)
         gain = self.vector_gain.value()
         rms = field["rms"]
