@@ -34,9 +34,9 @@ from _measure import Timer, load_text
 from lfstudio.calibration.pairs import DEFAULT_PAIR_SET, DEFAULT_VIEWS
 from lfstudio.calibration.simulate import SimulationConfig, simulate
 
-SUBSAMPLES = (("2x3", "all", "2 × 3 (paper)"), ("3x5", "all", "3 × 5"),
+SUBSAMPLES = (("array:3x2", "all", "2 × 3 (paper)"), ("array:5x3", "all", "3 × 5"),
               (DEFAULT_VIEWS, DEFAULT_PAIR_SET, f"default {DEFAULT_VIEWS}"),
-              ("2x101", "neighbours", "2 × 101 neighbours only"))
+              ("array:101x2", "neighbours", "2 × 101 neighbours only"))
 #: the default with one noise source removed: which one sets the error
 SOURCES = (("0.5 px features, 80 µm positions (the rig model)", {}),
            ("exact features, 80 µm positions", {"feature_noise_px": 0.0}),

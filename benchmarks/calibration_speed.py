@@ -1,7 +1,7 @@
 """Time to self-calibrate at ~4000 px on two cores: the default views (cold < 60 s) and the paper's
 2 × 3 subsample (cold < 30 s, warm < 3 s).
 
-    python benchmarks/calibration_speed.py [--views default|2x3|SPEC] [--width 4000] [--fmt dng|png] [--keep DIR]
+    python benchmarks/calibration_speed.py [--views default|array:3x2|SPEC] [--width 4000] [--fmt dng|png] [--keep DIR]
                                            [--profile]
 
 Renders a virtual-studio dataset of the reference grid (101 × 21 positions, 4 mm × 6 mm apart)
@@ -34,7 +34,7 @@ from lfstudio.dataset.grid import Grid
 from lfstudio.sim.virtual_dataset import make_virtual_dataset
 
 GRID = Grid(101, 21, (4.0, 6.0))
-TARGETS_S = {"default": {"cold": 60.0}, "2x3": {"cold": 30.0, "warm": 3.0}}
+TARGETS_S = {"default": {"cold": 60.0}, "array:3x2": {"cold": 30.0, "warm": 3.0}}
 ROT = (1.5, -2.0, 2.5)
 
 

@@ -48,7 +48,7 @@ from lfstudio.dataset.store import read_journal, temporary_files  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 GRID = (5, 3)
-SCAN = ["--rig", "instant", "--camera", "sim", "--sim-width-px", "96"]
+SCAN = ["--port", "instant", "--camera", "sim", "--sim-width-px", "96"]
 
 
 def cli(*args: object) -> list[str]:

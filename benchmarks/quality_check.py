@@ -61,7 +61,7 @@ def main() -> int:
     for _ in range(args.repeat):
         for cache in (root / "cache" / "features").glob("*.npz"):
             cache.unlink()
-        run, wall, cpu = timed(calibrate_dataset, Dataset.open(root), "2x3")
+        run, wall, cpu = timed(calibrate_dataset, Dataset.open(root), "array:3x2")
         cal_runs.append((wall, cpu))
         report, wall, cpu = timed(check_dataset, Dataset.open(root), write=False)
         check_runs.append((wall, cpu))

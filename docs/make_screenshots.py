@@ -72,7 +72,7 @@ def quality_shots() -> None:
               ViewFault("displaced", 2, 4, offset_mm=(1.0, 0.0)), ViewFault("skipped", 4, 3)]
     ds = make_virtual_dataset(work / "studio_check", 9, 5, width_px=1000, fmt="png", rotation_deg=DEMO_ROTATION_DEG,
                               faults=faults)
-    save_calibration(ds, calibrate_dataset(ds, "2x3").document)
+    save_calibration(ds, calibrate_dataset(ds, "array:3x2").document)
     window = create_window(simulated=True)
     window.resize(1500, 900)
     window.show()

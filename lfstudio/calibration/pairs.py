@@ -4,7 +4,8 @@ A *horizontal* pair is two views of the same row (their rows must line up after 
 a *vertical* pair two views of the same column (their columns must line up).
 
 Views (chosen by :meth:`lfstudio.dataset.Dataset.select`): the default (:data:`DEFAULT_VIEWS`,
-``"10x4e"``) is ten rows spread over the grid × the first two and the last two columns, capped by
+``"array:4ex10"``, COLUMNSxROWS) is the first two and the last two columns × ten rows spread over
+the grid, capped by
 the grid. Why: on a translating rig the roll (the rotation about the optical axis) cannot be told
 from a straight line through the views' position errors (a camera ``η`` mm off its row shifts a
 horizontal pair's matches exactly as a roll of ``η / baseline`` does), so the rig's position noise,
@@ -14,7 +15,7 @@ rows (each end measured twice, every row adding its own). Simulated on the refer
 (``benchmarks/calibration_accuracy.py``, 80 µm position noise): the true rectification error is
 0.072 px RMS with a 5 × 5 array spread evenly (100 pairs) and 0.043 px RMS with the default (40
 views, 156 pairs); with exact features it is the same (the features are not the limit). The
-paper's 2 × 3 is still available as ``"2x3"``; denser arrays and explicit view lists work too.
+paper's 2 × 3 is still available as ``"array:3x2"`` (3 columns, 2 rows); denser arrays and explicit view lists work too.
 
 Pair sets within each row and column of the chosen views (:data:`PAIR_SETS`):
 
@@ -38,7 +39,7 @@ from lfstudio.errors import InputError
 PAIR_SETS = ("all", "spanning", "neighbours")
 #: the views the calibration uses without a selection (of :meth:`lfstudio.dataset.grid.Grid.select`):
 #: ten rows spread over the grid × the first two and the last two columns, capped by the grid
-DEFAULT_VIEWS = "10x4e"
+DEFAULT_VIEWS = "array:4ex10"
 #: the pair set the calibration uses without one
 DEFAULT_PAIR_SET = "spanning"
 

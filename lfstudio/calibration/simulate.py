@@ -6,7 +6,7 @@ f = 50 mm (11 038 px); random 3-D points in the scene volume 1.77 m … 4.77 m; 
 feature; orientation error drawn per angle with σ = 2.5° and kept within ±5°; principal point shifted
 by ``pp_shift_px`` at a uniformly random angle. The views (``SimulationConfig.views``, default the
 paper's 2 × 3: rows 0 and 20, columns 0, 50 and 100; any :meth:`lfstudio.dataset.grid.Grid.select`
-spec such as ``"3x5"``, ``"default"`` or ``"2x101"`` for two full rows) and the pair set
+spec such as ``"array:5x3"``, ``"default"`` or ``"array:101x2"`` for two full rows) and the pair set
 (``pair_set``: all, spanning, neighbours) give the pairs. The fit is told the rig's repeatability
 (``position_noise_um``) as its prior.
 
@@ -69,7 +69,7 @@ class SimulationConfig:
     rotation_sigma_deg: float = 2.5
     rotation_max_deg: float = 5.0
     points_per_pair: int = 300
-    views: str = "2x3"                        # a selection (Grid.select) over the grid: "2x3", "3x5", "default", "2x101", "10x4e"
+    views: str = "array:3x2"                  # a selection (Grid.select): "array:3x2", "array:5x3", "default", "array:101x2", "array:4ex10"
     pair_set: str = DEFAULT_PAIR_SET          # PAIR_SETS ("spanning" = "all" for the 2 × 3 array)
     outlier_fraction: float = 0.0             # share of matches replaced by random wrong ones
     eval_points_per_pair: int = 100

@@ -13,6 +13,7 @@ import logging
 import sys
 
 from lfstudio import __version__
+from lfstudio.cli.args import CONVENTIONS
 from lfstudio.errors import DatasetNotFound, InputError, LfError
 
 #: subcommand modules, in the order ``lfstudio --help`` lists them
@@ -40,6 +41,11 @@ class _Parser(argparse.ArgumentParser):
     """argparse with its errors (an unknown option, a value out of range) as one line, exit status 2."""
 
     def error(self, message: str) -> None:     # type: ignore[override]
+        if message.startswith("the following arguments are required:"):    # name what each missing one takes
+            for action in self._actions:
+                if action.choices and action.option_strings and action.option_strings[0] in message:
+                    name = action.option_strings[0]
+                    message = message.replace(name, f"{name} (one of {', '.join(map(str, action.choices))})", 1)
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
@@ -55,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="lfstudio",
         description="Plan, capture, calibrate, process and export dense light fields. "
                     "Without a command, opens the application window.",
-        epilog=EXIT_CODES_HELP,
+        epilog=f"{CONVENTIONS} {EXIT_CODES_HELP}",
     )
     parser.add_argument("--version", action="version", version=f"lfstudio {__version__}")
     parser.add_argument("--debug", action="store_true",

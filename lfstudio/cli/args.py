@@ -5,17 +5,27 @@ shares (:data:`CONVENTIONS`, said once in ``lfstudio --help``).
 - A position on the grid is COLUMN,ROW counted from 0: ``4,2`` is column 4 of row 2
   (:func:`grid_position`).
 - A spacing is HORIZONTALxVERTICAL in millimetres: ``4x6``.
+- Devices are ``--port`` (the axis controller: ``sim``, ``instant`` or a serial port) and
+  ``--camera`` (``sim``, ``gphoto2``, ``folder:PATH``); profiles and presets are ``--rig-profile``
+  and ``--camera-preset``. An old spelling is kept (hidden, :func:`old_spelling`) where it means
+  the same as its new name, and refused with a line showing the new form (:func:`refused_spelling`)
+  where its meaning changed.
 
 Numbers themselves (ranges, units, pairs like ``4x6``) are read by :mod:`lfstudio.numbers`.
 """
 
 from __future__ import annotations
 
+import argparse
+from typing import Callable
+
 from lfstudio.errors import InputError
 from lfstudio.numbers import Number, parse_numbers
 
-CONVENTIONS = ("Grids are COLUMNSxROWS (9x5: 9 columns, 5 rows); a view's position is COLUMN,ROW counted "
-               "from 0 (4,2: column 4, row 2); spacings are HORIZONTALxVERTICAL in mm (4x6).")
+CONVENTIONS = ("Grids are COLUMNSxROWS (9x5: 9 columns, 5 rows; an array of views: array:3x2); a view's "
+               "position is COLUMN,ROW counted from 0 (4,2: column 4, row 2), its name r02_c004; spacings are "
+               "HORIZONTALxVERTICAL in mm (4x6). Devices: --port (axis controller), --camera; profiles: "
+               "--rig-profile, --camera-preset.")
 
 _INDEX = Number("", 0, integer=True)
 
@@ -32,3 +42,27 @@ def number_pair(text: str, option: str, example: str) -> tuple[float, float]:
     """Two finite numbers written ``AxB`` or ``A,B`` (e.g. a horizontal and a vertical sigma)."""
     a, b = parse_numbers(option, text, Number(), 2, example)
     return a, b
+
+
+def old_spelling(p: argparse.ArgumentParser, old: str, new: str, **kwargs) -> None:
+    """Accept ``old`` as a hidden spelling of ``new`` (the same meaning, so existing scripts keep
+    working); ``--help`` shows only ``new``."""
+    dest = new.lstrip("-").replace("-", "_")
+    p.add_argument(old, dest=dest, help=argparse.SUPPRESS, **kwargs)
+
+
+class _Refused(argparse.Action):
+    def __call__(self, parser, namespace, values, option_string=None):  # type: ignore[override]
+        value = values if values is not None else ""
+        text = self.help_text
+        parser.error(text(value) if callable(text) else text.format(value=value))
+
+
+def refused_spelling(p: argparse.ArgumentParser, old: str, message: str | Callable[[str], str],
+                     takes_value: bool = True) -> None:
+    """Refuse ``old`` (its meaning changed, so reading it would silently do something else) with
+    ``message``, which shows the new form: a text (``{value}`` in it is the value given) or a
+    function of the value."""
+    action = p.add_argument(old, action=_Refused, nargs=None if takes_value else 0, help=argparse.SUPPRESS,
+                            default=argparse.SUPPRESS)
+    action.help_text = message  # type: ignore[attr-defined]

@@ -17,10 +17,10 @@ HELP = "self-calibrate the camera orientation (and principal point) from the dat
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", metavar="DATASET", type=path_option("DATASET"), help="dataset folder (holds dataset.json)")
     p.add_argument("--views", metavar="SPEC", default="default",
-                   help="views to use: 'default' (10x4e: ten rows spread over the grid x the first two and last "
-                        "two columns, capped by its size), ROWSxCOLUMNS such as 2x3 (the paper's array) or 5x5 "
-                        "(an 'e' after a count puts those rows/columns at the ends), 'all', or names like "
-                        "r00_c000,r00_c050,r20_c000")
+                   help="views to use: 'default' (array:4ex10: the first two and last two columns x ten rows "
+                        "spread over the grid, capped by its size), an array array:COLUMNSxROWS such as array:3x2 "
+                        "(the paper's) or array:5x5 (an 'e' after a count puts those columns/rows at the ends), "
+                        "'all', rows/columns like r0-8,c10-18, or names like r00_c000,r00_c050,r20_c000")
     p.add_argument("--pairs", choices=("all", "spanning", "neighbours"), default="spanning",
                    help="which pairs within each row and column of the views: neighbours plus every pair with an "
                         "end view ('spanning', default), every pair ('all'), or adjacent views only ('neighbours': "

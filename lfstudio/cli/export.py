@@ -6,6 +6,7 @@ import argparse
 import re
 import sys
 
+from lfstudio.cli.args import grid_position, refused_spelling
 from lfstudio.errors import InputError
 from lfstudio.numbers import Number
 from lfstudio.dataset.paths import path_option
@@ -17,7 +18,7 @@ HELP = ("export the views as 16-bit PNG + manifest, an HEVC stream (meander orde
 
 #: ExportOptions field -> the option the user typed (error messages name what the user knows)
 _OPTION = {"format": "--format", "out": "--out", "views": "--views", "source": "--source", "crf": "--crf",
-           "bit_depth": "--bit-depth", "hci_size": "--hci-size", "hci_center": "--hci-center",
+           "bit_depth": "--bit-depth", "hci_size": "--hci-size", "hci_center": "--hci-centre-view",
            "hci_bit_depth": "--hci-bit-depth", "image_bit_depth": "--image-bit-depth", "holdout": "--holdout", "authors": "--authors"}
 
 
@@ -35,8 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="png/hci/colmap/nerfstudio: a new folder; hevc: a new .mp4/.mkv/.hevc file "
                         "(its sidecar is PATH.json)")
     p.add_argument("--views", metavar="SUBSET",
-                   help="views to export: 'all' (default), rows/columns like r0-8,c10-18, an array like 3x5 "
-                        "(rows x columns) spread over the grid, or names like r00_c000,r00_c001")
+                   help="views to export: 'all' (default), rows/columns like r0-8,c10-18, an array like array:5x3 "
+                        "(columns x rows) spread over the grid, or names like r00_c000,r00_c001")
     p.add_argument("--source", default="auto", metavar="SRC",
                    help="raw, processed, or auto (default: processed when every chosen view is processed)")
     p.add_argument("--crf", type=Number("", 0, 51, integer=True).option("--crf"), default=8,
@@ -44,8 +45,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bit-depth", type=BITS.option("--bit-depth"), default=12, help="hevc: 10 or 12 bits (default 12)")
     p.add_argument("--hci-size", default="9x9", metavar="CxR",
                    help="hci: sub-array columns x rows (default 9x9; ignored with --views)")
-    p.add_argument("--hci-center", metavar="ROW,COLUMN",
-                   help="hci: grid row,column of the centre view (default: the grid centre)")
+    p.add_argument("--hci-centre-view", metavar="COLUMN,ROW",
+                   help="hci: the sub-array's centre view, grid column,row from 0 (default: the grid centre)")
+    refused_spelling(p, "--hci-center", lambda value: (
+        f"--hci-center took ROW,COLUMN; the centre view is now --hci-centre-view COLUMN,ROW like every position: "
+        f"write --hci-centre-view {','.join(reversed(value.split(',')))}"))
     p.add_argument("--hci-bit-depth", type=BITS.option("--hci-bit-depth"), default=8,
                    help="hci: 8 (sRGB PNG like the benchmark, default) or 16 (linear 16-bit PNG)")
     p.add_argument("--authors", default="", metavar="NAMES",
@@ -62,8 +66,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _pair(text: str, option: str, sep: str) -> tuple[int, int]:
     m = re.fullmatch(rf"\s*(\d+)\s*[{sep}]\s*(\d+)\s*", text or "")
     if not m:
-        raise InputError(option, f"cannot read {text!r}", "two whole numbers like 9x9" if "x" in sep else "ROW,COLUMN")
+        raise InputError(option, f"cannot read {text!r}", "two whole numbers like 9x9")
     return int(m.group(1)), int(m.group(2))
+
+
+def _centre_view(text: str | None) -> tuple[int, int] | None:
+    """``--hci-centre-view COLUMN,ROW`` -> the (row, column) of :class:`ExportOptions`."""
+    if not text:
+        return None
+    column, row = grid_position(text, "--hci-centre-view", example="50,10")
+    return row, column
 
 
 def run(args: argparse.Namespace) -> int:
@@ -76,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     options = ExportOptions(format=args.format, out=Path(args.out), views=args.views, source=args.source,
                             crf=args.crf, bit_depth=args.bit_depth,
                             hci_size=_pair(args.hci_size, "--hci-size", "x×"),
-                            hci_center=_pair(args.hci_center, "--hci-center", ",") if args.hci_center else None,
+                            hci_center=_centre_view(args.hci_centre_view),
                             overwrite=args.overwrite, hci_bit_depth=args.hci_bit_depth,
                             image_bit_depth=args.image_bit_depth, holdout=args.holdout, authors=args.authors)
     root = Path(args.dataset)

@@ -7,6 +7,7 @@ import json
 import math
 import sys
 
+from lfstudio.cli.args import old_spelling
 from lfstudio.errors import InputError
 from lfstudio.dataset.paths import path_option
 
@@ -29,7 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.error = one_line_error
     g = p.add_argument_group("camera and lens")
     g.add_argument("--plan", metavar="FILE", type=path_option("--plan"), help="start from this plan file (.toml or .json) instead of the reference setup")
-    g.add_argument("--camera", metavar="NAME", help="camera preset (see --list-presets)")
+    g.add_argument("--camera-preset", metavar="NAME", help="camera preset (see --list-presets)")
+    old_spelling(g, "--camera", "--camera-preset")
     g.add_argument("--sensor-px", metavar="WxH", help="sensor size in pixels, e.g. 7952x5304")
     g.add_argument("--sensor-mm", metavar="WxH", help="sensor size in mm, e.g. 35.9x24")
     g.add_argument("--pixel-pitch-um", type=float, metavar="UM",
@@ -45,7 +47,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("grid and rig")
     g.add_argument("--grid", metavar="CxR", help="columns x rows (default 101x21)")
     g.add_argument("--spacing-mm", metavar="HxV", help="spacing between neighbouring positions (default 4x6)")
-    g.add_argument("--rig", metavar="NAME", help="rig profile: repeatability, travel, speed, acceleration, settle")
+    g.add_argument("--rig-profile", metavar="NAME", help="rig profile: repeatability, travel, speed, acceleration, settle")
+    old_spelling(g, "--rig", "--rig-profile")
     g.add_argument("--repeatability-um", metavar="HxV", help="axis repeatability (default 80x50)")
     g.add_argument("--travel-mm", metavar="HxV", help="axis travel (default: the rig's)")
     g.add_argument("--max-speed-mm-s", metavar="HxV", help="axis speed (default: the rig's)")
@@ -80,7 +83,7 @@ def build_plan(args: argparse.Namespace):
     from lfstudio.planning.scene_plan import load_plan
 
     base = load_plan(args.plan) if args.plan else reference_plan()
-    plan = plan_from_presets(camera=args.camera, lens=args.lens, rig=args.rig, base=base)
+    plan = plan_from_presets(camera=args.camera_preset, lens=args.lens, rig=args.rig_profile, base=base)
     changes: dict = {}
     if args.sensor_px:
         try:
@@ -107,7 +110,7 @@ def build_plan(args: argparse.Namespace):
         changes["target_parallax_fraction"] = args.parallax_fraction
     if (args.sensor_px or args.sensor_mm) and args.pixel_pitch_um is None:
         changes["pixel_pitch_um"] = None          # derive it from the new sensor size
-        if not args.camera:
+        if not args.camera_preset:
             changes["camera_name"] = "custom camera"
     if args.focal_length_mm is not None and not args.lens:
         changes["lens_name"] = f"{args.focal_length_mm:g} mm"

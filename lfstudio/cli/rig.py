@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
+from lfstudio.cli.args import old_spelling
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.numbers import TIME_SCALE, TIMEOUT_S, Number
 
@@ -22,7 +23,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--port", required=True, metavar="PORT",
                    help="serial port of the controller (/dev/ttyUSB0, /dev/pts/N printed by 'lfstudio sim-rig', "
                         "COM3) or 'sim' to start the built-in simulated controller in this process")
-    p.add_argument("--rig", default=None, metavar="NAME", help="rig profile (default: the reference gantry)")
+    p.add_argument("--rig-profile", default=None, metavar="NAME", help="rig profile (default: the reference gantry)")
+    old_spelling(p, "--rig", "--rig-profile")
     p.add_argument("--baud", type=BAUD.option("--baud"), default=115200, help="baud rate (default 115200)")
     p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",
                    help="with --port sim: 1 real time, 0.1 ten times faster, 0 instant (default 1)")
@@ -83,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.rig.motion import check_target
 
     commands = parse_commands(args.commands)
-    rig = load_rig(args.rig or DEFAULT_RIG)
+    rig = load_rig(args.rig_profile or DEFAULT_RIG)
     for word, values in commands:           # a target outside the soft limits is refused before connecting
         if word == "move":
             check_target(rig, *values)

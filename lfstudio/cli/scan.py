@@ -7,6 +7,7 @@ import signal
 import sys
 import threading
 
+from lfstudio.cli.args import refused_spelling
 from lfstudio.dataset.paths import path_option
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.numbers import (EXPOSURE_S, OFFSET_MM, RETRIES, SEED, SETTLE_S, SPACING_MM, TIME_SCALE, TRANSFER_S,
@@ -18,9 +19,11 @@ EXIT_FAULT = 3
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--rig", default=None, metavar="sim|PORT",
+    p.add_argument("--port", default=None, metavar="sim|PORT",
                    help="axis controller: 'sim' (simulated GRBL on a pseudo-terminal), 'instant' (no timing) "
                         "or a serial port such as /dev/ttyUSB0 (default: sim; with --resume the dataset's own rig)")
+    refused_spelling(p, "--rig", "--rig: the axis controller is now --port (write --port {value}); "
+                                 "a rig profile is --rig-profile NAME")
     p.add_argument("--camera", default=None, metavar="sim|gphoto2|folder:PATH",
                    help="camera: 'sim' (renders the virtual studio), 'gphoto2' (tethered USB), "
                         "'folder:PATH' (hot folder) or 'instant' (default: sim; with --resume the dataset's own camera)")
@@ -36,7 +39,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--grid", metavar="CxR", type=grid_option("--grid"),
                    help="columns x rows, e.g. 101x21 (default: from --plan or 101x21)")
     p.add_argument("--spacing-mm", metavar="HxV", type=numbers_option("--spacing-mm", SPACING_MM),
-                   help="horizontal x vertical spacing in mm, e.g. 4x6")
+                   help="distance between neighbouring views in mm, horizontal x vertical, e.g. 4x6 "
+                        "(default: from --plan, else 4x6; with --resume the dataset's)")
     p.add_argument("--offset-mm", metavar="HxV", default=(0.0, 0.0), type=numbers_option("--offset-mm", OFFSET_MM),
                    help="shift of the grid from the centre of the travel in mm (default 0x0)")
     p.add_argument("--order", choices=("row-meander", "column-meander", "raster"), default=None,
@@ -149,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.scan.events import EventKind, ScanState
     from lfstudio.studio.session import ScanRequest, ScanSession
 
-    request = ScanRequest(Path(args.out), resume=args.resume, rig=args.rig, camera=args.camera,
+    request = ScanRequest(Path(args.out), resume=args.resume, rig=args.port, camera=args.camera,
                           rig_config=load_rig(args.rig_profile) if args.rig_profile else None, home=args.home,
                           origin_here=args.origin_here, allow_device_change=args.allow_device_change,
                           retries=args.retries, time_scale=args.time_scale, exposure_s=args.exposure_s,

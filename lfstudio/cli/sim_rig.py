@@ -7,13 +7,15 @@ import signal
 import sys
 import threading
 
+from lfstudio.cli.args import old_spelling
 from lfstudio.numbers import SEED, TIME_SCALE
 
 HELP = "start the simulated GRBL controller on a pseudo-terminal and print its port path"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--rig", default=None, metavar="NAME", help="rig profile (default: the reference gantry)")
+    p.add_argument("--rig-profile", default=None, metavar="NAME", help="rig profile (default: the reference gantry)")
+    old_spelling(p, "--rig", "--rig-profile")
     p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",
                    help="1 real time, 0.1 ten times faster, 0 instant (default 1)")
     p.add_argument("--seed", type=SEED.option("--seed"), default=0, metavar="N",
@@ -24,7 +26,7 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.rig.profile import DEFAULT_RIG, load_rig
     from lfstudio.studio.simulated import serve_sim_rig
 
-    rig = load_rig(args.rig or DEFAULT_RIG)
+    rig = load_rig(args.rig_profile or DEFAULT_RIG)
     done = threading.Event()
     sim, truth = serve_sim_rig(rig, time_scale=args.time_scale, seed=args.seed)
     port = sim.port
@@ -33,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
         print(port, flush=True)
         print(f"simulated GRBL 1.1 controller for rig {rig.name!r} on {port}; connect with\n"
               f"  lfstudio rig --port {port} home status\n"
-              f"  lfstudio scan --rig {port} --home --camera sim ...   (the simulated camera follows it)\n"
+              f"  lfstudio scan --port {port} --home --camera sim ...   (the simulated camera follows it)\n"
               "or any serial terminal (115200 baud). Ctrl-C stops it.", file=sys.stderr, flush=True)
         while not done.wait(0.5):
             if not sim.running:

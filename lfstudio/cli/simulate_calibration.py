@@ -32,11 +32,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="principal-point shift radius in full-resolution pixels, at a random angle (default 0)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--points-per-pair", type=int, default=300, help="3-D points seen by each pair (default 300)")
-    p.add_argument("--views", metavar="SPEC", default="2x3",
-                   help="the calibration's views over the 101 x 21 grid: ROWSxCOLUMNS (default 2x3, the paper's), "
-                        "'default' (what lfstudio calibrate uses: 10x4e), '2x101' (two full rows), or view names")
+    p.add_argument("--views", metavar="SPEC", default="array:3x2",
+                   help="the calibration's views over the 101 x 21 grid: an array array:COLUMNSxROWS (default "
+                        "array:3x2, the paper's), 'default' (what lfstudio calibrate uses: array:4ex10), "
+                        "'array:101x2' (two full rows), or view names")
     p.add_argument("--pairs", choices=("all", "spanning", "neighbours"), default="spanning",
-                   help="which pairs of those views (default spanning, as lfstudio calibrate; for the 2x3 array "
+                   help="which pairs of those views (default spanning, as lfstudio calibrate; for the paper's array "
                         "the same as all)")
     p.add_argument("--mode", choices=("both", "fixed", "estimated"), default="both",
                    help="principal point held at the centre (the paper), estimated where observable (as lfstudio "

@@ -44,10 +44,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="corner light loss, e.g. 0.2 (default 0)")
     p.add_argument("--noise", type=FRACTION.option("--noise"), default=0.0,
                    help="read noise, fraction of white, e.g. 0.002 (default 0)")
-    p.add_argument("--fault", action="append", default=[], metavar="KIND:ROW,COL[:VALUE]",
-                   help="spoil a view (repeatable): blur:ROW,COL:PX (motion blur, PX[,ANGLE]), "
-                        "luminance:ROW,COL:FACTOR, displaced:ROW,COL:DX[,DY] (mm), skipped:ROW,COL (the rig did "
-                        "not move: the view repeats the previous one); ground truth lists them")
+    p.add_argument("--fault", action="append", default=[], metavar="KIND:VIEW[:VALUE]",
+                   help="spoil a view, named like r01_c002 (row 1, column 2) (repeatable): blur:VIEW:PX (motion "
+                        "blur, PX[,ANGLE]), luminance:VIEW:FACTOR, displaced:VIEW:DX[,DY] (mm), skipped:VIEW (the "
+                        "rig did not move: the view repeats the previous one); ground truth lists them")
     p.add_argument("--seed", type=SEED.option("--seed"), default=0, metavar="N",
                    help="random seed of the scene's texture, the flicker, the noise and the position errors: "
                         "the same seed renders the same dataset (default 0)")

@@ -10,11 +10,15 @@
   calibration, the export and the quality check share.
 
 A selection (``spec``) is ``"all"``; rows/columns ranges ``"r0-8,c10-18"``, ``"r3"``,
-``"c0-4,c10"`` (the available views in those rows and columns); an array ``"2x3"`` (rows ×
-columns spread over the grid, each snapped to available views; an ``e`` after a count puts those
-rows or columns at the ends of the grid instead, half at each end, side by side: ``"10x4e"`` is ten
-rows spread over the grid × the first two and last two columns); view names
+``"c0-4,c10"`` (the available views in those rows and columns); an array ``"array:3x2"``
+(COLUMNSxROWS like every grid-shaped value: 3 columns by 2 rows spread over the grid, each snapped
+to available views; an ``e`` after a count puts those columns or rows at the ends of the grid
+instead, half at each end, side by side: ``"array:4ex10"`` is the first two and last two columns ×
+ten rows spread over the grid; a square one may be written ``"5x5"``); view names
 ``"r00_c000,r00_c050"``; or a sequence of (row, column). ``None``/``""`` mean the caller's default.
+
+A bare non-square ``"2x3"`` is refused with the new form: arrays used to be ROWSxCOLUMNS, and
+reading an existing script's ``2x3`` as 2 columns would silently choose other views.
 """
 
 from __future__ import annotations
@@ -27,9 +31,9 @@ from lfstudio.dataset.paths import parse_view_stem, view_stem
 from lfstudio.errors import InputError
 
 #: what a selection may be (shown when one cannot be read)
-SELECTION_SYNTAX = ("'all', rows/columns like r0-8,c10-18, an array like 3x5 (rows x columns; 10x4e: the columns at "
-                    "the ends), or view names like r00_c000,r00_c050")
-_ARRAY = re.compile(r"^\s*(\d+)\s*(e?)\s*[x×]\s*(\d+)\s*(e?)\s*$", re.IGNORECASE)
+SELECTION_SYNTAX = ("'all', rows/columns like r0-8,c10-18, an array like array:5x3 (columns x rows; array:4ex10: "
+                    "the columns at the ends), or view names like r00_c000,r00_c050")
+_ARRAY = re.compile(r"^\s*(array\s*:)?\s*(\d+)\s*(e?)\s*[x×]\s*(\d+)\s*(e?)\s*$", re.IGNORECASE)
 _RANGE_PART = re.compile(r"^\s*([rc])\s*(\d+)\s*(?:-\s*(\d+))?\s*$", re.IGNORECASE)
 
 
@@ -162,10 +166,16 @@ class Grid:
             return avail
         m = _ARRAY.match(text)
         if m:
-            n_rows, n_cols = int(m.group(1)), int(m.group(3))
+            (n_cols, cols_e), (n_rows, rows_e) = (int(m.group(2)), m.group(3)), (int(m.group(4)), m.group(5))
+            if not m.group(1) and (n_cols, cols_e.lower()) != (n_rows, rows_e.lower()):
+                # ROWSxCOLUMNS before: never read it the other way
+                new = f"array:{n_rows}{rows_e}x{n_cols}{cols_e}"
+                raise InputError(field_name, f"{text!r}: an array is written array:COLUMNSxROWS, like every grid "
+                                 "(a bare RxC was rows x columns)",
+                                 f"{new} for {n_rows} columns by {n_cols} rows")
             if n_rows < 1 or n_cols < 1:
-                raise InputError(field_name, f"{text!r} needs at least one row and one column", "e.g. 2x3")
-            return self.spread(n_rows, n_cols, avail, ends=(bool(m.group(2)), bool(m.group(4))))
+                raise InputError(field_name, f"{text!r} needs at least one column and one row", "e.g. array:3x2")
+            return self.spread(n_rows, n_cols, avail, ends=(bool(rows_e), bool(cols_e)))
         ranges = self._ranges(text, field_name)
         if ranges is not None:
             rows, cols = ranges

@@ -554,7 +554,7 @@ class Dataset:
     def select(self, spec: str | Iterable[Sequence[int]] | None, *, default: str = "all",
                field_name: str = "views") -> list[View]:
         """The captured views a selection chooses (:meth:`lfstudio.dataset.grid.Grid.select`:
-        ``"all"``, ``"r0-8,c10-18"``, ``"2x3"``, ``"r00_c000,r00_c050"`` or (row, column) pairs),
+        ``"all"``, ``"r0-8,c10-18"``, ``"array:3x2"``, ``"r00_c000,r00_c050"`` or (row, column) pairs),
         row-major; :class:`DatasetError` when nothing is captured yet."""
         captured = self.captured_views()
         if not captured:

@@ -46,7 +46,7 @@ class ExportOptions:
     format: str                      # one of FORMATS
     out: Path                        # png/hci: a folder to create; hevc: the .mp4/.mkv/.hevc file to create
     views: str | Sequence[tuple[int, int]] | None = None   # None = all available; str: "all", "r0-8,c10-18",
-                                     # "2x3", "r00_c000,r00_c050" (see Dataset.select)
+                                     # "array:3x2", "r00_c000,r00_c050" (see Dataset.select)
     source: str = "auto"             # "raw" | "processed" | "auto" (processed when every chosen view has it)
     crf: int = 8                     # hevc
     bit_depth: int = 12              # hevc: 10 or 12

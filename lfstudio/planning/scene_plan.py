@@ -33,11 +33,11 @@ _UNITS = (("_mm_s2", "mm/s²"), ("_mm_s", "mm/s"), ("_mm", "mm"), ("_um", "µm")
           ("_s", "s"))
 
 CLI_OPTION = {
-    "camera_name": "--camera", "sensor_px": "--sensor-px", "sensor_mm": "--sensor-mm",
+    "camera_name": "--camera-preset", "sensor_px": "--sensor-px", "sensor_mm": "--sensor-mm",
     "pixel_pitch_um": "--pixel-pitch-um", "lens_name": "--lens", "focal_length_mm": "--focal-length-mm",
     "near_m": "--near-m", "far_m": "--far-m", "coc_mm": "--coc-mm", "f_number": "--f-number",
     "focus_m": "--focus-m", "grid_columns": "--grid", "grid_rows": "--grid", "spacing_mm": "--spacing-mm",
-    "rig_name": "--rig", "repeatability_um": "--repeatability-um", "travel_mm": "--travel-mm",
+    "rig_name": "--rig-profile", "repeatability_um": "--repeatability-um", "travel_mm": "--travel-mm",
     "max_speed_mm_s": "--max-speed-mm-s", "acceleration_mm_s2": "--acceleration-mm-s2",
     "settle_s": "--settle-s", "exposure_s": "--exposure-s", "transfer_s": "--transfer-s",
     "max_error_px": "--max-error-px", "max_disparity_px": "--max-disparity-px",

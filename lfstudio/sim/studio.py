@@ -34,11 +34,14 @@ RGB in [0, 1] (1 = sensor clipping). Deterministic for a seed.
 * ``skipped``: the rig skipped the move, so the view shows the previous view's position (in
   capture order) while the manifest says it moved.
 
-:func:`parse_fault` reads the command-line form ``KIND:ROW,COLUMN[:VALUE]``.
+:func:`parse_fault` reads the command-line form ``KIND:VIEW[:VALUE]``, the view by its name
+(``blur:r01_c002:6``); the former bare ``ROW,COLUMN`` is refused with that form, since a position
+on the command line is now COLUMN,ROW.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -46,6 +49,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from lfstudio.dataset.paths import parse_view_stem, view_stem
 from lfstudio.sim import textures
 
 #: the reference sensor's aspect ratio (7952 x 5304)
@@ -133,14 +137,20 @@ class ViewFault:
 
 
 def parse_fault(text: str) -> ViewFault:
-    """``KIND:ROW,COLUMN[:VALUE]``: ``blur:1,2:6`` (6 px), ``blur:1,2:6,90`` (vertical),
-    ``luminance:0,3:1.3``, ``displaced:2,2:1.0,0`` (mm), ``skipped:1,1``. ValueError names the fix."""
+    """``KIND:VIEW[:VALUE]``: ``blur:r01_c002:6`` (6 px), ``blur:r01_c002:6,90`` (vertical),
+    ``luminance:r00_c003:1.3``, ``displaced:r02_c002:1.0,0`` (mm), ``skipped:r01_c001``. ValueError
+    names the fix; the former ``KIND:ROW,COLUMN`` is refused showing the view's name."""
     parts = text.strip().split(":")
-    usage = ("KIND:ROW,COLUMN[:VALUE], e.g. blur:1,2:6  luminance:0,3:1.3  displaced:2,2:1.0,0  skipped:1,1 "
-             f"(kinds: {', '.join(FAULT_KINDS)})")
+    usage = ("KIND:VIEW[:VALUE], e.g. blur:r01_c002:6  luminance:r00_c003:1.3  displaced:r02_c002:1.0,0  "
+             f"skipped:r01_c001 (kinds: {', '.join(FAULT_KINDS)})")
+    old = re.fullmatch(r"\s*(\d+)\s*,\s*(\d+)\s*", parts[1]) if len(parts) > 1 else None
+    if old:         # ROW,COLUMN before; COLUMN,ROW would silently spoil another view: name it instead
+        parts[1] = view_stem(int(old.group(1)), int(old.group(2)))
+        raise ValueError(f"fault {text!r}: the view is now given by its name (ROW,COLUMN is no longer read, "
+                         f"positions are COLUMN,ROW): write {':'.join(parts)}")
     try:
         kind = parts[0].strip().lower()
-        row, column = (int(v) for v in parts[1].split(","))
+        row, column = parse_view_stem(parts[1].strip())
         values = [float(v) for v in parts[2].split(",")] if len(parts) > 2 and parts[2].strip() else []
         if len(parts) > 3:
             raise ValueError

@@ -46,7 +46,7 @@ class RigSpec:
     port: str = ""
 
     @classmethod
-    def parse(cls, text: str, option: str = "--rig") -> "RigSpec":
+    def parse(cls, text: str, option: str = "--port") -> "RigSpec":
         word = (text or "").strip()
         if not word:
             raise InputError(option, "no rig given", RIG_CHOICES)
@@ -238,7 +238,7 @@ def open_camera(spec: CameraSpec | str, *, position_mm: Callable[[], tuple[float
     if spec.kind == SIM:
         if position_mm is None:
             raise InputError("--camera", "the simulated camera renders from the simulated rig's true position",
-                             "--rig sim, or the port 'lfstudio sim-rig' printed")
+                             "--port sim, or the port 'lfstudio sim-rig' printed")
         from lfstudio.studio.simulated import simulated_camera
 
         cam = simulated_camera(position_mm, **options)
@@ -381,7 +381,7 @@ def open_studio(rig: RigSpec | str, camera: CameraSpec | str, rig_config: RigCon
             if position is None and cam_spec.kind == SIM:
                 raise InputError("--camera", f"the simulated camera needs the simulated rig, and {link.port} is "
                                  "not a port of 'lfstudio sim-rig' running on this machine",
-                                 "--rig sim, or the port 'lfstudio sim-rig' printed")
+                                 "--port sim, or the port 'lfstudio sim-rig' printed")
             if position is not None:
                 notes.append(f"the simulated camera follows the true position of the simulated controller on "
                              f"{link.port}")

@@ -131,7 +131,7 @@ def recorded_devices(dataset: Dataset) -> dict[str, Any] | None:
 
 
 def rig_spec_of(record: dict[str, Any]) -> str:
-    """The ``--rig`` word that opens a recorded rig again."""
+    """The ``--port`` word that opens a recorded rig again."""
     return record.get("port") if record.get("kind") == "grbl" else record.get("kind", SIM)
 
 
@@ -385,7 +385,7 @@ class ScanSession:
         if record is None:
             rig, cam = req.rig or SIM, req.camera or SIM
             self.note(f"warning: {existing.manifest_path} does not record which devices captured it (made by an "
-                      f"older lfstudio); resuming with --rig {rig} --camera {cam}, recorded from now on")
+                      f"older lfstudio); resuming with --port {rig} --camera {cam}, recorded from now on")
             return rig, cam, None
         rig = req.rig or rig_spec_of(record["rig"])
         cam = req.camera or record["camera"].get("spec") or record["camera"].get("kind", SIM)
@@ -445,7 +445,7 @@ class ScanSession:
             if record is not None and req.rig is None and rig_spec.kind == "serial" and \
                     rig_spec.port.startswith("/") and not os.path.exists(rig_spec.port):
                 raise DeviceError(f"the dataset was captured with the rig on {rig_spec.port}, which is not there now: "
-                                  "connect the rig, or give the port it has now with --rig PORT")
+                                  "connect the rig, or give the port it has now with --port PORT")
             studio = self.studio = open_studio(
                 rig_spec, cam_spec, config, doing=f"{self.doing} {self.folder}", time_scale=req.time_scale,
                 exposure_s=req.exposure_s, transfer_s=req.transfer_s, seed=req.seed,
@@ -505,7 +505,7 @@ class ScanSession:
             return
         if not self.request.allow_device_change:
             how = ("To resume with its own devices, connect them in the Rig and Camera panels." if self.shared is not None else
-                   "Resume without --rig/--camera to use the dataset's own devices, or add "
+                   "Resume without --port/--camera to use the dataset's own devices, or add "
                    f"{ALLOW_CHANGE_OPTION} to continue with these (the change is recorded in the dataset)")
             raise DeviceChangeRefused(dataset.root, record, current, differences, how)
         change = {"at": now_iso(), "devices": current, "differences": differences}

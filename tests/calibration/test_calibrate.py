@@ -44,7 +44,7 @@ def test_too_few_matches_names_the_views(tmp_path):
 
 
 def test_cli_calibrate_writes_json_and_reports(layered, run_cli):
-    proc = run_cli("calibrate", layered.root, "--views", "2x3", "--json", "--work-width-px", "0")
+    proc = run_cli("calibrate", layered.root, "--views", "array:3x2", "--json", "--work-width-px", "0")
     assert proc.returncode == 0, proc.stderr
     doc = json.loads(proc.stdout)
     assert {"rotation_deg", "principal_point_px", "focal_length_px", "homography", "residual_px", "pairs"} <= set(doc)

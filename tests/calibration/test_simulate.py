@@ -34,7 +34,7 @@ def test_cli_json_and_sweep_plot(run_cli, tmp_path):
 
 
 def test_cli_subsample_pair_set_and_coverage_columns(run_cli):
-    proc = run_cli("simulate-calibration", "--trials", "2", "--views", "3x5", "--pairs", "spanning", "--mode", "fixed",
+    proc = run_cli("simulate-calibration", "--trials", "2", "--views", "array:5x3", "--pairs", "spanning", "--mode", "fixed",
                    "--json")
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
@@ -42,7 +42,7 @@ def test_cli_subsample_pair_set_and_coverage_columns(run_cli):
     assert {"true_residual", "corner", "angle"} <= set(out["coverage"]) and "linear" in out
     text = run_cli("simulate-calibration", "--trials", "2", "--views", "default")
     assert text.returncode == 0 and "cov2σ" in text.stdout and "linear epipole" in text.stdout
-    bad = run_cli("simulate-calibration", "--views", "1x5")
+    bad = run_cli("simulate-calibration", "--views", "array:5x1")
     assert bad.returncode == 2 and "--views" in bad.stderr
 
 

@@ -48,7 +48,7 @@ def _report(cfg, seed=3):
 
 
 def test_neighbours_only_over_full_rows_is_warned_as_degenerate():
-    cfg = SimulationConfig(views="2x101", pair_set="neighbours", points_per_pair=120)
+    cfg = SimulationConfig(views="array:101x2", pair_set="neighbours", points_per_pair=120)
     trial, fit, doc = _report(cfg)
     u = CalibrationUncertainty.from_document(doc)
     assert u.degenerate and any("cannot fix the rotation" in w for w in doc["warnings"])
@@ -76,18 +76,18 @@ def test_old_documents_without_an_uncertainty_still_read():
 
 
 def test_the_9x3_scan_that_said_043_deg_for_a_true_100_deg(tmp_path, run_cli):
-    """Reproduces the reported CLI run: `lfstudio scan --rig sim --camera sim --grid 9x3` (the simulated
+    """Reproduces the reported CLI run: `lfstudio scan --port sim --camera sim --grid 9x3` (the simulated
     rig's seeded repeatability errors: r00_c004 and r02_c004 0.33 mm apart in x on a 12 mm column), then
-    `lfstudio calibrate --views 2x3`. Before: rx +0.29° ± 0.15° at this image size (+0.43° ± 0.068° at
+    `lfstudio calibrate --views array:3x2`. Before: rx +0.29° ± 0.15° at this image size (+0.43° ± 0.068° at
     2000 px) — the fit minimised residuals H could shrink (a bias ∝ σ²/d² on short baselines) and its
     error ignored the views' position errors. Now the truth lies within the stated uncertainty."""
     root = tmp_path / "scan93"
-    proc = run_cli("scan", "--rig", "sim", "--camera", "sim", "--grid", "9x3", "--spacing-mm", "4x6", "--out", root,
+    proc = run_cli("scan", "--port", "sim", "--camera", "sim", "--grid", "9x3", "--spacing-mm", "4x6", "--out", root,
                    "--time-scale", "0", "--sim-width-px", "1000", timeout=300)
     assert proc.returncode == 0, proc.stderr
     truth = json.loads((root / "raw" / "r00_c000.truth.json").read_text())
     assert truth["rotation_deg"] == [1.0, -1.5, 0.7]
-    proc = run_cli("calibrate", root, "--views", "2x3", "--json", "--no-save", timeout=300)
+    proc = run_cli("calibrate", root, "--views", "array:3x2", "--json", "--no-save", timeout=300)
     assert proc.returncode == 0, proc.stderr
     doc = json.loads(proc.stdout)
     err = np.array(doc["rotation_deg"]) - truth["rotation_deg"]

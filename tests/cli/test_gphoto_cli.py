@@ -45,7 +45,7 @@ def test_camera_without_a_camera(run_cli, tmp_path):
 
 def test_scan_3x2_through_the_ptp_stack(run_cli, vcamera, tmp_path):
     out = tmp_path / "scan"
-    proc = run_cli("scan", "--rig", "sim", "--camera", "gphoto2", "--grid", "3x2", "--spacing-mm", "4x6",
+    proc = run_cli("scan", "--port", "sim", "--camera", "gphoto2", "--grid", "3x2", "--spacing-mm", "4x6",
                    "--out", out, "--time-scale", "0")
     assert proc.returncode == 0, proc.stderr
     ds = Dataset.open(out)
@@ -72,7 +72,7 @@ def test_scan_stops_when_the_camera_is_full_and_resume_completes(run_cli, vcamer
     """vusb's store is full after ~26 pictures a session: the scan stops with the operator's message,
     keeps every view taken, and ``--resume`` (a new camera session) captures the rest."""
     out = tmp_path / "scan"
-    args = ("scan", "--rig", "sim", "--camera", "gphoto2", "--out", out, "--time-scale", "0")
+    args = ("scan", "--port", "sim", "--camera", "gphoto2", "--out", out, "--time-scale", "0")
     proc = run_cli(*args, "--grid", "6x5", "--spacing-mm", "4x6")
     assert proc.returncode == 3, proc.stderr
     assert "card or the camera's buffer is full" in proc.stderr and "--resume" in proc.stderr

@@ -72,7 +72,7 @@ def test_a_negative_or_malformed_spacing_gets_one_line_not_a_usage_dump(run_cli,
     """``--spacing-mm -4x6`` used to stop in argparse ("expected one argument") with the usage text."""
     required = {"import-images": [str(tmp_path), "--grid", "2x2", "--out", str(tmp_path / "x")],
                 "virtual-dataset": [str(tmp_path / "x")],
-                "scan": ["--rig", "instant", "--camera", "instant", "--grid", "2x2", "--out", str(tmp_path / "x")]}
+                "scan": ["--port", "instant", "--camera", "instant", "--grid", "2x2", "--out", str(tmp_path / "x")]}
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")
     commands = [n for n, p in sub.choices.items() if "--spacing-mm" in p._option_string_actions]

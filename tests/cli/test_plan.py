@@ -25,7 +25,7 @@ def test_json_has_the_keys_and_the_worked_check(run_cli):
 
 def test_options_change_the_figures(run_cli, tmp_path):
     plan_file = tmp_path / "p.toml"
-    proc = run_cli("plan", "--json", "--camera", "Nikon Z7 II", "--focal-length-mm", "35", "--near-m", "1",
+    proc = run_cli("plan", "--json", "--camera-preset", "Nikon Z7 II", "--focal-length-mm", "35", "--near-m", "1",
                    "--far-m", "3", "--f-number", "8", "--grid", "11x3", "--spacing-mm", "2x3",
                    "--repeatability-um", "40x40", "--max-disparity-px", "0.5", "--exposure-s", "1",
                    "--transfer-s", "0.5", "--settle-s", "0.1", "--save", plan_file)

@@ -7,7 +7,7 @@ import json
 
 def test_scan_instant_then_info_and_resume_is_a_no_op(run_cli, tmp_path):
     out = tmp_path / "ds"
-    r = run_cli("scan", "--rig", "instant", "--camera", "instant", "--grid", "3x2", "--spacing-mm", "4x6",
+    r = run_cli("scan", "--port", "instant", "--camera", "instant", "--grid", "3x2", "--spacing-mm", "4x6",
                 "--out", out, "--time-scale", "0")
     assert r.returncode == 0, r.stderr
     assert "6 of 6 views captured" in r.stderr
@@ -17,18 +17,18 @@ def test_scan_instant_then_info_and_resume_is_a_no_op(run_cli, tmp_path):
     assert (summary["done"], summary["missing"], summary["file_problems"]) == (6, 0, [])
     text = run_cli("info", out)
     assert "6 done, 0 missing, 0 failed" in text.stdout
-    again = run_cli("scan", "--rig", "instant", "--camera", "instant", "--out", out, "--resume")
+    again = run_cli("scan", "--port", "instant", "--camera", "instant", "--out", out, "--resume")
     assert again.returncode == 0 and "nothing to do" in again.stderr
 
 
 def test_scan_errors_name_the_option(run_cli, tmp_path):
-    r = run_cli("scan", "--rig", "instant", "--camera", "instant", "--grid", "2000x3", "--out", tmp_path / "a")
+    r = run_cli("scan", "--port", "instant", "--camera", "instant", "--grid", "2000x3", "--out", tmp_path / "a")
     assert r.returncode == 2 and "--grid/--spacing-mm" in r.stderr and "4000 mm" in r.stderr
-    r = run_cli("scan", "--rig", "instant", "--camera", "instant", "--grid", "abc", "--out", tmp_path / "b")
+    r = run_cli("scan", "--port", "instant", "--camera", "instant", "--grid", "abc", "--out", tmp_path / "b")
     assert r.returncode == 2 and "--grid" in r.stderr
-    r = run_cli("scan", "--rig", "instant", "--camera", "instant", "--out", tmp_path / "c", "--resume")
+    r = run_cli("scan", "--port", "instant", "--camera", "instant", "--out", tmp_path / "c", "--resume")
     assert r.returncode == 2 and "no dataset to resume" in r.stderr
-    r = run_cli("scan", "--rig", "instant", "--camera", "nikon", "--grid", "2x2", "--out", tmp_path / "d")
+    r = run_cli("scan", "--port", "instant", "--camera", "nikon", "--grid", "2x2", "--out", tmp_path / "d")
     assert r.returncode == 2 and "--camera" in r.stderr
 
 

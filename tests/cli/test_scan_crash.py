@@ -17,7 +17,7 @@ from lfstudio.dataset.paths import view_stem
 from lfstudio.dataset.store import temporary_files
 from tests.conftest import REPO_ROOT
 
-ARGS = ["--rig", "sim", "--camera", "sim", "--grid", "4x3", "--spacing-mm", "4x6", "--time-scale", "0.02",
+ARGS = ["--port", "sim", "--camera", "sim", "--grid", "4x3", "--spacing-mm", "4x6", "--time-scale", "0.02",
         "--sim-width-px", "96"]
 
 

@@ -55,17 +55,17 @@ def test_one_selection_for_every_stage(tmp_path):
     assert View(1, 2) not in ds.captured_views() and len(ds.captured_views()) == 14
     assert ds.select("all") == ds.select(None) == ds.captured_views()
     assert ds.select("r1-2,c1-3") == [(1, 1), (1, 3), (2, 1), (2, 2), (2, 3)]
-    assert ds.select("2x3") == [(0, 0), (0, 2), (0, 4), (2, 0), (2, 2), (2, 4)]
+    assert ds.select("array:3x2") == [(0, 0), (0, 2), (0, 4), (2, 0), (2, 2), (2, 4)]
     # columns (rows) at the two ends of the grid, side by side
-    assert ds.select("2x2e") == [(0, 0), (0, 4), (2, 0), (2, 4)]
-    assert ds.select("1x3E") == [(0, 0), (0, 1), (0, 4)]
-    assert ds.select("2ex4e") == [(0, 0), (0, 1), (0, 3), (0, 4), (2, 0), (2, 1), (2, 3), (2, 4)] == \
+    assert ds.select("array:2ex2") == [(0, 0), (0, 4), (2, 0), (2, 4)]
+    assert ds.select("array:3Ex1") == [(0, 0), (0, 1), (0, 4)]
+    assert ds.select("array:4ex2e") == [(0, 0), (0, 1), (0, 3), (0, 4), (2, 0), (2, 1), (2, 3), (2, 4)] == \
         [v for v in ds.grid.spread(2, 4, ends=(True, True)) if v.row != 1]
     assert ds.select("r00_c001, r2c3") == [(0, 1), (2, 3)]
     assert ds.select([(2, 4), (0, 0)]) == [(0, 0), (2, 4)]
     for spec, words in (("r1_c2", "r01_c002 has no captured image"), ("r0-7", "rows up to 7 asked"),
                         ("r3-1", "range runs backwards"), ("banana", "cannot read 'banana'"),
-                        ([(1, 2)], "no captured image for r01_c002"), ("0x2", "at least one row")):
+                        ([(1, 2)], "no captured image for r01_c002"), ("array:0x2", "at least one column and one row")):
         with pytest.raises(InputError, match=words) as exc:
             ds.select(spec)
         assert exc.value.field == "views"
@@ -75,3 +75,22 @@ def test_one_selection_for_every_stage(tmp_path):
     assert ds.select(None, default=DEFAULT_VIEWS) == ds.grid.select(DEFAULT_VIEWS, ds.captured_views())
     with pytest.raises(InputError, match="--views"):
         ds.select("banana", field_name="--views")
+
+
+def test_an_array_is_columns_by_rows_and_a_bare_rows_by_columns_is_refused():
+    """Issue 20: arrays were ROWSxCOLUMNS ('--views 3x5') while --grid is COLUMNSxROWS. The new
+    spelling array:CxR is columns x rows; a bare non-square RxC, which an existing script means as
+    rows x columns, is refused with the new form instead of being read the other way."""
+    grid = Grid(9, 5)
+    everything = grid.views()
+    wide = grid.select("array:5x3", everything)             # 5 columns, 3 rows
+    assert sorted({v.column for v in wide}) == [0, 2, 4, 6, 8] and sorted({v.row for v in wide}) == [0, 2, 4]
+    assert grid.select("ARRAY: 5 x 3", everything) == wide
+    assert grid.select("3x3", everything) == grid.select("array:3x3", everything)   # square: the same either way
+    ends = grid.select("array:4ex3", everything)            # the first two and last two columns x 3 rows
+    assert sorted({v.column for v in ends}) == [0, 1, 7, 8] and sorted({v.row for v in ends}) == [0, 2, 4]
+    for old, new in (("3x5", "array:5x3 for 5 columns by 3 rows"), ("10x4e", "array:4ex10 for 4 columns by 10 rows"),
+                     ("3x3e", "array:3ex3")):
+        with pytest.raises(InputError, match=f"'{old}': an array is written array:COLUMNSxROWS") as exc:
+            grid.select(old, everything, field_name="--views")
+        assert exc.value.field == "--views" and new in str(exc.value)

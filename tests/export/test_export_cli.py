@@ -47,7 +47,7 @@ def test_export_bad_input_exit_2(make_tiny_dataset, run_cli, tmp_path):
         (["--format", "png", "--out", tmp_path / "x", "--source", "processed"], ("--source", "lfstudio process")),
         (["--format", "hci", "--out", tmp_path / "x", "--hci-size", "nine"], ("--hci-size",)),
         (["--format", "hci", "--out", tmp_path / "x", "--hci-bit-depth", "12"], ("--hci-bit-depth", "8 (sRGB")),
-        (["--format", "hci", "--out", tmp_path / "x", "--hci-size", "3x3", "--hci-center", "0,0"], ("--hci-center",)),
+        (["--format", "hci", "--out", tmp_path / "x", "--hci-size", "3x3", "--hci-centre-view", "0,0"], ("--hci-centre-view",)),
     ]:
         proc = run_cli("export", ds.root, *args)
         assert proc.returncode == 2, (args, proc.stderr)

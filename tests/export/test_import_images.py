@@ -136,7 +136,7 @@ def test_meander_jpeg_import_matches_the_render_by_content(render, tmp_path):
 
 def test_imported_dataset_calibrates_close_to_the_truth_and_processes(render, imported_png):
     ds, _ = imported_png
-    run = calibrate_dataset(ds, "2x3", max_width_px=None)
+    run = calibrate_dataset(ds, "array:3x2", max_width_px=None)
     assert len(run.views) == 6
     truth = load_ground_truth(render.root)
     err = rotation_angle_deg(rotation_matrix(run.document["rotation_deg"]), rotation_matrix(truth["rotation_deg"]))

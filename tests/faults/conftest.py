@@ -86,7 +86,7 @@ def scanned(run_cli, tmp_path_factory):
     def make(cols: int = 3, rows: int = 2) -> Path:
         if (cols, rows) not in cache:
             src = tmp_path_factory.mktemp("scanned") / "ds"
-            proc = run_cli("scan", "--rig", "instant", "--camera", "instant", "--grid", f"{cols}x{rows}",
+            proc = run_cli("scan", "--port", "instant", "--camera", "instant", "--grid", f"{cols}x{rows}",
                            "--out", src)
             assert proc.returncode == 0, proc.stderr
             cache[(cols, rows)] = src

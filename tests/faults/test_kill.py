@@ -49,7 +49,7 @@ def captured(root):
 def test_kill_9_of_a_scan_at_a_random_moment_then_resume_keeps_every_view_once(trial, tmp_path, run_cli):
     rnd = random.Random(1000 + trial)
     out = tmp_path / "ds"
-    proc = start_cli("scan", "--rig", "instant", "--camera", "sim", "--sim-width-px", "96", "--time-scale", "0.05",
+    proc = start_cli("scan", "--port", "instant", "--camera", "sim", "--sim-width-px", "96", "--time-scale", "0.05",
                      "--grid", "5x3", "--out", out)
     journal = out / "journal.jsonl"
     kill_after = rnd.randint(1, 10)            # views journaled before the kill (and a random extra delay)

@@ -21,7 +21,7 @@ BAD = {"nan": "nan", "inf": "inf", "-inf": "-inf", "huge": "1e300", "negative": 
 
 @pytest.fixture
 def pty_port():
-    """A real pseudo-terminal handed to ``--rig``: ``sent()`` is every byte lfstudio wrote to it."""
+    """A real pseudo-terminal handed to ``--port``: ``sent()`` is every byte lfstudio wrote to it."""
     master, slave = os.openpty()
     tty.setraw(slave)
     name = os.ttyname(slave)
@@ -83,7 +83,7 @@ def test_a_bad_number_in_an_option_is_one_line_exit_2_before_any_device(command,
     args = [{"DATASET": tmp_path / "ds", "OUT": tmp_path / "out", "STEM": tmp_path / "shot", "NEW": tmp_path / "new",
              "FOLDER": tmp_path}.get(a, a) for a in command]
     if args[0] in ("scan", "rig"):
-        args += ["--rig" if args[0] == "scan" else "--port", pty_port.path]
+        args += ["--port", pty_port.path]
     if args[0] == "scan":
         args += ["--out", tmp_path / "new"]
     if args[0] == "rig":
@@ -122,7 +122,7 @@ def test_a_bad_rig_profile_is_refused_before_any_move(case, run_cli, tmp_path, p
     config = tmp_path / "config"
     _user_rig(config, **RIG_CASES[case])
     field = next(iter(RIG_CASES[case]))
-    proc = run_cli("rig", "--port", pty_port.path, "--rig", "Bad", "move", "5000", "-40",
+    proc = run_cli("rig", "--port", pty_port.path, "--rig-profile", "Bad", "move", "5000", "-40",
                    env={"LFSTUDIO_CONFIG_DIR": str(config)}, timeout=60)
     assert_one_line_error(proc, 2, "'Bad'", field)
     assert pty_port.sent() == b""
@@ -160,7 +160,7 @@ def test_a_bad_plan_file_is_one_line_exit_2(case, command, run_cli, tmp_path, pt
     path = tmp_path / "bad.json"
     path.write_text(json.dumps(data))                   # Python's json writes NaN and Infinity
     args = ["plan", "--plan", path] if command == "plan" else \
-        ["scan", "--plan", path, "--rig", pty_port.path, "--camera", "instant", "--out", tmp_path / "new"]
+        ["scan", "--plan", path, "--port", pty_port.path, "--camera", "instant", "--out", tmp_path / "new"]
     proc = run_cli(*args, timeout=60)
     assert_one_line_error(proc, 2, field)
     assert pty_port.sent() == b"" and not (tmp_path / "new").exists()

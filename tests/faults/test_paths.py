@@ -143,7 +143,7 @@ def test_every_file_a_scan_process_and_export_write_gets_the_users_umask(run_cli
     out, export = tmp_path / "ds", tmp_path / "export"
     profile = tmp_path / "profile.toml"
     profile.write_text("[rectify]\nenabled = false\n[deflicker]\nsize_px = 16\n")    # not calibrated
-    for args in (("scan", "--rig", "instant", "--camera", "instant", "--grid", "3x2", "--out", out),
+    for args in (("scan", "--port", "instant", "--camera", "instant", "--grid", "3x2", "--out", out),
                  ("process", out, "--workers", "0", "--profile", profile),
                  ("export", out, "--format", "png", "--out", export)):
         proc = run_cli(*args, preexec_fn=umask)

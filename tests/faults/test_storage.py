@@ -174,7 +174,7 @@ def test_the_free_space_floor_comes_from_the_views_captured_so_far(disk_scan):
 def test_scan_fills_the_disk_stops_with_one_line_then_resumes_without_capturing_again(small_disk, run_cli):
     disk = small_disk(12 * 2**20)          # room for the 8 MB floor and a dozen views of ~250 kB
     out = disk.path / "ds"
-    proc = run_cli("scan", "--rig", "instant", "--camera", "sim", "--sim-width-px", "400", "--time-scale", "0",
+    proc = run_cli("scan", "--port", "instant", "--camera", "sim", "--sim-width-px", "400", "--time-scale", "0",
                    "--grid", "6x4", "--out", out, timeout=120)
     assert_one_line_error(proc, 3, "Disk almost full", str(disk.path), "needed to go on")
     assert "camera's cable" not in proc.stderr

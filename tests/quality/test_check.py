@@ -138,7 +138,7 @@ def test_a_calibrated_dataset_is_checked_in_the_rectified_frame(quality_dataset)
 
     fault, _ = FAULTS["displaced"]
     ds = quality_dataset("displaced", faults=[fault])
-    save_calibration(ds, calibrate_dataset(ds, "2x3").document)
+    save_calibration(ds, calibrate_dataset(ds, "array:3x2").document)
     report = check_dataset(ds, write=False)
     assert report.document["calibration"]["used"] is True
     assert set(_flagged(report)) == {(2, 2)}

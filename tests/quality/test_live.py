@@ -108,7 +108,7 @@ def test_the_scan_never_waits_for_the_checker(tmp_path, monkeypatch):
 
 def test_lfstudio_scan_check_judges_each_view_of_a_simulated_scan(tmp_path, run_cli):
     out = tmp_path / "scan"
-    r = run_cli("scan", "--rig", "sim", "--camera", "sim", "--grid", "5x3", "--out", out, "--time-scale", "0",
+    r = run_cli("scan", "--port", "sim", "--camera", "sim", "--grid", "5x3", "--out", out, "--time-scale", "0",
                 "--sim-width-px", "480", "--check", timeout=300)
     assert r.returncode == 0, r.stderr
     assert "check: 15 views checked, none flagged" in r.stderr

@@ -30,15 +30,25 @@ def test_motion_blur_smears_along_its_direction_only():
 
 
 def test_parse_fault_reads_every_kind_and_names_the_fix():
-    assert parse_fault("blur:1,2:6") == ViewFault("blur", 1, 2, blur_px=6.0)
-    assert parse_fault("blur:1,2:6,90").blur_angle_deg == 90.0
-    assert parse_fault("luminance:0,3:1.3").gain == pytest.approx(1.3)
-    assert parse_fault("displaced:2,2:1.0,-0.5").offset_mm == (1.0, -0.5)
-    assert parse_fault("skipped:1,1") == ViewFault("skipped", 1, 1)
-    for bad in ("blur:1,2", "wobble:1,1", "skipped", "luminance:0,0:1", "displaced:1:1", "blur:-1,0:3"):
+    assert parse_fault("blur:r01_c002:6") == ViewFault("blur", 1, 2, blur_px=6.0)
+    assert parse_fault("blur:r1c2:6,90").blur_angle_deg == 90.0
+    assert parse_fault("luminance:r00_c003:1.3").gain == pytest.approx(1.3)
+    assert parse_fault("displaced:r02_c002:1.0,-0.5").offset_mm == (1.0, -0.5)
+    assert parse_fault("skipped:r01_c001") == ViewFault("skipped", 1, 1)
+    for bad in ("blur:r01_c002", "wobble:r01_c001", "skipped", "luminance:r00_c000:1", "displaced:r01_c001:1:1",
+                "blur:-1,0:3", "blur:r01:3"):
         with pytest.raises(ValueError) as exc:
             parse_fault(bad)
-        assert "KIND:ROW,COLUMN" in str(exc.value) or "must" in str(exc.value) or "needs" in str(exc.value)
+        assert "KIND:VIEW" in str(exc.value) or "must" in str(exc.value) or "needs" in str(exc.value)
+
+
+def test_a_fault_at_row_comma_column_is_refused_with_the_view_name():
+    """Issue 20: '--fault blur:1,2:6' was row 1, column 2; positions are COLUMN,ROW now, so the old
+    form is refused (never read as column 1, row 2) with the view's name in its place."""
+    with pytest.raises(ValueError, match=r"write blur:r01_c002:6$"):
+        parse_fault("blur:1,2:6")
+    with pytest.raises(ValueError, match=r"write skipped:r04_c002$"):
+        parse_fault("skipped:4,2")
 
 
 def test_faults_spoil_exactly_their_views_with_ground_truth(tmp_path):

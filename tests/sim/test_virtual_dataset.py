@@ -125,7 +125,7 @@ def test_only_some_views_of_a_grid_are_rendered_each_as_in_the_whole_grid(tmp_pa
     from lfstudio.dataset.grid import Grid
 
     whole = make_virtual_dataset(tmp_path / "whole", 5, 3, width_px=96, fmt="png", seed=4, position_noise_um=(80, 50))
-    chosen = Grid(5, 3).select("2x2e", Grid(5, 3).views())
+    chosen = Grid(5, 3).select("array:2ex2", Grid(5, 3).views())
     part = make_virtual_dataset(tmp_path / "part", 5, 3, width_px=96, fmt="png", seed=4, position_noise_um=(80, 50),
                                 only_views=chosen)
     assert part.grid.columns == 5 and part.grid.rows == 3

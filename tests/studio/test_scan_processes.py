@@ -65,13 +65,13 @@ def one_error_line(stderr: str) -> str:
 
 def test_scan_on_the_simulated_controllers_pty_needs_home_then_completes(sim_rig_port, run_cli, tmp_path):
     out = tmp_path / "ds"
-    r = run_cli("scan", "--rig", sim_rig_port, "--camera", "sim", *GRID, "--out", out, *FAST)
+    r = run_cli("scan", "--port", sim_rig_port, "--camera", "sim", *GRID, "--out", out, *FAST)
     assert r.returncode == 1
     line = one_error_line(r.stderr)
     assert "ALARM" in line and "--home" in line and f"lfstudio rig --port {sim_rig_port} home" in line
     assert not out.exists()                      # nothing was made for a scan that could not start
 
-    r = run_cli("scan", "--rig", sim_rig_port, "--home", "--camera", "sim", *GRID, "--out", out, *FAST)
+    r = run_cli("scan", "--port", sim_rig_port, "--home", "--camera", "sim", *GRID, "--out", out, *FAST)
     assert r.returncode == 0, r.stderr
     assert "rig homed" in r.stderr and "6 of 6 views captured" in r.stderr
     assert assert_views_where_commanded(out) == 6
@@ -82,13 +82,13 @@ def test_scan_on_the_simulated_controllers_pty_needs_home_then_completes(sim_rig
     # homed by `lfstudio rig ... home` in another process: a new scan without --home runs
     r = run_cli("rig", "--port", sim_rig_port, "home")
     assert r.returncode == 0, r.stderr
-    r = run_cli("scan", "--rig", sim_rig_port, "--camera", "sim", *GRID, "--out", tmp_path / "ds2", *FAST)
+    r = run_cli("scan", "--port", sim_rig_port, "--camera", "sim", *GRID, "--out", tmp_path / "ds2", *FAST)
     assert r.returncode == 0 and "6 of 6 views captured" in r.stderr, r.stderr
 
 
 def test_rig_command_refused_while_a_scan_runs(sim_rig_port, start_cli, run_cli, tmp_path):
     out = tmp_path / "ds"
-    scan = start_cli("scan", "--rig", sim_rig_port, "--home", "--camera", "sim", "--grid", "6x3", "--spacing-mm",
+    scan = start_cli("scan", "--port", sim_rig_port, "--home", "--camera", "sim", "--grid", "6x3", "--spacing-mm",
                      "4x6", "--out", out, "--time-scale", "1", "--sim-width-px", "64")
     wait_for_views(scan, out, 1)
     r = run_cli("rig", "--port", sim_rig_port, "jog", "5", "0")
@@ -106,7 +106,7 @@ def test_rig_command_refused_while_a_scan_runs(sim_rig_port, start_cli, run_cli,
 def test_two_scans_of_one_dataset_the_second_is_refused_and_touches_nothing(start_cli, run_cli, tmp_path):
     out = tmp_path / "ds"
     # 30 views of ~1 s: the first scan still runs while the others are tried (it is stopped after that)
-    first = start_cli("scan", "--rig", "sim", "--camera", "sim", "--grid", "10x3", "--spacing-mm", "4x6",
+    first = start_cli("scan", "--port", "sim", "--camera", "sim", "--grid", "10x3", "--spacing-mm", "4x6",
                       "--out", out, "--time-scale", "0.3", "--sim-width-px", "64")
     wait_for_views(first, out, 2)
     before = files_of(out)
@@ -115,7 +115,7 @@ def test_two_scans_of_one_dataset_the_second_is_refused_and_touches_nothing(star
     assert second.returncode == 1
     line = one_error_line(second.stderr)
     assert f"dataset {out} is in use by lfstudio scan" in line and f"pid {first.pid}" in line
-    third = run_cli("scan", "--rig", "sim", "--camera", "sim", *GRID, "--out", out, *FAST)
+    third = run_cli("scan", "--port", "sim", "--camera", "sim", *GRID, "--out", out, *FAST)
     assert third.returncode == 2 and "already holds a dataset" in third.stderr
     after = files_of(out)
     assert {name: after.get(name) for name in before} == before      # every file of the first, untouched
@@ -152,13 +152,13 @@ def test_resume_with_other_devices_is_refused_without_the_explicit_option(run_cl
     out = tmp_path / "ds"
     partial_dataset(out, "instant", "instant", 2)
     manifest = (out / "dataset.json").read_bytes()
-    r = run_cli("scan", "--out", out, "--resume", "--rig", "sim", "--camera", "sim", *FAST)
+    r = run_cli("scan", "--out", out, "--resume", "--port", "sim", "--camera", "sim", *FAST)
     assert r.returncode == 1
     line = one_error_line(r.stderr)
     assert "the instant rig and the instant camera" in line and "--allow-device-change" in line
     assert (out / "dataset.json").read_bytes() == manifest
 
-    r = run_cli("scan", "--out", out, "--resume", "--rig", "sim", "--camera", "sim", "--allow-device-change", *FAST)
+    r = run_cli("scan", "--out", out, "--resume", "--port", "sim", "--camera", "sim", "--allow-device-change", *FAST)
     assert r.returncode == 0, r.stderr
     assert "device change recorded" in r.stderr
     ds = Dataset.open(out)
@@ -187,7 +187,7 @@ def test_a_dataset_without_a_device_record_still_resumes_with_a_warning(run_cli,
     manifest["rig"].pop("port")
     manifest["camera"].pop("driver")
     (out / "dataset.json").write_text(json.dumps(manifest))
-    r = run_cli("scan", "--out", out, "--resume", "--rig", "instant", "--camera", "instant", *FAST)
+    r = run_cli("scan", "--out", out, "--resume", "--port", "instant", "--camera", "instant", *FAST)
     assert r.returncode == 0, r.stderr
     assert "does not record which devices captured it" in r.stderr
     assert Dataset.open(out).manifest["devices"]["rig"]["kind"] == "instant"

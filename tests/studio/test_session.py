@@ -104,6 +104,6 @@ def test_resume_on_a_recorded_port_that_is_gone_says_so(tmp_path):
     gone = with_(REAL, "rig", port=str(tmp_path / "ttyUSB9"))
     create_scan_dataset(tmp_path / "ds", plan, rig={"name": "Reference gantry"}, camera={}, lens={}, devices=gone)
     session = ScanSession(ScanRequest(tmp_path / "ds", resume=True))
-    with pytest.raises(DeviceError, match=r"captured with the rig on .*ttyUSB9, which is not there now.*--rig PORT"):
+    with pytest.raises(DeviceError, match=r"captured with the rig on .*ttyUSB9, which is not there now.*--port PORT"):
         session.open(lambda existing, cfg: (plan, None))
     assert session.lock is None                     # released again
