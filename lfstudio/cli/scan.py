@@ -1,4 +1,10 @@
-"""``lfstudio scan``: capture a grid of views into a dataset folder (crash-safe, resumable)."""
+"""``lfstudio scan``: capture a grid of views into a dataset folder (crash-safe, resumable).
+
+Ctrl+C stops the scan within about :data:`CTRL_C_GRACE_S` + a second: a move under way stops, the
+view being exposed is stored if its file arrives within the grace time and otherwise left not done,
+the journal holds every captured view, and the line printed last is the exact command that resumes
+(:func:`resume_command`); exit status 130. A second Ctrl+C drops the grace time.
+"""
 
 from __future__ import annotations
 
@@ -16,6 +22,10 @@ from lfstudio.numbers import (EXPOSURE_S, OFFSET_MM, RETRIES, SEED, SETTLE_S, SP
 HELP = "capture a grid of views into a dataset folder (meander order, pipelined, resumable)"
 
 EXIT_FAULT = 3
+#: Ctrl+C: how long a capture under way may still take to arrive before it is dropped
+CTRL_C_GRACE_S = 1.0
+#: options that shape a new scan's plan; a resume takes them from the dataset
+_PLAN_OPTIONS = ("grid", "spacing_mm", "offset_mm", "plan", "origin_here", "home", "resume", "out")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -123,6 +133,27 @@ def _build_plan(args: argparse.Namespace, rig_config, existing=None):
     return plan, scene
 
 
+def resume_command(args: argparse.Namespace, root) -> str:
+    """The exact command that continues this scan: ``lfstudio scan --resume --out ROOT`` with the
+    devices and timings given to this one (not the plan's options: the dataset holds its grid)."""
+    import shlex
+
+    defaults = argparse.ArgumentParser()
+    add_arguments(defaults)
+    words = ["lfstudio", "scan", "--resume", "--out", str(root)]
+    for action in defaults._actions:
+        if not action.option_strings or action.dest in _PLAN_OPTIONS or action.help == argparse.SUPPRESS:
+            continue
+        value = getattr(args, action.dest, None)
+        if value is None or value == action.default:
+            continue
+        if action.nargs == 0:                    # a flag
+            words.append(action.option_strings[0])
+        else:
+            words += [action.option_strings[0], str(value)]
+    return shlex.join(words)
+
+
 def _start_check(dataset, engine):
     """Scan-time check (:mod:`lfstudio.quality.live`): a failing view is named as soon as it is judged."""
     from lfstudio.quality.live import LiveChecker
@@ -150,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
 
     from lfstudio.jobs import TerminalProgress, format_duration
     from lfstudio.rig.profile import load_rig
-    from lfstudio.scan.events import EventKind, ScanState
+    from lfstudio.scan.events import EventKind, ScanRequestRefused, ScanState
     from lfstudio.studio.session import ScanRequest, ScanSession
 
     request = ScanRequest(Path(args.out), resume=args.resume, rig=args.port, camera=args.camera,
@@ -185,7 +216,19 @@ def run(args: argparse.Namespace) -> int:
 
         engine.subscribe(on_event)
         checker = _start_check(dataset, engine) if args.check else None
-        previous = signal.signal(signal.SIGINT, lambda *a: engine.abort())
+        interrupts = []
+
+        def on_sigint(*_) -> None:
+            interrupts.append(1)
+            if len(interrupts) == 1:
+                print(f"\nlfstudio scan: Ctrl+C: stopping (the view being exposed is kept if it arrives within "
+                      f"{CTRL_C_GRACE_S:g} s)", file=sys.stderr, flush=True)
+            try:
+                engine.abort(grace_s=CTRL_C_GRACE_S if len(interrupts) == 1 else 0.0)
+            except ScanRequestRefused:      # it has ended meanwhile
+                pass
+
+        previous = signal.signal(signal.SIGINT, on_sigint)
         try:
             engine.start()
             while not engine.wait(0.2) in (ScanState.FINISHED, ScanState.FAILED):
@@ -195,8 +238,8 @@ def run(args: argparse.Namespace) -> int:
                     engine.abort()
                     engine.wait()
                     if fault is not None:
-                        print(f"\nlfstudio scan: stopped: {fault}\nlfstudio scan: run again with --resume "
-                              "to continue.", file=sys.stderr)
+                        print(f"\nlfstudio scan: stopped: {fault}\nlfstudio scan: to continue, fix that and run: "
+                              f"{resume_command(args, dataset.root)}", file=sys.stderr)
                         return EXIT_FAULT
                     paused.clear()
         finally:
@@ -210,6 +253,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"lfstudio scan: {engine.message} ({format_duration(engine.active_s)})", file=sys.stderr)
         if counts["done"] + counts["skipped"] == len(dataset.views):
             return 0
+        print(f"lfstudio scan: the {counts['done']} captured views are saved in {dataset.root}; resume with:\n"
+              f"  {resume_command(args, dataset.root)}", file=sys.stderr)
         return 130 if engine.aborted else 1
     finally:
         session.close()

@@ -26,7 +26,10 @@ message naming the scan (:attr:`ScanEngine.label`); STOP is always accepted and 
 A paused scan gives the rig back, so the operator can home it or clear a fault before Resume.
 
 Checkpoints (where a pause or an abort lands) are between views: a pause finishes the current
-view, waits until every file is stored, then reports ``paused``. A device fault retries the view
+view, waits until every file is stored, then reports ``paused``. An abort with a grace time
+(``abort(grace_s=1)``, the CLI's Ctrl+C) ends sooner: a move under way is stopped and its view is
+not taken, an exposure or transfer that ends within the grace time is stored, a later one is cut
+short by stopping the camera and that view is not marked done (taken on resume). A device fault retries the view
 with backoff; when the retries are used up the scan pauses with the device's message, and
 ``resume()`` reconnects the device and retries the view. Too little free disk space pauses too.
 Listeners get :class:`ScanEvent` objects on the engine's threads (a listener that raises is logged
@@ -179,6 +182,9 @@ class ScanEngine:
         self.fault: ScanFault | None = None
         self.message = ""
         self.aborted = False             # an abort was applied (the engine thread sets it)
+        self._drop_by: float | None = None   # abort(grace_s): monotonic time after which captures are dropped
+        self._dropping = False           # the camera was stopped for such an abort: failed transfers are dropped
+        self._moving = False             # the engine thread waits for a move (engine thread only)
         self._lease: Lease | None = None
         self._listeners: list[Listener] = []
         self._listeners_lock = threading.Lock()
@@ -313,6 +319,8 @@ class ScanEngine:
 
     def _stop_pressed(self) -> None:
         """The rig's STOP was pressed (any thread): pause instead of moving on."""
+        if self._drop_by is not None:       # the engine's own stop for abort(grace_s): already ending
+            return
         self._post(_Message(Trigger.FAULT, (ScanFault(
             "STOP pressed: the rig stopped. Check the rig and the scene, then Resume to go on "
             "(or Abort).", "rig"), None)))
@@ -356,9 +364,13 @@ class ScanEngine:
         """Continue a paused scan (after a fault: reconnect the device and retry the view)."""
         return self._request(Trigger.RESUME)
 
-    def abort(self) -> Future:
-        """Stop after the current view; everything captured so far stays in the dataset."""
-        return self._request(Trigger.ABORT)
+    def abort(self, grace_s: float | None = None) -> Future:
+        """Stop after the current view; everything captured so far stays in the dataset.
+
+        With ``grace_s`` (seconds), stop within about that long instead: a move under way stops (its
+        view is not taken), a capture whose file has not arrived ``grace_s`` after the request is cut
+        short and its view stays not done. A second call may shorten the grace, never lengthen it."""
+        return self._request(Trigger.ABORT, None if grace_s is None else Number("s", 0, 600).check("grace_s", grace_s))
 
     def skip(self, cells: Iterable[tuple[int, int]] | None = None) -> Future:
         """Leave views out. ``None``: the view a fault paused on (recorded as ``failed``), or the next
@@ -429,7 +441,12 @@ class ScanEngine:
             self._transition(kind, "finishing the current view")
         elif kind is Trigger.ABORT:
             self.aborted = True
-            self._transition(kind, "finishing the current view")
+            if payload is not None:
+                by = time.monotonic() + payload
+                self._drop_by = by if self._drop_by is None else min(by, self._drop_by)
+                if self._moving:            # the view it moves to will not be taken: stop the rig now
+                    self.rig.stop_now()
+            self._transition(kind, "finishing the current view" if self._drop_by is None else "stopping now")
         elif kind is Trigger.RESUME:
             self._transition(kind, "resumed")
         elif kind is Trigger.SKIP:
@@ -846,11 +863,14 @@ class ScanEngine:
         if self._state is not ScanState.RUNNING:     # STOP, a pause or an abort came in: do not move
             self._attempts[view.cell] = attempt - 1
             raise _Interrupted()
+        self._moving = True
         try:
             status = self._rig_call("move_to", view.x_mm, view.y_mm, timeout_s=self.move_timeout_s)
         except Exception as exc:
             exc._scan_device = "rig"  # type: ignore[attr-defined]
             raise
+        finally:
+            self._moving = False
         t_moved = time.monotonic()
         settle = self.plan.settle_s * self.time_scale
         if settle > 0:   # an abort shortens it; this view is still captured: the rig is there
@@ -859,7 +879,11 @@ class ScanEngine:
         # the camera must have finished the previous transfer before it can expose again
         prev = self._prev_future
         if prev is not None:
-            self._await(prev, self.capture_call_timeout_s() + 10)
+            prev.add_done_callback(self._wake)
+            self._wait(lambda: prev.done() or self._drop_by is not None, self.capture_call_timeout_s() + 10)
+        if self._drop_by is not None:                 # abort(grace_s): no new exposure
+            self._attempts[view.cell] = attempt - 1
+            raise _Interrupted()
         t_ready = time.monotonic()
         exposed = threading.Event()
 
@@ -874,7 +898,12 @@ class ScanEngine:
         else:
             fut = self.camera.submit("capture", stem, timeout_s=timeout_s)
         fut.add_done_callback(on_exposed)
-        self._wait(exposed.is_set)
+        self._wait(lambda: exposed.is_set() or self._drop_by is not None)
+        if not exposed.is_set() and not self._wait(exposed.is_set, max(0.0, self._drop_by - time.monotonic())):
+            self._stop_camera()                       # abort(grace_s) and the exposure goes on: drop it
+            self._wait(fut.done, 10.0)
+            self._attempts[view.cell] = attempt - 1
+            raise _Interrupted()
         if fut.done() and fut.exception() is not None:
             self._free_hung_camera(fut.exception())
             raise fut.exception()
@@ -931,6 +960,10 @@ class ScanEngine:
         try:
             result: CaptureResult = job.future.result()
         except Exception as exc:
+            if self._dropping:      # abort(grace_s) stopped the camera: not captured, taken on resume
+                self._emit(EventKind.LOG, f"view r{view.row:02d} c{view.column:03d}: its transfer was cut short "
+                                          "by the stop; not captured (taken when the scan resumes)")
+                return
             self._free_hung_camera(exc)
             message = _error_text(exc)
             disk = self._disk_fault(exc, self.dataset.root / "raw", f"storing view r{view.row:02d} c{view.column:03d}")
@@ -1020,8 +1053,23 @@ class ScanEngine:
         return None
 
     def _drain_store(self) -> None:
-        """Wait (applying requests) until every exposed view is stored."""
-        self._wait(lambda: self._inflight == 0)
+        """Wait (applying requests) until every exposed view is stored; after ``abort(grace_s)``, only
+        until the grace time is over: then the camera is stopped and what it has not delivered is
+        dropped (those views stay not done)."""
+        self._wait(lambda: self._inflight == 0 or self._drop_by is not None)
+        if self._inflight and self._drop_by is not None and \
+                not self._wait(lambda: self._inflight == 0, max(0.0, self._drop_by - time.monotonic())):
+            self._stop_camera()
+            self._wait(lambda: self._inflight == 0, 10.0)
+
+    def _stop_camera(self) -> None:
+        """abort(grace_s): cut the capture under way short; its view is dropped, not failed."""
+        with self._cond:
+            self._dropping = True
+        try:
+            self.camera.stop_now()
+        except Exception as exc:
+            log.info("stopping the camera: %s", exc)
 
     def _finish_storage(self) -> None:
         try:
