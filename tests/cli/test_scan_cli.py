@@ -50,7 +50,7 @@ def test_scan_expands_a_quoted_tilde_and_variables_in_paths(run_cli, tmp_path):
     home, cwd = tmp_path / "home", tmp_path / "cwd"
     home.mkdir()
     cwd.mkdir()
-    r = run_cli("scan", "--rig", "instant", "--camera", "instant", "--grid", "2x1", "--out", "~/datasets/day1",
+    r = run_cli("scan", "--port", "instant", "--camera", "instant", "--grid", "2x1", "--out", "~/datasets/day1",
                 "--time-scale", "0", env={"HOME": str(home)}, cwd=cwd)
     assert r.returncode == 0, r.stderr
     assert (home / "datasets" / "day1" / "dataset.json").is_file()
@@ -66,7 +66,7 @@ def test_scan_into_a_folder_holding_other_files_is_refused(run_cli, tmp_path):
     mine = tmp_path / "Documents"
     mine.mkdir()
     (mine / "thesis.pdf").write_bytes(b"%PDF")
-    r = run_cli("scan", "--rig", "instant", "--camera", "instant", "--grid", "2x1", "--out", mine,
+    r = run_cli("scan", "--port", "instant", "--camera", "instant", "--grid", "2x1", "--out", mine,
                 "--time-scale", "0")
     assert r.returncode == 2, r.stderr
     lines = r.stderr.strip().splitlines()
