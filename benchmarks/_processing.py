@@ -51,7 +51,7 @@ def linked(root: Path, source: Dataset, n_views: int) -> Dataset:
         rel = f"raw/r00_c{c:03d}.dng"
         os.link(source.path_of(src), root / rel)
         views.append({**src, "row": 0, "column": c, "file": rel, "commanded_mm": [4.0 * c, 0.0]})
-    grid = {**source.grid, "columns": n_views, "rows": 1}
+    grid = {**source.manifest["grid"], "columns": n_views, "rows": 1}
     ds = Dataset.create(root, camera=source.camera, lens=source.lens, grid=grid, views=views, exist_ok=True)
     shutil.copyfile(source.root / "calibration.json", root / "calibration.json")
     return ds

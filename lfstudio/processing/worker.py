@@ -379,6 +379,7 @@ def warm_up() -> None:
 def process_view(plan: RunPlan, task: ViewTask) -> ViewResult:
     """Process one view and write it; never raises (errors come back in ``ViewResult.error``)."""
     result = ViewResult(task.view)
+    cpu0 = time.thread_time()
     try:
         if plan.single_thread:
             _single_thread()
@@ -387,6 +388,7 @@ def process_view(plan: RunPlan, task: ViewTask) -> ViewResult:
         t0 = time.perf_counter()
         encode(img, root / task.out_file, info_profile(plan), prepare(plan))
         info["timings_s"]["encode"] = time.perf_counter() - t0
+        info["timings_s"]["cpu"] = time.thread_time() - cpu0      # this view's own CPU, whatever the load
         result.out_file = task.out_file
         result.gain, result.gain_support = info["gain"], info["gain_support"]
         result.timings_s = info["timings_s"]

@@ -44,6 +44,8 @@ def test_chain_writes_16bit_views_and_records_them(make_dataset):
     for v in ds.views:
         rec = v["processed"]
         assert rec["status"] == "done" and rec["profile_sha256"] == report.profile_sha256
+        steps = rec["timings_s"]               # each view's own CPU beside the wall time of its steps
+        assert 0 < steps["cpu"] and set(steps) >= {"decode", "process", "encode", "cpu"}
         img = read_rgb(ds.root / rec["file"])
         assert img.shape == (32, 48, 3)  # half resolution
         outs[(v["row"], v["column"])] = img.astype(np.float64)
