@@ -1,7 +1,8 @@
 """Render a whole dataset from the virtual studio straight to disk (no rig, no scan engine).
 
 The result is a real :class:`lfstudio.dataset.Dataset` folder (``raw/r00_c000.dng`` or 16-bit
-linear PNG per view, every view ``done``) plus ``ground_truth.json`` at its root with the true
+linear PNG per view, every view ``done``, its grid thumbnail ``thumbs/r00_c000.jpg`` made from the
+rendered image in memory) plus ``ground_truth.json`` at its root with the true
 orientation, intrinsics, rectifying homography, per-view true positions and layer depths (see
 :mod:`lfstudio.sim.studio` for the conventions). Used by tests, benchmarks and demos.
 
@@ -27,6 +28,7 @@ from lfstudio.dataset.atomic import atomic_write_json, atomic_write_with
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.dataset.store import sha256_file
+from lfstudio.dataset.thumbs import make_thumbnail
 from lfstudio.errors import InputError
 from lfstudio.jobs import CancelToken
 from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
@@ -92,7 +94,9 @@ def _render_and_write(studio: VirtualStudio, sensor: SensorModel, job: dict[str,
     recorded, gain = sensor.apply(rgb, job["shot"])
     path = Path(job["path"])
     write_view_file(path, recorded, job["fmt"], job["exposure_s"])
-    return {"sha256": sha256_file(path), "gain": gain}
+    # the grid's thumbnail from the image in memory, as a camera's preview (no decoding of the file)
+    thumb = make_thumbnail([path], Path(job["thumb_path"]), preview=recorded)
+    return {"sha256": sha256_file(path), "gain": gain, "thumb": thumb is not None}
 
 
 def _worker_job(sensor: SensorModel, job: dict[str, Any]) -> dict[str, Any]:
@@ -173,8 +177,10 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
             except ValueError as exc:
                 raise InputError("faults", str(exc), "a view captured after another one") from None
         rel = f"raw/{view_stem(r, c)}{suffix}"
+        thumb_rel = f"thumbs/{view_stem(r, c)}.jpg"
         jobs.append({"row": r, "column": c, "shot": shot, "commanded_mm": commanded, "true_mm": true,
-                     "rel": rel, "path": str(root / rel), "fmt": fmt, "exposure_s": exposure_s, "fault": fault})
+                     "rel": rel, "path": str(root / rel), "thumb_rel": thumb_rel, "thumb_path": str(root / thumb_rel),
+                     "fmt": fmt, "exposure_s": exposure_s, "fault": fault})
 
     if only_views is not None:
         keep = {(int(r), int(c)) for r, c in only_views}
@@ -217,7 +223,8 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
                       "commanded_mm": [round(v, 6) for v in job["commanded_mm"]],
                       "reported_mm": [round(v, 3) for v in job["commanded_mm"]],
                       "captured_at": now_iso(start_s + job["shot"] * (exposure_s + 0.5)), "exposure_s": exposure_s,
-                      "file": job["rel"], "sha256": res["sha256"], "status": "done"})
+                      "file": job["rel"], "sha256": res["sha256"], "thumb": job["thumb_rel"] if res["thumb"] else None,
+                      "status": "done"})
     views.sort(key=lambda v: (v["row"], v["column"]))
     grid = {"columns": int(columns), "rows": int(rows), "spacing_mm": [sx, sy], "order": "row-meander"}
     rig = {"name": "virtual studio", "simulated": True, "origin_mm": [ox, oy]}

@@ -51,6 +51,19 @@ def test_tiny_dataset_png_matches_the_render(tiny_dataset):
     assert np.abs(got - np.clip(expected, 0, 1)).max() < 1e-4
 
 
+def test_every_view_has_its_grid_thumbnail_made_from_the_render(tiny_dataset):
+    from lfstudio.dataset import images
+
+    ds = Dataset.open(tiny_dataset.root)
+    for v in ds.views:
+        assert v["thumb"] == f"thumbs/r{v['row']:02d}_c{v['column']:03d}.jpg"
+        stored = cv2.imread(str(ds.root / v["thumb"]))
+        from_file = images.thumbnail_array(ds.path_of(v), 160)   # what the grid would make from the PNG
+        assert stored.shape == from_file.shape == (106, 160, 3)
+        blocks = [cv2.resize(t, (16, 11), interpolation=cv2.INTER_AREA).astype(int) for t in (stored, from_file)]
+        assert np.abs(blocks[0] - blocks[1]).mean() < 4
+
+
 def test_tiny_dataset_dng_opens_in_rawpy(tiny_dataset_dng):
     v = tiny_dataset_dng.view(0, 0)
     assert v["file"].endswith(".dng")
