@@ -16,7 +16,6 @@ dataset fills its grid in parallel and opens instantly the next time.
 
 from __future__ import annotations
 
-import glob
 import hashlib
 import json
 import logging
@@ -108,8 +107,34 @@ def cache_path(root: Path, path: Path, width_px: int = THUMB_WIDTH_PX) -> tuple[
     return root / GENERATED_DIR / f"{flat}.{key}.jpg", f"{flat}."
 
 
-def _make_cached(root: Path, path: Path, width_px: int) -> np.ndarray | None:
-    """Read the cached thumbnail of ``path``, or make it from the file and cache it."""
+class _Versions:
+    """The cached thumbnails in a dataset's ``thumbs/generated/``, by the prefix every version of one
+    capture's thumbnail shares: listed once, then kept up to date as thumbnails are written (finding
+    a capture's stale thumbnail by listing the folder each time costs O(views) per view)."""
+
+    def __init__(self, folder: Path):
+        self._lock = threading.Lock()
+        self._names: dict[str, set[str]] = {}
+        try:
+            entries = os.listdir(folder)
+        except OSError:
+            entries = []
+        for name in entries:
+            parts = name.rsplit(".", 2)               # FLAT.KEY.jpg
+            if len(parts) == 3 and parts[2] == "jpg":
+                self._names.setdefault(parts[0] + ".", set()).add(name)
+
+    def replace(self, prefix: str, name: str) -> list[str]:
+        """``name`` is now the prefix's one version; the others (stale, to delete) are returned."""
+        with self._lock:
+            old = self._names.get(prefix, set()) - {name}
+            self._names[prefix] = {name}
+        return sorted(old)
+
+
+def _make_cached(root: Path, path: Path, width_px: int, versions: _Versions | None = None) -> np.ndarray | None:
+    """Read the cached thumbnail of ``path``, or make it from the file and cache it (and delete the
+    thumbnail of an earlier version of the capture)."""
     where = cache_path(root, path, width_px)
     if where is None:
         return None
@@ -123,9 +148,10 @@ def _make_cached(root: Path, path: Path, width_px: int) -> np.ndarray | None:
         return None
     try:
         _write_jpeg(target, img)
-        for old in glob.glob(os.path.join(glob.escape(str(target.parent)), glob.escape(prefix) + "*.jpg")):
-            if Path(old) != target:
-                Path(old).unlink(missing_ok=True)      # the capture changed: its old thumbnail goes
+        if versions is None:
+            versions = _Versions(target.parent)
+        for old in versions.replace(prefix, target.name):
+            (target.parent / old).unlink(missing_ok=True)    # the capture changed: its old thumbnail goes
     except OSError as exc:                             # a read-only dataset still shows its thumbnails
         log.debug("thumbnail of %s not cached: %s", path, exc)
     return img
@@ -140,6 +166,7 @@ class CacheFiller:
         self.root, self.width_px = root, width_px
         self._lock = threading.Lock()
         self._inflight: dict[Path, Future] = {}
+        self._versions = _Versions(root / GENERATED_DIR)
         self._cancelled = False
         self._pool = ThreadPoolExecutor(max_workers=workers or os.cpu_count() or 1,
                                         thread_name_prefix="thumb-cache")
@@ -164,7 +191,7 @@ class CacheFiller:
 
     def _make(self, path: Path, fut: Future) -> np.ndarray | None:
         try:
-            img = _make_cached(self.root, path, self.width_px)
+            img = _make_cached(self.root, path, self.width_px, self._versions)
         except Exception as exc:  # an unreadable file stays a coloured cell
             img = None
             log.debug("no thumbnail for %s: %s", path, exc)
