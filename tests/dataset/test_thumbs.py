@@ -130,6 +130,21 @@ def test_generated_thumbnail_is_cached_in_the_dataset_and_renewed_when_the_captu
     assert [p.name for p in new_cached.parent.iterdir()] == [new_cached.name]
 
 
+def test_a_thumbnail_left_by_an_earlier_session_for_a_changed_capture_goes(tmp_path):
+    ds = _dataset(tmp_path, n=2)
+    thumbs.CacheFiller(ds.root, 160, workers=1).wait()              # an earlier session cached both
+    folder = ds.root / "thumbs" / "generated"
+    before = {p.name for p in folder.iterdir()}
+    path = ds.path_of(ds.view(0, 1))
+    cv2.imwrite(str(path), (_scene(600, 400) * 20000).astype(np.uint16))  # then view 1 was re-captured
+    st = path.stat()
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    thumbs.CacheFiller(ds.root, 160, workers=1).wait()              # this session
+    after = {p.name for p in folder.iterdir()}
+    assert len(after) == 2 and len(after & before) == 1             # view 0 kept, view 1 renewed
+    assert thumbs.cache_path(ds.root, path, 160)[0].name in after - before
+
+
 def test_cache_filler_makes_every_missing_thumbnail_and_a_read_only_place_still_shows_them(tmp_path):
     ds = _dataset(tmp_path, n=5, stored_thumb_for=(3,))
     filler = thumbs.CacheFiller(ds.root, 160, workers=2)
