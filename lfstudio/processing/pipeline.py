@@ -5,8 +5,9 @@ reference, shading coefficients), then sends one task per view to a local proces
 cluster (:mod:`lfstudio.processing.executors`). Views already processed with the same effective
 profile (same hash) whose output exists are skipped, so a crashed or cancelled run resumes. A view
 that fails is reported and the others go on. Results are recorded per view in the manifest
-(``view["processed"]``) and the run in ``manifest["processing"]``; the manifest is saved
-atomically every few seconds and at the end.
+(``view["processed"]``) and the run in ``manifest["processing"]``; the views finished so far are
+made durable every few seconds (:meth:`lfstudio.dataset.Dataset.checkpoint`: appended to the
+journal) and the manifest is saved atomically at the end.
 """
 
 from __future__ import annotations
@@ -254,9 +255,9 @@ def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force:
             progress(done, total, f"{stem} FAILED")
         if on_view is not None:
             on_view(result)
-        if time.monotonic() - last_save > SAVE_EVERY_S:  # batch the manifest writes
+        if time.monotonic() - last_save > SAVE_EVERY_S:  # batch the manifest writes (journal-first)
             try:
-                ds.save()
+                ds.checkpoint()
             except OSError as exc:
                 raise storage_error(exc, ds.manifest_path, doing="saving",
                                     then="run 'lfstudio process' again (views already processed are kept)") or exc

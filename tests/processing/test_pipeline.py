@@ -117,6 +117,23 @@ def test_cancel_stops_early_and_a_rerun_resumes(make_dataset):
     assert report.skipped == len(done) and report.processed == 5 - len(done)
 
 
+def test_views_processed_so_far_survive_a_crash_through_the_journal(make_dataset, monkeypatch):
+    """Every few seconds (here: after every view) the views finished so far are made durable in
+    the journal; what an open of the folder sees mid-run is what a crash would leave."""
+    from lfstudio.processing import pipeline
+
+    monkeypatch.setattr(pipeline, "SAVE_EVERY_S", -1.0)
+    ds = make_dataset(rows=1, cols=4)
+    durable = []
+
+    def on_view(result):                     # called before the checkpoint of this view
+        durable.append(sum(v.get("processed", {}).get("status") == "done" for v in Dataset.open(ds.root).views))
+
+    process_dataset(ds.root, plain_profile(), workers=0, on_view=on_view)
+    assert durable == [0, 1, 2, 3]           # each earlier view is on disk, none lost
+    assert (ds.root / "journal.jsonl").stat().st_size == 0     # the end folds them into dataset.json
+
+
 def test_local_process_pool(make_dataset):
     ds = make_dataset(rows=1, cols=3, gains={(0, 0): 1.05})
     report = process_dataset(ds.root, plain_profile(deflicker__enabled=True), workers=2)
