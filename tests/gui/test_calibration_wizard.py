@@ -84,3 +84,36 @@ def test_cancel_and_errors_are_shown_on_the_page(qtbot, tiny_dataset):
         wizard.start_calibration()
     assert "too few feature matches" in wizard.error_label.text()
     assert "Traceback" not in wizard.log.toPlainText()
+
+
+def test_saved_wizard_choices_follow_improved_defaults_but_keep_a_real_choice(qtbot, tiny_dataset):
+    """Choices saved by an older wizard (the old defaults 'all' pairs at 2000 px) do not pin a
+    wizard to them; a choice that differs from the defaults survives reopening."""
+    from lfstudio.calibration.features import DEFAULT_WORK_WIDTH_PX
+    from lfstudio.calibration.pairs import DEFAULT_PAIR_SET, PAIR_SETS
+    from lfstudio.gui.settings import settings
+
+    s = settings()
+    s.setValue("calibration/pair_set", "all")          # what every wizard closed before saved
+    s.setValue("calibration/work_width_px", 2000)
+    s.sync()
+    state = AppState()
+    state.set_dataset(tiny_dataset)
+
+    def open_wizard():
+        w = CalibrationWizard(state)
+        qtbot.addWidget(w)
+        return w
+
+    wizard = open_wizard()
+    assert wizard.pair_set.currentData() == DEFAULT_PAIR_SET
+    assert wizard.work_width.value() == DEFAULT_WORK_WIDTH_PX
+    other = next(p for p in PAIR_SETS if p != DEFAULT_PAIR_SET)
+    wizard.pair_set.setCurrentIndex(PAIR_SETS.index(other))
+    wizard.work_width.setValue(DEFAULT_WORK_WIDTH_PX + 400)
+    wizard.reject()
+    again = open_wizard()
+    assert again.pair_set.currentData() == other and again.work_width.value() == DEFAULT_WORK_WIDTH_PX + 400
+    again.pair_set.setCurrentIndex(PAIR_SETS.index(DEFAULT_PAIR_SET))   # back to the default: not pinned
+    again.reject()
+    assert settings().value("calibration/pair_set") is None

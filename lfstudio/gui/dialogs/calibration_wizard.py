@@ -37,6 +37,9 @@ from lfstudio.gui.widgets import GridPicker, JobProgressWidget
 
 PAGE_VIEWS, PAGE_RUN, PAGE_RESULTS = range(3)
 
+#: version of the wizard's saved choices (2: a choice equal to the default is not saved)
+SETTINGS_VERSION = 2
+
 
 def _calibration_job(dataset, views, *, preview_width_px: int = 900, progress, cancel, **kwargs) -> dict:
     run = calibrate_dataset(dataset, views, progress=progress, cancel=cancel, **kwargs)
@@ -666,6 +669,11 @@ class CalibrationWizard(QDialog):
     def _restore_settings(self) -> None:
         s = settings()
         self.estimate_pp.setChecked(s.value("calibration/principal_point", "auto") == "auto")
+        if int(s.value("calibration/settings_version", 1)) < SETTINGS_VERSION:
+            # saved before choices equal to the defaults were left unsaved: what was saved then was the
+            # old default (all pairs, 2000 px) as often as a choice, so the current defaults apply
+            s.remove("calibration/pair_set")
+            s.remove("calibration/work_width_px")
         pair_set = s.value("calibration/pair_set", DEFAULT_PAIR_SET)
         self.pair_set.setCurrentIndex(PAIR_SETS.index(pair_set) if pair_set in PAIR_SETS else 0)
         self.work_width.setValue(int(s.value("calibration/work_width_px", DEFAULT_WORK_WIDTH_PX)))
@@ -675,5 +683,11 @@ class CalibrationWizard(QDialog):
     def _save_settings(self) -> None:
         s = settings()
         s.setValue("calibration/principal_point", "auto" if self.estimate_pp.isChecked() else "centre")
-        s.setValue("calibration/pair_set", self.pair_set.currentData())
-        s.setValue("calibration/work_width_px", self.work_width.value())
+        # a choice equal to the default is not saved, so it follows the defaults when they improve
+        s.setValue("calibration/settings_version", SETTINGS_VERSION)
+        for key, value, default in (("calibration/pair_set", self.pair_set.currentData(), DEFAULT_PAIR_SET),
+                                    ("calibration/work_width_px", self.work_width.value(), DEFAULT_WORK_WIDTH_PX)):
+            if value == default:
+                s.remove(key)
+            else:
+                s.setValue(key, value)
