@@ -14,10 +14,43 @@ its name and arguments which unit it takes and returns.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Iterable
 
 #: wavelength used for the diffraction estimate (green, the middle of the visible band)
 DIFFRACTION_WAVELENGTH_UM = 0.55
+
+
+@dataclass(frozen=True)
+class ReferenceSetup:
+    """The paper's setup (SPEC): a Sony A7R II with a 50 mm lens on the reference gantry, scene
+    1.77 m … 4.77 m, 101 × 21 views 4 mm × 6 mm apart. Its one home: the planner's defaults (the
+    shipped presets say the same; tests/planning checks), the simulated studio's scene, the
+    simulated camera's timing and the calibration study's rig all read it here."""
+
+    sensor_px: tuple[int, int]
+    sensor_mm: tuple[float, float]
+    pixel_pitch_um: float
+    focal_length_mm: float
+    near_m: float
+    far_m: float
+    coc_mm: float
+    grid: tuple[int, int]                          # columns, rows
+    spacing_mm: tuple[float, float]                # horizontal, vertical
+    repeatability_um: tuple[float, float]
+    travel_mm: tuple[float, float]
+    max_speed_mm_s: tuple[float, float]
+    acceleration_mm_s2: tuple[float, float]
+    settle_s: float                                # after each move
+    exposure_s: float
+    transfer_s: float                              # trigger + download of one image
+
+
+REFERENCE = ReferenceSetup(
+    sensor_px=(7952, 5304), sensor_mm=(35.9, 24.0), pixel_pitch_um=4.53, focal_length_mm=50.0,
+    near_m=1.77, far_m=4.77, coc_mm=0.029, grid=(101, 21), spacing_mm=(4.0, 6.0),
+    repeatability_um=(80.0, 50.0), travel_mm=(4000.0, 500.0), max_speed_mm_s=(200.0, 100.0),
+    acceleration_mm_s2=(500.0, 300.0), settle_s=0.3, exposure_s=0.5, transfer_s=2.5)
 
 # -- timing (used by the scan engine too) ---------------------------------------------------------
 

@@ -49,6 +49,7 @@ from lfstudio.calibration.uncertainty import (Probes, corner_probes, error_bound
                                               nearest_disparity_per_mm, probe_errors, probe_jacobian)
 from lfstudio.dataset.grid import Grid, View
 from lfstudio.jobs import CancelToken, Progress, no_progress
+from lfstudio.optics import REFERENCE
 
 #: the fixed evaluation set: every pair of this array (rows × columns) spread over the grid
 EVAL_ARRAY = (3, 5)
@@ -56,15 +57,15 @@ EVAL_ARRAY = (3, 5)
 
 @dataclass
 class SimulationConfig:
-    columns: int = 101
-    rows: int = 21
-    spacing_mm: tuple[float, float] = (4.0, 6.0)
-    image_size_px: tuple[int, int] = (7952, 5304)
-    pixel_pitch_um: float = 4.53
-    focal_length_mm: float = 50.0
-    near_m: float = 1.77
-    far_m: float = 4.77
-    position_noise_um: float = 80.0
+    columns: int = REFERENCE.grid[0]
+    rows: int = REFERENCE.grid[1]
+    spacing_mm: tuple[float, float] = REFERENCE.spacing_mm
+    image_size_px: tuple[int, int] = REFERENCE.sensor_px
+    pixel_pitch_um: float = REFERENCE.pixel_pitch_um
+    focal_length_mm: float = REFERENCE.focal_length_mm
+    near_m: float = REFERENCE.near_m
+    far_m: float = REFERENCE.far_m
+    position_noise_um: float = REFERENCE.repeatability_um[0]
     feature_noise_px: float = 0.5
     rotation_sigma_deg: float = 2.5
     rotation_max_deg: float = 5.0

@@ -18,6 +18,7 @@ from lfstudio.dataset.paths import path_option
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.numbers import (EXPOSURE_S, OFFSET_MM, RETRIES, SEED, SETTLE_S, SPACING_MM, TIME_SCALE, TRANSFER_S,
                               WIDTH_PX, grid_option, numbers_option)
+from lfstudio.optics import REFERENCE
 
 HELP = "capture a grid of views into a dataset folder (meander order, pipelined, resumable)"
 
@@ -63,10 +64,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="continue an interrupted scan in DATASET: captures only the views not done yet")
     p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",
                    help="multiply every simulated duration: 1 real time, 0.1 ten times faster, 0 as fast as possible")
-    p.add_argument("--exposure-s", type=EXPOSURE_S.option("--exposure-s"), default=0.5,
-                   help="simulated camera exposure time (default 0.5)")
-    p.add_argument("--transfer-s", type=TRANSFER_S.option("--transfer-s"), default=2.5,
-                   help="simulated camera transfer time (default 2.5)")
+    p.add_argument("--exposure-s", type=EXPOSURE_S.option("--exposure-s"), default=REFERENCE.exposure_s,
+                   help=f"simulated camera exposure time (default {REFERENCE.exposure_s:g})")
+    p.add_argument("--transfer-s", type=TRANSFER_S.option("--transfer-s"), default=REFERENCE.transfer_s,
+                   help=f"simulated camera transfer time (default {REFERENCE.transfer_s:g})")
     p.add_argument("--sim-width-px", type=WIDTH_PX.option("--sim-width-px"), default=None, metavar="PX",
                    help="simulated camera image width in pixels (default 2000; smaller renders faster)")
     p.add_argument("--retries", type=RETRIES.option("--retries"), default=2,

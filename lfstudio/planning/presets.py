@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from lfstudio.errors import InputError
+from lfstudio.optics import REFERENCE
 from lfstudio.planning.scene_plan import ScenePlan
 from lfstudio.resources import load_presets
 from lfstudio.rig.profile import DEFAULT_RIG, load_rig
@@ -79,5 +80,6 @@ def plan_from_presets(camera: str | None = REFERENCE_CAMERA, lens: str | None = 
 def reference_plan() -> ScenePlan:
     """The paper's setup: Sony A7R II with a 50 mm lens on the reference gantry, scene 1.77–4.77 m,
     c = 0.029 mm, 101 × 21 views at 4 mm × 6 mm."""
-    return plan_from_presets(REFERENCE_CAMERA, REFERENCE_LENS, DEFAULT_RIG, near_m=1.77, far_m=4.77, coc_mm=0.029,
-                             grid_columns=101, grid_rows=21, spacing_mm=(4.0, 6.0))
+    return plan_from_presets(REFERENCE_CAMERA, REFERENCE_LENS, DEFAULT_RIG, near_m=REFERENCE.near_m,
+                             far_m=REFERENCE.far_m, coc_mm=REFERENCE.coc_mm, grid_columns=REFERENCE.grid[0],
+                             grid_rows=REFERENCE.grid[1], spacing_mm=REFERENCE.spacing_mm)

@@ -19,6 +19,7 @@ from typing import Any
 
 from lfstudio.errors import InputError
 from lfstudio import optics
+from lfstudio.optics import REFERENCE
 from lfstudio.numbers import Number, check_grid
 
 PLAN_FORMAT = "lfstudio-plan"
@@ -61,7 +62,8 @@ class PlanWarning:
 
 @dataclass(frozen=True)
 class ScenePlan:
-    """Inputs of a scene plan. Defaults are the paper's setup (see :func:`presets.reference_plan`).
+    """Inputs of a scene plan. Defaults are the paper's setup (:data:`lfstudio.optics.REFERENCE`;
+    :func:`presets.reference_plan` is the same from the shipped presets).
 
     Pairs are (horizontal, vertical), or (width, height) for sensors. ``pixel_pitch_um`` None means
     "derive from sensor_mm / sensor_px"; ``f_number`` None means "use the aperture the scene needs";
@@ -70,27 +72,27 @@ class ScenePlan:
     """
 
     camera_name: str = "Sony A7R II (reference)"
-    sensor_px: tuple[int, int] = (7952, 5304)
-    sensor_mm: tuple[float, float] = (35.9, 24.0)
-    pixel_pitch_um: float | None = 4.53
+    sensor_px: tuple[int, int] = REFERENCE.sensor_px
+    sensor_mm: tuple[float, float] = REFERENCE.sensor_mm
+    pixel_pitch_um: float | None = REFERENCE.pixel_pitch_um
     lens_name: str = "50 mm (reference)"
-    focal_length_mm: float = 50.0
-    near_m: float = 1.77
-    far_m: float = 4.77
-    coc_mm: float = 0.029
+    focal_length_mm: float = REFERENCE.focal_length_mm
+    near_m: float = REFERENCE.near_m
+    far_m: float = REFERENCE.far_m
+    coc_mm: float = REFERENCE.coc_mm
     f_number: float | None = None
     focus_m: float | None = None
-    grid_columns: int = 101
-    grid_rows: int = 21
-    spacing_mm: tuple[float, float] = (4.0, 6.0)
+    grid_columns: int = REFERENCE.grid[0]
+    grid_rows: int = REFERENCE.grid[1]
+    spacing_mm: tuple[float, float] = REFERENCE.spacing_mm
     rig_name: str = "Reference gantry"
-    repeatability_um: tuple[float, float] = (80.0, 50.0)
-    travel_mm: tuple[float, float] = (4000.0, 500.0)
-    max_speed_mm_s: tuple[float, float] = (200.0, 100.0)
-    acceleration_mm_s2: tuple[float, float] = (500.0, 300.0)
-    settle_s: float = 0.3
-    exposure_s: float = 0.5
-    transfer_s: float = 2.5
+    repeatability_um: tuple[float, float] = REFERENCE.repeatability_um
+    travel_mm: tuple[float, float] = REFERENCE.travel_mm
+    max_speed_mm_s: tuple[float, float] = REFERENCE.max_speed_mm_s
+    acceleration_mm_s2: tuple[float, float] = REFERENCE.acceleration_mm_s2
+    settle_s: float = REFERENCE.settle_s
+    exposure_s: float = REFERENCE.exposure_s
+    transfer_s: float = REFERENCE.transfer_s
     max_error_px: float = 0.5
     max_disparity_px: float = 1.0
     target_parallax_fraction: float | None = None

@@ -50,13 +50,15 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from lfstudio.dataset.paths import parse_view_stem, view_stem
+from lfstudio.optics import REFERENCE
 from lfstudio.sim import textures
 
 #: the reference sensor's aspect ratio (7952 x 5304)
-REFERENCE_ASPECT = 5304 / 7952
+REFERENCE_ASPECT = REFERENCE.sensor_px[1] / REFERENCE.sensor_px[0]
 DEFAULT_WIDTH_PX = 2000
-#: camera positions the reference grid covers (101 x 21 views at 4 x 6 mm from the origin)
-REFERENCE_REGION_MM = (0.0, 400.0, 0.0, 120.0)
+#: camera positions the reference grid covers (101 x 21 views at 4 x 6 mm from the origin: 400 x 120 mm)
+REFERENCE_REGION_MM = (0.0, (REFERENCE.grid[0] - 1) * REFERENCE.spacing_mm[0],
+                       0.0, (REFERENCE.grid[1] - 1) * REFERENCE.spacing_mm[1])
 
 
 #: the orientation error and principal-point offset of the demo studio's camera: the ground truth a
@@ -245,8 +247,8 @@ class VirtualStudio:
     """
 
     def __init__(self, *, width_px: int = DEFAULT_WIDTH_PX, height_px: int | None = None,
-                 focal_length_mm: float = 50.0, sensor_width_mm: float = 35.9,
-                 near_m: float = 1.77, far_m: float = 4.77,
+                 focal_length_mm: float = REFERENCE.focal_length_mm, sensor_width_mm: float = REFERENCE.sensor_mm[0],
+                 near_m: float = REFERENCE.near_m, far_m: float = REFERENCE.far_m,
                  rotation_deg: tuple[float, float, float] | list[float] = (0.0, 0.0, 0.0),
                  pp_offset_px: tuple[float, float] | list[float] = (0.0, 0.0),
                  view_region_mm: tuple[float, float, float, float] = REFERENCE_REGION_MM,

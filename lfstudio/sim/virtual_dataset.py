@@ -31,6 +31,7 @@ from lfstudio.dataset.store import sha256_file
 from lfstudio.dataset.thumbs import make_thumbnail
 from lfstudio.errors import InputError
 from lfstudio.jobs import CancelToken
+from lfstudio.optics import REFERENCE
 from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
 from lfstudio.sim.sensor import SensorModel
 from lfstudio.sim.studio import DEFAULT_WIDTH_PX, ViewFault, VirtualStudio
@@ -112,10 +113,11 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
                          pp_offset_px: tuple[float, float] = (0.0, 0.0),
                          position_noise_um: tuple[float, float] = (0.0, 0.0),
                          seed: int = 0, fmt: str = "dng",
-                         near_m: float = 1.77, far_m: float = 4.77,
-                         focal_length_mm: float = 50.0, sensor_width_mm: float = 35.9,
+                         near_m: float = REFERENCE.near_m, far_m: float = REFERENCE.far_m,
+                         focal_length_mm: float = REFERENCE.focal_length_mm,
+                         sensor_width_mm: float = REFERENCE.sensor_mm[0],
                          flicker: float = 0.0, vignetting: float = 0.0, noise: float = 0.0,
-                         exposure_s: float = 0.5, workers: int = 1,
+                         exposure_s: float = REFERENCE.exposure_s, workers: int = 1,
                          studio: VirtualStudio | None = None,
                          faults: Sequence[ViewFault] = (),
                          only_views: Iterable[Sequence[int]] | None = None,

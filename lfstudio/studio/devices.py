@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 from lfstudio.errors import DeviceError, InputError
+from lfstudio.optics import REFERENCE
 from lfstudio.rig.motion import RigConfig
 from lfstudio.studio.locks import Lock, camera_lock, port_lock
 
@@ -353,7 +354,8 @@ class Studio:
 
 
 def open_studio(rig: RigSpec | str, camera: CameraSpec | str, rig_config: RigConfig, *, doing: str = "",
-                time_scale: float = 1.0, exposure_s: float = 0.5, transfer_s: float = 2.5, seed: int = 0,
+                time_scale: float = 1.0, exposure_s: float = REFERENCE.exposure_s,
+                transfer_s: float = REFERENCE.transfer_s, seed: int = 0,
                 view_region_mm: tuple[float, float, float, float] | None = None, sim_width_px: int | None = None,
                 trigger_command: Sequence[str] | None = None, camera_options: dict[str, Any] | None = None,
                 **controller_options: Any) -> Studio:

@@ -41,6 +41,7 @@ from lfstudio.dataset.manifest import MANIFEST_NAME, now_iso
 from lfstudio.dataset.paths import new_dataset_folder_problem
 from lfstudio.errors import DeviceError, InputError, LfError
 from lfstudio.numbers import EXPOSURE_S, RETRIES, TIME_SCALE, TRANSFER_S
+from lfstudio.optics import REFERENCE
 from lfstudio.rig.motion import RigConfig, RigState
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.studio.devices import SIM, CameraSpec, RigSpec, Studio, open_studio
@@ -310,8 +311,8 @@ class ScanRequest:
     recapture: Sequence[tuple[int, int]] | None = None
     retries: int = 2
     time_scale: float = 1.0
-    exposure_s: float = 0.5
-    transfer_s: float = 2.5
+    exposure_s: float = REFERENCE.exposure_s
+    transfer_s: float = REFERENCE.transfer_s
     seed: int = 0
     sim_width_px: int | None = None
     trigger_command: Sequence[str] | None = None

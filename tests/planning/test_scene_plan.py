@@ -201,3 +201,17 @@ def test_any_input_derives_or_names_a_field(near, far, f, coc, fnum, focus, cols
         return
     json.dumps(r.to_dict(), allow_nan=False)
     assert r.images == cols * rows and r.capture_time_s > 0
+
+
+def test_the_shipped_presets_describe_the_reference_setup():
+    """ScenePlan's defaults are lfstudio.optics.REFERENCE; the reference camera, lens and gantry
+    presets (resources/presets) must say the same, field by field."""
+    import dataclasses
+
+    from lfstudio.optics import REFERENCE
+
+    ref, defaults = reference_plan(), ScenePlan()
+    assert {f.name: getattr(ref, f.name) for f in dataclasses.fields(ScenePlan)} == \
+        {f.name: getattr(defaults, f.name) for f in dataclasses.fields(ScenePlan)}
+    assert (defaults.sensor_px, defaults.focal_length_mm, defaults.grid_columns, defaults.grid_rows,
+            defaults.transfer_s) == (REFERENCE.sensor_px, REFERENCE.focal_length_mm, *REFERENCE.grid, REFERENCE.transfer_s)
