@@ -9,6 +9,10 @@
   and the one reader of a view selection (:meth:`Grid.select`), which ``Dataset.select``, the
   calibration, the export and the quality check share.
 
+The order views are taken in (``Grid.order``, :func:`grid_order`): ``row-meander`` (row 0 left→right,
+row 1 right→left, ...: the paper's meander and the default), ``column-meander`` (column 0
+top→bottom, column 1 bottom→top, ...) or ``raster`` (every row left→right).
+
 A selection (``spec``) is ``"all"``; rows/columns ranges ``"r0-8,c10-18"``, ``"r3"``,
 ``"c0-4,c10"`` (the available views in those rows and columns); an array ``"array:3x2"``
 (COLUMNSxROWS like every grid-shaped value: 3 columns by 2 rows spread over the grid, each snapped
@@ -35,6 +39,21 @@ SELECTION_SYNTAX = ("'all', rows/columns like r0-8,c10-18, an array like array:5
                     "the columns at the ends), or view names like r00_c000,r00_c050")
 _ARRAY = re.compile(r"^\s*(array\s*:)?\s*(\d+)\s*(e?)\s*[x×]\s*(\d+)\s*(e?)\s*$", re.IGNORECASE)
 _RANGE_PART = re.compile(r"^\s*([rc])\s*(\d+)\s*(?:-\s*(\d+))?\s*$", re.IGNORECASE)
+
+
+ORDERS = ("row-meander", "column-meander", "raster")
+DEFAULT_ORDER = "row-meander"
+
+
+def grid_order(columns: int, rows: int, order: str = DEFAULT_ORDER) -> list[tuple[int, int]]:
+    """Every ``(row, column)`` of a ``columns`` x ``rows`` grid in capture ``order`` (:data:`ORDERS`)."""
+    if order == "row-meander":
+        return [(r, c if r % 2 == 0 else columns - 1 - c) for r in range(rows) for c in range(columns)]
+    if order == "column-meander":
+        return [(r if c % 2 == 0 else rows - 1 - r, c) for c in range(columns) for r in range(rows)]
+    if order == "raster":
+        return [(r, c) for r in range(rows) for c in range(columns)]
+    raise InputError("order", f"unknown scan order {order!r}", ", ".join(ORDERS))
 
 
 class View(NamedTuple):
@@ -96,10 +115,27 @@ class Grid:
                    None if grid.get("settle_s") is None else float(grid["settle_s"]),
                    {k: v for k, v in grid.items() if k not in known})
 
+    def to_manifest(self) -> dict[str, Any]:
+        """``dataset.json`` → ``grid`` (the inverse of :meth:`from_manifest`; unknown values left out)."""
+        out: dict[str, Any] = {"columns": self.columns, "rows": self.rows}
+        if self.spacing_mm is not None:
+            out["spacing_mm"] = list(self.spacing_mm)
+        if self.origin_mm is not None:
+            out["origin_mm"] = list(self.origin_mm)
+        if self.order is not None:
+            out["order"] = self.order
+        if self.settle_s is not None:
+            out["settle_s"] = self.settle_s
+        return {**out, **self.extra}
+
     # -- cells -------------------------------------------------------------------------------------
     def views(self) -> list[View]:
         """Every cell, row-major."""
         return [View(r, c) for r in range(self.rows) for c in range(self.columns)]
+
+    def in_order(self) -> list[View]:
+        """Every cell in the order the views are taken (:func:`grid_order`; the default when unknown)."""
+        return [View(r, c) for r, c in grid_order(self.columns, self.rows, self.order or DEFAULT_ORDER)]
 
     def __contains__(self, view: object) -> bool:
         return isinstance(view, tuple) and len(view) == 2 and 0 <= view[0] < self.rows and 0 <= view[1] < self.columns

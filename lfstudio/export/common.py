@@ -255,7 +255,7 @@ def describe(ds: Dataset, views: Sequence[View], source: str, image_size: tuple[
     from lfstudio.calibration.model import load_calibration
 
     calibration = load_calibration(ds)
-    grid = dict(ds.manifest["grid"])
+    grid = ds.grid.to_manifest()
     rig = ds.manifest.get("rig", {}) or {}
     if "origin_mm" not in grid and rig.get("origin_mm") is not None:
         grid["origin_mm"] = rig["origin_mm"]

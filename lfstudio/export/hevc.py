@@ -22,6 +22,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from lfstudio.dataset import Dataset, images
+from lfstudio.dataset.grid import Grid
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.dataset.store import sha256_file
@@ -284,8 +285,8 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
     try:
         frames = [(int(r), int(c)) for r, c in doc["frames"]]
         size = [int(v) for v in doc["image_size_px"]][:2]
-        int(doc["grid"]["columns"]), int(doc["grid"]["rows"])
-    except (TypeError, ValueError, KeyError) as exc:
+        grid = Grid.from_manifest(doc["grid"])
+    except (TypeError, ValueError, KeyError, AttributeError, IndexError) as exc:
         raise DatasetError(f"{sidecar_path(video)}: frames/image_size_px/grid cannot be read ({exc}); "
                            "the sidecar is damaged: export again") from None
     if len(set(frames)) != len(frames):
@@ -296,7 +297,6 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
     color_range = "JPEG" if enc.get("color_range", "full") == "full" else "MPEG"
     processed = doc.get("source") == "processed"
     folder = "processed" if processed else "raw"
-    grid = dict(doc["grid"])
     n = len(frames)
     progress(0, n, f"decoding {video.name}")
     with common.partial_folder(out, overwrite) as tmp:
@@ -326,14 +326,10 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
             progress(count, n, f"frame {i + 1}/{n} → {rel}")
         if count < n:
             raise DatasetError(f"{video}: {count} frames decoded, the sidecar lists {n}; the video is truncated")
-        cols, rows = int(grid["columns"]), int(grid["rows"])
-        views = []
-        for r in range(rows):
-            for c in range(cols):
-                views.append(records.get((r, c)) or {"row": r, "column": c, "commanded_mm": None, "reported_mm": None,
-                                                     "captured_at": None, "exposure_s": None, "file": None,
-                                                     "sha256": None, "status": "skipped",
-                                                     "note": "not in the HEVC export"})
+        views = [records.get((r, c)) or {"row": r, "column": c, "commanded_mm": None, "reported_mm": None,
+                                         "captured_at": None, "exposure_s": None, "file": None, "sha256": None,
+                                         "status": "skipped", "note": "not in the HEVC export"}
+                 for r, c in grid.views()]
         extra: dict[str, Any] = {"imported_from": {"kind": "hevc", "file": video.name, "at": now_iso(),
                                                    "source": doc.get("source"), "encoding": enc,
                                                    "figures": doc.get("figures")}}
@@ -347,8 +343,9 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
                                     "rotation_deg": cal.get("rotation_deg")}
         if (tmp / MANIFEST_NAME).exists():
             raise DatasetError(f"{tmp}: unexpected existing manifest")
-        Dataset.create(tmp, camera=doc.get("camera") or {}, lens=doc.get("lens") or {}, grid=grid,
-                       rig={"name": "imported from HEVC", "origin_mm": grid.get("origin_mm")},
+        Dataset.create(tmp, camera=doc.get("camera") or {}, lens=doc.get("lens") or {}, grid=grid.to_manifest(),
+                       rig={"name": "imported from HEVC",
+                            "origin_mm": None if grid.origin_mm is None else list(grid.origin_mm)},
                        plan=doc.get("plan") or {}, views=views, **extra).close()
     return out
 

@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from lfstudio.dataset import images
+from lfstudio.dataset.grid import grid_order
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.dataset.store import sha256_file
@@ -121,8 +122,7 @@ def grid_cells(columns: int, rows: int, order: str = "row-major") -> list[tuple[
     """(row, column) of the i-th image: ``row-major`` or ``meander`` (odd rows right to left)."""
     if order not in ORDERS:
         raise InputError("--order", f"unknown order {order!r}", " | ".join(ORDERS))
-    return [(r, c if order == "row-major" or r % 2 == 0 else columns - 1 - c)
-            for r in range(rows) for c in range(columns)]
+    return grid_order(columns, rows, GRID_ORDER[order])
 
 
 def describe_selection(folder: Path, pattern: str | None) -> str:

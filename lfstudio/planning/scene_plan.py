@@ -17,8 +17,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from lfstudio.errors import InputError
 from lfstudio import optics
+from lfstudio.dataset.grid import DEFAULT_ORDER, Grid
+from lfstudio.errors import InputError
 from lfstudio.optics import REFERENCE
 from lfstudio.numbers import Number, check_grid
 
@@ -246,10 +247,15 @@ class ScenePlan:
         """The dataset manifest's ``lens`` entry."""
         return {"name": self.lens_name, "focal_length_mm": float(self.focal_length_mm)}
 
+    @property
+    def grid(self) -> Grid:
+        """The planned grid (the dataset's model), taken in meander order: left→right, then right→left."""
+        return Grid(int(self.grid_columns), int(self.grid_rows), (float(self.spacing_mm[0]), float(self.spacing_mm[1])),
+                    order=DEFAULT_ORDER)
+
     def grid_dict(self) -> dict[str, Any]:
-        """The dataset manifest's ``grid`` entry (meander order: left→right, then right→left)."""
-        return {"columns": int(self.grid_columns), "rows": int(self.grid_rows),
-                "spacing_mm": [float(v) for v in self.spacing_mm], "order": "row-meander"}
+        """The dataset manifest's ``grid`` entry."""
+        return self.grid.to_manifest()
 
 
 _INT_FIELDS = {"grid_columns", "grid_rows", "raw_bits", "bytes_per_image"}

@@ -2,13 +2,9 @@
 
 Rows and columns count from 0; row 0 is the top row (y = origin_y), column 0 the leftmost
 (x = origin_x). View (row r, column c) is commanded to
-``(origin_x + c * spacing_x, origin_y + r * spacing_y)`` in mm in the rig's frame.
-
-Orders:
-
-* ``row-meander`` (default): row 0 left→right, row 1 right→left, ... (the paper's meander);
-* ``column-meander``: column 0 top→bottom, column 1 bottom→top, ...;
-* ``raster``: every row left→right.
+``(origin_x + c * spacing_x, origin_y + r * spacing_y)`` in mm in the rig's frame
+(:meth:`lfstudio.dataset.grid.Grid.position_mm`). The orders (``row-meander`` by default,
+``column-meander``, ``raster``) are the dataset model's (:func:`lfstudio.dataset.grid.grid_order`).
 
 A plan may be restricted to a ``subset`` of grid cells (re-capture, resume); the order of the
 remaining views is the order of the full grid with the others left out.
@@ -19,13 +15,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any, Iterable
 
-from lfstudio.dataset.grid import Grid, View
+from lfstudio.dataset.grid import DEFAULT_ORDER, ORDERS, Grid, View, grid_order
 from lfstudio.errors import InputError
 from lfstudio.numbers import OFFSET_MM, SETTLE_S, SPACING_MM, Number, check_grid
 from lfstudio.rig.motion import RigConfig
 
-ORDERS = ("row-meander", "column-meander", "raster")
-DEFAULT_ORDER = "row-meander"
+__all__ = ["DEFAULT_ORDER", "ORDERS", "PlannedView", "ScanPlan", "grid_order"]
 
 
 @dataclass(frozen=True)
@@ -50,17 +45,6 @@ class PlannedView:
     @property
     def cell(self) -> tuple[int, int]:
         return (self.row, self.column)
-
-
-def grid_order(columns: int, rows: int, order: str = DEFAULT_ORDER) -> list[tuple[int, int]]:
-    """Every ``(row, column)`` of a ``columns`` x ``rows`` grid in capture ``order``."""
-    if order == "row-meander":
-        return [(r, c if r % 2 == 0 else columns - 1 - c) for r in range(rows) for c in range(columns)]
-    if order == "column-meander":
-        return [(r if c % 2 == 0 else rows - 1 - r, c) for c in range(columns) for r in range(rows)]
-    if order == "raster":
-        return [(r, c) for r in range(rows) for c in range(columns)]
-    raise InputError("order", f"unknown scan order {order!r}", ", ".join(ORDERS))
 
 
 @dataclass(frozen=True)
@@ -123,16 +107,19 @@ class ScanPlan:
                         offset_mm: tuple[float, float] = (0.0, 0.0), settle_s: float | None = None) -> "ScanPlan":
         """The scan of a planner plan (``lfstudio.planning.scene_plan.ScenePlan`` or its grid dict):
         its grid and spacing centred in the rig's travel."""
-        grid = scene_plan.grid_dict() if hasattr(scene_plan, "grid_dict") else dict(scene_plan)
         try:
-            columns, rows = int(grid["columns"]), int(grid["rows"])
-            spacing = tuple(float(s) for s in grid["spacing_mm"])
+            grid = getattr(scene_plan, "grid", None)
+            if not isinstance(grid, Grid):
+                grid = Grid.from_manifest(scene_plan.grid_dict() if hasattr(scene_plan, "grid_dict")
+                                          else dict(scene_plan))
         except (KeyError, TypeError, ValueError, OverflowError):
-            raise InputError("plan grid", "needs columns, rows and spacing_mm [h, v]") from None
+            grid = None
+        if grid is None or grid.spacing_mm is None:
+            raise InputError("plan grid", "needs columns, rows and spacing_mm [h, v]")
         if settle_s is None:
-            settle_s = grid.get("settle_s", getattr(scene_plan, "settle_s", None))
-        return cls.centered(columns, rows, spacing, rig, offset_mm=offset_mm,
-                            order=order or grid.get("order") or DEFAULT_ORDER, settle_s=settle_s)
+            settle_s = grid.settle_s if grid.settle_s is not None else getattr(scene_plan, "settle_s", None)
+        return cls.centered(grid.columns, grid.rows, grid.spacing_mm, rig, offset_mm=offset_mm,
+                            order=order or grid.order or DEFAULT_ORDER, settle_s=settle_s)
 
     @classmethod
     def from_grid(cls, grid: Grid) -> "ScanPlan":
@@ -159,8 +146,13 @@ class ScanPlan:
     def total_cells(self) -> int:
         return self.columns * self.rows
 
+    @property
+    def grid(self) -> Grid:
+        """The grid the plan covers (the dataset's model; what the manifest stores as ``grid``)."""
+        return Grid(self.columns, self.rows, self.spacing_mm, self.origin_mm, self.order, self.settle_s)
+
     def position_mm(self, row: int, column: int) -> tuple[float, float]:
-        return (self.origin_mm[0] + column * self.spacing_mm[0], self.origin_mm[1] + row * self.spacing_mm[1])
+        return self.grid.position_mm((row, column))
 
     def extent_mm(self) -> tuple[float, float, float, float]:
         """``(x_min, x_max, y_min, y_max)`` of the full grid."""
@@ -202,8 +194,7 @@ class ScanPlan:
 
     def grid_dict(self) -> dict[str, Any]:
         """The manifest's ``grid`` object."""
-        return {"columns": self.columns, "rows": self.rows, "spacing_mm": list(self.spacing_mm),
-                "origin_mm": list(self.origin_mm), "order": self.order, "settle_s": self.settle_s}
+        return self.grid.to_manifest()
 
     def move_distances_mm(self) -> list[tuple[float, float]]:
         """(|dx|, |dy|) of each move between consecutive views (len = views - 1)."""

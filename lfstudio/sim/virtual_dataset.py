@@ -25,6 +25,7 @@ import numpy as np
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.atomic import atomic_write_json, atomic_write_with
+from lfstudio.dataset.grid import DEFAULT_ORDER, Grid, grid_order
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.dataset.store import sha256_file
@@ -52,11 +53,6 @@ def camera_dict(studio: VirtualStudio) -> dict[str, Any]:
 
 def lens_dict(studio: VirtualStudio) -> dict[str, Any]:
     return {"name": f"{studio.focal_length_mm:g} mm (simulated)", "focal_length_mm": studio.focal_length_mm}
-
-
-def meander_order(columns: int, rows: int) -> list[tuple[int, int]]:
-    """(row, column) in capture order: left to right on even rows, right to left on odd rows."""
-    return [(r, c) for r in range(rows) for c in (range(columns) if r % 2 == 0 else range(columns - 1, -1, -1))]
 
 
 def write_view_file(path: Path, sensor_rgb: np.ndarray, fmt: str, exposure_s: float | None = None) -> Path:
@@ -166,7 +162,7 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
     rng = np.random.default_rng([seed, 0x9051])
     root = Path(root)
     suffix = ".dng" if fmt == "dng" else ".png"
-    order = meander_order(columns, rows)
+    order = grid_order(columns, rows, DEFAULT_ORDER)
     jobs: list[dict[str, Any]] = []
     for shot, (r, c) in enumerate(order):
         commanded = (ox + c * sx, oy + r * sy)
@@ -228,7 +224,7 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
                       "file": job["rel"], "sha256": res["sha256"], "thumb": job["thumb_rel"] if res["thumb"] else None,
                       "status": "done"})
     views.sort(key=lambda v: (v["row"], v["column"]))
-    grid = {"columns": int(columns), "rows": int(rows), "spacing_mm": [sx, sy], "order": "row-meander"}
+    grid = Grid(int(columns), int(rows), (sx, sy), order=DEFAULT_ORDER).to_manifest()
     rig = {"name": "virtual studio", "simulated": True, "origin_mm": [ox, oy]}
     plan = {"near_m": near_m, "far_m": far_m, "focal_length_mm": focal_length_mm}
     ds = Dataset.create(root, camera=camera_dict(studio), lens=lens_dict(studio), grid=grid, rig=rig, plan=plan,

@@ -43,6 +43,20 @@ def test_old_manifests_read_as_a_typed_grid(tmp_path):
     assert View(1, 2) in full and View(2, 0) not in full and len(full.views()) == 6
 
 
+def test_the_manifest_grid_round_trips_and_gives_the_capture_order():
+    """Grid.to_manifest is from_manifest's inverse (what the scan plan, the planner, the export and
+    the virtual dataset write); in_order lists the views in the grid's own order."""
+    doc = {"columns": 3, "rows": 2, "spacing_mm": [4.0, 6.0], "origin_mm": [10.0, 20.0],
+           "order": "column-meander", "settle_s": 0.3, "note": "kept"}
+    assert Grid.from_manifest(doc).to_manifest() == doc
+    assert Grid.from_manifest({"columns": 4, "rows": 2}).to_manifest() == {"columns": 4, "rows": 2}
+    assert Grid.from_manifest(doc).in_order() == [(0, 0), (1, 0), (1, 1), (0, 1), (0, 2), (1, 2)]
+    assert Grid(3, 2).in_order() == [(0, 0), (0, 1), (0, 2), (1, 2), (1, 1), (1, 0)]   # unknown: meander
+    assert Grid(2, 2, order="raster").in_order() == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    with pytest.raises(InputError, match="unknown scan order"):
+        Grid(2, 2, order="spiral").in_order()
+
+
 def test_one_selection_for_every_stage(tmp_path):
     ds = Dataset.create(tmp_path / "ds", camera={"name": "c"}, lens={"name": "l"},
                         grid={"columns": 5, "rows": 3, "spacing_mm": [4.0, 6.0]})

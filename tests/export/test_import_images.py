@@ -30,7 +30,8 @@ from lfstudio.export.import_images import (ImportOptions, count_message, find_im
 from lfstudio.jobs import Cancelled, CancelToken
 from lfstudio.processing.pipeline import process_dataset
 from lfstudio.dataset.profile import Profile
-from lfstudio.sim.virtual_dataset import load_ground_truth, make_virtual_dataset, meander_order
+from lfstudio.dataset.grid import grid_order
+from lfstudio.sim.virtual_dataset import load_ground_truth, make_virtual_dataset
 
 COLS, ROWS = 4, 3
 ROT = (1.2, -2.0, 2.5)
@@ -53,7 +54,7 @@ def truth_image(render, r, c) -> np.ndarray:
 def write_foreign(render, folder: Path, order: str, ext: str = ".png", eight_bit: bool = False) -> Path:
     """The render's views as another rig would leave them: shot1..shotN in capture order."""
     folder.mkdir(parents=True, exist_ok=True)
-    cells = [(r, c) for r in range(ROWS) for c in range(COLS)] if order == "row-major" else meander_order(COLS, ROWS)
+    cells = [(r, c) for r in range(ROWS) for c in range(COLS)] if order == "row-major" else grid_order(COLS, ROWS, "row-meander")
     for i, (r, c) in enumerate(cells):
         img = truth_image(render, r, c)
         if eight_bit:
@@ -92,7 +93,7 @@ def test_grid_cells_visit_every_cell_once_with_adjacent_steps_in_meander(cols, r
     assert sorted(cells) == [(r, c) for r in range(rows) for c in range(cols)]
     if order == "meander":
         assert all(abs(a[0] - b[0]) + abs(a[1] - b[1]) == 1 for a, b in zip(cells, cells[1:]))
-        assert cells == meander_order(cols, rows)
+        assert cells == grid_order(cols, rows, "row-meander")
 
 
 # -- importing -----------------------------------------------------------------------------------------

@@ -14,7 +14,8 @@ from lfstudio.dataset import Dataset
 from lfstudio.errors import InputError
 from lfstudio.sim.sensor import SensorModel
 from lfstudio.sim.studio import VirtualStudio
-from lfstudio.sim.virtual_dataset import load_ground_truth, make_virtual_dataset, meander_order
+from lfstudio.dataset.grid import grid_order
+from lfstudio.sim.virtual_dataset import load_ground_truth, make_virtual_dataset
 
 
 def test_tiny_dataset_png_is_a_valid_dataset_with_ground_truth(tiny_dataset):
@@ -81,8 +82,8 @@ def test_position_noise_flicker_and_meander(tmp_path):
     gains = [v["gain"] for v in truth["views"]]
     assert len(set(gains)) == len(gains)
     shots = sorted(truth["views"], key=lambda v: v["shot"])
-    assert [(v["row"], v["column"]) for v in shots] == meander_order(4, 2)
-    assert meander_order(3, 2) == [(0, 0), (0, 1), (0, 2), (1, 2), (1, 1), (1, 0)]
+    assert [(v["row"], v["column"]) for v in shots] == grid_order(4, 2, "row-meander")
+    assert grid_order(3, 2, "row-meander") == [(0, 0), (0, 1), (0, 2), (1, 2), (1, 1), (1, 0)]
 
 
 def test_bad_arguments_raise_input_error(tmp_path):

@@ -27,6 +27,7 @@ from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayo
                                QLabel, QLineEdit, QMessageBox, QPlainTextEdit, QProgressBar, QPushButton,
                                QSizePolicy, QSpinBox, QToolButton, QVBoxLayout, QWidget)
 
+from lfstudio.dataset.grid import ORDERS, grid_order
 from lfstudio.dataset.paths import new_dataset_folder_problem
 from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import GuiInbox, JobRunner
@@ -35,7 +36,7 @@ from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import set_progress_async
 from lfstudio.jobs import format_duration
 from lfstudio.scan.events import EventKind, ScanRequestRefused, ScanState
-from lfstudio.scan.scan_plan import ORDERS, ScanPlan, grid_order
+from lfstudio.scan.scan_plan import ScanPlan
 
 log = logging.getLogger(__name__)
 
@@ -537,17 +538,17 @@ class ScanPanel(QWidget):
     def _on_plan(self, plan: Any) -> None:
         if plan is None or self.running:
             return
-        grid = plan.grid_dict() if hasattr(plan, "grid_dict") else {}
-        if not grid:
+        grid = getattr(plan, "grid", None)
+        if grid is None or grid.spacing_mm is None:
             return
-        self.columns.setValue(int(grid["columns"]))
-        self.rows.setValue(int(grid["rows"]))
-        self.spacing_h.setValue(float(grid["spacing_mm"][0]))
-        self.spacing_v.setValue(float(grid["spacing_mm"][1]))
+        self.columns.setValue(grid.columns)
+        self.rows.setValue(grid.rows)
+        self.spacing_h.setValue(grid.spacing_mm[0])
+        self.spacing_v.setValue(grid.spacing_mm[1])
         if getattr(plan, "settle_s", None) is not None:
             self.settle.setValue(float(plan.settle_s))
-        self._log(f"grid taken from the plan: {grid['columns']} × {grid['rows']}, "
-                  f"{grid['spacing_mm'][0]:g} × {grid['spacing_mm'][1]:g} mm")
+        self._log(f"grid taken from the plan: {grid.columns} × {grid.rows}, "
+                  f"{grid.spacing_mm[0]:g} × {grid.spacing_mm[1]:g} mm")
 
     def _on_dataset(self, dataset: Any) -> None:
         if dataset is None or self.running:
