@@ -14,7 +14,7 @@ import sys
 import threading
 
 from lfstudio.cli.args import refused_spelling
-from lfstudio.dataset.paths import path_option
+from lfstudio.dataset.paths import path_option, view_label
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.numbers import (EXPOSURE_S, OFFSET_MM, RETRIES, SEED, SETTLE_S, SPACING_MM, TIME_SCALE, TRANSFER_S,
                               WIDTH_PX, grid_option, numbers_option)
@@ -206,9 +206,9 @@ def run(args: argparse.Namespace) -> int:
 
         def on_event(ev) -> None:
             if ev.kind is EventKind.VIEW_DONE:
-                bar(ev.done, ev.total, f"r{ev.row:02d} c{ev.column:03d}")
+                bar(ev.done, ev.total, view_label(ev.row, ev.column))
             elif ev.kind is EventKind.VIEW_FAILED:
-                print(f"\nlfstudio scan: view r{ev.row:02d} c{ev.column:03d}: {ev.message}"
+                print(f"\nlfstudio scan: view {view_label(ev.row, ev.column)}: {ev.message}"
                       + (" (retrying)" if ev.will_retry else ""), file=sys.stderr)
             elif ev.kind is EventKind.STATE and ev.state is ScanState.PAUSED:
                 paused.set()

@@ -31,7 +31,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Any, Iterable, NamedTuple, Sequence
 
-from lfstudio.dataset.paths import parse_view_stem, view_stem
+from lfstudio.dataset.paths import parse_view_stem, view_label, view_stem
 from lfstudio.errors import InputError
 
 #: what a selection may be (shown when one cannot be read)
@@ -66,6 +66,11 @@ class View(NamedTuple):
     def name(self) -> str:
         """``r07_c042``: the stem of the view's files."""
         return view_stem(self.row, self.column)
+
+    @property
+    def label(self) -> str:
+        """``r07 c042``: the view as messages and the GUI name it."""
+        return view_label(self.row, self.column)
 
     @classmethod
     def parse(cls, name: str) -> "View":

@@ -33,6 +33,12 @@ def view_stem(row: int, column: int) -> str:
     return f"r{row:02d}_c{column:03d}"
 
 
+def view_label(row: int, column: int) -> str:
+    """``r07 c042``: how messages, progress lines and the GUI name a view (the same numbers as its
+    file name, :func:`view_stem`, with a space)."""
+    return f"r{row:02d} c{column:03d}"
+
+
 _VIEW_STEM = re.compile(r"^\s*r(\d+)[_\s]*c(\d+)\s*$", re.IGNORECASE)
 
 

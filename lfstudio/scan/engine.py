@@ -51,7 +51,7 @@ from typing import Any, Callable, Iterable
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.manifest import is_done, now_iso
-from lfstudio.dataset.paths import folder_inside, view_stem
+from lfstudio.dataset.paths import folder_inside, view_label, view_stem
 from lfstudio.dataset.storage import disk_problem, megabytes, mount_point, storage_error
 from lfstudio.dataset.store import clean_temporary_files, free_bytes, sha256_file
 from lfstudio.errors import DeviceError, DeviceTimeout, LfError
@@ -754,7 +754,7 @@ class ScanEngine:
             except Exception as exc:
                 device = getattr(exc, "_scan_device", "camera")
                 disk = self._disk_fault(exc, self.dataset.root / "raw", "storing the capture of "
-                                        f"r{view.row:02d} c{view.column:03d}")
+                                        + view_label(view.row, view.column))
                 if disk is not None:            # the disk's fault, never the camera's: no retry
                     raise disk from None
                 message = _error_text(exc)
@@ -767,7 +767,7 @@ class ScanEngine:
                 if self._state is not ScanState.RUNNING:
                     # STOP, a pause, an abort or a fault came in: no retry now (the view is queued again)
                     self._attempts[cell] = attempt - 1
-                    self._emit(EventKind.LOG, f"view r{view.row:02d} c{view.column:03d}: {message} "
+                    self._emit(EventKind.LOG, f"view {view_label(view.row, view.column)}: {message} "
                                               f"({self._state.value}; captured after Resume)")
                     raise _Interrupted() from None
                 will_retry = attempt <= self.retries
@@ -784,7 +784,7 @@ class ScanEngine:
     def _silent(self, device: str, view: PlannedView, exc: BaseException | None = None) -> ScanFault:
         """The fault of a device that stopped answering during ``view`` (no retry: it would wait again).
         ``exc``: the driver's own timeout (a hot folder that got no file), told as it is."""
-        where = f"view r{view.row:02d} c{view.column:03d}"
+        where = f"view {view_label(view.row, view.column)}"
         if exc is not None and not isinstance(exc, CallTimedOut):
             what = f"{device.capitalize()} does not answer ({where}): {_error_text(exc).rstrip('.')}."
         elif device == "rig":
@@ -940,7 +940,7 @@ class ScanEngine:
                     self._store(job)
                 except Exception as exc:
                     log.info("storing a view failed:\n%s", traceback.format_exc())   # the fault says it
-                    where = f"r{job.view.row:02d} c{job.view.column:03d}"
+                    where = view_label(job.view.row, job.view.column)
                     fault = self._disk_fault(exc, self.dataset.root / "raw", f"storing view {where}") or \
                         ScanFault(f"Storing view {where} failed: {_error_text(exc)}.", "disk")
                     self._store_failed(job, fault)
@@ -966,7 +966,7 @@ class ScanEngine:
                 return
             self._free_hung_camera(exc)
             message = _error_text(exc)
-            disk = self._disk_fault(exc, self.dataset.root / "raw", f"storing view r{view.row:02d} c{view.column:03d}")
+            disk = self._disk_fault(exc, self.dataset.root / "raw", f"storing view {view_label(view.row, view.column)}")
             if disk is not None:          # the view is captured again after Resume (its file never arrived)
                 self._store_failed(job, disk)
                 return
@@ -1043,9 +1043,9 @@ class ScanEngine:
         try:
             self.dataset.record_view(view.row, view.column, **fields)
         except Exception as exc:
-            return self._disk_fault(exc, self.dataset.root, f"recording view r{view.row:02d} c{view.column:03d} "
+            return self._disk_fault(exc, self.dataset.root, f"recording view {view_label(view.row, view.column)} "
                                     "in the journal") or \
-                ScanFault(f"Recording view r{view.row:02d} c{view.column:03d} failed: {_error_text(exc)}.", "disk")
+                ScanFault(f"Recording view {view_label(view.row, view.column)} failed: {_error_text(exc)}.", "disk")
         with self._cond:
             if not was_done:                   # a view captured again (recapture) still counts once
                 self.done += 1

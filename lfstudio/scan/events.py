@@ -19,6 +19,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from lfstudio.dataset.paths import view_label
 from lfstudio.errors import LfError
 
 
@@ -144,7 +145,7 @@ class ScanEvent:
 
     def describe(self) -> str:
         """A one-line, human-readable description (logs, the GUI event list)."""
-        where = f"view r{self.row:02d} c{self.column:03d}" if self.row is not None else ""
+        where = f"view {view_label(self.row, self.column)}" if self.row is not None else ""
         if self.kind is EventKind.STATE:
             return f"{self.state.value if self.state else ''}: {self.message}".rstrip(": ")
         if self.kind is EventKind.VIEW_DONE:

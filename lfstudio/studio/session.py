@@ -38,7 +38,7 @@ from typing import Any, Callable, Sequence
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.manifest import MANIFEST_NAME, now_iso
-from lfstudio.dataset.paths import new_dataset_folder_problem
+from lfstudio.dataset.paths import new_dataset_folder_problem, view_label
 from lfstudio.errors import DeviceError, InputError, LfError
 from lfstudio.numbers import EXPOSURE_S, RETRIES, TIME_SCALE, TRANSFER_S
 from lfstudio.optics import REFERENCE
@@ -176,7 +176,7 @@ def _last_position(dataset: Dataset, plan: ScanPlan, ahead: int = 3) -> tuple[tu
     if (last["row"], last["column"]) in order:
         i = order.index((last["row"], last["column"]))
         following = [cell for cell in order[i + 1:] if statuses.get(cell) not in ("done", "skipped")][:ahead]
-    return ((float(last["reported_mm"][0]), float(last["reported_mm"][1])), f"r{last['row']:02d} c{last['column']:03d}",
+    return ((float(last["reported_mm"][0]), float(last["reported_mm"][1])), view_label(last["row"], last["column"]),
             [plan.position_mm(*cell) for cell in following])
 
 

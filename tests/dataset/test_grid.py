@@ -10,7 +10,7 @@ from hypothesis import given, strategies as st
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.grid import Grid, View
-from lfstudio.dataset.paths import view_stem
+from lfstudio.dataset.paths import view_label, view_stem
 from lfstudio.errors import InputError
 
 
@@ -21,6 +21,11 @@ def test_view_names_are_built_and_read_in_one_place(row, column):
     assert View.parse(f" R{row}C{column} ") == v
     r, c = v                                   # still a (row, column) pair everywhere
     assert (r, c) == (row, column)
+
+
+def test_messages_name_a_view_in_one_way():
+    assert View(7, 42).label == view_label(7, 42) == "r07 c042"
+    assert View.parse(View(7, 42).label) == (7, 42)          # what a message says can be typed back
 
 
 def test_a_name_that_is_no_view_is_refused():

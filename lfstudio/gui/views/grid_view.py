@@ -37,6 +37,7 @@ from PySide6.QtWidgets import (QAbstractScrollArea, QDialog, QFileDialog, QHBoxL
 
 from lfstudio.dataset import images
 from lfstudio.dataset.manifest import is_done
+from lfstudio.dataset.paths import view_label
 from lfstudio.gui.bridge import GuiInbox, run_off_gui
 from lfstudio.gui.settings import settings
 from lfstudio.gui.views.quality import (OVERLAY_KEY, DisparityDialog, LiveQuality, NeighboursDialog, QualityBar,
@@ -591,7 +592,7 @@ class GridCanvas(QAbstractScrollArea):
             for r in range(r0, r1):
                 for c in range(c0, c1):
                     rect = QRectF(ox + c * px + 3, oy + r * py + 2, px - 6, 14)
-                    p.drawText(rect, Qt.AlignLeft | Qt.AlignTop, f"r{r:02d} c{c:03d}")
+                    p.drawText(rect, Qt.AlignLeft | Qt.AlignTop, view_label(r, c))
         p.end()
 
     # -- interaction -------------------------------------------------------------------------------
@@ -1099,7 +1100,7 @@ class GridView(QWidget):
         failed = [e for e in entries if e.get("verdict") == "fail"]
         if failed:
             entry = failed[-1]
-            self.state.show_status(f"View r{entry['row']:02d} c{entry['column']:03d} failed the check: "
+            self.state.show_status(f"View {view_label(entry['row'], entry['column'])} failed the check: "
                                    + "; ".join(entry.get("reasons", [])), 10000)
 
     def _stop_live(self) -> None:

@@ -23,6 +23,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QGridLayout, QHBox
                                QScrollArea, QSizePolicy, QVBoxLayout, QWidget)
 
 from lfstudio.dataset.manifest import is_done
+from lfstudio.dataset.paths import view_label
 from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import JobProgressWidget
@@ -220,7 +221,7 @@ class NeighboursDialog(QDialog):
         """Show ``cell`` of ``dataset`` among its neighbours (``entry``: its quality verdict or None)."""
         self.cell = cell
         r, c = cell
-        self.setWindowTitle(f"View r{r:02d} c{c:03d} and its neighbours")
+        self.setWindowTitle(f"View {view_label(r, c)} and its neighbours")
         jobs = []
         for (dr, dc), label in self.tiles.items():
             label.setPixmap(QPixmap())
@@ -231,22 +232,22 @@ class NeighboursDialog(QDialog):
                 label.setText("")
                 continue
             if not is_done(v):
-                label.setText(f"r{n[0]:02d} c{n[1]:03d}\n{v.get('status')}")
+                label.setText(f"{view_label(n[0], n[1])}\n{v.get('status')}")
                 continue
-            label.setText(f"r{n[0]:02d} c{n[1]:03d}\nloading…")
+            label.setText(f"{view_label(n[0], n[1])}\nloading…")
             try:
                 jobs.append((n, dataset.path_of(v)))
             except Exception as exc:
-                label.setText(f"r{n[0]:02d} c{n[1]:03d}\n{exc}")
+                label.setText(f"{view_label(n[0], n[1])}\n{exc}")
         self.tiles[(0, 0)].setStyleSheet("background:#202226;color:#9aa0a8;border:3px solid "
                                          f"{VERDICT_COLOURS.get((entry or {}).get('verdict', 'n/a'))}")
         if entry:
             colour = VERDICT_COLOURS.get(entry["verdict"], "#ccc")
             lines = "".join(f"<li>{r_}</li>" for r_ in entry.get("reasons", [])) or "<li>no check flagged it</li>"
-            self.reasons.setText(f"<b style='color:{colour}'>{entry['verdict'].upper()}</b> — r{r:02d} c{c:03d}"
+            self.reasons.setText(f"<b style='color:{colour}'>{entry['verdict'].upper()}</b> — {view_label(r, c)}"
                                  f"<ul>{lines}</ul>")
         else:
-            self.reasons.setText(f"r{r:02d} c{c:03d}: not checked yet")
+            self.reasons.setText(f"{view_label(r, c)}: not checked yet")
         self.decoder.start(jobs, self.TILE_PX)
 
     def _on_decoded(self, cell, image: QImage) -> None:
@@ -257,7 +258,7 @@ class NeighboursDialog(QDialog):
         if label is None:
             return
         if image.isNull():
-            label.setText(f"r{cell[0]:02d} c{cell[1]:03d}\ncannot be decoded")
+            label.setText(f"{view_label(cell[0], cell[1])}\ncannot be decoded")
             return
         label.setPixmap(QPixmap.fromImage(image.scaledToWidth(self.TILE_PX, Qt.SmoothTransformation)))
         label.setToolTip(f"row {cell[0]}, column {cell[1]}")
