@@ -4,7 +4,11 @@ into a folder.
 A capture optionally runs a trigger command (an argument list, never a shell string), then waits
 for a *new* file in the folder that has stopped growing, and moves it to the dataset under the
 view's name. Names that look temporary or partial (``.x``, ``~x``, ``x.tmp``, ``x.part``,
-``x.crdownload``, ...) and files that were there before the capture are ignored.
+``x.crdownload``, ...), files that were there before the capture and text files beside the picture
+(XMP sidecars, notes, logs) are ignored. Which file is the picture is decided by reading it, as
+everywhere (:mod:`lfstudio.dataset.images`: a RAW LibRaw reads, whatever its suffix, or an image
+OpenCV reads), not by a list of suffixes; a new binary file that is neither stops the capture
+with its name.
 """
 
 from __future__ import annotations
@@ -19,14 +23,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from lfstudio.dataset import images
 from lfstudio.dataset.atomic import atomic_write_with
 from lfstudio.errors import DeviceError, DeviceTimeout, InputError
 from lfstudio.rig.camera import CaptureResult
 
 log = logging.getLogger(__name__)
 
-DEFAULT_EXTENSIONS = (".dng", ".arw", ".cr2", ".cr3", ".nef", ".raf", ".orf", ".rw2", ".pef", ".iiq",
-                      ".3fr", ".tif", ".tiff", ".jpg", ".jpeg", ".png")
 _PARTIAL_SUFFIXES = (".tmp", ".temp", ".part", ".partial", ".crdownload", ".download", ".lock", ".swp", "~")
 
 
@@ -52,13 +55,14 @@ class HotFolderCamera:
     ``trigger_command``: argument list run for each capture (e.g. ``["vendorcli", "--shoot"]``);
     None: the operator or the vendor software triggers. ``timeout_s``: how long to wait for the
     new file; ``stable_s``: how long its size must stay unchanged; ``poll_s``: polling period.
-    ``keep_source``: copy instead of move. ``clock``/``wait`` exist for tests (simulated time).
+    ``keep_source``: copy instead of move. ``extensions``: only files with these suffixes count
+    (None: any picture). ``clock``/``wait`` exist for tests (simulated time).
     """
 
     name = "Hot folder"
 
     def __init__(self, folder: str | os.PathLike, trigger_command: Sequence[str] | None = None, *,
-                 extensions: Sequence[str] = DEFAULT_EXTENSIONS, timeout_s: float = 30.0,
+                 extensions: Sequence[str] | None = None, timeout_s: float = 30.0,
                  stable_s: float = 0.5, poll_s: float = 0.1, trigger_timeout_s: float = 30.0,
                  keep_source: bool = False, clock: Callable[[], float] = time.monotonic,
                  wait: Callable[[float], bool] | None = None):
@@ -67,7 +71,8 @@ class HotFolderCamera:
                              'e.g. ["vendorcli", "--capture"]')
         self.folder = Path(folder)
         self.trigger_command = list(trigger_command) if trigger_command else None
-        self.extensions = tuple(e.lower() if e.startswith(".") else "." + e.lower() for e in extensions)
+        self.extensions = None if extensions is None else \
+            tuple(e.lower() if e.startswith(".") else "." + e.lower() for e in extensions)
         self.timeout_s = float(timeout_s)
         self.stable_s = float(stable_s)
         self.poll_s = float(poll_s)
@@ -134,7 +139,7 @@ class HotFolderCamera:
     def _candidates(self) -> list[str]:
         return sorted(n for n in self._listing()
                       if n not in self._seen and not is_partial_name(n)
-                      and os.path.splitext(n)[1].lower() in self.extensions)
+                      and (self.extensions is None or os.path.splitext(n)[1].lower() in self.extensions))
 
     def _trigger(self) -> None:
         assert self.trigger_command is not None
@@ -204,7 +209,9 @@ class HotFolderCamera:
                 if prev is None or (prev[0], prev[1]) != key:
                     last[name] = (st.st_size, st.st_mtime, now)
                 elif st.st_size > 0 and now - prev[2] >= self.stable_s:
-                    return name, int(st.st_size)
+                    if self._is_picture(name):
+                        return name, int(st.st_size)
+                    last.pop(name, None)            # a sidecar or a note: keep waiting for the picture
             if now - t0 > self.timeout_s:
                 growing = [n for n in last]
                 hint = (f"; {growing[0]} kept changing" if growing else
@@ -212,6 +219,21 @@ class HotFolderCamera:
                 raise DeviceTimeout(f"hot folder {self.folder}: no new complete file within {self.timeout_s:g} s{hint}")
             if self._wait(self.poll_s):
                 raise DeviceError(f"hot folder {self.folder}: stopped while waiting for the file")
+
+    def _is_picture(self, name: str) -> bool:
+        """A complete new file: the picture (LibRaw or OpenCV reads it), or text beside it (False,
+        remembered as seen); DeviceError naming it when it is neither."""
+        path = self.folder / name
+        if images.is_text(path):
+            self._seen.add(name)
+            return False
+        try:
+            images.kind(path)
+        except images.NotACapture as exc:
+            self._seen.add(name)
+            raise DeviceError(f"hot folder {self.folder}: {name} arrived but is not a picture ({exc.reason}); "
+                              "set the camera software to save RAW, TIFF or JPEG files") from None
+        return True
 
     def _transfer(self, src: Path, dest: Path, size: int) -> None:
         """Move (or copy) ``src`` to ``dest`` atomically, and check the size arrived complete."""
