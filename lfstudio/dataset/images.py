@@ -8,7 +8,8 @@ per file, size and modification time.
 
 - :func:`kind`, :func:`is_raw`: ``"raw"`` or ``"image"``;
 - :func:`full_size_px`: (width, height) the file decodes to at full resolution, from its headers
-  (RAW: LibRaw's size with the orientation tag applied);
+  (RAW: LibRaw's size with the orientation tag applied); :func:`check_raw_data`: a RAW's image data
+  is all there (LibRaw unpacks it);
 - :func:`read_image`: an ordinary image as (h, w, 3) uint16 RGB (16-bit kept, 8-bit scaled by 257);
 - :func:`develop`: any capture as (h, w, 3) uint16 linear RGB: a RAW developed by LibRaw with the
   ``[debayer]`` settings of a processing profile (:class:`lfstudio.dataset.profile.DebayerStep`),
@@ -128,6 +129,23 @@ def full_size_px(path: str | os.PathLike) -> tuple[int, int]:
         return size
     img = read_image(path)
     return int(img.shape[1]), int(img.shape[0])
+
+
+def check_raw_data(path: str | os.PathLike) -> None:
+    """For a RAW: LibRaw unpacks its image data (a file cut short or damaged after its headers opens,
+    and fails only here); :class:`DatasetError` naming the file when it does not. Nothing to do for
+    an ordinary image. Costs one read of the file (and LibRaw's decompression)."""
+    path = Path(path)
+    if kind(path) != "raw":
+        return
+    import rawpy
+
+    try:
+        with rawpy.imread(str(path)) as raw:
+            raw.unpack()
+    except Exception as exc:
+        raise DatasetError(f"{path}: LibRaw cannot read its image data ({type(exc).__name__}: {exc}); "
+                           "the file is cut short or damaged") from None
 
 
 def png_header(path: str | os.PathLike) -> tuple[int, int, int, int] | None:

@@ -295,6 +295,7 @@ def plan_import(options: ImportOptions, *, progress: Progress = no_progress,
             cancel.check()
         try:
             s = images.full_size_px(path)
+            images.check_raw_data(path)          # a RAW cut short opens by its headers: unpack it
             total_bytes += path.stat().st_size
         except (OSError, ValueError, DatasetError) as exc:
             why = exc.reason if isinstance(exc, images.NotACapture) else "damaged or truncated"

@@ -13,7 +13,7 @@ import tifffile
 
 from lfstudio.dataset import Dataset, images
 from lfstudio.dataset.profile import DebayerStep, Profile
-from lfstudio.errors import InputError
+from lfstudio.errors import DatasetError, InputError
 from lfstudio.sim.dng import write_dng
 
 
@@ -113,5 +113,24 @@ def test_a_file_libraw_cannot_read_is_refused_at_import_with_its_name(files, tmp
     shutil.copy(files["dir"] / "v.dng", folder / "IMG_0001.CRW")
     shutil.copy(files["dir"] / "junk.crw", folder / "IMG_0002.CRW")
     with pytest.raises(InputError, match=r"IMG_0002\.CRW: cannot be read as an image \(neither LibRaw \(camera RAW\)"):
+        import_images(ImportOptions(folder, tmp_path / "ds", (2, 1), (5.0, 5.0), focal_length_px=100.0))
+    assert not (tmp_path / "ds").exists()
+
+
+def test_a_raw_cut_short_is_refused_at_import_with_its_name(files, tmp_path):
+    """LibRaw opens a RAW by its headers; one cut short after them fails only when its data is read:
+    import-images unpacks every RAW before it writes anything."""
+    from lfstudio.export.import_images import ImportOptions, import_images
+
+    folder = tmp_path / "camera"
+    folder.mkdir()
+    whole = (files["dir"] / "v.dng").read_bytes()
+    (folder / "IMG_0001.CRW").write_bytes(whole)
+    (folder / "IMG_0002.CRW").write_bytes(whole[: len(whole) - 1500])
+    assert images.kind(folder / "IMG_0002.CRW") == "raw"            # its headers still read
+    with pytest.raises(DatasetError, match=r"IMG_0002\.CRW: LibRaw cannot read its image data"):
+        images.check_raw_data(folder / "IMG_0002.CRW")
+    images.check_raw_data(folder / "IMG_0001.CRW")
+    with pytest.raises(InputError, match=r"IMG_0002\.CRW: cannot be read as an image \(damaged or truncated\)"):
         import_images(ImportOptions(folder, tmp_path / "ds", (2, 1), (5.0, 5.0), focal_length_px=100.0))
     assert not (tmp_path / "ds").exists()
