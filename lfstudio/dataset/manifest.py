@@ -66,6 +66,22 @@ def is_done(view: dict[str, Any]) -> bool:
     return view.get("status") == "done" and isinstance(view.get("file"), str) and bool(view["file"])
 
 
+def processed_status(view: dict[str, Any]) -> str | None:
+    """A captured view's processing: ``"done"``, ``"failed"`` or None (not processed), from its
+    ``processed`` record (:mod:`lfstudio.processing.pipeline` writes it)."""
+    record = view.get("processed")
+    return record.get("status") if isinstance(record, dict) else None
+
+
+def processed_file_name(view: dict[str, Any]) -> str | None:
+    """The dataset-relative file of a processed view (status ``done`` with a file), else None (the one
+    test of a processed view)."""
+    record = view.get("processed")
+    if processed_status(view) == "done" and isinstance(record.get("file"), str) and record["file"]:
+        return record["file"]
+    return None
+
+
 def _is_number(x: Any) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 

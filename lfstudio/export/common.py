@@ -16,7 +16,7 @@ import numpy as np
 
 from lfstudio.dataset import Dataset, images
 from lfstudio.dataset.grid import View
-from lfstudio.dataset.manifest import now_iso
+from lfstudio.dataset.manifest import now_iso, processed_file_name
 from lfstudio.dataset.paths import DATASET_ENTRIES, view_stem
 from lfstudio.errors import DatasetError, InputError
 
@@ -42,14 +42,14 @@ def meander(views: Sequence[View]) -> list[View]:
 
 # -- sources ----------------------------------------------------------------------------------------
 def processed_file(ds: Dataset, view: dict) -> Path | None:
-    p = view.get("processed")
-    if isinstance(p, dict) and p.get("status") == "done" and p.get("file"):
-        try:
-            path = ds.path_of(p["file"])
-        except DatasetError:
-            return None
-        return path if path.is_file() else None
-    return None
+    name = processed_file_name(view)
+    if name is None:
+        return None
+    try:
+        path = ds.path_of(name)
+    except DatasetError:
+        return None
+    return path if path.is_file() else None
 
 
 def resolve_source(ds: Dataset, views: Sequence[View], source: str) -> str:

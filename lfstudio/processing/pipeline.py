@@ -27,7 +27,7 @@ import numpy as np
 from lfstudio.calibration.model import CALIBRATION_NAME, load_calibration
 from lfstudio.dataset import Dataset, images, view_stem
 from lfstudio.dataset.grid import View
-from lfstudio.dataset.manifest import now_iso
+from lfstudio.dataset.manifest import now_iso, processed_file_name
 from lfstudio.dataset.paths import folder_inside
 from lfstudio.dataset.profile import PROFILE_NAME, Profile
 from lfstudio.dataset.storage import StorageError, storage_error
@@ -160,10 +160,10 @@ def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> Run
 
 
 def _skip(view: dict, sha: str, ds: Dataset) -> bool:
-    done = view.get("processed")
-    if not isinstance(done, dict) or done.get("status") != "done" or done.get("profile_sha256") != sha:
+    name = processed_file_name(view)
+    if name is None or view["processed"].get("profile_sha256") != sha:
         return False
-    return bool(done.get("file")) and ds.path_of(done["file"]).is_file()
+    return ds.path_of(name).is_file()
 
 
 def _record(ds: Dataset, view: dict, result: ViewResult, sha: str) -> None:

@@ -103,3 +103,15 @@ def test_atomic_write_leaves_no_partial_file(tmp_path):
 def test_is_temporary():
     assert is_temporary(".r00_c000.abc.tmp.dng")
     assert not is_temporary("r00_c000.dng")
+
+
+def test_a_processed_view_is_told_in_one_place():
+    from lfstudio.dataset.manifest import processed_file_name, processed_status
+
+    assert processed_status({"status": "done"}) is None and processed_file_name({"status": "done"}) is None
+    done = {"processed": {"status": "done", "file": "processed/r00_c000.png"}}
+    assert processed_status(done) == "done" and processed_file_name(done) == "processed/r00_c000.png"
+    failed = {"processed": {"status": "failed", "error": "x"}}
+    assert processed_status(failed) == "failed" and processed_file_name(failed) is None
+    assert processed_file_name({"processed": {"status": "done", "file": ""}}) is None
+    assert processed_status({"processed": "done"}) is None          # a damaged record is not processed

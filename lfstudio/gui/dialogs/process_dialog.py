@@ -26,6 +26,7 @@ from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.imageutil import rgb_to_qimage
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import JobProgressWidget, confirm_cancel_running
+from lfstudio.dataset.manifest import processed_status
 from lfstudio.dataset.profile import _CHOICES, LIMITS, PROFILE_NAME, STEP_TYPES, Profile
 
 STEP_TITLES = {
@@ -542,8 +543,8 @@ class ProcessDialog(QDialog):
     def _status_text(self) -> str:
         ds = self.state.dataset
         views = ds.done_views()
-        done = sum(1 for v in views if (v.get("processed") or {}).get("status") == "done")
-        failed = sum(1 for v in views if (v.get("processed") or {}).get("status") == "failed")
+        done = sum(1 for v in views if processed_status(v) == "done")
+        failed = sum(1 for v in views if processed_status(v) == "failed")
         text = f"{len(views)} captured views: {done} processed"
         if failed:
             text += f", {failed} failed"

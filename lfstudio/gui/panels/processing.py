@@ -6,6 +6,8 @@ import numpy as np
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import QLabel, QPushButton, QVBoxLayout, QWidget
 
+from lfstudio.dataset.manifest import processed_status
+
 
 class ProcessingPanel(QWidget):
     def __init__(self, state, parent: QWidget | None = None):
@@ -42,8 +44,8 @@ class ProcessingPanel(QWidget):
             self.summary.setText("No dataset open. Open or scan a dataset, then process its views.")
             return
         views = ds.done_views()
-        done = [v["processed"] for v in views if (v.get("processed") or {}).get("status") == "done"]
-        failed = sum(1 for v in views if (v.get("processed") or {}).get("status") == "failed")
+        done = [v["processed"] for v in views if processed_status(v) == "done"]
+        failed = sum(1 for v in views if processed_status(v) == "failed")
         text = f"<b>{len(done)}</b> of {len(views)} captured views processed"
         if failed:
             text += f", <span style='color:#c00'>{failed} failed</span>"
