@@ -35,6 +35,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from lfstudio import optics
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import DatasetError, InputError
@@ -43,7 +44,6 @@ from lfstudio.jobs import CancelToken, Progress
 
 PARAMETERS_NAME = "parameters.cfg"
 MANIFEST_NAME = "lfstudio_manifest.json"
-DEFAULT_COC_MM = 0.029
 
 
 def cam_name(index: int, count: int) -> str:
@@ -110,12 +110,11 @@ def _plan_numbers(ds: Dataset) -> dict[str, float | None]:
     focus = plan.get("focus_m")
     fstop = plan.get("f_number")
     if near and far and f_mm:
-        from lfstudio import optics
-
         if not isinstance(focus, (int, float)):
             focus = optics.focus_for_range_mm(near * 1000.0, far * 1000.0) / 1000.0
         if not isinstance(fstop, (int, float)):
-            fstop = optics.f_number_for_range(near * 1000.0, far * 1000.0, f_mm, float(plan.get("coc_mm") or DEFAULT_COC_MM))
+            coc_mm = float(plan.get("coc_mm") or optics.REFERENCE.coc_mm)
+            fstop = optics.f_number_for_range(near * 1000.0, far * 1000.0, f_mm, coc_mm)
     return {"focal_length_mm": f_mm, "near_m": near, "far_m": far,
             "focus_m": float(focus) if isinstance(focus, (int, float)) else None,
             "fstop": float(fstop) if isinstance(fstop, (int, float)) else None}
