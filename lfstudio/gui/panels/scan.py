@@ -569,8 +569,8 @@ class ScanPanel(QWidget):
         for w in fields:
             w.blockSignals(False)
         self._update_preview()
-        done = dataset.done_views()
-        self.preview.set_done((v["row"], v["column"]) for v in done)
+        done = dataset.captured_views()
+        self.preview.set_done(done)
         self._set_progress(len(done), len(dataset.views))
 
     def _update_preview(self) -> None:
@@ -702,7 +702,7 @@ class ScanPanel(QWidget):
         engine.subscribe(self.bridge.post)
         if self.state.dataset is not dataset:
             self.state.set_dataset(dataset)
-        self.preview.set_done((v["row"], v["column"]) for v in dataset.done_views())
+        self.preview.set_done(dataset.captured_views())
         self.preview.set_plan(engine.plan.with_subset(None))
         settings().setValue(ACTIVE_KEY, str(dataset.root))
         self._log(f"scan of {dataset.root}: {engine.remaining} views to capture"
