@@ -26,9 +26,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from lfstudio.dataset import Dataset
+from lfstudio.dataset.grid import View
 from lfstudio.errors import DatasetError
-
-View = tuple[int, int]
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from lfstudio.dataset.atomic import atomic_write_json
+from lfstudio.dataset.grid import View
 from lfstudio.dataset.manifest import is_done, now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import DatasetError, LfError
@@ -47,7 +48,7 @@ from lfstudio.quality.verdicts import Thresholds
 
 log = logging.getLogger(__name__)
 
-Cell = tuple[int, int]
+Cell = View                 # a grid cell (row, column)
 QUALITY_NAME = "quality.json"
 PICTURES_FOLDER = "quality"
 FORMAT = "lfstudio-quality"

@@ -16,7 +16,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-Cell = tuple[int, int]
+from lfstudio.dataset.grid import View
+
+Cell = View                 # a grid cell (row, column)
 TARGET_DISPARITY_PX = 32.0
 MAX_STEPS = 4
 

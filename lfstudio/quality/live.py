@@ -26,6 +26,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from lfstudio.dataset.grid import View
 from lfstudio.dataset.paths import resolve_inside
 from lfstudio.errors import LfError
 from lfstudio.quality import verdicts
@@ -37,7 +38,7 @@ from lfstudio.quality.verdicts import Thresholds
 
 log = logging.getLogger(__name__)
 
-Cell = tuple[int, int]
+Cell = View                 # a grid cell (row, column)
 Listener = Callable[[dict[str, Any]], None]
 _SETTLE = object()             # queue item: solve every view checked so far
 #: views kept with their working image: this many rows around the newest view

@@ -23,10 +23,11 @@ import cv2
 import numpy as np
 
 from lfstudio.calibration.model import apply_homography
+from lfstudio.dataset.grid import View
 from lfstudio.quality.measure import ViewMeasures
 from lfstudio.quality.positions import Observations
 
-Cell = tuple[int, int]
+Cell = View                 # a grid cell (row, column)
 
 #: neighbour offsets (rows, columns) a star may use
 WINDOW: tuple[Cell, ...] = tuple((dr, dc) for dr in (-2, -1, 0, 1, 2) for dc in (-2, -1, 0, 1, 2)
