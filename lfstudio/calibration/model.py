@@ -165,9 +165,10 @@ def save_calibration(dataset, document: dict[str, Any]) -> Path:
         raise DatasetError("the calibration result cannot be saved", problems)
     path = resolve_inside(dataset.root, CALIBRATION_NAME)
     atomic_write_json(path, document)
+    after = ((document.get("residual_px") or {}).get("after") or {}).get("rms")     # None: a document without it
     dataset.manifest["calibration"] = {"file": CALIBRATION_NAME, "created": document.get("created"),
-                                       "rotation_deg": document["rotation_deg"],
-                                       "residual_after_rms_px": document["residual_px"]["after"]["rms"]}
+                                       "rotation_deg": document.get("rotation_deg"),
+                                       "residual_after_rms_px": after}
     dataset.save()
     log.info("calibration saved to %s", path)
     return path

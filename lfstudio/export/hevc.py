@@ -272,7 +272,7 @@ def read_sidecar(video: Path) -> dict[str, Any]:
 
 def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelToken,
                 overwrite: bool = False) -> Path:
-    from lfstudio.calibration.model import CALIBRATION_NAME
+    from lfstudio.calibration.model import calibration_problems, save_calibration
     from lfstudio.dataset.manifest import MANIFEST_NAME
     from lfstudio.dataset.thumbs import make_thumbnail
 
@@ -337,15 +337,17 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
             extra["processing"] = {"restored_from_hevc": True, "rectified": bool(doc.get("rectified")),
                                    "output_size_px": list(size)}
         cal = doc.get("calibration")
-        if cal:
-            (tmp / CALIBRATION_NAME).write_text(json.dumps(cal, indent=1) + "\n", encoding="utf-8")
-            extra["calibration"] = {"file": CALIBRATION_NAME, "created": cal.get("created"),
-                                    "rotation_deg": cal.get("rotation_deg")}
+        if cal and calibration_problems(cal):
+            raise DatasetError(f"{sidecar_path(video)}: calibration: cannot be used; the sidecar is damaged: "
+                               "export again", calibration_problems(cal))
         if (tmp / MANIFEST_NAME).exists():
             raise DatasetError(f"{tmp}: unexpected existing manifest")
-        Dataset.create(tmp, camera=doc.get("camera") or {}, lens=doc.get("lens") or {}, grid=grid.to_manifest(),
-                       rig={"name": "imported from HEVC",
-                            "origin_mm": None if grid.origin_mm is None else list(grid.origin_mm)},
-                       plan=doc.get("plan") or {}, views=views, **extra).close()
+        ds = Dataset.create(tmp, camera=doc.get("camera") or {}, lens=doc.get("lens") or {},
+                            grid=grid.to_manifest(), rig={"name": "imported from HEVC", "origin_mm": None
+                                                          if grid.origin_mm is None else list(grid.origin_mm)},
+                            plan=doc.get("plan") or {}, views=views, **extra)
+        if cal:
+            save_calibration(ds, cal)        # calibration.json's one writer (and the manifest's note of it)
+        ds.close()
     return out
 

@@ -489,3 +489,28 @@ def test_feature_matching_refuses_an_unknown_direction():
     for direction in ("horizontal", "vertical", "x"):
         with pytest.raises(ValueError, match="'h' or 'v'"):
             epipole_ransac(xy, xy - [2.0, 0.0], direction, 1.0)
+
+
+def test_the_calibration_comes_back_from_an_hevc_export_through_its_one_writer(small, tmp_path):
+    """import-hevc restores calibration.json with calibration.model.save_calibration (validated, noted
+    in the manifest); a sidecar whose calibration is unusable is refused, nothing written."""
+    from lfstudio.calibration.model import load_calibration
+    from lfstudio.dataset import Dataset
+    from lfstudio.dataset.atomic import atomic_write_json
+    from lfstudio.errors import DatasetError
+
+    doc = {"created": "2026-11-22T00:00:00+00:00", "rotation_deg": [1.0, -1.5, 0.7], "image_size_px": [241, 160],
+           "focal_length_px": 671.3, "homography": [[1, 0, 2], [0, 1, 0], [0, 0, 1]],
+           "residual_px": {"after": {"rms": 0.4}}}
+    atomic_write_json(small.root / "calibration.json", doc)
+    video = tmp_path / "lf.mkv"
+    export_dataset(small, ExportOptions("hevc", video, views="r0,c0-1", source="raw"))
+    back = Dataset.open(import_hevc(video, tmp_path / "restored"))
+    assert load_calibration(back) == doc
+    assert back.manifest["calibration"]["residual_after_rms_px"] == 0.4
+    side = json.loads((tmp_path / "lf.mkv.json").read_text())
+    side["calibration"]["homography"] = [[1, 0], [0, 1]]
+    (tmp_path / "lf.mkv.json").write_text(json.dumps(side))
+    with pytest.raises(DatasetError, match=r"lf\.mkv\.json: calibration: cannot be used"):
+        import_hevc(video, tmp_path / "again")
+    assert not (tmp_path / "again").exists() and _leftovers(tmp_path) == []
