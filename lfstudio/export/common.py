@@ -5,6 +5,7 @@ describing the light field (grid, positions, calibration, intrinsics), and the a
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import shutil
 import tempfile
@@ -255,10 +256,9 @@ def describe(ds: Dataset, views: Sequence[View], source: str, image_size: tuple[
     from lfstudio.calibration.model import load_calibration
 
     calibration = load_calibration(ds)
-    grid = ds.grid.to_manifest()
-    rig = ds.manifest.get("rig", {}) or {}
-    if "origin_mm" not in grid and rig.get("origin_mm") is not None:
-        grid["origin_mm"] = rig["origin_mm"]
+    grid, rig = ds.grid, ds.manifest.get("rig", {}) or {}
+    if grid.origin_mm is None and rig.get("origin_mm") is not None:     # older scans kept it with the rig
+        grid = dataclasses.replace(grid, origin_mm=(float(rig["origin_mm"][0]), float(rig["origin_mm"][1])))
     entries = []
     for v in views:
         rec = ds.view(*v)
@@ -274,7 +274,7 @@ def describe(ds: Dataset, views: Sequence[View], source: str, image_size: tuple[
             "source": source,
             "rectified": rectified,
             "color": "linear RGB (16-bit, 65535 = white)",
-            "grid": grid, "camera": dict(ds.camera), "lens": dict(ds.lens), "plan": dict(ds.manifest.get("plan") or {}),
+            "grid": grid.to_manifest(), "camera": dict(ds.camera), "lens": dict(ds.lens), "plan": dict(ds.manifest.get("plan") or {}),
             "image_size_px": [int(image_size[0]), int(image_size[1])],
             "intrinsics": intrinsics(ds, image_size, calibration, rectified),
             "calibration": calibration,
