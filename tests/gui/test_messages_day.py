@@ -10,7 +10,7 @@ from PySide6.QtCore import QPoint, Qt
 from lfstudio.dataset import Dataset
 from lfstudio.rig.motion import RigState
 from tests.gui.test_interlock_gui import homed_simulated_studio
-from tests.gui.test_scan_gui import instant_devices, scan_panel  # noqa: F401  (fixture)
+from tests.gui.test_scan_gui import instant_devices, scan_panel, start_then_pause  # noqa: F401  (fixture)
 
 T = 60000  # ms; generous for a loaded machine, the waits end as soon as the condition holds
 
@@ -71,10 +71,7 @@ def test_a_scan_paused_by_a_rig_alarm_says_so_only_until_the_rig_is_homed(qtbot,
 def test_resume_the_scan_is_said_only_with_a_resume_button_that_works(qtbot, tmp_path, instant_devices):
     devices, rig, cam = instant_devices
     state, panel = scan_panel(qtbot, devices, 6, 2, tmp_path / "aborted")
-    panel.start()
-    qtbot.waitUntil(lambda: panel.engine is not None, timeout=10000)
-    panel.pause()
-    qtbot.waitUntil(lambda: "Paused" in panel.state_label.text(), timeout=20000)
+    start_then_pause(qtbot, panel)
     qtbot.mouseClick(panel.abort_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: "Aborted" in panel.state_label.text() and not panel.running, timeout=20000)
     assert "Resume the scan" in panel.state_label.text()

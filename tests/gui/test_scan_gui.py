@@ -60,6 +60,14 @@ def scan_panel(qtbot, devices, columns, rows, folder):
     return state, panel
 
 
+def start_then_pause(qtbot, panel):
+    """Start the panel's scan and wait until it says it is paused."""
+    panel.start()
+    qtbot.waitUntil(lambda: panel.engine is not None, timeout=10000)
+    panel.pause()
+    qtbot.waitUntil(lambda: "Paused" in panel.state_label.text(), timeout=20000)
+
+
 @pytest.fixture
 def instant_devices():
     rig = InstantRig(RIG)
@@ -153,10 +161,7 @@ def test_scan_panel_runs_a_scan_and_the_grid_follows(qtbot, tmp_path, instant_de
 def test_scan_panel_pause_resume_and_recapture(qtbot, tmp_path, instant_devices):
     devices, rig, cam = instant_devices
     state, panel = scan_panel(qtbot, devices, 6, 2, tmp_path / "scan2")
-    panel.start()
-    qtbot.waitUntil(lambda: panel.engine is not None, timeout=10000)
-    panel.pause()
-    qtbot.waitUntil(lambda: "Paused" in panel.state_label.text(), timeout=20000)
+    start_then_pause(qtbot, panel)
     assert panel.engine.state.value == "paused"
     assert panel.resume_button.isEnabled() and not panel.pause_button.isEnabled()
     qtbot.mouseClick(panel.resume_button, Qt.LeftButton)
