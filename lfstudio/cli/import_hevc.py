@@ -11,8 +11,9 @@ HELP = "restore the views of an HEVC export (FILE + FILE.json) as 16-bit PNGs in
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", metavar="FILE", type=path_option("FILE"), help="the .mp4/.mkv/.hevc file written by 'lfstudio export --format hevc' "
                                                 "(its sidecar FILE.json must lie next to it)")
-    p.add_argument("--out", required=True, metavar="DATASET", type=path_option("--out"), help="the new dataset folder")
-    p.add_argument("--overwrite", action="store_true", help="replace DATASET if it exists (default: refuse)")
+    p.add_argument("--out", required=True, metavar="DATASET", type=path_option("--out"), help="the new dataset folder (missing or empty)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace DATASET if it holds a dataset (default: refuse; a folder of other files is never replaced)")
 
 
 def run(args: argparse.Namespace) -> int:

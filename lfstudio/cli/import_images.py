@@ -28,8 +28,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="sensor pixel size in µm")
     p.add_argument("--focal-length-px", type=Number("px", 0, 1e6, low_open=True).option("--focal-length-px"), metavar="F",
                    help="focal length in pixels of these images (instead of --focal-length-mm/--pixel-pitch-um)")
-    p.add_argument("--out", required=True, metavar="DATASET", type=path_option("--out"), help="the new dataset folder")
-    p.add_argument("--overwrite", action="store_true", help="replace DATASET if it exists")
+    p.add_argument("--out", required=True, metavar="DATASET", type=path_option("--out"), help="the new dataset folder (missing or empty)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace DATASET if it holds a dataset (a folder of other files is never replaced)")
     p.add_argument("--copy", action="store_true",
                    help="always copy the files (default: hard-link them when on the same file system)")
 

@@ -20,7 +20,7 @@ def _numbers(text: str, option: str, n: int) -> tuple[float, ...]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("folder", type=path_option("folder"), help="new dataset folder")
+    p.add_argument("folder", type=path_option("folder"), help="the new dataset folder (missing or empty)")
     p.add_argument("--grid", default=(5, 3), type=grid_option("--grid"), metavar="CxR",
                    help="columns x rows (default 5x3; the reference is 101x21)")
     p.add_argument("--spacing-mm", default="4x6", type=numbers_option("--spacing-mm", SPACING_MM, 2, "4x6"),
@@ -72,9 +72,7 @@ def run(args: argparse.Namespace) -> int:
         faults = [parse_fault(text) for text in args.fault]
     except ValueError as exc:
         raise InputError("--fault", str(exc)) from None
-    folder = Path(args.folder)
-    if (folder / "dataset.json").exists():
-        raise InputError("folder", f"{folder} already holds a dataset", "a new folder")
+    folder = Path(args.folder)       # missing or empty: make_virtual_dataset checks it first
     ds = make_virtual_dataset(folder, cols, rows, spacing_mm=args.spacing_mm,
                               width_px=args.width, fmt=args.format,
                               rotation_deg=_numbers(args.rotation_deg, "--rotation-deg", 3),

@@ -10,8 +10,14 @@ dataset is opened, so a symlink that leads elsewhere is refused before any stage
 
 :func:`expand_path` is THE reading of a path the operator typed (GUI fields and CLI arguments alike):
 ``~`` and environment variables expanded, so ``~/datasets/day1`` never becomes a folder named ``~``.
-:func:`new_dataset_folder_problem` says why a folder cannot receive a new dataset (it holds other
-files), before anything is written into it.
+:func:`check_new_dataset_folder` is THE rule for every command that creates a dataset (scan,
+import-images, import-hevc, virtual-dataset; CLI and GUI alike), checked before anything is written:
+a missing or empty folder is fine; a folder that already holds a dataset is refused unless the
+command's own explicit option adds to it or replaces it (``--resume``, ``--overwrite``); a folder
+holding other files is always refused, naming it and a new sub-folder (:func:`new_sub_folder`) as the
+fix, so a new dataset never mixes with, overwrites or deletes the operator's own files.
+:func:`dataset_folder_kind` and :func:`new_dataset_folder_problem` are the same reading for a GUI
+that asks instead of refusing.
 """
 
 from __future__ import annotations
@@ -92,25 +98,82 @@ def path_option(option: str) -> Callable[[str], str]:
     return as_option(option, lambda text: str(expand_path(text, option)))
 
 
+#: what a folder offered for a new dataset holds (:func:`dataset_folder_kind`)
+FOLDER_MISSING, FOLDER_EMPTY, FOLDER_DATASET, FOLDER_OTHERS, FOLDER_FILE = "missing", "empty", "dataset", "others", "file"
+
+
+def dataset_folder_kind(folder: str | Path) -> str:
+    """What ``folder`` holds, for a new dataset: :data:`FOLDER_MISSING`, :data:`FOLDER_EMPTY`
+    (``dataset.lock`` alone is a scan that never started), :data:`FOLDER_DATASET` (``dataset.json``),
+    :data:`FOLDER_OTHERS` (other files and no dataset) or :data:`FOLDER_FILE` (not a folder)."""
+    folder = Path(folder)
+    if not folder.exists() and not folder.is_symlink():
+        return FOLDER_MISSING
+    if not folder.is_dir():
+        return FOLDER_FILE
+    if (folder / "dataset.json").exists():
+        return FOLDER_DATASET
+    return FOLDER_OTHERS if _other_entries(folder) else FOLDER_EMPTY
+
+
+def _other_entries(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.name != "dataset.lock")
+
+
 def new_dataset_folder_problem(folder: str | Path) -> str | None:
     """Why a new dataset cannot be created in ``folder``, or None (missing or empty are fine).
 
-    A folder that holds other files but no dataset is refused: a scan would mix its views, thumbnails
-    and manifest into the operator's own files. (``dataset.lock`` alone is a scan that never started.)
+    A folder that holds other files but no dataset is refused: a new dataset would mix its views,
+    thumbnails and manifest into the operator's own files.
     """
     folder = Path(folder)
-    if not folder.exists():
-        return None
-    if not folder.is_dir():
+    kind = dataset_folder_kind(folder)
+    if kind == FOLDER_FILE:
         return f"{folder} is a file, not a folder"
-    if (folder / "dataset.json").exists():
+    if kind == FOLDER_DATASET:
         return f"{folder} already holds a dataset"
-    others = sorted(p.name for p in folder.iterdir() if p.name != "dataset.lock")
-    if others:
+    if kind == FOLDER_OTHERS:
+        others = _other_entries(folder)
         shown = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
         return (f"{folder} is not empty ({shown}) and holds no dataset: a new dataset there would mix its "
                 "files with these")
     return None
+
+
+def new_sub_folder(folder: str | Path, stem: str = "lfstudio-dataset") -> Path:
+    """The first of ``folder/stem``, ``folder/stem-2``, … that may receive a new dataset: the fix
+    offered for a folder that holds other files."""
+    folder = Path(folder)
+    for name in (stem, *(f"{stem}-{i}" for i in range(2, 10_000))):
+        if new_dataset_folder_problem(folder / name) is None:
+            return folder / name
+    raise InputError("folder", f"{folder} has no free sub-folder named {stem}-N", "an empty or new folder")
+
+
+def check_new_dataset_folder(folder: str | Path, field: str, *, add_to_dataset: bool = False,
+                             dataset_fix: str = "choose a new folder", stem: str = "lfstudio-dataset") -> str:
+    """THE rule for a folder that is to receive a new dataset; returns its kind
+    (:func:`dataset_folder_kind`) or raises :class:`InputError` naming ``field`` and the fix.
+
+    - missing or empty: fine;
+    - already a dataset: refused with ``dataset_fix`` (the command's own way to add to it or replace
+      it, e.g. "add --resume to continue it, or choose a new folder"), unless ``add_to_dataset``
+      (the operator gave that option);
+    - other files and no dataset: always refused (also with ``add_to_dataset``: an option to add to or
+      replace a dataset never mixes with or deletes other files), naming the folder, a few of its
+      files and a new sub-folder (``stem``) as the fix;
+    - a file: refused.
+    """
+    kind = dataset_folder_kind(folder)
+    if kind == FOLDER_DATASET and add_to_dataset or kind in (FOLDER_MISSING, FOLDER_EMPTY):
+        return kind
+    problem = new_dataset_folder_problem(folder)
+    assert problem is not None
+    if kind == FOLDER_DATASET:
+        raise InputError(field, problem, dataset_fix)
+    if kind == FOLDER_FILE:
+        raise InputError(field, problem, "a folder name for the new dataset")
+    raise InputError(field, problem, f"a new sub-folder, e.g. {new_sub_folder(folder, stem)}, or another empty folder")
 
 
 def relative_name_problem(relative: Any) -> str | None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import os
 import shutil
 import tempfile
@@ -18,7 +19,7 @@ import numpy as np
 from lfstudio.dataset import Dataset, images
 from lfstudio.dataset.grid import View
 from lfstudio.dataset.manifest import now_iso, processed_file_name
-from lfstudio.dataset.paths import DATASET_ENTRIES, view_stem
+from lfstudio.dataset.paths import DATASET_ENTRIES, check_new_dataset_folder, view_stem
 from lfstudio.errors import DatasetError, InputError
 
 EXPORT_FORMAT = "lfstudio-export"
@@ -290,6 +291,15 @@ def check_out(out: Path, overwrite: bool, *, also: Sequence[Path] = ()) -> None:
             raise InputError("out", f"{p} already exists; choose another name or allow overwriting (--overwrite)")
 
 
+def check_new_dataset_out(out: Path, overwrite: bool, *, field: str) -> str:
+    """An importer's new dataset folder (import-images, import-hevc) under THE rule of every new
+    dataset (:func:`lfstudio.dataset.paths.check_new_dataset_folder`): missing or empty; an existing
+    dataset only with ``overwrite`` (it is replaced); a folder holding other files never (their
+    deletion is not what ``--overwrite`` means). Returns the folder's kind."""
+    return check_new_dataset_folder(out, field, add_to_dataset=overwrite, stem="lfstudio-import",
+                                    dataset_fix="add --overwrite to replace it, or choose a new folder")
+
+
 def _is_or_holds(out: Path, path: Path) -> bool:
     out, path = out.absolute().resolve(), path.absolute().resolve()
     return out == path or out in path.parents
@@ -366,6 +376,17 @@ def _remove(path: Path) -> None:
 
 
 def _replace(tmp: Path, final: Path, overwrite: bool) -> None:
+    if not overwrite and tmp.is_dir() and final.is_dir() and not final.is_symlink():
+        # an empty folder (a new dataset's, chosen beforehand) takes the new one in one rename; the
+        # system refuses the rename if anything is in it now, and nothing in it is replaced
+        try:
+            os.replace(tmp, final)
+            return
+        except OSError as exc:
+            if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST):
+                raise
+            raise InputError("out", f"{final} is not empty (files were put there meanwhile); nothing was "
+                             "replaced", "an empty or new folder") from None
     if final.exists() or final.is_symlink():
         if not overwrite:
             raise InputError("out", f"{final} appeared meanwhile; choose another name or allow overwriting")

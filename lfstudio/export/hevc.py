@@ -281,7 +281,7 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
     doc = read_sidecar(video)
     common.refuse_out_over_inputs(out, [video, sidecar_path(video)], "the video being imported",
                                   "a new folder for the dataset")
-    common.check_out(out, overwrite)
+    common.check_new_dataset_out(out, overwrite, field="out")
     try:
         frames = [(int(r), int(c)) for r, c in doc["frames"]]
         size = [int(v) for v in doc["image_size_px"]][:2]
@@ -349,5 +349,6 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
         if cal:
             save_calibration(ds, cal)        # calibration.json's one writer (and the manifest's note of it)
         ds.close()
+        common.check_new_dataset_out(out, overwrite, field="out")     # again: files may have been put there meanwhile
     return out
 

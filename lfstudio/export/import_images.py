@@ -14,6 +14,9 @@ calibrates, processes and exports like one captured here:
   (``raw/r00_c000.png``), their sha256 recorded, every view ``done``, commanded positions from the
   grid spacing; each gets its grid thumbnail (``thumbs/r00_c000.jpg``) while it is being read, on
   every core, so the imported dataset opens with all its thumbnails;
+- ``out`` follows the rule of every new dataset (:func:`lfstudio.dataset.paths.check_new_dataset_folder`):
+  missing or empty; an existing dataset only with ``overwrite`` (it is replaced); a folder holding
+  other files never (a new sub-folder is suggested), so no file of the operator's is deleted;
 - the dataset is built in a temporary sibling folder ``.NAME.partial-XXXX`` and renamed at the end:
   a cancel or an error leaves nothing under ``out`` (and removes the temporary folder).
 """
@@ -264,10 +267,6 @@ def check_options(options: ImportOptions) -> None:
     folder = Path(options.folder)
     if not folder.is_dir():
         raise InputError("folder", f"{folder} is not a folder", "a folder holding the other rig's images")
-    if out.exists() and not options.overwrite:
-        raise InputError("--out", f"{out} already exists; choose a new folder or allow overwriting (--overwrite)")
-    if out.exists() and not out.is_dir():
-        raise InputError("--out", f"{out} is a file; choose a folder name for the new dataset")
     try:
         folder.resolve().relative_to(out.resolve())
         contains = True
@@ -275,6 +274,9 @@ def check_options(options: ImportOptions) -> None:
         contains = False
     if contains:
         raise InputError("--out", f"{out} holds the images being imported; choose another folder for the dataset")
+    from lfstudio.export.common import check_new_dataset_out
+
+    check_new_dataset_out(out, options.overwrite, field="--out")
 
 
 def plan_import(options: ImportOptions, *, progress: Progress = no_progress,
@@ -412,7 +414,7 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
     """
     from lfstudio.dataset import Dataset
     from lfstudio.dataset.store import free_bytes
-    from lfstudio.export.common import partial_folder
+    from lfstudio.export.common import check_new_dataset_out, partial_folder
 
     progress = progress or no_progress
     check_options(options)
@@ -480,6 +482,7 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
         ds.close()
         if cancel is not None:
             cancel.check()
+        check_new_dataset_out(out, options.overwrite, field="--out")      # again: files may have been put there meanwhile
         progress(total - 1, total, "moving into place")
     progress(total, total, f"imported {len(plan.files)} views into {out}")
     return out

@@ -1,15 +1,20 @@
 """Folders and files typed into the GUI: read by :func:`lfstudio.dataset.paths.expand_path`, the same
 reading as the command line's (``~`` and ``$VARIABLES`` expanded), and shown as the absolute path
 they mean as soon as the operator leaves the field, so what will be written where is in sight.
+
+:func:`offer_sub_folder` is the one question asked when a folder chosen for a new dataset holds other
+files (the rule: :func:`lfstudio.dataset.paths.check_new_dataset_folder`): use a new sub-folder of it,
+or choose another folder; nothing is written into the chosen folder either way.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
-from PySide6.QtWidgets import QLineEdit
+from PySide6.QtWidgets import QLineEdit, QMessageBox, QWidget
 
-from lfstudio.dataset.paths import expand_path
+from lfstudio.dataset.paths import expand_path, new_dataset_folder_problem, new_sub_folder
 from lfstudio.errors import InputError
 
 
@@ -32,3 +37,26 @@ def expand_on_edit(edit: QLineEdit, field: str) -> None:
         except InputError:
             pass
     edit.editingFinished.connect(expand)
+
+
+def offer_sub_folder(parent: QWidget, folder: Path, *, stem: str, verb: str, where: str,
+                     accepted: Callable[[Path], None]) -> QMessageBox:
+    """Ask (non-modal: the event loop keeps running) whether the new dataset goes into a new
+    sub-folder of ``folder``, which holds other files; ``accepted(sub_folder)`` runs on Yes, Cancel
+    does nothing. ``verb`` names the action on the button ("Scan" → "Scan into lfstudio-scan"),
+    ``where`` the field to change instead. The box (object name ``folderNotEmptyBox``) is returned."""
+    sub = new_sub_folder(folder, stem)
+    problem = new_dataset_folder_problem(folder)
+    box = QMessageBox(QMessageBox.Warning, "Folder is not empty",
+                      f"{problem}.\n\n{verb} into the new folder {sub} instead, or choose an empty folder "
+                      f"({where}).", QMessageBox.Yes | QMessageBox.Cancel, parent)
+    box.setObjectName("folderNotEmptyBox")
+    box.button(QMessageBox.Yes).setText(f"{verb} into {sub.name}")
+    box.setDefaultButton(QMessageBox.Cancel)
+
+    def answered(button) -> None:
+        if box.standardButton(button) == QMessageBox.Yes:
+            accepted(sub)
+    box.buttonClicked.connect(answered)
+    box.open()
+    return box

@@ -6,6 +6,9 @@ rendered image in memory) plus ``ground_truth.json`` at its root with the true
 orientation, intrinsics, rectifying homography, per-view true positions and layer depths (see
 :mod:`lfstudio.sim.studio` for the conventions). Used by tests, benchmarks and demos.
 
+``root`` must be missing or empty (:func:`lfstudio.dataset.paths.check_new_dataset_folder`): a
+virtual dataset is never rendered into another dataset or among other files.
+
 ``faults`` (:class:`lfstudio.sim.studio.ViewFault`) spoil chosen views (blur, luminance step,
 displacement, a skipped move); ``ground_truth.json`` lists them under ``faults`` and each view's
 ``true_mm`` is where the camera really stood.
@@ -27,7 +30,7 @@ from lfstudio.dataset import Dataset
 from lfstudio.dataset.atomic import atomic_write_json, atomic_write_with
 from lfstudio.dataset.grid import DEFAULT_ORDER, Grid, grid_order
 from lfstudio.dataset.manifest import now_iso
-from lfstudio.dataset.paths import view_stem
+from lfstudio.dataset.paths import check_new_dataset_folder, view_stem
 from lfstudio.dataset.store import sha256_file
 from lfstudio.dataset.thumbs import make_thumbnail
 from lfstudio.errors import InputError
@@ -130,6 +133,7 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
     uncaptured; every view's position error is drawn as if all were, so a view's image does not
     depend on which others are rendered).
     """
+    check_new_dataset_folder(root, "folder", stem="lfstudio-virtual")   # never into a dataset or other files
     fmt = fmt.lower()
     if fmt not in ("dng", "png"):
         raise InputError("fmt", f"unknown format {fmt!r}", ["dng", "png"])

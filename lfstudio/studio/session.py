@@ -12,7 +12,7 @@ The CLI (``lfstudio scan``) and the GUI's Scan panel both run a scan through :cl
 What :meth:`ScanSession.open` guarantees, in this order:
 
 1. **A new dataset gets a folder of its own**: a folder holding other files (and no dataset) is
-   refused before anything is written into it (:func:`lfstudio.dataset.paths.new_dataset_folder_problem`).
+   refused before anything is written into it (:func:`lfstudio.dataset.paths.check_new_dataset_folder`).
    **One process per dataset**: ``DATASET/dataset.lock`` is held from before the first file is
    read until :meth:`close` (:mod:`lfstudio.studio.locks`); a second scan or resume of the same
    folder is refused naming the holder, and touches no file of it.
@@ -38,7 +38,7 @@ from typing import Any, Callable, Sequence
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.manifest import MANIFEST_NAME, now_iso
-from lfstudio.dataset.paths import new_dataset_folder_problem, view_label
+from lfstudio.dataset.paths import check_new_dataset_folder, view_label
 from lfstudio.errors import DeviceError, InputError, LfError
 from lfstudio.numbers import EXPOSURE_S, RETRIES, TIME_SCALE, TRANSFER_S
 from lfstudio.optics import REFERENCE
@@ -353,13 +353,8 @@ class ScanSession:
         manifest = self.folder / MANIFEST_NAME
         if req.resume and not manifest.is_file():
             raise InputError("--out", f"{self.folder} holds no dataset to resume", "the folder of an interrupted scan")
-        if not req.resume and manifest.exists():
-            raise InputError("--out", f"{self.folder} already holds a dataset",
-                             "add --resume to continue it, or choose a new folder")
-        if not req.resume:
-            problem = new_dataset_folder_problem(self.folder)
-            if problem:
-                raise InputError("--out", problem, f"an empty or new folder, e.g. {self.folder / 'scan'}")
+        check_new_dataset_folder(self.folder, "--out", add_to_dataset=req.resume, stem="lfstudio-scan",
+                                 dataset_fix="add --resume to continue it, or choose a new folder")
         if not self.folder.exists():
             self.folder.mkdir(parents=True)
             self._created_folder = True

@@ -71,5 +71,5 @@ def test_scan_into_a_folder_holding_other_files_is_refused(run_cli, tmp_path):
     assert r.returncode == 2, r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "--out" in lines[0] and "not empty (thesis.pdf)" in lines[0]
-    assert "an empty or new folder" in lines[0]
+    assert f"a new sub-folder, e.g. {mine / 'lfstudio-scan'}" in lines[0]
     assert sorted(p.name for p in mine.iterdir()) == ["thesis.pdf"]          # nothing written there

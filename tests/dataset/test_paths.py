@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from lfstudio.dataset.paths import expand_path, new_dataset_folder_problem
+from lfstudio.dataset.paths import check_new_dataset_folder, expand_path, new_dataset_folder_problem, new_sub_folder
 from lfstudio.errors import InputError
 
 
@@ -47,3 +47,30 @@ def test_a_new_dataset_needs_a_missing_or_empty_folder(tmp_path):
     (tmp_path / "file").write_text("x")
     assert "is a file" in new_dataset_folder_problem(tmp_path / "file")
     os.remove(tmp_path / "file")
+
+
+def test_one_rule_for_the_folder_of_every_new_dataset(tmp_path):
+    """check_new_dataset_folder: missing/empty fine; a dataset only with the command's own option; other
+    files never (not even with that option), naming the folder and a free sub-folder."""
+    assert check_new_dataset_folder(tmp_path / "new", "--out") == "missing"
+    (tmp_path / "empty").mkdir()
+    assert check_new_dataset_folder(tmp_path / "empty", "--out") == "empty"
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    (ds / "dataset.json").write_text("{}")
+    with pytest.raises(InputError) as exc:
+        check_new_dataset_folder(ds, "--out", dataset_fix="add --resume to continue it")
+    assert str(exc.value) == f"--out: {ds} already holds a dataset (valid: add --resume to continue it)"
+    assert check_new_dataset_folder(ds, "--out", add_to_dataset=True) == "dataset"
+    mine = tmp_path / "mine"
+    (mine / "lfstudio-scan").mkdir(parents=True)
+    (mine / "lfstudio-scan" / "old.txt").write_text("x")       # taken: the next free name is offered
+    assert new_sub_folder(mine, "lfstudio-scan") == mine / "lfstudio-scan-2"
+    for add in (False, True):
+        with pytest.raises(InputError) as exc:
+            check_new_dataset_folder(mine, "Folder", add_to_dataset=add, stem="lfstudio-scan")
+        assert exc.value.field == "Folder" and f"{mine} is not empty (lfstudio-scan)" in str(exc.value)
+        assert exc.value.valid.startswith(f"a new sub-folder, e.g. {mine / 'lfstudio-scan-2'}")
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="is a file"):
+        check_new_dataset_folder(tmp_path / "file", "--out", add_to_dataset=True)

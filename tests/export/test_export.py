@@ -201,6 +201,24 @@ def test_out_over_the_dataset_or_video_is_refused_even_with_overwrite(small, tmp
     assert exc.value.field == "out" and video.is_file()
 
 
+def test_an_empty_destination_takes_the_new_folder_in_one_rename_and_a_filled_one_is_kept(tmp_path):
+    """partial_folder without overwrite: an empty folder is replaced by the finished one; if files were
+    put into it meanwhile the system refuses the rename and they stay (nothing replaced, no leftovers)."""
+    out = tmp_path / "empty"
+    out.mkdir()
+    with common.partial_folder(out, False) as tmp:
+        (tmp / "view.png").write_text("new")
+    assert [p.name for p in out.iterdir()] == ["view.png"]
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    with pytest.raises(InputError, match=r"busy is not empty \(files were put there meanwhile\)"):
+        with common.partial_folder(busy, False) as tmp:
+            (tmp / "view.png").write_text("new")
+            (busy / "mine.txt").write_text("mine")
+    assert [p.name for p in busy.iterdir()] == ["mine.txt"] and (busy / "mine.txt").read_text() == "mine"
+    assert _leftovers(tmp_path) == []
+
+
 # -- hevc -----------------------------------------------------------------------------------------------
 def test_hevc_round_trip_12bit_meander(small, tmp_path):
     video = tmp_path / "lf.mp4"

@@ -233,19 +233,51 @@ def test_mixed_sizes_and_unreadable_files_are_named(render, tmp_path):
     assert not (tmp_path / "ds").exists()
 
 
-def test_existing_out_is_refused_unless_overwrite(render, tmp_path):
+def test_out_folder_follows_the_new_dataset_rule(render, tmp_path):
+    """An empty folder takes the import; a dataset is replaced only with overwrite; a folder of other
+    files is refused even with overwrite (it used to be deleted), naming it and a new sub-folder."""
     folder = write_foreign(render, tmp_path / "f", "row-major")
     out = tmp_path / "ds"
     out.mkdir()
-    (out / "keep.txt").write_text("earlier work")
-    with pytest.raises(InputError, match="already exists.*--overwrite") as exc:
+    root = import_images(options(folder, out))                      # empty: no --overwrite needed
+    assert root == out.absolute() and len(Dataset.open(out).views) == 12
+    with pytest.raises(InputError, match="already holds a dataset.*--overwrite") as exc:
         import_images(options(folder, out))
-    assert exc.value.field == "--out" and (out / "keep.txt").exists()
-    root = import_images(options(folder, out, overwrite=True))
-    assert root == out.absolute() and not (out / "keep.txt").exists() and len(Dataset.open(out).views) == 12
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "f"]
+    assert exc.value.field == "--out"
+    (out / "raw" / "r00_c000.png").unlink()                         # the replacement is a whole new dataset
+    assert import_images(options(folder, out, overwrite=True)) == out.absolute()
+    assert (out / "raw" / "r00_c000.png").is_file() and Dataset.open(out).status_counts()["done"] == 12
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "keep.txt").write_text("earlier work")
+    for overwrite in (False, True):
+        with pytest.raises(InputError) as exc:
+            import_images(options(folder, mine, overwrite=overwrite))
+        assert exc.value.field == "--out" and f"{mine} is not empty (keep.txt)" in str(exc.value)
+        assert f"a new sub-folder, e.g. {mine / 'lfstudio-import'}" in str(exc.value)
+        assert sorted(p.name for p in mine.iterdir()) == ["keep.txt"]
+        assert (mine / "keep.txt").read_text() == "earlier work"
+    assert len(Dataset.open(import_images(options(folder, mine / "lfstudio-import"))).views) == 12
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "f", "mine"]
     with pytest.raises(InputError, match="holds the images"):
         import_images(options(folder, tmp_path, overwrite=True))
+
+
+def test_files_put_into_the_empty_folder_during_the_import_are_kept(render, tmp_path):
+    """The folder is checked again at the end: a file that arrived while the views were copied stays
+    and the import is refused, nothing of it left behind."""
+    folder = write_foreign(render, tmp_path / "f", "row-major")
+    out = tmp_path / "ds"
+    out.mkdir()
+
+    def progress(done, total, message):
+        if "copied" in message and not (out / "arrived.txt").exists():
+            (out / "arrived.txt").write_text("mine")
+
+    with pytest.raises(InputError, match=r"is not empty \(arrived.txt\)"):
+        import_images(options(folder, out, link=False), progress=progress)
+    assert sorted(p.name for p in out.iterdir()) == ["arrived.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "f"]      # no temporary folder left
 
 
 def test_cancel_leaves_nothing_behind(render, tmp_path):

@@ -1,4 +1,5 @@
-"""File → Import images… on a real Qt event loop: live count, import, overwrite question, open the dataset."""
+"""File → Import images… and Import HEVC… on a real Qt event loop: live count, import, the destination
+folder rule (new sub-folder offered for a folder of other files, replace-dataset question), open the dataset."""
 
 from __future__ import annotations
 
@@ -47,15 +48,13 @@ def test_import_images_dialog_imports_and_opens_the_dataset(qtbot, tmp_path):
     dialog.spacing_h.setValue(5.0)
     assert dialog.recount() == 6 and "✓" in dialog.count_label.text()
 
-    # a destination that exists: nothing happens until the operator confirms
+    # an empty destination that exists takes the dataset without a question
     out = tmp_path / "ds"
     out.mkdir()
     dialog.out_edit.setText(str(out))
-    dialog.import_button.click()
-    box = dialog.findChild(QMessageBox, "confirmOverwrite")
-    assert box is not None and box.isVisible() and not dialog.runner.running
     with qtbot.waitSignal(dialog.runner.finished, timeout=30000):
-        box.button(QMessageBox.Yes).click()
+        dialog.import_button.click()
+    assert dialog.findChild(QMessageBox, "confirmOverwrite") is None
     assert "Imported 6 views (3 × 2, 48 × 32 px)" in dialog.message.text()
     ds = Dataset.open(out)
     # meander: frame4 is the first of the reversed second row -> row 1, column 2
@@ -107,3 +106,77 @@ def test_import_hevc_dialog_restores_an_export(qtbot, tmp_path):
     with qtbot.waitSignal(window.state.datasetChanged, timeout=5000):
         dialog.open_button.click()
     assert window.state.dataset.root == (tmp_path / "ds").resolve()
+
+
+def _shown_box(qtbot, dialog, name: str) -> QMessageBox:
+    """The question ``name`` the dialog shows now (earlier ones stay as hidden children)."""
+    def shown():
+        return [b for b in dialog.findChildren(QMessageBox, name) if b.isVisible()]
+    qtbot.waitUntil(lambda: len(shown()) == 1, timeout=5000)
+    return shown()[0]
+
+
+def test_import_dialogs_offer_a_sub_folder_for_a_folder_of_other_files_and_ask_before_replacing_a_dataset(
+        qtbot, tmp_path):
+    from lfstudio.export import ExportOptions, export_dataset
+    from lfstudio.sim.virtual_dataset import make_virtual_dataset
+
+    folder = _images(tmp_path / "rig", 6)
+    mine = tmp_path / "Documents"
+    mine.mkdir()
+    (mine / "thesis.pdf").write_bytes(b"%PDF")
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    _menu_action(window, "Import images…").trigger()
+    dialog = window.findChild(ImportImagesDialog, "importImagesDialog")
+    dialog.folder_edit.setText(str(folder))
+    dialog.columns_spin.setValue(3)
+    dialog.rows_spin.setValue(2)
+    dialog.out_edit.setText(str(mine))
+    dialog.import_button.click()
+    box = _shown_box(qtbot, dialog, "folderNotEmptyBox")           # the Scan panel's offer
+    assert "not empty (thesis.pdf)" in box.text() and str(mine / "lfstudio-import") in box.text()
+    assert box.button(QMessageBox.Yes).text() == "Import into lfstudio-import"
+    assert "not empty (thesis.pdf)" in dialog.message.text() and not dialog.runner.running
+    box.button(QMessageBox.Cancel).click()                          # Cancel: nothing is written
+    assert not dialog.runner.running and sorted(p.name for p in mine.iterdir()) == ["thesis.pdf"]
+    dialog.import_button.click()
+    box = _shown_box(qtbot, dialog, "folderNotEmptyBox")
+    with qtbot.waitSignal(dialog.runner.finished, timeout=30000):
+        box.button(QMessageBox.Yes).click()
+    assert dialog.out_edit.text() == str(mine / "lfstudio-import")
+    assert len(Dataset.open(mine / "lfstudio-import").done_views()) == 6
+    assert sorted(p.name for p in mine.iterdir()) == ["lfstudio-import", "thesis.pdf"]
+
+    # a dataset there: replaced only when the operator says so
+    dialog.import_button.click()
+    box = _shown_box(qtbot, dialog, "confirmOverwrite")
+    assert "already holds a dataset" in box.text() and not dialog.runner.running
+    box.button(QMessageBox.Cancel).click()
+    assert "holds a dataset" in dialog.message.text() and not dialog.runner.running
+    (mine / "lfstudio-import" / "raw" / "r00_c000.png").unlink()
+    dialog.import_button.click()
+    box = _shown_box(qtbot, dialog, "confirmOverwrite")
+    with qtbot.waitSignal(dialog.runner.finished, timeout=30000):
+        box.button(QMessageBox.Yes).click()
+    assert (mine / "lfstudio-import" / "raw" / "r00_c000.png").is_file()
+    (tmp_path / "a_file").write_text("x")
+    dialog.out_edit.setText(str(tmp_path / "a_file"))
+    dialog.import_button.click()
+    assert "is a file" in dialog.message.text() and not dialog.runner.running
+
+    # the HEVC dialog: the same offer
+    src = make_virtual_dataset(tmp_path / "src", 3, 2, width_px=64, fmt="png")
+    video = tmp_path / "lf.mkv"
+    export_dataset(src, ExportOptions("hevc", video))
+    _menu_action(window, "Import HEVC…").trigger()
+    hevc = window.findChild(ImportHevcDialog, "importHevcDialog")
+    hevc.file_edit.setText(str(video))
+    hevc.out_edit.setText(str(mine))
+    hevc.import_button.click()
+    box = _shown_box(qtbot, hevc, "folderNotEmptyBox")
+    assert str(mine / "lfstudio-import-2") in box.text()              # the first sub-folder holds a dataset now
+    with qtbot.waitSignal(hevc.runner.finished, timeout=60000):
+        box.button(QMessageBox.Yes).click()
+    assert len(Dataset.open(mine / "lfstudio-import-2").done_views()) == 6
+    assert (mine / "thesis.pdf").read_bytes() == b"%PDF"

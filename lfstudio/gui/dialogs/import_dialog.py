@@ -2,9 +2,14 @@
 
 Both dialogs run the core importer (:func:`lfstudio.export.import_images.import_images`,
 :func:`lfstudio.export.import_hevc`) on a :class:`JobRunner` with progress, ETA and Cancel, ask
-before replacing an existing destination (a non-modal question: the event loop keeps running), and
+before replacing an existing dataset (a non-modal question: the event loop keeps running), and
 at the end offer to open the new dataset in the app (``AppState.set_dataset``). The images dialog
 counts the matching files as the operator types ("found 42 images, grid needs 45").
+
+The destination follows the rule of every new dataset (:func:`lfstudio.dataset.paths.check_new_dataset_folder`):
+a new or empty folder is used at once; a dataset there is replaced only after the operator confirms;
+a folder holding other files is never replaced: the Scan panel's offer of a new sub-folder is made
+(:func:`lfstudio.gui.path_field.offer_sub_folder`).
 """
 
 from __future__ import annotations
@@ -17,10 +22,11 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QF
                                QHBoxLayout, QLabel, QLineEdit, QMessageBox, QPushButton, QSpinBox,
                                QStackedWidget, QVBoxLayout, QWidget)
 
-from lfstudio.dataset.paths import expand_path
+from lfstudio.dataset.paths import (FOLDER_DATASET, FOLDER_FILE, FOLDER_OTHERS, dataset_folder_kind, expand_path,
+                                    new_dataset_folder_problem)
 from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import JobRunner
-from lfstudio.gui.path_field import expand_on_edit, field_path
+from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import JobProgressWidget
 
@@ -62,7 +68,8 @@ class _ImportDialogBase(QDialog):
         self._confirm: QMessageBox | None = None
         self.out_edit = QLineEdit(str(settings().value(f"{self.settings_prefix}/out", "")))
         self.out_edit.setPlaceholderText("a new dataset folder")
-        self.out_edit.setToolTip("The dataset folder to create (it must not exist, or you confirm replacing it)")
+        self.out_edit.setToolTip("The dataset folder to create: a new or empty folder (a dataset there is replaced "
+                                 "only if you confirm; a folder of other files gets a new sub-folder)")
         expand_on_edit(self.out_edit, "Destination")
         self.out_button = QPushButton("Browse…")
         self.out_button.setToolTip("Choose where the new dataset goes")
@@ -132,15 +139,29 @@ class _ImportDialogBase(QDialog):
         except InputError as exc:
             self.show_message(str(exc), ok=False)
             return
-        if out.exists():
+        kind = dataset_folder_kind(out)
+        if kind == FOLDER_OTHERS:            # the operator's files: never replaced; a sub-folder is offered
+            self.show_message(f"Not imported yet: {new_dataset_folder_problem(out)}", ok=False)
+            self._confirm = offer_sub_folder(self, out, stem="lfstudio-import", verb="Import",
+                                             where="Destination", accepted=self._import_into)
+            return
+        if kind == FOLDER_FILE:
+            self.show_message(f"Destination: {out} is a file; choose a folder name for the new dataset", ok=False)
+            return
+        if kind == FOLDER_DATASET:
             self._ask_overwrite(out)
             return
-        self._start(overwrite=False)
+        self._start(overwrite=False)         # missing or empty
+
+    def _import_into(self, sub: Path) -> None:
+        self._confirm = None
+        self.out_edit.setText(str(sub))
+        self.start_import()
 
     def _ask_overwrite(self, out: Path) -> None:
-        box = QMessageBox(QMessageBox.Question, "Replace folder?",
-                          f"{out} already exists.\n\nReplace it with the imported dataset? Everything in it "
-                          "is deleted when the import has finished.",
+        box = QMessageBox(QMessageBox.Question, "Replace dataset?",
+                          f"{out} already holds a dataset.\n\nReplace it with the imported dataset? The whole "
+                          "dataset there is deleted when the import has finished.",
                           QMessageBox.Yes | QMessageBox.Cancel, self)
         box.setObjectName("confirmOverwrite")
         box.setDefaultButton(QMessageBox.Cancel)
@@ -153,7 +174,7 @@ class _ImportDialogBase(QDialog):
         if yes:
             self._start(overwrite=True)
         else:
-            self.show_message("Not imported: the destination exists; choose another folder", ok=False)
+            self.show_message("Not imported: the destination holds a dataset; choose another folder", ok=False)
 
     def _start(self, overwrite: bool) -> None:
         try:

@@ -31,7 +31,7 @@ from lfstudio.dataset.grid import ORDERS, grid_order
 from lfstudio.dataset.paths import new_dataset_folder_problem
 from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import GuiInbox, JobRunner
-from lfstudio.gui.path_field import expand_on_edit, field_path
+from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import set_progress_async
 from lfstudio.jobs import format_duration
@@ -648,24 +648,14 @@ class ScanPanel(QWidget):
     def _ask_other_folder(self, folder: Path, problem: str, recapture) -> None:
         """A new scan into a folder holding other files: offer a new sub-folder of it, or let the
         operator choose another folder (nothing is written into ``folder``)."""
-        sub = next(folder / name for name in ("lfstudio-scan", *(f"lfstudio-scan-{i}" for i in range(2, 1000)))
-                   if new_dataset_folder_problem(folder / name) is None)
         self.state_label.setText("Choose a folder for the new dataset")
         self._log(f"not scanning into {folder}: {problem}")
-        box = QMessageBox(QMessageBox.Warning, "Folder is not empty",
-                          f"{problem}.\n\nScan into the new folder {sub} instead, or choose an empty folder "
-                          "(Dataset → Folder).", QMessageBox.Yes | QMessageBox.Cancel, self)
-        box.setObjectName("folderNotEmptyBox")
-        box.button(QMessageBox.Yes).setText(f"Scan into {sub.name}")
-        box.setDefaultButton(QMessageBox.Cancel)
-        self.folder_box = box
 
-        def answered(button) -> None:
-            if box.standardButton(button) == QMessageBox.Yes:
-                self.folder.setText(str(sub))
-                self.start(recapture=recapture)
-        box.buttonClicked.connect(answered)
-        box.open()
+        def accepted(sub: Path) -> None:
+            self.folder.setText(str(sub))
+            self.start(recapture=recapture)
+        self.folder_box = offer_sub_folder(self, folder, stem="lfstudio-scan", verb="Scan",
+                                           where="Dataset → Folder", accepted=accepted)
 
     def _devices_failed(self, message: str) -> None:
         self.state_label.setText("Could not start the scan")
