@@ -114,17 +114,31 @@ WORKERS = Number("", 0, 4096, integer=True)
 
 
 
-def parse_numbers(field: str, text: str, number: Number, count: int = 2, example: str = "4x6") -> tuple:
-    """``count`` numbers typed as one word (``4x6``, ``4×6``, ``4,6``), each checked by ``number``."""
+def parse_numbers(field: str, text: str, number: Number, count: int = 2, example: str = "4x6",
+                  one_for_all: bool = False) -> tuple:
+    """``count`` numbers typed as one word (``4x6``, ``4×6``, ``4,6``), each checked by ``number``;
+    ``one_for_all``: a single number stands for all of them (``5`` is ``5x5``)."""
     parts = re.split(r"[x×,]", str(text).strip().lower())
-    if len(parts) != count or not all(p.strip() for p in parts):
+    if one_for_all and len(parts) == 1:
+        parts = parts * count
+    if len(parts) != count or not all(_is_number(p) for p in parts):
         raise InputError(field, f"cannot read {text!r}", f"{count} numbers like {example}")
     return tuple(number.parse(field, p.strip()) for p in parts)
 
 
-def numbers_option(option: str, number: Number, count: int = 2, example: str = "4x6") -> Callable[[str], tuple]:
+def _is_number(text: str) -> bool:
+    """``text`` reads as a number at all (NaN and infinities too: :meth:`Number.check` tells them)."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def numbers_option(option: str, number: Number, count: int = 2, example: str = "4x6",
+                   one_for_all: bool = False) -> Callable[[str], tuple]:
     """The ``type=`` of an option of ``count`` numbers (see :func:`parse_numbers`)."""
-    return _as_option(option, lambda text: parse_numbers(option, text, number, count, example))
+    return _as_option(option, lambda text: parse_numbers(option, text, number, count, example, one_for_all))
 
 
 def grid_option(option: str) -> Callable[[str], tuple[int, int]]:

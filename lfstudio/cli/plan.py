@@ -8,19 +8,76 @@ import math
 import sys
 
 from lfstudio.cli.args import old_spelling
-from lfstudio.errors import InputError
 from lfstudio.dataset.paths import path_option
+from lfstudio.errors import InputError
+from lfstudio.numbers import Number, parse_numbers
+from lfstudio.optics import REFERENCE
 
 HELP = "plan a scene: aperture, depth of field, disparity, parallax, capture time and disk space"
 
+PAIR, WHOLE_PAIR = "pair", "whole pair"      # AxB (also A×B, A,B; numbers.parse_numbers); one number sets both
+PATH = "path"                                # a file name (~, $VARIABLES expanded: dataset.paths.path_option)
+PRESET = "preset"                            # a preset's name, applied first (planning.presets.plan_from_presets)
 
-def _pair(text: str, conv=float) -> tuple:
-    parts = text.lower().replace("×", "x").split("x")
-    if len(parts) == 1:
-        parts = parts * 2
-    if len(parts) != 2:
-        raise ValueError(text)
-    return conv(parts[0]), conv(parts[1])
+#: every option that sets the plan, by group: (option, metavar, kind, help). The field each one sets
+#: is scene_plan.CLI_OPTION's; --plan and the presets are read first.
+OPTIONS = (
+    ("camera and lens", (
+        ("--plan", "FILE", PATH, "start from this plan file (.toml or .json) instead of the reference setup"),
+        ("--camera-preset", "NAME", PRESET, "camera preset (see --list-presets)"),
+        ("--sensor-px", "WxH", WHOLE_PAIR, "sensor size in pixels, e.g. 7952x5304"),
+        ("--sensor-mm", "WxH", PAIR, "sensor size in mm, e.g. 35.9x24"),
+        ("--pixel-pitch-um", "UM", float, "pixel pitch in µm (default: the camera's, or sensor mm / px)"),
+        ("--lens", "NAME", PRESET, "lens preset"),
+        ("--focal-length-mm", "MM", float, "focal length"))),
+    ("scene and optics", (
+        ("--near-m", "M", float, f"nearest scene distance from the camera plane (default {REFERENCE.near_m:g})"),
+        ("--far-m", "M", float, f"farthest scene distance (default {REFERENCE.far_m:g})"),
+        ("--coc-mm", "MM", float, f"circle of confusion (default {REFERENCE.coc_mm:g})"),
+        ("--f-number", "N", float, "aperture to evaluate (default: the one the scene needs)"),
+        ("--focus-m", "M", float, "focus distance (default: centres the sharp range on the scene)"))),
+    ("grid and rig", (
+        ("--grid", "CxR", WHOLE_PAIR, "columns x rows (default {0}x{1})".format(*REFERENCE.grid)),
+        ("--spacing-mm", "HxV", PAIR,
+         "spacing between neighbouring positions (default {0:g}x{1:g})".format(*REFERENCE.spacing_mm)),
+        ("--rig-profile", "NAME", PRESET, "rig profile: repeatability, travel, speed, acceleration, settle"),
+        ("--repeatability-um", "HxV", PAIR,
+         "axis repeatability (default {0:g}x{1:g})".format(*REFERENCE.repeatability_um)),
+        ("--travel-mm", "HxV", PAIR, "axis travel (default: the rig's)"),
+        ("--max-speed-mm-s", "HxV", PAIR, "axis speed (default: the rig's)"),
+        ("--acceleration-mm-s2", "HxV", PAIR, "axis acceleration (default: the rig's)"),
+        ("--settle-s", "S", float, "settle time after each move"),
+        ("--exposure-s", "S", float, f"exposure time (default {REFERENCE.exposure_s:g})"),
+        ("--transfer-s", "S", float, f"trigger + download time per image (default {REFERENCE.transfer_s:g})"),
+        ("--raw-bits", "BITS", int, "raw bits per pixel (default: the camera's)"),
+        ("--bytes-per-image", "B", int, "file size per image (default: uncompressed raw)"))),
+    ("targets", (
+        ("--max-error-px", "PX", float, "allowed repositioning error in the image (default 0.5)"),
+        ("--max-disparity-px", "PX", float, "wanted max neighbour disparity: proposes the spacing (default 1)"),
+        ("--parallax-fraction", "F", float, "wanted parallax as a fraction of the image size: proposes the grid"))),
+)
+
+#: the earlier names of options whose meaning did not change (accepted, hidden from --help)
+OLD_SPELLINGS = {"--camera-preset": "--camera", "--rig-profile": "--rig"}
+
+_EXAMPLES = {"--sensor-px": "7952x5304", "--grid": "101x21"}
+
+
+def _type(option: str, kind):
+    """The argparse ``type=`` of an option of this ``kind`` (pairs stay text until :func:`build_plan`)."""
+    if kind == PATH:
+        return path_option(option)
+    return kind if kind in (float, int) else None
+
+
+def _pair(option: str, text: str, kind: str) -> tuple:
+    """The two numbers of an AxB option (:func:`lfstudio.numbers.parse_numbers`; one number sets both)."""
+    return parse_numbers(option, text, Number("", integer=kind == WHOLE_PAIR), 2, _EXAMPLES.get(option, "4x6"),
+                         one_for_all=True)
+
+
+def _dest(option: str) -> str:
+    return option[2:].replace("-", "_")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -28,86 +85,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         p.exit(2, f"lfstudio plan: error: {message}\n")
 
     p.error = one_line_error
-    g = p.add_argument_group("camera and lens")
-    g.add_argument("--plan", metavar="FILE", type=path_option("--plan"), help="start from this plan file (.toml or .json) instead of the reference setup")
-    g.add_argument("--camera-preset", metavar="NAME", help="camera preset (see --list-presets)")
-    old_spelling(g, "--camera", "--camera-preset")
-    g.add_argument("--sensor-px", metavar="WxH", help="sensor size in pixels, e.g. 7952x5304")
-    g.add_argument("--sensor-mm", metavar="WxH", help="sensor size in mm, e.g. 35.9x24")
-    g.add_argument("--pixel-pitch-um", type=float, metavar="UM",
-                   help="pixel pitch in µm (default: the camera's, or sensor mm / px)")
-    g.add_argument("--lens", metavar="NAME", help="lens preset")
-    g.add_argument("--focal-length-mm", type=float, metavar="MM", help="focal length")
-    g = p.add_argument_group("scene and optics")
-    g.add_argument("--near-m", type=float, metavar="M", help="nearest scene distance from the camera plane (default 1.77)")
-    g.add_argument("--far-m", type=float, metavar="M", help="farthest scene distance (default 4.77)")
-    g.add_argument("--coc-mm", type=float, metavar="MM", help="circle of confusion (default 0.029)")
-    g.add_argument("--f-number", type=float, metavar="N", help="aperture to evaluate (default: the one the scene needs)")
-    g.add_argument("--focus-m", type=float, metavar="M", help="focus distance (default: centres the sharp range on the scene)")
-    g = p.add_argument_group("grid and rig")
-    g.add_argument("--grid", metavar="CxR", help="columns x rows (default 101x21)")
-    g.add_argument("--spacing-mm", metavar="HxV", help="spacing between neighbouring positions (default 4x6)")
-    g.add_argument("--rig-profile", metavar="NAME", help="rig profile: repeatability, travel, speed, acceleration, settle")
-    old_spelling(g, "--rig", "--rig-profile")
-    g.add_argument("--repeatability-um", metavar="HxV", help="axis repeatability (default 80x50)")
-    g.add_argument("--travel-mm", metavar="HxV", help="axis travel (default: the rig's)")
-    g.add_argument("--max-speed-mm-s", metavar="HxV", help="axis speed (default: the rig's)")
-    g.add_argument("--acceleration-mm-s2", metavar="HxV", help="axis acceleration (default: the rig's)")
-    g.add_argument("--settle-s", type=float, metavar="S", help="settle time after each move")
-    g.add_argument("--exposure-s", type=float, metavar="S", help="exposure time (default 0.5)")
-    g.add_argument("--transfer-s", type=float, metavar="S", help="trigger + download time per image (default 2.5)")
-    g.add_argument("--raw-bits", type=int, metavar="BITS", help="raw bits per pixel (default: the camera's)")
-    g.add_argument("--bytes-per-image", type=int, metavar="B", help="file size per image (default: uncompressed raw)")
-    g = p.add_argument_group("targets")
-    g.add_argument("--max-error-px", type=float, metavar="PX", help="allowed repositioning error in the image (default 0.5)")
-    g.add_argument("--max-disparity-px", type=float, metavar="PX",
-                   help="wanted max neighbour disparity: proposes the spacing (default 1)")
-    g.add_argument("--parallax-fraction", type=float, metavar="F",
-                   help="wanted parallax as a fraction of the image size: proposes the grid")
+    for title, options in OPTIONS:
+        g = p.add_argument_group(title)
+        for option, metavar, kind, help_text in options:
+            g.add_argument(option, metavar=metavar, type=_type(option, kind), help=help_text)
+            if option in OLD_SPELLINGS:
+                old_spelling(g, OLD_SPELLINGS[option], option)
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.add_argument("--save", metavar="FILE", type=path_option("--save"), help="also write the plan to FILE (.toml or .json)")
     p.add_argument("--list-presets", action="store_true", help="list camera, lens and rig presets and exit")
 
 
-_FLOAT_OPTIONS = ("pixel_pitch_um", "focal_length_mm", "near_m", "far_m", "coc_mm", "f_number", "focus_m",
-                  "settle_s", "exposure_s", "transfer_s", "raw_bits", "bytes_per_image", "max_error_px",
-                  "max_disparity_px")
-_PAIR_OPTIONS = {"sensor_mm": ("--sensor-mm", float), "repeatability_um": ("--repeatability-um", float),
-                 "travel_mm": ("--travel-mm", float), "max_speed_mm_s": ("--max-speed-mm-s", float),
-                 "acceleration_mm_s2": ("--acceleration-mm-s2", float), "spacing_mm": ("--spacing-mm", float)}
-
-
 def build_plan(args: argparse.Namespace):
     """The ScenePlan the options describe (reference setup or --plan, then presets, then values)."""
     from lfstudio.planning.presets import plan_from_presets, reference_plan
-    from lfstudio.planning.scene_plan import load_plan
+    from lfstudio.planning.scene_plan import CLI_OPTION, load_plan
 
     base = load_plan(args.plan) if args.plan else reference_plan()
     plan = plan_from_presets(camera=args.camera_preset, lens=args.lens, rig=args.rig_profile, base=base)
+    fields_of: dict[str, list[str]] = {}
+    for name, option in CLI_OPTION.items():
+        fields_of.setdefault(option, []).append(name)
     changes: dict = {}
-    if args.sensor_px:
-        try:
-            changes["sensor_px"] = _pair(args.sensor_px, int)
-        except ValueError:
-            raise InputError("--sensor-px", f"{args.sensor_px!r} is not WIDTHxHEIGHT in pixels", "e.g. 7952x5304")
-    for name, (option, conv) in _PAIR_OPTIONS.items():
-        text = getattr(args, name)
-        if text:
-            try:
-                changes[name] = _pair(text, conv)
-            except ValueError:
-                raise InputError(option, f"{text!r} is not HxV (two numbers)", "e.g. 4x6")
-    if args.grid:
-        try:
-            changes["grid_columns"], changes["grid_rows"] = _pair(args.grid, int)
-        except ValueError:
-            raise InputError("--grid", f"{args.grid!r} is not COLUMNSxROWS", "e.g. 101x21")
-    for name in _FLOAT_OPTIONS:
-        value = getattr(args, name)
-        if value is not None:
-            changes[name] = value
-    if args.parallax_fraction is not None:
-        changes["target_parallax_fraction"] = args.parallax_fraction
+    for _, options in OPTIONS:
+        for option, _, kind, _ in options:
+            value = getattr(args, _dest(option))
+            if kind in (PRESET, PATH) or value is None:
+                continue
+            if kind in (PAIR, WHOLE_PAIR):
+                value = _pair(option, value, kind)
+            fields = fields_of[option]             # --grid: columns, rows; any other: its one field
+            changes.update(zip(fields, value) if len(fields) > 1 else ((fields[0], value),))
     if (args.sensor_px or args.sensor_mm) and args.pixel_pitch_um is None:
         changes["pixel_pitch_um"] = None          # derive it from the new sensor size
         if not args.camera_preset:

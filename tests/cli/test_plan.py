@@ -72,3 +72,25 @@ def test_bad_input_exits_2_naming_the_option(run_cli, args, option):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and option in lines[0]
     assert "Traceback" not in proc.stderr
+
+
+def test_pairs_are_read_like_every_other_option_and_one_number_sets_both(run_cli):
+    """Every AxB option of the plan is read by numbers.parse_numbers: 11x3, 11×3 and 11,3 are the
+    same grid; one number sets both values; a value that is not two numbers names the option."""
+    from lfstudio.cli import build_parser
+    from lfstudio.cli.plan import build_plan
+
+    parser = build_parser()
+    for text in ("11x3", "11×3", "11,3"):
+        plan = build_plan(parser.parse_args(["plan", "--grid", text]))
+        assert (plan.grid_columns, plan.grid_rows) == (11, 3), text
+    plan = build_plan(parser.parse_args(["plan", "--spacing-mm", "3", "--repeatability-um", "40x20",
+                                         "--sensor-px", "4000x3000"]))
+    assert plan.spacing_mm == (3.0, 3.0) and plan.repeatability_um == (40.0, 20.0)
+    assert plan.sensor_px == (4000, 3000) and plan.camera_name == "custom camera"
+    for option, value, example in (("--grid", "ten", "101x21"), ("--sensor-px", "100x", "7952x5304"),
+                                   ("--travel-mm", "1x2x3", "4x6"), ("--grid", "11.5x3", "")):
+        proc = run_cli("plan", option, value)
+        lines = proc.stderr.strip().splitlines()
+        assert proc.returncode == 2 and len(lines) == 1 and option in lines[0], proc.stderr
+        assert example in lines[0]

@@ -12,7 +12,7 @@ import tty
 
 import pytest
 
-from lfstudio.numbers import MAX_VIEWS, Number, check_grid, non_finite_fields
+from lfstudio.numbers import MAX_VIEWS, Number, check_grid, non_finite_fields, parse_numbers
 from lfstudio.errors import InputError
 from tests.faults.conftest import assert_one_line_error, manifest_of, write_manifest
 
@@ -207,6 +207,21 @@ def test_grid_bounds_are_checked_before_anything_is_allocated():
         check_grid("--grid", 1000, 1000)
     with pytest.raises(InputError, match="columns"):
         check_grid("--grid", 100_000_000, 1)
+
+
+def test_numbers_typed_as_one_word_read_every_separator_and_say_what_they_expect():
+    whole = Number("", 1, integer=True)
+    for text in ("11x3", "11×3", "11,3", " 11 X 3 "):
+        assert parse_numbers("--grid", text, whole, 2, "101x21") == (11, 3), text
+    assert parse_numbers("--spacing-mm", "3", Number(), 2, one_for_all=True) == (3.0, 3.0)
+    for text in ("ten", "11x", "11x3x2", "", "3"):
+        with pytest.raises(InputError) as info:
+            parse_numbers("--grid", text, whole, 2, "101x21")
+        assert str(info.value) == f"--grid: cannot read {text!r} (valid: 2 numbers like 101x21)"
+    assert "ten" in str(pytest.raises(InputError, parse_numbers, "--g", "ten", whole, 2, one_for_all=True).value)
+    assert "11.5 is not a whole number" in str(pytest.raises(InputError, parse_numbers, "--g", "11.5x3", whole).value)
+    assert "0 is out of range" in str(pytest.raises(InputError, parse_numbers, "--g", "0x3", whole).value)
+    assert "nan is not a finite" in str(pytest.raises(InputError, parse_numbers, "--g", "nanx3", Number()).value)
 
 
 def test_non_finite_fields_names_every_nan_at_any_depth():
