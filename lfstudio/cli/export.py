@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 
 from lfstudio.cli.args import grid_position, refused_spelling
-from lfstudio.errors import InputError
-from lfstudio.numbers import Number
 from lfstudio.dataset.paths import path_option
+from lfstudio.errors import InputError
+from lfstudio.numbers import Number, numbers_option
 
 BITS = Number("bits", 1, 16, integer=True)   # each format checks its own depths
 
@@ -44,6 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="hevc: constant rate factor, lower is better (default 8)")
     p.add_argument("--bit-depth", type=BITS.option("--bit-depth"), default=12, help="hevc: 10 or 12 bits (default 12)")
     p.add_argument("--hci-size", default="9x9", metavar="CxR",
+                   type=numbers_option("--hci-size", Number("", 1, integer=True), 2, "9x9"),
                    help="hci: sub-array columns x rows (default 9x9; ignored with --views)")
     p.add_argument("--hci-centre-view", metavar="COLUMN,ROW",
                    help="hci: the sub-array's centre view, grid column,row from 0 (default: the grid centre)")
@@ -63,13 +63,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--estimate", action="store_true", help="print the size estimate and exit without writing")
 
 
-def _pair(text: str, option: str, sep: str) -> tuple[int, int]:
-    m = re.fullmatch(rf"\s*(\d+)\s*[{sep}]\s*(\d+)\s*", text or "")
-    if not m:
-        raise InputError(option, f"cannot read {text!r}", "two whole numbers like 9x9")
-    return int(m.group(1)), int(m.group(2))
-
-
 def _centre_view(text: str | None) -> tuple[int, int] | None:
     """``--hci-centre-view COLUMN,ROW`` -> the (row, column) of :class:`ExportOptions`."""
     if not text:
@@ -87,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
 
     options = ExportOptions(format=args.format, out=Path(args.out), views=args.views, source=args.source,
                             crf=args.crf, bit_depth=args.bit_depth,
-                            hci_size=_pair(args.hci_size, "--hci-size", "x×"),
+                            hci_size=args.hci_size,
                             hci_center=_centre_view(args.hci_centre_view),
                             overwrite=args.overwrite, hci_bit_depth=args.hci_bit_depth,
                             image_bit_depth=args.image_bit_depth, holdout=args.holdout, authors=args.authors)

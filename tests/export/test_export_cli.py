@@ -114,3 +114,17 @@ def test_export_colmap_and_nerfstudio(make_tiny_dataset, run_cli, tmp_path):
     assert "1 view held out" in proc.stderr
     meta = json.loads((tmp_path / "n" / "transforms.json").read_text())
     assert meta["test_filenames"] == ["images/r01_c002.png"] and len(meta["frames"]) == 15
+
+
+def test_hci_size_is_read_like_every_other_pair(make_tiny_dataset, run_cli, tmp_path):
+    """--hci-size goes through numbers.parse_numbers (3x3, 3×3, 3,3); whole numbers ≥ 1."""
+    ds = make_tiny_dataset("png")                              # 5 columns x 3 rows
+    base = ["export", ds.root, "--format", "hci", "--estimate", "--out", tmp_path / "h"]
+    for text in ("3x2", "3×2", "3,2"):
+        proc = run_cli(*base, "--hci-size", text)
+        assert proc.returncode == 0 and proc.stdout.startswith("6 views"), (text, proc.stderr)
+    for text, words in (("0x3", ("--hci-size", "0 is out of range", "≥ 1")), ("3.5x3", ("--hci-size", "whole"))):
+        proc = run_cli(*base, "--hci-size", text)
+        assert proc.returncode == 2, proc.stderr
+        _one_error_line(proc, *words)
+    assert not (tmp_path / "h").exists()
