@@ -1,8 +1,9 @@
 """One application state shared by all panels; panels react to its signals.
 
 It also follows the running scan from its events: ``scan_state`` and ``scanStateChanged`` tell the
-panels when the scan owns the rig (motion controls locked, see :data:`lfstudio.scan.events.OWNS_RIG`)
-and when a scan is active (quitting asks first).
+panels when the scan owns the rig and the camera (motion controls, test shots, live view and camera
+settings locked, see :data:`lfstudio.scan.events.OWNS_RIG`) and when a scan is active (quitting asks
+first).
 
 Scan events reach listeners as lists, in order (``scanEvents``): the Scan panel publishes the events
 of one drain together (:meth:`AppState.publish_scan_events`), so a fast scan costs each listener one
@@ -101,6 +102,19 @@ class AppState(QObject):
     def scan_active(self) -> bool:
         """True from the scan's start until it finished or failed (paused included)."""
         return self.scan_state is not None and self.scan_state not in TERMINAL
+
+    @property
+    def scan_owns_camera(self) -> bool:
+        """True while the scan holds the camera (the same states as the rig): test shots, live view
+        and setting changes are refused."""
+        return self.scan_state in OWNS_RIG
+
+    def camera_lock_reason(self) -> str:
+        """Why the camera's controls are disabled now, for their tooltips ("" while they are not)."""
+        if not self.scan_owns_camera:
+            return ""
+        return (f"Disabled while {self.scan_label or 'the scan'} runs: the scan owns the camera until it ends "
+                "or is paused.")
 
     def motion_lock_reason(self) -> str:
         """Why motion controls are disabled now, for their tooltips ("" while they are not)."""

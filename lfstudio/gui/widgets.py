@@ -29,6 +29,16 @@ def set_progress_async(bar: QProgressBar, value: int, maximum: int | None = None
     bar.update()
 
 
+def show_lock_note(note: QLabel, tips: list[tuple[QObject, str]], reason: str, text: str) -> None:
+    """A device taken by a scan (``reason`` not empty): ``note`` shows ``text`` and each control's
+    tooltip (``tips``: the control and its own tooltip) ends with ``reason``; an empty ``reason``
+    hides the note and gives every control its own tooltip back."""
+    note.setText(text if reason else "")
+    note.setVisible(bool(reason))
+    for widget, tip in tips:
+        widget.setToolTip(f"{tip}\n\n{reason}" if reason else tip)
+
+
 class WheelGuard(QObject):
     """Spin boxes and combo boxes take the mouse wheel only when they have keyboard focus.
 

@@ -20,10 +20,11 @@ Threads:
 * the devices run on their :class:`lfstudio.rig.worker.DeviceWorker` threads (the engine makes
   its own workers for bare drivers).
 
-Interlock: while the scan owns the rig (running, pausing, stopping: :data:`OWNS_RIG`) it holds the
-rig worker's lease (:meth:`DeviceWorker.claim`), so every other motion command is refused with a
-message naming the scan (:attr:`ScanEngine.label`); STOP is always accepted and pauses the scan.
-A paused scan gives the rig back, so the operator can home it or clear a fault before Resume.
+Interlock: while the scan owns the rig and the camera (running, pausing, stopping: :data:`OWNS_RIG`)
+it holds the leases of both workers (:meth:`DeviceWorker.claim`), so every other motion command,
+capture, live-view frame or setting change is refused with a message naming the scan
+(:attr:`ScanEngine.label`); STOP is always accepted and pauses the scan. A paused scan gives both
+back, so the operator can home the rig, clear a fault or take a test shot before Resume.
 
 Checkpoints (where a pause or an abort lands) are between views: a pause finishes the current
 view, waits until every file is stored, then reports ``paused``. An abort with a grace time
@@ -185,7 +186,8 @@ class ScanEngine:
         self._drop_by: float | None = None   # abort(grace_s): monotonic time after which captures are dropped
         self._dropping = False           # the camera was stopped for such an abort: failed transfers are dropped
         self._moving = False             # the engine thread waits for a move (engine thread only)
-        self._lease: Lease | None = None
+        self._lease: Lease | None = None           # the rig's, while the scan owns it
+        self._camera_lease: Lease | None = None    # the camera's, at the same times
         self._listeners: list[Listener] = []
         self._listeners_lock = threading.Lock()
 
@@ -304,18 +306,26 @@ class ScanEngine:
 
     # -- rig ownership -----------------------------------------------------------------------------
     def _claim_rig(self) -> ScanFault | None:
-        """Take the rig worker's lease; the fault to pause on when someone else holds it."""
+        """Take the rig worker's lease, then the camera worker's; the fault to pause on when someone
+        else holds either (then neither is held)."""
+        device = "rig"
         try:
             self._lease = self.rig.claim(self.label, on_stop=self._stop_pressed)
+            device = "camera"
+            self._camera_lease = self.camera.claim(self.label)
         except DeviceError as exc:
+            self._release_rig()
             text = _error_text(exc)       # "rig: cannot be taken by ...: it is in use by ..."
-            return ScanFault(f"{text[:1].upper()}{text[1:]}. Stop that first, then Resume.", "rig")
+            return ScanFault(f"{text[:1].upper()}{text[1:]}. Stop that first, then Resume.", device)
         return None
 
     def _release_rig(self) -> None:
+        """Give the rig and the camera back (idempotent)."""
         lease, self._lease = self._lease, None
-        if lease is not None:
-            lease.release()
+        camera_lease, self._camera_lease = self._camera_lease, None
+        for held in (lease, camera_lease):
+            if held is not None:
+                held.release()
 
     def _stop_pressed(self) -> None:
         """The rig's STOP was pressed (any thread): pause instead of moving on."""
@@ -585,9 +595,14 @@ class ScanEngine:
         return future.result()
 
     def _camera_call(self, name: str, *args: Any, timeout_s: float) -> Any:
-        future = self.camera.submit(name, *args, timeout_s=timeout_s)
+        """A camera command through the scan's lease (while it holds one), applying requests meanwhile."""
+        future = self._camera_submit(name, *args, timeout_s=timeout_s)
         self._await(future)
         return future.result()
+
+    def _camera_submit(self, name: str, *args: Any, timeout_s: float, **kwargs: Any) -> Future:
+        target = self._camera_lease if self._camera_lease is not None else self.camera
+        return target.submit(name, *args, timeout_s=timeout_s, **kwargs)
 
     def _rig_problem(self) -> ScanFault | None:
         try:
@@ -894,9 +909,9 @@ class ScanEngine:
         stem = self.dataset.root / "raw" / view_stem(view.row, view.column)
         timeout_s = self.capture_call_timeout_s()
         if self._pipelined:
-            fut = self.camera.submit("capture", stem, on_exposed=on_exposed, timeout_s=timeout_s)
+            fut = self._camera_submit("capture", stem, on_exposed=on_exposed, timeout_s=timeout_s)
         else:
-            fut = self.camera.submit("capture", stem, timeout_s=timeout_s)
+            fut = self._camera_submit("capture", stem, timeout_s=timeout_s)
         fut.add_done_callback(on_exposed)
         self._wait(lambda: exposed.is_set() or self._drop_by is not None)
         if not exposed.is_set() and not self._wait(exposed.is_set, max(0.0, self._drop_by - time.monotonic())):

@@ -72,8 +72,9 @@ del S, T
 #: The triggers an operator (GUI, CLI, a listener) may request; the others are the engine's own.
 REQUESTS = frozenset({Trigger.START, Trigger.PAUSE, Trigger.RESUME, Trigger.ABORT, Trigger.SKIP,
                       Trigger.RECAPTURE})
-#: States in which the scan owns the rig: every other motion command is refused (STOP never is).
-#: While paused the operator has the rig back (to home it or clear a fault before Resume).
+#: States in which the scan owns the rig and the camera: every other motion command, capture or camera
+#: setting is refused (STOP never is). While paused the operator has both back (to home the rig, clear
+#: a fault or take a test shot before Resume).
 OWNS_RIG = frozenset({ScanState.RUNNING, ScanState.PAUSING, ScanState.STOPPING})
 TERMINAL = frozenset({ScanState.FINISHED, ScanState.FAILED})
 

@@ -1,8 +1,11 @@
-"""The window while a scan owns the rig, on a real Qt event loop: motion controls locked (and nothing
-from the GUI reaches the simulated controller), STOP always in sight and working whatever the panel
-layout, and quitting during a scan asks first (Cancel keeps scanning; Stop lets the view finish)."""
+"""The window while a scan owns the rig and the camera, on a real Qt event loop: motion controls locked
+(and nothing from the GUI reaches the simulated controller), the Camera panel's test shot and settings
+locked (and nothing reaches the camera), STOP always in sight and working whatever the panel layout,
+and quitting during a scan asks first (Cancel keeps scanning; Stop lets the view finish)."""
 
 from __future__ import annotations
+
+import threading
 
 import pytest
 from PySide6.QtCore import Qt
@@ -11,10 +14,12 @@ from PySide6.QtWidgets import QDockWidget
 from lfstudio.dataset import Dataset
 from lfstudio.gui.app import create_window
 from lfstudio.gui.devices import QtDevice
+from lfstudio.gui.panels import camera as camera_panel
 from lfstudio.gui.panels.scan import ACTIVE_KEY
 from lfstudio.gui.settings import settings
 from lfstudio.rig.motion import RigState
 from lfstudio.rig.profile import load_rig
+from lfstudio.resources import user_config_dir
 from lfstudio.rig.worker import DeviceWorker
 from lfstudio.scan.events import ScanState
 from lfstudio.sim.instant import InstantRig
@@ -85,7 +90,7 @@ def test_motion_controls_are_locked_while_a_scan_runs_on_the_simulated_studio(qt
     assert f"in use by {engine.label}" in refused[0] and "STOP is always available" in refused[0]
 
     simulator.time_scale = 0.0                                  # now let the scan finish quickly
-    window.state.devices["camera"].worker.submit("set_setting", "time_scale", 0.0)
+    window.state.devices["camera"].driver.time_scale = 0.0      # (the simulator's knob: the worker is leased)
     qtbot.waitUntil(lambda: "Finished" in scan.state_label.text(), timeout=T)
     qtbot.waitUntil(lambda: not window.state.scan_owns_rig, timeout=T)
     assert engine.state is ScanState.FINISHED and Dataset.open(tmp_path / "locked").status_counts()["done"] == 6
@@ -103,6 +108,82 @@ def test_motion_controls_are_locked_while_a_scan_runs_on_the_simulated_studio(qt
     assert all(w.isEnabled() for ws in controls.values() for w in ws)
     assert not rig.lock_label.isVisible() and window.scan_lock_label.text() == ""
     assert "Disabled while" not in rig.home_button.toolTip()
+    window.close()
+
+
+def camera_controls(camera):
+    return {"test shot": [camera.shot_button, camera.shot_action], "apply": [camera.apply_button],
+            "connect": [camera.connect_button, camera.connect_action]}
+
+
+def test_camera_controls_are_locked_while_a_scan_owns_the_camera_and_a_test_shot_is_refused(qtbot, tmp_path):
+    window, rig, camera, scan = homed_simulated_studio(qtbot)
+    device = window.state.devices["camera"]
+    device.worker.call("set_setting", "time_scale", 0.0)
+    driver = device.driver
+    entered, gate = threading.Semaphore(0), threading.Semaphore(0)
+    plain_capture = driver.capture
+
+    def held_capture(stem_path, on_exposed=None):               # each of the scan's captures waits for the test
+        entered.release()
+        assert gate.acquire(timeout=T / 1000), "the test never released the capture"
+        return plain_capture(stem_path, on_exposed=on_exposed)
+    driver.capture = held_capture
+    controls = camera_controls(camera)
+    qtbot.waitUntil(lambda: camera.shot_button.isEnabled(), timeout=T)
+    assert all(w.isEnabled() for ws in controls.values() for w in ws)           # free before the scan
+    assert not camera.lock_label.isVisible()
+    shots = user_config_dir() / "test_shots"
+    before = sorted(shots.glob("*")) if shots.is_dir() else []
+
+    scan.columns.setValue(2)
+    scan.rows.setValue(1)
+    scan.settle.setValue(0.0)
+    scan.time_scale.setValue(0.0)
+    scan.folder.setText(str(tmp_path / "camera_locked"))
+    try:
+        qtbot.mouseClick(scan.start_button, Qt.LeftButton)
+        qtbot.waitUntil(lambda: entered.acquire(blocking=False), timeout=T)    # the scan's first exposure
+        qtbot.waitUntil(lambda: window.state.scan_owns_camera, timeout=T)
+        engine = scan.engine
+        assert device.worker.holder == engine.label                             # the core interlock is on
+        for name, widgets in controls.items():
+            for w in widgets:
+                assert not w.isEnabled(), name
+                assert f"Disabled while {engine.label} runs: the scan owns the camera" in w.toolTip(), name
+        assert camera.lock_label.isVisible() and engine.label in camera.lock_label.text()
+        live_view = window.panels["liveViewDock"]
+        assert not live_view.live_button.isEnabled() and not live_view.live_action.isEnabled()
+        assert "owns the camera" in live_view.live_button.toolTip()
+        camera.grab().save("/tmp/leftovers-camera-locked.png")
+
+        # every way in from the GUI: the disabled button and its shortcut, the method, a call sent anyway
+        qtbot.mouseClick(camera.shot_button, Qt.LeftButton)
+        camera.shot_action.trigger()
+        camera.take_test_shot()
+        assert "Test shot: Disabled while" in window.statusBar().currentMessage()
+        camera.apply_settings()
+        refused = []
+        device.run(camera_panel.test_shot, driver, shots, timeout_s=30, on_error=refused.append)
+        device.run("set_setting", "iso", 3200, on_error=refused.append)
+        qtbot.waitUntil(lambda: len(refused) == 2, timeout=T)
+        assert all(f"in use by {engine.label}" in text for text in refused), refused
+        assert refused[0].startswith("camera: test_shot(") and refused[1].startswith("camera: set_setting(")
+        assert driver.settings()["iso"] != 3200
+        assert (sorted(shots.glob("*")) if shots.is_dir() else []) == before       # no picture was taken
+    finally:
+        gate.release(100)
+
+    qtbot.waitUntil(lambda: "Finished" in scan.state_label.text(), timeout=T)
+    qtbot.waitUntil(lambda: not window.state.scan_owns_camera, timeout=T)
+    assert Dataset.open(tmp_path / "camera_locked").status_counts()["done"] == 2
+    qtbot.waitUntil(lambda: camera.shot_button.isEnabled(), timeout=T)          # and the controls come back
+    assert all(w.isEnabled() for ws in controls.values() for w in ws)
+    assert not camera.lock_label.isVisible() and "Disabled while" not in camera.shot_button.toolTip()
+    assert live_view.live_button.isEnabled() and "owns the camera" not in live_view.live_button.toolTip()
+    qtbot.mouseClick(camera.shot_button, Qt.LeftButton)                         # a test shot works again
+    qtbot.waitUntil(lambda: "Last test shot" in camera.shot_label.text(), timeout=T)
+    assert len(sorted(shots.glob("*"))) > len(before)
     window.close()
 
 

@@ -46,7 +46,7 @@ class HeldCamera(InstantCamera):
 def make(tmp_path):
     made = []
 
-    def make_engine(cols=3, rows=2, camera_cls=InstantCamera, name="ds", shared_rig=False, **kw):
+    def make_engine(cols=3, rows=2, camera_cls=InstantCamera, name="ds", shared_rig=False, shared_camera=False, **kw):
         plan = ScanPlan.centered(cols, rows, (4.0, 6.0), RIG, settle_s=0.0)
         ds = create_scan_dataset(tmp_path / name, plan, rig={"name": RIG.name}, camera={"name": "instant"},
                                  lens={"name": "test", "focal_length_mm": 50.0})
@@ -55,10 +55,13 @@ def make(tmp_path):
         cam = camera_cls(rig.true_position_mm)
         cam.connect()
         rig_device = DeviceWorker(rig, name="rig", publish_hz=20) if shared_rig else rig
-        engine = ScanEngine(ds, plan, rig_device, cam, time_scale=0.0, **kw)
+        cam_device = DeviceWorker(cam, name="camera", publish_hz=20) if shared_camera else cam
+        engine = ScanEngine(ds, plan, rig_device, cam_device, time_scale=0.0, **kw)
         events = []
         engine.subscribe(events.append)
         made.append((engine, cam, rig_device))
+        if shared_camera:
+            made.append((engine, cam, cam_device))
         return engine, ds, rig, cam, events, rig_device
 
     yield make_engine
@@ -312,13 +315,78 @@ def test_while_a_scan_runs_other_motion_is_refused_naming_it_and_stop_pauses_it(
     assert rig_worker.call("jog", 1.0, 0.0) is None
 
 
+def second_dataset(first):
+    """A 2 x 1 scan's plan and its new dataset beside ``first``."""
+    plan = ScanPlan.centered(2, 1, (4.0, 6.0), RIG, settle_s=0.0)
+    return plan, create_scan_dataset(first.root.parent / "second", plan, rig={"name": RIG.name},
+                                     camera={"name": "i"}, lens={"name": "t"})
+
+
+def test_while_a_scan_runs_the_camera_refuses_every_other_caller_naming_it(make, tmp_path):
+    """The camera is leased like the rig: a test shot, a setting, a live-view frame from anybody else
+    is refused naming the scan, never reaches the camera; it is free again when paused and at the end."""
+    engine, ds, rig, cam, events, _ = make(camera_cls=HeldCamera, shared_camera=True)
+    camera = engine.camera                                   # the worker the window shares with the scan
+    assert camera.holder is None
+    engine.start()
+    assert cam.entered.acquire(timeout=T)                    # the scan's first capture is under way
+    assert camera.holder == engine.label
+    applied = []
+    cam.set_setting = lambda name, value: applied.append((name, value))     # what reaches the camera
+    for command, args in (("capture", (tmp_path / "test_shot",)), ("set_setting", ("iso", 3200)),
+                          ("preview", ()), ("connect", ())):
+        with pytest.raises(DeviceBusy) as info:
+            camera.call(command, *args)
+        assert f"camera: {command}(" in str(info.value) and f"in use by {engine.label}" in str(info.value)
+    assert applied == [] and not list(tmp_path.glob("test_shot*"))
+
+    engine.pause()
+    cam.release()
+    assert engine.wait_for_state(ScanState.PAUSED, timeout_s=T)
+    assert camera.holder is None and cam.captures == 1       # paused: the operator has the camera back
+    camera.call("set_setting", "iso", 200)
+    assert applied == [("iso", 200)]
+    cam.release()
+    assert camera.call("capture", tmp_path / "test_shot").path.is_file()
+    assert cam.entered.acquire(timeout=T)                    # (that was the test shot's)
+
+    engine.resume()
+    assert cam.entered.acquire(timeout=T) and camera.holder == engine.label
+    cam.release(10)
+    assert engine.wait(T) is ScanState.FINISHED, engine.message
+    assert camera.holder is None and ds.status_counts()["done"] == 6
+    camera.call("set_setting", "iso", 400)                   # finished: free again
+    assert applied == [("iso", 200), ("iso", 400)]
+
+
+def test_a_second_scan_on_a_held_camera_pauses_naming_the_first_and_holds_neither_device(make):
+    first, ds1, rig, cam, events, _ = make(camera_cls=HeldCamera, shared_camera=True)
+    first.start()
+    assert cam.entered.acquire(timeout=T)
+    plan, ds2 = second_dataset(ds1)
+    rig2 = InstantRig(RIG)
+    rig2.connect()
+    rig2_worker = DeviceWorker(rig2, name="rig", publish_hz=20)
+    try:
+        second = ScanEngine(ds2, plan, rig2_worker, first.camera, time_scale=0.0)
+        second.start()
+        assert second.wait_for_state(ScanState.PAUSED, timeout_s=T)
+        assert second.message.startswith("Camera: cannot be taken by") and f"in use by {first.label}" in second.message
+        assert second.fault.device == "camera" and rig2_worker.holder is None   # the rig it took is given back
+        first.abort()
+        cam.release(10)
+        assert first.wait(T) is ScanState.FINISHED
+        second.abort()
+        assert second.wait(T) is ScanState.FINISHED and ds2.status_counts()["done"] == 0
+    finally:
+        rig2_worker.close(disconnect=False)
+
+
 def test_a_second_scan_on_a_held_rig_pauses_naming_the_first(make):
     first, ds1, rig, cam, events, rig_worker = make(camera_cls=HeldCamera, shared_rig=True)
     first.start()
     assert cam.entered.acquire(timeout=T)
-    plan = ScanPlan.centered(2, 1, (4.0, 6.0), RIG, settle_s=0.0)
-    ds2 = create_scan_dataset(ds1.root.parent / "second", plan, rig={"name": RIG.name}, camera={"name": "i"},
-                              lens={"name": "t"})
+    plan, ds2 = second_dataset(ds1)
     cam2 = InstantCamera(rig.true_position_mm)
     cam2.connect()
     second = ScanEngine(ds2, plan, rig_worker, cam2, time_scale=0.0)

@@ -1,6 +1,11 @@
 """Camera panel: choose the camera (simulated studio / USB via gphoto2 / hot folder), its settings,
 connect it (it then appears as ``state.devices["camera"]`` for the scan and the live view), and
-take a test shot that the Live view shows."""
+take a test shot that the Live view shows.
+
+While a scan owns the camera (``AppState.scan_owns_camera``) Test shot, Apply to camera and
+Connect/Disconnect (buttons and menu entries) are disabled with a tooltip saying why, and a note
+names the scan; they come back when it ends or is paused. The core refuses such calls anyway (the
+scan holds the camera worker's lease, :meth:`lfstudio.rig.worker.DeviceWorker.claim`)."""
 
 from __future__ import annotations
 
@@ -20,6 +25,7 @@ from lfstudio.gui.devices import QtDevice
 from lfstudio.gui.path_field import expand_on_edit
 from lfstudio.gui.settings import settings
 from lfstudio.gui.state import AppState
+from lfstudio.gui.widgets import show_lock_note
 from lfstudio.resources import user_config_dir
 from lfstudio.rig.worker import DeviceWorker
 
@@ -172,6 +178,11 @@ class CameraPanel(QWidget):
         self.connect_button.clicked.connect(self.toggle_connection)
         self.status_label = QLabel("Not connected")
         self.status_label.setWordWrap(True)
+        self.lock_label = QLabel("")
+        self.lock_label.setObjectName("cameraLockLabel")
+        self.lock_label.setWordWrap(True)
+        self.lock_label.setProperty("role", "warning")
+        self.lock_label.setVisible(False)
 
         # exposure
         self.iso = QComboBox()
@@ -216,6 +227,7 @@ class CameraPanel(QWidget):
         buttons.addWidget(self.connect_button)
         buttons.addWidget(self.shot_button)
         layout.addLayout(buttons)
+        layout.addWidget(self.lock_label)
         layout.addWidget(self.status_label)
         layout.addWidget(exposure)
         layout.addWidget(self.shot_label)
@@ -230,8 +242,15 @@ class CameraPanel(QWidget):
         self.shot_action.setToolTip("Take one picture with the connected camera and show it in the Live view")
         self.shot_action.triggered.connect(self.take_test_shot)
 
+        self._lock_shown = ""
+        self._base_tips = [(w, w.toolTip()) for w in self._camera_controls()]
         state.planChanged.connect(lambda _plan: self._show_truth())
+        state.scanStateChanged.connect(lambda _state: self._update_enabled())
         self._kind_changed()
+
+    def _camera_controls(self) -> list:
+        """Everything that commands the camera (disabled while a scan owns it)."""
+        return [self.shot_button, self.shot_action, self.apply_button, self.connect_button, self.connect_action]
 
     def install_menus(self, window: Any) -> None:
         menu = window.menu("Rig")
@@ -340,6 +359,8 @@ class CameraPanel(QWidget):
         return self.device is not None
 
     def toggle_connection(self) -> None:
+        if self._refuse_while_scanning("Connect camera"):
+            return
         if self.connected:
             self.disconnect_camera()
         else:
@@ -424,15 +445,35 @@ class CameraPanel(QWidget):
     def _update_enabled(self) -> None:
         connected = self.connected
         busy = connected and self.device.busy
+        free = not self.state.scan_owns_camera
         for w in (self.kind, self.pages):
             w.setEnabled(not connected)
-        self.shot_button.setEnabled(connected and not busy)
-        self.shot_action.setEnabled(connected and not busy)
-        self.apply_button.setEnabled(connected and not busy and self.current_kind() != "folder")
+        self.shot_button.setEnabled(free and connected and not busy)
+        self.shot_action.setEnabled(free and connected and not busy)
+        self.apply_button.setEnabled(free and connected and not busy and self.current_kind() != "folder")
+        self.connect_button.setEnabled(free)
+        self.connect_action.setEnabled(free)
+        self._show_lock(self.state.camera_lock_reason())
+
+    def _show_lock(self, reason: str) -> None:
+        """The lock note and the "why disabled" tooltips, when the scan takes or gives back the camera."""
+        if reason == self._lock_shown:
+            return
+        self._lock_shown = reason
+        show_lock_note(self.lock_label, self._base_tips, reason,
+                       f"<b>Camera in use by {self.state.scan_label or 'the scan'}</b>: test shots and settings "
+                       "return when it ends or is paused.")
+
+    def _refuse_while_scanning(self, what: str) -> bool:
+        """True (and the reason said) when a scan owns the camera: nothing is sent."""
+        reason = self.state.camera_lock_reason()
+        if reason:
+            self.state.show_status(f"{what}: {reason}", 8000)
+        return bool(reason)
 
     # -- actions -------------------------------------------------------------------------------------
     def apply_settings(self) -> None:
-        if self.device is None:
+        if self.device is None or self._refuse_while_scanning("Apply to camera"):
             return
         self._save_settings()
         refused: list[str] = []        # one line per setting the camera refused (kept, not covered by "applied")
@@ -448,6 +489,8 @@ class CameraPanel(QWidget):
     def take_test_shot(self) -> None:
         if self.device is None:
             self.state.show_status("Test shot: connect a camera first")
+            return
+        if self._refuse_while_scanning("Test shot"):
             return
         folder = user_config_dir() / "test_shots"
         folder.mkdir(parents=True, exist_ok=True)

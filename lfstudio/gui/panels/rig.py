@@ -25,6 +25,7 @@ from lfstudio.errors import LfError
 from lfstudio.gui.devices import QtDevice
 from lfstudio.gui.settings import settings
 from lfstudio.gui.state import AppState
+from lfstudio.gui.widgets import show_lock_note
 from lfstudio.rig.motion import RigConfig, RigState, RigStatus
 from lfstudio.rig.worker import DeviceFault, DeviceWorker
 
@@ -665,8 +666,6 @@ class RigPanel(QWidget):
         if locked:
             self._hold_timer.stop()
             self._pressed = None
-        self.lock_label.setText(f"<b>Rig locked by {self.state.scan_label or 'the scan'}</b>: motion controls "
-                                "return when it ends or is paused. STOP (Esc) always works." if locked else "")
-        self.lock_label.setVisible(locked)
-        for widget, tip in self._base_tips:
-            widget.setToolTip(f"{tip}\n\n{reason}" if locked else tip)
+        show_lock_note(self.lock_label, self._base_tips, reason,
+                       f"<b>Rig locked by {self.state.scan_label or 'the scan'}</b>: motion controls return when "
+                       "it ends or is paused. STOP (Esc) always works.")

@@ -1,5 +1,8 @@
 """Live view dock: the camera's preview frames (or the last test shot) with zoom and pan, a
-sharpness readout for focusing, and an RGB histogram with clipping warnings."""
+sharpness readout for focusing, and an RGB histogram with clipping warnings.
+
+While a scan owns the camera (``AppState.scan_owns_camera``) Live is off and disabled, with a
+tooltip saying why; it can be started again when the scan ends or is paused."""
 
 from __future__ import annotations
 
@@ -120,8 +123,10 @@ class LiveView(QWidget):
         self.live_action.toggled.connect(self.live_button.setChecked)
         self.live_button.toggled.connect(self.live_action.setChecked)
 
+        self._live_tips = [(w, w.toolTip()) for w in (self.live_button, self.live_action)]
         state.cameraFrame.connect(self.show_frame)
         state.devicesChanged.connect(self._devices_changed)
+        state.scanStateChanged.connect(self._scan_state_changed)
         self._set_message(self._placeholder())
 
     def _placeholder(self) -> str:
@@ -184,6 +189,16 @@ class LiveView(QWidget):
         self._in_flight = False
         self.live_button.setChecked(False)
         self._set_message(f"Live view stopped: {message}")
+
+    def _scan_state_changed(self, _scan_state: Any) -> None:
+        """A scan taking the camera ends the live view (its frames would be refused); giving it back
+        enables Live again."""
+        reason = self.state.camera_lock_reason()
+        if reason:
+            self.live_button.setChecked(False)
+        for widget, tip in self._live_tips:
+            widget.setEnabled(not reason)
+            widget.setToolTip(f"{tip}\n\n{reason}" if reason else tip)
 
     def _devices_changed(self, name: str) -> None:
         if name != "camera":
