@@ -87,6 +87,8 @@ class QtDevice(QObject):
 
     def _on_snapshot(self, snapshot: Any) -> None:
         def deliver() -> None:
+            if self._closed:         # posted before close(): a closed device's status is no one's news
+                return
             if isinstance(snapshot, DeviceFault):
                 self.faultOccurred.emit(snapshot.message)
             self.statusChanged.emit(snapshot)

@@ -105,3 +105,44 @@ def test_rig_without_switches_sets_an_origin(qtbot, panel):
     qtbot.mouseClick(panel.goto_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: pos(panel) == (500.0, 100.0) and state_is(panel, RigState.IDLE), timeout=T)
     assert panel.message_label.text() == ""
+
+
+def test_controller_and_profile_disagreeing_is_a_wrapping_warning_line_that_goes_with_its_cause(qtbot, panel):
+    """The reference gantry's controller (GRBL simulator on a pty) connected under the desktop slider's
+    profile: the driver's warnings (speeds, homing) show in the panel, wrapped; disconnected they go,
+    and reconnected under the matching profile none comes back."""
+    from lfstudio.rig.profile import load_rig
+    from lfstudio.studio.simulated import start_simulator
+
+    controller = start_simulator(load_rig("Reference gantry"), time_scale=0.02)
+    try:
+        panel.resize(360, 1000)
+        assert not panel.warning_label.isVisible()
+        panel.rig_combo.setCurrentText("Desktop slider 1 m")
+        panel.port_combo.setEditText(controller.port)
+        qtbot.mouseClick(panel.connect_button, Qt.LeftButton)
+        qtbot.waitUntil(lambda: panel.warning_label.isVisible(), timeout=T)
+        text = panel.warning_label.text()
+        warnings = panel.last_status.extra["warnings"]
+        assert text.startswith("⚠ Controller and rig profile disagree:") and len(warnings) == 6
+        assert f"• {warnings[0]}" in text and f"• {warnings[1]}" in text and "the rig profile says 50 mm/s" in text
+        assert text.endswith("… and 4 more (point here to read them all)") and f"• {warnings[2]}" not in text
+        assert all(f"• {w}" in panel.warning_label.toolTip() for w in warnings)
+        assert "homing is on in the controller" in panel.warning_label.toolTip()
+        assert panel.warning_label.wordWrap() and panel.warning_label.width() <= panel.width()
+        assert panel.warning_label.height() >= 5 * panel.warning_label.fontMetrics().height()   # wrapped lines
+        panel.grab().save("/tmp/leftovers-rig-warnings.png")
+
+        qtbot.mouseClick(panel.connect_button, Qt.LeftButton)                   # disconnect: no controller
+        qtbot.waitUntil(lambda: not panel.connected, timeout=T)
+        assert not panel.warning_label.isVisible() and panel.warning_label.text() == ""
+        assert "•" not in panel.warning_label.toolTip()
+        panel.rig_combo.setCurrentText("Reference gantry")                      # the cause fixed
+        panel.port_combo.setEditText(controller.port)
+        qtbot.mouseClick(panel.connect_button, Qt.LeftButton)
+        qtbot.waitUntil(lambda: panel.last_status is not None and panel.last_status.state is not RigState.DISCONNECTED,
+                        timeout=T)
+        assert panel.last_status.extra["warnings"] == [] and not panel.warning_label.isVisible()
+    finally:
+        panel.shutdown()
+        controller.close()

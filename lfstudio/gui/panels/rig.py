@@ -5,6 +5,12 @@ All driver calls go through a :class:`lfstudio.rig.worker.DeviceWorker` wrapped 
 ``driver.stop()`` directly (it only writes realtime bytes), bypassing the queue; its action
 (``stop_action``, Esc) is also the main window's always-visible STOP button.
 
+Where the connected controller's own settings and the rig profile disagree (the driver's
+``RigStatus.extra["warnings"]``, e.g. another maximum speed, homing off, a shorter travel), a
+wrapping warning line under the connection says so (the first two, and how many more; all of them
+in its tooltip); it goes when a status no longer carries them (disconnected, or reconnected with a
+profile that matches).
+
 While a scan owns the rig (``AppState.scan_owns_rig``) every motion control — jog buttons and keys,
 Go, Home, Set origin, Recover, Connect/Disconnect and their menu entries — is disabled, with a
 tooltip saying why; the core refuses such commands anyway (the scan holds the rig worker's lease).
@@ -34,6 +40,9 @@ log = logging.getLogger(__name__)
 SIMULATED = "Simulated"
 STEP_SIZES_MM = (0.1, 1.0, 10.0, 100.0)
 FINE_STEP_MM = 0.1
+WARNINGS_SHOWN = 2              # controller-vs-profile warnings in the panel's line (all in its tooltip)
+WARNINGS_TIP = ("The controller's own settings ($$) and the rig profile (resources/presets/rigs.toml) disagree: "
+                "change the controller's setting, or disconnect and choose the profile of this rig.")
 HOLD_MS = 350                   # press longer than this: continuous jog until release
 _STATE_COLOURS = {RigState.IDLE: "#2e7d32", RigState.MOVING: "#1565c0", RigState.JOGGING: "#1565c0",
                   RigState.HOMING: "#1565c0", RigState.HOLD: "#b35900", RigState.ALARM: "#b00020",
@@ -196,6 +205,15 @@ class RigPanel(QWidget):
         cl.addWidget(QLabel("Rig"), 1, 0)
         cl.addWidget(self.rig_combo, 1, 1, 1, 3)
         cl.addWidget(self.rig_label, 2, 0, 1, 4)
+        self.warning_label = QLabel("")
+        self.warning_label.setObjectName("rigWarningLabel")
+        self.warning_label.setWordWrap(True)
+        self.warning_label.setProperty("role", "warning")
+        self.warning_label.setTextFormat(Qt.PlainText)
+        self.warning_label.setTextInteractionFlags(Qt.TextSelectableByMouse)
+        self.warning_label.setToolTip(WARNINGS_TIP)
+        self.warning_label.setVisible(False)
+        cl.addWidget(self.warning_label, 3, 0, 1, 4)
         cl.setColumnStretch(1, 1)
         root.addWidget(conn)
 
@@ -586,6 +604,7 @@ class RigPanel(QWidget):
         if not isinstance(snapshot, RigStatus):
             return
         self.last_status = snapshot
+        self._show_warnings(snapshot.extra.get("warnings") if isinstance(snapshot.extra, dict) else None)
         if snapshot.position_mm is not None:
             self.x_label.setText(f"{snapshot.position_mm[0]:.3f}")
             self.y_label.setText(f"{snapshot.position_mm[1]:.3f}")
@@ -620,6 +639,19 @@ class RigPanel(QWidget):
         if show_recover:
             self.recover_button.setText("Reconnect" if snapshot.state is RigState.DISCONNECTED else "Unlock")
         self._update_enabled()
+
+    def _show_warnings(self, warnings: Any) -> None:
+        """The controller-vs-profile warnings of the latest status; none: hidden. The first
+        :data:`WARNINGS_SHOWN` are in the line (a dock has little height), all of them in its tooltip."""
+        lines = [str(w) for w in warnings if str(w).strip()] if isinstance(warnings, (list, tuple)) else []
+        bullets = [f"• {line}" for line in lines]
+        text = "" if not lines else "\n".join(["⚠ Controller and rig profile disagree:", *bullets[:WARNINGS_SHOWN]])
+        if len(lines) > WARNINGS_SHOWN:
+            text += f"\n… and {len(lines) - WARNINGS_SHOWN} more (point here to read them all)"
+        if text != self.warning_label.text():
+            self.warning_label.setText(text)
+            self.warning_label.setVisible(bool(text))
+            self.warning_label.setToolTip("\n".join([WARNINGS_TIP, "", *bullets]) if lines else WARNINGS_TIP)
 
     def _on_scan_state(self, scan_state: Any) -> None:
         """A scan starting ends what an earlier command's failure said ("stopped by STOP", ...):
