@@ -12,8 +12,11 @@ GUI can get (hundreds of views per second), a worst case for the GUI thread.
 from __future__ import annotations
 
 import argparse
+import collections
 import os
+import re
 import sys
+import threading
 import tempfile
 import time
 from pathlib import Path
@@ -25,6 +28,53 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from _datasets import captured_dataset  # noqa: E402
 from _measure import Timer, cpu_s, load_text  # noqa: E402
 from _qt import spin_until  # noqa: E402
+
+
+class ThreadCpu:
+    """CPU seconds of each thread of this process by name, sampled from /proc every 0.2 s (threads that
+    end in between lose their last 0.2 s): who in this one process competes with the GUI thread for
+    the GIL and the cores."""
+
+    def __init__(self) -> None:
+        self._seen: dict[tuple[int, str], float] = {}       # (native id, name) -> CPU s
+        self._base: dict[tuple[int, str], float] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="bench-thread-cpu", daemon=True)
+        self._tick_s = 1.0 / os.sysconf("SC_CLK_TCK")
+
+    def _cpu_s(self, native_id: int) -> float | None:
+        try:
+            with open(f"/proc/self/task/{native_id}/stat") as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+        except OSError:
+            return None
+        return (int(fields[11]) + int(fields[12])) * self._tick_s      # utime, stime
+
+    def _sample(self) -> None:
+        for t in threading.enumerate():
+            cpu = self._cpu_s(t.native_id) if t.native_id is not None else None
+            if cpu is not None:
+                self._seen[(t.native_id, t.name)] = cpu
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.2):
+            self._sample()
+
+    def start(self) -> None:
+        self._sample()                     # threads alive now count from here on
+        self._base, self._seen = dict(self._seen), {}
+        self._thread.start()
+
+    def stop(self) -> dict[str, float]:
+        """CPU seconds per thread name since start() (unnamed threads together), most first."""
+        self._sample()
+        self._stop.set()
+        self._thread.join(2)
+        by_name: collections.Counter = collections.Counter()
+        for key, cpu in self._seen.items():
+            name = re.sub(r"^Thread-\d+.*", "unnamed threads (threading.Timer, ...)", key[1])
+            by_name[name] += cpu - self._base.get(key, 0.0)
+        return dict(by_name.most_common())
 
 
 def rss_mb() -> float:
@@ -113,35 +163,59 @@ def main() -> int:
     panel.settle.setValue(0.0)
     panel.time_scale.setValue(0.0)
     panel.folder.setText(str(Path(tmp) / "scan"))
-    heart = Heartbeat(interval_ms=10, warn_ms=args.warn_ms, watch=True, events=args.events, record=True)
+    heart = Heartbeat(interval_ms=10, warn_ms=args.warn_ms, watch=True, events=args.events, record=True,
+                      gc_watch=True)
     first_done = {}
     state.scanEvents.connect(lambda events: first_done.setdefault("t", time.perf_counter())
                              if any(ev.kind.value == "view-done" for ev in events) else None)
+    load_before = os.getloadavg()[0]
+    threads = ThreadCpu()
+    threads.start()
     heart.start()
     t = time.perf_counter()
     with Timer() as scan_span:
         panel.start()
         spin_until(lambda: "Finished" in panel.state_label.text(), 600)
     heart.stop()
+    thread_cpu = threads.stop()
     scan_s = scan_span.wall_s
     views = cols * rows
     print(f"scan through the GUI                       {views} views in {scan_s:.1f} s "
           f"({views / scan_s:.0f} views/s, instant devices; CPU {scan_span.cpu_s:.1f} s, "
-          f"load {scan_span.load_1min:.2f} at the end)")
+          f"load {load_before:.2f} at the start, {scan_span.load_1min:.2f} at the end)")
     t_run = first_done.get("t", t) - t
-    running = [ms for at, ms, _ in heart.tick_log if at >= t_run]
-    running_cpu = [cpu for at, _, cpu in heart.tick_log if at >= t_run]
-    starting = [ms for at, ms, _ in heart.tick_log if at < t_run]
-    max_run = max(running, default=0.0)
+    running = [tick for tick in heart.tick_log if tick.at_s >= t_run]
+    starting = [tick for tick in heart.tick_log if tick.at_s < t_run]
+    stalls = sorted(tick.stall_ms for tick in running)
+    max_run = stalls[-1] if stalls else 0.0
     print(f"GUI thread max stall while the scan runs   {max_run:.1f} ms   (target < 50 ms at load <= 2: "
-          f"{'OK' if max_run < 50 else 'MISSED'}; ticks > 50 ms: {sum(1 for ms in running if ms > 50)} "
-          f"of {len(running)}; {load_text()})")
+          f"{'OK' if max_run < 50 else 'MISSED'}; p99 {stalls[int(0.99 * (len(stalls) - 1))] if stalls else 0:.1f} ms, "
+          f"ticks > 50 ms: {sum(1 for ms in stalls if ms > 50)} of {len(stalls)}; {load_text()})")
     busy = heart.cpu_ms / (scan_s * 1000)
-    print(f"GUI thread CPU while the scan runs         {max(running_cpu, default=0.0):.1f} ms at most between two "
-          f"ticks (load-independent; target < 50 ms), {heart.cpu_ms / views:.2f} ms per view, "
+    cpu_ticks = sorted(tick.cpu_ms for tick in running)
+    p99 = cpu_ticks[int(0.99 * (len(cpu_ticks) - 1))] if cpu_ticks else 0.0
+    print(f"GUI thread CPU while the scan runs         {max(cpu_ticks, default=0.0):.1f} ms at most between two "
+          f"ticks (load-independent; aim < 15 ms; p99 {p99:.1f} ms, ticks over 15 ms: "
+          f"{sum(1 for ms in cpu_ticks if ms > 15)}), {heart.cpu_ms / views:.2f} ms per view, "
           f"busy {100 * busy:.0f} % of the scan's wall time")
-    print(f"GUI thread max stall while it starts       {max(starting, default=0.0):.1f} ms (Start click to first "
-          f"view, {t_run * 1000:.0f} ms: devices, dataset and engine are prepared off the GUI thread)")
+    print(f"GUI thread max stall while it starts       {max((tick.stall_ms for tick in starting), default=0.0):.1f} ms "
+          f"(Start click to first view, {t_run * 1000:.0f} ms: devices, dataset and engine are prepared off the "
+          "GUI thread)")
+    gcw = heart.gc
+    full = [g for g in gcw.log if g.generation == 2]
+    print(f"garbage collection during the scan         {gcw.counts[0]} / {gcw.counts[1]} / {gcw.counts[2]} "
+          f"collections of generation 0 / 1 / 2 taking {gcw.total_ms[0]:.0f} / {gcw.total_ms[1]:.0f} / "
+          f"{gcw.total_ms[2]:.0f} ms; longest {max((g.duration_ms for g in gcw.log), default=0.0):.1f} ms; full "
+          f"ones: " + (", ".join(f"{g.duration_ms:.1f} ms at {g.at_s:.2f} s ({'GUI' if g.on_gui_thread else 'other'}"
+                                 " thread)" for g in full[:6]) or "none"))
+    total_cpu = sum(thread_cpu.values())
+    print(f"CPU by thread during the scan              {total_cpu:.1f} s: " + ", ".join(
+        f"{name} {cpu:.1f}" for name, cpu in thread_cpu.items() if cpu >= 0.05))
+    print("GUI thread's busiest tick intervals (own CPU; gc: GUI-thread / other threads' collections"
+          + ("; the event that used most):" if args.events else "; --events names the Qt event):"))
+    for tick in sorted(running, key=lambda tick: -tick.cpu_ms)[:args.show]:
+        print(f"    {tick.cpu_ms:5.1f} ms CPU, stall {tick.stall_ms:5.1f} ms, gc {tick.gc_ms:.1f} / {tick.gc_other_ms:.1f} ms"
+              f" at {tick.at_s:.2f} s" + (f": {tick.event} {tick.event_cpu_ms:.1f} ms" if tick.event else ""))
     print(f"GUI thread stalls over {args.warn_ms:.0f} ms, worst first (where the watchdog saw the GUI thread):")
     for stall in heart.worst(args.show):
         print(f"    {stall}")

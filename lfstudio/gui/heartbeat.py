@@ -11,7 +11,11 @@ stall of the GUI thread (``max_stall_ms``, ``stalls``). With ``watch=True`` it i
   each), which itself slows a busy GUI: use it to find a source, not to measure.
 
 Each stall longer than ``warn_ms`` becomes a :class:`Stall` (logged as a warning) with ``where``: the
-innermost lfstudio frames seen most often during it, else the Qt event. The sampler needs the GIL to
+innermost lfstudio frames seen most often during it, else the Qt event. With ``record`` every tick is
+kept (:class:`Tick`): its stall, the GUI thread's own CPU since the previous tick, and, for finding a
+burst of GUI work, the event that used most of that CPU (``events``: the tap charges the CPU between
+two event starts to the earlier event) and the garbage collections meanwhile (``gc_watch``:
+``gc.callbacks`` time each collection, per generation and thread). The sampler needs the GIL to
 look; the application sets a short switch interval (``gui/app.py``), so it gets it within a
 millisecond or two even while the GUI thread runs Python code.
 
@@ -36,6 +40,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from PySide6.QtCore import QCoreApplication, QEvent, QObject, QTimer
 
@@ -55,9 +60,14 @@ class Stall:
     cpu_ms: float       # CPU time the GUI thread itself used meanwhile (the rest: waiting for the GIL or a core)
     where: str          # the code (innermost lfstudio frames) or the Qt event the GUI thread was in
     samples: int        # how many stack samples the watchdog took during the stall (0: not watched)
+    gc_ms: float = 0.0  # with gc_watch: garbage collection meanwhile (any thread: each holds the GIL)
+    event: str = ""     # with events: the Qt event that used most of the GUI thread's CPU meanwhile
 
     def __str__(self) -> str:
-        return f"{self.duration_ms:.0f} ms (GUI thread CPU {self.cpu_ms:.0f} ms) at {self.at_s:.2f} s in {self.where}"
+        extra = f", garbage collection {self.gc_ms:.0f} ms" if self.gc_ms >= 1 else ""
+        text = (f"{self.duration_ms:.0f} ms (GUI thread CPU {self.cpu_ms:.0f} ms{extra}) at {self.at_s:.2f} s "
+                f"in {self.where}")
+        return text + (f"; costliest event: {self.event}" if self.event else "")
 
 
 def _event_name(event_type: int) -> str:
@@ -68,9 +78,18 @@ def _event_name(event_type: int) -> str:
 
 
 def _describe_receiver(obj: QObject) -> str:
-    name = obj.objectName()
-    cls = type(obj).__name__
-    return f"{cls} '{name}'" if name else cls
+    """``Class 'objectName'``; an unnamed object with the object it belongs to (a QTimer or an inbox
+    says whose it is)."""
+    try:
+        name = obj.objectName()
+        text = f"{type(obj).__name__} '{name}'" if name else type(obj).__name__
+        parent = obj.parent() if not name else None
+        if parent is not None:
+            pname = parent.objectName()
+            text += f" of {type(parent).__name__}" + (f" '{pname}'" if pname else "")
+        return text
+    except RuntimeError:            # its C++ object is gone meanwhile
+        return "a deleted object"
 
 
 def _where(frame) -> str:
@@ -93,15 +112,107 @@ def _where(frame) -> str:
 
 
 class _EventTap(QObject):
-    """Application-wide event filter: remembers the event whose delivery started last."""
+    """Application-wide event filter: remembers the event whose delivery started last, and charges
+    the GUI thread's CPU time between two event starts to the earlier one, so each tick interval
+    names its costliest event (``take_costliest``). The receiver is described on the GUI thread as
+    the event starts (the sampler thread only reads the text)."""
 
     def __init__(self) -> None:
         super().__init__()
-        self.current: tuple[int, str] | None = None
+        self.current: tuple[int, str] | None = None      # (event type, receiver)
+        self._started_cpu = 0.0
+        self._costliest: tuple[float, int, str] | None = None     # (CPU s, event type, receiver)
 
     def eventFilter(self, obj: QObject, event: QEvent) -> bool:   # noqa: N802 (Qt name)
+        now = time.thread_time()
+        current = self.current
+        if current is not None:
+            spent = now - self._started_cpu
+            if self._costliest is None or spent > self._costliest[0]:
+                self._costliest = (spent, current[0], current[1])
         self.current = (int(event.type()), _describe_receiver(obj))
+        self._started_cpu = now
         return False
+
+    def describe_current(self) -> str | None:
+        current = self.current
+        return None if current is None else _describe_event(*current)
+
+    def take_costliest(self) -> tuple[float, str]:
+        """The event that used the most GUI-thread CPU since the last call: (CPU ms, description)."""
+        costliest, self._costliest = self._costliest, None
+        if costliest is None:
+            return 0.0, ""
+        return costliest[0] * 1000.0, _describe_event(costliest[1], costliest[2])
+
+
+def _describe_event(event_type: int, receiver: str) -> str:
+    return f"Qt {_event_name(event_type)} → {receiver}"
+
+
+class _GcWatch:
+    """Every cyclic garbage collection (``gc.callbacks``): how long it took and in which thread. A
+    collection holds the GIL, so it stops the GUI thread wherever it runs; in the GUI thread it also
+    counts as the GUI thread's own CPU."""
+
+    def __init__(self, gui_ident: int, started: float) -> None:
+        self.gui_ident = gui_ident
+        self.started = started
+        self.log: list[GcPass] = []      # every collection of 1 ms or longer, and every full one
+        self.counts = [0, 0, 0]          # collections per generation
+        self.total_ms = [0.0, 0.0, 0.0]
+        self.gui_ms = 0.0                # collection time not yet taken by a tick: in the GUI thread,
+        self.other_ms = 0.0              # in other threads
+        self._t0: float | None = None
+
+    def __call__(self, phase: str, info: dict) -> None:
+        now = time.perf_counter()
+        if phase == "start":
+            self._t0 = now
+            return
+        if self._t0 is None:
+            return
+        ms = (now - self._t0) * 1000.0
+        self._t0 = None
+        gen = int(info.get("generation", 0))
+        self.counts[gen] += 1
+        self.total_ms[gen] += ms
+        on_gui = threading.get_ident() == self.gui_ident
+        if on_gui:
+            self.gui_ms += ms
+        else:
+            self.other_ms += ms
+        if ms >= 1.0 or gen == 2:
+            self.log.append(GcPass(at_s=now - self.started, generation=gen, duration_ms=ms, on_gui_thread=on_gui,
+                                   collected=int(info.get("collected", 0))))
+
+
+@dataclass(frozen=True)
+class GcPass:
+    """One garbage collection: ``at_s`` after the heartbeat started, ``duration_ms`` of generation
+    ``generation`` (2: a full collection), run by the GUI thread or another one."""
+
+    at_s: float
+    generation: int
+    duration_ms: float
+    on_gui_thread: bool
+    collected: int
+
+
+class Tick(NamedTuple):
+    """One heartbeat tick (recorded with ``record``): ``at_s`` after start(), how late it came
+    (``stall_ms``), the GUI thread's CPU since the previous tick (``cpu_ms``), the part of it spent in
+    garbage collection (``gc_ms``, with ``gc_watch``; ``gc_other_ms``: collections in other threads,
+    which hold the GIL meanwhile), and the event that used most of it (with ``events``:
+    ``event_cpu_ms`` and ``event``)."""
+
+    at_s: float
+    stall_ms: float
+    cpu_ms: float
+    gc_ms: float = 0.0
+    gc_other_ms: float = 0.0
+    event_cpu_ms: float = 0.0
+    event: str = ""
 
 
 class Heartbeat(QObject):
@@ -110,7 +221,7 @@ class Heartbeat(QObject):
 
     def __init__(self, interval_ms: int = 10, warn_ms: float = 50.0, watch: bool = False, events: bool = False,
                  sample_ms: float = 2.0, record: bool = False, log_level: int = logging.WARNING,
-                 parent: QObject | None = None):
+                 gc_watch: bool = False, parent: QObject | None = None):
         super().__init__(parent)
         self.interval_ms = interval_ms
         self.warn_ms = warn_ms
@@ -124,7 +235,9 @@ class Heartbeat(QObject):
         self.ticks = 0
         self.stalls: list[Stall] = []
         self.record = record
-        self.tick_log: list[tuple[float, float, float]] = []   # with ``record``: (s after start(), stall ms, CPU ms)
+        self.tick_log: list[Tick] = []     # with ``record``: every tick
+        self.gc_watch = gc_watch
+        self.gc: _GcWatch | None = None    # with ``gc_watch``: the garbage collections since start()
         self._started = 0.0
         self._last: float | None = None
         self._started_cpu = self._last_cpu = 0.0
@@ -143,6 +256,9 @@ class Heartbeat(QObject):
         self._gui_ident = threading.get_ident()
         self._started = self._last = time.perf_counter()
         self._started_cpu = self._last_cpu = time.thread_time()
+        if self.gc_watch and self.gc is None:
+            self.gc = _GcWatch(self._gui_ident, self._started)
+            gc.callbacks.append(self.gc)
         self._timer.start()
         if self.watch and self._sampler is None:
             app = QCoreApplication.instance()
@@ -155,6 +271,8 @@ class Heartbeat(QObject):
 
     def stop(self) -> None:
         self._timer.stop()
+        if self.gc is not None and self.gc in gc.callbacks:
+            gc.callbacks.remove(self.gc)
         if self._sampler is not None:
             self._stop_sampling.set()
             self._sampler.join(2)
@@ -179,8 +297,12 @@ class Heartbeat(QObject):
         self.max_cpu_ms = max(self.max_cpu_ms, cpu_ms)
         with self._lock:
             samples, self._samples = self._samples, []
+        gc_ms = gc_other_ms = 0.0
+        if self.gc is not None:
+            gc_ms, gc_other_ms, self.gc.gui_ms, self.gc.other_ms = self.gc.gui_ms, self.gc.other_ms, 0.0, 0.0
+        event_cpu_ms, event = self._tap.take_costliest() if self._tap is not None else (0.0, "")
         if self.record:
-            self.tick_log.append((now - self._started, stall_ms, cpu_ms))
+            self.tick_log.append(Tick(now - self._started, stall_ms, cpu_ms, gc_ms, gc_other_ms, event_cpu_ms, event))
         if stall_ms > self.max_stall_ms:
             self.max_stall_ms = stall_ms
         if stall_ms > self.warn_ms:
@@ -189,10 +311,10 @@ class Heartbeat(QObject):
             else:
                 where = "not watched" if not self.watch else "no sample (the watchdog did not get to run)"
             stall = Stall(at_s=now - self._started, duration_ms=stall_ms, cpu_ms=cpu_ms, where=where,
-                          samples=len(samples))
+                          samples=len(samples), gc_ms=gc_ms + gc_other_ms,
+                          event=f"{event} ({event_cpu_ms:.0f} ms CPU)" if event else "")
             self.stalls.append(stall)
-            log.log(self.log_level, "GUI thread stalled for %.0f ms (its own CPU %.0f ms) in %s", stall_ms, cpu_ms,
-                    where)
+            log.log(self.log_level, "GUI thread stalled: %s", stall)
 
     # -- the sampler thread --------------------------------------------------------------------------
     def _sample_loop(self) -> None:
@@ -208,9 +330,9 @@ class Heartbeat(QObject):
             wait_s = period_s
             frame = sys._current_frames().get(self._gui_ident)
             where = _where(frame) if frame is not None else "?"
-            if self._tap is not None and self._tap.current is not None:
-                event_type, receiver = self._tap.current
-                where = f"{where} [Qt {_event_name(event_type)} → {receiver}]"
+            event = self._tap.describe_current() if self._tap is not None else None
+            if event is not None:
+                where = f"{where} [{event}]"
             del frame
             with self._lock:
                 if self._last == last:      # still the same overdue tick
