@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import multiprocessing
 import os
 import re
 import sys
@@ -42,9 +43,9 @@ class ThreadCpu:
         self._thread = threading.Thread(target=self._run, name="bench-thread-cpu", daemon=True)
         self._tick_s = 1.0 / os.sysconf("SC_CLK_TCK")
 
-    def _cpu_s(self, native_id: int) -> float | None:
+    def _cpu_s(self, native_id: int, task: bool = True) -> float | None:
         try:
-            with open(f"/proc/self/task/{native_id}/stat") as fh:
+            with open(f"/proc/self/task/{native_id}/stat" if task else f"/proc/{native_id}/stat") as fh:
                 fields = fh.read().rsplit(")", 1)[1].split()
         except OSError:
             return None
@@ -66,7 +67,8 @@ class ThreadCpu:
         self._thread.start()
 
     def stop(self) -> dict[str, float]:
-        """CPU seconds per thread name since start() (unnamed threads together), most first."""
+        """CPU seconds per thread name since start() (unnamed threads together), most first; child
+        processes still running (the live quality check) as "process NAME"."""
         self._sample()
         self._stop.set()
         self._thread.join(2)
@@ -74,6 +76,10 @@ class ThreadCpu:
         for key, cpu in self._seen.items():
             name = re.sub(r"^Thread-\d+.*", "unnamed threads (threading.Timer, ...)", key[1])
             by_name[name] += cpu - self._base.get(key, 0.0)
+        for child in multiprocessing.active_children():
+            cpu = self._cpu_s(child.pid, task=False)
+            if cpu is not None:
+                by_name[f"process {child.name}"] += cpu
         return dict(by_name.most_common())
 
 
@@ -209,7 +215,7 @@ def main() -> int:
           f"ones: " + (", ".join(f"{g.duration_ms:.1f} ms at {g.at_s:.2f} s ({'GUI' if g.on_gui_thread else 'other'}"
                                  " thread)" for g in full[:6]) or "none"))
     total_cpu = sum(thread_cpu.values())
-    print(f"CPU by thread during the scan              {total_cpu:.1f} s: " + ", ".join(
+    print(f"CPU by thread during the scan              {total_cpu:.1f} s (child processes' own CPU included): " + ", ".join(
         f"{name} {cpu:.1f}" for name, cpu in thread_cpu.items() if cpu >= 0.05))
     print("GUI thread's busiest tick intervals (own CPU; gc: GUI-thread / other threads' collections"
           + ("; the event that used most):" if args.events else "; --events names the Qt event):"))

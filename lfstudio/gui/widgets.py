@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 from PySide6.QtCore import QEvent, QObject, QPointF, QRectF, QSize, Qt, QTimer, Signal
-from PySide6.QtGui import QColor, QFont, QPainter, QPen
+from PySide6.QtGui import QColor, QFont, QGuiApplication, QPainter, QPen, QWindow
 from PySide6.QtWidgets import (QAbstractSpinBox, QApplication, QComboBox, QHBoxLayout, QLabel, QMessageBox,
                                QProgressBar, QPushButton, QSizePolicy, QWidget)
 
@@ -43,32 +43,108 @@ class WheelGuard(QObject):
     """Spin boxes and combo boxes take the mouse wheel only when they have keyboard focus.
 
     Without focus the wheel goes on to what contains them (a scroll area scrolls), so scrolling a
-    long form never changes a value the pointer happens to pass over. Installed once on the
-    application (:func:`install_wheel_guard`); it also stops the wheel from giving them focus
-    (``Qt.WheelFocus`` becomes ``Qt.StrongFocus``: click or Tab first)."""
+    long form never changes a value the pointer happens to pass over; the wheel does not give them
+    focus either (``Qt.WheelFocus`` becomes ``Qt.StrongFocus``: click or Tab first).
+
+    It watches each top-level window (:func:`install_wheel_guard`), where every wheel turn arrives
+    before Qt hands it to the widget under the pointer, and guards that widget the first time: from
+    then on it filters the widget's own events. Not an application-wide filter: that called Python,
+    and so took the GIL, for every one of the GUI thread's thousands of events a second, each wait for
+    the GIL a stall while other threads run Python."""
 
     GUARDED = (QAbstractSpinBox, QComboBox)
 
-    def eventFilter(self, obj: QObject, event: QEvent) -> bool:
-        kind = event.type()
-        if kind == QEvent.Type.Polish and isinstance(obj, self.GUARDED) \
-                and obj.focusPolicy() == Qt.FocusPolicy.WheelFocus:
-            obj.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
-        elif kind == QEvent.Type.Wheel and isinstance(obj, self.GUARDED) and not obj.hasFocus():
+    def __init__(self, parent: QObject | None = None):
+        super().__init__(parent)
+        self.looked_at = 0      # events this filter was called for (each a Python call on the GUI thread)
+
+    def eventFilter(self, obj: QObject, event: QEvent) -> bool:   # noqa: N802 (Qt name)
+        self.looked_at += 1
+        if event.type() != QEvent.Type.Wheel:
+            return False
+        if isinstance(obj, QWindow):
+            target = self._widget_under(obj, event.globalPosition().toPoint())
+            while target is not None and not isinstance(target, self.GUARDED) and not target.isWindow():
+                target = target.parentWidget()
+            if isinstance(target, self.GUARDED):
+                self.guard(target)          # before Qt delivers this wheel turn to it
+            return False
+        if isinstance(obj, self.GUARDED) and not obj.hasFocus():
             event.ignore()   # handled here, not accepted: Qt passes it on to the parent widgets
             return True
         return False
 
+    def guard(self, widget: QWidget) -> None:
+        if widget.focusPolicy() == Qt.FocusPolicy.WheelFocus:
+            widget.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
+        widget.installEventFilter(self)     # (installing it again only moves it to the front)
+
+    def watch_windows(self) -> None:
+        """Watch every top-level window there is (again: a window is watched once, however often)."""
+        for window in QGuiApplication.topLevelWindows():
+            window.installEventFilter(self)
+
+    @staticmethod
+    def _widget_under(window: QWindow, global_pos) -> QWidget | None:
+        for top in QApplication.topLevelWidgets():
+            if top.windowHandle() is window:
+                return top.childAt(top.mapFromGlobal(global_pos)) or top
+        return None
+
 
 def install_wheel_guard(app: QApplication | None = None) -> WheelGuard:
-    """Install the :class:`WheelGuard` on the application (once; later calls return the same one)."""
+    """Install the :class:`WheelGuard` (once; later calls return the same one): on the windows there
+    are now and on every window that becomes active later (a new window is activated when shown)."""
     app = app or QApplication.instance()
     guard = app.findChild(WheelGuard, "wheelGuard")
     if guard is None:
         guard = WheelGuard(app)
         guard.setObjectName("wheelGuard")
-        app.installEventFilter(guard)
+        app.focusWindowChanged.connect(lambda: guard.watch_windows())   # (not the window: it may be closing)
+    guard.watch_windows()
     return guard
+
+
+class QuietLabel(QWidget):
+    """A label whose text changes many times a second (a running scan's current view, ETA, counts)
+    without re-laying out the window.
+
+    ``QLabel.setText`` calls ``updateGeometry()``, and every layout it invalidates calls it again on
+    its own widget, so each new text re-lays out the panel, its dock and the main window (whose
+    animated docks make new QPropertyAnimations each time), and calls Python for every panel on the
+    way. Here the QLabel (``label``, with the ``name`` given) sits in a widget without a layout whose
+    size never depends on the text: a new text repaints the line, nothing else. The widget is
+    ``lines`` lines high (word-wrapped when more than one) and as wide as the layout gives it; its
+    size hint is the width of ``hint_text`` (default: the first text) and at least ``min_width_px``."""
+
+    def __init__(self, text: str = "", name: str = "", lines: int = 1, hint_text: str | None = None,
+                 min_width_px: int = 8, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.label = QLabel(text, self)
+        if name:
+            self.label.setObjectName(name)
+            self.setObjectName(f"{name}Line")
+        self.label.setWordWrap(lines > 1)
+        self.label.setAlignment(Qt.AlignLeft | Qt.AlignTop if lines > 1 else Qt.AlignLeft | Qt.AlignVCenter)
+        metrics = self.label.fontMetrics()
+        height = lines * metrics.lineSpacing() + (4 if lines > 1 else 2)
+        self._hint = QSize(max(min_width_px, metrics.horizontalAdvance(text if hint_text is None else hint_text)),
+                           height)
+        self.setFixedHeight(height)
+        self.setMinimumWidth(min_width_px)
+        self.setSizePolicy(QSizePolicy.Preferred, QSizePolicy.Fixed)
+
+    def setText(self, text: str) -> None:   # noqa: N802 (QLabel's name)
+        self.label.setText(text)
+
+    def text(self) -> str:
+        return self.label.text()
+
+    def sizeHint(self) -> QSize:   # noqa: N802 (Qt name)
+        return self._hint
+
+    def resizeEvent(self, event) -> None:   # noqa: N802 (Qt name)
+        self.label.setFixedSize(self.size())     # fixed: its updateGeometry() on a new text does nothing
 
 
 def confirm_cancel_running(parent: QWidget, runner, title: str, question: str) -> bool:

@@ -14,11 +14,18 @@ when a row is complete (and on :meth:`LiveChecker.settle`, e.g. when the scan en
 far is located together, as ``lfstudio check`` does, which keeps small errors from adding up. Listeners run on the checker's thread; a GUI posts them to
 its own thread. :meth:`LiveChecker.document` returns what has been judged so far in the layout of
 ``quality.json`` (no dataset-wide figures: those come from the full check after the scan).
+
+:class:`LiveCheckerProcess` runs a ``LiveChecker`` in a process of its own with the same inputs and
+outputs, for the GUI: a checker thread in the GUI's process holds the GIL for most of its work (small
+numpy calls, Python bookkeeping), and the GUI thread waits for it; in a process of its own the checker
+shares only the cores (at a lower priority, where it no longer makes every thread wait for it).
 """
 
 from __future__ import annotations
 
+import itertools
 import logging
+import multiprocessing
 import os
 import queue
 import threading
@@ -79,9 +86,9 @@ class LiveChecker:
     # -- inputs (any thread, never blocking) ---------------------------------------------------------
     def on_event(self, event: Any) -> None:
         """A scan engine listener: queue each finished view."""
-        kind = getattr(getattr(event, "kind", None), "value", getattr(event, "kind", None))
-        if kind == "view-done" and event.row is not None and event.file:
-            self.submit(int(event.row), int(event.column or 0), event.file)
+        view = _view_done(event)
+        if view is not None:
+            self.submit(*view)
 
     def submit(self, row: int, column: int, file: str | None = None) -> None:
         """Queue view (``row``, ``column``) (``file``: relative to the dataset; default: the manifest's)."""
@@ -128,16 +135,17 @@ class LiveChecker:
 
     def document(self) -> dict[str, Any]:
         """The views judged so far, in the layout of ``quality.json``."""
+        with self._lock:
+            views = [dict(self.results[c]) for c in sorted(self.results)]
+        return live_document(self.header(), views)
+
+    def header(self) -> dict[str, Any]:
+        """What :meth:`document` says besides the views: the grid and the thresholds."""
         t = self.grid.thresholds
         g = self.grid.geometry
         warn, fail = t.position_limits_mm(g.repeatability_um, g.spacing_mm)
-        with self._lock:
-            views = [dict(self.results[c]) for c in sorted(self.results)]
-        typical = [v["checks"]["residual"]["value"] for v in views if v["checks"]["residual"]["value"] is not None]
-        return {"format": "lfstudio-quality", "live": True, "grid": {"columns": g.columns, "rows": g.rows},
-                "thresholds": {**t.as_dict(), "position_warn_mm": warn, "position_fail_mm": fail},
-                "tracks": {"typical_view_residual_px": sorted(typical)[len(typical) // 2] if typical else None},
-                "views": views}
+        return {"grid": {"columns": g.columns, "rows": g.rows},
+                "thresholds": {**t.as_dict(), "position_warn_mm": warn, "position_fail_mm": fail}}
 
     # -- the checker's thread ---------------------------------------------------------------------------
     def _run(self) -> None:
@@ -292,3 +300,224 @@ class LiveChecker:
         with self._lock:
             self.results[cell] = entry
         self._publish([entry] + self._rejudge([c for c in window if c != cell]))
+
+
+def live_document(header: dict[str, Any], views: list[dict[str, Any]]) -> dict[str, Any]:
+    """A live check's ``quality.json``-style document: ``header`` (:meth:`LiveChecker.header`) and the
+    entries of the views judged so far, in cell order."""
+    typical = [v["checks"]["residual"]["value"] for v in views if v["checks"]["residual"]["value"] is not None]
+    return {"format": "lfstudio-quality", "live": True, **header,
+            "tracks": {"typical_view_residual_px": sorted(typical)[len(typical) // 2] if typical else None},
+            "views": views}
+
+
+def _view_done(event: Any) -> tuple[int, int, str] | None:
+    """(row, column, file) of a scan engine's ``view-done`` event with a file; None for any other."""
+    kind = getattr(getattr(event, "kind", None), "value", getattr(event, "kind", None))
+    if kind == "view-done" and event.row is not None and event.file:
+        return int(event.row), int(event.column or 0), event.file
+    return None
+
+
+class LiveCheckerProcess:
+    """A :class:`LiveChecker` on ``dataset`` in a process of its own (see the module docstring).
+
+    Inputs as a ``LiveChecker``'s (:meth:`on_event`, :meth:`submit`, :meth:`settle`), none of which
+    blocks: commands go to the process through a writer thread, which also starts it (spawn: a second
+    or so of imports, off the caller's thread). Listeners get each new or changed entry on a reader
+    thread; :attr:`results`, :meth:`flagged` and :meth:`document` mirror what the process published.
+    A checker that cannot start (the dataset unreadable) logs why and leaves ``failed`` set."""
+
+    def __init__(self, dataset, *, lower_priority: bool = True):
+        self.root = str(dataset.root)
+        self.results: dict[Cell, dict[str, Any]] = {}
+        self.errors: dict[Cell, str] = {}            # as of the last wait_idle()
+        self.failed: str | None = None
+        self._header: dict[str, Any] = {}
+        self._listeners: list[Listener] = []
+        self._lock = threading.Lock()
+        self._commands: queue.Queue = queue.Queue()
+        self._answers: dict[int, threading.Event] = {}
+        self._numbers = itertools.count(1)
+        self._ended = threading.Event()              # the reader saw the process's end
+        self._lower = lower_priority
+        self.process: multiprocessing.process.BaseProcess | None = None
+        self._reader: threading.Thread | None = None
+        self._writer = threading.Thread(target=self._write, name="quality-live-writer", daemon=True)
+        self._writer.start()
+
+    # -- inputs (any thread, never blocking) -----------------------------------------------------------
+    def on_event(self, event: Any) -> None:
+        """A scan engine listener: queue each finished view."""
+        view = _view_done(event)
+        if view is not None:
+            self.submit(*view)
+
+    def submit(self, row: int, column: int, file: str | None = None) -> None:
+        self._commands.put(("submit", int(row), int(column), file))
+
+    def settle(self) -> None:
+        self._commands.put(("settle",))
+
+    def subscribe(self, listener: Listener) -> Callable[[], None]:
+        """Call ``listener(entry)`` (on the reader thread) for each new or changed view verdict."""
+        with self._lock:
+            self._listeners.append(listener)
+
+        def unsubscribe() -> None:
+            with self._lock:
+                if listener in self._listeners:
+                    self._listeners.remove(listener)
+        return unsubscribe
+
+    def wait_idle(self, timeout_s: float | None = None) -> bool:
+        """Block until every view queued so far is judged and its entries are here (True), or
+        ``timeout_s`` passed or the process ended (False)."""
+        number = next(self._numbers)
+        answered = threading.Event()
+        with self._lock:
+            self._answers[number] = answered
+        self._commands.put(("idle", number))
+        return answered.wait(timeout_s) and not self._ended.is_set()
+
+    def close(self, timeout_s: float | None = 10.0, drain: bool = True) -> None:
+        """Stop the process after the views already queued (``drain``) or after the current one;
+        wait up to ``timeout_s`` for it (0: do not wait)."""
+        self._commands.put(("stop", bool(drain)))
+        if timeout_s == 0:
+            return
+        self._writer.join(timeout_s)
+        if self.process is not None:
+            self.process.join(timeout_s)
+        if self._reader is not None:
+            self._reader.join(timeout_s)
+
+    # -- results --------------------------------------------------------------------------------------
+    def flagged(self) -> dict[Cell, dict[str, Any]]:
+        with self._lock:
+            return {c: e for c, e in self.results.items() if e["verdict"] in (verdicts.WARN, verdicts.FAIL)}
+
+    def document(self) -> dict[str, Any]:
+        """The views judged so far, in the layout of ``quality.json``."""
+        with self._lock:
+            views = [dict(self.results[c]) for c in sorted(self.results)]
+        return live_document(self._header, views)
+
+    # -- the writer and reader threads ----------------------------------------------------------------
+    def _write(self) -> None:
+        ctx = multiprocessing.get_context("spawn")
+        commands_in, commands_out = ctx.Pipe(duplex=False)
+        results_in, results_out = ctx.Pipe(duplex=False)
+        process = ctx.Process(target=_checker_process, args=(self.root, commands_in, results_out, self._lower),
+                              name="lfstudio-live-check", daemon=True)
+        try:
+            process.start()
+        except Exception as exc:   # noqa: BLE001 - no process, no live check: say so, the scan goes on
+            self._fail(f"the live check could not start: {exc}")
+            self._ended.set()
+            self._release_waiters()
+            return
+        finally:
+            commands_in.close()
+            results_out.close()
+        self.process = process
+        self._reader = threading.Thread(target=self._read, args=(results_in,), name="quality-live-reader",
+                                        daemon=True)
+        self._reader.start()
+        with commands_out:
+            while True:
+                item = self._commands.get()
+                try:
+                    commands_out.send(item)
+                except OSError:           # the process has ended
+                    return
+                if item[0] == "stop":
+                    return
+
+    def _read(self, conn) -> None:
+        with conn:
+            while True:
+                try:
+                    message = conn.recv()
+                except (EOFError, OSError):
+                    break
+                kind = message[0]
+                if kind == "entry":
+                    entry = message[1]
+                    with self._lock:
+                        self.results[(int(entry["row"]), int(entry["column"]))] = entry
+                        listeners = list(self._listeners)
+                    for listener in listeners:
+                        try:
+                            listener(entry)
+                        except Exception:
+                            log.exception("live quality listener failed")
+                elif kind == "header":
+                    self._header = message[1]
+                elif kind == "idle":
+                    self.errors = {tuple(cell): text for cell, text in message[2]}
+                    with self._lock:
+                        answered = self._answers.pop(message[1], None)
+                    if answered is not None:
+                        answered.set()
+                elif kind == "failed":
+                    self._fail(message[1])
+        self._ended.set()
+        self._release_waiters()
+
+    def _fail(self, message: str) -> None:
+        self.failed = message
+        log.warning("live check of %s: %s", self.root, message)
+
+    def _release_waiters(self) -> None:
+        with self._lock:
+            waiting, self._answers = list(self._answers.values()), {}
+        for answered in waiting:
+            answered.set()
+
+
+def _checker_process(root: str, commands, results, lower_priority: bool) -> None:
+    """The live checker's process (started by :class:`LiveCheckerProcess`): a LiveChecker on the
+    dataset at ``root``; commands arrive on ``commands``, entries leave on ``results``."""
+    if lower_priority and hasattr(os, "nice"):
+        try:       # the whole process: its threads share no GIL with the scan, so this slows only the check
+            os.nice(10)
+        except OSError:
+            pass
+    send_lock = threading.Lock()
+
+    def send(message) -> None:
+        with send_lock:
+            try:
+                results.send(message)
+            except OSError:         # the GUI has gone; the commands pipe ends this process next
+                pass
+
+    try:
+        from lfstudio.dataset import Dataset
+
+        checker = LiveChecker(Dataset.open(root), lower_priority=False)
+    except Exception as exc:   # noqa: BLE001 - an unreadable dataset: the GUI says so and scans on
+        send(("failed", str(exc)))
+        return
+    send(("header", checker.header()))
+    checker.subscribe(lambda entry: send(("entry", entry)))
+    drain = False
+    while True:
+        try:
+            item = commands.recv()
+        except (EOFError, OSError):      # the GUI has gone
+            break
+        kind = item[0]
+        if kind == "submit":
+            checker.submit(*item[1:])
+        elif kind == "settle":
+            checker.settle()
+        elif kind == "idle":
+            checker.wait_idle()
+            send(("idle", item[1], list(checker.errors.items())))
+        elif kind == "stop":
+            drain = item[1]
+            break
+    checker.close(timeout_s=None if drain else 10.0, drain=drain)
+    results.close()

@@ -436,3 +436,38 @@ def test_opening_a_dataset_imports_no_scipy_or_calibration_code_on_the_gui_threa
                               "lfstudio.calibration.features"))]
     assert heavy == []
     assert "Calibrated" in result["summary"]
+
+
+# -- the wheel guard ---------------------------------------------------------------------------------
+def test_the_wheel_guard_watches_windows_not_every_event_of_the_application(qtbot):
+    """An application-wide Python event filter takes the GIL for every event of the GUI thread; the
+    guard sees a window's own events (where wheel turns arrive) and nothing sent to other objects."""
+    from PySide6.QtCore import QCoreApplication, QEvent, QObject
+    from PySide6.QtWidgets import QApplication, QSpinBox, QVBoxLayout, QWidget
+
+    from lfstudio.gui.widgets import WheelGuard, install_wheel_guard
+
+    app = QApplication.instance()
+    earlier = app.findChild(WheelGuard, "wheelGuard")
+    if earlier is not None:
+        earlier.setObjectName("earlierWheelGuard")       # so that install_wheel_guard makes a new one
+    try:
+        guard = install_wheel_guard(app)
+        assert guard is not earlier and guard is install_wheel_guard(app)      # one guard
+        form = QWidget()
+        qtbot.addWidget(form)
+        QVBoxLayout(form).addWidget(QSpinBox())
+        form.show()
+        qtbot.waitExposed(form)
+        guard.watch_windows()
+        form.resize(320, 200)
+        qtbot.waitUntil(lambda: guard.looked_at > 0, timeout=10000)          # the window's own events
+        before = guard.looked_at
+        target = QObject()
+        for _ in range(200):
+            QCoreApplication.sendEvent(target, QEvent(QEvent.Type.User))
+        assert guard.looked_at == before                 # none of them went through Python
+    finally:
+        if earlier is not None:
+            guard.setObjectName("")
+            earlier.setObjectName("wheelGuard")

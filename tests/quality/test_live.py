@@ -3,6 +3,7 @@ fault), the checker subscribed to its events, each view judged as it arrives."""
 
 from __future__ import annotations
 
+import os
 import threading
 
 import numpy as np
@@ -49,12 +50,14 @@ def faulty_scan(tmp_path, faults: list[ViewFault], cols: int = 5, rows: int = 4,
     return ScanEngine(ds, plan, rig, cam, time_scale=0.0), ds
 
 
-def test_the_live_checker_flags_faulty_views_as_they_arrive(tmp_path):
-    from lfstudio.quality.live import LiveChecker
+@pytest.mark.parametrize("where", ["thread", "process"])
+def test_the_live_checker_flags_faulty_views_as_they_arrive(tmp_path, where):
+    """In a thread (``lfstudio scan --check``) or in a process of its own (the GUI): the same verdicts."""
+    from lfstudio.quality.live import LiveChecker, LiveCheckerProcess
 
     faults = [ViewFault("blur", 2, 2, blur_px=6.0), ViewFault("displaced", 1, 3, offset_mm=(1.5, 0.0))]
     engine, ds = faulty_scan(tmp_path, faults)
-    checker = LiveChecker(ds)
+    checker = LiveChecker(ds) if where == "thread" else LiveCheckerProcess(ds)
     first_entry: dict = {}
     published: list[dict] = []
 
@@ -78,6 +81,22 @@ def test_the_live_checker_flags_faulty_views_as_they_arrive(tmp_path):
     assert first_entry[(2, 2)]["verdict"] == "fail" and first_entry[(1, 3)]["verdict"] == "fail"
     doc = checker.document()
     assert len(doc["views"]) == 20 and doc["thresholds"]["position_fail_mm"] > 0
+    assert doc["format"] == "lfstudio-quality" and doc["grid"] == {"columns": 5, "rows": 4}
+    if where == "process":
+        assert checker.process.pid != os.getpid() and not checker.process.is_alive()   # closed: it has ended
+
+
+def test_a_live_check_process_that_cannot_open_the_dataset_says_why(tmp_path):
+    from types import SimpleNamespace
+
+    from lfstudio.quality.live import LiveCheckerProcess
+
+    checker = LiveCheckerProcess(SimpleNamespace(root=tmp_path / "gone"))
+    checker.submit(0, 0, "views/r000_c000.png")
+    assert not checker.wait_idle(60)                 # the process ended instead of judging
+    assert "gone" in checker.failed and "not a folder" in checker.failed
+    assert checker.results == {}
+    checker.close()
 
 
 def test_the_scan_never_waits_for_the_checker(tmp_path, monkeypatch):

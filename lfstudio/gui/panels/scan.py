@@ -33,7 +33,7 @@ from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
 from lfstudio.gui.settings import settings
-from lfstudio.gui.widgets import set_progress_async
+from lfstudio.gui.widgets import QuietLabel, set_progress_async
 from lfstudio.jobs import format_duration
 from lfstudio.scan.events import EventKind, ScanRequestRefused, ScanState
 from lfstudio.scan.scan_plan import ScanPlan
@@ -401,29 +401,18 @@ class ScanPanel(QWidget):
         for b in (self.start_button, self.pause_button, self.resume_button, self.abort_button, self.skip_button):
             buttons.addWidget(b)
 
-        self.state_label = QLabel("Idle")
-        self.state_label.setObjectName("scanState")
-        self.state_label.setWordWrap(True)
+        # text that changes with every view must not re-lay the panel out (each new QLabel text re-lays
+        # out the panel, its dock and the main window): QuietLabels, room for two lines where it wraps
+        self.state_label = QuietLabel("Idle", name="scanState", lines=2)
         self.progress = QProgressBar()
         self.progress.setObjectName("scanProgress")
         self.progress.setFormat("%v / %m views (%p%)")
-        self.eta = QLabel("ETA –")
-        self.eta.setObjectName("scanEta")
-        self.eta.setMinimumWidth(120)
+        self.eta = QuietLabel("ETA –", name="scanEta", hint_text="ETA 00:00:00", min_width_px=120)
         prog_row = QHBoxLayout()
         prog_row.addWidget(self.progress, 1)
         prog_row.addWidget(self.eta)
-        self.current = QLabel("Current view: –")
-        self.current.setObjectName("currentView")
-        self.timings = QLabel("Step times: –")
-        self.timings.setObjectName("stepTimings")
-        self.timings.setWordWrap(True)
-        # text that changes with every view must not re-lay the panel out (that would redraw the path
-        # preview on the GUI thread mid-scan): room for two lines, and no say in the panel's width
-        for label in (self.state_label, self.timings):
-            label.setMinimumHeight(2 * label.fontMetrics().lineSpacing() + 4)
-            label.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)
-        self.current.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)
+        self.current = QuietLabel("Current view: –", name="currentView")
+        self.timings = QuietLabel("Step times: –", name="stepTimings", lines=2)
         self.log_view = QPlainTextEdit()
         self.log_view.setObjectName("scanLog")
         self.log_view.setReadOnly(True)

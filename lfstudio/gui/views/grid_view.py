@@ -42,6 +42,7 @@ from lfstudio.gui.bridge import GuiInbox, run_off_gui
 from lfstudio.gui.settings import settings
 from lfstudio.gui.views.quality import (OVERLAY_KEY, DisparityDialog, LiveQuality, NeighboursDialog, QualityBar,
                                         run_check)
+from lfstudio.gui.widgets import QuietLabel
 
 log = logging.getLogger(__name__)
 
@@ -745,8 +746,8 @@ class GridView(QWidget):
         bar.setContentsMargins(4, 2, 4, 2)
         self.title = QLabel("")
         self.title.setObjectName("gridTitle")
-        self.counts = QLabel("")
-        self.counts.setObjectName("gridCounts")
+        self.counts = QuietLabel("", name="gridCounts",      # changes while a scan runs: no relayout
+                                 hint_text="2121 done · 2121 to capture · 2121 failed · 2121 skipped")
         bar.addWidget(self.title)
         bar.addSpacing(12)
         bar.addWidget(self.counts)
@@ -759,7 +760,7 @@ class GridView(QWidget):
         legend.setToolTip("Colours of the views: pending, being captured, done, failed, skipped by the operator")
         # when the bar is narrow the legend gives way first, then the counts; the dataset's name keeps
         # its width (up to TITLE_SHARE of the view, beyond that elided in the middle): see _fit_title
-        for label in (self.title, self.counts, legend):   # never widen the window
+        for label in (self.title, legend):   # never widen the window (nor does counts: min 8 px)
             label.setMinimumWidth(8)
         legend.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)
         self._title_parts: tuple[str, str] | None = None
@@ -1081,13 +1082,13 @@ class GridView(QWidget):
         if self.live is None or self.live.root != Path(ds.root):
             self._stop_live()
             live = self.live = LiveQuality(ds, self)
-            live.verdict.connect(lambda entry, source=live: self._on_live_verdict(source, entry))
+            live.verdicts.connect(lambda entries, source=live: self._on_live_verdicts(source, entries))
         return self.live
 
-    def _on_live_verdict(self, source: LiveQuality, entry: dict) -> None:
+    def _on_live_verdicts(self, source: LiveQuality, entries: list[dict]) -> None:
         if source is not self.live:
-            return                      # a late verdict of a scan whose dataset is no longer shown
-        self._verdict_batch.append(entry)
+            return                      # late verdicts of a scan whose dataset is no longer shown
+        self._verdict_batch.extend(entries)
         if not self._verdict_timer.isActive():   # verdicts are shown together, a few times a second
             self._verdict_timer.start()
 

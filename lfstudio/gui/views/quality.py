@@ -5,8 +5,9 @@ with its neighbours, show the disparity map, check views during a scan.
   :class:`~lfstudio.gui.bridge.JobRunner`: off the GUI thread, progress, ETA, Cancel), the heat-map
   overlay choice (:data:`lfstudio.quality.pictures.HEATMAPS`), "Select flagged", "Disparity map…" and
   "Check during scan";
-* :class:`LiveQuality` — a :class:`lfstudio.quality.live.LiveChecker` whose verdicts arrive on the GUI
-  thread as a Qt signal;
+* :class:`LiveQuality` — a :class:`lfstudio.quality.live.LiveCheckerProcess` (the checker in a process
+  of its own: its work never holds the GUI's GIL) whose verdicts arrive on the GUI thread as a Qt
+  signal, a list at a time;
 * :class:`NeighboursDialog` — a flagged view in the middle of its 8 neighbours, with the reasons and
   a "Re-capture this view" button; :class:`DisparityDialog` — the centre view's disparity map.
 """
@@ -26,7 +27,7 @@ from lfstudio.dataset.manifest import is_done
 from lfstudio.dataset.paths import view_label
 from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.settings import settings
-from lfstudio.gui.widgets import JobProgressWidget
+from lfstudio.gui.widgets import JobProgressWidget, QuietLabel
 
 LIVE_KEY = "quality/check_during_scan"
 OVERLAY_KEY = "quality/overlay"
@@ -42,18 +43,19 @@ def run_check(root: str, *, progress, cancel) -> dict[str, Any]:
 
 
 class LiveQuality(QObject):
-    """Checks the views of a running scan; ``verdict(entry)`` arrives on the GUI thread."""
+    """Checks the views of a running scan; ``verdicts(entries)`` arrive on the GUI thread, in order,
+    as many together as came in since the last (one call per turn of the event loop)."""
 
-    verdict = Signal(object)
+    verdicts = Signal(object)
 
     def __init__(self, dataset, parent: QObject | None = None):
         super().__init__(parent)
-        from lfstudio.quality.live import LiveChecker
+        from lfstudio.quality.live import LiveCheckerProcess
 
         self.root = Path(dataset.root)
-        self.checker = LiveChecker(dataset)
-        self._inbox = GuiInbox(lambda entries: [self.verdict.emit(e) for e in entries], self)
-        self.checker.subscribe(self._inbox.post)      # called on the checker's thread
+        self.checker = LiveCheckerProcess(dataset)
+        self._inbox = GuiInbox(self.verdicts.emit, self)
+        self.checker.subscribe(self._inbox.post)      # called on the checker's reader thread
 
     def on_event(self, event: Any) -> None:
         self.checker.on_event(event)
@@ -103,12 +105,11 @@ class QualityBar(QWidget):
         self.live_box = QCheckBox("During scan")
         self.live_box.setObjectName("liveCheckBox")
         self.live_box.setToolTip("Check during the scan: judge each view as the scan captures it (on a "
-                                 "background thread; the scan never waits for it) and flag failing views at once")
+                                 "process of its own; the scan never waits for it) and flag failing views at once")
         self.live_box.setChecked(settings().value(LIVE_KEY, True, type=bool))
         self.live_box.toggled.connect(lambda on: settings().setValue(LIVE_KEY, bool(on)))
-        self.summary = QLabel("")
-        self.summary.setObjectName("qualitySummary")
-        self.summary.setMinimumWidth(8)
+        self.summary = QuietLabel("", name="qualitySummary",      # changes with each batch of verdicts
+                                  hint_text="2121 views checked during the scan: 2121 fail · 2121 warn")
         self.progress = JobProgressWidget(self.runner)
         self.progress.setVisible(False)
         self.runner.started.connect(lambda: self.progress.setVisible(True))
