@@ -54,7 +54,43 @@ MIN_LOCATED = 4        # views a free local position solve needs before it judge
 MIN_ANCHORS = 2        # located neighbours that anchor a new view's position
 
 
-class LiveChecker:
+class _Published:
+    """What a live check publishes (:class:`LiveChecker`, :class:`LiveCheckerProcess`): ``results``,
+    the entry of every view judged, and the listeners told of each new or changed one. Subclasses
+    set ``results``, ``_listeners`` and ``_lock``."""
+
+    results: dict[Cell, dict[str, Any]]
+    _listeners: list[Listener]
+    _lock: threading.Lock
+
+    def subscribe(self, listener: Listener) -> Callable[[], None]:
+        """Call ``listener(entry)`` for each new or changed view verdict (on the checker's thread,
+        or a LiveCheckerProcess's reader thread)."""
+        with self._lock:
+            self._listeners.append(listener)
+
+        def unsubscribe() -> None:
+            with self._lock:
+                if listener in self._listeners:
+                    self._listeners.remove(listener)
+        return unsubscribe
+
+    def flagged(self) -> dict[Cell, dict[str, Any]]:
+        with self._lock:
+            return {c: e for c, e in self.results.items() if e["verdict"] in (verdicts.WARN, verdicts.FAIL)}
+
+    def _publish(self, entries: list[dict[str, Any]]) -> None:
+        with self._lock:
+            listeners = list(self._listeners)
+        for entry in entries:
+            for listener in listeners:
+                try:
+                    listener(entry)
+                except Exception:
+                    log.exception("live quality listener failed")
+
+
+class LiveChecker(_Published):
     """Checks views of ``dataset`` as they arrive (see the module docstring)."""
 
     def __init__(self, dataset, *, thresholds: Thresholds | None = None,
@@ -103,17 +139,6 @@ class LiveChecker:
             self._pending += 1
         self._queue.put(_SETTLE)
 
-    def subscribe(self, listener: Listener) -> Callable[[], None]:
-        """Call ``listener(entry)`` (on the checker's thread) for each new or changed view verdict."""
-        with self._lock:
-            self._listeners.append(listener)
-
-        def unsubscribe() -> None:
-            with self._lock:
-                if listener in self._listeners:
-                    self._listeners.remove(listener)
-        return unsubscribe
-
     def wait_idle(self, timeout_s: float | None = None) -> bool:
         """Block until every queued view is judged (True) or ``timeout_s`` passed (False)."""
         with self._idle:
@@ -129,10 +154,6 @@ class LiveChecker:
             self._thread.join(timeout_s)
 
     # -- results --------------------------------------------------------------------------------------
-    def flagged(self) -> dict[Cell, dict[str, Any]]:
-        with self._lock:
-            return {c: e for c, e in self.results.items() if e["verdict"] in (verdicts.WARN, verdicts.FAIL)}
-
     def document(self) -> dict[str, Any]:
         """The views judged so far, in the layout of ``quality.json``."""
         with self._lock:
@@ -226,16 +247,6 @@ class LiveChecker:
         values = sorted(v for v in self._residual_px.values() if v is not None)
         return values[len(values) // 2] if values else None
 
-    def _publish(self, entries: list[dict[str, Any]]) -> None:
-        with self._lock:
-            listeners = list(self._listeners)
-        for entry in entries:
-            for listener in listeners:
-                try:
-                    listener(entry)
-                except Exception:
-                    log.exception("live quality listener failed")
-
     def _refit_frame(self) -> None:
         cells = sorted(self.measured_mm)
         cmd = np.array([self.grid.geometry.commanded_mm[c] for c in cells], float)
@@ -319,7 +330,7 @@ def _view_done(event: Any) -> tuple[int, int, str] | None:
     return None
 
 
-class LiveCheckerProcess:
+class LiveCheckerProcess(_Published):
     """A :class:`LiveChecker` on ``dataset`` in a process of its own (see the module docstring).
 
     Inputs as a ``LiveChecker``'s (:meth:`on_event`, :meth:`submit`, :meth:`settle`), none of which
@@ -359,17 +370,6 @@ class LiveCheckerProcess:
     def settle(self) -> None:
         self._commands.put(("settle",))
 
-    def subscribe(self, listener: Listener) -> Callable[[], None]:
-        """Call ``listener(entry)`` (on the reader thread) for each new or changed view verdict."""
-        with self._lock:
-            self._listeners.append(listener)
-
-        def unsubscribe() -> None:
-            with self._lock:
-                if listener in self._listeners:
-                    self._listeners.remove(listener)
-        return unsubscribe
-
     def wait_idle(self, timeout_s: float | None = None) -> bool:
         """Block until every view queued so far is judged and its entries are here (True), or
         ``timeout_s`` passed or the process ended (False)."""
@@ -393,10 +393,6 @@ class LiveCheckerProcess:
             self._reader.join(timeout_s)
 
     # -- results --------------------------------------------------------------------------------------
-    def flagged(self) -> dict[Cell, dict[str, Any]]:
-        with self._lock:
-            return {c: e for c, e in self.results.items() if e["verdict"] in (verdicts.WARN, verdicts.FAIL)}
-
     def document(self) -> dict[str, Any]:
         """The views judged so far, in the layout of ``quality.json``."""
         with self._lock:
@@ -446,12 +442,7 @@ class LiveCheckerProcess:
                     entry = message[1]
                     with self._lock:
                         self.results[(int(entry["row"]), int(entry["column"]))] = entry
-                        listeners = list(self._listeners)
-                    for listener in listeners:
-                        try:
-                            listener(entry)
-                        except Exception:
-                            log.exception("live quality listener failed")
+                    self._publish([entry])
                 elif kind == "header":
                     self._header = message[1]
                 elif kind == "idle":
