@@ -113,13 +113,20 @@ class QuietLabel(QWidget):
     its own widget, so each new text re-lays out the panel, its dock and the main window (whose
     animated docks make new QPropertyAnimations each time), and calls Python for every panel on the
     way. Here the QLabel (``label``, with the ``name`` given) sits in a widget without a layout whose
-    size never depends on the text: a new text repaints the line, nothing else. The widget is
-    ``lines`` lines high (word-wrapped when more than one) and as wide as the layout gives it; its
-    size hint is the width of ``hint_text`` (default: the first text) and at least ``min_width_px``."""
+    size never depends on the text: a new text repaints the line (filled, so the panels under it are
+    not repainted too), nothing else. The widget is ``lines`` lines high (word-wrapped when more than
+    one) and as wide as the layout gives it; its size hint is the width of ``hint_text`` (default:
+    the first text) and at least ``min_width_px``. With ``every_ms`` a new text is shown at most that
+    often (the latest one; :meth:`text` returns it at once)."""
 
     def __init__(self, text: str = "", name: str = "", lines: int = 1, hint_text: str | None = None,
-                 min_width_px: int = 8, parent: QWidget | None = None):
+                 min_width_px: int = 8, every_ms: int = 0, parent: QWidget | None = None):
         super().__init__(parent)
+        self.every_ms = every_ms
+        self._pending: str | None = None
+        self._shown_s = 0.0
+        self._timer: QTimer | None = None
+        self.setAutoFillBackground(True)
         self.label = QLabel(text, self)
         if name:
             self.label.setObjectName(name)
@@ -135,10 +142,32 @@ class QuietLabel(QWidget):
         self.setSizePolicy(QSizePolicy.Preferred, QSizePolicy.Fixed)
 
     def setText(self, text: str) -> None:   # noqa: N802 (QLabel's name)
-        self.label.setText(text)
+        if not self.every_ms:
+            self.label.setText(text)
+            return
+        wait_ms = self.every_ms - (time.perf_counter() - self._shown_s) * 1000.0
+        if wait_ms <= 0 and self._pending is None:
+            self._show(text)
+            return
+        self._pending = text
+        if self._timer is None:
+            self._timer = QTimer(self)
+            self._timer.setSingleShot(True)
+            self._timer.timeout.connect(self._show_pending)
+        if not self._timer.isActive():
+            self._timer.start(max(0, int(wait_ms)))
 
     def text(self) -> str:
-        return self.label.text()
+        return self._pending if self._pending is not None else self.label.text()
+
+    def _show_pending(self) -> None:
+        text, self._pending = self._pending, None
+        if text is not None:
+            self._show(text)
+
+    def _show(self, text: str) -> None:
+        self._shown_s = time.perf_counter()
+        self.label.setText(text)
 
     def sizeHint(self) -> QSize:   # noqa: N802 (Qt name)
         return self._hint

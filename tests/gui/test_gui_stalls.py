@@ -313,6 +313,10 @@ def test_a_burst_of_scan_events_reaches_every_listener_in_order_and_draws_once(q
     assert f"row {last.row}, column {last.column}" in panel.current.text()
     assert panel.progress.value() == len(views)
     assert panel.preview.rebuilds == rebuilds                          # done dots added, path kept
+    # the log takes a drain's lines at most every LOG_MS, all of them, in order
+    qtbot.waitUntil(lambda: f"({len(views)}/{len(views)})" in panel.log_view.toPlainText(), timeout=10000)
+    logged = [line for line in panel.log_view.toPlainText().splitlines() if "done (" in line]
+    assert [line.split("done (")[1].split("/")[0] for line in logged] == [str(i + 1) for i in range(len(views))]
 
 
 def test_state_forwards_a_single_event_as_a_list(qtbot):
@@ -471,3 +475,59 @@ def test_the_wheel_guard_watches_windows_not_every_event_of_the_application(qtbo
         if earlier is not None:
             guard.setObjectName("")
             earlier.setObjectName("wheelGuard")
+
+
+# -- labels that change during a scan ----------------------------------------------------------------
+class _LayoutRequests(__import__("PySide6.QtCore", fromlist=["QObject"]).QObject):
+    def __init__(self):
+        super().__init__()
+        self.count = 0
+
+    def eventFilter(self, obj, event):   # noqa: N802
+        from PySide6.QtCore import QEvent
+
+        if event.type() == QEvent.Type.LayoutRequest:
+            self.count += 1
+        return False
+
+
+@pytest.mark.parametrize("kind", ["QuietLabel", "QLabel"])
+def test_a_quiet_label_changes_its_text_without_a_relayout(qtbot, kind):
+    """QLabel.setText re-lays out its parent (and from there the whole window); a QuietLabel does not."""
+    from PySide6.QtCore import QCoreApplication
+    from PySide6.QtWidgets import QLabel, QVBoxLayout, QWidget
+
+    from lfstudio.gui.widgets import QuietLabel
+
+    panel = QWidget()
+    qtbot.addWidget(panel)
+    label = QuietLabel("Current view: –", name="currentView") if kind == "QuietLabel" else QLabel("Current view: –")
+    QVBoxLayout(panel).addWidget(label)
+    panel.show()
+    qtbot.waitExposed(panel)
+    QCoreApplication.sendPostedEvents()          # the layout requests of showing it are over
+    QCoreApplication.processEvents()
+    requests = _LayoutRequests()
+    panel.installEventFilter(requests)
+    for i in range(20):
+        label.setText(f"Current view: row {i}, column {i * 7} — moving" + " ." * i)
+    QCoreApplication.sendPostedEvents()      # deliver what setText posted (a LayoutRequest, for a QLabel)
+    QCoreApplication.processEvents()
+    assert label.text().startswith("Current view: row 19")
+    if kind == "QuietLabel":
+        assert requests.count == 0 and label.label.objectName() == "currentView"
+    else:
+        assert requests.count >= 1                  # what the QuietLabel avoids
+
+
+def test_a_quiet_label_with_every_ms_shows_the_latest_text(qtbot):
+    from lfstudio.gui.widgets import QuietLabel
+
+    label = QuietLabel("Step times: –", every_ms=300)
+    qtbot.addWidget(label)
+    label.setText("Step times: move 0.10 s")          # the first is shown at once
+    assert label.label.text() == "Step times: move 0.10 s"
+    for i in range(2, 6):
+        label.setText(f"Step times: move 0.{i}0 s")
+    assert label.text() == "Step times: move 0.50 s"   # what it says (the latest) ...
+    qtbot.waitUntil(lambda: label.label.text() == "Step times: move 0.50 s", timeout=5000)   # ... and shows

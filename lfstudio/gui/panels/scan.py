@@ -3,7 +3,10 @@ progress with ETA, the current view with its step timings, and the log of events
 
 The engine (:class:`lfstudio.scan.engine.ScanEngine`) runs on its own threads; its events reach
 this panel through a queued Qt signal and are re-published, a drain's worth at a time, as
-``AppState.scanEvents`` for the grid (at most 1000 / FRAME_MS drains a second: see ``_drain``).
+``AppState.scanEvents`` for the grid (at most 1000 / FRAME_MS drains a second: see ``_drain``). What
+changes with every view repaints as little as it can: its labels are QuietLabels (no relayout of the
+window), the step times show at most every STEP_TIMES_MS and the log takes new lines at most every
+LOG_MS (a state change's at once).
 Devices: the rig and camera connected in the Rig/Camera panels (``state.devices``), or, in the
 simulated studio, a built-in simulated rig and camera started off the GUI thread. The scan itself
 runs as a :class:`lfstudio.studio.session.ScanSession` (dataset lock for the whole run, resume with
@@ -44,6 +47,8 @@ ACTIVE_KEY = "scan/active_dataset"
 GRID_KEY = "scan/grid"    # the panel's grid as last set (JSON): restored with the Planner's plan after a restart
 FRAME_MS = 40             # engine events are shown at most 25 times a second (each drain repaints)
 DRAIN_BUDGET_S = 0.010    # GUI time one drain may take before it yields to painting and input
+STEP_TIMES_MS = 500       # the step times (new with every view) are shown at most this often
+LOG_MS = 200              # a running scan's log lines are appended at most this often (each append repaints)
 
 
 class PathPreview(QWidget):
@@ -60,6 +65,7 @@ class PathPreview(QWidget):
         self.setObjectName("pathPreview")
         self.setMinimumHeight(110)
         self.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Expanding)
+        self.setAttribute(Qt.WA_OpaquePaintEvent)      # paints every pixel: nothing under it is repainted
         self.plan: ScanPlan | None = None
         self.current: tuple[int, int] | None = None
         self.done: set[tuple[int, int]] = set()
@@ -284,7 +290,12 @@ class ScanPanel(QWidget):
         self._done_batch: list[tuple[int, int]] = []     # views done in this drain (path preview)
         self._to_publish: list = []                      # this drain's events for AppState.scanEvents
         self._current_text: str | None = None           # the current view's line, as of this drain
-        self._log_lines: list[str] = []
+        self._log_lines: list[str] = []             # not appended to the log yet (see _drain, _log)
+        self._last_log_s = 0.0
+        self._state_seen = False                    # this drain had a state change (its lines shown at once)
+        self._log_timer = QTimer(self)
+        self._log_timer.setSingleShot(True)
+        self._log_timer.timeout.connect(self._flush_log)
         self._log_follow = True         # the log shows its newest line (see _append_log)
         self._resumable = False         # the last scan ended with views still to capture (Resume continues it)
         self._rig_device = None         # the rig whose status may end a paused scan's rig fault
@@ -412,7 +423,7 @@ class ScanPanel(QWidget):
         prog_row.addWidget(self.progress, 1)
         prog_row.addWidget(self.eta)
         self.current = QuietLabel("Current view: –", name="currentView")
-        self.timings = QuietLabel("Step times: –", name="stepTimings", lines=2)
+        self.timings = QuietLabel("Step times: –", name="stepTimings", lines=2, every_ms=STEP_TIMES_MS)
         self.log_view = QPlainTextEdit()
         self.log_view.setObjectName("scanLog")
         self.log_view.setReadOnly(True)
@@ -855,9 +866,12 @@ class ScanPanel(QWidget):
             self._current_text = None
         if last_done is not None:
             self._show_done(last_done)
-        if self._log_lines:
-            self._append_log("\n".join(self._log_lines))
-            self._log_lines = []
+        if self._log_lines:                  # each append repaints the log: at most every LOG_MS
+            if self._state_seen or time.perf_counter() - self._last_log_s >= LOG_MS / 1000.0:
+                self._flush_log()
+            elif not self._log_timer.isActive():
+                self._log_timer.start(LOG_MS)
+        self._state_seen = False
         if self._backlog:                    # more than a slice: go on after the pending paints
             self._drain_timer.start(0)
 
@@ -877,6 +891,7 @@ class ScanPanel(QWidget):
         else:
             self._to_publish.append(ev)
         if kind is EventKind.STATE:
+            self._state_seen = True
             self._show_state(ev.state, ev.message)
             self._log(ev.describe())
         elif kind is EventKind.VIEW_STARTED:
@@ -987,13 +1002,19 @@ class ScanPanel(QWidget):
             w.setEnabled(not running)
 
     def _log(self, text: str) -> None:
+        """A line for the log: at once, or with a drain's lines (see :meth:`_drain`), in order."""
         from datetime import datetime
 
-        line = f"{datetime.now():%H:%M:%S}  {text}"
-        if self._draining:
-            self._log_lines.append(line)
-        else:
-            self._append_log(line)
+        self._log_lines.append(f"{datetime.now():%H:%M:%S}  {text}")
+        if not self._draining:
+            self._flush_log()
+
+    def _flush_log(self) -> None:
+        self._log_timer.stop()
+        self._last_log_s = time.perf_counter()
+        if self._log_lines:
+            lines, self._log_lines = self._log_lines, []
+            self._append_log("\n".join(lines))
 
     def _append_log(self, text: str) -> None:
         """Add lines to the log, following them like a terminal: when the log was scrolled to its end

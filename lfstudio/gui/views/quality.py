@@ -108,7 +108,7 @@ class QualityBar(QWidget):
                                  "process of its own; the scan never waits for it) and flag failing views at once")
         self.live_box.setChecked(settings().value(LIVE_KEY, True, type=bool))
         self.live_box.toggled.connect(lambda on: settings().setValue(LIVE_KEY, bool(on)))
-        self.summary = QuietLabel("", name="qualitySummary",      # changes with each batch of verdicts
+        self.summary = QuietLabel("", name="qualitySummary", every_ms=500,    # changes with each batch of verdicts
                                   hint_text="2121 views checked during the scan: 2121 fail · 2121 warn")
         self.progress = JobProgressWidget(self.runner)
         self.progress.setVisible(False)
