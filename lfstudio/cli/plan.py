@@ -196,7 +196,7 @@ def format_table(plan, result) -> str:
     ]
     if r.proposed_grid is not None:
         sections[2][1].append((f"grid for {100 * plan.target_parallax_fraction:g} % parallax",
-                               f"{r.proposed_grid['columns']} × {r.proposed_grid['rows']}"))
+                               f"{r.proposed_grid.columns} × {r.proposed_grid.rows}"))
     width = max(len(label) for _, rows in sections for label, _ in rows) + 2
     lines: list[str] = []
     for title, rows in sections:

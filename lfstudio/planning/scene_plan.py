@@ -297,7 +297,7 @@ class PlanResult:
     bytes_per_image: int
     storage_bytes: int
     proposed_spacing_mm: dict[str, float]           # for max_disparity_px between near and far
-    proposed_grid: dict[str, int] | None            # for target_parallax_fraction
+    proposed_grid: Grid | None                      # for target_parallax_fraction, at the plan's spacing
     warnings: list[PlanWarning] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
@@ -307,6 +307,8 @@ class PlanResult:
             value = getattr(self, f.name)
             if f.name == "warnings":
                 value = [w.to_dict() for w in value]
+            elif isinstance(value, Grid):
+                value = value.to_manifest()
             elif isinstance(value, tuple):
                 value = list(value)
             elif isinstance(value, float) and not math.isfinite(value):
@@ -417,11 +419,10 @@ def _derive(p: ScenePlan) -> PlanResult:
             f"a spacing of {proposed_spacing[too_sparse[0]]:.3g} mm would give it", "info"))
     proposed_grid = None
     if p.target_parallax_fraction is not None:
-        proposed_grid = {
-            "columns": optics.positions_for_parallax(p.target_parallax_fraction * width_px, spacing["horizontal"],
-                                                     near_mm, far_mm, f, pitch),
-            "rows": optics.positions_for_parallax(p.target_parallax_fraction * height_px, spacing["vertical"],
-                                                  near_mm, far_mm, f, pitch)}
+        proposed_grid = dataclasses.replace(p.grid, columns=optics.positions_for_parallax(
+            p.target_parallax_fraction * width_px, spacing["horizontal"], near_mm, far_mm, f, pitch),
+            rows=optics.positions_for_parallax(
+            p.target_parallax_fraction * height_px, spacing["vertical"], near_mm, far_mm, f, pitch))
 
     travel = p.travel_problem()
     if travel is not None:

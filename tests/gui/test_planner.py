@@ -113,6 +113,16 @@ def test_proposed_spacing_button(window, qtbot):
     assert p.result.neighbour_disparity_px["horizontal"] == pytest.approx(1.0, abs=0.01)
 
 
+def test_wanted_parallax_shows_the_proposed_grid(window, qtbot):
+    p = planner(window)
+    assert p.outputs["proposed_grid"].text() == "— (set a wanted parallax)"
+    type_into(qtbot, p.rows["target_parallax_fraction"].spins[0], "20")
+    qtbot.waitUntil(lambda: p.result is not None and p.result.proposed_grid is not None)
+    grid = p.result.proposed_grid                      # the dataset's typed Grid at the plan's spacing
+    assert grid.columns == 103 and grid.spacing_mm == p.plan.grid.spacing_mm
+    assert p.outputs["proposed_grid"].text() == f"103 × {grid.rows} for 20 %"
+
+
 def test_plan_file_round_trip_through_the_panel(window, qtbot, tmp_path):
     p = planner(window)
     plan = reference_plan().replace(near_m=2.5, far_m=8.0, f_number=16.0, grid_columns=51, grid_rows=11)

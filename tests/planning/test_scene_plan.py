@@ -124,7 +124,7 @@ def test_inverse_outputs():
     r = reference_plan().replace(max_disparity_px=1.0, target_parallax_fraction=0.2).derive()
     # spacing for 1 px between 1.77 m and 4.77 m: 4 mm / 15.688
     assert r.proposed_spacing_mm["horizontal"] == pytest.approx(4 / 15.688, rel=1e-4)
-    assert r.proposed_grid["columns"] == 103    # 0.2 · 7952 / 15.688 = 101.4 steps → 102 steps
+    assert r.proposed_grid.columns == 103    # 0.2 · 7952 / 15.688 = 101.4 steps → 102 steps
     p2 = reference_plan().replace(spacing_mm=(r.proposed_spacing_mm["horizontal"], 6.0)).derive()
     assert p2.neighbour_disparity_px["horizontal"] == pytest.approx(1.0)
 
@@ -215,3 +215,18 @@ def test_the_shipped_presets_describe_the_reference_setup():
         {f.name: getattr(defaults, f.name) for f in dataclasses.fields(ScenePlan)}
     assert (defaults.sensor_px, defaults.focal_length_mm, defaults.grid_columns, defaults.grid_rows,
             defaults.transfer_s) == (REFERENCE.sensor_px, REFERENCE.focal_length_mm, *REFERENCE.grid, REFERENCE.transfer_s)
+
+
+def test_the_proposed_grid_is_the_dataset_model_at_the_plan_spacing():
+    from lfstudio.dataset.grid import Grid
+
+    plan = reference_plan().replace(target_parallax_fraction=0.2)
+    r = plan.derive()
+    assert isinstance(r.proposed_grid, Grid)
+    assert (r.proposed_grid.columns, r.proposed_grid.spacing_mm, r.proposed_grid.order) == \
+        (103, plan.grid.spacing_mm, plan.grid.order)
+    assert plan.replace(grid_columns=r.proposed_grid.columns, grid_rows=r.proposed_grid.rows).derive() \
+        .row_parallax_fraction >= 0.2
+    out = r.to_dict()["proposed_grid"]
+    assert Grid.from_manifest(out) == r.proposed_grid and out["columns"] == 103
+    assert reference_plan().derive().to_dict()["proposed_grid"] is None

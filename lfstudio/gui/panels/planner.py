@@ -569,7 +569,7 @@ class PlannerPanel(QWidget):
         ps = r.proposed_spacing_mm
         put("proposed_spacing", f"{ps['horizontal']:.3g} / {ps['vertical']:.3g} mm for ≤ {plan.max_disparity_px:g} px")
         put("proposed_grid", "— (set a wanted parallax)" if r.proposed_grid is None
-            else f"{r.proposed_grid['columns']} × {r.proposed_grid['rows']} for "
+            else f"{r.proposed_grid.columns} × {r.proposed_grid.rows} for "
                  f"{100 * plan.target_parallax_fraction:g} %")
         put("images", f"{plan.grid_columns} × {plan.grid_rows} = {r.images}"
             + ("" if r.fits_travel else "  — beyond travel"), "" if r.fits_travel else "bad")
