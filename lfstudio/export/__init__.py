@@ -18,6 +18,10 @@ Every export is a long job (``progress(done, total, message)``, ``cancel``: a
 :class:`lfstudio.jobs.CancelToken`). It writes into a temporary sibling ``.NAME.partial-XXXX`` and
 renames it at the end, so nothing ever appears half-written under the final name; an existing
 output is refused unless ``overwrite``. Qt-free.
+
+Paths are taken as given: the front ends read what the operator typed (``~``, ``$VARIABLES``) with
+:func:`lfstudio.dataset.paths.expand_path` (the CLI's ``path_option``, the GUI's path fields), so
+every path reaches the library already expanded, like every other stage's.
 """
 
 from __future__ import annotations
@@ -109,7 +113,7 @@ def _check_options(options: ExportOptions) -> ExportOptions:
     if options.out is None or str(options.out).strip() == "":
         raise InputError("out", "no output path given",
                          "a folder (png, hci, colmap, nerfstudio) or a .mp4/.mkv/.hevc file (hevc)")
-    out = Path(options.out).expanduser()
+    out = Path(options.out)
     if fmt == "hevc":
         if out.suffix.lower() not in HEVC_SUFFIXES:
             raise InputError("out", f"{out.name}: an HEVC export is a video file", ", ".join(HEVC_SUFFIXES))

@@ -276,8 +276,7 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
     from lfstudio.dataset.manifest import MANIFEST_NAME
     from lfstudio.dataset.thumbs import make_thumbnail
 
-    video = Path(video).expanduser()
-    out = Path(out).expanduser()
+    video, out = Path(video), Path(out)        # expanded by the front end (dataset.paths.expand_path)
     doc = read_sidecar(video)
     common.refuse_out_over_inputs(out, [video, sidecar_path(video)], "the video being imported",
                                   "a new folder for the dataset")

@@ -128,3 +128,26 @@ def test_hci_size_is_read_like_every_other_pair(make_tiny_dataset, run_cli, tmp_
         assert proc.returncode == 2, proc.stderr
         _one_error_line(proc, *words)
     assert not (tmp_path / "h").exists()
+
+
+def test_export_and_import_hevc_expand_a_quoted_tilde_and_variables(make_tiny_dataset, run_cli, tmp_path):
+    """The library takes paths as given; the command line expands '~' and $VARIABLES
+    (dataset.paths.expand_path) for the dataset, --out and the video, so nothing is lost for a user
+    whose shell left them unexpanded, and no folder named '~' or '$HOME' appears."""
+    ds = make_tiny_dataset("png", width_px=241)
+    home, cwd = tmp_path / "home", tmp_path / "cwd"
+    home.mkdir()
+    cwd.mkdir()
+    env = {"HOME": str(home), "LFS_DS": str(ds.root)}
+    proc = run_cli("export", "$LFS_DS", "--format", "hevc", "--out", "~/exports/lf.mkv", "--views", "r1-2,c0-1",
+                   env=env, cwd=cwd)
+    assert proc.returncode == 0, proc.stderr
+    assert (home / "exports" / "lf.mkv").is_file() and (home / "exports" / "lf.mkv.json").is_file()
+    proc = run_cli("import-hevc", "~/exports/lf.mkv", "--out", "${HOME}/back", env=env, cwd=cwd)
+    assert proc.returncode == 0, proc.stderr
+    assert sorted(p.name for p in (home / "back" / "raw").iterdir()) == \
+        ["r01_c000.png", "r01_c001.png", "r02_c000.png", "r02_c001.png"]
+    proc = run_cli("export", ds.root, "--format", "png", "--out", "~/exports/png", "--views", "r0", env=env, cwd=cwd)
+    assert proc.returncode == 0, proc.stderr
+    assert (home / "exports" / "png" / "manifest.json").is_file()
+    assert list(cwd.iterdir()) == []                # nothing named '~' or '$HOME' made here
