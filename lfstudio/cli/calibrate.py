@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 from lfstudio.errors import InputError
 from lfstudio.numbers import Number
@@ -86,5 +85,5 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(format_report(doc))
         if not args.no_save:
-            print(f"\nsaved {Path(ds.root) / 'calibration.json'}")
+            print(f"\nsaved {path}")
     return 0

@@ -27,6 +27,7 @@ import numpy as np
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.grid import View
+from lfstudio.dataset.paths import CALIBRATION_NAME
 from lfstudio.errors import DatasetError
 
 
@@ -104,7 +105,7 @@ def camera_for(ds: Dataset, size: Sequence[int], rectified: bool, calibration: d
             if len(rot) != 3 or not all(np.isfinite(rot)):
                 raise ValueError("rotation_deg")
         except (KeyError, TypeError, ValueError, IndexError):
-            raise DatasetError(f"{ds.root / 'calibration.json'}: image_size_px, focal_length_px, principal_point_px "
+            raise DatasetError(f"{ds.root / CALIBRATION_NAME}: image_size_px, focal_length_px, principal_point_px "
                                "or rotation_deg is unreadable; run 'lfstudio calibrate' again") from None
     if full is None:
         sensor_px = ds.camera.get("sensor_px")

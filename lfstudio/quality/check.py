@@ -303,7 +303,7 @@ class QualityReport:
 
 def calibration_homography(dataset) -> tuple[np.ndarray | None, list[int] | None, dict[str, Any] | None]:
     """The dataset's rectifying homography (full resolution) and its image size, or Nones."""
-    from lfstudio.calibration.model import homography_for, load_calibration
+    from lfstudio.calibration.model import CALIBRATION_NAME, homography_for, load_calibration
 
     doc = load_calibration(dataset)
     if not doc:
@@ -311,7 +311,7 @@ def calibration_homography(dataset) -> tuple[np.ndarray | None, list[int] | None
     try:
         return homography_for(doc), [int(v) for v in doc["image_size_px"]], doc
     except (KeyError, TypeError, ValueError) as exc:
-        raise DatasetError(f"{Path(dataset.root) / 'calibration.json'}: incomplete ({exc}); run "
+        raise DatasetError(f"{Path(dataset.root) / CALIBRATION_NAME}: incomplete ({exc}); run "
                            "'lfstudio calibrate' again") from None
 
 
