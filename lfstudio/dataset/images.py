@@ -19,7 +19,8 @@ per file, size and modification time.
 - :func:`read_grey`: a capture as a grey 8-bit working image for feature detection;
 - :func:`thumbnail_array`, :func:`thumbnail_from_array`: small BGR pictures for the grid
   (:mod:`lfstudio.dataset.thumbs` writes and caches them); :func:`preview_rgb8`: an 8-bit picture to
-  look at (test shots, a view at full size).
+  look at (test shots, a view at full size); :func:`read_picture`: a picture lfstudio wrote itself
+  (a cached thumbnail, a quality map).
 
 Linear output: ``gamma=(1, 1)``, ``no_auto_bright``, ``output_bps=16``; the RAW's white level maps
 to 65535. The RAW's orientation tag is applied.
@@ -581,6 +582,13 @@ def decode_frame(data: bytes | memoryview) -> np.ndarray | None:
     RGB; None when it cannot be decoded."""
     img = cv2.imdecode(np.frombuffer(memoryview(data), np.uint8), cv2.IMREAD_COLOR)
     return None if img is None else cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def read_picture(path: str | os.PathLike) -> np.ndarray | None:
+    """A picture lfstudio wrote itself (a cached or stored JPEG thumbnail, a quality map PNG) as
+    (h, w, 3) BGR uint8; None when it is missing or unreadable (the caller makes it again). Not for
+    captures: no LibRaw probe, no bit depth kept."""
+    return cv2.imread(str(path), cv2.IMREAD_COLOR)
 
 
 def preview_rgb8(path: str | os.PathLike, max_width_px: int | None = None, stretch: bool = False) -> np.ndarray:

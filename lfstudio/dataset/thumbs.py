@@ -140,7 +140,7 @@ def _make_cached(root: Path, path: Path, width_px: int, versions: _Versions | No
         return None
     target, prefix = where
     if target.is_file():
-        img = cv2.imread(str(target), cv2.IMREAD_COLOR)
+        img = images.read_picture(target)
         if img is not None:
             return img
     img = images.thumbnail_array(path, width_px)

@@ -275,11 +275,14 @@ class DisparityDialog(QDialog):
         self.resize(1040, 800)
         self.image = QLabel()
         self.image.setAlignment(Qt.AlignCenter)
-        pix = QPixmap(str(path))
-        if pix.isNull():
+        from lfstudio.dataset.images import read_picture
+        from lfstudio.gui.imageutil import rgb_to_qimage
+
+        bgr = read_picture(path)
+        if bgr is None:
             self.image.setText(f"{path}: cannot be read; run Check dataset again")
         else:
-            self.image.setPixmap(pix)
+            self.image.setPixmap(QPixmap.fromImage(rgb_to_qimage(bgr[..., ::-1].copy())))
         area = QScrollArea()
         area.setWidget(self.image)
         area.setWidgetResizable(True)
