@@ -252,7 +252,7 @@ def run(args: argparse.Namespace) -> int:
         if state is ScanState.FAILED:
             raise DatasetError(engine.message)
         print(f"lfstudio scan: {engine.message} ({format_duration(engine.active_s)})", file=sys.stderr)
-        if counts["done"] + counts["skipped"] == len(dataset.views):
+        if dataset.finished():
             return 0
         print(f"lfstudio scan: the {counts['done']} captured views are saved in {dataset.root}; resume with:\n"
               f"  {resume_command(args, dataset.root)}", file=sys.stderr)

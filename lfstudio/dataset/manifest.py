@@ -52,6 +52,8 @@ MANIFEST_NAME = "dataset.json"
 #: never for less than this (an open replays the journal: ~10 us per line)
 JOURNAL_MIN_BYTES = 1 << 20
 VIEW_STATUSES = ("pending", "done", "failed", "skipped")
+#: a view a scan does not take again (unless asked to re-capture it): captured, or skipped by the operator
+FINISHED_STATUSES = ("done", "skipped")
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
 
 
@@ -64,6 +66,11 @@ def now_iso(at_s: float | None = None) -> str:
 def is_done(view: dict[str, Any]) -> bool:
     """A view record that has been captured: status ``done`` and a file (the one test of it)."""
     return view.get("status") == "done" and isinstance(view.get("file"), str) and bool(view["file"])
+
+
+def is_finished(view: dict[str, Any]) -> bool:
+    """A view record a scan does not take again: status in :data:`FINISHED_STATUSES` (the one test of it)."""
+    return view.get("status") in FINISHED_STATUSES
 
 
 def processed_status(view: dict[str, Any]) -> str | None:
@@ -533,7 +540,7 @@ class Dataset:
                 "lens": self.lens.get("name"), "grid": {"columns": grid.get("columns"), "rows": grid.get("rows"),
                                                        "spacing_mm": grid.get("spacing_mm"), "order": grid.get("order")},
                 "views": len(self.views), **counts, "missing": counts["pending"],
-                "complete": counts["done"] + counts["skipped"] == len(self.views),
+                "complete": self.finished(),
                 "raw_bytes": folder_bytes.get("raw/", 0), "view_file_bytes": folder_bytes,
                 "imported_from": (self.manifest.get("imported_from") or {}).get("file"),
                 "journal_replayed": self.replayed, "journal_problems": list(self.journal_problems)}
@@ -562,6 +569,10 @@ class Dataset:
     def done_views(self) -> list[dict[str, Any]]:
         """The captured views' records (:func:`is_done`), in manifest order."""
         return [v for v in self.views if is_done(v)]
+
+    def finished(self) -> bool:
+        """Every view is finished (:func:`is_finished`): a scan has nothing left to take."""
+        return all(is_finished(v) for v in self.views)
 
     def captured_views(self) -> list[View]:
         """The captured views (:func:`is_done`) as grid cells, row-major."""

@@ -51,7 +51,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from lfstudio.dataset import Dataset
-from lfstudio.dataset.manifest import is_done, now_iso
+from lfstudio.dataset.manifest import is_done, is_finished, now_iso
 from lfstudio.dataset.paths import folder_inside, view_label, view_stem
 from lfstudio.dataset.storage import disk_problem, megabytes, mount_point, storage_error
 from lfstudio.dataset.store import clean_temporary_files, free_bytes, sha256_file
@@ -68,7 +68,6 @@ from lfstudio.dataset.thumbs import THUMB_WIDTH_PX, make_thumbnail
 log = logging.getLogger(__name__)
 
 Listener = Callable[[ScanEvent], None]
-DONE_STATUSES = ("done", "skipped")
 _STOP = object()
 #: what the operator does about a device's fault
 _FIX = {"rig": "Check the axis controller's cable, power and alarms, reconnect it, then Resume.",
@@ -191,9 +190,9 @@ class ScanEngine:
         self._listeners: list[Listener] = []
         self._listeners_lock = threading.Lock()
 
-        statuses = {(v["row"], v["column"]): v.get("status") for v in dataset.views}
-        todo = [v for v in plan.views() if recapture or statuses.get(v.cell) not in DONE_STATUSES]
-        missing = [v.cell for v in todo if v.cell not in statuses]
+        finished = {(v["row"], v["column"]): is_finished(v) for v in dataset.views}
+        todo = [v for v in plan.views() if recapture or not finished.get(v.cell)]
+        missing = [v.cell for v in todo if v.cell not in finished]
         if missing:
             raise LfError(f"{dataset.manifest_path}: the plan has views the dataset does not list "
                           f"(first: row {missing[0][0]}, column {missing[0][1]}); scan into a new dataset folder")
@@ -561,7 +560,7 @@ class ScanEngine:
         folders = [folder_inside(root, sub) for sub in ("raw", "thumbs")]   # refused when they lead outside
         removed = clean_temporary_files(root)
         unfinished = {view_stem(v["row"], v["column"]) for v in self.dataset.views
-                      if v.get("status") not in DONE_STATUSES}
+                      if not is_finished(v)}
         for folder in folders:
             for p in folder.iterdir():
                 if p.is_file() and p.name.split(".")[0] in unfinished:

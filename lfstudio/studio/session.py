@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from lfstudio.dataset import Dataset
-from lfstudio.dataset.manifest import MANIFEST_NAME, now_iso
+from lfstudio.dataset.manifest import MANIFEST_NAME, is_finished, now_iso
 from lfstudio.dataset.paths import check_new_dataset_folder, view_label
 from lfstudio.errors import DeviceError, InputError, LfError
 from lfstudio.numbers import EXPOSURE_S, RETRIES, TIME_SCALE, TRANSFER_S
@@ -171,11 +171,11 @@ def _last_position(dataset: Dataset, plan: ScanPlan, ahead: int = 3) -> tuple[tu
     done = [v for v in dataset.done_views() if v.get("reported_mm") and v.get("captured_at")]
     last = max(done, key=lambda v: v["captured_at"])
     order = [(v.row, v.column) for v in plan.with_subset(None).views()]
-    statuses = {(v["row"], v["column"]): v.get("status") for v in dataset.views}
+    finished = {(v["row"], v["column"]) for v in dataset.views if is_finished(v)}
     following: list[tuple[int, int]] = []
     if (last["row"], last["column"]) in order:
         i = order.index((last["row"], last["column"]))
-        following = [cell for cell in order[i + 1:] if statuses.get(cell) not in ("done", "skipped")][:ahead]
+        following = [cell for cell in order[i + 1:] if cell not in finished][:ahead]
     return ((float(last["reported_mm"][0]), float(last["reported_mm"][1])), view_label(last["row"], last["column"]),
             [plan.position_mm(*cell) for cell in following])
 

@@ -141,6 +141,21 @@ def test_summary_counts(tmp_path):
     assert s["raw_bytes"] > 0
 
 
+def test_a_dataset_is_finished_when_every_view_is_done_or_skipped(tmp_path):
+    from lfstudio.dataset.manifest import is_finished
+
+    ds = make(tmp_path)
+    cells = [(v["row"], v["column"]) for v in ds.views]
+    for r, c in cells[:-2]:
+        capture(ds, r, c)
+    ds.record_view(*cells[-2], status="skipped")
+    ds.record_view(*cells[-1], status="failed", error="camera timeout")
+    assert [is_finished(v) for v in ds.views] == [True] * (len(cells) - 1) + [False]
+    assert not ds.finished() and not ds.summary()["complete"]
+    capture(ds, *cells[-1])
+    assert ds.finished() and ds.summary()["complete"]
+
+
 def test_symlink_leading_outside_is_refused(tmp_path):
     ds = make(tmp_path)
     outside = tmp_path / "outside.dng"
