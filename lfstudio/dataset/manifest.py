@@ -114,6 +114,24 @@ def _constant(seen: list[str]) -> Any:
     return parse
 
 
+def camera_problems(manifest: dict) -> list[str]:
+    """The camera and lens numbers of ``manifest`` (its ``camera`` and ``lens`` objects; each number
+    optional) the stages could not compute with, worded as :func:`validate_manifest` words them: a
+    writer checks them before it writes any view."""
+    problems = []
+    for (obj, key), (number, count) in _CAMERA_NUMBERS.items():    # optional, but numbers when given
+        value = manifest.get(obj, {}).get(key) if isinstance(manifest.get(obj), dict) else None
+        if value is None:
+            continue
+        values = [value] if count == 1 else value if isinstance(value, list) and len(value) == count else None
+        problem = f"must be {count} numbers" if values is None else \
+            next((p for p in map(number.problem, values) if p), None)
+        if problem:
+            problems.append(f"{MANIFEST_NAME}: {obj}.{key}: {problem} "
+                            f"(valid: {number.valid()}{' each' if count > 1 else ''})")
+    return problems
+
+
 def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str]:
     """Every problem in ``manifest`` as ``"dataset.json: <field>: <what is wrong>"``; empty if valid.
 
@@ -136,15 +154,7 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
     for key in ("plan", "processing", "calibration"):           # written by the stages; optional
         if manifest.get(key) is not None and not isinstance(manifest[key], dict):
             problems.append(f"{f}: {key}: must be an object")
-    for (obj, key), (number, count) in _CAMERA_NUMBERS.items():    # optional, but numbers when given
-        value = manifest.get(obj, {}).get(key) if isinstance(manifest.get(obj), dict) else None
-        if value is None:
-            continue
-        values = [value] if count == 1 else value if isinstance(value, list) and len(value) == count else None
-        problem = f"must be {count} numbers" if values is None else \
-            next((p for p in map(number.problem, values) if p), None)
-        if problem:
-            problems.append(f"{f}: {obj}.{key}: {problem} (valid: {number.valid()}{' each' if count > 1 else ''})")
+    problems += camera_problems(manifest)
     devices = manifest.get("devices")
     if devices is not None and not (isinstance(devices, dict) and all(isinstance(devices.get(k), dict)
                                                                        for k in ("rig", "camera"))):

@@ -29,7 +29,7 @@ import numpy as np
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.atomic import atomic_write_json, atomic_write_with
 from lfstudio.dataset.grid import DEFAULT_ORDER, Grid, grid_order
-from lfstudio.dataset.manifest import now_iso
+from lfstudio.dataset.manifest import camera_problems, now_iso
 from lfstudio.dataset.paths import check_new_dataset_folder, view_stem
 from lfstudio.dataset.store import sha256_file
 from lfstudio.dataset.thumbs import make_thumbnail
@@ -161,6 +161,10 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
         studio_kwargs = studio.init_kwargs()
     if fmt == "dng" and studio.width_px % 2:
         raise InputError("width_px", f"a Bayer DNG needs an even width, got {studio.width_px}")
+    problems = camera_problems({"camera": camera_dict(studio), "lens": lens_dict(studio)})
+    if problems:     # refused before any view is written (the manifest would refuse them at the end)
+        raise InputError("width_px", f"{studio.width_px} px wide images of a {studio.sensor_width_mm:g} mm "
+                         f"sensor cannot be recorded ({problems[0].split(': ', 1)[1]}); render wider images")
     sensor = SensorModel(flicker=flicker, vignetting=vignetting, noise=noise, seed=seed)
 
     rng = np.random.default_rng([seed, 0x9051])

@@ -91,6 +91,10 @@ def test_bad_arguments_raise_input_error(tmp_path):
         make_virtual_dataset(tmp_path / "x", 2, 2, width_px=64, fmt="tiff")
     with pytest.raises(InputError, match="even"):
         make_virtual_dataset(tmp_path / "y", 2, 2, width_px=65, fmt="dng")
+    # pixels wider than a manifest holds (35.9 mm / 32 px): refused before any view is written
+    with pytest.raises(InputError, match=r"width_px: 32 px wide images .*pixel_pitch_um: 1121.88 µm"):
+        make_virtual_dataset(tmp_path / "z", 2, 1, width_px=32, fmt="png")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
 def test_flicker_is_measurable_as_configured():
