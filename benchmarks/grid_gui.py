@@ -222,6 +222,10 @@ def main() -> int:
     for tick in sorted(running, key=lambda tick: -tick.cpu_ms)[:args.show]:
         print(f"    {tick.cpu_ms:5.1f} ms CPU, stall {tick.stall_ms:5.1f} ms, gc {tick.gc_ms:.1f} / {tick.gc_other_ms:.1f} ms"
               f" at {tick.at_s:.2f} s" + (f": {tick.event} {tick.event_cpu_ms:.1f} ms" if tick.event else ""))
+    if heart.delivered:
+        print("events delivered to the GUI thread during the scan, most frequent first (--events):")
+        for text, count in heart.delivered[:args.show + 6]:
+            print(f"    {count:6d}  {text}")
     print(f"GUI thread stalls over {args.warn_ms:.0f} ms, worst first (where the watchdog saw the GUI thread):")
     for stall in heart.worst(args.show):
         print(f"    {stall}")

@@ -9,7 +9,9 @@ quality checker, the exception hook) never touch widgets. They hand what they ha
 
 However many items arrive, one queued wake-up is pending at a time, so a flood (a fast scan's
 events, a device's status snapshots) costs one slot call per turn of the event loop, not one per
-item. :class:`JobRunner` runs a core job (``fn(..., progress=, cancel=)``) on a worker thread and
+item. With ``every_ms`` the handler runs at most that often (what arrives meanwhile waits for the
+next batch): for a flood whose handler only collects for a frame-paced repaint anyway, this spares
+the GUI thread a Python call (and a wait for the GIL) per turn of the loop. :class:`JobRunner` runs a core job (``fn(..., progress=, cancel=)``) on a worker thread and
 reports it through its own inbox as Qt signals.
 """
 
@@ -17,9 +19,10 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from typing import Any, Callable
 
-from PySide6.QtCore import QObject, Qt, Signal, Slot
+from PySide6.QtCore import QObject, Qt, QTimer, Signal, Slot
 
 from lfstudio.errors import LfError
 from lfstudio.jobs import Cancelled, CancelToken, EtaEstimator
@@ -29,18 +32,22 @@ log = logging.getLogger(__name__)
 
 class GuiInbox(QObject):
     """Items posted from any thread, handed to ``handler(items)`` on the thread that owns the inbox
-    (the GUI thread), in posting order. :meth:`close` drops everything posted afterwards."""
+    (the GUI thread), in posting order, at most every ``every_ms`` (0: at the next turn of the
+    event loop). :meth:`close` drops everything posted afterwards."""
 
     _wake = Signal()
 
-    def __init__(self, handler: Callable[[list], None], parent: QObject | None = None):
+    def __init__(self, handler: Callable[[list], None], parent: QObject | None = None, every_ms: int = 0):
         super().__init__(parent)
         self._handler = handler
         self._items: list = []
         self._lock = threading.Lock()
         self._pending = False
         self._closed = False
-        self._wake.connect(self._drain, Qt.QueuedConnection)
+        self.every_ms = every_ms
+        self._last_drain_s = 0.0
+        self._later: QTimer | None = None
+        self._wake.connect(self._woken, Qt.QueuedConnection)
 
     def post(self, item: Any) -> None:
         with self._lock:
@@ -61,7 +68,21 @@ class GuiInbox(QObject):
             self._items = []
 
     @Slot()
+    def _woken(self) -> None:
+        wait_ms = self.every_ms - (time.perf_counter() - self._last_drain_s) * 1000.0
+        if wait_ms <= 0:
+            self._drain()
+            return
+        if self._later is None:          # (still pending meanwhile: no further wake-ups are posted)
+            self._later = QTimer(self)
+            self._later.setSingleShot(True)
+            self._later.setTimerType(Qt.PreciseTimer)
+            self._later.timeout.connect(self._drain)
+        self._later.start(int(wait_ms) + 1)
+
+    @Slot()
     def _drain(self) -> None:
+        self._last_drain_s = time.perf_counter()
         with self._lock:
             items, self._items = self._items, []
             self._pending = False

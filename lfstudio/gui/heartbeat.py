@@ -14,7 +14,8 @@ Each stall longer than ``warn_ms`` becomes a :class:`Stall` (logged as a warning
 innermost lfstudio frames seen most often during it, else the Qt event. With ``record`` every tick is
 kept (:class:`Tick`): its stall, the GUI thread's own CPU since the previous tick, and, for finding a
 burst of GUI work, the event that used most of that CPU (``events``: the tap charges the CPU between
-two event starts to the earlier event) and the garbage collections meanwhile (``gc_watch``:
+two event starts to the earlier event; after stop() ``delivered`` counts them by kind and receiver)
+and the garbage collections meanwhile (``gc_watch``:
 ``gc.callbacks`` time each collection, per generation and thread). The sampler needs the GIL to
 look; the application sets a short switch interval (``gui/app.py``), so it gets it within a
 millisecond or two even while the GUI thread runs Python code.
@@ -120,6 +121,7 @@ class _EventTap(QObject):
     def __init__(self) -> None:
         super().__init__()
         self.current: tuple[int, str] | None = None      # (event type, receiver)
+        self.delivered: collections.Counter = collections.Counter()   # (event type, receiver) -> how many
         self._started_cpu = 0.0
         self._costliest: tuple[float, int, str] | None = None     # (CPU s, event type, receiver)
 
@@ -131,12 +133,17 @@ class _EventTap(QObject):
             if self._costliest is None or spent > self._costliest[0]:
                 self._costliest = (spent, current[0], current[1])
         self.current = (int(event.type()), _describe_receiver(obj))
+        self.delivered[self.current] += 1
         self._started_cpu = now
         return False
 
     def describe_current(self) -> str | None:
         current = self.current
         return None if current is None else _describe_event(*current)
+
+    def most_delivered(self, n: int) -> list[tuple[str, int]]:
+        """The ``n`` kinds of event delivered most often since the tap was installed, with their counts."""
+        return [(_describe_event(*key), count) for key, count in self.delivered.most_common(n)]
 
     def take_costliest(self) -> tuple[float, str]:
         """The event that used the most GUI-thread CPU since the last call: (CPU ms, description)."""
@@ -251,6 +258,7 @@ class Heartbeat(QObject):
         self._gui_ident = threading.get_ident()
         self._tap: _EventTap | None = None
         self.on_sample = None       # called (from the sampler thread) after each sample; for tests
+        self.delivered: list[tuple[str, int]] = []   # with ``events``, after stop(): the events delivered most
 
     def start(self) -> None:
         self._gui_ident = threading.get_ident()
@@ -281,6 +289,7 @@ class Heartbeat(QObject):
             app = QCoreApplication.instance()
             if app is not None:
                 app.removeEventFilter(self._tap)
+            self.delivered = self._tap.most_delivered(50)
             self._tap = None
 
     def worst(self, n: int = 3) -> list[Stall]:

@@ -124,6 +124,9 @@ def test_event_tap_names_the_event_that_used_a_ticks_cpu(qtbot):
     tick = next(t for t in heart.tick_log if "busyOwner" in t.event)
     assert tick.event == "Qt Timer → QTimer of QObject 'busyOwner'"
     assert tick.event_cpu_ms >= 30 and tick.cpu_ms >= tick.event_cpu_ms     # CPU time: the slot's own work
+    counted = dict(heart.delivered)                     # after stop(): the events by kind and receiver
+    assert counted.get("Qt Timer → QTimer of QObject 'busyOwner'") == 1
+    assert counted.get("Qt Timer → QTimer of Heartbeat", 0) >= 1
 
 
 def _spin_past(heart: Heartbeat) -> None:
@@ -531,3 +534,24 @@ def test_a_quiet_label_with_every_ms_shows_the_latest_text(qtbot):
         label.setText(f"Step times: move 0.{i}0 s")
     assert label.text() == "Step times: move 0.50 s"   # what it says (the latest) ...
     qtbot.waitUntil(lambda: label.label.text() == "Step times: move 0.50 s", timeout=5000)   # ... and shows
+
+
+# -- the inbox ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("every_ms", [0, 1000])
+def test_a_paced_inbox_hands_over_what_came_meanwhile_in_one_batch(qtbot, every_ms):
+    """With every_ms, items posted soon after a batch wait for the next one (one call for them all);
+    without, each turn of the event loop hands over what is there."""
+    from PySide6.QtCore import QCoreApplication
+
+    from lfstudio.gui.bridge import GuiInbox
+
+    batches: list[list] = []
+    inbox = GuiInbox(batches.append, every_ms=every_ms)
+    inbox.post(1)
+    qtbot.waitUntil(lambda: batches == [[1]], timeout=10000)
+    inbox.post(2)
+    QCoreApplication.processEvents()            # its wake-up is delivered
+    inbox.post(3)
+    QCoreApplication.processEvents()
+    qtbot.waitUntil(lambda: sum(len(b) for b in batches) == 3, timeout=10000)
+    assert batches[1:] == ([[2, 3]] if every_ms else [[2], [3]])

@@ -285,7 +285,7 @@ class ScanPanel(QWidget):
         self._drain_timer.timeout.connect(self._drain)
         self._last_drain_s = 0.0
         self._backlog: deque = deque()
-        self.bridge = GuiInbox(self._take_events, self)     # engine events, from its threads
+        self.bridge = GuiInbox(self._take_events, self, every_ms=FRAME_MS // 2)   # engine events, from its threads
         self._draining = False
         self._done_batch: list[tuple[int, int]] = []     # views done in this drain (path preview)
         self._to_publish: list = []                      # this drain's events for AppState.scanEvents

@@ -119,7 +119,7 @@ class ThumbLoader(QObject):
         self._stop = False
         self._generation = 0
         self._done: list[tuple[Any, QImage]] = []       # arrived on the GUI thread, not taken yet
-        self._inbox = GuiInbox(self._arrived, self)
+        self._inbox = GuiInbox(self._arrived, self, every_ms=FRAME_MS // 2)   # the grid takes them once a frame
         self._thread = threading.Thread(target=self._run, name="thumb-loader", daemon=True)
         self._thread.start()
 

@@ -54,7 +54,7 @@ class LiveQuality(QObject):
 
         self.root = Path(dataset.root)
         self.checker = LiveCheckerProcess(dataset)
-        self._inbox = GuiInbox(self.verdicts.emit, self)
+        self._inbox = GuiInbox(self.verdicts.emit, self, every_ms=50)   # the grid shows them every VERDICT_MS
         self.checker.subscribe(self._inbox.post)      # called on the checker's reader thread
 
     def on_event(self, event: Any) -> None:
