@@ -324,13 +324,15 @@ class GridCanvas(QAbstractScrollArea):
             self.rows, self.columns = grid.rows, grid.columns
             self.root = dataset.root
             self.status = np.zeros((self.rows, self.columns), np.int8)
-            self.thumbs = {}
-            for v in dataset.views:
-                r, c = v["row"], v["column"]
-                if 0 <= r < self.rows and 0 <= c < self.columns:
-                    self.status[r, c] = STATUS_CODES.get(v.get("status"), PENDING)
-                    if is_done(v):
-                        self.thumbs[(r, c)] = v.get("thumb") or v["file"]
+            views = dataset.views      # a scan starts here with thousands of pending views: in numpy
+            n = len(views)
+            rows = np.fromiter((v["row"] for v in views), np.int64, n)
+            cols = np.fromiter((v["column"] for v in views), np.int64, n)
+            codes = np.fromiter((STATUS_CODES.get(v.get("status"), PENDING) for v in views), np.int8, n)
+            inside = (rows >= 0) & (rows < self.rows) & (cols >= 0) & (cols < self.columns)
+            self.status[rows[inside], cols[inside]] = codes[inside]
+            self.thumbs = {(v["row"], v["column"]): v.get("thumb") or v["file"]
+                           for i in np.flatnonzero(inside & (codes == DONE)) if is_done(v := views[i])}
             self._verdicts = np.zeros((self.rows, self.columns), np.int8)
             self.mosaic = QImage(self.columns * TILE_W, self.rows * TILE_H, QImage.Format_RGB32)
             self.mosaic.fill(QColor(0, 0, 0))
