@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import gc
 import multiprocessing
 import os
 import re
@@ -213,7 +214,8 @@ def main() -> int:
           f"collections of generation 0 / 1 / 2 taking {gcw.total_ms[0]:.0f} / {gcw.total_ms[1]:.0f} / "
           f"{gcw.total_ms[2]:.0f} ms; longest {max((g.duration_ms for g in gcw.log), default=0.0):.1f} ms; full "
           f"ones: " + (", ".join(f"{g.duration_ms:.1f} ms at {g.at_s:.2f} s ({'GUI' if g.on_gui_thread else 'other'}"
-                                 " thread)" for g in full[:6]) or "none"))
+                                 " thread)" for g in full[:6]) or "none")
+          + f"; at the end {len(gc.get_objects())} objects tracked, {gc.get_freeze_count()} frozen")
     total_cpu = sum(thread_cpu.values())
     print(f"CPU by thread during the scan              {total_cpu:.1f} s (child processes' own CPU included): " + ", ".join(
         f"{name} {cpu:.1f}" for name, cpu in thread_cpu.items() if cpu >= 0.05))
