@@ -35,6 +35,8 @@ Contract:
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import logging
 import os
 import queue
@@ -159,7 +161,7 @@ class DeviceWorker:
         self._last_publish = float("-inf")
         self._pending: Any = None
         self._has_pending = False
-        self._flush_timer: threading.Timer | None = None
+        self._flush_timer: list | None = None       # a _LATER entry: the held-back snapshot's publication
         self._latest: Any = None
         self._current: str | None = None
         self._closed = False
@@ -301,9 +303,7 @@ class DeviceWorker:
                 # held back by the rate bound: publish it when the window opens, even if the
                 # device thread is busy in a long call by then (a late "no answer" must show)
                 if self._flush_timer is None:
-                    self._flush_timer = threading.Timer(wait_s, self._timed_flush)
-                    self._flush_timer.daemon = True
-                    self._flush_timer.start()
+                    self._flush_timer = _LATER.call(wait_s, self._timed_flush)
                 return
             snapshot = self._pending
             self._has_pending = False
@@ -363,11 +363,9 @@ class DeviceWorker:
         timer = None
         if call.timeout_s is not None:
             text = describe_call(call.name, call.args, call.kwargs)
-            timer = threading.Timer(call.timeout_s, _fail, args=(call.future, CallTimedOut(
+            timer = _LATER.call(call.timeout_s, _fail, call.future, CallTimedOut(
                 f"{self.name}: no answer to {text} within {call.timeout_s:g} s; "
-                f"check the {self.name}'s cable and power, then reconnect")))
-            timer.daemon = True
-            timer.start()
+                f"check the {self.name}'s cable and power, then reconnect"))
         try:
             result = call.fn(*call.args, **call.kwargs)
         except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
@@ -379,7 +377,7 @@ class DeviceWorker:
                 pass
         finally:
             if timer is not None:
-                timer.cancel()
+                _LATER.cancel(timer)
             self._current = None
         self._poll_status()
         self._flush()
@@ -410,7 +408,7 @@ class DeviceWorker:
             self._thread.join(timeout_s)
         with self._publish_lock:
             if self._flush_timer is not None:
-                self._flush_timer.cancel()
+                _LATER.cancel(self._flush_timer)
                 self._flush_timer = None
         if hasattr(self.driver, "status_listener"):
             try:
@@ -423,6 +421,56 @@ class DeviceWorker:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+class _Later:
+    """Runs ``fn(*args)`` after a delay, on one thread shared by every worker: the calls' timeouts and
+    the held-back snapshots. (A ``threading.Timer`` started a thread for each: two or more per view of
+    a scan, each start a wait for the GIL.) :meth:`call` returns a handle for :meth:`cancel`; a
+    cancelled entry is dropped when its time comes. ``fn`` must be quick (it runs on the shared
+    thread): failing a future, publishing a snapshot."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._heap: list[list] = []          # [due (monotonic s), sequence, fn or None, args]
+        self._sequence = itertools.count()
+        self._thread: threading.Thread | None = None
+
+    def call(self, delay_s: float, fn: Callable[..., Any], *args: Any) -> list:
+        entry = [time.monotonic() + delay_s, next(self._sequence), fn, args]
+        with self._cond:
+            heapq.heappush(self._heap, entry)
+            if self._thread is None or not self._thread.is_alive():
+                self._thread = threading.Thread(target=self._run, name="device-timeouts", daemon=True)
+                self._thread.start()
+            elif self._heap[0] is entry:      # due before what the thread waits for
+                self._cond.notify()
+        return entry
+
+    @staticmethod
+    def cancel(entry: list) -> None:
+        entry[2] = None
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while True:
+                    while self._heap and self._heap[0][2] is None:
+                        heapq.heappop(self._heap)          # cancelled
+                    now = time.monotonic()
+                    if self._heap and self._heap[0][0] <= now:
+                        entry = heapq.heappop(self._heap)
+                        break
+                    self._cond.wait(self._heap[0][0] - now if self._heap else None)
+            fn, args = entry[2], entry[3]
+            if fn is not None:
+                try:
+                    fn(*args)
+                except Exception:  # a failing callback must not stop the others' timeouts
+                    log.exception("device timer callback failed")
+
+
+_LATER = _Later()
 
 
 def _fail(future: Future, exc: BaseException) -> None:

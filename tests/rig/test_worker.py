@@ -86,6 +86,21 @@ def test_timeout_fails_future_naming_command_and_queue_moves_on_after_return(wor
     assert worker.driver.log == [("block", None), ("do", 21)]
 
 
+def test_calls_with_a_timeout_start_no_thread_each(worker, monkeypatch):
+    """Timeouts (and held-back snapshots) run on one shared thread: a scan makes thousands of calls."""
+    assert worker.call("do", 0, timeout_s=5) == 0          # the shared thread runs from here on
+    started: list[str] = []
+    real_start = threading.Thread.start
+    monkeypatch.setattr(threading.Thread, "start", lambda self: (started.append(self.name), real_start(self))[1])
+    assert [worker.call("do", i, timeout_s=5) for i in range(40)] == [2 * i for i in range(40)]
+    assert started == []
+    slow = worker.submit("block", timeout_s=0.05)            # and a timeout still fails its call
+    with pytest.raises(DeviceError, match=r"no answer to block\(\) within 0.05 s"):
+        slow.result(5)
+    worker.driver.release.set()
+    assert started == []
+
+
 def test_stop_now_bypasses_queue_and_drops_queued_calls(worker):
     running = worker.submit("block")
     assert worker.driver.entered.wait(5)
