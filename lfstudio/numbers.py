@@ -141,10 +141,14 @@ def numbers_option(option: str, number: Number, count: int = 2, example: str = "
     return _as_option(option, lambda text: parse_numbers(option, text, number, count, example, one_for_all))
 
 
+def parse_grid(field: str, text: str, example: str = "101x21") -> tuple[int, int]:
+    """A grid typed as ``COLUMNSxROWS`` (:func:`parse_numbers`), bounded by :func:`check_grid`."""
+    return check_grid(field, *parse_numbers(field, text, Number("", integer=True), 2, example))
+
+
 def grid_option(option: str) -> Callable[[str], tuple[int, int]]:
-    """The ``type=`` of a ``CxR`` grid option, bounded by :func:`check_grid`."""
-    whole = Number("", integer=True)
-    return _as_option(option, lambda text: check_grid(option, *parse_numbers(option, text, whole, 2, "101x21")))
+    """The ``type=`` of a ``CxR`` grid option (:func:`parse_grid`)."""
+    return _as_option(option, lambda text: parse_grid(option, text))
 
 
 def _as_option(option: str, parse: Callable[[str], Any]) -> Callable[[str], Any]:

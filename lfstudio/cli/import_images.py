@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from lfstudio.dataset.paths import path_option
-from lfstudio.numbers import SPACING_MM, Number, check_grid, numbers_option, parse_numbers
+from lfstudio.numbers import SPACING_MM, Number, numbers_option, parse_grid
 
 HELP = "import another rig's images (PNG, TIFF, JPEG, camera RAW) as a dataset that calibrates, processes and exports"
 
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.jobs import TerminalProgress
 
     # read after the other options: a grid's size is checked before anything is allocated per view
-    cols, rows = check_grid("--grid", *parse_numbers("--grid", args.grid, Number("", integer=True), 2, "9x5"))
+    cols, rows = parse_grid("--grid", args.grid, "9x5")
     options = ImportOptions(folder=Path(args.folder), out=Path(args.out), grid=(cols, rows),
                             spacing_mm=args.spacing_mm,
                             order=args.order, pattern=args.pattern, focal_length_mm=args.focal_length_mm,
