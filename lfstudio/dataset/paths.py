@@ -15,7 +15,10 @@ import-images, import-hevc, virtual-dataset; CLI and GUI alike), checked before 
 a missing or empty folder is fine; a folder that already holds a dataset is refused unless the
 command's own explicit option adds to it or replaces it (``--resume``, ``--overwrite``); a folder
 holding other files is always refused, naming it and a new sub-folder (:func:`new_sub_folder`) as the
-fix, so a new dataset never mixes with, overwrites or deletes the operator's own files.
+fix, so a new dataset never mixes with, overwrites or deletes the operator's own files. A folder whose
+``dataset.lock`` a running scan holds (this process or another, :mod:`lfstudio.support.locks`) is
+never replaced or reused (:func:`check_not_in_use`, also run by the importers at their final rename);
+a lock left by a process that is gone is no obstacle and no "file" of the folder.
 :func:`dataset_folder_kind` and :func:`new_dataset_folder_problem` are the same reading for a GUI
 that asks instead of refusing.
 """
@@ -29,6 +32,7 @@ from typing import Any, Callable
 
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.numbers import as_option
+from lfstudio.support.locks import DATASET_LOCK_NAME, LockBusy, holder_of
 
 
 def view_stem(row: int, column: int) -> str:
@@ -60,7 +64,7 @@ def parse_view_stem(text: str) -> tuple[int, int]:
 #: the dataset's calibration file (its contents: :mod:`lfstudio.calibration.model`, which reads and writes it)
 CALIBRATION_NAME = "calibration.json"
 #: the dataset's own files and folders (beside the views' files): none may be a symlink leading outside
-DATASET_ENTRIES = ("dataset.json", "journal.jsonl", "dataset.lock", CALIBRATION_NAME, "processing.toml",
+DATASET_ENTRIES = ("dataset.json", "journal.jsonl", DATASET_LOCK_NAME, CALIBRATION_NAME, "processing.toml",
                    "quality.json", "raw", "thumbs", "thumbs/generated", "processed", "cache")
 
 
@@ -117,7 +121,21 @@ def dataset_folder_kind(folder: str | Path) -> str:
 
 
 def _other_entries(folder: Path) -> list[str]:
-    return sorted(p.name for p in folder.iterdir() if p.name != "dataset.lock")
+    return sorted(p.name for p in folder.iterdir() if p.name != DATASET_LOCK_NAME)
+
+
+#: the fix named when a folder for a new dataset is in use (:func:`check_not_in_use`)
+IN_USE_FIX = "stop that scan there (or wait for it to finish), or choose another folder"
+
+
+def check_not_in_use(folder: str | Path, fix: str = IN_USE_FIX) -> None:
+    """Refuse ``folder`` while a running scan holds its ``dataset.lock`` (in this process or
+    another): :class:`LockBusy` naming the folder, the holder (command, pid, what it is doing, its
+    computer when another) and ``fix``. A lock whose process is gone does not count
+    (:func:`lfstudio.support.locks.holder_of`)."""
+    holder = holder_of(Path(folder) / DATASET_LOCK_NAME)
+    if holder is not None:
+        raise LockBusy(f"dataset {folder}", holder, fix)
 
 
 def new_dataset_folder_problem(folder: str | Path) -> str | None:
@@ -151,7 +169,8 @@ def new_sub_folder(folder: str | Path, stem: str = "lfstudio-dataset") -> Path:
 
 
 def check_new_dataset_folder(folder: str | Path, field: str, *, add_to_dataset: bool = False,
-                             dataset_fix: str = "choose a new folder", stem: str = "lfstudio-dataset") -> str:
+                             dataset_fix: str = "choose a new folder", stem: str = "lfstudio-dataset",
+                             in_use_fix: str = IN_USE_FIX) -> str:
     """THE rule for a folder that is to receive a new dataset; returns its kind
     (:func:`dataset_folder_kind`) or raises :class:`InputError` naming ``field`` and the fix.
 
@@ -162,10 +181,15 @@ def check_new_dataset_folder(folder: str | Path, field: str, *, add_to_dataset: 
     - other files and no dataset: always refused (also with ``add_to_dataset``: an option to add to or
       replace a dataset never mixes with or deletes other files), naming the folder, a few of its
       files and a new sub-folder (``stem``) as the fix;
-    - a file: refused.
+    - a file: refused;
+    - held by a running scan (its ``dataset.lock``, :func:`check_not_in_use`) where it would be
+      accepted (empty, or a dataset with ``add_to_dataset``): refused with :class:`LockBusy` naming
+      the holder and ``in_use_fix``.
     """
     kind = dataset_folder_kind(folder)
     if kind == FOLDER_DATASET and add_to_dataset or kind in (FOLDER_MISSING, FOLDER_EMPTY):
+        if kind != FOLDER_MISSING:
+            check_not_in_use(folder, in_use_fix)
         return kind
     problem = new_dataset_folder_problem(folder)
     assert problem is not None

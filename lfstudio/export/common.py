@@ -19,8 +19,10 @@ import numpy as np
 from lfstudio.dataset import Dataset, images
 from lfstudio.dataset.grid import View
 from lfstudio.dataset.manifest import now_iso, processed_file_name
-from lfstudio.dataset.paths import DATASET_ENTRIES, check_new_dataset_folder, view_stem
+from lfstudio.dataset.paths import (DATASET_ENTRIES, IN_USE_FIX, check_new_dataset_folder, check_not_in_use,
+                                    view_stem)
 from lfstudio.errors import DatasetError, InputError
+from lfstudio.support.locks import DATASET_LOCK_NAME, Lock, dataset_lock
 
 EXPORT_FORMAT = "lfstudio-export"
 EXPORT_VERSION = 1
@@ -375,16 +377,42 @@ def _remove(path: Path) -> None:
             path.unlink()
 
 
+def _hold_dataset_folder(tmp: Path, final: Path) -> Lock | None:
+    """The lock of the dataset folder ``final`` that the folder ``tmp`` is to replace or move into,
+    held until the rename is done (so no scan starts in it meanwhile); :class:`LockBusy` naming the
+    scan when one runs there now (the rule's :func:`lfstudio.dataset.paths.check_not_in_use`, checked
+    again at the last moment). None when ``final`` is no dataset's folder (no ``dataset.json`` nor
+    ``dataset.lock``)."""
+    if not (tmp.is_dir() and final.is_dir() and not final.is_symlink()):
+        return None
+    if not any((final / name).exists() for name in (DATASET_LOCK_NAME, "dataset.json")):
+        return None
+    return dataset_lock(final, f"replacing {final}", hint=IN_USE_FIX).acquire()
+
+
 def _replace(tmp: Path, final: Path, overwrite: bool) -> None:
+    lock = _hold_dataset_folder(tmp, final)
+    try:
+        _replace_unlocked(tmp, final, overwrite, lock)
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def _replace_unlocked(tmp: Path, final: Path, overwrite: bool, lock: Lock | None) -> None:
     if not overwrite and tmp.is_dir() and final.is_dir() and not final.is_symlink():
         # an empty folder (a new dataset's, chosen beforehand) takes the new one in one rename; the
-        # system refuses the rename if anything is in it now, and nothing in it is replaced
+        # system refuses the rename if anything is in it now, and nothing in it is replaced. A lock
+        # file left by a scan that is gone (now ours) is no file of the folder: it goes first.
+        if lock is not None:
+            lock.remove()
         try:
             os.replace(tmp, final)
             return
         except OSError as exc:
             if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST):
                 raise
+            check_not_in_use(final)          # a scan started there meanwhile: name it
             raise InputError("out", f"{final} is not empty (files were put there meanwhile); nothing was "
                              "replaced", "an empty or new folder") from None
     if final.exists() or final.is_symlink():

@@ -7,7 +7,7 @@ The words an operator uses (CLI options, the GUI's choices)::
 
 ``sim`` starts the GRBL simulator on a pseudo-terminal in this process and drives it with the real
 GRBL driver; ``instant`` is a rig/camera that takes no time (tests, benchmarks). A serial port is
-locked for this process (:func:`lfstudio.studio.locks.port_lock`), and so are a gphoto2 camera and
+locked for this process (:func:`lfstudio.support.locks.port_lock`), and so are a gphoto2 camera and
 a hot folder: a second lfstudio process asking for them is refused with the holder's name.
 
 ::
@@ -29,7 +29,7 @@ from typing import Any, Callable, Sequence
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.optics import REFERENCE
 from lfstudio.rig.motion import RigConfig
-from lfstudio.studio.locks import Lock, camera_lock, port_lock
+from lfstudio.support.locks import Lock, camera_lock, port_lock
 
 log = logging.getLogger(__name__)
 
@@ -143,7 +143,7 @@ class RigLink:
 def open_rig(spec: RigSpec | str, config: RigConfig, *, doing: str = "", time_scale: float = 1.0, seed: int = 0,
              connect: bool = True, lock: bool = True, **controller_options: Any) -> RigLink:
     """Open the rig ``spec`` names: start the simulator for ``sim``, take the port's lock (raises
-    :class:`lfstudio.studio.locks.LockBusy` naming the holder), build the driver and, with
+    :class:`lfstudio.support.locks.LockBusy` naming the holder), build the driver and, with
     ``connect``, connect it (in this thread; the GUI connects on the device's worker instead)."""
     spec = RigSpec.parse(spec) if isinstance(spec, str) else spec
     if spec.kind == INSTANT:

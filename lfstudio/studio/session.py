@@ -14,7 +14,7 @@ What :meth:`ScanSession.open` guarantees, in this order:
 1. **A new dataset gets a folder of its own**: a folder holding other files (and no dataset) is
    refused before anything is written into it (:func:`lfstudio.dataset.paths.check_new_dataset_folder`).
    **One process per dataset**: ``DATASET/dataset.lock`` is held from before the first file is
-   read until :meth:`close` (:mod:`lfstudio.studio.locks`); a second scan or resume of the same
+   read until :meth:`close` (:mod:`lfstudio.support.locks`); a second scan or resume of the same
    folder is refused naming the holder, and touches no file of it.
 2. **A resume uses the dataset's own devices** (``dataset.json`` → ``devices``): without device
    options they are opened again; other devices (the simulator included) are refused unless the
@@ -45,7 +45,7 @@ from lfstudio.optics import REFERENCE
 from lfstudio.rig.motion import RigConfig, RigState
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.studio.devices import SIM, CameraSpec, RigSpec, Studio, open_studio
-from lfstudio.studio.locks import Lock, dataset_lock
+from lfstudio.support.locks import Lock, dataset_lock
 
 log = logging.getLogger(__name__)
 
@@ -353,12 +353,14 @@ class ScanSession:
         manifest = self.folder / MANIFEST_NAME
         if req.resume and not manifest.is_file():
             raise InputError("--out", f"{self.folder} holds no dataset to resume", "the folder of an interrupted scan")
+        lock = dataset_lock(self.folder, f"{self.doing} {self.folder}")
         check_new_dataset_folder(self.folder, "--out", add_to_dataset=req.resume, stem="lfstudio-scan",
-                                 dataset_fix="add --resume to continue it, or choose a new folder")
+                                 dataset_fix="add --resume to continue it, or choose a new folder",
+                                 in_use_fix=lock.hint)
         if not self.folder.exists():
             self.folder.mkdir(parents=True)
             self._created_folder = True
-        self.lock = dataset_lock(self.folder, f"{self.doing} {self.folder}").acquire()
+        self.lock = lock.acquire()
         if self.lock.taken_over is not None:
             self.note(f"took over the lock of {self.folder} left by {self.lock.taken_over.describe()}, "
                       "which is no longer running")

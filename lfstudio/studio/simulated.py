@@ -32,7 +32,7 @@ from lfstudio.sim.studio import (DEMO_PP_OFFSET_PX, DEMO_ROTATION_DEG, REFERENCE
                                  demo_studio_kwargs, parse_fault)
 from lfstudio.sim.virtual_dataset import (GROUND_TRUTH_NAME, camera_dict, lens_dict, load_ground_truth,
                                           make_virtual_dataset)
-from lfstudio.studio.locks import port_device, runtime_dir
+from lfstudio.support.locks import port_device, runtime_dir
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +83,7 @@ def describe_simulated_camera(camera: Any) -> tuple[dict, dict] | None:
 # -- the true position across processes ----------------------------------------------------------
 def truth_socket_path(port: str) -> Path:
     """Where ``lfstudio sim-rig`` on ``port`` answers the carriage's true position."""
-    from lfstudio.studio.locks import _key
+    from lfstudio.support.locks import _key
 
     return runtime_dir() / f"sim-{_key(port_device(port) or port)}.sock"
 

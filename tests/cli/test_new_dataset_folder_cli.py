@@ -98,3 +98,52 @@ def test_virtual_dataset_follows_the_new_dataset_folder_rule(run_cli, tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert Dataset.open(empty).status_counts()["done"] == 2
     _refused(run_cli("virtual-dataset", empty, *args), "folder", f"{empty} already holds a dataset")
+
+
+def _dataset_files(path) -> dict:
+    return {p.relative_to(path).as_posix(): p.read_bytes() for p in sorted(path.rglob("*"))
+            if p.is_file() and p.name != "dataset.lock"}
+
+
+@pytest.mark.parametrize("kind", ["import-images", "import-hevc"])
+def test_import_never_replaces_a_dataset_a_running_scan_holds(kind, sources, run_cli, tmp_path):
+    """A dataset whose dataset.lock another process holds (a running scan) is refused, --overwrite included:
+    one line naming the folder, the holder's pid and what it does, and the fix; nothing in it changes.
+    Once that process is gone (killed: its holder line stays in the file), its stale lock blocks nothing."""
+    from tests.support.test_locks import hold_in_child
+
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    assert run_cli(*_command(kind, sources, ds)).returncode == 0
+    (ds / "dataset.json").write_text((ds / "dataset.json").read_text() + "\n")   # to tell it from a new import
+    before = _dataset_files(ds)
+    starting = tmp_path / "starting"              # a scan that holds its new folder's lock, nothing else yet
+    starting.mkdir()
+    child = hold_in_child("dataset_lock", ds)
+    second = hold_in_child("dataset_lock", starting)
+    try:
+        for out, extra in ((ds, ["--overwrite"]), (starting, [])):
+            proc = run_cli(*_command(kind, sources, out), *extra)
+            assert proc.returncode == 1, proc.stderr
+            lines = proc.stderr.strip().splitlines()
+            assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+            holder = child if out == ds else second
+            for words in (f"dataset {out} is in use by", f"pid {holder.pid}", "testing the lock",
+                          "stop that scan", "choose another folder"):
+                assert words in lines[0], lines[0]
+        assert _dataset_files(ds) == before and sorted(p.name for p in starting.iterdir()) == ["dataset.lock"]
+    finally:
+        for proc in (child, second):
+            proc.kill()                    # kill -9: the holder line stays in dataset.lock
+            proc.wait(10)
+            proc.stdin.close()
+            proc.stdout.close()
+    assert f'"pid": {child.pid}' in (ds / "dataset.lock").read_text()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "starting"]       # no temporary folder left
+
+    proc = run_cli(*_command(kind, sources, ds), "--overwrite")      # a stale lock: replaced
+    assert proc.returncode == 0, proc.stderr
+    assert _dataset_files(ds) != before and Dataset.open(ds).status_counts()["done"] == 6
+    proc = run_cli(*_command(kind, sources, starting))               # a stale lock alone: an empty folder
+    assert proc.returncode == 0, proc.stderr
+    assert "meanwhile" not in proc.stderr and Dataset.open(starting).status_counts()["done"] == 6

@@ -219,6 +219,46 @@ def test_an_empty_destination_takes_the_new_folder_in_one_rename_and_a_filled_on
     assert _leftovers(tmp_path) == []
 
 
+def test_the_final_rename_never_replaces_a_folder_a_scan_started_in_meanwhile(tmp_path):
+    """A scan (another process) that takes the folder's dataset.lock after the importer's first check is
+    named at the final rename, with and without overwrite, and its folder stays as it was. A lock left by
+    a process that is gone is no file of the folder (no "put there meanwhile"), and no obstacle to replacing."""
+    from lfstudio.support.locks import LockBusy
+    from tests.support.test_locks import hold_in_child
+
+    for overwrite in (False, True):
+        out = tmp_path / f"scan-{overwrite}"
+        out.mkdir()
+        (out / "dataset.json").write_text("theirs")
+        child = None
+        try:
+            with pytest.raises(LockBusy) as refused:
+                with common.partial_folder(out, overwrite) as tmp:
+                    (tmp / "dataset.json").write_text("ours")
+                    child = hold_in_child("dataset_lock", out)       # the scan starts there meanwhile
+            text = str(refused.value)
+            assert f"dataset {out} is in use by" in text and f"pid {child.pid}" in text and "stop that scan" in text
+            assert (out / "dataset.json").read_text() == "theirs"
+        finally:
+            if child is not None:
+                child.kill()
+                child.wait(10)
+                child.stdin.close()
+                child.stdout.close()
+        assert '"pid"' in (out / "dataset.lock").read_text()        # its holder line, now stale
+        if overwrite:
+            with common.partial_folder(out, True) as tmp:
+                (tmp / "dataset.json").write_text("ours")
+            assert sorted(p.name for p in out.iterdir()) == ["dataset.json"]
+            assert (out / "dataset.json").read_text() == "ours"
+        else:
+            (out / "dataset.json").unlink()                           # only the stale lock is left
+            with common.partial_folder(out, False) as tmp:
+                (tmp / "view.png").write_text("new")
+            assert sorted(p.name for p in out.iterdir()) == ["view.png"]
+    assert _leftovers(tmp_path) == []
+
+
 # -- hevc -----------------------------------------------------------------------------------------------
 def test_hevc_round_trip_12bit_meander(small, tmp_path):
     video = tmp_path / "lf.mp4"

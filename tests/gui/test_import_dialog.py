@@ -180,3 +180,56 @@ def test_import_dialogs_offer_a_sub_folder_for_a_folder_of_other_files_and_ask_b
         box.button(QMessageBox.Yes).click()
     assert len(Dataset.open(mine / "lfstudio-import-2").done_views()) == 6
     assert (mine / "thesis.pdf").read_bytes() == b"%PDF"
+
+
+def test_import_dialog_never_replaces_a_dataset_a_running_scan_holds(qtbot, tmp_path):
+    """A dataset whose dataset.lock another process holds: refused at once in the dialog, naming that
+    process, with no "Replace dataset?" question; a scan that starts there while the question is open
+    is named when the import ends (failed, nothing replaced); once that process is gone (killed) its
+    stale lock blocks nothing."""
+    from lfstudio.export import ExportOptions, export_dataset
+    from lfstudio.sim.virtual_dataset import make_virtual_dataset
+    from tests.support.test_locks import hold_in_child
+
+    src = make_virtual_dataset(tmp_path / "src", 3, 2, width_px=64, fmt="png")
+    video = tmp_path / "lf.mkv"
+    export_dataset(src, ExportOptions("hevc", video))
+    ds = make_virtual_dataset(tmp_path / "ds", 2, 1, width_px=64, fmt="png").root
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    _menu_action(window, "Import HEVC…").trigger()
+    dialog = window.findChild(ImportHevcDialog, "importHevcDialog")
+    dialog.file_edit.setText(str(video))
+    dialog.out_edit.setText(str(ds))
+    children = []
+    try:
+        children.append(hold_in_child("dataset_lock", ds))
+        dialog.import_button.click()
+        text = dialog.message.text()
+        assert f"dataset {ds} is in use by" in text and f"pid {children[0].pid}" in text and "stop that scan" in text
+        assert not [b for b in dialog.findChildren(QMessageBox, "confirmOverwrite") if b.isVisible()]
+        assert not dialog.runner.running
+        children[0].kill()                         # the scan is gone: its stale lock stays behind
+        children[0].wait(10)
+
+        dialog.import_button.click()
+        box = _shown_box(qtbot, dialog, "confirmOverwrite")
+        children.append(hold_in_child("dataset_lock", ds))         # a scan starts there meanwhile
+        with qtbot.waitSignal(dialog.runner.failed, timeout=60000):
+            box.button(QMessageBox.Yes).click()
+        assert f"pid {children[1].pid}" in dialog.message.text() and "in use by" in dialog.message.text()
+        assert len(Dataset.open(ds).views) == 2                     # still the scan's dataset
+        children[1].kill()
+        children[1].wait(10)
+
+        dialog.import_button.click()
+        box = _shown_box(qtbot, dialog, "confirmOverwrite")
+        with qtbot.waitSignal(dialog.runner.finished, timeout=60000):
+            box.button(QMessageBox.Yes).click()
+        assert len(Dataset.open(ds).done_views()) == 6
+    finally:
+        for child in children:
+            child.kill()
+            child.wait(10)
+            child.stdin.close()
+            child.stdout.close()

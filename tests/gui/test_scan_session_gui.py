@@ -15,7 +15,7 @@ from lfstudio.gui.panels.rig import RigPanel
 from lfstudio.gui.panels.scan import ACTIVE_KEY, ScanPanel
 from lfstudio.gui.settings import settings
 from lfstudio.gui.state import AppState
-from tests.studio.test_locks import hold_in_child
+from tests.support.test_locks import hold_in_child
 from tests.studio.test_scan_processes import partial_dataset
 
 

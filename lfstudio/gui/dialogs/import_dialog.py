@@ -9,7 +9,8 @@ counts the matching files as the operator types ("found 42 images, grid needs 45
 The destination follows the rule of every new dataset (:func:`lfstudio.dataset.paths.check_new_dataset_folder`):
 a new or empty folder is used at once; a dataset there is replaced only after the operator confirms;
 a folder holding other files is never replaced: the Scan panel's offer of a new sub-folder is made
-(:func:`lfstudio.gui.path_field.offer_sub_folder`).
+(:func:`lfstudio.gui.path_field.offer_sub_folder`); a folder a running scan holds (its ``dataset.lock``,
+:func:`lfstudio.dataset.paths.check_not_in_use`) is refused at once, naming that scan, without a question.
 """
 
 from __future__ import annotations
@@ -22,8 +23,8 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QF
                                QHBoxLayout, QLabel, QLineEdit, QMessageBox, QPushButton, QSpinBox,
                                QStackedWidget, QVBoxLayout, QWidget)
 
-from lfstudio.dataset.paths import (FOLDER_DATASET, FOLDER_FILE, FOLDER_OTHERS, dataset_folder_kind, expand_path,
-                                    new_dataset_folder_problem)
+from lfstudio.dataset.paths import (FOLDER_DATASET, FOLDER_FILE, FOLDER_OTHERS, check_not_in_use, dataset_folder_kind,
+                                    expand_path, new_dataset_folder_problem)
 from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
@@ -140,6 +141,12 @@ class _ImportDialogBase(QDialog):
             self.show_message(str(exc), ok=False)
             return
         kind = dataset_folder_kind(out)
+        if kind not in (FOLDER_FILE, FOLDER_OTHERS):
+            try:
+                check_not_in_use(out)         # a running scan's folder: not even a question
+            except LfError as exc:
+                self.show_message(f"Not imported: {exc}", ok=False)
+                return
         if kind == FOLDER_OTHERS:            # the operator's files: never replaced; a sub-folder is offered
             self.show_message(f"Not imported yet: {new_dataset_folder_problem(out)}", ok=False)
             self._confirm = offer_sub_folder(self, out, stem="lfstudio-import", verb="Import",

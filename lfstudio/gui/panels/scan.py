@@ -804,7 +804,7 @@ class ScanPanel(QWidget):
         if counts["pending"] == 0:
             settings().remove(ACTIVE_KEY)
             return
-        from lfstudio.studio.locks import DATASET_LOCK_NAME, holder_of
+        from lfstudio.support.locks import DATASET_LOCK_NAME, holder_of
 
         holder = holder_of(Path(path) / DATASET_LOCK_NAME)
         if holder is not None:        # it is not interrupted: another lfstudio is scanning it right now

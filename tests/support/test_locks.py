@@ -11,12 +11,12 @@ import tty
 import pytest
 import serial
 
-from lfstudio.studio.locks import LockBusy, dataset_lock, holder_of, port_lock
+from lfstudio.support.locks import LockBusy, dataset_lock, holder_of, port_lock
 from tests.studio.conftest import cli_env
 
 HOLD = """
 import sys
-from lfstudio.studio.locks import {factory}
+from lfstudio.support.locks import {factory}
 lock = {factory}(sys.argv[1], "testing the lock").acquire()
 print("held", flush=True)
 sys.stdin.read()

@@ -31,6 +31,7 @@ import errno
 import json
 import os
 import re
+import socket
 import sys
 import tempfile
 from dataclasses import dataclass
@@ -65,23 +66,27 @@ class Holder:
     command: str
     doing: str = ""
     since: str = ""
+    host: str = ""     # the computer it runs on (named only when it is another one: a shared folder)
 
     def describe(self) -> str:
-        """``lfstudio scan --out D (pid 123, scanning D since 12:01:05)``."""
+        """``lfstudio scan --out D (pid 123, scanning D since 12:01:05)``; ``pid 123 on HOST`` when it
+        runs on another computer."""
         if not self.pid:
             return self.command
+        where = f" on {self.host}" if self.host and self.host != socket.gethostname() else ""
         extra = ", ".join(p for p in (self.doing, f"since {self.since}" if self.since else "") if p)
-        return f"{self.command} (pid {self.pid}{', ' + extra if extra else ''})"
+        return f"{self.command} (pid {self.pid}{where}{', ' + extra if extra else ''})"
 
     def to_json(self) -> str:
-        return json.dumps({"pid": self.pid, "command": self.command, "doing": self.doing, "since": self.since})
+        return json.dumps({"pid": self.pid, "command": self.command, "doing": self.doing, "since": self.since,
+                           "host": self.host})
 
     @classmethod
     def parse(cls, text: str) -> "Holder | None":
         try:
             data = json.loads(text)
             return cls(int(data["pid"]), str(data["command"]), str(data.get("doing", "")),
-                       str(data.get("since", "")))
+                       str(data.get("since", "")), str(data.get("host", "")))
         except (ValueError, KeyError, TypeError):
             return None
 
@@ -176,7 +181,7 @@ class Lock:
                 self.taken_over = left
             self._device_fd = self._lock_device()
             since = _dt.datetime.now().strftime("%H:%M:%S")
-            line = (Holder(os.getpid(), this_command(), self.doing, since).to_json() + "\n").encode()
+            line = (Holder(os.getpid(), this_command(), self.doing, since, socket.gethostname()).to_json() + "\n").encode()
             os.ftruncate(fd, 0)
             os.pwrite(fd, line, 0)
         except BaseException:
@@ -269,8 +274,9 @@ def camera_lock(name: str, doing: str = "") -> Lock:
                 hint="disconnect it there first")
 
 
-def dataset_lock(root: str | os.PathLike, doing: str = "") -> Lock:
-    """The (not yet acquired) lock of a dataset folder (the folder must exist)."""
+def dataset_lock(root: str | os.PathLike, doing: str = "",
+                 hint: str = "wait for that scan to finish, or stop it there; then resume") -> Lock:
+    """The (not yet acquired) lock of a dataset folder (the folder must exist); ``hint``: the fix
+    named when another process holds it."""
     root = Path(root)
-    return Lock(root / DATASET_LOCK_NAME, f"dataset {root}", doing,
-                hint="wait for that scan to finish, or stop it there; then resume")
+    return Lock(root / DATASET_LOCK_NAME, f"dataset {root}", doing, hint=hint)
