@@ -11,7 +11,8 @@ stall of the GUI thread (``max_stall_ms``, ``stalls``). With ``watch=True`` it i
   each), which itself slows a busy GUI: use it to find a source, not to measure.
 
 Each stall longer than ``warn_ms`` becomes a :class:`Stall` (logged as a warning) with ``where``: the
-innermost lfstudio frames seen most often during it, else the Qt event. With ``record`` every tick is
+innermost lfstudio frames seen most often during it, else the Qt event, and ``others``: the other
+threads seen not waiting meanwhile (who competes for the GIL). With ``record`` every tick is
 kept (:class:`Tick`): its stall, the GUI thread's own CPU since the previous tick, and, for finding a
 burst of GUI work, the event that used most of that CPU (``events``: the tap charges the CPU between
 two event starts to the earlier event; after stop() ``delivered`` counts them by kind and receiver)
@@ -63,12 +64,14 @@ class Stall:
     samples: int        # how many stack samples the watchdog took during the stall (0: not watched)
     gc_ms: float = 0.0  # with gc_watch: garbage collection meanwhile (any thread: each holds the GIL)
     event: str = ""     # with events: the Qt event that used most of the GUI thread's CPU meanwhile
+    others: str = ""    # the other threads seen most often not waiting meanwhile (GIL or core competitors)
 
     def __str__(self) -> str:
         extra = f", garbage collection {self.gc_ms:.0f} ms" if self.gc_ms >= 1 else ""
         text = (f"{self.duration_ms:.0f} ms (GUI thread CPU {self.cpu_ms:.0f} ms{extra}) at {self.at_s:.2f} s "
                 f"in {self.where}")
-        return text + (f"; costliest event: {self.event}" if self.event else "")
+        text += f"; costliest event: {self.event}" if self.event else ""
+        return text + (f"; other threads busy: {self.others}" if self.others else "")
 
 
 def _event_name(event_type: int) -> str:
@@ -110,6 +113,24 @@ def _where(frame) -> str:
             ours.append(f"{rel}:{f.f_lineno} {code.co_name}" if not ours else f"{code.co_name}")
         f = f.f_back
     return " ← ".join(ours or innermost) or "?"
+
+
+#: innermost functions of a thread that waits (for a lock, a queue, a pipe, a timer)
+_WAITING = frozenset({"wait", "wait_for", "acquire", "get", "select", "poll", "recv", "_recv", "_recv_bytes",
+                      "recv_bytes", "accept", "_wait_for_tstate_lock", "join", "sleep", "_poll"})
+
+
+def _busy_threads(frames: dict, skip: tuple[int, ...]) -> list[str]:
+    """``name: where`` of each thread in ``frames`` (``sys._current_frames()``) whose innermost
+    Python frame is not a wait: who may hold the GIL or a core while the GUI thread is late. (A
+    thread blocked in C code called from Python looks busy too: a hint, not a proof.)"""
+    names = {t.ident: t.name for t in threading.enumerate()}
+    busy = []
+    for ident, frame in frames.items():
+        if ident in skip or frame.f_code.co_name in _WAITING:
+            continue
+        busy.append(f"{names.get(ident, ident)}: {_where(frame)}")
+    return busy
 
 
 class _EventTap(QObject):
@@ -253,6 +274,7 @@ class Heartbeat(QObject):
         self._timer.timeout.connect(self._tick)
         self._lock = threading.Lock()
         self._samples: list[str] = []
+        self._others: list[str] = []     # other threads seen busy meanwhile (see _busy_threads)
         self._sampler: threading.Thread | None = None
         self._stop_sampling = threading.Event()
         self._gui_ident = threading.get_ident()
@@ -306,6 +328,7 @@ class Heartbeat(QObject):
         self.max_cpu_ms = max(self.max_cpu_ms, cpu_ms)
         with self._lock:
             samples, self._samples = self._samples, []
+            others, self._others = self._others, []
         gc_ms = gc_other_ms = 0.0
         if self.gc is not None:
             gc_ms, gc_other_ms, self.gc.gui_ms, self.gc.other_ms = self.gc.gui_ms, self.gc.other_ms, 0.0, 0.0
@@ -321,7 +344,8 @@ class Heartbeat(QObject):
                 where = "not watched" if not self.watch else "no sample (the watchdog did not get to run)"
             stall = Stall(at_s=now - self._started, duration_ms=stall_ms, cpu_ms=cpu_ms, where=where,
                           samples=len(samples), gc_ms=gc_ms + gc_other_ms,
-                          event=f"{event} ({event_cpu_ms:.0f} ms CPU)" if event else "")
+                          event=f"{event} ({event_cpu_ms:.0f} ms CPU)" if event else "",
+                          others="; ".join(f"{text} ×{n}" for text, n in collections.Counter(others).most_common(3)))
             self.stalls.append(stall)
             log.log(self.log_level, "GUI thread stalled: %s", stall)
 
@@ -337,15 +361,18 @@ class Heartbeat(QObject):
                 wait_s = max(period_s, overdue_s - late_s)
                 continue
             wait_s = period_s
-            frame = sys._current_frames().get(self._gui_ident)
+            frames = sys._current_frames()
+            frame = frames.get(self._gui_ident)
             where = _where(frame) if frame is not None else "?"
             event = self._tap.describe_current() if self._tap is not None else None
             if event is not None:
                 where = f"{where} [{event}]"
-            del frame
+            others = _busy_threads(frames, (self._gui_ident, threading.get_ident()))
+            del frame, frames
             with self._lock:
                 if self._last == last:      # still the same overdue tick
                     self._samples.append(where)
+                    self._others.extend(others)
             hook = self.on_sample
             if hook is not None:
                 hook(where)

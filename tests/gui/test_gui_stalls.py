@@ -47,12 +47,22 @@ def _hold_the_gui_thread(heart: Heartbeat, sampled: threading.Event) -> None:
             return
 
 
+def _compute_until(done: threading.Event) -> None:
+    x = 0
+    while not done.is_set():
+        for _ in range(1000):
+            x += 1
+
+
 def test_watchdog_names_the_code_that_stalled_the_gui_thread(qtbot):
     from PySide6.QtCore import QTimer
 
     heart = Heartbeat(interval_ms=10, warn_ms=20, watch=True)
     sampled = threading.Event()
     heart.on_sample = lambda where: sampled.set() if "_hold_the_gui_thread" in where else None
+    done = threading.Event()
+    helper = threading.Thread(target=_compute_until, args=(done,), name="busy-helper", daemon=True)
+    helper.start()                                   # another thread running Python meanwhile
     heart.start()
     try:
         QTimer.singleShot(0, lambda: _hold_the_gui_thread(heart, sampled))
@@ -60,9 +70,12 @@ def test_watchdog_names_the_code_that_stalled_the_gui_thread(qtbot):
         qtbot.waitUntil(lambda: any("_hold_the_gui_thread" in s.where for s in heart.stalls), timeout=30000)
     finally:
         heart.stop()
+        done.set()
+        helper.join(10)
     stall = next(s for s in heart.stalls if "_hold_the_gui_thread" in s.where)
     assert stall.duration_ms > heart.warn_ms
     assert stall.samples >= 1
+    assert "busy-helper: " in stall.others and "_compute_until" in stall.others   # named as a competitor
     assert stall.cpu_ms > 0                      # the GUI thread itself was busy (not waiting)
     assert heart.max_stall_ms >= stall.duration_ms and heart.max_cpu_ms > 0
     assert "_hold_the_gui_thread" in str(stall)
