@@ -198,6 +198,13 @@ def main() -> int:
     print(f"GUI thread max stall while the scan runs   {max_run:.1f} ms   (target < 50 ms at load <= 2: "
           f"{'OK' if max_run < 50 else 'MISSED'}; p99 {stalls[int(0.99 * (len(stalls) - 1))] if stalls else 0:.1f} ms, "
           f"ticks > 50 ms: {sum(1 for ms in stalls if ms > 50)} of {len(stalls)}; {load_text()})")
+    worst = max(running, key=lambda tick: tick.stall_ms, default=None)
+    if worst is not None:
+        blocked = max(0.0, worst.stall_ms + heart.interval_ms - worst.cpu_ms - worst.queued_ms)
+        print(f"    the worst tick interval, {worst.stall_ms + heart.interval_ms:.1f} ms at {worst.at_s:.2f} s: own CPU "
+              f"{worst.cpu_ms:.1f} ms, ready but waiting for a core {worst.queued_ms:.1f} ms (the computer's load), "
+              f"the rest {blocked:.1f} ms idle or waiting for the GIL; over all ticks: "
+              f"{sum(t.queued_ms for t in running):.0f} ms waiting for a core")
     busy = heart.cpu_ms / (scan_s * 1000)
     cpu_ticks = sorted(tick.cpu_ms for tick in running)
     p99 = cpu_ticks[int(0.99 * (len(cpu_ticks) - 1))] if cpu_ticks else 0.0
@@ -222,7 +229,8 @@ def main() -> int:
     print("GUI thread's busiest tick intervals (own CPU; gc: GUI-thread / other threads' collections"
           + ("; the event that used most):" if args.events else "; --events names the Qt event):"))
     for tick in sorted(running, key=lambda tick: -tick.cpu_ms)[:args.show]:
-        print(f"    {tick.cpu_ms:5.1f} ms CPU, stall {tick.stall_ms:5.1f} ms, gc {tick.gc_ms:.1f} / {tick.gc_other_ms:.1f} ms"
+        print(f"    {tick.cpu_ms:5.1f} ms CPU, stall {tick.stall_ms:5.1f} ms (waiting for a core {tick.queued_ms:.1f} ms), "
+              f"gc {tick.gc_ms:.1f} / {tick.gc_other_ms:.1f} ms"
               f" at {tick.at_s:.2f} s" + (f": {tick.event} {tick.event_cpu_ms:.1f} ms" if tick.event else ""))
     if heart.delivered:
         print("events delivered to the GUI thread during the scan, most frequent first (--events):")

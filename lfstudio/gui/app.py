@@ -3,12 +3,22 @@
 from __future__ import annotations
 
 import logging
+import os
 import sys
 
 from lfstudio import __version__
 from lfstudio.resources import RESOURCES_DIR
 
 log = logging.getLogger("lfstudio")
+
+
+def keep_image_work_on_the_gui_thread() -> None:
+    """Qt scales and converts large images (a drawImage of the grid's mosaic, a thumbnail's
+    conversion) on a pool of its own threads and waits for them: on a busy computer (two cores, a
+    scan's threads, a check process) those threads wait for a core and the GUI thread with them,
+    idle, for tens of milliseconds. ``QT_NO_GUI_THREADPOOL`` makes Qt do that work on the calling
+    thread. Qt reads it once, at its first such image operation: call this before painting anything."""
+    os.environ.setdefault("QT_NO_GUI_THREADPOOL", "1")
 
 
 def create_window(simulated: bool = True):
@@ -22,6 +32,7 @@ def create_window(simulated: bool = True):
     # background Python threads (scan engine, device workers, jobs) share the GIL with the GUI
     # thread; a shorter switch interval hands it back to the GUI sooner (fewer visible stalls)
     sys.setswitchinterval(0.001)
+    keep_image_work_on_the_gui_thread()
     install_wheel_guard()
     state = AppState(simulated=simulated)
     window = MainWindow(state)
@@ -41,6 +52,7 @@ def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str 
 
     if not is_configured():          # the CLI sets it up (with --debug); direct callers get the defaults
         setup_logging()
+    keep_image_work_on_the_gui_thread()
     app = QApplication.instance() or QApplication(sys.argv[:1])
     app.setApplicationName("lfstudio")
     app.setOrganizationName("lfstudio")

@@ -11,8 +11,9 @@ stall of the GUI thread (``max_stall_ms``, ``stalls``). With ``watch=True`` it i
   each), which itself slows a busy GUI: use it to find a source, not to measure.
 
 Each stall longer than ``warn_ms`` becomes a :class:`Stall` (logged as a warning) with ``where``: the
-innermost lfstudio frames seen most often during it, else the Qt event, and ``others``: the other
-threads seen not waiting meanwhile (who competes for the GIL). With ``record`` every tick is
+innermost lfstudio frames seen most often during it, else the Qt event, ``others``: the other
+threads seen not waiting meanwhile (who competes for the GIL), and ``queued_ms``: how long the GUI
+thread was ready to run but had no core (Linux ``schedstat``; a busy computer, not our code). With ``record`` every tick is
 kept (:class:`Tick`): its stall, the GUI thread's own CPU since the previous tick, and, for finding a
 burst of GUI work, the event that used most of that CPU (``events``: the tap charges the CPU between
 two event starts to the earlier event; after stop() ``delivered`` counts them by kind and receiver)
@@ -65,9 +66,11 @@ class Stall:
     gc_ms: float = 0.0  # with gc_watch: garbage collection meanwhile (any thread: each holds the GIL)
     event: str = ""     # with events: the Qt event that used most of the GUI thread's CPU meanwhile
     others: str = ""    # the other threads seen most often not waiting meanwhile (GIL or core competitors)
+    queued_ms: float = 0.0   # how long the GUI thread was ready to run but waited for a core (Linux)
 
     def __str__(self) -> str:
-        extra = f", garbage collection {self.gc_ms:.0f} ms" if self.gc_ms >= 1 else ""
+        extra = f", waited for a core {self.queued_ms:.0f} ms" if self.queued_ms >= 1 else ""
+        extra += f", garbage collection {self.gc_ms:.0f} ms" if self.gc_ms >= 1 else ""
         text = (f"{self.duration_ms:.0f} ms (GUI thread CPU {self.cpu_ms:.0f} ms{extra}) at {self.at_s:.2f} s "
                 f"in {self.where}")
         text += f"; costliest event: {self.event}" if self.event else ""
@@ -113,6 +116,24 @@ def _where(frame) -> str:
             ours.append(f"{rel}:{f.f_lineno} {code.co_name}" if not ours else f"{code.co_name}")
         f = f.f_back
     return " ← ".join(ours or innermost) or "?"
+
+
+def _open_run_delay() -> int | None:
+    """A descriptor of the calling thread's ``schedstat`` (Linux), or None."""
+    try:
+        return os.open("/proc/thread-self/schedstat", os.O_RDONLY)
+    except (OSError, AttributeError):
+        return None
+
+
+def _run_delay_s(fd: int | None) -> float:
+    """Seconds the thread of ``fd`` has spent ready to run but waiting for a core (0 without one)."""
+    if fd is None:
+        return 0.0
+    try:
+        return int(os.pread(fd, 128, 0).split()[1]) / 1e9
+    except (OSError, ValueError, IndexError):
+        return 0.0
 
 
 #: innermost functions of a thread that waits (for a lock, a queue, a pipe, a timer)
@@ -231,8 +252,9 @@ class Tick(NamedTuple):
     """One heartbeat tick (recorded with ``record``): ``at_s`` after start(), how late it came
     (``stall_ms``), the GUI thread's CPU since the previous tick (``cpu_ms``), the part of it spent in
     garbage collection (``gc_ms``, with ``gc_watch``; ``gc_other_ms``: collections in other threads,
-    which hold the GIL meanwhile), and the event that used most of it (with ``events``:
-    ``event_cpu_ms`` and ``event``)."""
+    which hold the GIL meanwhile), the event that used most of it (with ``events``:
+    ``event_cpu_ms`` and ``event``), and how long it was ready to run but waited for a core
+    (``queued_ms``: the rest of a stall is waiting for the GIL or a lock)."""
 
     at_s: float
     stall_ms: float
@@ -241,6 +263,7 @@ class Tick(NamedTuple):
     gc_other_ms: float = 0.0
     event_cpu_ms: float = 0.0
     event: str = ""
+    queued_ms: float = 0.0      # of the interval, how long the GUI thread waited for a core (Linux)
 
 
 class Heartbeat(QObject):
@@ -269,6 +292,8 @@ class Heartbeat(QObject):
         self._started = 0.0
         self._last: float | None = None
         self._started_cpu = self._last_cpu = 0.0
+        self._run_delay_fd: int | None = None
+        self._last_queued = 0.0
         self._timer = QTimer(self)
         self._timer.setInterval(interval_ms)
         self._timer.timeout.connect(self._tick)
@@ -286,6 +311,9 @@ class Heartbeat(QObject):
         self._gui_ident = threading.get_ident()
         self._started = self._last = time.perf_counter()
         self._started_cpu = self._last_cpu = time.thread_time()
+        if self._run_delay_fd is None:
+            self._run_delay_fd = _open_run_delay()      # (opened on the GUI thread: its own schedstat)
+        self._last_queued = _run_delay_s(self._run_delay_fd)
         if self.gc_watch and self.gc is None:
             self.gc = _GcWatch(self._gui_ident, self._started)
             gc.callbacks.append(self.gc)
@@ -301,6 +329,9 @@ class Heartbeat(QObject):
 
     def stop(self) -> None:
         self._timer.stop()
+        if self._run_delay_fd is not None:
+            os.close(self._run_delay_fd)
+            self._run_delay_fd = None
         if self.gc is not None and self.gc in gc.callbacks:
             gc.callbacks.remove(self.gc)
         if self._sampler is not None:
@@ -319,10 +350,11 @@ class Heartbeat(QObject):
 
     # -- the GUI thread ------------------------------------------------------------------------------
     def _tick(self) -> None:
-        now, now_cpu = time.perf_counter(), time.thread_time()
+        now, now_cpu, queued = time.perf_counter(), time.thread_time(), _run_delay_s(self._run_delay_fd)
         stall_ms = (now - self._last) * 1000.0 - self.interval_ms
         cpu_ms = (now_cpu - self._last_cpu) * 1000.0
-        self._last, self._last_cpu = now, now_cpu
+        queued_ms = (queued - self._last_queued) * 1000.0
+        self._last, self._last_cpu, self._last_queued = now, now_cpu, queued
         self.ticks += 1
         self.cpu_ms = (now_cpu - self._started_cpu) * 1000.0
         self.max_cpu_ms = max(self.max_cpu_ms, cpu_ms)
@@ -334,7 +366,8 @@ class Heartbeat(QObject):
             gc_ms, gc_other_ms, self.gc.gui_ms, self.gc.other_ms = self.gc.gui_ms, self.gc.other_ms, 0.0, 0.0
         event_cpu_ms, event = self._tap.take_costliest() if self._tap is not None else (0.0, "")
         if self.record:
-            self.tick_log.append(Tick(now - self._started, stall_ms, cpu_ms, gc_ms, gc_other_ms, event_cpu_ms, event))
+            self.tick_log.append(Tick(now - self._started, stall_ms, cpu_ms, gc_ms, gc_other_ms, event_cpu_ms, event,
+                                      queued_ms))
         if stall_ms > self.max_stall_ms:
             self.max_stall_ms = stall_ms
         if stall_ms > self.warn_ms:
@@ -345,7 +378,8 @@ class Heartbeat(QObject):
             stall = Stall(at_s=now - self._started, duration_ms=stall_ms, cpu_ms=cpu_ms, where=where,
                           samples=len(samples), gc_ms=gc_ms + gc_other_ms,
                           event=f"{event} ({event_cpu_ms:.0f} ms CPU)" if event else "",
-                          others="; ".join(f"{text} ×{n}" for text, n in collections.Counter(others).most_common(3)))
+                          others="; ".join(f"{text} ×{n}" for text, n in collections.Counter(others).most_common(3)),
+                          queued_ms=queued_ms)
             self.stalls.append(stall)
             log.log(self.log_level, "GUI thread stalled: %s", stall)
 
