@@ -167,6 +167,42 @@ def heatmaps_sheet(doc: dict[str, Any]) -> np.ndarray:
     return np.vstack([sheet, legend])
 
 
+LABEL_SCALE = 0.42
+COLOUR_BAR_TICKS = (0.0, 0.25, 0.5, 0.75, 1.0)
+LABEL_GAP_PX = 8
+
+
+def _text_width_px(text: str, scale: float = LABEL_SCALE) -> int:
+    return cv2.getTextSize(text, _FONT, scale, 1)[0][0]
+
+
+def colour_bar_labels(lo: float, hi: float, bar_width_px: int, width_px: int,
+                      depth_scale_m_px: float | None = None,
+                      ) -> list[tuple[int, list[tuple[str, int]]]]:
+    """The disparity colour bar's ticks that fit: ``(x, [(text, left_x), ...])`` for each, the value in
+    px on the first line and, with ``depth_scale_m_px``, the depth in metres on a second line. Labels
+    are centred on their tick, kept inside the picture and never overlap: the two ends are always
+    labelled, an inner tick whose label would touch a neighbour's is left out."""
+    ticks = []
+    for frac in sorted(COLOUR_BAR_TICKS, key=lambda f: (f not in (0.0, 1.0), abs(f - 0.5))):  # ends first
+        val = lo + frac * (hi - lo)
+        texts = [f"{val:.2f} px"]
+        if depth_scale_m_px:
+            texts.append(f"{depth_scale_m_px / val:.2f} m" if val > 0 else "")
+        x = int(20 + frac * (bar_width_px - 1))
+        lines = []
+        for text in texts:
+            tw = _text_width_px(text)
+            lines.append((text, min(max(2, x - tw // 2), width_px - 2 - tw)))
+        span = (min(left for _, left in lines),
+                max(left + _text_width_px(text) for text, left in lines))
+        if any(span[0] < other[1] + LABEL_GAP_PX and other[0] < span[1] + LABEL_GAP_PX
+               for other, _ in ticks):
+            continue
+        ticks.append((span, (x, [(t, left) for t, left in lines if t])))
+    return sorted((tick for _, tick in ticks), key=lambda tick: tick[0])
+
+
 def disparity_picture(disparity_px: np.ndarray, image8: np.ndarray, depth_note: str = "",
                       range_px: tuple[float, float] | None = None, depth_scale_m_px: float | None = None,
                       ) -> np.ndarray:
@@ -186,20 +222,18 @@ def disparity_picture(disparity_px: np.ndarray, image8: np.ndarray, depth_note: 
     out = cv2.addWeighted(colour, 0.65, grey, 0.35, 0)
     out[~np.isfinite(d)] = (grey[~np.isfinite(d)] * 0.5).astype(np.uint8)
     h, w = out.shape[:2]
-    bar_h = 56
+    bar_h = 56 + (14 if depth_scale_m_px else 0)
     canvas = np.full((h + bar_h, w, 3), 255, np.uint8)
     canvas[:h] = out
     bw = w - 40
     bar = cv2.applyColorMap(np.linspace(0, 255, bw).astype(np.uint8).reshape(1, -1), cv2.COLORMAP_TURBO)
     canvas[h + 8:h + 22, 20:20 + bw] = cv2.resize(bar, (bw, 14), interpolation=cv2.INTER_NEAREST)
-    for frac in (0.0, 0.25, 0.5, 0.75, 1.0):
-        val = lo + frac * (hi - lo)
-        label = f"{val:.2f} px"
-        if depth_scale_m_px and val > 0:
-            label += f" ({depth_scale_m_px / val:.2f} m)"
+    for frac in COLOUR_BAR_TICKS:
         x = int(20 + frac * (bw - 1))
         cv2.line(canvas, (x, h + 22), (x, h + 27), (0, 0, 0), 1)
-        _text(canvas, label, (min(max(2, x - 40), w - 9 * len(label)), h + 42), 0.42)
+    for _, lines in colour_bar_labels(lo, hi, bw, w, depth_scale_m_px):
+        for i, (text, left) in enumerate(lines):
+            _text(canvas, text, (left, h + 40 + 14 * i), LABEL_SCALE)
     if depth_note:
         _text(canvas, depth_note, (20, h + bar_h - 2), 0.4, (90, 90, 90))
     return canvas

@@ -27,3 +27,32 @@ def test_partners_are_the_farthest_available_within_the_steps():
     parts = partner_cells((2, 4), available, 9, 5, 4, 2)
     assert parts == [((2, 7), "right", 3), ((2, 0), "left", 4), ((4, 4), "down", 2), ((0, 4), "up", 2)]
     assert steps_for(3.0) == 4 and steps_for(10.0) == 3 and steps_for(100.0) == 1 and steps_for(0.0) == 1
+
+
+def test_colour_bar_labels_never_overlap_and_always_name_both_ends():
+    from lfstudio.quality.pictures import _text_width_px, colour_bar_labels
+
+    for width_px in (160, 320, 640, 1400):
+        for scale in (None, 2.67):
+            ticks = colour_bar_labels(0.5, 2.5, width_px - 40, width_px, scale)
+            texts = [lines[0][0] for _, lines in ticks]
+            assert texts[0] == "0.50 px" and texts[-1] == "2.50 px", (width_px, texts)
+            spans = sorted((min(left for _, left in lines),
+                            max(left + _text_width_px(t) for t, left in lines)) for _, lines in ticks)
+            assert all(a[1] <= b[0] for a, b in zip(spans, spans[1:])), (width_px, scale, spans)
+            assert all(0 <= s[0] and s[1] <= width_px for s in spans), (width_px, spans)
+            if scale:
+                assert ticks[0][1][1][0] == f"{scale / 0.5:.2f} m"
+    # a wide picture has room for all five
+    assert len(colour_bar_labels(0.5, 2.5, 1360, 1400, 2.67)) == 5
+
+
+def test_the_disparity_picture_keeps_its_size_with_depth_labels():
+    from lfstudio.quality.pictures import disparity_picture
+
+    d = np.linspace(0.5, 2.5, 200 * 300).reshape(200, 300)
+    grey = np.full((200, 300), 128, np.uint8)
+    plain = disparity_picture(d, grey)
+    with_depth = disparity_picture(d, grey, "depth = 2.67 m px / disparity", depth_scale_m_px=2.67)
+    assert plain.shape[1] == with_depth.shape[1] == 300
+    assert with_depth.shape[0] > plain.shape[0] > 200
