@@ -4,6 +4,12 @@ The STOP toolbar cannot be moved, hidden or closed, so STOP (Esc) is in sight wi
 layout; it triggers the Rig panel's STOP. It also says when a scan owns the rig. Quitting while a
 scan is active asks first (non-blocking dialog): stopping the scan lets the current view finish,
 then the window closes; Cancel keeps the scan running.
+
+Every panel sits in its dock inside a :class:`PanelScrollArea`: a dock given less room than the
+panel needs (a small screen, docks stacked above each other) scrolls the panel instead of squeezing
+its rows over each other or under the dock's tab bar; the panel is always laid out at least at its
+minimum size (the dock asks for its preferred size; sideways too when the window is narrower than
+the panels and the central view together).
 """
 
 from __future__ import annotations
@@ -12,9 +18,10 @@ import importlib
 import logging
 from typing import Any
 
-from PySide6.QtCore import Qt, QTimer
+from PySide6.QtCore import QEvent, QSize, Qt, QTimer
 from PySide6.QtGui import QAction, QKeySequence
-from PySide6.QtWidgets import QDockWidget, QLabel, QMainWindow, QMenu, QMessageBox, QToolBar, QWidget
+from PySide6.QtWidgets import (QDockWidget, QFrame, QLabel, QMainWindow, QMenu, QMessageBox, QScrollArea, QToolBar,
+                               QWidget)
 
 from lfstudio.errors import LfError
 from lfstudio.gui.panels import CENTRAL, PANELS, PanelSpec
@@ -32,6 +39,67 @@ _AREAS = {"left": Qt.LeftDockWidgetArea, "right": Qt.RightDockWidgetArea,
 def load_target(target: str) -> Any:
     module, _, name = target.partition(":")
     return getattr(importlib.import_module(module), name)
+
+
+class PanelScrollArea(QScrollArea):
+    """A dock's panel, scrolled when the dock is smaller than the panel's minimum size.
+
+    The panel fills the area but is never laid out below its own minimum size (then the area
+    scrolls). Not ``widgetResizable``: that lays out a panel holding a word-wrapped label at its
+    preferred height for the width (a plot panel: twice the dock's height, always scrolled). The
+    area asks for the panel's preferred size and minimum width (with room for the scroll bar), but
+    only a few rows of height, so docks may be stacked or the window made low without squeezing
+    any panel.
+    """
+
+    MIN_WIDTH_PX, MIN_HEIGHT_PX = 240, 120
+
+    def __init__(self, panel: QWidget, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.setObjectName(f"{panel.objectName() or type(panel).__name__}Scroll")
+        self.setFrameShape(QFrame.NoFrame)
+        self.setWidgetResizable(False)
+        self.setWidget(panel)
+        panel.installEventFilter(self)          # its minimum size may change (rows shown or hidden)
+
+    def _need(self) -> QSize:
+        panel = self.widget()
+        return panel.minimumSizeHint().expandedTo(panel.minimumSize())
+
+    def _extra(self) -> QSize:
+        return QSize(self.verticalScrollBar().sizeHint().width() + 2 * self.frameWidth(), 2 * self.frameWidth())
+
+    def fit_panel(self) -> None:
+        """Lay the panel out at the area's size, but at least at its minimum size."""
+        panel = self.widget()
+        if panel is None:
+            return
+        need, room = self._need(), self.maximumViewportSize()
+        bar = self.verticalScrollBar().sizeHint().width()
+        down = need.height() > room.height()                               # scrolls up and down
+        across = need.width() > room.width() - (bar if down else 0)        # scrolls sideways
+        down = down or need.height() > room.height() - (bar if across else 0)
+        panel.resize(max(room.width() - (bar if down else 0), need.width()),
+                     max(room.height() - (bar if across else 0), need.height()))
+
+    def resizeEvent(self, event) -> None:
+        super().resizeEvent(event)
+        self.fit_panel()
+
+    def eventFilter(self, obj, event) -> bool:
+        if obj is self.widget() and event.type() == QEvent.LayoutRequest:
+            QTimer.singleShot(0, self.fit_panel)   # after the panel's layout has its new minimum
+        return super().eventFilter(obj, event)
+
+    def sizeHint(self) -> QSize:       # the panel's own (QScrollArea's is capped at 36 x 24 lines)
+        panel = self.widget()
+        return panel.sizeHint().expandedTo(self._need()) if panel is not None else super().sizeHint()
+
+    def minimumSizeHint(self) -> QSize:
+        if self.widget() is None:
+            return super().minimumSizeHint()
+        need = self._need() + self._extra()
+        return QSize(min(need.width(), self.MIN_WIDTH_PX), min(need.height(), self.MIN_HEIGHT_PX))
 
 
 class MainWindow(QMainWindow):
@@ -95,7 +163,7 @@ class MainWindow(QMainWindow):
             return
         dock = QDockWidget(spec.title, self)
         dock.setObjectName(spec.object_name)
-        dock.setWidget(widget)
+        dock.setWidget(PanelScrollArea(widget))
         dock.setFeatures(QDockWidget.DockWidgetMovable | QDockWidget.DockWidgetFloatable
                          | QDockWidget.DockWidgetClosable)
         self.addDockWidget(_AREAS.get(spec.area, Qt.LeftDockWidgetArea), dock)
