@@ -42,6 +42,7 @@ from lfstudio.quality.measure import DEFAULT_WORK_WIDTH_PX, measure_view
 from lfstudio.quality.positions import robust_affine
 from lfstudio.quality.tracks import WINDOW
 from lfstudio.quality.verdicts import Thresholds
+from lfstudio.support.listeners import Listeners
 
 log = logging.getLogger(__name__)
 
@@ -57,37 +58,24 @@ MIN_ANCHORS = 2        # located neighbours that anchor a new view's position
 class _Published:
     """What a live check publishes (:class:`LiveChecker`, :class:`LiveCheckerProcess`): ``results``,
     the entry of every view judged, and the listeners told of each new or changed one. Subclasses
-    set ``results``, ``_listeners`` and ``_lock``."""
+    set ``results`` and ``_lock`` (which guards ``results``)."""
 
     results: dict[Cell, dict[str, Any]]
-    _listeners: list[Listener]
     _lock: threading.Lock
+    _listeners: Listeners[dict[str, Any]]
 
     def subscribe(self, listener: Listener) -> Callable[[], None]:
         """Call ``listener(entry)`` for each new or changed view verdict (on the checker's thread,
         or a LiveCheckerProcess's reader thread)."""
-        with self._lock:
-            self._listeners.append(listener)
-
-        def unsubscribe() -> None:
-            with self._lock:
-                if listener in self._listeners:
-                    self._listeners.remove(listener)
-        return unsubscribe
+        return self._listeners.add(listener)
 
     def flagged(self) -> dict[Cell, dict[str, Any]]:
         with self._lock:
             return {c: e for c, e in self.results.items() if e["verdict"] in (verdicts.WARN, verdicts.FAIL)}
 
     def _publish(self, entries: list[dict[str, Any]]) -> None:
-        with self._lock:
-            listeners = list(self._listeners)
         for entry in entries:
-            for listener in listeners:
-                try:
-                    listener(entry)
-                except Exception:
-                    log.exception("live quality listener failed")
+            self._listeners.notify(entry)
 
 
 class LiveChecker(_Published):
@@ -109,7 +97,7 @@ class LiveChecker(_Published):
         self._frame = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
         self._last_row: int | None = None
         self._solved = 0               # views in the last solve of all views
-        self._listeners: list[Listener] = []
+        self._listeners = Listeners("live quality listener", log)
         self._lock = threading.Lock()
         self._queue: queue.Queue = queue.Queue()
         self._pending = 0
@@ -345,7 +333,7 @@ class LiveCheckerProcess(_Published):
         self.errors: dict[Cell, str] = {}            # as of the last wait_idle()
         self.failed: str | None = None
         self._header: dict[str, Any] = {}
-        self._listeners: list[Listener] = []
+        self._listeners = Listeners("live quality listener", log)
         self._lock = threading.Lock()
         self._commands: queue.Queue = queue.Queue()
         self._answers: dict[int, threading.Event] = {}

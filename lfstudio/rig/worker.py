@@ -47,6 +47,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from lfstudio.errors import DeviceError, DeviceTimeout, LfError
+from lfstudio.support.listeners import Listeners
 
 log = logging.getLogger(__name__)
 
@@ -155,8 +156,7 @@ class DeviceWorker:
         self._stop_method = stop_method
         self._error_snapshot = error_snapshot or (lambda message: DeviceFault(self.name, message))
         self._queue: queue.Queue = queue.Queue()
-        self._subscribers: list[Subscriber] = []
-        self._sub_lock = threading.Lock()
+        self._subscribers: Listeners[Any] = Listeners(f"{self.name}: snapshot subscriber", log)
         self._publish_lock = threading.Lock()
         self._last_publish = float("-inf")
         self._pending: Any = None
@@ -276,14 +276,7 @@ class DeviceWorker:
     # -- snapshots ---------------------------------------------------------------------------------
     def subscribe(self, callback: Subscriber) -> Callable[[], None]:
         """Receive snapshots (on the worker thread); returns a function that unsubscribes."""
-        with self._sub_lock:
-            self._subscribers.append(callback)
-
-        def unsubscribe() -> None:
-            with self._sub_lock:
-                if callback in self._subscribers:
-                    self._subscribers.remove(callback)
-        return unsubscribe
+        return self._subscribers.add(callback)
 
     def _offer(self, snapshot: Any) -> None:
         """Take a fresh snapshot; publish it now if the rate bound allows, else keep it pending."""
@@ -309,13 +302,7 @@ class DeviceWorker:
             self._has_pending = False
             self._pending = None
             self._last_publish = now
-        with self._sub_lock:
-            subscribers = list(self._subscribers)
-        for callback in subscribers:
-            try:
-                callback(snapshot)
-            except Exception:  # a broken subscriber must not kill the device thread
-                log.exception("%s: snapshot subscriber failed", self.name)
+        self._subscribers.notify(snapshot)   # a broken subscriber is logged, the device thread goes on
 
     def _timed_flush(self) -> None:
         with self._publish_lock:

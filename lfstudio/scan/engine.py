@@ -64,6 +64,7 @@ from lfstudio.scan.events import (OWNS_RIG, TERMINAL, TRANSITIONS, EventKind, Sc
                                   ScanState, Trigger, next_state)
 from lfstudio.scan.scan_plan import PlannedView, ScanPlan
 from lfstudio.dataset.thumbs import THUMB_WIDTH_PX, make_thumbnail
+from lfstudio.support.listeners import Listeners
 
 log = logging.getLogger(__name__)
 
@@ -187,8 +188,7 @@ class ScanEngine:
         self._moving = False             # the engine thread waits for a move (engine thread only)
         self._lease: Lease | None = None           # the rig's, while the scan owns it
         self._camera_lease: Lease | None = None    # the camera's, at the same times
-        self._listeners: list[Listener] = []
-        self._listeners_lock = threading.Lock()
+        self._listeners: Listeners[ScanEvent] = Listeners("scan listener", log)
 
         finished = {(v["row"], v["column"]): is_finished(v) for v in dataset.views}
         todo = [v for v in plan.views() if recapture or not finished.get(v.cell)]
@@ -223,25 +223,12 @@ class ScanEngine:
 
     # -- listeners ---------------------------------------------------------------------------------
     def subscribe(self, listener: Listener) -> Callable[[], None]:
-        with self._listeners_lock:
-            self._listeners.append(listener)
-
-        def unsubscribe() -> None:
-            with self._listeners_lock:
-                if listener in self._listeners:
-                    self._listeners.remove(listener)
-        return unsubscribe
+        return self._listeners.add(listener)
 
     def _emit(self, kind: EventKind, message: str = "", **kw: Any) -> ScanEvent:
         ev = ScanEvent(kind=kind, message=message, state=kw.pop("state", self._state), done=self.done,
                        total=self.total, **kw)
-        with self._listeners_lock:
-            listeners = list(self._listeners)
-        for cb in listeners:
-            try:
-                cb(ev)
-            except Exception:
-                log.exception("scan listener failed")
+        self._listeners.notify(ev)
         return ev
 
     # -- state -------------------------------------------------------------------------------------
