@@ -30,6 +30,39 @@ from lfstudio.jobs import Cancelled, CancelToken, EtaEstimator
 log = logging.getLogger(__name__)
 
 
+class Pacer(QObject):
+    """Runs ``fn()`` on the thread that owns it at most every ``every_ms``: :meth:`request` runs it at
+    once when the last run is long enough ago (and none is waiting), else once when the interval has
+    passed; the requests made meanwhile fold into that one run. ``every_ms`` 0: at once, each time.
+    (A flood's handler, :class:`GuiInbox`; a label's text, :class:`lfstudio.gui.widgets.QuietLabel`.)"""
+
+    def __init__(self, fn: Callable[[], None], every_ms: int = 0, parent: QObject | None = None):
+        super().__init__(parent)
+        self._fn = fn
+        self.every_ms = every_ms
+        self._last_s = float("-inf")
+        self._timer: QTimer | None = None
+
+    @Slot()
+    def request(self) -> None:
+        waiting = self._timer is not None and self._timer.isActive()
+        wait_ms = self.every_ms - (time.perf_counter() - self._last_s) * 1000.0
+        if wait_ms <= 0 and not waiting:
+            self._run()
+            return
+        if self._timer is None:
+            self._timer = QTimer(self)
+            self._timer.setSingleShot(True)
+            self._timer.setTimerType(Qt.PreciseTimer)
+            self._timer.timeout.connect(self._run)
+        if not waiting:
+            self._timer.start(int(wait_ms) + 1)
+
+    def _run(self) -> None:
+        self._last_s = time.perf_counter()
+        self._fn()
+
+
 class GuiInbox(QObject):
     """Items posted from any thread, handed to ``handler(items)`` on the thread that owns the inbox
     (the GUI thread), in posting order, at most every ``every_ms`` (0: at the next turn of the
@@ -44,10 +77,8 @@ class GuiInbox(QObject):
         self._lock = threading.Lock()
         self._pending = False
         self._closed = False
-        self.every_ms = every_ms
-        self._last_drain_s = 0.0
-        self._later: QTimer | None = None
-        self._wake.connect(self._woken, Qt.QueuedConnection)
+        self._pacer = Pacer(self._drain, every_ms, self)
+        self._wake.connect(self._pacer.request, Qt.QueuedConnection)
 
     def post(self, item: Any) -> None:
         with self._lock:
@@ -68,21 +99,7 @@ class GuiInbox(QObject):
             self._items = []
 
     @Slot()
-    def _woken(self) -> None:
-        wait_ms = self.every_ms - (time.perf_counter() - self._last_drain_s) * 1000.0
-        if wait_ms <= 0:
-            self._drain()
-            return
-        if self._later is None:          # (still pending meanwhile: no further wake-ups are posted)
-            self._later = QTimer(self)
-            self._later.setSingleShot(True)
-            self._later.setTimerType(Qt.PreciseTimer)
-            self._later.timeout.connect(self._drain)
-        self._later.start(int(wait_ms) + 1)
-
-    @Slot()
     def _drain(self) -> None:
-        self._last_drain_s = time.perf_counter()
         with self._lock:
             items, self._items = self._items, []
             self._pending = False

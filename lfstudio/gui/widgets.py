@@ -11,6 +11,7 @@ from PySide6.QtWidgets import (QAbstractSpinBox, QApplication, QComboBox, QHBoxL
                                QProgressBar, QPushButton, QSizePolicy, QWidget)
 
 from lfstudio.dataset.paths import view_stem
+from lfstudio.gui.bridge import Pacer
 from lfstudio.jobs import format_duration
 
 
@@ -124,8 +125,7 @@ class QuietLabel(QWidget):
         super().__init__(parent)
         self.every_ms = every_ms
         self._pending: str | None = None
-        self._shown_s = 0.0
-        self._timer: QTimer | None = None
+        self._pacer = Pacer(self._show_pending, every_ms, self)
         self.setAutoFillBackground(True)
         self.label = QLabel(text, self)
         if name:
@@ -145,17 +145,8 @@ class QuietLabel(QWidget):
         if not self.every_ms:
             self.label.setText(text)
             return
-        wait_ms = self.every_ms - (time.perf_counter() - self._shown_s) * 1000.0
-        if wait_ms <= 0 and self._pending is None:
-            self._show(text)
-            return
         self._pending = text
-        if self._timer is None:
-            self._timer = QTimer(self)
-            self._timer.setSingleShot(True)
-            self._timer.timeout.connect(self._show_pending)
-        if not self._timer.isActive():
-            self._timer.start(max(0, int(wait_ms)))
+        self._pacer.request()
 
     def text(self) -> str:
         return self._pending if self._pending is not None else self.label.text()
@@ -163,11 +154,7 @@ class QuietLabel(QWidget):
     def _show_pending(self) -> None:
         text, self._pending = self._pending, None
         if text is not None:
-            self._show(text)
-
-    def _show(self, text: str) -> None:
-        self._shown_s = time.perf_counter()
-        self.label.setText(text)
+            self.label.setText(text)
 
     def sizeHint(self) -> QSize:   # noqa: N802 (Qt name)
         return self._hint
