@@ -51,6 +51,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=SEED.option("--seed"), default=0, metavar="N",
                    help="random seed of the scene's texture, the flicker, the noise and the position errors: "
                         "the same seed renders the same dataset (default 0)")
+    p.add_argument("--no-truth-maps", dest="truth_maps", action="store_false",
+                   help="do not store each view's ground-truth depth (m) and disparity (px) under truth/ "
+                        "(docs/conventions.md)")
     p.add_argument("--workers", type=Number("", 1, 256, integer=True).option("--workers"), default=1,
                    help="processes rendering in parallel (default 1)")
 
@@ -80,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
                               position_noise_um=_numbers(args.position_noise_um, "--position-noise-um", 2),
                               near_m=args.near_m, far_m=args.far_m, flicker=args.flicker,
                               vignetting=args.vignetting, noise=args.noise, seed=args.seed, workers=args.workers,
-                              faults=faults,
+                              faults=faults, truth_maps=args.truth_maps,
                               progress=TerminalProgress("rendering"))
     print(f"{ds.root}: {len(ds.views)} views ({args.format.upper()}, {args.width} px wide); "
           f"ground truth in {ds.root / GROUND_TRUTH_NAME}", file=sys.stdout)

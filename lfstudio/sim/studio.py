@@ -469,8 +469,29 @@ class VirtualStudio:
         return (out, depth) if with_depth else out
 
     def depth_map(self, x_mm: float, y_mm: float, *, ideal: bool = False) -> np.ndarray:
-        """H x W float32 depth (m) of the visible surface in the view from (x_mm, y_mm)."""
-        return self.render(x_mm, y_mm, ideal=ideal, with_depth=True)[1]
+        """H x W float32 depth (m, z of the visible surface) in the view from (x_mm, y_mm): the same
+        map as ``render(..., with_depth=True)`` (a pixel belongs to the nearest layer whose warped
+        alpha is above one half), made from the layers' alpha only (no colour is composited)."""
+        w, h = self.width_px, self.height_px
+        depth = np.full((h, w), self.far_m, np.float32)
+        for layer in self.layers:
+            if layer.reflect:
+                depth[:] = layer.depth_m
+                continue
+            P = self.layer_homography(layer, x_mm, y_mm, ideal)
+            th, tw = layer.rgba.shape[:2]
+            corners = np.array([[-1, -1, 1], [tw, -1, 1], [-1, th, 1], [tw, th, 1]], float).T
+            pc = P @ corners
+            u, v = pc[0] / pc[2], pc[1] / pc[2]
+            x0, x1 = max(0, int(np.floor(u.min()))), min(w, int(np.ceil(u.max())) + 1)
+            y0, y1 = max(0, int(np.floor(v.min()))), min(h, int(np.ceil(v.max())) + 1)
+            if x1 <= x0 or y1 <= y0:
+                continue
+            T = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+            alpha = cv2.warpPerspective(np.ascontiguousarray(layer.rgba[..., 3]), T @ P, (x1 - x0, y1 - y0),
+                                        flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            depth[y0:y1, x0:x1][alpha.astype(np.float32) * np.float32(1.0 / 65535.0) > 0.5] = layer.depth_m
+        return depth
 
     # -- ground truth -------------------------------------------------------------------------------
     def ground_truth(self) -> dict[str, Any]:

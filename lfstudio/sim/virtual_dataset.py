@@ -6,6 +6,17 @@ rendered image in memory) plus ``ground_truth.json`` at its root with the true
 orientation, intrinsics, rectifying homography, per-view true positions and layer depths (see
 :mod:`lfstudio.sim.studio` for the conventions). Used by tests, benchmarks and demos.
 
+Ground-truth maps (``truth_maps``, on by default), one per rendered view, float32 TIFF (deflate),
+the views' full size, read back with :func:`read_truth_map`:
+
+- ``truth/depth/rRR_cCCC.tif``: depth in **metres** (z of the visible surface) of the view as
+  captured (the pixels of ``raw/rRR_cCCC.*``);
+- ``truth/depth_rectified/rRR_cCCC.tif``: the same for the rectified view (the ideal camera: the
+  pixels of a processed view rectified at full size);
+- ``truth/disparity_rectified/rRR_cCCC.tif``: disparity in **pixels between horizontal
+  neighbours** of the rectified view, ``f · spacing_x / (1000 · Z)`` (the HCI convention; zero at
+  infinity).
+
 ``root`` must be missing or empty (:func:`lfstudio.dataset.paths.check_new_dataset_folder`): a
 virtual dataset is never rendered into another dataset or among other files.
 
@@ -41,6 +52,9 @@ from lfstudio.sim.sensor import SensorModel
 from lfstudio.sim.studio import DEFAULT_WIDTH_PX, ViewFault, VirtualStudio
 
 GROUND_TRUTH_NAME = "ground_truth.json"
+TRUTH_DIR = "truth"
+#: the kinds of ground-truth map (``truth/KIND/rRR_cCCC.tif``): see the module docstring
+TRUTH_MAPS = ("depth", "depth_rectified", "disparity_rectified")
 BLACK_LEVEL = 512
 WHITE_LEVEL = 16383
 SIM_CAMERA_NAME = "Simulated studio camera"
@@ -93,10 +107,51 @@ def _render_and_write(studio: VirtualStudio, sensor: SensorModel, job: dict[str,
         rgb = fault.spoil_image(rgb)
     recorded, gain = sensor.apply(rgb, job["shot"])
     path = Path(job["path"])
+    if job.get("truth_root"):
+        write_truth_maps(studio, Path(job["truth_root"]), job["row"], job["column"], job["true_mm"],
+                         job["spacing_x_mm"])
     write_view_file(path, recorded, job["fmt"], job["exposure_s"])
     # the grid's thumbnail from the image in memory, as a camera's preview (no decoding of the file)
     thumb = make_thumbnail([path], Path(job["thumb_path"]), preview=recorded)
     return {"sha256": sha256_file(path), "gain": gain, "thumb": thumb is not None}
+
+
+def truth_map_path(root: str | os.PathLike, kind: str, row: int, column: int) -> Path:
+    """``root/truth/KIND/rRR_cCCC.tif`` (``kind`` one of :data:`TRUTH_MAPS`)."""
+    if kind not in TRUTH_MAPS:
+        raise InputError("kind", f"unknown ground-truth map {kind!r}", ", ".join(TRUTH_MAPS))
+    return Path(root) / TRUTH_DIR / kind / f"{view_stem(row, column)}.tif"
+
+
+def write_truth_maps(studio: VirtualStudio, root: Path, row: int, column: int, true_mm: Sequence[float],
+                     spacing_x_mm: float) -> list[Path]:
+    """Render and store the ground-truth maps of one view (module docstring), each atomically."""
+    import tifffile
+
+    depth = studio.depth_map(*true_mm)
+    depth_rect = studio.depth_map(*true_mm, ideal=True)
+    maps = {"depth": depth, "depth_rectified": depth_rect,
+            "disparity_rectified": (studio.f_px * float(spacing_x_mm) / (1000.0 * depth_rect)).astype(np.float32)}
+    out = []
+    for kind, data in maps.items():
+        path = truth_map_path(root, kind, row, column)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_with(path, lambda tmp, d=data: tifffile.imwrite(tmp, d, compression="zlib"))
+        out.append(path)
+    return out
+
+
+def read_truth_map(root: str | os.PathLike, kind: str, row: int, column: int) -> np.ndarray:
+    """A stored ground-truth map (H x W float32; module docstring); DatasetError when it is missing."""
+    import tifffile
+
+    from lfstudio.errors import DatasetError
+
+    path = truth_map_path(root, kind, row, column)
+    if not path.is_file():
+        raise DatasetError(f"{path}: no ground-truth map; render the dataset with truth maps "
+                           "(make_virtual_dataset(truth_maps=True), the default)")
+    return np.asarray(tifffile.imread(path), np.float32)
 
 
 def _worker_job(sensor: SensorModel, job: dict[str, Any]) -> dict[str, Any]:
@@ -120,6 +175,7 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
                          studio: VirtualStudio | None = None,
                          faults: Sequence[ViewFault] = (),
                          only_views: Iterable[Sequence[int]] | None = None,
+                         truth_maps: bool = True,
                          progress: Callable[[int, int, str], None] | None = None,
                          cancel: CancelToken | None = None) -> Dataset:
     """Render a ``columns`` x ``rows`` grid into a new dataset folder at ``root`` and return it.
@@ -131,7 +187,8 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
     ``faults``: defects injected into chosen views (at most one per view; see the module docstring).
     ``only_views``: render and record only these (row, column) views of the grid (the others stay
     uncaptured; every view's position error is drawn as if all were, so a view's image does not
-    depend on which others are rendered).
+    depend on which others are rendered). ``truth_maps``: store each view's ground-truth depth and
+    disparity maps under ``truth/`` (module docstring).
     """
     check_new_dataset_folder(root, "folder", stem="lfstudio-virtual")   # never into a dataset or other files
     fmt = fmt.lower()
@@ -186,7 +243,8 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
         thumb_rel = f"thumbs/{view_stem(r, c)}.jpg"
         jobs.append({"row": r, "column": c, "shot": shot, "commanded_mm": commanded, "true_mm": true,
                      "rel": rel, "path": str(root / rel), "thumb_rel": thumb_rel, "thumb_path": str(root / thumb_rel),
-                     "fmt": fmt, "exposure_s": exposure_s, "fault": fault})
+                     "fmt": fmt, "exposure_s": exposure_s, "fault": fault,
+                     "truth_root": str(root) if truth_maps else None, "spacing_x_mm": sx})
 
     if only_views is not None:
         keep = {(int(r), int(c)) for r, c in only_views}
@@ -248,6 +306,10 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
                    "full_well_e": sensor.full_well_e},
         "position_noise_um": list(position_noise_um),
         "faults": [f.describe() for f in faults],
+        "truth_maps": ({kind: f"{TRUTH_DIR}/{kind}/rRR_cCCC.tif" for kind in TRUTH_MAPS} | {
+            "units": "depth, depth_rectified: metres (z of the visible surface); disparity_rectified: pixels "
+                     "between horizontal neighbours of the rectified view, f * spacing_x_mm / (1000 * Z)",
+            "format": "float32 TIFF (deflate), the views' full size"}) if truth_maps else None,
         "views": [{"row": j["row"], "column": j["column"], "shot": j["shot"], "file": j["rel"],
                    "commanded_mm": list(j["commanded_mm"]), "true_mm": list(j["true_mm"]), "gain": res["gain"]}
                   for j, res in zip(jobs, results)],

@@ -154,3 +154,46 @@ def test_only_some_views_of_a_grid_are_rendered_each_as_in_the_whole_grid(tmp_pa
         assert np.array_equal(a, b)
     with pytest.raises(InputError, match="only_views"):
         make_virtual_dataset(tmp_path / "none", 5, 3, width_px=96, fmt="png", only_views=[(7, 7)])
+
+
+def test_every_rendered_view_has_its_ground_truth_depth_and_disparity(tiny_dataset):
+    """truth/depth, truth/depth_rectified (m) and truth/disparity_rectified (px between horizontal
+    neighbours) per view; checked against the scene's own geometry, not against the same code path."""
+    from lfstudio.sim.virtual_dataset import TRUTH_MAPS, read_truth_map, truth_map_path
+
+    truth = load_ground_truth(tiny_dataset.root)
+    assert set(truth["truth_maps"]) >= set(TRUTH_MAPS)
+    layer_depths = sorted({layer["depth_m"] for layer in truth["layers"]})
+    f_px = truth["focal_length_px"]
+    for view in truth["views"]:
+        for kind in TRUTH_MAPS:
+            assert truth_map_path(tiny_dataset.root, kind, view["row"], view["column"]).is_file()
+    view = next(v for v in truth["views"] if v["row"] == 1 and v["column"] == 2)
+    depth = read_truth_map(tiny_dataset.root, "depth", 1, 2)
+    rect = read_truth_map(tiny_dataset.root, "depth_rectified", 1, 2)
+    disp = read_truth_map(tiny_dataset.root, "disparity_rectified", 1, 2)
+    assert depth.shape == rect.shape == disp.shape == (426, 640)
+    # every pixel lies on one of the scene's layers; the near objects and the background are seen
+    assert np.isin(np.round(np.unique(rect), 4), np.round(np.array(layer_depths, np.float32), 4)).all()
+    assert rect.min() == pytest.approx(min(layer_depths), rel=1e-5) and rect.max() == pytest.approx(4.77, rel=1e-5)
+    np.testing.assert_allclose(disp, f_px * 4.0 / (1000.0 * rect), rtol=1e-6)
+    # a world point on the nearest object, projected into the captured and the rectified view, lands
+    # where the two maps give its depth
+    K0, K, R = truth["K0"], truth["K_true"], truth["R"]
+    near = min(truth["layers"], key=lambda layer: layer["depth_m"])
+    X = np.array([np.mean(near["x_range_m"]), np.mean(near["y_range_m"]), near["depth_m"]])
+    C = np.array([view["true_mm"][0] / 1000.0, view["true_mm"][1] / 1000.0, 0.0])
+    for K_, R_, m in ((K, R, depth), (K0, np.eye(3), rect)):
+        p = K_ @ R_ @ (X - C)
+        u, v = int(round(p[0] / p[2])), int(round(p[1] / p[2]))
+        assert m[v, u] == pytest.approx(near["depth_m"], rel=1e-5)
+    # the captured view's map differs from the rectified one (the camera is rotated)
+    assert (depth != rect).mean() > 0.001
+
+
+def test_truth_maps_can_be_left_out(tmp_path):
+    from lfstudio.sim.virtual_dataset import TRUTH_DIR
+
+    make_virtual_dataset(tmp_path / "d", 2, 1, width_px=64, fmt="png", truth_maps=False)
+    assert not (tmp_path / "d" / TRUTH_DIR).exists()
+    assert load_ground_truth(tmp_path / "d")["truth_maps"] is None
