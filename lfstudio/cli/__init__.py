@@ -107,6 +107,28 @@ def attach_dash_values(parser: argparse.ArgumentParser, argv: list[str]) -> list
     return out
 
 
+#: options whose value is a secret as a whole (never logged)
+SECRET_OPTIONS = ("--status-token",)
+
+
+def loggable(argv: list[str]) -> list[str]:
+    """The command line as the log file may keep it: URLs shown as scheme and host only (a webhook's
+    path or a user's password is a secret), the values of :data:`SECRET_OPTIONS` masked."""
+    out: list[str] = []
+    for word in argv:
+        option, eq, value = word.partition("=")
+        if out and out[-1] in SECRET_OPTIONS:
+            word = "…"
+        elif eq and option in SECRET_OPTIONS:
+            word = f"{option}=…"
+        elif "://" in word or word.startswith("mailto:"):
+            from lfstudio.scan.notify import shown_url
+
+            word = f"{option}={shown_url(value)}" if eq and option.startswith("--") else shown_url(word)
+        out.append(word)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     # --debug is global: accepted anywhere (lfstudio --debug, lfstudio scan --debug ...)
@@ -121,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
 
     setup_logging(debug=debug)
     log = logging.getLogger("lfstudio.cli")
-    log.info("lfstudio %s: %s", __version__, " ".join(argv))
+    log.info("lfstudio %s: %s", __version__, " ".join(loggable(argv)))
     try:
         return int(args._run(args) or 0)
     except (InputError, DatasetNotFound) as exc:

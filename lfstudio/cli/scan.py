@@ -76,8 +76,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--check", action="store_true",
                    help="check each view as it arrives (lfstudio check's measurements, on a background thread the "
                         "scan never waits for) and name failing views at once; the full report: lfstudio check")
+    _add_unattended_arguments(p)
     p.epilog = ("a second scan of the same DATASET, or of the same rig port or camera, is refused while this one "
                 "runs; on a real rig add --home (or --origin-here for a rig without limit switches)")
+
+
+def _add_unattended_arguments(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("unattended scans (docs/unattended.md)")
+    g.add_argument("--notify", action="append", default=None, metavar="URL",
+                   help="tell URL when the scan starts, pauses (why), resumes, fails, finishes or is aborted, and "
+                        "(with --check) of flagged views; repeatable: https://… (JSON POST), ntfy+https://HOST/TOPIC, "
+                        "slack+https://…, matrix+https://… ({\"text\": …}), mailto:ADDRESS (with --smtp)")
+    g.add_argument("--smtp", default="", metavar="smtp://[USER@]HOST[:PORT]",
+                   help="the SMTP server for mailto: notifications (smtps:// for SSL, smtp+plain:// for a local relay); "
+                        "the password comes from $LFSTUDIO_SMTP_PASSWORD")
+
+
+def _unattended(args: argparse.Namespace):
+    """The unattended-scan helpers the options ask for (checked before anything starts)."""
+    from pathlib import Path
+
+    from lfstudio.studio.unattended import Unattended, UnattendedOptions
+
+    options = UnattendedOptions(notify=list(args.notify or ()), smtp=args.smtp)
+    return Unattended.open(options, dataset_name=Path(args.out).name,
+                           say=lambda text: print(f"lfstudio scan: {text}", file=sys.stderr))
 
 
 def _build_plan(args: argparse.Namespace, rig_config, existing=None):
@@ -150,6 +173,9 @@ def resume_command(args: argparse.Namespace, root) -> str:
             continue
         if action.nargs == 0:                    # a flag
             words.append(action.option_strings[0])
+        elif isinstance(value, list):            # a repeatable option
+            for item in value:
+                words += [action.option_strings[0], str(item)]
         else:
             words += [action.option_strings[0], str(value)]
     return shlex.join(words)
@@ -190,11 +216,13 @@ def run(args: argparse.Namespace) -> int:
                           origin_here=args.origin_here, allow_device_change=args.allow_device_change,
                           retries=args.retries, time_scale=args.time_scale, exposure_s=args.exposure_s,
                           transfer_s=args.transfer_s, seed=args.seed, sim_width_px=args.sim_width_px)
+    unattended = _unattended(args)
     session = ScanSession(request, doing="scanning",
                           log_line=lambda text: print(f"lfstudio scan: {text}", file=sys.stderr))
     try:
         engine = session.open(lambda existing, rig_config: _build_plan(args, rig_config, existing))
         dataset, plan = session.dataset, session.plan
+        unattended.attach(engine, dataset)
         todo = engine.remaining
         print(f"lfstudio scan: {session.studio.description}; {plan.columns}x{plan.rows} grid, "
               f"{dataset.status_counts()['done']} done, {todo} to capture into {dataset.root}", file=sys.stderr)
@@ -217,6 +245,8 @@ def run(args: argparse.Namespace) -> int:
 
         engine.subscribe(on_event)
         checker = _start_check(dataset, engine) if args.check else None
+        if checker is not None:
+            unattended.attach_checker(checker)
         interrupts = []
 
         def on_sigint(*_) -> None:
@@ -259,3 +289,4 @@ def run(args: argparse.Namespace) -> int:
         return 130 if engine.aborted else 1
     finally:
         session.close()
+        unattended.close()

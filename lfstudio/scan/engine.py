@@ -257,7 +257,7 @@ class ScanEngine:
             return None
         return self.remaining * self.active_s / self.captured_this_run
 
-    def _transition(self, trigger: Trigger, message: str | None = None) -> None:
+    def _transition(self, trigger: Trigger, message: str | None = None, **extra: Any) -> None:
         """Move along :data:`TRANSITIONS` (engine thread only); ``message`` None keeps the current one.
 
         The rig is given back before a state that does not own it is announced, and taken before
@@ -286,7 +286,7 @@ class ScanEngine:
             self.message = text
             self._cond.notify_all()
         log.info("scan %s%s", new.value, f": {text}" if text else "")
-        self._emit(EventKind.STATE, text, state=new, extra={"scan": self.label})
+        self._emit(EventKind.STATE, text, state=new, extra={"scan": self.label, **extra})
         if busy is not None:
             self._raise_fault(busy)
 
@@ -642,7 +642,7 @@ class ScanEngine:
                 (f", {counts['failed']} failed" if counts["failed"] else "") +
                 (f", {counts['skipped']} skipped" if counts["skipped"] else ""))
         if self._state is ScanState.STOPPING and self.remaining:
-            self._transition(Trigger.DONE, f"Aborted: {text}. Resume the scan to capture the rest.")
+            self._transition(Trigger.DONE, f"Aborted: {text}. Resume the scan to capture the rest.", aborted=True)
         else:
             self._transition(Trigger.DONE, f"Finished: {text}.")
 
