@@ -90,6 +90,12 @@ def _add_unattended_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--smtp", default="", metavar="smtp://[USER@]HOST[:PORT]",
                    help="the SMTP server for mailto: notifications (smtps:// for SSL, smtp+plain:// for a local relay); "
                         "the password comes from $LFSTUDIO_SMTP_PASSWORD")
+    g.add_argument("--status-http", default="", metavar="[HOST:]PORT",
+                   help="serve a read-only status page (state, progress, ETA, last thumbnails, live-check verdicts, "
+                        "log) and /status.json on PORT of 127.0.0.1, or of HOST (then with --status-token)")
+    g.add_argument("--status-token", default="", metavar="TOKEN|new",
+                   help="the token every request to the status page must carry (?token=...); 'new' makes one and "
+                        "prints the page's address with it once; needed for any HOST but 127.0.0.1")
 
 
 def _unattended(args: argparse.Namespace):
@@ -98,7 +104,8 @@ def _unattended(args: argparse.Namespace):
 
     from lfstudio.studio.unattended import Unattended, UnattendedOptions
 
-    options = UnattendedOptions(notify=list(args.notify or ()), smtp=args.smtp)
+    options = UnattendedOptions(notify=list(args.notify or ()), smtp=args.smtp, status_http=args.status_http,
+                                status_token=args.status_token)
     return Unattended.open(options, dataset_name=Path(args.out).name,
                            say=lambda text: print(f"lfstudio scan: {text}", file=sys.stderr))
 

@@ -20,6 +20,7 @@ from typing import Any, Callable
 
 from lfstudio.errors import InputError
 from lfstudio.scan.notify import Notifier, SmtpServer, parse_target
+from lfstudio.scan.status_http import StatusBoard, StatusServer
 
 log = logging.getLogger(__name__)
 
@@ -54,9 +55,12 @@ class Unattended:
     """See the module docstring. ``say``: where lines for the operator go (the CLI's stderr, the
     Scan panel's log); the status page's token is said once, never logged."""
 
-    def __init__(self, options: UnattendedOptions, notifier: Notifier | None, say: Callable[[str], None]):
+    def __init__(self, options: UnattendedOptions, notifier: Notifier | None, say: Callable[[str], None],
+                 status: StatusServer | None = None):
         self.options = options
         self.notifier = notifier
+        self.status = status
+        self.board: StatusBoard | None = None
         self.say = say
         self._removers: list[Callable[[], None]] = []
         self.engine: Any = None
@@ -77,10 +81,23 @@ class Unattended:
             raise InputError(names["notify"], "a mailto: target needs an SMTP server", f"{names['smtp']} smtp://USER@HOST")
         if options.auto_resume < 0 or options.auto_resume > 1000:
             raise InputError(names["auto_resume"], f"{options.auto_resume} is out of range", "0 … 1000")
-        notifier = Notifier(targets, dataset=dataset_name, smtp=smtp) if targets else None
+        if options.status_token and not options.status_http:
+            raise InputError(names["status_token"], "is for the status page", f"add {names['status_http']} [HOST:]PORT")
+        status = None
+        if options.status_http:            # bound now: a port in use stops everything before it starts
+            status = StatusServer(options.status_http, options.status_token, option=names["status_http"],
+                                  token_option=names["status_token"])
+        try:
+            notifier = Notifier(targets, dataset=dataset_name, smtp=smtp) if targets else None
+        except BaseException:
+            if status is not None:
+                status.close()
+            raise
         if notifier is not None:
             say("notifications to " + ", ".join(t.shown for t in targets))
-        return cls(options, notifier, say)
+        if status is not None:             # the token is said this once (never logged)
+            say(f"status page (read-only): {status.url_with_token()}")
+        return cls(options, notifier, say, status)
 
     def attach(self, engine: Any, dataset: Any = None) -> None:
         """Listen to ``engine`` (before it starts)."""
@@ -89,11 +106,17 @@ class Unattended:
             if dataset is not None and not self.notifier.dataset:
                 self.notifier.dataset = Path(dataset.root).name
             self._removers.append(engine.subscribe(self.notifier.on_scan_event))
+        if self.status is not None and dataset is not None:
+            self.board = StatusBoard(dataset.root, total=len(dataset.views), done=len(dataset.done_views()))
+            self._removers.append(engine.subscribe(self.board.on_scan_event))
+            self.status.start(self.board)
 
     def attach_checker(self, checker: Any) -> None:
         """Listen to a live check's verdicts (flagged views)."""
         if self.notifier is not None:
             self._removers.append(checker.subscribe(self.notifier.on_verdict))
+        if self.board is not None:
+            self._removers.append(checker.subscribe(self.board.on_verdict))
 
     def close(self, timeout_s: float = 10.0) -> None:
         """Stop listening; deliver what is queued within ``timeout_s``; stop the status page."""
@@ -102,3 +125,5 @@ class Unattended:
         self._removers.clear()
         if self.notifier is not None:
             self.notifier.close(timeout_s)
+        if self.status is not None:
+            self.status.close()
