@@ -82,6 +82,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _add_unattended_arguments(p: argparse.ArgumentParser) -> None:
+    from lfstudio.studio.unattended import ON_FINISH_TIMEOUT_S
+
     g = p.add_argument_group("unattended scans (docs/unattended.md)")
     g.add_argument("--notify", action="append", default=None, metavar="URL",
                    help="tell URL when the scan starts, pauses (why), resumes, fails, finishes or is aborted, and "
@@ -96,6 +98,16 @@ def _add_unattended_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--status-token", default="", metavar="TOKEN|new",
                    help="the token every request to the status page must carry (?token=...); 'new' makes one and "
                         "prints the page's address with it once; needed for any HOST but 127.0.0.1")
+    g.add_argument("--auto-resume", type=RETRIES.option("--auto-resume"), default=0, metavar="N",
+                   help="resume by itself, at most N times, when the cause of a pause clears (disk space freed, camera "
+                        "or controller connection back); STOP, limit switches, position errors and alarms that need "
+                        "homing always wait for a person (default 0: a fault ends the run, --resume continues it)")
+    g.add_argument("--on-finish", default="", metavar="CMD",
+                   help="a shell command run when the scan ends (finished, aborted or failed), e.g. lights and motors "
+                        "off; $LFSTUDIO_SCAN_OUTCOME, $LFSTUDIO_DATASET, $LFSTUDIO_DONE, $LFSTUDIO_TOTAL tell it how; its "
+                        "output is logged, a failure notified")
+    g.add_argument("--on-finish-timeout-s", type=ON_FINISH_TIMEOUT_S.option("--on-finish-timeout-s"), default=300.0,
+                   metavar="S", help="the --on-finish command is stopped after this long (default 300)")
 
 
 def _unattended(args: argparse.Namespace):
@@ -105,7 +117,8 @@ def _unattended(args: argparse.Namespace):
     from lfstudio.studio.unattended import Unattended, UnattendedOptions
 
     options = UnattendedOptions(notify=list(args.notify or ()), smtp=args.smtp, status_http=args.status_http,
-                                status_token=args.status_token)
+                                status_token=args.status_token, auto_resume=args.auto_resume,
+                                on_finish=args.on_finish, on_finish_timeout_s=args.on_finish_timeout_s)
     return Unattended.open(options, dataset_name=Path(args.out).name,
                            say=lambda text: print(f"lfstudio scan: {text}", file=sys.stderr))
 
@@ -223,6 +236,7 @@ def run(args: argparse.Namespace) -> int:
                           origin_here=args.origin_here, allow_device_change=args.allow_device_change,
                           retries=args.retries, time_scale=args.time_scale, exposure_s=args.exposure_s,
                           transfer_s=args.transfer_s, seed=args.seed, sim_width_px=args.sim_width_px)
+    request.engine_options["auto_resume"] = args.auto_resume
     unattended = _unattended(args)
     session = ScanSession(request, doing="scanning",
                           log_line=lambda text: print(f"lfstudio scan: {text}", file=sys.stderr))
@@ -246,7 +260,11 @@ def run(args: argparse.Namespace) -> int:
                 print(f"\nlfstudio scan: view {view_label(ev.row, ev.column)}: {ev.message}"
                       + (" (retrying)" if ev.will_retry else ""), file=sys.stderr)
             elif ev.kind is EventKind.STATE and ev.state is ScanState.PAUSED:
+                if ev.extra.get("auto_resume"):
+                    print(f"\nlfstudio scan: paused: {ev.message}", file=sys.stderr)
                 paused.set()
+            elif ev.kind is EventKind.STATE and ev.extra.get("auto_resumed"):
+                print(f"lfstudio scan: {ev.message}", file=sys.stderr)
             elif ev.kind is EventKind.LOG:
                 print(f"lfstudio scan: {ev.message}", file=sys.stderr)
 
@@ -271,6 +289,9 @@ def run(args: argparse.Namespace) -> int:
             engine.start()
             while not engine.wait(0.2) in (ScanState.FINISHED, ScanState.FAILED):
                 if paused.is_set():
+                    paused.clear()
+                    if engine.state is not ScanState.PAUSED or engine.resumes_by_itself:
+                        continue        # --auto-resume: it goes on by itself when the cause clears
                     # no operator at a terminal: a fault ends the run, --resume continues it
                     fault = engine.fault
                     engine.abort()

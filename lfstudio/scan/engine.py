@@ -33,6 +33,12 @@ not taken, an exposure or transfer that ends within the grace time is stored, a 
 short by stopping the camera and that view is not marked done (taken on resume). A device fault retries the view
 with backoff; when the retries are used up the scan pauses with the device's message, and
 ``resume()`` reconnects the device and retries the view. Too little free disk space pauses too.
+With ``auto_resume=N`` a pause whose cause can clear without a person (:attr:`ScanFault.clears`: the
+disk has room again, the camera or a lost controller connection answers again after a reconnect)
+is looked at every ``auto_resume_poll_s`` and resumed by the engine itself when it has cleared, at most
+N times (the paused event's ``extra["auto_resume"]`` says it waits; the resumed one's
+``extra["auto_resumed"]`` counts). STOP, an alarm (limit switch, homing), a position error or a
+refused command always wait for a person.
 Listeners get :class:`ScanEvent` objects on the engine's threads (a listener that raises is logged
 and otherwise ignored).
 """
@@ -58,6 +64,7 @@ from lfstudio.dataset.store import clean_temporary_files, free_bytes, sha256_fil
 from lfstudio.errors import DeviceError, DeviceTimeout, LfError
 from lfstudio.numbers import RETRIES, TIME_SCALE, TIMEOUT_S, Number, non_finite_fields
 from lfstudio.rig.camera import CaptureResult, supports_on_exposed
+from lfstudio.rig.grbl import ConnectionLost
 from lfstudio.rig.motion import RigState
 from lfstudio.rig.worker import CallTimedOut, DeviceWorker, Lease
 from lfstudio.scan.events import (OWNS_RIG, TERMINAL, TRANSITIONS, EventKind, ScanEvent, ScanRequestRefused,
@@ -77,14 +84,38 @@ _FIX = {"rig": "Check the axis controller's cable, power and alarms, reconnect i
 #: a camera's download time when it does not tell it (a RAW over USB takes a few seconds)
 TRANSFER_ALLOWANCE_S = 30.0
 _RETRY = "retry"            # inbox: a view whose transfer failed, to capture again (from the store thread)
+#: what clears each kind of fault that can clear without a person (ScanFault.clears)
+CLEARS_DISK = "there is free disk space again"
+CLEARS_CAMERA = "the camera answers again"
+CLEARS_RIG = "the axis controller answers again"
+
+
+def clears_by_itself(device: str, exc: BaseException | None = None) -> str:
+    """What ends a ``device`` fault caused by ``exc`` without a person ("" when it needs one).
+
+    A camera that fails or stops answering may be back after a reconnect (a cable, a power save). A
+    rig only when its connection was lost or it stopped answering: an alarm (a limit switch, a soft
+    limit, a reset that needs homing), a move stopped by STOP, a position error or a refused command
+    always wait for a person."""
+    if device == "camera":
+        return CLEARS_CAMERA
+    if device == "rig" and (exc is None or isinstance(exc, (ConnectionLost, DeviceTimeout, CallTimedOut))):
+        return CLEARS_RIG
+    return ""
 
 
 class ScanFault(LfError):
-    """A fault the operator must fix (device, disk); the scan pauses with this message."""
+    """A fault the operator must fix (device, disk); the scan pauses with this message.
 
-    def __init__(self, message: str, device: str = ""):
+    ``clears``: what, happening without a person, ends the fault ("" when it needs a person: STOP,
+    an alarm that needs homing, a limit switch, a position error, a device held by another scan);
+    with ``auto_resume`` the engine resumes by itself when it sees that (see :meth:`ScanEngine._cleared`)."""
+
+    def __init__(self, message: str, device: str = "", clears: str = ""):
         super().__init__(message)
         self.device = device
+        self.clears = clears
+        self.reconnected = False     # the auto-resume probe reconnected the device already
 
 
 class _Interrupted(Exception):
@@ -158,7 +189,8 @@ class ScanEngine:
                  move_timeout_s: float = 300.0, capture_timeout_s: float = 120.0,
                  min_free_bytes: int = 8 * 2**20, time_scale: float = 1.0,
                  thumb_width_px: int = THUMB_WIDTH_PX, checkpoint_s: float = 5.0,
-                 free_bytes_fn: Callable[[Path], int] = free_bytes):
+                 free_bytes_fn: Callable[[Path], int] = free_bytes, auto_resume: int = 0,
+                 auto_resume_poll_s: float = 10.0):
         self.dataset = dataset
         self.plan = plan
         self.rig, self._own_rig = _as_worker(rig, "rig")
@@ -172,6 +204,11 @@ class ScanEngine:
         self.thumb_width_px = int(thumb_width_px)
         self.checkpoint_s = float(checkpoint_s)
         self.free_bytes_fn = free_bytes_fn
+        #: resume by itself at most this many times when a fault's cause clears (ScanFault.clears),
+        #: looking every auto_resume_poll_s seconds while paused
+        self.auto_resume = RETRIES.check("auto_resume", auto_resume)
+        self.auto_resume_poll_s = Number("s", 0.001, 3600).check("auto_resume_poll_s", auto_resume_poll_s)
+        self.auto_resumed = 0
         self._pipelined = supports_on_exposed(self.camera.driver)
         #: who holds the rig while this scan runs, as motion commands refused meanwhile name it
         self.label = f"the scan of {Path(dataset.root).name}"
@@ -594,12 +631,13 @@ class ScanEngine:
         try:
             status = self._rig_call("status", timeout_s=30)
         except Exception as exc:
-            return ScanFault(f"Rig: {_error_text(exc)}. Check the cable and power, reconnect, then Resume.", "rig")
+            return ScanFault(f"Rig: {_error_text(exc)}. Check the cable and power, reconnect, then Resume.", "rig",
+                             clears_by_itself("rig", exc))
         if status.state is RigState.ALARM:
             return ScanFault(f"Rig in alarm: {status.message or 'locked'}. Home the rig (Rig → Home) "
                              "or clear the alarm, then Resume.", "rig")
         if status.state is RigState.DISCONNECTED:
-            return ScanFault("Rig is not connected. Connect it, then Resume.", "rig")
+            return ScanFault("Rig is not connected. Connect it, then Resume.", "rig", CLEARS_RIG)
         if not status.homed:
             return ScanFault("Rig is not homed: home it (Rig → Home) or set the origin, then Resume.", "rig")
         return None
@@ -685,11 +723,17 @@ class ScanEngine:
                     continue
                 self._finish_storage()
                 done_text = f"{self.done} of {self.total} views captured"
-                self._transition(Trigger.CHECKPOINT,
-                                 str(self.fault) if self.fault else f"{done_text}; Resume continues.")
+                fault = self.fault
+                if self._resumes_by_itself(fault):
+                    k = self.auto_resumed + 1
+                    self._transition(Trigger.CHECKPOINT, f"{fault} Waiting: resumes by itself when {fault.clears} "
+                                     f"(auto-resume {k} of {self.auto_resume}).",
+                                     auto_resume={"waiting_for": fault.clears, "next": k, "of": self.auto_resume})
+                else:
+                    self._transition(Trigger.CHECKPOINT, str(fault) if fault else f"{done_text}; Resume continues.")
                 continue
-            # paused: wait for resume or abort
-            self._wait(lambda: self._state is not ScanState.PAUSED)
+            # paused: wait for resume or abort (or, with auto_resume, for the fault's cause to clear)
+            self._wait_paused()
             if self._state is ScanState.RUNNING:
                 fault, self.fault = self.fault, None
                 if fault is not None:
@@ -697,6 +741,69 @@ class ScanEngine:
                         self._recover(fault)
                     except ScanFault as again:
                         self._raise_fault(again)
+
+    def _resumes_by_itself(self, fault: ScanFault | None) -> bool:
+        return fault is not None and bool(fault.clears) and self.auto_resumed < self.auto_resume
+
+    @property
+    def resumes_by_itself(self) -> bool:
+        """True while the scan is paused on a fault it resumes from by itself when the cause clears."""
+        return self._state is ScanState.PAUSED and self._resumes_by_itself(self.fault)
+
+    def _wait_paused(self) -> None:
+        """Paused: wait for the operator; with a fault that clears by itself (and auto-resumes left),
+        look every ``auto_resume_poll_s`` whether it has cleared and resume when it has."""
+        fault = self.fault
+        if not self._resumes_by_itself(fault):
+            self._wait(lambda: self._state is not ScanState.PAUSED)
+            return
+        while True:
+            if self._wait(lambda: self._state is not ScanState.PAUSED or self.fault is not fault,
+                          self.auto_resume_poll_s):
+                return                  # the operator resumed or aborted, or another fault came in
+            cleared = self._cleared(fault)
+            if self._state is not ScanState.PAUSED or self.fault is not fault:
+                return
+            if cleared:
+                self.auto_resumed += 1
+                self._transition(Trigger.RESUME, f"resumed by itself: {fault.clears} (auto-resume "
+                                 f"{self.auto_resumed} of {self.auto_resume})", auto_resumed=self.auto_resumed)
+                return
+
+    def _cleared(self, fault: ScanFault) -> bool:
+        """Whether ``fault``'s cause has cleared (engine thread, while paused: the devices are not
+        held). The disk: free space for the next view. A device: it reconnects and answers (the rig
+        homed and idle, as before any view)."""
+        try:
+            if fault.device == "disk":
+                return self.free_bytes_fn(self.dataset.root) >= self.need_bytes()
+            if fault.device == "camera":
+                self._free_hung_camera()
+                try:
+                    self._camera_call("disconnect", timeout_s=30)
+                except Exception:
+                    pass
+                self._camera_call("connect", timeout_s=60)
+                self._camera_call("settings", timeout_s=10)
+                fault.reconnected = True
+                return True
+            if fault.device == "rig":
+                try:
+                    connected = self._rig_call("status", timeout_s=10).state is not RigState.DISCONNECTED
+                except Exception:
+                    connected = False
+                if not connected:
+                    self._rig_call("connect", timeout_s=60)
+                fault.reconnected = True
+                problem = self._rig_problem()
+                if problem is not None and not problem.clears:     # back, but in alarm / not homed: a person
+                    self.fault = problem
+                    self._emit(EventKind.FAULT, str(problem), extra={"device": problem.device})
+                    self._transition(Trigger.FAULT, str(problem), fault_changed=True)
+                return problem is None
+        except Exception as exc:        # not yet: looked at again after auto_resume_poll_s
+            log.info("auto-resume: %s not yet (%s)", fault.clears, _error_text(exc))
+        return False
 
     def _recover(self, fault: ScanFault) -> None:
         """After a fault: journal the views the disk refused to record, reconnect the faulty device when
@@ -714,7 +821,9 @@ class ScanEngine:
                        file=fields["file"], thumb=fields.get("thumb"))
         if fault.device == "disk":
             self._repair_thumbnails()
-        if fault.device == "camera":
+        if fault.reconnected:
+            pass                        # the auto-resume probe reconnected it just now
+        elif fault.device == "camera":
             self._free_hung_camera()
             try:
                 self._camera_call("disconnect", timeout_s=30)
@@ -724,7 +833,7 @@ class ScanEngine:
                 self._camera_call("connect", timeout_s=60)
             except Exception as exc:
                 raise ScanFault(f"Camera: reconnecting failed: {_error_text(exc)}. Check its cable, power and "
-                                "USB mode, then Resume.", "camera") from None
+                                "USB mode, then Resume.", "camera", CLEARS_CAMERA) from None
         elif fault.device == "rig":
             try:
                 connected = self._rig_call("status", timeout_s=10).state is not RigState.DISCONNECTED
@@ -735,7 +844,7 @@ class ScanEngine:
                     self._rig_call("connect", timeout_s=60)
                 except Exception as exc:
                     raise ScanFault(f"Rig: reconnecting failed: {_error_text(exc)}. Check the cable and power, "
-                                    "then Resume.", "rig") from None
+                                    "then Resume.", "rig", CLEARS_RIG) from None
         self._attempts = {cell: 0 for cell in self._attempts}
         problem = self._rig_problem()
         if problem is not None:
@@ -776,7 +885,8 @@ class ScanEngine:
                 self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
                            will_retry=will_retry, extra={"attempt": attempt, "device": device})
                 if not will_retry:
-                    raise ScanFault(self._fault_text(device, message, attempt), device) from None
+                    raise ScanFault(self._fault_text(device, message, attempt), device,
+                                    clears_by_itself(device, exc)) from None
                 self._wait(lambda: self._state is not ScanState.RUNNING,
                            self.backoff_s * 2 ** (attempt - 1) * min(1.0, self.time_scale))
                 if self._state is not ScanState.RUNNING:
@@ -794,7 +904,7 @@ class ScanEngine:
         else:
             what = (f"Camera does not answer: the picture of {where} did not arrive within "
                     f"{self.capture_call_timeout_s():g} s (exposure and transfer, twice over, plus 10 s).")
-        return ScanFault(f"{what} {_FIX[device]}", device)
+        return ScanFault(f"{what} {_FIX[device]}", device, clears_by_itself(device, exc))
 
     @staticmethod
     def _fault_text(device: str, message: str, attempts: int) -> str:
@@ -845,7 +955,8 @@ class ScanEngine:
             per_view = f"a view takes about {megabytes(self._view_bytes)} here" if self._view_bytes else \
                 "no view captured yet"
             raise ScanFault(f"Disk almost full: {megabytes(free)} free on the disk at {mount_point(self.dataset.root)}; "
-                            f"{megabytes(need)} needed to go on ({per_view}). Free disk space, then Resume.", "disk")
+                            f"{megabytes(need)} needed to go on ({per_view}). Free disk space, then Resume.", "disk",
+                            CLEARS_DISK)
 
     def _disk_fault(self, exc: BaseException, folder: Path, doing: str) -> ScanFault | None:
         """The disk fault ``exc`` stands for: a storage error, or a device error while the disk cannot
@@ -853,7 +964,9 @@ class ScanEngine:
         problem = storage_error(exc, doing=doing, need_bytes=self.need_bytes(), at=folder)
         if problem is None and isinstance(exc, (DeviceError, OSError)) and not isinstance(exc, DeviceTimeout):
             problem = disk_problem(folder if folder.is_dir() else self.dataset.root, min(self.need_bytes(), 2**20))
-        return None if problem is None else ScanFault(str(problem), "disk")
+        if problem is None:
+            return None
+        return ScanFault(str(problem), "disk", CLEARS_DISK if getattr(problem, "kind", "") == "full" else "")
 
     def _attempt(self, view: PlannedView, attempt: int) -> None:
         self._check_disk()
@@ -982,7 +1095,8 @@ class ScanEngine:
             if will_retry:
                 self._post(_Message(_RETRY, view))
             else:
-                self._store_failed(job, ScanFault(self._fault_text("camera", message, job.attempt), "camera"))
+                self._store_failed(job, ScanFault(self._fault_text("camera", message, job.attempt), "camera",
+                                                  CLEARS_CAMERA))
             return
         t_transferred = time.monotonic()
         path = Path(result.path).resolve()

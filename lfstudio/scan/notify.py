@@ -139,6 +139,14 @@ def shown_url(text: str) -> str:
     return f"{parts.scheme}://{host}{port}{rest}"
 
 
+_URL = re.compile(r"\b[a-zA-Z][a-zA-Z0-9+.-]*://[^\s'\"]+")
+
+
+def mask_urls(text: str) -> str:
+    """``text`` with every URL in it shown as :func:`shown_url` (for logs: a command line, a message)."""
+    return _URL.sub(lambda m: shown_url(m.group(0)), text)
+
+
 def parse_target(text: str, option: str = "--notify") -> Target:
     """``text`` as a notification target; :class:`InputError` naming ``option`` (one line, the URL
     shown without its secrets) when it is malformed or its scheme unknown."""
@@ -403,7 +411,7 @@ class Notifier:
             event = "started"
         elif state is ScanState.RUNNING and before is ScanState.PAUSED:
             event = "resumed"
-        elif state is ScanState.PAUSED and before is not ScanState.PAUSED:
+        elif state is ScanState.PAUSED and (before is not ScanState.PAUSED or ev.extra.get("fault_changed")):
             event = "paused"
         elif state is ScanState.FINISHED:
             event = "aborted" if ev.extra.get("aborted") else "finished"

@@ -14,12 +14,17 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
+import subprocess
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
 from lfstudio.errors import InputError
-from lfstudio.scan.notify import Notifier, SmtpServer, parse_target
+from lfstudio.numbers import Number
+from lfstudio.scan.events import TERMINAL, EventKind, ScanState
+from lfstudio.scan.notify import Notifier, SmtpServer, mask_urls, parse_target
 from lfstudio.scan.status_http import StatusBoard, StatusServer
 
 log = logging.getLogger(__name__)
@@ -29,6 +34,7 @@ CLI_NAMES = {"notify": "--notify", "smtp": "--smtp", "status_http": "--status-ht
              "status_token": "--status-token", "auto_resume": "--auto-resume", "on_finish": "--on-finish",
              "on_finish_timeout_s": "--on-finish-timeout-s"}
 SMTP_PASSWORD_ENV = "LFSTUDIO_SMTP_PASSWORD"
+ON_FINISH_TIMEOUT_S = Number("s", 1, 24 * 3600)
 
 
 @dataclass
@@ -65,6 +71,8 @@ class Unattended:
         self._removers: list[Callable[[], None]] = []
         self.engine: Any = None
         self.dataset: Any = None
+        self.on_finish_thread: threading.Thread | None = None
+        self.on_finish_result: dict[str, Any] | None = None     # returncode / timed_out / output / error
 
     @classmethod
     def open(cls, options: UnattendedOptions, *, dataset_name: str = "",
@@ -81,6 +89,9 @@ class Unattended:
             raise InputError(names["notify"], "a mailto: target needs an SMTP server", f"{names['smtp']} smtp://USER@HOST")
         if options.auto_resume < 0 or options.auto_resume > 1000:
             raise InputError(names["auto_resume"], f"{options.auto_resume} is out of range", "0 … 1000")
+        ON_FINISH_TIMEOUT_S.check(names["on_finish_timeout_s"], options.on_finish_timeout_s)
+        if options.on_finish and not options.on_finish.strip():
+            raise InputError(names["on_finish"], "the command is empty", "a shell command, e.g. 'lights off'")
         if options.status_token and not options.status_http:
             raise InputError(names["status_token"], "is for the status page", f"add {names['status_http']} [HOST:]PORT")
         status = None
@@ -106,6 +117,8 @@ class Unattended:
             if dataset is not None and not self.notifier.dataset:
                 self.notifier.dataset = Path(dataset.root).name
             self._removers.append(engine.subscribe(self.notifier.on_scan_event))
+        if self.options.on_finish:
+            self._removers.append(engine.subscribe(self._on_scan_event))
         if self.status is not None and dataset is not None:
             self.board = StatusBoard(dataset.root, total=len(dataset.views), done=len(dataset.done_views()))
             self._removers.append(engine.subscribe(self.board.on_scan_event))
@@ -118,12 +131,94 @@ class Unattended:
         if self.board is not None:
             self._removers.append(checker.subscribe(self.board.on_verdict))
 
+    # -- the end-of-day command --------------------------------------------------------------------
+    def _on_scan_event(self, ev: Any) -> None:
+        """Engine listener: when the scan ends (finished, aborted, failed), start the command."""
+        if ev.kind is not EventKind.STATE or ev.state not in TERMINAL or self.on_finish_thread is not None:
+            return
+        outcome = "failed" if ev.state is ScanState.FAILED else "aborted" if ev.extra.get("aborted") else "finished"
+        env = {"LFSTUDIO_SCAN_OUTCOME": outcome, "LFSTUDIO_SCAN_MESSAGE": ev.message,
+               "LFSTUDIO_DONE": str(ev.done), "LFSTUDIO_TOTAL": str(ev.total),
+               "LFSTUDIO_DATASET": str(getattr(self.dataset, "root", ""))}
+        self.on_finish_thread = threading.Thread(target=self.run_on_finish, args=(env,), name="on-finish",
+                                                 daemon=True)
+        self.on_finish_thread.start()
+
+    def run_on_finish(self, env: dict[str, str]) -> dict[str, Any]:
+        """Run the ``on_finish`` shell command with ``env`` added (``LFSTUDIO_SCAN_OUTCOME`` finished,
+        aborted or failed; ``LFSTUDIO_DATASET``, ``LFSTUDIO_DONE``, ``LFSTUDIO_TOTAL``,
+        ``LFSTUDIO_SCAN_MESSAGE``): at most ``on_finish_timeout_s`` (then it and its children are
+        ended), its output logged and said, a failure notified."""
+        command, limit = self.options.on_finish, float(self.options.on_finish_timeout_s)
+        shown = mask_urls(command)
+        name = self.options.names["on_finish"]
+        log.info("%s: running %s", name, shown)
+        self.say(f"{name}: running {shown}")
+        result: dict[str, Any] = {"returncode": None, "timed_out": False, "output": "", "error": ""}
+        try:
+            proc = subprocess.Popen(command, shell=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                    stdin=subprocess.DEVNULL, env={**os.environ, **env}, start_new_session=True,
+                                    cwd=str(getattr(self.dataset, "root", "") or os.getcwd()))
+        except OSError as exc:
+            result["error"] = f"could not start: {exc.strerror or exc}"
+        else:
+            try:
+                out, _ = proc.communicate(timeout=limit)
+            except subprocess.TimeoutExpired:
+                result["timed_out"] = True
+                _end_group(proc)
+                out, _ = proc.communicate()
+            result["returncode"] = proc.returncode
+            result["output"] = out.decode(errors="replace")
+            for line in result["output"].splitlines():
+                log.info("%s: | %s", name, line)
+                self.say(f"{name}: | {line}")
+            if result["timed_out"]:
+                result["error"] = f"did not end within {limit:g} s: stopped"
+            elif proc.returncode:
+                result["error"] = f"failed with exit status {proc.returncode}"
+        self.on_finish_result = result
+        if result["error"]:
+            text = f"the command run when the scan ends ({shown}) {result['error']}"
+            log.warning("%s: %s", name, text)
+            self.say(f"{name}: {text}")
+            if self.notifier is not None:
+                self.notifier.notify("on-finish-failed", text[:1].upper() + text[1:] + ".")
+        else:
+            self.say(f"{name}: done")
+        return result
+
+    def wait_on_finish(self, timeout_s: float | None = None) -> bool:
+        """Wait for the end-of-day command (if it was started); False after ``timeout_s``."""
+        thread = self.on_finish_thread
+        if thread is not None:
+            thread.join(timeout_s)
+            return not thread.is_alive()
+        return True
+
     def close(self, timeout_s: float = 10.0) -> None:
-        """Stop listening; deliver what is queued within ``timeout_s``; stop the status page."""
+        """Stop listening; let the end-of-day command end (its own time limit); deliver what is queued
+        within ``timeout_s``; stop the status page."""
+        self.wait_on_finish(float(self.options.on_finish_timeout_s) + 15.0)
         for remove in self._removers:
+
             remove()
         self._removers.clear()
         if self.notifier is not None:
             self.notifier.close(timeout_s)
         if self.status is not None:
             self.status.close()
+
+
+def _end_group(proc: subprocess.Popen) -> None:
+    """End a command that ran too long, and whatever it started (its process group)."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(proc.pid, sig)
+        except (ProcessLookupError, PermissionError, AttributeError):
+            return
+        try:
+            proc.wait(5)
+            return
+        except subprocess.TimeoutExpired:
+            continue

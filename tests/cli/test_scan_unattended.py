@@ -46,3 +46,24 @@ def test_bad_unattended_options_are_one_line_and_nothing_starts(run_cli, tmp_pat
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and words.split("…")[0] in lines[0], lines
     assert not out.exists()
+
+
+def test_on_finish_runs_when_the_scan_ends_and_its_output_is_shown(run_cli, tmp_path):
+    r = run_cli("scan", "--port", "instant", "--camera", "instant", "--grid", "3x2", "--out", tmp_path / "day1",
+                "--time-scale", "0", "--auto-resume", "3",
+                "--on-finish", "echo lights off after $LFSTUDIO_DONE of $LFSTUDIO_TOTAL: $LFSTUDIO_SCAN_OUTCOME")
+    assert r.returncode == 0, r.stderr
+    assert "--on-finish: | lights off after 6 of 6: finished" in r.stderr
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--auto-resume", "many"], "--auto-resume"),
+    (["--on-finish-timeout-s", "0"], "--on-finish-timeout-s"),
+    (["--on-finish", " "], "--on-finish: the command is empty"),
+])
+def test_bad_auto_resume_and_on_finish_options(run_cli, tmp_path, args, words):
+    out = tmp_path / "day1"
+    r = run_cli("scan", "--port", "instant", "--camera", "instant", "--grid", "3x2", "--out", out, *args)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and words in lines[0], r.stderr
+    assert not out.exists()
