@@ -59,6 +59,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(linear 16-bit PNG)")
     p.add_argument("--holdout", default="none", metavar="SPLIT",
                    help=f"nerfstudio: views held out of training for evaluation: {HOLDOUT_HELP} (default none)")
+    p.add_argument("--no-points", dest="points", action="store_false",
+                   help="colmap/nerfstudio: leave out the sparse point cloud (points3D.txt stays empty, no PLY); "
+                        "by default it is triangulated from the views with the known poses")
     p.add_argument("--overwrite", action="store_true", help="replace PATH if it exists (default: refuse)")
     p.add_argument("--estimate", action="store_true", help="print the size estimate and exit without writing")
 
@@ -83,7 +86,8 @@ def run(args: argparse.Namespace) -> int:
                             hci_size=args.hci_size,
                             hci_center=_centre_view(args.hci_centre_view),
                             overwrite=args.overwrite, hci_bit_depth=args.hci_bit_depth,
-                            image_bit_depth=args.image_bit_depth, holdout=args.holdout, authors=args.authors)
+                            image_bit_depth=args.image_bit_depth, holdout=args.holdout, authors=args.authors,
+                            points=args.points)
     root = Path(args.dataset)
     try:
         ds = Dataset.open(root)

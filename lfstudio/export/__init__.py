@@ -61,6 +61,7 @@ class ExportOptions:
     image_bit_depth: int = 8         # colmap/nerfstudio images: 8 (sRGB, what their tools expect) or 16 (linear)
     holdout: str = "none"            # nerfstudio: "none", "centre" or "every-K" (held out of training)
     authors: str = ""                # hci: [meta] authors (default: the manifest's "authors", else empty)
+    points: bool = True              # colmap/nerfstudio: the sparse point cloud (points3D.txt, PLY)
 
 
 @dataclass

@@ -4,10 +4,17 @@ Layout (what COLMAP's ``image_undistorter``, 3D Gaussian splatting and gsplat re
 
     OUT/images/rRR_cCCC.png        the views (8-bit sRGB by default, 16-bit linear on request)
     OUT/sparse/0/cameras.txt       one PINHOLE camera: WIDTH HEIGHT fx fy cx cy (exported size)
-    OUT/sparse/0/images.txt        per view: IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, then an
-                                   empty line (no 2-D points)
-    OUT/sparse/0/points3D.txt      empty (no triangulated points)
-    OUT/lfstudio_manifest.json     our description (grid, positions, calibration, the camera)
+    OUT/sparse/0/images.txt        per view: IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, then its
+                                   POINTS2D as X Y POINT3D_ID (empty for a view no point uses)
+    OUT/sparse/0/points3D.txt      the sparse point cloud: POINT3D_ID X Y Z R G B ERROR TRACK[] as
+                                   (IMAGE_ID, POINT2D_IDX), each track entry naming a POINTS2D entry
+    OUT/sparse/0/points3D.ply      the same points as a coloured PLY (rig frame, metres)
+    OUT/lfstudio_manifest.json     our description (grid, positions, calibration, the camera, the
+                                   point cloud's figures and filters)
+
+The points (``options.points``, on by default) are triangulated from SIFT tracks with the known
+poses, never estimated poses (:mod:`lfstudio.depth.points`): kept when seen in 3 or more views,
+every observation within 1 px of its reprojection and the depth fixed to 0.6 % by the views' spread.
 
 World frame = the rig frame (x right, y down, z into the scene) in **metres**; the origin is the
 axes' origin. ``Q``/``T`` are COLMAP's world-to-camera rotation (unit quaternion, w first) and
@@ -20,7 +27,9 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
+
+import numpy as np
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.paths import view_stem
@@ -30,6 +39,10 @@ from lfstudio.jobs import CancelToken, Progress
 IMAGES_DIR = "images"
 MODEL_DIR = "sparse/0"
 MANIFEST_NAME = "lfstudio_manifest.json"
+PLY_NAME = "points3D.ply"
+
+if TYPE_CHECKING:
+    from lfstudio.depth.points import SparseCloud
 
 
 def image_names(views: Sequence[common.View]) -> dict[common.View, str]:
@@ -46,23 +59,78 @@ def cameras_text(cam: poses.PinholeCamera) -> str:
 
 
 def images_text(ds: Dataset, views: Sequence[common.View], names: dict[common.View, str],
-                cam: poses.PinholeCamera) -> str:
+                cam: poses.PinholeCamera, cloud: "SparseCloud | None" = None) -> str:
+    """images.txt; with ``cloud``, each image's POINTS2D are its observations (COLMAP pixel
+    coordinates: ours + 0.5), POINT3D_ID = the cloud's index + 1."""
+    observations = cloud.observations if cloud is not None else {}
+    n_obs = sum(len(ids) for _, ids in observations.values())
     lines = ["# Image list with two lines of data per image:",
              "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
              "#   POINTS2D[] as (X, Y, POINT3D_ID)",
-             f"# Number of images: {len(views)}, mean observations per image: 0"]
+             f"# Number of images: {len(views)}, mean observations per image: {n_obs / max(1, len(views)):.6g}"]
     qw, qx, qy, qz = poses.quaternion_wxyz(cam.R)
     for image_id, v in enumerate(views, start=1):
         _, t = cam.world_to_camera(poses.centre_m(ds, v))
         lines.append(f"{image_id} {qw:.12g} {qx:.12g} {qy:.12g} {qz:.12g} {t[0]:.12g} {t[1]:.12g} {t[2]:.12g} 1 "
                      f"{names[v]}")
-        lines.append("")
+        xy, ids = observations.get(v, (np.zeros((0, 2)), np.zeros(0, int)))
+        lines.append(" ".join(f"{x + 0.5:.4f} {y + 0.5:.4f} {int(i) + 1}" for (x, y), i in zip(xy, ids)))
     return "\n".join(lines) + "\n"
 
 
-POINTS3D_TEXT = ("# 3D point list with one line of data per point:\n"
-                 "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
-                 "# Number of points: 0, mean track length: 0\n")
+def points3d_text(views: Sequence[common.View], cloud: "SparseCloud | None") -> str:
+    """points3D.txt: each point with its track (IMAGE_ID, POINT2D_IDX into that image's POINTS2D)."""
+    n = len(cloud) if cloud is not None else 0
+    tracks: list[list[str]] = [[] for _ in range(n)]
+    if cloud is not None:
+        image_id = {v: i for i, v in enumerate(views, start=1)}
+        for v in views:
+            _, ids = cloud.observations.get(v, (None, np.zeros(0, int)))
+            for k, pid in enumerate(ids):
+                tracks[int(pid)].append(f"{image_id[v]} {k}")
+    mean_track = sum(len(t) for t in tracks) / n if n else 0
+    lines = ["# 3D point list with one line of data per point:",
+             "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)",
+             f"# Number of points: {n}, mean track length: {mean_track:.6g}"]
+    for i in range(n):
+        x, y, z = cloud.xyz_m[i]
+        r, g, b = (int(c) for c in cloud.rgb[i])
+        lines.append(f"{i + 1} {x:.9g} {y:.9g} {z:.9g} {r} {g} {b} {cloud.error_px[i]:.6g} {' '.join(tracks[i])}")
+    return "\n".join(lines) + "\n"
+
+
+POINTS3D_TEXT = points3d_text((), None)
+
+
+def sparse_cloud_of_export(ds: Dataset, views: Sequence[common.View], cam: poses.PinholeCamera, folder: Path,
+                           names: dict[common.View, str], progress: Progress, cancel: CancelToken) -> "SparseCloud":
+    """The sparse cloud (:mod:`lfstudio.depth.points`) of the exported images in ``folder`` (the
+    pixels and colours the user's tools see) with the exported camera and the known positions."""
+    import cv2
+
+    from lfstudio.depth.points import sparse_cloud
+
+    def image_of(v):
+        img = cv2.imread(str(folder / names[v]), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise OSError(f"{folder / names[v]}: cannot read the exported image back")
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+    return sparse_cloud(views, image_of, cam.K, cam.R, lambda v: poses.centre_m(ds, v),
+                        progress=progress, cancel=cancel)
+
+
+def describe_cloud(cloud: "SparseCloud | None") -> dict[str, Any] | None:
+    """The point cloud's figures for lfstudio_manifest.json."""
+    if cloud is None:
+        return None
+    errors = cloud.all_errors_px()
+    lengths = cloud.track_lengths()
+    return {"points": len(cloud), "views_used": len(cloud.views),
+            "reprojection_error_px": {"mean": float(errors.mean()) if len(errors) else None,
+                                      "p95": float(np.percentile(errors, 95)) if len(errors) else None},
+            "mean_track_length": float(lengths.mean()) if len(lengths) else None,
+            "filters": cloud.stats.get("filters"), "method": "lfstudio.depth.points (known poses, SIFT tracks)"}
 
 
 def export_colmap(ds: Dataset, views: Sequence[common.View], source: str, size: tuple[int, int], out: Path,
@@ -75,17 +143,24 @@ def export_colmap(ds: Dataset, views: Sequence[common.View], source: str, size: 
         (tmp / IMAGES_DIR).mkdir()
         common.write_images(ds, views, source, size, tmp / IMAGES_DIR, names, bit_depth, progress, cancel,
                             label="colmap ")
+        cloud = sparse_cloud_of_export(ds, views, cam, tmp / IMAGES_DIR, names, progress, cancel) \
+            if getattr(options, "points", True) else None
         model = tmp / MODEL_DIR
         model.mkdir(parents=True)
         (model / "cameras.txt").write_text(cameras_text(cam), encoding="utf-8")
-        (model / "images.txt").write_text(images_text(ds, views, names, cam), encoding="utf-8")
-        (model / "points3D.txt").write_text(POINTS3D_TEXT, encoding="utf-8")
+        (model / "images.txt").write_text(images_text(ds, views, names, cam, cloud), encoding="utf-8")
+        (model / "points3D.txt").write_text(points3d_text(views, cloud), encoding="utf-8")
+        if cloud is not None:
+            from lfstudio.depth.files import write_ply
+
+            write_ply(model / PLY_NAME, cloud.xyz_m, cloud.rgb)
         doc: dict[str, Any] = common.describe(ds, views, source, size, {v: f"{IMAGES_DIR}/{n}" for v, n in names.items()})
         doc["kind"] = "colmap"
         doc["bit_depth"] = bit_depth
         doc["color"] = "sRGB (8-bit)" if bit_depth == 8 else doc["color"]
         doc["pinhole"] = cam.describe()
         doc["world_frame"] = "rig frame: x right, y down, z into the scene; metres; origin at the axes' origin"
+        doc["point_cloud"] = describe_cloud(cloud)
         (tmp / MANIFEST_NAME).write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n", encoding="utf-8")
     return [out / MODEL_DIR / "cameras.txt", out / MODEL_DIR / "images.txt", out / MODEL_DIR / "points3D.txt",
-            out / MANIFEST_NAME] + [out / IMAGES_DIR / names[v] for v in views]
+            out / MANIFEST_NAME] + ([out / MODEL_DIR / PLY_NAME] if cloud is not None else []) + [out / IMAGES_DIR / names[v] for v in views]

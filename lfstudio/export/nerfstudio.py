@@ -5,7 +5,11 @@ Layout::
     OUT/images/rRR_cCCC.png        the views (8-bit sRGB by default, 16-bit linear on request)
     OUT/transforms.json            camera_model "PINHOLE", fl_x, fl_y, cx, cy, w, h (exported size);
                                    frames: file_path "images/rRR_cCCC.png" + 4 x 4 transform_matrix;
-                                   applied_transform; train/val/test_filenames with a hold-out
+                                   applied_transform; train/val/test_filenames with a hold-out;
+                                   ply_file_path "sparse_pc.ply" (with ``options.points``)
+    OUT/sparse_pc.ply              the sparse point cloud (:mod:`lfstudio.depth.points`) in the
+                                   transforms.json world (``X_json = A · X_rig``), as nerfstudio's own
+                                   COLMAP conversion writes it (splatfacto starts from it)
     OUT/lfstudio_manifest.json     our description (grid, positions, calibration, the camera)
 
 ``transform_matrix`` is camera-to-world in nerfstudio's (OpenGL) camera convention: x right, y up,
@@ -37,6 +41,7 @@ from lfstudio.export import colmap, common, poses
 from lfstudio.jobs import CancelToken, Progress
 
 TRANSFORMS_NAME = "transforms.json"
+PLY_NAME = "sparse_pc.ply"
 IMAGES_DIR = colmap.IMAGES_DIR
 MANIFEST_NAME = colmap.MANIFEST_NAME
 
@@ -127,6 +132,13 @@ def export_nerfstudio(ds: Dataset, views: Sequence[common.View], source: str, si
         (tmp / IMAGES_DIR).mkdir()
         common.write_images(ds, views, source, size, tmp / IMAGES_DIR, names, bit_depth, progress, cancel,
                             label="nerfstudio ")
+        cloud = colmap.sparse_cloud_of_export(ds, views, cam, tmp / IMAGES_DIR, names, progress, cancel) \
+            if getattr(options, "points", True) else None
+        if cloud is not None:
+            from lfstudio.depth.files import write_ply
+
+            write_ply(tmp / PLY_NAME, cloud.xyz_m @ APPLIED_TRANSFORM.T, cloud.rgb)
+            doc["ply_file_path"] = PLY_NAME
         (tmp / TRANSFORMS_NAME).write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n", encoding="utf-8")
         manifest: dict[str, Any] = common.describe(ds, views, source, size,
                                                    {v: f"{IMAGES_DIR}/{n}" for v, n in names.items()})
@@ -134,6 +146,8 @@ def export_nerfstudio(ds: Dataset, views: Sequence[common.View], source: str, si
         manifest["bit_depth"] = bit_depth
         manifest["color"] = "sRGB (8-bit)" if bit_depth == 8 else manifest["color"]
         manifest["pinhole"] = cam.describe()
+        manifest["point_cloud"] = colmap.describe_cloud(cloud)
         manifest["held_out"] = [[int(r), int(c)] for r, c in held_out(views, options.holdout)]
         (tmp / MANIFEST_NAME).write_text(json.dumps(manifest, indent=1, allow_nan=False) + "\n", encoding="utf-8")
-    return [out / TRANSFORMS_NAME, out / MANIFEST_NAME] + [out / IMAGES_DIR / names[v] for v in views]
+    return [out / TRANSFORMS_NAME, out / MANIFEST_NAME] + ([out / PLY_NAME] if cloud is not None else []) + \
+        [out / IMAGES_DIR / names[v] for v in views]
