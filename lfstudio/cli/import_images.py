@@ -14,8 +14,19 @@ HELP = "import another rig's images (PNG, TIFF, JPEG, camera RAW) as a dataset t
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("folder", metavar="FOLDER", type=path_option("FOLDER"), help="folder holding the other rig's images, one per view")
     p.add_argument("--grid", required=True, metavar="CxR", help="columns x rows of the capture grid, e.g. 9x5")
-    p.add_argument("--spacing-mm", required=True, type=numbers_option("--spacing-mm", SPACING_MM, 2, "4x6"), metavar="HxV",
-                   help="distance between neighbouring views in mm, horizontal x vertical, e.g. 4x6")
+    p.add_argument("--spacing-mm", type=numbers_option("--spacing-mm", SPACING_MM, 2, "4x6"), metavar="HxV",
+                   help="distance between neighbouring views in mm, horizontal x vertical, e.g. 4x6 (needed unless "
+                        "--positions records them)")
+    p.add_argument("--positions", metavar="names|FILE.csv",
+                   help="the rig's recorded position of every view: 'names' reads them from the file names "
+                        "(the Stanford archive's out_RR_CC_<a>_<b>), or a CSV with the columns file,x_mm,y_mm; "
+                        "check then measures each view against them")
+    zero = p.add_argument_group("zero-disparity plane (default: measured from the views' disparities)")
+    zero.add_argument("--zero-disparity-depth-m", type=Number("m", 0, 1e6, low_open=True).option("--zero-disparity-depth-m"),
+                      metavar="Z", help="the views are sheared so that the plane at Z m has zero disparity (as "
+                                        "archive light fields are published); needs the focal length")
+    zero.add_argument("--parallel-views", action="store_true",
+                      help="the views are parallel (not sheared): zero disparity at infinity, as lfstudio scans")
     p.add_argument("--order", choices=("row-major", "meander"), default="row-major",
                    help="how the sorted files fill the grid: row-major (every row left to right, default) or "
                         "meander (odd rows right to left)")
@@ -41,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.dataset import Dataset
     from lfstudio.export.import_images import ImportOptions, import_images
     from lfstudio.jobs import TerminalProgress
+    from lfstudio.quality.shear import measure_shear
 
     # read after the other options: a grid's size is checked before anything is allocated per view
     cols, rows = parse_grid("--grid", args.grid, "9x5")
@@ -48,7 +60,9 @@ def run(args: argparse.Namespace) -> int:
                             spacing_mm=args.spacing_mm,
                             order=args.order, pattern=args.pattern, focal_length_mm=args.focal_length_mm,
                             pixel_pitch_um=args.pixel_pitch_um, focal_length_px=args.focal_length_px,
-                            overwrite=args.overwrite, link=not args.copy)
+                            overwrite=args.overwrite, link=not args.copy,
+                            zero_disparity_depth_m=args.zero_disparity_depth_m, parallel_views=args.parallel_views,
+                            positions=args.positions, measure=measure_shear)
     root = import_images(options, progress=TerminalProgress("importing"))
     ds = Dataset.open(root)
     record = ds.manifest.get("import", {})
@@ -57,7 +71,27 @@ def run(args: argparse.Namespace) -> int:
           f"{record.get('linked', 0)} hard-linked, {len(ds.views) - record.get('linked', 0)} copied; "
           + ("focal length not known" if record.get("intrinsics", "none") == "none"
              else f"focal length from {record['intrinsics']}"))
+    print(import_summary(ds))
     for warning in record.get("warnings", []):
         print(f"warning: {warning}", file=sys.stderr)
     print(f"next: lfstudio calibrate {root}")
     return 0
+
+
+def import_summary(ds) -> str:
+    """The zero-disparity plane and the recorded positions of an imported dataset, for the summary."""
+    from lfstudio.dataset.zero_plane import zero_plane
+
+    zp = zero_plane(ds)
+    lines = [f"zero disparity: {zp.describe()}"]
+    m = zp.measured
+    if m.get("step_disparity_px"):
+        lo, hi = m["step_disparity_px"]
+        lines.append(f"disparity     : {lo:+.2f} … {hi:+.2f} px between horizontal neighbours (measured on "
+                     f"{m.get('views')} views, {m.get('tracks')} tracks)")
+    if m.get("rows_reversed"):
+        lines.append("rows          : reversed (the files number the rows from the bottom)")
+    pos = (ds.manifest.get("import") or {}).get("positions")
+    if pos:
+        lines.append(f"positions     : recorded, from {pos.get('source')} (x = {pos.get('x')}, y = {pos.get('y')})")
+    return "\n".join(lines)

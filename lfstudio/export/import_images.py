@@ -35,7 +35,9 @@ import shutil
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
+
+import numpy as np
 
 from lfstudio.dataset import images
 from lfstudio.dataset.grid import grid_order
@@ -67,6 +69,12 @@ class ImportOptions:
     focal_length_px: float | None = None
     overwrite: bool = False
     link: bool = True                       # hard-link when on the same file system (else copy)
+    zero_disparity_depth_m: float | None = None   # the views are sheared: zero disparity at this depth
+    parallel_views: bool = False            # the views are parallel: zero disparity at infinity
+    positions: str | None = None            # recorded positions: "names" or a CSV file (file,x_mm,y_mm)
+    #: measures the views' disparities before anything is written (:func:`lfstudio.quality.shear.measure_shear`,
+    #: passed in by the caller: the quality layer sits above this one); None: not measured
+    measure: Callable[..., Any] | None = None
 
 
 @dataclass
@@ -81,6 +89,11 @@ class ImportPlan:
     intrinsics: str                         # where the focal length comes from (or "none")
     warnings: list[str] = field(default_factory=list)
     bytes_total: int = 0
+    positions_mm: dict[tuple[int, int], tuple[float, float]] | None = None   # recorded, per cell
+    positions_record: dict[str, Any] | None = None
+    spacing_mm: tuple[float, float] = (0.0, 0.0)
+    raw_positions: list[tuple[float, float]] | None = None
+    zero_plane: dict[str, Any] | None = None
 
 
 # -- listing ------------------------------------------------------------------------------------------
@@ -149,6 +162,115 @@ def count_message(files: Sequence[Path], grid: tuple[int, int], folder: Path, pa
         hint = f"; choose one kind with --pattern '*{match[0]}'" if match else "; choose one kind with --pattern"
         return f"{what} (the folder mixes {kinds}){hint}"
     return f"{what}; check --grid (columns x rows) or select the files with --pattern"
+
+
+# -- recorded positions ---------------------------------------------------------------------------
+POSITIONS_FROM_NAMES = "names"
+#: Stanford light field archive: out_RR_CC_<a>_<b>_.png (row, column, the gantry's recorded position)
+STANFORD_NAME = re.compile(r"^out_(\d+)_(\d+)_(-?\d+(?:\.\d*)?(?:[eE]-?\d+)?)_(-?\d+(?:\.\d*)?(?:[eE]-?\d+)?)_?$")
+POSITIONS_FIX = "give the positions in a CSV file instead (--positions FILE.csv with the columns file,x_mm,y_mm)"
+
+
+def positions_from_names(files: Sequence[Path], grid: tuple[int, int]) -> tuple[list[tuple[int, int]], list[tuple[float, float]]]:
+    """Cells and recorded positions from Stanford's ``out_RR_CC_<a>_<b>`` names (rows and columns
+    counted from the smallest); raises :class:`InputError` naming the first file that does not fit."""
+    parsed = []
+    for p in files:
+        m = STANFORD_NAME.match(p.stem)
+        if not m:
+            raise InputError("--positions", f"{p.name} does not follow the name pattern out_RR_CC_<a>_<b> "
+                             f"(row, column, recorded position); {POSITIONS_FIX}")
+        parsed.append((int(m[1]), int(m[2]), float(m[3]), float(m[4])))
+    r0 = min(t[0] for t in parsed)
+    c0 = min(t[1] for t in parsed)
+    cols, rows = grid
+    cells = [(t[0] - r0, t[1] - c0) for t in parsed]
+    seen: dict[tuple[int, int], Path] = {}
+    for p, cell in zip(files, cells):
+        if not (0 <= cell[0] < rows and 0 <= cell[1] < cols):
+            raise InputError("--positions", f"{p.name} is row {cell[0]}, column {cell[1]} counted from the smallest "
+                             f"numbers in the names, outside the {cols}x{rows} grid; check --grid or select the "
+                             "files with --pattern")
+        if cell in seen:
+            raise InputError("--positions", f"{p.name} and {seen[cell].name} name the same row and column; "
+                             "leave one out with --pattern")
+        seen[cell] = p
+    return cells, [(t[2], t[3]) for t in parsed]
+
+
+def positions_from_csv(files: Sequence[Path], folder: Path, csv_path: Path) -> list[tuple[float, float]]:
+    """Recorded (x, y) mm of every file from a CSV with the columns file,x_mm,y_mm."""
+    import csv
+
+    try:
+        with open(csv_path, newline="", encoding="utf-8-sig") as f:
+            rows = list(csv.DictReader(f))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise InputError("--positions", f"{csv_path}: cannot be read ({exc}); save it as UTF-8 CSV with the "
+                         "columns file,x_mm,y_mm") from None
+    if not rows or not {"file", "x_mm", "y_mm"} <= set(rows[0]):
+        raise InputError("--positions", f"{csv_path}: needs the header columns file,x_mm,y_mm (one row per image)")
+    table: dict[str, tuple[float, float]] = {}
+    for i, row in enumerate(rows, start=2):
+        try:
+            x, y = float(row["x_mm"]), float(row["y_mm"])
+        except (TypeError, ValueError):
+            raise InputError("--positions", f"{csv_path} line {i}: x_mm/y_mm {row.get('x_mm')!r}, {row.get('y_mm')!r} "
+                             "are not numbers; write the position in mm") from None
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise InputError("--positions", f"{csv_path} line {i}: the position must be finite mm")
+        table[str(row["file"]).strip()] = (x, y)
+    out = []
+    for p in files:
+        rel = p.relative_to(folder).as_posix()
+        hit = table.get(rel, table.get(p.name))
+        if hit is None:
+            raise InputError("--positions", f"{csv_path} has no row for {rel}; add one (file,x_mm,y_mm) for every "
+                             "image imported")
+        out.append(hit)
+    return out
+
+
+def normalise_positions(cells: Sequence[tuple[int, int]], raw: Sequence[tuple[float, float]]
+                        ) -> tuple[dict[tuple[int, int], tuple[float, float]], tuple[float, float], dict[str, Any]]:
+    """The recorded positions in the dataset's frame: x along the columns, y along the rows (the
+    recorded coordinate that follows each, its sign turned so that it grows with the index), from the
+    least-squares grid's (0, 0) cell; also the mean spacing and how the axes were mapped."""
+    rc = np.array(cells, float).reshape(-1, 2)
+    uv = np.array(raw, float).reshape(-1, 2)
+
+    def slope(values: np.ndarray, index: np.ndarray) -> tuple[float, float]:
+        """Least-squares fit values ≈ intercept + slope·index (slope 0 when the index is constant)."""
+        if np.ptp(index) == 0:
+            return float(np.mean(values)), 0.0
+        k, b = np.polyfit(index, values, 1)
+        return float(b), float(k)
+
+    def score(a: int) -> float:     # how well coordinate a follows the columns and the other the rows
+        return abs(slope(uv[:, a], rc[:, 1])[1]) + abs(slope(uv[:, 1 - a], rc[:, 0])[1])
+
+    ax = 0 if score(0) >= score(1) else 1
+    b_x, k_x = slope(uv[:, ax], rc[:, 1])
+    b_y, k_y = slope(uv[:, 1 - ax], rc[:, 0])
+    sx, sy = (1.0 if k_x >= 0 else -1.0), (1.0 if k_y >= 0 else -1.0)
+    # the (0, 0) of the fitted grid: a plane fit of each coordinate over row and column
+    A = np.column_stack([np.ones(len(rc)), rc[:, 1], rc[:, 0]])
+    cx = np.linalg.lstsq(A, uv[:, ax], rcond=None)[0][0]
+    cy = np.linalg.lstsq(A, uv[:, 1 - ax], rcond=None)[0][0]
+    pos = {tuple(int(v) for v in cell): (float(sx * (uv[i, ax] - cx)), float(sy * (uv[i, 1 - ax] - cy)))
+           for i, cell in enumerate(cells)}
+    # the rig's own scatter about its best regular grid (an affine fit over row and column): the
+    # repeatability it logged, which the check judges the positions by
+    dev = [uv[:, ax] - A @ np.linalg.lstsq(A, uv[:, ax], rcond=None)[0],
+           uv[:, 1 - ax] - A @ np.linalg.lstsq(A, uv[:, 1 - ax], rcond=None)[0]]
+    dof = len(rc) / max(len(rc) - 3, 1)
+    logged_um = [float(np.sqrt(np.mean(d * d) * dof)) * 1000.0 for d in dev]
+    names = ("first", "second")
+    mapping = {"x": f"{'+' if sx > 0 else '-'}{names[ax]} recorded coordinate",
+               "y": f"{'+' if sy > 0 else '-'}{names[1 - ax]} recorded coordinate",
+               "origin": [float(cx), float(cy)],
+               "logged_repeatability_um": [round(v, 2) for v in logged_um]}
+    return pos, (abs(k_x), abs(k_y)), mapping
 
 
 # -- EXIF ---------------------------------------------------------------------------------------------
@@ -244,14 +366,28 @@ def check_options(options: ImportOptions) -> None:
         raise InputError("--grid", f"{options.grid!r} is not columns x rows", "e.g. 9x5") from None
     if cols < 1 or rows < 1:
         raise InputError("--grid", f"needs at least one column and one row, got {cols}x{rows}", "e.g. 9x5")
-    try:
-        h, v = (float(x) for x in options.spacing_mm)
-    except (TypeError, ValueError):
-        raise InputError("--spacing-mm", f"{options.spacing_mm!r} is not HxV in mm", "e.g. 4x6") from None
-    if not (math.isfinite(h) and math.isfinite(v) and h >= 0 and v >= 0) or (cols > 1 and h == 0) \
-            or (rows > 1 and v == 0):
-        raise InputError("--spacing-mm", f"{h:g}x{v:g} mm: the spacing between neighbouring views must be "
-                         "positive", "e.g. 4x6")
+    if options.spacing_mm is None:
+        if not options.positions:
+            raise InputError("--spacing-mm", "is needed (the distance between neighbouring views) unless the "
+                             "positions are recorded (--positions names or FILE.csv)", "e.g. 4x6")
+    else:
+        try:
+            h, v = (float(x) for x in options.spacing_mm)
+        except (TypeError, ValueError):
+            raise InputError("--spacing-mm", f"{options.spacing_mm!r} is not HxV in mm", "e.g. 4x6") from None
+        if not (math.isfinite(h) and math.isfinite(v) and h >= 0 and v >= 0) or (cols > 1 and h == 0) \
+                or (rows > 1 and v == 0):
+            raise InputError("--spacing-mm", f"{h:g}x{v:g} mm: the spacing between neighbouring views must be "
+                             "positive", "e.g. 4x6")
+    z0 = _positive(options.zero_disparity_depth_m, "--zero-disparity-depth-m")
+    if z0 is not None and options.parallel_views:
+        raise InputError("--parallel-views", "contradicts --zero-disparity-depth-m: parallel views have zero "
+                         "disparity at infinity, sheared ones at the stated depth; give one of them")
+    if options.positions and options.positions != POSITIONS_FROM_NAMES:
+        csv_path = Path(options.positions)
+        if not csv_path.is_file():
+            raise InputError("--positions", f"{csv_path} is not a file", f"'{POSITIONS_FROM_NAMES}' or a CSV file "
+                             "with the columns file,x_mm,y_mm")
     if options.order not in ORDERS:
         raise InputError("--order", f"unknown order {options.order!r}", " | ".join(ORDERS))
     f_mm = _positive(options.focal_length_mm, "--focal-length-mm")
@@ -312,8 +448,53 @@ def plan_import(options: ImportOptions, *, progress: Progress = no_progress,
         progress(i + 1, len(files), f"checked {path.name}")
     assert size is not None and first is not None
     camera, lens, source, warnings = _intrinsics(options, first, size)
-    return ImportPlan(files=files, cells=grid_cells(cols, rows, options.order), image_size_px=size, camera=camera,
-                      lens=lens, intrinsics=source, warnings=warnings, bytes_total=total_bytes)
+    cells = grid_cells(cols, rows, options.order)
+    raw_positions: list[tuple[float, float]] | None = None
+    positions_record: dict[str, Any] | None = None
+    if options.positions == POSITIONS_FROM_NAMES:
+        cells, raw_positions = positions_from_names(files, (cols, rows))
+        positions_record = {"source": "file names (out_RR_CC_<a>_<b>: row, column, recorded position)"}
+    elif options.positions:
+        raw_positions = positions_from_csv(files, folder, Path(options.positions))
+        positions_record = {"source": str(Path(options.positions).absolute())}
+    plan = ImportPlan(files=files, cells=cells, image_size_px=size, camera=camera, lens=lens, intrinsics=source,
+                      warnings=warnings, bytes_total=total_bytes, positions_record=positions_record,
+                      raw_positions=raw_positions)
+    _place(plan, options, (cols, rows))
+    if options.zero_disparity_depth_m is not None and plan_focal_px(plan) is None:
+        raise InputError("--zero-disparity-depth-m", "needs the focal length in pixels to turn the depth into "
+                         "the views' shear; give --focal-length-px (or --focal-length-mm with --pixel-pitch-um)")
+    return plan
+
+
+def plan_focal_px(plan: ImportPlan) -> float | None:
+    """The focal length in pixels of the full-size images, when the plan knows it."""
+    lens, cam = plan.lens, plan.camera
+    if lens.get("focal_length_px"):
+        return float(lens["focal_length_px"])
+    if lens.get("focal_length_mm") and cam.get("pixel_pitch_um"):
+        return float(lens["focal_length_mm"]) / (float(cam["pixel_pitch_um"]) / 1000.0)
+    return None
+
+
+def _place(plan: ImportPlan, options: ImportOptions, grid: tuple[int, int]) -> None:
+    """The recorded positions in the dataset's frame for ``plan.cells`` and the spacing (given, or
+    the recorded positions' mean step)."""
+    cols, rows = grid
+    raw = plan.raw_positions
+    derived = (0.0, 0.0)
+    if raw is not None:
+        plan.positions_mm, derived, mapping = normalise_positions(plan.cells, raw)
+        plan.positions_record = {**(plan.positions_record or {}), **mapping}
+    if options.spacing_mm is not None:
+        plan.spacing_mm = (float(options.spacing_mm[0]), float(options.spacing_mm[1]))
+    else:
+        if (cols > 1 and not derived[0] > 0) or (rows > 1 and not derived[1] > 0):
+            raise InputError("--spacing-mm", "cannot be found from the recorded positions (they do not change "
+                             "along the grid); give it", "e.g. 4x6")
+        plan.spacing_mm = (round(derived[0], 6), round(derived[1], 6))
+        if plan.positions_record is not None:
+            plan.positions_record["spacing_from_positions"] = True
 
 
 def _export_manifest_focal_px(folder: Path, size: tuple[int, int]) -> float | None:
@@ -377,6 +558,51 @@ def _intrinsics(options: ImportOptions, first: Path, size: tuple[int, int]):
     return camera, lens, source, warnings
 
 
+# -- the zero-disparity plane -------------------------------------------------------------------------
+def resolve_zero_plane(plan: ImportPlan, options: ImportOptions, grid: tuple[int, int], *,
+                       cancel: CancelToken | None = None) -> None:
+    """Measure the views (``options.measure``), reverse the rows when the tracks say they run upwards,
+    and set ``plan.zero_plane`` (the manifest's ``zero_disparity``) from the options or the
+    measurement; refuses a stated zero plane the views contradict. Writes nothing."""
+    from lfstudio.dataset import zero_plane as zp
+
+    cols, rows = grid
+    f_px = plan_focal_px(plan)
+    measured = None
+    if options.measure is not None:
+        positions = plan.positions_mm or {c: (c[1] * plan.spacing_mm[0], c[0] * plan.spacing_mm[1]) for c in plan.cells}
+        files = dict(zip(plan.cells, plan.files))
+        measured = options.measure(files, positions, plan.spacing_mm, f_px, cancel=cancel)
+    info = measured.as_dict() if measured is not None else {}
+    if measured is not None and measured.rows_reversed and rows > 1:
+        plan.cells = [(rows - 1 - r, c) for r, c in plan.cells]
+        _place(plan, options, grid)
+        info["rows_reversed_why"] = ("the tracks' vertical disparities agree with the horizontal ones only with the "
+                                     "rows reversed: row 0 of the files is the bottom row; reversed so that row 0 is "
+                                     "the top (columns are taken as given, left to right)")
+    width = float(plan.image_size_px[0])
+    if options.parallel_views:
+        if measured is not None and measured.sheared:
+            raise InputError("--parallel-views", f"the views have disparities down to "
+                             f"{measured.step_disparity_px[0]:+.2f} px per step, which parallel views cannot have "
+                             "(they are sheared); leave --parallel-views out or give --zero-disparity-depth-m")
+        plan.zero_plane = zp.record(0.0, None, zp.SOURCE_PARALLEL, width, info)
+    elif options.zero_disparity_depth_m is not None:
+        assert f_px is not None      # plan_import refused it otherwise
+        z0 = float(options.zero_disparity_depth_m)
+        shear = zp.shear_for_depth(f_px, z0)
+        if measured is not None and measured.sheared and shear < measured.shear_min_px_per_mm:
+            raise InputError("--zero-disparity-depth-m", f"{z0:g} m is too far: the views have disparities down to "
+                             f"{measured.step_disparity_px[0]:+.2f} px per step, so points would lie beyond infinity; "
+                             f"the zero-disparity plane is nearer than {measured.depth_max_m:.2f} m")
+        plan.zero_plane = zp.record(shear, z0, zp.SOURCE_STATED, width, info)
+    elif measured is not None:
+        if measured.sheared:
+            plan.zero_plane = zp.record(None, None, zp.SOURCE_MEASURED_SHEARED, width, info)
+        else:
+            plan.zero_plane = zp.record(0.0, None, zp.SOURCE_MEASURED_PARALLEL, width, info)
+
+
 # -- copying ------------------------------------------------------------------------------------------
 def _link_or_copy(src: Path, dst: Path, link: bool, cancel: CancelToken | None) -> tuple[str, bool]:
     """Put ``src`` at ``dst`` (hard link if allowed and possible, else a copy); its sha256 and whether linked."""
@@ -425,6 +651,8 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
         progress(done, total, message)
 
     plan = plan_import(options, progress=check_progress, cancel=cancel)
+    progress(n_files, total, "measuring the disparities between views")
+    resolve_zero_plane(plan, options, (int(options.grid[0]), int(options.grid[1])), cancel=cancel)
     out = Path(options.out).absolute()
     out.parent.mkdir(parents=True, exist_ok=True)
     if free_bytes(out.parent) < plan.bytes_total + (64 << 20):
@@ -432,7 +660,8 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
                          f"{plan.bytes_total / 1e9:.1f} GB; free space or choose another disk")
     with partial_folder(out, options.overwrite) as tmp:
         (tmp / "raw").mkdir()
-        sx, sy = (float(v) for v in options.spacing_mm)
+        sx, sy = plan.spacing_mm
+        recorded = plan.positions_mm or {}
         views = []
         linked = 0
 
@@ -460,7 +689,8 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
                     sha, was_linked, thumb = job.result()
                     rel = f"raw/{view_stem(r, c)}{src.suffix.lower()}"
                     linked += was_linked
-                    views.append({"row": r, "column": c, "commanded_mm": [c * sx, r * sy], "reported_mm": None,
+                    views.append({"row": r, "column": c, "commanded_mm": [c * sx, r * sy],
+                                  "reported_mm": list(recorded[(r, c)]) if (r, c) in recorded else None,
                                   "captured_at": _iso_mtime(src), "exposure_s": None, "file": rel, "sha256": sha,
                                   "thumb": thumb, "status": "done",
                                   "source_file": src.relative_to(Path(options.folder)).as_posix()})
@@ -476,9 +706,13 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
                   "order": options.order, "files": len(plan.files), "linked": linked,
                   "intrinsics": plan.intrinsics, "warnings": list(plan.warnings),
                   "imported_at": now_iso()}
+        if plan.positions_record is not None:
+            record["positions"] = plan.positions_record
+        extra: dict[str, Any] = {"import": record}
+        if plan.zero_plane is not None:
+            extra["zero_disparity"] = plan.zero_plane
         ds = Dataset.create(tmp, camera=plan.camera, lens=plan.lens, grid=grid,
-                            rig={"name": "imported", "imported": True}, views=views, exist_ok=True,
-                            **{"import": record})
+                            rig={"name": "imported", "imported": True}, views=views, exist_ok=True, **extra)
         ds.close()
         if cancel is not None:
             cancel.check()

@@ -36,6 +36,7 @@ from lfstudio.dataset.atomic import atomic_write_json
 from lfstudio.dataset.grid import View
 from lfstudio.dataset.manifest import is_done, now_iso
 from lfstudio.dataset.paths import view_stem
+from lfstudio.dataset.zero_plane import ZeroPlane, zero_plane
 from lfstudio.errors import DatasetError, LfError
 from lfstudio.jobs import CancelToken, Progress, no_progress
 from lfstudio.quality import verdicts
@@ -74,6 +75,10 @@ class Geometry:
     near_m: float | None
     far_m: float | None
     repeatability_um: tuple[float, float]
+    #: the views' zero-disparity plane (parallel for a scan; :mod:`lfstudio.dataset.zero_plane`)
+    zero: ZeroPlane = field(default_factory=lambda: ZeroPlane(0.0, None))
+    #: the positions are the rig's own record (imported with --positions): errors are measured against them
+    recorded_positions: bool = False
 
     @classmethod
     def from_dataset(cls, ds) -> "Geometry":
@@ -82,9 +87,10 @@ class Geometry:
         spacing = grid.step_mm
         origin = (ds.manifest.get("rig") or {}).get("origin_mm") or (0.0, 0.0)
         commanded: dict[Cell, tuple[float, float]] = {}
+        recorded = bool((ds.manifest.get("import") or {}).get("positions"))
         for v in ds.views:
             cell = (int(v["row"]), int(v["column"]))
-            cmd = v.get("commanded_mm")
+            cmd = (v.get("reported_mm") if recorded else None) or v.get("commanded_mm")
             commanded[cell] = (float(cmd[0]), float(cmd[1])) if cmd else \
                 (float(origin[0]) + cell[1] * spacing[0], float(origin[1]) + cell[0] * spacing[1])
         try:
@@ -98,9 +104,16 @@ class Geometry:
         near = float(near) if isinstance(near, (int, float)) and near > 0 else None
         far = float(far) if isinstance(far, (int, float)) and far > 0 else None
         rep = plan.get("repeatability_um")
+        if rep is None and recorded:    # an imported rig's own record: the scatter it logged
+            rep = ((ds.manifest.get("import") or {}).get("positions") or {}).get("logged_repeatability_um")
         rep = (float(rep[0]), float(rep[1])) if isinstance(rep, (list, tuple)) and len(rep) == 2 else \
             verdicts.DEFAULT_REPEATABILITY_UM
-        return cls(cols, rows, (spacing[0], spacing[1]), commanded, f_sensor, sensor_w, near, far, rep)
+        return cls(cols, rows, (spacing[0], spacing[1]), commanded, f_sensor, sensor_w, near, far, rep,
+                   zero_plane(ds), recorded)
+
+    def shear_work(self, m: "ViewMeasures") -> float:
+        """The views' shear in working px per mm of ``m``'s working image (0: parallel or not known)."""
+        return self.zero.shear_or_zero(m.full_size_px[0]) / m.work_scale
 
     def focal_length_px(self, image_width_px: float) -> float | None:
         """The focal length in pixels of a capture ``image_width_px`` wide (None: the manifest lacks it)."""
@@ -182,7 +195,11 @@ class GridCheck:
         f_work = self.focal_length_work_px(m) or float(m.work_size_px[0])
         here = self.geometry.commanded_mm.get(m.cell, (0.0, 0.0))
         offsets = [tuple(np.subtract(self.geometry.commanded_mm.get(c, here), here)) for c in nbs]
-        star = track_star(m, [self.measures[c] for c in nbs], offsets, f_work, self.geometry.guess_depth_m())
+        shear = self.geometry.shear_work(m)
+        guess = self.geometry.guess_depth_m()
+        if shear > 0 and not (self.geometry.near_m or self.geometry.far_m):
+            guess = f_work / (1000.0 * shear)      # sheared views: start at the zero plane (no shift)
+        star = track_star(m, [self.measures[c] for c in nbs], offsets, f_work, guess, shear)
         self.stars[m.cell] = star
         return star
 
@@ -219,6 +236,10 @@ class GridCheck:
             "residual": verdicts.residual(fit.residual_rms_px.get(cell) if fit is not None else None,
                                           typical_residual_px, t),
         }
+        if g.recorded_positions:
+            checks["position"]["why"] = checks["position"]["why"].replace("where the manifest says",
+                                                                          "where the rig recorded it")
+            checks["position"]["against"] = "recorded"
         checks["exposure"]["level"] = m.level
         checks["position"]["tracks"] = fit.tracks.get(cell, 0) if fit is not None else 0
         reasons = [f"{name}: {c['why']}" for name, c in checks.items()
@@ -243,6 +264,14 @@ class GridCheck:
         obs = to_observations(stars, index, H)
         few = to_observations(stars, index, H, max_per_star=SOLVE_TRACKS_PER_VIEW)
         known = known_mm or {}
+        if cells and self.geometry.zero.shear_or_zero() != 0.0:
+            # sheared views: take the shear (shear · position, as the archive applied it) off every point,
+            # so the tracks follow the parallel model of every scan (the zero plane back at infinity)
+            shear = self.geometry.shear_work(self.measures[cells[0]])
+            q = np.array([self.geometry.commanded_mm.get(c, (0.0, 0.0)) for c in cells], float).reshape(-1, 2)
+            for o in (obs, few):
+                if o.count:
+                    o.xy = o.xy - shear * q[o.view]
         initial = np.array([known.get(c, self.geometry.commanded_mm.get(c, (0.0, 0.0))) for c in cells],
                            float).reshape(-1, 2)
         fixed_set = set(fixed)
@@ -454,8 +483,11 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
         raise DatasetError(f"{dataset.root}: none of the views to check can be read", [unreadable[c] for c in chosen])
     any_m = grid.measures[readable[0]]
     f_work = grid.focal_length_work_px(any_m)
-    good = np.isfinite(fit.s_px_per_mm) & (fit.s_px_per_mm > 0) & (fit.track_views >= MIN_TRACK_VIEWS) \
-        & np.isfinite(fit.s_sigma)
+    # with the shear known the tracks' disparities are a parallel capture's (positive); sheared views of an
+    # unstated shear give the views' own signed disparities (no depths)
+    good = np.isfinite(fit.s_px_per_mm) & (fit.track_views >= MIN_TRACK_VIEWS) & np.isfinite(fit.s_sigma)
+    if geometry.zero.known:
+        good &= fit.s_px_per_mm > 0
     if PRECISE_FRACTION < 1.0 and good.sum() > 100:
         # the depth range from the better-measured tracks (the noise of the others widens it)
         good &= fit.s_sigma <= np.quantile(fit.s_sigma[good], PRECISE_FRACTION)
@@ -468,7 +500,7 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
         progress(done_n, total, "disparity map of the centre view")
         images = {c: grid.measures[c].grey8 for c in keep_forever if c in grid.measures
                   and grid.measures[c].grey8 is not None}
-        max_s = float(np.percentile(s, 99.5)) if s.size else (f_work or 1000.0) / (1000.0 * 1.0)
+        max_s = float(np.percentile(np.abs(s), 99.5)) if s.size else (f_work or 1000.0) / (1000.0 * 1.0)
         step_h = max_s * geometry.spacing_mm[0]
         step_v = max_s * geometry.spacing_mm[1]
         parts = partner_cells(centre, set(images), geometry.columns, geometry.rows, steps_for(step_h),
@@ -477,9 +509,14 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
         def where(c: Cell) -> np.ndarray:
             return np.add(geometry.commanded_mm[c], fit.error_mm.get(c, (0.0, 0.0)))
         baselines = {c: float(np.hypot(*(where(c) - where(centre)))) for c, _, _ in parts}
+        # sheared views: each partner is moved back by the shear of its offset (the map is a parallel capture's)
+        shear_w = geometry.shear_work(any_m)
+        shifts = {c: tuple(-shear_w * np.subtract(geometry.commanded_mm[c], geometry.commanded_mm[centre]))
+                  for c, _, _ in parts} if shear_w else None
         if parts:
             disp_map = disparity_map(centre, images, parts, baselines, geometry.spacing_mm[0], any_m.work_scale,
-                                     {"h": step_h, "v": step_v}, grid.homography_work(grid.measures[centre]))
+                                     {"h": step_h, "v": step_v}, grid.homography_work(grid.measures[centre]),
+                                     shifts)
     done_n += 1
     grid.drop_images(lambda c: False)
     check_cancel()
@@ -512,7 +549,9 @@ def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell
     typical_residual = fit.typical_residual_px()
     full_size = grid.measures[next(c for c in chosen if c in grid.measures)].full_size_px
     f_full = g.focal_length_px(full_size[0])
-    depth = depth_range(step_disp_full, step_disp_sigma, g, f_full, t)
+    shear_full = g.zero.shear_at(full_size[0])
+    depth = depth_range(step_disp_full, step_disp_sigma, g, f_full, t,
+                        None if shear_full is None else shear_full * g.spacing_mm[0])
     from lfstudio.export.hci import disparity_range
 
     planned = disparity_range(dataset, [], "raw", full_size, measure=False)
@@ -591,19 +630,35 @@ def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell
 
 
 def depth_range(step_disp_full: np.ndarray, step_disp_sigma: np.ndarray, g: Geometry, f_full: float | None,
-                t: Thresholds) -> dict[str, Any]:
+                t: Thresholds, shear_step_px: float | None = 0.0) -> dict[str, Any]:
     """Measured neighbour-disparity and depth range of the tracks against the plan.
 
     The range is the 1st to 99th percentile of the tracks' disparities (the better-measured
     :data:`PRECISE_FRACTION` of them), each moved inwards by :data:`RANGE_SIGMAS` of its own standard
     error first, so that measurement noise does not widen it.
+
+    ``shear_step_px``: the views' shear per horizontal step (0: parallel views; None: sheared by an
+    amount not stated, when ``step_disp_full`` are the views' own signed disparities and no depth can
+    be given). With a known shear ``step_disp_full`` are a parallel capture's disparities; the views'
+    own (signed) range is that minus the shear (``views_disparity_min_px``/``_max_px``).
     """
-    out: dict[str, Any] = {"planned_near_m": g.near_m, "planned_far_m": g.far_m}
+    out: dict[str, Any] = {"planned_near_m": g.near_m, "planned_far_m": g.far_m,
+                           "zero_disparity": {"depth_m": g.zero.depth_m, "source": g.zero.source,
+                                              "shear_px_per_step": shear_step_px, "about": g.zero.describe()}}
+    if step_disp_full.size >= 20 and shear_step_px is None:
+        v_lo = float(np.percentile(step_disp_full + RANGE_SIGMAS * step_disp_sigma, 1.0))
+        v_hi = float(np.percentile(step_disp_full - RANGE_SIGMAS * step_disp_sigma, 99.0))
+        out.update({"views_disparity_min_px": v_lo, "views_disparity_max_px": v_hi,
+                    "disparity_unit": "full-resolution px between horizontal neighbours",
+                    "tracks": int(step_disp_full.size), "verdict": verdicts.NA,
+                    "why": f"no depths: {g.zero.describe()}"})
+        return out
     if step_disp_full.size < 20 or not f_full:
         out.update({"verdict": verdicts.NA, "why": "too few tracks (or no focal length) to measure depth"})
         return out
     d_lo = float(np.percentile(step_disp_full + RANGE_SIGMAS * step_disp_sigma, 1.0))
     d_hi = float(np.percentile(step_disp_full - RANGE_SIGMAS * step_disp_sigma, 99.0))
+    out.update({"views_disparity_min_px": d_lo - shear_step_px, "views_disparity_max_px": d_hi - shear_step_px})
     # depth = f · b / (1000 · d) with f in full-resolution px and b the horizontal spacing
     fb = f_full * g.spacing_mm[0] / 1000.0
     near = fb / d_hi if d_hi > 0 else None
@@ -624,7 +679,10 @@ def depth_range(step_disp_full: np.ndarray, step_disp_sigma: np.ndarray, g: Geom
     else:
         span = f"{near:.2f} – {far:.2f} m" if near and far else "measured"
         plan = f" (planned {g.near_m:.2f} – {g.far_m:.2f} m)" if g.near_m and g.far_m else ""
-        out.update({"verdict": verdicts.PASS, "why": f"scene depth {span}{plan}"})
+        zero = f"; zero disparity at {g.zero.depth_m:.2f} m" if shear_step_px and g.zero.depth_m else ""
+        out.update({"verdict": verdicts.PASS, "why": f"scene depth {span}{plan}{zero}"})
+    if shear_step_px and g.zero.depth_m and near and far:
+        out["zero_disparity"]["inside_range"] = bool(near <= g.zero.depth_m <= far)
     return out
 
 

@@ -91,12 +91,14 @@ def sgbm(left: np.ndarray, right: np.ndarray, max_disparity_px: float) -> np.nda
 
 def disparity_map(centre: Cell, images: dict[Cell, np.ndarray], partners: list[tuple[Cell, str, int]],
                   baselines_mm: dict[Cell, float], spacing_x_mm: float, work_scale: float,
-                  max_step_disparity_work_px: dict[str, float], homography: np.ndarray | None) -> DisparityMap:
+                  max_step_disparity_work_px: dict[str, float], homography: np.ndarray | None,
+                  shifts_px: dict[Cell, tuple[float, float]] | None = None) -> DisparityMap:
     """Combine the partners' disparities into one map of ``centre`` (see the module docstring).
 
     ``images``: rectification-free working images (uint8) by cell; ``baselines_mm``: each partner's
     distance from the centre; ``max_step_disparity_work_px``: the largest disparity of one step
-    ("h"/"v"), from the tracks, which sizes the search.
+    ("h"/"v"), from the tracks, which sizes the search; ``shifts_px``: working px to move each partner
+    by first (sheared views: minus the shear of its offset, so the map is a parallel capture's).
     """
     def rectified(img: np.ndarray) -> np.ndarray:
         if homography is None:
@@ -110,6 +112,11 @@ def disparity_map(centre: Cell, images: dict[Cell, np.ndarray], partners: list[t
     for cell, direction, steps in partners:
         axis = "h" if direction in ("left", "right") else "v"
         p_img = rectified(images[cell])
+        if shifts_px and cell in shifts_px:     # sheared views: the partner moved back by its shear
+            dx, dy = shifts_px[cell]
+            h, w = p_img.shape
+            p_img = cv2.warpAffine(p_img, np.float32([[1, 0, dx], [0, 1, dy]]), (w, h), flags=cv2.INTER_LINEAR,
+                                   borderMode=cv2.BORDER_REPLICATE)
         d = sgbm(_to_left_right(c_img, direction), _to_left_right(p_img, direction),
                  steps * max_step_disparity_work_px.get(axis, 8.0))
         d = _from_left_right(d, direction)

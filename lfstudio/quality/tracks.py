@@ -64,9 +64,9 @@ class Star:
 
 
 def track_star(view: ViewMeasures, neighbours: Sequence[ViewMeasures], offsets_mm: Sequence[tuple[float, float]],
-               focal_length_work_px: float, guess_depth_m: float) -> Star:
+               focal_length_work_px: float, guess_depth_m: float, shear_work_px_per_mm: float = 0.0) -> Star:
     """Track ``view``'s corners into each neighbour (``offsets_mm``: neighbour position minus the
-    view's, from the manifest)."""
+    view's, from the manifest; ``shear_work_px_per_mm``: the views' shear, :mod:`lfstudio.dataset.zero_plane`)."""
     pts = np.ascontiguousarray(view.corners, np.float32)
     out = np.full((1 + len(neighbours), len(pts), 2), np.nan, np.float32)
     out[0] = pts
@@ -74,7 +74,8 @@ def track_star(view: ViewMeasures, neighbours: Sequence[ViewMeasures], offsets_m
         for i, (nb, off) in enumerate(zip(neighbours, offsets_mm), start=1):
             if nb.grey8 is None or nb.grey8.shape != view.grey8.shape:
                 continue
-            shift = -focal_length_work_px * np.asarray(off, np.float32) / (1000.0 * guess_depth_m)
+            shift = -(focal_length_work_px / (1000.0 * guess_depth_m) - shear_work_px_per_mm) \
+                * np.asarray(off, np.float32)
             guess = pts + shift.astype(np.float32)
             fwd, st, err = cv2.calcOpticalFlowPyrLK(view.grey8, nb.grey8, pts, guess.copy(),
                                                     flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **_LK)

@@ -1,0 +1,207 @@
+"""Light fields from other rigs and archives: sheared views, recorded positions (issue 27).
+
+A virtual-studio capture (known depths) is sheared the way archives publish light fields (every
+view shifted by shear · position, so one plane has zero disparity) and imported; the real Stanford
+"Chess" gantry light field is imported with the positions its file names record.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from lfstudio.cli import main
+from lfstudio.dataset import Dataset
+from lfstudio.dataset.zero_plane import zero_plane
+from lfstudio.errors import InputError
+from lfstudio.export.import_images import ImportOptions, import_images
+from lfstudio.quality import check_dataset
+from lfstudio.quality.shear import measure_shear
+from lfstudio.sim.virtual_dataset import load_ground_truth
+
+STANFORD = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "lightfield" / "stanford_chess_5x5"
+GRID = dict(columns=5, rows=5, spacing_mm=(4.0, 6.0), width_px=640, fmt="png", seed=7)
+
+
+@pytest.fixture(scope="session")
+def _virtual(tmp_path_factory):
+    from lfstudio.sim.virtual_dataset import make_virtual_dataset
+
+    root = tmp_path_factory.mktemp("shear_virtual") / "dataset"
+    make_virtual_dataset(root, **GRID)
+    return root
+
+
+def shear_views(virtual_root: Path, out: Path, zero_depth_m: float) -> tuple[float, dict]:
+    """Write the virtual capture's views shifted by shear · (position − centre) as 16-bit PNGs named
+    in row-major order, the way archives publish their light fields; (focal length px, truth)."""
+    truth = load_ground_truth(virtual_root)
+    f_px = float(truth["K_true"][0, 0])
+    shear = f_px / (1000.0 * zero_depth_m)
+    ds = Dataset.open(virtual_root)
+    out.mkdir(parents=True)
+    centre = np.mean([v["commanded_mm"] for v in ds.views], axis=0)
+    for v in ds.views:
+        img = cv2.imread(str(ds.path_of(v)), cv2.IMREAD_UNCHANGED)
+        dx, dy = shear * (np.asarray(v["commanded_mm"], float) - centre)
+        h, w = img.shape[:2]
+        moved = cv2.warpAffine(img, np.float32([[1, 0, dx], [0, 1, dy]]), (w, h), flags=cv2.INTER_CUBIC,
+                               borderMode=cv2.BORDER_REFLECT)
+        cv2.imwrite(str(out / f"view_{v['row'] * 5 + v['column']:03d}.png"), moved)
+    return f_px, truth
+
+
+def _import(folder: Path, out: Path, **kw) -> Dataset:
+    opts = ImportOptions(folder=folder, out=out, grid=(5, 5), spacing_mm=(4.0, 6.0), measure=measure_shear, **kw)
+    return Dataset.open(import_images(opts))
+
+
+@pytest.mark.parametrize("zero_depth_m", [2.5, 4.0])
+def test_a_sheared_capture_with_its_zero_plane_stated_checks_like_the_truth(_virtual, tmp_path, zero_depth_m):
+    f_px, truth = shear_views(_virtual, tmp_path / "sheared", zero_depth_m)
+    ds = _import(tmp_path / "sheared", tmp_path / "ds", focal_length_px=f_px, zero_disparity_depth_m=zero_depth_m)
+    zp = zero_plane(ds)
+    assert zp.depth_m == pytest.approx(zero_depth_m) and zp.shear_px_per_mm == pytest.approx(f_px / (1000 * zero_depth_m))
+    # the measurement agrees: negative disparities (points behind the plane), the rows as given
+    assert zp.measured["sheared"] and not zp.measured["rows_reversed"]
+    doc = check_dataset(ds, write=False).document
+    depth = doc["depth_range"]
+    assert depth["near_m"] == pytest.approx(truth["near_m"], rel=0.05)
+    assert depth["far_m"] == pytest.approx(truth["far_m"], rel=0.05)
+    assert depth["zero_disparity"]["inside_range"] is True
+    # the views' own signed range: behind the plane negative, in front positive
+    b = 4.0
+    assert depth["views_disparity_min_px"] == pytest.approx(f_px * b / 1000 * (1 / truth["far_m"] - 1 / zero_depth_m),
+                                                            abs=0.05 * f_px * b / 1000 / truth["near_m"])
+    assert depth["views_disparity_max_px"] > 0 > depth["views_disparity_min_px"]
+    failing = [v["view"] for v in doc["views"] if v["checks"]["position"]["verdict"] == "fail"]
+    assert failing == []
+
+
+def test_a_sheared_capture_without_a_stated_plane_is_recognised_and_gives_no_depths(_virtual, tmp_path):
+    f_px, truth = shear_views(_virtual, tmp_path / "sheared", 3.0)
+    ds = _import(tmp_path / "sheared", tmp_path / "ds", focal_length_px=f_px)
+    zp = zero_plane(ds)
+    assert not zp.known and zp.measured["sheared"]
+    # the negative disparities bound the zero plane: nearer than where the farthest point is at infinity
+    assert 3.0 < zp.measured["depth_max_m"]
+    doc = check_dataset(ds, write=False).document
+    depth = doc["depth_range"]
+    assert depth["verdict"] == "n/a" and depth.get("near_m") is None and "zero-disparity" in depth["why"]
+    assert depth["views_disparity_min_px"] < 0 < depth["views_disparity_max_px"]
+    assert all(v["checks"]["position"]["verdict"] != "fail" for v in doc["views"])
+
+
+def test_contradictory_zero_plane_options_are_refused_by_name_and_nothing_is_written(_virtual, tmp_path):
+    f_px, _ = shear_views(_virtual, tmp_path / "sheared", 3.0)
+    with pytest.raises(InputError, match="--parallel-views.*contradicts --zero-disparity-depth-m"):
+        _import(tmp_path / "sheared", tmp_path / "a", focal_length_px=f_px, zero_disparity_depth_m=3.0,
+                parallel_views=True)
+    # the views say otherwise: negative disparities are impossible for parallel views
+    with pytest.raises(InputError, match="--parallel-views.*sheared"):
+        _import(tmp_path / "sheared", tmp_path / "b", focal_length_px=f_px, parallel_views=True)
+    # a depth without a focal length cannot become a shear
+    with pytest.raises(InputError, match="--zero-disparity-depth-m.*focal length"):
+        _import(tmp_path / "sheared", tmp_path / "c", zero_disparity_depth_m=3.0)
+    assert not any((tmp_path / n).exists() for n in "abc")
+    assert [p.name for p in tmp_path.iterdir()] == ["sheared"]
+
+
+def test_an_unsheared_capture_is_measured_parallel_like_a_scan(_virtual, tmp_path):
+    truth = load_ground_truth(_virtual)
+    ds = _import(Path(_virtual) / "raw", tmp_path / "ds", focal_length_px=float(truth["K_true"][0, 0]))
+    zp = zero_plane(ds)
+    assert zp.parallel and zp.measured["sheared"] is False and zp.source == "measured"
+    depth = check_dataset(ds, write=False).document["depth_range"]
+    assert depth["near_m"] == pytest.approx(truth["near_m"], rel=0.05)
+    assert depth["far_m"] == pytest.approx(truth["far_m"], rel=0.05)
+
+
+# -- recorded positions -------------------------------------------------------------------------------
+def _with_positions(_virtual, tmp_path, rows_from_bottom: bool = False) -> tuple[Path, dict]:
+    """The virtual views named out_RR_CC_<y>_<x>_.png with their true positions (Stanford's pattern)."""
+    truth = load_ground_truth(_virtual)
+    src = tmp_path / "named"
+    src.mkdir()
+    true = {}
+    for v in truth["views"]:
+        r, c = v["row"], v["column"]
+        x, y = v["true_mm"]
+        rr = 4 - r if rows_from_bottom else r
+        shutil.copy(Path(_virtual) / "raw" / f"r{r:02d}_c{c:03d}.png", src / f"out_{rr:02d}_{c:02d}_{-y:.6f}_{x + 100:.6f}_.png")
+        true[(r, c)] = (x, y)
+    return src, true
+
+
+def test_positions_from_stanford_names_are_recorded_and_rows_from_the_bottom_are_turned(_virtual, tmp_path):
+    src, true = _with_positions(_virtual, tmp_path, rows_from_bottom=True)
+    truth = load_ground_truth(_virtual)
+    opts = ImportOptions(folder=src, out=tmp_path / "ds", grid=(5, 5), spacing_mm=None, positions="names",
+                         focal_length_px=float(truth["K_true"][0, 0]), measure=measure_shear)
+    ds = Dataset.open(import_images(opts))
+    assert ds.manifest["zero_disparity"]["measured"]["rows_reversed"] is True
+    assert ds.grid.step_mm == pytest.approx((4.0, 6.0), abs=0.01)
+    for v in ds.views:
+        x, y = true[(v["row"], v["column"])]
+        assert v["reported_mm"] == pytest.approx([x, y], abs=1e-3)
+        assert v["source_file"].startswith(f"out_{4 - v['row']:02d}_{v['column']:02d}_")
+
+
+def test_a_name_pattern_or_csv_that_misses_a_view_is_refused_naming_the_file(_virtual, tmp_path):
+    src, _ = _with_positions(_virtual, tmp_path)
+    odd = sorted(src.iterdir())[7]
+    odd.rename(src / "extra_view.png")
+    with pytest.raises(InputError, match="extra_view.png does not follow the name pattern"):
+        import_images(ImportOptions(folder=src, out=tmp_path / "ds", grid=(5, 5), spacing_mm=None, positions="names"))
+    csv_path = tmp_path / "positions.csv"
+    names = sorted(p.name for p in src.iterdir())
+    csv_path.write_text("file,x_mm,y_mm\n" + "".join(f"{n},{i},0\n" for i, n in enumerate(names[:-1])))
+    with pytest.raises(InputError, match=f"positions.csv has no row for {names[-1]}"):
+        import_images(ImportOptions(folder=src, out=tmp_path / "ds", grid=(5, 5), spacing_mm=(4, 6),
+                                    positions=str(csv_path)))
+    assert not (tmp_path / "ds").exists()
+
+
+def test_positions_from_a_csv_are_the_views_reported_positions(_virtual, tmp_path):
+    truth = load_ground_truth(_virtual)
+    lines = ["file,x_mm,y_mm"]
+    for v in truth["views"]:
+        lines.append(f"r{v['row']:02d}_c{v['column']:03d}.png,{v['true_mm'][0] + 0.3 * (v['row'] == 2)},{v['true_mm'][1]}")
+    (tmp_path / "pos.csv").write_text("\n".join(lines) + "\n")
+    ds = Dataset.open(import_images(ImportOptions(folder=Path(_virtual) / "raw", out=tmp_path / "ds", grid=(5, 5),
+                                                  spacing_mm=(4, 6), positions=str(tmp_path / "pos.csv"))))
+    rec = {(v["row"], v["column"]): v["reported_mm"] for v in ds.views}
+    assert rec[(2, 3)][0] - rec[(1, 3)][0] == pytest.approx(0.3, abs=0.02)
+    assert ds.manifest["import"]["positions"]["source"].endswith("pos.csv")
+
+
+# -- the real Stanford gantry light field ------------------------------------------------------------
+needs_stanford = pytest.mark.skipif(not STANFORD.is_dir(), reason="../shared/data/lightfield not present")
+
+
+@needs_stanford
+def test_stanford_chess_imports_sheared_with_its_recorded_positions_and_no_view_fails_on_position(tmp_path, capsys):
+    out = tmp_path / "chess"
+    assert main(["import-images", str(STANFORD), "--grid", "5x5", "--positions", "names", "--focal-length-px", "1400",
+                 "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "zero disparity: sheared views" in printed and "rows          : reversed" in printed
+    ds = Dataset.open(out)
+    m = ds.manifest["zero_disparity"]["measured"]
+    assert m["sheared"] and m["step_disparity_px"][0] < 0 < m["step_disparity_px"][1]
+    assert all(v["reported_mm"] is not None for v in ds.views)
+    doc = check_dataset(ds, write=False).document
+    positions = [v["checks"]["position"] for v in doc["views"]]
+    assert all(p["verdict"] != "fail" for p in positions), [p["why"] for p in positions if p["verdict"] == "fail"]
+    assert all(p.get("against") == "recorded" for p in positions)
+    # against the rig's record the views are closer than against a regular grid
+    errors = np.array([p["error_mm"] for p in positions])
+    assert float(np.sqrt((errors ** 2).mean())) < 0.5
+    # zero disparity inside the scene: negative and positive disparities
+    assert doc["depth_range"]["views_disparity_min_px"] < 0 < doc["depth_range"]["views_disparity_max_px"]
+    json.dumps(doc)
