@@ -88,6 +88,89 @@ class PairMatches:
         return int(len(self.xy_a))
 
 
+#: the three angles: key, name, what determines it
+ANGLES = (("rx", "tilt"), ("ry", "pan"), ("rz", "roll"))
+
+
+def held_angle_std_deg(max_angle_deg: float = 15.0) -> float:
+    """The stated 1σ of an angle the views do not determine: its prior, anywhere within the fit's
+    bounds (uniform over ±``max_angle_deg``: ``max_angle_deg / √3``)."""
+    return float(max_angle_deg) / float(np.sqrt(3.0))
+
+
+@dataclass(frozen=True)
+class Observability:
+    """Which angles the pair geometry determines.
+
+    Pairs in a row (horizontal) line up rows: they see the direction of the row baseline, which fixes
+    pan (ry) and roll (rz) but not the tilt (rx), a rotation about that baseline, which keeps every
+    row a row. Pairs in a column fix tilt and roll, not pan. Both: all three. A direction counts when
+    it has at least ``min_matches`` matches. An angle not determined is held at its prior (0°).
+    """
+
+    n_rows: int            # matches of horizontal pairs
+    n_columns: int         # matches of vertical pairs
+    rows: bool             # enough horizontal matches to use
+    columns: bool
+
+    @property
+    def free(self) -> tuple[bool, bool, bool]:
+        if self.rows and self.columns:
+            return (True, True, True)
+        if self.rows:
+            return (False, True, True)
+        if self.columns:
+            return (True, False, True)
+        return (False, False, False)
+
+    @property
+    def all_three(self) -> bool:
+        return all(self.free)
+
+    @property
+    def directions(self) -> str:
+        return ("rows and columns" if self.rows and self.columns else "rows only" if self.rows
+                else "columns only" if self.columns else "none")
+
+    @property
+    def determined(self) -> list[str]:
+        return [key for (key, _), f in zip(ANGLES, self.free) if f]
+
+    def held(self) -> list[dict]:
+        """Each held angle: key, name, value (0°), its stated prior σ and the reason, in words."""
+        out = []
+        for (key, name), f in zip(ANGLES, self.free):
+            if f:
+                continue
+            if not self.rows and not self.columns:
+                why = "no pairs"
+            elif key == "rx":
+                why = (f"{name} ({key}): not determined by one row — held at 0°; rows will line up, the grid's "
+                       f"common {name} is unknown (add a second row of views to determine it)")
+            else:
+                why = (f"{name} ({key}): not determined by one column — held at 0°; columns will line up, the "
+                       f"grid's common {name} is unknown (add a second column of views to determine it)")
+            out.append({"angle": key, "name": name, "value_deg": 0.0, "reason": why})
+        return out
+
+    def to_json(self, max_angle_deg: float = 15.0) -> dict:
+        held = self.held()
+        for entry in held:
+            entry["prior_std_deg"] = held_angle_std_deg(max_angle_deg)
+        return {"pairs": self.directions, "matches_in_rows": self.n_rows, "matches_in_columns": self.n_columns,
+                "determined": self.determined, "held": held,
+                "rule": "rows (horizontal pairs) determine pan and roll, columns (vertical pairs) tilt and "
+                        "roll, both all three; an angle not determined is held at 0° with the fit's bounds "
+                        "as its prior"}
+
+
+def observability(matches: Sequence["PairMatches"], min_matches: int = 8) -> Observability:
+    """What the pair geometry of ``matches`` determines (see :class:`Observability`)."""
+    n_h = sum(m.count for m in matches if m.direction == "h")
+    n_v = sum(m.count for m in matches if m.direction == "v")
+    return Observability(int(n_h), int(n_v), n_h >= min_matches, n_v >= min_matches)
+
+
 @dataclass
 class FitResult:
     rotation_deg: np.ndarray
@@ -108,6 +191,8 @@ class FitResult:
     principal_point_reason: str = ""
     view_offsets_mm: dict = field(default_factory=dict)   # view -> [x, y] estimated position error (mm)
     position_sigma_mm: tuple[float, float] = (0.0, 0.0)   # the prior used (after the data check)
+    observability: Observability | None = None             # which angles the views determine
+    max_angle_deg: float = 15.0                            # the fit's bounds (±)
     extra: dict = field(default_factory=dict)
 
     @property
@@ -261,6 +346,11 @@ class _Problem:
         self.has = self.ka >= 0
         base = data.baseline_mm[data.pair]
         self.inv_base = np.where(self.has & (base > 0), 1.0 / np.where(base > 0, base, 1.0), 0.0)
+        #: the parameters the Jacobian and the normal matrix cover (None: every one of ``params``)
+        self.free_idx: np.ndarray | None = None
+
+    def columns(self, params: np.ndarray) -> np.ndarray:
+        return np.arange(len(params)) if self.free_idx is None else np.asarray(self.free_idx, int)
 
     def residuals(self, params: np.ndarray) -> np.ndarray:
         return self.split.evaluate(homography_of(params, self.f, self.size))
@@ -272,14 +362,15 @@ class _Problem:
         return r, disp * self.inv_base
 
     def jacobian(self, params: np.ndarray, r0: np.ndarray | None = None) -> np.ndarray:
-        """Forward differences (steps 1e-4° and 0.01 px)."""
+        """Forward differences (steps 1e-4° and 0.01 px) over the free parameters (:meth:`columns`)."""
         r0 = self.residuals(params) if r0 is None else r0
-        steps = np.array([1e-4, 1e-4, 1e-4, 0.01, 0.01])[:len(params)]
-        J = np.empty((len(r0), len(params)))
-        for k, h in enumerate(steps):
+        steps = np.array([1e-4, 1e-4, 1e-4, 0.01, 0.01])
+        cols = self.columns(params)
+        J = np.empty((len(r0), len(cols)))
+        for j, k in enumerate(cols):
             e = np.zeros(len(params))
-            e[k] = h
-            J[:, k] = (self.residuals(params + e) - r0) / h
+            e[k] = steps[k]
+            J[:, j] = (self.residuals(params + e) - r0) / steps[k]
         return J
 
     def normal(self, params, weights, sigma_pos_mm) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -294,9 +385,10 @@ class _Problem:
         wJ = J * weights[:, None]
         N[:n_p, :n_p] = J.T @ wJ
         rhs[:n_p] = -wJ.T @ r0
-        if n_p > 3:   # weak prior of the principal point offset
-            N[3:5, 3:5] += np.eye(2) / self.pp_prior_sigma ** 2
-            rhs[3:5] -= params[3:5] / self.pp_prior_sigma ** 2
+        for j, k in enumerate(self.columns(params)):   # weak prior of the principal point offset
+            if k >= 3:
+                N[j, j] += 1.0 / self.pp_prior_sigma ** 2
+                rhs[j] -= params[k] / self.pp_prior_sigma ** 2
         if n_e:
             # the model residual is r0 + J δp − c (η_b − η_a): columns −c at b, +c at a
             wc = (weights * c)[has]
@@ -338,37 +430,103 @@ def _pair_sigmas(resid: np.ndarray, pair: np.ndarray, n_pairs: int, fallback: fl
     return np.maximum(sig, _MIN_SIGMA_PX)
 
 
-def _refine(problem: _Problem, params: np.ndarray, sigma_px: float, sigma_pos_mm: np.ndarray,
-            iterations: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Gauss-Newton with view offsets and per-pair weights; the offset prior rises to what the data show.
+def _solve_offsets(problem: "_Problem", r0: np.ndarray, c: np.ndarray, weights: np.ndarray,
+                   sigma_pos_mm: np.ndarray) -> np.ndarray:
+    """The view offsets that best explain ``r0`` given the coupling ``c`` (linear: exact)."""
+    d = problem.data
+    n_e = len(d.eta_axis)
+    if not n_e:
+        return np.zeros(0)
+    has = problem.has
+    wc = (weights * c)[has]
+    s = np.bincount(d.pair[has], wc * c[has], len(d.baseline_mm))
+    Nee = np.zeros((n_e, n_e))
+    for i in np.nonzero(s)[0]:
+        a, b = d.eta_a[i], d.eta_b[i]
+        Nee[a, a] += s[i]
+        Nee[b, b] += s[i]
+        Nee[a, b] -= s[i]
+        Nee[b, a] -= s[i]
+    sig = np.where(d.eta_axis == 0, sigma_pos_mm[0], sigma_pos_mm[1])
+    Nee += np.diag(1.0 / sig ** 2)
+    wr = wc * r0[has]
+    rhs = np.bincount(problem.kb[has], wr, n_e) - np.bincount(problem.ka[has], wr, n_e)
+    return np.linalg.solve(Nee, rhs)        # positive definite: the prior is on its diagonal
 
-    Returns (params, offsets, per-pair sigmas, offset prior used, full inverse normal matrix).
+
+def _refine(problem: "_Problem", params: np.ndarray, sigma_px: float, sigma_pos_mm: np.ndarray,
+            iterations: int = 8, free: Sequence[bool] | None = None,
+            bounds: tuple[np.ndarray, np.ndarray] | None = None
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The angles (and principal point) with every view's offset in the model and per-pair weights;
+    the offset prior rises to what the data show.
+
+    Levenberg–Marquardt over the ``free`` parameters only (the others stay where ``params`` holds
+    them; a direction the views do not determine is held, never inverted): each step solves the
+    normal equations over [free parameters, view offsets] damped by λ·diag on the parameter block,
+    is clipped to ``bounds`` and is taken only if it lowers the cost (else λ grows tenfold); the
+    inverse never amplifies a near-null direction without bound (:func:`_inverse`). Returns
+    (params, offsets, per-pair sigmas, offset prior used, inverse normal matrix over [free params,
+    offsets]).
     """
     d = problem.data
+    params = np.asarray(params, float).copy()
+    n_all = len(params)
+    free_idx = np.arange(n_all) if free is None else np.nonzero(np.asarray(free, bool)[:n_all])[0]
+    if bounds is None:
+        lo, hi = np.full(n_all, -np.inf), np.full(n_all, np.inf)
+    else:
+        lo, hi = np.asarray(bounds[0], float)[:n_all], np.asarray(bounds[1], float)[:n_all]
+    params = np.clip(params, lo, hi)
+    problem.free_idx = free_idx
+    n_p = len(free_idx)
     n_pairs = len(d.baseline_mm)
     sig_pair = np.full(n_pairs, max(sigma_px, _MIN_SIGMA_PX))
     prior = np.asarray(sigma_pos_mm, float).copy()
     offsets = np.zeros(len(d.eta_axis))
-    cov = None
+    lam = 1e-4
+
+    def cost(p, eta, weights, prior):
+        r = problem.model_residuals(p, eta)
+        out = float(np.sum(weights * r * r))
+        if len(eta):
+            sig = np.where(d.eta_axis == 0, prior[0], prior[1])
+            out += float(np.sum((eta / sig) ** 2))
+        if n_all > 3:
+            out += float(np.sum(p[3:5] ** 2)) / problem.pp_prior_sigma ** 2
+        return out
+
     for it in range(iterations):
-        N, rhs, _, _ = problem.normal(params, 1.0 / sig_pair[d.pair] ** 2, prior)
-        cov = _inverse(N)
-        z = cov @ rhs
-        n_p = len(params)
-        params = params + z[:n_p]
-        offsets = z[n_p:]
+        weights = 1.0 / sig_pair[d.pair] ** 2
+        N, rhs, r0, c = problem.normal(params, weights, prior)
+        offsets = _solve_offsets(problem, r0, c, weights, prior)
+        before = cost(params, offsets, weights, prior)
+        step = 0.0
+        for _ in range(12):
+            Nd = N.copy()
+            Nd[np.arange(n_p), np.arange(n_p)] *= 1.0 + lam
+            z = _inverse(Nd) @ rhs
+            trial = params.copy()
+            trial[free_idx] = np.clip(params[free_idx] + z[:n_p], lo[free_idx], hi[free_idx])
+            trial_offsets = z[n_p:]
+            after = cost(trial, trial_offsets, weights, prior)
+            if after <= before * (1.0 + 1e-12) or not np.isfinite(before):
+                step = float(np.max(np.abs(trial[free_idx] - params[free_idx]))) if n_p else 0.0
+                params, offsets = trial, trial_offsets
+                lam = max(lam / 10.0, 1e-7)
+                break
+            lam *= 10.0
         resid = problem.model_residuals(params, offsets)
         old = (sig_pair, prior.copy())
         sig_pair = _pair_sigmas(resid, d.pair, n_pairs, sigma_px)
         if len(offsets):
             # expectation-maximisation of the offset variance per axis, never below the rig's value
-            second = offsets ** 2 + np.diag(cov)[n_p:]
+            second = offsets ** 2 + np.diag(_inverse(N))[n_p:]
             for axis in (0, 1):
                 sel = d.eta_axis == axis
                 if sel.any():
                     prior[axis] = max(float(sigma_pos_mm[axis]), float(np.sqrt(second[sel].mean())))
-        settled = np.max(np.abs(z[:n_p])) < 1e-6 and np.allclose(sig_pair, old[0], rtol=0.01) \
-            and np.allclose(prior, old[1], rtol=0.01)
+        settled = step < 1e-6 and np.allclose(sig_pair, old[0], rtol=0.01) and np.allclose(prior, old[1], rtol=0.01)
         if it >= 1 and settled:
             break
     # the information at the solution, with the final weights and prior
@@ -400,14 +558,15 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
         raise CalibrationError(f"focal length {f!r} px must be positive; give --focal-length-px")
     used = [m for m in matches if m.count > 0]
     total = sum(m.count for m in used)
-    n_h = sum(m.count for m in used if m.direction == "h")
-    n_v = sum(m.count for m in used if m.direction == "v")
-    if total < min_matches or n_h < min_matches // 2 or (n_v < min_matches // 2 and n_h < 2 * min_matches):
+    obs = observability(used, min_matches)
+    if total < min_matches or not (obs.rows or obs.columns):
         names = ", ".join(f"{view_stem(*m.view_a)}–{view_stem(*m.view_b)} ({m.count})" for m in matches) or "none"
         raise CalibrationError(
-            f"too few feature matches to calibrate: {n_h} in rows, {n_v} in columns (need at least "
-            f"{min_matches} in total, and both directions for all three angles); pairs: {names}. "
-            "Use views with more texture and overlap, or more views (--views)")
+            f"too few feature matches to calibrate: {obs.n_rows} in rows, {obs.n_columns} in columns (need at "
+            f"least {min_matches} in rows (they fix pan and roll) or in columns (tilt and roll), both for all "
+            f"three angles); pairs: {names}. Use views with more texture and overlap, or more views (--views)")
+    free3 = np.array(obs.free, bool)
+    fidx = np.nonzero(free3)[0]
     pos_sigma_mm = np.array([float(s) / 1000.0 for s in (position_sigma_um or (0.0, 0.0))])
     data = _make_data(used, (bool(pos_sigma_mm[0] > 0), bool(pos_sigma_mm[1] > 0)))
     xy_a, xy_b, horizontal = data.xy_a, data.xy_b, data.horizontal
@@ -420,19 +579,27 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
     prior_sigma = float(pp_prior_sigma_px if pp_prior_sigma_px is not None else PP_PRIOR_FRACTION * w)
     residual_before = signed_residuals(np.eye(3), xy_a, xy_b, horizontal)
     everything = _Split(xy_a, xy_b, horizontal)
+    held_std = held_angle_std_deg(max_angle_deg)
 
-    # 1. start: the linear closed form, or the best point of a coarse grid if that explains more
+    # 1. start: the linear closed form, or the best point of a coarse grid (over the angles the views
+    #    determine; the others at their prior, 0) if that explains more
     rng = np.random.default_rng(0)
     sub = np.arange(total) if total <= 1500 else np.sort(rng.choice(total, 1500, replace=False))
     steps = np.arange(-max_angle_deg * 2 / 3, max_angle_deg * 2 / 3 + 1e-9, max_angle_deg / 3)
-    grid = np.array(list(itertools.product(steps, steps, steps)))
-    linear = linear_rotation(used, f, (w, h))
+    grid = np.zeros((len(steps) ** len(fidx), 3))
+    grid[:, fidx] = np.array(list(itertools.product(*([steps] * len(fidx)))))
+    linear = linear_rotation(used, f, (w, h)) if obs.all_three else None
     candidates = grid if linear is None or np.any(np.abs(linear.rotation_deg) > max_angle_deg) \
         else np.vstack([grid, linear.rotation_deg[None, :]])
     Hs = np.stack([homography_of(g, f, (w, h)) for g in candidates])
     med = np.median(np.abs(_batched_residuals(Hs, xy_a[sub], xy_b[sub], horizontal[sub])), axis=1)
     x0 = candidates[int(np.argmin(med))]
-    bounds3 = (np.full(3, -max_angle_deg), np.full(3, max_angle_deg))
+    lo3, hi3 = np.full(3, -max_angle_deg), np.full(3, max_angle_deg)
+
+    def angles(q):
+        p = np.zeros(3)
+        p[fidx] = q
+        return p
 
     # 2. robust rotation fit with the nominal principal point, then trimmed refits: the inliers
     #    (on at most ROBUST_SAMPLE matches: the refinement below uses them all)
@@ -440,13 +607,14 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
 
     def solve(p, sel, scale):
         split = _Split(xy_a[sel], xy_b[sel], horizontal[sel])
-        return least_squares(lambda q: split.evaluate(homography_of(q, f, (w, h))), np.clip(p, *bounds3),
-                             bounds=bounds3, loss="soft_l1", f_scale=scale, x_scale=1.0, method="trf")
+        return least_squares(lambda q: split.evaluate(homography_of(angles(q), f, (w, h))),
+                             np.clip(p[fidx], lo3[fidx], hi3[fidx]), bounds=(lo3[fidx], hi3[fidx]),
+                             loss="soft_l1", f_scale=scale, x_scale=1.0, method="trf")
 
     spread = max(1.4826 * float(np.min(med)), 1.0)
     sol = solve(x0, sample, spread)
     evaluations = sol.nfev
-    params = sol.x
+    params = angles(sol.x)
     sigma = spread
     for _ in range(2):
         r = everything.evaluate(homography_of(params, f, (w, h)))
@@ -456,13 +624,15 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
             raise CalibrationError(f"only {int(inlier.sum())} of {total} matches agree with one orientation; "
                                    "the matches are mostly wrong (repetitive texture?) — check the views")
         sol = solve(params, sample[inlier[sample]], sigma)
-        params = sol.x
+        params = angles(sol.x)
         evaluations += sol.nfev
     robust_params = params.copy()
 
-    # 3. refinement with the view offsets; re-trim once with the offsets taken out
+    # 3. refinement with the view offsets (damped, bounded, over the determined angles); re-trim once
+    #    with the offsets taken out
     def refine(p, sel):
-        return _refine(_Problem(data.subset(sel), f, (w, h), prior_sigma), p, sigma, pos_sigma_mm)
+        return _refine(_Problem(data.subset(sel), f, (w, h), prior_sigma), p, sigma, pos_sigma_mm,
+                       free=free3, bounds=(lo3, hi3))
 
     params, offsets, sig_pair, pos_used, cov_full = refine(params, inlier)
     resid_all = _Problem(data, f, (w, h), prior_sigma).model_residuals(params, offsets)
@@ -471,42 +641,55 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
         inlier = retrim
         params, offsets, sig_pair, pos_used, cov_full = refine(params, inlier)
 
-    # 4. the principal point: free it and see how well the views determine it
+    # 4. the principal point: free it and see how well the views determine it (only where the views
+    #    determine all three angles: one direction cannot tell it from the held angle)
     problem = _Problem(data.subset(inlier), f, (w, h), prior_sigma)
     p5 = np.concatenate([params, [0.0, 0.0]])
     limit = observable_limit_px(prior_sigma)
     estimated = False
     pp_std = None
-    if principal_point == "auto":
-        free = _refine(problem, p5, sigma, pos_sigma_mm)
+    free5 = np.concatenate([free3, [True, True]])
+    pp_bound = 5.0 * prior_sigma
+    lo5, hi5 = np.concatenate([lo3, [-pp_bound] * 2]), np.concatenate([hi3, [pp_bound] * 2])
+    if principal_point == "auto" and obs.all_three:
+        free = _refine(problem, p5, sigma, pos_sigma_mm, free=free5, bounds=(lo5, hi5))
         pp_std = np.sqrt(np.diag(free[4])[3:5])
         estimated = pp_observable(pp_std, prior_sigma)
+    covariance = np.zeros((5, 5))
+    cols5 = np.nonzero(free5)[0]
     if estimated:
         params, offsets, sig_pair, pos_used, cov_full = free
-        covariance = cov_full[:5, :5]
+        covariance[np.ix_(cols5, cols5)] = cov_full[:len(cols5), :len(cols5)]
         reason = (f"estimated: the views determine it to ±{pp_std.max():.1f} px (1σ; the limit is "
                   f"{limit:.1f} px)")
     else:
         # held: its prior uncertainty moves the fitted angles by G·Δpp (G from the information matrix
         # at the rotation-only solution)
         w_in = 1.0 / sig_pair[data.pair[inlier]] ** 2
+        problem.free_idx = cols5
         N5, _, _, _ = problem.normal(p5, w_in, pos_used)
-        cov5 = _inverse(N5)[:5, :5]
+        k = len(cols5)
+        cov5 = _inverse(N5)[:k, :k]
         if pp_std is None:
-            pp_std = np.sqrt(np.diag(cov5)[3:5])
-        info = np.linalg.inv(cov5)          # marginal information over the five parameters
-        Sigma_n = np.linalg.inv(info[:3, :3])
-        G = -Sigma_n @ info[:3, 3:5]
+            pp_std = np.sqrt(np.diag(cov5)[-2:])
+        info = _inverse(cov5)          # marginal information over the free angles and the principal point
+        na = k - 2
+        Sigma_n = _inverse(info[:na, :na])
+        G = -Sigma_n @ info[:na, na:]
         S_pp = np.eye(2) * prior_sigma ** 2
-        covariance = np.zeros((5, 5))
-        covariance[:3, :3] = cov_full[:3, :3] + G @ S_pp @ G.T
-        covariance[:3, 3:5] = G @ S_pp
-        covariance[3:5, :3] = (G @ S_pp).T
+        covariance[np.ix_(fidx, fidx)] = cov_full[:na, :na] + G @ S_pp @ G.T
+        covariance[np.ix_(fidx, [3, 4])] = G @ S_pp
+        covariance[np.ix_([3, 4], fidx)] = (G @ S_pp).T
         covariance[3:5, 3:5] = S_pp
         why = ("not requested" if principal_point == "centre" else
+               "not observable from one direction of pairs" if not obs.all_three else
                f"not observable from these views (they determine it only to ±{pp_std.max():.0f} px, 1σ; "
                f"the limit is {limit:.1f} px)")
         reason = f"held at the image centre: {why}; its uncertainty (±{prior_sigma:.0f} px) is included"
+    for k in np.nonzero(~free3)[0]:     # a held angle: its prior, nothing the views say
+        covariance[k, :] = 0.0
+        covariance[:, k] = 0.0
+        covariance[k, k] = held_std ** 2
 
     # the cross-check: the closed form again, on the matches the fit kept
     kept = [PairMatches(m.view_a, m.view_b, m.direction, m.xy_a[inlier[sl]], m.xy_b[inlier[sl]])
@@ -516,15 +699,22 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
     residual_after = signed_residuals(H, xy_a, xy_b, horizontal)
     sigma = max(1.4826 * float(np.median(np.abs(residual_after[inlier]))), 0.0)
     # the formal error of independent residuals (the old statement), kept to show what it misses
-    J3 = _Problem(data.subset(inlier), f, (w, h), prior_sigma).jacobian(params[:3])
-    try:
-        formal = sigma * np.sqrt(np.diag(np.linalg.pinv(J3.T @ J3)))
-    except (np.linalg.LinAlgError, ValueError):
-        formal = np.full(3, np.inf)
+    p_inl = _Problem(data.subset(inlier), f, (w, h), prior_sigma)
+    p_inl.free_idx = fidx
+    J3 = p_inl.jacobian(params[:3])
+    formal = np.full(3, held_std)
+    formal[fidx] = sigma * np.sqrt(np.diag(_inverse(J3.T @ J3)))
     # the floor: the angle a systematic SYSTEMATIC_PX pattern shaped like the angle's effect would fake
-    reach = np.percentile(np.abs(J3), 99, axis=0) if len(J3) else np.zeros(3)
-    floor = SYSTEMATIC_PX / np.maximum(reach, 1e-9)
+    floor = np.zeros(3)
+    if len(J3):
+        floor[fidx] = SYSTEMATIC_PX / np.maximum(np.percentile(np.abs(J3), 99, axis=0), 1e-9)
     covariance[:3, :3] += np.diag(floor ** 2)
+    at_bound = [ANGLES[k][0] for k in fidx if abs(params[k]) > max_angle_deg - 1e-3]
+    if at_bound:
+        raise CalibrationError(
+            f"the fit ran to its bound (±{max_angle_deg:g}°) in {', '.join(at_bound)}: the matches agree with no "
+            "small orientation error of one camera — check that the grid (columns x rows, order) and the views "
+            "are right, and that the images come from one camera setting")
     view_offsets: dict = {}
     for k, (view, axis) in enumerate(zip(data.eta_view, data.eta_axis)):
         view_offsets.setdefault(view, [0.0, 0.0])[int(axis)] = float(offsets[k]) if k < len(offsets) else 0.0
@@ -537,6 +727,7 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
                      pair_slices=slices, sigma_px=sigma, success=bool(sol.success), message=str(sol.message),
                      evaluations=int(evaluations), covariance=covariance, principal_point_reason=reason,
                      view_offsets_mm=view_offsets, position_sigma_mm=(float(pos_used[0]), float(pos_used[1])),
+                     observability=obs, max_angle_deg=float(max_angle_deg),
                      extra={"start_deg": [float(x) for x in x0],
                             "robust_deg": [float(x) for x in robust_params],
                             "linear_start_deg": None if linear is None else [float(x) for x in linear.rotation_deg],
@@ -559,9 +750,26 @@ def pp_observable(pp_std_px: Sequence[float], prior_sigma_px: float) -> bool:
     return bool(np.all(np.asarray(pp_std_px, float) <= observable_limit_px(prior_sigma_px)))
 
 
-def _inverse(N: np.ndarray) -> np.ndarray:
-    try:
-        return np.linalg.inv(N)
-    except np.linalg.LinAlgError:
-        return np.linalg.pinv(N)
-
+def _inverse(N: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
+    """Inverse of a symmetric positive semi-definite (information) matrix that never amplifies noise
+    without bound: scaled to unit diagonal and raised by ``rcond`` on the diagonal (every eigenvalue
+    at least ``rcond``; more if Cholesky still fails) before it is inverted. A near-null direction
+    (one the data barely see) so gets a huge but finite variance, the honest statement, instead of an
+    exploding step or the zero variance a pseudo-inverse would claim. (No eigh: OpenBLAS's eigh takes
+    ~70 ms for an 85 × 85 matrix here, Cholesky and inv under 1 ms.)"""
+    N = 0.5 * (np.asarray(N, float) + np.asarray(N, float).T)
+    if N.size == 0:
+        return N.copy()
+    d = np.sqrt(np.clip(np.diag(N), 1e-300, None))
+    S = N / d[:, None] / d[None, :]
+    eye = np.eye(len(S))
+    ridge = rcond
+    while True:
+        try:
+            A = S + ridge * eye
+            np.linalg.cholesky(A)           # positive definite after the ridge, or raise it
+            inv = np.linalg.inv(A)
+            break
+        except np.linalg.LinAlgError:
+            ridge *= 100.0
+    return inv / d[:, None] / d[None, :]

@@ -182,6 +182,15 @@ def homography_for(document: dict[str, Any], image_size_px: Sequence[int] | None
     return scale_homography(H, document["image_size_px"], image_size_px)
 
 
+def held_angles(doc: dict[str, Any]) -> dict[str, dict]:
+    """The angles a calibration document holds (not determined by its views): key -> entry of
+    ``observability.held`` (empty for documents written before observability was recorded)."""
+    obs = doc.get("observability")
+    if not isinstance(obs, dict):
+        return {}
+    return {str(h.get("angle")): h for h in obs.get("held") or () if isinstance(h, dict)}
+
+
 UNCERTAINTY_KEY = "uncertainty"
 #: the order of :attr:`CalibrationUncertainty.covariance`
 PARAMETERS = ("rx_deg", "ry_deg", "rz_deg", "cx_offset_px", "cy_offset_px")

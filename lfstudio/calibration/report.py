@@ -19,7 +19,7 @@ import numpy as np
 
 from lfstudio.calibration.fit import FitResult, PairMatches
 from lfstudio.calibration.model import ROTATION_CONVENTION, UNCERTAINTY_KEY, CalibrationUncertainty, \
-    rotation_angle_deg, rotation_matrix
+    held_angles, rotation_angle_deg, rotation_matrix
 from lfstudio.calibration.uncertainty import describe_fit, nearest_disparity_per_mm, rig_floor_px
 from lfstudio.dataset.paths import view_stem
 
@@ -116,8 +116,9 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
     uncertainty = describe_fit(fit, matches, *grid_extent_mm) if fit.covariance is not None else None
     if uncertainty is not None:
         warnings += _uncertainty_warnings(fit, matches, uncertainty)
-    if overall["after"]["vertical"]["count"] == 0:
-        warnings.append("no vertical pairs: the tilt angle (rx) is not constrained; use views from two or more rows")
+    obs = fit.observability
+    if obs is not None:
+        warnings += [h["reason"] for h in obs.held()]
 
     w, h = fit.image_size_px
     nominal = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
@@ -132,6 +133,7 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
         "principal_point_estimated": bool(fit.estimate_principal_point),
         "principal_point_reason": fit.principal_point_reason,
         UNCERTAINTY_KEY: None if uncertainty is None else uncertainty.to_json(),
+        "observability": None if obs is None else obs.to_json(fit.max_angle_deg),
         "focal_length_px": float(fit.focal_length_px),
         "image_size_px": [int(w), int(h)],
         "homography": [[float(x) for x in row] for row in fit.homography],
@@ -163,11 +165,14 @@ def _uncertainty_warnings(fit: FitResult, matches: Sequence[PairMatches], u: Cal
                    "(neighbours only?); use views spread over the whole grid and every pair between them "
                    "(--views default)")
     else:
-        weak = [f"{name} ±{sd:.3f}°" for name, sd in zip(ANGLE_NAMES, u.rotation_std_deg)
-                if not sd <= WEAK_ANGLE_STD_DEG]
+        free = fit.observability.free if fit.observability is not None else (True, True, True)
+        weak = [f"{name} ±{sd:.3f}°" for name, sd, f in zip(ANGLE_NAMES, u.rotation_std_deg, free)
+                if f and not sd <= WEAK_ANGLE_STD_DEG]
         if weak:
-            out.append(f"these views determine {', '.join(weak)} only (1σ): enough for this grid (rows and "
-                       f"columns within {c1:.2f} px at the corners, 1σ) but not for reuse on a wider scan "
+            lines_up = {"rows only": "rows", "columns only": "columns"}.get(
+                fit.observability.directions if fit.observability is not None else "", "rows and columns")
+            out.append(f"these views determine {', '.join(weak)} only (1σ): enough for this grid ({lines_up} "
+                       f"within {c1:.2f} px at the corners, 1σ) but not for reuse on a wider scan "
                        "(longer baselines need longer-baseline views)")
     return out
 
@@ -177,11 +182,14 @@ def uncertainty_lines(doc: dict[str, Any]) -> list[str]:
     u = CalibrationUncertainty.from_document(doc)
     if u is None:
         return []
-    sx, sy, sz = u.rotation_std_deg
+    held = held_angles(doc)
+    parts = [f"{key} held" if key in held else f"{key} ±{sd:.4f}°"
+             for key, sd in zip(("rx", "ry", "rz"), u.rotation_std_deg)]
     measured = u.covariance is not None
-    out = [f"  uncertainty rx ±{sx:.4f}°  ry ±{sy:.4f}°  rz ±{sz:.4f}°   (1σ, "
+    out = [f"  uncertainty {'  '.join(parts)}   (1σ, "
            + ("measured: the views' position errors and the observed residuals)" if measured
               else "formal only: written before measured uncertainties)")]
+    out += [f"  held        {entry['reason']}" for entry in held.values()]
     if u.corner_error_px:
         span = ", ".join(x for x in (f"full row {u.row_baseline_mm:g} mm" if u.row_baseline_mm else "",
                                      f"full column {u.column_baseline_mm:g} mm" if u.column_baseline_mm else "")
@@ -210,6 +218,11 @@ def format_report(doc: dict[str, Any]) -> str:
     rx, ry, rz = doc["rotation_deg"]
     cx, cy = doc["principal_point_px"]
     lines = [f"rotation      rx {rx:+.4f}°  ry {ry:+.4f}°  rz {rz:+.4f}°   (Euler 'xyz', see docs/conventions.md)"]
+    obs = doc.get("observability")
+    if isinstance(obs, dict):
+        lines.append(f"  determined  {', '.join(obs.get('determined') or []) or 'nothing'} (pairs in "
+                     f"{obs.get('pairs')}: {obs.get('matches_in_rows', 0)} matches in rows, "
+                     f"{obs.get('matches_in_columns', 0)} in columns)")
     lines += uncertainty_lines(doc)
     pp_text = doc.get("principal_point_reason") or ("estimated" if doc["principal_point_estimated"]
                                                     else "nominal centre")

@@ -28,6 +28,7 @@ from lfstudio.calibration.epi import dataset_epis, load_preview, preview_homogra
 from lfstudio.calibration.features import DEFAULT_WORK_WIDTH_PX
 from lfstudio.calibration.model import CalibrationUncertainty
 from lfstudio.calibration.pairs import DEFAULT_PAIR_SET, DEFAULT_VIEWS, PAIR_SETS, make_pairs
+from lfstudio.calibration.model import held_angles
 from lfstudio.calibration.report import format_report, uncertainty_lines
 from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import LfError
@@ -483,9 +484,12 @@ class CalibrationWizard(QDialog):
             if doc["warnings"] else ""
         u = CalibrationUncertainty.from_document(doc)
         std = u.rotation_std_deg if u else (float("nan"),) * 3
+        held = held_angles(doc)
+        angles = ", ".join(f"{key} {value:+.3f}° (held: not determined)" if key in held
+                           else f"{key} {value:+.3f}° ± {sd:.3f}°"
+                           for key, value, sd in zip(("rx", "ry", "rz"), (rx, ry, rz), std))
         self.headline.setText(
-            f"<b>3. Result.</b> rx {rx:+.3f}° ± {std[0]:.3f}°, ry {ry:+.3f}° ± {std[1]:.3f}°, "
-            f"rz {rz:+.3f}° ± {std[2]:.3f}° (1σ) · residual RMS "
+            f"<b>3. Result.</b> {angles} (1σ) · residual RMS "
             f"<b>{before['rms']:.2f} → {after['rms']:.2f} px</b> over {after['count']} matches.{warn}")
         self.uncertainty_label.setText(uncertainty_html(doc))
         self.report_text.setPlainText(format_report(doc))

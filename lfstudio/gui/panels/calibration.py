@@ -66,8 +66,12 @@ class CalibrationPanel(QWidget):
             return
         u = CalibrationUncertainty.from_document(doc)
         if u is not None:
-            sx, sy, sz = u.rotation_std_deg
-            angles = f"rx {rx:+.3f}° ± {sx:.3f}°<br>ry {ry:+.3f}° ± {sy:.3f}°<br>rz {rz:+.3f}° ± {sz:.3f}° (1σ)"
+            from lfstudio.calibration.model import held_angles
+            held = held_angles(doc)
+            angles = "<br>".join(f"{key} {value:+.3f}° held (not determined by these views)" if key in held
+                                 else f"{key} {value:+.3f}° ± {sd:.3f}°"
+                                 for key, value, sd in zip(("rx", "ry", "rz"), (rx, ry, rz), u.rotation_std_deg)) \
+                + " (1σ)"
         else:
             angles = f"rx {rx:+.3f}° ry {ry:+.3f}° rz {rz:+.3f}°"
         corners = ""
