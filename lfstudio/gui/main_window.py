@@ -19,7 +19,7 @@ import logging
 from typing import Any
 
 from PySide6.QtCore import QEvent, QSize, Qt, QTimer
-from PySide6.QtGui import QAction, QKeySequence
+from PySide6.QtGui import QAction, QGuiApplication, QKeySequence
 from PySide6.QtWidgets import (QDockWidget, QFrame, QLabel, QMainWindow, QMenu, QMessageBox, QScrollArea, QToolBar,
                                QWidget)
 
@@ -34,6 +34,23 @@ log = logging.getLogger(__name__)
 MENU_ORDER = ("File", "View", "Rig", "Dataset", "Help")
 _AREAS = {"left": Qt.LeftDockWidgetArea, "right": Qt.RightDockWidgetArea,
           "bottom": Qt.BottomDockWidgetArea, "top": Qt.TopDockWidgetArea}
+
+
+#: the first window's size, when the screen has room for it (else the screen's free room)
+DEFAULT_SIZE = QSize(1500, 950)
+#: room left for the window manager's frame and title bar around the first window
+WINDOW_FRAME_PX = QSize(8, 40)
+#: the panels in front at first start and after View → Reset layout
+FIRST_STEPS = ("plannerDock", "planPlotsDock", "scanPanel")
+
+
+def _screen_room(window: QWidget) -> QSize:
+    """The largest window (without its frame) the window's screen has free room for."""
+    screen = window.screen() or QGuiApplication.primaryScreen()
+    if screen is None:
+        return QSize(16777215, 16777215)
+    free = screen.availableGeometry()
+    return QSize(free.width() - WINDOW_FRAME_PX.width(), free.height() - WINDOW_FRAME_PX.height())
 
 
 def load_target(target: str) -> Any:
@@ -65,6 +82,10 @@ class PanelScrollArea(QScrollArea):
     def _need(self) -> QSize:
         panel = self.widget()
         return panel.minimumSizeHint().expandedTo(panel.minimumSize())
+
+    def need_width(self) -> int:
+        """The width at which the panel needs no sideways scrolling (with room for the vertical bar)."""
+        return self._need().width() + self._extra().width()
 
     def _extra(self) -> QSize:
         return QSize(self.verticalScrollBar().sizeHint().width() + 2 * self.frameWidth(), 2 * self.frameWidth())
@@ -112,7 +133,9 @@ class MainWindow(QMainWindow):
         # side panels run the full height; a bottom dock (plots) sits under the central view only
         self.setCorner(Qt.BottomLeftCorner, Qt.LeftDockWidgetArea)
         self.setCorner(Qt.BottomRightCorner, Qt.RightDockWidgetArea)
-        self.resize(1500, 950)
+        self.resize(DEFAULT_SIZE)
+        self._fit_on_show = False
+        self.docks_fitted = 0         # how many times fit_docks ran (first show, Reset layout)
         self._menus: dict[str, QMenu] = {}
         for name in MENU_ORDER:
             self.menu(name)
@@ -133,6 +156,7 @@ class MainWindow(QMainWindow):
         self._quit_box: QMessageBox | None = None
         self._quit_after_scan = False
         self._install_stop_toolbar()
+        self._default_state = self.saveState()     # the first-start layout, for View → Reset layout
         state.scanStateChanged.connect(self._on_scan_state)
 
         state.statusMessage.connect(lambda text, ms: self.statusBar().showMessage(text, ms))
@@ -166,15 +190,79 @@ class MainWindow(QMainWindow):
         dock.setWidget(PanelScrollArea(widget))
         dock.setFeatures(QDockWidget.DockWidgetMovable | QDockWidget.DockWidgetFloatable
                          | QDockWidget.DockWidgetClosable)
+        self.panels[spec.object_name] = widget
+        self.docks[spec.object_name] = dock
+        self._place_dock(spec, dock)
+        self.menu("View").addAction(dock.toggleViewAction())
+
+    def _place_dock(self, spec: PanelSpec, dock: QDockWidget) -> None:
+        """Put ``dock`` where the default layout has it (its area, a tab behind ``spec.tab_with``)."""
+        dock.setFloating(False)
         self.addDockWidget(_AREAS.get(spec.area, Qt.LeftDockWidgetArea), dock)
         first = self.docks.get(spec.tab_with)
         if first is not None:           # a tab behind an earlier panel: both keep the full height
             self.tabifyDockWidget(first, dock)
             first.raise_()
         dock.setVisible(spec.visible)
-        self.panels[spec.object_name] = widget
-        self.docks[spec.object_name] = dock
-        self.menu("View").addAction(dock.toggleViewAction())
+
+    def _raise_first_steps(self) -> None:
+        for name in FIRST_STEPS:
+            if name in self.docks:
+                self.docks[name].raise_()
+
+    def reset_layout(self) -> None:
+        """View → Reset layout: every panel back in its first-start place, tab and width (floating
+        ones docked, closed ones shown as at first start); the window fitted to its screen."""
+        self.restoreState(self._default_state)
+        for spec in PANELS:
+            dock = self.docks.get(spec.object_name)
+            if dock is not None:
+                dock.setVisible(spec.visible)
+        self.stop_toolbar.setVisible(True)
+        self._raise_first_steps()
+        if not self.isMaximized() and not self.isFullScreen():
+            room = _screen_room(self)
+            if self.width() > room.width() or self.height() > room.height():
+                self.resize(self.size().boundedTo(room))
+        QTimer.singleShot(0, self.fit_docks)
+        self.statusBar().showMessage("Layout reset: every panel in its first-start place", 5000)
+
+    def fit_docks(self) -> None:
+        """Give the side docks the width their panels need (no sideways scrolling) and the central
+        view the rest; when the window is too narrow for all three, the docks share what is left
+        after the central view's minimum in proportion to their needs."""
+        widths: dict[Qt.DockWidgetArea, tuple[int, list[QDockWidget]]] = {}
+        for dock in self.docks.values():
+            area = self.dockWidgetArea(dock)
+            if dock.isFloating() or area not in (Qt.LeftDockWidgetArea, Qt.RightDockWidgetArea) \
+                    or not dock.isVisible():
+                continue
+            scroll = dock.widget()
+            if not isinstance(scroll, PanelScrollArea) or scroll.widget() is None:
+                continue
+            frame = max(0, dock.width() - scroll.width())
+            need = scroll.need_width() + frame
+            most, docks = widths.get(area, (0, []))
+            widths[area] = (max(most, need), docks + [dock])
+        if not widths:
+            return
+        separator = self.style().pixelMetric(self.style().PixelMetric.PM_DockWidgetSeparatorExtent, None, self)
+        room = self.width() - self.centralWidget().minimumSizeHint().width() - separator * (len(widths) + 1)
+        total = sum(need for need, _ in widths.values())
+        scale = min(1.0, room / total) if total > 0 else 1.0
+        docks, sizes = [], []
+        for need, area_docks in widths.values():
+            for dock in area_docks:
+                docks.append(dock)
+                sizes.append(max(PanelScrollArea.MIN_WIDTH_PX, int(need * scale)))
+        self.resizeDocks(docks, sizes, Qt.Horizontal)
+        self.docks_fitted += 1
+
+    def showEvent(self, event) -> None:
+        super().showEvent(event)
+        if self._fit_on_show:
+            self._fit_on_show = False
+            QTimer.singleShot(0, self.fit_docks)      # after the first layout has placed the docks
 
     def _install_base_menus(self) -> None:
         file_menu = self.menu("File")
@@ -192,6 +280,17 @@ class MainWindow(QMainWindow):
         quit_action.setToolTip("Close lfstudio")
         quit_action.triggered.connect(self.close)
         file_menu.addAction(quit_action)
+
+        view_menu = self.menu("View")
+        view_menu.addSeparator()
+        reset = QAction("&Reset layout", self)
+        reset.setObjectName("actionResetLayout")
+        reset.setToolTip("Every panel back in its first-start place and width (floating panels docked, "
+                         "closed ones shown), the window fitted to the screen")
+        reset.setStatusTip(reset.toolTip())
+        reset.triggered.connect(self.reset_layout)
+        view_menu.addAction(reset)
+        self.reset_layout_action = reset
 
         help_menu = self.menu("Help")
         guide = QAction("&User guide", self)
@@ -366,13 +465,20 @@ class MainWindow(QMainWindow):
         geometry, window_state = s.value("window/geometry"), s.value("window/state")
         if geometry is not None:
             self.restoreGeometry(geometry)
+        else:       # first start: as large as the default but no larger than the screen's free room
+            room = _screen_room(self)
+            self.resize(self.size().boundedTo(room))
+            screen = self.screen()
+            if screen is not None:
+                free = screen.availableGeometry()
+                self.move(free.x() + (free.width() - self.width()) // 2,
+                          free.y() + max(0, (free.height() - self.height() - WINDOW_FRAME_PX.height()) // 2))
         if window_state is not None:
             self.restoreState(window_state)
             self.stop_toolbar.setVisible(True)          # STOP stays in sight whatever was saved
-        else:  # first start: the panels of the first steps in front
-            for name in ("plannerDock", "planPlotsDock", "scanPanel"):
-                if name in self.docks:
-                    self.docks[name].raise_()
+        else:  # first start: the panels of the first steps in front, the side docks as wide as they need
+            self._raise_first_steps()
+            self._fit_on_show = True
 
     def ask_quit_during_scan(self) -> QMessageBox:
         """The question asked when the window is closed during a scan (non-blocking)."""

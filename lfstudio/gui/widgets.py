@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 from PySide6.QtCore import QEvent, QObject, QPointF, QRectF, QSize, Qt, QTimer, Signal
-from PySide6.QtGui import QColor, QFont, QGuiApplication, QPainter, QPen, QWindow
+from PySide6.QtGui import QColor, QFont, QGuiApplication, QPainter, QPen, QTextDocumentFragment, QWindow
 from PySide6.QtWidgets import (QAbstractSpinBox, QApplication, QComboBox, QHBoxLayout, QLabel, QMessageBox,
                                QProgressBar, QPushButton, QSizePolicy, QWidget)
 
@@ -28,6 +28,61 @@ def set_progress_async(bar: QProgressBar, value: int, maximum: int | None = None
     finally:
         bar.setUpdatesEnabled(True)
     bar.update()
+
+
+def elide_to_width(text: str, metrics, width_px: int, lines: int = 1) -> tuple[str, str]:
+    """``(shown, tooltip)``: ``text`` itself when it fits one line of ``width_px`` (or spans several
+    lines, or the width is not known yet), else its plain words elided with "…" and the whole plain
+    text as the tooltip, so no line is ever cut off mid-word without a sign."""
+    if lines > 1 or width_px <= 0 or not text:
+        return text, ""
+    plain = QTextDocumentFragment.fromHtml(text).toPlainText() if "<" in text else text
+    room = width_px - 2
+    if metrics.horizontalAdvance(plain) <= room:
+        return text, ""
+    return metrics.elidedText(plain, Qt.ElideRight, room), plain
+
+
+class ElidedLabel(QLabel):
+    """A one-line label that never asks for the width of its text (it cannot widen a window) and,
+    when narrower than its text, shows it elided with "…" (the whole text in the tooltip)."""
+
+    def __init__(self, text: str = "", parent: QWidget | None = None):
+        super().__init__(parent)
+        self._full = ""
+        self.setMinimumWidth(8)
+        self.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)
+        self.setText(text)
+
+    def setText(self, text: str) -> None:   # noqa: N802 (QLabel's name)
+        self._full = text
+        shown, tip = elide_to_width(text, self.fontMetrics(), self.contentsRect().width())
+        super().setText(shown)
+        self.setToolTip(tip)
+
+    def full_text(self) -> str:
+        return self._full
+
+    def resizeEvent(self, event) -> None:   # noqa: N802 (Qt name)
+        super().resizeEvent(event)
+        self.setText(self._full)
+
+
+class WholeOrNothingLabel(QLabel):
+    """A one-line label that gives way when room is short (it never widens a window) and then shows
+    nothing rather than a cut-off part of its text (a legend: its tooltip says the same)."""
+
+    def __init__(self, text: str = "", parent: QWidget | None = None):
+        super().__init__(text, parent)
+        self.setMinimumWidth(0)
+        self.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)
+
+    def is_whole(self) -> bool:
+        return self.contentsRect().width() >= super().sizeHint().width() - 2 * self.margin()
+
+    def paintEvent(self, event) -> None:   # noqa: N802 (Qt name)
+        if self.is_whole():
+            super().paintEvent(event)
 
 
 def show_lock_note(note: QLabel, tips: list[tuple[QObject, str]], reason: str, text: str) -> None:
@@ -131,6 +186,7 @@ class QuietLabel(QWidget):
         if name:
             self.label.setObjectName(name)
             self.setObjectName(f"{name}Line")
+        self._full, self._lines = text, lines
         self.label.setWordWrap(lines > 1)
         self.label.setAlignment(Qt.AlignLeft | Qt.AlignTop if lines > 1 else Qt.AlignLeft | Qt.AlignVCenter)
         metrics = self.label.fontMetrics()
@@ -143,24 +199,36 @@ class QuietLabel(QWidget):
 
     def setText(self, text: str) -> None:   # noqa: N802 (QLabel's name)
         if not self.every_ms:
-            self.label.setText(text)
+            self._show(text)
             return
         self._pending = text
         self._pacer.request()
 
     def text(self) -> str:
-        return self._pending if self._pending is not None else self.label.text()
+        return self._pending if self._pending is not None else self._full
+
+    def shown_text(self) -> str:
+        """The text on screen: the whole text, or (one line too narrow for it) its plain words elided
+        with "…" (the whole text is then the tooltip)."""
+        return self.label.text()
 
     def _show_pending(self) -> None:
         text, self._pending = self._pending, None
         if text is not None:
-            self.label.setText(text)
+            self._show(text)
+
+    def _show(self, text: str) -> None:
+        self._full = text
+        shown, tip = elide_to_width(text, self.label.fontMetrics(), self.width(), self._lines)
+        self.label.setText(shown)
+        self.label.setToolTip(tip)
 
     def sizeHint(self) -> QSize:   # noqa: N802 (Qt name)
         return self._hint
 
     def resizeEvent(self, event) -> None:   # noqa: N802 (Qt name)
         self.label.setFixedSize(self.size())     # fixed: its updateGeometry() on a new text does nothing
+        self._show(self._full)
 
 
 def confirm_cancel_running(parent: QWidget, runner, title: str, question: str) -> bool:
@@ -187,7 +255,7 @@ class JobProgressWidget(QWidget):
         self.bar.setTextVisible(True)
         self.eta_label = QLabel("ETA –")
         self.eta_label.setMinimumWidth(110)
-        self.message_label = QLabel("")
+        self.message_label = ElidedLabel("")     # a long message never widens the dialog or panel
         self.cancel_button = QPushButton("Cancel")
         self.cancel_button.setToolTip("Stop the running job at the next safe point")
         self.cancel_button.setEnabled(False)

@@ -95,4 +95,4 @@ def test_grid_title_keeps_the_dataset_name(qtbot, tmp_path):
     view.resize(760, 300)
     qtbot.waitUntil(lambda: view.width() == 760 and "…" in view.title.text(), timeout=5000)
     assert view.title.toolTip().endswith(long_name) and "5 × 3 views" in view.title.text()
-    assert view.title.width() >= view.title.minimumWidth() > 0.3 * 760
+    assert view.title.width() > 0.3 * 760        # it keeps its share of the view, the name elided in it

@@ -42,7 +42,7 @@ from lfstudio.gui.bridge import GuiInbox, run_off_gui
 from lfstudio.gui.settings import settings
 from lfstudio.gui.views.quality import (OVERLAY_KEY, DisparityDialog, LiveQuality, NeighboursDialog, QualityBar,
                                         run_check)
-from lfstudio.gui.widgets import QuietLabel
+from lfstudio.gui.widgets import QuietLabel, WholeOrNothingLabel
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +59,7 @@ OVERLAY_ALPHA = 215
 FRAME_MS = 40                    # the grid repaints what changed at most 25 times a second
 VERDICT_MS = 100                 # scan-time verdicts are shown in batches at most this often
 MAX_RECENT = 8
+TITLE_MIN_PX = 300     # the dataset name's title never needs more (the rest of the name elided)
 TITLE_SHARE = 0.45               # of the view's width the dataset's name may take in the title bar
 
 
@@ -726,6 +727,52 @@ class ImageDialog(QDialog):
         self.label.setPixmap(QPixmap.fromImage(image))
 
 
+class TitleLabel(QLabel):
+    """The dataset's name (bold) and its grid, elided in the middle of the name to the label's own
+    width (never cut off). It asks for the whole text up to ``share`` px (set by the view) and needs
+    at most TITLE_MIN_PX: its minimum never follows the view's width (a wider view would then never
+    shrink again, taking the docks' width for good)."""
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self._name, self._rest, self._share = "", "", 10 ** 6
+
+    def _metrics(self) -> tuple[QFontMetrics, QFontMetrics]:
+        bold = QFont(self.font())
+        bold.setBold(True)
+        return QFontMetrics(bold), self.fontMetrics()
+
+    def _full_px(self) -> int:
+        fm_bold, fm = self._metrics()
+        return fm_bold.horizontalAdvance(self._name) + fm.horizontalAdvance(self._rest) + 12
+
+    def set_parts(self, name: str, rest: str) -> None:
+        self._name, self._rest = name, rest
+        self._elide()
+        self.updateGeometry()
+
+    def set_share(self, share_px: int) -> None:
+        if share_px != self._share:
+            self._share = share_px
+            self.updateGeometry()
+
+    def sizeHint(self) -> QSize:   # noqa: N802 (Qt name)
+        return QSize(max(60, min(self._full_px(), self._share)), super().sizeHint().height())
+
+    def minimumSizeHint(self) -> QSize:   # noqa: N802 (Qt name)
+        return QSize(min(self._full_px(), self._share, TITLE_MIN_PX), super().minimumSizeHint().height())
+
+    def resizeEvent(self, event) -> None:   # noqa: N802 (Qt name)
+        super().resizeEvent(event)
+        self._elide()
+
+    def _elide(self) -> None:
+        fm_bold, fm = self._metrics()
+        room = max(20, self.contentsRect().width() - fm.horizontalAdvance(self._rest) - 8)
+        shown = fm_bold.elidedText(self._name, Qt.ElideMiddle, room)
+        self.setText(f"<b>{html.escape(shown)}</b>{html.escape(self._rest)}" if self._name else "")
+
+
 class GridView(QWidget):
     """The central widget: a friendly empty state, or the grid of the open dataset with its toolbar."""
 
@@ -746,7 +793,7 @@ class GridView(QWidget):
         page = QWidget()
         bar = QHBoxLayout()
         bar.setContentsMargins(4, 2, 4, 2)
-        self.title = QLabel("")
+        self.title = TitleLabel()
         self.title.setObjectName("gridTitle")
         self.counts = QuietLabel("", name="gridCounts",      # changes while a scan runs: no relayout
                                  hint_text="2121 done · 2121 to capture · 2121 failed · 2121 skipped")
@@ -755,16 +802,14 @@ class GridView(QWidget):
         bar.addWidget(self.counts)
         bar.addSpacing(16)
         bar.addStretch(1)
-        legend = QLabel("&nbsp;&nbsp;".join(
+        legend = WholeOrNothingLabel("&nbsp;&nbsp;".join(
             f"<span style='color:{STATE_COLORS[code].name()}'>■</span>&nbsp;{STATE_NAMES[code]}"
             for code in (PENDING, CAPTURING, DONE, FAILED, SKIPPED)))
         legend.setObjectName("gridLegend")
+        self.legend = legend
         legend.setToolTip("Colours of the views: pending, being captured, done, failed, skipped by the operator")
         # when the bar is narrow the legend gives way first, then the counts; the dataset's name keeps
         # its width (up to TITLE_SHARE of the view, beyond that elided in the middle): see _fit_title
-        for label in (self.title, legend):   # never widen the window (nor does counts: min 8 px)
-            label.setMinimumWidth(8)
-        legend.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)
         self._title_parts: tuple[str, str] | None = None
         bar.addWidget(legend)
         bar.addSpacing(12)
@@ -772,15 +817,15 @@ class GridView(QWidget):
         self.zoom_out_button = self._tool("−", "Zoom out (-)", lambda: self.canvas.zoom_by(0.8))
         self.zoom_in_button = self._tool("+", "Zoom in (+)", lambda: self.canvas.zoom_by(1.25))
         self.one_button = self._tool("1:1", "Thumbnails at their own size", lambda: self.canvas.set_zoom(160))
-        for b in (self.fit_button, self.zoom_out_button, self.zoom_in_button, self.one_button):
-            bar.addWidget(b)
         self.recapture_button = QPushButton("Re-capture selected")
         self.recapture_button.setObjectName("recaptureButton")
         self.recapture_button.setToolTip("Queue the selected views for capture again (Scan panel)")
         self.recapture_button.setEnabled(False)
         self.recapture_button.clicked.connect(self.request_recapture)
-        bar.addWidget(self.recapture_button)
         self.quality_bar = QualityBar()
+        for b in (self.fit_button, self.zoom_out_button, self.zoom_in_button, self.one_button,
+                  self.recapture_button):     # at the end of its second row: the title row keeps room
+            self.quality_bar.line.addWidget(b)
         self.live: LiveQuality | None = None
         self._neighbours: NeighboursDialog | None = None
         lay = QVBoxLayout(page)
@@ -846,6 +891,7 @@ class GridView(QWidget):
         self.stack.setCurrentIndex(1)
         grid = dataset.grid
         self._title_parts = (dataset.root.name, f" — {grid.columns} × {grid.rows} views")
+        self.title.set_parts(*self._title_parts)
         self.title.setToolTip(str(dataset.root))
         self._fit_title()
         self._update_counts()
@@ -857,18 +903,8 @@ class GridView(QWidget):
         self._fit_title()
 
     def _fit_title(self) -> None:
-        """The title bar's dataset name, whole when it fits in TITLE_SHARE of the view's width,
-        else elided in the middle (the tooltip has the full path)."""
-        if self._title_parts is None:
-            return
-        name, rest = self._title_parts
-        bold = QFont(self.title.font())
-        bold.setBold(True)
-        fm_bold, fm = QFontMetrics(bold), self.title.fontMetrics()
-        room = max(60, int(self.width() * TITLE_SHARE))
-        shown = fm_bold.elidedText(name, Qt.ElideMiddle, max(20, room - fm.horizontalAdvance(rest) - 4))
-        self.title.setText(f"<b>{html.escape(shown)}</b>{html.escape(rest)}")
-        self.title.setMinimumWidth(min(room, fm_bold.horizontalAdvance(shown) + fm.horizontalAdvance(rest) + 8))
+        """The title bar's dataset name asks for up to TITLE_SHARE of the view's width (see TitleLabel)."""
+        self.title.set_share(int(self.width() * TITLE_SHARE))
 
     def _update_counts(self) -> None:
         st = self.canvas.status

@@ -21,7 +21,7 @@ from typing import Any
 from PySide6.QtCore import QObject, Qt, Signal
 from PySide6.QtGui import QImage, QPixmap
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QGridLayout, QHBoxLayout, QLabel, QPushButton,
-                               QScrollArea, QSizePolicy, QVBoxLayout, QWidget)
+                               QScrollArea, QSizePolicy, QStackedWidget, QVBoxLayout, QWidget)
 
 from lfstudio.dataset.manifest import is_done
 from lfstudio.dataset.paths import view_label
@@ -91,6 +91,8 @@ class QualityBar(QWidget):
         self.overlay.addItem("No heat map", "")
         for key, h in HEATMAPS.items():
             self.overlay.addItem(h.title.split(" (")[0], key)
+        self.overlay.setSizeAdjustPolicy(QComboBox.AdjustToMinimumContentsLengthWithIcon)
+        self.overlay.setMinimumContentsLength(12)      # the longest heat-map name is elided, not widening the bar
         self.overlay.setToolTip("Colour the grid by one measured figure (the same scale as the report's heat maps)")
         self.overlay.currentIndexChanged.connect(lambda i: self.overlayChanged.emit(self.overlay.itemData(i)))
         self.select_button = QPushButton("Select flagged")
@@ -111,18 +113,30 @@ class QualityBar(QWidget):
         self.summary = QuietLabel("", name="qualitySummary", every_ms=500,    # changes with each batch of verdicts
                                   hint_text="2121 views checked during the scan: 2121 fail · 2121 warn")
         self.progress = JobProgressWidget(self.runner)
-        self.progress.setVisible(False)
-        self.runner.started.connect(lambda: self.progress.setVisible(True))
+        # rows: the tools; "During scan" (the grid view adds its zoom tools and Re-capture at the end);
+        # the verdicts, or while a check runs its progress in their place (the same row: a check never
+        # asks the window for more width or height, which would be taken from the docks)
+        self.status = QStackedWidget()
+        self.status.setObjectName("qualityStatus")
+        self.status.addWidget(self.summary)
+        self.status.addWidget(self.progress)
+        self.status.setSizePolicy(QSizePolicy.Preferred, QSizePolicy.Fixed)
+        self.runner.started.connect(lambda: self.status.setCurrentWidget(self.progress))
         for sig in (self.runner.finished, self.runner.failed, self.runner.cancelled):
-            sig.connect(lambda *a: self.progress.setVisible(False))
-        lay = QHBoxLayout(self)
+            sig.connect(lambda *a: self.status.setCurrentWidget(self.summary))
+        lay = QVBoxLayout(self)
         lay.setContentsMargins(4, 0, 4, 2)
+        lay.setSpacing(2)
+        tools, line = QHBoxLayout(), QHBoxLayout()
+        self.line = line
         for w in (self.check_button, self.overlay, self.select_button, self.disparity_button, self.live_box):
             w.setSizePolicy(QSizePolicy.Fixed, QSizePolicy.Fixed)
-            lay.addWidget(w)
-        lay.addSpacing(8)
-        lay.addWidget(self.summary, 1)
-        lay.addWidget(self.progress, 2)
+            (line if w is self.live_box else tools).addWidget(w)
+        tools.addStretch(1)
+        line.addStretch(1)
+        lay.addLayout(tools)
+        lay.addLayout(line)
+        lay.addWidget(self.status)
         self.set_available(False, False)
 
     def set_available(self, dataset: bool, report: bool) -> None:
