@@ -22,6 +22,7 @@ COMMANDS: list[str] = [
     "plan",
     "rig",
     "sim_rig",
+    "sim_drive",
     "scan",
     "info",
     "calibrate",

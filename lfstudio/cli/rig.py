@@ -22,7 +22,9 @@ COMMAND_ARGS = {"status": (), "home": (), "unlock": (), "origin": (), "reset": (
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--port", required=True, metavar="PORT",
                    help="serial port of the controller (/dev/ttyUSB0, /dev/pts/N printed by 'lfstudio sim-rig', "
-                        "COM3) or 'sim' to start the built-in simulated controller in this process")
+                        "COM3) or 'sim' to start the built-in simulated controller in this process; a pair of "
+                        "CiA 402 drives: dryve:HOST[:PORT],HOST[:PORT] (Modbus TCP, e.g. printed by 'lfstudio "
+                        "sim-drive'), canopen:CHANNEL:NODE,NODE, or sim-dryve / sim-canopen (emulated here)")
     p.add_argument("--rig-profile", default=None, metavar="NAME", help="rig profile (default: the reference gantry)")
     old_spelling(p, "--rig", "--rig-profile")
     p.add_argument("--baud", type=BAUD.option("--baud"), default=115200, help="baud rate (default 115200)")
@@ -62,6 +64,11 @@ def describe(status) -> str:
     text = f"{status.state.value:<12} {pos}  {'homed' if status.homed else 'not homed'}"
     if status.message:
         text += f"  — {status.message}"
+    power = status.extra.get("power_state") if isinstance(status.extra, dict) else None
+    if isinstance(power, dict):                 # CiA 402 drives: power state and error code of each
+        codes = status.extra.get("fault_code", {})
+        text += "  [" + ", ".join(f"{axis}: {state.lower()} {codes.get(axis, '')}".rstrip()
+                                  for axis, state in power.items()) + "]"
     return text
 
 
@@ -94,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
     controller = link.controller
     try:
         if link.simulator is not None:
-            print(f"simulated GRBL controller on {link.port} (rig {rig.name!r})", flush=True)
+            print(f"{link.describe()} (rig {rig.name!r})" if link.spec.drives else
+                  f"simulated GRBL controller on {link.port} (rig {rig.name!r})", flush=True)
         for word, values in commands:
             if word == "status":
                 status = controller.status()

@@ -38,6 +38,8 @@ class AxisConfig:
     acceleration_mm_s2: float
     repeatability_um: float
     settle_s: float = 0.3
+    increments_per_mm: float = 0.0   # CiA 402 drives: the feed constant (drive position units per mm)
+    homing_method: int = 0           # CiA 402 drives: 6098h (17 negative / 18 positive limit switch, 35/37 here)
 
     def contains(self, position_mm: float, tolerance_mm: float = 1e-9) -> bool:
         return self.soft_min_mm - tolerance_mm <= position_mm <= self.soft_max_mm + tolerance_mm
@@ -52,6 +54,7 @@ class RigConfig:
     vertical: AxisConfig
     label: str = ""
     homing: bool = True            # False: no limit switches, set the origin explicitly instead
+    driver: str = "grbl"           # "grbl" (one GRBL board) | "cia402" (one CiA 402 drive per axis)
 
 
 @dataclass(frozen=True)

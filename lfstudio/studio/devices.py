@@ -3,6 +3,12 @@
 The words an operator uses (CLI options, the GUI's choices)::
 
     rig:     sim | instant | PORT        (/dev/ttyUSB0, /dev/pts/N from `lfstudio sim-rig`, COM3, a pyserial URL)
+             dryve:HOST[:PORT],HOST[:PORT]      one CiA 402 drive per axis over Modbus TCP (igus dryve D1
+                                                gateway telegrams; port 502 by default; `lfstudio sim-drive`)
+             canopen:CHANNEL:NODE,NODE          one CiA 402 drive per axis over CANopen (CHANNEL can0, or
+                                                virtual-NAME: python-can's in-process virtual bus)
+             sim-dryve | sim-canopen            emulated drives in this process, over Modbus TCP on
+                                                127.0.0.1 / over a virtual CAN bus (the simulated studio)
     camera:  sim | instant | gphoto2 | folder:PATH
 
 ``sim`` starts the GRBL simulator on a pseudo-terminal in this process and drives it with the real
@@ -29,34 +35,78 @@ from typing import Any, Callable, Sequence
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.optics import REFERENCE
 from lfstudio.rig.motion import RigConfig
-from lfstudio.support.locks import Lock, camera_lock, port_lock
+from lfstudio.support.locks import Lock, camera_lock, drive_lock, port_lock
 
 log = logging.getLogger(__name__)
 
 SIM = "sim"
 INSTANT = "instant"
-RIG_CHOICES = "sim, instant or a serial port such as /dev/ttyUSB0"
+RIG_CHOICES = ("sim, instant, a serial port such as /dev/ttyUSB0, dryve:HOST[:PORT],HOST[:PORT], "
+               "canopen:CHANNEL:NODE,NODE, sim-dryve or sim-canopen")
+DRIVE_KINDS = ("dryve", "canopen", "sim-dryve", "sim-canopen")
 CAMERA_CHOICES = "sim, gphoto2, folder:PATH, instant"
 
 
 @dataclass(frozen=True)
 class RigSpec:
-    """``kind``: "sim" (simulator in this process), "instant", or "serial" (``port``)."""
+    """``kind``: "sim" (simulator in this process), "instant", "serial" (``port``), or a CiA 402
+    drive pair: "dryve" (``addresses``: two ``HOST:PORT``), "canopen" (``port``: the channel,
+    ``addresses``: the two node ids), "sim-dryve" / "sim-canopen" (emulated here)."""
 
     kind: str
     port: str = ""
+    addresses: tuple = ()
 
     @classmethod
     def parse(cls, text: str, option: str = "--port") -> "RigSpec":
         word = (text or "").strip()
         if not word:
             raise InputError(option, "no rig given", RIG_CHOICES)
-        if word.lower() in (SIM, INSTANT):
+        if word.lower() in (SIM, INSTANT, "sim-dryve", "sim-canopen"):
             return cls(word.lower())
+        head, _, rest = word.partition(":")
+        if head.lower() == "dryve":
+            from lfstudio.rig.dryve import parse_address
+
+            parts = [p for p in rest.split(",")]
+            if len(parts) != 2 or not all(p.strip() for p in parts):
+                raise InputError(option, f"{word!r}: a dryve rig names two drives, the horizontal one first",
+                                 "dryve:HOST[:PORT],HOST[:PORT], e.g. dryve:192.168.1.10,192.168.1.11")
+            addresses = tuple("%s:%d" % parse_address(p, option) for p in parts)
+            if addresses[0] == addresses[1]:
+                raise InputError(option, f"{word!r}: both axes name the same drive {addresses[0]}",
+                                 "one drive per axis, each its own address")
+            return cls("dryve", "", addresses)
+        if head.lower() == "canopen":
+            channel, _, nodes = rest.rpartition(":")
+            parts = nodes.split(",")
+            if not channel or len(parts) != 2:
+                raise InputError(option, f"{word!r}: a CANopen rig names its bus and two node ids",
+                                 "canopen:CHANNEL:NODE,NODE, e.g. canopen:can0:1,2")
+            ids = []
+            for p in parts:
+                try:
+                    n = int(p)
+                except ValueError:
+                    n = 0
+                if not 1 <= n <= 127:
+                    raise InputError(option, f"{word!r}: node id {p!r} is not 1 … 127", "canopen:can0:1,2")
+                ids.append(n)
+            if ids[0] == ids[1]:
+                raise InputError(option, f"{word!r}: both axes name node {ids[0]}", "one node per axis")
+            return cls("canopen", channel, tuple(ids))
         return cls("serial", word)
 
     @property
+    def drives(self) -> bool:
+        return self.kind in DRIVE_KINDS
+
+    @property
     def text(self) -> str:
+        if self.kind == "dryve":
+            return "dryve:" + ",".join(self.addresses)
+        if self.kind == "canopen":
+            return f"canopen:{self.port}:{self.addresses[0]},{self.addresses[1]}"
         return self.port if self.kind == "serial" else self.kind
 
 
@@ -98,7 +148,7 @@ class RigLink:
     None), ``port`` (what the driver opened) and the port's lock. :meth:`close` ends all of them."""
 
     def __init__(self, spec: RigSpec, config: RigConfig, controller: Any, simulator: Any = None,
-                 lock: Lock | None = None):
+                 lock: Any = None):
         self.spec = spec
         self.config = config
         self.controller = controller
@@ -108,23 +158,31 @@ class RigLink:
 
     @property
     def simulated(self) -> bool:
-        return self.spec.kind == SIM
+        return self.spec.kind in (SIM, "sim-dryve", "sim-canopen")
 
     def describe(self) -> str:
         if self.spec.kind == SIM:
             return f"simulated rig on {self.port}"
         if self.spec.kind == INSTANT:
             return "instant rig"
+        if self.spec.kind in ("sim-dryve", "sim-canopen"):
+            return f"emulated CiA 402 drives ({self.port})"
+        if self.spec.drives:
+            return f"CiA 402 drives {self.port}"
         return f"rig on {self.port}"
 
     def record(self) -> dict[str, Any]:
         """What a dataset records about this rig (see docs/dataset-format.md, ``devices.rig``)."""
         kind = {SIM: "sim", INSTANT: "instant"}.get(self.spec.kind, "grbl")
+        if self.spec.drives:
+            kind = self.spec.kind
         rec: dict[str, Any] = {"kind": kind, "profile": self.config.name}
         if self.spec.kind == "serial":
             rec["port"] = self.spec.port
+        elif self.spec.kind in ("dryve", "canopen"):
+            rec["port"] = self.spec.text
         version = str(getattr(self.controller, "version", "") or "").rstrip(":")
-        if version:
+        if version and not self.spec.drives:
             rec["firmware"] = f"GRBL {version}"
         return rec
 
@@ -134,7 +192,7 @@ class RigLink:
         if disconnect:
             close_quietly(self.controller, "the rig")
         if self.simulator is not None:
-            close_quietly(self.simulator, "the GRBL simulator")
+            close_quietly(self.simulator, "the simulated controller")
             self.simulator = None
         if self.lock is not None:
             self.lock.release()
@@ -146,6 +204,9 @@ def open_rig(spec: RigSpec | str, config: RigConfig, *, doing: str = "", time_sc
     :class:`lfstudio.support.locks.LockBusy` naming the holder), build the driver and, with
     ``connect``, connect it (in this thread; the GUI connects on the device's worker instead)."""
     spec = RigSpec.parse(spec) if isinstance(spec, str) else spec
+    if spec.drives or config.driver == "cia402":
+        return _open_drives(spec, config, doing=doing, time_scale=time_scale, seed=seed, connect=connect,
+                            lock=lock, **controller_options)
     if spec.kind == INSTANT:
         from lfstudio.studio.simulated import InstantRig
 
@@ -178,6 +239,79 @@ def open_rig(spec: RigSpec | str, config: RigConfig, *, doing: str = "", time_sc
             close_quietly(simulator, "the GRBL simulator")
         raise
     return link
+
+
+class _Locks:
+    """The locks of a rig's drives (one per address), released together."""
+
+    def __init__(self, locks: list[Lock]):
+        self.locks = locks
+
+    def release(self) -> None:
+        for lk in self.locks:
+            lk.release()
+
+
+#: the drive options of ``lfstudio rig`` etc. that the CiA 402 driver takes
+_DRIVE_OPTIONS = ("timeout_s", "poll_hz", "tolerance_mm", "stall_s")
+
+
+def _open_drives(spec: RigSpec, config: RigConfig, *, doing: str, time_scale: float, seed: int, connect: bool,
+                 lock: bool, **controller_options: Any) -> RigLink:
+    """A CiA 402 drive pair: the emulators for ``sim-dryve``/``sim-canopen``, one lock per drive
+    address, the links and the driver (connected with ``connect``)."""
+    if not spec.drives:
+        raise InputError("--rig-profile", f"rig profile {config.name!r} is for CiA 402 drives, and {spec.text!r} "
+                         "is not a drive pair", "--port dryve:HOST,HOST, canopen:CHANNEL:NODE,NODE or sim-dryve")
+    if config.driver != "cia402":
+        from lfstudio.rig.profile import rig_names
+
+        drive_rigs = [n for n in rig_names() if n != config.name]
+        raise InputError("--rig-profile", f"{spec.text!r} is a pair of CiA 402 drives, and rig profile {config.name!r} "
+                         "is for a GRBL controller (no feed constants or homing methods)",
+                         "a profile with driver = \"cia402\", e.g. " + repr(next(
+                             (n for n in drive_rigs if "dryve" in n.lower()), "dryve D1 gantry 4 m x 0.5 m")))
+    from lfstudio.rig.cia402 import Cia402Controller
+
+    simulator: Any = None
+    locks: list[Lock] = []
+    options = {k: v for k, v in controller_options.items() if k in _DRIVE_OPTIONS}
+    try:
+        if spec.kind == "sim-dryve":
+            from lfstudio.studio.simulated import start_drive_emulator
+
+            simulator = start_drive_emulator(config, "modbus", time_scale=time_scale, seed=seed)
+            spec = RigSpec.parse(simulator.word)
+        elif spec.kind == "sim-canopen":
+            from lfstudio.studio.simulated import start_drive_emulator
+
+            simulator = start_drive_emulator(config, "canopen", time_scale=time_scale, seed=seed)
+            spec = RigSpec.parse(simulator.word)
+        if spec.kind == "dryve":
+            from lfstudio.rig.dryve import DryveLink, parse_address
+
+            links = tuple(DryveLink(*parse_address(a), timeout_s=options.get("timeout_s", 1.0))
+                          for a in spec.addresses)
+        else:
+            from lfstudio.rig.canopen_link import CanopenLink
+
+            links = tuple(CanopenLink(spec.port, n, timeout_s=options.get("timeout_s", 1.0)) for n in spec.addresses)
+        if lock:
+            for link in links:
+                locks.append(drive_lock(link.address, doing).acquire())
+        controller = Cia402Controller(links, config, port=spec.text, **options)
+        kind_spec = RigSpec(spec.kind if simulator is None else ("sim-dryve" if spec.kind == "dryve" else "sim-canopen"),
+                            spec.port, spec.addresses)
+        rig_link = RigLink(kind_spec, config, controller, simulator, _Locks(locks))
+        if connect:
+            controller.connect()
+    except BaseException:
+        for lk in locks:
+            lk.release()
+        if simulator is not None:
+            close_quietly(simulator, "the emulated drives")
+        raise
+    return rig_link
 
 
 @dataclass
@@ -285,6 +419,11 @@ def link_for_rig(controller: Any, config: RigConfig, simulated: bool = False) ->
     if isinstance(controller, InstantRig):
         return RigLink(RigSpec(INSTANT), config, controller)
     port = getattr(controller, "port", "") or "?"
+    if config.driver == "cia402":
+        spec = RigSpec.parse(port)
+        if simulated:
+            spec = RigSpec("sim-dryve" if spec.kind == "dryve" else "sim-canopen", spec.port, spec.addresses)
+        return RigLink(spec, config, controller)
     return RigLink(RigSpec(SIM) if simulated else RigSpec("serial", port), config, controller)
 
 

@@ -133,7 +133,7 @@ def recorded_devices(dataset: Dataset) -> dict[str, Any] | None:
 
 def rig_spec_of(record: dict[str, Any]) -> str:
     """The ``--port`` word that opens a recorded rig again."""
-    return record.get("port") if record.get("kind") == "grbl" else record.get("kind", SIM)
+    return record.get("port") if record.get("kind") in ("grbl", "dryve", "canopen") else record.get("kind", SIM)
 
 
 def device_differences(recorded: dict[str, Any], current: dict[str, Any]) -> list[str]:

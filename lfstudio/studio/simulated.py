@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import socket
 import socketserver
 import threading
@@ -24,7 +25,9 @@ from typing import Any, Callable
 
 from lfstudio.errors import DeviceError
 from lfstudio.rig.motion import RigConfig
+from lfstudio.sim.cia402_drive import drive_pair
 from lfstudio.sim.dng import write_dng
+from lfstudio.sim.drive_servers import CanopenDrives, DriveServers
 from lfstudio.sim.grbl_controller import GrblSimulator
 from lfstudio.sim.instant import InstantCamera, InstantRig
 from lfstudio.sim.sim_camera import SimulatedCamera
@@ -39,7 +42,7 @@ log = logging.getLogger(__name__)
 __all__ = ["DEMO_PP_OFFSET_PX", "DEMO_ROTATION_DEG", "GROUND_TRUTH_NAME", "REFERENCE_REGION_MM", "GrblSimulator",
            "InstantCamera", "InstantRig", "SimulatedCamera", "TruthServer", "camera_dict", "demo_studio",
            "demo_studio_kwargs", "describe_simulated_camera", "lens_dict", "load_ground_truth",
-           "make_virtual_dataset", "parse_fault", "simulated_camera", "start_simulator", "truth_source",
+           "make_virtual_dataset", "parse_fault", "simulated_camera", "start_drive_emulator", "start_simulator", "truth_source",
            "ViewFault", "write_dng"]
 
 PositionSource = Callable[[], tuple[float, float]]
@@ -50,6 +53,38 @@ def start_simulator(rig: RigConfig, *, time_scale: float = 1.0, seed: int = 0) -
     sim = GrblSimulator(rig, time_scale=time_scale, seed=seed)
     sim.start()
     return sim
+
+
+_canopen_buses = iter(range(1, 1 << 30))
+
+
+def start_drive_emulator(rig: RigConfig, transport: str = "modbus", *, time_scale: float = 1.0, seed: int = 0,
+                         ports: tuple[int, int] = (0, 0)) -> Any:
+    """Two emulated CiA 402 drives for ``rig`` (a CiA 402 profile), served over ``transport``:
+    "modbus" (pymodbus' server on 127.0.0.1, ``ports`` or free ones) or "canopen" (LocalNodes on
+    a fresh python-can virtual bus). ``.word`` is the device word that reaches them, ``.port`` the
+    same, ``.true_position_mm()`` where the carriage is; the caller closes it."""
+    pair = drive_pair(rig, time_scale=time_scale, seed=seed)
+    if transport == "canopen":
+        emulator: Any = CanopenDrives(pair, f"lfstudio-{os.getpid()}-{next(_canopen_buses)}")
+    else:
+        emulator = DriveServers(pair, ports)
+    emulator.start()
+    emulator.port = emulator.word
+    return emulator
+
+
+def serve_sim_drive(rig: RigConfig, *, time_scale: float = 1.0, seed: int = 0,
+                    ports: tuple[int, int] = (0, 0)) -> tuple[Any, "TruthServer | None"]:
+    """``lfstudio sim-drive``: two emulated drives on Modbus TCP plus the true-position server."""
+    emulator = start_drive_emulator(rig, "modbus", time_scale=time_scale, seed=seed, ports=ports)
+    server = None
+    if hasattr(socket, "AF_UNIX"):
+        try:
+            server = TruthServer(emulator).start()
+        except OSError as exc:
+            log.warning("the emulated drives' true position is not published: %s", exc)
+    return emulator, server
 
 
 def studio_kwargs_for(view_region_mm: tuple[float, float, float, float] | None = None,

@@ -268,6 +268,12 @@ def port_lock(port: str, doing: str = "") -> Lock:
                 device=device if device and os.path.exists(device) else None)
 
 
+def drive_lock(address: str, doing: str = "") -> Lock:
+    """The (not yet acquired) lock of one axis drive: ``192.168.1.10:502`` (Modbus TCP), ``can0 node 1``."""
+    return Lock(runtime_dir() / f"drive-{_key(address)}.lock", f"axis drive {address}", doing,
+                hint="wait for it to finish, or stop it there (its STOP, or Ctrl-C in its terminal)")
+
+
 def camera_lock(name: str, doing: str = "") -> Lock:
     """The (not yet acquired) lock of a camera: ``gphoto2``, or a hot folder's path."""
     return Lock(runtime_dir() / f"camera-{_key(name)}.lock", f"camera {name}", doing,

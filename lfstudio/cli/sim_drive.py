@@ -1,0 +1,75 @@
+"""``lfstudio sim-drive``: two emulated CiA 402 drives (igus dryve D1 gateway telegrams over Modbus
+TCP, one port per axis on 127.0.0.1) until Ctrl-C."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+from lfstudio.cli.args import old_spelling
+from lfstudio.errors import InputError
+from lfstudio.numbers import SEED, TIME_SCALE
+
+HELP = "start two emulated CiA 402 axis drives (dryve D1, Modbus TCP on 127.0.0.1) and print their device word"
+DEFAULT_DRIVE_RIG = "dryve D1 gantry 4 m x 0.5 m"
+
+
+def _ports(text: str) -> tuple[int, int]:
+    parts = text.split(",")
+    try:
+        ports = tuple(int(p) for p in parts)
+    except ValueError:
+        ports = ()
+    if len(ports) != 2 or not all(1 <= p <= 65535 for p in ports) or ports[0] == ports[1]:
+        raise argparse.ArgumentTypeError(f"{text!r}: two different TCP ports, horizontal first (e.g. 5020,5021)")
+    return ports  # type: ignore[return-value]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rig-profile", default=None, metavar="NAME",
+                   help=f"a CiA 402 rig profile (default: {DEFAULT_DRIVE_RIG!r})")
+    old_spelling(p, "--rig", "--rig-profile")
+    p.add_argument("--ports", type=_ports, default=(0, 0), metavar="P1,P2",
+                   help="TCP ports of the horizontal and vertical drive (default: any free ports)")
+    p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",
+                   help="1 real time, 0.1 ten times faster, 0 instant (default 1)")
+    p.add_argument("--seed", type=SEED.option("--seed"), default=0, metavar="N",
+                   help="seed of the carriage's position at power-up (default 0)")
+    p.epilog = ("The drives listen on 127.0.0.1 only. Connect with --port dryve:127.0.0.1:P1,127.0.0.1:P2 "
+                "(the first line printed); the simulated camera (--camera sim) follows them.")
+
+
+def run(args: argparse.Namespace) -> int:
+    from lfstudio.rig.profile import load_rig
+    from lfstudio.studio.simulated import serve_sim_drive
+
+    rig = load_rig(args.rig_profile or DEFAULT_DRIVE_RIG)
+    if rig.driver != "cia402":
+        raise InputError("--rig-profile", f"rig profile {rig.name!r} is for a GRBL controller, not CiA 402 drives",
+                         f"a profile with driver = \"cia402\", e.g. {DEFAULT_DRIVE_RIG!r}")
+    done = threading.Event()
+    try:
+        emulator, truth = serve_sim_drive(rig, time_scale=args.time_scale, seed=args.seed, ports=args.ports)
+    except OSError as exc:
+        raise InputError("--ports", f"cannot listen on 127.0.0.1 ({exc.strerror or exc})",
+                         "free TCP ports, or leave --ports out") from None
+    previous = signal.signal(signal.SIGTERM, lambda *_: done.set())
+    try:
+        print(emulator.word, flush=True)
+        print(f"two emulated CiA 402 drives (dryve D1 Modbus TCP gateway) for rig {rig.name!r}; connect with\n"
+              f"  lfstudio rig --port {emulator.word} --rig-profile '{rig.name}' home status\n"
+              f"  lfstudio scan --port {emulator.word} --rig-profile '{rig.name}' --home --camera sim ...\n"
+              "Ctrl-C stops them.", file=sys.stderr, flush=True)
+        while not done.wait(0.5):
+            pass
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        if truth is not None:
+            truth.close()
+        emulator.close()
+    print("emulated drives stopped", file=sys.stderr)
+    return 0

@@ -1,0 +1,201 @@
+"""Modbus TCP "gateway" telegrams as the igus dryve D1 speaks them, and an :class:`ObjectLink`
+over them (one TCP connection per drive).
+
+A telegram (igus, dryve D1 operating manual, "Byte Assignment Modbus TCP Gateway Telegram"):
+
+====== ============================================================================================
+bytes  field
+====== ============================================================================================
+0-1    transaction identifier (big endian; the drive answers with the same)
+2-3    protocol identifier, 0 = Modbus
+4-5    length: the bytes after byte 5 (13 for a read request, 13 + n for a write of n bytes)
+6      unit identifier (unused, 0)
+7      function code 43 (2Bh); the drive answers 43 + 80h = ABh with an exception code in byte 8
+8      MEI type 13 (0Dh): CANopen general reference (the gateway)
+9      protocol control: 0 read, 1 write
+10     reserved, 11 node id (unused)
+12-13  object index (big endian, e.g. 60h 41h for the status word 6041h)
+14     subindex
+15-17  starting address (unused, 0)
+18     byte count (1-4)
+19-    data, little endian (write requests; read answers)
+====== ============================================================================================
+
+The drive's answer to a read carries the data (length 13 + n); its answer to a write repeats the
+header without data (length 13). :func:`encode_request` / :func:`decode_response` are the whole
+protocol; :class:`DryveLink` adds the socket, the transaction numbers and the timeouts.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import struct
+import threading
+
+from lfstudio.errors import InputError
+from lfstudio.rig.cia402 import DriveNotAnswering, ObjectAccessRefused
+
+log = logging.getLogger(__name__)
+
+FUNCTION = 0x2B
+MEI_TYPE = 0x0D
+DEFAULT_PORT = 502
+HEADER = 19                       # bytes before the data
+EXCEPTIONS = {1: "illegal function", 2: "illegal data address (no such object)", 3: "illegal data value",
+              4: "device failure", 5: "acknowledge (busy)", 6: "server busy"}
+
+
+class TelegramError(Exception):
+    """A telegram that does not follow the gateway format."""
+
+
+def encode_request(transaction: int, write: bool, index: int, sub: int, size: int, data: bytes = b"") -> bytes:
+    """One gateway request (see the module docstring). ``data``: the little-endian value of a write."""
+    if size not in (1, 2, 4):
+        raise ValueError(f"byte count {size}")
+    if write and len(data) != size:
+        raise ValueError(f"a write of {size} bytes needs {size} bytes of data")
+    body = bytes([0, FUNCTION, MEI_TYPE, 1 if write else 0, 0, 0, index >> 8, index & 0xFF, sub, 0, 0, 0, size])
+    body += data if write else b""
+    return struct.pack(">HHH", transaction & 0xFFFF, 0, len(body)) + body
+
+
+def decode_request(frame: bytes) -> tuple[int, bool, int, int, int, bytes]:
+    """``(transaction, write, index, sub, size, data)`` of a request (the emulator's side)."""
+    if len(frame) < HEADER:
+        raise TelegramError(f"{len(frame)} bytes, a gateway telegram has at least {HEADER}")
+    transaction, protocol, length = struct.unpack(">HHH", frame[:6])
+    if protocol != 0 or length != len(frame) - 6:
+        raise TelegramError("bad MBAP header")
+    if frame[7] != FUNCTION or frame[8] != MEI_TYPE:
+        raise TelegramError(f"function {frame[7]} / MEI type {frame[8]} is not the gateway (43 / 13)")
+    write = frame[9] == 1
+    size = frame[18]
+    data = frame[HEADER:]
+    if write and len(data) != size or not write and data:
+        raise TelegramError(f"byte count {size} but {len(data)} data bytes")
+    return transaction, write, (frame[12] << 8) | frame[13], frame[14], size, bytes(data)
+
+
+def decode_response(frame: bytes, transaction: int, write: bool, index: int, sub: int) -> bytes:
+    """The data of the drive's answer to the request (empty for a write). Raises
+    :class:`ObjectAccessRefused` for an exception answer, :class:`TelegramError` for a malformed
+    one or an answer to another request."""
+    if len(frame) < 9:
+        raise TelegramError(f"answer of {len(frame)} bytes")
+    t, protocol, length = struct.unpack(">HHH", frame[:6])
+    if t != transaction & 0xFFFF or protocol != 0 or length != len(frame) - 6:
+        raise TelegramError(f"answer to transaction {t}, expected {transaction & 0xFFFF}")
+    if frame[7] == FUNCTION | 0x80:
+        code = frame[8]
+        raise ObjectAccessRefused(f"object {index:04X}h:{sub} {'write' if write else 'read'} refused: exception "
+                                  f"{code} ({EXCEPTIONS.get(code, 'unknown')})")
+    if len(frame) < HEADER or frame[7] != FUNCTION or frame[8] != MEI_TYPE:
+        raise TelegramError("not a gateway answer")
+    if ((frame[12] << 8) | frame[13], frame[14]) != (index, sub):
+        raise TelegramError(f"answer for object {(frame[12] << 8) | frame[13]:04X}h:{frame[14]}, "
+                            f"expected {index:04X}h:{sub}")
+    data = frame[HEADER:]
+    if not write and len(data) != frame[18]:
+        raise TelegramError(f"byte count {frame[18]} but {len(data)} data bytes")
+    return bytes(data)
+
+
+def parse_address(text: str, option: str = "--port") -> tuple[str, int]:
+    """``HOST[:PORT]`` -> (host, port); the port defaults to 502."""
+    host, _, port = text.strip().rpartition(":") if ":" in text else (text.strip(), "", "")
+    host = host or text.strip()
+    if not host:
+        raise InputError(option, f"{text!r}: no host", "dryve:HOST[:PORT],HOST[:PORT]")
+    if not port:
+        return host, DEFAULT_PORT
+    try:
+        number = int(port)
+    except ValueError:
+        raise InputError(option, f"{text!r}: port {port!r} is not a number", "1 … 65535") from None
+    if not 1 <= number <= 65535:
+        raise InputError(option, f"{text!r}: port {number} is out of range", "1 … 65535")
+    return host, number
+
+
+class DryveLink:
+    """One dryve D1 over Modbus TCP: :class:`lfstudio.rig.cia402.ObjectLink`. Exchanges are
+    serialised (one request in flight); a drive that does not answer within ``timeout_s`` raises
+    :class:`DriveNotAnswering` and the connection is closed (the next access connects again)."""
+
+    def __init__(self, host: str, port: int = DEFAULT_PORT, *, timeout_s: float = 1.0):
+        self.host, self.port = host, int(port)
+        self.address = f"{host}:{self.port}"
+        self.timeout_s = timeout_s
+        self._sock: socket.socket | None = None
+        self._lock = threading.Lock()
+        self._transaction = 0
+        self.exchanges = 0
+
+    def open(self) -> None:
+        with self._lock:
+            self._open_locked()
+
+    def _open_locked(self) -> None:
+        self._close_locked()
+        try:
+            sock = socket.create_connection((self.host, self.port), timeout=self.timeout_s)
+        except OSError as exc:
+            raise DriveNotAnswering(f"no Modbus TCP connection to {self.address} ({exc.strerror or exc})") from None
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.settimeout(self.timeout_s)
+        self._sock = sock
+
+    def close(self) -> None:
+        with self._lock:
+            self._close_locked()
+
+    def _close_locked(self) -> None:
+        sock, self._sock = self._sock, None
+        if sock is not None:
+            try:
+                sock.close()
+            except OSError:
+                pass
+
+    def _recv_exactly(self, n: int) -> bytes:
+        data = b""
+        while len(data) < n:
+            chunk = self._sock.recv(n - len(data))
+            if not chunk:
+                raise ConnectionError("the drive closed the connection")
+            data += chunk
+        return data
+
+    def _exchange(self, write: bool, index: int, sub: int, size: int, data: bytes = b"") -> bytes:
+        with self._lock:
+            if self._sock is None:
+                self._open_locked()
+            self._transaction = (self._transaction + 1) & 0xFFFF
+            request = encode_request(self._transaction, write, index, sub, size, data)
+            try:
+                self._sock.sendall(request)
+                head = self._recv_exactly(6)
+                length = struct.unpack(">H", head[4:6])[0]
+                frame = head + self._recv_exactly(length)
+            except (OSError, ConnectionError) as exc:
+                self._close_locked()
+                reason = "no answer within %g s" % self.timeout_s if isinstance(exc, socket.timeout) else str(exc)
+                raise DriveNotAnswering(f"{self.address}: {reason}") from None
+            self.exchanges += 1
+            try:
+                return decode_response(frame, self._transaction, write, index, sub)
+            except TelegramError as exc:
+                self._close_locked()
+                raise DriveNotAnswering(f"{self.address}: {exc}") from None
+
+    def read(self, index: int, sub: int, size: int, signed: bool) -> int:
+        data = self._exchange(False, index, sub, size)
+        if len(data) != size:
+            raise ObjectAccessRefused(f"{self.address}: object {index:04X}h:{sub} has {len(data)} bytes, "
+                                      f"expected {size}")
+        return int.from_bytes(data, "little", signed=signed)
+
+    def write(self, index: int, sub: int, value: int, size: int, signed: bool) -> None:
+        self._exchange(True, index, sub, size, int(value).to_bytes(size, "little", signed=signed))

@@ -1,0 +1,588 @@
+"""A CiA 402 axis drive (one drive per axis, as an igus dryve D1 drives one axis): its object
+dictionary, its power state machine and a motion model, without any transport.
+
+The transports serve it: :mod:`lfstudio.sim.drive_servers` puts it behind pymodbus' Modbus TCP
+server (the dryve D1's gateway telegrams, function 43 / MEI type 13) and behind python-canopen's
+``LocalNode`` (SDO on a CAN bus). Everything here is in the drive's own units: position
+*increments* (``6064h``, ``607Ah``, ``607Dh``), increments/s, increments/s².
+
+Model:
+
+- **Power state machine** (CiA 402 device control): Switch on disabled → (Shutdown 06h) Ready to
+  switch on → (Switch on 07h) Switched on → (Enable operation 0Fh) Operation enabled; Quick stop
+  (bit 2 low) → Quick stop active (``605Ah`` = 5/6: stay there once at rest, 1/2: then Switch on
+  disabled); Disable voltage (bit 1 low) → Switch on disabled; a fault → Fault reaction active →
+  Fault; Fault reset (rising edge of bit 7) → Switch on disabled once the cause is gone. The status
+  word is composed as the profile tables say (``0x0040``, ``0x0021``, ``0x0023``, ``0x0027``,
+  ``0x0007``, ``0x000F``, ``0x0008``) plus bit 4 voltage enabled, bit 9 remote, bit 10 target
+  reached, bit 11 internal limit active, bits 12/13 mode-specific.
+- **Profile position** (``6060h`` = 1): a rising edge of control word bit 4 (new set-point) takes
+  ``607Ah`` (absolute, or relative with bit 6) and sets status bit 12 (set-point acknowledge) until
+  bit 4 falls; bit 10 (target reached) once the demand is at the target and at rest; bit 8 (halt)
+  decelerates and holds, clearing it goes on to the target. Trapezoidal profile: ``6081h`` speed,
+  ``6083h``/``6084h`` acceleration/deceleration, ``6085h`` for a quick stop. A target outside the
+  software limits ``607Dh`` is clamped to them and sets bit 11.
+- **Following error** (``60F4h``): the actual position lags the demand by ``LAG_S`` of its speed;
+  beyond the window ``6065h`` the drive faults (``8611h``), bit 13 set.
+- **Homing** (``6060h`` = 6, bit 4 starts it): method 17 (negative limit switch) or 18 (positive)
+  searches the switch at ``6099h:01``, leaves it at ``6099h:02`` and sets the position there
+  (0, or the software maximum for 18, plus ``607Ch``); 35/37 take the current position. Bit 12
+  homing attained + bit 10; bit 13 homing error. Before homing the drive counts from where it was
+  powered up (``start_mm`` from the seed), like an incremental encoder.
+- **Limit switches** ``SWITCH_OUTSIDE`` beyond both ends of the travel: touching one outside a
+  homing run faults (``8612h``).
+- **Faults to inject** (:meth:`DriveAxis.inject`): ``power_stage_off`` (fault ``3220h``, the power
+  stage lost its supply; a fault reset does not help until :meth:`DriveAxis.clear_faults`),
+  ``following_error`` (the axis jams during the next move: the following error grows until the
+  window faults it), ``limit_switch`` (the next move touches a limit switch half way), and
+  ``lost_connection`` (the drive stops answering: its servers drop requests).
+- Time: the emulator's clock runs ``1 / time_scale`` times real time (0: every motion is complete
+  at once). :meth:`DriveAxis.true_position` is where the carriage physically is.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+# -- the objects (index, subindex) -> (bytes, signed, writable) -------------------------------------
+OBJECTS: dict[tuple[int, int], tuple[int, bool, bool]] = {
+    (0x1000, 0): (4, False, False),      # device type (402 drive profile)
+    (0x603F, 0): (2, False, False),      # error code
+    (0x6040, 0): (2, False, True),       # control word
+    (0x6041, 0): (2, False, False),      # status word
+    (0x605A, 0): (2, True, True),        # quick stop option code
+    (0x6060, 0): (1, True, True),        # modes of operation
+    (0x6061, 0): (1, True, False),       # modes of operation display
+    (0x6064, 0): (4, True, False),       # position actual value
+    (0x6065, 0): (4, False, True),       # following error window
+    (0x606C, 0): (4, True, False),       # velocity actual value
+    (0x607A, 0): (4, True, True),        # target position
+    (0x607C, 0): (4, True, True),        # home offset
+    (0x607D, 1): (4, True, True),        # software position limit: minimum
+    (0x607D, 2): (4, True, True),        # software position limit: maximum
+    (0x6081, 0): (4, False, True),       # profile velocity
+    (0x6083, 0): (4, False, True),       # profile acceleration
+    (0x6084, 0): (4, False, True),       # profile deceleration
+    (0x6085, 0): (4, False, True),       # quick stop deceleration
+    (0x6092, 1): (4, False, True),       # feed constant: feed
+    (0x6092, 2): (4, False, True),       # feed constant: shaft revolutions
+    (0x6098, 0): (1, True, True),        # homing method
+    (0x6099, 1): (4, False, True),       # homing speed: search for switch
+    (0x6099, 2): (4, False, True),       # homing speed: search for zero
+    (0x609A, 0): (4, False, True),       # homing acceleration
+    (0x60F4, 0): (4, True, False),       # following error actual value
+    (0x6502, 0): (4, False, False),      # supported drive modes
+}
+
+NOT_READY, SWITCH_ON_DISABLED, READY, SWITCHED_ON, ENABLED, QUICK_STOP, FAULT_REACTION, FAULT = (
+    "NOT READY TO SWITCH ON", "SWITCH ON DISABLED", "READY TO SWITCH ON", "SWITCHED ON", "OPERATION ENABLED",
+    "QUICK STOP ACTIVE", "FAULT REACTION ACTIVE", "FAULT")
+_STATE_BITS = {NOT_READY: 0x0000, SWITCH_ON_DISABLED: 0x0040, READY: 0x0021, SWITCHED_ON: 0x0023,
+               ENABLED: 0x0027, QUICK_STOP: 0x0007, FAULT_REACTION: 0x000F, FAULT: 0x0008}
+PROFILE_POSITION, HOMING = 1, 6
+HOMING_METHODS = (17, 18, 35, 37)
+FAULTS = ("power_stage_off", "following_error", "limit_switch", "lost_connection")
+FAULT_CODES = {"power_stage_off": 0x3220, "following_error": 0x8611, "limit_switch": 0x8612}
+LAG_S = 0.002                  # the actual position lags the demand by this much of its speed
+SWITCH_OUTSIDE_MM = 1.0        # the limit switches trigger this far beyond each end of the travel
+STEP_S = 0.002                 # the motion model's integration step (emulator time)
+
+
+class ObjectRefused(Exception):
+    """An access the drive refuses; ``abort`` is the CiA 301 SDO abort code (the transports map it)."""
+
+    def __init__(self, abort: int, text: str):
+        super().__init__(text)
+        self.abort = abort
+
+
+@dataclass
+class AxisSetup:
+    """One emulated axis in the drive's units. ``increments_per_mm``: the feed constant the rig
+    profile names; ``travel_mm``; ``start_mm``: where the carriage stands at power-up."""
+
+    increments_per_mm: float
+    travel_mm: float
+    start_mm: float
+    max_speed_mm_s: float
+    acceleration_mm_s2: float
+    soft_min_mm: float
+    soft_max_mm: float
+    homing_method: int = 17
+
+
+class DriveAxis:
+    """One CiA 402 drive and its axis (thread-safe: every access takes the drive's lock)."""
+
+    def __init__(self, setup: AxisSetup, *, time_scale: float = 1.0, name: str = "drive"):
+        self.setup = setup
+        self.name = name
+        self.time_scale = float(time_scale)
+        k = setup.increments_per_mm
+        self._k = k
+        self._lock = threading.RLock()
+        self._t0 = time.monotonic()
+        self._last = 0.0
+        self.answering = True
+        self.on_answering = None                # called when ``answering`` changes (the CANopen node)
+        self._power = True
+        self._jam = False
+        self._limit_trip_at: float | None = None
+        self._pending_limit = False
+        # the object dictionary's stored values
+        self.od: dict[tuple[int, int], int] = {
+            (0x1000, 0): 0x00040192, (0x603F, 0): 0, (0x6040, 0): 0, (0x605A, 0): 6, (0x6060, 0): 0,
+            (0x6065, 0): int(5 * k), (0x607A, 0): 0, (0x607C, 0): 0,
+            (0x607D, 1): int(round(setup.soft_min_mm * k)), (0x607D, 2): int(round(setup.soft_max_mm * k)),
+            (0x6081, 0): int(setup.max_speed_mm_s * k / 2), (0x6083, 0): int(setup.acceleration_mm_s2 * k),
+            (0x6084, 0): int(setup.acceleration_mm_s2 * k), (0x6085, 0): int(4 * setup.acceleration_mm_s2 * k),
+            (0x6092, 1): int(round(k)), (0x6092, 2): 1, (0x6098, 0): setup.homing_method,
+            (0x6099, 1): int(setup.max_speed_mm_s * k / 4), (0x6099, 2): int(setup.max_speed_mm_s * k / 20),
+            (0x609A, 0): int(setup.acceleration_mm_s2 * k), (0x6502, 0): (1 << 0) | (1 << 5),
+        }
+        self.state = SWITCH_ON_DISABLED
+        self.mode = 0
+        self.error_code = 0
+        # motion, in increments of the drive's counter; phys = counter + offset (offset unknown until homed)
+        self._offset = setup.start_mm * k       # power-up: the counter reads 0 where the carriage stands
+        self._demand = 0.0
+        self._actual = 0.0
+        self._v = 0.0
+        self._target: float | None = None      # profile-position target being driven to
+        self._halt = False
+        self._ack = False
+        self._reached = True
+        self._limit_active = False
+        self._fe_bit = False
+        self._homing: dict | None = None       # the homing run's phase
+        self._homed_flag = False
+        self._homing_error = False
+        self._quick_stop_at_rest = False
+        self.homed = False                      # this power cycle has a reference (not visible on the bus)
+
+    # -- clock -----------------------------------------------------------------------------------
+    def _now(self) -> float:
+        if self.time_scale <= 0:
+            return self._last
+        return (time.monotonic() - self._t0) / self.time_scale
+
+    # -- bus access ------------------------------------------------------------------------------
+    def read(self, index: int, sub: int) -> int:
+        with self._lock:
+            spec = OBJECTS.get((index, sub))
+            if spec is None:
+                raise ObjectRefused(0x06020000 if not any(i == index for i, _ in OBJECTS) else 0x06090011,
+                                    f"object {index:04X}h:{sub} does not exist")
+            self._advance()
+            if index == 0x6041:
+                return self.statusword()
+            if index == 0x603F:
+                return self.error_code
+            if index == 0x6061:
+                return self.mode
+            if index == 0x6064:
+                return int(round(self._actual))
+            if index == 0x606C:
+                return int(round(self._v))
+            if index == 0x60F4:
+                return int(round(self._demand - self._actual))
+            if index == 0x6060:
+                return self.mode
+            return self.od[(index, sub)]
+
+    def write(self, index: int, sub: int, value: int) -> None:
+        with self._lock:
+            spec = OBJECTS.get((index, sub))
+            if spec is None:
+                raise ObjectRefused(0x06020000, f"object {index:04X}h:{sub} does not exist")
+            size, signed, writable = spec
+            if not writable:
+                raise ObjectRefused(0x06010002, f"object {index:04X}h:{sub} is read-only")
+            lo, hi = (-(1 << (8 * size - 1)), (1 << (8 * size - 1)) - 1) if signed else (0, (1 << (8 * size)) - 1)
+            if not lo <= int(value) <= hi:
+                raise ObjectRefused(0x06090030, f"{value} is out of range for {index:04X}h:{sub}")
+            value = int(value)
+            self._advance()
+            if index == 0x6040:
+                self._control(value)
+                return
+            if index == 0x6060:
+                if value not in (0, PROFILE_POSITION, HOMING):
+                    raise ObjectRefused(0x06090030, f"mode {value} is not supported")
+                if self._moving():
+                    raise ObjectRefused(0x08000022, "the mode cannot change while the axis moves")
+                self.mode = value
+                self._ack = False
+                self._homing = None
+                self._homing_error = False
+                self._homed_flag = False
+                self._reached = True
+            elif index == 0x6098 and value not in HOMING_METHODS:
+                raise ObjectRefused(0x06090030, f"homing method {value} is not supported (17, 18, 35, 37)")
+            elif index in (0x6081, 0x6083, 0x6084, 0x6085, 0x6099, 0x609A) and value <= 0:
+                raise ObjectRefused(0x06090032, f"{index:04X}h must be positive")
+            elif index == 0x607D and sub == 1 and value > self.od[(0x607D, 2)] or \
+                    index == 0x607D and sub == 2 and value < self.od[(0x607D, 1)]:
+                raise ObjectRefused(0x06090036, "software limit minimum above maximum")
+            self.od[(index, sub)] = value
+
+    # -- faults ----------------------------------------------------------------------------------
+    def inject(self, fault: str) -> None:
+        with self._lock:
+            self._advance()
+            if fault not in FAULTS:
+                raise ValueError(f"unknown fault {fault!r} ({', '.join(FAULTS)})")
+            if fault == "lost_connection":
+                self.answering = False
+            elif fault == "power_stage_off":
+                self._power = False
+                self._fault(FAULT_CODES[fault])
+            elif fault == "following_error":
+                self._jam = True
+            elif fault == "limit_switch":
+                self._pending_limit = True
+        if fault == "lost_connection" and self.on_answering is not None:
+            self.on_answering()
+
+    def clear_faults(self) -> None:
+        """The cause of every injected fault is gone (power back, obstruction removed, answering);
+        a fault the drive latched still needs a fault reset."""
+        with self._lock:
+            self._advance()
+            self.answering = True
+            self._power = True
+            self._jam = False
+            self._pending_limit = False
+            self._limit_trip_at = None
+        if self.on_answering is not None:
+            self.on_answering()
+
+    def _fault(self, code: int) -> None:
+        self.error_code = code
+        self.state = FAULT
+        self._target = None
+        self._homing = None
+        self._v = 0.0                    # the brake holds: the axis stands where it is
+        self._demand = self._actual
+        self._reached = False
+        self.homed = self.homed and code != FAULT_CODES["limit_switch"]
+        self._homed_flag = False
+
+    # -- state machine ---------------------------------------------------------------------------
+    def statusword(self) -> int:
+        sw = _STATE_BITS[self.state] | 0x0200                       # bit 9 remote
+        if self._power and self.state in (READY, SWITCHED_ON, ENABLED, QUICK_STOP):
+            sw |= 0x0010                                           # voltage enabled
+        if self.state in (ENABLED, SWITCHED_ON, READY, SWITCH_ON_DISABLED):
+            sw |= 0x0020 if self.state != SWITCH_ON_DISABLED else 0
+        if self._reached and self.state in (SWITCH_ON_DISABLED, READY, SWITCHED_ON, ENABLED, QUICK_STOP):
+            sw |= 0x0400
+        if self._limit_active:
+            sw |= 0x0800
+        if self.mode == PROFILE_POSITION:
+            sw |= (0x1000 if self._ack else 0) | (0x2000 if self._fe_bit else 0)
+        elif self.mode == HOMING:
+            sw |= (0x1000 if self._homed_flag else 0) | (0x2000 if self._homing_error else 0)
+        return sw
+
+    def _control(self, cw: int) -> None:
+        old = self.od[(0x6040, 0)]
+        self.od[(0x6040, 0)] = cw
+        if self.state == FAULT:
+            if cw & 0x80 and not old & 0x80 and self._power:
+                self.error_code = 0
+                self.state = SWITCH_ON_DISABLED
+                self._fe_bit = False
+                self._reached = True
+            return
+        if self.state == FAULT_REACTION:
+            return
+        cmd = cw & 0x8F
+        if not cw & 0x02:                                    # disable voltage
+            self._to(SWITCH_ON_DISABLED)
+        elif not cw & 0x04:                                  # quick stop
+            if self.state == ENABLED:
+                self.state = QUICK_STOP
+                self._quick_stop_at_rest = False
+                self._target = None
+                self._homing = None
+                self._reached = abs(self._v) < 1e-9
+            elif self.state in (READY, SWITCHED_ON):
+                self.state = SWITCH_ON_DISABLED
+        elif cmd & 0x0F == 0x06:                             # shutdown
+            if self.state in (SWITCH_ON_DISABLED, SWITCHED_ON, ENABLED) and self._power:
+                self._to(READY)
+        elif cmd & 0x0F == 0x07:                             # switch on
+            if self.state in (READY, ENABLED) and self._power:
+                self._to(SWITCHED_ON)
+        elif cmd & 0x0F == 0x0F:                             # enable operation
+            if self.state in (READY, SWITCHED_ON) and self._power:
+                self.state = ENABLED
+                self._demand = self._actual
+                self._reached = True
+            elif self.state == QUICK_STOP and self.od[(0x605A, 0)] in (5, 6, 7, 8) and abs(self._v) < 1e-9:
+                self.state = ENABLED
+                self._reached = True
+        if self.state != ENABLED:
+            return
+        self._halt = bool(cw & 0x100)
+        rising = cw & 0x10 and not old & 0x10
+        if self.mode == PROFILE_POSITION:
+            if rising:
+                target = self.od[(0x607A, 0)] + (self._demand if cw & 0x40 else 0)
+                lo, hi = self.od[(0x607D, 1)], self.od[(0x607D, 2)]
+                self._limit_active = not lo <= target <= hi
+                self._target = float(min(max(target, lo), hi))
+                self._ack = True
+                self._reached = False
+                self._fe_bit = False
+                if self._pending_limit:
+                    self._pending_limit = False
+                    self._limit_trip_at = (self._demand + self._target) / 2
+            elif not cw & 0x10:
+                self._ack = False
+        elif self.mode == HOMING and rising:
+            method = self.od[(0x6098, 0)]
+            self._homed_flag = False
+            self._homing_error = False
+            self._reached = False
+            if method in (35, 37):
+                self._set_home(self._demand)
+            else:
+                self._homing = {"phase": "search", "dir": -1.0 if method == 17 else 1.0}
+
+    def _to(self, state: str) -> None:
+        if state != ENABLED and self._moving():
+            self._v = 0.0                                    # power off: the brake stops the axis
+            self._demand = self._actual
+        self._target = None
+        self._homing = None
+        self.state = state
+        self._reached = True
+
+    def _moving(self) -> bool:
+        return abs(self._v) > 1e-9 or self._target is not None or self._homing is not None
+
+    def _set_home(self, counter_at_home: float) -> None:
+        """The homing position becomes the counter's reference (``607Ch`` added)."""
+        method = self.od[(0x6098, 0)]
+        home_value = self.od[(0x607C, 0)]
+        if method == 18:
+            home_value += self.od[(0x607D, 2)]
+        shift = home_value - counter_at_home
+        self._offset -= shift
+        self._demand += shift
+        self._actual += shift
+        self._homing = None
+        self._homed_flag = True
+        self._reached = True
+        self.homed = True
+
+    # -- motion ----------------------------------------------------------------------------------
+    def _phys_mm(self, counter: float) -> float:
+        return (counter + self._offset) / self._k
+
+    def true_position(self) -> float:
+        """Where the carriage physically is, mm from the low end of the travel."""
+        with self._lock:
+            self._advance()
+            return self._phys_mm(self._actual)
+
+    def position_mm(self) -> float:
+        """The position the drive reports (``6064h``), in mm."""
+        with self._lock:
+            self._advance()
+            return self._actual / self._k
+
+    def _advance(self) -> None:
+        now = self._now()
+        dt_total = now - self._last
+        if self.time_scale <= 0:
+            self._finish_instantly()
+            return
+        steps = 0
+        while dt_total > 1e-12 and steps < 2_000_000:
+            dt = min(STEP_S, dt_total)
+            self._step(dt)
+            dt_total -= dt
+            steps += 1
+        self._last = now
+
+    def _finish_instantly(self) -> None:
+        for _ in range(4):
+            if self._homing is not None:
+                self._run_homing_instantly()
+            elif self.state == QUICK_STOP or self._halt:
+                self._v = 0.0
+                self._reached = True
+                self._after_quick_stop()
+            elif self._target is not None and self.state == ENABLED:
+                if self._limit_trip_at is not None:
+                    self._demand = self._actual = self._limit_trip_at
+                    self._limit_trip_at = None
+                    self._fault(FAULT_CODES["limit_switch"])
+                elif self._jam:
+                    self._demand = self._target
+                    self._fault(FAULT_CODES["following_error"])
+                    self._fe_bit = True
+                else:
+                    self._demand = self._actual = self._target
+                    self._v = 0.0
+                    self._target = None
+                    self._reached = True
+
+    def _run_homing_instantly(self) -> None:
+        h = self._homing
+        k = self._k
+        switch = (-SWITCH_OUTSIDE_MM if h["dir"] < 0 else self.setup.travel_mm + SWITCH_OUTSIDE_MM) * k
+        counter_at_switch = switch - self._offset
+        pulloff = counter_at_switch - h["dir"] * SWITCH_OUTSIDE_MM * k
+        self._demand = self._actual = pulloff
+        self._v = 0.0
+        self._set_home(pulloff)
+
+    def _after_quick_stop(self) -> None:
+        if self.state == QUICK_STOP and abs(self._v) < 1e-9 and self.od[(0x605A, 0)] in (0, 1, 2, 3):
+            self.state = SWITCH_ON_DISABLED
+
+    def _step(self, dt: float) -> None:
+        if self.state not in (ENABLED, QUICK_STOP):
+            return
+        if self.state == QUICK_STOP:
+            self._brake(self.od[(0x6085, 0)], dt)
+            if abs(self._v) < 1e-9:
+                self._reached = True
+                self._after_quick_stop()
+            self._follow(dt)
+            return
+        if self._homing is not None:
+            self._step_homing(dt)
+        elif self._halt:
+            self._brake(self.od[(0x6084, 0)], dt)
+            if abs(self._v) < 1e-9 and self._target is None:
+                self._reached = True
+        elif self._target is not None:
+            self._drive_to(self._target, self.od[(0x6081, 0)], self.od[(0x6083, 0)], self.od[(0x6084, 0)], dt)
+            if self._limit_trip_at is not None and \
+                    (self._demand - self._limit_trip_at) * (self._target - self._limit_trip_at) <= 0:
+                self._limit_trip_at = None
+                self._actual = self._demand
+                self._fault(FAULT_CODES["limit_switch"])
+                return
+            if self._demand == self._target and self._v == 0.0:
+                self._target = None
+                self._reached = True
+        self._follow(dt)
+        self._check_switches()
+
+    def _follow(self, dt: float) -> None:
+        if self._jam:
+            pass                                              # the axis is stuck: the actual stays
+        else:
+            self._actual = self._demand - self._v * LAG_S
+        if abs(self._demand - self._actual) > self.od[(0x6065, 0)] and self.state in (ENABLED, QUICK_STOP):
+            self._fe_bit = True
+            self._fault(FAULT_CODES["following_error"])
+            self._fe_bit = True
+
+    def _check_switches(self) -> None:
+        if self._homing is not None or self.state != ENABLED:
+            return
+        phys = self._phys_mm(self._actual)
+        if phys < -SWITCH_OUTSIDE_MM or phys > self.setup.travel_mm + SWITCH_OUTSIDE_MM:
+            self._fault(FAULT_CODES["limit_switch"])
+
+    def _brake(self, decel: float, dt: float) -> None:
+        if self._v == 0.0:
+            return
+        dv = decel * dt
+        if abs(self._v) <= dv:
+            self._demand += self._v * dt / 2
+            self._v = 0.0
+        else:
+            v_new = self._v - math.copysign(dv, self._v)
+            self._demand += (self._v + v_new) * dt / 2
+            self._v = v_new
+
+    def _drive_to(self, target: float, vmax: float, acc: float, dec: float, dt: float) -> None:
+        """One step of a trapezoidal profile towards ``target``: never faster than ``vmax``, speeding
+        up at ``acc``, and slowing down in time to stop on the target at ``dec``."""
+        d = target - self._demand
+        if d == 0.0:
+            if self._v != 0.0:
+                self._brake(dec, dt)
+            return
+        direction = 1.0 if d > 0 else -1.0
+        v_along = self._v * direction
+        if v_along < 0:                                      # moving away (a new target behind): brake first
+            self._brake(dec, dt)
+            return
+        v_new = min(vmax, v_along + acc * dt, math.sqrt(2 * dec * abs(d)))
+        v_new = max(v_new, v_along - dec * dt, 0.0)
+        ds = (v_along + v_new) * dt / 2
+        if ds >= abs(d) or abs(d) < 1e-3:
+            self._demand = target
+            self._v = 0.0
+            return
+        self._demand += direction * ds
+        self._v = direction * v_new
+
+    def _step_homing(self, dt: float) -> None:
+        h = self._homing
+        k = self._k
+        acc = self.od[(0x609A, 0)]
+        if h["phase"] == "search":
+            speed = self.od[(0x6099, 1)]
+            phys = self._phys_mm(self._demand)
+            switch_mm = -SWITCH_OUTSIDE_MM if h["dir"] < 0 else self.setup.travel_mm + SWITCH_OUTSIDE_MM
+            if (phys - switch_mm) * h["dir"] >= 0:
+                h["phase"] = "leave"
+                self._brake(4 * acc, dt)
+                if self._v == 0.0:
+                    h["phase"] = "leave"
+                return
+            v_new = min(speed, abs(self._v) + acc * dt)
+            self._v = h["dir"] * v_new
+            self._demand += self._v * dt
+        elif h["phase"] == "leave":
+            if self._v != 0.0:
+                self._brake(4 * acc, dt)
+                return
+            switch_mm = -SWITCH_OUTSIDE_MM if h["dir"] < 0 else self.setup.travel_mm + SWITCH_OUTSIDE_MM
+            leave_at = (switch_mm - h["dir"] * SWITCH_OUTSIDE_MM) * k - self._offset
+            self._drive_to(leave_at, self.od[(0x6099, 2)], acc, acc, dt)
+            if self._demand == leave_at and self._v == 0.0:
+                self._actual = self._demand
+                self._set_home(self._demand)
+                return
+        self._actual = self._demand - self._v * LAG_S
+
+
+class DrivePair:
+    """The two drives of a rig (horizontal, vertical) built from a rig profile's drive settings."""
+
+    def __init__(self, horizontal: DriveAxis, vertical: DriveAxis):
+        self.axes = (horizontal, vertical)
+
+    def true_position_mm(self) -> tuple[float, float]:
+        return self.axes[0].true_position(), self.axes[1].true_position()
+
+
+def drive_pair(rig, *, time_scale: float = 1.0, seed: int = 0) -> DrivePair:
+    """Two emulated drives for the rig profile ``rig`` (a :class:`lfstudio.rig.motion.RigConfig`
+    whose axes name their ``increments_per_mm`` and ``homing_method``), powered up somewhere
+    inside the travel (from ``seed``)."""
+    import random
+
+    rnd = random.Random(seed)
+    axes = []
+    for axis in (rig.horizontal, rig.vertical):
+        setup = AxisSetup(increments_per_mm=axis.increments_per_mm or 100.0, travel_mm=axis.travel_mm,
+                          start_mm=rnd.uniform(0.1, 0.6) * axis.travel_mm, max_speed_mm_s=axis.max_speed_mm_s,
+                          acceleration_mm_s2=axis.acceleration_mm_s2, soft_min_mm=axis.soft_min_mm,
+                          soft_max_mm=axis.soft_max_mm, homing_method=axis.homing_method or 17)
+        axes.append(DriveAxis(setup, time_scale=time_scale, name=axis.name))
+    return DrivePair(*axes)
