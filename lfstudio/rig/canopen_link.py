@@ -34,6 +34,7 @@ def _network(channel: str) -> Any:
         entry = _networks.get(channel)
         if entry is None:
             network = canopen.Network()
+            network.NOTIFIER_CYCLE = 0.1              # closing waits at most this long for its reader
             try:
                 network.connect(**_bus_args(channel))
             except Exception as exc:  # noqa: BLE001 - python-can raises many kinds
@@ -77,7 +78,7 @@ class CanopenLink:
             network = _network(self.channel)
             node = BaseNode402(self.node_id, ObjectDictionary())
             node.sdo.RESPONSE_TIMEOUT = self.timeout_s
-            node.sdo.MAX_RETRIES = 0
+            node.sdo.MAX_RETRIES = 1                  # one attempt (0 would retry for ever)
             network.add_node(node)
             self.node = node
 

@@ -126,6 +126,7 @@ class DriveAxis:
         self._lock = threading.RLock()
         self._t0 = time.monotonic()
         self._last = 0.0
+        self.journal: list | None = None        # every accepted write (name, index, sub, value), when a list
         self.answering = True
         self.on_answering = None                # called when ``answering`` changes (the CANopen node)
         self._power = True
@@ -205,6 +206,8 @@ class DriveAxis:
             if not lo <= int(value) <= hi:
                 raise ObjectRefused(0x06090030, f"{value} is out of range for {index:04X}h:{sub}")
             value = int(value)
+            if self.journal is not None:
+                self.journal.append((self.name, index, sub, value))
             self._advance()
             if index == 0x6040:
                 self._control(value)
@@ -566,6 +569,9 @@ class DrivePair:
 
     def __init__(self, horizontal: DriveAxis, vertical: DriveAxis):
         self.axes = (horizontal, vertical)
+        self.journal: list = []                 # the writes both drives received, in order
+        for axis in self.axes:
+            axis.journal = self.journal
 
     def true_position_mm(self) -> tuple[float, float]:
         return self.axes[0].true_position(), self.axes[1].true_position()

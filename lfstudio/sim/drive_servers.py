@@ -291,6 +291,7 @@ class CanopenDrives:
         import canopen
 
         self.network = canopen.Network()
+        self.network.NOTIFIER_CYCLE = 0.1
         self.network.connect(interface="virtual", channel=self.channel, receive_own_messages=False)
         self.drives = [CanopenDriveNode(axis, self.network, node) for axis, node in zip(self.pair.axes, self.nodes)]
         for axis, drive in zip(self.pair.axes, self.drives):
