@@ -97,6 +97,25 @@ def _now_iso() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
 
 
+def notice_event(before: ScanState | None, ev: ScanEvent) -> str | None:
+    """The notice a scan's state event ``ev`` is worth (one of :data:`EVENTS`), given the state
+    ``before`` it (None: none yet); None for the others (pausing, stopping, the same state again)."""
+    state = ev.state
+    if ev.kind is not EventKind.STATE or state is None:
+        return None
+    if state is ScanState.RUNNING and before in (None, ScanState.IDLE):
+        return "started"
+    if state is ScanState.RUNNING and before is ScanState.PAUSED:
+        return "resumed"
+    if state is ScanState.PAUSED and (before is not ScanState.PAUSED or ev.extra.get("fault_changed")):
+        return "paused"
+    if state is ScanState.FINISHED:
+        return "aborted" if ev.extra.get("aborted") else "finished"
+    if state is ScanState.FAILED:
+        return "failed"
+    return None
+
+
 # -- where notices go --------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Target:
@@ -406,21 +425,10 @@ class Notifier:
             return
         with self._lock:
             before, self._last_state = self._last_state, ev.state
-        state, auto = ev.state, ev.extra.get("auto_resume")
-        if state is ScanState.RUNNING and before in (None, ScanState.IDLE):
-            event = "started"
-        elif state is ScanState.RUNNING and before is ScanState.PAUSED:
-            event = "resumed"
-        elif state is ScanState.PAUSED and (before is not ScanState.PAUSED or ev.extra.get("fault_changed")):
-            event = "paused"
-        elif state is ScanState.FINISHED:
-            event = "aborted" if ev.extra.get("aborted") else "finished"
-        elif state is ScanState.FAILED:
-            event = "failed"
-        else:
-            return
-        self.notify(event, ev.message, done=ev.done, total=ev.total, state=state.value,
-                    resumes_by_itself=bool(auto) and event == "paused")
+        event = notice_event(before, ev)
+        if event is not None:
+            self.notify(event, ev.message, done=ev.done, total=ev.total, state=ev.state.value,
+                        resumes_by_itself=bool(ev.extra.get("auto_resume")) and event == "paused")
 
     def on_verdict(self, entry: dict[str, Any]) -> None:
         """A live check listener: a view judged ``warn`` or ``fail`` (again only when it gets worse);

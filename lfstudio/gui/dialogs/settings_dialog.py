@@ -61,6 +61,15 @@ class SettingsDialog(QDialog):
                       "(Help → Show log folder)")
         info.setWordWrap(True)
 
+        from lfstudio.gui.unattended import UnattendedBox
+
+        self.unattended = UnattendedBox()          # notifications, status page, auto-resume, end of the day
+        self.problem = QLabel("")
+        self.problem.setObjectName("settingsProblem")
+        self.problem.setWordWrap(True)
+        self.problem.setStyleSheet("color: #e06060")
+        self.problem.hide()
+
         buttons = QDialogButtonBox(QDialogButtonBox.Ok | QDialogButtonBox.Cancel)
         buttons.button(QDialogButtonBox.Ok).setToolTip("Store these settings and apply them to the open panels")
         buttons.accepted.connect(self.accept)
@@ -68,10 +77,21 @@ class SettingsDialog(QDialog):
         lay = QVBoxLayout(self)
         lay.addWidget(folders)
         lay.addWidget(presets)
+        lay.addWidget(self.unattended)
         lay.addWidget(info)
+        lay.addWidget(self.problem)
         lay.addStretch(1)
         lay.addWidget(buttons)
         self.resize(620, 10)
+
+    def accept(self) -> None:
+        """OK: only with well-formed unattended-scan settings (the problem is shown, naming the field)."""
+        problem = self.unattended.check()
+        if problem:
+            self.problem.setText(problem)
+            self.problem.show()
+            return
+        super().accept()
 
     def _folder_row(self, form: QFormLayout, label: str, value: str, tip: str) -> QLineEdit:
         edit = QLineEdit(value)
@@ -109,6 +129,7 @@ class SettingsDialog(QDialog):
         if self.values()[preferences.PRESET_KEYS["rigs"]]:
             s.setValue("rig/profile", self.values()[preferences.PRESET_KEYS["rigs"]])
         s.sync()
+        self.unattended.store()
         log.info("settings changed: %s", self.values())
 
 

@@ -237,7 +237,8 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
         devices = SharedDevices(studio.rig, studio.camera, studio.record(), port=studio.port)
     request = ScanRequest(folder, resume=(folder / "dataset.json").is_file(), rig_config=job["rig_cfg"],
                           allow_device_change=job.get("allow_device_change", False), recapture=job["recapture"],
-                          time_scale=job["time_scale"], home=job.get("home", False))
+                          time_scale=job["time_scale"], home=job.get("home", False),
+                          engine_options=dict(job.get("engine_options") or {}))
     session = ScanSession(request, doing="scanning", devices=devices)
     scene = job["scene"]
     try:
@@ -299,6 +300,9 @@ class ScanPanel(QWidget):
         self._log_follow = True         # the log shows its newest line (see _append_log)
         self._resumable = False         # the last scan ended with views still to capture (Resume continues it)
         self._rig_device = None         # the rig whose status may end a paused scan's rig fault
+        self.unattended = None          # notifications, status page, auto-resume, on-finish (gui/unattended.py)
+        self._said = GuiInbox(lambda lines: [self._log(line) for line in lines], self)   # its lines, any thread
+        self._notified_state = None     # the last scan state a desktop notification was decided for
         self.opener = JobRunner(self)
         self.opener.finished.connect(self._devices_ready)
         self.opener.failed.connect(self._devices_failed)
@@ -640,6 +644,8 @@ class ScanPanel(QWidget):
         if not shared and self.studio is None:
             self._log("starting the simulated studio (GRBL simulator on a pseudo-terminal, simulated camera)…")
             self.state_label.setText("Connecting the simulated rig and camera…")
+        if not self._open_unattended(folder, job):
+            return
         self.start_button.setEnabled(False)
         self._last_start = (list(recapture) if recapture else None)
         self._last_allow_change = allow_device_change
@@ -657,7 +663,45 @@ class ScanPanel(QWidget):
         self.folder_box = offer_sub_folder(self, folder, stem="lfstudio-scan", verb="Scan",
                                            where="Dataset → Folder", accepted=accepted)
 
+    def _open_unattended(self, folder: Path, job: dict) -> bool:
+        """Settings → Unattended scans for this scan (checked, the status page's port bound) before
+        anything starts; a refusal is one line naming the setting."""
+        from lfstudio.gui.unattended import load_options
+        from lfstudio.studio.unattended import Unattended
+
+        self._close_unattended()
+        try:
+            self.unattended = Unattended.open(load_options(), dataset_name=folder.name, say=self._said.post)
+        except InputError as exc:
+            self.state.report_error("Scan", f"{exc}\n\nChange it in File → Settings…, then start the scan.")
+            return False
+        job["engine_options"] = {"auto_resume": self.unattended.options.auto_resume}
+        return True
+
+    def _close_unattended(self) -> None:
+        """Stop the status page and deliver what is queued, off the GUI thread (the end-of-day command
+        may still run: its own time limit)."""
+        unattended, self.unattended = self.unattended, None
+        if unattended is not None:
+            import threading
+
+            threading.Thread(target=unattended.close, name="unattended-close", daemon=True).start()
+
+    def _desktop_notify(self, ev) -> None:
+        """A desktop notification of a state worth one, when the window is not in front."""
+        from lfstudio.gui.unattended import desktop_notify, desktop_wanted
+        from lfstudio.scan.notify import URGENT, notice_event
+
+        before, self._notified_state = self._notified_state, ev.state
+        event = notice_event(before, ev)
+        if event is None or self.window().isActiveWindow() or not desktop_wanted():
+            return
+        name = Path(self.engine.dataset.root).name if self.engine is not None else "lfstudio"
+        desktop_notify(f"Scan of {name} {event}", f"{ev.message} ({ev.done} of {ev.total} views)",
+                       urgent=event in URGENT)
+
     def _devices_failed(self, message: str) -> None:
+        self._close_unattended()
         self.state_label.setText("Could not start the scan")
         self.state.report_error("Scan", message)
         self._update_buttons()
@@ -666,6 +710,9 @@ class ScanPanel(QWidget):
         if prepared.get("studio") is not None:
             self.studio = prepared["studio"]
         refused = prepared.get("refused")
+        engine = prepared.get("engine")
+        if refused is not None or prepared.get("not_homed") is not None or (engine is not None and engine.remaining == 0):
+            self._close_unattended()           # started again (or not at all): a new one then
         if refused is not None:
             self._ask_device_change(refused)
             self._update_buttons()
@@ -690,6 +737,9 @@ class ScanPanel(QWidget):
         self.engine = engine
         self._resumable = False
         engine.subscribe(self.bridge.post)
+        if self.unattended is not None:
+            self.unattended.attach(engine, dataset)
+        self._notified_state = None
         if self.state.dataset is not dataset:
             self.state.set_dataset(dataset)
         self.preview.set_done(dataset.captured_views())
@@ -891,6 +941,7 @@ class ScanPanel(QWidget):
         else:
             self._to_publish.append(ev)
         if kind is EventKind.STATE:
+            self._desktop_notify(ev)
             self._state_seen = True
             self._show_state(ev.state, ev.message)
             self._log(ev.describe())
@@ -935,6 +986,7 @@ class ScanPanel(QWidget):
         if st in (ScanState.FINISHED, ScanState.FAILED):
             self._restore_time_scales()
             self._end_session()
+            self._close_unattended()
             self._resumable = self.engine is not None and self.engine.dataset.status_counts()["pending"] > 0
         if st is ScanState.FINISHED and self.engine is not None:
             if self.engine.dataset.status_counts()["pending"] == 0:
@@ -1036,6 +1088,7 @@ class ScanPanel(QWidget):
             self._request("abort")
             self.engine.wait(30)
         self._end_session()
+        self._close_unattended()
         if self.studio is not None:
             self.studio.close()
             self.studio = None

@@ -1,0 +1,227 @@
+"""The window's side of unattended scans (:mod:`lfstudio.studio.unattended`, ``docs/unattended.md``):
+the Settings dialog's "Unattended scans" group, what it stores (QSettings ``unattended/*``), the
+options a scan started from the Scan panel gets, and the desktop notification (freedesktop
+notifications over D-Bus) raised when the window is not in front.
+
+Keys: ``unattended/notify`` (URLs, one a line), ``unattended/smtp``, ``unattended/smtp_sender``,
+``unattended/smtp_password`` (kept in the settings file: readable by this user only),
+``unattended/status`` (on/off), ``unattended/status_address``, ``unattended/status_token``,
+``unattended/auto_resume``, ``unattended/on_finish``, ``unattended/on_finish_timeout_s``,
+``unattended/desktop`` (on/off).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import subprocess
+
+from PySide6.QtWidgets import (QCheckBox, QDoubleSpinBox, QFormLayout, QGroupBox, QHBoxLayout, QLineEdit,
+                               QPlainTextEdit, QSpinBox, QWidget)
+
+from lfstudio.errors import InputError
+from lfstudio.gui.settings import settings
+from lfstudio.scan.notify import SmtpServer, parse_target
+from lfstudio.scan.status_http import check_token, parse_address
+from lfstudio.studio.unattended import UnattendedOptions
+
+log = logging.getLogger(__name__)
+
+PREFIX = "unattended/"
+DEFAULT_ADDRESS = "127.0.0.1:8765"
+#: how the operator knows each option in the window (the start of a refusal's line)
+NAMES = {"notify": "Settings → Unattended scans → Notify", "smtp": "Settings → Unattended scans → SMTP server",
+         "status_http": "Settings → Unattended scans → Status page address",
+         "status_token": "Settings → Unattended scans → Status page token",
+         "auto_resume": "Settings → Unattended scans → Auto-resume",
+         "on_finish": "Settings → Unattended scans → When the scan ends",
+         "on_finish_timeout_s": "Settings → Unattended scans → Time limit"}
+
+
+def _value(key: str, default=""):
+    return settings().value(PREFIX + key, default)
+
+
+def _bool(key: str, default: bool) -> bool:
+    return str(_value(key, "true" if default else "false")).lower() in ("true", "1", "yes")
+
+
+def load_options() -> UnattendedOptions:
+    """The options a scan started in the window gets (as Settings stored them)."""
+    try:
+        auto = int(_value("auto_resume", 0))
+        limit = float(_value("on_finish_timeout_s", 300.0))
+    except (TypeError, ValueError):
+        auto, limit = 0, 300.0
+    status = _bool("status", False)
+    token = str(_value("status_token", "") or "")
+    address = str(_value("status_address", DEFAULT_ADDRESS) or DEFAULT_ADDRESS)
+    if status and not token:
+        try:
+            host, _ = parse_address(address)
+            from lfstudio.scan.status_http import is_local
+
+            token = "" if is_local(host) else "new"      # another computer's address: a token made per scan
+        except InputError:
+            pass
+    return UnattendedOptions(notify=[u for u in str(_value("notify", "") or "").splitlines() if u.strip()],
+                             smtp=str(_value("smtp", "") or ""), smtp_password=str(_value("smtp_password", "") or ""),
+                             smtp_sender=str(_value("smtp_sender", "") or ""),
+                             status_http=address if status else "", status_token=token if status else "",
+                             auto_resume=auto, on_finish=str(_value("on_finish", "") or ""),
+                             on_finish_timeout_s=limit, names=dict(NAMES))
+
+
+def desktop_wanted() -> bool:
+    return _bool("desktop", True)
+
+
+class UnattendedBox(QGroupBox):
+    """Settings → Unattended scans (see the module docstring); :meth:`check` before :meth:`store`."""
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__("Unattended scans", parent)
+        self.setObjectName("unattendedBox")
+        form = QFormLayout(self)
+        self.notify = QPlainTextEdit(str(_value("notify", "") or ""))
+        self.notify.setObjectName("notifyUrls")
+        self.notify.setPlaceholderText("one URL a line: https://… (JSON), ntfy+https://ntfy.sh/TOPIC, "
+                                       "slack+https://…, matrix+https://…, mailto:you@lab.example")
+        self.notify.setToolTip("Told when a scan starts, pauses (why), resumes, fails, finishes or is aborted, "
+                               "and of views the live check flags (docs/unattended.md)")
+        self.notify.setFixedHeight(64)
+        form.addRow("Notify", self.notify)
+        self.smtp = QLineEdit(str(_value("smtp", "") or ""))
+        self.smtp.setObjectName("smtpServer")
+        self.smtp.setPlaceholderText("smtp://you@mail.lab.example (for mailto:)")
+        self.smtp.setToolTip("smtp:// (STARTTLS, 587), smtps:// (SSL, 465) or smtp+plain:// (a local relay)")
+        self.smtp_password = QLineEdit(str(_value("smtp_password", "") or ""))
+        self.smtp_password.setObjectName("smtpPassword")
+        self.smtp_password.setEchoMode(QLineEdit.Password)
+        self.smtp_password.setPlaceholderText("password")
+        self.smtp_password.setToolTip("Stored in lfstudio's settings file (readable by you only); never logged")
+        smtp_row = QHBoxLayout()
+        smtp_row.addWidget(self.smtp, 2)
+        smtp_row.addWidget(self.smtp_password, 1)
+        form.addRow("SMTP server", smtp_row)
+        self.status = QCheckBox("Serve a read-only status page")
+        self.status.setObjectName("statusPage")
+        self.status.setChecked(_bool("status", False))
+        self.status.setToolTip("State, progress, ETA, the last thumbnails, live-check verdicts and the log for a "
+                               "browser; /status.json for scripts. Nothing can be done through it")
+        self.address = QLineEdit(str(_value("status_address", DEFAULT_ADDRESS) or DEFAULT_ADDRESS))
+        self.address.setObjectName("statusAddress")
+        self.address.setToolTip("[HOST:]PORT: 127.0.0.1 is this computer only; another address (0.0.0.0 for all) "
+                                "needs a token")
+        self.token = QLineEdit(str(_value("status_token", "") or ""))
+        self.token.setObjectName("statusToken")
+        self.token.setEchoMode(QLineEdit.Password)
+        self.token.setPlaceholderText("token (optional)")
+        self.token.setToolTip("Every request must carry it (?token=…) when the page listens for other computers; "
+                              "empty: a new one is made for each scan and shown once in the Scan panel's log")
+        status_row = QHBoxLayout()
+        status_row.addWidget(self.status)
+        status_row.addWidget(self.address, 1)
+        status_row.addWidget(self.token, 1)
+        form.addRow("Status page", status_row)
+        self.auto_resume = QSpinBox()
+        self.auto_resume.setObjectName("autoResume")
+        self.auto_resume.setRange(0, 100)
+        self.auto_resume.setValue(int(_value("auto_resume", 0) or 0))
+        self.auto_resume.setSpecialValueText("never")
+        self.auto_resume.setSuffix(" times")
+        self.auto_resume.setToolTip("Resume by itself, at most this often, when a pause's cause clears (disk space "
+                                    "freed, camera or controller back). STOP, limit switches, position errors and "
+                                    "alarms that need homing always wait for you")
+        self.desktop = QCheckBox("Desktop notifications when the window is not in front")
+        self.desktop.setObjectName("desktopNotifications")
+        self.desktop.setChecked(desktop_wanted())
+        resume_row = QHBoxLayout()
+        resume_row.addWidget(self.auto_resume)
+        resume_row.addWidget(self.desktop, 1)
+        form.addRow("Auto-resume", resume_row)
+        self.on_finish = QLineEdit(str(_value("on_finish", "") or ""))
+        self.on_finish.setObjectName("onFinish")
+        self.on_finish.setPlaceholderText("a shell command, e.g. lights and motors off")
+        self.on_finish.setToolTip("Run once when the scan ends (finished, aborted or failed); $LFSTUDIO_SCAN_OUTCOME, "
+                                  "$LFSTUDIO_DATASET, $LFSTUDIO_DONE, $LFSTUDIO_TOTAL tell it how. Its output goes to "
+                                  "the Scan panel's log; a failure is notified")
+        self.timeout = QDoubleSpinBox()
+        self.timeout.setObjectName("onFinishTimeout")
+        self.timeout.setRange(1, 86400)
+        self.timeout.setDecimals(0)
+        self.timeout.setSuffix(" s")
+        try:
+            self.timeout.setValue(float(_value("on_finish_timeout_s", 300.0)))
+        except (TypeError, ValueError):
+            self.timeout.setValue(300.0)
+        self.timeout.setToolTip("The command is stopped after this long")
+        finish_row = QHBoxLayout()
+        finish_row.addWidget(self.on_finish, 1)
+        finish_row.addWidget(self.timeout)
+        form.addRow("When the scan ends", finish_row)
+
+    def values(self) -> dict[str, object]:
+        return {"notify": "\n".join(u.strip() for u in self.notify.toPlainText().splitlines() if u.strip()),
+                "smtp": self.smtp.text().strip(), "smtp_password": self.smtp_password.text(),
+                "status": self.status.isChecked(), "status_address": self.address.text().strip() or DEFAULT_ADDRESS,
+                "status_token": self.token.text().strip(), "auto_resume": self.auto_resume.value(),
+                "desktop": self.desktop.isChecked(), "on_finish": self.on_finish.text().strip(),
+                "on_finish_timeout_s": self.timeout.value()}
+
+    def check(self) -> str:
+        """"" when the fields are well-formed, else one line naming the field (the port is only bound
+        when a scan starts)."""
+        v = self.values()
+        try:
+            targets = [parse_target(u, NAMES["notify"]) for u in str(v["notify"]).splitlines()]
+            if v["smtp"]:
+                SmtpServer.parse(str(v["smtp"]), option=NAMES["smtp"])
+            elif any(t.shape == "mail" for t in targets):
+                raise InputError(NAMES["notify"], "a mailto: target needs an SMTP server", "fill in SMTP server")
+            if v["status"]:
+                host, _ = parse_address(str(v["status_address"]), NAMES["status_http"])
+                check_token(host, str(v["status_token"]) or "new", NAMES["status_http"], NAMES["status_token"])
+        except InputError as exc:
+            return str(exc)
+        return ""
+
+    def store(self) -> None:
+        s = settings()
+        for key, value in self.values().items():
+            s.setValue(PREFIX + key, value)
+        s.sync()
+        try:
+            os.chmod(s.fileName(), 0o600)         # it may hold the SMTP password and the token
+        except OSError:
+            pass
+        log.info("unattended-scan settings changed (notify: %d URL(s), status page %s, auto-resume %d)",
+                 len([u for u in str(self.values()["notify"]).splitlines() if u]),
+                 "on" if self.status.isChecked() else "off", self.auto_resume.value())
+
+
+# -- desktop notifications ---------------------------------------------------------------------------
+def desktop_notify(title: str, body: str, *, urgent: bool = False) -> bool:
+    """Raise a freedesktop notification (``org.freedesktop.Notifications.Notify`` on the session D-Bus)
+    through GLib's ``gdbus`` tool, which types the call's arguments exactly as the specification
+    wants them (``susssasa{sv}i``; PySide6's QtDBus cannot make the ``u``). Not waited for. False when
+    there is no session bus or no ``gdbus`` (then nothing happens)."""
+    gdbus = shutil.which("gdbus")
+    if gdbus is None or not os.environ.get("DBUS_SESSION_BUS_ADDRESS"):
+        return False
+
+    def text(value: str) -> str:               # a GVariant string literal
+        return "'" + value.replace("\\", "\\\\").replace("'", "\\'") + "'"
+    hints = "{'urgency': <byte %d>, 'desktop-entry': <'lfstudio'>}" % (2 if urgent else 1)
+    try:
+        subprocess.Popen([gdbus, "call", "--session", "--dest", "org.freedesktop.Notifications",
+                          "--object-path", "/org/freedesktop/Notifications",
+                          "--method", "org.freedesktop.Notifications.Notify", "--", "'lfstudio'", "uint32 0",
+                          "'lfstudio'", text(title), text(body), "@as []", hints, "int32 -1"],
+                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         start_new_session=True)
+    except OSError as exc:
+        log.info("desktop notification not raised: %s", exc)
+        return False
+    return True
