@@ -105,10 +105,10 @@ def test_export_colmap_and_nerfstudio(make_tiny_dataset, run_cli, tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "5 views (raw)" in proc.stderr and "no calibration" in proc.stderr and "as colmap" in proc.stdout
     assert sorted(p.name for p in (tmp_path / "c" / "sparse" / "0").iterdir()) == \
-        ["cameras.txt", "images.txt", "points3D.txt"]
+        ["cameras.txt", "images.txt", "points3D.ply", "points3D.txt"]
     images = (tmp_path / "c" / "sparse" / "0" / "images.txt").read_text().splitlines()
-    assert [ln.split()[-1] for ln in images if ln and not ln.startswith("#")] == \
-        [f"r01_c00{c}.png" for c in range(5)]
+    records = [ln for ln in images if not ln.startswith("#")][0::2]     # each image's line, then its POINTS2D
+    assert [ln.split()[-1] for ln in records] == [f"r01_c00{c}.png" for c in range(5)]
     proc = run_cli("export", ds.root, "--format", "NERFSTUDIO", "--out", tmp_path / "n", "--holdout", "centre")
     assert proc.returncode == 0, proc.stderr
     assert "1 view held out" in proc.stderr
