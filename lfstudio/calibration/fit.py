@@ -42,7 +42,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from lfstudio.calibration.linear import linear_rotation
-from lfstudio.calibration.model import apply_homography, nominal_principal_point, rectifying_homography
+from lfstudio.calibration.model import MAX_ANGLE_DEG, apply_homography, nominal_principal_point, \
+    rectifying_homography
 from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import LfError
 
@@ -537,7 +538,7 @@ def _refine(problem: "_Problem", params: np.ndarray, sigma_px: float, sigma_pos_
 def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, image_size_px: Sequence[int], *,
                       principal_point: str = "auto", estimate_principal_point: bool | None = None,
                       position_sigma_um: Sequence[float] | None = DEFAULT_POSITION_SIGMA_UM,
-                      max_angle_deg: float = 15.0, pp_prior_sigma_px: float | None = None,
+                      max_angle_deg: float = MAX_ANGLE_DEG, pp_prior_sigma_px: float | None = None,
                       min_matches: int = 8, trim_sigmas: float = 3.0) -> FitResult:
     """Estimate ``rotation_deg`` (and the principal point when observable) with its covariance.
 

@@ -136,10 +136,50 @@ def calibration_problems(document: Any) -> list[str]:
     if not ok:
         problems.append(f"{CALIBRATION_NAME}: homography: must be an invertible 3x3 matrix of numbers")
     size = document.get("image_size_px")
-    if not (isinstance(size, list) and len(size) == 2
-            and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+    size_ok = (isinstance(size, list) and len(size) == 2
+               and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size))
+    if not size_ok:
         problems.append(f"{CALIBRATION_NAME}: image_size_px: must be [width, height] in pixels")
+    rotation = document.get("rotation_deg")
+    if rotation is not None:
+        try:
+            angles = np.asarray(rotation, dtype=float)
+            angles_ok = angles.shape == (3,) and bool(np.all(np.isfinite(angles)))
+        except (TypeError, ValueError):
+            angles_ok = False
+        if not angles_ok:
+            problems.append(f"{CALIBRATION_NAME}: rotation_deg: must be [rx, ry, rz] in degrees")
+        elif np.any(np.abs(angles) > MAX_ANGLE_DEG + 1e-9):
+            problems.append(f"{CALIBRATION_NAME}: rotation_deg {[round(float(a), 3) for a in angles]} lies outside "
+                            f"the fit's bounds (±{MAX_ANGLE_DEG:g}° per angle): a failed fit, not a camera")
+    if ok and size_ok:
+        shift = corner_shift_fraction(H, size)
+        if not shift <= MAX_CORNER_SHIFT_FRACTION:
+            problems.append(f"{CALIBRATION_NAME}: homography moves an image corner by "
+                            + ("an unbounded distance (behind the camera)" if not np.isfinite(shift) else
+                               f"{100 * shift:.0f} % of the image diagonal")
+                            + f" (at most {100 * MAX_CORNER_SHIFT_FRACTION:.0f} % is a camera's orientation "
+                            "error): it would turn the views black")
     return problems
+
+
+#: the fit's bounds on each angle (deg): a saved or loaded calibration outside them is refused
+MAX_ANGLE_DEG = 15.0
+#: the farthest a calibration's homography may move an image corner, as a fraction of the image
+#: diagonal (15° of pan moves the corners of a 50 mm lens on the reference sensor by ~30 %)
+MAX_CORNER_SHIFT_FRACTION = 0.5
+
+
+def corner_shift_fraction(H: np.ndarray, image_size_px: Sequence[int]) -> float:
+    """How far ``H`` moves the farthest of the four image corners, as a fraction of the image
+    diagonal (inf when a corner maps to or behind infinity)."""
+    w, h = float(image_size_px[0]), float(image_size_px[1])
+    corners = np.array([[0.0, 0.0], [w - 1, 0.0], [0.0, h - 1], [w - 1, h - 1]])
+    p = corners @ np.asarray(H, float)[:, :2].T + np.asarray(H, float)[:, 2]
+    if not np.all(p[:, 2] > 1e-9 * np.abs(p[:, :2]).max(initial=1.0)):
+        return float("inf")
+    moved = p[:, :2] / p[:, 2:3] - corners
+    return float(np.max(np.hypot(moved[:, 0], moved[:, 1])) / np.hypot(w, h))
 
 
 def load_calibration(dataset_or_root) -> dict[str, Any] | None:

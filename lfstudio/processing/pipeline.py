@@ -134,10 +134,18 @@ def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> Run
     extra["reference"] = [ref["row"], ref["column"], ref.get("sha256")]
     sha = profile.sha256(extra)
 
+    refusal = None
+    if homography is not None:
+        inside = rectify.inside_fraction(np.asarray(homography), tuple(full_size))
+        if inside < rectify.MIN_INSIDE_FRACTION:
+            refusal = (f"the rectified view would be {100 * (1 - inside):.0f} % black (outside the captured image): "
+                       f"the likely cause is the calibration ({ds.root / CALIBRATION_NAME}); calibrate again "
+                       "('lfstudio calibrate') or process without rectification ([rectify] enabled = false)")
     plan = RunPlan(root=str(ds.root), profile=profile.to_dict(), profile_sha256=sha, full_size_wh=tuple(full_size),
                    processing_scale=scale, output_size_wh=tuple(out_size), homography=homography,
                    camera=dict(ds.camera), lens=dict(ds.lens), flat_path=str(flat_path) if flat_path else None,
-                   single_thread=single_thread, split_demosaic=split_demosaic(ref_path, profile, full_size, out_size))
+                   single_thread=single_thread, split_demosaic=split_demosaic(ref_path, profile, full_size, out_size),
+                   rectify_refusal=refusal)
     needs_reference = profile.color.enabled or profile.deflicker.enabled or \
         (profile.shading.enabled and profile.shading.mode == "model" and not profile.shading.coefficients)
     if not needs_reference:

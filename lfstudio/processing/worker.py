@@ -43,7 +43,7 @@ from lfstudio.dataset import images
 from lfstudio.dataset.grid import View
 from lfstudio.dataset.profile import Profile
 from lfstudio.dataset.storage import disk_problem, storage_error
-from lfstudio.errors import LfError
+from lfstudio.errors import DatasetError, LfError
 
 #: per-process cache: profile hash -> _Prepared
 _CACHE: dict[str, "_Prepared"] = {}
@@ -69,6 +69,7 @@ class RunPlan:
     flat_path: str | None = None
     single_thread: bool = False
     split_demosaic: bool = False   # luminance at full resolution, colour differences at half (see module doc)
+    rectify_refusal: str | None = None   # why every view would come out mostly black (the calibration)
 
     @property
     def processing_size_wh(self) -> tuple[int, int]:
@@ -383,6 +384,8 @@ def process_view(plan: RunPlan, task: ViewTask) -> ViewResult:
     try:
         if plan.single_thread:
             _single_thread()
+        if plan.rectify_refusal:
+            raise DatasetError(f"{task.file}: {plan.rectify_refusal}")
         root = Path(plan.root)
         img, info = render(plan, root / task.file)
         t0 = time.perf_counter()

@@ -1,3 +1,4 @@
+import pytest
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
@@ -78,3 +79,37 @@ def test_one_loader_refuses_a_broken_file_for_every_stage(make_tiny_dataset):
         with pytest.raises(DatasetError, match=r"calibration\.json: invalid calibration.*homography: must be an invertible 3x3"):
             read()
     assert not (ds.root.parent / "out").exists()
+
+
+def _absurd_documents(w=400, h=300):
+    from lfstudio.calibration.model import rectifying_homography
+    good = {"format": "lfstudio-calibration", "version": 1, "rotation_deg": [1.0, -2.0, 0.5],
+            "image_size_px": [w, h], "homography": rectifying_homography([1.0, -2.0, 0.5], 500.0, (w, h)).tolist()}
+    spun = dict(good, rotation_deg=[-19291050.0, -1.5, 2.0])           # what the undamped fit once saved
+    flung = dict(good, homography=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.01, 0.0, 1.0]])   # corners thrown far
+    behind = dict(good, homography=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [-0.004, 0.0, 1.0]])  # a corner at infinity
+    return good, {"angles": spun, "corners": flung, "behind": behind}
+
+
+@pytest.mark.parametrize("kind", ["angles", "corners", "behind"])
+def test_an_absurd_calibration_is_never_written_and_never_used(tmp_path, kind):
+    import json
+
+    from lfstudio.calibration.model import load_calibration, save_calibration
+    from lfstudio.dataset import Dataset
+    from lfstudio.errors import DatasetError
+
+    ds = Dataset.create(tmp_path / "ds", camera={"name": "c", "sensor_px": [400, 300], "pixel_pitch_um": 5.0},
+                        lens={"name": "l", "focal_length_mm": 2.5}, grid={"columns": 2, "rows": 1, "spacing_mm": [5, 5]})
+    good, bad = _absurd_documents()
+    save_calibration(ds, good)                                         # a sane one is saved and loaded
+    assert load_calibration(ds.root)["rotation_deg"] == good["rotation_deg"]
+    word = {"angles": "outside the fit's bounds", "corners": "% of the image diagonal", "behind": "unbounded"}[kind]
+    with pytest.raises(DatasetError) as exc:
+        save_calibration(ds, bad[kind])
+    assert word in " ".join(exc.value.problems)
+    assert load_calibration(ds.root)["rotation_deg"] == good["rotation_deg"]      # not written
+    (ds.root / "calibration.json").write_text(json.dumps(bad[kind]))            # crafted by hand
+    with pytest.raises(DatasetError) as exc:
+        load_calibration(ds.root)
+    assert word in " ".join(exc.value.problems) and "calibrate' again" in str(exc.value)

@@ -198,3 +198,20 @@ def test_real_camera_dng_through_the_chain(shared_data, tmp_path):
     assert img.shape[:2] == (578, 867)   # half of 1156 x 1734
     stats = Dataset.open(ds.root).view(0, 0)["processed"]["stats"]
     assert stats["clipped_fraction"] < 0.01 and 1000 < np.mean(stats["mean_rgb"]) < 50000
+
+
+def test_a_calibration_that_turns_the_views_black_fails_them_by_name(make_dataset, run_cli):
+    # it passes the loader (angles 0, corners moved by 46 % of the diagonal) but the captured image
+    # fills only 45 % of the rectified frame: every view would come out mostly black
+    w = 96
+    ds = make_dataset(rows=1, cols=2, w=w, h=64, H=[[1.0, 0.0, 0.55 * w], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    proc = run_cli("process", ds.root)
+    assert proc.returncode == 1, proc.stderr
+    assert proc.stderr.count("FAILED row") == 2 and "55 % black" in proc.stderr
+    assert "calibration.json" in proc.stderr and "lfstudio calibrate" in proc.stderr
+    ds = Dataset.open(ds.root)
+    assert all(v["processed"]["status"] == "failed" for v in ds.views)
+    assert not list((ds.root / "processed").glob("*.png"))
+    # a mild calibration of the same size still processes (the guard is not a blanket refusal)
+    ok = make_dataset(rows=1, cols=2, w=w, h=64, H=[[1.0, 0.0, 0.2 * w], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], name="ok")
+    assert run_cli("process", ok.root).returncode == 0

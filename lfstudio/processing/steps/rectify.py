@@ -81,6 +81,24 @@ def _source_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | No
             for mx, my in lens.source_coords(fx, fy)]
 
 
+#: a view whose rectified frame the captured image fills less than this is failed (mostly black)
+MIN_INSIDE_FRACTION = 0.5
+
+
+def inside_fraction(H_full: np.ndarray, full_size_wh: tuple[int, int], samples: int = 64) -> float:
+    """The share of the rectified frame that the captured image fills: output pixels (on a
+    ``samples`` × ``samples`` lattice) whose source ``H⁻¹·p`` lies in front of the camera and inside
+    the image. Lens corrections move the source by a few pixels only: left out."""
+    w, h = full_size_wh
+    xs, ys = np.meshgrid(np.linspace(0, w - 1, samples), np.linspace(0, h - 1, samples))
+    p = np.column_stack([xs.ravel(), ys.ravel(), np.ones(xs.size)]) @ np.linalg.inv(np.asarray(H_full, float)).T
+    front = p[:, 2] > 0
+    z = np.where(front, p[:, 2], 1.0)
+    u, v = p[:, 0] / z, p[:, 1] / z
+    inside = front & (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5)
+    return float(inside.mean())
+
+
 def apply_maps(img: np.ndarray, maps: list | None, interpolation: str = "linear",
                dst: np.ndarray | None = None) -> np.ndarray:
     """Warp ``img`` (uint16 or float32, (h, w[, c])) as :func:`build_maps` says; outside: 0.
