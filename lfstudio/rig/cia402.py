@@ -451,6 +451,7 @@ class Cia402Controller:
                     sws = [self._statusword(i) for i in range(2)]
                     status = self._query()
                 if any(power_state(sw) in ("FAULT", "FAULT REACTION ACTIVE") for sw in sws):
+                    self._quick_stop_all()
                     raise DriveFault(f"{doing} failed: {status.message}")
                 for i, sw in enumerate(sws):
                     if sw & HOMING_ERROR:
@@ -572,6 +573,7 @@ class Cia402Controller:
                 sws = [self._statusword(i) for i in range(2)]
                 st = self._query()
             if st.state is RigState.ALARM:
+                self._quick_stop_all()                   # the other drive must not go on alone
                 raise DriveFault(f"move to {where} failed: {st.message}")
             for i, sw in enumerate(sws):
                 if sw & FOLLOWING_ERROR_BIT:
@@ -729,6 +731,11 @@ class Cia402Controller:
                         time.sleep(self.poll_period_s / 4)
                     self._write(i, CONTROL, DISABLE_VOLTAGE)
                     self.reference = ""
+                elif state == "QUICK STOP ACTIVE":        # the other drive, stopped when this one faulted
+                    deadline = time.monotonic() + self.timeout_s + 3 * self._stop_time_s()
+                    while self._read(i, VELOCITY) != 0 and time.monotonic() < deadline:
+                        time.sleep(self.poll_period_s / 4)
+                    self._write(i, CONTROL, ENABLE_OPERATION)
             self._stop_pending = False
             self._stop_event.clear()
             self._halt_flags = (False, False)

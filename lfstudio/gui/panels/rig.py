@@ -248,6 +248,11 @@ class RigPanel(QWidget):
         self.recover_button.setToolTip("Leave the alarm or reconnect after a lost connection")
         self.recover_button.clicked.connect(self.recover)
         self.recover_button.setVisible(False)
+        self.drive_label = QLabel("")          # CiA 402 drives: each one's power state and error code (603Fh)
+        self.drive_label.setObjectName("rigDriveLabel")
+        self.drive_label.setWordWrap(True)
+        self.drive_label.setToolTip("Power state (from the status word 6041h) and error code (603Fh) of each drive")
+        self.drive_label.setVisible(False)
         pl.addWidget(QLabel("x"), 0, 0)
         pl.addWidget(self.x_label, 0, 1)
         pl.addWidget(QLabel("mm"), 0, 2)
@@ -261,6 +266,7 @@ class RigPanel(QWidget):
         buttons.addWidget(self.recover_button)
         pl.addLayout(buttons, 2, 0, 1, 4)
         pl.addWidget(self.message_label, 3, 0, 1, 4)
+        pl.addWidget(self.drive_label, 4, 0, 1, 4)
         pl.setColumnStretch(1, 1)
         root.addWidget(pos)
 
@@ -399,6 +405,10 @@ class RigPanel(QWidget):
         self.port_combo.clear()
         self.port_combo.addItem(SIMULATED, "sim")
         self.port_combo.setItemData(0, "GRBL simulator on a pseudo-terminal (the simulated studio)", Qt.ToolTipRole)
+        self.port_combo.addItem("sim-dryve", "sim-dryve")
+        self.port_combo.setItemData(1, "two emulated CiA 402 drives (dryve D1, Modbus TCP on 127.0.0.1); "
+                                    "needs a CiA 402 rig profile. Real drives: type dryve:HOST,HOST or "
+                                    "canopen:can0:NODE,NODE", Qt.ToolTipRole)
         try:
             ports = available_ports()
         except Exception:  # noqa: BLE001 - listing ports must never break the panel
@@ -530,6 +540,8 @@ class RigPanel(QWidget):
         st = self.last_status
         if self.device is None:
             self.connect_rig()
+        elif st is not None and st.state is RigState.ALARM and isinstance(st.extra, dict) and "power_state" in st.extra:
+            self._run("reset", done_message="Drive fault reset: home the rig before moving")
         elif st is not None and st.state is RigState.DISCONNECTED:
             if self.simulator is not None and not self.simulator.running:
                 self.disconnect_rig()          # the simulated port vanished: start a new one
@@ -624,7 +636,10 @@ class RigPanel(QWidget):
                 self.diagram.set_target(None)
         problem = snapshot.state in (RigState.ALARM, RigState.DISCONNECTED) and self.device is not None
         # the Home button already recovers an alarm on a rig with switches
-        show_recover = problem and (snapshot.state is RigState.DISCONNECTED or not self.rig_config.homing)
+        drives = snapshot.extra.get("power_state") if isinstance(snapshot.extra, dict) else None
+        self._show_drives(drives, snapshot.extra.get("fault_code") if drives else None)
+        drive_fault = snapshot.state is RigState.ALARM and isinstance(drives, dict)
+        show_recover = problem and (snapshot.state is RigState.DISCONNECTED or not self.rig_config.homing or drive_fault)
         if problem:
             self._show_message(snapshot.message or snapshot.state.value, "error")
             self._problem_shown = self.message_label.text()
@@ -637,8 +652,21 @@ class RigPanel(QWidget):
             self._show_message("")
         self.recover_button.setVisible(show_recover)
         if show_recover:
-            self.recover_button.setText("Reconnect" if snapshot.state is RigState.DISCONNECTED else "Unlock")
+            self.recover_button.setText("Reconnect" if snapshot.state is RigState.DISCONNECTED else
+                                        "Reset fault" if drive_fault else "Unlock")
         self._update_enabled()
+
+    def _show_drives(self, power: Any, codes: Any) -> None:
+        """CiA 402 drives: "x: operation enabled · y: fault 8611h" (hidden for other controllers)."""
+        text = ""
+        if isinstance(power, dict):
+            codes = codes if isinstance(codes, dict) else {}
+            text = "Drives — " + " · ".join(
+                f"{axis}: {str(state).lower()}" + (f" {codes.get(axis)}" if codes.get(axis, "0000h") != "0000h" else "")
+                for axis, state in power.items())
+        if text != self.drive_label.text():
+            self.drive_label.setText(text)
+            self.drive_label.setVisible(bool(text))
 
     def _show_warnings(self, warnings: Any) -> None:
         """The controller-vs-profile warnings of the latest status; none: hidden. The first

@@ -1,0 +1,73 @@
+"""The Rig panel on two emulated CiA 402 drives (dryve D1 over Modbus TCP, real pymodbus server):
+connect, home, the drives' power state, a drive fault named with its code and cleared with Reset
+fault, STOP mid-move. Real worker thread, real Qt event loop."""
+
+from __future__ import annotations
+
+import pytest
+from PySide6.QtCore import Qt
+
+from lfstudio.gui.panels.rig import RigPanel
+from lfstudio.gui.state import AppState
+from lfstudio.rig.motion import RigState
+
+T = 10000  # ms; the waits end as soon as the condition holds
+RIG_NAME = "dryve D1 gantry 4 m x 0.5 m"
+
+
+def state_is(panel, state):
+    return panel.last_status is not None and panel.last_status.state is state
+
+
+@pytest.fixture
+def panel(qtbot):
+    p = RigPanel(AppState(simulated=True))
+    p.sim_time_scale = 0.02
+    qtbot.addWidget(p)
+    p.show()
+    p.rig_combo.setCurrentText(RIG_NAME)
+    p.port_combo.setCurrentText("sim-dryve")
+    yield p
+    p.shutdown()
+
+
+def test_drive_state_fault_reset_and_stop(qtbot, panel):
+    assert panel.rig_config.name == RIG_NAME and panel.chosen_port() == "sim-dryve"
+    qtbot.mouseClick(panel.connect_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: panel.last_status is not None and "power_state" in panel.last_status.extra, timeout=T)
+    emulator = panel.state.devices["rig_simulator"]
+    assert panel.drive_label.isVisible() and "switch on disabled" in panel.drive_label.text()
+    assert not panel.last_status.homed and not panel.goto_button.isEnabled()
+
+    qtbot.mouseClick(panel.home_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: state_is(panel, RigState.IDLE) and panel.last_status.homed, timeout=T)
+    assert panel.drive_label.text() == "Drives — x: operation enabled · y: operation enabled"
+
+    emulator.pair.axes[0].inject("following_error")             # the horizontal axis jams on the next move
+    panel.goto_x.setValue(500)
+    panel.goto_y.setValue(100)
+    qtbot.mouseClick(panel.goto_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: state_is(panel, RigState.ALARM), timeout=T)
+    qtbot.waitUntil(lambda: "8611h" in panel.message_label.text(), timeout=T)
+    assert "x: fault 8611h" in panel.drive_label.text()
+    assert panel.recover_button.isVisible() and panel.recover_button.text() == "Reset fault"
+
+    emulator.pair.axes[0].clear_faults()                         # the obstruction removed
+    qtbot.mouseClick(panel.recover_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: panel.last_status.state is not RigState.ALARM, timeout=T)
+    assert not panel.last_status.homed and "fault" not in panel.drive_label.text()
+    qtbot.mouseClick(panel.home_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: state_is(panel, RigState.IDLE) and panel.last_status.homed, timeout=T)
+
+    for axis in emulator.pair.axes:                              # slow enough to catch it moving
+        axis.time_scale = 0.5
+    panel.goto_x.setValue(3000)
+    panel.goto_y.setValue(400)
+    qtbot.mouseClick(panel.goto_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: state_is(panel, RigState.MOVING), timeout=T)
+    qtbot.mouseClick(panel.stop_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: "stopped by STOP" in panel.message_label.text(), timeout=T)
+    qtbot.waitUntil(lambda: state_is(panel, RigState.IDLE), timeout=T)
+    x, y = panel.last_status.position_mm
+    assert x < 3000 and y < 400 and panel.last_status.homed
+    assert emulator.true_position_mm() == pytest.approx((x, y), abs=0.011)
