@@ -15,6 +15,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Sequence
 
+import numpy as np
+
 from lfstudio.calibration.features import DEFAULT_MAX_FEATURES, DEFAULT_WORK_WIDTH_PX, FeatureCache, Features, match_pairs
 from lfstudio.calibration.fit import DEFAULT_POSITION_SIGMA_UM, CalibrationError, FitResult, PairMatches, fit_rectification
 from lfstudio.calibration.pairs import DEFAULT_PAIR_SET, DEFAULT_VIEWS, Pair, make_pairs
@@ -50,6 +52,32 @@ def position_sigma_um(dataset) -> tuple[float, float]:
     except (TypeError, ValueError):
         pass
     return DEFAULT_POSITION_SIGMA_UM
+
+
+def shear_remover(dataset, views: Sequence[tuple[int, int]], image_size: Sequence[int]):
+    """``f(view, xy) -> xy`` taking sheared views' shear off their points (a shear is not a rotation:
+    it must neither bias the fit nor be corrected away; :mod:`lfstudio.dataset.zero_plane`): each
+    view's points move back by ``shear · (position − the views' mean position)``. Identity for
+    parallel views; a shear nobody stated is refused (it would bias the orientation)."""
+    from lfstudio.dataset.zero_plane import zero_plane
+
+    zp = zero_plane(dataset)
+    if zp.parallel:
+        return lambda view, xy: xy
+    if not zp.known:
+        raise CalibrationError(f"{dataset.root.name}'s views are sheared by an amount nobody stated (negative "
+                               "disparities), which the fit would read as a rotation; import them again with "
+                               "--zero-disparity-depth-m (or --parallel-views if they are not sheared)")
+    shear = zp.shear_at(image_size[0])
+    recorded = bool((dataset.manifest.get("import") or {}).get("positions"))
+
+    def where(v):
+        rec = dataset.view(*v)
+        pos = (rec.get("reported_mm") if recorded else None) or rec.get("commanded_mm") or (0.0, 0.0)
+        return np.asarray(pos, float)
+
+    ref = np.mean([where(v) for v in views], axis=0)
+    return lambda view, xy: np.asarray(xy, float) - shear * (where(view) - ref)
 
 
 def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = None, *,
@@ -127,7 +155,9 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
 
     results = match_pairs(feats, [(p.a, p.b, p.direction) for p in pair_list], ratio=ratio, threads=threads,
                           on_done=matched, check=check)
-    matches = [PairMatches(p.a, p.b, p.direction, m.xy_a, m.xy_b, raw_matches=m.candidates, baseline_mm=p.baseline_mm)
+    unshear = shear_remover(dataset, needed, image_size)
+    matches = [PairMatches(p.a, p.b, p.direction, unshear(p.a, m.xy_a), unshear(p.b, m.xy_b), raw_matches=m.candidates,
+                           baseline_mm=p.baseline_mm)
                for p, m in zip(pair_list, results)]
     check()
     progress(done, total_steps, "fitting orientation")

@@ -149,6 +149,9 @@ def _plan(ds: Dataset, options: ExportOptions) -> tuple[list[tuple[int, int]], s
         views = hci.sub_array(ds, options)
     else:
         views = ds.select(options.views)
+    if options.format in ("hci", *POSED_FORMATS):
+        common.require_zero_plane(ds, {"hci": "an HCI export (focus_distance_m, disp_min/disp_max)"}.get(
+            options.format, f"a {options.format} export (each view's principal point)"))
     source = common.resolve_source(ds, views, options.source)
     size = images.full_size_px(common.source_path(ds, views[0], source))
     if options.format == "hevc":

@@ -49,17 +49,21 @@ def image_names(views: Sequence[common.View]) -> dict[common.View, str]:
     return {v: f"{view_stem(*v)}.png" for v in views}
 
 
-def cameras_text(cam: poses.PinholeCamera) -> str:
+def cameras_text(cam: poses.PinholeCamera, shifts: list[tuple[float, float]] | None = None) -> str:
+    """One PINHOLE camera; with ``shifts`` (sheared views, :func:`poses.principal_point_shifts_px`) one
+    per image, CAMERA_ID = IMAGE_ID, each with its principal point moved by its shift."""
     w, h = cam.size_px
     cx, cy = cam.principal_point_corner_px()
+    moved = shifts if shifts is not None else [(0.0, 0.0)]
     return ("# Camera list with one line of data per camera:\n"
             "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
-            "# Number of cameras: 1\n"
-            f"1 PINHOLE {w} {h} {cam.fx_px:.10g} {cam.fy_px:.10g} {cx:.10g} {cy:.10g}\n")
+            f"# Number of cameras: {len(moved)}\n"
+            + "".join(f"{i} PINHOLE {w} {h} {cam.fx_px:.10g} {cam.fy_px:.10g} {cx + dx:.10g} {cy + dy:.10g}\n"
+                      for i, (dx, dy) in enumerate(moved, start=1)))
 
 
 def images_text(ds: Dataset, views: Sequence[common.View], names: dict[common.View, str],
-                cam: poses.PinholeCamera, cloud: "SparseCloud | None" = None) -> str:
+                cam: poses.PinholeCamera, cloud: "SparseCloud | None" = None, per_image_camera: bool = False) -> str:
     """images.txt; with ``cloud``, each image's POINTS2D are its observations (COLMAP pixel
     coordinates: ours + 0.5), POINT3D_ID = the cloud's index + 1."""
     observations = cloud.observations if cloud is not None else {}
@@ -71,8 +75,8 @@ def images_text(ds: Dataset, views: Sequence[common.View], names: dict[common.Vi
     qw, qx, qy, qz = poses.quaternion_wxyz(cam.R)
     for image_id, v in enumerate(views, start=1):
         _, t = cam.world_to_camera(poses.centre_m(ds, v))
-        lines.append(f"{image_id} {qw:.12g} {qx:.12g} {qy:.12g} {qz:.12g} {t[0]:.12g} {t[1]:.12g} {t[2]:.12g} 1 "
-                     f"{names[v]}")
+        lines.append(f"{image_id} {qw:.12g} {qx:.12g} {qy:.12g} {qz:.12g} {t[0]:.12g} {t[1]:.12g} {t[2]:.12g} "
+                     f"{image_id if per_image_camera else 1} {names[v]}")
         xy, ids = observations.get(v, (np.zeros((0, 2)), np.zeros(0, int)))
         lines.append(" ".join(f"{x + 0.5:.4f} {y + 0.5:.4f} {int(i) + 1}" for (x, y), i in zip(xy, ids)))
     return "\n".join(lines) + "\n"
@@ -110,14 +114,24 @@ def sparse_cloud_of_export(ds: Dataset, views: Sequence[common.View], cam: poses
 
     from lfstudio.depth.points import sparse_cloud
 
+    shifts = poses.principal_point_shifts_px(ds, views, cam.size_px)
+
     def image_of(v):
         img = cv2.imread(str(folder / names[v]), cv2.IMREAD_UNCHANGED)
         if img is None:
             raise OSError(f"{folder / names[v]}: cannot read the exported image back")
+        if shifts is not None:      # sheared views: triangulate the parallel ones (shear taken off)
+            dx, dy = shifts[v]
+            img = cv2.warpAffine(img, np.float32([[1, 0, -dx], [0, 1, -dy]]), (img.shape[1], img.shape[0]),
+                                 flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
-    return sparse_cloud(views, image_of, cam.K, cam.R, lambda v: poses.centre_m(ds, v),
-                        progress=progress, cancel=cancel)
+    cloud = sparse_cloud(views, image_of, cam.K, cam.R, lambda v: poses.centre_m(ds, v),
+                         progress=progress, cancel=cancel)
+    if shifts is not None:          # observations where the exported (sheared) images show them
+        for v, (xy, ids) in list(cloud.observations.items()):
+            cloud.observations[v] = (np.asarray(xy, float) + np.asarray(shifts[v], float), ids)
+    return cloud
 
 
 def describe_cloud(cloud: "SparseCloud | None") -> dict[str, Any] | None:
@@ -147,8 +161,11 @@ def export_colmap(ds: Dataset, views: Sequence[common.View], source: str, size: 
             if getattr(options, "points", True) else None
         model = tmp / MODEL_DIR
         model.mkdir(parents=True)
-        (model / "cameras.txt").write_text(cameras_text(cam), encoding="utf-8")
-        (model / "images.txt").write_text(images_text(ds, views, names, cam, cloud), encoding="utf-8")
+        shifts = poses.principal_point_shifts_px(ds, views, size)
+        (model / "cameras.txt").write_text(cameras_text(cam, None if shifts is None else [shifts[v] for v in views]),
+                                           encoding="utf-8")
+        (model / "images.txt").write_text(images_text(ds, views, names, cam, cloud, shifts is not None),
+                                          encoding="utf-8")
         (model / "points3D.txt").write_text(points3d_text(views, cloud), encoding="utf-8")
         if cloud is not None:
             from lfstudio.depth.files import write_ply

@@ -282,7 +282,30 @@ def describe(ds: Dataset, views: Sequence[View], source: str, image_size: tuple[
             "image_size_px": [int(image_size[0]), int(image_size[1])],
             "intrinsics": intrinsics(ds, image_size, calibration, rectified),
             "calibration": calibration,
+            "zero_disparity": zero_disparity_of(ds),
             "views": entries}
+
+
+def zero_disparity_of(ds: Dataset) -> dict[str, Any]:
+    """The dataset's zero-disparity record for an export's manifest (parallel when it records none)."""
+    from lfstudio.dataset.zero_plane import RECORD, record, zero_plane
+
+    rec = ds.manifest.get(RECORD)
+    if isinstance(rec, dict):
+        return dict(rec)
+    zp = zero_plane(ds)
+    return record(zp.shear_px_per_mm, zp.depth_m, zp.source, zp.width_px)
+
+
+def require_zero_plane(ds: Dataset, what: str) -> None:
+    """Refuse an export whose geometry needs the zero plane of views sheared by an unstated amount."""
+    from lfstudio.dataset.zero_plane import zero_plane
+
+    zp = zero_plane(ds)
+    if not zp.known:
+        raise InputError("format", f"{what} needs the views' zero-disparity plane, and {ds.root.name}'s views are "
+                         "sheared by an amount nobody stated; import them again with --zero-disparity-depth-m "
+                         "(or --parallel-views if they are not sheared)")
 
 
 # -- atomic output ------------------------------------------------------------------------------------

@@ -38,6 +38,7 @@ import numpy as np
 from lfstudio import optics
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.paths import view_stem
+from lfstudio.dataset.zero_plane import zero_plane
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.export import common
 from lfstudio.jobs import CancelToken, Progress
@@ -155,9 +156,17 @@ def disparity_range(ds: Dataset, views: Sequence[common.View], source: str, size
     spacing = ds.grid.spacing_mm
     f_px = _focal_px(ds, size, source)
     if p["near_m"] and p["far_m"] and f_px and spacing:
-        k = f_px * float(spacing[0]) / 1000.0            # px · m: d = f·b · (1/Z − 0)
-        return DisparityRange(k / p["far_m"], k / p["near_m"], "plan",
+        k = f_px * float(spacing[0]) / 1000.0            # px · m: d = f·b · (1/Z − 1/Z0)
+        shear = zero_plane(ds).shear_or_zero(size[0]) * float(spacing[0])   # sheared views: f·b/Z0 per step
+        return DisparityRange(k / p["far_m"] - shear, k / p["near_m"] - shear, "plan",
                               f"the plan's far {p['far_m']:g} m and near {p['near_m']:g} m")
+    zp = zero_plane(ds)
+    step = zp.measured.get("step_disparity_px")
+    if isinstance(step, list) and len(step) == 2 and zp.width_px and source == "raw":
+        # measured at import from the tracks of the views as they are (signed, sheared or not)
+        scale = float(size[0]) / float(zp.width_px)
+        return DisparityRange(float(step[0]) * scale, float(step[1]) * scale, "measured",
+                              f"tracks of {zp.measured.get('views')} views measured at import")
     return measured_disparity_range(ds, views, source, size) if measure else None
 
 
@@ -258,8 +267,11 @@ def parameters_text(ds: Dataset, views: Sequence[common.View], size: Sequence[in
         "focal_length_mm": f"{f_mm or 0.0:.8g}",
         "sensor_size_mm": f"{sensor_mm:.8g}",
         "fstop": f"{p['fstop'] or 0.0:.4g}"}
+    zp = zero_plane(ds)
+    sheared = bool(zp.shear_px_per_mm) and zp.depth_m is not None
+    focus_m = zp.depth_m if sheared else FOCUS_AT_INFINITY_M
     cfg["extrinsics"] = {
-        "focus_distance_m": f"{FOCUS_AT_INFINITY_M:g}",
+        "focus_distance_m": f"{focus_m:.8g}",
         "center_cam_x_m": f"{float(pos[0]) / 1000.0:.6g}", "center_cam_y_m": f"{float(pos[1]) / 1000.0:.6g}",
         "center_cam_z_m": "0",
         "center_cam_rx_rad": f"{rot[0]:.8g}", "center_cam_ry_rad": f"{rot[1]:.8g}", "center_cam_rz_rad": f"{rot[2]:.8g}",
@@ -271,14 +283,21 @@ def parameters_text(ds: Dataset, views: Sequence[common.View], size: Sequence[in
         "disp_min": f"{d_min:.4f}", "disp_max": f"{d_max:.4f}",
         "frustum_disp_min": f"{d_min:.4f}", "frustum_disp_max": f"{d_max:.4f}",
         "disp_range_from": disparities.source if disparities is not None else "none",
-        "zero_disparity_distance_m": "inf",
+        "zero_disparity_distance_m": f"{zp.depth_m:.8g}" if sheared else "inf",
         "lens_focus_distance_m": f"{p['focus_m'] or 0.0:.6g}",
         "depth_map_scale": "1",
         "scene": ds.root.name, "category": "lfstudio",
         "date": _dt.date.today().isoformat(), "version": "lfstudio-hci-2",
         "authors": str(authors or ds.manifest.get("authors") or ""), "contact": ""}
     buf = io.StringIO()
-    buf.write("# HCI 4D light-field benchmark parameters written by lfstudio.\n"
+    if sheared:
+        buf.write("# HCI 4D light-field benchmark parameters written by lfstudio.\n"
+                  f"# The views are sheared (as imported, {zp.source}): zero disparity at focus_distance_m = "
+                  f"{zp.depth_m:g} m,\n# negative disparity behind it. disparity_px = baseline_mm/1000 * "
+                  "focal_length_mm * max(w, h) / sensor_size_mm\n# * (1/depth_m - 1/focus_distance_m), as the "
+                  "toolkit's depth2disp. disp_min/disp_max: signed neighbour\n# disparity (px) of the farthest/"
+                  "nearest scene point.\n")
+    buf.write("" if sheared else "# HCI 4D light-field benchmark parameters written by lfstudio.\n"
               "# Views are parallel (no sensor shift): disparity is zero at infinity, so focus_distance_m is\n"
               f"# {FOCUS_AT_INFINITY_M:g} m (the toolkit's 1/focus_distance_m term vanishes); the lens focus is\n"
               "# lens_focus_distance_m in [meta]. disparity_px = baseline_mm/1000 * focal_length_mm *\n"

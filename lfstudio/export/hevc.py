@@ -332,6 +332,8 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
         extra: dict[str, Any] = {"imported_from": {"kind": "hevc", "file": video.name, "at": now_iso(),
                                                    "source": doc.get("source"), "encoding": enc,
                                                    "figures": doc.get("figures")}}
+        if isinstance(doc.get("zero_disparity"), dict) and doc["zero_disparity"].get("source") != "scan":
+            extra["zero_disparity"] = doc["zero_disparity"]       # the views' shear comes back with them
         if processed:
             extra["processing"] = {"restored_from_hevc": True, "rectified": bool(doc.get("rectified")),
                                    "output_size_px": list(size)}

@@ -105,10 +105,13 @@ def transforms_doc(ds: Dataset, views: Sequence[common.View], names: dict[common
     w, h = cam.size_px
     cx, cy = cam.principal_point_corner_px()
     frames = []
+    shifts = poses.principal_point_shifts_px(ds, views, cam.size_px)
     for v in views:
         frames.append({"file_path": f"{IMAGES_DIR}/{names[v]}",
                        "transform_matrix": camera_to_world(cam, poses.centre_m(ds, v)).tolist(),
                        "lfstudio_view": [int(v[0]), int(v[1])]})
+        if shifts is not None:      # sheared views: each frame's own principal point (per-frame intrinsics)
+            frames[-1].update({"cx": cx + shifts[v][0], "cy": cy + shifts[v][1]})
     doc: dict[str, Any] = {"camera_model": "PINHOLE", "fl_x": cam.fx_px, "fl_y": cam.fy_px, "cx": cx, "cy": cy,
                            "w": int(w), "h": int(h), "frames": frames,
                            "applied_transform": np.hstack([APPLIED_TRANSFORM, np.zeros((3, 1))]).tolist()}

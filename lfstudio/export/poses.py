@@ -146,6 +146,23 @@ def centre_m(ds: Dataset, view: View) -> np.ndarray:
     return np.array([float(pos[0]) / 1000.0, float(pos[1]) / 1000.0, 0.0])
 
 
+def principal_point_shifts_px(ds: Dataset, views: Sequence[View], size: Sequence[int]
+                              ) -> dict[View, tuple[float, float]] | None:
+    """Each view's principal point offset (px of the exported images) for sheared views, None for
+    parallel ones: a sheared view is the parallel one moved by ``shear · (position − reference)``
+    (:mod:`lfstudio.dataset.zero_plane`), i.e. a pinhole camera whose principal point moved by that
+    much; the reference is the middle of the views' positions (where archives centre their shear)."""
+    from lfstudio.dataset.zero_plane import zero_plane
+
+    zp = zero_plane(ds)
+    if not zp.shear_px_per_mm:
+        return None
+    shear = zp.shear_at(size[0])
+    centres = {v: centre_m(ds, v)[:2] * 1000.0 for v in views}
+    ref = np.mean(list(centres.values()), axis=0)
+    return {v: (float(shear * (c[0] - ref[0])), float(shear * (c[1] - ref[1]))) for v, c in centres.items()}
+
+
 def position_warnings(ds: Dataset, views: Sequence[View]) -> list[str]:
     missing = [v for v in views if not ds.view(*v).get("reported_mm")]
     if not missing:

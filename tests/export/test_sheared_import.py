@@ -205,3 +205,98 @@ def test_stanford_chess_imports_sheared_with_its_recorded_positions_and_no_view_
     # zero disparity inside the scene: negative and positive disparities
     assert doc["depth_range"]["views_disparity_min_px"] < 0 < doc["depth_range"]["views_disparity_max_px"]
     json.dumps(doc)
+
+
+# -- the exports describe the shear ------------------------------------------------------------------
+def _colmap_projection(model: Path, name: str, X: np.ndarray) -> np.ndarray:
+    """Pixel coordinates (OpenCV convention) of world points in image ``name`` of a COLMAP text model."""
+    from scipy.spatial.transform import Rotation
+
+    cams = {}
+    for line in (model / "cameras.txt").read_text().splitlines():
+        if line and not line.startswith("#"):
+            f = line.split()
+            cams[f[0]] = [float(v) for v in f[4:8]]
+    lines = [ln for ln in (model / "images.txt").read_text().splitlines() if not ln.startswith("#")]
+    for line in lines[::2]:
+        f = line.split()
+        if f[9] == name:
+            qw, qx, qy, qz, tx, ty, tz = (float(v) for v in f[1:8])
+            R = Rotation.from_quat([qx, qy, qz, qw]).as_matrix()
+            fx, fy, cx, cy = cams[f[8]]
+            x = (R @ X.T).T + [tx, ty, tz]
+            return np.column_stack([fx * x[:, 0] / x[:, 2] + cx, fy * x[:, 1] / x[:, 2] + cy]) - 0.5
+    raise AssertionError(f"{name} not in the model")
+
+
+def test_exports_of_sheared_views_describe_their_shear(_virtual, tmp_path):
+    import configparser
+
+    from lfstudio.export import ExportOptions, export_dataset
+    from lfstudio.sim.studio import VirtualStudio
+
+    z0 = 3.0
+    f_px, truth = shear_views(_virtual, tmp_path / "sheared", z0)
+    ds = _import(tmp_path / "sheared", tmp_path / "ds", focal_length_px=f_px, zero_disparity_depth_m=z0)
+    # HCI: focus_distance_m is the zero plane, disp_min/disp_max signed around it
+    export_dataset(ds, ExportOptions(format="hci", out=tmp_path / "hci", hci_size=(5, 5)))
+    cfg = configparser.ConfigParser()
+    cfg.read(tmp_path / "hci" / "parameters.cfg")
+    assert float(cfg["extrinsics"]["focus_distance_m"]) == pytest.approx(z0)
+    k = f_px * 4.0 / 1000.0
+    d_min, d_max = float(cfg["meta"]["disp_min"]), float(cfg["meta"]["disp_max"])
+    assert d_min == pytest.approx(k * (1 / truth["far_m"] - 1 / z0), abs=0.05 * k / truth["near_m"])
+    assert d_max == pytest.approx(k * (1 / truth["near_m"] - 1 / z0), abs=0.05 * k / truth["near_m"])
+    # COLMAP and nerfstudio: each view's principal point carries its shear; projections match the
+    # sheared images (the studio's camera, moved by the shear) within 0.5 px
+    export_dataset(ds, ExportOptions(format="colmap", out=tmp_path / "colmap", points=False))
+    export_dataset(ds, ExportOptions(format="nerfstudio", out=tmp_path / "ns", points=False))
+    kwargs = dict(truth["studio"])
+    studio = VirtualStudio(**{k: tuple(v) if isinstance(v, list) else v for k, v in kwargs.items()})
+    rng = np.random.default_rng(3)
+    X = np.column_stack([rng.uniform(-0.3, 0.3, 20), rng.uniform(-0.2, 0.2, 20), rng.uniform(1.8, 4.7, 20)])
+    shear = f_px / (1000.0 * z0)
+    centre = np.mean([v["commanded_mm"] for v in ds.views], axis=0)
+    frames = {tuple(fr["lfstudio_view"]): fr for fr in json.loads((tmp_path / "ns" / "transforms.json").read_text())["frames"]}
+    worst = 0.0
+    for v in ds.views:
+        p = np.asarray(v["commanded_mm"], float)
+        want = studio.project(X, *p) + shear * (p - centre)
+        got = _colmap_projection(tmp_path / "colmap" / "sparse" / "0", f"r{v['row']:02d}_c{v['column']:03d}.png", X)
+        worst = max(worst, float(np.abs(got - want).max()))
+        fr = frames[(v["row"], v["column"])]
+        assert (fr["cx"] - 0.5, fr["cy"] - 0.5) == pytest.approx(tuple(studio.K_true[:2, 2] + shear * (p - centre)), abs=0.5)
+    assert worst < 0.5
+    # the zero plane travels with every export's manifest (and the HEVC sidecar: common.describe)
+    assert json.loads((tmp_path / "hci" / "lfstudio_manifest.json").read_text())["zero_disparity"]["depth_m"] == z0
+
+
+def test_posed_exports_of_views_sheared_by_an_unstated_amount_are_refused(_virtual, tmp_path):
+    from lfstudio.export import ExportOptions, export_dataset
+
+    f_px, _ = shear_views(_virtual, tmp_path / "sheared", 3.0)
+    ds = _import(tmp_path / "sheared", tmp_path / "ds", focal_length_px=f_px)
+    for fmt in ("hci", "colmap", "nerfstudio"):
+        with pytest.raises(InputError, match="sheared by an amount nobody stated.*--zero-disparity-depth-m"):
+            export_dataset(ds, ExportOptions(format=fmt, out=tmp_path / fmt, hci_size=(5, 5)))
+        assert not (tmp_path / fmt).exists()
+
+
+# -- calibrate: a shear is not a rotation ------------------------------------------------------------
+def test_calibration_of_sheared_views_finds_the_cameras_rotation_not_the_shear(tmp_path_factory, tmp_path):
+    from lfstudio.calibration.calibrate import calibrate_dataset
+    from lfstudio.calibration.fit import CalibrationError
+    from lfstudio.sim.virtual_dataset import make_virtual_dataset
+
+    turned = tmp_path_factory.mktemp("shear_turned") / "dataset"
+    true_deg = (0.5, -0.8, 0.3)
+    make_virtual_dataset(turned, **{**GRID, "rotation_deg": true_deg})
+    f_px, _ = shear_views(turned, tmp_path / "sheared", 3.0)
+    ds = _import(tmp_path / "sheared", tmp_path / "ds", focal_length_px=f_px, zero_disparity_depth_m=3.0)
+    doc = calibrate_dataset(ds).document
+    for got, sd, want in zip(doc["rotation_deg"], doc["rotation_std_deg"], true_deg):
+        assert abs(got - want) < 3 * sd + 0.05, (doc["rotation_deg"], doc["rotation_std_deg"])
+    # without the zero plane the fit would read the shear as a rotation (pan 4x off here): refused by name
+    unstated = _import(tmp_path / "sheared", tmp_path / "unstated", focal_length_px=f_px)
+    with pytest.raises(CalibrationError, match="sheared by an amount nobody stated.*--zero-disparity-depth-m"):
+        calibrate_dataset(unstated)
