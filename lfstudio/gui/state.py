@@ -37,6 +37,7 @@ class AppState(QObject):
     recaptureRequested = Signal(object)  # list of (row, column) to capture again (grid view → scan panel)
     devicesChanged = Signal(str)        # a device ("rig", "camera", ...) was connected or removed
     cameraFrame = Signal(object, str)   # an RGB uint8 image from the camera (test shot) and its caption
+    liveVerdicts = Signal(object)       # list of the scan-time check's verdict entries (grid view → notifications)
 
     def __init__(self, simulated: bool = True, parent: QObject | None = None):
         super().__init__(parent)

@@ -40,6 +40,7 @@ from datetime import datetime, timezone
 from email.message import EmailMessage
 from typing import Any, Callable, Iterable
 
+from lfstudio.dataset.paths import view_label
 from lfstudio.errors import InputError
 from lfstudio.scan.events import EventKind, ScanEvent, ScanState
 from lfstudio.support.listeners import Listeners
@@ -95,6 +96,13 @@ class Notice:
 
 def _now_iso() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+def entry_label(entry: dict[str, Any]) -> str:
+    """A live-check verdict entry's view as the operator reads it (``r01 c003``)."""
+    if isinstance(entry.get("row"), int) and isinstance(entry.get("column"), int):
+        return view_label(entry["row"], entry["column"])
+    return str(entry.get("view", "?"))
 
 
 def notice_event(before: ScanState | None, ev: ScanEvent) -> str | None:
@@ -436,7 +444,7 @@ class Notifier:
         verdict = entry.get("verdict")
         if verdict not in ("warn", "fail"):
             return
-        view = str(entry.get("view", "?"))
+        view = entry_label(entry)
         with self._lock:
             before = self._flagged.get(view)
             if before == verdict or before == "fail":

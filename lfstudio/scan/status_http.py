@@ -36,6 +36,7 @@ from typing import Any
 
 from lfstudio.errors import InputError
 from lfstudio.scan.events import EventKind, ScanEvent, ScanState
+from lfstudio.scan.notify import entry_label
 
 log = logging.getLogger(__name__)
 
@@ -127,7 +128,7 @@ class StatusBoard:
                 self._log.append(ev)
 
     def on_verdict(self, entry: dict[str, Any]) -> None:
-        view, verdict = str(entry.get("view", "?")), str(entry.get("verdict", ""))
+        view, verdict = entry_label(entry), str(entry.get("verdict", ""))
         with self._lock:
             before = self._verdict_of.get(view)
             if before in self.verdicts:

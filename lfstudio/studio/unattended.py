@@ -196,6 +196,14 @@ class Unattended:
             return not thread.is_alive()
         return True
 
+    def on_verdicts(self, entries: list[dict[str, Any]]) -> None:
+        """Live-check verdicts handed over by a front end (the window's grid view checks the views)."""
+        for entry in entries:
+            if self.notifier is not None:
+                self.notifier.on_verdict(entry)
+            if self.board is not None:
+                self.board.on_verdict(entry)
+
     def close(self, timeout_s: float = 10.0) -> None:
         """Stop listening; let the end-of-day command end (its own time limit); deliver what is queued
         within ``timeout_s``; stop the status page."""

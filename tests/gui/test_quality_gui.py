@@ -143,6 +143,8 @@ def test_views_are_checked_as_scan_events_arrive(qtbot, faulty):
     from lfstudio.scan.events import EventKind, ScanEvent
 
     state, view = grid(qtbot)
+    published = []
+    state.liveVerdicts.connect(published.extend)            # for notifications and the status page
     ds = Dataset.open(faulty)
     state.set_dataset(ds)
     assert view.quality_bar.live_box.isChecked()
@@ -155,6 +157,7 @@ def test_views_are_checked_as_scan_events_arrive(qtbot, faulty):
     qtbot.waitUntil(lambda: (1, 1) in view.canvas.quality, timeout=60000)
     assert view.canvas.quality[(1, 1)]["verdict"] == "fail"
     assert view.canvas.flagged() == [(1, 1)]
+    assert [e["verdict"] for e in published if (e["row"], e["column"]) == (1, 1)][-1] == "fail"
     assert "checked during the scan" in view.quality_bar.summary.text()
     view.quality_bar.live_box.setChecked(False)             # switched off: no more checks
     state.scanEvent.emit(ScanEvent(EventKind.VIEW_DONE, row=1, column=0, file=ds.view(1, 0)["file"]))

@@ -79,10 +79,14 @@ def test_a_scan_from_the_panel_notifies_and_serves_the_status_page(qtbot, tmp_pa
     with urllib.request.urlopen(server.url + "status.json", timeout=30) as reply:
         doc = json.loads(reply.read())
     assert (doc["state"], doc["total"], doc["dataset"]) == ("paused", 12, "day1")
+    state.liveVerdicts.emit([{"row": 0, "column": 1, "view": "r00_c001", "verdict": "fail", "reasons": ["blurred"]}])
+    assert receiver.wait_for(lambda posts: len(posts) == 3)          # the grid view's live check flagged a view
+    with urllib.request.urlopen(server.url + "status.json", timeout=30) as reply:
+        assert json.loads(reply.read())["flagged"] == [{"view": "r00 c001", "verdict": "fail", "reasons": ["blurred"]}]
     panel.resume()
     qtbot.waitUntil(lambda: "Finished" in panel.state_label.text(), timeout=30000)
-    assert receiver.wait_for(lambda posts: len(posts) == 4)
-    assert receiver.json_events() == ["started", "paused", "resumed", "finished"]
+    assert receiver.wait_for(lambda posts: len(posts) == 5)
+    assert receiver.json_events() == ["started", "paused", "flagged", "resumed", "finished"]
     qtbot.waitUntil(lambda: "status page (read-only): http://127.0.0.1:" in panel.log_view.toPlainText(),
                     timeout=5000)
 

@@ -166,9 +166,9 @@ def test_mail_through_a_local_smtp_server():
 
 def test_flagged_views_are_told_once_each_and_then_summed_up(receiver):
     notifier = Notifier([receiver.url()], dataset="day1")
-    notifier.on_verdict({"view": "r00 c001", "verdict": "pass"})
-    notifier.on_verdict({"view": "r00 c002", "verdict": "warn", "reasons": ["blurred"]})
-    notifier.on_verdict({"view": "r00 c002", "verdict": "warn", "reasons": ["blurred"]})   # the same again
+    notifier.on_verdict({"row": 0, "column": 1, "view": "r00_c001", "verdict": "pass"})
+    notifier.on_verdict({"row": 0, "column": 2, "view": "r00_c002", "verdict": "warn", "reasons": ["blurred"]})
+    notifier.on_verdict({"row": 0, "column": 2, "verdict": "warn", "reasons": ["blurred"]})   # the same again
     notifier.on_verdict({"view": "r00 c002", "verdict": "fail", "reasons": ["blurred", "dark"]})   # worse
     for i in range(MAX_FLAGGED + 5):
         notifier.on_verdict({"view": f"r01 c{i:03d}", "verdict": "fail"})

@@ -317,6 +317,7 @@ class ScanPanel(QWidget):
         state.recaptureRequested.connect(self.recapture)
         state.datasetChanged.connect(self._on_dataset)
         state.devicesChanged.connect(self._follow_rig)
+        state.liveVerdicts.connect(lambda entries: self.unattended is not None and self.unattended.on_verdicts(entries))
         self._follow_rig("rig")
         self._update_preview()
         self._update_buttons()

@@ -1126,6 +1126,7 @@ class GridView(QWidget):
     def _on_live_verdicts(self, source: LiveQuality, entries: list[dict]) -> None:
         if source is not self.live:
             return                      # late verdicts of a scan whose dataset is no longer shown
+        self.state.liveVerdicts.emit(entries)       # notifications and the status page (Scan panel)
         self._verdict_batch.extend(entries)
         if not self._verdict_timer.isActive():   # verdicts are shown together, a few times a second
             self._verdict_timer.start()
