@@ -88,7 +88,7 @@ FAULTS = ("power_stage_off", "following_error", "limit_switch", "lost_connection
 FAULT_CODES = {"power_stage_off": 0x3220, "following_error": 0x8611, "limit_switch": 0x8612}
 LAG_S = 0.002                  # the actual position lags the demand by this much of its speed
 SWITCH_OUTSIDE_MM = 1.0        # the limit switches trigger this far beyond each end of the travel
-STEP_S = 0.002                 # the motion model's integration step (emulator time)
+STEP_S = 0.005                 # the motion model's integration step (emulator time)
 
 
 class ObjectRefused(Exception):
@@ -120,7 +120,7 @@ class DriveAxis:
     def __init__(self, setup: AxisSetup, *, time_scale: float = 1.0, name: str = "drive"):
         self.setup = setup
         self.name = name
-        self.time_scale = float(time_scale)
+        self._scale = float(time_scale)
         k = setup.increments_per_mm
         self._k = k
         self._lock = threading.RLock()
@@ -165,10 +165,22 @@ class DriveAxis:
         self.homed = False                      # this power cycle has a reference (not visible on the bus)
 
     # -- clock -----------------------------------------------------------------------------------
+    @property
+    def time_scale(self) -> float:
+        return self._scale
+
+    @time_scale.setter
+    def time_scale(self, value: float) -> None:
+        """Another speed from now on; the emulator's clock goes on from where it is."""
+        with self._lock:
+            self._advance()
+            self._scale = float(value)
+            self._t0 = time.monotonic() - self._last * self._scale
+
     def _now(self) -> float:
-        if self.time_scale <= 0:
+        if self._scale <= 0:
             return self._last
-        return (time.monotonic() - self._t0) / self.time_scale
+        return (time.monotonic() - self._t0) / self._scale
 
     # -- bus access ------------------------------------------------------------------------------
     def read(self, index: int, sub: int) -> int:
@@ -403,7 +415,7 @@ class DriveAxis:
     def _advance(self) -> None:
         now = self._now()
         dt_total = now - self._last
-        if self.time_scale <= 0:
+        if self._scale <= 0:
             self._finish_instantly()
             return
         steps = 0
@@ -575,6 +587,15 @@ class DrivePair:
 
     def true_position_mm(self) -> tuple[float, float]:
         return self.axes[0].true_position(), self.axes[1].true_position()
+
+    @property
+    def time_scale(self) -> float:
+        return self.axes[0].time_scale
+
+    @time_scale.setter
+    def time_scale(self, value: float) -> None:
+        for axis in self.axes:
+            axis.time_scale = value
 
 
 def drive_pair(rig, *, time_scale: float = 1.0, seed: int = 0) -> DrivePair:

@@ -178,6 +178,14 @@ class DriveServers:
         self.running = True
         return self
 
+    @property
+    def time_scale(self) -> float:
+        return self.pair.time_scale
+
+    @time_scale.setter
+    def time_scale(self, value: float) -> None:
+        self.pair.time_scale = value
+
     def true_position_mm(self) -> tuple[float, float]:
         return self.pair.true_position_mm()
 
@@ -298,6 +306,14 @@ class CanopenDrives:
             axis.on_answering = drive.sync_answering
         self.running = True
         return self
+
+    @property
+    def time_scale(self) -> float:
+        return self.pair.time_scale
+
+    @time_scale.setter
+    def time_scale(self, value: float) -> None:
+        self.pair.time_scale = value
 
     def true_position_mm(self) -> tuple[float, float]:
         return self.pair.true_position_mm()

@@ -28,10 +28,15 @@ def journal_lines(root) -> int:
         return 0
 
 
-@pytest.mark.parametrize("seed", [1, 2])
-def test_kill_9_at_a_random_moment_then_resume(run_cli, tmp_path, seed):
+#: the GRBL simulator, and the emulated CiA 402 drives (dryve D1 over Modbus TCP)
+RIGS = {"sim": [], "sim-dryve": ["--port", "sim-dryve", "--rig-profile", "dryve D1 gantry 4 m x 0.5 m"]}
+
+
+@pytest.mark.parametrize("rig, seed", [("sim", 1), ("sim", 2), ("sim-dryve", 3)])
+def test_kill_9_at_a_random_moment_then_resume(run_cli, tmp_path, rig, seed):
     rng = random.Random(seed * 7919 + os.getpid())
     out = tmp_path / "ds"
+    ARGS = [*globals()["ARGS"], *RIGS[rig]]     # noqa: N806 - the module's arguments on this rig
     env = dict(os.environ, PYTHONPATH=str(REPO_ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     proc = subprocess.Popen([sys.executable, "-m", "lfstudio", "scan", *ARGS, "--out", str(out)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, cwd=REPO_ROOT)

@@ -59,8 +59,7 @@ def test_drive_state_fault_reset_and_stop(qtbot, panel):
     qtbot.mouseClick(panel.home_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: state_is(panel, RigState.IDLE) and panel.last_status.homed, timeout=T)
 
-    for axis in emulator.pair.axes:                              # slow enough to catch it moving
-        axis.time_scale = 0.5
+    emulator.time_scale = 0.5                                    # slow enough to catch it moving
     panel.goto_x.setValue(3000)
     panel.goto_y.setValue(400)
     qtbot.mouseClick(panel.goto_button, Qt.LeftButton)

@@ -1,0 +1,138 @@
+"""``lfstudio scan`` on CiA 402 drives: the emulated drives in the scanning process (``sim-dryve``,
+``sim-canopen``) and in a process of their own (``lfstudio sim-drive``, Modbus TCP on 127.0.0.1),
+a real ``kill -9`` of the scan, then ``--resume`` on the same drives: the reported position is
+checked, nothing is lost, and a drive moved meanwhile is refused."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from lfstudio.dataset import Dataset
+from lfstudio.dataset.store import temporary_files
+from tests.conftest import REPO_ROOT
+
+RIG = "dryve D1 gantry 4 m x 0.5 m"
+GRID = ["--grid", "4x3", "--spacing-mm", "4x6", "--sim-width-px", "96", "--rig-profile", RIG]
+
+
+def env() -> dict:
+    return dict(os.environ, PYTHONPATH=str(REPO_ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+
+@pytest.mark.parametrize("word", ["sim-dryve", "sim-canopen"])
+def test_scan_on_emulated_drives_then_resume_is_a_no_op(run_cli, tmp_path, word):
+    out = tmp_path / "ds"
+    r = run_cli("scan", "--port", word, "--camera", "sim", *GRID, "--time-scale", "0.01", "--out", out)
+    assert r.returncode == 0, r.stderr
+    assert "12 of 12 views captured" in r.stderr and "emulated CiA 402 drives" in r.stderr
+    ds = Dataset.open(out)
+    assert ds.manifest["devices"]["rig"] == {"kind": word, "profile": RIG}
+    for v in ds.views:                                    # the drives reported each commanded position
+        assert v["reported_mm"] == pytest.approx(v["commanded_mm"], abs=0.011)
+    ds.close()
+    again = run_cli("scan", "--out", out, "--resume")
+    assert again.returncode == 0 and "nothing to do" in again.stderr
+
+
+def test_a_grbl_profile_on_drives_is_refused_naming_the_profile(run_cli, tmp_path):
+    r = run_cli("scan", "--port", "sim-dryve", "--camera", "sim", "--grid", "2x1", "--out", tmp_path / "x")
+    assert r.returncode == 2
+    assert "--rig-profile" in r.stderr and "GRBL controller" in r.stderr and "dryve D1 gantry" in r.stderr
+    assert not (tmp_path / "x").exists()
+
+
+def test_drives_that_do_not_answer_are_one_line_naming_the_address(run_cli, tmp_path):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    r = run_cli("rig", "--port", f"dryve:127.0.0.1:{port},127.0.0.1:{port + 1}", "--rig-profile", RIG, "--timeout-s",
+                "0.5", "status")
+    assert r.returncode == 1
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and f"127.0.0.1:{port}" in lines[0] and "Traceback" not in r.stderr
+
+
+@pytest.fixture
+def sim_drive(tmp_path):
+    """``lfstudio sim-drive`` in its own process; yields its device word."""
+    proc = subprocess.Popen([sys.executable, "-m", "lfstudio", "sim-drive", "--time-scale", "0.02", "--seed", "5"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env(), cwd=REPO_ROOT)
+    try:
+        word = proc.stdout.readline().strip()
+        assert word.startswith("dryve:127.0.0.1:"), proc.stderr.read() if proc.poll() is not None else word
+        yield word
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+        proc.stdout.close()
+        proc.stderr.close()
+
+
+def journal_lines(root) -> int:
+    try:
+        return (root / "journal.jsonl").read_bytes().count(b"\n")
+    except FileNotFoundError:
+        return 0
+
+
+@pytest.mark.parametrize("seed", [1])
+def test_kill_9_of_a_scan_on_the_drive_emulator_resumes_with_nothing_lost(run_cli, tmp_path, sim_drive, seed):
+    rng = random.Random(seed * 7919 + os.getpid())
+    out = tmp_path / "ds"
+    args = ["scan", "--port", sim_drive, "--camera", "sim", *GRID, "--time-scale", "0.02"]
+    r = run_cli(*args, "--out", tmp_path / "not-homed")
+    assert r.returncode == 1 and "not homed" in r.stderr and "--home" in r.stderr     # a fresh drive pair
+    proc = subprocess.Popen([sys.executable, "-m", "lfstudio", *args, "--home", "--out", str(out)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env(), cwd=REPO_ROOT)
+    after_views = rng.randint(1, 9)
+    deadline = time.monotonic() + 90
+    while proc.poll() is None and time.monotonic() < deadline:
+        if (out / "dataset.json").is_file() and journal_lines(out) >= after_views:
+            break
+        time.sleep(0.002)       # polling the journal, not synchronising on a duration
+    time.sleep(rng.uniform(0.0, 0.05))
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(10)
+    proc.stderr.close()
+    crashed = Dataset.open(out)
+    before = {(v["row"], v["column"]): v["sha256"] for v in crashed.views if v["status"] == "done"}
+    last = max((v for v in crashed.views if v["status"] == "done"), key=lambda v: v["captured_at"])
+    assert crashed.manifest["devices"]["rig"] == {"kind": "dryve", "profile": RIG, "port": sim_drive}
+    crashed.close()
+    if len(before) == 12:
+        pytest.skip("the scan finished before the kill")
+
+    # moved meanwhile: the resume compares the drives' reported position with the dataset and refuses
+    moved = run_cli("rig", "--port", sim_drive, "--rig-profile", RIG, "--time-scale", "0.02", "move", "300", "200",
+                    "status")
+    assert moved.returncode == 0, moved.stderr
+    assert "x: operation enabled 0000h, y: operation enabled 0000h" in moved.stdout
+    resume = ["scan", "--out", out, "--resume", "--time-scale", "0.02", "--sim-width-px", "96"]
+    r = run_cli(*resume)
+    assert r.returncode == 1 and "reports (300.000, 200.000) mm" in r.stderr and "moved or lost" in r.stderr
+    # back where the last run left it: the drives kept their reference, the resume goes on without homing
+    x, y = last["reported_mm"]
+    back = run_cli("rig", "--port", sim_drive, "--rig-profile", RIG, "--time-scale", "0.02", "move", f"{x}", f"{y}")
+    assert back.returncode == 0, back.stderr
+    r = run_cli(*resume, timeout=180)
+    assert r.returncode == 0, r.stderr
+    assert "where the last run left it" in r.stderr
+    ds = Dataset.open(out)
+    assert ds.status_counts()["done"] == 12 and ds.verify_files() == [] and list(temporary_files(out)) == []
+    for cell, sha in before.items():
+        assert ds.view(*cell)["sha256"] == sha
+    for v in ds.views:
+        assert v["reported_mm"] == pytest.approx(v["commanded_mm"], abs=0.011)
