@@ -44,6 +44,7 @@ DEFAULT_HOST = "127.0.0.1"
 REFRESH_S = 5                  # the page reloads itself this often
 THUMBS = 8                     # the last thumbnails shown
 LOG_LINES = 40                 # the log's tail shown
+MAX_FLAGGED_SHOWN = 20         # the views flagged last (each once)
 MIN_TOKEN_CHARS = 16
 _LOGGED = (EventKind.STATE, EventKind.FAULT, EventKind.VIEW_FAILED, EventKind.VIEW_SKIPPED, EventKind.LOG,
            EventKind.VIEW_DONE)
@@ -104,10 +105,12 @@ class StatusBoard:
         self.done, self.total = done, total
         self._eta: tuple[float, float] | None = None       # (eta_s, monotonic time it was told)
         self._thumbs: deque[tuple[str, str]] = deque(maxlen=THUMBS)   # (view label, relative path)
+        # thumbnails a page shown a moment ago may still ask for (the scan moved on meanwhile)
+        self._servable: deque[str] = deque(maxlen=8 * THUMBS)
         self._log: deque[ScanEvent] = deque(maxlen=LOG_LINES)
         self.verdicts = {"pass": 0, "warn": 0, "fail": 0}
         self._verdict_of: dict[str, str] = {}
-        self._flagged: deque[dict[str, Any]] = deque(maxlen=20)
+        self._flagged: dict[str, dict[str, Any]] = {}        # view -> its entry, the latest change last
         self.started = time.time()
 
     def on_scan_event(self, ev: ScanEvent) -> None:
@@ -124,6 +127,7 @@ class StatusBoard:
                     self._eta = (ev.eta_s, time.monotonic())
                 if ev.thumb:
                     self._thumbs.append((f"r{ev.row:02d} c{ev.column:03d}", ev.thumb))
+                    self._servable.append(ev.thumb)
             if kind in _LOGGED:
                 self._log.append(ev)
 
@@ -136,9 +140,12 @@ class StatusBoard:
             if verdict in self.verdicts:
                 self.verdicts[verdict] += 1
                 self._verdict_of[view] = verdict
+            self._flagged.pop(view, None)        # judged again: listed once, with its latest verdict
             if verdict in ("warn", "fail"):
-                self._flagged.append({"view": view, "verdict": verdict,
-                                      "reasons": [str(r) for r in entry.get("reasons") or ()]})
+                self._flagged[view] = {"view": view, "verdict": verdict,
+                                       "reasons": [str(r) for r in entry.get("reasons") or ()]}
+                if len(self._flagged) > MAX_FLAGGED_SHOWN:
+                    del self._flagged[next(iter(self._flagged))]
 
     def eta_s(self) -> float | None:
         with self._lock:
@@ -156,14 +163,14 @@ class StatusBoard:
                    "total": self.total, "eta_s": None if eta is None else round(eta, 1),
                    "time": datetime.now().astimezone().strftime("%Y-%m-%d %H:%M:%S %Z"),
                    "thumbs": [{"view": v, "url": f"/thumbs/{Path(rel).name}"} for v, rel in self._thumbs],
-                   "verdicts": dict(self.verdicts), "flagged": list(self._flagged)}
+                   "verdicts": dict(self.verdicts), "flagged": list(self._flagged.values())}
         doc["log"] = [f"{datetime.fromtimestamp(ev.time):%H:%M:%S}  {ev.describe()}" for ev in log_events]
         return doc
 
     def thumb_path(self, name: str) -> Path | None:
         """The file of a thumbnail the page shows now (None for any other name)."""
         with self._lock:
-            rels = [rel for _, rel in self._thumbs]
+            rels = list(self._servable)
         for rel in rels:
             if Path(rel).name == name:
                 path = self.root / rel

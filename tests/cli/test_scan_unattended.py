@@ -67,3 +67,15 @@ def test_bad_auto_resume_and_on_finish_options(run_cli, tmp_path, args, words):
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and words in lines[0], r.stderr
     assert not out.exists()
+
+
+def test_the_status_token_is_printed_once_and_never_logged(run_cli, tmp_path):
+    logs = tmp_path / "logs"
+    token = "MyOwnStatusToken-0123456789"
+    r = run_cli("scan", "--port", "instant", "--camera", "instant", "--grid", "3x2", "--out", tmp_path / "day1",
+                "--time-scale", "0", "--status-http", "127.0.0.1:0", "--status-token", token,
+                env={"LFSTUDIO_LOG_DIR": str(logs)})
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.count(token) == 1 and "status page (read-only): http://127.0.0.1:" in r.stderr
+    logged = "".join(p.read_text(errors="replace") for p in logs.rglob("*") if p.is_file())
+    assert "--status-token …" in logged and token not in logged

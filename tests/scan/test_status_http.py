@@ -161,3 +161,14 @@ def test_chromium_shows_the_page_during_a_scan(paused_scan, tmp_path):
     assert (np.abs(picture.astype(int) - background).sum(axis=2) > 60).mean() > 0.03
     if (shot_dir := __import__("os").environ.get("LFSTUDIO_KEEP_SCREENSHOT")):
         shutil.copy(shot, shot_dir)
+
+
+def test_a_view_judged_again_is_listed_once_with_its_latest_verdict(tmp_path):
+    board = StatusBoard(tmp_path / "day1", total=10)
+    board.on_verdict({"row": 0, "column": 4, "verdict": "warn", "reasons": ["position"]})
+    board.on_verdict({"row": 0, "column": 5, "verdict": "warn", "reasons": ["position"]})
+    board.on_verdict({"row": 0, "column": 4, "verdict": "fail", "reasons": ["position", "blurred"]})
+    board.on_verdict({"row": 0, "column": 5, "verdict": "pass"})
+    doc = board.snapshot()
+    assert doc["flagged"] == [{"view": "r00 c004", "verdict": "fail", "reasons": ["position", "blurred"]}]
+    assert doc["verdicts"] == {"pass": 1, "warn": 0, "fail": 1}

@@ -998,7 +998,7 @@ class ScanPanel(QWidget):
             if self._pending_recapture:
                 cells, self._pending_recapture = self._pending_recapture, []
                 QTimer.singleShot(0, lambda: self.start(recapture=cells))
-        if fault:
+        if fault and not self.engine.resumes_by_itself:    # auto-resume waits: no message box to answer
             self.state.report_error("Scan paused", message)
         self._update_buttons()
 
