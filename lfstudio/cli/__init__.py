@@ -29,6 +29,7 @@ COMMANDS: list[str] = [
     "check",
     "simulate_calibration",
     "process",
+    "depth",
     "camera",
     "virtual_dataset",
     "import_images",

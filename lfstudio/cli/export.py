@@ -62,6 +62,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-points", dest="points", action="store_false",
                    help="colmap/nerfstudio: leave out the sparse point cloud (points3D.txt stays empty, no PLY); "
                         "by default it is triangulated from the views with the known poses")
+    p.add_argument("--depth", action="store_true",
+                   help="nerfstudio: depth maps per frame (depth_file_path: 16-bit PNG in mm, beside them float TIFF "
+                        "in m and a confidence PFM); hci: estimated disparity maps (estimated_disp_CamNNN.pfm). Views "
+                        "without a map ('lfstudio depth') are computed first")
     p.add_argument("--overwrite", action="store_true", help="replace PATH if it exists (default: refuse)")
     p.add_argument("--estimate", action="store_true", help="print the size estimate and exit without writing")
 
@@ -87,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
                             hci_center=_centre_view(args.hci_centre_view),
                             overwrite=args.overwrite, hci_bit_depth=args.hci_bit_depth,
                             image_bit_depth=args.image_bit_depth, holdout=args.holdout, authors=args.authors,
-                            points=args.points)
+                            points=args.points, depth=args.depth)
     root = Path(args.dataset)
     try:
         ds = Dataset.open(root)

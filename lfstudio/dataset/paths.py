@@ -65,7 +65,7 @@ def parse_view_stem(text: str) -> tuple[int, int]:
 CALIBRATION_NAME = "calibration.json"
 #: the dataset's own files and folders (beside the views' files): none may be a symlink leading outside
 DATASET_ENTRIES = ("dataset.json", "journal.jsonl", DATASET_LOCK_NAME, CALIBRATION_NAME, "processing.toml",
-                   "quality.json", "raw", "thumbs", "thumbs/generated", "processed", "cache")
+                   "quality.json", "raw", "thumbs", "thumbs/generated", "processed", "cache", "depth")
 
 
 _VARIABLE = re.compile(r"\$(?:(\w+)|\{([^}]*)\})")

@@ -62,6 +62,7 @@ class ExportOptions:
     holdout: str = "none"            # nerfstudio: "none", "centre" or "every-K" (held out of training)
     authors: str = ""                # hci: [meta] authors (default: the manifest's "authors", else empty)
     points: bool = True              # colmap/nerfstudio: the sparse point cloud (points3D.txt, PLY)
+    depth: bool = False              # nerfstudio: depth maps (depth_file_path); hci: estimated disparity maps
 
 
 @dataclass
@@ -132,6 +133,9 @@ def _check_options(options: ExportOptions) -> ExportOptions:
     if fmt in POSED_FORMATS and int(options.image_bit_depth) not in (8, 16):
         raise InputError("image_bit_depth", f"{options.image_bit_depth} is not supported",
                          "8 (sRGB, what view-synthesis tools expect) or 16 (linear)")
+    if options.depth and fmt not in ("nerfstudio", "hci"):
+        raise InputError("depth", f"the {fmt} export carries no depth maps", "nerfstudio (depth_file_path) or hci "
+                         "(estimated disparity maps)")
     if fmt == "nerfstudio":
         from lfstudio.export import nerfstudio
 
@@ -206,6 +210,17 @@ def estimate_export(dataset, options: ExportOptions) -> ExportEstimate:
     else:
         nbytes = common.images_bytes_estimate(len(views), size, options.image_bit_depth) + 200 * len(views) + 8192
         warnings += _posed_warnings(ds, views, source, size, options)
+        if options.format in POSED_FORMATS and options.points:
+            nbytes += 60_000 + 30 * min(len(views), 45) * 200      # the sparse cloud: a few thousand points
+    if options.depth and options.format in ("nerfstudio", "hci"):
+        from lfstudio.export import depthmaps
+
+        per_px = depthmaps.NERFSTUDIO_BYTES_PER_PX if options.format == "nerfstudio" else depthmaps.HCI_BYTES_PER_PX
+        nbytes += int(len(views) * size[0] * size[1] * per_px)
+        missing = depthmaps.missing_maps(ds, views)
+        if missing:
+            warnings.append(f"{len(missing)} of {len(views)} views have no depth map yet: the export computes them "
+                            "first in this process (for many views run 'lfstudio depth DATASET --cluster ...' before)")
     if (out.exists() or out.is_symlink()) and not options.overwrite:
         warnings.append(f"{out} already exists and will only be replaced if you allow overwriting")
     return ExportEstimate(views=list(views), source=source, image_size_px=tuple(frame_size),

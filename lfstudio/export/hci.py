@@ -121,6 +121,8 @@ def _plan_numbers(ds: Dataset) -> dict[str, float | None]:
             "fstop": float(fstop) if isinstance(fstop, (int, float)) else None}
 
 
+#: estimated (not ground-truth) disparity maps: estimated_disp_Cam000.pfm, estimated_disp_confidence_Cam000.pfm
+ESTIMATE_PREFIX = "estimated_disp_"
 #: focus_distance_m written for parallel views: the toolkit's 1/focus term vanishes (zero disparity at
 #: infinity) without dividing by zero (``inf`` would give inf/inf = nan in depth2disp)
 FOCUS_AT_INFINITY_M = 1e9
@@ -325,8 +327,23 @@ def export_hci(ds: Dataset, views: Sequence[common.View], source: str, size: tup
     progress(0, n, "exporting HCI layout")
     disparities = disparity_range(ds, views, source, size)
     notes = warnings(ds, views, size, source, disparities, measured=True)
+    with_depth = bool(getattr(options, "depth", False))
+    if with_depth:
+        from lfstudio.export import depthmaps, poses
+
+        notes += depthmaps.ensure_maps(ds, views, progress, cancel)
     with common.partial_folder(out, options.overwrite) as tmp:
         common.write_images(ds, views, source, size, tmp, names, bit_depth, progress, cancel)
+        if with_depth:
+            from lfstudio.depth.files import write_pfm
+
+            cam = poses.camera_for(ds, size, common.is_rectified(ds, source))
+            for v in views:
+                cancel.check()
+                maps = depthmaps.maps_for_export(ds, v, cam)
+                stem = names[v].rsplit(".", 1)[0].replace("input_", "")
+                write_pfm(tmp / f"{ESTIMATE_PREFIX}{stem}.pfm", maps.disparity_px)
+                write_pfm(tmp / f"{ESTIMATE_PREFIX}confidence_{stem}.pfm", maps.confidence)
         (tmp / PARAMETERS_NAME).write_text(parameters_text(ds, views, size, source, disparities,
                                                            getattr(options, "authors", "")), encoding="utf-8")
         doc: dict[str, Any] = common.describe(ds, views, source, size, names)
@@ -334,4 +351,6 @@ def export_hci(ds: Dataset, views: Sequence[common.View], source: str, size: tup
         doc["bit_depth"] = bit_depth
         doc["color"] = "sRGB (8-bit)" if bit_depth == 8 else doc["color"]
         (tmp / MANIFEST_NAME).write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n", encoding="utf-8")
-    return [out / PARAMETERS_NAME, out / MANIFEST_NAME] + [out / names[v] for v in views], notes
+    estimates = [out / f"{ESTIMATE_PREFIX}{kind}{names[v].rsplit('.', 1)[0].replace('input_', '')}.pfm"
+                 for v in views for kind in ("", "confidence_")] if with_depth else []
+    return [out / PARAMETERS_NAME, out / MANIFEST_NAME] + [out / names[v] for v in views] + estimates, notes

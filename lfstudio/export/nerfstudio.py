@@ -7,6 +7,10 @@ Layout::
                                    frames: file_path "images/rRR_cCCC.png" + 4 x 4 transform_matrix;
                                    applied_transform; train/val/test_filenames with a hold-out;
                                    ply_file_path "sparse_pc.ply" (with ``options.points``)
+    OUT/depth/rRR_cCCC.png         with ``options.depth``: depth in mm (16-bit; 0 unknown), the frame's
+                                   ``depth_file_path`` (nerfstudio's default depth_unit_scale_factor 1e-3);
+                                   beside it rRR_cCCC.tif (float32 m) and rRR_cCCC.confidence.pfm
+                                   (:mod:`lfstudio.export.depthmaps`)
     OUT/sparse_pc.ply              the sparse point cloud (:mod:`lfstudio.depth.points`) in the
                                    transforms.json world (``X_json = A · X_rig``), as nerfstudio's own
                                    COLMAP conversion writes it (splatfacto starts from it)
@@ -42,6 +46,7 @@ from lfstudio.jobs import CancelToken, Progress
 
 TRANSFORMS_NAME = "transforms.json"
 PLY_NAME = "sparse_pc.ply"
+DEPTH_DIR = "depth"
 IMAGES_DIR = colmap.IMAGES_DIR
 MANIFEST_NAME = colmap.MANIFEST_NAME
 
@@ -130,11 +135,28 @@ def export_nerfstudio(ds: Dataset, views: Sequence[common.View], source: str, si
     cam = poses.camera_for(ds, size, common.is_rectified(ds, source))
     names = colmap.image_names(views)
     doc = transforms_doc(ds, views, names, cam, options.holdout)      # bad input fails before any image
+    with_depth = bool(getattr(options, "depth", False))
+    if with_depth:
+        from lfstudio.export import depthmaps
+
+        depthmaps.ensure_maps(ds, views, progress, cancel)
     progress(0, len(views), "exporting nerfstudio transforms")
     with common.partial_folder(out, options.overwrite) as tmp:
         (tmp / IMAGES_DIR).mkdir()
         common.write_images(ds, views, source, size, tmp / IMAGES_DIR, names, bit_depth, progress, cancel,
                             label="nerfstudio ")
+        if with_depth:
+            from lfstudio.depth.files import write_depth_png, write_depth_tiff, write_pfm
+
+            (tmp / DEPTH_DIR).mkdir()
+            for i, (v, frame) in enumerate(zip(views, doc["frames"])):
+                cancel.check()
+                maps = depthmaps.maps_for_export(ds, v, cam)
+                write_depth_png(tmp / DEPTH_DIR / depthmaps.map_name(v, ".png"), maps.depth_m)
+                write_depth_tiff(tmp / DEPTH_DIR / depthmaps.map_name(v, ".tif"), maps.depth_m)
+                write_pfm(tmp / DEPTH_DIR / depthmaps.map_name(v, ".confidence.pfm"), maps.confidence)
+                frame["depth_file_path"] = f"{DEPTH_DIR}/{depthmaps.map_name(v, '.png')}"
+                progress(i + 1, len(views), f"nerfstudio depth {depthmaps.map_name(v, '')}")
         cloud = colmap.sparse_cloud_of_export(ds, views, cam, tmp / IMAGES_DIR, names, progress, cancel) \
             if getattr(options, "points", True) else None
         if cloud is not None:
@@ -153,4 +175,4 @@ def export_nerfstudio(ds: Dataset, views: Sequence[common.View], source: str, si
         manifest["held_out"] = [[int(r), int(c)] for r, c in held_out(views, options.holdout)]
         (tmp / MANIFEST_NAME).write_text(json.dumps(manifest, indent=1, allow_nan=False) + "\n", encoding="utf-8")
     return [out / TRANSFORMS_NAME, out / MANIFEST_NAME] + ([out / PLY_NAME] if cloud is not None else []) + \
-        [out / IMAGES_DIR / names[v] for v in views]
+        ([out / DEPTH_DIR] if with_depth else []) + [out / IMAGES_DIR / names[v] for v in views]

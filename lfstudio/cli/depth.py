@@ -1,0 +1,61 @@
+"""``lfstudio depth DATASET``: dense disparity and depth of the views, stored in DATASET/depth/."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from lfstudio.dataset.paths import path_option
+from lfstudio.numbers import WORKERS, Number
+
+HELP = "estimate each view's disparity, depth and confidence from its neighbours (multi-baseline; resumable)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dataset", metavar="DATASET", type=path_option("DATASET"), help="the dataset folder (holding dataset.json)")
+    p.add_argument("--views", metavar="SUBSET", default=None,
+                   help="which views (default all captured): all, r0-8,c10-18, array:3x2, r00_c000,r00_c050")
+    p.add_argument("--source", default="auto", choices=("auto", "raw", "processed"),
+                   help="processed views (default when every needed view has one) or the captures rectified with "
+                        "the calibration")
+    p.add_argument("--steps", metavar="H,V", default=None,
+                   help="neighbours on each side along the row and the column (default 4,2)")
+    p.add_argument("--cluster", metavar="ADDR",
+                   help="Dask scheduler address, e.g. tcp://10.0.0.5:8786 (workers must see the dataset folder at "
+                        "the same path); default: a local process pool")
+    p.add_argument("--workers", metavar="N", type=WORKERS.option("--workers"),
+                   help="local worker processes (default: one per core; 0: run in this process)")
+    p.add_argument("--force", action="store_true", help="compute every view again, even those up to date")
+
+
+def run(args: argparse.Namespace) -> int:
+    from lfstudio.depth.run import DepthSettings, estimate_depth
+    from lfstudio.errors import InputError
+    from lfstudio.jobs import TerminalProgress
+    from lfstudio.numbers import parse_numbers
+    from lfstudio.processing.executors import open_executor
+
+    if args.workers is not None and args.workers < 0:
+        raise InputError("--workers", f"{args.workers} is negative", "0 (in this process) or more")
+    if args.cluster and args.workers is not None:
+        raise InputError("--workers", "cannot be combined with --cluster (the cluster has its own workers)")
+    settings = DepthSettings()
+    if args.steps:
+        h, v = parse_numbers("--steps", args.steps, Number("", 0, 50, integer=True), 2, "4,2")
+        if h + v < 1:
+            raise InputError("--steps", "needs at least one neighbour", "e.g. 4,2")
+        settings = DepthSettings(steps_h=int(h), steps_v=int(v))
+    from lfstudio.dataset import Dataset
+
+    ds = Dataset.open(args.dataset)          # a bad folder is named before any worker starts
+    with open_executor(args.workers, args.cluster) as info:
+        executor = None if args.workers == 0 and not args.cluster else info.executor
+        print(f"depth on {info.description}", file=sys.stderr)
+        report = estimate_depth(ds, args.views, settings=settings, source=args.source, executor=executor,
+                                workers=info.workers, force=args.force, progress=TerminalProgress("depth"))
+    for warning in report.warnings:
+        print(f"note: {warning}", file=sys.stderr)
+    print(report.summary())
+    for name, error in report.failed.items():
+        print(f"FAILED {name}: {error}", file=sys.stderr)
+    return 1 if report.failed else 0

@@ -1,0 +1,403 @@
+"""Dense disparity and depth of a dataset's views, stored in the dataset: a long job, resumable.
+
+``estimate_depth(dataset, views, ...)`` computes every chosen view's disparity and confidence with
+the multi-baseline sweep (:mod:`lfstudio.depth.dense`) over its neighbours in its row and column,
+one task per view on the executor it is given (the processing pool or a Dask cluster:
+:func:`lfstudio.processing.executors.open_executor`; none: in this process), and writes
+
+    DATASET/depth/disparity/rRR_cCCC.pfm    px between horizontal neighbours (HCI convention)
+    DATASET/depth/confidence/rRR_cCCC.pfm   0 … 1
+    DATASET/depth/records/rRR_cCCC.json     what it was computed from (settings, source files), figures
+
+each atomically, the record last. A view whose record matches the settings and its source files
+is skipped, so a cancelled or crashed run resumes where it stopped (``force``: compute again).
+Workers must see the dataset at the same path (as processing's).
+
+**Images**: the processed views when every view needed has one (rectified when processing
+rectified them), else the captures rectified with the calibration's homography, else the captures
+as they are (a warning: disparities of unrectified views are only approximately along the rows).
+
+**Depth** from a map: ``Z = f · spacing_x / (1000 · (d + shear · spacing_x))`` m, ``f`` the focal length
+in px at the map's size, ``shear`` the views' zero-disparity shear in px per mm (0 for a scan;
+an archive's record, :mod:`lfstudio.dataset.zero_plane`); refused when the shear is not known.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import hashlib
+import json
+import logging
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from lfstudio.dataset import Dataset
+from lfstudio.dataset.atomic import atomic_write_with
+from lfstudio.dataset.grid import View
+from lfstudio.dataset.manifest import now_iso, processed_file_name
+from lfstudio.dataset.paths import view_stem
+from lfstudio.depth import dense
+from lfstudio.depth.files import read_pfm, write_pfm
+from lfstudio.errors import DatasetError, InputError
+from lfstudio.jobs import Cancelled, CancelToken, Progress, no_progress
+
+log = logging.getLogger(__name__)
+
+DEPTH_DIR = "depth"
+METHOD = "multi-baseline-sweep-1"
+#: search margin around the plan's near/far disparities
+RANGE_MARGIN = 0.08
+
+
+@dataclass(frozen=True)
+class DepthSettings:
+    steps_h: int = dense.STEPS_H          # neighbours on each side along the row
+    steps_v: int = dense.STEPS_V          # ... along the column
+    window_px: int = dense.WINDOW_PX
+    step_px: float = dense.SWEEP_STEP_PX
+
+    def describe(self) -> dict[str, Any]:
+        return {"method": METHOD, "steps_h": self.steps_h, "steps_v": self.steps_v, "window_px": self.window_px,
+                "step_px": self.step_px}
+
+
+@dataclass
+class DepthReport:
+    computed: int = 0
+    skipped: int = 0                      # up to date from an earlier run
+    failed: dict[str, str] = field(default_factory=dict)
+    seconds: float = 0.0
+    cpu_s: float = 0.0                    # the views' own CPU in their workers
+    source: str = ""
+    warnings: list[str] = field(default_factory=list)
+
+    def summary(self) -> str:
+        text = (f"depth: {self.computed} view{'' if self.computed == 1 else 's'} computed, {self.skipped} up to date"
+                f"{f', {len(self.failed)} failed' if self.failed else ''} ({self.source}) in {self.seconds:.1f} s")
+        if self.computed:
+            text += f"; {self.cpu_s / self.computed:.1f} CPU s per view"
+        return text
+
+
+def map_path(root: str | os.PathLike, kind: str, view: Sequence[int]) -> Path:
+    """``DATASET/depth/KIND/rRR_cCCC.pfm`` (``disparity``, ``confidence``) or ``records/….json``."""
+    suffix = ".json" if kind == "records" else ".pfm"
+    return Path(root) / DEPTH_DIR / kind / f"{view_stem(int(view[0]), int(view[1]))}{suffix}"
+
+
+def read_disparity(dataset, view: Sequence[int]) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """(disparity px, confidence, record) of a view computed earlier; DatasetError naming the fix."""
+    root = Dataset.root_of(dataset)
+    rec_path = map_path(root, "records", view)
+    if not rec_path.is_file():
+        raise DatasetError(f"{root}: {view_stem(*view)} has no depth map; run 'lfstudio depth {root}' first")
+    record = json.loads(rec_path.read_text(encoding="utf-8"))
+    return read_pfm(map_path(root, "disparity", view)), read_pfm(map_path(root, "confidence", view)), record
+
+
+def has_disparity(dataset, view: Sequence[int]) -> bool:
+    root = Dataset.root_of(dataset)
+    return all(map_path(root, k, view).is_file() for k in ("records", "disparity", "confidence"))
+
+
+def zero_shear_px_per_mm(ds: Dataset, width_px: float) -> float | None:
+    """The views' shear in px per mm at ``width_px`` (0: parallel, a scan; None: sheared by an
+    unknown amount)."""
+    try:
+        from lfstudio.dataset.zero_plane import zero_plane
+    except ImportError:          # before the zero-plane record existed every dataset was parallel
+        return 0.0
+    return zero_plane(ds).shear_at(width_px)
+
+
+def depth_from_disparity(disparity_px: np.ndarray, focal_length_px: float, spacing_x_mm: float,
+                         shear_px_per_mm: float | None = 0.0) -> np.ndarray:
+    """Depth in metres (NaN where the disparity is unknown or at/behind infinity; module docstring)."""
+    if shear_px_per_mm is None:
+        raise InputError("zero_disparity", "the views are sheared by an amount nobody stated: disparities have no "
+                         "depth", "import them again with --zero-disparity-depth-m")
+    d = np.asarray(disparity_px, np.float64) + float(shear_px_per_mm) * float(spacing_x_mm)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = float(focal_length_px) * float(spacing_x_mm) / (1000.0 * d)
+    z[~(np.isfinite(z) & (d > 0))] = np.nan
+    return z.astype(np.float32)
+
+
+# -- where the images come from -----------------------------------------------------------------------
+def _processed_path(ds: Dataset, view: Sequence[int]) -> Path | None:
+    name = processed_file_name(ds.view(*view))
+    if name is None:
+        return None
+    try:
+        path = ds.path_of(name)
+    except DatasetError:
+        return None
+    return path if path.is_file() else None
+
+
+@dataclass(frozen=True)
+class Geometry:
+    source: str                           # "processed" | "raw"
+    rectified: bool
+    homography: list | None               # raw views rectified with this (full resolution)
+    size_px: tuple[int, int]              # the maps' size (w, h)
+    focal_length_px: float                # at that size
+    spacing_mm: tuple[float, float]
+    shear_px_per_mm: float | None         # at that size
+    d_range_px: tuple[float, float]       # searched (px between horizontal neighbours, as the views show it)
+    warnings: tuple[str, ...] = ()
+
+
+def geometry_of(ds: Dataset, views: Sequence[View], needed: Sequence[View], source: str = "auto") -> Geometry:
+    """How the chosen views' maps are made (module docstring: images, range, focal length)."""
+    from lfstudio.calibration.model import load_calibration
+    from lfstudio.dataset import images
+
+    source = (source or "auto").lower()
+    if source not in ("auto", "raw", "processed"):
+        raise InputError("source", f"unknown source {source!r}", "raw, processed or auto")
+    missing = [v for v in needed if _processed_path(ds, v) is None]
+    if source == "processed" and missing:
+        raise InputError("source", f"processed views missing for {', '.join(view_stem(*v) for v in missing[:6])}",
+                         "process the dataset first ('lfstudio process'), or --source raw")
+    use = "processed" if source == "processed" or (source == "auto" and not missing) else "raw"
+    first = _processed_path(ds, views[0]) if use == "processed" else ds.path_of(ds.view(*views[0]))
+    w, h = images.full_size_px(first)
+    cal = load_calibration(ds)
+    warnings: list[str] = []
+    rectified = bool(use == "processed" and (ds.manifest.get("processing") or {}).get("rectified"))
+    H = None
+    if use == "raw" and cal and cal.get("homography"):
+        H = np.asarray(cal["homography"], float).tolist()
+        rectified = True
+    if not rectified:
+        warnings.append("the views are not rectified (no calibration): disparities along the rows are approximate; "
+                        "calibrate (and process) first")
+    f_full = float(cal["focal_length_px"]) if cal and cal.get("focal_length_px") else None
+    if f_full and cal.get("image_size_px"):
+        f_px = f_full * w / float(cal["image_size_px"][0])
+    else:
+        f_px = ds.focal_length_px(w)
+    sx, sy = (float(v) for v in ds.grid.step_mm)
+    shear = zero_shear_px_per_mm(ds, w)
+    plan = ds.manifest.get("plan") or {}
+    near, far = plan.get("near_m"), plan.get("far_m")
+    if isinstance(near, (int, float)) and isinstance(far, (int, float)) and 0 < near < far:
+        k = f_px * sx / 1000.0
+        d_lo, d_hi = k / far, k / near
+        if shear:
+            d_lo, d_hi = d_lo - shear * sx, d_hi - shear * sx
+    else:
+        d_lo, d_hi = measured_range(ds, views, use, H, sx)
+        warnings.append(f"no scene plan (near/far): disparities searched over {d_lo:.2f} … {d_hi:.2f} px, "
+                        "measured from feature matches")
+    span = d_hi - d_lo
+    d_range = (d_lo - RANGE_MARGIN * span - 0.05, d_hi + RANGE_MARGIN * span + 0.05)
+    return Geometry(use, rectified, H, (int(w), int(h)), float(f_px), (sx, sy), shear, d_range, tuple(warnings))
+
+
+def measured_range(ds: Dataset, views: Sequence[View], source: str, H, spacing_x_mm: float) -> tuple[float, float]:
+    """Disparity range (px per horizontal step, 1st and 99th percentile) from SIFT matches between
+    two views of the middle chosen row."""
+    from lfstudio.calibration.features import detect, match_pair
+    from lfstudio.calibration.model import apply_homography
+
+    rows = sorted({r for r, _ in views})
+    row = rows[len(rows) // 2]
+    cols = sorted(c for c in range(ds.grid.columns) if (row, c) in set(ds.captured_views()))
+    if len(cols) < 2:
+        raise InputError("views", "a single column and no scene plan: the disparity range is unknown",
+                         "give the dataset a scene plan (near/far) or choose views with neighbours in a row")
+    a, b = (row, cols[0]), (row, cols[min(len(cols) - 1, 4)])
+    path = (lambda v: _processed_path(ds, v)) if source == "processed" else (lambda v: ds.path_of(ds.view(*v)))
+    fa, fb = detect(path(a)), detect(path(b))
+    m = match_pair(fa, fb, "h")
+    xa, xb = m.xy_a, m.xy_b
+    if H is not None:
+        xa, xb = apply_homography(np.asarray(H), xa), apply_homography(np.asarray(H), xb)
+    if len(xa) < 20:
+        raise InputError("views", "too few feature matches to measure the disparity range and no scene plan",
+                         "give the dataset a scene plan (near/far)")
+    dx_mm = (b[1] - a[1]) * spacing_x_mm
+    d = (xa[:, 0] - xb[:, 0]) * spacing_x_mm / dx_mm
+    lo, hi = np.percentile(d, [1, 99])
+    return float(lo), float(hi)
+
+
+def neighbours_of(ds: Dataset, view: View, settings: DepthSettings, captured: set) -> list[tuple[View, float, float]]:
+    """(view, dx, dy) of the neighbours used: up to ``steps_h`` along the row and ``steps_v`` along
+    the column on each side, offsets in horizontal spacings from the views' positions."""
+    r, c = view
+    sx, sy = ds.grid.step_mm
+    out = []
+    for k in range(1, settings.steps_h + 1):
+        for s in (-1, 1):
+            if (r, c + s * k) in captured:
+                out.append((View(r, c + s * k), float(s * k), 0.0))
+    for k in range(1, settings.steps_v + 1):
+        for s in (-1, 1):
+            if (r + s * k, c) in captured:
+                out.append((View(r + s * k, c), 0.0, float(s * k) * float(sy) / float(sx)))
+    return out
+
+
+# -- one view (runs in a worker) ----------------------------------------------------------------------
+def _read(path: str, H, size) -> np.ndarray:
+    import cv2
+
+    from lfstudio.dataset import images
+
+    rgb = images.develop(path)
+    if (rgb.shape[1], rgb.shape[0]) != tuple(size):
+        raise DatasetError(f"{path}: {rgb.shape[1]} x {rgb.shape[0]} px, the other views are {size[0]} x {size[1]} px")
+    if H is not None:
+        rgb = cv2.warpPerspective(rgb, np.asarray(H, float), tuple(size), flags=cv2.INTER_LINEAR,
+                                  borderMode=cv2.BORDER_REPLICATE)
+    return dense.prepare(rgb)
+
+
+def depth_view_task(task: dict[str, Any]) -> dict[str, Any]:
+    """Compute and store one view's maps (``task``: see :func:`estimate_depth`); returns its record."""
+    import cv2
+
+    cv2.setNumThreads(1)
+    t_cpu = time.process_time()
+    ref = _read(task["reference"], task["homography"], task["size"])
+    nbs = [dense.Neighbour(_read(p, task["homography"], task["size"]), dx, dy) for p, dx, dy in task["neighbours"]]
+    res = dense.multi_baseline_disparity(ref, nbs, *task["d_range"], window_px=task["settings"]["window_px"],
+                                         step_px=task["settings"]["step_px"])
+    out = {k: Path(v) for k, v in task["out"].items()}
+    for kind, data in (("disparity", res.disparity_px), ("confidence", res.confidence)):
+        out[kind].parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_with(out[kind], lambda tmp, d=data: write_pfm(tmp, d))
+    finite = np.isfinite(res.disparity_px)
+    record = {"key": task["key"], "view": task["view"], "settings": task["settings"], "source": task["source"],
+              "size_px": list(task["size"]), "d_range_px": list(task["d_range"]), "candidates": res.candidates,
+              "neighbours": task["neighbour_views"],
+              "valid_fraction": float(finite.mean()),
+              "confident_fraction": float((res.confidence > 0.1).mean()),
+              "disparity_px": {"p2": float(np.percentile(res.disparity_px[finite], 2)) if finite.any() else None,
+                               "p98": float(np.percentile(res.disparity_px[finite], 98)) if finite.any() else None},
+              "cpu_s": time.process_time() - t_cpu, "computed_at": now_iso()}
+    out["records"].parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_with(out["records"], lambda tmp: Path(tmp).write_text(json.dumps(record) + "\n", encoding="utf-8"))
+    return record
+
+
+def _key(settings: DepthSettings, geometry: Geometry, paths: Sequence[str]) -> str:
+    h = hashlib.sha256(json.dumps([settings.describe(), geometry.source, geometry.homography,
+                                   list(geometry.d_range_px)], sort_keys=True).encode())
+    for p in paths:
+        st = os.stat(p)
+        h.update(f"{Path(p).name}:{st.st_size}:{st.st_mtime_ns};".encode())
+    return h.hexdigest()[:24]
+
+
+def plan_tasks(ds: Dataset, views: Sequence[View], settings: DepthSettings, source: str = "auto"
+               ) -> tuple[Geometry, list[dict[str, Any]]]:
+    """The geometry and one task per view (nothing computed)."""
+    captured = set(ds.captured_views())
+    nb = {v: neighbours_of(ds, v, settings, captured) for v in views}
+    lonely = [v for v in views if not nb[v]]
+    if lonely:
+        raise InputError("views", f"{view_stem(*lonely[0])} has no captured neighbour in its row or column",
+                         "views of a grid with at least two captured views in a row or a column")
+    needed = sorted(set(views) | {n for v in views for n, _, _ in nb[v]})
+    geo = geometry_of(ds, views, needed, source)
+    path = (lambda v: str(_processed_path(ds, v))) if geo.source == "processed" else \
+        (lambda v: str(ds.path_of(ds.view(*v))))
+    tasks = []
+    for v in views:
+        ref = path(v)
+        nbp = [(path(n), dx, dy) for n, dx, dy in nb[v]]
+        tasks.append({"view": [int(v[0]), int(v[1])], "reference": ref, "neighbours": nbp,
+                      "neighbour_views": [[int(n[0]), int(n[1]), dx, dy] for n, dx, dy in nb[v]],
+                      "homography": geo.homography, "size": list(geo.size_px), "d_range": list(geo.d_range_px),
+                      "settings": settings.describe(), "source": geo.source,
+                      "key": _key(settings, geo, [ref] + [p for p, _, _ in nbp]),
+                      "out": {k: str(map_path(ds.root, k, v)) for k in ("disparity", "confidence", "records")}})
+    return geo, tasks
+
+
+def _up_to_date(task: dict[str, Any]) -> bool:
+    rec = Path(task["out"]["records"])
+    if not (rec.is_file() and all(Path(task["out"][k]).is_file() for k in ("disparity", "confidence"))):
+        return False
+    try:
+        return json.loads(rec.read_text(encoding="utf-8")).get("key") == task["key"]
+    except (OSError, ValueError):
+        return False
+
+
+def estimate_depth(dataset, views: str | Sequence[tuple[int, int]] | None = None, *,
+                   settings: DepthSettings | None = None, source: str = "auto",
+                   executor: cf.Executor | None = None, workers: int = 1, force: bool = False,
+                   progress: Progress = no_progress, cancel: CancelToken | None = None) -> DepthReport:
+    """Compute the chosen views' maps (module docstring); ``executor``: where the views run (a
+    bounded window of ``2 · workers`` tasks at a time), None: here, one after the other. Raises
+    :class:`lfstudio.jobs.Cancelled` (views finished so far are kept: the next run resumes)."""
+    t0 = time.monotonic()
+    cancel = cancel or CancelToken()
+    settings = settings or DepthSettings()
+    ds = Dataset.of(dataset)
+    chosen = ds.select(views)
+    geo, tasks = plan_tasks(ds, chosen, settings, source)
+    report = DepthReport(source=geo.source + (" (rectified)" if geo.rectified else ""), warnings=list(geo.warnings))
+    todo = [t for t in tasks if force or not _up_to_date(t)]
+    report.skipped = len(tasks) - len(todo)
+    total = len(tasks)
+    done = report.skipped
+    progress(done, total, f"depth: {len(todo)} to compute, {report.skipped} up to date")
+    log.info("depth of %s started: %d views to compute, %d up to date (%s)", ds.root, len(todo), report.skipped,
+             report.source)
+
+    def finish(task, record=None, error=None) -> None:
+        nonlocal done
+        done += 1
+        name = view_stem(*task["view"])
+        if error is not None:
+            report.failed[name] = error
+            log.warning("depth of %s failed: %s", name, error)
+        else:
+            report.computed += 1
+            report.cpu_s += float(record.get("cpu_s") or 0.0)
+        progress(done, total, f"depth {name}")
+
+    if executor is None:
+        for task in todo:
+            cancel.check()
+            try:
+                finish(task, depth_view_task(task))
+            except (DatasetError, OSError, ValueError) as exc:
+                finish(task, error=str(exc))
+    else:
+        window = max(2, 2 * int(workers))
+        queue = list(todo)
+        pending: dict[cf.Future, dict] = {}
+        try:
+            while queue or pending:
+                while queue and len(pending) < window and not cancel.cancelled:
+                    task = queue.pop(0)
+                    pending[executor.submit(depth_view_task, task)] = task
+                if cancel.cancelled:
+                    raise Cancelled()
+                finished, _ = cf.wait(list(pending), timeout=0.25, return_when=cf.FIRST_COMPLETED)
+                for fut in finished:
+                    task = pending.pop(fut)
+                    try:
+                        finish(task, fut.result())
+                    except cf.CancelledError:
+                        continue
+                    except Exception as exc:  # noqa: BLE001 - a worker's failure names the view, the run goes on
+                        finish(task, error=f"{type(exc).__name__}: {exc}")
+        finally:
+            for fut in pending:
+                fut.cancel()
+    report.seconds = time.monotonic() - t0
+    log.info("depth of %s finished: %s", ds.root, report.summary())
+    return report

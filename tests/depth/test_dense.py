@@ -1,0 +1,158 @@
+"""Dense disparity from the light field: file formats, the multi-baseline estimate against the
+virtual studio's true disparity (and against OpenCV's single-pair SGBM), the resumable job, the
+exports that carry the maps."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from lfstudio.calibration.model import rectifying_homography
+from lfstudio.dataset import Dataset
+from lfstudio.dataset.atomic import atomic_write_json
+from lfstudio.depth import dense
+from lfstudio.depth.files import depth_png_mm, read_depth_tiff, read_pfm, write_pfm
+from lfstudio.depth.run import estimate_depth, map_path, read_disparity
+from lfstudio.export import ExportOptions, estimate_export, export_dataset
+from lfstudio.jobs import Cancelled, CancelToken
+from lfstudio.sim.virtual_dataset import load_ground_truth, read_truth_map
+
+
+def test_pfm_is_little_endian_bottom_row_first_and_reads_back(tmp_path):
+    img = np.arange(12, dtype=np.float32).reshape(3, 4) + 0.5
+    write_pfm(tmp_path / "d.pfm", img)
+    raw = (tmp_path / "d.pfm").read_bytes()
+    assert raw.startswith(b"Pf\n4 3\n-1.0\n")
+    data = np.frombuffer(raw[len(b"Pf\n4 3\n-1.0\n"):], "<f4")
+    np.testing.assert_array_equal(data[:4], img[-1])          # the bottom row comes first
+    np.testing.assert_array_equal(read_pfm(tmp_path / "d.pfm"), img)
+
+
+def test_depth_png_is_millimetres_with_zero_for_unknown():
+    out = depth_png_mm(np.array([[1.7775, np.nan, 70.0, -1.0]], np.float32))
+    assert out.dtype == np.uint16 and out.tolist() == [[1778, 0, 0, 0]]
+
+
+@pytest.fixture
+def calibrated(make_tiny_dataset):
+    """The tiny 5 x 3 dataset (640 px) with an exact calibration.json (the studio's camera)."""
+    ds = make_tiny_dataset("png", pp_offset_px=(8.0, -5.0))
+    t = load_ground_truth(ds.root)
+    w, h = t["image_size_px"]
+    pp = [(w - 1) / 2 + 8.0, (h - 1) / 2 - 5.0]
+    atomic_write_json(ds.root / "calibration.json", {
+        "format": "lfstudio-calibration", "version": 1, "rotation_deg": list(t["rotation_deg"]),
+        "image_size_px": [w, h], "focal_length_px": t["focal_length_px"], "principal_point_px": pp,
+        "principal_point_estimated": True,
+        "homography": rectifying_homography(t["rotation_deg"], t["focal_length_px"], (w, h), pp).tolist()})
+    return Dataset.open(ds.root)
+
+
+def _inner(a: np.ndarray, m: int = 12) -> np.ndarray:
+    return a[m:-m, m:-m]
+
+
+def test_multi_baseline_beats_single_pair_sgbm_against_the_truth(calibrated):
+    ds = calibrated
+    report = estimate_depth(ds, "r01_c002")
+    assert report.computed == 1 and not report.failed and report.source == "raw (rectified)"
+    disp, conf, record = read_disparity(ds, (1, 2))
+    truth = read_truth_map(ds.root, "disparity_rectified", 1, 2)
+    assert disp.shape == conf.shape == truth.shape
+    ours_bad = (_inner(np.abs(np.nan_to_num(disp, nan=1e9) - truth)) > 0.07).mean()
+    ours_rel = np.median(_inner(np.abs(truth / disp - 1)))
+    # the baseline: OpenCV's SGBM on the widest horizontal pair the sweep used (2 steps right)
+    t = load_ground_truth(ds.root)
+    H = t["H"]
+    w, h = t["image_size_px"]
+
+    def grey(view):
+        img = cv2.cvtColor(cv2.imread(str(ds.path_of(ds.view(*view))), cv2.IMREAD_UNCHANGED), cv2.COLOR_BGR2RGB)
+        return dense.to_uint8(dense.prepare(cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR,
+                                                                borderMode=cv2.BORDER_REPLICATE)))
+
+    sgbm = dense.sgbm_disparity(grey((1, 2)), grey((1, 4)), 2 * float(truth.max())) / 2.0
+    sgbm_bad = (_inner(np.abs(np.nan_to_num(sgbm, nan=1e9) - truth)) > 0.07).mean()
+    with np.errstate(divide="ignore"):
+        sgbm_rel = np.nanmedian(_inner(np.abs(truth / sgbm - 1)))
+    assert ours_rel < 0.01 and ours_bad < 0.25, (ours_rel, ours_bad)
+    assert ours_bad < sgbm_bad and ours_rel < sgbm_rel, (ours_bad, sgbm_bad, ours_rel, sgbm_rel)
+    # confidence ranks the pixels: the confident ones are right more often
+    err = np.abs(np.nan_to_num(disp, nan=1e9) - truth)
+    sure = conf > np.percentile(conf, 50)
+    assert (err[sure] > 0.07).mean() < (err[~sure] > 0.07).mean()
+    assert record["neighbours"] and record["source"] == "raw"
+
+
+def test_the_job_resumes_after_cancel_and_recomputes_what_changed(calibrated):
+    ds = calibrated
+    token = CancelToken()
+    seen = []
+
+    def progress(done, total, message=""):
+        seen.append(message)
+        if done >= 1 and message.startswith("depth r"):
+            token.cancel()
+
+    with pytest.raises(Cancelled):
+        estimate_depth(ds, "r1,c1-3", progress=progress, cancel=token)
+    done = [v for v in ((1, 1), (1, 2), (1, 3)) if map_path(ds.root, "records", v).is_file()]
+    assert len(done) == 1                                          # the first view is kept
+    report = estimate_depth(ds, "r1,c1-3")
+    assert (report.computed, report.skipped) == (2, 1)
+    assert estimate_depth(ds, "r1,c1-3").computed == 0
+    # a source file that changed makes the views that use it stale (r01_c004 is a neighbour of all three)
+    import os
+
+    path = ds.path_of(ds.view(1, 4))
+    st = os.stat(path)
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 5_000_000_000))
+    assert estimate_depth(ds, "r1,c1-3").computed == 3
+
+
+def test_nerfstudio_and_hci_exports_carry_the_maps(calibrated, tmp_path):
+    ds = calibrated
+    est = estimate_export(ds, ExportOptions("nerfstudio", tmp_path / "n", views="r1,c1-3", depth=True))
+    plain = estimate_export(ds, ExportOptions("nerfstudio", tmp_path / "n", views="r1,c1-3"))
+    assert est.bytes_estimate > plain.bytes_estimate + 3 * 640 * 426 * 4
+    assert any("no depth map yet" in w for w in est.warnings)
+    export_dataset(ds, ExportOptions("nerfstudio", tmp_path / "n", views="r1,c1-3", depth=True, points=False))
+    doc = json.loads((tmp_path / "n" / "transforms.json").read_text())
+    frame = next(f for f in doc["frames"] if f["lfstudio_view"] == [1, 2])
+    mm = cv2.imread(str(tmp_path / "n" / frame["depth_file_path"]), cv2.IMREAD_UNCHANGED)
+    assert mm.dtype == np.uint16 and mm.shape == (426, 640)
+    metres = read_depth_tiff(tmp_path / "n" / "depth" / "r01_c002.tif")
+    np.testing.assert_allclose(mm[mm > 0] / 1000.0, metres[mm > 0], atol=0.0006)
+    # raw views exported: the captured camera's frame; its z differs from the rig's z by the rays' tilt
+    t = load_ground_truth(ds.root)
+    u, v = np.meshgrid(np.arange(640.0), np.arange(426.0))
+    tilt = (np.stack([u, v, np.ones_like(u)], -1) @ (t["R"].T @ np.linalg.inv(t["K_true"])).T)[..., 2]
+    truth = read_truth_map(ds.root, "depth", 1, 2)
+    rel = _inner(np.abs(metres * tilt - truth) / truth)
+    known = np.isfinite(rel)                # the rectified map does not reach the captured view's every corner
+    assert known.mean() > 0.9 and np.median(rel[known]) < 0.01 and (rel[known] < 0.02).mean() > 0.8, \
+        (known.mean(), np.median(rel[known]), (rel[known] < 0.02).mean())
+    export_dataset(ds, ExportOptions("hci", tmp_path / "h", views="r1,c1-3", depth=True))
+    names = sorted(p.name for p in (tmp_path / "h").glob("estimated_disp_*.pfm"))
+    assert names == [f"estimated_disp_{k}Cam00{i}.pfm" for k in ("", "confidence_") for i in range(3)]
+    assert read_pfm(tmp_path / "h" / "estimated_disp_Cam001.pfm").shape == (426, 640)
+
+
+def test_depth_is_refused_for_formats_without_maps(calibrated, tmp_path):
+    from lfstudio.errors import InputError
+
+    with pytest.raises(InputError, match="depth"):
+        estimate_export(calibrated, ExportOptions("png", tmp_path / "p", depth=True))
+
+
+def test_cli_depth_command(calibrated, run_cli):
+    proc = run_cli("depth", calibrated.root, "--views", "r01_c002", "--workers", "0", "--steps", "2,1")
+    assert proc.returncode == 0, proc.stderr
+    assert "1 view computed" in proc.stdout
+    rec = json.loads(map_path(calibrated.root, "records", (1, 2)).read_text())
+    assert rec["settings"]["steps_h"] == 2 and len(rec["neighbours"]) == 6
+    proc = run_cli("depth", calibrated.root, "--views", "r01_c002", "--workers", "0", "--steps", "2,1")
+    assert "0 views computed, 1 up to date" in proc.stdout
