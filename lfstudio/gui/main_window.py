@@ -152,6 +152,8 @@ class MainWindow(QMainWindow):
                 install(self)
         from lfstudio.gui.dialogs import import_dialog
         import_dialog.install_menus(self)
+        from lfstudio.gui.views import depth as depth_view
+        depth_view.install_menus(self)
         self._install_base_menus()
         self._quit_box: QMessageBox | None = None
         self._quit_after_scan = False

@@ -14,7 +14,7 @@ from typing import Any
 
 from PySide6.QtCore import Qt, QTimer, QUrl, Signal
 from PySide6.QtGui import QDesktopServices
-from PySide6.QtWidgets import (QComboBox, QDialog, QFileDialog, QFormLayout, QFrame, QGroupBox, QHBoxLayout,
+from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QFileDialog, QFormLayout, QFrame, QGroupBox, QHBoxLayout,
                                QLabel, QLineEdit, QMessageBox, QPushButton, QScrollArea, QSizePolicy, QSpinBox,
                                QStackedWidget, QVBoxLayout, QWidget)
 
@@ -220,9 +220,16 @@ class ExportDialog(QDialog):
         self.hci_authors.setPlaceholderText("written to parameters.cfg")
         self.hci_authors.setToolTip("The [meta] authors of parameters.cfg (empty: the dataset's, if any)")
         cl.addWidget(self.hci_authors, 1)
+        self.hci_depth_check = QCheckBox("Disparity maps")
+        self.hci_depth_check.setObjectName("hciDepthCheck")
+        self.hci_depth_check.setToolTip("Each view's estimated disparity (estimated_disp_CamNNN.pfm, px between "
+                                        "neighbours) and its confidence; views without a depth map are computed "
+                                        "first (Dataset → Depth map of a view…, 'lfstudio depth')")
+        cl.addWidget(self.hci_depth_check)
         self.options_stack.addWidget(hci)
 
         self.image_depth_combos: list[QComboBox] = []
+        self.points_checks: dict[str, QCheckBox] = {}
         for fmt in ("colmap", "nerfstudio"):
             page = QWidget()
             pl = QHBoxLayout(page)
@@ -235,6 +242,20 @@ class ExportDialog(QDialog):
             self.image_depth_combos.append(combo)
             pl.addWidget(QLabel("Images"))
             pl.addWidget(combo)
+            points = QCheckBox("Sparse points")
+            points.setObjectName(f"{fmt}PointsCheck")
+            points.setChecked(True)
+            points.setToolTip("A coloured sparse point cloud triangulated from the views with the rig's known poses "
+                              + ("(points3D.txt, points3D.ply)" if fmt == "colmap" else "(sparse_pc.ply, ply_file_path)"))
+            self.points_checks[fmt] = points
+            pl.addSpacing(16)
+            pl.addWidget(points)
+            if fmt == "nerfstudio":
+                self.ns_depth_check = QCheckBox("Depth maps")
+                self.ns_depth_check.setObjectName("nerfstudioDepthCheck")
+                self.ns_depth_check.setToolTip("depth_file_path per frame (16-bit PNG in mm, float TIFF in m, "
+                                               "confidence); views without a depth map are computed first")
+                pl.addWidget(self.ns_depth_check)
             if fmt == "nerfstudio":
                 pl.addSpacing(16)
                 pl.addWidget(QLabel("Hold out"))
@@ -256,6 +277,8 @@ class ExportDialog(QDialog):
         for w in (self.source_combo, self.bit_depth_combo, self.holdout_combo):
             w.currentIndexChanged.connect(self._options_changed)
         self.hci_authors.textChanged.connect(self._options_changed)
+        for check in (self.hci_depth_check, self.ns_depth_check, *self.points_checks.values()):
+            check.toggled.connect(self._options_changed)
         for w in (self.crf_spin, self.hci_columns, self.hci_rows, self.hci_center_row, self.hci_center_column):
             w.valueChanged.connect(self._options_changed)
         return box
@@ -410,6 +433,10 @@ class ExportDialog(QDialog):
             kwargs.update(image_bit_depth=int(self.image_depth_combos[0].currentData()))
         if fmt == "nerfstudio":
             kwargs.update(holdout=str(self.holdout_combo.currentData()))
+        if fmt in self.points_checks:
+            kwargs.update(points=self.points_checks[fmt].isChecked())
+        if fmt in ("nerfstudio", "hci"):
+            kwargs.update(depth=(self.ns_depth_check if fmt == "nerfstudio" else self.hci_depth_check).isChecked())
         return ExportOptions(format=fmt, out=self.out_path(), views=views,
                              source=str(self.source_combo.currentData()), overwrite=overwrite, **kwargs)
 

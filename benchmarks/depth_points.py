@@ -1,0 +1,237 @@
+"""Depth and points against the virtual studio's ground truth: the sparse point cloud of the COLMAP
+export and the dense disparity maps of ``lfstudio depth`` (ours vs OpenCV's single-pair SGBM),
+CPU time per view at 2000 px, and dense depth on a Dask cluster of one and two local workers.
+
+    ./.venv/bin/python benchmarks/depth_points.py [--grids 9x3,21x5] [--width 1000] [--keep DIR]
+        [--dense-views 3] [--cluster-views 16] [--skip-cluster] [--skip-2000]
+
+Each grid is rendered (16-bit PNG, orientation error (1, -1.5, 0.7) deg, principal point offset
+(8, -5) px, the reference rig's position noise 80 x 50 µm), **self-calibrated** (``calibrate_dataset``,
+defaults: nothing from the ground truth) and exported as COLMAP (8-bit sRGB views, the sparse
+cloud). Points: count, reprojection error of every observation (mean, p95; targets ≤ 0.5 / 1.0 px),
+share whose depth is within 2 % of the true depth where it is observed (target ≥ 90 %). Dense: for
+``--dense-views`` views of the centre row, our map and SGBM's on the widest horizontal pair the sweep
+uses (the same images rectified with the same calibration), each against the true rectified
+disparity: median relative depth error and BadPix(0.07) (share of pixels more than 0.07 px off;
+SGBM's holes count as bad; also over SGBM's own valid pixels), 12 px border left out.
+2000 px: the CPU seconds of one view (its worker's own CPU). Cluster: ``--cluster-views`` views of the
+largest grid on a ``distributed.LocalCluster`` of 1 then 2 single-threaded worker processes (wall
+time, views per minute, scaling) and the 2121-view wall time extrapolated from it (said so).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import numpy as np  # noqa: E402
+
+from benchmarks._measure import Timer, load_text  # noqa: E402
+
+
+def render(root: Path, cols: int, rows: int, width: int, only=None, noise=(80.0, 50.0)):
+    from lfstudio.sim.virtual_dataset import make_virtual_dataset
+
+    if (root / "dataset.json").is_file():
+        from lfstudio.dataset import Dataset
+
+        return Dataset.open(root)
+    return make_virtual_dataset(root, cols, rows, width_px=width, fmt="png", rotation_deg=(1.0, -1.5, 0.7),
+                                pp_offset_px=(8.0, -5.0), position_noise_um=noise, workers=2, only_views=only)
+
+
+def calibrate(ds):
+    from lfstudio.calibration.calibrate import calibrate_dataset
+    from lfstudio.calibration.model import save_calibration
+
+    if not (ds.root / "calibration.json").is_file():
+        run = calibrate_dataset(ds)
+        save_calibration(ds, run.document)
+    from lfstudio.calibration.model import load_calibration
+
+    return load_calibration(ds)
+
+
+def points_figures(ds, out: Path) -> dict:
+    import pycolmap
+
+    from lfstudio.export import ExportOptions, export_dataset
+    from lfstudio.sim.virtual_dataset import read_truth_map
+
+    with Timer() as span:
+        export_dataset(ds, ExportOptions("colmap", out, overwrite=True))
+    rec = pycolmap.Reconstruction(out / "sparse" / "0")
+    by_id = {im.image_id: im for im in rec.images.values()}
+    truth_cache: dict = {}
+    errors, rel = [], []
+    for p in rec.points3D.values():
+        rels = []
+        for el in p.track.elements:
+            im = by_id[el.image_id]
+            xy = np.asarray(im.points2D[el.point2D_idx].xy)
+            proj = np.asarray(im.camera.img_from_cam(im.cam_from_world() * p.xyz))
+            errors.append(float(np.hypot(*(proj - xy))))
+            r, c = int(im.name[1:3]), int(im.name[5:8])
+            if (r, c) not in truth_cache:
+                truth_cache[(r, c)] = read_truth_map(ds.root, "depth", r, c)
+            t = truth_cache[(r, c)]
+            u, v = np.clip(np.rint(xy - 0.5).astype(int), 0, [t.shape[1] - 1, t.shape[0] - 1])
+            rels.append(abs(p.xyz[2] - t[v, u]) / t[v, u])
+        rel.append(float(np.median(rels)))        # the true depth where most of its observations lie
+    errors, rel = np.array(errors), np.array(rel)
+    return {"points": rec.num_points3D(), "err_mean": errors.mean() if len(errors) else float("nan"),
+            "err_p95": np.percentile(errors, 95) if len(errors) else float("nan"),
+            "within_2pct": (rel < 0.02).mean() if len(rel) else float("nan"),
+            "track": np.mean([p.track.length() for p in rec.points3D.values()]) if len(rel) else 0,
+            "export_wall_s": span.wall_s, "export_cpu_s": span.cpu_s}
+
+
+def dense_figures(ds, views) -> dict:
+    import cv2
+
+    from lfstudio.calibration.model import load_calibration
+    from lfstudio.depth import dense
+    from lfstudio.depth.run import estimate_depth, read_disparity
+    from lfstudio.sim.virtual_dataset import read_truth_map
+
+    cal = load_calibration(ds)
+    H = np.asarray(cal["homography"], float)
+    out = {"ours_rel": [], "ours_bad": [], "sgbm_rel": [], "sgbm_bad": [], "sgbm_bad_valid": [], "ours_bad_valid": [],
+           "sgbm_density": [], "cpu_s": []}
+    m = 12
+    for view in views:
+        estimate_depth(ds, [view], force=True)
+        disp, conf, record = read_disparity(ds, view)
+        truth = read_truth_map(ds.root, "disparity_rectified", *view)[m:-m, m:-m]
+        ours = disp[m:-m, m:-m]
+        out["cpu_s"].append(record["cpu_s"])
+        k = max(abs(int(n[1]) - view[1]) for n in record["neighbours"] if n[0] == view[0])
+        right = (view[0], view[1] + k) if view[1] + k < ds.grid.columns else None
+        w, h = record["size_px"]
+
+        def grey(v):
+            img = cv2.cvtColor(cv2.imread(str(ds.path_of(ds.view(*v))), cv2.IMREAD_UNCHANGED), cv2.COLOR_BGR2RGB)
+            return dense.to_uint8(dense.prepare(cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR,
+                                                                    borderMode=cv2.BORDER_REPLICATE)))
+        dmax = record["d_range_px"][1] * k
+        if right is not None:
+            s = dense.sgbm_disparity(grey(view), grey(right), dmax) / k
+        else:
+            s = dense.sgbm_disparity(grey(view)[:, ::-1], grey((view[0], view[1] - k))[:, ::-1], dmax)[:, ::-1] / k
+        s = s[m:-m, m:-m]
+        valid = np.isfinite(s)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for name, d in (("ours", ours), ("sgbm", s)):
+                err = np.abs(np.nan_to_num(d, nan=1e9) - truth)
+                out[f"{name}_bad"].append(float((err > 0.07).mean()))
+                out[f"{name}_bad_valid"].append(float((err[valid] > 0.07).mean()))
+                rel = np.abs(truth / d - 1.0)
+                out[f"{name}_rel"].append(float(np.median(np.where(np.isfinite(rel), rel, np.inf))))
+        out["sgbm_density"].append(float(valid.mean()))
+    return {k: float(np.mean(v)) for k, v in out.items()}
+
+
+def cpu_at_2000(tmp: Path) -> float:
+    from lfstudio.depth.run import estimate_depth, read_disparity
+
+    only = [(1, c) for c in range(9)] + [(0, 4), (2, 4)]
+    ds = render(tmp / "w2000", 9, 3, 2000, only=only, noise=(0.0, 0.0))
+    calibrate_exact(ds)
+    estimate_depth(ds, [(1, 4)], force=True)
+    return float(read_disparity(ds, (1, 4))[2]["cpu_s"])
+
+
+def calibrate_exact(ds):
+    """Timing only (2000 px): the true camera as calibration.json, no self-calibration run."""
+    from lfstudio.calibration.model import rectifying_homography
+    from lfstudio.dataset.atomic import atomic_write_json
+    from lfstudio.sim.virtual_dataset import load_ground_truth
+
+    t = load_ground_truth(ds.root)
+    w, h = t["image_size_px"]
+    pp = [(w - 1) / 2 + t["pp_offset_px"][0], (h - 1) / 2 + t["pp_offset_px"][1]]
+    atomic_write_json(ds.root / "calibration.json", {
+        "format": "lfstudio-calibration", "version": 1, "rotation_deg": list(t["rotation_deg"]),
+        "image_size_px": [w, h], "focal_length_px": t["focal_length_px"], "principal_point_px": pp,
+        "principal_point_estimated": True,
+        "homography": rectifying_homography(t["rotation_deg"], t["focal_length_px"], (w, h), pp).tolist()})
+
+
+def cluster_figures(ds, n_views: int) -> dict:
+    from distributed import Client, LocalCluster
+
+    from lfstudio.depth.run import estimate_depth
+
+    views = [v for v in ds.captured_views()][:n_views]
+    out = {}
+    for workers in (1, 2):
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+                Client(cluster) as client:
+            client.run(lambda: __import__("lfstudio.depth.run"))          # workers import before the clock
+            with Timer() as span:
+                report = estimate_depth(ds, views, executor=client.get_executor(pure=False), workers=workers,
+                                        force=True)
+            out[workers] = {"wall_s": span.wall_s, "views": report.computed, "cpu_per_view": report.cpu_s / max(1, report.computed),
+                            "load": span.load_1min}
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--grids", default="9x3,21x5")
+    ap.add_argument("--width", type=int, default=1000)
+    ap.add_argument("--keep", type=Path, help="render into (and reuse) this folder")
+    ap.add_argument("--dense-views", type=int, default=3)
+    ap.add_argument("--cluster-views", type=int, default=16)
+    ap.add_argument("--skip-cluster", action="store_true")
+    ap.add_argument("--skip-2000", action="store_true")
+    args = ap.parse_args()
+    tmp = args.keep or Path(tempfile.mkdtemp(prefix="depth_points_"))
+    tmp.mkdir(parents=True, exist_ok=True)
+    print(load_text())
+    rows_out = []
+    last = None
+    for text in args.grids.split(","):
+        cols, rows = (int(v) for v in text.lower().split("x"))
+        with Timer() as span:
+            ds = render(tmp / f"g{cols}x{rows}_{args.width}", cols, rows, args.width)
+        print(f"{cols} x {rows} at {args.width} px rendered in {span.wall_s:.0f} s")
+        cal = calibrate(ds)
+        print(f"  self-calibration: rotation {np.round(cal['rotation_deg'], 3).tolist()} deg (true [1, -1.5, 0.7])")
+        p = points_figures(ds, tmp / f"colmap_{cols}x{rows}")
+        print(f"  points: {p['points']}, reprojection error mean {p['err_mean']:.3f} px, p95 {p['err_p95']:.3f} px "
+              f"(targets <= 0.5 / 1.0), within 2 % of the true depth {p['within_2pct']:.1%} (target >= 90 %), "
+              f"mean track {p['track']:.1f} views; export {p['export_wall_s']:.0f} s wall, {p['export_cpu_s']:.0f} s CPU")
+        mid_row = (rows - 1) // 2
+        cs = np.linspace(0, cols - 1, args.dense_views + 2)[1:-1].round().astype(int)
+        d = dense_figures(ds, [(mid_row, int(c)) for c in cs])
+        print(f"  dense ({args.dense_views} views of row {mid_row}): ours median rel depth error {d['ours_rel']:.2%}, "
+              f"BadPix(0.07) {d['ours_bad']:.1%}; SGBM {d['sgbm_rel']:.2%}, {d['sgbm_bad']:.1%} (its valid pixels "
+              f"{d['sgbm_density']:.0%}: SGBM {d['sgbm_bad_valid']:.1%}, ours {d['ours_bad_valid']:.1%}); "
+              f"ours {d['cpu_s']:.1f} CPU s per view at {args.width} px")
+        rows_out.append((text, p, d))
+        last = ds
+    if not args.skip_2000:
+        print(f"2000 px: {cpu_at_2000(tmp):.1f} CPU s per view (one view, 10 neighbours)")
+    if not args.skip_cluster and last is not None:
+        c = cluster_figures(last, args.cluster_views)
+        one, two = c[1], c[2]
+        scaling = one["wall_s"] / two["wall_s"]
+        print(f"Dask LocalCluster, {args.cluster_views} views at {args.width} px: 1 worker {one['wall_s']:.0f} s, "
+              f"2 workers {two['wall_s']:.0f} s: scaling {scaling:.2f}x (load {one['load']:.1f} / {two['load']:.1f}); "
+              f"{one['cpu_per_view']:.1f} / {two['cpu_per_view']:.1f} CPU s per view")
+        per_view = two["wall_s"] / max(1, two["views"])
+        print(f"2121 views on 2 workers, extrapolated from {two['views']} views: {per_view * 2121 / 60:.0f} min at "
+              f"{args.width} px (not measured: {per_view * 2121 / 3600:.1f} h of a shared two-core machine)")
+    print(load_text())
+    print(f"data in {tmp}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

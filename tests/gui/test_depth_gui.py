@@ -1,0 +1,89 @@
+"""Dataset → Depth map of a view… and the export dialog's points/depth options, on a real dataset
+with a real Qt event loop (offscreen)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from lfstudio.calibration.model import rectifying_homography
+from lfstudio.dataset.atomic import atomic_write_json
+from lfstudio.depth.run import has_disparity
+from lfstudio.gui.app import create_window
+from lfstudio.gui.dialogs.export_dialog import FORMAT_KEYS, ExportDialog
+from lfstudio.gui.views.depth import DepthDialog
+from lfstudio.sim.virtual_dataset import load_ground_truth
+
+
+def _calibrate_exactly(ds):
+    t = load_ground_truth(ds.root)
+    w, h = t["image_size_px"]
+    pp = [(w - 1) / 2, (h - 1) / 2]
+    atomic_write_json(ds.root / "calibration.json", {
+        "format": "lfstudio-calibration", "version": 1, "rotation_deg": list(t["rotation_deg"]),
+        "image_size_px": [w, h], "focal_length_px": t["focal_length_px"], "principal_point_px": pp,
+        "principal_point_estimated": False,
+        "homography": rectifying_homography(t["rotation_deg"], t["focal_length_px"], (w, h), pp).tolist()})
+
+
+def _action(window, name):
+    return next(a for a in window.menu("Dataset").actions() if a.objectName() == name)
+
+
+def test_depth_view_computes_and_shows_a_view_with_its_colour_bar(qtbot, tiny_dataset):
+    _calibrate_exactly(tiny_dataset)
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    action = _action(window, "actionDepthMap")
+    assert not action.isEnabled()
+    window.state.set_dataset(tiny_dataset)
+    assert action.isEnabled()
+    action.trigger()
+    dialog = window.findChild(DepthDialog, "depthDialog")
+    assert dialog is not None and dialog.isVisible()
+    assert dialog.view_edit.text() == "r01_c002" and "no depth map yet" in dialog.caption.text()
+    dialog.view_edit.setText("r09_c000")
+    dialog.show_button.click()
+    assert "not a captured view" in dialog.caption.text()
+    dialog.view_edit.setText("r01_c002")
+    with qtbot.waitSignal(dialog.runner.finished, timeout=120000):
+        dialog.compute_button.click()
+    assert has_disparity(tiny_dataset, (1, 2))
+    qtbot.waitUntil(lambda: dialog.pictures_shown == 1, timeout=30000)
+    pixmap = dialog.image.pixmap()
+    assert not pixmap.isNull() and pixmap.width() == 640 and pixmap.height() > 426    # the view + its colour bar
+    text = dialog.caption.text()
+    assert " px" in text and " m" in text and "depth 1." in text, text
+    dialog.resize(900, 700)
+    dialog.grab().save("/tmp/depth-dialog.png")
+    dialog.hide_check.setChecked(True)
+    qtbot.waitUntil(lambda: dialog.pictures_shown == 2, timeout=30000)
+    dialog.close()
+
+
+def test_export_dialog_offers_points_and_depth_with_the_size_estimate(qtbot, tiny_dataset, tmp_path):
+    _calibrate_exactly(tiny_dataset)
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    window.state.set_dataset(tiny_dataset)
+    next(a for a in window.menu("File").actions() if a.text().replace("&", "") == "Export dataset…").trigger()
+    dialog = window.findChild(ExportDialog, "exportDialog")
+    dialog.format_combo.setCurrentIndex(FORMAT_KEYS.index("nerfstudio"))
+    qtbot.waitUntil(lambda: dialog.estimate is not None, timeout=20000)
+    plain = dialog.estimate.bytes_estimate
+    assert dialog.points_checks["nerfstudio"].isChecked() and not dialog.ns_depth_check.isChecked()
+    dialog.ns_depth_check.setChecked(True)
+    assert dialog.options().depth is True
+    qtbot.waitUntil(lambda: dialog.estimate is not None and dialog.estimate.bytes_estimate > plain, timeout=20000)
+    assert "no depth map yet" in dialog.warnings_label.text()
+    dialog.resize(900, 780)
+    dialog.grab().save("/tmp/export-depth-dialog.png")
+    dialog.points_checks["nerfstudio"].setChecked(False)
+    assert dialog.options().points is False
+    dialog.format_combo.setCurrentIndex(FORMAT_KEYS.index("hci"))
+    assert dialog.options().depth is False and dialog.hci_depth_check.isVisibleTo(dialog)
+    dialog.hci_depth_check.setChecked(True)
+    assert dialog.options().depth is True
+    dialog.format_combo.setCurrentIndex(FORMAT_KEYS.index("colmap"))
+    assert dialog.options().depth is False and dialog.options().points is True
