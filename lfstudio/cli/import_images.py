@@ -13,7 +13,8 @@ HELP = "import another rig's images (PNG, TIFF, JPEG, camera RAW) as a dataset t
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("folder", metavar="FOLDER", type=path_option("FOLDER"), help="folder holding the other rig's images, one per view")
-    p.add_argument("--grid", required=True, metavar="CxR", help="columns x rows of the capture grid, e.g. 9x5")
+    p.add_argument("--grid", metavar="CxR", help="columns x rows of the capture grid, e.g. 9x5 (an HCI benchmark "
+                                                "folder's parameters.cfg gives it)")
     p.add_argument("--spacing-mm", type=numbers_option("--spacing-mm", SPACING_MM, 2, "4x6"), metavar="HxV",
                    help="distance between neighbouring views in mm, horizontal x vertical, e.g. 4x6 (needed unless "
                         "--positions records them)")
@@ -52,11 +53,12 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.dataset import Dataset
     from lfstudio.export.import_images import ImportOptions, import_images
     from lfstudio.jobs import TerminalProgress
+    from lfstudio.export.import_images import import_summary
     from lfstudio.quality.shear import measure_shear
 
     # read after the other options: a grid's size is checked before anything is allocated per view
-    cols, rows = parse_grid("--grid", args.grid, "9x5")
-    options = ImportOptions(folder=Path(args.folder), out=Path(args.out), grid=(cols, rows),
+    grid = parse_grid("--grid", args.grid, "9x5") if args.grid is not None else None
+    options = ImportOptions(folder=Path(args.folder), out=Path(args.out), grid=grid,
                             spacing_mm=args.spacing_mm,
                             order=args.order, pattern=args.pattern, focal_length_mm=args.focal_length_mm,
                             pixel_pitch_um=args.pixel_pitch_um, focal_length_px=args.focal_length_px,
@@ -67,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     ds = Dataset.open(root)
     record = ds.manifest.get("import", {})
     w, h = ds.camera["sensor_px"]
-    print(f"{root}: {len(ds.views)} views ({cols}x{rows}, {args.order}), {w}x{h} px, "
+    print(f"{root}: {len(ds.views)} views ({ds.grid.columns}x{ds.grid.rows}, {args.order}), {w}x{h} px, "
           f"{record.get('linked', 0)} hard-linked, {len(ds.views) - record.get('linked', 0)} copied; "
           + ("focal length not known" if record.get("intrinsics", "none") == "none"
              else f"focal length from {record['intrinsics']}"))
@@ -77,21 +79,3 @@ def run(args: argparse.Namespace) -> int:
     print(f"next: lfstudio calibrate {root}")
     return 0
 
-
-def import_summary(ds) -> str:
-    """The zero-disparity plane and the recorded positions of an imported dataset, for the summary."""
-    from lfstudio.dataset.zero_plane import zero_plane
-
-    zp = zero_plane(ds)
-    lines = [f"zero disparity: {zp.describe()}"]
-    m = zp.measured
-    if m.get("step_disparity_px"):
-        lo, hi = m["step_disparity_px"]
-        lines.append(f"disparity     : {lo:+.2f} … {hi:+.2f} px between horizontal neighbours (measured on "
-                     f"{m.get('views')} views, {m.get('tracks')} tracks)")
-    if m.get("rows_reversed"):
-        lines.append("rows          : reversed (the files number the rows from the bottom)")
-    pos = (ds.manifest.get("import") or {}).get("positions")
-    if pos:
-        lines.append(f"positions     : recorded, from {pos.get('source')} (x = {pos.get('x')}, y = {pos.get('y')})")
-    return "\n".join(lines)

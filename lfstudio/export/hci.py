@@ -163,6 +163,12 @@ def disparity_range(ds: Dataset, views: Sequence[common.View], source: str, size
         return DisparityRange(k / p["far_m"] - shear, k / p["near_m"] - shear, "plan",
                               f"the plan's far {p['far_m']:g} m and near {p['near_m']:g} m")
     zp = zero_plane(ds)
+    declared = (ds.manifest.get("zero_disparity") or {}).get("declared_step_disparity_px")
+    if isinstance(declared, list) and len(declared) == 2 and zp.width_px and source == "raw":
+        # an imported HCI folder's own disp_min/disp_max (parameters.cfg), at the exported size
+        scale = float(size[0]) / float(zp.width_px)
+        return DisparityRange(float(declared[0]) * scale, float(declared[1]) * scale, "parameters.cfg",
+                              "disp_min/disp_max of the imported HCI folder")
     step = zp.measured.get("step_disparity_px")
     if isinstance(step, list) and len(step) == 2 and zp.width_px and source == "raw":
         # measured at import from the tracks of the views as they are (signed, sheared or not)

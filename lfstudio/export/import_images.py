@@ -23,6 +23,7 @@ calibrates, processes and exports like one captured here:
 
 from __future__ import annotations
 
+import dataclasses
 import fnmatch
 import hashlib
 import io
@@ -60,8 +61,8 @@ SUPPORTED_TEXT = "PNG, TIFF, JPEG or camera RAW (any format LibRaw reads)"
 class ImportOptions:
     folder: Path
     out: Path
-    grid: tuple[int, int]                   # (columns, rows)
-    spacing_mm: tuple[float, float]         # (horizontal, vertical)
+    grid: tuple[int, int] | None            # (columns, rows); None: from an HCI folder's parameters.cfg
+    spacing_mm: tuple[float, float] | None  # (horizontal, vertical); None: from --positions or parameters.cfg
     order: str = "row-major"                # "row-major" | "meander"
     pattern: str | None = None              # glob; None = every supported image in the folder
     focal_length_mm: float | None = None
@@ -94,6 +95,7 @@ class ImportPlan:
     spacing_mm: tuple[float, float] = (0.0, 0.0)
     raw_positions: list[tuple[float, float]] | None = None
     zero_plane: dict[str, Any] | None = None
+    hci: "HciFolder | None" = None
 
 
 # -- listing ------------------------------------------------------------------------------------------
@@ -360,6 +362,11 @@ def _positive(value: float | None, name: str) -> float | None:
 
 def check_options(options: ImportOptions) -> None:
     """Raise :class:`InputError` for an option that cannot work (nothing is read or written)."""
+    if options.grid is None:
+        if read_hci_folder(options.folder) is None:
+            raise InputError("--grid", f"is needed (columns x rows): {options.folder} is not an HCI folder "
+                             f"(no {HCI_PARAMETERS})", "e.g. 9x5")
+        options = apply_hci_folder(options)[0]
     try:
         cols, rows = (int(v) for v in options.grid)
     except (TypeError, ValueError):
@@ -418,6 +425,7 @@ def check_options(options: ImportOptions) -> None:
 def plan_import(options: ImportOptions, *, progress: Progress = no_progress,
                 cancel: CancelToken | None = None) -> ImportPlan:
     """List and check the files (count, readable, one size) and resolve the intrinsics; writes nothing."""
+    options, hci = apply_hci_folder(options)
     check_options(options)
     folder = Path(options.folder)
     cols, rows = (int(v) for v in options.grid)
@@ -457,9 +465,16 @@ def plan_import(options: ImportOptions, *, progress: Progress = no_progress,
     elif options.positions:
         raw_positions = positions_from_csv(files, folder, Path(options.positions))
         positions_record = {"source": str(Path(options.positions).absolute())}
+    if hci is not None:
+        if tuple(size) != hci.image_size_px:
+            raise InputError("folder", f"{hci.path} says {hci.image_size_px[0]}x{hci.image_size_px[1]} px but "
+                             f"{first.name} is {size[0]}x{size[1]} px; the views and parameters.cfg do not belong "
+                             "together")
+        source = f"{hci.path.name} (focal_length_mm / sensor_size_mm · max(w, h))"
+        lens["focal_length_mm"] = hci.focal_length_mm
     plan = ImportPlan(files=files, cells=cells, image_size_px=size, camera=camera, lens=lens, intrinsics=source,
                       warnings=warnings, bytes_total=total_bytes, positions_record=positions_record,
-                      raw_positions=raw_positions)
+                      raw_positions=raw_positions, hci=hci)
     _place(plan, options, (cols, rows))
     if options.zero_disparity_depth_m is not None and plan_focal_px(plan) is None:
         raise InputError("--zero-disparity-depth-m", "needs the focal length in pixels to turn the depth into "
@@ -558,6 +573,112 @@ def _intrinsics(options: ImportOptions, first: Path, size: tuple[int, int]):
     return camera, lens, source, warnings
 
 
+# -- HCI benchmark folders ----------------------------------------------------------------------------
+HCI_PARAMETERS = "parameters.cfg"
+HCI_PATTERN = "input_Cam*.png"
+#: focus_distance_m at or beyond this is a parallel light field (lfstudio writes 1e9 m for its own)
+HCI_PARALLEL_FROM_M = 1e6
+
+
+@dataclass
+class HciFolder:
+    """What an HCI benchmark folder's ``parameters.cfg`` says (Honauer et al. 2016; the toolkit's
+    ``file_io.read_parameters``)."""
+
+    path: Path
+    grid: tuple[int, int]                  # (num_cams_x, num_cams_y)
+    spacing_mm: tuple[float, float]        # (baseline_mm, baseline_y_mm or baseline_mm)
+    image_size_px: tuple[int, int]
+    focal_length_px: float
+    focal_length_mm: float
+    focus_distance_m: float | None         # None: parallel (focus_distance_m at infinity)
+    disparity_px: tuple[float, float] | None   # (disp_min, disp_max)
+    files: list[str]
+
+
+def read_hci_folder(folder: Path) -> HciFolder | None:
+    """The HCI folder ``folder`` (None when it has no parameters.cfg); raises :class:`InputError`
+    naming parameters.cfg and the field when it cannot be used, or the first missing view."""
+    import configparser
+
+    path = Path(folder) / HCI_PARAMETERS
+    if not path.is_file():
+        return None
+    cfg = configparser.ConfigParser()
+    try:
+        cfg.read_string(path.read_text(encoding="utf-8", errors="replace"))
+    except configparser.Error as exc:
+        raise InputError("folder", f"{path}: cannot be read as INI ({str(exc).splitlines()[0]}); fix or remove it") from None
+
+    def number(section: str, key: str, default: float | None = None, positive: bool = True) -> float:
+        raw = cfg.get(section, key, fallback=None)
+        if raw is None:
+            if default is not None:
+                return default
+            raise InputError("folder", f"{path}: [{section}] {key} is missing; the HCI benchmark's parameters.cfg has it")
+        try:
+            v = float(raw)
+        except ValueError:
+            raise InputError("folder", f"{path}: [{section}] {key} = {raw!r} is not a number") from None
+        if not math.isfinite(v) or (positive and v <= 0):
+            raise InputError("folder", f"{path}: [{section}] {key} = {raw!r} must be a positive number")
+        return v
+
+    cols, rows = int(number("extrinsics", "num_cams_x")), int(number("extrinsics", "num_cams_y"))
+    w, h = int(number("intrinsics", "image_resolution_x_px")), int(number("intrinsics", "image_resolution_y_px"))
+    f_mm, sensor = number("intrinsics", "focal_length_mm"), number("intrinsics", "sensor_size_mm")
+    b = number("extrinsics", "baseline_mm")
+    b_y = number("extrinsics", "baseline_y_mm", b)
+    focus = number("extrinsics", "focus_distance_m")
+    d = None
+    if cfg.has_option("meta", "disp_min") and cfg.has_option("meta", "disp_max"):
+        d = (number("meta", "disp_min", positive=False), number("meta", "disp_max", positive=False))
+    n = cols * rows
+    digits = max(3, len(str(n - 1)))
+    files = [f"input_Cam{i:0{digits}d}.png" for i in range(n)]
+    for name in files:
+        if not (Path(folder) / name).is_file():
+            raise InputError("folder", f"{path} lists {cols}x{rows} views but {name} is missing from {folder}; copy it "
+                             f"in (the views are {files[0]} … {files[-1]}, row by row)")
+    return HciFolder(path, (cols, rows), (b, b_y), (w, h), f_mm / sensor * max(w, h), f_mm,
+                     None if focus >= HCI_PARALLEL_FROM_M else focus, d, files)
+
+
+def apply_hci_folder(options: ImportOptions) -> tuple[ImportOptions, HciFolder | None]:
+    """``options`` completed from the folder's parameters.cfg (grid, spacing, focal length, zero
+    plane, the file names); an option given that contradicts the file is refused by name."""
+    hci = read_hci_folder(options.folder)
+    if hci is None:
+        return options, None
+    where = f"{hci.path} says"
+    if options.grid is not None and tuple(int(v) for v in options.grid) != hci.grid:
+        raise InputError("--grid", f"{options.grid[0]}x{options.grid[1]}, but {where} {hci.grid[0]}x{hci.grid[1]}; "
+                         "leave --grid out for an HCI folder")
+    if options.spacing_mm is not None and not np.allclose(options.spacing_mm, hci.spacing_mm, rtol=1e-6):
+        raise InputError("--spacing-mm", f"{options.spacing_mm[0]:g}x{options.spacing_mm[1]:g} mm, but {where} "
+                         f"baseline {hci.spacing_mm[0]:g}x{hci.spacing_mm[1]:g} mm; leave --spacing-mm out")
+    if options.parallel_views and hci.focus_distance_m is not None:
+        raise InputError("--parallel-views", f"contradicts {where} focus_distance_m = {hci.focus_distance_m:g} m (the "
+                         "views are sheared to zero disparity there); leave it out")
+    if options.zero_disparity_depth_m is not None and (hci.focus_distance_m is None or not math.isclose(
+            options.zero_disparity_depth_m, hci.focus_distance_m, rel_tol=1e-6)):
+        said = "parallel views (focus_distance_m at infinity)" if hci.focus_distance_m is None else \
+            f"focus_distance_m = {hci.focus_distance_m:g} m"
+        raise InputError("--zero-disparity-depth-m", f"{options.zero_disparity_depth_m:g} m, but {where} {said}; "
+                         "leave it out")
+    if options.focal_length_mm is not None or (options.focal_length_px is not None and
+                                               not math.isclose(options.focal_length_px, hci.focal_length_px, rel_tol=1e-9)):
+        raise InputError("--focal-length-px", f"{where} the focal length ({hci.focal_length_px:.6g} px); leave the "
+                         "focal length options out for an HCI folder")
+    if options.pattern not in (None, HCI_PATTERN):
+        raise InputError("--pattern", f"an HCI folder's views are {HCI_PATTERN} ({where} which); leave --pattern out")
+    done = dataclasses.replace(options, grid=hci.grid, spacing_mm=hci.spacing_mm, pattern=HCI_PATTERN,
+                               order="row-major", focal_length_px=hci.focal_length_px,
+                               zero_disparity_depth_m=hci.focus_distance_m,
+                               parallel_views=hci.focus_distance_m is None)
+    return done, hci
+
+
 # -- the zero-disparity plane -------------------------------------------------------------------------
 def resolve_zero_plane(plan: ImportPlan, options: ImportOptions, grid: tuple[int, int], *,
                        cancel: CancelToken | None = None) -> None:
@@ -583,7 +704,7 @@ def resolve_zero_plane(plan: ImportPlan, options: ImportOptions, grid: tuple[int
     width = float(plan.image_size_px[0])
     if options.parallel_views:
         if measured is not None and measured.sheared:
-            raise InputError("--parallel-views", f"the views have disparities down to "
+            raise InputError(str(plan.hci.path) if plan.hci else "--parallel-views", f"the views have disparities down to "
                              f"{measured.step_disparity_px[0]:+.2f} px per step, which parallel views cannot have "
                              "(they are sheared); leave --parallel-views out or give --zero-disparity-depth-m")
         plan.zero_plane = zp.record(0.0, None, zp.SOURCE_PARALLEL, width, info)
@@ -592,15 +713,43 @@ def resolve_zero_plane(plan: ImportPlan, options: ImportOptions, grid: tuple[int
         z0 = float(options.zero_disparity_depth_m)
         shear = zp.shear_for_depth(f_px, z0)
         if measured is not None and measured.sheared and shear < measured.shear_min_px_per_mm:
-            raise InputError("--zero-disparity-depth-m", f"{z0:g} m is too far: the views have disparities down to "
+            raise InputError(str(plan.hci.path) if plan.hci else "--zero-disparity-depth-m",
+                             f"{z0:g} m is too far: the views have disparities down to "
                              f"{measured.step_disparity_px[0]:+.2f} px per step, so points would lie beyond infinity; "
                              f"the zero-disparity plane is nearer than {measured.depth_max_m:.2f} m")
-        plan.zero_plane = zp.record(shear, z0, zp.SOURCE_STATED, width, info)
+        plan.zero_plane = zp.record(shear, z0, zp.SOURCE_HCI if plan.hci else zp.SOURCE_STATED, width, info)
     elif measured is not None:
         if measured.sheared:
             plan.zero_plane = zp.record(None, None, zp.SOURCE_MEASURED_SHEARED, width, info)
         else:
             plan.zero_plane = zp.record(0.0, None, zp.SOURCE_MEASURED_PARALLEL, width, info)
+    if plan.hci is not None and plan.zero_plane is not None:
+        if plan.zero_plane["source"] == zp.SOURCE_PARALLEL:
+            plan.zero_plane["source"] = zp.SOURCE_HCI
+        if plan.hci.disparity_px is not None:   # what the benchmark file declares (HCI's disp_min/disp_max)
+            plan.zero_plane["declared_step_disparity_px"] = [float(v) for v in plan.hci.disparity_px]
+
+
+def import_summary(ds) -> str:
+    """The zero-disparity plane and the recorded positions of an imported dataset, for the summary."""
+    from lfstudio.dataset.zero_plane import zero_plane
+
+    zp = zero_plane(ds)
+    lines = [f"zero disparity: {zp.describe()}"]
+    m = zp.measured
+    if m.get("step_disparity_px"):
+        lo, hi = m["step_disparity_px"]
+        lines.append(f"disparity     : {lo:+.2f} … {hi:+.2f} px between horizontal neighbours (measured on "
+                     f"{m.get('views')} views, {m.get('tracks')} tracks)")
+    if m.get("rows_reversed"):
+        lines.append("rows          : reversed (the files number the rows from the bottom)")
+    hci = (ds.manifest.get("import") or {}).get("hci")
+    if hci:
+        lines.append(f"HCI folder    : grid, baseline, focal length and zero plane from {hci.get('parameters')}")
+    pos = (ds.manifest.get("import") or {}).get("positions")
+    if pos:
+        lines.append(f"positions     : recorded, from {pos.get('source')} (x = {pos.get('x')}, y = {pos.get('y')})")
+    return "\n".join(lines)
 
 
 # -- copying ------------------------------------------------------------------------------------------
@@ -643,6 +792,7 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
     from lfstudio.export.common import check_new_dataset_out, partial_folder
 
     progress = progress or no_progress
+    options = apply_hci_folder(options)[0]
     check_options(options)
     n_files = int(options.grid[0]) * int(options.grid[1])
     total = 2 * n_files + 1
@@ -706,6 +856,11 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
                   "order": options.order, "files": len(plan.files), "linked": linked,
                   "intrinsics": plan.intrinsics, "warnings": list(plan.warnings),
                   "imported_at": now_iso()}
+        if plan.hci is not None:
+            record["hci"] = {"parameters": str(plan.hci.path), "grid": list(plan.hci.grid),
+                             "baseline_mm": list(plan.hci.spacing_mm), "focal_length_px": plan.hci.focal_length_px,
+                             "focus_distance_m": plan.hci.focus_distance_m,
+                             "disparity_px": None if plan.hci.disparity_px is None else list(plan.hci.disparity_px)}
         if plan.positions_record is not None:
             record["positions"] = plan.positions_record
         extra: dict[str, Any] = {"import": record}

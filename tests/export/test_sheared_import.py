@@ -300,3 +300,64 @@ def test_calibration_of_sheared_views_finds_the_cameras_rotation_not_the_shear(t
     unstated = _import(tmp_path / "sheared", tmp_path / "unstated", focal_length_px=f_px)
     with pytest.raises(CalibrationError, match="sheared by an amount nobody stated.*--zero-disparity-depth-m"):
         calibrate_dataset(unstated)
+
+
+# -- HCI benchmark folders in ------------------------------------------------------------------------
+def _hci_geometry(folder: Path) -> dict:
+    import configparser
+
+    cfg = configparser.ConfigParser()
+    cfg.read(folder / "parameters.cfg")
+    i, e, m = cfg["intrinsics"], cfg["extrinsics"], cfg["meta"]
+    w, h = int(i["image_resolution_x_px"]), int(i["image_resolution_y_px"])
+    return {"grid": (int(e["num_cams_x"]), int(e["num_cams_y"])), "baseline_mm": float(e["baseline_mm"]),
+            "focal_px": float(i["focal_length_mm"]) / float(i["sensor_size_mm"]) * max(w, h),
+            "focus_m": float(e["focus_distance_m"]), "disp": (float(m["disp_min"]), float(m["disp_max"]))}
+
+
+@pytest.mark.parametrize("zero_depth_m", [None, 3.0])
+def test_an_hci_export_imported_back_has_the_same_geometry(_virtual, tmp_path, zero_depth_m):
+    from lfstudio.export import ExportOptions, export_dataset
+
+    truth = load_ground_truth(_virtual)
+    if zero_depth_m is None:        # a parallel capture (a scan's export)
+        ds = Dataset.open(_virtual)
+    else:
+        f_px, _ = shear_views(_virtual, tmp_path / "sheared", zero_depth_m)
+        ds = _import(tmp_path / "sheared", tmp_path / "ds", focal_length_px=f_px, zero_disparity_depth_m=zero_depth_m)
+    export_dataset(ds, ExportOptions(format="hci", out=tmp_path / "hci", hci_size=(5, 5)))
+    before = _hci_geometry(tmp_path / "hci")
+    # the folder as the benchmark publishes it: grid, baseline, focal length, zero plane from parameters.cfg
+    assert main(["import-images", str(tmp_path / "hci"), "--out", str(tmp_path / "back")]) == 0
+    back = Dataset.open(tmp_path / "back")
+    zp = zero_plane(back)
+    assert (back.grid.columns, back.grid.rows) == before["grid"]
+    assert back.grid.step_mm[0] == pytest.approx(before["baseline_mm"], rel=0.01)
+    assert back.focal_length_px() == pytest.approx(before["focal_px"], rel=0.01)
+    if zero_depth_m is None:
+        assert zp.parallel and zp.source == "parameters.cfg"
+    else:
+        assert zp.depth_m == pytest.approx(zero_depth_m, rel=0.01) and zp.source == "parameters.cfg"
+    export_dataset(back, ExportOptions(format="hci", out=tmp_path / "again", hci_size=(5, 5)))
+    again = _hci_geometry(tmp_path / "again")
+    assert again["grid"] == before["grid"]
+    for key in ("baseline_mm", "focal_px", "focus_m"):
+        assert again[key] == pytest.approx(before[key], rel=0.01), key
+    assert again["disp"] == pytest.approx(before["disp"], rel=0.01, abs=0.01)
+    # the views come back in place: the same pixels for the same view
+    assert back.view(2, 3)["source_file"] == "input_Cam013.png"
+
+
+def test_an_hci_folder_with_a_missing_view_or_a_contradicting_option_is_refused(_virtual, tmp_path):
+    from lfstudio.export import ExportOptions, export_dataset
+
+    export_dataset(Dataset.open(_virtual), ExportOptions(format="hci", out=tmp_path / "hci", hci_size=(5, 5)))
+    with pytest.raises(InputError, match="--grid.*parameters.cfg says 5x5"):
+        import_images(ImportOptions(folder=tmp_path / "hci", out=tmp_path / "a", grid=(4, 5), spacing_mm=None))
+    with pytest.raises(InputError, match="--zero-disparity-depth-m"):
+        import_images(ImportOptions(folder=tmp_path / "hci", out=tmp_path / "a", grid=None, spacing_mm=None,
+                                    zero_disparity_depth_m=3.0, focal_length_px=None))
+    (tmp_path / "hci" / "input_Cam007.png").unlink()
+    with pytest.raises(InputError, match="parameters.cfg lists 5x5 views but input_Cam007.png is missing"):
+        import_images(ImportOptions(folder=tmp_path / "hci", out=tmp_path / "a", grid=None, spacing_mm=None))
+    assert not (tmp_path / "a").exists()

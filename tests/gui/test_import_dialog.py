@@ -233,3 +233,50 @@ def test_import_dialog_never_replaces_a_dataset_a_running_scan_holds(qtbot, tmp_
             child.wait(10)
             child.stdin.close()
             child.stdout.close()
+
+
+def test_import_images_dialog_states_the_zero_plane_and_shows_it_with_the_measurement(qtbot, tmp_path):
+    """Sheared views (a virtual capture shifted by shear · position) imported with their zero plane
+    stated in the dialog: the summary says where zero disparity lies and what was measured."""
+    from tests.export.test_sheared_import import GRID, shear_views
+
+    from lfstudio.sim.virtual_dataset import make_virtual_dataset
+
+    make_virtual_dataset(tmp_path / "virtual", **GRID)
+    f_px, _ = shear_views(tmp_path / "virtual", tmp_path / "sheared", 3.0)
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    _menu_action(window, "Import images…").trigger()
+    dialog = window.findChild(ImportImagesDialog, "importImagesDialog")
+    dialog.folder_edit.setText(str(tmp_path / "sheared"))
+    dialog.columns_spin.setValue(5)
+    dialog.rows_spin.setValue(5)
+    dialog.spacing_h.setValue(4.0)
+    dialog.spacing_v.setValue(6.0)
+    dialog.intrinsics_combo.setCurrentIndex(2)
+    dialog.focal_px.setValue(f_px)
+    dialog.positions_combo.setCurrentIndex(0)
+    assert not dialog.positions_csv_row.isVisibleTo(dialog) and not dialog.zero_depth.isEnabled() or \
+        dialog.zero_combo.currentIndex() == 2
+    dialog.zero_combo.setCurrentIndex(2)
+    assert dialog.zero_depth.isEnabled()
+    dialog.zero_depth.setValue(3.0)
+    # a CSV of positions that was not chosen: one line naming the field, nothing started
+    dialog.positions_combo.setCurrentIndex(2)
+    assert dialog.positions_csv_row.isVisibleTo(dialog) and not dialog.spacing_h.isEnabled()
+    dialog.positions_csv.setText("")
+    dialog.out_edit.setText(str(tmp_path / "ds"))
+    dialog.import_button.click()
+    assert "Positions" in dialog.message.text() and not (tmp_path / "ds").exists()
+    dialog.positions_combo.setCurrentIndex(0)
+    with qtbot.waitSignal(dialog.runner.finished, timeout=120000):
+        dialog.import_button.click()
+    text = dialog.message.text()
+    assert "zero disparity: sheared views, zero-disparity plane at 3.000 m" in text, text
+    assert "between horizontal neighbours" in text
+    assert Dataset.open(tmp_path / "ds").manifest["zero_disparity"]["source"] == "--zero-disparity-depth-m"
+    from PySide6.QtWidgets import QApplication
+
+    QApplication.processEvents()
+    assert dialog.message.height() > 3 * dialog.message.fontMetrics().height()   # every line shown
+    dialog.grab().save(str(tmp_path / "import_dialog.png"))

@@ -34,6 +34,8 @@ from lfstudio.gui.widgets import JobProgressWidget
 OK_STYLE = "color: #1b7a1b;"
 BAD_STYLE = "color: #b00020;"
 INTRINSICS_MODES = ("From EXIF (if the files have it)", "Focal length (mm) + pixel pitch (µm)", "Focal length (px)")
+POSITION_MODES = ("From the grid spacing", "Recorded in the file names (out_RR_CC_<a>_<b>)", "Recorded in a CSV file")
+ZERO_MODES = ("Measure from the views", "Parallel views (not sheared)", "Sheared, zero-disparity plane at")
 
 
 def _path_row(edit: QLineEdit, button: QPushButton) -> QWidget:
@@ -309,6 +311,34 @@ class ImportImagesDialog(_ImportDialogBase):
         self.intrinsics_stack.addWidget(_pair(self.focal_px, QLabel(""), ""))
         self.intrinsics_combo.currentIndexChanged.connect(self.intrinsics_stack.setCurrentIndex)
         self.intrinsics_stack.setCurrentIndex(self.intrinsics_combo.currentIndex())
+        self.positions_combo = QComboBox()
+        self.positions_combo.addItems(list(POSITION_MODES))
+        self.positions_combo.setCurrentIndex(int(s.value(f"{p}/positions", 0)))
+        self.positions_combo.setToolTip("Where each view's position comes from: the grid spacing, the rig's "
+                                        "recorded positions in the file names (Stanford archive: "
+                                        "out_RR_CC_<a>_<b>) or a CSV file (file,x_mm,y_mm); check then "
+                                        "measures each view against the record")
+        self.positions_csv = QLineEdit(str(s.value(f"{p}/positions_csv", "")))
+        self.positions_csv.setPlaceholderText("CSV with the columns file,x_mm,y_mm")
+        self.positions_csv.setToolTip("One row per image: its file name and the recorded position in mm")
+        self.positions_csv_button = QPushButton("Browse…")
+        self.positions_csv_button.setToolTip("Choose the CSV of recorded positions")
+        self.positions_csv_button.clicked.connect(self._browse_csv)
+        self.positions_csv_row = _path_row(self.positions_csv, self.positions_csv_button)
+        self.positions_combo.currentIndexChanged.connect(self._positions_changed)
+        self.zero_combo = QComboBox()
+        self.zero_combo.addItems(list(ZERO_MODES))
+        self.zero_combo.setCurrentIndex(int(s.value(f"{p}/zero_plane", 0)))
+        self.zero_combo.setToolTip("Archive light fields are published sheared (a plane inside the scene has zero "
+                                   "disparity). Measuring tells whether the views are sheared, not at which depth: "
+                                   "state the depth for depths and posed exports")
+        self.zero_depth = QDoubleSpinBox()
+        self.zero_depth.setRange(0.01, 100000.0)
+        self.zero_depth.setDecimals(3)
+        self.zero_depth.setSuffix(" m")
+        self.zero_depth.setValue(float(s.value(f"{p}/zero_depth_m", 3.0)))
+        self.zero_depth.setToolTip("Depth of the plane with zero disparity (needs the focal length)")
+        self.zero_combo.currentIndexChanged.connect(self._zero_changed)
         self.copy_check = QCheckBox("Always copy the files (default: hard-link them when on the same disk)")
         self.copy_check.setChecked(s.value(f"{p}/copy", "false") in (True, "true"))
         self.copy_check.setToolTip("Hard links take no extra space; copies are independent of the originals")
@@ -327,10 +357,15 @@ class ImportImagesDialog(_ImportDialogBase):
         form.addRow("File order", self.order_combo)
         form.addRow("Focal length", self.intrinsics_combo)
         form.addRow("", self.intrinsics_stack)
+        form.addRow("Positions", self.positions_combo)
+        form.addRow("", self.positions_csv_row)
+        form.addRow("Zero disparity", _pair(self.zero_combo, self.zero_depth, ""))
         form.addRow("Destination", _path_row(self.out_edit, self.out_button))
         form.addRow("", self.copy_check)
         self._lay_out(form)
-        self.resize(720, 480)
+        self.resize(720, 560)
+        self._positions_changed()
+        self._zero_changed()
 
         self._recount_timer = QTimer(self)
         self._recount_timer.setSingleShot(True)
@@ -340,6 +375,19 @@ class ImportImagesDialog(_ImportDialogBase):
                     self.rows_spin.valueChanged):
             sig.connect(self._recount_timer.start)
         self.recount()
+
+    def _positions_changed(self) -> None:
+        self.positions_csv_row.setVisible(self.positions_combo.currentIndex() == 2)
+        self.spacing_h.setEnabled(self.positions_combo.currentIndex() == 0)
+        self.spacing_v.setEnabled(self.positions_combo.currentIndex() == 0)
+
+    def _zero_changed(self) -> None:
+        self.zero_depth.setEnabled(self.zero_combo.currentIndex() == 2)
+
+    def _browse_csv(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Recorded positions", self.positions_csv.text(), "CSV (*.csv);;All files (*)")
+        if path:
+            self.positions_csv.setText(path)
 
     def _browse_folder(self) -> None:
         folder = QFileDialog.getExistingDirectory(self, "Folder of images", self.folder_edit.text())
@@ -379,14 +427,23 @@ class ImportImagesDialog(_ImportDialogBase):
         return n
 
     def options(self, overwrite: bool = False):
-        from lfstudio.export.import_images import ImportOptions
+        from lfstudio.export.import_images import POSITIONS_FROM_NAMES, ImportOptions
+        from lfstudio.quality.shear import measure_shear
 
         mode = self.intrinsics_combo.currentIndex()
+        where = self.positions_combo.currentIndex()
+        if where == 2 and not self.positions_csv.text().strip():
+            raise InputError("Positions", "choose the CSV file of recorded positions (file,x_mm,y_mm)")
+        zero = self.zero_combo.currentIndex()
         return ImportOptions(
             folder=field_path(self.folder_edit, "Image folder"),
             out=field_path(self.out_edit, "Destination"),
             grid=(self.columns_spin.value(), self.rows_spin.value()),
-            spacing_mm=(self.spacing_h.value(), self.spacing_v.value()),
+            spacing_mm=(self.spacing_h.value(), self.spacing_v.value()) if where == 0 else None,
+            positions=None if where == 0 else POSITIONS_FROM_NAMES if where == 1 else
+            str(field_path(self.positions_csv, "Positions")),
+            parallel_views=zero == 1, zero_disparity_depth_m=self.zero_depth.value() if zero == 2 else None,
+            measure=measure_shear,
             order=self.order_combo.currentText(), pattern=self.pattern_edit.text().strip() or None,
             focal_length_mm=self.focal_mm.value() if mode == 1 else None,
             pixel_pitch_um=self.pitch_um.value() if mode == 1 else None,
@@ -411,7 +468,10 @@ class ImportImagesDialog(_ImportDialogBase):
                            ("order", self.order_combo.currentText()),
                            ("intrinsics", self.intrinsics_combo.currentIndex()),
                            ("focal_length_mm", self.focal_mm.value()), ("pixel_pitch_um", self.pitch_um.value()),
-                           ("focal_length_px", self.focal_px.value()), ("copy", self.copy_check.isChecked())):
+                           ("focal_length_px", self.focal_px.value()), ("copy", self.copy_check.isChecked()),
+                           ("positions", self.positions_combo.currentIndex()),
+                           ("positions_csv", self.positions_csv.text()),
+                           ("zero_plane", self.zero_combo.currentIndex()), ("zero_depth_m", self.zero_depth.value())):
             s.setValue(f"{p}/{key}", value)
 
     def summary(self, root: Path) -> str:
@@ -427,6 +487,9 @@ class ImportImagesDialog(_ImportDialogBase):
                 f"{root}; {record.get('linked', 0)} hard-linked. ")
         source = record.get("intrinsics", "none")
         text += "Focal length: not known." if source == "none" else f"Focal length from {source}."
+        from lfstudio.export.import_images import import_summary
+
+        text += "\n" + "\n".join(line.replace("  ", "").replace(" :", ":") for line in import_summary(ds).splitlines())
         for warning in record.get("warnings", []):
             text += f"\nNote: {warning}"
         return text
