@@ -20,7 +20,9 @@ import numpy as np
 from lfstudio.calibration.features import DEFAULT_MAX_FEATURES, DEFAULT_WORK_WIDTH_PX, FeatureCache, Features, match_pairs
 from lfstudio.calibration.fit import DEFAULT_POSITION_SIGMA_UM, CalibrationError, FitResult, PairMatches, fit_rectification
 from lfstudio.calibration.pairs import DEFAULT_PAIR_SET, DEFAULT_VIEWS, Pair, make_pairs
+from lfstudio.calibration.lens import lens_fingerprint, lens_model, undistort_points
 from lfstudio.calibration.report import build_report
+from lfstudio.dataset.profile import Profile
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import DatasetError
@@ -141,6 +143,16 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
         raise DatasetError(f"{dataset.root}: the chosen views have different image sizes {sorted(sizes)}; "
                            "calibrate views of one camera setting")
     image_size = next(iter(sizes))
+    # one coordinate system: the features undistorted with the lens model processing applies
+    step = Profile.for_dataset(dataset.root).lens
+    model = lens_model(step, image_size, dict(dataset.camera), dict(dataset.lens))
+    lens_record = {**lens_fingerprint(step),
+                   "description": "" if model is None else str(getattr(model, "description", "") or
+                                                                  f"OpenCV coefficients {list(step.dist_coeffs)}")}
+    if model is not None:
+        progress(done, total_steps, "undistorting features with the lens model")
+        feats = {v: Features(undistort_points(model, f.xy).astype(np.float32), f.descriptors, f.image_size_px, f.scale)
+                 for v, f in feats.items()}
     if focal_length_px is None:
         focal_length_px = dataset.focal_length_px(image_size[0])
 
@@ -163,7 +175,7 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
     progress(done, total_steps, "fitting orientation")
     sigma_um = tuple(position_sigma) if position_sigma is not None else position_sigma_um(dataset)
     fit = fit_rectification(matches, focal_length_px, image_size, principal_point=principal_point,
-                            position_sigma_um=sigma_um)
+                            position_sigma_um=sigma_um, radial_term="none" if model is not None else "auto")
     settings = {"max_width_px": max_width_px, "max_features": max_features, "ratio": ratio,
                 "pair_set": pair_set, "neighbours_only": pair_set == "neighbours",
                 "principal_point": principal_point, "estimate_principal_point": principal_point == "auto",
@@ -172,6 +184,7 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
     doc = build_report(fit, matches, views=needed, feature_counts={v: f.count for v, f in feats.items()},
                        settings=settings, grid_extent_mm=dataset.grid.baselines_mm,
                        created=now_iso())
+    doc["lens_model"] = lens_record
     progress(total_steps, total_steps, "done")
     log.info("calibration of %s finished: rotation %s deg ± %s, residual rms %.3f px", dataset.root,
              [round(float(a), 3) for a in doc.get("rotation_deg") or ()],

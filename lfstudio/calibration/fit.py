@@ -55,6 +55,17 @@ PP_PRIOR_FRACTION = 0.02
 #: the principal point is estimated only if the views determine it at least this well (1 σ, px)
 PP_OBSERVABLE_STD_PX = 10.0
 PRINCIPAL_POINT_MODES = ("auto", "centre")
+#: a radial distortion term is fitted (and warned about) when the views determine it to this many σ
+RADIAL_SIGNIFICANCE = 4.0
+#: ... and it moves the corners by at least this much (px)
+RADIAL_DETECT_PX = 1.0
+#: the first-order radial correction of the angles is trusted to this fraction (added to their variance)
+RADIAL_STEP_MARGIN = 0.25
+RADIAL_TERMS = ("auto", "none")
+#: fewer matches than this agreeing with the fit in a direction it uses: refused (too little evidence)
+MIN_EVIDENCE_MATCHES = 24
+#: resamples of the block bootstrap that widens the stated uncertainty on sparse or clustered matches
+BOOTSTRAP_SAMPLES = 200
 #: the robust first fit (which finds the outliers) uses at most this many matches
 ROBUST_SAMPLE = 20000
 #: systematic feature error (px at full resolution) behind the per-angle floor of the covariance
@@ -274,6 +285,19 @@ def normalised_residuals(H: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray, hori
     return _Split(np.asarray(xy_a, float), np.asarray(xy_b, float), horizontal).evaluate(H)
 
 
+def undistort_radial(xy: np.ndarray, corner_px: float, image_size_px: Sequence[int]) -> np.ndarray:
+    """Undo one radial term that moved the image corners ``corner_px`` towards the centre (barrel;
+    negative: pincushion): ``x_u = c + (x − c)(1 + k (r / r_c)²)``, ``k = corner_px / r_c``, about the
+    nominal centre (``r_c``: centre to corner). To first order the inverse of
+    :func:`lfstudio.calibration.simulate.distort`."""
+    w, h = image_size_px
+    c = nominal_principal_point((w, h))
+    rc = float(np.hypot(w / 2.0, h / 2.0))
+    d = np.asarray(xy, float) - c
+    r2 = np.sum(d * d, axis=1, keepdims=True) / rc ** 2
+    return c + d * (1.0 + (float(corner_px) / rc) * r2)
+
+
 def homography_of(params: Sequence[float], focal_length_px: float, image_size_px: Sequence[int]) -> np.ndarray:
     """H for ``params`` = [rx, ry, rz] or [rx, ry, rz, cx offset, cy offset] (offsets from the nominal centre)."""
     params = np.asarray(params, float)
@@ -354,18 +378,27 @@ class _Problem:
         return np.arange(len(params)) if self.free_idx is None else np.asarray(self.free_idx, int)
 
     def residuals(self, params: np.ndarray) -> np.ndarray:
-        return self.split.evaluate(homography_of(params, self.f, self.size))
+        return self._split_for(params).evaluate(homography_of(params, self.f, self.size))
+
+    def _split_for(self, params: np.ndarray) -> "_Split":
+        """The matches as the parameters see them: with a radial term (``params[5]``, px at the
+        corners) undone first (:func:`undistort_radial`)."""
+        if len(params) <= 5 or params[5] == 0.0:
+            return self.split
+        d = self.data
+        return _Split(undistort_radial(d.xy_a, params[5], self.size), undistort_radial(d.xy_b, params[5], self.size),
+                      d.horizontal)
 
     def residuals_and_coupling(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Normalised residuals and, per match, d / B (px per mm of relative position error; 0 where
         no offsets are modelled)."""
-        r, disp = self.split.evaluate(homography_of(params, self.f, self.size), with_disparity=True)
+        r, disp = self._split_for(params).evaluate(homography_of(params, self.f, self.size), with_disparity=True)
         return r, disp * self.inv_base
 
     def jacobian(self, params: np.ndarray, r0: np.ndarray | None = None) -> np.ndarray:
         """Forward differences (steps 1e-4° and 0.01 px) over the free parameters (:meth:`columns`)."""
         r0 = self.residuals(params) if r0 is None else r0
-        steps = np.array([1e-4, 1e-4, 1e-4, 0.01, 0.01])
+        steps = np.array([1e-4, 1e-4, 1e-4, 0.01, 0.01, 0.01])
         cols = self.columns(params)
         J = np.empty((len(r0), len(cols)))
         for j, k in enumerate(cols):
@@ -387,7 +420,7 @@ class _Problem:
         N[:n_p, :n_p] = J.T @ wJ
         rhs[:n_p] = -wJ.T @ r0
         for j, k in enumerate(self.columns(params)):   # weak prior of the principal point offset
-            if k >= 3:
+            if k in (3, 4):
                 N[j, j] += 1.0 / self.pp_prior_sigma ** 2
                 rhs[j] -= params[k] / self.pp_prior_sigma ** 2
         if n_e:
@@ -539,7 +572,7 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
                       principal_point: str = "auto", estimate_principal_point: bool | None = None,
                       position_sigma_um: Sequence[float] | None = DEFAULT_POSITION_SIGMA_UM,
                       max_angle_deg: float = MAX_ANGLE_DEG, pp_prior_sigma_px: float | None = None,
-                      min_matches: int = 8, trim_sigmas: float = 3.0) -> FitResult:
+                      min_matches: int = 8, trim_sigmas: float = 3.0, radial_term: str = "auto") -> FitResult:
     """Estimate ``rotation_deg`` (and the principal point when observable) with its covariance.
 
     ``focal_length_px`` and ``image_size_px`` ([w, h]) refer to the full-resolution captured image.
@@ -547,7 +580,9 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
     (held at the nominal centre). ``estimate_principal_point`` (older spelling): True = "auto",
     False = "centre". ``position_sigma_um``: the rig's repeatability (x, y) in µm, the prior of each
     view's position error (None or 0: exact positions). Raises :class:`CalibrationError` when there
-    are too few matches overall or in either direction where both are needed.
+    are too few matches overall or in either direction where both are needed. ``radial_term``:
+    "auto" (the images carry no lens correction: detect one radial distortion term and fit it where
+    the views determine it) or "none" (the features were undistorted with the lens model).
     """
     if estimate_principal_point is not None:
         principal_point = "auto" if estimate_principal_point else "centre"
@@ -692,6 +727,60 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
         covariance[:, k] = 0.0
         covariance[k, k] = held_std ** 2
 
+    # 5. uncorrected lens distortion: one radial term, estimated jointly with the angles to first order
+    #    (one damped Gauss-Newton step of the joint problem from this solution; the angles' gradient
+    #    is ~0 here, so the step is what the radial term moves them by). Where the views determine it
+    #    (RADIAL_SIGNIFICANCE σ and RADIAL_DETECT_PX), the angles take the step, their covariance
+    #    the term's uncertainty, and a warning names it.
+    radial = None
+    warnings: list[str] = []
+    if radial_term == "auto":
+        p6 = np.concatenate([params[:5] if len(params) >= 5 else np.concatenate([params, [0.0, 0.0]]), [0.0]])
+        cols6 = np.array(list(fidx) + ([3, 4] if estimated else []) + [5])
+        prob = _Problem(data.subset(inlier), f, (w, h), prior_sigma)
+        prob.free_idx = cols6
+        N6, rhs6, _, _ = prob.normal(p6, 1.0 / sig_pair[data.pair[inlier]] ** 2, pos_used)
+        C6 = _inverse(N6)
+        delta = C6 @ rhs6
+        kk = len(cols6) - 1
+        k_hat, k_std = float(delta[kk]), float(np.sqrt(C6[kk, kk]))
+        radial = {"corner_px": k_hat, "std_px": k_std, "applied": False}
+        if abs(k_hat) >= RADIAL_DETECT_PX and abs(k_hat) > RADIAL_SIGNIFICANCE * k_std:
+            keep = np.r_[np.arange(kk), np.arange(len(cols6), len(N6))]
+            C5 = _inverse(N6[np.ix_(keep, keep)])
+            na = len(fidx)
+            grow = C6[:na, :na] - C5[:na, :na]
+            step = delta[:kk]
+            full = np.zeros(5)
+            full[:len(params)] = params[:5]
+            full[cols6[:kk]] += step
+            params = full if len(params) > 3 else full[:3]
+            covariance[np.ix_(fidx, fidx)] += grow + np.diag((RADIAL_STEP_MARGIN * step[:na]) ** 2)
+            radial["applied"] = True
+            kind = "barrel" if k_hat > 0 else "pincushion"
+            warnings.append(
+                f"uncorrected lens distortion: the residuals show a radial pattern ({kind}, ≈ {abs(k_hat):.1f} ± "
+                f"{k_std:.1f} px at the image corners); the angles were fitted with that term and their uncertainty "
+                "includes it, but the images are not undistorted: give the lens a model (processing.toml [lens], "
+                "e.g. its lensfun name or k1) and calibrate again")
+
+    # 6. sparse or clustered evidence: a block bootstrap over image regions of every pair (linearised
+    #    at the solution). Where it spreads the angles wider than the covariance says (few matches,
+    #    bunched in a corner, heavy-tailed errors), the stated variance grows to it.
+    n_kept = {d: int(np.count_nonzero(inlier & (horizontal == (d == "h")))) for d in ("h", "v")}
+    short = [f"{n_kept[d]} in {name}" for d, name, used_dir in (("h", "rows", obs.rows), ("v", "columns", obs.columns))
+             if used_dir and n_kept[d] < MIN_EVIDENCE_MATCHES]
+    if short:
+        raise CalibrationError(
+            f"too little evidence to calibrate: only {' and '.join(short)} of the matches agree with one "
+            f"orientation (at least {MIN_EVIDENCE_MATCHES} per direction used); the angles would be guesses. Use "
+            "views with more texture (light, focus, a textured target in the scene) or more views (--views)")
+    boot = _bootstrap_angles(data.subset(inlier), params, fidx, f, (w, h), prior_sigma, offsets,
+                             1.0 / sig_pair[data.pair[inlier]] ** 2)
+    if boot is not None:
+        analytic = np.diag(covariance)[fidx]
+        covariance[fidx, fidx] += np.maximum(np.diag(boot) - analytic, 0.0)
+
     # the cross-check: the closed form again, on the matches the fit kept
     kept = [PairMatches(m.view_a, m.view_b, m.direction, m.xy_a[inlier[sl]], m.xy_b[inlier[sl]])
             for m, sl in zip(matches, slices) if m.count]
@@ -737,7 +826,45 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
                             "formal_rotation_std_deg": [float(x) for x in formal],
                             "principal_point_std_px": [float(x) for x in pp_std],
                             "systematic_floor_deg": [float(x) for x in floor],
-                            "pair_sigma_px": [float(x) for x in sig_pair]})
+                            "pair_sigma_px": [float(x) for x in sig_pair],
+                            "radial_distortion": radial, "warnings": warnings})
+
+
+def _bootstrap_angles(data: _Data, params: np.ndarray, fidx: np.ndarray, f: float, size: tuple[int, int],
+                      pp_prior_sigma: float, offsets: np.ndarray, weights: np.ndarray,
+                      samples: int = BOOTSTRAP_SAMPLES, cells: int = 4, seed: int = 0) -> np.ndarray | None:
+    """Covariance of the free angles from a block bootstrap: blocks are the matches of one pair in one
+    of ``cells`` × ``cells`` image regions; each sample redraws the blocks with replacement and takes
+    the linearised weighted least-squares step from the solution. None with fewer than 4 blocks."""
+    if not len(fidx):
+        return None
+    problem = _Problem(data, f, size, pp_prior_sigma)
+    problem.free_idx = fidx
+    p = np.asarray(params, float)
+    r = problem.model_residuals(p, offsets)
+    J = problem.jacobian(p, problem.residuals(p))
+    w, h = size
+    cx = np.clip((data.xy_a[:, 0] / w * cells).astype(int), 0, cells - 1)
+    cy = np.clip((data.xy_a[:, 1] / h * cells).astype(int), 0, cells - 1)
+    block = np.unique(data.pair * cells * cells + cy * cells + cx, return_inverse=True)[1]
+    nb = int(block.max()) + 1 if len(block) else 0
+    if nb < 4:
+        return None
+    k = len(fidx)
+    wJ = J * weights[:, None]
+    G = np.zeros((nb, k))
+    Nb = np.zeros((nb, k, k))
+    for j in range(k):
+        G[:, j] = np.bincount(block, wJ[:, j] * r, nb)
+        for i in range(j, k):
+            Nb[:, i, j] = Nb[:, j, i] = np.bincount(block, wJ[:, i] * J[:, j], nb)
+    rng = np.random.default_rng(seed)
+    counts = rng.multinomial(nb, np.full(nb, 1.0 / nb), size=samples).astype(float)
+    steps = np.empty((samples, k))
+    for s_ in range(samples):
+        N = np.einsum("b,bij->ij", counts[s_], Nb)
+        steps[s_] = _inverse(N) @ (counts[s_] @ G)
+    return np.cov(steps, rowvar=False).reshape(k, k)
 
 
 def observable_limit_px(prior_sigma_px: float) -> float:

@@ -119,6 +119,7 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
     obs = fit.observability
     if obs is not None:
         warnings += [h["reason"] for h in obs.held()]
+    warnings += list(fit.extra.get("warnings") or [])
 
     w, h = fit.image_size_px
     nominal = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
@@ -134,6 +135,7 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
         "principal_point_reason": fit.principal_point_reason,
         UNCERTAINTY_KEY: None if uncertainty is None else uncertainty.to_json(),
         "observability": None if obs is None else obs.to_json(fit.max_angle_deg),
+        "radial_distortion": fit.extra.get("radial_distortion"),
         "focal_length_px": float(fit.focal_length_px),
         "image_size_px": [int(w), int(h)],
         "homography": [[float(x) for x in row] for row in fit.homography],

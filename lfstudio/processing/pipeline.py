@@ -121,6 +121,15 @@ def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> Run
         if list(cal["image_size_px"]) != list(full_size):
             raise DatasetError(f"{ds.root / CALIBRATION_NAME}: image_size_px {cal['image_size_px']} does not "
                                f"match the captures ({full_size[0]} x {full_size[1]} px); re-run the calibration")
+        recorded = cal.get("lens_model")
+        if isinstance(recorded, dict):      # files written before it was recorded: not checked
+            from lfstudio.calibration.lens import lens_fingerprint
+            current = lens_fingerprint(profile.lens)
+            if recorded.get("sha256") != current["sha256"]:
+                raise InputError("processing.toml: [lens]",
+                                 f"{ds.root / CALIBRATION_NAME} was fitted with lens model "
+                                 f"{recorded.get('model')!r}, but processing applies {current['model']!r}: calibrate "
+                                 "again ('lfstudio calibrate') so both use the same lens model")
         homography = np.asarray(cal["homography"], float).tolist()
         extra["homography"] = [round(v, 12) for row in homography for v in row]
     flat_path = None
