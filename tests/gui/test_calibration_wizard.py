@@ -117,3 +117,28 @@ def test_saved_wizard_choices_follow_improved_defaults_but_keep_a_real_choice(qt
     again.pair_set.setCurrentIndex(PAIR_SETS.index(DEFAULT_PAIR_SET))   # back to the default: not pinned
     again.reject()
     assert settings().value("calibration/pair_set") is None
+
+
+def test_a_one_row_dataset_says_which_angle_is_held(qtbot, tmp_path):
+    from tests.calibration.synthetic import make_layered_dataset
+
+    ds = make_layered_dataset(tmp_path / "row", columns=3, rows=1, size_px=(480, 320), rotation_deg=(0.0, -1.5, 2.0))
+    state = AppState()
+    state.set_dataset(ds)
+    wizard = CalibrationWizard(state)
+    qtbot.addWidget(wizard)
+    wizard.show()
+    assert wizard.next_button.isEnabled() and "rows only: pan and roll are determined, tilt is held at 0°" \
+        in wizard.selection_label.text()
+    wizard.next_button.click()
+    qtbot.waitUntil(lambda: wizard.stack.currentIndex() == PAGE_RESULTS or "failed" in wizard.log.toPlainText(),
+                    timeout=120_000)
+    assert wizard.stack.currentIndex() == PAGE_RESULTS, wizard.log.toPlainText()
+    assert "rx +0.000° (held: not determined)" in wizard.headline.text()
+    assert "ry " in wizard.headline.text() and "± " in wizard.headline.text()
+    text = wizard.uncertainty_label.text()
+    assert "tilt (rx): not determined by one row — held at 0°" in text and "rows will line up" in text
+    wizard.resize(1100, 800)
+    wizard.grab().save(str(tmp_path / "wizard_one_row.png"))
+    import shutil
+    shutil.copy(tmp_path / "wizard_one_row.png", "/tmp/wizard_one_row.png")

@@ -274,11 +274,17 @@ class CalibrationWizard(QDialog):
         nh = sum(p.direction == "h" for p in pairs)
         nv = len(pairs) - nh
         text = f"{len(self.picker.selected)} views · {nh} horizontal + {nv} vertical pairs"
-        if nh == 0 or nv == 0:
-            text += " — choose at least two views in one row and two in one column"
+        if nh == 0 and nv == 0:
+            text += " — choose at least two views in one row or in one column"
+        elif nv == 0:
+            text += (" — rows only: pan and roll are determined, tilt is held at 0° (rows will line up; add views "
+                     "in a second row to determine the tilt)")
+        elif nh == 0:
+            text += (" — columns only: tilt and roll are determined, pan is held at 0° (columns will line up; add "
+                     "views in a second column to determine the pan)")
         self.selection_label.setText(text)
         if self.stack.currentIndex() == PAGE_VIEWS:
-            self.next_button.setEnabled(nh > 0 and nv > 0 and not self.runner.running)
+            self.next_button.setEnabled((nh > 0 or nv > 0) and not self.runner.running)
 
     # -- page 2: run ---------------------------------------------------------------------------------
     def _build_run_page(self) -> QWidget:
