@@ -171,6 +171,7 @@ class Cia402Controller:
         self.tolerance_mm = tolerance_mm
         self.min_status_interval_s = 1.0 / max_status_hz
         self.stall_s = stall_s
+        self.status_period_s = 0.1              # full status for the listeners while a move runs
         self.status_listener: Callable[[RigStatus], None] | None = None
         self._axes = (rig.horizontal, rig.vertical)
         self._k = (rig.horizontal.increments_per_mm, rig.vertical.increments_per_mm)
@@ -570,8 +571,20 @@ class Cia402Controller:
                     st = self._finish_stop()
                 raise MotionStopped(f"move to {where} stopped by STOP; {self._where(st)}")
             with self._io:
+                # the status words and positions each poll (4 exchanges); the full status (10) when
+                # something happened, at the end and every status_period_s for the listeners
                 sws = [self._statusword(i) for i in range(2)]
-                st = self._query()
+                positions = [self._read(i, POSITION) for i in range(2)]
+                now = time.monotonic()
+                quiet = all(power_state(sw) == "OPERATION ENABLED" and not sw & (TARGET_REACHED | FOLLOWING_ERROR_BIT)
+                            for sw in sws)
+                if quiet and not any(self._halt_flags) and now - self._last_t < self.status_period_s \
+                        and self._last is not None:
+                    st = RigStatus(self._last.state, (round(positions[0] / self._k[0], 4),
+                                                      round(positions[1] / self._k[1], 4)),
+                                   self._last.homed, self._last.message, self._last.extra)
+                else:
+                    st = self._query()
             if st.state is RigState.ALARM:
                 self._quick_stop_all()                   # the other drive must not go on alone
                 raise DriveFault(f"move to {where} failed: {st.message}")
