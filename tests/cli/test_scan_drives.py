@@ -136,3 +136,38 @@ def test_kill_9_of_a_scan_on_the_drive_emulator_resumes_with_nothing_lost(run_cl
         assert ds.view(*cell)["sha256"] == sha
     for v in ds.views:
         assert v["reported_mm"] == pytest.approx(v["commanded_mm"], abs=0.011)
+
+
+def test_ctrl_c_during_a_long_move_quick_stops_the_drives(run_cli, tmp_path, sim_drive):
+    from lfstudio.studio.simulated import truth_source
+
+    out = tmp_path / "ds"
+    truth = truth_source(sim_drive)
+    assert truth is not None                              # 'lfstudio sim-drive' publishes the true position
+    r = run_cli("rig", "--port", sim_drive, "--rig-profile", RIG, "--time-scale", "0.02", "home")
+    assert r.returncode == 0, r.stderr
+    assert truth() == pytest.approx((0.0, 0.0), abs=0.011)
+    # the grid is centred on the travel: its first view is ~2 m away, 10 s at 200 mm/s
+    proc = subprocess.Popen([sys.executable, "-m", "lfstudio", "scan", "--port", sim_drive, "--camera", "sim",
+                             *GRID, "--grid", "2x1", "--time-scale", "1", "--out", str(out)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env(), cwd=REPO_ROOT)
+    try:
+        deadline = time.monotonic() + 60
+        while proc.poll() is None and truth()[0] < 50 and time.monotonic() < deadline:
+            time.sleep(0.01)        # polling the carriage's true position, not synchronising on a duration
+        assert proc.poll() is None and truth()[0] >= 50, proc.stderr.read() if proc.poll() is not None else ""
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130, stderr
+    status = run_cli("rig", "--port", sim_drive, "--rig-profile", RIG, "status")
+    assert status.returncode == 0, status.stderr
+    x = truth()[0]
+    assert 50 <= x < 1900                                 # stopped on its way
+    words = status.stdout.split()
+    assert words[1] == "idle"                                                    # at rest
+    assert float(words[2].removeprefix("x=")) == pytest.approx(x, abs=0.011)      # where it truly is
+    assert "x: operation enabled 0000h" in status.stdout
