@@ -234,6 +234,9 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
         notes.append("origin (0, 0) set at the carriage's current position")
         return notes
     status = rig.status()
+    if status.state is RigState.ALARM and isinstance(status.extra, dict) and "power_state" in status.extra:
+        raise DeviceError(f"the rig on {port} has a drive in fault, nothing was moved: {status.message} "
+                          f"(lfstudio rig --port {port} reset, or Reset fault in the Rig panel)")
     if status.state is RigState.ALARM:
         reason = status.message if status.message.startswith("ALARM") else \
             "locked since it was powered up or reset" if config.homing else "locked"

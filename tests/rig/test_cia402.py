@@ -293,3 +293,17 @@ def test_each_drive_address_is_locked_for_one_process(rig, drives):
             open_rig(other, rig, doing="second", connect=False)
     finally:
         first.close()
+
+
+@pytest.mark.parametrize("home", [False, True])
+def test_a_scan_on_a_drive_in_fault_is_refused_naming_the_code_and_the_reset(drives, home):
+    from lfstudio.studio.session import prepare_rig
+
+    emulator, c = drives("modbus", before_connect=lambda e: e.pair.axes[1].inject("power_stage_off"))
+    del emulator.pair.journal[:]
+    with pytest.raises(cia402.DeviceError) as exc:
+        prepare_rig(c, c.config, c.port, home=home)
+    text = str(exc.value)
+    assert "3220h" in text and "drive y (vertical)" in text and "\n" not in text
+    assert "reset" in text.lower()
+    assert not [w for w in emulator.pair.journal if w[1] == 0x6040]     # no control word: nothing moved
