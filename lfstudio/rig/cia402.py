@@ -571,18 +571,15 @@ class Cia402Controller:
                     st = self._finish_stop()
                 raise MotionStopped(f"move to {where} stopped by STOP; {self._where(st)}")
             with self._io:
-                # the status words and positions each poll (4 exchanges); the full status (10) when
-                # something happened, at the end and every status_period_s for the listeners
+                # the status words each poll (2 exchanges); the full status (10) when something
+                # happened, at the end and every status_period_s (position, progress, listeners)
                 sws = [self._statusword(i) for i in range(2)]
-                positions = [self._read(i, POSITION) for i in range(2)]
                 now = time.monotonic()
                 quiet = all(power_state(sw) == "OPERATION ENABLED" and not sw & (TARGET_REACHED | FOLLOWING_ERROR_BIT)
                             for sw in sws)
                 if quiet and not any(self._halt_flags) and now - self._last_t < self.status_period_s \
                         and self._last is not None:
-                    st = RigStatus(self._last.state, (round(positions[0] / self._k[0], 4),
-                                                      round(positions[1] / self._k[1], 4)),
-                                   self._last.homed, self._last.message, self._last.extra)
+                    st = self._last                          # still on its way: the last full status
                 else:
                     st = self._query()
             if st.state is RigState.ALARM:
