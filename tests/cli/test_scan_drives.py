@@ -29,7 +29,7 @@ def env() -> dict:
 @pytest.mark.parametrize("word", ["sim-dryve", "sim-canopen"])
 def test_scan_on_emulated_drives_then_resume_is_a_no_op(run_cli, tmp_path, word):
     out = tmp_path / "ds"
-    r = run_cli("scan", "--port", word, "--camera", "sim", *GRID, "--time-scale", "0.01", "--out", out)
+    r = run_cli("scan", "--port", word, "--camera", "sim", *GRID, "--time-scale", "0", "--out", out)
     assert r.returncode == 0, r.stderr
     assert "12 of 12 views captured" in r.stderr and "emulated CiA 402 drives" in r.stderr
     ds = Dataset.open(out)
