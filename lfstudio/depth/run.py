@@ -108,10 +108,8 @@ def has_disparity(dataset, view: Sequence[int]) -> bool:
 def zero_shear_px_per_mm(ds: Dataset, width_px: float) -> float | None:
     """The views' shear in px per mm at ``width_px`` (0: parallel, a scan; None: sheared by an
     unknown amount)."""
-    try:
-        from lfstudio.dataset.zero_plane import zero_plane
-    except ImportError:          # before the zero-plane record existed every dataset was parallel
-        return 0.0
+    from lfstudio.dataset.zero_plane import zero_plane
+
     return zero_plane(ds).shear_at(width_px)
 
 

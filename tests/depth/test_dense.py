@@ -156,3 +156,44 @@ def test_cli_depth_command(calibrated, run_cli):
     assert rec["settings"]["steps_h"] == 2 and len(rec["neighbours"]) == 6
     proc = run_cli("depth", calibrated.root, "--views", "r01_c002", "--workers", "0", "--steps", "2,1")
     assert "0 views computed, 1 up to date" in proc.stdout
+
+
+def test_views_run_on_an_executor_and_stop_on_cancel(calibrated):
+    """The windowed path that the process pool and a Dask cluster take (a real thread pool here)."""
+    import concurrent.futures as cf
+
+    ds = calibrated
+    with cf.ThreadPoolExecutor(2) as pool:
+        report = estimate_depth(ds, "r1,c1-2", executor=pool, workers=2)
+    assert report.computed == 2 and not report.failed and report.cpu_s > 0
+    token = CancelToken()
+    token.cancel()
+    with cf.ThreadPoolExecutor(2) as pool, pytest.raises(Cancelled):
+        estimate_depth(ds, "r0", executor=pool, workers=2, cancel=token)
+    assert not any(map_path(ds.root, "records", (0, c)).is_file() for c in range(5))
+
+
+def test_sheared_views_are_measured_from_their_zero_plane(tmp_path):
+    """An archive-style capture (every view shifted so that 3 m has zero disparity, imported with its
+    zero plane stated): the maps hold the views' signed disparities, and depth adds the plane back."""
+    from lfstudio.depth.run import depth_from_disparity, zero_shear_px_per_mm
+    from lfstudio.errors import InputError
+    from lfstudio.sim.virtual_dataset import make_virtual_dataset
+    from tests.export.test_sheared_import import GRID, _import, shear_views
+
+    make_virtual_dataset(tmp_path / "v", **GRID)
+    f_px, _ = shear_views(tmp_path / "v", tmp_path / "sheared", 3.0)
+    ds = _import(tmp_path / "sheared", tmp_path / "ds", focal_length_px=f_px, zero_disparity_depth_m=3.0)
+    shear = zero_shear_px_per_mm(ds, 640)
+    assert shear == pytest.approx(f_px / 3000.0, rel=1e-6)
+    report = estimate_depth(ds, "r02_c002")
+    assert report.computed == 1
+    disp, _, record = read_disparity(ds, (2, 2))
+    assert record["d_range_px"][0] < 0 < record["d_range_px"][1]        # behind the plane: negative
+    truth = read_truth_map(tmp_path / "v", "depth", 2, 2)               # the unrotated capture's depth
+    depth = depth_from_disparity(disp, f_px, 4.0, shear)
+    rel = _inner(np.abs(depth - truth) / truth)
+    known = np.isfinite(rel)
+    assert known.mean() > 0.9 and np.median(rel[known]) < 0.02, (known.mean(), np.median(rel[known]))
+    with pytest.raises(InputError, match="sheared"):
+        depth_from_disparity(disp, f_px, 4.0, None)
