@@ -44,7 +44,8 @@ def format_report(doc: dict) -> str:
     lines = [f"verdict       {doc['verdict'].upper()}   {s['views']} views: {s['pass']} pass, {s['warn']} warn, "
              f"{s['fail']} fail",
              f"repeatability x {num(rep.get('x_um'), '.0f')} µm, y {num(rep.get('y_um'), '.0f')} µm measured "
-             f"(planned {', '.join(f'{v:g}' for v in rep.get('planned_um', []))} µm)",
+             f"({'logged by the rig' if rep.get('planned_from') == 'logged' else 'planned'} "
+             f"{', '.join(f'{v:g}' for v in rep.get('planned_um', []))} µm)",
              f"depth         {depth.get('verdict', 'n/a')}: {depth.get('why', '')}",
              f"disparity     {num(depth.get('views_disparity_min_px', depth.get('disparity_min_px')), '+.2f')} … "
              f"{num(depth.get('views_disparity_max_px', depth.get('disparity_max_px')), '+.2f')} px "

@@ -590,6 +590,8 @@ def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell
     else:
         repeat = {"x_um": None, "y_um": None, "rms_um": None, "views": int(len(errs)),
                   "planned_um": list(g.repeatability_um), "why": "too few located views (need 5)"}
+    repeat["planned_from"] = "logged" if g.recorded_positions and not (dataset.manifest.get("plan") or {}).get(
+        "repeatability_um") else "plan"
     counts = {k: sum(1 for v in views_out if v["verdict"] == k) for k in (verdicts.PASS, verdicts.WARN, verdicts.FAIL)}
     flagged = [v["view"] for v in views_out if v["verdict"] in (verdicts.WARN, verdicts.FAIL)]
     verdict = verdicts.worst([v["verdict"] for v in views_out] + [depth["verdict"]])

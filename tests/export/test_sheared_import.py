@@ -199,6 +199,7 @@ def test_stanford_chess_imports_sheared_with_its_recorded_positions_and_no_view_
     positions = [v["checks"]["position"] for v in doc["views"]]
     assert all(p["verdict"] != "fail" for p in positions), [p["why"] for p in positions if p["verdict"] == "fail"]
     assert all(p.get("against") == "recorded" for p in positions)
+    assert doc["repeatability"]["planned_from"] == "logged"
     # against the rig's record the views are closer than against a regular grid
     errors = np.array([p["error_mm"] for p in positions])
     assert float(np.sqrt((errors ** 2).mean())) < 0.5
@@ -361,3 +362,15 @@ def test_an_hci_folder_with_a_missing_view_or_a_contradicting_option_is_refused(
     with pytest.raises(InputError, match="parameters.cfg lists 5x5 views but input_Cam007.png is missing"):
         import_images(ImportOptions(folder=tmp_path / "hci", out=tmp_path / "a", grid=None, spacing_mm=None))
     assert not (tmp_path / "a").exists()
+
+
+def test_the_hevc_sidecar_carries_the_shear_and_import_hevc_restores_it(_virtual, tmp_path):
+    from lfstudio.export import ExportOptions, export_dataset, import_hevc
+
+    f_px, _ = shear_views(_virtual, tmp_path / "sheared", 2.5)
+    ds = _import(tmp_path / "sheared", tmp_path / "ds", focal_length_px=f_px, zero_disparity_depth_m=2.5)
+    export_dataset(ds, ExportOptions(format="hevc", out=tmp_path / "lf.mkv", views="r0-1,c0-1"))
+    side = json.loads((tmp_path / "lf.mkv.json").read_text())
+    assert side["zero_disparity"]["depth_m"] == 2.5
+    back = Dataset.open(import_hevc(tmp_path / "lf.mkv", tmp_path / "back"))
+    assert zero_plane(back).depth_m == 2.5 and zero_plane(back).shear_px_per_mm == zero_plane(ds).shear_px_per_mm
