@@ -335,12 +335,24 @@ class MainWindow(QMainWindow):
         self.stop_button.setObjectName("stopToolButton")
         self.stop_button.setToolTip("Stop all motion now (Esc), whatever runs: a jog, a go-to, homing or a scan "
                                     "(the scan pauses). Never waits behind other commands.")
+        from lfstudio.gui.rig_badge import RigBadge
+
+        self.rig_badge = RigBadge(self.state, self.show_rig_panel)
+        bar.addSeparator()
+        bar.addWidget(self.rig_badge)
         self.scan_lock_label = QLabel("")
         self.scan_lock_label.setObjectName("scanLockLabel")
         self.scan_lock_label.setContentsMargins(12, 0, 12, 0)
         bar.addWidget(self.scan_lock_label)
         self.addToolBar(Qt.TopToolBarArea, bar)
         self.stop_toolbar = bar
+
+    def show_rig_panel(self) -> None:
+        """The Rig panel in front (shown and docked back if it was closed)."""
+        dock = self.docks.get("rigDock")
+        if dock is not None:
+            dock.show()
+            dock.raise_()
 
     def stop_rig(self) -> None:
         """STOP without a Rig panel: the connected rig's stop, bypassing its queue."""

@@ -623,8 +623,8 @@ class RigPanel(QWidget):
         else:
             self.x_label.setText("—")
             self.y_label.setText("—")
-        text = snapshot.state.value + ("" if snapshot.homed or snapshot.state is RigState.DISCONNECTED
-                                       else "\nnot homed")
+        word = "homed" if snapshot.state is RigState.IDLE and snapshot.homed else snapshot.state.value
+        text = word + ("" if snapshot.homed or snapshot.state is RigState.DISCONNECTED else "\nnot homed")
         self.state_label.setText(text)
         colour = _STATE_COLOURS.get(snapshot.state, "#333")
         self.state_label.setStyleSheet(f"color: white; background: {colour}; border-radius: 4px; "

@@ -279,6 +279,8 @@ class ScanPanel(QWidget):
         self.studio = None              # the simulated studio this panel started (kept between scans)
         self.scan_session = None        # the ScanSession of the current scan (holds the dataset's lock)
         self._restore: list | None = None     # see prepare_scan / restore_time_scales
+        self._rig_simulator: Any = None       # the simulated rig and its own time scale (_pace_simulated_rig)
+        self._rig_own_scale = 1.0
         self._pending_recapture: list[tuple[int, int]] = []
         self._last_start: list[tuple[int, int]] | None = None
         self._drain_timer = QTimer(self)
@@ -403,6 +405,11 @@ class ScanPanel(QWidget):
                                    "(1 real time, 0.1 ten times faster, 0 as fast as possible)")
         if self.state.simulated:
             out_form.addRow("Simulation time scale", self.time_scale)
+            self.time_scale.setToolTip(self.time_scale.toolTip() + ". It also paces the simulated rig's "
+                                       "homing, jogs and moves outside a scan.")
+            self.time_scale.valueChanged.connect(lambda _v: self._pace_simulated_rig())
+            self.state.devicesChanged.connect(
+                lambda name: self._pace_simulated_rig() if name == "rig_simulator" else None)
 
         buttons = QHBoxLayout()
         self.start_button = self._button("Start", "startButton", "Start the scan (Ctrl+R); resumes an existing dataset",
@@ -520,6 +527,16 @@ class ScanPanel(QWidget):
                          self.settle), values):
             w.setValue(v)
         return True
+
+    def _pace_simulated_rig(self) -> None:
+        """The simulated rig moves and homes at the Simulation time scale (0: at once) outside a scan
+        too, never slower than it was started (a scan sets it for its own run and gives it back)."""
+        simulator = self.state.devices.get("rig_simulator")
+        if simulator is None or self.state.scan_active:
+            return
+        if self._rig_simulator is not simulator:
+            self._rig_simulator, self._rig_own_scale = simulator, float(simulator.time_scale)
+        simulator.time_scale = min(self._rig_own_scale, float(self.time_scale.value()))
 
     def _browse(self) -> None:
         folder = QFileDialog.getExistingDirectory(self, "Dataset folder", str(Path(self.folder.text()).parent))
