@@ -30,12 +30,14 @@ def badge_word(status: Any, homing: bool = False) -> str:
         return "fault"
     if not isinstance(status, RigStatus) or status.state is RigState.DISCONNECTED:
         return "disconnected"
+    if homing:                             # a home command runs (from an alarm lock too)
+        return "homing"
     if status.state is RigState.ALARM:
         extra = status.extra if isinstance(status.extra, dict) else {}
         if not status.homed and extra.get("locked") and extra.get("alarm_code") is None:
             return "not homed"             # a controller with homing boots locked until homed: no fault
         return "alarm"
-    if status.state is RigState.HOMING or homing:
+    if status.state is RigState.HOMING:
         return "homing"
     if status.state in (RigState.MOVING, RigState.JOGGING):
         return "moving"

@@ -48,10 +48,15 @@ def test_home_from_the_menu_with_the_rig_panel_hidden(qtbot):
     window.state.statusMessage.connect(lambda text, _ms: messages.append(text))
     home = window.panels["rigDock"].home_action
     assert home in window.menu("Rig").actions()
+    qtbot.waitUntil(home.isEnabled, timeout=T)         # once the connect call has returned
     home.trigger()
     qtbot.waitUntil(lambda: badge.word == "homed", timeout=T)
     assert words[0] == "homing" and words[-1] == "homed", words
-    qtbot.waitUntil(lambda: window.panels["rigDock"].state_label.text() == "homed", timeout=T)  # not "idle"
+    label = window.panels["rigDock"].state_label
+    try:
+        qtbot.waitUntil(lambda: label.text() == "homed", timeout=T)      # not "idle"
+    except Exception:
+        raise AssertionError(label.text())
     assert any("homing" in m for m in messages) and messages[-1] == "Rig homed", messages
     assert badge.isVisible() and window.rect().contains(QRect(badge.mapTo(window, QPoint(0, 0)), badge.size()))
     window.panels["scanPanel"].time_scale.setValue(0.5)
