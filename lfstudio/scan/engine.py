@@ -116,6 +116,7 @@ class ScanFault(LfError):
         self.device = device
         self.clears = clears
         self.reconnected = False     # the auto-resume probe reconnected the device already
+        self.stop_pressed = False    # the operator's STOP: they know, no alarm box (the rig may still be homed)
 
 
 class _Interrupted(Exception):
@@ -354,9 +355,10 @@ class ScanEngine:
         """The rig's STOP was pressed (any thread): pause instead of moving on."""
         if self._drop_by is not None:       # the engine's own stop for abort(grace_s): already ending
             return
-        self._post(_Message(Trigger.FAULT, (ScanFault(
-            "STOP pressed: the rig stopped. Check the rig and the scene, then Resume to go on "
-            "(or Abort).", "rig"), None)))
+        fault = ScanFault("STOP pressed: the rig stopped. Check the rig and the scene, then Resume to go on "
+                          "(or Abort).", "rig")
+        fault.stop_pressed = True
+        self._post(_Message(Trigger.FAULT, (fault, None)))
 
     # -- requests (any thread) ---------------------------------------------------------------------
     def _post(self, message: _Message) -> None:
@@ -988,14 +990,15 @@ class ScanEngine:
         t_moved = time.monotonic()
         settle = self.plan.settle_s * self.time_scale
         if settle > 0:   # an abort shortens it; this view is still captured: the rig is there
-            self._wait(lambda: self._state is ScanState.STOPPING, settle)
+            self._wait(lambda: self._state is ScanState.STOPPING or self._faulted(), settle)
         t_settled = time.monotonic()
         # the camera must have finished the previous transfer before it can expose again
         prev = self._prev_future
         if prev is not None:
             prev.add_done_callback(self._wake)
             self._wait(lambda: prev.done() or self._drop_by is not None, self.capture_call_timeout_s() + 10)
-        if self._drop_by is not None:                 # abort(grace_s): no new exposure
+        self._handle_inbox()
+        if self._drop_by is not None or self._faulted():   # abort(grace_s), STOP or a fault: no new exposure
             self._attempts[view.cell] = attempt - 1
             raise _Interrupted()
         t_ready = time.monotonic()
@@ -1032,6 +1035,11 @@ class ScanEngine:
         self._emit(EventKind.VIEW_EXPOSED, index=view.index, row=view.row, column=view.column,
                    timings_s=dict(job.timings_s))
         self._store_q.put(job)
+
+    def _faulted(self) -> bool:
+        """Pausing on a fault (STOP pressed, an alarm, a disk problem): the view being taken is not
+        exposed (the rig may not be where it was sent; after STOP the operator expects nothing more)."""
+        return self._state is ScanState.PAUSING and self.fault is not None
 
     def _free_hung_camera(self, exc: BaseException | None = None) -> None:
         """A capture that timed out may still hang in the driver: stop it so the camera is usable."""

@@ -398,3 +398,45 @@ def test_a_second_scan_on_a_held_rig_pauses_naming_the_first(make):
     assert first.wait(T) is ScanState.FINISHED
     second.resume()
     assert second.wait(T) is ScanState.FINISHED and ds2.status_counts()["done"] == 2
+
+
+class TransferHeldCamera(InstantCamera):
+    """The instant camera whose exposure ends at once but whose transfer (the rest of the capture call)
+    waits until the test lets it go: the next view's exposure waits for it."""
+
+    def __init__(self, *a, **kw):
+        super().__init__(*a, **kw)
+        self.exposed = threading.Semaphore(0)
+        self.gate = threading.Semaphore(0)
+
+    def capture(self, stem_path, on_exposed=None):
+        result = super().capture(stem_path, on_exposed)
+        self.exposed.release()
+        assert self.gate.acquire(timeout=T), "the test never released the transfer"
+        return result
+
+    def release(self, n=1):
+        for _ in range(n):
+            self.gate.release()
+
+
+def test_stop_while_the_next_view_waits_for_the_camera_exposes_nothing_more(make):
+    """STOP pressed after the rig reached the next view, while the engine waits for the previous
+    view's transfer: before, that view was still exposed once the camera was free (one more exposure
+    after STOP); now the scan pauses without it and the view is taken again after Resume."""
+    engine, ds, rig, cam, events, rig_worker = make(camera_cls=TransferHeldCamera, shared_rig=True)
+    second_started = threading.Event()
+    engine.subscribe(lambda ev: second_started.set()
+                     if ev.kind is EventKind.VIEW_STARTED and ev.index == 1 else None)
+    engine.start()
+    assert cam.exposed.acquire(timeout=T)             # view 1 exposed, its transfer held
+    assert second_started.wait(T)                     # the engine is on to view 2
+    rig_worker.stop_now()
+    cam.release()                                     # view 1's transfer ends: the camera is free
+    assert engine.wait_for_state(ScanState.PAUSED, timeout_s=T)
+    assert cam.captures == 1, "an exposure after STOP"
+    assert [ev.index for ev in events if ev.kind is EventKind.VIEW_EXPOSED] == [0]
+    engine.resume()
+    cam.release(10)
+    assert engine.wait(T) is ScanState.FINISHED, engine.message
+    assert ds.status_counts()["done"] == 6 and cam.captures == 6

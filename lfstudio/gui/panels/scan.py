@@ -302,6 +302,7 @@ class ScanPanel(QWidget):
         self._log_follow = True         # the log shows its newest line (see _append_log)
         self._resumable = False         # the last scan ended with views still to capture (Resume continues it)
         self._rig_device = None         # the rig whose status may end a paused scan's rig fault
+        self._rig_unready = False       # the paused scan's rig was seen not homed or in alarm
         self.unattended = None          # notifications, status page, auto-resume, on-finish (gui/unattended.py)
         self._said = GuiInbox(lambda lines: [self._log(line) for line in lines], self)   # its lines, any thread
         self._notified_state = None     # the last scan state a desktop notification was decided for
@@ -994,6 +995,10 @@ class ScanPanel(QWidget):
         colors = {ScanState.RUNNING: "#60c070", ScanState.PAUSED: "#f0b030", ScanState.PAUSING: "#f0b030",
                   ScanState.STOPPING: "#f0b030", ScanState.FAILED: "#e06060", ScanState.FINISHED: "#80a0ff"}
         fault = self.engine is not None and self.engine.fault is not None and st is ScanState.PAUSED
+        stopped = fault and getattr(self.engine.fault, "stop_pressed", False)    # the operator's own STOP
+        fault = fault and not stopped
+        if st is ScanState.PAUSED:
+            self._rig_unready = False          # see _rig_status: "ready again" only after it was not
         color = "#e06060" if fault else colors.get(st, "#c0c0c0")
         self.state_label.setText(f"<b style='color:{color}'>{st.value.capitalize()}</b> {message}")
         if st in (ScanState.PAUSED, ScanState.FINISHED, ScanState.FAILED):
@@ -1017,6 +1022,8 @@ class ScanPanel(QWidget):
                 QTimer.singleShot(0, lambda: self.start(recapture=cells))
         if fault and not self.engine.resumes_by_itself:    # auto-resume waits: no message box to answer
             self.state.report_error("Scan paused", message)
+        elif stopped:
+            self.state.show_status("STOP: the scan is paused (Resume in the Scan panel continues it)", 10000)
         self._update_buttons()
 
     def _follow_rig(self, name: str) -> None:
@@ -1044,7 +1051,10 @@ class ScanPanel(QWidget):
             return
         from lfstudio.rig.motion import RigState
 
-        if getattr(snapshot, "homed", False) and getattr(snapshot, "state", None) is RigState.IDLE:
+        ready = getattr(snapshot, "homed", False) and getattr(snapshot, "state", None) is RigState.IDLE
+        if not ready:
+            self._rig_unready = True           # lost its reference or in alarm: say so when it is back
+        elif self._rig_unready:
             text = "<b style='color:#f0b030'>Paused</b> The rig is ready again (homed): press Resume to continue."
             if self.state_label.text() != text:
                 self.state_label.setText(text)

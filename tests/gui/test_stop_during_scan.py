@@ -1,0 +1,39 @@
+"""STOP during a scan in the window (simulated studio on a real pty, real Qt loop): the scan pauses
+(no exposure after STOP: tests/scan/test_engine_states.py), the operator who pressed STOP gets no alarm box ("Scan paused") but a
+status line, and the scan never claims "the rig is homed again" when nothing took its reference."""
+
+from __future__ import annotations
+
+from PySide6.QtCore import Qt
+from PySide6.QtWidgets import QMessageBox
+
+from lfstudio.dataset import Dataset
+from tests.gui.test_interlock_gui import homed_simulated_studio
+from tests.gui.test_messages_day import set_up_scan
+
+T = 60000
+
+
+def test_stop_pauses_the_scan_quietly_and_truthfully(qtbot, tmp_path):
+    window, rig, camera, scan = homed_simulated_studio(qtbot)
+    set_up_scan(scan, 8, 3, tmp_path / "stopped")
+    scan.time_scale.setValue(0.05)
+    messages = []
+    window.state.statusMessage.connect(lambda text, _ms: messages.append(text))
+    qtbot.mouseClick(scan.start_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: scan.engine is not None and scan.engine.dataset.status_counts()["done"] >= 2,
+                    timeout=T)
+    qtbot.mouseClick(window.stop_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: scan.engine.state.value == "paused", timeout=T)
+    assert scan.engine.fault is not None and scan.engine.fault.stop_pressed
+    boxes = [b for b in window.findChildren(QMessageBox) if b.isVisible()]
+    assert not boxes, [b.text() for b in boxes]              # no alarm box for the operator's own STOP
+    assert any("STOP" in m and "Resume" in m for m in messages), messages
+    assert "e06060" not in scan.state_label.text()            # not red: nothing failed
+    qtbot.waitUntil(lambda: rig.last_status is not None and rig.last_status.state.value == "idle", timeout=T)
+    qtbot.wait(300)       # not a synchronisation: a few rig snapshots arrive while paused
+    assert "homed again" not in "\n".join(scan._log_lines + [scan.log_view.toPlainText()])
+    qtbot.mouseClick(scan.resume_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: "Finished" in scan.state_label.text(), timeout=T)
+    assert Dataset.open(tmp_path / "stopped").status_counts()["done"] == 24
+    window.close()
