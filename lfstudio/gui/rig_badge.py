@@ -23,9 +23,12 @@ BADGE_COLOURS = {"disconnected": "#6b7280", "not homed": "#b35900", "homing": "#
                  "moving": "#1565c0", "hold": "#b35900", "alarm": "#b00020", "fault": "#b00020"}
 
 
-def badge_word(status: Any, homing: bool = False) -> str:
+MOVES = ("move_to", "jog")     # device calls that move the rig (shown as "moving" while they run)
+
+
+def badge_word(status: Any, homing: bool = False, moving: bool = False) -> str:
     """The badge's word for a rig snapshot (None: no rig connected). ``homing``: a home command is
-    running (the controller may report Idle between its phases)."""
+    running (the controller may report Idle between its phases); ``moving``: a move command is."""
     if isinstance(status, DeviceFault):
         return "fault"
     if not isinstance(status, RigStatus) or status.state is RigState.DISCONNECTED:
@@ -39,7 +42,7 @@ def badge_word(status: Any, homing: bool = False) -> str:
         return "alarm"
     if status.state is RigState.HOMING:
         return "homing"
-    if status.state in (RigState.MOVING, RigState.JOGGING):
+    if status.state in (RigState.MOVING, RigState.JOGGING) or (moving and status.state is not RigState.HOLD):
         return "moving"
     if status.state is RigState.HOLD:
         return "hold"
@@ -61,6 +64,7 @@ class RigBadge(QToolButton):
         self._device: Any = None
         self._status: Any = None
         self._homing = False
+        self._moves = 0                  # move calls running
         self.word = ""
         if show_rig_panel is not None:
             self.clicked.connect(show_rig_panel)
@@ -83,7 +87,7 @@ class RigBadge(QToolButton):
                     signal.disconnect(slot)
                 except (RuntimeError, TypeError):
                     pass
-        self._device, self._homing = device, False
+        self._device, self._homing, self._moves = device, False, 0
         self._status = None if device is None else device.latest
         if device is not None:
             device.statusChanged.connect(self._on_status)
@@ -97,25 +101,34 @@ class RigBadge(QToolButton):
         self._show()
 
     def _call_started(self, name: str) -> None:
+        if name in MOVES:
+            self._moves += 1
+            self._show()
         if name == "home":
             self._homing = True
             self.state.show_status("Rig: homing … (STOP: Esc)", 0)
             self._show()
 
     def _call_finished(self, name: str, _result: Any) -> None:
+        if name in MOVES:
+            self._moves = max(0, self._moves - 1)
+            self._show()
         if name == "home":
             self._homing = False
             self.state.show_status("Rig homed", 8000)
             self._show()
 
     def _call_failed(self, name: str, message: str) -> None:
+        if name in MOVES:
+            self._moves = max(0, self._moves - 1)
+            self._show()
         if name == "home":
             self._homing = False
             self.state.show_status(f"Rig: homing failed: {message.splitlines()[0] if message else ''}", 15000)
             self._show()
 
     def _show(self) -> None:
-        word = badge_word(self._status if self._device is not None else None, self._homing)
+        word = badge_word(self._status if self._device is not None else None, self._homing, self._moves > 0)
         changed, self.word = word != self.word, word
         self.setText(f"Rig: {word}")
         self.setStyleSheet(f"QToolButton {{ color: white; background: {BADGE_COLOURS[word]}; border-radius: 4px;"

@@ -196,6 +196,17 @@ class RigNotHomed(DeviceError):
     (the GUI offers it; the CLI's line names ``--home``)."""
 
 
+class RigNotWhereLeft(DeviceError):
+    """A resume on the dataset's own rig, which stands elsewhere than where the last run left it (it
+    was moved, or lost its position). ``position_mm``: where it reports; ``last_mm`` and ``last_view``:
+    the last captured view's position and name (the GUI offers to move the rig there)."""
+
+    def __init__(self, message: str, position_mm: tuple[float, float], last_mm: tuple[float, float],
+                 last_view: str):
+        super().__init__(message)
+        self.position_mm, self.last_mm, self.last_view = position_mm, last_mm, last_view
+
+
 def cli_homing_hint(port: str, config: RigConfig) -> str:
     """How to home from the command line (the end of a "not homed" line)."""
     if config.homing:
@@ -253,11 +264,12 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
             off = _distance_to_path(status.position_mm, [last, *ahead])
             if off > tolerance_mm:
                 x, y = status.position_mm
-                raise DeviceError(
+                raise RigNotWhereLeft(
                     f"the rig reports ({x:.3f}, {y:.3f}) mm, but the dataset's last view {name} was captured at "
                     f"({last[0]:.3f}, {last[1]:.3f}) mm ({off:.2f} mm away, tolerance {tolerance_mm:g} mm): it was "
-                    f"moved or lost its position. To resume from a known position: {fix} "
-                    f"(or move it back to ({last[0]:.3f}, {last[1]:.3f}) mm)")
+                    f"moved or lost its position. To resume from a known position: {fix}, then move it back to "
+                    f"({last[0]:.3f}, {last[1]:.3f}) mm (lfstudio rig --port {port} move {last[0]:g} {last[1]:g})",
+                    (x, y), last, name)
             notes.append(f"rig at ({status.position_mm[0]:.3f}, {status.position_mm[1]:.3f}) mm, where the last "
                          f"run left it (last view {name}): continuing")
     return notes
@@ -468,9 +480,11 @@ class ScanSession:
             self._check_devices(existing, record, current)
             same_rig = not any(d.startswith("rig ") for d in device_differences(record, current))
         if not fresh:
-            # where the last run left the rig means something only for the same rig
+            # where the last run left the rig means something only for the same rig, and only to continue
+            # its path: a re-capture trusts a homed rig as a new scan does (it drives to each view)
             for line in prepare_rig(rig, config, port, home=req.home, origin_here=req.origin_here,
-                                    resume_from=(existing, plan) if existing is not None and same_rig else None,
+                                    resume_from=(existing, plan) if existing is not None and same_rig
+                                    and not req.recapture else None,
                                     how_to_home=how_to_home):
                 self.note(line)
         elif req.home or req.origin_here:

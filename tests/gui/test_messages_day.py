@@ -77,7 +77,7 @@ def test_resume_the_scan_is_said_only_with_a_resume_button_that_works(qtbot, tmp
     assert "Resume the scan" in panel.state_label.text()
     assert panel.resume_button.isEnabled()
     qtbot.mouseClick(panel.resume_button, Qt.LeftButton)
-    qtbot.waitUntil(lambda: "Finished:" in panel.state_label.text(), timeout=20000)
+    qtbot.waitUntil(lambda: "Finished</b>" in panel.state_label.text(), timeout=20000)
     assert Dataset.open(tmp_path / "aborted").status_counts()["done"] == 12
     assert not panel.resume_button.isEnabled()                  # nothing left to resume
 

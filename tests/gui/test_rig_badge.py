@@ -24,6 +24,7 @@ def test_badge_words():
     assert badge_word(RigStatus(RigState.HOMING, (0, 0))) == "homing"
     assert badge_word(RigStatus(RigState.MOVING, (0, 0), homed=True)) == "moving"
     assert badge_word(RigStatus(RigState.JOGGING, (0, 0), homed=True)) == "moving"
+    assert badge_word(RigStatus(RigState.IDLE, (0, 0), homed=True), moving=True) == "moving"
     assert badge_word(RigStatus(RigState.ALARM, (0, 0), extra={"locked": True, "alarm_code": 2})) == "alarm"
     assert badge_word(RigStatus(RigState.ALARM, (0, 0), extra={"locked": True, "alarm_code": None})) == "not homed"
     assert badge_word(DeviceFault("rig", "serial port vanished")) == "fault"

@@ -25,6 +25,7 @@ def test_stop_pauses_the_scan_quietly_and_truthfully(qtbot, tmp_path):
                     timeout=T)
     qtbot.mouseClick(window.stop_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: scan.engine.state.value == "paused", timeout=T)
+    qtbot.waitUntil(lambda: "Paused" in scan.state_label.text(), timeout=T)     # the GUI has the event too
     assert scan.engine.fault is not None and scan.engine.fault.stop_pressed
     boxes = [b for b in window.findChildren(QMessageBox) if b.isVisible()]
     assert not boxes, [b.text() for b in boxes]              # no alarm box for the operator's own STOP

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import time
 from collections import deque
 from functools import partial
@@ -204,7 +205,8 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     devices (dataset lock, dataset created or resumed with its own devices, rig checks) and its engine.
     Returns ``{"studio", "session", "dataset", "engine", "restore"}``."""
     from lfstudio.studio.devices import link_for_camera, link_for_rig, open_studio
-    from lfstudio.studio.session import DeviceChangeRefused, RigNotHomed, ScanRequest, ScanSession, SharedDevices
+    from lfstudio.studio.session import (DeviceChangeRefused, RigNotHomed, RigNotWhereLeft, ScanRequest, ScanSession,
+                                         SharedDevices)
 
     plan: ScanPlan = job["plan"]
     folder: Path = job["folder"]
@@ -249,6 +251,9 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     except RigNotHomed as exc:                # the operator may home first (ScanPanel._ask_home)
         restore_time_scales(restore)
         return {"studio": studio, "not_homed": exc}
+    except RigNotWhereLeft as exc:            # the operator may move it back (ScanPanel._ask_move_back)
+        restore_time_scales(restore)
+        return {"studio": studio, "not_there": exc}
     except BaseException:
         if started_studio is not None:
             started_studio.close()
@@ -730,7 +735,8 @@ class ScanPanel(QWidget):
             self.studio = prepared["studio"]
         refused = prepared.get("refused")
         engine = prepared.get("engine")
-        if refused is not None or prepared.get("not_homed") is not None or (engine is not None and engine.remaining == 0):
+        if refused is not None or prepared.get("not_homed") is not None or prepared.get("not_there") is not None \
+                or (engine is not None and engine.remaining == 0):
             self._close_unattended()           # started again (or not at all): a new one then
         if refused is not None:
             self._ask_device_change(refused)
@@ -738,6 +744,10 @@ class ScanPanel(QWidget):
             return
         if prepared.get("not_homed") is not None:
             self._ask_home(prepared["not_homed"])
+            self._update_buttons()
+            return
+        if prepared.get("not_there") is not None:
+            self._ask_move_back(prepared["not_there"])
             self._update_buttons()
             return
         dataset, engine = prepared["dataset"], prepared["engine"]
@@ -820,6 +830,51 @@ class ScanPanel(QWidget):
                 self.start(recapture=recapture, allow_device_change=allow, home=True)
             else:
                 self.state_label.setText("Not started: home the rig (Rig → Home), then Start")
+        box.buttonClicked.connect(answered)
+        box.open()
+
+    def _ask_move_back(self, problem) -> None:
+        """A resume whose rig stands elsewhere than where the last run left it: offer to drive it back to
+        the last captured view (the move shows in the toolbar's rig badge; STOP stops it), then start."""
+        x, y = problem.last_mm
+        px, py = problem.position_mm
+        self.state_label.setText(f"The rig is not where the last view ({problem.last_view}) was taken")
+        self._log(str(problem))
+        box = QMessageBox(
+            QMessageBox.Question, "Move the rig back?",
+            f"The rig is at ({px:.3f}, {py:.3f}) mm; the last view of this dataset, {problem.last_view}, was "
+            f"taken at ({x:.3f}, {y:.3f}) mm.\n\nMove the rig there and continue the scan? Do this only if its "
+            "position can be trusted: if it was switched off, reset or pushed by hand since, home it first "
+            "(Rig → Home), then press Resume again.", QMessageBox.Yes | QMessageBox.No, self)
+        box.setObjectName("moveBackBox")
+        box.button(QMessageBox.Yes).setText(f"Move to {problem.last_view}, then scan")
+        box.button(QMessageBox.No).setText("Cancel")
+        box.setDefaultButton(QMessageBox.Yes)
+        self.move_back_box = box
+        recapture, allow = self._last_start, getattr(self, "_last_allow_change", False)
+
+        def answered(button) -> None:
+            if box.standardButton(button) != QMessageBox.Yes:
+                self.state_label.setText(f"Not started: the rig is not where {problem.last_view} was taken")
+                return
+            rig = self.state.devices.get("rig")
+            if rig is None:
+                self.state.report_error("Scan", "The rig is not connected: connect it (Rig → Connect rig), "
+                                        "then press Resume again.")
+                return
+            self._log(f"moving the rig to ({x:.3f}, {y:.3f}) mm, where {problem.last_view} was taken")
+            self.state_label.setText(f"Moving the rig to {problem.last_view} (STOP: Esc) …")
+            self.state.show_status(f"Rig: moving to {problem.last_view} at ({x:.3f}, {y:.3f}) mm before the scan "
+                                   "(STOP: Esc)", 0)
+
+            def arrived(_status) -> None:
+                self.state.show_status(f"Rig at {problem.last_view}: continuing the scan", 5000)
+                self.start(recapture=recapture, allow_device_change=allow)
+
+            def failed(message: str) -> None:
+                self.state_label.setText(f"Not started: the move to {problem.last_view} failed")
+                self.state.report_error("Scan", f"The rig did not reach {problem.last_view}: {message}")
+            rig.run("move_to", x, y, on_result=arrived, on_error=failed)
         box.buttonClicked.connect(answered)
         box.open()
 
@@ -1000,7 +1055,11 @@ class ScanPanel(QWidget):
         if st is ScanState.PAUSED:
             self._rig_unready = False          # see _rig_status: "ready again" only after it was not
         color = "#e06060" if fault else colors.get(st, "#c0c0c0")
-        self.state_label.setText(f"<b style='color:{color}'>{st.value.capitalize()}</b> {message}")
+        word = st.value.capitalize()
+        said = re.match(r"([A-Z][a-z]+): (.*)", message, re.S)    # "Aborted: 4 of 27 …" names the state itself
+        if said is not None:
+            word, message = said.group(1), said.group(2)
+        self.state_label.setText(f"<b style='color:{color}'>{word}</b> {message}")
         if st in (ScanState.PAUSED, ScanState.FINISHED, ScanState.FAILED):
             self._current_text = None
             self.current.setText("Current view: –")
