@@ -69,6 +69,11 @@ class EtaEstimator:
         return max(total - done, 0) / rate
 
 
+def count(n: int, noun: str, plural: str | None = None) -> str:
+    """``count(1, "view")`` -> "1 view", ``count(27, "view")`` -> "27 views" (``plural`` when not noun + s)."""
+    return f"{n} {noun if n == 1 else (plural or noun + 's')}"
+
+
 def format_duration(seconds: float | None) -> str:
     """'1 h 02 min', '3 min 05 s', '12 s' or '–' when unknown."""
     if seconds is None:

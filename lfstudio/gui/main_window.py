@@ -160,6 +160,7 @@ class MainWindow(QMainWindow):
         self._install_stop_toolbar()
         self._default_state = self.saveState()     # the first-start layout, for View → Reset layout
         state.scanStateChanged.connect(self._on_scan_state)
+        state.scanEvents.connect(self._refresh_quit_box)
 
         state.statusMessage.connect(lambda text, ms: self.statusBar().showMessage(text, ms))
         state.errorOccurred.connect(self.show_error)
@@ -500,19 +501,15 @@ class MainWindow(QMainWindow):
         if box is not None and box.isVisible():
             box.raise_()
             return box
-        label = self.state.scan_label or "the scan"
-        done, total = self.state.scan_progress
         dataset = self.state.dataset
         folder = str(dataset.root) if dataset is not None else "the dataset folder"
-        how = "paused" if self.state.scan_state is ScanState.PAUSED else "running"
-        box = QMessageBox(QMessageBox.Warning, "Quit during a scan",
-                          f"{label[0].upper()}{label[1:]} is {how}: {done} of {total} views captured.",
+        box = QMessageBox(QMessageBox.Warning, "Quit during a scan", self._quit_question(),
                           QMessageBox.NoButton, self)
         box.setObjectName("quitDuringScanBox")
         box.setInformativeText(
             "If you quit now, the scan stops after the current view. Everything captured stays in "
-            f"{folder} and can be resumed: lfstudio offers it at its next start (or choose this folder in "
-            f"the Scan panel and press Start), or run: lfstudio scan --out {folder} --resume")
+            f"{folder} and can be resumed: lfstudio offers it at its next start (or put this folder in the "
+            "Scan panel's Folder field and press Start).")
         stop = box.addButton("Stop the scan and quit", QMessageBox.DestructiveRole)
         keep = box.addButton("Cancel: keep scanning", QMessageBox.RejectRole)
         stop.setObjectName("stopAndQuitButton")
@@ -523,6 +520,20 @@ class MainWindow(QMainWindow):
         self._quit_box = box
         box.open()
         return box
+
+    def _quit_question(self) -> str:
+        label = self.state.scan_label or "the scan"
+        done, total = self.state.scan_progress
+        how = "paused" if self.state.scan_state is ScanState.PAUSED else "running"
+        return f"{label[0].upper()}{label[1:]} is {how}: {done} of {total} {'view' if total == 1 else 'views'} captured."
+
+    def _refresh_quit_box(self, _events=None) -> None:
+        """The quit question's count follows the scan while it is open (it was frozen at opening)."""
+        box = self._quit_box
+        if box is not None and box.isVisible():
+            text = self._quit_question()
+            if box.text() != text:
+                box.setText(text)
 
     def _quit_answered(self, stop_scan: bool) -> None:
         if not stop_scan:

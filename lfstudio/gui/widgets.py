@@ -15,6 +15,22 @@ from lfstudio.gui.bridge import Pacer
 from lfstudio.jobs import format_duration
 
 
+def readable_time(iso: str | None) -> str:
+    """A timestamp from a file (ISO 8601, UTC, milliseconds: ``dataset.manifest.now_iso``) as a person
+    reads it, in local time: "27 Nov 2026, 13:48" ("" when missing; the text itself when unreadable)."""
+    if not iso:
+        return ""
+    from datetime import datetime
+
+    try:
+        moment = datetime.fromisoformat(str(iso).replace("Z", "+00:00"))
+    except ValueError:
+        return str(iso)
+    if moment.tzinfo is not None:
+        moment = moment.astimezone()
+    return f"{moment.day} {moment:%b %Y, %H:%M}"
+
+
 def set_progress_async(bar: QProgressBar, value: int, maximum: int | None = None) -> None:
     """Set a progress bar without the synchronous repaint ``QProgressBar.setValue`` does.
 

@@ -264,13 +264,14 @@ def test_quitting_during_a_scan_asks_and_cancel_keeps_it_running(qtbot, tmp_path
     qtbot.waitUntil(lambda: box.isVisible(), timeout=T)
     assert "is running: 0 of 6 views captured" in box.text()
     text = box.informativeText()
-    assert "stops after the current view" in text and str(folder) in text and f"--out {folder} --resume" in text
+    assert "stops after the current view" in text and str(folder) in text and "Scan panel's Folder field" in text
+    assert "lfstudio scan" not in text                          # the window's words, not a command line
+    cam.release()                                               # a view is captured while the question is open:
+    qtbot.waitUntil(lambda: "is running: 1 of 6 views captured" in box.text(), timeout=T)   # the count follows
+    assert cam.captures == 1 and cam.entered.acquire(timeout=T / 1000)
     qtbot.mouseClick(box.findChild(type(box.defaultButton()), "keepScanningButton"), Qt.LeftButton)
     qtbot.waitUntil(lambda: not box.isVisible(), timeout=T)
     assert window.isVisible() and engine.state is ScanState.RUNNING   # Cancel: the scan goes on
-    cam.release()
-    qtbot.waitUntil(lambda: cam.captures == 1, timeout=T)
-    assert cam.entered.acquire(timeout=T / 1000)
 
     assert window.close() is False
     box = window._quit_box

@@ -170,7 +170,7 @@ def test_scan_panel_pause_resume_and_recapture(qtbot, tmp_path, instant_devices)
     state.recaptureRequested.emit([(1, 3), (0, 0)])
     qtbot.waitUntil(lambda: cam.captures == before + 2 and "Finished" in panel.state_label.text()
                     and not panel.running, timeout=20000)
-    assert "re-capturing 2 view(s)" in panel.log_view.toPlainText()
+    assert "re-capturing 2 views" in panel.log_view.toPlainText()
 
 
 def test_interrupted_scan_is_offered_for_resume_on_start(qtbot, tmp_path):

@@ -152,7 +152,7 @@ class _ImportDialogBase(QDialog):
         if kind == FOLDER_OTHERS:            # the operator's files: never replaced; a sub-folder is offered
             self.show_message(f"Not imported yet: {new_dataset_folder_problem(out)}", ok=False)
             self._confirm = offer_sub_folder(self, out, stem="lfstudio-import", verb="Import",
-                                             where="Destination", accepted=self._import_into)
+                                             where="the Destination field", accepted=self._import_into)
             return
         if kind == FOLDER_FILE:
             self.show_message(f"Destination: {out} is a file; choose a folder name for the new dataset", ok=False)

@@ -8,6 +8,8 @@ from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import QLabel, QPushButton, QVBoxLayout, QWidget
 
 from lfstudio.errors import LfError
+from lfstudio.gui.widgets import readable_time
+from lfstudio.jobs import count
 
 
 class CalibrationPanel(QWidget):
@@ -78,10 +80,19 @@ class CalibrationPanel(QWidget):
         if u is not None and u.corner_error_px:
             corners = (f"<br>at the image corners ≤ {u.corner_error_px[0]:.2f} px (1σ), "
                        f"≤ {u.corner_error_px[1]:.2f} px (2σ)")
-        warn = f"<br><span style='color:#b00020'>{len(doc['warnings'])} warning(s)</span>" if doc.get("warnings") else ""
-        self.summary.setText(f"<b>Calibrated</b> {doc.get('created') or ''}<br>{angles}{corners}<br>residual RMS "
-                             f"{before['rms']:.2f} → {after['rms']:.2f} px "
-                             f"({len(doc.get('views_used', []))} views){warn}")
+        # an angle held because these views do not determine it is a note about the fit, not a problem
+        held_notes = {h.get("reason") for h in ((doc.get("observability") or {}).get("held") or [])}
+        warnings = [w for w in doc.get("warnings") or [] if w not in held_notes]
+        notes = [w for w in doc.get("warnings") or [] if w in held_notes]
+        warn = ""
+        if warnings:
+            warn += f"<br><span style='color:#b00020'>{count(len(warnings), 'warning')}</span>"
+        if notes:
+            warn += f"<br><span style='color:#5b6470'>{count(len(notes), 'note')}</span>"
+        self.summary.setToolTip("\n".join([*(f"Warning: {w}" for w in warnings), *(f"Note: {n}" for n in notes)]))
+        self.summary.setText(f"<b>Calibrated</b> {readable_time(doc.get('created'))}<br>{angles}{corners}<br>"
+                             f"residual RMS {before['rms']:.2f} → {after['rms']:.2f} px "
+                             f"({count(len(doc.get('views_used', [])), 'view')}){warn}")
 
     def open_wizard(self) -> None:
         if self.state.dataset is None:

@@ -38,7 +38,7 @@ from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import QuietLabel, set_progress_async
-from lfstudio.jobs import format_duration
+from lfstudio.jobs import count, format_duration
 from lfstudio.scan.events import EventKind, ScanRequestRefused, ScanState
 from lfstudio.scan.scan_plan import ScanPlan
 
@@ -366,6 +366,8 @@ class ScanPanel(QWidget):
         self.order.addItems(ORDERS)
         self.order.setToolTip("row-meander: left→right, then right→left on the next row (fastest, the default)")
         form.addRow("Order", self.order)
+        self._own_order = self.order.currentText()     # the operator's choice (an opened dataset's is not saved)
+        self.order.activated.connect(lambda _i: setattr(self, "_own_order", self.order.currentText()))
         self.settle = QDoubleSpinBox()
         self.settle.setRange(0.0, 30.0)
         self.settle.setDecimals(2)
@@ -494,6 +496,7 @@ class ScanPanel(QWidget):
             a.triggered.connect(slot)
             menu.addAction(a)
             setattr(self, f"action_{text.split()[0].lower()}", a)
+        self._update_buttons()             # each enabled only when its button in the Scan panel is
 
     # -- settings ----------------------------------------------------------------------------------
     def _load_settings(self) -> None:
@@ -504,6 +507,7 @@ class ScanPanel(QWidget):
         try:
             self.time_scale.setValue(float(s.value("scan/time_scale", 1.0)))
             self.order.setCurrentText(str(s.value("scan/order", "row-meander")))
+            self._own_order = self.order.currentText()
         except (TypeError, ValueError):
             pass
 
@@ -511,7 +515,7 @@ class ScanPanel(QWidget):
         s = settings()
         s.setValue("scan/folder", self.folder.text())
         s.setValue("scan/time_scale", self.time_scale.value())
-        s.setValue("scan/order", self.order.currentText())
+        s.setValue("scan/order", self._own_order)      # the order the operator chose, not an opened dataset's
 
     def _grid_fields(self) -> dict[str, Any]:
         return {"columns": self.columns.value(), "rows": self.rows.value(),
@@ -585,6 +589,8 @@ class ScanPanel(QWidget):
             base = ScanPlan.from_grid(dataset.grid)
         except InputError:
             return
+        before = (self.columns.value(), self.rows.value(), self.spacing_h.value(), self.spacing_v.value(),
+                  self.order.currentText())
         self.folder.setText(str(dataset.root))
         fields = (self.columns, self.rows, self.spacing_h, self.spacing_v, self.order)
         for w in fields:
@@ -600,6 +606,15 @@ class ScanPanel(QWidget):
         done = dataset.captured_views()
         self.preview.set_done(done)
         self._set_progress(len(done), len(dataset.views))
+        after = (base.columns, base.rows, base.spacing_mm[0], base.spacing_mm[1], base.order)
+        if after != before:                # said, not silent; the operator's own order stays their default
+            self._log(f"the Scan panel shows {dataset.root.name}'s grid: {base.columns} × {base.rows} views, "
+                      f"{base.spacing_mm[0]:g} × {base.spacing_mm[1]:g} mm, {base.order} (was {before[0]} × "
+                      f"{before[1]}, {before[2]:g} × {before[3]:g} mm, {before[4]})")
+        pending = len(dataset.views) - len(done)
+        self._current_text = None
+        self.state_label.setText(f"{dataset.root.name}: {len(done)} of {count(len(dataset.views), 'view')} captured"
+                                 + (" — Start resumes it" if pending and not self._resumable else ""))
 
     def _update_preview(self) -> None:
         try:
@@ -618,7 +633,7 @@ class ScanPanel(QWidget):
         exposure = getattr(self.state.plan, "exposure_s", 0.5)
         transfer = getattr(self.state.plan, "transfer_s", 2.5)
         est = plan.estimate_duration_s(rig, exposure, transfer)
-        self.summary.setText(f"{len(plan)} views · about {format_duration(est)} at {exposure:g} s exposure "
+        self.summary.setText(f"{count(len(plan), 'view')} · about {format_duration(est)} at {exposure:g} s exposure "
                              f"and {transfer:g} s transfer{problem}")
 
     # -- running -----------------------------------------------------------------------------------
@@ -685,7 +700,7 @@ class ScanPanel(QWidget):
             self.folder.setText(str(sub))
             self.start(recapture=recapture)
         self.folder_box = offer_sub_folder(self, folder, stem="lfstudio-scan", verb="Scan",
-                                           where="Dataset → Folder", accepted=accepted)
+                                           where="the Folder field of the Scan panel", accepted=accepted)
 
     def _open_unattended(self, folder: Path, job: dict) -> bool:
         """Settings → Unattended scans for this scan (checked, the status page's port bound) before
@@ -774,7 +789,7 @@ class ScanPanel(QWidget):
         self.preview.set_done(dataset.captured_views())
         self.preview.set_plan(engine.plan.with_subset(None))
         settings().setValue(ACTIVE_KEY, str(dataset.root))
-        self._log(f"scan of {dataset.root}: {engine.remaining} views to capture"
+        self._log(f"scan of {dataset.root}: {count(engine.remaining, 'view')} to capture"
                   + ("" if engine.pipelined else " (camera without exposure signal: transfer not overlapped)"))
         engine.start()
         self._update_buttons()
@@ -907,9 +922,9 @@ class ScanPanel(QWidget):
         cells = [tuple(c) for c in cells]
         if self.running:
             if self._request("recapture", cells):
-                self._log(f"{len(cells)} view(s) queued for re-capture")
+                self._log(f"{count(len(cells), 'view')} queued for re-capture")
         else:
-            self._log(f"re-capturing {len(cells)} view(s)")
+            self._log(f"re-capturing {count(len(cells), 'view')}")
             self.start(recapture=cells)
 
     def offer_resume(self) -> None:
@@ -1139,6 +1154,11 @@ class ScanPanel(QWidget):
         for w in (self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v,
                   self.order, self.settle, self.folder, self.from_plan, self.time_scale):
             w.setEnabled(not running)
+        for name, button in (("start", self.start_button), ("pause", self.pause_button),   # Rig → … scan
+                             ("resume", self.resume_button), ("abort", self.abort_button)):
+            action = getattr(self, f"action_{name}", None)
+            if action is not None:
+                action.setEnabled(button.isEnabled())
 
     def _log(self, text: str) -> None:
         """A line for the log: at once, or with a drain's lines (see :meth:`_drain`), in order."""

@@ -43,6 +43,7 @@ from lfstudio.gui.settings import settings
 from lfstudio.gui.views.quality import (OVERLAY_KEY, DisparityDialog, LiveQuality, NeighboursDialog, QualityBar,
                                         run_check)
 from lfstudio.gui.widgets import QuietLabel, WholeOrNothingLabel
+from lfstudio.jobs import count
 
 log = logging.getLogger(__name__)
 
@@ -890,7 +891,7 @@ class GridView(QWidget):
         self._load_quality(dataset)
         self.stack.setCurrentIndex(1)
         grid = dataset.grid
-        self._title_parts = (dataset.root.name, f" — {grid.columns} × {grid.rows} views")
+        self._title_parts = (dataset.root.name, f" — {grid.columns} × {grid.rows} {'view' if grid.columns * grid.rows == 1 else 'views'}")
         self.title.set_parts(*self._title_parts)
         self.title.setToolTip(str(dataset.root))
         self._fit_title()
@@ -956,7 +957,7 @@ class GridView(QWidget):
         for r, c in cells:
             if self.canvas.status[r, c] != DONE:
                 self.canvas.set_cell(r, c, PENDING)
-        self.state.show_status(f"{len(cells)} view(s) queued for re-capture in the Scan panel")
+        self.state.show_status(f"{count(len(cells), 'view')} queued for re-capture in the Scan panel")
         self.canvas.selected.clear()
         self._on_selection(0)
         self.canvas.viewport().update()
@@ -1090,7 +1091,7 @@ class GridView(QWidget):
         self.canvas.selected = set(flagged)
         self.canvas.selectionChanged.emit(len(flagged))
         self.canvas.viewport().update()
-        self.state.show_status(f"{len(flagged)} flagged view(s) selected: Re-capture selected queues them")
+        self.state.show_status(f"{count(len(flagged), 'flagged view')} selected: Re-capture selected queues them")
 
     def show_disparity(self) -> None:
         doc = self.canvas.quality_doc or {}

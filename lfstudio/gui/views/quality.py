@@ -28,6 +28,7 @@ from lfstudio.dataset.paths import view_label
 from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import JobProgressWidget, QuietLabel
+from lfstudio.jobs import count
 
 LIVE_KEY = "quality/check_during_scan"
 OVERLAY_KEY = "quality/overlay"
@@ -150,7 +151,7 @@ class QualityBar(QWidget):
             self.summary.setText("")
             return
         where = "checked during the scan" if live else "checked"
-        text = f"{len(entries)} views {where}: "
+        text = f"{count(len(entries), 'view')} {where}: "
         text += (f"<span style='color:{VERDICT_COLOURS['fail']}'>{fail} fail</span> · "
                  f"<span style='color:{VERDICT_COLOURS['warn']}'>{warn} warn</span>") if fail or warn else \
             f"<span style='color:{VERDICT_COLOURS['pass']}'>all pass</span>"
