@@ -8,6 +8,7 @@ the CLI to a terminal progress bar (:class:`TerminalProgress`).
 
 from __future__ import annotations
 
+import shutil
 import sys
 import threading
 import time
@@ -96,6 +97,7 @@ class TerminalProgress:
         self.eta = EtaEstimator()
         self._tty = hasattr(self.stream, "isatty") and self.stream.isatty()
         self._last_line = 0.0
+        self._shown = 0          # characters of the line shown last (a terminal)
 
     def __call__(self, done: int, total: int, message: str = "") -> None:
         eta = self.eta.update(done, total)
@@ -104,8 +106,10 @@ class TerminalProgress:
         line = (f"{self.label} [{bar:<{self.width}}] {done}/{total} {frac:6.1%}"
                 f"  ETA {format_duration(eta)}  {message}")
         now = time.monotonic()
-        if self._tty:
-            self.stream.write("\r" + line[:160].ljust(160))
+        if self._tty:   # one terminal line (a longer one wraps, and every update scrolls a new line)
+            line = line[:max(20, shutil.get_terminal_size((80, 24)).columns - 1)]
+            self.stream.write("\r" + line + " " * max(0, self._shown - len(line)))   # clears a longer last one
+            self._shown = len(line)
             if done >= total:
                 self.stream.write("\n")
         elif done >= total or now - self._last_line > 2.0:

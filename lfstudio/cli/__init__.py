@@ -8,6 +8,7 @@ Register it by adding its module name to :data:`COMMANDS` (the CLI name is the m
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import logging
 import sys
@@ -43,12 +44,44 @@ class _Parser(argparse.ArgumentParser):
     """argparse with its errors (an unknown option, a value out of range) as one line, exit status 2."""
 
     def error(self, message: str) -> None:     # type: ignore[override]
+        prog = self.prog
+        if message.startswith("unrecognized arguments:"):
+            message += did_you_mean(self, message.split(":", 1)[1].split())
+            prog = typed_command(self) or prog       # the top parser reports a command's unknown options
         if message.startswith("the following arguments are required:"):    # name what each missing one takes
             for action in self._actions:
                 if action.choices and action.option_strings and action.option_strings[0] in message:
                     name = action.option_strings[0]
                     message = message.replace(name, f"{name} (one of {', '.join(map(str, action.choices))})", 1)
-        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+        self.exit(2, f"{prog}: error: {message} (see '{prog} --help')\n")
+
+
+def typed_command(parser: argparse.ArgumentParser) -> str:
+    """"lfstudio scan" when the command line names the command scan ("" when none)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                if name in sys.argv[1:]:
+                    return sub.prog
+    return ""
+
+
+def did_you_mean(parser: argparse.ArgumentParser, words: list[str]) -> str:
+    """``"; did you mean --grid?"`` for options typed wrong (``--gird``): the closest option of the
+    command on the command line (argparse's suggest_on_error is Python 3.14's)."""
+    options = {o for a in parser._actions for o in a.option_strings}
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            typed = [c for c in action.choices if c in sys.argv[1:]]
+            for name in typed[:1]:
+                options |= {o for a in action.choices[name]._actions for o in a.option_strings}
+    hints = []
+    for word in words:
+        if word.startswith("-"):
+            close = difflib.get_close_matches(word.split("=", 1)[0], sorted(options), n=1, cutoff=0.6)
+            if close:
+                hints.append(f"{word.split('=', 1)[0]}: did you mean {close[0]}?")
+    return f" ({'; '.join(hints)})" if hints else ""
 
 
 #: exit codes of every command (one convention, printed at the end of every --help)

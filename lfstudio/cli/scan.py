@@ -78,7 +78,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "scan never waits for) and name failing views at once; the full report: lfstudio check")
     _add_unattended_arguments(p)
     p.epilog = ("a second scan of the same DATASET, or of the same rig port or camera, is refused while this one "
-                "runs; on a real rig add --home (or --origin-here for a rig without limit switches)")
+                "runs; on a real rig add --home (or --origin-here for a rig without limit switches). "
+                f"Exit code {EXIT_FAULT}: a device fault stopped the scan (the message says what to fix and the "
+                "command that continues).")
 
 
 def _add_unattended_arguments(p: argparse.ArgumentParser) -> None:

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import re
 import threading
 import time
@@ -471,7 +472,9 @@ class GrblController:
                                                      write_timeout=self.timeout_s)
             except (serial.SerialException, OSError, ValueError) as exc:
                 self._serial = None
-                raise DeviceError(f"cannot open the rig port {self.port!r}: {exc}. Check the cable and "
+                number = getattr(exc, "errno", None)     # pyserial repeats it: "[Errno 2] could not open …: [Errno 2] …"
+                reason = f"{os.strerror(number)} (errno {number})" if isinstance(number, int) else str(exc)
+                raise DeviceError(f"cannot open the rig port {self.port!r}: {reason}. Check the cable and "
                                   "the port name (lfstudio rig --port ...), or use 'sim'") from exc
             self._lost = ""
             self._rx.clear()

@@ -217,7 +217,7 @@ def cli_homing_hint(port: str, config: RigConfig) -> str:
 
 def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, origin_here: bool = False,
                 resume_from: tuple[Dataset, ScanPlan] | None = None, how_to_home: str | None = None,
-                tolerance_mm: float = RESUME_TOLERANCE_MM) -> list[str]:
+                tolerance_mm: float = RESUME_TOLERANCE_MM, say: Callable[[str], None] | None = None) -> list[str]:
     """Apply the homing policy to a connected rig (see the module docstring); returns lines for the
     operator. ``rig``: the driver, or its :class:`~lfstudio.rig.worker.DeviceWorker`. ``how_to_home``:
     the end of a "not homed" line (default: the CLI's). Raises InputError/DeviceError with one line."""
@@ -232,6 +232,8 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
         if not config.homing:
             raise InputError("--home", f"rig profile {config.name!r} has no limit switches, so it cannot home",
                              "park the carriage at the left/top end of its travel and use --origin-here")
+        if say is not None:
+            say("homing the rig (it drives to its limit switches; Ctrl+C stops it) …")
         rig.home()
         notes.append("rig homed")
         return notes
@@ -459,6 +461,8 @@ class ScanSession:
                     rig_spec.port.startswith("/") and not os.path.exists(rig_spec.port):
                 raise DeviceError(f"the dataset was captured with the rig on {rig_spec.port}, which is not there now: "
                                   "connect the rig, or give the port it has now with --port PORT")
+            self.note(f"connecting the rig ({rig_spec.text}) and the camera ({cam_spec.text})"   # homing takes a while: say so
+                      + (" (the simulated rig homes first)" if rig_spec.kind == "sim" and config.homing else ""))
             studio = self.studio = open_studio(
                 rig_spec, cam_spec, config, doing=f"{self.doing} {self.folder}", time_scale=req.time_scale,
                 exposure_s=req.exposure_s, transfer_s=req.transfer_s, seed=req.seed,
@@ -485,7 +489,7 @@ class ScanSession:
             for line in prepare_rig(rig, config, port, home=req.home, origin_here=req.origin_here,
                                     resume_from=(existing, plan) if existing is not None and same_rig
                                     and not req.recapture else None,
-                                    how_to_home=how_to_home):
+                                    how_to_home=how_to_home, say=self.note):
                 self.note(line)
         elif req.home or req.origin_here:
             self.note("the simulated rig was homed when it started")
