@@ -70,6 +70,16 @@ def run(args: argparse.Namespace) -> int:
         if not all(0 <= s <= 100_000 for s in sigma):
             raise InputError("--position-sigma-um", f"{args.position_sigma_um} out of range", "0 … 100000 µm each")
     ds = Dataset.open(args.dataset)
+    if args.focal_length_px is None:         # before any detection work, not after it
+        from lfstudio.errors import DatasetError
+
+        try:
+            ds.focal_length_px()
+        except DatasetError:
+            raise InputError("--focal-length-px", f"{ds.root} does not record its focal length (imported images "
+                             "without EXIF): give it in pixels",
+                             "the focal length in mm ÷ the pixel pitch in mm, e.g. --focal-length-px 11111 "
+                             "for 50 mm and 4.5 µm pixels") from None
     run_ = calibrate_dataset(ds, args.views, principal_point="auto" if args.estimate_principal_point
                              else args.principal_point, focal_length_px=args.focal_length_px,
                              max_width_px=args.work_width_px or None,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 
 from lfstudio.dataset.paths import path_option
@@ -76,6 +77,10 @@ def run(args: argparse.Namespace) -> int:
     print(import_summary(ds))
     for warning in record.get("warnings", []):
         print(f"warning: {warning}", file=sys.stderr)
-    print(f"next: lfstudio calibrate {root}")
+    if record.get("intrinsics", "none") == "none":      # calibrate needs it: the hint that works
+        print(f"next: lfstudio calibrate {shlex.quote(str(root))} --focal-length-px F   (F = focal length in mm ÷ pixel pitch "
+              "in mm, e.g. 50 ÷ 0.0045 = 11111)")
+    else:
+        print(f"next: lfstudio calibrate {shlex.quote(str(root))}")
     return 0
 

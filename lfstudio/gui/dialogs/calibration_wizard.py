@@ -136,6 +136,17 @@ def uncertainty_html(doc: dict) -> str:
     return text
 
 
+def _knows_focal_length(dataset) -> bool:
+    """Whether the dataset's camera and lens give the focal length in pixels (imported images without
+    EXIF do not: the wizard's Focal length field must)."""
+    from lfstudio.errors import LfError
+
+    try:
+        return dataset is not None and dataset.focal_length_px() > 0
+    except (LfError, ValueError, TypeError):
+        return False
+
+
 class CalibrationWizard(QDialog):
     """Modeless wizard over ``state.dataset``; ``accepted_document`` is set when saved."""
 
@@ -241,6 +252,18 @@ class CalibrationWizard(QDialog):
         form.addRow(self.estimate_pp)
         form.addRow("Pairs:", self.pair_set)
         form.addRow("Focal length:", self.focal_px)
+        self.focal_known = _knows_focal_length(self.dataset)
+        self.focal_note = QLabel("")
+        self.focal_note.setObjectName("focalLengthNote")
+        self.focal_note.setWordWrap(True)
+        self.focal_note.setProperty("role", "warning")
+        if not self.focal_known:          # e.g. imported images without EXIF: say so before any work
+            self.focal_px.setSpecialValueText("unknown: enter it")
+            self.focal_note.setText("This dataset does not record its focal length (its images carry no EXIF "
+                                    "focal length): enter it in pixels in the Focal length field above "
+                                    "(focal length in mm ÷ pixel pitch in mm, e.g. 50 ÷ 0.0045 = 11111 px).")
+            self.focal_note.setStyleSheet("color: #b35900;")
+            form.addRow(self.focal_note)
         form.addRow("Detection width:", self.work_width)
         self.pair_set.currentIndexChanged.connect(self._update_selection_label)
 
@@ -309,6 +332,12 @@ class CalibrationWizard(QDialog):
         if self.runner.running:
             return
         views = sorted(self.picker.selected)
+        if not self.focal_known and self.focal_px.value() <= 0:
+            self.focal_note.setText("Enter the focal length in pixels in the Focal length field first: this "
+                                    "dataset does not record it (no EXIF focal length in its images).")
+            self.focal_note.setStyleSheet("color: #b00020; font-weight: 600;")
+            self.focal_px.setFocus()
+            return
         self._save_settings()
         self.error_label.setText("")
         self.log.clear()
