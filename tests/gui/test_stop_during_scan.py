@@ -23,6 +23,7 @@ def test_stop_pauses_the_scan_quietly_and_truthfully(qtbot, tmp_path):
     qtbot.mouseClick(scan.start_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: scan.engine is not None and scan.engine.dataset.status_counts()["done"] >= 2,
                     timeout=T)
+    assert "Step times: move" in scan.timings.text() and "_" not in scan.timings.text()   # "camera wait"
     qtbot.mouseClick(window.stop_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: scan.engine.state.value == "paused", timeout=T)
     qtbot.waitUntil(lambda: "Paused" in scan.state_label.text(), timeout=T)     # the GUI has the event too

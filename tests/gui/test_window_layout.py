@@ -117,6 +117,13 @@ def test_check_leaves_the_window_and_the_docks_alone(qtbot, tiny_dataset, size):
     assert _layout(window) == before
     assert not _cut_labels(view), _cut_labels(view)
     assert view.counts.shown_text() == view.counts.text() and "15 done" in view.counts.text()
+    legend = bar.legend                                  # a heat map gets its colour scale, whole
+    assert not legend.isVisible()
+    bar.overlay.setCurrentIndex(bar.overlay.findData("sharpness"))
+    qtbot.waitUntil(lambda: legend.isVisible() and legend.width() >= legend.sizeHint().width(), timeout=5000)
+    low, high = legend.texts()
+    assert low.startswith("Sharpness") and high.endswith("×") and legend.low < legend.high
+    assert _layout(window) == before
 
 
 def test_reset_layout_puts_every_panel_back(qtbot):

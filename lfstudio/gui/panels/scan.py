@@ -1017,7 +1017,8 @@ class ScanPanel(QWidget):
     def _show_done(self, ev) -> None:
         self._set_progress(ev.done, ev.total)
         self.eta.setText(f"ETA {format_duration(ev.eta_s)}")
-        self.timings.setText("Step times: " + ", ".join(f"{k} {v:.2f} s" for k, v in ev.timings_s.items()))
+        self.timings.setText("Step times: " + ", ".join(f"{k.replace('_', ' ')} {v:.2f} s"     # "camera wait"
+                                                       for k, v in ev.timings_s.items()))
         self.preview.update()
 
     def _on_event(self, ev, batched: bool = False) -> None:

@@ -1050,6 +1050,7 @@ class GridView(QWidget):
             self.state.show_status(str(exc), 10000)
             doc = None
         self.canvas.set_quality(doc)
+        self.quality_bar.legend.set_map(doc, self.canvas.overlay_key)
         has_map = bool(doc and (doc.get("pictures") or {}).get("disparity"))
         self.quality_bar.set_available(True, has_map)
         self.quality_bar.set_summary(self.canvas.quality, live=False)
@@ -1068,6 +1069,7 @@ class GridView(QWidget):
         if ds is None or str(ds.root) != doc.get("dataset"):
             return                     # another dataset was opened meanwhile
         self.canvas.set_quality(doc)
+        self.quality_bar.legend.set_map(doc, self.canvas.overlay_key)
         self.quality_bar.set_available(True, bool((doc.get("pictures") or {}).get("disparity")))
         self.quality_bar.set_summary(self.canvas.quality, live=False)
         s = doc["summary"]
@@ -1085,6 +1087,7 @@ class GridView(QWidget):
     def _set_overlay(self, key: str) -> None:
         settings().setValue(OVERLAY_KEY, key)
         self.canvas.set_overlay(key)
+        self.quality_bar.legend.set_map(self.canvas.quality_doc, key)
 
     def select_flagged(self) -> None:
         flagged = self.canvas.flagged()

@@ -18,8 +18,8 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from PySide6.QtCore import QObject, Qt, Signal
-from PySide6.QtGui import QImage, QPixmap
+from PySide6.QtCore import QObject, QRect, QSize, Qt, Signal
+from PySide6.QtGui import QColor, QImage, QLinearGradient, QPainter, QPixmap
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QGridLayout, QHBoxLayout, QLabel, QPushButton,
                                QScrollArea, QSizePolicy, QStackedWidget, QVBoxLayout, QWidget)
 
@@ -67,6 +67,79 @@ class LiveQuality(QObject):
     def shutdown(self) -> None:
         """Stop checking (views still queued are dropped); never waits on the GUI thread."""
         self.checker.close(timeout_s=0.0, drain=False)
+
+
+class HeatLegend(QWidget):
+    """The colour scale of the grid's heat map: its name, the low end, the colours, the high end and the
+    unit (the same scale as the report's heat maps); hidden without a heat map."""
+
+    BAR_PX = 90
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.setObjectName("heatLegend")
+        self.key, self.low, self.high, self.unit, self.title = "", 0.0, 1.0, "", ""
+        self._colours: list[QColor] = []
+        self.setFixedHeight(self.fontMetrics().height() + 4)
+        self.setVisible(False)
+
+    def set_map(self, doc: dict | None, key: str) -> None:
+        from lfstudio.quality.pictures import HEATMAPS, heatmap_colour
+
+        if not key or doc is None or key not in HEATMAPS:
+            self.key = ""
+            self.setVisible(False)
+            return
+        h = HEATMAPS[key]
+        try:
+            self.low, self.high = h.range(doc)
+        except (KeyError, TypeError, ValueError):
+            self.key = ""
+            self.setVisible(False)
+            return
+        self.key, self.unit, self.title = key, h.unit, h.title.split(" (")[0]
+        steps = 32
+        self._colours = [QColor(*heatmap_colour(doc, key, self.low + (self.high - self.low) * i / (steps - 1)))
+                         for i in range(steps)]
+        self.setToolTip(f"{h.title}: colours from {self._number(self.low)} to {self._number(self.high)} {self.unit} "
+                        "(beyond: the end colours; no colour: not measured)")
+        self.updateGeometry()
+        self.setVisible(True)
+        self.update()
+
+    @staticmethod
+    def _number(v: float) -> str:
+        return f"{v:.3g}"
+
+    def texts(self) -> tuple[str, str]:
+        return f"{self.title} {self._number(self.low)}", f"{self._number(self.high)} {self.unit}".rstrip()
+
+    def sizeHint(self) -> QSize:   # noqa: N802 (Qt name)
+        left, right = self.texts()
+        fm = self.fontMetrics()
+        return QSize(fm.horizontalAdvance(left) + self.BAR_PX + fm.horizontalAdvance(right) + 16, self.height())
+
+    def minimumSizeHint(self) -> QSize:   # noqa: N802 (Qt name)
+        return self.sizeHint()
+
+    def paintEvent(self, event) -> None:   # noqa: N802 (Qt name)
+        if not self.key:
+            return
+        left, right = self.texts()
+        fm = self.fontMetrics()
+        p = QPainter(self)
+        p.setPen(self.palette().windowText().color())
+        h = self.height()
+        x = 0
+        p.drawText(QRect(x, 0, fm.horizontalAdvance(left), h), Qt.AlignVCenter, left)
+        x += fm.horizontalAdvance(left) + 8
+        gradient = QLinearGradient(x, 0, x + self.BAR_PX, 0)
+        for i, colour in enumerate(self._colours):
+            gradient.setColorAt(i / max(1, len(self._colours) - 1), colour)
+        p.fillRect(QRect(x, 3, self.BAR_PX, h - 6), gradient)
+        x += self.BAR_PX + 8
+        p.drawText(QRect(x, 0, fm.horizontalAdvance(right), h), Qt.AlignVCenter, right)
+        p.end()
 
 
 class QualityBar(QWidget):
@@ -119,12 +192,19 @@ class QualityBar(QWidget):
         # asks the window for more width or height, which would be taken from the docks)
         self.status = QStackedWidget()
         self.status.setObjectName("qualityStatus")
-        self.status.addWidget(self.summary)
+        self.legend = HeatLegend()
+        verdicts = QWidget()
+        row = QHBoxLayout(verdicts)
+        row.setContentsMargins(0, 0, 0, 0)
+        row.addWidget(self.summary, 1)
+        row.addWidget(self.legend)
+        self._verdicts = verdicts
+        self.status.addWidget(verdicts)
         self.status.addWidget(self.progress)
         self.status.setSizePolicy(QSizePolicy.Preferred, QSizePolicy.Fixed)
         self.runner.started.connect(lambda: self.status.setCurrentWidget(self.progress))
         for sig in (self.runner.finished, self.runner.failed, self.runner.cancelled):
-            sig.connect(lambda *a: self.status.setCurrentWidget(self.summary))
+            sig.connect(lambda *a: self.status.setCurrentWidget(self._verdicts))
         lay = QVBoxLayout(self)
         lay.setContentsMargins(4, 0, 4, 2)
         lay.setSpacing(2)
