@@ -31,6 +31,14 @@ def readable_time(iso: str | None) -> str:
     return f"{moment.day} {moment:%b %Y, %H:%M}"
 
 
+def calibration_warnings(doc: dict) -> tuple[list[str], list[str]]:
+    """``(warnings, notes)`` of a calibration document: an angle held because the views do not
+    determine it is a note about the fit (shown grey), the rest are warnings (shown red)."""
+    held = {h.get("reason") for h in ((doc.get("observability") or {}).get("held") or [])}
+    every = list(doc.get("warnings") or [])
+    return [w for w in every if w not in held], [w for w in every if w in held]
+
+
 def set_progress_async(bar: QProgressBar, value: int, maximum: int | None = None) -> None:
     """Set a progress bar without the synchronous repaint ``QProgressBar.setValue`` does.
 

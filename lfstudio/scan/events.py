@@ -15,6 +15,7 @@ and must not wait for the engine (a request returns at once; the engine thread a
 from __future__ import annotations
 
 import enum
+import re
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -148,6 +149,8 @@ class ScanEvent:
         """A one-line, human-readable description (logs, the GUI event list)."""
         where = f"view {view_label(self.row, self.column)}" if self.row is not None else ""
         if self.kind is EventKind.STATE:
+            if re.match(r"[A-Z][a-z]+: ", self.message):     # "Finished: 27 of 27 …" names its state itself
+                return self.message
             return f"{self.state.value if self.state else ''}: {self.message}".rstrip(": ")
         if self.kind is EventKind.VIEW_DONE:
             period = self.timings_s.get("period")

@@ -51,6 +51,7 @@ def test_resume_offers_to_move_the_rig_back_and_recapture_goes_ahead(qtbot, tmp_
     qtbot.waitUntil(lambda: "Finished" in scan.state_label.text(), timeout=T)
     assert "moving" in words
     assert "Finished</b> 12 of 12" in scan.state_label.text()              # not "Finished Finished: 12 of 12"
+    assert "finished: Finished" not in scan.log_view.toPlainText()            # nor in the log
     assert Dataset.open(folder).status_counts()["done"] == 12
 
     rig.home()                                               # home is not where the last view was taken

@@ -34,7 +34,8 @@ from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import LfError
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.settings import settings
-from lfstudio.gui.widgets import GridPicker, JobProgressWidget
+from lfstudio.gui.widgets import GridPicker, JobProgressWidget, calibration_warnings
+from lfstudio.jobs import count
 
 PAGE_VIEWS, PAGE_RUN, PAGE_RESULTS = range(3)
 
@@ -409,6 +410,8 @@ class CalibrationWizard(QDialog):
         self.region_rms.setOpacity(0.45)
         self.region_rms.setLookupTable(pg.colormap.get("inferno").getLookupTable(nPts=256))
         self.vectors.addItem(self.region_rms)
+        self.vectors.setLabel("bottom", "x (preview px)")
+        self.vectors.setLabel("left", "y (preview px)")
         self.vector_lines = pg.PlotDataItem(connect="pairs", pen=pg.mkPen((0, 200, 60), width=2.5))
         self.vectors.addItem(self.vector_lines)
         self.vector_roots = pg.ScatterPlotItem(size=5, pen=None, brush=pg.mkBrush(255, 255, 255, 220))
@@ -515,8 +518,10 @@ class CalibrationWizard(QDialog):
         fit = result["run"].fit
         rx, ry, rz = doc["rotation_deg"]
         before, after = doc["residual_px"]["before"], doc["residual_px"]["after"]
-        warn = f" <span style='color:#b00020'>{len(doc['warnings'])} warning(s) — see Numbers.</span>" \
-            if doc["warnings"] else ""
+        warnings, notes = calibration_warnings(doc)        # a held angle is a note, not a red warning
+        warn = "".join(f" <span style='color:{colour}'>{count(len(items), word)} — see Numbers.</span>"
+                       for items, word, colour in ((warnings, "warning", "#b00020"), (notes, "note", "#5b6470"))
+                       if items)
         u = CalibrationUncertainty.from_document(doc)
         std = u.rotation_std_deg if u else (float("nan"),) * 3
         held = held_angles(doc)
@@ -554,11 +559,11 @@ class CalibrationWizard(QDialog):
                 t.setPos(v["column"], v["row"])
                 self.heat.addItem(t)
             grid = self.dataset.grid
+            self.heat.setLabel("bottom", f"column · colour: RMS 0 (dark) … {top:.2f} px (yellow)")
             self.heat.setXRange(-1, grid.columns, padding=0.05)
             self.heat.setYRange(-1, grid.rows, padding=0.1)
         self.vector_image.setImage(result["preview"], autoLevels=True)
-        self.vectors.setTitle(f"Mean residual per region over {view_stem(*result['preview_view'])} "
-                              "(arrows; colour: RMS)")
+        self.vectors.setTitle(f"Mean residual per region over {view_stem(*result['preview_view'])} (arrows)")
         self.field = None
         self._draw_vectors(auto_gain=True)
 
@@ -605,6 +610,7 @@ class CalibrationWizard(QDialog):
         rms = field["rms"]
         top = float(np.nanmax(rms)) if np.isfinite(rms).any() else 1.0
         self.region_rms.setImage(np.nan_to_num(rms, nan=0.0), levels=(0.0, max(top, 1e-6)))
+        self.vectors.setLabel("bottom", f"x (preview px) · colour: RMS 0 … {top:.2f} px")
         self.region_rms.setRect(0, 0, w, h)
         c, v = field["centres"], field["mean"]
         end = c + gain * v

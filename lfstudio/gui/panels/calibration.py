@@ -8,7 +8,7 @@ from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import QLabel, QPushButton, QVBoxLayout, QWidget
 
 from lfstudio.errors import LfError
-from lfstudio.gui.widgets import readable_time
+from lfstudio.gui.widgets import calibration_warnings, readable_time
 from lfstudio.jobs import count
 
 
@@ -81,9 +81,7 @@ class CalibrationPanel(QWidget):
             corners = (f"<br>at the image corners ≤ {u.corner_error_px[0]:.2f} px (1σ), "
                        f"≤ {u.corner_error_px[1]:.2f} px (2σ)")
         # an angle held because these views do not determine it is a note about the fit, not a problem
-        held_notes = {h.get("reason") for h in ((doc.get("observability") or {}).get("held") or [])}
-        warnings = [w for w in doc.get("warnings") or [] if w not in held_notes]
-        notes = [w for w in doc.get("warnings") or [] if w in held_notes]
+        warnings, notes = calibration_warnings(doc)
         warn = ""
         if warnings:
             warn += f"<br><span style='color:#b00020'>{count(len(warnings), 'warning')}</span>"
