@@ -161,8 +161,8 @@ def status_cost(columns: int, rows: int, poll_s: float, rig_cfg, tmp: Path) -> N
     print(f"{columns} x {rows} = {n} views, instant: without the page {per_plain:.3f} ms CPU per view "
           f"({plain.wall_s:.1f} s wall); with the page and a client every {poll_s:g} s {per_page:.3f} ms CPU per view "
           f"({paged.wall_s:.1f} s wall): +{per_page - per_plain:.3f} ms per view ({100 * (per_page / per_plain - 1):+.1f} %, "
-          f"client included), {server.requests} requests served (page {sizes[0] if sizes else 0} B, "
-          f"status.json {sizes[1] if len(sizes) > 1 else 0} B); peak RSS {rss0:.0f} -> {rss_mb():.0f} MB", flush=True)
+          f"client included), {server.requests} requests served (page up to {max(sizes[0::2], default=0)} B, "
+          f"status.json up to {max(sizes[1::2], default=0)} B); peak RSS {rss0:.0f} -> {rss_mb():.0f} MB", flush=True)
 
 
 def main() -> int:
