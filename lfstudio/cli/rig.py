@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import logging
+import sys
 import time
 
 from lfstudio.cli.args import old_spelling
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.numbers import TIME_SCALE, TIMEOUT_S, Number
+
+log = logging.getLogger(__name__)
 
 HELP = "talk to the axis controller: status, home, unlock, origin, move X Y, jog DX DY (in order)"
 
@@ -126,7 +130,20 @@ def run(args: argparse.Namespace) -> int:
             label = word + ("" if not values else " " + " ".join(f"{v:g}" for v in values))
             print(f"{label:<20} {describe(status)}", flush=True)
     except KeyboardInterrupt:
+        # as 'lfstudio scan' does: feed hold, then (once the axes are at rest) a soft reset that drops
+        # the rest of the move; a hold alone leaves it queued (a Cycle Start would finish it) and the
+        # held controller answers no later connection
+        print("lfstudio rig: Ctrl+C: stopping the rig", file=sys.stderr, flush=True)
         controller.stop()
+        try:
+            complete = getattr(controller, "complete_stop", None)
+            complete() if complete is not None else controller.status()   # the hold, then the reset
+        except Exception as exc:  # noqa: BLE001 - the interrupt is what the operator asked for
+            log.warning("completing the stop after Ctrl+C: %s", exc)
+            try:
+                controller.reset()
+            except Exception as reset_exc:  # noqa: BLE001
+                log.warning("resetting the controller after Ctrl+C: %s", reset_exc)
         raise
     finally:
         link.close()

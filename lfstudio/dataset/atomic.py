@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import secrets
 from pathlib import Path
 from typing import Any, Callable
@@ -73,7 +74,11 @@ def atomic_write_json(path: str | os.PathLike, obj: Any) -> Path:
     return atomic_write_text(path, json.dumps(obj, indent=1, sort_keys=False, allow_nan=False) + "\n")
 
 
+#: exactly the names :func:`_create_temporary` makes: ``.STEM.XXXXXXXX.tmpSUFFIX`` (8 hex digits)
+_TEMPORARY = re.compile(r"\..+\.[0-9a-f]{8}\.tmp(\.[^./\\]+)?")
+
+
 def is_temporary(path: str | os.PathLike) -> bool:
-    """True for the temporary names :func:`atomic_write_with` uses (left behind only by a crash)."""
-    name = Path(path).name
-    return name.startswith(".") and ".tmp" in name
+    """True for the temporary names :func:`atomic_write_with` uses (left behind only by a crash), and
+    for nothing else: a file of the operator's that merely starts with '.' and holds '.tmp' is kept."""
+    return _TEMPORARY.fullmatch(Path(path).name) is not None

@@ -38,12 +38,13 @@ import threading
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-from lfstudio.dataset.atomic import atomic_write_bytes
+from lfstudio.dataset.atomic import atomic_write_bytes, is_temporary
 from lfstudio.dataset.grid import Grid, View
-from lfstudio.dataset.paths import InsideChecker, check_dataset_entries, resolve_inside, view_stem
+from lfstudio.dataset.paths import InsideChecker, check_dataset_entries, check_path_name, resolve_inside, view_stem
 from lfstudio.dataset.store import JOURNAL_NAME, Journal, read_journal, sha256_file
 from lfstudio.errors import DatasetError, DatasetNotFound
 from lfstudio.numbers import MAX_GRID_SIDE, Number, non_finite_fields
+from lfstudio.support.locks import DATASET_LOCK_NAME, Lock, LockBusy, dataset_lock, holder_of, manifest_lock
 
 FORMAT = "lfstudio-dataset"
 VERSION = 1
@@ -55,6 +56,37 @@ VIEW_STATUSES = ("pending", "done", "failed", "skipped")
 #: a view a scan does not take again (unless asked to re-capture it): captured, or skipped by the operator
 FINISHED_STATUSES = ("done", "skipped")
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
+#: top-level keys every save sets anew (never merged: each writer writes its own)
+_VOLATILE = ("views", "modified", "journal_seq")
+_MISSING = object()
+
+
+def _file_signature(path: Path) -> tuple | None:
+    """What changes whenever another process writes ``path`` (atomic rename: a new inode)."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return None
+    return st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns
+
+
+def _apply_journal(views: list, records: list[dict[str, Any]], after_seq: int) -> int:
+    """Apply the journal ``records`` after ``after_seq`` to ``views`` (plain dicts); the last seq applied."""
+    by_key = {(v.get("row"), v.get("column")): v for v in views if isinstance(v, dict)}
+    seq = after_seq
+    for rec in records:
+        if rec["seq"] <= after_seq:
+            continue
+        view = by_key.get((rec["row"], rec["column"]))
+        if view is None:
+            continue
+        if "view" in rec:
+            view.clear()
+            view.update(rec["view"])
+        else:
+            view.update(rec["set"])
+        seq = max(seq, rec["seq"])
+    return seq
 
 
 def now_iso(at_s: float | None = None) -> str:
@@ -380,6 +412,15 @@ class Dataset:
         #: the device record of views captured from now on when they are not the dataset's own
         #: ``devices`` (None: they are); :meth:`record_view` stores it with every view marked done
         self.capture_devices: dict[str, Any] | None = None
+        #: the held ``dataset.lock`` that makes this object the journal's owner (a scan's), or None
+        self.journal_lock: Lock | None = None
+        self._own_lock: Lock | None = None      # held by record_view for one append when no scan owns it
+        # what this object last read from or wrote to the disk: the base of the next merge (see save)
+        self._base_source: tuple[bytes | str, list] | None = None
+        self._base_parsed: tuple[dict, dict] | None = None
+        self._disk_signature: tuple | None = None
+        self._journal_signature: tuple | None = None
+        self._swept = False                     # the manifest's crash leftovers removed (first save)
 
     # -- construction -------------------------------------------------------------------------
     @classmethod
@@ -391,6 +432,7 @@ class Dataset:
         Without ``views``, one pending view per grid cell is listed (row-major).
         """
         root = Path(root)
+        check_path_name(root, "dataset folder")
         check_dataset_entries(root)
         if (root / MANIFEST_NAME).exists() and not exist_ok:
             raise DatasetError(f"{root}: already holds a dataset ({MANIFEST_NAME} exists); "
@@ -411,6 +453,9 @@ class Dataset:
         if problems:
             raise DatasetError(f"{root}: cannot create dataset", problems)
         ds.save()
+        holder = holder_of(root / DATASET_LOCK_NAME)
+        if ds._journal.size_bytes() and (holder is None or holder.pid == os.getpid()):
+            ds._journal.clear()        # an old dataset's journal does not belong to this new manifest
         return ds
 
     @classmethod
@@ -428,15 +473,28 @@ class Dataset:
         """Read and validate ``root/dataset.json``; raise :class:`DatasetError` listing every problem."""
         root = Path(root)
         path = root / MANIFEST_NAME
+        check_path_name(root, "dataset folder")
         if not root.is_dir():
             raise DatasetNotFound(f"{root}: not a folder; choose the dataset folder (the one holding {MANIFEST_NAME})")
         if not path.is_file():
             raise DatasetNotFound(f"{path}: not found; {root} is not an lfstudio dataset "
                                   "(import a folder of images with 'lfstudio import-images')")
         check_dataset_entries(root)
+        with manifest_lock(root, shared=True):     # not between another writer's manifest and journal
+            signature = _file_signature(path)
+            try:
+                text = path.read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as exc:
+                raise DatasetError(f"{path}: cannot be read as JSON ({exc})") from None
+            records, journal_problems = read_journal(root / JOURNAL_NAME)
+            journal_signature = _file_signature(root / JOURNAL_NAME)
+        return cls._from_text(root, path, text, records, journal_problems, signature, journal_signature)
+
+    @classmethod
+    def _from_text(cls, root: Path, path: Path, text: str, records: list, journal_problems: list[str],
+                   signature: tuple | None, journal_signature: tuple | None) -> "Dataset":
         constants: list[str] = []
         try:
-            text = path.read_text(encoding="utf-8")
             gc_was_on = gc.isenabled()
             gc.disable()     # parsing makes ~25 objects per view: no collector passes over them meanwhile
             try:
@@ -459,14 +517,16 @@ class Dataset:
         ds = cls(root, manifest)
         ds._writer.adopt(text)
         ds._manifest_bytes = len(text)
-        ds._replay_journal()
+        ds._replay_journal(records, journal_problems)
+        ds._base_source = (text, records)
+        ds._disk_signature, ds._journal_signature = signature, journal_signature
         problems = validate_manifest(ds.manifest, root) if ds.replayed else []
         if problems:
             raise DatasetError(f"{path}: invalid after replaying {JOURNAL_NAME}", problems)
         return ds
 
-    def _replay_journal(self) -> None:
-        records, self.journal_problems = read_journal(self.root / JOURNAL_NAME)
+    def _replay_journal(self, records: list, problems: list[str]) -> None:
+        self.journal_problems = list(problems)
         base = self._seq
         for rec in records:
             if rec["seq"] <= base:
@@ -630,33 +690,161 @@ class Dataset:
         return f_mm / pitch_mm * scale
 
     # -- writing ----------------------------------------------------------------------------------
+    def owns_journal(self) -> bool:
+        """True while this object holds the dataset's ``dataset.lock`` (a scan's): then it alone
+        appends to and empties ``journal.jsonl``. Any other writer merges into the manifest only."""
+        lock = self.journal_lock or self._own_lock
+        return lock is not None and lock.held
+
     def save(self) -> None:
-        """Write the manifest atomically (temporary file, fsync, rename) and fold the journal into it.
+        """Write the manifest atomically (temporary file, fsync, rename), merged with what other
+        processes wrote meanwhile (docs/dataset-format.md, "Two commands at once").
+
+        Under the dataset's short lock (:func:`lfstudio.support.locks.manifest_lock`): when the
+        manifest on disk (or, for a writer that does not own the journal, the journal) changed since
+        this object last read or wrote it, it is read again and the other writers' changes are
+        merged in, field by field (:meth:`_merge_from_disk`): each writer keeps what it changed
+        itself and takes what the others changed, so a stage running beside a scan never loses the
+        scan's views and the scan never loses the stage's records. The journal's owner (the scan)
+        then empties the journal, whose records the written manifest holds.
 
         Compact JSON, one view per line, by the C encoder; the text of a view that did not change
         since the last save is reused (:class:`ManifestWriter`), so a save costs little more than
         writing the file: < 50 ms at 8241 views (``benchmarks/manifest_save.py``)."""
-        with self._lock:
-            self.manifest["modified"] = now_iso()
-            self.manifest["journal_seq"] = self._seq
-            data = self._writer.encode(self.manifest)
-            atomic_write_bytes(self.manifest_path, data)
-            self._manifest_bytes = len(data)
-            self._journal.clear()
+        with self._lock, manifest_lock(self.root):
+            if not self._swept:
+                self._sweep_manifest_leftovers()
+            owner = self.owns_journal()
+            folding = None
+            if not owner and self._journal_has_records():
+                try:                       # no scan runs: this save may fold the journal in and empty it
+                    folding = dataset_lock(self.root, "saving its manifest").acquire()
+                except LockBusy:
+                    folding = None
+            try:
+                if self._base_source is not None and self._disk_changed(owner):
+                    self._merge_from_disk()
+                self.manifest["modified"] = now_iso()
+                self.manifest["journal_seq"] = self._seq
+                data = self._writer.encode(self.manifest)
+                atomic_write_bytes(self.manifest_path, data)
+                self._manifest_bytes = len(data)
+                self._base_source, self._base_parsed = (data, []), None
+                self._disk_signature = _file_signature(self.manifest_path)
+                if owner or folding is not None:
+                    self._journal.clear()
+                self._journal_signature = _file_signature(self._journal.path)
+            finally:
+                if folding is not None:
+                    folding.release()
+
+    def _journal_has_records(self) -> bool:
+        try:
+            return os.path.getsize(self._journal.path) > 0
+        except OSError:
+            return False
+
+    def _sweep_manifest_leftovers(self) -> None:
+        """Remove the manifest's temporary files a killed writer left (``.dataset.XXXXXXXX.tmp.json``):
+        safe under the manifest lock, which every writer of the manifest holds while its own exists."""
+        self._swept = True
+        try:
+            names = [n for n in os.listdir(self.root) if n.startswith(".dataset.") and is_temporary(n)]
+        except OSError:
+            return
+        for name in names:
+            try:
+                os.unlink(self.root / name)
+            except OSError:
+                pass
+
+    def _disk_changed(self, owner: bool) -> bool:
+        if _file_signature(self.manifest_path) != self._disk_signature:
+            return True
+        return not owner and _file_signature(self._journal.path) != self._journal_signature
+
+    def _base(self) -> tuple[dict, dict]:
+        """(top-level keys, views by (row, column)) as this object last read or wrote them."""
+        if self._base_parsed is None:
+            text, records = self._base_source
+            base = json.loads(text)
+            views = base.get("views") if isinstance(base.get("views"), list) else []
+            _apply_journal(views, records, int(base.get("journal_seq", 0) or 0))
+            head = {k: v for k, v in base.items() if k not in _VOLATILE}
+            self._base_parsed = (head, {(v.get("row"), v.get("column")): v for v in views if isinstance(v, dict)})
+        return self._base_parsed
+
+    def _merge_from_disk(self) -> None:
+        """Take into this manifest what other processes changed since this object's base: a
+        top-level key or a view's field that differs between the disk (manifest + journal) and the
+        base, and that this object did not change itself. Views keep their objects (a scan holds them)."""
+        path = self.manifest_path
+        try:
+            text = path.read_text(encoding="utf-8")
+            disk = json.loads(text)
+        except FileNotFoundError:
+            return                       # removed meanwhile: ours is all there is
+        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+            raise DatasetError(f"{path}: changed by another program into something unreadable ({exc}); "
+                               "nothing was written over it: look at it, then run the command again") from None
+        disk_views = disk.get("views") if isinstance(disk, dict) else None
+        if not isinstance(disk_views, list):
+            raise DatasetError(f"{path}: changed by another program into something that is no dataset; "
+                               "nothing was written over it: look at it, then run the command again")
+        records, _ = read_journal(self._journal.path)
+        disk_seq = _apply_journal(disk_views, records, int(disk.get("journal_seq", 0) or 0))
+        base_head, base_views = self._base()
+        ours = self.manifest
+        for key in set(disk) | set(base_head) | set(ours):
+            if key in _VOLATILE:
+                continue
+            if ours.get(key, _MISSING) != base_head.get(key, _MISSING):
+                continue                  # we changed it: ours is newer
+            if key in disk:
+                ours[key] = disk[key]
+            else:
+                ours.pop(key, None)
+        our_views = {(v["row"], v["column"]): v for v in ours["views"]}
+        for dv in disk_views:
+            if not isinstance(dv, dict):
+                continue
+            key = (dv.get("row"), dv.get("column"))
+            bv = base_views.get(key, {})
+            ov = our_views.get(key)
+            if ov is None:
+                if key not in base_views:          # added by another writer
+                    ours["views"].append(dv)
+                continue
+            if dv == bv:
+                continue                            # nobody else changed this view
+            for field in set(dv) | set(bv):
+                theirs = dv.get(field, _MISSING)
+                if theirs == bv.get(field, _MISSING) or ov.get(field, _MISSING) != bv.get(field, _MISSING):
+                    continue                        # not changed by them, or changed by us too (ours wins)
+                if theirs is _MISSING:
+                    ov.pop(field, None)
+                else:
+                    ov[field] = theirs
+        self._seq = max(self._seq, disk_seq)
 
     def checkpoint(self) -> None:
-        """Make every change so far durable, cheaply: views that changed since the last save or
-        checkpoint (beyond what :meth:`record_view` journaled) are appended whole to the journal
-        (one write, one fsync); the manifest itself is rewritten (:meth:`save`) only when a
-        top-level key changed, views were added or removed, or the journal has grown past half the
-        manifest (at least :data:`JOURNAL_MIN_BYTES`), which bounds what an open replays: the
-        rewrites cost the same per view at any grid size.
+        """Make every change so far durable, cheaply. The journal's owner (a scan): views that
+        changed since the last save or checkpoint (beyond what :meth:`record_view` journaled) are
+        appended whole to the journal (one write, one fsync); the manifest itself is rewritten
+        (:meth:`save`) only when a top-level key changed, views were added or removed, or the
+        journal has grown past half the manifest (at least :data:`JOURNAL_MIN_BYTES`), which bounds
+        what an open replays: the rewrites cost the same per view at any grid size. Any other
+        writer (processing beside a scan) saves, merged, when something changed.
 
         What a scan calls every few seconds: at 8241 views it costs the comparison of the views
         with what was written (a few ms of CPU) instead of rewriting 3.6 MB
         (``benchmarks/manifest_save.py``)."""
         with self._lock:
             changed = self._writer.changed_views(self.manifest)
+            if not self.owns_journal():
+                if changed is None or changed:
+                    self.save()
+                return
             limit = self.journal_limit_bytes
             if limit is None:
                 limit = max(JOURNAL_MIN_BYTES, self._manifest_bytes // 2)
@@ -677,17 +865,32 @@ class Dataset:
         """Update a view and append the change to the fsync'd journal (durable when this returns).
 
         Cheap (one short line and an fsync); call :meth:`save` now and then to fold the journal in.
+        Only the journal's owner appends: without ``journal_lock`` this takes the dataset's lock for
+        the append, and is refused (:class:`LockBusy` naming the holder) while a scan holds it.
         """
         with self._lock:
-            view = self.view(row, column)
-            if fields.get("status") == "done" and "devices" not in fields and (
-                    self.capture_devices is not None or view.get("devices") is not None):
-                fields = {**fields, "devices": self.capture_devices}
-            self._seq += 1
-            self._journal.append({"seq": self._seq, "row": row, "column": column, "set": fields})
-            view.update(fields)
-            self._writer.journaled(view, fields)
-            return view
+            if self.owns_journal():
+                return self._append_view(row, column, fields)
+            with dataset_lock(self.root, "writing its journal") as lock:
+                self._own_lock = lock
+                try:
+                    if self._base_source is not None and self._disk_changed(False):
+                        self.save()        # what others wrote meanwhile merged first, the journal folded
+                    return self._append_view(row, column, fields)
+                finally:
+                    self._own_lock = None
+
+    def _append_view(self, row: int, column: int, fields: dict[str, Any]) -> dict[str, Any]:
+        view = self.view(row, column)
+        if fields.get("status") == "done" and "devices" not in fields and (
+                self.capture_devices is not None or view.get("devices") is not None):
+            fields = {**fields, "devices": self.capture_devices}
+        self._seq += 1
+        self._journal.append({"seq": self._seq, "row": row, "column": column, "set": fields})
+        view.update(fields)
+        self._writer.journaled(view, fields)
+        self._journal_signature = _file_signature(self._journal.path)
+        return view
 
     def close(self) -> None:
         with self._lock:

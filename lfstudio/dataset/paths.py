@@ -32,7 +32,7 @@ from typing import Any, Callable
 
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.numbers import as_option
-from lfstudio.support.locks import DATASET_LOCK_NAME, LockBusy, holder_of
+from lfstudio.support.locks import DATASET_LOCK_NAME, MANIFEST_LOCK_NAME, LockBusy, holder_of
 
 
 def view_stem(row: int, column: int) -> str:
@@ -64,8 +64,9 @@ def parse_view_stem(text: str) -> tuple[int, int]:
 #: the dataset's calibration file (its contents: :mod:`lfstudio.calibration.model`, which reads and writes it)
 CALIBRATION_NAME = "calibration.json"
 #: the dataset's own files and folders (beside the views' files): none may be a symlink leading outside
-DATASET_ENTRIES = ("dataset.json", "journal.jsonl", DATASET_LOCK_NAME, CALIBRATION_NAME, "processing.toml",
-                   "quality.json", "raw", "thumbs", "thumbs/generated", "processed", "cache", "depth")
+DATASET_ENTRIES = ("dataset.json", "journal.jsonl", DATASET_LOCK_NAME, MANIFEST_LOCK_NAME, CALIBRATION_NAME,
+                   "processing.toml", "quality.json", "raw", "thumbs", "thumbs/generated", "processed", "cache",
+                   "depth")
 
 
 _VARIABLE = re.compile(r"\$(?:(\w+)|\{([^}]*)\})")
@@ -93,7 +94,31 @@ def expand_path(text: str | os.PathLike, field: str = "path", *, absolute: bool 
         raise InputError(field, f"{raw!r}: there is no user {user!r} whose home folder ~{user} could mean",
                          "~/… for your own home folder, or a full path")
     path = Path(expanded)
+    check_path_name(path, field)
     return path.absolute() if absolute else path
+
+
+def path_name_problem(path: str | os.PathLike) -> str | None:
+    """Why lfstudio cannot work under ``path`` (made absolute), or None: a name that is not valid
+    UTF-8 (a folder named in another encoding, e.g. Latin-1 ``d\xe9j\xe0``). Python keeps such bytes
+    as surrogate escapes, which OpenCV, LibRaw and FFmpeg cannot take (OpenCV crashes on them)."""
+    text = os.fspath(path)
+    try:
+        text.encode("utf-8")
+        return None
+    except UnicodeEncodeError:
+        pass
+    shown = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    return (f"'{shown}' has a name that is not valid UTF-8 (written in another character encoding), which "
+            "the image and video libraries cannot open")
+
+
+def check_path_name(path: str | os.PathLike, field: str) -> None:
+    """:func:`path_name_problem` of ``path`` as an :class:`InputError` naming ``field`` and the fix."""
+    problem = path_name_problem(Path(path).absolute())
+    if problem:
+        raise InputError(field, problem, "a name in UTF-8: rename the folder, e.g. with "
+                                         "'convmv -f latin1 -t utf8 --notest NAME'")
 
 
 def path_option(option: str) -> Callable[[str], str]:
@@ -121,7 +146,7 @@ def dataset_folder_kind(folder: str | Path) -> str:
 
 
 def _other_entries(folder: Path) -> list[str]:
-    return sorted(p.name for p in folder.iterdir() if p.name != DATASET_LOCK_NAME)
+    return sorted(p.name for p in folder.iterdir() if p.name not in (DATASET_LOCK_NAME, MANIFEST_LOCK_NAME))
 
 
 #: the fix named when a folder for a new dataset is in use (:func:`check_not_in_use`)
@@ -240,10 +265,16 @@ def folder_inside(root: str | Path, relative: str, *, what: str = "folder", crea
 
 
 def check_dataset_entries(root: str | Path) -> None:
-    """Refuse a dataset whose own files or folders (:data:`DATASET_ENTRIES`) lead outside it."""
-    for name in DATASET_ENTRIES:
-        if os.path.islink(os.path.join(root, name)):
-            resolve_inside(root, name, what="file" if "." in name else "folder")
+    """Refuse a dataset whose own files or folders lead outside it: every entry of the folder itself
+    (whatever a stage writes there, now or later: ``quality/``, ``quality.json``, ``cache/`` ...; no list
+    to forget one in) and the nested folders of :data:`DATASET_ENTRIES` (``thumbs/generated``)."""
+    try:
+        with os.scandir(root) as entries:
+            links = [e.name for e in entries if e.is_symlink()]
+    except OSError:
+        links = []
+    for name in sorted(set(links) | {n for n in DATASET_ENTRIES if "/" in n and os.path.islink(os.path.join(root, n))}):
+        resolve_inside(root, name, what="folder" if os.path.isdir(os.path.join(root, name)) else "file")
 
 
 class InsideChecker:

@@ -58,7 +58,9 @@ def read_journal(path: str | os.PathLike) -> tuple[list[dict[str, Any]], list[st
                     and isinstance(rec.get("column"), int)
                     and isinstance(rec.get("set", rec.get("view")), dict)):
                 raise ValueError("needs seq, row, column and set (or view)")
-        except (UnicodeDecodeError, ValueError) as exc:
+        except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+            if isinstance(exc, RecursionError):
+                exc = ValueError("nested too deeply to be a journal record")
             if not last:
                 problems.append(f"{JOURNAL_NAME}: line {i + 1}: unreadable record ignored ({exc})")
             continue

@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
+import json
 import os
 import shutil
 import tempfile
@@ -310,10 +311,42 @@ def require_zero_plane(ds: Dataset, what: str) -> None:
 
 # -- atomic output ------------------------------------------------------------------------------------
 def check_out(out: Path, overwrite: bool, *, also: Sequence[Path] = ()) -> None:
-    """Refuse an existing output (and its companions) unless ``overwrite``."""
+    """Refuse an existing output (and its companions) unless ``overwrite``; with ``overwrite``, still
+    refuse a folder that holds anything but an earlier lfstudio export (:func:`export_folder_problem`):
+    the same rule as a new dataset's folder, so ``--overwrite`` never deletes the operator's own files."""
     for p in (out, *also):
         if (p.exists() or p.is_symlink()) and not overwrite:
             raise InputError("out", f"{p} already exists; choose another name or allow overwriting (--overwrite)")
+        problem = export_folder_problem(p) if overwrite else None
+        if problem:
+            raise InputError("out", problem, "a new folder name (the export makes it), an empty folder, "
+                                             "or the folder of an earlier export to replace")
+
+
+#: the files that describe an lfstudio export (PNG; HCI, COLMAP, nerfstudio), each with "format": EXPORT_FORMAT
+EXPORT_MANIFEST_NAMES = ("manifest.json", "lfstudio_manifest.json")
+
+
+def export_folder_problem(out: Path) -> str | None:
+    """Why ``--overwrite`` may not replace the existing folder ``out`` (None: not a folder, empty, or
+    an earlier lfstudio export, recognised by its manifest's ``"format": "lfstudio-export"``)."""
+    if out.is_symlink() or not out.is_dir():
+        return None
+    entries = sorted(p.name for p in out.iterdir())
+    if not entries:
+        return None
+    for name in EXPORT_MANIFEST_NAMES:
+        try:
+            with open(out / name, encoding="utf-8") as fh:
+                doc = json.loads(fh.read(1 << 22))
+        except (OSError, ValueError, RecursionError):
+            continue
+        if isinstance(doc, dict) and doc.get("format") == EXPORT_FORMAT:
+            return None
+    shown = ", ".join(entries[:3]) + (f" and {len(entries) - 3} more" if len(entries) > 3 else "")
+    kind = "a dataset" if "dataset.json" in entries else "no lfstudio export"
+    return (f"{out} holds other files ({shown}) and {kind}: --overwrite replaces only an earlier export, "
+            "never a folder of other files")
 
 
 def check_new_dataset_out(out: Path, overwrite: bool, *, field: str) -> str:

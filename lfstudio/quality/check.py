@@ -35,7 +35,7 @@ import numpy as np
 from lfstudio.dataset.atomic import atomic_write_json
 from lfstudio.dataset.grid import View
 from lfstudio.dataset.manifest import is_done, now_iso
-from lfstudio.dataset.paths import view_stem
+from lfstudio.dataset.paths import folder_inside, resolve_inside, view_stem
 from lfstudio.dataset.zero_plane import ZeroPlane, zero_plane
 from lfstudio.errors import DatasetError, LfError
 from lfstudio.jobs import CancelToken, Progress, no_progress
@@ -693,9 +693,10 @@ def write_report(dataset, report: QualityReport) -> Path:
     from lfstudio.quality.pictures import write_pictures
 
     root = Path(dataset.root)
-    pictures = write_pictures(root / PICTURES_FOLDER, report, dataset)
+    # the path guard at the moment of writing (a symlink made after the dataset was opened)
+    pictures = write_pictures(folder_inside(root, PICTURES_FOLDER, what="quality folder"), report, dataset)
     report.document["pictures"] = {k: f"{PICTURES_FOLDER}/{Path(p).name}" for k, p in pictures.items()}
-    path = atomic_write_json(root / QUALITY_NAME, report.document)
+    path = atomic_write_json(resolve_inside(root, QUALITY_NAME), report.document)
     return path
 
 

@@ -124,7 +124,12 @@ _ALARM_RE = re.compile(r"ALARM:(\d{1,4})")
 _SETTING_RE = re.compile(r"\$(\d{1,4})=(.*)")
 _PARAM_RE = re.compile(r"\[(G5[4-9]|G28|G30|G92|TLO|PRB):([^\]]*)\]")
 _BANNER_RE = re.compile(r"Grbl (\S+) \[.*\]")
-_NUMBER_RE = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)")
+#: no two quantifiers compete for the same digits: linear time on any line (``\d+\.?\d*`` backtracked
+#: quadratically: 21 s for a 64 KiB line, holding the GIL)
+_NUMBER_RE = re.compile(r"[-+]?(?:\d+(?:\.\d*)?|\.\d+)")
+#: the longest line GRBL 1.1 sends is well under this (status reports, $$ settings, [MSG:...]); a longer
+#: one is noise and classified as garbage without parsing it
+MAX_LINE_CHARS = 512
 _HOLD_COMPLETE, _HOLD_DECELERATING = 0, 1   # the substates of Hold in GRBL 1.1 status reports
 #: set after our own $H: GRBL clears the tool number on every reset and power-up, so a homing
 #: controller that still reports T1 and is not in alarm was homed by lfstudio and not reset since
@@ -309,6 +314,8 @@ def parse_line(line: str) -> GrblLine:
     anything malformed (``$1=.``, ``[G54:1..2,0,0]``, ``ALARM:`` with a thousand digits) is
     ``garbage``, which the driver logs and ignores."""
     text = line.strip()
+    if len(text) > MAX_LINE_CHARS:
+        return GrblLine("garbage", text[:80] + "…")
     try:
         if text == "ok":
             return GrblLine("ok", text)
@@ -640,8 +647,8 @@ class GrblController:
                                       "then connect again") from exc
             if chunk:
                 self._rx += chunk
-                if len(self._rx) > 1 << 16:      # a flood of noise without line ends
-                    del self._rx[:-1024]
+                if len(self._rx) > 4 * MAX_LINE_CHARS and self._rx.find(b"\n") < 0:   # noise without line ends
+                    del self._rx[:-MAX_LINE_CHARS]
 
     def _dispatch(self, line: str) -> GrblLine:
         """Classify a line and record its side effects."""
@@ -1202,6 +1209,14 @@ class GrblController:
         self._jog_target = None
         self._last_t = 0.0                  # the next status() asks the controller
         self._stop_event.set()
+
+    def complete_stop(self) -> None:
+        """Block until a STOP is complete: the hold has ended the motion and a soft reset dropped the
+        rest of the move (what the waiting command or :meth:`status` would do; for a caller that is
+        about to disconnect, e.g. ``lfstudio rig``'s Ctrl+C)."""
+        with self._io:
+            if self._serial is not None and not self._lost and self._stop_pending:
+                self._finish_stop()
 
     def _stop_time_s(self) -> float:
         """The longest deceleration from full speed on either axis, from the controller's settings."""

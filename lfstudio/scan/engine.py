@@ -72,6 +72,7 @@ from lfstudio.scan.events import (OWNS_RIG, TERMINAL, TRANSITIONS, EventKind, Sc
 from lfstudio.scan.scan_plan import PlannedView, ScanPlan
 from lfstudio.dataset.thumbs import THUMB_WIDTH_PX, make_thumbnail
 from lfstudio.support.listeners import Listeners
+from lfstudio.support.locks import dataset_lock
 
 log = logging.getLogger(__name__)
 
@@ -574,6 +575,9 @@ class ScanEngine:
         self._store_q.put(_STOP)
         if self._store_thread is not None:
             self._store_thread.join(30)
+        lock, self._journal_lock = getattr(self, "_journal_lock", None), None
+        if lock is not None:
+            lock.release()
         if self._own_rig:
             self.rig.close(disconnect=False)
         if self._own_camera:
@@ -583,6 +587,8 @@ class ScanEngine:
         """Remove crash leftovers (temporary files, files of views the journal never finished) and
         make sure the manifest can be written before the rig moves."""
         root = self.dataset.root
+        if not self.dataset.owns_journal():  # the scan owns the journal (a session took the lock already)
+            self._journal_lock = self.dataset.journal_lock = dataset_lock(root, "scanning").acquire()
         folders = [folder_inside(root, sub) for sub in ("raw", "thumbs")]   # refused when they lead outside
         removed = clean_temporary_files(root)
         unfinished = {view_stem(v["row"], v["column"]) for v in self.dataset.views

@@ -436,6 +436,8 @@ class ScanSession:
                 parse(words)              # a typo is reported before any folder is made
         self.lock_dataset()
         existing = Dataset.open(self.folder) if req.resume else None
+        if existing is not None:
+            existing.journal_lock = self.lock     # the scan owns the journal; other stages merge beside it
         rig_words, cam_words, record = self._device_words(existing)
         config = req.rig_config
         if config is None:
@@ -505,6 +507,7 @@ class ScanSession:
             if record is None:
                 dataset.manifest["devices"] = current
                 dataset.save()
+        dataset.journal_lock = self.lock
         self.dataset = dataset
         if req.recapture:
             plan = plan.with_subset(req.recapture)

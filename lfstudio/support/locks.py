@@ -11,12 +11,17 @@ can tell the operator who holds it::
 
 Where the lock files are:
 
-- a dataset: ``DATASET/dataset.lock`` (held for the whole scan or resume);
+- a dataset: ``DATASET/dataset.lock`` (held for the whole scan or resume; its owner alone writes the
+  journal), and ``DATASET/manifest.lock`` (:func:`manifest_lock`: held for milliseconds by any stage
+  while it merges its records into the manifest, see docs/dataset-format.md "Two commands at once");
 - a serial port or a camera: ``RUNTIME/port-dev-ttyUSB0.lock``, ``RUNTIME/camera-gphoto2.lock``,
   with ``RUNTIME`` = ``$LFSTUDIO_RUNTIME_DIR``, else ``$XDG_RUNTIME_DIR/lfstudio``, else
   ``TMP/lfstudio-UID`` (see :func:`runtime_dir`). A serial port is also flock'ed on the device node
   itself (as pyserial's ``Serial(exclusive=True)`` does), so programs that lock ports the same way
   are kept out too; the runtime lock comes first, so a refused lfstudio process never opens the port.
+
+Lock files are opened without following symlinks and must be ordinary files
+(:func:`open_lock_file`): a ``dataset.lock`` that is a symlink is refused, never emptied through.
 
 POSIX only (``fcntl``); on Windows the locks are not enforced.
 
@@ -32,9 +37,13 @@ import json
 import os
 import re
 import socket
+import stat
 import sys
 import tempfile
+import time
+from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Iterator
 from pathlib import Path
 
 from lfstudio.errors import LfError
@@ -45,6 +54,11 @@ except ImportError:                    # Windows: no flock; these locks are not 
     fcntl = None                       # type: ignore[assignment]
 
 DATASET_LOCK_NAME = "dataset.lock"
+#: the short lock of a dataset's manifest (:func:`manifest_lock`): held only while one process reads
+#: the manifest and journal, merges its changes in and writes it
+MANIFEST_LOCK_NAME = "manifest.lock"
+#: how long :func:`manifest_lock` waits for another process's merge before it gives up
+MANIFEST_LOCK_WAIT_S = 60.0
 RUNTIME_ENV = "LFSTUDIO_RUNTIME_DIR"
 
 
@@ -120,6 +134,31 @@ def _key(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-.") or "unnamed"
 
 
+class NotALockFile(LfError):
+    """A lock file that is a symlink, a folder or a device: never opened, never written through."""
+
+
+def open_lock_file(path: str | os.PathLike, *, create: bool = True) -> int:
+    """Open the lock file ``path`` for reading and writing without following a symlink
+    (``O_NOFOLLOW``); refuse anything that is not a regular file (:class:`NotALockFile` naming it and
+    the fix), so taking a lock never empties or writes a file elsewhere."""
+    flags = os.O_RDWR | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NONBLOCK", 0)
+    fix = "it must be an ordinary file lfstudio makes itself; remove it (lfstudio makes it again)"
+    try:
+        fd = os.open(path, flags | (os.O_CREAT if create else 0), 0o666)   # the umask applies, as to any file
+    except OSError as exc:
+        if exc.errno in (errno.ELOOP, errno.EISDIR, errno.ENXIO) or os.path.islink(path):
+            raise NotALockFile(f"{path}: not an ordinary file (a symlink, folder or device); {fix}") from None
+        raise
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise NotALockFile(f"{path}: not an ordinary file (a symlink, folder or device); {fix}")
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
 def _try_lock(fd: int) -> bool:
     """Exclusive, non-blocking; False when another open file holds it."""
     if fcntl is None:  # pragma: no cover - Windows
@@ -164,7 +203,7 @@ class Lock:
 
     def _open_locked(self) -> int | None:
         """Open and lock the lock file; None when it was removed meanwhile (by :meth:`remove`)."""
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        fd = open_lock_file(self.path)
         try:
             if not _try_lock(fd):
                 holder = Holder.parse(os.pread(fd, 4096, 0).decode("utf-8", "replace").strip())
@@ -233,10 +272,10 @@ class Lock:
 def holder_of(path: str | os.PathLike) -> Holder | None:
     """Who holds the lock file ``path`` now (None when nobody does). Does not take the lock."""
     path = Path(path)
-    if not path.is_file():
+    if path.is_symlink() or not path.is_file():
         return None
     try:
-        fd = os.open(path, os.O_RDONLY)
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
     except OSError:
         return None
     try:
@@ -286,3 +325,47 @@ def dataset_lock(root: str | os.PathLike, doing: str = "",
     named when another process holds it."""
     root = Path(root)
     return Lock(root / DATASET_LOCK_NAME, f"dataset {root}", doing, hint=hint)
+
+
+@contextmanager
+def manifest_lock(root: str | os.PathLike, *, shared: bool = False,
+                  wait_s: float = MANIFEST_LOCK_WAIT_S) -> Iterator[bool]:
+    """Hold the short lock of the dataset in ``root`` (``root/manifest.lock``) while reading the
+    manifest and journal (``shared``) or merging into and writing the manifest (exclusive).
+
+    Independent of ``dataset.lock`` (the scan's lock, held for the whole scan): a stage may merge
+    its records into the manifest while a scan runs; the scan takes this lock for each of its own
+    manifest writes. Held for milliseconds, so it waits (up to ``wait_s``, then
+    :class:`LockBusy`). Yields True when locked; False when the lock file cannot be made (a
+    read-only dataset: nobody can write it either, so reading it unlocked is safe).
+    """
+    path = Path(root) / MANIFEST_LOCK_NAME
+    try:
+        fd = open_lock_file(path)
+    except NotALockFile:
+        raise
+    except OSError as exc:
+        if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM) and shared:
+            yield False
+            return
+        raise
+    try:
+        if fcntl is not None:
+            mode = (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB
+            deadline = time.monotonic() + wait_s
+            pause = 0.001
+            while True:
+                try:
+                    fcntl.flock(fd, mode)
+                    break
+                except OSError as exc:
+                    if exc.errno not in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EACCES):
+                        raise
+                if time.monotonic() > deadline:
+                    raise LockBusy(f"dataset {root}", holder_of(Path(root) / DATASET_LOCK_NAME),
+                                   f"its manifest stayed locked for {wait_s:g} s; try again")
+                time.sleep(pause)          # another process's merge takes milliseconds
+                pause = min(0.05, pause * 2)
+        yield True
+    finally:
+        os.close(fd)                       # closing releases the flock

@@ -92,7 +92,7 @@ def setup_logging(debug: bool = False, console: bool = True) -> Path | None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         handler = logging.handlers.RotatingFileHandler(path, maxBytes=MAX_BYTES, backupCount=BACKUP_COUNT,
-                                                       encoding="utf-8", delay=True)
+                                                       encoding="utf-8", errors="backslashreplace", delay=True)
     except OSError as exc:
         logging.getLogger(__name__).warning("cannot write the log file %s (%s); logging to the console only",
                                             path, exc)

@@ -24,6 +24,14 @@ def _dataset(tmp_path, columns=4, rows=3) -> Dataset:
                           grid={"columns": columns, "rows": rows, "spacing_mm": [4.0, 6.0]})
 
 
+def owned(ds: Dataset) -> Dataset:
+    """``ds`` as a scan holds it: the dataset's lock taken, so its checkpoints go to the journal."""
+    from lfstudio.support.locks import dataset_lock
+
+    ds.journal_lock = dataset_lock(ds.root, "scanning").acquire()
+    return ds
+
+
 def on_disk(ds: Dataset) -> dict:
     return json.loads(ds.manifest_path.read_text(encoding="utf-8"))
 
@@ -172,7 +180,7 @@ def reopened(ds: Dataset) -> dict:
 
 
 def test_checkpoint_journals_changed_views_and_leaves_the_manifest_file_alone(tmp_path):
-    ds = _dataset(tmp_path)
+    ds = owned(_dataset(tmp_path))
     ds.save()
     before = ds.manifest_path.read_bytes()
     ds.record_view(0, 1, status="done", file="raw/r00_c001.dng", timings_s={"move": 0.5})
@@ -194,7 +202,7 @@ def test_checkpoint_journals_changed_views_and_leaves_the_manifest_file_alone(tm
 
 
 def test_checkpoint_rewrites_the_manifest_for_new_top_level_keys_and_a_long_journal(tmp_path, monkeypatch):
-    ds = _dataset(tmp_path, columns=20, rows=10)
+    ds = owned(_dataset(tmp_path, columns=20, rows=10))
     ds.save()
     ds.manifest["processing"] = {"profile": "default"}
     ds.checkpoint()

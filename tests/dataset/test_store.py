@@ -104,13 +104,25 @@ def test_verify_files_names_missing_and_corrupt_files(tmp_path):
 def test_clean_temporary_files_removes_only_crash_leftovers(tmp_path):
     ds = make(tmp_path)
     capture(ds, 0, 0)
-    leftovers = [ds.root / "raw/.r00_c001.abcd.tmp.dng", ds.root / "thumbs/.r00_c001.x1.tmp.jpg",
-                 ds.root / ".dataset.zz.tmp.json"]
-    for p in leftovers:
+    leftovers = [ds.root / "raw/.r00_c001.abcd0123.tmp.dng", ds.root / "thumbs/.r00_c001.00ff00ff.tmp.jpg",
+                 ds.root / ".dataset.1234abcd.tmp.json", ds.root / ".notes.deadbeef.tmp"]
+    theirs = [ds.root / ".my.tmpnotes", ds.root / ".tmp", ds.root / "raw/.r00_c001.abcd.tmp.dng",
+              ds.root / ".backup.tmp.json"]       # the operator's: only the exact pattern is ours
+    for p in leftovers + theirs:
         p.write_bytes(b"half")
     removed = clean_temporary_files(ds.root)
     assert sorted(removed) == sorted(leftovers)
+    assert all(p.is_file() for p in theirs)
     assert (ds.root / "raw/r00_c000.dng").is_file()
+
+
+def test_a_killed_writers_manifest_temporary_is_removed_by_the_next_save(tmp_path):
+    ds = make(tmp_path)
+    left = ds.root / ".dataset.0badf00d.tmp.json"        # a kill -9 of 'lfstudio process' mid-save
+    left.write_bytes(b'{"format"')
+    again = Dataset.open(ds.root)
+    again.save()
+    assert not left.exists()
 
 
 def test_validation_reports_problems_by_field(tmp_path):

@@ -122,3 +122,50 @@ def test_a_hot_folder_that_gets_no_file_stops_the_scan_at_once_with_its_own_word
         assert engine.wait(T) is ScanState.FINISHED
     finally:
         session.close()
+
+
+# -- Ctrl+C of 'lfstudio rig ... move' on the real GRBL 1.1h firmware ------------------------------------
+from tests.rig.conftest import grbl_firmware, grbl_firmware_exe  # noqa: E402,F401  (the fixtures)
+
+
+def test_ctrl_c_during_rig_move_holds_then_resets_so_nothing_stays_queued(grbl_firmware, tmp_path):
+    """A feed hold alone leaves the move queued in GRBL (a Cycle Start finishes it) and the held
+    controller answers no later connection; like 'lfstudio scan', Ctrl+C holds, then soft-resets."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from lfstudio.rig.grbl import GrblController
+    from tests.conftest import REPO_ROOT
+    from tests.faults.test_kill import wait_until
+
+    fw = grbl_firmware(speedup=1.0)               # GRBL's defaults: 500 mm/min, so 150 mm take 18 s
+    env = {**os.environ, "PYTHONPATH": str(REPO_ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    proc = subprocess.Popen([sys.executable, "-m", "lfstudio", "rig", "--port", fw.port, "--timeout-s", "5",
+                             "origin", "move", "150", "150"], cwd=REPO_ROOT, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        wait_until(lambda: any(line.startswith(("G0", "G1", "G90")) and "150" in line for line in fw.lines_received)
+                   or proc.poll() is not None, T, "the move sent to the controller")
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=T)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    assert b"!" in fw.realtime_received and b"\x18" in fw.realtime_received, fw.realtime_received
+    assert fw.realtime_received.index(b"\x18") > fw.realtime_received.index(b"!")   # hold first, then reset
+    c = GrblController(fw.port, RIG, timeout_s=3.0)
+    c.connect()                                   # answers: not stuck in a hold
+    try:
+        first = c.status()
+        assert first.state.value in ("idle", "alarm"), first
+        c.resume()                                # Cycle Start: nothing left to finish
+        wait_until(lambda: c.status().state.value in ("idle", "alarm"), T, "the controller at rest")
+        x, y = c.status().position_mm
+        assert x < 149.0 and y < 149.0            # the rest of the move was dropped
+    finally:
+        c.disconnect()

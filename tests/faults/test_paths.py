@@ -118,6 +118,12 @@ OTHER_CASES = {
                                 "points outside"),
     "info raw folder symlink": ("info", lambda root, out: _link_folder(root, "raw", out), 1,
                                 "'raw' points outside"),
+    "check quality folder symlink": ("check", lambda root, out: _link_folder(root, "quality", out), 1,
+                                     "'quality' points outside"),
+    "check quality.json symlink": ("check", lambda root, out: _link_file(root, "quality.json", out), 1,
+                                   "'quality.json' points outside"),
+    "check a folder no stage knows yet": ("check", lambda root, out: _link_folder(root, "notes", out), 1,
+                                          "'notes' points outside"),
 }
 
 
@@ -129,7 +135,7 @@ def test_calibrate_export_info_refuse_paths_leading_outside(case, tiny_dataset, 
     setup(root, outside)
     outside.mark()
     args = {"calibrate": ("calibrate", root), "export": ("export", root, "--format", "png", "--out", tmp_path / "ex"),
-            "info": ("info", root, "--verify")}[command]
+            "info": ("info", root, "--verify"), "check": ("check", root)}[command]
     proc = run_cli(*args)
     assert_one_line_error(proc, status, needle)
     assert outside.unchanged(), "something outside the dataset changed"
@@ -153,3 +159,45 @@ def test_every_file_a_scan_process_and_export_write_gets_the_users_umask(run_cli
     modes = {str(p.relative_to(tmp_path)): p.stat().st_mode & 0o777 for p in tmp_path.rglob("*")
              if p.is_file() and p.name != "dataset.lock"}
     assert modes and all(mode == 0o664 for mode in modes.values()), {k: oct(v) for k, v in modes.items() if v != 0o664}
+
+
+def test_a_scan_refuses_a_dataset_lock_that_is_a_symlink_and_empties_nothing(scanned, outside, run_cli):
+    root = scanned(3, 2)
+    set_pending(root, {(1, 2)})
+    (root / "dataset.lock").unlink(missing_ok=True)
+    os.symlink(outside.path / "keep.txt", root / "dataset.lock")     # a link the path guard would let by...
+    proc = run_cli("scan", "--resume", "--out", root, "--port", "instant", "--camera", "instant")
+    assert_one_line_error(proc, 1, "dataset.lock", "not an ordinary file")
+    assert outside.unchanged(), "the lock emptied the file its symlink points to"
+
+
+def test_export_overwrite_never_deletes_a_folder_of_other_files(tiny_dataset, tmp_path, run_cli):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "thesis.tex").write_text("years of work\n")
+    proc = run_cli("export", tiny_dataset.root, "--format", "png", "--out", out, "--overwrite")
+    assert_one_line_error(proc, 2, str(out), "thesis.tex", "--overwrite replaces only an earlier export")
+    assert (out / "thesis.tex").read_text() == "years of work\n" and [p.name for p in out.iterdir()] == ["thesis.tex"]
+    again = run_cli("export", tiny_dataset.root, "--format", "png", "--out", tmp_path / "ex")
+    assert again.returncode == 0, again.stderr
+    replaced = run_cli("export", tiny_dataset.root, "--format", "png", "--out", tmp_path / "ex", "--overwrite")
+    assert replaced.returncode == 0, replaced.stderr                     # an earlier export is replaced
+
+
+NOT_UTF8 = os.fsdecode(b"d\xe9j\xe0")          # Latin-1 'déjà': surrogate escapes in Python, crashed OpenCV
+
+
+@pytest.mark.parametrize("command", ["info", "check", "process", "export", "export --out", "scan --out"])
+def test_a_folder_name_that_is_not_utf8_is_refused_by_name_not_a_crash(command, scanned, tmp_path, run_cli):
+    root = tmp_path / NOT_UTF8
+    shutil.copytree(scanned(3, 2), root, symlinks=True)
+    args = {"info": ("info", root), "check": ("check", root), "process": ("process", root),
+            "export": ("export", root, "--format", "png", "--out", tmp_path / "ex"),
+            "export --out": ("export", scanned(3, 2), "--format", "png", "--out", tmp_path / NOT_UTF8 / "ex"),
+            "scan --out": ("scan", "--port", "instant", "--camera", "instant", "--grid", "2x1",
+                           "--out", tmp_path / NOT_UTF8 / "new")}[command]
+    proc = run_cli(*args)
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)            # not -11 (SIGSEGV)
+    assert "UnicodeEncodeError" not in proc.stderr
+    assert_one_line_error(proc, 2, "d\\xe9j\\xe0", "not valid UTF-8", "rename")
+    assert not (tmp_path / "ex").exists() and not (root / "new").exists()

@@ -154,3 +154,29 @@ def test_parse_line_examples(text, kind):
         assert (parsed.status.state, parsed.status.substate) == ("Hold", 0)
     if text.startswith("Grbl"):
         assert parsed.name == "1.1h"
+
+
+def test_a_line_of_noise_is_garbage_at_once_and_numbers_parse_in_linear_time():
+    """The number pattern used to backtrack quadratically (21 s for 64 KiB of digits, holding the GIL, so
+    STOP from another thread waited that long); a line longer than GRBL ever sends is garbage unparsed."""
+    import threading
+
+    from lfstudio.rig.grbl import MAX_LINE_CHARS, _number, parse_line
+
+    assert parse_line("$110=" + "0" * MAX_LINE_CHARS + "1").kind == "garbage"       # too long for GRBL
+    assert parse_line("$110=500.000").value == 500.0
+    done = threading.Event()
+    results = []
+
+    def parse():
+        results.append(parse_line("$110=" + "1" * 65536 + "x").kind)
+        try:
+            _number("1" * 65536 + "x")
+        except ValueError:
+            results.append("refused")
+        done.set()
+
+    threading.Thread(target=parse, daemon=True).start()
+    assert done.wait(10), "parsing a 64 KiB line took more than 10 s"      # microseconds now; 21 s before
+    assert results == ["garbage", "refused"]
+    assert _number("12.") == 12.0 and _number(".5") == 0.5 and _number("-3.25") == -3.25
