@@ -110,7 +110,7 @@ SPACING_MM = Number("mm", 0.001, 100_000)          # below a micrometre no rig r
 OFFSET_MM = Number("mm", -100_000, 100_000)
 WIDTH_PX = Number("px", 16, 100_000, integer=True)
 SEED = Number("", 0, 2 ** 32 - 1, integer=True)
-WORKERS = Number("", 0, 4096, integer=True)
+WORKERS = Number("", 0, 256, integer=True)     # worker processes; also at most 4 per core (processing.executors)
 
 
 

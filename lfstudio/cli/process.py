@@ -5,10 +5,17 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lfstudio.numbers import WORKERS
+from lfstudio.numbers import WORKERS, as_option
 from lfstudio.dataset.paths import path_option
 
 HELP = "process the captured views (debayer, lens, colour, shading, de-flicker, rectify, downsample)"
+
+
+def _cluster_address(text: str) -> str:
+    from lfstudio.processing.executors import check_cluster_address
+
+    check_cluster_address(text)
+    return text.strip()
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -16,7 +23,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--profile", metavar="FILE", type=path_option("--profile"),
                    help="processing profile (TOML); default: DATASET/processing.toml, or built-in defaults. "
                         "The profile used is saved as DATASET/processing.toml")
-    p.add_argument("--cluster", metavar="ADDR",
+    p.add_argument("--cluster", metavar="ADDR", type=as_option("--cluster", _cluster_address),
                    help="Dask scheduler address, e.g. tcp://10.0.0.5:8786 (workers must see the dataset "
                         "folder at the same path); default: a local process pool")
     p.add_argument("--workers", metavar="N", type=WORKERS.option("--workers"),

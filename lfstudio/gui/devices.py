@@ -31,7 +31,8 @@ def error_text(exc: BaseException) -> str:
         return str(exc)
     if isinstance(exc, CancelledError):
         return "cancelled"
-    traceback.print_exception(exc)
+    # the traceback goes to the log file (where a bug report finds it), never to the terminal's stderr
+    log.error("unexpected error from a device call:\n%s", "".join(traceback.format_exception(exc)))
     return f"Unexpected error: {type(exc).__name__}: {exc}"
 
 

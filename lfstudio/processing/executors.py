@@ -15,6 +15,7 @@ import concurrent.futures as cf
 import ctypes
 import multiprocessing
 import os
+import re
 import signal
 import sys
 import threading
@@ -96,6 +97,9 @@ def open_executor(workers: int | None = None, cluster: str | None = None,
     """An executor for the run; shut down (or disconnected) on exit."""
     if workers is not None and workers < 0:
         raise InputError("--workers", f"{workers} is negative", "0 (inline) or more")
+    if workers and workers > 4 * default_workers():     # each a Python process with its own images in memory
+        raise InputError("--workers", f"{workers} worker processes on {default_workers()} cores would only "
+                         "compete for them and the memory", f"0 … {4 * default_workers()}")
     if cluster:
         yield from _dask(cluster, connect_timeout_s)
         return
@@ -111,7 +115,21 @@ def open_executor(workers: int | None = None, cluster: str | None = None,
         pool.shutdown(wait=True, cancel_futures=True)
 
 
+#: a Dask scheduler address: ``tcp://HOST:PORT`` (also tls://, ws://, wss://, ucx://) or ``HOST:PORT``
+_DASK_ADDRESS = re.compile(r"(?:(?:tcp|tls|ws|wss|ucx)://)?(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9][A-Za-z0-9.-]*):(\d{1,5})")
+
+
+def check_cluster_address(address: str) -> None:
+    """Refuse a ``--cluster`` value that is no scheduler address before anything connects (Dask would
+    try for its whole timeout, then print its own traceback)."""
+    m = _DASK_ADDRESS.fullmatch(address.strip())
+    if m is None or not 0 < int(m.group(1)) < 65536:
+        raise InputError("--cluster", f"{address!r} is not the address of a Dask scheduler",
+                         "tcp://HOST:PORT of a running 'dask scheduler', e.g. tcp://192.168.1.20:8786")
+
+
 def _dask(address: str, timeout_s: float) -> Iterator[ExecutorInfo]:
+    check_cluster_address(address)
     try:
         from distributed import Client
     except ImportError:  # pragma: no cover - a dependency

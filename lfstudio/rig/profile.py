@@ -14,8 +14,9 @@ from lfstudio.rig.motion import AxisConfig, RigConfig
 DEFAULT_RIG = "Reference gantry"
 AXIS_LETTERS = ("X", "Y", "Z", "A", "B", "C")
 TRAVEL_MM = Number("mm", 0, 100_000, low_open=True)
-SPEED_MM_S = Number("mm/s", 0, 10_000, low_open=True)
-ACCELERATION_MM_S2 = Number("mm/s²", 0, 1_000_000, low_open=True)
+#: from a crawl (homing at 1e-300 mm/s never ended) to faster than any gantry
+SPEED_MM_S = Number("mm/s", 0.01, 10_000)
+ACCELERATION_MM_S2 = Number("mm/s²", 0.01, 1_000_000)
 REPEATABILITY_UM = Number("µm", 0, 100_000)
 DRIVERS = ("grbl", "cia402")
 #: CiA 402 homing methods (6098h) lfstudio drives: limit switch at the low / high end, current position

@@ -194,10 +194,10 @@ class DeviceWorker:
             fn = fn_or_name
             name = getattr(fn, "__name__", "call")
         future: Future = Future()
-        if self._closed:
-            future.set_exception(DeviceError(f"{self.name}: {name} refused: the device connection is closed"))
-            return future
-        with self._lease_lock:
+        with self._lease_lock:            # _closed is set under this lock: no call is queued after _CLOSE
+            if self._closed:
+                future.set_exception(DeviceError(f"{self.name}: {name} refused: the device connection is closed"))
+                return future
             holder = self._lease
             if holder is not None and holder is not lease:
                 future.set_exception(DeviceBusy(
@@ -333,6 +333,7 @@ class DeviceWorker:
             except queue.Empty:
                 item = None
             if item is _CLOSE:
+                self._drop_queued("cancelled: the device connection is closed")   # never left waiting
                 return
             if item is not None:
                 self._execute(item)
@@ -383,9 +384,10 @@ class DeviceWorker:
 
     def close(self, disconnect: bool = True, timeout_s: float = 10.0) -> None:
         """Fail queued calls, optionally run ``driver.disconnect()`` last, and end the thread."""
-        if self._closed:
-            return
-        self._closed = True
+        with self._lease_lock:            # a call queued from now on is refused (see _submit)
+            if self._closed:
+                return
+            self._closed = True
         self._drop_queued("cancelled: the device connection is closing")
         if disconnect and hasattr(self.driver, "disconnect"):
             fut: Future = Future()

@@ -42,7 +42,7 @@ from lfstudio.dataset.paths import check_new_dataset_folder, view_label
 from lfstudio.errors import DeviceError, InputError, LfError
 from lfstudio.numbers import EXPOSURE_S, RETRIES, TIME_SCALE, TRANSFER_S
 from lfstudio.optics import REFERENCE
-from lfstudio.rig.motion import RigConfig, RigState
+from lfstudio.rig.motion import RigConfig, RigState, SoftLimitError
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.studio.devices import SIM, CameraSpec, RigSpec, Studio, open_studio
 from lfstudio.support.locks import Lock, dataset_lock
@@ -277,6 +277,26 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
     return notes
 
 
+def check_plan_on_controller(rig: Any, plan: ScanPlan) -> None:
+    """Refuse a plan that reaches beyond what the connected controller itself allows (GRBL's travel
+    ``$130``/``$131`` with its soft limits on), once it is connected and before the first move: each view
+    would otherwise be refused, retried and the scan stopped with advice about the cable. The corners
+    of the grid are checked by the driver's own ``check_target`` (nothing is sent)."""
+    driver = getattr(rig, "driver", rig)
+    check = getattr(driver, "check_target", None)
+    if check is None:
+        return
+    x0, x1, y0, y1 = plan.extent_mm()
+    for x, y in ((x0, y0), (x1, y1), (x0, y1), (x1, y0)):
+        try:
+            check(x, y)
+        except SoftLimitError as exc:
+            raise InputError("--grid/--spacing-mm/--offset-mm",
+                             f"the grid reaches ({x:g}, {y:g}) mm, out of the controller's reach: {exc}",
+                             "a grid inside that range (fewer views, a smaller spacing or another offset), "
+                             "or the controller's travel set to the rig's ($130/$131)") from None
+
+
 class _WorkerCalls:
     """``worker.call(name, ...)`` spelled ``rig.name(...)`` (homing may take minutes)."""
 
@@ -495,6 +515,7 @@ class ScanSession:
                 self.note(line)
         elif req.home or req.origin_here:
             self.note("the simulated rig was homed when it started")
+        check_plan_on_controller(rig, plan)
         if existing is None:
             camera_info, lens = describe_camera(getattr(camera, "driver", camera), scene)
             camera_info.setdefault("driver", cam_text)

@@ -125,6 +125,7 @@ def test_a_hot_folder_that_gets_no_file_stops_the_scan_at_once_with_its_own_word
 
 
 # -- Ctrl+C of 'lfstudio rig ... move' on the real GRBL 1.1h firmware ------------------------------------
+from tests.faults.conftest import assert_one_line_error  # noqa: E402
 from tests.rig.conftest import grbl_firmware, grbl_firmware_exe  # noqa: E402,F401  (the fixtures)
 
 
@@ -169,3 +170,19 @@ def test_ctrl_c_during_rig_move_holds_then_resets_so_nothing_stays_queued(grbl_f
         assert x < 149.0 and y < 149.0            # the rest of the move was dropped
     finally:
         c.disconnect()
+
+
+def test_a_grid_beyond_the_controllers_own_travel_is_refused_after_connecting(grbl_firmware, tmp_path, run_cli):
+    """GRBL 1.1h at its default travel ($130 = $131 = 200 mm) with soft limits on, on the reference
+    gantry's 4 m profile: a grid reaching 300 mm is refused once the controller is connected and homed,
+    naming $130, before the first view (each view used to be refused, retried three times and the scan
+    stopped with advice about the cable, exit 3)."""
+    from tests.rig.test_grbl_firmware import SWITCHES
+
+    fw = grbl_firmware(switches=SWITCHES, reset_on_open=True)
+    fw.configure({22: 1, 20: 1})
+    proc = run_cli("scan", "--port", fw.port, "--camera", "instant", "--home", "--grid", "3x1", "--spacing-mm",
+                   "150x6", "--out", tmp_path / "ds", timeout=300)
+    assert_one_line_error(proc, 2, "--grid", "$130 = 200 mm")
+    assert not list((tmp_path / "ds" / "raw").glob("*")) if (tmp_path / "ds" / "raw").exists() else True
+    assert not any(line.startswith("G90 G54 G0") for line in fw.lines_received)     # no move was sent

@@ -55,3 +55,18 @@ def test_signals_on_gui_thread(qtbot):
     device.stop_now()
     assert device.driver.stopped
     device.close()
+
+
+def test_an_unexpected_device_error_goes_to_the_log_not_to_stderr(capfd, caplog):
+    import logging
+
+    from lfstudio.gui.devices import error_text
+
+    try:
+        raise ZeroDivisionError("division by zero in a driver")
+    except ZeroDivisionError as exc:
+        with caplog.at_level(logging.ERROR, logger="lfstudio.gui.devices"):
+            text = error_text(exc)
+    assert text == "Unexpected error: ZeroDivisionError: division by zero in a driver"
+    assert "Traceback" not in capfd.readouterr().err                # printed to the terminal before
+    assert any("Traceback" in r.getMessage() and "ZeroDivisionError" in r.getMessage() for r in caplog.records)

@@ -232,3 +232,50 @@ def test_calls_accepted_before_a_claim_still_run_in_order(worker):
     assert running.result(5) == "released" and queued.result(5) == 14 and mine.result(5) == 16
     assert [k for k, _ in worker.driver.log] == ["block", "do", "do"]
     lease.release()
+
+
+class _SpyLock:
+    """A lock that counts the attempts to take it (so a test can hold a caller at it, no sleeps)."""
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.cond = threading.Condition()
+        self.attempts = 0
+
+    def __enter__(self):
+        with self.cond:
+            self.attempts += 1
+            self.cond.notify_all()
+        self.lock.acquire()
+        return self
+
+    def __exit__(self, *exc):
+        self.lock.release()
+
+
+def test_a_call_queued_while_the_worker_closes_fails_instead_of_hanging():
+    """_closed was set and read outside the lock: a call that passed the check while close() ran was
+    queued behind _CLOSE, never run nor failed, and call() without a timeout blocked forever."""
+    from concurrent.futures import TimeoutError as FutureTimeout
+
+    worker = DeviceWorker(Recorder(), name="rig", publish_hz=50)
+    spy = worker._lease_lock = _SpyLock()
+    spy.lock.acquire()                                   # the submit below waits at the lease lock
+    futures = []
+    submitter = threading.Thread(target=lambda: futures.append(worker.submit("do", 21)))
+    submitter.start()
+    with spy.cond:
+        assert spy.cond.wait_for(lambda: spy.attempts >= 1, 10)
+    closer = threading.Thread(target=worker.close)
+    closer.start()
+    with spy.cond:                                       # close() now takes the lock too (or, before, ran past)
+        spy.cond.wait_for(lambda: spy.attempts >= 2 or not closer.is_alive(), 10)
+    spy.lock.release()
+    submitter.join(10)
+    closer.join(10)
+    try:
+        futures[0].result(timeout=10)                    # ran before the close, or refused: never pending
+    except DeviceError:
+        pass
+    except FutureTimeout:
+        pytest.fail("the call queued during close() was never run nor failed")
