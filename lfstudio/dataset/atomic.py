@@ -55,8 +55,9 @@ def atomic_write_with(path: str | os.PathLike, write: Callable[[Path], None]) ->
         os.replace(tmp_path, path)
     except BaseException as exc:
         tmp_path.unlink(missing_ok=True)
-        if isinstance(exc, OSError) and exc.filename == str(tmp_path):
-            exc.filename = str(path)          # the operator knows the file, not its temporary name
+        if isinstance(exc, OSError) and exc.filename in (None, str(tmp_path)):
+            exc.filename = str(path)          # the operator knows the file, not its temporary name (a failed
+            #                                   write names none: without it, messages named the working folder's disk)
         raise
     _fsync_dir(path.parent)
     return path

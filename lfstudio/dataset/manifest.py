@@ -438,8 +438,11 @@ class Dataset:
             raise DatasetError(f"{root}: already holds a dataset ({MANIFEST_NAME} exists); "
                                "open it to resume, or choose another folder")
         root.mkdir(parents=True, exist_ok=True)
+        made = []
         for sub in ("raw", "thumbs"):
-            (root / sub).mkdir(exist_ok=True)
+            if not (root / sub).exists():
+                (root / sub).mkdir()
+                made.append(root / sub)
         if views is None:
             views = [{"row": r, "column": c, "commanded_mm": None, "reported_mm": None,
                       "captured_at": None, "exposure_s": None, "file": None, "sha256": None,
@@ -452,7 +455,15 @@ class Dataset:
         problems = validate_manifest(manifest, ds.root)
         if problems:
             raise DatasetError(f"{root}: cannot create dataset", problems)
-        ds.save()
+        try:
+            ds.save()
+        except BaseException:          # e.g. a full disk: no half-made dataset keeps the folder from a re-run
+            for folder in made:
+                try:
+                    folder.rmdir()
+                except OSError:
+                    pass
+            raise
         holder = holder_of(root / DATASET_LOCK_NAME)
         if ds._journal.size_bytes() and (holder is None or holder.pid == os.getpid()):
             ds._journal.clear()        # an old dataset's journal does not belong to this new manifest

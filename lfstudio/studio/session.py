@@ -45,7 +45,7 @@ from lfstudio.optics import REFERENCE
 from lfstudio.rig.motion import RigConfig, RigState, SoftLimitError
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.studio.devices import SIM, CameraSpec, RigSpec, Studio, open_studio
-from lfstudio.support.locks import Lock, dataset_lock
+from lfstudio.support.locks import MANIFEST_LOCK_NAME, Lock, dataset_lock
 
 log = logging.getLogger(__name__)
 
@@ -569,7 +569,8 @@ class ScanSession:
         if lock is None:
             return
         if self._created_folder and self.dataset is None and \
-                [p.name for p in self.folder.iterdir()] == [lock.path.name]:
+                {p.name for p in self.folder.iterdir()} <= {lock.path.name, MANIFEST_LOCK_NAME}:
+            (self.folder / MANIFEST_LOCK_NAME).unlink(missing_ok=True)
             lock.remove()                 # a new scan that never started leaves no folder behind
             try:
                 self.folder.rmdir()

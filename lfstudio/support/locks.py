@@ -221,8 +221,13 @@ class Lock:
             self._device_fd = self._lock_device()
             since = _dt.datetime.now().strftime("%H:%M:%S")
             line = (Holder(os.getpid(), this_command(), self.doing, since, socket.gethostname()).to_json() + "\n").encode()
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, line, 0)
+            try:
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, line, 0)
+            except OSError as exc:        # e.g. a full disk: the message names this file's disk
+                if exc.filename is None:
+                    exc.filename = str(self.path)
+                raise
         except BaseException:
             os.close(fd)
             raise

@@ -264,3 +264,19 @@ def test_a_dataset_this_user_may_not_write_is_the_folders_problem_not_the_camera
     assert_one_line_error(proc, 1, f"the folder {root} is not writable for this user")
     assert "camera" not in proc.stderr.lower()
     assert manifest_of(root) == before
+
+
+def test_a_full_disk_at_a_new_datasets_first_write_names_that_disk_and_a_rerun_works(small_disk, run_cli):
+    """ENOSPC at the first manifest write named the disk of the working folder ('the disk at / … 72.7 GB
+    free is full'), and the raw/ and thumbs/ it had made refused the re-run ('not empty')."""
+    disk = small_disk(16 * 2**20)            # room for the scan's free-space floor once the filler is gone
+    filler = disk.fill()
+    args = ("scan", "--port", "instant", "--camera", "instant", "--grid", "2x1", "--out", disk.path / "ds")
+    proc = run_cli(*args)
+    line = assert_one_line_error(proc, 1, str(disk.path))
+    assert "the disk at / " not in line
+    left = sorted(p.name for p in (disk.path / "ds").iterdir()) if (disk.path / "ds").exists() else []
+    assert left in ([], ["dataset.lock"], ["dataset.lock", "manifest.lock"]), left
+    filler.unlink()
+    again = run_cli(*args)
+    assert again.returncode == 0, again.stderr
