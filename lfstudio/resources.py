@@ -57,4 +57,7 @@ def load_presets(kind: str) -> dict[str, dict]:
             presets.update(tomllib.loads(path.read_text(encoding="utf-8")))
         except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
             raise InputError(str(path), f"cannot read preset file: {exc}", "a TOML file of [\"Name\"] tables")
+        except RecursionError:
+            raise InputError(str(path), "cannot read preset file: nested too deeply to be a preset file",
+                             "a TOML file of [\"Name\"] tables") from None
     return presets

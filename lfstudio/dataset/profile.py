@@ -262,6 +262,8 @@ class Profile:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             raise InputError(source, f"is not valid TOML ({exc})") from None
+        except RecursionError:
+            raise InputError(source, "is not a processing profile: nested too deeply") from None
         return cls.from_dict(data, source)
 
     @classmethod

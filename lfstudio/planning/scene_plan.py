@@ -481,6 +481,8 @@ def load_plan(path: "str | Any") -> ScenePlan:
         data = json.loads(text) if text.lstrip().startswith("{") else tomllib.loads(text)
     except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
         raise InputError(str(path), f"not a plan file: {exc}", "a .toml or .json plan file") from None
+    except RecursionError:
+        raise InputError(str(path), "not a plan file: nested too deeply", "a .toml or .json plan file") from None
     try:
         return ScenePlan.from_dict(data)
     except InputError as exc:

@@ -268,3 +268,36 @@ def test_connect_survives_hostile_settings_and_parameter_answers(settings_lines,
     finally:
         controller.disconnect()
         sim.close()
+
+
+DEEP_TOML = "x = " + "[" * 3000 + "]" * 3000 + "\n"     # tomllib recurses once per level
+
+
+@pytest.mark.parametrize("what", ["journal line", "plan", "processing profile", "rig preset"])
+def test_nesting_a_thousand_deep_is_one_line_not_a_recursion_error(what, scanned, tmp_path, run_cli):
+    from tests.faults.conftest import assert_one_line_error
+
+    root = scanned(3, 2)
+    env = {}
+    if what == "journal line":
+        (root / "journal.jsonl").write_text('{"seq": 99, "row": 0, "column": 0, "set": ' + "[" * 3000 + "]" * 3000
+                                            + "}\n")
+        proc = run_cli("info", root)
+        assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr    # the line is ignored
+        assert "unreadable record ignored" in proc.stdout + proc.stderr
+        return
+    if what == "plan":
+        (tmp_path / "plan.toml").write_text(DEEP_TOML)
+        args = ("scan", "--port", "instant", "--camera", "instant", "--plan", tmp_path / "plan.toml",
+                "--out", tmp_path / "new")
+    elif what == "processing profile":
+        (tmp_path / "p.toml").write_text(DEEP_TOML)
+        args = ("process", root, "--workers", "0", "--profile", tmp_path / "p.toml")
+    else:
+        (tmp_path / "config" / "presets").mkdir(parents=True)
+        (tmp_path / "config" / "presets" / "rigs.toml").write_text(DEEP_TOML)
+        env = {"LFSTUDIO_CONFIG_DIR": str(tmp_path / "config")}
+        args = ("scan", "--port", "instant", "--camera", "instant", "--grid", "2x1", "--out", tmp_path / "new")
+    proc = run_cli(*args, env=env)
+    assert "RecursionError" not in proc.stderr
+    assert_one_line_error(proc, proc.returncode if proc.returncode in (1, 2) else 2, "nested too deeply")
