@@ -14,6 +14,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import json
 import math
+import os
 import time
 from fractions import Fraction
 from pathlib import Path
@@ -25,6 +26,7 @@ from lfstudio.dataset import Dataset, images
 from lfstudio.dataset.grid import Grid
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
+from lfstudio.dataset.storage import STORAGE_ERRNOS, storage_error
 from lfstudio.dataset.store import sha256_file
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.export import common
@@ -151,6 +153,9 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
                 for packet in stream.encode():
                     container.mux(packet)
         except av.error.FFmpegError as exc:
+            if getattr(exc, "errno", None) in STORAGE_ERRNOS:     # the disk, not the encoder (no --crf advice)
+                raise storage_error(OSError(exc.errno, os.strerror(exc.errno)), out, doing="writing",
+                                    then="export again") from None
             raise DatasetError(f"{out.name}: the HEVC encoder failed on {frame_size[0]} x {frame_size[1]} px "
                                f"{fmt} frames ({exc}); check the disk space and the options (--crf, --bit-depth)") \
                 from None

@@ -280,3 +280,11 @@ def test_a_full_disk_at_a_new_datasets_first_write_names_that_disk_and_a_rerun_w
     filler.unlink()
     again = run_cli(*args)
     assert again.returncode == 0, again.stderr
+
+
+def test_hevc_export_to_a_full_disk_is_the_disks_fault_not_the_encoders(small_disk, tiny_dataset, run_cli):
+    disk = small_disk(160 * 1024)                      # the video's first packets do not fit
+    proc = run_cli("export", tiny_dataset.root, "--format", "hevc", "--out", disk.path / "lf.mkv", timeout=300)
+    line = assert_one_line_error(proc, 1, "full", str(disk.path))
+    assert "--crf" not in line and "encoder failed" not in line
+    assert [p.name for p in disk.path.iterdir()] == []                   # nothing half-written left
