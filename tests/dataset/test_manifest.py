@@ -101,8 +101,9 @@ def test_atomic_write_leaves_no_partial_file(tmp_path):
 
 
 def test_is_temporary():
-    assert is_temporary(".r00_c000.abc.tmp.dng")
+    assert is_temporary(".r00_c000.0abc1234.tmp.dng") and is_temporary(".notes.0abc1234.tmp")
     assert not is_temporary("r00_c000.dng")
+    assert not is_temporary(".r00_c000.abc.tmp.dng") and not is_temporary(".my.tmpnotes")   # not our pattern
 
 
 def test_a_processed_view_is_told_in_one_place():
