@@ -165,8 +165,13 @@ def test_overwrite_refused_unless_allowed(small, tmp_path):
         export_dataset(small, ExportOptions("png", out, views="r00_c000"))
     assert exc.value.field == "out" and "already exists" in str(exc.value)
     assert (out / "keep.txt").read_text() == "mine"
+    with pytest.raises(InputError, match="replaces only an earlier export"):   # never deletes the operator's files
+        export_dataset(small, ExportOptions("png", out, views="r00_c000", overwrite=True))
+    assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
+    (out / "keep.txt").unlink()                      # an empty folder, then an earlier export: replaced
     export_dataset(small, ExportOptions("png", out, views="r00_c000", overwrite=True))
-    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "r00_c000.png"]
+    export_dataset(small, ExportOptions("png", out, views="r00_c001", overwrite=True))
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "r00_c001.png"]
     (tmp_path / "was_a_file").write_text("x")       # overwrite replaces a file by a folder, and back
     export_dataset(small, ExportOptions("png", tmp_path / "was_a_file", views="r00_c000", overwrite=True))
     assert (tmp_path / "was_a_file" / "manifest.json").is_file()

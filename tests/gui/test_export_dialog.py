@@ -124,7 +124,8 @@ def test_overwrite_asks_first(qtbot, tiny_dataset, tmp_path, answer):
     dialog.format_combo.setCurrentIndex(FORMAT_KEYS.index("png"))
     dialog.folder_edit.setText(str(tmp_path))
     dialog.name_edit.setText("old_png")
-    (tmp_path / "old_png").mkdir()
+    (tmp_path / "old_png").mkdir()                   # an earlier export (only such a folder is ever replaced)
+    (tmp_path / "old_png" / "manifest.json").write_text('{"format": "lfstudio-export", "kind": "png"}')
     (tmp_path / "old_png" / "keep.txt").write_text("older export")
     dialog.subset_edit.setText("r1,c0-1")
     dialog.subset_button.click()
@@ -197,3 +198,22 @@ def test_nerfstudio_and_colmap_exports_from_the_dialog(qtbot, tiny_dataset, tmp_
     assert cv2.imread(str(out / "images" / "r01_c000.png"), cv2.IMREAD_UNCHANGED).dtype == np.uint16
     s = settings()
     assert s.value("export/holdout") == "centre" and int(s.value("export/image_bit_depth")) == 16
+
+
+def test_overwrite_never_deletes_a_folder_of_other_files(qtbot, tiny_dataset, tmp_path):
+    window, dialog = _open_dialog(qtbot, tiny_dataset)
+    dialog.format_combo.setCurrentIndex(FORMAT_KEYS.index("png"))
+    dialog.folder_edit.setText(str(tmp_path))
+    dialog.name_edit.setText("mine")
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "thesis.tex").write_text("years of work")
+    dialog.subset_edit.setText("r1,c0-1")
+    dialog.subset_button.click()
+    qtbot.waitUntil(lambda: dialog.estimate is not None and len(dialog.estimate.views) == 2, timeout=20000)
+    dialog.export_button.click()
+    box = dialog.findChild(QMessageBox, "overwriteBox")
+    if box is not None and box.isVisible():
+        box.button(QMessageBox.Yes).click()
+    qtbot.waitUntil(lambda: not dialog.runner.running and "earlier export" in dialog.result_label.text(),
+                    timeout=60000)
+    assert (tmp_path / "mine" / "thesis.tex").read_text() == "years of work"
