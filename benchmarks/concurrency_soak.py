@@ -7,14 +7,14 @@ order) after a random number of captured views (0 to all) and a random extra del
 process; several may overlap each other and the scan's saves. When everything has ended,
 ``lfstudio scan --resume`` runs on the dataset (it must find nothing to take), and the trial counts:
 
-* views lost: a view the scan captured (its journal line, or done in any snapshot taken during the
-  trial) that the final manifest does not hold as done with the same file and checksum; plus views not
-  done after the scan said "Finished";
+* views lost: the views (each counted once) the scan captured (its journal line, or done in any
+  snapshot taken during the trial) that the final manifest does not hold as done with the same file and
+  checksum, and those not done after the scan said "Finished";
 * records lost: a stage that exited 0 whose record is gone at the end: ``process`` (the views it
   reported processed that are not ``processed: done``, or no ``processing`` key), ``calibrate`` (no
   ``calibration`` key), ``check`` (no quality.json);
-* captured twice: a view the resume captured again (its capture time or checksum changed), or a view
-  captured twice within the scan (two journal lines marking it done).
+* captured twice: a view seen captured that the resume captured again (its checksum or capture time
+  changed), or a view captured twice within the scan (two journal lines marking it done).
 
 A stage refused by name (e.g. calibrate before a 3 x 3 of views is captured: exit 1 or 2 with one line)
 is no failure; a traceback is counted as ``tracebacks``.
@@ -119,15 +119,17 @@ def trial(i: int, rnd: random.Random, work: Path, grid: tuple[int, int], time_sc
     for t in threads:
         t.join()
     final = done_views(root)
-    lost = sum(1 for cell, rec in seen.items() if final.get(cell, (None, None))[:2] != rec[:2])
-    lost += sum(1 for cell in journal_seen if cell not in final)
-    if "Finished" in scan_err:
-        lost += n - len(final)
+    lost_cells = {cell for cell, rec in seen.items() if final.get(cell, (None, None))[:2] != rec[:2]}
+    lost_cells |= {cell for cell in journal_seen if cell not in final}
+    if "Finished" in scan_err:                      # the scan said every view is captured
+        lost_cells |= {(r, c) for r in range(grid[1]) for c in range(grid[0])} - set(final)
+    lost = len(lost_cells)
     resume = subprocess.run(cli("scan", "--resume", "--out", root, "--time-scale", time_scale,
                                 "--sim-width-px", width), capture_output=True, text=True, env=env(), cwd=REPO,
                             timeout=600)
     after = done_views(root)
-    twice += sum(1 for cell, rec in final.items() if after.get(cell) != rec)
+    before = {**seen, **final}                      # every capture seen: the resume must take none again
+    twice += sum(1 for cell, rec in before.items() if cell in after and after[cell][1:] != rec[1:])
     ds = Dataset.open(root)
     records_lost = 0
     tracebacks = sum("Traceback" in r[1] for r in results.values()) + ("Traceback" in scan_err + resume.stderr)
