@@ -6,4 +6,6 @@ here="$(cd "$(dirname "$0")" && pwd)"
 source "$here/tools/setup-env.sh"
 export QT_QPA_PLATFORM="${QT_QPA_PLATFORM:-offscreen}"
 cd "$here"
-exec "$LFSTUDIO_PY" -m pytest "$@"
+# On every core (pytest-xdist; tests marked xdist_group share one worker, in order);
+# LFSTUDIO_TEST_WORKERS=0 runs them all in this process.
+exec "$LFSTUDIO_PY" -m pytest -n "${LFSTUDIO_TEST_WORKERS:-auto}" --dist loadgroup "$@"

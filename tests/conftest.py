@@ -12,7 +12,13 @@ import pytest
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 # port/camera lock files of this test run (and of the lfstudio processes it starts) in a folder of
 # its own, so tests never meet the locks of an lfstudio running beside them
-os.environ.setdefault("LFSTUDIO_RUNTIME_DIR", tempfile.mkdtemp(prefix="lfstudio-test-runtime-"))
+# (with pytest-xdist, one per worker: the workers inherit the controller's environment, and one
+# worker's simulated devices must not meet another's locks)
+_worker = os.environ.get("PYTEST_XDIST_WORKER")
+if _worker:
+    os.environ["LFSTUDIO_RUNTIME_DIR"] = tempfile.mkdtemp(prefix=f"lfstudio-test-runtime-{_worker}-")
+else:
+    os.environ.setdefault("LFSTUDIO_RUNTIME_DIR", tempfile.mkdtemp(prefix="lfstudio-test-runtime-"))
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 #: real files from outside the project: ``shared/data`` beside the checkout, or beside the folder of

@@ -138,7 +138,10 @@ def _run_delay_s(fd: int | None) -> float:
 
 #: innermost functions of a thread that waits (for a lock, a queue, a pipe, a timer)
 _WAITING = frozenset({"wait", "wait_for", "acquire", "get", "select", "poll", "recv", "_recv", "_recv_bytes",
-                      "recv_bytes", "accept", "_wait_for_tstate_lock", "join", "sleep", "_poll"})
+                      "recv_bytes", "accept", "_wait_for_tstate_lock", "join", "sleep", "_poll",
+                      # an idle concurrent.futures pool thread (its work's frame is innermost while it
+                      # works); a thread blocked reading a pipe or socket (e.g. pytest-xdist's)
+                      "_worker", "read", "readline", "readinto"})
 
 
 def _busy_threads(frames: dict, skip: tuple[int, ...]) -> list[str]:

@@ -1213,10 +1213,17 @@ class GrblController:
     def complete_stop(self) -> None:
         """Block until a STOP is complete: the hold has ended the motion and a soft reset dropped the
         rest of the move (what the waiting command or :meth:`status` would do; for a caller that is
-        about to disconnect, e.g. ``lfstudio rig``'s Ctrl+C)."""
+        about to disconnect, e.g. ``lfstudio rig``'s Ctrl+C). A controller that already reports Idle is
+        reset too: a move it had received but not started when the hold came may still be queued."""
         with self._io:
             if self._serial is not None and not self._lost and self._stop_pending:
-                self._finish_stop()
+                if self._query_status().state == "Idle":
+                    self._soft_reset_locked()
+                    self._stop_pending = False
+                    self._stop_event.clear()
+                    self._query_status()
+                else:
+                    self._finish_stop()
 
     def _stop_time_s(self) -> float:
         """The longest deceleration from full speed on either axis, from the controller's settings."""

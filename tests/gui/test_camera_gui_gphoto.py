@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from lfstudio.gui.panels.camera import CameraPanel
 from lfstudio.gui.settings import settings
 from lfstudio.gui.state import AppState
+
+# libgphoto2's virtual camera answers 'store full' after ~27 captures in one process: these files
+# share one pytest-xdist worker, in order, as in a serial run
+pytestmark = pytest.mark.xdist_group("vcamera")
 
 
 def test_test_shot_and_settings_the_camera_refuses(qtbot, vcamera):

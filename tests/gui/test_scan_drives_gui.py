@@ -46,7 +46,7 @@ def test_window_scans_on_emulated_drives_and_stop_ends_a_move(qtbot, tmp_path):
     assert ds.manifest["devices"]["rig"]["kind"] == "sim-dryve" and ds.manifest["devices"]["rig"]["profile"] == RIG_NAME
     for v in ds.views:
         assert v["reported_mm"] == pytest.approx(v["commanded_mm"], abs=0.011)
-    assert emulator.time_scale == 0.02                 # the scan's time scale was given back
+    assert emulator.time_scale == scan.time_scale.value()   # the Scan panel's time scale paces the rig
     qtbot.waitUntil(lambda: (window.central.canvas.status == DONE).sum() == 6, timeout=10000)
     ds.close()
 

@@ -18,6 +18,10 @@ from lfstudio.rig.camera import Camera, CameraSetting
 from lfstudio.rig.gphoto import GPhotoCamera
 from tests.vcamera import MODEL, STORE, use_usb, use_vcamera
 
+# libgphoto2's virtual camera answers 'store full' after ~27 captures in one process: these files
+# share one pytest-xdist worker, in order, as in a serial run
+pytestmark = pytest.mark.xdist_group("vcamera")
+
 
 @pytest.fixture
 def camera(vcamera):
