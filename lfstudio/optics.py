@@ -68,6 +68,15 @@ def move_time_s(distance_mm: float, max_speed_mm_s: float, acceleration_mm_s2: f
     return 2.0 * max_speed_mm_s / acceleration_mm_s2 + (d - d_ramp) / max_speed_mm_s
 
 
+def bracket_camera_s(exposures_s: "Iterable[float]", transfer_s: float) -> float:
+    """The camera's part of one view of an exposure bracket: every frame's exposure, and the transfer
+    of every frame but the last between them (the camera takes the next frame only once the previous
+    one is downloaded); the last frame's transfer overlaps the next move (:func:`view_period_s`).
+    One frame: its exposure."""
+    exposures = [float(e) for e in exposures_s]
+    return sum(exposures) + max(0, len(exposures) - 1) * float(transfer_s)
+
+
 def view_period_s(move_s: float, settle_s: float, exposure_s: float, transfer_s: float) -> float:
     """Critical-path time of one view of a pipelined scan: the transfer of the previous view overlaps
     this view's move and settle; the camera is needed again only for the exposure."""

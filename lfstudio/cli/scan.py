@@ -9,11 +9,13 @@ the journal holds every captured view, and the line printed last is the exact co
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import signal
 import sys
 import threading
 
 from lfstudio.cli.args import refused_spelling
+from lfstudio.dataset.bracket import bracket_option
 from lfstudio.dataset.paths import path_option, view_label
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.numbers import (EXPOSURE_S, OFFSET_MM, RETRIES, SEED, SETTLE_S, SPACING_MM, TIME_SCALE, TRANSFER_S,
@@ -58,6 +60,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="capture order (default: row-meander)")
     p.add_argument("--settle-s", type=SETTLE_S.option("--settle-s"), default=None,
                    help="settle time after each move (default: rig profile)")
+    p.add_argument("--bracket", metavar="EV,...|T,...", type=bracket_option("--bracket"), default=None,
+                   help="an exposure bracket at every view: EV steps around the camera's shutter time (-2,0,+2) "
+                        "or shutter times (1/500,1/125,1/30s); each frame is stored under its view, the 0 EV "
+                        "(middle) frame is the view's file; 'lfstudio process' merges them to linear HDR "
+                        "(default: from --plan, else one picture per view; with --resume the dataset's)")
     p.add_argument("--plan", metavar="PLAN", type=path_option("--plan"), help="a scene plan file saved by the planner (grid, spacing, camera, lens)")
     p.add_argument("--out", required=True, metavar="DATASET", type=path_option("--out"), help="the dataset folder to create (or resume)")
     p.add_argument("--resume", action="store_true",
@@ -151,7 +158,7 @@ def _build_plan(args: argparse.Namespace, rig_config, existing=None):
                              f"{spacing[0]:g}x{spacing[1]:g}", "leave it out with --resume")
         plan = resume_plan(existing, order=args.order, settle_s=args.settle_s)
         plan.check_limits(rig_config)
-        return plan, scene
+        return replace(plan, bracket=args.bracket), scene
     if scene is not None:
         grid = (scene.grid_columns, scene.grid_rows)
         spacing = tuple(scene.spacing_mm)
@@ -176,7 +183,10 @@ def _build_plan(args: argparse.Namespace, rig_config, existing=None):
                  "horizontal spacing_mm": "--spacing-mm", "vertical spacing_mm": "--spacing-mm",
                  "settle_s": "--settle-s"}.get(exc.field, exc.field)
         raise InputError(field, str(exc).split(": ", 1)[-1]) from None
-    return plan, scene
+    bracket = args.bracket
+    if bracket is None and scene is not None and scene.bracket:
+        bracket = scene.bracket_value
+    return replace(plan, bracket=bracket), scene
 
 
 def resume_command(args: argparse.Namespace, root) -> str:

@@ -39,10 +39,11 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from lfstudio.dataset.atomic import atomic_write_bytes, is_temporary
+from lfstudio.dataset.bracket import Bracket
 from lfstudio.dataset.grid import Grid, View
 from lfstudio.dataset.paths import InsideChecker, check_dataset_entries, check_path_name, resolve_inside, view_stem
 from lfstudio.dataset.store import JOURNAL_NAME, Journal, read_journal, sha256_file
-from lfstudio.errors import DatasetError, DatasetNotFound
+from lfstudio.errors import DatasetError, DatasetNotFound, InputError
 from lfstudio.numbers import MAX_GRID_SIDE, Number, non_finite_fields
 from lfstudio.support.locks import DATASET_LOCK_NAME, Lock, LockBusy, dataset_lock, holder_of, manifest_lock
 
@@ -208,6 +209,12 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
         problems.append(f"{f}: grid.order: must be a string or null")
     if grid.get("settle_s") is not None and not (_is_number(grid["settle_s"]) and grid["settle_s"] >= 0):
         problems.append(f"{f}: grid.settle_s: must be a non-negative number or null")
+    bracket_frames = None
+    if manifest.get("bracket") is not None:
+        try:
+            bracket_frames = Bracket.from_manifest(manifest["bracket"], f"{f}: bracket").frames
+        except InputError as exc:
+            problems.append(str(exc))
     views = manifest.get("views")
     if not isinstance(views, list):
         problems.append(f"{f}: views: missing or not a list")
@@ -261,6 +268,7 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
             problems.append(f"{where}: captured_at: must be an ISO 8601 time string or null")
         if v.get("devices") is not None and not isinstance(v["devices"], dict):
             problems.append(f"{where}: devices: must be an object or null")
+        problems += _frame_problems(v, where, bracket_frames, inside)
         thumb = v.get("thumb")
         if thumb is not None and inside is not None:
             try:
@@ -278,6 +286,42 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
     seq = manifest.get("journal_seq", 0)
     if not isinstance(seq, int) or isinstance(seq, bool) or seq < 0:
         problems.append(f"{f}: journal_seq: must be a non-negative integer, found {seq!r}")
+    return problems
+
+
+def _frame_problems(v: dict, where: str, bracket_frames: int | None, inside: Any) -> list[str]:
+    """Problems of a view's exposure-bracket ``frames`` (each {index, file, sha256, exposure_s, ...});
+    a done view of a bracketed dataset needs every frame, and its ``file`` is one of them."""
+    frames = v.get("frames")
+    if frames is None:
+        if bracket_frames is not None and v.get("status") == "done":
+            return [f"{where}: frames: the dataset is bracketed ({bracket_frames} frames a view) but the view "
+                    "lists none; re-capture this view"]
+        return []
+    if not isinstance(frames, list) or not all(isinstance(fr, dict) for fr in frames):
+        return [f"{where}: frames: must be a list of objects"]
+    problems = []
+    for k, fr in enumerate(frames):
+        file = fr.get("file")
+        if not isinstance(file, str) or not file:
+            problems.append(f"{where}: frames[{k}].file: must be a relative path string")
+        elif inside is not None:
+            try:
+                inside.check(file, what=f"frames[{k}].file")
+            except DatasetError as exc:
+                problems.append(f"{where}: frames[{k}].file: {exc}")
+        sha = fr.get("sha256")
+        if sha is not None and not (isinstance(sha, str) and _SHA256.match(sha)):
+            problems.append(f"{where}: frames[{k}].sha256: must be 64 lowercase hex digits or null")
+        for key in ("exposure_s", "shutter_s"):
+            if fr.get(key) is not None and not (_is_number(fr[key]) and fr[key] > 0):
+                problems.append(f"{where}: frames[{k}].{key}: must be a positive number or null")
+    if v.get("status") == "done":
+        if bracket_frames is not None and len(frames) != bracket_frames:
+            problems.append(f"{where}: frames: {len(frames)} frame(s), the dataset's bracket has {bracket_frames}; "
+                            "re-capture this view")
+        if v.get("file") not in [fr.get("file") for fr in frames]:
+            problems.append(f"{where}: file: must be one of its frames' files")
     return problems
 
 
@@ -627,9 +671,15 @@ class Dataset:
                 "journal_replayed": self.replayed, "journal_problems": list(self.journal_problems)}
 
     def verify_files(self, checksums: bool = True) -> list[str]:
-        """Problems with the files of done views, by file: missing, empty, checksum mismatch."""
+        """Problems with the files of done views (every frame of a bracketed one), by file: missing,
+        empty, checksum mismatch."""
         problems = []
+        entries = []
         for v in self.done_views():
+            entries.append(v)
+            entries += [{**f, "row": v["row"], "column": v["column"]} for f in (v.get("frames") or ())
+                        if isinstance(f, dict) and f.get("file") != v.get("file")]
+        for v in entries:
             where = f"{v.get('file')} (row {v['row']}, column {v['column']})"
             try:
                 path = self.path_of(v)

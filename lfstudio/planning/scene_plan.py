@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from lfstudio import optics
+from lfstudio.dataset.bracket import Bracket, parse_bracket
 from lfstudio.dataset.grid import DEFAULT_ORDER, Grid
 from lfstudio.errors import InputError
 from lfstudio.optics import REFERENCE
@@ -44,7 +45,7 @@ CLI_OPTION = {
     "settle_s": "--settle-s", "exposure_s": "--exposure-s", "transfer_s": "--transfer-s",
     "max_error_px": "--max-error-px", "max_disparity_px": "--max-disparity-px",
     "target_parallax_fraction": "--parallax-fraction", "raw_bits": "--raw-bits",
-    "bytes_per_image": "--bytes-per-image",
+    "bytes_per_image": "--bytes-per-image", "bracket": "--bracket",
 }
 
 
@@ -99,6 +100,9 @@ class ScenePlan:
     target_parallax_fraction: float | None = None
     raw_bits: int = 14
     bytes_per_image: int | None = None
+    #: exposure bracket per view as typed ("-2,0,+2" EV around exposure_s, or "1/500,1/125,1/30s");
+    #: "" for one frame per view (lfstudio.dataset.bracket)
+    bracket: str = ""
 
     # -- derived inputs ----------------------------------------------------------------------------
     @property
@@ -110,7 +114,28 @@ class ScenePlan:
 
     @property
     def images(self) -> int:
+        """Views of the grid (each may have several frames: :attr:`frames`)."""
         return int(self.grid_columns) * int(self.grid_rows)
+
+    @property
+    def bracket_value(self) -> Bracket | None:
+        """The parsed bracket (None: one frame per view); raises InputError naming ``bracket``."""
+        return parse_bracket(self.bracket, "bracket")
+
+    @property
+    def frames_per_view(self) -> int:
+        b = self.bracket_value
+        return 1 if b is None else b.frames
+
+    @property
+    def frames(self) -> int:
+        """Pictures the scan takes: views × frames per view."""
+        return self.images * self.frames_per_view
+
+    def frame_exposures_s(self) -> tuple[float, ...]:
+        """The shutter time of each frame of a view (``exposure_s`` × 2^EV for EV steps)."""
+        b = self.bracket_value
+        return (float(self.exposure_s),) if b is None else b.shutter_times_s(float(self.exposure_s))
 
     def replace(self, **changes: Any) -> "ScenePlan":
         return dataclasses.replace(self, **changes)
@@ -170,6 +195,7 @@ class ScenePlan:
         number("raw_bits", self.raw_bits, 1, 64, lo_open=False, integer=True)
         if self.bytes_per_image is not None:
             number("bytes_per_image", self.bytes_per_image, 1, 1e12, lo_open=False, integer=True)
+        self.frame_exposures_s()          # a bracket that cannot be read or taken: InputError("bracket")
         if check_travel:
             problem = self.travel_problem()
             if problem is not None:
@@ -233,6 +259,9 @@ class ScenePlan:
                 value = (kind.check(f.name, value[0]), kind.check(f.name, value[1]))
             elif f.name in ("camera_name", "lens_name", "rig_name"):
                 value = str(value)
+            elif f.name == "bracket":
+                b = parse_bracket(value if isinstance(value, (str, list, tuple)) else str(value), "bracket")
+                value = "" if b is None else b.text()
             else:                                # finite (a plan file may say nan or inf), whole where it must be
                 value = Number(integer=f.name in _INT_FIELDS).check(f.name, value)
             changes[f.name] = value
@@ -291,14 +320,17 @@ class PlanResult:
     row_parallax_fraction: float
     column_parallax_px: float
     column_parallax_fraction: float
-    images: int
+    images: int                                     # views of the grid
     fits_travel: bool
     capture_time_s: float
     bytes_per_image: int
-    storage_bytes: int
+    storage_bytes: int                              # every frame of every view
     proposed_spacing_mm: dict[str, float]           # for max_disparity_px between near and far
     proposed_grid: Grid | None                      # for target_parallax_fraction, at the plan's spacing
     warnings: list[PlanWarning] = field(default_factory=list)
+    frames_per_view: int = 1                        # the exposure bracket's frames (1: none)
+    frames: int = 0                                 # pictures the scan takes: images × frames_per_view
+    frame_exposures_s: tuple[float, ...] = ()       # each frame's shutter time
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe (infinity becomes None)."""
@@ -327,7 +359,8 @@ def capture_time_s(plan: ScenePlan) -> float:
     cols, rows = int(plan.grid_columns), int(plan.grid_rows)
     moves = [(0.0, 1), (optics.move_time_s(sp_h, v_h, a_h), rows * (cols - 1)),
              (optics.move_time_s(sp_v, v_v, a_v), rows - 1)]
-    return optics.scan_duration_s(moves, plan.settle_s, plan.exposure_s, plan.transfer_s)
+    return optics.scan_duration_s(moves, plan.settle_s, optics.bracket_camera_s(plan.frame_exposures_s(),
+                                                                                plan.transfer_s), plan.transfer_s)
 
 
 def _fmt_m(value_m: float) -> str:
@@ -444,8 +477,9 @@ def _derive(p: ScenePlan) -> PlanResult:
         row_parallax_px=row_px, row_parallax_fraction=row_px / width_px,
         column_parallax_px=col_px, column_parallax_fraction=col_px / height_px,
         images=p.images, fits_travel=travel is None, capture_time_s=capture_time_s(p),
-        bytes_per_image=per_image, storage_bytes=per_image * p.images,
-        proposed_spacing_mm=proposed_spacing, proposed_grid=proposed_grid, warnings=warnings)
+        bytes_per_image=per_image, storage_bytes=per_image * p.frames,
+        proposed_spacing_mm=proposed_spacing, proposed_grid=proposed_grid, warnings=warnings,
+        frames_per_view=p.frames_per_view, frames=p.frames, frame_exposures_s=p.frame_exposures_s())
 
 
 # -- plan files ------------------------------------------------------------------------------------

@@ -57,6 +57,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from lfstudio.dataset import Dataset
+from lfstudio.dataset.bracket import Bracket, frame_times_on_camera
 from lfstudio.dataset.manifest import is_done, is_finished, now_iso
 from lfstudio.dataset.paths import folder_inside, view_label, view_stem
 from lfstudio.dataset.storage import disk_problem, megabytes, mount_point, storage_error
@@ -134,6 +135,9 @@ class _Job:
     exposed_at: float
     reported_mm: list[float] | None
     timings_s: dict[str, float] = field(default_factory=dict)
+    frame: int | None = None             # an exposure bracket's frame (0-based; None: no bracket)
+    frames: int = 1                      # the view's frames
+    shutter_s: float | None = None       # the shutter time the engine set for this frame
 
 
 @dataclass
@@ -157,13 +161,51 @@ def _error_text(exc: BaseException) -> str:
     return text if text else type(exc).__name__
 
 
+def bracket_on_camera(bracket: Bracket, driver: Any, call: Callable[[str], Any],
+                      field: str = "--bracket") -> tuple[tuple[float, ...], float | None]:
+    """(each frame's shutter time as the camera can set it, the camera's shutter time now): EV steps
+    around the shutter time it is set to, matched to its own choices where it describes them
+    (``describe_settings``). ``call(name)`` runs a driver method (through its worker). Raises
+    :class:`InputError` naming ``field`` with the camera's choices."""
+    settings = call("settings")
+    settings = settings if isinstance(settings, dict) else {}
+    base = settings.get("shutter_s")
+    base = float(base) if Number("s", 0, low_open=True).problem(base) is None else None
+    values: tuple = ()
+    texts: tuple = ()
+    if hasattr(driver, "describe_settings"):
+        try:
+            described = call("describe_settings")
+        except Exception as exc:       # the times are checked again when each frame is set
+            log.info("camera settings not described (%s)", exc)
+            described = []
+        for setting in described or ():
+            if getattr(setting, "name", "") == "shutter_s":
+                values, texts = tuple(setting.values), tuple(setting.choices)
+    model = ""
+    try:
+        model = driver.status().model if hasattr(driver, "status") else ""
+    except Exception:                  # a name for the message only
+        pass
+    return frame_times_on_camera(bracket, base, values, texts, model or "the camera", field), base
+
+
+def _reported_exposure_s(result: CaptureResult) -> float | None:
+    """The shutter time the camera reported for a shot (its metadata), else how long it exposed."""
+    meta = result.metadata if isinstance(result.metadata, dict) else {}
+    exposure = meta.get("shutter_s") or meta.get("exposure_s") or result.exposure_s
+    return float(exposure) if exposure else None
+
+
 def _stored_view_bytes(dataset: Dataset, sample: int = 8) -> int:
     """Bytes of the largest of the last ``sample`` views stored in ``dataset`` (file, sidecars, thumbnail)."""
     done = dataset.done_views()[-sample:]
     largest = 0
     for v in done:
         total = 0
-        for rel in (v.get("file"), *(v.get("sidecars") or ()), v.get("thumb")):
+        frames = [rel for f in (v.get("frames") or ()) if isinstance(f, dict)
+                  for rel in (f.get("file"), *(f.get("sidecars") or ())) if rel != v.get("file")]
+        for rel in (v.get("file"), *(v.get("sidecars") or ()), v.get("thumb"), *frames):
             try:
                 total += dataset.path_of(rel).stat().st_size if rel else 0
             except (OSError, LfError):
@@ -259,6 +301,13 @@ class ScanEngine:
         self._thread: threading.Thread | None = None
         self._store_thread: threading.Thread | None = None
         self._start_future: Future | None = None
+        #: an exposure bracket: each frame's shutter time (resolved in _prepare from the dataset's
+        #: record or the plan's bracket and the camera); None: one picture per view as the camera is set
+        self.frame_shutter_s: tuple[float, ...] | None = None
+        self.bracket: Bracket | None = None
+        self._frames_of: dict[tuple[int, int], tuple[int, list[dict[str, Any]]]] = {}   # store thread only
+        self._failed_attempts: set[tuple[tuple[int, int], int]] = set()                  # store thread only
+        self._frame_results: dict[tuple[tuple[int, int], int], CaptureResult] = {}       # store thread only
 
     # -- listeners ---------------------------------------------------------------------------------
     def subscribe(self, listener: Listener) -> Callable[[], None]:
@@ -600,11 +649,52 @@ class ScanEngine:
                     removed.append(p)
         if removed:
             self._emit(EventKind.LOG, f"removed {len(removed)} unfinished file(s) left by an interrupted scan")
+        for v in self.dataset.views:          # the frames of a view not done are taken again, all of them
+            if v.get("frames") and not is_finished(v):
+                self.dataset.record_view(v["row"], v["column"], frames=None)
+        self._resolve_bracket()
         try:
             self.dataset.save()            # the manifest can be written: checked before the rig moves
         except OSError as exc:
             raise storage_error(exc, self.dataset.manifest_path, doing="saving") or exc
         self._repair_thumbnails()
+
+    def _resolve_bracket(self) -> None:
+        """The frames of every view: the dataset's recorded bracket (a resume takes exactly the frames
+        the views already captured have), else the plan's, with each frame's shutter time matched to
+        the camera's own choices (EV steps around the shutter time the camera is set to now). Refuses
+        a plan whose bracket differs from the dataset's, and a bracket on a dataset whose views were
+        captured with one picture each."""
+        recorded = self.dataset.manifest.get("bracket")
+        wanted = getattr(self.plan, "bracket", None)
+        where = f"{self.dataset.manifest_path}: bracket"
+        if recorded:
+            have = Bracket.from_manifest(recorded, where)
+            times = recorded.get("frame_shutter_s")
+            if not (isinstance(times, list) and len(times) == have.frames and
+                    all(Number("s", 0, low_open=True).problem(t) is None for t in times)):
+                raise LfError(f"{where}: frame_shutter_s must list a shutter time in s for each of the "
+                              f"{have.frames} frames; correct the file or scan into a new folder")
+            if wanted is not None and wanted != have:
+                raise LfError(f"--bracket: {wanted.describe()} ({wanted.frames} frames) differs from the "
+                              f"{have.describe()} ({have.frames} frames) this dataset's views were captured "
+                              "with; resume with that bracket (or without --bracket), or scan into a new folder")
+            self.bracket, self.frame_shutter_s = have, tuple(float(t) for t in times)
+            return
+        if wanted is None:
+            return
+        single = [v for v in self.dataset.done_views() if not v.get("frames")]
+        if single:
+            raise LfError(f"--bracket: this dataset has {len(single)} view(s) captured with one picture each "
+                          f"(first: {view_label(single[0]['row'], single[0]['column'])}); every view of a "
+                          "dataset has the same frames: resume without --bracket, or scan into a new folder")
+        times, base = bracket_on_camera(wanted, self.camera.driver,
+                                        lambda name: self._camera_call(name, timeout_s=30))
+        self.bracket, self.frame_shutter_s = wanted, times
+        self.dataset.manifest["bracket"] = {**wanted.to_manifest(), "frame_shutter_s": list(times),
+                                            "base_shutter_s": base}
+        self._emit(EventKind.LOG, f"exposure bracket: {wanted.describe()} = "
+                                  + ", ".join(f"{t:.6g} s" for t in times) + f" at every view")
 
     def _repair_thumbnails(self) -> None:
         """Thumbnails of captured views a full disk kept from being written (the views are kept)."""
@@ -897,6 +987,8 @@ class ScanEngine:
                                     clears_by_itself(device, exc)) from None
                 self._wait(lambda: self._state is not ScanState.RUNNING,
                            self.backoff_s * 2 ** (attempt - 1) * min(1.0, self.time_scale))
+                if self.frame_shutter_s is not None:
+                    self._drain_store()     # the failed attempt's frames are stored before they are taken again
                 if self._state is not ScanState.RUNNING:
                     raise _Interrupted()
 
@@ -946,6 +1038,7 @@ class ScanEngine:
             exposure = settings.get("shutter_s", settings.get("exposure_s"))
             transfer = settings.get("transfer_s")
             exposure = float(exposure) if Number().problem(exposure) is None else 1.0
+            exposure = max([exposure, *(self.frame_shutter_s or ())])     # a bracket's longest frame
             transfer = float(transfer) if Number().problem(transfer) is None else TRANSFER_ALLOWANCE_S
             scale = getattr(self.camera.driver, "time_scale", 1.0)        # a simulated camera's own pace
             scale = min(1.0, float(scale)) if Number(low=0).problem(scale) is None else 1.0
@@ -1008,13 +1101,49 @@ class ScanEngine:
             self._attempts[view.cell] = attempt - 1
             raise _Interrupted()
         t_ready = time.monotonic()
+        pos = getattr(status, "position_mm", None)
+        reported = None if pos is None else [float(pos[0]), float(pos[1])]
+        shutters: tuple[float | None, ...] = self.frame_shutter_s or (None,)
+        bracketed = self.frame_shutter_s is not None
+        for k, shutter in enumerate(shutters):
+            if k > 0:       # the camera takes the next frame once the previous one is downloaded
+                prev_frame = self._prev_future
+                if prev_frame is not None:
+                    prev_frame.add_done_callback(self._wake)
+                    self._wait(lambda: prev_frame.done() or self._drop_by is not None,
+                               self.capture_call_timeout_s() + 10)
+                self._handle_inbox()
+                if self._drop_by is not None or self._faulted():   # the view is not done: taken again whole
+                    self._attempts[view.cell] = attempt - 1
+                    raise _Interrupted()
+            if shutter is not None:
+                self._camera_call("set_setting", "shutter_s", shutter, timeout_s=30)
+            stem = self.dataset.root / "raw" / (view_stem(view.row, view.column) + (f".f{k}" if bracketed else ""))
+            fut = self._expose(view, attempt, stem)
+            t_exposed = time.monotonic()
+            self._prev_future = fut
+            last = k == len(shutters) - 1
+            timings = {"move": t_moved - t0, "settle": t_settled - t_moved, "camera_wait": t_ready - t_settled,
+                       "expose": t_exposed - t_ready} if last else {}
+            job = _Job(view, attempt, fut, t_exposed, reported, timings, k if bracketed else None, len(shutters),
+                       shutter)
+            with self._cond:
+                self._inflight += 1
+            if last:
+                self._emit(EventKind.VIEW_EXPOSED, index=view.index, row=view.row, column=view.column,
+                           timings_s=dict(job.timings_s))
+            self._store_q.put(job)
+
+    def _expose(self, view: PlannedView, attempt: int, stem: Path) -> Future:
+        """Trigger one picture to ``stem``; return its future once the shutter has closed (the transfer
+        may go on). Raises _Interrupted when an abort's grace time ends first, the capture's error
+        when it failed before that."""
         exposed = threading.Event()
 
         def on_exposed(*_: Any) -> None:
             exposed.set()
             self._wake()
 
-        stem = self.dataset.root / "raw" / view_stem(view.row, view.column)
         timeout_s = self.capture_call_timeout_s()
         if self._pipelined:
             fut = self._camera_submit("capture", stem, on_exposed=on_exposed, timeout_s=timeout_s)
@@ -1030,17 +1159,7 @@ class ScanEngine:
         if fut.done() and fut.exception() is not None:
             self._free_hung_camera(fut.exception())
             raise fut.exception()
-        t_exposed = time.monotonic()
-        self._prev_future = fut
-        pos = getattr(status, "position_mm", None)
-        job = _Job(view, attempt, fut, t_exposed, None if pos is None else [float(pos[0]), float(pos[1])],
-                   {"move": t_moved - t0, "settle": t_settled - t_moved, "camera_wait": t_ready - t_settled,
-                    "expose": t_exposed - t_ready})
-        with self._cond:
-            self._inflight += 1
-        self._emit(EventKind.VIEW_EXPOSED, index=view.index, row=view.row, column=view.column,
-                   timings_s=dict(job.timings_s))
-        self._store_q.put(job)
+        return fut
 
     def _faulted(self) -> bool:
         """Pausing on a fault (STOP pressed, an alarm, a disk problem): the view being taken is not
@@ -1085,9 +1204,13 @@ class ScanEngine:
 
     def _store(self, job: _Job) -> None:
         view = job.view
+        if job.frame is not None and (view.cell, job.attempt) in self._failed_attempts:
+            return             # an earlier frame of this attempt failed: the view is taken again whole
         try:
             result: CaptureResult = job.future.result()
         except Exception as exc:
+            if job.frame is not None:
+                self._failed_attempts.add((view.cell, job.attempt))
             if self._dropping:      # abort(grace_s) stopped the camera: not captured, taken on resume
                 self._emit(EventKind.LOG, f"view r{view.row:02d} c{view.column:03d}: its transfer was cut short "
                                           "by the stop; not captured (taken when the scan resumes)")
@@ -1113,10 +1236,17 @@ class ScanEngine:
                                                   CLEARS_CAMERA))
             return
         t_transferred = time.monotonic()
+        extra: dict[str, Any] = {}
+        view_bytes = 0
+        if job.frame is not None:
+            stored = self._store_frame(job, result)
+            if stored is None:
+                return                           # not the view's last frame: journaled as a frame
+            result, extra, view_bytes = stored   # the reference frame is the view's file
         path = Path(result.path).resolve()
         rel = path.relative_to(self.dataset.root).as_posix()
-        sha = sha256_file(path)
-        view_bytes = sum(Path(f).stat().st_size for f in result.files if Path(f).is_file())
+        sha = extra.pop("_sha256", None) or sha256_file(path)
+        view_bytes += sum(Path(f).stat().st_size for f in result.files if Path(f).is_file())
         thumb_rel = f"thumbs/{view_stem(view.row, view.column)}.jpg"
         preview = result.metadata.get("preview") if isinstance(result.metadata, dict) else None
         later: ScanFault | None = None        # a disk fault after the capture is safe: recorded, then pause
@@ -1135,17 +1265,16 @@ class ScanEngine:
         if self._last_done_t is not None:
             timings["period"] = now - self._last_done_t
         self._last_done_t = now
-        meta = result.metadata if isinstance(result.metadata, dict) else {}
-        exposure = meta.get("shutter_s") or meta.get("exposure_s") or result.exposure_s
+        exposure = _reported_exposure_s(result)
         fields = {"status": "done", "file": rel, "sha256": sha, "captured_at": now_iso(),
-                  "exposure_s": float(exposure) if exposure else None,
+                  "exposure_s": exposure,
                   "commanded_mm": [view.x_mm, view.y_mm], "reported_mm": job.reported_mm,
                   "thumb": thumb_rel if thumb is not None else None, "attempts": job.attempt,
                   "timings_s": {k: round(v, 4) for k, v in timings.items()}}
         sidecars = [Path(f).resolve().relative_to(self.dataset.root).as_posix() for f in result.files[1:]]
         if sidecars:
             fields["sidecars"] = sidecars
-        fields = {**getattr(result, "record", {}), **fields}   # the driver's extras (camera, its settings)
+        fields = {**getattr(result, "record", {}), **fields, **extra}   # the driver's extras (camera, its settings)
         refused = self._record(view, fields)
         if refused is not None:
             with self._cond:
@@ -1163,6 +1292,52 @@ class ScanEngine:
                    timings_s=timings, file=rel, thumb=fields["thumb"])
         if later is not None:
             self._store_failed(None, later)
+
+    def _store_frame(self, job: _Job, result: CaptureResult) -> tuple[CaptureResult, dict[str, Any], int] | None:
+        """Store one frame of a bracketed view (store thread): checksum it and journal the view's frames
+        so far (the view stays not done). For the last frame: (the reference frame's result, the
+        view's ``frames`` field, the bytes of the other frames) for the view's done record."""
+        view = job.view
+        cell = view.cell
+        attempt, frames = self._frames_of.get(cell, (None, []))
+        if attempt != job.attempt or job.frame == 0:
+            frames = []                          # a new attempt takes every frame again
+        self._frames_of[cell] = (job.attempt, frames)
+        path = Path(result.path).resolve()
+        root = self.dataset.root
+        frame: dict[str, Any] = {"index": job.frame, "file": path.relative_to(root).as_posix(),
+                                 "sha256": sha256_file(path), "shutter_s": job.shutter_s,
+                                 "exposure_s": _reported_exposure_s(result), "captured_at": now_iso()}
+        sidecars = [Path(f).resolve().relative_to(root).as_posix() for f in result.files[1:]]
+        if sidecars:
+            frame["sidecars"] = sidecars
+        settings = (getattr(result, "record", None) or {}).get("camera_settings")
+        if isinstance(settings, dict):
+            frame["camera_settings"] = settings
+        frames.append(frame)
+        self._frame_results[(cell, job.frame)] = result
+        if job.frame < job.frames - 1:
+            try:
+                self.dataset.record_view(view.row, view.column, frames=[dict(f) for f in frames])
+            except Exception as exc:              # the view is not done: its frames are taken again
+                self._failed_attempts.add((cell, job.attempt))
+                fault = self._disk_fault(exc, root, f"recording a frame of view {view_label(view.row, view.column)}") \
+                    or ScanFault(f"Recording a frame of view {view_label(view.row, view.column)} failed: "
+                                 f"{_error_text(exc)}.", "disk")
+                self._store_failed(job, fault)
+            return None
+        self._frames_of.pop(cell, None)
+        indices = [f["index"] for f in frames]
+        if indices != list(range(job.frames)):    # cannot happen: frames arrive in order, a failure stops the rest
+            raise LfError(f"view {view_label(view.row, view.column)}: frames {indices} stored, "
+                          f"{job.frames} expected; the view is taken again")
+        ref_index = self.bracket.reference_index if self.bracket is not None else 0
+        results = [self._frame_results.pop((cell, i), None) for i in range(job.frames)]
+        ref = results[ref_index] or result
+        others = sum(Path(f).stat().st_size for i, r in enumerate(results) if r is not None and i != ref_index
+                     for f in r.files if Path(f).is_file())
+        return ref, {"frames": [dict(f) for f in frames], "_sha256": frames[ref_index]["sha256"],
+                     "reference_frame": ref_index}, others
 
     def _record(self, view: PlannedView, fields: dict[str, Any]) -> ScanFault | None:
         """Journal a stored view (store thread, or the engine thread on Resume); the fault when the

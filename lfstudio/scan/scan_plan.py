@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any, Iterable
 
+from lfstudio.dataset.bracket import Bracket
 from lfstudio.dataset.grid import DEFAULT_ORDER, ORDERS, Grid, View, grid_order
 from lfstudio.errors import InputError
 from lfstudio.numbers import OFFSET_MM, SETTLE_S, SPACING_MM, Number, check_grid
@@ -58,6 +59,8 @@ class ScanPlan:
     order: str = DEFAULT_ORDER
     settle_s: float = 0.3
     subset: frozenset[tuple[int, int]] | None = field(default=None)   # (row, column) cells; None: all
+    #: an exposure bracket taken at every view (None: one picture per view as the camera is set)
+    bracket: Bracket | None = None
 
     def __post_init__(self) -> None:
         for name, val in (("grid columns", self.columns), ("grid rows", self.rows)):
@@ -205,8 +208,12 @@ class ScanPlan:
                             pipelined: bool = True) -> float:
         """Critical-path duration of the scan (:func:`lfstudio.optics.scan_duration_s`): per view
         the longer axis move + settle, exposure and (pipelined) the transfer overlapping the next
-        move and settle."""
-        from lfstudio.optics import move_time_s, scan_duration_s
+        move and settle. With a bracket, the view's exposure is every frame's exposure (EV steps
+        around ``exposure_s``) and the transfers between them (:func:`lfstudio.optics.bracket_camera_s`)."""
+        from lfstudio.optics import bracket_camera_s, move_time_s, scan_duration_s
+
+        if self.bracket is not None:
+            exposure_s = bracket_camera_s(self.bracket.shutter_times_s(exposure_s), transfer_s)
 
         h, v = rig.horizontal, rig.vertical
         moves = [(0.0, 1)] + [(max(move_time_s(dx, h.max_speed_mm_s, h.acceleration_mm_s2),

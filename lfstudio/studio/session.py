@@ -32,11 +32,14 @@ from __future__ import annotations
 import logging
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from lfstudio.dataset import Dataset
+from lfstudio.dataset.bracket import Bracket
+from lfstudio.dataset.storage import megabytes
+from lfstudio.dataset.store import free_bytes
 from lfstudio.dataset.manifest import MANIFEST_NAME, is_finished, now_iso
 from lfstudio.dataset.paths import check_new_dataset_folder, view_label
 from lfstudio.errors import DeviceError, InputError, LfError
@@ -476,7 +479,13 @@ class ScanSession:
             if problems:
                 raise InputError("--out", f"{self.folder} holds another scan: " + "; ".join(problems),
                                  "choose a new folder, or set the grid to the dataset's")
-            plan = resume_plan(existing, order=plan.order, settle_s=plan.settle_s)
+            plan = replace(resume_plan(existing, order=plan.order, settle_s=plan.settle_s), bracket=plan.bracket)
+            recorded = existing.manifest.get("bracket")
+            if plan.bracket is not None and recorded and Bracket.from_manifest(recorded) != plan.bracket:
+                have = Bracket.from_manifest(recorded)
+                raise InputError("--bracket", f"{plan.bracket.describe()} ({plan.bracket.frames} frames) differs from "
+                                 f"the {have.describe()} ({have.frames} frames) the dataset's views were captured with",
+                                 "leave --bracket out with --resume, or scan into a new --out folder")
         if self.shared is None:
             rig_spec, cam_spec = RigSpec.parse(rig_words), CameraSpec.parse(cam_words)
             if record is not None and req.rig is None and rig_spec.kind == "serial" and \
@@ -516,6 +525,8 @@ class ScanSession:
         elif req.home or req.origin_here:
             self.note("the simulated rig was homed when it started")
         check_plan_on_controller(rig, plan)
+        if existing is None and plan.bracket is not None:       # refused before the dataset is made
+            self._check_bracket(plan, camera)
         if existing is None:
             camera_info, lens = describe_camera(getattr(camera, "driver", camera), scene)
             camera_info.setdefault("driver", cam_text)
@@ -536,6 +547,32 @@ class ScanSession:
         self.engine = ScanEngine(dataset, plan, rig, camera, retries=req.retries,
                                  time_scale=req.time_scale, recapture=bool(req.recapture), **req.engine_options)
         return self.engine
+
+    def _check_bracket(self, plan: ScanPlan, camera: Any) -> None:
+        """The bracket's shutter times among the camera's choices, and every frame of the scan fits
+        the disk of the dataset folder (at the size of the camera's RAW files): else InputError naming
+        --bracket before the dataset is made."""
+        from lfstudio.scan.engine import bracket_on_camera
+
+        driver = getattr(camera, "driver", camera)
+        call = (lambda name: camera.call(name, timeout_s=30)) if hasattr(camera, "driver") else \
+            (lambda name: getattr(camera, name)())
+        times, _ = bracket_on_camera(plan.bracket, driver, call)
+        self.note(f"exposure bracket {plan.bracket.describe()}: " + ", ".join(f"{t:.6g} s" for t in times)
+                  + " at every view")
+        info, _ = describe_camera(driver)
+        sensor = info.get("sensor_px") if isinstance(info, dict) else None
+        if sensor:
+            frames = len(plan) * plan.bracket.frames
+            need = frames * int(sensor[0]) * int(sensor[1]) * 2
+            where = self.folder if self.folder.exists() else self.folder.parent
+            while not where.exists() and where != where.parent:
+                where = where.parent
+            free = free_bytes(where)
+            if need > free:
+                raise InputError("--bracket", f"{frames} frames ({len(plan)} views x {plan.bracket.frames}) take "
+                                 f"about {megabytes(need)}; the disk at {where} has {megabytes(free)} free",
+                                 "fewer frames, a smaller grid, or a folder on a larger disk")
 
     def _check_devices(self, dataset: Dataset, record: dict, current: dict) -> None:
         differences = device_differences(record, current)

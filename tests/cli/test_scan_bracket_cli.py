@@ -1,0 +1,40 @@
+"""`lfstudio scan --bracket` (real subprocesses on the simulated studio): the frames of every view on
+disk and in the manifest, bad brackets refused in one line naming the option before any folder is
+made, a resume with another bracket refused naming both."""
+
+from __future__ import annotations
+
+import json
+
+
+def test_scan_with_a_bracket_stores_every_frame(run_cli, tmp_path):
+    out = run_cli("scan", "--port", "instant", "--grid", "2x1", "--time-scale", "0", "--sim-width-px", "64",
+                  "--exposure-s", "0.25", "--bracket", "-2,0,+2", "--out", tmp_path / "ds")
+    assert out.returncode == 0, out.stderr
+    assert "exposure bracket -2, 0, +2 EV: 0.0625 s, 0.25 s, 1 s" in out.stderr
+    manifest = json.loads((tmp_path / "ds" / "dataset.json").read_text())
+    assert manifest["bracket"]["frame_shutter_s"] == [0.0625, 0.25, 1.0]
+    for v in manifest["views"]:
+        assert v["status"] == "done" and len(v["frames"]) == 3
+        assert [f["exposure_s"] for f in v["frames"]] == [0.0625, 0.25, 1.0]
+        assert all((tmp_path / "ds" / f["file"]).is_file() for f in v["frames"])
+
+
+def test_bad_brackets_are_one_line_naming_the_option(run_cli, tmp_path):
+    for value, words in (("-2,0,x", "'x' is not an EV step"), ("-2,0,-2", "given twice"),
+                         ("-12,0", "too far"), ("1/100,0", "mixes EV steps and shutter times"),
+                         ("1/0s", "not a shutter time")):
+        out = run_cli("scan", "--bracket", value, "--grid", "2x1", "--out", tmp_path / "ds")
+        assert out.returncode == 2, (value, out.stderr)
+        last = out.stderr.strip().splitlines()[-1]
+        assert "--bracket" in last and words in last and "Traceback" not in out.stderr, (value, last)
+        assert not (tmp_path / "ds").exists()
+
+
+def test_resume_with_another_bracket_is_refused(run_cli, tmp_path):
+    first = run_cli("scan", "--port", "instant", "--grid", "2x1", "--time-scale", "0", "--sim-width-px", "64",
+                    "--bracket", "-1,0,+1", "--out", tmp_path / "ds")
+    assert first.returncode == 0, first.stderr
+    again = run_cli("scan", "--resume", "--bracket", "-2,0", "--time-scale", "0", "--out", tmp_path / "ds")
+    assert again.returncode != 0
+    assert "--bracket" in again.stderr and "-1, 0, +1 EV (3 frames)" in again.stderr and "Traceback" not in again.stderr
