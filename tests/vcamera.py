@@ -22,6 +22,7 @@ camera objects), and back by restoring them; no subprocess is needed. The CLI te
 from __future__ import annotations
 
 import gc
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,7 +78,13 @@ def use_vcamera(folder: Path, monkeypatch: pytest.MonkeyPatch, *, dngs: int = 0)
         pytest.skip(f"this python-gphoto2 has no libgphoto2 virtual camera ({vusb} is missing; "
                     "it is in the PyPI wheels, not in builds against a system libgphoto2)")
     jpeg, raws = write_vcamera_folder(folder, dngs=dngs)
-    gc.collect()       # vusb's store lives until the last session's gp.Camera is freed (see above)
+    # vusb's store lives until the last session's gp.Camera is freed (see above); pytest keeps the
+    # last failed test's traceback (sys.last_*, for post-mortem debugging), whose frames would keep
+    # that test's camera, and with it a full or broken store, for every later test of the process
+    for name in ("last_type", "last_value", "last_traceback", "last_exc"):
+        if hasattr(sys, name):
+            setattr(sys, name, None)
+    gc.collect()
     monkeypatch.setenv("IOLIBS", str(vusb))
     monkeypatch.setenv("VCAMERADIR", str(folder))
     return VCamera(folder, jpeg, raws, vusb)

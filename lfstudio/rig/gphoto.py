@@ -47,6 +47,9 @@ from lfstudio.errors import DeviceError, InputError
 from lfstudio.rig.camera import CameraSetting, CameraStatus, CaptureResult
 
 log = logging.getLogger(__name__)
+# Log records keep their arguments: a libgphoto2 error logged as itself would keep its traceback, and
+# with it the gp.Camera of the failed call, alive as long as a handler holds the record. So errors are
+# logged as text (libgphoto2's virtual camera showed it: its store lives until no gp.Camera is left).
 
 # -- reading the camera's texts ---------------------------------------------------------------------
 def _ratio_or_number(text: str) -> float | None:
@@ -298,7 +301,7 @@ class GPhotoCamera:
             self._ctx_callbacks.append(context.set_error_func(self._on_camera_error, None))
             self._ctx = (context,)
         except (AttributeError, TypeError) as exc:
-            log.debug("gphoto2: no error context: %s", exc)
+            log.debug("gphoto2: no error context: %s", str(exc))
 
     def _on_camera_error(self, _context: Any, text: Any, _data: Any) -> None:
         said = text.decode("utf-8", "replace") if isinstance(text, bytes) else str(text)
@@ -336,7 +339,7 @@ class GPhotoCamera:
             try:
                 self.set_setting("capturetarget", "Internal RAM")
             except (DeviceError, InputError) as exc:
-                log.info("gphoto2: capture target left as it is: %s", exc)
+                log.info("gphoto2: capture target left as it is: %s", str(exc))
         self._message = ""
         log.info("gphoto2: connected to %s", self._identity.get("model") or "a camera")
 
@@ -361,7 +364,7 @@ class GPhotoCamera:
         try:
             camera.exit(*self._ctx)
         except Exception as exc:   # noqa: BLE001 - a camera that is gone cannot be closed
-            log.debug("gphoto2: exit: %s", exc)
+            log.debug("gphoto2: exit: %s", str(exc))
 
     def disconnect(self) -> None:
         camera, self._camera = self._camera, None
@@ -485,7 +488,7 @@ class GPhotoCamera:
             try:
                 widget = camera.get_single_config(widget_name, *self._ctx)
             except self.gp.GPhoto2Error as exc:
-                log.debug("gphoto2: reading %s: %s", widget_name, exc)
+                log.debug("gphoto2: reading %s: %s", widget_name, str(exc))
                 continue
             out[name] = value_of(SETTINGS[name], widget.get_value())
         return out
@@ -493,7 +496,7 @@ class GPhotoCamera:
     # -- capture ------------------------------------------------------------------------------------
     def _failed(self, exc: BaseException, action: str, since: float | None = None) -> DeviceError:
         self._message = gp_message(exc, action, None if since is None else self._clock() - since, self._said())
-        log.debug("gphoto2: %s failed: %s", action, exc)
+        log.debug("gphoto2: %s failed: %s", action, str(exc))
         return DeviceError(self._message)
 
     def _files_added(self, camera: Any, first: Any) -> list[Any]:
@@ -507,7 +510,7 @@ class GPhotoCamera:
             try:
                 kind, data = camera.wait_for_event(wait_ms, *self._ctx)
             except gp.GPhoto2Error as exc:
-                log.debug("gphoto2: waiting for events: %s", exc)
+                log.debug("gphoto2: waiting for events: %s", str(exc))
                 break
             if kind == gp.GP_EVENT_TIMEOUT:
                 break
@@ -586,7 +589,7 @@ class GPhotoCamera:
                         try:
                             camera.file_delete(where.folder, where.name, *self._ctx)
                         except gp.GPhoto2Error as exc:
-                            log.debug("gphoto2: deleting %s/%s: %s", where.folder, where.name, exc)  # RAM: gone
+                            log.debug("gphoto2: deleting %s/%s: %s", where.folder, where.name, str(exc))  # RAM: gone
                 reported = self._reported_settings()
                 t_done = self._clock()
                 shutter_s = reported.get("shutter_s")
