@@ -1126,8 +1126,10 @@ class ScanPanel(QWidget):
             return
         from lfstudio.rig.motion import RigState
 
-        ready = getattr(snapshot, "homed", False) and getattr(snapshot, "state", None) is RigState.IDLE
-        if not ready:
+        state = getattr(snapshot, "state", None)
+        homed = getattr(snapshot, "homed", False)
+        ready = homed and state is RigState.IDLE
+        if not homed or state in (RigState.ALARM, RigState.DISCONNECTED):
             self._rig_unready = True           # lost its reference or in alarm: say so when it is back
         elif self._rig_unready:
             text = "<b style='color:#f0b030'>Paused</b> The rig is ready again (homed): press Resume to continue."
