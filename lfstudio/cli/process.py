@@ -1,11 +1,13 @@
-"""``lfstudio process DATASET``: RAW captures → rectified 16-bit views in DATASET/processed/."""
+"""``lfstudio process DATASET``: RAW captures → rectified 16-bit views in DATASET/processed/; for a
+bracketed dataset also each view's frames merged to linear radiance in DATASET/hdr/
+(:mod:`lfstudio.processing.hdr`)."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-from lfstudio.numbers import WORKERS, as_option
+from lfstudio.numbers import WORKERS, Number, as_option
 from lfstudio.dataset.paths import path_option
 
 HELP = "process the captured views (debayer, lens, colour, shading, de-flicker, rectify, downsample)"
@@ -32,6 +34,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="process every view again, even those already done with the same profile")
     p.add_argument("--write-profile", metavar="FILE", type=path_option("--write-profile"),
                    help="write the effective profile (defaults or --profile) to FILE and exit")
+    p.add_argument("--hdr", choices=("exr", "tiff", "none"), default=None,
+                   help="a bracketed dataset (scan --bracket): merge each view's frames to linear radiance in "
+                        "DATASET/hdr/ as OpenEXR (default) or float TIFF, with a tone-mapped 16-bit PNG in "
+                        "hdr/preview/; 'none': only the 16-bit views (the bracket's reference frame)")
+    p.add_argument("--hdr-half", action="store_true", help="16-bit half floats instead of 32-bit in the HDR files")
+    p.add_argument("--hdr-clip", metavar="F", type=Number("", 0.5, 1.0).option("--hdr-clip"), default=0.97,
+                   help="a developed channel at or above this share of full scale counts as clipped (default 0.97)")
+    p.add_argument("--hdr-noise-floor", metavar="F", type=Number("", 0.0, 0.25).option("--hdr-noise-floor"),
+                   default=0.002, help="a pixel whose brightest channel is below this share of full scale "
+                                       "counts as noise (default 0.002)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -49,10 +61,28 @@ def run(args: argparse.Namespace) -> int:
         profile.save(args.write_profile)
         print(f"profile written to {args.write_profile}")
         return 0
+    from lfstudio.dataset import Dataset
+
+    bracketed = bool(Dataset.open(args.dataset).manifest.get("bracket"))
+    if args.hdr not in (None, "none") and not bracketed:
+        raise InputError("--hdr", f"{args.dataset} has no exposure bracket (scan it with --bracket)",
+                         "leave --hdr out for a dataset of one picture per view")
     bar = TerminalProgress("process")
     report = process_dataset(args.dataset, profile, workers=args.workers, cluster=args.cluster,
                              force=args.force, progress=bar)
     print(report.summary())
     for row, column, error in report.failed:
         print(f"FAILED row {row}, column {column}: {error}", file=sys.stderr)
-    return 1 if report.failed else 0
+    failed = bool(report.failed)
+    if bracketed and args.hdr != "none":
+        from lfstudio.processing.hdr import MergeOptions, merge_dataset
+
+        options = MergeOptions(format=args.hdr or "exr", half=args.hdr_half, clip_fraction=args.hdr_clip,
+                               noise_floor=args.hdr_noise_floor)
+        merged = merge_dataset(args.dataset, options, profile, workers=args.workers, force=args.force,
+                               progress=TerminalProgress("merge"))
+        print(merged.summary())
+        for row, column, error in merged.failed:
+            print(f"FAILED (HDR) row {row}, column {column}: {error}", file=sys.stderr)
+        failed = failed or bool(merged.failed)
+    return 1 if failed else 0

@@ -213,6 +213,7 @@ class Layer:
     pixel_m: float
     rgba: np.ndarray
     reflect: bool = False
+    gain: float = 1.0      # radiance multiplier (a highlight brighter than white: > 1)
 
     @property
     def size_m(self) -> tuple[float, float]:
@@ -253,7 +254,7 @@ class VirtualStudio:
                  pp_offset_px: tuple[float, float] | list[float] = (0.0, 0.0),
                  view_region_mm: tuple[float, float, float, float] = REFERENCE_REGION_MM,
                  seed: int = 0, n_layers: int = 4, n_objects: int = 4,
-                 texture_density: float = 1.0, max_texture_px: float = 40e6):
+                 texture_density: float = 1.0, max_texture_px: float = 40e6, highlight_gain: float = 0.0):
         if not 0 < near_m < far_m:
             raise ValueError(f"need 0 < near_m < far_m, got near_m={near_m}, far_m={far_m}")
         if width_px < 16:
@@ -270,6 +271,9 @@ class VirtualStudio:
         self.texture_density = float(texture_density)
         self.max_texture_px = float(max_texture_px)
         self.n_layers, self.n_objects = int(n_layers), int(n_objects)
+        #: > 0: a lamp-like disc in front whose radiance peaks at this many times white (a highlight
+        #: that clips at the reference exposure; true radiance in render(), clipped by the sensor)
+        self.highlight_gain = float(highlight_gain)
         self.f_px = self.focal_length_mm / (self.sensor_width_mm / self.width_px)
         w, h = self.width_px, self.height_px
         self.K0 = np.array([[self.f_px, 0, (w - 1) / 2], [0, self.f_px, (h - 1) / 2], [0, 0, 1]])
@@ -288,7 +292,7 @@ class VirtualStudio:
                     rotation_deg=tuple(self.rotation_deg), pp_offset_px=tuple(self.pp_offset_px),
                     view_region_mm=self.view_region_mm, seed=self.seed, n_layers=self.n_layers,
                     n_objects=self.n_objects, texture_density=self.texture_density,
-                    max_texture_px=self.max_texture_px)
+                    max_texture_px=self.max_texture_px, highlight_gain=self.highlight_gain)
 
     # -- geometry -----------------------------------------------------------------------------------
     @staticmethod
@@ -414,13 +418,29 @@ class VirtualStudio:
             alpha = textures.shape_mask(th, tw, "disc" if j % 2 == 0 else "rounded")
             layers.append(Layer(f"object-{j}", "object", float(depth), (cx - w_m / 2, cy - h_m / 2), pm,
                                 _premultiplied_rgba(rgb, alpha)))
+        if self.highlight_gain > 0:
+            depth = obj_depths[0]
+            fx0, fx1, fy0, fy1 = self._frustum_box_m(depth)
+            fw, fh = fx1 - fx0, fy1 - fy0
+            size_m = min(fw, fh) * 0.22
+            pm = self._pixel_m(depth, size_m, size_m)
+            n = max(8, int(round(size_m / pm)))
+            yy, xx = np.mgrid[0:n, 0:n].astype(np.float32)
+            r = np.hypot(xx - (n - 1) / 2, yy - (n - 1) / 2) / (n / 2)
+            glow = np.clip(1.0 - r * r, 0.0, 1.0)           # brightest in the middle, down to 0 at the rim
+            rgb = np.repeat((0.05 + 0.95 * glow)[..., None], 3, axis=2) * np.array([1.0, 0.95, 0.85], np.float32)
+            alpha = (r <= 1.0).astype(np.float32)
+            cx, cy = fx0 + fw * 0.5, fy0 + fh * 0.45
+            layers.append(Layer("highlight", "object", float(depth) * 0.98, (cx - size_m / 2, cy - size_m / 2), pm,
+                                _premultiplied_rgba(rgb, alpha), gain=self.highlight_gain))
         layers.sort(key=lambda layer: -layer.depth_m)      # back to front
         return layers
 
     # -- rendering ----------------------------------------------------------------------------------
     def render(self, x_mm: float, y_mm: float, *, ideal: bool = False, with_depth: bool = False,
                scale: float = 1.0) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
-        """Render the view from camera position (x_mm, y_mm): H x W x 3 float32 linear RGB in [0, 1].
+        """Render the view from camera position (x_mm, y_mm): H x W x 3 float32 linear RGB in [0, 1]
+        (true radiance: a highlight (``highlight_gain``) goes beyond 1; the sensor clips it).
 
         ``ideal``: render with the ideal camera (K0, no rotation) instead of the captured one.
         ``with_depth``: also return the H x W float32 depth map (m, z of the visible surface).
@@ -460,6 +480,8 @@ class VirtualStudio:
                                          borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
             wf = warped.astype(np.float32)
             wf *= scale
+            if layer.gain != 1.0:
+                wf[..., :3] *= np.float32(layer.gain)
             alpha = wf[..., 3:4]
             roi = out[y0:y1, x0:x1]
             roi *= 1.0 - alpha

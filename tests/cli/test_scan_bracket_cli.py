@@ -38,3 +38,31 @@ def test_resume_with_another_bracket_is_refused(run_cli, tmp_path):
     again = run_cli("scan", "--resume", "--bracket", "-2,0", "--time-scale", "0", "--out", tmp_path / "ds")
     assert again.returncode != 0
     assert "--bracket" in again.stderr and "-1, 0, +1 EV (3 frames)" in again.stderr and "Traceback" not in again.stderr
+
+
+def test_process_merges_a_bracketed_scan(run_cli, tmp_path):
+    scan = run_cli("scan", "--port", "instant", "--grid", "2x1", "--time-scale", "0", "--sim-width-px", "64",
+                   "--bracket", "-2,0,+2", "--out", tmp_path / "ds")
+    assert scan.returncode == 0, scan.stderr
+    (tmp_path / "profile.toml").write_text("[rectify]\nenabled = false\n")
+    out = run_cli("process", tmp_path / "ds", "--workers", "0", "--profile", tmp_path / "profile.toml",
+                  "--hdr", "tiff", "--hdr-half")
+    assert out.returncode == 0, out.stderr
+    assert "HDR: 2 views merged" in out.stdout and "after the merge" in out.stdout
+    import tifffile
+
+    data = tifffile.imread(tmp_path / "ds" / "hdr" / "r00_c001.tif")
+    assert str(data.dtype) == "float16" and data.ndim == 3
+    assert (tmp_path / "ds" / "hdr" / "preview" / "r00_c001.png").is_file()
+    manifest = json.loads((tmp_path / "ds" / "dataset.json").read_text())
+    assert manifest["hdr"]["options"]["format"] == "tiff"
+    assert all(v["hdr"]["status"] == "done" for v in manifest["views"])
+
+
+def test_process_hdr_on_a_dataset_without_a_bracket_is_refused(run_cli, tmp_path):
+    scan = run_cli("scan", "--port", "instant", "--grid", "2x1", "--time-scale", "0", "--sim-width-px", "64",
+                   "--out", tmp_path / "ds")
+    assert scan.returncode == 0, scan.stderr
+    out = run_cli("process", tmp_path / "ds", "--hdr", "exr")
+    assert out.returncode == 2 or out.returncode == 1
+    assert "--hdr" in out.stderr and "no exposure bracket" in out.stderr and "Traceback" not in out.stderr
