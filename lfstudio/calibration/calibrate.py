@@ -30,7 +30,8 @@ from lfstudio.jobs import CancelToken, Progress, no_progress
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CalibrationRun", "calibrate_dataset", "position_sigma_um"]
+__all__ = ["CalibrationRun", "calibrate_dataset", "position_sigma_um", "recorded_positions",
+           "with_recorded_positions"]
 
 
 @dataclass
@@ -80,6 +81,43 @@ def shear_remover(dataset, views: Sequence[tuple[int, int]], image_size: Sequenc
 
     ref = np.mean([where(v) for v in views], axis=0)
     return lambda view, xy: np.asarray(xy, float) - shear * (where(view) - ref)
+
+
+def recorded_positions(dataset, views: Sequence[tuple[int, int]]) -> dict[tuple[int, int], np.ndarray] | None:
+    """Each view's position as the rig recorded it (``import-images --positions``: the views'
+    ``reported_mm`` in the dataset's frame, x along the columns, y along the rows), or None when the
+    dataset has no recorded positions (a scan, an import on a regular grid). A view of a dataset with
+    recorded positions that lacks one is refused by name."""
+    if not (dataset.manifest.get("import") or {}).get("positions"):
+        return None
+    out = {}
+    for v in views:
+        rec = dataset.view(*v).get("reported_mm")
+        if not (isinstance(rec, (list, tuple)) and len(rec) == 2):
+            raise CalibrationError(f"{view_stem(*v)} has no recorded position although {dataset.root.name} was "
+                                   "imported with --positions; import it again with a position for every view")
+        out[tuple(v)] = np.asarray(rec, float)
+    return out
+
+
+def with_recorded_positions(m: PairMatches, pos_a: Sequence[float], pos_b: Sequence[float]) -> PairMatches:
+    """The pair with its baseline as the rig recorded it (issue 27: another rig's recorded positions
+    are not a perfect grid; Stanford's gantry steps vary by up to 8 %), instead of the grid's spacing:
+    the baseline scales how much a view's position error moves the pair's matches (``d / B``).
+
+    Only the baseline: a recorded offset *across* the baseline is not taken off the matches. On the
+    real Stanford Chess views (5 × 5, offsets across the rows of 0.1–0.25 mm on 5 mm steps) doing so
+    raised the fit's residual from 0.23 to 0.27 px RMS and moved the roll 0.6° away from the rotation
+    hidden in the views: the record's across-axis scatter is not where the images were taken from.
+    Those offsets stay in the fit as each view's unknown position error."""
+    pa, pb = np.asarray(pos_a, float), np.asarray(pos_b, float)
+    along = 0 if m.direction == "h" else 1
+    base = abs(float(pb[along] - pa[along]))
+    if not base > 1e-9:
+        raise CalibrationError(f"{view_stem(*m.view_a)} and {view_stem(*m.view_b)} were recorded at the same "
+                               f"{'x' if along == 0 else 'y'} ({pa[along]:.3f} mm): no baseline between them; "
+                               "check the positions given at import (--positions)")
+    return PairMatches(m.view_a, m.view_b, m.direction, m.xy_a, m.xy_b, raw_matches=m.raw_matches, baseline_mm=base)
 
 
 def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = None, *,
@@ -171,6 +209,9 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
     matches = [PairMatches(p.a, p.b, p.direction, unshear(p.a, m.xy_a), unshear(p.b, m.xy_b), raw_matches=m.candidates,
                            baseline_mm=p.baseline_mm)
                for p, m in zip(pair_list, results)]
+    recorded = recorded_positions(dataset, needed)
+    if recorded is not None:
+        matches = [with_recorded_positions(m, recorded[m.view_a], recorded[m.view_b]) for m in matches]
     check()
     progress(done, total_steps, "fitting orientation")
     sigma_um = tuple(position_sigma) if position_sigma is not None else position_sigma_um(dataset)
@@ -180,7 +221,8 @@ def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = N
                 "pair_set": pair_set, "neighbours_only": pair_set == "neighbours",
                 "principal_point": principal_point, "estimate_principal_point": principal_point == "auto",
                 "position_sigma_um": list(sigma_um),
-                "work_scale": float(max(f.scale for f in feats.values()))}
+                "work_scale": float(max(f.scale for f in feats.values())),
+                "positions": "recorded" if recorded is not None else "grid"}
     doc = build_report(fit, matches, views=needed, feature_counts={v: f.count for v, f in feats.items()},
                        settings=settings, grid_extent_mm=dataset.grid.baselines_mm,
                        created=now_iso())

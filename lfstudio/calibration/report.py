@@ -241,10 +241,13 @@ def format_report(doc: dict[str, Any]) -> str:
             s = doc["residual_px"][when] if not part else doc["residual_px"][when][part]
             lines.append(f"  {when + ' ' + label:19} {_fmt(s['mean']):>8} {_fmt(s['median']):>8} {_fmt(s['rms']):>8} "
                          f"{_fmt(s['p99']):>8} {s['count']:>7}")
+    if (doc.get("settings") or {}).get("positions") == "recorded":
+        lines += ["", "positions     as the rig recorded them (import --positions): each pair's baseline from the "
+                  "record, not the regular grid"]
     lines += ["", "pairs", f"  {'views':22} {'dir':4} {'base mm':>8} {'matches':>8} {'inliers':>8} "
               f"{'rms before':>11} {'rms after':>10}"]
     for p in doc["pairs"]:
-        lines.append(f"  {p['views'][0] + '–' + p['views'][1]:22} {p['direction'][0]:4} {p['baseline_mm']:8.0f} "
+        lines.append(f"  {p['views'][0] + '–' + p['views'][1]:22} {p['direction'][0]:4} {p['baseline_mm']:8.{0 if p['baseline_mm'] >= 100 else 2}f} "
                      f"{p['matches']:8d} {p['inliers']:8d} {_fmt(p['residual_px']['before']['rms']):>11} "
                      f"{_fmt(p['residual_px']['after']['rms']):>10}")
     lines += ["", "views", f"  {'view':10} {'features':>9} {'rms before':>11} {'rms after':>10}"]

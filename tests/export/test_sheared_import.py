@@ -374,3 +374,34 @@ def test_the_hevc_sidecar_carries_the_shear_and_import_hevc_restores_it(_virtual
     assert side["zero_disparity"]["depth_m"] == 2.5
     back = Dataset.open(import_hevc(tmp_path / "lf.mkv", tmp_path / "back"))
     assert zero_plane(back).depth_m == 2.5 and zero_plane(back).shear_px_per_mm == zero_plane(ds).shear_px_per_mm
+
+
+def test_calibrate_takes_its_baselines_from_the_recorded_positions(_virtual, tmp_path, capsys):
+    """Issue 27: another rig's recorded positions are not a perfect grid; the pairs' baselines come
+    from the record (here a rig whose column steps are 10 % longer than --spacing-mm says)."""
+    from lfstudio.calibration.calibrate import calibrate_dataset
+    from lfstudio.calibration.report import format_report
+
+    truth = load_ground_truth(_virtual)
+    lines = ["file,x_mm,y_mm"]
+    for v in truth["views"]:
+        lines.append(f"r{v['row']:02d}_c{v['column']:03d}.png,{1.1 * v['true_mm'][0]},{v['true_mm'][1]}")
+    (tmp_path / "pos.csv").write_text("\n".join(lines) + "\n")
+    ds = Dataset.open(import_images(ImportOptions(folder=Path(_virtual) / "raw", out=tmp_path / "ds", grid=(5, 5),
+                                                  spacing_mm=(4, 6), positions=str(tmp_path / "pos.csv"),
+                                                  focal_length_px=float(truth["K_true"][0, 0]), parallel_views=True)))
+    rec = {(v["row"], v["column"]): np.asarray(v["reported_mm"], float) for v in ds.views}
+    doc = calibrate_dataset(ds, "array:3x3").document
+    assert doc["settings"]["positions"] == "recorded"
+    h_pairs = [p for p in doc["pairs"] if p["direction"] == "horizontal"]
+    assert h_pairs
+    for p in doc["pairs"]:
+        a, b = (tuple(int(x) for x in (name[1:3], name[5:8])) for name in p["views"])
+        axis = 0 if p["direction"] == "horizontal" else 1
+        assert p["baseline_mm"] == pytest.approx(abs(rec[b][axis] - rec[a][axis]), abs=1e-9)
+    assert all(p["baseline_mm"] == pytest.approx(4.4 * abs(int(p["views"][1][5:8]) - int(p["views"][0][5:8])), abs=0.5)
+               for p in h_pairs)
+    assert "each pair's baseline from the record" in format_report(doc)
+    # a dataset on its regular grid says so and keeps the grid's baselines
+    grid_ds = Dataset.open(_virtual)
+    assert "recorded" not in calibrate_dataset(grid_ds, "array:3x3").document["settings"]["positions"]
