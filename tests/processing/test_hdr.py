@@ -41,7 +41,7 @@ def bracketed(tmp_path_factory):
     rig = InstantRig(RIG)
     rig.connect()
     rig.home()
-    camera = SimulatedCamera(studio, lambda: rig._pos, exposure_s=0.5, time_scale=0.0, noise=0.0)
+    camera = SimulatedCamera(studio, rig.true_position_mm, exposure_s=0.5, time_scale=0.0, noise=0.0)
     camera.connect()
     ds = create_scan_dataset(root, plan, rig={"name": RIG.name}, camera={"name": "sim"}, lens={"name": "virtual"})
     engine = ScanEngine(ds, plan, rig, camera, time_scale=0.0)
