@@ -4,7 +4,18 @@ from __future__ import annotations
 
 
 class LfError(Exception):
-    """Base class for every error lfstudio reports to a person (CLI exit message, GUI dialog)."""
+    """Base class for every error lfstudio reports to a person (CLI exit message, GUI dialog).
+
+    ``window_text``: the message in the window's words where they differ from the command line's
+    (the message names an option or command; the window names its own panels and fields instead);
+    :func:`window_message` picks it."""
+
+    window_text: str | None = None
+
+
+def window_message(exc: BaseException) -> str:
+    """What the window shows for ``exc``: its words for the window when it has them, else its message."""
+    return getattr(exc, "window_text", None) or str(exc)
 
 
 class InputError(LfError, ValueError):

@@ -29,7 +29,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "COM3) or 'sim' to start the built-in simulated controller in this process; a pair of "
                         "CiA 402 drives: dryve:HOST[:PORT],HOST[:PORT] (Modbus TCP, e.g. printed by 'lfstudio "
                         "sim-drive'), canopen:CHANNEL:NODE,NODE, or sim-dryve / sim-canopen (emulated here)")
-    p.add_argument("--rig-profile", default=None, metavar="NAME", help="rig profile (default: the reference gantry)")
+    p.add_argument("--rig-profile", default=None, metavar="NAME",
+                   help="rig profile (default: the reference gantry; for sim-dryve/sim-canopen the preset dryve D1 "
+                        "pair; real drives need theirs named)")
     old_spelling(p, "--rig", "--rig-profile")
     p.add_argument("--baud", type=BAUD.option("--baud"), default=115200, help="baud rate (default 115200)")
     p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",
@@ -90,13 +92,13 @@ def _wait_idle(controller, timeout_s: float = 600.0):
 
 
 def run(args: argparse.Namespace) -> int:
-    from lfstudio.rig.profile import DEFAULT_RIG, load_rig
-    from lfstudio.studio.devices import open_rig
+    from lfstudio.rig.profile import load_rig
+    from lfstudio.studio.devices import implied_rig_profile, open_rig
 
     from lfstudio.rig.motion import check_target
 
     commands = parse_commands(args.commands)
-    rig = load_rig(args.rig_profile or DEFAULT_RIG)
+    rig = load_rig(args.rig_profile or implied_rig_profile(args.port))     # a drive pair: named or refused
     for word, values in commands:           # a target outside the soft limits is refused before connecting
         if word == "move":
             check_target(rig, *values)

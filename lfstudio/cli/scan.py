@@ -34,14 +34,17 @@ _PLAN_OPTIONS = ("grid", "spacing_mm", "offset_mm", "plan", "origin_here", "home
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--port", default=None, metavar="sim|PORT",
                    help="axis controller: 'sim' (simulated GRBL on a pseudo-terminal), 'instant' (no timing) "
-                        "or a serial port such as /dev/ttyUSB0 (default: sim; with --resume the dataset's own rig)")
+                        "or a serial port such as /dev/ttyUSB0; a pair of CiA 402 drives: dryve:HOST[:PORT],HOST[:PORT], "
+                        "canopen:CHANNEL:NODE,NODE, sim-dryve or sim-canopen (default: sim; with --resume the "
+                        "dataset's own rig)")
     refused_spelling(p, "--rig", "--rig: the axis controller is now --port (write --port {value}); "
                                  "a rig profile is --rig-profile NAME")
     p.add_argument("--camera", default=None, metavar="sim|gphoto2|folder:PATH",
                    help="camera: 'sim' (renders the virtual studio), 'gphoto2' (tethered USB), "
                         "'folder:PATH' (hot folder) or 'instant' (default: sim; with --resume the dataset's own camera)")
     p.add_argument("--rig-profile", default=None, metavar="NAME",
-                   help="rig profile from the presets (default: the reference gantry; with --resume the dataset's)")
+                   help="rig profile from the presets (default: the reference gantry; for sim-dryve/sim-canopen "
+                        "the preset dryve D1 pair; real drives need theirs named; with --resume the dataset's)")
     p.add_argument("--home", action="store_true",
                    help="home the rig ($H) before the first view (with --resume: before continuing)")
     p.add_argument("--origin-here", action="store_true",

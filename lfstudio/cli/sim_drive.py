@@ -11,9 +11,9 @@ import threading
 from lfstudio.cli.args import old_spelling
 from lfstudio.errors import InputError
 from lfstudio.numbers import SEED, TIME_SCALE
+from lfstudio.rig.profile import DEFAULT_DRIVE_RIG
 
 HELP = "start two emulated CiA 402 axis drives (dryve D1, Modbus TCP on 127.0.0.1) and print their device word"
-DEFAULT_DRIVE_RIG = "dryve D1 gantry 4 m x 0.5 m"
 
 
 def _ports(text: str) -> tuple[int, int]:

@@ -24,7 +24,7 @@ from typing import Any, Callable
 
 from PySide6.QtCore import QObject, Qt, QTimer, Signal, Slot
 
-from lfstudio.errors import LfError
+from lfstudio.errors import LfError, window_message
 from lfstudio.jobs import Cancelled, CancelToken, EtaEstimator
 
 log = logging.getLogger(__name__)
@@ -154,7 +154,7 @@ class JobRunner(QObject):
             except Cancelled:
                 post((job, "cancelled", ()))
             except LfError as exc:
-                post((job, "failed", (str(exc),)))
+                post((job, "failed", (window_message(exc),)))
             except Exception as exc:  # an unexpected bug: say so plainly, keep the details in the log
                 log.error("job %s failed unexpectedly", getattr(fn, "__name__", fn), exc_info=True)
                 post((job, "failed", (f"Unexpected error: {type(exc).__name__}: {exc}",)))

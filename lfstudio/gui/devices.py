@@ -18,7 +18,7 @@ from typing import Any, Callable
 
 from PySide6.QtCore import QObject, Signal
 
-from lfstudio.errors import LfError
+from lfstudio.errors import LfError, window_message
 from lfstudio.gui.bridge import GuiInbox
 from lfstudio.rig.worker import DeviceWorker, DeviceFault
 
@@ -28,7 +28,7 @@ log = logging.getLogger(__name__)
 def error_text(exc: BaseException) -> str:
     """The message an operator reads for an exception from a device call."""
     if isinstance(exc, LfError):
-        return str(exc)
+        return window_message(exc)
     if isinstance(exc, CancelledError):
         return "cancelled"
     # the traceback goes to the log file (where a bug report finds it), never to the terminal's stderr

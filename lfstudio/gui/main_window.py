@@ -20,7 +20,7 @@ from typing import Any
 
 from PySide6.QtCore import QEvent, QSize, Qt, QTimer
 from PySide6.QtGui import QAction, QGuiApplication, QKeySequence
-from PySide6.QtWidgets import (QDockWidget, QFrame, QLabel, QMainWindow, QMenu, QMessageBox, QScrollArea, QToolBar,
+from PySide6.QtWidgets import (QDockWidget, QFrame, QLabel, QMainWindow, QMenu, QMessageBox, QScrollArea, QTabBar, QToolBar,
                                QWidget)
 
 from lfstudio.errors import LfError
@@ -158,13 +158,13 @@ class MainWindow(QMainWindow):
         self._quit_box: QMessageBox | None = None
         self._quit_after_scan = False
         self._install_stop_toolbar()
-        self._default_state = self.saveState()     # the first-start layout, for View → Reset layout
         state.scanStateChanged.connect(self._on_scan_state)
         state.scanEvents.connect(self._refresh_quit_box)
 
         state.statusMessage.connect(lambda text, ms: self.statusBar().showMessage(text, ms))
         state.errorOccurred.connect(self.show_error)
         self.statusBar().showMessage("Ready — simulated studio" if state.simulated else "Ready")
+        self._default_state = self.saveState()     # the first-start layout, for View → Reset layout
         self._restore_geometry()
 
     # -- structure ---------------------------------------------------------------------------------
@@ -259,10 +259,33 @@ class MainWindow(QMainWindow):
                 docks.append(dock)
                 sizes.append(max(PanelScrollArea.MIN_WIDTH_PX, int(need * scale)))
         self.resizeDocks(docks, sizes, Qt.Horizontal)
+        self.hide_stale_tab_bars()
         self.docks_fitted += 1
+
+    def dock_tab_bars(self) -> list[QTabBar]:
+        """The tab bars of tabbed docks (the main window's own children; a panel's tabs are not)."""
+        return self.findChildren(QTabBar, options=Qt.FindDirectChildrenOnly)
+
+    def tab_bar_in_place(self, bar: QTabBar) -> bool:
+        """Whether ``bar`` sits against the dock whose tab is current (below it, or above it), as wide."""
+        dock = next((d for d in self.docks.values() if d.windowTitle() == bar.tabText(bar.currentIndex())), None)
+        if dock is None or dock.isFloating() or not dock.isVisible():
+            return False
+        b, d = bar.geometry(), dock.geometry()
+        return (abs(b.left() - d.left()) <= 2 and abs(b.width() - d.width()) <= 2
+                and (abs(b.top() - d.bottom() - 1) <= 2 or abs(d.top() - b.bottom() - 1) <= 2))
+
+    def hide_stale_tab_bars(self) -> None:
+        """Hide dock tab bars Qt left behind: tabifying docks before the window is first shown leaves
+        a second, unused copy of a group's tab bar (Qt 6.11) that is painted where the group's bar was
+        first laid out (over the status bar at 1600 x 1000, "Planner Rig" under "Planner Rig Camera")."""
+        for bar in self.dock_tab_bars():
+            if bar.isVisible() and not self.tab_bar_in_place(bar):
+                bar.hide()
 
     def showEvent(self, event) -> None:
         super().showEvent(event)
+        QTimer.singleShot(0, self.hide_stale_tab_bars)     # after the first layout (also a restored one)
         if self._fit_on_show:
             self._fit_on_show = False
             QTimer.singleShot(0, self.fit_docks)      # after the first layout has placed the docks

@@ -39,6 +39,21 @@ def calibration_warnings(doc: dict) -> tuple[list[str], list[str]]:
     return [w for w in every if w not in held], [w for w in every if w in held]
 
 
+#: room left around a dialog for the window manager's frame and title bar
+DIALOG_FRAME_PX = QSize(16, 48)
+
+
+def screen_fitted(widget: QWidget, width_px: int, height_px: int) -> QSize:
+    """The size ``width_px`` x ``height_px`` made no larger than the free room of the screen the widget
+    (or its parent window) is on, frame included: a dialog opened on a 1366 x 768 laptop fits it."""
+    screen = widget.screen() or QGuiApplication.primaryScreen()
+    if screen is None:
+        return QSize(width_px, height_px)
+    free = screen.availableGeometry()
+    return QSize(min(width_px, free.width() - DIALOG_FRAME_PX.width()),
+                 min(height_px, free.height() - DIALOG_FRAME_PX.height()))
+
+
 def set_progress_async(bar: QProgressBar, value: int, maximum: int | None = None) -> None:
     """Set a progress bar without the synchronous repaint ``QProgressBar.setValue`` does.
 

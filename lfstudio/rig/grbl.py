@@ -481,8 +481,12 @@ class GrblController:
                 self._serial = None
                 number = getattr(exc, "errno", None)     # pyserial repeats it: "[Errno 2] could not open …: [Errno 2] …"
                 reason = f"{os.strerror(number)} (errno {number})" if isinstance(number, int) else str(exc)
-                raise DeviceError(f"cannot open the rig port {self.port!r}: {reason}. Check the cable and "
-                                  "the port name (lfstudio rig --port ...), or use 'sim'") from exc
+                error = DeviceError(f"cannot open the rig port {self.port!r}: {reason}. Check the cable and "
+                                    "the port name (lfstudio rig --port ...), or use 'sim'")
+                error.window_text = (f"cannot open the rig port {self.port!r}: {reason}. Check the cable and "
+                                     "choose the controller's port in the Rig panel's Port list (↻ looks for "
+                                     "ports again), or 'Simulated'")
+                raise error from exc
             self._lost = ""
             self._rx.clear()
             self.reference = ""

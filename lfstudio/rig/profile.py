@@ -12,6 +12,8 @@ from lfstudio.resources import load_presets
 from lfstudio.rig.motion import AxisConfig, RigConfig
 
 DEFAULT_RIG = "Reference gantry"
+#: the CiA 402 profile the drive emulators (sim-dryve, sim-canopen, lfstudio sim-drive) start with
+DEFAULT_DRIVE_RIG = "dryve D1 gantry 4 m x 0.5 m"
 AXIS_LETTERS = ("X", "Y", "Z", "A", "B", "C")
 TRAVEL_MM = Number("mm", 0, 100_000, low_open=True)
 #: from a crawl (homing at 1e-300 mm/s never ended) to faster than any gantry

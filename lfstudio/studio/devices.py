@@ -133,6 +133,48 @@ class CameraSpec:
         return f"folder:{self.folder}" if self.kind == "folder" else self.kind
 
 
+def drive_profile_names() -> list[str]:
+    """The installed rig profiles for CiA 402 drives (driver = "cia402")."""
+    from lfstudio.resources import load_presets
+    from lfstudio.rig.profile import rig_from_dict
+
+    names = []
+    for name, preset in load_presets("rigs").items():
+        try:
+            if rig_from_dict(name, preset).driver == "cia402":
+                names.append(name)
+        except InputError:              # a broken user preset is reported where it is chosen
+            continue
+    return names
+
+
+def rig_profile_flag(name: str) -> str:
+    """``--rig-profile NAME`` as typed in a shell (quoted when the name has spaces)."""
+    import shlex
+
+    return f"--rig-profile {shlex.quote(name)}"
+
+
+def implied_rig_profile(spec: RigSpec | str, option: str = "--rig-profile") -> str:
+    """The rig profile a device word implies when none is given: the reference gantry for a GRBL
+    controller (a serial port, sim, instant), the preset drive pair for the drive emulators (sim-dryve,
+    sim-canopen, which are started from it). A pair of real drives has no default: their feed constants,
+    homing method and limits must be the rig's own, so the InputError names exactly what to add."""
+    from lfstudio.rig.profile import DEFAULT_DRIVE_RIG, DEFAULT_RIG
+
+    spec = RigSpec.parse(spec) if isinstance(spec, str) else spec
+    if spec.kind in ("sim-dryve", "sim-canopen"):
+        return DEFAULT_DRIVE_RIG
+    if not spec.drives:
+        return DEFAULT_RIG
+    names = drive_profile_names()
+    example = names[0] if names else DEFAULT_DRIVE_RIG
+    raise InputError(option, f"{spec.text!r} is a pair of CiA 402 drives: name the rig profile that holds their "
+                     "feed constants, homing method and limits (lfstudio never guesses them for real drives)",
+                     " or ".join(rig_profile_flag(n) for n in names) if names else
+                     f"a profile with driver = \"cia402\" in rigs.toml, e.g. {rig_profile_flag(example)}")
+
+
 def close_quietly(obj: Any, what: str) -> None:
     """Disconnect/close a device without hiding the problem that made us close it."""
     if obj is None:
@@ -264,13 +306,11 @@ def _open_drives(spec: RigSpec, config: RigConfig, *, doing: str, time_scale: fl
         raise InputError("--rig-profile", f"rig profile {config.name!r} is for CiA 402 drives, and {spec.text!r} "
                          "is not a drive pair", "--port dryve:HOST,HOST, canopen:CHANNEL:NODE,NODE or sim-dryve")
     if config.driver != "cia402":
-        from lfstudio.rig.profile import rig_names
-
-        drive_rigs = [n for n in rig_names() if n != config.name]
+        names = drive_profile_names()
         raise InputError("--rig-profile", f"{spec.text!r} is a pair of CiA 402 drives, and rig profile {config.name!r} "
                          "is for a GRBL controller (no feed constants or homing methods)",
-                         "a profile with driver = \"cia402\", e.g. " + repr(next(
-                             (n for n in drive_rigs if "dryve" in n.lower()), "dryve D1 gantry 4 m x 0.5 m")))
+                         " or ".join(rig_profile_flag(n) for n in names) if names else
+                         "a profile with driver = \"cia402\" in rigs.toml")
     from lfstudio.rig.cia402 import Cia402Controller
 
     simulator: Any = None

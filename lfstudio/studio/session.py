@@ -47,7 +47,8 @@ from lfstudio.numbers import EXPOSURE_S, RETRIES, TIME_SCALE, TRANSFER_S
 from lfstudio.optics import REFERENCE
 from lfstudio.rig.motion import RigConfig, RigState, SoftLimitError
 from lfstudio.scan.scan_plan import ScanPlan
-from lfstudio.studio.devices import SIM, CameraSpec, RigSpec, Studio, open_studio
+from lfstudio.studio.devices import (SIM, CameraSpec, RigSpec, Studio, implied_rig_profile, open_studio,
+                                     rig_profile_flag)
 from lfstudio.support.locks import MANIFEST_LOCK_NAME, Lock, dataset_lock
 
 log = logging.getLogger(__name__)
@@ -210,10 +211,25 @@ class RigNotWhereLeft(DeviceError):
         self.position_mm, self.last_mm, self.last_view = position_mm, last_mm, last_view
 
 
+def rig_command(port: str, config: RigConfig, commands: str) -> str:
+    """``lfstudio rig`` as the operator types it for this rig: the port, and the rig profile unless the
+    port word implies it (a drive pair's profile always: its feed constants are not guessed)."""
+    import shlex
+
+    from lfstudio.studio.devices import implied_rig_profile
+
+    try:
+        implied = implied_rig_profile(port)
+    except InputError:
+        implied = None
+    profile = "" if implied == config.name else f" {rig_profile_flag(config.name)}"
+    return f"lfstudio rig --port {shlex.quote(port)}{profile} {commands}"
+
+
 def cli_homing_hint(port: str, config: RigConfig) -> str:
     """How to home from the command line (the end of a "not homed" line)."""
     if config.homing:
-        return f"add --home to this command, or first run 'lfstudio rig --port {port} home'"
+        return f"add --home to this command, or first run '{rig_command(port, config, 'home')}'"
     return ("park the carriage at the left/top end of its travel and add --origin-here to this command "
             "(a rig without limit switches cannot home)")
 
@@ -252,7 +268,7 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
     status = rig.status()
     if status.state is RigState.ALARM and isinstance(status.extra, dict) and "power_state" in status.extra:
         raise DeviceError(f"the rig on {port} has a drive in fault, nothing was moved: {status.message} "
-                          f"(lfstudio rig --port {port} reset, or Reset fault in the Rig panel)")
+                          f"({rig_command(port, config, 'reset')}, or Reset fault in the Rig panel)")
     if status.state is RigState.ALARM:
         reason = status.message if status.message.startswith("ALARM") else \
             "locked since it was powered up or reset" if config.homing else "locked"
@@ -273,7 +289,7 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
                     f"the rig reports ({x:.3f}, {y:.3f}) mm, but the dataset's last view {name} was captured at "
                     f"({last[0]:.3f}, {last[1]:.3f}) mm ({off:.2f} mm away, tolerance {tolerance_mm:g} mm): it was "
                     f"moved or lost its position. To resume from a known position: {fix}, then move it back to "
-                    f"({last[0]:.3f}, {last[1]:.3f}) mm (lfstudio rig --port {port} move {last[0]:g} {last[1]:g})",
+                    f"({last[0]:.3f}, {last[1]:.3f}) mm ({rig_command(port, config, f'move {last[0]:g} {last[1]:g}')})",
                     (x, y), last, name)
             notes.append(f"rig at ({status.position_mm[0]:.3f}, {status.position_mm[1]:.3f}) mm, where the last "
                          f"run left it (last view {name}): continuing")
@@ -467,6 +483,8 @@ class ScanSession:
             profile = (record or {}).get("rig", {}).get("profile") if record else None
             if not profile and existing is not None:
                 profile = existing.manifest.get("rig", {}).get("name")
+            if not profile and rig_words:
+                profile = implied_rig_profile(rig_words)     # real drives without --rig-profile: refused by name
             try:
                 config = load_rig(profile or DEFAULT_RIG)
             except InputError:

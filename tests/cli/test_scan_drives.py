@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import os
 import random
+import re
+import shlex
 import signal
 import subprocess
 import sys
@@ -42,10 +44,26 @@ def test_scan_on_emulated_drives_then_resume_is_a_no_op(run_cli, tmp_path, word)
 
 
 def test_a_grbl_profile_on_drives_is_refused_naming_the_profile(run_cli, tmp_path):
-    r = run_cli("scan", "--port", "sim-dryve", "--camera", "sim", "--grid", "2x1", "--out", tmp_path / "x")
+    r = run_cli("scan", "--port", "sim-dryve", "--camera", "sim", "--grid", "2x1", "--rig-profile", "Reference gantry",
+                "--out", tmp_path / "x")
     assert r.returncode == 2
-    assert "--rig-profile" in r.stderr and "GRBL controller" in r.stderr and "dryve D1 gantry" in r.stderr
+    assert "GRBL controller" in r.stderr and f"--rig-profile '{RIG}'" in r.stderr
     assert not (tmp_path / "x").exists()
+
+
+def test_the_device_word_implies_the_emulators_profile_and_real_drives_need_theirs_named(run_cli, tmp_path):
+    """'rig'/'scan' on a drive word without --rig-profile were refused for the default GRBL gantry."""
+    r = run_cli("rig", "--port", "sim-dryve", "--time-scale", "0", "home", "status")
+    assert r.returncode == 0, r.stderr
+    assert f"(rig {RIG!r})" in r.stdout and "x: operation enabled" in r.stdout
+    for command in (["rig", "status"], ["scan", "--camera", "sim", "--grid", "2x1", "--out", tmp_path / "y"]):
+        # real drives: refused before anything connects, with exactly what to add
+        word = "dryve:127.0.0.1:1,127.0.0.1:2"
+        r = run_cli(command[0], "--port", word, *command[1:])
+        assert r.returncode == 2, r.stderr
+        lines = [line for line in r.stderr.splitlines() if line.strip()]
+        assert len(lines) == 1 and f"--rig-profile '{RIG}'" in lines[0] and "pair of CiA 402 drives" in lines[0]
+        assert "answer" not in lines[0] and not (tmp_path / "y").exists()
 
 
 def test_drives_that_do_not_answer_are_one_line_naming_the_address(run_cli, tmp_path):
@@ -123,9 +141,14 @@ def test_kill_9_of_a_scan_on_the_drive_emulator_resumes_with_nothing_lost(run_cl
     resume = ["scan", "--out", out, "--resume", "--time-scale", "0.02", "--sim-width-px", "96"]
     r = run_cli(*resume)
     assert r.returncode == 1 and "reports (300.000, 200.000) mm" in r.stderr and "moved or lost" in r.stderr
-    # back where the last run left it: the drives kept their reference, the resume goes on without homing
+    # back where the last run left it with the command the line names (the drives' profile in it): the
+    # drives kept their reference, the resume goes on without homing
     x, y = last["reported_mm"]
-    back = run_cli("rig", "--port", sim_drive, "--rig-profile", RIG, "--time-scale", "0.02", "move", f"{x}", f"{y}")
+    command = re.search(r"\((lfstudio rig [^)]*)\)", r.stderr)
+    assert command is not None, r.stderr
+    words = shlex.split(command.group(1))
+    assert words[1:] == ["rig", "--port", sim_drive, "--rig-profile", RIG, "move", f"{x:g}", f"{y:g}"]
+    back = run_cli(*words[1:])
     assert back.returncode == 0, back.stderr
     r = run_cli(*resume, timeout=180)
     assert r.returncode == 0, r.stderr

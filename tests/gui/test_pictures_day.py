@@ -56,9 +56,22 @@ def test_calibration_wizard_pictures_read(qtbot, tiny_dataset):
     arrows = len(wizard.vector_lines.xData) // 2
     assert 0 < arrows <= rows * cols < matches / 20                 # one arrow per region, not per match
     assert wizard.region_rms.image.shape == (rows, cols)
+    # both colour scales drawn as bars beside their plots, spanning what the colours mean
+    rms = wizard.field["rms"]
+    assert wizard.region_bar.levels() == (0.0, float(np.nanmax(rms)))
+    assert tuple(wizard.region_rms.getLevels()) == wizard.region_bar.levels()
+    per_view = [v["residual_px"]["after"]["rms"] for v in wizard.result["run"].document["views"]
+                if v["residual_px"]["after"]["rms"] is not None]
+    assert wizard.heat_bar.levels() == (0.0, max(max(per_view), 1.0))
+    for plot, bar in ((wizard.heat, wizard.heat_bar), (wizard.vectors, wizard.region_bar)):
+        assert bar.isVisible() and bar.parentItem() is plot and "(px)" in bar.getAxis("left").labelText
+        assert bar.sceneBoundingRect().left() >= plot.getViewBox().sceneBoundingRect().right()
     lengths = np.hypot(*(wizard.field["mean"] * wizard.vector_gain.value()).T)
     region = min(wizard.result["preview"].shape[1] / cols, wizard.result["preview"].shape[0] / rows)
     assert 0.5 * region < lengths.max() <= region                    # the longest arrow fills its region
+    seen = wizard.res_plots.viewport().width()                      # nothing cut off at the right edge
+    for item in (wizard.hist_after, wizard.vectors, wizard.region_bar, wizard.heat_bar):
+        assert item.sceneBoundingRect().right() <= seen, (item, item.sceneBoundingRect(), seen)
     wizard.vector_mode.setCurrentIndex(1)                            # before calibration: redrawn, same bins
     assert len(wizard.vector_lines.xData) // 2 <= rows * cols
 

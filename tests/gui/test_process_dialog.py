@@ -173,3 +173,21 @@ def test_close_button_closes_the_idle_dialog(qtbot, make_dataset):
     assert dialog.close_button.text().replace("&", "") == "Close"
     qtbot.mouseClick(dialog.close_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: not dialog.isVisible())
+
+
+def test_choices_are_shown_in_operator_words_and_saved_as_the_profile_values(qtbot, make_dataset):
+    """The de-flicker statistic showed the profile's internal name 'median_ratio'."""
+    ds = make_dataset(rows=1, cols=2)
+    window, dialog = _dialog(qtbot, ds)
+    statistic = dialog.editors["deflicker"].fields["statistic"]
+    shown = [statistic.itemText(i) for i in range(statistic.count())]
+    assert not any("_" in text for text in shown), shown
+    assert statistic.currentText() == "median of per-pixel ratios (robust)"
+    statistic.setCurrentIndex(statistic.findText("ratio of the medians"))
+    assert dialog.editors["deflicker"].values()["statistic"] == "median"
+    dialog.editors["deflicker"].set_value("statistic", "median_ratio")
+    assert statistic.currentText() == "median of per-pixel ratios (robust)"
+    for editor in dialog.editors.values():          # no other choice shows an internal name either
+        for field in editor.fields.values():
+            if hasattr(field, "itemText"):
+                assert not any("_" in field.itemText(i) for i in range(field.count())), editor.name

@@ -146,3 +146,16 @@ def test_controller_and_profile_disagreeing_is_a_wrapping_warning_line_that_goes
     finally:
         panel.shutdown()
         controller.close()
+
+
+def test_a_port_that_cannot_be_opened_is_told_in_the_window_s_words(qtbot, panel, tmp_path):
+    """The message named the command line ('lfstudio rig --port ...') in the window."""
+    port = str(tmp_path / "ttyUSB9")
+    panel.port_combo.setEditText(port)
+    with qtbot.waitSignal(panel.state.errorOccurred, timeout=T) as shown:
+        qtbot.mouseClick(panel.connect_button, Qt.LeftButton)
+    title, message = shown.args
+    assert title == "Rig" and f"cannot open the rig port {port!r}" in message, message
+    assert "No such file or directory" in message and "Port list" in message and "Simulated" in message
+    assert "--port" not in message and "lfstudio rig" not in message, message
+    qtbot.waitUntil(lambda: panel.connect_button.text() == "Connect", timeout=T)   # nothing left half-connected

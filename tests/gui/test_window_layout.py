@@ -159,15 +159,18 @@ for _ in range(20):
 screen = window.screen().availableGeometry()
 inside = [b for b in window.findChildren(QTabBar)
           if b.isVisible() and window.rect().contains(QRect(b.mapTo(window, QPoint(0, 0)), b.size()))]
+bars = [[[b.tabText(i) for i in range(b.count())], window.tab_bar_in_place(b)]
+        for b in window.dock_tab_bars() if b.isVisible()]
 print(json.dumps({"screen": screen.getRect(), "frame": window.frameGeometry().getRect(),
-                  "tabs_inside": [[b.tabText(i) for i in range(b.count())] for b in inside]}))
+                  "tabs_inside": [[b.tabText(i) for i in range(b.count())] for b in inside], "bars": bars}))
 window.close()
 """
 
 
-@pytest.mark.parametrize("screen", [(1366, 768), (1920, 1080)])
+@pytest.mark.parametrize("screen", [(1366, 768), (1600, 1000), (1920, 1080)])
 def test_first_window_fits_the_screen(tmp_path, screen):
-    """On a 1366 x 768 screen the first window was 1500 x 950: the tab rows (Rig) were off-screen."""
+    """On a 1366 x 768 screen the first window was 1500 x 950: the tab rows (Rig) were off-screen; on a large
+    screen stale copies of two tab rows were painted over the status bar."""
     config = tmp_path / "screen.json"
     config.write_text(json.dumps({"screens": [{"name": "s", "x": 0, "y": 0, "width": screen[0],
                                                "height": screen[1], "logicalDpi": 96, "logicalBaseDpi": 96,
@@ -185,5 +188,75 @@ def test_first_window_fits_the_screen(tmp_path, screen):
     x, y, w, h = got["frame"]
     assert sx <= x and sy <= y and x + w <= sx + sw and y + h <= sy + sh, got
     assert any("Rig" in tabs for tabs in got["tabs_inside"]) and any("Processing" in tabs for tabs in got["tabs_inside"])
+    # no tab bar left behind: Qt painted a second "Planner | Rig" and "Plan plots | Live view" bar where
+    # the groups were first laid out (over the status bar on a large screen)
+    assert all(in_place for _, in_place in got["bars"]), got["bars"]
+    groups = [tuple(tabs) for tabs, _ in got["bars"]]
+    assert len(groups) == len(set(groups)) and ("Planner", "Rig", "Camera") in groups, groups
     if screen == (1920, 1080):
         assert (w, h) >= (1500, 950)      # a large screen keeps the default size
+
+
+DIALOGS = """
+import json, sys
+from PySide6.QtWidgets import QApplication, QLineEdit
+app = QApplication([])
+from lfstudio.dataset import Dataset
+from lfstudio.gui.app import create_window
+from lfstudio.gui.dialogs.import_dialog import ImportImagesDialog
+window = create_window(simulated=True)
+window.show()
+while not window.docks_fitted:
+    app.processEvents()
+window.state.set_dataset(Dataset.open(sys.argv[1]))
+free = window.screen().availableGeometry()
+out = {"free": [free.width(), free.height()], "dialogs": {}}
+
+def look(name, dialog):
+    dialog.show()
+    for _ in range(30):
+        app.processEvents()
+    cut = [e.objectName() or e.placeholderText() for e in dialog.findChildren(QLineEdit)
+           if e.isVisible() and not e.text() and e.placeholderText()
+           and e.fontMetrics().horizontalAdvance(e.placeholderText()) + 12 > e.width()]
+    out["dialogs"][name] = {"size": dialog.size().toTuple(), "minimum": dialog.minimumSizeHint().toTuple(),
+                            "placeholders_cut": cut}
+
+window.open_export_dialog()
+export = window.export_dialog
+export.format_combo.setCurrentIndex(export.format_combo.findData("hci"))
+look("export (HCI)", export)
+window.panels["processingPanel"].open_dialog()
+look("process", window.panels["processingPanel"].dialog)
+window.panels["calibrationPanel"].open_wizard()
+look("calibration wizard", window.panels["calibrationPanel"].wizard)
+look("import images", ImportImagesDialog(window.state, window))
+look("user guide", window.show_user_guide())
+print(json.dumps(out))
+"""
+
+
+@pytest.mark.parametrize("screen", [(1366, 768), (1600, 1000)])
+def test_dialogs_fit_the_screen_and_show_their_hints_whole(tmp_path, tiny_dataset, screen):
+    """On a 1366 x 768 laptop the process dialog and the calibration wizard opened 800 px high (their
+    buttons under the screen's edge) and the export dialog's HCI authors hint was cut off."""
+    import os
+
+    config = tmp_path / "screen.json"
+    config.write_text(json.dumps({"screens": [{"name": "s", "x": 0, "y": 0, "width": screen[0],
+                                               "height": screen[1], "logicalDpi": 96, "logicalBaseDpi": 96,
+                                               "dpr": 1}]}))
+    env = {**os.environ, "QT_QPA_PLATFORM": f"offscreen:configfile={config}", "HOME": str(tmp_path),
+           "XDG_CONFIG_HOME": str(tmp_path / "config"),
+           "PYTHONPATH": str(REPO_ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    out = subprocess.run([sys.executable, "-c", DIALOGS, str(tiny_dataset.root)], capture_output=True, text=True,
+                         env=env, timeout=300, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    free_w, free_h = got["free"]
+    assert len(got["dialogs"]) == 5
+    for name, seen in got["dialogs"].items():
+        (w, h), (min_w, min_h) = seen["size"], seen["minimum"]
+        assert w + 16 <= free_w and h + 48 <= free_h, (name, seen, got["free"])     # the frame fits too
+        assert min_w <= w and min_h <= h, (name, seen)                               # nothing squeezed
+        assert not seen["placeholders_cut"], (name, seen)

@@ -34,7 +34,7 @@ from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import LfError
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.settings import settings
-from lfstudio.gui.widgets import GridPicker, JobProgressWidget, calibration_warnings
+from lfstudio.gui.widgets import GridPicker, JobProgressWidget, calibration_warnings, screen_fitted
 from lfstudio.jobs import count
 
 PAGE_VIEWS, PAGE_RUN, PAGE_RESULTS = range(3)
@@ -157,7 +157,7 @@ class CalibrationWizard(QDialog):
         self.dataset = state.dataset
         self.setWindowTitle("Calibrate — self-calibration of the camera orientation")
         self.setObjectName("calibrationWizard")
-        self.resize(1150, 800)
+        self.resize(screen_fitted(self, 1150, 800))
         self.result: dict | None = None
         self.accepted_document: dict | None = None
         self.runner = JobRunner(self)
@@ -397,10 +397,15 @@ class CalibrationWizard(QDialog):
         self.hist_after = self.res_plots.addPlot(0, 1, title="Residuals after (px)")
         for plot in (self.hist_before, self.hist_after):
             plain_px_axis(plot.getAxis("bottom"), "v-difference (row pairs) / u-difference (column pairs)")
-        self.heat = self.res_plots.addPlot(1, 0, title="Per-view RMS after (px) over the grid")
+        self.heat = self.res_plots.addPlot(1, 0, title="RMS after per view (px)")
         self.heat.invertY(True)
         self.heat.setLabel("bottom", "column")
         self.heat.setLabel("left", "row")
+        # the colour scales as bars beside the plots (the axis labels also name the range)
+        self.heat_bar = pg.ColorBarItem(values=(0.0, 1.0), colorMap=pg.colormap.get("viridis"), width=14,
+                                        label="RMS after (px)", interactive=False, colorMapMenu=False)
+        self.heat.layout.addItem(self.heat_bar, 2, 5)              # where ColorBarItem puts itself in a plot
+        self.heat.layout.setColumnFixedWidth(4, 5)
         self.vectors = self.res_plots.addPlot(1, 1, title="Residual vectors")
         self.vectors.invertY(True)
         self.vectors.setAspectLocked(True)
@@ -408,8 +413,10 @@ class CalibrationWizard(QDialog):
         self.vectors.addItem(self.vector_image)
         self.region_rms = pg.ImageItem(axisOrder="row-major")      # RMS per region, over the image
         self.region_rms.setOpacity(0.45)
-        self.region_rms.setLookupTable(pg.colormap.get("inferno").getLookupTable(nPts=256))
         self.vectors.addItem(self.region_rms)
+        self.region_bar = pg.ColorBarItem(values=(0.0, 1.0), colorMap=pg.colormap.get("inferno"), width=14,
+                                          label="region RMS (px)", interactive=False, colorMapMenu=False)
+        self.region_bar.setImageItem(self.region_rms, insert_in=self.vectors)
         self.vectors.setLabel("bottom", "x (preview px)")
         self.vectors.setLabel("left", "y (preview px)")
         self.vector_lines = pg.PlotDataItem(connect="pairs", pen=pg.mkPen((0, 200, 60), width=2.5))
@@ -560,10 +567,11 @@ class CalibrationWizard(QDialog):
                 self.heat.addItem(t)
             grid = self.dataset.grid
             self.heat.setLabel("bottom", f"column · colour: RMS 0 (dark) … {top:.2f} px (yellow)")
+            self.heat_bar.setLevels((0.0, top))
             self.heat.setXRange(-1, grid.columns, padding=0.05)
             self.heat.setYRange(-1, grid.rows, padding=0.1)
         self.vector_image.setImage(result["preview"], autoLevels=True)
-        self.vectors.setTitle(f"Mean residual per region over {view_stem(*result['preview_view'])} (arrows)")
+        self.vectors.setTitle(f"Mean residual per region, {view_stem(*result['preview_view'])}")
         self.field = None
         self._draw_vectors(auto_gain=True)
 
@@ -610,6 +618,7 @@ class CalibrationWizard(QDialog):
         rms = field["rms"]
         top = float(np.nanmax(rms)) if np.isfinite(rms).any() else 1.0
         self.region_rms.setImage(np.nan_to_num(rms, nan=0.0), levels=(0.0, max(top, 1e-6)))
+        self.region_bar.setLevels((0.0, max(top, 1e-6)))
         self.vectors.setLabel("bottom", f"x (preview px) · colour: RMS 0 … {top:.2f} px")
         self.region_rms.setRect(0, 0, w, h)
         c, v = field["centres"], field["mean"]

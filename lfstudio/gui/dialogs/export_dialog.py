@@ -25,7 +25,7 @@ from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.path_field import expand_on_edit
 from lfstudio.gui.preferences import EXPORT_KEY
 from lfstudio.gui.settings import settings
-from lfstudio.gui.widgets import GridPicker, JobProgressWidget, confirm_cancel_running
+from lfstudio.gui.widgets import GridPicker, JobProgressWidget, confirm_cancel_running, screen_fitted
 from lfstudio.jobs import format_duration
 
 #: format key, menu text, what it is
@@ -101,7 +101,7 @@ class ExportDialog(QDialog):
         self.dataset = state.dataset
         self.setObjectName("exportDialog")
         self.setWindowTitle(f"Export dataset — {self.dataset.root.name}")
-        self.resize(880, 760)
+        self.resize(screen_fitted(self, 880, 760))
         self.estimate = None            # the last ExportEstimate for the current options
         self.estimate_error: str | None = None
         self.report = None
@@ -191,8 +191,11 @@ class ExportDialog(QDialog):
         self.options_stack.addWidget(hevc)
 
         hci = QWidget()
-        cl = QHBoxLayout(hci)
-        cl.setContentsMargins(0, 0, 0, 0)
+        hci_rows = QVBoxLayout(hci)
+        hci_rows.setContentsMargins(0, 0, 0, 0)
+        hci_rows.setSpacing(4)
+        cl = QHBoxLayout()                      # the sub-array; below it the authors at full width
+        hci_rows.addLayout(cl)
         grid = self.dataset.grid
         self.hci_columns, self.hci_rows = QSpinBox(), QSpinBox()
         self.hci_columns.setRange(1, grid.columns)
@@ -214,12 +217,16 @@ class ExportDialog(QDialog):
         cl.addWidget(self.hci_center_row)
         cl.addWidget(QLabel("column"))
         cl.addWidget(self.hci_center_column)
-        cl.addSpacing(16)
-        cl.addWidget(QLabel("authors"))
+        cl.addStretch(1)
+        cl = QHBoxLayout()
+        hci_rows.addLayout(cl)
+        cl.addWidget(QLabel("Authors"))
         self.hci_authors = QLineEdit()
-        self.hci_authors.setPlaceholderText("written to parameters.cfg")
+        self.hci_authors.setObjectName("hciAuthors")
+        self.hci_authors.setPlaceholderText("written to parameters.cfg [meta] (empty: the dataset's, if any)")
         self.hci_authors.setToolTip("The [meta] authors of parameters.cfg (empty: the dataset's, if any)")
         cl.addWidget(self.hci_authors, 1)
+        cl.addSpacing(16)
         self.hci_depth_check = QCheckBox("Disparity maps")
         self.hci_depth_check.setObjectName("hciDepthCheck")
         self.hci_depth_check.setToolTip("Each view's estimated disparity (estimated_disp_CamNNN.pfm, px between "
@@ -270,6 +277,12 @@ class ExportDialog(QDialog):
                 pl.addWidget(self.holdout_combo)
             pl.addStretch(1)
             self.options_stack.addWidget(page)
+        for i in range(self.options_stack.count()):      # one-row pages at the top of the two rows' room
+            page = self.options_stack.widget(i)
+            if isinstance(page, QLabel):
+                page.setAlignment(Qt.AlignLeft | Qt.AlignTop)
+            elif isinstance(page.layout(), QHBoxLayout):
+                page.layout().setAlignment(Qt.AlignTop)
         form.addRow("Options:", self.options_stack)
         self._options_form = form
 
@@ -374,8 +387,8 @@ class ExportDialog(QDialog):
         self.close_button = QPushButton("Close")
         self.close_button.setToolTip("Close the dialog (a running export is cancelled after asking)")
         self.close_button.clicked.connect(self.close)
-        buttons = QHBoxLayout()
-        buttons.addStretch(1)
+        buttons = QHBoxLayout()                      # the result beside the buttons: fits a 768 px screen
+        buttons.addWidget(self.result_label, 1)
         for b in (self.open_folder_button, self.export_button, self.close_button):
             buttons.addWidget(b)
         # every line keeps its room whether it has text or not, so the dialog never jumps between states
@@ -383,6 +396,7 @@ class ExportDialog(QDialog):
         for label in (self.estimate_label, self.warnings_label, self.result_label):
             label.setMinimumHeight(2 * lines + 4)
             label.setAlignment(Qt.AlignLeft | Qt.AlignTop)
+        self.result_label.setMinimumHeight(3 * lines + 4)      # a report beside the buttons takes up to 3 lines
         self.warnings_area = QScrollArea()           # however many warnings: the same room (scrolls)
         self.warnings_area.setObjectName("warningsArea")
         self.warnings_area.setWidget(self.warnings_label)
@@ -390,14 +404,13 @@ class ExportDialog(QDialog):
         self.warnings_area.setFrameShape(QFrame.NoFrame)
         self.warnings_area.setHorizontalScrollBarPolicy(Qt.ScrollBarAlwaysOff)
         self.warnings_area.setFixedHeight(3 * lines + 6)
-        self.format_info.setMinimumHeight(4 * lines + 4)
+        self.format_info.setMinimumHeight(3 * lines + 4)          # the longest (HCI) is 3 lines wide
         self.format_info.setAlignment(Qt.AlignLeft | Qt.AlignTop)
         lay = QVBoxLayout(area)
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addWidget(self.estimate_label)
         lay.addWidget(self.warnings_area)
         lay.addWidget(self.progress)
-        lay.addWidget(self.result_label)
         lay.addLayout(buttons)
         return area
 

@@ -11,6 +11,7 @@ from PySide6.QtWidgets import (QDialog, QDialogButtonBox, QHBoxLayout, QLabel, Q
 from lfstudio import __version__
 from lfstudio.gui.bridge import run_off_gui
 from lfstudio.gui.icons import app_icon
+from lfstudio.gui.widgets import screen_fitted
 
 
 class AboutDialog(QDialog):
@@ -52,7 +53,7 @@ class AboutDialog(QDialog):
         lay.addWidget(self.table, 1)
         lay.addWidget(self.status)
         lay.addWidget(buttons)
-        self.resize(640, 520)
+        self.resize(screen_fitted(self, 640, 520))
         self.rows: list[tuple[str, str]] = []
         from lfstudio.support.versions import versions
 
@@ -99,7 +100,7 @@ class UserGuideDialog(QDialog):
         lay = QVBoxLayout(self)
         lay.addWidget(self.browser, 1)
         lay.addWidget(buttons)
-        self.resize(860, 760)
+        self.resize(screen_fitted(self, 860, 760))
 
     def fit_images(self, max_width_px: int) -> int:
         """Scale the guide's pictures (full-window screenshots) down to ``max_width_px``; returns how many."""

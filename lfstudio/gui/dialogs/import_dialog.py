@@ -29,7 +29,7 @@ from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
 from lfstudio.gui.settings import settings
-from lfstudio.gui.widgets import JobProgressWidget
+from lfstudio.gui.widgets import JobProgressWidget, screen_fitted
 
 OK_STYLE = "color: #1b7a1b;"
 BAD_STYLE = "color: #b00020;"
@@ -363,7 +363,7 @@ class ImportImagesDialog(_ImportDialogBase):
         form.addRow("Destination", _path_row(self.out_edit, self.out_button))
         form.addRow("", self.copy_check)
         self._lay_out(form)
-        self.resize(720, 560)
+        self.resize(screen_fitted(self, 720, 560))
         self._positions_changed()
         self._zero_changed()
 

@@ -25,7 +25,7 @@ from lfstudio.errors import InputError
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.imageutil import rgb_to_qimage
 from lfstudio.gui.settings import settings
-from lfstudio.gui.widgets import JobProgressWidget, confirm_cancel_running
+from lfstudio.gui.widgets import JobProgressWidget, confirm_cancel_running, screen_fitted
 from lfstudio.dataset.manifest import processed_status
 from lfstudio.dataset.profile import _CHOICES, LIMITS, PROFILE_NAME, STEP_TYPES, Profile
 
@@ -51,7 +51,8 @@ TIPS = {
     "white_output": "The white point maps to this fraction of 65535 (headroom for highlights)",
     "flat_file": "A RAW or PNG of a uniformly lit white card, relative to the dataset folder",
     "coefficients": "k1 k2 k3 of V(r) = 1 + k1 r² + k2 r⁴ + k3 r⁶; empty: fitted to the flat file",
-    "statistic": "median_ratio: median of per-pixel ratios (robust); median: ratio of medians",
+    "statistic": "How the gain to the reference is measured: the median of the per-pixel ratios (robust to "
+                 "moving highlights) or the ratio of the two images' medians",
     "size_px": "Width of the reduced luminance image the gain is measured on",
     "scale": "Output size relative to the full-resolution capture (0.5: half, as in the paper)",
     "row": "Row of the reference view (-1: middle of the grid)",
@@ -59,6 +60,12 @@ TIPS = {
     "png_compression": "zlib level 0..9: 1 is fast, 9 is ~10 % smaller",
 }
 FLOAT_DECIMALS = 4
+#: choices shown in operator words (the profile keeps its own values: processing.toml is unchanged)
+CHOICE_WORDS = {
+    ("deflicker", "statistic"): {"median_ratio": "median of per-pixel ratios (robust)",
+                                 "median": "ratio of the medians"},
+    ("debayer", "color_space"): {"srgb": "sRGB (the camera's colour matrix)", "raw": "camera RGB (no matrix)"},
+}
 
 
 def key_label(key: str) -> str:
@@ -205,8 +212,10 @@ class StepEditor(QGroupBox):
         choices = _CHOICES.get((self.name, key))
         if choices:
             w = QComboBox()
-            w.addItems(list(choices))
-            w.setCurrentText(str(value))
+            words = CHOICE_WORDS.get((self.name, key), {})
+            for choice in choices:
+                w.addItem(words.get(choice, choice), choice)
+            w.setCurrentIndex(max(0, w.findData(str(value))))
         elif isinstance(value, bool):
             w = QCheckBox()
             w.setChecked(value)
@@ -242,7 +251,8 @@ class StepEditor(QGroupBox):
     def set_value(self, key: str, value: Any) -> None:
         w = self.fields[key]
         if isinstance(w, QComboBox):
-            w.setCurrentText(str(value))
+            if w.findData(str(value)) >= 0:
+                w.setCurrentIndex(w.findData(str(value)))
         elif isinstance(w, QCheckBox):
             w.setChecked(bool(value))
         elif isinstance(w, (QSpinBox, QDoubleSpinBox)):
@@ -256,7 +266,7 @@ class StepEditor(QGroupBox):
             out["enabled"] = self.isChecked()
         for key, w in self.fields.items():
             if isinstance(w, QComboBox):
-                out[key] = w.currentText()
+                out[key] = w.currentData()
             elif isinstance(w, QCheckBox):
                 out[key] = w.isChecked()
             elif isinstance(w, QSpinBox):
@@ -302,7 +312,7 @@ class ProcessDialog(QDialog):
         self.state = state
         self.setObjectName("processDialog")
         self.setWindowTitle("Process views")
-        self.resize(1250, 800)
+        self.resize(screen_fitted(self, 1250, 800))
         ds = state.dataset
         self.root = str(ds.root)
         try:

@@ -725,7 +725,7 @@ class PlanPlotsPanel(QWidget):
                 axis = plot.getAxis(side)
                 axis.setPen(pg.mkPen("#30343a"))
                 axis.setTextPen(pg.mkPen("#30343a"))
-            plot.setMinimumSize(300, 200)
+            plot.setMinimumSize(240, 160)
             plot.showGrid(x=True, y=True, alpha=0.25)
             plot.setMenuEnabled(False)
             for side in ("left", "bottom"):         # painted from a pixmap until their range changes
@@ -811,8 +811,18 @@ class PlanPlotsPanel(QWidget):
                                          labelOpts={"position": 0.5, "color": _COLORS["zmin"], "rotateAxis": (1, 0)})
         q.addItem(self.zmin_line)
 
+    def _room(self):
+        """The room the panel is shown in: its dock's scroll area (which lays it out at no less than
+        its minimum size, so the panel's own size would keep a side-by-side layout that does not fit)."""
+        viewport = self.parentWidget()
+        area = viewport.parentWidget() if viewport is not None else None
+        if isinstance(area, QScrollArea) and area.widget() is self:
+            return area.maximumViewportSize()
+        return self.size()
+
     def resizeEvent(self, event) -> None:
-        wide = event.size().width() > 1.4 * event.size().height()
+        room = self._room()
+        wide = room.width() > 1.4 * room.height()
         self.plots_layout.setDirection(QBoxLayout.LeftToRight if wide else QBoxLayout.TopToBottom)
         super().resizeEvent(event)
 
@@ -859,7 +869,7 @@ class PlanPlotsPanel(QWidget):
         self.focus_line.setValue(r.focus_used_m)
         far_text = "∞" if math.isinf(r.dof_far_m) else f"{r.dof_far_m:.2f}"
         self._set_title(self.dof_plot, f"Depth of field at f/{r.f_number_used:.1f}: sharp {r.dof_near_m:.2f} – "
-                                       f"{far_text} m, scene {plan.near_m:g} – {plan.far_m:g} m")
+                                       f"{far_text} m")          # the scene: its shaded region
         self._set_range("dof", "x", x_lo / 1000, x_hi / 1000)
         self._set_range("dof", "y", -0.02 * y_top, 1.02 * y_top)
 

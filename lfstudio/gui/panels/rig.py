@@ -27,7 +27,7 @@ from PySide6.QtWidgets import (QButtonGroup, QComboBox, QDoubleSpinBox, QFormLay
                                QGroupBox, QHBoxLayout, QLabel, QPushButton, QRadioButton, QSizePolicy,
                                QToolButton, QVBoxLayout, QWidget)
 
-from lfstudio.errors import LfError
+from lfstudio.errors import LfError, window_message
 from lfstudio.gui.devices import QtDevice
 from lfstudio.gui.settings import settings
 from lfstudio.gui.state import AppState
@@ -448,8 +448,8 @@ class RigPanel(QWidget):
             self.link = open_rig(port, self.rig_config, doing="the lfstudio window", time_scale=self.sim_time_scale,
                                  connect=False)
         except LfError as exc:
-            self._show_message(str(exc), "error")
-            self.state.report_error("Rig", str(exc))
+            self._show_message(window_message(exc), "error")
+            self.state.report_error("Rig", window_message(exc))
             return
         self.simulator = self.link.simulator
         if self.simulator is not None:

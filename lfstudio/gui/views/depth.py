@@ -19,7 +19,7 @@ from PySide6.QtWidgets import (QCheckBox, QDialog, QHBoxLayout, QLabel, QLineEdi
 
 from lfstudio.errors import LfError
 from lfstudio.gui.bridge import JobRunner, run_off_gui
-from lfstudio.gui.widgets import JobProgressWidget
+from lfstudio.gui.widgets import JobProgressWidget, screen_fitted
 
 #: pixels below this confidence are greyed out with "Hide unsure pixels"
 UNSURE_BELOW = 0.1
@@ -87,7 +87,7 @@ class DepthDialog(QDialog):
         self.dataset = state.dataset
         self.setObjectName("depthDialog")
         self.setWindowTitle("Depth map of a view")
-        self.resize(1040, 820)
+        self.resize(screen_fitted(self, 1040, 820))
         views = self.dataset.captured_views()
         rows = sorted({r for r, _ in views})
         mid_row = rows[len(rows) // 2] if rows else 0

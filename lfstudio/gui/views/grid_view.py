@@ -42,7 +42,7 @@ from lfstudio.gui.bridge import GuiInbox, run_off_gui
 from lfstudio.gui.settings import settings
 from lfstudio.gui.views.quality import (OVERLAY_KEY, DisparityDialog, LiveQuality, NeighboursDialog, QualityBar,
                                         run_check)
-from lfstudio.gui.widgets import QuietLabel, WholeOrNothingLabel
+from lfstudio.gui.widgets import QuietLabel, WholeOrNothingLabel, screen_fitted
 from lfstudio.jobs import count
 
 log = logging.getLogger(__name__)
@@ -698,7 +698,7 @@ class ImageDialog(QDialog):
         super().__init__(parent)
         self.setWindowTitle(title)
         self.setObjectName("viewDialog")
-        self.resize(1000, 700)
+        self.resize(screen_fitted(self, 1000, 700))
         self.label = QLabel("Loading…")
         self.label.setAlignment(Qt.AlignCenter)
         self.info = QLabel(str(path))

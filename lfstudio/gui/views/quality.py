@@ -27,7 +27,7 @@ from lfstudio.dataset.manifest import is_done
 from lfstudio.dataset.paths import view_label
 from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.settings import settings
-from lfstudio.gui.widgets import JobProgressWidget, QuietLabel
+from lfstudio.gui.widgets import JobProgressWidget, QuietLabel, screen_fitted
 from lfstudio.jobs import count
 
 LIVE_KEY = "quality/check_during_scan"
@@ -367,7 +367,7 @@ class DisparityDialog(QDialog):
         super().__init__(parent)
         self.setObjectName("disparityDialog")
         self.setWindowTitle("Disparity map of the centre view")
-        self.resize(1040, 800)
+        self.resize(screen_fitted(self, 1040, 800))
         self.image = QLabel()
         self.image.setAlignment(Qt.AlignCenter)
         from lfstudio.dataset.images import read_picture
