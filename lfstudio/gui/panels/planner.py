@@ -19,8 +19,8 @@ import numpy as np
 from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import (QAbstractSpinBox, QBoxLayout, QComboBox, QDoubleSpinBox, QFileDialog, QFrame, QGridLayout,
-                               QGraphicsItem, QGroupBox, QHBoxLayout, QLabel, QPushButton, QScrollArea, QSizePolicy, QSpinBox,
-                               QVBoxLayout, QWidget)
+                               QGraphicsItem, QGroupBox, QHBoxLayout, QLabel, QLineEdit, QPushButton, QScrollArea, QSizePolicy,
+                               QSpinBox, QVBoxLayout, QWidget)
 
 from lfstudio.errors import InputError, LfError
 from lfstudio.jobs import format_duration
@@ -222,7 +222,9 @@ class PlannerPanel(QWidget):
         lay.addWidget(self._group("Camera and lens", [("camera_name", "Camera", "cameras"), *_CAMERA_INPUTS,
                                                        ("lens_name", "Lens", "lenses"), *_LENS_INPUTS]))
         lay.addWidget(self._group("Scene and aperture", _SCENE_INPUTS))
-        lay.addWidget(self._group("Grid, rig and timing", [("rig_name", "Rig", "rigs"), *_GRID_INPUTS]))
+        timing = self._group("Grid, rig and timing", [("rig_name", "Rig", "rigs"), *_GRID_INPUTS])
+        self._add_bracket_row(timing.layout())
+        lay.addWidget(timing)
         lay.addWidget(self._group("Targets", _TARGET_INPUTS))
         buttons = QHBoxLayout()
         self.reference_button = QPushButton("Reference setup")
@@ -292,6 +294,25 @@ class PlannerPanel(QWidget):
             self.rows[spec.key].label = label
             r += 2
         return box
+
+    def _add_bracket_row(self, grid: QGridLayout) -> None:
+        """The exposure bracket: text, as ``lfstudio scan --bracket`` takes it (time and disk count every frame)."""
+        r = grid.rowCount()
+        label = QLabel("Bracket")
+        tip = ("Exposure bracket at every view: EV steps around the exposure (-2,0,+2) or shutter times "
+               "(1/500,1/125,1/30s); empty: one picture per view. Time and disk count every frame")
+        label.setToolTip(tip)
+        self.bracket_edit = QLineEdit()
+        self.bracket_edit.setObjectName("bracket")
+        self.bracket_edit.setPlaceholderText("none — e.g. -2,0,+2")
+        self.bracket_edit.setToolTip(tip)
+        self.bracket_edit.textChanged.connect(self._changed)
+        grid.addWidget(label, r, 0)
+        grid.addWidget(self.bracket_edit, r, 1, 1, 3)
+        message = self._message_label()
+        grid.addWidget(message, r + 1, 0, 1, 4)
+        self.rows["bracket"] = _Row(_Input("bracket", "Bracket", "text", 0, 0), [], message)
+        self.rows["bracket"].label = label
 
     @staticmethod
     def _message_label() -> QLabel:
@@ -403,7 +424,7 @@ class PlannerPanel(QWidget):
             exposure_s=self._value("exposure_s"), transfer_s=self._value("transfer_s"),
             max_error_px=self._value("max_error_px"), max_disparity_px=self._value("max_disparity_px"),
             target_parallax_fraction=None if parallax is None else parallax / 100.0,
-            raw_bits=int(self._value("raw_bits")), **self._extra)
+            raw_bits=int(self._value("raw_bits")), bracket=self.bracket_edit.text().strip(), **self._extra)
 
     def set_plan(self, plan: ScenePlan) -> None:
         """Show ``plan`` in the fields (values beyond a field's range are clamped to it)."""
@@ -438,6 +459,9 @@ class PlannerPanel(QWidget):
                     combo.setCurrentText(CUSTOM)
                 combo.blockSignals(False)
             self._extra = {"bytes_per_image": plan.bytes_per_image} if plan.bytes_per_image is not None else {}
+            self.bracket_edit.blockSignals(True)
+            self.bracket_edit.setText(plan.bracket or "")
+            self.bracket_edit.blockSignals(False)
         finally:
             self._loading = False
         self._changed()
@@ -571,10 +595,12 @@ class PlannerPanel(QWidget):
         put("proposed_grid", "— (set a wanted parallax)" if r.proposed_grid is None
             else f"{r.proposed_grid.columns} × {r.proposed_grid.rows} for "
                  f"{100 * plan.target_parallax_fraction:g} %")
-        put("images", f"{plan.grid_columns} × {plan.grid_rows} = {r.images}"
+        frames = f", {r.frames} frames" if r.frames_per_view > 1 else ""
+        put("images", f"{plan.grid_columns} × {plan.grid_rows} = {r.images}{frames}"
             + ("" if r.fits_travel else "  — beyond travel"), "" if r.fits_travel else "bad")
         put("time", f"{format_duration(r.capture_time_s)} ({r.capture_time_s / max(r.images, 1):.2f} s/view)")
-        put("disk", f"{_bytes(r.storage_bytes)} ({_bytes(r.bytes_per_image)}/image)")
+        put("disk", f"{_bytes(r.storage_bytes)} ({_bytes(r.bytes_per_image)}/image"
+            + (f", {r.frames_per_view} a view" if r.frames_per_view > 1 else "") + ")")
 
     def apply_proposed_spacing(self) -> None:
         if self.result is None:

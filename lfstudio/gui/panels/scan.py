@@ -20,6 +20,7 @@ import logging
 import re
 import time
 from collections import deque
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,7 @@ from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayo
                                QLabel, QLineEdit, QMessageBox, QPlainTextEdit, QProgressBar, QPushButton,
                                QSizePolicy, QSpinBox, QToolButton, QVBoxLayout, QWidget)
 
+from lfstudio.dataset.bracket import Bracket, parse_bracket
 from lfstudio.dataset.grid import ORDERS, grid_order
 from lfstudio.dataset.paths import new_dataset_folder_problem
 from lfstudio.errors import InputError, LfError
@@ -321,6 +323,7 @@ class ScanPanel(QWidget):
         for w in (self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v, self.settle):
             w.valueChanged.connect(self._save_grid)
         self.order.currentIndexChanged.connect(self._save_grid)
+        self.bracket.textChanged.connect(self._save_grid)
         state.planChanged.connect(self._on_plan)
         state.recaptureRequested.connect(self.recapture)
         state.datasetChanged.connect(self._on_dataset)
@@ -376,6 +379,13 @@ class ScanPanel(QWidget):
         self.settle.setSuffix(" s")
         self.settle.setToolTip("Wait after each move before the exposure, for vibrations to die down")
         form.addRow("Settle", self.settle)
+        self.bracket = QLineEdit()
+        self.bracket.setObjectName("scanBracket")
+        self.bracket.setPlaceholderText("none — e.g. -2,0,+2 or 1/500,1/125,1/30s")
+        self.bracket.setToolTip("Exposure bracket at every view: EV steps around the camera's shutter time "
+                                "(-2,0,+2) or shutter times (1/500,1/125,1/30s); empty: one picture per view. "
+                                "Each frame is stored under its view; Process merges them to linear HDR")
+        form.addRow("Bracket", self.bracket)
         self.from_plan = QPushButton("Take grid from the plan")
         self.from_plan.setObjectName("fromPlanButton")
         self.from_plan.setToolTip("Copy grid, spacing and settle time from the Planner's current plan")
@@ -466,6 +476,7 @@ class ScanPanel(QWidget):
         for w in (self.spacing_h, self.spacing_v, self.offset_h, self.offset_v, self.settle):
             w.valueChanged.connect(self._update_preview)
         self.order.currentIndexChanged.connect(self._update_preview)
+        self.bracket.textChanged.connect(self._update_preview)
 
     def _mm_spin(self, value: float, tip: str, lo: float = 0.0) -> QDoubleSpinBox:
         s = QDoubleSpinBox()
@@ -520,7 +531,8 @@ class ScanPanel(QWidget):
     def _grid_fields(self) -> dict[str, Any]:
         return {"columns": self.columns.value(), "rows": self.rows.value(),
                 "spacing_mm": [self.spacing_h.value(), self.spacing_v.value()],
-                "offset_mm": [self.offset_h.value(), self.offset_v.value()], "settle_s": self.settle.value()}
+                "offset_mm": [self.offset_h.value(), self.offset_v.value()], "settle_s": self.settle.value(),
+                "bracket": self.bracket.text().strip()}
 
     def _save_grid(self, *args) -> None:
         settings().setValue(GRID_KEY, json.dumps(self._grid_fields()))
@@ -536,6 +548,7 @@ class ScanPanel(QWidget):
         for w, v in zip((self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v,
                          self.settle), values):
             w.setValue(v)
+        self.bracket.setText(str(saved.get("bracket") or ""))
         return True
 
     def _pace_simulated_rig(self) -> None:
@@ -562,10 +575,12 @@ class ScanPanel(QWidget):
         return cfg if cfg is not None else load_rig()
 
     def current_plan(self, check: bool = True) -> ScanPlan:
-        return ScanPlan.centered(self.columns.value(), self.rows.value(),
+        """The scan the fields describe; InputError naming the field (``Bracket``: its text)."""
+        plan = ScanPlan.centered(self.columns.value(), self.rows.value(),
                                  (self.spacing_h.value(), self.spacing_v.value()), self.rig_config(),
                                  offset_mm=(self.offset_h.value(), self.offset_v.value()),
                                  order=self.order.currentText(), settle_s=self.settle.value(), check=check)
+        return replace(plan, bracket=parse_bracket(self.bracket.text(), "Bracket"))
 
     def _on_plan(self, plan: Any) -> None:
         if plan is None or self.running:
@@ -579,6 +594,8 @@ class ScanPanel(QWidget):
         self.spacing_v.setValue(grid.spacing_mm[1])
         if getattr(plan, "settle_s", None) is not None:
             self.settle.setValue(float(plan.settle_s))
+        if isinstance(getattr(plan, "bracket", None), str):
+            self.bracket.setText(plan.bracket)
         self._log(f"grid taken from the plan: {grid.columns} × {grid.rows}, "
                   f"{grid.spacing_mm[0]:g} × {grid.spacing_mm[1]:g} mm")
 
@@ -602,6 +619,11 @@ class ScanPanel(QWidget):
         self.order.setCurrentText(base.order)
         for w in fields:
             w.blockSignals(False)
+        recorded = dataset.manifest.get("bracket")
+        try:
+            self.bracket.setText(Bracket.from_manifest(recorded).text() if recorded else "")
+        except InputError:
+            pass
         self._update_preview()
         done = dataset.captured_views()
         self.preview.set_done(done)
@@ -633,8 +655,9 @@ class ScanPanel(QWidget):
         exposure = getattr(self.state.plan, "exposure_s", 0.5)
         transfer = getattr(self.state.plan, "transfer_s", 2.5)
         est = plan.estimate_duration_s(rig, exposure, transfer)
-        self.summary.setText(f"{count(len(plan), 'view')} · about {format_duration(est)} at {exposure:g} s exposure "
-                             f"and {transfer:g} s transfer{problem}")
+        frames = f" × {plan.bracket.frames} frames ({plan.bracket.describe()})" if plan.bracket else ""
+        self.summary.setText(f"{count(len(plan), 'view')}{frames} · about {format_duration(est)} at {exposure:g} s "
+                             f"exposure and {transfer:g} s transfer{problem}")
 
     # -- running -----------------------------------------------------------------------------------
     @property
@@ -662,7 +685,7 @@ class ScanPanel(QWidget):
         try:
             plan = self.current_plan()
         except InputError as exc:
-            self.state.report_error("Scan", f"{exc}\n\nChange the grid, spacing or offset in the Scan panel.")
+            self.state.report_error("Scan", f"{exc}\n\nChange the grid, spacing, offset or bracket in the Scan panel.")
             return
         self._save_settings()
         devices = self.state.devices
@@ -1155,7 +1178,7 @@ class ScanPanel(QWidget):
         self.abort_button.setEnabled(st in (ScanState.RUNNING, ScanState.PAUSING, ScanState.PAUSED))
         self.skip_button.setEnabled(st is ScanState.PAUSED and self.engine is not None and self.engine.fault is not None)
         for w in (self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v,
-                  self.order, self.settle, self.folder, self.from_plan, self.time_scale):
+                  self.order, self.settle, self.bracket, self.folder, self.from_plan, self.time_scale):
             w.setEnabled(not running)
         for name, button in (("start", self.start_button), ("pause", self.pause_button),   # Rig → … scan
                              ("resume", self.resume_button), ("abort", self.abort_button)):

@@ -1,0 +1,91 @@
+"""Exposure brackets in the window on a real Qt event loop: the Scan panel's Bracket field (a bad
+bracket named in red, frames in the summary, a scan that stores every frame under its view, the
+field disabled while it runs) and the Planner's Bracket row (time and disk count every frame)."""
+
+from __future__ import annotations
+
+import pytest
+from PySide6.QtWidgets import QScrollArea
+
+from lfstudio.dataset import Dataset
+from lfstudio.gui.app import create_window
+from lfstudio.gui.devices import QtDevice
+from lfstudio.gui.panels.scan import ScanPanel
+from lfstudio.gui.state import AppState
+from lfstudio.planning.presets import reference_plan
+from lfstudio.rig.profile import load_rig
+from lfstudio.rig.worker import DeviceWorker
+from lfstudio.sim.instant import InstantCamera, InstantRig
+
+RIG = load_rig()
+
+
+@pytest.fixture
+def instant_devices():
+    rig = InstantRig(RIG)
+    rig.connect()
+    cam = InstantCamera(rig.true_position_mm)
+    cam.connect()
+    devices = {"rig": QtDevice(DeviceWorker(rig, name="rig")),
+               "camera": QtDevice(DeviceWorker(cam, name="camera", status_method=None))}
+    yield devices, rig, cam
+    for d in devices.values():
+        d.close(disconnect=False)
+
+
+def test_scan_panel_bracket_field(qtbot, instant_devices, tmp_path):
+    devices, _, cam = instant_devices
+    state = AppState()
+    state.devices.update(devices)
+    panel = ScanPanel(state)
+    qtbot.addWidget(panel)
+    panel.columns.setValue(2)
+    panel.rows.setValue(1)
+    panel.settle.setValue(0.0)
+    panel.folder.setText(str(tmp_path / "ds"))
+    panel.bracket.setText("-2,0,x")
+    assert "Bracket: 'x' is not an EV step" in panel.summary.text() and "e06060" in panel.summary.text()
+    panel.bracket.clear()
+    qtbot.keyClicks(panel.bracket, "1/500,1/125s")
+    assert "2 views × 2 frames (1/500 s, 1/125 s)" in panel.summary.text()
+    panel.resize(520, 900)
+    panel.show()
+    qtbot.waitExposed(panel)
+    panel.grab().save(str(tmp_path / "scan_panel.png"))
+    panel.start()
+    qtbot.waitUntil(lambda: panel.engine is not None, timeout=10000)
+    qtbot.waitUntil(lambda: not panel.bracket.isEnabled() or "Finished" in panel.state_label.text(), timeout=10000)
+    qtbot.waitUntil(lambda: "Finished" in panel.state_label.text(), timeout=20000)
+    assert panel.bracket.isEnabled()
+    ds = Dataset.open(tmp_path / "ds")
+    assert ds.manifest["bracket"]["frame_shutter_s"] == pytest.approx([0.002, 0.008])
+    assert all([f["shutter_s"] for f in v["frames"]] == pytest.approx([0.002, 0.008]) for v in ds.views)
+    assert cam.captures == 4
+
+
+def test_planner_bracket_row_counts_every_frame(qtbot, tmp_path):
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    window.resize(1500, 950)
+    window.show()
+    qtbot.waitExposed(window)
+    p = window.panels["plannerDock"]
+    qtbot.waitUntil(lambda: window.state.plan is not None)
+    assert window.state.plan == reference_plan()
+    single = p.result
+    p.bracket_edit.setFocus()
+    qtbot.keyClicks(p.bracket_edit, "-2,0,+2")
+    qtbot.waitUntil(lambda: p.plan is not None and p.plan.bracket == "-2,0,+2", timeout=3000)
+    r = p.result
+    assert r.frames_per_view == 3 and r.frames == 3 * 2121
+    assert r.storage_bytes == 3 * single.storage_bytes
+    # 0.125 + 0.5 + 2 s of exposure and two transfers between the frames, at every view
+    assert r.capture_time_s - single.capture_time_s == pytest.approx(2121 * (0.125 + 2.0 + 2 * 2.5), rel=1e-6)
+    assert p.outputs["images"].text() == "101 × 21 = 2121, 6363 frames"
+    assert "3 a view" in p.outputs["disk"].text()
+    scroll = p.findChild(QScrollArea, "plannerScroll")
+    scroll.ensureWidgetVisible(p.bracket_edit)
+    p.grab().save(str(tmp_path / "planner.png"))
+    p.bracket_edit.setText("-2,0,-2")
+    qtbot.waitUntil(lambda: p.rows["bracket"].message.isVisible(), timeout=3000)
+    assert "given twice" in p.rows["bracket"].message.text() and "Bracket" in p.status_label.text()
