@@ -500,11 +500,13 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
         progress(done_n, total, "disparity map of the centre view")
         images = {c: grid.measures[c].grey8 for c in keep_forever if c in grid.measures
                   and grid.measures[c].grey8 is not None}
-        max_s = float(np.percentile(np.abs(s), 99.5)) if s.size else (f_work or 1000.0) / (1000.0 * 1.0)
-        step_h = max_s * geometry.spacing_mm[0]
-        step_v = max_s * geometry.spacing_mm[1]
-        parts = partner_cells(centre, set(images), geometry.columns, geometry.rows, steps_for(step_h),
-                              steps_for(step_v))
+        max_s = float(np.percentile(s, 99.5)) if s.size else (f_work or 1000.0) / (1000.0 * 1.0)
+        # sheared by an amount nobody stated: the views' own signed disparities, searched both ways
+        min_s = min(0.0, float(np.percentile(s, 0.5))) if s.size and not geometry.zero.known else 0.0
+        step_h, step_v = max_s * geometry.spacing_mm[0], max_s * geometry.spacing_mm[1]
+        low_h, low_v = min_s * geometry.spacing_mm[0], min_s * geometry.spacing_mm[1]
+        parts = partner_cells(centre, set(images), geometry.columns, geometry.rows,
+                              steps_for(max(step_h, -low_h)), steps_for(max(step_v, -low_v)))
         # baselines between where the views really were (measured), else where the manifest says
         def where(c: Cell) -> np.ndarray:
             return np.add(geometry.commanded_mm[c], fit.error_mm.get(c, (0.0, 0.0)))
@@ -516,7 +518,7 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
         if parts:
             disp_map = disparity_map(centre, images, parts, baselines, geometry.spacing_mm[0], any_m.work_scale,
                                      {"h": step_h, "v": step_v}, grid.homography_work(grid.measures[centre]),
-                                     shifts)
+                                     shifts, {"h": low_h, "v": low_v})
     done_n += 1
     grid.drop_images(lambda c: False)
     check_cancel()

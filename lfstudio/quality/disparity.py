@@ -3,7 +3,8 @@
 The centre view is matched with OpenCV's semi-global matcher (``cv2.StereoSGBM``, 3-way mode) against
 one partner on each side along its row and column (left, right, up, down), each a few steps away so
 that the largest disparity stays near :data:`TARGET_DISPARITY_PX` working pixels (wider baselines:
-finer depth steps). Every pair is turned into the matcher's left/right layout (mirrored or
+finer depth steps); views sheared by an amount nobody stated are searched over their signed range
+(negative behind the zero plane). Every pair is turned into the matcher's left/right layout (mirrored or
 transposed), its disparity is scaled to **one horizontal grid step at full resolution** (the unit
 of ``disp_min``/``disp_max`` in the exports) and the estimates are combined per pixel by their
 median, which keeps a pixel that one partner sees occluded. Pixels no pair matched are NaN.
@@ -76,28 +77,43 @@ def _from_left_right(disp: np.ndarray, direction: str) -> np.ndarray:
     return disp[:, ::-1].T
 
 
-def sgbm(left: np.ndarray, right: np.ndarray, max_disparity_px: float) -> np.ndarray:
-    """Disparity (float32, NaN where unknown) of ``left`` against ``right`` (uint8, rectified)."""
-    n = int(np.ceil(max(16.0, max_disparity_px * 1.25 + 4) / 16.0) * 16)
+def search_range(min_disparity_px: float, max_disparity_px: float) -> tuple[int, int]:
+    """(minDisparity, numDisparities) of the matcher for disparities in [min, max] working px, with a
+    margin (25 % and 4 px) on each side; ``min`` is 0 for parallel views and negative where the views
+    are sheared by an amount nobody stated (their disparities run negative behind the zero plane)."""
+    lo, hi = min(float(min_disparity_px), 0.0), max(float(max_disparity_px), 0.0)
+    first = 0 if lo >= 0 else -int(np.ceil(-lo * 1.25 + 4))
+    n = int(np.ceil(max(16.0, hi * 1.25 + 4 - first) / 16.0) * 16)
+    return first, n
+
+
+def sgbm(left: np.ndarray, right: np.ndarray, max_disparity_px: float, min_disparity_px: float = 0.0) -> np.ndarray:
+    """Disparity (float32, NaN where unknown) of ``left`` against ``right`` (uint8, rectified),
+    searched over [``min_disparity_px``, ``max_disparity_px``] (signed; see :func:`search_range`)."""
+    first, n = search_range(min_disparity_px, max_disparity_px)
     block = 5
-    matcher = cv2.StereoSGBM_create(minDisparity=0, numDisparities=n, blockSize=block, P1=8 * block * block,
+    matcher = cv2.StereoSGBM_create(minDisparity=first, numDisparities=n, blockSize=block, P1=8 * block * block,
                                     P2=32 * block * block, disp12MaxDiff=1, uniquenessRatio=10,
                                     speckleWindowSize=100, speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
     raw = matcher.compute(np.ascontiguousarray(left), np.ascontiguousarray(right)).astype(np.float32) / 16.0
-    raw[raw < 0] = np.nan
-    raw[:, :n] = np.nan                 # no partner pixels that far left
+    raw[raw < first] = np.nan           # OpenCV marks unmatched pixels with minDisparity - 1
+    raw[:, :max(0, first + n)] = np.nan  # no partner pixels that far left
+    if first < 0:
+        raw[:, raw.shape[1] + first:] = np.nan   # nor that far right (negative disparities)
     return raw
 
 
 def disparity_map(centre: Cell, images: dict[Cell, np.ndarray], partners: list[tuple[Cell, str, int]],
                   baselines_mm: dict[Cell, float], spacing_x_mm: float, work_scale: float,
                   max_step_disparity_work_px: dict[str, float], homography: np.ndarray | None,
-                  shifts_px: dict[Cell, tuple[float, float]] | None = None) -> DisparityMap:
+                  shifts_px: dict[Cell, tuple[float, float]] | None = None,
+                  min_step_disparity_work_px: dict[str, float] | None = None) -> DisparityMap:
     """Combine the partners' disparities into one map of ``centre`` (see the module docstring).
 
     ``images``: rectification-free working images (uint8) by cell; ``baselines_mm``: each partner's
     distance from the centre; ``max_step_disparity_work_px``: the largest disparity of one step
-    ("h"/"v"), from the tracks, which sizes the search; ``shifts_px``: working px to move each partner
+    ("h"/"v"), from the tracks, which sizes the search, and ``min_step_disparity_work_px`` the smallest
+    (signed: negative for views sheared by an amount nobody stated; default 0, parallel); ``shifts_px``: working px to move each partner
     by first (sheared views: minus the shear of its offset, so the map is a parallel capture's).
     """
     def rectified(img: np.ndarray) -> np.ndarray:
@@ -118,7 +134,8 @@ def disparity_map(centre: Cell, images: dict[Cell, np.ndarray], partners: list[t
             p_img = cv2.warpAffine(p_img, np.float32([[1, 0, dx], [0, 1, dy]]), (w, h), flags=cv2.INTER_LINEAR,
                                    borderMode=cv2.BORDER_REPLICATE)
         d = sgbm(_to_left_right(c_img, direction), _to_left_right(p_img, direction),
-                 steps * max_step_disparity_work_px.get(axis, 8.0))
+                 steps * max_step_disparity_work_px.get(axis, 8.0),
+                 steps * (min_step_disparity_work_px or {}).get(axis, 0.0))
         d = _from_left_right(d, direction)
         baseline = float(baselines_mm[cell])
         if baseline <= 0:

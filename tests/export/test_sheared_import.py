@@ -95,6 +95,11 @@ def test_a_sheared_capture_without_a_stated_plane_is_recognised_and_gives_no_dep
     assert depth["verdict"] == "n/a" and depth.get("near_m") is None and "zero-disparity" in depth["why"]
     assert depth["views_disparity_min_px"] < 0 < depth["views_disparity_max_px"]
     assert all(v["checks"]["position"]["verdict"] != "fail" for v in doc["views"])
+    # the centre view's map is searched over the signed range: behind the zero plane it is negative
+    # (it searched 0 … max only and lost those pixels)
+    dmap = doc["disparity_map"]
+    assert dmap["p1_px"] < 0 < dmap["p99_px"] and dmap["valid_fraction"] > 0.5
+    assert dmap["p1_px"] > 1.5 * depth["views_disparity_min_px"] - 0.5
 
 
 def test_contradictory_zero_plane_options_are_refused_by_name_and_nothing_is_written(_virtual, tmp_path):

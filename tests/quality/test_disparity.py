@@ -56,3 +56,34 @@ def test_the_disparity_picture_keeps_its_size_with_depth_labels():
     with_depth = disparity_picture(d, grey, "depth = 2.67 m px / disparity", depth_scale_m_px=2.67)
     assert plain.shape[1] == with_depth.shape[1] == 300
     assert with_depth.shape[0] > plain.shape[0] > 200
+
+
+def _pair_with_disparities(top_px: int, bottom_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """A textured left image and its right partner: a point at x in the left view is at x − d in the
+    right one, d = ``top_px`` in the upper half and ``bottom_px`` in the lower half."""
+    import cv2
+
+    rng = np.random.default_rng(3)
+    left = cv2.GaussianBlur(rng.integers(0, 256, (160, 320)).astype(np.uint8), (3, 3), 0)
+    right = np.empty_like(left)
+    for rows, d in ((slice(0, 80), top_px), (slice(80, 160), bottom_px)):
+        right[rows] = np.roll(left[rows], -d, axis=1)
+    return left, right
+
+
+def test_sheared_views_of_an_unstated_shear_are_searched_over_their_signed_range():
+    """Issue 27: behind the zero plane of sheared views the disparities are negative; the matcher
+    searched only 0 … max, so those pixels were lost (or matched wrongly)."""
+    from lfstudio.quality.disparity import search_range, sgbm
+
+    left, right = _pair_with_disparities(6, -5)
+    inner = (slice(None), slice(40, 280))
+    signed = sgbm(left, right, 6.0, -5.0)
+    top, bottom = signed[10:70][inner], signed[90:150][inner]
+    assert np.isfinite(top).mean() > 0.8 and np.isfinite(bottom).mean() > 0.8
+    assert np.nanmedian(top) == 6.0 and np.nanmedian(bottom) == -5.0
+    positive_only = sgbm(left, right, 6.0)           # what an unsigned search finds behind the plane
+    assert not np.any(np.abs(positive_only[90:150][inner] + 5.0) < 0.5)
+    first, n = search_range(-5.0, 6.0)
+    assert first <= -5 and first + n - 1 >= 6 and n % 16 == 0
+    assert search_range(0.0, 6.0)[0] == 0 and search_range(2.0, 6.0)[0] == 0
