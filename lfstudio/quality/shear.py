@@ -77,10 +77,11 @@ def central_block(cells: list[Cell], block: int = BLOCK) -> list[Cell]:
 
 def measure_shear(files: dict[Cell, Path], positions_mm: dict[Cell, tuple[float, float]], spacing_mm: tuple[float, float],
                   focal_length_px: float | None = None, *, work_width_px: int = DEFAULT_WORK_WIDTH_PX,
-                  cancel: CancelToken | None = None, progress: Callable[[str], None] | None = None
+                  cancel: CancelToken | None = None, progress: Callable[[int, int, str], None] | None = None
                   ) -> ShearMeasurement | None:
     """Measure the views ``files`` (cell → image) taken at ``positions_mm``; None with too few
-    tracks (fewer than two views, a featureless scene)."""
+    tracks (fewer than two views, a featureless scene). ``progress(done, total, message)``: after
+    each view read and tracked, and before the solve (a few seconds for 25 views)."""
     from lfstudio.quality import verdicts
     from lfstudio.quality.check import Geometry, GridCheck
 
@@ -94,6 +95,7 @@ def measure_shear(files: dict[Cell, Path], positions_mm: dict[Cell, tuple[float,
                         verdicts.DEFAULT_REPEATABILITY_UM)
     grid = GridCheck(geometry)
     done: set[Cell] = set()
+    steps = len(cells) + 1
     for cell in cells:                       # row-major: each view tracks into those before it
         if cancel is not None:
             cancel.check()
@@ -101,7 +103,10 @@ def measure_shear(files: dict[Cell, Path], positions_mm: dict[Cell, tuple[float,
         grid.add(m, known=lambda c: c in done)
         done.add(cell)
         if progress:
-            progress(f"measured the disparities of {cell[0]},{cell[1]}")
+            # short: a progress line beside a bar shows ~30 characters (the rest in its tooltip)
+            progress(len(done), steps, f"disparities: {len(done)} of {len(cells)} views ({files[cell].name})")
+    if progress:
+        progress(len(cells), steps, f"disparities: solving the tracks of {len(cells)} views")
     fit = grid.solve(cells)
     y_mid = np.mean([positions_mm[c][1] for c in cells])
     flipped = {c: (positions_mm[c][0], 2 * y_mid - positions_mm[c][1]) for c in cells}

@@ -410,3 +410,25 @@ def test_calibrate_takes_its_baselines_from_the_recorded_positions(_virtual, tmp
     # a dataset on its regular grid says so and keeps the grid's baselines
     grid_ds = Dataset.open(_virtual)
     assert "recorded" not in calibrate_dataset(grid_ds, "array:3x3").document["settings"]["positions"]
+
+
+def test_the_import_reports_progress_while_it_measures_the_views(_virtual, tmp_path):
+    """Issue 27: the measurement of the views' disparities (6-11 s for 25 views) showed no progress:
+    one 'measuring' line, then nothing until the files were copied."""
+    calls: list[tuple[int, int, str]] = []
+    opts = ImportOptions(folder=Path(_virtual) / "raw", out=tmp_path / "ds", grid=(5, 5), spacing_mm=(4.0, 6.0),
+                         measure=measure_shear)
+    import_images(opts, progress=lambda done, total, message="": calls.append((done, total, message)))
+    totals = {t for _, t, _ in calls}
+    assert len(totals) == 1
+    total = totals.pop()
+    done = [d for d, _, _ in calls]
+    assert done == sorted(done) and done[-1] == total
+    measuring = [c for c in calls if c[2].startswith("disparities: ")]
+    tracked = [c for c in measuring if " of 25 views (" in c[2]]
+    assert len(tracked) == 25 and measuring[-1][2] == "disparities: solving the tracks of 25 views"
+    assert tracked[12][2] == "disparities: 13 of 25 views (r02_c002.png)"
+    # the measurement advances the bar between the file checks and the copies, a step per view
+    checked = max(d for d, _, m in calls if m.startswith("checked"))
+    copied = min(d for d, _, m in calls if m.startswith(("linked", "copied")))
+    assert checked < tracked[0][0] < tracked[-1][0] < copied and len({c[0] for c in tracked}) == 25

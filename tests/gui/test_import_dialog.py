@@ -269,8 +269,17 @@ def test_import_images_dialog_states_the_zero_plane_and_shows_it_with_the_measur
     dialog.import_button.click()
     assert "Positions" in dialog.message.text() and not (tmp_path / "ds").exists()
     dialog.positions_combo.setCurrentIndex(0)
+    shown: list[str] = []        # what the progress line said while the views were measured (6-11 s)
+
+    def seen(done, total, message, eta_s):
+        if message.startswith("disparities: ") and " of 25 views (" in message:
+            shown.append(dialog.progress.message_label.toolTip() or dialog.progress.message_label.text())
+            if len(shown) == 1:
+                dialog.grab().save(str(tmp_path / "import_dialog_measuring.png"))
+    dialog.runner.progress.connect(seen)
     with qtbot.waitSignal(dialog.runner.finished, timeout=120000):
         dialog.import_button.click()
+    assert shown and all(s.startswith("disparities: ") and " of 25 views (" in s for s in shown)
     text = dialog.message.text()
     assert "zero disparity: sheared views, zero-disparity plane at 3.000 m" in text, text
     assert "between horizontal neighbours" in text
