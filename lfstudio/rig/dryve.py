@@ -22,7 +22,8 @@ bytes  field
 ====== ============================================================================================
 
 The drive's answer to a read carries the data (length 13 + n); its answer to a write repeats the
-header without data (length 13). :func:`encode_request` / :func:`decode_response` are the whole
+header with byte count 0 and no data (length 13), as the manual's RX/TX telegram examples (6.5.5)
+show; those examples also write fewer bytes than an object has (6040h in 1), which the drive takes. :func:`encode_request` / :func:`decode_response` are the whole
 protocol; :class:`DryveLink` adds the socket, the transaction numbers and the timeouts.
 """
 

@@ -74,10 +74,13 @@ def gateway_pdu_class(axis: DriveAxis) -> type:
             while not axis.answering:                  # lost connection: nothing comes back
                 await asyncio.sleep(0.02)
             answer = GatewayTelegram(dev_id=device_id, transaction_id=self.transaction_id)
-            answer.write, answer.index, answer.sub, answer.size = self.write, self.index, self.sub, self.size
+            # the manual's answer to a write is the header with byte count 0; its examples write fewer
+            # bytes than an object has (6040h in 1, 6099h:01 in 2), so a write may be shorter than the object
+            answer.write, answer.index, answer.sub = self.write, self.index, self.sub
+            answer.size = 0 if self.write else self.size
             spec = OBJECTS.get((self.index, self.sub))
             try:
-                if spec is not None and spec[0] != self.size:
+                if spec is not None and (self.size > spec[0] if self.write else self.size != spec[0]):
                     raise ObjectRefused(0x06070010, f"{self.index:04X}h has {spec[0]} bytes, not {self.size}")
                 if self.write:
                     signed = spec[1] if spec else False

@@ -65,6 +65,46 @@ def test_gateway_telegrams_are_the_manuals_bytes():
         decode_response(bytes([15, 15, 0, 0, 0, 3, 0, 0xAB, 2]), 0x0F0F, False, 0x6041, 0)
 
 
+def _exchange_raw(sock: socket.socket, telegram: list[int]) -> list[int]:
+    sock.sendall(bytes(telegram))
+    head = b""
+    while len(head) < 6:
+        head += sock.recv(6 - len(head))
+    rest = b""
+    while len(rest) < int.from_bytes(head[4:6], "big"):
+        rest += sock.recv(64)
+    return list(head + rest)
+
+
+def test_the_emulator_answers_the_manuals_telegrams_byte_for_byte(rig):
+    """igus, dryve D1 operating manual V2.4, 6.5.5 "RX/TX Telegram Example": the drive answers a write
+    with the header alone, byte count 0 (length 13), and takes the shorter writes its examples send
+    (control word 6040h in 1 byte, 6099h:01 homing speed in 2 bytes). The emulator answered a write with
+    the request's byte count and refused writes shorter than the object."""
+    emulator = start_drive_emulator(rig, "modbus", time_scale=0.0)
+    try:
+        host, port = emulator.word.removeprefix("dryve:").split(",")[0].split(":")
+        with socket.create_connection((host, int(port)), timeout=5) as sock:
+            # read the status word: the answer carries 2 bytes (length 15), read flag 0
+            answer = _exchange_raw(sock, [0, 0, 0, 0, 0, 13, 0, 43, 13, 0, 0, 0, 0x60, 0x41, 0, 0, 0, 0, 2])
+            assert answer[:19] == [0, 0, 0, 0, 0, 15, 0, 43, 13, 0, 0, 0, 0x60, 0x41, 0, 0, 0, 0, 2]
+            assert len(answer) == 21
+            # write the control word = 6 (shutdown) in one byte, as the manual's examples do
+            answer = _exchange_raw(sock, [0, 0, 0, 0, 0, 14, 0, 43, 13, 1, 0, 0, 0x60, 0x40, 0, 0, 0, 0, 1, 6])
+            assert answer == [0, 0, 0, 0, 0, 13, 0, 43, 13, 1, 0, 0, 0x60, 0x40, 0, 0, 0, 0, 0]
+            # write 6099h:01 (switch search speed, 4 bytes) = 6000 in two bytes; read it back in four
+            answer = _exchange_raw(sock, [0, 7, 0, 0, 0, 15, 0, 43, 13, 1, 0, 0, 0x60, 0x99, 1, 0, 0, 0, 2, 0x70, 0x17])
+            assert answer == [0, 7, 0, 0, 0, 13, 0, 43, 13, 1, 0, 0, 0x60, 0x99, 1, 0, 0, 0, 0]
+            answer = _exchange_raw(sock, [0, 8, 0, 0, 0, 13, 0, 43, 13, 0, 0, 0, 0x60, 0x99, 1, 0, 0, 0, 4])
+            assert answer[:19] == [0, 8, 0, 0, 0, 17, 0, 43, 13, 0, 0, 0, 0x60, 0x99, 1, 0, 0, 0, 4]
+            assert int.from_bytes(bytes(answer[19:]), "little") == 6000
+        # the driver takes that answer to a write as it is
+        assert decode_response(bytes([0, 0, 0, 0, 0, 13, 0, 43, 13, 1, 0, 0, 0x60, 0x40, 0, 0, 0, 0, 0]), 0, True,
+                               0x6040, 0) == b""
+    finally:
+        emulator.close()
+
+
 def test_power_states_agree_with_python_canopen():
     from canopen.profiles.p402 import State402
 
