@@ -42,7 +42,7 @@ from lfstudio.jobs import CancelToken, Progress, no_progress
 from lfstudio.quality import verdicts
 from lfstudio.quality.disparity import DisparityMap, disparity_map, partner_cells, steps_for
 from lfstudio.quality.measure import DEFAULT_WORK_WIDTH_PX, ViewMeasures, measure_view, sharpness_ratio, \
-    exposure_ratio, deflicker_gain
+    exposure_ratio, deflicker_gain, read_luminance
 from lfstudio.quality.positions import fit_tracks, position_errors, solve_positions
 from lfstudio.quality.tracks import WINDOW, Star, star_neighbours, to_observations, track_star
 from lfstudio.quality.verdicts import Thresholds
@@ -230,7 +230,8 @@ class GridCheck:
         checks = {
             "sharpness": verdicts.sharpness(sharp, t),
             "exposure": verdicts.exposure(expo, t, deflicker_gain),
-            "clipping": verdicts.clipping(m.clipped_fraction, m.crushed_fraction, t),
+            "clipping": verdicts.clipping(m.clipped_fraction, m.crushed_fraction, t) if not m.frames
+            else verdicts.bracket_clipping(m.frames, t),
             "position": verdicts.position(err, t.position_limits_mm(g.repeatability_um, g.spacing_mm), err_px,
                                           fit.measured_mm.get(cell) if fit is not None else None),
             "residual": verdicts.residual(fit.residual_rms_px.get(cell) if fit is not None else None,
@@ -407,12 +408,27 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
     progress(0, total, "reading views")
     paths = {(int(v["row"]), int(v["column"])): dataset.path_of(v) for v in dataset.views
              if (int(v["row"]), int(v["column"])) in set(decode)}
+    # exposure-bracketed views: every frame's (exposure, path), judged on what the merge keeps
+    bracketed = {(int(v["row"]), int(v["column"])): [
+        (float(f.get("exposure_s") or f.get("shutter_s") or 0.0), dataset.path_of(f["file"])) for f in v["frames"]]
+        for v in dataset.views if (int(v["row"]), int(v["column"])) in paths and len(v.get("frames") or ()) > 1}
 
     def measure(cell: Cell) -> ViewMeasures:
         check_cancel()
         if ref_measures is not None and cell == ref_measures.cell:
             return ref_measures
-        return measure_view(paths[cell], *cell, work_width_px=work_width_px)
+        return with_frames(measure_view(paths[cell], *cell, work_width_px=work_width_px))
+
+    def with_frames(m: ViewMeasures) -> ViewMeasures:
+        """An exposure-bracketed view's measures with each frame's clipped and crushed shares."""
+        for t, p in bracketed.get(m.cell, ()):
+            if p == paths[m.cell]:
+                shares = (m.clipped_fraction, m.crushed_fraction)
+            else:
+                lum = read_luminance(p)
+                shares = (lum.clipped_fraction, lum.crushed_fraction)
+            m.frames = [*(m.frames or []), (t, *shares)]
+        return m
 
     ref_measures: ViewMeasures | None = None
     gains: dict[Cell, float] = {}

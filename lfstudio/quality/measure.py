@@ -60,6 +60,8 @@ class ViewMeasures:
     small_luminance: np.ndarray | None  # de-flicker step's reduced luminance (dropped once used)
     corners: np.ndarray                # (n, 2) float32, working-image pixels
     grey8: np.ndarray | None           # working image (uint8)
+    #: an exposure-bracketed view: each frame's (exposure s, clipped share, crushed share), frame order
+    frames: list[tuple[float, float, float]] | None = None
 
     @property
     def cell(self) -> tuple[int, int]:

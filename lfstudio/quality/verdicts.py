@@ -138,3 +138,28 @@ def residual(rms_px: float | None, typical_px: float | None, t: Thresholds) -> d
     if rms_px > warn:
         return check(rms_px, WARN, warn, f"{text}, more than {warn:.2f} px")
     return check(rms_px, PASS, warn, text)
+
+
+def bracket_clipping(frames: list[tuple[float, float, float]], t: Thresholds) -> dict[str, Any]:
+    """The clipping check of an exposure-bracketed view, judged on what the merge keeps: a pixel is
+    clipped after the merge when even the shortest frame clips it, in the noise floor when even the
+    longest frame leaves it crushed. ``frames``: each frame's (exposure s, clipped, crushed) share.
+    Beyond the limits the bracket does not cover the scene's range, and the fix is named."""
+    shortest = min(frames, key=lambda f: f[0])
+    longest = max(frames, key=lambda f: f[0])
+    merged_clipped, merged_crushed = shortest[1], longest[2]
+    out = clipping(merged_clipped, merged_crushed, t)
+    listed = ", ".join(f"{e:.4g} s: {c:.2%} clipped, {k:.2%} crushed" for e, c, k in frames)
+    fixes = []
+    if merged_clipped > t.clipped_warn:
+        fixes.append(f"the shortest frame ({shortest[0]:.4g} s) still clips {merged_clipped:.1%}: add a shorter "
+                     "frame (e.g. 2 EV below it)")
+    if merged_crushed > t.crushed_warn:
+        fixes.append(f"the longest frame ({longest[0]:.4g} s) still leaves {merged_crushed:.1%} in the noise floor: "
+                     "add a longer frame")
+    out["why"] = (("the bracket does not cover the scene's range: " + "; ".join(fixes)) if fixes else
+                  f"after the merge {merged_clipped:.2%} clipped, {merged_crushed:.2%} crushed") + f" (frames: {listed})"
+    out["frames"] = [{"exposure_s": e, "clipped": c, "crushed": k} for e, c, k in frames]
+    out["merged"] = {"clipped": merged_clipped, "crushed": merged_crushed}
+    out["covers_range"] = not fixes
+    return out
