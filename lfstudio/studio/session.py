@@ -23,7 +23,9 @@ What :meth:`ScanSession.open` guarantees, in this order:
 3. **Homing policy** (:func:`prepare_rig`): ``home`` homes before the first view (``$H``; a rig
    without limit switches is refused: park it and use ``origin_here``); without it a rig in ALARM or
    not homed is refused with one line naming ``--home`` and ``lfstudio rig --port P home``. A resume
-   on the dataset's own rig that did not home checks that the rig stands where the last run left it.
+   on the dataset's own rig that did not home checks that the rig stands where the last run left it,
+   and that no other dataset's scan used the rig since (:func:`note_scan_on_rig` records each scan
+   per port beside the port's lock; else :class:`RigUsedSince`: the GUI asks, the CLI names ``--home``).
 4. The engine gets a plan of the views still to capture (``recapture`` cells again).
 """
 
@@ -200,6 +202,49 @@ class RigNotHomed(DeviceError):
     (the GUI offers it; the CLI's line names ``--home``)."""
 
 
+class RigUsedSince(DeviceError):
+    """A resume whose rig stands where this dataset's last view was taken, but another dataset's scan
+    used the rig since: standing at the same numbers is then a coincidence (the other scan may have
+    ended there, after the rig was homed again or given another origin), not this dataset's own
+    position. ``other``: that scan's record (:func:`last_scan_on_rig`); the GUI asks the operator, the
+    CLI's line says how to resume from a known reference (``--home``)."""
+
+    def __init__(self, message: str, other: dict[str, Any], last_view: str):
+        super().__init__(message)
+        self.other, self.last_view = other, last_view
+
+
+def _dataset_identity(dataset: Dataset) -> dict[str, Any]:
+    return {"dataset": str(Path(dataset.root).resolve()), "created": dataset.manifest.get("created")}
+
+
+def note_scan_on_rig(port: str, dataset: Dataset) -> None:
+    """Record that ``dataset``'s scan now uses the rig on ``port`` (read back by :func:`last_scan_on_rig`)."""
+    from lfstudio.dataset.atomic import atomic_write_json
+    from lfstudio.support.locks import rig_record_path
+
+    if not port:
+        return
+    try:
+        atomic_write_json(rig_record_path(port), {**_dataset_identity(dataset), "at": now_iso()})
+    except OSError as exc:        # the record only sharpens a later resume check; the scan goes on
+        log.warning("could not note the scan on the rig %s: %s", port, exc)
+
+
+def last_scan_on_rig(port: str) -> dict[str, Any] | None:
+    """Which dataset's scan last used the rig on ``port`` (``dataset``: its folder, ``created``, ``at``),
+    or None when no scan was recorded for it (or the record is unreadable)."""
+    import json
+
+    from lfstudio.support.locks import rig_record_path
+
+    try:
+        record = json.loads(rig_record_path(port).read_text())
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) and isinstance(record.get("dataset"), str) else None
+
+
 class RigNotWhereLeft(DeviceError):
     """A resume on the dataset's own rig, which stands elsewhere than where the last run left it (it
     was moved, or lost its position). ``position_mm``: where it reports; ``last_mm`` and ``last_view``:
@@ -236,10 +281,13 @@ def cli_homing_hint(port: str, config: RigConfig) -> str:
 
 def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, origin_here: bool = False,
                 resume_from: tuple[Dataset, ScanPlan] | None = None, how_to_home: str | None = None,
-                tolerance_mm: float = RESUME_TOLERANCE_MM, say: Callable[[str], None] | None = None) -> list[str]:
+                tolerance_mm: float = RESUME_TOLERANCE_MM, say: Callable[[str], None] | None = None,
+                trust_position: bool = False) -> list[str]:
     """Apply the homing policy to a connected rig (see the module docstring); returns lines for the
     operator. ``rig``: the driver, or its :class:`~lfstudio.rig.worker.DeviceWorker`. ``how_to_home``:
-    the end of a "not homed" line (default: the CLI's). Raises InputError/DeviceError with one line."""
+    the end of a "not homed" line (default: the CLI's). ``trust_position``: the operator confirmed that
+    the rig kept this dataset's reference although another scan used it since (:class:`RigUsedSince`).
+    Raises InputError/DeviceError with one line."""
     if hasattr(rig, "call") and hasattr(rig, "driver"):          # a DeviceWorker: call through its queue
         rig = _WorkerCalls(rig)
     fix = how_to_home or cli_homing_hint(port, config)
@@ -291,6 +339,21 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
                     f"moved or lost its position. To resume from a known position: {fix}, then move it back to "
                     f"({last[0]:.3f}, {last[1]:.3f}) mm ({rig_command(port, config, f'move {last[0]:g} {last[1]:g}')})",
                     (x, y), last, name)
+            other = last_scan_on_rig(port)
+            if other is not None and other.get("dataset") != _dataset_identity(dataset)["dataset"] \
+                    and not trust_position:
+                if how_to_home is not None:
+                    again = how_to_home
+                elif config.homing:
+                    again = "add --home to this command (the rig homes, then the scan continues with the next view)"
+                else:
+                    again = ("park the carriage where this dataset's origin was set and add --origin-here to this "
+                             "command")
+                raise RigUsedSince(
+                    f"the rig on {port} stands where this dataset's last view {name} was taken, but the last scan "
+                    f"on it was {other['dataset']} ({other.get('at', 'time unknown')}): it may have been homed "
+                    f"again or given another origin since, so standing at the same numbers proves nothing. To "
+                    f"resume from a known reference: {again}", other, name)
             notes.append(f"rig at ({status.position_mm[0]:.3f}, {status.position_mm[1]:.3f}) mm, where the last "
                          f"run left it (last view {name}): continuing")
     return notes
@@ -374,6 +437,7 @@ class ScanRequest:
     trigger_command: Sequence[str] | None = None
     camera_options: dict[str, Any] = field(default_factory=dict)
     engine_options: dict[str, Any] = field(default_factory=dict)
+    trust_rig_position: bool = False
 
 
 class ScanSession:
@@ -538,7 +602,8 @@ class ScanSession:
             for line in prepare_rig(rig, config, port, home=req.home, origin_here=req.origin_here,
                                     resume_from=(existing, plan) if existing is not None and same_rig
                                     and not req.recapture else None,
-                                    how_to_home=how_to_home, say=self.note):
+                                    how_to_home=how_to_home, say=self.note,
+                                    trust_position=req.trust_rig_position):
                 self.note(line)
         elif req.home or req.origin_here:
             self.note("the simulated rig was homed when it started")
@@ -559,6 +624,7 @@ class ScanSession:
                 dataset.save()
         dataset.journal_lock = self.lock
         self.dataset = dataset
+        note_scan_on_rig(port, dataset)           # the next resume of another dataset on this rig knows
         if req.recapture:
             plan = plan.with_subset(req.recapture)
         self.plan = plan

@@ -312,6 +312,12 @@ def port_lock(port: str, doing: str = "") -> Lock:
                 device=device if device and os.path.exists(device) else None)
 
 
+def rig_record_path(port: str) -> Path:
+    """The file that says which dataset's scan last used the rig on ``port`` (a serial port or a
+    drive pair's device word), beside the port's lock: ``RUNTIME/rig-dev-ttyUSB0.last-scan.json``."""
+    return runtime_dir() / f"rig-{_key(port_device(port) or port)}.last-scan.json"
+
+
 def drive_lock(address: str, doing: str = "") -> Lock:
     """The (not yet acquired) lock of one axis drive: ``192.168.1.10:502`` (Modbus TCP), ``can0 node 1``."""
     return Lock(runtime_dir() / f"drive-{_key(address)}.lock", f"axis drive {address}", doing,

@@ -34,14 +34,28 @@ def motion_controls(rig):
             "connect": [rig.connect_button, rig.connect_action]}
 
 
-def homed_simulated_studio(qtbot):
+#: the simulated rigs a window test can run on: GRBL 1.1h's protocol on a pty, a dryve D1 pair over Modbus TCP
+RIGS = {"sim": None, "sim-dryve": "dryve D1 gantry 4 m x 0.5 m"}
+
+
+def homed_simulated_studio(qtbot, rig_word: str = "sim"):
+    """The window with the simulated camera and a homed simulated rig: ``rig_word`` "sim" (the GRBL
+    simulator, File's simulated studio) or "sim-dryve" (emulated CiA 402 drives, chosen in the Rig
+    panel with their profile, as an operator does)."""
     window = create_window(simulated=True)
     qtbot.addWidget(window)
     window.show()
     rig, camera, scan = (window.panels[n] for n in ("rigDock", "cameraDock", "scanPanel"))
     camera.sim_width.setValue(min(camera.sim_width.value(), 320))
     rig.sim_time_scale = 0.02
-    window.connect_simulated_studio()
+    if RIGS[rig_word] is None:
+        window.connect_simulated_studio()
+    else:
+        rig.rig_combo.setCurrentText(RIGS[rig_word])
+        rig.port_combo.setCurrentText(rig_word)
+        rig.connect_rig()
+        qtbot.waitUntil(lambda: rig.home_button.isEnabled(), timeout=T)
+        camera.connect_camera()
     qtbot.waitUntil(lambda: camera.connected and "Connected" in camera.status_label.text(), timeout=T)
     qtbot.waitUntil(lambda: rig.home_button.isEnabled(), timeout=T)
     rig.home()

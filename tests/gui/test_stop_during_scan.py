@@ -4,19 +4,21 @@ status line, and the scan never claims "the rig is homed again" when nothing too
 
 from __future__ import annotations
 
+import pytest
 from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QMessageBox
 
 from lfstudio.dataset import Dataset
 from lfstudio.rig.motion import RigState, RigStatus
-from tests.gui.test_interlock_gui import homed_simulated_studio
+from tests.gui.test_interlock_gui import RIGS, homed_simulated_studio
 from tests.gui.test_messages_day import set_up_scan
 
 T = 60000
 
 
-def test_stop_pauses_the_scan_quietly_and_truthfully(qtbot, tmp_path):
-    window, rig, camera, scan = homed_simulated_studio(qtbot)
+@pytest.mark.parametrize("rig_word", list(RIGS))
+def test_stop_pauses_the_scan_quietly_and_truthfully(qtbot, tmp_path, rig_word):
+    window, rig, camera, scan = homed_simulated_studio(qtbot, rig_word)
     set_up_scan(scan, 8, 3, tmp_path / "stopped")
     scan.time_scale.setValue(0.05)
     messages = []

@@ -213,3 +213,24 @@ def test_resume_checks_the_rig_stands_where_the_last_view_left_it(sim_rig_port, 
     assert assert_views_where_commanded(out) == 6
     r = run_cli("scan", "--out", out, "--resume", "--home", *FAST)         # homing first is always fine
     assert r.returncode == 0 and "rig homed" in r.stderr, r.stderr
+
+
+def test_a_resume_where_another_datasets_scan_left_the_rig_is_not_taken_for_its_own(sim_rig_port, run_cli, tmp_path):
+    """The position rule let a resume 'continue' because an unrelated scan had ended at the same spot:
+    the numbers matched, but nothing tied them to this dataset's own last capture."""
+    mine, other = tmp_path / "mine", tmp_path / "other"
+    ds = partial_dataset(mine, sim_rig_port, "sim", 3, home=True)
+    last = max(ds.done_views(), key=lambda v: v["captured_at"])
+    ds.close()
+    partial_dataset(other, sim_rig_port, "sim", 2)                    # another dataset scanned on this rig
+    x, y = last["reported_mm"]
+    r = run_cli("rig", "--port", sim_rig_port, "move", x, y)            # and the rig stands where mine stopped
+    assert r.returncode == 0, r.stderr
+    r = run_cli("scan", "--out", mine, "--resume", *FAST)
+    assert r.returncode == 1
+    line = one_error_line(r.stderr)
+    assert f"the last scan on it was {other.resolve()}" in line and "--home" in line, line
+    assert Dataset.open(mine).status_counts()["done"] == 3
+    r = run_cli("scan", "--out", mine, "--resume", "--home", *FAST)    # from a known reference: goes on
+    assert r.returncode == 0 and "rig homed" in r.stderr, r.stderr
+    assert assert_views_where_commanded(mine) == 6

@@ -39,7 +39,7 @@ from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
 from lfstudio.gui.settings import settings
-from lfstudio.gui.widgets import QuietLabel, set_progress_async
+from lfstudio.gui.widgets import QuietLabel, readable_time, set_progress_async
 from lfstudio.jobs import count, format_duration
 from lfstudio.scan.events import EventKind, ScanRequestRefused, ScanState
 from lfstudio.scan.scan_plan import ScanPlan
@@ -207,7 +207,8 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     devices (dataset lock, dataset created or resumed with its own devices, rig checks) and its engine.
     Returns ``{"studio", "session", "dataset", "engine", "restore"}``."""
     from lfstudio.studio.devices import link_for_camera, link_for_rig, open_studio
-    from lfstudio.studio.session import (DeviceChangeRefused, RigNotHomed, RigNotWhereLeft, ScanRequest, ScanSession,
+    from lfstudio.studio.session import (DeviceChangeRefused, RigNotHomed, RigNotWhereLeft, RigUsedSince,
+                                         ScanRequest, ScanSession,
                                          SharedDevices)
 
     plan: ScanPlan = job["plan"]
@@ -242,7 +243,8 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     request = ScanRequest(folder, resume=(folder / "dataset.json").is_file(), rig_config=job["rig_cfg"],
                           allow_device_change=job.get("allow_device_change", False), recapture=job["recapture"],
                           time_scale=job["time_scale"], home=job.get("home", False),
-                          engine_options=dict(job.get("engine_options") or {}))
+                          engine_options=dict(job.get("engine_options") or {}),
+                          trust_rig_position=job.get("trust_rig_position", False))
     session = ScanSession(request, doing="scanning", devices=devices)
     scene = job["scene"]
     try:
@@ -256,6 +258,9 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     except RigNotWhereLeft as exc:            # the operator may move it back (ScanPanel._ask_move_back)
         restore_time_scales(restore)
         return {"studio": studio, "not_there": exc}
+    except RigUsedSince as exc:               # the operator says whether it kept the reference (_ask_used_since)
+        restore_time_scales(restore)
+        return {"studio": studio, "used_since": exc}
     except BaseException:
         if started_studio is not None:
             started_studio.close()
@@ -665,7 +670,7 @@ class ScanPanel(QWidget):
         return self.engine is not None and self.engine.state not in (ScanState.FINISHED, ScanState.FAILED)
 
     def start(self, recapture: list[tuple[int, int]] | None = None, allow_device_change: bool = False,
-              home: bool = False) -> None:
+              home: bool = False, trust_rig_position: bool = False) -> None:
         """Start (or resume) the scan set up in the panel. Devices, dataset and engine are prepared
         off the GUI thread; the engine starts when they are ready. ``home``: home the rig first."""
         if self.running or self.opener.running:
@@ -702,7 +707,7 @@ class ScanPanel(QWidget):
                    rig_cfg=self.rig_config(), scene=scene, shared=rig_devices, simulator=simulator,
                    studio=self.studio, time_scale=self.time_scale.value() if self.state.simulated else 1.0,
                    exposure_s=getattr(scene, "exposure_s", 0.5), transfer_s=getattr(scene, "transfer_s", 2.5),
-                   allow_device_change=allow_device_change, home=home)
+                   allow_device_change=allow_device_change, home=home, trust_rig_position=trust_rig_position)
         if not shared and self.studio is None:
             self._log("starting the simulated studio (GRBL simulator on a pseudo-terminal, simulated camera)…")
             self.state_label.setText("Connecting the simulated rig and camera…")
@@ -774,7 +779,7 @@ class ScanPanel(QWidget):
         refused = prepared.get("refused")
         engine = prepared.get("engine")
         if refused is not None or prepared.get("not_homed") is not None or prepared.get("not_there") is not None \
-                or (engine is not None and engine.remaining == 0):
+                or prepared.get("used_since") is not None or (engine is not None and engine.remaining == 0):
             self._close_unattended()           # started again (or not at all): a new one then
         if refused is not None:
             self._ask_device_change(refused)
@@ -786,6 +791,10 @@ class ScanPanel(QWidget):
             return
         if prepared.get("not_there") is not None:
             self._ask_move_back(prepared["not_there"])
+            self._update_buttons()
+            return
+        if prepared.get("used_since") is not None:
+            self._ask_used_since(prepared["used_since"])
             self._update_buttons()
             return
         dataset, engine = prepared["dataset"], prepared["engine"]
@@ -913,6 +922,41 @@ class ScanPanel(QWidget):
                 self.state_label.setText(f"Not started: the move to {problem.last_view} failed")
                 self.state.report_error("Scan", f"The rig did not reach {problem.last_view}: {message}")
             rig.run("move_to", x, y, on_result=arrived, on_error=failed)
+        box.buttonClicked.connect(answered)
+        box.open()
+
+    def _ask_used_since(self, problem) -> None:
+        """A resume whose rig stands where this dataset's last view was taken, but another dataset's scan
+        used the rig since: the position is a coincidence lfstudio cannot vouch for. The operator who
+        knows the rig kept its reference continues; otherwise Home, then scan."""
+        other = problem.other
+        self.state_label.setText("Another scan used the rig since this dataset's last view")
+        self._log(str(problem))
+        box = QMessageBox(
+            QMessageBox.Question, "Continue from here?",
+            f"The rig stands where this dataset's last view, {problem.last_view}, was taken, but since then it "
+            f"scanned another dataset ({Path(other['dataset']).name}, {readable_time(other.get('at'))}).\n\n"
+            "If the rig was homed again or given another origin in between, the same numbers are another "
+            "place. Continue only if you know it kept its reference; otherwise home it first and then scan "
+            "(the scan continues with the next view).", QMessageBox.Yes | QMessageBox.No | QMessageBox.Cancel,
+            self)
+        box.setObjectName("usedSinceBox")
+        box.button(QMessageBox.Yes).setText("Continue from here")
+        box.button(QMessageBox.No).setText("Home, then scan")
+        box.setDefaultButton(QMessageBox.No)
+        self.used_since_box = box
+        recapture, allow = self._last_start, getattr(self, "_last_allow_change", False)
+
+        def answered(button) -> None:
+            answer = box.standardButton(button)
+            if answer == QMessageBox.Yes:
+                self._log(f"continuing: the operator says the rig kept its reference since {problem.last_view}")
+                self.start(recapture=recapture, allow_device_change=allow, trust_rig_position=True)
+            elif answer == QMessageBox.No:
+                self._log("homing the rig before the scan")
+                self.start(recapture=recapture, allow_device_change=allow, home=True)
+            else:
+                self.state_label.setText("Not started: another scan used the rig since this dataset's last view")
         box.buttonClicked.connect(answered)
         box.open()
 
