@@ -57,12 +57,32 @@ def processed_file(ds: Dataset, view: dict) -> Path | None:
     return path if path.is_file() else None
 
 
+def tonemap_file(ds: Dataset, view: dict) -> Path | None:
+    """The tone-mapped 16-bit picture of a bracketed view's merged radiance (``lfstudio process``)."""
+    hdr = view.get("hdr")
+    if not isinstance(hdr, dict) or hdr.get("status") != "done" or not hdr.get("preview"):
+        return None
+    try:
+        path = ds.path_of(hdr["preview"])
+    except DatasetError:
+        return None
+    return path if path.is_file() else None
+
+
 def resolve_source(ds: Dataset, views: Sequence[View], source: str) -> str:
     source = (source or "auto").lower()
-    if source not in ("auto", "raw", "processed"):
-        raise InputError("source", f"unknown source {source!r}", "raw, processed or auto")
+    if source not in ("auto", "raw", "processed", "tonemap"):
+        raise InputError("source", f"unknown source {source!r}", "raw, processed, tonemap or auto")
     if source == "raw":
         return "raw"
+    if source == "tonemap":
+        missing = [view_stem(*v) for v in views if tonemap_file(ds, ds.view(*v)) is None]
+        if missing:
+            shown = ", ".join(missing[:6]) + (f" and {len(missing) - 6} more" if len(missing) > 6 else "")
+            raise InputError("source", f"tone-mapped HDR views missing for {shown}",
+                             "scan with --bracket and process the dataset ('lfstudio process'), or export "
+                             "--source processed (the bracket's reference exposure)")
+        return "tonemap"
     missing = [view_stem(*v) for v in views if processed_file(ds, ds.view(*v)) is None]
     if source == "processed" and missing:
         shown = ", ".join(missing[:6]) + (f" and {len(missing) - 6} more" if len(missing) > 6 else "")
@@ -73,6 +93,11 @@ def resolve_source(ds: Dataset, views: Sequence[View], source: str) -> str:
 
 def source_path(ds: Dataset, view: View, source: str) -> Path:
     v = ds.view(*view)
+    if source == "tonemap":
+        path = tonemap_file(ds, v)
+        if path is None:
+            raise DatasetError(f"{ds.root}: {view_stem(*view)} has no tone-mapped HDR picture; process the dataset again")
+        return path
     if source == "processed":
         path = processed_file(ds, v)
         if path is None:
@@ -251,7 +276,26 @@ def intrinsics(ds: Dataset, image_size: tuple[int, int], calibration: dict | Non
 
 def is_rectified(ds: Dataset, source: str) -> bool:
     """The exported views are rectified: processed views of a run that rectified them."""
+    if source == "tonemap":
+        return bool((ds.manifest.get("hdr") or {}).get("rectified"))
     return bool(source == "processed" and (ds.manifest.get("processing") or {}).get("rectified"))
+
+
+def exposure_of(ds: Dataset, source: str) -> dict[str, Any] | None:
+    """Which exposure of a bracketed dataset the exported pictures show: the bracket's reference
+    frame (raw, processed) or the tone map of the merged radiance (tonemap); None without a bracket."""
+    bracket = ds.manifest.get("bracket")
+    if not isinstance(bracket, dict):
+        return None
+    if source == "tonemap":
+        tone = (ds.manifest.get("hdr") or {}).get("tone_map") or {}
+        return {"kind": "tone map", "operator": tone.get("operator"), "key_radiance": tone.get("key_radiance"),
+                "of": "the merged linear radiance of every frame of the bracket", "bracket": dict(bracket)}
+    ref = bracket.get("reference_frame", 0)
+    times = bracket.get("frame_shutter_s") or []
+    return {"kind": "one exposure", "frame": ref, "shutter_s": times[ref] if ref < len(times) else None,
+            "ev": (bracket.get("ev") or [None] * (ref + 1))[ref] if bracket.get("ev") else None,
+            "bracket": dict(bracket)}
 
 
 def describe(ds: Dataset, views: Sequence[View], source: str, image_size: tuple[int, int],
@@ -277,7 +321,9 @@ def describe(ds: Dataset, views: Sequence[View], source: str, image_size: tuple[
             "dataset": {"path": str(ds.root), "created": ds.manifest.get("created")},
             "source": source,
             "rectified": rectified,
-            "color": "linear RGB (16-bit, 65535 = white)",
+            "color": "sRGB-encoded tone map of the merged HDR radiance (16-bit)" if source == "tonemap"
+            else "linear RGB (16-bit, 65535 = white)",
+            **({"exposure": exposure_of(ds, source)} if exposure_of(ds, source) is not None else {}),
             "grid": grid.to_manifest(), "camera": dict(ds.camera), "lens": dict(ds.lens),
             "plan": dict(ds.manifest.get("plan") or {}),
             "image_size_px": [int(image_size[0]), int(image_size[1])],

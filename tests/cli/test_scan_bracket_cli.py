@@ -66,3 +66,24 @@ def test_process_hdr_on_a_dataset_without_a_bracket_is_refused(run_cli, tmp_path
     out = run_cli("process", tmp_path / "ds", "--hdr", "exr")
     assert out.returncode == 2 or out.returncode == 1
     assert "--hdr" in out.stderr and "no exposure bracket" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_hevc_export_names_the_exposure_or_the_tone_map(run_cli, tmp_path):
+    scan = run_cli("scan", "--port", "instant", "--grid", "2x1", "--time-scale", "0", "--sim-width-px", "64",
+                   "--bracket", "-1,0,+1", "--out", tmp_path / "ds")
+    assert scan.returncode == 0, scan.stderr
+    refused = run_cli("export", tmp_path / "ds", "--format", "hevc", "--source", "tonemap",
+                      "--out", tmp_path / "v.mkv")
+    assert refused.returncode == 2 and "tone-mapped HDR views missing" in refused.stderr, refused.stderr
+    (tmp_path / "profile.toml").write_text("[rectify]\nenabled = false\n")
+    assert run_cli("process", tmp_path / "ds", "--workers", "0", "--profile", tmp_path / "profile.toml").returncode == 0
+    for source, kind in (("tonemap", "tone map"), ("processed", "one exposure")):
+        out = tmp_path / f"{source}.mkv"
+        proc = run_cli("export", tmp_path / "ds", "--format", "hevc", "--source", source, "--out", out)
+        assert proc.returncode == 0, proc.stderr
+        side = json.loads(out.with_name(out.name + ".json").read_text())       # the video's sidecar
+        assert side["source"] == source and side["exposure"]["kind"] == kind
+        if source == "processed":
+            assert side["exposure"]["frame"] == 1 and side["exposure"]["ev"] == 0.0
+        else:
+            assert side["exposure"]["operator"] == "reinhard-global" and side["color"].startswith("sRGB-encoded")

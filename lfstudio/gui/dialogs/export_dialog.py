@@ -54,7 +54,8 @@ FORMAT_INFO = (
 FORMAT_KEYS = tuple(k for k, _, _ in FORMAT_INFO)
 SOURCES = (("auto", "Auto — processed views when every chosen view has one"),
            ("processed", "Processed views (processed/)"),
-           ("raw", "Raw captures (developed, not processed)"))
+           ("raw", "Raw captures (developed, not processed)"),
+           ("tonemap", "HDR tone map (a bracketed scan's merged frames, hdr/preview/)"))
 HEVC_SUFFIXES = (".mp4", ".mkv", ".hevc")
 
 
