@@ -89,3 +89,44 @@ def test_planner_bracket_row_counts_every_frame(qtbot, tmp_path):
     p.bracket_edit.setText("-2,0,-2")
     qtbot.waitUntil(lambda: p.rows["bracket"].message.isVisible(), timeout=3000)
     assert "given twice" in p.rows["bracket"].message.text() and "Bracket" in p.status_label.text()
+
+
+def test_process_dialog_merges_a_bracketed_dataset(qtbot, tmp_path):
+    from dataclasses import replace
+
+    from lfstudio.dataset.bracket import parse_bracket
+    from lfstudio.gui.dialogs.process_dialog import ProcessDialog
+    from lfstudio.scan.engine import ScanEngine
+    from lfstudio.scan.scan_plan import ScanPlan
+    from lfstudio.sim.sim_camera import SimulatedCamera
+    from lfstudio.sim.studio import VirtualStudio
+    from lfstudio.studio.session import create_scan_dataset
+
+    plan = replace(ScanPlan.centered(2, 1, (4.0, 6.0), RIG, settle_s=0.0), bracket=parse_bracket("-2,0,+2"))
+    rig = InstantRig(RIG)
+    rig.connect()
+    camera = SimulatedCamera(VirtualStudio(width_px=96, view_region_mm=plan.extent_mm(), highlight_gain=3.0),
+                             rig.true_position_mm, exposure_s=0.5, time_scale=0.0)
+    camera.connect()
+    ds = create_scan_dataset(tmp_path / "ds", plan, rig={"name": RIG.name}, camera={"name": "sim"},
+                             lens={"name": "virtual"})
+    engine = ScanEngine(ds, plan, rig, camera, time_scale=0.0)
+    engine.start()
+    engine.wait(60)
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    window.state.set_dataset(Dataset.open(ds.root))
+    actions = {a.text().replace("&", ""): a for a in window.menu("Dataset").actions()}
+    actions["Process…"].trigger()
+    dialog = window.findChild(ProcessDialog, "processDialog")
+    dialog.editors["rectify"].setChecked(False)
+    dialog.workers_spin.setValue(0)
+    with qtbot.waitSignal(dialog.runner.finished, timeout=60000):
+        dialog.process_button.click()
+    text = dialog.result_label.text()
+    dialog.show()
+    qtbot.waitUntil(lambda: dialog.result_label.height() >= 2 * dialog.result_label.fontMetrics().height())
+    dialog.grab().save(str(tmp_path / "process_dialog.png"))
+    assert "2 processed" in text and "HDR: 2 views merged" in text and "after the merge" in text
+    again = Dataset.open(ds.root)
+    assert all(v["hdr"]["status"] == "done" and (again.root / v["hdr"]["file"]).is_file() for v in again.views)

@@ -298,10 +298,18 @@ def _preview_job(root: str, profile: Profile, row: int, column: int, *, progress
 
 def _process_job(root: str, profile: Profile, workers: int | None, cluster: str | None, force: bool, *,
                  progress, cancel):
+    from lfstudio.dataset import Dataset
     from lfstudio.processing.pipeline import process_dataset
 
-    return process_dataset(root, profile, workers=workers, cluster=cluster, force=force,
-                           progress=progress, cancel=cancel)
+    report = process_dataset(root, profile, workers=workers, cluster=cluster, force=force,
+                             progress=progress, cancel=cancel)
+    report.hdr = None
+    if Dataset.open(root).manifest.get("bracket"):     # a bracketed scan: its frames merged to linear HDR too
+        from lfstudio.processing.hdr import merge_dataset
+
+        report.hdr = merge_dataset(root, profile=profile, workers=workers, force=force, progress=progress,
+                                   cancel=cancel)
+    return report
 
 
 class ProcessDialog(QDialog):
@@ -590,6 +598,12 @@ class ProcessDialog(QDialog):
         self.process_button.setEnabled(True)
         self._reload_dataset()
         text = report.summary().replace("\n", "<br>")
+        merged = getattr(report, "hdr", None)
+        if merged is not None:
+            text += "<br>" + html.escape(merged.summary()).replace("\n", "<br>")
+            if merged.failed:
+                text += "<br><span style='color:#c00'>HDR merge failed:<br>" + "<br>".join(
+                    f"row {r}, column {c}: {html.escape(msg)}" for r, c, msg in merged.failed[:10]) + "</span>"
         if report.failed:
             text += "<br><span style='color:#c00'>Failed views:<br>" + "<br>".join(
                 f"row {r}, column {c}: {html.escape(msg)}" for r, c, msg in report.failed[:10]) + "</span>"
