@@ -62,7 +62,8 @@ class PanelScrollArea(QScrollArea):
     """A dock's panel, scrolled when the dock is smaller than the panel's minimum size.
 
     The panel fills the area but is never laid out below its own minimum size (then the area
-    scrolls). Not ``widgetResizable``: that lays out a panel holding a word-wrapped label at its
+    scrolls; a panel whose body scrolls by itself, the Planner, may say ``height_when_scrolled()``:
+    the height that shows its whole body, so only one scroll bar is left). Not ``widgetResizable``: that lays out a panel holding a word-wrapped label at its
     preferred height for the width (a plot panel: twice the dock's height, always scrolled). The
     area asks for the panel's preferred size and minimum width (with room for the scroll bar), but
     only a few rows of height, so docks may be stacked or the window made low without squeezing
@@ -100,8 +101,11 @@ class PanelScrollArea(QScrollArea):
         down = need.height() > room.height()                               # scrolls up and down
         across = need.width() > room.width() - (bar if down else 0)        # scrolls sideways
         down = down or need.height() > room.height() - (bar if across else 0)
-        panel.resize(max(room.width() - (bar if down else 0), need.width()),
-                     max(room.height() - (bar if across else 0), need.height()))
+        height = max(room.height() - (bar if across else 0), need.height())
+        scrolled = getattr(panel, "height_when_scrolled", None)
+        if down and scrolled is not None:      # a panel with a scrolled body of its own: one scroll bar, this one
+            height = max(height, scrolled())
+        panel.resize(max(room.width() - (bar if down else 0), need.width()), height)
 
     def resizeEvent(self, event) -> None:
         super().resizeEvent(event)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from PySide6.QtWidgets import QMessageBox
+from PySide6.QtWidgets import QApplication, QMessageBox
 
 from lfstudio.dataset import Dataset
 from lfstudio.gui.app import create_window
@@ -256,14 +256,19 @@ def test_import_images_dialog_states_the_zero_plane_and_shows_it_with_the_measur
     dialog.intrinsics_combo.setCurrentIndex(2)
     dialog.focal_px.setValue(f_px)
     dialog.positions_combo.setCurrentIndex(0)
-    assert not dialog.positions_csv_row.isVisibleTo(dialog) and not dialog.zero_depth.isEnabled() or \
+    assert not dialog.positions_csv_row.isEnabled() and not dialog.zero_depth.isEnabled() or \
         dialog.zero_combo.currentIndex() == 2
     dialog.zero_combo.setCurrentIndex(2)
     assert dialog.zero_depth.isEnabled()
     dialog.zero_depth.setValue(3.0)
     # a CSV of positions that was not chosen: one line naming the field, nothing started
+    assert dialog.isVisible()
+    QApplication.processEvents()
+    below = dialog.copy_check.pos()
     dialog.positions_combo.setCurrentIndex(2)
-    assert dialog.positions_csv_row.isVisibleTo(dialog) and not dialog.spacing_h.isEnabled()
+    assert dialog.positions_csv_row.isEnabled() and not dialog.spacing_h.isEnabled()
+    QApplication.processEvents()
+    assert dialog.copy_check.pos() == below        # the fields below do not move while one chooses
     dialog.positions_csv.setText("")
     dialog.out_edit.setText(str(tmp_path / "ds"))
     dialog.import_button.click()
@@ -284,8 +289,6 @@ def test_import_images_dialog_states_the_zero_plane_and_shows_it_with_the_measur
     assert "zero disparity: sheared views, zero-disparity plane at 3.000 m" in text, text
     assert "between horizontal neighbours" in text
     assert Dataset.open(tmp_path / "ds").manifest["zero_disparity"]["source"] == "--zero-disparity-depth-m"
-    from PySide6.QtWidgets import QApplication
-
     QApplication.processEvents()
     assert dialog.message.height() > 3 * dialog.message.fontMetrics().height()   # every line shown
     dialog.grab().save(str(tmp_path / "import_dialog.png"))

@@ -187,3 +187,25 @@ def test_planner_keeps_full_height_at_1500x950(window):
     assert all(d in tabbed for d in others)
     assert dock.height() > 700
     assert window.height() <= 960
+
+
+@pytest.mark.parametrize("height", [250, 420])
+def test_a_low_planner_dock_has_one_scroll_bar(window, qtbot, height):
+    """Lower than the Planner's minimum, its dock scrolled and the inputs' own area scrolled inside it:
+    two vertical scroll bars, one in the other. Now the dock's scroll bar alone reaches every input."""
+    from PySide6.QtWidgets import QScrollArea
+
+    dock = window.docks["plannerDock"]
+    dock.setFloating(True)
+    dock.resize(480, height)
+    area, panel = dock.widget(), window.panels["plannerDock"]
+    inner = panel.findChild(QScrollArea, "plannerScroll")
+    qtbot.waitUntil(lambda: area.viewport().height() <= height and panel.height() >= panel.minimumHeight(),
+                    timeout=5000)
+    qtbot.wait(50)       # not a synchronisation: the layout gets turns of the event loop to settle
+    outer_scrolls = area.verticalScrollBar().maximum() > 0
+    inner_scrolls = inner.verticalScrollBar().maximum() > 0
+    assert not (outer_scrolls and inner_scrolls), (height, area.verticalScrollBar().maximum(),
+                                                   inner.verticalScrollBar().maximum())
+    if height < panel.minimumSizeHint().height():
+        assert outer_scrolls and not inner_scrolls

@@ -377,7 +377,7 @@ class ImportImagesDialog(_ImportDialogBase):
         self.recount()
 
     def _positions_changed(self) -> None:
-        self.positions_csv_row.setVisible(self.positions_combo.currentIndex() == 2)
+        self.positions_csv_row.setEnabled(self.positions_combo.currentIndex() == 2)   # shown: no fields move
         self.spacing_h.setEnabled(self.positions_combo.currentIndex() == 0)
         self.spacing_v.setEnabled(self.positions_combo.currentIndex() == 0)
 

@@ -247,6 +247,16 @@ class PlannerPanel(QWidget):
         scroll.setWidget(body)
         outer.addWidget(scroll, 1)
         self.setMinimumWidth(430)
+        self._results_box, self._body, self._body_scroll = outer.itemAt(0).widget(), body, scroll
+
+    def height_when_scrolled(self) -> int:
+        """The panel's height with its inputs shown whole: when the dock is lower than the panel's
+        minimum, the dock's scroll area lays it out at this height, so the inputs' own scroll area
+        does not scroll as well (two scroll bars, one inside the other)."""
+        margins = self.layout().contentsMargins()
+        return (margins.top() + margins.bottom() + self._results_box.sizeHint().height()
+                + self.layout().spacing() + self._body.sizeHint().height()
+                + 2 * self._body_scroll.frameWidth())
 
     def _group(self, title: str, items: list) -> QGroupBox:
         box = QGroupBox(title)
