@@ -49,6 +49,8 @@ OPTIONS = (
         ("--settle-s", "S", float, "settle time after each move"),
         ("--exposure-s", "S", float, f"exposure time (default {REFERENCE.exposure_s:g})"),
         ("--transfer-s", "S", float, f"trigger + download time per image (default {REFERENCE.transfer_s:g})"),
+        ("--bracket", "EV,...", str, "exposure bracket per view: EV steps around --exposure-s (-2,0,+2) or shutter "
+                                     "times (1/500,1/125,1/30s); time and disk count every frame (default: none)"),
         ("--raw-bits", "BITS", int, "raw bits per pixel (default: the camera's)"),
         ("--bytes-per-image", "B", int, "file size per image (default: uncompressed raw)"))),
     ("targets", (
@@ -194,6 +196,9 @@ def format_table(plan, result) -> str:
             ("disk space", f"{_bytes(r.storage_bytes)} ({_bytes(r.bytes_per_image)} per image)"),
         ]),
     ]
+    if r.frames_per_view > 1:
+        sections[-1][1].insert(1, ("exposure bracket", f"{r.frames_per_view} frames a view ("
+                                  + ", ".join(f"{t:.4g} s" for t in r.frame_exposures_s) + f"), {r.frames} pictures"))
     if r.proposed_grid is not None:
         sections[2][1].append((f"grid for {100 * plan.target_parallax_fraction:g} % parallax",
                                f"{r.proposed_grid.columns} × {r.proposed_grid.rows}"))

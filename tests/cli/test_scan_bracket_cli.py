@@ -87,3 +87,18 @@ def test_hevc_export_names_the_exposure_or_the_tone_map(run_cli, tmp_path):
             assert side["exposure"]["frame"] == 1 and side["exposure"]["ev"] == 0.0
         else:
             assert side["exposure"]["operator"] == "reinhard-global" and side["color"].startswith("sRGB-encoded")
+
+
+def test_plan_counts_every_frame(run_cli, tmp_path):
+    single = json.loads(run_cli("plan", "--json").stdout)
+    out = run_cli("plan", "--bracket", "-2,0,+2", "--json", "--save", tmp_path / "p.toml")
+    assert out.returncode == 0, out.stderr
+    r = json.loads(out.stdout)
+    assert r["frames_per_view"] == 3 and r["frames"] == 3 * single["images"]
+    assert r["storage_bytes"] == 3 * single["storage_bytes"]
+    assert r["capture_time_s"] > single["capture_time_s"] + single["images"] * (0.125 + 2.0 + 2 * 2.5) * 0.999
+    assert 'bracket = "-2,0,+2"' in (tmp_path / "p.toml").read_text()
+    table = run_cli("plan", "--plan", tmp_path / "p.toml").stdout          # the saved plan keeps its bracket
+    assert "exposure bracket        3 frames a view (0.125 s, 0.5 s, 2 s), 6363 pictures" in table
+    bad = run_cli("plan", "--bracket", "-2,0,y")
+    assert bad.returncode == 2 and bad.stderr.strip().splitlines()[-1].startswith("lfstudio plan: error: --bracket: ")
