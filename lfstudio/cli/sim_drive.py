@@ -4,11 +4,9 @@ TCP, one port per axis on 127.0.0.1) until Ctrl-C."""
 from __future__ import annotations
 
 import argparse
-import signal
-import sys
-import threading
 
 from lfstudio.cli.args import old_spelling
+from lfstudio.cli.serving import serve_until_stopped
 from lfstudio.errors import InputError
 from lfstudio.numbers import SEED, TIME_SCALE
 from lfstudio.rig.profile import DEFAULT_DRIVE_RIG
@@ -49,27 +47,14 @@ def run(args: argparse.Namespace) -> int:
     if rig.driver != "cia402":
         raise InputError("--rig-profile", f"rig profile {rig.name!r} is for a GRBL controller, not CiA 402 drives",
                          f"a profile with driver = \"cia402\", e.g. {DEFAULT_DRIVE_RIG!r}")
-    done = threading.Event()
     try:
         emulator, truth = serve_sim_drive(rig, time_scale=args.time_scale, seed=args.seed, ports=args.ports)
     except OSError as exc:
         raise InputError("--ports", f"cannot listen on 127.0.0.1 ({exc.strerror or exc})",
                          "free TCP ports, or leave --ports out") from None
-    previous = signal.signal(signal.SIGTERM, lambda *_: done.set())
-    try:
-        print(emulator.word, flush=True)
-        print(f"two emulated CiA 402 drives (dryve D1 Modbus TCP gateway) for rig {rig.name!r}; connect with\n"
-              f"  lfstudio rig --port {emulator.word} --rig-profile '{rig.name}' home status\n"
-              f"  lfstudio scan --port {emulator.word} --rig-profile '{rig.name}' --home --camera sim ...\n"
-              "Ctrl-C stops them.", file=sys.stderr, flush=True)
-        while not done.wait(0.5):
-            pass
-    except KeyboardInterrupt:
-        pass
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-        if truth is not None:
-            truth.close()
-        emulator.close()
-    print("emulated drives stopped", file=sys.stderr)
-    return 0
+    return serve_until_stopped(
+        emulator.word,
+        f"two emulated CiA 402 drives (dryve D1 Modbus TCP gateway) for rig {rig.name!r}; connect with\n"
+        f"  lfstudio rig --port {emulator.word} --rig-profile '{rig.name}' home status\n"
+        f"  lfstudio scan --port {emulator.word} --rig-profile '{rig.name}' --home --camera sim ...\n"
+        "Ctrl-C stops them.", emulator, truth, "emulated drives")

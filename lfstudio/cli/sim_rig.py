@@ -3,11 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import signal
-import sys
-import threading
-
 from lfstudio.cli.args import old_spelling
+from lfstudio.cli.serving import serve_until_stopped
 from lfstudio.numbers import SEED, TIME_SCALE
 
 HELP = "start the simulated GRBL controller on a pseudo-terminal and print its port path"
@@ -27,26 +24,11 @@ def run(args: argparse.Namespace) -> int:
     from lfstudio.studio.simulated import serve_sim_rig
 
     rig = load_rig(args.rig_profile or DEFAULT_RIG)
-    done = threading.Event()
     sim, truth = serve_sim_rig(rig, time_scale=args.time_scale, seed=args.seed)
     port = sim.port
-    previous = signal.signal(signal.SIGTERM, lambda *_: done.set())
-    try:
-        print(port, flush=True)
-        print(f"simulated GRBL 1.1 controller for rig {rig.name!r} on {port}; connect with\n"
+    return serve_until_stopped(
+        port, f"simulated GRBL 1.1 controller for rig {rig.name!r} on {port}; connect with\n"
               f"  lfstudio rig --port {port} home status\n"
               f"  lfstudio scan --port {port} --home --camera sim ...   (the simulated camera follows it)\n"
-              "or any serial terminal (115200 baud). Ctrl-C stops it.", file=sys.stderr, flush=True)
-        while not done.wait(0.5):
-            if not sim.running:
-                print("the simulated controller stopped", file=sys.stderr)
-                return 1
-    except KeyboardInterrupt:
-        pass
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-        if truth is not None:
-            truth.close()
-        sim.close()
-    print("simulated controller stopped", file=sys.stderr)
-    return 0
+              "or any serial terminal (115200 baud). Ctrl-C stops it.",
+        sim, truth, "simulated controller", running=lambda: sim.running)

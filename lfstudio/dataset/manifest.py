@@ -726,6 +726,18 @@ class Dataset:
             raise DatasetError(f"{self.manifest_path}: view has no file yet")
         return resolve_inside(self.root, rel)
 
+    def processed_path(self, view: dict) -> Path | None:
+        """The view's processed image when its record names one inside the folder and the file is
+        there, else None (not processed, processed with another profile's name gone, or deleted)."""
+        name = processed_file_name(view)
+        if name is None:
+            return None
+        try:
+            path = self.path_of(name)
+        except DatasetError:
+            return None
+        return path if path.is_file() else None
+
     def raw_name(self, row: int, column: int, suffix: str) -> str:
         """Relative name for a view's raw file, e.g. ``raw/r07_c042.dng``."""
         return f"raw/{view_stem(row, column)}{suffix}"

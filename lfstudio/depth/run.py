@@ -39,7 +39,7 @@ import numpy as np
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.atomic import atomic_write_with
 from lfstudio.dataset.grid import View
-from lfstudio.dataset.manifest import now_iso, processed_file_name
+from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.depth import dense
 from lfstudio.depth.files import read_pfm, write_pfm
@@ -128,14 +128,7 @@ def depth_from_disparity(disparity_px: np.ndarray, focal_length_px: float, spaci
 
 # -- where the images come from -----------------------------------------------------------------------
 def _processed_path(ds: Dataset, view: Sequence[int]) -> Path | None:
-    name = processed_file_name(ds.view(*view))
-    if name is None:
-        return None
-    try:
-        path = ds.path_of(name)
-    except DatasetError:
-        return None
-    return path if path.is_file() else None
+    return ds.processed_path(ds.view(*view))
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ import numpy as np
 
 from lfstudio.dataset import Dataset, images
 from lfstudio.dataset.grid import View
-from lfstudio.dataset.manifest import now_iso, processed_file_name
+from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import (DATASET_ENTRIES, IN_USE_FIX, check_new_dataset_folder, check_not_in_use,
                                     view_stem)
 from lfstudio.errors import DatasetError, InputError
@@ -46,17 +46,6 @@ def meander(views: Sequence[View]) -> list[View]:
 
 
 # -- sources ----------------------------------------------------------------------------------------
-def processed_file(ds: Dataset, view: dict) -> Path | None:
-    name = processed_file_name(view)
-    if name is None:
-        return None
-    try:
-        path = ds.path_of(name)
-    except DatasetError:
-        return None
-    return path if path.is_file() else None
-
-
 def tonemap_file(ds: Dataset, view: dict) -> Path | None:
     """The tone-mapped 16-bit picture of a bracketed view's merged radiance (``lfstudio process``)."""
     hdr = view.get("hdr")
@@ -83,7 +72,7 @@ def resolve_source(ds: Dataset, views: Sequence[View], source: str) -> str:
                              "scan with --bracket and process the dataset ('lfstudio process'), or export "
                              "--source processed (the bracket's reference exposure)")
         return "tonemap"
-    missing = [view_stem(*v) for v in views if processed_file(ds, ds.view(*v)) is None]
+    missing = [view_stem(*v) for v in views if ds.processed_path(ds.view(*v)) is None]
     if source == "processed" and missing:
         shown = ", ".join(missing[:6]) + (f" and {len(missing) - 6} more" if len(missing) > 6 else "")
         raise InputError("source", f"processed views missing for {shown}",
@@ -99,7 +88,7 @@ def source_path(ds: Dataset, view: View, source: str) -> Path:
             raise DatasetError(f"{ds.root}: {view_stem(*view)} has no tone-mapped HDR picture; process the dataset again")
         return path
     if source == "processed":
-        path = processed_file(ds, v)
+        path = ds.processed_path(v)
         if path is None:
             raise DatasetError(f"{ds.root}: {view_stem(*view)} has no processed file; process the dataset again")
         return path

@@ -158,7 +158,25 @@ class ModbusDriveServer:
         self._server = None
 
 
-class DriveServers:
+class _PairOnTheWire:
+    """What both transports share: the emulated :class:`DrivePair` behind them (its time scale and the
+    carriages' true position, for tests and the simulated studio)."""
+
+    pair: DrivePair
+
+    @property
+    def time_scale(self) -> float:
+        return self.pair.time_scale
+
+    @time_scale.setter
+    def time_scale(self, value: float) -> None:
+        self.pair.time_scale = value
+
+    def true_position_mm(self) -> tuple[float, float]:
+        return self.pair.true_position_mm()
+
+
+class DriveServers(_PairOnTheWire):
     """Both drives of a :class:`DrivePair` on Modbus TCP servers: :attr:`word` is the device word
     (``dryve:127.0.0.1:P1,127.0.0.1:P2``) that reaches them."""
 
@@ -180,17 +198,6 @@ class DriveServers:
             raise
         self.running = True
         return self
-
-    @property
-    def time_scale(self) -> float:
-        return self.pair.time_scale
-
-    @time_scale.setter
-    def time_scale(self, value: float) -> None:
-        self.pair.time_scale = value
-
-    def true_position_mm(self) -> tuple[float, float]:
-        return self.pair.true_position_mm()
 
     def close(self) -> None:
         self.running = False
@@ -282,7 +289,7 @@ class CanopenDriveNode:
             self._attached = False
 
 
-class CanopenDrives:
+class CanopenDrives(_PairOnTheWire):
     """Both drives of a :class:`DrivePair` as CANopen nodes on python-can's in-process ``virtual``
     bus ``channel`` (node ids ``nodes``); :attr:`word` reaches them (``canopen:virtual-NAME:1,2``)."""
 
@@ -309,17 +316,6 @@ class CanopenDrives:
             axis.on_answering = drive.sync_answering
         self.running = True
         return self
-
-    @property
-    def time_scale(self) -> float:
-        return self.pair.time_scale
-
-    @time_scale.setter
-    def time_scale(self, value: float) -> None:
-        self.pair.time_scale = value
-
-    def true_position_mm(self) -> tuple[float, float]:
-        return self.pair.true_position_mm()
 
     def close(self) -> None:
         self.running = False

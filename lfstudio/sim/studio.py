@@ -467,15 +467,10 @@ class VirtualStudio:
                 if depth is not None:
                     depth[:] = layer.depth_m
                 continue
-            th, tw = layer.rgba.shape[:2]
-            corners = np.array([[-1, -1, 1], [tw, -1, 1], [-1, th, 1], [tw, th, 1]], float).T
-            pc = P @ corners
-            u, v = pc[0] / pc[2], pc[1] / pc[2]
-            x0, x1 = max(0, int(np.floor(u.min()))), min(w, int(np.ceil(u.max())) + 1)
-            y0, y1 = max(0, int(np.floor(v.min()))), min(h, int(np.ceil(v.max())) + 1)
-            if x1 <= x0 or y1 <= y0:
+            box = _footprint(P, layer.rgba.shape[:2], (h, w))
+            if box is None:
                 continue
-            T = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+            x0, x1, y0, y1, T = box
             warped = cv2.warpPerspective(layer.rgba, T @ P, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR,
                                          borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
             wf = warped.astype(np.float32)
@@ -501,15 +496,10 @@ class VirtualStudio:
                 depth[:] = layer.depth_m
                 continue
             P = self.layer_homography(layer, x_mm, y_mm, ideal)
-            th, tw = layer.rgba.shape[:2]
-            corners = np.array([[-1, -1, 1], [tw, -1, 1], [-1, th, 1], [tw, th, 1]], float).T
-            pc = P @ corners
-            u, v = pc[0] / pc[2], pc[1] / pc[2]
-            x0, x1 = max(0, int(np.floor(u.min()))), min(w, int(np.ceil(u.max())) + 1)
-            y0, y1 = max(0, int(np.floor(v.min()))), min(h, int(np.ceil(v.max())) + 1)
-            if x1 <= x0 or y1 <= y0:
+            box = _footprint(P, layer.rgba.shape[:2], (h, w))
+            if box is None:
                 continue
-            T = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+            x0, x1, y0, y1, T = box
             alpha = cv2.warpPerspective(np.ascontiguousarray(layer.rgba[..., 3]), T @ P, (x1 - x0, y1 - y0),
                                         flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
             depth[y0:y1, x0:x1][alpha.astype(np.float32) * np.float32(1.0 / 65535.0) > 0.5] = layer.depth_m
@@ -538,3 +528,18 @@ class VirtualStudio:
             "view_region_mm": list(self.view_region_mm),
             "layers": [layer.describe() for layer in self.layers],
         }
+
+
+def _footprint(P: np.ndarray, layer_hw: tuple[int, int], view_hw: tuple[int, int]):
+    """The part of the view a layer warped by ``P`` can cover: ``(x0, x1, y0, y1, T)`` with ``T`` the
+    shift that warps into that box alone (a pixel of margin for the interpolation), or None when the
+    layer misses the view."""
+    (th, tw), (h, w) = layer_hw, view_hw
+    corners = np.array([[-1, -1, 1], [tw, -1, 1], [-1, th, 1], [tw, th, 1]], float).T
+    pc = P @ corners
+    u, v = pc[0] / pc[2], pc[1] / pc[2]
+    x0, x1 = max(0, int(np.floor(u.min()))), min(w, int(np.ceil(u.max())) + 1)
+    y0, y1 = max(0, int(np.floor(v.min()))), min(h, int(np.ceil(v.max())) + 1)
+    if x1 <= x0 or y1 <= y0:
+        return None
+    return x0, x1, y0, y1, np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
