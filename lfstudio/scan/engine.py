@@ -260,6 +260,7 @@ class ScanEngine:
         # the state machine: changed by the engine thread only (see _transition), guarded by _cond
         self._cond = threading.Condition()
         self._state = ScanState.IDLE
+        self._announced = ScanState.IDLE     # the last state whose event the listeners have had
         self._inbox: deque[_Message] = deque()
         self.fault: ScanFault | None = None
         self.message = ""
@@ -375,6 +376,9 @@ class ScanEngine:
             self._cond.notify_all()
         log.info("scan %s%s", new.value, f": {text}" if text else "")
         self._emit(EventKind.STATE, text, state=new, extra={"scan": self.label, **extra})
+        with self._cond:
+            self._announced = new        # wait_for_state returns once the listeners have the event too
+            self._cond.notify_all()
         if busy is not None:
             self._raise_fault(busy)
 
@@ -474,8 +478,10 @@ class ScanEngine:
         return self._state
 
     def wait_for_state(self, *states: ScanState, timeout_s: float | None = None) -> bool:
+        """Wait until the scan is in one of ``states`` and its STATE event has reached every listener
+        (a caller that then reads what it was told sees that event; under load it used to wake first)."""
         with self._cond:
-            return self._cond.wait_for(lambda: self._state in states, timeout_s)
+            return self._cond.wait_for(lambda: self._announced in states, timeout_s)
 
     # -- the engine thread's inbox -----------------------------------------------------------------
     def _wake(self, *_: Any) -> None:

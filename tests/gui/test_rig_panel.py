@@ -41,6 +41,8 @@ def test_jog_and_stop_mid_move(qtbot, panel):
     assert isinstance(panel.state.devices["rig"], QtDevice)
     sim = panel.state.devices["rig_simulator"]
     assert "home the rig" in panel.message_label.text()
+    panel._connected("sim")     # the connect's result arriving after that first status (under load) keeps it
+    assert "home the rig" in panel.message_label.text()
     assert not panel.goto_button.isEnabled()           # no motion before homing
 
     qtbot.mouseClick(panel.home_button, Qt.LeftButton)

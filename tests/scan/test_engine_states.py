@@ -440,3 +440,30 @@ def test_stop_while_the_next_view_waits_for_the_camera_exposes_nothing_more(make
     cam.release(10)
     assert engine.wait(T) is ScanState.FINISHED, engine.message
     assert ds.status_counts()["done"] == 6 and cam.captures == 6
+
+
+def test_waiting_for_a_state_returns_after_the_listeners_had_its_event(make):
+    """A caller of wait_for_state then reads what the listeners were told: the state is not seen before
+    its STATE event has reached them (under load a waiter woke first and found no 'paused' event)."""
+    engine, ds, rig, cam, events, _ = make(camera_cls=HeldCamera)
+    in_listener, release = threading.Event(), threading.Event()
+
+    def slow_listener(event):
+        if event.kind is EventKind.STATE and event.state is ScanState.PAUSED:
+            in_listener.set()
+            release.wait(T)
+
+    engine.subscribe(slow_listener)
+    engine.start()
+    assert cam.entered.acquire(timeout=T)
+    engine.pause()
+    cam.release()
+    assert in_listener.wait(T)                         # the engine is PAUSED; its event is being delivered
+    assert engine.state is ScanState.PAUSED
+    assert not engine.wait_for_state(ScanState.PAUSED, timeout_s=0.2)   # not announced to everyone yet
+    release.set()
+    assert engine.wait_for_state(ScanState.PAUSED, timeout_s=T)
+    assert any(e.kind is EventKind.STATE and e.state is ScanState.PAUSED for e in events)
+    engine.abort()
+    cam.release(10)
+    engine.wait(T)

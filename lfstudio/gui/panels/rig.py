@@ -470,7 +470,8 @@ class RigPanel(QWidget):
         self._update_enabled()
 
     def _connected(self, port: str) -> None:
-        self._show_message("")
+        if self.message_label.text().startswith("Connecting to "):
+            self._show_message("")      # only its own line: the first status (an alarm) may be here first
         self.state.show_status(f"Rig connected ({'simulated' if port == 'sim' else port})")
         self.connectedChanged.emit(True)
 
