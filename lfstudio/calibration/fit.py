@@ -780,6 +780,13 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
     if boot is not None:
         analytic = np.diag(covariance)[fidx]
         covariance[fidx, fidx] += np.maximum(np.diag(boot) - analytic, 0.0)
+    # errors a view shares across all its pairs that the model does not have (a real archive's views
+    # each rectified by its own homography, a view's own tilt): a delete-one-view jackknife
+    jack = _jackknife_views(data.subset(inlier), [(m.view_a, m.view_b) for m in used], params, fidx, f, (w, h),
+                            prior_sigma, 1.0 / sig_pair[data.pair[inlier]] ** 2, obs)
+    if jack is not None:
+        analytic = np.diag(covariance)[fidx]
+        covariance[fidx, fidx] += np.maximum(np.diag(jack) - analytic, 0.0)
 
     # the cross-check: the closed form again, on the matches the fit kept
     kept = [PairMatches(m.view_a, m.view_b, m.direction, m.xy_a[inlier[sl]], m.xy_b[inlier[sl]])
@@ -868,6 +875,44 @@ def _bootstrap_angles(data: _Data, params: np.ndarray, fidx: np.ndarray, f: floa
         N = np.einsum("b,bij->ij", counts[s_], Nb)
         steps[s_] = _inverse(N) @ (counts[s_] @ G)
     return np.cov(steps, rowvar=False).reshape(k, k)
+
+
+def _jackknife_views(data: _Data, pair_views: Sequence[tuple], params: np.ndarray, fidx: np.ndarray, f: float,
+                     size: tuple[int, int], pp_prior_sigma: float, weights: np.ndarray, obs: Observability,
+                     min_views: int = 4) -> np.ndarray | None:
+    """Covariance of the free angles from a delete-one-view jackknife of the linearised weighted
+    least-squares step at the solution: each view left out with every pair it is in. The block
+    bootstrap (:func:`_bootstrap_angles`) resamples regions of pairs, so an error one view shares
+    with all its pairs is invisible to it; on the real Stanford Chess views (each rectified by the
+    archive with its own homography) the roll was 3.6 σ off with the default views. The residuals
+    keep the views' position errors, as in the bootstrap. A view whose removal leaves a direction the
+    fit uses with fewer than :data:`MIN_EVIDENCE_MATCHES` matches is not left out; None with fewer
+    than ``min_views`` views left out (2 × 1, 2 × 2: no such spread to measure)."""
+    if not len(fidx):
+        return None
+    problem = _Problem(data, f, size, pp_prior_sigma)
+    problem.free_idx = fidx
+    p = np.asarray(params, float)
+    r = problem.residuals(p)
+    J = problem.jacobian(p, r)
+    wJ = J * weights[:, None]
+    views = sorted({v for pv in pair_views for v in pv})
+    steps = []
+    for view in views:
+        out_pairs = np.array([view in pv for pv in pair_views], bool)
+        keep = ~out_pairs[data.pair]
+        n_h = int(np.count_nonzero(keep & data.horizontal))
+        n_v = int(np.count_nonzero(keep & ~data.horizontal))
+        if (obs.rows and n_h < MIN_EVIDENCE_MATCHES) or (obs.columns and n_v < MIN_EVIDENCE_MATCHES):
+            continue
+        N = J[keep].T @ wJ[keep]
+        steps.append(_inverse(N) @ (wJ[keep].T @ r[keep]))
+    n = len(steps)
+    if n < min_views:
+        return None
+    steps = np.array(steps)
+    dev = steps - steps.mean(axis=0)
+    return (n - 1) / n * dev.T @ dev
 
 
 def observable_limit_px(prior_sigma_px: float) -> float:

@@ -171,7 +171,8 @@ def describe_fit(fit, matches, row_baseline_mm: float | None, column_baseline_mm
         linear_residual_px=linear_rms, degenerate=degenerate,
         method="covariance of the fit with every view's position error in the model (prior: the rig's "
                "repeatability, raised to what the data show) and each pair's residuals scaled by their "
-               "observed spread; the principal point's prior included when it is held")
+               "observed spread; the principal point's prior included when it is held; at least the spread of a "
+               "block bootstrap over pair regions and of a delete-one-view jackknife")
 
 
 def rig_floor_px(fit, nearest_px_per_mm: float | None) -> float | None:
