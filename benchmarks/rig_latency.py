@@ -34,6 +34,7 @@ import sys
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from _measure import cpu_s, load_text  # noqa: E402
 from lfstudio.rig.profile import load_rig  # noqa: E402
 from lfstudio.studio.devices import open_rig  # noqa: E402
 
@@ -238,14 +239,26 @@ def drive_scan(args, rig, word: str) -> int:
         ds = create_scan_dataset(Path(tmp) / "ds", plan, rig={"name": rig.name}, camera={"name": "sim"},
                                  lens={"name": "virtual"})
         engine = ScanEngine(ds, plan, sim.rig, sim.camera, time_scale=scale)
+        cpu0 = cpu_s()
         total_s = timed_scan(engine)
+        scan_cpu_s = cpu_s() - cpu0
         if total_s is None:
             return 1
+        steps: dict[str, list[float]] = {}          # where each view's time went (the engine's own timings)
+        for v in ds.done_views():
+            for key, value in (v.get("timings_s") or {}).items():
+                steps.setdefault(key, []).append(value)
     critical_s = plan.estimate_duration_s(rig, exposure_s=trigger_s + exposure_s, transfer_s=transfer_s) * scale
     ratio = total_s / critical_s
     print(f"  scan {plan.columns} x {plan.rows} = {len(plan)} views on {word}, time scale {scale:g}: measured "
           f"{total_s:.1f} s, critical path {critical_s:.1f} s, ratio {ratio:.4f} "
           f"(target <= 1.03: {'OK' if ratio <= 1.03 else 'MISSED'})")
+    print(f"    CPU {scan_cpu_s:.1f} s in {total_s:.1f} s wall ({scan_cpu_s / total_s:.2f} cores); {load_text()}")
+    per_view = {"expose": (trigger_s + exposure_s) * scale, "transfer": transfer_s * scale,
+                "period": critical_s / len(plan)}
+    print("    per view, median (critical path): " + ", ".join(
+        f"{key} {1e3 * statistics.median(values):.1f} ms" + (f" ({1e3 * per_view[key]:.1f})" if key in per_view else "")
+        for key, values in steps.items() if values))
     return 0
 
 
