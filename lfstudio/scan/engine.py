@@ -776,7 +776,21 @@ class ScanEngine:
                 self._current = None
         self._drain_store()
         self._finish_storage()
+        self._restore_shutter()
         self._finish()
+
+    def _restore_shutter(self) -> None:
+        """After a bracketed scan, the camera's shutter time as it was when the scan began (it was left
+        at the last frame's), so the next single picture is not taken at a bracket's extreme."""
+        base = (self.dataset.manifest.get("bracket") or {}).get("base_shutter_s")
+        if self.frame_shutter_s is None or not isinstance(base, (int, float)) or base <= 0:
+            return
+        try:
+            self._camera_call("set_setting", "shutter_s", float(base), timeout_s=30)
+            self._emit(EventKind.LOG, f"camera shutter time set back to {base:.6g} s")
+        except Exception as exc:      # the scan's pictures are safe; the operator is told
+            self._emit(EventKind.LOG, f"the camera's shutter time could not be set back to {base:.6g} s ({exc}); "
+                                      "check it before the next picture")
 
     def _finish(self) -> None:
         counts = self.dataset.status_counts()
