@@ -315,8 +315,9 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
         return notes
     status = rig.status()
     if status.state is RigState.ALARM and isinstance(status.extra, dict) and "power_state" in status.extra:
-        raise DeviceError(f"the rig on {port} has a drive in fault, nothing was moved: {status.message} "
-                          f"({rig_command(port, config, 'reset')}, or Reset fault in the Rig panel)")
+        reset = ("Reset fault in the Rig panel, then start again" if how_to_home is not None   # the window's words
+                 else rig_command(port, config, "reset"))
+        raise DeviceError(f"the rig on {port} has a drive in fault, nothing was moved: {status.message} ({reset})")
     if status.state is RigState.ALARM:
         reason = status.message if status.message.startswith("ALARM") else \
             "locked since it was powered up or reset" if config.homing else "locked"

@@ -347,3 +347,8 @@ def test_a_scan_on_a_drive_in_fault_is_refused_naming_the_code_and_the_reset(dri
     assert "3220h" in text and "drive y (vertical)" in text and "\n" not in text
     assert "reset" in text.lower()
     assert not [w for w in emulator.pair.journal if w[1] == 0x6040]     # no control word: nothing moved
+    if not home:     # the CLI's line names the command with the drives' profile, the window's its own button
+        assert f"lfstudio rig --port {c.port} --rig-profile '{c.config.name}' reset" in text and "panel" not in text
+        with pytest.raises(cia402.DeviceError) as exc:
+            prepare_rig(c, c.config, c.port, how_to_home="home it in the Rig panel (Rig → Home), then start again")
+        assert "Reset fault in the Rig panel" in str(exc.value) and "lfstudio" not in str(exc.value)
