@@ -45,7 +45,7 @@ def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str 
     from PySide6.QtCore import QTimer
     from PySide6.QtWidgets import QApplication
 
-    from lfstudio.gui.crash import install_exception_hooks
+    from lfstudio.gui.crash import install_exception_hooks, restore_exception_hooks
     from lfstudio.gui.heartbeat import install_watchdog
     from lfstudio.gui.icons import app_icon
     from lfstudio.support.logs import is_configured, setup_logging
@@ -83,4 +83,7 @@ def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str 
             window.close()
             app.quit()
         QTimer.singleShot(3000, grab)
-    return app.exec()
+    try:
+        return app.exec()
+    finally:
+        restore_exception_hooks(window.exception_reporter)

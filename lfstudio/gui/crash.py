@@ -1,7 +1,8 @@
 """Unhandled exceptions in the GUI: logged with their traceback, shown in a dialog, never fatal.
 
 :func:`install_exception_hooks` replaces ``sys.excepthook`` (exceptions escaping Qt slots and event
-handlers land there) and ``threading.excepthook`` (background threads). Each exception is written
+handlers land there) and ``threading.excepthook`` (background threads); :func:`restore_exception_hooks`
+puts back the ones it found. Each exception is written
 to the log file with its traceback, then a non-modal :class:`CrashDialog` says what happened, where
 the log is, and offers "Copy details" (traceback + versions) for a bug report. The application keeps
 running: scans run on their own threads and their views are in the dataset journal as they are
@@ -133,6 +134,7 @@ class ExceptionReporter(QObject):
         self.parent_widget = parent_widget
         self.dialogs: list[CrashDialog] = []
         self.count = 0
+        self._replaced: tuple | None = None     # (sys.excepthook, threading.excepthook) before install
         self._inbox = GuiInbox(self._show_all, self)     # (summary, details), from any thread
 
     def report(self, exc_type, exc, tb, where: str) -> None:
@@ -193,6 +195,16 @@ def install_exception_hooks(parent_widget: QWidget | None = None) -> ExceptionRe
         name = args.thread.name if args.thread is not None else "a background thread"
         reporter.report(args.exc_type, args.exc_value, args.exc_traceback, f"in thread {name}")
 
+    reporter._replaced = (sys.excepthook, threading.excepthook)
     sys.excepthook = gui_hook
     threading.excepthook = thread_hook
     return reporter
+
+
+def restore_exception_hooks(reporter: ExceptionReporter) -> None:
+    """Put back the hooks :func:`install_exception_hooks` replaced for ``reporter`` (each install
+    keeps the ones it found, so nested installs unwind in order, as napari's do). The window calls
+    it when the application quits; an embedding program or a test gets its own hooks back."""
+    replaced, reporter._replaced = reporter._replaced, None
+    if replaced is not None:
+        sys.excepthook, threading.excepthook = replaced

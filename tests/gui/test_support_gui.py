@@ -89,6 +89,29 @@ def test_exception_in_a_thread_shows_dialog(qtbot, window, hooks):
     assert window.isVisible()
 
 
+def test_the_hooks_it_replaced_come_back_in_order(window, monkeypatch):
+    """Nested installs unwind to the hooks each one found (an embedding program keeps its own)."""
+    from lfstudio.gui.crash import install_exception_hooks, restore_exception_hooks
+
+    def mine(*args):
+        pass
+
+    def mine_for_threads(args):
+        pass
+
+    monkeypatch.setattr(sys, "excepthook", mine)
+    monkeypatch.setattr(threading, "excepthook", mine_for_threads)
+    outer = install_exception_hooks(window)
+    first = sys.excepthook
+    inner = install_exception_hooks(window)
+    assert sys.excepthook is not first and sys.excepthook is not mine
+    restore_exception_hooks(inner)
+    assert sys.excepthook is first and threading.excepthook is not mine_for_threads
+    restore_exception_hooks(outer)
+    restore_exception_hooks(outer)                   # twice is harmless
+    assert sys.excepthook is mine and threading.excepthook is mine_for_threads
+
+
 def test_help_menu_has_guide_log_folder_and_about(qtbot, window, tmp_path, monkeypatch):
     names = {a.objectName() for a in window.menu("Help").actions()}
     assert {"actionUserGuide", "actionShowLogFolder", "actionAbout"} <= names
