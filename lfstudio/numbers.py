@@ -99,6 +99,71 @@ class Number:
         return _as_option(option, lambda text: self.parse(option, text))
 
 
+# -- one description per parameter ---------------------------------------------------------------------
+#: the key of a dataclass field's metadata that holds its :class:`Param`
+PARAM = "lfstudio.param"
+
+
+@dataclass(frozen=True)
+class Param:
+    """Everything about one parameter, said once: the loader and validator check it, the window builds
+    its editor from it and the command line its option (ScopeFoundry's ``LoggedQuantity`` idea, without
+    Qt). ``number``: the rules of each value (None: text); ``pair``: two values (horizontal, vertical);
+    ``optional``: None is allowed and editors show this text for it ("auto"); ``option``: the command
+    line's name (shared by the fields one option sets, e.g. ``--grid``); ``metavar``: its placeholder;
+    ``label``/``tip``: the editor's name and explanation (also the option's help); ``group``: where
+    editors and ``--help`` list it."""
+
+    number: Number | None = None
+    label: str = ""
+    tip: str = ""
+    option: str = ""
+    metavar: str = ""
+    group: str = ""
+    pair: bool = False
+    optional: str = ""
+
+    def check(self, field: str, value: Any) -> Any:
+        """``value`` checked (each of a pair's values; None when optional), or InputError naming ``field``."""
+        if value is None and self.optional:
+            return None
+        if self.pair:
+            if not isinstance(value, (tuple, list)) or len(value) != 2:
+                raise InputError(field, f"{value!r} is not a pair", "two numbers: horizontal, vertical")
+            return tuple(self._one(field, v) for v in value)
+        return self._one(field, value)
+
+    def _one(self, field: str, value: Any) -> Any:
+        if self.number is None:
+            if not isinstance(value, str):
+                raise InputError(field, f"{value!r} is not text", "a name in quotes")
+            return value
+        return self.number.check(field, value)
+
+    def valid(self) -> str:
+        return "text" if self.number is None else self.number.valid()
+
+
+def described(default: Any, **param: Any) -> Any:
+    """A dataclass field with ``default`` and its :class:`Param` (``dataclasses.field(metadata=…)``)."""
+    from dataclasses import field as dataclass_field
+
+    return dataclass_field(default=default, metadata={PARAM: Param(**param)})
+
+
+def params_of(cls_or_value: Any) -> dict[str, Param]:
+    """The described fields of a dataclass, in field order: ``{name: Param}``."""
+    import dataclasses
+
+    return {f.name: f.metadata[PARAM] for f in dataclasses.fields(cls_or_value) if PARAM in f.metadata}
+
+
+def check_described(value: Any) -> None:
+    """Check every described field of the dataclass instance ``value`` (InputError for the first bad one)."""
+    for name, param in params_of(value).items():
+        param.check(name, getattr(value, name))
+
+
 # -- fields several places share (CLI, GUI, profiles, plans, the engine) -----------------------------------------
 TIME_SCALE = Number("", 0, 1000)                    # factor on every simulated duration (0: as fast as possible)
 SETTLE_S = Number("s", 0, 3600)

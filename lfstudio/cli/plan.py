@@ -19,45 +19,51 @@ PAIR, WHOLE_PAIR = "pair", "whole pair"      # AxB (also A×B, A,B; numbers.pars
 PATH = "path"                                # a file name (~, $VARIABLES expanded: dataset.paths.path_option)
 PRESET = "preset"                            # a preset's name, applied first (planning.presets.plan_from_presets)
 
-#: every option that sets the plan, by group: (option, metavar, kind, help). The field each one sets
-#: is scene_plan.CLI_OPTION's; --plan and the presets are read first.
-OPTIONS = (
-    ("camera and lens", (
-        ("--plan", "FILE", PATH, "start from this plan file (.toml or .json) instead of the reference setup"),
-        ("--camera-preset", "NAME", PRESET, "camera preset (see --list-presets)"),
-        ("--sensor-px", "WxH", WHOLE_PAIR, "sensor size in pixels, e.g. 7952x5304"),
-        ("--sensor-mm", "WxH", PAIR, "sensor size in mm, e.g. 35.9x24"),
-        ("--pixel-pitch-um", "UM", float, "pixel pitch in µm (default: the camera's, or sensor mm / px)"),
-        ("--lens", "NAME", PRESET, "lens preset"),
-        ("--focal-length-mm", "MM", float, "focal length"))),
-    ("scene and optics", (
-        ("--near-m", "M", float, f"nearest scene distance from the camera plane (default {REFERENCE.near_m:g})"),
-        ("--far-m", "M", float, f"farthest scene distance (default {REFERENCE.far_m:g})"),
-        ("--coc-mm", "MM", float, f"circle of confusion (default {REFERENCE.coc_mm:g})"),
-        ("--f-number", "N", float, "aperture to evaluate (default: the one the scene needs)"),
-        ("--focus-m", "M", float, "focus distance (default: centres the sharp range on the scene)"))),
-    ("grid and rig", (
-        ("--grid", "CxR", WHOLE_PAIR, "columns x rows (default {0}x{1})".format(*REFERENCE.grid)),
-        ("--spacing-mm", "HxV", PAIR,
-         "spacing between neighbouring positions (default {0:g}x{1:g})".format(*REFERENCE.spacing_mm)),
-        ("--rig-profile", "NAME", PRESET, "rig profile: repeatability, travel, speed, acceleration, settle"),
-        ("--repeatability-um", "HxV", PAIR,
-         "axis repeatability (default {0:g}x{1:g})".format(*REFERENCE.repeatability_um)),
-        ("--travel-mm", "HxV", PAIR, "axis travel (default: the rig's)"),
-        ("--max-speed-mm-s", "HxV", PAIR, "axis speed (default: the rig's)"),
-        ("--acceleration-mm-s2", "HxV", PAIR, "axis acceleration (default: the rig's)"),
-        ("--settle-s", "S", float, "settle time after each move"),
-        ("--exposure-s", "S", float, f"exposure time (default {REFERENCE.exposure_s:g})"),
-        ("--transfer-s", "S", float, f"trigger + download time per image (default {REFERENCE.transfer_s:g})"),
-        ("--bracket", "EV,...", str, "exposure bracket per view: EV steps around --exposure-s (-2,0,+2) or shutter "
-                                     "times (1/500,1/125,1/30s); time and disk count every frame (default: none)"),
-        ("--raw-bits", "BITS", int, "raw bits per pixel (default: the camera's)"),
-        ("--bytes-per-image", "B", int, "file size per image (default: uncompressed raw)"))),
-    ("targets", (
-        ("--max-error-px", "PX", float, "allowed repositioning error in the image (default 0.5)"),
-        ("--max-disparity-px", "PX", float, "wanted max neighbour disparity: proposes the spacing (default 1)"),
-        ("--parallax-fraction", "F", float, "wanted parallax as a fraction of the image size: proposes the grid"))),
-)
+#: the fields a preset sets first, by name (their option takes the preset's name)
+_PRESET_FIELDS = {"camera_name", "lens_name", "rig_name"}
+
+
+def _kind(name: str, param) -> object:
+    if name in _PRESET_FIELDS:
+        return PRESET
+    if param.number is None:
+        return str
+    if param.pair or name in ("grid_columns", "grid_rows"):
+        return WHOLE_PAIR if param.number.integer else PAIR
+    return int if param.number.integer else float
+
+
+def _default_text(name: str, param, value) -> str:
+    if name in _PRESET_FIELDS or value in (None, ""):
+        return "" if not param.optional else f" (default: {param.optional})"
+    if name == "grid_columns":
+        return " (default {0}x{1})".format(*REFERENCE.grid)
+    if isinstance(value, tuple):
+        return " (default {0:g}x{1:g})".format(*value)
+    return f" (default {value:g})"
+
+
+def _options() -> tuple:
+    """Every option that sets the plan, by group: (option, metavar, kind, help), made from the scene
+    plan's own field descriptions (lfstudio.planning.scene_plan.PARAMS); --plan is read first."""
+    from lfstudio.planning.scene_plan import PARAMS, ScenePlan
+
+    defaults = ScenePlan()
+    groups: dict[str, list] = {}
+    seen: set[str] = set()
+    for name, param in PARAMS.items():
+        if param.option in seen:
+            continue                           # --grid sets two fields
+        seen.add(param.option)
+        help_text = param.tip + _default_text(name, param, getattr(defaults, name))
+        groups.setdefault(param.group, []).append((param.option, param.metavar, _kind(name, param), help_text))
+    first = next(iter(groups))
+    groups[first].insert(0, ("--plan", "FILE", PATH,
+                             "start from this plan file (.toml or .json) instead of the reference setup"))
+    return tuple((title, tuple(options)) for title, options in groups.items())
+
+
+OPTIONS = _options()
 
 #: the earlier names of options whose meaning did not change (accepted, hidden from --help)
 OLD_SPELLINGS = {"--camera-preset": "--camera", "--rig-profile": "--rig"}

@@ -22,31 +22,15 @@ from lfstudio.dataset.bracket import Bracket, parse_bracket
 from lfstudio.dataset.grid import DEFAULT_ORDER, Grid
 from lfstudio.errors import InputError
 from lfstudio.optics import REFERENCE
-from lfstudio.numbers import Number, check_grid
+from lfstudio.numbers import MAX_GRID_SIDE, Number, check_described, check_grid, described, params_of
 
 PLAN_FORMAT = "lfstudio-plan"
 PLAN_VERSION = 1
 
 AXES = ("horizontal", "vertical")
 
-#: how each input is called on the command line (InputError names fields by their attribute name;
-#: the CLI translates with this table)
-#: the unit of a field, from its name's suffix (for messages)
-_UNITS = (("_mm_s2", "mm/s²"), ("_mm_s", "mm/s"), ("_mm", "mm"), ("_um", "µm"), ("_px", "px"), ("_m", "m"),
-          ("_s", "s"))
-
-CLI_OPTION = {
-    "camera_name": "--camera-preset", "sensor_px": "--sensor-px", "sensor_mm": "--sensor-mm",
-    "pixel_pitch_um": "--pixel-pitch-um", "lens_name": "--lens", "focal_length_mm": "--focal-length-mm",
-    "near_m": "--near-m", "far_m": "--far-m", "coc_mm": "--coc-mm", "f_number": "--f-number",
-    "focus_m": "--focus-m", "grid_columns": "--grid", "grid_rows": "--grid", "spacing_mm": "--spacing-mm",
-    "rig_name": "--rig-profile", "repeatability_um": "--repeatability-um", "travel_mm": "--travel-mm",
-    "max_speed_mm_s": "--max-speed-mm-s", "acceleration_mm_s2": "--acceleration-mm-s2",
-    "settle_s": "--settle-s", "exposure_s": "--exposure-s", "transfer_s": "--transfer-s",
-    "max_error_px": "--max-error-px", "max_disparity_px": "--max-disparity-px",
-    "target_parallax_fraction": "--parallax-fraction", "raw_bits": "--raw-bits",
-    "bytes_per_image": "--bytes-per-image", "bracket": "--bracket",
-}
+#: the groups the plan's fields are listed in (the command line's --help; the window has its own layout)
+CAMERA, SCENE, GRID, TARGETS = "camera and lens", "scene and optics", "grid and rig", "targets"
 
 
 @dataclass(frozen=True)
@@ -73,36 +57,99 @@ class ScenePlan:
     None means "an uncompressed raw frame of ``raw_bits`` per pixel".
     """
 
-    camera_name: str = "Sony A7R II (reference)"
-    sensor_px: tuple[int, int] = REFERENCE.sensor_px
-    sensor_mm: tuple[float, float] = REFERENCE.sensor_mm
-    pixel_pitch_um: float | None = REFERENCE.pixel_pitch_um
-    lens_name: str = "50 mm (reference)"
-    focal_length_mm: float = REFERENCE.focal_length_mm
-    near_m: float = REFERENCE.near_m
-    far_m: float = REFERENCE.far_m
-    coc_mm: float = REFERENCE.coc_mm
-    f_number: float | None = None
-    focus_m: float | None = None
-    grid_columns: int = REFERENCE.grid[0]
-    grid_rows: int = REFERENCE.grid[1]
-    spacing_mm: tuple[float, float] = REFERENCE.spacing_mm
-    rig_name: str = "Reference gantry"
-    repeatability_um: tuple[float, float] = REFERENCE.repeatability_um
-    travel_mm: tuple[float, float] = REFERENCE.travel_mm
-    max_speed_mm_s: tuple[float, float] = REFERENCE.max_speed_mm_s
-    acceleration_mm_s2: tuple[float, float] = REFERENCE.acceleration_mm_s2
-    settle_s: float = REFERENCE.settle_s
-    exposure_s: float = REFERENCE.exposure_s
-    transfer_s: float = REFERENCE.transfer_s
-    max_error_px: float = 0.5
-    max_disparity_px: float = 1.0
-    target_parallax_fraction: float | None = None
-    raw_bits: int = 14
-    bytes_per_image: int | None = None
+    camera_name: str = described("Sony A7R II (reference)", label="Camera", option="--camera-preset",
+                                 metavar="NAME", group=CAMERA, tip="Camera preset (see --list-presets)")
+    sensor_px: tuple[int, int] = described(
+        REFERENCE.sensor_px, number=Number("px", 0, 100_000, low_open=True, integer=True), pair=True,
+        label="Sensor", option="--sensor-px", metavar="WxH", group=CAMERA,
+        tip="Sensor size in pixels (width × height), e.g. 7952x5304")
+    sensor_mm: tuple[float, float] = described(
+        REFERENCE.sensor_mm, number=Number("mm", 0, 200, low_open=True), pair=True, label="Sensor size",
+        option="--sensor-mm", metavar="WxH", group=CAMERA, tip="Sensor size in mm (width × height), e.g. 35.9x24")
+    pixel_pitch_um: float | None = described(
+        REFERENCE.pixel_pitch_um, number=Number("µm", 0.1, 100, low_open=True), optional="auto",
+        label="Pixel pitch", option="--pixel-pitch-um", metavar="UM", group=CAMERA,
+        tip="The sensor's own pixel pitch; 'auto' derives it from sensor mm / px")
+    lens_name: str = described("50 mm (reference)", label="Lens", option="--lens", metavar="NAME", group=CAMERA,
+                               tip="Lens preset")
+    focal_length_mm: float = described(
+        REFERENCE.focal_length_mm, number=Number("mm", 1, 2000), label="Focal length",
+        option="--focal-length-mm", metavar="MM", group=CAMERA, tip="Focal length f of the lens")
+    near_m: float = described(
+        REFERENCE.near_m, number=Number("m", 0, 10_000, low_open=True), label="Near", option="--near-m",
+        metavar="M", group=SCENE, tip="Nearest scene point, measured from the plane the camera moves in")
+    far_m: float = described(
+        REFERENCE.far_m, number=Number("m", 0, 10_000, low_open=True), label="Far", option="--far-m",
+        metavar="M", group=SCENE, tip="Farthest scene point (the back wall)")
+    coc_mm: float = described(
+        REFERENCE.coc_mm, number=Number("mm", 0.001, 1), label="Circle of confusion", option="--coc-mm",
+        metavar="MM", group=SCENE, tip="Largest blur still counted as sharp (0.029 mm is usual for full frame)")
+    f_number: float | None = described(
+        None, number=Number("", 0.5, 128), optional="auto (needed)", label="f-number", option="--f-number",
+        metavar="N", group=SCENE, tip="Aperture to evaluate; 'auto' uses the one the scene needs")
+    focus_m: float | None = described(
+        None, number=Number("m", 0, 10_000, low_open=True), optional="auto (centred)", label="Focus",
+        option="--focus-m", metavar="M", group=SCENE,
+        tip="Focus distance; 'auto' centres the sharp range on the scene")
+    grid_columns: int = described(
+        REFERENCE.grid[0], number=Number("", 1, MAX_GRID_SIDE, integer=True), label="Grid", option="--grid",
+        metavar="CxR", group=GRID, tip="Columns × rows of camera positions, e.g. 101x21")
+    grid_rows: int = described(
+        REFERENCE.grid[1], number=Number("", 1, MAX_GRID_SIDE, integer=True), label="Grid", option="--grid",
+        metavar="CxR", group=GRID, tip="Columns × rows of camera positions, e.g. 101x21")
+    spacing_mm: tuple[float, float] = described(
+        REFERENCE.spacing_mm, number=Number("mm", 0, 100_000, low_open=True), pair=True, label="Spacing",
+        option="--spacing-mm", metavar="HxV", group=GRID,
+        tip="Distance between neighbouring positions (horizontal × vertical)")
+    rig_name: str = described("Reference gantry", label="Rig", option="--rig-profile", metavar="NAME", group=GRID,
+                              tip="Rig profile: repeatability, travel, speed, acceleration, settle")
+    repeatability_um: tuple[float, float] = described(
+        REFERENCE.repeatability_um, number=Number("µm", 0, 100_000), pair=True, label="Repeatability",
+        option="--repeatability-um", metavar="HxV", group=GRID,
+        tip="Repositioning error of each axis (horizontal × vertical)")
+    travel_mm: tuple[float, float] = described(
+        REFERENCE.travel_mm, number=Number("mm", 0, 1_000_000, low_open=True), pair=True, label="Travel",
+        option="--travel-mm", metavar="HxV", group=GRID, tip="Usable travel of each axis")
+    max_speed_mm_s: tuple[float, float] = described(
+        REFERENCE.max_speed_mm_s, number=Number("mm/s", 0, 100_000, low_open=True), pair=True, label="Speed",
+        option="--max-speed-mm-s", metavar="HxV", group=GRID, tip="Maximum speed of each axis")
+    acceleration_mm_s2: tuple[float, float] = described(
+        REFERENCE.acceleration_mm_s2, number=Number("mm/s²", 0, 1_000_000, low_open=True), pair=True,
+        label="Acceleration", option="--acceleration-mm-s2", metavar="HxV", group=GRID,
+        tip="Acceleration of each axis")
+    settle_s: float = described(
+        REFERENCE.settle_s, number=Number("s", 0, 3600), label="Settle", option="--settle-s", metavar="S",
+        group=GRID, tip="Wait after each move before exposing")
+    exposure_s: float = described(
+        REFERENCE.exposure_s, number=Number("s", 0, 3600), label="Exposure", option="--exposure-s", metavar="S",
+        group=GRID, tip="Exposure time per view")
+    transfer_s: float = described(
+        REFERENCE.transfer_s, number=Number("s", 0, 3600), label="Transfer", option="--transfer-s", metavar="S",
+        group=GRID, tip="Trigger + download time per image (overlaps the next move)")
+    max_error_px: float = described(
+        0.5, number=Number("px", 0, 100, low_open=True), label="Max. repositioning error",
+        option="--max-error-px", metavar="PX", group=TARGETS,
+        tip="Largest image shift the axes' repeatability may cause (SPEC: 0.5 px)")
+    max_disparity_px: float = described(
+        1.0, number=Number("px", 0, 100_000, low_open=True), label="Max. neighbour disparity",
+        option="--max-disparity-px", metavar="PX", group=TARGETS,
+        tip="Wanted disparity between neighbouring views over the scene depth: proposes the spacing")
+    target_parallax_fraction: float | None = described(
+        None, number=Number("", 0, 100, low_open=True), optional="off", label="Wanted parallax",
+        option="--parallax-fraction", metavar="F", group=TARGETS,
+        tip="Wanted parallax as a fraction of the image size: proposes the grid")
+    raw_bits: int = described(
+        14, number=Number("bit", 1, 64, integer=True), label="Raw depth", option="--raw-bits", metavar="BITS",
+        group=GRID, tip="Bits per raw sample (for the disk estimate)")
+    bytes_per_image: int | None = described(
+        None, number=Number("B", 1, 1e12, integer=True), optional="uncompressed raw", label="Bytes per image",
+        option="--bytes-per-image", metavar="B", group=GRID, tip="File size per image")
     #: exposure bracket per view as typed ("-2,0,+2" EV around exposure_s, or "1/500,1/125,1/30s");
     #: "" for one frame per view (lfstudio.dataset.bracket)
-    bracket: str = ""
+    bracket: str = described(
+        "", label="Bracket", option="--bracket", metavar="EV,...", group=GRID,
+        tip="Exposure bracket at every view: EV steps around the exposure (-2,0,+2) or shutter times "
+            "(1/500,1/125,1/30s); empty: one picture per view. Time and disk count every frame")
 
     # -- derived inputs ----------------------------------------------------------------------------
     @property
@@ -144,57 +191,18 @@ class ScenePlan:
     def validate(self, check_travel: bool = True) -> None:
         """Raise :class:`InputError` (field = attribute name, with the valid range) for the first
         impossible input. With ``check_travel``, a grid wider than the rig's travel is one too."""
-        def number(name: str, value: Any, lo: float, hi: float, lo_open: bool = True,
-                   integer: bool = False) -> None:
-            unit = next((u for suffix, u in _UNITS if name.endswith(suffix)), "")
-            Number(unit, lo, hi, lo_open, integer).check(name, value)
-
-        def pair(name: str, value: Any, lo: float, hi: float, lo_open: bool = True, integer: bool = False) -> None:
-            if not isinstance(value, (tuple, list)) or len(value) != 2:
-                raise InputError(name, f"{value!r} is not a pair", "two numbers: horizontal, vertical")
-            for v in value:
-                number(name, v, lo, hi, lo_open, integer)
-
-        pair("sensor_px", self.sensor_px, 0, 100_000, integer=True)
-        pair("sensor_mm", self.sensor_mm, 0, 200)
-        if self.pixel_pitch_um is not None:
-            number("pixel_pitch_um", self.pixel_pitch_um, 0.1, 100)
-        number("focal_length_mm", self.focal_length_mm, 1, 2000, lo_open=False)
-        number("near_m", self.near_m, 0, 10_000)
+        check_described(self)             # each field's own rules (its Param: range, unit, pair, optional)
         if self.near_m * 1000.0 <= 4.0 * self.focal_length_mm:
             raise InputError("near_m", f"{self.near_m:g} m is too close for a {self.focal_length_mm:g} mm lens "
                              "(the formulas assume distances much larger than the focal length)",
                              f"> {4 * self.focal_length_mm / 1000:g} m (4 × focal length)")
-        number("far_m", self.far_m, 0, 10_000)
         if self.far_m <= self.near_m:
             raise InputError("far_m", f"{self.far_m:g} m is not beyond the near distance {self.near_m:g} m",
                              f"> {self.near_m:g} m (the near distance) and ≤ 10000 m")
-        number("coc_mm", self.coc_mm, 0.001, 1, lo_open=False)
-        if self.f_number is not None:
-            number("f_number", self.f_number, 0.5, 128, lo_open=False)
-        if self.focus_m is not None:
-            number("focus_m", self.focus_m, 0, 10_000)
-            if self.focus_m * 1000.0 <= self.focal_length_mm:
-                raise InputError("focus_m", f"{self.focus_m:g} m is inside the focal length",
-                                 f"> {self.focal_length_mm / 1000:g} m")
-        number("grid_columns", self.grid_columns, 1, 100_000, lo_open=False, integer=True)
-        number("grid_rows", self.grid_rows, 1, 100_000, lo_open=False, integer=True)
+        if self.focus_m is not None and self.focus_m * 1000.0 <= self.focal_length_mm:
+            raise InputError("focus_m", f"{self.focus_m:g} m is inside the focal length",
+                             f"> {self.focal_length_mm / 1000:g} m")
         check_grid("grid_columns", self.grid_columns, self.grid_rows)
-        pair("spacing_mm", self.spacing_mm, 0, 100_000)
-        pair("repeatability_um", self.repeatability_um, 0, 100_000, lo_open=False)
-        pair("travel_mm", self.travel_mm, 0, 1_000_000)
-        pair("max_speed_mm_s", self.max_speed_mm_s, 0, 100_000)
-        pair("acceleration_mm_s2", self.acceleration_mm_s2, 0, 1_000_000)
-        number("settle_s", self.settle_s, 0, 3600, lo_open=False)
-        number("exposure_s", self.exposure_s, 0, 3600, lo_open=False)
-        number("transfer_s", self.transfer_s, 0, 3600, lo_open=False)
-        number("max_error_px", self.max_error_px, 0, 100)
-        number("max_disparity_px", self.max_disparity_px, 0, 100_000)
-        if self.target_parallax_fraction is not None:
-            number("target_parallax_fraction", self.target_parallax_fraction, 0, 100)
-        number("raw_bits", self.raw_bits, 1, 64, lo_open=False, integer=True)
-        if self.bytes_per_image is not None:
-            number("bytes_per_image", self.bytes_per_image, 1, 1e12, lo_open=False, integer=True)
         self.frame_exposures_s()          # a bracket that cannot be read or taken: InputError("bracket")
         if check_travel:
             problem = self.travel_problem()
@@ -287,9 +295,13 @@ class ScenePlan:
         return self.grid.to_manifest()
 
 
-_INT_FIELDS = {"grid_columns", "grid_rows", "raw_bits", "bytes_per_image"}
-_PAIR_FIELDS = {"sensor_px", "sensor_mm", "spacing_mm", "repeatability_um", "travel_mm", "max_speed_mm_s",
-                "acceleration_mm_s2"}
+#: every field's description (range, unit, label, tip, command-line option), in field order
+PARAMS = params_of(ScenePlan)
+#: how each input is called on the command line (InputError names fields by their attribute name;
+#: the CLI translates with this table)
+CLI_OPTION = {name: p.option for name, p in PARAMS.items()}
+_INT_FIELDS = {name for name, p in PARAMS.items() if p.number is not None and p.number.integer}
+_PAIR_FIELDS = {name for name, p in PARAMS.items() if p.pair}
 
 
 @dataclass(frozen=True)

@@ -209,3 +209,32 @@ def test_a_low_planner_dock_has_one_scroll_bar(window, qtbot, height):
                                                    inner.verticalScrollBar().maximum())
     if height < panel.minimumSizeHint().height():
         assert outer_scrolls and not inner_scrolls
+
+
+def test_every_editor_accepts_exactly_what_the_plan_accepts(window):
+    """One description per parameter: each editor's range is the scene plan's own (the window once
+    took 100 000 columns where the plan stops at 20 000, and a pixel pitch of 0 the plan refuses)."""
+    from lfstudio.planning.scene_plan import PARAMS
+
+    p = planner(window)
+    checked = 0
+    for key, row in p.rows.items():
+        if not row.spins:
+            continue                                   # presets and the bracket: text
+        name = "grid_columns" if key == "grid" else key
+        param = PARAMS[name]
+        scale = 100.0 if key == "target_parallax_fraction" else 1.0
+        for box in row.spins:
+            top, bottom = box.maximum() / scale, box.minimum() / scale
+            assert param.number.check(name, top) == pytest.approx(top)                 # the top is valid
+            assert param.number.problem(top * 1.001 + 1) is not None                     # and nothing above
+            if param.optional:
+                assert param.number.problem(bottom) is not None    # the minimum means None ("auto")
+                assert box.specialValueText() == param.optional
+            else:
+                assert param.number.problem(bottom) is None
+            assert param.label == row.label.text()
+            checked += 1
+    assert checked >= 25
+    grid = p.rows["grid"].spins[0]
+    assert grid.maximum() == 20_000 and p.rows["pixel_pitch_um"].spins[0].minimum() == pytest.approx(0.1)

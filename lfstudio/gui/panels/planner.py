@@ -26,7 +26,7 @@ from lfstudio.errors import InputError, LfError
 from lfstudio.jobs import format_duration
 from lfstudio import optics
 from lfstudio.planning.presets import (camera_fields, lens_fields, reference_plan, rig_fields)
-from lfstudio.planning.scene_plan import PlanResult, ScenePlan, load_plan, save_plan
+from lfstudio.planning.scene_plan import PARAMS, PlanResult, ScenePlan, load_plan, save_plan
 from lfstudio.resources import load_presets
 
 log = logging.getLogger(__name__)
@@ -69,50 +69,38 @@ class _Input:
     tip: str = ""
 
 
-_CAMERA_INPUTS = [
-    _Input("sensor_px", "Sensor", "ipair", 1, 100000, suffix=" px", tip="Sensor size in pixels (width × height)"),
-    _Input("sensor_mm", "Sensor size", "pair", 0.1, 200, 2, 0.1, " mm", tip="Sensor size in mm (width × height)"),
-    _Input("pixel_pitch_um", "Pixel pitch", "double", 0.0, 100, 3, 0.01, " µm", "auto",
-           "The sensor's own pixel pitch; 'auto' derives it from sensor mm / px"),
-    _Input("raw_bits", "Raw depth", "int", 1, 32, suffix=" bit", tip="Bits per raw sample (for the disk estimate)"),
-]
-_LENS_INPUTS = [
-    _Input("focal_length_mm", "Focal length", "double", 1, 2000, 1, 1, " mm", tip="Focal length f of the lens"),
-]
-_SCENE_INPUTS = [
-    _Input("near_m", "Near", "double", 0.01, 10000, 2, 0.05, " m",
-           tip="Nearest scene point, measured from the plane the camera moves in"),
-    _Input("far_m", "Far", "double", 0.01, 10000, 2, 0.1, " m", tip="Farthest scene point (the back wall)"),
-    _Input("coc_mm", "Circle of confusion", "double", 0.001, 1, 3, 0.001, " mm",
-           tip="Largest blur still counted as sharp (0.029 mm is usual for full frame)"),
-    _Input("f_number", "f-number", "double", 0.0, 128, 1, 0.5, "", "auto (needed)",
-           "Aperture to evaluate; 'auto' uses the one the scene needs"),
-    _Input("focus_m", "Focus", "double", 0.0, 10000, 2, 0.05, " m", "auto (centred)",
-           "Focus distance; 'auto' centres the sharp range on the scene"),
-]
-_GRID_INPUTS = [
-    _Input("grid", "Grid", "ipair", 1, 100000, suffix="", tip="Columns × rows of camera positions"),
-    _Input("spacing_mm", "Spacing", "pair", 0.001, 100000, 3, 0.5, " mm",
-           tip="Distance between neighbouring positions (horizontal × vertical)"),
-    _Input("repeatability_um", "Repeatability", "pair", 0, 100000, 0, 5, " µm",
-           tip="Repositioning error of each axis (horizontal × vertical)"),
-    _Input("travel_mm", "Travel", "pair", 0.1, 1000000, 0, 10, " mm", tip="Usable travel of each axis"),
-    _Input("max_speed_mm_s", "Speed", "pair", 0.1, 100000, 0, 5, " mm/s", tip="Maximum speed of each axis"),
-    _Input("acceleration_mm_s2", "Acceleration", "pair", 0.1, 1000000, 0, 10, " mm/s²",
-           tip="Acceleration of each axis"),
-    _Input("settle_s", "Settle", "double", 0, 3600, 2, 0.05, " s", tip="Wait after each move before exposing"),
-    _Input("exposure_s", "Exposure", "double", 0, 3600, 3, 0.1, " s", tip="Exposure time per view"),
-    _Input("transfer_s", "Transfer", "double", 0, 3600, 2, 0.1, " s",
-           tip="Trigger + download time per image (overlaps the next move)"),
-]
-_TARGET_INPUTS = [
-    _Input("max_error_px", "Max. repositioning error", "double", 0.01, 100, 2, 0.1, " px",
-           tip="Largest image shift the axes' repeatability may cause (SPEC: 0.5 px)"),
-    _Input("max_disparity_px", "Max. neighbour disparity", "double", 0.01, 100000, 2, 0.25, " px",
-           tip="Wanted disparity between neighbouring views over the scene depth: proposes the spacing"),
-    _Input("target_parallax_fraction", "Wanted parallax", "double", 0.0, 10000, 1, 1, " %", "off",
-           tip="Wanted parallax as a percentage of the image size: proposes the grid"),
-]
+def _input(key: str, decimals: int = 2, step: float = 1.0, percent: bool = False) -> _Input:
+    """One editor row made from the scene plan's own description of the field (its range, unit, label
+    and tip: lfstudio.planning.scene_plan.PARAMS), so the window accepts exactly what the plan does.
+    Only the presentation is the window's: decimals, step, and percent for a fraction. An optional
+    field's editor shows its text (e.g. "auto") at the minimum, one step below the valid range."""
+    param = PARAMS["grid_columns" if key == "grid" else key]
+    number = param.number
+    assert number is not None and number.low is not None and number.high is not None, key
+    scale = 100.0 if percent else 1.0
+    tick = 1.0 if number.integer else 10.0 ** -decimals
+    lo = number.low * scale
+    if param.optional:
+        lo = lo if number.low_open else lo - tick
+    elif number.low_open:
+        lo += tick
+    pair = param.pair or key == "grid"
+    kind = ("ipair" if pair else "int") if number.integer else ("pair" if pair else "double")
+    suffix = " %" if percent else (f" {number.unit}" if number.unit and key != "grid" else "")
+    return _Input(key, param.label, kind, lo, number.high * scale, decimals, step, suffix, param.optional,
+                  param.tip)
+
+
+_CAMERA_INPUTS = [_input("sensor_px"), _input("sensor_mm", 2, 0.1), _input("pixel_pitch_um", 3, 0.01),
+                  _input("raw_bits")]
+_LENS_INPUTS = [_input("focal_length_mm", 1, 1)]
+_SCENE_INPUTS = [_input("near_m", 2, 0.05), _input("far_m", 2, 0.1), _input("coc_mm", 3, 0.001),
+                 _input("f_number", 1, 0.5), _input("focus_m", 2, 0.05)]
+_GRID_INPUTS = [_input("grid"), _input("spacing_mm", 3, 0.5), _input("repeatability_um", 0, 5),
+                _input("travel_mm", 0, 10), _input("max_speed_mm_s", 0, 5), _input("acceleration_mm_s2", 0, 10),
+                _input("settle_s", 2, 0.05), _input("exposure_s", 3, 0.1), _input("transfer_s", 2, 0.1)]
+_TARGET_INPUTS = [_input("max_error_px", 2, 0.1), _input("max_disparity_px", 2, 0.25),
+                  _input("target_parallax_fraction", 1, 1, percent=True)]
 
 #: ScenePlan attribute -> input row key (most are the same)
 _ROW_OF_FIELD = {"grid_columns": "grid", "grid_rows": "grid"}
@@ -308,9 +296,8 @@ class PlannerPanel(QWidget):
     def _add_bracket_row(self, grid: QGridLayout) -> None:
         """The exposure bracket: text, as ``lfstudio scan --bracket`` takes it (time and disk count every frame)."""
         r = grid.rowCount()
-        label = QLabel("Bracket")
-        tip = ("Exposure bracket at every view: EV steps around the exposure (-2,0,+2) or shutter times "
-               "(1/500,1/125,1/30s); empty: one picture per view. Time and disk count every frame")
+        label = QLabel(PARAMS["bracket"].label)
+        tip = PARAMS["bracket"].tip
         label.setToolTip(tip)
         self.bracket_edit = QLineEdit()
         self.bracket_edit.setObjectName("bracket")
