@@ -121,6 +121,15 @@ class ScanFault(LfError):
         self.stop_pressed = False    # the operator's STOP: they know, no alarm box (the rig may still be homed)
 
 
+class _RigFailed(Exception):
+    """The rig's move for a view failed with ``error`` (a view's failures are the camera's unless they
+    come wrapped in this: the engine's own type, not an attribute patched onto the driver's exception)."""
+
+    def __init__(self, error: Exception):
+        super().__init__(str(error))
+        self.error = error
+
+
 class _Interrupted(Exception):
     """A view's attempt ended because the scan is pausing or stopping (STOP, pause, abort, a fault)."""
 
@@ -979,8 +988,8 @@ class ScanEngine:
                 return
             except (ScanFault, _Interrupted):
                 raise
-            except Exception as exc:
-                device = getattr(exc, "_scan_device", "camera")
+            except Exception as caught:
+                exc, device = (caught.error, "rig") if isinstance(caught, _RigFailed) else (caught, "camera")
                 disk = self._disk_fault(exc, self.dataset.root / "raw", "storing the capture of "
                                         + view_label(view.row, view.column))
                 if disk is not None:            # the disk's fault, never the camera's: no retry
@@ -1101,9 +1110,10 @@ class ScanEngine:
         self._moving = True
         try:
             status = self._rig_call("move_to", view.x_mm, view.y_mm, timeout_s=self.move_timeout_s)
-        except Exception as exc:
-            exc._scan_device = "rig"  # type: ignore[attr-defined]
+        except (ScanFault, _Interrupted):
             raise
+        except Exception as exc:
+            raise _RigFailed(exc) from exc
         finally:
             self._moving = False
         t_moved = time.monotonic()
