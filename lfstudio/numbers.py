@@ -9,18 +9,17 @@ unit::
     SETTLE_S = Number("s", 0, 600)
     SETTLE_S.check("--settle-s", 1e300)  # InputError: --settle-s: 1e+300 s is out of range (valid: 0 … 600 s)
 
-:meth:`Number.option` is the ``type=`` of an argparse option (the parser reports the line and exits
-with status 2 before any device is opened). Sizes that allocate memory are bounded here too, before
+:func:`lfstudio.cli.args.number_option` makes one the ``type=`` of an argparse option (the parser
+reports the line and exits with status 2 before any device is opened). Sizes that allocate memory are bounded here too, before
 anything is allocated: :func:`check_grid` (columns, rows and their product).
 """
 
 from __future__ import annotations
 
-import argparse
 import math
 import re
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 from lfstudio.errors import InputError
 
@@ -92,11 +91,6 @@ class Number:
             except (TypeError, ValueError):
                 raise InputError(field, f"{text!r} is not a number", self.valid()) from None
         return self.check(field, value)
-
-    def option(self, option: str) -> Callable[[str], Any]:
-        """The ``type=`` of an argparse option: the text parsed and checked; a refusal is argparse's
-        one-line error (exit status 2)."""
-        return _as_option(option, lambda text: self.parse(option, text))
 
 
 # -- one description per parameter ---------------------------------------------------------------------
@@ -200,36 +194,9 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def numbers_option(option: str, number: Number, count: int = 2, example: str = "4x6",
-                   one_for_all: bool = False) -> Callable[[str], tuple]:
-    """The ``type=`` of an option of ``count`` numbers (see :func:`parse_numbers`)."""
-    return _as_option(option, lambda text: parse_numbers(option, text, number, count, example, one_for_all))
-
-
 def parse_grid(field: str, text: str, example: str = "101x21") -> tuple[int, int]:
     """A grid typed as ``COLUMNSxROWS`` (:func:`parse_numbers`), bounded by :func:`check_grid`."""
     return check_grid(field, *parse_numbers(field, text, Number("", integer=True), 2, example))
-
-
-def grid_option(option: str) -> Callable[[str], tuple[int, int]]:
-    """The ``type=`` of a ``CxR`` grid option (:func:`parse_grid`)."""
-    return _as_option(option, lambda text: parse_grid(option, text))
-
-
-def _as_option(option: str, parse: Callable[[str], Any]) -> Callable[[str], Any]:
-    """``parse`` as an argparse ``type=``: an InputError becomes argparse's one-line error (exit 2)."""
-    def convert(text: str) -> Any:
-        try:
-            return parse(text)
-        except InputError as exc:
-            message = str(exc)
-            raise argparse.ArgumentTypeError(message[len(option) + 2:] if message.startswith(f"{option}: ")
-                                             else message) from None
-    convert.__name__ = option.lstrip("-").replace("-", "_")
-    return convert
-
-
-as_option = _as_option      # for other readers of typed text (paths: lfstudio.dataset.paths.path_option)
 
 
 def check_number(field: str, value: Any, *, unit: str = "", low: float | None = None, high: float | None = None,

@@ -1,7 +1,7 @@
 """How the command line reads a view's position on the grid, and the conventions every command
 shares (:data:`CONVENTIONS`, said once in ``lfstudio --help``).
 
-- A grid shape is COLUMNSxROWS: ``9x5`` is 9 columns by 5 rows (:func:`lfstudio.numbers.grid_option`).
+- A grid shape is COLUMNSxROWS: ``9x5`` is 9 columns by 5 rows (:func:`grid_option`).
 - A position on the grid is COLUMN,ROW counted from 0: ``4,2`` is column 4 of row 2
   (:func:`grid_position`).
 - A spacing is HORIZONTALxVERTICAL in millimetres: ``4x6``.
@@ -11,16 +11,17 @@ shares (:data:`CONVENTIONS`, said once in ``lfstudio --help``).
   the same as its new name, and refused with a line showing the new form (:func:`refused_spelling`)
   where its meaning changed.
 
-Numbers themselves (ranges, units, pairs like ``4x6``) are read by :mod:`lfstudio.numbers`.
+Numbers themselves (ranges, units, pairs like ``4x6``) are read by :mod:`lfstudio.numbers`; the glue that
+makes its readers (and paths and brackets) argparse ``type=`` functions is here (:func:`as_option`).
 """
 
 from __future__ import annotations
 
 import argparse
-from typing import Callable
+from typing import Any, Callable
 
 from lfstudio.errors import InputError
-from lfstudio.numbers import Number, parse_numbers
+from lfstudio.numbers import Number, parse_grid, parse_numbers
 
 CONVENTIONS = ("Grids are COLUMNSxROWS (9x5: 9 columns, 5 rows; an array of views: array:3x2); a view's "
                "position is COLUMN,ROW counted from 0 (4,2: column 4, row 2), its name r02_c004; spacings are "
@@ -66,3 +67,48 @@ def refused_spelling(p: argparse.ArgumentParser, old: str, message: str | Callab
     action = p.add_argument(old, action=_Refused, nargs=None if takes_value else 0, help=argparse.SUPPRESS,
                             default=argparse.SUPPRESS)
     action.help_text = message  # type: ignore[attr-defined]
+
+
+# -- argparse glue: a reader of typed text as an option's ``type=`` -------------------------------------
+def as_option(option: str, parse: Callable[[str], Any]) -> Callable[[str], Any]:
+    """``parse`` as an argparse ``type=``: an InputError becomes argparse's one-line error (exit 2)."""
+    def convert(text: str) -> Any:
+        try:
+            return parse(text)
+        except InputError as exc:
+            message = str(exc)
+            raise argparse.ArgumentTypeError(message[len(option) + 2:] if message.startswith(f"{option}: ")
+                                             else message) from None
+    convert.__name__ = option.lstrip("-").replace("-", "_")
+    return convert
+
+
+def number_option(number: Number, option: str) -> Callable[[str], Any]:
+    """The ``type=`` of an option holding one ``number`` (:meth:`lfstudio.numbers.Number.parse`)."""
+    return as_option(option, lambda text: number.parse(option, text))
+
+
+def numbers_option(option: str, number: Number, count: int = 2, example: str = "4x6",
+                   one_for_all: bool = False) -> Callable[[str], tuple]:
+    """The ``type=`` of an option of ``count`` numbers (:func:`lfstudio.numbers.parse_numbers`)."""
+    return as_option(option, lambda text: parse_numbers(option, text, number, count, example, one_for_all))
+
+
+def grid_option(option: str) -> Callable[[str], tuple[int, int]]:
+    """The ``type=`` of a ``CxR`` grid option (:func:`lfstudio.numbers.parse_grid`)."""
+    return as_option(option, lambda text: parse_grid(option, text))
+
+
+def path_option(option: str) -> Callable[[str], str]:
+    """The ``type=`` of a path argument: :func:`lfstudio.dataset.paths.expand_path` on what was typed
+    (a quoted ``'~/x'`` or ``'$HOME/x'`` reaches us unexpanded by the shell); a refusal is one line."""
+    from lfstudio.dataset.paths import expand_path
+
+    return as_option(option, lambda text: str(expand_path(text, option)))
+
+
+def bracket_option(option: str = "--bracket") -> Callable[[str], Any]:
+    """The ``type=`` of a ``--bracket`` option (:func:`lfstudio.dataset.bracket.parse_bracket`)."""
+    from lfstudio.dataset.bracket import parse_bracket
+
+    return as_option(option, lambda text: parse_bracket(text, option))

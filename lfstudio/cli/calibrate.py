@@ -6,9 +6,9 @@ import argparse
 import json
 import sys
 
+from lfstudio.cli.args import number_option, path_option
 from lfstudio.errors import InputError
 from lfstudio.numbers import Number
-from lfstudio.dataset.paths import path_option
 
 HELP = "self-calibrate the camera orientation (and principal point) from the dataset's images"
 
@@ -33,14 +33,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--position-sigma-um", metavar="SX,SY",
                    help="the rig's repeatability in micrometres, horizontal,vertical: the prior of each view's "
                         "position error (default: the dataset's rig, else the reference gantry's 80,50)")
-    p.add_argument("--focal-length-px", type=Number("px", 0, 1e6, low_open=True).option("--focal-length-px"),
+    p.add_argument("--focal-length-px", type=number_option(Number("px", 0, 1e6, low_open=True), "--focal-length-px"),
                    metavar="F",
                    help="focal length in full-resolution pixels (default: from the dataset's camera and lens)")
-    p.add_argument("--work-width-px", type=Number("px", 0, 100_000, integer=True).option("--work-width-px"),
+    p.add_argument("--work-width-px", type=number_option(Number("px", 0, 100_000, integer=True), "--work-width-px"),
                    default=None, metavar="PX",
                    help="width at which features are detected (default 1400, "
                         "lfstudio.calibration.features.DEFAULT_WORK_WIDTH_PX; 0 = full resolution)")
-    p.add_argument("--threads", type=Number("", 1, 256, integer=True).option("--threads"), default=2,
+    p.add_argument("--threads", type=number_option(Number("", 1, 256, integer=True), "--threads"), default=2,
                    help="threads for feature detection and matching (default 2)")
     p.add_argument("--no-save", action="store_true", help="print the result but do not write calibration.json")
     p.add_argument("--json", action="store_true", help="print the calibration document as JSON instead of text")

@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
+from lfstudio.cli.args import number_option, path_option
 from lfstudio.errors import InputError
 from lfstudio.numbers import WIDTH_PX, Number, parse_numbers
-from lfstudio.dataset.paths import path_option
 
 HELP = "take a test shot with a camera (sim, gphoto2, folder:PATH) and print its files and timings"
 
@@ -19,7 +19,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trigger", nargs=argparse.REMAINDER, default=None,
                    help="hot folder: the trigger command and its arguments (must come last)")
     p.add_argument("--position-mm", default="0,0", metavar="X,Y", help="simulated camera: position on the rig")
-    p.add_argument("--width", type=WIDTH_PX.option("--width"), default=2000, metavar="PX",
+    p.add_argument("--width", type=number_option(WIDTH_PX, "--width"), default=2000, metavar="PX",
                    help="simulated camera: image width")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="camera setting before the shot, e.g. --set iso=200 --set shutter_s=0.25")

@@ -11,8 +11,8 @@ import argparse
 import json
 import sys
 
+from lfstudio.cli.args import path_option
 from lfstudio.errors import InputError
-from lfstudio.dataset.paths import path_option
 
 HELP = "check a dataset's views from their pixels (sharpness, exposure, position, residual, depth); write quality.json"
 

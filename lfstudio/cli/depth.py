@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-
-from lfstudio.dataset.paths import path_option
+from lfstudio.cli.args import number_option, path_option
 from lfstudio.numbers import WORKERS, Number
 
 HELP = "estimate each view's disparity, depth and confidence from its neighbours (multi-baseline; resumable)"
@@ -23,7 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cluster", metavar="ADDR",
                    help="Dask scheduler address, e.g. tcp://10.0.0.5:8786 (workers must see the dataset folder at "
                         "the same path); default: a local process pool")
-    p.add_argument("--workers", metavar="N", type=WORKERS.option("--workers"),
+    p.add_argument("--workers", metavar="N", type=number_option(WORKERS, "--workers"),
                    help="local worker processes (default: one per core; 0: run in this process)")
     p.add_argument("--force", action="store_true", help="compute every view again, even those up to date")
 

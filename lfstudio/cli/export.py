@@ -5,10 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lfstudio.cli.args import grid_position, refused_spelling
-from lfstudio.dataset.paths import path_option
+from lfstudio.cli.args import grid_position, number_option, numbers_option, path_option, refused_spelling
 from lfstudio.errors import InputError
-from lfstudio.numbers import Number, numbers_option
+from lfstudio.numbers import Number
 
 BITS = Number("bits", 1, 16, integer=True)   # each format checks its own depths
 
@@ -41,9 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="raw, processed, tonemap, or auto (default: processed when every chosen view is processed). "
                         "A bracketed dataset: raw and processed show the bracket's reference (0 EV) frame, tonemap "
                         "the tone-mapped merge of every frame (lfstudio process); the export's manifest names which")
-    p.add_argument("--crf", type=Number("", 0, 51, integer=True).option("--crf"), default=8,
+    p.add_argument("--crf", type=number_option(Number("", 0, 51, integer=True), "--crf"), default=8,
                    help="hevc: constant rate factor, lower is better (default 8)")
-    p.add_argument("--bit-depth", type=BITS.option("--bit-depth"), default=12, help="hevc: 10 or 12 bits (default 12)")
+    p.add_argument("--bit-depth", type=number_option(BITS, "--bit-depth"), default=12, help="hevc: 10 or 12 bits (default 12)")
     p.add_argument("--hci-size", default="9x9", metavar="CxR",
                    type=numbers_option("--hci-size", Number("", 1, integer=True), 2, "9x9"),
                    help="hci: sub-array columns x rows (default 9x9; ignored with --views)")
@@ -52,11 +51,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     refused_spelling(p, "--hci-center", lambda value: (
         f"--hci-center took ROW,COLUMN; the centre view is now --hci-centre-view COLUMN,ROW like every position: "
         f"write --hci-centre-view {','.join(reversed(value.split(',')))}"))
-    p.add_argument("--hci-bit-depth", type=BITS.option("--hci-bit-depth"), default=8,
+    p.add_argument("--hci-bit-depth", type=number_option(BITS, "--hci-bit-depth"), default=8,
                    help="hci: 8 (sRGB PNG like the benchmark, default) or 16 (linear 16-bit PNG)")
     p.add_argument("--authors", default="", metavar="NAMES",
                    help="hci: the authors written to parameters.cfg (default: the dataset's 'authors', else empty)")
-    p.add_argument("--image-bit-depth", type=BITS.option("--image-bit-depth"), default=8,
+    p.add_argument("--image-bit-depth", type=number_option(BITS, "--image-bit-depth"), default=8,
                    help="colmap/nerfstudio: 8 (sRGB PNG, what view-synthesis tools expect, default) or 16 "
                         "(linear 16-bit PNG)")
     p.add_argument("--holdout", default="none", metavar="SPLIT",

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import argparse
-from lfstudio.dataset.paths import path_option
+from lfstudio.cli.args import path_option
 
 HELP = "open the application window (default)"
 

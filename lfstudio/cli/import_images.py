@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
-
-from lfstudio.dataset.paths import path_option
-from lfstudio.numbers import SPACING_MM, Number, numbers_option, parse_grid
+from lfstudio.numbers import SPACING_MM, Number, parse_grid
+from lfstudio.cli.args import number_option, numbers_option, path_option
 
 HELP = "import another rig's images (PNG, TIFF, JPEG, camera RAW) as a dataset that calibrates, processes and exports"
 
@@ -24,7 +23,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(the Stanford archive's out_RR_CC_<a>_<b>), or a CSV with the columns file,x_mm,y_mm; "
                         "check then measures each view against them")
     zero = p.add_argument_group("zero-disparity plane (default: measured from the views' disparities)")
-    zero.add_argument("--zero-disparity-depth-m", type=Number("m", 0, 1e6, low_open=True).option("--zero-disparity-depth-m"),
+    zero.add_argument("--zero-disparity-depth-m", type=number_option(Number("m", 0, 1e6, low_open=True), "--zero-disparity-depth-m"),
                       metavar="Z", help="the views are sheared so that the plane at Z m has zero disparity (as "
                                         "archive light fields are published); needs the focal length")
     zero.add_argument("--parallel-views", action="store_true",
@@ -35,11 +34,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pattern", metavar="GLOB",
                    help="which files to take, e.g. '*.png' (default: every PNG/TIFF/JPEG/RAW file); files are "
                         "sorted naturally (img2 before img10)")
-    p.add_argument("--focal-length-mm", type=Number("mm", 0, 10_000, low_open=True).option("--focal-length-mm"), metavar="F",
+    p.add_argument("--focal-length-mm", type=number_option(Number("mm", 0, 10_000, low_open=True), "--focal-length-mm"), metavar="F",
                    help="lens focal length in mm (with --pixel-pitch-um)")
-    p.add_argument("--pixel-pitch-um", type=Number("µm", 0, 1000, low_open=True).option("--pixel-pitch-um"), metavar="P",
+    p.add_argument("--pixel-pitch-um", type=number_option(Number("µm", 0, 1000, low_open=True), "--pixel-pitch-um"), metavar="P",
                    help="sensor pixel size in µm")
-    p.add_argument("--focal-length-px", type=Number("px", 0, 1e6, low_open=True).option("--focal-length-px"), metavar="F",
+    p.add_argument("--focal-length-px", type=number_option(Number("px", 0, 1e6, low_open=True), "--focal-length-px"), metavar="F",
                    help="focal length in pixels of these images (instead of --focal-length-mm/--pixel-pitch-um)")
     p.add_argument("--out", required=True, metavar="DATASET", type=path_option("--out"), help="the new dataset folder (missing or empty)")
     p.add_argument("--overwrite", action="store_true",

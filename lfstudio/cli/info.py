@@ -6,7 +6,7 @@ import argparse
 import json
 
 from lfstudio.errors import DatasetError
-from lfstudio.dataset.paths import path_option
+from lfstudio.cli.args import path_option
 
 HELP = "summarise a dataset folder: grid, devices, views done/missing/failed, size"
 

@@ -7,8 +7,7 @@ import json
 import math
 import sys
 
-from lfstudio.cli.args import old_spelling
-from lfstudio.dataset.paths import path_option
+from lfstudio.cli.args import old_spelling, path_option
 from lfstudio.errors import InputError
 from lfstudio.numbers import Number, parse_numbers
 from lfstudio.optics import REFERENCE

@@ -7,8 +7,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lfstudio.numbers import WORKERS, Number, as_option
-from lfstudio.dataset.paths import path_option
+from lfstudio.numbers import WORKERS, Number
+from lfstudio.cli.args import as_option, number_option, path_option
 
 HELP = "process the captured views (debayer, lens, colour, shading, de-flicker, rectify, downsample)"
 
@@ -28,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cluster", metavar="ADDR", type=as_option("--cluster", _cluster_address),
                    help="Dask scheduler address, e.g. tcp://10.0.0.5:8786 (workers must see the dataset "
                         "folder at the same path); default: a local process pool")
-    p.add_argument("--workers", metavar="N", type=WORKERS.option("--workers"),
+    p.add_argument("--workers", metavar="N", type=number_option(WORKERS, "--workers"),
                    help="local worker processes (default: one per core; 0: run in this process)")
     p.add_argument("--force", action="store_true",
                    help="process every view again, even those already done with the same profile")
@@ -39,9 +39,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "DATASET/hdr/ as OpenEXR (default) or float TIFF, with a tone-mapped 16-bit PNG in "
                         "hdr/preview/; 'none': only the 16-bit views (the bracket's reference frame)")
     p.add_argument("--hdr-half", action="store_true", help="16-bit half floats instead of 32-bit in the HDR files")
-    p.add_argument("--hdr-clip", metavar="F", type=Number("", 0.5, 1.0).option("--hdr-clip"), default=0.97,
+    p.add_argument("--hdr-clip", metavar="F", type=number_option(Number("", 0.5, 1.0), "--hdr-clip"), default=0.97,
                    help="a developed channel at or above this share of full scale counts as clipped (default 0.97)")
-    p.add_argument("--hdr-noise-floor", metavar="F", type=Number("", 0.0, 0.25).option("--hdr-noise-floor"),
+    p.add_argument("--hdr-noise-floor", metavar="F", type=number_option(Number("", 0.0, 0.25), "--hdr-noise-floor"),
                    default=0.002, help="a pixel whose brightest channel is below this share of full scale "
                                        "counts as noise (default 0.002)")
 

@@ -7,7 +7,7 @@ import logging
 import sys
 import time
 
-from lfstudio.cli.args import old_spelling
+from lfstudio.cli.args import number_option, old_spelling
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.numbers import TIME_SCALE, TIMEOUT_S, Number
 
@@ -33,10 +33,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="rig profile (default: the reference gantry; for sim-dryve/sim-canopen the preset dryve D1 "
                         "pair; real drives need theirs named)")
     old_spelling(p, "--rig", "--rig-profile")
-    p.add_argument("--baud", type=BAUD.option("--baud"), default=115200, help="baud rate (default 115200)")
-    p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",
+    p.add_argument("--baud", type=number_option(BAUD, "--baud"), default=115200, help="baud rate (default 115200)")
+    p.add_argument("--time-scale", type=number_option(TIME_SCALE, "--time-scale"), default=1.0, metavar="X",
                    help="with --port sim: 1 real time, 0.1 ten times faster, 0 instant (default 1)")
-    p.add_argument("--timeout-s", type=TIMEOUT_S.option("--timeout-s"), default=3.0,
+    p.add_argument("--timeout-s", type=number_option(TIMEOUT_S, "--timeout-s"), default=3.0,
                    help="longest wait for any answer (default 3 s)")
     p.add_argument("commands", nargs=argparse.REMAINDER, metavar="COMMAND [ARGS]",
                    help="status | home | unlock | origin | reset | move X Y | jog DX DY  (mm; several in a row)")

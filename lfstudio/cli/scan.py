@@ -14,12 +14,11 @@ import signal
 import sys
 import threading
 
-from lfstudio.cli.args import refused_spelling
-from lfstudio.dataset.bracket import bracket_option
-from lfstudio.dataset.paths import path_option, view_label
+from lfstudio.cli.args import bracket_option, grid_option, number_option, numbers_option, path_option, refused_spelling
+from lfstudio.dataset.paths import view_label
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.numbers import (EXPOSURE_S, OFFSET_MM, RETRIES, SEED, SETTLE_S, SPACING_MM, TIME_SCALE, TRANSFER_S,
-                              WIDTH_PX, grid_option, numbers_option)
+                              WIDTH_PX)
 from lfstudio.optics import REFERENCE
 
 HELP = "capture a grid of views into a dataset folder (meander order, pipelined, resumable)"
@@ -61,7 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="shift of the grid from the centre of the travel in mm (default 0x0)")
     p.add_argument("--order", choices=("row-meander", "column-meander", "raster"), default=None,
                    help="capture order (default: row-meander)")
-    p.add_argument("--settle-s", type=SETTLE_S.option("--settle-s"), default=None,
+    p.add_argument("--settle-s", type=number_option(SETTLE_S, "--settle-s"), default=None,
                    help="settle time after each move (default: rig profile)")
     p.add_argument("--bracket", metavar="EV,...|T,...", type=bracket_option("--bracket"), default=None,
                    help="an exposure bracket at every view: EV steps around the camera's shutter time (-2,0,+2) "
@@ -72,17 +71,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="DATASET", type=path_option("--out"), help="the dataset folder to create (or resume)")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted scan in DATASET: captures only the views not done yet")
-    p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",
+    p.add_argument("--time-scale", type=number_option(TIME_SCALE, "--time-scale"), default=1.0, metavar="X",
                    help="multiply every simulated duration: 1 real time, 0.1 ten times faster, 0 as fast as possible")
-    p.add_argument("--exposure-s", type=EXPOSURE_S.option("--exposure-s"), default=REFERENCE.exposure_s,
+    p.add_argument("--exposure-s", type=number_option(EXPOSURE_S, "--exposure-s"), default=REFERENCE.exposure_s,
                    help=f"simulated camera exposure time (default {REFERENCE.exposure_s:g})")
-    p.add_argument("--transfer-s", type=TRANSFER_S.option("--transfer-s"), default=REFERENCE.transfer_s,
+    p.add_argument("--transfer-s", type=number_option(TRANSFER_S, "--transfer-s"), default=REFERENCE.transfer_s,
                    help=f"simulated camera transfer time (default {REFERENCE.transfer_s:g})")
-    p.add_argument("--sim-width-px", type=WIDTH_PX.option("--sim-width-px"), default=None, metavar="PX",
+    p.add_argument("--sim-width-px", type=number_option(WIDTH_PX, "--sim-width-px"), default=None, metavar="PX",
                    help="simulated camera image width in pixels (default 2000; smaller renders faster)")
-    p.add_argument("--retries", type=RETRIES.option("--retries"), default=2,
+    p.add_argument("--retries", type=number_option(RETRIES, "--retries"), default=2,
                    help="retries per view before the scan stops (default 2)")
-    p.add_argument("--seed", type=SEED.option("--seed"), default=0, help="seed of the simulated devices")
+    p.add_argument("--seed", type=number_option(SEED, "--seed"), default=0, help="seed of the simulated devices")
     p.add_argument("--check", action="store_true",
                    help="check each view as it arrives (lfstudio check's measurements, on a background thread the "
                         "scan never waits for) and name failing views at once; the full report: lfstudio check")
@@ -110,7 +109,7 @@ def _add_unattended_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--status-token", default="", metavar="TOKEN|new",
                    help="the token every request to the status page must carry (?token=...); 'new' makes one and "
                         "prints the page's address with it once; needed for any HOST but 127.0.0.1")
-    g.add_argument("--auto-resume", type=RETRIES.option("--auto-resume"), default=0, metavar="N",
+    g.add_argument("--auto-resume", type=number_option(RETRIES, "--auto-resume"), default=0, metavar="N",
                    help="resume by itself, at most N times, when the cause of a pause clears (disk space freed, camera "
                         "or controller connection back); STOP, limit switches, position errors and alarms that need "
                         "homing always wait for a person (default 0: a fault ends the run, --resume continues it)")
@@ -118,7 +117,7 @@ def _add_unattended_arguments(p: argparse.ArgumentParser) -> None:
                    help="a shell command run when the scan ends (finished, aborted or failed), e.g. lights and motors "
                         "off; $LFSTUDIO_SCAN_OUTCOME, $LFSTUDIO_DATASET, $LFSTUDIO_DONE, $LFSTUDIO_TOTAL tell it how; its "
                         "output is logged, a failure notified")
-    g.add_argument("--on-finish-timeout-s", type=ON_FINISH_TIMEOUT_S.option("--on-finish-timeout-s"), default=300.0,
+    g.add_argument("--on-finish-timeout-s", type=number_option(ON_FINISH_TIMEOUT_S, "--on-finish-timeout-s"), default=300.0,
                    metavar="S", help="the --on-finish command is stopped after this long (default 300)")
 
 

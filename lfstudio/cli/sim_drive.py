@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from lfstudio.cli.args import old_spelling
+from lfstudio.cli.args import number_option, old_spelling
 from lfstudio.cli.serving import serve_until_stopped
 from lfstudio.errors import InputError
 from lfstudio.numbers import SEED, TIME_SCALE
@@ -31,9 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     old_spelling(p, "--rig", "--rig-profile")
     p.add_argument("--ports", type=_ports, default=(0, 0), metavar="P1,P2",
                    help="TCP ports of the horizontal and vertical drive (default: any free ports)")
-    p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",
+    p.add_argument("--time-scale", type=number_option(TIME_SCALE, "--time-scale"), default=1.0, metavar="X",
                    help="1 real time, 0.1 ten times faster, 0 instant (default 1)")
-    p.add_argument("--seed", type=SEED.option("--seed"), default=0, metavar="N",
+    p.add_argument("--seed", type=number_option(SEED, "--seed"), default=0, metavar="N",
                    help="seed of the carriage's position at power-up (default 0)")
     p.epilog = ("The drives listen on 127.0.0.1 only. Connect with --port dryve:127.0.0.1:P1,127.0.0.1:P2 "
                 "(the first line printed); the simulated camera (--camera sim) follows them.")

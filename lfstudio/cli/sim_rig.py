@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import argparse
-from lfstudio.cli.args import old_spelling
+from lfstudio.cli.args import number_option, old_spelling
 from lfstudio.cli.serving import serve_until_stopped
 from lfstudio.numbers import SEED, TIME_SCALE
 
@@ -13,9 +13,9 @@ HELP = "start the simulated GRBL controller on a pseudo-terminal and print its p
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rig-profile", default=None, metavar="NAME", help="rig profile (default: the reference gantry)")
     old_spelling(p, "--rig", "--rig-profile")
-    p.add_argument("--time-scale", type=TIME_SCALE.option("--time-scale"), default=1.0, metavar="X",
+    p.add_argument("--time-scale", type=number_option(TIME_SCALE, "--time-scale"), default=1.0, metavar="X",
                    help="1 real time, 0.1 ten times faster, 0 instant (default 1)")
-    p.add_argument("--seed", type=SEED.option("--seed"), default=0, metavar="N",
+    p.add_argument("--seed", type=number_option(SEED, "--seed"), default=0, metavar="N",
                    help="seed of the start position and repeatability errors (default 0)")
 
 

@@ -7,7 +7,7 @@ import json
 import sys
 
 from lfstudio.errors import InputError
-from lfstudio.dataset.paths import path_option
+from lfstudio.cli.args import path_option
 
 HELP = "reproduce the paper's synthetic calibration experiment (Figure 3) with known ground truth"
 

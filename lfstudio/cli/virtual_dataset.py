@@ -6,8 +6,8 @@ import argparse
 import sys
 
 from lfstudio.errors import InputError
-from lfstudio.numbers import SEED, SPACING_MM, WIDTH_PX, Number, grid_option, numbers_option, parse_numbers
-from lfstudio.dataset.paths import path_option
+from lfstudio.numbers import SEED, SPACING_MM, WIDTH_PX, Number, parse_numbers
+from lfstudio.cli.args import grid_option, number_option, numbers_option, path_option
 
 DISTANCE_M = Number("m", 0, 10_000, low_open=True)
 FRACTION = Number("", 0, 1)
@@ -25,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="columns x rows (default 5x3; the reference is 101x21)")
     p.add_argument("--spacing-mm", default="4x6", type=numbers_option("--spacing-mm", SPACING_MM, 2, "4x6"),
                    metavar="HxV", help="spacing in mm, horizontal x vertical (default 4x6)")
-    p.add_argument("--width", type=WIDTH_PX.option("--width"), default=2000, metavar="PX",
+    p.add_argument("--width", type=number_option(WIDTH_PX, "--width"), default=2000, metavar="PX",
                    help="image width in pixels (default 2000)")
     p.add_argument("--format", choices=("dng", "png"), default="dng",
                    help="14-bit Bayer DNG or 16-bit linear PNG (default dng)")
@@ -34,27 +34,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pp-offset-px", default="0,0", metavar="DX,DY", help="true principal-point offset (default 0,0)")
     p.add_argument("--position-noise-um", default="0,0", metavar="SX,SY",
                    help="camera-position error sigma in micrometres (default 0,0; the reference rig: 80,50)")
-    p.add_argument("--near-m", type=DISTANCE_M.option("--near-m"), default=1.77,
+    p.add_argument("--near-m", type=number_option(DISTANCE_M, "--near-m"), default=1.77,
                    help="nearest scene distance (default 1.77)")
-    p.add_argument("--far-m", type=DISTANCE_M.option("--far-m"), default=4.77,
+    p.add_argument("--far-m", type=number_option(DISTANCE_M, "--far-m"), default=4.77,
                    help="farthest scene distance (default 4.77)")
-    p.add_argument("--flicker", type=FRACTION.option("--flicker"), default=0.0,
+    p.add_argument("--flicker", type=number_option(FRACTION, "--flicker"), default=0.0,
                    help="per-shot gain sigma, e.g. 0.01 (default 0)")
-    p.add_argument("--vignetting", type=FRACTION.option("--vignetting"), default=0.0,
+    p.add_argument("--vignetting", type=number_option(FRACTION, "--vignetting"), default=0.0,
                    help="corner light loss, e.g. 0.2 (default 0)")
-    p.add_argument("--noise", type=FRACTION.option("--noise"), default=0.0,
+    p.add_argument("--noise", type=number_option(FRACTION, "--noise"), default=0.0,
                    help="read noise, fraction of white, e.g. 0.002 (default 0)")
     p.add_argument("--fault", action="append", default=[], metavar="KIND:VIEW[:VALUE]",
                    help="spoil a view, named like r01_c002 (row 1, column 2) (repeatable): blur:VIEW:PX (motion "
                         "blur, PX[,ANGLE]), luminance:VIEW:FACTOR, displaced:VIEW:DX[,DY] (mm), skipped:VIEW (the "
                         "rig did not move: the view repeats the previous one); ground truth lists them")
-    p.add_argument("--seed", type=SEED.option("--seed"), default=0, metavar="N",
+    p.add_argument("--seed", type=number_option(SEED, "--seed"), default=0, metavar="N",
                    help="random seed of the scene's texture, the flicker, the noise and the position errors: "
                         "the same seed renders the same dataset (default 0)")
     p.add_argument("--no-truth-maps", dest="truth_maps", action="store_false",
                    help="do not store each view's ground-truth depth (m) and disparity (px) under truth/ "
                         "(docs/conventions.md)")
-    p.add_argument("--workers", type=Number("", 1, 256, integer=True).option("--workers"), default=1,
+    p.add_argument("--workers", type=number_option(Number("", 1, 256, integer=True), "--workers"), default=1,
                    help="processes rendering in parallel (default 1)")
 
 

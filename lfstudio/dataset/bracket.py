@@ -239,10 +239,3 @@ def frame_times_on_camera(bracket: Bracket, base_shutter_s: float | None, values
                              "its choices: " + ", ".join(listed))
         out.append(got)
     return tuple(out)
-
-
-def bracket_option(option: str = "--bracket"):
-    """The ``type=`` of a ``--bracket`` option (:func:`parse_bracket`; argparse's one-line error)."""
-    from lfstudio.numbers import _as_option
-
-    return _as_option(option, lambda text: parse_bracket(text, option))

@@ -28,10 +28,9 @@ from __future__ import annotations
 import os
 import re
 from pathlib import Path, PurePosixPath
-from typing import Any, Callable
+from typing import Any
 
 from lfstudio.errors import DatasetError, InputError
-from lfstudio.numbers import as_option
 from lfstudio.support.locks import DATASET_LOCK_NAME, MANIFEST_LOCK_NAME, LockBusy, holder_of
 
 
@@ -119,12 +118,6 @@ def check_path_name(path: str | os.PathLike, field: str) -> None:
     if problem:
         raise InputError(field, problem, "a name in UTF-8: rename the folder, e.g. with "
                                          "'convmv -f latin1 -t utf8 --notest NAME'")
-
-
-def path_option(option: str) -> Callable[[str], str]:
-    """The argparse ``type=`` of a path argument: :func:`expand_path` on what was typed (a quoted
-    ``'~/x'`` or ``'$HOME/x'`` reaches us unexpanded by the shell); a refusal is one line, exit 2."""
-    return as_option(option, lambda text: str(expand_path(text, option)))
 
 
 #: what a folder offered for a new dataset holds (:func:`dataset_folder_kind`)
