@@ -3,7 +3,7 @@ export and the dense disparity maps of ``lfstudio depth`` (ours vs OpenCV's sing
 CPU time per view at 2000 px, and dense depth on a Dask cluster of one and two local workers.
 
     ./.venv/bin/python benchmarks/depth_points.py [--grids 9x3,21x5] [--width 1000] [--keep DIR]
-        [--dense-views 3] [--cluster-views 16] [--skip-cluster] [--skip-2000]
+        [--dense-views 3] [--cluster-views 16] [--skip-cluster] [--skip-2000] [--cluster-grid CxR]
 
 Each grid is rendered (16-bit PNG, orientation error (1, -1.5, 0.7) deg, principal point offset
 (8, -5) px, the reference rig's position noise 80 x 50 µm), **self-calibrated** (``calibrate_dataset``,
@@ -22,6 +22,7 @@ time, views per minute, scaling) and the 2121-view wall time extrapolated from i
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import time
@@ -181,6 +182,28 @@ def cluster_figures(ds, n_views: int) -> dict:
     return out
 
 
+def whole_grid_on_the_cluster(tmp: Path, grid: str, width: int) -> int:
+    """Dense depth for every view of a ``grid`` capture on a Dask LocalCluster of 1, then 2 workers:
+    measured wall time (no extrapolation), views per minute and the scaling."""
+    cols, rows = (int(v) for v in grid.lower().split("x"))
+    with Timer() as span:
+        ds = render(tmp / f"g{cols}x{rows}_{width}", cols, rows, width)
+    print(f"{cols} x {rows} at {width} px rendered in {span.wall_s:.0f} s")
+    calibrate_exact(ds)
+    n = cols * rows
+    c = cluster_figures(ds, n)
+    one, two = c[1], c[2]
+    for workers, f in c.items():
+        print(f"  {workers} worker(s): {f['views']} views in {f['wall_s'] / 60:.1f} min wall "
+              f"({f['views'] / f['wall_s'] * 60:.0f} views/min), {f['cpu_per_view']:.2f} CPU s per view, "
+              f"load {f['load']:.1f}")
+    print(f"Dask LocalCluster, all {n} views of {cols} x {rows} at {width} px (measured): 1 worker "
+          f"{one['wall_s'] / 60:.1f} min, 2 workers {two['wall_s'] / 60:.1f} min: scaling "
+          f"{one['wall_s'] / two['wall_s']:.2f}x on this {os.cpu_count()}-core machine")
+    print(load_text())
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--grids", default="9x3,21x5")
@@ -190,10 +213,15 @@ def main() -> int:
     ap.add_argument("--cluster-views", type=int, default=16)
     ap.add_argument("--skip-cluster", action="store_true")
     ap.add_argument("--skip-2000", action="store_true")
+    ap.add_argument("--cluster-grid", metavar="CxR",
+                    help="only the cluster figure, measured on every view of this grid (e.g. 101x21: all 2121 "
+                         "views at --width, true calibration) instead of extrapolated from a subset")
     args = ap.parse_args()
     tmp = args.keep or Path(tempfile.mkdtemp(prefix="depth_points_"))
     tmp.mkdir(parents=True, exist_ok=True)
     print(load_text())
+    if args.cluster_grid:
+        return whole_grid_on_the_cluster(tmp, args.cluster_grid, args.width)
     rows_out = []
     last = None
     for text in args.grids.split(","):
