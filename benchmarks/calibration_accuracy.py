@@ -111,7 +111,7 @@ def shapes(trials: int, seed: int) -> None:
                           f"{sm['rotation_error_deg']['median']:.3f}° | {sm['rotation_error_deg']['p99']:.3f}° | "
                           f"{100 * cov[0]:.0f} % | {100 * cov[1]:.0f} % | {100 * ang[1]:.0f} % | "
                           f"{sm['confident_wrong']} | {sm['warned']} |", flush=True)
-    print(f"\ntargets: coverage ≥ 95 % at 2σ in every row not refused: "
+    print("\ntargets: coverage ≥ 95 % at 2σ in every row not refused: "
           + ("met" if not misses else "NOT met in " + "; ".join(misses)))
     chance = 1.0 - TWO_SIGMA ** trials
     print(f"  (a bound that covers exactly the {100 * TWO_SIGMA:.2f} % a true 2σ does leaves {trials - 1}/{trials} or "
@@ -124,7 +124,7 @@ def shapes(trials: int, seed: int) -> None:
         if accepted:
             low = beta.ppf(0.05, covered, accepted - covered + 1) if covered else 0.0
             print(f"  {label}: {covered}/{accepted} = {100 * covered / accepted:.1f} % (≥ {100 * low:.1f} %)")
-    print(f"no accepted result more than 1° off with a stated σ under 0.3°: "
+    print("no accepted result more than 1° off with a stated σ under 0.3°: "
           + ("met" if not wrong else f"NOT met ({wrong} trials)"))
     if default_rms is not None:
         print(f"101 × 21 default (no distortion, 300 matches/pair): {default_rms:.4f} px RMS true error "

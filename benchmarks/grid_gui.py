@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from _datasets import captured_dataset  # noqa: E402
-from _measure import Timer, cpu_s, load_text  # noqa: E402
+from _measure import Timer, load_text  # noqa: E402
 from _qt import spin_until  # noqa: E402
 
 

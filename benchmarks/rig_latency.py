@@ -70,7 +70,7 @@ def main() -> int:
         return drive(args)
 
     link = open_rig("sim", load_rig(), time_scale=0.0)
-    controller, sim = link.controller, link.simulator
+    controller = link.controller
     try:
         controller.home()
         line = stats_ms(timed(lambda: controller._command("G90"), args.n))

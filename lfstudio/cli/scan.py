@@ -301,7 +301,7 @@ def run(args: argparse.Namespace) -> int:
         previous = signal.signal(signal.SIGINT, on_sigint)
         try:
             engine.start()
-            while not engine.wait(0.2) in (ScanState.FINISHED, ScanState.FAILED):
+            while engine.wait(0.2) not in (ScanState.FINISHED, ScanState.FAILED):
                 if paused.is_set():
                     paused.clear()
                     if engine.state is not ScanState.PAUSED or engine.resumes_by_itself:

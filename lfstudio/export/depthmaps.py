@@ -71,8 +71,10 @@ def maps_for_export(ds: Dataset, view: common.View, cam: poses.PinholeCamera) ->
         H = scale_homography(np.asarray(cal["homography"], float), cal["image_size_px"], (map_w, map_h))
         S = np.diag([map_w / w, map_h / h, 1.0])
         M = H @ S                                         # exported pixel -> rectified map pixel
-        warp = lambda a: cv2.warpPerspective(a, M, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
-                                             borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
+        def warp(a):
+            return cv2.warpPerspective(a, M, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+                                       borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
+
         disp, conf, depth = warp(disp), warp(conf), warp(depth)
         u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
         rays = np.stack([u, v, np.ones_like(u)], -1) @ (cam.R.T @ np.linalg.inv(cam.K)).T

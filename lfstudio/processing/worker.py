@@ -186,7 +186,7 @@ def prepare(plan: RunPlan) -> _Prepared:
 def render(plan: RunPlan, capture_path: str | Path) -> tuple[np.ndarray, dict[str, Any]]:
     """The processed view of one capture (uint16 RGB, output size) and facts about it. The image
     lives in a buffer of this process that the next view of the run overwrites."""
-    from lfstudio.processing.steps import color, debayer, deflicker, rectify, resample
+    from lfstudio.processing.steps import color, debayer, rectify, resample
 
     t0 = time.perf_counter()
     prep = prepare(plan)

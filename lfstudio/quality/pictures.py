@@ -352,7 +352,9 @@ def write_html(path: Path, doc: dict[str, Any], pictures: dict[str, Path]) -> Pa
         f"<tr class='{v['verdict']}'><td>{html.escape(v['view'])}</td><td>{v['verdict']}</td>"
         f"<td>{'<br>'.join(html.escape(r) for r in v.get('reasons', []))}</td></tr>"
         for v in doc["views"] if v["verdict"] in ("warn", "fail"))
-    fmt = (lambda x, spec: "–" if x is None else format(x, spec))
+    def fmt(x, spec):
+        return "–" if x is None else format(x, spec)
+
     body = f"""<!doctype html><html><head><meta charset="utf-8"><title>Quality report — {html.escape(doc['dataset'])}</title>
 <style>body{{font-family:sans-serif;margin:2em;color:#222}} table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:4px 8px;vertical-align:top}} tr.fail td{{background:#fde2e2}}

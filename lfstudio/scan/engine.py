@@ -709,7 +709,7 @@ class ScanEngine:
         self.dataset.manifest["bracket"] = {**wanted.to_manifest(), "frame_shutter_s": list(times),
                                             "base_shutter_s": base}
         self._emit(EventKind.LOG, f"exposure bracket: {wanted.describe()} = "
-                                  + ", ".join(f"{t:.6g} s" for t in times) + f" at every view")
+                                  + ", ".join(f"{t:.6g} s" for t in times) + " at every view")
 
     def _repair_thumbnails(self) -> None:
         """Thumbnails of captured views a full disk kept from being written (the views are kept)."""

@@ -137,7 +137,7 @@ class GrblSimulator:
         self.records: list[SimRecord] = []
         self.lines_received: list[str] = []
         self.lines_sent: list[str] = []         # what the controller said (also while nobody listened)
-        self.realtime_received: list[bytes] = []   # realtime bytes received, except '?' 
+        self.realtime_received: list[bytes] = []   # realtime bytes received, except '?'
         self.boots = 1
         self._client_open = False
         self._client_changed = threading.Condition()

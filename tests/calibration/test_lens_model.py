@@ -2,7 +2,6 @@
 records it, and processing refuses a calibration fitted under another lens model."""
 
 import numpy as np
-import pytest
 
 from lfstudio.calibration.calibrate import calibrate_dataset
 from lfstudio.calibration.lens import OpenCVLens, green, lens_fingerprint, undistort_points

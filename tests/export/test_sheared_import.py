@@ -325,7 +325,6 @@ def _hci_geometry(folder: Path) -> dict:
 def test_an_hci_export_imported_back_has_the_same_geometry(_virtual, tmp_path, zero_depth_m):
     from lfstudio.export import ExportOptions, export_dataset
 
-    truth = load_ground_truth(_virtual)
     if zero_depth_m is None:        # a parallel capture (a scan's export)
         ds = Dataset.open(_virtual)
     else:

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.rig.conftest import grbl_firmware, grbl_firmware_exe  # noqa: F401  (the fixtures, for test_devices)
+
 
 def snapshot(folder: Path) -> dict[str, tuple]:
     """Every entry under ``folder``: kind, content hash, size, mtime and mode (symlinks not followed)."""

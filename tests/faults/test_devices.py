@@ -126,7 +126,6 @@ def test_a_hot_folder_that_gets_no_file_stops_the_scan_at_once_with_its_own_word
 
 # -- Ctrl+C of 'lfstudio rig ... move' on the real GRBL 1.1h firmware ------------------------------------
 from tests.faults.conftest import assert_one_line_error  # noqa: E402
-from tests.rig.conftest import grbl_firmware, grbl_firmware_exe  # noqa: E402,F401  (the fixtures)
 
 
 def test_ctrl_c_during_rig_move_holds_then_resets_so_nothing_stays_queued(grbl_firmware, tmp_path):

@@ -3,9 +3,7 @@ with a real Qt event loop (offscreen)."""
 
 from __future__ import annotations
 
-import json
 
-import numpy as np
 
 from lfstudio.calibration.model import rectifying_homography
 from lfstudio.dataset.atomic import atomic_write_json

@@ -10,7 +10,7 @@ from PySide6.QtCore import QPoint, Qt
 from lfstudio.dataset import Dataset
 from lfstudio.rig.motion import RigState
 from tests.gui.test_interlock_gui import homed_simulated_studio
-from tests.gui.test_scan_gui import instant_devices, scan_panel, start_then_pause  # noqa: F401  (fixture)
+from tests.gui.test_scan_gui import scan_panel, start_then_pause
 
 T = 60000  # ms; generous for a loaded machine, the waits end as soon as the condition holds
 

@@ -9,7 +9,7 @@ from lfstudio.gui.app import create_window
 from lfstudio.gui.imageutil import qimage_to_rgb
 from lfstudio.gui.panels.planner import style_prop
 from lfstudio.planning.presets import reference_plan
-from lfstudio.planning.scene_plan import ScenePlan, load_plan, save_plan
+from lfstudio.planning.scene_plan import load_plan, save_plan
 
 
 @pytest.fixture

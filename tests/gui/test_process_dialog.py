@@ -8,7 +8,6 @@ from lfstudio.dataset import Dataset
 from lfstudio.gui.app import create_window
 from lfstudio.gui.dialogs.process_dialog import ProcessDialog
 from lfstudio.gui.imageutil import qimage_to_rgb
-from tests.processing.conftest import make_dataset  # noqa: F401  (fixture)
 
 
 def _dialog(qtbot, ds):

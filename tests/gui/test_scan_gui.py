@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import pytest
-from PySide6.QtCore import QPoint, Qt
+from PySide6.QtCore import Qt
 
 from lfstudio.dataset import Dataset
-from lfstudio.gui.devices import QtDevice
 from lfstudio.gui.panels.scan import ACTIVE_KEY, ScanPanel
 from lfstudio.gui.settings import settings
 from lfstudio.gui.state import AppState
 from lfstudio.gui.views.grid_view import CAPTURING, DONE, PENDING, GridView, recent_datasets
 from lfstudio.rig.profile import load_rig
-from lfstudio.rig.worker import DeviceWorker
 from lfstudio.scan.engine import ScanEngine
 from lfstudio.studio.session import create_scan_dataset
 from lfstudio.scan.scan_plan import ScanPlan
@@ -66,19 +64,6 @@ def start_then_pause(qtbot, panel):
     qtbot.waitUntil(lambda: panel.engine is not None, timeout=10000)
     panel.pause()
     qtbot.waitUntil(lambda: "Paused" in panel.state_label.text(), timeout=20000)
-
-
-@pytest.fixture
-def instant_devices():
-    rig = InstantRig(RIG)
-    rig.connect()
-    cam = InstantCamera(rig.true_position_mm)
-    cam.connect()
-    devices = {"rig": QtDevice(DeviceWorker(rig, name="rig")),
-               "camera": QtDevice(DeviceWorker(cam, name="camera", status_method=None))}
-    yield devices, rig, cam
-    for d in devices.values():
-        d.close(disconnect=False)
 
 
 def test_grid_view_empty_state_then_dataset_painted(qtbot, tmp_path):

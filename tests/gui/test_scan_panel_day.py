@@ -8,7 +8,7 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QMessageBox
 
 from lfstudio.dataset import Dataset
-from tests.gui.test_scan_gui import instant_devices, scan_panel  # noqa: F401  (fixture)
+from tests.gui.test_scan_gui import scan_panel
 
 T = 60000  # ms; generous for a loaded machine, the waits end as soon as the condition holds
 

@@ -16,7 +16,7 @@ import pytest
 
 from lfstudio.gui.settings import settings
 from lfstudio.gui.unattended import NAMES, PREFIX, desktop_notify, load_options
-from tests.gui.test_scan_gui import instant_devices, scan_panel, start_then_pause  # noqa: F401
+from tests.gui.test_scan_gui import scan_panel, start_then_pause
 from tests.scan.receivers import Receiver
 
 

@@ -11,7 +11,6 @@ import rawpy
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.bracket import parse_bracket
-from lfstudio.errors import LfError
 from lfstudio.rig.profile import load_rig
 from lfstudio.scan.engine import ScanEngine
 from lfstudio.scan.events import EventKind, ScanState

@@ -9,7 +9,6 @@ import math
 import signal
 from pathlib import Path
 
-import pytest
 
 from lfstudio.dataset import Dataset
 from lfstudio.rig.profile import load_rig

@@ -1195,10 +1195,9 @@ class ScanPanel(QWidget):
 
         state = getattr(snapshot, "state", None)
         homed = getattr(snapshot, "homed", False)
-        ready = homed and state is RigState.IDLE
         if not homed or state in (RigState.ALARM, RigState.DISCONNECTED):
             self._rig_unready = True           # lost its reference or in alarm: say so when it is back
-        elif self._rig_unready:
+        elif self._rig_unready and state is RigState.IDLE:
             text = "<b style='color:#f0b030'>Paused</b> The rig is ready again (homed): press Resume to continue."
             if self.state_label.text() != text:
                 self.state_label.setText(text)

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QObject, QPoint, QRect, QRectF, QSize, Qt, QTimer, Signal
-from PySide6.QtGui import (QAction, QBrush, QColor, QFont, QFontMetrics, QImage, QKeySequence, QPainter, QPen,
+from PySide6.QtGui import (QAction, QColor, QFont, QFontMetrics, QImage, QKeySequence, QPainter, QPen,
                            QPixmap)
 from PySide6.QtWidgets import (QAbstractScrollArea, QDialog, QFileDialog, QHBoxLayout, QLabel, QMenu,
                                QPushButton, QScrollArea, QSizePolicy, QStackedWidget, QToolButton,

@@ -1,0 +1,26 @@
+"""Fixtures the window's tests share: the instant simulated devices behind Qt workers, and the
+processing tests' small real datasets (for the Process dialog)."""
+
+from __future__ import annotations
+
+import pytest
+
+from lfstudio.gui.devices import QtDevice
+from lfstudio.rig.profile import load_rig
+from lfstudio.rig.worker import DeviceWorker
+from lfstudio.sim.instant import InstantCamera, InstantRig
+from tests.processing.conftest import make_dataset  # noqa: F401  (the fixture, for the Process dialog's tests)
+
+
+@pytest.fixture
+def instant_devices():
+    """({"rig": QtDevice, "camera": QtDevice}, rig, camera): the instant devices, closed afterwards."""
+    rig = InstantRig(load_rig())
+    rig.connect()
+    cam = InstantCamera(rig.true_position_mm)
+    cam.connect()
+    devices = {"rig": QtDevice(DeviceWorker(rig, name="rig")),
+               "camera": QtDevice(DeviceWorker(cam, name="camera", status_method=None))}
+    yield devices, rig, cam
+    for d in devices.values():
+        d.close(disconnect=False)
