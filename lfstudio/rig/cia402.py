@@ -15,7 +15,8 @@ What it does with the drives (object numbers of the CiA 402 profile):
   homing error.
 - **Profile position** (``6060h`` = 1): ``6081h`` velocity, ``6083h``/``6084h`` acceleration and
   deceleration, ``607Ah`` target; the new-set-point / set-point-acknowledge handshake (control bit
-  4 up, wait for status bit 12, bit 4 down) on both drives before either is waited for, so both
+  4 down until status bit 12 is gone, so that a handshake a killed process left half done cannot
+  pass for this one; bit 4 up, wait for bit 12, bit 4 down) on both drives before either is waited for, so both
   axes start together; the move is complete when both report target reached (bit 10) *and*
   ``6064h`` is at the target within the tolerance. A fault or a following error (bit 13, ``60F4h``)
   ends it with the drive's error code ``603Fh`` as an operator message (:func:`fault_message`).
@@ -519,6 +520,7 @@ class Cia402Controller:
             self._write(i, PROFILE_DECELERATION, max(1, round(a.acceleration_mm_s2 * k)))
             self._write(i, QUICK_STOP_DECELERATION, max(1, round(4 * a.acceleration_mm_s2 * k)))
             self._write(i, TARGET, steps[i])
+        self._lower_set_point()
         for i in range(2):
             self._write(i, CONTROL, ENABLE_OPERATION | NEW_SET_POINT | CHANGE_IMMEDIATELY)
         deadline = time.monotonic() + self.timeout_s
@@ -536,6 +538,20 @@ class Cia402Controller:
                 self._quick_stop_all()
                 raise DeviceError(f"{self._name(min(pending))} did not acknowledge the new set-point (6041h bit 12) "
                                   f"within {self.timeout_s:g} s; motion stopped")
+
+    def _lower_set_point(self) -> None:
+        """Bit 4 down and the acknowledge (bit 12) gone on both drives, so that the next bit 4 is a
+        rising edge: a process killed inside the handshake leaves bit 4 up and the drive would ignore
+        the new set-point while still acknowledging the old one."""
+        for i in range(2):
+            self._write(i, CONTROL, ENABLE_OPERATION)
+        deadline = time.monotonic() + self.timeout_s
+        for i in range(2):
+            while self._statusword(i) & SET_POINT_ACK:
+                if time.monotonic() > deadline:
+                    raise DeviceError(f"{self._name(i)} still acknowledges an old set-point (6041h bit 12) "
+                                      f"{self.timeout_s:g} s after control bit 4 went down; check the drive")
+                time.sleep(self.poll_period_s / 4)
 
     def expected_move_s(self, dx_mm: float, dy_mm: float) -> float:
         return max(move_time_s(abs(d), a.max_speed_mm_s, a.acceleration_mm_s2)

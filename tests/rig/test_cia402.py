@@ -143,9 +143,27 @@ def test_connect_home_and_move_both_axes_together(drives, transport):
     writes = [(name, index, value) for name, index, _sub, value in emulator.pair.journal]
     assert ("horizontal", 0x607A, 123456) in writes and ("vertical", 0x607A, 32109) in writes
     up = [i for i, w in enumerate(writes) if w[1] == 0x6040 and w[2] & 0x10]
-    down = [i for i, w in enumerate(writes) if w[1] == 0x6040 and w[2] == 0x0F]
+    down = [i for i, w in enumerate(writes) if w[1] == 0x6040 and w[2] == 0x0F and i > min(up)]
     assert len(up) == 2 and {writes[i][0] for i in up} == {"horizontal", "vertical"}
     assert max(up) < min(down)
+    # bit 4 went down on both before it went up: every set-point is a rising edge
+    assert {w[0] for w in writes[:min(up)] if w[1] == 0x6040 and w[2] == 0x0F} == {"horizontal", "vertical"}
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_a_handshake_left_half_done_by_a_killed_process_does_not_hide_the_next_move(drives, transport):
+    # a process killed between control bit 4 up and bit 4 down leaves both drives acknowledging its
+    # set-point; the next process's move must still be taken as a new set-point, not as 'reached'
+    emulator, c = drives(transport, seed=5)
+    c.home()
+    for i, steps in enumerate((200600, 25000)):          # the dead process's target, 2006 x 250 mm
+        c.links[i].write(0x607A, 0, steps, 4, True)
+        c.links[i].write(0x6040, 0, 0x3F, 2, False)
+    assert emulator.true_position_mm() == pytest.approx((2006.0, 250.0), abs=0.011)
+    assert all(c.links[i].read(0x6041, 0, 2, False) & 0x1000 for i in range(2))   # still acknowledged
+    st = c.move_to(300, 200)
+    assert st.position_mm == pytest.approx((300, 200), abs=1e-9)
+    assert emulator.true_position_mm() == pytest.approx((300.0, 200.0), abs=0.011)
 
 
 @pytest.mark.parametrize("transport", TRANSPORTS)
