@@ -5,27 +5,16 @@ from __future__ import annotations
 
 import os
 import random
-import signal
-import subprocess
-import sys
-import time
 
 import pytest
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.paths import view_stem
 from lfstudio.dataset.store import temporary_files
-from tests.conftest import REPO_ROOT
+from tests.scankill import kill_9_after
 
 ARGS = ["--port", "sim", "--camera", "sim", "--grid", "4x3", "--spacing-mm", "4x6", "--time-scale", "0.02",
         "--sim-width-px", "96"]
-
-
-def journal_lines(root) -> int:
-    try:
-        return (root / "journal.jsonl").read_bytes().count(b"\n")
-    except FileNotFoundError:
-        return 0
 
 
 #: the GRBL simulator, and the emulated CiA 402 drives (dryve D1 over Modbus TCP)
@@ -37,20 +26,8 @@ def test_kill_9_at_a_random_moment_then_resume(run_cli, tmp_path, rig, seed):
     rng = random.Random(seed * 7919 + os.getpid())
     out = tmp_path / "ds"
     ARGS = [*globals()["ARGS"], *RIGS[rig]]     # noqa: N806 - the module's arguments on this rig
-    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    proc = subprocess.Popen([sys.executable, "-m", "lfstudio", "scan", *ARGS, "--out", str(out)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, cwd=REPO_ROOT)
     # pick the moment: after a random number of finished views, plus a random fraction of a view
-    after_views = rng.randint(0, 9)
-    deadline = time.monotonic() + 60
-    while proc.poll() is None and time.monotonic() < deadline:
-        if (out / "dataset.json").is_file() and journal_lines(out) >= after_views:
-            break
-        time.sleep(0.002)       # polling the journal, not synchronising on a duration
-    time.sleep(rng.uniform(0.0, 0.08))
-    proc.send_signal(signal.SIGKILL)
-    proc.wait(10)
-    proc.stderr.close()
+    kill_9_after(["scan", *ARGS, "--out", out], out, rng.randint(0, 9), rng, jitter_s=0.08)
     assert (out / "dataset.json").is_file()
 
     crashed = Dataset.open(out)            # valid as it is, journal replayed

@@ -6,7 +6,6 @@ finishes the scan without taking a captured view again. (The time to act: benchm
 
 from __future__ import annotations
 
-import os
 import shlex
 import signal
 import subprocess
@@ -17,21 +16,11 @@ from lfstudio.dataset import Dataset
 from lfstudio.dataset.paths import view_stem
 from lfstudio.dataset.store import temporary_files
 from tests.conftest import REPO_ROOT
+from tests.scankill import journal_lines, lfstudio_env
 
 COLUMNS, ROWS = 6, 3
 ARGS = ["--port", "sim", "--camera", "sim", "--grid", f"{COLUMNS}x{ROWS}", "--spacing-mm", "4x6",
         "--time-scale", "0.3", "--sim-width-px", "96"]
-
-
-def _env() -> dict[str, str]:
-    return dict(os.environ, PYTHONPATH=str(REPO_ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-
-
-def _journal_lines(root) -> int:
-    try:
-        return (root / "journal.jsonl").read_bytes().count(b"\n")
-    except FileNotFoundError:
-        return 0
 
 
 def _plan_order() -> list[tuple[int, int]]:
@@ -42,9 +31,9 @@ def _plan_order() -> list[tuple[int, int]]:
 def test_ctrl_c_stops_saves_the_journal_and_prints_the_exact_resume_command(run_cli, tmp_path):
     out = tmp_path / "ds"
     proc = subprocess.Popen([sys.executable, "-m", "lfstudio", "scan", *ARGS, "--out", str(out)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=_env(), cwd=REPO_ROOT)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=lfstudio_env(), cwd=REPO_ROOT)
     try:
-        while proc.poll() is None and _journal_lines(out) < 2:
+        while proc.poll() is None and journal_lines(out) < 2:
             time.sleep(0.01)        # polling the journal the scan writes, not synchronising on a duration
         assert proc.poll() is None, proc.communicate()[1]
         proc.send_signal(signal.SIGINT)

@@ -19,13 +19,12 @@ import pytest
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.store import temporary_files
 from tests.conftest import REPO_ROOT
+from tests.scankill import kill_9_after, lfstudio_env
 
 RIG = "dryve D1 gantry 4 m x 0.5 m"
 GRID = ["--grid", "4x3", "--spacing-mm", "4x6", "--sim-width-px", "96", "--rig-profile", RIG]
 
 
-def env() -> dict:
-    return dict(os.environ, PYTHONPATH=str(REPO_ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
 
 
 @pytest.mark.parametrize("word", ["sim-dryve", "sim-canopen"])
@@ -83,7 +82,7 @@ def test_drives_that_do_not_answer_are_one_line_naming_the_address(run_cli, tmp_
 def sim_drive(tmp_path):
     """``lfstudio sim-drive`` in its own process; yields its device word."""
     proc = subprocess.Popen([sys.executable, "-m", "lfstudio", "sim-drive", "--time-scale", "0.02", "--seed", "5"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env(), cwd=REPO_ROOT)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=lfstudio_env(), cwd=REPO_ROOT)
     try:
         word = proc.stdout.readline().strip()
         assert word.startswith("dryve:127.0.0.1:"), proc.stderr.read() if proc.poll() is not None else word
@@ -99,13 +98,6 @@ def sim_drive(tmp_path):
         proc.stderr.close()
 
 
-def journal_lines(root) -> int:
-    try:
-        return (root / "journal.jsonl").read_bytes().count(b"\n")
-    except FileNotFoundError:
-        return 0
-
-
 @pytest.mark.parametrize("seed", [1])
 def test_kill_9_of_a_scan_on_the_drive_emulator_resumes_with_nothing_lost(run_cli, tmp_path, sim_drive, seed):
     rng = random.Random(seed * 7919 + os.getpid())
@@ -113,18 +105,7 @@ def test_kill_9_of_a_scan_on_the_drive_emulator_resumes_with_nothing_lost(run_cl
     args = ["scan", "--port", sim_drive, "--camera", "sim", *GRID, "--time-scale", "0.02"]
     r = run_cli(*args, "--out", tmp_path / "not-homed")
     assert r.returncode == 1 and "not homed" in r.stderr and "--home" in r.stderr     # a fresh drive pair
-    proc = subprocess.Popen([sys.executable, "-m", "lfstudio", *args, "--home", "--out", str(out)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env(), cwd=REPO_ROOT)
-    after_views = rng.randint(1, 9)
-    deadline = time.monotonic() + 90
-    while proc.poll() is None and time.monotonic() < deadline:
-        if (out / "dataset.json").is_file() and journal_lines(out) >= after_views:
-            break
-        time.sleep(0.002)       # polling the journal, not synchronising on a duration
-    time.sleep(rng.uniform(0.0, 0.05))
-    proc.send_signal(signal.SIGKILL)
-    proc.wait(10)
-    proc.stderr.close()
+    kill_9_after([*args, "--home", "--out", out], out, rng.randint(1, 9), rng, jitter_s=0.05, timeout_s=90)
     crashed = Dataset.open(out)
     before = {(v["row"], v["column"]): v["sha256"] for v in crashed.views if v["status"] == "done"}
     last = max((v for v in crashed.views if v["status"] == "done"), key=lambda v: v["captured_at"])
@@ -173,7 +154,7 @@ def test_ctrl_c_during_a_long_move_quick_stops_the_drives(run_cli, tmp_path, sim
     # the grid is centred on the travel: its first view is ~2 m away, 10 s at 200 mm/s
     proc = subprocess.Popen([sys.executable, "-m", "lfstudio", "scan", "--port", sim_drive, "--camera", "sim",
                              *GRID, "--grid", "2x1", "--time-scale", "1", "--out", str(out)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env(), cwd=REPO_ROOT)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=lfstudio_env(), cwd=REPO_ROOT)
     try:
         deadline = time.monotonic() + 60
         while proc.poll() is None and truth()[0] < 50 and time.monotonic() < deadline:

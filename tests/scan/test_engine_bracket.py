@@ -11,33 +11,21 @@ import rawpy
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.bracket import parse_bracket
-from lfstudio.rig.profile import load_rig
-from lfstudio.scan.engine import ScanEngine
 from lfstudio.scan.events import EventKind, ScanState
 from lfstudio.scan.scan_plan import ScanPlan, grid_order
-from lfstudio.studio.devices import open_studio
-from lfstudio.studio.session import create_scan_dataset
+from tests.scan.conftest import engine_with_events, open_sim_studio
 
-RIG = load_rig()
 BRACKET = parse_bracket("-2,0,+2")
 
 
 @pytest.fixture
 def studio(tmp_path):
-    plan = ScanPlan.centered(3, 2, (4.0, 6.0), RIG, settle_s=0.0)
-    session = open_studio("sim", "sim", RIG, time_scale=0.0, exposure_s=0.5, transfer_s=2.5,
-                          view_region_mm=plan.extent_mm(), sim_width_px=64)
-    ds = create_scan_dataset(tmp_path / "ds", plan, rig={"name": RIG.name}, camera={"name": "sim"},
-                             lens={"name": "virtual"})
+    session, plan, ds = open_sim_studio(tmp_path / "ds", 3, 2, 64)
     yield session, plan, ds
     session.close()
 
 
-def engine_for(session, plan, ds, **kw):
-    engine = ScanEngine(ds, plan, session.rig, session.camera, time_scale=0.0, backoff_s=0.01, **kw)
-    events = []
-    engine.subscribe(events.append)
-    return engine, events
+engine_for = engine_with_events
 
 
 def raw_mean(path):

@@ -14,16 +14,10 @@ from lfstudio.dataset import Dataset
 from lfstudio.rig.profile import load_rig
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.studio.session import ScanRequest, ScanSession
+from tests.scankill import journal_lines
 
 FAST = ["--time-scale", "0", "--sim-width-px", "64"]
 GRID = ["--grid", "3x2", "--spacing-mm", "4x6"]
-
-
-def journal_lines(root: Path) -> int:
-    try:
-        return (root / "journal.jsonl").read_bytes().count(b"\n")
-    except FileNotFoundError:
-        return 0
 
 
 def wait_for_views(proc, root: Path, n: int) -> None:
