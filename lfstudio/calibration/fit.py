@@ -432,16 +432,7 @@ class _Problem:
                 N[k, n_p:] = np.bincount(ka_h, v, n_e) - np.bincount(kb_h, v, n_e)
             N[n_p:, :n_p] = N[:n_p, n_p:].T
             s = np.bincount(d.pair[has], wc * c[has], len(d.baseline_mm))     # per pair Σ w c²
-            Nee = np.zeros((n_e, n_e))
-            for i in np.nonzero(s)[0]:
-                a, b = d.eta_a[i], d.eta_b[i]
-                Nee[a, a] += s[i]
-                Nee[b, b] += s[i]
-                Nee[a, b] -= s[i]
-                Nee[b, a] -= s[i]
-            sig = np.where(d.eta_axis == 0, sigma_pos_mm[0], sigma_pos_mm[1])
-            Nee += np.diag(1.0 / sig ** 2)
-            N[n_p:, n_p:] = Nee
+            N[n_p:, n_p:] = _offset_normals(d, s, sigma_pos_mm)
             wr = wc * r0[has]
             rhs[n_p:] = np.bincount(kb_h, wr, n_e) - np.bincount(ka_h, wr, n_e)
         return N, rhs, r0, c
@@ -464,6 +455,21 @@ def _pair_sigmas(resid: np.ndarray, pair: np.ndarray, n_pairs: int, fallback: fl
     return np.maximum(sig, _MIN_SIGMA_PX)
 
 
+def _offset_normals(d, s: np.ndarray, sigma_pos_mm: np.ndarray) -> np.ndarray:
+    """The view offsets' block of the normal matrix: each pair's Σ w c² (``s``) couples its two
+    views' offsets, and each offset has its prior σ (``sigma_pos_mm`` per axis)."""
+    n_e = len(d.eta_axis)
+    Nee = np.zeros((n_e, n_e))
+    for i in np.nonzero(s)[0]:
+        a, b = d.eta_a[i], d.eta_b[i]
+        Nee[a, a] += s[i]
+        Nee[b, b] += s[i]
+        Nee[a, b] -= s[i]
+        Nee[b, a] -= s[i]
+    sig = np.where(d.eta_axis == 0, sigma_pos_mm[0], sigma_pos_mm[1])
+    return Nee + np.diag(1.0 / sig ** 2)
+
+
 def _solve_offsets(problem: "_Problem", r0: np.ndarray, c: np.ndarray, weights: np.ndarray,
                    sigma_pos_mm: np.ndarray) -> np.ndarray:
     """The view offsets that best explain ``r0`` given the coupling ``c`` (linear: exact)."""
@@ -474,15 +480,7 @@ def _solve_offsets(problem: "_Problem", r0: np.ndarray, c: np.ndarray, weights: 
     has = problem.has
     wc = (weights * c)[has]
     s = np.bincount(d.pair[has], wc * c[has], len(d.baseline_mm))
-    Nee = np.zeros((n_e, n_e))
-    for i in np.nonzero(s)[0]:
-        a, b = d.eta_a[i], d.eta_b[i]
-        Nee[a, a] += s[i]
-        Nee[b, b] += s[i]
-        Nee[a, b] -= s[i]
-        Nee[b, a] -= s[i]
-    sig = np.where(d.eta_axis == 0, sigma_pos_mm[0], sigma_pos_mm[1])
-    Nee += np.diag(1.0 / sig ** 2)
+    Nee = _offset_normals(d, s, sigma_pos_mm)
     wr = wc * r0[has]
     rhs = np.bincount(problem.kb[has], wr, n_e) - np.bincount(problem.ka[has], wr, n_e)
     return np.linalg.solve(Nee, rhs)        # positive definite: the prior is on its diagonal

@@ -10,9 +10,6 @@ import cv2
 import numpy as np
 import pytest
 
-from lfstudio.calibration.model import rectifying_homography
-from lfstudio.dataset import Dataset
-from lfstudio.dataset.atomic import atomic_write_json
 from lfstudio.depth import dense
 from lfstudio.depth.files import depth_png_mm, read_depth_tiff, read_pfm, write_pfm
 from lfstudio.depth.run import estimate_depth, map_path, read_disparity
@@ -34,21 +31,6 @@ def test_pfm_is_little_endian_bottom_row_first_and_reads_back(tmp_path):
 def test_depth_png_is_millimetres_with_zero_for_unknown():
     out = depth_png_mm(np.array([[1.7775, np.nan, 70.0, -1.0]], np.float32))
     assert out.dtype == np.uint16 and out.tolist() == [[1778, 0, 0, 0]]
-
-
-@pytest.fixture
-def calibrated(make_tiny_dataset):
-    """The tiny 5 x 3 dataset (640 px) with an exact calibration.json (the studio's camera)."""
-    ds = make_tiny_dataset("png", pp_offset_px=(8.0, -5.0))
-    t = load_ground_truth(ds.root)
-    w, h = t["image_size_px"]
-    pp = [(w - 1) / 2 + 8.0, (h - 1) / 2 - 5.0]
-    atomic_write_json(ds.root / "calibration.json", {
-        "format": "lfstudio-calibration", "version": 1, "rotation_deg": list(t["rotation_deg"]),
-        "image_size_px": [w, h], "focal_length_px": t["focal_length_px"], "principal_point_px": pp,
-        "principal_point_estimated": True,
-        "homography": rectifying_homography(t["rotation_deg"], t["focal_length_px"], (w, h), pp).tolist()})
-    return Dataset.open(ds.root)
 
 
 def _inner(a: np.ndarray, m: int = 12) -> np.ndarray:

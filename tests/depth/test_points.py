@@ -8,15 +8,12 @@ import json
 import numpy as np
 import pytest
 
-from lfstudio.calibration.model import rectifying_homography
-from lfstudio.dataset import Dataset
-from lfstudio.dataset.atomic import atomic_write_json
 from lfstudio.dataset.grid import View
 from lfstudio.depth.files import read_ply
 from lfstudio.depth.points import build_tracks, neighbour_pairs, spread_views, triangulate
 from lfstudio.export import ExportOptions, export_dataset
 from lfstudio.sim.studio import rotation_matrix
-from lfstudio.sim.virtual_dataset import load_ground_truth, read_truth_map
+from lfstudio.sim.virtual_dataset import read_truth_map
 
 
 def test_triangulation_recovers_points_seen_by_translated_cameras():
@@ -61,21 +58,6 @@ def test_a_large_grid_is_thinned_to_whole_rows_and_columns():
     pairs = neighbour_pairs(chosen)
     assert all((a.row == b.row) if d == "h" else (a.column == b.column) for a, b, d in pairs)
     assert len(pairs) == len(rows) * (len(cols) - 1) + len(cols) * (len(rows) - 1)
-
-
-@pytest.fixture
-def calibrated_1000(make_tiny_dataset):
-    """A 5 x 3 virtual dataset at 1000 px with an exact calibration.json (the studio's camera)."""
-    ds = make_tiny_dataset("png", width_px=1000, pp_offset_px=(8.0, -5.0))
-    t = load_ground_truth(ds.root)
-    w, h = t["image_size_px"]
-    pp = [(w - 1) / 2 + 8.0, (h - 1) / 2 - 5.0]
-    atomic_write_json(ds.root / "calibration.json", {
-        "format": "lfstudio-calibration", "version": 1, "rotation_deg": list(t["rotation_deg"]),
-        "image_size_px": [w, h], "focal_length_px": t["focal_length_px"], "principal_point_px": pp,
-        "principal_point_estimated": True,
-        "homography": rectifying_homography(t["rotation_deg"], t["focal_length_px"], (w, h), pp).tolist()})
-    return Dataset.open(ds.root)
 
 
 def test_colmap_points_read_by_pycolmap_reference_their_images_and_lie_at_the_true_depth(calibrated_1000, tmp_path):

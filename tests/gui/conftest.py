@@ -12,6 +12,17 @@ from lfstudio.sim.instant import InstantCamera, InstantRig
 from tests.processing.conftest import make_dataset  # noqa: F401  (the fixture, for the Process dialog's tests)
 
 
+def window_devices(rig, camera) -> dict:
+    """The window's devices for a connected ``rig`` and ``camera``: each behind its Qt worker."""
+    return {"rig": QtDevice(DeviceWorker(rig, name="rig")),
+            "camera": QtDevice(DeviceWorker(camera, name="camera", status_method=None))}
+
+
+def close_devices(devices: dict) -> None:
+    for d in devices.values():
+        d.close(disconnect=False)
+
+
 @pytest.fixture
 def instant_devices():
     """({"rig": QtDevice, "camera": QtDevice}, rig, camera): the instant devices, closed afterwards."""
@@ -19,8 +30,6 @@ def instant_devices():
     rig.connect()
     cam = InstantCamera(rig.true_position_mm)
     cam.connect()
-    devices = {"rig": QtDevice(DeviceWorker(rig, name="rig")),
-               "camera": QtDevice(DeviceWorker(cam, name="camera", status_method=None))}
+    devices = window_devices(rig, cam)
     yield devices, rig, cam
-    for d in devices.values():
-        d.close(disconnect=False)
+    close_devices(devices)

@@ -13,16 +13,15 @@ from PySide6.QtWidgets import QDockWidget
 
 from lfstudio.dataset import Dataset
 from lfstudio.gui.app import create_window
-from lfstudio.gui.devices import QtDevice
 from lfstudio.gui.panels import camera as camera_panel
 from lfstudio.gui.panels.scan import ACTIVE_KEY
 from lfstudio.gui.settings import settings
 from lfstudio.rig.motion import RigState
 from lfstudio.rig.profile import load_rig
 from lfstudio.resources import user_config_dir
-from lfstudio.rig.worker import DeviceWorker
 from lfstudio.scan.events import ScanState
 from lfstudio.sim.instant import InstantRig
+from tests.gui.conftest import close_devices, window_devices
 from tests.scan.test_engine_states import HeldCamera
 
 T = 60000  # ms; generous for a loaded machine, the waits end as soon as the condition holds
@@ -248,12 +247,10 @@ def held_studio():
     rig.connect()
     cam = HeldCamera(rig.true_position_mm)
     cam.connect()
-    devices = {"rig": QtDevice(DeviceWorker(rig, name="rig")),
-               "camera": QtDevice(DeviceWorker(cam, name="camera", status_method=None))}
+    devices = window_devices(rig, cam)
     yield devices, cam
     cam.release(100)
-    for d in devices.values():
-        d.close(disconnect=False)
+    close_devices(devices)
 
 
 def test_quitting_during_a_scan_asks_and_cancel_keeps_it_running(qtbot, tmp_path, held_studio):

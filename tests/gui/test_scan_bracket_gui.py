@@ -9,28 +9,13 @@ from PySide6.QtWidgets import QScrollArea
 
 from lfstudio.dataset import Dataset
 from lfstudio.gui.app import create_window
-from lfstudio.gui.devices import QtDevice
 from lfstudio.gui.panels.scan import ScanPanel
 from lfstudio.gui.state import AppState
 from lfstudio.planning.presets import reference_plan
 from lfstudio.rig.profile import load_rig
-from lfstudio.rig.worker import DeviceWorker
-from lfstudio.sim.instant import InstantCamera, InstantRig
+from lfstudio.sim.instant import InstantRig
 
 RIG = load_rig()
-
-
-@pytest.fixture
-def instant_devices():
-    rig = InstantRig(RIG)
-    rig.connect()
-    cam = InstantCamera(rig.true_position_mm)
-    cam.connect()
-    devices = {"rig": QtDevice(DeviceWorker(rig, name="rig")),
-               "camera": QtDevice(DeviceWorker(cam, name="camera", status_method=None))}
-    yield devices, rig, cam
-    for d in devices.values():
-        d.close(disconnect=False)
 
 
 def test_scan_panel_bracket_field(qtbot, instant_devices, tmp_path):
