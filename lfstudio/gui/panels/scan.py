@@ -835,50 +835,58 @@ class ScanPanel(QWidget):
             return False
         return True
 
+    def _ask(self, name: str, title: str, text: str, labels: dict, default, answered, *,
+             icon=QMessageBox.Question) -> QMessageBox:
+        """A window-modal question opened without blocking (``open``, never ``exec``): ``labels`` maps
+        each standard button to its text (None keeps Qt's), ``answered(standard button)`` runs on the
+        operator's answer. Returns the box (tests and the panel keep it by name)."""
+        buttons = QMessageBox.NoButton
+        for button in labels:
+            buttons |= button
+        box = QMessageBox(icon, title, text, buttons, self)
+        box.setObjectName(name)
+        for button, label in labels.items():
+            if label is not None:
+                box.button(button).setText(label)
+        if default is not None:
+            box.setDefaultButton(default)
+        box.buttonClicked.connect(lambda clicked: answered(box.standardButton(clicked)))
+        box.open()
+        return box
+
     def _ask_device_change(self, refused) -> None:
         """A resume with other devices than the dataset's: continue only if the operator says so."""
         self.state_label.setText("The dataset was captured with other devices")
         self._log(str(refused))
-        box = QMessageBox(QMessageBox.Warning, "Resume with other devices?",
-                          f"{refused}\n\nContinue the scan with the connected devices? The change is recorded in "
-                          "the dataset (for every view captured with them).",
-                          QMessageBox.Yes | QMessageBox.No, self)
-        box.setObjectName("deviceChangeBox")
-        box.button(QMessageBox.Yes).setText("Resume with these devices")
-        box.button(QMessageBox.No).setText("Cancel")
-        box.setDefaultButton(QMessageBox.No)
-        self.device_change_box = box
         recapture = self._last_start
 
-        def answered(button) -> None:
-            if box.standardButton(button) == QMessageBox.Yes:
+        def answered(answer) -> None:
+            if answer == QMessageBox.Yes:
                 self.start(recapture=recapture, allow_device_change=True)
-        box.buttonClicked.connect(answered)
-        box.open()
+        self.device_change_box = self._ask(
+            "deviceChangeBox", "Resume with other devices?",
+            f"{refused}\n\nContinue the scan with the connected devices? The change is recorded in the dataset "
+            "(for every view captured with them).",
+            {QMessageBox.Yes: "Resume with these devices", QMessageBox.No: "Cancel"}, QMessageBox.No, answered,
+            icon=QMessageBox.Warning)
 
     def _ask_home(self, problem) -> None:
         """The rig is not homed (e.g. after a restart, when the interrupted scan is offered): home it
         now as the scan's first step, or leave it to the operator."""
         self.state_label.setText("The rig is not homed")
         self._log(str(problem))
-        box = QMessageBox(QMessageBox.Question, "Home the rig first?",
-                          f"{problem}.\n\nHome the rig now (it drives to its limit switches) and then start "
-                          "the scan?", QMessageBox.Yes | QMessageBox.No, self)
-        box.setObjectName("homeFirstBox")
-        box.button(QMessageBox.Yes).setText("Home, then scan")
-        box.button(QMessageBox.No).setText("Cancel")
-        box.setDefaultButton(QMessageBox.Yes)
-        self.home_box = box
         recapture, allow = self._last_start, getattr(self, "_last_allow_change", False)
 
-        def answered(button) -> None:
-            if box.standardButton(button) == QMessageBox.Yes:
+        def answered(answer) -> None:
+            if answer == QMessageBox.Yes:
                 self._log("homing the rig before the scan")
                 self.start(recapture=recapture, allow_device_change=allow, home=True)
             else:
                 self.state_label.setText("Not started: home the rig (Rig → Home), then Start")
-        box.buttonClicked.connect(answered)
-        box.open()
+        self.home_box = self._ask(
+            "homeFirstBox", "Home the rig first?",
+            f"{problem}.\n\nHome the rig now (it drives to its limit switches) and then start the scan?",
+            {QMessageBox.Yes: "Home, then scan", QMessageBox.No: "Cancel"}, QMessageBox.Yes, answered)
 
     def _ask_move_back(self, problem) -> None:
         """A resume whose rig stands elsewhere than where the last run left it: offer to drive it back to
@@ -887,21 +895,10 @@ class ScanPanel(QWidget):
         px, py = problem.position_mm
         self.state_label.setText(f"The rig is not where the last view ({problem.last_view}) was taken")
         self._log(str(problem))
-        box = QMessageBox(
-            QMessageBox.Question, "Move the rig back?",
-            f"The rig is at ({px:.3f}, {py:.3f}) mm; the last view of this dataset, {problem.last_view}, was "
-            f"taken at ({x:.3f}, {y:.3f}) mm.\n\nMove the rig there and continue the scan? Do this only if its "
-            "position can be trusted: if it was switched off, reset or pushed by hand since, home it first "
-            "(Rig → Home), then press Resume again.", QMessageBox.Yes | QMessageBox.No, self)
-        box.setObjectName("moveBackBox")
-        box.button(QMessageBox.Yes).setText(f"Move to {problem.last_view}, then scan")
-        box.button(QMessageBox.No).setText("Cancel")
-        box.setDefaultButton(QMessageBox.Yes)
-        self.move_back_box = box
         recapture, allow = self._last_start, getattr(self, "_last_allow_change", False)
 
-        def answered(button) -> None:
-            if box.standardButton(button) != QMessageBox.Yes:
+        def answered(answer) -> None:
+            if answer != QMessageBox.Yes:
                 self.state_label.setText(f"Not started: the rig is not where {problem.last_view} was taken")
                 return
             rig = self.state.devices.get("rig")
@@ -922,8 +919,14 @@ class ScanPanel(QWidget):
                 self.state_label.setText(f"Not started: the move to {problem.last_view} failed")
                 self.state.report_error("Scan", f"The rig did not reach {problem.last_view}: {message}")
             rig.run("move_to", x, y, on_result=arrived, on_error=failed)
-        box.buttonClicked.connect(answered)
-        box.open()
+        self.move_back_box = self._ask(
+            "moveBackBox", "Move the rig back?",
+            f"The rig is at ({px:.3f}, {py:.3f}) mm; the last view of this dataset, {problem.last_view}, was "
+            f"taken at ({x:.3f}, {y:.3f}) mm.\n\nMove the rig there and continue the scan? Do this only if its "
+            "position can be trusted: if it was switched off, reset or pushed by hand since, home it first "
+            "(Rig → Home), then press Resume again.",
+            {QMessageBox.Yes: f"Move to {problem.last_view}, then scan", QMessageBox.No: "Cancel"}, QMessageBox.Yes,
+            answered)
 
     def _ask_used_since(self, problem) -> None:
         """A resume whose rig stands where this dataset's last view was taken, but another dataset's scan
@@ -932,23 +935,9 @@ class ScanPanel(QWidget):
         other = problem.other
         self.state_label.setText("Another scan used the rig since this dataset's last view")
         self._log(str(problem))
-        box = QMessageBox(
-            QMessageBox.Question, "Continue from here?",
-            f"The rig stands where this dataset's last view, {problem.last_view}, was taken, but since then it "
-            f"scanned another dataset ({Path(other['dataset']).name}, {readable_time(other.get('at'))}).\n\n"
-            "If the rig was homed again or given another origin in between, the same numbers are another "
-            "place. Continue only if you know it kept its reference; otherwise home it first and then scan "
-            "(the scan continues with the next view).", QMessageBox.Yes | QMessageBox.No | QMessageBox.Cancel,
-            self)
-        box.setObjectName("usedSinceBox")
-        box.button(QMessageBox.Yes).setText("Continue from here")
-        box.button(QMessageBox.No).setText("Home, then scan")
-        box.setDefaultButton(QMessageBox.No)
-        self.used_since_box = box
         recapture, allow = self._last_start, getattr(self, "_last_allow_change", False)
 
-        def answered(button) -> None:
-            answer = box.standardButton(button)
+        def answered(answer) -> None:
             if answer == QMessageBox.Yes:
                 self._log(f"continuing: the operator says the rig kept its reference since {problem.last_view}")
                 self.start(recapture=recapture, allow_device_change=allow, trust_rig_position=True)
@@ -957,8 +946,15 @@ class ScanPanel(QWidget):
                 self.start(recapture=recapture, allow_device_change=allow, home=True)
             else:
                 self.state_label.setText("Not started: another scan used the rig since this dataset's last view")
-        box.buttonClicked.connect(answered)
-        box.open()
+        self.used_since_box = self._ask(
+            "usedSinceBox", "Continue from here?",
+            f"The rig stands where this dataset's last view, {problem.last_view}, was taken, but since then it "
+            f"scanned another dataset ({Path(other['dataset']).name}, {readable_time(other.get('at'))}).\n\n"
+            "If the rig was homed again or given another origin in between, the same numbers are another "
+            "place. Continue only if you know it kept its reference; otherwise home it first and then scan "
+            "(the scan continues with the next view).",
+            {QMessageBox.Yes: "Continue from here", QMessageBox.No: "Home, then scan", QMessageBox.Cancel: None},
+            QMessageBox.No, answered)
 
     def _end_session(self) -> None:
         """Release the dataset's lock (the devices stay with their panels / the simulated studio)."""
@@ -1017,22 +1013,17 @@ class ScanPanel(QWidget):
             self._log(f"the scan of {path} is running in {holder.describe()}; not offering to resume it here")
             self.state.show_status(f"{path} is being scanned by {holder.describe()}", 15000)
             return
-        box = QMessageBox(QMessageBox.Question, "Resume interrupted scan",
-                          f"The scan of {path} was interrupted: {counts['done']} of {len(ds.views)} views are "
-                          f"captured, {counts['pending']} are missing.\n\nResume it now?",
-                          QMessageBox.Yes | QMessageBox.No, self)
-        box.setObjectName("resumeBox")
-        box.button(QMessageBox.Yes).setText("Resume scan")
-        box.button(QMessageBox.No).setText("Not now")
-        self.resume_box = box
 
-        def answered(button) -> None:
+        def answered(answer) -> None:
             self.state.set_dataset(ds)
-            if box.standardButton(button) == QMessageBox.Yes:
+            if answer == QMessageBox.Yes:
                 self.folder.setText(str(ds.root))
                 self.start()
-        box.buttonClicked.connect(answered)
-        box.open()
+        self.resume_box = self._ask(
+            "resumeBox", "Resume interrupted scan",
+            f"The scan of {path} was interrupted: {counts['done']} of {len(ds.views)} views are captured, "
+            f"{counts['pending']} are missing.\n\nResume it now?",
+            {QMessageBox.Yes: "Resume scan", QMessageBox.No: "Not now"}, None, answered)
 
     # -- events ------------------------------------------------------------------------------------
     def _take_events(self, events: list) -> None:
