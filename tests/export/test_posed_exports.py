@@ -12,33 +12,13 @@ import cv2
 import numpy as np
 import pytest
 
-from lfstudio.calibration.model import rectifying_homography, rotation_matrix
+from lfstudio.calibration.model import rotation_matrix
 from lfstudio.dataset import Dataset
-from lfstudio.dataset.atomic import atomic_write_json
 from lfstudio.export import ExportOptions, estimate_export, export_dataset
 from lfstudio.sim.studio import VirtualStudio
 from lfstudio.sim.virtual_dataset import load_ground_truth
 
 pycolmap = pytest.importorskip("pycolmap")
-
-PP_OFFSET_PX = (8.0, -5.0)
-
-
-@pytest.fixture
-def calibrated(make_tiny_dataset):
-    """The tiny 5 x 3 dataset (640 px, rotation (1, -1.5, 0.7) deg) with a principal-point offset,
-    and a calibration.json holding the studio's true camera (an exact calibration)."""
-    ds = make_tiny_dataset("png", pp_offset_px=PP_OFFSET_PX)
-    t = load_ground_truth(ds.root)
-    w, h = t["image_size_px"]
-    pp = [(w - 1) / 2 + PP_OFFSET_PX[0], (h - 1) / 2 + PP_OFFSET_PX[1]]
-    atomic_write_json(ds.root / "calibration.json", {
-        "format": "lfstudio-calibration", "version": 1, "rotation_deg": list(t["rotation_deg"]),
-        "image_size_px": [w, h], "focal_length_px": t["focal_length_px"], "principal_point_px": pp,
-        "principal_point_estimated": True,
-        "homography": rectifying_homography(t["rotation_deg"], t["focal_length_px"], (w, h), pp).tolist()})
-    return Dataset.open(ds.root)
-
 
 def studio_of(root: Path) -> VirtualStudio:
     t = load_ground_truth(root)
