@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import sys
+import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
@@ -15,6 +17,7 @@ from lfstudio.scan.engine import ScanEngine  # noqa: E402
 from lfstudio.scan.events import ScanState  # noqa: E402
 from lfstudio.scan.scan_plan import ScanPlan  # noqa: E402
 from lfstudio.sim.instant import InstantCamera, InstantRig  # noqa: E402
+from lfstudio.studio.devices import open_studio  # noqa: E402
 from lfstudio.studio.session import create_scan_dataset  # noqa: E402
 
 
@@ -25,6 +28,31 @@ def instant_devices(rig_cfg, render=None):
     cam = InstantCamera(rig.true_position_mm, render=render)
     cam.connect()
     return rig, cam
+
+
+@contextmanager
+def studio_scan(rig_word: str, plan: ScanPlan, rig_cfg, *, scale: float, exposure_s: float, transfer_s: float,
+                width_px: int):
+    """``(engine, dataset, trigger_s)``: the simulated studio (camera ``sim``, rig ``rig_word``) with
+    the rig already at the plan's first view (the approach from home is not part of a scan), a new
+    dataset in a temporary folder and an engine on them; all closed and removed afterwards."""
+    with tempfile.TemporaryDirectory() as tmp, \
+            open_studio(rig_word, "sim", rig_cfg, time_scale=scale, exposure_s=exposure_s, transfer_s=transfer_s,
+                        view_region_mm=plan.extent_mm(), sim_width_px=width_px) as sim:
+        first = plan.views()[0]
+        sim.rig.move_to(first.x_mm, first.y_mm)
+        ds = create_scan_dataset(Path(tmp) / "ds", plan, rig={"name": rig_cfg.name}, camera={"name": "sim"},
+                                 lens={"name": "virtual"})
+        yield ScanEngine(ds, plan, sim.rig, sim.camera, time_scale=scale), ds, sim.camera.trigger_s
+
+
+def view_periods(engine: ScanEngine) -> list:
+    """The list every finished view's period (s, the engine's own timing) is appended to."""
+    from lfstudio.scan.events import EventKind
+
+    periods = []
+    engine.subscribe(lambda ev: periods.append(ev.timings_s.get("period")) if ev.kind is EventKind.VIEW_DONE else None)
+    return periods
 
 
 def timed_scan(engine: ScanEngine) -> float | None:

@@ -34,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
 
+from _datasets import studio_scan, view_periods  # noqa: E402
 from _measure import Timer, load_text  # noqa: E402
 from lfstudio.dataset import Dataset, images  # noqa: E402
 from lfstudio.dataset.bracket import parse_bracket  # noqa: E402
@@ -43,12 +44,11 @@ from lfstudio.processing.hdr import MergeOptions, merge_dataset, read_radiance  
 from lfstudio.processing.pipeline import process_dataset  # noqa: E402
 from lfstudio.rig.profile import load_rig  # noqa: E402
 from lfstudio.scan.engine import ScanEngine  # noqa: E402
-from lfstudio.scan.events import EventKind, ScanState  # noqa: E402
+from lfstudio.scan.events import ScanState  # noqa: E402
 from lfstudio.scan.scan_plan import ScanPlan  # noqa: E402
 from lfstudio.sim.instant import InstantRig  # noqa: E402
 from lfstudio.sim.sim_camera import SimulatedCamera  # noqa: E402
 from lfstudio.sim.studio import VirtualStudio  # noqa: E402
-from lfstudio.studio.devices import open_studio  # noqa: E402
 from lfstudio.studio.session import create_scan_dataset  # noqa: E402
 
 BRACKET = parse_bracket("-2,0,+2")
@@ -114,18 +114,9 @@ def scan_period(frames_bracket, columns: int, scale: float, width: int) -> tuple
     """(median period per view in simulated s, the limit) on the GRBL simulator + simulated camera."""
     rig = load_rig()
     plan = replace(ScanPlan.centered(columns, 1, (4.0, 6.0), rig, settle_s=SETTLE_S), bracket=frames_bracket)
-    with tempfile.TemporaryDirectory() as tmp, \
-            open_studio("sim", "sim", rig, time_scale=scale, exposure_s=EXPOSURE_S, transfer_s=TRANSFER_S,
-                        view_region_mm=plan.extent_mm(), sim_width_px=width) as sim:
-        first = plan.views()[0]
-        sim.rig.move_to(first.x_mm, first.y_mm)
-        trigger = sim.camera.trigger_s
-        ds = create_scan_dataset(Path(tmp) / "ds", plan, rig={"name": rig.name}, camera={"name": "sim"},
-                                 lens={"name": "virtual"})
-        engine = ScanEngine(ds, plan, sim.rig, sim.camera, time_scale=scale)
-        periods = []
-        engine.subscribe(lambda ev: periods.append(ev.timings_s.get("period"))
-                         if ev.kind is EventKind.VIEW_DONE else None)
+    with studio_scan("sim", plan, rig, scale=scale, exposure_s=EXPOSURE_S, transfer_s=TRANSFER_S,
+                     width_px=width) as (engine, _ds, trigger):
+        periods = view_periods(engine)
         engine.start()
         if engine.wait() is not ScanState.FINISHED:
             raise SystemExit(f"scan did not finish: {engine.message}")

@@ -217,28 +217,17 @@ def _try(fn):
 
 
 def drive_scan(args, rig, word: str) -> int:
-    import tempfile
 
-    from _datasets import timed_scan
+    from _datasets import studio_scan, timed_scan
     from lfstudio.numbers import parse_grid
-    from lfstudio.scan.engine import ScanEngine
     from lfstudio.scan.scan_plan import ScanPlan
-    from lfstudio.studio.devices import open_studio
-    from lfstudio.studio.session import create_scan_dataset
 
     settle_s, exposure_s, transfer_s = 0.3, 0.5, 2.5
     columns, rows = parse_grid("--grid", args.grid)
     plan = ScanPlan.centered(columns, rows, (4.0, 6.0), rig, settle_s=settle_s)
     scale = args.time_scale
-    with tempfile.TemporaryDirectory() as tmp, \
-            open_studio(word, "sim", rig, time_scale=scale, exposure_s=exposure_s, transfer_s=transfer_s,
-                        view_region_mm=plan.extent_mm(), sim_width_px=args.width_px) as sim:
-        first = plan.views()[0]
-        sim.rig.move_to(first.x_mm, first.y_mm)
-        trigger_s = sim.camera.trigger_s
-        ds = create_scan_dataset(Path(tmp) / "ds", plan, rig={"name": rig.name}, camera={"name": "sim"},
-                                 lens={"name": "virtual"})
-        engine = ScanEngine(ds, plan, sim.rig, sim.camera, time_scale=scale)
+    with studio_scan(word, plan, rig, scale=scale, exposure_s=exposure_s, transfer_s=transfer_s,
+                     width_px=args.width_px) as (engine, ds, trigger_s):
         cpu0 = cpu_s()
         total_s = timed_scan(engine)
         scan_cpu_s = cpu_s() - cpu0

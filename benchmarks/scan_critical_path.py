@@ -12,19 +12,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from _datasets import timed_scan  # noqa: E402
+from _datasets import studio_scan, timed_scan, view_periods  # noqa: E402
 from lfstudio.optics import move_time_s  # noqa: E402
 from lfstudio.rig.profile import load_rig  # noqa: E402
-from lfstudio.scan.engine import ScanEngine  # noqa: E402
-from lfstudio.scan.events import EventKind  # noqa: E402
 from lfstudio.scan.scan_plan import ScanPlan  # noqa: E402
-from lfstudio.studio.devices import open_studio  # noqa: E402
-from lfstudio.studio.session import create_scan_dataset  # noqa: E402
 
 SETTLE_S, EXPOSURE_S, TRANSFER_S = 0.3, 0.5, 2.5
 
@@ -39,18 +34,9 @@ def main() -> int:
     rig = load_rig()
     plan = ScanPlan.centered(args.columns, args.rows, (4.0, 6.0), rig, settle_s=SETTLE_S)
     scale = args.time_scale
-    with tempfile.TemporaryDirectory() as tmp, \
-            open_studio("sim", "sim", rig, time_scale=scale, exposure_s=EXPOSURE_S, transfer_s=TRANSFER_S,
-                        view_region_mm=plan.extent_mm(), sim_width_px=args.width_px) as sim:
-        first = plan.views()[0]
-        sim.rig.move_to(first.x_mm, first.y_mm)     # the approach from home is not part of the scan
-        trigger_s = sim.camera.trigger_s
-        ds = create_scan_dataset(Path(tmp) / "ds", plan, rig={"name": rig.name}, camera={"name": "sim"},
-                                 lens={"name": "virtual"})
-        engine = ScanEngine(ds, plan, sim.rig, sim.camera, time_scale=scale)
-        periods = []
-        engine.subscribe(lambda ev: periods.append(ev.timings_s.get("period"))
-                         if ev.kind is EventKind.VIEW_DONE else None)
+    with studio_scan("sim", plan, rig, scale=scale, exposure_s=EXPOSURE_S, transfer_s=TRANSFER_S,
+                     width_px=args.width_px) as (engine, _ds, trigger_s):
+        periods = view_periods(engine)
         total_s = timed_scan(engine)
         if total_s is None:
             return 1
