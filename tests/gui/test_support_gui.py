@@ -128,7 +128,13 @@ def test_help_menu_has_guide_log_folder_and_about(qtbot, window, tmp_path, monke
 
     picture = guide.browser.loadResource(QTextDocument.ImageResource, QUrl("docs/screenshot.png"))
     assert picture is not None and not QImage.fromData(picture).isNull()     # the guide's pictures load
-    assert guide.fit_images(760) == 0 and guide.fit_images(300) >= 5         # ... already fitted to the page
+    assert guide.fit_images(300) >= 5 and guide.fit_images(300) == 0        # ... fitted, and only once
+    # the guide on a 1366 x 768 laptop (860 px wide): commands wrap, pictures fit, no sideways scrolling
+    guide.resize(860, 600)
+    guide.show()
+    qtbot.waitUntil(lambda: guide.browser.document().idealWidth() <= guide.browser.viewport().width(), timeout=5000)
+    assert guide.browser.horizontalScrollBar().maximum() == 0
+    assert "lfstudio scan --port sim" in guide.browser.toPlainText()
     guide.close()
     about.close()
 

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from PySide6.QtCore import Qt
-from PySide6.QtGui import QGuiApplication
+from PySide6.QtCore import QEvent, Qt
+from PySide6.QtGui import QGuiApplication, QTextOption
 from PySide6.QtWidgets import (QDialog, QDialogButtonBox, QHBoxLayout, QLabel, QPushButton, QTableWidget,
                                QTableWidgetItem, QTextBrowser, QVBoxLayout, QWidget, QHeaderView,
                                QAbstractItemView)
@@ -90,10 +90,13 @@ class UserGuideDialog(QDialog):
         self.browser = QTextBrowser()
         self.browser.setObjectName("userGuideBrowser")
         self.browser.setOpenExternalLinks(True)
+        self.browser.setWordWrapMode(QTextOption.WrapAtWordBoundaryOrAnywhere)   # a long path breaks too
+        self.browser.viewport().installEventFilter(self)
         readme = readme_path()
         if readme is not None:          # the guide's pictures and linked docs/*.md sit next to README.md
             self.browser.setSearchPaths([str(readme.parent)])
         self.browser.setMarkdown(user_guide_markdown())
+        self._wrap_code_blocks()
         self.fit_images(760)
         buttons = QDialogButtonBox(QDialogButtonBox.Close)
         buttons.rejected.connect(self.reject)
@@ -102,8 +105,29 @@ class UserGuideDialog(QDialog):
         lay.addWidget(buttons)
         self.resize(screen_fitted(self, 860, 760))
 
+    def _wrap_code_blocks(self) -> None:
+        """Command lines wrap at the page's edge like the prose (a code block is a non-breaking block
+        in Qt's Markdown), so the guide never scrolls sideways on a small screen."""
+        from PySide6.QtGui import QTextCursor
+
+        doc = self.browser.document()
+        block = doc.begin()
+        while block.isValid():
+            fmt = block.blockFormat()
+            if fmt.nonBreakableLines():
+                fmt.setNonBreakableLines(False)
+                QTextCursor(block).setBlockFormat(fmt)
+            block = block.next()
+
+    def eventFilter(self, watched, event) -> bool:
+        if watched is self.browser.viewport() and event.type() == QEvent.Resize:
+            margin = int(self.browser.document().documentMargin())
+            self.fit_images(min(760, max(120, event.size().width() - 2 * margin - 8)))   # pictures fit the page
+        return super().eventFilter(watched, event)
+
     def fit_images(self, max_width_px: int) -> int:
-        """Scale the guide's pictures (full-window screenshots) down to ``max_width_px``; returns how many."""
+        """Show the guide's pictures (full-window screenshots) at most ``max_width_px`` wide, never
+        wider than they are; returns how many changed."""
         from PySide6.QtCore import QUrl
         from PySide6.QtGui import QImage, QTextCursor, QTextDocument
 
@@ -120,9 +144,10 @@ class UserGuideDialog(QDialog):
                     data = self.browser.loadResource(QTextDocument.ImageResource, QUrl(img.name()))
                     image = QImage.fromData(data) if data is not None else QImage()
                     shown_px = img.width() if img.width() > 0 else image.width()
-                    if not image.isNull() and shown_px > max_width_px:
-                        img.setWidth(max_width_px)
-                        img.setHeight(image.height() * max_width_px / image.width())
+                    wanted = min(max_width_px, image.width())
+                    if not image.isNull() and abs(shown_px - wanted) >= 1:
+                        img.setWidth(wanted)
+                        img.setHeight(image.height() * wanted / image.width())
                         cursor = QTextCursor(doc)
                         cursor.setPosition(frag.position())
                         cursor.setPosition(frag.position() + frag.length(), QTextCursor.KeepAnchor)
