@@ -139,6 +139,7 @@ class MainWindow(QMainWindow):
         self.setCorner(Qt.BottomRightCorner, Qt.RightDockWidgetArea)
         self.resize(DEFAULT_SIZE)
         self._fit_on_show = False
+        self._check_restored_on_show = False
         self.docks_fitted = 0         # how many times fit_docks ran (first show, Reset layout)
         self._menus: dict[str, QMenu] = {}
         for name in MENU_ORDER:
@@ -293,6 +294,22 @@ class MainWindow(QMainWindow):
         if self._fit_on_show:
             self._fit_on_show = False
             QTimer.singleShot(0, self.fit_docks)      # after the first layout has placed the docks
+        elif self._check_restored_on_show:
+            self._check_restored_on_show = False
+            QTimer.singleShot(0, self._fit_squeezed_docks)
+
+    def _fit_squeezed_docks(self) -> None:
+        """A restored layout stays as saved unless a side panel in it is too narrow for its controls
+        (saved on a larger screen, or dragged narrow): then the docks are fitted as at first start."""
+        for dock in self.docks.values():
+            scroll = dock.widget()
+            if dock.isFloating() or not dock.isVisible() or not isinstance(scroll, PanelScrollArea) \
+                    or scroll.widget() is None or scroll.visibleRegion().isEmpty() \
+                    or self.dockWidgetArea(dock) not in (Qt.LeftDockWidgetArea, Qt.RightDockWidgetArea):
+                continue
+            if scroll.width() < scroll.need_width():
+                self.fit_docks()
+                return
 
     def _install_base_menus(self) -> None:
         file_menu = self.menu("File")
@@ -518,6 +535,7 @@ class MainWindow(QMainWindow):
         if window_state is not None:
             self.restoreState(window_state)
             self.stop_toolbar.setVisible(True)          # STOP stays in sight whatever was saved
+            self._check_restored_on_show = True         # ... and no side panel squeezed (see showEvent)
         else:  # first start: the panels of the first steps in front, the side docks as wide as they need
             self._raise_first_steps()
             self._fit_on_show = True

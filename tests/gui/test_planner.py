@@ -176,6 +176,11 @@ def test_plots_follow_the_plan_and_are_not_blank(window, qtbot):
     assert "31.38 px horizontal" in plots.note.text()
     pixels = qimage_to_rgb(plots.grab().toImage())
     assert pixels.std() > 10
+    # every curve named in a legend that sits outside the plotted area (it covered the curves of a narrow plot)
+    for plot, names in ((plots.dof_plot, 4), (plots.disparity_plot, 4)):
+        item = plot.getPlotItem()
+        assert len(item.legend.items) == names
+        assert not item.legend.sceneBoundingRect().intersects(item.getViewBox().sceneBoundingRect())
 
 
 def test_planner_keeps_full_height_at_1500x950(window):

@@ -260,3 +260,25 @@ def test_dialogs_fit_the_screen_and_show_their_hints_whole(tmp_path, tiny_datase
         assert w + 16 <= free_w and h + 48 <= free_h, (name, seen, got["free"])     # the frame fits too
         assert min_w <= w and min_h <= h, (name, seen)                               # nothing squeezed
         assert not seen["placeholders_cut"], (name, seen)
+
+
+@pytest.mark.parametrize("saved_on", [(1920, 1080), (1366, 768)])
+def test_a_saved_layout_that_squeezes_a_panel_is_fitted_again(qtbot, saved_on):
+    """A layout saved with narrow side panels (on a larger screen, or dragged narrow) came back at the
+    next start with the Planner and Scan panels scrolling sideways ("Take grid fro", "Resu" cut off):
+    a restored layout is kept, except that a side panel too narrow for its controls gets its width."""
+    first = _window(qtbot, saved_on, fixed=False)
+    docks = first.docks
+    first.resizeDocks([docks["plannerDock"], docks["scanPanel"]], [180, 180], Qt.Horizontal)
+    qtbot.waitUntil(lambda: docks["scanPanel"].widget().horizontalScrollBar().maximum() > 0, timeout=5000)
+    first.close()                                       # saves the layout
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    window.setFixedSize(1366, 768)
+    window.show()
+    qtbot.waitExposed(window)
+    qtbot.waitUntil(lambda: window.docks_fitted > 0, timeout=5000)
+    for name in ("plannerDock", "scanPanel"):
+        area: PanelScrollArea = window.docks[name].widget()
+        qtbot.waitUntil(lambda: area.horizontalScrollBar().maximum() == 0, timeout=5000)
+    assert window.docks["planPlotsDock"].isVisible()     # the rest of the saved layout is kept

@@ -769,10 +769,16 @@ class PlanPlotsPanel(QWidget):
         self.draw(state.plan)
 
     def _legend(self, plot):
+        """The plot's legend in two columns below its axis (inside the plot it covered the curves as
+        soon as the plot was narrow); the named curves add themselves to it."""
         import pyqtgraph as pg
 
-        return plot.addLegend(offset=(-6, 6), labelTextSize="8pt", brush=pg.mkBrush(255, 255, 255, 215),
-                              pen=pg.mkPen("#c8ccd3"), labelTextColor="#30343a")
+        item = plot.getPlotItem()
+        legend = pg.LegendItem(labelTextSize="8pt", labelTextColor="#30343a", colCount=2,
+                               horSpacing=18, verSpacing=-6)
+        item.legend = legend
+        item.layout.addItem(legend, 4, 1)
+        return legend
 
     def _build_dof(self) -> None:
         import pyqtgraph as pg
