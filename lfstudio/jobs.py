@@ -12,6 +12,7 @@ import shutil
 import sys
 import threading
 import time
+from collections import deque
 from typing import Callable, Protocol
 
 
@@ -50,23 +51,29 @@ def no_progress(done: int, total: int, message: str = "") -> None:
 
 
 class EtaEstimator:
-    """Remaining-time estimate from the rate of finished items (items may start late, e.g. on resume)."""
+    """Remaining-time estimate from the rate of recently finished items (the last ``window_s``
+    seconds): a job whose steps change cost (hundreds of fast file checks, then a slow measurement)
+    is estimated from the steps it is doing now, not from its start. Items may start late (resume)."""
 
-    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, clock: Callable[[], float] = time.monotonic, window_s: float = 30.0) -> None:
         self._clock = clock
-        self._t0: float | None = None
-        self._done0 = 0
+        self.window_s = window_s
+        self._points: deque[tuple[float, int]] = deque()     # (time, done), oldest first
 
     def update(self, done: int, total: int) -> float | None:
         """Return the estimated seconds left, or None while no rate is known yet."""
         now = self._clock()
-        if self._t0 is None:
-            self._t0, self._done0 = now, done
-            return None
-        finished = done - self._done0
+        points = self._points
+        if points and done < points[-1][1]:
+            points.clear()                           # counted again from the start: a new job
+        points.append((now, done))
+        while len(points) > 2 and now - points[1][0] >= self.window_s:
+            points.popleft()                         # the window still reaches back window_s
+        t0, done0 = points[0]
+        finished = done - done0
         if finished <= 0:
             return None
-        rate = finished / max(now - self._t0, 1e-9)
+        rate = finished / max(now - t0, 1e-9)
         return max(total - done, 0) / rate
 
 

@@ -284,8 +284,8 @@ def confirm_cancel_running(parent: QWidget, runner, title: str, question: str) -
 class JobProgressWidget(QWidget):
     """Progress bar + ETA + Cancel for a :class:`lfstudio.gui.bridge.JobRunner` (reset by its ``started``).
 
-    The ETA counts down every second between progress reports (a slow item does not freeze it);
-    when the job ends it gives way to how long the job took, or to "cancelled" / "failed"."""
+    The ETA counts down every second between progress reports (a slow item does not freeze it) and
+    turns to "–" when the estimate has passed and the job still runs; when the job ends it gives way to how long the job took, or to "cancelled" / "failed"."""
 
     def __init__(self, runner, parent: QWidget | None = None):
         super().__init__(parent)
@@ -340,8 +340,10 @@ class JobProgressWidget(QWidget):
             self.message_label.setText(message)
 
     def _show_eta(self) -> None:
-        left = None if self._eta_at is None else max(0.0, self._eta_at - time.monotonic())
-        self.eta_label.setText(f"ETA {format_duration(left)}")
+        left = None if self._eta_at is None else self._eta_at - time.monotonic()
+        if left is not None and left < -0.5:
+            left = None             # past the estimate and still working: unknown, not "0 s"
+        self.eta_label.setText(f"ETA {format_duration(None if left is None else max(0.0, left))}")
 
     def _on_end(self, outcome: str, message: str | None = None) -> None:
         self._tick.stop()

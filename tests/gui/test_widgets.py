@@ -54,3 +54,32 @@ def test_a_finished_job_shows_how_long_it_took(qtbot):
     with qtbot.waitSignal(runner.finished, timeout=10000):
         runner.start(job)
     assert re.fullmatch(r"took \d+ s", widget.eta_label.text()), widget.eta_label.text()
+
+
+def test_an_estimate_that_has_passed_shows_as_unknown_not_0_s(qtbot):
+    """Importing a light field counted its fast file checks and its slow shear measurement alike: the ETA
+    reached "0 s" and stayed there for the whole measurement."""
+    runner = JobRunner()
+    widget = JobProgressWidget(runner)
+    qtbot.addWidget(widget)
+    runner.start(_wait_for_cancel)
+    runner.progress.emit(45, 90, "measuring the disparities between views", 0.5)     # half a second left
+    qtbot.waitUntil(lambda: widget.eta_label.text() == "ETA –", timeout=10000)       # ... passed, still running
+    with qtbot.waitSignal(runner.cancelled, timeout=10000):
+        qtbot.mouseClick(widget.cancel_button, Qt.LeftButton)
+
+
+def test_the_eta_follows_the_rate_of_the_steps_being_done_now():
+    from lfstudio.jobs import EtaEstimator
+
+    now = [0.0]
+    eta = EtaEstimator(clock=lambda: now[0], window_s=30.0)
+    assert eta.update(0, 200) is None
+    for done in range(1, 101):                  # 100 file checks in 1 s
+        now[0] += 0.01
+        eta.update(done, 200)
+    for done in range(101, 111):                # then 10 measurement steps of 10 s each
+        now[0] += 10.0
+        left = eta.update(done, 200)
+    assert 0.5 * 900 < left < 1.5 * 900         # 90 steps left at 10 s each (from the start: 101 s)
+    assert eta.update(3, 10) is None             # counted from 0 again: a new job, no rate yet
