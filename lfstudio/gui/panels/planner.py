@@ -817,9 +817,9 @@ class PlanPlotsPanel(QWidget):
         import pyqtgraph as pg
 
         q = self.disparity_plot
-        q.setTitle("Disparity against depth (log scale)", color="#30343a", size="10pt")
+        q.setTitle("Disparity from infinity against depth (log scale)", color="#30343a", size="10pt")
         q.setLabel("bottom", "depth", units="m")
-        q.setLabel("left", "disparity against infinity (px)")
+        q.setLabel("left", "disparity (px)")
         q.setLogMode(x=False, y=True)
         self._legend(q)
         self.disparity_scene = pg.LinearRegionItem((1, 2), movable=False, brush=pg.mkBrush(*_COLORS["scene"]),
