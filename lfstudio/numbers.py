@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import MISSING, dataclass
+from typing import Any, Callable
 
 from lfstudio.errors import InputError
 
@@ -102,11 +102,12 @@ PARAM = "lfstudio.param"
 class Param:
     """Everything about one parameter, said once: the loader and validator check it, the window builds
     its editor from it and the command line its option (ScopeFoundry's ``LoggedQuantity`` idea, without
-    Qt). ``number``: the rules of each value (None: text); ``pair``: two values (horizontal, vertical);
-    ``optional``: None is allowed and editors show this text for it ("auto"); ``option``: the command
-    line's name (shared by the fields one option sets, e.g. ``--grid``); ``metavar``: its placeholder;
-    ``label``/``tip``: the editor's name and explanation (also the option's help); ``group``: where
-    editors and ``--help`` list it."""
+    Qt). ``number``: the rules of each value (None: text, or a flag); ``pair``: two values (horizontal,
+    vertical); ``lengths``: a list of that many numbers (one of the lengths); ``choices``: the only
+    values allowed (text or numbers); ``flag``: true or false; ``optional``: None is allowed and editors
+    show this text for it ("auto"); ``option``: the command line's name (shared by the fields one option
+    sets, e.g. ``--grid``); ``metavar``: its placeholder; ``label``/``tip``: the editor's name and
+    explanation (also the option's help); ``group``: where editors and ``--help`` list it."""
 
     number: Number | None = None
     label: str = ""
@@ -116,33 +117,79 @@ class Param:
     group: str = ""
     pair: bool = False
     optional: str = ""
+    choices: tuple = ()
+    flag: bool = False
+    lengths: tuple[int, ...] = ()
 
     def check(self, field: str, value: Any) -> Any:
-        """``value`` checked (each of a pair's values; None when optional), or InputError naming ``field``."""
+        """``value`` checked (each of a pair's or list's values; None when optional), or InputError
+        naming ``field``."""
         if value is None and self.optional:
             return None
         if self.pair:
             if not isinstance(value, (tuple, list)) or len(value) != 2:
                 raise InputError(field, f"{value!r} is not a pair", "two numbers: horizontal, vertical")
             return tuple(self._one(field, v) for v in value)
+        if self.lengths:
+            if not isinstance(value, (tuple, list)):
+                raise InputError(field, f"{value!r} is not a list of numbers", self.valid())
+            if len(value) not in self.lengths:
+                raise InputError(field, f"has {len(value)} numbers", self.valid())
+            return [self._one(field, v) for v in value]
         return self._one(field, value)
 
     def _one(self, field: str, value: Any) -> Any:
+        if self.flag:
+            if not isinstance(value, bool):
+                raise InputError(field, f"{value!r} is not true or false", "true or false")
+            return value
         if self.number is None:
             if not isinstance(value, str):
-                raise InputError(field, f"{value!r} is not text", "a name in quotes")
-            return value
-        return self.number.check(field, value)
+                raise InputError(field, f"{value!r} is not text", self._choices_text() or "a name in quotes")
+            checked: Any = value
+        else:
+            checked = self.number.check(field, value)
+        if self.choices and not any(checked == c and isinstance(checked, str) == isinstance(c, str)
+                                    for c in self.choices):
+            raise InputError(field, f"{value!r} is not one of the choices", self._choices_text())
+        return checked
+
+    def _choices_text(self) -> str:
+        return ", ".join(str(c) for c in self.choices)
 
     def valid(self) -> str:
-        return "text" if self.number is None else self.number.valid()
+        if self.flag:
+            return "true or false"
+        if self.choices:
+            return self._choices_text()
+        one = "text" if self.number is None else self.number.valid()
+        if self.lengths:
+            counts = " or ".join(str(n) for n in self.lengths)
+            return f"{counts} numbers, each {one}" if self.number and self.number != Number() else f"{counts} numbers"
+        return one
+
+    def to_text(self, value: Any) -> str:
+        """``value`` as a person types it (``4x6`` for a pair, ``1 0 0`` for a list, ``auto`` for None)."""
+        if value is None:
+            return self.optional
+        if self.pair:
+            return "x".join(_fmt(v) for v in value)
+        if self.lengths:
+            return " ".join(_fmt(v) for v in value)
+        if isinstance(value, bool):
+            return "true" if value else "false"
+        return _fmt(value) if isinstance(value, (int, float)) else str(value)
 
 
-def described(default: Any, **param: Any) -> Any:
-    """A dataclass field with ``default`` and its :class:`Param` (``dataclasses.field(metadata=…)``)."""
+def described(default: Any = MISSING, **param: Any) -> Any:
+    """A dataclass field with ``default`` (none: a field the loader requires; a list: copied for each
+    value) and its :class:`Param` (``dataclasses.field(metadata=…)``)."""
     from dataclasses import field as dataclass_field
 
-    return dataclass_field(default=default, metadata={PARAM: Param(**param)})
+    metadata = {PARAM: Param(**param)}
+    if isinstance(default, list):
+        return dataclass_field(default_factory=lambda: list(default), metadata=metadata)
+    return dataclass_field(default=default, metadata=metadata)
 
 
 def params_of(cls_or_value: Any) -> dict[str, Param]:
@@ -152,10 +199,39 @@ def params_of(cls_or_value: Any) -> dict[str, Param]:
     return {f.name: f.metadata[PARAM] for f in dataclasses.fields(cls_or_value) if PARAM in f.metadata}
 
 
-def check_described(value: Any) -> None:
-    """Check every described field of the dataclass instance ``value`` (InputError for the first bad one)."""
+def check_described(value: Any, where: Callable[[str], str] = str) -> None:
+    """Check every described field of the dataclass instance ``value`` (InputError for the first bad
+    one, named ``where(field)``)."""
     for name, param in params_of(value).items():
-        param.check(name, getattr(value, name))
+        param.check(where(name), getattr(value, name))
+
+
+def load_described(cls: Any, data: Any, where: Callable[[str], str] = str, *, skip: tuple[str, ...] = ()) -> dict:
+    """The one loader of a described dataclass from a file's table ``data`` (TOML/JSON): every key
+    known and checked by its field's :class:`Param`, every field without a default present. Returns
+    the checked keyword arguments (``cls(**them)`` builds it). ``where(key)`` names a key in messages
+    (e.g. ``rigs.toml: ["Reference gantry".horizontal] travel_mm``); ``skip``: keys the caller reads
+    itself (sub-tables)."""
+    import dataclasses
+
+    if not isinstance(data, dict):
+        raise InputError(where(""), f"{data!r} is not a table", "a table of settings")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    params = params_of(cls)
+    known = [name for name in fields if name in params or name in skip]
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        if key in skip:
+            continue
+        if key not in params:
+            raise InputError(where(str(key)), "unknown setting", ", ".join(known))
+        out[key] = params[key].check(where(key), value)
+    missing = [name for name, f in fields.items() if name in params and name not in out and
+               f.default is MISSING and f.default_factory is MISSING]
+    if missing:
+        first = params[missing[0]]
+        raise InputError(where(missing[0]), "missing" + (f" ({first.tip})" if first.tip else ""), first.valid())
+    return out
 
 
 # -- fields several places share (CLI, GUI, profiles, plans, the engine) -----------------------------------------

@@ -43,21 +43,34 @@ PRESET_KINDS = ("cameras", "lenses", "rigs")
 def load_presets(kind: str) -> dict[str, dict]:
     """Presets of ``kind`` ("cameras", "lenses", "rigs"): shipped ones, then the user's, which
     override by name. A broken user file raises :class:`lfstudio.errors.InputError` naming it."""
+    return {name: data for name, (data, _path) in load_presets_with_files(kind).items()}
+
+
+def preset_file(kind: str, name: str) -> str:
+    """The file the preset ``name`` of ``kind`` comes from (the user's when it overrides a shipped
+    one), for messages about its values; "" when there is no such preset."""
+    found = load_presets_with_files(kind).get(name)
+    return str(found[1]) if found else ""
+
+
+def load_presets_with_files(kind: str) -> dict[str, tuple[dict, Path]]:
+    """:func:`load_presets`, each preset with the file it comes from."""
     import tomllib
 
     from lfstudio.errors import InputError
 
     if kind not in PRESET_KINDS:
         raise ValueError(f"unknown preset kind {kind!r}")
-    presets: dict[str, dict] = {}
+    presets: dict[str, tuple[dict, Path]] = {}
     for path in (PRESETS_DIR / f"{kind}.toml", user_config_dir() / "presets" / f"{kind}.toml"):
         if not path.is_file():
             continue
         try:
-            presets.update(tomllib.loads(path.read_text(encoding="utf-8")))
+            data = tomllib.loads(path.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
             raise InputError(str(path), f"cannot read preset file: {exc}", "a TOML file of [\"Name\"] tables")
         except RecursionError:
             raise InputError(str(path), "cannot read preset file: nested too deeply to be a preset file",
                              "a TOML file of [\"Name\"] tables") from None
+        presets.update({name: (value, path) for name, value in data.items()})
     return presets

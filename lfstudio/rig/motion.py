@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field
 from typing import Protocol, runtime_checkable
 
 from lfstudio.errors import InputError
+from lfstudio.numbers import Number, described
 
 
 class RigState(str, enum.Enum):
@@ -25,21 +26,55 @@ class RigState(str, enum.Enum):
     ALARM = "alarm"
 
 
+#: controller axis letters a profile may name
+AXIS_LETTERS = ("X", "Y", "Z", "A", "B", "C")
+#: the axis drivers lfstudio has
+DRIVERS = ("grbl", "cia402")
+#: CiA 402 homing methods (6098h) lfstudio drives: limit switch at the low / high end, current position
+HOMING_METHODS = (17, 18, 35, 37)
+#: the profile's groups (the rig panel shows them in this order)
+MOTION, DRIVE = "motion", "CiA 402 drive"
+
+
 @dataclass(frozen=True)
 class AxisConfig:
-    """One linear axis. ``soft_min_mm``/``soft_max_mm``: no target outside this range is ever sent."""
+    """One linear axis. ``soft_min_mm``/``soft_max_mm``: no target outside this range is ever sent.
+    Every field a profile file sets is described once here (:func:`lfstudio.numbers.described`): the
+    profile's loader (:func:`lfstudio.rig.profile.rig_from_dict`) checks it and the window shows it."""
 
-    name: str                      # "horizontal" | "vertical"
-    letter: str                    # controller axis letter driving it ("X", "Y", "Z", ...)
-    travel_mm: float
-    soft_min_mm: float
-    soft_max_mm: float
-    max_speed_mm_s: float
-    acceleration_mm_s2: float
-    repeatability_um: float
-    settle_s: float = 0.3
-    increments_per_mm: float = 0.0   # CiA 402 drives: the feed constant (drive position units per mm)
-    homing_method: int = 0           # CiA 402 drives: 6098h (17 negative / 18 positive limit switch, 35/37 here)
+    name: str                      # "horizontal" | "vertical" (the profile's table, not a setting)
+    letter: str = described(
+        MISSING, choices=AXIS_LETTERS, label="Controller axis", group=MOTION,
+        tip="The controller's axis letter driving this axis (GRBL: X, Y or Z; CiA 402 drives: optional)")
+    travel_mm: float = described(
+        MISSING, number=Number("mm", 0, 100_000, low_open=True), label="Travel", group=MOTION,
+        tip="Length the carriage can travel; the rig's frame runs from 0 at one end to this at the other")
+    soft_min_mm: float = described(
+        MISSING, number=Number("mm", 0, 100_000), label="Soft limit (low)", group=MOTION,
+        tip="No target below this is ever sent; inside 0 … travel_mm and below soft_max_mm")
+    soft_max_mm: float = described(
+        MISSING, number=Number("mm", 0, 100_000), label="Soft limit (high)", group=MOTION,
+        tip="No target above this is ever sent; inside 0 … travel_mm and above soft_min_mm")
+    max_speed_mm_s: float = described(
+        MISSING, number=Number("mm/s", 0.01, 10_000), label="Speed", group=MOTION,
+        tip="Highest speed of the axis (moves, homing and jogs); from a crawl to faster than any gantry")
+    acceleration_mm_s2: float = described(
+        MISSING, number=Number("mm/s²", 0.01, 1_000_000), label="Acceleration", group=MOTION,
+        tip="Acceleration of the axis")
+    repeatability_um: float = described(
+        MISSING, number=Number("µm", 0, 100_000), label="Repeatability", group=MOTION,
+        tip="Repositioning error of the axis (the planner turns it into image pixels)")
+    settle_s: float = described(
+        0.3, number=Number("s", 0, 3600), label="Settle", group=MOTION,
+        tip="Wait after each move before exposing, for vibrations to die down")
+    increments_per_mm: float = described(
+        0.0, number=Number("increments/mm", 0, 1e9), label="Feed constant", group=DRIVE,
+        tip="CiA 402 drives: the drive's position units per mm (100: it counts 0.01 mm; 6092h); "
+            "required and > 0 for driver = \"cia402\", unused by GRBL")
+    homing_method: int = described(
+        0, number=Number("", 0, 99, integer=True), choices=(0, *HOMING_METHODS), label="Homing method",
+        group=DRIVE, tip="CiA 402 drives: 6098h: 17 negative / 18 positive limit switch, 35/37 the current "
+                         "position (default 17); 0: not a CiA 402 axis")
 
     def contains(self, position_mm: float, tolerance_mm: float = 1e-9) -> bool:
         return self.soft_min_mm - tolerance_mm <= position_mm <= self.soft_max_mm + tolerance_mm
@@ -47,14 +82,19 @@ class AxisConfig:
 
 @dataclass(frozen=True)
 class RigConfig:
-    """A rig profile (``resources/presets/rigs.toml``)."""
+    """A rig profile (``resources/presets/rigs.toml``): its fields described once, as
+    :class:`AxisConfig`'s; ``horizontal``/``vertical`` are the profile's axis tables."""
 
     name: str
     horizontal: AxisConfig
     vertical: AxisConfig
-    label: str = ""
-    homing: bool = True            # False: no limit switches, set the origin explicitly instead
-    driver: str = "grbl"           # "grbl" (one GRBL board) | "cia402" (one CiA 402 drive per axis)
+    label: str = described("", label="Description", tip="What the rig is, as the Rig panel shows it")
+    homing: bool = described(True, flag=True, label="Limit switches",
+                             tip="true: the rig homes to its limit switches; false: no switches, the operator "
+                                 "sets the origin instead")
+    driver: str = described("grbl", choices=DRIVERS, label="Driver",
+                            tip="grbl: one GRBL board for both axes; cia402: one CiA 402 drive per axis "
+                                "(igus dryve D1 over Modbus TCP or CANopen)")
 
 
 @dataclass(frozen=True)

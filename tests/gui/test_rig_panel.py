@@ -161,3 +161,23 @@ def test_a_port_that_cannot_be_opened_is_told_in_the_window_s_words(qtbot, panel
     assert "No such file or directory" in message and "Port list" in message and "Simulated" in message
     assert "--port" not in message and "lfstudio rig" not in message, message
     qtbot.waitUntil(lambda: panel.connect_button.text() == "Connect", timeout=T)   # nothing left half-connected
+
+
+def test_the_panel_shows_the_profile_with_its_descriptions(panel):
+    """One description per parameter: the Rig panel tells the profile's settings with the labels and
+    units of their descriptions, and its Go-to fields hold exactly the profile's soft limits."""
+    from lfstudio.rig.profile import AXIS_PARAMS, RIG_PARAMS
+
+    tip = panel.rig_combo.toolTip()
+    cfg = panel.rig_config
+    for key, param in AXIS_PARAMS.items():
+        if param.group == "motion" and key != "letter":
+            h, v = getattr(cfg.horizontal, key), getattr(cfg.vertical, key)
+            assert f"{param.label}: {h:g} {param.number.unit} × {v:g} {param.number.unit}" in tip, key
+    assert f"{RIG_PARAMS['driver'].label}: {cfg.driver}" in tip and "rigs.toml" in tip
+    for spin, axis in ((panel.goto_x, cfg.horizontal), (panel.goto_y, cfg.vertical)):
+        assert (spin.minimum(), spin.maximum()) == (axis.soft_min_mm, axis.soft_max_mm)
+        assert spin.suffix() == f" {AXIS_PARAMS['soft_min_mm'].number.unit}"
+    panel.rig_combo.setCurrentText("Desktop slider 1 m")
+    assert panel.rig_config.name == "Desktop slider 1 m" and "Limit switches: no" in panel.rig_combo.toolTip()
+    assert panel.goto_x.maximum() == panel.rig_config.horizontal.soft_max_mm

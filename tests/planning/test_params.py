@@ -58,3 +58,29 @@ def test_param_checks_pairs_optional_values_and_text():
         check_described(Thing(pitch=0.05))
     with pytest.raises(InputError, match="name: 5 is not text"):
         check_described(Thing(name=5))
+
+
+def test_param_checks_choices_flags_lists_and_the_one_loader():
+    from lfstudio.numbers import load_described
+
+    @dataclasses.dataclass(frozen=True)
+    class Thing:
+        size: float = described(dataclasses.MISSING, number=Number("mm", 0, 10), label="Size")
+        mode: str = described("a", choices=("a", "b"), label="Mode")
+        method: int = described(17, number=Number("", 0, 99, integer=True), choices=(17, 18), label="Method")
+        on: bool = described(True, flag=True, label="On")
+        coeffs: list = described([0.0, 0.0], number=Number("", -1, 1), lengths=(2, 3), label="Coefficients")
+
+    assert Thing(size=1).coeffs is not Thing(size=1).coeffs                 # a list default is copied
+    assert load_described(Thing, {"size": 2, "mode": "b", "method": 18.0, "coeffs": [0.5, 0, 1]}) == \
+        {"size": 2.0, "mode": "b", "method": 18, "coeffs": [0.5, 0.0, 1.0]}
+    for data, words in [({"size": 1, "mode": "c"}, r"mode: 'c' is not one of the choices \(valid: a, b\)"),
+                        ({"size": 1, "method": 1}, r"method: 1 is not one of the choices \(valid: 17, 18\)"),
+                        ({"size": 1, "on": 1}, r"on: 1 is not true or false"),
+                        ({"size": 1, "coeffs": [0]}, r"coeffs: has 1 numbers \(valid: 2 or 3 numbers, each -1 … 1\)"),
+                        ({"size": 1, "coeffs": [0, 2]}, r"coeffs: 2 is out of range"),
+                        ({"size": 1, "colour": 1}, r"colour: unknown setting \(valid: size, mode"),
+                        ({}, r"size: missing \(valid: 0 … 10 mm\)"),
+                        ([], r"is not a table")]:
+        with pytest.raises(InputError, match=words):
+            load_described(Thing, data)

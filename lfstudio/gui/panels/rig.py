@@ -193,11 +193,11 @@ class RigPanel(QWidget):
         self.rig_combo = QComboBox()
         self.rig_combo.addItems(rig_names())
         self.rig_combo.setCurrentText(self.rig_config.name)
-        self.rig_combo.setToolTip("Rig profile: travel, soft limits, speeds, axis letters "
-                                  "(resources/presets/rigs.toml)")
         self.rig_combo.currentTextChanged.connect(self._rig_chosen)
         self.rig_label = QLabel(self.rig_config.label or self.rig_config.name)
+        self.rig_label.setObjectName("rigProfileLabel")
         self.rig_label.setWordWrap(True)
+        self._show_profile()
         cl.addWidget(QLabel("Port"), 0, 0)
         cl.addWidget(self.port_combo, 0, 1)
         cl.addWidget(self.refresh_button, 0, 2)
@@ -324,10 +324,8 @@ class RigPanel(QWidget):
         for spin, axis, key in ((self.goto_x, self.rig_config.horizontal, "rig/goto_x"),
                                 (self.goto_y, self.rig_config.vertical, "rig/goto_y")):
             spin.setDecimals(3)
-            spin.setRange(axis.soft_min_mm, axis.soft_max_mm)
-            spin.setSuffix(" mm")
+            self._fit_target(spin, axis)
             spin.setValue(float(settings().value(key, axis.soft_min_mm)))
-            spin.setToolTip(f"{axis.name} target, inside the soft limits {axis.soft_min_mm:g} … {axis.soft_max_mm:g} mm")
             spin.valueChanged.connect(lambda v, k=key: settings().setValue(k, v))
         self.goto_button = QPushButton("Go")
         self.goto_button.setToolTip("Move to this position (absolute, rig frame)")
@@ -352,12 +350,33 @@ class RigPanel(QWidget):
             return
         settings().setValue("rig/profile", name)
         self.rig_label.setText(self.rig_config.label or name)
+        self._show_profile()
         self.diagram.set_config(self.rig_config)
         for spin, axis in ((self.goto_x, self.rig_config.horizontal), (self.goto_y, self.rig_config.vertical)):
-            spin.setRange(axis.soft_min_mm, axis.soft_max_mm)
-            spin.setToolTip(f"{axis.name} target, inside the soft limits {axis.soft_min_mm:g} … "
-                            f"{axis.soft_max_mm:g} mm")
+            self._fit_target(spin, axis)
         self._update_enabled()
+
+    def _show_profile(self) -> None:
+        """The profile's settings in the Rig combo's and label's tooltips, each with the label and unit
+        of its one description (lfstudio.rig.motion.AxisConfig / RigConfig)."""
+        from lfstudio.rig.profile import preset_source, profile_lines
+
+        source = preset_source(self.rig_config.name)
+        text = "\n".join([f"Rig profile ({source or 'resources/presets/rigs.toml'}), horizontal × vertical:",
+                          *profile_lines(self.rig_config)])
+        self.rig_combo.setToolTip(text)
+        self.rig_label.setToolTip(text)
+
+    @staticmethod
+    def _fit_target(spin: QDoubleSpinBox, axis) -> None:
+        """A Go-to field: the axis's soft limits, in the unit of their description."""
+        from lfstudio.rig.profile import AXIS_PARAMS
+
+        unit = AXIS_PARAMS["soft_min_mm"].number.unit
+        spin.setRange(axis.soft_min_mm, axis.soft_max_mm)
+        spin.setSuffix(f" {unit}")
+        spin.setToolTip(f"{axis.name} target, inside the rig profile's soft limits {axis.soft_min_mm:g} … "
+                        f"{axis.soft_max_mm:g} {unit}")
 
     def _make_actions(self) -> None:
         self.stop_action = QAction("&STOP all motion", self)
