@@ -1,0 +1,116 @@
+"""Bracketed views whose frame failed, taken again (review findings on the bracket path of the scan
+engine, on the simulated studio: GRBL simulator on a pty, the simulated camera writing real DNGs).
+
+Two are known bugs of ``ScanEngine._store``/``_store_frame`` marked xfail (not strict) until the
+engine's owner fixes them: (1) after a fault and Resume the attempt numbers start again, so a view
+whose frame failed in its transfer is taken again under an attempt number already marked failed and
+all its new frames are dropped (the scan finishes with the view pending); (2) a re-capture journals
+the new frames of a done view one by one, so a failure after the first leaves a done view with one
+frame and ``dataset.json`` that no longer opens (validate_manifest: 1 frame(s), the bracket has 3)."""
+
+from __future__ import annotations
+
+import pytest
+
+from lfstudio.dataset import Dataset
+from lfstudio.dataset.bracket import parse_bracket
+from lfstudio.scan.events import ScanState
+from lfstudio.scan.scan_plan import ScanPlan
+from tests.scan.conftest import engine_with_events, open_sim_studio
+
+BRACKET = parse_bracket("-2,0,+2")
+
+
+@pytest.fixture
+def studio(tmp_path):
+    session, plan, ds = open_sim_studio(tmp_path / "ds", 3, 2, 64)
+    yield session, plan, ds
+    session.close()
+
+
+def test_a_view_whose_frame_failed_is_stored_when_resume_takes_it_again_in_the_same_engine(studio):
+    session, plan, ds = studio
+    engine, events = engine_with_events(session, ScanPlan(**{**plan.__dict__, "bracket": BRACKET}), ds, retries=0)
+    camera = session.camera
+    real_set = camera.set_setting
+    calls = []
+
+    def set_setting(name, value):   # the third view's second frame (and every shot after it) fails
+        calls.append((name, value))
+        if len(calls) == 2 * 3 + 2:
+            camera.inject("capture_fails", None)
+        return real_set(name, value)
+
+    camera.set_setting = set_setting
+    engine.start()
+    assert engine.wait_for_state(ScanState.PAUSED, timeout_s=60), engine.message
+    camera.clear_faults()
+    engine.resume().result(10)
+    assert engine.wait(60) is ScanState.FINISHED, engine.message
+    final = Dataset.open(ds.root)
+    assert final.status_counts()["done"] == 6, [(v["row"], v["column"], v["status"]) for v in final.views]
+    assert final.verify_files() == []
+
+
+@pytest.mark.xfail(reason="review finding: _store skips every frame of a re-take whose attempt number a "
+                          "failed attempt had before the Resume reset the numbers", strict=False)
+def test_a_frame_whose_transfer_failed_is_taken_again_and_stored_after_resume_in_the_same_engine(studio):
+    from lfstudio.errors import DeviceError
+
+    session, plan, ds = studio
+    engine, events = engine_with_events(session, ScanPlan(**{**plan.__dict__, "bracket": BRACKET}), ds, retries=0)
+    camera = session.camera
+    real_capture = camera.capture
+    shots = []
+
+    def capture(stem, on_exposed=None):   # the third view's second frame: exposed, then its transfer fails
+        result = real_capture(stem, on_exposed=on_exposed)
+        shots.append(stem)
+        if len(shots) == 2 * 3 + 2:
+            raise DeviceError("transfer failed (review test)")
+        return result
+
+    camera.capture = capture
+    engine.start()
+    assert engine.wait_for_state(ScanState.PAUSED, timeout_s=60), engine.message
+    assert "transfer failed" in engine.message
+    engine.resume().result(10)
+    assert engine.wait(60) is ScanState.FINISHED, engine.message
+    final = Dataset.open(ds.root)
+    assert final.status_counts()["done"] == 6, [(v["row"], v["column"], v["status"]) for v in final.views]
+    assert final.verify_files() == []
+
+
+@pytest.mark.xfail(reason="review finding: _store_frame journals a re-captured done view's first frames "
+                          "over its record; the dataset no longer opens", strict=False)
+def test_a_recapture_whose_second_frame_fails_leaves_the_view_with_all_its_frames(studio):
+    from lfstudio.dataset.manifest import validate_manifest
+    from lfstudio.errors import DeviceError
+
+    session, plan, ds = studio
+    bplan = ScanPlan(**{**plan.__dict__, "bracket": BRACKET})
+    engine, _ = engine_with_events(session, bplan, ds)
+    engine.start()
+    assert engine.wait(60) is ScanState.FINISHED, engine.message
+    done = Dataset.open(ds.root)
+    camera = session.camera
+    real_capture = camera.capture
+    shots = []
+
+    def capture(stem, on_exposed=None):    # the re-captured view's second frame: its transfer fails
+        result = real_capture(stem, on_exposed=on_exposed)
+        shots.append(stem)
+        if len(shots) == 2:
+            raise DeviceError("transfer failed (review test)")
+        return result
+
+    camera.capture = capture
+    engine2, _ = engine_with_events(session, bplan.with_subset([(0, 0)]), done, recapture=True, retries=0)
+    engine2.start()
+    assert engine2.wait_for_state(ScanState.PAUSED, timeout_s=60), engine2.message
+    engine2.abort().result(10)
+    assert engine2.wait(30) is ScanState.FINISHED
+    after = Dataset.open(ds.root)
+    v = after.view(0, 0)
+    assert validate_manifest(after.manifest, after.root) == []
+    assert v["status"] != "done" or len(v["frames"]) == 3, v
