@@ -2,16 +2,64 @@
 
 from __future__ import annotations
 
+from dataclasses import MISSING, dataclass, replace
 from typing import Any
 
 from lfstudio.errors import InputError
+from lfstudio.numbers import Param, load_described, params_of
 from lfstudio.optics import REFERENCE
+from lfstudio.planning.scene_plan import PARAMS as PLAN_PARAMS
 from lfstudio.planning.scene_plan import ScenePlan
-from lfstudio.resources import load_presets
+from lfstudio.resources import load_presets, load_presets_with_files
 from lfstudio.rig.profile import DEFAULT_RIG, load_rig
 
 REFERENCE_CAMERA = "Sony A7R II (reference)"
 REFERENCE_LENS = "50 mm (reference)"
+
+
+def _as_plan(name: str, default: Any, **change: Any) -> Any:
+    """The description of a preset key that sets the plan's field ``name``: the plan's own (same range,
+    unit, label and tip, so a preset can never hold what the plan refuses), ``change`` on top."""
+    from dataclasses import field as dataclass_field
+
+    from lfstudio.numbers import PARAM
+
+    param: Param = replace(PLAN_PARAMS[name], option="", metavar="", group="", **change)
+    return dataclass_field(default=default, metadata={PARAM: param})
+
+
+def _text(tip: str) -> Any:
+    from lfstudio.numbers import described
+
+    return described("", label=tip.split(":")[0], tip=tip)
+
+
+@dataclass(frozen=True)
+class CameraPreset:
+    """A camera preset (``resources/presets/cameras.toml`` and the user's): each key described once,
+    the plan's keys by the plan's own description."""
+
+    sensor_px: tuple[int, int] = _as_plan("sensor_px", MISSING)
+    sensor_mm: tuple[float, float] = _as_plan("sensor_mm", MISSING)
+    pixel_pitch_um: float | None = _as_plan("pixel_pitch_um", None, optional="sensor mm / px")
+    bits: int = _as_plan("raw_bits", 14)
+    raw_format: str = _text("Raw format: the camera's raw file type (ARW, CR2, NEF, DNG, …)")
+
+
+@dataclass(frozen=True)
+class LensPreset:
+    """A lens preset (``resources/presets/lenses.toml`` and the user's)."""
+
+    focal_length_mm: float = _as_plan("focal_length_mm", MISSING)
+    lensfun_maker: str = _text("Lensfun maker: the lens database's name of the maker (distortion/CA profiles)")
+    lensfun_model: str = _text("Lensfun model: the lens database's name of the lens")
+
+
+CAMERA_PARAMS: dict[str, Param] = params_of(CameraPreset)
+LENS_PARAMS: dict[str, Param] = params_of(LensPreset)
+#: how each kind of preset is read: (its class, what it is called in messages, the plan's preset field)
+_KINDS = {"cameras": (CameraPreset, "camera preset", "camera_name"),
+          "lenses": (LensPreset, "lens preset", "lens_name")}
 
 
 def camera_names() -> list[str]:
@@ -22,31 +70,30 @@ def lens_names() -> list[str]:
     return list(load_presets("lenses"))
 
 
+def load_preset(kind: str, name: str) -> Any:
+    """The camera or lens preset ``name`` (``kind``: "cameras", "lenses"), every key checked by its
+    description; a bad value is one line naming the file, the preset, the key and its range (the fix)."""
+    cls, what, field = _KINDS[kind]
+    presets = load_presets_with_files(kind)
+    if name not in presets:
+        raise InputError(field, f"unknown {what.split()[0]} {name!r}", ", ".join(presets))
+    data, path = presets[name]
+    where = f"{path}: {what} {name!r}"
+    values = load_described(cls, data, lambda key: f"{where}.{key}" if key else where)
+    return cls(**values)
+
+
 def camera_fields(name: str) -> dict[str, Any]:
     """ScenePlan fields of the camera preset ``name``."""
-    presets = load_presets("cameras")
-    if name not in presets:
-        raise InputError("camera_name", f"unknown camera {name!r}", ", ".join(presets))
-    c = presets[name]
-    try:
-        return {"camera_name": name, "sensor_px": (int(c["sensor_px"][0]), int(c["sensor_px"][1])),
-                "sensor_mm": (float(c["sensor_mm"][0]), float(c["sensor_mm"][1])),
-                "pixel_pitch_um": float(c["pixel_pitch_um"]) if "pixel_pitch_um" in c else None,
-                "raw_bits": int(c.get("bits", 14))}
-    except (KeyError, IndexError, TypeError, ValueError) as exc:
-        raise InputError(f"camera preset {name!r}", f"incomplete ({exc})",
-                         "sensor_px = [w, h], sensor_mm = [w, h], pixel_pitch_um, bits")
+    camera: CameraPreset = load_preset("cameras", name)
+    return {"camera_name": name, "sensor_px": camera.sensor_px, "sensor_mm": camera.sensor_mm,
+            "pixel_pitch_um": camera.pixel_pitch_um, "raw_bits": camera.bits}
 
 
 def lens_fields(name: str) -> dict[str, Any]:
     """ScenePlan fields of the lens preset ``name``."""
-    presets = load_presets("lenses")
-    if name not in presets:
-        raise InputError("lens_name", f"unknown lens {name!r}", ", ".join(presets))
-    try:
-        return {"lens_name": name, "focal_length_mm": float(presets[name]["focal_length_mm"])}
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"lens preset {name!r}", f"incomplete ({exc})", "focal_length_mm")
+    lens: LensPreset = load_preset("lenses", name)
+    return {"lens_name": name, "focal_length_mm": lens.focal_length_mm}
 
 
 def rig_fields(name: str) -> dict[str, Any]:
