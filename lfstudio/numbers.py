@@ -164,8 +164,10 @@ class Param:
             return self._choices_text()
         one = "text" if self.number is None else self.number.valid()
         if self.lengths:
-            counts = " or ".join(str(n) for n in self.lengths)
-            return f"{counts} numbers, each {one}" if self.number and self.number != Number() else f"{counts} numbers"
+            n = self.lengths
+            consecutive = len(n) > 2 and list(n) == list(range(n[0], n[-1] + 1))
+            counts = f"{n[0]} … {n[-1]}" if consecutive else " or ".join(str(k) for k in n)
+            return f"{counts} numbers, each {one}" if self.number is not None else f"{counts} numbers"
         return one
 
     def to_text(self, value: Any) -> str:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any, Callable
 
 from lfstudio.numbers import WORKERS, Number
 from lfstudio.cli.args import as_option, number_option, path_option
@@ -44,6 +45,72 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hdr-noise-floor", metavar="F", type=number_option(Number("", 0.0, 0.25), "--hdr-noise-floor"),
                    default=0.002, help="a pixel whose brightest channel is below this share of full scale "
                                        "counts as noise (default 0.002)")
+    add_profile_arguments(p)
+
+
+def profile_option(step: str, key: str) -> str:
+    """The option of a profile setting: ``--resample-scale``; a step's switch is ``--STEP``/``--no-STEP``."""
+    return f"--{step}" if key == "enabled" else f"--{step}-{key.replace('_', '-')}"
+
+
+def _dest(step: str, key: str) -> str:
+    return f"profile__{step}__{key}"
+
+
+def _list_reader(option: str, param) -> Callable[[str], list]:
+    """A list setting typed as ``1,0,0`` or ``"1 0 0"`` (empty: no numbers), each checked."""
+    def read(text: str) -> list:
+        words = text.replace(",", " ").split()
+        return param.check(option, [param.number.parse(option, w) for w in words])
+    return as_option(option, read)
+
+
+def add_profile_arguments(p: argparse.ArgumentParser) -> None:
+    """One option per setting of the processing profile, made from its description
+    (lfstudio.dataset.profile.PARAMS: range, choices, unit, tip), grouped by step."""
+    from lfstudio.dataset.profile import PARAMS, Profile
+
+    defaults = Profile()
+    groups: dict[str, argparse._ArgumentGroup] = {}
+    for (step, key), param in PARAMS.items():
+        if step not in groups:
+            groups[step] = p.add_argument_group(
+                f"processing profile [{step}]", None if groups else
+                "each option overrides one setting of the profile (--profile, else DATASET/processing.toml, else "
+                "the defaults) for this run; the profile used is saved as DATASET/processing.toml")
+        option = profile_option(step, key)
+        default = getattr(getattr(defaults, step), key)
+        shown = param.to_text(default) if default not in ("", []) else "none"
+        unit = f" {param.number.unit}" if param.number is not None and param.number.unit and not param.lengths else ""
+        help_text = f"{param.tip} (default {shown}{unit})".replace("%", "%%")
+        kwargs: dict[str, Any] = {"dest": _dest(step, key), "default": None, "help": help_text}
+        if param.flag:
+            kwargs["action"] = argparse.BooleanOptionalAction
+        elif param.choices:
+            kwargs["choices"] = param.choices
+        elif param.lengths:
+            kwargs.update(type=_list_reader(option, param), metavar="A,B,...")
+        elif param.number is not None:
+            kwargs.update(type=number_option(param.number, option), metavar="N" if param.number.integer else "X")
+        else:
+            kwargs["metavar"] = "TEXT"
+        groups[step].add_argument(option, **kwargs)
+
+
+def profile_with_options(profile, args: argparse.Namespace):
+    """``profile`` with the settings given as options, checked as a whole (a message names the option)."""
+    from lfstudio.dataset.profile import PARAMS, Profile
+
+    data = profile.to_dict()
+    given = False
+    for step, key in PARAMS:
+        value = getattr(args, _dest(step, key), None)
+        if value is not None:
+            data[step][key] = value
+            given = True
+    if not given:
+        return profile
+    return Profile.from_dict(data, "command line", field=profile_option)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
     if args.cluster and args.workers is not None:
         raise InputError("--workers", "cannot be combined with --cluster (the cluster has its own workers)")
     profile = Profile.load(args.profile) if args.profile else Profile.for_dataset(args.dataset)
+    profile = profile_with_options(profile, args)
     if args.write_profile:
         profile.save(args.write_profile)
         print(f"profile written to {args.write_profile}")

@@ -19,8 +19,9 @@ import dataclasses
 import hashlib
 import json
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any, Callable
 
 import tomli_w
@@ -28,105 +29,149 @@ import tomli_w
 from lfstudio.dataset.atomic import atomic_write_text
 from lfstudio.dataset.paths import relative_name_problem
 from lfstudio.errors import InputError
-from lfstudio.numbers import Number
+from lfstudio.numbers import MAX_GRID_SIDE, PARAM, Number, Param, check_described, described, load_described
 
 PROFILE_NAME = "processing.toml"
-#: any number in a profile: finite and of a sane size (each step checks its own range on top)
-PROFILE_FLOAT = Number("", -1e9, 1e9)
-PROFILE_INT = Number("", -1_000_000_000, 1_000_000_000, integer=True)
 #: bump when the processing code changes its output for the same profile
 PIPELINE_VERSION = 1
 
 
+def _on(default: bool, tip: str) -> Any:
+    """A step's ``enabled`` switch."""
+    return described(default, flag=True, label="enabled", tip=tip)
+
+
+def _setting(default: Any, tip: str, number: Number | None = None, **more: Any) -> Any:
+    """One setting of a step, described once; its label is its key in words (filled in below)."""
+    return described(default, number=number, tip=tip, **more)
+
+
+_COORD = Number("px", -1e9, 1e9)
+_LEVEL = Number("", 0, 1e9)
+
+
 @dataclass
 class OutputStep:
-    format: str = "png"             # png | tiff
-    png_compression: int = 1        # zlib level 0..9 (1: fast, files ~10 % larger than 9)
-    png_strategy: str = "auto"      # auto (Huffman-only when not >2 % larger) | huffman (fastest) | deflate
-    folder: str = "processed"
+    format: str = _setting("png", "File format of the processed views: 16-bit PNG or 16-bit TIFF",
+                           choices=("png", "tiff"))
+    png_compression: int = _setting(1, "zlib level 0..9: 1 is fast, 9 is ~10 % smaller (the pixels are the same)",
+                                    Number("", 0, 9, integer=True))
+    png_strategy: str = _setting("auto", "auto: zlib's fast Huffman-only coding unless it makes bigger files; "
+                                         "huffman: fastest; deflate: smallest. The pixels are the same",
+                                 choices=("auto", "huffman", "deflate"))
+    folder: str = _setting("processed", "Folder of the dataset the processed views go to (a plain folder name)")
 
 
 @dataclass
 class ReferenceStep:
-    row: int = -1                   # -1: the middle of the grid
-    column: int = -1
+    row: int = _setting(-1, "Row of the reference view (-1: middle of the grid)",
+                        Number("", -1, MAX_GRID_SIDE - 1, integer=True))
+    column: int = _setting(-1, "Column of the reference view (-1: middle of the grid)",
+                           Number("", -1, MAX_GRID_SIDE - 1, integer=True))
 
 
 @dataclass
 class DebayerStep:
-    enabled: bool = True
-    white_balance: str = "camera"   # camera | fixed | daylight
-    wb_multipliers: list[float] = field(default_factory=lambda: [2.0, 1.0, 1.5, 1.0])  # R G B G2 for "fixed"
-    half_size: bool = False         # 2x2 Bayer block -> one pixel, no interpolation (fast)
-    demosaic: str = "auto"          # auto (at the output's resolution, see debayer.py) | AHD | LINEAR | VNG | PPG | DHT | AAHD
-    color_space: str = "srgb"       # srgb (camera matrix applied, linear) | raw (camera RGB, no matrix)
+    enabled: bool = _on(True, "Develop the RAW captures to linear 16-bit RGB")
+    white_balance: str = _setting("camera", "camera: as shot; fixed: the multipliers below; daylight: LibRaw's "
+                                            "daylight balance", choices=("camera", "fixed", "daylight"))
+    wb_multipliers: list[float] = _setting([2.0, 1.0, 1.5, 1.0], "R G B G2 multipliers for fixed white balance",
+                                           Number("", 0, 1e9), lengths=(4,))
+    half_size: bool = _setting(False, "Each 2x2 Bayer block becomes one pixel: 4x faster, half resolution "
+                                      "(no demosaicing)", flag=True)
+    demosaic: str = _setting("auto", "auto: at the output's resolution (luminance full size, colour at half; fast, "
+                                     "at least AHD's quality for half-size output); or one of LibRaw's algorithms "
+                                     "at full size", choices=("auto", "AHD", "LINEAR", "VNG", "PPG", "DHT", "AAHD"))
+    color_space: str = _setting("srgb", "srgb: the camera's colour matrix is applied (linear); raw: camera RGB",
+                                choices=("srgb", "raw"))
 
 
 @dataclass
 class LensStep:
-    enabled: bool = False
-    source: str = "lensfun"         # lensfun | opencv
-    camera_maker: str = ""          # lensfun names; empty: from the dataset's camera/lens
-    camera_model: str = ""
-    lens_maker: str = ""
-    lens_model: str = ""
-    focal_length_mm: float = 0.0    # 0: the dataset's lens.focal_length_mm
-    aperture: float = 8.0
-    distance_m: float = 1000.0
-    distortion: bool = True
-    tca: bool = True                # lateral chromatic aberration
+    enabled: bool = _on(False, "Correct lens distortion and lateral chromatic aberration")
+    source: str = _setting("lensfun", "lensfun: database by camera and lens name; opencv: the coefficients below",
+                           choices=("lensfun", "opencv"))
+    camera_maker: str = _setting("", "Lensfun's name of the camera maker; empty: from the dataset's camera")
+    camera_model: str = _setting("", "Lensfun's name of the camera; empty: from the dataset's camera")
+    lens_maker: str = _setting("", "Lensfun's name of the lens maker; empty: from the dataset's lens")
+    lens_model: str = _setting("", "Lensfun's name of the lens; empty: from the dataset's lens")
+    focal_length_mm: float = _setting(0.0, "Focal length; 0: the dataset's lens.focal_length_mm",
+                                      Number("mm", 0, 10_000))
+    aperture: float = _setting(8.0, "f-number the captures were taken at", Number("", 0, 1000, low_open=True))
+    distance_m: float = _setting(1000.0, "Focus distance of the captures", Number("m", 0, 1e9, low_open=True))
+    distortion: bool = _setting(True, "Correct the geometric distortion", flag=True)
+    tca: bool = _setting(True, "Correct lateral chromatic aberration (colour fringes towards the corners)", flag=True)
     # opencv: camera matrix in full-resolution pixels (0: from the dataset / image centre)
-    fx_px: float = 0.0
-    fy_px: float = 0.0
-    cx_px: float = 0.0
-    cy_px: float = 0.0
-    dist_coeffs: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0, 0.0])  # k1 k2 p1 p2 k3
-    tca_red_scale: float = 1.0      # radial magnification of red relative to green
-    tca_blue_scale: float = 1.0
+    fx_px: float = _setting(0.0, "opencv: focal length in x (full-resolution pixels; 0: from the dataset)",
+                            Number("px", 0, 1e6))
+    fy_px: float = _setting(0.0, "opencv: focal length in y (full-resolution pixels; 0: from the dataset)",
+                            Number("px", 0, 1e6))
+    cx_px: float = _setting(0.0, "opencv: principal point x (full-resolution pixels; 0: the image centre)",
+                            Number("px", 0, 1e6))
+    cy_px: float = _setting(0.0, "opencv: principal point y (full-resolution pixels; 0: the image centre)",
+                            Number("px", 0, 1e6))
+    dist_coeffs: list[float] = _setting([0.0, 0.0, 0.0, 0.0, 0.0], "OpenCV k1 k2 p1 p2 [k3 [k4 k5 k6]] in "
+                                        "full-resolution pixels", Number("", -1e9, 1e9), lengths=(4, 5, 8))
+    tca_red_scale: float = _setting(1.0, "Radial magnification of red relative to green",
+                                    Number("", 0, 2, low_open=True))
+    tca_blue_scale: float = _setting(1.0, "Radial magnification of blue relative to green",
+                                     Number("", 0, 2, low_open=True))
 
 
 @dataclass
 class ColorStep:
-    enabled: bool = True
-    mode: str = "auto"              # auto (percentiles) | points (picked pixels) | values
-    black_percentile: float = 0.01
-    white_percentile: float = 99.99
-    black_point_px: list[float] = field(default_factory=lambda: [0.0, 0.0])
-    white_point_px: list[float] = field(default_factory=lambda: [0.0, 0.0])
-    patch_px: int = 5               # side of the square averaged around a picked point
-    black_rgb: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])        # mode "values"
-    white_rgb: list[float] = field(default_factory=lambda: [65535.0, 65535.0, 65535.0])
-    white_output: float = 0.9       # the white point maps to this fraction of 65535 (headroom)
+    enabled: bool = _on(True, "Map a black and a white point to the output's range")
+    mode: str = _setting("auto", "How the step gets its numbers: auto (percentiles), points (picked pixels) or "
+                                 "values", choices=("auto", "points", "values"))
+    black_percentile: float = _setting(0.01, "auto: this percentile of the pixels becomes black", Number("%", 0, 100))
+    white_percentile: float = _setting(99.99, "auto: this percentile of the pixels becomes white", Number("%", 0, 100))
+    black_point_px: list[float] = _setting([0.0, 0.0], "x y of a black patch in the capture (full-resolution "
+                                                       "pixels); use Pick black", _COORD, lengths=(2,))
+    white_point_px: list[float] = _setting([0.0, 0.0], "x y of a white patch in the capture (full-resolution "
+                                                       "pixels); use Pick white", _COORD, lengths=(2,))
+    patch_px: int = _setting(5, "Side of the square averaged around a picked point", Number("px", 1, 1001, integer=True))
+    black_rgb: list[float] = _setting([0.0, 0.0, 0.0], "values: R G B of black (0 … 65535)", _COORD, lengths=(3,))
+    white_rgb: list[float] = _setting([65535.0, 65535.0, 65535.0], "values: R G B of white (0 … 65535)", _COORD,
+                                      lengths=(3,))
+    white_output: float = _setting(0.9, "The white point maps to this fraction of 65535 (headroom for highlights)",
+                                   Number("", 0, 1, low_open=True))
 
 
 @dataclass
 class ShadingStep:
-    enabled: bool = False
-    mode: str = "flat"              # flat (divide by a flat image) | model (radial polynomial)
-    flat_file: str = ""             # relative to the dataset folder, or absolute; RAW or PNG/TIFF
-    blur_px: float = 0.0            # Gaussian sigma applied to the flat (0: none; keeps dust spots)
-    coefficients: list[float] = field(default_factory=list)  # k1 k2 k3 of 1+k1 r^2+k2 r^4+k3 r^6; empty: fit to flat_file
+    enabled: bool = _on(False, "Divide out vignetting and uneven lighting (flat field)")
+    mode: str = _setting("flat", "flat: divide by a flat image; model: a radial polynomial", choices=("flat", "model"))
+    flat_file: str = _setting("", "A RAW or PNG of a uniformly lit white card, relative to the dataset folder "
+                                  "(or absolute)")
+    blur_px: float = _setting(0.0, "Gaussian sigma applied to the flat (0: none; keeps dust spots)",
+                              Number("px", 0, 10_000))
+    coefficients: list[float] = _setting([], "k1 k2 k3 of V(r) = 1 + k1 r² + k2 r⁴ + k3 r⁶; empty: fitted to the "
+                                             "flat file", Number("", -1e9, 1e9), lengths=(0, 1, 2, 3))
 
 
 @dataclass
 class DeflickerStep:
-    enabled: bool = True
-    statistic: str = "median_ratio"  # median_ratio (per pixel, robust) | median (ratio of medians)
-    size_px: int = 256               # width of the downsampled luminance the gain is measured on
-    low: float = 0.05                # mid-tone mask, as fractions of full scale
-    high: float = 0.9
+    enabled: bool = _on(True, "Match each view's brightness to the reference view's")
+    statistic: str = _setting("median_ratio", "How the gain to the reference is measured: the median of the "
+                                              "per-pixel ratios (robust to moving highlights) or the ratio of the "
+                                              "two images' medians", choices=("median_ratio", "median"))
+    size_px: int = _setting(256, "Width of the reduced luminance image the gain is measured on",
+                            Number("px", 16, 16_384, integer=True))
+    low: float = _setting(0.05, "Mid-tone mask: darkest share of full scale counted", Number("", 0, 1))
+    high: float = _setting(0.9, "Mid-tone mask: brightest share of full scale counted", Number("", 0, 1))
 
 
 @dataclass
 class RectifyStep:
-    enabled: bool = True
-    interpolation: str = "linear"    # linear | cubic | lanczos
+    enabled: bool = _on(True, "Warp each view onto the rectified grid (needs a calibration)")
+    interpolation: str = _setting("linear", "Interpolation of the warp", choices=("linear", "cubic", "lanczos"))
 
 
 @dataclass
 class ResampleStep:
-    enabled: bool = True
-    scale: float = 0.5               # output size relative to the full-resolution capture
+    enabled: bool = _on(True, "Downsample the views (area averaging)")
+    scale: float = _setting(0.5, "Output size relative to the full-resolution capture (0.5: half, as in the paper)",
+                            Number("", 0, 1, low_open=True))
 
 
 STEP_TYPES: dict[str, type] = {
@@ -137,40 +182,27 @@ STEP_TYPES: dict[str, type] = {
 #: the seven steps of the paper, in its order (for display)
 PAPER_STEPS = ("debayer", "lens", "color", "shading", "deflicker", "rectify", "resample")
 
-_CHOICES = {
-    ("output", "format"): ("png", "tiff"),
-    ("debayer", "white_balance"): ("camera", "fixed", "daylight"),
-    ("debayer", "demosaic"): ("auto", "AHD", "LINEAR", "VNG", "PPG", "DHT", "AAHD"),
-    ("output", "png_strategy"): ("auto", "huffman", "deflate"),
-    ("debayer", "color_space"): ("srgb", "raw"),
-    ("lens", "source"): ("lensfun", "opencv"),
-    ("color", "mode"): ("auto", "points", "values"),
-    ("shading", "mode"): ("flat", "model"),
-    ("deflicker", "statistic"): ("median_ratio", "median"),
-    ("rectify", "interpolation"): ("linear", "cubic", "lanczos"),
-}
-_LENGTHS = {("debayer", "wb_multipliers"): 4, ("lens", "dist_coeffs"): (4, 5, 8), ("color", "black_point_px"): 2,
-            ("color", "white_point_px"): 2, ("color", "black_rgb"): 3, ("color", "white_rgb"): 3}
+
+def _labelled() -> dict[tuple[str, str], Param]:
+    """Every setting's description, ``{(step, key): Param}``, its label its key in words (the dialog's
+    rows and messages say "white output")."""
+    out = {}
+    for step, cls in STEP_TYPES.items():
+        for f in dataclasses.fields(cls):
+            param = f.metadata[PARAM]
+            if not param.label:
+                param = replace(param, label=f.name.replace("_", " "))
+                f.metadata = MappingProxyType({**f.metadata, PARAM: param})
+            out[(step, f.name)] = param
+    return out
 
 
-#: ranges of the numeric settings: what :meth:`Profile.validate` accepts and what an editor lets one enter
-LIMITS: dict[tuple[str, str], Number] = {
-    ("output", "png_compression"): Number("", 0, 9, integer=True),
-    ("reference", "row"): Number("", -1, integer=True), ("reference", "column"): Number("", -1, integer=True),
-    ("lens", "focal_length_mm"): Number("mm", 0, 10_000), ("lens", "aperture"): Number("", 0, 1000, low_open=True),
-    ("lens", "distance_m"): Number("m", 0, 1e9, low_open=True),
-    ("lens", "fx_px"): Number("px", 0, 1e6), ("lens", "fy_px"): Number("px", 0, 1e6),
-    ("lens", "cx_px"): Number("px", 0, 1e6), ("lens", "cy_px"): Number("px", 0, 1e6),
-    ("lens", "tca_red_scale"): Number("", 0, 2, low_open=True),
-    ("lens", "tca_blue_scale"): Number("", 0, 2, low_open=True),
-    ("color", "black_percentile"): Number("%", 0, 100), ("color", "white_percentile"): Number("%", 0, 100),
-    ("color", "patch_px"): Number("px", 1, 1001, integer=True),
-    ("color", "white_output"): Number("", 0, 1, low_open=True),
-    ("shading", "blur_px"): Number("px", 0, 10_000),
-    ("deflicker", "size_px"): Number("px", 16, 16_384, integer=True),
-    ("deflicker", "low"): Number("", 0, 1), ("deflicker", "high"): Number("", 0, 1),
-    ("resample", "scale"): Number("", 0, 1, low_open=True),
-}
+#: the one description of every setting of a profile (validator, loader, the dialog's editors and
+#: ``lfstudio process``'s options come from it)
+PARAMS: dict[tuple[str, str], Param] = _labelled()
+#: the numeric settings' ranges (what an editor lets one enter), from the descriptions
+LIMITS: dict[tuple[str, str], Number] = {k: p.number for k, p in PARAMS.items()
+                                         if p.number is not None and not p.lengths}
 
 
 def file_field(source: str) -> Callable[[str, str], str]:
@@ -219,20 +251,7 @@ class Profile:
         field = field or file_field(source)
         for name in STEP_TYPES:
             step = getattr(self, name)
-            for f in dataclasses.fields(step):
-                value = getattr(step, f.name)
-                where = field(name, f.name)
-                choices = _CHOICES.get((name, f.name))
-                if choices and value not in choices:
-                    raise InputError(where, f"{value!r} is not known", ", ".join(choices))
-                length = _LENGTHS.get((name, f.name))
-                if length is not None:
-                    ok = len(value) in length if isinstance(length, tuple) else len(value) == length
-                    if not ok:
-                        raise InputError(where, f"has {len(value)} numbers", f"{length} numbers")
-                limits = LIMITS.get((name, f.name))
-                if limits is not None:
-                    limits.check(where, value)
+            check_described(step, lambda key, step_name=name: field(step_name, key))
         folder_problem = relative_name_problem(self.output.folder) if self.output.folder else None
         if folder_problem:
             raise InputError(field("output", "folder"), f"{self.output.folder!r} {folder_problem}",
@@ -244,8 +263,6 @@ class Profile:
         if self.shading.enabled and self.shading.mode == "flat" and not self.shading.flat_file:
             raise InputError(field("shading", "flat_file"),
                              "shading mode 'flat' needs a flat image (a RAW or PNG of a uniformly lit white card)")
-        if self.shading.coefficients and len(self.shading.coefficients) > 3:
-            raise InputError(field("shading", "coefficients"), "too many", "up to 3 numbers k1 k2 k3")
         if self.shading.enabled and self.shading.mode == "model" and not self.shading.coefficients \
                 and not self.shading.flat_file:
             raise InputError(field("shading", "coefficients"),
@@ -312,38 +329,5 @@ class Profile:
 
 
 def _build_step(name: str, step_type: type, values: dict[str, Any], field: Callable[[str, str], str]) -> Any:
-    defaults = step_type()
-    kwargs: dict[str, Any] = {}
-    known = {f.name for f in dataclasses.fields(step_type)}
-    for key, value in values.items():
-        where = field(name, key)
-        if key not in known:
-            raise InputError(where, "unknown setting", ", ".join(sorted(known)))
-        default = getattr(defaults, key)
-        kwargs[key] = _coerce(where, default, value)
-    return step_type(**kwargs)
-
-
-def _coerce(where: str, default: Any, value: Any) -> Any:
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise InputError(where, f"must be true or false, found {value!r}")
-        return value
-    if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(where, f"must be a whole number, found {value!r}")
-        return PROFILE_INT.check(where, value)
-    if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise InputError(where, f"must be a number, found {value!r}")
-        return PROFILE_FLOAT.check(where, value)
-    if isinstance(default, str):
-        if not isinstance(value, str):
-            raise InputError(where, f"must be a text, found {value!r}")
-        return value
-    if isinstance(default, list):
-        if not isinstance(value, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                                  for v in value):
-            raise InputError(where, f"must be a list of numbers, found {value!r}")
-        return [PROFILE_FLOAT.check(where, v) for v in value]
-    return value
+    """One step from its table, through the one loader of described settings."""
+    return step_type(**load_described(step_type, values, lambda key: field(name, key)))

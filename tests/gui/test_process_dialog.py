@@ -190,3 +190,36 @@ def test_choices_are_shown_in_operator_words_and_saved_as_the_profile_values(qtb
         for field in editor.fields.values():
             if hasattr(field, "itemText"):
                 assert not any("_" in field.itemText(i) for i in range(field.count())), editor.name
+
+
+def test_every_editor_is_made_from_the_profiles_description(qtbot, make_dataset):
+    """One description per parameter: each row's label, tip, kind and range are the profile's own
+    (lfstudio.dataset.profile.PARAMS), so the dialog accepts exactly what the profile does."""
+    from PySide6.QtWidgets import QCheckBox, QComboBox, QDoubleSpinBox, QLineEdit, QSpinBox
+
+    from lfstudio.dataset.profile import PARAMS
+
+    ds = make_dataset(rows=1, cols=2)
+    window, dialog = _dialog(qtbot, ds)
+    for (step, key), param in PARAMS.items():
+        editor = dialog.editors[step]
+        if key == "enabled":
+            assert editor.isCheckable()
+            continue
+        w = editor.fields[key]
+        assert editor.form.labelForField(w).text() == param.label and param.tip in w.toolTip(), (step, key)
+        if param.choices:
+            assert isinstance(w, QComboBox) and [w.itemData(i) for i in range(w.count())] == list(param.choices)
+        elif param.flag:
+            assert isinstance(w, QCheckBox)
+        elif param.lengths or param.number is None:
+            assert isinstance(w, QLineEdit)
+        else:
+            assert isinstance(w, QSpinBox if param.number.integer else QDoubleSpinBox), (step, key)
+            for end in (w.minimum(), w.maximum()):
+                assert param.number.problem(end) is None, (step, key, end)      # both ends valid
+            n = param.number
+            if n.high is not None:
+                assert w.maximum() == n.high, (step, key)                         # and the whole top reachable
+            if n.low is not None and not n.low_open:
+                assert w.minimum() == n.low, (step, key)

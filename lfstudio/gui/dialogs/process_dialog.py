@@ -27,37 +27,13 @@ from lfstudio.gui.imageutil import rgb_to_qimage
 from lfstudio.gui.settings import settings
 from lfstudio.gui.widgets import JobProgressWidget, confirm_cancel_running, screen_fitted
 from lfstudio.dataset.manifest import processed_status
-from lfstudio.dataset.profile import _CHOICES, LIMITS, PROFILE_NAME, STEP_TYPES, Profile
+from lfstudio.dataset.profile import PARAMS, PROFILE_NAME, Profile
 
 STEP_TITLES = {
     "debayer": "1  Debayer (RAW → linear 16-bit)", "lens": "2  Lens distortion and lateral CA",
     "color": "3  Colour: black and white point", "shading": "4  Shading (flat field / vignetting)",
     "deflicker": "5  De-flicker (gain to the reference)", "rectify": "6  Rectification (calibration)",
     "resample": "7  Downsampling (area)", "reference": "Reference view", "output": "Output",
-}
-TIPS = {
-    "white_balance": "camera: as shot; fixed: the multipliers below; daylight: LibRaw's daylight balance",
-    "wb_multipliers": "R G B G2 multipliers for fixed white balance",
-    "half_size": "Each 2x2 Bayer block becomes one pixel: 4x faster, half resolution (no demosaicing)",
-    "demosaic": "auto: at the output's resolution (luminance full size, colour at half; fast, at least AHD's "
-                "quality for half-size output); or one of LibRaw's algorithms at full size",
-    "png_strategy": "auto: zlib's fast Huffman-only coding unless it makes bigger files; the pixels are the same",
-    "color_space": "srgb: the camera's colour matrix is applied (linear); raw: camera RGB",
-    "source": "lensfun: database by camera and lens name; opencv: the coefficients below",
-    "dist_coeffs": "OpenCV k1 k2 p1 p2 [k3 [k4 k5 k6]] in full-resolution pixels",
-    "mode": "How the step gets its numbers",
-    "black_point_px": "x y of a black patch in the capture (full-resolution pixels); use Pick black",
-    "white_point_px": "x y of a white patch in the capture (full-resolution pixels); use Pick white",
-    "white_output": "The white point maps to this fraction of 65535 (headroom for highlights)",
-    "flat_file": "A RAW or PNG of a uniformly lit white card, relative to the dataset folder",
-    "coefficients": "k1 k2 k3 of V(r) = 1 + k1 r² + k2 r⁴ + k3 r⁶; empty: fitted to the flat file",
-    "statistic": "How the gain to the reference is measured: the median of the per-pixel ratios (robust to "
-                 "moving highlights) or the ratio of the two images' medians",
-    "size_px": "Width of the reduced luminance image the gain is measured on",
-    "scale": "Output size relative to the full-resolution capture (0.5: half, as in the paper)",
-    "row": "Row of the reference view (-1: middle of the grid)",
-    "column": "Column of the reference view (-1: middle of the grid)",
-    "png_compression": "zlib level 0..9: 1 is fast, 9 is ~10 % smaller",
 }
 FLOAT_DECIMALS = 4
 #: choices shown in operator words (the profile keeps its own values: processing.toml is unchanged)
@@ -68,14 +44,16 @@ CHOICE_WORDS = {
 }
 
 
-def key_label(key: str) -> str:
-    return key.replace("_", " ")
+def key_label(step: str, key: str) -> str:
+    """A row's label: its description's (lfstudio.dataset.profile.PARAMS), e.g. "white output"."""
+    param = PARAMS.get((step, key))
+    return param.label if param is not None else key.replace("_", " ")
 
 
 def field_label(step: str, key: str) -> str:
     """A setting as the dialog shows it: the step's title (without its number) › the row's label,
     e.g. "Colour: black and white point › white output" (used in every message about a field)."""
-    return f"{STEP_TITLES.get(step, step).lstrip('0123456789 ')} › {key_label(key)}"
+    return f"{STEP_TITLES.get(step, step).lstrip('0123456789 ')} › {key_label(step, key)}"
 
 
 def _error_html(message: object) -> str:
@@ -197,9 +175,10 @@ class StepEditor(QGroupBox):
                 self.setChecked(bool(value))
                 continue
             widget = self._widget(f.name, value)
-            widget.setToolTip(TIPS.get(f.name, f.name.replace("_", " ")))
+            param = PARAMS[(name, f.name)]
+            widget.setToolTip(f"{param.tip} (valid: {param.valid()})" if param.number is not None else param.tip)
             self.fields[f.name] = widget
-            form.addRow(key_label(f.name), widget)
+            form.addRow(key_label(name, f.name), widget)
         if self.isCheckable():  # a switched-off step folds away
             self.toggled.connect(self._fold)
             self._fold(self.isChecked())
@@ -209,43 +188,51 @@ class StepEditor(QGroupBox):
             self.form.setRowVisible(row, on)
 
     def _widget(self, key: str, value: Any) -> QWidget:
-        choices = _CHOICES.get((self.name, key))
-        if choices:
+        """The editor of one setting, made from its description: choices -> a list, true/false -> a
+        check box, a whole number -> a spin box, a number -> a decimal spin box (each holding exactly
+        the described range), a list of numbers or text -> a line."""
+        param = PARAMS[(self.name, key)]
+        number = param.number
+        if param.choices:
             w = QComboBox()
             words = CHOICE_WORDS.get((self.name, key), {})
-            for choice in choices:
+            for choice in param.choices:
                 w.addItem(words.get(choice, choice), choice)
             w.setCurrentIndex(max(0, w.findData(str(value))))
-        elif isinstance(value, bool):
+        elif param.flag:
             w = QCheckBox()
             w.setChecked(value)
-        elif isinstance(value, int):
+        elif number is not None and not param.lengths and number.integer:
             w = QSpinBox()
-            low, high = self._range(key, -1, 100000, 1)
+            low, high = self._range(key, -1_000_000_000, 1_000_000_000, 1)
             w.setRange(int(low), int(high))
+            if number.unit:
+                w.setSuffix(f" {number.unit}")
             w.setValue(value)
-        elif isinstance(value, float):
+        elif number is not None and not param.lengths:
             w = QDoubleSpinBox()
             w.setDecimals(FLOAT_DECIMALS)
-            low, high = self._range(key, -1e6, 1e6, 10.0 ** -FLOAT_DECIMALS)
+            low, high = self._range(key, -1e9, 1e9, 10.0 ** -FLOAT_DECIMALS)
             w.setRange(low, high)
+            if number.unit:
+                w.setSuffix(f" {number.unit}")
             w.setValue(value)
-        elif isinstance(value, list):
-            w = QLineEdit(" ".join(f"{v:g}" for v in value))
+        elif param.lengths:
+            w = QLineEdit(param.to_text(value))
         else:
             w = QLineEdit(str(value))
         return w
 
     def _range(self, key: str, low: float, high: float, step: float) -> tuple[float, float]:
-        """The spin box's range: the profile's limits for this setting (an open bound moved in by
-        one step), else [low, high]; so the widget never holds a value the profile refuses."""
-        limits = LIMITS.get((self.name, key))
+        """The spin box's range: the described range of this setting (an open bound moved in by one
+        step), each end within [low, high]; so the widget never holds a value the profile refuses."""
+        limits = PARAMS[(self.name, key)].number
         if limits is None:
             return low, high
         if limits.low is not None:
-            low = limits.low + step if limits.low_open else limits.low
+            low = max(low, limits.low + step if limits.low_open else limits.low)
         if limits.high is not None:
-            high = limits.high
+            high = min(high, limits.high)
         return low, high
 
     def set_value(self, key: str, value: Any) -> None:
@@ -275,8 +262,7 @@ class StepEditor(QGroupBox):
                 out[key] = float(w.value())
             else:
                 text = w.text().strip()
-                default = getattr(STEP_TYPES[self.name](), key)
-                if isinstance(default, list):
+                if PARAMS[(self.name, key)].lengths:
                     try:
                         out[key] = [float(t) for t in text.replace(",", " ").split()]
                     except ValueError:
