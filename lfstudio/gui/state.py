@@ -38,6 +38,7 @@ class AppState(QObject):
     devicesChanged = Signal(str)        # a device ("rig", "camera", ...) was connected or removed
     cameraFrame = Signal(object, str)   # an RGB uint8 image from the camera (test shot) and its caption
     liveVerdicts = Signal(object)       # list of the scan-time check's verdict entries (grid view → notifications)
+    scanFolderChanged = Signal(str)     # the dataset folder the Scan panel will write to (the Planner's disk row)
 
     def __init__(self, simulated: bool = True, parent: QObject | None = None):
         super().__init__(parent)
@@ -48,12 +49,19 @@ class AppState(QObject):
         self.scan_state: ScanState | None = None   # of the latest scan, from its events
         self.scan_label = ""                 # "the scan of studio_day (started 14:02)"
         self.scan_progress = (0, 0)          # views done, views in the dataset
+        self.scan_folder = ""                # the dataset folder the next scan writes to (set_scan_folder)
         self.scanEvents.connect(self._follow_scan_events)
         self.scanEvent.connect(lambda ev: self.scanEvents.emit([ev]))
 
     def set_plan(self, plan: Any) -> None:
         self.plan = plan
         self.planChanged.emit(plan)
+
+    def set_scan_folder(self, folder: str) -> None:
+        """The Scan panel's dataset folder, announced with ``scanFolderChanged`` when it changes."""
+        if folder != self.scan_folder:
+            self.scan_folder = folder
+            self.scanFolderChanged.emit(folder)
 
     def set_dataset(self, dataset: Any) -> None:
         self.dataset = dataset

@@ -271,7 +271,7 @@ class GPhotoCamera:
 
     name = "gphoto2 camera"
 
-    def __init__(self, gp: Any = None, *, delete_from_camera: bool = True,
+    def __init__(self, gp: Any = None, *, delete_from_camera: bool = True, capture_target: str = "Internal RAM",
                  clock: Callable[[], float] = time.monotonic, events_s: float = 3.0):
         if gp is None:
             try:
@@ -281,6 +281,8 @@ class GPhotoCamera:
                                   "install the 'gphoto2' package") from None
         self.gp = gp
         self.delete_from_camera = delete_from_camera
+        #: where the body puts a shot ("Internal RAM": downloaded and gone; "Memory card": on its card too)
+        self.capture_target = capture_target
         self.events_s = float(events_s)        # how long a capture collects the files it added at most
         self._clock = clock
         self._camera: Any = None
@@ -337,7 +339,7 @@ class GPhotoCamera:
         self._identity = self._read_identity(camera, config)
         if "capturetarget" in self._widgets:   # captures go to the camera's RAM, downloaded each time
             try:
-                self.set_setting("capturetarget", "Internal RAM")
+                self.set_setting("capturetarget", self.capture_target)
             except (DeviceError, InputError) as exc:
                 log.info("gphoto2: capture target left as it is: %s", str(exc))
         self._message = ""
@@ -387,6 +389,45 @@ class GPhotoCamera:
         """The camera as it reports itself: driver, model (libgphoto2's name), device_model,
         manufacturer, serial, firmware, lens (the keys the camera has; empty before the first connect)."""
         return dict(self._identity)
+
+    def card_space(self) -> dict[str, Any]:
+        """What the camera's card holds for a scan, as the camera reports it (``get_storageinfo``):
+        ``keeps`` ("none": shots go to the camera's RAM; "one": each is on the card until its
+        download deletes it; "all": they stay on the card), ``free_bytes`` and ``free_images`` over
+        its writable stores (None where the camera does not report them), ``label``."""
+        gp = self.gp
+        camera = self._require()
+        target = ""
+        if "capturetarget" in self._widgets:
+            try:
+                target = _text(self._config("reading the capture target").get_child_by_name(
+                    self._widgets["capturetarget"]).get_value())
+            except (gp.GPhoto2Error, DeviceError) as exc:
+                log.info("gphoto2: capture target not read: %s", str(exc))
+        in_ram = "ram" in _norm(target) and "card" not in _norm(target)     # libgphoto2: "Internal RAM"
+        keeps = "none" if in_ram else "all" if not self.delete_from_camera else "one"
+        free_kb = free_images = None
+        labels = []
+        self._camera_said.clear()
+        try:
+            stores = camera.get_storageinfo(*self._ctx)
+        except gp.GPhoto2Error as exc:
+            raise self._failed(exc, "reading the card's free space") from None
+        for info in stores:
+            fields = int(getattr(info, "fields", 0))
+            if fields & gp.GP_STORAGEINFO_STORAGETYPE and int(info.type) in (gp.GP_STORAGEINFO_ST_FIXED_ROM,
+                                                                            gp.GP_STORAGEINFO_ST_REMOVABLE_ROM):
+                continue                        # a ROM takes no pictures
+            if fields & gp.GP_STORAGEINFO_FREESPACEKBYTES:
+                free_kb = (free_kb or 0) + int(info.freekbytes)
+            if fields & gp.GP_STORAGEINFO_FREESPACEIMAGES and int(info.freeimages) >= 0:
+                free_images = (free_images or 0) + int(info.freeimages)
+            label = (getattr(info, "label", "") if fields & gp.GP_STORAGEINFO_LABEL else "") or \
+                getattr(info, "basedir", "")
+            if label:
+                labels.append(f"the camera's card {label!r}")
+        return {"keeps": keeps, "target": target, "label": ", ".join(labels) or "the camera's card",
+                "free_bytes": None if free_kb is None else free_kb * 1024, "free_images": free_images}
 
     # -- settings -----------------------------------------------------------------------------------
     def _find_widget(self, config: Any, names: Sequence[str]) -> Any:

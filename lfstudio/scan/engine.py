@@ -70,6 +70,7 @@ from lfstudio.rig.motion import RigState
 from lfstudio.rig.worker import CallTimedOut, DeviceWorker, Lease
 from lfstudio.scan.events import (OWNS_RIG, TERMINAL, TRANSITIONS, EventKind, ScanEvent, ScanRequestRefused,
                                   ScanState, Trigger, next_state)
+from lfstudio.scan.preflight import MIN_FREE_BYTES, ViewSize, card_shortfall, disk_shortfall, floor_bytes
 from lfstudio.scan.scan_plan import PlannedView, ScanPlan
 from lfstudio.dataset.thumbs import THUMB_WIDTH_PX, make_thumbnail
 from lfstudio.support.listeners import Listeners
@@ -113,10 +114,11 @@ class ScanFault(LfError):
     an alarm that needs homing, a limit switch, a position error, a device held by another scan);
     with ``auto_resume`` the engine resumes by itself when it sees that (see :meth:`ScanEngine._cleared`)."""
 
-    def __init__(self, message: str, device: str = "", clears: str = ""):
+    def __init__(self, message: str, device: str = "", clears: str = "", need_bytes: int = 0):
         super().__init__(message)
         self.device = device
         self.clears = clears
+        self.need_bytes = need_bytes  # a disk fault: the free space that clears it (0: the next view's)
         self.reconnected = False     # the auto-resume probe reconnected the device already
         self.stop_pressed = False    # the operator's STOP: they know, no alarm box (the rig may still be homed)
 
@@ -206,7 +208,7 @@ def _reported_exposure_s(result: CaptureResult) -> float | None:
     return float(exposure) if exposure else None
 
 
-def _stored_view_bytes(dataset: Dataset, sample: int = 8) -> int:
+def stored_view_bytes(dataset: Dataset, sample: int = 8) -> int:
     """Bytes of the largest of the last ``sample`` views stored in ``dataset`` (file, sidecars, thumbnail)."""
     done = dataset.done_views()[-sample:]
     largest = 0
@@ -240,7 +242,7 @@ class ScanEngine:
     def __init__(self, dataset: Dataset, plan: ScanPlan, rig: Any, camera: Any, *,
                  recapture: bool = False, retries: int = 2, backoff_s: float = 0.5,
                  move_timeout_s: float = 300.0, capture_timeout_s: float = 120.0,
-                 min_free_bytes: int = 8 * 2**20, time_scale: float = 1.0,
+                 min_free_bytes: int = MIN_FREE_BYTES, time_scale: float = 1.0,
                  thumb_width_px: int = THUMB_WIDTH_PX, checkpoint_s: float = 5.0,
                  free_bytes_fn: Callable[[Path], int] = free_bytes, auto_resume: int = 0,
                  auto_resume_poll_s: float = 10.0):
@@ -296,8 +298,10 @@ class ScanEngine:
         self._current: PlannedView | None = None
         self._prev_future: Future | None = None
         # shared with the store thread (under _cond)
-        self._view_bytes = _stored_view_bytes(dataset)   # the largest view stored so far (file, sidecars, thumb)
+        self._view_bytes = stored_view_bytes(dataset)   # the largest view stored so far (file, sidecars, thumb)
         self._unrecorded: list[tuple[PlannedView, dict[str, Any]]] = []   # stored, journal refused (disk)
+        self._whole_checked = False     # the views left checked against the free space (after the first view)
+        self._card_frame_bytes: int | None = None   # measured then: the camera's card is checked next (engine thread)
         self._capture_timeout: float | None = None      # per capture, from the camera's exposure + transfer
         self._store_q: queue.Queue = queue.Queue(maxsize=2)
         self._inflight = 0
@@ -903,7 +907,7 @@ class ScanEngine:
         homed and idle, as before any view)."""
         try:
             if fault.device == "disk":
-                return self.free_bytes_fn(self.dataset.root) >= self.need_bytes()
+                return self.free_bytes_fn(self.dataset.root) >= max(self.need_bytes(), fault.need_bytes)
             if fault.device == "camera":
                 self._free_hung_camera()
                 try:
@@ -1048,7 +1052,27 @@ class ScanEngine:
             manifest = self.dataset.manifest_path.stat().st_size
         except OSError:
             manifest = 0
-        return max(self.min_free_bytes, 2 * self._view_bytes + 2 * manifest + 2**20)
+        return floor_bytes(self._view_bytes, manifest, self.min_free_bytes)
+
+    def whole_scan_fault(self, view_bytes: int, frames: int) -> ScanFault | None:
+        """The pause when the views still to capture, at ``view_bytes`` each (measured on the view just
+        stored), do not fit the free space (:func:`lfstudio.scan.preflight.disk_shortfall`); it clears
+        when the disk has that much free. Checked once a run, right after its first view is stored: a
+        Resume after it goes on (and pauses again only when the disk is really full)."""
+        views = self.remaining
+        try:
+            free = self.free_bytes_fn(self.dataset.root)
+            manifest = self.dataset.manifest_path.stat().st_size
+        except OSError as exc:
+            log.info("free space not checked after the first view: %s", exc)
+            return None
+        short = disk_shortfall(self.dataset.root, views, ViewSize(view_bytes, "measured on the first view stored",
+                                                                  frames),
+                               free, min_free_bytes=self.min_free_bytes, manifest_bytes=manifest)
+        if short is None:
+            return None
+        return ScanFault(f"{short} Then Resume (Resume now captures what fits and pauses when the disk is full).",
+                         "disk", CLEARS_DISK, need_bytes=short.need_bytes)
 
     def capture_call_timeout_s(self) -> float:
         """How long a capture may take before the camera counts as silent: twice its exposure and
@@ -1075,7 +1099,25 @@ class ScanEngine:
             log.info("capture timeout %.1f s (exposure %g s, transfer %g s)", self._capture_timeout, exposure, transfer)
         return self._capture_timeout
 
+    def _check_card(self) -> None:
+        """Once a run, when the first view's frames are measured: a camera that keeps its pictures on
+        its card (:meth:`GPhotoCamera.card_space`) has room there for the frames still to take."""
+        frame_bytes, self._card_frame_bytes = self._card_frame_bytes, None
+        if frame_bytes is None:
+            return
+        try:
+            card = self._camera_call("card_space", timeout_s=30)
+        except (ScanFault, _Interrupted):
+            raise
+        except Exception as exc:          # where the driver cannot read it: the card's own errors tell later
+            log.info("the camera's card space not read: %s", _error_text(exc))
+            return
+        short = card_shortfall(card, self.remaining, len(self.frame_shutter_s or (None,)), frame_bytes)
+        if short is not None:
+            raise ScanFault(f"{short} Then Resume.", "camera")
+
     def _check_disk(self) -> None:
+        self._check_card()
         need = self.need_bytes()
         try:
             free = self.free_bytes_fn(self.dataset.root)
@@ -1320,6 +1362,11 @@ class ScanEngine:
             self._last_save = time.monotonic()
         self._emit(EventKind.VIEW_DONE, index=view.index, row=view.row, column=view.column, eta_s=self.eta_s(),
                    timings_s=timings, file=rel, thumb=fields["thumb"])
+        if later is None and not self._whole_checked:     # the first view of this run: does the rest fit?
+            self._whole_checked = True
+            later = self.whole_scan_fault(view_bytes, job.frames)
+            if callable(getattr(self.camera.driver, "card_space", None)):
+                self._card_frame_bytes = max(1, view_bytes // max(1, job.frames))
         if later is not None:
             self._store_failed(None, later)
 

@@ -40,7 +40,6 @@ from typing import Any, Callable, Sequence
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.bracket import Bracket
-from lfstudio.dataset.storage import megabytes
 from lfstudio.dataset.store import free_bytes
 from lfstudio.dataset.manifest import MANIFEST_NAME, is_finished, now_iso
 from lfstudio.dataset.paths import check_new_dataset_folder, view_label
@@ -611,6 +610,7 @@ class ScanSession:
         check_plan_on_controller(rig, plan)
         if existing is None and plan.bracket is not None:       # refused before the dataset is made
             self._check_bracket(plan, camera)
+        self._check_space(plan.with_subset(req.recapture) if req.recapture else plan, camera, scene, existing)
         if existing is None:
             camera_info, lens = describe_camera(getattr(camera, "driver", camera), scene)
             camera_info.setdefault("driver", cam_text)
@@ -634,9 +634,8 @@ class ScanSession:
         return self.engine
 
     def _check_bracket(self, plan: ScanPlan, camera: Any) -> None:
-        """The bracket's shutter times among the camera's choices, and every frame of the scan fits
-        the disk of the dataset folder (at the size of the camera's RAW files): else InputError naming
-        --bracket before the dataset is made."""
+        """The bracket's shutter times among the camera's choices: else InputError naming --bracket
+        before the dataset is made (the disk is checked for every scan: :meth:`_check_space`)."""
         from lfstudio.scan.engine import bracket_on_camera
 
         driver = getattr(camera, "driver", camera)
@@ -645,19 +644,51 @@ class ScanSession:
         times, _ = bracket_on_camera(plan.bracket, driver, call)
         self.note(f"exposure bracket {plan.bracket.describe()}: " + ", ".join(f"{t:.6g} s" for t in times)
                   + " at every view")
+
+    def _check_space(self, plan: ScanPlan, camera: Any, scene: Any, existing: Dataset | None) -> None:
+        """Every view still to capture fits the disk of the dataset folder and, for a camera that keeps
+        its pictures on its card, the card (:mod:`lfstudio.scan.preflight`): else
+        :class:`~lfstudio.scan.preflight.ScanTooLarge` naming the need, the free space, the folder and
+        the fix, before the dataset is made. A camera whose frame size nothing tells (a gphoto2
+        camera, a hot folder) is checked by the engine right after the first view's frames arrive."""
+        from lfstudio.scan.engine import stored_view_bytes
+        from lfstudio.scan.preflight import MIN_FREE_BYTES, card_shortfall, disk_shortfall, view_size
+
+        finished = {(v["row"], v["column"]) for v in existing.views if is_finished(v)} if existing is not None else set()
+        views = sum(1 for v in plan.views() if self.request.recapture or v.cell not in finished)
+        frames = plan.bracket.frames if plan.bracket is not None else 1
+        driver = getattr(camera, "driver", camera)
         info, _ = describe_camera(driver)
-        sensor = info.get("sensor_px") if isinstance(info, dict) else None
-        if sensor:
-            frames = len(plan) * plan.bracket.frames
-            need = frames * int(sensor[0]) * int(sensor[1]) * 2
-            where = self.folder if self.folder.exists() else self.folder.parent
-            while not where.exists() and where != where.parent:
-                where = where.parent
-            free = free_bytes(where)
-            if need > free:
-                raise InputError("--bracket", f"{frames} frames ({len(plan)} views x {plan.bracket.frames}) take "
-                                 f"about {megabytes(need)}; the disk at {where} has {megabytes(free)} free",
-                                 "fewer frames, a smaller grid, or a folder on a larger disk")
+        per_image = None
+        if scene is not None and hasattr(scene, "derive") and info.get("sensor_px") is None:
+            try:
+                per_image = scene.derive(check_travel=False).bytes_per_image
+            except (LfError, ValueError, ArithmeticError) as exc:     # the plan was checked before: a note only
+                log.info("the plan's image size not known: %s", exc)
+        size = view_size(frames, stored_view_bytes=stored_view_bytes(existing) if existing is not None else 0,
+                         sensor_px=info.get("sensor_px"), plan_bytes_per_image=per_image)
+        if size is None:
+            self.note("the camera's picture size is not known before its first picture: the free space for the "
+                      "whole scan is checked right after the first view")
+        else:
+            manifest = existing.manifest_path.stat().st_size if existing is not None and \
+                existing.manifest_path.exists() else 0
+            short = disk_shortfall(self.folder, views, size, free_bytes(self.folder),
+                                   min_free_bytes=self.request.engine_options.get("min_free_bytes", MIN_FREE_BYTES),
+                                   manifest_bytes=manifest)
+            if short is not None:
+                raise short
+        if callable(getattr(driver, "card_space", None)):
+            call = (lambda name: camera.call(name, timeout_s=30)) if hasattr(camera, "driver") else \
+                (lambda name: getattr(camera, name)())
+            try:
+                card = call("card_space")
+            except (DeviceError, OSError) as exc:        # where the driver cannot read it: a note
+                self.note(f"the camera's card space could not be read ({exc})")
+                card = None
+            short = card_shortfall(card, views, frames, size.frame_bytes if size is not None else None)
+            if short is not None:
+                raise short
 
     def _check_devices(self, dataset: Dataset, record: dict, current: dict) -> None:
         differences = device_differences(record, current)

@@ -171,23 +171,46 @@ def test_the_free_space_floor_comes_from_the_views_captured_so_far(disk_scan):
 
 
 # -- the command line: scan, process, export, calibrate on a full or read-only disk ------------------------------
-def test_scan_fills_the_disk_stops_with_one_line_then_resumes_without_capturing_again(small_disk, run_cli):
-    disk = small_disk(12 * 2**20)          # room for the 8 MB floor and a dozen views of ~250 kB
+def test_a_scan_the_disk_cannot_hold_is_refused_before_it_starts_naming_need_free_folder_and_fix(small_disk, run_cli):
+    """The simulated camera tells its frame size: 6 x 4 views of ~250 kB and the engine's 8 MB floor do not
+    fit 12 MB; refused before the dataset is made (it used to run until the floor paused it)."""
+    disk = small_disk(12 * 2**20)
     out = disk.path / "ds"
-    proc = run_cli("scan", "--port", "instant", "--camera", "sim", "--sim-width-px", "400", "--time-scale", "0",
-                   "--grid", "6x4", "--out", out, timeout=120)
-    assert_one_line_error(proc, 3, "Disk almost full", str(disk.path), "needed to go on")
+    args = ("scan", "--port", "instant", "--camera", "sim", "--sim-width-px", "400", "--time-scale", "0",
+            "--grid", "6x4", "--out", out)
+    proc = run_cli(*args, timeout=120)
+    line = assert_one_line_error(proc, 1, "Disk too small for this scan: 24 views need about", str(out),
+                                 f"the disk at {disk.path} has", "Fix: free space there")
+    assert "400 x 266 px" in line, line           # how the need was counted
+    assert not out.exists()                       # nothing written, no folder left behind
+    subprocess_remount(disk, 32 * 2**20)
+    again = run_cli(*args, timeout=120)
+    assert again.returncode == 0, again.stderr
+    assert Dataset.open(out).status_counts()["done"] == 24
+
+
+def test_a_camera_of_unknown_frame_size_pauses_after_the_first_view_when_the_rest_does_not_fit(small_disk, run_cli):
+    """The instant camera does not describe its frames (as a gphoto2 camera or a hot folder): the scan
+    starts, the first view's files are measured, and it stops at once with the whole scan's need; the
+    resume on a larger disk keeps what was captured."""
+    disk = small_disk(12 * 2**20)
+    out = disk.path / "ds"
+    proc = run_cli("scan", "--port", "instant", "--camera", "instant", "--time-scale", "0", "--grid", "40x30",
+                   "--out", out, timeout=120)
+    line = assert_one_line_error(proc, 3, "stopped: Disk too small for this scan:", "measured on the first view",
+                                 str(out), f"the disk at {disk.path} has", "Fix: free space there")
     assert "camera's cable" not in proc.stderr
     first = {(v["row"], v["column"]): (v["sha256"], v["captured_at"]) for v in Dataset.open(out).views
              if v["status"] == "done"}
-    assert 0 < len(first) < 24
-    subprocess_remount(disk, 32 * 2**20)
-    again = run_cli("scan", "--resume", "--time-scale", "0", "--sim-width-px", "400", "--out", out, timeout=120)
+    # the first view and those already in the pipeline when it was measured (the store queue holds 2), not hours
+    assert 1 <= len(first) <= 5, line
+    subprocess_remount(disk, 64 * 2**20)
+    again = run_cli("scan", "--resume", "--time-scale", "0", "--out", out, timeout=300)
     assert again.returncode == 0, again.stderr
     ds = Dataset.open(out)
-    assert ds.status_counts()["done"] == 24 and ds.verify_files() == []
+    assert ds.status_counts()["done"] == 1200 and ds.verify_files() == []
     kept = {(v["row"], v["column"]): (v["sha256"], v["captured_at"]) for v in ds.views if (v["row"], v["column"]) in first}
-    assert kept == first                         # nothing captured before the full disk was captured again
+    assert kept == first                         # nothing captured before the pause was captured again
 
 
 def subprocess_remount(disk, size_bytes):

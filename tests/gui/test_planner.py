@@ -243,3 +243,29 @@ def test_every_editor_accepts_exactly_what_the_plan_accepts(window):
     assert checked >= 25
     grid = p.rows["grid"].spins[0]
     assert grid.maximum() == 20_000 and p.rows["pixel_pitch_um"].spins[0].minimum() == pytest.approx(0.1)
+
+
+def test_the_disk_row_checks_the_disk_of_the_scan_panels_dataset_folder(window, qtbot, small_disk, tmp_path):
+    """The Planner measures the free space (off the GUI thread) of the folder the Scan panel will write to:
+    a 1 GB tmpfs is too little for the reference grid's raw files (179 GB) (marked, the tooltip naming the need,
+    the free space, the folder and the fix); a 3 x 2 grid (506 MB) on the same disk is not."""
+    p = planner(window)
+    scan = window.panels["scanPanel"]
+    qtbot.waitUntil(lambda: p.result is not None)
+    disk = small_disk(2**30)                     # a tmpfs takes memory only for what is written
+    scan.folder.setText(str(disk.path / "studio"))
+    qtbot.waitUntil(lambda: p.destination is not None and p.destination[0] == str(disk.path / "studio"), timeout=5000)
+    out = p.outputs["disk"]
+    assert out.text().splitlines()[1:] == ["1.1 GB free: too little", f"on the disk at …{str(disk.path)[-25:]}"]
+    assert style_prop(out, "flag") == "bad"
+    tip = out.toolTip()
+    assert tip.startswith("Disk too small for this scan: 2121 views need about") and str(disk.path / "studio") in tip
+    assert "the plan's" in tip and "Fix: free space there" in tip
+    p.grab().save(str(tmp_path / "planner-disk.png"))
+    p.set_plan(p.current_plan().replace(grid_columns=3, grid_rows=2))
+    p.evaluate()
+    assert out.text().splitlines()[1] == "1.1 GB free: enough", out.text()
+    assert style_prop(out, "flag") == ""
+    scan.folder.setText("")
+    qtbot.waitUntil(lambda: p.destination is None)
+    assert "free at" not in out.text() and "Scan panel" in out.toolTip()

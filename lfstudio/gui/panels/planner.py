@@ -27,6 +27,7 @@ from lfstudio.jobs import format_duration
 from lfstudio import optics
 from lfstudio.planning.presets import (camera_fields, lens_fields, reference_plan, rig_fields)
 from lfstudio.planning.scene_plan import PARAMS, PlanResult, ScenePlan, load_plan, save_plan
+from lfstudio.scan.preflight import MIN_FREE_BYTES, disk_shortfall, view_size
 from lfstudio.resources import load_presets
 
 log = logging.getLogger(__name__)
@@ -181,9 +182,16 @@ class PlannerPanel(QWidget):
         self._save_timer.setInterval(1000)
         self._save_timer.timeout.connect(lambda: self._remember(self.current_plan()))
         self._presets = self._load_presets()
+        #: the disk the Scan panel will write to: (folder, free bytes, mount point), measured off the GUI
+        #: thread (a network disk may take its time to answer)
+        self.destination: tuple[str, int, str] | None = None
+        self._measuring = None
+        self._wanted = ""
         self._build()
         self.set_plan(self._restore_plan())
         self.evaluate()
+        state.scanFolderChanged.connect(self.measure_destination)
+        self.measure_destination(state.scan_folder)
 
     # -- construction ------------------------------------------------------------------------------
     def _load_presets(self) -> dict[str, list[str]]:
@@ -596,8 +604,58 @@ class PlannerPanel(QWidget):
         put("images", f"{plan.grid_columns} × {plan.grid_rows} = {r.images}{frames}"
             + ("" if r.fits_travel else "  — beyond travel"), "" if r.fits_travel else "bad")
         put("time", f"{format_duration(r.capture_time_s)} ({r.capture_time_s / max(r.images, 1):.2f} s/view)")
-        put("disk", f"{_bytes(r.storage_bytes)} ({_bytes(r.bytes_per_image)}/image"
-            + (f", {r.frames_per_view} a view" if r.frames_per_view > 1 else "") + ")")
+        self._fill_disk(r)
+
+    def _fill_disk(self, r: PlanResult) -> None:
+        """The disk row: the raw files of the whole grid, and whether the disk of the Scan panel's
+        dataset folder holds them with the free space the scan keeps (:mod:`lfstudio.scan.preflight`)."""
+        text = f"{_bytes(r.storage_bytes)} ({_bytes(r.bytes_per_image)}/image" + \
+            (f", {r.frames_per_view} a view" if r.frames_per_view > 1 else "") + ")"
+        tip, flag = "Raw files of the whole grid", ""
+        if self.destination is not None:
+            folder, free, mount = self.destination
+            size = view_size(r.frames_per_view, plan_bytes_per_image=r.bytes_per_image)
+            short = disk_shortfall(folder, r.images, size, free, min_free_bytes=MIN_FREE_BYTES) if size else None
+            where = mount if len(mount) <= 26 else "…" + mount[-25:]      # the whole path in the tooltip
+            if short is None:
+                text += f"\n{_bytes(free)} free: enough\non the disk at {where}"
+                tip += f", for the dataset folder {folder} (the Scan panel's): its disk at {mount} holds them"
+            else:
+                text += f"\n{_bytes(free)} free: too little\non the disk at {where}"
+                tip, flag = str(short), "bad"
+        else:
+            tip += " (choose the dataset folder in the Scan panel to check its disk)"
+        self.outputs["disk"].setText(text)
+        self.outputs["disk"].setToolTip(tip)
+        _set_prop(self.outputs["disk"], "flag", flag)
+
+    def measure_destination(self, folder: str) -> None:
+        """Measure the free space of ``folder``'s disk off the GUI thread; the disk row follows."""
+        from lfstudio.dataset.storage import mount_point
+        from lfstudio.dataset.store import free_bytes
+        from lfstudio.gui.bridge import run_off_gui
+
+        folder = (folder or "").strip()
+        self._wanted = folder
+        if not folder:
+            self.destination = None
+            if self.result is not None:
+                self._fill_disk(self.result)
+            return
+
+        def measure() -> tuple[str, int, str]:
+            path = Path(folder).expanduser()
+            return folder, free_bytes(path), str(mount_point(path))
+
+        def measured(value: tuple[str, int, str]) -> None:
+            if value[0] != self._wanted:      # the folder changed meanwhile: its own measure follows
+                return
+            self.destination = value
+            if self.result is not None:
+                self._fill_disk(self.result)
+
+        self._measuring = run_off_gui(self, measure, measured,
+                                      lambda message: log.info("free space of %s not measured: %s", folder, message))
 
     def apply_proposed_spacing(self) -> None:
         if self.result is None:

@@ -329,6 +329,8 @@ class ScanPanel(QWidget):
             w.valueChanged.connect(self._save_grid)
         self.order.currentIndexChanged.connect(self._save_grid)
         self.bracket.textChanged.connect(self._save_grid)
+        self.folder.textChanged.connect(lambda text: state.set_scan_folder(text.strip()))
+        state.set_scan_folder(self.folder.text().strip())       # the Planner's disk row measures its disk
         state.planChanged.connect(self._on_plan)
         state.recaptureRequested.connect(self.recapture)
         state.datasetChanged.connect(self._on_dataset)
