@@ -101,7 +101,7 @@ class Bracket:
         """The form :func:`parse_bracket` reads back (``-2,0,+2``; ``0.002s,0.008s``)."""
         if self.ev:
             return ",".join(_fmt_ev(v) for v in self.ev)
-        return ",".join(f"{t:.6g}s" for t in self.shutter_s)
+        return ",".join(_time_text(t) for t in self.shutter_s)
 
     def to_manifest(self) -> dict[str, Any]:
         out: dict[str, Any] = {"ev": list(self.ev)} if self.ev else {"shutter_s": list(self.shutter_s)}
@@ -120,6 +120,15 @@ class Bracket:
             if isinstance(exc, InputError):
                 raise
             raise InputError(field, f"not a list of numbers ({exc})", VALID) from None
+
+
+def _time_text(t: float) -> str:
+    """A shutter time that reads back exactly: ``1/30s`` when it is 1/N, else the float's own repr."""
+    if t < 1:
+        n = round(1 / t)
+        if n > 0 and float(Fraction(1, n)) == t:
+            return f"1/{n}s"
+    return f"{t!r}s"
 
 
 def _checked(cls: type, field: str, **kw: Any) -> Bracket:
@@ -206,9 +215,14 @@ def parse_bracket(text: "str | Iterable[Any] | None", field: str = "--bracket") 
     return bracket
 
 
-def nearest_choice(seconds: float, choices: Iterable[float], tolerance: float = 0.04) -> float | None:
-    """The camera's own shutter time that is ``seconds`` (within ``tolerance`` relative: cameras list
-    1/125 as 0.008), else None."""
+#: half a third of a stop: a camera's nominal times (1/60, 1/125) stand for 1/64, 1/128, ... and are
+#: up to 4.2 % from the powers of two an EV bracket asks for; the merge uses the time the camera reports
+CHOICE_TOLERANCE = 2 ** (1 / 6) - 1
+
+
+def nearest_choice(seconds: float, choices: Iterable[float], tolerance: float = CHOICE_TOLERANCE) -> float | None:
+    """The camera's own shutter time that is ``seconds`` (within ``tolerance`` relative, half a third
+    of a stop: cameras list 1/125 as 0.008, and 1/60 for 1/62.5), else None."""
     best = None
     for c in choices:
         if isinstance(c, (int, float)) and not isinstance(c, bool) and c > 0:

@@ -252,6 +252,15 @@ class HdrResult:
     error: str | None = None
 
 
+def saturated_pixels(sites: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The developed image's saturated pixels (``shape``) from the sensor's saturated sites: a pixel
+    made from several sites (half-size debayering, a smaller processing size) is saturated when any
+    of them is (averaged with unsaturated neighbours it no longer looks clipped, yet is wrong)."""
+    if sites.shape == tuple(shape):
+        return sites.astype(bool)
+    return cv2.resize(sites.astype(np.float32), (shape[1], shape[0]), interpolation=cv2.INTER_AREA) > 0
+
+
 def develop_frame(plan: Any, path: Path, clip_fraction: float) -> tuple[np.ndarray, np.ndarray]:
     """(linear float32 0…1 at the processing size, its clipped mask) of one frame."""
     profile = plan.get_profile()
@@ -263,10 +272,7 @@ def develop_frame(plan: Any, path: Path, clip_fraction: float) -> tuple[np.ndarr
     if images.is_raw(path):
         bayer = images.read_bayer(path, profile.debayer)
         if bayer is not None:
-            sat = (bayer.mosaic >= clip_fraction * FULL_SCALE).view(np.uint8)
-            if sat.shape != img.shape[:2]:
-                sat = cv2.resize(sat, (img.shape[1], img.shape[0]), interpolation=cv2.INTER_AREA) > 0
-            saturated = sat.astype(bool)
+            saturated = saturated_pixels(bayer.mosaic >= clip_fraction * FULL_SCALE, img.shape[:2])
     scale = FULL_SCALE if img.dtype == np.uint16 else float(np.iinfo(img.dtype).max) if img.dtype.kind == "u" else 1.0
     mask = clipped_mask(img if img.dtype == np.uint16 else (img / scale).astype(np.float32), saturated, clip_fraction)
     return (img.astype(np.float32) / np.float32(scale)), mask

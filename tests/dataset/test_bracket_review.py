@@ -1,4 +1,4 @@
-"""Review findings on dataset/bracket.py, marked xfail (not strict) for its owner: the text the Scan
+"""Review findings on dataset/bracket.py, fixed: the text the Scan
 panel fills in from an opened dataset must read back as the same bracket (else the window's resume
 is refused naming two identical brackets), and ±1 EV around the commonest shutter times must find
 the camera's own nominal 1/60 s and 1/120-ish choices (cameras list 1/60 for 1/62.5 s)."""
@@ -18,16 +18,12 @@ def test_ev_steps_read_back_from_their_text():
     assert parse_bracket(Bracket.from_manifest(b.to_manifest()).text()) == b
 
 
-@pytest.mark.xfail(reason="review finding: Bracket.text() writes 6 significant digits, so 1/30 s reads back "
-                          "as 0.0333333 s, a different bracket", strict=False)
 def test_explicit_shutter_times_read_back_from_their_text():
     b = parse_bracket("1/500,1/125,1/30s")
     recorded = Bracket.from_manifest(b.to_manifest())      # what the Scan panel fills in from the dataset
     assert parse_bracket(recorded.text(), "Bracket") == recorded
 
 
-@pytest.mark.xfail(reason="review finding: nearest_choice's 4 % tolerance refuses the nominal 1/60 s for "
-                          "1/62.5 s (4.2 %) and 1/125 s for 1/120 s", strict=False)
 @pytest.mark.parametrize("base_s, expected", [(1 / 125, (1 / 250, 1 / 125, 1 / 60)),
                                               (1 / 60, (1 / 125, 1 / 60, 1 / 30))])
 def test_one_ev_around_the_commonest_shutter_times_finds_the_cameras_nominal_times(base_s, expected):

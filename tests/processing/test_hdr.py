@@ -116,3 +116,16 @@ def test_frame_misalignment_is_measured():
     merged = merge_frames(frames, clipped, [0.5, 1.0, 2.0], 1, noise_floor=0.002)
     assert merged.shifts_px[0] == pytest.approx([0.0, 0.0], abs=0.1)
     assert merged.shifts_px[2] == pytest.approx([3.0, -2.0], abs=0.3)
+
+
+def test_a_pixel_made_from_one_saturated_site_is_saturated():
+    """Half-size debayering makes a pixel of 2 x 2 sites; a 0/1 map shrunk with INTER_AREA as 8-bit
+    rounded one saturated site in four to 0, so a clipped sample entered the merge."""
+    from lfstudio.processing.hdr import saturated_pixels
+
+    sites = np.zeros((8, 8), bool)
+    sites[2, 3] = True                         # one site of the block (1, 1)
+    sites[6:8, 6:8] = True                     # a whole block
+    pixels = saturated_pixels(sites, (4, 4))
+    assert pixels.shape == (4, 4) and pixels[1, 1] and pixels[3, 3] and pixels.sum() == 2
+    assert (saturated_pixels(sites, (8, 8)) == sites).all()
