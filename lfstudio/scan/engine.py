@@ -15,8 +15,11 @@ Threads:
   settle and triggers the camera; as soon as the camera reports the shutter closed
   (``Camera.capture(..., on_exposed=)``), it moves on to the next view. While it waits for a device
   it keeps applying requests;
-* the **store thread** waits for each capture's file (download/transfer), checksums it, writes its
-  thumbnail and journals the view (fsync'd) — overlapping the next move and settle;
+* the **store thread** (:class:`lfstudio.scan.store.ScanStore`, which owns it and its state) waits
+  for each capture's file (download/transfer), checksums it, writes its thumbnail and journals the
+  view (fsync'd) — overlapping the next move and settle. It talks to the engine only through the
+  inbox (a fault, a view to capture again, its crash) and its count of views in flight; disk faults
+  and free space are its too;
 * the devices run on their :class:`lfstudio.rig.worker.DeviceWorker` threads (the engine makes
   its own workers for bare drivers).
 
@@ -46,81 +49,42 @@ and otherwise ignored).
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
 import traceback
 from collections import deque
 from concurrent.futures import Future
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.bracket import Bracket, frame_times_on_camera
-from lfstudio.dataset.manifest import is_done, is_finished, now_iso
+from lfstudio.dataset.manifest import is_finished
 from lfstudio.dataset.paths import folder_inside, view_label, view_stem
-from lfstudio.dataset.storage import disk_problem, megabytes, mount_point, storage_error
-from lfstudio.dataset.store import clean_temporary_files, free_bytes, sha256_file
+from lfstudio.dataset.storage import storage_error
+from lfstudio.dataset.store import clean_temporary_files, free_bytes
 from lfstudio.errors import DeviceError, DeviceTimeout, LfError
 from lfstudio.numbers import RETRIES, TIME_SCALE, TIMEOUT_S, Number, non_finite_fields
-from lfstudio.rig.camera import CaptureResult, supports_on_exposed
-from lfstudio.rig.grbl import ConnectionLost
+from lfstudio.rig.camera import supports_on_exposed
 from lfstudio.rig.motion import RigState
 from lfstudio.rig.worker import CallTimedOut, DeviceWorker, Lease
 from lfstudio.scan.events import (OWNS_RIG, TERMINAL, TRANSITIONS, EventKind, ScanEvent, ScanRequestRefused,
                                   ScanState, Trigger, next_state)
-from lfstudio.scan.preflight import MIN_FREE_BYTES, ViewSize, card_shortfall, disk_shortfall, floor_bytes
+from lfstudio.scan.faults import (CLEARS_CAMERA, CLEARS_RIG, FIX, ScanFault, clears_by_itself,
+                                  error_text, fault_text)
+from lfstudio.scan.preflight import MIN_FREE_BYTES, card_shortfall
 from lfstudio.scan.scan_plan import PlannedView, ScanPlan
-from lfstudio.dataset.thumbs import THUMB_WIDTH_PX, make_thumbnail
+from lfstudio.scan.store import RETRY, ScanStore, StoreJob, free_hung_camera
+from lfstudio.dataset.thumbs import THUMB_WIDTH_PX
 from lfstudio.support.listeners import Listeners
 from lfstudio.support.locks import dataset_lock
 
 log = logging.getLogger(__name__)
 
 Listener = Callable[[ScanEvent], None]
-_STOP = object()
-#: what the operator does about a device's fault
-_FIX = {"rig": "Check the axis controller's cable, power and alarms, reconnect it, then Resume.",
-        "camera": "Check the camera's cable, power, battery and card, reconnect it, then Resume.",
-        "disk": "Free disk space or choose another folder, then Resume."}
 #: a camera's download time when it does not tell it (a RAW over USB takes a few seconds)
 TRANSFER_ALLOWANCE_S = 30.0
-_RETRY = "retry"            # inbox: a view whose transfer failed, to capture again (from the store thread)
-#: what clears each kind of fault that can clear without a person (ScanFault.clears)
-CLEARS_DISK = "there is free disk space again"
-CLEARS_CAMERA = "the camera answers again"
-CLEARS_RIG = "the axis controller answers again"
-
-
-def clears_by_itself(device: str, exc: BaseException | None = None) -> str:
-    """What ends a ``device`` fault caused by ``exc`` without a person ("" when it needs one).
-
-    A camera that fails or stops answering may be back after a reconnect (a cable, a power save). A
-    rig only when its connection was lost or it stopped answering: an alarm (a limit switch, a soft
-    limit, a reset that needs homing), a move stopped by STOP, a position error or a refused command
-    always wait for a person."""
-    if device == "camera":
-        return CLEARS_CAMERA
-    if device == "rig" and (exc is None or isinstance(exc, (ConnectionLost, DeviceTimeout, CallTimedOut))):
-        return CLEARS_RIG
-    return ""
-
-
-class ScanFault(LfError):
-    """A fault the operator must fix (device, disk); the scan pauses with this message.
-
-    ``clears``: what, happening without a person, ends the fault ("" when it needs a person: STOP,
-    an alarm that needs homing, a limit switch, a position error, a device held by another scan);
-    with ``auto_resume`` the engine resumes by itself when it sees that (see :meth:`ScanEngine._cleared`)."""
-
-    def __init__(self, message: str, device: str = "", clears: str = "", need_bytes: int = 0):
-        super().__init__(message)
-        self.device = device
-        self.clears = clears
-        self.need_bytes = need_bytes  # a disk fault: the free space that clears it (0: the next view's)
-        self.reconnected = False     # the auto-resume probe reconnected the device already
-        self.stop_pressed = False    # the operator's STOP: they know, no alarm box (the rig may still be homed)
 
 
 class _RigFailed(Exception):
@@ -137,21 +101,6 @@ class _Interrupted(Exception):
 
 
 @dataclass
-class _Job:
-    """One view in flight between the engine thread and the store thread."""
-
-    view: PlannedView
-    attempt: int
-    future: Future
-    exposed_at: float
-    reported_mm: list[float] | None
-    timings_s: dict[str, float] = field(default_factory=dict)
-    frame: int | None = None             # an exposure bracket's frame (0-based; None: no bracket)
-    frames: int = 1                      # the view's frames
-    shutter_s: float | None = None       # the shutter time the engine set for this frame
-
-
-@dataclass
 class _Message:
     """One entry of the engine thread's inbox: a request, a fault, a retry or a crash."""
 
@@ -165,11 +114,6 @@ def _as_worker(device: Any, name: str) -> tuple[DeviceWorker, bool]:
         return device, False
     status = "status" if name == "rig" else None
     return DeviceWorker(device, name=name, status_method=status, publish_hz=2.0), True
-
-
-def _error_text(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text if text else type(exc).__name__
 
 
 def bracket_on_camera(bracket: Bracket, driver: Any, call: Callable[[str], Any],
@@ -201,30 +145,6 @@ def bracket_on_camera(bracket: Bracket, driver: Any, call: Callable[[str], Any],
     return frame_times_on_camera(bracket, base, values, texts, model or "the camera", field), base
 
 
-def _reported_exposure_s(result: CaptureResult) -> float | None:
-    """The shutter time the camera reported for a shot (its metadata), else how long it exposed."""
-    meta = result.metadata if isinstance(result.metadata, dict) else {}
-    exposure = meta.get("shutter_s") or meta.get("exposure_s") or result.exposure_s
-    return float(exposure) if exposure else None
-
-
-def stored_view_bytes(dataset: Dataset, sample: int = 8) -> int:
-    """Bytes of the largest of the last ``sample`` views stored in ``dataset`` (file, sidecars, thumbnail)."""
-    done = dataset.done_views()[-sample:]
-    largest = 0
-    for v in done:
-        total = 0
-        frames = [rel for f in (v.get("frames") or ()) if isinstance(f, dict)
-                  for rel in (f.get("file"), *(f.get("sidecars") or ())) if rel != v.get("file")]
-        for rel in (v.get("file"), *(v.get("sidecars") or ()), v.get("thumb"), *frames):
-            try:
-                total += dataset.path_of(rel).stat().st_size if rel else 0
-            except (OSError, LfError):
-                pass
-        largest = max(largest, total)
-    return largest
-
-
 class ScanEngine:
     """Capture ``plan`` with ``rig`` and ``camera`` into ``dataset``.
 
@@ -254,11 +174,7 @@ class ScanEngine:
         self.backoff_s = Number("s", 0, 600).check("backoff_s", backoff_s)
         self.move_timeout_s = TIMEOUT_S.check("move_timeout_s", move_timeout_s)
         self.capture_timeout_s = TIMEOUT_S.check("capture_timeout_s", capture_timeout_s)
-        self.min_free_bytes = int(min_free_bytes)
         self.time_scale = TIME_SCALE.check("time_scale", time_scale)
-        self.thumb_width_px = int(thumb_width_px)
-        self.checkpoint_s = float(checkpoint_s)
-        self.free_bytes_fn = free_bytes_fn
         #: resume by itself at most this many times when a fault's cause clears (ScanFault.clears),
         #: looking every auto_resume_poll_s seconds while paused
         self.auto_resume = RETRIES.check("auto_resume", auto_resume)
@@ -277,7 +193,6 @@ class ScanEngine:
         self.message = ""
         self.aborted = False             # an abort was applied (the engine thread sets it)
         self._drop_by: float | None = None   # abort(grace_s): monotonic time after which captures are dropped
-        self._dropping = False           # the camera was stopped for such an abort: failed transfers are dropped
         self._moving = False             # the engine thread waits for a move (engine thread only)
         self._lease: Lease | None = None           # the rig's, while the scan owns it
         self._camera_lease: Lease | None = None    # the camera's, at the same times
@@ -297,31 +212,46 @@ class ScanEngine:
         self._skip_cells: set[tuple[int, int]] = set()
         self._current: PlannedView | None = None
         self._prev_future: Future | None = None
-        # shared with the store thread (under _cond)
-        self._view_bytes = stored_view_bytes(dataset)   # the largest view stored so far (file, sidecars, thumb)
-        self._unrecorded: list[tuple[PlannedView, dict[str, Any]]] = []   # stored, journal refused (disk)
-        self._whole_checked = False     # the views left checked against the free space (after the first view)
-        self._card_frame_bytes: int | None = None   # measured then: the camera's card is checked next (engine thread)
         self._capture_timeout: float | None = None      # per capture, from the camera's exposure + transfer
-        self._store_q: queue.Queue = queue.Queue(maxsize=2)
-        self._inflight = 0
         self.total = len(dataset.views)
-        self.done = len(dataset.done_views())
-        self.captured_this_run = 0
         self._active_s = 0.0
         self._active_since: float | None = None
-        self._last_done_t: float | None = None
-        self._last_save = time.monotonic()
         self._thread: threading.Thread | None = None
-        self._store_thread: threading.Thread | None = None
+        #: the store stage (its own thread and state): talks back through the inbox and its inflight count
+        self.store = ScanStore(dataset, self.camera, post=lambda kind, payload: self._post(_Message(kind, payload)),
+                               wake=self._wake, emit=self._emit, eta_s=self.eta_s,
+                               silent=lambda view, exc: self._silent("camera", view, exc),
+                               remaining=lambda: self.remaining, retries=self.retries,
+                               min_free_bytes=min_free_bytes, thumb_width_px=thumb_width_px,
+                               checkpoint_s=checkpoint_s, free_bytes_fn=free_bytes_fn)
         self._start_future: Future | None = None
         #: an exposure bracket: each frame's shutter time (resolved in _prepare from the dataset's
         #: record or the plan's bracket and the camera); None: one picture per view as the camera is set
         self.frame_shutter_s: tuple[float, ...] | None = None
         self.bracket: Bracket | None = None
-        self._frames_of: dict[tuple[int, int], tuple[int, list[dict[str, Any]]]] = {}   # store thread only
-        self._failed_attempts: set[tuple[tuple[int, int], int]] = set()                  # store thread only
-        self._frame_results: dict[tuple[tuple[int, int], int], CaptureResult] = {}       # store thread only
+
+    # -- the store stage's counts and disk checks ---------------------------------------------------
+    @property
+    def done(self) -> int:
+        """Views done in the dataset."""
+        return self.store.done
+
+    @property
+    def captured_this_run(self) -> int:
+        return self.store.captured_this_run
+
+    @property
+    def free_bytes_fn(self) -> Callable[[Path], int]:
+        """Free bytes on the disk of a folder (the store's; replaceable, e.g. by tests)."""
+        return self.store.free_bytes_fn
+
+    @free_bytes_fn.setter
+    def free_bytes_fn(self, fn: Callable[[Path], int]) -> None:
+        self.store.free_bytes_fn = fn
+
+    def need_bytes(self) -> int:
+        """Free space the next view needs (:meth:`ScanStore.need_bytes`)."""
+        return self.store.need_bytes()
 
     # -- listeners ---------------------------------------------------------------------------------
     def subscribe(self, listener: Listener) -> Callable[[], None]:
@@ -341,7 +271,7 @@ class ScanEngine:
     @property
     def remaining(self) -> int:
         """Views still queued in this run (including the one being captured)."""
-        return len(self._queue) + len(self._retry) + len(self._unrecorded) + (1 if self._current is not None else 0)
+        return len(self._queue) + len(self._retry) + self.store.unrecorded + (1 if self._current is not None else 0)
 
     @property
     def pipelined(self) -> bool:
@@ -406,7 +336,7 @@ class ScanEngine:
             self._camera_lease = self.camera.claim(self.label)
         except DeviceError as exc:
             self._release_rig()
-            text = _error_text(exc)       # "rig: cannot be taken by ...: it is in use by ..."
+            text = error_text(exc)       # "rig: cannot be taken by ...: it is in use by ..."
             return ScanFault(f"{text[:1].upper()}{text[1:]}. Stop that first, then Resume.", device)
         return None
 
@@ -453,8 +383,7 @@ class ScanEngine:
             self.label = f"the scan of {Path(self.dataset.root).name} (started {time.strftime('%H:%M')})"
             self._start_future = Future()
             self._thread = threading.Thread(target=self._run, name="scan-engine", daemon=True)
-            self._store_thread = threading.Thread(target=self._store_loop, name="scan-store", daemon=True)
-        self._store_thread.start()
+        self.store.start()
         self._thread.start()
         return self._start_future
 
@@ -530,7 +459,7 @@ class ScanEngine:
 
     def _apply(self, message: _Message) -> None:
         kind, payload, future = message.kind, message.payload, message.future
-        if kind == _RETRY:
+        if kind == RETRY:
             self._retry.append(payload)
             return
         if kind is Trigger.CRASH:
@@ -603,10 +532,10 @@ class ScanEngine:
         # the operator reads the state's message; the traceback goes to the log file (not the console)
         log.info("scan failed:\n%s", "".join(traceback.format_exception(exc)))
         with self._cond:        # let the store thread finish what it holds (bounded: it may be the culprit)
-            self._cond.wait_for(lambda: self._inflight == 0, self.capture_timeout_s + 30)
+            self._cond.wait_for(lambda: self.store.inflight == 0, self.capture_timeout_s + 30)
         problems = []
         try:
-            self._finish_storage()
+            self.store.save()
         except Exception as save_exc:
             problems = non_finite_fields(self.dataset.manifest)
             if not problems:
@@ -616,7 +545,7 @@ class ScanEngine:
                        f"{'is' if len(problems) == 1 else 'are'} not a number (NaN or infinite). Correct "
                        "it in the file, then resume the scan; every captured view is kept in the journal.")
         elif isinstance(exc, LfError):      # an operator's message (a path refused, a dataset problem)
-            message = f"{_error_text(exc).rstrip('.')}. Everything captured so far is saved."
+            message = f"{error_text(exc).rstrip('.')}. Everything captured so far is saved."
         else:
             message = (f"Unexpected error: {type(exc).__name__}: {exc}. Everything captured so far is saved; "
                        "resume the scan to go on.")
@@ -640,9 +569,7 @@ class ScanEngine:
         for message in left:
             if message.future is not None and isinstance(message.kind, Trigger):
                 message.future.set_exception(ScanRequestRefused(message.kind, self._state))
-        self._store_q.put(_STOP)
-        if self._store_thread is not None:
-            self._store_thread.join(30)
+        self.store.close(30)
         lock, self._journal_lock = getattr(self, "_journal_lock", None), None
         if lock is not None:
             lock.release()
@@ -676,7 +603,7 @@ class ScanEngine:
             self.dataset.save()            # the manifest can be written: checked before the rig moves
         except OSError as exc:
             raise storage_error(exc, self.dataset.manifest_path, doing="saving") or exc
-        self._repair_thumbnails()
+        self.store.repair_thumbnails()
 
     def _resolve_bracket(self) -> None:
         """The frames of every view: the dataset's recorded bracket (a resume takes exactly the frames
@@ -715,18 +642,6 @@ class ScanEngine:
         self._emit(EventKind.LOG, f"exposure bracket: {wanted.describe()} = "
                                   + ", ".join(f"{t:.6g} s" for t in times) + " at every view")
 
-    def _repair_thumbnails(self) -> None:
-        """Thumbnails of captured views a full disk kept from being written (the views are kept)."""
-        missing = [v for v in self.dataset.done_views() if not v.get("thumb")]
-        for v in missing:
-            rel = f"thumbs/{view_stem(v['row'], v['column'])}.jpg"
-            try:
-                files = [self.dataset.path_of(f) for f in (v["file"], *(v.get("sidecars") or ()))]
-                if make_thumbnail(files, self.dataset.root / rel, self.thumb_width_px) is not None:
-                    self.dataset.record_view(v["row"], v["column"], thumb=rel)
-            except Exception as exc:       # a thumbnail is a convenience: the scan goes on without it
-                log.info("thumbnail of %s not made: %s", v["file"], exc)
-
     def _rig_call(self, name: str, *args: Any, timeout_s: float) -> Any:
         """A rig command through the scan's lease (while it holds one), applying requests meanwhile."""
         target = self._lease if self._lease is not None else self.rig
@@ -748,7 +663,7 @@ class ScanEngine:
         try:
             status = self._rig_call("status", timeout_s=30)
         except Exception as exc:
-            return ScanFault(f"Rig: {_error_text(exc)}. Check the cable and power, reconnect, then Resume.", "rig",
+            return ScanFault(f"Rig: {error_text(exc)}. Check the cable and power, reconnect, then Resume.", "rig",
                              clears_by_itself("rig", exc))
         if status.state is RigState.ALARM:
             return ScanFault(f"Rig in alarm: {status.message or 'locked'}. Home the rig (Rig → Home) "
@@ -788,7 +703,7 @@ class ScanEngine:
             finally:
                 self._current = None
         self._drain_store()
-        self._finish_storage()
+        self.store.save()
         self._restore_shutter()
         self._finish()
 
@@ -845,14 +760,14 @@ class ScanEngine:
                 return False
             if state is ScanState.STOPPING:
                 self._drain_store()
-                self._finish_storage()
+                self.store.save()
                 self._finish()
                 return True
             if state is ScanState.PAUSING:
                 self._drain_store()
                 if self._state is not ScanState.PAUSING:
                     continue
-                self._finish_storage()
+                self.store.save()
                 done_text = f"{self.done} of {self.total} views captured"
                 fault = self.fault
                 if self._resumes_by_itself(fault):
@@ -907,9 +822,9 @@ class ScanEngine:
         homed and idle, as before any view)."""
         try:
             if fault.device == "disk":
-                return self.free_bytes_fn(self.dataset.root) >= max(self.need_bytes(), fault.need_bytes)
+                return self.store.has_room(fault.need_bytes)
             if fault.device == "camera":
-                self._free_hung_camera()
+                free_hung_camera(self.camera)
                 try:
                     self._camera_call("disconnect", timeout_s=30)
                 except Exception:
@@ -933,29 +848,19 @@ class ScanEngine:
                     self._transition(Trigger.FAULT, str(problem), fault_changed=True)
                 return problem is None
         except Exception as exc:        # not yet: looked at again after auto_resume_poll_s
-            log.info("auto-resume: %s not yet (%s)", fault.clears, _error_text(exc))
+            log.info("auto-resume: %s not yet (%s)", fault.clears, error_text(exc))
         return False
 
     def _recover(self, fault: ScanFault) -> None:
         """After a fault: journal the views the disk refused to record, reconnect the faulty device when
         it does not answer, then check the rig."""
-        with self._cond:
-            kept, self._unrecorded = self._unrecorded, []
-        for i, (view, fields) in enumerate(kept):
-            refused = self._record(view, fields)
-            if refused is not None:
-                with self._cond:
-                    self._unrecorded[:0] = kept[i:]
-                raise refused
-            self._emit(EventKind.VIEW_DONE, "recorded after the disk fault (kept meanwhile)", index=view.index,
-                       row=view.row, column=view.column, eta_s=self.eta_s(), timings_s=fields.get("timings_s", {}),
-                       file=fields["file"], thumb=fields.get("thumb"))
+        self.store.record_kept()
         if fault.device == "disk":
-            self._repair_thumbnails()
+            self.store.repair_thumbnails()
         if fault.reconnected:
             pass                        # the auto-resume probe reconnected it just now
         elif fault.device == "camera":
-            self._free_hung_camera()
+            free_hung_camera(self.camera)
             try:
                 self._camera_call("disconnect", timeout_s=30)
             except Exception:
@@ -963,7 +868,7 @@ class ScanEngine:
             try:
                 self._camera_call("connect", timeout_s=60)
             except Exception as exc:
-                raise ScanFault(f"Camera: reconnecting failed: {_error_text(exc)}. Check its cable, power and "
+                raise ScanFault(f"Camera: reconnecting failed: {error_text(exc)}. Check its cable, power and "
                                 "USB mode, then Resume.", "camera", CLEARS_CAMERA) from None
         elif fault.device == "rig":
             try:
@@ -974,7 +879,7 @@ class ScanEngine:
                 try:
                     self._rig_call("connect", timeout_s=60)
                 except Exception as exc:
-                    raise ScanFault(f"Rig: reconnecting failed: {_error_text(exc)}. Check the cable and power, "
+                    raise ScanFault(f"Rig: reconnecting failed: {error_text(exc)}. Check the cable and power, "
                                     "then Resume.", "rig", CLEARS_RIG) from None
         self._attempts = {cell: 0 for cell in self._attempts}
         problem = self._rig_problem()
@@ -994,11 +899,11 @@ class ScanEngine:
                 raise
             except Exception as caught:
                 exc, device = (caught.error, "rig") if isinstance(caught, _RigFailed) else (caught, "camera")
-                disk = self._disk_fault(exc, self.dataset.root / "raw", "storing the capture of "
+                disk = self.store.disk_fault(exc, self.dataset.root / "raw", "storing the capture of "
                                         + view_label(view.row, view.column))
                 if disk is not None:            # the disk's fault, never the camera's: no retry
                     raise disk from None
-                message = _error_text(exc)
+                message = error_text(exc)
                 if isinstance(exc, DeviceTimeout):     # a device that does not answer: waiting again won't help
                     self._last_error[cell] = message
                     self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
@@ -1016,7 +921,7 @@ class ScanEngine:
                 self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
                            will_retry=will_retry, extra={"attempt": attempt, "device": device})
                 if not will_retry:
-                    raise ScanFault(self._fault_text(device, message, attempt), device,
+                    raise ScanFault(fault_text(device, message, attempt), device,
                                     clears_by_itself(device, exc)) from None
                 self._wait(lambda: self._state is not ScanState.RUNNING,
                            self.backoff_s * 2 ** (attempt - 1) * min(1.0, self.time_scale))
@@ -1030,49 +935,14 @@ class ScanEngine:
         ``exc``: the driver's own timeout (a hot folder that got no file), told as it is."""
         where = f"view {view_label(view.row, view.column)}"
         if exc is not None and not isinstance(exc, CallTimedOut):
-            what = f"{device.capitalize()} does not answer ({where}): {_error_text(exc).rstrip('.')}."
+            what = f"{device.capitalize()} does not answer ({where}): {error_text(exc).rstrip('.')}."
         elif device == "rig":
             what = (f"Rig does not answer: the move to ({view.x_mm:g}, {view.y_mm:g}) mm for {where} did not end "
                     f"within {self.move_timeout_s:g} s.")
         else:
             what = (f"Camera does not answer: the picture of {where} did not arrive within "
                     f"{self.capture_call_timeout_s():g} s (exposure and transfer, twice over, plus 10 s).")
-        return ScanFault(f"{what} {_FIX[device]}", device, clears_by_itself(device, exc))
-
-    @staticmethod
-    def _fault_text(device: str, message: str, attempts: int) -> str:
-        what = "Rig" if device == "rig" else "Camera" if device == "camera" else "Disk"
-        return f"{what} failed {attempts} time(s): {message}. {_FIX.get(device, 'Then Resume.')}"
-
-    def need_bytes(self) -> int:
-        """Free space the next view needs: room for two views at the size of the largest stored so far
-        (its file, sidecars and thumbnail) plus a copy of the manifest (a save writes a whole new one);
-        at least ``min_free_bytes``."""
-        try:
-            manifest = self.dataset.manifest_path.stat().st_size
-        except OSError:
-            manifest = 0
-        return floor_bytes(self._view_bytes, manifest, self.min_free_bytes)
-
-    def whole_scan_fault(self, view_bytes: int, frames: int) -> ScanFault | None:
-        """The pause when the views still to capture, at ``view_bytes`` each (measured on the view just
-        stored), do not fit the free space (:func:`lfstudio.scan.preflight.disk_shortfall`); it clears
-        when the disk has that much free. Checked once a run, right after its first view is stored: a
-        Resume after it goes on (and pauses again only when the disk is really full)."""
-        views = self.remaining
-        try:
-            free = self.free_bytes_fn(self.dataset.root)
-            manifest = self.dataset.manifest_path.stat().st_size
-        except OSError as exc:
-            log.info("free space not checked after the first view: %s", exc)
-            return None
-        short = disk_shortfall(self.dataset.root, views, ViewSize(view_bytes, "measured on the first view stored",
-                                                                  frames),
-                               free, min_free_bytes=self.min_free_bytes, manifest_bytes=manifest)
-        if short is None:
-            return None
-        return ScanFault(f"{short} Then Resume (Resume now captures what fits and pauses when the disk is full).",
-                         "disk", CLEARS_DISK, need_bytes=short.need_bytes)
+        return ScanFault(f"{what} {FIX[device]}", device, clears_by_itself(device, exc))
 
     def capture_call_timeout_s(self) -> float:
         """How long a capture may take before the camera counts as silent: twice its exposure and
@@ -1100,9 +970,9 @@ class ScanEngine:
         return self._capture_timeout
 
     def _check_card(self) -> None:
-        """Once a run, when the first view's frames are measured: a camera that keeps its pictures on
-        its card (:meth:`GPhotoCamera.card_space`) has room there for the frames still to take."""
-        frame_bytes, self._card_frame_bytes = self._card_frame_bytes, None
+        """Once a run, when the first view's frames are measured (by the store): a camera that keeps its
+        pictures on its card (:meth:`GPhotoCamera.card_space`) has room there for the frames still to take."""
+        frame_bytes = self.store.take_card_frame_bytes()
         if frame_bytes is None:
             return
         try:
@@ -1110,38 +980,15 @@ class ScanEngine:
         except (ScanFault, _Interrupted):
             raise
         except Exception as exc:          # where the driver cannot read it: the card's own errors tell later
-            log.info("the camera's card space not read: %s", _error_text(exc))
+            log.info("the camera's card space not read: %s", error_text(exc))
             return
         short = card_shortfall(card, self.remaining, len(self.frame_shutter_s or (None,)), frame_bytes)
         if short is not None:
             raise ScanFault(f"{short} Then Resume.", "camera")
 
-    def _check_disk(self) -> None:
-        self._check_card()
-        need = self.need_bytes()
-        try:
-            free = self.free_bytes_fn(self.dataset.root)
-        except OSError as exc:
-            raise ScanFault(f"Disk: cannot check free space in {self.dataset.root}: {exc}.", "disk") from None
-        if free < need:
-            per_view = f"a view takes about {megabytes(self._view_bytes)} here" if self._view_bytes else \
-                "no view captured yet"
-            raise ScanFault(f"Disk almost full: {megabytes(free)} free on the disk at {mount_point(self.dataset.root)}; "
-                            f"{megabytes(need)} needed to go on ({per_view}). Free disk space, then Resume.", "disk",
-                            CLEARS_DISK)
-
-    def _disk_fault(self, exc: BaseException, folder: Path, doing: str) -> ScanFault | None:
-        """The disk fault ``exc`` stands for: a storage error, or a device error while the disk cannot
-        take the write (read-only, not writable, full) — a device is never blamed for the disk."""
-        problem = storage_error(exc, doing=doing, need_bytes=self.need_bytes(), at=folder)
-        if problem is None and isinstance(exc, (DeviceError, OSError)) and not isinstance(exc, DeviceTimeout):
-            problem = disk_problem(folder if folder.is_dir() else self.dataset.root, min(self.need_bytes(), 2**20))
-        if problem is None:
-            return None
-        return ScanFault(str(problem), "disk", CLEARS_DISK if getattr(problem, "kind", "") == "full" else "")
-
     def _attempt(self, view: PlannedView, attempt: int) -> None:
-        self._check_disk()
+        self._check_card()
+        self.store.check_disk()
         t0 = time.monotonic()
         self._emit(EventKind.VIEW_STARTED, index=view.index, row=view.row, column=view.column,
                    extra={"position_mm": view.position_mm, "attempt": attempt})
@@ -1197,14 +1044,12 @@ class ScanEngine:
             last = k == len(shutters) - 1
             timings = {"move": t_moved - t0, "settle": t_settled - t_moved, "camera_wait": t_ready - t_settled,
                        "expose": t_exposed - t_ready} if last else {}
-            job = _Job(view, attempt, fut, t_exposed, reported, timings, k if bracketed else None, len(shutters),
-                       shutter)
-            with self._cond:
-                self._inflight += 1
+            job = StoreJob(view, attempt, fut, t_exposed, reported, timings, k if bracketed else None,
+                           len(shutters), shutter, self.bracket.reference_index if self.bracket is not None else 0)
             if last:
                 self._emit(EventKind.VIEW_EXPOSED, index=view.index, row=view.row, column=view.column,
                            timings_s=dict(job.timings_s))
-            self._store_q.put(job)
+            self.store.submit(job)
 
     def _expose(self, view: PlannedView, attempt: int, stem: Path) -> Future:
         """Trigger one picture to ``stem``; return its future once the shutter has closed (the transfer
@@ -1229,7 +1074,7 @@ class ScanEngine:
             self._attempts[view.cell] = attempt - 1
             raise _Interrupted()
         if fut.done() and fut.exception() is not None:
-            self._free_hung_camera(fut.exception())
+            free_hung_camera(self.camera, fut.exception())
             raise fut.exception()
         return fut
 
@@ -1238,224 +1083,20 @@ class ScanEngine:
         exposed (the rig may not be where it was sent; after STOP the operator expects nothing more)."""
         return self._state is ScanState.PAUSING and self.fault is not None
 
-    def _free_hung_camera(self, exc: BaseException | None = None) -> None:
-        """A capture that timed out may still hang in the driver: stop it so the camera is usable."""
-        if exc is not None and not isinstance(exc, CallTimedOut):
-            return
-        if self.camera.current_command == "capture":
-            try:
-                self.camera.stop_now()
-            except Exception as exc:
-                log.debug("stopping the camera: %s", exc)
-
-    # -- store thread ------------------------------------------------------------------------------
-    def _store_loop(self) -> None:
-        try:
-            while True:
-                job = self._store_q.get()
-                if job is _STOP:
-                    return
-                try:
-                    self._store(job)
-                except Exception as exc:
-                    log.info("storing a view failed:\n%s", traceback.format_exc())   # the fault says it
-                    where = view_label(job.view.row, job.view.column)
-                    fault = self._disk_fault(exc, self.dataset.root / "raw", f"storing view {where}") or \
-                        ScanFault(f"Storing view {where} failed: {_error_text(exc)}.", "disk")
-                    self._store_failed(job, fault)
-                finally:
-                    with self._cond:
-                        self._inflight -= 1
-                        self._cond.notify_all()
-        except BaseException as exc:  # the store stage itself broke: the engine thread fails the scan
-            self._post(_Message(Trigger.CRASH, exc))
-
-    def _store_failed(self, job: _Job | None, fault: ScanFault) -> None:
-        """Pause on ``fault``; ``job``'s view is captured again (None: it is kept, nothing to redo)."""
-        self._post(_Message(Trigger.FAULT, (fault, None if job is None else job.view)))
-
-    def _store(self, job: _Job) -> None:
-        view = job.view
-        if job.frame is not None and (view.cell, job.attempt) in self._failed_attempts:
-            return             # an earlier frame of this attempt failed: the view is taken again whole
-        try:
-            result: CaptureResult = job.future.result()
-        except Exception as exc:
-            if job.frame is not None:
-                self._failed_attempts.add((view.cell, job.attempt))
-            if self._dropping:      # abort(grace_s) stopped the camera: not captured, taken on resume
-                self._emit(EventKind.LOG, f"view r{view.row:02d} c{view.column:03d}: its transfer was cut short "
-                                          "by the stop; not captured (taken when the scan resumes)")
-                return
-            self._free_hung_camera(exc)
-            message = _error_text(exc)
-            disk = self._disk_fault(exc, self.dataset.root / "raw", f"storing view {view_label(view.row, view.column)}")
-            if disk is not None:          # the view is captured again after Resume (its file never arrived)
-                self._store_failed(job, disk)
-                return
-            will_retry = job.attempt <= self.retries and not isinstance(exc, DeviceTimeout)
-            if isinstance(exc, DeviceTimeout):
-                self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
-                           will_retry=False, extra={"attempt": job.attempt, "device": "camera"})
-                self._store_failed(job, self._silent("camera", view, exc))
-                return
-            self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
-                       will_retry=will_retry, extra={"attempt": job.attempt, "device": "camera"})
-            if will_retry:
-                self._post(_Message(_RETRY, view))
-            else:
-                self._store_failed(job, ScanFault(self._fault_text("camera", message, job.attempt), "camera",
-                                                  CLEARS_CAMERA))
-            return
-        t_transferred = time.monotonic()
-        extra: dict[str, Any] = {}
-        view_bytes = 0
-        if job.frame is not None:
-            stored = self._store_frame(job, result)
-            if stored is None:
-                return                           # not the view's last frame: journaled as a frame
-            result, extra, view_bytes = stored   # the reference frame is the view's file
-        path = Path(result.path).resolve()
-        rel = path.relative_to(self.dataset.root).as_posix()
-        sha = extra.pop("_sha256", None) or sha256_file(path)
-        view_bytes += sum(Path(f).stat().st_size for f in result.files if Path(f).is_file())
-        thumb_rel = f"thumbs/{view_stem(view.row, view.column)}.jpg"
-        preview = result.metadata.get("preview") if isinstance(result.metadata, dict) else None
-        later: ScanFault | None = None        # a disk fault after the capture is safe: recorded, then pause
-        try:
-            thumb = make_thumbnail(result.files, self.dataset.root / thumb_rel, self.thumb_width_px, preview)
-            view_bytes += thumb.stat().st_size if thumb is not None else 0
-        except Exception as exc:
-            log.info("thumbnail of %s failed: %s", rel, exc)
-            thumb = None                      # made again when the scan resumes (_repair_thumbnails)
-            later = self._disk_fault(exc, self.dataset.root / "thumbs", f"writing the thumbnail of {rel}")
-        self._view_bytes = max(self._view_bytes, view_bytes)
-        timings = dict(job.timings_s)
-        timings["transfer"] = t_transferred - job.exposed_at
-        now = time.monotonic()
-        timings["store"] = now - t_transferred
-        if self._last_done_t is not None:
-            timings["period"] = now - self._last_done_t
-        self._last_done_t = now
-        exposure = _reported_exposure_s(result)
-        fields = {"status": "done", "file": rel, "sha256": sha, "captured_at": now_iso(),
-                  "exposure_s": exposure,
-                  "commanded_mm": [view.x_mm, view.y_mm], "reported_mm": job.reported_mm,
-                  "thumb": thumb_rel if thumb is not None else None, "attempts": job.attempt,
-                  "timings_s": {k: round(v, 4) for k, v in timings.items()}}
-        sidecars = [Path(f).resolve().relative_to(self.dataset.root).as_posix() for f in result.files[1:]]
-        if sidecars:
-            fields["sidecars"] = sidecars
-        fields = {**getattr(result, "record", {}), **fields, **extra}   # the driver's extras (camera, its settings)
-        refused = self._record(view, fields)
-        if refused is not None:
-            with self._cond:
-                self._unrecorded.append((view, fields))
-            self._store_failed(None, refused)
-            return
-        if later is None and time.monotonic() - self._last_save > self.checkpoint_s:
-            try:
-                self.dataset.checkpoint()      # journal-first: the manifest is rewritten only now and then
-            except Exception as exc:              # the journal holds the view: it is kept whatever happens here
-                later = self._disk_fault(exc, self.dataset.root, f"saving {self.dataset.manifest_path.name}") or \
-                    ScanFault(f"Saving {self.dataset.manifest_path} failed: {_error_text(exc)}.", "disk")
-            self._last_save = time.monotonic()
-        self._emit(EventKind.VIEW_DONE, index=view.index, row=view.row, column=view.column, eta_s=self.eta_s(),
-                   timings_s=timings, file=rel, thumb=fields["thumb"])
-        if later is None and not self._whole_checked:     # the first view of this run: does the rest fit?
-            self._whole_checked = True
-            later = self.whole_scan_fault(view_bytes, job.frames)
-            if callable(getattr(self.camera.driver, "card_space", None)):
-                self._card_frame_bytes = max(1, view_bytes // max(1, job.frames))
-        if later is not None:
-            self._store_failed(None, later)
-
-    def _store_frame(self, job: _Job, result: CaptureResult) -> tuple[CaptureResult, dict[str, Any], int] | None:
-        """Store one frame of a bracketed view (store thread): checksum it and journal the view's frames
-        so far (the view stays not done). For the last frame: (the reference frame's result, the
-        view's ``frames`` field, the bytes of the other frames) for the view's done record."""
-        view = job.view
-        cell = view.cell
-        attempt, frames = self._frames_of.get(cell, (None, []))
-        if attempt != job.attempt or job.frame == 0:
-            frames = []                          # a new attempt takes every frame again
-        self._frames_of[cell] = (job.attempt, frames)
-        path = Path(result.path).resolve()
-        root = self.dataset.root
-        frame: dict[str, Any] = {"index": job.frame, "file": path.relative_to(root).as_posix(),
-                                 "sha256": sha256_file(path), "shutter_s": job.shutter_s,
-                                 "exposure_s": _reported_exposure_s(result), "captured_at": now_iso()}
-        sidecars = [Path(f).resolve().relative_to(root).as_posix() for f in result.files[1:]]
-        if sidecars:
-            frame["sidecars"] = sidecars
-        settings = (getattr(result, "record", None) or {}).get("camera_settings")
-        if isinstance(settings, dict):
-            frame["camera_settings"] = settings
-        frames.append(frame)
-        self._frame_results[(cell, job.frame)] = result
-        if job.frame < job.frames - 1:
-            try:
-                self.dataset.record_view(view.row, view.column, frames=[dict(f) for f in frames])
-            except Exception as exc:              # the view is not done: its frames are taken again
-                self._failed_attempts.add((cell, job.attempt))
-                fault = self._disk_fault(exc, root, f"recording a frame of view {view_label(view.row, view.column)}") \
-                    or ScanFault(f"Recording a frame of view {view_label(view.row, view.column)} failed: "
-                                 f"{_error_text(exc)}.", "disk")
-                self._store_failed(job, fault)
-            return None
-        self._frames_of.pop(cell, None)
-        indices = [f["index"] for f in frames]
-        if indices != list(range(job.frames)):    # cannot happen: frames arrive in order, a failure stops the rest
-            raise LfError(f"view {view_label(view.row, view.column)}: frames {indices} stored, "
-                          f"{job.frames} expected; the view is taken again")
-        ref_index = self.bracket.reference_index if self.bracket is not None else 0
-        results = [self._frame_results.pop((cell, i), None) for i in range(job.frames)]
-        ref = results[ref_index] or result
-        others = sum(Path(f).stat().st_size for i, r in enumerate(results) if r is not None and i != ref_index
-                     for f in r.files if Path(f).is_file())
-        return ref, {"frames": [dict(f) for f in frames], "_sha256": frames[ref_index]["sha256"],
-                     "reference_frame": ref_index}, others
-
-    def _record(self, view: PlannedView, fields: dict[str, Any]) -> ScanFault | None:
-        """Journal a stored view (store thread, or the engine thread on Resume); the fault when the
-        journal cannot be written. Such a view is kept in memory with its files (``_unrecorded``) and
-        journaled on Resume, not captured again; the scan pauses on the fault meanwhile."""
-        was_done = is_done(self.dataset.view(view.row, view.column))
-        try:
-            self.dataset.record_view(view.row, view.column, **fields)
-        except Exception as exc:
-            return self._disk_fault(exc, self.dataset.root, f"recording view {view_label(view.row, view.column)} "
-                                    "in the journal") or \
-                ScanFault(f"Recording view {view_label(view.row, view.column)} failed: {_error_text(exc)}.", "disk")
-        with self._cond:
-            if not was_done:                   # a view captured again (recapture) still counts once
-                self.done += 1
-            self.captured_this_run += 1
-        return None
-
     def _drain_store(self) -> None:
         """Wait (applying requests) until every exposed view is stored; after ``abort(grace_s)``, only
         until the grace time is over: then the camera is stopped and what it has not delivered is
         dropped (those views stay not done)."""
-        self._wait(lambda: self._inflight == 0 or self._drop_by is not None)
-        if self._inflight and self._drop_by is not None and \
-                not self._wait(lambda: self._inflight == 0, max(0.0, self._drop_by - time.monotonic())):
+        self._wait(lambda: self.store.inflight == 0 or self._drop_by is not None)
+        if self.store.inflight and self._drop_by is not None and \
+                not self._wait(lambda: self.store.inflight == 0, max(0.0, self._drop_by - time.monotonic())):
             self._stop_camera()
-            self._wait(lambda: self._inflight == 0, 10.0)
+            self._wait(lambda: self.store.inflight == 0, 10.0)
 
     def _stop_camera(self) -> None:
         """abort(grace_s): cut the capture under way short; its view is dropped, not failed."""
-        with self._cond:
-            self._dropping = True
+        self.store.drop_transfers()
         try:
             self.camera.stop_now()
         except Exception as exc:
             log.info("stopping the camera: %s", exc)
-
-    def _finish_storage(self) -> None:
-        try:
-            self.dataset.save()
-        except OSError as exc:
-            self._emit(EventKind.LOG, f"saving {self.dataset.manifest_path} failed ({exc}); "
-                                      "the journal keeps every captured view")
-        self._last_save = time.monotonic()

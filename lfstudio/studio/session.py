@@ -651,7 +651,7 @@ class ScanSession:
         :class:`~lfstudio.scan.preflight.ScanTooLarge` naming the need, the free space, the folder and
         the fix, before the dataset is made. A camera whose frame size nothing tells (a gphoto2
         camera, a hot folder) is checked by the engine right after the first view's frames arrive."""
-        from lfstudio.scan.engine import stored_view_bytes
+        from lfstudio.scan.store import stored_view_bytes
         from lfstudio.scan.preflight import MIN_FREE_BYTES, card_shortfall, disk_shortfall, view_size
 
         finished = {(v["row"], v["column"]) for v in existing.views if is_finished(v)} if existing is not None else set()

@@ -16,7 +16,7 @@ import pytest
 
 from lfstudio.dataset import Dataset
 from lfstudio.rig.profile import load_rig
-from lfstudio.scan import engine as engine_module
+from lfstudio.scan import store as store_module
 from lfstudio.scan.engine import ScanEngine
 from lfstudio.scan.events import EventKind, ScanState
 from lfstudio.scan.scan_plan import ScanPlan, grid_order
@@ -80,9 +80,9 @@ def _arm(write, disk, studio, ds, monkeypatch):
         return real_capture(stem_path, on_exposed=exposed)
     monkeypatch.setattr(camera, "capture", capture)
     if write == "thumbnail":
-        real = engine_module.make_thumbnail
+        real = store_module.make_thumbnail
         filling = _fill_before(disk, real)
-        monkeypatch.setattr(engine_module, "make_thumbnail", lambda files, out, *a, **k: (
+        monkeypatch.setattr(store_module, "make_thumbnail", lambda files, out, *a, **k: (
             filling if out.stem == "r01_c002" else real)(files, out, *a, **k))
     elif write in ("journal", "manifest"):
         name = "record_view" if write == "journal" else "save"

@@ -12,7 +12,8 @@ from lfstudio.errors import DeviceError
 from lfstudio.rig.grbl import ConnectionLost, GrblAlarm, PositionError
 from lfstudio.rig.motion import RigState, RigStatus
 from lfstudio.rig.profile import load_rig
-from lfstudio.scan.engine import CLEARS_CAMERA, CLEARS_DISK, CLEARS_RIG, ScanEngine
+from lfstudio.scan.engine import ScanEngine
+from lfstudio.scan.faults import CLEARS_CAMERA, CLEARS_DISK, CLEARS_RIG
 from lfstudio.scan.events import EventKind, ScanState
 from lfstudio.scan.notify import Notifier
 from lfstudio.scan.scan_plan import ScanPlan
