@@ -5,7 +5,7 @@ the store stage (``scan/store.py``)."""
 from __future__ import annotations
 
 from lfstudio.errors import DeviceTimeout, LfError
-from lfstudio.rig.grbl import ConnectionLost
+from lfstudio.rig.grbl_protocol import ConnectionLost
 from lfstudio.rig.worker import CallTimedOut
 
 #: what the operator does about a device's fault

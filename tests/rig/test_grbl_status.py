@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lfstudio.rig.grbl import parse_status
+from lfstudio.rig.grbl_protocol import parse_status
 
 coord = st.floats(min_value=-9999, max_value=9999, allow_nan=False).map(lambda v: round(v, 3))
 triple = st.tuples(coord, coord, coord)
@@ -101,7 +101,7 @@ def test_malformed_fields_are_skipped_not_fatal():
 
 
 # -- every line from the controller: parse_line never raises ------------------------------------
-from lfstudio.rig.grbl import GrblLine, parse_line  # noqa: E402
+from lfstudio.rig.grbl_protocol import GrblLine, parse_line  # noqa: E402
 
 
 @settings(max_examples=300, deadline=None)
@@ -161,7 +161,7 @@ def test_a_line_of_noise_is_garbage_at_once_and_numbers_parse_in_linear_time():
     STOP from another thread waited that long); a line longer than GRBL ever sends is garbage unparsed."""
     import threading
 
-    from lfstudio.rig.grbl import MAX_LINE_CHARS, _number, parse_line
+    from lfstudio.rig.grbl_protocol import MAX_LINE_CHARS, _number, parse_line
 
     assert parse_line("$110=" + "0" * MAX_LINE_CHARS + "1").kind == "garbage"       # too long for GRBL
     assert parse_line("$110=500.000").value == 500.0
