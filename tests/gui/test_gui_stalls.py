@@ -21,7 +21,7 @@ from lfstudio.dataset import Dataset
 from lfstudio.gui.heartbeat import Heartbeat, keep_out_of_gc
 from lfstudio.gui.imageutil import qimage_to_rgb
 from lfstudio.gui.panels.planner import STICKY_FILL, PlanPlotsPanel, sticky_range
-from lfstudio.gui.panels.scan import PathPreview
+from lfstudio.gui.views.path_preview import PathPreview
 from lfstudio.gui.state import AppState
 from lfstudio.gui.views.grid_view import DONE, GridView
 from lfstudio.planning.presets import reference_plan
@@ -419,7 +419,7 @@ def test_scan_time_verdicts_are_painted_from_the_verdict_array(qtbot, tmp_path):
                {"row": 0, "column": 0, "verdict": "pass", "checks": {"sharpness": {"value": 1.0}}}]
     canvas.update_quality_many(entries)
     assert canvas.flagged() == [(1, 2), (2, 5)]
-    assert canvas._verdicts[1, 2] == 2 and canvas._verdicts[2, 5] == 1 and canvas._verdicts[0, 0] == 0
+    assert canvas.overlay.verdicts[1, 2] == 2 and canvas.overlay.verdicts[2, 5] == 1 and canvas.overlay.verdicts[0, 0] == 0
     img = qimage_to_rgb(canvas.viewport().grab().toImage())
 
     def edge(row, column):

@@ -64,9 +64,9 @@ def test_check_dataset_flags_the_faulty_views_and_paints_heat_maps(qtbot, faulty
     qtbot.waitUntil(lambda: canvas._mosaic_has.sum() == 20, timeout=20000)
     plain = canvas.viewport().grab().toImage()
     view.quality_bar.overlay.setCurrentIndex(view.quality_bar.overlay.findData("sharpness"))
-    assert canvas.overlay_key == "sharpness" and canvas._overlay is not None
+    assert canvas.overlay_key == "sharpness" and canvas.overlay.heat is not None
     # the blurred view is drawn in another colour than its sharp neighbours
-    blurred, sharp = canvas._overlay[1, 1, :3].astype(int), canvas._overlay[1, 2, :3].astype(int)
+    blurred, sharp = canvas.overlay.heat[1, 1, :3].astype(int), canvas.overlay.heat[1, 2, :3].astype(int)
     assert np.abs(blurred - sharp).sum() > 100
     shaded = canvas.viewport().grab().toImage()
     centre = canvas._cell_rect(1, 2).center()
