@@ -29,7 +29,8 @@ live long (the window, an opened dataset) out of its reach (``gc.freeze``); they
 reference counting when dropped (a dataset holds no reference cycles).
 
 The application runs a watchdog all the time (:func:`install_watchdog`): stalls over 50 ms go to the
-log file with their source. ``LFSTUDIO_WATCHDOG=1`` adds the Qt event tap and logs them as warnings;
+log file with their source. The event tap and the garbage-collection watch are diagnostics
+(``gui/diagnostics.py``), imported only when ``events`` or ``gc_watch`` asks for them. ``LFSTUDIO_WATCHDOG=1`` adds the Qt event tap and logs them as warnings;
 ``benchmarks/grid_gui.py`` prints the worst stalls of a scan with their sources.
 """
 
@@ -43,9 +44,12 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
-from PySide6.QtCore import QCoreApplication, QEvent, QObject, QTimer
+from PySide6.QtCore import QCoreApplication, QObject, QTimer
+
+if TYPE_CHECKING:       # loaded only when asked for (events, gc_watch)
+    from lfstudio.gui.diagnostics import EventTap, GcWatch
 
 log = logging.getLogger(__name__)
 
@@ -75,28 +79,6 @@ class Stall:
                 f"in {self.where}")
         text += f"; costliest event: {self.event}" if self.event else ""
         return text + (f"; other threads busy: {self.others}" if self.others else "")
-
-
-def _event_name(event_type: int) -> str:
-    try:
-        return QEvent.Type(event_type).name
-    except ValueError:
-        return f"event {event_type}"
-
-
-def _describe_receiver(obj: QObject) -> str:
-    """``Class 'objectName'``; an unnamed object with the object it belongs to (a QTimer or an inbox
-    says whose it is)."""
-    try:
-        name = obj.objectName()
-        text = f"{type(obj).__name__} '{name}'" if name else type(obj).__name__
-        parent = obj.parent() if not name else None
-        if parent is not None:
-            pname = parent.objectName()
-            text += f" of {type(parent).__name__}" + (f" '{pname}'" if pname else "")
-        return text
-    except RuntimeError:            # its C++ object is gone meanwhile
-        return "a deleted object"
 
 
 def _where(frame) -> str:
@@ -157,100 +139,6 @@ def _busy_threads(frames: dict, skip: tuple[int, ...]) -> list[str]:
     return busy
 
 
-class _EventTap(QObject):
-    """Application-wide event filter: remembers the event whose delivery started last, and charges
-    the GUI thread's CPU time between two event starts to the earlier one, so each tick interval
-    names its costliest event (``take_costliest``). The receiver is described on the GUI thread as
-    the event starts (the sampler thread only reads the text)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.current: tuple[int, str] | None = None      # (event type, receiver)
-        self.delivered: collections.Counter = collections.Counter()   # (event type, receiver) -> how many
-        self._started_cpu = 0.0
-        self._costliest: tuple[float, int, str] | None = None     # (CPU s, event type, receiver)
-
-    def eventFilter(self, obj: QObject, event: QEvent) -> bool:   # noqa: N802 (Qt name)
-        now = time.thread_time()
-        current = self.current
-        if current is not None:
-            spent = now - self._started_cpu
-            if self._costliest is None or spent > self._costliest[0]:
-                self._costliest = (spent, current[0], current[1])
-        self.current = (int(event.type()), _describe_receiver(obj))
-        self.delivered[self.current] += 1
-        self._started_cpu = now
-        return False
-
-    def describe_current(self) -> str | None:
-        current = self.current
-        return None if current is None else _describe_event(*current)
-
-    def most_delivered(self, n: int) -> list[tuple[str, int]]:
-        """The ``n`` kinds of event delivered most often since the tap was installed, with their counts."""
-        return [(_describe_event(*key), count) for key, count in self.delivered.most_common(n)]
-
-    def take_costliest(self) -> tuple[float, str]:
-        """The event that used the most GUI-thread CPU since the last call: (CPU ms, description)."""
-        costliest, self._costliest = self._costliest, None
-        if costliest is None:
-            return 0.0, ""
-        return costliest[0] * 1000.0, _describe_event(costliest[1], costliest[2])
-
-
-def _describe_event(event_type: int, receiver: str) -> str:
-    return f"Qt {_event_name(event_type)} → {receiver}"
-
-
-class _GcWatch:
-    """Every cyclic garbage collection (``gc.callbacks``): how long it took and in which thread. A
-    collection holds the GIL, so it stops the GUI thread wherever it runs; in the GUI thread it also
-    counts as the GUI thread's own CPU."""
-
-    def __init__(self, gui_ident: int, started: float) -> None:
-        self.gui_ident = gui_ident
-        self.started = started
-        self.log: list[GcPass] = []      # every collection of 1 ms or longer, and every full one
-        self.counts = [0, 0, 0]          # collections per generation
-        self.total_ms = [0.0, 0.0, 0.0]
-        self.gui_ms = 0.0                # collection time not yet taken by a tick: in the GUI thread,
-        self.other_ms = 0.0              # in other threads
-        self._t0: float | None = None
-
-    def __call__(self, phase: str, info: dict) -> None:
-        now = time.perf_counter()
-        if phase == "start":
-            self._t0 = now
-            return
-        if self._t0 is None:
-            return
-        ms = (now - self._t0) * 1000.0
-        self._t0 = None
-        gen = int(info.get("generation", 0))
-        self.counts[gen] += 1
-        self.total_ms[gen] += ms
-        on_gui = threading.get_ident() == self.gui_ident
-        if on_gui:
-            self.gui_ms += ms
-        else:
-            self.other_ms += ms
-        if ms >= 1.0 or gen == 2:
-            self.log.append(GcPass(at_s=now - self.started, generation=gen, duration_ms=ms, on_gui_thread=on_gui,
-                                   collected=int(info.get("collected", 0))))
-
-
-@dataclass(frozen=True)
-class GcPass:
-    """One garbage collection: ``at_s`` after the heartbeat started, ``duration_ms`` of generation
-    ``generation`` (2: a full collection), run by the GUI thread or another one."""
-
-    at_s: float
-    generation: int
-    duration_ms: float
-    on_gui_thread: bool
-    collected: int
-
-
 class Tick(NamedTuple):
     """One heartbeat tick (recorded with ``record``): ``at_s`` after start(), how late it came
     (``stall_ms``), the GUI thread's CPU since the previous tick (``cpu_ms``), the part of it spent in
@@ -291,7 +179,7 @@ class Heartbeat(QObject):
         self.record = record
         self.tick_log: list[Tick] = []     # with ``record``: every tick
         self.gc_watch = gc_watch
-        self.gc: _GcWatch | None = None    # with ``gc_watch``: the garbage collections since start()
+        self.gc: GcWatch | None = None     # with ``gc_watch``: the garbage collections since start()
         self._started = 0.0
         self._last: float | None = None
         self._started_cpu = self._last_cpu = 0.0
@@ -306,7 +194,7 @@ class Heartbeat(QObject):
         self._sampler: threading.Thread | None = None
         self._stop_sampling = threading.Event()
         self._gui_ident = threading.get_ident()
-        self._tap: _EventTap | None = None
+        self._tap: EventTap | None = None
         self.on_sample = None       # called (from the sampler thread) after each sample; for tests
         self.delivered: list[tuple[str, int]] = []   # with ``events``, after stop(): the events delivered most
 
@@ -318,13 +206,15 @@ class Heartbeat(QObject):
             self._run_delay_fd = _open_run_delay()      # (opened on the GUI thread: its own schedstat)
         self._last_queued = _run_delay_s(self._run_delay_fd)
         if self.gc_watch and self.gc is None:
-            self.gc = _GcWatch(self._gui_ident, self._started)
+            from lfstudio.gui.diagnostics import GcWatch
+            self.gc = GcWatch(self._gui_ident, self._started)
             gc.callbacks.append(self.gc)
         self._timer.start()
         if self.watch and self._sampler is None:
             app = QCoreApplication.instance()
             if app is not None and self.events:
-                self._tap = _EventTap()
+                from lfstudio.gui.diagnostics import EventTap
+                self._tap = EventTap()
                 app.installEventFilter(self._tap)
             self._stop_sampling.clear()
             self._sampler = threading.Thread(target=self._sample_loop, name="gui-watchdog", daemon=True)

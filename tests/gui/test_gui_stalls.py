@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import gc
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -189,6 +190,28 @@ def test_the_application_watchdog_and_its_diagnosis_mode(qtbot, monkeypatch):
     finally:
         heart.stop()
     assert heart._sampler is None and heart._tap is None
+
+
+def test_the_always_on_watchdog_loads_no_diagnostics():
+    """The watchdog every window runs imports the event tap and the garbage-collection watch
+    (gui/diagnostics.py) only when asked: measured in a fresh interpreter, both ways."""
+    script = textwrap.dedent("""
+        import sys
+        from PySide6.QtCore import QObject
+        from PySide6.QtWidgets import QApplication
+        app = QApplication([])
+        from lfstudio.gui.heartbeat import install_watchdog
+        parent = QObject()
+        heart = install_watchdog(parent)
+        print("diagnostics" if "lfstudio.gui.diagnostics" in sys.modules else "none", heart.events)
+        heart.stop()
+    """)
+    env = {k: v for k, v in os.environ.items() if k != "LFSTUDIO_WATCHDOG"}
+    for value, expected in ((None, "none False"), ("1", "diagnostics True")):
+        run_env = {**env, "QT_QPA_PLATFORM": "offscreen", **({"LFSTUDIO_WATCHDOG": value} if value else {})}
+        out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=run_env)
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.strip().splitlines()[-1] == expected
 
 
 def test_keep_out_of_gc_freezes_what_is_alive():
