@@ -29,12 +29,15 @@ PRESETS_DIR = RESOURCES_DIR / "presets"
 
 
 def user_config_dir() -> Path:
-    """``$LFSTUDIO_CONFIG_DIR`` or ``~/.config/lfstudio``: user presets and profiles go here."""
+    """``$LFSTUDIO_CONFIG_DIR``, else the platform's user config folder (platformdirs:
+    ``$XDG_CONFIG_HOME/lfstudio``, by default ``~/.config/lfstudio``, on Linux;
+    ``~/Library/Application Support/lfstudio`` on macOS): user presets and profiles go here."""
     env = os.environ.get("LFSTUDIO_CONFIG_DIR")
     if env:
         return Path(env)
-    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
-    return Path(base) / "lfstudio"
+    import platformdirs
+
+    return Path(platformdirs.user_config_dir("lfstudio", appauthor=False))
 
 
 PRESET_KINDS = ("cameras", "lenses", "rigs")

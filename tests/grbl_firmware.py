@@ -88,8 +88,9 @@ def find_grbl_source() -> Path:
 def _cache_root() -> Path:
     if os.environ.get("LFSTUDIO_GRBL_SIM_CACHE"):
         return Path(os.environ["LFSTUDIO_GRBL_SIM_CACHE"])
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "lfstudio-grbl-sim"
+    import platformdirs      # $XDG_CACHE_HOME or ~/.cache on Linux
+
+    return Path(platformdirs.user_cache_dir("lfstudio-grbl-sim", appauthor=False))
 
 
 def _source_hash(src: Path) -> str:

@@ -65,6 +65,8 @@ RUNTIME_ENV = "LFSTUDIO_RUNTIME_DIR"
 class LockBusy(LfError):
     """Another process holds the lock; ``holder`` says who (None when it is not an lfstudio process)."""
 
+    kind = "busy"
+
     def __init__(self, what: str, holder: "Holder | None", hint: str = ""):
         self.what = what
         self.holder = holder
@@ -117,7 +119,12 @@ def this_command() -> str:
 
 
 def runtime_dir() -> Path:
-    """The folder of the port and camera lock files (created, private to this user)."""
+    """The folder of the port and camera lock files (created, private to this user).
+
+    Chosen by hand, not with ``platformdirs.user_runtime_dir``: every lfstudio process on the
+    computer must find the same lock files whatever platformdirs version its environment has, and
+    platformdirs' fallback without ``$XDG_RUNTIME_DIR`` changed between versions (3.x:
+    ``/run/user/UID`` unchecked; 4.x: checked, else ``TMP/runtime-UID``, with a warning)."""
     env = os.environ.get(RUNTIME_ENV)
     if env:
         folder = Path(env)
@@ -136,6 +143,8 @@ def _key(text: str) -> str:
 
 class NotALockFile(LfError):
     """A lock file that is a symlink, a folder or a device: never opened, never written through."""
+
+    kind = "not-a-lock-file"
 
 
 def open_lock_file(path: str | os.PathLike, *, create: bool = True) -> int:
