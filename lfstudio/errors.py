@@ -1,4 +1,5 @@
-"""Errors an operator reads. Every message names the field or file and says how to fix it."""
+"""Errors an operator reads. Every message names the field or file and says how to fix it; every error
+carries a stable ``kind`` (:attr:`LfError.kind`) for code and tests."""
 
 from __future__ import annotations
 
@@ -8,9 +9,16 @@ class LfError(Exception):
 
     ``window_text``: the message in the window's words where they differ from the command line's
     (the message names an option or command; the window names its own panels and fields instead);
-    :func:`window_message` picks it."""
+    :func:`window_message` picks it.
+
+    ``kind``: a stable word for what went wrong (``input``, ``dataset``, ``device-timeout``,
+    ``soft-limit``, ``busy``, a storage error's ``full``...), for code and tests to tell errors apart
+    without matching their sentences, which are written for the operator and may be reworded. Each
+    error type states its own; an instance may be more precise (a storage error's
+    :class:`lfstudio.dataset.storage.StorageError`). ``tests/test_errors.py`` lists them."""
 
     window_text: str | None = None
+    kind: str = "error"
 
 
 def window_message(exc: BaseException) -> str:
@@ -23,6 +31,8 @@ class InputError(LfError, ValueError):
 
     ``field`` is the name the user knows (a CLI option or a GUI label), ``valid`` the accepted range.
     """
+
+    kind = "input"
 
     def __init__(self, field: str, message: str, valid: str | None = None):
         self.field = field
@@ -40,6 +50,8 @@ class DatasetError(LfError):
     told on the message's line, several on a line each).
     """
 
+    kind = "dataset"
+
     def __init__(self, message: str, problems: list[str] | None = None):
         self.problems = list(problems or [])
         text = message
@@ -54,11 +66,17 @@ class DatasetNotFound(DatasetError):
     """The path given as a dataset is not a folder or holds no ``dataset.json``: a mistake in what
     was typed (the command line exits 2, as for any bad input), not a damaged dataset."""
 
+    kind = "dataset-not-found"
+
 
 class DeviceError(LfError):
     """A device (axis controller, camera) failed, timed out or refused a command."""
+
+    kind = "device"
 
 
 class DeviceTimeout(DeviceError):
     """A device did not answer in time (a silent camera, a controller that stopped talking): waiting
     for it again does not help, so a scan stops at once instead of retrying."""
+
+    kind = "device-timeout"

@@ -78,6 +78,8 @@ _MIN_SIGMA_PX = SYSTEMATIC_PX
 class CalibrationError(LfError):
     """Calibration cannot proceed (too few matches, no pairs, a failed fit). The message names views."""
 
+    kind = "calibration"
+
 
 @dataclass
 class PairMatches:

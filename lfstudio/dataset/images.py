@@ -50,6 +50,8 @@ DEFAULT_DEBAYER = DebayerStep()
 class NotACapture(DatasetError):
     """A file that is neither a RAW LibRaw reads nor an image OpenCV reads; ``reason`` says so."""
 
+    kind = "not-a-capture"
+
     def __init__(self, path: str | os.PathLike, reason: str = "neither LibRaw (camera RAW) nor OpenCV (PNG, "
                                                                "TIFF, JPEG) reads it"):
         self.path, self.reason = Path(path), reason

@@ -136,21 +136,31 @@ class ObjectLink(Protocol):
 class DriveNotAnswering(DeviceTimeout):
     """The drive at an address does not answer (no connection, no reply in time)."""
 
+    kind = "drive-not-answering"
+
 
 class ObjectAccessRefused(DeviceError):
     """The drive refused a read or write (Modbus exception, SDO abort)."""
+
+    kind = "object-access-refused"
 
 
 class DriveFault(DeviceError):
     """A drive is in FAULT (its error code in the message)."""
 
+    kind = "drive-fault"
+
 
 class MotionStopped(DeviceError):
     """A motion command was ended by STOP."""
 
+    kind = "motion-stopped"
+
 
 class PositionError(DeviceError):
     """The drives report standstill away from the target."""
+
+    kind = "position"
 
 
 class Cia402Controller:

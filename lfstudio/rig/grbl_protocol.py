@@ -93,6 +93,8 @@ HOMED_MARK = "T1"
 class GrblError(DeviceError):
     """The controller refused a line with ``error:N``."""
 
+    kind = "controller-error"
+
     def __init__(self, code: int, line: str):
         self.code = code
         self.line = line
@@ -103,6 +105,8 @@ class GrblError(DeviceError):
 class GrblAlarm(DeviceError):
     """The controller went into alarm (``ALARM:N``): motion stopped, commands locked."""
 
+    kind = "alarm"
+
     def __init__(self, code: int, context: str = ""):
         self.code = code
         text = f"ALARM {code}: {GRBL_ALARMS.get(code, 'unknown alarm; see the GRBL 1.1 alarm list')}"
@@ -112,13 +116,19 @@ class GrblAlarm(DeviceError):
 class ConnectionLost(DeviceError):
     """The port vanished or the controller stopped answering."""
 
+    kind = "connection-lost"
+
 
 class MotionStopped(DeviceError):
     """A move or homing was interrupted by STOP."""
 
+    kind = "motion-stopped"
+
 
 class PositionError(DeviceError):
     """The controller is Idle but not where it was sent."""
+
+    kind = "position"
 
 
 @dataclass(frozen=True)

@@ -136,6 +136,8 @@ class MotionController(Protocol):
 class SoftLimitError(InputError):
     """A target outside the rig's soft limits; nothing was sent to the controller."""
 
+    kind = "soft-limit"
+
 
 def check_target(config: RigConfig, x_mm: float, y_mm: float) -> tuple[float, float]:
     """Return (x, y) as floats if both are finite and inside the soft limits, else raise

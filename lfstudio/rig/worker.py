@@ -57,11 +57,15 @@ Subscriber = Callable[[Any], None]
 class CallTimedOut(DeviceTimeout):
     """A call ran longer than its ``timeout_s`` (the driver may still be stuck in it)."""
 
+    kind = "call-timed-out"
+
 
 class DeviceBusy(DeviceError):
     """A command was refused because another owner (a running scan) holds the device.
 
     ``holder`` says who, e.g. "the scan of studio_day (started 14:02)"."""
+
+    kind = "device-busy"
 
     def __init__(self, message: str, holder: str):
         super().__init__(message)

@@ -96,6 +96,8 @@ def allowed_requests(state: ScanState) -> list[Trigger]:
 class ScanRequestRefused(LfError):
     """``trigger`` is not allowed in ``state`` (see :data:`TRANSITIONS`); nothing was changed."""
 
+    kind = "request-refused"
+
     def __init__(self, trigger: Trigger, state: ScanState, why: str | None = None):
         self.trigger = trigger
         self.state = state

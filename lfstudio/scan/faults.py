@@ -39,6 +39,8 @@ class ScanFault(LfError):
     an alarm that needs homing, a limit switch, a position error, a device held by another scan);
     with ``auto_resume`` the engine resumes by itself when it sees that (see ``ScanEngine._cleared``)."""
 
+    kind = "scan-fault"
+
     def __init__(self, message: str, device: str = "", clears: str = "", need_bytes: int = 0):
         super().__init__(message)
         self.device = device

@@ -45,6 +45,8 @@ FIX = "free space there, choose a dataset folder on a larger disk, or scan fewer
 class ScanTooLarge(LfError):
     """The views left to capture do not fit the disk (or the card): ``need_bytes``, ``free_bytes``."""
 
+    kind = "scan-too-large"
+
     def __init__(self, message: str, need_bytes: int, free_bytes: int):
         super().__init__(message)
         self.need_bytes = int(need_bytes)

@@ -200,6 +200,8 @@ class RigNotHomed(DeviceError):
     """The rig is not homed (or locked in ALARM) and can home: homing first would let the scan go on
     (the GUI offers it; the CLI's line names ``--home``)."""
 
+    kind = "rig-not-homed"
+
 
 class RigUsedSince(DeviceError):
     """A resume whose rig stands where this dataset's last view was taken, but another dataset's scan
@@ -207,6 +209,8 @@ class RigUsedSince(DeviceError):
     ended there, after the rig was homed again or given another origin), not this dataset's own
     position. ``other``: that scan's record (:func:`last_scan_on_rig`); the GUI asks the operator, the
     CLI's line says how to resume from a known reference (``--home``)."""
+
+    kind = "rig-used-since"
 
     def __init__(self, message: str, other: dict[str, Any], last_view: str):
         super().__init__(message)
@@ -248,6 +252,8 @@ class RigNotWhereLeft(DeviceError):
     """A resume on the dataset's own rig, which stands elsewhere than where the last run left it (it
     was moved, or lost its position). ``position_mm``: where it reports; ``last_mm`` and ``last_view``:
     the last captured view's position and name (the GUI offers to move the rig there)."""
+
+    kind = "rig-not-where-left"
 
     def __init__(self, message: str, position_mm: tuple[float, float], last_mm: tuple[float, float],
                  last_view: str):
@@ -392,6 +398,8 @@ class _WorkerCalls:
 # -- the session -----------------------------------------------------------------------------------
 class DeviceChangeRefused(LfError):
     """A resume with other devices than the dataset's own, without the operator's explicit consent."""
+
+    kind = "device-change-refused"
 
     def __init__(self, root: Path, recorded: dict, current: dict, differences: list[str], how_to_allow: str):
         self.recorded, self.current, self.differences = recorded, current, differences

@@ -78,8 +78,9 @@ def test_driver_errors_reach_the_future(worker):
 def test_timeout_fails_future_naming_command_and_queue_moves_on_after_return(worker):
     slow = worker.submit("block", timeout_s=0.05)
     after = worker.submit("do", 21)
-    with pytest.raises(DeviceError, match=r"no answer to block\(\) within 0.05 s"):
+    with pytest.raises(DeviceError) as exc:
         slow.result(5)
+    assert exc.value.kind == "call-timed-out" and "block()" in str(exc.value)     # names the command
     assert not after.done()  # the driver has not returned yet: the queue waits
     worker.driver.release.set()
     assert after.result(5) == 42
@@ -95,8 +96,9 @@ def test_calls_with_a_timeout_start_no_thread_each(worker, monkeypatch):
     assert [worker.call("do", i, timeout_s=5) for i in range(40)] == [2 * i for i in range(40)]
     assert started == []
     slow = worker.submit("block", timeout_s=0.05)            # and a timeout still fails its call
-    with pytest.raises(DeviceError, match=r"no answer to block\(\) within 0.05 s"):
+    with pytest.raises(DeviceError) as exc:
         slow.result(5)
+    assert exc.value.kind == "call-timed-out"
     worker.driver.release.set()
     assert started == []
 
