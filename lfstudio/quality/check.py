@@ -41,8 +41,8 @@ from lfstudio.errors import DatasetError, LfError
 from lfstudio.jobs import CancelToken, Progress, no_progress
 from lfstudio.quality import verdicts
 from lfstudio.quality.disparity import DisparityMap, disparity_map, partner_cells, steps_for
-from lfstudio.quality.measure import DEFAULT_WORK_WIDTH_PX, ViewMeasures, measure_view, sharpness_ratio, \
-    exposure_ratio, deflicker_gain, read_luminance
+from lfstudio.quality.measure import DEFAULT_WORK_WIDTH_PX, ViewMeasures, bracket_frames, measure_view, \
+    sharpness_ratio, exposure_ratio, deflicker_gain, with_frames
 from lfstudio.quality.positions import fit_tracks, position_errors, solve_positions
 from lfstudio.quality.tracks import WINDOW, Star, star_neighbours, to_observations, track_star
 from lfstudio.quality.verdicts import Thresholds
@@ -409,26 +409,15 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
     paths = {(int(v["row"]), int(v["column"])): dataset.path_of(v) for v in dataset.views
              if (int(v["row"]), int(v["column"])) in set(decode)}
     # exposure-bracketed views: every frame's (exposure, path), judged on what the merge keeps
-    bracketed = {(int(v["row"]), int(v["column"])): [
-        (float(f.get("exposure_s") or f.get("shutter_s") or 0.0), dataset.path_of(f["file"])) for f in v["frames"]]
-        for v in dataset.views if (int(v["row"]), int(v["column"])) in paths and len(v.get("frames") or ()) > 1}
+    bracketed = {(int(v["row"]), int(v["column"])): bracket_frames(v, dataset.path_of)
+                 for v in dataset.views if (int(v["row"]), int(v["column"])) in paths}
 
     def measure(cell: Cell) -> ViewMeasures:
         check_cancel()
         if ref_measures is not None and cell == ref_measures.cell:
             return ref_measures
-        return with_frames(measure_view(paths[cell], *cell, work_width_px=work_width_px))
-
-    def with_frames(m: ViewMeasures) -> ViewMeasures:
-        """An exposure-bracketed view's measures with each frame's clipped and crushed shares."""
-        for t, p in bracketed.get(m.cell, ()):
-            if p == paths[m.cell]:
-                shares = (m.clipped_fraction, m.crushed_fraction)
-            else:
-                lum = read_luminance(p)
-                shares = (lum.clipped_fraction, lum.crushed_fraction)
-            m.frames = [*(m.frames or []), (t, *shares)]
-        return m
+        m = measure_view(paths[cell], *cell, work_width_px=work_width_px)
+        return with_frames(m, bracketed.get(cell, []), paths[cell])
 
     ref_measures: ViewMeasures | None = None
     gains: dict[Cell, float] = {}

@@ -38,7 +38,7 @@ from lfstudio.dataset.paths import resolve_inside
 from lfstudio.errors import LfError
 from lfstudio.quality import verdicts
 from lfstudio.quality.check import RING, Geometry, GridCheck, PositionFit, calibration_homography
-from lfstudio.quality.measure import DEFAULT_WORK_WIDTH_PX, measure_view
+from lfstudio.quality.measure import DEFAULT_WORK_WIDTH_PX, bracket_frames, measure_view, with_frames
 from lfstudio.quality.positions import robust_affine
 from lfstudio.quality.tracks import WINDOW
 from lfstudio.quality.verdicts import Thresholds
@@ -114,11 +114,13 @@ class LiveChecker(_Published):
         if view is not None:
             self.submit(*view)
 
-    def submit(self, row: int, column: int, file: str | None = None) -> None:
-        """Queue view (``row``, ``column``) (``file``: relative to the dataset; default: the manifest's)."""
+    def submit(self, row: int, column: int, file: str | None = None, frames: list[dict] | None = None) -> None:
+        """Queue view (``row``, ``column``) (``file``: relative to the dataset; default: the manifest's;
+        ``frames``: an exposure bracket's frame records, as the view-done event tells them; default:
+        the manifest's)."""
         with self._lock:
             self._pending += 1
-        self._queue.put((int(row), int(column), file))
+        self._queue.put((int(row), int(column), file, frames))
 
     def settle(self) -> None:
         """Queue a solve of every view checked so far (as at each new row): the final positions after
@@ -182,12 +184,12 @@ class LiveChecker(_Published):
                         self._pending -= 1
                         self._idle.notify_all()
                 continue
-            row, column, file = item
+            row, column, file, frames = item
             try:
                 if self._last_row is not None and row != self._last_row:
                     self._resolve_all()            # a row is complete: locate every view together
                 self._last_row = row
-                self._check((row, column), file)
+                self._check((row, column), file, frames)
             except LfError as exc:
                 self.errors[(row, column)] = str(exc)
                 log.warning("live check of row %d, column %d: %s", row, column, exc)
@@ -264,9 +266,13 @@ class LiveChecker(_Published):
             raise LfError(f"row {cell[0]}, column {cell[1]} has no file to check")
         return resolve_inside(self.dataset.root, file)
 
-    def _check(self, cell: Cell, file: str | None) -> None:
+    def _check(self, cell: Cell, file: str | None, frames: list[dict] | None = None) -> None:
         grid = self.grid
-        m = measure_view(self._path(cell, file), *cell, work_width_px=self.work_width_px)
+        path = self._path(cell, file)
+        m = measure_view(path, *cell, work_width_px=self.work_width_px)
+        # an exposure bracket: clipping judged on what the merge keeps, as `lfstudio check` does
+        record = {"frames": frames} if frames is not None else self.dataset.view(*cell)
+        m = with_frames(m, bracket_frames(record, lambda f: resolve_inside(self.dataset.root, f)), path)
         m.small_luminance = None
         grid.add(m)
         r = cell[0]
@@ -310,11 +316,13 @@ def live_document(header: dict[str, Any], views: list[dict[str, Any]]) -> dict[s
             "views": views}
 
 
-def _view_done(event: Any) -> tuple[int, int, str] | None:
-    """(row, column, file) of a scan engine's ``view-done`` event with a file; None for any other."""
+def _view_done(event: Any) -> tuple[int, int, str, list[dict] | None] | None:
+    """(row, column, file, the bracket's frame records or None) of a scan engine's ``view-done`` event
+    with a file; None for any other."""
     kind = getattr(getattr(event, "kind", None), "value", getattr(event, "kind", None))
     if kind == "view-done" and event.row is not None and event.file:
-        return int(event.row), int(event.column or 0), event.file
+        frames = (getattr(event, "extra", None) or {}).get("frames")
+        return int(event.row), int(event.column or 0), event.file, frames
     return None
 
 
@@ -352,8 +360,8 @@ class LiveCheckerProcess(_Published):
         if view is not None:
             self.submit(*view)
 
-    def submit(self, row: int, column: int, file: str | None = None) -> None:
-        self._commands.put(("submit", int(row), int(column), file))
+    def submit(self, row: int, column: int, file: str | None = None, frames: list[dict] | None = None) -> None:
+        self._commands.put(("submit", int(row), int(column), file, frames))
 
     def settle(self) -> None:
         self._commands.put(("settle",))

@@ -173,6 +173,35 @@ def measure_view(path: str | Path, row: int, column: int, *, work_width_px: int 
                         small_luminance=small, corners=detect_corners(grey8), grey8=grey8)
 
 
+def bracket_frames(record: dict, path_of) -> list[tuple[float, Path]]:
+    """An exposure-bracketed view's frames as (exposure s, path), capture order, from its manifest
+    record (``frames``: ``file``, the ``exposure_s`` the camera reported, else the ``shutter_s`` set);
+    ``path_of(file)`` resolves a file inside the dataset. [] for a view of one picture."""
+    frames = record.get("frames") or ()
+    if len(frames) < 2:
+        return []
+    return [(float(f.get("exposure_s") or f.get("shutter_s") or 0.0), Path(path_of(f["file"]))) for f in frames]
+
+
+def with_frames(m: ViewMeasures, frames: list[tuple[float, Path]], view_path: str | Path) -> ViewMeasures:
+    """``m`` (the view's reference frame, read from ``view_path``) with each frame's clipped and
+    crushed shares (``m.frames``), so the clipping check judges what the HDR merge keeps
+    (:func:`lfstudio.quality.verdicts.bracket_clipping`). The one implementation for ``lfstudio
+    check`` and the scan-time check; the reference frame is not read twice."""
+    if not frames:
+        return m
+    out = []
+    for t, p in frames:
+        if Path(p) == Path(view_path):
+            shares = (m.clipped_fraction, m.crushed_fraction)
+        else:
+            lum = read_luminance(p)
+            shares = (lum.clipped_fraction, lum.crushed_fraction)
+        out.append((t, *shares))
+    m.frames = out
+    return m
+
+
 def sharpness_ratio(view: ViewMeasures, neighbours: list[ViewMeasures]) -> float | None:
     """The view's focus energy relative to its neighbours' (1 = as sharp; 0.5 = half the detail
     energy), over the tiles where the neighbours hold more detail than the median tile; None

@@ -394,8 +394,9 @@ class ScanStore:
                 later = self.disk_fault(exc, self.dataset.root, f"saving {self.dataset.manifest_path.name}") or \
                     ScanFault(f"Saving {self.dataset.manifest_path} failed: {error_text(exc)}.", "disk")
             self._last_save = time.monotonic()
+        frames = [{k: f.get(k) for k in ("index", "file", "exposure_s", "shutter_s")} for f in fields.get("frames") or ()]
         self._emit(EventKind.VIEW_DONE, index=view.index, row=view.row, column=view.column, eta_s=self._eta_s(),
-                   timings_s=timings, file=rel, thumb=fields["thumb"])
+                   timings_s=timings, file=rel, thumb=fields["thumb"], extra={"frames": frames} if frames else {})
         if later is None and not self._whole_checked:     # the first view of this run: does the rest fit?
             self._whole_checked = True
             later = self.whole_scan_fault(view_bytes, job.frames)

@@ -54,3 +54,48 @@ def test_clipping_is_judged_on_the_merge_and_a_short_bracket_is_flagged(tmp_path
             assert c["merged"]["clipped"] == pytest.approx(zero_ev["clipped"]) and c["verdict"] != "pass"
             assert "the bracket does not cover the scene's range: the shortest frame (0.5 s) still clips" in c["why"]
             assert "add a shorter frame" in c["why"]
+
+
+def _live_scan(root, bracket: str, where: str):
+    """A bracketed scan (as bracketed_scan) with the scan-time check subscribed to its events."""
+    from lfstudio.quality.live import LiveChecker, LiveCheckerProcess
+
+    plan = replace(ScanPlan.centered(3, 2, (4.0, 6.0), RIG, settle_s=0.0), bracket=parse_bracket(bracket))
+    studio = VirtualStudio(width_px=320, view_region_mm=plan.extent_mm(), highlight_gain=3.0, seed=3)
+    rig = InstantRig(RIG)
+    rig.connect()
+    camera = SimulatedCamera(studio, rig.true_position_mm, exposure_s=0.5, time_scale=0.0, noise=0.001)
+    camera.connect()
+    ds = create_scan_dataset(root, plan, rig={"name": RIG.name}, camera={"name": "sim"}, lens={"name": "virtual"})
+    checker = LiveChecker(ds) if where == "thread" else LiveCheckerProcess(ds)
+    engine = ScanEngine(ds, plan, rig, camera, time_scale=0.0)
+    engine.subscribe(checker.on_event)
+    engine.start()
+    assert engine.wait(120) is ScanState.FINISHED, engine.message
+    assert checker.wait_idle(120)
+    checker.close()
+    assert checker.errors == {}
+    return checker, Dataset.open(root)
+
+
+@pytest.mark.parametrize("bracket, covers, where", [("-2,0,+2", True, "thread"), ("0,+1", False, "thread"),
+                                                    ("-2,0,+2", True, "process")])
+def test_the_scan_time_check_judges_the_merge_as_lfstudio_check_does(tmp_path, bracket, covers, where):
+    """Highlights clipped at 0 EV but held by the -2 EV frame are not flagged while scanning (the live
+    check judged the 0 EV frame alone before); clipped in every frame of 0,+1 they are, with the fix.
+    The same clipping entry as `lfstudio check` writes afterwards (one implementation)."""
+    checker, ds = _live_scan(tmp_path / "ds", bracket, where)
+    assert len(checker.results) == 6
+    after = {(v["row"], v["column"]): v["checks"]["clipping"] for v in check_dataset(ds, write=False).views}
+    for cell, entry in checker.results.items():
+        live = entry["checks"]["clipping"]
+        zero_ev = next(f for f in live["frames"] if f["exposure_s"] == pytest.approx(0.5))
+        assert zero_ev["clipped"] > 0.005, live        # the 0 EV frame alone would be flagged
+        assert live["covers_range"] is covers and (live["verdict"] == "pass") is covers, live
+        assert live["frames"] == after[cell]["frames"] and live["merged"] == after[cell]["merged"]
+        assert live["verdict"] == after[cell]["verdict"] and live["why"] == after[cell]["why"]
+    if covers:
+        assert not {c: e for c, e in checker.flagged().items() if "clipping" in " ".join(e["reasons"])}
+    else:
+        assert set(checker.flagged()) == set(checker.results)
+        assert all("add a shorter frame" in e["checks"]["clipping"]["why"] for e in checker.results.values())
