@@ -17,9 +17,6 @@ import threading
 from lfstudio.cli.args import bracket_option, grid_option, number_option, numbers_option, path_option, refused_spelling
 from lfstudio.dataset.paths import view_label
 from lfstudio.errors import DatasetError, InputError
-from lfstudio.numbers import (EXPOSURE_S, OFFSET_MM, RETRIES, SEED, SETTLE_S, SPACING_MM, TIME_SCALE, TRANSFER_S,
-                              WIDTH_PX)
-from lfstudio.optics import REFERENCE
 
 HELP = "capture a grid of views into a dataset folder (meander order, pipelined, resumable)"
 
@@ -30,20 +27,51 @@ CTRL_C_GRACE_S = 1.0
 _PLAN_OPTIONS = ("grid", "spacing_mm", "offset_mm", "plan", "origin_here", "home", "resume", "out")
 
 
+#: what a FROM_PLAN option's default is, as --help says it
+_UNSET_DEFAULT = {
+    "port": "sim; with --resume the dataset's own rig", "camera": "sim; with --resume the dataset's own camera",
+    "rig_profile": "the reference gantry, for sim-dryve/sim-canopen the preset dryve D1 pair; with --resume "
+                   "the dataset's",
+    "grid_columns": "from --plan or 101x21", "spacing_mm": "from --plan, else 4x6; with --resume the dataset's",
+    "order": "row-meander", "settle_s": "from --plan, else the rig profile's",
+    "bracket": "from --plan, else one picture per view; with --resume the dataset's", "sim_width_px": "2000"}
+
+
+def _described(p, name: str) -> None:
+    """The option of the scan option ``name``, made from its description
+    (lfstudio.studio.scan_options.PARAMS: range, unit, choices, tip)."""
+    from lfstudio.studio.scan_options import FROM_PLAN, PARAMS, ScanOptions
+
+    param = PARAMS[name]
+    option = param.option
+    if name in FROM_PLAN:
+        default, said = None, _UNSET_DEFAULT[name]
+    else:
+        default = getattr(ScanOptions(), name)
+        said = param.to_text(default)
+    kwargs = {"default": default, "help": f"{param.tip} (default: {said})" if name in FROM_PLAN
+              else f"{param.tip} (default {said})"}
+    if param.metavar:
+        kwargs["metavar"] = param.metavar
+    if param.choices:
+        kwargs["choices"] = param.choices
+    elif name == "grid_columns":
+        kwargs["type"] = grid_option(option)
+    elif name == "bracket":
+        kwargs["type"] = bracket_option(option)
+    elif param.pair:
+        kwargs["type"] = numbers_option(option, param.number)
+    elif param.number is not None:
+        kwargs["type"] = number_option(param.number, option)
+    p.add_argument(option, **kwargs)
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--port", default=None, metavar="sim|PORT",
-                   help="axis controller: 'sim' (simulated GRBL on a pseudo-terminal), 'instant' (no timing) "
-                        "or a serial port such as /dev/ttyUSB0; a pair of CiA 402 drives: dryve:HOST[:PORT],HOST[:PORT], "
-                        "canopen:CHANNEL:NODE,NODE, sim-dryve or sim-canopen (default: sim; with --resume the "
-                        "dataset's own rig)")
+    _described(p, "port")
     refused_spelling(p, "--rig", "--rig: the axis controller is now --port (write --port {value}); "
                                  "a rig profile is --rig-profile NAME")
-    p.add_argument("--camera", default=None, metavar="sim|gphoto2|folder:PATH",
-                   help="camera: 'sim' (renders the virtual studio), 'gphoto2' (tethered USB), "
-                        "'folder:PATH' (hot folder) or 'instant' (default: sim; with --resume the dataset's own camera)")
-    p.add_argument("--rig-profile", default=None, metavar="NAME",
-                   help="rig profile from the presets (default: the reference gantry; for sim-dryve/sim-canopen "
-                        "the preset dryve D1 pair; real drives need theirs named; with --resume the dataset's)")
+    _described(p, "camera")
+    _described(p, "rig_profile")
     p.add_argument("--home", action="store_true",
                    help="home the rig ($H) before the first view (with --resume: before continuing)")
     p.add_argument("--origin-here", action="store_true",
@@ -51,37 +79,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "before the first view (park it at the left/top end of its travel first)")
     p.add_argument("--allow-device-change", action="store_true",
                    help="with --resume: continue with other devices than the dataset's own (recorded per view)")
-    p.add_argument("--grid", metavar="CxR", type=grid_option("--grid"),
-                   help="columns x rows, e.g. 101x21 (default: from --plan or 101x21)")
-    p.add_argument("--spacing-mm", metavar="HxV", type=numbers_option("--spacing-mm", SPACING_MM),
-                   help="distance between neighbouring views in mm, horizontal x vertical, e.g. 4x6 "
-                        "(default: from --plan, else 4x6; with --resume the dataset's)")
-    p.add_argument("--offset-mm", metavar="HxV", default=(0.0, 0.0), type=numbers_option("--offset-mm", OFFSET_MM),
-                   help="shift of the grid from the centre of the travel in mm (default 0x0)")
-    p.add_argument("--order", choices=("row-meander", "column-meander", "raster"), default=None,
-                   help="capture order (default: row-meander)")
-    p.add_argument("--settle-s", type=number_option(SETTLE_S, "--settle-s"), default=None,
-                   help="settle time after each move (default: rig profile)")
-    p.add_argument("--bracket", metavar="EV,...|T,...", type=bracket_option("--bracket"), default=None,
-                   help="an exposure bracket at every view: EV steps around the camera's shutter time (-2,0,+2) "
-                        "or shutter times (1/500,1/125,1/30s); each frame is stored under its view, the 0 EV "
-                        "(middle) frame is the view's file; 'lfstudio process' merges them to linear HDR "
-                        "(default: from --plan, else one picture per view; with --resume the dataset's)")
+    for name in ("grid_columns", "spacing_mm", "offset_mm", "order", "settle_s", "bracket"):
+        _described(p, name)
     p.add_argument("--plan", metavar="PLAN", type=path_option("--plan"), help="a scene plan file saved by the planner (grid, spacing, camera, lens)")
     p.add_argument("--out", required=True, metavar="DATASET", type=path_option("--out"), help="the dataset folder to create (or resume)")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted scan in DATASET: captures only the views not done yet")
-    p.add_argument("--time-scale", type=number_option(TIME_SCALE, "--time-scale"), default=1.0, metavar="X",
-                   help="multiply every simulated duration: 1 real time, 0.1 ten times faster, 0 as fast as possible")
-    p.add_argument("--exposure-s", type=number_option(EXPOSURE_S, "--exposure-s"), default=REFERENCE.exposure_s,
-                   help=f"simulated camera exposure time (default {REFERENCE.exposure_s:g})")
-    p.add_argument("--transfer-s", type=number_option(TRANSFER_S, "--transfer-s"), default=REFERENCE.transfer_s,
-                   help=f"simulated camera transfer time (default {REFERENCE.transfer_s:g})")
-    p.add_argument("--sim-width-px", type=number_option(WIDTH_PX, "--sim-width-px"), default=None, metavar="PX",
-                   help="simulated camera image width in pixels (default 2000; smaller renders faster)")
-    p.add_argument("--retries", type=number_option(RETRIES, "--retries"), default=2,
-                   help="retries per view before the scan stops (default 2)")
-    p.add_argument("--seed", type=number_option(SEED, "--seed"), default=0, help="seed of the simulated devices")
+    for name in ("time_scale", "exposure_s", "transfer_s", "sim_width_px", "retries", "seed"):
+        _described(p, name)
     p.add_argument("--check", action="store_true",
                    help="check each view as it arrives (lfstudio check's measurements, on a background thread the "
                         "scan never waits for) and name failing views at once; the full report: lfstudio check")
@@ -93,8 +98,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _add_unattended_arguments(p: argparse.ArgumentParser) -> None:
-    from lfstudio.studio.unattended import ON_FINISH_TIMEOUT_S
-
     g = p.add_argument_group("unattended scans (docs/unattended.md)")
     g.add_argument("--notify", action="append", default=None, metavar="URL",
                    help="tell URL when the scan starts, pauses (why), resumes, fails, finishes or is aborted, and "
@@ -109,16 +112,12 @@ def _add_unattended_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--status-token", default="", metavar="TOKEN|new",
                    help="the token every request to the status page must carry (?token=...); 'new' makes one and "
                         "prints the page's address with it once; needed for any HOST but 127.0.0.1")
-    g.add_argument("--auto-resume", type=number_option(RETRIES, "--auto-resume"), default=0, metavar="N",
-                   help="resume by itself, at most N times, when the cause of a pause clears (disk space freed, camera "
-                        "or controller connection back); STOP, limit switches, position errors and alarms that need "
-                        "homing always wait for a person (default 0: a fault ends the run, --resume continues it)")
+    _described(g, "auto_resume")
     g.add_argument("--on-finish", default="", metavar="CMD",
                    help="a shell command run when the scan ends (finished, aborted or failed), e.g. lights and motors "
                         "off; $LFSTUDIO_SCAN_OUTCOME, $LFSTUDIO_DATASET, $LFSTUDIO_DONE, $LFSTUDIO_TOTAL tell it how; its "
                         "output is logged, a failure notified")
-    g.add_argument("--on-finish-timeout-s", type=number_option(ON_FINISH_TIMEOUT_S, "--on-finish-timeout-s"), default=300.0,
-                   metavar="S", help="the --on-finish command is stopped after this long (default 300)")
+    _described(g, "on_finish_timeout_s")
 
 
 def _unattended(args: argparse.Namespace):

@@ -33,7 +33,6 @@ from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayo
                                QSpinBox, QToolButton, QVBoxLayout, QWidget)
 
 from lfstudio.dataset.bracket import Bracket, parse_bracket
-from lfstudio.dataset.grid import ORDERS
 from lfstudio.dataset.paths import new_dataset_folder_problem
 from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import GuiInbox, JobRunner
@@ -44,6 +43,8 @@ from lfstudio.gui.widgets import QuietLabel, readable_time, set_progress_async
 from lfstudio.jobs import count, format_duration
 from lfstudio.scan.events import EventKind, ScanRequestRefused, ScanState
 from lfstudio.scan.scan_plan import ScanPlan
+from lfstudio.studio.scan_options import PARAMS as SCAN_PARAMS
+from lfstudio.studio.scan_options import ScanOptions
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +54,26 @@ FRAME_MS = 40             # engine events are shown at most 25 times a second (e
 DRAIN_BUDGET_S = 0.010    # GUI time one drain may take before it yields to painting and input
 STEP_TIMES_MS = 500       # the step times (new with every view) are shown at most this often
 LOG_MS = 200              # a running scan's log lines are appended at most this often (each append repaints)
+
+
+def _tip(name: str) -> str:
+    """A scan option's tip, as its description says it (lfstudio.studio.scan_options), capitalised."""
+    param = SCAN_PARAMS[name]
+    text = param.tip[:1].upper() + param.tip[1:]
+    return f"{text} (valid: {param.valid()})" if param.number is not None else text
+
+
+def _described(spin, name: str, value=None) -> None:
+    """A spin box holding exactly what the scan option ``name`` accepts: range, unit and tip from its
+    description, the window's own default ``value`` (else the description's)."""
+    param = SCAN_PARAMS[name]
+    number = param.number
+    tick = 1 if number.integer else 10.0 ** -spin.decimals()
+    spin.setRange(number.low + tick if number.low_open else number.low, number.high)
+    if number.unit:
+        spin.setSuffix(f" {number.unit}")
+    spin.setValue(getattr(ScanOptions(), name) if value is None else value)
+    spin.setToolTip(_tip(name))
 
 
 def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
@@ -199,53 +220,44 @@ class ScanPanel(QWidget):
         grid_box = QGroupBox("Grid")
         form = QFormLayout(grid_box)
         self.columns = QSpinBox()
-        self.columns.setRange(1, 10000)
-        self.columns.setValue(101)
         self.rows = QSpinBox()
-        self.rows.setRange(1, 10000)
-        self.rows.setValue(21)
+        _described(self.columns, "grid_columns")
+        _described(self.rows, "grid_rows")
         size_row = QHBoxLayout()
         size_row.addWidget(self.columns)
         size_row.addWidget(QLabel("×"))
         size_row.addWidget(self.rows)
-        self.columns.setToolTip("Columns (horizontal positions)")
-        self.rows.setToolTip("Rows (vertical positions)")
-        form.addRow("Views (columns × rows)", size_row)
-        self.spacing_h = self._mm_spin(4.0, "Horizontal spacing between neighbouring views")
-        self.spacing_v = self._mm_spin(6.0, "Vertical spacing between neighbouring views")
+        form.addRow(SCAN_PARAMS["grid_columns"].label, size_row)
+        self.spacing_h = self._mm_spin("spacing_mm", 0, "Horizontal spacing between neighbouring views")
+        self.spacing_v = self._mm_spin("spacing_mm", 1, "Vertical spacing between neighbouring views")
         sp_row = QHBoxLayout()
         sp_row.addWidget(self.spacing_h)
         sp_row.addWidget(QLabel("×"))
         sp_row.addWidget(self.spacing_v)
-        form.addRow("Spacing (mm)", sp_row)
-        self.offset_h = self._mm_spin(0.0, "Shift of the grid from the centre of the horizontal travel", lo=-5000)
-        self.offset_v = self._mm_spin(0.0, "Shift of the grid from the centre of the vertical travel", lo=-5000)
+        form.addRow(SCAN_PARAMS["spacing_mm"].label, sp_row)
+        self.offset_h = self._mm_spin("offset_mm", 0, "Shift of the grid from the centre of the horizontal travel")
+        self.offset_v = self._mm_spin("offset_mm", 1, "Shift of the grid from the centre of the vertical travel")
         off_row = QHBoxLayout()
         off_row.addWidget(self.offset_h)
         off_row.addWidget(QLabel("×"))
         off_row.addWidget(self.offset_v)
-        form.addRow("Offset from centre (mm)", off_row)
+        form.addRow(SCAN_PARAMS["offset_mm"].label, off_row)
         self.order = QComboBox()
-        self.order.addItems(ORDERS)
-        self.order.setToolTip("row-meander: left→right, then right→left on the next row (fastest, the default)")
-        form.addRow("Order", self.order)
+        self.order.addItems(SCAN_PARAMS["order"].choices)
+        self.order.setToolTip(_tip("order"))
+        form.addRow(SCAN_PARAMS["order"].label, self.order)
         self._own_order = self.order.currentText()     # the operator's choice (an opened dataset's is not saved)
         self.order.activated.connect(lambda _i: setattr(self, "_own_order", self.order.currentText()))
         self.settle = QDoubleSpinBox()
-        self.settle.setRange(0.0, 30.0)
         self.settle.setDecimals(2)
         self.settle.setSingleStep(0.05)
-        self.settle.setValue(0.3)
-        self.settle.setSuffix(" s")
-        self.settle.setToolTip("Wait after each move before the exposure, for vibrations to die down")
-        form.addRow("Settle", self.settle)
+        _described(self.settle, "settle_s", 0.3)
+        form.addRow(SCAN_PARAMS["settle_s"].label, self.settle)
         self.bracket = QLineEdit()
         self.bracket.setObjectName("scanBracket")
         self.bracket.setPlaceholderText("none — e.g. -2,0,+2 or 1/500,1/125,1/30s")
-        self.bracket.setToolTip("Exposure bracket at every view: EV steps around the camera's shutter time "
-                                "(-2,0,+2) or shutter times (1/500,1/125,1/30s); empty: one picture per view. "
-                                "Each frame is stored under its view; Process merges them to linear HDR")
-        form.addRow("Bracket", self.bracket)
+        self.bracket.setToolTip(_tip("bracket"))
+        form.addRow(SCAN_PARAMS["bracket"].label, self.bracket)
         self.from_plan = QPushButton("Take grid from the plan")
         self.from_plan.setObjectName("fromPlanButton")
         self.from_plan.setToolTip("Copy grid, spacing and settle time from the Planner's current plan")
@@ -275,14 +287,12 @@ class ScanPanel(QWidget):
         f_row.addWidget(browse)
         out_form.addRow("Folder", f_row)
         self.time_scale = QDoubleSpinBox()
-        self.time_scale.setRange(0.0, 10.0)
         self.time_scale.setDecimals(2)
         self.time_scale.setSingleStep(0.1)
-        self.time_scale.setValue(1.0)
-        self.time_scale.setToolTip("Simulated studio only: multiplies every simulated duration "
-                                   "(1 real time, 0.1 ten times faster, 0 as fast as possible)")
+        _described(self.time_scale, "time_scale")
+        self.time_scale.setToolTip("Simulated studio only: " + self.time_scale.toolTip())
         if self.state.simulated:
-            out_form.addRow("Simulation time scale", self.time_scale)
+            out_form.addRow(SCAN_PARAMS["time_scale"].label, self.time_scale)
             self.time_scale.setToolTip(self.time_scale.toolTip() + ". It also paces the simulated rig's "
                                        "homing, jogs and moves outside a scan.")
             self.time_scale.valueChanged.connect(lambda _v: self._pace_simulated_rig())
@@ -338,12 +348,13 @@ class ScanPanel(QWidget):
         self.order.currentIndexChanged.connect(self._update_preview)
         self.bracket.textChanged.connect(self._update_preview)
 
-    def _mm_spin(self, value: float, tip: str, lo: float = 0.0) -> QDoubleSpinBox:
+    def _mm_spin(self, name: str, index: int, tip: str) -> QDoubleSpinBox:
+        """One value of the pair ``name`` (horizontal: 0, vertical: 1), range, unit and default from its
+        description (lfstudio.studio.scan_options)."""
         s = QDoubleSpinBox()
-        s.setRange(lo, 5000.0)
-        s.setDecimals(2)
-        s.setValue(value)
-        s.setToolTip(tip)
+        s.setDecimals(3)
+        _described(s, name, getattr(ScanOptions(), name)[index])
+        s.setToolTip(f"{tip} (valid: {SCAN_PARAMS[name].valid()})")
         return s
 
     def _button(self, text: str, name: str, tip: str, slot) -> QPushButton:

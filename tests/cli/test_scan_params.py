@@ -1,0 +1,72 @@
+"""One description per parameter, the scan options (lfstudio.studio.scan_options.ScanOptions):
+'lfstudio scan''s options are made from the descriptions, with the same names and defaults as
+before, and refuse exactly what the descriptions refuse."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+import pytest
+
+from lfstudio.cli import scan as scan_cli
+from lfstudio.studio.scan_options import FROM_PLAN, PARAMS, ScanOptions
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="lfstudio scan")
+    scan_cli.add_arguments(p)
+    return p
+
+
+def test_every_scan_option_is_described():
+    assert list(PARAMS) == [f.name for f in dataclasses.fields(ScanOptions)]
+    for name, param in PARAMS.items():
+        assert param.label and param.tip and param.option.startswith("--") and param.group, name
+    options = ScanOptions()
+    for name, param in PARAMS.items():
+        param.check(name, getattr(options, name))           # every default is valid
+
+
+def test_the_options_come_from_the_descriptions_with_their_old_defaults():
+    p = _parser()
+    actions = {a.option_strings[0]: a for a in p._actions if a.option_strings}
+    for name, param in PARAMS.items():
+        action = actions[param.option]
+        assert param.tip in action.help, name
+        expected = None if name in FROM_PLAN else getattr(ScanOptions(), name)
+        assert action.default == expected, name
+    args = p.parse_args(["--out", "x"])
+    assert (args.time_scale, args.retries, args.seed, args.offset_mm, args.auto_resume, args.on_finish_timeout_s,
+            args.grid, args.settle_s, args.bracket, args.order) == (1.0, 2, 0, (0.0, 0.0), 0, 300.0, None, None,
+                                                                    None, None)
+    args = p.parse_args(["--out", "x", "--grid", "9x5", "--spacing-mm", "4x6", "--order", "raster", "--settle-s",
+                         "0.5", "--bracket=-2,0,+2"])
+    assert args.grid == (9, 5) and args.spacing_mm == (4.0, 6.0) and args.order == "raster" and args.settle_s == 0.5
+    assert args.bracket is not None
+
+
+@pytest.mark.parametrize("name", [n for n, p in PARAMS.items() if p.number is not None and n != "grid_rows"])
+def test_each_option_refuses_what_its_description_refuses(name, capsys):
+    param = PARAMS[name]
+    n = param.number
+    bad = n.high * 2 + 1 if n.high is not None else n.low - 1
+    text = str(int(bad)) if n.integer else f"{bad:g}"
+    if name == "grid_columns":
+        text = f"{int(bad)}x1"
+    elif param.pair:
+        text = f"{text}x1"
+    with pytest.raises(SystemExit) as exit_:
+        _parser().parse_args(["--out", "x", param.option, text])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {param.option}" in err and n.valid().split(" ")[-1] in err, err
+    assert "Traceback" not in err
+
+
+def test_help_lists_every_option(run_cli):
+    r = run_cli("scan", "--help")
+    assert r.returncode == 0
+    for param in PARAMS.values():
+        assert param.option in r.stdout
+    assert "{row-meander,column-meander,raster}" in r.stdout
