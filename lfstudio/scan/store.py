@@ -335,6 +335,8 @@ class ScanStore:
 
     def _store(self, job: StoreJob) -> None:
         view = job.view
+        if job.frame == 0:     # a new take of the view: a Resume starts the attempt numbers again, so an
+            self._failed_attempts.discard((view.cell, job.attempt))   # earlier take's failure is not this one's
         if job.frame is not None and (view.cell, job.attempt) in self._failed_attempts:
             return             # an earlier frame of this attempt failed: the view is taken again whole
         try:
