@@ -24,6 +24,7 @@ from lfstudio.errors import InputError
 from lfstudio.gui.settings import settings
 from lfstudio.scan.notify import SmtpServer, parse_target
 from lfstudio.scan.status_http import check_token, parse_address
+from lfstudio.studio.scan_options import PARAMS as SCAN_PARAMS
 from lfstudio.studio.unattended import UnattendedOptions
 
 log = logging.getLogger(__name__)
@@ -127,7 +128,8 @@ class UnattendedBox(QGroupBox):
         form.addRow("Status page", status_row)
         self.auto_resume = QSpinBox()
         self.auto_resume.setObjectName("autoResume")
-        self.auto_resume.setRange(0, 100)
+        resumes = SCAN_PARAMS["auto_resume"].number      # the range 'lfstudio scan --auto-resume' takes
+        self.auto_resume.setRange(int(resumes.low), int(resumes.high))
         self.auto_resume.setValue(int(_value("auto_resume", 0) or 0))
         self.auto_resume.setSpecialValueText("never")
         self.auto_resume.setSuffix(" times")
@@ -149,14 +151,15 @@ class UnattendedBox(QGroupBox):
                                   "the Scan panel's log; a failure is notified")
         self.timeout = QDoubleSpinBox()
         self.timeout.setObjectName("onFinishTimeout")
-        self.timeout.setRange(1, 86400)
+        limit = SCAN_PARAMS["on_finish_timeout_s"].number  # the range 'lfstudio scan --on-finish-timeout-s' takes
+        self.timeout.setRange(limit.low, limit.high)
         self.timeout.setDecimals(0)
-        self.timeout.setSuffix(" s")
+        self.timeout.setSuffix(f" {limit.unit}")
         try:
             self.timeout.setValue(float(_value("on_finish_timeout_s", 300.0)))
         except (TypeError, ValueError):
             self.timeout.setValue(300.0)
-        self.timeout.setToolTip("The command is stopped after this long")
+        self.timeout.setToolTip(f"The command is stopped after this long (valid: {limit.valid()})")
         finish_row = QHBoxLayout()
         finish_row.addWidget(self.on_finish, 1)
         finish_row.addWidget(self.timeout)

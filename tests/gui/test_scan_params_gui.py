@@ -26,3 +26,13 @@ def test_every_scan_editor_accepts_exactly_what_the_command_line_does(qtbot):
     assert [panel.order.itemText(i) for i in range(panel.order.count())] == list(PARAMS["order"].choices)
     assert panel.columns.maximum() == 20_000 and panel.spacing_h.minimum() == 0.001
     assert PARAMS["bracket"].tip[1:] in panel.bracket.toolTip()
+
+
+def test_the_unattended_settings_take_their_ranges_from_the_scan_options(qtbot):
+    from lfstudio.gui.unattended import UnattendedBox
+
+    box = UnattendedBox()
+    qtbot.addWidget(box)
+    for spin, name in ((box.auto_resume, "auto_resume"), (box.timeout, "on_finish_timeout_s")):
+        number = PARAMS[name].number
+        assert (spin.minimum(), spin.maximum()) == (number.low, number.high), name
