@@ -147,8 +147,8 @@ def run(args: argparse.Namespace) -> int:
 
         options = MergeOptions(format=args.hdr or "exr", half=args.hdr_half, clip_fraction=args.hdr_clip,
                                noise_floor=args.hdr_noise_floor)
-        merged = merge_dataset(args.dataset, options, profile, workers=args.workers, force=args.force,
-                               progress=TerminalProgress("merge"))
+        merged = merge_dataset(args.dataset, options, profile, workers=args.workers, cluster=args.cluster,
+                               force=args.force, progress=TerminalProgress("merge"))
         print(merged.summary())
         for row, column, error in merged.failed:
             print(f"FAILED (HDR) row {row}, column {column}: {error}", file=sys.stderr)

@@ -333,10 +333,12 @@ class MergeReport:
     elapsed_s: float = 0.0
     cpu_s_per_view: float = 0.0
     folder: str = ""
+    executor: str = ""                         # where the views were merged (processes here, a Dask cluster)
 
     def summary(self) -> str:
         text = (f"HDR: {self.merged} views merged, {self.skipped} already merged, {len(self.failed)} failed in "
-                f"{self.elapsed_s:.1f} s ({self.cpu_s_per_view:.2f} s CPU per view); clipped "
+                f"{self.elapsed_s:.1f} s{f' on {self.executor}' if self.executor else ''} "
+                f"({self.cpu_s_per_view:.2f} s CPU per view); clipped "
                 f"{100 * self.clipped_reference:.2f} % in the reference frames, {100 * self.clipped_merged:.2f} % "
                 f"after the merge; output in {self.folder}")
         if self.misaligned:
@@ -376,11 +378,13 @@ def _task(ds: Dataset, v: dict, options: MergeOptions, bracket: Bracket) -> HdrT
 
 
 def merge_dataset(dataset: Dataset | str | Path, options: MergeOptions | None = None, profile: Profile | None = None,
-                  *, workers: int | None = None, force: bool = False, progress: Progress = no_progress,
-                  cancel: CancelToken | None = None) -> MergeReport:
+                  *, workers: int | None = None, cluster: str | None = None, force: bool = False,
+                  progress: Progress = no_progress, cancel: CancelToken | None = None) -> MergeReport:
     """Merge every captured view's bracket (see the module docstring); records ``views[i].hdr`` and
     ``dataset.json`` → ``hdr``. Views merged before with the same options whose file exists are skipped.
-    Raises :class:`Cancelled`."""
+    ``workers``/``cluster`` as for :func:`lfstudio.processing.pipeline.process_dataset` (a Dask
+    scheduler's workers must see the dataset at the same path: they read the frames and write the
+    merged files; the manifest is written here). Raises :class:`Cancelled`."""
     from lfstudio.processing.pipeline import make_plan
 
     t_start = time.monotonic()
@@ -428,7 +432,8 @@ def merge_dataset(dataset: Dataset | str | Path, options: MergeOptions | None = 
     ds.save()
     done = report.skipped
     cpu = []
-    with executors.open_executor(workers) as info:
+    with executors.open_executor(workers, cluster) as info:
+        report.executor = info.description
         pending = {}
         queue = list(todo)
         window = max(2, 2 * info.workers)

@@ -91,6 +91,26 @@ def test_half_float_tiff_and_resume_skips_merged_views(bracketed):
     assert again.merged == 0 and again.skipped == 2
 
 
+def test_the_merge_runs_on_a_dask_cluster_like_the_other_processing_steps(bracketed):
+    """`lfstudio process --cluster`: the cluster's worker processes read the frames and write the merged
+    files (same bytes of radiance as merged in this process); the manifest is written here."""
+    distributed = pytest.importorskip("distributed")
+    ds, _ = bracketed
+    here = MergeOptions(folder="hdr_here", preview=False)
+    merge_dataset(ds.root, here, linear_profile(), workers=0)
+    there = MergeOptions(folder="hdr_cluster", preview=False)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        report = merge_dataset(ds.root, there, linear_profile(), cluster=cluster.scheduler_address)
+    assert report.merged == 2 and not report.failed, report.failed
+    assert f"Dask cluster {cluster.scheduler_address}" in report.executor and "Dask cluster" in report.summary()
+    records = {(v["row"], v["column"]): v["hdr"] for v in Dataset.open(ds.root).done_views()}
+    for cell, hdr in records.items():
+        assert hdr["file"] == f"hdr_cluster/r{cell[0]:02d}_c{cell[1]:03d}.exr" and hdr["status"] == "done"
+        mine = read_radiance(ds.root / hdr["file"].replace("hdr_cluster", "hdr_here"))
+        assert np.array_equal(read_radiance(ds.root / hdr["file"]), mine)
+
+
 def test_weights_leave_out_clipped_and_noise_floor_pixels():
     truth = np.array([[[0.001, 0.001, 0.001], [0.3, 0.3, 0.3], [3.0, 3.0, 3.0]]], np.float32)
     exposures = [0.25, 1.0, 4.0]

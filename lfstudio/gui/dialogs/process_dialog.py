@@ -293,8 +293,8 @@ def _process_job(root: str, profile: Profile, workers: int | None, cluster: str 
     if Dataset.open(root).manifest.get("bracket"):     # a bracketed scan: its frames merged to linear HDR too
         from lfstudio.processing.hdr import merge_dataset
 
-        report.hdr = merge_dataset(root, profile=profile, workers=workers, force=force, progress=progress,
-                                   cancel=cancel)
+        report.hdr = merge_dataset(root, profile=profile, workers=workers, cluster=cluster, force=force,
+                                   progress=progress, cancel=cancel)
     return report
 
 
