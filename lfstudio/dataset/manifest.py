@@ -36,7 +36,7 @@ import os
 import re
 import threading
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Required, Sequence, TypedDict
 
 from lfstudio.dataset.atomic import atomic_write_bytes, is_temporary
 from lfstudio.dataset.bracket import Bracket
@@ -96,12 +96,67 @@ def now_iso(at_s: float | None = None) -> str:
     return when.isoformat(timespec="milliseconds")
 
 
-def is_done(view: dict[str, Any]) -> bool:
+class FrameRecord(TypedDict, total=False):
+    """One frame of a bracketed view (``views[].frames[]``; the scan's store stage writes it)."""
+
+    index: Required[int]
+    file: Required[str]                   # dataset-relative, e.g. raw/r00_c000.f1.dng
+    sha256: str
+    shutter_s: float | None               # the shutter time the scan set for it
+    exposure_s: float | None              # what the camera reported
+    captured_at: str
+    sidecars: list[str]
+    camera_settings: dict[str, Any]
+
+
+class ProcessedRecord(TypedDict, total=False):
+    """A view's processing (``views[].processed``; :mod:`lfstudio.processing.pipeline` writes it)."""
+
+    status: Required[str]                 # "done" | "failed"
+    file: str
+    profile_sha256: str
+    gain: float
+    gain_support: float
+    stats: dict[str, Any]
+    processed_at: str
+    timings_s: dict[str, float]
+    error: str
+
+
+class ViewRecord(TypedDict, total=False):
+    """One view of ``dataset.json`` (``views[]``), as the stages write it: created pending, then the
+    scan's store stage (or an import) records the capture, processing adds ``processed``. Unknown keys
+    a later stage adds are kept (the manifest is read as plain JSON); the known ones are these
+    (``tests/scan/test_view_records.py`` checks a scan and processing write no other)."""
+
+    row: Required[int]
+    column: Required[int]
+    status: Required[str]                 # VIEW_STATUSES
+    commanded_mm: list[float] | None
+    reported_mm: list[float] | None
+    captured_at: str | None
+    exposure_s: float | None
+    file: str | None                      # dataset-relative
+    sha256: str | None
+    thumb: str | None
+    sidecars: list[str]
+    attempts: int
+    timings_s: dict[str, float]           # move, settle, camera_wait, expose, transfer, store, period
+    frames: list[FrameRecord] | None      # an exposure bracket's frames
+    reference_frame: int                  # the frame that is the view's file
+    error: str                            # why a view failed (recorded when the operator skips it)
+    camera: dict[str, Any]                # the driver's record of the camera and its settings
+    camera_settings: dict[str, Any]
+    devices: dict[str, Any]               # the devices that took it, when not the dataset's own
+    processed: ProcessedRecord
+
+
+def is_done(view: ViewRecord | dict[str, Any]) -> bool:
     """A view record that has been captured: status ``done`` and a file (the one test of it)."""
     return view.get("status") == "done" and isinstance(view.get("file"), str) and bool(view["file"])
 
 
-def is_finished(view: dict[str, Any]) -> bool:
+def is_finished(view: ViewRecord | dict[str, Any]) -> bool:
     """A view record a scan does not take again: status in :data:`FINISHED_STATUSES` (the one test of it)."""
     return view.get("status") in FINISHED_STATUSES
 
@@ -606,7 +661,7 @@ class Dataset:
         return self.root / MANIFEST_NAME
 
     @property
-    def views(self) -> list[dict[str, Any]]:
+    def views(self) -> list[ViewRecord]:
         return self.manifest["views"]
 
     @property
@@ -626,7 +681,7 @@ class Dataset:
     def lens(self) -> dict[str, Any]:
         return self.manifest["lens"]
 
-    def view(self, row: int, column: int) -> dict[str, Any]:
+    def view(self, row: int, column: int) -> ViewRecord:
         views = self.views
         if self._index_of is not views or len(self._index) != len(views):
             self._index = {(w["row"], w["column"]): w for w in views}
@@ -697,7 +752,7 @@ class Dataset:
                                 "re-capture this view")
         return problems
 
-    def done_views(self) -> list[dict[str, Any]]:
+    def done_views(self) -> list[ViewRecord]:
         """The captured views' records (:func:`is_done`), in manifest order."""
         return [v for v in self.views if is_done(v)]
 
