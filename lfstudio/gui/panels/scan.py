@@ -76,6 +76,21 @@ def _described(spin, name: str, value=None) -> None:
     spin.setToolTip(_tip(name))
 
 
+class _CompactSpin(QDoubleSpinBox):
+    """A spin box whose widest value (-100000.000) does not set the panel's width: it asks for the
+    width of a usual value (the panel fits a 1366 px screen's dock) and scrolls its text beyond that."""
+
+    def _width(self, hint):
+        hint.setWidth(min(hint.width(), self.fontMetrics().horizontalAdvance("-0000.000") + 36))
+        return hint
+
+    def sizeHint(self):  # type: ignore[override]
+        return self._width(super().sizeHint())
+
+    def minimumSizeHint(self):  # type: ignore[override]
+        return self._width(super().minimumSizeHint())
+
+
 def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     """Off the GUI thread: the simulated studio if needed, then a :class:`ScanSession` on the panel's
     devices (dataset lock, dataset created or resumed with its own devices, rig checks) and its engine.
@@ -234,14 +249,14 @@ class ScanPanel(QWidget):
         sp_row.addWidget(self.spacing_h)
         sp_row.addWidget(QLabel("×"))
         sp_row.addWidget(self.spacing_v)
-        form.addRow(SCAN_PARAMS["spacing_mm"].label, sp_row)
+        form.addRow(f"{SCAN_PARAMS['spacing_mm'].label} ({SCAN_PARAMS['spacing_mm'].number.unit})", sp_row)
         self.offset_h = self._mm_spin("offset_mm", 0, "Shift of the grid from the centre of the horizontal travel")
         self.offset_v = self._mm_spin("offset_mm", 1, "Shift of the grid from the centre of the vertical travel")
         off_row = QHBoxLayout()
         off_row.addWidget(self.offset_h)
         off_row.addWidget(QLabel("×"))
         off_row.addWidget(self.offset_v)
-        form.addRow(SCAN_PARAMS["offset_mm"].label, off_row)
+        form.addRow(f"{SCAN_PARAMS['offset_mm'].label} ({SCAN_PARAMS['offset_mm'].number.unit})", off_row)
         self.order = QComboBox()
         self.order.addItems(SCAN_PARAMS["order"].choices)
         self.order.setToolTip(_tip("order"))
@@ -351,9 +366,10 @@ class ScanPanel(QWidget):
     def _mm_spin(self, name: str, index: int, tip: str) -> QDoubleSpinBox:
         """One value of the pair ``name`` (horizontal: 0, vertical: 1), range, unit and default from its
         description (lfstudio.studio.scan_options)."""
-        s = QDoubleSpinBox()
+        s = _CompactSpin()
         s.setDecimals(3)
         _described(s, name, getattr(ScanOptions(), name)[index])
+        s.setSuffix("")                                  # the row's label says the unit
         s.setToolTip(f"{tip} (valid: {SCAN_PARAMS[name].valid()})")
         return s
 
