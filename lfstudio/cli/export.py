@@ -37,9 +37,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="views to export: 'all' (default), rows/columns like r0-8,c10-18, an array like array:5x3 "
                         "(columns x rows) spread over the grid, or names like r00_c000,r00_c001")
     p.add_argument("--source", default="auto", metavar="SRC",
-                   help="raw, processed, tonemap, or auto (default: processed when every chosen view is processed). "
+                   help="raw, processed, tonemap, hdr, or auto (default: processed when every chosen view is processed). "
                         "A bracketed dataset: raw and processed show the bracket's reference (0 EV) frame, tonemap "
-                        "the tone-mapped merge of every frame (lfstudio process); the export's manifest names which")
+                        "the tone-mapped merge of every frame (lfstudio process), hdr (colmap, nerfstudio) the merged "
+                        "linear radiance as float OpenEXR/TIFF files; the export's manifest names which")
     p.add_argument("--crf", type=number_option(Number("", 0, 51, integer=True), "--crf"), default=8,
                    help="hevc: constant rate factor, lower is better (default 8)")
     p.add_argument("--bit-depth", type=number_option(BITS, "--bit-depth"), default=12, help="hevc: 10 or 12 bits (default 12)")

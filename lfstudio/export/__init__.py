@@ -156,8 +156,21 @@ def _plan(ds: Dataset, options: ExportOptions) -> tuple[list[tuple[int, int]], s
     if options.format in ("hci", *POSED_FORMATS):
         common.require_zero_plane(ds, {"hci": "an HCI export (focus_distance_m, disp_min/disp_max)"}.get(
             options.format, f"a {options.format} export (each view's principal point)"))
+    if (options.source or "").lower() == "hdr" and options.format not in POSED_FORMATS:
+        exc = InputError("source", f"hdr (the merged float radiance) is not exported as {options.format}",
+                         f"--format {' or '.join(POSED_FORMATS)} with --source hdr; --source tonemap for "
+                         f"{options.format}")
+        exc.window_text = (f"Source: HDR radiance (float) is exported as a COLMAP model or for nerfstudio only; "
+                           f"for {options.format} choose Source: HDR tone map.")
+        raise exc
     source = common.resolve_source(ds, views, options.source)
-    size = images.full_size_px(common.source_path(ds, views[0], source))
+    if source == "hdr":        # float files the image readers do not open: the merge's recorded size
+        size = tuple(int(v) for v in (ds.manifest.get("hdr") or {}).get("output_size_px") or (0, 0))
+        if min(size) <= 0:
+            raise InputError("source", f"{ds.manifest_path} records no size of the merged HDR views",
+                             "process the dataset again ('lfstudio process --force')")
+    else:
+        size = images.full_size_px(common.source_path(ds, views[0], source))
     if options.format == "hevc":
         views = common.meander(views)
     return views, source, size
@@ -208,7 +221,8 @@ def estimate_export(dataset, options: ExportOptions) -> ExportEstimate:
         nbytes = hci.estimate_bytes(len(views), size, options.hci_bit_depth)
         warnings += hci.warnings(ds, views, size, source)
     else:
-        nbytes = common.images_bytes_estimate(len(views), size, options.image_bit_depth) + 200 * len(views) + 8192
+        nbytes = (sum(common.source_path(ds, v, source).stat().st_size for v in views) if source == "hdr" else
+                  common.images_bytes_estimate(len(views), size, options.image_bit_depth)) + 200 * len(views) + 8192
         warnings += _posed_warnings(ds, views, source, size, options)
         if options.format in POSED_FORMATS and options.points:
             nbytes += 60_000 + 30 * min(len(views), 45) * 200      # the sparse cloud: a few thousand points

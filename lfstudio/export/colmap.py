@@ -33,6 +33,7 @@ import numpy as np
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.paths import view_stem
+from lfstudio.errors import InputError
 from lfstudio.export import common, poses
 from lfstudio.jobs import CancelToken, Progress
 
@@ -45,8 +46,8 @@ if TYPE_CHECKING:
     from lfstudio.depth.points import SparseCloud
 
 
-def image_names(views: Sequence[common.View]) -> dict[common.View, str]:
-    return {v: f"{view_stem(*v)}.png" for v in views}
+def image_names(views: Sequence[common.View], suffix: str = ".png") -> dict[common.View, str]:
+    return {v: f"{view_stem(*v)}{suffix}" for v in views}
 
 
 def cameras_text(cam: poses.PinholeCamera, shifts: list[tuple[float, float]] | None = None) -> str:
@@ -117,9 +118,15 @@ def sparse_cloud_of_export(ds: Dataset, views: Sequence[common.View], cam: poses
     shifts = poses.principal_point_shifts_px(ds, views, cam.size_px)
 
     def image_of(v):
-        img = cv2.imread(str(folder / names[v]), cv2.IMREAD_UNCHANGED)
+        path = folder / names[v]
+        if path.suffix in (".exr", ".tif"):        # float radiance: the points are found on its tone map
+            path = common.tonemap_file(ds, ds.view(*v))
+            if path is None:
+                raise InputError("points", f"{view_stem(*v)} has no tone-mapped HDR picture to find the sparse "
+                                 "points on", "process with the HDR previews, or export without the point cloud")
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if img is None:
-            raise OSError(f"{folder / names[v]}: cannot read the exported image back")
+            raise OSError(f"{path}: cannot read the exported image back")
         if shifts is not None:      # sheared views: triangulate the parallel ones (shear taken off)
             dx, dy = shifts[v]
             img = cv2.warpAffine(img, np.float32([[1, 0, -dx], [0, 1, -dy]]), (img.shape[1], img.shape[0]),
@@ -151,7 +158,7 @@ def export_colmap(ds: Dataset, views: Sequence[common.View], source: str, size: 
                   options, progress: Progress, cancel: CancelToken) -> list[Path]:
     bit_depth = int(options.image_bit_depth)
     cam = poses.camera_for(ds, size, common.is_rectified(ds, source))
-    names = image_names(views)
+    names = image_names(views, common.image_suffix(ds, views, source))
     progress(0, len(views), "exporting COLMAP model")
     with common.partial_folder(out, options.overwrite) as tmp:
         (tmp / IMAGES_DIR).mkdir()
@@ -173,8 +180,9 @@ def export_colmap(ds: Dataset, views: Sequence[common.View], source: str, size: 
             write_ply(model / PLY_NAME, cloud.xyz_m, cloud.rgb)
         doc: dict[str, Any] = common.describe(ds, views, source, size, {v: f"{IMAGES_DIR}/{n}" for v, n in names.items()})
         doc["kind"] = "colmap"
-        doc["bit_depth"] = bit_depth
-        doc["color"] = "sRGB (8-bit)" if bit_depth == 8 else doc["color"]
+        if source != "hdr":                      # float radiance keeps its own (doc["color"])
+            doc["bit_depth"] = bit_depth
+            doc["color"] = "sRGB (8-bit)" if bit_depth == 8 else doc["color"]
         doc["pinhole"] = cam.describe()
         doc["world_frame"] = "rig frame: x right, y down, z into the scene; metres; origin at the axes' origin"
         doc["point_cloud"] = describe_cloud(cloud)

@@ -58,12 +58,42 @@ def tonemap_file(ds: Dataset, view: dict) -> Path | None:
     return path if path.is_file() else None
 
 
+def hdr_file(ds: Dataset, view: dict) -> Path | None:
+    """The merged linear radiance of a bracketed view (OpenEXR or float TIFF, ``lfstudio process``)."""
+    hdr = view.get("hdr")
+    if not isinstance(hdr, dict) or hdr.get("status") != "done" or not hdr.get("file"):
+        return None
+    try:
+        path = ds.path_of(hdr["file"])
+    except DatasetError:
+        return None
+    return path if path.is_file() else None
+
+
+#: the sources an export can show ("hdr": the merged radiance files as they are, float)
+SOURCES = "raw, processed, tonemap, hdr or auto"
+
+
 def resolve_source(ds: Dataset, views: Sequence[View], source: str) -> str:
     source = (source or "auto").lower()
-    if source not in ("auto", "raw", "processed", "tonemap"):
-        raise InputError("source", f"unknown source {source!r}", "raw, processed, tonemap or auto")
+    if source not in ("auto", "raw", "processed", "tonemap", "hdr"):
+        raise InputError("source", f"unknown source {source!r}", SOURCES)
     if source == "raw":
         return "raw"
+    if source in ("tonemap", "hdr"):
+        find = tonemap_file if source == "tonemap" else hdr_file
+        missing = [view_stem(*v) for v in views if find(ds, ds.view(*v)) is None]
+        if missing:
+            shown = ", ".join(missing[:6]) + (f" and {len(missing) - 6} more" if len(missing) > 6 else "")
+            raise InputError("source", f"{'tone-mapped ' if source == 'tonemap' else 'merged '}HDR views missing "
+                             f"for {shown}", "scan with --bracket and process the dataset ('lfstudio process'), "
+                             "or export --source processed (the bracket's reference exposure)")
+        if source == "hdr":
+            suffixes = {hdr_file(ds, ds.view(*v)).suffix for v in views}
+            if len(suffixes) > 1:
+                raise InputError("source", f"the merged HDR views are in {' and '.join(sorted(suffixes))} files",
+                                 "process the dataset again with one --hdr format (lfstudio process --hdr exr --force)")
+        return source
     if source == "tonemap":
         missing = [view_stem(*v) for v in views if tonemap_file(ds, ds.view(*v)) is None]
         if missing:
@@ -80,8 +110,23 @@ def resolve_source(ds: Dataset, views: Sequence[View], source: str) -> str:
     return "raw" if missing else "processed"
 
 
+def image_suffix(ds: Dataset, views: Sequence[View], source: str) -> str:
+    """The exported images' suffix: the merged radiance files' own (``.exr``, ``.tif``) for ``hdr``,
+    else ``.png``."""
+    if source == "hdr" and views:
+        path = hdr_file(ds, ds.view(*views[0]))
+        if path is not None:
+            return path.suffix
+    return ".png"
+
+
 def source_path(ds: Dataset, view: View, source: str) -> Path:
     v = ds.view(*view)
+    if source == "hdr":
+        path = hdr_file(ds, v)
+        if path is None:
+            raise DatasetError(f"{ds.root}: {view_stem(*view)} has no merged HDR file; process the dataset again")
+        return path
     if source == "tonemap":
         path = tonemap_file(ds, v)
         if path is None:
@@ -162,6 +207,9 @@ def write_images(ds: Dataset, views: Sequence[View], source: str, size: Sequence
     def write(v: View) -> str:
         src = source_path(ds, v, source)
         dst = folder / names[v]
+        if source == "hdr":             # the merged radiance as processing wrote it (float; 1.0 = 0 EV white)
+            shutil.copyfile(src, dst)
+            return names[v]
         if bit_depth == 16 and source == "processed" and is_png16_rgb(src):
             hdr = images.png_header(src)
             if (hdr[0], hdr[1]) != tuple(size):
@@ -265,7 +313,7 @@ def intrinsics(ds: Dataset, image_size: tuple[int, int], calibration: dict | Non
 
 def is_rectified(ds: Dataset, source: str) -> bool:
     """The exported views are rectified: processed views of a run that rectified them."""
-    if source == "tonemap":
+    if source in ("tonemap", "hdr"):
         return bool((ds.manifest.get("hdr") or {}).get("rectified"))
     return bool(source == "processed" and (ds.manifest.get("processing") or {}).get("rectified"))
 
@@ -276,6 +324,9 @@ def exposure_of(ds: Dataset, source: str) -> dict[str, Any] | None:
     bracket = ds.manifest.get("bracket")
     if not isinstance(bracket, dict):
         return None
+    if source == "hdr":
+        return {"kind": "merged radiance", "of": "every frame of the bracket", "unit":
+                (ds.manifest.get("hdr") or {}).get("weights", {}).get("unit"), "bracket": dict(bracket)}
     if source == "tonemap":
         tone = (ds.manifest.get("hdr") or {}).get("tone_map") or {}
         return {"kind": "tone map", "operator": tone.get("operator"), "key_radiance": tone.get("key_radiance"),
@@ -311,7 +362,7 @@ def describe(ds: Dataset, views: Sequence[View], source: str, image_size: tuple[
             "source": source,
             "rectified": rectified,
             "color": "sRGB-encoded tone map of the merged HDR radiance (16-bit)" if source == "tonemap"
-            else "linear RGB (16-bit, 65535 = white)",
+            else hdr_color(ds) if source == "hdr" else "linear RGB (16-bit, 65535 = white)",
             **({"exposure": exposure_of(ds, source)} if exposure_of(ds, source) is not None else {}),
             "grid": grid.to_manifest(), "camera": dict(ds.camera), "lens": dict(ds.lens),
             "plan": dict(ds.manifest.get("plan") or {}),
@@ -320,6 +371,15 @@ def describe(ds: Dataset, views: Sequence[View], source: str, image_size: tuple[
             "calibration": calibration,
             "zero_disparity": zero_disparity_of(ds),
             "views": entries}
+
+
+def hdr_color(ds: Dataset) -> str:
+    """What the pixels of an ``hdr`` export are."""
+    options = (ds.manifest.get("hdr") or {}).get("options") or {}
+    kind = "OpenEXR" if options.get("format", "exr") == "exr" else "TIFF"
+    bits = "16-bit half" if options.get("half") else "32-bit"
+    return (f"linear RGB radiance, {bits} float {kind} (the HDR merge; 1.0 = just clipping in the bracket's "
+            "reference frame, values above 1 are highlights beyond it)")
 
 
 def zero_disparity_of(ds: Dataset) -> dict[str, Any]:

@@ -133,7 +133,7 @@ def export_nerfstudio(ds: Dataset, views: Sequence[common.View], source: str, si
                       options, progress: Progress, cancel: CancelToken) -> list[Path]:
     bit_depth = int(options.image_bit_depth)
     cam = poses.camera_for(ds, size, common.is_rectified(ds, source))
-    names = colmap.image_names(views)
+    names = colmap.image_names(views, common.image_suffix(ds, views, source))
     doc = transforms_doc(ds, views, names, cam, options.holdout)      # bad input fails before any image
     with_depth = bool(getattr(options, "depth", False))
     if with_depth:
@@ -168,8 +168,9 @@ def export_nerfstudio(ds: Dataset, views: Sequence[common.View], source: str, si
         manifest: dict[str, Any] = common.describe(ds, views, source, size,
                                                    {v: f"{IMAGES_DIR}/{n}" for v, n in names.items()})
         manifest["kind"] = "nerfstudio"
-        manifest["bit_depth"] = bit_depth
-        manifest["color"] = "sRGB (8-bit)" if bit_depth == 8 else manifest["color"]
+        if source != "hdr":                      # float radiance keeps its own (manifest["color"])
+            manifest["bit_depth"] = bit_depth
+            manifest["color"] = "sRGB (8-bit)" if bit_depth == 8 else manifest["color"]
         manifest["pinhole"] = cam.describe()
         manifest["point_cloud"] = colmap.describe_cloud(cloud)
         manifest["held_out"] = [[int(r), int(c)] for r, c in held_out(views, options.holdout)]

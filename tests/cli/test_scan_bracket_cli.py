@@ -102,3 +102,34 @@ def test_plan_counts_every_frame(run_cli, tmp_path):
     assert "exposure bracket        3 frames a view (0.125 s, 0.5 s, 2 s), 6363 pictures" in table
     bad = run_cli("plan", "--bracket", "-2,0,y")
     assert bad.returncode == 2 and bad.stderr.strip().splitlines()[-1].startswith("lfstudio plan: error: --bracket: ")
+
+
+def test_colmap_and_nerfstudio_export_the_merged_float_radiance_with_source_hdr(run_cli, tmp_path):
+    """--source hdr: the merge's OpenEXR files byte for byte under images/ (named in images.txt and
+    transforms.json), the manifests saying what the pixels are; other formats refuse it by name; the
+    default export stays on the processed 16-bit views."""
+    scan = run_cli("scan", "--port", "instant", "--grid", "3x2", "--time-scale", "0", "--sim-width-px", "96",
+                   "--bracket", "-2,0,+2", "--out", tmp_path / "ds")
+    assert scan.returncode == 0, scan.stderr
+    refused = run_cli("export", tmp_path / "ds", "--format", "colmap", "--source", "hdr", "--out", tmp_path / "c0")
+    assert refused.returncode == 2 and "merged HDR views missing" in refused.stderr, refused.stderr
+    (tmp_path / "profile.toml").write_text("[rectify]\nenabled = false\n")
+    assert run_cli("process", tmp_path / "ds", "--workers", "0", "--profile", tmp_path / "profile.toml").returncode == 0
+    ds = tmp_path / "ds"
+    for fmt in ("colmap", "nerfstudio"):
+        out = tmp_path / fmt
+        proc = run_cli("export", ds, "--format", fmt, "--source", "hdr", "--out", out)
+        assert proc.returncode == 0, proc.stderr
+        for name in ("r00_c000", "r01_c002"):
+            assert (out / "images" / f"{name}.exr").read_bytes() == (ds / "hdr" / f"{name}.exr").read_bytes()
+        manifest = json.loads((out / "lfstudio_manifest.json").read_text())
+        assert manifest["source"] == "hdr" and manifest["exposure"]["kind"] == "merged radiance"
+        assert manifest["color"].startswith("linear RGB radiance, 32-bit float OpenEXR") and "bit_depth" not in manifest
+    assert "r00_c000.exr" in (tmp_path / "colmap" / "sparse" / "0" / "images.txt").read_text()
+    frames = json.loads((tmp_path / "nerfstudio" / "transforms.json").read_text())["frames"]
+    assert {f["file_path"] for f in frames} == {f"images/r{r:02d}_c{c:03d}.exr" for r in range(2) for c in range(3)}
+    video = run_cli("export", ds, "--format", "hevc", "--source", "hdr", "--out", tmp_path / "v.mkv")
+    assert video.returncode == 2 and "--source: hdr (the merged float radiance) is not exported as hevc" in video.stderr
+    default = run_cli("export", ds, "--format", "colmap", "--out", tmp_path / "plain")
+    assert default.returncode == 0 and (tmp_path / "plain" / "images" / "r00_c000.png").is_file()
+    assert json.loads((tmp_path / "plain" / "lfstudio_manifest.json").read_text())["source"] == "processed"

@@ -55,7 +55,8 @@ FORMAT_KEYS = tuple(k for k, _, _ in FORMAT_INFO)
 SOURCES = (("auto", "Auto — processed views when every chosen view has one"),
            ("processed", "Processed views (processed/)"),
            ("raw", "Raw captures (developed, not processed)"),
-           ("tonemap", "HDR tone map (a bracketed scan's merged frames, hdr/preview/)"))
+           ("tonemap", "HDR tone map (a bracketed scan's merged frames, hdr/preview/)"),
+           ("hdr", "HDR radiance, float (the merged frames as they are, hdr/; COLMAP and nerfstudio)"))
 HEVC_SUFFIXES = (".mp4", ".mkv", ".hevc")
 
 
