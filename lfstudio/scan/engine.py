@@ -64,7 +64,7 @@ from lfstudio.dataset.manifest import is_finished
 from lfstudio.dataset.paths import folder_inside, view_label, view_stem
 from lfstudio.dataset.storage import storage_error
 from lfstudio.dataset.store import clean_temporary_files, free_bytes
-from lfstudio.errors import DeviceError, DeviceTimeout, LfError
+from lfstudio.errors import DeviceError, DeviceTimeout, InputError, LfError
 from lfstudio.numbers import RETRIES, TIME_SCALE, TIMEOUT_S, Number, non_finite_fields
 from lfstudio.rig.camera import supports_on_exposed
 from lfstudio.rig.motion import RigState
@@ -124,6 +124,12 @@ def bracket_on_camera(bracket: Bracket, driver: Any, call: Callable[[str], Any],
     :class:`InputError` naming ``field`` with the camera's choices."""
     settings = call("settings")
     settings = settings if isinstance(settings, dict) else {}
+    if "shutter_s" not in settings and not hasattr(driver, "describe_settings"):
+        # a hot folder or a trigger command: lfstudio cannot set the exposure, so every frame's
+        # set_setting would fail at each view after the rig has moved; refused before anything
+        raise InputError(field, "this camera has no shutter time lfstudio can set (a hot folder or a trigger "
+                         "command takes what the camera is set to): bracket with a camera lfstudio controls "
+                         "(--camera gphoto2), or use the camera's own bracketing and import the frames")
     base = settings.get("shutter_s")
     base = float(base) if Number("s", 0, low_open=True).problem(base) is None else None
     values: tuple = ()

@@ -133,3 +133,16 @@ def test_colmap_and_nerfstudio_export_the_merged_float_radiance_with_source_hdr(
     default = run_cli("export", ds, "--format", "colmap", "--out", tmp_path / "plain")
     assert default.returncode == 0 and (tmp_path / "plain" / "images" / "r00_c000.png").is_file()
     assert json.loads((tmp_path / "plain" / "lfstudio_manifest.json").read_text())["source"] == "processed"
+
+
+def test_a_bracket_on_a_camera_whose_shutter_lfstudio_cannot_set_is_refused_before_anything(run_cli, tmp_path):
+    """A hot-folder camera took explicit bracket times through the checks; the rig moved, then every
+    view's frame failed to set its shutter time, was retried and paused the scan."""
+    incoming = tmp_path / "incoming"
+    incoming.mkdir()
+    out = run_cli("scan", "--port", "sim", "--camera", f"folder:{incoming}", "--grid", "2x1", "--time-scale", "0",
+                  "--bracket", "1/500,1/125", "--out", tmp_path / "ds")
+    assert out.returncode == 2, out.stderr
+    last = out.stderr.strip().splitlines()[-1]
+    assert "--bracket" in last and "no shutter time lfstudio can set" in last and "--camera gphoto2" in last
+    assert "Traceback" not in out.stderr and not (tmp_path / "ds").exists()
