@@ -432,8 +432,18 @@ class ScanStore:
         frames.append(frame)
         self._frame_results[(cell, job.frame)] = result
         if job.frame < job.frames - 1:
+            fields: dict[str, Any] = {"frames": [dict(f) for f in frames]}
+            # a done view taken again (re-capture): its first new frame has replaced a file of its
+            # record, so the record no longer holds; it is pending until all its new frames are in
+            # (a failure or a crash now leaves it to be taken again, never 'done' with one frame)
+            demoted = job.frame == 0 and is_done(self.dataset.view(view.row, view.column))
+            if demoted:
+                fields["status"] = "pending"
             try:
-                self.dataset.record_view(view.row, view.column, frames=[dict(f) for f in frames])
+                self.dataset.record_view(view.row, view.column, **fields)
+                if demoted:
+                    with self._lock:
+                        self.done -= 1
             except Exception as exc:              # the view is not done: its frames are taken again
                 self._failed_attempts.add((cell, job.attempt))
                 fault = self.disk_fault(exc, root, f"recording a frame of view {view_label(view.row, view.column)}") \

@@ -4,10 +4,11 @@ engine, on the simulated studio: GRBL simulator on a pty, the simulated camera w
 Found by the review: (1) after a fault and Resume the attempt numbers start again, so a view whose
 frame failed in its transfer was taken again under an attempt number already marked failed and all
 its new frames were dropped (the scan finished with the view pending): fixed, the store forgets a
-view's failed take when a new take's first frame arrives (``scan/store.py``). Still a known bug of
-``ScanStore._store_frame``, marked xfail (not strict) until fixed: (2) a re-capture journals
-the new frames of a done view one by one, so a failure after the first leaves a done view with one
-frame and ``dataset.json`` that no longer opens (validate_manifest: 1 frame(s), the bracket has 3)."""
+view's failed take when a new take's first frame arrives (``scan/store.py``). (2) a re-capture
+journaled the new frames of a done view one by one over its done record, so a failure after the first
+left a done view with one frame and ``dataset.json`` that no longer opened (validate_manifest: 1
+frame(s), the bracket has 3): fixed, the view turns pending with its first new frame (its old files
+are being replaced) and is done again with its last."""
 
 from __future__ import annotations
 
@@ -80,8 +81,6 @@ def test_a_frame_whose_transfer_failed_is_taken_again_and_stored_after_resume_in
     assert final.verify_files() == []
 
 
-@pytest.mark.xfail(reason="review finding: _store_frame journals a re-captured done view's first frames "
-                          "over its record; the dataset no longer opens", strict=False)
 def test_a_recapture_whose_second_frame_fails_leaves_the_view_with_all_its_frames(studio):
     from lfstudio.dataset.manifest import validate_manifest
     from lfstudio.errors import DeviceError
