@@ -160,8 +160,9 @@ def _plan(ds: Dataset, options: ExportOptions) -> tuple[list[tuple[int, int]], s
         exc = InputError("source", f"hdr (the merged float radiance) is not exported as {options.format}",
                          f"--format {' or '.join(POSED_FORMATS)} with --source hdr; --source tonemap for "
                          f"{options.format}")
+        shown = {"hevc": "HEVC", "hci": "HCI", "png": "PNG"}.get(options.format, options.format)
         exc.window_text = (f"Source: HDR radiance (float) is exported as a COLMAP model or for nerfstudio only; "
-                           f"for {options.format} choose Source: HDR tone map.")
+                           f"for {shown} choose Source: HDR tone map.")
         raise exc
     source = common.resolve_source(ds, views, options.source)
     if source == "hdr":        # float files the image readers do not open: the merge's recorded size

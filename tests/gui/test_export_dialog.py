@@ -217,3 +217,15 @@ def test_overwrite_never_deletes_a_folder_of_other_files(qtbot, tiny_dataset, tm
     qtbot.waitUntil(lambda: not dialog.runner.running and "earlier export" in dialog.result_label.text(),
                     timeout=60000)
     assert (tmp_path / "mine" / "thesis.tex").read_text() == "years of work"
+
+
+def test_hdr_radiance_source_turns_the_image_choice_off(qtbot, tiny_dataset):
+    """With Source 'HDR radiance, float' the export copies the merge's float files: the dialog still
+    offered 'Images: 8-bit sRGB', which does nothing then."""
+    window, dialog = _open_dialog(qtbot, tiny_dataset)
+    dialog.format_combo.setCurrentIndex(FORMAT_KEYS.index("colmap"))
+    dialog.source_combo.setCurrentIndex(dialog.source_combo.findData("hdr"))
+    assert not any(c.isEnabled() for c in dialog.image_depth_combos)
+    assert "float" in dialog.image_depth_combos[0].toolTip()
+    dialog.source_combo.setCurrentIndex(dialog.source_combo.findData("processed"))
+    assert all(c.isEnabled() for c in dialog.image_depth_combos)

@@ -289,6 +289,7 @@ class ExportDialog(QDialog):
         self._options_form = form
 
         self.format_combo.currentIndexChanged.connect(self._format_changed)
+        self.source_combo.currentIndexChanged.connect(self._source_changed)
         for w in (self.source_combo, self.bit_depth_combo, self.holdout_combo):
             w.currentIndexChanged.connect(self._options_changed)
         self.hci_authors.textChanged.connect(self._options_changed)
@@ -534,6 +535,14 @@ class ExportDialog(QDialog):
         self.path_label.setText(f"→ {out}{exists}")
         self.path_label.setToolTip(str(out))
         self._update_export_button()
+
+    def _source_changed(self) -> None:
+        """HDR radiance is copied as the merge wrote it (float): the Images choice does not apply."""
+        hdr = self.source_combo.currentData() == "hdr"
+        for combo in self.image_depth_combos:
+            combo.setEnabled(not hdr)
+            combo.setToolTip("HDR radiance is exported as the merge wrote it (float EXR or TIFF)" if hdr else
+                             "Images: 8-bit sRGB PNG (what view-synthesis tools expect) or linear 16-bit PNG")
 
     def _update_export_button(self) -> None:
         ok = (self.estimate is not None and not self.exporting and bool(self.folder_edit.text().strip())
