@@ -106,8 +106,12 @@ def test_process_dialog_merges_a_bracketed_dataset(qtbot, tmp_path):
     dialog = window.findChild(ProcessDialog, "processDialog")
     dialog.editors["rectify"].setChecked(False)
     dialog.workers_spin.setValue(0)
+    shares = []
+    dialog.runner.progress.connect(lambda done, total, _message, _eta: shares.append(done / max(total, 1)))
     with qtbot.waitSignal(dialog.runner.finished, timeout=60000):
         dialog.process_button.click()
+    # one bar for both passes: it never drops back to 0 when the merge starts
+    assert shares and shares == sorted(shares) and shares[-1] == 1.0, shares
     text = dialog.result_label.text()
     dialog.show()
     qtbot.waitUntil(lambda: dialog.result_label.height() >= 2 * dialog.result_label.fontMetrics().height())

@@ -287,14 +287,22 @@ def _process_job(root: str, profile: Profile, workers: int | None, cluster: str 
     from lfstudio.dataset import Dataset
     from lfstudio.processing.pipeline import process_dataset
 
+    bracketed = bool(Dataset.open(root).manifest.get("bracket"))
+
+    def half(second: bool):
+        """A bracketed scan's two passes (the views, then their merge) as the two halves of one bar."""
+        def report(done: int, total: int, message: str = "") -> None:
+            progress(done + (total if second else 0), 2 * total, message)
+        return report if bracketed else progress
+
     report = process_dataset(root, profile, workers=workers, cluster=cluster, force=force,
-                             progress=progress, cancel=cancel)
+                             progress=half(False), cancel=cancel)
     report.hdr = None
-    if Dataset.open(root).manifest.get("bracket"):     # a bracketed scan: its frames merged to linear HDR too
+    if bracketed:                         # a bracketed scan: its frames merged to linear HDR too
         from lfstudio.processing.hdr import merge_dataset
 
         report.hdr = merge_dataset(root, profile=profile, workers=workers, cluster=cluster, force=force,
-                                   progress=progress, cancel=cancel)
+                                   progress=half(True), cancel=cancel)
     return report
 
 
