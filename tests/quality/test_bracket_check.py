@@ -23,7 +23,9 @@ from lfstudio.studio.session import create_scan_dataset
 RIG = load_rig()
 
 
-def bracketed_scan(root, bracket: str) -> Dataset:
+def _bracketed_engine(root, bracket: str) -> tuple[ScanEngine, Dataset]:
+    """A 3 x 2 bracketed scan of bright highlights (up to 3x white) on the instant rig and the
+    simulated camera, ready to start."""
     plan = replace(ScanPlan.centered(3, 2, (4.0, 6.0), RIG, settle_s=0.0), bracket=parse_bracket(bracket))
     studio = VirtualStudio(width_px=320, view_region_mm=plan.extent_mm(), highlight_gain=3.0, seed=3)
     rig = InstantRig(RIG)
@@ -31,7 +33,11 @@ def bracketed_scan(root, bracket: str) -> Dataset:
     camera = SimulatedCamera(studio, rig.true_position_mm, exposure_s=0.5, time_scale=0.0, noise=0.001)
     camera.connect()
     ds = create_scan_dataset(root, plan, rig={"name": RIG.name}, camera={"name": "sim"}, lens={"name": "virtual"})
-    engine = ScanEngine(ds, plan, rig, camera, time_scale=0.0)
+    return ScanEngine(ds, plan, rig, camera, time_scale=0.0), ds
+
+
+def bracketed_scan(root, bracket: str) -> Dataset:
+    engine, _ = _bracketed_engine(root, bracket)
     engine.start()
     assert engine.wait(120) is ScanState.FINISHED, engine.message
     return Dataset.open(root)
@@ -60,15 +66,8 @@ def _live_scan(root, bracket: str, where: str):
     """A bracketed scan (as bracketed_scan) with the scan-time check subscribed to its events."""
     from lfstudio.quality.live import LiveChecker, LiveCheckerProcess
 
-    plan = replace(ScanPlan.centered(3, 2, (4.0, 6.0), RIG, settle_s=0.0), bracket=parse_bracket(bracket))
-    studio = VirtualStudio(width_px=320, view_region_mm=plan.extent_mm(), highlight_gain=3.0, seed=3)
-    rig = InstantRig(RIG)
-    rig.connect()
-    camera = SimulatedCamera(studio, rig.true_position_mm, exposure_s=0.5, time_scale=0.0, noise=0.001)
-    camera.connect()
-    ds = create_scan_dataset(root, plan, rig={"name": RIG.name}, camera={"name": "sim"}, lens={"name": "virtual"})
+    engine, ds = _bracketed_engine(root, bracket)
     checker = LiveChecker(ds) if where == "thread" else LiveCheckerProcess(ds)
-    engine = ScanEngine(ds, plan, rig, camera, time_scale=0.0)
     engine.subscribe(checker.on_event)
     engine.start()
     assert engine.wait(120) is ScanState.FINISHED, engine.message

@@ -28,3 +28,18 @@ def engine_with_events(session, plan, ds, **kw):
     events = []
     engine.subscribe(events.append)
     return engine, events
+
+
+def fail_captures_from_setting(camera, n: int) -> None:
+    """From the camera's ``n``-th setting change on (the engine sets a bracket frame's shutter time
+    before each frame), every capture fails, until ``camera.clear_faults()``."""
+    real_set = camera.set_setting
+    calls = []
+
+    def set_setting(name, value):
+        calls.append((name, value))
+        if len(calls) == n:
+            camera.inject("capture_fails", None)
+        return real_set(name, value)
+
+    camera.set_setting = set_setting

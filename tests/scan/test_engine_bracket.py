@@ -13,7 +13,7 @@ from lfstudio.dataset import Dataset
 from lfstudio.dataset.bracket import parse_bracket
 from lfstudio.scan.events import EventKind, ScanState
 from lfstudio.scan.scan_plan import ScanPlan, grid_order
-from tests.scan.conftest import engine_with_events, open_sim_studio
+from tests.scan.conftest import engine_with_events, fail_captures_from_setting, open_sim_studio
 
 BRACKET = parse_bracket("-2,0,+2")
 
@@ -60,16 +60,7 @@ def test_a_view_is_done_only_when_all_its_frames_are_and_resume_takes_it_again_w
     bplan = ScanPlan(**{**plan.__dict__, "bracket": BRACKET})
     engine, events = engine_for(session, bplan, ds, retries=1)
     camera = session.camera
-    real_set = camera.set_setting
-    calls = []
-
-    def set_setting(name, value):   # the third view's second frame (and every shot after it) fails
-        calls.append((name, value))
-        if len(calls) == 2 * 3 + 2:
-            camera.inject("capture_fails", None)
-        return real_set(name, value)
-
-    camera.set_setting = set_setting
+    fail_captures_from_setting(camera, 2 * 3 + 2)   # the third view's second frame (and every shot after it)
     engine.start()
     assert engine.wait_for_state(ScanState.PAUSED, timeout_s=60), engine.message
     assert "Camera failed" in engine.message

@@ -18,7 +18,7 @@ from lfstudio.dataset import Dataset
 from lfstudio.dataset.bracket import parse_bracket
 from lfstudio.scan.events import ScanState
 from lfstudio.scan.scan_plan import ScanPlan
-from tests.scan.conftest import engine_with_events, open_sim_studio
+from tests.scan.conftest import engine_with_events, fail_captures_from_setting, open_sim_studio
 
 BRACKET = parse_bracket("-2,0,+2")
 
@@ -34,16 +34,7 @@ def test_a_view_whose_frame_failed_is_stored_when_resume_takes_it_again_in_the_s
     session, plan, ds = studio
     engine, events = engine_with_events(session, ScanPlan(**{**plan.__dict__, "bracket": BRACKET}), ds, retries=0)
     camera = session.camera
-    real_set = camera.set_setting
-    calls = []
-
-    def set_setting(name, value):   # the third view's second frame (and every shot after it) fails
-        calls.append((name, value))
-        if len(calls) == 2 * 3 + 2:
-            camera.inject("capture_fails", None)
-        return real_set(name, value)
-
-    camera.set_setting = set_setting
+    fail_captures_from_setting(camera, 2 * 3 + 2)   # the third view's second frame (and every shot after it)
     engine.start()
     assert engine.wait_for_state(ScanState.PAUSED, timeout_s=60), engine.message
     camera.clear_faults()
