@@ -46,28 +46,26 @@ def meander(views: Sequence[View]) -> list[View]:
 
 
 # -- sources ----------------------------------------------------------------------------------------
-def tonemap_file(ds: Dataset, view: dict) -> Path | None:
-    """The tone-mapped 16-bit picture of a bracketed view's merged radiance (``lfstudio process``)."""
+def _merge_output(ds: Dataset, view: dict, key: str) -> Path | None:
+    """The file ``key`` (``file`` or ``preview``) of a view's done HDR merge, when it is there."""
     hdr = view.get("hdr")
-    if not isinstance(hdr, dict) or hdr.get("status") != "done" or not hdr.get("preview"):
+    if not isinstance(hdr, dict) or hdr.get("status") != "done" or not hdr.get(key):
         return None
     try:
-        path = ds.path_of(hdr["preview"])
+        path = ds.path_of(hdr[key])
     except DatasetError:
         return None
     return path if path.is_file() else None
+
+
+def tonemap_file(ds: Dataset, view: dict) -> Path | None:
+    """The tone-mapped 16-bit picture of a bracketed view's merged radiance (``lfstudio process``)."""
+    return _merge_output(ds, view, "preview")
 
 
 def hdr_file(ds: Dataset, view: dict) -> Path | None:
     """The merged linear radiance of a bracketed view (OpenEXR or float TIFF, ``lfstudio process``)."""
-    hdr = view.get("hdr")
-    if not isinstance(hdr, dict) or hdr.get("status") != "done" or not hdr.get("file"):
-        return None
-    try:
-        path = ds.path_of(hdr["file"])
-    except DatasetError:
-        return None
-    return path if path.is_file() else None
+    return _merge_output(ds, view, "file")
 
 
 #: the sources an export can show ("hdr": the merged radiance files as they are, float)

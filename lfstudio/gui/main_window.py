@@ -240,14 +240,8 @@ class MainWindow(QMainWindow):
         view the rest; when the window is too narrow for all three, the docks share what is left
         after the central view's minimum in proportion to their needs."""
         widths: dict[Qt.DockWidgetArea, tuple[int, list[QDockWidget]]] = {}
-        for dock in self.docks.values():
+        for dock, scroll in self._side_panels():
             area = self.dockWidgetArea(dock)
-            if dock.isFloating() or area not in (Qt.LeftDockWidgetArea, Qt.RightDockWidgetArea) \
-                    or not dock.isVisible():
-                continue
-            scroll = dock.widget()
-            if not isinstance(scroll, PanelScrollArea) or scroll.widget() is None:
-                continue
             frame = max(0, dock.width() - scroll.width())
             need = scroll.need_width() + frame
             most, docks = widths.get(area, (0, []))
@@ -301,15 +295,18 @@ class MainWindow(QMainWindow):
     def _fit_squeezed_docks(self) -> None:
         """A restored layout stays as saved unless a side panel in it is too narrow for its controls
         (saved on a larger screen, or dragged narrow): then the docks are fitted as at first start."""
+        if any(scroll.width() < scroll.need_width() for _dock, scroll in self._side_panels()
+               if not scroll.visibleRegion().isEmpty()):
+            self.fit_docks()
+
+    def _side_panels(self):
+        """(dock, its PanelScrollArea) of each visible panel docked at the left or right."""
         for dock in self.docks.values():
             scroll = dock.widget()
-            if dock.isFloating() or not dock.isVisible() or not isinstance(scroll, PanelScrollArea) \
-                    or scroll.widget() is None or scroll.visibleRegion().isEmpty() \
-                    or self.dockWidgetArea(dock) not in (Qt.LeftDockWidgetArea, Qt.RightDockWidgetArea):
-                continue
-            if scroll.width() < scroll.need_width():
-                self.fit_docks()
-                return
+            if not dock.isFloating() and dock.isVisible() and isinstance(scroll, PanelScrollArea) \
+                    and scroll.widget() is not None \
+                    and self.dockWidgetArea(dock) in (Qt.LeftDockWidgetArea, Qt.RightDockWidgetArea):
+                yield dock, scroll
 
     def _install_base_menus(self) -> None:
         file_menu = self.menu("File")

@@ -3,6 +3,8 @@ simulated camera writing real DNGs) with a fresh scan dataset, and an engine wit
 
 from __future__ import annotations
 
+import pytest
+
 from lfstudio.rig.profile import load_rig
 from lfstudio.scan.engine import ScanEngine
 from lfstudio.scan.scan_plan import ScanPlan
@@ -43,3 +45,11 @@ def fail_captures_from_setting(camera, n: int) -> None:
         return real_set(name, value)
 
     camera.set_setting = set_setting
+
+
+@pytest.fixture
+def small_studio(tmp_path):
+    """``(session, plan, dataset)``: a 3 x 2 plan on the simulated studio at 64 px (the bracket tests)."""
+    session, plan, ds = open_sim_studio(tmp_path / "ds", 3, 2, 64)
+    yield session, plan, ds
+    session.close()

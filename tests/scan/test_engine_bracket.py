@@ -13,16 +13,9 @@ from lfstudio.dataset import Dataset
 from lfstudio.dataset.bracket import parse_bracket
 from lfstudio.scan.events import EventKind, ScanState
 from lfstudio.scan.scan_plan import ScanPlan, grid_order
-from tests.scan.conftest import engine_with_events, fail_captures_from_setting, open_sim_studio
+from tests.scan.conftest import engine_with_events, fail_captures_from_setting
 
 BRACKET = parse_bracket("-2,0,+2")
-
-
-@pytest.fixture
-def studio(tmp_path):
-    session, plan, ds = open_sim_studio(tmp_path / "ds", 3, 2, 64)
-    yield session, plan, ds
-    session.close()
 
 
 engine_for = engine_with_events
@@ -33,8 +26,8 @@ def raw_mean(path):
         return float(np.mean(raw.raw_image_visible.astype(np.float64) - 512))
 
 
-def test_every_frame_of_a_view_is_stored_under_it_with_the_reported_exposure(studio):
-    session, plan, ds = studio
+def test_every_frame_of_a_view_is_stored_under_it_with_the_reported_exposure(small_studio):
+    session, plan, ds = small_studio
     engine, events = engine_for(session, ScanPlan(**{**plan.__dict__, "bracket": BRACKET}), ds)
     engine.start()
     assert engine.wait(60) is ScanState.FINISHED, engine.message
@@ -55,8 +48,8 @@ def test_every_frame_of_a_view_is_stored_under_it_with_the_reported_exposure(stu
     assert session.camera.exposure_s == 0.5          # set back to the shutter time the scan began with
 
 
-def test_a_view_is_done_only_when_all_its_frames_are_and_resume_takes_it_again_whole(studio):
-    session, plan, ds = studio
+def test_a_view_is_done_only_when_all_its_frames_are_and_resume_takes_it_again_whole(small_studio):
+    session, plan, ds = small_studio
     bplan = ScanPlan(**{**plan.__dict__, "bracket": BRACKET})
     engine, events = engine_for(session, bplan, ds, retries=1)
     camera = session.camera
@@ -84,8 +77,8 @@ def test_a_view_is_done_only_when_all_its_frames_are_and_resume_takes_it_again_w
     assert len(list((final.root / "raw").glob("*.dng"))) == 18    # every view exactly once, 3 frames each
 
 
-def test_resume_with_another_bracket_is_refused_naming_both(studio):
-    session, plan, ds = studio
+def test_resume_with_another_bracket_is_refused_naming_both(small_studio):
+    session, plan, ds = small_studio
     engine, _ = engine_for(session, ScanPlan(**{**plan.__dict__, "bracket": BRACKET}), ds)
     engine.start()
     assert engine.wait(60) is ScanState.FINISHED

@@ -12,26 +12,18 @@ are being replaced) and is done again with its last."""
 
 from __future__ import annotations
 
-import pytest
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.bracket import parse_bracket
 from lfstudio.scan.events import ScanState
 from lfstudio.scan.scan_plan import ScanPlan
-from tests.scan.conftest import engine_with_events, fail_captures_from_setting, open_sim_studio
+from tests.scan.conftest import engine_with_events, fail_captures_from_setting
 
 BRACKET = parse_bracket("-2,0,+2")
 
 
-@pytest.fixture
-def studio(tmp_path):
-    session, plan, ds = open_sim_studio(tmp_path / "ds", 3, 2, 64)
-    yield session, plan, ds
-    session.close()
-
-
-def test_a_view_whose_frame_failed_is_stored_when_resume_takes_it_again_in_the_same_engine(studio):
-    session, plan, ds = studio
+def test_a_view_whose_frame_failed_is_stored_when_resume_takes_it_again_in_the_same_engine(small_studio):
+    session, plan, ds = small_studio
     engine, events = engine_with_events(session, ScanPlan(**{**plan.__dict__, "bracket": BRACKET}), ds, retries=0)
     camera = session.camera
     fail_captures_from_setting(camera, 2 * 3 + 2)   # the third view's second frame (and every shot after it)
@@ -45,10 +37,10 @@ def test_a_view_whose_frame_failed_is_stored_when_resume_takes_it_again_in_the_s
     assert final.verify_files() == []
 
 
-def test_a_frame_whose_transfer_failed_is_taken_again_and_stored_after_resume_in_the_same_engine(studio):
+def test_a_frame_whose_transfer_failed_is_taken_again_and_stored_after_resume_in_the_same_engine(small_studio):
     from lfstudio.errors import DeviceError
 
-    session, plan, ds = studio
+    session, plan, ds = small_studio
     engine, events = engine_with_events(session, ScanPlan(**{**plan.__dict__, "bracket": BRACKET}), ds, retries=0)
     camera = session.camera
     real_capture = camera.capture
@@ -72,11 +64,11 @@ def test_a_frame_whose_transfer_failed_is_taken_again_and_stored_after_resume_in
     assert final.verify_files() == []
 
 
-def test_a_recapture_whose_second_frame_fails_leaves_the_view_with_all_its_frames(studio):
+def test_a_recapture_whose_second_frame_fails_leaves_the_view_with_all_its_frames(small_studio):
     from lfstudio.dataset.manifest import validate_manifest
     from lfstudio.errors import DeviceError
 
-    session, plan, ds = studio
+    session, plan, ds = small_studio
     bplan = ScanPlan(**{**plan.__dict__, "bracket": BRACKET})
     engine, _ = engine_with_events(session, bplan, ds)
     engine.start()
