@@ -91,6 +91,7 @@ class UserGuideDialog(QDialog):
         self.browser.setObjectName("userGuideBrowser")
         self.browser.setOpenExternalLinks(True)
         self.browser.setWordWrapMode(QTextOption.WrapAtWordBoundaryOrAnywhere)   # a long path breaks too
+        self._image_sizes: dict[str, tuple[int, int]] = {}     # a picture's (width, height) by name
         self.browser.viewport().installEventFilter(self)
         readme = readme_path()
         if readme is not None:          # the guide's pictures and linked docs/*.md sit next to README.md
@@ -141,13 +142,17 @@ class UserGuideDialog(QDialog):
                 fmt = frag.charFormat()
                 if fmt.isImageFormat():
                     img = fmt.toImageFormat()
-                    data = self.browser.loadResource(QTextDocument.ImageResource, QUrl(img.name()))
-                    image = QImage.fromData(data) if data is not None else QImage()
-                    shown_px = img.width() if img.width() > 0 else image.width()
-                    wanted = min(max_width_px, image.width())
-                    if not image.isNull() and abs(shown_px - wanted) >= 1:
+                    size = self._image_sizes.get(img.name())
+                    if size is None:            # read and decoded once, not at every resize
+                        data = self.browser.loadResource(QTextDocument.ImageResource, QUrl(img.name()))
+                        image = QImage.fromData(data) if data is not None else QImage()
+                        size = self._image_sizes[img.name()] = (image.width(), image.height())
+                    width, height = size
+                    shown_px = img.width() if img.width() > 0 else width
+                    wanted = min(max_width_px, width)
+                    if width > 0 and abs(shown_px - wanted) >= 1:
                         img.setWidth(wanted)
-                        img.setHeight(image.height() * wanted / image.width())
+                        img.setHeight(height * wanted / width)
                         cursor = QTextCursor(doc)
                         cursor.setPosition(frag.position())
                         cursor.setPosition(frag.position() + frag.length(), QTextCursor.KeepAnchor)
