@@ -42,7 +42,7 @@ FORMAT_INFO = (
      "intrinsics and extrinsics and input_Cam000.png … in row-major order. Zero disparity lies at infinity "
      "(our views are parallel); disp_min/disp_max come from the plan or are measured from the views."),
     ("colmap", "COLMAP model — images/ + sparse/0 with the rig's poses",
-     "A COLMAP text model (cameras.txt, images.txt, points3D.txt: the sparse points, when chosen) beside images/: one pinhole camera at "
+     "A COLMAP text model (cameras.txt, images.txt, points3D.txt) beside images/: one pinhole camera at "
      "the exported size, every view's pose from its reported axis position and the calibrated rotation "
      "(rectified views: the rectified camera), in metres. For NeRF / Gaussian-splatting tools: no "
      "structure-from-motion needed."),
