@@ -53,7 +53,7 @@ class Pacer(QObject):
         if self._timer is None:
             self._timer = QTimer(self)
             self._timer.setSingleShot(True)
-            self._timer.setTimerType(Qt.PreciseTimer)
+            self._timer.setTimerType(Qt.TimerType.PreciseTimer)
             self._timer.timeout.connect(self._run)
         if not waiting:
             self._timer.start(int(wait_ms) + 1)
@@ -78,7 +78,7 @@ class GuiInbox(QObject):
         self._pending = False
         self._closed = False
         self._pacer = Pacer(self._drain, every_ms, self)
-        self._wake.connect(self._pacer.request, Qt.QueuedConnection)
+        self._wake.connect(self._pacer.request, Qt.ConnectionType.QueuedConnection)
 
     def post(self, item: Any) -> None:
         with self._lock:

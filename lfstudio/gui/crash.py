@@ -44,12 +44,12 @@ class CrashDialog(QDialog):
         super().__init__(parent)
         self.setObjectName("crashDialog")
         self.setWindowTitle("lfstudio: unexpected error")
-        self.setAttribute(Qt.WA_DeleteOnClose)
+        self.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
         self.details = details
         self.repeats = 0
 
         icon = QLabel()
-        icon.setPixmap(self.style().standardIcon(QStyle.SP_MessageBoxWarning).pixmap(40, 40))
+        icon.setPixmap(self.style().standardIcon(QStyle.StandardPixmap.SP_MessageBoxWarning).pixmap(40, 40))
         self.message = QLabel(
             f"<b>Something went wrong inside lfstudio.</b><p>{escape(summary, quote=False)}</p>"
             "<p>lfstudio keeps running. A running scan continues; every view already captured is "
@@ -57,15 +57,15 @@ class CrashDialog(QDialog):
             f"<p>The details are in the log file:<br><code>{escape(log_path, quote=False)}</code><br>"
             "Please send it (or the copied details) with a short note of what you were doing.</p>")
         self.message.setWordWrap(True)
-        self.message.setTextInteractionFlags(Qt.TextSelectableByMouse)
+        self.message.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.message.setObjectName("crashMessage")
         top = QHBoxLayout()
-        top.addWidget(icon, 0, Qt.AlignTop)
-        top.addWidget(self.message, 1, Qt.AlignTop)
+        top.addWidget(icon, 0, Qt.AlignmentFlag.AlignTop)
+        top.addWidget(self.message, 1, Qt.AlignmentFlag.AlignTop)
 
         self.text = QPlainTextEdit(details)
         self.text.setReadOnly(True)
-        self.text.setFont(QFontDatabase.systemFont(QFontDatabase.FixedFont))
+        self.text.setFont(QFontDatabase.systemFont(QFontDatabase.SystemFont.FixedFont))
         self.text.setObjectName("crashDetails")
         self.text.setVisible(False)
         self.text.setMinimumHeight(220)
@@ -82,10 +82,10 @@ class CrashDialog(QDialog):
         folder_button = QPushButton("Open log &folder")
         folder_button.setToolTip(f"Open {log_path} in the file manager")
         folder_button.clicked.connect(lambda: open_log_folder())
-        buttons.addButton(self.copy_button, QDialogButtonBox.ActionRole)
-        buttons.addButton(self.show_button, QDialogButtonBox.ActionRole)
-        buttons.addButton(folder_button, QDialogButtonBox.ActionRole)
-        close = buttons.addButton(QDialogButtonBox.Close)
+        buttons.addButton(self.copy_button, QDialogButtonBox.ButtonRole.ActionRole)
+        buttons.addButton(self.show_button, QDialogButtonBox.ButtonRole.ActionRole)
+        buttons.addButton(folder_button, QDialogButtonBox.ButtonRole.ActionRole)
+        close = buttons.addButton(QDialogButtonBox.StandardButton.Close)
         close.setToolTip("Close this message; lfstudio keeps running")
         buttons.rejected.connect(self.reject)
 

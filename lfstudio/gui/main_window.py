@@ -32,8 +32,8 @@ from lfstudio.scan.events import ScanState
 log = logging.getLogger(__name__)
 
 MENU_ORDER = ("File", "View", "Rig", "Dataset", "Help")
-_AREAS = {"left": Qt.LeftDockWidgetArea, "right": Qt.RightDockWidgetArea,
-          "bottom": Qt.BottomDockWidgetArea, "top": Qt.TopDockWidgetArea}
+_AREAS = {"left": Qt.DockWidgetArea.LeftDockWidgetArea, "right": Qt.DockWidgetArea.RightDockWidgetArea,
+          "bottom": Qt.DockWidgetArea.BottomDockWidgetArea, "top": Qt.DockWidgetArea.TopDockWidgetArea}
 
 
 #: the first window's size, when the screen has room for it (else the screen's free room)
@@ -75,7 +75,7 @@ class PanelScrollArea(QScrollArea):
     def __init__(self, panel: QWidget, parent: QWidget | None = None):
         super().__init__(parent)
         self.setObjectName(f"{panel.objectName() or type(panel).__name__}Scroll")
-        self.setFrameShape(QFrame.NoFrame)
+        self.setFrameShape(QFrame.Shape.NoFrame)
         self.setWidgetResizable(False)
         self.setWidget(panel)
         panel.installEventFilter(self)          # its minimum size may change (rows shown or hidden)
@@ -112,7 +112,7 @@ class PanelScrollArea(QScrollArea):
         self.fit_panel()
 
     def eventFilter(self, obj, event) -> bool:
-        if obj is self.widget() and event.type() == QEvent.LayoutRequest:
+        if obj is self.widget() and event.type() == QEvent.Type.LayoutRequest:
             QTimer.singleShot(0, self.fit_panel)   # after the panel's layout has its new minimum
         return super().eventFilter(obj, event)
 
@@ -135,8 +135,8 @@ class MainWindow(QMainWindow):
         self.setObjectName("MainWindow")
         self.setDockNestingEnabled(True)
         # side panels run the full height; a bottom dock (plots) sits under the central view only
-        self.setCorner(Qt.BottomLeftCorner, Qt.LeftDockWidgetArea)
-        self.setCorner(Qt.BottomRightCorner, Qt.RightDockWidgetArea)
+        self.setCorner(Qt.Corner.BottomLeftCorner, Qt.DockWidgetArea.LeftDockWidgetArea)
+        self.setCorner(Qt.Corner.BottomRightCorner, Qt.DockWidgetArea.RightDockWidgetArea)
         self.resize(DEFAULT_SIZE)
         self._fit_on_show = False
         self._check_restored_on_show = False
@@ -196,8 +196,8 @@ class MainWindow(QMainWindow):
         dock = QDockWidget(spec.title, self)
         dock.setObjectName(spec.object_name)
         dock.setWidget(PanelScrollArea(widget))
-        dock.setFeatures(QDockWidget.DockWidgetMovable | QDockWidget.DockWidgetFloatable
-                         | QDockWidget.DockWidgetClosable)
+        dock.setFeatures(QDockWidget.DockWidgetFeature.DockWidgetMovable | QDockWidget.DockWidgetFeature.DockWidgetFloatable
+                         | QDockWidget.DockWidgetFeature.DockWidgetClosable)
         self.panels[spec.object_name] = widget
         self.docks[spec.object_name] = dock
         self._place_dock(spec, dock)
@@ -206,7 +206,7 @@ class MainWindow(QMainWindow):
     def _place_dock(self, spec: PanelSpec, dock: QDockWidget) -> None:
         """Put ``dock`` where the default layout has it (its area, a tab behind ``spec.tab_with``)."""
         dock.setFloating(False)
-        self.addDockWidget(_AREAS.get(spec.area, Qt.LeftDockWidgetArea), dock)
+        self.addDockWidget(_AREAS.get(spec.area, Qt.DockWidgetArea.LeftDockWidgetArea), dock)
         first = self.docks.get(spec.tab_with)
         if first is not None:           # a tab behind an earlier panel: both keep the full height
             self.tabifyDockWidget(first, dock)
@@ -257,13 +257,13 @@ class MainWindow(QMainWindow):
             for dock in area_docks:
                 docks.append(dock)
                 sizes.append(max(PanelScrollArea.MIN_WIDTH_PX, int(need * scale)))
-        self.resizeDocks(docks, sizes, Qt.Horizontal)
+        self.resizeDocks(docks, sizes, Qt.Orientation.Horizontal)
         self.hide_stale_tab_bars()
         self.docks_fitted += 1
 
     def dock_tab_bars(self) -> list[QTabBar]:
         """The tab bars of tabbed docks (the main window's own children; a panel's tabs are not)."""
-        return self.findChildren(QTabBar, options=Qt.FindDirectChildrenOnly)
+        return self.findChildren(QTabBar, options=Qt.FindChildOption.FindDirectChildrenOnly)
 
     def tab_bar_in_place(self, bar: QTabBar) -> bool:
         """Whether ``bar`` sits against the dock whose tab is current (below it, or above it), as wide."""
@@ -305,7 +305,7 @@ class MainWindow(QMainWindow):
             scroll = dock.widget()
             if not dock.isFloating() and dock.isVisible() and isinstance(scroll, PanelScrollArea) \
                     and scroll.widget() is not None \
-                    and self.dockWidgetArea(dock) in (Qt.LeftDockWidgetArea, Qt.RightDockWidgetArea):
+                    and self.dockWidgetArea(dock) in (Qt.DockWidgetArea.LeftDockWidgetArea, Qt.DockWidgetArea.RightDockWidgetArea):
                 yield dock, scroll
 
     def _install_base_menus(self) -> None:
@@ -320,7 +320,7 @@ class MainWindow(QMainWindow):
         prefs.triggered.connect(self.open_settings)
         file_menu.addAction(prefs)
         quit_action = QAction("&Quit", self)
-        quit_action.setShortcut(QKeySequence.Quit)
+        quit_action.setShortcut(QKeySequence.StandardKey.Quit)
         quit_action.setToolTip("Close lfstudio")
         quit_action.triggered.connect(self.close)
         file_menu.addAction(quit_action)
@@ -339,7 +339,7 @@ class MainWindow(QMainWindow):
         help_menu = self.menu("Help")
         guide = QAction("&User guide", self)
         guide.setObjectName("actionUserGuide")
-        guide.setShortcut(QKeySequence.HelpContents)
+        guide.setShortcut(QKeySequence.StandardKey.HelpContents)
         guide.setToolTip("Read the user guide (planning, rig, cameras, scanning, calibration, processing)")
         guide.triggered.connect(self.show_user_guide)
         logs = QAction("Show &log folder", self)
@@ -361,7 +361,7 @@ class MainWindow(QMainWindow):
         action = getattr(self.panels.get("rigDock"), "stop_action", None)
         if action is None:          # no Rig panel: stop the connected rig directly
             action = QAction("&STOP all motion", self)
-            action.setShortcut(QKeySequence(Qt.Key_Escape))
+            action.setShortcut(QKeySequence(Qt.Key.Key_Escape))
             action.triggered.connect(self.stop_rig)
             self.addAction(action)
         action.setIconText("STOP (Esc)")
@@ -370,7 +370,7 @@ class MainWindow(QMainWindow):
         bar.setObjectName("stopToolBar")
         bar.setMovable(False)
         bar.setFloatable(False)
-        bar.setContextMenuPolicy(Qt.PreventContextMenu)
+        bar.setContextMenuPolicy(Qt.ContextMenuPolicy.PreventContextMenu)
         bar.toggleViewAction().setVisible(False)       # not in the toolbar/dock context menu either
         bar.addAction(action)
         self.stop_button = bar.widgetForAction(action)
@@ -386,7 +386,7 @@ class MainWindow(QMainWindow):
         self.scan_lock_label.setObjectName("scanLockLabel")
         self.scan_lock_label.setContentsMargins(12, 0, 12, 0)
         bar.addWidget(self.scan_lock_label)
-        self.addToolBar(Qt.TopToolBarArea, bar)
+        self.addToolBar(Qt.ToolBarArea.TopToolBarArea, bar)
         self.stop_toolbar = bar
 
     def show_rig_panel(self) -> None:
@@ -499,7 +499,7 @@ class MainWindow(QMainWindow):
 
     def show_error(self, title: str, message: str) -> None:
         self.statusBar().showMessage(f"{title}: {message.splitlines()[0] if message else ''}", 10000)
-        box = QMessageBox(QMessageBox.Warning, title, message, QMessageBox.Ok, self)
+        box = QMessageBox(QMessageBox.Icon.Warning, title, message, QMessageBox.StandardButton.Ok, self)
         box.setObjectName("errorBox")
         box.open()  # non-modal: never blocks the event loop
 
@@ -545,15 +545,15 @@ class MainWindow(QMainWindow):
             return box
         dataset = self.state.dataset
         folder = str(dataset.root) if dataset is not None else "the dataset folder"
-        box = QMessageBox(QMessageBox.Warning, "Quit during a scan", self._quit_question(),
-                          QMessageBox.NoButton, self)
+        box = QMessageBox(QMessageBox.Icon.Warning, "Quit during a scan", self._quit_question(),
+                          QMessageBox.StandardButton.NoButton, self)
         box.setObjectName("quitDuringScanBox")
         box.setInformativeText(
             "If you quit now, the scan stops after the current view. Everything captured stays in "
             f"{folder} and can be resumed: lfstudio offers it at its next start (or put this folder in the "
             "Scan panel's Folder field and press Start).")
-        stop = box.addButton("Stop the scan and quit", QMessageBox.DestructiveRole)
-        keep = box.addButton("Cancel: keep scanning", QMessageBox.RejectRole)
+        stop = box.addButton("Stop the scan and quit", QMessageBox.ButtonRole.DestructiveRole)
+        keep = box.addButton("Cancel: keep scanning", QMessageBox.ButtonRole.RejectRole)
         stop.setObjectName("stopAndQuitButton")
         keep.setObjectName("keepScanningButton")
         box.setDefaultButton(keep)

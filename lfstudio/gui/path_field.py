@@ -47,15 +47,15 @@ def offer_sub_folder(parent: QWidget, folder: Path, *, stem: str, verb: str, whe
     ``where`` the field to change instead. The box (object name ``folderNotEmptyBox``) is returned."""
     sub = new_sub_folder(folder, stem)
     problem = new_dataset_folder_problem(folder)
-    box = QMessageBox(QMessageBox.Warning, "Folder is not empty",
+    box = QMessageBox(QMessageBox.Icon.Warning, "Folder is not empty",
                       f"{problem}.\n\n{verb} into the new folder {sub} instead, or choose an empty folder "
-                      f"({where}).", QMessageBox.Yes | QMessageBox.Cancel, parent)
+                      f"({where}).", QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.Cancel, parent)
     box.setObjectName("folderNotEmptyBox")
-    box.button(QMessageBox.Yes).setText(f"{verb} into {sub.name}")
-    box.setDefaultButton(QMessageBox.Cancel)
+    box.button(QMessageBox.StandardButton.Yes).setText(f"{verb} into {sub.name}")
+    box.setDefaultButton(QMessageBox.StandardButton.Cancel)
 
     def answered(button) -> None:
-        if box.standardButton(button) == QMessageBox.Yes:
+        if box.standardButton(button) == QMessageBox.StandardButton.Yes:
             accepted(sub)
     box.buttonClicked.connect(answered)
     box.open()

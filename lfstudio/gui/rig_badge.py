@@ -60,7 +60,7 @@ class RigBadge(QToolButton):
         self.state = state
         self.setObjectName("rigBadge")
         self.setAutoRaise(True)
-        self.setFocusPolicy(Qt.NoFocus)
+        self.setFocusPolicy(Qt.FocusPolicy.NoFocus)
         self._device: Any = None
         self._status: Any = None
         self._homing = False

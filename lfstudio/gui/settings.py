@@ -11,4 +11,4 @@ def settings() -> QSettings:
     """The app's settings file; ``$LFSTUDIO_CONFIG_DIR`` moves it (tests point it into tmp_path)."""
     path = user_config_dir() / "lfstudio.ini"
     path.parent.mkdir(parents=True, exist_ok=True)
-    return QSettings(str(path), QSettings.IniFormat)
+    return QSettings(str(path), QSettings.Format.IniFormat)

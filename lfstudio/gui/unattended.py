@@ -99,7 +99,7 @@ class UnattendedBox(QGroupBox):
         self.smtp.setToolTip("smtp:// (STARTTLS, 587), smtps:// (SSL, 465) or smtp+plain:// (a local relay)")
         self.smtp_password = QLineEdit(str(_value("smtp_password", "") or ""))
         self.smtp_password.setObjectName("smtpPassword")
-        self.smtp_password.setEchoMode(QLineEdit.Password)
+        self.smtp_password.setEchoMode(QLineEdit.EchoMode.Password)
         self.smtp_password.setPlaceholderText("password")
         self.smtp_password.setToolTip("Stored in lfstudio's settings file (readable by you only); never logged")
         smtp_row = QHBoxLayout()
@@ -117,7 +117,7 @@ class UnattendedBox(QGroupBox):
                                 "needs a token")
         self.token = QLineEdit(str(_value("status_token", "") or ""))
         self.token.setObjectName("statusToken")
-        self.token.setEchoMode(QLineEdit.Password)
+        self.token.setEchoMode(QLineEdit.EchoMode.Password)
         self.token.setPlaceholderText("token (optional)")
         self.token.setToolTip("Every request must carry it (?token=…) when the page listens for other computers; "
                               "empty: a new one is made for each scan and shown once in the Scan panel's log")

@@ -79,7 +79,7 @@ def elide_to_width(text: str, metrics, width_px: int, lines: int = 1) -> tuple[s
     room = width_px - 2
     if metrics.horizontalAdvance(plain) <= room:
         return text, ""
-    return metrics.elidedText(plain, Qt.ElideRight, room), plain
+    return metrics.elidedText(plain, Qt.TextElideMode.ElideRight, room), plain
 
 
 class ElidedLabel(QLabel):
@@ -90,7 +90,7 @@ class ElidedLabel(QLabel):
         super().__init__(parent)
         self._full = ""
         self.setMinimumWidth(8)
-        self.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)
+        self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
         self.setText(text)
 
     def setText(self, text: str) -> None:   # noqa: N802 (QLabel's name)
@@ -114,7 +114,7 @@ class WholeOrNothingLabel(QLabel):
     def __init__(self, text: str = "", parent: QWidget | None = None):
         super().__init__(text, parent)
         self.setMinimumWidth(0)
-        self.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)
+        self.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
 
     def is_whole(self) -> bool:
         return self.contentsRect().width() >= super().sizeHint().width() - 2 * self.margin()
@@ -227,14 +227,14 @@ class QuietLabel(QWidget):
             self.setObjectName(f"{name}Line")
         self._full, self._lines = text, lines
         self.label.setWordWrap(lines > 1)
-        self.label.setAlignment(Qt.AlignLeft | Qt.AlignTop if lines > 1 else Qt.AlignLeft | Qt.AlignVCenter)
+        self.label.setAlignment(Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop if lines > 1 else Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignVCenter)
         metrics = self.label.fontMetrics()
         height = lines * metrics.lineSpacing() + (4 if lines > 1 else 2)
         self._hint = QSize(max(min_width_px, metrics.horizontalAdvance(text if hint_text is None else hint_text)),
                            height)
         self.setFixedHeight(height)
         self.setMinimumWidth(min_width_px)
-        self.setSizePolicy(QSizePolicy.Preferred, QSizePolicy.Fixed)
+        self.setSizePolicy(QSizePolicy.Policy.Preferred, QSizePolicy.Policy.Fixed)
 
     def setText(self, text: str) -> None:   # noqa: N802 (QLabel's name)
         if not self.every_ms:
@@ -275,7 +275,7 @@ def confirm_cancel_running(parent: QWidget, runner, title: str, question: str) -
     ``question`` and the job has been asked to cancel."""
     if not runner.running:
         return True
-    if QMessageBox.question(parent, title, question) != QMessageBox.Yes:
+    if QMessageBox.question(parent, title, question) != QMessageBox.StandardButton.Yes:
         return False
     runner.cancel()
     return True
@@ -377,7 +377,7 @@ class GridPicker(QWidget):
         self.toggle_on_click = True
         self.base_tooltip = tooltip
         self.setMinimumSize(300, 120)
-        self.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Expanding)
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
         self.setToolTip(tooltip)
         self.setMouseTracking(True)
 

@@ -378,7 +378,7 @@ class CalibrationWizard(QDialog):
         self.uncertainty_label = QLabel()
         self.uncertainty_label.setObjectName("uncertaintyLabel")
         self.uncertainty_label.setWordWrap(True)
-        self.uncertainty_label.setTextInteractionFlags(Qt.TextSelectableByMouse)
+        self.uncertainty_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.uncertainty_label.setToolTip("Measured: the fit's covariance with every view's position error in the "
                                           "model and the residuals' observed spread; 1σ covers the truth 68 % of "
                                           "the time, 2σ 95 % (checked by lfstudio simulate-calibration)")
@@ -388,7 +388,7 @@ class CalibrationWizard(QDialog):
         self.report_text = QPlainTextEdit()
         self.report_text.setReadOnly(True)
         self.report_text.setFont(QFont("monospace"))
-        self.report_text.setLineWrapMode(QPlainTextEdit.WidgetWidth)    # long warnings wrap, never cut off
+        self.report_text.setLineWrapMode(QPlainTextEdit.LineWrapMode.WidgetWidth)    # long warnings wrap, never cut off
         self.tabs.addTab(self.report_text, "Numbers")
 
         res = QWidget()
@@ -451,11 +451,11 @@ class CalibrationWizard(QDialog):
         self.epi_row.setToolTip("Grid row whose views form the horizontal EPI")
         self.epi_column = QSpinBox()
         self.epi_column.setToolTip("Grid column whose views form the vertical EPI")
-        self.epi_y = QSlider(Qt.Horizontal)
+        self.epi_y = QSlider(Qt.Orientation.Horizontal)
         self.epi_y.setRange(0, 100)
         self.epi_y.setValue(50)
         self.epi_y.setToolTip("Image row of the horizontal EPI (0 = top, 100 = bottom)")
-        self.epi_x = QSlider(Qt.Horizontal)
+        self.epi_x = QSlider(Qt.Orientation.Horizontal)
         self.epi_x.setRange(0, 100)
         self.epi_x.setValue(50)
         self.epi_x.setToolTip("Image column of the vertical EPI (0 = left, 100 = right)")

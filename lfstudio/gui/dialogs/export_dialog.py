@@ -282,9 +282,9 @@ class ExportDialog(QDialog):
         for i in range(self.options_stack.count()):      # one-row pages at the top of the two rows' room
             page = self.options_stack.widget(i)
             if isinstance(page, QLabel):
-                page.setAlignment(Qt.AlignLeft | Qt.AlignTop)
+                page.setAlignment(Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop)
             elif isinstance(page.layout(), QHBoxLayout):
-                page.layout().setAlignment(Qt.AlignTop)
+                page.layout().setAlignment(Qt.AlignmentFlag.AlignTop)
         form.addRow("Options:", self.options_stack)
         self._options_form = form
 
@@ -357,7 +357,7 @@ class ExportDialog(QDialog):
                                   ".hevc)")
         self.path_label = QLabel()
         self.path_label.setObjectName("pathLabel")
-        self.path_label.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)   # a long path is clipped
+        self.path_label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)   # a long path is clipped
         form.addRow("Folder:", row)
         form.addRow("Name:", self.name_edit)
         form.addRow("", self.path_label)
@@ -398,17 +398,17 @@ class ExportDialog(QDialog):
         lines = self.fontMetrics().lineSpacing()
         for label in (self.estimate_label, self.warnings_label, self.result_label):
             label.setMinimumHeight(2 * lines + 4)
-            label.setAlignment(Qt.AlignLeft | Qt.AlignTop)
+            label.setAlignment(Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop)
         self.result_label.setMinimumHeight(3 * lines + 4)      # a report beside the buttons takes up to 3 lines
         self.warnings_area = QScrollArea()           # however many warnings: the same room (scrolls)
         self.warnings_area.setObjectName("warningsArea")
         self.warnings_area.setWidget(self.warnings_label)
         self.warnings_area.setWidgetResizable(True)
-        self.warnings_area.setFrameShape(QFrame.NoFrame)
-        self.warnings_area.setHorizontalScrollBarPolicy(Qt.ScrollBarAlwaysOff)
+        self.warnings_area.setFrameShape(QFrame.Shape.NoFrame)
+        self.warnings_area.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
         self.warnings_area.setFixedHeight(3 * lines + 6)
         self.format_info.setMinimumHeight(3 * lines + 4)          # the longest (HCI) is 3 lines wide
-        self.format_info.setAlignment(Qt.AlignLeft | Qt.AlignTop)
+        self.format_info.setAlignment(Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop)
         lay = QVBoxLayout(area)
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addWidget(self.estimate_label)
@@ -618,11 +618,11 @@ class ExportDialog(QDialog):
         if existing:
             self._pending_options = options
             names = "\n".join(str(p) for p in existing)
-            box = QMessageBox(QMessageBox.Question, "Replace the existing export?",
+            box = QMessageBox(QMessageBox.Icon.Question, "Replace the existing export?",
                               f"Already there:\n{names}\n\nReplace with this export? The old files are deleted "
-                              "only when the new export is complete.", QMessageBox.Yes | QMessageBox.No, self)
+                              "only when the new export is complete.", QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No, self)
             box.setObjectName("overwriteBox")
-            box.setDefaultButton(QMessageBox.No)
+            box.setDefaultButton(QMessageBox.StandardButton.No)
             box.finished.connect(lambda result, b=box: self._overwrite_answer(b, result))
             self.overwrite_box = box
             box.open()                      # window-modal, never blocks the event loop
@@ -635,7 +635,7 @@ class ExportDialog(QDialog):
         self.overwrite_box = None
         if options is None:
             return
-        if result == QMessageBox.Yes:
+        if result == QMessageBox.StandardButton.Yes:
             options.overwrite = True
             self._run(options)
         else:

@@ -21,31 +21,31 @@ class AboutDialog(QDialog):
         super().__init__(parent)
         self.setObjectName("aboutDialog")
         self.setWindowTitle("About lfstudio")
-        self.setAttribute(Qt.WA_DeleteOnClose)
+        self.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
         icon = QLabel()
         icon.setPixmap(app_icon().pixmap(96, 96))
         title = QLabel(f"<h2>lfstudio {__version__}</h2><p>Dense light-field acquisition with a two-axis "
                        "camera gantry: plan, capture, self-calibrate, process and export.</p>")
         title.setWordWrap(True)
         head = QHBoxLayout()
-        head.addWidget(icon, 0, Qt.AlignTop)
+        head.addWidget(icon, 0, Qt.AlignmentFlag.AlignTop)
         head.addWidget(title, 1)
 
         self.table = QTableWidget(0, 2)
         self.table.setObjectName("versionsTable")
         self.table.setHorizontalHeaderLabels(["Component", "Version"])
         self.table.verticalHeader().setVisible(False)
-        self.table.horizontalHeader().setSectionResizeMode(0, QHeaderView.ResizeToContents)
+        self.table.horizontalHeader().setSectionResizeMode(0, QHeaderView.ResizeMode.ResizeToContents)
         self.table.horizontalHeader().setStretchLastSection(True)
-        self.table.setEditTriggers(QAbstractItemView.NoEditTriggers)
+        self.table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
         self.table.setToolTip("The versions of lfstudio and the libraries it uses (include them in bug reports)")
         self.status = QLabel("Reading component versions…")
 
-        buttons = QDialogButtonBox(QDialogButtonBox.Close)
+        buttons = QDialogButtonBox(QDialogButtonBox.StandardButton.Close)
         self.copy_button = QPushButton("&Copy versions")
         self.copy_button.setToolTip("Copy this list to the clipboard (for a bug report)")
         self.copy_button.clicked.connect(self.copy_versions)
-        buttons.addButton(self.copy_button, QDialogButtonBox.ActionRole)
+        buttons.addButton(self.copy_button, QDialogButtonBox.ButtonRole.ActionRole)
         buttons.rejected.connect(self.reject)
 
         lay = QVBoxLayout(self)
@@ -86,11 +86,11 @@ class UserGuideDialog(QDialog):
 
         self.setObjectName("userGuideDialog")
         self.setWindowTitle("lfstudio user guide")
-        self.setAttribute(Qt.WA_DeleteOnClose)
+        self.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
         self.browser = QTextBrowser()
         self.browser.setObjectName("userGuideBrowser")
         self.browser.setOpenExternalLinks(True)
-        self.browser.setWordWrapMode(QTextOption.WrapAtWordBoundaryOrAnywhere)   # a long path breaks too
+        self.browser.setWordWrapMode(QTextOption.WrapMode.WrapAtWordBoundaryOrAnywhere)   # a long path breaks too
         self._image_sizes: dict[str, tuple[int, int]] = {}     # a picture's (width, height) by name
         self.browser.viewport().installEventFilter(self)
         readme = readme_path()
@@ -99,7 +99,7 @@ class UserGuideDialog(QDialog):
         self.browser.setMarkdown(user_guide_markdown())
         self._wrap_code_blocks()
         self.fit_images(760)
-        buttons = QDialogButtonBox(QDialogButtonBox.Close)
+        buttons = QDialogButtonBox(QDialogButtonBox.StandardButton.Close)
         buttons.rejected.connect(self.reject)
         lay = QVBoxLayout(self)
         lay.addWidget(self.browser, 1)
@@ -121,7 +121,7 @@ class UserGuideDialog(QDialog):
             block = block.next()
 
     def eventFilter(self, watched, event) -> bool:
-        if watched is self.browser.viewport() and event.type() == QEvent.Resize:
+        if watched is self.browser.viewport() and event.type() == QEvent.Type.Resize:
             margin = int(self.browser.document().documentMargin())
             self.fit_images(min(760, max(120, event.size().width() - 2 * margin - 8)))   # pictures fit the page
         return super().eventFilter(watched, event)
@@ -144,7 +144,7 @@ class UserGuideDialog(QDialog):
                     img = fmt.toImageFormat()
                     size = self._image_sizes.get(img.name())
                     if size is None:            # read and decoded once, not at every resize
-                        data = self.browser.loadResource(QTextDocument.ImageResource, QUrl(img.name()))
+                        data = self.browser.loadResource(QTextDocument.ResourceType.ImageResource, QUrl(img.name()))
                         image = QImage.fromData(data) if data is not None else QImage()
                         size = self._image_sizes[img.name()] = (image.width(), image.height())
                     width, height = size
@@ -155,7 +155,7 @@ class UserGuideDialog(QDialog):
                         img.setHeight(height * wanted / width)
                         cursor = QTextCursor(doc)
                         cursor.setPosition(frag.position())
-                        cursor.setPosition(frag.position() + frag.length(), QTextCursor.KeepAnchor)
+                        cursor.setPosition(frag.position() + frag.length(), QTextCursor.MoveMode.KeepAnchor)
                         cursor.setCharFormat(img)
                         scaled += 1
                 it += 1

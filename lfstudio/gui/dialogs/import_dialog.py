@@ -92,7 +92,7 @@ class _ImportDialogBase(QDialog):
         self.message = QLabel("")
         self.message.setObjectName("importMessage")
         self.message.setWordWrap(True)
-        self.message.setTextInteractionFlags(Qt.TextSelectableByMouse)
+        self.message.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.import_button.clicked.connect(self.start_import)
         self.runner.finished.connect(self._done)
         self.runner.failed.connect(self._failed)
@@ -114,7 +114,7 @@ class _ImportDialogBase(QDialog):
     def _browse_out(self) -> None:
         start = self.out_edit.text() or str(settings().value("datasets/last_dir", ""))
         path, _ = QFileDialog.getSaveFileName(self, "New dataset folder", start, "Dataset folder (*)",
-                                              options=QFileDialog.ShowDirsOnly | QFileDialog.DontConfirmOverwrite)
+                                              options=QFileDialog.Option.ShowDirsOnly | QFileDialog.Option.DontConfirmOverwrite)
         if path:
             self.out_edit.setText(path)
 
@@ -168,13 +168,13 @@ class _ImportDialogBase(QDialog):
         self.start_import()
 
     def _ask_overwrite(self, out: Path) -> None:
-        box = QMessageBox(QMessageBox.Question, "Replace dataset?",
+        box = QMessageBox(QMessageBox.Icon.Question, "Replace dataset?",
                           f"{out} already holds a dataset.\n\nReplace it with the imported dataset? The whole "
                           "dataset there is deleted when the import has finished.",
-                          QMessageBox.Yes | QMessageBox.Cancel, self)
+                          QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.Cancel, self)
         box.setObjectName("confirmOverwrite")
-        box.setDefaultButton(QMessageBox.Cancel)
-        box.finished.connect(lambda result: self._overwrite_answer(result == QMessageBox.Yes))
+        box.setDefaultButton(QMessageBox.StandardButton.Cancel)
+        box.finished.connect(lambda result: self._overwrite_answer(result == QMessageBox.StandardButton.Yes))
         self._confirm = box
         box.open()   # non-modal: the event loop keeps running
 
@@ -348,7 +348,7 @@ class ImportImagesDialog(_ImportDialogBase):
         self.import_button.setToolTip("Build the dataset (files are checked first; nothing is left on Cancel)")
 
         form = QFormLayout()
-        form.setFieldGrowthPolicy(QFormLayout.AllNonFixedFieldsGrow)
+        form.setFieldGrowthPolicy(QFormLayout.FieldGrowthPolicy.AllNonFixedFieldsGrow)
         form.addRow("Image folder", _path_row(self.folder_edit, self.folder_button))
         form.addRow("Files (pattern)", self.pattern_edit)
         form.addRow("", self.count_label)
@@ -512,7 +512,7 @@ class ImportHevcDialog(_ImportDialogBase):
         self.file_button.clicked.connect(self._browse_file)
         self.import_button.setToolTip("Decode every frame into a new dataset of 16-bit PNG views")
         form = QFormLayout()
-        form.setFieldGrowthPolicy(QFormLayout.AllNonFixedFieldsGrow)
+        form.setFieldGrowthPolicy(QFormLayout.FieldGrowthPolicy.AllNonFixedFieldsGrow)
         form.addRow("HEVC file", _path_row(self.file_edit, self.file_button))
         form.addRow("Destination", _path_row(self.out_edit, self.out_button))
         self._lay_out(form)

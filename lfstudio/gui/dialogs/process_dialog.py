@@ -83,7 +83,7 @@ class SplitView(QWidget):
         self.pick_mode: str | None = None
         self.marks: dict[str, tuple[float, float]] = {}
         self.setMinimumSize(420, 300)
-        self.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Expanding)
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
         self.setMouseTracking(True)
         self.setToolTip("Left: capture, right: processed. Drag to move the divider.")
 
@@ -110,7 +110,7 @@ class SplitView(QWidget):
         p.fillRect(self.rect(), QColor(32, 32, 32))
         if self.after is None:
             p.setPen(QColor(200, 200, 200))
-            p.drawText(self.rect(), Qt.AlignCenter, "Preview: choose a view and press Update preview")
+            p.drawText(self.rect(), Qt.AlignmentFlag.AlignCenter, "Preview: choose a view and press Update preview")
             return
         r = self.image_rect()
         split = 1.0 if self.pick_mode else self.split
@@ -126,10 +126,10 @@ class SplitView(QWidget):
         p.setPen(QPen(QColor(255, 210, 0), 2))
         if not self.pick_mode:
             p.drawLine(QPointF(sx, r.y()), QPointF(sx, r.bottom()))
-            p.drawText(QRectF(r.x() + 6, r.y() + 4, 200, 20), Qt.AlignLeft, "capture")
-            p.drawText(QRectF(r.right() - 206, r.y() + 4, 200, 20), Qt.AlignRight, "processed")
+            p.drawText(QRectF(r.x() + 6, r.y() + 4, 200, 20), Qt.AlignmentFlag.AlignLeft, "capture")
+            p.drawText(QRectF(r.right() - 206, r.y() + 4, 200, 20), Qt.AlignmentFlag.AlignRight, "processed")
         else:
-            p.drawText(QRectF(r.x() + 6, r.y() + 4, 400, 20), Qt.AlignLeft, f"click the {self.pick_mode} patch")
+            p.drawText(QRectF(r.x() + 6, r.y() + 4, 400, 20), Qt.AlignmentFlag.AlignLeft, f"click the {self.pick_mode} patch")
         s = r.width() / self.after.width()
         for name, (x, y) in self.marks.items():
             c = QPointF(r.x() + (x + 0.5) * s, r.y() + (y + 0.5) * s)
@@ -147,7 +147,7 @@ class SplitView(QWidget):
         self._drag(pos)
 
     def mouseMoveEvent(self, event) -> None:
-        if event.buttons() & Qt.LeftButton and not self.pick_mode:
+        if event.buttons() & Qt.MouseButton.LeftButton and not self.pick_mode:
             self._drag(event.position())
 
     def _drag(self, pos: QPointF) -> None:
@@ -167,7 +167,7 @@ class StepEditor(QGroupBox):
         self.fields: dict[str, QWidget] = {}
         form = QFormLayout(self)
         self.form = form
-        form.setFieldGrowthPolicy(QFormLayout.AllNonFixedFieldsGrow)
+        form.setFieldGrowthPolicy(QFormLayout.FieldGrowthPolicy.AllNonFixedFieldsGrow)
         for f in dataclasses.fields(step):
             value = getattr(step, f.name)
             if f.name == "enabled":
@@ -424,8 +424,8 @@ class ProcessDialog(QDialog):
         run_bar.addWidget(self.cluster_edit, 1)
         run_bar.addWidget(self.force_check)
         run_bar.addWidget(self.process_button)
-        close_box = QDialogButtonBox(QDialogButtonBox.Close)
-        self.close_button = close_box.button(QDialogButtonBox.Close)
+        close_box = QDialogButtonBox(QDialogButtonBox.StandardButton.Close)
+        self.close_button = close_box.button(QDialogButtonBox.StandardButton.Close)
         self.close_button.setToolTip("Close the dialog (while processing runs, asks whether to cancel it)")
         close_box.rejected.connect(self.reject)
         run_bar.addWidget(close_box)

@@ -70,8 +70,8 @@ class SettingsDialog(QDialog):
         self.problem.setStyleSheet("color: #e06060")
         self.problem.hide()
 
-        buttons = QDialogButtonBox(QDialogButtonBox.Ok | QDialogButtonBox.Cancel)
-        buttons.button(QDialogButtonBox.Ok).setToolTip("Store these settings and apply them to the open panels")
+        buttons = QDialogButtonBox(QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel)
+        buttons.button(QDialogButtonBox.StandardButton.Ok).setToolTip("Store these settings and apply them to the open panels")
         buttons.accepted.connect(self.accept)
         buttons.rejected.connect(self.reject)
         lay = QVBoxLayout(self)

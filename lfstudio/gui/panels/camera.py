@@ -119,7 +119,7 @@ class CameraPanel(QWidget):
         self.sim_time_scale.setToolTip("Simulated exposure/transfer delays: 1 = real time, 0 = none")
         self.sim_truth = QLabel("")
         self.sim_truth.setWordWrap(True)
-        self.sim_truth.setTextInteractionFlags(Qt.TextSelectableByMouse)
+        self.sim_truth.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         sim_page = QWidget()
         f = QFormLayout(sim_page)
         f.setContentsMargins(0, 0, 0, 0)
@@ -216,7 +216,7 @@ class CameraPanel(QWidget):
         self.shot_button.clicked.connect(self.take_test_shot)
         self.shot_label = QLabel("")
         self.shot_label.setWordWrap(True)
-        self.shot_label.setTextInteractionFlags(Qt.TextSelectableByMouse)
+        self.shot_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
 
         layout = QVBoxLayout(self)
         top = QFormLayout()
@@ -272,7 +272,7 @@ class CameraPanel(QWidget):
         current = self.kind.currentIndex()
         self.pages.setCurrentIndex(current)
         for i in range(self.pages.count()):       # the stack takes the height of the shown page only
-            policy = QSizePolicy.Preferred if i == current else QSizePolicy.Ignored
+            policy = QSizePolicy.Policy.Preferred if i == current else QSizePolicy.Policy.Ignored
             self.pages.widget(i).setSizePolicy(policy, policy)
         self.pages.adjustSize()
         settings().setValue(self.kind_key, self.current_kind())

@@ -138,8 +138,8 @@ def _tint(box: QAbstractSpinBox, mark: str) -> None:
     palette = QPalette(QApplication.palette(box))
     if mark:
         base, text = _TINTS[mark]
-        palette.setColor(QPalette.Base, QColor(base))
-        palette.setColor(QPalette.Text, QColor(text))
+        palette.setColor(QPalette.ColorRole.Base, QColor(base))
+        palette.setColor(QPalette.ColorRole.Text, QColor(text))
     box.setPalette(palette)
     box.lineEdit().setPalette(palette)
 
@@ -238,8 +238,8 @@ class PlannerPanel(QWidget):
         scroll = QScrollArea()
         scroll.setObjectName("plannerScroll")
         scroll.setWidgetResizable(True)
-        scroll.setFrameShape(QFrame.NoFrame)
-        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarAlwaysOff)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
         scroll.setWidget(body)
         outer.addWidget(scroll, 1)
         self.setMinimumWidth(430)
@@ -291,7 +291,7 @@ class PlannerPanel(QWidget):
             else:
                 grid.addWidget(spins[0], r, 1)
                 times = QLabel("×")
-                times.setAlignment(Qt.AlignCenter)
+                times.setAlignment(Qt.AlignmentFlag.AlignCenter)
                 grid.addWidget(times, r, 2)
                 grid.addWidget(spins[1], r, 3)
             message = self._message_label()
@@ -324,7 +324,7 @@ class PlannerPanel(QWidget):
         label = QLabel("")
         label.setWordWrap(True)
         label.setVisible(False)
-        label.setTextInteractionFlags(Qt.TextSelectableByMouse)
+        label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         return label
 
     def _spins(self, spec: _Input) -> list[QAbstractSpinBox]:
@@ -345,7 +345,7 @@ class PlannerPanel(QWidget):
             box.setKeyboardTracking(True)
             box.setAccelerated(True)
             box.setMinimumWidth(96)
-            box.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Fixed)
+            box.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
             axis = ("horizontal", "vertical")[i] if count == 2 else ""
             if spec.key in ("sensor_px", "sensor_mm"):
                 axis = ("width", "height")[i]
@@ -393,7 +393,7 @@ class PlannerPanel(QWidget):
             value.setObjectName(f"out_{key}")
             value.setProperty("role", "value")
             value.setToolTip(tip)
-            value.setTextInteractionFlags(Qt.TextSelectableByMouse)
+            value.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
             grid.addWidget(name, i, 0)
             grid.addWidget(value, i, 1)
             self.outputs[key] = value
@@ -737,7 +737,7 @@ class PlannerPanel(QWidget):
         menu.addSeparator()
         plots = getattr(window, "docks", {}).get("planPlotsDock")
         if plots is not None:       # first start: give the plots room (a saved layout overrides this)
-            window.resizeDocks([plots], [560], Qt.Vertical)
+            window.resizeDocks([plots], [560], Qt.Orientation.Vertical)
 
     def shutdown(self) -> None:
         self._timer.stop()
@@ -793,7 +793,7 @@ class PlanPlotsPanel(QWidget):
         lay = QVBoxLayout(self)
         lay.setContentsMargins(4, 4, 4, 4)
         lay.setSpacing(4)
-        self.plots_layout = QBoxLayout(QBoxLayout.LeftToRight)   # side by side when wide, stacked when tall
+        self.plots_layout = QBoxLayout(QBoxLayout.Direction.LeftToRight)   # side by side when wide, stacked when tall
         self.plots_layout.setSpacing(6)
         lay.addLayout(self.plots_layout, 1)
         # colours set per plot: pyqtgraph's global options would restyle other panels' image views
@@ -810,7 +810,7 @@ class PlanPlotsPanel(QWidget):
             plot.showGrid(x=True, y=True, alpha=0.25)
             plot.setMenuEnabled(False)
             for side in ("left", "bottom"):         # painted from a pixmap until their range changes
-                plot.getAxis(side).setCacheMode(QGraphicsItem.DeviceCoordinateCache)
+                plot.getAxis(side).setCacheMode(QGraphicsItem.CacheMode.DeviceCoordinateCache)
             self.plots_layout.addWidget(plot, 1)
         self.note = QLabel("")
         self.note.setWordWrap(True)
@@ -854,15 +854,15 @@ class PlanPlotsPanel(QWidget):
         p.addItem(self.scene_region)
         p.addItem(self.sharp_region)
         self.blur_curve = p.plot([], [], pen=pg.mkPen(_COLORS["blur"], width=2), name="blur circle", antialias=True)
-        self.airy_curve = p.plot([], [], pen=pg.mkPen(_COLORS["airy"], width=1, style=Qt.DashDotLine),
+        self.airy_curve = p.plot([], [], pen=pg.mkPen(_COLORS["airy"], width=1, style=Qt.PenStyle.DashDotLine),
                                  name="Airy disk (diffraction)")
         p.plot([], [], pen=pg.mkPen(_COLORS["scene"][:3], width=8), name="scene near – far")
         p.plot([], [], pen=pg.mkPen(_COLORS["sharp"][:3], width=8), name="sharp range")
-        self.coc_line = pg.InfiniteLine(29, angle=0, pen=pg.mkPen(_COLORS["coc"], width=1.5, style=Qt.DashLine),
+        self.coc_line = pg.InfiniteLine(29, angle=0, pen=pg.mkPen(_COLORS["coc"], width=1.5, style=Qt.PenStyle.DashLine),
                                         label="circle of confusion {value:.0f} µm",
                                         labelOpts={"position": 0.2, "color": _COLORS["coc"],
                                                    "anchors": [(0, 1), (0, 1)]})
-        self.pixels_line = pg.InfiniteLine(9, angle=0, pen=pg.mkPen(_COLORS["pixels"], width=1, style=Qt.DotLine),
+        self.pixels_line = pg.InfiniteLine(9, angle=0, pen=pg.mkPen(_COLORS["pixels"], width=1, style=Qt.PenStyle.DotLine),
                                            label="2 pixels", labelOpts={"position": 0.9, "color": _COLORS["pixels"],
                                                                         "anchors": [(1, 1), (1, 1)]})
         self.focus_line = pg.InfiniteLine(2, angle=90, pen=pg.mkPen(_COLORS["focus"], width=1),
@@ -889,11 +889,11 @@ class PlanPlotsPanel(QWidget):
             self.disparity_curves[key] = q.plot(
                 [], [], pen=pg.mkPen(_COLORS[key], width=2 if key in ("h", "row") else 1.5), name=name,
                 antialias=True)
-        for value, style, anchor in ((1.0, Qt.DashLine, (0, 1)), (0.5, Qt.DotLine, (0, 0))):
+        for value, style, anchor in ((1.0, Qt.PenStyle.DashLine, (0, 1)), (0.5, Qt.PenStyle.DotLine, (0, 0))):
             q.addItem(pg.InfiniteLine(math.log10(value), angle=0, pen=pg.mkPen("#b00020", width=1, style=style),
                                       label=f"{value:g} px", labelOpts={"position": 0.03, "color": "#b00020",
                                                                         "anchors": [anchor, anchor]}))
-        self.zmin_line = pg.InfiniteLine(1.77, angle=90, pen=pg.mkPen(_COLORS["zmin"], width=1, style=Qt.DashDotLine),
+        self.zmin_line = pg.InfiniteLine(1.77, angle=90, pen=pg.mkPen(_COLORS["zmin"], width=1, style=Qt.PenStyle.DashDotLine),
                                          label="Z min {value:.2f} m",
                                          labelOpts={"position": 0.5, "color": _COLORS["zmin"], "rotateAxis": (1, 0)})
         q.addItem(self.zmin_line)
@@ -910,7 +910,7 @@ class PlanPlotsPanel(QWidget):
     def resizeEvent(self, event) -> None:
         room = self._room()
         wide = room.width() > 1.4 * room.height()
-        self.plots_layout.setDirection(QBoxLayout.LeftToRight if wide else QBoxLayout.TopToBottom)
+        self.plots_layout.setDirection(QBoxLayout.Direction.LeftToRight if wide else QBoxLayout.Direction.TopToBottom)
         super().resizeEvent(event)
 
     def _schedule(self, plan) -> None:

@@ -58,7 +58,7 @@ class RigDiagram(QWidget):
         self.position_mm: tuple[float, float] | None = None
         self.target_mm: tuple[float, float] | None = None
         self.setMinimumSize(220, 90)
-        self.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Preferred)
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Preferred)
         self.setToolTip("The rig seen from the front: travel (grey), soft limits (dashed), camera (red)")
 
     def sizeHint(self):  # noqa: N802 - Qt naming
@@ -84,26 +84,26 @@ class RigDiagram(QWidget):
 
     def paintEvent(self, event) -> None:  # noqa: N802
         p = QPainter(self)
-        p.setRenderHint(QPainter.Antialiasing)
+        p.setRenderHint(QPainter.RenderHint.Antialiasing)
         fm = p.fontMetrics()
         area = QRectF(8, 6, self.width() - 16, self.height() - 12 - fm.height())
         p.fillRect(self.rect(), QColor("#f7f8fa"))
         if self.config is None:
             p.setPen(QColor("#6b7280"))
-            p.drawText(self.rect(), Qt.AlignCenter, "no rig")
+            p.drawText(self.rect(), Qt.AlignmentFlag.AlignCenter, "no rig")
             return
         h, v = self.config.horizontal, self.config.vertical
         p.setPen(QPen(QColor("#9aa1ab"), 1))
         p.setBrush(QBrush(QColor("#e3e6eb")))
         p.drawRect(area)
         soft = QRectF(self._map(area, h.soft_min_mm, v.soft_min_mm), self._map(area, h.soft_max_mm, v.soft_max_mm))
-        p.setBrush(Qt.NoBrush)
-        p.setPen(QPen(QColor("#b35900"), 1, Qt.DashLine))
+        p.setBrush(Qt.BrushStyle.NoBrush)
+        p.setPen(QPen(QColor("#b35900"), 1, Qt.PenStyle.DashLine))
         p.drawRect(soft.adjusted(1, 1, -1, -1))
         p.setPen(QColor("#4b5563"))
-        p.drawText(QRectF(area.left(), area.bottom() + 1, area.width(), fm.height()), Qt.AlignLeft,
+        p.drawText(QRectF(area.left(), area.bottom() + 1, area.width(), fm.height()), Qt.AlignmentFlag.AlignLeft,
                    f"0 ← x {h.travel_mm:g} mm →")
-        p.drawText(QRectF(area.left(), area.bottom() + 1, area.width(), fm.height()), Qt.AlignRight,
+        p.drawText(QRectF(area.left(), area.bottom() + 1, area.width(), fm.height()), Qt.AlignmentFlag.AlignRight,
                    f"y ↓ {v.travel_mm:g} mm")
         if self.target_mm is not None:
             t = self._map(area, *self.target_mm)
@@ -138,7 +138,7 @@ class RigPanel(QWidget):
         self._hold_timer.timeout.connect(self._start_continuous)
         self._pressed: tuple[int, int] | None = None
         self._continuous = False
-        self.setFocusPolicy(Qt.StrongFocus)
+        self.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
         self.setObjectName("rigPanel")
         from lfstudio.rig.profile import DEFAULT_RIG, load_rig
         s = settings()
@@ -165,7 +165,7 @@ class RigPanel(QWidget):
         self.stop_button.setObjectName("stopButton")
         self.stop_button.setMinimumHeight(46)
         self.stop_button.setToolTip("Stop all motion now (Esc). Never waits behind other commands.")
-        self.stop_button.setFocusPolicy(Qt.NoFocus)
+        self.stop_button.setFocusPolicy(Qt.FocusPolicy.NoFocus)
         self.stop_button.clicked.connect(self.stop)
         root.addWidget(self.stop_button)
         self.lock_label = QLabel("")
@@ -179,7 +179,7 @@ class RigPanel(QWidget):
         cl = QGridLayout(conn)
         self.port_combo = QComboBox()
         self.port_combo.setToolTip("Serial port of the axis controller, or the built-in simulated controller")
-        self.port_combo.setSizeAdjustPolicy(QComboBox.AdjustToMinimumContentsLengthWithIcon)
+        self.port_combo.setSizeAdjustPolicy(QComboBox.SizeAdjustPolicy.AdjustToMinimumContentsLengthWithIcon)
         self.port_combo.setMinimumContentsLength(14)
         self.port_combo.setEditable(True)
         self.refresh_button = QToolButton()
@@ -209,8 +209,8 @@ class RigPanel(QWidget):
         self.warning_label.setObjectName("rigWarningLabel")
         self.warning_label.setWordWrap(True)
         self.warning_label.setProperty("role", "warning")
-        self.warning_label.setTextFormat(Qt.PlainText)
-        self.warning_label.setTextInteractionFlags(Qt.TextSelectableByMouse)
+        self.warning_label.setTextFormat(Qt.TextFormat.PlainText)
+        self.warning_label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.warning_label.setToolTip(WARNINGS_TIP)
         self.warning_label.setVisible(False)
         cl.addWidget(self.warning_label, 3, 0, 1, 4)
@@ -220,7 +220,7 @@ class RigPanel(QWidget):
         pos = QGroupBox("Position")
         pl = QGridLayout(pos)
         big = QFont("DejaVu Sans Mono")
-        big.setStyleHint(QFont.Monospace)
+        big.setStyleHint(QFont.StyleHint.Monospace)
         big.setPointSize(15)
         big.setBold(True)
         self.x_label = QLabel("—")
@@ -228,12 +228,12 @@ class RigPanel(QWidget):
         for lab in (self.x_label, self.y_label):
             lab.setFont(big)
             lab.setProperty("role", "value")
-            lab.setAlignment(Qt.AlignRight | Qt.AlignVCenter)
+            lab.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
             lab.setMinimumWidth(120)
         self.x_label.setToolTip("Horizontal position in mm from the left end")
         self.y_label.setToolTip("Vertical position in mm from the top end (down is positive)")
         self.state_label = QLabel("disconnected")
-        self.state_label.setAlignment(Qt.AlignCenter)
+        self.state_label.setAlignment(Qt.AlignmentFlag.AlignCenter)
         self.state_label.setMinimumWidth(90)
         self.message_label = QLabel("")
         self.message_label.setWordWrap(True)
@@ -282,7 +282,7 @@ class RigPanel(QWidget):
         saved_step = float(settings().value("rig/step_mm", 10.0))
         for size in STEP_SIZES_MM:
             b = QRadioButton(f"{size:g} mm")
-            b.setFocusPolicy(Qt.NoFocus)
+            b.setFocusPolicy(Qt.FocusPolicy.NoFocus)
             b.setToolTip(f"Each click or arrow key moves {size:g} mm; holding a button jogs continuously")
             b.setProperty("step_mm", size)
             b.setChecked(abs(size - saved_step) < 1e-9)
@@ -298,7 +298,7 @@ class RigPanel(QWidget):
         for (dx, dy), (r, c), text, tip in (((0, -1), (0, 1), "▲", "up (y −)"), ((-1, 0), (1, 0), "◀", "left (x −)"),
                                             ((1, 0), (1, 2), "▶", "right (x +)"), ((0, 1), (2, 1), "▼", "down (y +)")):
             b = QPushButton(text)
-            b.setFocusPolicy(Qt.NoFocus)
+            b.setFocusPolicy(Qt.FocusPolicy.NoFocus)
             b.setMinimumSize(44, 34)
             b.setToolTip(f"Jog {tip}: click for one step, hold to move until released (arrow keys; "
                          f"Shift for {FINE_STEP_MM:g} mm steps)")
@@ -307,7 +307,7 @@ class RigPanel(QWidget):
             pad.addWidget(b, r, c)
             self.jog_buttons[(dx, dy)] = b
         centre = QLabel("jog")
-        centre.setAlignment(Qt.AlignCenter)
+        centre.setAlignment(Qt.AlignmentFlag.AlignCenter)
         centre.setProperty("role", "value")
         pad.addWidget(centre, 1, 1)
         padbox = QHBoxLayout()
@@ -380,8 +380,8 @@ class RigPanel(QWidget):
 
     def _make_actions(self) -> None:
         self.stop_action = QAction("&STOP all motion", self)
-        self.stop_action.setShortcut(QKeySequence(Qt.Key_Escape))
-        self.stop_action.setShortcutContext(Qt.WindowShortcut)
+        self.stop_action.setShortcut(QKeySequence(Qt.Key.Key_Escape))
+        self.stop_action.setShortcutContext(Qt.ShortcutContext.WindowShortcut)
         self.stop_action.setToolTip("Stop the rig now (feed hold + jog cancel)")
         self.stop_action.triggered.connect(self.stop)
         self.addAction(self.stop_action)
@@ -423,18 +423,18 @@ class RigPanel(QWidget):
         current = self.port_combo.currentText()
         self.port_combo.clear()
         self.port_combo.addItem(SIMULATED, "sim")
-        self.port_combo.setItemData(0, "GRBL simulator on a pseudo-terminal (the simulated studio)", Qt.ToolTipRole)
+        self.port_combo.setItemData(0, "GRBL simulator on a pseudo-terminal (the simulated studio)", Qt.ItemDataRole.ToolTipRole)
         self.port_combo.addItem("sim-dryve", "sim-dryve")
         self.port_combo.setItemData(1, "two emulated CiA 402 drives (dryve D1, Modbus TCP on 127.0.0.1); "
                                     "needs a CiA 402 rig profile. Real drives: type dryve:HOST,HOST or "
-                                    "canopen:can0:NODE,NODE", Qt.ToolTipRole)
+                                    "canopen:can0:NODE,NODE", Qt.ItemDataRole.ToolTipRole)
         try:
             ports = available_ports()
         except Exception:  # noqa: BLE001 - listing ports must never break the panel
             ports = []
         for port in ports:
             self.port_combo.addItem(port.device, port.device)
-            self.port_combo.setItemData(self.port_combo.count() - 1, port.description, Qt.ToolTipRole)
+            self.port_combo.setItemData(self.port_combo.count() - 1, port.description, Qt.ItemDataRole.ToolTipRole)
         wanted = current or ("" if self.state.simulated else str(settings().value("rig/port", "")))
         if self.state.simulated and not current:
             wanted = SIMULATED
@@ -615,7 +615,7 @@ class RigPanel(QWidget):
                 self._run("jog_cancel")
 
     def keyPressEvent(self, event) -> None:  # noqa: N802
-        keys = {Qt.Key_Left: (-1, 0), Qt.Key_Right: (1, 0), Qt.Key_Up: (0, -1), Qt.Key_Down: (0, 1)}
+        keys = {Qt.Key.Key_Left: (-1, 0), Qt.Key.Key_Right: (1, 0), Qt.Key.Key_Up: (0, -1), Qt.Key.Key_Down: (0, 1)}
         direction = keys.get(event.key())
         if direction is None:
             super().keyPressEvent(event)
@@ -626,7 +626,7 @@ class RigPanel(QWidget):
             return
         if event.isAutoRepeat() and self.device is not None and self.device.busy:
             return                                # don't pile up steps while the rig is busy
-        fine = bool(event.modifiers() & Qt.ShiftModifier)
+        fine = bool(event.modifiers() & Qt.KeyboardModifier.ShiftModifier)
         self.jog_step(*direction, step_mm=FINE_STEP_MM if fine else None)
 
     # -- status ------------------------------------------------------------------------------------

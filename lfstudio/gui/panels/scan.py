@@ -718,11 +718,11 @@ class ScanPanel(QWidget):
         return True
 
     def _ask(self, name: str, title: str, text: str, labels: dict, default, answered, *,
-             icon=QMessageBox.Question) -> QMessageBox:
+             icon=QMessageBox.Icon.Question) -> QMessageBox:
         """A window-modal question opened without blocking (``open``, never ``exec``): ``labels`` maps
         each standard button to its text (None keeps Qt's), ``answered(standard button)`` runs on the
         operator's answer. Returns the box (tests and the panel keep it by name)."""
-        buttons = QMessageBox.NoButton
+        buttons = QMessageBox.StandardButton.NoButton
         for button in labels:
             buttons |= button
         box = QMessageBox(icon, title, text, buttons, self)
@@ -743,14 +743,14 @@ class ScanPanel(QWidget):
         recapture = self._last_start
 
         def answered(answer) -> None:
-            if answer == QMessageBox.Yes:
+            if answer == QMessageBox.StandardButton.Yes:
                 self.start(recapture=recapture, allow_device_change=True)
         self.device_change_box = self._ask(
             "deviceChangeBox", "Resume with other devices?",
             f"{refused}\n\nContinue the scan with the connected devices? The change is recorded in the dataset "
             "(for every view captured with them).",
-            {QMessageBox.Yes: "Resume with these devices", QMessageBox.No: "Cancel"}, QMessageBox.No, answered,
-            icon=QMessageBox.Warning)
+            {QMessageBox.StandardButton.Yes: "Resume with these devices", QMessageBox.StandardButton.No: "Cancel"}, QMessageBox.StandardButton.No, answered,
+            icon=QMessageBox.Icon.Warning)
 
     def _ask_home(self, problem) -> None:
         """The rig is not homed (e.g. after a restart, when the interrupted scan is offered): home it
@@ -760,7 +760,7 @@ class ScanPanel(QWidget):
         recapture, allow = self._last_start, getattr(self, "_last_allow_change", False)
 
         def answered(answer) -> None:
-            if answer == QMessageBox.Yes:
+            if answer == QMessageBox.StandardButton.Yes:
                 self._log("homing the rig before the scan")
                 self.start(recapture=recapture, allow_device_change=allow, home=True)
             else:
@@ -768,7 +768,7 @@ class ScanPanel(QWidget):
         self.home_box = self._ask(
             "homeFirstBox", "Home the rig first?",
             f"{problem}.\n\nHome the rig now (it drives to its limit switches) and then start the scan?",
-            {QMessageBox.Yes: "Home, then scan", QMessageBox.No: "Cancel"}, QMessageBox.Yes, answered)
+            {QMessageBox.StandardButton.Yes: "Home, then scan", QMessageBox.StandardButton.No: "Cancel"}, QMessageBox.StandardButton.Yes, answered)
 
     def _ask_move_back(self, problem) -> None:
         """A resume whose rig stands elsewhere than where the last run left it: offer to drive it back to
@@ -780,7 +780,7 @@ class ScanPanel(QWidget):
         recapture, allow = self._last_start, getattr(self, "_last_allow_change", False)
 
         def answered(answer) -> None:
-            if answer != QMessageBox.Yes:
+            if answer != QMessageBox.StandardButton.Yes:
                 self.state_label.setText(f"Not started: the rig is not where {problem.last_view} was taken")
                 return
             rig = self.state.devices.get("rig")
@@ -807,7 +807,7 @@ class ScanPanel(QWidget):
             f"taken at ({x:.3f}, {y:.3f}) mm.\n\nMove the rig there and continue the scan? Do this only if its "
             "position can be trusted: if it was switched off, reset or pushed by hand since, home it first "
             "(Rig → Home), then press Resume again.",
-            {QMessageBox.Yes: f"Move to {problem.last_view}, then scan", QMessageBox.No: "Cancel"}, QMessageBox.Yes,
+            {QMessageBox.StandardButton.Yes: f"Move to {problem.last_view}, then scan", QMessageBox.StandardButton.No: "Cancel"}, QMessageBox.StandardButton.Yes,
             answered)
 
     def _ask_used_since(self, problem) -> None:
@@ -820,10 +820,10 @@ class ScanPanel(QWidget):
         recapture, allow = self._last_start, getattr(self, "_last_allow_change", False)
 
         def answered(answer) -> None:
-            if answer == QMessageBox.Yes:
+            if answer == QMessageBox.StandardButton.Yes:
                 self._log(f"continuing: the operator says the rig kept its reference since {problem.last_view}")
                 self.start(recapture=recapture, allow_device_change=allow, trust_rig_position=True)
-            elif answer == QMessageBox.No:
+            elif answer == QMessageBox.StandardButton.No:
                 self._log("homing the rig before the scan")
                 self.start(recapture=recapture, allow_device_change=allow, home=True)
             else:
@@ -835,8 +835,8 @@ class ScanPanel(QWidget):
             "If the rig was homed again or given another origin in between, the same numbers are another "
             "place. Continue only if you know it kept its reference; otherwise home it first and then scan "
             "(the scan continues with the next view).",
-            {QMessageBox.Yes: "Continue from here", QMessageBox.No: "Home, then scan", QMessageBox.Cancel: None},
-            QMessageBox.No, answered)
+            {QMessageBox.StandardButton.Yes: "Continue from here", QMessageBox.StandardButton.No: "Home, then scan", QMessageBox.StandardButton.Cancel: None},
+            QMessageBox.StandardButton.No, answered)
 
     def _end_session(self) -> None:
         """Release the dataset's lock (the devices stay with their panels / the simulated studio)."""
@@ -898,14 +898,14 @@ class ScanPanel(QWidget):
 
         def answered(answer) -> None:
             self.state.set_dataset(ds)
-            if answer == QMessageBox.Yes:
+            if answer == QMessageBox.StandardButton.Yes:
                 self.folder.setText(str(ds.root))
                 self.start()
         self.resume_box = self._ask(
             "resumeBox", "Resume interrupted scan",
             f"The scan of {path} was interrupted: {counts['done']} of {len(ds.views)} views are captured, "
             f"{counts['pending']} are missing.\n\nResume it now?",
-            {QMessageBox.Yes: "Resume scan", QMessageBox.No: "Not now"}, None, answered)
+            {QMessageBox.StandardButton.Yes: "Resume scan", QMessageBox.StandardButton.No: "Not now"}, None, answered)
 
     # -- events ------------------------------------------------------------------------------------
     def _take_events(self, events: list) -> None:
@@ -1127,7 +1127,7 @@ class ScanPanel(QWidget):
         self.log_view.appendPlainText(text)
         if self._log_follow:
             if not self.log_view.textCursor().hasSelection():
-                self.log_view.moveCursor(QTextCursor.End)     # where Qt scrolls to when the log is shown
+                self.log_view.moveCursor(QTextCursor.MoveOperation.End)     # where Qt scrolls to when the log is shown
             bar.setValue(bar.maximum())
         else:
             bar.setValue(min(kept, bar.maximum()))

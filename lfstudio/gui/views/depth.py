@@ -124,7 +124,7 @@ class DepthDialog(QDialog):
         self.progress = JobProgressWidget(self.runner)
         self.image = QLabel()
         self.image.setObjectName("depthImage")
-        self.image.setAlignment(Qt.AlignCenter)
+        self.image.setAlignment(Qt.AlignmentFlag.AlignCenter)
         area = QScrollArea()
         area.setWidget(self.image)
         area.setWidgetResizable(True)

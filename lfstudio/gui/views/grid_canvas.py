@@ -44,7 +44,7 @@ class GridCanvas(QAbstractScrollArea):
         super().__init__(parent)
         self.setObjectName("gridCanvas")
         self.viewport().setMouseTracking(True)
-        self.setFocusPolicy(Qt.StrongFocus)
+        self.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
         self.rows = 0
         self.columns = 0
         self.root: Path | None = None
@@ -66,7 +66,7 @@ class GridCanvas(QAbstractScrollArea):
         self._frame_timer.setSingleShot(True)
         self._frame_timer.setInterval(FRAME_MS)
         self._frame_timer.timeout.connect(self._frame)
-        self.loader.ready.connect(self._thumbnails_ready, Qt.QueuedConnection)
+        self.loader.ready.connect(self._thumbnails_ready, Qt.ConnectionType.QueuedConnection)
         self.setToolTip("Thumbnails as on the rig. Ctrl+wheel or +/- zooms, F fits; click or drag to select, "
                         "double-click opens a view full size")
         self._tip_cell: tuple[int, int] | None = None
@@ -139,7 +139,7 @@ class GridCanvas(QAbstractScrollArea):
             self.thumbs = {(v["row"], v["column"]): v.get("thumb") or v["file"]
                            for i in np.flatnonzero(inside & (codes == DONE)) if is_done(v := views[i])}
             self.overlay.reset(self.rows, self.columns)
-            self.mosaic = QImage(self.columns * TILE_W, self.rows * TILE_H, QImage.Format_RGB32)
+            self.mosaic = QImage(self.columns * TILE_W, self.rows * TILE_H, QImage.Format.Format_RGB32)
             self.mosaic.fill(QColor(0, 0, 0))
             self._mosaic_has = np.zeros((self.rows, self.columns), bool)
         self._fit = True
@@ -270,7 +270,7 @@ class GridCanvas(QAbstractScrollArea):
                 if painter is None:
                     painter = QPainter(self.mosaic)
                 target = QRect(c * TILE_W, r * TILE_H, TILE_W, TILE_H)
-                painter.fillRect(target, Qt.black)
+                painter.fillRect(target, Qt.GlobalColor.black)
                 painter.drawImage(target, image)   # stretched: no letterbox lines between tiles
                 self._mosaic_has[r, c] = True
             self._dirty.append((r, c))
@@ -317,8 +317,8 @@ class GridCanvas(QAbstractScrollArea):
         dark = STATE_COLORS[DONE].darker(160)
         rgba[waiting] = (dark.red(), dark.green(), dark.blue(), 255)
         rgba[(block == DONE) & has, 3] = 0
-        overlay = QImage(rgba.data, rgba.shape[1], rgba.shape[0], rgba.strides[0], QImage.Format_RGBA8888)
-        p.setRenderHint(QPainter.SmoothPixmapTransform, False)
+        overlay = QImage(rgba.data, rgba.shape[1], rgba.shape[0], rgba.strides[0], QImage.Format.Format_RGBA8888)
+        p.setRenderHint(QPainter.RenderHint.SmoothPixmapTransform, False)
         p.drawImage(dst, overlay)
         if self.gap_px:
             background = QColor(24, 25, 28)
@@ -330,7 +330,7 @@ class GridCanvas(QAbstractScrollArea):
             for r, c in np.argwhere((block != PENDING) & (block != DONE)):
                 st = int(block[r, c])
                 p.setPen(QPen(STATE_COLORS[st].lighter(130), 2))
-                p.setBrush(Qt.NoBrush)
+                p.setBrush(Qt.BrushStyle.NoBrush)
                 rect = QRectF(ox + (c0 + c) * px, oy + (r0 + r) * py, px - self.gap_px, py - self.gap_px)
                 p.drawRect(rect.adjusted(1, 1, -1, -1))
         self._request_many([(r0 + int(r), c0 + int(c)) for r, c in np.argwhere(waiting)], full=False)
@@ -348,7 +348,7 @@ class GridCanvas(QAbstractScrollArea):
         full = self.cell_px >= FULL_ZOOM_PX
         px, py = self._pitch()
         ox, oy = self._offset()
-        p.setRenderHint(QPainter.SmoothPixmapTransform, self.cell_px < TILE_W)
+        p.setRenderHint(QPainter.RenderHint.SmoothPixmapTransform, self.cell_px < TILE_W)
         status = self.status
         thin = self.cell_px < 8
         if not full:
@@ -389,8 +389,8 @@ class GridCanvas(QAbstractScrollArea):
         band = self._band()
         if band is not None:
             (ra, ca), (rb, cb) = band
-            p.setPen(QPen(QColor(80, 160, 255), 1, Qt.DashLine))
-            p.setBrush(Qt.NoBrush)
+            p.setPen(QPen(QColor(80, 160, 255), 1, Qt.PenStyle.DashLine))
+            p.setBrush(Qt.BrushStyle.NoBrush)
             p.drawRect(QRectF(ox + ca * px, oy + ra * py, (cb - ca + 1) * px, (rb - ra + 1) * py))
         if full:
             p.setPen(QColor(230, 230, 230))
@@ -400,7 +400,7 @@ class GridCanvas(QAbstractScrollArea):
             for r in range(r0, r1):
                 for c in range(c0, c1):
                     rect = QRectF(ox + c * px + 3, oy + r * py + 2, px - 6, 14)
-                    p.drawText(rect, Qt.AlignLeft | Qt.AlignTop, view_label(r, c))
+                    p.drawText(rect, Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop, view_label(r, c))
         p.end()
 
     # -- interaction -------------------------------------------------------------------------------
@@ -411,9 +411,9 @@ class GridCanvas(QAbstractScrollArea):
         return (min(ra, rb), min(ca, cb)), (max(ra, rb), max(ca, cb))
 
     def mousePressEvent(self, event) -> None:
-        if event.button() == Qt.LeftButton:
+        if event.button() == Qt.MouseButton.LeftButton:
             cell = self.cell_at(event.position().toPoint())
-            if not event.modifiers() & (Qt.ControlModifier | Qt.ShiftModifier):
+            if not event.modifiers() & (Qt.KeyboardModifier.ControlModifier | Qt.KeyboardModifier.ShiftModifier):
                 self.selected.clear()
             self._drag_from = self._drag_to = cell
             self.viewport().update()
@@ -439,15 +439,15 @@ class GridCanvas(QAbstractScrollArea):
 
     def mouseReleaseEvent(self, event) -> None:
         band = self._band()
-        if event.button() == Qt.LeftButton and band is not None:
+        if event.button() == Qt.MouseButton.LeftButton and band is not None:
             (ra, ca), (rb, cb) = band
             cells = {(r, c) for r in range(ra, rb + 1) for c in range(ca, cb + 1)}
-            if event.modifiers() & Qt.ControlModifier and len(cells) == 1 and cells <= self.selected:
+            if event.modifiers() & Qt.KeyboardModifier.ControlModifier and len(cells) == 1 and cells <= self.selected:
                 self.selected -= cells
             else:
                 self.selected |= cells
             self.selectionChanged.emit(len(self.selected))
-            if len(cells) == 1 and not event.modifiers() & (Qt.ControlModifier | Qt.ShiftModifier):
+            if len(cells) == 1 and not event.modifiers() & (Qt.KeyboardModifier.ControlModifier | Qt.KeyboardModifier.ShiftModifier):
                 cell = next(iter(cells))
                 if self.overlay.is_flagged(cell):
                     self.flaggedClicked.emit(*cell)
@@ -461,7 +461,7 @@ class GridCanvas(QAbstractScrollArea):
             self.viewActivated.emit(*cell)
 
     def wheelEvent(self, event) -> None:
-        if event.modifiers() & Qt.ControlModifier:
+        if event.modifiers() & Qt.KeyboardModifier.ControlModifier:
             steps = event.angleDelta().y() / 120.0
             self.set_zoom(self.cell_px * (1.25 ** steps), event.position().toPoint())
             event.accept()
@@ -470,17 +470,17 @@ class GridCanvas(QAbstractScrollArea):
 
     def keyPressEvent(self, event) -> None:
         key = event.key()
-        if key in (Qt.Key_Plus, Qt.Key_Equal):
+        if key in (Qt.Key.Key_Plus, Qt.Key.Key_Equal):
             self.zoom_by(1.25)
-        elif key == Qt.Key_Minus:
+        elif key == Qt.Key.Key_Minus:
             self.zoom_by(0.8)
-        elif key == Qt.Key_F:
+        elif key == Qt.Key.Key_F:
             self.fit()
-        elif key == Qt.Key_Escape:
+        elif key == Qt.Key.Key_Escape:
             self.selected.clear()
             self.selectionChanged.emit(0)
             self.viewport().update()
-        elif key == Qt.Key_A and event.modifiers() & Qt.ControlModifier:
+        elif key == Qt.Key.Key_A and event.modifiers() & Qt.KeyboardModifier.ControlModifier:
             self.selected = {(r, c) for r in range(self.rows) for c in range(self.columns)}
             self.selectionChanged.emit(len(self.selected))
             self.viewport().update()

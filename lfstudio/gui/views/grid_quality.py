@@ -119,10 +119,10 @@ class QualityOverlay:
         """Paint rows r0..r1-1, columns c0..c1-1 of cells at pitch (px, py) from (ox, oy)."""
         if self.heat is not None:
             block = np.ascontiguousarray(self.heat[r0:r1, c0:c1])
-            img = QImage(block.data, block.shape[1], block.shape[0], block.strides[0], QImage.Format_RGBA8888)
-            p.setRenderHint(QPainter.SmoothPixmapTransform, False)
+            img = QImage(block.data, block.shape[1], block.shape[0], block.strides[0], QImage.Format.Format_RGBA8888)
+            p.setRenderHint(QPainter.RenderHint.SmoothPixmapTransform, False)
             p.drawImage(QRectF(ox + c0 * px, oy + r0 * py, (c1 - c0) * px, (r1 - r0) * py), img)
-        p.setBrush(Qt.NoBrush)
+        p.setBrush(Qt.BrushStyle.NoBrush)
         block = self.verdicts[r0:r1, c0:c1]       # only the cells being painted, found with numpy
         for code, colour in ((FLAG_CODES["warn"], FLAG_COLORS["warn"]), (FLAG_CODES["fail"], FLAG_COLORS["fail"])):
             cells = np.argwhere(block == code)

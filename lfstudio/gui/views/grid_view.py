@@ -57,7 +57,7 @@ class ImageDialog(QDialog):
         self.setObjectName("viewDialog")
         self.resize(screen_fitted(self, 1000, 700))
         self.label = QLabel("Loading…")
-        self.label.setAlignment(Qt.AlignCenter)
+        self.label.setAlignment(Qt.AlignmentFlag.AlignCenter)
         self.info = QLabel(str(path))
         area = QScrollArea()
         area.setWidget(self.label)
@@ -127,7 +127,7 @@ class TitleLabel(QLabel):
     def _elide(self) -> None:
         fm_bold, fm = self._metrics()
         room = max(20, self.contentsRect().width() - fm.horizontalAdvance(self._rest) - 8)
-        shown = fm_bold.elidedText(self._name, Qt.ElideMiddle, room)
+        shown = fm_bold.elidedText(self._name, Qt.TextElideMode.ElideMiddle, room)
         self.setText(f"<b>{html.escape(shown)}</b>{html.escape(self._rest)}" if self._name else "")
 
 
@@ -145,7 +145,7 @@ class GridView(QWidget):
             "its views appear here as they are captured, laid out as on the rig.</p>"
             "<p><b>File → Open dataset…</b> (Ctrl+O) shows an existing capture.</p>")
         self.empty.setObjectName("gridEmpty")
-        self.empty.setAlignment(Qt.AlignCenter)
+        self.empty.setAlignment(Qt.AlignmentFlag.AlignCenter)
         self.empty.setWordWrap(True)
         self.canvas = GridCanvas()
         page = QWidget()
@@ -234,7 +234,7 @@ class GridView(QWidget):
         b.setText(text)
         b.setToolTip(tip)
         b.clicked.connect(slot)
-        b.setSizePolicy(QSizePolicy.Fixed, QSizePolicy.Fixed)
+        b.setSizePolicy(QSizePolicy.Policy.Fixed, QSizePolicy.Policy.Fixed)
         return b
 
     # -- state -------------------------------------------------------------------------------------
@@ -336,7 +336,7 @@ class GridView(QWidget):
             self.state.report_error("Open view", str(exc))
             return
         dlg = ImageDialog(path, f"View row {row}, column {column} — {view['file']}", self)
-        dlg.setAttribute(Qt.WA_DeleteOnClose)
+        dlg.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
         dlg.show()
         self._last_dialog = dlg
 
@@ -344,7 +344,7 @@ class GridView(QWidget):
     def install_menus(self, window) -> None:
         file_menu = window.menu("File")
         open_action = QAction("&Open dataset…", self)
-        open_action.setShortcut(QKeySequence.Open)
+        open_action.setShortcut(QKeySequence.StandardKey.Open)
         open_action.setToolTip("Open a dataset folder (the one holding dataset.json)")
         open_action.triggered.connect(self.choose_dataset)
         file_menu.addAction(open_action)
@@ -461,7 +461,7 @@ class GridView(QWidget):
             self.state.show_status("No disparity map yet: run Check dataset")
             return
         dlg = DisparityDialog(Path(ds.root) / rel, doc.get("disparity_map"), self)
-        dlg.setAttribute(Qt.WA_DeleteOnClose)
+        dlg.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
         dlg.show()
         self._disparity_dialog = dlg
 

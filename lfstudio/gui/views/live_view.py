@@ -72,9 +72,9 @@ class LiveView(QWidget):
         # what to do next, over the picture area: word-wrapped to its width (never clipped), centred
         self.message = QLabel(self.graphics)
         self.message.setObjectName("liveViewMessage")
-        self.message.setAlignment(Qt.AlignCenter)
+        self.message.setAlignment(Qt.AlignmentFlag.AlignCenter)
         self.message.setWordWrap(True)
-        self.message.setAttribute(Qt.WA_TransparentForMouseEvents)
+        self.message.setAttribute(Qt.WidgetAttribute.WA_TransparentForMouseEvents)
         self.message.setStyleSheet("color: #d0d0d0; background: rgba(32, 32, 32, 200); border-radius: 6px; "
                                    "padding: 8px;")
         self.graphics.installEventFilter(self)
@@ -101,7 +101,7 @@ class LiveView(QWidget):
         self.clip_label = QLabel("")
         self.clip_label.setWordWrap(True)
         self.caption_label = QLabel("")
-        self.caption_label.setSizePolicy(QSizePolicy.Ignored, QSizePolicy.Preferred)
+        self.caption_label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
         readout = QVBoxLayout()
         readout.addWidget(self.sharp_label)
         readout.addWidget(self.clip_label)
@@ -136,7 +136,7 @@ class LiveView(QWidget):
         return "Camera connected: press Live (Ctrl+L) for its preview, or take a test shot in the Camera panel."
 
     def eventFilter(self, obj: Any, event: Any) -> bool:
-        if obj is self.graphics and event.type() == QEvent.Resize:
+        if obj is self.graphics and event.type() == QEvent.Type.Resize:
             self._place_message()
         return False
 

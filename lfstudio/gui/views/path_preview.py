@@ -26,8 +26,8 @@ class PathPreview(QWidget):
         super().__init__(parent)
         self.setObjectName("pathPreview")
         self.setMinimumHeight(110)
-        self.setSizePolicy(QSizePolicy.Expanding, QSizePolicy.Expanding)
-        self.setAttribute(Qt.WA_OpaquePaintEvent)      # paints every pixel: nothing under it is repainted
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+        self.setAttribute(Qt.WidgetAttribute.WA_OpaquePaintEvent)      # paints every pixel: nothing under it is repainted
         self.plan: ScanPlan | None = None
         self.current: tuple[int, int] | None = None
         self.done: set[tuple[int, int]] = set()
@@ -55,7 +55,7 @@ class PathPreview(QWidget):
         else:                           # some views are no longer done: a fresh overlay, same path
             self.done = cells
             if self._overlay is not None:
-                self._overlay.fill(Qt.transparent)
+                self._overlay.fill(Qt.GlobalColor.transparent)
                 self._paint_done(list(cells))
         self.update()
 
@@ -79,12 +79,12 @@ class PathPreview(QWidget):
         self._base = QPixmap(self.size())
         self._base.fill(QColor(30, 32, 36))
         self._overlay = QPixmap(self.size())
-        self._overlay.fill(Qt.transparent)
+        self._overlay.fill(Qt.GlobalColor.transparent)
         p = QPainter(self._base)
-        p.setRenderHint(QPainter.Antialiasing)
+        p.setRenderHint(QPainter.RenderHint.Antialiasing)
         if plan is None:
             p.setPen(QColor(160, 160, 160))
-            p.drawText(self.rect(), Qt.AlignCenter, "no grid")
+            p.drawText(self.rect(), Qt.AlignmentFlag.AlignCenter, "no grid")
             p.end()
             self._geom = None
             return
@@ -110,13 +110,13 @@ class PathPreview(QWidget):
             p.setPen(QPen(QColor(110, 150, 220), 1.2))
             p.drawPolyline(_points(x, y))
             _draw_dots(p, x, y, dot, QColor(140, 144, 152))
-            p.setRenderHint(QPainter.Antialiasing)
-            p.setPen(QPen(Qt.NoPen))
+            p.setRenderHint(QPainter.RenderHint.Antialiasing)
+            p.setPen(QPen(Qt.PenStyle.NoPen))
             p.setBrush(QBrush(QColor(60, 220, 90)))
             p.drawEllipse(QPointF(x[0], y[0]), dot + 2, dot + 2)
         x0, x1, y0, y1 = plan.extent_mm()
         p.setPen(QColor(190, 190, 190))
-        p.drawText(QRectF(4, self.height() - 16, self.width() - 8, 14), Qt.AlignLeft | Qt.AlignVCenter,
+        p.drawText(QRectF(4, self.height() - 16, self.width() - 8, 14), Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignVCenter,
                    f"x {x0:.0f}…{x1:.0f} mm · y {y0:.0f}…{y1:.0f} mm · {plan.order}")
         p.end()
         self._paint_done(list(self.done))
@@ -134,9 +134,9 @@ class PathPreview(QWidget):
         if self.current is not None and self._geom is not None:
             ox, oy, sx, sy, scale, dot = self._geom
             r, c = self.current
-            p.setRenderHint(QPainter.Antialiasing)
+            p.setRenderHint(QPainter.RenderHint.Antialiasing)
             p.setPen(QPen(QColor(255, 176, 32), 2))
-            p.setBrush(QBrush(Qt.NoBrush))
+            p.setBrush(QBrush(Qt.BrushStyle.NoBrush))
             p.drawEllipse(QPointF(ox + c * sx * scale, oy + r * sy * scale), dot + 4, dot + 4)
         p.end()
 
@@ -153,9 +153,9 @@ def _draw_dots(p: QPainter, x: np.ndarray, y: np.ndarray, radius: float, colour:
     hundred, plain squares for thousands (10x cheaper, and too small to tell apart)."""
     many = len(x) > 400
     pen = QPen(colour, 2 * radius)
-    pen.setCapStyle(Qt.SquareCap if many else Qt.RoundCap)
+    pen.setCapStyle(Qt.PenCapStyle.SquareCap if many else Qt.PenCapStyle.RoundCap)
     p.save()
-    p.setRenderHint(QPainter.Antialiasing, not many)
+    p.setRenderHint(QPainter.RenderHint.Antialiasing, not many)
     p.setPen(pen)
     p.drawPoints(_points(x, y))
     p.restore()

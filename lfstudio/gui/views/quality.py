@@ -131,14 +131,14 @@ class HeatLegend(QWidget):
         p.setPen(self.palette().windowText().color())
         h = self.height()
         x = 0
-        p.drawText(QRect(x, 0, fm.horizontalAdvance(left), h), Qt.AlignVCenter, left)
+        p.drawText(QRect(x, 0, fm.horizontalAdvance(left), h), Qt.AlignmentFlag.AlignVCenter, left)
         x += fm.horizontalAdvance(left) + 8
         gradient = QLinearGradient(x, 0, x + self.BAR_PX, 0)
         for i, colour in enumerate(self._colours):
             gradient.setColorAt(i / max(1, len(self._colours) - 1), colour)
         p.fillRect(QRect(x, 3, self.BAR_PX, h - 6), gradient)
         x += self.BAR_PX + 8
-        p.drawText(QRect(x, 0, fm.horizontalAdvance(right), h), Qt.AlignVCenter, right)
+        p.drawText(QRect(x, 0, fm.horizontalAdvance(right), h), Qt.AlignmentFlag.AlignVCenter, right)
         p.end()
 
 
@@ -165,7 +165,7 @@ class QualityBar(QWidget):
         self.overlay.addItem("No heat map", "")
         for key, h in HEATMAPS.items():
             self.overlay.addItem(h.title.split(" (")[0], key)
-        self.overlay.setSizeAdjustPolicy(QComboBox.AdjustToMinimumContentsLengthWithIcon)
+        self.overlay.setSizeAdjustPolicy(QComboBox.SizeAdjustPolicy.AdjustToMinimumContentsLengthWithIcon)
         self.overlay.setMinimumContentsLength(12)      # the longest heat-map name is elided, not widening the bar
         self.overlay.setToolTip("Colour the grid by one measured figure (the same scale as the report's heat maps)")
         self.overlay.currentIndexChanged.connect(lambda i: self.overlayChanged.emit(self.overlay.itemData(i)))
@@ -201,7 +201,7 @@ class QualityBar(QWidget):
         self._verdicts = verdicts
         self.status.addWidget(verdicts)
         self.status.addWidget(self.progress)
-        self.status.setSizePolicy(QSizePolicy.Preferred, QSizePolicy.Fixed)
+        self.status.setSizePolicy(QSizePolicy.Policy.Preferred, QSizePolicy.Policy.Fixed)
         self.runner.started.connect(lambda: self.status.setCurrentWidget(self.progress))
         for sig in (self.runner.finished, self.runner.failed, self.runner.cancelled):
             sig.connect(lambda *a: self.status.setCurrentWidget(self._verdicts))
@@ -211,7 +211,7 @@ class QualityBar(QWidget):
         tools, line = QHBoxLayout(), QHBoxLayout()
         self.line = line
         for w in (self.check_button, self.overlay, self.select_button, self.disparity_button, self.live_box):
-            w.setSizePolicy(QSizePolicy.Fixed, QSizePolicy.Fixed)
+            w.setSizePolicy(QSizePolicy.Policy.Fixed, QSizePolicy.Policy.Fixed)
             (line if w is self.live_box else tools).addWidget(w)
         tools.addStretch(1)
         line.addStretch(1)
@@ -286,7 +286,7 @@ class NeighboursDialog(QDialog):
         for dr in (-1, 0, 1):
             for dc in (-1, 0, 1):
                 label = QLabel()
-                label.setAlignment(Qt.AlignCenter)
+                label.setAlignment(Qt.AlignmentFlag.AlignCenter)
                 label.setMinimumSize(self.TILE_PX // 2, self.TILE_PX // 3)
                 label.setStyleSheet("background:#202226;color:#9aa0a8")
                 self.grid.addWidget(label, dr + 1, dc + 1)
@@ -294,7 +294,7 @@ class NeighboursDialog(QDialog):
         self.reasons = QLabel("")
         self.reasons.setObjectName("neighboursReasons")
         self.reasons.setWordWrap(True)
-        self.reasons.setTextFormat(Qt.RichText)
+        self.reasons.setTextFormat(Qt.TextFormat.RichText)
         self.recapture_button = QPushButton("Re-capture this view")
         self.recapture_button.setObjectName("recaptureThisButton")
         self.recapture_button.setToolTip("Queue this view for capture again (Scan panel)")
@@ -356,7 +356,7 @@ class NeighboursDialog(QDialog):
         if image.isNull():
             label.setText(f"{view_label(cell[0], cell[1])}\ncannot be decoded")
             return
-        label.setPixmap(QPixmap.fromImage(image.scaledToWidth(self.TILE_PX, Qt.SmoothTransformation)))
+        label.setPixmap(QPixmap.fromImage(image.scaledToWidth(self.TILE_PX, Qt.TransformationMode.SmoothTransformation)))
         label.setToolTip(f"row {cell[0]}, column {cell[1]}")
 
 
@@ -369,7 +369,7 @@ class DisparityDialog(QDialog):
         self.setWindowTitle("Disparity map of the centre view")
         self.resize(screen_fitted(self, 1040, 800))
         self.image = QLabel()
-        self.image.setAlignment(Qt.AlignCenter)
+        self.image.setAlignment(Qt.AlignmentFlag.AlignCenter)
         from lfstudio.dataset.images import read_picture
         from lfstudio.gui.imageutil import rgb_to_qimage
 

@@ -16,7 +16,7 @@ class WelcomeView(QWidget):
             "2. <b>Connect</b> the rig and camera (the simulated studio is ready).<br>"
             "3. <b>Scan</b>, then <b>calibrate</b>, <b>process</b> and <b>export</b> from the Dataset menu.</p>"
             "<p>File → Open dataset… opens an existing capture.</p>")
-        label.setAlignment(Qt.AlignCenter)
+        label.setAlignment(Qt.AlignmentFlag.AlignCenter)
         label.setObjectName("welcomeText")
         lay = QVBoxLayout(self)
         lay.addWidget(label)
