@@ -107,7 +107,8 @@ class Param:
     values allowed (text or numbers); ``flag``: true or false; ``optional``: None is allowed and editors
     show this text for it ("auto"); ``option``: the command line's name (shared by the fields one option
     sets, e.g. ``--grid``); ``metavar``: its placeholder; ``label``/``tip``: the editor's name and
-    explanation (also the option's help); ``group``: where editors and ``--help`` list it."""
+    explanation (also the option's help); ``group``: where editors and ``--help`` list it; ``repeat``:
+    a list of such values, the option given once for each (``--notify A --notify B``)."""
 
     number: Number | None = None
     label: str = ""
@@ -120,12 +121,17 @@ class Param:
     choices: tuple = ()
     flag: bool = False
     lengths: tuple[int, ...] = ()
+    repeat: bool = False
 
     def check(self, field: str, value: Any) -> Any:
         """``value`` checked (each of a pair's or list's values; None when optional), or InputError
         naming ``field``."""
         if value is None and self.optional:
             return None
+        if self.repeat:
+            if not isinstance(value, (tuple, list)):
+                raise InputError(field, f"{value!r} is not a list", f"a list of {self.valid()}")
+            return [self._one(field, v) for v in value]
         if self.pair:
             if not isinstance(value, (tuple, list)) or len(value) != 2:
                 raise InputError(field, f"{value!r} is not a pair", "two numbers: horizontal, vertical")
@@ -174,6 +180,8 @@ class Param:
         """``value`` as a person types it (``4x6`` for a pair, ``1 0 0`` for a list, ``auto`` for None)."""
         if value is None:
             return self.optional
+        if self.repeat:
+            return " ".join(str(v) for v in value)
         if self.pair:
             return "x".join(_fmt(v) for v in value)
         if self.lengths:

@@ -49,10 +49,12 @@ def _described(p, name: str) -> None:
     else:
         default = getattr(ScanOptions(), name)
         said = param.to_text(default)
-    kwargs = {"default": default, "help": f"{param.tip} (default: {said})" if name in FROM_PLAN
-              else f"{param.tip} (default {said})"}
+    kwargs: dict = {"default": default, "help": f"{param.tip} (default: {said})" if name in FROM_PLAN
+                    else f"{param.tip} (default {said})" if said else param.tip}
     if param.metavar:
         kwargs["metavar"] = param.metavar
+    if param.repeat:
+        kwargs["action"] = "append"
     if param.choices:
         kwargs["choices"] = param.choices
     elif name == "grid_columns":
@@ -99,25 +101,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _add_unattended_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("unattended scans (docs/unattended.md)")
-    g.add_argument("--notify", action="append", default=None, metavar="URL",
-                   help="tell URL when the scan starts, pauses (why), resumes, fails, finishes or is aborted, and "
-                        "(with --check) of flagged views; repeatable: https://… (JSON POST), ntfy+https://HOST/TOPIC, "
-                        "slack+https://…, matrix+https://… ({\"text\": …}), mailto:ADDRESS (with --smtp)")
-    g.add_argument("--smtp", default="", metavar="smtp://[USER@]HOST[:PORT]",
-                   help="the SMTP server for mailto: notifications (smtps:// for SSL, smtp+plain:// for a local relay); "
-                        "the password comes from $LFSTUDIO_SMTP_PASSWORD")
-    g.add_argument("--status-http", default="", metavar="[HOST:]PORT",
-                   help="serve a read-only status page (state, progress, ETA, last thumbnails, live-check verdicts, "
-                        "log) and /status.json on PORT of 127.0.0.1, or of HOST (then with --status-token)")
-    g.add_argument("--status-token", default="", metavar="TOKEN|new",
-                   help="the token every request to the status page must carry (?token=...); 'new' makes one and "
-                        "prints the page's address with it once; needed for any HOST but 127.0.0.1")
-    _described(g, "auto_resume")
-    g.add_argument("--on-finish", default="", metavar="CMD",
-                   help="a shell command run when the scan ends (finished, aborted or failed), e.g. lights and motors "
-                        "off; $LFSTUDIO_SCAN_OUTCOME, $LFSTUDIO_DATASET, $LFSTUDIO_DONE, $LFSTUDIO_TOTAL tell it how; its "
-                        "output is logged, a failure notified")
-    _described(g, "on_finish_timeout_s")
+    for name in ("notify", "smtp", "status_http", "status_token", "auto_resume", "on_finish",
+                 "on_finish_timeout_s"):
+        _described(g, name)
 
 
 def _unattended(args: argparse.Namespace):

@@ -15,11 +15,11 @@ from lfstudio.dataset.grid import ORDERS
 from lfstudio.numbers import (EXPOSURE_S, MAX_GRID_SIDE, OFFSET_MM, RETRIES, SEED, SETTLE_S, SPACING_MM,
                               TIME_SCALE, TRANSFER_S, WIDTH_PX, Number, Param, described, params_of)
 from lfstudio.optics import REFERENCE
-from lfstudio.studio.unattended import ON_FINISH_TIMEOUT_S
 
 #: where the options are listed
 DEVICES, GRID, SIMULATION, UNATTENDED = "devices", "grid", "simulated devices", "unattended scans"
 _SIDE = Number("", 1, MAX_GRID_SIDE, integer=True)
+ON_FINISH_TIMEOUT_S = Number("s", 1, 24 * 3600)
 
 
 @dataclass(frozen=True)
@@ -79,11 +79,33 @@ class ScanOptions:
         tip="retries per view before the scan stops")
     seed: int = described(0, number=SEED, label="Seed", option="--seed", metavar="SEED", group=SIMULATION,
                           tip="seed of the simulated devices")
+    notify: list[str] = described(
+        [], repeat=True, label="Notify", option="--notify", metavar="URL", group=UNATTENDED,
+        tip="tell URL when the scan starts, pauses (why), resumes, fails, finishes or is aborted, and (with --check) "
+            "of flagged views; repeatable: https://… (JSON POST), ntfy+https://HOST/TOPIC, slack+https://…, "
+            "matrix+https://… ({\"text\": …}), mailto:ADDRESS (with --smtp)")
+    smtp: str = described(
+        "", label="SMTP server", option="--smtp", metavar="smtp://[USER@]HOST[:PORT]", group=UNATTENDED,
+        tip="the SMTP server for mailto: notifications: smtp:// (STARTTLS, 587), smtps:// (SSL, 465) or smtp+plain:// "
+            "(a local relay); the password comes from $LFSTUDIO_SMTP_PASSWORD")
+    status_http: str = described(
+        "", label="Status page address", option="--status-http", metavar="[HOST:]PORT", group=UNATTENDED,
+        tip="serve a read-only status page (state, progress, ETA, last thumbnails, live-check verdicts, log) and "
+            "/status.json on PORT of 127.0.0.1, or of HOST (then with --status-token)")
+    status_token: str = described(
+        "", label="Status page token", option="--status-token", metavar="TOKEN|new", group=UNATTENDED,
+        tip="the token every request to the status page must carry (?token=...); 'new' makes one and prints the "
+            "page's address with it once; needed for any HOST but 127.0.0.1")
     auto_resume: int = described(
         0, number=RETRIES, label="Auto-resume", option="--auto-resume", metavar="N", group=UNATTENDED,
         tip="resume by itself, at most N times, when the cause of a pause clears (disk space freed, camera or "
             "controller connection back); STOP, limit switches, position errors and alarms that need homing always "
             "wait for a person (0: a fault ends the run, --resume continues it)")
+    on_finish: str = described(
+        "", label="When the scan ends", option="--on-finish", metavar="CMD", group=UNATTENDED,
+        tip="a shell command run when the scan ends (finished, aborted or failed), e.g. lights and motors off; "
+            "$LFSTUDIO_SCAN_OUTCOME, $LFSTUDIO_DATASET, $LFSTUDIO_DONE, $LFSTUDIO_TOTAL tell it how; its output is "
+            "logged, a failure notified")
     on_finish_timeout_s: float = described(
         300.0, number=ON_FINISH_TIMEOUT_S, label="On-finish timeout", option="--on-finish-timeout-s", metavar="S",
         group=UNATTENDED, tip="the --on-finish command is stopped after this long")

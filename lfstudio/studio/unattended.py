@@ -22,19 +22,18 @@ from pathlib import Path
 from typing import Any, Callable
 
 from lfstudio.errors import InputError
-from lfstudio.numbers import Number
 from lfstudio.scan.events import TERMINAL, EventKind, ScanState
 from lfstudio.scan.notify import Notifier, SmtpServer, mask_urls, parse_target
 from lfstudio.scan.status_http import StatusBoard, StatusServer
+from lfstudio.studio.scan_options import PARAMS
 
 log = logging.getLogger(__name__)
 
+#: the options described in lfstudio.studio.scan_options (range, label, tip, command-line name)
+DESCRIBED = ("notify", "smtp", "status_http", "status_token", "auto_resume", "on_finish", "on_finish_timeout_s")
 #: how each option is named where the operator gave it (the CLI's options; the window passes its own)
-CLI_NAMES = {"notify": "--notify", "smtp": "--smtp", "status_http": "--status-http",
-             "status_token": "--status-token", "auto_resume": "--auto-resume", "on_finish": "--on-finish",
-             "on_finish_timeout_s": "--on-finish-timeout-s"}
+CLI_NAMES = {name: PARAMS[name].option for name in DESCRIBED}
 SMTP_PASSWORD_ENV = "LFSTUDIO_SMTP_PASSWORD"
-ON_FINISH_TIMEOUT_S = Number("s", 1, 24 * 3600)
 
 
 @dataclass
@@ -80,6 +79,8 @@ class Unattended:
         """Check ``options`` and set up what they ask for (see the module docstring)."""
         names = options.names
         env = os.environ if env is None else env
+        for name in DESCRIBED:            # each by its description: the same rules as the command line's
+            PARAMS[name].check(names[name], getattr(options, name))
         targets = [parse_target(url, names["notify"]) for url in options.notify]
         smtp = None
         if options.smtp:
@@ -87,9 +88,6 @@ class Unattended:
                                     sender=options.smtp_sender, option=names["smtp"])
         if any(t.shape == "mail" for t in targets) and smtp is None:
             raise InputError(names["notify"], "a mailto: target needs an SMTP server", f"{names['smtp']} smtp://USER@HOST")
-        if options.auto_resume < 0 or options.auto_resume > 1000:
-            raise InputError(names["auto_resume"], f"{options.auto_resume} is out of range", "0 … 1000")
-        ON_FINISH_TIMEOUT_S.check(names["on_finish_timeout_s"], options.on_finish_timeout_s)
         if options.on_finish and not options.on_finish.strip():
             raise InputError(names["on_finish"], "the command is empty", "a shell command, e.g. 'lights off'")
         if options.status_token and not options.status_http:

@@ -70,3 +70,29 @@ def test_help_lists_every_option(run_cli):
     for param in PARAMS.values():
         assert param.option in r.stdout
     assert "{row-meander,column-meander,raster}" in r.stdout
+
+
+def test_the_unattended_options_are_described_once_for_the_command_line_and_the_scan():
+    """--notify, --smtp, --status-http, --status-token and --on-finish come from ScanOptions like the
+    others (--notify repeatable), and Unattended.open checks every unattended option by the same
+    description the command line does: --auto-resume 101 is refused by both (open() once allowed up to
+    1000 while the command line and the window stopped at 100)."""
+    from lfstudio.errors import InputError
+    from lfstudio.studio.unattended import CLI_NAMES, Unattended, UnattendedOptions
+
+    assert {PARAMS[name].group for name in CLI_NAMES} == {"unattended scans"}
+    assert all(CLI_NAMES[name] == PARAMS[name].option for name in CLI_NAMES)
+    args = _parser().parse_args(["--out", "x", "--notify", "https://a.example/h", "--notify", "ntfy+https://n/t",
+                                 "--smtp", "smtp://me@mail", "--on-finish", "lights off"])
+    assert args.notify == ["https://a.example/h", "ntfy+https://n/t"]
+    assert (args.smtp, args.status_http, args.on_finish) == ("smtp://me@mail", "", "lights off")
+    assert _parser().parse_args(["--out", "x"]).notify == []
+    high = int(PARAMS["auto_resume"].number.high) + 1
+    with pytest.raises(SystemExit):
+        _parser().parse_args(["--out", "x", "--auto-resume", str(high)])
+    with pytest.raises(InputError) as err:
+        Unattended.open(UnattendedOptions(auto_resume=high))
+    assert str(err.value).startswith("--auto-resume: ")
+    with pytest.raises(InputError) as err:
+        Unattended.open(UnattendedOptions(notify="https://a.example/h"))    # a text, not a list of them
+    assert str(err.value).startswith("--notify: ") and "not a list" in str(err.value)
