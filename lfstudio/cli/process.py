@@ -8,7 +8,7 @@ import argparse
 import sys
 from typing import Any, Callable
 
-from lfstudio.numbers import WORKERS, Number
+from lfstudio.numbers import WORKERS
 from lfstudio.cli.args import as_option, number_option, path_option
 
 HELP = "process the captured views (debayer, lens, colour, shading, de-flicker, rectify, downsample)"
@@ -35,17 +35,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="process every view again, even those already done with the same profile")
     p.add_argument("--write-profile", metavar="FILE", type=path_option("--write-profile"),
                    help="write the effective profile (defaults or --profile) to FILE and exit")
-    p.add_argument("--hdr", choices=("exr", "tiff", "none"), default=None,
-                   help="a bracketed dataset (scan --bracket): merge each view's frames to linear radiance in "
-                        "DATASET/hdr/ as OpenEXR (default) or float TIFF, with a tone-mapped 16-bit PNG in "
-                        "hdr/preview/; 'none': only the 16-bit views (the bracket's reference frame)")
-    p.add_argument("--hdr-half", action="store_true", help="16-bit half floats instead of 32-bit in the HDR files")
-    p.add_argument("--hdr-clip", metavar="F", type=number_option(Number("", 0.5, 1.0), "--hdr-clip"), default=0.97,
-                   help="a developed channel at or above this share of full scale counts as clipped (default 0.97)")
-    p.add_argument("--hdr-noise-floor", metavar="F", type=number_option(Number("", 0.0, 0.25), "--hdr-noise-floor"),
-                   default=0.002, help="a pixel whose brightest channel is below this share of full scale "
-                                       "counts as noise (default 0.002)")
+    _add_merge_arguments(p)
     add_profile_arguments(p)
+
+
+def _add_merge_arguments(p: argparse.ArgumentParser) -> None:
+    """The --hdr* options, made from the merge settings' descriptions (lfstudio.processing.hdr.MERGE_PARAMS)."""
+    from lfstudio.processing.hdr import MERGE_PARAMS, MergeOptions
+
+    defaults = MergeOptions()
+    g = p.add_argument_group("exposure brackets (scan --bracket)")
+    for name, param in MERGE_PARAMS.items():
+        if not param.option:
+            continue
+        said = param.to_text(getattr(defaults, name))
+        if name == "format":
+            g.add_argument(param.option, choices=(*param.choices, "none"), default=None,
+                           help="a bracketed dataset: merge each view's frames to linear radiance in DATASET/hdr/ ("
+                                f"{param.tip}), with a tone-mapped 16-bit PNG in hdr/preview/ (default {said}); 'none': "
+                                "only the 16-bit views (the bracket's reference frame)")
+        elif param.flag:
+            g.add_argument(param.option, action="store_true", help=param.tip)
+        else:
+            assert param.number is not None
+            g.add_argument(param.option, metavar=param.metavar, type=number_option(param.number, param.option),
+                           default=getattr(defaults, name), help=f"{param.tip} (default {said})")
 
 
 def profile_option(step: str, key: str) -> str:

@@ -55,7 +55,7 @@ from lfstudio.dataset.profile import Profile
 from lfstudio.dataset.store import clean_temporary_files
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.jobs import CancelToken, Cancelled, Progress, no_progress
-from lfstudio.numbers import Number
+from lfstudio.numbers import Number, check_described, described, params_of
 from lfstudio.processing import executors
 
 log = logging.getLogger(__name__)
@@ -64,24 +64,33 @@ FORMATS = ("exr", "tiff")
 FULL_SCALE = 65535.0
 
 
+_FORMAT, _CLIP, _NOISE = "hdr format", "clipped", "noise"
+
+
 @dataclass(frozen=True)
 class MergeOptions:
-    """How brackets are merged (the same for every view of a run)."""
+    """How brackets are merged (the same for every view of a run), each setting described once
+    (:func:`lfstudio.numbers.described`): ``lfstudio process``'s ``--hdr*`` options are made from these
+    descriptions and :meth:`__post_init__` checks by them."""
 
-    format: str = "exr"              # exr (OpenEXR, ZIP) | tiff (float TIFF)
-    half: bool = False               # 16-bit half floats instead of 32-bit
-    clip_fraction: float = 0.97      # a developed channel at or above this share of full scale is clipped
-    noise_floor: float = 0.002       # a pixel whose brightest channel is below this share is noise
-    max_shift_px: float = 0.5        # frames further apart than this (full-size px) are reported
+    format: str = described("exr", choices=FORMATS, label="HDR format", option="--hdr", group=_FORMAT,
+                            tip="exr: OpenEXR (ZIP); tiff: float TIFF")
+    half: bool = described(False, flag=True, label="Half floats", option="--hdr-half", group=_FORMAT,
+                           tip="16-bit half floats instead of 32-bit in the HDR files")
+    clip_fraction: float = described(
+        0.97, number=Number("", 0.5, 1.0), label="Clipped at", option="--hdr-clip", metavar="F", group=_CLIP,
+        tip="a developed channel at or above this share of full scale counts as clipped")
+    noise_floor: float = described(
+        0.002, number=Number("", 0.0, 0.25), label="Noise floor", option="--hdr-noise-floor", metavar="F",
+        group=_NOISE, tip="a pixel whose brightest channel is below this share of full scale counts as noise")
+    max_shift_px: float = described(
+        0.5, number=Number("px", 0, 1000), label="Largest frame shift", group=_CLIP,
+        tip="frames further apart than this (full-size px) are reported")
     folder: str = "hdr"
     preview: bool = True             # the 16-bit tone-mapped PNG beside each radiance file
 
     def __post_init__(self) -> None:
-        if self.format not in FORMATS:
-            raise InputError("--hdr", f"unknown format {self.format!r}", ", ".join(FORMATS))
-        Number("", 0.5, 1.0).check("--hdr-clip", self.clip_fraction)
-        Number("", 0.0, 0.25).check("--hdr-noise-floor", self.noise_floor)
-        Number("px", 0, 1000).check("max_shift_px", self.max_shift_px)
+        check_described(self, lambda name: MERGE_PARAMS[name].option or name)
 
     @property
     def suffix(self) -> str:
@@ -89,6 +98,10 @@ class MergeOptions:
 
     def sha256(self) -> str:
         return hashlib.sha256(json.dumps(asdict(self), sort_keys=True).encode()).hexdigest()
+
+
+#: every described merge setting, by field
+MERGE_PARAMS = params_of(MergeOptions)
 
 
 # -- the merge itself (pure arrays) ---------------------------------------------------------------

@@ -149,3 +149,29 @@ def test_a_pixel_made_from_one_saturated_site_is_saturated():
     pixels = saturated_pixels(sites, (4, 4))
     assert pixels.shape == (4, 4) and pixels[1, 1] and pixels[3, 3] and pixels.sum() == 2
     assert (saturated_pixels(sites, (8, 8)) == sites).all()
+
+
+@pytest.mark.parametrize("name, bad", [("clip_fraction", 0.3), ("noise_floor", 0.5), ("max_shift_px", -1.0),
+                                       ("format", "png")])
+def test_merge_settings_are_described_once_for_the_merge_and_the_command_line(name, bad, capsys):
+    """lfstudio process's --hdr* options are made from MergeOptions's descriptions: the same names,
+    defaults and ranges; the merge and the command line refuse the same value, naming the option."""
+    import argparse
+
+    from lfstudio.cli import process as process_cli
+    from lfstudio.errors import InputError
+    from lfstudio.processing.hdr import MERGE_PARAMS
+
+    param = MERGE_PARAMS[name]
+    with pytest.raises(InputError) as err:
+        MergeOptions(**{name: bad})
+    assert str(err.value).startswith(f"{param.option or name}: ")
+    p = argparse.ArgumentParser(prog="lfstudio process")
+    process_cli.add_arguments(p)
+    args = p.parse_args(["ds"])
+    assert (args.hdr, args.hdr_half, args.hdr_clip, args.hdr_noise_floor) == (None, False, MergeOptions().clip_fraction,
+                                                                            MergeOptions().noise_floor)
+    if param.option:
+        with pytest.raises(SystemExit):
+            p.parse_args(["ds", param.option, str(bad)])
+        assert f"argument {param.option}" in capsys.readouterr().err
