@@ -21,7 +21,7 @@ import argparse
 from typing import Any, Callable
 
 from lfstudio.errors import InputError
-from lfstudio.numbers import Number, parse_grid, parse_numbers
+from lfstudio.numbers import Number, Param, parse_grid, parse_numbers
 
 CONVENTIONS = ("Grids are COLUMNSxROWS (9x5: 9 columns, 5 rows; an array of views: array:3x2); a view's "
                "position is COLUMN,ROW counted from 0 (4,2: column 4, row 2), its name r02_c004; spacings are "
@@ -105,6 +105,34 @@ def path_option(option: str) -> Callable[[str], str]:
     from lfstudio.dataset.paths import expand_path
 
     return as_option(option, lambda text: str(expand_path(text, option)))
+
+
+def described_option(p: Any, param: Param, default: Any, *, said: str | None = None, required: bool = False,
+                     reader: Callable[[str], Any] | None = None) -> None:
+    """Add the option of a described parameter (:class:`lfstudio.numbers.Param`) to the parser or group
+    ``p``: its name, placeholder, choices, reader and help all come from the description, so the command
+    line accepts what the loader and the window accept. ``said``: the default as ``--help`` tells it
+    (None: ``default`` as typed; empty: not told); ``reader``: a reader of its own for a compound value
+    (a grid, a bracket)."""
+    option = param.option
+    if said is None:
+        said = param.to_text(default) if default is not None else ""
+    kwargs: dict[str, Any] = {"help": f"{param.tip} (default {said})" if said and not required else param.tip}
+    if required:
+        kwargs["required"] = True
+    else:
+        kwargs["default"] = default
+    if param.metavar:
+        kwargs["metavar"] = param.metavar
+    if param.repeat:
+        kwargs["action"] = "append"
+    if param.choices:
+        kwargs["choices"] = param.choices
+    elif reader is not None:
+        kwargs["type"] = reader
+    elif param.number is not None:
+        kwargs["type"] = numbers_option(option, param.number) if param.pair else number_option(param.number, option)
+    p.add_argument(option, **kwargs)
 
 
 def bracket_option(option: str = "--bracket") -> Callable[[str], Any]:

@@ -7,9 +7,9 @@ import logging
 import sys
 import time
 
-from lfstudio.cli.args import number_option, old_spelling
+from lfstudio.cli.args import described_option, number_option, old_spelling
 from lfstudio.errors import DeviceError, InputError
-from lfstudio.numbers import TIME_SCALE, TIMEOUT_S, Number
+from lfstudio.numbers import TIMEOUT_S, Number
 
 log = logging.getLogger(__name__)
 
@@ -24,18 +24,14 @@ COMMAND_ARGS = {"status": (), "home": (), "unlock": (), "origin": (), "reset": (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--port", required=True, metavar="PORT",
-                   help="serial port of the controller (/dev/ttyUSB0, /dev/pts/N printed by 'lfstudio sim-rig', "
-                        "COM3) or 'sim' to start the built-in simulated controller in this process; a pair of "
-                        "CiA 402 drives: dryve:HOST[:PORT],HOST[:PORT] (Modbus TCP, e.g. printed by 'lfstudio "
-                        "sim-drive'), canopen:CHANNEL:NODE,NODE, or sim-dryve / sim-canopen (emulated here)")
-    p.add_argument("--rig-profile", default=None, metavar="NAME",
-                   help="rig profile (default: the reference gantry; for sim-dryve/sim-canopen the preset dryve D1 "
-                        "pair; real drives need theirs named)")
+    from lfstudio.studio.scan_options import PARAMS as SCAN
+
+    described_option(p, SCAN["port"], None, required=True)
+    described_option(p, SCAN["rig_profile"], None, said="the reference gantry; for sim-dryve/sim-canopen the preset "
+                                                         "dryve D1 pair")
     old_spelling(p, "--rig", "--rig-profile")
     p.add_argument("--baud", type=number_option(BAUD, "--baud"), default=115200, help="baud rate (default 115200)")
-    p.add_argument("--time-scale", type=number_option(TIME_SCALE, "--time-scale"), default=1.0, metavar="X",
-                   help="with --port sim: 1 real time, 0.1 ten times faster, 0 instant (default 1)")
+    described_option(p, SCAN["time_scale"], 1.0, said="1; only for a simulated controller")
     p.add_argument("--timeout-s", type=number_option(TIMEOUT_S, "--timeout-s"), default=3.0,
                    help="longest wait for any answer (default 3 s)")
     p.add_argument("commands", nargs=argparse.REMAINDER, metavar="COMMAND [ARGS]",

@@ -14,7 +14,7 @@ import signal
 import sys
 import threading
 
-from lfstudio.cli.args import bracket_option, grid_option, number_option, numbers_option, path_option, refused_spelling
+from lfstudio.cli.args import bracket_option, described_option, grid_option, path_option, refused_spelling
 from lfstudio.dataset.paths import view_label
 from lfstudio.errors import DatasetError, InputError
 
@@ -43,29 +43,12 @@ def _described(p, name: str) -> None:
     from lfstudio.studio.scan_options import FROM_PLAN, PARAMS, ScanOptions
 
     param = PARAMS[name]
-    option = param.option
+    reader = (grid_option(param.option) if name == "grid_columns" else
+              bracket_option(param.option) if name == "bracket" else None)
     if name in FROM_PLAN:
-        default, said = None, _UNSET_DEFAULT[name]
+        described_option(p, param, None, said=_UNSET_DEFAULT[name], reader=reader)
     else:
-        default = getattr(ScanOptions(), name)
-        said = param.to_text(default)
-    kwargs: dict = {"default": default, "help": f"{param.tip} (default: {said})" if name in FROM_PLAN
-                    else f"{param.tip} (default {said})" if said else param.tip}
-    if param.metavar:
-        kwargs["metavar"] = param.metavar
-    if param.repeat:
-        kwargs["action"] = "append"
-    if param.choices:
-        kwargs["choices"] = param.choices
-    elif name == "grid_columns":
-        kwargs["type"] = grid_option(option)
-    elif name == "bracket":
-        kwargs["type"] = bracket_option(option)
-    elif param.pair:
-        kwargs["type"] = numbers_option(option, param.number)
-    elif param.number is not None:
-        kwargs["type"] = number_option(param.number, option)
-    p.add_argument(option, **kwargs)
+        described_option(p, param, getattr(ScanOptions(), name), reader=reader)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

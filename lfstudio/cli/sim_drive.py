@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import argparse
 
-from lfstudio.cli.args import number_option, old_spelling
+from lfstudio.cli.args import described_option, old_spelling
 from lfstudio.cli.serving import serve_until_stopped
 from lfstudio.errors import InputError
-from lfstudio.numbers import SEED, TIME_SCALE
 from lfstudio.rig.profile import DEFAULT_DRIVE_RIG
 
 HELP = "start two emulated CiA 402 axis drives (dryve D1, Modbus TCP on 127.0.0.1) and print their device word"
@@ -26,15 +25,14 @@ def _ports(text: str) -> tuple[int, int]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--rig-profile", default=None, metavar="NAME",
-                   help=f"a CiA 402 rig profile (default: {DEFAULT_DRIVE_RIG!r})")
+    from lfstudio.studio.scan_options import PARAMS as SCAN
+
+    described_option(p, SCAN["rig_profile"], None, said=f"{DEFAULT_DRIVE_RIG!r}; a CiA 402 profile")
     old_spelling(p, "--rig", "--rig-profile")
     p.add_argument("--ports", type=_ports, default=(0, 0), metavar="P1,P2",
                    help="TCP ports of the horizontal and vertical drive (default: any free ports)")
-    p.add_argument("--time-scale", type=number_option(TIME_SCALE, "--time-scale"), default=1.0, metavar="X",
-                   help="1 real time, 0.1 ten times faster, 0 instant (default 1)")
-    p.add_argument("--seed", type=number_option(SEED, "--seed"), default=0, metavar="N",
-                   help="seed of the carriage's position at power-up (default 0)")
+    described_option(p, SCAN["time_scale"], 1.0)
+    described_option(p, SCAN["seed"], 0, said="0; it sets the carriage's position at power-up")
     p.epilog = ("The drives listen on 127.0.0.1 only. Connect with --port dryve:127.0.0.1:P1,127.0.0.1:P2 "
                 "(the first line printed); the simulated camera (--camera sim) follows them.")
 

@@ -29,8 +29,9 @@ class ScanOptions:
     port: str | None = described(
         None, optional="sim", label="Axis controller", option="--port", metavar="sim|PORT", group=DEVICES,
         tip="axis controller: 'sim' (simulated GRBL on a pseudo-terminal), 'instant' (no timing) or a serial port "
-            "such as /dev/ttyUSB0; a pair of CiA 402 drives: dryve:HOST[:PORT],HOST[:PORT], canopen:CHANNEL:NODE,NODE, "
-            "sim-dryve or sim-canopen")
+            "such as /dev/ttyUSB0 or COM3 (/dev/pts/N as printed by 'lfstudio sim-rig'); a pair of CiA 402 drives: "
+            "dryve:HOST[:PORT],HOST[:PORT] (Modbus TCP, as printed by 'lfstudio sim-drive'), "
+            "canopen:CHANNEL:NODE,NODE, or sim-dryve / sim-canopen (emulated here)")
     camera: str | None = described(
         None, optional="sim", label="Camera", option="--camera", metavar="sim|gphoto2|folder:PATH", group=DEVICES,
         tip="camera: 'sim' (renders the virtual studio), 'gphoto2' (tethered USB), 'folder:PATH' (hot folder) "

@@ -78,7 +78,7 @@ def test_export_format_lists_its_choices_and_scan_spacing_says_its_default(run_c
     _one_line(proc, "--format (one of png, hevc, hci, colmap, nerfstudio)")
     spacing = " ".join(run_cli("scan", "--help").stdout.split())
     assert re.search(r"--spacing-mm HxV distance between neighbouring views in mm, horizontal x vertical, "
-                     r"e\.g\. 4x6 \(default: from --plan, else 4x6", spacing), spacing
+                     r"e\.g\. 4x6 \(default from --plan, else 4x6", spacing), spacing
 
 
 def test_hci_centre_view_is_column_row_and_the_old_row_column_option_is_refused(make_tiny_dataset, run_cli,

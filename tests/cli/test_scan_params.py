@@ -96,3 +96,23 @@ def test_the_unattended_options_are_described_once_for_the_command_line_and_the_
     with pytest.raises(InputError) as err:
         Unattended.open(UnattendedOptions(notify="https://a.example/h"))    # a text, not a list of them
     assert str(err.value).startswith("--notify: ") and "not a list" in str(err.value)
+
+
+@pytest.mark.parametrize("command, names", [("rig", ("port", "rig_profile", "time_scale")),
+                                            ("sim_drive", ("rig_profile", "time_scale", "seed"))])
+def test_the_rig_and_drive_commands_take_the_scan_options_descriptions(command, names, capsys):
+    """lfstudio rig's and sim-drive's --port, --rig-profile, --time-scale and --seed are the scan's
+    options, made from the same descriptions: the same help and the same range."""
+    import importlib
+
+    module = importlib.import_module(f"lfstudio.cli.{command}")
+    p = argparse.ArgumentParser(prog=f"lfstudio {command}")
+    module.add_arguments(p)
+    actions = {a.option_strings[0]: a for a in p._actions if a.option_strings}
+    for name in names:
+        assert PARAMS[name].tip in actions[PARAMS[name].option].help, (command, name)
+    port = ["--port", "sim"] if command == "rig" else []
+    too_slow = f"{PARAMS['time_scale'].number.high * 2:g}"
+    with pytest.raises(SystemExit):
+        p.parse_args([*port, "--time-scale", too_slow])
+    assert "argument --time-scale" in capsys.readouterr().err
