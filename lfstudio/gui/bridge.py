@@ -70,7 +70,7 @@ class GuiInbox(QObject):
 
     _wake = Signal()
 
-    def __init__(self, handler: Callable[[list], None], parent: QObject | None = None, every_ms: int = 0):
+    def __init__(self, handler: Callable[[list], object], parent: QObject | None = None, every_ms: int = 0):
         super().__init__(parent)
         self._handler = handler
         self._items: list = []

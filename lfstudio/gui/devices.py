@@ -97,10 +97,11 @@ class QtDevice(QObject):
 
     # -- calls -------------------------------------------------------------------------------------
     def run(self, fn_or_name: str | Callable[..., Any], *args: Any, timeout_s: float | None = None,
-            on_result: Callable[[Any], None] | None = None, on_error: Callable[[str], None] | None = None,
+            on_result: Callable[[Any], object] | None = None, on_error: Callable[[str], object] | None = None,
             **kwargs: Any) -> Future:
         """Submit a driver call; its result/error arrive as signals (and the optional callbacks)
-        on the GUI thread. Returns the Future (do not block on it from the GUI thread)."""
+        on the GUI thread (what a callback returns is not used). Returns the Future (do not block on it
+        from the GUI thread)."""
         name = fn_or_name if isinstance(fn_or_name, str) else getattr(fn_or_name, "__name__", "call")
         future = self.worker.submit(fn_or_name, *args, timeout_s=timeout_s, **kwargs)
         self._pending += 1

@@ -6,13 +6,15 @@ import time
 
 import numpy as np
 from PySide6.QtCore import QEvent, QObject, QPointF, QRectF, QSize, Qt, QTimer, Signal
-from PySide6.QtGui import QColor, QFont, QGuiApplication, QPainter, QPen, QTextDocumentFragment, QWindow
+from PySide6.QtGui import (QAction, QColor, QFont, QGuiApplication, QPainter, QPen, QTextDocumentFragment,
+                           QWheelEvent, QWindow)
 from PySide6.QtWidgets import (QAbstractSpinBox, QApplication, QComboBox, QHBoxLayout, QLabel, QMessageBox,
                                QProgressBar, QPushButton, QSizePolicy, QWidget)
 
 from lfstudio.dataset.paths import view_stem
 from lfstudio.gui.bridge import Pacer
 from lfstudio.jobs import format_duration
+from lfstudio.numbers import Number, Param
 
 
 def readable_time(iso: str | None) -> str:
@@ -37,6 +39,23 @@ def calibration_warnings(doc: dict) -> tuple[list[str], list[str]]:
     held = {h.get("reason") for h in ((doc.get("observability") or {}).get("held") or [])}
     every = list(doc.get("warnings") or [])
     return [w for w in every if w not in held], [w for w in every if w in held]
+
+
+def number_of(param: Param, name: str) -> Number:
+    """The rules of the described number ``name`` that an editor is built from (RuntimeError when its
+    description has none: the descriptions are the program's own tables, so that is a programming error)."""
+    if param.number is None:
+        raise RuntimeError(f"{name} is described without a number, but its editor needs one")
+    return param.number
+
+
+def bounds_of(param: Param, name: str) -> tuple[float, float]:
+    """Both ends of the described number ``name``'s range, which its spin box needs (RuntimeError when
+    the description leaves one open, as :func:`number_of`)."""
+    number = number_of(param, name)
+    if number.low is None or number.high is None:
+        raise RuntimeError(f"{name} is described without both ends of its range, but its spin box needs them")
+    return number.low, number.high
 
 
 #: room left around a dialog for the window manager's frame and title bar
@@ -124,7 +143,7 @@ class WholeOrNothingLabel(QLabel):
             super().paintEvent(event)
 
 
-def show_lock_note(note: QLabel, tips: list[tuple[QObject, str]], reason: str, text: str) -> None:
+def show_lock_note(note: QLabel, tips: list[tuple[QWidget | QAction, str]], reason: str, text: str) -> None:
     """A device taken by a scan (``reason`` not empty): ``note`` shows ``text`` and each control's
     tooltip (``tips``: the control and its own tooltip) ends with ``reason``; an empty ``reason``
     hides the note and gives every control its own tooltip back."""
@@ -155,7 +174,7 @@ class WheelGuard(QObject):
 
     def eventFilter(self, obj: QObject, event: QEvent) -> bool:   # noqa: N802 (Qt name)
         self.looked_at += 1
-        if event.type() != QEvent.Type.Wheel:
+        if event.type() != QEvent.Type.Wheel or not isinstance(event, QWheelEvent):
             return False
         if isinstance(obj, QWindow):
             target = self._widget_under(obj, event.globalPosition().toPoint())
@@ -190,7 +209,11 @@ class WheelGuard(QObject):
 def install_wheel_guard(app: QApplication | None = None) -> WheelGuard:
     """Install the :class:`WheelGuard` (once; later calls return the same one): on the windows there
     are now and on every window that becomes active later (a new window is activated when shown)."""
-    app = app or QApplication.instance()
+    if app is None:
+        instance = QApplication.instance()
+        if not isinstance(instance, QApplication):
+            raise RuntimeError("the wheel guard needs the QApplication: make it first")
+        app = instance
     guard = app.findChild(WheelGuard, "wheelGuard")
     if guard is None:
         guard = WheelGuard(app)

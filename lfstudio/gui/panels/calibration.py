@@ -54,9 +54,9 @@ class CalibrationPanel(QWidget):
         from lfstudio.calibration.model import CalibrationUncertainty, load_calibration
         try:
             doc = load_calibration(dataset)
-            rx, ry, rz = doc["rotation_deg"] if doc is not None else (0.0, 0.0, 0.0)
-            after = doc["residual_px"]["after"] if doc is not None else None
-            before = doc["residual_px"]["before"] if doc is not None else None
+            if doc is not None:
+                rx, ry, rz = doc["rotation_deg"]
+                after, before = doc["residual_px"]["after"], doc["residual_px"]["before"]
         except LfError as exc:
             self.summary.setText(f"calibration.json is unreadable: {exc}")
             return

@@ -23,7 +23,7 @@ from lfstudio.dataset.paths import expand_path
 from lfstudio.errors import InputError
 from lfstudio.gui.devices import QtDevice
 from lfstudio.gui.path_field import expand_on_edit
-from lfstudio.gui.settings import settings
+from lfstudio.gui.settings import read_float, read_int, read_text, settings
 from lfstudio.gui.state import AppState
 from lfstudio.gui.widgets import show_lock_note
 from lfstudio.resources import user_config_dir
@@ -89,7 +89,7 @@ class CameraPanel(QWidget):
         self.sim_width = QSpinBox()
         self.sim_width.setRange(320, 7952)
         self.sim_width.setSingleStep(100)
-        self.sim_width.setValue(int(s.value("camera/sim_width_px", 2000)))
+        self.sim_width.setValue(read_int("camera/sim_width_px", 2000, s))
         self.sim_width.setSuffix(" px")
         self.sim_width.setToolTip("Width of the simulated images (the reference sensor is 7952 px; 2000 renders fast)")
         self.sim_noise = QDoubleSpinBox()
@@ -97,25 +97,25 @@ class CameraPanel(QWidget):
         self.sim_noise.setDecimals(2)
         self.sim_noise.setSingleStep(0.05)
         self.sim_noise.setSuffix(" %")
-        self.sim_noise.setValue(float(s.value("camera/sim_noise_pct", 0.2)))
+        self.sim_noise.setValue(read_float("camera/sim_noise_pct", 0.2, s))
         self.sim_noise.setToolTip("Read noise in % of the clipping level (shot noise is always added with it)")
         self.sim_flicker = QDoubleSpinBox()
         self.sim_flicker.setRange(0, 20)
         self.sim_flicker.setDecimals(1)
         self.sim_flicker.setSuffix(" %")
-        self.sim_flicker.setValue(float(s.value("camera/sim_flicker_pct", 1.0)))
+        self.sim_flicker.setValue(read_float("camera/sim_flicker_pct", 1.0, s))
         self.sim_flicker.setToolTip("Light flicker: the brightness of each shot varies by this standard deviation")
         self.sim_vignetting = QDoubleSpinBox()
         self.sim_vignetting.setRange(0, 80)
         self.sim_vignetting.setDecimals(0)
         self.sim_vignetting.setSuffix(" %")
-        self.sim_vignetting.setValue(float(s.value("camera/sim_vignetting_pct", 20)))
+        self.sim_vignetting.setValue(read_float("camera/sim_vignetting_pct", 20, s))
         self.sim_vignetting.setToolTip("Light lost in the image corners")
         self.sim_time_scale = QDoubleSpinBox()
         self.sim_time_scale.setRange(0, 1)
         self.sim_time_scale.setDecimals(2)
         self.sim_time_scale.setSingleStep(0.1)
-        self.sim_time_scale.setValue(float(s.value("camera/sim_time_scale", 1.0)))
+        self.sim_time_scale.setValue(read_float("camera/sim_time_scale", 1.0, s))
         self.sim_time_scale.setToolTip("Simulated exposure/transfer delays: 1 = real time, 0 = none")
         self.sim_truth = QLabel("")
         self.sim_truth.setWordWrap(True)
@@ -141,7 +141,7 @@ class CameraPanel(QWidget):
         gl.addStretch(1)
 
         # hot folder
-        self.folder_edit = QLineEdit(str(s.value("camera/hot_folder", "")))
+        self.folder_edit = QLineEdit(read_text("camera/hot_folder", "", s))
         self.folder_edit.setPlaceholderText("folder the camera software saves into")
         self.folder_edit.setToolTip("New files appearing here are taken as the shots "
                                     "(~ and $VARIABLES are expanded)")
@@ -152,13 +152,13 @@ class CameraPanel(QWidget):
         row = QHBoxLayout()
         row.addWidget(self.folder_edit, 1)
         row.addWidget(browse)
-        self.trigger_edit = QLineEdit(str(s.value("camera/trigger_command", "")))
+        self.trigger_edit = QLineEdit(read_text("camera/trigger_command", "", s))
         self.trigger_edit.setPlaceholderText('optional, e.g. vendorcli --capture')
         self.trigger_edit.setToolTip("Command run for each shot, split into arguments like a shell would but "
                                      "never run through a shell; leave empty to trigger by hand")
         self.folder_timeout = QDoubleSpinBox()
         self.folder_timeout.setRange(1, 600)
-        self.folder_timeout.setValue(float(s.value("camera/hot_timeout_s", 30)))
+        self.folder_timeout.setValue(read_float("camera/hot_timeout_s", 30, s))
         self.folder_timeout.setSuffix(" s")
         self.folder_timeout.setToolTip("How long to wait for the new file")
         folder_page = QWidget()
@@ -187,18 +187,18 @@ class CameraPanel(QWidget):
         # exposure
         self.iso = QComboBox()
         self.iso.addItems(ISO_CHOICES)
-        self.iso.setCurrentText(str(s.value("camera/iso", "100")))
+        self.iso.setCurrentText(read_text("camera/iso", "100", s))
         self.iso.setToolTip("Sensor sensitivity")
         self.shutter = QDoubleSpinBox()
         self.shutter.setRange(0.0001, 60)
         self.shutter.setDecimals(4)
-        self.shutter.setValue(float(s.value("camera/shutter_s", 0.5)))
+        self.shutter.setValue(read_float("camera/shutter_s", 0.5, s))
         self.shutter.setSuffix(" s")
         self.shutter.setToolTip("Exposure time")
         self.aperture = QDoubleSpinBox()
         self.aperture.setRange(1.0, 32.0)
         self.aperture.setDecimals(1)
-        self.aperture.setValue(float(s.value("camera/aperture", 16.0)))
+        self.aperture.setValue(read_float("camera/aperture", 16.0, s))
         self.aperture.setPrefix("f/")
         self.aperture.setToolTip("f-number (the Planner proposes the one that keeps the scene sharp)")
         self.apply_button = QPushButton("Apply to camera")
@@ -248,7 +248,7 @@ class CameraPanel(QWidget):
         state.scanStateChanged.connect(lambda _state: self._update_enabled())
         self._kind_changed()
 
-    def _camera_controls(self) -> list:
+    def _camera_controls(self) -> list[QWidget | QAction]:
         """Everything that commands the camera (disabled while a scan owns it)."""
         return [self.shot_button, self.shot_action, self.apply_button, self.connect_button, self.connect_action]
 
@@ -273,7 +273,9 @@ class CameraPanel(QWidget):
         self.pages.setCurrentIndex(current)
         for i in range(self.pages.count()):       # the stack takes the height of the shown page only
             policy = QSizePolicy.Policy.Preferred if i == current else QSizePolicy.Policy.Ignored
-            self.pages.widget(i).setSizePolicy(policy, policy)
+            page = self.pages.widget(i)
+            if page is not None:
+                page.setSizePolicy(policy, policy)
         self.pages.adjustSize()
         settings().setValue(self.kind_key, self.current_kind())
         self._show_truth()
@@ -391,6 +393,8 @@ class CameraPanel(QWidget):
         self._update_enabled()
 
     def _connected(self) -> None:
+        if self.device is None:     # disconnected before the camera's answer arrived
+            return
         name = self.kind.currentText()
         self._show(f"Connected: {name}", "ok")
         self.state.show_status(f"Camera connected ({name})")
@@ -443,8 +447,8 @@ class CameraPanel(QWidget):
         self.status_label.setStyleSheet(f"color: {colours.get(kind, '#555555')};")
 
     def _update_enabled(self) -> None:
-        connected = self.connected
-        busy = connected and self.device.busy
+        connected = self.device is not None
+        busy = self.device is not None and self.device.busy
         free = not self.state.scan_owns_camera
         for w in (self.kind, self.pages):
             w.setEnabled(not connected)

@@ -147,7 +147,7 @@ def _tint(box: QAbstractSpinBox, mark: str) -> None:
 class _Row:
     """The widgets of one input row: spin box(es) and the message line under them."""
 
-    def __init__(self, spec: _Input, spins: list[QAbstractSpinBox], message: QLabel):
+    def __init__(self, spec: _Input, spins: list[QSpinBox | QDoubleSpinBox], message: QLabel):
         self.spec = spec
         self.spins = spins
         self.message = message
@@ -208,7 +208,8 @@ class PlannerPanel(QWidget):
         outer = QVBoxLayout(self)
         outer.setContentsMargins(4, 4, 4, 4)
         outer.setSpacing(6)
-        outer.addWidget(self._build_results())
+        results = self._build_results()
+        outer.addWidget(results)
 
         body = QWidget()
         body.setObjectName("plannerInputs")
@@ -219,7 +220,9 @@ class PlannerPanel(QWidget):
                                                        ("lens_name", "Lens", "lenses"), *_LENS_INPUTS]))
         lay.addWidget(self._group("Scene and aperture", _SCENE_INPUTS))
         timing = self._group("Grid, rig and timing", [("rig_name", "Rig", "rigs"), *_GRID_INPUTS])
-        self._add_bracket_row(timing.layout())
+        grid = timing.layout()
+        assert isinstance(grid, QGridLayout)       # _group lays its box out on a grid
+        self._add_bracket_row(grid)
         lay.addWidget(timing)
         lay.addWidget(self._group("Targets", _TARGET_INPUTS))
         buttons = QHBoxLayout()
@@ -243,15 +246,15 @@ class PlannerPanel(QWidget):
         scroll.setWidget(body)
         outer.addWidget(scroll, 1)
         self.setMinimumWidth(430)
-        self._results_box, self._body, self._body_scroll = outer.itemAt(0).widget(), body, scroll
+        self._outer, self._results_box, self._body, self._body_scroll = outer, results, body, scroll
 
     def height_when_scrolled(self) -> int:
         """The panel's height with its inputs shown whole: when the dock is lower than the panel's
         minimum, the dock's scroll area lays it out at this height, so the inputs' own scroll area
         does not scroll as well (two scroll bars, one inside the other)."""
-        margins = self.layout().contentsMargins()
+        margins = self._outer.contentsMargins()
         return (margins.top() + margins.bottom() + self._results_box.sizeHint().height()
-                + self.layout().spacing() + self._body.sizeHint().height()
+                + self._outer.spacing() + self._body.sizeHint().height()
                 + 2 * self._body_scroll.frameWidth())
 
     def _group(self, title: str, items: list) -> QGroupBox:
@@ -327,12 +330,12 @@ class PlannerPanel(QWidget):
         label.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         return label
 
-    def _spins(self, spec: _Input) -> list[QAbstractSpinBox]:
+    def _spins(self, spec: _Input) -> list[QSpinBox | QDoubleSpinBox]:
         count = 2 if spec.kind in ("pair", "ipair") else 1
-        spins: list[QAbstractSpinBox] = []
+        spins: list[QSpinBox | QDoubleSpinBox] = []
         for i in range(count):
             if spec.kind in ("int", "ipair"):
-                box: QAbstractSpinBox = QSpinBox()
+                box: QSpinBox | QDoubleSpinBox = QSpinBox()
                 box.setRange(int(spec.lo), int(spec.hi))
             else:
                 box = QDoubleSpinBox()
@@ -451,7 +454,10 @@ class PlannerPanel(QWidget):
                 vals = value if isinstance(value, (tuple, list)) else (value,)
                 for box, v in zip(spins, vals):
                     box.blockSignals(True)
-                    box.setValue(box.minimum() if v is None else v)
+                    if isinstance(box, QSpinBox):      # (the same call: one box takes int, the other float)
+                        box.setValue(box.minimum() if v is None else v)
+                    else:
+                        box.setValue(box.minimum() if v is None else v)
                     box.blockSignals(False)
             for key, name in (("camera_name", plan.camera_name), ("lens_name", plan.lens_name),
                               ("rig_name", plan.rig_name)):
@@ -535,7 +541,7 @@ class PlannerPanel(QWidget):
             self._show_message(key, messages.get(key, []))
         self.apply_spacing_button.setEnabled(result is not None)
         if result is None:
-            label = self.rows.get(_row_of(error.field)).spec.label if error and _row_of(error.field) in self.rows \
+            label = self.rows[_row_of(error.field)].spec.label if error and _row_of(error.field) in self.rows \
                 else (error.field if error else "")
             self._set_status(False, f"✖ Fix {label}: the plan is not valid")
             for value in self.outputs.values():
@@ -597,9 +603,9 @@ class PlannerPanel(QWidget):
         put("column_parallax", f"{r.column_parallax_px:.0f} px ({100 * r.column_parallax_fraction:.1f} % of height)")
         ps = r.proposed_spacing_mm
         put("proposed_spacing", f"{ps['horizontal']:.3g} / {ps['vertical']:.3g} mm for ≤ {plan.max_disparity_px:g} px")
-        put("proposed_grid", "— (set a wanted parallax)" if r.proposed_grid is None
-            else f"{r.proposed_grid.columns} × {r.proposed_grid.rows} for "
-                 f"{100 * plan.target_parallax_fraction:g} %")
+        grid, fraction = r.proposed_grid, plan.target_parallax_fraction
+        put("proposed_grid", "— (set a wanted parallax)" if grid is None or fraction is None
+            else f"{grid.columns} × {grid.rows} for {100 * fraction:g} %")
         frames = f", {r.frames} frames" if r.frames_per_view > 1 else ""
         put("images", f"{plan.grid_columns} × {plan.grid_rows} = {r.images}{frames}"
             + ("" if r.fits_travel else "  — beyond travel"), "" if r.fits_travel else "bad")
@@ -797,9 +803,11 @@ class PlanPlotsPanel(QWidget):
         self.plots_layout.setSpacing(6)
         lay.addLayout(self.plots_layout, 1)
         # colours set per plot: pyqtgraph's global options would restyle other panels' image views
-        self.dof_plot = pg.PlotWidget(background="w")
+        # each plot's item made here, so its view box is at hand (PlotWidget declares its item optional)
+        self._views = {"dof": pg.PlotItem(), "disparity": pg.PlotItem()}
+        self.dof_plot = pg.PlotWidget(background="w", plotItem=self._views["dof"])
         self.dof_plot.setObjectName("dofPlot")
-        self.disparity_plot = pg.PlotWidget(background="w")
+        self.disparity_plot = pg.PlotWidget(background="w", plotItem=self._views["disparity"])
         self.disparity_plot.setObjectName("disparityPlot")
         for plot in (self.dof_plot, self.disparity_plot):
             for side in ("left", "bottom"):
@@ -929,7 +937,7 @@ class PlanPlotsPanel(QWidget):
         for item in (self.scene_region, self.sharp_region, self.coc_line, self.pixels_line, self.focus_line,
                      self.disparity_scene, self.zmin_line):
             item.setVisible(visible)
-        if r is None:
+        if plan is None or r is None:
             for curve in (self.blur_curve, self.airy_curve, *self.disparity_curves.values()):
                 curve.setData([], [])
             if plan is None:
@@ -946,7 +954,7 @@ class PlanPlotsPanel(QWidget):
         # depth of field
         coc_um = plan.coc_mm * 1000
         y_top = max(3 * coc_um, r.airy_disk_um * 1.3)
-        blur_um = optics.blur_diameter_mm(z_mm, r.focus_used_m * 1000, f, r.f_number_used) * 1000
+        blur_um = np.vectorize(optics.blur_diameter_mm)(z_mm, r.focus_used_m * 1000, f, r.f_number_used) * 1000
         self.blur_curve.setData(z_m, np.minimum(blur_um, y_top * 2))
         self.airy_curve.setData([z_m[0], z_m[-1]], [r.airy_disk_um, r.airy_disk_um])
         self.scene_region.setRegion((plan.near_m, plan.far_m))
@@ -969,7 +977,7 @@ class PlanPlotsPanel(QWidget):
             if b <= 0:
                 self.disparity_curves[key].setData([], [])
                 continue
-            d = optics.disparity_px(b, z_mm, math.inf, f, pitch)
+            d = np.vectorize(optics.disparity_px)(b, z_mm, math.inf, f, pitch)
             y_values.append(d)
             self.disparity_curves[key].setData(z_m, d)
         self.zmin_line.setValue(r.min_distance_m)
@@ -1002,16 +1010,15 @@ class PlanPlotsPanel(QWidget):
         new = sticky_range(current, lo, hi)
         if new == current:
             return
-        target = self.dof_plot if plot == "dof" else self.disparity_plot
+        view = self._views[plot].getViewBox()
         if axis == "x":
-            target.setXRange(*new, padding=0)
+            view.setXRange(*new, padding=0)
         else:
-            target.setYRange(*new, padding=0)
+            view.setYRange(*new, padding=0)
 
     def view_range(self, plot: str, axis: str) -> tuple[float, float]:
         """The range ``axis`` of ``plot`` ("dof" or "disparity") shows now (after a mouse zoom too)."""
-        target = self.dof_plot if plot == "dof" else self.disparity_plot
-        x, y = target.getPlotItem().getViewBox().viewRange()
+        x, y = self._views[plot].getViewBox().viewRange()
         lo, hi = x if axis == "x" else y
         return float(lo), float(hi)
 

@@ -29,9 +29,9 @@ from PySide6.QtWidgets import (QButtonGroup, QComboBox, QDoubleSpinBox, QGridLay
 
 from lfstudio.errors import LfError, window_message
 from lfstudio.gui.devices import QtDevice
-from lfstudio.gui.settings import settings
+from lfstudio.gui.settings import read_float, settings
 from lfstudio.gui.state import AppState
-from lfstudio.gui.widgets import show_lock_note
+from lfstudio.gui.widgets import number_of, show_lock_note
 from lfstudio.rig.motion import RigConfig, RigState, RigStatus
 from lfstudio.rig.worker import DeviceFault, DeviceWorker
 
@@ -77,8 +77,9 @@ class RigDiagram(QWidget):
         self.target_mm = target_mm
         self.update()
 
-    def _map(self, area: QRectF, x_mm: float, y_mm: float) -> QPointF:
-        h, v = self.config.horizontal, self.config.vertical
+    @staticmethod
+    def _map(area: QRectF, config: RigConfig, x_mm: float, y_mm: float) -> QPointF:
+        h, v = config.horizontal, config.vertical
         return QPointF(area.left() + area.width() * x_mm / h.travel_mm,
                        area.top() + area.height() * y_mm / v.travel_mm)
 
@@ -88,15 +89,17 @@ class RigDiagram(QWidget):
         fm = p.fontMetrics()
         area = QRectF(8, 6, self.width() - 16, self.height() - 12 - fm.height())
         p.fillRect(self.rect(), QColor("#f7f8fa"))
-        if self.config is None:
+        config = self.config
+        if config is None:
             p.setPen(QColor("#6b7280"))
             p.drawText(self.rect(), Qt.AlignmentFlag.AlignCenter, "no rig")
             return
-        h, v = self.config.horizontal, self.config.vertical
+        h, v = config.horizontal, config.vertical
         p.setPen(QPen(QColor("#9aa1ab"), 1))
         p.setBrush(QBrush(QColor("#e3e6eb")))
         p.drawRect(area)
-        soft = QRectF(self._map(area, h.soft_min_mm, v.soft_min_mm), self._map(area, h.soft_max_mm, v.soft_max_mm))
+        soft = QRectF(self._map(area, config, h.soft_min_mm, v.soft_min_mm),
+                      self._map(area, config, h.soft_max_mm, v.soft_max_mm))
         p.setBrush(Qt.BrushStyle.NoBrush)
         p.setPen(QPen(QColor("#b35900"), 1, Qt.PenStyle.DashLine))
         p.drawRect(soft.adjusted(1, 1, -1, -1))
@@ -106,12 +109,12 @@ class RigDiagram(QWidget):
         p.drawText(QRectF(area.left(), area.bottom() + 1, area.width(), fm.height()), Qt.AlignmentFlag.AlignRight,
                    f"y ↓ {v.travel_mm:g} mm")
         if self.target_mm is not None:
-            t = self._map(area, *self.target_mm)
+            t = self._map(area, config, *self.target_mm)
             p.setPen(QPen(QColor("#1565c0"), 1))
             p.drawLine(QPointF(t.x() - 6, t.y()), QPointF(t.x() + 6, t.y()))
             p.drawLine(QPointF(t.x(), t.y() - 6), QPointF(t.x(), t.y() + 6))
         if self.position_mm is not None:
-            c = self._map(area, min(max(self.position_mm[0], 0), h.travel_mm),
+            c = self._map(area, config, min(max(self.position_mm[0], 0), h.travel_mm),
                           min(max(self.position_mm[1], 0), v.travel_mm))
             p.setPen(QPen(QColor("#7f0000"), 1))
             p.setBrush(QBrush(QColor("#e53935")))
@@ -279,7 +282,7 @@ class RigPanel(QWidget):
         steps = QHBoxLayout()
         steps.addWidget(QLabel("Step"))
         self.step_group = QButtonGroup(self)
-        saved_step = float(settings().value("rig/step_mm", 10.0))
+        saved_step = read_float("rig/step_mm", 10.0)
         for size in STEP_SIZES_MM:
             b = QRadioButton(f"{size:g} mm")
             b.setFocusPolicy(Qt.FocusPolicy.NoFocus)
@@ -325,7 +328,7 @@ class RigPanel(QWidget):
                                 (self.goto_y, self.rig_config.vertical, "rig/goto_y")):
             spin.setDecimals(3)
             self._fit_target(spin, axis)
-            spin.setValue(float(settings().value(key, axis.soft_min_mm)))
+            spin.setValue(read_float(key, axis.soft_min_mm))
             spin.valueChanged.connect(lambda v, k=key: settings().setValue(k, v))
         self.goto_button = QPushButton("Go")
         self.goto_button.setToolTip("Move to this position (absolute, rig frame)")
@@ -372,7 +375,7 @@ class RigPanel(QWidget):
         """A Go-to field: the axis's soft limits, in the unit of their description."""
         from lfstudio.rig.profile import AXIS_PARAMS
 
-        unit = AXIS_PARAMS["soft_min_mm"].number.unit
+        unit = number_of(AXIS_PARAMS["soft_min_mm"], "soft_min_mm").unit
         spin.setRange(axis.soft_min_mm, axis.soft_max_mm)
         spin.setSuffix(f" {unit}")
         spin.setToolTip(f"{axis.name} target, inside the rig profile's soft limits {axis.soft_min_mm:g} … "
@@ -399,7 +402,7 @@ class RigPanel(QWidget):
         self.recover_action.setToolTip("Leave an alarm or reconnect after a lost connection")
         self.recover_action.triggered.connect(self.recover)
 
-    def _motion_controls(self) -> list:
+    def _motion_controls(self) -> list[QWidget | QAction]:
         """Everything that commands the rig except STOP (disabled while a scan owns the rig)."""
         return [self.connect_button, self.home_button, self.origin_button, self.recover_button, self.goto_button,
                 *self.jog_buttons.values(), self.connect_action, self.home_action, self.origin_action,
@@ -718,9 +721,10 @@ class RigPanel(QWidget):
 
     def _update_enabled(self) -> None:
         st = self.last_status
+        rig_state = RigState.DISCONNECTED if st is None else st.state
         free = not self.state.scan_owns_rig
-        live = self.device is not None and st is not None and st.state is not RigState.DISCONNECTED
-        can_move = free and live and st.homed and st.state in (RigState.IDLE, RigState.JOGGING)
+        live = self.device is not None and rig_state is not RigState.DISCONNECTED
+        can_move = free and live and st is not None and st.homed and rig_state in (RigState.IDLE, RigState.JOGGING)
         self.port_combo.setEnabled(self.device is None)
         self.rig_combo.setEnabled(self.device is None)
         self.refresh_button.setEnabled(self.device is None)
@@ -728,8 +732,8 @@ class RigPanel(QWidget):
         self.connect_action.setEnabled(free)
         self.home_button.setEnabled(free and live and self.rig_config.homing)
         self.home_action.setEnabled(free and live and self.rig_config.homing)
-        self.origin_button.setEnabled(free and live and st.state is RigState.IDLE)
-        self.origin_action.setEnabled(free and live and st.state is RigState.IDLE)
+        self.origin_button.setEnabled(free and live and rig_state is RigState.IDLE)
+        self.origin_action.setEnabled(free and live and rig_state is RigState.IDLE)
         self.recover_button.setEnabled(free)
         self.recover_action.setEnabled(free and self.device is not None)
         for b in self.jog_buttons.values():

@@ -37,9 +37,9 @@ from lfstudio.dataset.paths import new_dataset_folder_problem
 from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
-from lfstudio.gui.settings import settings
+from lfstudio.gui.settings import read_float, read_text, settings
 from lfstudio.gui.views.path_preview import PathPreview
-from lfstudio.gui.widgets import QuietLabel, readable_time, set_progress_async
+from lfstudio.gui.widgets import QuietLabel, bounds_of, number_of, readable_time, set_progress_async
 from lfstudio.jobs import count, format_duration
 from lfstudio.scan.events import EventKind, ScanRequestRefused, ScanState
 from lfstudio.scan.scan_plan import ScanPlan
@@ -66,10 +66,10 @@ def _tip(name: str) -> str:
 def _described(spin, name: str, value=None) -> None:
     """A spin box holding exactly what the scan option ``name`` accepts: range, unit and tip from its
     description, the window's own default ``value`` (else the description's)."""
-    param = SCAN_PARAMS[name]
-    number = param.number
+    number = number_of(SCAN_PARAMS[name], name)
+    low, high = bounds_of(SCAN_PARAMS[name], name)
     tick = 1 if number.integer else 10.0 ** -spin.decimals()
-    spin.setRange(number.low + tick if number.low_open else number.low, number.high)
+    spin.setRange(low + tick if number.low_open else low, high)
     if number.unit:
         spin.setSuffix(f" {number.unit}")
     spin.setValue(getattr(ScanOptions(), name) if value is None else value)
@@ -249,14 +249,14 @@ class ScanPanel(QWidget):
         sp_row.addWidget(self.spacing_h)
         sp_row.addWidget(QLabel("×"))
         sp_row.addWidget(self.spacing_v)
-        form.addRow(f"{SCAN_PARAMS['spacing_mm'].label} ({SCAN_PARAMS['spacing_mm'].number.unit})", sp_row)
+        form.addRow(f"{SCAN_PARAMS['spacing_mm'].label} ({number_of(SCAN_PARAMS['spacing_mm'], 'spacing_mm').unit})", sp_row)
         self.offset_h = self._mm_spin("offset_mm", 0, "Shift of the grid from the centre of the horizontal travel")
         self.offset_v = self._mm_spin("offset_mm", 1, "Shift of the grid from the centre of the vertical travel")
         off_row = QHBoxLayout()
         off_row.addWidget(self.offset_h)
         off_row.addWidget(QLabel("×"))
         off_row.addWidget(self.offset_v)
-        form.addRow(f"{SCAN_PARAMS['offset_mm'].label} ({SCAN_PARAMS['offset_mm'].number.unit})", off_row)
+        form.addRow(f"{SCAN_PARAMS['offset_mm'].label} ({number_of(SCAN_PARAMS['offset_mm'], 'offset_mm').unit})", off_row)
         self.order = QComboBox()
         self.order.addItems(SCAN_PARAMS["order"].choices)
         self.order.setToolTip(_tip("order"))
@@ -401,13 +401,10 @@ class ScanPanel(QWidget):
         s = settings()
         from lfstudio.gui.preferences import datasets_folder
 
-        self.folder.setText(str(s.value("scan/folder", str(datasets_folder() / "lfstudio-scan"))))
-        try:
-            self.time_scale.setValue(float(s.value("scan/time_scale", 1.0)))
-            self.order.setCurrentText(str(s.value("scan/order", "row-meander")))
-            self._own_order = self.order.currentText()
-        except (TypeError, ValueError):
-            pass
+        self.folder.setText(read_text("scan/folder", str(datasets_folder() / "lfstudio-scan"), s))
+        self.time_scale.setValue(read_float("scan/time_scale", 1.0, s))
+        self.order.setCurrentText(read_text("scan/order", "row-meander", s))
+        self._own_order = self.order.currentText()
 
     def _save_settings(self) -> None:
         s = settings()
@@ -428,12 +425,13 @@ class ScanPanel(QWidget):
         """Set the grid fields as they were when lfstudio closed; False when nothing (valid) was saved."""
         try:
             saved = json.loads(str(settings().value(GRID_KEY, "") or "null"))
-            values = (int(saved["columns"]), int(saved["rows"]), *map(float, saved["spacing_mm"]),
-                      *map(float, saved["offset_mm"]), float(saved["settle_s"]))
+            columns, rows = int(saved["columns"]), int(saved["rows"])
+            values = (*map(float, saved["spacing_mm"]), *map(float, saved["offset_mm"]), float(saved["settle_s"]))
         except (TypeError, ValueError, KeyError):
             return False
-        for w, v in zip((self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v,
-                         self.settle), values):
+        self.columns.setValue(columns)
+        self.rows.setValue(rows)
+        for w, v in zip((self.spacing_h, self.spacing_v, self.offset_h, self.offset_v, self.settle), values):
             w.setValue(v)
         self.bracket.setText(str(saved.get("bracket") or ""))
         return True
@@ -864,7 +862,7 @@ class ScanPanel(QWidget):
                 self._request("resume")
 
     def recapture(self, cells: list[tuple[int, int]]) -> None:
-        cells = [tuple(c) for c in cells]
+        cells = [(c[0], c[1]) for c in cells]
         if self.running:
             if self._request("recapture", cells):
                 self._log(f"{count(len(cells), 'view')} queued for re-capture")
@@ -874,7 +872,7 @@ class ScanPanel(QWidget):
 
     def offer_resume(self) -> None:
         """On start: if a scan was interrupted (crash, power cut), offer to resume it."""
-        path = settings().value(ACTIVE_KEY, "")
+        path = read_text(ACTIVE_KEY)
         if not path or self.running:
             return
         from lfstudio.dataset import Dataset
@@ -1005,8 +1003,9 @@ class ScanPanel(QWidget):
     def _show_state(self, st: ScanState, message: str) -> None:
         colors = {ScanState.RUNNING: "#60c070", ScanState.PAUSED: "#f0b030", ScanState.PAUSING: "#f0b030",
                   ScanState.STOPPING: "#f0b030", ScanState.FAILED: "#e06060", ScanState.FINISHED: "#80a0ff"}
-        fault = self.engine is not None and self.engine.fault is not None and st is ScanState.PAUSED
-        stopped = fault and getattr(self.engine.fault, "stop_pressed", False)    # the operator's own STOP
+        engine_fault = None if self.engine is None else self.engine.fault
+        fault = engine_fault is not None and st is ScanState.PAUSED
+        stopped = fault and getattr(engine_fault, "stop_pressed", False)    # the operator's own STOP
         fault = fault and not stopped
         if st is ScanState.PAUSED:
             self._rig_unready = False          # see _rig_status: "ready again" only after it was not
@@ -1035,7 +1034,7 @@ class ScanPanel(QWidget):
             if self._pending_recapture:
                 cells, self._pending_recapture = self._pending_recapture, []
                 QTimer.singleShot(0, lambda: self.start(recapture=cells))
-        if fault and not self.engine.resumes_by_itself:    # auto-resume waits: no message box to answer
+        if fault and self.engine is not None and not self.engine.resumes_by_itself:    # auto-resume waits: no message box to answer
             self.state.report_error("Scan paused", message)
         elif stopped:
             self.state.show_status("STOP: the scan is paused (Resume in the Scan panel continues it)", 10000)

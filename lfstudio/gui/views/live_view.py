@@ -15,7 +15,7 @@ from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import (QCheckBox, QHBoxLayout, QLabel, QPushButton, QSizePolicy, QSpinBox, QVBoxLayout,
                                QWidget)
 
-from lfstudio.gui.settings import settings
+from lfstudio.gui.settings import read_bool, read_int, settings
 from lfstudio.gui.state import AppState
 from lfstudio.rig.preview import clipping_overlay, frame_stats, histograms
 
@@ -51,11 +51,11 @@ class LiveView(QWidget):
         self.one_button.clicked.connect(self.one_to_one)
         self.clip_check = QCheckBox("Show clipping")
         self.clip_check.setToolTip("Paint blown highlights red and crushed shadows blue")
-        self.clip_check.setChecked(settings().value("liveview/clipping", True, type=bool))
+        self.clip_check.setChecked(read_bool("liveview/clipping", True))
         self.clip_check.toggled.connect(lambda on: (settings().setValue("liveview/clipping", on), self._redraw()))
         self.fps_spin = QSpinBox()
         self.fps_spin.setRange(1, 15)
-        self.fps_spin.setValue(int(settings().value("liveview/fps", 4)))
+        self.fps_spin.setValue(read_int("liveview/fps", 4))
         self.fps_spin.setSuffix(" fps")
         self.fps_spin.setToolTip("Live-view frame rate asked of the camera")
         self.fps_spin.valueChanged.connect(lambda v: settings().setValue("liveview/fps", v))

@@ -26,7 +26,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QGridLayout, QHBox
 from lfstudio.dataset.manifest import is_done
 from lfstudio.dataset.paths import view_label
 from lfstudio.gui.bridge import GuiInbox, JobRunner
-from lfstudio.gui.settings import settings
+from lfstudio.gui.settings import read_bool, settings
 from lfstudio.gui.widgets import JobProgressWidget, QuietLabel, screen_fitted
 from lfstudio.jobs import count
 
@@ -182,7 +182,7 @@ class QualityBar(QWidget):
         self.live_box.setObjectName("liveCheckBox")
         self.live_box.setToolTip("Check during the scan: judge each view as the scan captures it (on a "
                                  "process of its own; the scan never waits for it) and flag failing views at once")
-        self.live_box.setChecked(settings().value(LIVE_KEY, True, type=bool))
+        self.live_box.setChecked(read_bool(LIVE_KEY, True))
         self.live_box.toggled.connect(lambda on: settings().setValue(LIVE_KEY, bool(on)))
         self.summary = QuietLabel("", name="qualitySummary", every_ms=500,    # changes with each batch of verdicts
                                   hint_text="2121 views checked during the scan: 2121 fail · 2121 warn")
