@@ -12,6 +12,7 @@ import difflib
 import importlib
 import logging
 import sys
+from typing import NoReturn
 
 from lfstudio import __version__
 from lfstudio.cli.args import CONVENTIONS
@@ -43,7 +44,7 @@ COMMANDS: list[str] = [
 class _Parser(argparse.ArgumentParser):
     """argparse with its errors (an unknown option, a value out of range) as one line, exit status 2."""
 
-    def error(self, message: str) -> None:     # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
         prog = self.prog
         if message.startswith("unrecognized arguments:"):
             message += did_you_mean(self, message.split(":", 1)[1].split())

@@ -53,9 +53,13 @@ def old_spelling(p: argparse.ArgumentParser, old: str, new: str, **kwargs) -> No
 
 
 class _Refused(argparse.Action):
-    def __call__(self, parser, namespace, values, option_string=None):  # type: ignore[override]
+    def __init__(self, *args: Any, message: str | Callable[[str], str], **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        self.message = message
+
+    def __call__(self, parser, namespace, values, option_string=None):
         value = values if values is not None else ""
-        text = self.help_text
+        text = self.message
         parser.error(text(value) if callable(text) else text.format(value=value))
 
 
@@ -64,9 +68,8 @@ def refused_spelling(p: argparse.ArgumentParser, old: str, message: str | Callab
     """Refuse ``old`` (its meaning changed, so reading it would silently do something else) with
     ``message``, which shows the new form: a text (``{value}`` in it is the value given) or a
     function of the value."""
-    action = p.add_argument(old, action=_Refused, nargs=None if takes_value else 0, help=argparse.SUPPRESS,
-                            default=argparse.SUPPRESS)
-    action.help_text = message  # type: ignore[attr-defined]
+    p.add_argument(old, action=_Refused, nargs=None if takes_value else 0, help=argparse.SUPPRESS,
+                   default=argparse.SUPPRESS, message=message)
 
 
 # -- argparse glue: a reader of typed text as an option's ``type=`` -------------------------------------

@@ -21,7 +21,7 @@ def _ports(text: str) -> tuple[int, int]:
         ports = ()
     if len(ports) != 2 or not all(1 <= p <= 65535 for p in ports) or ports[0] == ports[1]:
         raise argparse.ArgumentTypeError(f"{text!r}: two different TCP ports, horizontal first (e.g. 5020,5021)")
-    return ports  # type: ignore[return-value]
+    return ports[0], ports[1]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

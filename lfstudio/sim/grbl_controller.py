@@ -75,6 +75,7 @@ class _Segment:
 class _Motion:
     segment: _Segment
     speed_mm_s: float = 0.0
+    start_dist: float | None = None      # the distance left when an alarm in mid-move was armed
 
 
 @dataclass
@@ -716,8 +717,8 @@ class GrblSimulator:
                 m.speed_mm_s = 0.0
             return dt - t if m.speed_mm_s == 0.0 else 0.0
         mid_alarm = "alarm_mid_move" in self._faults and seg.kind != "home"
-        if mid_alarm and not hasattr(m, "start_dist"):
-            m.start_dist = dist  # type: ignore[attr-defined]
+        if mid_alarm and m.start_dist is None:
+            m.start_dist = dist
         if math.isinf(dt):
             if mid_alarm:
                 self._phys += delta * 0.5
@@ -732,8 +733,8 @@ class GrblSimulator:
         v_new = min(m.speed_mm_s + accel * t, vmax, math.sqrt(2.0 * accel * dist))
         travel = min(dist, max(0.5 * (m.speed_mm_s + v_new) * t, 1e-6))
         m.speed_mm_s = v_new
-        if mid_alarm and dist - travel <= 0.5 * m.start_dist:  # type: ignore[attr-defined]
-            self._phys += unit * (dist - 0.5 * m.start_dist)  # type: ignore[attr-defined]
+        if mid_alarm and m.start_dist is not None and dist - travel <= 0.5 * m.start_dist:
+            self._phys += unit * (dist - 0.5 * m.start_dist)
             self._hit_alarm_mid_move()
             return 0.0
         self._phys += unit * travel

@@ -51,7 +51,7 @@ from lfstudio.errors import LfError
 try:
     import fcntl
 except ImportError:                    # Windows: no flock; these locks are not enforced there
-    fcntl = None                       # type: ignore[assignment]
+    fcntl = None
 
 DATASET_LOCK_NAME = "dataset.lock"
 #: the short lock of a dataset's manifest (:func:`manifest_lock`): held only while one process reads

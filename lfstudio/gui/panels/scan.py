@@ -26,7 +26,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from PySide6.QtCore import QTimer
+from PySide6.QtCore import QSize, QTimer
 from PySide6.QtGui import QAction, QKeySequence, QTextCursor
 from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
                                QLabel, QLineEdit, QMessageBox, QPlainTextEdit, QProgressBar, QPushButton,
@@ -84,10 +84,10 @@ class _CompactSpin(QDoubleSpinBox):
         hint.setWidth(min(hint.width(), self.fontMetrics().horizontalAdvance("-0000.000") + 36))
         return hint
 
-    def sizeHint(self):  # type: ignore[override]
+    def sizeHint(self) -> QSize:
         return self._width(super().sizeHint())
 
-    def minimumSizeHint(self):  # type: ignore[override]
+    def minimumSizeHint(self) -> QSize:
         return self._width(super().minimumSizeHint())
 
 
