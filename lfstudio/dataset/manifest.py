@@ -36,12 +36,13 @@ import os
 import re
 import threading
 from pathlib import Path
-from typing import Any, Iterable, Required, Sequence, TypedDict
+from typing import Any, Iterable, Literal, Required, Sequence, TypedDict, Unpack
 
 from lfstudio.dataset.atomic import atomic_write_bytes, is_temporary
 from lfstudio.dataset.bracket import Bracket
 from lfstudio.dataset.grid import Grid, View
-from lfstudio.dataset.paths import InsideChecker, check_dataset_entries, check_path_name, resolve_inside, view_stem
+from lfstudio.dataset.paths import (InsideChecker, check_dataset_entries, check_path_name, resolve_inside, view_label,
+                                    view_stem)
 from lfstudio.dataset.store import JOURNAL_NAME, Journal, read_journal, sha256_file
 from lfstudio.errors import DatasetError, DatasetNotFound, InputError
 from lfstudio.numbers import MAX_GRID_SIDE, Number, non_finite_fields
@@ -71,7 +72,7 @@ def _file_signature(path: Path) -> tuple | None:
     return st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns
 
 
-def _apply_journal(views: list, records: list[dict[str, Any]], after_seq: int) -> int:
+def _apply_journal(views: list[dict[str, Any]], records: list[dict[str, Any]], after_seq: int) -> int:
     """Apply the journal ``records`` after ``after_seq`` to ``views`` (plain dicts); the last seq applied."""
     by_key = {(v.get("row"), v.get("column")): v for v in views if isinstance(v, dict)}
     seq = after_seq
@@ -110,7 +111,8 @@ class FrameRecord(TypedDict, total=False):
 
 
 class ProcessedRecord(TypedDict, total=False):
-    """A view's processing (``views[].processed``; :mod:`lfstudio.processing.pipeline` writes it)."""
+    """A view's processing (``views[].processed``; :mod:`lfstudio.processing.pipeline` writes it,
+    ``import-hevc`` of an export of processed views restores it)."""
 
     status: Required[str]                 # "done" | "failed"
     file: str
@@ -121,17 +123,58 @@ class ProcessedRecord(TypedDict, total=False):
     processed_at: str
     timings_s: dict[str, float]
     error: str
+    restored_from_hevc: bool              # import-hevc: the view is a processed view decoded from the video
 
 
-class ViewRecord(TypedDict, total=False):
-    """One view of ``dataset.json`` (``views[]``), as the stages write it: created pending, then the
-    scan's store stage (or an import) records the capture, processing adds ``processed``. Unknown keys
-    a later stage adds are kept (the manifest is read as plain JSON); the known ones are these
-    (``tests/scan/test_view_records.py`` checks a scan and processing write no other)."""
+class HdrClipped(TypedDict):
+    """The clipped share of a merge's frames and of its result (``views[].hdr.clipped_fraction``)."""
 
-    row: Required[int]
-    column: Required[int]
-    status: Required[str]                 # VIEW_STATUSES
+    frames: list[float]                   # per frame, capture order
+    merged: float
+
+
+class HdrMerged(TypedDict):
+    """A bracketed view's HDR merge (``views[].hdr`` when done; :mod:`lfstudio.processing.hdr` writes it)."""
+
+    status: Literal["done"]
+    file: str                             # the radiance (OpenEXR / float TIFF), dataset-relative
+    preview: str | None                   # its tone-mapped 16-bit PNG
+    options_sha256: str
+    frames: int
+    exposures_s: list[float]
+    reference_frame: int
+    clipped_fraction: HdrClipped
+    noise_floor_fraction: float
+    misalignment_px: list[list[float] | None]   # each frame's shift to the reference (None: not measured)
+    max_misalignment_px: float | None
+    radiance: dict[str, float]            # min, median, max of the merged luminance
+    timings_s: dict[str, float]
+    merged_at: str
+
+
+class HdrFailed(TypedDict):
+    """A view whose HDR merge failed (``views[].hdr``): why."""
+
+    status: Literal["failed"]
+    error: str
+    options_sha256: str
+    merged_at: str
+
+
+#: ``views[].hdr``: ``status`` tells which
+HdrRecord = HdrMerged | HdrFailed
+
+
+class RestoredFrom(TypedDict):
+    """Where ``import-hevc`` decoded a view from (``views[].restored_from``)."""
+
+    video: str
+    frame: int
+
+
+class ViewFields(TypedDict, total=False):
+    """The keys of a view record other than ``row``, ``column`` and ``status`` (see :class:`ViewRecord`)."""
+
     commanded_mm: list[float] | None
     reported_mm: list[float] | None
     captured_at: str | None
@@ -147,34 +190,77 @@ class ViewRecord(TypedDict, total=False):
     error: str                            # why a view failed (recorded when the operator skips it)
     camera: dict[str, Any]                # the driver's record of the camera and its settings
     camera_settings: dict[str, Any]
-    devices: dict[str, Any]               # the devices that took it, when not the dataset's own
+    devices: dict[str, Any] | None        # the devices that took it, when not the dataset's own
     processed: ProcessedRecord
+    hdr: HdrRecord                        # a bracketed view's HDR merge
+    source_file: str                      # import-images: the file in the imported folder it came from
+    restored_from: RestoredFrom           # import-hevc: the video frame it was decoded from
+    note: str                             # import-hevc: why a view is skipped ("not in the HEVC export")
 
 
-def is_done(view: ViewRecord | dict[str, Any]) -> bool:
+class ViewUpdate(ViewFields, total=False):
+    """Fields of a view a stage sets (:meth:`Dataset.record_view`'s keywords, its journal's ``set``).
+    ``row`` and ``column`` name the view and are never set (declared so that an update is a partial
+    :class:`ViewRecord`: a TypedDict without them could hold them as anything)."""
+
+    row: int
+    column: int
+    status: str                           # VIEW_STATUSES
+
+
+class ViewRecord(ViewFields, total=False):
+    """One view of ``dataset.json`` (``views[]``), as the stages write it: created pending, then the
+    scan's store stage (or an import) records the capture, processing adds ``processed``, the HDR
+    merge ``hdr``. Unknown keys a later stage adds are kept (the manifest is read as plain JSON); the
+    known ones are these (``tests/scan/test_view_records.py`` checks a scan, processing, the HDR merge
+    and the importers write no other)."""
+
+    row: Required[int]
+    column: Required[int]
+    status: Required[str]                 # VIEW_STATUSES
+
+
+def is_done(view: ViewRecord) -> bool:
     """A view record that has been captured: status ``done`` and a file (the one test of it)."""
-    return view.get("status") == "done" and isinstance(view.get("file"), str) and bool(view["file"])
+    file = view.get("file")
+    return view.get("status") == "done" and isinstance(file, str) and bool(file)
 
 
-def is_finished(view: ViewRecord | dict[str, Any]) -> bool:
+def is_finished(view: ViewRecord) -> bool:
     """A view record a scan does not take again: status in :data:`FINISHED_STATUSES` (the one test of it)."""
     return view.get("status") in FINISHED_STATUSES
 
 
-def processed_status(view: dict[str, Any]) -> str | None:
+def processed_status(view: ViewRecord) -> str | None:
     """A captured view's processing: ``"done"``, ``"failed"`` or None (not processed), from its
     ``processed`` record (:mod:`lfstudio.processing.pipeline` writes it)."""
     record = view.get("processed")
     return record.get("status") if isinstance(record, dict) else None
 
 
-def processed_file_name(view: dict[str, Any]) -> str | None:
+def processed_file_name(view: ViewRecord) -> str | None:
     """The dataset-relative file of a processed view (status ``done`` with a file), else None (the one
     test of a processed view)."""
     record = view.get("processed")
-    if processed_status(view) == "done" and isinstance(record.get("file"), str) and record["file"]:
-        return record["file"]
-    return None
+    file = record.get("file") if isinstance(record, dict) and processed_status(view) == "done" else None
+    return file if isinstance(file, str) and file else None
+
+
+def hdr_merged(view: ViewRecord) -> HdrMerged | None:
+    """A bracketed view's done HDR merge record (``views[].hdr`` with status ``done``), else None
+    (not merged, or failed; the one test of a merged view)."""
+    hdr = view.get("hdr")
+    return hdr if isinstance(hdr, dict) and "status" in hdr and hdr["status"] == "done" else None
+
+
+def file_of(view: ViewRecord) -> str:
+    """The dataset-relative file of a captured view (:func:`is_done` says it has one);
+    :class:`DatasetError` naming the view when it has none."""
+    file = view.get("file")
+    if not isinstance(file, str) or not file:
+        raise DatasetError(f"{MANIFEST_NAME}: view {view_label(view['row'], view['column'])} has no file; "
+                           "capture it first")
+    return file
 
 
 def _is_number(x: Any) -> bool:
@@ -249,7 +335,8 @@ def validate_manifest(manifest: Any, root: str | Path | None = None) -> list[str
         problems.append(f"{f}: devices: must be an object with 'rig' and 'camera' objects")
     if not isinstance(manifest.get("device_changes", []), list):
         problems.append(f"{f}: device_changes: must be a list")
-    grid = manifest.get("grid") if isinstance(manifest.get("grid"), dict) else {}
+    grid_obj = manifest.get("grid")
+    grid: dict[str, Any] = grid_obj if isinstance(grid_obj, dict) else {}
     cols, rows = grid.get("columns"), grid.get("rows")
     for name, val in (("grid.columns", cols), ("grid.rows", rows)):
         if isinstance(manifest.get("grid"), dict) and (not isinstance(val, int) or isinstance(val, bool) or val < 1):
@@ -418,7 +505,9 @@ class ManifestWriter:
 
     def _take_adopted(self, views: list) -> None:
         text, self._adopted = self._adopted, None
-        lines = text.split("\n") if text else []
+        if not text:
+            return
+        lines = text.split("\n")
         if len(lines) != len(views) + 4 or lines[1] != self._VIEWS_LINE or lines[-2] != "]}" or lines[-1]:
             return
         written = json.loads(text).get("views")
@@ -457,7 +546,7 @@ class ManifestWriter:
         sep = "," if head != "{}" else ""
         return f'{head[:-1]}{sep}\n{self._VIEWS_LINE}\n{body}\n]}}\n'.encode("utf-8")
 
-    def changed_views(self, manifest: dict[str, Any]) -> list[dict[str, Any]] | None:
+    def changed_views(self, manifest: dict[str, Any]) -> list[ViewRecord] | None:
         """The views that differ from what the disk holds (file or journal), or None when only a
         full write can record the change (top-level keys changed, views added, removed or replaced,
         or nothing written yet)."""
@@ -472,7 +561,7 @@ class ManifestWriter:
             return None
         return [views[i] for i in itertools.compress(range(len(views)), map(operator.ne, views, written))]
 
-    def journaled(self, view: dict[str, Any], fields: dict[str, Any] | None = None) -> None:
+    def journaled(self, view: ViewRecord, fields: ViewUpdate | None = None) -> None:
         """``fields`` of ``view`` (all of it when None) are now in the journal: the disk holds them,
         the file's text of the view is stale."""
         if self._adopted is not None:
@@ -501,7 +590,7 @@ class Dataset:
         self._lock = threading.RLock()
         self._seq = int(manifest.get("journal_seq", 0) or 0)
         self._journal = Journal(self.root / JOURNAL_NAME)
-        self._index: dict[tuple[int, int], dict[str, Any]] = {}
+        self._index: dict[tuple[int, int], ViewRecord] = {}
         self._index_of: list | None = None
         self._writer = ManifestWriter()
         self._manifest_bytes = 0                # the size of dataset.json as last written or read
@@ -524,7 +613,7 @@ class Dataset:
     # -- construction -------------------------------------------------------------------------
     @classmethod
     def create(cls, root: str | Path, *, camera: dict, lens: dict, grid: dict, rig: dict | None = None,
-               plan: dict | None = None, views: Iterable[dict] | None = None, exist_ok: bool = False,
+               plan: dict | None = None, views: Iterable[ViewRecord] | None = None, exist_ok: bool = False,
                **extra: Any) -> "Dataset":
         """Make a new dataset folder with ``raw/`` and ``thumbs/`` and write its manifest.
 
@@ -569,17 +658,17 @@ class Dataset:
         return ds
 
     @classmethod
-    def of(cls, dataset_or_root: "Dataset | str | os.PathLike") -> "Dataset":
+    def of(cls, dataset_or_root: "Dataset | str | os.PathLike[str]") -> "Dataset":
         """``dataset_or_root`` itself when it is a Dataset, else the dataset opened from that folder."""
         return dataset_or_root if isinstance(dataset_or_root, Dataset) else cls.open(dataset_or_root)
 
     @staticmethod
-    def root_of(dataset_or_root: "Dataset | str | os.PathLike") -> Path:
+    def root_of(dataset_or_root: "Dataset | str | os.PathLike[str]") -> Path:
         """The folder of a Dataset or a folder given as it is (a Path's own ``.root`` is "/")."""
         return dataset_or_root.root if isinstance(dataset_or_root, Dataset) else Path(dataset_or_root)
 
     @classmethod
-    def open(cls, root: str | Path) -> "Dataset":
+    def open(cls, root: str | os.PathLike[str]) -> "Dataset":
         """Read and validate ``root/dataset.json``; raise :class:`DatasetError` listing every problem."""
         root = Path(root)
         path = root / MANIFEST_NAME
@@ -638,12 +727,13 @@ class Dataset:
     def _replay_journal(self, records: list, problems: list[str]) -> None:
         self.journal_problems = list(problems)
         base = self._seq
+        views: list[dict[str, Any]] = self.manifest["views"]     # as read: JSON objects, replaced whole below
+        by_key = {(v["row"], v["column"]): v for v in views}
         for rec in records:
             if rec["seq"] <= base:
                 continue   # already folded into the manifest
-            try:
-                view = self.view(rec["row"], rec["column"])
-            except KeyError:
+            view = by_key.get((rec["row"], rec["column"]))
+            if view is None:
                 self.journal_problems.append(f"{JOURNAL_NAME}: seq {rec['seq']}: no view at row {rec['row']}, "
                                              f"column {rec['column']} in the manifest; ignored")
                 continue
@@ -711,7 +801,8 @@ class Dataset:
                 size = self.path_of(v).stat().st_size
             except (OSError, DatasetError):
                 continue
-            folder = Path(v["file"]).parts[0] + "/" if len(Path(v["file"]).parts) > 1 else "./"
+            parts = Path(v.get("file") or "").parts        # a done view has a file (is_done)
+            folder = parts[0] + "/" if len(parts) > 1 else "./"
             folder_bytes[folder] = folder_bytes.get(folder, 0) + size
         grid = self.manifest["grid"]
         return {"path": str(self.root), "format": self.manifest.get("format"), "version": self.manifest.get("version"),
@@ -774,14 +865,14 @@ class Dataset:
             raise DatasetError(f"{self.root}: no captured views yet; scan or import images first")
         return self.grid.select(spec, captured, default=default, field_name=field_name)
 
-    def path_of(self, view_or_relative: dict | str) -> Path:
-        """Absolute path of a view's file (or of a relative name), refused if outside the folder."""
+    def path_of(self, view_or_relative: ViewRecord | FrameRecord | str) -> Path:
+        """Absolute path of a view's (or a frame's) file, or of a relative name, refused if outside the folder."""
         rel = view_or_relative.get("file") if isinstance(view_or_relative, dict) else view_or_relative
         if not rel:
             raise DatasetError(f"{self.manifest_path}: view has no file yet")
         return resolve_inside(self.root, rel)
 
-    def processed_path(self, view: dict) -> Path | None:
+    def processed_path(self, view: ViewRecord) -> Path | None:
         """The view's processed image when its record names one inside the folder and the file is
         there, else None (not processed, processed with another profile's name gone, or deleted)."""
         name = processed_file_name(view)
@@ -894,6 +985,7 @@ class Dataset:
     def _base(self) -> tuple[dict, dict]:
         """(top-level keys, views by (row, column)) as this object last read or wrote them."""
         if self._base_parsed is None:
+            assert self._base_source is not None, "a merge needs what was read or written last"   # save() checks
             text, records = self._base_source
             base = json.loads(text)
             views = base.get("views") if isinstance(base.get("views"), list) else []
@@ -989,13 +1081,15 @@ class Dataset:
             for view in changed:
                 self._writer.journaled(view)
 
-    def record_view(self, row: int, column: int, **fields: Any) -> dict[str, Any]:
+    def record_view(self, row: int, column: int, /, **fields: Unpack[ViewUpdate]) -> ViewRecord:
         """Update a view and append the change to the fsync'd journal (durable when this returns).
 
         Cheap (one short line and an fsync); call :meth:`save` now and then to fold the journal in.
         Only the journal's owner appends: without ``journal_lock`` this takes the dataset's lock for
         the append, and is refused (:class:`LockBusy` naming the holder) while a scan holds it.
         """
+        if "row" in fields or "column" in fields:
+            raise ValueError("record_view: row and column name the view; they are not fields to set")
         with self._lock:
             if self.owns_journal():
                 return self._append_view(row, column, fields)
@@ -1008,11 +1102,12 @@ class Dataset:
                 finally:
                     self._own_lock = None
 
-    def _append_view(self, row: int, column: int, fields: dict[str, Any]) -> dict[str, Any]:
+    def _append_view(self, row: int, column: int, fields: ViewUpdate) -> ViewRecord:
         view = self.view(row, column)
         if fields.get("status") == "done" and "devices" not in fields and (
                 self.capture_devices is not None or view.get("devices") is not None):
-            fields = {**fields, "devices": self.capture_devices}
+            fields = fields.copy()
+            fields["devices"] = self.capture_devices
         self._seq += 1
         self._journal.append({"seq": self._seq, "row": row, "column": column, "set": fields})
         view.update(fields)

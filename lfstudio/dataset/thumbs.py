@@ -30,7 +30,7 @@ import numpy as np
 
 from lfstudio.dataset import images
 from lfstudio.dataset.atomic import atomic_write_with
-from lfstudio.dataset.manifest import MANIFEST_NAME, is_done
+from lfstudio.dataset.manifest import MANIFEST_NAME, ViewRecord, file_of, is_done
 
 log = logging.getLogger(__name__)
 
@@ -175,10 +175,10 @@ class CacheFiller:
     def _files(self) -> list[Path]:
         try:
             manifest = json.loads((self.root / MANIFEST_NAME).read_text(encoding="utf-8"))
-            views = manifest.get("views", [])
+            views: list[ViewRecord] = manifest.get("views", [])
         except (OSError, ValueError, AttributeError):
             return []
-        return [self.root / v["file"] for v in views
+        return [self.root / file_of(v) for v in views
                 if isinstance(v, dict) and is_done(v) and not v.get("thumb")]
 
     def _claim(self, path: Path) -> tuple[Future, bool]:

@@ -12,14 +12,14 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Iterator, Literal, Sequence
 
 import cv2
 import numpy as np
 
 from lfstudio.dataset import Dataset, images
 from lfstudio.dataset.grid import View
-from lfstudio.dataset.manifest import now_iso
+from lfstudio.dataset.manifest import ViewRecord, hdr_merged, now_iso
 from lfstudio.dataset.paths import (DATASET_ENTRIES, IN_USE_FIX, check_new_dataset_folder, check_not_in_use,
                                     view_stem)
 from lfstudio.errors import DatasetError, InputError
@@ -46,24 +46,25 @@ def meander(views: Sequence[View]) -> list[View]:
 
 
 # -- sources ----------------------------------------------------------------------------------------
-def _merge_output(ds: Dataset, view: dict, key: str) -> Path | None:
+def _merge_output(ds: Dataset, view: ViewRecord, key: Literal["file", "preview"]) -> Path | None:
     """The file ``key`` (``file`` or ``preview``) of a view's done HDR merge, when it is there."""
-    hdr = view.get("hdr")
-    if not isinstance(hdr, dict) or hdr.get("status") != "done" or not hdr.get(key):
+    hdr = hdr_merged(view)
+    name = None if hdr is None else hdr.get(key)
+    if not name:
         return None
     try:
-        path = ds.path_of(hdr[key])
+        path = ds.path_of(name)
     except DatasetError:
         return None
     return path if path.is_file() else None
 
 
-def tonemap_file(ds: Dataset, view: dict) -> Path | None:
+def tonemap_file(ds: Dataset, view: ViewRecord) -> Path | None:
     """The tone-mapped 16-bit picture of a bracketed view's merged radiance (``lfstudio process``)."""
     return _merge_output(ds, view, "preview")
 
 
-def hdr_file(ds: Dataset, view: dict) -> Path | None:
+def hdr_file(ds: Dataset, view: ViewRecord) -> Path | None:
     """The merged linear radiance of a bracketed view (OpenEXR or float TIFF, ``lfstudio process``)."""
     return _merge_output(ds, view, "file")
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from lfstudio.dataset import Dataset, images
 from lfstudio.dataset.grid import Grid
-from lfstudio.dataset.manifest import now_iso
+from lfstudio.dataset.manifest import ViewRecord, now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.dataset.storage import STORAGE_ERRNOS, storage_error
 from lfstudio.dataset.store import sha256_file
@@ -306,7 +306,7 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
     with common.partial_folder(out, overwrite) as tmp:
         (tmp / folder).mkdir(parents=True, exist_ok=True)
         (tmp / "thumbs").mkdir(exist_ok=True)
-        records: dict[common.View, dict[str, Any]] = {}
+        records: dict[tuple[int, int], ViewRecord] = {}
         count = 0
         for i, rgb in _decode(video, size, cancel=cancel, colorspace=colorspace, color_range=color_range):
             if i >= n:
@@ -319,10 +319,10 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
             if make_thumbnail([], tmp / thumb, preview=rgb) is None:
                 thumb = None
             e = by_frame.get(i, {})
-            rec = {"row": r, "column": c, "commanded_mm": e.get("commanded_mm"), "reported_mm": e.get("reported_mm"),
-                   "captured_at": e.get("captured_at"), "exposure_s": e.get("exposure_s"), "file": rel,
-                   "sha256": sha256_file(tmp / rel), "status": "done", "thumb": thumb,
-                   "restored_from": {"video": video.name, "frame": i}}
+            rec: ViewRecord = {"row": r, "column": c, "commanded_mm": e.get("commanded_mm"),
+                               "reported_mm": e.get("reported_mm"), "captured_at": e.get("captured_at"),
+                               "exposure_s": e.get("exposure_s"), "file": rel, "sha256": sha256_file(tmp / rel),
+                               "status": "done", "thumb": thumb, "restored_from": {"video": video.name, "frame": i}}
             if processed:
                 rec["processed"] = {"status": "done", "file": rel, "restored_from_hevc": True}
             records[(r, c)] = rec
@@ -330,10 +330,11 @@ def import_hevc(video: Path, out: Path, *, progress: Progress, cancel: CancelTok
             progress(count, n, f"frame {i + 1}/{n} → {rel}")
         if count < n:
             raise DatasetError(f"{video}: {count} frames decoded, the sidecar lists {n}; the video is truncated")
-        views = [records.get((r, c)) or {"row": r, "column": c, "commanded_mm": None, "reported_mm": None,
-                                         "captured_at": None, "exposure_s": None, "file": None, "sha256": None,
-                                         "status": "skipped", "note": "not in the HEVC export"}
-                 for r, c in grid.views()]
+        views: list[ViewRecord] = [
+            records.get((r, c)) or {"row": r, "column": c, "commanded_mm": None, "reported_mm": None,
+                                    "captured_at": None, "exposure_s": None, "file": None, "sha256": None,
+                                    "status": "skipped", "note": "not in the HEVC export"}
+            for r, c in grid.views()]
         extra: dict[str, Any] = {"imported_from": {"kind": "hevc", "file": video.name, "at": now_iso(),
                                                    "source": doc.get("source"), "encoding": enc,
                                                    "figures": doc.get("figures")}}

@@ -42,7 +42,7 @@ import numpy as np
 
 from lfstudio.dataset import images
 from lfstudio.dataset.grid import grid_order
-from lfstudio.dataset.manifest import now_iso
+from lfstudio.dataset.manifest import ViewRecord, now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.dataset.store import sha256_file
 from lfstudio.dataset.thumbs import make_thumbnail
@@ -821,7 +821,7 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
         (tmp / "raw").mkdir()
         sx, sy = plan.spacing_mm
         recorded = plan.positions_mm or {}
-        views = []
+        views: list[ViewRecord] = []
         linked = 0
 
         def bring(src: Path, rel: str, thumb_rel: str) -> tuple[str, bool, str | None]:

@@ -49,7 +49,7 @@ import numpy as np
 from lfstudio.dataset import Dataset, images, view_stem
 from lfstudio.dataset.atomic import atomic_write_with
 from lfstudio.dataset.bracket import Bracket
-from lfstudio.dataset.manifest import now_iso
+from lfstudio.dataset.manifest import HdrFailed, HdrMerged, ViewRecord, hdr_merged, now_iso
 from lfstudio.dataset.paths import folder_inside
 from lfstudio.dataset.profile import Profile
 from lfstudio.dataset.store import clean_temporary_files
@@ -261,7 +261,7 @@ class HdrTask:
 class HdrResult:
     row: int
     column: int
-    record: dict[str, Any] = field(default_factory=dict)
+    record: HdrMerged | None = None       # the view's ``hdr`` record, or None and the error
     error: str | None = None
 
 
@@ -315,7 +315,7 @@ def merge_view(plan: Any, options: MergeOptions, task: HdrTask) -> HdrResult:
         shifts = [None if s is None else [round(v * scale, 3) for v in s] for s in merged.shifts_px]
         measured = [float(np.hypot(*s)) for s in shifts if s is not None]
         lum = out.mean(axis=2)
-        record = {"status": "done", "file": task.out_file, "preview": task.preview_file,
+        record: HdrMerged = {"status": "done", "file": task.out_file, "preview": task.preview_file,
                   "options_sha256": options.sha256(), "frames": len(task.files),
                   "exposures_s": [float(t) for t in task.exposures_s], "reference_frame": task.reference,
                   "clipped_fraction": {"frames": [round(v, 6) for v in merged.clipped_frames],
@@ -369,7 +369,7 @@ def bracket_of(ds: Dataset) -> Bracket:
     return Bracket.from_manifest(recorded, f"{ds.manifest_path}: bracket")
 
 
-def _task(ds: Dataset, v: dict, options: MergeOptions, bracket: Bracket) -> HdrTask:
+def _task(ds: Dataset, v: ViewRecord, options: MergeOptions, bracket: Bracket) -> HdrTask:
     frames = v.get("frames") or []
     if len(frames) != bracket.frames:
         raise DatasetError(f"{ds.manifest_path}: view r{v['row']:02d} c{v['column']:03d} has {len(frames)} frame(s), "
@@ -388,6 +388,12 @@ def _task(ds: Dataset, v: dict, options: MergeOptions, bracket: Bracket) -> HdrT
     return HdrTask(v["row"], v["column"], [f["file"] for f in frames], exposures,
                    int(v.get("reference_frame", bracket.reference_index)), f"{folder}/{stem}{options.suffix}",
                    f"{folder}/preview/{stem}.png" if options.preview else None)
+
+
+def _merged_already(ds: Dataset, view: ViewRecord, options_sha256: str) -> bool:
+    """The view's radiance is merged with these options and its file is there (nothing to do)."""
+    hdr = hdr_merged(view)
+    return hdr is not None and hdr.get("options_sha256") == options_sha256 and (ds.root / hdr["file"]).is_file()
 
 
 def merge_dataset(dataset: Dataset | str | Path, options: MergeOptions | None = None, profile: Profile | None = None,
@@ -414,9 +420,7 @@ def merge_dataset(dataset: Dataset | str | Path, options: MergeOptions | None = 
     views = ds.done_views()
     tasks = [_task(ds, v, options, bracket) for v in views]
     sha = options.sha256()
-    todo = [t for t, v in zip(tasks, views) if force or not (
-        isinstance(v.get("hdr"), dict) and v["hdr"].get("options_sha256") == sha and v["hdr"].get("status") == "done"
-        and (ds.root / v["hdr"]["file"]).is_file())]
+    todo = [t for t, v in zip(tasks, views) if force or not _merged_already(ds, v, sha)]
     report = MergeReport(skipped=len(tasks) - len(todo), folder=str(folder))
     progress(0, len(tasks), "reading the reference view")
     plan = make_plan(ds, profile)
@@ -430,7 +434,7 @@ def merge_dataset(dataset: Dataset | str | Path, options: MergeOptions | None = 
         probe = merge_view(plan, MergeOptions(**{**asdict(options), "preview": False, "folder": options.folder}),
                            HdrTask(key_task.row, key_task.column, key_task.files, key_task.exposures_s,
                                    key_task.reference, key_task.out_file, None))
-        if probe.error is None:
+        if probe.record is not None:
             key = max(1e-6, probe.record["radiance"]["median"])
     for t in todo:
         t.key_radiance = key
@@ -467,17 +471,19 @@ def merge_dataset(dataset: Dataset | str | Path, options: MergeOptions | None = 
                     except Exception as exc:       # the worker process died
                         result = HdrResult(t.row, t.column, error=f"worker failed ({type(exc).__name__}: {exc})")
                     view = ds.view(result.row, result.column)
-                    if result.error:
-                        report.failed.append((result.row, result.column, result.error))
-                        view["hdr"] = {"status": "failed", "error": result.error, "options_sha256": sha,
-                                       "merged_at": now_iso()}
+                    if result.record is None:
+                        error = result.error or "the merge returned nothing"
+                        report.failed.append((result.row, result.column, error))
+                        failed: HdrFailed = {"status": "failed", "error": error, "options_sha256": sha,
+                                             "merged_at": now_iso()}
+                        view["hdr"] = failed
                     else:
                         report.merged += 1
                         view["hdr"] = result.record
                         cpu.append(result.record["timings_s"]["cpu"])
-                        if (result.record["max_misalignment_px"] or 0.0) > options.max_shift_px:
-                            report.misaligned.append((result.row, result.column,
-                                                      result.record["max_misalignment_px"]))
+                        shift = result.record["max_misalignment_px"]
+                        if shift is not None and shift > options.max_shift_px:
+                            report.misaligned.append((result.row, result.column, shift))
                     done += 1
                     progress(done, len(tasks), f"merged r{result.row:02d} c{result.column:03d}")
         finally:
@@ -485,7 +491,7 @@ def merge_dataset(dataset: Dataset | str | Path, options: MergeOptions | None = 
                 f.cancel()
             ds.manifest["hdr"]["finished_at"] = now_iso()
             ds.save()
-    records = [v["hdr"] for v in ds.done_views() if isinstance(v.get("hdr"), dict) and v["hdr"].get("status") == "done"]
+    records = [hdr for v in ds.done_views() if (hdr := hdr_merged(v)) is not None]
     if records:
         report.clipped_reference = float(np.mean([r["clipped_fraction"]["frames"][r["reference_frame"]]
                                                   for r in records]))

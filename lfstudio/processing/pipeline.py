@@ -27,7 +27,7 @@ import numpy as np
 from lfstudio.calibration.model import CALIBRATION_NAME, load_calibration
 from lfstudio.dataset import Dataset, images, view_stem
 from lfstudio.dataset.grid import View
-from lfstudio.dataset.manifest import now_iso, processed_file_name
+from lfstudio.dataset.manifest import ViewRecord, file_of, now_iso, processed_file_name
 from lfstudio.dataset.paths import folder_inside
 from lfstudio.dataset.profile import PROFILE_NAME, Profile
 from lfstudio.dataset.storage import StorageError, storage_error
@@ -66,7 +66,7 @@ class ProcessReport:
         return text
 
 
-def reference_view(ds: Dataset, profile: Profile) -> dict:
+def reference_view(ds: Dataset, profile: Profile) -> ViewRecord:
     views = ds.done_views()
     if not views:
         raise DatasetError(f"{ds.manifest_path}: no captured views to process; scan or import images first")
@@ -176,21 +176,22 @@ def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> Run
     return plan
 
 
-def _skip(view: dict, sha: str, ds: Dataset) -> bool:
+def _skip(view: ViewRecord, sha: str, ds: Dataset) -> bool:
     name = processed_file_name(view)
-    if name is None or view["processed"].get("profile_sha256") != sha:
+    if name is None or view.get("processed", {}).get("profile_sha256") != sha:
         return False
     return ds.path_of(name).is_file()
 
 
-def _record(ds: Dataset, view: dict, result: ViewResult, sha: str) -> None:
-    if result.ok:
+def _record(ds: Dataset, view: ViewRecord, result: ViewResult, sha: str) -> None:
+    if result.error is None and result.out_file is not None:       # ok: the worker wrote out_file
         view["processed"] = {"status": "done", "file": result.out_file, "profile_sha256": sha,
                              "gain": round(result.gain, 6), "gain_support": round(result.gain_support, 4),
                              "stats": result.stats, "processed_at": now_iso(),
                              "timings_s": {k: round(v, 4) for k, v in result.timings_s.items()}}
     else:
-        view["processed"] = {"status": "failed", "error": result.error, "profile_sha256": sha,
+        view["processed"] = {"status": "failed", "error": result.error or "no output file written",
+                             "profile_sha256": sha,
                              "processed_at": now_iso()}
 
 
@@ -218,7 +219,7 @@ def _refuse_output_over_captures(ds: Dataset, profile: Profile) -> None:
     processed views restores them as ``processed/rRR_cCCC.png``) would have them overwritten."""
     for v in ds.done_views():
         out = output_name(profile, v["row"], v["column"])
-        if os.path.normpath(str(v["file"])) == os.path.normpath(out):
+        if os.path.normpath(str(v.get("file"))) == os.path.normpath(out):
             raise InputError("processing.toml: [output] folder",
                              f"the captures are the files processing would write (e.g. {out}; restored from an "
                              "HEVC export of processed views, they are processed already): export them as they "
@@ -301,18 +302,18 @@ def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force:
     return report
 
 
-def _run(info: executors.ExecutorInfo, plan: RunPlan, profile: Profile, todo: list[dict],
+def _run(info: executors.ExecutorInfo, plan: RunPlan, profile: Profile, todo: list[ViewRecord],
          finish: Callable[[ViewResult], None], cancel: CancelToken) -> None:
     """Submit a bounded window of tasks, collect results as they come, stop early on cancel."""
     window = max(2, 2 * info.workers)
     queue = list(todo)
-    pending: dict[cf.Future, dict] = {}
+    pending: dict[cf.Future, ViewRecord] = {}
     cancelled = False
     try:
         while queue or pending:
             while queue and len(pending) < window and not cancel.cancelled:
                 v = queue.pop(0)
-                task = ViewTask(View(v["row"], v["column"]), v["file"], output_name(profile, v["row"], v["column"]))
+                task = ViewTask(View(v["row"], v["column"]), file_of(v), output_name(profile, v["row"], v["column"]))
                 pending[info.executor.submit(process_view, plan, task)] = v
             if cancel.cancelled:
                 cancelled = True
@@ -330,7 +331,7 @@ def _run(info: executors.ExecutorInfo, plan: RunPlan, profile: Profile, todo: li
                 except cf.CancelledError:
                     continue
                 except Exception as exc:  # the worker process died (e.g. killed, out of memory)
-                    result = ViewResult(View(v["row"], v["column"]), error=f"{v['file']}: worker failed "
+                    result = ViewResult(View(v["row"], v["column"]), error=f"{v.get('file')}: worker failed "
                                         f"({type(exc).__name__}: {exc})")
                 finish(result)
     finally:
@@ -348,7 +349,12 @@ def preview(dataset: Dataset | str | Path, profile: Profile, row: int | None = N
 
     ds = Dataset.of(dataset)
     plan = make_plan(ds, profile)
-    view = reference_view(ds, profile) if row is None else ds.view(row, column)
+    if row is None or column is None:
+        if row is not None or column is not None:
+            raise ValueError("preview: give the view's row and column, or neither (the reference view)")
+        view = reference_view(ds, profile)
+    else:
+        view = ds.view(row, column)
     path = ds.path_of(view)
     after, info = render(plan, path)
     after = after.copy()   # render's image lives in a buffer the next render reuses

@@ -409,7 +409,7 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
     paths = {(int(v["row"]), int(v["column"])): dataset.path_of(v) for v in dataset.views
              if (int(v["row"]), int(v["column"])) in set(decode)}
     # exposure-bracketed views: every frame's (exposure, path), judged on what the merge keeps
-    bracketed = {(int(v["row"]), int(v["column"])): bracket_frames(v, dataset.path_of)
+    bracketed = {(int(v["row"]), int(v["column"])): bracket_frames(v.get("frames"), dataset.path_of)
                  for v in dataset.views if (int(v["row"]), int(v["column"])) in paths}
 
     def measure(cell: Cell) -> ViewMeasures:

@@ -34,6 +34,7 @@ from typing import Any, Callable
 import numpy as np
 
 from lfstudio.dataset.grid import View
+from lfstudio.dataset.manifest import FrameRecord
 from lfstudio.dataset.paths import resolve_inside
 from lfstudio.errors import LfError
 from lfstudio.quality import verdicts
@@ -114,7 +115,7 @@ class LiveChecker(_Published):
         if view is not None:
             self.submit(*view)
 
-    def submit(self, row: int, column: int, file: str | None = None, frames: list[dict] | None = None) -> None:
+    def submit(self, row: int, column: int, file: str | None = None, frames: list[FrameRecord] | None = None) -> None:
         """Queue view (``row``, ``column``) (``file``: relative to the dataset; default: the manifest's;
         ``frames``: an exposure bracket's frame records, as the view-done event tells them; default:
         the manifest's)."""
@@ -266,13 +267,14 @@ class LiveChecker(_Published):
             raise LfError(f"row {cell[0]}, column {cell[1]} has no file to check")
         return resolve_inside(self.dataset.root, file)
 
-    def _check(self, cell: Cell, file: str | None, frames: list[dict] | None = None) -> None:
+    def _check(self, cell: Cell, file: str | None, frames: list[FrameRecord] | None = None) -> None:
         grid = self.grid
         path = self._path(cell, file)
         m = measure_view(path, *cell, work_width_px=self.work_width_px)
         # an exposure bracket: clipping judged on what the merge keeps, as `lfstudio check` does
-        record = {"frames": frames} if frames is not None else self.dataset.view(*cell)
-        m = with_frames(m, bracket_frames(record, lambda f: resolve_inside(self.dataset.root, f)), path)
+        if frames is None:
+            frames = self.dataset.view(*cell).get("frames")
+        m = with_frames(m, bracket_frames(frames, lambda f: resolve_inside(self.dataset.root, f)), path)
         m.small_luminance = None
         grid.add(m)
         r = cell[0]
@@ -316,7 +318,7 @@ def live_document(header: dict[str, Any], views: list[dict[str, Any]]) -> dict[s
             "views": views}
 
 
-def _view_done(event: Any) -> tuple[int, int, str, list[dict] | None] | None:
+def _view_done(event: Any) -> tuple[int, int, str, list[FrameRecord] | None] | None:
     """(row, column, file, the bracket's frame records or None) of a scan engine's ``view-done`` event
     with a file; None for any other."""
     kind = getattr(getattr(event, "kind", None), "value", getattr(event, "kind", None))
@@ -360,7 +362,7 @@ class LiveCheckerProcess(_Published):
         if view is not None:
             self.submit(*view)
 
-    def submit(self, row: int, column: int, file: str | None = None, frames: list[dict] | None = None) -> None:
+    def submit(self, row: int, column: int, file: str | None = None, frames: list[FrameRecord] | None = None) -> None:
         self._commands.put(("submit", int(row), int(column), file, frames))
 
     def settle(self) -> None:

@@ -26,11 +26,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Sequence
 
 import cv2
 import numpy as np
 
 from lfstudio.dataset import images
+from lfstudio.dataset.manifest import FrameRecord
 from lfstudio.dataset.profile import DebayerStep, DeflickerStep
 from lfstudio.processing.steps import deflicker
 
@@ -173,11 +175,12 @@ def measure_view(path: str | Path, row: int, column: int, *, work_width_px: int 
                         small_luminance=small, corners=detect_corners(grey8), grey8=grey8)
 
 
-def bracket_frames(record: dict, path_of) -> list[tuple[float, Path]]:
+def bracket_frames(frames: Sequence[FrameRecord] | None, path_of: Callable[[str], Path | str]
+                   ) -> list[tuple[float, Path]]:
     """An exposure-bracketed view's frames as (exposure s, path), capture order, from its manifest
-    record (``frames``: ``file``, the ``exposure_s`` the camera reported, else the ``shutter_s`` set);
+    record's ``frames`` (``file``, the ``exposure_s`` the camera reported, else the ``shutter_s`` set);
     ``path_of(file)`` resolves a file inside the dataset. [] for a view of one picture."""
-    frames = record.get("frames") or ()
+    frames = frames or ()
     if len(frames) < 2:
         return []
     return [(float(f.get("exposure_s") or f.get("shutter_s") or 0.0), Path(path_of(f["file"]))) for f in frames]

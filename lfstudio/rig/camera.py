@@ -14,6 +14,8 @@ from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
+from lfstudio.dataset.manifest import ViewUpdate
+
 
 @dataclass(frozen=True)
 class CameraStatus:
@@ -37,7 +39,7 @@ class CaptureResult:
     metadata: dict[str, Any] = field(default_factory=dict)   # ISO, shutter, ground truth (simulated), ...
     #: extra fields for this view's manifest entry (JSON-safe), e.g. the camera's identity and the
     #: exposure settings it reported for this shot; the scan engine merges them into the view record
-    record: dict[str, Any] = field(default_factory=dict)
+    record: ViewUpdate = field(default_factory=lambda: ViewUpdate())
 
     @property
     def path(self) -> Path:

@@ -60,7 +60,7 @@ from typing import Any, Callable, Iterable
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.bracket import Bracket, frame_times_on_camera
-from lfstudio.dataset.manifest import is_finished
+from lfstudio.dataset.manifest import ViewUpdate, is_finished
 from lfstudio.dataset.paths import folder_inside, view_label, view_stem
 from lfstudio.dataset.storage import storage_error
 from lfstudio.dataset.store import clean_temporary_files, free_bytes
@@ -751,7 +751,7 @@ class ScanEngine:
         self._skip_cells.discard(view.cell)
         error = self._last_error.get(view.cell)
         status = "failed" if error else "skipped"
-        fields: dict[str, Any] = {"status": status}
+        fields: ViewUpdate = {"status": status}
         if error:
             fields["error"] = error
         self.dataset.record_view(view.row, view.column, **fields)

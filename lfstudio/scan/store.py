@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from lfstudio.dataset import Dataset
-from lfstudio.dataset.manifest import is_done, now_iso
+from lfstudio.dataset.manifest import FrameRecord, ViewUpdate, is_done, now_iso
 from lfstudio.dataset.paths import view_label, view_stem
 from lfstudio.dataset.storage import disk_problem, megabytes, mount_point, storage_error
 from lfstudio.dataset.store import free_bytes, sha256_file
@@ -131,7 +131,7 @@ class ScanStore:
         self._inflight = 0
         self.done = len(dataset.done_views())     # views done in the dataset
         self.captured_this_run = 0
-        self._unrecorded: list[tuple[PlannedView, dict[str, Any]]] = []   # stored, journal refused (disk)
+        self._unrecorded: list[tuple[PlannedView, ViewUpdate]] = []   # stored, journal refused (disk)
         self._view_bytes = stored_view_bytes(dataset)   # the largest view stored so far (file, sidecars, thumb)
         self._dropping = False           # the camera was stopped for an abort: failed transfers are dropped
         self._card_frame_bytes: int | None = None   # measured on the first view: the camera's card is checked next
@@ -139,7 +139,7 @@ class ScanStore:
         self._whole_checked = False     # the views left checked against the free space (after the first view)
         self._last_done_t: float | None = None
         self._last_save = time.monotonic()
-        self._frames_of: dict[tuple[int, int], tuple[int, list[dict[str, Any]]]] = {}
+        self._frames_of: dict[tuple[int, int], tuple[int, list[FrameRecord]]] = {}
         self._failed_attempts: set[tuple[tuple[int, int], int]] = set()
         self._frame_results: dict[tuple[tuple[int, int], int], CaptureResult] = {}
 
@@ -189,7 +189,7 @@ class ScanStore:
                 raise refused
             self._emit(EventKind.VIEW_DONE, "recorded after the disk fault (kept meanwhile)", index=view.index,
                        row=view.row, column=view.column, eta_s=self._eta_s(), timings_s=fields.get("timings_s", {}),
-                       file=fields["file"], thumb=fields.get("thumb"))
+                       file=fields.get("file"), thumb=fields.get("thumb"))
 
     def save(self) -> None:
         """Rewrite the manifest (the journal keeps every view when it cannot)."""
@@ -206,11 +206,11 @@ class ScanStore:
         for v in missing:
             rel = f"thumbs/{view_stem(v['row'], v['column'])}.jpg"
             try:
-                files = [self.dataset.path_of(f) for f in (v["file"], *(v.get("sidecars") or ()))]
+                files = [self.dataset.path_of(f) for f in (v, *(v.get("sidecars") or ()))]
                 if make_thumbnail(files, self.dataset.root / rel, self.thumb_width_px) is not None:
                     self.dataset.record_view(v["row"], v["column"], thumb=rel)
             except Exception as exc:       # a thumbnail is a convenience: the scan goes on without it
-                log.info("thumbnail of %s not made: %s", v["file"], exc)
+                log.info("thumbnail of %s not made: %s", v.get("file"), exc)
 
     # -- disk --------------------------------------------------------------------------------------
     def need_bytes(self) -> int:
@@ -345,16 +345,17 @@ class ScanStore:
             self._transfer_failed(job, exc)
             return
         t_transferred = time.monotonic()
-        extra: dict[str, Any] = {}
+        extra: ViewUpdate = {}
+        sha: str | None = None
         view_bytes = 0
         if job.frame is not None:
-            stored = self._store_frame(job, result)
+            stored = self._store_frame(job, job.frame, result)
             if stored is None:
                 return                           # not the view's last frame: journaled as a frame
-            result, extra, view_bytes = stored   # the reference frame is the view's file
+            result, extra, sha, view_bytes = stored   # the reference frame is the view's file
         path = Path(result.path).resolve()
         rel = path.relative_to(self.dataset.root).as_posix()
-        sha = extra.pop("_sha256", None) or sha256_file(path)
+        sha = sha or sha256_file(path)
         view_bytes += sum(Path(f).stat().st_size for f in result.files if Path(f).is_file())
         thumb_rel = f"thumbs/{view_stem(view.row, view.column)}.jpg"
         preview = result.metadata.get("preview") if isinstance(result.metadata, dict) else None
@@ -374,7 +375,7 @@ class ScanStore:
         if self._last_done_t is not None:
             timings["period"] = now - self._last_done_t
         self._last_done_t = now
-        fields = {"status": "done", "file": rel, "sha256": sha, "captured_at": now_iso(),
+        fields: ViewUpdate = {"status": "done", "file": rel, "sha256": sha, "captured_at": now_iso(),
                   "exposure_s": reported_exposure_s(result),
                   "commanded_mm": [view.x_mm, view.y_mm], "reported_mm": job.reported_mm,
                   "thumb": thumb_rel if thumb is not None else None, "attempts": job.attempt,
@@ -382,7 +383,8 @@ class ScanStore:
         sidecars = [Path(f).resolve().relative_to(self.dataset.root).as_posix() for f in result.files[1:]]
         if sidecars:
             fields["sidecars"] = sidecars
-        fields = {**getattr(result, "record", {}), **fields, **extra}   # the driver's extras (camera, its settings)
+        driver: ViewUpdate = getattr(result, "record", None) or {}     # the driver's extras (camera, its settings)
+        fields = {**driver, **fields, **extra}
         refused = self.record(view, fields)
         if refused is not None:
             with self._lock:
@@ -398,7 +400,7 @@ class ScanStore:
             self._last_save = time.monotonic()
         frames = [{k: f.get(k) for k in ("index", "file", "exposure_s", "shutter_s")} for f in fields.get("frames") or ()]
         self._emit(EventKind.VIEW_DONE, index=view.index, row=view.row, column=view.column, eta_s=self._eta_s(),
-                   timings_s=timings, file=rel, thumb=fields["thumb"], extra={"frames": frames} if frames else {})
+                   timings_s=timings, file=rel, thumb=fields.get("thumb"), extra={"frames": frames} if frames else {})
         if later is None and not self._whole_checked:     # the first view of this run: does the rest fit?
             self._whole_checked = True
             later = self.whole_scan_fault(view_bytes, job.frames)
@@ -408,21 +410,23 @@ class ScanStore:
         if later is not None:
             self._failed(None, later)
 
-    def _store_frame(self, job: StoreJob, result: CaptureResult) -> tuple[CaptureResult, dict[str, Any], int] | None:
-        """Store one frame of a bracketed view (store thread): checksum it and journal the view's frames
-        so far (the view stays not done). For the last frame: (the reference frame's result, the
-        view's ``frames`` field, the bytes of the other frames) for the view's done record."""
+    def _store_frame(self, job: StoreJob, frame_no: int, result: CaptureResult
+                     ) -> tuple[CaptureResult, ViewUpdate, str | None, int] | None:
+        """Store frame ``frame_no`` (``job.frame``) of a bracketed view (store thread): checksum it and
+        journal the view's frames so far (the view stays not done). For the last frame: (the reference
+        frame's result, the view's ``frames`` and ``reference_frame`` fields, the reference frame's
+        sha256, the bytes of the other frames) for the view's done record."""
         view = job.view
         cell = view.cell
         attempt, frames = self._frames_of.get(cell, (None, []))
-        if attempt != job.attempt or job.frame == 0:
+        if attempt != job.attempt or frame_no == 0:
             frames = []                          # a new attempt takes every frame again
         self._frames_of[cell] = (job.attempt, frames)
         path = Path(result.path).resolve()
         root = self.dataset.root
-        frame: dict[str, Any] = {"index": job.frame, "file": path.relative_to(root).as_posix(),
-                                 "sha256": sha256_file(path), "shutter_s": job.shutter_s,
-                                 "exposure_s": reported_exposure_s(result), "captured_at": now_iso()}
+        frame: FrameRecord = {"index": frame_no, "file": path.relative_to(root).as_posix(),
+                              "sha256": sha256_file(path), "shutter_s": job.shutter_s,
+                              "exposure_s": reported_exposure_s(result), "captured_at": now_iso()}
         sidecars = [Path(f).resolve().relative_to(root).as_posix() for f in result.files[1:]]
         if sidecars:
             frame["sidecars"] = sidecars
@@ -430,13 +434,13 @@ class ScanStore:
         if isinstance(settings, dict):
             frame["camera_settings"] = settings
         frames.append(frame)
-        self._frame_results[(cell, job.frame)] = result
-        if job.frame < job.frames - 1:
-            fields: dict[str, Any] = {"frames": [dict(f) for f in frames]}
+        self._frame_results[(cell, frame_no)] = result
+        if frame_no < job.frames - 1:
+            fields: ViewUpdate = {"frames": [f.copy() for f in frames]}
             # a done view taken again (re-capture): its first new frame has replaced a file of its
             # record, so the record no longer holds; it is pending until all its new frames are in
             # (a failure or a crash now leaves it to be taken again, never 'done' with one frame)
-            demoted = job.frame == 0 and is_done(self.dataset.view(view.row, view.column))
+            demoted = frame_no == 0 and is_done(self.dataset.view(view.row, view.column))
             if demoted:
                 fields["status"] = "pending"
             try:
@@ -461,10 +465,10 @@ class ScanStore:
         ref = results[ref_index] or result
         others = sum(Path(f).stat().st_size for i, r in enumerate(results) if r is not None and i != ref_index
                      for f in r.files if Path(f).is_file())
-        return ref, {"frames": [dict(f) for f in frames], "_sha256": frames[ref_index]["sha256"],
-                     "reference_frame": ref_index}, others
+        return ref, {"frames": [f.copy() for f in frames], "reference_frame": ref_index}, \
+            frames[ref_index].get("sha256"), others
 
-    def record(self, view: PlannedView, fields: dict[str, Any]) -> ScanFault | None:
+    def record(self, view: PlannedView, fields: ViewUpdate) -> ScanFault | None:
         """Journal a stored view (store thread, or the engine thread on Resume); the fault when the
         journal cannot be written. Such a view is kept in memory with its files (``_unrecorded``) and
         journaled on Resume, not captured again; the scan pauses on the fault meanwhile."""

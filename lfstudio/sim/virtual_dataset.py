@@ -40,7 +40,7 @@ import numpy as np
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.atomic import atomic_write_json, atomic_write_with
 from lfstudio.dataset.grid import DEFAULT_ORDER, Grid, grid_order
-from lfstudio.dataset.manifest import camera_problems, now_iso
+from lfstudio.dataset.manifest import ViewRecord, camera_problems, now_iso
 from lfstudio.dataset.paths import check_new_dataset_folder, view_stem
 from lfstudio.dataset.store import sha256_file
 from lfstudio.dataset.thumbs import make_thumbnail
@@ -281,7 +281,7 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
                 progress(i + 1, total, f"rendered {job['rel']}")
 
     start_s = time.time()
-    views = []
+    views: list[ViewRecord] = []
     for job, res in zip(jobs, results):
         views.append({"row": job["row"], "column": job["column"],
                       "commanded_mm": [round(v, 6) for v in job["commanded_mm"]],

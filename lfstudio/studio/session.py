@@ -41,7 +41,7 @@ from typing import Any, Callable, Sequence
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.bracket import Bracket
 from lfstudio.dataset.store import free_bytes
-from lfstudio.dataset.manifest import MANIFEST_NAME, is_finished, now_iso
+from lfstudio.dataset.manifest import MANIFEST_NAME, ViewRecord, is_finished, now_iso
 from lfstudio.dataset.paths import check_new_dataset_folder, view_label
 from lfstudio.errors import DeviceError, InputError, LfError
 from lfstudio.numbers import EXPOSURE_S, RETRIES, TIME_SCALE, TRANSFER_S
@@ -62,7 +62,7 @@ PlanFor = Callable[[Dataset | None, RigConfig], tuple[ScanPlan, Any]]
 
 
 # -- the dataset of a scan -------------------------------------------------------------------------
-def dataset_views(plan: ScanPlan) -> list[dict[str, Any]]:
+def dataset_views(plan: ScanPlan) -> list[ViewRecord]:
     """One pending manifest entry per grid cell of ``plan`` (row-major), with its commanded position."""
     full = plan.with_subset(None)
     return [{"row": r, "column": c, "commanded_mm": list(full.position_mm(r, c)), "reported_mm": None,
@@ -174,14 +174,16 @@ def _last_position(dataset: Dataset, plan: ScanPlan, ahead: int = 3) -> tuple[tu
     and the commanded positions of the next ``ahead`` views in plan order (the run may have been on
     its way there: the rig moves on while a view is still transferring)."""
     done = [v for v in dataset.done_views() if v.get("reported_mm") and v.get("captured_at")]
-    last = max(done, key=lambda v: v["captured_at"])
+    last = max(done, key=lambda v: v.get("captured_at") or "")
     order = [(v.row, v.column) for v in plan.with_subset(None).views()]
     finished = {(v["row"], v["column"]) for v in dataset.views if is_finished(v)}
     following: list[tuple[int, int]] = []
     if (last["row"], last["column"]) in order:
         i = order.index((last["row"], last["column"]))
         following = [cell for cell in order[i + 1:] if cell not in finished][:ahead]
-    return ((float(last["reported_mm"][0]), float(last["reported_mm"][1])), view_label(last["row"], last["column"]),
+    reported = last.get("reported_mm")
+    assert reported, "every view in done has a reported position"     # filtered above
+    return ((float(reported[0]), float(reported[1])), view_label(last["row"], last["column"]),
             [plan.position_mm(*cell) for cell in following])
 
 
