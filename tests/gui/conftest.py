@@ -11,6 +11,7 @@ from lfstudio.rig.worker import DeviceWorker
 from lfstudio.sim.instant import InstantCamera, InstantRig
 from tests.processing.conftest import make_dataset  # noqa: F401  (the fixture, for the Process dialog's tests)
 from tests.faults.conftest import small_disk  # noqa: F401  (the fixture: a real small tmpfs, for the Planner)
+from tests.processing.test_hdr import bracketed  # noqa: F401  (the fixture: a real bracketed scan, for the Process dialog)
 
 
 def window_devices(rig, camera) -> dict:

@@ -223,3 +223,16 @@ def test_every_editor_is_made_from_the_profiles_description(qtbot, make_dataset)
                 assert w.maximum() == n.high, (step, key)                         # and the whole top reachable
             if n.low is not None and not n.low_open:
                 assert w.minimum() == n.low, (step, key)
+
+
+def test_a_bracketed_scan_is_processed_then_merged_and_the_dialog_reports_both(qtbot, bracketed):
+    ds, _studio = bracketed
+    window, dialog = _dialog(qtbot, Dataset.open(ds.root))
+    for step in ("color", "deflicker", "shading", "rectify", "resample"):
+        dialog.editors[step].setChecked(False)
+    with qtbot.waitSignal(dialog.runner.finished, timeout=120000):
+        dialog.process_button.click()
+    text = dialog.result_label.text()
+    assert "2 processed" in text
+    assert "HDR: 2 views merged" in text
+    assert [v["hdr"]["status"] for v in Dataset.open(ds.root).done_views()] == ["done", "done"]

@@ -92,3 +92,18 @@ def test_the_rig_and_scan_panels_open_on_garbled_settings_with_the_defaults(qtbo
     assert scan.time_scale.value() == pytest.approx(1.0)
     scan.shutdown()
     rig.shutdown()
+
+
+def test_the_import_dialog_opens_on_garbled_settings_with_the_defaults(qtbot):
+    from lfstudio.gui.dialogs.import_dialog import ImportImagesDialog
+
+    s = settings()
+    for key in ("columns", "intrinsics", "focal_length_mm", "zero_depth_m"):
+        s.setValue(f"import_images/{key}", "?")
+    s.sync()
+    dialog = ImportImagesDialog(AppState())
+    qtbot.addWidget(dialog)
+    assert dialog.columns_spin.value() == 9
+    assert dialog.intrinsics_combo.currentIndex() == 0
+    assert dialog.focal_mm.value() == pytest.approx(50.0)
+    assert dialog.zero_depth.value() == pytest.approx(3.0)

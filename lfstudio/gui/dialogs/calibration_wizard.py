@@ -18,7 +18,8 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Qt
 from PySide6.QtGui import QFont
-from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QFormLayout, QGridLayout, QGroupBox,
+from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QFormLayout, QGraphicsGridLayout,
+                               QGridLayout, QGroupBox,
                                QHBoxLayout, QLabel, QPlainTextEdit, QPushButton, QSlider, QSpinBox,
                                QStackedWidget, QTabWidget, QVBoxLayout, QWidget)
 
@@ -30,10 +31,11 @@ from lfstudio.calibration.model import CalibrationUncertainty
 from lfstudio.calibration.pairs import DEFAULT_PAIR_SET, DEFAULT_VIEWS, PAIR_SETS, make_pairs
 from lfstudio.calibration.model import held_angles
 from lfstudio.calibration.report import format_report, uncertainty_lines
+from lfstudio.dataset.grid import View
 from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import LfError
 from lfstudio.gui.bridge import JobRunner
-from lfstudio.gui.settings import settings
+from lfstudio.gui.settings import read_int, settings
 from lfstudio.gui.widgets import GridPicker, JobProgressWidget, calibration_warnings, screen_fitted
 from lfstudio.jobs import count
 
@@ -110,10 +112,18 @@ def residual_field(points_px: np.ndarray, residual_px: np.ndarray, vertical: np.
             "count": count.reshape(rows, cols)}
 
 
+def _colormap(name: str) -> pg.ColorMap:
+    """One of the colour maps pyqtgraph ships (RuntimeError if this pyqtgraph lacks it)."""
+    cmap = pg.colormap.get(name)
+    if cmap is None:
+        raise RuntimeError(f"pyqtgraph has no colour map {name!r}")
+    return cmap
+
+
 def _image_plot(title: str) -> tuple[pg.PlotItem, pg.ImageItem]:
     plot = pg.PlotItem(title=title)
-    plot.invertY(True)
-    plot.setAspectLocked(False)
+    plot.getViewBox().invertY(True)
+    plot.getViewBox().setAspectLocked(False)
     plot.hideButtons()
     item = pg.ImageItem(axisOrder="row-major")
     plot.addItem(item)
@@ -290,7 +300,7 @@ class CalibrationWizard(QDialog):
         self.picker.set_selected(views)
 
     def selected_pairs(self):
-        return make_pairs(self.picker.selected, self.dataset.grid.step_mm,
+        return make_pairs([View(r, c) for r, c in self.picker.selected], self.dataset.grid.step_mm,
                           pair_set=self.pair_set.currentData())
 
     def _update_selection_label(self) -> None:
@@ -393,28 +403,30 @@ class CalibrationWizard(QDialog):
 
         res = QWidget()
         self.res_plots = pg.GraphicsLayoutWidget()
-        self.hist_before = self.res_plots.addPlot(0, 0, title="Residuals before (px)")
-        self.hist_after = self.res_plots.addPlot(0, 1, title="Residuals after (px)")
+        self.hist_before = self.res_plots.ci.addPlot(0, 0, title="Residuals before (px)")
+        self.hist_after = self.res_plots.ci.addPlot(0, 1, title="Residuals after (px)")
         for plot in (self.hist_before, self.hist_after):
             plain_px_axis(plot.getAxis("bottom"), "v-difference (row pairs) / u-difference (column pairs)")
-        self.heat = self.res_plots.addPlot(1, 0, title="RMS after per view (px)")
-        self.heat.invertY(True)
+        self.heat = self.res_plots.ci.addPlot(1, 0, title="RMS after per view (px)")
+        self.heat.getViewBox().invertY(True)
         self.heat.setLabel("bottom", "column")
         self.heat.setLabel("left", "row")
         # the colour scales as bars beside the plots (the axis labels also name the range)
-        self.heat_bar = pg.ColorBarItem(values=(0.0, 1.0), colorMap=pg.colormap.get("viridis"), width=14,
+        self.heat_bar = pg.ColorBarItem(values=(0.0, 1.0), colorMap=_colormap("viridis"), width=14,
                                         label="RMS after (px)", interactive=False, colorMapMenu=False)
-        self.heat.layout.addItem(self.heat_bar, 2, 5)              # where ColorBarItem puts itself in a plot
-        self.heat.layout.setColumnFixedWidth(4, 5)
-        self.vectors = self.res_plots.addPlot(1, 1, title="Residual vectors")
-        self.vectors.invertY(True)
-        self.vectors.setAspectLocked(True)
+        # PlotItem's grid, an attribute pyqtgraph names like the QGraphicsWidget.layout() method it hides
+        heat_grid: QGraphicsGridLayout = self.heat.layout  # pyright: ignore[reportAssignmentType]
+        heat_grid.addItem(self.heat_bar, 2, 5)              # where ColorBarItem puts itself in a plot
+        heat_grid.setColumnFixedWidth(4, 5)
+        self.vectors = self.res_plots.ci.addPlot(1, 1, title="Residual vectors")
+        self.vectors.getViewBox().invertY(True)
+        self.vectors.getViewBox().setAspectLocked(True)
         self.vector_image = pg.ImageItem(axisOrder="row-major")
         self.vectors.addItem(self.vector_image)
         self.region_rms = pg.ImageItem(axisOrder="row-major")      # RMS per region, over the image
         self.region_rms.setOpacity(0.45)
         self.vectors.addItem(self.region_rms)
-        self.region_bar = pg.ColorBarItem(values=(0.0, 1.0), colorMap=pg.colormap.get("inferno"), width=14,
+        self.region_bar = pg.ColorBarItem(values=(0.0, 1.0), colorMap=_colormap("inferno"), width=14,
                                           label="region RMS (px)", interactive=False, colorMapMenu=False)
         self.region_bar.setImageItem(self.region_rms, insert_in=self.vectors)
         self.vectors.setLabel("bottom", "x (preview px)")
@@ -500,7 +512,7 @@ class CalibrationWizard(QDialog):
         self.pair_plot_items = []
         for k in range(2):
             plot, item = _image_plot("")
-            plot.setAspectLocked(True)
+            plot.getViewBox().setAspectLocked(True)
             self.pair_plots.addItem(plot, 0, k)
             self.pair_items.append(item)
             self.pair_plot_items.append(plot)
@@ -555,9 +567,9 @@ class CalibrationWizard(QDialog):
         views = [v for v in doc["views"] if v["residual_px"]["after"]["rms"] is not None]
         if views:
             values = np.array([v["residual_px"]["after"]["rms"] for v in views])
-            cmap = pg.colormap.get("viridis")
+            cmap = _colormap("viridis")
             top = max(float(values.max()), 1.0)   # colour scale 0 … max(1 px, worst view)
-            brushes = [pg.mkBrush(cmap.map(val / top, mode="qcolor")) for val in values]
+            brushes = [pg.mkBrush(cmap.mapToQColor(val / top)) for val in values]
             scatter = pg.ScatterPlotItem(x=[v["column"] for v in views], y=[v["row"] for v in views], symbol="s",
                                          size=34, brush=brushes, pen=pg.mkPen("k"))
             self.heat.addItem(scatter)
@@ -568,8 +580,8 @@ class CalibrationWizard(QDialog):
             grid = self.dataset.grid
             self.heat.setLabel("bottom", f"column · colour: RMS 0 (dark) … {top:.2f} px (yellow)")
             self.heat_bar.setLevels((0.0, top))
-            self.heat.setXRange(-1, grid.columns, padding=0.05)
-            self.heat.setYRange(-1, grid.rows, padding=0.1)
+            self.heat.getViewBox().setXRange(-1, grid.columns, padding=0.05)
+            self.heat.getViewBox().setYRange(-1, grid.rows, padding=0.1)
         self.vector_image.setImage(result["preview"], autoLevels=True)
         self.vectors.setTitle(f"Mean residual per region, {view_stem(*result['preview_view'])}")
         self.field = None
@@ -723,14 +735,14 @@ class CalibrationWizard(QDialog):
     def _restore_settings(self) -> None:
         s = settings()
         self.estimate_pp.setChecked(s.value("calibration/principal_point", "auto") == "auto")
-        if int(s.value("calibration/settings_version", 1)) < SETTINGS_VERSION:
+        if read_int("calibration/settings_version", 1, s) < SETTINGS_VERSION:
             # saved before choices equal to the defaults were left unsaved: what was saved then was the
             # old default (all pairs, 2000 px) as often as a choice, so the current defaults apply
             s.remove("calibration/pair_set")
             s.remove("calibration/work_width_px")
         pair_set = s.value("calibration/pair_set", DEFAULT_PAIR_SET)
         self.pair_set.setCurrentIndex(PAIR_SETS.index(pair_set) if pair_set in PAIR_SETS else 0)
-        self.work_width.setValue(int(s.value("calibration/work_width_px", DEFAULT_WORK_WIDTH_PX)))
+        self.work_width.setValue(read_int("calibration/work_width_px", DEFAULT_WORK_WIDTH_PX, s))
         self.focal_px.setValue(0.0)
         self.apply_preset("default")
 

@@ -24,7 +24,7 @@ from lfstudio.export import ExportOptions, estimate_export, export_dataset
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.path_field import expand_on_edit
 from lfstudio.gui.preferences import EXPORT_KEY
-from lfstudio.gui.settings import settings
+from lfstudio.gui.settings import read_int, read_text, settings
 from lfstudio.gui.widgets import GridPicker, JobProgressWidget, confirm_cancel_running, screen_fitted
 from lfstudio.jobs import format_duration
 
@@ -283,8 +283,8 @@ class ExportDialog(QDialog):
             page = self.options_stack.widget(i)
             if isinstance(page, QLabel):
                 page.setAlignment(Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop)
-            elif isinstance(page.layout(), QHBoxLayout):
-                page.layout().setAlignment(Qt.AlignmentFlag.AlignTop)
+            elif page is not None and isinstance(layout := page.layout(), QHBoxLayout):
+                layout.setAlignment(Qt.AlignmentFlag.AlignTop)
         form.addRow("Options:", self.options_stack)
         self._options_form = form
 
@@ -709,19 +709,19 @@ class ExportDialog(QDialog):
 
     def _restore_settings(self) -> None:
         s = settings()
-        fmt = str(s.value("export/format", "png"))
+        fmt = read_text("export/format", "png", s)
         self.format_combo.setCurrentIndex(FORMAT_KEYS.index(fmt) if fmt in FORMAT_KEYS else 0)
-        source = str(s.value("export/source", "auto"))
+        source = read_text("export/source", "auto", s)
         keys = [k for k, _ in SOURCES]
         self.source_combo.setCurrentIndex(keys.index(source) if source in keys else 0)
-        self.crf_spin.setValue(int(s.value("export/crf", 8)))
-        self.bit_depth_combo.setCurrentIndex(0 if int(s.value("export/bit_depth", 12)) == 12 else 1)
+        self.crf_spin.setValue(read_int("export/crf", 8, s))
+        self.bit_depth_combo.setCurrentIndex(0 if read_int("export/bit_depth", 12, s) == 12 else 1)
         grid = self.dataset.grid
-        self.hci_columns.setValue(int(s.value("export/hci_columns", 9)))
-        self.hci_rows.setValue(int(s.value("export/hci_rows", 9)))
+        self.hci_columns.setValue(read_int("export/hci_columns", 9, s))
+        self.hci_rows.setValue(read_int("export/hci_rows", 9, s))
         self.hci_authors.setText(str(s.value("export/hci_authors", "") or ""))
-        self.image_depth_combos[0].setCurrentIndex(1 if int(s.value("export/image_bit_depth", 8)) == 16 else 0)
-        holdout = str(s.value("export/holdout", "none"))
+        self.image_depth_combos[0].setCurrentIndex(1 if read_int("export/image_bit_depth", 8, s) == 16 else 0)
+        holdout = read_text("export/holdout", "none", s)
         self.holdout_combo.setCurrentIndex(max(0, self.holdout_combo.findData(holdout)))
         self.hci_center_row.setValue(grid.rows // 2)
         self.hci_center_column.setValue(grid.columns // 2)

@@ -28,7 +28,7 @@ from lfstudio.dataset.paths import (FOLDER_DATASET, FOLDER_FILE, FOLDER_OTHERS, 
 from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
-from lfstudio.gui.settings import settings
+from lfstudio.gui.settings import read_float, read_int, read_text, settings
 from lfstudio.gui.widgets import JobProgressWidget, screen_fitted
 
 OK_STYLE = "color: #1b7a1b;"
@@ -253,21 +253,21 @@ class ImportImagesDialog(_ImportDialogBase):
         self.setWindowTitle("Import images from another rig")
         s = settings()
         p = self.settings_prefix
-        self.folder_edit = QLineEdit(str(s.value(f"{p}/folder", "")))
+        self.folder_edit = QLineEdit(read_text(f"{p}/folder", "", s))
         self.folder_edit.setPlaceholderText("folder holding one image per view")
         self.folder_edit.setToolTip("The other rig's images: PNG, TIFF, JPEG or camera RAW, one file per view")
         expand_on_edit(self.folder_edit, "Image folder")
         self.folder_button = QPushButton("Browse…")
         self.folder_button.setToolTip("Choose the folder of images")
         self.folder_button.clicked.connect(self._browse_folder)
-        self.pattern_edit = QLineEdit(str(s.value(f"{p}/pattern", "")))
+        self.pattern_edit = QLineEdit(read_text(f"{p}/pattern", "", s))
         self.pattern_edit.setPlaceholderText("every PNG, TIFF, JPEG and RAW file")
         self.pattern_edit.setToolTip("Which files to take, e.g. *.png or cam_*.tif; sorted naturally (img2 < img10)")
         self.columns_spin, self.rows_spin = QSpinBox(), QSpinBox()
         for spin, key, default, tip in ((self.columns_spin, "columns", 9, "Views per row"),
                                         (self.rows_spin, "rows", 5, "Rows of views")):
             spin.setRange(1, 10000)
-            spin.setValue(int(s.value(f"{p}/{key}", default)))
+            spin.setValue(read_int(f"{p}/{key}", default, s))
             spin.setToolTip(tip)
         self.spacing_h, self.spacing_v = QDoubleSpinBox(), QDoubleSpinBox()
         for spin, key, default, tip in ((self.spacing_h, "spacing_h_mm", 4.0, "Horizontal distance between views"),
@@ -275,33 +275,33 @@ class ImportImagesDialog(_ImportDialogBase):
             spin.setRange(0.0, 100000.0)
             spin.setDecimals(3)
             spin.setSuffix(" mm")
-            spin.setValue(float(s.value(f"{p}/{key}", default)))
+            spin.setValue(read_float(f"{p}/{key}", default, s))
             spin.setToolTip(tip)
         self.order_combo = QComboBox()
         self.order_combo.addItems(["row-major", "meander"])
-        self.order_combo.setCurrentText(str(s.value(f"{p}/order", "row-major")))
+        self.order_combo.setCurrentText(read_text(f"{p}/order", "row-major", s))
         self.order_combo.setToolTip("row-major: every row left to right; meander: odd rows right to left "
                                     "(as a gantry scans). Row 0 is the top row.")
         self.intrinsics_combo = QComboBox()
         self.intrinsics_combo.addItems(list(INTRINSICS_MODES))
-        self.intrinsics_combo.setCurrentIndex(int(s.value(f"{p}/intrinsics", 0)))
+        self.intrinsics_combo.setCurrentIndex(read_int(f"{p}/intrinsics", 0, s))
         self.intrinsics_combo.setToolTip("Where the focal length comes from (calibration needs it in pixels)")
         self.focal_mm = QDoubleSpinBox()
         self.focal_mm.setRange(0.1, 5000.0)
         self.focal_mm.setSuffix(" mm")
-        self.focal_mm.setValue(float(s.value(f"{p}/focal_length_mm", 50.0)))
+        self.focal_mm.setValue(read_float(f"{p}/focal_length_mm", 50.0, s))
         self.focal_mm.setToolTip("Lens focal length")
         self.pitch_um = QDoubleSpinBox()
         self.pitch_um.setRange(0.1, 1000.0)
         self.pitch_um.setDecimals(3)
         self.pitch_um.setSuffix(" µm")
-        self.pitch_um.setValue(float(s.value(f"{p}/pixel_pitch_um", 4.5)))
+        self.pitch_um.setValue(read_float(f"{p}/pixel_pitch_um", 4.5, s))
         self.pitch_um.setToolTip("Sensor pixel size (pitch) of these images")
         self.focal_px = QDoubleSpinBox()
         self.focal_px.setRange(1.0, 1e6)
         self.focal_px.setDecimals(1)
         self.focal_px.setSuffix(" px")
-        self.focal_px.setValue(float(s.value(f"{p}/focal_length_px", 5000.0)))
+        self.focal_px.setValue(read_float(f"{p}/focal_length_px", 5000.0, s))
         self.focal_px.setToolTip("Focal length in pixels of these images (full size)")
         self.intrinsics_stack = QStackedWidget()
         exif_page = QLabel("Read from the first image's EXIF; if it has none, calibration will ask for one.")
@@ -313,12 +313,12 @@ class ImportImagesDialog(_ImportDialogBase):
         self.intrinsics_stack.setCurrentIndex(self.intrinsics_combo.currentIndex())
         self.positions_combo = QComboBox()
         self.positions_combo.addItems(list(POSITION_MODES))
-        self.positions_combo.setCurrentIndex(int(s.value(f"{p}/positions", 0)))
+        self.positions_combo.setCurrentIndex(read_int(f"{p}/positions", 0, s))
         self.positions_combo.setToolTip("Where each view's position comes from: the grid spacing, the rig's "
                                         "recorded positions in the file names (Stanford archive: "
                                         "out_RR_CC_<a>_<b>) or a CSV file (file,x_mm,y_mm); check then "
                                         "measures each view against the record")
-        self.positions_csv = QLineEdit(str(s.value(f"{p}/positions_csv", "")))
+        self.positions_csv = QLineEdit(read_text(f"{p}/positions_csv", "", s))
         self.positions_csv.setPlaceholderText("CSV with the columns file,x_mm,y_mm")
         self.positions_csv.setToolTip("One row per image: its file name and the recorded position in mm")
         self.positions_csv_button = QPushButton("Browse…")
@@ -328,7 +328,7 @@ class ImportImagesDialog(_ImportDialogBase):
         self.positions_combo.currentIndexChanged.connect(self._positions_changed)
         self.zero_combo = QComboBox()
         self.zero_combo.addItems(list(ZERO_MODES))
-        self.zero_combo.setCurrentIndex(int(s.value(f"{p}/zero_plane", 0)))
+        self.zero_combo.setCurrentIndex(read_int(f"{p}/zero_plane", 0, s))
         self.zero_combo.setToolTip("Archive light fields are published sheared (a plane inside the scene has zero "
                                    "disparity). Measuring tells whether the views are sheared, not at which depth: "
                                    "state the depth for depths and posed exports")
@@ -336,7 +336,7 @@ class ImportImagesDialog(_ImportDialogBase):
         self.zero_depth.setRange(0.01, 100000.0)
         self.zero_depth.setDecimals(3)
         self.zero_depth.setSuffix(" m")
-        self.zero_depth.setValue(float(s.value(f"{p}/zero_depth_m", 3.0)))
+        self.zero_depth.setValue(read_float(f"{p}/zero_depth_m", 3.0, s))
         self.zero_depth.setToolTip("Depth of the plane with zero disparity (needs the focal length)")
         self.zero_combo.currentIndexChanged.connect(self._zero_changed)
         self.copy_check = QCheckBox("Always copy the files (default: hard-link them when on the same disk)")

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import html
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from PySide6.QtCore import QPointF, QRectF, Qt, Signal
@@ -24,10 +24,14 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDialogButtonBox, 
 from lfstudio.errors import InputError
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.imageutil import rgb_to_qimage
-from lfstudio.gui.settings import settings
+from lfstudio.gui.settings import read_int, read_text, settings
 from lfstudio.gui.widgets import JobProgressWidget, confirm_cancel_running, screen_fitted
 from lfstudio.dataset.manifest import processed_status
 from lfstudio.dataset.profile import PARAMS, PROFILE_NAME, Profile
+
+if TYPE_CHECKING:
+    from lfstudio.processing.hdr import MergeReport
+    from lfstudio.processing.pipeline import ProcessReport
 
 STEP_TITLES = {
     "debayer": "1  Debayer (RAW → linear 16-bit)", "lens": "2  Lens distortion and lateral CA",
@@ -100,7 +104,7 @@ class SplitView(QWidget):
 
     def to_image(self, pos: QPointF) -> tuple[float, float] | None:
         r = self.image_rect()
-        if r.isEmpty() or not r.contains(pos):
+        if self.after is None or r.isEmpty() or not r.contains(pos):
             return None
         s = r.width() / self.after.width()
         return (pos.x() - r.x()) / s - 0.5, (pos.y() - r.y()) / s - 0.5
@@ -108,7 +112,7 @@ class SplitView(QWidget):
     def paintEvent(self, event) -> None:
         p = QPainter(self)
         p.fillRect(self.rect(), QColor(32, 32, 32))
-        if self.after is None:
+        if self.after is None or self.before is None:
             p.setPen(QColor(200, 200, 200))
             p.drawText(self.rect(), Qt.AlignmentFlag.AlignCenter, "Preview: choose a view and press Update preview")
             return
@@ -197,7 +201,7 @@ class StepEditor(QGroupBox):
             w = QComboBox()
             words = CHOICE_WORDS.get((self.name, key), {})
             for choice in param.choices:
-                w.addItem(words.get(choice, choice), choice)
+                w.addItem(words.get(str(choice), str(choice)), choice)
             w.setCurrentIndex(max(0, w.findData(str(value))))
         elif param.flag:
             w = QCheckBox()
@@ -244,7 +248,7 @@ class StepEditor(QGroupBox):
             w.setChecked(bool(value))
         elif isinstance(w, (QSpinBox, QDoubleSpinBox)):
             w.setValue(value)
-        else:
+        elif isinstance(w, QLineEdit):
             w.setText(" ".join(f"{v:g}" for v in value) if isinstance(value, list) else str(value))
 
     def values(self) -> dict[str, Any]:
@@ -260,7 +264,7 @@ class StepEditor(QGroupBox):
                 out[key] = int(w.value())
             elif isinstance(w, QDoubleSpinBox):
                 out[key] = float(w.value())
-            else:
+            elif isinstance(w, QLineEdit):
                 text = w.text().strip()
                 if PARAMS[(self.name, key)].lengths:
                     try:
@@ -283,7 +287,9 @@ def _preview_job(root: str, profile: Profile, row: int, column: int, *, progress
 
 
 def _process_job(root: str, profile: Profile, workers: int | None, cluster: str | None, force: bool, *,
-                 progress, cancel):
+                 progress, cancel) -> tuple[ProcessReport, MergeReport | None]:
+    """The views processed, and a bracketed scan's frames merged to linear HDR too: both reports
+    (the merge's None for a scan without brackets)."""
     from lfstudio.dataset import Dataset
     from lfstudio.processing.pipeline import process_dataset
 
@@ -297,13 +303,12 @@ def _process_job(root: str, profile: Profile, workers: int | None, cluster: str 
 
     report = process_dataset(root, profile, workers=workers, cluster=cluster, force=force,
                              progress=half(False), cancel=cancel)
-    report.hdr = None
-    if bracketed:                         # a bracketed scan: its frames merged to linear HDR too
-        from lfstudio.processing.hdr import merge_dataset
+    if not bracketed:
+        return report, None
+    from lfstudio.processing.hdr import merge_dataset
 
-        report.hdr = merge_dataset(root, profile=profile, workers=workers, cluster=cluster, force=force,
-                                   progress=half(True), cancel=cancel)
-    return report
+    return report, merge_dataset(root, profile=profile, workers=workers, cluster=cluster, force=force,
+                                 progress=half(True), cancel=cancel)
 
 
 class ProcessDialog(QDialog):
@@ -406,9 +411,9 @@ class ProcessDialog(QDialog):
         self.workers_spin.setRange(0, 256)
         self.workers_spin.setSpecialValueText("in this process")
         from lfstudio.processing.executors import default_workers
-        self.workers_spin.setValue(int(s.value("process/workers", default_workers())))
+        self.workers_spin.setValue(read_int("process/workers", default_workers(), s))
         self.workers_spin.setToolTip("Local worker processes (one per core is fastest)")
-        self.cluster_edit = QLineEdit(str(s.value("process/cluster", "")))
+        self.cluster_edit = QLineEdit(read_text("process/cluster", "", s))
         self.cluster_edit.setPlaceholderText("tcp://HOST:8786 (empty: this computer)")
         self.cluster_edit.setToolTip("Address of a Dask scheduler; its workers must see the dataset at the same path")
         self.force_check = QCheckBox("Redo finished views")
@@ -588,11 +593,11 @@ class ProcessDialog(QDialog):
         except LfError as exc:
             self.state.report_error("Process", str(exc))
 
-    def _process_done(self, report) -> None:
+    def _process_done(self, outcome: tuple[ProcessReport, MergeReport | None]) -> None:
+        report, merged = outcome
         self.process_button.setEnabled(True)
         self._reload_dataset()
         text = report.summary().replace("\n", "<br>")
-        merged = getattr(report, "hdr", None)
         if merged is not None:
             text += "<br>" + html.escape(merged.summary()).replace("\n", "<br>")
             if merged.failed:
