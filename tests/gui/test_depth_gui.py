@@ -3,7 +3,7 @@ with a real Qt event loop (offscreen)."""
 
 from __future__ import annotations
 
-
+import pytest
 
 from lfstudio.calibration.model import rectifying_homography
 from lfstudio.dataset.atomic import atomic_write_json
@@ -85,3 +85,24 @@ def test_export_dialog_offers_points_and_depth_with_the_size_estimate(qtbot, tin
     assert dialog.options().depth is True
     dialog.format_combo.setCurrentIndex(FORMAT_KEYS.index("colmap"))
     assert dialog.options().depth is False and dialog.options().points is True
+
+
+def test_a_map_whose_processed_image_is_gone_says_so_by_name(tiny_dataset):
+    from lfstudio.dataset import Dataset
+    from lfstudio.dataset.profile import Profile
+    from lfstudio.depth.run import estimate_depth, read_disparity
+    from lfstudio.errors import LfError
+    from lfstudio.gui.views.depth import depth_picture
+    from lfstudio.processing.pipeline import process_dataset
+
+    _calibrate_exactly(tiny_dataset)
+    profile = Profile()
+    profile.resample.enabled = False
+    assert process_dataset(tiny_dataset.root, profile).ok
+    ds = Dataset.open(tiny_dataset.root)
+    estimate_depth(ds, [(1, 2)])
+    assert read_disparity(ds, (1, 2))[2]["source"] == "processed"
+    depth_picture(ds, (1, 2))                          # shown while its processed image is there
+    ds.processed_path(ds.view(1, 2)).unlink()
+    with pytest.raises(LfError, match="r01_c002: .*compute the depth map again"):
+        depth_picture(Dataset.open(ds.root), (1, 2))

@@ -39,6 +39,11 @@ def depth_picture(dataset, view: tuple[int, int], hide_unsure: bool = False) -> 
     w, h = record["size_px"]
     cal = load_calibration(dataset) or {}
     path = _processed_path(dataset, view) if record["source"] == "processed" else dataset.path_of(dataset.view(*view))
+    if path is None:        # processed again under another name, or its processed image deleted since
+        from lfstudio.dataset.paths import view_stem
+
+        raise LfError(f"{view_stem(*view)}: its depth map was computed from the processed image, which is no "
+                      "longer there; compute the depth map again")
     grey, _, _ = images.read_grey(path, None)
     if grey.shape[::-1] != (w, h):
         grey = cv2.resize(grey, (w, h), interpolation=cv2.INTER_AREA)

@@ -301,23 +301,24 @@ class GridCanvas(QAbstractScrollArea):
         self.viewport().update(rect.toAlignedRect().adjusted(-2, -2, 2, 2))
 
     # -- painting ----------------------------------------------------------------------------------
-    def _paint_overview(self, p: QPainter, r0: int, r1: int, c0: int, c1: int, px: float, py: float,
-                        ox: float, oy: float, thin: bool) -> None:
+    def _paint_overview(self, p: QPainter, mosaic: QImage, r0: int, r1: int, c0: int, c1: int, px: float,
+                        py: float, ox: float, oy: float, thin: bool) -> None:
         """Zoomed out: the thumbnail mosaic, then one status image over it (transparent where a
         thumbnail shows), gap lines and the few highlighted cells — a handful of calls, not one per cell."""
         src = QRectF(c0 * TILE_W, r0 * TILE_H, (c1 - c0) * TILE_W, (r1 - r0) * TILE_H)
         dst = QRectF(ox + c0 * px, oy + r0 * py, (c1 - c0) * px, (r1 - r0) * py)
-        p.drawImage(dst, self.mosaic, src)
+        p.drawImage(dst, mosaic, src)
         block = self.status[r0:r1, c0:c1]
         has = self._mosaic_has[r0:r1, c0:c1]
-        rgba = np.zeros(block.shape + (4,), np.uint8)
+        height, width = block.shape
+        rgba = np.zeros((height, width, 4), np.uint8)
         for st, colour in STATE_COLORS.items():
             rgba[block == st] = (colour.red(), colour.green(), colour.blue(), 255)
         waiting = (block == DONE) & ~has
         dark = STATE_COLORS[DONE].darker(160)
         rgba[waiting] = (dark.red(), dark.green(), dark.blue(), 255)
         rgba[(block == DONE) & has, 3] = 0
-        overlay = QImage(rgba.data, rgba.shape[1], rgba.shape[0], rgba.strides[0], QImage.Format.Format_RGBA8888)
+        overlay = QImage(rgba.data, width, height, rgba.strides[0], QImage.Format.Format_RGBA8888)
         p.setRenderHint(QPainter.RenderHint.SmoothPixmapTransform, False)
         p.drawImage(dst, overlay)
         if self.gap_px:
@@ -338,7 +339,8 @@ class GridCanvas(QAbstractScrollArea):
     def paintEvent(self, event) -> None:
         p = QPainter(self.viewport())
         p.fillRect(event.rect(), QColor(24, 25, 28))
-        if not self.rows or self.mosaic is None:
+        mosaic = self.mosaic
+        if not self.rows or mosaic is None:
             p.end()
             return
         r0, r1, c0, c1 = self._visible_range(event.rect())
@@ -352,7 +354,7 @@ class GridCanvas(QAbstractScrollArea):
         status = self.status
         thin = self.cell_px < 8
         if not full:
-            self._paint_overview(p, r0, r1, c0, c1, px, py, ox, oy, thin)
+            self._paint_overview(p, mosaic, r0, r1, c0, c1, px, py, ox, oy, thin)
         rows_to_paint = range(r0, r1) if full else range(0)
         for r in rows_to_paint:
             row_status = status[r]
@@ -367,7 +369,7 @@ class GridCanvas(QAbstractScrollArea):
                             p.drawImage(rect, img)
                         else:
                             if self._mosaic_has[r, c]:
-                                p.drawImage(rect, self.mosaic, QRectF(c * TILE_W, r * TILE_H, TILE_W, TILE_H))
+                                p.drawImage(rect, mosaic, QRectF(c * TILE_W, r * TILE_H, TILE_W, TILE_H))
                             self._request((r, c), full=True)
                     elif not self._mosaic_has[r, c]:
                         p.fillRect(rect, STATE_COLORS[DONE].darker(160))

@@ -23,7 +23,8 @@ def _outlines(x: np.ndarray, y: np.ndarray, w: float, h: float):
     xs = np.stack([x, x + w, x + w, x, x], axis=1).ravel().astype(float)
     ys = np.stack([y, y, y + h, y + h, y], axis=1).ravel().astype(float)
     connect = np.tile(np.array([1, 1, 1, 1, 0], dtype=np.int32), len(x))
-    return pgf.arrayToQPath(xs, ys, connect=connect)
+    # connect: an array is documented ("1 connects to the next point"); pyqtgraph's "all" default types it str
+    return pgf.arrayToQPath(xs, ys, connect=connect)  # pyright: ignore[reportArgumentType]
 
 
 class QualityOverlay:
@@ -92,7 +93,7 @@ class QualityOverlay:
     def _set_verdict(self, cell: tuple[int, int], entry: dict) -> None:
         r, c = cell
         if 0 <= r < self.rows and 0 <= c < self.columns and self.verdicts.shape == (self.rows, self.columns):
-            self.verdicts[r, c] = FLAG_CODES.get(entry.get("verdict"), 0)
+            self.verdicts[r, c] = FLAG_CODES.get(str(entry.get("verdict")), 0)
 
     def _rebuild(self) -> None:
         self.heat = None
@@ -105,7 +106,7 @@ class QualityOverlay:
         from lfstudio.quality.pictures import HEATMAPS, heatmap_colour
 
         r, c = cell
-        if self.heat is None or not (0 <= r < self.rows and 0 <= c < self.columns):
+        if self.heat is None or self.doc is None or not (0 <= r < self.rows and 0 <= c < self.columns):
             return
         value = HEATMAPS[self.key].value(entry)
         if value is None:

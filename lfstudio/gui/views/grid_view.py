@@ -32,7 +32,7 @@ from lfstudio.dataset import images
 from lfstudio.dataset.manifest import is_done
 from lfstudio.dataset.paths import view_label
 from lfstudio.gui.bridge import run_off_gui
-from lfstudio.gui.settings import settings
+from lfstudio.gui.settings import read_text, settings
 from lfstudio.gui.views.grid_canvas import (CAPTURING, DONE, FAILED, PENDING, SKIPPED, STATE_COLORS, STATE_NAMES,
                                             GridCanvas)
 from lfstudio.gui.views.quality import (OVERLAY_KEY, DisparityDialog, LiveQuality, NeighboursDialog, QualityBar,
@@ -208,7 +208,7 @@ class GridView(QWidget):
         qb.overlayChanged.connect(self._set_overlay)
         qb.selectFlagged.connect(self.select_flagged)
         qb.showDisparity.connect(self.show_disparity)
-        saved = settings().value(OVERLAY_KEY, "") or ""
+        saved = read_text(OVERLAY_KEY)
         index = qb.overlay.findData(saved)
         if index > 0:
             qb.overlay.setCurrentIndex(index)
@@ -348,7 +348,8 @@ class GridView(QWidget):
         open_action.setToolTip("Open a dataset folder (the one holding dataset.json)")
         open_action.triggered.connect(self.choose_dataset)
         file_menu.addAction(open_action)
-        self._recent_menu = file_menu.addMenu("Recent datasets")
+        self._recent_menu = QMenu("Recent datasets", file_menu)
+        file_menu.addMenu(self._recent_menu)
         self._recent_menu.setToolTip("Datasets opened recently")
         self._fill_recent()
         view_menu = window.menu("View")
@@ -519,9 +520,9 @@ class GridView(QWidget):
 
 def recent_datasets() -> list[str]:
     value = settings().value("datasets/recent", [])
-    if isinstance(value, str):
+    if isinstance(value, str):          # (the INI format gives one entry back as text)
         value = [value]
-    return [str(v) for v in (value or []) if v]
+    return [str(v) for v in value if v] if isinstance(value, (list, tuple)) else []
 
 
 def add_recent_dataset(path: str) -> None:

@@ -66,7 +66,7 @@ class LiveView(QWidget):
 
         self.graphics = pg.GraphicsLayoutWidget()
         self.graphics.setBackground("#202020")
-        self.viewbox = self.graphics.addViewBox(lockAspect=True, invertY=True, enableMenu=False)
+        self.viewbox = self.graphics.ci.addViewBox(lockAspect=True, invertY=True, enableMenu=False)
         self.image_item = pg.ImageItem(axisOrder="row-major")
         self.viewbox.addItem(self.image_item)
         # what to do next, over the picture area: word-wrapped to its width (never clipped), centred
@@ -79,11 +79,12 @@ class LiveView(QWidget):
                                    "padding: 8px;")
         self.graphics.installEventFilter(self)
 
-        self.hist = pg.PlotWidget()
+        hist_item = pg.PlotItem()           # made here, so its view box is at hand (PlotWidget's item is optional)
+        self.hist = pg.PlotWidget(plotItem=hist_item)
         self.hist.setMenuEnabled(False)
         self.hist.setMouseEnabled(False, False)
         self.hist.hideAxis("left")
-        self.hist.setXRange(0, 255, padding=0.01)
+        hist_item.getViewBox().setXRange(0, 255, padding=0.01)
         self.hist.setMinimumHeight(110)
         self.hist.setMaximumHeight(160)
         self.hist.setToolTip("Histogram of the frame (R, G, B); pixels at the right edge are clipped")

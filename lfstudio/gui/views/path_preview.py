@@ -73,21 +73,22 @@ class PathPreview(QWidget):
         _draw_dots(p, ox + rc[:, 1] * sx * scale, oy + rc[:, 0] * sy * scale, dot, QColor(70, 180, 90))
         p.end()
 
-    def _rebuild(self) -> None:
+    def _rebuild(self) -> tuple[QPixmap, QPixmap]:
+        """The path drawn anew at the widget's size: (the path, the overlay of views done)."""
         plan = self.plan
         self.rebuilds += 1
-        self._base = QPixmap(self.size())
-        self._base.fill(QColor(30, 32, 36))
-        self._overlay = QPixmap(self.size())
-        self._overlay.fill(Qt.GlobalColor.transparent)
-        p = QPainter(self._base)
+        self._base = base = QPixmap(self.size())
+        base.fill(QColor(30, 32, 36))
+        self._overlay = overlay = QPixmap(self.size())
+        overlay.fill(Qt.GlobalColor.transparent)
+        p = QPainter(base)
         p.setRenderHint(QPainter.RenderHint.Antialiasing)
         if plan is None:
             p.setPen(QColor(160, 160, 160))
             p.drawText(self.rect(), Qt.AlignmentFlag.AlignCenter, "no grid")
             p.end()
             self._geom = None
-            return
+            return base, overlay
         margin = 12.0
         w, h = self.width() - 2 * margin, self.height() - 2 * margin - 14
         cols, rows = plan.columns, plan.rows
@@ -120,17 +121,19 @@ class PathPreview(QWidget):
                    f"x {x0:.0f}…{x1:.0f} mm · y {y0:.0f}…{y1:.0f} mm · {plan.order}")
         p.end()
         self._paint_done(list(self.done))
+        return base, overlay
 
     def resizeEvent(self, event) -> None:
         self._base = None
         super().resizeEvent(event)
 
     def paintEvent(self, event) -> None:
-        if self._base is None or self._base.size() != self.size():
-            self._rebuild()
+        base, overlay = self._base, self._overlay
+        if base is None or overlay is None or base.size() != self.size():
+            base, overlay = self._rebuild()
         p = QPainter(self)
-        p.drawPixmap(0, 0, self._base)
-        p.drawPixmap(0, 0, self._overlay)
+        p.drawPixmap(0, 0, base)
+        p.drawPixmap(0, 0, overlay)
         if self.current is not None and self._geom is not None:
             ox, oy, sx, sy, scale, dot = self._geom
             r, c = self.current
