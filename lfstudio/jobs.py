@@ -43,7 +43,9 @@ class CancelToken:
 
 
 class Progress(Protocol):
-    def __call__(self, done: int, total: int, message: str = "") -> None: ...
+    """``progress(done, total, message)``, called positionally (any names will do)."""
+
+    def __call__(self, done: int, total: int, message: str = "", /) -> None: ...
 
 
 def no_progress(done: int, total: int, message: str = "") -> None:

@@ -39,7 +39,7 @@ def _create_temporary(path: Path) -> Path:
     raise FileExistsError(f"{path.parent}: no free temporary name for {path.name}")
 
 
-def atomic_write_with(path: str | os.PathLike, write: Callable[[Path], None]) -> Path:
+def atomic_write_with(path: str | os.PathLike, write: Callable[[Path], object]) -> Path:
     """Let ``write(tmp_path)`` produce the file under a temporary name, then move it into place.
 
     Use this for libraries that only write to a path (cv2.imwrite, tifffile). The temporary name

@@ -34,6 +34,7 @@ import struct
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -179,7 +180,8 @@ def _header_size_px(path: Path) -> tuple[int, int] | None:
 
             with tifffile.TiffFile(path) as tif:
                 page = tif.pages[0]
-                return int(page.imagewidth), int(page.imagelength)
+                if isinstance(page, tifffile.TiffPage):     # the first page always is (not a TiffFrame)
+                    return int(page.imagewidth), int(page.imagelength)
     except Exception:  # a truncated or odd header: the decoder decides
         return None
     return None
@@ -235,7 +237,7 @@ def _params(step: DebayerStep):
 
     # adjust_maximum_thr=0: scale by the RAW's white level, never by the image's own maximum (LibRaw's
     # default rescales images with clipped pixels: a brightness jump between views of one scene)
-    kw = dict(gamma=(1, 1), no_auto_bright=True, output_bps=16, adjust_maximum_thr=0.0,
+    kw: dict[str, Any] = dict(gamma=(1, 1), no_auto_bright=True, output_bps=16, adjust_maximum_thr=0.0,
               half_size=step.half_size,
               output_color=rawpy.ColorSpace.raw if step.color_space == "raw" else rawpy.ColorSpace.sRGB,
               demosaic_algorithm=getattr(rawpy.DemosaicAlgorithm, FULL_SIZE_DEMOSAIC.get(step.demosaic, step.demosaic)))
@@ -526,7 +528,8 @@ def _thumb_from_raw(path: Path, width_px: int) -> np.ndarray | None:
                 img = _reduced_jpeg(lambda flags: cv2.imdecode(data, flags), width_px)
                 if img is not None and img.shape[1] >= width_px:
                     return img
-            elif thumb.format == rawpy.ThumbFormat.BITMAP and thumb.data.shape[1] >= width_px:
+            elif thumb.format == rawpy.ThumbFormat.BITMAP and isinstance(thumb.data, np.ndarray) \
+                    and thumb.data.shape[1] >= width_px:
                 return cv2.cvtColor(np.ascontiguousarray(thumb.data), cv2.COLOR_RGB2BGR)
         except Exception:
             pass

@@ -122,6 +122,6 @@ def zero_plane(dataset_or_manifest: Any) -> ZeroPlane:
         return ZeroPlane(0.0, None, SOURCE_SCAN, width)
     shear = _number(rec.get("shear_px_per_mm"))
     depth = _number(rec.get("depth_m"))
+    measured = rec.get("measured")
     return ZeroPlane(shear, depth if depth and depth > 0 else None, str(rec.get("source") or SOURCE_SCAN),
-                     _number(rec.get("image_width_px")) or width,
-                     rec.get("measured") if isinstance(rec.get("measured"), dict) else {})
+                     _number(rec.get("image_width_px")) or width, measured if isinstance(measured, dict) else {})

@@ -143,7 +143,7 @@ def _check_options(options: ExportOptions) -> ExportOptions:
     return dataclasses.replace(options, format=fmt, out=out)   # the caller's options stay as they were
 
 
-def _plan(ds: Dataset, options: ExportOptions) -> tuple[list[tuple[int, int]], str, tuple[int, int]]:
+def _plan(ds: Dataset, options: ExportOptions) -> tuple[list[common.View], str, tuple[int, int]]:
     """(views in export order, resolved source, view size (w, h))."""
     common.refuse_out_over_inputs(options.out, common.dataset_entries(ds), "the dataset being exported",
                                   "a path outside the dataset, e.g. next to it")
@@ -166,7 +166,8 @@ def _plan(ds: Dataset, options: ExportOptions) -> tuple[list[tuple[int, int]], s
         raise exc
     source = common.resolve_source(ds, views, options.source)
     if source == "hdr":        # float files the image readers do not open: the merge's recorded size
-        size = tuple(int(v) for v in (ds.manifest.get("hdr") or {}).get("output_size_px") or (0, 0))
+        recorded = (ds.manifest.get("hdr") or {}).get("output_size_px") or (0, 0)
+        size = (int(recorded[0]), int(recorded[1])) if len(recorded) == 2 else (0, 0)
         if min(size) <= 0:
             raise InputError("source", f"{ds.manifest_path} records no size of the merged HDR views",
                              "process the dataset again ('lfstudio process --force')")
@@ -238,7 +239,7 @@ def estimate_export(dataset, options: ExportOptions) -> ExportEstimate:
                             "first in this process (for many views run 'lfstudio depth DATASET --cluster ...' before)")
     if (out.exists() or out.is_symlink()) and not options.overwrite:
         warnings.append(f"{out} already exists and will only be replaced if you allow overwriting")
-    return ExportEstimate(views=list(views), source=source, image_size_px=tuple(frame_size),
+    return ExportEstimate(views=list(views), source=source, image_size_px=(frame_size[0], frame_size[1]),
                           bytes_estimate=int(nbytes), warnings=warnings)
 
 

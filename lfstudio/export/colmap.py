@@ -98,6 +98,7 @@ def points3d_text(views: Sequence[common.View], cloud: "SparseCloud | None") -> 
              "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)",
              f"# Number of points: {n}, mean track length: {mean_track:.6g}"]
     for i in range(n):
+        assert cloud is not None                  # n is 0 without a cloud
         x, y, z = cloud.xyz_m[i]
         r, g, b = (int(c) for c in cloud.rgb[i])
         lines.append(f"{i + 1} {x:.9g} {y:.9g} {z:.9g} {r} {g} {b} {cloud.error_px[i]:.6g} {' '.join(tracks[i])}")
@@ -129,7 +130,7 @@ def sparse_cloud_of_export(ds: Dataset, views: Sequence[common.View], cam: poses
             raise OSError(f"{path}: cannot read the exported image back")
         if shifts is not None:      # sheared views: triangulate the parallel ones (shear taken off)
             dx, dy = shifts[v]
-            img = cv2.warpAffine(img, np.float32([[1, 0, -dx], [0, 1, -dy]]), (img.shape[1], img.shape[0]),
+            img = cv2.warpAffine(img, np.array([[1, 0, -dx], [0, 1, -dy]], np.float32), (img.shape[1], img.shape[0]),
                                  flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 

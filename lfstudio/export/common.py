@@ -12,7 +12,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any, Iterator, Literal, Sequence
+from typing import Any, Generator, Iterator, Literal, Sequence
 
 import cv2
 import numpy as np
@@ -88,7 +88,7 @@ def resolve_source(ds: Dataset, views: Sequence[View], source: str) -> str:
                              f"for {shown}", "scan with --bracket and process the dataset ('lfstudio process'), "
                              "or export --source processed (the bracket's reference exposure)")
         if source == "hdr":
-            suffixes = {hdr_file(ds, ds.view(*v)).suffix for v in views}
+            suffixes = {p.suffix for v in views if (p := hdr_file(ds, ds.view(*v))) is not None}   # none missing
             if len(suffixes) > 1:
                 raise InputError("source", f"the merged HDR views are in {' and '.join(sorted(suffixes))} files",
                                  "process the dataset again with one --hdr format (lfstudio process --hdr exr --force)")
@@ -209,8 +209,8 @@ def write_images(ds: Dataset, views: Sequence[View], source: str, size: Sequence
         if source == "hdr":             # the merged radiance as processing wrote it (float; 1.0 = 0 EV white)
             shutil.copyfile(src, dst)
             return names[v]
-        if bit_depth == 16 and source == "processed" and is_png16_rgb(src):
-            hdr = images.png_header(src)
+        hdr = images.png_header(src) if bit_depth == 16 and source == "processed" else None
+        if hdr is not None and hdr[2] == 16 and hdr[3] == 2:          # is_png16_rgb: copied as it is
             if (hdr[0], hdr[1]) != tuple(size):
                 raise DatasetError(f"{src}: {hdr[0]} x {hdr[1]} px, the other views are {size[0]} x {size[1]} px; "
                                    "process the dataset again so that every view has the same size")
@@ -243,7 +243,7 @@ def images_bytes_estimate(n: int, size: Sequence[int], bit_depth: int) -> int:
     return int(n * int(size[0]) * int(size[1]) * per_px)
 
 
-def ordered_map(fn, items: Sequence, cancel, workers: int = 2, window: int = 4) -> Iterator:
+def ordered_map(fn, items: Sequence, cancel, workers: int = 2, window: int = 4) -> Generator[Any, None, None]:
     """``fn(item)`` for each item on ``workers`` threads (decoding and PNG compression release the
     GIL), yielded in order; at most ``window`` in flight; ``cancel.check()`` between items (the
     ones in flight finish first, then :class:`Cancelled` propagates)."""

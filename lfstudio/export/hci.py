@@ -70,7 +70,7 @@ def sub_array(ds: Dataset, options) -> list[common.View]:
             raise InputError("views", f"the HCI layout needs a full rectangle of views; {len(holes)} missing in "
                              f"rows {rows[0]}-{rows[-1]}, columns {cols[0]}-{cols[-1]}",
                              "a range like r6-14,c46-54 with every view captured")
-        return [(r, c) for r in rows for c in cols]
+        return [common.View(r, c) for r in rows for c in cols]
     n_cols, n_rows = int(options.hci_size[0]), int(options.hci_size[1])
     g_cols, g_rows = ds.grid.columns, ds.grid.rows
     if n_cols > g_cols or n_rows > g_rows:
@@ -87,7 +87,7 @@ def sub_array(ds: Dataset, options) -> list[common.View]:
                              f"{g_cols} x {g_rows} grid",
                              f"rows {(n_rows - 1) // 2}-{g_rows - 1 - n_rows // 2}, "
                              f"columns {(n_cols - 1) // 2}-{g_cols - 1 - n_cols // 2}")
-    views = [(r, c) for r in range(r0, r0 + n_rows) for c in range(c0, c0 + n_cols)]
+    views = [common.View(r, c) for r in range(r0, r0 + n_rows) for c in range(c0, c0 + n_cols)]
     have = set(ds.captured_views())
     missing = [v for v in views if v not in have]
     if missing:
@@ -195,7 +195,7 @@ def measured_disparity_range(ds: Dataset, views: Sequence[common.View], source: 
     cols = sorted(c for r, c in views if r == row)
     if len(cols) < 2:
         return None
-    a, b = (row, cols[0]), (row, cols[-1])
+    a, b = common.View(row, cols[0]), common.View(row, cols[-1])
     fa = detect(common.source_path(ds, a, source))
     fb = detect(common.source_path(ds, b, source))
     m = match_pair(fa, fb, "h")          # b is to the right of a
@@ -239,7 +239,14 @@ def warnings(ds: Dataset, views: Sequence[common.View], size: Sequence[int], sou
 def _center(views: Sequence[common.View]) -> common.View:
     rows = sorted({r for r, _ in views})
     cols = sorted({c for _, c in views})
-    return rows[(len(rows) - 1) // 2], cols[(len(cols) - 1) // 2]
+    return common.View(rows[(len(rows) - 1) // 2], cols[(len(cols) - 1) // 2])
+
+
+class _KeysAsWritten(configparser.ConfigParser):
+    """parameters.cfg with its keys as written (ConfigParser lowercases them)."""
+
+    def optionxform(self, optionstr: str) -> str:
+        return optionstr
 
 
 def parameters_text(ds: Dataset, views: Sequence[common.View], size: Sequence[int], source: str,
@@ -268,8 +275,7 @@ def parameters_text(ds: Dataset, views: Sequence[common.View], size: Sequence[in
     if f_px and not f_mm:
         f_mm = f_px * NOMINAL_SENSOR_MM / max(w, h)
     sensor_mm = f_mm * max(w, h) / f_px if f_px and f_mm else 0.0
-    cfg = configparser.ConfigParser()
-    cfg.optionxform = str
+    cfg = _KeysAsWritten()
     cfg["intrinsics"] = {
         "image_resolution_x_px": str(w), "image_resolution_y_px": str(h),
         "focal_length_mm": f"{f_mm or 0.0:.8g}",

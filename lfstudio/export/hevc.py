@@ -89,6 +89,7 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
                 options, progress: Progress, cancel: CancelToken) -> dict[str, Any]:
     """Encode ``views`` (already in meander order) into ``out`` + sidecar; returns the figures."""
     import av
+    import av.error
 
     _ffmpeg_errors_in_exceptions()
     n = len(views)
@@ -153,9 +154,10 @@ def export_hevc(ds: Dataset, views: Sequence[common.View], source: str, size: tu
                 for packet in stream.encode():
                     container.mux(packet)
         except av.error.FFmpegError as exc:
-            if getattr(exc, "errno", None) in STORAGE_ERRNOS:     # the disk, not the encoder (no --crf advice)
-                raise storage_error(OSError(exc.errno, os.strerror(exc.errno)), out, doing="writing",
-                                    then="export again") from None
+            errno_ = getattr(exc, "errno", None)
+            if isinstance(errno_, int) and errno_ in STORAGE_ERRNOS:   # the disk, not the encoder (no --crf advice)
+                raise storage_error(OSError(errno_, os.strerror(errno_)), out, doing="writing",
+                                    then="export again") or exc from None
             raise DatasetError(f"{out.name}: the HEVC encoder failed on {frame_size[0]} x {frame_size[1]} px "
                                f"{fmt} frames ({exc}); check the disk space and the options (--crf, --bit-depth)") \
                 from None
@@ -222,6 +224,7 @@ def _decode(video: Path, size: Sequence[int], *, upto: int | None = None, cancel
     """Yield (frame index, (h, w, 3) uint16 RGB cropped to ``size``) in stream order (only the
     frames in ``want`` when given)."""
     import av
+    import av.error
 
     _ffmpeg_errors_in_exceptions()
     w, h = int(size[0]), int(size[1])

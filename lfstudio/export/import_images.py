@@ -259,7 +259,7 @@ def normalise_positions(cells: Sequence[tuple[int, int]], raw: Sequence[tuple[fl
     A = np.column_stack([np.ones(len(rc)), rc[:, 1], rc[:, 0]])
     cx = np.linalg.lstsq(A, uv[:, ax], rcond=None)[0][0]
     cy = np.linalg.lstsq(A, uv[:, 1 - ax], rcond=None)[0][0]
-    pos = {tuple(int(v) for v in cell): (float(sx * (uv[i, ax] - cx)), float(sy * (uv[i, 1 - ax] - cy)))
+    pos = {(int(cell[0]), int(cell[1])): (float(sx * (uv[i, ax] - cx)), float(sy * (uv[i, 1 - ax] - cy)))
            for i, cell in enumerate(cells)}
     # the rig's own scatter about its best regular grid (an affine fit over row and column): the
     # repeatability it logged, which the check judges the positions by
@@ -360,6 +360,14 @@ def _positive(value: float | None, name: str) -> float | None:
     return v
 
 
+def _grid(options: ImportOptions) -> tuple[int, int]:
+    """(columns, rows) of checked options (:func:`check_options` refuses a grid that is not given or
+    read from an HCI folder's parameters.cfg)."""
+    if options.grid is None:
+        raise InputError("--grid", "is needed (columns x rows)", "e.g. 9x5")
+    return int(options.grid[0]), int(options.grid[1])
+
+
 def check_options(options: ImportOptions) -> None:
     """Raise :class:`InputError` for an option that cannot work (nothing is read or written)."""
     if options.grid is None:
@@ -368,7 +376,7 @@ def check_options(options: ImportOptions) -> None:
                              f"(no {HCI_PARAMETERS})", "e.g. 9x5")
         options = apply_hci_folder(options)[0]
     try:
-        cols, rows = (int(v) for v in options.grid)
+        cols, rows = (int(v) for v in options.grid or ())
     except (TypeError, ValueError):
         raise InputError("--grid", f"{options.grid!r} is not columns x rows", "e.g. 9x5") from None
     if cols < 1 or rows < 1:
@@ -428,7 +436,7 @@ def plan_import(options: ImportOptions, *, progress: Progress = no_progress,
     options, hci = apply_hci_folder(options)
     check_options(options)
     folder = Path(options.folder)
-    cols, rows = (int(v) for v in options.grid)
+    cols, rows = _grid(options)
     files = find_images(folder, options.pattern)
     msg = count_message(files, (cols, rows), folder, options.pattern)
     if msg:
@@ -447,7 +455,7 @@ def plan_import(options: ImportOptions, *, progress: Progress = no_progress,
             why = exc.reason if isinstance(exc, images.NotACapture) else "damaged or truncated"
             raise InputError("folder", f"{path.name}: cannot be read as an image ({why}); re-copy it or leave it "
                              "out with --pattern") from None
-        if size is None:
+        if size is None or first is None:
             size, first = s, path
         elif s != size:
             raise InputError("folder", f"{path.name} is {s[0]}x{s[1]} px but {first.name} is {size[0]}x{size[1]} "
@@ -795,7 +803,8 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
     progress = progress or no_progress
     options = apply_hci_folder(options)[0]
     check_options(options)
-    n_files = int(options.grid[0]) * int(options.grid[1])
+    grid_cr = _grid(options)
+    n_files = grid_cr[0] * grid_cr[1]
     # checking the files, measuring the views' disparities (when asked: 6-11 s for 25 views, shown in
     # steps of the same weight as a file), linking or copying the files, moving into place
     measuring = n_files if options.measure is not None else 0
@@ -810,7 +819,7 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
     plan = plan_import(options, progress=check_progress, cancel=cancel)
     if measuring:
         progress(n_files, total, "measuring the disparities between views")
-    resolve_zero_plane(plan, options, (int(options.grid[0]), int(options.grid[1])), cancel=cancel,
+    resolve_zero_plane(plan, options, grid_cr, cancel=cancel,
                        progress=measure_progress)
     out = Path(options.out).absolute()
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -858,7 +867,7 @@ def import_images(options: ImportOptions, *, progress: Progress | None = None,
                 pool.shutdown(wait=True, cancel_futures=True)
                 raise
         views.sort(key=lambda v: (v["row"], v["column"]))
-        cols, rows = (int(v) for v in options.grid)
+        cols, rows = grid_cr
         grid = {"columns": cols, "rows": rows, "spacing_mm": [sx, sy], "origin_mm": [0.0, 0.0],
                 "order": GRID_ORDER[options.order]}
         record = {"folder": str(Path(options.folder).absolute()), "pattern": options.pattern,

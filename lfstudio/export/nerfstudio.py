@@ -79,14 +79,14 @@ def held_out(views: Sequence[common.View], holdout: str | None) -> list[common.V
     rows = sorted({r for r, _ in views})
     cols = sorted({c for _, c in views})
     if kind == "centre":
-        centre = (rows[(len(rows) - 1) // 2], cols[(len(cols) - 1) // 2])
+        centre = common.View(rows[(len(rows) - 1) // 2], cols[(len(cols) - 1) // 2])
         if centre not in set(views):
             raise InputError("holdout", f"the centre view (row {centre[0]}, column {centre[1]}) is not exported",
                              "export it too, or another hold-out")
         out = [centre]
     else:
         r0, c0 = rows[0], cols[0]
-        out = [(r, c) for r, c in sorted(views) if (r - r0) % k == k // 2 and (c - c0) % k == k // 2]
+        out = [common.View(r, c) for r, c in sorted(views) if (r - r0) % k == k // 2 and (c - c0) % k == k // 2]
         if not out:
             raise InputError("holdout", f"every-{k} holds out no view of this {len(cols)} x {len(rows)} selection",
                              "a smaller K, or centre")
@@ -95,7 +95,7 @@ def held_out(views: Sequence[common.View], holdout: str | None) -> list[common.V
     return out
 
 
-def camera_to_world(cam: poses.PinholeCamera, centre_m: Sequence[float]) -> np.ndarray:
+def camera_to_world(cam: poses.PinholeCamera, centre_m: Sequence[float] | np.ndarray) -> np.ndarray:
     """4 x 4 transform_matrix of the camera centred at ``centre_m`` (rig frame, m)."""
     c2w = np.eye(4)
     c2w[:3, :3] = cam.R.T @ OPENCV_TO_OPENGL

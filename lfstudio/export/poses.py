@@ -55,7 +55,7 @@ class PinholeCamera:
         """(cx, cy) with the top-left pixel's centre at (0.5, 0.5) (COLMAP, nerfstudio)."""
         return self.cx_px + 0.5, self.cy_px + 0.5
 
-    def world_to_camera(self, centre_m: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    def world_to_camera(self, centre_m: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(R_cw, t) with ``x_cam = R_cw · X + t`` for the camera centred at ``centre_m``."""
         C = np.asarray(centre_m, dtype=float)
         return self.R.copy(), -self.R @ C
@@ -101,9 +101,10 @@ def camera_for(ds: Dataset, size: Sequence[int], rectified: bool, calibration: d
             f_full = float(cal["focal_length_px"]) if cal.get("focal_length_px") else None
             if cal.get("principal_point_px"):
                 pp_full = (float(cal["principal_point_px"][0]), float(cal["principal_point_px"][1]))
-            rot = tuple(float(a) for a in cal.get("rotation_deg") or (0.0, 0.0, 0.0))
-            if len(rot) != 3 or not all(np.isfinite(rot)):
+            angles = [float(a) for a in cal.get("rotation_deg") or (0.0, 0.0, 0.0)]
+            if len(angles) != 3 or not all(np.isfinite(angles)):
                 raise ValueError("rotation_deg")
+            rot = (angles[0], angles[1], angles[2])
         except (KeyError, TypeError, ValueError, IndexError):
             raise DatasetError(f"{ds.root / CALIBRATION_NAME}: image_size_px, focal_length_px, principal_point_px "
                                "or rotation_deg is unreadable; run 'lfstudio calibrate' again") from None
@@ -133,7 +134,7 @@ def camera_for(ds: Dataset, size: Sequence[int], rectified: bool, calibration: d
     return PinholeCamera(size_px=(w, h), fx_px=f_full * sx, fy_px=f_full * sy,
                          cx_px=_scale_point(pp[0], sx), cy_px=_scale_point(pp[1], sy), R=R, rectified=rectified,
                          rotation_from=rot_from, principal_point_from=pp_from,
-                         rotation_deg=(0.0, 0.0, 0.0) if rectified else tuple(rot), warnings=tuple(warnings))
+                         rotation_deg=(0.0, 0.0, 0.0) if rectified else rot, warnings=tuple(warnings))
 
 
 def centre_m(ds: Dataset, view: View) -> np.ndarray:
