@@ -53,7 +53,8 @@ def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str 
     if not is_configured():          # the CLI sets it up (with --debug); direct callers get the defaults
         setup_logging()
     keep_image_work_on_the_gui_thread()
-    app = QApplication.instance() or QApplication(sys.argv[:1])
+    running = QApplication.instance()
+    app = running if isinstance(running, QApplication) else QApplication(sys.argv[:1])
     app.setApplicationName("lfstudio")
     app.setOrganizationName("lfstudio")
     app.setApplicationVersion(__version__)
@@ -63,8 +64,8 @@ def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str 
     if style.is_file():
         app.setStyleSheet(style.read_text(encoding="utf-8"))
     window = create_window(simulated=simulated)
-    window.exception_reporter = install_exception_hooks(window)
-    window.watchdog = install_watchdog(window)     # GUI stalls > 50 ms go to the log with their source
+    reporter = install_exception_hooks(window)
+    watchdog = install_watchdog(window)     # GUI stalls > 50 ms go to the log with their source  # noqa: F841 (kept while the app runs)
     log.info("lfstudio %s window open (%s)", __version__, "simulated studio" if simulated else "hardware")
     if dataset:
         from lfstudio.dataset import Dataset
@@ -86,4 +87,4 @@ def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str 
     try:
         return app.exec()
     finally:
-        restore_exception_hooks(window.exception_reporter)
+        restore_exception_hooks(reporter)

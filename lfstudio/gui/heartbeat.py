@@ -243,6 +243,8 @@ class Heartbeat(QObject):
 
     # -- the GUI thread ------------------------------------------------------------------------------
     def _tick(self) -> None:
+        if self._last is None:          # not started: no tick to measure from (the timer runs after start())
+            return
         now, now_cpu, queued = time.perf_counter(), time.thread_time(), _run_delay_s(self._run_delay_fd)
         stall_ms = (now - self._last) * 1000.0 - self.interval_ms
         cpu_ms = (now_cpu - self._last_cpu) * 1000.0

@@ -82,6 +82,8 @@ class PanelScrollArea(QScrollArea):
 
     def _need(self) -> QSize:
         panel = self.widget()
+        if panel is None:           # its panel already deleted (the window closing)
+            return QSize(0, 0)
         return panel.minimumSizeHint().expandedTo(panel.minimumSize())
 
     def need_width(self) -> int:
@@ -249,7 +251,7 @@ class MainWindow(QMainWindow):
         if not widths:
             return
         separator = self.style().pixelMetric(self.style().PixelMetric.PM_DockWidgetSeparatorExtent, None, self)
-        room = self.width() - self.centralWidget().minimumSizeHint().width() - separator * (len(widths) + 1)
+        room = self.width() - self.central.minimumSizeHint().width() - separator * (len(widths) + 1)
         total = sum(need for need, _ in widths.values())
         scale = min(1.0, room / total) if total > 0 else 1.0
         docks, sizes = [], []
@@ -507,10 +509,13 @@ class MainWindow(QMainWindow):
         """Connect the simulated rig and camera (the built-in studio), as ``lfstudio`` does on start.
 
         Homing stays the operator's step, as on the real rig."""
+        from lfstudio.gui.panels.camera import CameraPanel
+        from lfstudio.gui.panels.rig import RigPanel
+
         rig, camera = self.panels.get("rigDock"), self.panels.get("cameraDock")
-        if rig is not None and not rig.connected and rig.chosen_port() == "sim":
+        if isinstance(rig, RigPanel) and not rig.connected and rig.chosen_port() == "sim":
             rig.connect_rig()
-        if camera is not None and not camera.connected and camera.current_kind() == "sim":
+        if isinstance(camera, CameraPanel) and not camera.connected and camera.current_kind() == "sim":
             camera.connect_camera()
         self.statusBar().showMessage("Simulated studio: rig and camera connecting. Home the rig "
                                      "(Rig → Home) before jogging or scanning.", 15000)
@@ -582,8 +587,10 @@ class MainWindow(QMainWindow):
             self.statusBar().showMessage("Not quitting: the scan goes on.", 5000)
             return
         self._quit_after_scan = True
+        from lfstudio.gui.panels.scan import ScanPanel
+
         scan = self.panels.get("scanPanel")
-        if scan is not None and hasattr(scan, "abort"):
+        if isinstance(scan, ScanPanel):
             scan.abort()
         self.statusBar().showMessage("Stopping the scan after the current view; lfstudio closes when it has "
                                      "stopped.", 0)

@@ -21,7 +21,8 @@ from PySide6.QtWidgets import (QCheckBox, QDoubleSpinBox, QFormLayout, QGroupBox
                                QPlainTextEdit, QSpinBox, QWidget)
 
 from lfstudio.errors import InputError
-from lfstudio.gui.settings import settings
+from lfstudio.gui.settings import read_float, read_int, settings
+from lfstudio.gui.widgets import bounds_of, number_of
 from lfstudio.scan.notify import SmtpServer, parse_target
 from lfstudio.scan.status_http import check_token, parse_address
 from lfstudio.studio.scan_options import PARAMS as SCAN_PARAMS
@@ -40,7 +41,7 @@ NAMES = {"notify": "Settings → Unattended scans → Notify", "smtp": "Settings
          "on_finish_timeout_s": "Settings → Unattended scans → Time limit"}
 
 
-def _value(key: str, default=""):
+def _value(key: str, default: object = "") -> object:
     return settings().value(PREFIX + key, default)
 
 
@@ -50,11 +51,8 @@ def _bool(key: str, default: bool) -> bool:
 
 def load_options() -> UnattendedOptions:
     """The options a scan started in the window gets (as Settings stored them)."""
-    try:
-        auto = int(_value("auto_resume", 0))
-        limit = float(_value("on_finish_timeout_s", 300.0))
-    except (TypeError, ValueError):
-        auto, limit = 0, 300.0
+    auto = read_int(PREFIX + "auto_resume", 0)
+    limit = read_float(PREFIX + "on_finish_timeout_s", 300.0)
     status = _bool("status", False)
     token = str(_value("status_token", "") or "")
     address = str(_value("status_address", DEFAULT_ADDRESS) or DEFAULT_ADDRESS)
@@ -128,9 +126,9 @@ class UnattendedBox(QGroupBox):
         form.addRow("Status page", status_row)
         self.auto_resume = QSpinBox()
         self.auto_resume.setObjectName("autoResume")
-        resumes = SCAN_PARAMS["auto_resume"].number      # the range 'lfstudio scan --auto-resume' takes
-        self.auto_resume.setRange(int(resumes.low), int(resumes.high))
-        self.auto_resume.setValue(int(_value("auto_resume", 0) or 0))
+        low, high = bounds_of(SCAN_PARAMS["auto_resume"], "auto_resume")   # as 'lfstudio scan --auto-resume' takes
+        self.auto_resume.setRange(int(low), int(high))
+        self.auto_resume.setValue(read_int(PREFIX + "auto_resume", 0))
         self.auto_resume.setSpecialValueText("never")
         self.auto_resume.setSuffix(" times")
         self.auto_resume.setToolTip("Resume by itself, at most this often, when a pause's cause clears (disk space "
@@ -151,14 +149,12 @@ class UnattendedBox(QGroupBox):
                                   "the Scan panel's log; a failure is notified")
         self.timeout = QDoubleSpinBox()
         self.timeout.setObjectName("onFinishTimeout")
-        limit = SCAN_PARAMS["on_finish_timeout_s"].number  # the range 'lfstudio scan --on-finish-timeout-s' takes
-        self.timeout.setRange(limit.low, limit.high)
+        # the range and unit 'lfstudio scan --on-finish-timeout-s' takes
+        limit = number_of(SCAN_PARAMS["on_finish_timeout_s"], "on_finish_timeout_s")
+        self.timeout.setRange(*bounds_of(SCAN_PARAMS["on_finish_timeout_s"], "on_finish_timeout_s"))
         self.timeout.setDecimals(0)
         self.timeout.setSuffix(f" {limit.unit}")
-        try:
-            self.timeout.setValue(float(_value("on_finish_timeout_s", 300.0)))
-        except (TypeError, ValueError):
-            self.timeout.setValue(300.0)
+        self.timeout.setValue(read_float(PREFIX + "on_finish_timeout_s", 300.0))
         self.timeout.setToolTip(f"The command is stopped after this long (valid: {limit.valid()})")
         finish_row = QHBoxLayout()
         finish_row.addWidget(self.on_finish, 1)

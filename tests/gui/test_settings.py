@@ -107,3 +107,19 @@ def test_the_import_dialog_opens_on_garbled_settings_with_the_defaults(qtbot):
     assert dialog.intrinsics_combo.currentIndex() == 0
     assert dialog.focal_mm.value() == pytest.approx(50.0)
     assert dialog.zero_depth.value() == pytest.approx(3.0)
+
+
+def test_the_settings_dialog_and_a_scan_s_options_take_the_defaults_for_garbled_unattended_values(qtbot):
+    from lfstudio.gui.dialogs.settings_dialog import SettingsDialog
+    from lfstudio.gui.unattended import PREFIX, load_options
+
+    s = settings()
+    s.setValue(PREFIX + "auto_resume", "twice")
+    s.setValue(PREFIX + "on_finish_timeout_s", "long")
+    s.sync()
+    dialog = SettingsDialog()
+    qtbot.addWidget(dialog)
+    assert dialog.unattended.auto_resume.value() == 0
+    assert dialog.unattended.timeout.value() == pytest.approx(300.0)
+    options = load_options()
+    assert options.auto_resume == 0 and options.on_finish_timeout_s == pytest.approx(300.0)
