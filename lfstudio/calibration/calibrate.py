@@ -16,12 +16,15 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from lfstudio.calibration.features import DEFAULT_MAX_FEATURES, DEFAULT_WORK_WIDTH_PX, FeatureCache, Features, match_pairs
 from lfstudio.calibration.fit import DEFAULT_POSITION_SIGMA_UM, CalibrationError, FitResult, PairMatches, fit_rectification
 from lfstudio.calibration.pairs import DEFAULT_PAIR_SET, DEFAULT_VIEWS, Pair, make_pairs
 from lfstudio.calibration.lens import lens_fingerprint, lens_model, undistort_points
 from lfstudio.calibration.report import build_report
+from lfstudio.dataset import Dataset
+from lfstudio.dataset.grid import View
 from lfstudio.dataset.profile import Profile
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
@@ -40,7 +43,7 @@ class CalibrationRun:
     fit: FitResult
     matches: list[PairMatches]
     pairs: list[Pair]
-    views: list[tuple[int, int]]
+    views: list[View]
 
 
 def position_sigma_um(dataset) -> tuple[float, float]:
@@ -100,7 +103,7 @@ def recorded_positions(dataset, views: Sequence[tuple[int, int]]) -> dict[tuple[
     return out
 
 
-def with_recorded_positions(m: PairMatches, pos_a: Sequence[float], pos_b: Sequence[float]) -> PairMatches:
+def with_recorded_positions(m: PairMatches, pos_a: ArrayLike, pos_b: ArrayLike) -> PairMatches:
     """The pair with its baseline as the rig recorded it (issue 27: another rig's recorded positions
     are not a perfect grid; Stanford's gantry steps vary by up to 8 %), instead of the grid's spacing:
     the baseline scales how much a view's position error moves the pair's matches (``d / B``).
@@ -120,7 +123,7 @@ def with_recorded_positions(m: PairMatches, pos_a: Sequence[float], pos_b: Seque
     return PairMatches(m.view_a, m.view_b, m.direction, m.xy_a, m.xy_b, raw_matches=m.raw_matches, baseline_mm=base)
 
 
-def calibrate_dataset(dataset, views: str | Sequence[tuple[int, int]] | None = None, *,
+def calibrate_dataset(dataset: Dataset, views: str | Sequence[tuple[int, int]] | None = None, *,
                       principal_point: str = "auto", estimate_principal_point: bool | None = None,
                       focal_length_px: float | None = None,
                       max_width_px: int | None = DEFAULT_WORK_WIDTH_PX, max_features: int = DEFAULT_MAX_FEATURES,

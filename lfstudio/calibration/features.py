@@ -25,7 +25,7 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import cv2
 import numpy as np
@@ -60,7 +60,7 @@ def detect(path: str | Path, max_width_px: int | None = DEFAULT_WORK_WIDTH_PX,
            max_features: int = DEFAULT_MAX_FEATURES) -> Features:
     """SIFT keypoints and descriptors of one view (coordinates in full-resolution pixels)."""
     grey, full, scale = images.read_grey(path, max_width_px)
-    sift = cv2.SIFT_create(nfeatures=int(max_features))
+    sift = cv2.SIFT.create(nfeatures=int(max_features))
     kps, desc = sift.detectAndCompute(grey, None)
     if desc is None or not kps:
         return Features(np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32), full, scale)
@@ -95,8 +95,8 @@ class FeatureCache:
             try:
                 with np.load(path, allow_pickle=False) as z:
                     if json.loads(str(z["key"])) == key:
-                        return Features(z["xy"], z["descriptors"], tuple(int(v) for v in z["size"]),
-                                        float(z["scale"])), True
+                        width, height = (int(v) for v in z["size"])
+                        return Features(z["xy"], z["descriptors"], (width, height), float(z["scale"])), True
             except (OSError, ValueError, KeyError):
                 pass  # unreadable cache entry: recompute
         feats = detect(source, self.max_width_px, self.max_features)
@@ -142,7 +142,7 @@ class DescriptorIndex:
             return idx, dist
         if len(self.descriptors) >= 2 and n * len(self.descriptors) > _FLANN_ABOVE:
             if self._flann is None:
-                self._flann = cv2.flann_Index(self.descriptors, {"algorithm": 1, "trees": 4})
+                self._flann = cv2.flann.Index(self.descriptors, {"algorithm": 1, "trees": 4})
             i, d = self._flann.knnSearch(q, 2, params={"checks": FLANN_CHECKS})
             return i.astype(np.int64), d.astype(np.float32)
         for row, ms in enumerate(cv2.BFMatcher(cv2.NORM_L2).knnMatch(q, self.descriptors, k=2)):
@@ -221,7 +221,7 @@ def match_pair(fa: Features, fb: Features, direction: str, *, ratio: float = 0.8
                        threshold_work_px=threshold_work_px, threads=1)[0]
 
 
-def match_pairs(features: dict, pairs: Sequence[tuple], *, ratio: float = 0.8, mutual: bool = True,
+def match_pairs(features: dict, pairs: Sequence[tuple[Any, Any, str]], *, ratio: float = 0.8, mutual: bool = True,
                 threshold_work_px: float = 1.5, threads: int = 2,
                 on_done: Callable[[int, MatchResult], None] | None = None,
                 check: Callable[[], None] | None = None) -> list[MatchResult]:
@@ -254,8 +254,7 @@ def match_pairs(features: dict, pairs: Sequence[tuple], *, ratio: float = 0.8, m
                 check()
             a, b, _ = pairs[i]
             chosen = np.unique(forward[i][forward[i] >= 0])
-            back = _ratio(*indexes[a].knn2(features[b].descriptors[chosen]), ratio) if mutual else None
-            reverse[i] = (chosen, back)
+            reverse[i] = (chosen, _ratio(*indexes[a].knn2(features[b].descriptors[chosen]), ratio))
 
     results: list[MatchResult | None] = [None] * len(pairs)
 
@@ -277,8 +276,10 @@ def match_pairs(features: dict, pairs: Sequence[tuple], *, ratio: float = 0.8, m
 
     workers = max(1, int(threads))
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        for task, groups in ((forward_task, grouped(lambda i: pairs[i][1])),
-                             (reverse_task, grouped(lambda i: pairs[i][0]))):
+        passes = [(forward_task, grouped(lambda i: pairs[i][1]))]
+        if mutual:          # the reverse pass is the mutual check's
+            passes.append((reverse_task, grouped(lambda i: pairs[i][0])))
+        for task, groups in passes:
             futures = [pool.submit(task, jobs) for jobs in _balanced(groups, features)]
             _wait_all(futures)
         _wait_all([pool.submit(finish_task, i) for i in live])

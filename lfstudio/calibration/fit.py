@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
 from lfstudio.calibration.linear import linear_rotation
@@ -200,8 +201,8 @@ class FitResult:
     sigma_px: float                    # robust spread of the final residuals
     success: bool
     message: str
+    covariance: np.ndarray             # 5 × 5 over [rx, ry, rz (deg), cx, cy offset (px)]
     evaluations: int = 0
-    covariance: np.ndarray | None = None          # 5 × 5 over [rx, ry, rz (deg), cx, cy offset (px)]
     principal_point_reason: str = ""
     view_offsets_mm: dict = field(default_factory=dict)   # view -> [x, y] estimated position error (mm)
     position_sigma_mm: tuple[float, float] = (0.0, 0.0)   # the prior used (after the data check)
@@ -216,8 +217,8 @@ class FitResult:
         return np.concatenate([self.rotation_deg, self.principal_point_px - nominal])
 
     @property
-    def rotation_std_deg(self) -> np.ndarray | None:
-        return None if self.covariance is None else np.sqrt(np.diag(self.covariance)[:3])
+    def rotation_std_deg(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.covariance)[:3])
 
 
 def signed_residuals(H: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray, horizontal: np.ndarray) -> np.ndarray:
@@ -257,10 +258,18 @@ class _Split:
                                np.ascontiguousarray(xy_b[idx, 0]), np.ascontiguousarray(xy_b[idx, 1])))
         self.n = len(self.horizontal)
 
-    def evaluate(self, H: np.ndarray, with_disparity: bool = False):
-        """Normalised residuals (see :func:`normalised_residuals`) and, optionally, |disparity| / gain."""
+    def evaluate(self, H: np.ndarray) -> np.ndarray:
+        """Normalised residuals (see :func:`normalised_residuals`)."""
+        return self._evaluate(H, None)
+
+    def evaluate_with_disparity(self, H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised residuals and |disparity| / gain."""
+        disp = np.empty(self.n)
+        return self._evaluate(H, disp), disp
+
+    def _evaluate(self, H: np.ndarray, disp: np.ndarray | None) -> np.ndarray:
+        """The residuals; fills ``disp`` with |disparity| / gain when given."""
         r = np.empty(self.n)
-        disp = np.empty(self.n) if with_disparity else None
         for idx, row, xa, ya, xb, yb in self.parts:
             if not len(idx):
                 continue
@@ -268,12 +277,12 @@ class _Split:
             cb, gb = _warp_row(H, xb, yb, row)
             g = np.sqrt(0.5 * (ga + gb))
             r[idx] = (ca - cb) / g
-            if with_disparity:
+            if disp is not None:
                 other = 1 - row
                 oa = _warp_row(H, xa, ya, other)[0]
                 ob = _warp_row(H, xb, yb, other)[0]
                 disp[idx] = np.abs(oa - ob) / g
-        return (r, disp) if with_disparity else r
+        return r
 
 
 def normalised_residuals(H: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray, horizontal: np.ndarray) -> np.ndarray:
@@ -300,11 +309,11 @@ def undistort_radial(xy: np.ndarray, corner_px: float, image_size_px: Sequence[i
     return c + d * (1.0 + (float(corner_px) / rc) * r2)
 
 
-def homography_of(params: Sequence[float], focal_length_px: float, image_size_px: Sequence[int]) -> np.ndarray:
+def homography_of(params: ArrayLike, focal_length_px: float, image_size_px: Sequence[int]) -> np.ndarray:
     """H for ``params`` = [rx, ry, rz] or [rx, ry, rz, cx offset, cy offset] (offsets from the nominal centre)."""
-    params = np.asarray(params, float)
-    pp = nominal_principal_point(image_size_px) + (params[3:5] if len(params) > 3 else 0.0)
-    return rectifying_homography(params[:3], focal_length_px, image_size_px, pp)
+    p = np.asarray(params, float)
+    pp = nominal_principal_point(image_size_px) + (p[3:5] if len(p) > 3 else 0.0)
+    return rectifying_homography(p[:3], focal_length_px, image_size_px, pp)
 
 
 def _batched_residuals(Hs: np.ndarray, xy_a: np.ndarray, xy_b: np.ndarray, horizontal: np.ndarray) -> np.ndarray:
@@ -354,7 +363,7 @@ def _make_data(used: Sequence[PairMatches], axes: tuple[bool, bool]) -> _Data:
             continue
         eta_a[i] = columns.setdefault((m.view_a, axis), len(columns))
         eta_b[i] = columns.setdefault((m.view_b, axis), len(columns))
-    keys = sorted(columns, key=columns.get)
+    keys = sorted(columns, key=columns.__getitem__)
     return _Data(xy_a, xy_b, horizontal, pair, baseline, eta_a, eta_b,
                  np.array([k[1] for k in keys], int), [k[0] for k in keys])
 
@@ -394,7 +403,7 @@ class _Problem:
     def residuals_and_coupling(self, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Normalised residuals and, per match, d / B (px per mm of relative position error; 0 where
         no offsets are modelled)."""
-        r, disp = self._split_for(params).evaluate(homography_of(params, self.f, self.size), with_disparity=True)
+        r, disp = self._split_for(params).evaluate_with_disparity(homography_of(params, self.f, self.size))
         return r, disp * self.inv_base
 
     def jacobian(self, params: np.ndarray, r0: np.ndarray | None = None) -> np.ndarray:
@@ -489,7 +498,7 @@ def _solve_offsets(problem: "_Problem", r0: np.ndarray, c: np.ndarray, weights: 
 
 
 def _refine(problem: "_Problem", params: np.ndarray, sigma_px: float, sigma_pos_mm: np.ndarray,
-            iterations: int = 8, free: Sequence[bool] | None = None,
+            iterations: int = 8, free: ArrayLike | None = None,
             bounds: tuple[np.ndarray, np.ndarray] | None = None
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The angles (and principal point) with every view's offset in the model and per-pair weights;
@@ -694,6 +703,7 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
     covariance = np.zeros((5, 5))
     cols5 = np.nonzero(free5)[0]
     if estimated:
+        assert pp_std is not None           # measured where it was estimated (the "auto" branch above)
         params, offsets, sig_pair, pos_used, cov_full = free
         covariance[np.ix_(cols5, cols5)] = cov_full[:len(cols5), :len(cols5)]
         reason = (f"estimated: the views determine it to ±{pp_std.max():.1f} px (1σ; the limit is "
@@ -714,8 +724,9 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
         G = -Sigma_n @ info[:na, na:]
         S_pp = np.eye(2) * prior_sigma ** 2
         covariance[np.ix_(fidx, fidx)] = cov_full[:na, :na] + G @ S_pp @ G.T
-        covariance[np.ix_(fidx, [3, 4])] = G @ S_pp
-        covariance[np.ix_([3, 4], fidx)] = (G @ S_pp).T
+        pp_idx = np.array([3, 4])
+        covariance[np.ix_(fidx, pp_idx)] = G @ S_pp
+        covariance[np.ix_(pp_idx, fidx)] = (G @ S_pp).T
         covariance[3:5, 3:5] = S_pp
         why = ("not requested" if principal_point == "centre" else
                "not observable from one direction of pairs" if not obs.all_three else
@@ -921,7 +932,7 @@ def observable_limit_px(prior_sigma_px: float) -> float:
     return min(PP_OBSERVABLE_STD_PX, 0.25 * float(prior_sigma_px))
 
 
-def pp_observable(pp_std_px: Sequence[float], prior_sigma_px: float) -> bool:
+def pp_observable(pp_std_px: ArrayLike, prior_sigma_px: float) -> bool:
     """Whether the views determine both coordinates of the principal point (see :func:`observable_limit_px`)."""
     return bool(np.all(np.asarray(pp_std_px, float) <= observable_limit_px(prior_sigma_px)))
 

@@ -78,9 +78,11 @@ class LensfunLens:
 
     def __init__(self, step: LensStep, full_size_wh: tuple[int, int], camera_name: str, lens_name: str,
                  focal_length_mm: float):
-        import lensfunpy
+        # lensfunpy copies these names from its extension module into its namespace at import time,
+        # where pyright cannot see them
+        from lensfunpy import Database, Modifier, ModifyFlags  # pyright: ignore[reportAttributeAccessIssue]
 
-        db = lensfunpy.Database()
+        db = Database()
         cam_maker = step.camera_maker or None
         cam_model = step.camera_model or camera_name
         cams = _find_cameras(db, cam_maker, cam_model) if cam_model else []
@@ -99,10 +101,10 @@ class LensfunLens:
         w, h = full_size_wh
         flags = 0
         if step.distortion:
-            flags |= lensfunpy.ModifyFlags.DISTORTION
+            flags |= ModifyFlags.DISTORTION
         if step.tca:
-            flags |= lensfunpy.ModifyFlags.TCA
-        mod = lensfunpy.Modifier(self.lens, self.camera.crop_factor, w, h)
+            flags |= ModifyFlags.TCA
+        mod = Modifier(self.lens, self.camera.crop_factor, w, h)
         mod.initialize(focal_length_mm, step.aperture, step.distance_m, scale=1.0, flags=flags)
         coords = mod.apply_subpixel_geometry_distortion()
         if coords is None:  # no calibration data for this lens: identity
@@ -111,15 +113,13 @@ class LensfunLens:
         self.coords = np.ascontiguousarray(coords, dtype=np.float32)  # (h, w, 3, 2)
         self.description = f"lensfun: {self.camera.maker} {self.camera.model} + {self.lens.maker} {self.lens.model}"
 
-    def source_coords(self, x: np.ndarray | None, y: np.ndarray | None) -> list[Coords]:
+    def source_coords(self, x: np.ndarray, y: np.ndarray) -> list[Coords]:
         out = []
         for c in range(3):
-            mx, my = self.coords[:, :, c, 0], self.coords[:, :, c, 1]
-            if x is not None:
-                mx = cv2.remap(mx, x.astype(np.float32), y.astype(np.float32), cv2.INTER_LINEAR,
-                               borderMode=cv2.BORDER_REPLICATE)
-                my = cv2.remap(my, x.astype(np.float32), y.astype(np.float32), cv2.INTER_LINEAR,
-                               borderMode=cv2.BORDER_REPLICATE)
+            mx = cv2.remap(self.coords[:, :, c, 0], x.astype(np.float32), y.astype(np.float32), cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_REPLICATE)
+            my = cv2.remap(self.coords[:, :, c, 1], x.astype(np.float32), y.astype(np.float32), cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_REPLICATE)
             out.append((mx, my))
         return out
 

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.atomic import atomic_write_json
@@ -41,7 +42,7 @@ ROTATION_CONVENTION = (
     "full-resolution pixel to the rectified pixel; pixel centres at integer coordinates")
 
 
-def rotation_matrix(rotation_deg: Sequence[float]) -> np.ndarray:
+def rotation_matrix(rotation_deg: ArrayLike) -> np.ndarray:
     """3 × 3 orientation error R from ``[rx, ry, rz]`` in degrees (extrinsic x-y-z)."""
     from scipy.spatial.transform import Rotation
     return Rotation.from_euler("xyz", np.asarray(rotation_deg, dtype=float), degrees=True).as_matrix()
@@ -63,14 +64,14 @@ def nominal_principal_point(image_size_px: Sequence[int]) -> np.ndarray:
     return np.array([(w - 1) / 2.0, (h - 1) / 2.0])
 
 
-def intrinsics(focal_length_px: float, principal_point_px: Sequence[float]) -> np.ndarray:
-    cx, cy = principal_point_px
+def intrinsics(focal_length_px: float, principal_point_px: ArrayLike) -> np.ndarray:
+    cx, cy = np.asarray(principal_point_px, dtype=float)
     f = float(focal_length_px)
     return np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
 
 
-def rectifying_homography(rotation_deg: Sequence[float], focal_length_px: float, image_size_px: Sequence[int],
-                          principal_point_px: Sequence[float] | None = None) -> np.ndarray:
+def rectifying_homography(rotation_deg: ArrayLike, focal_length_px: float, image_size_px: Sequence[int],
+                          principal_point_px: ArrayLike | None = None) -> np.ndarray:
     """``H = K0 · Rᵀ · K_true⁻¹`` normalised to ``H[2, 2] = 1`` (captured full-res pixel → rectified pixel)."""
     nominal = nominal_principal_point(image_size_px)
     pp = nominal if principal_point_px is None else np.asarray(principal_point_px, dtype=float)
@@ -152,7 +153,7 @@ def calibration_problems(document: Any) -> list[str]:
         elif np.any(np.abs(angles) > MAX_ANGLE_DEG + 1e-9):
             problems.append(f"{CALIBRATION_NAME}: rotation_deg {[round(float(a), 3) for a in angles]} lies outside "
                             f"the fit's bounds (±{MAX_ANGLE_DEG:g}° per angle): a failed fit, not a camera")
-    if ok and size_ok:
+    if ok and size_ok and isinstance(size, list):
         shift = corner_shift_fraction(H, size)
         if not shift <= MAX_CORNER_SHIFT_FRACTION:
             problems.append(f"{CALIBRATION_NAME}: homography moves an image corner by "
@@ -281,10 +282,11 @@ class CalibrationUncertainty:
             def tup(key):
                 v = u.get(key)
                 return tuple(tuple(r) if isinstance(r, list) else r for r in v) if isinstance(v, list) else v
-            known = {k: tup(k) for k in cls.__dataclass_fields__ if k in u}
+            known: dict[str, Any] = {k: tup(k) for k in cls.__dataclass_fields__ if k in u}
             return cls(**known)
         std = document.get("rotation_std_deg")
         if isinstance(std, list) and len(std) == 3:
-            return cls(rotation_std_deg=tuple(float(x) for x in std), formal_rotation_std_deg=tuple(std),
+            rx, ry, rz = (float(x) for x in std)
+            return cls(rotation_std_deg=(rx, ry, rz), formal_rotation_std_deg=(std[0], std[1], std[2]),
                        method="formal (independent residuals; written before measured uncertainties)")
         return None

@@ -103,5 +103,10 @@ def plot_sweep(results: Sequence[dict], path: str | Path) -> Path:
                                    f"({results[0]['trials']} trials per point)",
                      x_label="principal-point shift r [px]", y_label="RMS residual per trial [px]")
     path = Path(path)
-    atomic_write_with(path, lambda p: cv2.imwrite(str(p), img))
+
+    def write(tmp: Path) -> None:
+        if not cv2.imwrite(str(tmp), img):
+            raise OSError(f"{path}: the chart could not be written (cv2.imwrite failed; is the disk full?)")
+
+    atomic_write_with(path, write)
     return path

@@ -41,10 +41,7 @@ def stats(residuals: np.ndarray) -> dict[str, float | int | None]:
 def _both(before: np.ndarray, after: np.ndarray, horizontal: np.ndarray) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for name, r in (("before", before), ("after", after)):
-        s = stats(r)
-        s["horizontal"] = stats(r[horizontal])
-        s["vertical"] = stats(r[~horizontal])
-        out[name] = s
+        out[name] = {**stats(r), "horizontal": stats(r[horizontal]), "vertical": stats(r[~horizontal])}
     return out
 
 
@@ -113,9 +110,8 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
     if grid_extent_mm is None:
         grid_extent_mm = tuple(max([m.baseline_mm for m in matches if m.direction == d], default=0.0) or None
                                for d in ("h", "v"))
-    uncertainty = describe_fit(fit, matches, *grid_extent_mm) if fit.covariance is not None else None
-    if uncertainty is not None:
-        warnings += _uncertainty_warnings(fit, matches, uncertainty)
+    uncertainty = describe_fit(fit, matches, *grid_extent_mm)
+    warnings += _uncertainty_warnings(fit, matches, uncertainty)
     obs = fit.observability
     if obs is not None:
         warnings += [h["reason"] for h in obs.held()]
@@ -128,12 +124,12 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
         "created": created,
         "rotation_deg": [float(a) for a in fit.rotation_deg],
         "rotation_convention": ROTATION_CONVENTION,
-        "rotation_std_deg": None if uncertainty is None else list(uncertainty.rotation_std_deg),
+        "rotation_std_deg": list(uncertainty.rotation_std_deg),
         "principal_point_px": [float(p) for p in fit.principal_point_px],
         "principal_point_offset_px": [float(p) for p in fit.principal_point_px - nominal],
         "principal_point_estimated": bool(fit.estimate_principal_point),
         "principal_point_reason": fit.principal_point_reason,
-        UNCERTAINTY_KEY: None if uncertainty is None else uncertainty.to_json(),
+        UNCERTAINTY_KEY: uncertainty.to_json(),
         "observability": None if obs is None else obs.to_json(fit.max_angle_deg),
         "radial_distortion": fit.extra.get("radial_distortion"),
         "focal_length_px": float(fit.focal_length_px),

@@ -39,6 +39,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from lfstudio.calibration.fit import CalibrationError, PairMatches, fit_rectification, signed_residuals
 from lfstudio.calibration.linear import linear_rotation
@@ -146,7 +147,7 @@ def _points_seen_by_both(rng, pair: Pair, cfg: SimulationConfig, R: np.ndarray, 
 
 
 def make_trial(rng: np.random.Generator, pp_shift_px: float, cfg: SimulationConfig | None = None,
-               rotation_deg: Sequence[float] | None = None) -> Trial:
+               rotation_deg: ArrayLike | None = None) -> Trial:
     """Draw one synthetic experiment: true orientation, principal point, noisy and ideal matches,
     and the evaluation set."""
     cfg = cfg or SimulationConfig()
@@ -208,7 +209,7 @@ def distort(xy: np.ndarray, corner_px: float, image_size_px: Sequence[int]) -> n
     return c + d * (1.0 - (float(corner_px) / rc) * r2)
 
 
-def equivalent_truth(rotation_deg: Sequence[float], free: Sequence[bool]) -> np.ndarray:
+def equivalent_truth(rotation_deg: ArrayLike, free: Sequence[bool]) -> np.ndarray:
     """The angles a fit that holds the undetermined angle at 0 should find: the truth itself when
     all three are determined; (0, ry, rz) for rows only (a row sees ``R·e_x``, which the tilt does
     not move); for columns only the tilt and roll with pan 0 that turn ``e_y`` to the true ``R·e_y``."""
@@ -408,9 +409,9 @@ def sweep(radii_px: Sequence[float], trials: int = 100, seed: int = 0, cfg: Simu
           cancel: CancelToken | None = None, linear: bool = False) -> list[dict]:
     """:func:`simulate` for every principal-point shift radius (Figure 3)."""
     results = []
-    total = len(radii_px) * trials
+    all_trials = len(radii_px) * trials
     for k, r in enumerate(radii_px):
-        def sub_progress(done, _total, message="", k=k):
-            progress(k * trials + done, total, message)
+        def sub_progress(done: int, total: int, message: str = "", k: int = k) -> None:
+            progress(k * trials + done, all_trials, message)
         results.append(simulate(trials, r, seed + k, cfg, modes, sub_progress, cancel, linear))
     return results

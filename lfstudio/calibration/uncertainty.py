@@ -18,12 +18,13 @@ the estimate ``p̂`` (both ``[rx, ry, rz, cx offset, cy offset]``), the probe's 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from lfstudio.calibration.fit import homography_of, signed_residuals
-from lfstudio.calibration.model import apply_homography
+from lfstudio.calibration.fit import FitResult, PairMatches, homography_of, signed_residuals
+from lfstudio.calibration.model import CalibrationUncertainty, apply_homography
 
 LEVELS = (0.6827, 0.9545)      # the probabilities of ±1σ and ±2σ of a normal distribution
 _STEPS = np.array([1e-3, 1e-3, 1e-3, 0.05, 0.05])
@@ -56,7 +57,7 @@ def corner_probes(image_size_px: Sequence[int], row_disparity_px: float | None,
     return Probes(np.concatenate(qa), np.concatenate(qb), np.concatenate(hor))
 
 
-def probe_errors(probes: Probes, estimate: Sequence[float], truth: Sequence[float], focal_length_px: float,
+def probe_errors(probes: Probes, estimate: ArrayLike, truth: ArrayLike, focal_length_px: float,
                  image_size_px: Sequence[int]) -> np.ndarray:
     """Rectification error of each probe (px) when ``estimate`` is used and ``truth`` is the camera."""
     H_true_inv = np.linalg.inv(homography_of(_five(truth), focal_length_px, image_size_px))
@@ -66,7 +67,7 @@ def probe_errors(probes: Probes, estimate: Sequence[float], truth: Sequence[floa
                             probes.horizontal)
 
 
-def probe_jacobian(probes: Probes, estimate: Sequence[float], focal_length_px: float,
+def probe_jacobian(probes: Probes, estimate: ArrayLike, focal_length_px: float,
                    image_size_px: Sequence[int]) -> np.ndarray:
     """J (N × 5) with ``e ≈ J · (estimate − truth)``."""
     p = _five(estimate)
@@ -125,12 +126,23 @@ def nearest_disparity_per_mm(matches, homography: np.ndarray, inlier: np.ndarray
     return float(np.quantile(r, quantile)) if r.size else None
 
 
-def _five(p: Sequence[float]) -> np.ndarray:
-    p = np.asarray(p, float)
+def _five(params: ArrayLike) -> np.ndarray:
+    p = np.asarray(params, float)
     return p if len(p) == 5 else np.concatenate([p[:3], np.zeros(2)])
 
 
-def describe_fit(fit, matches, row_baseline_mm: float | None, column_baseline_mm: float | None):
+def _pair(values: Iterable[Any]) -> tuple[float, float]:
+    a, b = (float(x) for x in values)
+    return a, b
+
+
+def _triple(values: Iterable[Any]) -> tuple[float, float, float]:
+    a, b, c = (float(x) for x in values)
+    return a, b, c
+
+
+def describe_fit(fit: FitResult, matches: Sequence[PairMatches], row_baseline_mm: float | None,
+                 column_baseline_mm: float | None) -> CalibrationUncertainty:
     """The :class:`lfstudio.calibration.model.CalibrationUncertainty` of a fit over a grid whose
     full row spans ``row_baseline_mm`` and full column ``column_baseline_mm`` (None: no such pairs).
 
@@ -138,16 +150,14 @@ def describe_fit(fit, matches, row_baseline_mm: float | None, column_baseline_mm
     between two views at the nearest depth (``√2 · σ_position · d/B``): the calibration, not the
     rig, would then limit the rectification.
     """
-    from lfstudio.calibration.model import CalibrationUncertainty
-
     k = nearest_disparity_per_mm(matches, fit.homography, fit.inlier)
     row_d = k * row_baseline_mm if k and row_baseline_mm else None
     col_d = k * column_baseline_mm if k and column_baseline_mm else None
     corners = corner_probes(fit.image_size_px, row_d, col_d)
     bounds = error_bounds(probe_jacobian(corners, fit.params, fit.focal_length_px, fit.image_size_px),
-                          fit.covariance, "max") if fit.covariance is not None else None
+                          fit.covariance, "max")
     floor = rig_floor_px(fit, k)
-    degenerate = bool(bounds is not None and floor and bounds[0] > floor)
+    degenerate = bool(floor and bounds[0] > floor)
     pair_sigma = fit.extra.get("pair_sigma_px") or []
     linear = fit.extra.get("linear_deg")
     linear_rms = None
@@ -158,16 +168,16 @@ def describe_fit(fit, matches, row_baseline_mm: float | None, column_baseline_mm
         r = signed_residuals(homography_of(linear, fit.focal_length_px, fit.image_size_px), xa, xb, hor)
         linear_rms = float(np.sqrt(np.mean(r * r))) if len(r) else None
     return CalibrationUncertainty(
-        rotation_std_deg=tuple(float(x) for x in fit.rotation_std_deg),
+        rotation_std_deg=_triple(fit.rotation_std_deg),
         covariance=tuple(tuple(float(x) for x in row) for row in fit.covariance),
-        corner_error_px=None if bounds is None else (bounds[0], bounds[1]),
+        corner_error_px=(bounds[0], bounds[1]),
         row_baseline_mm=row_baseline_mm, column_baseline_mm=column_baseline_mm,
         row_disparity_px=row_d, column_disparity_px=col_d,
-        position_sigma_um=tuple(1000.0 * float(s) for s in fit.position_sigma_mm),
+        position_sigma_um=_pair(1000.0 * float(s) for s in fit.position_sigma_mm),
         feature_sigma_px=float(np.median(pair_sigma)) if len(pair_sigma) else None,
-        formal_rotation_std_deg=tuple(float(x) for x in fit.extra.get("formal_rotation_std_deg", (np.nan,) * 3)),
-        principal_point_std_px=tuple(float(x) for x in fit.extra.get("principal_point_std_px", (np.nan,) * 2)),
-        linear_rotation_deg=None if linear is None else tuple(float(x) for x in linear),
+        formal_rotation_std_deg=_triple(fit.extra.get("formal_rotation_std_deg", (np.nan,) * 3)),
+        principal_point_std_px=_pair(fit.extra.get("principal_point_std_px", (np.nan,) * 2)),
+        linear_rotation_deg=None if linear is None else _triple(linear),
         linear_residual_px=linear_rms, degenerate=degenerate,
         method="covariance of the fit with every view's position error in the model (prior: the rig's "
                "repeatability, raised to what the data show) and each pair's residuals scaled by their "

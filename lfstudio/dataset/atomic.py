@@ -55,9 +55,10 @@ def atomic_write_with(path: str | os.PathLike, write: Callable[[Path], object]) 
         os.replace(tmp_path, path)
     except BaseException as exc:
         tmp_path.unlink(missing_ok=True)
-        if isinstance(exc, OSError) and exc.filename in (None, str(tmp_path)):
+        if isinstance(exc, OSError) and exc.errno is not None and exc.filename in (None, str(tmp_path)):
             exc.filename = str(path)          # the operator knows the file, not its temporary name (a failed
-            #                                   write names none: without it, messages named the working folder's disk)
+            #                                   write names none: without it, messages named the working folder's disk;
+            #                                   an OSError(message) of the writer's own keeps its words)
         raise
     _fsync_dir(path.parent)
     return path

@@ -129,20 +129,23 @@ def multi_baseline_disparity(reference: np.ndarray, neighbours: Sequence[Neighbo
     for i, d in enumerate(ds):
         if check is not None:
             check()
-        acc = {s: None for s in sides}
+        acc: dict[str, np.ndarray | None] = {s: None for s in sides}
         for n, feats in nb_f:
             ad = None
             for rf, nf in zip(ref_f, feats):
                 diff = cv2.absdiff(rf, _shift(nf, -d * n.dx, -d * n.dy))
                 ad = diff if ad is None else cv2.add(ad, diff)
-            s = n.side
-            acc[s] = ad if acc[s] is None else cv2.add(acc[s], ad)
+            if ad is None:          # no feature channels
+                continue
+            before = acc[n.side]
+            acc[n.side] = ad if before is None else cv2.add(before, ad)
         side_cost = {}
         for s in sides:
-            if acc[s] is None:
+            side_acc = acc[s]
+            if side_acc is None:
                 side_cost[s] = None
                 continue
-            c = cv2.boxFilter(acc[s], -1, ksize, normalize=True, borderType=cv2.BORDER_REFLECT) / np.float32(count[s])
+            c = cv2.boxFilter(side_acc, -1, ksize, normalize=True, borderType=cv2.BORDER_REFLECT) / np.float32(count[s])
             side_cost[s] = np.where(np.isnan(c), inf, c).astype(np.float32)
         parts = []
         for a, b in (("left", "right"), ("up", "down")):
@@ -200,7 +203,7 @@ def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity_px: float,
     of ``left`` (uint8 grey): the disparity of ``left`` in pixels of this pair (float32, NaN where
     it found none or no partner pixel lies that far left)."""
     n = int(np.ceil(max(16.0, max_disparity_px * 1.25 + 4) / 16.0) * 16)
-    matcher = cv2.StereoSGBM_create(minDisparity=0, numDisparities=n, blockSize=block, P1=8 * block * block,
+    matcher = cv2.StereoSGBM.create(minDisparity=0, numDisparities=n, blockSize=block, P1=8 * block * block,
                                     P2=32 * block * block, disp12MaxDiff=1, uniquenessRatio=10,
                                     speckleWindowSize=100, speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
     raw = matcher.compute(np.ascontiguousarray(left), np.ascontiguousarray(right)).astype(np.float32) / 16.0

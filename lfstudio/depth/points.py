@@ -73,11 +73,11 @@ class SparseCloud:
 def spread_views(views: Sequence[View], max_views: int = MAX_VIEWS) -> list[View]:
     """``views`` when at most ``max_views``, else an evenly spread sub-grid of them (whole rows and
     columns of the selection, so that neighbours in the sub-grid share a row or a column)."""
-    views = sorted(set(map(tuple, views)))
-    if len(views) <= max_views:
-        return [View(*v) for v in views]
-    rows = sorted({r for r, _ in views})
-    cols = sorted({c for _, c in views})
+    cells = sorted({(r, c) for r, c in views})
+    if len(cells) <= max_views:
+        return [View(*v) for v in cells]
+    rows = sorted({r for r, _ in cells})
+    cols = sorted({c for _, c in cells})
     aspect = len(cols) / max(1, len(rows))
     n_rows = max(1, min(len(rows), int(round(np.sqrt(max_views / aspect)))))
     n_cols = max(1, min(len(cols), max_views // n_rows))
@@ -85,7 +85,7 @@ def spread_views(views: Sequence[View], max_views: int = MAX_VIEWS) -> list[View
     def pick(seq, n):
         return [seq[int(round(i))] for i in np.linspace(0, len(seq) - 1, n)] if n > 1 else [seq[len(seq) // 2]]
 
-    have = set(views)
+    have = set(cells)
     return [View(r, c) for r in pick(rows, n_rows) for c in pick(cols, n_cols) if (r, c) in have]
 
 
@@ -249,7 +249,7 @@ def sparse_cloud(views: Sequence[View], image_of: Callable[[View], np.ndarray], 
             scale = grey.shape[1] / float(detect_width_px)
             grey = cv2.resize(grey, (detect_width_px, int(round(grey.shape[0] / scale))), interpolation=cv2.INTER_AREA)
             scale = rgb.shape[1] / grey.shape[1]
-        kps, desc = cv2.SIFT_create(nfeatures=int(max_features)).detectAndCompute(grey, None)
+        kps, desc = cv2.SIFT.create(nfeatures=int(max_features)).detectAndCompute(grey, None)
         xy = (np.array([k.pt for k in kps], np.float64).reshape(-1, 2) + 0.5) * scale - 0.5
         feats[v] = Features(xy.astype(np.float32), (desc if desc is not None else np.zeros((0, 128))).astype(np.float32),
                             (rgb.shape[1], rgb.shape[0]), scale)

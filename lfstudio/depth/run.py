@@ -37,7 +37,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from lfstudio.dataset import Dataset
-from lfstudio.dataset.atomic import atomic_write_with
+from lfstudio.dataset.atomic import atomic_write_text, atomic_write_with
 from lfstudio.dataset.grid import View
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
@@ -131,6 +131,18 @@ def _processed_path(ds: Dataset, view: Sequence[int]) -> Path | None:
     return ds.processed_path(ds.view(*view))
 
 
+def _image_path(ds: Dataset, view: Sequence[int], source: str) -> Path:
+    """The view's processed image (``source`` "processed") or its capture; refused by name when the
+    processed one is missing."""
+    if source != "processed":
+        return ds.path_of(ds.view(*view))
+    path = _processed_path(ds, view)
+    if path is None:
+        raise DatasetError(f"{ds.root}: no processed image of {view_stem(*view)}; process the dataset first "
+                           "('lfstudio process') or use --source raw")
+    return path
+
+
 @dataclass(frozen=True)
 class Geometry:
     source: str                           # "processed" | "raw"
@@ -157,8 +169,7 @@ def geometry_of(ds: Dataset, views: Sequence[View], needed: Sequence[View], sour
         raise InputError("source", f"processed views missing for {', '.join(view_stem(*v) for v in missing[:6])}",
                          "process the dataset first ('lfstudio process'), or --source raw")
     use = "processed" if source == "processed" or (source == "auto" and not missing) else "raw"
-    first = _processed_path(ds, views[0]) if use == "processed" else ds.path_of(ds.view(*views[0]))
-    w, h = images.full_size_px(first)
+    w, h = images.full_size_px(_image_path(ds, views[0], use))
     cal = load_calibration(ds)
     warnings: list[str] = []
     rectified = bool(use == "processed" and (ds.manifest.get("processing") or {}).get("rectified"))
@@ -170,7 +181,7 @@ def geometry_of(ds: Dataset, views: Sequence[View], needed: Sequence[View], sour
         warnings.append("the views are not rectified (no calibration): disparities along the rows are approximate; "
                         "calibrate (and process) first")
     f_full = float(cal["focal_length_px"]) if cal and cal.get("focal_length_px") else None
-    if f_full and cal.get("image_size_px"):
+    if f_full and cal and cal.get("image_size_px"):
         f_px = f_full * w / float(cal["image_size_px"][0])
     else:
         f_px = ds.focal_length_px(w)
@@ -205,8 +216,7 @@ def measured_range(ds: Dataset, views: Sequence[View], source: str, H, spacing_x
         raise InputError("views", "a single column and no scene plan: the disparity range is unknown",
                          "give the dataset a scene plan (near/far) or choose views with neighbours in a row")
     a, b = (row, cols[0]), (row, cols[min(len(cols) - 1, 4)])
-    path = (lambda v: _processed_path(ds, v)) if source == "processed" else (lambda v: ds.path_of(ds.view(*v)))
-    fa, fb = detect(path(a)), detect(path(b))
+    fa, fb = detect(_image_path(ds, a, source)), detect(_image_path(ds, b, source))
     m = match_pair(fa, fb, "h")
     xa, xb = m.xy_a, m.xy_b
     if H is not None:
@@ -276,7 +286,7 @@ def depth_view_task(task: dict[str, Any]) -> dict[str, Any]:
                                "p98": float(np.percentile(res.disparity_px[finite], 98)) if finite.any() else None},
               "cpu_s": time.process_time() - t_cpu, "computed_at": now_iso()}
     out["records"].parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_with(out["records"], lambda tmp: Path(tmp).write_text(json.dumps(record) + "\n", encoding="utf-8"))
+    atomic_write_text(out["records"], json.dumps(record) + "\n")
     return record
 
 
@@ -347,7 +357,7 @@ def estimate_depth(dataset, views: str | Sequence[tuple[int, int]] | None = None
     log.info("depth of %s started: %d views to compute, %d up to date (%s)", ds.root, len(todo), report.skipped,
              report.source)
 
-    def finish(task, record=None, error=None) -> None:
+    def finish(task, record: dict[str, Any] | None = None, error: str | None = None) -> None:
         nonlocal done
         done += 1
         name = view_stem(*task["view"])
@@ -355,6 +365,7 @@ def estimate_depth(dataset, views: str | Sequence[tuple[int, int]] | None = None
             report.failed[name] = error
             log.warning("depth of %s failed: %s", name, error)
         else:
+            assert record is not None           # given a record or an error
             report.computed += 1
             report.cpu_s += float(record.get("cpu_s") or 0.0)
         progress(done, total, f"depth {name}")

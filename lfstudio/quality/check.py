@@ -33,7 +33,6 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from lfstudio.dataset.atomic import atomic_write_json
-from lfstudio.dataset.grid import View
 from lfstudio.dataset.manifest import is_done, now_iso
 from lfstudio.dataset.paths import folder_inside, resolve_inside, view_stem
 from lfstudio.dataset.zero_plane import ZeroPlane, zero_plane
@@ -49,7 +48,7 @@ from lfstudio.quality.verdicts import Thresholds
 
 log = logging.getLogger(__name__)
 
-Cell = View                 # a grid cell (row, column)
+Cell = tuple[int, int]     # a grid cell (row, column); a dataset View is one
 QUALITY_NAME = "quality.json"
 PICTURES_FOLDER = "quality"
 FORMAT = "lfstudio-quality"
@@ -503,8 +502,8 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
     disp_map = None
     if centre is not None and centre in grid.measures and grid.measures[centre].grey8 is not None:
         progress(done_n, total, "disparity map of the centre view")
-        images = {c: grid.measures[c].grey8 for c in keep_forever if c in grid.measures
-                  and grid.measures[c].grey8 is not None}
+        images = {c: img for c in keep_forever if c in grid.measures
+                  and (img := grid.measures[c].grey8) is not None}
         max_s = float(np.percentile(s, 99.5)) if s.size else (f_work or 1000.0) / (1000.0 * 1.0)
         # sheared by an amount nobody stated: the views' own signed disparities, searched both ways
         min_s = min(0.0, float(np.percentile(s, 0.5))) if s.size and not geometry.zero.known else 0.0
@@ -662,7 +661,7 @@ def depth_range(step_disp_full: np.ndarray, step_disp_sigma: np.ndarray, g: Geom
                     "tracks": int(step_disp_full.size), "verdict": verdicts.NA,
                     "why": f"no depths: {g.zero.describe()}"})
         return out
-    if step_disp_full.size < 20 or not f_full:
+    if step_disp_full.size < 20 or not f_full or shear_step_px is None:     # (None with 20 tracks: above)
         out.update({"verdict": verdicts.NA, "why": "too few tracks (or no focal length) to measure depth"})
         return out
     d_lo = float(np.percentile(step_disp_full + RANGE_SIGMAS * step_disp_sigma, 1.0))

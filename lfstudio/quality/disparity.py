@@ -17,9 +17,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from lfstudio.dataset.grid import View
 
-Cell = View                 # a grid cell (row, column)
+Cell = tuple[int, int]     # a grid cell (row, column); a dataset View is one
 TARGET_DISPARITY_PX = 32.0
 MAX_STEPS = 4
 
@@ -92,7 +91,7 @@ def sgbm(left: np.ndarray, right: np.ndarray, max_disparity_px: float, min_dispa
     searched over [``min_disparity_px``, ``max_disparity_px``] (signed; see :func:`search_range`)."""
     first, n = search_range(min_disparity_px, max_disparity_px)
     block = 5
-    matcher = cv2.StereoSGBM_create(minDisparity=first, numDisparities=n, blockSize=block, P1=8 * block * block,
+    matcher = cv2.StereoSGBM.create(minDisparity=first, numDisparities=n, blockSize=block, P1=8 * block * block,
                                     P2=32 * block * block, disp12MaxDiff=1, uniquenessRatio=10,
                                     speckleWindowSize=100, speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
     raw = matcher.compute(np.ascontiguousarray(left), np.ascontiguousarray(right)).astype(np.float32) / 16.0
@@ -131,7 +130,7 @@ def disparity_map(centre: Cell, images: dict[Cell, np.ndarray], partners: list[t
         if shifts_px and cell in shifts_px:     # sheared views: the partner moved back by its shear
             dx, dy = shifts_px[cell]
             h, w = p_img.shape
-            p_img = cv2.warpAffine(p_img, np.float32([[1, 0, dx], [0, 1, dy]]), (w, h), flags=cv2.INTER_LINEAR,
+            p_img = cv2.warpAffine(p_img, np.array([[1, 0, dx], [0, 1, dy]], np.float32), (w, h), flags=cv2.INTER_LINEAR,
                                    borderMode=cv2.BORDER_REPLICATE)
         d = sgbm(_to_left_right(c_img, direction), _to_left_right(p_img, direction),
                  steps * max_step_disparity_work_px.get(axis, 8.0),

@@ -29,11 +29,11 @@ import multiprocessing
 import os
 import queue
 import threading
+from multiprocessing.process import BaseProcess
 from typing import Any, Callable
 
 import numpy as np
 
-from lfstudio.dataset.grid import View
 from lfstudio.dataset.manifest import FrameRecord
 from lfstudio.dataset.paths import resolve_inside
 from lfstudio.errors import LfError
@@ -47,7 +47,7 @@ from lfstudio.support.listeners import Listeners
 
 log = logging.getLogger(__name__)
 
-Cell = View                 # a grid cell (row, column)
+Cell = tuple[int, int]     # a grid cell (row, column); a dataset View is one
 Listener = Callable[[dict[str, Any]], None]
 _SETTLE = object()             # queue item: solve every view checked so far
 #: views kept with their working image: this many rows around the newest view
@@ -350,7 +350,7 @@ class LiveCheckerProcess(_Published):
         self._numbers = itertools.count(1)
         self._ended = threading.Event()              # the reader saw the process's end
         self._lower = lower_priority
-        self.process: multiprocessing.process.BaseProcess | None = None
+        self.process: BaseProcess | None = None
         self._reader: threading.Thread | None = None
         self._writer = threading.Thread(target=self._write, name="quality-live-writer", daemon=True)
         self._writer.start()

@@ -228,5 +228,9 @@ def exposure_ratio(view: ViewMeasures, neighbours: list[ViewMeasures]) -> float 
 
 
 def deflicker_gain(reference: ViewMeasures, view: ViewMeasures, step: DeflickerStep = _DEFLICKER) -> float:
-    """The gain the processing stage's de-flicker ``step`` would apply to ``view``."""
+    """The gain the processing stage's de-flicker ``step`` would apply to ``view`` (both must still
+    hold their reduced luminance)."""
+    if reference.small_luminance is None or view.small_luminance is None:
+        raise ValueError(f"de-flicker gain of row {view.row}, column {view.column}: a reduced luminance was "
+                         "already dropped")
     return float(deflicker.gain(reference.small_luminance, view.small_luminance, step)[0])

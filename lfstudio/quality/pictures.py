@@ -15,7 +15,7 @@ import html
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import cv2
 import numpy as np
@@ -240,7 +240,7 @@ def disparity_picture(disparity_px: np.ndarray, image8: np.ndarray, depth_note: 
 
 
 def bar_chart(counts: list[int], edges: list[float], *, title: str, x_label: str,
-              marks: list[tuple[float, str, tuple[int, int, int]]] = (), size_px: tuple[int, int] = (640, 300)
+              marks: Sequence[tuple[float, str, tuple[int, int, int]]] = (), size_px: tuple[int, int] = (640, 300)
               ) -> np.ndarray:
     """A histogram (BGR) with labelled vertical marks."""
     w, h = size_px

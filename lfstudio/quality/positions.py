@@ -170,7 +170,7 @@ def solve_positions(obs: Observations, initial_mm: np.ndarray, *, fixed: np.ndar
             Sf = S[free][:, free]
             if free.any():
                 damp = 1e-9 * max(float(np.abs(Sf.diagonal()).max()), 1.0)
-                dp[free] = spla.spsolve(Sf + sp.identity(Sf.shape[0], format="csc") * damp, rhs.ravel()[free])
+                dp[free] = np.asarray(spla.spsolve(Sf + sp.identity(Sf.shape[0], format="csc") * damp, rhs.ravel()[free]))
         dP = dp.reshape(nV, 2)
         P = P + dP
         a, s, ok = _track_fit(sobs, P, w)

@@ -26,11 +26,10 @@ from typing import Callable
 
 import numpy as np
 
-from lfstudio.dataset.grid import View
 from lfstudio.jobs import CancelToken
 from lfstudio.quality.measure import DEFAULT_WORK_WIDTH_PX, measure_view
 
-Cell = View
+Cell = tuple[int, int]     # a grid cell (row, column); a dataset View is one
 BLOCK = 5
 RANGE_SIGMAS = 1.5
 #: a disparity this many standard errors below zero (and below NEGATIVE_FLOOR_PX per step) proves a shear
@@ -109,7 +108,7 @@ def measure_shear(files: dict[Cell, Path], positions_mm: dict[Cell, tuple[float,
         progress(len(cells), steps, f"disparities: solving the tracks of {len(cells)} views")
     fit = grid.solve(cells)
     y_mid = np.mean([positions_mm[c][1] for c in cells])
-    flipped = {c: (positions_mm[c][0], 2 * y_mid - positions_mm[c][1]) for c in cells}
+    flipped = {c: (positions_mm[c][0], float(2 * y_mid - positions_mm[c][1])) for c in cells}
     fit_rev = grid.solve(cells, known_mm=flipped)
     reversed_rows = bool(np.isfinite(fit_rev.sigma_px) and fit_rev.sigma_px < 0.7 * fit.sigma_px)
     use = fit_rev if reversed_rows else fit

@@ -23,11 +23,10 @@ import cv2
 import numpy as np
 
 from lfstudio.calibration.model import apply_homography
-from lfstudio.dataset.grid import View
 from lfstudio.quality.measure import ViewMeasures
 from lfstudio.quality.positions import Observations
 
-Cell = View                 # a grid cell (row, column)
+Cell = tuple[int, int]     # a grid cell (row, column); a dataset View is one
 
 #: neighbour offsets (rows, columns) a star may use
 WINDOW: tuple[Cell, ...] = tuple((dr, dc) for dr in (-2, -1, 0, 1, 2) for dc in (-2, -1, 0, 1, 2)
@@ -38,8 +37,14 @@ ROUND_TRIP_PX = 0.15
 BACK_CHECK = False
 #: a forward-only track is kept when its Lucas–Kanade error is below this many times the median
 LK_ERROR_FACTOR = 3.0
-_LK = dict(winSize=(11, 11), maxLevel=3,
-           criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03))
+
+
+def _lk(image_a: np.ndarray, image_b: np.ndarray, pts: np.ndarray, guess: np.ndarray):
+    """Pyramidal Lucas–Kanade from ``pts`` in ``image_a`` into ``image_b``, starting at ``guess``:
+    (points, status, error) as OpenCV returns them."""
+    return cv2.calcOpticalFlowPyrLK(image_a, image_b, pts, guess, winSize=(11, 11), maxLevel=3,
+                                    criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03),
+                                    flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
 
 
 def star_neighbours(cell: Cell, known: Callable[[Cell], bool], size: int = STAR_SIZE) -> list[Cell]:
@@ -77,13 +82,11 @@ def track_star(view: ViewMeasures, neighbours: Sequence[ViewMeasures], offsets_m
             shift = -(focal_length_work_px / (1000.0 * guess_depth_m) - shear_work_px_per_mm) \
                 * np.asarray(off, np.float32)
             guess = pts + shift.astype(np.float32)
-            fwd, st, err = cv2.calcOpticalFlowPyrLK(view.grey8, nb.grey8, pts, guess.copy(),
-                                                    flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **_LK)
+            fwd, st, err = _lk(view.grey8, nb.grey8, pts, guess.copy())
             h, w = view.grey8.shape
             ok = (st[:, 0] == 1) & (fwd[:, 0] >= 0) & (fwd[:, 1] >= 0) & (fwd[:, 0] <= w - 1) & (fwd[:, 1] <= h - 1)
             if BACK_CHECK:
-                back, st2, _ = cv2.calcOpticalFlowPyrLK(nb.grey8, view.grey8, fwd, pts.copy(),
-                                                        flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **_LK)
+                back, st2, _ = _lk(nb.grey8, view.grey8, fwd, pts.copy())
                 ok &= (st2[:, 0] == 1) & (np.hypot(*(back - pts).T) < ROUND_TRIP_PX)
             else:
                 e = err[:, 0]

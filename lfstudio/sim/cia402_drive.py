@@ -46,6 +46,7 @@ import math
 import threading
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 # -- the objects (index, subindex) -> (bytes, signed, writable) -------------------------------------
 OBJECTS: dict[tuple[int, int], tuple[int, bool, bool]] = {
@@ -128,7 +129,7 @@ class DriveAxis:
         self._last = 0.0
         self.journal: list | None = None        # every accepted write (name, index, sub, value), when a list
         self.answering = True
-        self.on_answering = None                # called when ``answering`` changes (the CANopen node)
+        self.on_answering: Callable[[], None] | None = None     # called when ``answering`` changes (the CANopen node)
         self._power = True
         self._jam = False
         self._limit_trip_at: float | None = None
@@ -429,7 +430,7 @@ class DriveAxis:
     def _finish_instantly(self) -> None:
         for _ in range(4):
             if self._homing is not None:
-                self._run_homing_instantly()
+                self._run_homing_instantly(self._homing)
             elif self.state == QUICK_STOP or self._halt:
                 self._v = 0.0
                 self._reached = True
@@ -449,8 +450,7 @@ class DriveAxis:
                     self._target = None
                     self._reached = True
 
-    def _run_homing_instantly(self) -> None:
-        h = self._homing
+    def _run_homing_instantly(self, h: dict) -> None:
         k = self._k
         switch = (-SWITCH_OUTSIDE_MM if h["dir"] < 0 else self.setup.travel_mm + SWITCH_OUTSIDE_MM) * k
         counter_at_switch = switch - self._offset
@@ -474,7 +474,7 @@ class DriveAxis:
             self._follow(dt)
             return
         if self._homing is not None:
-            self._step_homing(dt)
+            self._step_homing(self._homing, dt)
         elif self._halt:
             self._brake(self.od[(0x6084, 0)], dt)
             if abs(self._v) < 1e-9 and self._target is None:
@@ -545,8 +545,7 @@ class DriveAxis:
         self._demand += direction * ds
         self._v = direction * v_new
 
-    def _step_homing(self, dt: float) -> None:
-        h = self._homing
+    def _step_homing(self, h: dict, dt: float) -> None:
         k = self._k
         acc = self.od[(0x609A, 0)]
         if h["phase"] == "search":

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Sequence
+from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -52,7 +52,7 @@ _CALIBRATION_ILLUMINANT1 = 50778
 _PHOTOMETRIC_CFA = 32803
 
 
-def _rational(values: Sequence[float], denominator: int = 10000) -> list[int]:
+def _rational(values: Iterable[float], denominator: int = 10000) -> list[int]:
     out: list[int] = []
     for v in values:
         out += [int(round(float(v) * denominator)), denominator]

@@ -209,11 +209,11 @@ class DriveServers(_PairOnTheWire):
 def object_dictionary() -> Any:
     """A python-canopen object dictionary with the emulator's objects."""
     import canopen
-    from canopen.objectdictionary import ODArray, ODRecord, ODVariable
+    from canopen.objectdictionary import INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32, \
+        ODArray, ODRecord, ODVariable
 
-    types = {(1, True): canopen.objectdictionary.INTEGER8, (2, True): canopen.objectdictionary.INTEGER16,
-             (4, True): canopen.objectdictionary.INTEGER32, (1, False): canopen.objectdictionary.UNSIGNED8,
-             (2, False): canopen.objectdictionary.UNSIGNED16, (4, False): canopen.objectdictionary.UNSIGNED32}
+    types = {(1, True): INTEGER8, (2, True): INTEGER16, (4, True): INTEGER32, (1, False): UNSIGNED8,
+             (2, False): UNSIGNED16, (4, False): UNSIGNED32}
     od = canopen.ObjectDictionary()
     by_index: dict[int, list[int]] = {}
     for index, sub in OBJECTS:
@@ -229,7 +229,7 @@ def object_dictionary() -> Any:
             continue
         record = ODRecord(f"obj{index:04X}", index)
         count = ODVariable("count", index, 0)
-        count.data_type = canopen.objectdictionary.UNSIGNED8
+        count.data_type = UNSIGNED8
         count.access_type = "ro"
         count.default = max(subs)
         record.add_member(count)
@@ -250,7 +250,7 @@ class CanopenDriveNode:
 
     def __init__(self, axis: DriveAxis, network: Any, node_id: int):
         import canopen
-        from canopen.sdo import SdoAbortedError
+        from canopen.sdo.exceptions import SdoAbortedError
 
         self.axis = axis
         self.node_id = node_id

@@ -566,11 +566,13 @@ class GrblSimulator:
                 pass
             else:
                 return b"error:20\r\n"
+        jog_feed_mm_min = 0.0
         if jog:
             if feed is None:
                 return b"error:22\r\n"
             if not axes:
                 return b"error:26\r\n"
+            jog_feed_mm_min = feed
         if g10:
             if l_word not in (2, 20) or p_word not in (None, 0, 1):
                 return b"error:20\r\n"
@@ -592,7 +594,6 @@ class GrblSimulator:
                 self._feed_mm_min = feed
             if motion is not None:
                 self._modal_g = motion
-            motion = self._modal_g
         if not axes:
             return b"ok\r\n"
         # target in machine coordinates
@@ -607,7 +608,7 @@ class GrblSimulator:
             else:
                 target[i] = base[i] + v
         work = target - wco
-        kind = "jog" if jog else motion
+        kind = "jog" if jog else self._modal_g
         self.records.append(SimRecord(kind, (float(work[self._ix[0]]), float(work[self._ix[1]])), line))
         if kind == "G1" and self._feed_mm_min <= 0:
             return b"error:22\r\n"
@@ -617,7 +618,7 @@ class GrblSimulator:
             self._raise_alarm(2, critical=True)
             self._answer_on_reset = b"ok\r\n"        # GRBL answers the line after the reset
             return None
-        feed_mm_s = (feed if jog else (self._feed_mm_min if kind == "G1" else 1e9)) / 60.0
+        feed_mm_s = (jog_feed_mm_min if jog else (self._feed_mm_min if kind == "G1" else 1e9)) / 60.0
         target = np.round(target * STEPS_PER_MM) / STEPS_PER_MM
         self._planner.append(_Segment(target, feed_mm_s, kind))
         if self._state == "Idle":

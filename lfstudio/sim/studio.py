@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, Literal, overload
 
 import cv2
 import numpy as np
@@ -437,6 +437,14 @@ class VirtualStudio:
         return layers
 
     # -- rendering ----------------------------------------------------------------------------------
+    @overload
+    def render(self, x_mm: float, y_mm: float, *, ideal: bool = False, with_depth: Literal[False] = False,
+               scale: float = 1.0) -> np.ndarray: ...
+
+    @overload
+    def render(self, x_mm: float, y_mm: float, *, ideal: bool = False, with_depth: Literal[True],
+               scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]: ...
+
     def render(self, x_mm: float, y_mm: float, *, ideal: bool = False, with_depth: bool = False,
                scale: float = 1.0) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """Render the view from camera position (x_mm, y_mm): H x W x 3 float32 linear RGB in [0, 1]
@@ -455,7 +463,7 @@ class VirtualStudio:
             S = np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
         out = np.zeros((h, w, 3), np.float32)
         depth = np.full((h, w), self.far_m, np.float32) if with_depth else None
-        scale = np.float32(1.0 / 65535.0)
+        to_unit = np.float32(1.0 / 65535.0)
         for layer in self.layers:
             P = self.layer_homography(layer, x_mm, y_mm, ideal)
             if S is not None:
@@ -463,7 +471,7 @@ class VirtualStudio:
             if layer.reflect:
                 warped = cv2.warpPerspective(layer.rgba[..., :3], P, (w, h), flags=cv2.INTER_LINEAR,
                                              borderMode=cv2.BORDER_REFLECT_101)
-                np.multiply(warped, scale, out=out, dtype=np.float32, casting="unsafe")
+                np.multiply(warped, to_unit, out=out, dtype=np.float32, casting="unsafe")
                 if depth is not None:
                     depth[:] = layer.depth_m
                 continue
@@ -474,7 +482,7 @@ class VirtualStudio:
             warped = cv2.warpPerspective(layer.rgba, T @ P, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR,
                                          borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0))
             wf = warped.astype(np.float32)
-            wf *= scale
+            wf *= to_unit
             if layer.gain != 1.0:
                 wf[..., :3] *= np.float32(layer.gain)
             alpha = wf[..., 3:4]
@@ -483,7 +491,7 @@ class VirtualStudio:
             roi += wf[..., :3]
             if depth is not None:
                 depth[y0:y1, x0:x1][alpha[..., 0] > 0.5] = layer.depth_m
-        return (out, depth) if with_depth else out
+        return out if depth is None else (out, depth)
 
     def depth_map(self, x_mm: float, y_mm: float, *, ideal: bool = False) -> np.ndarray:
         """H x W float32 depth (m, z of the visible surface) in the view from (x_mm, y_mm): the same

@@ -87,7 +87,7 @@ def write_view_file(path: Path, sensor_rgb: np.ndarray, fmt: str, exposure_s: fl
                 raise OSError(f"{path}: cv2.imwrite failed")
 
         return atomic_write_with(path, _write)
-    raise InputError("fmt", f"unknown format {fmt!r}", ["dng", "png"])
+    raise InputError("fmt", f"unknown format {fmt!r}", "dng or png")
 
 
 # -- worker-side rendering (one studio per process) -------------------------------------------------
@@ -123,11 +123,15 @@ def truth_map_path(root: str | os.PathLike, kind: str, row: int, column: int) ->
     return Path(root) / TRUTH_DIR / kind / f"{view_stem(row, column)}.tif"
 
 
+def _write_tiff(path: Path, data: np.ndarray) -> None:
+    import tifffile
+
+    tifffile.imwrite(path, data, compression="zlib")
+
+
 def write_truth_maps(studio: VirtualStudio, root: Path, row: int, column: int, true_mm: Sequence[float],
                      spacing_x_mm: float) -> list[Path]:
     """Render and store the ground-truth maps of one view (module docstring), each atomically."""
-    import tifffile
-
     depth = studio.depth_map(*true_mm)
     depth_rect = studio.depth_map(*true_mm, ideal=True)
     maps = {"depth": depth, "depth_rectified": depth_rect,
@@ -136,7 +140,7 @@ def write_truth_maps(studio: VirtualStudio, root: Path, row: int, column: int, t
     for kind, data in maps.items():
         path = truth_map_path(root, kind, row, column)
         path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_with(path, lambda tmp, d=data: tifffile.imwrite(tmp, d, compression="zlib"))
+        atomic_write_with(path, lambda tmp, d=data: _write_tiff(tmp, d))
         out.append(path)
     return out
 
@@ -190,10 +194,10 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
     depend on which others are rendered). ``truth_maps``: store each view's ground-truth depth and
     disparity maps under ``truth/`` (module docstring).
     """
-    check_new_dataset_folder(root, "folder", stem="lfstudio-virtual")   # never into a dataset or other files
+    check_new_dataset_folder(Path(root), "folder", stem="lfstudio-virtual")   # never into a dataset or other files
     fmt = fmt.lower()
     if fmt not in ("dng", "png"):
-        raise InputError("fmt", f"unknown format {fmt!r}", ["dng", "png"])
+        raise InputError("fmt", f"unknown format {fmt!r}", "dng or png")
     if columns < 1 or rows < 1:
         raise InputError("grid", f"columns and rows must be at least 1, got {columns} x {rows}")
     sx, sy = float(spacing_mm[0]), float(spacing_mm[1])
@@ -209,9 +213,10 @@ def make_virtual_dataset(root: str | os.PathLike, columns: int, rows: int, *,
         fault_at[fault.cell] = fault
     margin_mm = 4 * max(noise_mm) + 0.5      # faults keep the scene: a faulty dataset = the clean one + defects
     region = (ox - margin_mm, ox + (columns - 1) * sx + margin_mm, oy - margin_mm, oy + (rows - 1) * sy + margin_mm)
-    studio_kwargs = dict(width_px=width_px, focal_length_mm=focal_length_mm, sensor_width_mm=sensor_width_mm,
-                         near_m=near_m, far_m=far_m, rotation_deg=tuple(rotation_deg),
-                         pp_offset_px=tuple(pp_offset_px), view_region_mm=region, seed=seed)
+    studio_kwargs: dict[str, Any] = dict(
+        width_px=width_px, focal_length_mm=focal_length_mm, sensor_width_mm=sensor_width_mm, near_m=near_m,
+        far_m=far_m, rotation_deg=tuple(rotation_deg), pp_offset_px=tuple(pp_offset_px), view_region_mm=region,
+        seed=seed)
     if studio is None:
         studio = VirtualStudio(**studio_kwargs)
     else:
@@ -336,8 +341,8 @@ def true_disparity_px(root: str | os.PathLike, row: int, column: int, size_px: t
     False) or after rectification (True: the ideal camera). What a measured disparity map is checked
     against (:mod:`lfstudio.quality.disparity`)."""
     truth = load_ground_truth(root)
-    kwargs = dict(truth["studio"])
-    studio = VirtualStudio(**{k: tuple(v) if isinstance(v, list) else v for k, v in kwargs.items()})
+    kwargs: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in truth["studio"].items()}
+    studio = VirtualStudio(**kwargs)
     view = next((v for v in truth["views"] if v["row"] == row and v["column"] == column), None)
     if view is None:
         raise InputError("row/column", f"the dataset has no view at row {row}, column {column}")
@@ -345,5 +350,5 @@ def true_disparity_px(root: str | os.PathLike, row: int, column: int, size_px: t
     depth = cv2.resize(depth, (int(size_px[0]), int(size_px[1])), interpolation=cv2.INTER_NEAREST)
     from lfstudio.dataset import Dataset
 
-    spacing_x = Dataset.open(root).grid.step_mm[0]
+    spacing_x = Dataset.open(Path(root)).grid.step_mm[0]
     return (studio.f_px * spacing_x / (1000.0 * depth)).astype(np.float32)

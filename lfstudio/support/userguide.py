@@ -28,7 +28,7 @@ def readme_markdown() -> str:
     try:
         from importlib.metadata import metadata
 
-        text = metadata("lfstudio").get_payload()  # the long description (README.md)
+        text = metadata("lfstudio").json.get("description")  # the long description (README.md)
         if isinstance(text, str) and text.strip():
             return text
     except Exception:  # noqa: BLE001 - not installed: fall through

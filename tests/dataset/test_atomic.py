@@ -52,3 +52,27 @@ def test_temporary_names_do_not_collide(tmp_path):
     for _ in range(50):
         atomic_write_with(tmp_path / "v.jpg", record)
     assert len(names) == 50 and all(is_temporary(tmp_path / n) and n.endswith(".jpg") for n in names)
+
+
+def test_a_writers_own_error_message_is_kept_whole(tmp_path):
+    """``OSError("PATH: cv2.imwrite failed")`` raised by the writer: its words, not "[Errno None] None: PATH"."""
+    target = tmp_path / "x.png"
+
+    def write(tmp):
+        raise OSError(f"{target}: cv2.imwrite failed")
+
+    with pytest.raises(OSError) as info:
+        atomic_write_with(target, write)
+    assert str(info.value) == f"{target}: cv2.imwrite failed"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_failed_write_names_the_target_not_its_temporary(tmp_path):
+    target = tmp_path / "x.bin"
+
+    def write(tmp):
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(OSError) as info:
+        atomic_write_with(target, write)
+    assert info.value.filename == str(target) and "No space left" in str(info.value)

@@ -87,8 +87,9 @@ def test_position_noise_flicker_and_meander(tmp_path):
 
 
 def test_bad_arguments_raise_input_error(tmp_path):
-    with pytest.raises(InputError):
+    with pytest.raises(InputError) as info:
         make_virtual_dataset(tmp_path / "x", 2, 2, width_px=64, fmt="tiff")
+    assert str(info.value) == "fmt: unknown format 'tiff' (valid: dng or png)"      # not "['dng', 'png']"
     with pytest.raises(InputError, match="even"):
         make_virtual_dataset(tmp_path / "y", 2, 2, width_px=65, fmt="dng")
     # pixels wider than a manifest holds (35.9 mm / 32 px): refused before any view is written
