@@ -171,8 +171,9 @@ class Param:
         one = "text" if self.number is None else self.number.valid()
         if self.lengths:
             n = self.lengths
-            consecutive = len(n) > 2 and list(n) == list(range(n[0], n[-1] + 1))
-            counts = f"{n[0]} … {n[-1]}" if consecutive else " or ".join(str(k) for k in n)
+            first, last = n[0], n[-1]
+            consecutive = len(n) > 2 and list(n) == list(range(first, last + 1))
+            counts = f"{first} … {last}" if consecutive else " or ".join(str(k) for k in n)
             return f"{counts} numbers, each {one}" if self.number is not None else f"{counts} numbers"
         return one
 
