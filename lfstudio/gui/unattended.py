@@ -26,19 +26,14 @@ from lfstudio.gui.widgets import bounds_of, number_of
 from lfstudio.scan.notify import SmtpServer, parse_target
 from lfstudio.scan.status_http import check_token, parse_address
 from lfstudio.studio.scan_options import PARAMS as SCAN_PARAMS
-from lfstudio.studio.unattended import UnattendedOptions
+from lfstudio.studio.unattended import CLI_NAMES, UnattendedOptions
 
 log = logging.getLogger(__name__)
 
 PREFIX = "unattended/"
 DEFAULT_ADDRESS = "127.0.0.1:8765"
 #: how the operator knows each option in the window (the start of a refusal's line)
-NAMES = {"notify": "Settings → Unattended scans → Notify", "smtp": "Settings → Unattended scans → SMTP server",
-         "status_http": "Settings → Unattended scans → Status page address",
-         "status_token": "Settings → Unattended scans → Status page token",
-         "auto_resume": "Settings → Unattended scans → Auto-resume",
-         "on_finish": "Settings → Unattended scans → When the scan ends",
-         "on_finish_timeout_s": "Settings → Unattended scans → Time limit"}
+NAMES = {name: f"Settings → Unattended scans → {SCAN_PARAMS[name].label}" for name in CLI_NAMES}
 
 
 def _value(key: str, default: object = "") -> object:
@@ -90,7 +85,7 @@ class UnattendedBox(QGroupBox):
         self.notify.setToolTip("Told when a scan starts, pauses (why), resumes, fails, finishes or is aborted, "
                                "and of views the live check flags (docs/unattended.md)")
         self.notify.setFixedHeight(64)
-        form.addRow("Notify", self.notify)
+        form.addRow(SCAN_PARAMS["notify"].label, self.notify)
         self.smtp = QLineEdit(str(_value("smtp", "") or ""))
         self.smtp.setObjectName("smtpServer")
         self.smtp.setPlaceholderText("smtp://you@mail.lab.example (for mailto:)")
@@ -103,7 +98,7 @@ class UnattendedBox(QGroupBox):
         smtp_row = QHBoxLayout()
         smtp_row.addWidget(self.smtp, 2)
         smtp_row.addWidget(self.smtp_password, 1)
-        form.addRow("SMTP server", smtp_row)
+        form.addRow(SCAN_PARAMS["smtp"].label, smtp_row)
         self.status = QCheckBox("Serve a read-only status page")
         self.status.setObjectName("statusPage")
         self.status.setChecked(_bool("status", False))
@@ -140,7 +135,7 @@ class UnattendedBox(QGroupBox):
         resume_row = QHBoxLayout()
         resume_row.addWidget(self.auto_resume)
         resume_row.addWidget(self.desktop, 1)
-        form.addRow("Auto-resume", resume_row)
+        form.addRow(SCAN_PARAMS["auto_resume"].label, resume_row)
         self.on_finish = QLineEdit(str(_value("on_finish", "") or ""))
         self.on_finish.setObjectName("onFinish")
         self.on_finish.setPlaceholderText("a shell command, e.g. lights and motors off")
@@ -159,7 +154,7 @@ class UnattendedBox(QGroupBox):
         finish_row = QHBoxLayout()
         finish_row.addWidget(self.on_finish, 1)
         finish_row.addWidget(self.timeout)
-        form.addRow("When the scan ends", finish_row)
+        form.addRow(SCAN_PARAMS["on_finish"].label, finish_row)
 
     def values(self) -> dict[str, object]:
         return {"notify": "\n".join(u.strip() for u in self.notify.toPlainText().splitlines() if u.strip()),

@@ -108,7 +108,7 @@ class ScanOptions:
             "$LFSTUDIO_SCAN_OUTCOME, $LFSTUDIO_DATASET, $LFSTUDIO_DONE, $LFSTUDIO_TOTAL tell it how; its output is "
             "logged, a failure notified")
     on_finish_timeout_s: float = described(
-        300.0, number=ON_FINISH_TIMEOUT_S, label="On-finish timeout", option="--on-finish-timeout-s", metavar="S",
+        300.0, number=ON_FINISH_TIMEOUT_S, label="Time limit", option="--on-finish-timeout-s", metavar="S",
         group=UNATTENDED, tip="the --on-finish command is stopped after this long")
 
 

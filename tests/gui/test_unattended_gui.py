@@ -58,6 +58,20 @@ def test_settings_refuse_a_bad_url_naming_the_field_then_store(qtbot, tmp_path):
     assert dialog.isVisible() and not dialog.problem.isHidden()
     assert dialog.problem.text().startswith(f"{NAMES['notify']}: unknown scheme 'ftp'")
     dialog.grab().save(str(tmp_path / "settings.png"))
+    # the rows and the refusals say the labels of the scan options' descriptions (lfstudio scan's options)
+    from PySide6.QtWidgets import QFormLayout, QLabel
+
+    from lfstudio.studio.scan_options import PARAMS
+
+    form = box.layout()
+    assert isinstance(form, QFormLayout)
+    rows = []
+    for i in range(form.rowCount()):
+        item = form.itemAt(i, QFormLayout.ItemRole.LabelRole)
+        if item is not None and isinstance(item.widget(), QLabel):
+            rows.append(item.widget().text())
+    for name in ("notify", "smtp", "auto_resume", "on_finish"):
+        assert PARAMS[name].label in rows and NAMES[name].endswith(f"→ {PARAMS[name].label}"), name
     if os.environ.get("LFSTUDIO_KEEP_SCREENSHOT_DIR"):
         shutil.copy(tmp_path / "settings.png", os.environ["LFSTUDIO_KEEP_SCREENSHOT_DIR"])
     box.notify.setPlainText("https://hooks.example.com/services/T0/B0/xyz")
