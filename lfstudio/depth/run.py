@@ -211,7 +211,10 @@ def measured_range(ds: Dataset, views: Sequence[View], source: str, H, spacing_x
 
     rows = sorted({r for r, _ in views})
     row = rows[len(rows) // 2]
-    cols = sorted(c for c in range(ds.grid.columns) if (row, c) in set(ds.captured_views()))
+    captured = set(ds.captured_views())
+    # views of that row with an image to match (a processed one may be missing outside the chosen views)
+    cols = [c for c in range(ds.grid.columns) if (row, c) in captured
+            and (source != "processed" or _processed_path(ds, (row, c)) is not None)]
     if len(cols) < 2:
         raise InputError("views", "a single column and no scene plan: the disparity range is unknown",
                          "give the dataset a scene plan (near/far) or choose views with neighbours in a row")

@@ -179,3 +179,30 @@ def test_sheared_views_are_measured_from_their_zero_plane(tmp_path):
     assert known.mean() > 0.9 and np.median(rel[known]) < 0.02, (known.mean(), np.median(rel[known]))
     with pytest.raises(InputError, match="sheared"):
         depth_from_disparity(disp, f_px, 4.0, None)
+
+
+def test_without_a_plan_the_range_is_measured_on_views_that_have_an_image(tmp_path):
+    """No scene plan: the disparity range comes from matching two views of the chosen row. A view of
+    that row outside the chosen ones whose processed image is gone is passed over (it raised
+    TypeError from a None path)."""
+    from lfstudio.dataset import Dataset
+    from lfstudio.dataset.profile import Profile
+    from lfstudio.processing.pipeline import process_dataset
+    from lfstudio.sim.virtual_dataset import make_virtual_dataset
+
+    root = tmp_path / "ds"
+    make_virtual_dataset(root, fmt="png", columns=8, rows=1, spacing_mm=(4.0, 6.0), width_px=320, seed=7)
+    profile = Profile()
+    profile.color.enabled = profile.deflicker.enabled = profile.rectify.enabled = False
+    assert process_dataset(root, profile, workers=0).ok
+    ds = Dataset.open(root)
+    ds.manifest["plan"] = {k: v for k, v in ds.manifest["plan"].items() if k not in ("near_m", "far_m")}
+    ds.save()
+    ds = Dataset.open(root)
+    gone = ds.processed_path(ds.view(0, 0))
+    assert gone is not None
+    gone.unlink()
+    report = estimate_depth(ds, "r00_c006")
+    assert report.source == "processed" and report.computed == 1 and not report.failed
+    _, _, record = read_disparity(ds, (0, 6))
+    assert record["d_range_px"][0] < record["d_range_px"][1]
