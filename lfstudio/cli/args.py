@@ -45,7 +45,7 @@ def number_pair(text: str, option: str, example: str) -> tuple[float, float]:
     return a, b
 
 
-def old_spelling(p: argparse.ArgumentParser, old: str, new: str, **kwargs) -> None:
+def old_spelling(p: argparse._ActionsContainer, old: str, new: str, **kwargs) -> None:
     """Accept ``old`` as a hidden spelling of ``new`` (the same meaning, so existing scripts keep
     working); ``--help`` shows only ``new``."""
     dest = new.lstrip("-").replace("-", "_")
@@ -58,12 +58,12 @@ class _Refused(argparse.Action):
         self.message = message
 
     def __call__(self, parser, namespace, values, option_string=None):
-        value = values if values is not None else ""
+        value = values if isinstance(values, str) else ""   # nargs=None: the text given
         text = self.message
         parser.error(text(value) if callable(text) else text.format(value=value))
 
 
-def refused_spelling(p: argparse.ArgumentParser, old: str, message: str | Callable[[str], str],
+def refused_spelling(p: argparse._ActionsContainer, old: str, message: str | Callable[[str], str],
                      takes_value: bool = True) -> None:
     """Refuse ``old`` (its meaning changed, so reading it would silently do something else) with
     ``message``, which shows the new form: a text (``{value}`` in it is the value given) or a

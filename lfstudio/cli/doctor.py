@@ -58,7 +58,7 @@ def _check_hevc(tmp: Path) -> str:
 def _check_lensfun(tmp: Path) -> str:
     import lensfunpy
 
-    db = lensfunpy.Database()
+    db = lensfunpy.Database()  # pyright: ignore[reportAttributeAccessIssue]  # compiled lensfunpy._lensfun, re-exported
     cams = db.find_cameras("Sony", "ILCE-7RM2")
     if not cams:
         raise RuntimeError("the lens database has no Sony ILCE-7RM2 (database files missing?)")
@@ -100,8 +100,9 @@ def _check_dask(tmp: Path) -> str:
     from distributed import Client, LocalCluster
 
     t0 = time.monotonic()
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
-            Client(cluster) as client:
+    cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                           dashboard_address=None)  # pyright: ignore[reportArgumentType]  # None: no dashboard (documented; annotated str)
+    with cluster, Client(cluster) as client:
         total = client.submit(sum, [1, 2, 3]).result(timeout=60)
     if total != 6:
         raise RuntimeError(f"the worker computed {total}, not 6")

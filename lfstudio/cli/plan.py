@@ -6,6 +6,7 @@ import argparse
 import json
 import math
 import sys
+from typing import NoReturn
 
 from lfstudio.cli.args import old_spelling, path_option
 from lfstudio.errors import InputError
@@ -74,7 +75,7 @@ def _type(option: str, kind):
     """The argparse ``type=`` of an option of this ``kind`` (pairs stay text until :func:`build_plan`)."""
     if kind == PATH:
         return path_option(option)
-    return kind if kind in (float, int) else None
+    return kind if kind in (float, int) else str        # str: the text as given (argparse's default)
 
 
 def _pair(option: str, text: str, kind: str) -> tuple:
@@ -88,7 +89,7 @@ def _dest(option: str) -> str:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    def one_line_error(message: str) -> None:   # a bad value: one line naming the option, exit 2
+    def one_line_error(message: str) -> NoReturn:   # a bad value: one line naming the option, exit 2
         p.exit(2, f"lfstudio plan: error: {message}\n")
 
     p.error = one_line_error

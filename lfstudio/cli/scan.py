@@ -131,7 +131,7 @@ def _build_plan(args: argparse.Namespace, rig_config, existing=None):
         return replace(plan, bracket=args.bracket), scene
     if scene is not None:
         grid = (scene.grid_columns, scene.grid_rows)
-        spacing = tuple(scene.spacing_mm)
+        spacing = (scene.spacing_mm[0], scene.spacing_mm[1])
     else:
         grid, spacing = (101, 21), (4.0, 6.0)
     if args.grid:
@@ -224,10 +224,11 @@ def run(args: argparse.Namespace) -> int:
                           log_line=lambda text: print(f"lfstudio scan: {text}", file=sys.stderr))
     try:
         engine = session.open(lambda existing, rig_config: _build_plan(args, rig_config, existing))
-        dataset, plan = session.dataset, session.plan
+        dataset, plan, studio = session.dataset, session.plan, session.studio
+        assert dataset is not None and plan is not None and studio is not None, "open() sets them or raises"
         unattended.attach(engine, dataset)
         todo = engine.remaining
-        print(f"lfstudio scan: {session.studio.description}; {plan.columns}x{plan.rows} grid, "
+        print(f"lfstudio scan: {studio.description}; {plan.columns}x{plan.rows} grid, "
               f"{dataset.status_counts()['done']} done, {todo} to capture into {dataset.root}", file=sys.stderr)
         if todo == 0:
             print("lfstudio scan: nothing to do, every view is captured", file=sys.stderr)

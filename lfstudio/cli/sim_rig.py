@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from lfstudio.cli.args import number_option, old_spelling
 from lfstudio.cli.serving import serve_until_stopped
+from lfstudio.errors import DeviceError
 from lfstudio.numbers import SEED, TIME_SCALE
 
 HELP = "start the simulated GRBL controller on a pseudo-terminal and print its port path"
@@ -26,6 +27,8 @@ def run(args: argparse.Namespace) -> int:
     rig = load_rig(args.rig_profile or DEFAULT_RIG)
     sim, truth = serve_sim_rig(rig, time_scale=args.time_scale, seed=args.seed)
     port = sim.port
+    if port is None:                     # serve_sim_rig starts it, or raises
+        raise DeviceError("the simulated GRBL controller did not open its serial port")
     return serve_until_stopped(
         port, f"simulated GRBL 1.1 controller for rig {rig.name!r} on {port}; connect with\n"
               f"  lfstudio rig --port {port} home status\n"

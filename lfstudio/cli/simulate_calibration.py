@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
                 if key in res:
                     print(f"{res['pp_shift_px']:8.1f} " + _row(label, res[key]))
             first = res.get("without_principal_point") or res.get("with_principal_point")
-            if "linear" in first:
+            if first is not None and "linear" in first:
                 print(f"{res['pp_shift_px']:8.1f} " + _linear_row(first))
         return 0
     result = simulate(args.trials, args.pp_shift_px, args.seed, cfg, modes, progress, linear=True)
@@ -130,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
         if key in result:
             print(_row(label, result[key]))
     first = result.get("without_principal_point") or result.get("with_principal_point")
-    if "linear" in first:
+    if first is not None and "linear" in first:
         print(_linear_row(first))
     if result["failures"]:
         print(f"{result['failures']} fits failed")

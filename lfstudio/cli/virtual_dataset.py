@@ -19,6 +19,16 @@ def _numbers(text: str, option: str, n: int) -> tuple[float, ...]:
     return parse_numbers(option, text, Number(), n, ",".join(["1"] * n))
 
 
+def _pair(text: str, option: str) -> tuple[float, float]:
+    a, b = _numbers(text, option, 2)
+    return a, b
+
+
+def _triple(text: str, option: str) -> tuple[float, float, float]:
+    a, b, c = _numbers(text, option, 3)
+    return a, b, c
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("folder", type=path_option("folder"), help="the new dataset folder (missing or empty)")
     p.add_argument("--grid", default=(5, 3), type=grid_option("--grid"), metavar="CxR",
@@ -78,9 +88,9 @@ def run(args: argparse.Namespace) -> int:
     folder = Path(args.folder)       # missing or empty: make_virtual_dataset checks it first
     ds = make_virtual_dataset(folder, cols, rows, spacing_mm=args.spacing_mm,
                               width_px=args.width, fmt=args.format,
-                              rotation_deg=_numbers(args.rotation_deg, "--rotation-deg", 3),
-                              pp_offset_px=_numbers(args.pp_offset_px, "--pp-offset-px", 2),
-                              position_noise_um=_numbers(args.position_noise_um, "--position-noise-um", 2),
+                              rotation_deg=_triple(args.rotation_deg, "--rotation-deg"),
+                              pp_offset_px=_pair(args.pp_offset_px, "--pp-offset-px"),
+                              position_noise_um=_pair(args.position_noise_um, "--position-noise-um"),
                               near_m=args.near_m, far_m=args.far_m, flicker=args.flicker,
                               vignetting=args.vignetting, noise=args.noise, seed=args.seed, workers=args.workers,
                               faults=faults, truth_maps=args.truth_maps,

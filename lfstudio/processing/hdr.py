@@ -119,7 +119,7 @@ def clipped_mask(developed: np.ndarray, saturated: np.ndarray | None, clip_fract
     ``clip_fraction`` of full scale, or (``saturated``: the sensor's saturated sites at the developed
     size) a saturated site within one pixel."""
     scale = FULL_SCALE if developed.dtype == np.uint16 else 1.0
-    mask = (developed >= clip_fraction * scale).any(axis=2)
+    mask = np.asarray((developed >= clip_fraction * scale).any(axis=2))
     if saturated is not None:
         mask |= saturated
     return cv2.dilate(mask.view(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)

@@ -145,13 +145,13 @@ def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> Run
 
     refusal = None
     if homography is not None:
-        inside = rectify.inside_fraction(np.asarray(homography), tuple(full_size))
+        inside = rectify.inside_fraction(np.asarray(homography), full_size)
         if inside < rectify.MIN_INSIDE_FRACTION:
             refusal = (f"the rectified view would be {100 * (1 - inside):.0f} % black (outside the captured image): "
                        f"the likely cause is the calibration ({ds.root / CALIBRATION_NAME}); calibrate again "
                        "('lfstudio calibrate') or process without rectification ([rectify] enabled = false)")
-    plan = RunPlan(root=str(ds.root), profile=profile.to_dict(), profile_sha256=sha, full_size_wh=tuple(full_size),
-                   processing_scale=scale, output_size_wh=tuple(out_size), homography=homography,
+    plan = RunPlan(root=str(ds.root), profile=profile.to_dict(), profile_sha256=sha, full_size_wh=(full_size[0], full_size[1]),
+                   processing_scale=scale, output_size_wh=(out_size[0], out_size[1]), homography=homography,
                    camera=dict(ds.camera), lens=dict(ds.lens), flat_path=str(flat_path) if flat_path else None,
                    single_thread=single_thread, split_demosaic=split_demosaic(ref_path, profile, full_size, out_size),
                    rectify_refusal=refusal)
@@ -269,7 +269,7 @@ def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force:
             report.gains[result.view] = result.gain
             progress(done, total, f"{stem} gain {result.gain:.4f}")
         else:
-            report.failed.append((*result.view, result.error or "failed"))
+            report.failed.append((result.view.row, result.view.column, result.error or "failed"))
             progress(done, total, f"{stem} FAILED")
         if on_view is not None:
             on_view(result)

@@ -35,7 +35,7 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -44,6 +44,9 @@ from lfstudio.dataset.grid import View
 from lfstudio.dataset.profile import Profile
 from lfstudio.dataset.storage import disk_problem, storage_error
 from lfstudio.errors import DatasetError, LfError
+
+if TYPE_CHECKING:
+    from lfstudio.processing.steps.rectify import HomographyWarp
 
 #: per-process cache: profile hash -> _Prepared
 _CACHE: dict[str, "_Prepared"] = {}
@@ -110,7 +113,7 @@ class Buffers:
     def __init__(self) -> None:
         self._arrays: dict[str, np.ndarray] = {}
 
-    def get(self, name: str, shape: tuple[int, ...], dtype=np.uint16) -> np.ndarray:
+    def get(self, name: str, shape: tuple[int, ...], dtype: type[np.generic] = np.uint16) -> np.ndarray:
         a = self._arrays.get(name)
         if a is None or a.shape != tuple(shape) or a.dtype != np.dtype(dtype):
             a = self._arrays[name] = np.empty(shape, dtype)
@@ -123,7 +126,7 @@ class Buffers:
 @dataclass
 class _Prepared:
     profile: Profile
-    maps: list | None
+    maps: list | HomographyWarp | None
     level_map: tuple | None = None  # (per-pixel multiplier, offset): shading folded into the levels
     luma_warp: Any = None           # split demosaic: the warp of the green plane (full resolution)
     chroma_warps: dict = field(default_factory=dict)   # Bayer pattern -> [R warp, B warp] (half resolution)
@@ -139,7 +142,7 @@ def _factor_map_captured(plan: RunPlan, profile: Profile) -> np.ndarray | None:
     size = plan.processing_size_wh
     if profile.shading.mode == "model":
         return shading.correction_from_model(size, plan.shading_coefficients)
-    flat = images.develop(plan.flat_path, profile.debayer)
+    flat = images.develop(plan.flat_path, profile.debayer) if plan.flat_path else None
     factor, _ = shading.correction(profile.shading, size, flat)
     return factor
 
@@ -270,7 +273,9 @@ def _render_split(plan: RunPlan, prep: _Prepared, bayer, rgb: np.ndarray, gain: 
         H = np.asarray(plan.homography, float) if (profile.rectify.enabled and plan.homography is not None) else None
         model = lens_step.lens_model(profile.lens, plan.full_size_wh, plan.camera, plan.lens)
         r_off, b_off = chroma_offsets(bayer)
-        r_warp, _, b_warp = rectify.build_maps((hw, hh), 0.5, H, model, offsets_px=[r_off, (0.0, 0.0), b_off])
+        built = rectify.build_maps((hw, hh), 0.5, H, model, offsets_px=[r_off, (0.0, 0.0), b_off])
+        assert isinstance(built, list), "build_maps with offsets gives one warp per channel"
+        r_warp, _, b_warp = built
         warps = prep.chroma_warps[bayer.pattern] = [r_warp, b_warp]
     mosaic_pairs = bayer.mosaic.reshape(h, w // 2, 2)   # (even column, odd column) as two channels
     green_pairs = green.reshape(h, w // 2, 2)

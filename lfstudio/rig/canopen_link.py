@@ -99,8 +99,11 @@ class CanopenLink:
         if self.node is None:
             self.open()
         with self._lock:
+            node = self.node
+            if node is None:                     # closed meanwhile by another thread
+                raise DriveNotAnswering(f"{self.address}: the connection was closed")
             try:
-                return fn(self.node.sdo, *args)
+                return fn(node.sdo, *args)
             except SdoAbortedError as exc:
                 raise ObjectAccessRefused(f"{self.address}: {exc}") from None
             except (SdoCommunicationError, OSError) as exc:

@@ -121,6 +121,12 @@ def fault_message(code: int) -> str:
     return f"fault {code:04X}h, {what}. Fix: {fix}, then Reset fault and home the rig"
 
 
+def _position_of(status: RigStatus) -> tuple[float, float]:
+    """The position of a status the drives answered (:meth:`Cia402Controller._query` always reads it)."""
+    assert status.position_mm is not None, "a status read from the drives has their position"
+    return status.position_mm
+
+
 class ObjectLink(Protocol):
     """One drive's object dictionary, reached through a transport. Raises :class:`DriveNotAnswering`
     when the drive does not answer, :class:`ObjectAccessRefused` when it refuses the access."""
@@ -355,7 +361,9 @@ class Cia402Controller:
                     return RigStatus(RigState.DISCONNECTED, None, False, self._lost)
             if self._stop_pending and self._at_rest():
                 self._finish_stop()
-            return self._last
+            last = self._last
+            assert last is not None, "_query keeps the status it read"
+            return last
 
     def _at_rest(self) -> bool:
         return all(self._read(i, VELOCITY) == 0 for i in range(2))
@@ -426,7 +434,7 @@ class Cia402Controller:
         if not self.config.homing:
             raise DeviceError(f"rig {self.config.name!r} has no limit switches: park the carriage at the "
                               "left/bottom end of its travel and set the origin instead")
-        self._home(tuple(a.homing_method for a in self._axes), "homing", "homed")
+        self._home((self._axes[0].homing_method, self._axes[1].homing_method), "homing", "homed")
 
     def set_origin(self) -> None:
         """The current position becomes (0, 0) (homing method 37: current position)."""
@@ -578,7 +586,7 @@ class Cia402Controller:
             if self._jog_target is not None:
                 self._cancel_motion()
             st = self._query()
-            x0, y0 = st.position_mm
+            x0, y0 = _position_of(st)
             expected = self.expected_move_s(x_mm - x0, y_mm - y0)
             if timeout_s is None:
                 timeout_s = 1.5 * expected + 5.0
@@ -618,7 +626,7 @@ class Cia402Controller:
                                         f"{st.extra['following_error_mm'][i]:.3f} mm); motion stopped. Check the axis "
                                         "for an obstruction, then home again")
             now = time.monotonic()
-            pos = st.position_mm
+            pos = _position_of(st)
             if last_pos is None or max(abs(pos[0] - last_pos[0]), abs(pos[1] - last_pos[1])) > 1e-4:
                 last_pos, last_progress = pos, now
             if st.state is RigState.HOLD:
@@ -657,7 +665,7 @@ class Cia402Controller:
             st = self._query()
             if st.state not in (RigState.IDLE, RigState.JOGGING):
                 raise DeviceError(f"jog refused: the rig is {st.state.value}")
-            x0, y0 = self._jog_target or st.position_mm
+            x0, y0 = self._jog_target or _position_of(st)
             x, y = self._clamp(x0 + dx_mm, y0 + dy_mm)
             if abs(x - x0) < 1e-6 and abs(y - y0) < 1e-6:
                 return

@@ -138,7 +138,7 @@ class DryveLink:
         with self._lock:
             self._open_locked()
 
-    def _open_locked(self) -> None:
+    def _open_locked(self) -> socket.socket:
         self._close_locked()
         try:
             sock = socket.create_connection((self.host, self.port), timeout=self.timeout_s)
@@ -147,6 +147,7 @@ class DryveLink:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.settimeout(self.timeout_s)
         self._sock = sock
+        return sock
 
     def close(self) -> None:
         with self._lock:
@@ -160,10 +161,11 @@ class DryveLink:
             except OSError:
                 pass
 
-    def _recv_exactly(self, n: int) -> bytes:
+    @staticmethod
+    def _recv_exactly(sock: socket.socket, n: int) -> bytes:
         data = b""
         while len(data) < n:
-            chunk = self._sock.recv(n - len(data))
+            chunk = sock.recv(n - len(data))
             if not chunk:
                 raise ConnectionError("the drive closed the connection")
             data += chunk
@@ -171,15 +173,14 @@ class DryveLink:
 
     def _exchange(self, write: bool, index: int, sub: int, size: int, data: bytes = b"") -> bytes:
         with self._lock:
-            if self._sock is None:
-                self._open_locked()
+            sock = self._sock if self._sock is not None else self._open_locked()
             self._transaction = (self._transaction + 1) & 0xFFFF
             request = encode_request(self._transaction, write, index, sub, size, data)
             try:
-                self._sock.sendall(request)
-                head = self._recv_exactly(6)
+                sock.sendall(request)
+                head = self._recv_exactly(sock, 6)
                 length = struct.unpack(">H", head[4:6])[0]
-                frame = head + self._recv_exactly(length)
+                frame = head + self._recv_exactly(sock, length)
             except (OSError, ConnectionError) as exc:
                 self._close_locked()
                 reason = "no answer within %g s" % self.timeout_s if isinstance(exc, socket.timeout) else str(exc)

@@ -246,7 +246,7 @@ class _Code:
     code: int
 
 
-def gp_message(exc: BaseException, action: str, waited_s: float | None = None, camera_said: str = "") -> str:
+def gp_message(exc: BaseException | _Code, action: str, waited_s: float | None = None, camera_said: str = "") -> str:
     """An operator's message for a gphoto2 error raised during ``action``. ``waited_s``: how long
     the call waited (named when the camera did not answer); ``camera_said``: libgphoto2's own
     description of the failure (its context's error text), quoted."""
@@ -462,7 +462,8 @@ class GPhotoCamera:
             choices = self._choices(widget)
             rng = None
             if widget.get_type() == self.gp.GP_WIDGET_RANGE:
-                rng = tuple(float(v) for v in widget.get_range())
+                low, high, step = (float(v) for v in widget.get_range())     # libgphoto2: min, max, increment
+                rng = (low, high, step)
             out.append(CameraSetting(name=name, label=_text(widget.get_label()), type=spec.type,
                                      value=value_of(spec, widget.get_value()), choices=choices,
                                      values=tuple(value_of(spec, c) for c in choices), range=rng,
@@ -535,7 +536,7 @@ class GPhotoCamera:
         return out
 
     # -- capture ------------------------------------------------------------------------------------
-    def _failed(self, exc: BaseException, action: str, since: float | None = None) -> DeviceError:
+    def _failed(self, exc: BaseException | _Code, action: str, since: float | None = None) -> DeviceError:
         self._message = gp_message(exc, action, None if since is None else self._clock() - since, self._said())
         log.debug("gphoto2: %s failed: %s", action, str(exc))
         return DeviceError(self._message)

@@ -475,7 +475,7 @@ class GrblController:
         except (serial.SerialException, OSError) as exc:
             raise self._mark_lost(f"connection to the rig on {self.port} lost ({_os_reason(exc)}); check the cable, "
                                   "then connect again") from exc
-        if waiting:
+        if waiting and ser is not None:
             self._rx += ser.read(waiting)
         while b"\n" in self._rx:
             line = self._readline(0.0)

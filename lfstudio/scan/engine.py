@@ -56,7 +56,7 @@ from collections import deque
 from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, TypeGuard
 
 from lfstudio.dataset import Dataset
 from lfstudio.dataset.bracket import Bracket, frame_times_on_camera
@@ -109,6 +109,11 @@ class _Message:
     future: Future | None = None
 
 
+def _valid(number: Number, value: Any) -> float | None:
+    """``value`` as a float when ``number`` takes it (a number in its range), else None."""
+    return float(value) if isinstance(value, (int, float)) and number.problem(value) is None else None
+
+
 def _as_worker(device: Any, name: str) -> tuple[DeviceWorker, bool]:
     if isinstance(device, DeviceWorker):
         return device, False
@@ -130,8 +135,7 @@ def bracket_on_camera(bracket: Bracket, driver: Any, call: Callable[[str], Any],
         raise InputError(field, "this camera has no shutter time lfstudio can set (a hot folder or a trigger "
                          "command takes what the camera is set to): bracket with a camera lfstudio controls "
                          "(--camera gphoto2), or use the camera's own bracketing and import the frames")
-    base = settings.get("shutter_s")
-    base = float(base) if Number("s", 0, low_open=True).problem(base) is None else None
+    base = _valid(Number("s", 0, low_open=True), settings.get("shutter_s"))
     values: tuple = ()
     texts: tuple = ()
     if hasattr(driver, "describe_settings"):
@@ -468,6 +472,7 @@ class ScanEngine:
         if kind == RETRY:
             self._retry.append(payload)
             return
+        assert isinstance(kind, Trigger), f"inbox message {kind!r}"    # the store posts RETRY; the rest are Triggers
         if kind is Trigger.CRASH:
             raise payload
         if kind not in TRANSITIONS[self._state]:
@@ -794,7 +799,7 @@ class ScanEngine:
                     except ScanFault as again:
                         self._raise_fault(again)
 
-    def _resumes_by_itself(self, fault: ScanFault | None) -> bool:
+    def _resumes_by_itself(self, fault: ScanFault | None) -> TypeGuard[ScanFault]:
         return fault is not None and bool(fault.clears) and self.auto_resumed < self.auto_resume
 
     @property
@@ -966,13 +971,15 @@ class ScanEngine:
             settings = settings if isinstance(settings, dict) else {}
             exposure = settings.get("shutter_s", settings.get("exposure_s"))
             transfer = settings.get("transfer_s")
-            exposure = float(exposure) if Number().problem(exposure) is None else 1.0
-            exposure = max([exposure, *(self.frame_shutter_s or ())])     # a bracket's longest frame
-            transfer = float(transfer) if Number().problem(transfer) is None else TRANSFER_ALLOWANCE_S
-            scale = getattr(self.camera.driver, "time_scale", 1.0)        # a simulated camera's own pace
-            scale = min(1.0, float(scale)) if Number(low=0).problem(scale) is None else 1.0
-            self._capture_timeout = min(self.capture_timeout_s, 2 * (exposure + transfer) * scale + 10.0)
-            log.info("capture timeout %.1f s (exposure %g s, transfer %g s)", self._capture_timeout, exposure, transfer)
+            exposure = _valid(Number(), exposure)
+            exposure = max([1.0 if exposure is None else exposure, *(self.frame_shutter_s or ())])   # a bracket's longest
+            transfer = _valid(Number(), transfer)
+            transfer = TRANSFER_ALLOWANCE_S if transfer is None else transfer
+            scale = _valid(Number(low=0), getattr(self.camera.driver, "time_scale", 1.0))   # a simulated camera's pace
+            scale = 1.0 if scale is None else min(1.0, scale)
+            timeout = self._capture_timeout = min(self.capture_timeout_s, 2 * (exposure + transfer) * scale + 10.0)
+            log.info("capture timeout %.1f s (exposure %g s, transfer %g s)", timeout, exposure, transfer)
+            return timeout
         return self._capture_timeout
 
     def _check_card(self) -> None:
@@ -1035,7 +1042,8 @@ class ScanEngine:
                 prev_frame = self._prev_future
                 if prev_frame is not None:
                     prev_frame.add_done_callback(self._wake)
-                    self._wait(lambda: prev_frame.done() or self._drop_by is not None,
+                    prev_done = prev_frame.done
+                    self._wait(lambda: prev_done() or self._drop_by is not None,
                                self.capture_call_timeout_s() + 10)
                 self._handle_inbox()
                 if self._drop_by is not None or self._faulted():   # the view is not done: taken again whole
@@ -1074,14 +1082,17 @@ class ScanEngine:
             fut = self._camera_submit("capture", stem, timeout_s=timeout_s)
         fut.add_done_callback(on_exposed)
         self._wait(lambda: exposed.is_set() or self._drop_by is not None)
-        if not exposed.is_set() and not self._wait(exposed.is_set, max(0.0, self._drop_by - time.monotonic())):
+        drop_by = self._drop_by                        # not None when the exposure is not done (the wait above)
+        if not exposed.is_set() and drop_by is not None and \
+                not self._wait(exposed.is_set, max(0.0, drop_by - time.monotonic())):
             self._stop_camera()                       # abort(grace_s) and the exposure goes on: drop it
             self._wait(fut.done, 10.0)
             self._attempts[view.cell] = attempt - 1
             raise _Interrupted()
-        if fut.done() and fut.exception() is not None:
-            free_hung_camera(self.camera, fut.exception())
-            raise fut.exception()
+        failed = fut.exception() if fut.done() else None
+        if failed is not None:
+            free_hung_camera(self.camera, failed)
+            raise failed
         return fut
 
     def _faulted(self) -> bool:

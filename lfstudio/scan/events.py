@@ -149,7 +149,7 @@ class ScanEvent:
 
     def describe(self) -> str:
         """A one-line, human-readable description (logs, the GUI event list)."""
-        where = f"view {view_label(self.row, self.column)}" if self.row is not None else ""
+        where = f"view {view_label(self.row, self.column or 0)}" if self.row is not None else ""
         if self.kind is EventKind.STATE:
             if re.match(r"[A-Z][a-z]+: ", self.message):     # "Finished: 27 of 27 …" names its state itself
                 return self.message

@@ -243,7 +243,7 @@ def _request(target: Target, body: bytes, headers: dict[str, str]) -> urllib.req
     url = target.url.split("+", 1)[1] if "+" in target.url.split(":", 1)[0] else target.url
     parts = urllib.parse.urlsplit(url)
     if parts.username is not None:
-        netloc = parts.hostname + (f":{parts.port}" if parts.port else "")
+        netloc = (parts.hostname or "") + (f":{parts.port}" if parts.port else "")
         url = urllib.parse.urlunsplit(parts._replace(netloc=netloc))
         pair = f"{urllib.parse.unquote(parts.username)}:{urllib.parse.unquote(parts.password or '')}"
         headers["Authorization"] = "Basic " + b64encode(pair.encode()).decode()

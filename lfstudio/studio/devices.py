@@ -265,6 +265,8 @@ def open_rig(spec: RigSpec | str, config: RigConfig, *, doing: str = "", time_sc
             from lfstudio.studio.simulated import start_simulator
 
             simulator = start_simulator(config, time_scale=time_scale, seed=seed)
+            if simulator.port is None:                    # start() opens it, or raises
+                raise DeviceError("the simulated rig did not open its serial port")
             port = simulator.port
         else:
             port = spec.port
@@ -330,12 +332,15 @@ def _open_drives(spec: RigSpec, config: RigConfig, *, doing: str, time_scale: fl
         if spec.kind == "dryve":
             from lfstudio.rig.dryve import DryveLink, parse_address
 
-            links = tuple(DryveLink(*parse_address(a), timeout_s=options.get("timeout_s", 1.0))
-                          for a in spec.addresses)
+            x, y = spec.addresses
+            links = (DryveLink(*parse_address(x), timeout_s=options.get("timeout_s", 1.0)),
+                     DryveLink(*parse_address(y), timeout_s=options.get("timeout_s", 1.0)))
         else:
             from lfstudio.rig.canopen_link import CanopenLink
 
-            links = tuple(CanopenLink(spec.port, n, timeout_s=options.get("timeout_s", 1.0)) for n in spec.addresses)
+            x, y = spec.addresses
+            links = (CanopenLink(spec.port, x, timeout_s=options.get("timeout_s", 1.0)),
+                     CanopenLink(spec.port, y, timeout_s=options.get("timeout_s", 1.0)))
         if lock:
             for link in links:
                 locks.append(drive_lock(link.address, doing).acquire())
@@ -375,7 +380,8 @@ class CameraLink:
         info: dict[str, Any] = {}
         if callable(identity):
             try:
-                info = dict(identity() or {})
+                found = identity()
+                info = dict(found) if isinstance(found, dict) else {}
             except Exception as exc:  # noqa: BLE001 - a record without the model is still a record
                 log.debug("camera identity: %s", exc)
         if not info.get("model"):

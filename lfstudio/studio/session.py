@@ -73,7 +73,7 @@ def dataset_views(plan: ScanPlan) -> list[ViewRecord]:
 def create_scan_dataset(root: str | Path, plan: ScanPlan, *, rig: dict, camera: dict, lens: dict,
                         scene_plan: dict | None = None, devices: dict | None = None) -> Dataset:
     """A new dataset folder for ``plan`` with every view pending (``devices``: the device record)."""
-    extra = {"devices": devices} if devices else {}
+    extra: dict[str, Any] = {"devices": devices} if devices else {}
     return Dataset.create(root, camera=camera, lens=lens, grid=plan.grid_dict(), rig=rig, plan=scene_plan or {},
                           views=dataset_views(plan), **extra)
 
@@ -138,7 +138,9 @@ def recorded_devices(dataset: Dataset) -> dict[str, Any] | None:
 
 def rig_spec_of(record: dict[str, Any]) -> str:
     """The ``--port`` word that opens a recorded rig again."""
-    return record.get("port") if record.get("kind") in ("grbl", "dryve", "canopen") else record.get("kind", SIM)
+    kind = record.get("kind", SIM)
+    port = record.get("port") if kind in ("grbl", "dryve", "canopen") else None
+    return str(port or kind)
 
 
 def device_differences(recorded: dict[str, Any], current: dict[str, Any]) -> list[str]:
@@ -603,7 +605,7 @@ class ScanSession:
             how_to_home = self.shared.how_to_home
             rig_text, cam_text = rig_spec_of(current["rig"]), current["camera"].get("spec", "")
         same_rig = False
-        if record is not None:
+        if record is not None and existing is not None:        # a record comes with the dataset (_device_words)
             self._check_devices(existing, record, current)
             same_rig = not any(d.startswith("rig ") for d in device_differences(record, current))
         if not fresh:
@@ -619,7 +621,7 @@ class ScanSession:
             self.note("the simulated rig was homed when it started")
         check_plan_on_controller(rig, plan)
         if existing is None and plan.bracket is not None:       # refused before the dataset is made
-            self._check_bracket(plan, camera)
+            self._check_bracket(plan.bracket, camera)
         self._check_space(plan.with_subset(req.recapture) if req.recapture else plan, camera, scene, existing)
         if existing is None:
             camera_info, lens = describe_camera(getattr(camera, "driver", camera), scene)
@@ -643,7 +645,7 @@ class ScanSession:
                                  time_scale=req.time_scale, recapture=bool(req.recapture), **req.engine_options)
         return self.engine
 
-    def _check_bracket(self, plan: ScanPlan, camera: Any) -> None:
+    def _check_bracket(self, bracket: Bracket, camera: Any) -> None:
         """The bracket's shutter times among the camera's choices: else InputError naming --bracket
         before the dataset is made (the disk is checked for every scan: :meth:`_check_space`)."""
         from lfstudio.scan.engine import bracket_on_camera
@@ -651,8 +653,8 @@ class ScanSession:
         driver = getattr(camera, "driver", camera)
         call = (lambda name: camera.call(name, timeout_s=30)) if hasattr(camera, "driver") else \
             (lambda name: getattr(camera, name)())
-        times, _ = bracket_on_camera(plan.bracket, driver, call)
-        self.note(f"exposure bracket {plan.bracket.describe()}: " + ", ".join(f"{t:.6g} s" for t in times)
+        times, _ = bracket_on_camera(bracket, driver, call)
+        self.note(f"exposure bracket {bracket.describe()}: " + ", ".join(f"{t:.6g} s" for t in times)
                   + " at every view")
 
     def _check_space(self, plan: ScanPlan, camera: Any, scene: Any, existing: Dataset | None) -> None:

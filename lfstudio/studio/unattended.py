@@ -19,7 +19,7 @@ import subprocess
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 from lfstudio.errors import InputError
 from lfstudio.scan.events import TERMINAL, EventKind, ScanState
@@ -75,7 +75,7 @@ class Unattended:
 
     @classmethod
     def open(cls, options: UnattendedOptions, *, dataset_name: str = "",
-             say: Callable[[str], None] = lambda text: None, env: dict[str, str] | None = None) -> "Unattended":
+             say: Callable[[str], None] = lambda text: None, env: Mapping[str, str] | None = None) -> "Unattended":
         """Check ``options`` and set up what they ask for (see the module docstring)."""
         names = options.names
         env = os.environ if env is None else env

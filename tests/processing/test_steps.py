@@ -174,6 +174,16 @@ def test_vignetted_flat_comes_out_flat():
     assert out.std() / out.mean() < 0.01
 
 
+def test_shading_without_its_flat_image_is_refused_naming_the_flat_file():
+    """A profile changed after it was checked (shading switched on in code) reaches the step without a
+    flat image: one message naming [shading] flat_file, not an AttributeError on None."""
+    for step in (ShadingStep(enabled=True, mode="flat"), ShadingStep(enabled=True, mode="model")):
+        with pytest.raises(InputError, match=r"\[shading\] flat_file"):
+            shading.correction(step, (12, 8), None)
+    factor, coeffs = shading.correction(ShadingStep(enabled=True, mode="model", coefficients=[-0.2]), (12, 8), None)
+    assert factor.shape == (8, 12, 1) and coeffs == [-0.2]
+
+
 # -- 5 de-flicker ------------------------------------------------------------------------------
 def test_deflicker_gain_brings_a_brighter_view_to_the_reference():
     base = (scene(200, 120) * 65535).astype(np.uint16)

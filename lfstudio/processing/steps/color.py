@@ -86,7 +86,8 @@ def apply_map(img: np.ndarray, per_pixel: np.ndarray, offset: tuple, gain: float
     """``img · gain · per_pixel − offset`` saturated to uint16: one u16×f32 pass and one saturating
     pass (OpenCV SIMD, ~3× numpy). ``dst``: a uint16 array of the result's shape to write into."""
     f = cv2.multiply(img, per_pixel, scale=float(gain), dtype=cv2.CV_32F)
-    return cv2.subtract(f, offset, dst=dst, dtype=cv2.CV_16U)
+    # OpenCV takes a Scalar (a tuple) as src2; its stubs declare only arrays
+    return cv2.subtract(f, offset, dst=dst, dtype=cv2.CV_16U)  # pyright: ignore[reportCallIssue, reportArgumentType]
 
 
 def apply_camera(x: np.ndarray, rgb_cam: np.ndarray, *, gain: float = 1.0, level_map: tuple | None = None,
@@ -100,4 +101,5 @@ def apply_camera(x: np.ndarray, rgb_cam: np.ndarray, *, gain: float = 1.0, level
         return apply_map(y, *level_map, gain=gain, dst=dst)
     black, scale = _black_and_scale(black, white, white_output, enabled)
     y = cv2.transform(x, (gain * scale)[:, None] * np.asarray(rgb_cam, np.float64))
-    return cv2.subtract(y, tuple(float(v) for v in black * scale) + (0.0,), dst=dst, dtype=cv2.CV_16U)
+    offset = tuple(float(v) for v in black * scale) + (0.0,)    # a Scalar, which the cv2 stubs do not declare
+    return cv2.subtract(y, offset, dst=dst, dtype=cv2.CV_16U)  # pyright: ignore[reportCallIssue, reportArgumentType]

@@ -47,15 +47,14 @@ def build_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | None
     if offsets_px is not None:
         if lens is None:
             H = np.eye(3) if H_full is None else homography_at_scale(H_full, scale)
-            return [HomographyWarp(H @ np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]]), tuple(size_wh))
+            return [HomographyWarp(H @ np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]]),
+                                   (size_wh[0], size_wh[1]))
                     for dx, dy in offsets_px]
         maps = _source_maps(size_wh, scale, H_full, lens)
         return [[cv2.convertMaps(mx - np.float32(dx), my - np.float32(dy), cv2.CV_16SC2)]
                 for (mx, my), (dx, dy) in zip(maps if len(maps) == 3 else maps * 3, offsets_px)]
-    if H_full is None and lens is None:
-        return None
     if lens is None:
-        return HomographyWarp(homography_at_scale(H_full, scale), tuple(size_wh))
+        return None if H_full is None else HomographyWarp(homography_at_scale(H_full, scale), (size_wh[0], size_wh[1]))
     return [cv2.convertMaps(mx, my, cv2.CV_16SC2) for mx, my in _source_maps(size_wh, scale, H_full, lens)]
 
 
@@ -99,7 +98,7 @@ def inside_fraction(H_full: np.ndarray, full_size_wh: tuple[int, int], samples: 
     return float(inside.mean())
 
 
-def apply_maps(img: np.ndarray, maps: list | None, interpolation: str = "linear",
+def apply_maps(img: np.ndarray, maps: list | HomographyWarp | None, interpolation: str = "linear",
                dst: np.ndarray | None = None) -> np.ndarray:
     """Warp ``img`` (uint16 or float32, (h, w[, c])) as :func:`build_maps` says; outside: 0.
     ``dst``: an array of the result's shape and type to write into (reused across views)."""

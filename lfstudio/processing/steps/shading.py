@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from lfstudio.dataset.profile import ShadingStep
+from lfstudio.errors import InputError
 
 MIN_FLAT = 0.05  # of the centre level: darker flat pixels are not trusted (factor capped at 20)
 
@@ -71,9 +72,17 @@ def correction_from_model(size_wh: tuple[int, int], coefficients) -> np.ndarray:
 
 
 def correction(step: ShadingStep, size_wh: tuple[int, int], flat: np.ndarray | None) -> tuple[np.ndarray, list[float]]:
-    """(factor map for an image of ``size_wh``, model coefficients used or [])."""
+    """(factor map for an image of ``size_wh``, model coefficients used or []); ``flat`` (the flat
+    image) is needed unless the model's coefficients are given (:meth:`Profile.validate` says so)."""
+    if step.mode == "model" and step.coefficients:
+        coeffs = list(step.coefficients)
+        return correction_from_model(size_wh, coeffs), coeffs
+    if flat is None:
+        raise InputError("processing.toml: [shading] flat_file", f"shading mode {step.mode!r} needs a flat image "
+                         "(a RAW or PNG of a uniformly lit white card)"
+                         f"{'' if step.mode == 'flat' else ' or the coefficients'}")
     if step.mode == "model":
-        coeffs = list(step.coefficients) if step.coefficients else fit_vignetting(flat)
+        coeffs = fit_vignetting(flat)
         return correction_from_model(size_wh, coeffs), coeffs
     if flat.shape[1] != size_wh[0] or flat.shape[0] != size_wh[1]:
         flat = cv2.resize(flat, tuple(size_wh), interpolation=cv2.INTER_AREA)
