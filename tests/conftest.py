@@ -124,6 +124,22 @@ def tiny_dataset_dng(make_tiny_dataset):
     return make_tiny_dataset("dng")
 
 
+def hevc_round_trip(root, tmp_path, name: str = "part"):
+    """The dataset at ``root`` processed (no rectification), its first two views of row 0 exported as
+    HEVC and imported back (``import-hevc``): the restored Dataset."""
+    from lfstudio.dataset import Dataset
+    from lfstudio.dataset.profile import Profile
+    from lfstudio.export import ExportOptions, export_dataset, import_hevc
+    from lfstudio.processing.pipeline import process_dataset
+
+    profile = Profile()
+    profile.rectify.enabled = False
+    assert process_dataset(root, profile, workers=0).ok
+    video = tmp_path / f"{name}.mkv"
+    export_dataset(Dataset.open(root), ExportOptions("hevc", video, views="r0,c0-1"))
+    return Dataset.open(import_hevc(video, tmp_path / "restored"))
+
+
 #: the principal-point offset of the calibrated tiny datasets
 PP_OFFSET_PX = (8.0, -5.0)
 

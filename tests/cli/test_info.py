@@ -5,13 +5,10 @@ from __future__ import annotations
 import json
 
 from lfstudio.cli.info import _size
+from tests.conftest import hevc_round_trip
 
 
 def test_info_reports_files_by_folder_and_an_empty_raw_folder_as_empty(make_tiny_dataset, run_cli, tmp_path):
-    from lfstudio.dataset import Dataset
-    from lfstudio.export import ExportOptions, export_dataset, import_hevc
-    from lfstudio.processing.pipeline import process_dataset
-    from lfstudio.dataset.profile import Profile
 
     ds = make_tiny_dataset("png", width_px=241)
     raw_total = sum(ds.path_of(v).stat().st_size for v in ds.done_views())
@@ -19,12 +16,7 @@ def test_info_reports_files_by_folder_and_an_empty_raw_folder_as_empty(make_tiny
     assert proc.returncode == 0, proc.stderr
     assert f"files     raw/ {_size(raw_total)}\n" in proc.stdout
 
-    profile = Profile()
-    profile.rectify.enabled = False
-    assert process_dataset(ds.root, profile, workers=0).ok
-    video = tmp_path / "proc.mkv"
-    export_dataset(Dataset.open(ds.root), ExportOptions("hevc", video, views="r0,c0-1"))
-    back = Dataset.open(import_hevc(video, tmp_path / "restored"))
+    back = hevc_round_trip(ds.root, tmp_path, "proc")
     assert not (back.root / "raw").exists() or not any((back.root / "raw").iterdir())
     restored_total = sum(back.path_of(v).stat().st_size for v in back.done_views())
 

@@ -13,6 +13,7 @@ from lfstudio.dataset.bracket import parse_bracket
 from lfstudio.dataset.manifest import FrameRecord, HdrMerged, ProcessedRecord, ViewRecord
 from lfstudio.scan.events import ScanState
 from lfstudio.scan.scan_plan import ScanPlan
+from tests.conftest import hevc_round_trip
 from tests.scan.conftest import engine_with_events, open_sim_studio
 
 
@@ -75,10 +76,7 @@ def test_a_scan_and_processing_write_the_typed_view_records(tmp_path):
 def test_the_importers_write_the_typed_view_records(tmp_path):
     """import-images of a scan's RAW files, and import-hevc of an export of part of its processed views
     (the others come back skipped, with a note)."""
-    from lfstudio.dataset.profile import Profile
-    from lfstudio.export import ExportOptions, export_dataset, import_hevc
     from lfstudio.export.import_images import ImportOptions, import_images
-    from lfstudio.processing.pipeline import process_dataset
 
     session, plan, ds = open_sim_studio(tmp_path / "scan", 3, 2, 64)
     try:
@@ -95,12 +93,7 @@ def test_the_importers_write_the_typed_view_records(tmp_path):
         _check(view, ViewRecord)
         assert view.get("source_file", "").endswith(".dng")
 
-    profile = Profile()
-    profile.rectify.enabled = False
-    assert process_dataset(ds.root, profile, workers=0).ok
-    video = tmp_path / "part.mkv"
-    export_dataset(Dataset.open(ds.root), ExportOptions("hevc", video, views="r0,c0-1"))
-    restored = Dataset.open(import_hevc(video, tmp_path / "restored"))
+    restored = hevc_round_trip(ds.root, tmp_path)
     statuses = sorted(v["status"] for v in restored.views)
     assert statuses == ["done", "done", "skipped", "skipped", "skipped", "skipped"], statuses
     for view in restored.views:
