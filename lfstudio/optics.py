@@ -15,7 +15,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Iterable
+from typing import TYPE_CHECKING, Any, Iterable, overload
+
+if TYPE_CHECKING:
+    import numpy as np
 
 #: wavelength used for the diffraction estimate (green, the middle of the visible band)
 DIFFRACTION_WAVELENGTH_UM = 0.55
@@ -119,8 +122,14 @@ def image_coordinate_px(lateral_offset_mm: float, depth_mm: float, focal_length_
     return focal_length_mm * lateral_offset_mm / (pixel_pitch_um * 1e-3 * depth_mm)
 
 
+@overload          # one depth, or an array of them (the planner's curves): the result is of the same kind
 def disparity_px(baseline_mm: float, near_mm: float, far_mm: float, focal_length_mm: float,
-                 pixel_pitch_um: float) -> float:
+                 pixel_pitch_um: float) -> float: ...
+@overload
+def disparity_px(baseline_mm: float, near_mm: np.ndarray, far_mm: float, focal_length_mm: float,
+                 pixel_pitch_um: float) -> np.ndarray: ...
+def disparity_px(baseline_mm: float, near_mm: Any, far_mm: float, focal_length_mm: float,
+                 pixel_pitch_um: float) -> Any:
     """d = f·b/s_p · (1/Z1 − 1/Z2): disparity (px) between two views a baseline b apart, for the
     depths Z1 = ``near_mm`` and Z2 = ``far_mm`` (``far_mm`` may be ``math.inf``: disparity against
     infinity). With b = Δ it is the neighbour disparity; with b = B the row's scene parallax."""
@@ -190,7 +199,11 @@ def focus_for_range_mm(near_mm: float, far_mm: float) -> float:
     return 2.0 * near_mm * far_mm / (near_mm + far_mm)
 
 
-def blur_diameter_mm(depth_mm: float, focus_mm: float, focal_length_mm: float, f_number: float) -> float:
+@overload          # one depth, or an array of them (the planner's curves): the result is of the same kind
+def blur_diameter_mm(depth_mm: float, focus_mm: float, focal_length_mm: float, f_number: float) -> float: ...
+@overload
+def blur_diameter_mm(depth_mm: np.ndarray, focus_mm: float, focal_length_mm: float, f_number: float) -> np.ndarray: ...
+def blur_diameter_mm(depth_mm: Any, focus_mm: float, focal_length_mm: float, f_number: float) -> Any:
     """Blur-circle diameter on the sensor of a point at depth Z when focused at s:
     b = f²/N · |1/s − 1/Z| (the same approximation as the formulas above: b = c exactly at D_N, D_F)."""
     return focal_length_mm ** 2 / f_number * abs(1.0 / focus_mm - 1.0 / depth_mm)

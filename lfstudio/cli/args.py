@@ -120,7 +120,8 @@ def described_option(p: Any, param: Param, default: Any, *, said: str | None = N
     option = param.option
     if said is None:
         said = param.to_text(default) if default is not None else ""
-    kwargs: dict[str, Any] = {"help": f"{param.tip} (default {said})" if said and not required else param.tip}
+    text = f"{param.tip} (default {said})" if said and not required else param.tip
+    kwargs: dict[str, Any] = {"help": text.replace("%", "%%")}     # argparse formats help with %
     if required:
         kwargs["required"] = True
     else:

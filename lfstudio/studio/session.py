@@ -137,10 +137,13 @@ def recorded_devices(dataset: Dataset) -> dict[str, Any] | None:
 
 
 def rig_spec_of(record: dict[str, Any]) -> str:
-    """The ``--port`` word that opens a recorded rig again."""
+    """The ``--port`` word that opens a recorded rig again ("" when the record does not say: the
+    device parser then refuses it as "no rig given", naming ``--port``)."""
     kind = record.get("kind", SIM)
-    port = record.get("port") if kind in ("grbl", "dryve", "canopen") else None
-    return str(port or kind)
+    if kind in ("grbl", "dryve", "canopen"):
+        port = record.get("port")
+        return str(port) if port else ""
+    return str(kind) if kind else ""
 
 
 def device_differences(recorded: dict[str, Any], current: dict[str, Any]) -> list[str]:

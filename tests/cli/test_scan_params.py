@@ -116,3 +116,14 @@ def test_the_rig_and_drive_commands_take_the_scan_options_descriptions(command, 
     with pytest.raises(SystemExit):
         p.parse_args([*port, "--time-scale", too_slow])
     assert "argument --time-scale" in capsys.readouterr().err
+
+
+def test_a_described_option_whose_help_holds_a_percent_sign_still_prints_its_help():
+    """argparse formats help texts with %: a tip or default saying '5 %' is escaped, not a crash."""
+    from lfstudio.cli.args import described_option
+    from lfstudio.numbers import Number, Param
+
+    p = argparse.ArgumentParser(prog="x")
+    described_option(p, Param(number=Number("%", 0, 100), option="--noise-pct", tip="noise in % of full scale"), 5.0,
+                     said="5 %")
+    assert "noise in % of full scale (default 5 %)" in " ".join(p.format_help().split())

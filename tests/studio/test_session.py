@@ -33,6 +33,19 @@ def test_what_counts_as_other_devices():
     assert rig_spec_of(REAL["rig"]) == "/dev/ttyUSB0" and rig_spec_of(sim["rig"]) == "sim"
 
 
+@pytest.mark.parametrize("record", [{"kind": "grbl"}, {"kind": "dryve", "port": None}, {"kind": None}])
+def test_a_rig_record_without_its_port_is_refused_naming_port_not_opened_as_a_port(record):
+    """A damaged or hand-edited devices record: no serial port named after the kind ("grbl", "None")
+    is opened on --resume; the operator is asked for --port."""
+    from lfstudio.errors import InputError
+    from lfstudio.studio.devices import RigSpec
+
+    assert rig_spec_of(record) == ""
+    with pytest.raises(InputError) as err:
+        RigSpec.parse(rig_spec_of(record))
+    assert str(err.value).startswith("--port: no rig given")
+
+
 def test_datasets_made_before_the_device_record_are_read_from_their_old_fields(tmp_path):
     plan = ScanPlan(2, 1, (4.0, 6.0))
     old = create_scan_dataset(tmp_path / "old", plan, rig={"name": "Reference gantry", "port": "/dev/ttyACM0"},

@@ -954,7 +954,7 @@ class PlanPlotsPanel(QWidget):
         # depth of field
         coc_um = plan.coc_mm * 1000
         y_top = max(3 * coc_um, r.airy_disk_um * 1.3)
-        blur_um = np.vectorize(optics.blur_diameter_mm)(z_mm, r.focus_used_m * 1000, f, r.f_number_used) * 1000
+        blur_um = optics.blur_diameter_mm(z_mm, r.focus_used_m * 1000, f, r.f_number_used) * 1000
         self.blur_curve.setData(z_m, np.minimum(blur_um, y_top * 2))
         self.airy_curve.setData([z_m[0], z_m[-1]], [r.airy_disk_um, r.airy_disk_um])
         self.scene_region.setRegion((plan.near_m, plan.far_m))
@@ -977,7 +977,7 @@ class PlanPlotsPanel(QWidget):
             if b <= 0:
                 self.disparity_curves[key].setData([], [])
                 continue
-            d = np.vectorize(optics.disparity_px)(b, z_mm, math.inf, f, pitch)
+            d = optics.disparity_px(b, z_mm, math.inf, f, pitch)
             y_values.append(d)
             self.disparity_curves[key].setData(z_m, d)
         self.zmin_line.setValue(r.min_distance_m)
