@@ -27,6 +27,16 @@ SHARED_DATA = next((p / "shared" / "data" for p in (REPO_ROOT.parent, REPO_ROOT.
                     if (p / "shared" / "data").is_dir()), REPO_ROOT.parent / "shared" / "data")
 
 
+#: whole-package tool runs (pyright, lint-imports, ruff): the longest single tests, collected first so a
+#: worker starts them at once and no worker waits for one at the end of the run
+_TOOL_TESTS = ("tests/test_types.py", "tests/test_import_rules.py", "tests/test_lint.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    order = {path: i for i, path in enumerate(_TOOL_TESTS)}
+    items.sort(key=lambda item: order.get(item.nodeid.split("::")[0], len(order)))     # stable: the rest keep order
+
+
 @pytest.fixture(autouse=True)
 def _isolated_config(tmp_path_factory, monkeypatch):
     """Every test gets its own user config folder (QSettings, presets) and log folder."""
