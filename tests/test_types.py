@@ -22,7 +22,9 @@ def test_pyright_basic_finds_nothing_in_the_package():
     pyright = Path(sys.executable).with_name("pyright")
     assert pyright.exists(), "pyright is missing: it is part of the test extras (pip install -e '.[test]')"
     env = dict(os.environ, PYRIGHT_PYTHON_IGNORE_WARNINGS="1")      # no look for a newer version
-    r = subprocess.run([str(pyright), "--outputjson", "--pythonpath", sys.executable], cwd=REPO_ROOT,
+    # -p: this checkout's [tool.pyright], never a pyrightconfig.json that pyright would find in a folder above
+    r = subprocess.run([str(pyright), "--outputjson", "-p", str(REPO_ROOT / "pyproject.toml"), "--pythonpath",
+                        sys.executable], cwd=REPO_ROOT,
                        capture_output=True, text=True, timeout=1100, env=env)
     try:
         report = json.loads(r.stdout)
