@@ -84,8 +84,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _add_unattended_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("unattended scans (docs/unattended.md)")
-    for name in ("notify", "smtp", "status_http", "status_token", "auto_resume", "on_finish",
-                 "on_finish_timeout_s"):
+    from lfstudio.studio.unattended import DESCRIBED
+
+    for name in DESCRIBED:
         _described(g, name)
 
 
@@ -93,11 +94,10 @@ def _unattended(args: argparse.Namespace):
     """The unattended-scan helpers the options ask for (checked before anything starts)."""
     from pathlib import Path
 
-    from lfstudio.studio.unattended import Unattended, UnattendedOptions
+    from lfstudio.studio.unattended import DESCRIBED, Unattended, UnattendedOptions
 
-    options = UnattendedOptions(notify=list(args.notify or ()), smtp=args.smtp, status_http=args.status_http,
-                                status_token=args.status_token, auto_resume=args.auto_resume,
-                                on_finish=args.on_finish, on_finish_timeout_s=args.on_finish_timeout_s)
+    given = {name: getattr(args, name) for name in DESCRIBED}
+    options = UnattendedOptions(**{**given, "notify": list(given["notify"] or ())})
     return Unattended.open(options, dataset_name=Path(args.out).name,
                            say=lambda text: print(f"lfstudio scan: {text}", file=sys.stderr))
 
