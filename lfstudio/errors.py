@@ -75,6 +75,14 @@ class DeviceError(LfError):
     kind = "device"
 
 
+class DeviceRefused(DeviceError):
+    """A device cannot do what was asked, for a reason its message names with the fix (a setting out of
+    the camera's range, a file whose name the image libraries cannot open): trying again does not
+    help and the cable is not the cause, so a scan pauses at once with the message's own advice."""
+
+    kind = "device-refused"
+
+
 class DeviceTimeout(DeviceError):
     """A device did not answer in time (a silent camera, a controller that stopped talking): waiting
     for it again does not help, so a scan stops at once instead of retrying."""

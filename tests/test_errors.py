@@ -18,6 +18,7 @@ KINDS = {
     "lfstudio.errors.DatasetNotFound": "dataset-not-found",
     "lfstudio.errors.DeviceError": "device",
     "lfstudio.errors.DeviceTimeout": "device-timeout",
+    "lfstudio.errors.DeviceRefused": "device-refused",
     "lfstudio.dataset.images.NotACapture": "not-a-capture",
     "lfstudio.dataset.storage.StorageError": "error",      # each instance: full, read-only, not writable, failing
     "lfstudio.rig.motion.SoftLimitError": "soft-limit",

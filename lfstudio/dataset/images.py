@@ -39,6 +39,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from lfstudio.dataset.paths import RENAME_UTF8_FIX, is_utf8_name, shown_name
 from lfstudio.dataset.profile import DebayerStep
 from lfstudio.errors import DatasetError
 
@@ -56,7 +57,21 @@ class NotACapture(DatasetError):
     def __init__(self, path: str | os.PathLike, reason: str = "neither LibRaw (camera RAW) nor OpenCV (PNG, "
                                                                "TIFF, JPEG) reads it"):
         self.path, self.reason = Path(path), reason
-        super().__init__(f"{self.path}: not an image: {reason}")
+        super().__init__(f"{shown_name(self.path)}: not an image: {reason}")
+
+
+#: why a file whose name is not UTF-8 is no capture lfstudio can read (:func:`cv_path`)
+NOT_UTF8_REASON = f"its name is not valid UTF-8, which the image libraries cannot open; {RENAME_UTF8_FIX}"
+
+
+def cv_path(path: str | os.PathLike) -> str:
+    """``path`` as the text OpenCV and LibRaw are given; :class:`NotACapture` naming it (escaped) when
+    it is not valid UTF-8: OpenCV crashes the whole process on such a name (a segmentation fault),
+    so no name from outside reaches it unchecked."""
+    text = os.fspath(path)
+    if not is_utf8_name(text):
+        raise NotACapture(text, NOT_UTF8_REASON)
+    return text
 
 
 # -- what a file is ----------------------------------------------------------------------------------
@@ -80,7 +95,7 @@ def kind(path: str | os.PathLike) -> str:
         st = path.stat()
     except OSError as exc:
         raise NotACapture(path, exc.strerror or "cannot be opened") from None
-    found = _kind(str(path), st.st_size, st.st_mtime_ns)
+    found = _kind(cv_path(path), st.st_size, st.st_mtime_ns)
     if found is None:
         raise NotACapture(path)
     return found
@@ -215,7 +230,7 @@ def _jpeg_size(fh) -> tuple[int, int] | None:
 # -- decoding ----------------------------------------------------------------------------------------
 def read_image(path: str | os.PathLike) -> np.ndarray:
     """A PNG/TIFF/JPEG as (h, w, 3) uint16 RGB (8-bit images scaled by 257, 16-bit kept)."""
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    img = cv2.imread(cv_path(path), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise DatasetError(f"{path}: cannot be read as an image; check the file or re-capture the view")
     if img.ndim == 2:
@@ -496,7 +511,7 @@ def _png_small(path: Path, width_px: int) -> np.ndarray | None:
 def _thumb_from_image(path: Path, width_px: int) -> np.ndarray | None:
     """BGR uint8, decoded at reduced size where the format allows it, made small before measuring."""
     if is_jpeg(path):
-        img = _reduced_jpeg(lambda flags: cv2.imread(str(path), flags), width_px)
+        img = _reduced_jpeg(lambda flags: cv2.imread(cv_path(path), flags), width_px)
         if img is not None:
             return img
     elif png_header(path) is not None:
@@ -506,7 +521,7 @@ def _thumb_from_image(path: Path, width_px: int) -> np.ndarray | None:
             img = None
         if img is not None:
             return _to_uint8(img)
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    img = cv2.imread(cv_path(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
     if img is None:
         return None
     return _to_uint8(shrink(img, width_px))
@@ -593,7 +608,7 @@ def read_picture(path: str | os.PathLike) -> np.ndarray | None:
     """A picture lfstudio wrote itself (a cached or stored JPEG thumbnail, a quality map PNG) as
     (h, w, 3) BGR uint8; None when it is missing or unreadable (the caller makes it again). Not for
     captures: no LibRaw probe, no bit depth kept."""
-    return cv2.imread(str(path), cv2.IMREAD_COLOR)
+    return cv2.imread(cv_path(path), cv2.IMREAD_COLOR)
 
 
 def preview_rgb8(path: str | os.PathLike, max_width_px: int | None = None, stretch: bool = False) -> np.ndarray:
@@ -612,7 +627,7 @@ def preview_rgb8(path: str | os.PathLike, max_width_px: int | None = None, stret
         except Exception as exc:  # LibRaw raises several error types
             raise DatasetError(f"{path}: cannot be decoded as a RAW file ({type(exc).__name__}: {exc})") from None
     else:
-        img = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+        img = cv2.imread(cv_path(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
         if img is None:
             raise DatasetError(f"{path}: cannot be read as an image; check the file")
         if img.dtype != np.uint8:
@@ -655,7 +670,7 @@ def read_grey(path: str | os.PathLike, max_width_px: int | None) -> tuple[np.nda
             raise DatasetError(f"{path}: cannot be read as a RAW file ({exc}); re-copy it from the camera") from None
         grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
     else:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH)
+        img = cv2.imread(cv_path(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH)
         if img is None:
             raise DatasetError(f"{path}: cannot be read as an image (missing or corrupt); re-copy it or "
                                "exclude the view")

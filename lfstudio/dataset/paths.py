@@ -97,17 +97,33 @@ def expand_path(text: str | os.PathLike, field: str = "path", *, absolute: bool 
     return path.absolute() if absolute else path
 
 
+def is_utf8_name(name: str | os.PathLike) -> bool:
+    """True when ``name`` is valid UTF-8 text. A name read from a folder in another character encoding
+    (Latin-1 ``d\xe9j\xe0``) holds surrogate escapes in Python: such a name must never reach OpenCV
+    (it crashes the process), LibRaw or FFmpeg, nor a message unescaped (:func:`shown_name`)."""
+    try:
+        os.fspath(name).encode("utf-8")
+        return True
+    except UnicodeEncodeError:
+        return False
+
+
+def shown_name(name: str | os.PathLike) -> str:
+    """``name`` as a message shows it: the bytes that are not UTF-8 as ``\\xNN`` escapes."""
+    return os.fspath(name).encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+#: the fix named for a file or folder whose name is not UTF-8
+RENAME_UTF8_FIX = "rename it in UTF-8, e.g. with 'convmv -f latin1 -t utf8 --notest NAME'"
+
+
 def path_name_problem(path: str | os.PathLike) -> str | None:
     """Why lfstudio cannot work under ``path`` (made absolute), or None: a name that is not valid
     UTF-8 (a folder named in another encoding, e.g. Latin-1 ``d\xe9j\xe0``). Python keeps such bytes
     as surrogate escapes, which OpenCV, LibRaw and FFmpeg cannot take (OpenCV crashes on them)."""
-    text = os.fspath(path)
-    try:
-        text.encode("utf-8")
+    if is_utf8_name(path):
         return None
-    except UnicodeEncodeError:
-        pass
-    shown = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    shown = shown_name(path)
     return (f"'{shown}' has a name that is not valid UTF-8 (written in another character encoding), which "
             "the image and video libraries cannot open")
 

@@ -43,7 +43,7 @@ import numpy as np
 from lfstudio.dataset import images
 from lfstudio.dataset.grid import grid_order
 from lfstudio.dataset.manifest import ViewRecord, now_iso
-from lfstudio.dataset.paths import view_stem
+from lfstudio.dataset.paths import RENAME_UTF8_FIX, is_utf8_name, shown_name, view_stem
 from lfstudio.dataset.store import sha256_file
 from lfstudio.dataset.thumbs import make_thumbnail
 from lfstudio.errors import DatasetError, InputError
@@ -133,6 +133,10 @@ def find_images(folder: str | os.PathLike, pattern: str | None = None) -> list[P
         files = matched
     else:
         files = [p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".") and not images.is_text(p)]
+    for p in files:     # the libraries cannot open such a name (OpenCV crashes on it): refused before any is read
+        if not is_utf8_name(p.name):
+            raise InputError("folder", f"{shown_name(p.name)} in {shown_name(folder)} has a name that is not valid "
+                             f"UTF-8; {RENAME_UTF8_FIX}, or leave it out with --pattern")
     return sorted(files, key=lambda p: natural_key(p.relative_to(folder).as_posix()))
 
 

@@ -25,7 +25,8 @@ from typing import Any, Callable, Sequence
 
 from lfstudio.dataset import images
 from lfstudio.dataset.atomic import atomic_write_with
-from lfstudio.errors import DeviceError, DeviceTimeout, InputError
+from lfstudio.dataset.paths import is_utf8_name, shown_name
+from lfstudio.errors import DeviceError, DeviceRefused, DeviceTimeout, InputError
 from lfstudio.rig.camera import CaptureResult
 
 log = logging.getLogger(__name__)
@@ -137,9 +138,19 @@ class HotFolderCamera:
                 from None
 
     def _candidates(self) -> list[str]:
-        return sorted(n for n in self._listing()
-                      if n not in self._seen and not is_partial_name(n)
-                      and (self.extensions is None or os.path.splitext(n)[1].lower() in self.extensions))
+        """New, complete-looking names in the folder. A new name that is not valid UTF-8 stops the
+        capture naming it by its escaped bytes (remembered as seen, so it is told once): the image
+        libraries cannot open such a name, and OpenCV crashes the process on it."""
+        names = [n for n in self._listing()
+                 if n not in self._seen and not is_partial_name(n)
+                 and (self.extensions is None or os.path.splitext(n)[1].lower() in self.extensions)]
+        for n in names:
+            if not is_utf8_name(n):
+                self._seen.add(n)
+                raise DeviceRefused(f"hot folder {shown_name(self.folder)}: {shown_name(n)} arrived but its name is not "
+                                  "valid UTF-8, which the image libraries cannot open; set the camera software to "
+                                  "name its files in ASCII or UTF-8, or rename the file")
+        return sorted(names)
 
     def _trigger(self) -> None:
         assert self.trigger_command is not None

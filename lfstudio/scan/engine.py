@@ -64,7 +64,7 @@ from lfstudio.dataset.manifest import ViewUpdate, is_finished
 from lfstudio.dataset.paths import folder_inside, view_label, view_stem
 from lfstudio.dataset.storage import storage_error
 from lfstudio.dataset.store import clean_temporary_files, free_bytes
-from lfstudio.errors import DeviceError, DeviceTimeout, InputError, LfError
+from lfstudio.errors import DeviceError, DeviceRefused, DeviceTimeout, InputError, LfError
 from lfstudio.numbers import RETRIES, TIME_SCALE, TIMEOUT_S, Number, non_finite_fields
 from lfstudio.rig.camera import supports_on_exposed
 from lfstudio.rig.motion import RigState
@@ -72,7 +72,7 @@ from lfstudio.rig.worker import CallTimedOut, DeviceWorker, Lease
 from lfstudio.scan.events import (OWNS_RIG, TERMINAL, TRANSITIONS, EventKind, ScanEvent, ScanRequestRefused,
                                   ScanState, Trigger, next_state)
 from lfstudio.scan.faults import (CLEARS_CAMERA, CLEARS_RIG, FIX, ScanFault, clears_by_itself,
-                                  error_text, fault_text)
+                                  error_text, fault_text, refused_text)
 from lfstudio.scan.preflight import MIN_FREE_BYTES, card_shortfall
 from lfstudio.scan.scan_plan import PlannedView, ScanPlan
 from lfstudio.scan.store import RETRY, ScanStore, StoreJob, free_hung_camera
@@ -920,6 +920,11 @@ class ScanEngine:
                     self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
                                will_retry=False, extra={"attempt": attempt, "device": device})
                     raise self._silent(device, view, exc) from None
+                if isinstance(exc, (DeviceRefused, InputError)):   # a value or a file: no retry, no cable advice
+                    self._last_error[cell] = message
+                    self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
+                               will_retry=False, extra={"attempt": attempt, "device": device})
+                    raise ScanFault(refused_text(device, view_label(view.row, view.column), message), device) from None
                 self._handle_inbox()
                 if self._state is not ScanState.RUNNING:
                     # STOP, a pause, an abort or a fault came in: no retry now (the view is queued again)

@@ -60,3 +60,11 @@ def fault_text(device: str, message: str, attempts: int) -> str:
     """The fault of a view that failed ``attempts`` times on ``device`` with ``message``, and its fix."""
     what = "Rig" if device == "rig" else "Camera" if device == "camera" else "Disk"
     return f"{what} failed {attempts} time(s): {message}. {FIX.get(device, 'Then Resume.')}"
+
+
+def refused_text(device: str, where: str, message: str) -> str:
+    """The fault of a device that refused what the scan asked of it (a setting out of its range, a file
+    it cannot use; :class:`lfstudio.errors.DeviceRefused` or a value error) during ``where``: the cause
+    and its own fix, never cable advice, and no retry (it would be refused again)."""
+    what = "Rig" if device == "rig" else "Camera"
+    return f"{what} refused ({where}): {message.rstrip('.')}. Fix that, then Resume."
