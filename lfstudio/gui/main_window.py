@@ -104,10 +104,28 @@ class PanelScrollArea(QScrollArea):
         across = need.width() > room.width() - (bar if down else 0)        # scrolls sideways
         down = down or need.height() > room.height() - (bar if across else 0)
         height = max(room.height() - (bar if across else 0), need.height())
+        width = max(room.width() - (bar if down else 0), need.width())
+        wrapped = self._wrapped_height(width)   # word-wrapped lines (an error, a state) need more than the minimum
+        if wrapped > height:
+            if not down:                       # now it scrolls: narrower by the bar, perhaps a line more
+                down = True
+                width = max(room.width() - bar, need.width())
+                wrapped = max(wrapped, self._wrapped_height(width))
+            height = wrapped
         scrolled = getattr(panel, "height_when_scrolled", None)
         if down and scrolled is not None:      # a panel with a scrolled body of its own: one scroll bar, this one
             height = max(height, scrolled())
-        panel.resize(max(room.width() - (bar if down else 0), need.width()), height)
+        panel.resize(width, height)
+
+    def _wrapped_height(self, width: int) -> int:
+        """The least height at which the panel's layout shows its word-wrapped labels whole at
+        ``width`` (0: nothing wraps). A panel's minimum size counts a wrapped label's lines at its own
+        width, so a long message in a narrow dock was cut to its first lines."""
+        panel = self.widget()
+        layout = panel.layout() if panel is not None else None
+        if layout is None or not layout.hasHeightForWidth():
+            return 0
+        return layout.minimumHeightForWidth(width)
 
     def resizeEvent(self, event) -> None:
         super().resizeEvent(event)
@@ -513,7 +531,7 @@ class MainWindow(QMainWindow):
         from lfstudio.gui.panels.rig import RigPanel
 
         rig, camera = self.panels.get("rigDock"), self.panels.get("cameraDock")
-        if isinstance(rig, RigPanel) and not rig.connected and rig.chosen_port() == "sim":
+        if isinstance(rig, RigPanel) and not rig.connected and rig.chosen_port() in ("sim", "sim-dryve"):
             rig.connect_rig()
         if isinstance(camera, CameraPanel) and not camera.connected and camera.current_kind() == "sim":
             camera.connect_camera()

@@ -160,7 +160,7 @@ class GrblController:
                                     "the port name (lfstudio rig --port ...), or use 'sim'")
                 error.window_text = (f"cannot open the rig port {self.port!r}: {reason}. Check the cable and "
                                      "choose the controller's port in the Rig panel's Port list (↻ looks for "
-                                     "ports again), or 'Simulated'")
+                                     "ports again), or 'Simulated GRBL'")
                 raise error from exc
             self._lost = ""
             self._rx.clear()

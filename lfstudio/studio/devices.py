@@ -305,14 +305,23 @@ def _open_drives(spec: RigSpec, config: RigConfig, *, doing: str, time_scale: fl
     """A CiA 402 drive pair: the emulators for ``sim-dryve``/``sim-canopen``, one lock per drive
     address, the links and the driver (connected with ``connect``)."""
     if not spec.drives:
-        raise InputError("--rig-profile", f"rig profile {config.name!r} is for CiA 402 drives, and {spec.text!r} "
-                         "is not a drive pair", "--port dryve:HOST,HOST, canopen:CHANNEL:NODE,NODE or sim-dryve")
+        error = InputError("--rig-profile", f"rig profile {config.name!r} is for CiA 402 drives, and {spec.text!r} "
+                           "is not a drive pair", "--port dryve:HOST,HOST, canopen:CHANNEL:NODE,NODE or sim-dryve")
+        error.window_text = (f"The rig profile {config.name!r} is for CiA 402 drives, and the port {spec.text!r} is "
+                             "not a drive pair: choose a GRBL profile in the Rig list, or the drives' port "
+                             "(Simulated drives, dryve:HOST,HOST or canopen:CHANNEL:NODE,NODE) in the Port list")
+        raise error
     if config.driver != "cia402":
         names = drive_profile_names()
-        raise InputError("--rig-profile", f"{spec.text!r} is a pair of CiA 402 drives, and rig profile {config.name!r} "
-                         "is for a GRBL controller (no feed constants or homing methods)",
-                         " or ".join(rig_profile_flag(n) for n in names) if names else
-                         "a profile with driver = \"cia402\" in rigs.toml")
+        error = InputError("--rig-profile", f"{spec.text!r} is a pair of CiA 402 drives, and rig profile "
+                           f"{config.name!r} is for a GRBL controller (no feed constants or homing methods)",
+                           " or ".join(rig_profile_flag(n) for n in names) if names else
+                           "a profile with driver = \"cia402\" in rigs.toml")
+        error.window_text = (f"The port {spec.text!r} is a pair of CiA 402 drives, and the rig profile {config.name!r} "
+                             "is for a GRBL controller: choose the drives' profile in the Rig list"
+                             + (f" ({' or '.join(repr(n) for n in names)})" if names else
+                                " (add one with driver = \"cia402\" to rigs.toml)"))
+        raise error
     from lfstudio.rig.cia402 import Cia402Controller
 
     simulator: Any = None

@@ -34,7 +34,7 @@ def panel(qtbot):
 
 
 def test_jog_and_stop_mid_move(qtbot, panel):
-    assert panel.port_combo.currentText() == "Simulated"
+    assert panel.port_combo.currentText() == "Simulated GRBL"
     assert panel.stop_button.objectName() == "stopButton" and panel.stop_button.isVisible()
     qtbot.mouseClick(panel.connect_button, Qt.LeftButton)
     qtbot.waitUntil(lambda: state_is(panel, RigState.ALARM), timeout=T)   # a homing rig boots locked

@@ -29,7 +29,7 @@ from PySide6.QtWidgets import (QButtonGroup, QComboBox, QDoubleSpinBox, QGridLay
 
 from lfstudio.errors import LfError, window_message
 from lfstudio.gui.devices import QtDevice
-from lfstudio.gui.settings import read_float, settings
+from lfstudio.gui.settings import read_float, read_text, settings
 from lfstudio.gui.state import AppState
 from lfstudio.gui.widgets import number_of, show_lock_note
 from lfstudio.rig.motion import RigConfig, RigState, RigStatus
@@ -37,7 +37,23 @@ from lfstudio.rig.worker import DeviceFault, DeviceWorker
 
 log = logging.getLogger(__name__)
 
-SIMULATED = "Simulated"
+SIMULATED = "Simulated GRBL"
+#: the Port list's simulated devices: (text in the list, device word, tooltip); one spelling for both
+SIMULATED_PORTS = ((SIMULATED, "sim", "The GRBL controller simulator on a pseudo-terminal (the simulated studio)"),
+                   ("Simulated drives", "sim-dryve",
+                    "Two emulated CiA 402 drives (dryve D1, Modbus TCP on 127.0.0.1) with their preset rig profile. "
+                    "Real drives: type dryve:HOST,HOST or canopen:can0:NODE,NODE"))
+SIMULATED_WORDS = tuple(word for _, word, _ in SIMULATED_PORTS)
+
+
+def _port_word(text: str) -> str:
+    """A port as typed or remembered → its device word (the list's texts, and "Simulated" of older
+    versions, name the simulated devices)."""
+    text = (text or "").strip()
+    for shown, word, _ in SIMULATED_PORTS:
+        if text.lower() in (shown.lower(), word):
+            return word
+    return "sim" if text in ("", "Simulated") else text
 STEP_SIZES_MM = (0.1, 1.0, 10.0, 100.0)
 FINE_STEP_MM = 0.1
 WARNINGS_SHOWN = 2              # controller-vs-profile warnings in the panel's line (all in its tooltip)
@@ -47,6 +63,7 @@ HOLD_MS = 350                   # press longer than this: continuous jog until r
 _STATE_COLOURS = {RigState.IDLE: "#2e7d32", RigState.MOVING: "#1565c0", RigState.JOGGING: "#1565c0",
                   RigState.HOMING: "#1565c0", RigState.HOLD: "#b35900", RigState.ALARM: "#b00020",
                   RigState.DISCONNECTED: "#6b7280"}
+NOT_HOMED_COLOUR = "#b35900"     # amber, as rig_badge.BADGE_COLOURS["not homed"]
 
 
 class RigDiagram(QWidget):
@@ -156,7 +173,9 @@ class RigPanel(QWidget):
         self._base_tips = [(w, w.toolTip()) for w in self._motion_controls()]
         state.scanStateChanged.connect(self._on_scan_state)
         self.refresh_ports()
+        self.port_combo.activated.connect(self._port_chosen)
         self._on_status(RigStatus(RigState.DISCONNECTED))
+        self._fit_profile_to_port(self.chosen_port(), remembered=True)   # a remembered pair that no longer fits
 
     # -- layout ------------------------------------------------------------------------------------
     def _build(self) -> None:
@@ -208,6 +227,13 @@ class RigPanel(QWidget):
         cl.addWidget(QLabel("Rig"), 1, 0)
         cl.addWidget(self.rig_combo, 1, 1, 1, 3)
         cl.addWidget(self.rig_label, 2, 0, 1, 4)
+        self._fitting = False               # the profile is being chosen to fit the port (not by the operator)
+        self.profile_note = QLabel("")      # the profile chosen to fit the port, and why
+        self.profile_note.setObjectName("rigProfileNote")
+        self.profile_note.setWordWrap(True)
+        self.profile_note.setProperty("role", "warning")
+        self.profile_note.setVisible(False)
+        cl.addWidget(self.profile_note, 4, 0, 1, 4)
         self.warning_label = QLabel("")
         self.warning_label.setObjectName("rigWarningLabel")
         self.warning_label.setWordWrap(True)
@@ -352,6 +378,8 @@ class RigPanel(QWidget):
             self._show_message(str(exc), "error")
             return
         settings().setValue("rig/profile", name)
+        if not self._fitting:
+            self._show_profile_note("")              # the operator's own choice: the note is over
         self.rig_label.setText(self.rig_config.label or name)
         self._show_profile()
         self.diagram.set_config(self.rig_config)
@@ -423,14 +451,11 @@ class RigPanel(QWidget):
     def refresh_ports(self) -> None:
         from lfstudio.rig.connect import available_ports
 
-        current = self.port_combo.currentText()
+        current = self.chosen_port() if self.port_combo.count() or self.port_combo.currentText() else ""
         self.port_combo.clear()
-        self.port_combo.addItem(SIMULATED, "sim")
-        self.port_combo.setItemData(0, "GRBL simulator on a pseudo-terminal (the simulated studio)", Qt.ItemDataRole.ToolTipRole)
-        self.port_combo.addItem("sim-dryve", "sim-dryve")
-        self.port_combo.setItemData(1, "two emulated CiA 402 drives (dryve D1, Modbus TCP on 127.0.0.1); "
-                                    "needs a CiA 402 rig profile. Real drives: type dryve:HOST,HOST or "
-                                    "canopen:can0:NODE,NODE", Qt.ItemDataRole.ToolTipRole)
+        for text, word, tip in SIMULATED_PORTS:
+            self.port_combo.addItem(text, word)
+            self.port_combo.setItemData(self.port_combo.count() - 1, tip, Qt.ItemDataRole.ToolTipRole)
         try:
             ports = available_ports()
         except Exception:  # noqa: BLE001 - listing ports must never break the panel
@@ -438,19 +463,73 @@ class RigPanel(QWidget):
         for port in ports:
             self.port_combo.addItem(port.device, port.device)
             self.port_combo.setItemData(self.port_combo.count() - 1, port.description, Qt.ItemDataRole.ToolTipRole)
-        wanted = current or ("" if self.state.simulated else str(settings().value("rig/port", "")))
-        if self.state.simulated and not current:
-            wanted = SIMULATED
-        index = self.port_combo.findText(wanted) if wanted else -1
+        remembered = _port_word(read_text("rig/port", ""))
+        if self.state.simulated and not current:      # the simulated studio: a simulated rig, the one used last
+            wanted = remembered if remembered in SIMULATED_WORDS else "sim"
+        else:
+            wanted = current or remembered
+        index = self.port_combo.findData(wanted) if wanted else -1
         if index >= 0:
             self.port_combo.setCurrentIndex(index)
         elif wanted:
             self.port_combo.setEditText(wanted)
 
     def chosen_port(self) -> str:
-        """The port to connect to: a device path, or "sim" for the built-in simulated controller."""
+        """The port to connect to: a device path or a device word ("sim": the built-in simulated GRBL
+        controller, "sim-dryve": the emulated drive pair), whether picked from the list or typed."""
         text = self.port_combo.currentText().strip()
-        return "sim" if text in (SIMULATED, "", "sim") else text
+        index = self.port_combo.findText(text)
+        if index >= 0 and self.port_combo.itemData(index):
+            return str(self.port_combo.itemData(index))
+        return _port_word(text)
+
+    def _port_chosen(self, _index: int = -1) -> None:
+        """A port picked from the list: the rig profile follows it when it does not fit (as on the CLI)."""
+        if self.device is None:
+            self._fit_profile_to_port(self.chosen_port())
+
+    def _fit_profile_to_port(self, port: str, remembered: bool = False) -> bool:
+        """Choose the rig profile that fits ``port`` when the chosen one does not, as the command line
+        does: the preset drive pair for the simulated drives, the reference gantry for a GRBL controller
+        (a serial port, the simulated GRBL). Said in the panel (never a message box); ``remembered``: the
+        pair came from the last session. False when the operator must choose (a pair of real drives
+        and a GRBL profile: lfstudio never guesses a real rig's feed constants)."""
+        from lfstudio.studio.devices import RigSpec, drive_profile_names, implied_rig_profile
+
+        try:
+            spec = RigSpec.parse(port)
+        except LfError:
+            return True                  # not a device word yet: the connection says what is wrong
+        for_drives = self.rig_config.driver == "cia402"
+        if spec.drives == for_drives:
+            return True
+        where = self.port_combo.currentText().strip() or port
+        old = self.rig_config.name
+        if spec.drives and spec.kind not in ("sim-dryve", "sim-canopen"):
+            names = drive_profile_names()
+            self._show_message(f"Port {where} is a pair of CiA 402 drives and the rig profile {old!r} is for a "
+                               "GRBL controller: choose the drives' own profile in the Rig list"
+                               + (f" ({' or '.join(repr(n) for n in names)})" if names else
+                                  " (add it to rigs.toml with driver = \"cia402\": lfstudio never guesses a real "
+                                  "rig's feed constants)"), "error")
+            return False
+        name = implied_rig_profile(spec)
+        self._fitting = True
+        try:
+            self.rig_combo.setCurrentText(name)
+        finally:
+            self._fitting = False
+        if self.rig_config.name != name:       # the preset could not be read: _rig_chosen said why
+            return False
+        kind = "CiA 402 drives" if for_drives else "a GRBL controller"
+        self._show_profile_note(f"Rig profile {name!r} chosen for port {where}: "
+                                + (f"the one remembered from last time, {old!r}, is for {kind}." if remembered
+                                   else f"{old!r} is for {kind}."))
+        return True
+
+    def _show_profile_note(self, text: str) -> None:
+        self.profile_note.setText(text)
+        self.profile_note.setVisible(bool(text))
 
     def toggle_connection(self) -> None:
         if self.connected:
@@ -465,7 +544,10 @@ class RigPanel(QWidget):
         if self.connected:
             return
         port = self.chosen_port()
-        settings().setValue("rig/port", self.port_combo.currentText())
+        if not self._fit_profile_to_port(port):
+            self.state.show_status("Rig: choose the rig profile of these drives in the Rig panel", 10000)
+            return
+        settings().setValue("rig/port", port)
         try:   # the simulator for "sim"; the port locked for this window (refused while another process has it)
             self.link = open_rig(port, self.rig_config, doing="the lfstudio window", time_scale=self.sim_time_scale,
                                  connect=False)
@@ -482,7 +564,8 @@ class RigPanel(QWidget):
         self.device = QtDevice(worker)
         self.device.statusChanged.connect(self._on_status)
         self.device.busyChanged.connect(lambda _busy: self._update_enabled())
-        self._show_message(f"Connecting to {port if port != 'sim' else 'the simulated controller'} …", "warning")
+        self._show_message(f"Connecting to {port if port not in SIMULATED_WORDS else self.port_combo.currentText()} …",
+                           "warning")
         self.connect_button.setText("Disconnect")
         self.connect_action.setText("Dis&connect rig")
         self.device.run("connect", on_result=lambda _r: self._connected(port),
@@ -494,7 +577,7 @@ class RigPanel(QWidget):
     def _connected(self, port: str) -> None:
         if self.message_label.text().startswith("Connecting to "):
             self._show_message("")      # only its own line: the first status (an alarm) may be here first
-        self.state.show_status(f"Rig connected ({'simulated' if port == 'sim' else port})")
+        self.state.show_status(f"Rig connected ({self.port_combo.currentText().strip() or port})")
         self.connectedChanged.emit(True)
 
     def _connect_failed(self, message: str) -> None:
@@ -650,6 +733,8 @@ class RigPanel(QWidget):
         text = word + ("" if snapshot.homed or snapshot.state is RigState.DISCONNECTED else "\nnot homed")
         self.state_label.setText(text)
         colour = _STATE_COLOURS.get(snapshot.state, "#333")
+        if snapshot.state is RigState.IDLE and not snapshot.homed:
+            colour = NOT_HOMED_COLOUR           # idle but not homed: not ready, not green (as the STOP bar's badge)
         self.state_label.setStyleSheet(f"color: white; background: {colour}; border-radius: 4px; "
                                        "padding: 4px 8px; font-weight: 600;")
         self.diagram.set_position(snapshot.position_mm)

@@ -218,6 +218,7 @@ class GridView(QWidget):
         if scan_events is not None:
             scan_events.connect(self.on_scan_events)
         self._recent_menu: QMenu | None = None
+        self.recapture_action: QAction | None = None     # Dataset → Re-capture selected views (install_menus)
         self._counts_timer = QTimer(self)
         self._counts_timer.setSingleShot(True)
         self._counts_timer.setInterval(200)
@@ -299,6 +300,8 @@ class GridView(QWidget):
 
     def _on_selection(self, n: int) -> None:
         self.recapture_button.setEnabled(n > 0)
+        if self.recapture_action is not None:       # the Dataset menu's entry: nothing selected, nothing to do
+            self.recapture_action.setEnabled(n > 0)
         self.recapture_button.setText(f"Re-capture {n} selected" if n else "Re-capture selected")
 
     def request_recapture(self) -> None:
@@ -361,8 +364,11 @@ class GridView(QWidget):
             a.triggered.connect(slot)
             view_menu.addAction(a)
         recap = QAction("Re-capture selected views", self)
-        recap.setToolTip("Queue the views selected in the grid for capture again")
+        recap.setObjectName("recaptureAction")
+        recap.setToolTip("Queue the views selected in the grid for capture again (select views in the grid first)")
         recap.triggered.connect(self.request_recapture)
+        recap.setEnabled(bool(self.canvas.selected))
+        self.recapture_action = recap
         window.menu("Dataset").addAction(recap)
 
     def choose_dataset(self) -> None:
