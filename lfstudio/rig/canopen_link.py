@@ -4,12 +4,21 @@ an :class:`lfstudio.rig.cia402.ObjectLink`.
 ``channel``: ``can0`` (SocketCAN on a studio machine) or ``virtual-NAME`` (python-can's in-process
 ``virtual`` bus named NAME, where the emulated drives of ``--port sim-canopen`` and the tests
 live). All drives on one channel share one ``canopen.Network`` in this process.
+
+Deadlines: a whole SDO transfer (every segment of it) must end within the link's ``timeout_s``
+(python-canopen's own timeout is per response: a node answering a segmented upload one segment at a
+time would hold it for ever). STOP's quick stop (:meth:`CanopenLink.write_now`) waits at most
+:data:`STALLED_AFTER_S` for an exchange in flight on the node's SDO channel (a healthy one ends well
+within it), then interrupts it (it fails as interrupted by STOP) and takes the channel.
 """
 
 from __future__ import annotations
 
 import logging
+import math
+import queue
 import threading
+import time
 from typing import Any
 
 from lfstudio.rig.cia402 import DriveNotAnswering, ObjectAccessRefused
@@ -19,6 +28,52 @@ log = logging.getLogger(__name__)
 VIRTUAL_PREFIX = "virtual-"
 _networks: dict[str, list[Any]] = {}            # channel -> [network, users]
 _networks_lock = threading.Lock()
+#: how long STOP waits for an SDO exchange in flight before it interrupts it (a healthy one takes ~1 ms)
+STALLED_AFTER_S = 0.02
+_INTERRUPT = b"interrupted"
+_client_class: Any = None
+
+
+def _deadline_client() -> Any:
+    """python-canopen's ``SdoClient`` with one deadline for a whole transfer and :meth:`interrupt`."""
+    global _client_class
+    if _client_class is not None:
+        return _client_class
+    import struct
+
+    from canopen.sdo.client import SdoClient
+    from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+    class DeadlineSdoClient(SdoClient):
+        deadline = math.inf
+        whole_s = 0.0
+        interrupted = False
+
+        def interrupt(self) -> None:
+            self.interrupted = True
+            self.responses.put(_INTERRUPT)
+
+        def read_response(self) -> bytes:
+            while True:
+                left = self.deadline - time.monotonic()
+                if self.interrupted:
+                    raise SdoCommunicationError("no answer yet; interrupted by STOP")
+                if left <= 0:
+                    raise SdoCommunicationError(f"no whole answer within {self.whole_s:g} s")
+                try:
+                    response = self.responses.get(block=True, timeout=min(self.RESPONSE_TIMEOUT, left))
+                except queue.Empty:
+                    if self.deadline - time.monotonic() <= 0:
+                        raise SdoCommunicationError(f"no whole answer within {self.whole_s:g} s") from None
+                    raise SdoCommunicationError(f"no answer within {self.RESPONSE_TIMEOUT:g} s") from None
+                if response is _INTERRUPT:
+                    continue                    # the flag says so (or a stale one: wait on)
+                if response[0] == 0x80:         # abort from the node
+                    raise SdoAbortedError(struct.unpack_from("<L", response, 4)[0])
+                return response
+
+    _client_class = DeadlineSdoClient
+    return _client_class
 
 
 def _bus_args(channel: str) -> dict[str, Any]:
@@ -77,6 +132,9 @@ class CanopenLink:
                 return
             network = _network(self.channel)
             node = BaseNode402(self.node_id, ObjectDictionary())
+            client = _deadline_client()(node.sdo.rx_cobid, node.sdo.tx_cobid, node.object_dictionary)
+            node.sdo_channels[node.sdo_channels.index(node.sdo)] = client
+            node.sdo = client
             node.sdo.RESPONSE_TIMEOUT = self.timeout_s
             node.sdo.MAX_RETRIES = 1                  # one attempt (0 would retry for ever)
             network.add_node(node)
@@ -94,20 +152,46 @@ class CanopenLink:
                 _release(self.channel)
 
     def _sdo(self, fn, *args) -> Any:
-        from canopen import SdoAbortedError, SdoCommunicationError
-
         if self.node is None:
             self.open()
         with self._lock:
+            return self._sdo_locked(fn, *args)
+
+    def _sdo_locked(self, fn, *args) -> Any:
+        from canopen import SdoAbortedError, SdoCommunicationError
+
+        node = self.node
+        if node is None:                     # closed meanwhile by another thread
+            raise DriveNotAnswering(f"{self.address}: the connection was closed")
+        sdo = node.sdo
+        sdo.deadline, sdo.whole_s, sdo.interrupted = time.monotonic() + self.timeout_s, self.timeout_s, False
+        try:
+            return fn(sdo, *args)
+        except SdoAbortedError as exc:
+            raise ObjectAccessRefused(f"{self.address}: {exc}") from None
+        except (SdoCommunicationError, OSError) as exc:
+            raise DriveNotAnswering(f"{self.address}: {exc}") from None
+        finally:
+            sdo.deadline, sdo.interrupted = math.inf, False
+
+    def write_now(self, index: int, sub: int, value: int, size: int, signed: bool) -> None:
+        """A write that never waits behind a stalled exchange (STOP's quick stop): an SDO exchange
+        still in flight after :data:`STALLED_AFTER_S` is interrupted (it fails) and this write
+        takes the node's SDO channel (one per node: a second transfer on it would take the first's
+        answers)."""
+        data = int(value).to_bytes(size, "little", signed=signed)
+        if self.node is None:
+            self.open()
+        if not self._lock.acquire(timeout=STALLED_AFTER_S):
             node = self.node
-            if node is None:                     # closed meanwhile by another thread
-                raise DriveNotAnswering(f"{self.address}: the connection was closed")
-            try:
-                return fn(node.sdo, *args)
-            except SdoAbortedError as exc:
-                raise ObjectAccessRefused(f"{self.address}: {exc}") from None
-            except (SdoCommunicationError, OSError) as exc:
-                raise DriveNotAnswering(f"{self.address}: {exc}") from None
+            if node is not None:
+                node.sdo.interrupt()
+            if not self._lock.acquire(timeout=self.timeout_s):
+                raise DriveNotAnswering(f"{self.address}: the SDO channel stayed busy")
+        try:
+            self._sdo_locked(lambda sdo: sdo.download(index, sub, data))
+        finally:
+            self._lock.release()
 
     def read(self, index: int, sub: int, size: int, signed: bool) -> int:
         data = self._sdo(lambda sdo: sdo.upload(index, sub))

@@ -26,8 +26,9 @@ What it does with the drives (object numbers of the CiA 402 profile):
 - **Limits**: a target must be inside the profile's soft limits *and* the drive's own software
   position limits ``607Dh`` (read at connect); nothing is sent otherwise.
 - **STOP** (:meth:`Cia402Controller.stop`): quick stop (control word 0Bh) to both drives at once,
-  from any thread, without waiting for a running command (each link serialises its own
-  exchanges, a few ms); the drives brake on their quick-stop ramp (``605Ah`` = 6: stay in quick
+  from any thread, each on a thread and a path of its own (a second Modbus TCP connection while the
+  link's is busy; on CANopen an SDO exchange stalled for 20 ms is interrupted), so that it never
+  waits for a running command nor behind an exchange, and a stalled link delays no other drive; the drives brake on their quick-stop ramp (``605Ah`` = 6: stay in quick
   stop active once at rest, position kept). The waiting command ends with where the rig stopped;
   the next command re-enables operation.
 - **Reference**: homed in this connection, or found at connect in profile position mode with
@@ -137,6 +138,9 @@ class ObjectLink(Protocol):
     def close(self) -> None: ...
     def read(self, index: int, sub: int, size: int, signed: bool) -> int: ...
     def write(self, index: int, sub: int, value: int, size: int, signed: bool) -> None: ...
+    def write_now(self, index: int, sub: int, value: int, size: int, signed: bool) -> None:
+        """:meth:`write` that never waits behind another exchange of the link (STOP)."""
+        ...
 
 
 class DriveNotAnswering(DeviceTimeout):
@@ -196,6 +200,8 @@ class Cia402Controller:
         self._stop_event = threading.Event()
         self._stop_pending = False
         self._connected = False
+        self._opened = False                    # links opened by connect (STOP goes out even after a loss)
+        self._moving = False                    # a move_to under way
         self._lost = ""
         self.reference = ""
         self.drive_limits_mm: list[tuple[float, float] | None] = [None, None]
@@ -226,7 +232,17 @@ class Cia402Controller:
             raise self._mark_lost(i, exc) from None
 
     def _mark_lost(self, i: int, exc: Exception) -> DriveNotAnswering:
-        self._lost = (f"{self._name(i)} does not answer ({exc}); check its network or bus cable and its "
+        in_motion = self._connected and (self._moving or self._homing or self._jog_target is not None)
+        last = self._last
+        if last is None or last.position_mm is None:
+            where = "the rig's position is unknown"
+        else:
+            where = (f"the rig's position is unknown until it answers (last read at ({last.position_mm[0]:.3f}, "
+                     f"{last.position_mm[1]:.3f}) mm, {max(time.monotonic() - self._last_t, 0.0):.1f} s before)")
+        if in_motion:                    # the other drive must not go on alone: STOP on every path
+            threading.Thread(target=self._quick_stop_all, name="quick-stop-on-loss", daemon=True).start()
+            where += "; quick stop sent to both drives"
+        self._lost = (f"{self._name(i)} does not answer ({exc}); {where}. Check its network or bus cable and its "
                       "power, then connect again")
         self._connected = False
         return DriveNotAnswering(self._lost)
@@ -252,6 +268,7 @@ class Cia402Controller:
                     self._close_links()
                     raise DriveNotAnswering(f"{self._name(i)} does not answer: {exc}. Check the address, that "
                                             "the drive is powered and on the network, then connect again") from None
+            self._opened = True
             states = []
             for i in range(2):
                 try:
@@ -272,6 +289,7 @@ class Cia402Controller:
             self._query()
 
     def _close_links(self) -> None:
+        self._opened = False
         for link in self.links:
             try:
                 link.close()
@@ -590,8 +608,16 @@ class Cia402Controller:
             expected = self.expected_move_s(x_mm - x0, y_mm - y0)
             if timeout_s is None:
                 timeout_s = 1.5 * expected + 5.0
-            self._start((x_mm, y_mm), (self._axes[0].max_speed_mm_s, self._axes[1].max_speed_mm_s))
-        return self._wait_arrival((x_mm, y_mm), timeout_s)
+            self._moving = True
+            try:
+                self._start((x_mm, y_mm), (self._axes[0].max_speed_mm_s, self._axes[1].max_speed_mm_s))
+            except BaseException:
+                self._moving = False
+                raise
+        try:
+            return self._wait_arrival((x_mm, y_mm), timeout_s)
+        finally:
+            self._moving = False
 
     def _wait_arrival(self, target: tuple[float, float], timeout_s: float) -> RigStatus:
         start = time.monotonic()
@@ -716,18 +742,34 @@ class Cia402Controller:
         for i in range(2):
             self._write(i, CONTROL, ENABLE_OPERATION)
 
-    def _quick_stop_all(self) -> None:
-        for i in range(2):
+    def _quick_stop_all(self) -> list[str]:
+        """Quick stop (control word 0Bh) to both drives at once: each on a thread of its own and on its
+        link's own path (:meth:`ObjectLink.write_now`), so that a drive whose link is stalled delays
+        no other. Returns once every drive has it or failed (each within its link's deadline); the
+        failures, logged, are returned."""
+        failures: list[str] = []
+
+        def one(i: int) -> None:
             try:
-                self._write(i, CONTROL, QUICK_STOP)
-            except DeviceError as exc:
+                self.links[i].write_now(CONTROL, 0, QUICK_STOP, *SIZES[CONTROL])
+            except Exception as exc:  # noqa: BLE001 - the other drive's stop must go on whatever this does
+                failures.append(f"{self._name(i)}: {exc}")
                 log.warning("quick stop of %s: %s", self._name(i), exc)
 
+        threads = [threading.Thread(target=one, args=(i,), name=f"quick-stop-{'xy'[i]}", daemon=True)
+                   for i in range(len(self.links))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        return failures
+
     def stop(self) -> None:
-        """STOP now: quick stop (control word 0Bh) to both drives. Safe from any thread; never
-        waits for a running command (only for each link's exchange in flight). The waiting command
-        (or :meth:`status`) re-enables operation once both are at rest."""
-        if not self._connected or self._lost:
+        """STOP now: quick stop (control word 0Bh) to both drives at once, each on its own path
+        (:meth:`_quick_stop_all`). Safe from any thread; never waits for a running command nor behind
+        an exchange in flight; returns once each drive has it (or its link's deadline passed). The
+        waiting command (or :meth:`status`) re-enables operation once both are at rest."""
+        if not self._opened:                   # even after a link was lost: the other drive must stop
             return
         self._stop_pending = True
         self._jog_target = None
@@ -743,6 +785,9 @@ class Cia402Controller:
             if time.monotonic() > deadline:
                 log.warning("the drives did not come to rest within %.1f s after STOP", self.timeout_s)
                 break
+            for i in range(2):                   # a quick stop that never arrived (its link was stalled)
+                if power_state(self._statusword(i)) == "OPERATION ENABLED" and self._read(i, VELOCITY) != 0:
+                    self._write(i, CONTROL, QUICK_STOP)
             time.sleep(self.poll_period_s / 2)
         self._halt_flags = (False, False)
         for i in range(2):

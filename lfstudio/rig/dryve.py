@@ -24,7 +24,7 @@ bytes  field
 The drive's answer to a read carries the data (length 13 + n); its answer to a write repeats the
 header with byte count 0 and no data (length 13), as the manual's RX/TX telegram examples (6.5.5)
 show; those examples also write fewer bytes than an object has (6040h in 1), which the drive takes. :func:`encode_request` / :func:`decode_response` are the whole
-protocol; :class:`DryveLink` adds the socket, the transaction numbers and the timeouts.
+protocol; :class:`DryveLink` adds the socket, the transaction numbers and the deadlines.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ import logging
 import socket
 import struct
 import threading
+import time
 
 from lfstudio.errors import InputError
 from lfstudio.rig.cia402 import DriveNotAnswering, ObjectAccessRefused
@@ -43,6 +44,8 @@ FUNCTION = 0x2B
 MEI_TYPE = 0x0D
 DEFAULT_PORT = 502
 HEADER = 19                       # bytes before the data
+MIN_ANSWER_LENGTH = 3             # the MBAP length of an exception answer (unit, function, code)
+MAX_ANSWER_LENGTH = HEADER - 6 + 4  # ... and of the longest answer (a read of 4 bytes): 17
 EXCEPTIONS = {1: "illegal function", 2: "illegal data address (no such object)", 3: "illegal data value",
               4: "device failure", 5: "acknowledge (busy)", 6: "server busy"}
 
@@ -122,8 +125,12 @@ def parse_address(text: str, option: str = "--port") -> tuple[str, int]:
 
 class DryveLink:
     """One dryve D1 over Modbus TCP: :class:`lfstudio.rig.cia402.ObjectLink`. Exchanges are
-    serialised (one request in flight); a drive that does not answer within ``timeout_s`` raises
-    :class:`DriveNotAnswering` and the connection is closed (the next access connects again)."""
+    serialised (one request in flight); the drive's whole answer must arrive within ``timeout_s``
+    of the request (a deadline for the answer, not for each ``recv``: a peer trickling its answer
+    byte by byte ends there too), else :class:`DriveNotAnswering` and the connection is closed (the
+    next access connects again). An answer whose length field exceeds the longest gateway answer
+    is refused at once. :meth:`write_now` (STOP's quick stop) never waits behind an exchange in
+    flight: it goes out on a connection of its own."""
 
     def __init__(self, host: str, port: int = DEFAULT_PORT, *, timeout_s: float = 1.0):
         self.host, self.port = host, int(port)
@@ -138,16 +145,18 @@ class DryveLink:
         with self._lock:
             self._open_locked()
 
-    def _open_locked(self) -> socket.socket:
-        self._close_locked()
+    def _connect(self, timeout_s: float) -> socket.socket:
         try:
-            sock = socket.create_connection((self.host, self.port), timeout=self.timeout_s)
+            sock = socket.create_connection((self.host, self.port), timeout=max(timeout_s, 1e-3))
         except OSError as exc:
             raise DriveNotAnswering(f"no Modbus TCP connection to {self.address} ({exc.strerror or exc})") from None
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.settimeout(self.timeout_s)
-        self._sock = sock
         return sock
+
+    def _open_locked(self) -> socket.socket:
+        self._close_locked()
+        self._sock = self._connect(self.timeout_s)
+        return self._sock
 
     def close(self) -> None:
         with self._lock:
@@ -162,35 +171,97 @@ class DryveLink:
                 pass
 
     @staticmethod
-    def _recv_exactly(sock: socket.socket, n: int) -> bytes:
-        data = b""
-        while len(data) < n:
-            chunk = sock.recv(n - len(data))
+    def _recv_exactly(sock: socket.socket, n: int, deadline: float, got: bytes = b"") -> bytes:
+        """``n`` more bytes after ``got``, all before ``deadline`` (monotonic); :class:`_Late` else."""
+        data = bytearray(got)
+        end = len(got) + n
+        while len(data) < end:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise _Late(len(data))
+            sock.settimeout(left)
+            try:
+                chunk = sock.recv(end - len(data))
+            except socket.timeout:
+                raise _Late(len(data)) from None
             if not chunk:
                 raise ConnectionError("the drive closed the connection")
             data += chunk
-        return data
+        return bytes(data)
+
+    def _transact(self, sock: socket.socket, transaction: int, write: bool, index: int, sub: int, size: int,
+                  data: bytes, deadline: float) -> bytes:
+        """One request and its whole answer on ``sock`` before ``deadline``: the data (see
+        :func:`decode_response`). Raises :class:`DriveNotAnswering` (the caller closes ``sock``)."""
+        request = encode_request(transaction, write, index, sub, size, data)
+        try:
+            sock.settimeout(max(deadline - time.monotonic(), 1e-3))
+            sock.sendall(request)
+            head = self._recv_exactly(sock, 6, deadline)
+            length = struct.unpack(">H", head[4:6])[0]
+            if not MIN_ANSWER_LENGTH <= length <= MAX_ANSWER_LENGTH:
+                raise TelegramError(f"the answer's length field says {length} bytes, a gateway answer has "
+                                    f"{MIN_ANSWER_LENGTH} … {MAX_ANSWER_LENGTH}")
+            frame = self._recv_exactly(sock, length, deadline, head)
+        except _Late as late:
+            raise DriveNotAnswering(f"{self.address}: no whole answer within {self.timeout_s:g} s "
+                                    f"({late.got} bytes of it arrived)") from None
+        except (OSError, ConnectionError, TelegramError) as exc:
+            reason = f"no answer within {self.timeout_s:g} s" if isinstance(exc, socket.timeout) else str(exc)
+            raise DriveNotAnswering(f"{self.address}: {reason}") from None
+        try:
+            return decode_response(frame, transaction, write, index, sub)
+        except TelegramError as exc:
+            raise DriveNotAnswering(f"{self.address}: {exc}") from None
 
     def _exchange(self, write: bool, index: int, sub: int, size: int, data: bytes = b"") -> bytes:
         with self._lock:
-            sock = self._sock if self._sock is not None else self._open_locked()
-            self._transaction = (self._transaction + 1) & 0xFFFF
-            request = encode_request(self._transaction, write, index, sub, size, data)
-            try:
-                sock.sendall(request)
-                head = self._recv_exactly(sock, 6)
-                length = struct.unpack(">H", head[4:6])[0]
-                frame = head + self._recv_exactly(sock, length)
-            except (OSError, ConnectionError) as exc:
-                self._close_locked()
-                reason = "no answer within %g s" % self.timeout_s if isinstance(exc, socket.timeout) else str(exc)
-                raise DriveNotAnswering(f"{self.address}: {reason}") from None
+            return self._exchange_locked(write, index, sub, size, data)
+
+    def _exchange_locked(self, write: bool, index: int, sub: int, size: int, data: bytes = b"") -> bytes:
+        deadline = time.monotonic() + self.timeout_s
+        sock = self._sock if self._sock is not None else self._open_locked()
+        self._transaction = (self._transaction + 1) & 0xFFFF
+        try:
+            answer = self._transact(sock, self._transaction, write, index, sub, size, data, deadline)
+        except ObjectAccessRefused:
             self.exchanges += 1
+            raise
+        except BaseException:
+            # no answer, a broken one, or interrupted (Ctrl+C) while it was on its way: the rest of
+            # it must never be read as the answer to the next request
+            self._close_locked()
+            raise
+        self.exchanges += 1
+        return answer
+
+    def write_now(self, index: int, sub: int, value: int, size: int, signed: bool) -> None:
+        """A write that never waits behind another exchange (STOP's quick stop): on the open
+        connection when the link is idle, else on a new connection of its own (the exchange in
+        flight, perhaps stalled, goes on to its own deadline). A gateway that refuses a second
+        connection gets it on the link's connection once that is free (within its deadline)."""
+        data = int(value).to_bytes(size, "little", signed=signed)
+        if self._lock.acquire(blocking=False):
             try:
-                return decode_response(frame, self._transaction, write, index, sub)
-            except TelegramError as exc:
-                self._close_locked()
-                raise DriveNotAnswering(f"{self.address}: {exc}") from None
+                self._exchange_locked(True, index, sub, size, data)
+                return
+            finally:
+                self._lock.release()
+        deadline = time.monotonic() + self.timeout_s
+        try:
+            sock = self._connect(self.timeout_s)
+        except DriveNotAnswering as refused:
+            if not self._lock.acquire(timeout=max(deadline - time.monotonic(), 0.0)):
+                raise DriveNotAnswering(f"{refused}; the link's own connection stayed busy") from None
+            try:
+                self._exchange_locked(True, index, sub, size, data)
+                return
+            finally:
+                self._lock.release()
+        try:
+            self._transact(sock, 0xFFFF, True, index, sub, size, data, deadline)
+        finally:
+            sock.close()
 
     def read(self, index: int, sub: int, size: int, signed: bool) -> int:
         data = self._exchange(False, index, sub, size)
@@ -201,3 +272,11 @@ class DryveLink:
 
     def write(self, index: int, sub: int, value: int, size: int, signed: bool) -> None:
         self._exchange(True, index, sub, size, int(value).to_bytes(size, "little", signed=signed))
+
+
+class _Late(Exception):
+    """The deadline of an answer passed; ``got`` bytes of it had arrived."""
+
+    def __init__(self, got: int):
+        super().__init__(got)
+        self.got = got

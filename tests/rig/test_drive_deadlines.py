@@ -1,0 +1,217 @@
+"""Deadlines and STOP on the CiA 402 drive links (issue 42): every exchange has a deadline for the
+whole answer (a hostile peer on a real TCP socket that trickles its answer or announces 65 535
+bytes), and STOP reaches every drive on its own path at once, whatever another link does (one
+drive's link stalled; the quick stop is observed arriving at the other drive's emulator while the
+stalled exchange is still stalled). Both transports, real protocol stacks at both ends."""
+
+from __future__ import annotations
+
+import logging
+import socket
+import struct
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+import pytest
+
+from lfstudio.rig.cia402 import QUICK_STOP, DriveNotAnswering
+from lfstudio.rig.dryve import DryveLink, decode_request
+from lfstudio.rig.motion import RigState
+from lfstudio.rig.profile import load_rig
+from lfstudio.studio.devices import open_rig
+from lfstudio.studio.simulated import start_drive_emulator
+
+RIG_NAME = "dryve D1 gantry 4 m x 0.5 m"
+HANG_GUARD_S = 5.0                  # only against a hang: the deadlines under test are 0.5 s
+
+
+class HostilePeer:
+    """A Modbus TCP peer on 127.0.0.1 that reads each request and answers it byte by byte, one
+    byte every ``interval_s`` (``huge``: after a header whose length field says 65 535), until
+    closed."""
+
+    def __init__(self, interval_s: float = 0.25, huge: bool = False):
+        self.interval_s = interval_s
+        self.huge = huge
+        self.closing = threading.Event()
+        self.requests = 0
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.port = self.listener.getsockname()[1]
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self) -> None:
+        self.listener.settimeout(0.1)
+        while not self.closing.is_set():
+            try:
+                conn, _ = self.listener.accept()
+            except OSError:
+                continue
+            threading.Thread(target=self._answer, args=(conn,), daemon=True).start()
+
+    def _answer(self, conn: socket.socket) -> None:
+        with conn:
+            try:
+                request = conn.recv(64)
+                transaction, write, index, sub, size, _ = decode_request(request)
+                self.requests += 1
+                if self.huge:       # the header at once, then the 65 535 bytes it announces, trickling
+                    conn.sendall(struct.pack(">HHH", transaction, 0, 65535))
+                    answer = b"\x00" * 65535
+                else:               # a well-formed answer to the read: status word 0237h
+                    body = bytes([0, 0x2B, 0x0D, 0, 0, 0, index >> 8, index & 0xFF, sub, 0, 0, 0, size])
+                    answer = struct.pack(">HHH", transaction, 0, len(body) + size) + body + (0x0237).to_bytes(size, "little")
+                for byte in answer:
+                    if self.closing.wait(self.interval_s):
+                        return
+                    conn.sendall(bytes([byte]))
+            except OSError:
+                return
+
+    def close(self) -> None:
+        self.closing.set()
+        self.listener.close()
+        self.thread.join(5)
+
+
+@pytest.fixture
+def peer():
+    peers: list[HostilePeer] = []
+
+    def make(**kw) -> HostilePeer:
+        peers.append(HostilePeer(**kw))
+        return peers[-1]
+
+    yield make
+    for p in peers:
+        p.close()
+
+
+@pytest.mark.parametrize("huge", [False, True], ids=["trickle", "length-65535"])
+def test_a_trickling_or_huge_answer_ends_within_the_links_deadline(peer, huge):
+    hostile = peer(huge=huge)
+    link = DryveLink("127.0.0.1", hostile.port, timeout_s=0.5)
+    pool = ThreadPoolExecutor(1)
+    try:
+        failure = pool.submit(link.read, 0x6041, 0, 2, False).exception(timeout=HANG_GUARD_S)
+    finally:
+        hostile.close()                               # the peer goes: nothing can hang past this test
+        pool.shutdown()
+        link.close()
+    assert isinstance(failure, DriveNotAnswering)
+    text = str(failure)
+    assert f"127.0.0.1:{hostile.port}" in text and "\n" not in text
+    if huge:        # refused at once: no gateway answer is longer than 17 bytes
+        assert "length field says 65535 bytes" in text
+    else:           # a deadline for the whole answer, not for each recv
+        assert "no whole answer within 0.5 s" in text and "bytes of it arrived" in text
+    assert link._sock is None                         # the link is closed: the next access connects again
+
+
+@pytest.fixture
+def drives():
+    rig = load_rig(RIG_NAME)
+    opened: list = []
+
+    def start(transport: str, time_scale: float = 0.05, timeout_s: float = 0.5):
+        emulator = start_drive_emulator(rig, transport, time_scale=time_scale)
+        opened.append(emulator)
+        link = open_rig(emulator.word, rig, doing="test", lock=False, connect=False, timeout_s=timeout_s)
+        opened.insert(0, link)
+        link.controller.connect()
+        return emulator, link.controller
+
+    yield start
+    for thing in opened:
+        thing.close()
+
+
+def test_a_hostile_peer_marks_the_link_lost_in_one_line_stating_the_position(drives, peer):
+    emulator, c = drives("modbus", time_scale=0)
+    c.home()
+    hostile = peer()
+    link = c.links[0]
+    assert isinstance(link, DryveLink)
+    link.close()
+    link.host, link.port, link.address = "127.0.0.1", hostile.port, f"127.0.0.1:{hostile.port}"
+    pool = ThreadPoolExecutor(1)
+    try:
+        c._last_t = 0.0                               # the next status reads the drives
+        st = pool.submit(c.status).result(timeout=HANG_GUARD_S)
+    finally:
+        hostile.close()
+        pool.shutdown()
+    assert st.state is RigState.DISCONNECTED and st.position_mm is None
+    assert link.address in st.message and "no whole answer within 0.5 s" in st.message
+    assert "position is unknown until it answers (last read at (0.000, 0.000) mm" in st.message
+    assert "\n" not in st.message and not c.connected
+
+
+class _QuickStopSeen(list):
+    """An emulated drive's journal of writes that sets ``event`` when the quick stop arrives and
+    records then whether the stalled drive's quick stop had already failed."""
+
+    def __init__(self, failed_x: list[str]):
+        super().__init__()
+        self.event = threading.Event()
+        self.failed_x = failed_x
+        self.x_failed_first: list[bool] = []
+
+    def append(self, item) -> None:
+        super().append(item)
+        _, index, _, value = item
+        if index == 0x6040 and value == QUICK_STOP and not self.event.is_set():
+            self.x_failed_first.append(bool(self.failed_x))
+            self.event.set()
+
+
+class _Failures(logging.Handler):
+    def __init__(self, failed_x: list[str]):
+        super().__init__()
+        self.failed_x = failed_x
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if "quick stop of drive x" in record.getMessage():
+            self.failed_x.append(record.getMessage())
+
+
+@pytest.mark.parametrize("transport", ["modbus", "canopen"])
+def test_stop_reaches_the_other_drive_at_once_while_one_link_is_stalled(drives, transport):
+    emulator, c = drives(transport, time_scale=0.2, timeout_s=3.0)   # the stall outlasts the test's wait
+    if transport == "canopen":
+        for link in c.links:
+            link.node.sdo.RESPONSE_TIMEOUT = 3.0
+    c.home()
+    failed_x: list[str] = []
+    handler = _Failures(failed_x)
+    logging.getLogger("lfstudio.rig.cia402").addHandler(handler)
+    seen = _QuickStopSeen(failed_x)
+    emulator.pair.axes[1].journal = seen
+    outcome: list[BaseException] = []
+
+    def move() -> None:
+        try:
+            c.move_to(4000, 400)
+        except BaseException as exc:  # noqa: BLE001
+            outcome.append(exc)
+
+    mover = threading.Thread(target=move)
+    stopper = threading.Thread(target=c.stop)
+    try:
+        mover.start()
+        while emulator.true_position_mm()[0] < 50 and mover.is_alive():
+            emulator.pair.axes[0].true_position()     # polling the emulator until the axes are under way
+        assert mover.is_alive()
+        emulator.pair.axes[0].inject("lost_connection")   # drive x's link stalls: nothing comes back
+        stopper.start()
+        assert seen.event.wait(HANG_GUARD_S), "the quick stop never reached drive y"
+        # it reached y before x's stalled exchange and x's own quick stop ended (3 s deadline)
+        assert seen.x_failed_first == [False]
+        assert not emulator.pair.axes[0].answering
+    finally:
+        emulator.pair.axes[0].clear_faults()
+        stopper.join(10) if stopper.ident else None
+        mover.join(30)
+        logging.getLogger("lfstudio.rig.cia402").removeHandler(handler)
+    assert not mover.is_alive() and len(outcome) == 1
+    assert emulator.true_position_mm()[1] < 400       # drive y did not finish the move
