@@ -17,6 +17,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--source", default="auto", choices=("auto", "raw", "processed"),
                    help="processed views (default when every needed view has one) or the captures rectified with "
                         "the calibration")
+    p.add_argument("--disparity-range", metavar="MIN,MAX", default=None,
+                   help="the disparities to search, in px between horizontal neighbours (write "
+                        "--disparity-range=-3.5,3 when MIN is negative); default: the HCI folder's disp_min/disp_max, "
+                        "the scene plan, else the tracks of the check or the import (printed with its origin)")
     p.add_argument("--steps", metavar="H,V", default=None,
                    help="neighbours on each side along the row and the column (default 4,2)")
     p.add_argument("--cluster", metavar="ADDR",
@@ -28,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lfstudio.depth.run import DepthSettings, estimate_depth
+    from lfstudio.depth.run import DepthSettings, estimate_depth, parse_disparity_range
     from lfstudio.errors import InputError
     from lfstudio.jobs import TerminalProgress
     from lfstudio.numbers import parse_numbers
@@ -44,14 +48,16 @@ def run(args: argparse.Namespace) -> int:
         if h + v < 1:
             raise InputError("--steps", "needs at least one neighbour", "e.g. 4,2")
         settings = DepthSettings(steps_h=int(h), steps_v=int(v))
+    stated = parse_disparity_range("--disparity-range", args.disparity_range) if args.disparity_range else None
     from lfstudio.dataset import Dataset
 
     ds = Dataset.open(args.dataset)          # a bad folder is named before any worker starts
     with open_executor(args.workers, args.cluster) as info:
         executor = None if args.workers == 0 and not args.cluster else info.executor
         print(f"depth on {info.description}", file=sys.stderr)
-        report = estimate_depth(ds, args.views, settings=settings, source=args.source, executor=executor,
-                                workers=info.workers, force=args.force, progress=TerminalProgress("depth"))
+        report = estimate_depth(ds, args.views, settings=settings, source=args.source, disparity_range_px=stated,
+                                executor=executor, workers=info.workers, force=args.force, progress=TerminalProgress("depth"))
+    print(report.range_text.replace("the range stated", "--disparity-range"))
     for warning in report.warnings:
         print(f"note: {warning}", file=sys.stderr)
     print(report.summary())

@@ -17,6 +17,12 @@ Workers must see the dataset at the same path (as processing's).
 rectified them), else the captures rectified with the calibration's homography, else the captures
 as they are (a warning: disparities of unrectified views are only approximately along the rows).
 
+**Disparity range** searched, from the best source there is (printed with its origin): a range
+stated by the user (``--disparity-range``, the Depth dialog), the format's own (an imported HCI
+folder's ``disp_min``/``disp_max``), the scene plan's near/far, the quality check's tracks over the
+grid (``quality.json``), the import's tracks, else tracks measured now over a block of views around
+the chosen ones; a margin is added to measured ranges (:data:`RANGE_MARGINS`). Never one pair.
+
 **Depth** from a map: ``Z = f · spacing_x / (1000 · (d + shear · spacing_x))`` m, ``f`` the focal length
 in px at the map's size, ``shear`` the views' zero-disparity shear in px per mm (0 for a scan;
 an archive's record, :mod:`lfstudio.dataset.zero_plane`); refused when the shear is not known.
@@ -75,6 +81,7 @@ class DepthReport:
     cpu_s: float = 0.0                    # the views' own CPU in their workers
     source: str = ""
     warnings: list[str] = field(default_factory=list)
+    range_text: str = ""                  # the disparity range searched and where it came from
 
     def summary(self) -> str:
         text = (f"depth: {self.computed} view{'' if self.computed == 1 else 's'} computed, {self.skipped} up to date"
@@ -154,9 +161,130 @@ class Geometry:
     shear_px_per_mm: float | None         # at that size
     d_range_px: tuple[float, float]       # searched (px between horizontal neighbours, as the views show it)
     warnings: tuple[str, ...] = ()
+    range_found_px: tuple[float, float] = (0.0, 0.0)   # the source's range before the search margin
+    range_source: str = ""                # where the range came from (one phrase, printed)
+
+    def describe_range(self) -> str:
+        lo, hi = self.range_found_px
+        return (f"disparity range {lo:+.2f} … {hi:+.2f} px from {self.range_source}; searched "
+                f"{self.d_range_px[0]:+.2f} … {self.d_range_px[1]:+.2f} px")
 
 
-def geometry_of(ds: Dataset, views: Sequence[View], needed: Sequence[View], source: str = "auto") -> Geometry:
+#: where a range comes from, best first (:func:`disparity_range`)
+RANGE_SOURCES = ("stated", "format", "plan", "check", "import", "tracks")
+#: margins around a range, by source: (share of the span, px) on each side. A stated or declared
+#: range is taken nearly as it is; a measured one (1st-99th percentile of tracks pulled inwards by
+#: their errors) is widened
+RANGE_MARGINS = {"stated": (0.0, 0.0), "format": (0.03, 0.05), "plan": (RANGE_MARGIN, 0.05),
+                 "check": (0.12, 0.2), "import": (0.12, 0.2), "tracks": (0.15, 0.25)}
+
+
+def check_disparity_range(field: str, value) -> tuple[float, float]:
+    """A stated range (MIN, MAX) in px between horizontal neighbours, or InputError naming ``field``."""
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise InputError(field, f"{value!r} is not two numbers", "MIN,MAX in px between horizontal neighbours, "
+                         "e.g. -3.5,3") from None
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        raise InputError(field, f"{lo:g} … {hi:g} is not a finite range", "MIN,MAX, e.g. -3.5,3")
+    if not lo < hi:
+        raise InputError(field, f"the minimum {lo:g} is not below the maximum {hi:g}", "MIN,MAX with MIN < MAX, "
+                         "e.g. -3.5,3")
+    if hi - lo > 2000:
+        raise InputError(field, f"{lo:g} … {hi:g} px spans more than 2000 px between neighbours",
+                         "the disparity between two neighbouring views, e.g. -3.5,3")
+    return lo, hi
+
+
+def parse_disparity_range(field: str, text: str) -> tuple[float, float]:
+    """``MIN,MAX`` typed as text (the CLI option, the Depth dialog's field)."""
+    import re
+
+    parts = [p.strip() for p in re.split(r"[,;]|\s+\.\.\.?\s+|\s*…\s*", str(text).strip()) if p.strip()]
+    if len(parts) != 2:
+        raise InputError(field, f"cannot read {text!r}", "two numbers MIN,MAX in px between horizontal neighbours, "
+                         "e.g. -3.5,3")
+    try:
+        values = [float(p.replace("−", "-")) for p in parts]
+    except ValueError:
+        raise InputError(field, f"cannot read {text!r} as two numbers", "MIN,MAX, e.g. -3.5,3") from None
+    return check_disparity_range(field, values)
+
+
+def _full_width(ds: Dataset) -> float | None:
+    """Width of the full-size images the manifest's ranges are given for."""
+    from lfstudio.dataset.zero_plane import zero_plane
+
+    zp = zero_plane(ds)
+    if zp.width_px:
+        return float(zp.width_px)
+    sensor = (ds.manifest.get("camera") or {}).get("sensor_px")
+    return float(sensor[0]) if isinstance(sensor, list) and sensor and sensor[0] else None
+
+
+def _pair(value) -> tuple[float, float] | None:
+    if isinstance(value, (list, tuple)) and len(value) == 2 and all(isinstance(v, (int, float)) for v in value) \
+            and all(np.isfinite(v) for v in value) and value[0] < value[1]:
+        return float(value[0]), float(value[1])
+    return None
+
+
+def disparity_range(ds: Dataset, views: Sequence[View], source: str, H, width_px: float, f_px: float,
+                    stated: tuple[float, float] | None = None) -> tuple[tuple[float, float], str, str]:
+    """((min, max) px between horizontal neighbours at ``width_px``, source key, phrase) from the best
+    source there is: a stated range, the format's own (an HCI folder's ``disp_min``/``disp_max``,
+    recorded at import), the scene plan's near/far, the quality check's tracks over the grid
+    (``quality.json``), the import's tracks, else tracks measured now over a block of views. Never
+    from one pair of views."""
+    if stated is not None:
+        return check_disparity_range("disparity_range", stated), "stated", "the range stated"
+    full = _full_width(ds)
+    scale = float(width_px) / full if full else 1.0
+    hci = (ds.manifest.get("import") or {}).get("hci") or {}
+    zrec = ds.manifest.get("zero_disparity") or {}
+    declared = _pair(hci.get("disparity_px")) or _pair(zrec.get("declared_step_disparity_px"))
+    if declared is not None:
+        name = Path(str(hci.get("parameters") or "parameters.cfg")).name
+        return (declared[0] * scale, declared[1] * scale), "format", f"{name} (disp_min/disp_max of the HCI folder)"
+    sx = float(ds.grid.step_mm[0])
+    plan = ds.manifest.get("plan") or {}
+    near, far = plan.get("near_m"), plan.get("far_m")
+    if isinstance(near, (int, float)) and isinstance(far, (int, float)) and 0 < near < far:
+        shear = zero_shear_px_per_mm(ds, width_px)
+        k = f_px * sx / 1000.0
+        d_lo, d_hi = k / far, k / near
+        if shear:
+            d_lo, d_hi = d_lo - shear * sx, d_hi - shear * sx
+        return (d_lo, d_hi), "plan", f"the scene plan (far {far:g} m, near {near:g} m)"
+    try:
+        quality = json.loads((Path(ds.root) / "quality.json").read_text(encoding="utf-8"))
+        depth = quality.get("depth_range") or {}
+        checked = _pair([depth.get("views_disparity_min_px"), depth.get("views_disparity_max_px")])
+    except (OSError, ValueError, AttributeError):
+        checked = None
+    if checked is not None:
+        return (checked[0] * scale, checked[1] * scale), "check", \
+            f"the quality check's tracks ({depth.get('tracks')} tracks over the grid, quality.json)"
+    measured = _pair((zrec.get("measured") or {}).get("step_disparity_px"))
+    if measured is not None:
+        m = zrec["measured"]
+        return (measured[0] * scale, measured[1] * scale), "import", \
+            f"the import's tracks ({m.get('tracks')} tracks of {m.get('views')} views)"
+    lo, hi, detail = measured_range(ds, views, source, H, width_px)
+    return (lo, hi), "tracks", detail
+
+
+def widen(found: tuple[float, float], key: str) -> tuple[float, float]:
+    """The searched range: ``found`` with its source's margin (:data:`RANGE_MARGINS`)."""
+    share, px = RANGE_MARGINS.get(key, (RANGE_MARGIN, 0.05))
+    lo, hi = found
+    span = hi - lo
+    return lo - share * span - px, hi + share * span + px
+
+
+def geometry_of(ds: Dataset, views: Sequence[View], needed: Sequence[View], source: str = "auto",
+                stated_range: tuple[float, float] | None = None) -> Geometry:
     """How the chosen views' maps are made (module docstring: images, range, focal length)."""
     from lfstudio.calibration.model import load_calibration
     from lfstudio.dataset import images
@@ -177,7 +305,7 @@ def geometry_of(ds: Dataset, views: Sequence[View], needed: Sequence[View], sour
     if use == "raw" and cal and cal.get("homography"):
         H = np.asarray(cal["homography"], float).tolist()
         rectified = True
-    if not rectified:
+    if not rectified and not (ds.manifest.get("import") or {}).get("hci"):
         warnings.append("the views are not rectified (no calibration): disparities along the rows are approximate; "
                         "calibrate (and process) first")
     f_full = float(cal["focal_length_px"]) if cal and cal.get("focal_length_px") else None
@@ -187,50 +315,60 @@ def geometry_of(ds: Dataset, views: Sequence[View], needed: Sequence[View], sour
         f_px = ds.focal_length_px(w)
     sx, sy = (float(v) for v in ds.grid.step_mm)
     shear = zero_shear_px_per_mm(ds, w)
-    plan = ds.manifest.get("plan") or {}
-    near, far = plan.get("near_m"), plan.get("far_m")
-    if isinstance(near, (int, float)) and isinstance(far, (int, float)) and 0 < near < far:
-        k = f_px * sx / 1000.0
-        d_lo, d_hi = k / far, k / near
-        if shear:
-            d_lo, d_hi = d_lo - shear * sx, d_hi - shear * sx
-    else:
-        d_lo, d_hi = measured_range(ds, views, use, H, sx)
-        warnings.append(f"no scene plan (near/far): disparities searched over {d_lo:.2f} … {d_hi:.2f} px, "
-                        "measured from feature matches")
-    span = d_hi - d_lo
-    d_range = (d_lo - RANGE_MARGIN * span - 0.05, d_hi + RANGE_MARGIN * span + 0.05)
-    return Geometry(use, rectified, H, (int(w), int(h)), float(f_px), (sx, sy), shear, d_range, tuple(warnings))
+    found, key, phrase = disparity_range(ds, views, use, H, float(w), float(f_px), stated_range)
+    d_range = widen(found, key)
+    return Geometry(use, rectified, H, (int(w), int(h)), float(f_px), (sx, sy), shear, d_range, tuple(warnings),
+                    found, phrase)
 
 
-def measured_range(ds: Dataset, views: Sequence[View], source: str, H, spacing_x_mm: float) -> tuple[float, float]:
-    """Disparity range (px per horizontal step, 1st and 99th percentile) from SIFT matches between
-    two views of the middle chosen row."""
-    from lfstudio.calibration.features import detect, match_pair
+def measured_range(ds: Dataset, views: Sequence[View], source: str, H, width_px: float) -> tuple[float, float, str]:
+    """Disparity range (px per horizontal step at ``width_px``, 1st-99th percentile) from SIFT
+    matches pooled over the pairs of a star of views around the chosen views' centre: its nearest and
+    farthest neighbours (up to 4 steps) left, right, up and down (never one pair)."""
+    from lfstudio.calibration.features import detect, match_pairs
     from lfstudio.calibration.model import apply_homography
 
-    rows = sorted({r for r, _ in views})
-    row = rows[len(rows) // 2]
     captured = set(ds.captured_views())
-    # views of that row with an image to match (a processed one may be missing outside the chosen views)
-    cols = [c for c in range(ds.grid.columns) if (row, c) in captured
-            and (source != "processed" or _processed_path(ds, (row, c)) is not None)]
-    if len(cols) < 2:
-        raise InputError("views", "a single column and no scene plan: the disparity range is unknown",
-                         "give the dataset a scene plan (near/far) or choose views with neighbours in a row")
-    a, b = (row, cols[0]), (row, cols[min(len(cols) - 1, 4)])
-    fa, fb = detect(_image_path(ds, a, source)), detect(_image_path(ds, b, source))
-    m = match_pair(fa, fb, "h")
-    xa, xb = m.xy_a, m.xy_b
-    if H is not None:
-        xa, xb = apply_homography(np.asarray(H), xa), apply_homography(np.asarray(H), xb)
-    if len(xa) < 20:
+    usable = {v for v in captured if source != "processed" or _processed_path(ds, v) is not None}
+    rows = sorted({r for r, _ in views})
+    cols = sorted({c for _, c in views})
+    r0, c0 = rows[len(rows) // 2], cols[len(cols) // 2]
+    centre = min(usable, key=lambda v: (abs(v[0] - r0) + abs(v[1] - c0), v)) if usable else None
+    sx, sy = (float(v) for v in ds.grid.step_mm)
+    pairs: list[tuple[View, View, str, float]] = []   # (a, b, direction, b's offset from a in horizontal spacings)
+    if centre is not None:
+        r, c = centre
+        for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+            steps = [k for k in range(1, 5) if (r + dr * k, c + dc * k) in usable]
+            for k in sorted({steps[0], steps[-1]}) if steps else ():
+                other = View(r + dr * k, c + dc * k)
+                a, b = (View(*centre), other) if dr + dc > 0 else (other, View(*centre))
+                pairs.append((a, b, "h" if dc else "v", k * (1.0 if dc else sy / sx)))
+    if len(pairs) < 2:
+        raise InputError("views", "too few views around the chosen ones and no scene plan: the disparity range is "
+                         "unknown", "state it (lfstudio depth --disparity-range MIN,MAX) or give the dataset a "
+                         "scene plan")
+    needed = sorted({v for p in pairs for v in p[:2]})
+    features = {v: detect(_image_path(ds, v, source)) for v in needed}
+    results = match_pairs(features, [(a, b, d) for a, b, d, _ in pairs], threads=1)
+    found = []
+    full_w = None
+    for (a, b, direction, offset), m in zip(pairs, results):
+        xa, xb = m.xy_a, m.xy_b
+        if len(xa) < 8:
+            continue
+        if H is not None:
+            xa, xb = apply_homography(np.asarray(H), xa), apply_homography(np.asarray(H), xb)
+        axis = 0 if direction == "h" else 1
+        found.append((xa[:, axis] - xb[:, axis]) / offset)
+        full_w = full_w or features[a].image_size_px[0]
+    d = np.concatenate(found) if found else np.zeros(0)
+    if len(found) < 2 or len(d) < 20:
         raise InputError("views", "too few feature matches to measure the disparity range and no scene plan",
-                         "give the dataset a scene plan (near/far)")
-    dx_mm = (b[1] - a[1]) * spacing_x_mm
-    d = (xa[:, 0] - xb[:, 0]) * spacing_x_mm / dx_mm
-    lo, hi = np.percentile(d, [1, 99])
-    return float(lo), float(hi)
+                         "state it (lfstudio depth --disparity-range MIN,MAX) or give the dataset a scene plan")
+    scale = float(width_px) / float(full_w) if full_w else 1.0
+    lo, hi = (float(v) * scale for v in np.percentile(d, [1, 99]))
+    return lo, hi, f"feature matches of {len(found)} pairs around {view_stem(*centre)} ({len(d)} matches)"
 
 
 def neighbours_of(ds: Dataset, view: View, settings: DepthSettings, captured: set) -> list[tuple[View, float, float]]:
@@ -251,18 +389,23 @@ def neighbours_of(ds: Dataset, view: View, settings: DepthSettings, captured: se
 
 
 # -- one view (runs in a worker) ----------------------------------------------------------------------
-def _read(path: str, H, size) -> np.ndarray:
+def _read_rgb(path: str, H, size=None) -> np.ndarray:
+    """A view developed (RGB), rectified with ``H`` when given (the size checked against ``size``)."""
     import cv2
 
     from lfstudio.dataset import images
 
     rgb = images.develop(path)
-    if (rgb.shape[1], rgb.shape[0]) != tuple(size):
+    if size is not None and (rgb.shape[1], rgb.shape[0]) != tuple(size):
         raise DatasetError(f"{path}: {rgb.shape[1]} x {rgb.shape[0]} px, the other views are {size[0]} x {size[1]} px")
     if H is not None:
-        rgb = cv2.warpPerspective(rgb, np.asarray(H, float), tuple(size), flags=cv2.INTER_LINEAR,
+        rgb = cv2.warpPerspective(rgb, np.asarray(H, float), (rgb.shape[1], rgb.shape[0]), flags=cv2.INTER_LINEAR,
                                   borderMode=cv2.BORDER_REPLICATE)
-    return dense.prepare(rgb)
+    return rgb
+
+
+def _read(path: str, H, size) -> np.ndarray:
+    return dense.prepare(_read_rgb(path, H, size))
 
 
 def depth_view_task(task: dict[str, Any]) -> dict[str, Any]:
@@ -282,6 +425,7 @@ def depth_view_task(task: dict[str, Any]) -> dict[str, Any]:
     finite = np.isfinite(res.disparity_px)
     record = {"key": task["key"], "view": task["view"], "settings": task["settings"], "source": task["source"],
               "size_px": list(task["size"]), "d_range_px": list(task["d_range"]), "candidates": res.candidates,
+              "d_range_source": task.get("range_source"), "d_range_found_px": task.get("range_found"),
               "neighbours": task["neighbour_views"],
               "valid_fraction": float(finite.mean()),
               "confident_fraction": float((res.confidence > 0.1).mean()),
@@ -302,8 +446,8 @@ def _key(settings: DepthSettings, geometry: Geometry, paths: Sequence[str]) -> s
     return h.hexdigest()[:24]
 
 
-def plan_tasks(ds: Dataset, views: Sequence[View], settings: DepthSettings, source: str = "auto"
-               ) -> tuple[Geometry, list[dict[str, Any]]]:
+def plan_tasks(ds: Dataset, views: Sequence[View], settings: DepthSettings, source: str = "auto",
+               disparity_range_px: tuple[float, float] | None = None) -> tuple[Geometry, list[dict[str, Any]]]:
     """The geometry and one task per view (nothing computed)."""
     captured = set(ds.captured_views())
     nb = {v: neighbours_of(ds, v, settings, captured) for v in views}
@@ -312,7 +456,7 @@ def plan_tasks(ds: Dataset, views: Sequence[View], settings: DepthSettings, sour
         raise InputError("views", f"{view_stem(*lonely[0])} has no captured neighbour in its row or column",
                          "views of a grid with at least two captured views in a row or a column")
     needed = sorted(set(views) | {n for v in views for n, _, _ in nb[v]})
-    geo = geometry_of(ds, views, needed, source)
+    geo = geometry_of(ds, views, needed, source, disparity_range_px)
     path = (lambda v: str(_processed_path(ds, v))) if geo.source == "processed" else \
         (lambda v: str(ds.path_of(ds.view(*v))))
     tasks = []
@@ -322,6 +466,7 @@ def plan_tasks(ds: Dataset, views: Sequence[View], settings: DepthSettings, sour
         tasks.append({"view": [int(v[0]), int(v[1])], "reference": ref, "neighbours": nbp,
                       "neighbour_views": [[int(n[0]), int(n[1]), dx, dy] for n, dx, dy in nb[v]],
                       "homography": geo.homography, "size": list(geo.size_px), "d_range": list(geo.d_range_px),
+                      "range_source": geo.range_source, "range_found": list(geo.range_found_px),
                       "settings": settings.describe(), "source": geo.source,
                       "key": _key(settings, geo, [ref] + [p for p, _, _ in nbp]),
                       "out": {k: str(map_path(ds.root, k, v)) for k in ("disparity", "confidence", "records")}})
@@ -340,25 +485,29 @@ def _up_to_date(task: dict[str, Any]) -> bool:
 
 def estimate_depth(dataset, views: str | Sequence[tuple[int, int]] | None = None, *,
                    settings: DepthSettings | None = None, source: str = "auto",
+                   disparity_range_px: tuple[float, float] | None = None,
                    executor: cf.Executor | None = None, workers: int = 1, force: bool = False,
                    progress: Progress = no_progress, cancel: CancelToken | None = None) -> DepthReport:
     """Compute the chosen views' maps (module docstring); ``executor``: where the views run (a
-    bounded window of ``2 · workers`` tasks at a time), None: here, one after the other. Raises
+    bounded window of ``2 · workers`` tasks at a time), None: here, one after the other;
+    ``disparity_range_px``: the range to search (px between horizontal neighbours), None: from the
+    best source there is (:func:`disparity_range`; the report says which). Raises
     :class:`lfstudio.jobs.Cancelled` (views finished so far are kept: the next run resumes)."""
     t0 = time.monotonic()
     cancel = cancel or CancelToken()
     settings = settings or DepthSettings()
     ds = Dataset.of(dataset)
     chosen = ds.select(views)
-    geo, tasks = plan_tasks(ds, chosen, settings, source)
-    report = DepthReport(source=geo.source + (" (rectified)" if geo.rectified else ""), warnings=list(geo.warnings))
+    geo, tasks = plan_tasks(ds, chosen, settings, source, disparity_range_px)
+    report = DepthReport(source=geo.source + (" (rectified)" if geo.rectified else ""), warnings=list(geo.warnings),
+                         range_text=geo.describe_range())
     todo = [t for t in tasks if force or not _up_to_date(t)]
     report.skipped = len(tasks) - len(todo)
     total = len(tasks)
     done = report.skipped
     progress(done, total, f"depth: {len(todo)} to compute, {report.skipped} up to date")
-    log.info("depth of %s started: %d views to compute, %d up to date (%s)", ds.root, len(todo), report.skipped,
-             report.source)
+    log.info("depth of %s started: %d views to compute, %d up to date (%s); %s", ds.root, len(todo), report.skipped,
+             report.source, report.range_text)
 
     def finish(task, record: dict[str, Any] | None = None, error: str | None = None) -> None:
         nonlocal done

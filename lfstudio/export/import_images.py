@@ -708,12 +708,23 @@ def resolve_zero_plane(plan: ImportPlan, options: ImportOptions, grid: tuple[int
         files = dict(zip(plan.cells, plan.files))
         measured = options.measure(files, positions, plan.spacing_mm, f_px, cancel=cancel, progress=progress)
     info = measured.as_dict() if measured is not None else {}
-    if measured is not None and measured.rows_reversed and rows > 1:
+    if plan.hci is not None:
+        # a published layout is read as the format defines it, whatever the image content suggests
+        info["rows_reversed"] = False
+        info["rows_order"] = "format"
+        info["rows_order_why"] = ("the HCI format numbers its views row by row from the top left (input_Cam000 is "
+                                  "the top-left view, rows top-down): taken as the format states it")
+        if measured is not None and measured.rows_reversed:
+            info["rows_content_suggested_reversed"] = True
+    elif measured is not None and measured.rows_reversed and rows > 1:
         plan.cells = [(rows - 1 - r, c) for r, c in plan.cells]
         _place(plan, options, grid)
+        info["rows_order"] = "reversed"
         info["rows_reversed_why"] = ("the tracks' vertical disparities agree with the horizontal ones only with the "
                                      "rows reversed: row 0 of the files is the bottom row; reversed so that row 0 is "
                                      "the top (columns are taken as given, left to right)")
+    elif measured is not None and rows > 1:
+        info["rows_order"] = "as numbered"
     width = float(plan.image_size_px[0])
     if options.parallel_views:
         if measured is not None and measured.sheared:
@@ -754,8 +765,13 @@ def import_summary(ds) -> str:
         lo, hi = m["step_disparity_px"]
         lines.append(f"disparity     : {lo:+.2f} … {hi:+.2f} px between horizontal neighbours (measured on "
                      f"{m.get('views')} views, {m.get('tracks')} tracks)")
+    order = m.get("rows_order")
     if m.get("rows_reversed"):
-        lines.append("rows          : reversed (the files number the rows from the bottom)")
+        lines.append("rows          : reversed (the tracks say the files number the rows from the bottom)")
+    elif order == "format":
+        lines.append("rows          : as the HCI format defines them (input_Cam000 top left, rows top-down)")
+    elif order == "as numbered":
+        lines.append("rows          : as numbered (the tracks agree: row 0 of the files is the top row)")
     hci = (ds.manifest.get("import") or {}).get("hci")
     if hci:
         lines.append(f"HCI folder    : grid, baseline, focal length and zero plane from {hci.get('parameters')}")

@@ -45,6 +45,11 @@ def test_depth_view_computes_and_shows_a_view_with_its_colour_bar(qtbot, tiny_da
     dialog.show_button.click()
     assert "not a captured view" in dialog.caption.text()
     dialog.view_edit.setText("r01_c002")
+    dialog.range_edit.setText("3, 1")
+    dialog.compute_button.click()
+    assert "Disparity range" in dialog.caption.text() and "not below" in dialog.caption.text()
+    assert not dialog.runner.running
+    dialog.range_edit.setText("")
     with qtbot.waitSignal(dialog.runner.finished, timeout=120000):
         dialog.compute_button.click()
     assert has_disparity(tiny_dataset, (1, 2))
@@ -55,8 +60,15 @@ def test_depth_view_computes_and_shows_a_view_with_its_colour_bar(qtbot, tiny_da
     assert " px" in text and " m" in text and "depth 1." in text, text
     dialog.resize(900, 700)
     dialog.grab().save("/tmp/depth-dialog.png")
+    assert "disparity range" in text and "from the scene plan" in text, text
     dialog.hide_check.setChecked(True)
     qtbot.waitUntil(lambda: dialog.pictures_shown == 2, timeout=30000)
+    # a range typed into the dialog is searched and said
+    dialog.range_edit.setText("0.5, 7")
+    with qtbot.waitSignal(dialog.runner.finished, timeout=120000):
+        dialog.compute_button.click()
+    qtbot.waitUntil(lambda: dialog.pictures_shown == 3, timeout=30000)
+    assert "+0.50 … +7.00 px from the Disparity range field" in dialog.caption.text(), dialog.caption.text()
     dialog.close()
 
 

@@ -71,16 +71,16 @@ def depth_picture(dataset, view: tuple[int, int], hide_unsure: bool = False) -> 
     return picture, figures
 
 
-def _compute_job(dataset, views, all_views: bool, *, progress, cancel):
+def _compute_job(dataset, views, all_views: bool, disparity_range=None, *, progress, cancel):
     from lfstudio.depth.run import estimate_depth
 
     if not all_views:
-        return estimate_depth(dataset, views, progress=progress, cancel=cancel)
+        return estimate_depth(dataset, views, disparity_range_px=disparity_range, progress=progress, cancel=cancel)
     from lfstudio.processing.executors import open_executor
 
     with open_executor() as info:
-        return estimate_depth(dataset, views, executor=info.executor, workers=info.workers, progress=progress,
-                              cancel=cancel)
+        return estimate_depth(dataset, views, disparity_range_px=disparity_range, executor=info.executor,
+                              workers=info.workers, progress=progress, cancel=cancel)
 
 
 class DepthDialog(QDialog):
@@ -113,6 +113,13 @@ class DepthDialog(QDialog):
         self.compute_button.setObjectName("depthComputeButton")
         self.compute_button.setToolTip("Estimate this view's disparity from its row and column neighbours "
                                        "(kept in the dataset's depth/ folder)")
+        self.range_edit = QLineEdit("")
+        self.range_edit.setObjectName("depthRangeEdit")
+        self.range_edit.setPlaceholderText("automatic")
+        self.range_edit.setMaximumWidth(110)
+        self.range_edit.setToolTip("The disparities to search, in px between horizontal neighbours: MIN, MAX "
+                                   "(e.g. -3.5, 3). Empty: the HCI folder's own range, the scene plan, else the "
+                                   "tracks measured by the check or the import")
         self.compute_all_button = QPushButton("Compute every view")
         self.compute_all_button.setObjectName("depthComputeAllButton")
         self.compute_all_button.setToolTip("Every captured view on the local process pool (resumes: views done "
@@ -123,6 +130,8 @@ class DepthDialog(QDialog):
         top.addWidget(self.show_button)
         top.addWidget(self.hide_check)
         top.addStretch(1)
+        top.addWidget(QLabel("Disparity range"))
+        top.addWidget(self.range_edit)
         top.addWidget(self.compute_button)
         top.addWidget(self.compute_all_button)
         self.runner = JobRunner(self)
@@ -151,6 +160,7 @@ class DepthDialog(QDialog):
         self.runner.cancelled.connect(lambda: self.caption.setText("Cancelled: the views finished so far are kept"))
         self._loader: JobRunner | None = None
         self.pictures_shown = 0
+        self.range_text = ""                # the range the last computation searched, and its origin
         self.show_view()
 
     def _chosen(self) -> tuple[int, int] | None:
@@ -196,6 +206,8 @@ class DepthDialog(QDialog):
             parts.append(f"depth {fig['depth_m'][0]:.2f} … {fig['depth_m'][1]:.2f} m")
         parts.append(f"{fig['confident']:.0%} of pixels sure (confidence ≥ {UNSURE_BELOW:g})")
         parts.append("from processed views" if fig["source"] == "processed" else "from the captures")
+        if self.range_text:
+            parts.append(self.range_text)
         self.caption.setText("; ".join(parts))
         self.pictures_shown += 1
 
@@ -205,11 +217,21 @@ class DepthDialog(QDialog):
         view = None if all_views else self._chosen()
         if not all_views and view is None:
             return
+        stated = None
+        if self.range_edit.text().strip():
+            from lfstudio.depth.run import parse_disparity_range
+
+            try:
+                stated = parse_disparity_range("Disparity range", self.range_edit.text())
+            except LfError as exc:
+                self.caption.setText(str(exc))
+                return
         self.caption.setText("Computing…")
-        self.runner.start(_compute_job, self.dataset, None if all_views else [view], all_views)
+        self.runner.start(_compute_job, self.dataset, None if all_views else [view], all_views, stated)
 
     def _computed(self, report) -> None:
-        self.caption.setText(report.summary())
+        self.range_text = report.range_text.replace("the range stated", "the Disparity range field")
+        self.caption.setText(f"{report.summary()}; {self.range_text}")
         self.show_view()
 
     def closeEvent(self, event) -> None:           # noqa: N802 - Qt's name
