@@ -48,6 +48,7 @@ from lfstudio.dataset.store import sha256_file
 from lfstudio.dataset.thumbs import make_thumbnail
 from lfstudio.errors import DatasetError, InputError
 from lfstudio.jobs import CancelToken, Progress, no_progress
+from lfstudio.numbers import WIDTH_PX, Number, check_grid
 
 log = logging.getLogger(__name__)
 
@@ -175,6 +176,12 @@ POSITIONS_FROM_NAMES = "names"
 #: Stanford light field archive: out_RR_CC_<a>_<b>_.png (row, column, the gantry's recorded position)
 STANFORD_NAME = re.compile(r"^out_(\d+)_(\d+)_(-?\d+(?:\.\d*)?(?:[eE]-?\d+)?)_(-?\d+(?:\.\d*)?(?:[eE]-?\d+)?)_?$")
 POSITIONS_FIX = "give the positions in a CSV file instead (--positions FILE.csv with the columns file,x_mm,y_mm)"
+#: a recorded position (mm): finite and within 100 m of the origin (1e308 overflowed the grid fit)
+RECORDED_MM = Number("mm", -100_000, 100_000)
+#: the least step between recorded positions along the grid (mm; the least spacing lfstudio takes)
+MIN_STEP_MM = 0.001
+#: the smallest view an import takes (px, either side: lfstudio's smallest working width)
+MIN_VIEW_PX = 16
 
 
 def positions_from_names(files: Sequence[Path], grid: tuple[int, int]) -> tuple[list[tuple[int, int]], list[tuple[float, float]]]:
@@ -187,6 +194,10 @@ def positions_from_names(files: Sequence[Path], grid: tuple[int, int]) -> tuple[
             raise InputError("--positions", f"{p.name} does not follow the name pattern out_RR_CC_<a>_<b> "
                              f"(row, column, recorded position); {POSITIONS_FIX}")
         parsed.append((int(m[1]), int(m[2]), float(m[3]), float(m[4])))
+        problem = RECORDED_MM.problem(parsed[-1][2]) or RECORDED_MM.problem(parsed[-1][3])
+        if problem:
+            raise InputError("--positions", f"{p.name}: the recorded position {problem}; {POSITIONS_FIX}",
+                             RECORDED_MM.valid())
     r0 = min(t[0] for t in parsed)
     c0 = min(t[1] for t in parsed)
     cols, rows = grid
@@ -217,15 +228,22 @@ def positions_from_csv(files: Sequence[Path], folder: Path, csv_path: Path) -> l
     if not rows or not {"file", "x_mm", "y_mm"} <= set(rows[0]):
         raise InputError("--positions", f"{csv_path}: needs the header columns file,x_mm,y_mm (one row per image)")
     table: dict[str, tuple[float, float]] = {}
+    lines: dict[str, int] = {}
     for i, row in enumerate(rows, start=2):
         try:
             x, y = float(row["x_mm"]), float(row["y_mm"])
         except (TypeError, ValueError):
             raise InputError("--positions", f"{csv_path} line {i}: x_mm/y_mm {row.get('x_mm')!r}, {row.get('y_mm')!r} "
                              "are not numbers; write the position in mm") from None
-        if not (math.isfinite(x) and math.isfinite(y)):
-            raise InputError("--positions", f"{csv_path} line {i}: the position must be finite mm")
-        table[str(row["file"]).strip()] = (x, y)
+        problem = RECORDED_MM.problem(x) or RECORDED_MM.problem(y)
+        if problem:
+            raise InputError("--positions", f"{csv_path} line {i}: the position {problem}", RECORDED_MM.valid())
+        name = str(row["file"]).strip()
+        if name in table and table[name] != (x, y):     # the last row must not silently win
+            raise InputError("--positions", f"{csv_path} lines {lines[name]} and {i} give {name} two positions "
+                             f"({table[name][0]:g}, {table[name][1]:g}) and ({x:g}, {y:g}) mm; keep one row per image")
+        table[name] = (x, y)
+        lines.setdefault(name, i)
     out = []
     for p in files:
         rel = p.relative_to(folder).as_posix()
@@ -467,6 +485,9 @@ def plan_import(options: ImportOptions, *, progress: Progress = no_progress,
                              "odd one out with --pattern)")
         progress(i + 1, len(files), f"checked {path.name}")
     assert size is not None and first is not None
+    if min(size) < MIN_VIEW_PX:        # 1-px views imported, then 'check' asked for exabytes
+        raise InputError("folder", f"{first.name} is {size[0]}x{size[1]} px: too small to calibrate, check or "
+                         "process a light field", f"views of at least {MIN_VIEW_PX}x{MIN_VIEW_PX} px")
     camera, lens, source, warnings = _intrinsics(options, first, size)
     cells = grid_cells(cols, rows, options.order)
     raw_positions: list[tuple[float, float]] | None = None
@@ -513,6 +534,12 @@ def _place(plan: ImportPlan, options: ImportOptions, grid: tuple[int, int]) -> N
     if raw is not None:
         plan.positions_mm, derived, mapping = normalise_positions(plan.cells, raw)
         plan.positions_record = {**(plan.positions_record or {}), **mapping}
+        still = [what for what, n, step in (("columns", cols, derived[0]), ("rows", rows, derived[1]))
+                 if n > 1 and not step >= MIN_STEP_MM]      # all equal: a spacing of 0, depth divides by it
+        if still:
+            raise InputError("--positions", f"the recorded positions do not change along the {' and '.join(still)} "
+                             f"(less than {MIN_STEP_MM:g} mm per step); check the file's x_mm/y_mm columns",
+                             "one position per view, different for each")
     if options.spacing_mm is not None:
         plan.spacing_mm = (float(options.spacing_mm[0]), float(options.spacing_mm[1]))
     else:
@@ -616,7 +643,7 @@ def read_hci_folder(folder: Path) -> HciFolder | None:
     path = Path(folder) / HCI_PARAMETERS
     if not path.is_file():
         return None
-    cfg = configparser.ConfigParser()
+    cfg = configparser.ConfigParser(interpolation=None)     # '%' is a character in a value, never a reference
     try:
         cfg.read_string(path.read_text(encoding="utf-8", errors="replace"))
     except configparser.Error as exc:
@@ -645,6 +672,11 @@ def read_hci_folder(folder: Path) -> HciFolder | None:
     d = None
     if cfg.has_option("meta", "disp_min") and cfg.has_option("meta", "disp_max"):
         d = (number("meta", "disp_min", positive=False), number("meta", "disp_max", positive=False))
+    check_grid(f"{path}: [extrinsics] num_cams_x, num_cams_y", cols, rows)    # before a name is built per view
+    for key, value in (("image_resolution_x_px", w), ("image_resolution_y_px", h)):
+        problem = WIDTH_PX.problem(value)
+        if problem:
+            raise InputError("folder", f"{path}: [intrinsics] {key} {problem}", WIDTH_PX.valid())
     n = cols * rows
     digits = max(3, len(str(n - 1)))
     files = [f"input_Cam{i:0{digits}d}.png" for i in range(n)]

@@ -91,6 +91,8 @@ def sgbm(left: np.ndarray, right: np.ndarray, max_disparity_px: float, min_dispa
     searched over [``min_disparity_px``, ``max_disparity_px``] (signed; see :func:`search_range`)."""
     first, n = search_range(min_disparity_px, max_disparity_px)
     block = 5
+    if left.shape[1] < n + 2 or left.shape[0] < block:   # narrower than the search: OpenCV asked for exabytes
+        return np.full(left.shape[:2], np.nan, np.float32)
     matcher = cv2.StereoSGBM.create(minDisparity=first, numDisparities=n, blockSize=block, P1=8 * block * block,
                                     P2=32 * block * block, disp12MaxDiff=1, uniquenessRatio=10,
                                     speckleWindowSize=100, speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)

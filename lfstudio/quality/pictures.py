@@ -225,7 +225,7 @@ def disparity_picture(disparity_px: np.ndarray, image8: np.ndarray, depth_note: 
     bar_h = 56 + (14 if depth_scale_m_px else 0)
     canvas = np.full((h + bar_h, w, 3), 255, np.uint8)
     canvas[:h] = out
-    bw = w - 40
+    bw = max(w - 40, 1)      # a view narrower than the margins still gets a (tiny) bar
     bar = cv2.applyColorMap(np.linspace(0, 255, bw).astype(np.uint8).reshape(1, -1), cv2.COLORMAP_TURBO)
     canvas[h + 8:h + 22, 20:20 + bw] = cv2.resize(bar, (bw, 14), interpolation=cv2.INTER_NEAREST)
     for frac in COLOUR_BAR_TICKS:

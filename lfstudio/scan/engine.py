@@ -924,7 +924,7 @@ class ScanEngine:
                     self._last_error[cell] = message
                     self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
                                will_retry=False, extra={"attempt": attempt, "device": device})
-                    raise ScanFault(refused_text(device, view_label(view.row, view.column), message), device) from None
+                    raise ScanFault(refused_text(device, f"view {view_label(view.row, view.column)}", message), device) from None
                 self._handle_inbox()
                 if self._state is not ScanState.RUNNING:
                     # STOP, a pause, an abort or a fault came in: no retry now (the view is queued again)

@@ -56,6 +56,8 @@ _SHAPES = {"http": "json", "https": "json", "ntfy+http": "ntfy", "ntfy+https": "
            "slack+http": "text", "slack+https": "text", "matrix+http": "text", "matrix+https": "text",
            "mailto": "mail"}
 _ADDRESS = re.compile(r"^[^@\s,;<>]+@[^@\s,;<>]+\.[^@\s,;<>]+$")
+#: characters that end or break a header line (CR, LF, the other C0 controls, DEL)
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]+")
 #: a live check can flag many views: this many are sent one by one, then one notice says the rest are not
 MAX_FLAGGED = 20
 #: events an operator must act on or know at once (ntfy priority, desktop urgency)
@@ -79,7 +81,9 @@ class Notice:
     reasons: tuple[str, ...] = ()
 
     def title(self) -> str:
-        return f"lfstudio: scan of {self.dataset} {self.event}"
+        """One line: a CR, LF or other control character of the dataset's name becomes a space (it
+        would end an HTTP header or a mail's Subject and lose the notice)."""
+        return _CONTROL.sub(" ", f"lfstudio: scan of {self.dataset} {self.event}")
 
     def text(self) -> str:
         """The message with the progress, for the shapes that carry text."""
@@ -184,6 +188,9 @@ def parse_target(text: str, option: str = "--notify") -> Target:
     except ValueError as exc:
         raise InputError(option, f"{shown_url(text)} is not a well-formed URL ({exc})", VALID) from None
     scheme = parts.scheme.lower()
+    if any(ch.isspace() or _CONTROL.match(ch) for ch in text):     # urllib sends them as they are
+        raise InputError(option, f"{shown_url(text)!r} holds a space or a control character, which a URL cannot "
+                         "(write a space in a path as %20)", VALID)
     if not scheme or ":" not in text:
         raise InputError(option, f"{text[:40]!r} is not a URL" if "@" not in text or "/" in text
                          else f"{text!r} is not a URL (write mailto:{text})", VALID)
@@ -198,6 +205,8 @@ def parse_target(text: str, option: str = "--notify") -> Target:
         return Target(text, shape, f"mailto:{','.join(addresses)}", addresses)
     if not parts.hostname:
         raise InputError(option, f"{shown_url(text)}: the URL names no host", VALID)
+    if not all(ch.isalnum() or ch in "-._:%" for ch in parts.hostname):
+        raise InputError(option, f"{shown_url(text)}: {parts.hostname!r} is not a host name", VALID)
     if shape == "ntfy" and not parts.path.strip("/"):
         raise InputError(option, f"{shown_url(text)}: an ntfy URL names its topic (ntfy+https://HOST/TOPIC)", VALID)
     del port
@@ -239,6 +248,16 @@ class SmtpServer:
 
 
 # -- sending -------------------------------------------------------------------------------------------
+def header_value(text: str) -> str:
+    """``text`` as an HTTP header value: one line (control characters become spaces), and a text that is
+    not ASCII as an RFC 2047 encoded-word (``=?utf-8?b?…?=``, which ntfy decodes): http.client sends
+    headers as Latin-1 and refuses anything else, so a dataset named ``Stühle ✓`` lost every notice."""
+    text = _CONTROL.sub(" ", text)
+    if text.isascii():
+        return text
+    return "=?utf-8?b?" + b64encode(text.encode("utf-8")).decode("ascii") + "?="
+
+
 def _request(target: Target, body: bytes, headers: dict[str, str]) -> urllib.request.Request:
     url = target.url.split("+", 1)[1] if "+" in target.url.split(":", 1)[0] else target.url
     parts = urllib.parse.urlsplit(url)
@@ -258,7 +277,7 @@ def send(target: Target, notice: Notice, *, timeout_s: float = 10.0, smtp: SmtpS
         return
     if target.shape == "ntfy":
         body = notice.text().encode()
-        headers = {"Title": notice.title(), "Content-Type": "text/plain; charset=utf-8",
+        headers = {"Title": header_value(notice.title()), "Content-Type": "text/plain; charset=utf-8",
                    "Priority": "high" if notice.event in URGENT else "default",
                    "Tags": {"finished": "white_check_mark", "flagged": "mag"}.get(
                        notice.event, "warning" if notice.event in URGENT else "camera")}

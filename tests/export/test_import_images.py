@@ -352,13 +352,13 @@ def test_intrinsics_come_from_exif_and_stale_pitch_is_not_trusted(tmp_path):
     for width, expected_px in ((4000, 50.0 / 0.0045), (48, 75.0 / 36.0 * 48)):
         folder = tmp_path / f"w{width}"
         folder.mkdir()
-        ok, jpg = cv2.imencode(".jpg", np.zeros((8, width, 3), np.uint8))
+        ok, jpg = cv2.imencode(".jpg", np.zeros((16, width, 3), np.uint8))
         data = jpg.tobytes()
         for i in range(2):
             (folder / f"DSC{i:04d}.JPG").write_bytes(data[:2] + _exif_app1("Sony", "ILCE-7RM2", 50.0, 4.5, 75)
                                                      + data[2:])
         ds = Dataset.open(import_images(ImportOptions(folder, tmp_path / f"ds{width}", (2, 1), (4.0, 4.0))))
-        assert ds.camera["name"] == "Sony ILCE-7RM2" and ds.camera["sensor_px"] == [width, 8]
+        assert ds.camera["name"] == "Sony ILCE-7RM2" and ds.camera["sensor_px"] == [width, 16]
         assert ds.focal_length_px(width) == pytest.approx(expected_px, rel=1e-3)
         assert "EXIF of DSC0000.JPG" in ds.manifest["import"]["intrinsics"]
         assert not ds.manifest["import"]["warnings"]

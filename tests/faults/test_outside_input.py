@@ -11,6 +11,7 @@ import textwrap
 
 import cv2
 import numpy as np
+import pytest
 
 from tests.conftest import REPO_ROOT
 from tests.faults.conftest import assert_one_line_error
@@ -112,3 +113,131 @@ def test_a_hot_folder_scan_stops_naming_a_new_file_that_is_not_utf8_instead_of_c
     message = proc.stdout.strip()
     assert "shot_\\xe9\\xff.jpg" in message and "not valid UTF-8" in message, message
     assert message.startswith("Camera refused (view r00 c000)") and "cable" not in message, message
+
+
+# -- item 11: one line instead of a traceback -----------------------------------------------------------
+def _import(run_cli, folder, out, *extra):
+    return run_cli("import-images", folder, "--focal-length-px", "100", "--out", out, *extra)
+
+
+def _csv(path, rows):
+    path.write_text("file,x_mm,y_mm\n" + "".join(f"{f},{x},{y}\n" for f, x, y in rows))
+    return path
+
+
+def test_recorded_positions_of_1e308_are_refused_by_line(tmp_path, run_cli):
+    """They overflowed the grid fit (numpy LinAlgError: SVD did not converge)."""
+    folder = _views(tmp_path / "in", 2, 2)
+    csv = _csv(tmp_path / "pos.csv", [("v1.png", 0, 0), ("v2.png", 1e308, 0), ("v3.png", 0, 5), ("v4.png", 5, 5)])
+    proc = _import(run_cli, folder, tmp_path / "ds", "--grid", "2x2", "--positions", csv)
+    assert_one_line_error(proc, 2, "--positions", "pos.csv line 3", "1e+308 mm is out of range")
+    assert not (tmp_path / "ds").exists()
+
+
+def test_recorded_positions_that_are_all_equal_are_refused(tmp_path, run_cli):
+    """They imported as a spacing of 0 mm (and depth divided by it)."""
+    folder = _views(tmp_path / "in", 2, 2)
+    csv = _csv(tmp_path / "pos.csv", [(f"v{i}.png", 12.5, 3.0) for i in range(1, 5)])
+    for extra in ((), ("--spacing-mm", "5x5")):
+        proc = _import(run_cli, folder, tmp_path / "ds", "--grid", "2x2", "--positions", csv, *extra)
+        assert_one_line_error(proc, 2, "--positions", "do not change along the columns and rows")
+        assert not (tmp_path / "ds").exists()
+
+
+def _hci(folder, extra: str = "", cams=(2, 2), size=(48, 32)):
+    """A small HCI benchmark folder (parameters.cfg and its views); ``extra``: added to [meta]."""
+    _views(folder, *cams, size=size)
+    for i in range(cams[0] * cams[1]):
+        os.rename(folder / f"v{i + 1}.png", folder / f"input_Cam{i:03d}.png")
+    (folder / "parameters.cfg").write_text(
+        "[intrinsics]\n"
+        f"image_resolution_x_px = {size[0]}\nimage_resolution_y_px = {size[1]}\n"
+        "focal_length_mm = 100\nsensor_size_mm = 35\n\n"
+        "[extrinsics]\n"
+        f"num_cams_x = {cams[0]}\nnum_cams_y = {cams[1]}\nbaseline_mm = 50\nfocus_distance_m = 1000000000\n\n"
+        f"[meta]\n{extra}")
+    return folder
+
+
+@pytest.mark.parametrize("value", ["%(x)s", "-1.5 %", "100%"])
+def test_an_hci_parameters_file_with_percent_signs_gets_one_line(value, tmp_path, run_cli):
+    """configparser's interpolation read '%' as a reference (InterpolationSyntaxError or
+    InterpolationMissingOptionError traceback); a '%' in a value nobody reads is no obstacle."""
+    folder = _hci(tmp_path / "hci", f"scene = 100% real, %(x)s\ndisp_min = {value}\ndisp_max = 2\n")
+    proc = run_cli("import-images", folder, "--out", tmp_path / "ds")
+    assert_one_line_error(proc, 2, "parameters.cfg", "[meta] disp_min", "is not a number")
+    folder = _hci(tmp_path / "hci2", "scene = 100% real, %(x)s\n")
+    proc = run_cli("import-images", folder, "--out", tmp_path / "ds2")
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_an_hci_grid_of_100000_squared_is_refused_before_any_name_is_built(tmp_path, run_cli):
+    """10^10 file names were built before any check (MemoryError)."""
+    folder = _hci(tmp_path / "hci")
+    cfg = folder / "parameters.cfg"
+    cfg.write_text(cfg.read_text().replace("num_cams_x = 2", "num_cams_x = 100000")
+                   .replace("num_cams_y = 2", "num_cams_y = 100000"))
+    proc = run_cli("import-images", folder, "--out", tmp_path / "ds", timeout=60)
+    assert_one_line_error(proc, 2, "parameters.cfg", "num_cams_x", "out of range")
+
+
+def test_views_of_one_pixel_are_refused_at_import(tmp_path, run_cli):
+    """They imported, and 'check' then asked for 18 EB of memory."""
+    folder = _views(tmp_path / "in", 2, 2, size=(1, 1))
+    proc = _import(run_cli, folder, tmp_path / "ds", "--grid", "2x2", "--spacing-mm", "5x5")
+    assert_one_line_error(proc, 2, "v1.png is 1x1 px", "too small", "16x16 px")
+    assert not (tmp_path / "ds").exists()
+
+
+def test_check_of_views_narrower_than_its_disparity_search_ends_with_its_report(tmp_path, run_cli):
+    """16 px views (the smallest an import or a scan takes): OpenCV's matcher asked for 18 EB."""
+    folder = _views(tmp_path / "in", 2, 2, size=(16, 16))
+    proc = _import(run_cli, folder, tmp_path / "ds", "--grid", "2x2", "--spacing-mm", "5x5")
+    assert proc.returncode == 0, proc.stderr
+    proc = run_cli("check", tmp_path / "ds")
+    assert "Traceback" not in proc.stderr and proc.returncode == 0, proc.stderr
+    assert (tmp_path / "ds" / "quality.json").is_file()
+
+
+# -- item 12 ------------------------------------------------------------------------------------------
+def test_duplicate_csv_rows_with_conflicting_positions_are_refused_naming_both(tmp_path, run_cli):
+    folder = _views(tmp_path / "in", 2, 2)
+    rows = [("v1.png", 0, 0), ("v2.png", 5, 0), ("v3.png", 0, 5), ("v4.png", 5, 5), ("v2.png", 7, 0)]
+    proc = _import(run_cli, folder, tmp_path / "ds", "--grid", "2x2", "--positions", _csv(tmp_path / "pos.csv", rows))
+    assert_one_line_error(proc, 2, "--positions", "lines 3 and 6", "v2.png", "(5, 0)", "(7, 0)")
+    # the same position twice is harmless
+    rows[-1] = ("v2.png", 5, 0)
+    proc = _import(run_cli, folder, tmp_path / "ds", "--grid", "2x2", "--positions", _csv(tmp_path / "pos.csv", rows))
+    assert proc.returncode == 0, proc.stderr
+
+
+@pytest.mark.parametrize("url", ["http://a b/", "https://hooks.example.com/my hook", "ntfy+https://ntfy.sh/a\tb",
+                                 "http://ex<ample>.com/x"])
+def test_a_notify_url_with_a_space_or_a_bad_host_is_refused_at_parse(url, tmp_path, run_cli):
+    """'http://a b/' was accepted, and the scan then waited 10 s at its end for a notice that could not go."""
+    proc = run_cli("scan", "--port", "instant", "--camera", "instant", "--grid", "2x1", "--notify", url,
+                   "--out", tmp_path / "ds")
+    assert_one_line_error(proc, 2, "--notify")
+    assert not (tmp_path / "ds").exists()
+
+
+def test_a_dataset_name_with_cr_lf_and_accents_reaches_ntfy_as_one_title_line():
+    """A CR/LF in the dataset's name made http.client refuse the Title header: every ntfy notice was
+    lost; a name that is not Latin-1 was refused the same way."""
+    from email.header import decode_header, make_header
+
+    from lfstudio.scan.notify import Notifier
+    from tests.scan.receivers import Receiver
+
+    receiver = Receiver()
+    try:
+        notifier = Notifier([receiver.url("/lab", "ntfy+http")], dataset="day 1\r\nX-Evil: yes Stühle ✓")
+        notifier.notify("finished", "done", done=2, total=2)
+        assert notifier.close(30)
+        assert len(receiver.posts) == 1, "the notice was lost"
+        headers = receiver.posts[0]["headers"]
+        assert "X-Evil" not in headers
+        assert str(make_header(decode_header(headers["Title"]))) == \
+            "lfstudio: scan of day 1 X-Evil: yes Stühle ✓ finished"
+    finally:
+        receiver.close()
