@@ -215,3 +215,44 @@ def test_stop_reaches_the_other_drive_at_once_while_one_link_is_stalled(drives, 
         logging.getLogger("lfstudio.rig.cia402").removeHandler(handler)
     assert not mover.is_alive() and len(outcome) == 1
     assert emulator.true_position_mm()[1] < 400       # drive y did not finish the move
+
+
+def test_ctrl_c_of_rig_move_reaches_the_other_drive_while_one_link_is_stalled():
+    """``lfstudio rig … move`` in its own process; drive x's link stalls (its deadline: 30 s), then
+    Ctrl+C: the quick stop reaches drive y at once, not after x's exchange (it used to wait behind
+    x's, 18–21 s with a trickling peer)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from tests.conftest import REPO_ROOT
+    from tests.faults.test_kill import wait_until
+
+    rig = load_rig(RIG_NAME)
+    emulator = start_drive_emulator(rig, "modbus", time_scale=0.1)
+    seen = _QuickStopSeen([])
+    emulator.pair.axes[1].journal = seen
+    env = {**os.environ, "PYTHONPATH": str(REPO_ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    proc = subprocess.Popen([sys.executable, "-m", "lfstudio", "rig", "--port", emulator.word, "--rig-profile",
+                             RIG_NAME, "--timeout-s", "30", "home", "move", "3500", "450"], cwd=REPO_ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_until(lambda: any(index == 0x607A and value == 45000 for _, index, _, value in list(seen))
+                   or proc.poll() is not None, 60, "the move sent to drive y")
+        wait_until(lambda: emulator.true_position_mm()[0] > 20 or proc.poll() is not None, 60, "the move under way")
+        assert proc.poll() is None, proc.communicate()
+        emulator.pair.axes[0].inject("lost_connection")   # drive x's link stalls
+        proc.send_signal(signal.SIGINT)
+        assert seen.event.wait(HANG_GUARD_S), "Ctrl+C: the quick stop never reached drive y"
+        assert not emulator.pair.axes[0].answering      # ... while x's link was still stalled
+        emulator.pair.axes[0].clear_faults()
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        emulator.close()
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    assert "Ctrl+C: stopping the rig" in err
+    assert emulator.true_position_mm()[1] < 450
