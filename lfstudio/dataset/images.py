@@ -152,10 +152,14 @@ def full_size_px(path: str | os.PathLike) -> tuple[int, int]:
 
 def check_raw_data(path: str | os.PathLike) -> None:
     """For a RAW: LibRaw unpacks its image data (a file cut short or damaged after its headers opens,
-    and fails only here); :class:`DatasetError` naming the file when it does not. Nothing to do for
-    an ordinary image. Costs one read of the file (and LibRaw's decompression)."""
+    and fails only here); :class:`DatasetError` naming the file when it does not. For a PNG or a JPEG:
+    the file is all there (:func:`cut_short`, from its structure, without decoding: a decoder would
+    print libpng's own error line on stderr). Costs one read of a RAW (and LibRaw's decompression)."""
     path = Path(path)
     if kind(path) != "raw":
+        why = cut_short(path)
+        if why:
+            raise DatasetError(f"{shown_name(path)}: {why}; the file is cut short or damaged")
         return
     import rawpy
 
@@ -165,6 +169,36 @@ def check_raw_data(path: str | os.PathLike) -> None:
     except Exception as exc:
         raise DatasetError(f"{path}: LibRaw cannot read its image data ({type(exc).__name__}: {exc}); "
                            "the file is cut short or damaged") from None
+
+
+def cut_short(path: str | os.PathLike) -> str | None:
+    """Why a PNG or JPEG file is not all there, or None (complete, or another format): a PNG's chunks
+    are walked by their lengths to its IEND chunk (only the 12-byte chunk headers are read); a JPEG
+    must hold its end-of-image marker (FF D9) in its last 64 KiB (cameras may pad after it)."""
+    try:
+        with open(path, "rb") as fh:
+            size = os.fstat(fh.fileno()).st_size
+            head = fh.read(8)
+            if head == b"\x89PNG\r\n\x1a\n":
+                pos = 8
+                while True:
+                    fh.seek(pos)
+                    chunk = fh.read(8)
+                    if len(chunk) < 8:
+                        return f"its PNG data ends after {size} bytes, before the IEND chunk"
+                    length = int.from_bytes(chunk[:4], "big")
+                    pos += 12 + length
+                    if pos > size:
+                        return f"its PNG chunk {chunk[4:8].decode('latin-1')!r} needs {pos} bytes, the file has {size}"
+                    if chunk[4:8] == b"IEND":
+                        return None
+            if head[:2] == b"\xff\xd8":
+                fh.seek(max(0, size - 65536))
+                if b"\xff\xd9" not in fh.read():
+                    return "its JPEG data has no end (no end-of-image marker)"
+    except OSError as exc:
+        return exc.strerror or "it cannot be read"
+    return None
 
 
 def png_header(path: str | os.PathLike) -> tuple[int, int, int, int] | None:

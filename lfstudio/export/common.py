@@ -22,7 +22,7 @@ from lfstudio.dataset.grid import View
 from lfstudio.dataset.manifest import ViewRecord, hdr_merged, now_iso
 from lfstudio.dataset.paths import (DATASET_ENTRIES, IN_USE_FIX, check_new_dataset_folder, check_not_in_use,
                                     view_stem)
-from lfstudio.errors import DatasetError, InputError
+from lfstudio.errors import DatasetError, InputError, LfError
 from lfstudio.support.locks import DATASET_LOCK_NAME, Lock, dataset_lock
 
 EXPORT_FORMAT = "lfstudio-export"
@@ -622,9 +622,20 @@ def partial_folder(out: Path, overwrite: bool) -> Iterator[Path]:
                     os.fsync(fh.fileno())
         _replace(tmp, out, overwrite)
         _fsync_dir(out.parent)
-    except BaseException:
+    except BaseException as exc:
         _remove(tmp)
+        _name_the_destination(exc, tmp, out)
         raise
+
+
+def _name_the_destination(exc: BaseException, tmp: Path, out: Path) -> None:
+    """An operator's error raised while building ``tmp`` names ``out`` instead: the hidden temporary
+    folder is gone by the time the message is read, and is no name the operator knows."""
+    if not isinstance(exc, LfError):
+        return
+    exc.args = tuple(a.replace(str(tmp), str(out)) if isinstance(a, str) else a for a in exc.args)
+    if exc.window_text:
+        exc.window_text = exc.window_text.replace(str(tmp), str(out))
 
 
 @contextlib.contextmanager

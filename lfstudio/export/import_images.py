@@ -817,8 +817,8 @@ def import_summary(ds) -> str:
 def _link_or_copy(src: Path, dst: Path, link: bool, cancel: CancelToken | None) -> tuple[str, bool]:
     """Put ``src`` at ``dst`` (hard link if allowed and possible, else a copy); its sha256 and whether linked."""
     if link:
-        try:
-            os.link(src, dst)
+        try:    # the file a symlink leads to: link() would link the symlink itself, which leads outside the dataset
+            os.link(os.path.realpath(src), dst)
         except OSError:
             pass
         else:

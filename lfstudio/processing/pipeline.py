@@ -231,9 +231,10 @@ def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force:
     _refuse_output_over_captures(ds, profile)
     # every processed view is written in this folder: refused when it (a symlink) leads outside the dataset
     folder = profile.output.folder.strip("/") or "processed"
-    folder_inside(ds.root, folder, what="processing.toml: [output] folder")
+    folder_inside(ds.root, folder, what="processing.toml: [output] folder", create=False)
     clean_temporary_files(ds.root, (folder,))        # left by a run that was killed
     plan = make_plan(ds, profile, single_thread=info.separate_processes)
+    folder_inside(ds.root, folder, what="processing.toml: [output] folder")   # made once the run can start
     sha = plan.profile_sha256
     profile.save(ds.root / PROFILE_NAME)
 

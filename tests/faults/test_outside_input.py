@@ -241,3 +241,54 @@ def test_a_dataset_name_with_cr_lf_and_accents_reaches_ntfy_as_one_title_line():
             "lfstudio: scan of day 1 X-Evil: yes Stühle ✓ finished"
     finally:
         receiver.close()
+
+
+def test_a_symlinked_source_image_is_linked_as_the_file_it_leads_to(tmp_path, run_cli):
+    """The hard link was made to the symlink itself, and the import failed naming its own hidden
+    '.ds.partial-…' folder."""
+    folder = _views(tmp_path / "in", 2, 2)
+    elsewhere = _views(tmp_path / "elsewhere", 1, 1)
+    (folder / "v4.png").unlink()
+    (folder / "v4.png").symlink_to(elsewhere / "v1.png")
+    proc = _import(run_cli, folder, tmp_path / "ds", "--grid", "2x2", "--spacing-mm", "5x5")
+    assert proc.returncode == 0, proc.stderr
+    raw = sorted((tmp_path / "ds" / "raw").iterdir())
+    assert len(raw) == 4 and not any(p.is_symlink() for p in raw)
+    assert raw[-1].read_bytes() == (elsewhere / "v1.png").read_bytes()
+
+
+def test_an_error_while_a_dataset_is_built_names_the_destination_not_the_hidden_folder(tmp_path):
+    from lfstudio.errors import DatasetError
+    from lfstudio.export.common import partial_folder
+
+    with pytest.raises(DatasetError) as err:
+        with partial_folder(tmp_path / "ds", False) as tmp:
+            raise DatasetError(f"{tmp}: cannot create dataset")
+    assert str(err.value) == f"{tmp_path / 'ds'}: cannot create dataset"
+    assert [p.name for p in tmp_path.iterdir()] == []
+
+
+@pytest.mark.parametrize("cut", ["png", "jpeg"])
+def test_a_truncated_image_is_one_line_and_exit_2_like_garbage_with_no_libpng_line(cut, tmp_path, run_cli):
+    """A PNG cut short passed the header checks, then failed later with exit 1 and libpng's own
+    'libpng error: …' line on stderr."""
+    folder = _views(tmp_path / "in", 2, 1)
+    if cut == "jpeg":
+        for p in sorted(folder.glob("*.png")):
+            img = cv2.imread(str(p))
+            assert img is not None and cv2.imwrite(str(p.with_suffix(".jpg")), img)
+            p.unlink()
+    victim = sorted(folder.iterdir())[1]
+    victim.write_bytes(victim.read_bytes()[: victim.stat().st_size * 2 // 3])
+    proc = _import(run_cli, folder, tmp_path / "ds", "--grid", "2x1", "--spacing-mm", "5x5")
+    line = assert_one_line_error(proc, 2, victim.name, "damaged or truncated")
+    assert "libpng" not in proc.stderr and "error" not in proc.stderr.replace(line, ""), proc.stderr
+    assert not (tmp_path / "ds").exists()
+
+
+def test_a_process_refused_for_a_missing_calibration_leaves_no_processed_folder(scanned, run_cli):
+    root = scanned(3, 2)
+    assert not (root / "calibration.json").exists()
+    proc = run_cli("process", root)
+    assert proc.returncode == 2 and "calibration.json" in proc.stderr, proc.stderr
+    assert not (root / "processed").exists()
