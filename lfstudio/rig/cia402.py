@@ -66,6 +66,9 @@ SIZES: dict[int, tuple[int, bool]] = {
     FOLLOWING_ERROR: (4, True),
 }
 PROFILE_POSITION, HOMING = 1, 6
+#: how long :meth:`Cia402Controller.stop` waits for the quick stops before it returns (a stalled
+#: link's goes on to its deadline on its own thread; the drives that answer have theirs in ms)
+STOP_WAIT_S = 0.25
 HOMING_METHODS = {17: "negative limit switch", 18: "positive limit switch", 35: "current position",
                   37: "current position"}
 
@@ -201,6 +204,7 @@ class Cia402Controller:
         self._stop_pending = False
         self._connected = False
         self._opened = False                    # links opened by connect (STOP goes out even after a loss)
+        self._stop_threads: list[threading.Thread] = []
         self._moving = False                    # a move_to under way
         self._lost = ""
         self.reference = ""
@@ -297,7 +301,10 @@ class Cia402Controller:
                 log.debug("closing %s: %s", link.address, exc)
 
     def disconnect(self) -> None:
-        """Close the links; the drives stay as they are (enabled drives hold their position)."""
+        """Close the links; the drives stay as they are (enabled drives hold their position). A quick
+        stop still under way (a stalled link) is waited for first (its link's deadline)."""
+        for t in list(self._stop_threads):
+            t.join()
         with self._io:
             self._connected = False
             self._close_links()
@@ -742,11 +749,12 @@ class Cia402Controller:
         for i in range(2):
             self._write(i, CONTROL, ENABLE_OPERATION)
 
-    def _quick_stop_all(self) -> list[str]:
+    def _quick_stop_all(self, wait_s: float | None = None) -> list[str]:
         """Quick stop (control word 0Bh) to both drives at once: each on a thread of its own and on its
         link's own path (:meth:`ObjectLink.write_now`), so that a drive whose link is stalled delays
-        no other. Returns once every drive has it or failed (each within its link's deadline); the
-        failures, logged, are returned."""
+        no other. Returns once every drive has it or failed (each within its link's deadline), or
+        after ``wait_s`` with the slower ones still under way (:meth:`disconnect` waits for them);
+        the failures so far, logged, are returned."""
         failures: list[str] = []
 
         def one(i: int) -> None:
@@ -758,22 +766,25 @@ class Cia402Controller:
 
         threads = [threading.Thread(target=one, args=(i,), name=f"quick-stop-{'xy'[i]}", daemon=True)
                    for i in range(len(self.links))]
+        self._stop_threads = [t for t in self._stop_threads if t.is_alive()] + threads
         for t in threads:
             t.start()
+        end = None if wait_s is None else time.monotonic() + wait_s
         for t in threads:
-            t.join()
-        return failures
+            t.join(None if end is None else max(0.0, end - time.monotonic()))
+        return list(failures)
 
     def stop(self) -> None:
         """STOP now: quick stop (control word 0Bh) to both drives at once, each on its own path
-        (:meth:`_quick_stop_all`). Safe from any thread; never waits for a running command nor behind
-        an exchange in flight; returns once each drive has it (or its link's deadline passed). The
-        waiting command (or :meth:`status`) re-enables operation once both are at rest."""
+        (:meth:`_quick_stop_all`). Safe from any thread (the window's too); never waits for a running
+        command nor behind an exchange in flight; returns once each drive has it, or after
+        :data:`STOP_WAIT_S` while a stalled link still holds a drive's (it goes on to its deadline).
+        The waiting command (or :meth:`status`) re-enables operation once both are at rest."""
         if not self._opened:                   # even after a link was lost: the other drive must stop
             return
         self._stop_pending = True
         self._jog_target = None
-        self._quick_stop_all()
+        self._quick_stop_all(STOP_WAIT_S)
         self._last_t = 0.0
         self._stop_event.set()
 
