@@ -109,6 +109,8 @@ def run(args: argparse.Namespace) -> int:
             if word == "status":
                 status = controller.status()
             elif word == "home":
+                if hasattr(controller, "progress"):          # a drive pair: a line as each drive is homed
+                    controller.progress = lambda line: print(line, flush=True)
                 controller.home()
                 status = controller.status()
             elif word == "unlock":

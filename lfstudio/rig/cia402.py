@@ -197,6 +197,8 @@ class Cia402Controller:
         self.stall_s = stall_s
         self.status_period_s = 0.1              # full status for the listeners while a move runs
         self.status_listener: Callable[[RigStatus], None] | None = None
+        #: told one line when homing starts and as each drive reaches its reference (the CLI prints them)
+        self.progress: Callable[[str], None] | None = None
         self._axes = (rig.horizontal, rig.vertical)
         self._k = (rig.horizontal.increments_per_mm, rig.vertical.increments_per_mm)
         self._io = threading.RLock()
@@ -250,6 +252,14 @@ class Cia402Controller:
                       "power, then connect again")
         self._connected = False
         return DriveNotAnswering(self._lost)
+
+    def _tell(self, line: str) -> None:
+        log.info("%s", line)
+        if self.progress is not None:
+            try:
+                self.progress(line)
+            except Exception as exc:  # noqa: BLE001 - a listener never stops the drives' work
+                log.debug("progress listener: %s", exc)
 
     def _statusword(self, i: int) -> int:
         return self._read(i, STATUS)
@@ -344,6 +354,9 @@ class Cia402Controller:
                  "mode": (snaps[0]["mode"], snaps[1]["mode"]), "reference": self.reference,
                  "drive_limits_mm": list(self.drive_limits_mm), "addresses": [link.address for link in self.links],
                  "locked": False}
+        if self._homing:                      # each drive's homing: at its reference yet (6041h bit 12)?
+            extra["homing"] = {"xy"[i]: "at reference" if s["statusword"] & HOMING_ATTAINED else "homing"
+                               for i, s in enumerate(snaps)}
         homed = bool(self.reference)
         if any(s in ("FAULT", "FAULT REACTION ACTIVE") for s in states):
             extra["locked"] = True
@@ -483,6 +496,9 @@ class Cia402Controller:
             for i in range(2):                              # both start together (bit 4 rising)
                 self._write(i, CONTROL, ENABLE_OPERATION | NEW_SET_POINT)
             self._homing = True
+        started = time.monotonic()
+        attained: set[int] = set()
+        self._tell(f"{doing} (both drives) …")
         try:
             timeout = max(a.travel_mm / (a.max_speed_mm_s / 20) * 1.5 for a in self._axes) + 10.0
             deadline = time.monotonic() + timeout
@@ -502,7 +518,11 @@ class Cia402Controller:
                     if sw & HOMING_ERROR:
                         raise DeviceError(f"{doing} failed: {self._name(i)} reports a homing error (6041h bit 13); "
                                           "check its limit switch and wiring, then home again")
-                if all(sw & HOMING_ATTAINED and sw & TARGET_REACHED for sw in sws):
+                for i, sw in enumerate(sws):
+                    if i not in attained and sw & HOMING_ATTAINED and sw & TARGET_REACHED:
+                        attained.add(i)
+                        self._tell(f"{doing}: {self._name(i)} {reference} ({time.monotonic() - started:.0f} s)")
+                if len(attained) == 2:
                     break
                 if time.monotonic() > deadline:
                     self.stop()
@@ -516,6 +536,7 @@ class Cia402Controller:
                     self._write(i, CONTROL, ENABLE_OPERATION)
                     self._set_mode(i, PROFILE_POSITION)
                 self.reference = reference
+                self._homing = False              # the last status is the homed rig's, not a homing one
                 self._query()
         finally:
             self._homing = False

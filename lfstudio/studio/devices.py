@@ -547,15 +547,37 @@ class Studio:
         self.close()
 
 
+def _home_telling(controller: Any, say: Callable[[str], None] | None) -> None:
+    """``controller.home()``, telling ``say`` when it starts and ends (and the drive pair's lines)."""
+    import time
+
+    if say is None:
+        controller.home()
+        return
+    started = time.monotonic()
+    if not hasattr(controller, "progress"):          # a GRBL controller homes its axes in one command
+        say("homing the simulated rig (it drives to its limit switches) …")
+    previous = getattr(controller, "progress", None)
+    if hasattr(controller, "progress"):
+        controller.progress = say
+    try:
+        controller.home()
+    finally:
+        if hasattr(controller, "progress"):
+            controller.progress = previous
+    say(f"rig homed ({time.monotonic() - started:.0f} s)")
+
+
 def open_studio(rig: RigSpec | str, camera: CameraSpec | str, rig_config: RigConfig, *, doing: str = "",
                 time_scale: float = 1.0, exposure_s: float = REFERENCE.exposure_s,
                 transfer_s: float = REFERENCE.transfer_s, seed: int = 0,
                 view_region_mm: tuple[float, float, float, float] | None = None, sim_width_px: int | None = None,
                 trigger_command: Sequence[str] | None = None, camera_options: dict[str, Any] | None = None,
-                **controller_options: Any) -> Studio:
+                say: Callable[[str], None] | None = None, **controller_options: Any) -> Studio:
     """Connect the rig and the camera. A rig simulated in this process is homed (or given its
-    origin) at once: the simulated studio starts ready. Everything opened is closed again when a
-    step fails. Raises InputError / DeviceError / LockBusy with one operator line."""
+    origin) at once: the simulated studio starts ready (``say``: told when homing starts, as each
+    drive of a drive pair reaches its reference, and when it ends). Everything opened is closed again
+    when a step fails. Raises InputError / DeviceError / LockBusy with one operator line."""
     rig_spec = RigSpec.parse(rig) if isinstance(rig, str) else rig
     cam_spec = CameraSpec.parse(camera) if isinstance(camera, str) else camera
     link = open_rig(rig_spec, rig_config, doing=doing, time_scale=time_scale, seed=seed, **controller_options)
@@ -564,7 +586,7 @@ def open_studio(rig: RigSpec | str, camera: CameraSpec | str, rig_config: RigCon
         position = None
         if link.simulator is not None:
             if rig_config.homing:
-                link.controller.home()
+                _home_telling(link.controller, say)
             else:
                 link.controller.set_origin()
             position = link.simulator.true_position_mm

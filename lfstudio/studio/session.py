@@ -590,12 +590,13 @@ class ScanSession:
                 raise DeviceError(f"the dataset was captured with the rig on {rig_spec.port}, which is not there now: "
                                   "connect the rig, or give the port it has now with --port PORT")
             self.note(f"connecting the rig ({rig_spec.text}) and the camera ({cam_spec.text})"   # homing takes a while: say so
-                      + (" (the simulated rig homes first)" if rig_spec.kind == "sim" and config.homing else ""))
+                      + (" (the simulated rig homes first)" if rig_spec.kind in ("sim", "sim-dryve", "sim-canopen")
+                         and config.homing else ""))
             studio = self.studio = open_studio(
                 rig_spec, cam_spec, config, doing=f"{self.doing} {self.folder}", time_scale=req.time_scale,
                 exposure_s=req.exposure_s, transfer_s=req.transfer_s, seed=req.seed,
                 view_region_mm=plan.extent_mm(), sim_width_px=req.sim_width_px,
-                trigger_command=req.trigger_command, camera_options=req.camera_options)
+                trigger_command=req.trigger_command, camera_options=req.camera_options, say=self.note)
             for line in studio.notes:
                 self.note(line)
             rig, camera, current, port = studio.rig, studio.camera, studio.record(), studio.port

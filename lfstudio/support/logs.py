@@ -10,6 +10,12 @@ Every module logs through ``logging.getLogger(__name__)``. :func:`setup_logging`
 The rig's status polling (``?`` and its ``<Idle|...>`` reports, several a second) goes to the
 ``lfstudio.rig.grbl.status`` logger, which only ``--debug`` lets through, so the file keeps weeks of
 commands rather than hours of polls.
+
+Third-party libraries (pymodbus, python-can, canopen, PIL, matplotlib, urllib3, asyncio, dask ...) log
+only WARNING and up, with or without ``--debug``: pymodbus alone wrote about 18 000 DEBUG lines per
+simulated-drive view (every Modbus telegram), so the file rotated every minute and the day's
+milestones were gone. Their loggers are set to WARNING (no record is even made below it) and the
+handlers drop any other library's record below WARNING.
 """
 
 from __future__ import annotations
@@ -21,8 +27,16 @@ import sys
 from pathlib import Path
 
 LOG_FILE_NAME = "lfstudio.log"
-MAX_BYTES = 5_000_000       # per file; with BACKUP_COUNT older files: at most 30 MB of logs
+#: per file; with BACKUP_COUNT older files at most 60 MB of logs. A scan writes about 7 lines (0.7 kB) a
+#: view on a GRBL rig and 3.4 lines (0.3 kB) on CiA 402 drives (benchmarks/log_lines_per_view.py), so the
+#: files keep about 74 h of an unattended scan at one view every 3 s: a day with room for retries,
+#: warnings and a --debug session
+MAX_BYTES = 10_000_000
 BACKUP_COUNT = 5
+#: loggers of the libraries we use: WARNING and up only (their DEBUG is protocol traffic, not the operator's)
+LIBRARY_LOGGERS = ("pymodbus", "can", "canopen", "PIL", "matplotlib", "urllib3", "asyncio", "distributed",
+                   "tornado", "fsspec", "bokeh", "tifffile", "rawpy", "lensfunpy", "gphoto2", "serial",
+                   "numba", "h5py", "imageio", "av")
 FILE_FORMAT = "%(asctime)s %(levelname)-7s %(threadName)s %(name)s: %(message)s"
 CONSOLE_FORMAT = "%(asctime)s %(name)s %(levelname)s: %(message)s"
 #: loggers that are quiet unless --debug (high-rate traffic)
@@ -34,6 +48,16 @@ FILE_ONLY_LOGGERS = ("libav",)
 
 def _console_filter(record: logging.LogRecord) -> bool:
     return not any(record.name == n or record.name.startswith(n + ".") for n in FILE_ONLY_LOGGERS)
+
+
+def _ours(name: str) -> bool:
+    return name in ("lfstudio", "root", "__main__", "py.warnings") or name.startswith(("lfstudio.", "libav"))
+
+
+def _library_filter(record: logging.LogRecord) -> bool:
+    """Another library's record reaches our handlers only from WARNING up (a library we do not list
+    in LIBRARY_LOGGERS, or one that set its own logger's level)."""
+    return record.levelno >= logging.WARNING or _ours(record.name)
 
 _HANDLER_TAG = "_lfstudio_handler"
 
@@ -78,12 +102,15 @@ def setup_logging(debug: bool = False, console: bool = True) -> Path | None:
     root.setLevel(logging.DEBUG)
     for name in CHATTY_LOGGERS:
         logging.getLogger(name).setLevel(logging.DEBUG if debug else logging.INFO)
+    for name in LIBRARY_LOGGERS:
+        logging.getLogger(name).setLevel(logging.WARNING)
 
     if console:
         stream = logging.StreamHandler(sys.stderr)
         stream.setLevel(logging.DEBUG if debug else logging.WARNING)
         if not debug:
             stream.addFilter(_console_filter)
+        stream.addFilter(_library_filter)
         stream.setFormatter(logging.Formatter(CONSOLE_FORMAT))
         setattr(stream, _HANDLER_TAG, True)
         root.addHandler(stream)
@@ -99,11 +126,9 @@ def setup_logging(debug: bool = False, console: bool = True) -> Path | None:
         return None
     handler.setLevel(logging.DEBUG)
     handler.setFormatter(logging.Formatter(FILE_FORMAT))
+    handler.addFilter(_library_filter)
     setattr(handler, _HANDLER_TAG, True)
     root.addHandler(handler)
-    # third-party libraries stay at INFO in the file (PIL, asyncio, distributed chatter)
-    for name in ("PIL", "asyncio", "distributed", "tornado", "fsspec", "matplotlib"):
-        logging.getLogger(name).setLevel(logging.INFO)
     return path
 
 

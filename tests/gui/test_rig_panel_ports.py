@@ -189,3 +189,21 @@ def test_recapture_in_the_dataset_menu_needs_a_selection(qtbot, tiny_dataset):
         action.trigger()
     assert len(sig.args[0]) == 15
     assert not action.isEnabled()
+
+
+def test_homing_the_drives_shows_each_drive_s_progress(qtbot):
+    """Homing the simulated drives showed nothing but "homing" for its whole run (issue 41, item 5)."""
+    settings().setValue("rig/profile", DEFAULT_DRIVE_RIG)
+    settings().setValue("rig/port", "sim-dryve")
+    panel = make_panel(qtbot)
+    try:
+        panel.connect_rig()
+        qtbot.waitUntil(lambda: panel.last_status is not None and "power_state" in panel.last_status.extra, timeout=T)
+        panel.state.devices["rig_simulator"].time_scale = 0.1      # x homes in about 4 s, y in about 1 s
+        qtbot.mouseClick(panel.home_button, Qt.LeftButton)
+        qtbot.waitUntil(lambda: "x: operation enabled, homing" in panel.drive_label.text()
+                        and "y: operation enabled, at reference" in panel.drive_label.text(), timeout=3 * T)
+        qtbot.waitUntil(lambda: panel.last_status.homed and panel.last_status.state is RigState.IDLE, timeout=3 * T)
+        assert "homing" not in panel.drive_label.text()
+    finally:
+        panel.shutdown()

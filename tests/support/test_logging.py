@@ -86,3 +86,43 @@ def test_doctor_with_debug_checks_everything_and_logs(run_cli):
     assert str(log_file) in r.stdout
     text = log_file.read_text(encoding="utf-8")
     assert "lfstudio.cli: lfstudio" in text and "> b'$H\\n'" in text
+
+
+LIBRARIES = ("pymodbus.logging", "canopen.sdo", "can.interfaces.udp_multicast", "PIL.PngImagePlugin",
+             "matplotlib.font_manager", "urllib3.connectionpool", "asyncio", "some_new_library")
+
+
+def test_libraries_debug_traffic_stays_out_of_the_log(configured_logging, tmp_path, monkeypatch):
+    """After connecting to sim-dryve 19 367 of 19 371 log lines were pymodbus DEBUG traffic: the log
+    rotated 5 MB about every 70 s and the day's scans were gone (issue 41, item 5)."""
+    monkeypatch.setenv("LFSTUDIO_LOG_DIR", str(tmp_path / "logs"))
+    path = configured_logging(debug=True)      # not even with --debug
+    for name in LIBRARIES:
+        logging.getLogger(name).debug("%s debug traffic", name)
+        logging.getLogger(name).info("%s info chatter", name)
+        logging.getLogger(name).warning("%s warns", name)
+    logging.getLogger("lfstudio.rig.worker").debug("rig: home()")
+    logs.flush_logs()
+    text = path.read_text(encoding="utf-8")
+    for name in LIBRARIES:
+        assert f"{name} warns" in text                                  # warnings and errors do reach it
+        assert f"{name} debug traffic" not in text and f"{name} info chatter" not in text, name
+    assert "lfstudio.rig.worker: rig: home()" in text                  # our own device traffic stays
+
+
+def test_a_drive_scan_logs_views_not_telegrams_and_tells_the_homing(run_cli, tmp_path):
+    """The CLI homed the emulated drives for 44 s without a word; the log filled with Modbus telegrams."""
+    r = run_cli("scan", "--port", "sim-dryve", "--camera", "sim", "--grid", "2x1", "--sim-width-px", "96",
+                "--time-scale", "0", "--out", tmp_path / "ds")
+    assert r.returncode == 0, r.stderr
+    assert "homing (both drives)" in r.stderr
+    assert "drive x (horizontal)" in r.stderr and "drive y (vertical)" in r.stderr and "rig homed" in r.stderr
+    text = (Path(os.environ["LFSTUDIO_LOG_DIR"]) / "lfstudio.log").read_text(encoding="utf-8")
+    assert "pymodbus" not in text and "scan finished" in text
+    assert len(text.splitlines()) < 100, len(text.splitlines())
+
+
+def test_rig_home_on_drives_prints_each_drive(run_cli):
+    r = run_cli("rig", "--port", "sim-dryve", "--time-scale", "0", "home")
+    assert r.returncode == 0, r.stderr
+    assert "homing (both drives)" in r.stdout and "drive x (horizontal)" in r.stdout, r.stdout

@@ -745,7 +745,8 @@ class RigPanel(QWidget):
         problem = snapshot.state in (RigState.ALARM, RigState.DISCONNECTED) and self.device is not None
         # the Home button already recovers an alarm on a rig with switches
         drives = snapshot.extra.get("power_state") if isinstance(snapshot.extra, dict) else None
-        self._show_drives(drives, snapshot.extra.get("fault_code") if drives else None)
+        self._show_drives(drives, snapshot.extra.get("fault_code") if drives else None,
+                          snapshot.extra.get("homing") if drives else None)
         drive_fault = snapshot.state is RigState.ALARM and isinstance(drives, dict)
         show_recover = problem and (snapshot.state is RigState.DISCONNECTED or not self.rig_config.homing or drive_fault)
         if problem:
@@ -764,13 +765,16 @@ class RigPanel(QWidget):
                                         "Reset fault" if drive_fault else "Unlock")
         self._update_enabled()
 
-    def _show_drives(self, power: Any, codes: Any) -> None:
-        """CiA 402 drives: "x: operation enabled · y: fault 8611h" (hidden for other controllers)."""
+    def _show_drives(self, power: Any, codes: Any, homing: Any = None) -> None:
+        """CiA 402 drives: "x: operation enabled · y: fault 8611h" (hidden for other controllers); while
+        they home, each one's progress ("x: operation enabled, homing · y: …, at reference")."""
         text = ""
         if isinstance(power, dict):
             codes = codes if isinstance(codes, dict) else {}
+            homing = homing if isinstance(homing, dict) else {}
             text = "Drives — " + " · ".join(
                 f"{axis}: {str(state).lower()}" + (f" {codes.get(axis)}" if codes.get(axis, "0000h") != "0000h" else "")
+                + (f", {homing[axis]}" if axis in homing else "")
                 for axis, state in power.items())
         if text != self.drive_label.text():
             self.drive_label.setText(text)
