@@ -34,6 +34,8 @@ KINDS = {
     "lfstudio.rig.cia402.DriveFault": "drive-fault",
     "lfstudio.rig.cia402.MotionStopped": "motion-stopped",
     "lfstudio.rig.cia402.PositionError": "position",
+    "lfstudio.rig.cia402.MissingObject": "missing-object",
+    "lfstudio.rig.cia402.UnitsMismatch": "units",
     "lfstudio.support.locks.LockBusy": "busy",
     "lfstudio.support.locks.NotALockFile": "not-a-lock-file",
     "lfstudio.scan.faults.ScanFault": "scan-fault",

@@ -19,7 +19,7 @@ HELP = "talk to the axis controller: status, home, unlock, origin, move X Y, jog
 #: a move or jog argument: any finite number of mm (the soft limits are checked against the rig profile)
 POSITION_MM = Number("mm", -1e6, 1e6)
 BAUD = Number("baud", 300, 4_000_000, integer=True)
-COMMAND_ARGS = {"status": (), "home": (), "unlock": (), "origin": (), "reset": (),
+COMMAND_ARGS = {"status": (), "home": (), "unlock": (), "origin": (), "reset": (), "units": (),
                 "move": ("X", "Y"), "jog": ("DX", "DY")}
 
 
@@ -34,8 +34,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     described_option(p, SCAN["time_scale"], 1.0, said="1; only for a simulated controller")
     p.add_argument("--timeout-s", type=number_option(TIMEOUT_S, "--timeout-s"), default=3.0,
                    help="longest wait for any answer (default 3 s)")
+    p.add_argument("--keep-drive-reference", action="store_true",
+                   help="CiA 402 drives: accept the position the drives report as their reference without homing "
+                        "(logged; the status says 'reference kept from the drive'). Without it a drive is homed "
+                        "only when lfstudio homed it on this connection")
     p.add_argument("commands", nargs=argparse.REMAINDER, metavar="COMMAND [ARGS]",
-                   help="status | home | unlock | origin | reset | move X Y | jog DX DY  (mm; several in a row)")
+                   help="status | home | unlock | origin | reset | units | move X Y | jog DX DY  (mm; several in a "
+                        "row). units (CiA 402 drives, stopped): write the rig profile's position units (60A8h) and "
+                        "feed constant (6092h) to both drives")
     p.epilog = ("example: lfstudio rig --port sim home move 10 5 status. A port in use by another lfstudio "
                 "process (a running scan, the window) is refused, naming it")
 
@@ -63,7 +69,9 @@ def parse_commands(words: list[str]) -> list[tuple[str, tuple[float, ...]]]:
 def describe(status) -> str:
     pos = ("x=? y=?" if status.position_mm is None
            else f"x={status.position_mm[0]:.3f} y={status.position_mm[1]:.3f} mm")
-    text = f"{status.state.value:<12} {pos}  {'homed' if status.homed else 'not homed'}"
+    reference = status.extra.get("reference") if isinstance(status.extra, dict) else None
+    homed = ("reference kept from the drive" if reference == "kept" else "homed") if status.homed else "not homed"
+    text = f"{status.state.value:<12} {pos}  {homed}"
     if status.message:
         text += f"  — {status.message}"
     power = status.extra.get("power_state") if isinstance(status.extra, dict) else None
@@ -98,8 +106,14 @@ def run(args: argparse.Namespace) -> int:
     for word, values in commands:           # a target outside the soft limits is refused before connecting
         if word == "move":
             check_target(rig, *values)
+    drives_only = [w for w, _ in commands if w == "units"] + (["--keep-drive-reference"] if args.keep_drive_reference
+                                                              else [])
+    if drives_only and rig.driver != "cia402":
+        raise InputError(drives_only[0], f"rig profile {rig.name!r} is a GRBL controller, not CiA 402 drives",
+                         "leave it out")
+    options = {"accept_reference": True} if args.keep_drive_reference else {}
     link = open_rig(args.port, rig, doing="rig commands: " + " ".join(args.commands), time_scale=args.time_scale,
-                    baudrate=args.baud, timeout_s=args.timeout_s)
+                    baudrate=args.baud, timeout_s=args.timeout_s, **options)
     controller = link.controller
     try:
         if link.simulator is not None:
@@ -121,6 +135,10 @@ def run(args: argparse.Namespace) -> int:
                 status = controller.status()
             elif word == "origin":
                 controller.set_origin()
+                status = controller.status()
+            elif word == "units":
+                for line in controller.write_units():
+                    print(f"units: {line}", flush=True)
                 status = controller.status()
             elif word == "move":
                 status = controller.move_to(*values)

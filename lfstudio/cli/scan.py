@@ -62,6 +62,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--origin-here", action="store_true",
                    help="rig without limit switches: make the carriage's current position the origin (0, 0) "
                         "before the first view (park it at the left/top end of its travel first)")
+    p.add_argument("--keep-drive-reference", action="store_true",
+                   help="CiA 402 drives: accept the position the drives report as their reference without homing "
+                        "(e.g. to resume after a crash; logged). Without it drives are homed by lfstudio or refused")
     p.add_argument("--allow-device-change", action="store_true",
                    help="with --resume: continue with other devices than the dataset's own (recorded per view)")
     for name in ("grid_columns", "spacing_mm", "offset_mm", "order", "settle_s", "bracket"):
@@ -216,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
     request = ScanRequest(Path(args.out), resume=args.resume, rig=args.port, camera=args.camera,
                           rig_config=load_rig(args.rig_profile) if args.rig_profile else None, home=args.home,
                           origin_here=args.origin_here, allow_device_change=args.allow_device_change,
+                          keep_drive_reference=args.keep_drive_reference,
                           retries=args.retries, time_scale=args.time_scale, exposure_s=args.exposure_s,
                           transfer_s=args.transfer_s, seed=args.seed, sim_width_px=args.sim_width_px)
     request.engine_options["auto_resume"] = args.auto_resume

@@ -24,6 +24,35 @@ def _ports(text: str) -> tuple[int, int]:
     return ports[0], ports[1]
 
 
+def _objects(text: str) -> tuple[int, ...]:
+    from lfstudio.studio.simulated import LEAVE_OUT_ALLOWED
+
+    out = []
+    for word in text.split(","):
+        word = word.strip().upper().removesuffix("H")
+        try:
+            index = int(word, 16)
+        except ValueError:
+            index = -1
+        if index not in LEAVE_OUT_ALLOWED:
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: {word or 'nothing'} is not an object of the emulated drive (hex index, comma-separated: "
+                f"{', '.join(f'{i:04X}' for i in LEAVE_OUT_ALLOWED)})")
+        out.append(index)
+    return tuple(out)
+
+
+def _feed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if not 1 <= value <= 0xFFFFFFFF:
+        raise argparse.ArgumentTypeError(f"{text!r}: the feed constant 6092h:01 is a whole number of position units "
+                                         "per revolution, 1 … 4294967295 (7000: 0.01 mm on a 70 mm/rev belt)")
+    return value
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from lfstudio.studio.scan_options import PARAMS as SCAN
 
@@ -33,8 +62,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="TCP ports of the horizontal and vertical drive (default: any free ports)")
     described_option(p, SCAN["time_scale"], 1.0)
     described_option(p, SCAN["seed"], 0, said="0; it sets the carriage's position at power-up")
+    p.add_argument("--leave-out", type=_objects, default=(), metavar="INDEX,...",
+                   help="objects both drives lack (hex, e.g. 605A,607D,6085): the variety of real CiA 402 drives")
+    p.add_argument("--feed-constant", type=_feed, default=None, metavar="N",
+                   help="6092h:01 of both drives at power-up: position units per motor revolution (default: the "
+                        "rig profile's increments_per_mm x feed_mm_per_rev, 7000; 70 makes them count mm); 60A8h "
+                        "follows when the units are a power of ten of a mm")
+    p.add_argument("--enabled-unhomed", action="store_true",
+                   help="power up in operation enabled, profile position mode, never homed (as another program "
+                        "would leave them)")
+    p.add_argument("--canopen", metavar="CHANNEL", default=None,
+                   help="serve the drives as CANopen nodes 1 and 2 on python-can's bus CHANNEL instead of Modbus TCP: "
+                        "udp_multicast (between processes on this machine), socketcan:can0, or virtual-NAME")
     p.epilog = ("The drives listen on 127.0.0.1 only. Connect with --port dryve:127.0.0.1:P1,127.0.0.1:P2 "
-                "(the first line printed); the simulated camera (--camera sim) follows them.")
+                "(the first line printed; with --canopen: canopen:CHANNEL:1,2); the simulated camera (--camera sim) "
+                "follows them.")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,13 +88,24 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--rig-profile", f"rig profile {rig.name!r} is for a GRBL controller, not CiA 402 drives",
                          f"a profile with driver = \"cia402\", e.g. {DEFAULT_DRIVE_RIG!r}")
     try:
-        emulator, truth = serve_sim_drive(rig, time_scale=args.time_scale, seed=args.seed, ports=args.ports)
+        setup = {"leave_out": args.leave_out, "feed": args.feed_constant, "enabled_unhomed": args.enabled_unhomed}
+        emulator, truth = serve_sim_drive(rig, time_scale=args.time_scale, seed=args.seed, ports=args.ports,
+                                          setup=setup, canopen=args.canopen)
     except OSError as exc:
+        if args.canopen:
+            raise InputError("--canopen", f"cannot open the CAN bus {args.canopen!r} ({exc.strerror or exc})",
+                             "udp_multicast, socketcan:CHANNEL of an interface that is up, or virtual-NAME") from None
         raise InputError("--ports", f"cannot listen on 127.0.0.1 ({exc.strerror or exc})",
                          "free TCP ports, or leave --ports out") from None
+    except Exception as exc:  # noqa: BLE001 - python-can raises many kinds for a bus it cannot open
+        if not args.canopen:
+            raise
+        raise InputError("--canopen", f"cannot open the CAN bus {args.canopen!r} ({exc})",
+                         "udp_multicast, socketcan:CHANNEL of an interface that is up, or virtual-NAME") from None
+    what = (f"CANopen nodes 1 and 2 on {args.canopen}" if args.canopen else "dryve D1 Modbus TCP gateway")
     return serve_until_stopped(
         emulator.word,
-        f"two emulated CiA 402 drives (dryve D1 Modbus TCP gateway) for rig {rig.name!r}; connect with\n"
+        f"two emulated CiA 402 drives ({what}) for rig {rig.name!r}; connect with\n"
         f"  lfstudio rig --port {emulator.word} --rig-profile '{rig.name}' home status\n"
         f"  lfstudio scan --port {emulator.word} --rig-profile '{rig.name}' --home --camera sim ...\n"
         "Ctrl-C stops them.", emulator, truth, "emulated drives")

@@ -1,9 +1,13 @@
 """CANopen SDO access to a CiA 402 drive through python-canopen (its ``BaseNode402``) on python-can:
 an :class:`lfstudio.rig.cia402.ObjectLink`.
 
-``channel``: ``can0`` (SocketCAN on a studio machine) or ``virtual-NAME`` (python-can's in-process
-``virtual`` bus named NAME, where the emulated drives of ``--port sim-canopen`` and the tests
-live). All drives on one channel share one ``canopen.Network`` in this process.
+``channel``: ``can0`` or ``socketcan:can0`` (SocketCAN on a studio machine), ``udp_multicast`` or
+``udp_multicast:GROUP`` (python-can's UDP multicast bus: CAN frames between processes, e.g.
+``lfstudio sim-drive --canopen udp_multicast``; group 239.74.163.2 by default), or ``virtual-NAME``
+(python-can's in-process ``virtual`` bus named NAME, where the emulated drives of ``--port
+sim-canopen`` live). All drives on one channel share one ``canopen.Network`` in this process.
+``object_dictionary``: the drive's EDS/DCF as python-canopen parsed it (else an empty one: SDO
+needs none).
 
 Deadlines: a whole SDO transfer (every segment of it) must end within the link's ``timeout_s``
 (python-canopen's own timeout is per response: a node answering a segmented upload one segment at a
@@ -26,6 +30,8 @@ from lfstudio.rig.cia402 import DriveNotAnswering, ObjectAccessRefused
 log = logging.getLogger(__name__)
 
 VIRTUAL_PREFIX = "virtual-"
+UDP_MULTICAST = "udp_multicast"
+UDP_MULTICAST_GROUP = "239.74.163.2"     # python-can's UdpMulticastBus.DEFAULT_GROUP_IPv4
 _networks: dict[str, list[Any]] = {}            # channel -> [network, users]
 _networks_lock = threading.Lock()
 #: how long STOP waits for an SDO exchange in flight before it interrupts it (a healthy one takes ~1 ms)
@@ -76,10 +82,13 @@ def _deadline_client() -> Any:
     return _client_class
 
 
-def _bus_args(channel: str) -> dict[str, Any]:
+def bus_args(channel: str) -> dict[str, Any]:
+    """python-can's ``Bus`` arguments for a channel word (see the module docstring)."""
     if channel.startswith(VIRTUAL_PREFIX):
         return {"interface": "virtual", "channel": channel[len(VIRTUAL_PREFIX):], "receive_own_messages": False}
-    return {"interface": "socketcan", "channel": channel}
+    if channel == UDP_MULTICAST or channel.startswith(UDP_MULTICAST + ":"):
+        return {"interface": "udp_multicast", "channel": channel.partition(":")[2] or UDP_MULTICAST_GROUP}
+    return {"interface": "socketcan", "channel": channel.removeprefix("socketcan:")}
 
 
 def _network(channel: str) -> Any:
@@ -91,7 +100,7 @@ def _network(channel: str) -> Any:
             network = canopen.Network()
             network.NOTIFIER_CYCLE = 0.1              # closing waits at most this long for its reader
             try:
-                network.connect(**_bus_args(channel))
+                network.connect(**bus_args(channel))
             except Exception as exc:  # noqa: BLE001 - python-can raises many kinds
                 raise DriveNotAnswering(f"cannot open the CAN bus {channel!r} ({exc})") from None
             entry = _networks[channel] = [network, 0]
@@ -116,8 +125,9 @@ def _release(channel: str) -> None:
 class CanopenLink:
     """One drive (``node_id``) on ``channel``; SDO upload/download through ``BaseNode402.sdo``."""
 
-    def __init__(self, channel: str, node_id: int, *, timeout_s: float = 1.0):
+    def __init__(self, channel: str, node_id: int, *, timeout_s: float = 1.0, object_dictionary: Any = None):
         self.channel = channel
+        self.object_dictionary = object_dictionary
         self.node_id = int(node_id)
         self.address = f"{channel} node {self.node_id}"
         self.timeout_s = timeout_s
@@ -131,7 +141,8 @@ class CanopenLink:
             if self.node is not None:
                 return
             network = _network(self.channel)
-            node = BaseNode402(self.node_id, ObjectDictionary())
+            node = BaseNode402(self.node_id, self.object_dictionary if self.object_dictionary is not None
+                               else ObjectDictionary())
             client = _deadline_client()(node.sdo.rx_cobid, node.sdo.tx_cobid, node.object_dictionary)
             node.sdo_channels[node.sdo_channels.index(node.sdo)] = client
             node.sdo = client

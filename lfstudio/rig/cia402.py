@@ -20,9 +20,19 @@ What it does with the drives (object numbers of the CiA 402 profile):
   axes start together; the move is complete when both report target reached (bit 10) *and*
   ``6064h`` is at the target within the tolerance. A fault or a following error (bit 13, ``60F4h``)
   ends it with the drive's error code ``603Fh`` as an operator message (:func:`fault_message`).
-- **Units**: ``increments_per_mm`` of each axis in the rig profile (the feed constant: drive
-  position units per mm); positive (a wrong sign would run the axis the wrong way: invert the
-  drive's polarity ``607Eh`` instead), never 0.
+- **Objects discovered, not assumed** (:meth:`Cia402Controller.connect`): each drive's objects are
+  read once (a refused read: the drive lacks it), or listed by its EDS/DCF when the rig profile
+  names one. Mandatory ones (:data:`MANDATORY`; :data:`MANDATORY_HOMING` for homing) are refused by
+  name before anything moves; optional ones (:data:`OPTIONAL`) are used where present, with their
+  fallback said once (``warnings`` in the status) where absent.
+- **Units** checked before any motion: ``increments_per_mm`` of each axis in the rig profile (drive
+  position units per mm; positive, never 0: invert an axis with the drive's polarity ``607Eh``)
+  against the drive's SI unit ``60A8h`` and its feed constant ``6092h`` (with the profile's
+  ``feed_mm_per_rev``); a mismatch refuses every motion naming both and the fix (:meth:`write_units`
+  writes the profile's units to stopped drives). Speeds and accelerations are written in the units
+  ``60A9h``/``60AAh`` report, where the drive has them.
+- **Arrival**: target reached (bit 10) and ``6064h`` within the drive's position window ``6067h``
+  (an explicit ``tolerance_mm`` may tighten it, never loosen it).
 - **Limits**: a target must be inside the profile's soft limits *and* the drive's own software
   position limits ``607Dh`` (read at connect); nothing is sent otherwise.
 - **STOP** (:meth:`Cia402Controller.stop`): quick stop (control word 0Bh) to both drives at once,
@@ -31,10 +41,11 @@ What it does with the drives (object numbers of the CiA 402 profile):
   waits for a running command nor behind an exchange, and a stalled link delays no other drive; the drives brake on their quick-stop ramp (``605Ah`` = 6: stay in quick
   stop active once at rest, position kept). The waiting command ends with where the rig stopped;
   the next command re-enables operation.
-- **Reference**: homed in this connection, or found at connect in profile position mode with
-  operation enabled: lfstudio only enters profile position after its own homing, and a fault or
-  power loss leaves operation enabled, so such a drive was homed by lfstudio and kept its
-  position since (a scan resumed after a crash checks the reported position against the dataset).
+- **Reference** established, never inferred: the rig is homed only when lfstudio homed it (or set
+  its origin) on this connection, or when the operator accepts the drives' own reference
+  (:meth:`Cia402Controller.accept_reference`: ``--keep-drive-reference``, the Rig panel's **Keep
+  drive reference**; logged, reported as reference "kept"). A drive found enabled in profile
+  position mode is *not* taken as homed: another program may have enabled it without homing.
 """
 
 from __future__ import annotations
@@ -51,19 +62,59 @@ from lfstudio.rig.motion import RigConfig, RigState, RigStatus, SoftLimitError, 
 
 log = logging.getLogger(__name__)
 
-# -- objects: index -> (subindex, bytes, signed) ---------------------------------------------------
+# -- objects: index -> (bytes, signed) --------------------------------------------------------------
 ERROR_CODE, CONTROL, STATUS, QUICK_STOP_OPTION = 0x603F, 0x6040, 0x6041, 0x605A
 MODE, MODE_DISPLAY, POSITION, FOLLOWING_WINDOW, VELOCITY = 0x6060, 0x6061, 0x6064, 0x6065, 0x606C
+POSITION_WINDOW, POSITION_WINDOW_TIME = 0x6067, 0x6068
 TARGET, SOFTWARE_LIMITS, PROFILE_VELOCITY, PROFILE_ACCELERATION = 0x607A, 0x607D, 0x6081, 0x6083
 PROFILE_DECELERATION, QUICK_STOP_DECELERATION = 0x6084, 0x6085
 HOMING_METHOD, HOMING_SPEEDS, HOMING_ACCELERATION, FOLLOWING_ERROR = 0x6098, 0x6099, 0x609A, 0x60F4
+FEED_CONSTANT, SI_POSITION, SI_VELOCITY, SI_ACCELERATION = 0x6092, 0x60A8, 0x60A9, 0x60AA
+SUPPORTED_MODES, SUPPORTED_HOMING = 0x6502, 0x60E3
 SIZES: dict[int, tuple[int, bool]] = {
     ERROR_CODE: (2, False), CONTROL: (2, False), STATUS: (2, False), QUICK_STOP_OPTION: (2, True),
     MODE: (1, True), MODE_DISPLAY: (1, True), POSITION: (4, True), FOLLOWING_WINDOW: (4, False),
     VELOCITY: (4, True), TARGET: (4, True), SOFTWARE_LIMITS: (4, True), PROFILE_VELOCITY: (4, False),
     PROFILE_ACCELERATION: (4, False), PROFILE_DECELERATION: (4, False), QUICK_STOP_DECELERATION: (4, False),
     HOMING_METHOD: (1, True), HOMING_SPEEDS: (4, False), HOMING_ACCELERATION: (4, False),
-    FOLLOWING_ERROR: (4, True),
+    FOLLOWING_ERROR: (4, True), POSITION_WINDOW: (4, False), POSITION_WINDOW_TIME: (2, False),
+    FEED_CONSTANT: (4, False), SI_POSITION: (4, False), SI_VELOCITY: (4, False), SI_ACCELERATION: (4, False),
+    SUPPORTED_MODES: (4, False), SUPPORTED_HOMING: (1, True),
+}
+#: what each object is, for messages
+OBJECT_NAMES: dict[int, str] = {
+    ERROR_CODE: "error code", CONTROL: "control word", STATUS: "status word", QUICK_STOP_OPTION: "quick stop option code",
+    MODE: "modes of operation", MODE_DISPLAY: "modes of operation display", POSITION: "position actual value",
+    VELOCITY: "velocity actual value", POSITION_WINDOW: "position window", POSITION_WINDOW_TIME: "position window time",
+    TARGET: "target position", SOFTWARE_LIMITS: "software position limit", PROFILE_VELOCITY: "profile velocity",
+    PROFILE_ACCELERATION: "profile acceleration", PROFILE_DECELERATION: "profile deceleration",
+    QUICK_STOP_DECELERATION: "quick stop deceleration", HOMING_METHOD: "homing method", HOMING_SPEEDS: "homing speeds",
+    HOMING_ACCELERATION: "homing acceleration", FOLLOWING_ERROR: "following error actual value",
+    FEED_CONSTANT: "feed constant", SI_POSITION: "SI unit position", SI_VELOCITY: "SI unit velocity",
+    SI_ACCELERATION: "SI unit acceleration", SUPPORTED_MODES: "supported drive modes",
+    SUPPORTED_HOMING: "supported homing methods", FOLLOWING_WINDOW: "following error window",
+}
+#: (index, subindex) every motion needs (CiA 402 device control and profile position): refused by name when absent
+MANDATORY: tuple[tuple[int, int], ...] = ((CONTROL, 0), (STATUS, 0), (MODE, 0), (MODE_DISPLAY, 0), (POSITION, 0),
+                                          (TARGET, 0), (PROFILE_VELOCITY, 0), (PROFILE_ACCELERATION, 0))
+#: what homing (and setting the origin, homing method 37) needs besides
+MANDATORY_HOMING: tuple[tuple[int, int], ...] = ((HOMING_METHOD, 0), (HOMING_SPEEDS, 1), (HOMING_SPEEDS, 2))
+#: (index, subindex) used when the drive has them, each with its fallback (said once when absent)
+OPTIONAL: dict[tuple[int, int], str] = {
+    (ERROR_CODE, 0): "faults are reported without their error code",
+    (QUICK_STOP_OPTION, 0): "STOP uses the drive's own quick stop option",
+    (VELOCITY, 0): "standstill is taken from an unchanged position (6064h)",
+    (SOFTWARE_LIMITS, 1): "only the rig profile's soft limits are checked",
+    (SOFTWARE_LIMITS, 2): "only the rig profile's soft limits are checked",
+    (PROFILE_DECELERATION, 0): "the drive decelerates at its profile acceleration",
+    (QUICK_STOP_DECELERATION, 0): "STOP brakes on the profile deceleration ramp (605Ah = 5)",
+    (HOMING_ACCELERATION, 0): "homing accelerates at the drive's own setting",
+    (FOLLOWING_ERROR, 0): "the status has no following error figure",
+    (POSITION_WINDOW, 0): "arrival is checked with the driver's tolerance",
+    (POSITION_WINDOW_TIME, 0): "",
+    (FEED_CONSTANT, 1): "", (FEED_CONSTANT, 2): "",
+    (SI_POSITION, 0): "", (SI_VELOCITY, 0): "", (SI_ACCELERATION, 0): "",
+    (SUPPORTED_MODES, 0): "", (SUPPORTED_HOMING, 0): "",
 }
 PROFILE_POSITION, HOMING = 1, 6
 #: how long :meth:`Cia402Controller.stop` waits for the quick stops before it returns (a stalled
@@ -176,23 +227,67 @@ class PositionError(DeviceError):
     kind = "position"
 
 
+class MissingObject(DeviceError):
+    """A drive lacks an object CiA 402 makes mandatory for what was asked (nothing was moved)."""
+
+    kind = "missing-object"
+
+
+class UnitsMismatch(DeviceError):
+    """A drive's position units disagree with the rig profile's feed constant (nothing moves)."""
+
+    kind = "units"
+
+
+def si_units_per_mm(value: int) -> float | None:
+    """Position units per mm of an SI unit object (``60A8h``: byte 3 the power of ten, byte 2 the
+    unit, 01h metre; CiA 402 "factor group"); None when the unit is not a length (41h degree: a rotary
+    axis). The dryve D1 answers FB010000h for 0.01 mm (its default; OptovisTech/DryveD1API
+    Modules/SIUnitPosition.cs: byte 21 movement type 01h linear / 41h rotary, byte 22 the factor FAh … 02h)."""
+    if (value >> 16) & 0xFF != 0x01:
+        return None
+    prefix = (value >> 24) & 0xFF
+    prefix = prefix - 256 if prefix > 127 else prefix
+    return 10.0 ** (-3 - prefix)
+
+
+def si_time_factor(value: int, acceleration: bool) -> float | None:
+    """Seconds per the time unit of ``60A9h``/``60AAh`` (byte 1: 03h s, 47h min; 57h s²), None if unknown."""
+    denominator = (value >> 8) & 0xFF
+    if acceleration:
+        return {0x57: 1.0, 0x03: 1.0}.get(denominator)
+    return {0x03: 1.0, 0x47: 60.0}.get(denominator)
+
+
+def _si_text(value: int) -> str:
+    upm = si_units_per_mm(value)
+    if upm is None:
+        return f"{value:08X}h (not a length unit: a rotary axis?)"
+    return f"{value:08X}h: {1.0 / upm:g} mm"
+
+
 class Cia402Controller:
     """A :class:`lfstudio.rig.motion.MotionController` for two CiA 402 drives (horizontal, vertical).
 
     ``links``: the two drives' :class:`ObjectLink`; ``port``: the device word (messages, locks).
-    After :meth:`connect`: :attr:`drive_limits_mm` (``607Dh`` in mm), :attr:`reference`
-    ("homed", "origin", "kept" or "")."""
+    After :meth:`connect`: :attr:`objects` (what each drive has), :attr:`drive_limits_mm` (``607Dh``
+    in mm), :attr:`window_mm` (``6067h``), :attr:`units_problem`, :attr:`warnings` and
+    :attr:`reference` ("homed", "origin", "kept" or ""). ``known_objects``: each drive's (index, sub)
+    from its EDS/DCF (None: read them). ``accept_reference``: :meth:`accept_reference` at connect."""
 
     def __init__(self, links: tuple[ObjectLink, ObjectLink], rig: RigConfig, *, port: str = "",
-                 timeout_s: float = 3.0, poll_hz: float = 50.0, tolerance_mm: float = 0.02,
-                 max_status_hz: float = 50.0, stall_s: float = 3.0):
+                 timeout_s: float = 3.0, poll_hz: float = 50.0, tolerance_mm: float | None = None,
+                 max_status_hz: float = 50.0, stall_s: float = 3.0, accept_reference: bool = False,
+                 known_objects: tuple[set | None, set | None] = (None, None)):
         check_feed_constants(rig)
         self.links = tuple(links)
         self.config = rig
         self.port = port or ",".join(link.address for link in links)
         self.timeout_s = timeout_s
         self.poll_period_s = 1.0 / poll_hz
-        self.tolerance_mm = tolerance_mm
+        self.tolerance_mm = tolerance_mm        # None: the drive's own position window 6067h (else 0.02 mm)
+        self.accept_reference_at_connect = accept_reference
+        self.known_objects = known_objects      # from an EDS/DCF: the (index, sub) each drive has, or None: read them
         self.min_status_interval_s = 1.0 / max_status_hz
         self.stall_s = stall_s
         self.status_period_s = 0.1              # full status for the listeners while a move runs
@@ -201,6 +296,13 @@ class Cia402Controller:
         self.progress: Callable[[str], None] | None = None
         self._axes = (rig.horizontal, rig.vertical)
         self._k = (rig.horizontal.increments_per_mm, rig.vertical.increments_per_mm)
+        self._kv = list(self._k)                # velocity units per mm/s (60A9h where the drive has it)
+        self._ka = list(self._k)                # acceleration units per mm/s² (60AAh)
+        self.objects: list[dict[tuple[int, int], int]] = [{}, {}]   # what each drive has (value read at connect)
+        self.warnings: list[str] = []           # fallbacks and notes, said once per connection
+        self.units_problem: list[str] = ["", ""]
+        self.window_mm: list[float | None] = [None, None]
+        self._rest_probe: list[int | None] = [None, None]
         self._io = threading.RLock()
         self._stop_event = threading.Event()
         self._stop_pending = False
@@ -211,6 +313,7 @@ class Cia402Controller:
         self._lost = ""
         self.reference = ""
         self.drive_limits_mm: list[tuple[float, float] | None] = [None, None]
+        self.supported_homing: list[tuple[int, ...] | None] = [None, None]
         self._last: RigStatus | None = None
         self._last_t = 0.0
         self._jog_target: tuple[float, float] | None = None
@@ -264,17 +367,31 @@ class Cia402Controller:
     def _statusword(self, i: int) -> int:
         return self._read(i, STATUS)
 
+    def has(self, i: int, index: int, sub: int = 0) -> bool:
+        """Drive ``i`` has the object (learnt at connect)."""
+        return (index, sub) in self.objects[i]
+
+    def _say(self, text: str) -> None:
+        if text not in self.warnings:
+            self.warnings.append(text)
+            log.warning("%s", text)
+
     # -- connection ----------------------------------------------------------------------------------
     @property
     def connected(self) -> bool:
         return self._connected and not self._lost
 
     def connect(self) -> None:
-        """Open both links and read the drives: power state, fault, ``607Dh``; set the quick stop
-        option (``605Ah`` = 6). Nothing moves and no drive is enabled here. A drive in FAULT is
-        connected (so that it can be reset) and reported by :meth:`status`; motion is refused."""
+        """Open both links and learn each drive: which objects it has (read, or its EDS/DCF), its
+        units (``6092h``, ``60A8h``–``60AAh``), limits (``607Dh``), position window (``6067h``),
+        power state; set the quick stop option (``605Ah``) where it can be written. Nothing moves and
+        no drive is enabled here. A drive lacking a mandatory object is refused by name
+        (:class:`MissingObject`); a unit mismatch connects (so that ``units`` can fix it) and refuses
+        every motion. A drive in FAULT is connected (so that it can be reset) and reported by
+        :meth:`status`; motion is refused. No drive is taken as homed: see :meth:`accept_reference`."""
         with self._io:
             self._lost = ""
+            self.warnings = []
             for i, link in enumerate(self.links):
                 try:
                     link.open()
@@ -283,24 +400,197 @@ class Cia402Controller:
                     raise DriveNotAnswering(f"{self._name(i)} does not answer: {exc}. Check the address, that "
                                             "the drive is powered and on the network, then connect again") from None
             self._opened = True
-            states = []
-            for i in range(2):
-                try:
-                    sw = self._statusword(i)
-                except DriveNotAnswering:
-                    self._close_links()
-                    raise
-                states.append(power_state(sw))
-                lo = self._read(i, SOFTWARE_LIMITS, 1) / self._k[i]
-                hi = self._read(i, SOFTWARE_LIMITS, 2) / self._k[i]
-                self.drive_limits_mm[i] = (lo, hi) if lo < hi else None
-                self._write(i, QUICK_STOP_OPTION, 6)
-            modes = [self._read(i, MODE_DISPLAY) for i in range(2)]
+            try:
+                for i in range(2):
+                    self._statusword(i)                  # answers at all (else: not answering, named)
+                    self._discover(i)
+                    missing = [key for key in MANDATORY if key not in self.objects[i]]
+                    if missing:
+                        raise MissingObject(self._missing_line(i, missing, "any motion"))
+                    self._check_units(i)
+                    self._learn_limits(i)
+                    self._set_quick_stop_option(i)
+            except BaseException:
+                self._close_links()
+                raise
             self._connected = True
-            self.reference = "kept" if all(s == "OPERATION ENABLED" for s in states) and \
-                all(m == PROFILE_POSITION for m in modes) else ""
+            self.reference = ""
+            self._rest_probe = [None, None]
             self._last_t = 0.0
+            if self.accept_reference_at_connect:
+                self.accept_reference()
             self._query()
+
+    def _missing_line(self, i: int, missing: list[tuple[int, int]], doing: str) -> str:
+        names = ", ".join(f"{index:04X}h" + (f":{sub:02X}" if sub else "") + f" ({OBJECT_NAMES.get(index, '?')})"
+                          for index, sub in missing)
+        source = "its EDS/DCF lists" if self.known_objects[i] is not None else "it answers"
+        return (f"{self._name(i)} lacks {names}, which CiA 402 makes mandatory for {doing} ({source} no such "
+                "object); nothing was moved. Fix: use a CiA 402 drive with profile position and homing mode, or "
+                "check the drive's configuration (and the EDS/DCF named in the rig profile)")
+
+    def _discover(self, i: int) -> None:
+        """Which objects drive ``i`` has, with their values: each read (a refused read: absent), or
+        the EDS/DCF's list when the profile names one (then only what it lists is read)."""
+        found: dict[tuple[int, int], int] = {}
+        listed = self.known_objects[i]
+        for index, sub in (*MANDATORY, *MANDATORY_HOMING, *OPTIONAL):
+            if listed is not None and (index, sub) not in listed:
+                continue
+            size, signed = SIZES[index]
+            try:
+                found[(index, sub)] = self.links[i].read(index, sub, size, signed)
+            except ObjectAccessRefused as exc:
+                if listed is not None:
+                    self._say(f"{self._name(i)}: its EDS/DCF lists {index:04X}h:{sub:02X} but the drive refuses it "
+                              f"({exc})")
+            except DriveNotAnswering as exc:
+                raise self._mark_lost(i, exc) from None
+        if (SUPPORTED_HOMING, 0) in found:
+            methods = []
+            for sub in range(1, max(0, min(found[(SUPPORTED_HOMING, 0)], 64)) + 1):
+                try:
+                    methods.append(self.links[i].read(SUPPORTED_HOMING, sub, 1, True))
+                except ObjectAccessRefused:
+                    break
+            self.supported_homing[i] = tuple(methods)
+        else:
+            self.supported_homing[i] = None
+        self.objects[i] = found
+        for key, fallback in OPTIONAL.items():
+            if key not in found and fallback and not (key == (SOFTWARE_LIMITS, 2) and (SOFTWARE_LIMITS, 1) not in found):
+                self._say(f"{self._name(i)} has no {key[0]:04X}h ({OBJECT_NAMES[key[0]]}): {fallback}")
+
+    def _check_units(self, i: int) -> None:
+        """The drive's position units per mm (``60A8h``, and ``6092h`` with the profile's
+        ``feed_mm_per_rev``) against the profile's ``increments_per_mm``; velocity and acceleration
+        units from ``60A9h``/``60AAh`` where the drive reports them."""
+        axis, k, o = self._axes[i], self._k[i], self.objects[i]
+        where = f"rig {self.config.name!r} {axis.name}.increments_per_mm = {k:g}"
+        fix_cmd = f"lfstudio rig --port {self.port} --rig-profile '{self.config.name}' units"
+        problems = []
+        si = o.get((SI_POSITION, 0))
+        if si is not None:
+            upm = si_units_per_mm(si)
+            if upm is None or not math.isclose(upm, k, rel_tol=1e-6):
+                problems.append(f"its position unit 60A8h = {_si_text(si)} makes "
+                                f"{'no length' if upm is None else f'{upm:g} position units per mm'}")
+        feed, revs = o.get((FEED_CONSTANT, 1)), o.get((FEED_CONSTANT, 2))
+        per_rev = axis.feed_mm_per_rev
+        if feed is not None and per_rev > 0:
+            revs = revs or 1
+            upm = feed / revs / per_rev
+            if not math.isclose(upm, k, rel_tol=1e-6):
+                problems.append(f"its feed constant 6092h = {feed}/{revs} per revolution at {per_rev:g} mm per "
+                                f"revolution makes {upm:g} position units per mm")
+        elif si is None:
+            self._say(f"{self._name(i)}: its position units cannot be checked (no 60A8h"
+                      + ("" if feed is None else f"; 6092h:01 = {feed} per revolution but the profile has no "
+                         f"{axis.name}.feed_mm_per_rev") + "): lfstudio trusts the rig profile's "
+                      f"increments_per_mm = {k:g}")
+        self.units_problem[i] = ""
+        if problems:
+            self.units_problem[i] = (
+                f"{self._name(i)}: {'; '.join(problems)}, but the {where}; nothing moves. Fix: correct the rig "
+                f"profile, or write the profile's units to the stopped drive ({fix_cmd})")
+        for index, store, acceleration in ((SI_VELOCITY, self._kv, False), (SI_ACCELERATION, self._ka, True)):
+            value = o.get((index, 0))
+            store[i] = k
+            if value is None:
+                continue
+            upm, per_s = si_units_per_mm(value), si_time_factor(value, acceleration)
+            if upm is None or per_s is None:
+                self._say(f"{self._name(i)}: {index:04X}h ({OBJECT_NAMES[index]}) = {value:08X}h is a unit lfstudio "
+                          f"does not know; it writes {'accelerations' if acceleration else 'speeds'} in position "
+                          "units per second")
+                continue
+            store[i] = upm * (per_s * per_s if acceleration else per_s)
+
+    def _learn_limits(self, i: int) -> None:
+        o, k = self.objects[i], self._k[i]
+        lo, hi = o.get((SOFTWARE_LIMITS, 1)), o.get((SOFTWARE_LIMITS, 2))
+        self.drive_limits_mm[i] = (lo / k, hi / k) if lo is not None and hi is not None and lo < hi else None
+        window = o.get((POSITION_WINDOW, 0))
+        window_mm = self.window_mm[i] = window / k if window is not None and window not in (0, 0xFFFFFFFF) else None
+        if window_mm is not None and self.tolerance_mm is not None and self.tolerance_mm > window_mm:
+            self._say(f"{self._name(i)}: the tolerance {self.tolerance_mm:g} mm is looser than the drive's position "
+                      f"window 6067h = {window_mm:g} mm; the window is used")
+
+    def _set_quick_stop_option(self, i: int) -> None:
+        """605Ah = 6 (quick stop ramp 6085h, stay in quick stop active), 5 (profile deceleration) on
+        a drive without 6085h; a drive that refuses the write keeps its own (said once)."""
+        if not self.has(i, QUICK_STOP_OPTION):
+            return
+        wanted = 6 if self.has(i, QUICK_STOP_DECELERATION) else 5
+        try:
+            self._write(i, QUICK_STOP_OPTION, wanted)
+        except ObjectAccessRefused as exc:
+            self._say(f"{self._name(i)}: its quick stop option 605Ah stays "
+                      f"{self.objects[i][(QUICK_STOP_OPTION, 0)]} (the write was refused: {exc})")
+
+    def tolerance(self, i: int) -> float:
+        """Arrival tolerance of axis ``i`` in mm: the drive's position window (6067h), tightened by an
+        explicit ``tolerance_mm``, never loosened; 0.02 mm without a window; at least one position unit."""
+        window = self.window_mm[i]
+        if window is None:
+            tol = 0.02 if self.tolerance_mm is None else self.tolerance_mm
+        else:
+            tol = window if self.tolerance_mm is None else min(window, self.tolerance_mm)
+        return max(tol, 1.0 / self._k[i])
+
+    def accept_reference(self) -> None:
+        """The operator accepts the drives' own reference (their reported position) without homing:
+        logged, shown as "reference kept from the drive". Refused while a drive is in fault."""
+        with self._io:
+            if not self._connected or self._lost:
+                raise DriveNotAnswering(self._lost or f"the rig {self.port} is not connected: connect first")
+            st = self._query()
+            if st.state is RigState.ALARM:
+                raise DriveFault(f"keeping the drives' reference refused: {st.message}")
+            self.reference = "kept"
+            pos = _position_of(st)
+            log.warning("the operator kept the drives' reference on %s: they report (%.3f, %.3f) mm, not homed by "
+                        "lfstudio on this connection", self.port, pos[0], pos[1])
+            self._query()
+
+    def write_units(self) -> list[str]:
+        """Write the rig profile's units to both drives (at rest): ``60A8h`` where the feed constant
+        is a power of ten of a mm, ``6092h`` (feed per revolution, 1 revolution) where the profile
+        names ``feed_mm_per_rev``. The reference is dropped (home again). Returns what was written."""
+        with self._io:
+            if not self._connected or self._lost:
+                raise DriveNotAnswering(self._lost or f"the rig {self.port} is not connected: connect first")
+            for i in range(2):
+                if not self._drive_at_rest(i) and not self._drive_at_rest(i):
+                    raise DeviceError(f"writing units refused: {self._name(i)} is moving; stop it first")
+            done = []
+            for i in range(2):
+                k, axis = self._k[i], self._axes[i]
+                exponent = math.log10(k)
+                if self.has(i, SI_POSITION) and abs(exponent - round(exponent)) < 1e-9:
+                    value = (((-3 - round(exponent)) & 0xFF) << 24) | (0x01 << 16)
+                    self._write(i, SI_POSITION, value)
+                    done.append(f"{self._name(i)}: 60A8h = {value:08X}h ({1 / k:g} mm)")
+                elif self.has(i, SI_POSITION):
+                    raise UnitsMismatch(f"{self._name(i)}: increments_per_mm = {k:g} is not a power of ten, so no SI "
+                                        "unit (60A8h) expresses it; set the drive's unit on its own interface")
+                if self.has(i, FEED_CONSTANT, 1) and axis.feed_mm_per_rev > 0:
+                    feed = round(k * axis.feed_mm_per_rev)
+                    self._write(i, FEED_CONSTANT, feed, 1)
+                    if self.has(i, FEED_CONSTANT, 2):
+                        self._write(i, FEED_CONSTANT, 1, 2)
+                    done.append(f"{self._name(i)}: 6092h = {feed} per revolution ({axis.feed_mm_per_rev:g} mm)")
+            self.reference = ""
+            for i in range(2):
+                self._discover(i)
+                self._check_units(i)
+                self._learn_limits(i)
+                lim = self.drive_limits_mm[i]
+                if lim is not None:
+                    done.append(f"{self._name(i)}: its software position limits 607Dh now read {lim[0]:g} … "
+                                f"{lim[1]:g} mm (their numbers are in the new units: check them)")
+            self._query()
+            return done
 
     def _close_links(self) -> None:
         self._opened = False
@@ -322,9 +612,19 @@ class Cia402Controller:
     # -- status --------------------------------------------------------------------------------------
     def _axis_snapshot(self, i: int) -> dict:
         sw = self._statusword(i)
-        return {"statusword": sw, "state": power_state(sw), "error_code": self._read(i, ERROR_CODE),
-                "position": self._read(i, POSITION), "following_error": self._read(i, FOLLOWING_ERROR),
+        return {"statusword": sw, "state": power_state(sw), "error_code": self._error_code(i),
+                "position": self._read(i, POSITION),
+                "following_error": self._read(i, FOLLOWING_ERROR) if self.has(i, FOLLOWING_ERROR) else None,
                 "mode": self._read(i, MODE_DISPLAY)}
+
+    def _error_code(self, i: int) -> int | None:
+        return self._read(i, ERROR_CODE) if self.has(i, ERROR_CODE) else None
+
+    def _fault_of(self, i: int) -> str:
+        code = self._error_code(i)
+        return fault_message(code) if code is not None else (
+            "fault (the drive has no error code object 603Fh: read the code on its display or interface). "
+            "Fix: remove the cause, then Reset fault and home the rig")
 
     def _query(self) -> RigStatus:
         snaps = [self._axis_snapshot(i) for i in range(2)]
@@ -341,18 +641,25 @@ class Cia402Controller:
         lines = []
         for i, s in enumerate(snaps):
             if s["state"] in ("FAULT", "FAULT REACTION ACTIVE"):
-                lines.append(f"{self._name(i)}: {fault_message(s['error_code'])}")
+                lines.append(f"{self._name(i)}: " + (fault_message(s["error_code"]) if s["error_code"] is not None else
+                                                    "fault (no error code object 603Fh: read the code on the "
+                                                    "drive's display). Fix: remove the cause, then Reset fault and "
+                                                    "home the rig"))
         return "; ".join(lines)
 
     def _rig_status(self, snaps: list[dict]) -> RigStatus:
         position = (round(snaps[0]["position"] / self._k[0], 4), round(snaps[1]["position"] / self._k[1], 4))
         states = [s["state"] for s in snaps]
+        codes = ["?" if s["error_code"] is None else f"{s['error_code']:04X}h" for s in snaps]
+        following = tuple(None if s["following_error"] is None else s["following_error"] / self._k[i]
+                          for i, s in enumerate(snaps))
         extra = {"power_state": {"x": states[0], "y": states[1]},
-                 "fault_code": {"x": f"{snaps[0]['error_code']:04X}h", "y": f"{snaps[1]['error_code']:04X}h"},
-                 "following_error_mm": (snaps[0]["following_error"] / self._k[0],
-                                        snaps[1]["following_error"] / self._k[1]),
+                 "fault_code": {"x": codes[0], "y": codes[1]},
+                 "following_error_mm": following,
                  "mode": (snaps[0]["mode"], snaps[1]["mode"]), "reference": self.reference,
                  "drive_limits_mm": list(self.drive_limits_mm), "addresses": [link.address for link in self.links],
+                 "position_window_mm": list(self.window_mm),
+                 "warnings": [p for p in self.units_problem if p] + list(self.warnings),
                  "locked": False}
         if self._homing:                      # each drive's homing: at its reference yet (6041h bit 12)?
             extra["homing"] = {"xy"[i]: "at reference" if s["statusword"] & HOMING_ATTAINED else "homing"
@@ -378,6 +685,8 @@ class Cia402Controller:
         message = ""
         if state is RigState.HOLD:
             message = "Motion held: resume, or STOP to cancel the move"
+        elif any(self.units_problem):
+            message = next(p for p in self.units_problem if p)
         elif not homed:
             message = ("Not homed: home the rig before moving" if self.config.homing
                        else "No origin: with the carriage at the left/bottom end of its travel, set the origin")
@@ -404,7 +713,16 @@ class Cia402Controller:
             return last
 
     def _at_rest(self) -> bool:
-        return all(self._read(i, VELOCITY) == 0 for i in range(2))
+        return all([self._drive_at_rest(i) for i in range(2)])
+
+    def _drive_at_rest(self, i: int) -> bool:
+        """Velocity 606Ch is 0; without 606Ch: the position 6064h did not change since the last call."""
+        if self.has(i, VELOCITY):
+            return self._read(i, VELOCITY) == 0
+        position = self._read(i, POSITION)
+        still = self._rest_probe[i] == position
+        self._rest_probe[i] = position
+        return still
 
     # -- power ----------------------------------------------------------------------------------------
     def _check_no_fault(self, doing: str) -> None:
@@ -421,7 +739,7 @@ class Cia402Controller:
             if state == wanted:
                 return sw
             if state in ("FAULT", "FAULT REACTION ACTIVE"):
-                raise DriveFault(f"{self._name(i)}: {fault_message(self._read(i, ERROR_CODE))}")
+                raise DriveFault(f"{self._name(i)}: {self._fault_of(i)}")
             if time.monotonic() > deadline:
                 raise DeviceError(f"{self._name(i)} did not reach {wanted.lower()} after {what} (it is "
                                   f"{state.lower()}); check its enable input and load supply")
@@ -433,7 +751,7 @@ class Cia402Controller:
         if state == "OPERATION ENABLED":
             return
         if state in ("FAULT", "FAULT REACTION ACTIVE"):
-            raise DriveFault(f"{self._name(i)}: {fault_message(self._read(i, ERROR_CODE))}")
+            raise DriveFault(f"{self._name(i)}: {self._fault_of(i)}")
         if state == "QUICK STOP ACTIVE":
             self._write(i, CONTROL, ENABLE_OPERATION)
             self._wait_state(i, "OPERATION ENABLED", "enable operation")
@@ -465,6 +783,15 @@ class Cia402Controller:
             self._finish_stop()
         self._stop_event.clear()
         self._check_no_fault(doing)
+        for problem in self.units_problem:
+            if problem:
+                raise UnitsMismatch(f"{doing} refused: {problem}")
+        for i in range(2):
+            modes = self.objects[i].get((SUPPORTED_MODES, 0))
+            if modes is not None and not modes & 0x01:
+                raise MissingObject(f"{doing} refused: {self._name(i)} does not list profile position mode in its "
+                                    f"supported drive modes (6502h = {modes:08X}h, bit 0); nothing was moved. Fix: "
+                                    "enable profile position mode on the drive")
 
     # -- homing ----------------------------------------------------------------------------------------
     def home(self) -> None:
@@ -478,20 +805,40 @@ class Cia402Controller:
         """The current position becomes (0, 0) (homing method 37: current position)."""
         self._home((37, 37), "setting the origin", "origin")
 
+    def _check_homing(self, methods: tuple[int, int], doing: str) -> None:
+        """Homing mode and the methods: the objects it needs, 6502h bit 5 and 60E3h where the drive has them."""
+        for i in range(2):
+            missing = [key for key in MANDATORY_HOMING if key not in self.objects[i]]
+            if missing:
+                raise MissingObject(self._missing_line(i, missing, doing))
+            modes = self.objects[i].get((SUPPORTED_MODES, 0))
+            if modes is not None and not modes & 0x20:
+                raise MissingObject(f"{doing} refused: {self._name(i)} does not list homing mode in its supported "
+                                    f"drive modes (6502h = {modes:08X}h, bit 5); nothing was moved. Fix: a drive with "
+                                    "homing mode, or a rig profile without limit switches (homing = false) whose "
+                                    "origin is set by hand")
+            listed = self.supported_homing[i]
+            if listed is not None and methods[i] not in listed:
+                raise MissingObject(f"{doing} refused: {self._name(i)} does not list homing method {methods[i]} "
+                                    f"(60E3h supported homing methods: {', '.join(map(str, listed)) or 'none'}); "
+                                    f"nothing was moved. Fix: set {self._axes[i].name}.homing_method in rig profile "
+                                    f"{self.config.name!r} to one it lists")
+
     def _home(self, methods: tuple[int, int], doing: str, reference: str) -> None:
         with self._io:
             self._prepare(doing)
+            self._check_homing(methods, doing)
             self._jog_target = None
             self.reference = ""
             for i in range(2):
                 self._enable(i)
                 self._set_mode(i, HOMING)
                 a = self._axes[i]
-                k = self._k[i]
                 self._write(i, HOMING_METHOD, methods[i])
-                self._write(i, HOMING_SPEEDS, max(1, round(a.max_speed_mm_s / 4 * k)), 1)
-                self._write(i, HOMING_SPEEDS, max(1, round(a.max_speed_mm_s / 20 * k)), 2)
-                self._write(i, HOMING_ACCELERATION, max(1, round(a.acceleration_mm_s2 * k)))
+                self._write(i, HOMING_SPEEDS, max(1, round(a.max_speed_mm_s / 4 * self._kv[i])), 1)
+                self._write(i, HOMING_SPEEDS, max(1, round(a.max_speed_mm_s / 20 * self._kv[i])), 2)
+                if self.has(i, HOMING_ACCELERATION):
+                    self._write(i, HOMING_ACCELERATION, max(1, round(a.acceleration_mm_s2 * self._ka[i])))
                 self._write(i, CONTROL, ENABLE_OPERATION)
             for i in range(2):                              # both start together (bit 4 rising)
                 self._write(i, CONTROL, ENABLE_OPERATION | NEW_SET_POINT)
@@ -578,11 +925,13 @@ class Cia402Controller:
         for i in range(2):
             self._enable(i)
             self._set_mode(i, PROFILE_POSITION)
-            a, k = self._axes[i], self._k[i]
-            self._write(i, PROFILE_VELOCITY, max(1, round(speeds_mm_s[i] * k)))
-            self._write(i, PROFILE_ACCELERATION, max(1, round(a.acceleration_mm_s2 * k)))
-            self._write(i, PROFILE_DECELERATION, max(1, round(a.acceleration_mm_s2 * k)))
-            self._write(i, QUICK_STOP_DECELERATION, max(1, round(4 * a.acceleration_mm_s2 * k)))
+            a, kv, ka = self._axes[i], self._kv[i], self._ka[i]
+            self._write(i, PROFILE_VELOCITY, max(1, round(speeds_mm_s[i] * kv)))
+            self._write(i, PROFILE_ACCELERATION, max(1, round(a.acceleration_mm_s2 * ka)))
+            if self.has(i, PROFILE_DECELERATION):
+                self._write(i, PROFILE_DECELERATION, max(1, round(a.acceleration_mm_s2 * ka)))
+            if self.has(i, QUICK_STOP_DECELERATION):
+                self._write(i, QUICK_STOP_DECELERATION, max(1, round(4 * a.acceleration_mm_s2 * ka)))
             self._write(i, TARGET, steps[i])
         self._lower_set_point()
         for i in range(2):
@@ -597,7 +946,7 @@ class Cia402Controller:
                     pending.discard(i)
                 elif power_state(sw) != "OPERATION ENABLED":
                     raise DriveFault(f"{self._name(i)} left operation enabled while taking the set-point: " +
-                                     (fault_message(self._read(i, ERROR_CODE)) if sw & 0x08 else power_state(sw).lower()))
+                                     (self._fault_of(i) if sw & 0x08 else power_state(sw).lower()))
             if pending and time.monotonic() > deadline:
                 self._quick_stop_all()
                 raise DeviceError(f"{self._name(min(pending))} did not acknowledge the new set-point (6041h bit 12) "
@@ -676,9 +1025,10 @@ class Cia402Controller:
             for i, sw in enumerate(sws):
                 if sw & FOLLOWING_ERROR_BIT:
                     self._quick_stop_all()
-                    raise PositionError(f"move to {where}: {self._name(i)} reports a following error (60F4h = "
-                                        f"{st.extra['following_error_mm'][i]:.3f} mm); motion stopped. Check the axis "
-                                        "for an obstruction, then home again")
+                    lag = st.extra["following_error_mm"][i]
+                    raise PositionError(f"move to {where}: {self._name(i)} reports a following error (6041h bit 13" +
+                                        ("" if lag is None else f", 60F4h = {lag:.3f} mm") + "); motion stopped. "
+                                        "Check the axis for an obstruction, then home again")
             now = time.monotonic()
             pos = _position_of(st)
             if last_pos is None or max(abs(pos[0] - last_pos[0]), abs(pos[1] - last_pos[1])) > 1e-4:
@@ -687,11 +1037,12 @@ class Cia402Controller:
                 deadline += self.poll_period_s
                 last_progress = now
             if all(sw & TARGET_REACHED for sw in sws) and st.state is RigState.IDLE:
-                tol = [max(self.tolerance_mm, 1.0 / k) for k in self._k]
+                tol = [self.tolerance(i) for i in range(2)]
                 if abs(pos[0] - target[0]) <= tol[0] and abs(pos[1] - target[1]) <= tol[1]:
                     return st
                 raise PositionError(f"position error: the drives report target reached at ({pos[0]:.3f}, "
-                                    f"{pos[1]:.3f}) mm, not at the target {where} (tolerance {self.tolerance_mm} mm); "
+                                    f"{pos[1]:.3f}) mm, not at the target {where} (tolerance {tol[0]:g}, {tol[1]:g} "
+                                    "mm: the drives' position windows 6067h, or the driver's own); "
                                     "check the feed constants (increments_per_mm) and the axes, then home again")
             if now > deadline and now - last_progress > self.stall_s:
                 self.stop()
@@ -848,13 +1199,13 @@ class Cia402Controller:
                     while power_state(self._statusword(i)) in ("FAULT", "FAULT REACTION ACTIVE"):
                         if time.monotonic() > deadline:
                             raise DriveFault(f"{self._name(i)} is still in fault after a fault reset: "
-                                             f"{fault_message(self._read(i, ERROR_CODE))}")
+                                             f"{self._fault_of(i)}")
                         time.sleep(self.poll_period_s / 4)
                     self._write(i, CONTROL, DISABLE_VOLTAGE)
                     self.reference = ""
                 elif state == "QUICK STOP ACTIVE":        # the other drive, stopped when this one faulted
                     deadline = time.monotonic() + self.timeout_s + 3 * self._stop_time_s()
-                    while self._read(i, VELOCITY) != 0 and time.monotonic() < deadline:
+                    while not self._drive_at_rest(i) and time.monotonic() < deadline:
                         time.sleep(self.poll_period_s / 4)
                     self._write(i, CONTROL, ENABLE_OPERATION)
             self._stop_pending = False

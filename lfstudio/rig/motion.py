@@ -71,6 +71,11 @@ class AxisConfig:
         0.0, number=Number("increments/mm", 0, 1e9), label="Feed constant", group=DRIVE,
         tip="CiA 402 drives: the drive's position units per mm (100: it counts 0.01 mm; 6092h); "
             "required and > 0 for driver = \"cia402\", unused by GRBL")
+    feed_mm_per_rev: float = described(
+        0.0, number=Number("mm", 0, 100_000), label="Feed per revolution", group=DRIVE,
+        tip="CiA 402 drives: how far the carriage travels per revolution of the drive's shaft (70 for a "
+            "70 mm/rev toothed belt); with it the drive's feed constant 6092h is checked against the feed "
+            "constant above before anything moves. 0: not given (the drive's SI unit 60A8h is still checked)")
     homing_method: int = described(
         0, number=Number("", 0, 99, integer=True), choices=(0, *HOMING_METHODS), label="Homing method",
         group=DRIVE, tip="CiA 402 drives: 6098h: 17 negative / 18 positive limit switch, 35/37 the current "

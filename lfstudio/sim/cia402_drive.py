@@ -59,8 +59,12 @@ OBJECTS: dict[tuple[int, int], tuple[int, bool, bool]] = {
     (0x6061, 0): (1, True, False),       # modes of operation display
     (0x6064, 0): (4, True, False),       # position actual value
     (0x6065, 0): (4, False, True),       # following error window
+    (0x6067, 0): (4, False, True),       # position window
+    (0x6068, 0): (2, False, True),       # position window time (ms)
     (0x606C, 0): (4, True, False),       # velocity actual value
     (0x607A, 0): (4, True, True),        # target position
+    (0x607B, 1): (4, True, True),        # position range limit: minimum
+    (0x607B, 2): (4, True, True),        # position range limit: maximum
     (0x607C, 0): (4, True, True),        # home offset
     (0x607D, 1): (4, True, True),        # software position limit: minimum
     (0x607D, 2): (4, True, True),        # software position limit: maximum
@@ -68,15 +72,23 @@ OBJECTS: dict[tuple[int, int], tuple[int, bool, bool]] = {
     (0x6083, 0): (4, False, True),       # profile acceleration
     (0x6084, 0): (4, False, True),       # profile deceleration
     (0x6085, 0): (4, False, True),       # quick stop deceleration
+    (0x6092, 0): (1, False, False),      # feed constant: highest subindex (2)
     (0x6092, 1): (4, False, True),       # feed constant: feed
     (0x6092, 2): (4, False, True),       # feed constant: shaft revolutions
     (0x6098, 0): (1, True, True),        # homing method
     (0x6099, 1): (4, False, True),       # homing speed: search for switch
     (0x6099, 2): (4, False, True),       # homing speed: search for zero
     (0x609A, 0): (4, False, True),       # homing acceleration
+    (0x60A8, 0): (4, False, True),       # SI unit position (FB010000h: 0.01 mm; DryveD1API reads it at connect)
     (0x60F4, 0): (4, True, False),       # following error actual value
+    (0x60FD, 0): (4, False, False),      # digital inputs
     (0x6502, 0): (4, False, False),      # supported drive modes
 }
+#: supported homing methods (60E3h, an array): only on an emulator told to list them (AxisSetup.supported_homing)
+SUPPORTED_HOMING = 0x60E3
+#: objects a drive can be told to lack (``lfstudio sim-drive --leave-out``): every one CiA 402 leaves optional
+#: and the mandatory ones (to test that the driver refuses them by name)
+LEAVE_OUT_ALLOWED = sorted({index for index, _ in OBJECTS} - {0x1000, 0x6041})
 
 NOT_READY, SWITCH_ON_DISABLED, READY, SWITCHED_ON, ENABLED, QUICK_STOP, FAULT_REACTION, FAULT = (
     "NOT READY TO SWITCH ON", "SWITCH ON DISABLED", "READY TO SWITCH ON", "SWITCHED ON", "OPERATION ENABLED",
@@ -113,6 +125,23 @@ class AxisSetup:
     soft_min_mm: float
     soft_max_mm: float
     homing_method: int = 17
+    mm_per_rev: float = 70.0                 # the mechanics: mm the carriage travels per motor revolution
+    feed: int | None = None                  # 6092h:01 at power-up (None: increments_per_mm x mm_per_rev)
+    leave_out: frozenset[int] = frozenset()  # object indices this drive lacks
+    enabled_unhomed: bool = False            # powered up in operation enabled, profile position, never homed
+    supported_homing: tuple[int, ...] | None = None   # 60E3h's list, when the drive has that object
+    settle_error_mm: float = 0.0             # where a move comes to rest, beyond its target (inside 6067h)
+
+    def feed_constant(self) -> int:
+        return int(round(self.increments_per_mm * self.mm_per_rev)) if self.feed is None else int(self.feed)
+
+
+def si_position_of(units_per_mm: float) -> int:
+    """60A8h for a position unit of 1/units_per_mm mm (a power of ten; else 0.01 mm's FB010000h)."""
+    exponent = math.log10(units_per_mm) if units_per_mm > 0 else 2.0
+    if abs(exponent - round(exponent)) > 1e-9:
+        exponent = 2.0
+    return (((-3 - round(exponent)) & 0xFF) << 24) | (0x01 << 16)
 
 
 class DriveAxis:
@@ -122,8 +151,14 @@ class DriveAxis:
         self.setup = setup
         self.name = name
         self._scale = float(time_scale)
-        k = setup.increments_per_mm
+        feed = setup.feed_constant()
+        k = feed / setup.mm_per_rev             # position units per mm: what 6092h makes of the mechanics
         self._k = k
+        self.objects = {key: spec for key, spec in OBJECTS.items() if key[0] not in setup.leave_out}
+        if setup.supported_homing is not None and SUPPORTED_HOMING not in setup.leave_out:
+            self.objects[(SUPPORTED_HOMING, 0)] = (1, False, False)
+            for n in range(1, len(setup.supported_homing) + 1):
+                self.objects[(SUPPORTED_HOMING, n)] = (1, True, False)
         self._lock = threading.RLock()
         self._t0 = time.monotonic()
         self._last = 0.0
@@ -141,10 +176,16 @@ class DriveAxis:
             (0x607D, 1): int(round(setup.soft_min_mm * k)), (0x607D, 2): int(round(setup.soft_max_mm * k)),
             (0x6081, 0): int(setup.max_speed_mm_s * k / 2), (0x6083, 0): int(setup.acceleration_mm_s2 * k),
             (0x6084, 0): int(setup.acceleration_mm_s2 * k), (0x6085, 0): int(4 * setup.acceleration_mm_s2 * k),
-            (0x6092, 1): int(round(k)), (0x6092, 2): 1, (0x6098, 0): setup.homing_method,
+            (0x6092, 0): 2, (0x6092, 1): feed, (0x6092, 2): 1, (0x6098, 0): setup.homing_method,
+            (0x6067, 0): max(1, int(round(0.05 * k))), (0x6068, 0): 10, (0x60A8, 0): si_position_of(k),
+            (0x607B, 1): -(1 << 31), (0x607B, 2): (1 << 31) - 1, (0x60FD, 0): 0,
             (0x6099, 1): int(setup.max_speed_mm_s * k / 4), (0x6099, 2): int(setup.max_speed_mm_s * k / 20),
             (0x609A, 0): int(setup.acceleration_mm_s2 * k), (0x6502, 0): (1 << 0) | (1 << 5),
         }
+        if setup.supported_homing is not None:
+            self.od[(SUPPORTED_HOMING, 0)] = len(setup.supported_homing)
+            for n, method in enumerate(setup.supported_homing, 1):
+                self.od[(SUPPORTED_HOMING, n)] = method
         self.state = SWITCH_ON_DISABLED
         self.mode = 0
         self.error_code = 0
@@ -163,7 +204,13 @@ class DriveAxis:
         self._homed_flag = False
         self._homing_error = False
         self._quick_stop_at_rest = False
+        self._pending_mode: int | None = None   # 6060h written during homing: taken when the homing ends
         self.homed = False                      # this power cycle has a reference (not visible on the bus)
+        if setup.enabled_unhomed:               # another program enabled it in profile position, never homed
+            self.state = ENABLED
+            self.mode = PROFILE_POSITION
+            self.od[(0x6060, 0)] = PROFILE_POSITION
+            self.od[(0x6040, 0)] = 0x0F
 
     # -- clock -----------------------------------------------------------------------------------
     @property
@@ -186,9 +233,9 @@ class DriveAxis:
     # -- bus access ------------------------------------------------------------------------------
     def read(self, index: int, sub: int) -> int:
         with self._lock:
-            spec = OBJECTS.get((index, sub))
+            spec = self.objects.get((index, sub))
             if spec is None:
-                raise ObjectRefused(0x06020000 if not any(i == index for i, _ in OBJECTS) else 0x06090011,
+                raise ObjectRefused(0x06020000 if not any(i == index for i, _ in self.objects) else 0x06090011,
                                     f"object {index:04X}h:{sub} does not exist")
             self._advance()
             if index == 0x6041:
@@ -204,12 +251,12 @@ class DriveAxis:
             if index == 0x60F4:
                 return int(round(self._demand - self._actual))
             if index == 0x6060:
-                return self.mode
+                return self.od[(0x6060, 0)]
             return self.od[(index, sub)]
 
     def write(self, index: int, sub: int, value: int) -> None:
         with self._lock:
-            spec = OBJECTS.get((index, sub))
+            spec = self.objects.get((index, sub))
             if spec is None:
                 raise ObjectRefused(0x06020000, f"object {index:04X}h:{sub} does not exist")
             size, signed, writable = spec
@@ -228,22 +275,50 @@ class DriveAxis:
             if index == 0x6060:
                 if value not in (0, PROFILE_POSITION, HOMING):
                     raise ObjectRefused(0x06090030, f"mode {value} is not supported")
-                if self._moving():
-                    raise ObjectRefused(0x08000022, "the mode cannot change while the axis moves")
-                self.mode = value
-                self._ack = False
-                self._homing = None
-                self._homing_error = False
-                self._homed_flag = False
-                self._reached = True
+                self.od[(0x6060, 0)] = value
+                if self._homing is not None or self._moving():
+                    # igus' sample V1.2 writes 6060h = 1 right after starting the homing run: the D1 takes
+                    # it and its 6061h shows 6 until the run has ended, then 1 (the sample's expected answers)
+                    self._pending_mode = value
+                else:
+                    self._change_mode(value)
+                return
             elif index == 0x6098 and value not in HOMING_METHODS:
                 raise ObjectRefused(0x06090030, f"homing method {value} is not supported (17, 18, 35, 37)")
             elif index in (0x6081, 0x6083, 0x6084, 0x6085, 0x6099, 0x609A) and value <= 0:
                 raise ObjectRefused(0x06090032, f"{index:04X}h must be positive")
+            elif index == 0x6092 and value <= 0:
+                raise ObjectRefused(0x06090032, "the feed constant must be positive")
             elif index == 0x607D and sub == 1 and value > self.od[(0x607D, 2)] or \
                     index == 0x607D and sub == 2 and value < self.od[(0x607D, 1)]:
                 raise ObjectRefused(0x06090036, "software limit minimum above maximum")
             self.od[(index, sub)] = value
+            if index == 0x6092:
+                self._rescale(self.od[(0x6092, 1)] / max(1, self.od[(0x6092, 2)]) / self.setup.mm_per_rev)
+
+    def _change_mode(self, value: int) -> None:
+        self.mode = value
+        self._pending_mode = None
+        self._ack = False
+        self._homing = None
+        self._homing_error = False
+        self._homed_flag = False
+        self._limit_active = False
+        self._reached = True
+
+    def _rescale(self, k: float) -> None:
+        """A new feed constant: the same carriage position counts in the new units from now on
+        (6064h, 607Ah, speeds); the stored parameters keep their numbers (now in the new units)."""
+        ratio = k / self._k
+        self._offset *= ratio
+        self._demand *= ratio
+        self._actual *= ratio
+        self._v *= ratio
+        if self._target is not None:
+            self._target *= ratio
+        if self._limit_trip_at is not None:
+            self._limit_trip_at *= ratio
+        self._k = k
 
     # -- faults ----------------------------------------------------------------------------------
     def inject(self, fault: str) -> None:
@@ -289,9 +364,10 @@ class DriveAxis:
 
     # -- state machine ---------------------------------------------------------------------------
     def statusword(self) -> int:
-        sw = _STATE_BITS[self.state] | 0x0200                       # bit 9 remote
-        if self._power and self.state in (READY, SWITCHED_ON, ENABLED, QUICK_STOP):
-            sw |= 0x0010                                           # voltage enabled
+        # bit 9 remote; no bit 4 (voltage enabled): the dryve D1 answers 0640h after power-up, 0621h,
+        # 0623h, 0627h through the state machine and 1627h at the target (manual V2.4 6.4.7; igus' sample
+        # V1.2 waits for exactly [.., 2, 33, 6], [.., 2, 35, 6], [.., 2, 39, 6] and [.., 2, 39, 22])
+        sw = _STATE_BITS[self.state] | 0x0200
         if self.state in (ENABLED, SWITCHED_ON, READY, SWITCH_ON_DISABLED):
             sw |= 0x0020 if self.state != SWITCH_ON_DISABLED else 0
         if self._reached and self.state in (SWITCH_ON_DISABLED, READY, SWITCHED_ON, ENABLED, QUICK_STOP):
@@ -418,14 +494,16 @@ class DriveAxis:
         dt_total = now - self._last
         if self._scale <= 0:
             self._finish_instantly()
-            return
-        steps = 0
-        while dt_total > 1e-12 and steps < 2_000_000:
-            dt = min(STEP_S, dt_total)
-            self._step(dt)
-            dt_total -= dt
-            steps += 1
-        self._last = now
+        else:
+            steps = 0
+            while dt_total > 1e-12 and steps < 2_000_000:
+                dt = min(STEP_S, dt_total)
+                self._step(dt)
+                dt_total -= dt
+                steps += 1
+            self._last = now
+        if self._pending_mode is not None and not self._moving():
+            self._change_mode(self._pending_mode)
 
     def _finish_instantly(self) -> None:
         for _ in range(4):
@@ -447,8 +525,7 @@ class DriveAxis:
                 else:
                     self._demand = self._actual = self._target
                     self._v = 0.0
-                    self._target = None
-                    self._reached = True
+                    self._arrived()
 
     def _run_homing_instantly(self, h: dict) -> None:
         k = self._k
@@ -459,6 +536,21 @@ class DriveAxis:
         self._v = 0.0
         self._set_home(pulloff)
 
+    def _arrived(self) -> None:
+        """The profile-position target is reached: bit 10 up; bit 11 (internal limit: the target was
+        clamped to 607Dh) goes down with the move it limited."""
+        if self.setup.settle_error_mm and self._target is not None:
+            self._demand = self._actual = self._target + self.setup.settle_error_mm * self._k
+        self._target = None
+        self._reached = True
+        self._limit_active = False
+
+    def _quick_stop_deceleration(self) -> float:
+        """605Ah 1/5: the profile deceleration 6084h; 2/6 (and a drive without 6085h): 6085h / 6084h."""
+        if self.od[(0x605A, 0)] in (1, 5) or (0x6085, 0) not in self.objects:
+            return self.od[(0x6084, 0)]
+        return self.od[(0x6085, 0)]
+
     def _after_quick_stop(self) -> None:
         if self.state == QUICK_STOP and abs(self._v) < 1e-9 and self.od[(0x605A, 0)] in (0, 1, 2, 3):
             self.state = SWITCH_ON_DISABLED
@@ -467,7 +559,7 @@ class DriveAxis:
         if self.state not in (ENABLED, QUICK_STOP):
             return
         if self.state == QUICK_STOP:
-            self._brake(self.od[(0x6085, 0)], dt)
+            self._brake(self._quick_stop_deceleration(), dt)
             if abs(self._v) < 1e-9:
                 self._reached = True
                 self._after_quick_stop()
@@ -488,8 +580,7 @@ class DriveAxis:
                 self._fault(FAULT_CODES["limit_switch"])
                 return
             if self._demand == self._target and self._v == 0.0:
-                self._target = None
-                self._reached = True
+                self._arrived()
         self._follow(dt)
         self._check_switches()
 
@@ -597,18 +688,25 @@ class DrivePair:
             axis.time_scale = value
 
 
-def drive_pair(rig, *, time_scale: float = 1.0, seed: int = 0) -> DrivePair:
+def drive_pair(rig, *, time_scale: float = 1.0, seed: int = 0, setup: dict | tuple[dict, dict] | None = None
+               ) -> DrivePair:
     """Two emulated drives for the rig profile ``rig`` (a :class:`lfstudio.rig.motion.RigConfig`
-    whose axes name their ``increments_per_mm`` and ``homing_method``), powered up somewhere
-    inside the travel (from ``seed``)."""
+    whose axes name their ``increments_per_mm``, ``feed_mm_per_rev`` and ``homing_method``), powered
+    up somewhere inside the travel (from ``seed``). ``setup``: further :class:`AxisSetup` fields
+    (``leave_out``, ``feed``, ``enabled_unhomed``, ...) for both drives, or a pair (horizontal, vertical)."""
     import random
 
     rnd = random.Random(seed)
+    extras = setup if isinstance(setup, tuple) else (setup or {}, setup or {})
     axes = []
-    for axis in (rig.horizontal, rig.vertical):
-        setup = AxisSetup(increments_per_mm=axis.increments_per_mm or 100.0, travel_mm=axis.travel_mm,
-                          start_mm=rnd.uniform(0.1, 0.6) * axis.travel_mm, max_speed_mm_s=axis.max_speed_mm_s,
-                          acceleration_mm_s2=axis.acceleration_mm_s2, soft_min_mm=axis.soft_min_mm,
-                          soft_max_mm=axis.soft_max_mm, homing_method=axis.homing_method or 17)
-        axes.append(DriveAxis(setup, time_scale=time_scale, name=axis.name))
+    for axis, extra in zip((rig.horizontal, rig.vertical), extras):
+        extra = dict(extra)
+        if "leave_out" in extra:
+            extra["leave_out"] = frozenset(extra["leave_out"])
+        setup_ = AxisSetup(increments_per_mm=axis.increments_per_mm or 100.0, travel_mm=axis.travel_mm,
+                           start_mm=rnd.uniform(0.1, 0.6) * axis.travel_mm, max_speed_mm_s=axis.max_speed_mm_s,
+                           acceleration_mm_s2=axis.acceleration_mm_s2, soft_min_mm=axis.soft_min_mm,
+                           soft_max_mm=axis.soft_max_mm, homing_method=axis.homing_method or 17,
+                           mm_per_rev=getattr(axis, "feed_mm_per_rev", 0.0) or 70.0, **extra)
+        axes.append(DriveAxis(setup_, time_scale=time_scale, name=axis.name))
     return DrivePair(*axes)

@@ -1,8 +1,8 @@
 """The emulated CiA 402 drives (:mod:`lfstudio.sim.cia402_drive`) behind real protocol stacks:
 
-- :class:`ModbusDriveServer`: pymodbus' Modbus TCP server (on 127.0.0.1 only) with the dryve D1's
-  gateway telegram (function 43, MEI type 13) as a custom PDU that pymodbus frames (MBAP) and
-  decodes itself: the driver's own framing (``lfstudio.rig.dryve``) meets an independent one.
+- :class:`ModbusDriveServer`: a Modbus TCP server (on 127.0.0.1 only) answering the dryve D1's
+  gateway telegram (function 43, MEI type 13) as the manual V2.4 describes it
+  (:func:`gateway_answer`, written from the manual's byte table, not from ``lfstudio.rig.dryve``).
   A refused access answers the Modbus exception (43 + 80h, code); a drive that lost its
   connection holds every request unanswered.
 - :class:`CanopenDriveNode`: python-canopen's ``LocalNode`` (SDO server) on a python-can bus,
@@ -17,7 +17,8 @@ import logging
 import threading
 from typing import Any
 
-from lfstudio.sim.cia402_drive import OBJECTS, DriveAxis, DrivePair, ObjectRefused
+from lfstudio.rig.canopen_link import bus_args
+from lfstudio.sim.cia402_drive import DriveAxis, DrivePair, ObjectRefused
 
 log = logging.getLogger(__name__)
 
@@ -25,112 +26,123 @@ LOCALHOST = "127.0.0.1"
 
 
 def _exception_code(abort: int) -> int:
-    """A CiA 301 abort code as the Modbus exception the gateway answers."""
+    """A CiA 301 abort code as the Modbus exception the gateway answers (manual V2.4 6.5.6: 01 illegal
+    function, 02 illegal data address, 03 illegal data value, 04 device failure, 05 acknowledge, 06 busy)."""
     if abort in (0x06020000, 0x06090011, 0x06010002):
         return 2                                       # illegal data address
-    if abort >> 16 == 0x0609:
+    if abort >> 16 in (0x0609, 0x0607):
         return 3                                       # illegal data value
     return 4                                           # device failure (state does not allow it)
 
 
-def gateway_pdu_class(axis: DriveAxis) -> type:
-    """A pymodbus PDU class for the gateway telegram, served by ``axis``."""
-    from pymodbus.pdu import ExceptionResponse, ModbusPDU
+def gateway_answer(axis: DriveAxis, request: bytes) -> bytes:
+    """The drive's answer to one gateway request (the whole telegram, MBAP header first), as the
+    manual V2.4 (6.5.4 byte assignment, 6.5.5 RX/TX examples, 6.5.6 exception codes) shows it:
 
-    class GatewayTelegram(ModbusPDU):
-        function_code = 0x2B
-        sub_function_code = 0x0D
+    - a read is answered with the object's own size, whatever byte count it asked for (igus' sample
+      reads 6061h with byte count 1 and gets 1 byte; public clients read 6064h with 4);
+    - a write is answered with the request's header, length 13 and byte count 0, no data; it may carry
+      fewer bytes than the object has (the manual writes 6040h in 1 byte, 6099h:01 in 2);
+    - a refused access is 9 bytes: the header with length 3, byte 7 = ABh (43 + 80h), byte 8 = the code.
+    """
+    head = request[:6]
+    transaction = request[:2]
 
-        def __init__(self, dev_id: int = 0, transaction_id: int = 0, **_: Any):
-            super().__init__(dev_id=dev_id, transaction_id=transaction_id)
-            self.write = False
-            self.index = 0
-            self.sub = 0
-            self.size = 0
-            self.data = b""
+    def exception(code: int) -> bytes:
+        return transaction + bytes([0, 0, 0, 3, request[6] if len(request) > 6 else 0, 0xAB, code])
 
-        @classmethod
-        def decode_sub_function_code(cls, data: bytes) -> int:
-            return int(data[2])
-
-        def decode(self, data: bytes) -> None:
-            # data: everything after the function code (MEI type first)
-            if len(data) < 11 or data[0] != 0x0D:
-                raise ValueError("not a gateway telegram")
-            self.sub_function_code = data[0]
-            self.write = data[1] == 1
-            self.index = (data[4] << 8) | data[5]
-            self.sub = data[6]
-            self.size = data[10]
-            self.data = bytes(data[11:])
-            if self.size not in (1, 2, 4) or (self.write and len(self.data) != self.size):
-                raise ValueError(f"byte count {self.size}, {len(self.data)} data bytes")
-
-        def encode(self) -> bytes:
-            return bytes([0x0D, 1 if self.write else 0, 0, 0, self.index >> 8, self.index & 0xFF, self.sub,
-                          0, 0, 0, self.size]) + self.data
-
-        async def datastore_update(self, context: Any, device_id: int) -> ModbusPDU:
-            while not axis.answering:                  # lost connection: nothing comes back
-                await asyncio.sleep(0.02)
-            answer = GatewayTelegram(dev_id=device_id, transaction_id=self.transaction_id)
-            # the manual's answer to a write is the header with byte count 0; its examples write fewer
-            # bytes than an object has (6040h in 1, 6099h:01 in 2), so a write may be shorter than the object
-            answer.write, answer.index, answer.sub = self.write, self.index, self.sub
-            answer.size = 0 if self.write else self.size
-            spec = OBJECTS.get((self.index, self.sub))
-            try:
-                if spec is not None and (self.size > spec[0] if self.write else self.size != spec[0]):
-                    raise ObjectRefused(0x06070010, f"{self.index:04X}h has {spec[0]} bytes, not {self.size}")
-                if self.write:
-                    signed = spec[1] if spec else False
-                    axis.write(self.index, self.sub, int.from_bytes(self.data, "little", signed=signed))
-                else:
-                    value = axis.read(self.index, self.sub)
-                    answer.data = int(value).to_bytes(self.size, "little", signed=value < 0)
-            except ObjectRefused as exc:
-                return ExceptionResponse(0x2B, _exception_code(exc.abort))
-            return answer
-
-    return GatewayTelegram
+    if len(request) < 9 or request[7] != 0x2B:
+        return transaction + bytes([0, 0, 0, 3, request[6] if len(request) > 6 else 0,
+                                    (request[7] if len(request) > 7 else 0) | 0x80, 1])
+    if request[8] != 0x0D or len(request) < 19:
+        return exception(1)
+    write = request[9] == 1
+    index, sub, size = (request[12] << 8) | request[13], request[14], request[18]
+    data = request[19:]
+    if size not in (1, 2, 3, 4) or (write and len(data) != size) or (not write and data):
+        return exception(3)
+    spec = axis.objects.get((index, sub))
+    try:
+        if write:
+            if spec is not None and size > spec[0]:
+                raise ObjectRefused(0x06070012, f"{index:04X}h has {spec[0]} bytes, not {size}")
+            # a shorter write is the low bytes of the value (the manual's 1-byte 6040h, 2-byte 6099h:01)
+            signed = spec is not None and spec[1] and len(data) == spec[0]
+            axis.write(index, sub, int.from_bytes(data, "little", signed=signed))
+            answer = bytes(request[6:18]) + bytes([0])
+        else:
+            value = axis.read(index, sub)
+            n = spec[0] if spec is not None else size
+            answer = bytes(request[6:18]) + bytes([n]) + int(value).to_bytes(n, "little", signed=value < 0)
+    except ObjectRefused as exc:
+        return exception(_exception_code(exc.abort))
+    del head
+    return transaction + bytes([0, 0]) + len(answer).to_bytes(2, "big") + answer
 
 
 class ModbusDriveServer:
-    """pymodbus' Modbus TCP server for one emulated drive on ``127.0.0.1:port`` (0: any free port;
-    :attr:`port` after :meth:`start`), on a thread with its own event loop."""
+    """One emulated drive's Modbus TCP gateway on ``127.0.0.1:port`` (0: any free port; :attr:`port`
+    after :meth:`start`), an asyncio stream server on a thread with its own event loop. It frames
+    telegrams by their MBAP length field, so two requests in one TCP segment get two answers (pymodbus'
+    server, used before, answered only the first: its send() drops the rest of its receive buffer).
+    A drive that lost its connection holds every request unanswered."""
 
     def __init__(self, axis: DriveAxis, port: int = 0):
         self.axis = axis
         self.port = int(port)
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._server: Any = None
+        self._server: asyncio.AbstractServer | None = None
         self._thread: threading.Thread | None = None
+        self._stopped: asyncio.Event | None = None
+        self._clients: set[asyncio.Task] = set()
 
     @property
     def address(self) -> str:
         return f"{LOCALHOST}:{self.port}"
 
-    def start(self) -> "ModbusDriveServer":
-        from pymodbus.server import ModbusTcpServer
-        from pymodbus.simulator import SimData, SimDevice
+    async def _serve_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        if task is not None:
+            self._clients.add(task)
+        try:
+            while True:
+                head = await reader.readexactly(6)
+                length = int.from_bytes(head[4:6], "big")
+                if head[2:4] != b"\0\0" or not 2 <= length <= 260:
+                    break                                  # not Modbus TCP: the drive closes the connection
+                body = await reader.readexactly(length)
+                while not self.axis.answering:             # lost connection: nothing comes back
+                    await asyncio.sleep(0.02)
+                writer.write(gateway_answer(self.axis, head + body))
+                await writer.drain()
+        except (asyncio.IncompleteReadError, ConnectionError, asyncio.CancelledError):
+            pass
+        finally:
+            writer.close()
+            if task is not None:
+                self._clients.discard(task)
 
+    def start(self) -> "ModbusDriveServer":
         ready = threading.Event()
         failure: list[BaseException] = []
 
         async def serve() -> None:
+            self._stopped = asyncio.Event()
             try:
-                context = SimDevice(id=0, simdata=[SimData(address=0, count=1, values=0)])   # no registers used
-                self._server = ModbusTcpServer(context, address=(LOCALHOST, self.port),
-                                               custom_pdu=[gateway_pdu_class(self.axis)])
-                if not await self._server.listen():
-                    raise OSError(f"cannot listen on {LOCALHOST}:{self.port}")
-                self.port = self._server.transport.sockets[0].getsockname()[1]
+                self._server = await asyncio.start_server(self._serve_client, LOCALHOST, self.port)
+                self.port = self._server.sockets[0].getsockname()[1]
             except BaseException as exc:  # noqa: BLE001 - reported to start()
                 failure.append(exc)
                 ready.set()
                 return
             ready.set()
-            await self._server.serving
+            await self._stopped.wait()
+            self._server.close()
+            clients = list(self._clients)
+            for task in clients:
+                task.cancel()
+            await asyncio.gather(*clients, return_exceptions=True)
+            await self._server.wait_closed()
 
         def run() -> None:
             self._loop = asyncio.new_event_loop()
@@ -147,11 +159,11 @@ class ModbusDriveServer:
         return self
 
     def close(self) -> None:
-        loop, server = self._loop, self._server
-        if loop is not None and server is not None and not loop.is_closed():
+        loop, stopped = self._loop, self._stopped
+        if loop is not None and stopped is not None and not loop.is_closed():
             try:
-                asyncio.run_coroutine_threadsafe(server.shutdown(), loop).result(10)
-            except Exception as exc:  # noqa: BLE001
+                loop.call_soon_threadsafe(stopped.set)
+            except RuntimeError as exc:                     # the loop ended meanwhile
                 log.debug("drive server shutdown: %s", exc)
         if self._thread is not None:
             self._thread.join(10)
@@ -206,8 +218,8 @@ class DriveServers(_PairOnTheWire):
 
 
 # -- CANopen -----------------------------------------------------------------------------------------
-def object_dictionary() -> Any:
-    """A python-canopen object dictionary with the emulator's objects."""
+def object_dictionary(objects: dict[tuple[int, int], tuple[int, bool, bool]]) -> Any:
+    """A python-canopen object dictionary with an emulated drive's objects."""
     import canopen
     from canopen.objectdictionary import INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32, \
         ODArray, ODRecord, ODVariable
@@ -216,11 +228,11 @@ def object_dictionary() -> Any:
              (2, False): UNSIGNED16, (4, False): UNSIGNED32}
     od = canopen.ObjectDictionary()
     by_index: dict[int, list[int]] = {}
-    for index, sub in OBJECTS:
+    for index, sub in objects:
         by_index.setdefault(index, []).append(sub)
     for index, subs in sorted(by_index.items()):
         if subs == [0]:
-            size, signed, writable = OBJECTS[(index, 0)]
+            size, signed, writable = objects[(index, 0)]
             var = ODVariable(f"obj{index:04X}", index)
             var.data_type = types[(size, signed)]
             var.access_type = "rw" if writable else "ro"
@@ -232,9 +244,13 @@ def object_dictionary() -> Any:
         count.data_type = UNSIGNED8
         count.access_type = "ro"
         count.default = max(subs)
+        if (index, 0) in objects:
+            count.data_type = types[(objects[(index, 0)][0], objects[(index, 0)][1])]
         record.add_member(count)
         for sub in subs:
-            size, signed, writable = OBJECTS[(index, sub)]
+            if sub == 0:
+                continue
+            size, signed, writable = objects[(index, sub)]
             var = ODVariable(f"sub{sub}", index, sub)
             var.data_type = types[(size, signed)]
             var.access_type = "rw" if writable else "ro"
@@ -255,10 +271,10 @@ class CanopenDriveNode:
         self.axis = axis
         self.node_id = node_id
         self.network = network
-        self.node = canopen.LocalNode(node_id, object_dictionary())
+        self.node = canopen.LocalNode(node_id, object_dictionary(axis.objects))
 
         def on_read(index: int, subindex: int, od: Any) -> int | None:
-            if (index, subindex) not in OBJECTS:
+            if (index, subindex) not in axis.objects:
                 return None
             try:
                 return axis.read(index, subindex)
@@ -266,7 +282,7 @@ class CanopenDriveNode:
                 raise SdoAbortedError(exc.abort) from None
 
         def on_write(index: int, subindex: int, od: Any, data: bytes) -> None:
-            spec = OBJECTS.get((index, subindex))
+            spec = axis.objects.get((index, subindex))
             if spec is None:
                 return
             try:
@@ -290,8 +306,9 @@ class CanopenDriveNode:
 
 
 class CanopenDrives(_PairOnTheWire):
-    """Both drives of a :class:`DrivePair` as CANopen nodes on python-can's in-process ``virtual``
-    bus ``channel`` (node ids ``nodes``); :attr:`word` reaches them (``canopen:virtual-NAME:1,2``)."""
+    """Both drives of a :class:`DrivePair` as CANopen nodes on the bus ``channel`` (a channel word of
+    :func:`lfstudio.rig.canopen_link.bus_args`: ``virtual-NAME`` in this process, ``udp_multicast``
+    between processes) with node ids ``nodes``; :attr:`word` reaches them (``canopen:CHANNEL:1,2``)."""
 
     def __init__(self, pair: DrivePair, channel: str, nodes: tuple[int, int] = (1, 2)):
         self.pair = pair
@@ -303,14 +320,14 @@ class CanopenDrives(_PairOnTheWire):
 
     @property
     def word(self) -> str:
-        return f"canopen:virtual-{self.channel}:{self.nodes[0]},{self.nodes[1]}"
+        return f"canopen:{self.channel}:{self.nodes[0]},{self.nodes[1]}"
 
     def start(self) -> "CanopenDrives":
         import canopen
 
         self.network = canopen.Network()
         self.network.NOTIFIER_CYCLE = 0.1
-        self.network.connect(interface="virtual", channel=self.channel, receive_own_messages=False)
+        self.network.connect(**bus_args(self.channel))
         self.drives = [CanopenDriveNode(axis, self.network, node) for axis, node in zip(self.pair.axes, self.nodes)]
         for axis, drive in zip(self.pair.axes, self.drives):
             axis.on_answering = drive.sync_answering

@@ -297,7 +297,7 @@ class _Locks:
 
 
 #: the drive options of ``lfstudio rig`` etc. that the CiA 402 driver takes
-_DRIVE_OPTIONS = ("timeout_s", "poll_hz", "tolerance_mm", "stall_s")
+_DRIVE_OPTIONS = ("timeout_s", "poll_hz", "tolerance_mm", "stall_s", "accept_reference", "known_objects")
 
 
 def _open_drives(spec: RigSpec, config: RigConfig, *, doing: str, time_scale: float, seed: int, connect: bool,

@@ -285,6 +285,11 @@ def rig_command(port: str, config: RigConfig, commands: str) -> str:
 
 def cli_homing_hint(port: str, config: RigConfig) -> str:
     """How to home from the command line (the end of a "not homed" line)."""
+    if config.driver == "cia402":        # each lfstudio process establishes its own reference on drives
+        return ("add --home to this command" if config.homing else
+                "park the carriage at the left/top end of its travel and add --origin-here to this command") + \
+            (", or --keep-drive-reference to accept the position the drives report (they were homed before and "
+             "kept it, e.g. after a crash)")
     if config.homing:
         return f"add --home to this command, or first run '{rig_command(port, config, 'home')}'"
     return ("park the carriage at the left/top end of its travel and add --origin-here to this command "
@@ -294,12 +299,13 @@ def cli_homing_hint(port: str, config: RigConfig) -> str:
 def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, origin_here: bool = False,
                 resume_from: tuple[Dataset, ScanPlan] | None = None, how_to_home: str | None = None,
                 tolerance_mm: float = RESUME_TOLERANCE_MM, say: Callable[[str], None] | None = None,
-                trust_position: bool = False) -> list[str]:
+                trust_position: bool = False, keep_reference: bool = False) -> list[str]:
     """Apply the homing policy to a connected rig (see the module docstring); returns lines for the
     operator. ``rig``: the driver, or its :class:`~lfstudio.rig.worker.DeviceWorker`. ``how_to_home``:
     the end of a "not homed" line (default: the CLI's). ``trust_position``: the operator confirmed that
     the rig kept this dataset's reference although another scan used it since (:class:`RigUsedSince`).
-    Raises InputError/DeviceError with one line."""
+    ``keep_reference``: the operator accepts the CiA 402 drives' own reference without homing (logged;
+    the drives are never taken as homed otherwise). Raises InputError/DeviceError with one line."""
     if hasattr(rig, "call") and hasattr(rig, "driver"):          # a DeviceWorker: call through its queue
         rig = _WorkerCalls(rig)
     fix = how_to_home or cli_homing_hint(port, config)
@@ -307,6 +313,15 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
     if home and origin_here:
         raise InputError("--home/--origin-here", "give one of them",
                          "--home for a rig with limit switches, --origin-here for one without")
+    if keep_reference and (home or origin_here):
+        raise InputError("--keep-drive-reference", "homing or setting the origin makes a new reference",
+                         "give --keep-drive-reference without --home/--origin-here")
+    if keep_reference:
+        if config.driver != "cia402":
+            raise InputError("--keep-drive-reference", f"rig profile {config.name!r} is a GRBL controller, whose "
+                             "reference lfstudio keeps by itself", "leave it out, or --home")
+        rig.accept_reference()
+        notes.append("the drives' own reference is kept (not homed on this connection: the operator accepted it)")
     if home:
         if not config.homing:
             raise InputError("--home", f"rig profile {config.name!r} has no limit switches, so it cannot home",
@@ -343,6 +358,8 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
         dataset, plan = resume_from
         if any(v.get("reported_mm") and v.get("captured_at") for v in dataset.done_views()):
             last, name, ahead = _last_position(dataset, plan)
+            back = ("--keep-drive-reference " if config.driver == "cia402" and how_to_home is None else "") + \
+                f"move {last[0]:g} {last[1]:g}"
             off = _distance_to_path(status.position_mm, [last, *ahead])
             if off > tolerance_mm:
                 x, y = status.position_mm
@@ -350,7 +367,7 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
                     f"the rig reports ({x:.3f}, {y:.3f}) mm, but the dataset's last view {name} was captured at "
                     f"({last[0]:.3f}, {last[1]:.3f}) mm ({off:.2f} mm away, tolerance {tolerance_mm:g} mm): it was "
                     f"moved or lost its position. To resume from a known position: {fix}, then move it back to "
-                    f"({last[0]:.3f}, {last[1]:.3f}) mm ({rig_command(port, config, f'move {last[0]:g} {last[1]:g}')})",
+                    f"({last[0]:.3f}, {last[1]:.3f}) mm ({rig_command(port, config, back)})",
                     (x, y), last, name)
             other = last_scan_on_rig(port)
             if other is not None and other.get("dataset") != _dataset_identity(dataset)["dataset"] \
@@ -453,6 +470,7 @@ class ScanRequest:
     camera_options: dict[str, Any] = field(default_factory=dict)
     engine_options: dict[str, Any] = field(default_factory=dict)
     trust_rig_position: bool = False
+    keep_drive_reference: bool = False
 
 
 class ScanSession:
@@ -619,7 +637,8 @@ class ScanSession:
                                     resume_from=(existing, plan) if existing is not None and same_rig
                                     and not req.recapture else None,
                                     how_to_home=how_to_home, say=self.note,
-                                    trust_position=req.trust_rig_position):
+                                    trust_position=req.trust_rig_position,
+                                    keep_reference=req.keep_drive_reference):
                 self.note(line)
         elif req.home or req.origin_here:
             self.note("the simulated rig was homed when it started")

@@ -25,7 +25,7 @@ from typing import Any, Callable
 
 from lfstudio.errors import DeviceError
 from lfstudio.rig.motion import RigConfig
-from lfstudio.sim.cia402_drive import drive_pair
+from lfstudio.sim.cia402_drive import LEAVE_OUT_ALLOWED, drive_pair
 from lfstudio.sim.dng import write_dng
 from lfstudio.sim.drive_servers import CanopenDrives, DriveServers
 from lfstudio.sim.grbl_controller import GrblSimulator
@@ -39,7 +39,7 @@ from lfstudio.support.locks import port_device, runtime_dir
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DEMO_PP_OFFSET_PX", "DEMO_ROTATION_DEG", "GROUND_TRUTH_NAME", "REFERENCE_REGION_MM", "GrblSimulator",
+__all__ = ["LEAVE_OUT_ALLOWED", "DEMO_PP_OFFSET_PX", "DEMO_ROTATION_DEG", "GROUND_TRUTH_NAME", "REFERENCE_REGION_MM", "GrblSimulator",
            "InstantCamera", "InstantRig", "SimulatedCamera", "TruthServer", "camera_dict", "demo_studio",
            "demo_studio_kwargs", "describe_simulated_camera", "lens_dict", "load_ground_truth",
            "make_virtual_dataset", "parse_fault", "simulated_camera", "start_drive_emulator", "start_simulator", "truth_source",
@@ -59,14 +59,17 @@ _canopen_buses = iter(range(1, 1 << 30))
 
 
 def start_drive_emulator(rig: RigConfig, transport: str = "modbus", *, time_scale: float = 1.0, seed: int = 0,
-                         ports: tuple[int, int] = (0, 0)) -> Any:
+                         ports: tuple[int, int] = (0, 0), setup: dict | tuple[dict, dict] | None = None,
+                         channel: str | None = None) -> Any:
     """Two emulated CiA 402 drives for ``rig`` (a CiA 402 profile), served over ``transport``:
     "modbus" (pymodbus' server on 127.0.0.1, ``ports`` or free ones) or "canopen" (LocalNodes on
     a fresh python-can virtual bus). ``.word`` is the device word that reaches them, ``.port`` the
-    same, ``.true_position_mm()`` where the carriage is; the caller closes it."""
-    pair = drive_pair(rig, time_scale=time_scale, seed=seed)
+    same, ``.true_position_mm()`` where the carriage is; the caller closes it. ``setup``: the
+    emulated drives' variety (:func:`lfstudio.sim.cia402_drive.drive_pair`: objects left out, feed
+    constant, enabled but not homed, ...)."""
+    pair = drive_pair(rig, time_scale=time_scale, seed=seed, setup=setup)
     if transport == "canopen":
-        emulator: Any = CanopenDrives(pair, f"lfstudio-{os.getpid()}-{next(_canopen_buses)}")
+        emulator: Any = CanopenDrives(pair, channel or f"virtual-lfstudio-{os.getpid()}-{next(_canopen_buses)}")
     else:
         emulator = DriveServers(pair, ports)
     emulator.start()
@@ -74,10 +77,15 @@ def start_drive_emulator(rig: RigConfig, transport: str = "modbus", *, time_scal
     return emulator
 
 
-def serve_sim_drive(rig: RigConfig, *, time_scale: float = 1.0, seed: int = 0,
-                    ports: tuple[int, int] = (0, 0)) -> tuple[Any, "TruthServer | None"]:
-    """``lfstudio sim-drive``: two emulated drives on Modbus TCP plus the true-position server."""
-    emulator = start_drive_emulator(rig, "modbus", time_scale=time_scale, seed=seed, ports=ports)
+def serve_sim_drive(rig: RigConfig, *, time_scale: float = 1.0, seed: int = 0, ports: tuple[int, int] = (0, 0),
+                    setup: dict | None = None, canopen: str | None = None) -> tuple[Any, "TruthServer | None"]:
+    """``lfstudio sim-drive``: two emulated drives on Modbus TCP (or CANopen nodes on the bus
+    ``canopen``) plus the true-position server."""
+    if canopen:
+        emulator = start_drive_emulator(rig, "canopen", time_scale=time_scale, seed=seed, setup=setup,
+                                        channel=canopen)
+    else:
+        emulator = start_drive_emulator(rig, "modbus", time_scale=time_scale, seed=seed, ports=ports, setup=setup)
     server = None
     if hasattr(socket, "AF_UNIX"):
         try:

@@ -115,11 +115,17 @@ def test_kill_9_of_a_scan_on_the_drive_emulator_resumes_with_nothing_lost(run_cl
         pytest.skip("the scan finished before the kill")
 
     # moved meanwhile: the resume compares the drives' reported position with the dataset and refuses
-    moved = run_cli("rig", "--port", sim_drive, "--rig-profile", RIG, "--time-scale", "0.02", "move", "300", "200",
-                    "status")
+    # each process establishes its own reference on drives: the crashed scan's is not taken by itself
+    refused = run_cli("rig", "--port", sim_drive, "--rig-profile", RIG, "move", "300", "200")
+    assert refused.returncode == 1 and "home the rig first" in refused.stderr
+    moved = run_cli("rig", "--port", sim_drive, "--rig-profile", RIG, "--time-scale", "0.02", "--keep-drive-reference",
+                    "move", "300", "200", "status")
     assert moved.returncode == 0, moved.stderr
     assert "x: operation enabled 0000h, y: operation enabled 0000h" in moved.stdout
     resume = ["scan", "--out", out, "--resume", "--time-scale", "0.02", "--sim-width-px", "96"]
+    r = run_cli(*resume)
+    assert r.returncode == 1 and "not homed" in r.stderr and "--keep-drive-reference" in r.stderr
+    resume.append("--keep-drive-reference")
     r = run_cli(*resume)
     assert r.returncode == 1 and "reports (300.000, 200.000) mm" in r.stderr and "moved or lost" in r.stderr
     # back where the last run left it with the command the line names (the drives' profile in it): the
@@ -128,7 +134,8 @@ def test_kill_9_of_a_scan_on_the_drive_emulator_resumes_with_nothing_lost(run_cl
     command = re.search(r"\((lfstudio rig [^)]*)\)", r.stderr)
     assert command is not None, r.stderr
     words = shlex.split(command.group(1))
-    assert words[1:] == ["rig", "--port", sim_drive, "--rig-profile", RIG, "move", f"{x:g}", f"{y:g}"]
+    assert words[1:] == ["rig", "--port", sim_drive, "--rig-profile", RIG, "--keep-drive-reference", "move", f"{x:g}",
+                         f"{y:g}"]
     back = run_cli(*words[1:])
     assert back.returncode == 0, back.stderr
     r = run_cli(*resume, timeout=180)
@@ -153,7 +160,7 @@ def test_ctrl_c_during_a_long_move_quick_stops_the_drives(run_cli, tmp_path, sim
     assert truth() == pytest.approx((0.0, 0.0), abs=0.011)
     # the grid is centred on the travel: its first view is ~2 m away, 10 s at 200 mm/s
     proc = subprocess.Popen([sys.executable, "-m", "lfstudio", "scan", "--port", sim_drive, "--camera", "sim",
-                             *GRID, "--grid", "2x1", "--time-scale", "1", "--out", str(out)],
+                             *GRID, "--grid", "2x1", "--time-scale", "1", "--keep-drive-reference", "--out", str(out)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=lfstudio_env(), cwd=REPO_ROOT)
     try:
         deadline = time.monotonic() + 60

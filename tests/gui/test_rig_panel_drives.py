@@ -70,3 +70,28 @@ def test_drive_state_fault_reset_and_stop(qtbot, panel):
     x, y = panel.last_status.position_mm
     assert x < 3000 and y < 400 and panel.last_status.homed
     assert emulator.true_position_mm() == pytest.approx((x, y), abs=0.011)
+
+
+def test_keep_drive_reference_is_an_explicit_action_shown_in_the_badge(qtbot, panel, tmp_path):
+    """Drives found enabled but never homed by this connection are not homed (issue 38); the operator
+    may keep their reference with the panel's own button: logged, and the badge says so."""
+    from lfstudio.rig.profile import load_rig
+    from lfstudio.studio.simulated import start_drive_emulator
+
+    emulator = start_drive_emulator(load_rig(RIG_NAME), "modbus", time_scale=0.0, setup={"enabled_unhomed": True})
+    try:
+        panel.port_combo.setEditText(emulator.word)
+        qtbot.mouseClick(panel.connect_button, Qt.LeftButton)
+        qtbot.waitUntil(lambda: panel.last_status is not None and "power_state" in panel.last_status.extra, timeout=T)
+        assert "operation enabled" in panel.drive_label.text() and not panel.last_status.homed
+        assert "not homed" in panel.state_label.text() and not panel.goto_button.isEnabled()
+        assert panel.keep_button.isVisible() and panel.keep_button.isEnabled() and panel.keep_action.isEnabled()
+        qtbot.mouseClick(panel.keep_button, Qt.LeftButton)
+        qtbot.waitUntil(lambda: panel.last_status.homed, timeout=T)
+        assert panel.state_label.text() == "reference kept\nfrom the drive"
+        assert not panel.keep_button.isVisible() and panel.goto_button.isEnabled()
+        panel.resize(420, 700)
+        panel.grab().save(str(tmp_path / "keep.png"))
+    finally:
+        panel.shutdown()
+        emulator.close()

@@ -54,7 +54,9 @@ def test_a_drive_fault_mid_scan_pauses_it_with_one_line_then_resume_completes(st
     assert ds.status_counts()["done"] < 12
     emulator.pair.axes[1].clear_faults()
     if fault == "lost_connection":
-        session.rig.connect()                    # answers again
+        session.rig.connect()                    # answers again: a new connection, not homed by it
+        assert not session.rig.status().homed
+        session.rig.accept_reference()           # the operator keeps the drives' reference (or homes)
     else:
         session.rig.reset()                      # Reset fault, then home: what the operator does
         session.rig.home()

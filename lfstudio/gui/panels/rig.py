@@ -59,6 +59,9 @@ FINE_STEP_MM = 0.1
 WARNINGS_SHOWN = 2              # controller-vs-profile warnings in the panel's line (all in its tooltip)
 WARNINGS_TIP = ("The controller's own settings ($$) and the rig profile (resources/presets/rigs.toml) disagree: "
                 "change the controller's setting, or disconnect and choose the profile of this rig.")
+KEEP_TIP = ("CiA 402 drives: take the position the drives report as the rig's reference without homing (for "
+            "drives homed earlier that kept their position, e.g. after a crash). Logged; the badge says "
+            "'reference kept from the drive'. Home the rig instead when in doubt")
 HOLD_MS = 350                   # press longer than this: continuous jog until release
 _STATE_COLOURS = {RigState.IDLE: "#2e7d32", RigState.MOVING: "#1565c0", RigState.JOGGING: "#1565c0",
                   RigState.HOMING: "#1565c0", RigState.HOLD: "#b35900", RigState.ALARM: "#b00020",
@@ -277,6 +280,10 @@ class RigPanel(QWidget):
         self.recover_button.setToolTip("Leave the alarm or reconnect after a lost connection")
         self.recover_button.clicked.connect(self.recover)
         self.recover_button.setVisible(False)
+        self.keep_button = QPushButton("Keep drive reference")
+        self.keep_button.setToolTip(KEEP_TIP)
+        self.keep_button.clicked.connect(self.keep_reference)
+        self.keep_button.setVisible(False)
         self.drive_label = QLabel("")          # CiA 402 drives: each one's power state and error code (603Fh)
         self.drive_label.setObjectName("rigDriveLabel")
         self.drive_label.setWordWrap(True)
@@ -293,6 +300,7 @@ class RigPanel(QWidget):
         buttons.addWidget(self.home_button)
         buttons.addWidget(self.origin_button)
         buttons.addWidget(self.recover_button)
+        buttons.addWidget(self.keep_button)
         pl.addLayout(buttons, 2, 0, 1, 4)
         pl.addWidget(self.message_label, 3, 0, 1, 4)
         pl.addWidget(self.drive_label, 4, 0, 1, 4)
@@ -429,16 +437,20 @@ class RigPanel(QWidget):
         self.recover_action = QAction("&Recover (unlock / reconnect)", self)
         self.recover_action.setToolTip("Leave an alarm or reconnect after a lost connection")
         self.recover_action.triggered.connect(self.recover)
+        self.keep_action = QAction("&Keep the drives' reference", self)
+        self.keep_action.setToolTip(KEEP_TIP)
+        self.keep_action.triggered.connect(self.keep_reference)
 
     def _motion_controls(self) -> list[QWidget | QAction]:
         """Everything that commands the rig except STOP (disabled while a scan owns the rig)."""
-        return [self.connect_button, self.home_button, self.origin_button, self.recover_button, self.goto_button,
-                *self.jog_buttons.values(), self.connect_action, self.home_action, self.origin_action,
-                self.recover_action]
+        return [self.connect_button, self.home_button, self.origin_button, self.recover_button, self.keep_button,
+                self.goto_button, *self.jog_buttons.values(), self.connect_action, self.home_action,
+                self.origin_action, self.recover_action, self.keep_action]
 
     def install_menus(self, window) -> None:
         menu = window.menu("Rig")
-        for action in (self.connect_action, self.home_action, self.origin_action, self.recover_action):
+        for action in (self.connect_action, self.home_action, self.origin_action, self.recover_action,
+                       self.keep_action):
             menu.addAction(action)
         menu.addSeparator()
         menu.addAction(self.stop_action)
@@ -659,6 +671,10 @@ class RigPanel(QWidget):
         else:
             self._run("unlock", done_message="Rig unlocked: set the origin before moving")
 
+    def keep_reference(self) -> None:
+        """CiA 402 drives: accept the position the drives report as the reference (logged by the driver)."""
+        self._run("accept_reference", done_message="Rig: reference kept from the drives (not homed by lfstudio)")
+
     def go_to(self) -> None:
         x, y = self.goto_x.value(), self.goto_y.value()
         self.diagram.set_target((x, y))
@@ -722,14 +738,17 @@ class RigPanel(QWidget):
         if not isinstance(snapshot, RigStatus):
             return
         self.last_status = snapshot
-        self._show_warnings(snapshot.extra.get("warnings") if isinstance(snapshot.extra, dict) else None)
+        self._show_warnings(snapshot.extra.get("warnings") if isinstance(snapshot.extra, dict) else None,
+                            drives=isinstance(snapshot.extra, dict) and "power_state" in snapshot.extra)
         if snapshot.position_mm is not None:
             self.x_label.setText(f"{snapshot.position_mm[0]:.3f}")
             self.y_label.setText(f"{snapshot.position_mm[1]:.3f}")
         else:
             self.x_label.setText("—")
             self.y_label.setText("—")
-        word = "homed" if snapshot.state is RigState.IDLE and snapshot.homed else snapshot.state.value
+        kept = isinstance(snapshot.extra, dict) and snapshot.extra.get("reference") == "kept"
+        word = ("reference kept\nfrom the drive" if kept else "homed") \
+            if snapshot.state is RigState.IDLE and snapshot.homed else snapshot.state.value
         text = word + ("" if snapshot.homed or snapshot.state is RigState.DISCONNECTED else "\nnot homed")
         self.state_label.setText(text)
         colour = _STATE_COLOURS.get(snapshot.state, "#333")
@@ -780,12 +799,13 @@ class RigPanel(QWidget):
             self.drive_label.setText(text)
             self.drive_label.setVisible(bool(text))
 
-    def _show_warnings(self, warnings: Any) -> None:
+    def _show_warnings(self, warnings: Any, drives: bool = False) -> None:
         """The controller-vs-profile warnings of the latest status; none: hidden. The first
         :data:`WARNINGS_SHOWN` are in the line (a dock has little height), all of them in its tooltip."""
         lines = [str(w) for w in warnings if str(w).strip()] if isinstance(warnings, (list, tuple)) else []
         bullets = [f"• {line}" for line in lines]
-        text = "" if not lines else "\n".join(["⚠ Controller and rig profile disagree:", *bullets[:WARNINGS_SHOWN]])
+        head = "⚠ The drives and the rig profile:" if drives else "⚠ Controller and rig profile disagree:"
+        text = "" if not lines else "\n".join([head, *bullets[:WARNINGS_SHOWN]])
         if len(lines) > WARNINGS_SHOWN:
             text += f"\n… and {len(lines) - WARNINGS_SHOWN} more (point here to read them all)"
         if text != self.warning_label.text():
@@ -825,6 +845,11 @@ class RigPanel(QWidget):
         self.origin_action.setEnabled(free and live and rig_state is RigState.IDLE)
         self.recover_button.setEnabled(free)
         self.recover_action.setEnabled(free and self.device is not None)
+        drives = st is not None and isinstance(st.extra, dict) and "power_state" in st.extra
+        can_keep = free and live and drives and st is not None and not st.homed and rig_state is not RigState.ALARM
+        self.keep_button.setVisible(drives and st is not None and not st.homed)
+        self.keep_button.setEnabled(can_keep)
+        self.keep_action.setEnabled(can_keep)
         for b in self.jog_buttons.values():
             b.setEnabled(can_move or (free and b.isDown() and live))
         self.goto_button.setEnabled(can_move)
