@@ -1169,7 +1169,8 @@ class Cia402Controller:
                 log.warning("the drives did not come to rest within %.1f s after STOP", self.timeout_s)
                 break
             for i in range(2):                   # a quick stop that never arrived (its link was stalled)
-                if power_state(self._statusword(i)) == "OPERATION ENABLED" and self._read(i, VELOCITY) != 0:
+                if power_state(self._statusword(i)) == "OPERATION ENABLED" and \
+                        (not self.has(i, VELOCITY) or self._read(i, VELOCITY) != 0):
                     self._write(i, CONTROL, QUICK_STOP)
             time.sleep(self.poll_period_s / 2)
         self._halt_flags = (False, False)
