@@ -43,3 +43,12 @@ def kill_9_after(args: list, out: Path, lines: int, rng: random.Random, *, jitte
     proc.send_signal(signal.SIGKILL)
     proc.wait(10)
     proc.stderr.close()
+
+
+def gone(pid: int) -> bool:
+    """The process ``pid`` has ended (a zombie nobody has reaped yet counts as ended)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return True
+    return state in ("Z", "X")

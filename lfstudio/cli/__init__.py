@@ -158,10 +158,11 @@ def loggable(argv: list[str]) -> list[str]:
         elif eq and option in SECRET_OPTIONS:
             word = f"{option}=…"
         elif "://" in word or word.startswith("mailto:"):
-            from lfstudio.scan.notify import shown_url
+            from lfstudio.scan.notify import mask_urls, shown_url
 
-            word = f"{option}={shown_url(value)}" if eq and option.startswith("--") else shown_url(word)
-        out.append(word)
+            word = (f"{option}={shown_url(value)}" if eq and option.startswith("--") and " " not in value
+                    else shown_url(word) if " " not in word else mask_urls(word))
+        out.append(str(word))
     return out
 
 
@@ -177,9 +178,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     from lfstudio.support.logs import setup_logging
 
+    from lfstudio.support.secrets import set_command_line
+
+    shown = loggable(argv)          # what lock files, logs and messages may show of this command line
+    set_command_line(["lfstudio", *shown])
     setup_logging(debug=debug)
     log = logging.getLogger("lfstudio.cli")
-    log.info("lfstudio %s: %s", __version__, " ".join(loggable(argv)))
+    log.info("lfstudio %s: %s", __version__, " ".join(shown))
     try:
         return int(args._run(args) or 0)
     except (InputError, DatasetNotFound) as exc:

@@ -9,10 +9,12 @@ the journal holds every captured view, and the line printed last is the exact co
 from __future__ import annotations
 
 import argparse
+import logging
 from dataclasses import replace
 import signal
 import sys
 import threading
+import time
 
 from lfstudio.cli.args import bracket_option, described_option, grid_option, path_option, refused_spelling
 from lfstudio.dataset.paths import view_label
@@ -44,11 +46,27 @@ def _described(p, name: str) -> None:
 
     param = PARAMS[name]
     reader = (grid_option(param.option) if name == "grid_columns" else
-              bracket_option(param.option) if name == "bracket" else None)
+              bracket_option(param.option) if name == "bracket" else
+              _secret_url if name == "notify" else _secret_token if name == "status_token" else None)
     if name in FROM_PLAN:
         described_option(p, param, None, said=_UNSET_DEFAULT[name], reader=reader)
     else:
         described_option(p, param, getattr(ScanOptions(), name), reader=reader)
+
+
+def _secret_url(text: str):
+    """A --notify URL, read as a Secret (its path, user and password are shown as …)."""
+    from lfstudio.scan.notify import shown_url
+    from lfstudio.support.secrets import Secret
+
+    return Secret(text, shown_url(text))
+
+
+def _secret_token(text: str):
+    """A --status-token, read as a Secret ("new" asks for one to be made: no secret)."""
+    from lfstudio.support.secrets import Secret
+
+    return text if text in ("", "new") else Secret(text)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -164,9 +182,13 @@ def _build_plan(args: argparse.Namespace, rig_config, existing=None):
 
 def resume_command(args: argparse.Namespace, root) -> str:
     """The exact command that continues this scan: ``lfstudio scan --resume --out ROOT`` with the
-    devices and timings given to this one (not the plan's options: the dataset holds its grid)."""
+    devices and timings given to this one (not the plan's options: the dataset holds its grid). A
+    secret (a --notify URL, --status-token) is shown redacted, with a note to give it again."""
     import shlex
 
+    from lfstudio.support.secrets import Secret
+
+    hidden = 0
     defaults = argparse.ArgumentParser()
     add_arguments(defaults)
     words = ["lfstudio", "scan", "--resume", "--out", str(root)]
@@ -181,9 +203,12 @@ def resume_command(args: argparse.Namespace, root) -> str:
         elif isinstance(value, list):            # a repeatable option
             for item in value:
                 words += [action.option_strings[0], str(item)]
+                hidden += isinstance(item, Secret)
         else:
             words += [action.option_strings[0], str(value)]
-    return shlex.join(words)
+            hidden += isinstance(value, Secret)
+    return shlex.join(words) + ("  # give the …-shortened secrets (URLs, token) again as you gave them" if hidden
+                                else "")
 
 
 def _start_check(dataset, engine):
@@ -294,8 +319,10 @@ def run(args: argparse.Namespace) -> int:
             _finish_check(checker, dataset)
         state = engine.state
         counts = dataset.status_counts()
-        if state is ScanState.FAILED:
-            raise DatasetError(engine.message)
+        if state is ScanState.FAILED:         # said here (as lfstudio's main would) before the page lingers
+            logging.getLogger("lfstudio.cli").info("scan failed: %s", engine.message)
+            print(f"lfstudio scan: error: {DatasetError(engine.message)}", file=sys.stderr)
+            return 1
         print(f"lfstudio scan: {engine.message} ({format_duration(engine.active_s)})", file=sys.stderr)
         if dataset.finished():
             return 0
@@ -304,4 +331,19 @@ def run(args: argparse.Namespace) -> int:
         return 130 if engine.aborted else 1
     finally:
         session.close()
-        unattended.close()
+        _linger(unattended.close())
+
+
+def _linger(status) -> None:
+    """The status page showing the scan's final state for --status-linger-s (Ctrl+C ends it sooner)."""
+    if status is None:
+        return
+    try:
+        print(f"lfstudio scan: the status page {status.url} shows the final state until "
+              f"{time.strftime('%H:%M:%S', time.localtime(status.board.serving_until))} (--status-linger-s; Ctrl+C "
+              "ends it now)", file=sys.stderr, flush=True)
+        status.wait_closed()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        status.close()

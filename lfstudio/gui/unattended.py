@@ -6,8 +6,11 @@ notifications over D-Bus) raised when the window is not in front.
 Keys: ``unattended/notify`` (URLs, one a line), ``unattended/smtp``, ``unattended/smtp_sender``,
 ``unattended/smtp_password`` (kept in the settings file: readable by this user only),
 ``unattended/status`` (on/off), ``unattended/status_address``, ``unattended/status_token``,
-``unattended/auto_resume``, ``unattended/on_finish``, ``unattended/on_finish_timeout_s``,
-``unattended/desktop`` (on/off).
+``unattended/status_linger_s``, ``unattended/auto_resume``, ``unattended/on_finish``,
+``unattended/on_finish_timeout_s``, ``unattended/desktop`` (on/off).
+
+:class:`StatusPageLabel` is the Scan panel's line naming the status page's address while it serves
+(during the scan and while it shows the final state after it): a click opens it, "Copy" copies it.
 """
 
 from __future__ import annotations
@@ -17,14 +20,18 @@ import os
 import shutil
 import subprocess
 
-from PySide6.QtWidgets import (QCheckBox, QDoubleSpinBox, QFormLayout, QGroupBox, QHBoxLayout, QLineEdit,
+import time
+
+from PySide6.QtCore import Qt, QTimer, QUrl
+from PySide6.QtGui import QDesktopServices, QGuiApplication
+from PySide6.QtWidgets import (QCheckBox, QDoubleSpinBox, QFormLayout, QGroupBox, QHBoxLayout, QLabel, QLineEdit,
                                QPlainTextEdit, QSpinBox, QWidget)
 
 from lfstudio.errors import InputError
 from lfstudio.gui.settings import read_float, read_int, settings
 from lfstudio.gui.widgets import bounds_of, number_of
 from lfstudio.scan.notify import SmtpServer, parse_target
-from lfstudio.scan.status_http import check_token, parse_address
+from lfstudio.scan.status_http import LINGER_S, StatusServer, check_token, parse_address
 from lfstudio.studio.scan_options import PARAMS as SCAN_PARAMS
 from lfstudio.studio.unattended import CLI_NAMES, UnattendedOptions
 
@@ -48,6 +55,7 @@ def load_options() -> UnattendedOptions:
     """The options a scan started in the window gets (as Settings stored them)."""
     auto = read_int(PREFIX + "auto_resume", 0)
     limit = read_float(PREFIX + "on_finish_timeout_s", 300.0)
+    linger = read_float(PREFIX + "status_linger_s", LINGER_S)
     status = _bool("status", False)
     token = str(_value("status_token", "") or "")
     address = str(_value("status_address", DEFAULT_ADDRESS) or DEFAULT_ADDRESS)
@@ -64,7 +72,7 @@ def load_options() -> UnattendedOptions:
                              smtp_sender=str(_value("smtp_sender", "") or ""),
                              status_http=address if status else "", status_token=token if status else "",
                              auto_resume=auto, on_finish=str(_value("on_finish", "") or ""),
-                             on_finish_timeout_s=limit, names=dict(NAMES))
+                             on_finish_timeout_s=limit, status_linger_s=linger, names=dict(NAMES))
 
 
 def desktop_wanted() -> bool:
@@ -114,10 +122,20 @@ class UnattendedBox(QGroupBox):
         self.token.setPlaceholderText("token (optional)")
         self.token.setToolTip("Every request must carry it (?token=…) when the page listens for other computers; "
                               "empty: a new one is made for each scan and shown once in the Scan panel's log")
+        self.linger = QDoubleSpinBox()
+        self.linger.setObjectName("statusLinger")
+        self.linger.setRange(*bounds_of(SCAN_PARAMS["status_linger_s"], "status_linger_s"))
+        self.linger.setDecimals(0)
+        self.linger.setPrefix("keep ")
+        self.linger.setSuffix(" s after")
+        self.linger.setSpecialValueText("closes with the scan")
+        self.linger.setValue(read_float(PREFIX + "status_linger_s", LINGER_S))
+        self.linger.setToolTip(SCAN_PARAMS["status_linger_s"].label + ": " + SCAN_PARAMS["status_linger_s"].tip)
         status_row = QHBoxLayout()
         status_row.addWidget(self.status)
         status_row.addWidget(self.address, 1)
         status_row.addWidget(self.token, 1)
+        status_row.addWidget(self.linger)
         form.addRow("Status page", status_row)
         self.auto_resume = QSpinBox()
         self.auto_resume.setObjectName("autoResume")
@@ -160,7 +178,8 @@ class UnattendedBox(QGroupBox):
         return {"notify": "\n".join(u.strip() for u in self.notify.toPlainText().splitlines() if u.strip()),
                 "smtp": self.smtp.text().strip(), "smtp_password": self.smtp_password.text(),
                 "status": self.status.isChecked(), "status_address": self.address.text().strip() or DEFAULT_ADDRESS,
-                "status_token": self.token.text().strip(), "auto_resume": self.auto_resume.value(),
+                "status_token": self.token.text().strip(), "status_linger_s": self.linger.value(),
+                "auto_resume": self.auto_resume.value(),
                 "desktop": self.desktop.isChecked(), "on_finish": self.on_finish.text().strip(),
                 "on_finish_timeout_s": self.timeout.value()}
 
@@ -193,6 +212,56 @@ class UnattendedBox(QGroupBox):
         log.info("unattended-scan settings changed (notify: %d URL(s), status page %s, auto-resume %d)",
                  len([u for u in str(self.values()["notify"]).splitlines() if u]),
                  "on" if self.status.isChecked() else "off", self.auto_resume.value())
+
+
+class StatusPageLabel(QLabel):
+    """The status page's address in the Scan panel: shown while the page serves (see the module
+    docstring); hidden otherwise. The link opens the page (with its token); "Copy" copies that address."""
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.setObjectName("statusPageAddress")
+        self.setTextFormat(Qt.TextFormat.RichText)
+        self.setTextInteractionFlags(Qt.TextInteractionFlag.TextBrowserInteraction)
+        self.setOpenExternalLinks(False)
+        self.setWordWrap(True)
+        self.linkActivated.connect(self._activated)
+        self.server: StatusServer | None = None
+        self._hide_timer = QTimer(self)
+        self._hide_timer.setSingleShot(True)
+        self._hide_timer.timeout.connect(self.clear_page)
+        self.hide()
+
+    @property
+    def address(self) -> str:
+        """The address to open (with the token when the page needs one); "" when none is shown."""
+        return self.server.url_with_token() if self.server is not None else ""
+
+    def show_page(self, server: StatusServer, until: float | None = None) -> None:
+        """Name ``server``'s page: serving the scan, or (``until``: time.time()) its final state until then."""
+        self.server = server
+        when = (f" (the final state, until {time.strftime('%H:%M', time.localtime(until))})" if until is not None
+                else " (read-only)")
+        self.setText(f"Status page{when}: <a href='open'>{server.url}</a> · <a href='copy'>Copy</a>")
+        self.setToolTip("Opens in your browser; Copy puts the address" + (" with its token" if server.token else "")
+                        + " on the clipboard (File → Settings → Unattended scans sets it up)")
+        self.show()
+        self._hide_timer.stop()
+        if until is not None:
+            self._hide_timer.start(max(0, int((until - time.time()) * 1000)) + 500)
+
+    def clear_page(self) -> None:
+        self.server = None
+        self.setText("")
+        self.hide()
+
+    def _activated(self, link: str) -> None:
+        if not self.address:
+            return
+        if link == "copy":
+            QGuiApplication.clipboard().setText(self.address)
+        else:
+            QDesktopServices.openUrl(QUrl(self.address))
 
 
 # -- desktop notifications ---------------------------------------------------------------------------

@@ -23,6 +23,7 @@ no path, query, user or password) and error texts are scrubbed of the URL's secr
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import logging
 import re
@@ -150,6 +151,16 @@ class Target:
         return text
 
 
+def is_local(host: str) -> bool:
+    """True when only this computer can reach ``host`` (a loopback address or ``localhost``)."""
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
 def shown_url(text: str) -> str:
     """A URL as logs may show it: scheme and host only (``https://hooks.example.com/…``)."""
     try:
@@ -243,6 +254,10 @@ class SmtpServer:
                              "the LFSTUDIO_SMTP_PASSWORD environment variable, or the window's Settings")
         default_port = {"starttls": 587, "ssl": 465, "none": 25}[security]
         user = urllib.parse.unquote(parts.username or "")
+        if security == "none" and user and not is_local(parts.hostname):
+            raise InputError(option, f"smtp+plain:// would send {user}'s password unencrypted to {parts.hostname}",
+                             "smtp://… (STARTTLS) or smtps://…; smtp+plain:// only to a relay on this computer "
+                             "(127.0.0.1) or without a user")
         return cls(parts.hostname, port or default_port, security, user, password,
                    sender or (user if "@" in user else f"lfstudio@{parts.hostname}"))
 
@@ -257,6 +272,23 @@ def header_value(text: str) -> str:
         return text
     return "=?utf-8?b?" + b64encode(text.encode("utf-8")).decode("ascii") + "?="
 
+
+class NotDelivered(Exception):
+    """A notice that cannot be delivered however often it is tried (a redirect, a refusal): not retried."""
+
+
+class _NoRedirect(urllib.request.HTTPRedirectHandler):
+    """Redirects are not followed: the request would carry the URL's credentials to wherever the
+    answer points (and urllib turns a redirected POST into a GET without its body)."""
+
+    def redirect_request(self, req: urllib.request.Request, fp: Any, code: int, msg: str, headers: Any,
+                         newurl: str) -> urllib.request.Request | None:
+        raise NotDelivered(f"the endpoint answered {code} {msg} (a redirect to {shown_url(newurl)}): not followed, "
+                           "so neither the notice nor the URL's credentials go there; give --notify the address "
+                           "it redirects to")
+
+
+_OPENER = urllib.request.build_opener(_NoRedirect())
 
 def _request(target: Target, body: bytes, headers: dict[str, str]) -> urllib.request.Request:
     url = target.url.split("+", 1)[1] if "+" in target.url.split(":", 1)[0] else target.url
@@ -287,7 +319,7 @@ def send(target: Target, notice: Notice, *, timeout_s: float = 10.0, smtp: SmtpS
     else:
         body = json.dumps(notice.to_json()).encode()
         headers = {"Content-Type": "application/json"}
-    with urllib.request.urlopen(_request(target, body, headers), timeout=timeout_s) as reply:
+    with _OPENER.open(_request(target, body, headers), timeout=timeout_s) as reply:
         reply.read(65536)
 
 
@@ -315,6 +347,8 @@ def _send_mail(target: Target, notice: Notice, smtp: SmtpServer | None, timeout_
                 client.ehlo()
             elif smtp.user:
                 raise RuntimeError(f"{smtp.host} offers no STARTTLS: the password is not sent unencrypted")
+        if smtp.user and smtp.security == "none" and not is_local(smtp.host):
+            raise NotDelivered(f"{smtp.host} is not this computer: the password is not sent unencrypted")
         if smtp.user:
             client.login(smtp.user, smtp.password)
         client.send_message(mail)
@@ -376,11 +410,12 @@ class _Channel:
                     error = ""
                     break
                 except Exception as exc:       # any failure of the endpoint: retried, then given up
-                    error = self.target.scrub(f"{type(exc).__name__}: {exc}")
+                    error = self.target.scrub(str(exc) if isinstance(exc, NotDelivered) else
+                                              f"{type(exc).__name__}: {exc}")
                     log.info("notification %s to %s failed (attempt %d): %s", notice.event, self.target.shown,
                              attempt, error)
                     with self.cond:
-                        if self.closing or attempt > n.retries:
+                        if self.closing or attempt > n.retries or isinstance(exc, NotDelivered):
                             break
                         self.cond.wait(n.backoff_s * 2 ** (attempt - 1))
             if error:

@@ -5,38 +5,44 @@
 - ``/``: the state, progress, ETA, the last thumbnails, the live check's verdicts and the log's tail
   (the page reloads itself every few seconds);
 - ``/status.json``: ``state``, ``message``, ``done``, ``total``, ``eta_s``, ``dataset``, ``time``,
-  ``thumbs``, ``verdicts``, ``flagged``, ``log``;
-- ``/thumbs/NAME.jpg``: one of the last thumbnails (no other file of the dataset).
+  ``outcome`` and ``ended`` (finished, aborted or failed and when, once the scan has ended; else null),
+  ``serving_until``, ``thumbs``, ``verdicts``, ``flagged``, ``log``;
+- ``/thumbs/NAME.jpg``: one of the last thumbnails (no other file of the dataset; opened without
+  following a symlink, inside the dataset: :func:`open_inside`).
 
 Nothing can be done through it: it answers GET and HEAD only (anything else: 405). It listens on
 127.0.0.1 unless a host is given; an address other computers can reach needs a token
 (:func:`check_address`), which every request must carry (``?token=…`` or ``Authorization: Bearer …``;
 without it: 401). :class:`StatusBoard` is the scan's side: an engine (and live check) listener that
 only stores references under a lock; the page is put together when a browser asks for it, on the
-server's own threads.
+server's own thread. :class:`StatusServer` is bounded (connections, timeouts, sizes: it can never take
+the scan's file descriptors) and, after the scan, keeps showing its final state for
+``--status-linger-s`` (:meth:`StatusServer.linger`).
 """
 
 from __future__ import annotations
 
 import hmac
 import html
-import ipaddress
 import json
 import logging
+import os
+import re
 import secrets
+import selectors
 import socket
+import stat
 import threading
 import time
 import urllib.parse
 from collections import deque
 from datetime import datetime
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
 from lfstudio.errors import InputError
-from lfstudio.scan.events import EventKind, ScanEvent, ScanState
-from lfstudio.scan.notify import entry_label
+from lfstudio.scan.events import TERMINAL, EventKind, ScanEvent, ScanState
+from lfstudio.scan.notify import entry_label, is_local
 
 log = logging.getLogger(__name__)
 
@@ -46,18 +52,20 @@ THUMBS = 8                     # the last thumbnails shown
 LOG_LINES = 40                 # the log's tail shown
 MAX_FLAGGED_SHOWN = 20         # the views flagged last (each once)
 MIN_TOKEN_CHARS = 16
+#: the bounds of the server (see :class:`StatusServer`)
+MAX_CONNECTIONS = 64           # open at once; a new one past that closes the one open the longest
+READ_TIMEOUT_S = 10.0          # a request's head must arrive within this (its answer be taken within twice)
+IDLE_TIMEOUT_S = 5.0           # ... with no pause longer than this
+MAX_HEAD_BYTES = 16384         # request line and headers (then 431, or 414 for a long address)
+MAX_URL_BYTES = 8192
+MAX_THUMB_BYTES = 16 << 20     # a thumbnail larger than this is not served
+LISTEN_BACKLOG = 128
+RECV_BYTES = 16384
+DRAIN_S = 2.0                  # after the answer, how long a client may take to close its side
+#: how long the page keeps showing a scan's final state after it ended (``--status-linger-s``)
+LINGER_S = 600.0
 _LOGGED = (EventKind.STATE, EventKind.FAULT, EventKind.VIEW_FAILED, EventKind.VIEW_SKIPPED, EventKind.LOG,
            EventKind.VIEW_DONE)
-
-
-def is_local(host: str) -> bool:
-    """True when only this computer can reach ``host`` (a loopback address or ``localhost``)."""
-    if host.lower() == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host.strip("[]")).is_loopback
-    except ValueError:
-        return False
 
 
 def parse_address(text: str, option: str = "--status-http") -> tuple[str, int]:
@@ -112,6 +120,9 @@ class StatusBoard:
         self._verdict_of: dict[str, str] = {}
         self._flagged: dict[str, dict[str, Any]] = {}        # view -> its entry, the latest change last
         self.started = time.time()
+        self.outcome: str | None = None          # finished, aborted or failed, once the scan has ended
+        self.ended: float | None = None          # time.time() it ended
+        self.serving_until: float | None = None  # time.time() the page stops showing the final state
 
     def on_scan_event(self, ev: ScanEvent) -> None:
         with self._lock:
@@ -122,6 +133,12 @@ class StatusBoard:
                 self.state, self.message = ev.state, ev.message
                 if ev.state is not ScanState.RUNNING:
                     self._eta = None
+                if ev.state in TERMINAL:
+                    self.outcome = ("failed" if ev.state is ScanState.FAILED else
+                                    "aborted" if ev.extra.get("aborted") else "finished")
+                    self.ended = ev.time
+                else:
+                    self.outcome = self.ended = None
             elif kind is EventKind.VIEW_DONE:
                 if ev.eta_s is not None:
                     self._eta = (ev.eta_s, time.monotonic())
@@ -161,54 +178,92 @@ class StatusBoard:
             log_events = list(self._log)
             doc = {"dataset": self.name, "state": self.state.value, "message": self.message, "done": self.done,
                    "total": self.total, "eta_s": None if eta is None else round(eta, 1),
-                   "time": datetime.now().astimezone().strftime("%Y-%m-%d %H:%M:%S %Z"),
+                   "time": _when(time.time()), "outcome": self.outcome,
+                   "ended": None if self.ended is None else _when(self.ended),
+                   "serving_until": None if self.serving_until is None else _when(self.serving_until),
                    "thumbs": [{"view": v, "url": f"/thumbs/{Path(rel).name}"} for v, rel in self._thumbs],
                    "verdicts": dict(self.verdicts), "flagged": list(self._flagged.values())}
         doc["log"] = [f"{datetime.fromtimestamp(ev.time):%H:%M:%S}  {ev.describe()}" for ev in log_events]
         return doc
 
-    def thumb_path(self, name: str) -> Path | None:
-        """The file of a thumbnail the page shows now (None for any other name)."""
+    def thumb_bytes(self, name: str) -> bytes | None:
+        """The bytes of a thumbnail the page shows now (None for any other name, and for a file that is
+        a symlink or lies outside the dataset: :func:`open_inside`)."""
         with self._lock:
             rels = list(self._servable)
-        for rel in rels:
+        for rel in reversed(rels):
             if Path(rel).name == name:
-                path = self.root / rel
-                return path if path.is_file() else None
+                return open_inside(self.root, rel, MAX_THUMB_BYTES)
         return None
+
+
+def _when(t: float) -> str:
+    return datetime.fromtimestamp(t).astimezone().strftime("%Y-%m-%d %H:%M:%S %Z")
 
 
 # -- the server ----------------------------------------------------------------------------------------
 class StatusServer:
     """The page's HTTP server, bound at once (a port in use is an :class:`InputError` naming
-    ``option``); :meth:`start` serves ``board`` on a thread of its own."""
+    ``option``); :meth:`start` serves ``board`` on one thread of its own, an event loop
+    (:mod:`selectors`) that never blocks on a client:
+
+    - at most ``max_connections`` connections are open (a new one past that closes the one open the
+      longest), so however many clients connect, the page holds at most that many descriptors and
+      the scan's own files are never refused ("Too many open files");
+    - a request's head must arrive within ``read_timeout_s`` with no pause longer than
+      ``idle_timeout_s``, and be at most :data:`MAX_HEAD_BYTES`; the answer must be taken within
+      ``read_timeout_s`` too; one request per connection (``Connection: close``);
+    - a client that resets or drops its connection is closed without a word (no traceback).
+
+    After the scan, :meth:`linger` keeps it serving the final state for a while."""
 
     def __init__(self, address: str, token: str = "", *, option: str = "--status-http",
-                 token_option: str = "--status-token"):
+                 token_option: str = "--status-token", max_connections: int = MAX_CONNECTIONS,
+                 read_timeout_s: float = READ_TIMEOUT_S, idle_timeout_s: float = IDLE_TIMEOUT_S):
         host, port = parse_address(address, option)
         self.token = check_token(host, token, option, token_option)
         self.board: StatusBoard | None = None
-        handler = _handler(self)
+        self.max_connections = max(1, int(max_connections))
+        self.read_timeout_s, self.idle_timeout_s = float(read_timeout_s), float(idle_timeout_s)
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
         try:
-            self.httpd = _Server((host, port), handler)
+            infos = socket.getaddrinfo(host, port, family, socket.SOCK_STREAM)
         except socket.gaierror:
             raise InputError(option, f"{host} is not a name or address of this computer",
                              "127.0.0.1, 0.0.0.0 or one of its addresses") from None
+        sock = socket.socket(family, socket.SOCK_STREAM)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind(infos[0][4])
+            sock.listen(LISTEN_BACKLOG)
+            sock.setblocking(False)
         except OSError as exc:
+            sock.close()
             if exc.errno in (98, 48, 10048):        # EADDRINUSE (Linux, macOS, Windows)
                 raise InputError(option, f"port {port} on {host} is in use", "another port, or stop what listens "
                                  "there") from None
             raise InputError(option, f"cannot listen on {host}:{port}: {exc.strerror or exc}",
                              "an address of this computer and a free port") from None
-        self.host, self.port = host, self.httpd.server_address[1]
+        self._sock = sock
+        self.host, self.port = host, sock.getsockname()[1]
         self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
+        self._until: float | None = None          # monotonic time the lingering page ends
+        self._closed = threading.Event()
         self.requests = 0
+        self.open_connections = 0
+        self.peak_connections = 0
+        self.evicted = 0                          # connections closed to make room for a new one
+        self.timed_out = 0                        # connections closed for their read or idle timeout
 
     @property
     def url(self) -> str:
         """The page's address without the token (what logs may show)."""
         host = self.host if ":" not in self.host else f"[{self.host}]"
-        if host in ("0.0.0.0", "::"):
+        if host in ("0.0.0.0", "[::]"):
             host = socket.gethostname()
         return f"http://{host}:{self.port}/"
 
@@ -216,91 +271,308 @@ class StatusServer:
         """The address to open (with the token: say it once to the operator, never log it)."""
         return self.url + (f"?token={self.token}" if self.token else "")
 
+    @property
+    def serving(self) -> bool:
+        """True while the page answers (started and neither closed nor past its linger time)."""
+        return self._thread is not None and not self._closed.is_set()
+
     def start(self, board: StatusBoard) -> None:
         self.board = board
-        self._thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.5},
-                                        name="status-http", daemon=True)
+        self._thread = threading.Thread(target=self._serve, name="status-http", daemon=True)
         self._thread.start()
         log.info("status page at %s%s", self.url, " (token required)" if self.token else "")
 
+    def linger(self, seconds: float) -> None:
+        """Keep serving (the board's final state) for ``seconds`` more, then close; 0: close now."""
+        if seconds <= 0 or self._thread is None:
+            self.close()
+            return
+        self._until = time.monotonic() + seconds
+        if self.board is not None:
+            self.board.serving_until = time.time() + seconds
+        self._wake()
+        log.info("status page at %s: showing the final state for %g s more", self.url, seconds)
+
+    def wait_closed(self, timeout_s: float | None = None) -> bool:
+        """Wait until the page has closed (its linger time over, or :meth:`close`); False after ``timeout_s``."""
+        if self._thread is None:
+            return True
+        return self._closed.wait(timeout_s)
+
     def close(self) -> None:
-        if self._thread is not None:
-            self.httpd.shutdown()
-            self._thread.join(10)
-        self.httpd.server_close()
+        """Stop serving now and free the port (any thread; more than once is harmless)."""
+        self._stop.set()
+        self._wake()
+        thread = self._thread
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(10)
+        if thread is None or not thread.is_alive():
+            self._release()
 
-
-class _Server(ThreadingHTTPServer):
-    daemon_threads = True
-
-    def __init__(self, address: tuple[str, int], handler: Any):
-        if ":" in address[0]:
-            self.address_family = socket.AF_INET6
-        super().__init__(address, handler)
-
-
-def _handler(server: StatusServer) -> type[BaseHTTPRequestHandler]:
-    class Handler(BaseHTTPRequestHandler):
-        server_version = "lfstudio-status"
-        sys_version = ""
-
-        def log_message(self, format: str, *args: Any) -> None:   # the query holds the token: not logged
+    def _wake(self) -> None:
+        try:
+            self._wake_w.send(b"x")
+        except OSError:             # closed, or its buffer is full: the loop wakes anyway
             pass
 
-        def _authorised(self, query: dict[str, list[str]]) -> bool:
-            if not server.token:
-                return True
-            given = (query.get("token") or [""])[0]
-            auth = self.headers.get("Authorization", "")
-            if auth.startswith("Bearer "):
-                given = auth[7:].strip()
-            return hmac.compare_digest(given.encode(), server.token.encode())
+    def _release(self) -> None:
+        for s in (self._sock, self._wake_r, self._wake_w):
+            try:
+                s.close()
+            except OSError:
+                pass
+        self._closed.set()
 
-        def _send(self, status: int, body: bytes, ctype: str, head: bool = False) -> None:
-            self.send_response(status)
-            self.send_header("Content-Type", ctype)
-            self.send_header("Content-Length", str(len(body)))
-            self.send_header("Cache-Control", "no-store")
-            self.send_header("X-Content-Type-Options", "nosniff")
-            self.send_header("Content-Security-Policy", "default-src 'none'; img-src 'self'; style-src 'unsafe-inline'")
-            self.end_headers()
-            if not head:
-                self.wfile.write(body)
+    # -- the event loop ---------------------------------------------------------------------------
+    def _serve(self) -> None:
+        sel = selectors.DefaultSelector()
+        conns: dict[socket.socket, _Conn] = {}
+        sel.register(self._sock, selectors.EVENT_READ, None)
+        sel.register(self._wake_r, selectors.EVENT_READ, None)
+        try:
+            while not self._stop.is_set():
+                now = time.monotonic()
+                if self._until is not None and now >= self._until:
+                    break
+                deadlines = [c.deadline(self) for c in conns.values()]
+                if self._until is not None:
+                    deadlines.append(self._until)
+                wait = max(0.0, min(deadlines, default=now + 1.0) - now)
+                for key, events in sel.select(min(wait, 1.0)):
+                    sock = key.fileobj
+                    if sock is self._wake_r:
+                        try:
+                            self._wake_r.recv(4096)
+                        except OSError:
+                            pass
+                    elif sock is self._sock:
+                        self._accept(sel, conns)
+                    elif isinstance(sock, socket.socket) and sock in conns:
+                        self._step(sel, conns, conns[sock], events)
+                now = time.monotonic()
+                for conn in [c for c in conns.values() if now >= c.deadline(self)]:
+                    self.timed_out += conn.phase != "drain"
+                    self._drop(sel, conns, conn)
+        except Exception:           # never a traceback on the scan's terminal: one line in the log
+            log.warning("status page at %s stopped: %s", self.url, _one_line(), exc_info=log.isEnabledFor(10))
+        finally:
+            for conn in list(conns.values()):
+                self._drop(sel, conns, conn)
+            sel.close()
+            self._release()
 
-        def do_GET(self, head: bool = False) -> None:  # noqa: N802
-            server.requests += 1
-            parts = urllib.parse.urlsplit(self.path)
-            query = urllib.parse.parse_qs(parts.query)
-            if not self._authorised(query):
-                self._send(401, b"401: this status page needs its token (?token=...)\n", "text/plain", head)
+    def _accept(self, sel: selectors.BaseSelector, conns: dict[socket.socket, "_Conn"]) -> None:
+        for _ in range(64):         # a burst at a time: the others wait in the listen queue
+            try:
+                sock, _addr = self._sock.accept()
+            except (BlockingIOError, InterruptedError):
                 return
-            board = server.board
-            if board is None:
-                self._send(503, b"503: the scan has not started\n", "text/plain", head)
+            except OSError as exc:  # EMFILE/ENFILE (descriptors short elsewhere), ECONNABORTED: not ours to fix
+                log.debug("status page: accept: %s", exc)
+                time.sleep(0.05)    # do not spin while the process is short of descriptors
                 return
-            token = f"?token={urllib.parse.quote(server.token)}" if server.token else ""
-            if parts.path in ("/", "/index.html"):
-                self._send(200, render_page(board.snapshot(), token).encode(), "text/html; charset=utf-8", head)
-            elif parts.path == "/status.json":
-                self._send(200, json.dumps(board.snapshot()).encode(), "application/json", head)
-            elif parts.path.startswith("/thumbs/"):
-                path = board.thumb_path(parts.path[len("/thumbs/"):])
-                if path is None:
-                    self._send(404, b"404: not one of the last thumbnails\n", "text/plain", head)
-                else:
-                    self._send(200, path.read_bytes(), "image/jpeg", head)
-            else:
-                self._send(404, b"404: / and /status.json are here\n", "text/plain", head)
+            if len(conns) >= self.max_connections:
+                oldest = min(conns.values(), key=lambda c: c.opened)
+                self.evicted += 1
+                self._drop(sel, conns, oldest)
+            sock.setblocking(False)
+            conn = _Conn(sock)
+            conns[sock] = conn
+            sel.register(sock, selectors.EVENT_READ, None)
+            self.open_connections = len(conns)
+            self.peak_connections = max(self.peak_connections, len(conns))
 
-        def do_HEAD(self) -> None:  # noqa: N802
-            self.do_GET(head=True)
+    def _drop(self, sel: selectors.BaseSelector, conns: dict[socket.socket, "_Conn"], conn: "_Conn") -> None:
+        conns.pop(conn.sock, None)
+        try:
+            sel.unregister(conn.sock)
+        except (KeyError, ValueError, OSError):
+            pass
+        try:
+            conn.sock.close()
+        except OSError:
+            pass
+        self.open_connections = len(conns)
 
-        def _refuse(self) -> None:
-            self._send(405, b"405: this page is read-only\n", "text/plain")
+    def _step(self, sel: selectors.BaseSelector, conns: dict[socket.socket, "_Conn"], conn: "_Conn",
+              events: int) -> None:
+        """One readiness event of ``conn``: read its head, answer, send, drain; a client error closes it."""
+        try:
+            if conn.phase == "read" and events & selectors.EVENT_READ:
+                data = conn.sock.recv(RECV_BYTES)
+                if not data:
+                    self._drop(sel, conns, conn)
+                    return
+                conn.buf += data
+                conn.last = time.monotonic()
+                answer = self._parse(conn)
+                if answer is not None:
+                    conn.out = memoryview(answer)
+                    conn.phase = "write"
+                    sel.modify(conn.sock, selectors.EVENT_WRITE, None)
+            elif conn.phase == "write" and events & selectors.EVENT_WRITE:
+                sent = conn.sock.send(conn.out)
+                conn.out = conn.out[sent:]
+                conn.last = time.monotonic()
+                if not conn.out:                  # all said: let the client close first (no reset of the answer)
+                    conn.sock.shutdown(socket.SHUT_WR)
+                    conn.phase = "drain"
+                    conn.drain_until = time.monotonic() + DRAIN_S
+                    sel.modify(conn.sock, selectors.EVENT_READ, None)
+            elif conn.phase == "drain" and events & selectors.EVENT_READ:
+                if not conn.sock.recv(RECV_BYTES):
+                    self._drop(sel, conns, conn)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:             # reset, broken pipe, ...: the client went away; nothing to say
+            self._drop(sel, conns, conn)
 
-        do_POST = do_PUT = do_DELETE = do_PATCH = do_OPTIONS = _refuse  # noqa: N815
+    def _parse(self, conn: "_Conn") -> bytes | None:
+        """The answer to ``conn``'s request once its head is complete (None: not yet)."""
+        end = conn.buf.find(b"\r\n\r\n")
+        if end < 0:
+            end = conn.buf.find(b"\n\n")
+        if end < 0 and len(conn.buf) <= MAX_HEAD_BYTES:
+            return None
+        line_end = conn.buf.find(b"\n")
+        if line_end < 0 or line_end > MAX_URL_BYTES + 32:
+            return _plain(414, "414: the address is too long\n")
+        if end < 0 or end > MAX_HEAD_BYTES:
+            return _plain(431, "431: the request's header is too large\n")
+        head = bytes(conn.buf[:end]).decode("latin-1")
+        lines = head.replace("\r\n", "\n").split("\n")
+        words = lines[0].split(" ")
+        if len(words) != 3 or not words[2].startswith("HTTP/") or not _TOKEN.fullmatch(words[0]):
+            return _plain(400, "400: not an HTTP request\n")
+        method, target = words[0], words[1]
+        if len(target) > MAX_URL_BYTES:
+            return _plain(414, "414: the address is too long\n")
+        headers: dict[str, str] = {}
+        for line in lines[1:]:
+            name, sep, value = line.partition(":")
+            if not sep:
+                return _plain(400, "400: a malformed header line\n")
+            headers[name.strip().lower()] = value.strip()
+        self.requests += 1
+        if method not in ("GET", "HEAD"):
+            return _plain(405, "405: this page is read-only\n", extra={"Allow": "GET, HEAD"})
+        try:
+            return self._answer(target, headers, head_only=method == "HEAD")
+        except Exception:            # a bug of the page must not stop it (nor reach the scan's terminal)
+            log.warning("status page: %s failed: %s", target.split("?", 1)[0], _one_line())
+            return _plain(500, "500: the page could not be made (see lfstudio.log)\n")
 
-    return Handler
+    def _authorised(self, query: dict[str, list[str]], headers: dict[str, str]) -> bool:
+        if not self.token:
+            return True
+        given = (query.get("token") or [""])[0]
+        auth = headers.get("authorization", "")
+        if auth.startswith("Bearer "):
+            given = auth[7:].strip()
+        return hmac.compare_digest(given.encode(), self.token.encode())
+
+    def _answer(self, target: str, headers: dict[str, str], head_only: bool) -> bytes:
+        parts = urllib.parse.urlsplit(target)
+        query = urllib.parse.parse_qs(parts.query)
+        if not self._authorised(query, headers):
+            return _plain(401, "401: this status page needs its token (?token=...)\n", head_only)
+        board = self.board
+        if board is None:
+            return _plain(503, "503: the scan has not started\n", head_only)
+        token = f"?token={urllib.parse.quote(self.token)}" if self.token else ""
+        if parts.path in ("/", "/index.html"):
+            return _response(200, render_page(board.snapshot(), token).encode(), "text/html; charset=utf-8",
+                             head_only)
+        if parts.path == "/status.json":
+            return _response(200, json.dumps(board.snapshot()).encode(), "application/json", head_only)
+        if parts.path.startswith("/thumbs/"):
+            body = board.thumb_bytes(urllib.parse.unquote(parts.path[len("/thumbs/"):]))
+            if body is None:
+                return _plain(404, "404: not one of the last thumbnails\n", head_only)
+            return _response(200, body, "image/jpeg", head_only)
+        return _plain(404, "404: / and /status.json are here\n", head_only)
+
+
+class _Conn:
+    """One client connection of :class:`StatusServer`'s loop."""
+
+    __slots__ = ("sock", "buf", "out", "phase", "opened", "last", "drain_until")
+
+    def __init__(self, sock: socket.socket):
+        self.sock = sock
+        self.buf = bytearray()
+        self.out = memoryview(b"")
+        self.phase = "read"                # read the head → write the answer → drain until the client closes
+        self.opened = self.last = time.monotonic()
+        self.drain_until = 0.0
+
+    def deadline(self, server: StatusServer) -> float:
+        if self.phase == "drain":
+            return self.drain_until
+        return min(self.opened + server.read_timeout_s * (2 if self.phase == "write" else 1),
+                   self.last + server.idle_timeout_s)
+
+
+_TOKEN = re.compile(r"[A-Za-z0-9!#$%&'*+.^_`|~-]{1,32}")
+_REASONS = {200: "OK", 400: "Bad Request", 401: "Unauthorized", 404: "Not Found", 405: "Method Not Allowed",
+            414: "URI Too Long", 431: "Request Header Fields Too Large", 500: "Internal Server Error",
+            503: "Service Unavailable"}
+
+
+def _response(status: int, body: bytes, ctype: str, head_only: bool = False,
+              extra: dict[str, str] | None = None) -> bytes:
+    lines = [f"HTTP/1.1 {status} {_REASONS.get(status, '')}", "Server: lfstudio-status",
+             f"Content-Type: {ctype}", f"Content-Length: {len(body)}", "Cache-Control: no-store",
+             "X-Content-Type-Options: nosniff",
+             "Content-Security-Policy: default-src 'none'; img-src 'self'; style-src 'unsafe-inline'",
+             "Connection: close", *(f"{k}: {v}" for k, v in (extra or {}).items())]
+    return ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1") + (b"" if head_only else body)
+
+
+def _plain(status: int, text: str, head_only: bool = False, extra: dict[str, str] | None = None) -> bytes:
+    return _response(status, text.encode(), "text/plain", head_only, extra)
+
+
+def _one_line() -> str:
+    import sys
+
+    exc = sys.exc_info()[1]
+    return f"{type(exc).__name__}: {exc}".splitlines()[0] if exc is not None else "?"
+
+
+def open_inside(root: str | Path, relative: str | Path, max_bytes: int) -> bytes | None:
+    """The bytes of the ordinary file ``root/relative`` (at most ``max_bytes``), or None when it is not
+    one: every part of ``relative`` is opened without following a symlink (``O_NOFOLLOW``, relative to
+    the folder opened before it), so the file read lies inside ``root`` whatever links anyone places
+    there; ``..`` and absolute parts are refused."""
+    parts = Path(relative).parts
+    if not parts or any(p in ("", ".", "..") or "/" in p or "\\" in p for p in parts) or Path(relative).is_absolute():
+        return None
+    nofollow = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    fds: list[int] = []
+    try:
+        fds.append(os.open(root, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0)))
+        for part in parts[:-1]:
+            fds.append(os.open(part, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | nofollow, dir_fd=fds[-1]))
+        fd = os.open(parts[-1], os.O_RDONLY | os.O_NONBLOCK | nofollow, dir_fd=fds[-1])
+        fds.append(fd)
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode) or info.st_size > max_bytes:
+            return None
+        chunks, left = [], max_bytes + 1
+        while left > 0:
+            chunk = os.read(fd, min(left, 1 << 20))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            left -= len(chunk)
+        data = b"".join(chunks)
+        return data if len(data) <= max_bytes else None
+    except OSError:                     # a symlink (ELOOP, ENOTDIR), gone, unreadable: not served
+        return None
+    finally:
+        for fd in fds:
+            os.close(fd)
 
 
 def _duration(seconds: float | None) -> str:
@@ -311,7 +583,7 @@ def _duration(seconds: float | None) -> str:
 
 
 _COLOURS = {"running": "#3a9d4f", "paused": "#d08a00", "pausing": "#d08a00", "stopping": "#d08a00",
-            "failed": "#c83c3c", "finished": "#3b6fd0", "idle": "#777"}
+            "failed": "#c83c3c", "finished": "#3b6fd0", "aborted": "#8a6d3b", "idle": "#777"}
 
 
 def render_page(doc: dict[str, Any], token: str = "") -> str:
@@ -328,11 +600,15 @@ def render_page(doc: dict[str, Any], token: str = "") -> str:
     verdicts = (f"<p>{checked} views checked: {v['pass']} pass, {v['warn']} warn, {v['fail']} fail</p>"
                 + (f"<ul>{flagged}</ul>" if flagged else "")) if checked else \
         "<p class='dim'>no live check (lfstudio scan --check, or the window's grid)</p>"
-    colour = _COLOURS.get(doc["state"], "#777")
+    shown_state = doc.get("outcome") or doc["state"]
+    colour = _COLOURS.get(shown_state, "#777")
+    ended = (f"<p><b>The scan {e(shown_state)} at {e(doc['ended'])}.</b>"
+             + (f" <span class='dim'>This page shows its final state until {e(doc['serving_until'])}.</span>"
+                if doc.get("serving_until") else "") + "</p>") if doc.get("ended") else ""
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><meta http-equiv="refresh" content="{REFRESH_S}">
 <meta name="viewport" content="width=device-width, initial-scale=1">
-<title>{e(doc['state'])} {done}/{total} · scan of {e(doc['dataset'])}</title>
+<title>{e(shown_state)} {done}/{total} · scan of {e(doc['dataset'])}</title>
 <style>
 body {{ font-family: sans-serif; margin: 1.2em; background: #1e2024; color: #e4e4e4; }}
 h1 {{ font-size: 1.3em; margin: 0 0 .4em 0; }} h2 {{ font-size: 1.05em; margin: 1.2em 0 .4em 0; }}
@@ -345,7 +621,7 @@ img {{ height: 110px; border: 1px solid #555; }} figcaption {{ font-size: .8em; 
 pre {{ background: #15171a; padding: .6em; max-width: 80em; white-space: pre-wrap; font-size: .85em; }}
 </style></head><body>
 <h1>lfstudio · scan of {e(doc['dataset'])}</h1>
-<p><span class="state">{e(doc['state'])}</span> {e(doc['message'])}</p>
+<p><span class="state">{e(shown_state)}</span> {e(doc['message'])}</p>{ended}
 <div class="bar"><div class="fill"></div></div>
 <p><b>{done}</b> of <b>{total}</b> views ({percent:.1f} %) · ETA {_duration(doc['eta_s'])} ·
 <span class="dim">as of {e(doc['time'])}, reloads every {REFRESH_S} s · read-only</span></p>

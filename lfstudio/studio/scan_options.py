@@ -15,11 +15,13 @@ from lfstudio.dataset.grid import ORDERS
 from lfstudio.numbers import (EXPOSURE_S, MAX_GRID_SIDE, OFFSET_MM, RETRIES, SEED, SETTLE_S, SPACING_MM,
                               TIME_SCALE, TRANSFER_S, WIDTH_PX, Number, Param, described, params_of)
 from lfstudio.optics import REFERENCE
+from lfstudio.scan.status_http import LINGER_S
 
 #: where the options are listed
 DEVICES, GRID, SIMULATION, UNATTENDED = "devices", "grid", "simulated devices", "unattended scans"
 _SIDE = Number("", 1, MAX_GRID_SIDE, integer=True)
 ON_FINISH_TIMEOUT_S = Number("s", 1, 24 * 3600)
+STATUS_LINGER_S = Number("s", 0, 7 * 24 * 3600)
 
 
 @dataclass(frozen=True)
@@ -97,6 +99,10 @@ class ScanOptions:
         "", label="Status page token", option="--status-token", metavar="TOKEN|new", group=UNATTENDED,
         tip="the token every request to the status page must carry (?token=...); 'new' makes one and prints the "
             "page's address with it once; needed for any HOST but 127.0.0.1")
+    status_linger_s: float = described(
+        LINGER_S, number=STATUS_LINGER_S, label="Status page after the scan", option="--status-linger-s", metavar="S",
+        group=UNATTENDED, tip="after the scan ends, the status page keeps showing its final state (finished, aborted "
+                              "or failed, and when) this long; 0: it closes with the scan")
     auto_resume: int = described(
         0, number=RETRIES, label="Auto-resume", option="--auto-resume", metavar="N", group=UNATTENDED,
         tip="resume by itself, at most N times, when the cause of a pause clears (disk space freed, camera or "

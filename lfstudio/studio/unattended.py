@@ -14,9 +14,8 @@ from __future__ import annotations
 
 import logging
 import os
-import signal
-import subprocess
 import threading
+import urllib.parse
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -24,13 +23,16 @@ from typing import Any, Callable, Mapping
 from lfstudio.errors import InputError
 from lfstudio.scan.events import TERMINAL, EventKind, ScanState
 from lfstudio.scan.notify import Notifier, SmtpServer, mask_urls, parse_target
-from lfstudio.scan.status_http import StatusBoard, StatusServer
+from lfstudio.scan.status_http import LINGER_S, StatusBoard, StatusServer
 from lfstudio.studio.scan_options import PARAMS
+from lfstudio.support.children import KILL_GRACE_S, run_contained
+from lfstudio.support.secrets import Secret, reveal
 
 log = logging.getLogger(__name__)
 
 #: the options described in lfstudio.studio.scan_options (range, label, tip, command-line name)
-DESCRIBED = ("notify", "smtp", "status_http", "status_token", "auto_resume", "on_finish", "on_finish_timeout_s")
+DESCRIBED = ("notify", "smtp", "status_http", "status_token", "status_linger_s", "auto_resume", "on_finish",
+             "on_finish_timeout_s")
 #: how each option is named where the operator gave it (the CLI's options; the window passes its own)
 CLI_NAMES = {name: PARAMS[name].option for name in DESCRIBED}
 SMTP_PASSWORD_ENV = "LFSTUDIO_SMTP_PASSWORD"
@@ -40,15 +42,16 @@ SMTP_PASSWORD_ENV = "LFSTUDIO_SMTP_PASSWORD"
 class UnattendedOptions:
     """What the operator asked for; the defaults ask for nothing."""
 
-    notify: list[str] = field(default_factory=list)
+    notify: list[str | Secret] = field(default_factory=list)     # Secret: shown by scheme and host only
     smtp: str = ""                   # smtp://[USER@]HOST[:PORT]
-    smtp_password: str = field(default="", repr=False)
+    smtp_password: str | Secret = field(default="", repr=False)
     smtp_sender: str = ""
     status_http: str = ""            # [HOST:]PORT
-    status_token: str = field(default="", repr=False)    # "new": make one (printed once)
+    status_token: str | Secret = field(default="", repr=False)    # "new": make one (printed once)
     auto_resume: int = 0
     on_finish: str = ""
     on_finish_timeout_s: float = 300.0
+    status_linger_s: float = LINGER_S
     names: dict[str, str] = field(default_factory=lambda: dict(CLI_NAMES))
 
     @property
@@ -80,21 +83,35 @@ class Unattended:
         names = options.names
         env = os.environ if env is None else env
         for name in DESCRIBED:            # each by its description: the same rules as the command line's
-            PARAMS[name].check(names[name], getattr(options, name))
-        targets = [parse_target(url, names["notify"]) for url in options.notify]
+            value = getattr(options, name)
+            PARAMS[name].check(names[name], [reveal(v) for v in value] if isinstance(value, (list, tuple)) else
+                               reveal(value) if isinstance(value, Secret) else value)
+        # secrets known from here on: never in a log line, a message or a printed command
+        targets = [parse_target(reveal(url), names["notify"]) for url in options.notify]
+        token = reveal(options.status_token)
+        if token and token != "new":
+            Secret(token)
+        password = reveal(options.smtp_password) or env.get(SMTP_PASSWORD_ENV, "")
+        if password:
+            Secret(password)
+        for target in targets:
+            if target.shape != "mail":          # a mail address is no secret; a URL's path and password are
+                Secret(target.url, target.shown)
+                secret_parts = urllib.parse.urlsplit(target.url)
+                if secret_parts.password:
+                    Secret(urllib.parse.unquote(secret_parts.password))
         smtp = None
         if options.smtp:
-            smtp = SmtpServer.parse(options.smtp, password=options.smtp_password or env.get(SMTP_PASSWORD_ENV, ""),
-                                    sender=options.smtp_sender, option=names["smtp"])
+            smtp = SmtpServer.parse(options.smtp, password=password, sender=options.smtp_sender, option=names["smtp"])
         if any(t.shape == "mail" for t in targets) and smtp is None:
             raise InputError(names["notify"], "a mailto: target needs an SMTP server", f"{names['smtp']} smtp://USER@HOST")
         if options.on_finish and not options.on_finish.strip():
             raise InputError(names["on_finish"], "the command is empty", "a shell command, e.g. 'lights off'")
-        if options.status_token and not options.status_http:
+        if token and not options.status_http:
             raise InputError(names["status_token"], "is for the status page", f"add {names['status_http']} [HOST:]PORT")
         status = None
         if options.status_http:            # bound now: a port in use stops everything before it starts
-            status = StatusServer(options.status_http, options.status_token, option=names["status_http"],
+            status = StatusServer(options.status_http, token, option=names["status_http"],
                                   token_option=names["status_token"])
         try:
             notifier = Notifier(targets, dataset=dataset_name, smtp=smtp) if targets else None
@@ -104,8 +121,12 @@ class Unattended:
             raise
         if notifier is not None:
             say("notifications to " + ", ".join(t.shown for t in targets))
-        if status is not None:             # the token is said this once (never logged)
+        if status is not None and token == "new":      # a token made here is said this once (never logged)
+            Secret(status.token)
             say(f"status page (read-only): {status.url_with_token()}")
+        elif status is not None:           # a token given is never repeated
+            say(f"status page (read-only): {status.url}" + (f" (with ?token= the {names['status_token']} given)"
+                                                            if token else ""))
         return cls(options, notifier, say, status)
 
     def attach(self, engine: Any, dataset: Any = None) -> None:
@@ -145,36 +166,31 @@ class Unattended:
     def run_on_finish(self, env: dict[str, str]) -> dict[str, Any]:
         """Run the ``on_finish`` shell command with ``env`` added (``LFSTUDIO_SCAN_OUTCOME`` finished,
         aborted or failed; ``LFSTUDIO_DATASET``, ``LFSTUDIO_DONE``, ``LFSTUDIO_TOTAL``,
-        ``LFSTUDIO_SCAN_MESSAGE``): at most ``on_finish_timeout_s`` (then it and its children are
-        ended), its output logged and said, a failure notified."""
+        ``LFSTUDIO_SCAN_MESSAGE``), contained (:func:`lfstudio.support.children.run_contained`): at most
+        ``on_finish_timeout_s``, then it and everything it started are ended; its output logged and
+        said with a cap; a failure logged in one line and notified (``on-finish-failed``)."""
         command, limit = self.options.on_finish, float(self.options.on_finish_timeout_s)
         shown = mask_urls(command)
         name = self.options.names["on_finish"]
         log.info("%s: running %s", name, shown)
         self.say(f"{name}: running {shown}")
-        result: dict[str, Any] = {"returncode": None, "timed_out": False, "output": "", "error": ""}
-        try:
-            proc = subprocess.Popen(command, shell=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                    stdin=subprocess.DEVNULL, env={**os.environ, **env}, start_new_session=True,
-                                    cwd=str(getattr(self.dataset, "root", "") or os.getcwd()))
-        except OSError as exc:
-            result["error"] = f"could not start: {exc.strerror or exc}"
-        else:
-            try:
-                out, _ = proc.communicate(timeout=limit)
-            except subprocess.TimeoutExpired:
-                result["timed_out"] = True
-                _end_group(proc)
-                out, _ = proc.communicate()
-            result["returncode"] = proc.returncode
-            result["output"] = out.decode(errors="replace")
-            for line in result["output"].splitlines():
-                log.info("%s: | %s", name, line)
-                self.say(f"{name}: | {line}")
-            if result["timed_out"]:
-                result["error"] = f"did not end within {limit:g} s: stopped"
-            elif proc.returncode:
-                result["error"] = f"failed with exit status {proc.returncode}"
+
+        def line(text: str) -> None:
+            text = mask_urls(text)
+            log.info("%s: | %s", name, text)
+            self.say(f"{name}: | {text}")
+        run = run_contained(command, limit_s=limit, env={**os.environ, **env}, on_line=line,
+                            cwd=str(getattr(self.dataset, "root", "") or os.getcwd()))
+        result: dict[str, Any] = {"returncode": run.returncode, "timed_out": run.timed_out, "output": run.output,
+                                  "output_bytes": run.output_bytes, "lines": run.lines, "error": run.error}
+        if run.error:
+            result["error"] = run.error
+        elif run.timed_out:
+            result["error"] = (f"did not end within {limit:g} s: stopped" if run.returncode is None or
+                               run.returncode < 0 else
+                               f"left processes running past the {limit:g} s time limit: stopped")
+        elif run.returncode:
+            result["error"] = f"failed with exit status {run.returncode}"
         self.on_finish_result = result
         if result["error"]:
             text = f"the command run when the scan ends ({shown}) {result['error']}"
@@ -202,29 +218,27 @@ class Unattended:
             if self.board is not None:
                 self.board.on_verdict(entry)
 
-    def close(self, timeout_s: float = 10.0) -> None:
-        """Stop listening; let the end-of-day command end (its own time limit); deliver what is queued
-        within ``timeout_s``; stop the status page."""
-        self.wait_on_finish(float(self.options.on_finish_timeout_s) + 15.0)
+    def close(self, timeout_s: float = 10.0, *, linger: bool = True) -> StatusServer | None:
+        """Stop listening; let the end-of-day command end (it ends by its own time limit: this waits
+        at most that, saying so); deliver what is queued within ``timeout_s``. The status page keeps
+        showing the final state for ``status_linger_s`` (``linger``, and the scan was attached), then
+        closes by itself: returned while it does (None once closed), so that a front end can show it
+        and close it sooner (:meth:`StatusServer.close`, e.g. before the next scan takes the port)."""
+        thread = self.on_finish_thread
+        if thread is not None and thread.is_alive():
+            left = float(self.options.on_finish_timeout_s) + 3 * KILL_GRACE_S
+            self.say(f"{self.options.names['on_finish']}: waiting for the command to end (at most {left:g} s)")
+            self.wait_on_finish(left)
         for remove in self._removers:
-
             remove()
         self._removers.clear()
         if self.notifier is not None:
             self.notifier.close(timeout_s)
-        if self.status is not None:
-            self.status.close()
-
-
-def _end_group(proc: subprocess.Popen) -> None:
-    """End a command that ran too long, and whatever it started (its process group)."""
-    for sig in (signal.SIGTERM, signal.SIGKILL):
-        try:
-            os.killpg(proc.pid, sig)
-        except (ProcessLookupError, PermissionError, AttributeError):
-            return
-        try:
-            proc.wait(5)
-            return
-        except subprocess.TimeoutExpired:
-            continue
+        status, self.status = self.status, None
+        if status is None:
+            return None
+        if linger and self.board is not None and self.board.outcome is not None and self.options.status_linger_s > 0:
+            status.linger(self.options.status_linger_s)
+            return status
+        status.close()
+        return None

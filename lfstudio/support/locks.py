@@ -47,6 +47,7 @@ from typing import Iterator
 from pathlib import Path
 
 from lfstudio.errors import LfError
+from lfstudio.support.secrets import command_line, scrub
 
 try:
     import fcntl
@@ -108,13 +109,20 @@ class Holder:
 
 
 def this_command() -> str:
-    """The command line of this process as an operator typed it (``lfstudio scan --out D``)."""
-    argv = list(sys.argv)
-    if argv and (argv[0].endswith("__main__.py") or Path(argv[0]).name in ("lfstudio", "__main__.py")):
-        argv[0] = "lfstudio"
-    elif argv and argv[0] == "-m":
-        argv[0] = "lfstudio"
-    text = " ".join(argv) if argv and argv[0] else "lfstudio"
+    """The command line of this process as an operator typed it (``lfstudio scan --out D``), its
+    secret values redacted: as the CLI recorded it when it read its options
+    (:func:`lfstudio.support.secrets.set_command_line`), else ``sys.argv`` without any secret this
+    process knows. A lock file is read by other processes and may outlive this one."""
+    shown = command_line()
+    if shown is not None:
+        text = " ".join(shown) or "lfstudio"
+    else:
+        argv = list(sys.argv)
+        if argv and (argv[0].endswith("__main__.py") or Path(argv[0]).name in ("lfstudio", "__main__.py")):
+            argv[0] = "lfstudio"
+        elif argv and argv[0] == "-m":
+            argv[0] = "lfstudio"
+        text = scrub(" ".join(argv)) if argv and argv[0] else "lfstudio"
     return text if len(text) <= 200 else text[:197] + "..."
 
 

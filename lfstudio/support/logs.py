@@ -26,6 +26,8 @@ import os
 import sys
 from pathlib import Path
 
+from lfstudio.support.secrets import ScrubFilter
+
 LOG_FILE_NAME = "lfstudio.log"
 #: per file; with BACKUP_COUNT older files at most 60 MB of logs. A scan writes about 7 lines (0.7 kB) a
 #: view on a GRBL rig and 3.4 lines (0.3 kB) on CiA 402 drives (benchmarks/log_lines_per_view.py), so the
@@ -112,6 +114,7 @@ def setup_logging(debug: bool = False, console: bool = True) -> Path | None:
             stream.addFilter(_console_filter)
         stream.addFilter(_library_filter)
         stream.setFormatter(logging.Formatter(CONSOLE_FORMAT))
+        stream.addFilter(ScrubFilter())            # a secret value given to this process never shows
         setattr(stream, _HANDLER_TAG, True)
         root.addHandler(stream)
 
@@ -127,6 +130,7 @@ def setup_logging(debug: bool = False, console: bool = True) -> Path | None:
     handler.setLevel(logging.DEBUG)
     handler.setFormatter(logging.Formatter(FILE_FORMAT))
     handler.addFilter(_library_filter)
+    handler.addFilter(ScrubFilter())
     setattr(handler, _HANDLER_TAG, True)
     root.addHandler(handler)
     return path

@@ -84,7 +84,8 @@ def test_the_unattended_options_are_described_once_for_the_command_line_and_the_
     assert all(CLI_NAMES[name] == PARAMS[name].option for name in CLI_NAMES)
     args = _parser().parse_args(["--out", "x", "--notify", "https://a.example/h", "--notify", "ntfy+https://n/t",
                                  "--smtp", "smtp://me@mail", "--on-finish", "lights off"])
-    assert args.notify == ["https://a.example/h", "ntfy+https://n/t"]
+    assert [u.reveal() for u in args.notify] == ["https://a.example/h", "ntfy+https://n/t"]
+    assert [str(u) for u in args.notify] == ["https://a.example/…", "ntfy+https://n/…"]    # read as secrets
     assert (args.smtp, args.status_http, args.on_finish) == ("smtp://me@mail", "", "lights off")
     assert _parser().parse_args(["--out", "x"]).notify == []
     high = int(PARAMS["auto_resume"].number.high) + 1

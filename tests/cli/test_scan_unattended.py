@@ -69,13 +69,21 @@ def test_bad_auto_resume_and_on_finish_options(run_cli, tmp_path, args, words):
     assert not out.exists()
 
 
-def test_the_status_token_is_printed_once_and_never_logged(run_cli, tmp_path):
+def test_a_given_status_token_is_never_printed_nor_logged_and_a_new_one_printed_once(run_cli, tmp_path):
     logs = tmp_path / "logs"
     token = "MyOwnStatusToken-0123456789"
     r = run_cli("scan", "--port", "instant", "--camera", "instant", "--grid", "3x2", "--out", tmp_path / "day1",
                 "--time-scale", "0", "--status-http", "127.0.0.1:0", "--status-token", token,
-                env={"LFSTUDIO_LOG_DIR": str(logs)})
+                "--status-linger-s", "0", env={"LFSTUDIO_LOG_DIR": str(logs)})
     assert r.returncode == 0, r.stderr
-    assert r.stderr.count(token) == 1 and "status page (read-only): http://127.0.0.1:" in r.stderr
+    assert token not in r.stderr and "status page (read-only): http://127.0.0.1:" in r.stderr
+    assert "with ?token= the --status-token given" in r.stderr
     logged = "".join(p.read_text(errors="replace") for p in logs.rglob("*") if p.is_file())
     assert "--status-token …" in logged and token not in logged
+    r = run_cli("scan", "--port", "instant", "--camera", "instant", "--grid", "3x2", "--out", tmp_path / "day2",
+                "--time-scale", "0", "--status-http", "127.0.0.1:0", "--status-token", "new",
+                "--status-linger-s", "0", env={"LFSTUDIO_LOG_DIR": str(logs)})
+    made = r.stderr.split("?token=", 1)[1].split()[0]
+    assert r.returncode == 0 and len(made) >= 16 and r.stderr.count(made) == 1, r.stderr
+    logged = "".join(p.read_text(errors="replace") for p in logs.rglob("*") if p.is_file())
+    assert made not in logged

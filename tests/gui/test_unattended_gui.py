@@ -53,6 +53,7 @@ def test_settings_refuse_a_bad_url_naming_the_field_then_store(qtbot, tmp_path):
     box.address.setText("0.0.0.0:8765")
     box.auto_resume.setValue(3)
     box.on_finish.setText("lights off")
+    box.linger.setValue(120)
     dialog.show()
     dialog.accept()
     assert dialog.isVisible() and not dialog.problem.isHidden()
@@ -81,7 +82,7 @@ def test_settings_refuse_a_bad_url_naming_the_field_then_store(qtbot, tmp_path):
     options = load_options()
     assert options.notify == ["https://hooks.example.com/services/T0/B0/xyz"]
     assert (options.status_http, options.status_token) == ("0.0.0.0:8765", "new")   # another computer: a token
-    assert (options.auto_resume, options.on_finish) == (3, "lights off")
+    assert (options.auto_resume, options.on_finish, options.status_linger_s) == (3, "lights off", 120)
 
 
 def test_a_scan_from_the_panel_notifies_and_serves_the_status_page(qtbot, tmp_path, instant_devices, receiver):
@@ -103,6 +104,34 @@ def test_a_scan_from_the_panel_notifies_and_serves_the_status_page(qtbot, tmp_pa
     assert receiver.json_events() == ["started", "paused", "flagged", "resumed", "finished"]
     qtbot.waitUntil(lambda: "status page (read-only): http://127.0.0.1:" in panel.log_view.toPlainText(),
                     timeout=5000)
+
+
+def test_the_panel_shows_the_pages_address_during_and_after_the_scan(qtbot, tmp_path, instant_devices):
+    """#41 item 6: the window names the status page's address (click opens it, Copy copies it) and the
+    page keeps serving the final state after the scan; the next scan takes the port back."""
+    from PySide6.QtGui import QGuiApplication
+
+    devices, rig, cam = instant_devices
+    set_unattended(status=True, status_address="127.0.0.1:0", status_linger_s=600)
+    state, panel = scan_panel(qtbot, devices, 3, 2, tmp_path / "day1")
+    panel.resize(1366 // 3, 700)
+    start_then_pause(qtbot, panel)
+    server = panel.unattended.status
+    assert panel.status_page.isVisibleTo(panel) and server.url in panel.status_page.text()
+    panel.status_page.linkActivated.emit("copy")
+    assert QGuiApplication.clipboard().text() == server.url
+    panel.resume()
+    qtbot.waitUntil(lambda: "Finished" in panel.state_label.text(), timeout=30000)
+    assert panel.unattended is None and panel.status_page.server is server
+    assert "the final state, until" in panel.status_page.text() and panel.status_page.isVisibleTo(panel)
+    qtbot.waitUntil(lambda: server.board.serving_until is not None, timeout=30000)   # close() made it linger
+    with urllib.request.urlopen(server.url + "status.json", timeout=30) as reply:
+        doc = json.loads(reply.read())
+    assert (doc["outcome"], doc["done"], doc["total"]) == ("finished", 6, 6) and doc["ended"]
+    if (shots := os.environ.get("LFSTUDIO_KEEP_SCREENSHOT")):
+        panel.grab().save(os.path.join(shots, "scan-panel-status-page.png"))
+    panel.shutdown()                                     # the window closes: so does the page
+    assert server.wait_closed(30) and not panel.status_page.isVisibleTo(panel)
 
 
 def test_a_port_in_use_refuses_to_start_naming_the_setting(qtbot, tmp_path, instant_devices):

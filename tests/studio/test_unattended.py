@@ -71,7 +71,47 @@ def test_bad_options_are_refused_naming_the_option(options, words):
 def test_the_window_names_its_own_fields(receiver=None):
     names = {"notify": "Settings → Unattended scans → Notify", "smtp": "Settings → SMTP server",
              "status_http": "Settings → Status page address", "status_token": "Settings → Status page token",
-             "auto_resume": "Settings → Auto-resume", "on_finish": "Settings → When the scan ends",
-             "on_finish_timeout_s": "Settings → Time limit"}
+             "status_linger_s": "Settings → Status page after the scan", "auto_resume": "Settings → Auto-resume",
+             "on_finish": "Settings → When the scan ends", "on_finish_timeout_s": "Settings → Time limit"}
     with pytest.raises(InputError, match="^Settings → Unattended scans → Notify: unknown scheme 'gopher'"):
         Unattended.open(UnattendedOptions(notify=["gopher://x/y"], names=names))
+
+
+def test_on_finish_is_contained_its_leftovers_ended_notified_and_logged_in_one_line(tmp_path, caplog):
+    """A command that leaves a setsid'd process holding its output (#42 item 9): ended at the limit,
+    nothing waits longer, one warning line, one on-finish-failed notice."""
+    import logging
+
+    from tests.scankill import gone
+
+    pidfile = tmp_path / "left.pid"
+    receiver = Receiver()
+    try:
+        options = UnattendedOptions(notify=[receiver.url("/hook")], on_finish_timeout_s=1,
+                                    on_finish=f"setsid sh -c 'echo $$ > {pidfile}; exec sleep 600' & echo lights off")
+        with caplog.at_level(logging.INFO, logger="lfstudio.studio.unattended"):
+            unattended, said, ds = run_scan(tmp_path, options)
+        assert receiver.wait_for(lambda posts: any(b"on-finish-failed" in p["body"] for p in posts))
+    finally:
+        receiver.close()
+    result = unattended.on_finish_result
+    assert result["timed_out"] and result["error"] == "left processes running past the 1 s time limit: stopped"
+    assert gone(int(pidfile.read_text()))
+    assert "--on-finish: | lights off" in said
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(warnings) == 1 and "\n" not in warnings[0] and "time limit" in warnings[0]
+
+
+def test_on_finish_output_is_capped_in_memory_and_in_the_log(tmp_path, caplog):
+    import logging
+
+    from lfstudio.support.children import HEAD_LINES, KEEP_BYTES, TAIL_LINES
+
+    options = UnattendedOptions(on_finish="seq 1 100000; head -c 5000000 /dev/zero | tr '\\0' x")
+    with caplog.at_level(logging.INFO, logger="lfstudio.studio.unattended"):
+        unattended, said, ds = run_scan(tmp_path, options)
+    result = unattended.on_finish_result
+    assert not result["error"] and result["output_bytes"] > 5_000_000 and len(result["output"]) <= KEEP_BYTES + 10
+    output_lines = [r for r in caplog.records if "--on-finish: |" in r.getMessage()]
+    assert len(output_lines) == HEAD_LINES + 1 + TAIL_LINES
+    assert max(len(r.getMessage()) for r in caplog.records) < 3000

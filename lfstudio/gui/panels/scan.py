@@ -38,6 +38,7 @@ from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
 from lfstudio.gui.settings import read_float, read_text, settings
+from lfstudio.gui.unattended import StatusPageLabel
 from lfstudio.gui.views.path_preview import PathPreview
 from lfstudio.gui.widgets import QuietLabel, bounds_of, number_of, readable_time, set_progress_async
 from lfstudio.jobs import count, format_duration
@@ -330,6 +331,7 @@ class ScanPanel(QWidget):
         # text that changes with every view must not re-lay the panel out (each new QLabel text re-lays
         # out the panel, its dock and the main window): QuietLabels, room for two lines where it wraps
         self.state_label = QuietLabel("Idle", name="scanState", lines=2)
+        self.status_page = StatusPageLabel()        # the status page's address while it serves
         self.progress = QProgressBar()
         self.progress.setObjectName("scanProgress")
         self.progress.setFormat("%v / %m views (%p%)")
@@ -351,6 +353,7 @@ class ScanPanel(QWidget):
         lay.addWidget(out_box)
         lay.addLayout(buttons)
         lay.addWidget(self.state_label)
+        lay.addWidget(self.status_page)
         lay.addLayout(prog_row)
         lay.addWidget(self.current)
         lay.addWidget(self.timings)
@@ -617,11 +620,14 @@ class ScanPanel(QWidget):
         from lfstudio.studio.unattended import Unattended
 
         self._close_unattended()
+        self._close_status_page()               # the last scan's page, still showing its final state
         try:
             self.unattended = Unattended.open(load_options(), dataset_name=folder.name, say=self._said.post)
         except InputError as exc:
             self.state.report_error("Scan", f"{exc}\n\nChange it in File → Settings…, then start the scan.")
             return False
+        if self.unattended.status is not None:
+            self.status_page.show_page(self.unattended.status)
         job["engine_options"] = {"auto_resume": self.unattended.options.auto_resume}
         return True
 
@@ -632,7 +638,20 @@ class ScanPanel(QWidget):
         if unattended is not None:
             import threading
 
+            board, status, linger_s = unattended.board, unattended.status, unattended.options.status_linger_s
+            if status is not None and board is not None and board.outcome is not None and linger_s > 0:
+                self.status_page.show_page(status, until=time.time() + linger_s)     # close() lingers
+            else:
+                self.status_page.clear_page()
+
             threading.Thread(target=unattended.close, name="unattended-close", daemon=True).start()
+
+    def _close_status_page(self) -> None:
+        """Stop a status page still showing the last scan's final state (its port is free again)."""
+        server = self.status_page.server
+        self.status_page.clear_page()
+        if server is not None:
+            server.close()
 
     def _desktop_notify(self, ev) -> None:
         """A desktop notification of a state worth one, when the window is not in front."""
@@ -1137,6 +1156,7 @@ class ScanPanel(QWidget):
             self.engine.wait(30)
         self._end_session()
         self._close_unattended()
+        self._close_status_page()
         if self.studio is not None:
             self.studio.close()
             self.studio = None
