@@ -12,13 +12,19 @@ in a subprocess and hits it with one fault at a random moment:
 * ``disk-fills`` (root only): another program takes all the free space of the dataset's tmpfs at a
   random moment (a real ENOSPC at whichever write comes next: capture, thumbnail, journal,
   manifest), then frees it again.
+* ``drive-stall``: the scan runs on two emulated CiA 402 drives (the dryve D1 pair on Modbus TCP,
+  served by this process); at a random moment one drive's link stalls (it answers nothing) and
+  the scan gets Ctrl+C. If the other drive was moving then, its quick stop must arrive (at its
+  emulator) while the stalled link is still stalled (``stop missed`` otherwise; issue 42). The
+  stall then ends and ``--resume --home`` completes the dataset on the same drives.
 
 Then ``lfstudio scan --resume`` completes the dataset and the trial counts:
 
 * lost: a view done before the fault that is not done after, or whose file or checksum changed;
 * duplicated: a view done before the fault that was captured again (its capture time changed), or
   a second file for one view;
-* outside: files beside the dataset that appeared, changed or vanished (a sentinel folder next to it).
+* outside: files beside the dataset that appeared, changed or vanished (a sentinel folder next to it);
+* stop missed (drive-stall only): see above.
 
 Usage (from the repository root): ``./.venv/bin/python benchmarks/fault_soak.py [--trials 50] [--seed 1]``.
 Prints one line per trial and ``N trials, 0 lost, 0 duplicated, 0 outside``.
@@ -35,6 +41,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -45,6 +52,8 @@ from _measure import Timer, load_text  # noqa: E402
 
 from lfstudio.dataset import Dataset  # noqa: E402
 from lfstudio.dataset.store import read_journal, temporary_files  # noqa: E402
+from lfstudio.rig.profile import load_rig  # noqa: E402
+from lfstudio.studio.simulated import start_drive_emulator  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 GRID = (5, 3)
@@ -92,6 +101,57 @@ def kill_scan_at_random(out: Path, rnd: random.Random, resume: bool) -> None:
     if proc.poll() is None:
         proc.send_signal(signal.SIGKILL)
     proc.wait(60)
+
+
+DRIVES = "dryve D1 gantry 4 m x 0.5 m"
+
+
+class QuickStopSeen(list):
+    """A drive emulator's journal of writes; ``event`` is set when a quick stop (6040h = 0Bh) arrives."""
+
+    def __init__(self):
+        super().__init__()
+        self.event = threading.Event()
+
+    def append(self, item) -> None:
+        super().append(item)
+        if item[1] == 0x6040 and item[3] == 0x0B:
+            self.event.set()
+
+
+def stall_drive_at_random(out: Path, rnd: random.Random, emulator) -> tuple[int, int]:
+    """The drive-stall trial's scan (see the module docstring): (1 if the other drive was moving at
+    Ctrl+C, 1 if its quick stop was missed)."""
+    seen = [QuickStopSeen(), QuickStopSeen()]
+    for axis, journal in zip(emulator.pair.axes, seen):
+        axis.journal = journal
+    args = cli("scan", "--port", emulator.word, "--rig-profile", DRIVES, "--camera", "instant",
+               "--time-scale", "0.05", "--home", "--grid", f"{GRID[0]}x{GRID[1]}", "--spacing-mm", "600x100",
+               "--out", out)
+    proc = subprocess.Popen(args, cwd=REPO, env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    target = rnd.randint(0, GRID[0] * GRID[1] - 1)
+    deadline = time.monotonic() + 120
+    while proc.poll() is None and journaled(out) < target and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(rnd.uniform(0.0, 0.4))
+    missed = moving = 0
+    if proc.poll() is None:
+        stalled = rnd.randint(0, 1)
+        other = emulator.pair.axes[1 - stalled]
+        moving = int(other.read(0x606C, 0) != 0)
+        seen[1 - stalled].event.clear()
+        emulator.pair.axes[stalled].inject("lost_connection")
+        proc.send_signal(signal.SIGINT)
+        missed = int(moving and not seen[1 - stalled].event.wait(5) and emulator.pair.axes[stalled].answering is False)
+        emulator.pair.axes[stalled].clear_faults()
+    try:
+        proc.wait(120)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    for axis in emulator.pair.axes:
+        axis.journal = None
+    return moving, missed
 
 
 def can_mount() -> bool:
@@ -154,11 +214,24 @@ def disk_fills(work: Path, rnd: random.Random) -> Path:
 
 
 def trial(i: int, kind: str, rnd: random.Random, work: Path) -> dict:
+    emulator = start_drive_emulator(load_rig(DRIVES), "modbus", time_scale=0.05) if kind == "drive-stall" else None
+    try:
+        return _trial(kind, rnd, work, emulator)
+    finally:
+        if emulator is not None:
+            emulator.close()
+
+
+def _trial(kind: str, rnd: random.Random, work: Path, emulator) -> dict:
     outside = work / "beside"
     outside.mkdir(parents=True)
     (outside / "keep.txt").write_text("not the dataset's\n")
     before_outside = snapshot(outside)
-    if kind in ("disk-full", "disk-fills"):
+    stop_missed = stop_checked = 0
+    if emulator is not None:
+        out = work / "ds"
+        stop_checked, stop_missed = stall_drive_at_random(out, rnd, emulator)
+    elif kind in ("disk-full", "disk-fills"):
         out = disk_full(work, rnd) if kind == "disk-full" else disk_fills(work, rnd)
         outside = out.parent / "beside"
         before_outside = snapshot(outside)
@@ -173,7 +246,12 @@ def trial(i: int, kind: str, rnd: random.Random, work: Path) -> dict:
     if kind == "disk-full":
         subprocess.run(["mount", "-o", "remount,size=64m", str(out.parent)], check=True)
     if (out / "dataset.json").is_file():
-        again = cli("scan", "--resume", "--time-scale", "0", "--sim-width-px", "96", "--out", out)
+        again = cli("scan", "--resume", "--time-scale", "0", "--sim-width-px", "96", "--out", out,
+                    *(["--home"] if emulator is not None else []))
+    elif emulator is not None:
+        again = cli("scan", "--port", emulator.word, "--rig-profile", DRIVES, "--camera", "instant",
+                    "--time-scale", "0", "--home", "--grid", f"{GRID[0]}x{GRID[1]}", "--spacing-mm", "600x100",
+                    "--out", out)
     else:                               # killed before the dataset existed: the operator starts again
         again = cli("scan", *SCAN, "--time-scale", "0", "--grid", f"{GRID[0]}x{GRID[1]}", "--out", out)
     done = subprocess.run(again, cwd=REPO, env=env(), capture_output=True, text=True, timeout=300)
@@ -186,6 +264,7 @@ def trial(i: int, kind: str, rnd: random.Random, work: Path) -> dict:
     problems = Dataset.open(out).verify_files() + [str(p) for p in temporary_files(out)]
     outside_changed = snapshot(outside) != before_outside
     return {"kind": kind, "before": len(before), "lost": len(lost), "duplicated": len(duplicated),
+            "stop_missed": stop_missed, "stop_checked": stop_checked,
             "outside": int(outside_changed), "incomplete": incomplete, "problems": problems,
             "resume_rc": done.returncode, "stderr": done.stderr.strip().splitlines()[-1:] if done.returncode else []}
 
@@ -194,10 +273,13 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--trials", type=int, default=50)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--kinds", default="", help="comma-separated fault kinds to draw from (default: all)")
     args = parser.parse_args()
     rnd = random.Random(args.seed)
-    kinds = ["kill", "kill", "kill-twice"] + (["disk-full", "disk-fills"] if can_mount() else [])
-    totals = {"lost": 0, "duplicated": 0, "outside": 0, "incomplete": 0, "problems": 0}
+    kinds = ["kill", "kill", "kill-twice", "drive-stall"] + (["disk-full", "disk-fills"] if can_mount() else [])
+    if args.kinds:
+        kinds = args.kinds.split(",")
+    totals = {"lost": 0, "duplicated": 0, "outside": 0, "incomplete": 0, "problems": 0, "stop_missed": 0}
     counts: dict[str, int] = {}
     timer = Timer()
     span = timer.__enter__()
@@ -210,11 +292,13 @@ def main() -> int:
             finally:
                 if (Path(tmp) / "disk").is_mount():
                     subprocess.run(["umount", "-l", str(Path(tmp) / "disk")], capture_output=True)
-        for key in ("lost", "duplicated", "outside", "incomplete"):
+        for key in ("lost", "duplicated", "outside", "incomplete", "stop_missed"):
             totals[key] += result[key]
         totals["problems"] += len(result["problems"])
         print(f"trial {i + 1:3d} {kind:<10} {result['before']:2d} views before the fault: lost {result['lost']}, "
               f"duplicated {result['duplicated']}, outside {result['outside']}, incomplete {result['incomplete']}"
+              + ((f", other drive moving at Ctrl+C: stop missed {result['stop_missed']}" if result["stop_checked"]
+                  else ", other drive at rest at Ctrl+C") if kind == "drive-stall" else "")
               + (f", problems {result['problems'][:2]}" if result["problems"] else "")
               + (f", resume exit {result['resume_rc']} {result['stderr']}" if result["resume_rc"] else ""), flush=True)
     timer.__exit__(None, None, None)
@@ -222,7 +306,8 @@ def main() -> int:
           f"{span.cpu_s:.0f} s CPU (this process and its scans); {load_text()}")
     if totals["incomplete"] or totals["problems"]:
         print(f"{totals['incomplete']} views not completed by the resume, {totals['problems']} file problems")
-    print(f"{args.trials} trials, {totals['lost']} lost, {totals['duplicated']} duplicated, {totals['outside']} outside")
+    print(f"{args.trials} trials, {totals['lost']} lost, {totals['duplicated']} duplicated, {totals['outside']} outside, "
+          f"{totals['stop_missed']} quick stops missed")
     return 0 if not any(totals.values()) else 1
 
 
