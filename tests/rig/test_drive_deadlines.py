@@ -262,3 +262,54 @@ def test_ctrl_c_of_rig_move_reaches_the_other_drive_while_one_link_is_stalled():
     assert proc.returncode == 130 and "Traceback" not in err, err
     assert "Ctrl+C: stopping the rig" in err
     assert emulator.true_position_mm()[1] < 450
+
+
+def test_a_canopen_node_trickling_a_segmented_answer_ends_within_the_links_deadline():
+    """A node on the (virtual) CAN bus that answers an upload with a segmented transfer of 65 535 bytes
+    and each segment within python-canopen's per-response timeout, 0.25 s apart: the whole transfer has
+    the link's deadline (it used to go on for 65 535 / 7 segments)."""
+    import os
+
+    import can
+
+    from lfstudio.rig.canopen_link import CanopenLink
+
+    channel = f"lfstudio-hostile-{os.getpid()}"
+    node = 5
+    closing = threading.Event()
+    segments = []
+    bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+
+    def serve() -> None:
+        while not closing.is_set():
+            msg = bus.recv(0.05)
+            if msg is None or msg.arbitration_id != 0x600 + node:
+                continue
+            cmd = msg.data[0]
+            if cmd & 0xE0 == 0x40:                    # initiate upload: segmented, 65 535 bytes announced
+                answer = bytes([0x41, msg.data[1], msg.data[2], msg.data[3]]) + (65535).to_bytes(4, "little")
+            elif cmd & 0xE0 == 0x60:                  # upload segment: 7 more bytes, never the last
+                if closing.wait(0.25):
+                    return
+                segments.append(cmd)
+                answer = bytes([cmd & 0x10]) + b"\x00" * 7
+            else:
+                continue
+            bus.send(can.Message(arbitration_id=0x580 + node, data=answer, is_extended_id=False))
+
+    server = threading.Thread(target=serve, daemon=True)
+    server.start()
+    link = CanopenLink(f"virtual-{channel}", node, timeout_s=0.5)
+    pool = ThreadPoolExecutor(1)
+    try:
+        link.open()
+        failure = pool.submit(link.read, 0x6041, 0, 2, False).exception(timeout=HANG_GUARD_S)
+    finally:
+        closing.set()
+        pool.shutdown()
+        link.close()
+        server.join(5)
+        bus.shutdown()
+    assert isinstance(failure, DriveNotAnswering), failure
+    assert f"virtual-{channel} node {node}" in str(failure) and "no whole answer within 0.5 s" in str(failure)
+    assert 0 < len(segments) < 10                    # it was answering, segment by segment
