@@ -14,8 +14,18 @@ Model:
   disabled); Disable voltage (bit 1 low) → Switch on disabled; a fault → Fault reaction active →
   Fault; Fault reset (rising edge of bit 7) → Switch on disabled once the cause is gone. The status
   word is composed as the profile tables say (``0x0040``, ``0x0021``, ``0x0023``, ``0x0027``,
-  ``0x0007``, ``0x000F``, ``0x0008``) plus bit 4 voltage enabled, bit 9 remote, bit 10 target
-  reached, bit 11 internal limit active, bits 12/13 mode-specific.
+  ``0x0007``, ``0x000F``, ``0x0008``) plus bit 9 remote, bit 10 target reached, bit 11 internal
+  limit active (down again with the move it limited), bits 12/13 mode-specific; no bit 4 (voltage
+  enabled): the dryve D1 answers 0640h after power-up, 0621h/0623h/0627h, 1627h at the target
+  (manual V2.4 6.4.7; igus' sample V1.2's expected answers).
+- **Objects** (:data:`OBJECTS`, as the D1 has them, 60A8h/607Bh/60FDh/6067h/6068h/6092h:0 too); an
+  axis can be told to lack any (``AxisSetup.leave_out``), to list its homing methods (60E3h), to
+  power up enabled in profile position but never homed, to settle off its target inside 6067h.
+- **Units**: the feed constant ``6092h`` (units per motor revolution, :attr:`AxisSetup.feed`) over
+  the mechanics' ``mm_per_rev`` makes the drive's units per mm; writing 6092h rescales (the
+  carriage stays, its counts change). ``60A8h`` says the unit (FB010000h: 0.01 mm).
+- **Modes**: ``6060h`` written while homing (or moving) is taken and shown in ``6061h`` once the
+  run has ended (igus' sample writes 6060h = 1 right after starting its homing run).
 - **Profile position** (``6060h`` = 1): a rising edge of control word bit 4 (new set-point) takes
   ``607Ah`` (absolute, or relative with bit 6) and sets status bit 12 (set-point acknowledge) until
   bit 4 falls; bit 10 (target reached) once the demand is at the target and at rest; bit 8 (halt)
