@@ -1219,6 +1219,46 @@ class Cia402Controller:
         self.reset()
 
 
+def load_object_dictionary(path: str, node_id: int, where: str) -> tuple[object, set[tuple[int, int]]]:
+    """The drive's object dictionary from its EDS/DCF file (python-canopen's ``import_od``) and the
+    (index, subindex) it lists. ``where``: the profile key naming the file, for the one-line refusal
+    (:class:`lfstudio.errors.InputError`) of a file that is missing or not an EDS/DCF."""
+    from lfstudio.errors import InputError
+
+    fix = "the drive maker's EDS file (or a DCF written from it), or leave eds_file out: the objects are then read from the drive"
+    try:
+        import configparser
+
+        import canopen
+
+        sections = configparser.RawConfigParser(strict=False)
+        with open(path, encoding="utf-8", errors="replace") as f:
+            sections.read_file(f)
+        if not sections.has_section("DeviceInfo"):
+            raise ValueError("no [DeviceInfo] section, which every EDS and DCF has")
+        od = canopen.import_od(path, node_id)
+    except FileNotFoundError:
+        raise InputError(where, f"{path}: no such file; nothing was sent to the drive", fix) from None
+    except Exception as exc:  # noqa: BLE001 - configparser and python-canopen raise many kinds
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(where, f"{path} is not an EDS/DCF file ({first}); nothing was sent to the drive",
+                         fix) from None
+    listed: set[tuple[int, int]] = set()
+    for index in od.keys() if hasattr(od, "keys") else ():
+        if not isinstance(index, int):
+            continue
+        obj = od[index]
+        subs = getattr(obj, "subindices", None)
+        if subs:
+            listed.update((index, int(sub)) for sub in subs if isinstance(sub, int))
+        else:
+            listed.add((index, 0))
+    if (STATUS, 0) not in listed or (CONTROL, 0) not in listed:
+        raise InputError(where, f"{path} lists no CiA 402 drive (no status word 6041h or control word 6040h); "
+                         "nothing was sent to the drive", fix)
+    return od, listed
+
+
 def check_feed_constants(rig: RigConfig) -> None:
     """Every axis of a CiA 402 rig names a positive feed constant (``increments_per_mm``)."""
     from lfstudio.errors import InputError

@@ -76,6 +76,11 @@ class AxisConfig:
         tip="CiA 402 drives: how far the carriage travels per revolution of the drive's shaft (70 for a "
             "70 mm/rev toothed belt); with it the drive's feed constant 6092h is checked against the feed "
             "constant above before anything moves. 0: not given (the drive's SI unit 60A8h is still checked)")
+    eds_file: str = described(
+        "", label="EDS/DCF file", group=DRIVE,
+        tip="CiA 402 drives: the drive maker's EDS (or a DCF) file; its objects are the drive's (python-canopen "
+            "builds the object dictionary from it, for CANopen and Modbus TCP drives alike). A relative path is "
+            "taken from the profile file's folder. Empty: the objects are read from the drive at connect")
     homing_method: int = described(
         0, number=Number("", 0, 99, integer=True), choices=(0, *HOMING_METHODS), label="Homing method",
         group=DRIVE, tip="CiA 402 drives: 6098h: 17 negative / 18 positive limit switch, 35/37 the current "

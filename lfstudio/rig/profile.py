@@ -15,6 +15,8 @@ one line naming the file, the rig, the field and the allowed range::
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from typing import Any
 
 from lfstudio.errors import InputError
@@ -61,6 +63,11 @@ def rig_from_dict(name: str, data: dict, source: str = "") -> RigConfig:
         a = dict(a)
         if isinstance(a.get("letter"), str):
             a["letter"] = a["letter"].upper()
+        if isinstance(a.get("eds_file"), str) and a["eds_file"].strip():
+            eds = Path(a["eds_file"].strip()).expanduser()
+            if not eds.is_absolute() and source:
+                eds = Path(source).parent / eds
+            a["eds_file"] = str(eds)
         if driver == "cia402":
             a.setdefault("letter", "X" if axis == "horizontal" else "Y")
             a.setdefault("homing_method", 17)
@@ -126,6 +133,8 @@ def profile_lines(rig: RigConfig) -> list[str]:
         if key == "letter" and rig.driver == "cia402":
             continue
         values = (getattr(h, key), getattr(v, key))
+        if values == ("", ""):                     # a file not named (eds_file)
+            continue
         lines.append(f"{param.label}: {_shown(param, values[0])} × {_shown(param, values[1])}")
     return lines
 

@@ -342,3 +342,41 @@ class CanopenDrives(_PairOnTheWire):
             except Exception as exc:  # noqa: BLE001
                 log.debug("CAN network disconnect: %s", exc)
             self.network = None
+
+
+def eds_text(objects: dict[tuple[int, int], tuple[int, bool, bool]], name: str = "lfstudio emulated CiA 402 drive"
+             ) -> str:
+    """An EDS (CiA 306) listing an emulated drive's objects, as a drive maker ships one: what a rig
+    profile's ``eds_file`` names (tests, and a template for a drive without one)."""
+    types = {(1, True): 0x0002, (2, True): 0x0003, (4, True): 0x0004, (1, False): 0x0005, (2, False): 0x0006,
+             (4, False): 0x0007}
+    by_index: dict[int, list[int]] = {}
+    for index, sub in sorted(objects):
+        by_index.setdefault(index, []).append(sub)
+    lines = ["[FileInfo]", f"FileName={name}.eds", "FileVersion=1", "EDSVersion=4.0", "",
+             "[DeviceInfo]", "VendorName=lfstudio", f"ProductName={name}", "BaudRate_1000=1", "SimpleBootUpSlave=1",
+             "Granularity=8", "NrOfRXPDO=0", "NrOfTXPDO=0", "LSS_Supported=0", "",
+             "[MandatoryObjects]", "SupportedObjects=1", "1=0x1000", "",
+             "[OptionalObjects]", f"SupportedObjects={len([i for i in by_index if i != 0x1000])}"]
+    lines += [f"{n}=0x{index:04X}" for n, index in enumerate((i for i in by_index if i != 0x1000), 1)]
+    lines.append("")
+
+    def variable(section: str, title: str, spec: tuple[int, bool, bool], default: int | None = None) -> list[str]:
+        size, signed, writable = spec
+        out = [f"[{section}]", f"ParameterName={title}", "ObjectType=0x7", f"DataType=0x{types[(size, signed)]:04X}",
+               f"AccessType={'rw' if writable else 'ro'}", "PDOMapping=0"]
+        if default is not None:
+            out.append(f"DefaultValue={default}")
+        return out + [""]
+
+    for index, subs in by_index.items():
+        if subs == [0]:
+            lines += variable(f"{index:04X}", f"Object {index:04X}h", objects[(index, 0)])
+            continue
+        highest = max(subs)
+        lines += [f"[{index:04X}]", f"ParameterName=Object {index:04X}h", "ObjectType=0x9", f"SubNumber={highest + 1}", ""]
+        lines += variable(f"{index:04X}sub0", "Highest sub-index supported", (1, False, False), highest)
+        for sub in subs:
+            if sub:
+                lines += variable(f"{index:04X}sub{sub:X}", f"Sub-index {sub}", objects[(index, sub)])
+    return "\n".join(lines) + "\n"

@@ -338,6 +338,18 @@ def _open_drives(spec: RigSpec, config: RigConfig, *, doing: str, time_scale: fl
 
             simulator = start_drive_emulator(config, "canopen", time_scale=time_scale, seed=seed)
             spec = RigSpec.parse(simulator.word)
+        # an EDS/DCF named by the profile: the drive's objects are the file's (python-canopen parses it)
+        dictionaries: list[Any] = [None, None]
+        known: list[set | None] = [None, None]
+        for i, axis in enumerate((config.horizontal, config.vertical)):
+            if axis.eds_file:
+                from lfstudio.rig.cia402 import load_object_dictionary
+
+                node = int(spec.addresses[i]) if spec.kind == "canopen" else 1
+                dictionaries[i], known[i] = load_object_dictionary(
+                    axis.eds_file, node, f"rig {config.name!r} {axis.name}.eds_file (drive {'xy'[i]})")
+        if known != [None, None]:
+            options["known_objects"] = (known[0], known[1])
         if spec.kind == "dryve":
             from lfstudio.rig.dryve import DryveLink, parse_address
 
@@ -348,8 +360,8 @@ def _open_drives(spec: RigSpec, config: RigConfig, *, doing: str, time_scale: fl
             from lfstudio.rig.canopen_link import CanopenLink
 
             x, y = spec.addresses
-            links = (CanopenLink(spec.port, x, timeout_s=options.get("timeout_s", 1.0)),
-                     CanopenLink(spec.port, y, timeout_s=options.get("timeout_s", 1.0)))
+            links = (CanopenLink(spec.port, x, timeout_s=options.get("timeout_s", 1.0), object_dictionary=dictionaries[0]),
+                     CanopenLink(spec.port, y, timeout_s=options.get("timeout_s", 1.0), object_dictionary=dictionaries[1]))
         if lock:
             for link in links:
                 locks.append(drive_lock(link.address, doing).acquire())

@@ -277,3 +277,83 @@ def test_rig_cli_refuses_units_and_unhomed_drives_and_keeps_the_reference_on_req
         proc.wait(10)
         proc.stdout.close()
         proc.stderr.close()
+
+
+# -- EDS/DCF -------------------------------------------------------------------------------------------------
+def _rig_with_eds(tmp_path, objects, leave_out=(), text=None):
+    """The drive rig's profile with ``eds_file`` (relative: next to the profile file) on both axes."""
+    from lfstudio.resources import load_presets_with_files
+    from lfstudio.rig.profile import rig_from_dict
+    from lfstudio.sim.drive_servers import eds_text
+
+    data = {k: (dict(v) if isinstance(v, dict) else v) for k, v in load_presets_with_files("rigs")[RIG_NAME][0].items()}
+    (tmp_path / "drive.eds").write_text(text if text is not None else
+                                        eds_text({k: v for k, v in objects.items() if k[0] not in leave_out}))
+    for axis in ("horizontal", "vertical"):
+        data[axis]["eds_file"] = "drive.eds"
+    return rig_from_dict("with eds", data, str(tmp_path / "rigs.toml"))
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_the_objects_are_the_eds_files(tmp_path, transport, caplog):
+    """The profile names an EDS without 6085h: the drive has it, the driver does not use it (605Ah = 5)."""
+    from lfstudio.sim.cia402_drive import OBJECTS
+
+    rig = _rig_with_eds(tmp_path, OBJECTS, leave_out=(0x6085,))
+    assert rig.horizontal.eds_file == str(tmp_path / "drive.eds")
+    emulator = start_drive_emulator(rig, transport, time_scale=0.0)
+    link = open_rig(emulator.word, rig, lock=False, connect=False, timeout_s=0.5)
+    try:
+        with caplog.at_level(logging.WARNING, logger="lfstudio.rig.cia402"):
+            link.controller.connect()
+        c = link.controller
+        assert (0x6085, 0) not in c.objects[0] and (0x6084, 0) in c.objects[0]
+        assert any("has no 6085h" in r.getMessage() for r in caplog.records)
+        if transport == "canopen":                       # python-canopen built the node's dictionary from it
+            assert 0x607D in c.links[0].node.object_dictionary
+        c.home()
+        c.move_to(10, 20)
+        assert not [w for w in emulator.pair.journal if w[1] == 0x6085]
+        assert ("horizontal", 0x605A, 0, 5) in emulator.pair.journal
+    finally:
+        link.close()
+        emulator.close()
+
+
+@pytest.mark.parametrize("text, words", [("not an eds at all\n", "is not an EDS/DCF file"),
+                                         ("[Foo]\nbar=1\n", "no [DeviceInfo] section"),
+                                         ("[DeviceInfo]\nVendorName=x\n", "lists no CiA 402 drive"),
+                                         (None, "no such file")])
+def test_an_eds_that_is_not_one_is_one_line_and_nothing_moves(tmp_path, text, words):
+    from lfstudio.errors import InputError
+    from lfstudio.sim.cia402_drive import OBJECTS
+
+    rig = _rig_with_eds(tmp_path, OBJECTS, text=text if text is not None else "")
+    if text is None:
+        (tmp_path / "drive.eds").unlink()
+    emulator = start_drive_emulator(rig, "modbus", time_scale=0.0)
+    try:
+        with pytest.raises(InputError) as exc:
+            open_rig(emulator.word, rig, lock=False, timeout_s=0.5)
+        line = str(exc.value)
+        assert words in line and "horizontal.eds_file (drive x)" in line and str(tmp_path / "drive.eds") in line
+        assert "\n" not in line and "leave eds_file out" in line
+        assert emulator.pair.journal == []
+    finally:
+        emulator.close()
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_an_eds_without_a_mandatory_object_refuses_by_name(tmp_path, transport):
+    from lfstudio.sim.cia402_drive import OBJECTS
+
+    rig = _rig_with_eds(tmp_path, OBJECTS, leave_out=(0x6081,))
+    emulator = start_drive_emulator(rig, transport, time_scale=0.0)
+    link = open_rig(emulator.word, rig, lock=False, connect=False, timeout_s=0.5)
+    try:
+        with pytest.raises(MissingObject, match=r"6081h \(profile velocity\).*its EDS/DCF lists no such object"):
+            link.controller.connect()
+        assert emulator.pair.journal == []
+    finally:
+        link.close()
+        emulator.close()

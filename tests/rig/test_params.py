@@ -30,7 +30,7 @@ def test_every_setting_of_a_profile_is_described():
     assert set(RIG_PARAMS) == {"label", "homing", "driver"}
     for name, param in {**AXIS_PARAMS, **RIG_PARAMS}.items():
         assert param.label and param.tip, name
-        assert param.number is not None or param.choices or param.flag or name == "label", name
+        assert param.number is not None or param.choices or param.flag or name in ("label", "eds_file"), name
         if param.number is not None:
             assert param.number.unit or name == "homing_method", name
     shipped = load_presets("rigs")

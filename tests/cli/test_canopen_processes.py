@@ -1,0 +1,107 @@
+"""CANopen between processes (issue 38): ``lfstudio sim-drive --canopen udp_multicast`` serves the two
+emulated drives as CANopen nodes on python-can's UDP multicast bus, and ``lfstudio rig`` / ``lfstudio
+scan`` in other processes drive them over ``--port canopen:udp_multicast:1,2`` (SDO through
+python-canopen, the real stacks at both ends).
+
+The multicast frames stay inside a network namespace this test makes (``unshare -n``: only a loopback
+interface, multicast routed to it), so nothing leaves the machine; the test skips where namespaces
+cannot be made."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from lfstudio.dataset import Dataset
+from tests.conftest import REPO_ROOT
+from tests.scankill import lfstudio_env
+
+RIG = "dryve D1 gantry 4 m x 0.5 m"
+SETUP = "ip link set lo up && ip link set lo multicast on && ip route add 224.0.0.0/4 dev lo && echo ready && " \
+        "exec sleep 600"
+
+
+@pytest.fixture
+def own_network():
+    """A network namespace with only loopback (multicast routed to it): yields the command prefix
+    that runs a program inside it."""
+    if not (shutil.which("unshare") and shutil.which("nsenter") and shutil.which("ip")):
+        pytest.skip("unshare, nsenter or ip missing: no network namespace for the multicast bus")
+    holder = subprocess.Popen(["unshare", "-n", "sh", "-c", SETUP], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    line = holder.stdout.readline().strip() if holder.stdout else ""
+    if line != "ready":
+        holder.kill()
+        _, err = holder.communicate()
+        pytest.skip(f"no network namespace here ({err.strip() or 'unshare failed'})")
+    try:
+        yield ["nsenter", "-t", str(holder.pid), "-n", "--"]
+    finally:
+        holder.kill()
+        holder.communicate()
+
+
+def _lfstudio(prefix: list[str], *args, timeout: float = 180) -> subprocess.CompletedProcess:
+    return subprocess.run([*prefix, sys.executable, "-m", "lfstudio", *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout, env=lfstudio_env(), cwd=REPO_ROOT)
+
+
+@pytest.fixture
+def canopen_drives(own_network):
+    """``lfstudio sim-drive --canopen udp_multicast`` in its own process, inside the namespace."""
+    def start(*options: str) -> str:
+        proc = subprocess.Popen([*own_network, sys.executable, "-m", "lfstudio", "sim-drive", "--canopen",
+                                 "udp_multicast", "--time-scale", "0", *options], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env=lfstudio_env(), cwd=REPO_ROOT)
+        started.append(proc)
+        word = proc.stdout.readline().strip() if proc.stdout else ""
+        assert word == "canopen:udp_multicast:1,2", proc.stderr.read() if proc.poll() is not None else word
+        return word
+
+    started: list[subprocess.Popen] = []
+    yield start
+    for proc in started:
+        proc.terminate()
+        try:
+            proc.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+
+
+def test_rig_and_scan_in_other_processes_over_the_udp_multicast_bus(own_network, canopen_drives, tmp_path):
+    word = canopen_drives()
+    r = _lfstudio(own_network, "rig", "--port", word, "--rig-profile", RIG, "home", "move", "100", "50", "status")
+    assert r.returncode == 0, r.stderr
+    last = r.stdout.strip().splitlines()[-1]
+    assert "x=100.000 y=50.000" in last and "homed" in last and "x: operation enabled 0000h" in last
+    out = tmp_path / "ds"
+    r = _lfstudio(own_network, "scan", "--port", word, "--rig-profile", RIG, "--camera", "sim", "--home", "--grid",
+                  "3x2", "--spacing-mm", "4x6", "--sim-width-px", "96", "--time-scale", "0", "--out", out)
+    assert r.returncode == 0, r.stderr
+    assert "6 of 6 views captured" in r.stderr
+    ds = Dataset.open(out)
+    try:
+        assert ds.manifest["devices"]["rig"]["port"] == word
+        for v in ds.views:
+            assert v["reported_mm"] == pytest.approx(v["commanded_mm"], abs=0.011)
+    finally:
+        ds.close()
+
+
+def test_the_variety_over_canopen_in_another_process(own_network, canopen_drives):
+    """Objects left out, other units, found enabled but never homed: over CANopen between processes."""
+    word = canopen_drives("--leave-out", "605A,607D,603F,60F4,6085,606C", "--feed-constant", "70",
+                          "--enabled-unhomed")
+    r = _lfstudio(own_network, "rig", "--port", word, "--rig-profile", RIG, "status", "move", "30", "4")
+    assert r.returncode == 1
+    assert "60A8h" in r.stderr and "increments_per_mm = 100" in r.stderr and "Traceback" not in r.stderr
+    assert "has no 605Ah" in r.stderr and "has no 606Ch" in r.stderr            # the fallbacks, said once each
+    assert r.stderr.count("drive x (horizontal) at udp_multicast node 1 has no 605Ah") == 1
+    r = _lfstudio(own_network, "rig", "--port", word, "--rig-profile", RIG, "units", "home", "move", "30", "4",
+                  "status")
+    assert r.returncode == 0, r.stderr
+    assert "x=30.000 y=4.000" in r.stdout.strip().splitlines()[-1]
