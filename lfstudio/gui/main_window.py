@@ -544,6 +544,7 @@ class MainWindow(QMainWindow):
         geometry, window_state = s.value("window/geometry"), s.value("window/state")
         if geometry is not None:
             self.restoreGeometry(geometry)
+            self._fit_to_screen()
         else:       # first start: as large as the default but no larger than the screen's free room
             room = _screen_room(self)
             self.resize(self.size().boundedTo(room))
@@ -559,6 +560,25 @@ class MainWindow(QMainWindow):
         else:  # first start: the panels of the first steps in front, the side docks as wide as they need
             self._raise_first_steps()
             self._fit_on_show = True
+
+    def _fit_to_screen(self) -> None:
+        """A remembered geometry from a larger screen (or another monitor) fitted to the screen the
+        window opens on: no larger than its free room, and moved inside it. A maximised or full-screen
+        window is the screen's own size already."""
+        if self.isMaximized() or self.isFullScreen():
+            return
+        screen = self.screen() or QGuiApplication.primaryScreen()
+        if screen is None:
+            return
+        free = screen.availableGeometry()
+        room = _screen_room(self)
+        if self.width() > room.width() or self.height() > room.height():
+            self.resize(self.size().boundedTo(room))
+        frame = QSize(self.width() + WINDOW_FRAME_PX.width(), self.height() + WINDOW_FRAME_PX.height())
+        x = min(max(self.x(), free.left()), free.left() + free.width() - frame.width())
+        y = min(max(self.y(), free.top()), free.top() + free.height() - frame.height())
+        if (x, y) != (self.x(), self.y()):
+            self.move(x, y)
 
     def ask_quit_during_scan(self) -> QMessageBox:
         """The question asked when the window is closed during a scan (non-blocking)."""

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 from PySide6.QtWidgets import QApplication, QMessageBox
 
 from lfstudio.dataset import Dataset
@@ -292,3 +293,35 @@ def test_import_images_dialog_states_the_zero_plane_and_shows_it_with_the_measur
     QApplication.processEvents()
     assert dialog.message.height() > 3 * dialog.message.fontMetrics().height()   # every line shown
     dialog.grab().save(str(tmp_path / "import_dialog.png"))
+
+
+@pytest.mark.parametrize("screen", [(1366, 768), (1920, 1080)])
+def test_the_fields_stay_put_while_the_file_count_changes(qtbot, tmp_path, screen):
+    """The count's message grew from one line to three as the operator typed and pushed the fields
+    under it about 28 px down: a click meant for Focal length opened File order (issue 41, item 9)."""
+    folder = _images(tmp_path / "rig", 6)
+    for i in range(3):                                           # two kinds: the longest message, with a hint
+        cv2.imwrite(str(folder / f"extra{i}.jpg"), np.zeros((8, 8, 3), np.uint8))
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    window.resize(*screen)
+    window.show()
+    dialog = ImportImagesDialog(window.state, window)
+    qtbot.addWidget(dialog)
+    dialog.show()
+    qtbot.waitExposed(dialog)
+    watched = (dialog.order_combo, dialog.intrinsics_combo, dialog.out_edit)
+
+    def places():
+        return [w.mapTo(dialog, w.rect().topLeft()).y() for w in watched]
+
+    start, size = places(), dialog.size()
+    texts = []
+    for typed in ("/", str(tmp_path / "nowhere" / ("deep" * 12)), str(folder), str(folder)[:-1]):
+        dialog.folder_edit.setText(typed)
+        dialog.recount()
+        QApplication.processEvents()        # a relayout, if the text asks for one, happens here
+        texts.append(dialog.count_label.text())
+        assert places() == start and dialog.size() == size, (typed, dialog.count_label.text())
+    assert any("Found 9 images" in t for t in texts) and len(set(texts)) >= 3, texts
+    dialog.grab().save(str(tmp_path / f"import-{screen[0]}.png"))

@@ -29,12 +29,13 @@ from lfstudio.errors import InputError, LfError
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
 from lfstudio.gui.settings import read_float, read_int, read_text, settings
-from lfstudio.gui.widgets import JobProgressWidget, screen_fitted
+from lfstudio.gui.widgets import JobProgressWidget, QuietLabel, screen_fitted
 
 OK_STYLE = "color: #1b7a1b;"
 BAD_STYLE = "color: #b00020;"
 INTRINSICS_MODES = ("From EXIF (if the files have it)", "Focal length (mm) + pixel pitch (µm)", "Focal length (px)")
 POSITION_MODES = ("From the grid spacing", "Recorded in the file names (out_RR_CC_<a>_<b>)", "Recorded in a CSV file")
+COUNT_LINES = 3        # the file count's message: lines reserved under the pattern (the whole text in its tooltip)
 ZERO_MODES = ("Measure from the views", "Parallel views (not sheared)", "Sheared, zero-disparity plane at")
 
 
@@ -342,9 +343,10 @@ class ImportImagesDialog(_ImportDialogBase):
         self.copy_check = QCheckBox("Always copy the files (default: hard-link them when on the same disk)")
         self.copy_check.setChecked(s.value(f"{p}/copy", "false") in (True, "true"))
         self.copy_check.setToolTip("Hard links take no extra space; copies are independent of the originals")
-        self.count_label = QLabel("")
-        self.count_label.setObjectName("countLabel")
-        self.count_label.setWordWrap(True)
+        # the live count's message takes 1 to 3 lines as the operator types: its height is reserved, so the
+        # fields under it never move (a click meant for Focal length opened File order)
+        self.count_label = QuietLabel("", name="countLabel", lines=COUNT_LINES,
+                                      hint_text="Found 2121 images (.dng, .tif), grid needs 2121 ✓")
         self.import_button.setToolTip("Build the dataset (files are checked first; nothing is left on Cancel)")
 
         form = QFormLayout()
@@ -404,27 +406,29 @@ class ImportImagesDialog(_ImportDialogBase):
         text = self.folder_edit.text().strip()
         need = self.columns_spin.value() * self.rows_spin.value()
         if not text:
-            self.count_label.setText(f"Choose a folder; the grid needs {need} images")
-            self.count_label.setStyleSheet("")
+            self._say_count(f"Choose a folder; the grid needs {need} images", "")
             return None
         try:
             files = find_images(expand_path(text, "Image folder", absolute=True), self.pattern_edit.text().strip() or None)
         except InputError as exc:
-            self.count_label.setText(str(exc).split(": ", 1)[-1])
-            self.count_label.setStyleSheet(BAD_STYLE)
+            self._say_count(str(exc).split(": ", 1)[-1], BAD_STYLE)
             return None
         n = len(files)
         kinds = sorted({p.suffix.lower() for p in files})
         text = f"Found {n} image{'s' if n != 1 else ''}" + (f" ({', '.join(kinds)})" if kinds else "") + \
             f", grid needs {need}"
         if n == need:
-            self.count_label.setText(text + f" ✓  ({files[0].name} … {files[-1].name})")
-            self.count_label.setStyleSheet(OK_STYLE)
+            self._say_count(text + f" ✓  ({files[0].name} … {files[-1].name})", OK_STYLE)
         else:
             hint = "; choose one kind with the pattern, e.g. *" + kinds[0] if len(kinds) > 1 else ""
-            self.count_label.setText(text + hint)
-            self.count_label.setStyleSheet(BAD_STYLE)
+            self._say_count(text + hint, BAD_STYLE)
         return n
+
+    def _say_count(self, text: str, style: str) -> None:
+        """The count's message in its reserved lines (and whole in its tooltip)."""
+        self.count_label.setText(text)
+        self.count_label.label.setStyleSheet(style)
+        self.count_label.setToolTip(text)
 
     def options(self, overwrite: bool = False):
         from lfstudio.export.import_images import POSITIONS_FROM_NAMES, ImportOptions
