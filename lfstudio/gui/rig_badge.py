@@ -1,8 +1,9 @@
 """The rig's state in the window's STOP toolbar, visible with every panel layout (the Rig panel may be
 a tab behind the Planner, closed or floating on another screen).
 
-One word an operator acts on — **disconnected**, **not homed**, **homing**, **homed**, **moving**,
-**hold**, **alarm**, **fault** — coloured like the Rig panel's state, with the position and the
+One word an operator acts on — **disconnected**, **not homed**, **homing**, **homed**, **reference
+kept from the drive** (CiA 402 drives whose own reference the operator kept without homing),
+**moving**, **hold**, **alarm**, **fault** — coloured like the Rig panel's state, with the position and the
 controller's message in the tooltip. Homing is announced in the status bar when it starts and when it
 ends, wherever it was asked for (Rig → Home, the Rig panel, a scan that homes first). Clicking the
 badge shows the Rig panel.
@@ -19,8 +20,9 @@ from lfstudio.rig.motion import RigState, RigStatus
 from lfstudio.rig.worker import DeviceFault
 
 #: word → background colour (the Rig panel's colours: green fine, blue moving, orange attention, red stop)
+KEPT = "reference kept from the drive"
 BADGE_COLOURS = {"disconnected": "#6b7280", "not homed": "#b35900", "homing": "#1565c0", "homed": "#2e7d32",
-                 "moving": "#1565c0", "hold": "#b35900", "alarm": "#b00020", "fault": "#b00020"}
+                 KEPT: "#00695c", "moving": "#1565c0", "hold": "#b35900", "alarm": "#b00020", "fault": "#b00020"}
 
 
 MOVES = ("move_to", "jog")     # device calls that move the rig (shown as "moving" while they run)
@@ -46,6 +48,8 @@ def badge_word(status: Any, homing: bool = False, moving: bool = False) -> str:
         return "moving"
     if status.state is RigState.HOLD:
         return "hold"
+    if status.homed and isinstance(status.extra, dict) and status.extra.get("reference") == "kept":
+        return KEPT
     return "homed" if status.homed else "not homed"
 
 
@@ -140,8 +144,14 @@ class RigBadge(QToolButton):
         message = getattr(status, "message", "") if self._device is not None else ""
         if message:
             tip.append(message)
+        drives = isinstance(status, RigStatus) and isinstance(status.extra, dict) and "power_state" in status.extra
         if word == "not homed":
-            tip.append("Home it (Rig → Home, Ctrl+H) before jogging or scanning.")
+            tip.append("Home it (Rig → Home, Ctrl+H) before jogging or scanning" +
+                       (", or keep the drives' own reference (Rig → Keep the drives' reference) if they were "
+                        "homed before and kept it." if drives else "."))
+        elif word == KEPT:
+            tip.append("The operator kept the drives' own reference: lfstudio did not home them on this "
+                       "connection. Home the rig when in doubt.")
         elif word == "disconnected":
             tip.append("Connect it with Rig → Connect rig.")
         tip.append("Click to show the Rig panel.")

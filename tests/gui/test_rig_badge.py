@@ -20,6 +20,10 @@ def test_badge_words():
     assert badge_word(RigStatus(RigState.DISCONNECTED)) == "disconnected"
     assert badge_word(RigStatus(RigState.IDLE, (0, 0), homed=False)) == "not homed"
     assert badge_word(RigStatus(RigState.IDLE, (0, 0), homed=True)) == "homed"
+    # CiA 402 drives whose own reference the operator kept (issue 38)
+    assert badge_word(RigStatus(RigState.IDLE, (0, 0), homed=True, extra={"reference": "kept"})) == \
+        "reference kept from the drive"
+    assert badge_word(RigStatus(RigState.IDLE, (0, 0), homed=True, extra={"reference": "homed"})) == "homed"
     assert badge_word(RigStatus(RigState.IDLE, (0, 0), homed=False), homing=True) == "homing"
     assert badge_word(RigStatus(RigState.HOMING, (0, 0))) == "homing"
     assert badge_word(RigStatus(RigState.MOVING, (0, 0), homed=True)) == "moving"

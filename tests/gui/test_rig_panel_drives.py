@@ -78,7 +78,11 @@ def test_keep_drive_reference_is_an_explicit_action_shown_in_the_badge(qtbot, pa
     from lfstudio.rig.profile import load_rig
     from lfstudio.studio.simulated import start_drive_emulator
 
+    from lfstudio.gui.rig_badge import RigBadge
+
     emulator = start_drive_emulator(load_rig(RIG_NAME), "modbus", time_scale=0.0, setup={"enabled_unhomed": True})
+    badge = RigBadge(panel.state)
+    qtbot.addWidget(badge)
     try:
         panel.port_combo.setEditText(emulator.word)
         qtbot.mouseClick(panel.connect_button, Qt.LeftButton)
@@ -86,8 +90,12 @@ def test_keep_drive_reference_is_an_explicit_action_shown_in_the_badge(qtbot, pa
         assert "operation enabled" in panel.drive_label.text() and not panel.last_status.homed
         assert "not homed" in panel.state_label.text() and not panel.goto_button.isEnabled()
         assert panel.keep_button.isVisible() and panel.keep_button.isEnabled() and panel.keep_action.isEnabled()
+        qtbot.waitUntil(lambda: badge.text() == "Rig: not homed", timeout=T)
+        assert "Keep the drives' reference" in badge.toolTip()
         qtbot.mouseClick(panel.keep_button, Qt.LeftButton)
         qtbot.waitUntil(lambda: panel.last_status.homed, timeout=T)
+        qtbot.waitUntil(lambda: badge.text() == "Rig: reference kept from the drive", timeout=T)
+        assert "did not home them" in badge.toolTip()
         assert panel.state_label.text() == "reference kept\nfrom the drive"
         assert not panel.keep_button.isVisible() and panel.goto_button.isEnabled()
         panel.resize(420, 700)

@@ -122,6 +122,9 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
         camera_link = camera_link or link_for_camera(camera.driver)
         devices = SharedDevices(rig, camera, {"rig": rig_link.record(), "camera": camera_link.record()},
                                 port=rig_link.port)
+        if rig_link.spec.drives:              # CiA 402 drives: their own reference may be kept instead
+            devices.how_to_home = ("home it in the Rig panel (Rig → Home), or keep the drives' own reference there "
+                                   "(Keep drive reference) if they were homed before and kept it, then start again")
     else:
         if studio is None:
             studio = started_studio = open_studio(
