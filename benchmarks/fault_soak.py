@@ -11,7 +11,17 @@ in a subprocess and hits it with one fault at a random moment:
   number of views (the scan stops on its free-space floor), then made larger;
 * ``disk-fills`` (root only): another program takes all the free space of the dataset's tmpfs at a
   random moment (a real ENOSPC at whichever write comes next: capture, thumbnail, journal,
-  manifest), then frees it again.
+  manifest), then frees it again;
+* ``status-flood``: the scan, in a process allowed 1024 file descriptors (``ulimit -n 1024``), serves
+  its status page (``--status-http``) while 1150 to 2000 connections are held open half-sent (re-opened
+  as the page closes them) and others reset theirs; it must finish by itself (no "Too many open
+  files", no traceback);
+* ``secret-kill``: the scan is given secret values (a ``--notify`` URL with user, password and webhook
+  path, ``--status-token``, ``$LFSTUDIO_SMTP_PASSWORD``) and killed with kill -9 at a random moment (its
+  ``dataset.lock`` and runtime lock files stay behind); no file under the dataset, the log folder or
+  the runtime folder, and no output, may hold any of them;
+* ``on-finish-escape``: ``--on-finish`` starts a ``setsid`` process that holds its output and prints
+  a few MB, with a 1 s limit: the escaped process must be gone when the scan has exited;
 * ``drive-stall``: the scan runs on two emulated CiA 402 drives (the dryve D1 pair on Modbus TCP,
   served by this process); at a random moment one drive's link stalls (it answers nothing) and
   the scan gets Ctrl+C. If the other drive was moving then, its quick stop must arrive (at its
@@ -24,6 +34,8 @@ Then ``lfstudio scan --resume`` completes the dataset and the trial counts:
 * duplicated: a view done before the fault that was captured again (its capture time changed), or
   a second file for one view;
 * outside: files beside the dataset that appeared, changed or vanished (a sentinel folder next to it);
+* problems: a damaged file, a temporary file left; for status-flood, secret-kill and on-finish-escape
+  also the scan stopped by the flood, a secret found (file or stream named), an escaped process alive;
 * stop missed (drive-stall only): see above.
 
 Usage (from the repository root): ``./.venv/bin/python benchmarks/fault_soak.py [--trials 50] [--seed 1]``.
@@ -213,6 +225,121 @@ def disk_fills(work: Path, rnd: random.Random) -> Path:
     return out
 
 
+def held_open(port: int, count: int, stop: threading.Event, rnd: random.Random) -> None:
+    """Keep ``count`` half-sent requests open to 127.0.0.1:``port`` (re-opened as the page closes them);
+    every 20th connection is reset instead."""
+    import selectors
+    import socket
+    import struct
+
+    sel = selectors.DefaultSelector()
+
+    def one() -> None:
+        try:
+            s = socket.create_connection(("127.0.0.1", port), timeout=5)
+        except OSError:
+            return
+        if rnd.random() < 0.05:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            s.close()
+            return
+        s.sendall(b"GET /status.json HTTP/1.1\r\nHost: x\r\n")
+        s.setblocking(False)
+        sel.register(s, selectors.EVENT_READ)
+    for _ in range(count):
+        one()
+    while not stop.is_set():
+        for key, _ in sel.select(0.2):
+            sock = key.fileobj
+            sel.unregister(sock)
+            sock.close()                         # closed by the page: open another one
+            one()
+    for key in list(sel.get_map().values()):
+        key.fileobj.close()
+
+
+def status_flood(work: Path, rnd: random.Random) -> tuple[Path, list[str]]:
+    import resource
+    import socket
+
+    out = work / "ds"
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 8192), hard))   # this process holds the clients
+    proc = subprocess.Popen(cli("scan", *SCAN, "--time-scale", "0.05", "--grid", f"{GRID[0]}x{GRID[1]}", "--out", out,
+                                "--status-http", f"127.0.0.1:{port}", "--status-linger-s", "0"),
+                            cwd=REPO, env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_NOFILE, (1024, 1024)))
+    while proc.poll() is None:                   # until the page listens
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                break
+        time.sleep(0.01)
+    stop = threading.Event()
+    flood = threading.Thread(target=held_open, args=(port, rnd.randint(1150, 2000), stop, rnd), daemon=True)
+    flood.start()
+    try:
+        _, stderr = proc.communicate(timeout=300)
+    finally:
+        stop.set()
+        flood.join(30)
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+    problems = [f"scan exit {proc.returncode}"] if proc.returncode else []
+    problems += [w for w in ("Too many open files", "Traceback") if w in stderr]
+    return out, problems
+
+
+SECRETS = ("Pa55-word-in-url", "W3bhookP4thSecret", "StatusT0ken-given-by-me", "SmtpPa55-from-env")
+
+
+def secret_kill(work: Path, rnd: random.Random) -> tuple[Path, list[str]]:
+    out, logs, runtime = work / "ds", work / "logs", work / "run"
+    scan_env = {**env(), "LFSTUDIO_LOG_DIR": str(logs), "LFSTUDIO_RUNTIME_DIR": str(runtime),
+                "LFSTUDIO_SMTP_PASSWORD": SECRETS[3]}
+    proc = subprocess.Popen(cli("scan", "--port", "sim", "--camera", "sim", "--sim-width-px", "96", "--time-scale",
+                                "0.05", "--grid", f"{GRID[0]}x{GRID[1]}", "--out", out,
+                                "--notify", f"http://alice:{SECRETS[0]}@127.0.0.1:9/hooks/{SECRETS[1]}",
+                                "--notify", "mailto:me@lab.example", "--smtp", "smtp://me@127.0.0.1:9",
+                                "--status-http", "127.0.0.1:0", "--status-token", SECRETS[2], "--status-linger-s", "0"),
+                            cwd=REPO, env=scan_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    target = rnd.randint(0, GRID[0] * GRID[1] - 1)
+    deadline = time.monotonic() + 120
+    while proc.poll() is None and journaled(out) < target and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(rnd.uniform(0.0, 0.4))
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGKILL)
+    streams = proc.communicate(timeout=60)
+    found = {str(p): p.read_bytes() for folder in (out, logs, runtime) if folder.exists()
+             for p in folder.rglob("*") if p.is_file()}
+    found.update({"stdout": streams[0], "stderr": streams[1]})
+    return out, [f"{secret} in {name}" for secret in SECRETS for name, data in found.items()
+                 if secret.encode() in data]
+
+
+def on_finish_escape(work: Path, rnd: random.Random) -> tuple[Path, list[str]]:
+    out, pidfile = work / "ds", work / "escaped.pid"
+    command = (f"setsid sh -c 'echo $$ > {pidfile}; head -c {rnd.randint(1, 8)}000000 /dev/zero | tr \"\\0\" x; "
+               "exec sleep 600' &")
+    done = subprocess.run(cli("scan", *SCAN, "--time-scale", "0", "--grid", f"{GRID[0]}x{GRID[1]}", "--out", out,
+                              "--on-finish", command, "--on-finish-timeout-s", "1"),
+                          cwd=REPO, env=env(), capture_output=True, text=True, timeout=300)
+    problems = [f"scan exit {done.returncode}"] if done.returncode else []
+    try:
+        pid = int(pidfile.read_text())
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        if state not in ("Z", "X"):
+            problems.append(f"escaped process {pid} still runs")
+            os.kill(pid, signal.SIGKILL)
+    except (OSError, ValueError):
+        pass
+    if "on-finish" not in done.stderr or "time limit" not in done.stderr:
+        problems.append("the on-finish failure was not said")
+    return out, problems
+
+
 def trial(i: int, kind: str, rnd: random.Random, work: Path) -> dict:
     emulator = start_drive_emulator(load_rig(DRIVES), "modbus", time_scale=0.05) if kind == "drive-stall" else None
     try:
@@ -228,9 +355,13 @@ def _trial(kind: str, rnd: random.Random, work: Path, emulator) -> dict:
     (outside / "keep.txt").write_text("not the dataset's\n")
     before_outside = snapshot(outside)
     stop_missed = stop_checked = 0
+    extra: list[str] = []
     if emulator is not None:
         out = work / "ds"
         stop_checked, stop_missed = stall_drive_at_random(out, rnd, emulator)
+    elif kind in ("status-flood", "secret-kill", "on-finish-escape"):
+        out, extra = {"status-flood": status_flood, "secret-kill": secret_kill,
+                      "on-finish-escape": on_finish_escape}[kind](work, rnd)
     elif kind in ("disk-full", "disk-fills"):
         out = disk_full(work, rnd) if kind == "disk-full" else disk_fills(work, rnd)
         outside = out.parent / "beside"
@@ -261,7 +392,7 @@ def _trial(kind: str, rnd: random.Random, work: Path, emulator) -> dict:
     stems = [p.name.split(".")[0] for p in (out / "raw").glob("*.dng")]
     duplicated += [s for s in set(stems) if stems.count(s) > 1]
     incomplete = GRID[0] * GRID[1] - len(after)
-    problems = Dataset.open(out).verify_files() + [str(p) for p in temporary_files(out)]
+    problems = Dataset.open(out).verify_files() + [str(p) for p in temporary_files(out)] + extra
     outside_changed = snapshot(outside) != before_outside
     return {"kind": kind, "before": len(before), "lost": len(lost), "duplicated": len(duplicated),
             "stop_missed": stop_missed, "stop_checked": stop_checked,
@@ -276,7 +407,8 @@ def main() -> int:
     parser.add_argument("--kinds", default="", help="comma-separated fault kinds to draw from (default: all)")
     args = parser.parse_args()
     rnd = random.Random(args.seed)
-    kinds = ["kill", "kill", "kill-twice", "drive-stall"] + (["disk-full", "disk-fills"] if can_mount() else [])
+    kinds = ["kill", "kill", "kill-twice", "drive-stall", "status-flood", "secret-kill", "on-finish-escape"] + (
+        ["disk-full", "disk-fills"] if can_mount() else [])
     if args.kinds:
         kinds = args.kinds.split(",")
     totals = {"lost": 0, "duplicated": 0, "outside": 0, "incomplete": 0, "problems": 0, "stop_missed": 0}
