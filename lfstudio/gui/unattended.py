@@ -240,9 +240,9 @@ class StatusPageLabel(QLabel):
     def show_page(self, server: StatusServer, until: float | None = None) -> None:
         """Name ``server``'s page: serving the scan, or (``until``: time.time()) its final state until then."""
         self.server = server
-        when = (f" (the final state, until {time.strftime('%H:%M', time.localtime(until))})" if until is not None
-                else " (read-only)")
-        self.setText(f"Status page{when}: <a href='open'>{server.url}</a> · <a href='copy'>Copy</a>")
+        when = (f" · the final state, until {time.strftime('%H:%M', time.localtime(until))}" if until is not None
+                else "")
+        self.setText(f"Status page: <a href='open'>{server.url}</a> · <a href='copy'>Copy</a>{when}")
         self.setToolTip("Opens in your browser; Copy puts the address" + (" with its token" if server.token else "")
                         + " on the clipboard (File → Settings → Unattended scans sets it up)")
         self.show()

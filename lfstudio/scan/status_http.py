@@ -287,6 +287,8 @@ class StatusServer:
         if seconds <= 0 or self._thread is None:
             self.close()
             return
+        if self._closed.is_set() or self._stop.is_set():     # closed meanwhile (the next scan took the port)
+            return
         self._until = time.monotonic() + seconds
         if self.board is not None:
             self.board.serving_until = time.time() + seconds
