@@ -9,7 +9,7 @@ query (send, wait for the report), and of a complete ``move_to`` on an instant s
 the driver's 20 Hz polling while waiting for a move.
 
 ``--drive dryve|canopen``: the CiA 402 driver against the emulated drives (Modbus TCP gateway
-telegrams to pymodbus' server on 127.0.0.1, or python-canopen SDO to a LocalNode on python-can's
+telegrams to the emulator's Modbus TCP server on 127.0.0.1, or python-canopen SDO to a LocalNode on python-can's
 virtual bus): the round trip of one object read and write and of a full status (5 objects per
 drive), STOP-to-standstill of a long move in the emulator's own time (vs the quick-stop ramp's
 v/a), and a ``--grid`` scan (default 101x21) on ``sim-dryve``/``sim-canopen`` with the simulated

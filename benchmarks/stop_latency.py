@@ -3,7 +3,7 @@
     ./.venv/bin/python benchmarks/stop_latency.py [--trials 10] [--transport modbus|canopen|both]
 
 Each trial: two emulated CiA 402 drives (the dryve D1 preset) behind the real stacks (Modbus TCP:
-our gateway telegrams to pymodbus' server on 127.0.0.1; CANopen: python-canopen SDO to LocalNodes
+our gateway telegrams to the emulator's Modbus TCP server on 127.0.0.1; CANopen: python-canopen SDO to LocalNodes
 on python-can's virtual bus), homed, a long move under way; then one drive's link stalls (the
 emulator holds every request unanswered, as a drive that lost its network does) and, once the move's
 poll is stuck in that drive's exchange, STOP (``Cia402Controller.stop``) is called. The figure is

@@ -1,7 +1,7 @@
 """A CiA 402 axis drive (one drive per axis, as an igus dryve D1 drives one axis): its object
 dictionary, its power state machine and a motion model, without any transport.
 
-The transports serve it: :mod:`lfstudio.sim.drive_servers` puts it behind pymodbus' Modbus TCP
+The transports serve it: :mod:`lfstudio.sim.drive_servers` puts it behind a Modbus TCP
 server (the dryve D1's gateway telegrams, function 43 / MEI type 13) and behind python-canopen's
 ``LocalNode`` (SDO on a CAN bus). Everything here is in the drive's own units: position
 *increments* (``6064h``, ``607Ah``, ``607Dh``), increments/s, increments/s².

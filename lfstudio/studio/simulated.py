@@ -62,7 +62,7 @@ def start_drive_emulator(rig: RigConfig, transport: str = "modbus", *, time_scal
                          ports: tuple[int, int] = (0, 0), setup: dict | tuple[dict, dict] | None = None,
                          channel: str | None = None) -> Any:
     """Two emulated CiA 402 drives for ``rig`` (a CiA 402 profile), served over ``transport``:
-    "modbus" (pymodbus' server on 127.0.0.1, ``ports`` or free ones) or "canopen" (LocalNodes on
+    "modbus" (the gateway's Modbus TCP server on 127.0.0.1, ``ports`` or free ones) or "canopen" (LocalNodes on
     a fresh python-can virtual bus). ``.word`` is the device word that reaches them, ``.port`` the
     same, ``.true_position_mm()`` where the carriage is; the caller closes it. ``setup``: the
     emulated drives' variety (:func:`lfstudio.sim.cia402_drive.drive_pair`: objects left out, feed

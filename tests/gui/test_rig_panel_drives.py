@@ -1,4 +1,4 @@
-"""The Rig panel on two emulated CiA 402 drives (dryve D1 over Modbus TCP, real pymodbus server):
+"""The Rig panel on two emulated CiA 402 drives (dryve D1 over Modbus TCP, a real TCP server):
 connect, home, the drives' power state, a drive fault named with its code and cleared with Reset
 fault, STOP mid-move. Real worker thread, real Qt event loop."""
 

@@ -1,4 +1,4 @@
-"""The window's scan on emulated CiA 402 drives (dryve D1 over Modbus TCP, pymodbus' server): the Rig
+"""The window's scan on emulated CiA 402 drives (dryve D1 over Modbus TCP, the emulator's Modbus TCP server): the Rig
 panel connects 'sim-dryve' with the dryve D1 profile, the simulated camera follows the drives'
 true position, Home, a small scan; then STOP in the window during a scan's long move ends it at a
 known position."""

@@ -1,5 +1,5 @@
 """The CiA 402 driver against the drive emulator, over both transports with the real protocol
-stacks at both ends: Modbus TCP (our dryve D1 gateway framing -> pymodbus' server) and CANopen
+stacks at both ends: Modbus TCP (our dryve D1 gateway framing -> the emulator's Modbus TCP server) and CANopen
 (python-canopen's BaseNode402 SDO client -> its LocalNode, on python-can's virtual bus)."""
 
 from __future__ import annotations

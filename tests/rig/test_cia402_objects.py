@@ -357,3 +357,47 @@ def test_an_eds_without_a_mandatory_object_refuses_by_name(tmp_path, transport):
     finally:
         link.close()
         emulator.close()
+
+
+class _Objects:
+    """A drive as a bare object dictionary (no motion): for what connect learns from the values."""
+
+    def __init__(self, address: str, objects: dict):
+        self.address = address
+        self.objects = dict(objects)
+
+    def open(self) -> None: ...
+    def close(self) -> None: ...
+
+    def read(self, index: int, sub: int, size: int, signed: bool) -> int:
+        from lfstudio.rig.cia402 import ObjectAccessRefused
+
+        if (index, sub) not in self.objects:
+            raise ObjectAccessRefused(f"{index:04X}h:{sub} does not exist")
+        return self.objects[(index, sub)]
+
+    def write(self, index: int, sub: int, value: int, size: int, signed: bool) -> None:
+        self.read(index, sub, size, signed)
+        self.objects[(index, sub)] = value
+
+    write_now = write
+
+
+@pytest.mark.parametrize("velocity, acceleration, kv, ka", [
+    (0xFD010300, 0xFD015700, 1.0, 1.0),                  # mm/s, mm/s²: one unit per mm/s
+    (0xFB014700, None, 6000.0, 100.0),                    # 0.01 mm/min: 6000 per mm/s; no 60AAh: position units
+    (None, None, 100.0, 100.0)])                          # neither: position units per second (the D1)
+def test_speeds_and_accelerations_in_the_units_the_drive_reports(rig, velocity, acceleration, kv, ka):
+    from lfstudio.rig.cia402 import Cia402Controller
+
+    base = {(0x6040, 0): 0, (0x6041, 0): 0x0640, (0x6060, 0): 0, (0x6061, 0): 0, (0x6064, 0): 0, (0x607A, 0): 0,
+            (0x6081, 0): 0, (0x6083, 0): 0, (0x6098, 0): 17, (0x6099, 1): 0, (0x6099, 2): 0,
+            (0x60A8, 0): 0xFB010000}
+    if velocity is not None:
+        base[(0x60A9, 0)] = velocity
+    if acceleration is not None:
+        base[(0x60AA, 0)] = acceleration
+    c = Cia402Controller((_Objects("x", base), _Objects("y", base)), rig)
+    c.connect()
+    assert c._kv == [kv, kv] and c._ka == [ka, ka]
+    assert not any(c.units_problem)

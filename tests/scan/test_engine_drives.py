@@ -1,4 +1,4 @@
-"""The engine on emulated CiA 402 drives (dryve D1 gateway telegrams over Modbus TCP to pymodbus'
+"""The engine on emulated CiA 402 drives (dryve D1 gateway telegrams over Modbus TCP to the emulator's
 server; CANopen SDO on the virtual bus): a drive fault mid-scan pauses the scan with one line naming
 the drive and its error code; after Reset fault and homing, resume completes every view exactly once.
 A drive that stops answering pauses it too, and the scan resumes once it answers again."""
