@@ -4,6 +4,32 @@ carries a stable ``kind`` (:attr:`LfError.kind`) for code and tests."""
 from __future__ import annotations
 
 
+import re
+
+#: the marks around a part of a message each front end says in its own words (:func:`words`)
+_OPEN, _SPLIT, _CLOSE = "\x1f", "\x1e", "\x1d"
+_WORDS = re.compile(f"{_OPEN}([^{_OPEN}{_SPLIT}{_CLOSE}]*){_SPLIT}([^{_OPEN}{_SPLIT}{_CLOSE}]*){_CLOSE}")
+
+
+def words(cli: str, window: str) -> str:
+    """A part of an operator's message that the command line and the window say in their own words:
+    an option (``--no-rectify``) and the control that does the same (untick *Rectification* in the
+    Process dialog), a command and a menu. Put it into the message as it is built; ``str()`` of an
+    :class:`LfError` and :func:`for_cli` show the command line's words, :func:`window_message` and
+    :func:`for_window` the window's. The marks are control characters no one types."""
+    return f"{_OPEN}{cli}{_SPLIT}{window}{_CLOSE}"
+
+
+def for_cli(text: str) -> str:
+    """``text`` with each :func:`words` part in the command line's words."""
+    return _WORDS.sub(lambda m: m.group(1), text) if _OPEN in text else text
+
+
+def for_window(text: str) -> str:
+    """``text`` with each :func:`words` part in the window's words."""
+    return _WORDS.sub(lambda m: m.group(2), text) if _OPEN in text else text
+
+
 class LfError(Exception):
     """Base class for every error lfstudio reports to a person (CLI exit message, GUI dialog).
 
@@ -20,10 +46,19 @@ class LfError(Exception):
     window_text: str | None = None
     kind: str = "error"
 
+    def __str__(self) -> str:
+        return for_cli(super().__str__())
+
 
 def window_message(exc: BaseException) -> str:
-    """What the window shows for ``exc``: its words for the window when it has them, else its message."""
-    return getattr(exc, "window_text", None) or str(exc)
+    """What the window shows for ``exc``: its words for the window when it has them (``window_text``,
+    or the window's side of each :func:`words` part), else its message."""
+    explicit = getattr(exc, "window_text", None)
+    if explicit:
+        return for_window(explicit)
+    if isinstance(exc, LfError):
+        return for_window(Exception.__str__(exc))
+    return str(exc)
 
 
 class InputError(LfError, ValueError):

@@ -28,7 +28,7 @@ from lfstudio.dataset.grid import View
 from lfstudio.dataset.profile import Profile
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
-from lfstudio.errors import DatasetError
+from lfstudio.errors import DatasetError, words
 from lfstudio.jobs import CancelToken, Progress, no_progress
 
 log = logging.getLogger(__name__)
@@ -64,17 +64,25 @@ def shear_remover(dataset, views: Sequence[tuple[int, int]], image_size: Sequenc
     """``f(view, xy) -> xy`` taking sheared views' shear off their points (a shear is not a rotation:
     it must neither bias the fit nor be corrected away; :mod:`lfstudio.dataset.zero_plane`): each
     view's points move back by ``shear · (position − the views' mean position)``. Identity for
-    parallel views; a shear nobody stated is refused (it would bias the orientation)."""
+    parallel views. For views sheared by an amount nobody stated, the least shear the import measured
+    (:func:`assumed_shear`) is taken off; without a measurement the fit is refused, naming what works."""
     from lfstudio.dataset.zero_plane import zero_plane
 
     zp = zero_plane(dataset)
     if zp.parallel:
         return lambda view, xy: xy
-    if not zp.known:
-        raise CalibrationError(f"{dataset.root.name}'s views are sheared by an amount nobody stated (negative "
-                               "disparities), which the fit would read as a rotation; import them again with "
-                               "--zero-disparity-depth-m (or --parallel-views if they are not sheared)")
-    shear = zp.shear_at(image_size[0])
+    if zp.known:
+        shear = zp.shear_at(image_size[0])
+    else:
+        assumed = assumed_shear(dataset)
+        if assumed is None:
+            raise CalibrationError(
+                f"{dataset.root.name}'s views are sheared by an amount nobody stated (negative disparities) and "
+                "no disparities were measured when they were imported, so the shear cannot be told from a rotation; "
+                "import them again (the import measures them), or state the plane "
+                f"({words('--zero-disparity-depth-m', 'Zero disparity: at a depth')}). Without it: "
+                f"{WORKS_WITHOUT_PLANE}")
+        shear = assumed * float(image_size[0]) / float(zp.width_px or image_size[0])
     recorded = bool((dataset.manifest.get("import") or {}).get("positions"))
 
     def where(v):
@@ -84,6 +92,34 @@ def shear_remover(dataset, views: Sequence[tuple[int, int]], image_size: Sequenc
 
     ref = np.mean([where(v) for v in views], axis=0)
     return lambda view, xy: np.asarray(xy, float) - shear * (where(view) - ref)
+
+
+#: what works on views sheared by an amount nobody stated (messages of calibrate, depth, export)
+WORKS_WITHOUT_PLANE = ("calibration (the farthest tracked point taken at infinity), the quality check, "
+                       "disparities in px (depth), the PNG and HEVC exports")
+
+
+def assumed_shear(dataset) -> float | None:
+    """For views sheared by an amount nobody stated: the least shear their measured negative
+    disparities prove (px per mm of baseline, full-size image; the import's ``shear_min_px_per_mm``),
+    or None when nothing was measured.
+
+    Taken off, it leaves the farthest tracked point at infinity and every other point at a finite
+    depth: a parallel light field of a scene with those depths, which a parallel capture with the same
+    camera orientation would have taken. The rotation and the focal length the fit finds do not depend
+    on which such scene it is; depths would (they are not what calibration gives). On a virtual capture
+    sheared to 3 m and turned (0.5, -0.8, 0.3)°, the fit found (0.40, -0.48, 0.43)° ± (0.40, 1.1, 0.12)
+    this way; with the plane stated (0.55, -0.53, 0.30)° ± (0.22, 0.60, 0.09); with no shear taken off
+    (-0.89, -1.03, 0.18)°."""
+    from lfstudio.dataset.zero_plane import zero_plane
+
+    zp = zero_plane(dataset)
+    if zp.known:
+        return None
+    value = zp.measured.get("shear_min_px_per_mm")
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value) and value > 0:
+        return float(value)
+    return None
 
 
 def recorded_positions(dataset, views: Sequence[tuple[int, int]]) -> dict[tuple[int, int], np.ndarray] | None:
@@ -226,6 +262,12 @@ def calibrate_dataset(dataset: Dataset, views: str | Sequence[tuple[int, int]] |
                 "position_sigma_um": list(sigma_um),
                 "work_scale": float(max(f.scale for f in feats.values())),
                 "positions": "recorded" if recorded is not None else "grid"}
+    assumed = assumed_shear(dataset)
+    if assumed is not None:
+        settings["zero_plane"] = {"assumed_shear_px_per_mm": assumed,
+                                  "why": "the views are sheared by an amount nobody stated: the least shear their "
+                                         "measured disparities prove was taken off (the farthest tracked point at "
+                                         "infinity); the orientation and the focal length do not depend on it"}
     doc = build_report(fit, matches, views=needed, feature_counts={v: f.count for v, f in feats.items()},
                        settings=settings, grid_extent_mm=dataset.grid.baselines_mm,
                        created=now_iso())

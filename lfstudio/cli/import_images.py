@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+from lfstudio.errors import for_cli
 from lfstudio.numbers import SPACING_MM, Number, parse_grid
 from lfstudio.cli.args import number_option, numbers_option, path_option
 
@@ -73,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
           f"{record.get('linked', 0)} hard-linked, {len(ds.views) - record.get('linked', 0)} copied; "
           + ("focal length not known" if record.get("intrinsics", "none") == "none"
              else f"focal length from {record['intrinsics']}"))
-    print(import_summary(ds))
+    print(for_cli(import_summary(ds)))
     for warning in record.get("warnings", []):
         print(f"warning: {warning}", file=sys.stderr)
     if record.get("intrinsics", "none") == "none":      # calibrate needs it: the hint that works

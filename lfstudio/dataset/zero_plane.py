@@ -29,6 +29,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from lfstudio.errors import words
+
 RECORD = "zero_disparity"
 #: where a record's shear came from
 SOURCE_SCAN = "scan"                 # captured by lfstudio: parallel
@@ -71,19 +73,31 @@ class ZeroPlane:
         s = self.shear_at(image_width_px)
         return 0.0 if s is None else s
 
-    def describe(self) -> str:
-        """One line for summaries: where zero disparity lies and how it is known."""
+    def describe(self, front_words: bool = False) -> str:
+        """One line for summaries: where zero disparity lies and how it is known. For views sheared by
+        an unstated amount: what works without the plane and what needs it. ``front_words``: the
+        options are :func:`lfstudio.errors.words` parts (a summary the window shows too; stored and
+        printed text keeps the command line's words)."""
+        def option(cli: str, window: str) -> str:
+            return words(cli, window) if front_words else cli
+
         if self.shear_px_per_mm is None:
             bound = self.measured.get("depth_max_m")
             return ("sheared views (negative disparities measured), zero-disparity plane not stated"
                     + (f" (nearer than {bound:.2f} m)" if bound else "")
-                    + "; import again with --zero-disparity-depth-m for depths")
+                    + ": calibration (the farthest tracked point taken at infinity), the check, disparities in px "
+                    "and the PNG and HEVC exports work without it; depths in metres and the HCI, COLMAP and "
+                    "nerfstudio exports need it (import again with "
+                    + option("--zero-disparity-depth-m", "Zero disparity: Sheared, zero-disparity plane at") + ")")
+        source = {SOURCE_PARALLEL: option("--parallel-views", "Zero disparity: Parallel views"),
+                  SOURCE_STATED: option("--zero-disparity-depth-m", "Zero disparity: Sheared, zero-disparity plane at")
+                  }.get(self.source, self.source)
         if self.shear_px_per_mm == 0.0:
-            how = {SOURCE_SCAN: "scan", SOURCE_PARALLEL: "--parallel-views",
-                   SOURCE_MEASURED_PARALLEL: "measured: no negative disparity"}.get(self.source, self.source)
+            how = {SOURCE_SCAN: "scan", SOURCE_MEASURED_PARALLEL: "measured: no negative disparity"}.get(self.source,
+                                                                                                         source)
             return f"parallel views, zero disparity at infinity ({how})"
         depth = f"{self.depth_m:.3f} m" if self.depth_m else "unknown depth (no focal length)"
-        return f"sheared views, zero-disparity plane at {depth} ({self.shear_px_per_mm:.4f} px/mm; {self.source})"
+        return f"sheared views, zero-disparity plane at {depth} ({self.shear_px_per_mm:.4f} px/mm; {source})"
 
 
 def shear_for_depth(focal_length_px: float, depth_m: float) -> float:

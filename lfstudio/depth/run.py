@@ -49,7 +49,7 @@ from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
 from lfstudio.depth import dense
 from lfstudio.depth.files import read_pfm, write_pfm
-from lfstudio.errors import DatasetError, InputError
+from lfstudio.errors import DatasetError, InputError, words
 from lfstudio.jobs import Cancelled, CancelToken, Progress, no_progress
 
 log = logging.getLogger(__name__)
@@ -125,7 +125,9 @@ def depth_from_disparity(disparity_px: np.ndarray, focal_length_px: float, spaci
     """Depth in metres (NaN where the disparity is unknown or at/behind infinity; module docstring)."""
     if shear_px_per_mm is None:
         raise InputError("zero_disparity", "the views are sheared by an amount nobody stated: disparities have no "
-                         "depth", "import them again with --zero-disparity-depth-m")
+                         "depth (the disparity maps in px are computed all the same)",
+                         "import them again with " + words("--zero-disparity-depth-m",
+                                                           "Zero disparity set to a depth in the Import dialog"))
     d = np.asarray(disparity_px, np.float64) + float(shear_px_per_mm) * float(spacing_x_mm)
     with np.errstate(divide="ignore", invalid="ignore"):
         z = float(focal_length_px) * float(spacing_x_mm) / (1000.0 * d)

@@ -22,7 +22,7 @@ from lfstudio.dataset.grid import View
 from lfstudio.dataset.manifest import ViewRecord, hdr_merged, now_iso
 from lfstudio.dataset.paths import (DATASET_ENTRIES, IN_USE_FIX, check_new_dataset_folder, check_not_in_use,
                                     view_stem)
-from lfstudio.errors import DatasetError, InputError, LfError
+from lfstudio.errors import DatasetError, InputError, LfError, words
 from lfstudio.support.locks import DATASET_LOCK_NAME, Lock, dataset_lock
 
 EXPORT_FORMAT = "lfstudio-export"
@@ -398,9 +398,11 @@ def require_zero_plane(ds: Dataset, what: str) -> None:
 
     zp = zero_plane(ds)
     if not zp.known:
-        raise InputError("format", f"{what} needs the views' zero-disparity plane, and {ds.root.name}'s views are "
-                         "sheared by an amount nobody stated; import them again with --zero-disparity-depth-m "
-                         "(or --parallel-views if they are not sheared)")
+        raise InputError(words("--format", "Format"), f"{what} needs the views' zero-disparity plane, and "
+                         f"{ds.root.name}'s views are sheared by an amount nobody stated; import them again with "
+                         + words("--zero-disparity-depth-m (or --parallel-views if they are not sheared)",
+                                 "Zero disparity set to a depth (or to Parallel views if they are not sheared)")
+                         + "; the PNG and HEVC exports need no plane")
 
 
 # -- atomic output ------------------------------------------------------------------------------------

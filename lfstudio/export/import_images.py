@@ -46,7 +46,7 @@ from lfstudio.dataset.manifest import ViewRecord, now_iso
 from lfstudio.dataset.paths import RENAME_UTF8_FIX, is_utf8_name, shown_name, view_stem
 from lfstudio.dataset.store import sha256_file
 from lfstudio.dataset.thumbs import make_thumbnail
-from lfstudio.errors import DatasetError, InputError
+from lfstudio.errors import DatasetError, InputError, words
 from lfstudio.jobs import CancelToken, Progress, no_progress
 from lfstudio.numbers import WIDTH_PX, Number, check_grid
 
@@ -137,7 +137,7 @@ def find_images(folder: str | os.PathLike, pattern: str | None = None) -> list[P
     for p in files:     # the libraries cannot open such a name (OpenCV crashes on it): refused before any is read
         if not is_utf8_name(p.name):
             raise InputError("folder", f"{shown_name(p.name)} in {shown_name(folder)} has a name that is not valid "
-                             f"UTF-8; {RENAME_UTF8_FIX}, or leave it out with --pattern")
+                             f"UTF-8; {RENAME_UTF8_FIX}, or leave it out with " + words("--pattern", "the Files (pattern) field"))
     return sorted(files, key=lambda p: natural_key(p.relative_to(folder).as_posix()))
 
 
@@ -603,13 +603,17 @@ def _intrinsics(options: ImportOptions, first: Path, size: tuple[int, int]):
         source = "none"
         if e_mm:
             lens["focal_length_mm"] = e_mm
-        warnings.append("no focal length in pixels is known (no --focal-length-mm/--pixel-pitch-um, no "
+        warnings.append(NO_FOCAL_LENGTH_WARNING + " (no --focal-length-mm/--pixel-pitch-um, no "
                         "--focal-length-px, nothing usable in EXIF): calibration will need one "
                         "('lfstudio calibrate DATASET --focal-length-px F'), or import again with it")
     if pitch:
         camera["pixel_pitch_um"] = float(pitch)
         camera["sensor_mm"] = [w * pitch / 1000.0, h * pitch / 1000.0]
     return camera, lens, source, warnings
+
+
+#: how the warning of an import without a focal length starts (the window says it in its own words)
+NO_FOCAL_LENGTH_WARNING = "no focal length in pixels is known"
 
 
 # -- HCI benchmark folders ----------------------------------------------------------------------------
@@ -787,11 +791,13 @@ def resolve_zero_plane(plan: ImportPlan, options: ImportOptions, grid: tuple[int
 
 
 def import_summary(ds) -> str:
-    """The zero-disparity plane and the recorded positions of an imported dataset, for the summary."""
+    """The zero-disparity plane and the recorded positions of an imported dataset, for the summary;
+    options as :func:`lfstudio.errors.words` parts (the command line prints it through
+    :func:`~lfstudio.errors.for_cli`, the window through :func:`~lfstudio.errors.for_window`)."""
     from lfstudio.dataset.zero_plane import zero_plane
 
     zp = zero_plane(ds)
-    lines = [f"zero disparity: {zp.describe()}"]
+    lines = [f"zero disparity: {zp.describe(front_words=True)}"]
     m = zp.measured
     if m.get("step_disparity_px"):
         lo, hi = m["step_disparity_px"]

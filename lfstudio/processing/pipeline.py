@@ -32,7 +32,7 @@ from lfstudio.dataset.paths import folder_inside
 from lfstudio.dataset.profile import PROFILE_NAME, Profile
 from lfstudio.dataset.storage import StorageError, storage_error
 from lfstudio.dataset.store import clean_temporary_files
-from lfstudio.errors import DatasetError, InputError
+from lfstudio.errors import DatasetError, InputError, words
 from lfstudio.jobs import CancelToken, Cancelled, Progress, no_progress
 from lfstudio.processing import executors
 from lfstudio.processing.worker import RunPlan, ViewResult, ViewTask, process_view, render, warm_up
@@ -115,9 +115,13 @@ def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> Run
     if profile.rectify.enabled:
         cal = load_calibration(ds)
         if cal is None:
-            raise InputError("processing.toml: [rectify]",
-                             f"{ds.root / CALIBRATION_NAME} not found; calibrate the dataset first "
-                             "('lfstudio calibrate') or switch rectification off (enabled = false)")
+            raise InputError(words("processing.toml: [rectify]", "6 Rectification (calibration)"),
+                             words(f"{ds.root / CALIBRATION_NAME} not found", f"{ds.root.name} is not calibrated")
+                             + "; calibrate the dataset first ("
+                             + words(f"lfstudio calibrate {ds.root}", "Dataset → Calibrate…")
+                             + ") or process without rectification ("
+                             + words("--no-rectify, or enabled = false in processing.toml",
+                                     "untick 6 Rectification (calibration) in this dialog") + ")")
         if list(cal["image_size_px"]) != list(full_size):
             raise DatasetError(f"{ds.root / CALIBRATION_NAME}: image_size_px {cal['image_size_px']} does not "
                                f"match the captures ({full_size[0]} x {full_size[1]} px); re-run the calibration")

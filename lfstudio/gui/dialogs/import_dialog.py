@@ -25,7 +25,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDoubleSpinBox, QF
 
 from lfstudio.dataset.paths import (FOLDER_DATASET, FOLDER_FILE, FOLDER_OTHERS, check_not_in_use, dataset_folder_kind,
                                     expand_path, new_dataset_folder_problem)
-from lfstudio.errors import InputError, LfError
+from lfstudio.errors import InputError, LfError, for_window, window_message
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
 from lfstudio.gui.settings import read_float, read_int, read_text, settings
@@ -411,7 +411,7 @@ class ImportImagesDialog(_ImportDialogBase):
         try:
             files = find_images(expand_path(text, "Image folder", absolute=True), self.pattern_edit.text().strip() or None)
         except InputError as exc:
-            self._say_count(str(exc).split(": ", 1)[-1], BAD_STYLE)
+            self._say_count(window_message(exc).split(": ", 1)[-1], BAD_STYLE)
             return None
         n = len(files)
         kinds = sorted({p.suffix.lower() for p in files})
@@ -490,12 +490,19 @@ class ImportImagesDialog(_ImportDialogBase):
         text = (f"Imported {len(ds.views)} views ({ds.grid.columns} × {ds.grid.rows}, {w} × {h} px) into "
                 f"{root}; {record.get('linked', 0)} hard-linked. ")
         source = record.get("intrinsics", "none")
-        text += "Focal length: not known." if source == "none" else f"Focal length from {source}."
-        from lfstudio.export.import_images import import_summary
+        # the record names the command line's options: the window names its own fields
+        source = {"--focal-length-px": "the Focal length (px) field",
+                  "--focal-length-mm and --pixel-pitch-um": "the Focal length (mm) and pixel pitch fields"}.get(source,
+                                                                                                             source)
+        text += ("Focal length: not known; calibration will need one (Dataset → Calibrate…: Focal length), or "
+                 "import again with the Focal length set." if source == "none" else f"Focal length from {source}.")
+        from lfstudio.export.import_images import NO_FOCAL_LENGTH_WARNING, import_summary
 
-        text += "\n" + "\n".join(line.replace("  ", "").replace(" :", ":") for line in import_summary(ds).splitlines())
+        text += "\n" + "\n".join(line.replace("  ", "").replace(" :", ":")
+                                  for line in for_window(import_summary(ds)).splitlines())
         for warning in record.get("warnings", []):
-            text += f"\nNote: {warning}"
+            if not warning.startswith(NO_FOCAL_LENGTH_WARNING):     # said above in the window's words
+                text += f"\nNote: {warning}"
         return text
 
 
