@@ -9,39 +9,24 @@ cannot be made."""
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 import sys
+from contextlib import ExitStack
 
 import pytest
 
 from lfstudio.dataset import Dataset
 from tests.conftest import REPO_ROOT
+from tests.netns import canopen_sim_drive, own_network_namespace
 from tests.scankill import lfstudio_env
 
 RIG = "dryve D1 gantry 4 m x 0.5 m"
-SETUP = "ip link set lo up && ip link set lo multicast on && ip route add 224.0.0.0/4 dev lo && echo ready && " \
-        "exec sleep 600"
 
 
 @pytest.fixture
 def own_network():
-    """A network namespace with only loopback (multicast routed to it): yields the command prefix
-    that runs a program inside it."""
-    if not (shutil.which("unshare") and shutil.which("nsenter") and shutil.which("ip")):
-        pytest.skip("unshare, nsenter or ip missing: no network namespace for the multicast bus")
-    holder = subprocess.Popen(["unshare", "-n", "sh", "-c", SETUP], stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True)
-    line = holder.stdout.readline().strip() if holder.stdout else ""
-    if line != "ready":
-        holder.kill()
-        _, err = holder.communicate()
-        pytest.skip(f"no network namespace here ({err.strip() or 'unshare failed'})")
-    try:
-        yield ["nsenter", "-t", str(holder.pid), "-n", "--"]
-    finally:
-        holder.kill()
-        holder.communicate()
+    with own_network_namespace() as prefix:
+        yield prefix
 
 
 def _lfstudio(prefix: list[str], *args, timeout: float = 180) -> subprocess.CompletedProcess:
@@ -52,24 +37,8 @@ def _lfstudio(prefix: list[str], *args, timeout: float = 180) -> subprocess.Comp
 @pytest.fixture
 def canopen_drives(own_network):
     """``lfstudio sim-drive --canopen udp_multicast`` in its own process, inside the namespace."""
-    def start(*options: str) -> str:
-        proc = subprocess.Popen([*own_network, sys.executable, "-m", "lfstudio", "sim-drive", "--canopen",
-                                 "udp_multicast", "--time-scale", "0", *options], stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True, env=lfstudio_env(), cwd=REPO_ROOT)
-        started.append(proc)
-        word = proc.stdout.readline().strip() if proc.stdout else ""
-        assert word == "canopen:udp_multicast:1,2", proc.stderr.read() if proc.poll() is not None else word
-        return word
-
-    started: list[subprocess.Popen] = []
-    yield start
-    for proc in started:
-        proc.terminate()
-        try:
-            proc.communicate(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.communicate()
+    with ExitStack() as stack:
+        yield lambda *options: stack.enter_context(canopen_sim_drive(own_network, *options))
 
 
 def test_rig_and_scan_in_other_processes_over_the_udp_multicast_bus(own_network, canopen_drives, tmp_path):
