@@ -79,4 +79,36 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   fi
   echo "$want" > "$stamp"
 fi
+
+# GenICam cameras (genicam:ID) go through aravis's GObject introspection binding: Debian's
+# gir1.2-aravis-0.8 and python3-gi (aravis-tools-cli: arv-tool-0.8 lists cameras; aravis-tools: the
+# fake GigE Vision camera the tests use). Installed as root with apt-get when missing; then the venv
+# sees Debian's `gi` package through a .pth file naming a folder that holds only a link to it (PyPI's
+# pygobject >= 3.52 needs girepository-2.0, which Debian 12 lacks). Optional: without them
+# genicam:ID says how to install aravis and its tests skip.
+if command -v dpkg-query >/dev/null 2>&1; then
+  gi_pkgs=()
+  for pkg in gir1.2-aravis-0.8 python3-gi aravis-tools-cli aravis-tools; do
+    status="$(dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null || true)"
+    if [[ "$status" != *"ok installed"* ]]; then gi_pkgs+=("$pkg"); fi
+  done
+  if [ "${#gi_pkgs[@]}" -gt 0 ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    echo "GenICam cameras need aravis: installing ${gi_pkgs[*]} with apt-get (running as root):"
+    if ! { apt_step "refresh the package lists" apt-get update -qq \
+           && apt_step "install" apt-get install -y -qq "${gi_pkgs[@]}"; }; then
+      echo "Continuing without aravis: genicam:ID cameras will not work (apt-get install ${gi_pkgs[*]})." >&2
+    fi
+  fi
+fi
+system_gi=/usr/lib/python3/dist-packages/gi
+if ! "$venv/bin/python" -c 'import gi' >/dev/null 2>&1 && [ -d "$system_gi" ] \
+   && ls "$system_gi"/_gi.cpython-"$("$venv/bin/python" -c 'import sys; print(f"{sys.version_info[0]}{sys.version_info[1]}")')"-*.so >/dev/null 2>&1; then
+  mkdir -p "$venv/system-gi" && ln -sfn "$system_gi" "$venv/system-gi/gi"
+  "$venv/bin/python" - "$venv/system-gi" <<'PY'
+import sys, sysconfig, pathlib
+pathlib.Path(sysconfig.get_paths()["purelib"], "lfstudio-system-gi.pth").write_text(sys.argv[1] + "\n")
+PY
+  echo "The venv sees Debian's python3-gi (for aravis): $venv/system-gi"
+fi
+
 export LFSTUDIO_PY="$venv/bin/python"

@@ -75,6 +75,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                  "a rig profile is --rig-profile NAME")
     _described(p, "camera")
     _described(p, "rig_profile")
+    p.add_argument("--camera-option", action="append", default=[], metavar="NAME=VALUE",
+                   help="a connection option of the camera's kind, e.g. --camera-option timeout_s=3 for genicam:ID "
+                        "(lfstudio doctor lists each kind's options)")
     p.add_argument("--home", action="store_true",
                    help="home the rig ($H) before the first view (with --resume: before continuing)")
     p.add_argument("--origin-here", action="store_true",
@@ -233,6 +236,19 @@ def _finish_check(checker, dataset) -> None:
           + f"; the full report: lfstudio check {dataset.root}", file=sys.stderr)
 
 
+def _camera_options(args: argparse.Namespace) -> dict:
+    """``--camera-option NAME=VALUE`` checked against the options of ``--camera``'s kind."""
+    if not args.camera_option:
+        return {}
+    from lfstudio.errors import InputError
+    from lfstudio.studio.devices import CameraSpec
+    from lfstudio.studio.kinds import camera_kind, parse_options
+
+    if args.camera is None:
+        raise InputError("--camera-option", "names options of no camera", "give --camera KIND:ARGS with it")
+    return parse_options(camera_kind(CameraSpec.parse(args.camera).kind), args.camera_option)
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -246,7 +262,8 @@ def run(args: argparse.Namespace) -> int:
                           origin_here=args.origin_here, allow_device_change=args.allow_device_change,
                           keep_drive_reference=args.keep_drive_reference,
                           retries=args.retries, time_scale=args.time_scale, exposure_s=args.exposure_s,
-                          transfer_s=args.transfer_s, seed=args.seed, sim_width_px=args.sim_width_px)
+                          transfer_s=args.transfer_s, seed=args.seed, sim_width_px=args.sim_width_px,
+                          camera_options=_camera_options(args))
     request.engine_options["auto_resume"] = args.auto_resume
     unattended = _unattended(args)
     session = ScanSession(request, doing="scanning",

@@ -108,6 +108,7 @@ class FrameRecord(TypedDict, total=False):
     captured_at: str
     sidecars: list[str]
     camera_settings: dict[str, Any]
+    camera_frame: dict[str, Any]
 
 
 class ProcessedRecord(TypedDict, total=False):
@@ -190,6 +191,7 @@ class ViewFields(TypedDict, total=False):
     error: str                            # why a view failed (recorded when the operator skips it)
     camera: dict[str, Any]                # the driver's record of the camera and its settings
     camera_settings: dict[str, Any]
+    camera_frame: dict[str, Any]          # an array camera's frame: pixel format, bits, timestamps, frame id
     devices: dict[str, Any] | None        # the devices that took it, when not the dataset's own
     processed: ProcessedRecord
     hdr: HdrRecord                        # a bracketed view's HDR merge

@@ -1,8 +1,16 @@
 """The camera interface every camera driver implements, and the types it returns.
 
-Beyond :class:`Camera`, a driver may offer ``describe_settings() -> list[CameraSetting]`` (what the
-camera offers, so a GUI builds its controls from data) and ``identity() -> dict`` (model, serial,
-lens as the camera reports them; the dataset records it).
+Beyond :class:`Camera`, a driver may offer capabilities, each a named interface checked with
+``isinstance`` (never ``hasattr``): :class:`DescribesSettings` (what the camera offers, so a GUI
+builds its controls from data), :class:`HasIdentity` (model, serial, lens as the camera reports
+them; the dataset records it), :class:`HasStatus`, :class:`Stoppable` (a capture under way cut
+short), :class:`HasCardSpace` (pictures kept on the camera's card), :class:`SimulatedScene`.
+
+An **array camera** (:class:`ArrayCamera`: machine-vision cameras) hands each picture back as pixels
+with their metadata (:class:`lfstudio.dataset.frames.Frame`) instead of writing a file: its
+``capture`` returns a :class:`CaptureResult` with ``frame`` set and no files, and the scan's store
+stage (or :func:`stored` for a test shot) writes it. A plugin that only has ``grab()`` is made a
+camera by :class:`FrameGrabber`.
 """
 
 from __future__ import annotations
@@ -14,6 +22,7 @@ from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
+from lfstudio.dataset.frames import Frame
 from lfstudio.dataset.manifest import ViewUpdate
 
 
@@ -40,6 +49,9 @@ class CaptureResult:
     #: extra fields for this view's manifest entry (JSON-safe), e.g. the camera's identity and the
     #: exposure settings it reported for this shot; the scan engine merges them into the view record
     record: ViewUpdate = field(default_factory=lambda: ViewUpdate())
+    #: an array camera's picture, not yet written (``files`` is empty): :func:`stored` writes it to ``stem``
+    frame: Frame | None = None
+    stem: Path | None = None
 
     @property
     def path(self) -> Path:
@@ -99,3 +111,114 @@ def supports_on_exposed(camera: Any) -> bool:
     except (TypeError, ValueError):
         return False
     return "on_exposed" in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
+
+
+# -- capabilities (checked with isinstance) ----------------------------------------------------------
+@runtime_checkable
+class DescribesSettings(Protocol):
+    def describe_settings(self) -> list[CameraSetting]: ...
+
+
+@runtime_checkable
+class HasIdentity(Protocol):
+    def identity(self) -> dict[str, Any]: ...
+
+
+@runtime_checkable
+class HasStatus(Protocol):
+    def status(self) -> Any: ...
+
+
+@runtime_checkable
+class Stoppable(Protocol):
+    def stop(self) -> None: ...
+
+
+@runtime_checkable
+class HasCardSpace(Protocol):
+    def card_space(self) -> Any: ...
+
+
+@runtime_checkable
+class SimulatedScene(Protocol):
+    def set_view_region(self, view_region_mm: tuple[float, ...]) -> None: ...
+
+
+@runtime_checkable
+class ArrayCamera(Protocol):
+    """A camera that hands back pixels: ``grab()`` takes one picture and returns it as a
+    :class:`~lfstudio.dataset.frames.Frame` (calling ``on_exposed`` as soon as it is exposed)."""
+
+    def connect(self) -> None: ...
+    def disconnect(self) -> None: ...
+    def settings(self) -> dict[str, Any]: ...
+    def set_setting(self, name: str, value: Any) -> None: ...
+    def grab(self, on_exposed: Callable[[], None] | None = None) -> Frame: ...
+
+
+def frame_result(frame: Frame, stem_path: Path, *, trigger_s: float = 0.0, transfer_s: float = 0.0
+                 ) -> CaptureResult:
+    """The :class:`CaptureResult` of an array camera's ``frame`` for the view ``stem_path``: no file yet
+    (the store stage writes it), the frame's settings, identity and timing as the view's record."""
+    record = ViewUpdate(camera_frame=frame.record())
+    if frame.settings:
+        record["camera_settings"] = dict(frame.settings)
+    if frame.identity:
+        record["camera"] = dict(frame.identity)
+    meta = dict(frame.settings)
+    return CaptureResult(files=(), trigger_s=trigger_s, exposure_s=float(frame.exposure_s or 0.0),
+                         transfer_s=transfer_s, metadata=meta, record=record, frame=frame, stem=Path(stem_path))
+
+
+class FrameGrabber:
+    """An :class:`ArrayCamera` as a :class:`Camera`: ``capture(stem)`` grabs a frame and returns it
+    unwritten (:func:`frame_result`). Every other attribute is the array camera's own."""
+
+    def __init__(self, camera: ArrayCamera):
+        self.camera = camera
+        self.name = str(getattr(camera, "name", type(camera).__name__))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.camera, name)
+
+    def connect(self) -> None:
+        self.camera.connect()
+
+    def disconnect(self) -> None:
+        self.camera.disconnect()
+
+    def settings(self) -> dict[str, Any]:
+        return self.camera.settings()
+
+    def set_setting(self, name: str, value: Any) -> None:
+        self.camera.set_setting(name, value)
+
+    def preview(self) -> np.ndarray | None:
+        preview = getattr(self.camera, "preview", None)
+        frame = preview() if callable(preview) else None
+        return frame if isinstance(frame, np.ndarray) else None
+
+    def capture(self, stem_path: Path, on_exposed: Callable[[], None] | None = None) -> CaptureResult:
+        import time
+
+        t0 = time.monotonic()
+        frame = self.camera.grab(on_exposed)
+        return frame_result(frame, stem_path, trigger_s=time.monotonic() - t0)
+
+
+def stored(result: CaptureResult) -> CaptureResult:
+    """``result`` with its files on disk: an array camera's frame written to its stem (Bayer as DNG,
+    mono and RGB as 16-bit TIFF; :func:`lfstudio.dataset.frames.write_frame`); a file camera's result
+    as it is."""
+    if result.frame is None:
+        return result
+    from dataclasses import replace
+
+    from lfstudio.dataset.frames import write_frame
+
+    if result.stem is None:
+        raise ValueError("an array camera's capture result names no stem to write its frame to")
+    identity = result.frame.identity
+    path = write_frame(result.frame, result.stem, model=str(identity.get("model", "")),
+                       make=str(identity.get("vendor", "")))
+    return replace(result, files=(path,), frame=None)

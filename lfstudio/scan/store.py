@@ -4,7 +4,8 @@
 stored so far, the frames of a bracketed view stored so far, the views the journal refused). The
 engine thread hands it each capture (:meth:`ScanStore.submit`, a :class:`StoreJob` whose future
 resolves when the camera has delivered the file) and goes on moving the rig; the store thread waits
-for the file (download/transfer), checksums it, writes its thumbnail and journals the view (fsync'd),
+for the file (download/transfer; an array camera's frame it writes itself: Bayer as DNG, mono and
+RGB as 16-bit TIFF, :func:`lfstudio.rig.camera.stored`), checksums it, writes its thumbnail and journals the view (fsync'd),
 overlapping the next move and settle.
 
 The store talks to the engine only through the engine's inbox (``post``: a fault to pause on, a view
@@ -34,6 +35,7 @@ from lfstudio.dataset.store import free_bytes, sha256_file
 from lfstudio.dataset.thumbs import THUMB_WIDTH_PX, make_thumbnail
 from lfstudio.errors import DeviceError, DeviceTimeout, LfError
 from lfstudio.rig.camera import CaptureResult
+from lfstudio.rig.camera import stored as frame_written
 from lfstudio.rig.worker import CallTimedOut, DeviceWorker
 from lfstudio.scan.events import EventKind, Trigger
 from lfstudio.scan.faults import CLEARS_CAMERA, CLEARS_DISK, ScanFault, error_text, fault_text
@@ -344,6 +346,7 @@ class ScanStore:
         except Exception as exc:
             self._transfer_failed(job, exc)
             return
+        result = frame_written(result)    # an array camera's frame written here (DNG or 16-bit TIFF)
         t_transferred = time.monotonic()
         extra: ViewUpdate = {}
         sha: str | None = None
@@ -433,6 +436,9 @@ class ScanStore:
         settings = (getattr(result, "record", None) or {}).get("camera_settings")
         if isinstance(settings, dict):
             frame["camera_settings"] = settings
+        taken = (getattr(result, "record", None) or {}).get("camera_frame")
+        if isinstance(taken, dict):
+            frame["camera_frame"] = taken
         frames.append(frame)
         self._frame_results[(cell, frame_no)] = result
         if frame_no < job.frames - 1:

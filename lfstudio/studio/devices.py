@@ -9,7 +9,8 @@ The words an operator uses (CLI options, the GUI's choices)::
                                                 virtual-NAME: python-can's in-process virtual bus)
              sim-dryve | sim-canopen            emulated drives in this process, over Modbus TCP on
                                                 127.0.0.1 / over a virtual CAN bus (the simulated studio)
-    camera:  sim | instant | gphoto2 | folder:PATH
+    camera:  sim | instant | gphoto2 | folder:PATH | genicam:ID | NAME:ARGUMENTS (a plugin's kind)
+             (the camera kinds of :mod:`lfstudio.studio.kinds`)
 
 ``sim`` starts the GRBL simulator on a pseudo-terminal in this process and drives it with the real
 GRBL driver; ``instant`` is a rig/camera that takes no time (tests, benchmarks). A serial port is
@@ -44,7 +45,6 @@ INSTANT = "instant"
 RIG_CHOICES = ("sim, instant, a serial port such as /dev/ttyUSB0, dryve:HOST[:PORT],HOST[:PORT], "
                "canopen:CHANNEL:NODE,NODE, sim-dryve or sim-canopen")
 DRIVE_KINDS = ("dryve", "canopen", "sim-dryve", "sim-canopen")
-CAMERA_CHOICES = "sim, gphoto2, folder:PATH, instant"
 
 
 @dataclass(frozen=True)
@@ -112,25 +112,36 @@ class RigSpec:
 
 @dataclass(frozen=True)
 class CameraSpec:
-    """``kind``: "sim", "instant", "gphoto2" or "folder" (``folder`` set)."""
+    """A camera device word: ``kind`` (a registered camera kind, :mod:`lfstudio.studio.kinds`: "sim",
+    "instant", "gphoto2", "folder", "genicam", a plugin's name) and ``argument``, the text after
+    ``KIND:`` (the hot folder's path, the GenICam id, a plugin's arguments)."""
 
     kind: str
-    folder: str = ""
+    argument: str = ""
 
     @classmethod
     def parse(cls, text: str, option: str = "--camera") -> "CameraSpec":
-        word = (text or "").strip()
-        if word.lower() in (SIM, INSTANT, "gphoto2"):
-            return cls(word.lower())
-        if word.startswith("folder:") and len(word) > len("folder:"):
-            from lfstudio.dataset.paths import expand_path
+        from lfstudio.studio.kinds import camera_choices, camera_kind, split_word
 
-            return cls("folder", str(expand_path(word.split(":", 1)[1], option)))
-        raise InputError(option, f"unknown camera {text!r}", CAMERA_CHOICES)
+        name, argument = split_word(text)
+        if not name:
+            raise InputError(option, "no camera given", camera_choices())
+        kind = camera_kind(name, option)
+        if not kind.argument and argument:
+            raise InputError(option, f"{text.strip()!r}: the {kind.name} camera takes nothing after '{kind.name}'",
+                             kind.name)
+        if kind.normalise is not None:
+            argument = kind.normalise(argument, option)
+        return cls(kind.name, argument)
+
+    @property
+    def folder(self) -> str:
+        """The hot folder's path (``folder:PATH``), else ""."""
+        return self.argument if self.kind == "folder" else ""
 
     @property
     def text(self) -> str:
-        return f"folder:{self.folder}" if self.kind == "folder" else self.kind
+        return f"{self.kind}:{self.argument}" if self.argument else self.kind
 
 
 def drive_profile_names() -> list[str]:
@@ -390,24 +401,33 @@ class CameraLink:
 
     def record(self) -> dict[str, Any]:
         """What a dataset records about this camera (``devices.camera``): kind, model and serial when
-        the driver tells them (``identity()`` or ``status().model``), the hot folder."""
+        the driver tells them (``identity()`` or ``status().model``), what the kind records (the hot
+        folder), where a plugin kind came from."""
+        from lfstudio.rig.camera import HasIdentity, HasStatus
+        from lfstudio.studio.kinds import BUILT_IN, camera_kind
+
         rec: dict[str, Any] = {"kind": self.spec.kind, "spec": self.spec.text}
-        if self.spec.kind in (SIM, INSTANT):       # its settings (image size, ...) are not its identity
+        try:
+            kind = camera_kind(self.spec.kind)
+        except InputError:
+            kind = None
+        if kind is not None and kind.simulated:      # its settings (image size, ...) are not its identity
             rec["model"] = getattr(self.camera, "name", self.spec.kind)
             return rec
-        if self.spec.kind == "folder":
-            rec["folder"] = self.spec.folder
-        identity = getattr(self.camera, "identity", None)
+        if kind is not None and kind.record is not None:
+            rec.update(kind.record(self.spec.argument))
+        if kind is not None and kind.origin != BUILT_IN:
+            rec["origin"] = kind.origin
         info: dict[str, Any] = {}
-        if callable(identity):
+        if isinstance(self.camera, HasIdentity):
             try:
-                found = identity()
+                found = self.camera.identity()
                 info = dict(found) if isinstance(found, dict) else {}
             except Exception as exc:  # noqa: BLE001 - a record without the model is still a record
                 log.debug("camera identity: %s", exc)
         if not info.get("model"):
             try:
-                model = getattr(self.camera.status(), "model", "") if hasattr(self.camera, "status") else ""
+                model = getattr(self.camera.status(), "model", "") if isinstance(self.camera, HasStatus) else ""
             except Exception:  # noqa: BLE001
                 model = ""
             if model:
@@ -426,49 +446,45 @@ class CameraLink:
             self.lock.release()
 
 
+def as_camera(driver: Any, origin: str) -> Any:
+    """``driver`` as a :class:`lfstudio.rig.camera.Camera`: an array camera with only ``grab`` wrapped in
+    :class:`~lfstudio.rig.camera.FrameGrabber`; DeviceError naming ``origin`` when it is neither."""
+    from lfstudio.rig.camera import ArrayCamera, Camera, FrameGrabber
+
+    if isinstance(driver, Camera):
+        return driver
+    if isinstance(driver, ArrayCamera):
+        return FrameGrabber(driver)
+    missing = [m for m in ("connect", "disconnect", "settings", "set_setting", "capture", "preview")
+               if not callable(getattr(driver, m, None))]
+    raise DeviceError(f"{origin} gave a {type(driver).__name__}, which is not a camera (it lacks "
+                      f"{', '.join(missing)}; a camera has connect, disconnect, settings, set_setting and capture "
+                      "or grab, see lfstudio/rig/camera.py)")
+
+
 def open_camera(spec: CameraSpec | str, *, position_mm: Callable[[], tuple[float, float]] | None = None,
                 doing: str = "", trigger_command: Sequence[str] | None = None, connect: bool = True,
                 options: dict[str, Any] | None = None, lock: bool = True) -> CameraLink:
-    """Open the camera ``spec`` names (connected with ``connect``; the GUI connects on the device's
-    worker instead). ``position_mm``: where the simulated/instant camera is (required for ``sim``);
-    ``options``: keyword arguments of the driver (the simulated camera's exposure_s, transfer_s,
-    time_scale, seed, studio_kwargs, ...; the hot folder's timeout_s); ``trigger_command``: the hot
-    folder's trigger, an argument list."""
-    options = dict(options or {})
+    """Open the camera ``spec`` names through its kind (:mod:`lfstudio.studio.kinds`; connected with
+    ``connect``; the GUI connects on the device's worker instead). ``position_mm``: where the
+    simulated/instant camera is (required for ``sim``); ``options``: keyword arguments of the driver
+    (the kind's connection options; the simulated camera's exposure_s, transfer_s, time_scale, seed,
+    studio_kwargs, ...); ``trigger_command``: the hot folder's trigger, an argument list."""
+    from lfstudio.studio.kinds import OpenContext, camera_kind
+
     spec = CameraSpec.parse(spec) if isinstance(spec, str) else spec
+    kind = camera_kind(spec.kind)
     lk: Lock | None = None
-    if spec.kind == SIM:
-        if position_mm is None:
-            raise InputError("--camera", "the simulated camera renders from the simulated rig's true position",
-                             "--port sim, or the port 'lfstudio sim-rig' printed")
-        from lfstudio.studio.simulated import simulated_camera
-
-        cam = simulated_camera(position_mm, **options)
-    elif spec.kind == INSTANT:
-        from lfstudio.studio.simulated import InstantCamera
-
-        cam = InstantCamera(position_mm, **options)
-    elif spec.kind == "gphoto2":
-        try:
-            from lfstudio.rig.gphoto import GPhotoCamera
-        except ImportError as exc:
-            raise DeviceError(f"--camera gphoto2: the driver is not available ({exc})") from None
-        if lock:
-            lk = camera_lock("gphoto2", doing).acquire()
-        try:
-            cam = GPhotoCamera(**options)
-        except BaseException:
-            if lk is not None:
-                lk.release()
-            raise
-    else:
-        from pathlib import Path
-
-        from lfstudio.rig.hotfolder import HotFolderCamera
-
-        if lock:
-            lk = camera_lock(f"folder-{Path(spec.folder).resolve()}", doing).acquire()
-        cam = HotFolderCamera(spec.folder, list(trigger_command) if trigger_command else None, **options)
+    key = kind.lock_key(spec.argument) if (lock and kind.lock_key is not None) else None
+    if key:
+        lk = camera_lock(key, doing).acquire()
+    try:
+        driver = kind.open(spec.argument, OpenContext(doing, position_mm, trigger_command, dict(options or {})))
+        cam = as_camera(driver, f"camera kind {kind.name!r} ({kind.origin})")
+    except BaseException:
+        if lk is not None:
+            lk.release()
+        raise
     link = CameraLink(spec, cam, lk)
     if connect:
         try:
@@ -494,17 +510,23 @@ def link_for_rig(controller: Any, config: RigConfig, simulated: bool = False) ->
     return RigLink(RigSpec(SIM) if simulated else RigSpec("serial", port), config, controller)
 
 
-def link_for_camera(camera: Any) -> CameraLink:
-    """A :class:`CameraLink` (without lock) for a camera driver opened elsewhere, its kind told by its type."""
+def link_for_camera(camera: Any, spec: CameraSpec | None = None) -> CameraLink:
+    """A :class:`CameraLink` (without lock) for a camera driver opened elsewhere: ``spec``, else its
+    kind told by its type."""
+    from lfstudio.rig.genicam import GenicamCamera
     from lfstudio.rig.hotfolder import HotFolderCamera
     from lfstudio.studio.simulated import InstantCamera, SimulatedCamera
 
+    if spec is not None:
+        return CameraLink(spec, camera)
     if isinstance(camera, SimulatedCamera):
         return CameraLink(CameraSpec(SIM), camera)
     if isinstance(camera, InstantCamera):
         return CameraLink(CameraSpec(INSTANT), camera)
     if isinstance(camera, HotFolderCamera):
         return CameraLink(CameraSpec("folder", str(camera.folder)), camera)
+    if isinstance(camera, GenicamCamera):
+        return CameraLink(CameraSpec("genicam", camera.device_id), camera)
     return CameraLink(CameraSpec("gphoto2"), camera)
 
 
@@ -545,7 +567,9 @@ class Studio:
 
     def set_view_region(self, view_region_mm: tuple[float, float, float, float]) -> None:
         """Centre the simulated camera's virtual scene on a grid extent (other cameras: nothing)."""
-        if hasattr(self.camera, "set_view_region"):
+        from lfstudio.rig.camera import SimulatedScene
+
+        if isinstance(self.camera, SimulatedScene):
             self.camera.set_view_region(tuple(float(v) for v in view_region_mm))
 
     def close(self) -> None:

@@ -35,9 +35,11 @@ class ScanOptions:
             "dryve:HOST[:PORT],HOST[:PORT] (Modbus TCP, as printed by 'lfstudio sim-drive'), "
             "canopen:CHANNEL:NODE,NODE, or sim-dryve / sim-canopen (emulated here)")
     camera: str | None = described(
-        None, optional="sim", label="Camera", option="--camera", metavar="sim|gphoto2|folder:PATH", group=DEVICES,
-        tip="camera: 'sim' (renders the virtual studio), 'gphoto2' (tethered USB), 'folder:PATH' (hot folder) "
-            "or 'instant'")
+        None, optional="sim", label="Camera", option="--camera", metavar="sim|gphoto2|folder:PATH|genicam:ID|KIND:ARGS",
+        group=DEVICES,
+        tip="camera: 'sim' (renders the virtual studio), 'gphoto2' (tethered USB), 'folder:PATH' (hot folder), "
+            "'genicam:ID' (GigE Vision / USB3 Vision through aravis), 'instant', or an installed plugin's "
+            "KIND:ARGUMENTS ('lfstudio doctor' lists the kinds)")
     rig_profile: str | None = described(
         None, optional="the reference gantry", label="Rig profile", option="--rig-profile", metavar="NAME",
         group=DEVICES, tip="rig profile from the presets (real drives need theirs named)")

@@ -38,8 +38,10 @@ def test_shot(driver: Any, folder: Path) -> tuple[Any, Any]:
     """Capture into ``folder`` and make an 8-bit preview of the file (runs on the camera's thread)."""
     from lfstudio.dataset.images import preview_rgb8
 
+    from lfstudio.rig.camera import stored
+
     stem = folder / _dt.datetime.now().strftime("test_%Y%m%d_%H%M%S_%f")
-    result = driver.capture(stem)
+    result = stored(driver.capture(stem))         # an array camera's frame written as a file
     return result, preview_rgb8(result.path, 1600)
 
 
