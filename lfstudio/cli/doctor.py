@@ -109,6 +109,22 @@ def _check_dask(tmp: Path) -> str:
     return f"local cluster with one worker process ran a task ({time.monotonic() - t0:.1f} s)"
 
 
+def _print_kinds() -> int:
+    """The device kinds (built-in and plugins), each with where it came from and its options; a plugin
+    that did not load is a warning naming it (the others still load). Returns 0 (plugins are optional)."""
+    from lfstudio.studio.kinds import camera_kinds, options_text, problems, rig_kinds
+
+    print("device kinds (--camera WORD, --port WORD; plugins: entry points lfstudio.cameras / lfstudio.rigs):")
+    for what, kinds in (("camera", camera_kinds()), ("rig", rig_kinds())):
+        for kind in kinds.values():
+            print(f"  {what} {kind.word:<20} {kind.label or kind.name}  [{kind.origin}]")
+            for line in options_text(kind):
+                print(f"  {'':<27} option {line}")
+    for line in problems():
+        print(f"warn {line}")
+    return 0
+
+
 #: (name, check, required)
 CHECKS = (("RAW decoding", _check_raw, True), ("HEVC encoding", _check_hevc, True),
           ("lens database", _check_lensfun, True), ("resources", _check_resources, True),
@@ -138,6 +154,7 @@ def run(args: argparse.Namespace) -> int:
                     text, ok = f"{type(exc).__name__}: {exc}", False
                 failed += not ok and required
                 print(f"{'ok  ' if ok else 'FAIL' if required else 'warn'} {name:<{width}}  {text}")
+    failed += _print_kinds()
     print(f"  {'log file':<{width}}  {log_file()}")
     print("doctor: all required parts work" if not failed else f"doctor: {failed} problem(s)")
     return 0 if not failed else 1

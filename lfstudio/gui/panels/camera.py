@@ -1,4 +1,6 @@
-"""Camera panel: choose the camera (simulated studio / USB via gphoto2 / hot folder), its settings,
+"""Camera panel: choose the camera (simulated studio / USB via gphoto2 / hot folder / every other
+registered camera kind, GenICam and plugins included, each with a form built from its described
+options: :class:`lfstudio.gui.kind_form.KindForm`), its settings,
 connect it (it then appears as ``state.devices["camera"]`` for the scan and the live view), and
 take a test shot that the Live view shows.
 
@@ -22,15 +24,28 @@ from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayo
 from lfstudio.dataset.paths import expand_path
 from lfstudio.errors import InputError
 from lfstudio.gui.devices import QtDevice
+from lfstudio.gui.kind_form import KindForm
 from lfstudio.gui.path_field import expand_on_edit
 from lfstudio.gui.settings import read_float, read_int, read_text, settings
 from lfstudio.gui.state import AppState
 from lfstudio.gui.widgets import show_lock_note
 from lfstudio.resources import user_config_dir
+from lfstudio.rig.camera import DescribesSettings
 from lfstudio.rig.worker import DeviceWorker
 
+#: the kinds with a page of their own here; every other registered camera kind (but "instant", for tests)
+#: gets a KindForm from its description
 KINDS = (("sim", "Simulated studio camera"), ("gphoto2", "USB camera (gphoto2)"),
          ("folder", "Hot folder (vendor software)"))
+HIDDEN_KINDS = ("instant",)
+
+
+def form_kinds() -> list[Any]:
+    """The registered camera kinds the panel shows with a KindForm (built-in GenICam, plugins)."""
+    from lfstudio.studio.kinds import camera_kinds
+
+    own = {key for key, _ in KINDS} | set(HIDDEN_KINDS)
+    return [kind for name, kind in camera_kinds().items() if name not in own]
 ISO_CHOICES = ("50", "100", "200", "400", "800", "1600", "3200", "6400")
 
 
@@ -81,9 +96,14 @@ class CameraPanel(QWidget):
         self.kind = QComboBox()
         for key, label in KINDS:
             self.kind.addItem(label, key)
+        self.forms: dict[str, KindForm] = {}
+        for kind in form_kinds():
+            self.kind.addItem(kind.label or kind.name, kind.name)
+            self.forms[kind.name] = KindForm(kind)
         self.kind.setToolTip("Which camera to use: the simulated studio (renders the virtual scene from the "
-                             "simulated rig's position), a USB camera through libgphoto2, or a folder that "
-                             "the camera's own software saves into")
+                             "simulated rig's position), a USB camera through libgphoto2, a folder that "
+                             "the camera's own software saves into, a machine-vision camera (GenICam), or an "
+                             "installed plugin's camera")
         index = self.kind.findData(s.value(self.kind_key, "sim" if state.simulated else "gphoto2"))
         self.kind.setCurrentIndex(max(0, index))
 
@@ -171,7 +191,7 @@ class CameraPanel(QWidget):
         ff.addRow("Timeout", self.folder_timeout)
 
         self.pages = QStackedWidget()
-        for page in (sim_page, gp_page, folder_page):
+        for page in (sim_page, gp_page, folder_page, *self.forms.values()):
             self.pages.addWidget(page)
         self.kind.currentIndexChanged.connect(self._kind_changed)
 
@@ -206,7 +226,7 @@ class CameraPanel(QWidget):
         self.apply_button = QPushButton("Apply to camera")
         self.apply_button.setToolTip("Send ISO, shutter and aperture to the connected camera")
         self.apply_button.clicked.connect(self.apply_settings)
-        exposure = QGroupBox("Exposure")
+        exposure = self.exposure_group = QGroupBox("Exposure")
         ef = QFormLayout(exposure)
         ef.addRow("ISO", self.iso)
         ef.addRow("Shutter", self.shutter)
@@ -280,6 +300,8 @@ class CameraPanel(QWidget):
                 page.setSizePolicy(policy, policy)
         self.pages.adjustSize()
         settings().setValue(self.kind_key, self.current_kind())
+        # a DSLR's exposure; a kind with a form shows its own settings
+        self.exposure_group.setVisible(self.current_kind() not in self.forms)
         self._show_truth()
         self._update_enabled()
 
@@ -317,6 +339,8 @@ class CameraPanel(QWidget):
                                f"{kw.get('far_m', 4.77):g} m. Files: .dng + .jpg + .truth.json")
 
     def _save_settings(self) -> None:
+        for form in self.forms.values():
+            form.save()
         s = settings()
         s.setValue("camera/sim_width_px", self.sim_width.value())
         s.setValue("camera/sim_noise_pct", self.sim_noise.value())
@@ -347,6 +371,10 @@ class CameraPanel(QWidget):
                                options=options, connect=False)
         if kind == "gphoto2":
             return open_camera(CameraSpec("gphoto2"), doing=doing, connect=False)
+        if kind in self.forms:
+            form = self.forms[kind]
+            return open_camera(CameraSpec.parse(form.word(), form.kind.argument or "Camera"), doing=doing,
+                               options=form.options(), connect=False)
         if not self.folder_edit.text().strip():
             raise InputError("Folder", "choose the folder the camera software saves into")
         folder = str(expand_path(self.folder_edit.text(), "Folder", absolute=True))
@@ -400,7 +428,11 @@ class CameraPanel(QWidget):
         name = self.kind.currentText()
         self._show(f"Connected: {name}", "ok")
         self.state.show_status(f"Camera connected ({name})")
-        if self.current_kind() != "folder":
+        form = self.forms.get(self.current_kind())
+        if form is not None:
+            if isinstance(self.device.driver, DescribesSettings):
+                self.device.run("describe_settings", on_result=form.show_settings, on_error=lambda _m: None)
+        elif self.current_kind() != "folder":
             self.device.run("settings", on_result=self._show_settings, on_error=lambda _m: None)
 
     def _connect_failed(self, message: str) -> None:
@@ -456,7 +488,7 @@ class CameraPanel(QWidget):
             w.setEnabled(not connected)
         self.shot_button.setEnabled(free and connected and not busy)
         self.shot_action.setEnabled(free and connected and not busy)
-        self.apply_button.setEnabled(free and connected and not busy and self.current_kind() != "folder")
+        self.apply_button.setEnabled(free and connected and not busy and self.current_kind() in ("sim", "gphoto2"))
         self.connect_button.setEnabled(free)
         self.connect_action.setEnabled(free)
         self._show_lock(self.state.camera_lock_reason())

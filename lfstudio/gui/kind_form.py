@@ -1,0 +1,109 @@
+"""The form of a device kind (:mod:`lfstudio.studio.kinds`): its argument (what follows ``NAME:`` in the
+device word) and one field per described connection option, built from the kind's own description, so
+a kind added by a plugin gets its page in the Camera panel without any code here.
+
+Every field is text checked by the same rules as ``--camera-option NAME=VALUE``
+(:func:`lfstudio.studio.kinds.parse_options`); an empty field keeps the option's default. Values are kept
+per kind in the window's settings (``devices/KIND/FIELD``)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from PySide6.QtWidgets import QFormLayout, QLabel, QLineEdit, QWidget
+
+from lfstudio.errors import InputError
+from lfstudio.gui.settings import read_text, settings
+from lfstudio.studio.kinds import CameraKind, RigKind, parse_options
+
+
+class KindForm(QWidget):
+    """The argument and options of ``kind`` (see the module docstring)."""
+
+    def __init__(self, kind: CameraKind | RigKind, parent: QWidget | None = None):
+        super().__init__(parent)
+        self.kind = kind
+        s = settings()
+        form = QFormLayout(self)
+        form.setContentsMargins(0, 0, 0, 0)
+        info = QLabel((kind.help or kind.label or kind.name) + ("" if kind.origin == "built-in" else
+                                                               f" <i>({kind.origin})</i>"))
+        info.setWordWrap(True)
+        form.addRow(info)
+        self.argument: QLineEdit | None = None
+        #: the argument's field label: "ID", "Path", "Arguments"
+        self.argument_label = kind.argument if len(kind.argument) <= 3 else kind.argument.capitalize()
+        if kind.argument:
+            self.argument = QLineEdit(read_text(self._key("argument"), "", s))
+            self.argument.setObjectName(f"{kind.name}-argument")
+            self.argument.setPlaceholderText(f"{kind.name}:{kind.argument}")
+            self.argument.setToolTip(f"What follows '{kind.name}:' in the device word ({kind.argument})")
+            form.addRow(self.argument_label, self.argument)
+        self.fields: dict[str, QLineEdit] = {}
+        if kind.options is not None:
+            for f in dataclasses.fields(kind.options):
+                param = f.metadata.get("lfstudio.param")
+                if param is None:
+                    continue
+                edit = QLineEdit(read_text(self._key(f.name), "", s))
+                edit.setObjectName(f"{kind.name}-{f.name}")
+                default = param.to_text(f.default) if f.default is not dataclasses.MISSING else ""
+                edit.setPlaceholderText(default)
+                unit = param.number.unit if param.number is not None else ""
+                edit.setToolTip(f"{param.tip} (valid: {param.valid()}; empty: {default or 'required'})")
+                form.addRow(f"{param.label or f.name}" + (f" ({unit})" if unit else ""), edit)
+                self.fields[f.name] = edit
+        self.settings_label = QLabel("")
+        self.settings_label.setWordWrap(True)
+        form.addRow(self.settings_label)
+
+    def _key(self, name: str) -> str:
+        return f"devices/{self.kind.name}/{name}"
+
+    def label_of(self, name: str) -> str:
+        for f in dataclasses.fields(self.kind.options) if self.kind.options is not None else ():
+            if f.name == name:
+                param = f.metadata.get("lfstudio.param")
+                return param.label if param is not None and param.label else name
+        return name
+
+    def word(self) -> str:
+        """The device word the form names (InputError naming the argument field when it is needed and empty)."""
+        if self.argument is None:
+            return self.kind.name
+        text = self.argument.text().strip()
+        if not text:
+            raise InputError(self.argument_label, f"the {self.kind.label or self.kind.name} needs its "
+                             f"{self.kind.argument}", f"{self.kind.name}:{self.kind.argument}")
+        return f"{self.kind.name}:{text}"
+
+    def options(self) -> dict[str, Any]:
+        """The options typed (empty fields left out), checked; InputError naming the field's label."""
+        out: dict[str, Any] = {}
+        for name, edit in self.fields.items():
+            text = edit.text().strip()
+            if not text:
+                continue
+            try:
+                out.update(parse_options(self.kind, {name: text}, option=self.label_of(name)))
+            except InputError as exc:      # named by the field's label, as the form shows it
+                raise InputError(self.label_of(name), str(exc).split(": ", 1)[-1]) from None
+        return out
+
+    def save(self) -> None:
+        s = settings()
+        if self.argument is not None:
+            s.setValue(self._key("argument"), self.argument.text())
+        for name, edit in self.fields.items():
+            s.setValue(self._key(name), edit.text())
+
+    def show_settings(self, described: Any) -> None:
+        """The connected camera's settings as data: name, value, its choices or range."""
+        lines = []
+        for d in described or ():
+            extra = (f" ({', '.join(map(str, d.choices))})" if getattr(d, "choices", ()) else
+                     f" ({d.range[0]:g} … {d.range[1]:g})" if getattr(d, "range", None) else "")
+            unit = f" {d.unit}" if getattr(d, "unit", "") else ""
+            lines.append(f"{d.label}: {d.value}{unit}{extra}")
+        self.settings_label.setText("\n".join(lines))

@@ -1,0 +1,114 @@
+"""Device kinds from plugins (entry points ``lfstudio.cameras``): the documented example plugin pip-installed
+from a temporary folder and scanned with; broken and clashing plugins named while the rest load."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from lfstudio.errors import InputError
+from tests.conftest import REPO_ROOT
+
+EXAMPLE = REPO_ROOT / "docs" / "plugins" / "example-camera"
+
+
+def write_dist(site: Path, name: str, entry_points: str) -> None:
+    """An installed distribution with only metadata and entry points (what pip leaves in site-packages)."""
+    info = site / f"{name.replace('-', '_')}-0.1.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(entry_points)
+
+
+@pytest.fixture(scope="module")
+def example_site(tmp_path_factory):
+    """The example plugin pip-installed (no dependencies, no index) into a folder of its own, copied from
+    docs/ to a temporary folder first (a build writes beside its sources)."""
+    root = tmp_path_factory.mktemp("plugin")
+    source = root / "example-camera"
+    shutil.copytree(EXAMPLE, source)
+    site = root / "site"
+    r = subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
+                        "--no-index", "--disable-pip-version-check", "--target", str(site), str(source)],
+                       capture_output=True, text=True, timeout=300)
+    if r.returncode != 0:
+        pytest.fail(f"pip install of the example plugin failed:\n{r.stderr[-2000:]}")
+    return site
+
+
+def test_the_example_plugin_installs_is_listed_and_scans(example_site, tmp_path, run_cli):
+    env = {"PYTHONPATH": str(example_site)}
+    r = run_cli("doctor", "--quick", env=env)
+    line = next((ln for ln in r.stdout.splitlines() if "camera ramp:ARGUMENTS" in ln), "")
+    assert "[plugin lfstudio-example-camera 0.1.0 (lfstudio_example_camera:open_camera)]" in line, r.stdout
+    assert "camera genicam:ID" in r.stdout                     # the built-ins are there beside it
+    out = tmp_path / "ds"
+    r = run_cli("scan", "--port", "instant", "--camera", "ramp:64x48", "--grid", "3x2", "--out", out, env=env)
+    assert r.returncode == 0, r.stderr
+    manifest = json.loads((out / "dataset.json").read_text())
+    assert [v["status"] for v in manifest["views"]] == ["done"] * 6
+    for v in manifest["views"]:
+        assert v["file"].endswith(".tif") and (out / v["file"]).is_file()
+        assert v["camera_frame"]["pixel_format"] == "Mono12" and v["camera_frame"]["size_px"] == [64, 48]
+    camera = manifest["devices"]["camera"]
+    assert camera["kind"] == "ramp" and camera["spec"] == "ramp:64x48" and camera["model"] == "Ramp"
+    assert camera["origin"].startswith("plugin lfstudio-example-camera 0.1.0")
+    r = run_cli("scan", "--port", "instant", "--camera", "ramp:huge", "--grid", "3x2", "--out", tmp_path / "b",
+                env=env)
+    assert r.returncode != 0 and "ramp:huge: cannot read the size" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "b").exists()
+
+
+def test_broken_and_clashing_plugins_are_named_and_the_rest_load(tmp_path, run_cli):
+    site = tmp_path / "site"
+    write_dist(site, "broken-plugin", "[lfstudio.cameras]\nbroken = no_such_module_here:open_camera\n")
+    write_dist(site, "twin-a", "[lfstudio.cameras]\ntwin = twin_a:open_camera\n")
+    write_dist(site, "twin-b", "[lfstudio.cameras]\ntwin = twin_b:open_camera\n")
+    write_dist(site, "impostor", "[lfstudio.cameras]\ngphoto2 = impostor:open_camera\n")
+    env = {"PYTHONPATH": str(site)}
+    r = run_cli("doctor", "--quick", env=env)
+    assert r.returncode == 0, r.stdout + r.stderr
+    warnings = [ln for ln in r.stdout.splitlines() if ln.startswith("warn ")]
+    assert any("plugin broken-plugin 0.1 (no_such_module_here:open_camera): cannot be loaded (ModuleNotFoundError"
+               in ln for ln in warnings), r.stdout
+    assert any("camera kind 'twin' is claimed by plugin twin-a 0.1 (twin_a:open_camera) and plugin twin-b 0.1 "
+               "(twin_b:open_camera): neither is loaded" in ln for ln in warnings), r.stdout
+    assert any("camera kind 'gphoto2' of plugin impostor 0.1 (impostor:open_camera) is not loaded: 'gphoto2' is the "
+               "built-in kind" in ln for ln in warnings), r.stdout
+    assert "camera gphoto2" in r.stdout and "camera genicam:ID" in r.stdout
+    out = tmp_path / "ds"
+    r = run_cli("scan", "--port", "instant", "--camera", "twin:1", "--grid", "2x1", "--out", out, env=env)
+    assert r.returncode != 0 and "Traceback" not in r.stderr
+    assert "camera kind 'twin' is claimed by plugin twin-a 0.1" in r.stderr and "uninstall one of them" in r.stderr
+    assert not out.exists()
+    r = run_cli("scan", "--port", "instant", "--camera", "instant", "--grid", "2x1", "--out", out, env=env)
+    assert r.returncode == 0, r.stderr                           # the rest still load
+
+
+def test_a_kind_cannot_take_a_name_that_is_taken():
+    from lfstudio.studio.kinds import CameraKind, camera_kinds, register_camera
+
+    assert "genicam" in camera_kinds()
+    with pytest.raises(InputError, match="'genicam' of plugin x is already the kind of built-in"):
+        register_camera(CameraKind("genicam", lambda a, c: None, origin="plugin x"))
+    with pytest.raises(InputError, match="is not a device word name"):
+        register_camera(CameraKind("bad name", lambda a, c: None, origin="plugin x"))
+
+
+def test_a_factory_that_returns_no_camera_is_named(tmp_path):
+    from lfstudio.errors import DeviceError
+    from lfstudio.studio.devices import open_camera
+    from lfstudio.studio.kinds import CameraKind, register_camera, unregister
+
+    register_camera(CameraKind("notacamera", lambda a, c: object(), argument="X", origin="plugin test 1.0 (m:f)"))
+    try:
+        with pytest.raises(DeviceError, match=r"camera kind 'notacamera' \(plugin test 1.0 \(m:f\)\) gave a object, "
+                                              r"which is not a camera \(it lacks connect, disconnect"):
+            open_camera("notacamera:1")
+    finally:
+        unregister("notacamera")
