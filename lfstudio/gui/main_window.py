@@ -40,6 +40,7 @@ _AREAS = {"left": Qt.DockWidgetArea.LeftDockWidgetArea, "right": Qt.DockWidgetAr
 DEFAULT_SIZE = QSize(1500, 950)
 #: room left for the window manager's frame and title bar around the first window
 WINDOW_FRAME_PX = QSize(8, 40)
+BOTTOM_SHARE = 0.5          # of the centre column's height, at most, for the docks under the central view
 #: the panels in front at first start and after View → Reset layout
 FIRST_STEPS = ("plannerDock", "planPlotsDock", "scanPanel")
 
@@ -278,8 +279,23 @@ class MainWindow(QMainWindow):
                 docks.append(dock)
                 sizes.append(max(PanelScrollArea.MIN_WIDTH_PX, int(need * scale)))
         self.resizeDocks(docks, sizes, Qt.Orientation.Horizontal)
+        self._fit_bottom_docks()
         self.hide_stale_tab_bars()
         self.docks_fitted += 1
+
+    def _fit_bottom_docks(self) -> None:
+        """The docks under the central view (Plan plots, Live view) take at most
+        :data:`BOTTOM_SHARE` of the centre column's height: at 1366 x 768 they took three quarters and
+        the grid of a 5 x 5 dataset showed 20 px thumbnails (their panels scroll instead)."""
+        bottom = [d for d in self.docks.values() if not d.isFloating() and d.isVisible()
+                  and not d.visibleRegion().isEmpty()        # a tab behind another has a stale size
+                  and self.dockWidgetArea(d) == Qt.DockWidgetArea.BottomDockWidgetArea]
+        if not bottom:
+            return
+        column = self.central.height() + max(d.height() for d in bottom)
+        most = int(column * BOTTOM_SHARE)
+        if max(d.height() for d in bottom) > most:
+            self.resizeDocks(bottom, [most] * len(bottom), Qt.Orientation.Vertical)
 
     def dock_tab_bars(self) -> list[QTabBar]:
         """The tab bars of tabbed docks (the main window's own children; a panel's tabs are not)."""

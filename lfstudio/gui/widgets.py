@@ -92,13 +92,40 @@ def elide_to_width(text: str, metrics, width_px: int, lines: int = 1) -> tuple[s
     """``(shown, tooltip)``: ``text`` itself when it fits one line of ``width_px`` (or spans several
     lines, or the width is not known yet), else its plain words elided with "…" and the whole plain
     text as the tooltip, so no line is ever cut off mid-word without a sign."""
-    if lines > 1 or width_px <= 0 or not text:
+    if width_px <= 0 or not text:
         return text, ""
     plain = QTextDocumentFragment.fromHtml(text).toPlainText() if "<" in text else text
     room = width_px - 2
+    if lines > 1:
+        return _elide_lines(text, plain, metrics, room, lines)
     if metrics.horizontalAdvance(plain) <= room:
         return text, ""
     return metrics.elidedText(plain, Qt.TextElideMode.ElideRight, room), plain
+
+
+def _wrapped_height(metrics, text: str, width_px: int) -> int:
+    flags = int(Qt.TextFlag.TextWordWrap.value) | int(Qt.AlignmentFlag.AlignLeft.value)
+    return metrics.boundingRect(0, 0, width_px, 1_000_000, flags, text).height()
+
+
+def _elide_lines(text: str, plain: str, metrics, room: int, lines: int) -> tuple[str, str]:
+    """``text`` when it wraps into ``lines`` lines of ``room`` px, else the longest start of its plain
+    words that does, ending in "…" (the whole plain text as the tooltip): a third line is never cut
+    through the middle of its letters."""
+    most = lines * metrics.lineSpacing() + 1
+    if _wrapped_height(metrics, plain, room) <= most:
+        return text, ""
+    words = plain.split()
+    lo, hi = 0, len(words)                       # the longest prefix of words that fits with "…"
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if _wrapped_height(metrics, " ".join(words[:mid]) + " …", room) <= most:
+            lo = mid
+        else:
+            hi = mid - 1
+    if lo == 0:
+        return metrics.elidedText(plain, Qt.TextElideMode.ElideRight, room), plain
+    return " ".join(words[:lo]) + " …", plain
 
 
 class ElidedLabel(QLabel):

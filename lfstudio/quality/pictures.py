@@ -172,8 +172,17 @@ COLOUR_BAR_TICKS = (0.0, 0.25, 0.5, 0.75, 1.0)
 LABEL_GAP_PX = 8
 
 
+TICK_END_PX = 26                 # the colour bar's ticks end this far under the picture
+LABEL_GAP_BELOW_TICK_PX = 5      # white between a tick and its label (a label touching it read as crossed out)
+
+
 def _text_width_px(text: str, scale: float = LABEL_SCALE) -> int:
     return cv2.getTextSize(text, _FONT, scale, 1)[0][0]
+
+
+def _text_height_px(scale: float = LABEL_SCALE) -> int:
+    """Height of a label's digits above its baseline."""
+    return cv2.getTextSize("0.0 px", _FONT, scale, 1)[0][1]
 
 
 def colour_bar_labels(lo: float, hi: float, bar_width_px: int, width_px: int,
@@ -222,7 +231,7 @@ def disparity_picture(disparity_px: np.ndarray, image8: np.ndarray, depth_note: 
     out = cv2.addWeighted(colour, 0.65, grey, 0.35, 0)
     out[~np.isfinite(d)] = (grey[~np.isfinite(d)] * 0.5).astype(np.uint8)
     h, w = out.shape[:2]
-    bar_h = 56 + (14 if depth_scale_m_px else 0)
+    bar_h = 60 + (14 if depth_scale_m_px else 0)
     canvas = np.full((h + bar_h, w, 3), 255, np.uint8)
     canvas[:h] = out
     bw = max(w - 40, 1)      # a view narrower than the margins still gets a (tiny) bar
@@ -230,10 +239,11 @@ def disparity_picture(disparity_px: np.ndarray, image8: np.ndarray, depth_note: 
     canvas[h + 8:h + 22, 20:20 + bw] = cv2.resize(bar, (bw, 14), interpolation=cv2.INTER_NEAREST)
     for frac in COLOUR_BAR_TICKS:
         x = int(20 + frac * (bw - 1))
-        cv2.line(canvas, (x, h + 22), (x, h + 27), (0, 0, 0), 1)
+        cv2.line(canvas, (x, h + 22), (x, h + TICK_END_PX), (0, 0, 0), 1)
+    label_baseline = h + TICK_END_PX + LABEL_GAP_BELOW_TICK_PX + _text_height_px()
     for _, lines in colour_bar_labels(lo, hi, bw, w, depth_scale_m_px):
         for i, (text, left) in enumerate(lines):
-            _text(canvas, text, (left, h + 40 + 14 * i), LABEL_SCALE)
+            _text(canvas, text, (left, label_baseline + 14 * i), LABEL_SCALE)
     if depth_note:
         _text(canvas, depth_note, (20, h + bar_h - 2), 0.4, (90, 90, 90))
     return canvas

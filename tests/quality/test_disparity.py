@@ -58,6 +58,27 @@ def test_the_disparity_picture_keeps_its_size_with_depth_labels():
     assert with_depth.shape[0] > plain.shape[0] > 200
 
 
+def test_the_colour_bar_s_ticks_stay_clear_of_their_labels():
+    """The ticks touched the labels' digits and, shown at half size (the Disparity window, the HTML
+    report), ran through them (issue 41 item 8): a band of at least 5 white rows separates them."""
+    from lfstudio.quality.pictures import disparity_picture
+
+    d = np.linspace(-1.0, 4.0, 200 * 600).reshape(200, 600)
+    grey = np.full((200, 600), 128, np.uint8)
+    for scale in (None, 2.67):
+        pic = disparity_picture(d, grey, depth_scale_m_px=scale)
+        under = pic[200 + 23:].min(axis=2) < 160            # dark pixels under the colour bar (it ends at 22)
+        ticks = sorted({int(x) for x in np.flatnonzero(under[0])})          # the first row: ticks only
+        assert len(ticks) >= 5
+        off_ticks = under.copy()
+        off_ticks[:, ticks] = False
+        label_top = int(np.flatnonzero(off_ticks.any(axis=1))[0])          # a label's first row of ink
+        tick_end = int(np.flatnonzero(under[:, ticks].any(axis=1) & ~off_ticks.any(axis=1))[-1]) \
+            if label_top else 0
+        tick_rows = [r for r in range(label_top) if under[r, ticks].any()]
+        assert label_top - max(tick_rows) - 1 >= 5, (scale, tick_rows, label_top, tick_end)   # 2 px at half size
+
+
 def _pair_with_disparities(top_px: int, bottom_px: int) -> tuple[np.ndarray, np.ndarray]:
     """A textured left image and its right partner: a point at x in the left view is at x − d in the
     right one, d = ``top_px`` in the upper half and ``bottom_px`` in the lower half."""

@@ -775,6 +775,9 @@ _COLORS = {"scene": (70, 130, 200, 45), "sharp": (60, 160, 90, 50), "blur": "#1f
            "col": "#e67e22", "focus": "#2e7d32", "zmin": "#b00020"}
 
 
+PLOT_MIN_HEIGHT_PX = 220     # a plan plot below this showed a 40 px strip of curves under its title and legend
+
+
 class PlanPlotsPanel(QWidget):
     """Depth of field (blur against distance, with the scene and the sharp range) and disparity against
     depth (neighbour spacing and whole row/column, with the 0.5 px and 1 px lines) of the state's plan.
@@ -814,7 +817,7 @@ class PlanPlotsPanel(QWidget):
                 axis = plot.getAxis(side)
                 axis.setPen(pg.mkPen("#30343a"))
                 axis.setTextPen(pg.mkPen("#30343a"))
-            plot.setMinimumSize(240, 160)
+            plot.setMinimumSize(240, PLOT_MIN_HEIGHT_PX)   # title, axes, legend and a readable plot area
             plot.showGrid(x=True, y=True, alpha=0.25)
             plot.setMenuEnabled(False)
             for side in ("left", "bottom"):         # painted from a pixmap until their range changes
@@ -892,15 +895,21 @@ class PlanPlotsPanel(QWidget):
                                                    pen=pg.mkPen(None))
         q.addItem(self.disparity_scene)
         self.disparity_curves = {}
+        self.pixel_lines: dict[float, Any] = {}
         for key, name in (("h", "neighbour, horizontal"), ("v", "neighbour, vertical"), ("row", "whole row"),
                           ("col", "whole column")):
             self.disparity_curves[key] = q.plot(
                 [], [], pen=pg.mkPen(_COLORS[key], width=2 if key in ("h", "row") else 1.5), name=name,
                 antialias=True)
-        for value, style, anchor in ((1.0, Qt.PenStyle.DashLine, (0, 1)), (0.5, Qt.PenStyle.DotLine, (0, 0))):
-            q.addItem(pg.InfiniteLine(math.log10(value), angle=0, pen=pg.mkPen("#b00020", width=1, style=style),
-                                      label=f"{value:g} px", labelOpts={"position": 0.03, "color": "#b00020",
-                                                                        "anchors": [anchor, anchor]}))
+        # one label for both lines, above the 1 px line at the right end: a label under the 0.5 px line was
+        # cut by the axis, and one at the left end sat on the "Z min" label (issue 41)
+        for value, style, label in ((1.0, Qt.PenStyle.DashLine, "1 px (dotted: 0.5 px)"),
+                                    (0.5, Qt.PenStyle.DotLine, None)):
+            line = pg.InfiniteLine(math.log10(value), angle=0, pen=pg.mkPen("#b00020", width=1, style=style),
+                                   label=label, labelOpts={"position": 0.98, "color": "#b00020",
+                                                           "anchors": [(1, 1), (1, 1)]})
+            q.addItem(line)
+            self.pixel_lines[value] = line
         self.zmin_line = pg.InfiniteLine(1.77, angle=90, pen=pg.mkPen(_COLORS["zmin"], width=1, style=Qt.PenStyle.DashDotLine),
                                          label="Z min {value:.2f} m",
                                          labelOpts={"position": 0.5, "color": _COLORS["zmin"], "rotateAxis": (1, 0)})
@@ -917,7 +926,9 @@ class PlanPlotsPanel(QWidget):
 
     def resizeEvent(self, event) -> None:
         room = self._room()
-        wide = room.width() > 1.4 * room.height()
+        side_by_side_px = sum(p.minimumWidth() for p in (self.dof_plot, self.disparity_plot)) \
+            + self.plots_layout.spacing() + 8
+        wide = room.width() > 1.4 * room.height() and room.width() >= side_by_side_px   # never scrolled sideways
         self.plots_layout.setDirection(QBoxLayout.Direction.LeftToRight if wide else QBoxLayout.Direction.TopToBottom)
         super().resizeEvent(event)
 

@@ -54,6 +54,8 @@ GRID_KEY = "scan/grid"    # the panel's grid as last set (JSON): restored with t
 FRAME_MS = 40             # engine events are shown at most 25 times a second (each drain repaints)
 DRAIN_BUDGET_S = 0.010    # GUI time one drain may take before it yields to painting and input
 STEP_TIMES_MS = 500       # the step times (new with every view) are shown at most this often
+STATE_LINES = 3           # the state line ("Paused: the camera failed …"): longer texts end in "…", whole in its tooltip
+LOG_LINES = 8             # the scan log box shows at least this many lines
 LOG_MS = 200              # a running scan's log lines are appended at most this often (each append repaints)
 
 
@@ -333,7 +335,7 @@ class ScanPanel(QWidget):
 
         # text that changes with every view must not re-lay the panel out (each new QLabel text re-lays
         # out the panel, its dock and the main window): QuietLabels, room for two lines where it wraps
-        self.state_label = QuietLabel("Idle", name="scanState", lines=2)
+        self.state_label = QuietLabel("Idle", name="scanState", lines=STATE_LINES)
         self.status_page = StatusPageLabel()        # the status page's address while it serves
         self.progress = QProgressBar()
         self.progress.setObjectName("scanProgress")
@@ -349,6 +351,9 @@ class ScanPanel(QWidget):
         self.log_view.setReadOnly(True)
         self.log_view.setMaximumBlockCount(5000)
         self.log_view.setPlaceholderText("Scan events appear here")
+        # never fewer than LOG_LINES lines: in a low window the panel scrolls instead (it was 4 lines at 1366 x 768)
+        self.log_view.setMinimumHeight(LOG_LINES * self.log_view.fontMetrics().lineSpacing()
+                                       + 2 * self.log_view.frameWidth() + 8)
 
         lay = QVBoxLayout(self)
         lay.addWidget(grid_box)
