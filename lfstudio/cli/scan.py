@@ -189,6 +189,7 @@ def resume_command(args: argparse.Namespace, root) -> str:
     secret (a --notify URL, --status-token) is shown redacted, with a note to give it again."""
     import shlex
 
+    from lfstudio.dataset.bracket import Bracket
     from lfstudio.support.secrets import Secret
 
     hidden = 0
@@ -208,7 +209,9 @@ def resume_command(args: argparse.Namespace, root) -> str:
                 words += [action.option_strings[0], str(item)]
                 hidden += isinstance(item, Secret)
         else:
-            words += [action.option_strings[0], str(value)]
+            text = value.text() if isinstance(value, Bracket) else str(value)    # a bracket as typed: -2,0,+9
+            # a value starting with '-' would read as an option: joined to it (--bracket=-2,0,+9)
+            words += [f"{action.option_strings[0]}={text}"] if text.startswith("-") else [action.option_strings[0], text]
             hidden += isinstance(value, Secret)
     return shlex.join(words) + ("  # give the …-shortened secrets (URLs, token) again as you gave them" if hidden
                                 else "")

@@ -28,7 +28,7 @@ import numpy as np
 from lfstudio.dataset.atomic import atomic_write_json, atomic_write_with
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.numbers import EXPOSURE_S, TIME_SCALE, TRANSFER_S
-from lfstudio.rig.camera import CameraStatus, CaptureResult
+from lfstudio.rig.camera import CameraSetting, CameraStatus, CaptureResult
 from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
 from lfstudio.sim.sensor import SensorModel
 from lfstudio.sim.studio import VirtualStudio, demo_studio_kwargs
@@ -39,6 +39,8 @@ BLACK_LEVEL = 512
 WHITE_LEVEL = 16383
 REFERENCE_EXPOSURE = {"shutter_s": 0.5, "iso": 100, "aperture": 16.0}
 ISO_VALUES = (50, 100, 200, 400, 800, 1600, 3200, 6400)
+#: the shutter times the simulated camera takes (s), as a real body's range
+SHUTTER_RANGE_S = (1e-4, 60.0)
 FAULTS = ("capture_fails", "silent")
 
 
@@ -137,14 +139,21 @@ class SimulatedCamera:
                 "transfer_s": self.transfer_s, "noise": self.sensor.noise, "flicker": self.sensor.flicker,
                 "vignetting": self.sensor.vignetting, "time_scale": self.time_scale}
 
+    def describe_settings(self) -> list[CameraSetting]:
+        """The shutter time the simulated camera takes, as data (a continuous range): a scan checks a
+        bracket's frames against it before the rig moves."""
+        return [CameraSetting("shutter_s", "Shutter time", "float", self.exposure_s,
+                              range=(SHUTTER_RANGE_S[0], SHUTTER_RANGE_S[1], 0.0), unit="s")]
+
     def set_setting(self, name: str, value: Any) -> None:
         if name == "iso":
             if int(value) not in ISO_VALUES:
                 raise InputError("iso", f"{value} is not available", ", ".join(map(str, ISO_VALUES)))
             self.iso = int(value)
         elif name == "shutter_s":
-            if not 1e-4 <= float(value) <= 60:
-                raise InputError("shutter_s", f"{value} s is out of range", "0.0001 .. 60 s")
+            if not SHUTTER_RANGE_S[0] <= float(value) <= SHUTTER_RANGE_S[1]:
+                raise InputError("shutter_s", f"{value} s is out of range",
+                                 f"{SHUTTER_RANGE_S[0]:g} .. {SHUTTER_RANGE_S[1]:g} s")
             self.exposure_s = float(value)
         elif name == "aperture":
             if not 1.0 <= float(value) <= 32:

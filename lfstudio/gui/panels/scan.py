@@ -59,6 +59,11 @@ LOG_LINES = 8             # the scan log box shows at least this many lines
 LOG_MS = 200              # a running scan's log lines are appended at most this often (each append repaints)
 
 
+#: the Bracket field's tooltip while a scan runs or is paused (the field is greyed then)
+BRACKET_FIXED_TIP = ("Fixed while this scan runs or is paused: every view of a dataset has the same frames. "
+                     "To scan with another bracket: Abort, change it here, then Start into a new folder.")
+
+
 def _tip(name: str) -> str:
     """A scan option's tip, as its description says it (lfstudio.studio.scan_options), capitalised."""
     param = SCAN_PARAMS[name]
@@ -1122,6 +1127,7 @@ class ScanPanel(QWidget):
         for w in (self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v,
                   self.order, self.settle, self.bracket, self.folder, self.from_plan, self.time_scale):
             w.setEnabled(not running)
+        self.bracket.setToolTip(BRACKET_FIXED_TIP if running else _tip("bracket"))
         for name, button in (("start", self.start_button), ("pause", self.pause_button),   # Rig → … scan
                              ("resume", self.resume_button), ("abort", self.abort_button)):
             action = getattr(self, f"action_{name}", None)
