@@ -135,8 +135,8 @@ def find_images(folder: str | os.PathLike, pattern: str | None = None) -> list[P
     else:
         files = [p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".") and not images.is_text(p)]
     for p in files:     # the libraries cannot open such a name (OpenCV crashes on it): refused before any is read
-        if not is_utf8_name(p.name):
-            raise InputError("folder", f"{shown_name(p.name)} in {shown_name(folder)} has a name that is not valid "
+        if not is_utf8_name(p.relative_to(folder)):       # a sub-folder's name too (a pattern with a '/')
+            raise InputError("folder", f"{shown_name(p.relative_to(folder))} in {shown_name(folder)} has a name that is not valid "
                              f"UTF-8; {RENAME_UTF8_FIX}, or leave it out with " + words("--pattern", "the Files (pattern) field"))
     return sorted(files, key=lambda p: natural_key(p.relative_to(folder).as_posix()))
 

@@ -116,3 +116,24 @@ def test_unstated_sheared_views_calibrate_and_the_command_line_names_its_options
 
     cal = json.loads((tmp_path / "ds" / "calibration.json").read_text())
     assert cal["settings"]["zero_plane"]["assumed_shear_px_per_mm"] > 0
+
+
+def test_a_missing_focal_length_is_named_in_each_front_ends_words(tmp_path):
+    """Dataset.focal_length_px's refusal (met by the Calibrate dialog) named 'lfstudio calibrate
+    --focal-length-px F' in the window too."""
+    import cv2
+    import numpy as np
+
+    from lfstudio.errors import DatasetError, window_message
+    from lfstudio.export.import_images import ImportOptions, import_images
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for i in range(2):
+        assert cv2.imwrite(str(folder / f"v{i}.png"), np.full((32, 48, 3), 40 * i, np.uint8))
+    ds = Dataset.open(import_images(ImportOptions(folder, tmp_path / "ds", (2, 1), (5.0, 5.0))))
+    with pytest.raises(DatasetError) as err:
+        ds.focal_length_px(48)
+    assert "lfstudio calibrate --focal-length-px F" in str(err.value)
+    shown = window_message(err.value)
+    assert "the Calibrate dialog's Focal length" in shown and not CLI_WORDS.search(shown), shown
