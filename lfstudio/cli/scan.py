@@ -328,6 +328,9 @@ def run(args: argparse.Namespace) -> int:
                     fault = engine.fault
                     engine.abort()
                     engine.wait()
+                    if fault is not None and not getattr(fault, "resumable", True):   # its message says what to do
+                        print(f"\nlfstudio scan: stopped: {fault}", file=sys.stderr)
+                        return EXIT_FAULT
                     if fault is not None:
                         print(f"\nlfstudio scan: stopped: {fault}\nlfstudio scan: to continue, fix that and run: "
                               f"{resume_command(args, dataset.root)}", file=sys.stderr)

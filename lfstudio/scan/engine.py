@@ -1068,11 +1068,13 @@ class ScanEngine:
                     self._camera_call("set_setting", "shutter_s", shutter, timeout_s=30)
                 except InputError as exc:   # a value the camera refuses (one whose range nothing told): no retry
                     assert self.bracket is not None
-                    raise ScanFault(f"Camera refused frame {k + 1} of the bracket ({self.bracket.describe()}) at view "
-                                    f"{view_label(view.row, view.column)}: {error_text(exc).rstrip('.')}. Every view "
-                                    "of a dataset has the same frames, so the bracket cannot change in this one: "
-                                    "Abort, then scan into a new folder with a bracket the camera takes.",
-                                    "camera") from None
+                    fault = ScanFault(f"Camera refused frame {k + 1} of the bracket ({self.bracket.describe()}) at "
+                                      f"view {view_label(view.row, view.column)}: {error_text(exc).rstrip('.')}. Every "
+                                      "view of a dataset has the same frames, so the bracket cannot change in this "
+                                      "one: stop this scan (Abort), then scan into a new folder with a bracket the "
+                                      "camera takes.", "camera")
+                    fault.resumable = False
+                    raise fault from None
             stem = self.dataset.root / "raw" / (view_stem(view.row, view.column) + (f".f{k}" if bracketed else ""))
             fut = self._expose(view, attempt, stem)
             t_exposed = time.monotonic()

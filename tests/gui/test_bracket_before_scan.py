@@ -95,8 +95,9 @@ def test_a_frame_refused_during_a_scan_pauses_with_its_cause_and_the_greyed_fiel
         qtbot.waitUntil(lambda: panel.engine is not None and panel.engine.state is ScanState.PAUSED, timeout=30000)
         message = panel.engine.message
         assert message.startswith("Camera refused frame 3 of the bracket (-1, 0, +2 EV) at view r00 c000"), message
-        assert "Abort, then scan into a new folder" in message and "cable" not in message
+        assert "stop this scan (Abort), then scan into a new folder" in message and "cable" not in message
         assert cam.captures == 2                 # frames 1 and 2 once: no retry of a value the camera refuses
+        assert getattr(panel.engine.fault, "resumable", True) is False    # the CLI prints no resume command
         fixed_tip = getattr(scan_panel, "BRACKET_FIXED_TIP", None)
         assert not panel.bracket.isEnabled() and fixed_tip and panel.bracket.toolTip() == fixed_tip
         assert "Abort" in fixed_tip
