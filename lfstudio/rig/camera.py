@@ -4,7 +4,9 @@ Beyond :class:`Camera`, a driver may offer capabilities, each a named interface 
 ``isinstance`` (never ``hasattr``): :class:`DescribesSettings` (what the camera offers, so a GUI
 builds its controls from data), :class:`HasIdentity` (model, serial, lens as the camera reports
 them; the dataset records it), :class:`HasStatus`, :class:`Stoppable` (a capture under way cut
-short), :class:`HasCardSpace` (pictures kept on the camera's card), :class:`SimulatedScene`.
+short), :class:`HasCardSpace` (pictures kept on the camera's card), :class:`SimulatedScene`,
+:class:`TriggeredCamera` (takes a frame on a trigger, in order, without waiting for the previous
+frame's transfer: fly scanning).
 
 An **array camera** (:class:`ArrayCamera`: machine-vision cameras) hands each picture back as pixels
 with their metadata (:class:`lfstudio.dataset.frames.Frame`) instead of writing a file: its
@@ -142,6 +144,28 @@ class HasCardSpace(Protocol):
 @runtime_checkable
 class SimulatedScene(Protocol):
     def set_view_region(self, view_region_mm: tuple[float, ...]) -> None: ...
+
+
+@runtime_checkable
+class TriggeredCamera(Protocol):
+    """A camera that takes frames on triggers (fly scanning; cf. GenICam ``TriggerMode=On``).
+
+    ``arm(frames)`` readies it for that many triggered frames (acquisition started, trigger mode on);
+    ``trigger()`` fires a software trigger and returns at once with the ``time.monotonic()`` it was
+    sent: it is called from the scan engine's thread, never queued behind a transfer, so it must be
+    safe while ``fetch`` runs on the device worker. ``fetch(stem, timeout_s)`` returns the next
+    triggered frame in trigger order (written to ``stem`` + suffix, or as an array camera's frame),
+    its ``metadata`` giving ``exposure_start_s``/``exposure_end_s`` (``time.monotonic()`` clock) when
+    the camera knows them; it raises :class:`~lfstudio.errors.DeviceError` for a trigger that took
+    no frame (missed). ``disarm()`` ends the acquisition and drops frames not fetched.
+    ``trigger_latency_s`` is the nominal delay from ``trigger()`` to the exposure's start."""
+
+    trigger_latency_s: float
+
+    def arm(self, frames: int) -> None: ...
+    def trigger(self) -> float: ...
+    def fetch(self, stem_path: Path, timeout_s: float) -> CaptureResult: ...
+    def disarm(self) -> None: ...
 
 
 @runtime_checkable
