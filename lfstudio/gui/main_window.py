@@ -180,6 +180,8 @@ class MainWindow(QMainWindow):
         import_dialog.install_menus(self)
         from lfstudio.gui.views import depth as depth_view
         depth_view.install_menus(self)
+        from lfstudio.gui.views import radiance as radiance_view
+        radiance_view.install_menus(self)
         self._install_base_menus()
         self._quit_box: QMessageBox | None = None
         self._quit_after_scan = False

@@ -212,24 +212,32 @@ def colour_bar_labels(lo: float, hi: float, bar_width_px: int, width_px: int,
     return sorted((tick for _, tick in ticks), key=lambda tick: tick[0])
 
 
-def disparity_picture(disparity_px: np.ndarray, image8: np.ndarray, depth_note: str = "",
-                      range_px: tuple[float, float] | None = None, depth_scale_m_px: float | None = None,
-                      ) -> np.ndarray:
-    """False-colour disparity (TURBO: near = red) over the grey image, with a colour bar in px and,
-    with ``depth_scale_m_px`` (depth = scale / disparity), in metres."""
-    d = disparity_px
-    fin = d[np.isfinite(d)]
+def colour_range(disparity_px: np.ndarray, range_px: tuple[float, float] | None = None) -> tuple[float, float]:
+    """The disparities the colours of :func:`disparity_picture` span: ``range_px``, else the 1st to 99th
+    percentile of the finite values."""
+    fin = disparity_px[np.isfinite(disparity_px)]
     if range_px is None:
         lo, hi = (float(np.percentile(fin, 1)), float(np.percentile(fin, 99))) if fin.size else (0.0, 1.0)
     else:
         lo, hi = range_px
-    if hi <= lo:
-        hi = lo + 1e-3
+    return (lo, hi) if hi > lo else (lo, lo + 1e-3)
+
+
+def disparity_picture(disparity_px: np.ndarray, image8: np.ndarray, depth_note: str = "",
+                      range_px: tuple[float, float] | None = None, depth_scale_m_px: float | None = None,
+                      colour_bar: bool = True) -> np.ndarray:
+    """False-colour disparity (TURBO: near = red) over the grey image, with a colour bar in px and,
+    with ``depth_scale_m_px`` (depth = scale / disparity), in metres (``colour_bar`` False: the
+    picture alone, for a window that draws its bar at screen resolution: :func:`colour_range`)."""
+    d = disparity_px
+    lo, hi = colour_range(d, range_px)
     t = np.clip((np.nan_to_num(d, nan=lo) - lo) / (hi - lo), 0, 1)
     colour = cv2.applyColorMap((t * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
     grey = cv2.cvtColor(image8, cv2.COLOR_GRAY2BGR)
     out = cv2.addWeighted(colour, 0.65, grey, 0.35, 0)
     out[~np.isfinite(d)] = (grey[~np.isfinite(d)] * 0.5).astype(np.uint8)
+    if not colour_bar:
+        return out
     h, w = out.shape[:2]
     bar_h = 60 + (14 if depth_scale_m_px else 0)
     canvas = np.full((h + bar_h, w, 3), 255, np.uint8)

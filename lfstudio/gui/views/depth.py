@@ -12,14 +12,12 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from PySide6.QtCore import Qt
 from PySide6.QtGui import QAction, QPixmap
-from PySide6.QtWidgets import (QCheckBox, QDialog, QHBoxLayout, QLabel, QLineEdit, QPushButton, QScrollArea,
-                               QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (QCheckBox, QDialog, QHBoxLayout, QLabel, QLineEdit, QPushButton, QVBoxLayout, QWidget)
 
 from lfstudio.errors import LfError
 from lfstudio.gui.bridge import JobRunner, run_off_gui
-from lfstudio.gui.widgets import JobProgressWidget, screen_fitted
+from lfstudio.gui.widgets import ColourBar, FitImageView, JobProgressWidget, screen_fitted
 
 #: pixels below this confidence are greyed out with "Hide unsure pixels"
 UNSURE_BELOW = 0.1
@@ -33,7 +31,7 @@ def depth_picture(dataset, view: tuple[int, int], hide_unsure: bool = False) -> 
     from lfstudio.calibration.model import homography_for, load_calibration
     from lfstudio.dataset import images
     from lfstudio.depth.run import _processed_path, depth_from_disparity, read_disparity, zero_shear_px_per_mm
-    from lfstudio.quality.pictures import disparity_picture
+    from lfstudio.quality.pictures import colour_range, disparity_picture
 
     disp, conf, record = read_disparity(dataset, view)
     w, h = record["size_px"]
@@ -58,10 +56,11 @@ def depth_picture(dataset, view: tuple[int, int], hide_unsure: bool = False) -> 
     sx = float(dataset.grid.step_mm[0])
     shear = zero_shear_px_per_mm(dataset, w)
     scale = f_px * sx / 1000.0 if shear == 0.0 else None        # depth = scale / disparity (parallel views)
-    picture = disparity_picture(shown, grey, depth_scale_m_px=scale)
+    picture = disparity_picture(shown, grey, depth_scale_m_px=scale, colour_bar=False)   # the window draws the bar
     fin = np.isfinite(disp)
     figures: dict[str, Any] = {"valid": float(fin.mean()), "confident": float((conf >= UNSURE_BELOW).mean()),
-                               "source": record["source"], "size": (w, h)}
+                               "source": record["source"], "size": (w, h), "colours_px": colour_range(shown),
+                               "depth_scale_m_px": scale}
     if fin.any():
         lo, hi = (float(v) for v in np.percentile(disp[fin], [2, 98]))
         figures["disparity_px"] = (lo, hi)
@@ -136,12 +135,11 @@ class DepthDialog(QDialog):
         top.addWidget(self.compute_all_button)
         self.runner = JobRunner(self)
         self.progress = JobProgressWidget(self.runner)
-        self.image = QLabel()
-        self.image.setObjectName("depthImage")
-        self.image.setAlignment(Qt.AlignmentFlag.AlignCenter)
-        area = QScrollArea()
-        area.setWidget(self.image)
-        area.setWidgetResizable(True)
+        self.image = FitImageView("depthImage")     # whole by default, its colour bar in sight; Fit off: 1:1
+        area = self.image
+        self.fit_button = self.image.fit_button()
+        top.insertWidget(top.indexOf(self.hide_check) + 1, self.fit_button)
+        self.colour_bar = ColourBar("depthColourBar")     # at screen resolution, whatever the picture's scale
         self.caption = QLabel("")
         self.caption.setObjectName("depthCaption")
         self.caption.setWordWrap(True)
@@ -149,6 +147,7 @@ class DepthDialog(QDialog):
         lay.addLayout(top)
         lay.addWidget(self.progress)
         lay.addWidget(area, 1)
+        lay.addWidget(self.colour_bar)
         lay.addWidget(self.caption)
         self.show_button.clicked.connect(self.show_view)
         self.view_edit.returnPressed.connect(self.show_view)
@@ -197,7 +196,10 @@ class DepthDialog(QDialog):
         from lfstudio.gui.imageutil import rgb_to_qimage
 
         picture, fig = result
-        self.image.setPixmap(QPixmap.fromImage(rgb_to_qimage(picture[..., ::-1].copy())))
+        self.image.set_pixmap(QPixmap.fromImage(rgb_to_qimage(picture[..., ::-1].copy())))
+        lo, hi = fig["colours_px"]
+        self.colour_bar.set_range(lo, hi, fig.get("depth_scale_m_px"),
+                                  "Disparity between horizontal neighbours (near = red)")
         parts = [f"{self.view_edit.text().strip()}: disparity between horizontal neighbours (near = red)"]
         if "disparity_px" in fig:
             lo, hi = fig["disparity_px"]

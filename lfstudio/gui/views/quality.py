@@ -21,7 +21,7 @@ from typing import Any
 from PySide6.QtCore import QObject, QRect, QSize, Qt, Signal
 from PySide6.QtGui import QColor, QImage, QLinearGradient, QPainter, QPixmap
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QGridLayout, QHBoxLayout, QLabel, QPushButton,
-                               QScrollArea, QSizePolicy, QStackedWidget, QVBoxLayout, QWidget)
+                               QSizePolicy, QStackedWidget, QVBoxLayout, QWidget)
 
 from lfstudio.dataset.manifest import is_done
 from lfstudio.dataset.paths import view_label
@@ -368,8 +368,9 @@ class DisparityDialog(QDialog):
         self.setObjectName("disparityDialog")
         self.setWindowTitle("Disparity map of the centre view")
         self.resize(screen_fitted(self, 1040, 800))
-        self.image = QLabel()
-        self.image.setAlignment(Qt.AlignmentFlag.AlignCenter)
+        from lfstudio.gui.widgets import FitImageView
+
+        self.image = FitImageView("disparityImage")     # whole, with its colour bar; Fit off: 1:1
         from lfstudio.dataset.images import read_picture
         from lfstudio.gui.imageutil import rgb_to_qimage
 
@@ -377,14 +378,15 @@ class DisparityDialog(QDialog):
         if bgr is None:
             self.image.setText(f"{path}: cannot be read; run Check dataset again")
         else:
-            self.image.setPixmap(QPixmap.fromImage(rgb_to_qimage(bgr[..., ::-1].copy())))
-        area = QScrollArea()
-        area.setWidget(self.image)
-        area.setWidgetResizable(True)
+            self.image.set_pixmap(QPixmap.fromImage(rgb_to_qimage(bgr[..., ::-1].copy())))
         text = QLabel(self._caption(info))
         text.setWordWrap(True)
+        bar = QHBoxLayout()
+        bar.addWidget(self.image.fit_button())
+        bar.addStretch(1)
         lay = QVBoxLayout(self)
-        lay.addWidget(area, 1)
+        lay.addLayout(bar)
+        lay.addWidget(self.image, 1)
         lay.addWidget(text)
 
     @staticmethod
