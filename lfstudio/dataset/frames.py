@@ -141,3 +141,21 @@ def write_frame(frame: Frame, stem: str | os.PathLike, *, model: str = "", make:
                          compression=None, metadata=None, software="lfstudio")
 
     return atomic_write_with(path, _write)
+
+
+def preview_rgb(frame: Frame) -> np.ndarray:
+    """An RGB picture of ``frame`` for its thumbnail, without decoding its file: mono repeated in three
+    channels, a Bayer mosaic at half size (one pixel per 2 x 2 cell, its greens averaged); 8-bit samples
+    as they are, others scaled to 16 bits."""
+    px = frame.pixels if frame.pixels.dtype == np.uint8 and frame.bits == 8 else to_16_bit(frame.pixels, frame.bits)
+    if frame.layout == "mono":
+        return np.dstack([px, px, px])
+    if frame.layout == "bayer":
+        h, w = (px.shape[0] // 2) * 2, (px.shape[1] // 2) * 2
+        cells = {frame.pattern[i]: [] for i in range(4)}
+        for i, colour in enumerate(frame.pattern):
+            dy, dx = divmod(i, 2)
+            cells[colour].append(px[dy:h:2, dx:w:2].astype(np.uint32))
+        out = [sum(cells[c]) // len(cells[c]) for c in "RGB"]
+        return np.dstack(out).astype(px.dtype)
+    return px

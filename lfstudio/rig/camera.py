@@ -238,11 +238,13 @@ def stored(result: CaptureResult) -> CaptureResult:
         return result
     from dataclasses import replace
 
-    from lfstudio.dataset.frames import write_frame
+    from lfstudio.dataset.frames import preview_rgb, write_frame
 
     if result.stem is None:
         raise ValueError("an array camera's capture result names no stem to write its frame to")
     identity = result.frame.identity
     path = write_frame(result.frame, result.stem, model=str(identity.get("model", "")),
                        make=str(identity.get("vendor", "")))
-    return replace(result, files=(path,), frame=None)
+    # the thumbnail is made from the pixels in hand, not by decoding the file just written
+    metadata = {**result.metadata, "preview": preview_rgb(result.frame)}
+    return replace(result, files=(path,), frame=None, metadata=metadata)

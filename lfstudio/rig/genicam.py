@@ -185,6 +185,7 @@ class GenicamCamera:
         self._abort = threading.Event()
         self._features: dict[str, str] = {}
         self._identity: dict[str, Any] = {}
+        self._snapshot: dict[str, Any] | None = None
         self.shots = 0
         self.lost = 0
         self._busy = False
@@ -215,6 +216,7 @@ class GenicamCamera:
             raise DeviceError(f"genicam:{self.device_id}: no camera answers ({_gerror(exc)}); cameras aravis "
                               f"finds now: {seen}") from None
         self._cam = cam
+        self._snapshot = None
         dev = cam.get_device()
         self._features = {}
         for name, node in SETTINGS.items():
@@ -406,6 +408,7 @@ class GenicamCamera:
             if node.type == "int" and number != int(number):
                 raise InputError(name, f"{value!r} is not a whole number", "a whole number of pixels")
             value = number
+        self._snapshot = None
         restart = name in _PAYLOAD and self._acquiring
         if restart:
             self._stop_acquisition()
@@ -421,12 +424,19 @@ class GenicamCamera:
                 from None
 
     # -- capture -----------------------------------------------------------------------------------
-    def _trigger(self) -> str:
+    def _shot_settings(self) -> dict[str, Any]:
+        """The settings each frame records, read from the camera once and again only after a
+        set_setting (a frame costs no register reads; each is a network round trip)."""
+        if self._snapshot is None:
+            self._snapshot = self.settings()
+        return dict(self._snapshot)
+
+    def _trigger(self, settings: dict[str, Any] | None = None) -> str:
         """"software", "line" (wait for the hardware trigger) or "free" (free-running)."""
-        mode = self._read("trigger_mode") if "trigger_mode" in self._features else "Off"
-        if str(mode) != "On":
+        settings = self._shot_settings() if settings is None else settings
+        if str(settings.get("trigger_mode", "Off")) != "On":
             return "free"
-        return "software" if str(self._read("trigger_source")) == "Software" else "line"
+        return "software" if str(settings.get("trigger_source")) == "Software" else "line"
 
     def _drain(self) -> None:
         """Give back frames that arrived before this capture (free-running or line-triggered)."""
@@ -455,11 +465,11 @@ class GenicamCamera:
         self._abort.clear()
         self._busy = True
         try:
-            fmt = self._check_format(self._read("pixel_format"))
+            settings = self._shot_settings()
+            fmt = self._check_format(settings.get("pixel_format"))
             self._start_acquisition()
-            trigger = self._trigger()
-            exposure_s = self._read("exposure_s")
-            settings = {k: v for k, v in self.settings().items()}
+            trigger = self._trigger(settings)
+            exposure_s = settings.get("exposure_s")
             wait_s = self.timeout_s + (exposure_s or 0.0)
             problems: list[str] = []
             for attempt in range(self.retries + 1):
