@@ -23,7 +23,7 @@ from PySide6.QtGui import QAction, QGuiApplication, QKeySequence
 from PySide6.QtWidgets import (QDockWidget, QFrame, QLabel, QMainWindow, QMenu, QMessageBox, QScrollArea, QTabBar, QToolBar,
                                QWidget)
 
-from lfstudio.errors import LfError
+from lfstudio.errors import LfError, window_message
 from lfstudio.gui.panels import CENTRAL, PANELS, PanelSpec
 from lfstudio.gui.settings import settings
 from lfstudio.gui.state import AppState
@@ -491,7 +491,7 @@ class MainWindow(QMainWindow):
         try:
             self.export_dialog = ExportDialog(self.state, self)
         except LfError as exc:
-            self.state.report_error("Export dataset", str(exc))
+            self.state.report_error("Export dataset", window_message(exc))
             return
         self.export_dialog.show()
 

@@ -137,3 +137,26 @@ def test_a_missing_focal_length_is_named_in_each_front_ends_words(tmp_path):
     assert "lfstudio calibrate --focal-length-px F" in str(err.value)
     shown = window_message(err.value)
     assert "the Calibrate dialog's Focal length" in shown and not CLI_WORDS.search(shown), shown
+
+
+def test_the_export_dialog_refuses_a_posed_export_of_unstated_sheared_views_in_its_own_words(
+        qtbot, tmp_path, sheared_folder):
+    """The estimate's refusal said "import them again with --zero-disparity-depth-m (or
+    --parallel-views …)" in the window."""
+    from lfstudio.export.import_images import ImportOptions, import_images
+    from lfstudio.gui.dialogs.export_dialog import FORMAT_KEYS, ExportDialog
+    from lfstudio.quality.shear import measure_shear
+
+    folder, f_px = sheared_folder
+    ds = Dataset.open(import_images(ImportOptions(folder, tmp_path / "ds", (5, 5), (4.0, 6.0), focal_length_px=f_px,
+                                                  measure=measure_shear)))
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    window.state.set_dataset(ds)
+    next(a for a in window.menu("File").actions() if a.text().replace("&", "") == "Export dataset…").trigger()
+    dialog = window.findChild(ExportDialog, "exportDialog")
+    dialog.format_combo.setCurrentIndex(FORMAT_KEYS.index("colmap"))
+    qtbot.waitUntil(lambda: dialog.estimate_error is not None, timeout=30000)
+    text = dialog.estimate_error
+    assert "sheared by an amount nobody stated" in text and "Zero disparity set to a depth" in text, text
+    assert "PNG and HEVC exports need no plane" in text and not CLI_WORDS.search(text), text

@@ -21,7 +21,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDialogButtonBox, 
                                QFormLayout, QGroupBox, QHBoxLayout, QLabel, QLineEdit, QMessageBox, QPushButton,
                                QScrollArea, QSizePolicy, QSpinBox, QSplitter, QVBoxLayout, QWidget)
 
-from lfstudio.errors import InputError
+from lfstudio.errors import InputError, window_message
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.imageutil import rgb_to_qimage
 from lfstudio.gui.settings import read_int, read_text, settings
@@ -669,7 +669,7 @@ class ProcessDialog(QDialog):
         try:
             self.state.set_dataset(Dataset.open(self.root))
         except LfError as exc:
-            self.state.report_error("Process", str(exc))
+            self.state.report_error("Process", window_message(exc))
 
     def _process_done(self, outcome: tuple[ProcessReport, MergeReport | None]) -> None:
         report, merged = outcome

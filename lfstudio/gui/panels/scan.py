@@ -34,7 +34,7 @@ from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayo
 
 from lfstudio.dataset.bracket import Bracket, parse_bracket
 from lfstudio.dataset.paths import new_dataset_folder_problem
-from lfstudio.errors import InputError, LfError
+from lfstudio.errors import InputError, LfError, window_message
 from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
 from lfstudio.gui.settings import read_float, read_text, settings
@@ -577,7 +577,7 @@ class ScanPanel(QWidget):
         try:
             folder = field_path(self.folder, "Dataset folder")
         except InputError as exc:
-            self.state.report_error("Scan", str(exc))
+            self.state.report_error("Scan", window_message(exc))
             return
         problem = None if (folder / "dataset.json").is_file() else new_dataset_folder_problem(folder)
         if problem:
@@ -743,7 +743,7 @@ class ScanPanel(QWidget):
         try:
             getattr(self.engine, name)(*args)
         except ScanRequestRefused as exc:
-            self._log(str(exc))
+            self._log(window_message(exc))
             return False
         return True
 

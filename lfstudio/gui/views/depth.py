@@ -15,7 +15,7 @@ import numpy as np
 from PySide6.QtGui import QAction, QPixmap
 from PySide6.QtWidgets import (QCheckBox, QDialog, QHBoxLayout, QLabel, QLineEdit, QPushButton, QVBoxLayout, QWidget)
 
-from lfstudio.errors import LfError
+from lfstudio.errors import LfError, window_message
 from lfstudio.gui.bridge import JobRunner, run_off_gui
 from lfstudio.gui.widgets import ColourBar, FitImageView, JobProgressWidget, screen_fitted
 
@@ -226,7 +226,7 @@ class DepthDialog(QDialog):
             try:
                 stated = parse_disparity_range("Disparity range", self.range_edit.text())
             except LfError as exc:
-                self.caption.setText(str(exc))
+                self.caption.setText(window_message(exc))
                 return
         self.caption.setText("Computing…")
         self.runner.start(_compute_job, self.dataset, None if all_views else [view], all_views, stated)
@@ -259,7 +259,7 @@ def install_menus(window) -> None:
         try:
             window.depth_dialog = DepthDialog(state, window)
         except LfError as exc:
-            state.report_error("Depth map", str(exc))
+            state.report_error("Depth map", window_message(exc))
             return
         window.depth_dialog.show()
 
