@@ -801,8 +801,8 @@ def import_summary(ds) -> str:
     m = zp.measured
     if m.get("step_disparity_px"):
         lo, hi = m["step_disparity_px"]
-        lines.append(f"disparity     : {lo:+.2f} … {hi:+.2f} px between horizontal neighbours (measured on "
-                     f"{m.get('views')} views, {m.get('tracks')} tracks)")
+        lines.append(f"disparity     : {lo:+.2f} … {hi:+.2f} px between horizontal neighbours, {zp.disparity_reference()}"
+                     f" (tracked points, measured on {m.get('views')} views, {m.get('tracks')} tracks)")
     order = m.get("rows_order")
     if m.get("rows_reversed"):
         lines.append("rows          : reversed (the tracks say the files number the rows from the bottom)")

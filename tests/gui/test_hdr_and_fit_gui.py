@@ -99,6 +99,8 @@ def test_the_depth_map_fits_with_its_colour_bar_or_shows_1_to_1(qtbot, tmp_path,
     qtbot.waitUntil(lambda: dialog.pictures_shown >= 1, timeout=30000)
     view = dialog.image
     full = view.pixmap().size()
+    caption = dialog.caption.text()             # the disparity's reference and statistic named (item 10)
+    assert "between horizontal neighbours, from infinity" in caption and "1st–99th percentile" in caption, caption
     assert dialog.fit_button.isChecked()
     qtbot.waitUntil(lambda: view.shown_size().width() < full.width(), timeout=5000)
     shown, room = view.shown_size(), view.viewport().size()

@@ -61,8 +61,11 @@ def depth_picture(dataset, view: tuple[int, int], hide_unsure: bool = False) -> 
     figures: dict[str, Any] = {"valid": float(fin.mean()), "confident": float((conf >= UNSURE_BELOW).mean()),
                                "source": record["source"], "size": (w, h), "colours_px": colour_range(shown),
                                "depth_scale_m_px": scale}
+    from lfstudio.dataset.zero_plane import zero_plane
+
+    figures["reference"] = zero_plane(dataset).disparity_reference()    # the maps are as the views are
     if fin.any():
-        lo, hi = (float(v) for v in np.percentile(disp[fin], [2, 98]))
+        lo, hi = (float(v) for v in np.percentile(disp[fin], [1, 99]))   # as the check's map and the colours
         figures["disparity_px"] = (lo, hi)
         if shear is not None:
             z = depth_from_disparity(np.array([hi, lo]), f_px, sx, shear)
@@ -198,12 +201,14 @@ class DepthDialog(QDialog):
         picture, fig = result
         self.image.set_pixmap(QPixmap.fromImage(rgb_to_qimage(picture[..., ::-1].copy())))
         lo, hi = fig["colours_px"]
+        reference = fig.get("reference", "from infinity")
         self.colour_bar.set_range(lo, hi, fig.get("depth_scale_m_px"),
-                                  "Disparity between horizontal neighbours (near = red)")
-        parts = [f"{self.view_edit.text().strip()}: disparity between horizontal neighbours (near = red)"]
+                                  f"Disparity in px between horizontal neighbours, {reference} (near = red)")
+        parts = [f"{self.view_edit.text().strip()}: disparity between horizontal neighbours, {reference} "
+                 "(near = red)"]
         if "disparity_px" in fig:
             lo, hi = fig["disparity_px"]
-            parts.append(f"{lo:.2f} … {hi:.2f} px")
+            parts.append(f"{lo:+.2f} … {hi:+.2f} px (1st–99th percentile of the map)")
         if "depth_m" in fig:
             parts.append(f"depth {fig['depth_m'][0]:.2f} … {fig['depth_m'][1]:.2f} m")
         parts.append(f"{fig['confident']:.0%} of pixels sure (confidence ≥ {UNSURE_BELOW:g})")

@@ -468,7 +468,7 @@ class GridView(QWidget):
         if ds is None or not rel:
             self.state.show_status("No disparity map yet: run Check dataset")
             return
-        dlg = DisparityDialog(Path(ds.root) / rel, doc.get("disparity_map"), self)
+        dlg = DisparityDialog(Path(ds.root) / rel, doc.get("disparity_map"), self, doc.get("depth_range"))
         dlg.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
         dlg.show()
         self._disparity_dialog = dlg

@@ -363,7 +363,7 @@ class NeighboursDialog(QDialog):
 class DisparityDialog(QDialog):
     """The disparity map of the centre view from the last check (``quality/disparity.png``)."""
 
-    def __init__(self, path: Path, info: dict | None, parent: QWidget | None = None):
+    def __init__(self, path: Path, info: dict | None, parent: QWidget | None = None, depth: dict | None = None):
         super().__init__(parent)
         self.setObjectName("disparityDialog")
         self.setWindowTitle("Disparity map of the centre view")
@@ -379,7 +379,9 @@ class DisparityDialog(QDialog):
             self.image.setText(f"{path}: cannot be read; run Check dataset again")
         else:
             self.image.set_pixmap(QPixmap.fromImage(rgb_to_qimage(bgr[..., ::-1].copy())))
-        text = QLabel(self._caption(info))
+        text = QLabel(self._caption(info, depth))
+        text.setObjectName("disparityCaption")
+        self.caption = text
         text.setWordWrap(True)
         bar = QHBoxLayout()
         bar.addWidget(self.image.fit_button())
@@ -390,11 +392,11 @@ class DisparityDialog(QDialog):
         lay.addWidget(text)
 
     @staticmethod
-    def _caption(info: dict | None) -> str:
+    def _caption(info: dict | None, depth: dict | None = None) -> str:
+        """The map's figures in the check's one wording (lfstudio.quality.check.disparity_map_summary)."""
         if not info:
             return ""
-        parts = [f"view {info['view']}", f"median {info['median_px']:.2f} px" if info.get("median_px") else "",
-                 f"{info['valid_fraction']:.0%} of pixels matched",
-                 "rectified" if info.get("rectified") else "not rectified (no calibration)"]
-        return ("Disparity between horizontal neighbours at full resolution (near = red): "
-                + ", ".join(p for p in parts if p))
+        from lfstudio.quality.check import disparity_map_summary
+
+        return (f"Disparity map (near = red), full-resolution px: {disparity_map_summary(info, depth)}; "
+                + ("rectified" if info.get("rectified") else "not rectified (no calibration)"))
