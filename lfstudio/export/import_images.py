@@ -532,7 +532,13 @@ def _place(plan: ImportPlan, options: ImportOptions, grid: tuple[int, int]) -> N
     raw = plan.raw_positions
     derived = (0.0, 0.0)
     if raw is not None:
-        plan.positions_mm, derived, mapping = normalise_positions(plan.cells, raw)
+        try:
+            plan.positions_mm, derived, mapping = normalise_positions(plan.cells, raw)
+        except InputError:
+            raise
+        except (np.linalg.LinAlgError, ValueError) as exc:    # positions no grid fits (they are bounded first)
+            raise InputError("--positions", f"the recorded positions fit no grid of the views ({exc}); check the "
+                             "file's x_mm/y_mm columns") from None
         plan.positions_record = {**(plan.positions_record or {}), **mapping}
         still = [what for what, n, step in (("columns", cols, derived[0]), ("rows", rows, derived[1]))
                  if n > 1 and not step >= MIN_STEP_MM]      # all equal: a spacing of 0, depth divides by it
