@@ -186,6 +186,9 @@ class GenicamCamera:
         self._features: dict[str, str] = {}
         self._identity: dict[str, Any] = {}
         self._snapshot: dict[str, Any] | None = None
+        self._triggers: list[float] = []
+        self._fetched = 0
+        self._armed = 0
         self.shots = 0
         self.lost = 0
         self._busy = False
@@ -541,6 +544,73 @@ class GenicamCamera:
         t0 = time.monotonic()
         frame = self.grab(on_exposed)
         return frame_result(frame, stem_path, trigger_s=time.monotonic() - t0)
+
+    # -- triggered frames (fly scanning: lfstudio.rig.camera.TriggeredCamera) --------------------------
+    #: from trigger() to the exposure's start: a software trigger's GVCP write (the fake camera starts at
+    #: its next frame period, up to 1/frame_rate later)
+    trigger_latency_s = 0.0
+
+    def arm(self, frames: int) -> None:
+        """Software trigger on, the acquisition running, stale frames dropped; ``frames`` expected."""
+        if self._trigger() != "software":
+            self.set_setting("trigger_mode", "On")
+            self.set_setting("trigger_source", "Software")
+        self._start_acquisition()
+        self._drain()
+        self._triggers = []
+        self._fetched = 0
+        self._armed = int(frames)
+
+    def trigger(self) -> float:
+        """Fire the software trigger now (from any thread; aravis serialises the camera's control
+        channel) and return when it was sent (time.monotonic)."""
+        sent = time.monotonic()
+        try:
+            self._need().software_trigger()
+        except DeviceError:
+            raise
+        except Exception as exc:
+            raise DeviceError(f"genicam:{self.device_id}: the software trigger failed: {_gerror(exc)}") from None
+        self._triggers.append(sent)
+        return sent
+
+    def fetch(self, stem_path: Path, timeout_s: float) -> CaptureResult:
+        """The next triggered frame, in trigger order (unwritten: the store stage writes it); DeviceError
+        for a trigger whose frame did not arrive whole (it cannot be taken again: the rig moved on)."""
+        self._need()
+        if self._stream is None:
+            raise DeviceError(f"genicam:{self.device_id}: not armed; arm the camera first")
+        settings = self._shot_settings()
+        fmt = self._check_format(settings.get("pixel_format"))
+        index = self._fetched
+        self._fetched += 1
+        sent = self._triggers[index] if index < len(self._triggers) else None
+        buf = self._pop(time.monotonic() + float(timeout_s))
+        if buf is None:
+            self.lost += 1
+            raise DeviceError(f"genicam:{self.device_id}: triggered frame {index + 1} did not arrive within "
+                              f"{timeout_s:g} s (missed)")
+        try:
+            if buf.get_status() != self.aravis.BufferStatus.SUCCESS:
+                self.lost += 1
+                raise DeviceError(f"genicam:{self.device_id}: triggered frame {index + 1} lost "
+                                  f"({_status_text(buf.get_status())})")
+            frame = self._frame(buf, fmt, settings, settings.get("exposure_s"), lost=0)
+        finally:
+            if self._stream is not None:
+                self._stream.push_buffer(buf)
+        self.shots += 1
+        result = frame_result(frame, stem_path)
+        if sent is not None:
+            start = sent + self.trigger_latency_s
+            result.metadata.update(exposure_start_s=start, exposure_end_s=start + float(frame.exposure_s or 0.0))
+        return result
+
+    def disarm(self) -> None:
+        self._stop_acquisition()
+        self._triggers = []
+        self._fetched = 0
+        self._armed = 0
 
     def preview(self) -> np.ndarray | None:
         """A frame as 8-bit RGB for the live view (None while a hardware trigger decides when frames come)."""

@@ -172,6 +172,13 @@ class SoftLimitError(InputError):
     kind = "soft-limit"
 
 
+@runtime_checkable
+class ChecksTargets(Protocol):
+    """A controller that checks a target against its limits without moving (raises SoftLimitError)."""
+
+    def check_target(self, x_mm: float, y_mm: float) -> tuple[float, float]: ...
+
+
 def check_target(config: RigConfig, x_mm: float, y_mm: float) -> tuple[float, float]:
     """Return (x, y) as floats if both are finite and inside the soft limits, else raise
     :class:`SoftLimitError` naming the axis and the valid range. Call before sending any target."""

@@ -66,7 +66,7 @@ from lfstudio.dataset.storage import storage_error
 from lfstudio.dataset.store import clean_temporary_files, free_bytes
 from lfstudio.errors import DeviceError, DeviceRefused, DeviceTimeout, InputError, LfError, words
 from lfstudio.numbers import RETRIES, TIME_SCALE, TIMEOUT_S, Number, non_finite_fields
-from lfstudio.rig.camera import supports_on_exposed
+from lfstudio.rig.camera import DescribesSettings, HasStatus, supports_on_exposed
 from lfstudio.rig.motion import RigState
 from lfstudio.rig.worker import CallTimedOut, DeviceWorker, Lease
 from lfstudio.scan.events import (OWNS_RIG, TERMINAL, TRANSITIONS, EventKind, ScanEvent, ScanRequestRefused,
@@ -133,7 +133,7 @@ def bracket_on_camera(bracket: Bracket, driver: Any, call: Callable[[str], Any],
     :class:`InputError` naming ``field`` with the camera's choices."""
     settings = call("settings")
     settings = settings if isinstance(settings, dict) else {}
-    if "shutter_s" not in settings and not hasattr(driver, "describe_settings"):
+    if "shutter_s" not in settings and not isinstance(driver, DescribesSettings):
         # a hot folder or a trigger command: lfstudio cannot set the exposure, so every frame's
         # set_setting would fail at each view after the rig has moved; refused before anything
         raise InputError(field, "this camera has no shutter time lfstudio can set (a hot folder or a trigger "
@@ -144,7 +144,7 @@ def bracket_on_camera(bracket: Bracket, driver: Any, call: Callable[[str], Any],
     values: tuple = ()
     texts: tuple = ()
     range_s: tuple[float, float] | None = None
-    if hasattr(driver, "describe_settings"):
+    if isinstance(driver, DescribesSettings):
         try:
             described = call("describe_settings")
         except Exception as exc:       # the times are checked again when each frame is set
@@ -158,7 +158,7 @@ def bracket_on_camera(bracket: Bracket, driver: Any, call: Callable[[str], Any],
                     range_s = (float(span[0]), float(span[1]))
     model = ""
     try:
-        model = driver.status().model if hasattr(driver, "status") else ""
+        model = driver.status().model if isinstance(driver, HasStatus) else ""
     except Exception:                  # a name for the message only
         pass
     return frame_times_on_camera(bracket, base, values, texts, model or "the camera", field, range_s), base

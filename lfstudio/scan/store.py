@@ -34,7 +34,7 @@ from lfstudio.dataset.storage import disk_problem, megabytes, mount_point, stora
 from lfstudio.dataset.store import free_bytes, sha256_file
 from lfstudio.dataset.thumbs import THUMB_WIDTH_PX, make_thumbnail
 from lfstudio.errors import DeviceError, DeviceTimeout, LfError
-from lfstudio.rig.camera import CaptureResult
+from lfstudio.rig.camera import CaptureResult, HasCardSpace
 from lfstudio.rig.camera import stored as frame_written
 from lfstudio.rig.worker import CallTimedOut, DeviceWorker
 from lfstudio.scan.events import EventKind, Trigger
@@ -407,7 +407,7 @@ class ScanStore:
         if later is None and not self._whole_checked:     # the first view of this run: does the rest fit?
             self._whole_checked = True
             later = self.whole_scan_fault(view_bytes, job.frames)
-            if callable(getattr(self.camera.driver, "card_space", None)):
+            if isinstance(self.camera.driver, HasCardSpace):
                 with self._lock:
                     self._card_frame_bytes = max(1, view_bytes // max(1, job.frames))
         if later is not None:

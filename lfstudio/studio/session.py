@@ -46,7 +46,8 @@ from lfstudio.dataset.paths import check_new_dataset_folder, view_label
 from lfstudio.errors import DeviceError, InputError, LfError
 from lfstudio.numbers import EXPOSURE_S, RETRIES, TIME_SCALE, TRANSFER_S
 from lfstudio.optics import REFERENCE
-from lfstudio.rig.motion import RigConfig, RigState, SoftLimitError
+from lfstudio.rig.camera import HasCardSpace, HasIdentity
+from lfstudio.rig.motion import ChecksTargets, RigConfig, RigState, SoftLimitError
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.studio.devices import (SIM, CameraSpec, RigSpec, Studio, implied_rig_profile, open_studio,
                                      rig_profile_flag)
@@ -102,7 +103,7 @@ def resume_plan(dataset: Dataset, *, order: str | None = None, settle_s: float |
 def describe_camera(camera: Any, scene: Any = None) -> tuple[dict, dict]:
     """The manifest's camera and lens entries: from the scene plan, else from the simulated studio,
     else the driver's name; with what a real camera reports of itself (model, serial, lens)."""
-    identity = camera.identity() if callable(getattr(camera, "identity", None)) else {}
+    identity = camera.identity() if isinstance(camera, HasIdentity) else {}
     if scene is not None and hasattr(scene, "camera_dict"):
         return {**identity, **scene.camera_dict()}, scene.lens_dict()
     from lfstudio.studio.simulated import describe_simulated_camera
@@ -140,7 +141,7 @@ def rig_spec_of(record: dict[str, Any]) -> str:
     """The ``--port`` word that opens a recorded rig again ("" when the record does not say: the
     device parser then refuses it as "no rig given", naming ``--port``)."""
     kind = record.get("kind", SIM)
-    if kind in ("grbl", "dryve", "canopen"):
+    if kind in ("grbl", "dryve", "canopen") or record.get("origin"):     # origin: a plugin kind's NAME:ARGS
         port = record.get("port")
         return str(port) if port else ""
     return str(kind) if kind else ""
@@ -395,9 +396,9 @@ def check_plan_on_controller(rig: Any, plan: ScanPlan) -> None:
     would otherwise be refused, retried and the scan stopped with advice about the cable. The corners
     of the grid are checked by the driver's own ``check_target`` (nothing is sent)."""
     driver = getattr(rig, "driver", rig)
-    check = getattr(driver, "check_target", None)
-    if check is None:
+    if not isinstance(driver, ChecksTargets):
         return
+    check = driver.check_target
     x0, x1, y0, y1 = plan.extent_mm()
     for x, y in ((x0, y0), (x1, y1), (x0, y1), (x1, y0)):
         try:
@@ -713,7 +714,7 @@ class ScanSession:
                                    manifest_bytes=manifest)
             if short is not None:
                 raise short
-        if callable(getattr(driver, "card_space", None)):
+        if isinstance(driver, HasCardSpace):
             call = (lambda name: camera.call(name, timeout_s=30)) if hasattr(camera, "driver") else \
                 (lambda name: getattr(camera, name)())
             try:

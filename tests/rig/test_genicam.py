@@ -158,3 +158,22 @@ def test_a_camera_that_does_not_answer_is_named_with_those_found():
     need_aravis()
     with pytest.raises(DeviceError, match=r"genicam:No-Such-Camera: no camera answers .*cameras aravis finds now"):
         GenicamCamera("No-Such-Camera").connect()
+
+
+def test_triggered_frames_for_fly_scanning_arrive_in_trigger_order(camera, tmp_path):
+    from lfstudio.rig.camera import TriggeredCamera
+
+    assert isinstance(camera, TriggeredCamera)
+    camera.arm(3)
+    sent = [camera.trigger()]
+    first = camera.fetch(tmp_path / "f0", timeout_s=2)
+    sent += [camera.trigger()]
+    second = camera.fetch(tmp_path / "f1", timeout_s=2)
+    assert first.frame is not None and second.frame is not None
+    assert second.frame.frame_id == first.frame.frame_id + 1
+    assert np.array_equal(first.frame.pixels, expected_mono8(first.frame.frame_id))
+    assert first.metadata["exposure_start_s"] == sent[0] and first.metadata["exposure_end_s"] > sent[0]
+    with pytest.raises(DeviceError, match="triggered frame 3 did not arrive within 0.3 s"):
+        camera.fetch(tmp_path / "f2", timeout_s=0.3)          # no trigger: missed, never a stale frame
+    camera.disarm()
+    assert not list(tmp_path.glob("f2*"))

@@ -112,3 +112,30 @@ def test_a_factory_that_returns_no_camera_is_named(tmp_path):
             open_camera("notacamera:1")
     finally:
         unregister("notacamera")
+
+
+def test_a_rig_plugin_is_reached_by_port_and_recorded(tmp_path, run_cli):
+    site = tmp_path / "site"
+    write_dist(site, "toy-rig", "[lfstudio.rigs]\ntoyrig = toy_rig_plugin:open_rig\n")
+    (site / "toy_rig_plugin.py").write_text(
+        "from lfstudio.rig.profile import load_rig\n"
+        "from lfstudio.studio.simulated import InstantRig\n\n\n"
+        "def open_rig(arguments):\n"
+        "    \"\"\"A rig that takes no time (the example of a rig plugin).\"\"\"\n"
+        "    return InstantRig(load_rig())\n")
+    env = {"PYTHONPATH": str(site)}
+    r = run_cli("doctor", "--quick", env=env)
+    assert "rig toyrig:ARGUMENTS" in r.stdout and "[plugin toy-rig 0.1 (toy_rig_plugin:open_rig)]" in r.stdout
+    out = tmp_path / "ds"
+    r = run_cli("scan", "--port", "toyrig:bench-1", "--camera", "instant", "--grid", "3x2", "--out", out, env=env)
+    assert r.returncode == 0, r.stderr
+    manifest = json.loads((out / "dataset.json").read_text())
+    assert [v["status"] for v in manifest["views"]] == ["done"] * 6
+    rig = manifest["devices"]["rig"]
+    assert rig["kind"] == "toyrig" and rig["port"] == "toyrig:bench-1" and rig["origin"].startswith("plugin toy-rig")
+    r = run_cli("scan", "--resume", "--out", out, env=env)          # the record opens the same rig again
+    assert "resuming with the dataset's own devices: the rig on toyrig:bench-1" in r.stderr, r.stderr
+    assert "lfstudio rig --port toyrig:bench-1 home" in r.stderr    # a new instant rig stands at 0, 0: said
+    r = run_cli("scan", "--port", "toyrig:", "--camera", "instant", "--grid", "2x1", "--out", tmp_path / "c",
+                env={"PYTHONPATH": str(tmp_path / "nothing-installed")})
+    assert r.returncode != 0 and "Traceback" not in r.stderr     # no such plugin: a serial port that is not there

@@ -42,6 +42,7 @@ from lfstudio.gui.unattended import StatusPageLabel
 from lfstudio.gui.views.path_preview import PathPreview
 from lfstudio.gui.widgets import QuietLabel, bounds_of, number_of, readable_time, set_progress_async
 from lfstudio.jobs import count, format_duration
+from lfstudio.rig.camera import SimulatedScene
 from lfstudio.scan.events import EventKind, ScanRequestRefused, ScanState
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.studio.scan_options import PARAMS as SCAN_PARAMS
@@ -115,7 +116,7 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     restore: list = []          # calls that give the shared simulated devices their time scales back
     if job["shared"] is not None:
         rig, camera, rig_link, camera_link = job["shared"]
-        if hasattr(camera.driver, "set_view_region"):   # simulated camera: centre its scene on this grid
+        if isinstance(camera.driver, SimulatedScene):   # simulated camera: centre its scene on this grid
             camera.call("set_view_region", plan.extent_mm(), timeout_s=30)
             camera_scale = getattr(camera.driver, "time_scale", None)
             camera.call("set_setting", "time_scale", job["time_scale"], timeout_s=30)
