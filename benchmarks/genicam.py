@@ -117,7 +117,7 @@ def main() -> None:
             s_wall, s_period, s_store, _ = scan("sim", args.grid, Path(tmp) / "sim",
                                                 ["--time-scale", "0", "--sim-width-px", "512"])
         grab_s = 1 / small
-        print(f"  scan {args.grid} ({n} views), instant rig: genicam:{DEVICE} 512 px Mono8 -> 16-bit TIFF: "
+        print(f"  scan {args.grid} ({n} views), instant rig: genicam:{DEVICE} 512 px Mono8 -> 16-bit PNG: "
               f"median period {g_period * 1e3:.0f} ms/view, store stage {g_store * 1e3:.0f} ms/view, "
               f"period minus the camera's frame time {max(0.0, g_period - grab_s) * 1e3:.0f} ms; "
               f"{g_wall:.1f} s in all")

@@ -7,9 +7,10 @@ file, then checksums and journals it like any capture:
 
 - a **Bayer** mosaic as a DNG (:mod:`lfstudio.dataset.dng`; white level = the camera's largest value,
   black level 0, the mosaic's own CFA pattern), so the RAW pipeline develops it unchanged;
-- **mono** and **RGB** frames as 16-bit TIFF (``.tif``, uncompressed), each value scaled so that the
-  camera's largest value is 65535 (8-bit: × 257; 12-bit: × 65535/4095, rounded). RGB is stored in
-  R, G, B order.
+- **mono** and **RGB** frames as 16-bit PNG (``.png``, fast zlib level), each value scaled so that the
+  camera's largest value is 65535 (8-bit: × 257; 12-bit: × 65535/4095, rounded). Not TIFF: LibRaw opens
+  an uncompressed 16-bit TIFF as if it were a camera RAW, and lfstudio decides what a file is by what
+  opens it (:mod:`lfstudio.dataset.images`), so processing would have demosaiced a mono picture.
 
 A frame whose layout or sample type is not one of these is refused with :class:`UnstorableFrame`
 before anything is written.
@@ -80,7 +81,7 @@ class Frame:
 
 def suffix_for(frame: Frame) -> str:
     """The file suffix :func:`write_frame` uses for ``frame``."""
-    return ".dng" if frame.layout == "bayer" else ".tif"
+    return ".dng" if frame.layout == "bayer" else ".png"
 
 
 def check_frame(frame: Frame, what: str = "frame") -> None:
@@ -133,12 +134,14 @@ def write_frame(frame: Frame, stem: str | os.PathLike, *, model: str = "", make:
                          camera_model=model or frame.pixel_format or "array camera", make=make or "lfstudio",
                          exposure_s=frame.exposure_s)
     data = to_16_bit(frame.pixels, frame.bits)
+    if frame.layout == "rgb":
+        data = np.ascontiguousarray(data[:, :, ::-1])          # OpenCV writes B, G, R
 
     def _write(tmp: Path) -> None:
-        import tifffile
+        import cv2
 
-        tifffile.imwrite(tmp, data, photometric="rgb" if frame.layout == "rgb" else "minisblack",
-                         compression=None, metadata=None, software="lfstudio")
+        if not cv2.imwrite(str(tmp), data, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
+            raise OSError(f"{path}: the frame could not be written")
 
     return atomic_write_with(path, _write)
 

@@ -232,7 +232,7 @@ class FrameGrabber:
 
 def stored(result: CaptureResult) -> CaptureResult:
     """``result`` with its files on disk: an array camera's frame written to its stem (Bayer as DNG,
-    mono and RGB as 16-bit TIFF; :func:`lfstudio.dataset.frames.write_frame`); a file camera's result
+    mono and RGB as 16-bit PNG; :func:`lfstudio.dataset.frames.write_frame`); a file camera's result
     as it is."""
     if result.frame is None:
         return result

@@ -8,7 +8,7 @@ Contract:
 - An array camera (:class:`lfstudio.rig.camera.ArrayCamera`): :meth:`GenicamCamera.grab` returns each
   picture as a :class:`lfstudio.dataset.frames.Frame` (pixels, pixel format, the camera's timestamp
   and frame id, this computer's arrival time, the exposure time and gain); the scan's store stage
-  writes it (Bayer formats as DNG, mono and RGB as 16-bit TIFF). :meth:`capture` is ``grab`` for a
+  writes it (Bayer formats as DNG, mono and RGB as 16-bit PNG). :meth:`capture` is ``grab`` for a
   view (see :class:`lfstudio.rig.camera.FrameGrabber`).
 - Settings are the camera's own GenICam nodes under our names (:data:`SETTINGS`): ``exposure_s``
   (ExposureTime, µs on the camera), ``gain``, ``pixel_format``, the region (``offset_x``,

@@ -5,7 +5,7 @@ stored so far, the frames of a bracketed view stored so far, the views the journ
 engine thread hands it each capture (:meth:`ScanStore.submit`, a :class:`StoreJob` whose future
 resolves when the camera has delivered the file) and goes on moving the rig; the store thread waits
 for the file (download/transfer; an array camera's frame it writes itself: Bayer as DNG, mono and
-RGB as 16-bit TIFF, :func:`lfstudio.rig.camera.stored`), checksums it, writes its thumbnail and journals the view (fsync'd),
+RGB as 16-bit PNG, :func:`lfstudio.rig.camera.stored`), checksums it, writes its thumbnail and journals the view (fsync'd),
 overlapping the next move and settle.
 
 The store talks to the engine only through the engine's inbox (``post``: a fault to pause on, a view
@@ -346,7 +346,7 @@ class ScanStore:
         except Exception as exc:
             self._transfer_failed(job, exc)
             return
-        result = frame_written(result)    # an array camera's frame written here (DNG or 16-bit TIFF)
+        result = frame_written(result)    # an array camera's frame written here (DNG or 16-bit PNG)
         t_transferred = time.monotonic()
         extra: ViewUpdate = {}
         sha: str | None = None

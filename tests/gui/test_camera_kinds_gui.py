@@ -58,7 +58,7 @@ def test_the_fake_genicam_camera_connects_shows_its_nodes_and_takes_a_test_shot(
         assert not panel.apply_button.isEnabled() and panel.exposure_group.isHidden()   # a DSLR's exposure
         with qtbot.waitSignal(state.cameraFrame, timeout=30000):
             panel.take_test_shot()
-        assert ".tif" in panel.shot_label.text()
+        assert ".png" in panel.shot_label.text()
         panel.resize(420, 700)
         panel.grab().save("/tmp/kinds39-camera-panel-genicam-connected.png")
         panel.disconnect_camera()

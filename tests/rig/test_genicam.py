@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from lfstudio.dataset import images
 from lfstudio.errors import DeviceError, DeviceTimeout, InputError
 from lfstudio.rig.camera import ArrayCamera, DescribesSettings, HasIdentity, stored
 from tests.fakegv import expected_mono8, fake_gv_camera
@@ -86,9 +87,10 @@ def test_software_triggered_frames_are_the_cameras_pixels_with_timestamps(camera
     assert result.record["camera_frame"]["frame_id"] == result.frame.frame_id
     assert result.record["camera"]["serial"] == "GV01"
     written = stored(result)
-    assert written.path == tmp_path / "r00_c000.tif"
+    assert written.path == tmp_path / "r00_c000.png"
     data = cv2.imread(str(written.path), cv2.IMREAD_UNCHANGED)
     assert data.dtype == np.uint16                                   # mono as 16-bit: 8-bit values x 257
+    assert images.kind(written.path) == "image"                     # not taken for a camera RAW
     assert np.array_equal(data, expected_mono8(result.frame.frame_id).astype(np.uint16) * 257)
 
 
@@ -105,7 +107,7 @@ def test_bayer_is_kept_raw_as_dng_and_rgb_as_16_bit(camera, tmp_path):
     camera.set_setting("width", 256)
     result = stored(camera.capture(tmp_path / "rgb"))
     data = cv2.imread(str(result.path), cv2.IMREAD_UNCHANGED)
-    assert result.path.suffix == ".tif" and data.dtype == np.uint16 and data.shape == (512, 256, 3)
+    assert result.path.suffix == ".png" and data.dtype == np.uint16 and data.shape == (512, 256, 3)
     camera.set_setting("pixel_format", "Mono8")
     camera.set_setting("width", 512)
 

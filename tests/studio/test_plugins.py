@@ -53,7 +53,7 @@ def test_the_example_plugin_installs_is_listed_and_scans(example_site, tmp_path,
     manifest = json.loads((out / "dataset.json").read_text())
     assert [v["status"] for v in manifest["views"]] == ["done"] * 6
     for v in manifest["views"]:
-        assert v["file"].endswith(".tif") and (out / v["file"]).is_file()
+        assert v["file"].endswith(".png") and (out / v["file"]).is_file()
         assert v["camera_frame"]["pixel_format"] == "Mono12" and v["camera_frame"]["size_px"] == [64, 48]
     camera = manifest["devices"]["camera"]
     assert camera["kind"] == "ramp" and camera["spec"] == "ramp:64x48" and camera["model"] == "Ramp"
