@@ -192,6 +192,8 @@ class ViewFields(TypedDict, total=False):
     camera: dict[str, Any]                # the driver's record of the camera and its settings
     camera_settings: dict[str, Any]
     camera_frame: dict[str, Any]          # an array camera's frame: pixel format, bits, timestamps, frame id
+    fly: dict[str, Any]                   # a fly scan's frame: recorded_mm, uncertainty_mm, offset_mm, speed
+                                          # (or retaken: why the view was taken again standing still)
     devices: dict[str, Any] | None        # the devices that took it, when not the dataset's own
     processed: ProcessedRecord
     hdr: HdrRecord                        # a bracketed view's HDR merge

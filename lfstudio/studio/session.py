@@ -472,6 +472,10 @@ class ScanRequest:
     engine_options: dict[str, Any] = field(default_factory=dict)
     trust_rig_position: bool = False
     keep_drive_reference: bool = False
+    #: fly scanning (lfstudio.scan.fly): rows at constant speed, a triggered frame per view
+    fly: bool = False
+    fly_speed_mm_s: float | None = None
+    blur_limit_px: float = 0.5
 
 
 class ScanSession:
@@ -644,6 +648,7 @@ class ScanSession:
         elif req.home or req.origin_here:
             self.note("the simulated rig was homed when it started")
         check_plan_on_controller(rig, plan)
+        fly = self._decide_fly(rig, camera, plan, scene, config) if req.fly else None
         if existing is None and plan.bracket is not None:       # refused before the dataset is made
             self._check_bracket(plan.bracket, camera)
         self._check_space(plan.with_subset(req.recapture) if req.recapture else plan, camera, scene, existing)
@@ -665,9 +670,75 @@ class ScanSession:
         if req.recapture:
             plan = plan.with_subset(req.recapture)
         self.plan = plan
+        if fly is not None:
+            from lfstudio.scan.fly import FlyScanEngine
+
+            dataset.manifest["acquisition"] = {"mode": "fly", "positions": "recorded", **fly}
+            dataset.save()
+            self.note(f"fly scan: rows at {fly['speed_mm_s']:.3g} mm/s ({fly['binding']} binds), blur "
+                      f"{fly['blur_px']:.2f} px at the near distance; the rows and row changes take about "
+                      f"{fly['time_s']:.0f} s")
+            self.engine = FlyScanEngine(dataset, plan, rig, camera, retries=req.retries, time_scale=req.time_scale,
+                                        recapture=bool(req.recapture), speed_mm_s=fly["speed_mm_s"],
+                                        **req.engine_options)
+            return self.engine
         self.engine = ScanEngine(dataset, plan, rig, camera, retries=req.retries,
                                  time_scale=req.time_scale, recapture=bool(req.recapture), **req.engine_options)
         return self.engine
+
+    def _decide_fly(self, rig: Any, camera: Any, plan: ScanPlan, scene: Any, config: RigConfig) -> dict[str, Any]:
+        """The row speed of a fly scan (lfstudio.planning.fly) from the devices as they are: the camera's
+        exposure and frame rate, the controller's measured position-report rate, the rig's axes; refused
+        (InputError naming --fly) with the numbers when the devices or the limits do not allow one."""
+        import time as _time
+
+        from lfstudio.planning.fly import FlyInputs, plan_fly
+        from lfstudio.scan.fly import fly_problem
+
+        req = self.request
+        problem = fly_problem(rig, camera)
+        if problem is not None:
+            raise InputError("--fly", problem, "a camera with triggers and a controller that reports its position")
+        if plan.bracket is not None:
+            raise InputError("--fly", "an exposure bracket needs the carriage to stand still", "leave --bracket out")
+        if req.time_scale <= 0:
+            raise InputError("--time-scale", "a fly scan needs simulated time to pass", "> 0 with --fly")
+        driver = getattr(camera, "driver", camera)
+        rig_driver = getattr(rig, "driver", rig)
+        settings = driver.settings() if callable(getattr(driver, "settings", None)) else {}
+        exposure = settings.get("shutter_s", settings.get("exposure_s"))
+        if not isinstance(exposure, (int, float)) or exposure <= 0:
+            raise InputError("--fly", "the camera does not tell its exposure time", "a camera reporting shutter_s")
+        fps = settings.get("frame_rate_fps")
+        camera_info, lens = describe_camera(driver, scene)
+        if scene is not None:
+            near_mm, focal, pitch = scene.near_m * 1000.0, float(scene.focal_length_mm), scene.pixel_pitch_used_um
+        else:
+            studio = getattr(driver, "studio", None)
+            near_mm = float(getattr(studio, "near_m", REFERENCE.near_m)) * 1000.0
+            focal = float(lens.get("focal_length_mm") or REFERENCE.focal_length_mm)
+            pitch = float(camera_info.get("pixel_pitch_um") or REFERENCE.pixel_pitch_um)
+        t0 = _time.monotonic()
+        for _ in range(5):                     # how fast the controller answers where it is
+            rig_driver.report()
+        per_report_s = (_time.monotonic() - t0) / 5 / req.time_scale      # in simulated time on a simulator
+        h, v = config.horizontal, config.vertical
+        inputs = FlyInputs(columns=plan.columns, rows=plan.rows, spacing_mm=plan.spacing_mm,
+                           exposure_s=float(exposure), near_mm=near_mm, focal_length_mm=focal, pixel_pitch_um=pitch,
+                           blur_limit_px=req.blur_limit_px,
+                           frame_rate_fps=float(fps) if isinstance(fps, (int, float)) and fps > 0 else None,
+                           report_rate_hz=1.0 / max(per_report_s, 1e-6),
+                           max_speed_mm_s=(h.max_speed_mm_s, v.max_speed_mm_s),
+                           acceleration_mm_s2=(h.acceleration_mm_s2, v.acceleration_mm_s2),
+                           travel_mm=h.soft_max_mm - h.soft_min_mm, settle_s=plan.settle_s,
+                           speed_mm_s=req.fly_speed_mm_s)
+        result = plan_fly(inputs)
+        if not result.possible:
+            raise InputError("--fly", result.refusal)
+        return {"speed_mm_s": result.speed_mm_s, "binding": result.binding, "blur_px": result.blur_px,
+                "blur_limit_px": req.blur_limit_px, "time_s": result.time_s,
+                "limits_mm_s": {k: round(val, 4) for k, val in result.limits_mm_s.items()},
+                "report_rate_hz": round(1.0 / max(per_report_s, 1e-6), 1)}
 
     def _check_bracket(self, bracket: Bracket, camera: Any) -> None:
         """The bracket's shutter times among the camera's choices: else InputError naming --bracket
