@@ -776,6 +776,7 @@ _COLORS = {"scene": (70, 130, 200, 45), "sharp": (60, 160, 90, 50), "blur": "#1f
 
 
 PLOT_MIN_HEIGHT_PX = 220     # a plan plot below this showed a 40 px strip of curves under its title and legend
+SIDE_BY_SIDE_PLOT_PX = 380   # the plots sit side by side only when each gets this width (their titles and legends)
 
 
 class PlanPlotsPanel(QWidget):
@@ -926,8 +927,7 @@ class PlanPlotsPanel(QWidget):
 
     def resizeEvent(self, event) -> None:
         room = self._room()
-        side_by_side_px = sum(p.minimumWidth() for p in (self.dof_plot, self.disparity_plot)) \
-            + self.plots_layout.spacing() + 8
+        side_by_side_px = 2 * SIDE_BY_SIDE_PLOT_PX + self.plots_layout.spacing() + 8
         wide = room.width() > 1.4 * room.height() and room.width() >= side_by_side_px   # never scrolled sideways
         self.plots_layout.setDirection(QBoxLayout.Direction.LeftToRight if wide else QBoxLayout.Direction.TopToBottom)
         super().resizeEvent(event)
