@@ -160,3 +160,27 @@ def test_the_export_dialog_refuses_a_posed_export_of_unstated_sheared_views_in_i
     text = dialog.estimate_error
     assert "sheared by an amount nobody stated" in text and "Zero disparity set to a depth" in text, text
     assert "PNG and HEVC exports need no plane" in text and not CLI_WORDS.search(text), text
+
+
+def test_the_import_dialog_names_a_file_whose_name_is_not_utf8_by_its_bytes_and_its_own_field(qtbot, tmp_path):
+    """#42 item 10 in the window: the live count names the file escaped and the Files (pattern) field."""
+    import os
+
+    import cv2
+    import numpy as np
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for i in range(2):
+        assert cv2.imwrite(str(folder / f"v{i}.png"), np.full((32, 48, 3), 40 * i, np.uint8))
+    os.rename(folder / "v1.png", folder / os.fsdecode(b"v_\xe9.png"))
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    actions = {a.text().replace("&", ""): a for a in window.menu("File").actions()}
+    actions["Import images…"].trigger()
+    dialog = window.findChild(ImportImagesDialog, "importImagesDialog")
+    dialog.folder_edit.setText(str(folder))
+    assert dialog.recount() is None
+    shown = dialog.count_label.toolTip() or dialog.count_label.text()
+    assert "v_\\xe9.png" in shown and "not valid UTF-8" in shown and "Files (pattern) field" in shown, shown
+    assert not CLI_WORDS.search(shown), shown
