@@ -66,6 +66,21 @@ def load_aravis() -> Any:
     return aravis
 
 
+def aravis_version() -> tuple[bool, str]:
+    """(usable, "aravis 0.8 (its typelib)") or (False, why not and how to install it)."""
+    try:
+        ar = load_aravis()
+    except DeviceError as exc:
+        return False, str(exc).removeprefix("genicam: ")
+    try:                       # the 0.8 binding has no run-time version call: where its typelib is
+        import gi
+
+        where = gi.Repository.get_default().get_typelib_path("Aravis")
+    except Exception:          # noqa: BLE001 - only for the text
+        where = ""
+    return True, f"aravis {getattr(ar, '_version', '0.8')}" + (f" ({where})" if where else "")
+
+
 def aravis_available() -> bool:
     try:
         load_aravis()

@@ -30,6 +30,7 @@ instant rig's, or that of the ``lfstudio sim-rig`` serving the port (see :mod:`l
 from __future__ import annotations
 
 import logging
+import weakref
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -532,6 +533,7 @@ def open_camera(spec: CameraSpec | str, *, position_mm: Callable[[], tuple[float
             lk.release()
         raise
     link = CameraLink(spec, cam, lk)
+    _remember(cam, spec)
     if connect:
         try:
             cam.connect()
@@ -556,23 +558,36 @@ def link_for_rig(controller: Any, config: RigConfig, simulated: bool = False) ->
     return RigLink(RigSpec(SIM) if simulated else RigSpec("serial", port), config, controller)
 
 
+#: the device word of each camera driver open_camera made (by id, with a weak reference to tell a reused id)
+_OPENED: dict[int, tuple[Any, CameraSpec]] = {}
+
+
+def _remember(camera: Any, spec: CameraSpec) -> None:
+    for key in [k for k, (ref, _) in _OPENED.items() if ref() is None]:
+        del _OPENED[key]
+    try:
+        _OPENED[id(camera)] = (weakref.ref(camera), spec)
+    except TypeError:          # a driver that cannot be weakly referenced: told by its type instead
+        pass
+
+
 def link_for_camera(camera: Any, spec: CameraSpec | None = None) -> CameraLink:
-    """A :class:`CameraLink` (without lock) for a camera driver opened elsewhere: ``spec``, else its
-    kind told by its type."""
-    from lfstudio.rig.genicam import GenicamCamera
+    """A :class:`CameraLink` (without lock) for a camera driver opened elsewhere: ``spec``, else the word
+    :func:`open_camera` opened it by, else its kind told by its type (drivers made directly)."""
     from lfstudio.rig.hotfolder import HotFolderCamera
     from lfstudio.studio.simulated import InstantCamera, SimulatedCamera
 
     if spec is not None:
         return CameraLink(spec, camera)
+    ref, opened = _OPENED.get(id(camera), (None, None))
+    if ref is not None and ref() is camera and opened is not None:     # opened by open_camera: its own word
+        return CameraLink(opened, camera)
     if isinstance(camera, SimulatedCamera):
         return CameraLink(CameraSpec(SIM), camera)
     if isinstance(camera, InstantCamera):
         return CameraLink(CameraSpec(INSTANT), camera)
     if isinstance(camera, HotFolderCamera):
         return CameraLink(CameraSpec("folder", str(camera.folder)), camera)
-    if isinstance(camera, GenicamCamera):
-        return CameraLink(CameraSpec("genicam", camera.device_id), camera)
     return CameraLink(CameraSpec("gphoto2"), camera)
 
 

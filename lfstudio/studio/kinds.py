@@ -69,6 +69,8 @@ class CameraKind:
     simulated: bool = False                  # renders a virtual scene (its settings are not its identity)
     help: str = ""
     origin: str = BUILT_IN
+    #: () -> (usable, what it runs on or why not), for lfstudio doctor (None: nothing to check)
+    check: Callable[[], tuple[bool, str]] | None = None
 
     @property
     def word(self) -> str:
@@ -403,6 +405,12 @@ def _genicam_id(argument: str, option: str) -> str:
     return argument
 
 
+def _genicam_check() -> tuple[bool, str]:
+    from lfstudio.rig.genicam import aravis_version
+
+    return aravis_version()
+
+
 @dataclass(frozen=True)
 class HotFolderOptions:
     timeout_s: float = described(30.0, number=Number("s", 0.1, 86400), label="Wait for the file",
@@ -424,6 +432,7 @@ def _builtin_cameras() -> list[CameraKind]:
                    help="the folder the camera's own software saves each picture into"),
         CameraKind("genicam", _open_genicam, "Machine-vision camera (GenICam)", argument="ID",
                    options=GenicamOptions, lock_key=lambda a: f"genicam-{a}", normalise=_genicam_id,
+                   check=_genicam_check,
                    help="GigE Vision or USB3 Vision camera through aravis (ID: as arv-tool-0.8 lists it)"),
         CameraKind("instant", _open_instant, "Instant camera (tests)", simulated=True,
                    help="takes no time and writes small files (tests, benchmarks)"),

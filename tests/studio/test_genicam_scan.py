@@ -81,3 +81,28 @@ def test_a_camera_option_the_kind_has_not_is_named_with_those_it_has(tmp_path, r
     r = run_cli("camera", tmp_path / "shot", "--camera", "genicam:X", "--camera-option", "timeout_s=-1")
     assert r.returncode != 0 and "--camera-option timeout_s" in r.stderr
     assert not list(tmp_path.iterdir())
+
+
+def test_a_pixel_format_lfstudio_cannot_store_is_one_line_and_no_shot(tmp_path, run_cli):
+    with fake_gv_camera() as fake:
+        r = run_cli("camera", tmp_path / "shot", "--camera", f"genicam:{fake.device_id}",
+                    "--set", "pixel_format=Mono12Packed", timeout=120)
+    assert r.returncode != 0 and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "pixel format 'Mono12Packed' cannot be stored by lfstudio" in r.stderr and "Mono8" in r.stderr
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_camera_opened_by_its_word_is_linked_by_it_again():
+    from lfstudio.studio.devices import link_for_camera
+    from lfstudio.studio.kinds import CameraKind, register_camera, unregister
+    from lfstudio.studio.devices import open_camera
+    from lfstudio.studio.simulated import InstantCamera
+
+    register_camera(CameraKind("wordcam", lambda a, c: InstantCamera(), argument="X", origin="plugin t 1 (m:f)"))
+    try:
+        link = open_camera("wordcam:left", connect=False)
+        assert link_for_camera(link.camera).spec.text == "wordcam:left"     # not taken for an instant camera
+        link.close()
+    finally:
+        unregister("wordcam")

@@ -139,3 +139,15 @@ def test_a_rig_plugin_is_reached_by_port_and_recorded(tmp_path, run_cli):
     r = run_cli("scan", "--port", "toyrig:", "--camera", "instant", "--grid", "2x1", "--out", tmp_path / "c",
                 env={"PYTHONPATH": str(tmp_path / "nothing-installed")})
     assert r.returncode != 0 and "Traceback" not in r.stderr     # no such plugin: a serial port that is not there
+
+
+def test_doctor_says_when_genicam_cameras_cannot_work(tmp_path, run_cli):
+    shadow = tmp_path / "site" / "gi"
+    shadow.mkdir(parents=True)
+    (shadow / "__init__.py").write_text("raise ImportError('No module named gi (hidden by the test)')\n")
+    r = run_cli("doctor", "--quick", env={"PYTHONPATH": str(tmp_path / "site")})
+    line = next((ln for ln in r.stdout.splitlines() if "camera genicam:ID" in ln), "")
+    assert line.startswith("warn") and "aravis is not available" in line and "apt-get install" in line, r.stdout
+    r = run_cli("camera", tmp_path / "shot", "--camera", "genicam:X", env={"PYTHONPATH": str(tmp_path / "site")})
+    assert r.returncode != 0 and "Traceback" not in r.stderr and "aravis is not available" in r.stderr
+    assert not list(tmp_path.glob("shot*"))
