@@ -35,6 +35,8 @@ PATTERNS = ("RGGB", "GRBG", "GBRG", "BGGR")
 class UnstorableFrame(InputError):
     """A frame lfstudio cannot store (its layout, sample type or shape)."""
 
+    kind = "unstorable-frame"
+
 
 @dataclass(frozen=True)
 class Frame:
