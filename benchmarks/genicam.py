@@ -17,6 +17,7 @@ Needs ``arv-fake-gv-camera-0.8`` (aravis-tools) and aravis's binding; prints fig
 from __future__ import annotations
 
 import argparse
+import fcntl
 import json
 import os
 import shutil
@@ -46,6 +47,8 @@ def fake_camera(lost_per_thousand: int = 0):
         sys.exit("genicam benchmark: needs arv-fake-gv-camera-0.8 (apt-get install aravis-tools) and aravis's "
                  "binding (gir1.2-aravis-0.8 python3-gi)")
     args = [exe, "-i", "127.0.0.1"] + (["-r", str(lost_per_thousand)] if lost_per_thousand else [])
+    lock = open(Path(tempfile.gettempdir()) / "lfstudio-fake-gv-camera.lock", "a+")   # as tests/fakegv.py: one at a time
+    fcntl.flock(lock, fcntl.LOCK_EX)
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 20
@@ -56,6 +59,7 @@ def fake_camera(lost_per_thousand: int = 0):
     finally:
         proc.terminate()
         proc.wait(10)
+        lock.close()
 
 
 def fps(frames: int, width: int, height: int) -> tuple[float, float]:
