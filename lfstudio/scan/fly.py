@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import logging
 import math
+import statistics
 import sys
 import threading
 import time
@@ -75,7 +76,14 @@ def fly_problem(rig: Any, camera: Any) -> str | None:
 
 def interpolate(reports: list[PositionReport], t: float) -> tuple[float, float, float] | None:
     """(x, y, uncertainty in mm) at ``t`` from the two reports around it (linear: constant speed
-    between reports); None when ``t`` is not between two reports."""
+    between reports); None when ``t`` is not between two reports. Reports whose question and answer
+    lay far apart (more than twice the median, and over 1 ms: the controller or this computer was
+    busy, so when the position was taken is vague) are left out when better ones are near."""
+    if len(reports) > 4:
+        limit = max(0.001, 2.0 * statistics.median(r.uncertainty_s for r in reports))
+        sharp = [r for r in reports if r.uncertainty_s <= limit]
+        if len(sharp) >= 2 and sharp[0].t_s <= t <= sharp[-1].t_s:
+            reports = sharp
     for a, b in zip(reports, reports[1:]):
         if a.t_s <= t <= b.t_s and b.t_s > a.t_s:
             w = (t - a.t_s) / (b.t_s - a.t_s)
@@ -103,7 +111,8 @@ class FlyScanEngine(ScanEngine):
         self.speed_mm_s = float(speed_mm_s)
         self.tolerance_mm = float(tolerance_mm) if tolerance_mm is not None else 0.25 * self.plan.spacing_mm[0]
         self.run_up_margin_s = float(run_up_margin_s)
-        self._step_cells: dict[tuple[int, int], str] = {}     # cell -> why it is taken standing still
+        #: cell -> ("retaken" or "standing_still", why): views taken standing still, and why
+        self._step_cells: dict[tuple[int, int], tuple[str, str]] = {}
         self._late: dict[tuple[int, int], float] = {}         # cell -> trigger sent after its time (s)
         self.rows_flown = 0
         self.retaken = 0
@@ -122,6 +131,7 @@ class FlyScanEngine(ScanEngine):
                     continue
                 break
             if len(row) == 1 or row[0].cell in self._step_cells:
+                self._step_cells.setdefault(row[0].cell, ("standing_still", "the only view of its row left"))
                 self._step(row[0])
                 for view in reversed(row[1:]):
                     self._queue.appendleft(view)
@@ -173,11 +183,11 @@ class FlyScanEngine(ScanEngine):
 
     def _expose(self, view: PlannedView, attempt: int, stem: Any) -> Future:
         fut = super()._expose(view, attempt, stem)
-        reason = self._step_cells.pop(view.cell, None)
-        if reason is None:
+        why = self._step_cells.pop(view.cell, None)
+        if why is None:
             return fut
-        self.retaken += 1
-        return _with_record(fut, {"fly": {"retaken": reason}})
+        self.retaken += why[0] == "retaken"
+        return _with_record(fut, {"fly": {why[0]: why[1]}})
 
     # -- one row ---------------------------------------------------------------------------------
     def _requeue(self, views: list[PlannedView]) -> None:
@@ -385,7 +395,7 @@ class FlyScanEngine(ScanEngine):
                                       "run-up when the scan goes on")
 
     def _retake(self, view: PlannedView, reason: str) -> None:
-        self._step_cells[view.cell] = reason
+        self._step_cells[view.cell] = ("retaken", reason)
         self._queue.appendleft(view)
         self._emit(EventKind.LOG, f"view {view_label(view.row, view.column)}: {reason}; taken again standing still")
 

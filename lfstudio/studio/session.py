@@ -696,19 +696,22 @@ class ScanSession:
         from lfstudio.scan.fly import fly_problem
 
         req = self.request
+        from lfstudio.errors import words
+
+        fly_words = words("--fly", "Continuous motion")
         problem = fly_problem(rig, camera)
         if problem is not None:
-            raise InputError("--fly", problem, "a camera with triggers and a controller that reports its position")
+            raise InputError(fly_words, problem, "a camera with triggers and a controller that reports its position")
         if plan.bracket is not None:
-            raise InputError("--fly", "an exposure bracket needs the carriage to stand still", "leave --bracket out")
+            raise InputError(fly_words, "an exposure bracket needs the carriage to stand still", "one picture per view")
         if req.time_scale <= 0:
-            raise InputError("--time-scale", "a fly scan needs simulated time to pass", "> 0 with --fly")
+            raise InputError(words("--time-scale", "Simulation time scale"), "a fly scan needs simulated time to pass", "> 0 for a fly scan")
         driver = getattr(camera, "driver", camera)
         rig_driver = getattr(rig, "driver", rig)
         settings = driver.settings() if callable(getattr(driver, "settings", None)) else {}
         exposure = settings.get("shutter_s", settings.get("exposure_s"))
         if not isinstance(exposure, (int, float)) or exposure <= 0:
-            raise InputError("--fly", "the camera does not tell its exposure time", "a camera reporting shutter_s")
+            raise InputError(fly_words, "the camera does not tell its exposure time", "a camera reporting shutter_s")
         fps = settings.get("frame_rate_fps")
         camera_info, lens = describe_camera(driver, scene)
         if scene is not None:
@@ -734,7 +737,7 @@ class ScanSession:
                            speed_mm_s=req.fly_speed_mm_s)
         result = plan_fly(inputs)
         if not result.possible:
-            raise InputError("--fly", result.refusal)
+            raise InputError(fly_words, result.refusal)
         return {"speed_mm_s": result.speed_mm_s, "binding": result.binding, "blur_px": result.blur_px,
                 "blur_limit_px": req.blur_limit_px, "time_s": result.time_s,
                 "limits_mm_s": {k: round(val, 4) for k, val in result.limits_mm_s.items()},

@@ -386,6 +386,11 @@ class PlannerPanel(QWidget):
             ("proposed_grid", "Grid for target", "Grid that gives the wanted parallax at this spacing"),
             ("images", "Images", "Number of views, and whether the grid fits the travel"),
             ("time", "Capture time", "Estimated scan time in meander order (transfers overlap moves)"),
+            ("fly", "Fly scan", "Continuous motion: the row speed that keeps motion blur within the blur limit "
+                                "(0.5 px) at the near distance, within the camera's frame rate (one frame per "
+                                "transfer time unless the plan says), the controller's position reports and the "
+                                "axis; its scan time and which limit binds, or why no speed does (Scan panel: "
+                                "Continuous motion)"),
             ("disk", "Disk space", "Raw files of the whole grid"),
         ]
         for i, (key, label, tip) in enumerate(items, start=1):
@@ -610,6 +615,13 @@ class PlannerPanel(QWidget):
         put("images", f"{plan.grid_columns} × {plan.grid_rows} = {r.images}{frames}"
             + ("" if r.fits_travel else "  — beyond travel"), "" if r.fits_travel else "bad")
         put("time", f"{format_duration(r.capture_time_s)} ({r.capture_time_s / max(r.images, 1):.2f} s/view)")
+        fly = r.fly
+        if fly is not None and fly.possible:
+            put("fly", f"{format_duration(fly.time_s)} at {fly.speed_mm_s:.3g} mm/s ({fly.binding} binds)")
+            self.outputs["fly"].setToolTip(self.outputs["fly"].toolTip().split("\n\n")[0])
+        elif fly is not None:
+            put("fly", f"not possible: {fly.binding} allows {fly.speed_mm_s:.3g} mm/s", "warn")
+            self.outputs["fly"].setToolTip(self.outputs["fly"].toolTip().split("\n\n")[0] + "\n\n" + fly.refusal)
         self._fill_disk(r)
 
     def _fill_disk(self, r: PlanResult) -> None:

@@ -28,7 +28,7 @@ from typing import Any
 
 from PySide6.QtCore import QSize, QTimer
 from PySide6.QtGui import QAction, QKeySequence, QTextCursor
-from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
+from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
                                QLabel, QLineEdit, QMessageBox, QPlainTextEdit, QProgressBar, QPushButton,
                                QSpinBox, QToolButton, QVBoxLayout, QWidget)
 
@@ -145,7 +145,8 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
                           allow_device_change=job.get("allow_device_change", False), recapture=job["recapture"],
                           time_scale=job["time_scale"], home=job.get("home", False),
                           engine_options=dict(job.get("engine_options") or {}),
-                          trust_rig_position=job.get("trust_rig_position", False))
+                          trust_rig_position=job.get("trust_rig_position", False), fly=job.get("fly", False),
+                          blur_limit_px=job.get("blur_limit_px", 0.5))
     session = ScanSession(request, doing="scanning", devices=devices)
     scene = job["scene"]
     try:
@@ -285,6 +286,14 @@ class ScanPanel(QWidget):
         self.bracket.setPlaceholderText("none — e.g. -2,0,+2 or 1/500,1/125,1/30s")
         self.bracket.setToolTip(_tip("bracket"))
         form.addRow(SCAN_PARAMS["bracket"].label, self.bracket)
+        self.fly = QCheckBox("Continuous motion (fly scan)")
+        self.fly.setObjectName("scanFly")
+        self.fly.setToolTip("Cross each row at one constant speed and trigger the camera as the carriage passes "
+                            "each view, instead of stopping at every view. The speed keeps motion blur within the "
+                            "Planner's Blur limit; it needs a camera with triggers and a controller that reports "
+                            "its position (the Start button says why not). Views whose frame came late are taken "
+                            "again standing still")
+        form.addRow(self.fly)
         self.from_plan = QPushButton("Take grid from the plan")
         self.from_plan.setObjectName("fromPlanButton")
         self.from_plan.setToolTip("Copy grid, spacing and settle time from the Planner's current plan")
@@ -604,7 +613,8 @@ class ScanPanel(QWidget):
                    rig_cfg=self.rig_config(), scene=scene, shared=rig_devices, simulator=simulator,
                    studio=self.studio, time_scale=self.time_scale.value() if self.state.simulated else 1.0,
                    exposure_s=getattr(scene, "exposure_s", 0.5), transfer_s=getattr(scene, "transfer_s", 2.5),
-                   allow_device_change=allow_device_change, home=home, trust_rig_position=trust_rig_position)
+                   allow_device_change=allow_device_change, home=home, trust_rig_position=trust_rig_position,
+                   fly=self.fly.isChecked(), blur_limit_px=float(getattr(scene, "blur_limit_px", 0.5)))
         if not shared and self.studio is None:
             self._log("starting the simulated studio (GRBL simulator on a pseudo-terminal, simulated camera)…")
             self.state_label.setText("Connecting the simulated rig and camera…")
@@ -1126,7 +1136,7 @@ class ScanPanel(QWidget):
         self.abort_button.setEnabled(st in (ScanState.RUNNING, ScanState.PAUSING, ScanState.PAUSED))
         self.skip_button.setEnabled(st is ScanState.PAUSED and self.engine is not None and self.engine.fault is not None)
         for w in (self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v,
-                  self.order, self.settle, self.bracket, self.folder, self.from_plan, self.time_scale):
+                  self.order, self.settle, self.bracket, self.fly, self.folder, self.from_plan, self.time_scale):
             w.setEnabled(not running)
         self.bracket.setToolTip(BRACKET_FIXED_TIP if running else _tip("bracket"))
         for name, button in (("start", self.start_button), ("pause", self.pause_button),   # Rig → … scan
