@@ -2,13 +2,15 @@
 record, a settings round trip, a capture whose file lfstudio reads, errors as one operator line, disconnect,
 and a second lfstudio process refused while one holds the camera.
 
-Each kind runs on its real stack: the virtual studio (sim), the instant camera, libgphoto2's own virtual
+Installed plugins' kinds run it too when named in ``LFSTUDIO_CONTRACT_CAMERAS`` (tests/studio/test_plugins.py
+does so for the documented example plugin). Each built-in kind runs on its real stack: the virtual studio (sim), the instant camera, libgphoto2's own virtual
 PTP camera (gphoto2, tests/vcamera.py), a hot folder fed by a trigger command, aravis's fake GigE Vision
 camera over the real protocol (genicam, tests/fakegv.py). A kind registered without a case here fails
 :func:`test_every_registered_camera_kind_has_a_contract_case`, so a new built-in kind must join."""
 
 from __future__ import annotations
 
+import os
 import sys
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
@@ -79,6 +81,19 @@ CASES: dict[str, Callable[[Path, ExitStack, pytest.MonkeyPatch], Case]] = {
     "sim": _sim, "instant": _instant, "gphoto2": _gphoto2, "folder": _folder, "genicam": _genicam}
 
 
+def _installed(spec: str) -> Callable[[Path, ExitStack, pytest.MonkeyPatch], Case]:
+    """A plugin's kind from ``LFSTUDIO_CONTRACT_CAMERAS``: ``WORD|NAME=VALUE`` (its word, one setting)."""
+    word, _, setting = spec.partition("|")
+    name, _, text = setting.partition("=")
+    value: Any = float(text) if text.replace(".", "", 1).isdigit() else text
+    return lambda tmp, stack, monkeypatch: Case(word.strip(), (name.strip(), value, value))
+
+
+#: installed plugins' kinds run the same contract: LFSTUDIO_CONTRACT_CAMERAS="ramp:64x48|gain=2;OTHER|..."
+for _spec in filter(None, os.environ.get("LFSTUDIO_CONTRACT_CAMERAS", "").split(";")):
+    CASES[f"plugin:{_spec.partition('|')[0]}"] = _installed(_spec)
+
+
 @contextmanager
 def opened(case: Case, connect: bool = True) -> Iterator[CameraLink]:
     link = open_camera(case.word, position_mm=(lambda: (0.0, 0.0)) if case.position else None,
@@ -98,7 +113,7 @@ def case(request, tmp_path, monkeypatch):
 
 def test_every_registered_camera_kind_has_a_contract_case():
     built_in = [name for name, kind in camera_kinds().items() if kind.origin == "built-in"]
-    assert sorted(built_in) == sorted(CASES)
+    assert sorted(built_in) == sorted(c for c in CASES if not c.startswith("plugin:"))
 
 
 def test_connect_record_settings_capture_disconnect(case, tmp_path):

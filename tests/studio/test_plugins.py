@@ -151,3 +151,16 @@ def test_doctor_says_when_genicam_cameras_cannot_work(tmp_path, run_cli):
     r = run_cli("camera", tmp_path / "shot", "--camera", "genicam:X", env={"PYTHONPATH": str(tmp_path / "site")})
     assert r.returncode != 0 and "Traceback" not in r.stderr and "aravis is not available" in r.stderr
     assert not list(tmp_path.glob("shot*"))
+
+
+def test_the_example_plugin_keeps_the_camera_contract(example_site):
+    """The same suite as every built-in camera (tests/contract/test_cameras.py), on the installed plugin."""
+    import os
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO_ROOT), str(example_site)]),
+               LFSTUDIO_CONTRACT_CAMERAS="ramp:64x48|gain=2")
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "0",
+                        "tests/contract/test_cameras.py", "-k", "plugin"], capture_output=True, text=True,
+                       env=env, cwd=REPO_ROOT, timeout=300)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
+    assert "3 passed" in r.stdout, r.stdout[-2000:]                 # connect…disconnect, errors, second process
