@@ -140,7 +140,12 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="6 trials per row, shifts 0 and 200 (development)")
     ap.add_argument("--shapes", action="store_true", help="grid shapes x distortion x texture (see the docstring)")
     ap.add_argument("--shape-trials", type=int, default=10)
+    ap.add_argument("--smoke", action="store_true",
+                    help="one trial of the first row of each table: does it still run (tests/benchmarks)")
     args = ap.parse_args()
+    subsamples, sources = (SUBSAMPLES[:1], SOURCES[:1]) if args.smoke else (SUBSAMPLES, SOURCES)
+    if args.smoke:
+        args.trials, args.shifts = 1, "0"
     if args.shapes:
         shapes(args.shape_trials, args.seed)
         return
@@ -153,19 +158,19 @@ def main() -> None:
     pp_worst: list[tuple[float, str]] = []
     with Timer() as span:
         for k, shift in enumerate(shifts):
-            for j, (views, pairs, label) in enumerate(SUBSAMPLES):
+            for j, (views, pairs, label) in enumerate(subsamples):
                 cfg = SimulationConfig(views=views, pair_set=pairs)
                 out = simulate(args.trials, shift, args.seed + 100 * k + j, cfg, modes=("auto",), linear=True)
                 s = out["with_principal_point"]
                 print(_row(f"{shift:g} px", f"{label} ({out['pairs']})", s), flush=True)
                 if s["pp_error_px"]["estimated_trials"]:
                     pp_worst.append((s["pp_error_px"]["max_estimated"], f"{label}, shift {shift:g} px"))
-        n = 4 * args.trials
+        n = (1 if args.smoke else 4) * args.trials
         print(f"\nThe default at shift 0 over {n} trials (seed {args.seed + 1000}), and where its error comes from "
               "(the same trials without one noise source):\n")
         print("| noise | true error mean | RMS | p99 | rot. median | rot. p99 | coverage 1σ | 2σ |")
         print("| --- " * 8 + "|")
-        for label, change in SOURCES:
+        for label, change in sources:
             cfg = SimulationConfig(views=DEFAULT_VIEWS, pair_set=DEFAULT_PAIR_SET, **change)
             s = simulate(n, 0.0, args.seed + 1000, cfg, modes=("auto",))["with_principal_point"]
             t, cov = s["true_residual_px"], s["coverage"]["true_residual"]

@@ -234,6 +234,10 @@ def main() -> int:
         print(f"  points: {p['points']}, reprojection error mean {p['err_mean']:.3f} px, p95 {p['err_p95']:.3f} px "
               f"(targets <= 0.5 / 1.0), within 2 % of the true depth {p['within_2pct']:.1%} (target >= 90 %), "
               f"mean track {p['track']:.1f} views; export {p['export_wall_s']:.0f} s wall, {p['export_cpu_s']:.0f} s CPU")
+        if not p["points"]:
+            print(f"FAILED: the COLMAP export of {cols} x {rows} views at {args.width} px has no sparse point "
+                  "(no figure to give)", file=sys.stderr)
+            return 1
         mid_row = (rows - 1) // 2
         cs = np.linspace(0, cols - 1, args.dense_views + 2)[1:-1].round().astype(int)
         d = dense_figures(ds, [(mid_row, int(c)) for c in cs])
@@ -241,6 +245,9 @@ def main() -> int:
               f"BadPix(0.07) {d['ours_bad']:.1%}; SGBM {d['sgbm_rel']:.2%}, {d['sgbm_bad']:.1%} (its valid pixels "
               f"{d['sgbm_density']:.0%}: SGBM {d['sgbm_bad_valid']:.1%}, ours {d['ours_bad_valid']:.1%}); "
               f"ours {d['cpu_s']:.1f} CPU s per view at {args.width} px")
+        if not np.isfinite(d["ours_rel"]):
+            print(f"FAILED: the dense depth of {cols} x {rows} views gave no figure (no valid pixel?)", file=sys.stderr)
+            return 1
         rows_out.append((text, p, d))
         last = ds
     if not args.skip_2000:

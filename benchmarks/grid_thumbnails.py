@@ -156,6 +156,7 @@ def main() -> int:
     app = QApplication.instance() or QApplication([])
 
     results = []
+    complete = []
     labels = ("opening the imported dataset (thumbnails stored)", "reopened") if args.import_images \
         else ("first opening (thumbnails made from the files)", "reopened (thumbnails from the cache)")
     for label in labels:
@@ -171,6 +172,7 @@ def main() -> int:
         shot = base / f"grid-{args.format}.png"
         view.grab().save(str(shot))
         results.append(span)
+        complete.append(done)
         print(f"{label:50s} {'all' if done else 'NOT all'} {int(canvas._mosaic_has.sum())} tiles in "
               f"{span.wall_s:6.1f} s wall, {span.cpu_s:6.1f} CPU-s (cores used {span.cores_used:.2f}, load "
               f"{span.load_1min:.1f})   target < 60 s: {'OK' if done and span.wall_s < 60 else 'MISSED'}",
@@ -183,6 +185,9 @@ def main() -> int:
         thumbs._filler.cancel()
     print(f"screenshot: {shot}")
     print(load_text())
+    if not all(complete):
+        print("FAILED: not every thumbnail tile came in (see the lines above)", file=sys.stderr)
+        return 1
     return 0
 
 

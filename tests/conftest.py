@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
+import inspect
 import os
+import re
 import sys
 import tempfile
 from pathlib import Path
@@ -32,7 +35,71 @@ SHARED_DATA = next((p / "shared" / "data" for p in (REPO_ROOT.parent, REPO_ROOT.
 _TOOL_TESTS = ("tests/test_types.py", "tests/test_import_rules.py", "tests/test_lint.py")
 
 
+# -- tiers -------------------------------------------------------------------------------------------
+# Every test is in one of two tiers, given here by rules (a new test gets its tier without a marker):
+#   fast: unit tests and in-process CLI tests; `./test.sh -m fast` runs them (what a developer runs
+#         while working).
+#   full: everything else: the GUI (real Qt loop), subprocesses (the CLI run as a program, emulator and
+#         firmware processes), real cameras' stacks, the fault and concurrency tests, the benchmarks'
+#         smoke runs and the whole-package tool runs. `./test.sh` (and CI) run both tiers.
+# A test is full when it is marked `full` or `slow`, lives in one of _FULL_FOLDERS or _FULL_FILES, uses
+# one of _FULL_FIXTURES (directly or through another fixture), or its own code or that of a fixture it
+# uses names one of _FULL_WORDS (a process, a firmware, an emulator in another process, a real camera stack).
+_FULL_FOLDERS = ("tests/gui/", "tests/faults/", "tests/studio/", "tests/benchmarks/", "tests/docs/")
+#: in-process modules measured too heavy for the fast tier (virtual-studio renders, calibration fits and
+#: statistics, whole-pipeline runs: seconds a test; `./test.sh -m fast --durations=25` shows the next ones)
+_HEAVY_FILES = ("tests/calibration/test_simulate.py", "tests/calibration/test_uncertainty.py",
+                "tests/calibration/test_distortion_and_evidence.py", "tests/calibration/test_observability.py",
+                "tests/calibration/test_virtual_studio.py", "tests/export/test_sheared_import.py",
+                "tests/export/test_hci_import.py", "tests/depth/test_dense.py", "tests/quality/test_check.py",
+                "tests/quality/test_bracket_check.py", "tests/quality/test_live.py",
+                "tests/processing/test_output_size_path.py", "tests/processing/test_virtual_studio.py",
+                "tests/processing/test_pipeline.py", "tests/sim/test_virtual_dataset.py")
+_FULL_FILES = _TOOL_TESTS + _HEAVY_FILES
+#: fixtures that start another process, a Qt loop, a firmware or an emulator
+_FULL_FIXTURES = frozenset({"qtbot", "qapp", "run_cli", "start_cli", "sim_rig_port", "vcamera", "grbl_firmware",
+                            "grbl_firmware_exe", "small_disk", "scanned", "fake_gv", "fakegv",
+                            "shared_data"})      # real files from outside: large, and absent on some machines
+_FULL_WORDS = re.compile(r"\b(subprocess|Popen|sys\.executable|multiprocessing|LocalCluster|ProcessPoolExecutor|"
+                         r"os\.fork|fake_gv_camera|own_network_namespace|canopen_sim_drive|lfstudio_env|"
+                         r"kill_9_after|FirmwareSimulator|build_firmware_simulator|use_vcamera|sim-drive)\b")
+_source_cache: dict = {}
+
+
+def _source(fn) -> str:
+    if fn not in _source_cache:
+        try:
+            _source_cache[fn] = inspect.getsource(fn)
+        except (OSError, TypeError):
+            _source_cache[fn] = ""
+    return _source_cache[fn]
+
+
+def _own_code(item) -> str:
+    """The test function's source and that of every fixture it uses (directly or through others)."""
+    fns = [getattr(item, "function", None)]
+    defs = getattr(getattr(item, "_fixtureinfo", None), "name2fixturedefs", {})
+    for name in item.fixturenames:
+        fns += [getattr(d, "func", None) for d in defs.get(name, ())]
+    return "\n".join(_source(fn) for fn in fns if fn is not None)
+
+
+def tier_of(item) -> str:
+    """``"fast"`` or ``"full"`` (the rules above)."""
+    path = item.nodeid.split("::")[0]
+    if (item.get_closest_marker("full") or item.get_closest_marker("slow") or path in _FULL_FILES
+            or path.startswith(_FULL_FOLDERS) or _FULL_FIXTURES.intersection(item.fixturenames)
+            or _FULL_WORDS.search(_own_code(item))):
+        return "full"
+    return "fast"
+
+
 def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if tier_of(item) == "fast":
+            item.add_marker(pytest.mark.fast)
+        elif not item.get_closest_marker("full"):
+            item.add_marker(pytest.mark.full)
     order = {path: i for i, path in enumerate(_TOOL_TESTS)}
     items.sort(key=lambda item: order.get(item.nodeid.split("::")[0], len(order)))     # stable: the rest keep order
 
@@ -68,6 +135,45 @@ def run_cli():
         env["PYTHONPATH"] = str(REPO_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
         return subprocess.run([sys.executable, "-m", "lfstudio", *map(str, args)], capture_output=True,
                               text=True, timeout=timeout, env=env, cwd=kw.pop("cwd", REPO_ROOT), **kw)
+
+    return run
+
+
+@dataclasses.dataclass
+class CliRun:
+    """What ``cli_main`` returns: as ``run_cli``'s CompletedProcess (``returncode``, ``stdout``, ``stderr``)."""
+
+    args: list[str]
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+@pytest.fixture
+def cli_main(capsys, monkeypatch):
+    """Run ``lfstudio ARGS`` in this process (``lfstudio.cli.main``), for tests of parsing and messages
+    (fast tier: starting Python for ``run_cli`` costs ~0.85 s a command). Not for commands that open
+    the window, devices or long jobs: those keep ``run_cli``."""
+    import logging
+
+    from lfstudio.cli import main
+    from lfstudio.support.logs import _HANDLER_TAG
+
+    def run(*args) -> CliRun:
+        argv = [str(a) for a in args]
+        monkeypatch.setattr(sys, "argv", ["lfstudio", *argv])      # the parser's hints read the command line
+        capsys.readouterr()
+        try:
+            code = main(argv)
+        except SystemExit as exc:                                   # argparse: --help, --version, usage errors
+            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        finally:
+            root = logging.getLogger()
+            for handler in [h for h in root.handlers if getattr(h, _HANDLER_TAG, False)]:
+                root.removeHandler(handler)                         # they hold this test's captured streams
+                handler.close()
+        out, err = capsys.readouterr()
+        return CliRun(["lfstudio", *argv], code, out, err)
 
     return run
 

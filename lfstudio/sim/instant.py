@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from lfstudio.dataset.atomic import atomic_write_with
-from lfstudio.errors import DeviceError, InputError
+from lfstudio.errors import DeviceError
 from lfstudio.rig.camera import CaptureResult
 from lfstudio.rig.motion import RigConfig, RigState, RigStatus
 
@@ -86,14 +86,20 @@ class InstantCamera:
     name = "Instant camera"
 
     def __init__(self, position_mm: Callable[[], tuple[float, float]] | None = None, size_px: tuple[int, int] = (64, 48),
-                 render: Callable[[float, float], np.ndarray] | None = None):
+                 render: Callable[[float, float], np.ndarray] | None = None, describe_size: bool = False):
         """``render(x_mm, y_mm)`` (optional) returns the RGB uint8 image to write instead of the gradient,
-        e.g. a small :class:`lfstudio.sim.studio.VirtualStudio` rendering."""
+        e.g. a small :class:`lfstudio.sim.studio.VirtualStudio` rendering.
+
+        ``describe_size``: :meth:`identity` tells the image size (``sensor_px``), so the scan's disk
+        pre-flight counts these small files (:func:`lfstudio.scan.preflight.view_size`) instead of the
+        scene plan's camera (84 MB an image for the reference camera: a 2121-view scan from the window
+        was refused as needing 179 GB). Off by default: the instant camera also stands for the cameras
+        whose frame size nothing tells before the first picture (a gphoto2 camera, a hot folder)."""
         self.position_mm = position_mm or (lambda: (0.0, 0.0))
         self.size_px = size_px
+        self.describe_size = describe_size
         self.render = render
         self._connected = False
-        self.shutter_s = 0.0
         w, h = size_px
         yy, xx = np.mgrid[0:h, 0:w]
         self._base = np.dstack([(xx * 4) % 256, (yy * 5) % 256, ((xx + yy) * 3) % 256]).astype(np.uint8)
@@ -105,22 +111,15 @@ class InstantCamera:
     def disconnect(self) -> None:
         self._connected = False
 
+    def identity(self) -> dict[str, Any]:
+        """``{"sensor_px": [w, h]}`` with ``describe_size``, else nothing."""
+        return {"sensor_px": [int(v) for v in self.size_px]} if self.describe_size else {}
+
     def settings(self) -> dict[str, Any]:
-        return {"format": "PNG", "shutter_s": self.shutter_s}
+        return {"format": "PNG", "shutter_s": 0.0}
 
     def set_setting(self, name: str, value: Any) -> None:
-        """``shutter_s`` is kept (it takes no time); ``format`` is PNG; ``time_scale`` changes nothing;
-        any other name is refused (the camera contract: a setting is never dropped unsaid)."""
-        if name == "shutter_s":
-            seconds = float(value)
-            if not 0 <= seconds <= 3600:
-                raise InputError("shutter_s", f"{value} s is out of range", "0 … 3600 s")
-            self.shutter_s = seconds
-        elif name == "format":
-            if str(value).upper() != "PNG":
-                raise InputError("format", f"{value!r} is not available on the instant camera", "PNG")
-        elif name != "time_scale":
-            raise InputError(name, "unknown setting of the instant camera", "shutter_s, format")
+        pass
 
     def capture(self, stem_path: Path, on_exposed: Callable[[], None] | None = None) -> CaptureResult:
         if not self._connected:

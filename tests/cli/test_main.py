@@ -1,8 +1,8 @@
 from lfstudio.cli import COMMANDS, build_parser
 
 
-def test_help_lists_every_command(run_cli):
-    result = run_cli("--help")
+def test_help_lists_every_command(cli_main):
+    result = cli_main("--help")
     assert result.returncode == 0
     for name in COMMANDS:
         assert name.replace("_", "-") in result.stdout
@@ -14,8 +14,8 @@ def test_version(run_cli):
     assert result.stdout.startswith("lfstudio ")
 
 
-def test_unknown_command_is_usage_error(run_cli):
-    result = run_cli("no-such-command")
+def test_unknown_command_is_usage_error(cli_main):
+    result = cli_main("no-such-command")
     assert result.returncode == 2
     assert "invalid choice" in result.stderr
     assert "Traceback" not in result.stderr
@@ -39,7 +39,7 @@ def _dataset_commands() -> dict[str, list[str]]:
     return found
 
 
-def test_a_missing_dataset_is_bad_input_for_every_command(run_cli, tmp_path):
+def test_a_missing_dataset_is_bad_input_for_every_command(cli_main, tmp_path):
     """One convention: a DATASET that does not exist, or is not a dataset, exits 2 with one line."""
     commands = _dataset_commands()
     assert {"info", "calibrate", "process", "export"} <= set(commands)
@@ -47,7 +47,7 @@ def test_a_missing_dataset_is_bad_input_for_every_command(run_cli, tmp_path):
     for name, extra in commands.items():
         for dataset, words in ((tmp_path / "nowhere", ("nowhere", "not a folder")),
                                (tmp_path / "empty", ("empty", "dataset.json", "not found"))):
-            proc = run_cli(name, dataset, *[a.format(tmp=tmp_path) for a in extra])
+            proc = cli_main(name, dataset, *[a.format(tmp=tmp_path) for a in extra])
             assert proc.returncode == 2, (name, dataset, proc.stderr)
             lines = proc.stderr.strip().splitlines()
             assert len(lines) == 1 and lines[0].startswith(f"lfstudio {name}: error: "), proc.stderr
@@ -56,7 +56,7 @@ def test_a_missing_dataset_is_bad_input_for_every_command(run_cli, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-def test_every_help_states_the_exit_codes(run_cli):
+def test_every_help_states_the_exit_codes(cli_main):
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")
     helps = {"lfstudio": parser.format_help(), **{n: p.format_help() for n, p in sub.choices.items()}}
@@ -64,11 +64,11 @@ def test_every_help_states_the_exit_codes(run_cli):
         flat = " ".join(text.split())
         assert "Exit codes: 0 done; 1 the work failed" in flat, name
         assert "2 bad input" in flat and "130 interrupted" in flat, name
-    result = run_cli("info", "--help")
+    result = cli_main("info", "--help")
     assert "2 bad input" in " ".join(result.stdout.split())
 
 
-def test_a_negative_or_malformed_spacing_gets_one_line_not_a_usage_dump(run_cli, tmp_path):
+def test_a_negative_or_malformed_spacing_gets_one_line_not_a_usage_dump(cli_main, tmp_path):
     """``--spacing-mm -4x6`` used to stop in argparse ("expected one argument") with the usage text."""
     required = {"import-images": [str(tmp_path), "--grid", "2x2", "--out", str(tmp_path / "x")],
                 "virtual-dataset": [str(tmp_path / "x")],
@@ -79,7 +79,7 @@ def test_a_negative_or_malformed_spacing_gets_one_line_not_a_usage_dump(run_cli,
     assert {"plan", "scan", "import-images", "virtual-dataset"} <= set(commands)
     for name in commands:
         for value, words in (("-4x6", ("-4",)), ("4x", ("4x",))):
-            proc = run_cli(name, *required.get(name, []), "--spacing-mm", value)
+            proc = cli_main(name, *required.get(name, []), "--spacing-mm", value)
             lines = proc.stderr.strip().splitlines()
             assert proc.returncode == 2, (name, value, proc.stderr)
             assert len(lines) == 1 and "usage:" not in proc.stderr, (name, value, proc.stderr)

@@ -158,3 +158,22 @@ def test_unhomed_rig_pauses_before_the_first_move(setup):
     engine.resume()                              # reconnects the rig
     assert engine.wait(30) is ScanState.FINISHED
     assert cam.captures == 12
+
+
+def test_an_instant_camera_that_describes_its_size_passes_the_disk_preflight_of_a_2121_view_scan():
+    """benchmarks/grid_gui.py scans 2121 views with the instant camera from the window, whose scene plan
+    says 84 MB an image: counted that way the scan needed 179 GB and was refused. With describe_size the
+    camera's own 64 x 48 px count (and a camera that tells nothing still falls back to the plan)."""
+    from lfstudio.scan.preflight import disk_shortfall, view_size
+    from lfstudio.studio.session import describe_camera
+
+    plan_bytes = 84 * 2**20
+    told = describe_camera(InstantCamera(describe_size=True))[0].get("sensor_px")
+    assert told == [64, 48]
+    size = view_size(1, sensor_px=told, plan_bytes_per_image=plan_bytes)
+    assert size is not None and size.bytes < 2**20 and "64 x 48" in size.source
+    assert disk_shortfall("/tmp/x", 2121, size, free_bytes=20 * 2**30) is None
+    silent = describe_camera(InstantCamera())[0].get("sensor_px")
+    assert silent is None
+    fallback = view_size(1, sensor_px=silent, plan_bytes_per_image=plan_bytes)
+    assert fallback is not None and disk_shortfall("/tmp/x", 2121, fallback, free_bytes=20 * 2**30) is not None
