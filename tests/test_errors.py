@@ -20,6 +20,7 @@ KINDS = {
     "lfstudio.errors.DeviceTimeout": "device-timeout",
     "lfstudio.errors.DeviceRefused": "device-refused",
     "lfstudio.dataset.images.NotACapture": "not-a-capture",
+    "lfstudio.dataset.frames.UnstorableFrame": "unstorable-frame",
     "lfstudio.dataset.storage.StorageError": "error",      # each instance: full, read-only, not writable, failing
     "lfstudio.rig.motion.SoftLimitError": "soft-limit",
     "lfstudio.rig.worker.CallTimedOut": "call-timed-out",

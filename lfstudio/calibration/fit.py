@@ -46,7 +46,7 @@ from lfstudio.calibration.linear import linear_rotation
 from lfstudio.calibration.model import MAX_ANGLE_DEG, apply_homography, nominal_principal_point, \
     rectifying_homography
 from lfstudio.dataset.paths import view_stem
-from lfstudio.errors import LfError
+from lfstudio.errors import LfError, words
 
 #: the reference rig's repeatability (horizontal, vertical axis), the default prior of the view offsets
 DEFAULT_POSITION_SIGMA_UM = (80.0, 50.0)
@@ -600,7 +600,8 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
     w, h = int(image_size_px[0]), int(image_size_px[1])
     f = float(focal_length_px)
     if not (f > 0):
-        raise CalibrationError(f"focal length {f!r} px must be positive; give --focal-length-px")
+        raise CalibrationError(f"focal length {f!r} px must be positive; give "
+                               + words("--focal-length-px", "the Focal length (px) in the Calibrate dialog"))
     used = [m for m in matches if m.count > 0]
     total = sum(m.count for m in used)
     obs = observability(used, min_matches)

@@ -147,15 +147,21 @@ def attach_dash_values(parser: argparse.ArgumentParser, argv: list[str]) -> list
 SECRET_OPTIONS = ("--status-token",)
 
 
+def _secret_option(word: str) -> bool:
+    """``word`` names a :data:`SECRET_OPTIONS` option, in full or abbreviated as argparse takes it
+    (``--status-tok``: a unique prefix; an ambiguous one is refused before anything is recorded)."""
+    return word.startswith("--") and len(word) > 2 and any(name.startswith(word) for name in SECRET_OPTIONS)
+
+
 def loggable(argv: list[str]) -> list[str]:
     """The command line as the log file may keep it: URLs shown as scheme and host only (a webhook's
     path or a user's password is a secret), the values of :data:`SECRET_OPTIONS` masked."""
     out: list[str] = []
     for word in argv:
         option, eq, value = word.partition("=")
-        if out and out[-1] in SECRET_OPTIONS:
+        if out and _secret_option(out[-1]):
             word = "…"
-        elif eq and option in SECRET_OPTIONS:
+        elif eq and _secret_option(option):
             word = f"{option}=…"
         elif "://" in word or word.startswith("mailto:"):
             from lfstudio.scan.notify import mask_urls, shown_url

@@ -41,23 +41,18 @@ def format_report(doc: dict) -> str:
     def num(x, spec: str) -> str:
         return "–" if x is None else format(x, spec)
 
+    from lfstudio.quality.check import disparity_map_summary, disparity_summary, repeatability_summary
+
     lines = [f"verdict       {doc['verdict'].upper()}   {s['views']} views: {s['pass']} pass, {s['warn']} warn, "
              f"{s['fail']} fail",
-             f"repeatability x {num(rep.get('x_um'), '.0f')} µm, y {num(rep.get('y_um'), '.0f')} µm measured "
-             f"({'logged by the rig' if rep.get('planned_from') == 'logged' else 'planned'} "
-             f"{', '.join(f'{v:g}' for v in rep.get('planned_um', []))} µm)",
+             f"repeatability {repeatability_summary(rep)}",
              f"depth         {depth.get('verdict', 'n/a')}: {depth.get('why', '')}",
-             f"disparity     {num(depth.get('views_disparity_min_px', depth.get('disparity_min_px')), '+.2f')} … "
-             f"{num(depth.get('views_disparity_max_px', depth.get('disparity_max_px')), '+.2f')} px "
-             "between horizontal neighbours"
-             + (f" (exports write {depth['export_disp_min_px']:.2f} … {depth['export_disp_max_px']:.2f})"
-                if depth.get("export_disp_min_px") is not None else "")]
+             f"disparity     {disparity_summary(depth)}"]
     zero = depth.get("zero_disparity") or {}
     if zero.get("about"):
         lines.append(f"zero plane    {zero['about']}")
     if disp:
-        lines.append(f"disparity map {disp['view']}: median {num(disp.get('median_px'), '.2f')} px, "
-                     f"{disp.get('valid_fraction', 0):.0%} of pixels matched")
+        lines.append(f"disparity map {disparity_map_summary(disp, depth)}")
     if not doc["calibration"]["used"]:
         lines.append(f"note          {doc['calibration']['note']}")
     flagged = [v for v in doc["views"] if v["verdict"] in ("warn", "fail")]

@@ -99,6 +99,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
             g.add_argument(option, metavar=metavar, type=_type(option, kind), help=help_text)
             if option in OLD_SPELLINGS:
                 old_spelling(g, OLD_SPELLINGS[option], option)
+    p.add_argument("--fly", action="store_true",
+                   help="plan a fly scan (continuous motion): refused (exit 2) with the numbers when no speed "
+                        "meets every limit")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.add_argument("--save", metavar="FILE", type=path_option("--save"), help="also write the plan to FILE (.toml or .json)")
     p.add_argument("--list-presets", action="store_true", help="list camera, lens and rig presets and exit")
@@ -202,8 +205,19 @@ def format_table(plan, result) -> str:
             ("disk space", f"{_bytes(r.storage_bytes)} ({_bytes(r.bytes_per_image)} per image)"),
         ]),
     ]
+    fly = r.fly
+    if fly is not None:
+        from lfstudio.planning.fly import format_fly
+
+        rows = [("step scan", f"{format_duration(r.capture_time_s)}"),
+                ("fly scan", (f"{format_duration(fly.time_s)} ({fly.time_s / max(r.images, 1):.2f} s per view)"
+                              if fly.possible else "not possible (see row speed)")),
+                ("row speed", format_fly(fly)),
+                ("limits", ", ".join(f"{k} {v:.4g}" for k, v in fly.limits_mm_s.items()) + " mm/s")]
+        rows.extend(("note", n) for n in fly.notes)
+        sections.append(("Fly scanning (continuous motion)", rows))
     if r.frames_per_view > 1:
-        sections[-1][1].insert(1, ("exposure bracket", f"{r.frames_per_view} frames a view ("
+        sections[-2 if fly is not None else -1][1].insert(1, ("exposure bracket", f"{r.frames_per_view} frames a view ("
                                   + ", ".join(f"{t:.4g} s" for t in r.frame_exposures_s) + f"), {r.frames} pictures"))
     if r.proposed_grid is not None:
         sections[2][1].append((f"grid for {100 * plan.target_parallax_fraction:g} % parallax",
@@ -233,6 +247,8 @@ def run(args: argparse.Namespace) -> int:
         result = plan.derive()
     except InputError as exc:
         raise _option_error(exc, args) from None
+    if getattr(args, "fly", False) and result.fly is not None and not result.fly.possible:
+        raise InputError("--fly", result.fly.refusal)
     if args.save:
         from lfstudio.planning.scene_plan import save_plan
 

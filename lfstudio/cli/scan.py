@@ -16,7 +16,9 @@ import sys
 import threading
 import time
 
-from lfstudio.cli.args import bracket_option, described_option, grid_option, path_option, refused_spelling
+from lfstudio.cli.args import (bracket_option, described_option, grid_option, number_option, path_option,
+                               refused_spelling)
+from lfstudio.numbers import Number
 from lfstudio.dataset.paths import view_label
 from lfstudio.errors import DatasetError, InputError
 
@@ -96,6 +98,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="continue an interrupted scan in DATASET: captures only the views not done yet")
     for name in ("time_scale", "exposure_s", "transfer_s", "sim_width_px", "retries", "seed"):
         _described(p, name)
+    g = p.add_argument_group("fly scanning (continuous motion)")
+    g.add_argument("--fly", action="store_true",
+                   help="fly scan: each row crossed at one constant speed, the camera triggered as the carriage "
+                        "passes each view (needs a camera with triggers and a controller that reports its position); "
+                        "the speed keeps motion blur within --blur-limit-px, refused with the numbers when none does")
+    g.add_argument("--fly-speed-mm-s", metavar="MMS", type=number_option(Number("mm/s", 0, 100_000, low_open=True),
+                                                                           "--fly-speed-mm-s"),
+                   help="the row speed of --fly (default: the fastest the blur limit, camera, controller and axes allow)")
+    g.add_argument("--blur-limit-px", metavar="PX", type=number_option(Number("px", 0, 100, low_open=True),
+                                                                        "--blur-limit-px"), default=0.5,
+                   help="the most motion blur a --fly frame may have at the near distance (default 0.5)")
     p.add_argument("--check", action="store_true",
                    help="check each view as it arrives (lfstudio check's measurements, on a background thread the "
                         "scan never waits for) and name failing views at once; the full report: lfstudio check")
@@ -189,6 +202,7 @@ def resume_command(args: argparse.Namespace, root) -> str:
     secret (a --notify URL, --status-token) is shown redacted, with a note to give it again."""
     import shlex
 
+    from lfstudio.dataset.bracket import Bracket
     from lfstudio.support.secrets import Secret
 
     hidden = 0
@@ -208,7 +222,9 @@ def resume_command(args: argparse.Namespace, root) -> str:
                 words += [action.option_strings[0], str(item)]
                 hidden += isinstance(item, Secret)
         else:
-            words += [action.option_strings[0], str(value)]
+            text = value.text() if isinstance(value, Bracket) else str(value)    # a bracket as typed: -2,0,+9
+            # a value starting with '-' would read as an option: joined to it (--bracket=-2,0,+9)
+            words += [f"{action.option_strings[0]}={text}"] if text.startswith("-") else [action.option_strings[0], text]
             hidden += isinstance(value, Secret)
     return shlex.join(words) + ("  # give the …-shortened secrets (URLs, token) again as you gave them" if hidden
                                 else "")
@@ -263,7 +279,8 @@ def run(args: argparse.Namespace) -> int:
                           keep_drive_reference=args.keep_drive_reference,
                           retries=args.retries, time_scale=args.time_scale, exposure_s=args.exposure_s,
                           transfer_s=args.transfer_s, seed=args.seed, sim_width_px=args.sim_width_px,
-                          camera_options=_camera_options(args))
+                          camera_options=_camera_options(args), fly=args.fly, fly_speed_mm_s=args.fly_speed_mm_s,
+                          blur_limit_px=args.blur_limit_px)
     request.engine_options["auto_resume"] = args.auto_resume
     unattended = _unattended(args)
     session = ScanSession(request, doing="scanning",
@@ -325,6 +342,9 @@ def run(args: argparse.Namespace) -> int:
                     fault = engine.fault
                     engine.abort()
                     engine.wait()
+                    if fault is not None and not getattr(fault, "resumable", True):   # its message says what to do
+                        print(f"\nlfstudio scan: stopped: {fault}", file=sys.stderr)
+                        return EXIT_FAULT
                     if fault is not None:
                         print(f"\nlfstudio scan: stopped: {fault}\nlfstudio scan: to continue, fix that and run: "
                               f"{resume_command(args, dataset.root)}", file=sys.stderr)

@@ -73,7 +73,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "would leave them)")
     p.add_argument("--canopen", metavar="CHANNEL", default=None,
                    help="serve the drives as CANopen nodes 1 and 2 on python-can's bus CHANNEL instead of Modbus TCP: "
-                        "udp_multicast (between processes on this machine), socketcan:can0, or virtual-NAME")
+                        "udp_multicast (between processes; its datagrams also reach the other computers of the local network, "
+                        "which then see these drives), socketcan:can0, or virtual-NAME")
     p.epilog = ("The drives listen on 127.0.0.1 only. Connect with --port dryve:127.0.0.1:P1,127.0.0.1:P2 "
                 "(the first line printed; with --canopen: canopen:CHANNEL:1,2); the simulated camera (--camera sim) "
                 "follows them.")

@@ -234,12 +234,25 @@ def nearest_choice(seconds: float, choices: Iterable[float], tolerance: float = 
 
 def frame_times_on_camera(bracket: Bracket, base_shutter_s: float | None, values: Iterable[Any] = (),
                           texts: Iterable[str] = (), camera: str = "the camera",
-                          field: str = "--bracket") -> tuple[float, ...]:
+                          field: str = "--bracket", range_s: tuple[float, float] | None = None) -> tuple[float, ...]:
     """Each frame's shutter time as the camera can set it: the bracket's times (``base_shutter_s`` ×
     2^EV for EV steps) matched to the camera's own choices (``values`` in seconds, ``texts`` as it
-    names them; none given: any time is taken). :class:`InputError` naming ``field`` and listing
-    the camera's choices when a frame's time is not among them."""
+    names them; none given: any time is taken) and within its continuous ``range_s`` (min, max s).
+    :class:`InputError` naming ``field`` and listing the camera's choices, or its range and the EV
+    steps that fit it, when a frame's time is not among them."""
     times = bracket.shutter_times_s(base_shutter_s)
+    if range_s is not None:
+        low, high = float(range_s[0]), float(range_s[1])
+        for k, t in enumerate(times):
+            if not low * (1 - 1e-9) <= t <= high * (1 + 1e-9):
+                lo_ev = max(-MAX_EV, math.log2(low / base_shutter_s)) if base_shutter_s else 0.0
+                hi_ev = min(MAX_EV, math.log2(high / base_shutter_s)) if base_shutter_s else 0.0
+                fits = (f"EV steps from {lo_ev:+.1f} to {hi_ev:+.1f}"
+                        f" at its shutter time of {shutter_text(base_shutter_s)}, or times within the range"
+                        if bracket.ev and base_shutter_s else "shutter times within the range")
+                raise InputError(field, f"frame {k + 1} of {bracket.describe()} needs a shutter time of "
+                                 f"{shutter_text(t)}, beyond {camera}'s range of {shutter_text(low)} … "
+                                 f"{shutter_text(high)}", fits)
     numbers = [float(v) for v in values if isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0]
     if not numbers:
         return times

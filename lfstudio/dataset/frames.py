@@ -7,9 +7,10 @@ file, then checksums and journals it like any capture:
 
 - a **Bayer** mosaic as a DNG (:mod:`lfstudio.dataset.dng`; white level = the camera's largest value,
   black level 0, the mosaic's own CFA pattern), so the RAW pipeline develops it unchanged;
-- **mono** and **RGB** frames as 16-bit TIFF (``.tif``, uncompressed), each value scaled so that the
-  camera's largest value is 65535 (8-bit: × 257; 12-bit: × 65535/4095, rounded). RGB is stored in
-  R, G, B order.
+- **mono** and **RGB** frames as 16-bit PNG (``.png``, fast zlib level), each value scaled so that the
+  camera's largest value is 65535 (8-bit: × 257; 12-bit: × 65535/4095, rounded). Not TIFF: LibRaw opens
+  an uncompressed 16-bit TIFF as if it were a camera RAW, and lfstudio decides what a file is by what
+  opens it (:mod:`lfstudio.dataset.images`), so processing would have demosaiced a mono picture.
 
 A frame whose layout or sample type is not one of these is refused with :class:`UnstorableFrame`
 before anything is written.
@@ -33,6 +34,8 @@ PATTERNS = ("RGGB", "GRBG", "GBRG", "BGGR")
 
 class UnstorableFrame(InputError):
     """A frame lfstudio cannot store (its layout, sample type or shape)."""
+
+    kind = "unstorable-frame"
 
 
 @dataclass(frozen=True)
@@ -80,7 +83,7 @@ class Frame:
 
 def suffix_for(frame: Frame) -> str:
     """The file suffix :func:`write_frame` uses for ``frame``."""
-    return ".dng" if frame.layout == "bayer" else ".tif"
+    return ".dng" if frame.layout == "bayer" else ".png"
 
 
 def check_frame(frame: Frame, what: str = "frame") -> None:
@@ -133,11 +136,31 @@ def write_frame(frame: Frame, stem: str | os.PathLike, *, model: str = "", make:
                          camera_model=model or frame.pixel_format or "array camera", make=make or "lfstudio",
                          exposure_s=frame.exposure_s)
     data = to_16_bit(frame.pixels, frame.bits)
+    if frame.layout == "rgb":
+        data = np.ascontiguousarray(data[:, :, ::-1])          # OpenCV writes B, G, R
 
     def _write(tmp: Path) -> None:
-        import tifffile
+        import cv2
 
-        tifffile.imwrite(tmp, data, photometric="rgb" if frame.layout == "rgb" else "minisblack",
-                         compression=None, metadata=None, software="lfstudio")
+        if not cv2.imwrite(str(tmp), data, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
+            raise OSError(f"{path}: the frame could not be written")
 
     return atomic_write_with(path, _write)
+
+
+def preview_rgb(frame: Frame) -> np.ndarray:
+    """An RGB picture of ``frame`` for its thumbnail, without decoding its file: mono repeated in three
+    channels, a Bayer mosaic at half size (one pixel per 2 x 2 cell, its greens averaged); 8-bit samples
+    as they are, others scaled to 16 bits."""
+    px = frame.pixels if frame.pixels.dtype == np.uint8 and frame.bits == 8 else to_16_bit(frame.pixels, frame.bits)
+    if frame.layout == "mono":
+        return np.dstack([px, px, px])
+    if frame.layout == "bayer":
+        h, w = (px.shape[0] // 2) * 2, (px.shape[1] // 2) * 2
+        cells = {frame.pattern[i]: [] for i in range(4)}
+        for i, colour in enumerate(frame.pattern):
+            dy, dx = divmod(i, 2)
+            cells[colour].append(px[dy:h:2, dx:w:2].astype(np.uint32))
+        out = [sum(cells[c]) // len(cells[c]) for c in "RGB"]
+        return np.dstack(out).astype(px.dtype)
+    return px

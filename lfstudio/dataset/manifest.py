@@ -44,7 +44,7 @@ from lfstudio.dataset.grid import Grid, View
 from lfstudio.dataset.paths import (InsideChecker, check_dataset_entries, check_path_name, resolve_inside, view_label,
                                     view_stem)
 from lfstudio.dataset.store import JOURNAL_NAME, Journal, read_journal, sha256_file
-from lfstudio.errors import DatasetError, DatasetNotFound, InputError
+from lfstudio.errors import DatasetError, DatasetNotFound, InputError, words
 from lfstudio.numbers import MAX_GRID_SIDE, Number, non_finite_fields
 from lfstudio.support.locks import DATASET_LOCK_NAME, Lock, LockBusy, dataset_lock, holder_of, manifest_lock
 
@@ -192,6 +192,8 @@ class ViewFields(TypedDict, total=False):
     camera: dict[str, Any]                # the driver's record of the camera and its settings
     camera_settings: dict[str, Any]
     camera_frame: dict[str, Any]          # an array camera's frame: pixel format, bits, timestamps, frame id
+    fly: dict[str, Any]                   # a fly scan's frame: recorded_mm, uncertainty_mm, offset_mm, speed
+                                          # (or retaken: why the view was taken again standing still)
     devices: dict[str, Any] | None        # the devices that took it, when not the dataset's own
     processed: ProcessedRecord
     hdr: HdrRecord                        # a bracketed view's HDR merge
@@ -905,8 +907,10 @@ class Dataset:
                 return float(lens["focal_length_px"]) * scale
             raise DatasetError(f"{self.manifest_path}: camera.sensor_px, camera.pixel_pitch_um (or sensor_mm) "
                                "and lens.focal_length_mm are needed for the focal length in pixels; "
-                               "add them, or give the focal length in pixels (lfstudio calibrate --focal-length-px F; "
-                               "for imported images: lens.focal_length_px)") from None
+                               "add them, or give the focal length in pixels ("
+                               + words("lfstudio calibrate --focal-length-px F; for imported images: lens.focal_length_px",
+                                       "the Calibrate dialog's Focal length, or Focal length (px) when importing")
+                               + ")") from None
         scale = 1.0 if image_width_px is None else image_width_px / sensor_w_px
         return f_mm / pitch_mm * scale
 

@@ -30,7 +30,7 @@ import re
 from pathlib import Path, PurePosixPath
 from typing import Any
 
-from lfstudio.errors import DatasetError, InputError
+from lfstudio.errors import DatasetError, InputError, words
 from lfstudio.support.locks import DATASET_LOCK_NAME, MANIFEST_LOCK_NAME, LockBusy, holder_of
 
 
@@ -114,7 +114,8 @@ def shown_name(name: str | os.PathLike) -> str:
 
 
 #: the fix named for a file or folder whose name is not UTF-8
-RENAME_UTF8_FIX = "rename it in UTF-8, e.g. with 'convmv -f latin1 -t utf8 --notest NAME'"
+RENAME_UTF8_FIX = "rename it in UTF-8, e.g. " + words("with 'convmv -f latin1 -t utf8 --notest NAME'",
+                                                     "in your file manager")
 
 
 def path_name_problem(path: str | os.PathLike) -> str | None:

@@ -32,6 +32,10 @@ from typing import Any
 from lfstudio.errors import words
 
 RECORD = "zero_disparity"
+#: the one meaning of "disparity" in every view of lfstudio (labels add :meth:`ZeroPlane.disparity_words`)
+DISPARITY_DEFINITION = ("disparity: how far a scene point moves between a view and its right-hand neighbour, in "
+                        "full-resolution pixels of the views as they are; 0 px is infinitely far for parallel views, "
+                        "on the zero-disparity plane for sheared ones")
 #: where a record's shear came from
 SOURCE_SCAN = "scan"                 # captured by lfstudio: parallel
 SOURCE_MEASURED_PARALLEL = "measured"   # no significantly negative disparity: read as parallel
@@ -72,6 +76,22 @@ class ZeroPlane:
     def shear_or_zero(self, image_width_px: float | None = None) -> float:
         s = self.shear_at(image_width_px)
         return 0.0 if s is None else s
+
+    def disparity_reference(self) -> str:
+        """What 0 px means for these views' disparities, for every label of one (the import summary,
+        the check, its report and Disparity window, the depth maps): "from infinity" (parallel views),
+        "relative to the zero-disparity plane at 1.20 m", or "... (its depth not stated)"."""
+        if self.shear_px_per_mm == 0.0:
+            return "from infinity"
+        if self.shear_px_per_mm is None or not self.depth_m:
+            return "relative to the zero-disparity plane (its depth not stated)"
+        return f"relative to the zero-disparity plane at {self.depth_m:.2f} m"
+
+    def disparity_words(self) -> str:
+        """``between horizontal neighbours, <reference>``: the one definition of disparity in lfstudio
+        (full-resolution px a scene point moves from one view to its right neighbour, in the views as
+        they are; see :data:`DISPARITY_DEFINITION`)."""
+        return f"between horizontal neighbours, {self.disparity_reference()}"
 
     def describe(self, front_words: bool = False) -> str:
         """One line for summaries: where zero disparity lies and how it is known. For views sheared by

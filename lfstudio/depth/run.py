@@ -370,6 +370,7 @@ def measured_range(ds: Dataset, views: Sequence[View], source: str, H, width_px:
                          "state it (lfstudio depth --disparity-range MIN,MAX) or give the dataset a scene plan")
     scale = float(width_px) / float(full_w) if full_w else 1.0
     lo, hi = (float(v) * scale for v in np.percentile(d, [1, 99]))
+    assert centre is not None                   # pairs come only from around it
     return lo, hi, f"feature matches of {len(found)} pairs around {view_stem(*centre)} ({len(d)} matches)"
 
 

@@ -135,8 +135,8 @@ def find_images(folder: str | os.PathLike, pattern: str | None = None) -> list[P
     else:
         files = [p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".") and not images.is_text(p)]
     for p in files:     # the libraries cannot open such a name (OpenCV crashes on it): refused before any is read
-        if not is_utf8_name(p.name):
-            raise InputError("folder", f"{shown_name(p.name)} in {shown_name(folder)} has a name that is not valid "
+        if not is_utf8_name(p.relative_to(folder)):       # a sub-folder's name too (a pattern with a '/')
+            raise InputError("folder", f"{shown_name(p.relative_to(folder))} in {shown_name(folder)} has a name that is not valid "
                              f"UTF-8; {RENAME_UTF8_FIX}, or leave it out with " + words("--pattern", "the Files (pattern) field"))
     return sorted(files, key=lambda p: natural_key(p.relative_to(folder).as_posix()))
 
@@ -532,7 +532,13 @@ def _place(plan: ImportPlan, options: ImportOptions, grid: tuple[int, int]) -> N
     raw = plan.raw_positions
     derived = (0.0, 0.0)
     if raw is not None:
-        plan.positions_mm, derived, mapping = normalise_positions(plan.cells, raw)
+        try:
+            plan.positions_mm, derived, mapping = normalise_positions(plan.cells, raw)
+        except InputError:
+            raise
+        except (np.linalg.LinAlgError, ValueError) as exc:    # positions no grid fits (they are bounded first)
+            raise InputError("--positions", f"the recorded positions fit no grid of the views ({exc}); check the "
+                             "file's x_mm/y_mm columns") from None
         plan.positions_record = {**(plan.positions_record or {}), **mapping}
         still = [what for what, n, step in (("columns", cols, derived[0]), ("rows", rows, derived[1]))
                  if n > 1 and not step >= MIN_STEP_MM]      # all equal: a spacing of 0, depth divides by it
@@ -801,8 +807,8 @@ def import_summary(ds) -> str:
     m = zp.measured
     if m.get("step_disparity_px"):
         lo, hi = m["step_disparity_px"]
-        lines.append(f"disparity     : {lo:+.2f} … {hi:+.2f} px between horizontal neighbours (measured on "
-                     f"{m.get('views')} views, {m.get('tracks')} tracks)")
+        lines.append(f"disparity     : {lo:+.2f} … {hi:+.2f} px between horizontal neighbours, {zp.disparity_reference()}"
+                     f" (tracked points, measured on {m.get('views')} views, {m.get('tracks')} tracks)")
     order = m.get("rows_order")
     if m.get("rows_reversed"):
         lines.append("rows          : reversed (the tracks say the files number the rows from the bottom)")

@@ -6,6 +6,7 @@ import logging
 import os
 import sys
 
+from lfstudio.errors import window_message
 from lfstudio import __version__
 from lfstudio.resources import RESOURCES_DIR
 
@@ -73,7 +74,7 @@ def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str 
         try:
             window.state.set_dataset(Dataset.open(dataset))
         except LfError as exc:
-            window.state.report_error("Open dataset", str(exc))
+            window.state.report_error("Open dataset", window_message(exc))
     window.show()
     if simulated:
         QTimer.singleShot(0, window.connect_simulated_studio)

@@ -11,7 +11,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from PySide6.QtWidgets import QFormLayout, QLabel, QLineEdit, QWidget
+from PySide6.QtCore import Signal
+from PySide6.QtWidgets import QComboBox, QFormLayout, QHBoxLayout, QLabel, QLineEdit, QPushButton, QWidget
 
 from lfstudio.errors import InputError
 from lfstudio.gui.settings import read_text, settings
@@ -19,7 +20,10 @@ from lfstudio.studio.kinds import CameraKind, RigKind, parse_options
 
 
 class KindForm(QWidget):
-    """The argument and options of ``kind`` (see the module docstring)."""
+    """The argument and options of ``kind`` (see the module docstring); once a camera is connected, its
+    described settings as data and one row to change any of them (``settingRequested(name, value)``)."""
+
+    settingRequested = Signal(str, object)
 
     def __init__(self, kind: CameraKind | RigKind, parent: QWidget | None = None):
         super().__init__(parent)
@@ -57,6 +61,27 @@ class KindForm(QWidget):
         self.settings_label = QLabel("")
         self.settings_label.setWordWrap(True)
         form.addRow(self.settings_label)
+        self.setting_name = QComboBox()
+        self.setting_name.setObjectName(f"{kind.name}-setting")
+        self.setting_name.setToolTip("A setting the connected camera offers")
+        self.setting_value = QComboBox()
+        self.setting_value.setEditable(True)
+        self.setting_value.setObjectName(f"{kind.name}-setting-value")
+        self.setting_value.setToolTip("Its new value: one of the camera's choices, or a number in its range")
+        self.set_button = QPushButton("Set")
+        self.set_button.setToolTip("Send this setting to the connected camera")
+        row = QHBoxLayout()
+        row.addWidget(self.setting_name, 2)
+        row.addWidget(self.setting_value, 2)
+        row.addWidget(self.set_button)
+        self.setting_row = QWidget()
+        self.setting_row.setLayout(row)
+        row.setContentsMargins(0, 0, 0, 0)
+        self.setting_row.setVisible(False)
+        form.addRow(self.setting_row)
+        self._described: dict[str, Any] = {}
+        self.setting_name.currentIndexChanged.connect(lambda _i: self._fill_value())
+        self.set_button.clicked.connect(self._request)
 
     def _key(self, name: str) -> str:
         return f"devices/{self.kind.name}/{name}"
@@ -107,3 +132,50 @@ class KindForm(QWidget):
             unit = f" {d.unit}" if getattr(d, "unit", "") else ""
             lines.append(f"{d.label}: {d.value}{unit}{extra}")
         self.settings_label.setText("\n".join(lines))
+        chosen = self.setting_name.currentData()
+        self._described = {d.name: d for d in described or () if not getattr(d, "read_only", False)}
+        self.setting_name.blockSignals(True)
+        self.setting_name.clear()
+        for d in self._described.values():
+            self.setting_name.addItem(d.label, d.name)
+        index = self.setting_name.findData(chosen)
+        self.setting_name.setCurrentIndex(max(0, index))
+        self.setting_name.blockSignals(False)
+        self._fill_value()
+        self.setting_row.setVisible(bool(self._described))
+
+    def set_editable(self, connection: bool, settings: bool) -> None:
+        """The argument and options (fixed while connected) and the settings row (while the camera is
+        free) enabled or not."""
+        for edit in ([self.argument] if self.argument is not None else []) + list(self.fields.values()):
+            edit.setEnabled(connection)
+        self.setting_row.setEnabled(settings)
+
+    def clear_settings(self) -> None:
+        """The camera is gone: no settings to show or change."""
+        self.settings_label.setText("")
+        self._described = {}
+        self.setting_row.setVisible(False)
+
+    def _fill_value(self) -> None:
+        d = self._described.get(str(self.setting_name.currentData()))
+        self.setting_value.clear()
+        if d is None:
+            return
+        for choice in getattr(d, "choices", ()) or ():
+            self.setting_value.addItem(str(choice))
+        self.setting_value.setEditText(str(d.value))
+
+    def _request(self) -> None:
+        name = str(self.setting_name.currentData() or "")
+        d = self._described.get(name)
+        if d is None:
+            return
+        text = self.setting_value.currentText().strip()
+        value: Any = text
+        if d.type in ("float", "int"):
+            try:
+                value = int(text) if d.type == "int" else float(text)
+            except ValueError:
+                value = text            # the camera's own check names it
+        self.settingRequested.emit(name, value)

@@ -23,7 +23,7 @@ from PySide6.QtGui import QAction, QGuiApplication, QKeySequence
 from PySide6.QtWidgets import (QDockWidget, QFrame, QLabel, QMainWindow, QMenu, QMessageBox, QScrollArea, QTabBar, QToolBar,
                                QWidget)
 
-from lfstudio.errors import LfError
+from lfstudio.errors import LfError, window_message
 from lfstudio.gui.panels import CENTRAL, PANELS, PanelSpec
 from lfstudio.gui.settings import settings
 from lfstudio.gui.state import AppState
@@ -180,6 +180,8 @@ class MainWindow(QMainWindow):
         import_dialog.install_menus(self)
         from lfstudio.gui.views import depth as depth_view
         depth_view.install_menus(self)
+        from lfstudio.gui.views import radiance as radiance_view
+        radiance_view.install_menus(self)
         self._install_base_menus()
         self._quit_box: QMessageBox | None = None
         self._quit_after_scan = False
@@ -489,7 +491,7 @@ class MainWindow(QMainWindow):
         try:
             self.export_dialog = ExportDialog(self.state, self)
         except LfError as exc:
-            self.state.report_error("Export dataset", str(exc))
+            self.state.report_error("Export dataset", window_message(exc))
             return
         self.export_dialog.show()
 

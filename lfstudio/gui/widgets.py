@@ -6,10 +6,10 @@ import time
 
 import numpy as np
 from PySide6.QtCore import QEvent, QObject, QPointF, QRectF, QSize, Qt, QTimer, Signal
-from PySide6.QtGui import (QAction, QColor, QFont, QGuiApplication, QPainter, QPen, QTextDocumentFragment,
+from PySide6.QtGui import (QAction, QColor, QFont, QGuiApplication, QPainter, QPen, QPixmap, QTextDocumentFragment,
                            QWheelEvent, QWindow)
 from PySide6.QtWidgets import (QAbstractSpinBox, QApplication, QComboBox, QHBoxLayout, QLabel, QMessageBox,
-                               QProgressBar, QPushButton, QSizePolicy, QWidget)
+                               QProgressBar, QPushButton, QScrollArea, QSizePolicy, QWidget)
 
 from lfstudio.dataset.paths import view_stem
 from lfstudio.gui.bridge import Pacer
@@ -495,4 +495,151 @@ class GridPicker(QWidget):
         step_r = max(1, int(np.ceil(16 / cell)))
         for r in range(0, self.rows, step_r):
             p.drawText(QPointF(2, y0 + r * cell + min(cell, 14) - 2), str(r))
+        p.end()
+
+
+class FitImageView(QScrollArea):
+    """A picture shown whole, scaled to the room (``fit``, the default), or at its own size with
+    scroll bars (1:1). :meth:`pixmap` is the picture at its own size; ``label`` shows it (named
+    ``name``); :meth:`fit_button` makes a checkable Fit button that switches the two."""
+
+    def __init__(self, name: str = "", parent: QWidget | None = None):
+        super().__init__(parent)
+        self.label = QLabel()
+        if name:
+            self.label.setObjectName(name)
+            self.setObjectName(f"{name}View")
+        self.label.setAlignment(Qt.AlignmentFlag.AlignCenter)
+        self.setAlignment(Qt.AlignmentFlag.AlignCenter)
+        self.setWidget(self.label)
+        self._pixmap = QPixmap()
+        self.fit = True
+        self._set_mode()
+
+    def pixmap(self) -> QPixmap:
+        return self._pixmap
+
+    def set_pixmap(self, pixmap: QPixmap) -> None:
+        self._pixmap = pixmap
+        self._show()
+
+    def clear(self) -> None:
+        self._pixmap = QPixmap()
+        self.label.clear()
+
+    def setText(self, text: str) -> None:   # noqa: N802 (QLabel's name)
+        self.clear()
+        self.label.setText(text)
+
+    def set_fit(self, fit: bool) -> None:
+        self.fit = bool(fit)
+        self._set_mode()
+        self._show()
+
+    def fit_button(self, parent: QWidget | None = None) -> QPushButton:
+        button = QPushButton("Fit", parent)
+        button.setObjectName(f"{self.label.objectName() or 'image'}FitButton")
+        button.setCheckable(True)
+        button.setChecked(self.fit)
+        button.setToolTip("Fit: the whole picture in the window (its colour bar too); off: 1:1, each pixel "
+                          "of the map on a screen pixel, with scroll bars")
+        button.toggled.connect(self.set_fit)
+        return button
+
+    def _set_mode(self) -> None:
+        self.setWidgetResizable(self.fit)
+        policy = QSizePolicy.Policy.Ignored if self.fit else QSizePolicy.Policy.Preferred
+        self.label.setSizePolicy(policy, policy)
+
+    def _show(self) -> None:
+        if self._pixmap.isNull():
+            return
+        if self.fit:
+            room = self.viewport().size()
+            if room.width() < 2 or room.height() < 2:
+                return
+            self.label.setPixmap(self._pixmap.scaled(room, Qt.AspectRatioMode.KeepAspectRatio,
+                                                     Qt.TransformationMode.SmoothTransformation))
+        else:
+            self.label.setPixmap(self._pixmap)
+            self.label.adjustSize()
+
+    def shown_size(self) -> QSize:
+        """The size the picture has on the screen now."""
+        shown = self.label.pixmap()
+        return QSize(0, 0) if shown is None or shown.isNull() else shown.size()
+
+    def resizeEvent(self, event) -> None:   # noqa: N802 (Qt name)
+        super().resizeEvent(event)
+        if self.fit:
+            self._show()
+
+
+class ColourBar(QWidget):
+    """A false-colour map's key at screen resolution (TURBO, near = red, as
+    :func:`lfstudio.quality.pictures.disparity_picture` paints): the colours from ``lo`` to ``hi`` px
+    with five ticks labelled in px and, with ``depth_scale_m_px`` (depth = scale / disparity), in m;
+    ``title`` on the left names what the values are (and their reference)."""
+
+    TICKS = (0.0, 0.25, 0.5, 0.75, 1.0)
+
+    def __init__(self, name: str = "", parent: QWidget | None = None):
+        super().__init__(parent)
+        if name:
+            self.setObjectName(name)
+        self.range_px: tuple[float, float] | None = None
+        self.depth_scale_m_px: float | None = None
+        self.title = ""
+        self._colours: list[QColor] = []
+        lines = 3
+        self.setMinimumHeight(14 + 6 + lines * self.fontMetrics().height() + 4)
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
+
+    def set_range(self, lo: float, hi: float, depth_scale_m_px: float | None = None, title: str = "") -> None:
+        self.range_px, self.depth_scale_m_px, self.title = (float(lo), float(hi)), depth_scale_m_px, title
+        self.setToolTip(title)
+        self.update()
+
+    def labels(self) -> list[str]:
+        """The tick labels, left to right (px, and m when a depth scale is set)."""
+        if self.range_px is None:
+            return []
+        lo, hi = self.range_px
+        out = []
+        for t in self.TICKS:
+            v = lo + t * (hi - lo)
+            text = f"{v:.2f} px"
+            if self.depth_scale_m_px and v > 0:
+                text += f"\n{self.depth_scale_m_px / v:.2f} m"
+            out.append(text)
+        return out
+
+    def _lut(self) -> list[QColor]:
+        if not self._colours:
+            import cv2
+
+            lut = cv2.applyColorMap(np.arange(256, dtype=np.uint8).reshape(1, -1), cv2.COLORMAP_TURBO)[0]
+            self._colours = [QColor(int(r), int(g), int(b)) for b, g, r in lut]
+        return self._colours
+
+    def paintEvent(self, event) -> None:   # noqa: N802 (Qt name)
+        if self.range_px is None:
+            return
+        p = QPainter(self)
+        fm = p.fontMetrics()
+        left, right = 8, self.width() - 8
+        width = max(1, right - left)
+        colours = self._lut()
+        for x in range(width):
+            p.fillRect(left + x, 2, 1, 14, colours[min(255, x * 256 // width)])
+        p.setPen(QColor("#30343a"))
+        texts = self.labels()
+        for t, text in zip(self.TICKS, texts):
+            x = left + round(t * (width - 1))
+            p.drawLine(x, 17, x, 21)
+            lines = text.split("\n")
+            w = max(fm.horizontalAdvance(line) for line in lines)
+            x0 = min(max(0, x - w // 2), self.width() - w)
+            for i, line in enumerate(lines):
+                p.drawText(x0, 24 + fm.ascent() + i * fm.height(), line)
         p.end()

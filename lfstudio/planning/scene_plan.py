@@ -22,6 +22,7 @@ from lfstudio.dataset.bracket import Bracket, parse_bracket
 from lfstudio.dataset.grid import DEFAULT_ORDER, Grid
 from lfstudio.errors import InputError
 from lfstudio.optics import REFERENCE
+from lfstudio.planning.fly import fly_inputs_of, plan_fly
 from lfstudio.numbers import MAX_GRID_SIDE, Number, check_described, check_grid, described, params_of
 
 PLAN_FORMAT = "lfstudio-plan"
@@ -31,6 +32,7 @@ AXES = ("horizontal", "vertical")
 
 #: the groups the plan's fields are listed in (the command line's --help; the window has its own layout)
 CAMERA, SCENE, GRID, TARGETS = "camera and lens", "scene and optics", "grid and rig", "targets"
+FLY = "fly scanning (continuous motion)"
 
 
 @dataclass(frozen=True)
@@ -150,6 +152,28 @@ class ScenePlan:
         "", label="Bracket", option="--bracket", metavar="EV,...", group=GRID,
         tip="Exposure bracket at every view: EV steps around the exposure (-2,0,+2) or shutter times "
             "(1/500,1/125,1/30s); empty: one picture per view. Time and disk count every frame")
+
+    blur_limit_px: float = described(
+        0.5, number=Number("px", 0, 100, low_open=True), label="Blur limit", option="--blur-limit-px",
+        metavar="PX", group=FLY, tip="Fly scanning: the most motion blur a frame may have at the near distance")
+    frame_rate_fps: float | None = described(
+        None, number=Number("frames/s", 0, 100_000, low_open=True), optional="1 / transfer",
+        label="Frame rate", option="--frame-rate-fps", metavar="FPS", group=FLY,
+        tip="Fly scanning: frames per second the camera sustains on a trigger; 'auto': one per transfer time "
+            "(a tethered camera downloads each picture before the next)")
+    bandwidth_mb_s: float | None = described(
+        None, number=Number("MB/s", 0, 1_000_000, low_open=True), optional="no limit", label="Camera bandwidth",
+        option="--bandwidth-mb-s", metavar="MBPS", group=FLY,
+        tip="Fly scanning: how fast frames leave the camera (USB, GigE link); 'no limit': not a limit")
+    report_rate_hz: float | None = described(
+        20.0, number=Number("reports/s", 0, 100_000, low_open=True), optional="no limit",
+        label="Position reports", option="--report-rate-hz", metavar="HZ", group=FLY,
+        tip="Fly scanning: how often the controller reports its position (each frame's position is "
+            "interpolated between two reports, so one report per grid spacing crossed at least)")
+    fly_speed_mm_s: float | None = described(
+        None, number=Number("mm/s", 0, 100_000, low_open=True), optional="auto (fastest)", label="Fly speed",
+        option="--fly-speed-mm-s", metavar="MMS", group=FLY,
+        tip="Fly scanning: the row speed; 'auto': the fastest every limit allows")
 
     # -- derived inputs ----------------------------------------------------------------------------
     @property
@@ -343,6 +367,7 @@ class PlanResult:
     frames_per_view: int = 1                        # the exposure bracket's frames (1: none)
     frames: int = 0                                 # pictures the scan takes: images × frames_per_view
     frame_exposures_s: tuple[float, ...] = ()       # each frame's shutter time
+    fly: Any = None                                 # the fly scan (lfstudio.planning.fly.FlyResult)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe (infinity becomes None)."""
@@ -353,6 +378,8 @@ class PlanResult:
                 value = [w.to_dict() for w in value]
             elif isinstance(value, Grid):
                 value = value.to_manifest()
+            elif hasattr(value, "to_dict"):
+                value = value.to_dict()
             elif isinstance(value, tuple):
                 value = list(value)
             elif isinstance(value, float) and not math.isfinite(value):
@@ -491,7 +518,8 @@ def _derive(p: ScenePlan) -> PlanResult:
         images=p.images, fits_travel=travel is None, capture_time_s=capture_time_s(p),
         bytes_per_image=per_image, storage_bytes=per_image * p.frames,
         proposed_spacing_mm=proposed_spacing, proposed_grid=proposed_grid, warnings=warnings,
-        frames_per_view=p.frames_per_view, frames=p.frames, frame_exposures_s=p.frame_exposures_s())
+        frames_per_view=p.frames_per_view, frames=p.frames, frame_exposures_s=p.frame_exposures_s(),
+        fly=plan_fly(fly_inputs_of(p)))
 
 
 # -- plan files ------------------------------------------------------------------------------------

@@ -130,10 +130,11 @@ def make_plan(ds: Dataset, profile: Profile, single_thread: bool = False) -> Run
             from lfstudio.calibration.lens import lens_fingerprint
             current = lens_fingerprint(profile.lens)
             if recorded.get("sha256") != current["sha256"]:
-                raise InputError("processing.toml: [lens]",
-                                 f"{ds.root / CALIBRATION_NAME} was fitted with lens model "
-                                 f"{recorded.get('model')!r}, but processing applies {current['model']!r}: calibrate "
-                                 "again ('lfstudio calibrate') so both use the same lens model")
+                raise InputError(words("processing.toml: [lens]", "2 Lens distortion and lateral CA"),
+                                 f"{words(str(ds.root / CALIBRATION_NAME), 'the calibration')} was fitted with lens "
+                                 f"model {recorded.get('model')!r}, but processing applies {current['model']!r}: "
+                                 f"calibrate again ({words(f'lfstudio calibrate {ds.root}', 'Dataset → Calibrate…')}) "
+                                 "so both use the same lens model")
         homography = np.asarray(cal["homography"], float).tolist()
         extra["homography"] = [round(v, 12) for row in homography for v in row]
     flat_path = None

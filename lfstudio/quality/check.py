@@ -532,8 +532,8 @@ def check_dataset(dataset, views: str | Sequence[Cell] | None = None, *, thresho
     doc = build_document(dataset, grid, fit, chosen, unreadable, gains, ref_cell, step_disp_full, step_disp_sigma,
                          disp_map, cal_doc, settings)
     f_full = geometry.focal_length_px(any_m.full_size_px[0])
-    report = QualityReport(doc, disp_map, step_disp_full,
-                           f_full * geometry.spacing_mm[0] / 1000.0 if f_full else None)
+    report = QualityReport(doc, disp_map, step_disp_full,     # metres on the map's bar only from infinity
+                           f_full * geometry.spacing_mm[0] / 1000.0 if f_full and geometry.zero.known else None)
     doc["timing_s"] = {"wall": round(time.perf_counter() - t_start, 3), "cpu": round(time.process_time() - c_start, 3)}
     if write:
         progress(done_n, total, "writing quality.json and pictures")
@@ -596,8 +596,10 @@ def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell
     else:
         repeat = {"x_um": None, "y_um": None, "rms_um": None, "views": int(len(errs)),
                   "planned_um": list(g.repeatability_um), "why": "too few located views (need 5)"}
-    repeat["planned_from"] = "logged" if g.recorded_positions and not (dataset.manifest.get("plan") or {}).get(
-        "repeatability_um") else "plan"
+    # where the figure compared with comes from, as Geometry.of read it: the plan, the rig's log, else the default
+    logged = ((dataset.manifest.get("import") or {}).get("positions") or {}).get("logged_repeatability_um")
+    repeat["planned_from"] = ("plan" if (dataset.manifest.get("plan") or {}).get("repeatability_um") is not None
+                              else "logged" if g.recorded_positions and logged else "default")
     counts = {k: sum(1 for v in views_out if v["verdict"] == k) for k in (verdicts.PASS, verdicts.WARN, verdicts.FAIL)}
     flagged = [v["view"] for v in views_out if v["verdict"] in (verdicts.WARN, verdicts.FAIL)]
     verdict = verdicts.worst([v["verdict"] for v in views_out] + [depth["verdict"]])
@@ -611,6 +613,8 @@ def build_document(dataset, grid: GridCheck, fit: PositionFit, chosen: list[Cell
                          "median_px": float(np.median(fin)) if fin.size else None,
                          "p1_px": float(np.percentile(fin, 1)) if fin.size else None,
                          "p99_px": float(np.percentile(fin, 99)) if fin.size else None,
+                         # the partners are moved back by a known shear: from infinity; else as the views are
+                         "reference": "from infinity" if g.zero.known else g.zero.disparity_reference(),
                          "partners": disp_map.partners,
                          "rectified": cal_doc is not None}
     doc = {
@@ -652,7 +656,8 @@ def depth_range(step_disp_full: np.ndarray, step_disp_sigma: np.ndarray, g: Geom
     """
     out: dict[str, Any] = {"planned_near_m": g.near_m, "planned_far_m": g.far_m,
                            "zero_disparity": {"depth_m": g.zero.depth_m, "source": g.zero.source,
-                                              "shear_px_per_step": shear_step_px, "about": g.zero.describe()}}
+                                              "shear_px_per_step": shear_step_px, "about": g.zero.describe(),
+                                              "disparity_reference": g.zero.disparity_reference()}}
     if step_disp_full.size >= 20 and shear_step_px is None:
         v_lo = float(np.percentile(step_disp_full + RANGE_SIGMAS * step_disp_sigma, 1.0))
         v_hi = float(np.percentile(step_disp_full - RANGE_SIGMAS * step_disp_sigma, 99.0))
@@ -692,6 +697,62 @@ def depth_range(step_disp_full: np.ndarray, step_disp_sigma: np.ndarray, g: Geom
     if shear_step_px and g.zero.depth_m and near and far:
         out["zero_disparity"]["inside_range"] = bool(near <= g.zero.depth_m <= far)
     return out
+
+
+#: the source of the repeatability a check compares with (``repeatability.planned_from``), in words
+REPEATABILITY_SOURCES = {"plan": "planned", "logged": "logged by the rig",
+                         "default": "assumed: no plan or rig log states it"}
+
+
+def repeatability_summary(rep: dict[str, Any]) -> str:
+    """``x 355 µm, y 257 µm measured (logged by the rig 247.43, 192.01 µm; 25 views)``: the one wording
+    of the check's repeatability (the command line, the HTML report)."""
+    def um(x: Any) -> str:
+        return "–" if x is None else f"{x:.0f}"
+
+    source = REPEATABILITY_SOURCES.get(str(rep.get("planned_from")), "planned")
+    return (f"x {um(rep.get('x_um'))} µm, y {um(rep.get('y_um'))} µm measured ({source} "
+            f"{', '.join(f'{v:g}' for v in rep.get('planned_um', []))} µm; {rep.get('views', 0)} views)")
+
+
+def disparity_reference_of(depth: dict[str, Any]) -> str:
+    """The reference of a check's disparities (a document written before it was recorded: from its shear)."""
+    zero = depth.get("zero_disparity") or {}
+    if zero.get("disparity_reference"):
+        return str(zero["disparity_reference"])
+    if zero.get("shear_px_per_step") == 0.0 or "shear_px_per_step" not in zero:
+        return "from infinity"
+    return "relative to the zero-disparity plane" + ("" if zero.get("depth_m") else " (its depth not stated)")
+
+
+def disparity_map_summary(disp: dict[str, Any], depth: dict[str, Any] | None = None) -> str:
+    """The check's dense map of the centre view in the one wording (the command line, the report, the
+    Disparity window): its median and 1st–99th percentile, its reference, how much matched."""
+    reference = disp.get("reference") or disparity_reference_of(depth or {})
+    parts = [f"{disp.get('view', '?')}: median " + ("–" if disp.get("median_px") is None else
+                                                     f"{disp['median_px']:+.2f} px")]
+    if disp.get("p1_px") is not None and disp.get("p99_px") is not None:
+        parts.append(f"{disp['p1_px']:+.2f} … {disp['p99_px']:+.2f} px (1st–99th percentile of the map)")
+    parts.append(f"between horizontal neighbours, {reference}")
+    parts.append(f"{disp.get('valid_fraction', 0):.0%} of pixels matched")
+    return ", ".join(parts)
+
+
+def disparity_summary(depth: dict[str, Any]) -> str:
+    """The tracks' disparity range with its reference named (the one wording of the check's range: the
+    command line, the HTML report): the views' own range, and from infinity too when the views are
+    sheared by a stated amount; what the exports write."""
+    reference = disparity_reference_of(depth)
+    lo = depth.get("views_disparity_min_px", depth.get("disparity_min_px"))
+    hi = depth.get("views_disparity_max_px", depth.get("disparity_max_px"))
+    if lo is None or hi is None:
+        return "– (too few tracks)"
+    text = f"{lo:+.2f} … {hi:+.2f} px between horizontal neighbours, {reference} (tracked points)"
+    if reference != "from infinity" and depth.get("disparity_min_px") is not None:
+        text += f"; from infinity {depth['disparity_min_px']:+.2f} … {depth['disparity_max_px']:+.2f} px"
+    if depth.get("export_disp_min_px") is not None:
+        text += f"; the exports write {depth['export_disp_min_px']:.2f} … {depth['export_disp_max_px']:.2f} px"
+    return text
 
 
 def write_report(dataset, report: QualityReport) -> Path:

@@ -212,24 +212,32 @@ def colour_bar_labels(lo: float, hi: float, bar_width_px: int, width_px: int,
     return sorted((tick for _, tick in ticks), key=lambda tick: tick[0])
 
 
-def disparity_picture(disparity_px: np.ndarray, image8: np.ndarray, depth_note: str = "",
-                      range_px: tuple[float, float] | None = None, depth_scale_m_px: float | None = None,
-                      ) -> np.ndarray:
-    """False-colour disparity (TURBO: near = red) over the grey image, with a colour bar in px and,
-    with ``depth_scale_m_px`` (depth = scale / disparity), in metres."""
-    d = disparity_px
-    fin = d[np.isfinite(d)]
+def colour_range(disparity_px: np.ndarray, range_px: tuple[float, float] | None = None) -> tuple[float, float]:
+    """The disparities the colours of :func:`disparity_picture` span: ``range_px``, else the 1st to 99th
+    percentile of the finite values."""
+    fin = disparity_px[np.isfinite(disparity_px)]
     if range_px is None:
         lo, hi = (float(np.percentile(fin, 1)), float(np.percentile(fin, 99))) if fin.size else (0.0, 1.0)
     else:
         lo, hi = range_px
-    if hi <= lo:
-        hi = lo + 1e-3
+    return (lo, hi) if hi > lo else (lo, lo + 1e-3)
+
+
+def disparity_picture(disparity_px: np.ndarray, image8: np.ndarray, depth_note: str = "",
+                      range_px: tuple[float, float] | None = None, depth_scale_m_px: float | None = None,
+                      colour_bar: bool = True) -> np.ndarray:
+    """False-colour disparity (TURBO: near = red) over the grey image, with a colour bar in px and,
+    with ``depth_scale_m_px`` (depth = scale / disparity), in metres (``colour_bar`` False: the
+    picture alone, for a window that draws its bar at screen resolution: :func:`colour_range`)."""
+    d = disparity_px
+    lo, hi = colour_range(d, range_px)
     t = np.clip((np.nan_to_num(d, nan=lo) - lo) / (hi - lo), 0, 1)
     colour = cv2.applyColorMap((t * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
     grey = cv2.cvtColor(image8, cv2.COLOR_GRAY2BGR)
     out = cv2.addWeighted(colour, 0.65, grey, 0.35, 0)
     out[~np.isfinite(d)] = (grey[~np.isfinite(d)] * 0.5).astype(np.uint8)
+    if not colour_bar:
+        return out
     h, w = out.shape[:2]
     bar_h = 60 + (14 if depth_scale_m_px else 0)
     canvas = np.full((h + bar_h, w, 3), 255, np.uint8)
@@ -335,7 +343,9 @@ def write_pictures(folder: Path, report, dataset) -> dict[str, Path]:
     out["histograms"] = _write_png(folder / "histograms.png", np.hstack(charts))
     if report.disparity is not None:
         d = report.disparity
-        note = (f"view {doc['disparity_map']['view']}; " if doc.get("disparity_map") else "") + \
+        disp_doc = doc.get("disparity_map") or {}
+        note = (f"view {disp_doc['view']}; " if disp_doc else "") + \
+            (f"px between horizontal neighbours, {disp_doc['reference']}; " if disp_doc.get("reference") else "") + \
             ("rectified with calibration.json" if doc["calibration"]["used"] else "not rectified (no calibration)")
         out["disparity"] = _write_png(folder / "disparity.png", disparity_picture(
             d.disparity_px, d.image8, note, depth_scale_m_px=report.depth_scale_m_px))
@@ -347,6 +357,9 @@ def write_pictures(folder: Path, report, dataset) -> dict[str, Path]:
 
 def write_html(path: Path, doc: dict[str, Any], pictures: dict[str, Path]) -> Path:
     """One self-contained page: the summary, the dataset checks, the pictures and the flagged views."""
+    from lfstudio.dataset.zero_plane import DISPARITY_DEFINITION
+    from lfstudio.quality.check import disparity_map_summary, disparity_summary, repeatability_summary
+
     def img(key: str, alt: str) -> str:
         p = pictures.get(key)
         if p is None or not Path(p).is_file():
@@ -362,9 +375,6 @@ def write_html(path: Path, doc: dict[str, Any], pictures: dict[str, Path]) -> Pa
         f"<tr class='{v['verdict']}'><td>{html.escape(v['view'])}</td><td>{v['verdict']}</td>"
         f"<td>{'<br>'.join(html.escape(r) for r in v.get('reasons', []))}</td></tr>"
         for v in doc["views"] if v["verdict"] in ("warn", "fail"))
-    def fmt(x, spec):
-        return "–" if x is None else format(x, spec)
-
     body = f"""<!doctype html><html><head><meta charset="utf-8"><title>Quality report — {html.escape(doc['dataset'])}</title>
 <style>body{{font-family:sans-serif;margin:2em;color:#222}} table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:4px 8px;vertical-align:top}} tr.fail td{{background:#fde2e2}}
@@ -376,11 +386,11 @@ tr.warn td{{background:#fff1d6}} figure{{display:inline-block;margin:0 1em 1em 0
 <table><tr><th>views</th><th>pass</th><th>warn</th><th>fail</th></tr>
 <tr><td>{s['views']}</td><td>{s['pass']}</td><td>{s['warn']}</td><td>{s['fail']}</td></tr></table>
 <h2>Dataset</h2><table>
-<tr><td>measured repeatability</td><td>x {fmt(rep.get('x_um'), '.0f')} µm, y {fmt(rep.get('y_um'), '.0f')} µm
- (planned {', '.join(f'{v:g}' for v in rep.get('planned_um', []))} µm; {rep.get('views', 0)} views)</td></tr>
+<tr><td>measured repeatability</td><td>{html.escape(repeatability_summary(rep))}</td></tr>
 <tr><td>scene depth</td><td>{html.escape(str(depth.get('why', '–')))}</td></tr>
-<tr><td>neighbour disparity</td><td>{fmt(depth.get('disparity_min_px'), '.2f')} … {fmt(depth.get('disparity_max_px'), '.2f')} px
- (exports write {fmt(depth.get('export_disp_min_px'), '.2f')} … {fmt(depth.get('export_disp_max_px'), '.2f')} px)</td></tr>
+<tr><td>neighbour disparity</td><td>{html.escape(disparity_summary(depth))}</td></tr>
+<tr><td>disparity map</td><td>{html.escape(disparity_map_summary(doc['disparity_map'], depth)) if doc.get('disparity_map') else '–'}</td></tr>
+<tr><td>disparity means</td><td>{html.escape(DISPARITY_DEFINITION)}</td></tr>
 <tr><td>calibration</td><td>{'used' if doc['calibration']['used'] else html.escape(doc['calibration']['note'] or '')}</td></tr>
 </table>
 <h2>Heat maps</h2>{img('heatmaps', 'Per-view checks laid out as the rig grid')}

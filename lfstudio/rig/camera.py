@@ -4,7 +4,9 @@ Beyond :class:`Camera`, a driver may offer capabilities, each a named interface 
 ``isinstance`` (never ``hasattr``): :class:`DescribesSettings` (what the camera offers, so a GUI
 builds its controls from data), :class:`HasIdentity` (model, serial, lens as the camera reports
 them; the dataset records it), :class:`HasStatus`, :class:`Stoppable` (a capture under way cut
-short), :class:`HasCardSpace` (pictures kept on the camera's card), :class:`SimulatedScene`.
+short), :class:`HasCardSpace` (pictures kept on the camera's card), :class:`SimulatedScene`,
+:class:`TriggeredCamera` (takes a frame on a trigger, in order, without waiting for the previous
+frame's transfer: fly scanning).
 
 An **array camera** (:class:`ArrayCamera`: machine-vision cameras) hands each picture back as pixels
 with their metadata (:class:`lfstudio.dataset.frames.Frame`) instead of writing a file: its
@@ -145,6 +147,28 @@ class SimulatedScene(Protocol):
 
 
 @runtime_checkable
+class TriggeredCamera(Protocol):
+    """A camera that takes frames on triggers (fly scanning; cf. GenICam ``TriggerMode=On``).
+
+    ``arm(frames)`` readies it for that many triggered frames (acquisition started, trigger mode on);
+    ``trigger()`` fires a software trigger and returns at once with the ``time.monotonic()`` it was
+    sent: it is called from the scan engine's thread, never queued behind a transfer, so it must be
+    safe while ``fetch`` runs on the device worker. ``fetch(stem, timeout_s)`` returns the next
+    triggered frame in trigger order (written to ``stem`` + suffix, or as an array camera's frame),
+    its ``metadata`` giving ``exposure_start_s``/``exposure_end_s`` (``time.monotonic()`` clock) when
+    the camera knows them; it raises :class:`~lfstudio.errors.DeviceError` for a trigger that took
+    no frame (missed). ``disarm()`` ends the acquisition and drops frames not fetched.
+    ``trigger_latency_s`` is the nominal delay from ``trigger()`` to the exposure's start."""
+
+    trigger_latency_s: float
+
+    def arm(self, frames: int) -> None: ...
+    def trigger(self) -> float: ...
+    def fetch(self, stem_path: Path, timeout_s: float) -> CaptureResult: ...
+    def disarm(self) -> None: ...
+
+
+@runtime_checkable
 class ArrayCamera(Protocol):
     """A camera that hands back pixels: ``grab()`` takes one picture and returns it as a
     :class:`~lfstudio.dataset.frames.Frame` (calling ``on_exposed`` as soon as it is exposed)."""
@@ -208,17 +232,19 @@ class FrameGrabber:
 
 def stored(result: CaptureResult) -> CaptureResult:
     """``result`` with its files on disk: an array camera's frame written to its stem (Bayer as DNG,
-    mono and RGB as 16-bit TIFF; :func:`lfstudio.dataset.frames.write_frame`); a file camera's result
+    mono and RGB as 16-bit PNG; :func:`lfstudio.dataset.frames.write_frame`); a file camera's result
     as it is."""
     if result.frame is None:
         return result
     from dataclasses import replace
 
-    from lfstudio.dataset.frames import write_frame
+    from lfstudio.dataset.frames import preview_rgb, write_frame
 
     if result.stem is None:
         raise ValueError("an array camera's capture result names no stem to write its frame to")
     identity = result.frame.identity
     path = write_frame(result.frame, result.stem, model=str(identity.get("model", "")),
                        make=str(identity.get("vendor", "")))
-    return replace(result, files=(path,), frame=None)
+    # the thumbnail is made from the pixels in hand, not by decoding the file just written
+    metadata = {**result.metadata, "preview": preview_rgb(result.frame)}
+    return replace(result, files=(path,), frame=None, metadata=metadata)

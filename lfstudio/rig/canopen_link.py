@@ -3,7 +3,8 @@ an :class:`lfstudio.rig.cia402.ObjectLink`.
 
 ``channel``: ``can0`` or ``socketcan:can0`` (SocketCAN on a studio machine), ``udp_multicast`` or
 ``udp_multicast:GROUP`` (python-can's UDP multicast bus: CAN frames between processes, e.g.
-``lfstudio sim-drive --canopen udp_multicast``; group 239.74.163.2 by default), or ``virtual-NAME``
+``lfstudio sim-drive --canopen udp_multicast``; group 239.74.163.2 by default; time-to-live 1, so
+the frames also reach the other computers of the local network segment), or ``virtual-NAME``
 (python-can's in-process ``virtual`` bus named NAME, where the emulated drives of ``--port
 sim-canopen`` live). All drives on one channel share one ``canopen.Network`` in this process.
 ``object_dictionary``: the drive's EDS/DCF as python-canopen parsed it (else an empty one: SDO

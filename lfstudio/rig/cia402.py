@@ -831,6 +831,7 @@ class Cia402Controller:
             self._jog_target = None
             self.reference = ""
             for i in range(2):
+                self._stopped_meanwhile(doing)
                 self._enable(i)
                 self._set_mode(i, HOMING)
                 a = self._axes[i]
@@ -840,8 +841,10 @@ class Cia402Controller:
                 if self.has(i, HOMING_ACCELERATION):
                     self._write(i, HOMING_ACCELERATION, max(1, round(a.acceleration_mm_s2 * self._ka[i])))
                 self._write(i, CONTROL, ENABLE_OPERATION)
+            self._stopped_meanwhile(doing)
             for i in range(2):                              # both start together (bit 4 rising)
                 self._write(i, CONTROL, ENABLE_OPERATION | NEW_SET_POINT)
+            self._stopped_meanwhile(doing)                  # a STOP the start writes overtook: stopped again
             self._homing = True
         started = time.monotonic()
         attained: set[int] = set()
@@ -918,11 +921,13 @@ class Cia402Controller:
             raise DeviceError(f"{doing} refused: the position is unknown; " +
                               ("home the rig first" if self.config.homing else "set the origin first"))
 
-    def _start(self, target: tuple[float, float], speeds_mm_s: tuple[float, float]) -> None:
+    def _start(self, target: tuple[float, float], speeds_mm_s: tuple[float, float], doing: str) -> None:
         """Profile position to ``target`` on both drives: parameters, then the set-point handshake
-        on both (bit 4 up, acknowledge, bit 4 down) before either is waited for."""
+        on both (bit 4 up, acknowledge, bit 4 down) before either is waited for. A STOP that comes
+        meanwhile ends it (:meth:`_stopped_meanwhile`) before its next control word."""
         steps = [round(target[i] * self._k[i]) for i in range(2)]
         for i in range(2):
+            self._stopped_meanwhile(doing)
             self._enable(i)
             self._set_mode(i, PROFILE_POSITION)
             a, kv, ka = self._axes[i], self._kv[i], self._ka[i]
@@ -933,7 +938,9 @@ class Cia402Controller:
             if self.has(i, QUICK_STOP_DECELERATION):
                 self._write(i, QUICK_STOP_DECELERATION, max(1, round(4 * a.acceleration_mm_s2 * ka)))
             self._write(i, TARGET, steps[i])
+        self._stopped_meanwhile(doing)
         self._lower_set_point()
+        self._stopped_meanwhile(doing)
         for i in range(2):
             self._write(i, CONTROL, ENABLE_OPERATION | NEW_SET_POINT | CHANGE_IMMEDIATELY)
         deadline = time.monotonic() + self.timeout_s
@@ -951,6 +958,16 @@ class Cia402Controller:
                 self._quick_stop_all()
                 raise DeviceError(f"{self._name(min(pending))} did not acknowledge the new set-point (6041h bit 12) "
                                   f"within {self.timeout_s:g} s; motion stopped")
+        self._stopped_meanwhile(doing)          # a STOP these writes overtook (0Fh leaves quick stop): stopped again
+
+    def _stopped_meanwhile(self, doing: str) -> None:
+        """A STOP came while a command set up its motion (its quick stops are out, or going out): the
+        command writes nothing more (its next control word, 0Fh or a set-point, would enable the
+        quick-stopped drives again and start the motion); the drives are brought to rest (any a write
+        of the command enabled again gets a quick stop again) and :class:`MotionStopped` ends it."""
+        if self._stop_pending:
+            st = self._finish_stop()
+            raise MotionStopped(f"{doing} stopped by STOP before it started; {self._where(st)}")
 
     def _lower_set_point(self) -> None:
         """Bit 4 down and the acknowledge (bit 12) gone on both drives, so that the next bit 4 is a
@@ -987,7 +1004,8 @@ class Cia402Controller:
                 timeout_s = 1.5 * expected + 5.0
             self._moving = True
             try:
-                self._start((x_mm, y_mm), (self._axes[0].max_speed_mm_s, self._axes[1].max_speed_mm_s))
+                self._start((x_mm, y_mm), (self._axes[0].max_speed_mm_s, self._axes[1].max_speed_mm_s),
+                            f"move to ({x_mm:g}, {y_mm:g}) mm")
             except BaseException:
                 self._moving = False
                 raise
@@ -1079,7 +1097,7 @@ class Cia402Controller:
             if not min(speeds) > 0:
                 raise DeviceError(f"jog speed: {speed_mm_s} must be positive")
             self.check_target(x, y)
-            self._start((x, y), (speeds[0], speeds[1]))
+            self._start((x, y), (speeds[0], speeds[1]), "jog")
             self._jog_target = (x, y)
 
     def jog_cancel(self) -> None:

@@ -8,7 +8,7 @@ Contract:
 - An array camera (:class:`lfstudio.rig.camera.ArrayCamera`): :meth:`GenicamCamera.grab` returns each
   picture as a :class:`lfstudio.dataset.frames.Frame` (pixels, pixel format, the camera's timestamp
   and frame id, this computer's arrival time, the exposure time and gain); the scan's store stage
-  writes it (Bayer formats as DNG, mono and RGB as 16-bit TIFF). :meth:`capture` is ``grab`` for a
+  writes it (Bayer formats as DNG, mono and RGB as 16-bit PNG). :meth:`capture` is ``grab`` for a
   view (see :class:`lfstudio.rig.camera.FrameGrabber`).
 - Settings are the camera's own GenICam nodes under our names (:data:`SETTINGS`): ``exposure_s``
   (ExposureTime, µs on the camera), ``gain``, ``pixel_format``, the region (``offset_x``,
@@ -64,6 +64,21 @@ def load_aravis() -> Any:
     except (ImportError, ValueError) as exc:
         raise DeviceError(f"genicam: aravis is not available ({exc}); {INSTALL_HINT}") from None
     return aravis
+
+
+def aravis_version() -> tuple[bool, str]:
+    """(usable, "aravis 0.8 (its typelib)") or (False, why not and how to install it)."""
+    try:
+        ar = load_aravis()
+    except DeviceError as exc:
+        return False, str(exc).removeprefix("genicam: ")
+    try:                       # the 0.8 binding has no run-time version call: where its typelib is
+        import gi
+
+        where = gi.Repository.get_default().get_typelib_path("Aravis")
+    except Exception:          # noqa: BLE001 - only for the text
+        where = ""
+    return True, f"aravis {getattr(ar, '_version', '0.8')}" + (f" ({where})" if where else "")
 
 
 def aravis_available() -> bool:
@@ -185,6 +200,10 @@ class GenicamCamera:
         self._abort = threading.Event()
         self._features: dict[str, str] = {}
         self._identity: dict[str, Any] = {}
+        self._snapshot: dict[str, Any] | None = None
+        self._triggers: list[float] = []
+        self._fetched = 0
+        self._armed = 0
         self.shots = 0
         self.lost = 0
         self._busy = False
@@ -215,6 +234,7 @@ class GenicamCamera:
             raise DeviceError(f"genicam:{self.device_id}: no camera answers ({_gerror(exc)}); cameras aravis "
                               f"finds now: {seen}") from None
         self._cam = cam
+        self._snapshot = None
         dev = cam.get_device()
         self._features = {}
         for name, node in SETTINGS.items():
@@ -406,6 +426,7 @@ class GenicamCamera:
             if node.type == "int" and number != int(number):
                 raise InputError(name, f"{value!r} is not a whole number", "a whole number of pixels")
             value = number
+        self._snapshot = None
         restart = name in _PAYLOAD and self._acquiring
         if restart:
             self._stop_acquisition()
@@ -421,12 +442,19 @@ class GenicamCamera:
                 from None
 
     # -- capture -----------------------------------------------------------------------------------
-    def _trigger(self) -> str:
+    def _shot_settings(self) -> dict[str, Any]:
+        """The settings each frame records, read from the camera once and again only after a
+        set_setting (a frame costs no register reads; each is a network round trip)."""
+        if self._snapshot is None:
+            self._snapshot = self.settings()
+        return dict(self._snapshot)
+
+    def _trigger(self, settings: dict[str, Any] | None = None) -> str:
         """"software", "line" (wait for the hardware trigger) or "free" (free-running)."""
-        mode = self._read("trigger_mode") if "trigger_mode" in self._features else "Off"
-        if str(mode) != "On":
+        settings = self._shot_settings() if settings is None else settings
+        if str(settings.get("trigger_mode", "Off")) != "On":
             return "free"
-        return "software" if str(self._read("trigger_source")) == "Software" else "line"
+        return "software" if str(settings.get("trigger_source")) == "Software" else "line"
 
     def _drain(self) -> None:
         """Give back frames that arrived before this capture (free-running or line-triggered)."""
@@ -455,11 +483,11 @@ class GenicamCamera:
         self._abort.clear()
         self._busy = True
         try:
-            fmt = self._check_format(self._read("pixel_format"))
+            settings = self._shot_settings()
+            fmt = self._check_format(settings.get("pixel_format"))
             self._start_acquisition()
-            trigger = self._trigger()
-            exposure_s = self._read("exposure_s")
-            settings = {k: v for k, v in self.settings().items()}
+            trigger = self._trigger(settings)
+            exposure_s = settings.get("exposure_s")
             wait_s = self.timeout_s + (exposure_s or 0.0)
             problems: list[str] = []
             for attempt in range(self.retries + 1):
@@ -531,6 +559,73 @@ class GenicamCamera:
         t0 = time.monotonic()
         frame = self.grab(on_exposed)
         return frame_result(frame, stem_path, trigger_s=time.monotonic() - t0)
+
+    # -- triggered frames (fly scanning: lfstudio.rig.camera.TriggeredCamera) --------------------------
+    #: from trigger() to the exposure's start: a software trigger's GVCP write (the fake camera starts at
+    #: its next frame period, up to 1/frame_rate later)
+    trigger_latency_s = 0.0
+
+    def arm(self, frames: int) -> None:
+        """Software trigger on, the acquisition running, stale frames dropped; ``frames`` expected."""
+        if self._trigger() != "software":
+            self.set_setting("trigger_mode", "On")
+            self.set_setting("trigger_source", "Software")
+        self._start_acquisition()
+        self._drain()
+        self._triggers = []
+        self._fetched = 0
+        self._armed = int(frames)
+
+    def trigger(self) -> float:
+        """Fire the software trigger now (from any thread; aravis serialises the camera's control
+        channel) and return when it was sent (time.monotonic)."""
+        sent = time.monotonic()
+        try:
+            self._need().software_trigger()
+        except DeviceError:
+            raise
+        except Exception as exc:
+            raise DeviceError(f"genicam:{self.device_id}: the software trigger failed: {_gerror(exc)}") from None
+        self._triggers.append(sent)
+        return sent
+
+    def fetch(self, stem_path: Path, timeout_s: float) -> CaptureResult:
+        """The next triggered frame, in trigger order (unwritten: the store stage writes it); DeviceError
+        for a trigger whose frame did not arrive whole (it cannot be taken again: the rig moved on)."""
+        self._need()
+        if self._stream is None:
+            raise DeviceError(f"genicam:{self.device_id}: not armed; arm the camera first")
+        settings = self._shot_settings()
+        fmt = self._check_format(settings.get("pixel_format"))
+        index = self._fetched
+        self._fetched += 1
+        sent = self._triggers[index] if index < len(self._triggers) else None
+        buf = self._pop(time.monotonic() + float(timeout_s))
+        if buf is None:
+            self.lost += 1
+            raise DeviceError(f"genicam:{self.device_id}: triggered frame {index + 1} did not arrive within "
+                              f"{timeout_s:g} s (missed)")
+        try:
+            if buf.get_status() != self.aravis.BufferStatus.SUCCESS:
+                self.lost += 1
+                raise DeviceError(f"genicam:{self.device_id}: triggered frame {index + 1} lost "
+                                  f"({_status_text(buf.get_status())})")
+            frame = self._frame(buf, fmt, settings, settings.get("exposure_s"), lost=0)
+        finally:
+            if self._stream is not None:
+                self._stream.push_buffer(buf)
+        self.shots += 1
+        result = frame_result(frame, stem_path)
+        if sent is not None:
+            start = sent + self.trigger_latency_s
+            result.metadata.update(exposure_start_s=start, exposure_end_s=start + float(frame.exposure_s or 0.0))
+        return result
+
+    def disarm(self) -> None:
+        self._stop_acquisition()
+        self._triggers = []
+        self._fetched = 0
+        self._armed = 0
 
     def preview(self) -> np.ndarray | None:
         """A frame as 8-bit RGB for the live view (None while a hardware trigger decides when frames come)."""

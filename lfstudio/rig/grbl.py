@@ -60,7 +60,8 @@ from lfstudio.optics import move_time_s
 from lfstudio.rig.grbl_protocol import (AXIS_LETTERS, GRBL_ALARMS, HOLD_COMPLETE, HOMED_MARK, MAX_LINE_CHARS,
                                         STATE_MAP, ConnectionLost, FirmwareLimits, GrblAlarm, GrblError, GrblLine,
                                         GrblStatus, MotionStopped, PositionError, parse_line)
-from lfstudio.rig.motion import RigConfig, RigState, RigStatus, SoftLimitError, check_target, clamp_target
+from lfstudio.rig.motion import (PositionReport, RigConfig, RigState, RigStatus, SoftLimitError, check_target,
+                                  clamp_target)
 
 log = logging.getLogger(__name__)
 #: status polls and reports (several a second): shown only with --debug (lfstudio.support.logs)
@@ -120,6 +121,7 @@ class GrblController:
         self._last_t = 0.0
         self._wco: tuple[float, ...] | None = None
         self._jog_target: tuple[float, float] | None = None
+        self._fly_target: tuple[float, float] | None = None
         self.settings: dict[int, float] = {}
         self.firmware = FirmwareLimits.from_settings({})
         self.options = ""
@@ -754,6 +756,36 @@ class GrblController:
             line = f"G90 G54 G0 {h.letter}{x_mm:.3f} {v.letter}{y_mm:.3f}"
             self._command(line)
         return self._wait_arrival((x_mm, y_mm), timeout_s, line)
+
+    # -- fly scanning (lfstudio.rig.motion.FlyingController) ---------------------------------------
+    def fly_to(self, x_mm: float, y_mm: float, speed_mm_s: float) -> None:
+        """A straight feed move (``G1 … F``) at ``speed_mm_s`` to the target; returns once GRBL has
+        queued it (its ``ok``), while the carriage still moves: :meth:`wait_arrival` waits for it."""
+        x_mm, y_mm = check_target(self.config, x_mm, y_mm)
+        if not (math.isfinite(speed_mm_s) and speed_mm_s > 0):
+            raise DeviceError(f"fly move refused: speed {speed_mm_s!r} mm/s is not a positive number")
+        with self._io:
+            st = self._require_motion_allowed()
+            x_mm, y_mm = self.check_target(x_mm, y_mm)
+            if st.state not in ("Idle",):
+                raise DeviceError(f"fly move refused: the rig is {st.state.lower()}, not idle")
+            h, v = self.config.horizontal, self.config.vertical
+            self._fly_target = (x_mm, y_mm)
+            self._command(f"G90 G54 G1 {h.letter}{x_mm:.3f} {v.letter}{y_mm:.3f} F{speed_mm_s * 60.0:.3f}")
+
+    def report(self) -> PositionReport:
+        """The position GRBL reports now, time-stamped at the middle of the question and the answer
+        (``uncertainty_s``: half their time apart)."""
+        with self._io:
+            t0 = time.monotonic()
+            st = self._query_status()
+            t1 = time.monotonic()
+            x, y = self._position(st)
+        return PositionReport((t0 + t1) / 2.0, x, y, (t1 - t0) / 2.0)
+
+    def wait_arrival(self, x_mm: float, y_mm: float, timeout_s: float) -> RigStatus:
+        """Wait until Idle at the target of :meth:`fly_to` (STOP ends it as it ends :meth:`move_to`)."""
+        return self._wait_arrival((float(x_mm), float(y_mm)), timeout_s, "G1 (fly)")
 
     def _wait_arrival(self, target: tuple[float, float], timeout_s: float, line: str) -> RigStatus:
         start = time.monotonic()

@@ -143,10 +143,40 @@ class MotionController(Protocol):
     def status(self) -> RigStatus: ...
 
 
+@dataclass(frozen=True)
+class PositionReport:
+    """Where the controller said the carriage was, and when: ``t_s`` on the ``time.monotonic()`` clock
+    (the middle of the question and the answer), ``uncertainty_s`` half their time apart."""
+
+    t_s: float
+    x_mm: float
+    y_mm: float
+    uncertainty_s: float = 0.0
+
+
+@runtime_checkable
+class FlyingController(Protocol):
+    """A controller that moves at a chosen constant speed and reports time-stamped positions (fly
+    scanning). ``fly_to`` starts a straight move at ``speed_mm_s`` and returns once the controller
+    has it (not when it arrives); ``report`` asks the position now; ``wait_arrival`` waits until Idle
+    at the target (STOP ends it as it ends ``move_to``)."""
+
+    def fly_to(self, x_mm: float, y_mm: float, speed_mm_s: float) -> None: ...
+    def report(self) -> PositionReport: ...
+    def wait_arrival(self, x_mm: float, y_mm: float, timeout_s: float) -> RigStatus: ...
+
+
 class SoftLimitError(InputError):
     """A target outside the rig's soft limits; nothing was sent to the controller."""
 
     kind = "soft-limit"
+
+
+@runtime_checkable
+class ChecksTargets(Protocol):
+    """A controller that checks a target against its limits without moving (raises SoftLimitError)."""
+
+    def check_target(self, x_mm: float, y_mm: float) -> tuple[float, float]: ...
 
 
 def check_target(config: RigConfig, x_mm: float, y_mm: float) -> tuple[float, float]:

@@ -64,9 +64,9 @@ from lfstudio.dataset.manifest import ViewUpdate, is_finished
 from lfstudio.dataset.paths import folder_inside, view_label, view_stem
 from lfstudio.dataset.storage import storage_error
 from lfstudio.dataset.store import clean_temporary_files, free_bytes
-from lfstudio.errors import DeviceError, DeviceRefused, DeviceTimeout, InputError, LfError
+from lfstudio.errors import DeviceError, DeviceRefused, DeviceTimeout, InputError, LfError, words
 from lfstudio.numbers import RETRIES, TIME_SCALE, TIMEOUT_S, Number, non_finite_fields
-from lfstudio.rig.camera import supports_on_exposed
+from lfstudio.rig.camera import DescribesSettings, HasStatus, supports_on_exposed
 from lfstudio.rig.motion import RigState
 from lfstudio.rig.worker import CallTimedOut, DeviceWorker, Lease
 from lfstudio.scan.events import (OWNS_RIG, TERMINAL, TRANSITIONS, EventKind, ScanEvent, ScanRequestRefused,
@@ -121,24 +121,30 @@ def _as_worker(device: Any, name: str) -> tuple[DeviceWorker, bool]:
     return DeviceWorker(device, name=name, status_method=status, publish_hz=2.0), True
 
 
+#: the bracket's field as each front end names it
+BRACKET_FIELD = words("--bracket", "Bracket")
+
+
 def bracket_on_camera(bracket: Bracket, driver: Any, call: Callable[[str], Any],
-                      field: str = "--bracket") -> tuple[tuple[float, ...], float | None]:
+                      field: str = BRACKET_FIELD) -> tuple[tuple[float, ...], float | None]:
     """(each frame's shutter time as the camera can set it, the camera's shutter time now): EV steps
     around the shutter time it is set to, matched to its own choices where it describes them
     (``describe_settings``). ``call(name)`` runs a driver method (through its worker). Raises
     :class:`InputError` naming ``field`` with the camera's choices."""
     settings = call("settings")
     settings = settings if isinstance(settings, dict) else {}
-    if "shutter_s" not in settings and not hasattr(driver, "describe_settings"):
+    if "shutter_s" not in settings and not isinstance(driver, DescribesSettings):
         # a hot folder or a trigger command: lfstudio cannot set the exposure, so every frame's
         # set_setting would fail at each view after the rig has moved; refused before anything
         raise InputError(field, "this camera has no shutter time lfstudio can set (a hot folder or a trigger "
-                         "command takes what the camera is set to): bracket with a camera lfstudio controls "
-                         "(--camera gphoto2), or use the camera's own bracketing and import the frames")
+                         "command takes what the camera is set to): bracket with a camera lfstudio controls ("
+                         + words("--camera gphoto2", "a gphoto2 camera in the Camera panel")
+                         + "), or use the camera's own bracketing and import the frames")
     base = _valid(Number("s", 0, low_open=True), settings.get("shutter_s"))
     values: tuple = ()
     texts: tuple = ()
-    if hasattr(driver, "describe_settings"):
+    range_s: tuple[float, float] | None = None
+    if isinstance(driver, DescribesSettings):
         try:
             described = call("describe_settings")
         except Exception as exc:       # the times are checked again when each frame is set
@@ -147,12 +153,15 @@ def bracket_on_camera(bracket: Bracket, driver: Any, call: Callable[[str], Any],
         for setting in described or ():
             if getattr(setting, "name", "") == "shutter_s":
                 values, texts = tuple(setting.values), tuple(setting.choices)
+                span = getattr(setting, "range", None)
+                if isinstance(span, (tuple, list)) and len(span) >= 2 and 0 < span[0] <= span[1]:
+                    range_s = (float(span[0]), float(span[1]))
     model = ""
     try:
-        model = driver.status().model if hasattr(driver, "status") else ""
+        model = driver.status().model if isinstance(driver, HasStatus) else ""
     except Exception:                  # a name for the message only
         pass
-    return frame_times_on_camera(bracket, base, values, texts, model or "the camera", field), base
+    return frame_times_on_camera(bracket, base, values, texts, model or "the camera", field, range_s), base
 
 
 class ScanEngine:
@@ -1055,7 +1064,17 @@ class ScanEngine:
                     self._attempts[view.cell] = attempt - 1
                     raise _Interrupted()
             if shutter is not None:
-                self._camera_call("set_setting", "shutter_s", shutter, timeout_s=30)
+                try:
+                    self._camera_call("set_setting", "shutter_s", shutter, timeout_s=30)
+                except InputError as exc:   # a value the camera refuses (one whose range nothing told): no retry
+                    assert self.bracket is not None
+                    fault = ScanFault(f"Camera refused frame {k + 1} of the bracket ({self.bracket.describe()}) at "
+                                      f"view {view_label(view.row, view.column)}: {error_text(exc).rstrip('.')}. Every "
+                                      "view of a dataset has the same frames, so the bracket cannot change in this "
+                                      "one: stop this scan (Abort), then scan into a new folder with a bracket the "
+                                      "camera takes.", "camera")
+                    fault.resumable = False
+                    raise fault from None
             stem = self.dataset.root / "raw" / (view_stem(view.row, view.column) + (f".f{k}" if bracketed else ""))
             fut = self._expose(view, attempt, stem)
             t_exposed = time.monotonic()

@@ -48,6 +48,7 @@ class ScanFault(LfError):
         self.need_bytes = need_bytes  # a disk fault: the free space that clears it (0: the next view's)
         self.reconnected = False     # the auto-resume probe reconnected the device already
         self.stop_pressed = False    # the operator's STOP: they know, no alarm box (the rig may still be homed)
+        self.resumable = True        # False: this dataset cannot continue as it is (its message says what to do)
 
 
 def error_text(exc: BaseException) -> str:

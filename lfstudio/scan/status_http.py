@@ -474,7 +474,10 @@ class StatusServer:
         return hmac.compare_digest(given.encode(), self.token.encode())
 
     def _answer(self, target: str, headers: dict[str, str], head_only: bool) -> bytes:
-        parts = urllib.parse.urlsplit(target)
+        try:
+            parts = urllib.parse.urlsplit(target)
+        except ValueError:          # e.g. "//[": an address nobody's page links to; not the page's failure
+            return _plain(400, "400: not an address of this page\n", head_only)
         query = urllib.parse.parse_qs(parts.query)
         if not self._authorised(query, headers):
             return _plain(401, "401: this status page needs its token (?token=...)\n", head_only)

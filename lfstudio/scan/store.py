@@ -5,7 +5,7 @@ stored so far, the frames of a bracketed view stored so far, the views the journ
 engine thread hands it each capture (:meth:`ScanStore.submit`, a :class:`StoreJob` whose future
 resolves when the camera has delivered the file) and goes on moving the rig; the store thread waits
 for the file (download/transfer; an array camera's frame it writes itself: Bayer as DNG, mono and
-RGB as 16-bit TIFF, :func:`lfstudio.rig.camera.stored`), checksums it, writes its thumbnail and journals the view (fsync'd),
+RGB as 16-bit PNG, :func:`lfstudio.rig.camera.stored`), checksums it, writes its thumbnail and journals the view (fsync'd),
 overlapping the next move and settle.
 
 The store talks to the engine only through the engine's inbox (``post``: a fault to pause on, a view
@@ -34,7 +34,7 @@ from lfstudio.dataset.storage import disk_problem, megabytes, mount_point, stora
 from lfstudio.dataset.store import free_bytes, sha256_file
 from lfstudio.dataset.thumbs import THUMB_WIDTH_PX, make_thumbnail
 from lfstudio.errors import DeviceError, DeviceTimeout, LfError
-from lfstudio.rig.camera import CaptureResult
+from lfstudio.rig.camera import CaptureResult, HasCardSpace
 from lfstudio.rig.camera import stored as frame_written
 from lfstudio.rig.worker import CallTimedOut, DeviceWorker
 from lfstudio.scan.events import EventKind, Trigger
@@ -346,7 +346,7 @@ class ScanStore:
         except Exception as exc:
             self._transfer_failed(job, exc)
             return
-        result = frame_written(result)    # an array camera's frame written here (DNG or 16-bit TIFF)
+        result = frame_written(result)    # an array camera's frame written here (DNG or 16-bit PNG)
         t_transferred = time.monotonic()
         extra: ViewUpdate = {}
         sha: str | None = None
@@ -407,7 +407,7 @@ class ScanStore:
         if later is None and not self._whole_checked:     # the first view of this run: does the rest fit?
             self._whole_checked = True
             later = self.whole_scan_fault(view_bytes, job.frames)
-            if callable(getattr(self.camera.driver, "card_space", None)):
+            if isinstance(self.camera.driver, HasCardSpace):
                 with self._lock:
                     self._card_frame_bytes = max(1, view_bytes // max(1, job.frames))
         if later is not None:

@@ -147,6 +147,7 @@ class GrblSimulator:
         self._thread: threading.Thread | None = None
         self._running = threading.Event()
         self._last_tick = time.monotonic()
+        self._history: deque[tuple[float, float, float]] = deque(maxlen=10000)   # (t, true x, true y)
 
     # -- lifecycle ---------------------------------------------------------------------------------
     def start(self) -> str:
@@ -234,10 +235,32 @@ class GrblSimulator:
     # -- public, thread-safe -----------------------------------------------------------------------
     def true_position_mm(self) -> tuple[float, float]:
         """Where the carriage physically is, in the rig frame (work coordinates) in mm:
-        the reported position plus the repeatability error of the last completed move."""
+        the reported position plus the repeatability error of the last completed move (the motion
+        advanced to this instant first, so a camera asking during a move gets where it is now)."""
         with self._lock:
+            if self._running.is_set():
+                self._advance()
             w = self._wpos()
             return (float(w[self._ix[0]] + self._error_mm[0]), float(w[self._ix[1]] + self._error_mm[1]))
+
+    def true_position_at(self, t: float) -> tuple[float, float] | None:
+        """Where the carriage truly was at monotonic time ``t`` (interpolated in the history the motion
+        keeps of its last ~10 000 steps); None when ``t`` is outside it. A camera timing its exposure
+        asks this, so the truth is that of its timestamps, not of when its thread got to run."""
+        with self._lock:
+            if self._running.is_set():
+                self._advance()
+            hist = list(self._history)
+        if not hist or t < hist[0][0] or t > hist[-1][0]:
+            return None
+        import bisect
+
+        i = bisect.bisect_left([h[0] for h in hist], t)
+        if i == 0:
+            return hist[0][1], hist[0][2]
+        (t0, x0, y0), (t1, x1, y1) = hist[i - 1], hist[i]
+        w = 0.0 if t1 <= t0 else (t - t0) / (t1 - t0)
+        return x0 + w * (x1 - x0), y0 + w * (y1 - y0)
 
     def reported_position_mm(self) -> tuple[float, float]:
         with self._lock:
@@ -375,6 +398,7 @@ class GrblSimulator:
                 if self._state == "Home":
                     self._report_after_homing = True   # GRBL reports only once homing ends
                 else:
+                    self._advance()               # the position of this instant (GRBL's is ~ms fresh)
                     self._emit(self._status_report())
             elif byte == 0x21:                    # '!'
                 self._feed_hold()
@@ -670,6 +694,14 @@ class GrblSimulator:
         return None
 
     def _advance(self, instant: bool = False) -> None:
+        try:
+            self._advance_motion(instant)
+        finally:
+            w = self._wpos()
+            self._history.append((self._last_tick, float(w[self._ix[0]] + self._error_mm[0]),
+                                  float(w[self._ix[1]] + self._error_mm[1])))
+
+    def _advance_motion(self, instant: bool = False) -> None:
         now = time.monotonic()
         real_dt = now - self._last_tick
         self._last_tick = now

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from lfstudio.dataset.atomic import atomic_write_with
-from lfstudio.errors import DeviceError
+from lfstudio.errors import DeviceError, InputError
 from lfstudio.rig.camera import CaptureResult
 from lfstudio.rig.motion import RigConfig, RigState, RigStatus
 
@@ -100,6 +100,7 @@ class InstantCamera:
         self.describe_size = describe_size
         self.render = render
         self._connected = False
+        self.shutter_s = 0.0
         w, h = size_px
         yy, xx = np.mgrid[0:h, 0:w]
         self._base = np.dstack([(xx * 4) % 256, (yy * 5) % 256, ((xx + yy) * 3) % 256]).astype(np.uint8)
@@ -116,10 +117,21 @@ class InstantCamera:
         return {"sensor_px": [int(v) for v in self.size_px]} if self.describe_size else {}
 
     def settings(self) -> dict[str, Any]:
-        return {"format": "PNG", "shutter_s": 0.0}
+        return {"format": "PNG", "shutter_s": self.shutter_s}
 
     def set_setting(self, name: str, value: Any) -> None:
-        pass
+        """``shutter_s`` is kept (it takes no time); ``format`` is PNG; ``time_scale`` changes nothing;
+        any other name is refused (the camera contract: a setting is never dropped unsaid)."""
+        if name == "shutter_s":
+            seconds = float(value)
+            if not 0 <= seconds <= 3600:
+                raise InputError("shutter_s", f"{value} s is out of range", "0 … 3600 s")
+            self.shutter_s = seconds
+        elif name == "format":
+            if str(value).upper() != "PNG":
+                raise InputError("format", f"{value!r} is not available on the instant camera", "PNG")
+        elif name != "time_scale":
+            raise InputError(name, "unknown setting of the instant camera", "shutter_s, format")
 
     def capture(self, stem_path: Path, on_exposed: Callable[[], None] | None = None) -> CaptureResult:
         if not self._connected:

@@ -17,8 +17,11 @@ Faults (:meth:`SimulatedCamera.inject`): ``"capture_fails"`` (the capture raises
 from __future__ import annotations
 
 import logging
+import math
+import queue
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any, Callable
 
@@ -28,7 +31,7 @@ import numpy as np
 from lfstudio.dataset.atomic import atomic_write_json, atomic_write_with
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.numbers import EXPOSURE_S, TIME_SCALE, TRANSFER_S
-from lfstudio.rig.camera import CameraStatus, CaptureResult
+from lfstudio.rig.camera import CameraSetting, CameraStatus, CaptureResult
 from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
 from lfstudio.sim.sensor import SensorModel
 from lfstudio.sim.studio import VirtualStudio, demo_studio_kwargs
@@ -39,7 +42,9 @@ BLACK_LEVEL = 512
 WHITE_LEVEL = 16383
 REFERENCE_EXPOSURE = {"shutter_s": 0.5, "iso": 100, "aperture": 16.0}
 ISO_VALUES = (50, 100, 200, 400, 800, 1600, 3200, 6400)
-FAULTS = ("capture_fails", "silent")
+#: the shutter times the simulated camera takes (s), as a real body's range
+SHUTTER_RANGE_S = (1e-4, 60.0)
+FAULTS = ("capture_fails", "silent", "miss_trigger", "late_trigger")
 
 
 def srgb8(linear_rgb: np.ndarray) -> np.ndarray:
@@ -68,7 +73,9 @@ class SimulatedCamera:
                  noise: float = 0.002, flicker: float = 0.0, vignetting: float = 0.0, seed: int = 0,
                  preview_width_px: int = 640, silent_hang_s: float = 600.0,
                  studio_kwargs: dict[str, Any] | None = None,
-                 faults: dict[str, int | None] | Any = None):
+                 faults: dict[str, int | None] | Any = None,
+                 trigger_latency_s: float = 0.0005, trigger_jitter_s: float = 0.0002,
+                 frame_rate_fps: float = 20.0):
         self.studio = studio
         self.studio_kwargs = dict(studio_kwargs or demo_studio_kwargs())
         self.position_mm: Callable[[], tuple[float, float]] = position_mm or (lambda: (0.0, 0.0))
@@ -89,6 +96,16 @@ class SimulatedCamera:
         self._faults: dict[str, int | None] = {}
         self._lock = threading.Lock()
         self._abort = threading.Event()
+        #: fly scanning (TriggeredCamera): nominal delay from trigger() to the exposure, its jitter (σ)
+        self.trigger_latency_s = float(trigger_latency_s)
+        self.trigger_jitter_s = float(trigger_jitter_s)
+        self.frame_rate_fps = float(frame_rate_fps)      # triggered frames a second it sustains
+        self._rng = np.random.default_rng(seed + 7919)
+        self._triggers: "queue.Queue[tuple[float, float, bool] | None]" = queue.Queue()
+        self._exposed: "deque[dict[str, Any]]" = deque()
+        self._exposed_cond = threading.Condition()
+        self._shutter: threading.Thread | None = None
+        self._armed = False
         if faults:
             items = faults.items() if isinstance(faults, dict) else ((name, 1) for name in faults)
             for fault, count in items:
@@ -135,7 +152,14 @@ class SimulatedCamera:
     def settings(self) -> dict[str, Any]:
         return {"iso": self.iso, "shutter_s": self.exposure_s, "aperture": self.aperture, "format": "DNG",
                 "transfer_s": self.transfer_s, "noise": self.sensor.noise, "flicker": self.sensor.flicker,
-                "vignetting": self.sensor.vignetting, "time_scale": self.time_scale}
+                "vignetting": self.sensor.vignetting, "time_scale": self.time_scale,
+                "frame_rate_fps": self.frame_rate_fps}
+
+    def describe_settings(self) -> list[CameraSetting]:
+        """The shutter time the simulated camera takes, as data (a continuous range): a scan checks a
+        bracket's frames against it before the rig moves."""
+        return [CameraSetting("shutter_s", "Shutter time", "float", self.exposure_s,
+                              range=(SHUTTER_RANGE_S[0], SHUTTER_RANGE_S[1], 0.0), unit="s")]
 
     def set_setting(self, name: str, value: Any) -> None:
         if name == "iso":
@@ -143,8 +167,9 @@ class SimulatedCamera:
                 raise InputError("iso", f"{value} is not available", ", ".join(map(str, ISO_VALUES)))
             self.iso = int(value)
         elif name == "shutter_s":
-            if not 1e-4 <= float(value) <= 60:
-                raise InputError("shutter_s", f"{value} s is out of range", "0.0001 .. 60 s")
+            if not SHUTTER_RANGE_S[0] <= float(value) <= SHUTTER_RANGE_S[1]:
+                raise InputError("shutter_s", f"{value} s is out of range",
+                                 f"{SHUTTER_RANGE_S[0]:g} .. {SHUTTER_RANGE_S[1]:g} s")
             self.exposure_s = float(value)
         elif name == "aperture":
             if not 1.0 <= float(value) <= 32:
@@ -161,6 +186,10 @@ class SimulatedCamera:
             if float(value) < 0:
                 raise InputError("time_scale", "must not be negative", ">= 0 (0: no simulated delays)")
             self.time_scale = float(value)
+        elif name == "frame_rate_fps":
+            if not 0 < float(value) <= 10_000:
+                raise InputError("frame_rate_fps", f"{value} frames/s is out of range", "> 0 … 10000 frames/s")
+            self.frame_rate_fps = float(value)
         elif name in ("noise", "flicker", "vignetting"):
             if not 0 <= float(value) <= 1:
                 raise InputError(name, f"{value} is out of range", "0 .. 1")
@@ -169,7 +198,8 @@ class SimulatedCamera:
                                             "full_well_e": s.full_well_e, "seed": s.seed}, name: float(value)})
         else:
             raise InputError(name, "unknown setting of the simulated camera",
-                             "iso, shutter_s, aperture, format, transfer_s, time_scale, noise, flicker, vignetting")
+                             "iso, shutter_s, aperture, format, transfer_s, time_scale, noise, flicker, vignetting, "
+                             "frame_rate_fps")
 
     def exposure_factor(self) -> float:
         """Brightness relative to the reference exposure (0.5 s, ISO 100, f/16)."""
@@ -253,21 +283,8 @@ class SimulatedCamera:
             t_closed = time.monotonic()
             if on_exposed is not None:
                 on_exposed()
-            raw_path = stem_path.with_name(stem_path.name + self.suffix)
-            jpg_path = stem_path.with_name(stem_path.name + ".jpg")
-            truth_path = stem_path.with_name(stem_path.name + ".truth.json")
-            mosaic = mosaic_from_rgb(recorded, BLACK_LEVEL, WHITE_LEVEL, DEFAULT_NEUTRAL)
-            write_dng(raw_path, mosaic, black_level=BLACK_LEVEL, white_level=WHITE_LEVEL,
-                      as_shot_neutral=DEFAULT_NEUTRAL, exposure_s=self.exposure_s, f_number=self.aperture,
-                      iso=self.iso)
-            self._write_preview_jpeg(jpg_path, recorded)
-            truth = {"shot": shot, "true_position_mm": [x_mm, y_mm], "gain": gain,
-                     "exposure_factor": self.exposure_factor(),
-                     "rotation_deg": list(studio.rotation_deg), "R": studio.R.tolist(),
-                     "pp_offset_px": list(studio.pp_offset_px), "K_true": studio.K_true.tolist(),
-                     "K0": studio.K0.tolist(), "H": studio.H.tolist(), "focal_length_px": studio.f_px,
-                     "image_size_px": [studio.width_px, studio.height_px]}
-            atomic_write_json(truth_path, truth)
+            truth = self._truth(studio, shot, x_mm, y_mm, gain)
+            raw_path, jpg_path, truth_path, mosaic = self._write_files(stem_path, recorded, truth)
             self._wait_until(t_closed, self.transfer_s)
             t_done = time.monotonic()
             size = raw_path.stat().st_size
@@ -282,6 +299,143 @@ class SimulatedCamera:
                                            "model": "lfstudio Virtual Studio", "ground_truth": truth})
         finally:
             self._busy = False
+
+    # -- triggered frames (lfstudio.rig.camera.TriggeredCamera: fly scanning) ------------------------
+    def arm(self, frames: int) -> None:
+        """Ready for ``frames`` triggered frames: each trigger opens the shutter after
+        ``trigger_latency_s`` ± ``trigger_jitter_s`` (σ) and the exposure is integrated along the motion."""
+        self._check_ready()
+        with self._exposed_cond:
+            self._exposed.clear()
+        if self._shutter is None or not self._shutter.is_alive():
+            self._shutter = threading.Thread(target=self._shutter_loop, name="sim-camera-shutter", daemon=True)
+            self._shutter.start()
+        self._armed = True
+
+    def disarm(self) -> None:
+        self._armed = False
+        with self._exposed_cond:
+            self._exposed.clear()
+
+    def trigger(self) -> float:
+        """A software trigger: returns at once with the time it was sent; the shutter opens after the
+        latency (simulated time) on the camera's own thread."""
+        t = time.monotonic()
+        if not self._armed or not self._connected:
+            raise DeviceError(f"{self.name}: triggered while not armed; the scan arms the camera before a row")
+        latency = max(0.0, self.trigger_latency_s + float(self._rng.normal(0.0, self.trigger_jitter_s)))
+        missed = self._take_fault("miss_trigger")
+        if self._take_fault("late_trigger"):
+            latency += 0.05                       # a trigger that waited 50 ms (a busy bus)
+        self._triggers.put((t, latency, missed))
+        return t
+
+    def _shutter_loop(self) -> None:
+        while True:
+            item = self._triggers.get()
+            if item is None:
+                return
+            t, latency, missed = item
+            scale = self.time_scale
+            if scale > 0:
+                t_open = t + latency * scale
+                delay = t_open - time.monotonic()
+                if delay > 0.002:
+                    time.sleep(delay - 0.002)
+                while time.monotonic() < t_open:     # spun: a sleep may wake up ms late
+                    pass
+            t0 = time.monotonic()
+            p0 = self.position_mm()
+            if scale > 0:
+                time.sleep(self.exposure_s * scale)
+            t1 = time.monotonic()
+            p1 = self.position_mm()
+            # the truth at the exposure's own start and end, where the controller keeps its history
+            # (this thread may have run late between the clock and the question)
+            at: Any = getattr(getattr(self.position_mm, "__self__", None), "true_position_at", None)
+            if callable(at) and scale > 0:
+                t1 = t0 + self.exposure_s * scale
+                q0: Any = at(t0)
+                q1: Any = at(t1)
+                if q0 is not None and q1 is not None:
+                    p0, p1 = (float(q0[0]), float(q0[1])), (float(q1[0]), float(q1[1]))
+            frame = {"t_trigger": t, "t_open": t0, "t_close": t1, "p0": (float(p0[0]), float(p0[1])),
+                     "p1": (float(p1[0]), float(p1[1])), "latency_s": latency, "missed": missed}
+            with self._exposed_cond:
+                self._exposed.append(frame)
+                self._exposed_cond.notify_all()
+
+    def fetch(self, stem_path: Path, timeout_s: float) -> CaptureResult:
+        """The next triggered frame, rendered with its motion blur (renders along the exposure's
+        path averaged) and written like :meth:`capture`'s; ``metadata`` has ``exposure_start_s``/
+        ``exposure_end_s`` (monotonic clock) and the truth (``ground_truth``: true centre position,
+        blur in px at the near distance)."""
+        studio = self._check_ready()
+        stem_path = Path(stem_path)
+        deadline = time.monotonic() + timeout_s
+        with self._exposed_cond:
+            while not self._exposed:
+                left = deadline - time.monotonic()
+                if left <= 0 or self._abort.is_set():
+                    raise DeviceError(f"{self.name}: no triggered frame arrived within {timeout_s:g} s")
+                self._exposed_cond.wait(min(left, 0.1))
+            f = self._exposed.popleft()
+        if f["missed"]:
+            raise DeviceError(f"{self.name}: the trigger sent at {f['t_trigger']:.6f} took no frame (missed trigger)")
+        scale = self.time_scale
+        span_s = f["t_close"] - f["t_open"]
+        p0, p1 = np.asarray(f["p0"]), np.asarray(f["p1"])
+        # the carriage's travel during the (simulated) exposure: measured over the real interval, so
+        # a late wake-up of this thread does not lengthen it
+        blur_mm = (p1 - p0) * (self.exposure_s * scale / span_s) if scale > 0 and span_s > 0 else np.zeros(2)
+        blur_px = float(studio.disparity_px(studio.near_m, float(np.hypot(blur_mm[0], blur_mm[1]))))
+        k = 1 if blur_px < 1e-3 else min(9, max(2, int(math.ceil(2 * blur_px)) + 1))
+        rgb = None
+        for i in range(k):
+            pos = p0 + blur_mm * ((i + 0.5) / k if k > 1 else 0.5)
+            one = studio.render(float(pos[0]), float(pos[1]))
+            rgb = one if rgb is None else rgb + one
+        assert rgb is not None
+        rgb /= np.float32(k)
+        rgb *= np.float32(self.exposure_factor())
+        shot = self.shots
+        self.shots += 1
+        recorded, gain = self.sensor.apply(rgb, shot)
+        centre = p0 + blur_mm / 2
+        truth = self._truth(studio, shot, float(centre[0]), float(centre[1]), gain)
+        truth.update({"blur_mm": [float(v) for v in blur_mm], "blur_px_near": blur_px, "subframes": k,
+                      "trigger_latency_s": f["latency_s"]})
+        raw_path, jpg_path, truth_path, mosaic = self._write_files(stem_path, recorded, truth)
+        size = raw_path.stat().st_size
+        exposure_end = f["t_open"] + self.exposure_s * scale
+        return CaptureResult(files=(raw_path, jpg_path, truth_path), trigger_s=f["t_open"] - f["t_trigger"],
+                             exposure_s=self.exposure_s,
+                             metadata={"iso": self.iso, "shutter_s": self.exposure_s, "aperture": self.aperture,
+                                       "format": "DNG", "bytes": size, "model": "lfstudio Virtual Studio",
+                                       "ground_truth": truth, "exposure_start_s": f["t_open"],
+                                       "exposure_end_s": exposure_end})
+
+    def _truth(self, studio: VirtualStudio, shot: int, x_mm: float, y_mm: float, gain: Any) -> dict[str, Any]:
+        return {"shot": shot, "true_position_mm": [x_mm, y_mm], "gain": gain,
+                "exposure_factor": self.exposure_factor(),
+                "rotation_deg": list(studio.rotation_deg), "R": studio.R.tolist(),
+                "pp_offset_px": list(studio.pp_offset_px), "K_true": studio.K_true.tolist(),
+                "K0": studio.K0.tolist(), "H": studio.H.tolist(), "focal_length_px": studio.f_px,
+                "image_size_px": [studio.width_px, studio.height_px]}
+
+    def _write_files(self, stem_path: Path, recorded: np.ndarray, truth: dict[str, Any]
+                     ) -> tuple[Path, Path, Path, np.ndarray]:
+        """STEM.dng, STEM.jpg and STEM.truth.json of one shot."""
+        raw_path = stem_path.with_name(stem_path.name + self.suffix)
+        jpg_path = stem_path.with_name(stem_path.name + ".jpg")
+        truth_path = stem_path.with_name(stem_path.name + ".truth.json")
+        mosaic = mosaic_from_rgb(recorded, BLACK_LEVEL, WHITE_LEVEL, DEFAULT_NEUTRAL)
+        write_dng(raw_path, mosaic, black_level=BLACK_LEVEL, white_level=WHITE_LEVEL,
+                  as_shot_neutral=DEFAULT_NEUTRAL, exposure_s=self.exposure_s, f_number=self.aperture,
+                  iso=self.iso)
+        self._write_preview_jpeg(jpg_path, recorded)
+        atomic_write_json(truth_path, truth)
+        return raw_path, jpg_path, truth_path, mosaic
 
     def _write_preview_jpeg(self, path: Path, recorded: np.ndarray) -> None:
         h, w = recorded.shape[:2]

@@ -30,6 +30,7 @@ instant rig's, or that of the ``lfstudio sim-rig`` serving the port (see :mod:`l
 from __future__ import annotations
 
 import logging
+import weakref
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -43,13 +44,15 @@ log = logging.getLogger(__name__)
 SIM = "sim"
 INSTANT = "instant"
 RIG_CHOICES = ("sim, instant, a serial port such as /dev/ttyUSB0, dryve:HOST[:PORT],HOST[:PORT], "
-               "canopen:CHANNEL:NODE,NODE, sim-dryve or sim-canopen")
+               "canopen:CHANNEL:NODE,NODE, sim-dryve, sim-canopen or an installed plugin's NAME:ARGS")
 DRIVE_KINDS = ("dryve", "canopen", "sim-dryve", "sim-canopen")
+PLUGIN = "plugin"
 
 
 @dataclass(frozen=True)
 class RigSpec:
-    """``kind``: "sim" (simulator in this process), "instant", "serial" (``port``), or a CiA 402
+    """``kind``: "sim" (simulator in this process), "instant", "serial" (``port``), "plugin" (``port``: the
+    kind's name, ``addresses``: its arguments; a rig kind from the entry points group lfstudio.rigs), or a CiA 402
     drive pair: "dryve" (``addresses``: two ``HOST:PORT``), "canopen" (``port``: the channel,
     ``addresses``: the two node ids), "sim-dryve" / "sim-canopen" (emulated here)."""
 
@@ -95,6 +98,11 @@ class RigSpec:
             if ids[0] == ids[1]:
                 raise InputError(option, f"{word!r}: both axes name node {ids[0]}", "one node per axis")
             return cls("canopen", channel, tuple(ids))
+        from lfstudio.studio.kinds import rig_kind
+
+        plugin = rig_kind(head, option) if ":" in word else None     # a plugin's NAME:ARGS (studio/kinds.py)
+        if plugin is not None:
+            return cls(PLUGIN, plugin.name, (rest.strip(),))
         return cls("serial", word)
 
     @property
@@ -107,6 +115,8 @@ class RigSpec:
             return "dryve:" + ",".join(self.addresses)
         if self.kind == "canopen":
             return f"canopen:{self.port}:{self.addresses[0]},{self.addresses[1]}"
+        if self.kind == PLUGIN:
+            return f"{self.port}:{self.addresses[0]}"
         return self.port if self.kind == "serial" else self.kind
 
 
@@ -222,6 +232,8 @@ class RigLink:
             return f"emulated CiA 402 drives ({self.port})"
         if self.spec.drives:
             return f"CiA 402 drives {self.port}"
+        if self.spec.kind == PLUGIN:
+            return f"rig {self.spec.text}"
         return f"rig on {self.port}"
 
     def record(self) -> dict[str, Any]:
@@ -229,6 +241,12 @@ class RigLink:
         kind = {SIM: "sim", INSTANT: "instant"}.get(self.spec.kind, "grbl")
         if self.spec.drives:
             kind = self.spec.kind
+        if self.spec.kind == PLUGIN:
+            from lfstudio.studio.kinds import rig_kinds
+
+            plugin = rig_kinds().get(self.spec.port)
+            return {"kind": self.spec.port, "profile": self.config.name, "port": self.spec.text,
+                    "origin": plugin.origin if plugin is not None else "plugin"}
         rec: dict[str, Any] = {"kind": kind, "profile": self.config.name}
         if self.spec.kind == "serial":
             rec["port"] = self.spec.port
@@ -257,6 +275,8 @@ def open_rig(spec: RigSpec | str, config: RigConfig, *, doing: str = "", time_sc
     :class:`lfstudio.support.locks.LockBusy` naming the holder), build the driver and, with
     ``connect``, connect it (in this thread; the GUI connects on the device's worker instead)."""
     spec = RigSpec.parse(spec) if isinstance(spec, str) else spec
+    if spec.kind == PLUGIN:
+        return _open_plugin_rig(spec, config, doing=doing, connect=connect, lock=lock)
     if spec.drives or config.driver == "cia402":
         return _open_drives(spec, config, doing=doing, time_scale=time_scale, seed=seed, connect=connect,
                             lock=lock, **controller_options)
@@ -292,6 +312,33 @@ def open_rig(spec: RigSpec | str, config: RigConfig, *, doing: str = "", time_sc
             port_lk.release()
         if simulator is not None:
             close_quietly(simulator, "the GRBL simulator")
+        raise
+    return link
+
+
+def _open_plugin_rig(spec: RigSpec, config: RigConfig, *, doing: str, connect: bool, lock: bool) -> RigLink:
+    """A rig kind from a plugin (entry points group lfstudio.rigs): its factory's controller, locked by
+    the kind's lock key, connected with ``connect``."""
+    from lfstudio.rig.motion import MotionController
+    from lfstudio.studio.kinds import OpenContext, rig_kind
+
+    kind = rig_kind(spec.port)
+    assert kind is not None, "RigSpec.parse found it"
+    argument = spec.addresses[0] if spec.addresses else ""
+    key = kind.lock_key(argument) if (lock and kind.lock_key is not None) else None
+    lk = port_lock(key, doing).acquire() if key else None
+    try:
+        controller = kind.open(argument, OpenContext(doing, config=config))
+        if not isinstance(controller, MotionController):
+            missing = [m for m in ("connect", "home", "move_to", "stop", "status") if not callable(getattr(controller, m, None))]
+            raise DeviceError(f"rig kind {kind.name!r} ({kind.origin}) gave a {type(controller).__name__}, which is "
+                              f"not a motion controller (it lacks {', '.join(missing) or 'part of lfstudio/rig/motion.py'})")
+        link = RigLink(spec, config, controller, lock=lk)
+        if connect:
+            controller.connect()
+    except BaseException:
+        if lk is not None:
+            lk.release()
         raise
     return link
 
@@ -486,6 +533,7 @@ def open_camera(spec: CameraSpec | str, *, position_mm: Callable[[], tuple[float
             lk.release()
         raise
     link = CameraLink(spec, cam, lk)
+    _remember(cam, spec)
     if connect:
         try:
             cam.connect()
@@ -510,23 +558,36 @@ def link_for_rig(controller: Any, config: RigConfig, simulated: bool = False) ->
     return RigLink(RigSpec(SIM) if simulated else RigSpec("serial", port), config, controller)
 
 
+#: the device word of each camera driver open_camera made (by id, with a weak reference to tell a reused id)
+_OPENED: dict[int, tuple[Any, CameraSpec]] = {}
+
+
+def _remember(camera: Any, spec: CameraSpec) -> None:
+    for key in [k for k, (ref, _) in _OPENED.items() if ref() is None]:
+        del _OPENED[key]
+    try:
+        _OPENED[id(camera)] = (weakref.ref(camera), spec)
+    except TypeError:          # a driver that cannot be weakly referenced: told by its type instead
+        pass
+
+
 def link_for_camera(camera: Any, spec: CameraSpec | None = None) -> CameraLink:
-    """A :class:`CameraLink` (without lock) for a camera driver opened elsewhere: ``spec``, else its
-    kind told by its type."""
-    from lfstudio.rig.genicam import GenicamCamera
+    """A :class:`CameraLink` (without lock) for a camera driver opened elsewhere: ``spec``, else the word
+    :func:`open_camera` opened it by, else its kind told by its type (drivers made directly)."""
     from lfstudio.rig.hotfolder import HotFolderCamera
     from lfstudio.studio.simulated import InstantCamera, SimulatedCamera
 
     if spec is not None:
         return CameraLink(spec, camera)
+    ref, opened = _OPENED.get(id(camera), (None, None))
+    if ref is not None and ref() is camera and opened is not None:     # opened by open_camera: its own word
+        return CameraLink(opened, camera)
     if isinstance(camera, SimulatedCamera):
         return CameraLink(CameraSpec(SIM), camera)
     if isinstance(camera, InstantCamera):
         return CameraLink(CameraSpec(INSTANT), camera)
     if isinstance(camera, HotFolderCamera):
         return CameraLink(CameraSpec("folder", str(camera.folder)), camera)
-    if isinstance(camera, GenicamCamera):
-        return CameraLink(CameraSpec("genicam", camera.device_id), camera)
     return CameraLink(CameraSpec("gphoto2"), camera)
 
 

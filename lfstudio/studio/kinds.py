@@ -51,6 +51,7 @@ class OpenContext:
     position_mm: Callable[[], tuple[float, float]] | None = None
     trigger_command: Sequence[str] | None = None
     options: dict[str, Any] = field(default_factory=dict)
+    config: Any = None            # a rig's RigConfig (its profile), for a rig kind
 
 
 @dataclass(frozen=True)
@@ -68,6 +69,8 @@ class CameraKind:
     simulated: bool = False                  # renders a virtual scene (its settings are not its identity)
     help: str = ""
     origin: str = BUILT_IN
+    #: () -> (usable, what it runs on or why not), for lfstudio doctor (None: nothing to check)
+    check: Callable[[], tuple[bool, str]] | None = None
 
     @property
     def word(self) -> str:
@@ -81,8 +84,9 @@ class CameraKind:
 @dataclass(frozen=True)
 class RigKind:
     """A third-party kind of rig (entry point group ``lfstudio.rigs``): ``open(argument, context)``
-    returns a :class:`lfstudio.rig.motion.MotionController`. The built-in rigs (GRBL, CiA 402 drives) are
-    the words of :class:`lfstudio.studio.devices.RigSpec`."""
+    returns a :class:`lfstudio.rig.motion.MotionController` (``context.config``: the rig profile). The
+    built-in rigs (GRBL, CiA 402 drives) are the words of :class:`lfstudio.studio.devices.RigSpec`;
+    ``--port NAME:ARGS`` reaches a plugin's."""
 
     name: str
     open: Callable[[str, OpenContext], Any]
@@ -102,9 +106,10 @@ class _Registry:
     def __init__(self) -> None:
         self.cameras: dict[str, CameraKind] = {}
         self.rigs: dict[str, RigKind] = {}
-        self.contested: dict[str, list[str]] = {}     # name -> the origins that claim it (refused)
+        self.contested: dict[tuple[str, str], list[str]] = {}   # (camera|rig, name) -> the origins claiming it
         self.problems: list[str] = []
         self.plugins_loaded = False
+        self.loaded: set[tuple[str, str]] = set()      # (camera|rig, name) registered from entry points
         self.lock = threading.RLock()
 
 
@@ -189,9 +194,9 @@ def load_plugins(force: bool = False) -> None:
         if _REG.plugins_loaded and not force:
             return
         _ensure_builtins()
-        for table in (_REG.cameras, _REG.rigs):
-            for key in [k for k, kind in table.items() if kind.origin != BUILT_IN]:
-                table.pop(key)
+        for what, name in _REG.loaded:                 # a reload forgets what the entry points gave
+            (_REG.cameras if what == "camera" else _REG.rigs).pop(name, None)
+        _REG.loaded.clear()
         _REG.contested.clear()
         _REG.problems = []
         _REG.plugins_loaded = True
@@ -214,7 +219,7 @@ def load_plugins(force: bool = False) -> None:
                     continue
                 if len({ep.value for ep in claimants}) > 1:
                     origins = [_origin(ep) for ep in claimants]
-                    _REG.contested[name] = origins
+                    _REG.contested[(what, name)] = origins
                     _REG.problems.append(f"{what} kind {claimants[0].name!r} is claimed by {' and '.join(origins)}: "
                                          "neither is loaded; uninstall one of them")
                     continue
@@ -224,6 +229,7 @@ def load_plugins(force: bool = False) -> None:
                         register_camera(kind)
                     else:
                         register_rig(kind)
+                    _REG.loaded.add((what, name))
                 except (DeviceError, InputError) as exc:
                     _REG.problems.append(str(exc))
         for line in _REG.problems:
@@ -258,11 +264,24 @@ def camera_kind(name: str, option: str = "--camera") -> CameraKind:
     kind = kinds.get(name.lower())
     if kind is not None:
         return kind
-    contested = _REG.contested.get(name.lower())
+    contested = _REG.contested.get(("camera", name.lower()))
     if contested:
         raise InputError(option, f"camera kind {name!r} is claimed by {' and '.join(contested)}",
                          "uninstall one of them (lfstudio doctor lists the kinds)")
     raise InputError(option, f"unknown camera kind {name!r}", "one of " + camera_choices())
+
+
+def rig_kind(name: str, option: str = "--port") -> RigKind | None:
+    """The plugin rig kind called ``name`` (None: not a plugin's; the built-in words are RigSpec's);
+    InputError when two plugins claim it."""
+    kind = rig_kinds().get(name.strip().lower())
+    if kind is not None:
+        return kind
+    contested = _REG.contested.get(("rig", name.strip().lower()))
+    if contested:
+        raise InputError(option, f"rig kind {name!r} is claimed by {' and '.join(contested)}",
+                         "uninstall one of them (lfstudio doctor lists the kinds)")
+    return None
 
 
 def split_word(text: str) -> tuple[str, str]:
@@ -386,6 +405,12 @@ def _genicam_id(argument: str, option: str) -> str:
     return argument
 
 
+def _genicam_check() -> tuple[bool, str]:
+    from lfstudio.rig.genicam import aravis_version
+
+    return aravis_version()
+
+
 @dataclass(frozen=True)
 class HotFolderOptions:
     timeout_s: float = described(30.0, number=Number("s", 0.1, 86400), label="Wait for the file",
@@ -407,6 +432,7 @@ def _builtin_cameras() -> list[CameraKind]:
                    help="the folder the camera's own software saves each picture into"),
         CameraKind("genicam", _open_genicam, "Machine-vision camera (GenICam)", argument="ID",
                    options=GenicamOptions, lock_key=lambda a: f"genicam-{a}", normalise=_genicam_id,
+                   check=_genicam_check,
                    help="GigE Vision or USB3 Vision camera through aravis (ID: as arv-tool-0.8 lists it)"),
         CameraKind("instant", _open_instant, "Instant camera (tests)", simulated=True,
                    help="takes no time and writes small files (tests, benchmarks)"),

@@ -46,7 +46,8 @@ from lfstudio.dataset.paths import check_new_dataset_folder, view_label
 from lfstudio.errors import DeviceError, InputError, LfError
 from lfstudio.numbers import EXPOSURE_S, RETRIES, TIME_SCALE, TRANSFER_S
 from lfstudio.optics import REFERENCE
-from lfstudio.rig.motion import RigConfig, RigState, SoftLimitError
+from lfstudio.rig.camera import HasCardSpace, HasIdentity
+from lfstudio.rig.motion import ChecksTargets, RigConfig, RigState, SoftLimitError
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.studio.devices import (SIM, CameraSpec, RigSpec, Studio, implied_rig_profile, open_studio,
                                      rig_profile_flag)
@@ -102,7 +103,7 @@ def resume_plan(dataset: Dataset, *, order: str | None = None, settle_s: float |
 def describe_camera(camera: Any, scene: Any = None) -> tuple[dict, dict]:
     """The manifest's camera and lens entries: from the scene plan, else from the simulated studio,
     else the driver's name; with what a real camera reports of itself (model, serial, lens)."""
-    identity = camera.identity() if callable(getattr(camera, "identity", None)) else {}
+    identity = camera.identity() if isinstance(camera, HasIdentity) else {}
     if scene is not None and hasattr(scene, "camera_dict"):
         return {**identity, **scene.camera_dict()}, scene.lens_dict()
     from lfstudio.studio.simulated import describe_simulated_camera
@@ -140,7 +141,7 @@ def rig_spec_of(record: dict[str, Any]) -> str:
     """The ``--port`` word that opens a recorded rig again ("" when the record does not say: the
     device parser then refuses it as "no rig given", naming ``--port``)."""
     kind = record.get("kind", SIM)
-    if kind in ("grbl", "dryve", "canopen"):
+    if kind in ("grbl", "dryve", "canopen") or record.get("origin"):     # origin: a plugin kind's NAME:ARGS
         port = record.get("port")
         return str(port) if port else ""
     return str(kind) if kind else ""
@@ -395,9 +396,9 @@ def check_plan_on_controller(rig: Any, plan: ScanPlan) -> None:
     would otherwise be refused, retried and the scan stopped with advice about the cable. The corners
     of the grid are checked by the driver's own ``check_target`` (nothing is sent)."""
     driver = getattr(rig, "driver", rig)
-    check = getattr(driver, "check_target", None)
-    if check is None:
+    if not isinstance(driver, ChecksTargets):
         return
+    check = driver.check_target
     x0, x1, y0, y1 = plan.extent_mm()
     for x, y in ((x0, y0), (x1, y1), (x0, y1), (x1, y0)):
         try:
@@ -471,6 +472,10 @@ class ScanRequest:
     engine_options: dict[str, Any] = field(default_factory=dict)
     trust_rig_position: bool = False
     keep_drive_reference: bool = False
+    #: fly scanning (lfstudio.scan.fly): rows at constant speed, a triggered frame per view
+    fly: bool = False
+    fly_speed_mm_s: float | None = None
+    blur_limit_px: float = 0.5
 
 
 class ScanSession:
@@ -643,6 +648,7 @@ class ScanSession:
         elif req.home or req.origin_here:
             self.note("the simulated rig was homed when it started")
         check_plan_on_controller(rig, plan)
+        fly = self._decide_fly(rig, camera, plan, scene, config) if req.fly else None
         if existing is None and plan.bracket is not None:       # refused before the dataset is made
             self._check_bracket(plan.bracket, camera)
         self._check_space(plan.with_subset(req.recapture) if req.recapture else plan, camera, scene, existing)
@@ -664,9 +670,78 @@ class ScanSession:
         if req.recapture:
             plan = plan.with_subset(req.recapture)
         self.plan = plan
+        if fly is not None:
+            from lfstudio.scan.fly import FlyScanEngine
+
+            dataset.manifest["acquisition"] = {"mode": "fly", "positions": "recorded", **fly}
+            dataset.save()
+            self.note(f"fly scan: rows at {fly['speed_mm_s']:.3g} mm/s ({fly['binding']} binds), blur "
+                      f"{fly['blur_px']:.2f} px at the near distance; the rows and row changes take about "
+                      f"{fly['time_s']:.0f} s")
+            self.engine = FlyScanEngine(dataset, plan, rig, camera, retries=req.retries, time_scale=req.time_scale,
+                                        recapture=bool(req.recapture), speed_mm_s=fly["speed_mm_s"],
+                                        **req.engine_options)
+            return self.engine
         self.engine = ScanEngine(dataset, plan, rig, camera, retries=req.retries,
                                  time_scale=req.time_scale, recapture=bool(req.recapture), **req.engine_options)
         return self.engine
+
+    def _decide_fly(self, rig: Any, camera: Any, plan: ScanPlan, scene: Any, config: RigConfig) -> dict[str, Any]:
+        """The row speed of a fly scan (lfstudio.planning.fly) from the devices as they are: the camera's
+        exposure and frame rate, the controller's measured position-report rate, the rig's axes; refused
+        (InputError naming --fly) with the numbers when the devices or the limits do not allow one."""
+        import time as _time
+
+        from lfstudio.planning.fly import FlyInputs, plan_fly
+        from lfstudio.scan.fly import fly_problem
+
+        req = self.request
+        from lfstudio.errors import words
+
+        fly_words = words("--fly", "Continuous motion")
+        problem = fly_problem(rig, camera)
+        if problem is not None:
+            raise InputError(fly_words, problem, "a camera with triggers and a controller that reports its position")
+        if plan.bracket is not None:
+            raise InputError(fly_words, "an exposure bracket needs the carriage to stand still", "one picture per view")
+        if req.time_scale <= 0:
+            raise InputError(words("--time-scale", "Simulation time scale"), "a fly scan needs simulated time to pass", "> 0 for a fly scan")
+        driver = getattr(camera, "driver", camera)
+        rig_driver = getattr(rig, "driver", rig)
+        settings = driver.settings() if callable(getattr(driver, "settings", None)) else {}
+        exposure = settings.get("shutter_s", settings.get("exposure_s"))
+        if not isinstance(exposure, (int, float)) or exposure <= 0:
+            raise InputError(fly_words, "the camera does not tell its exposure time", "a camera reporting shutter_s")
+        fps = settings.get("frame_rate_fps")
+        camera_info, lens = describe_camera(driver, scene)
+        if scene is not None:
+            near_mm, focal, pitch = scene.near_m * 1000.0, float(scene.focal_length_mm), scene.pixel_pitch_used_um
+        else:
+            studio = getattr(driver, "studio", None)
+            near_mm = float(getattr(studio, "near_m", REFERENCE.near_m)) * 1000.0
+            focal = float(lens.get("focal_length_mm") or REFERENCE.focal_length_mm)
+            pitch = float(camera_info.get("pixel_pitch_um") or REFERENCE.pixel_pitch_um)
+        t0 = _time.monotonic()
+        for _ in range(5):                     # how fast the controller answers where it is
+            rig_driver.report()
+        per_report_s = (_time.monotonic() - t0) / 5 / req.time_scale      # in simulated time on a simulator
+        h, v = config.horizontal, config.vertical
+        inputs = FlyInputs(columns=plan.columns, rows=plan.rows, spacing_mm=plan.spacing_mm,
+                           exposure_s=float(exposure), near_mm=near_mm, focal_length_mm=focal, pixel_pitch_um=pitch,
+                           blur_limit_px=req.blur_limit_px,
+                           frame_rate_fps=float(fps) if isinstance(fps, (int, float)) and fps > 0 else None,
+                           report_rate_hz=1.0 / max(per_report_s, 1e-6),
+                           max_speed_mm_s=(h.max_speed_mm_s, v.max_speed_mm_s),
+                           acceleration_mm_s2=(h.acceleration_mm_s2, v.acceleration_mm_s2),
+                           travel_mm=h.soft_max_mm - h.soft_min_mm, settle_s=plan.settle_s,
+                           speed_mm_s=req.fly_speed_mm_s)
+        result = plan_fly(inputs)
+        if not result.possible:
+            raise InputError(fly_words, result.refusal)
+        return {"speed_mm_s": result.speed_mm_s, "binding": result.binding, "blur_px": result.blur_px,
+                "blur_limit_px": req.blur_limit_px, "time_s": result.time_s,
+                "limits_mm_s": {k: round(val, 4) for k, val in result.limits_mm_s.items()},
+                "report_rate_hz": round(1.0 / max(per_report_s, 1e-6), 1)}
 
     def _check_bracket(self, bracket: Bracket, camera: Any) -> None:
         """The bracket's shutter times among the camera's choices: else InputError naming --bracket
@@ -713,7 +788,7 @@ class ScanSession:
                                    manifest_bytes=manifest)
             if short is not None:
                 raise short
-        if callable(getattr(driver, "card_space", None)):
+        if isinstance(driver, HasCardSpace):
             call = (lambda name: camera.call(name, timeout_s=30)) if hasattr(camera, "driver") else \
                 (lambda name: getattr(camera, name)())
             try:

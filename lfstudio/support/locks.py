@@ -115,7 +115,7 @@ def this_command() -> str:
     process knows. A lock file is read by other processes and may outlive this one."""
     shown = command_line()
     if shown is not None:
-        text = " ".join(shown) or "lfstudio"
+        text = scrub(" ".join(shown)) or "lfstudio"
     else:
         argv = list(sys.argv)
         if argv and (argv[0].endswith("__main__.py") or Path(argv[0]).name in ("lfstudio", "__main__.py")):

@@ -56,10 +56,29 @@ def test_the_fake_genicam_camera_connects_shows_its_nodes_and_takes_a_test_shot(
         qtbot.waitUntil(lambda: "Pixel format: Mono8" in form.settings_label.text(), timeout=10000)
         assert "Trigger source: Software (Line0, Software)" in form.settings_label.text()
         assert not panel.apply_button.isEnabled() and panel.exposure_group.isHidden()   # a DSLR's exposure
+        assert not form.setting_row.isHidden() and form.set_button.isEnabled()
+        assert not form.argument.isEnabled()                             # the connection is fixed while connected
+        form.setting_name.setCurrentIndex(form.setting_name.findData("pixel_format"))
+        assert form.setting_value.findText("BayerRG8") >= 0             # the camera's own choices
+        form.setting_value.setEditText("BayerRG8")
+        form.set_button.click()
+        qtbot.waitUntil(lambda: "Pixel format: BayerRG8" in form.settings_label.text(), timeout=10000)
+        form.setting_name.setCurrentIndex(form.setting_name.findData("exposure_s"))
+        form.setting_value.setEditText("100")                            # beyond its 10 s
+        form.set_button.click()
+        qtbot.waitUntil(lambda: "out of the camera's range" in panel.status_label.text(), timeout=10000)
         with qtbot.waitSignal(state.cameraFrame, timeout=30000):
             panel.take_test_shot()
-        assert ".tif" in panel.shot_label.text()
+        assert ".dng" in panel.shot_label.text()                         # Bayer kept raw
+        form.setting_name.setCurrentIndex(form.setting_name.findData("pixel_format"))
+        form.setting_value.setEditText("Mono8")
+        form.set_button.click()
+        qtbot.waitUntil(lambda: "Pixel format: Mono8" in form.settings_label.text(), timeout=10000)
+        with qtbot.waitSignal(state.cameraFrame, timeout=30000):
+            panel.take_test_shot()
+        assert ".png" in panel.shot_label.text()
         panel.resize(420, 700)
         panel.grab().save("/tmp/kinds39-camera-panel-genicam-connected.png")
         panel.disconnect_camera()
+        assert form.setting_row.isHidden() and form.settings_label.text() == ""
     assert settings().value("devices/genicam/argument") == fake.device_id

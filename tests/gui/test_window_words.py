@@ -116,3 +116,71 @@ def test_unstated_sheared_views_calibrate_and_the_command_line_names_its_options
 
     cal = json.loads((tmp_path / "ds" / "calibration.json").read_text())
     assert cal["settings"]["zero_plane"]["assumed_shear_px_per_mm"] > 0
+
+
+def test_a_missing_focal_length_is_named_in_each_front_ends_words(tmp_path):
+    """Dataset.focal_length_px's refusal (met by the Calibrate dialog) named 'lfstudio calibrate
+    --focal-length-px F' in the window too."""
+    import cv2
+    import numpy as np
+
+    from lfstudio.errors import DatasetError, window_message
+    from lfstudio.export.import_images import ImportOptions, import_images
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for i in range(2):
+        assert cv2.imwrite(str(folder / f"v{i}.png"), np.full((32, 48, 3), 40 * i, np.uint8))
+    ds = Dataset.open(import_images(ImportOptions(folder, tmp_path / "ds", (2, 1), (5.0, 5.0))))
+    with pytest.raises(DatasetError) as err:
+        ds.focal_length_px(48)
+    assert "lfstudio calibrate --focal-length-px F" in str(err.value)
+    shown = window_message(err.value)
+    assert "the Calibrate dialog's Focal length" in shown and not CLI_WORDS.search(shown), shown
+
+
+def test_the_export_dialog_refuses_a_posed_export_of_unstated_sheared_views_in_its_own_words(
+        qtbot, tmp_path, sheared_folder):
+    """The estimate's refusal said "import them again with --zero-disparity-depth-m (or
+    --parallel-views …)" in the window."""
+    from lfstudio.export.import_images import ImportOptions, import_images
+    from lfstudio.gui.dialogs.export_dialog import FORMAT_KEYS, ExportDialog
+    from lfstudio.quality.shear import measure_shear
+
+    folder, f_px = sheared_folder
+    ds = Dataset.open(import_images(ImportOptions(folder, tmp_path / "ds", (5, 5), (4.0, 6.0), focal_length_px=f_px,
+                                                  measure=measure_shear)))
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    window.state.set_dataset(ds)
+    next(a for a in window.menu("File").actions() if a.text().replace("&", "") == "Export dataset…").trigger()
+    dialog = window.findChild(ExportDialog, "exportDialog")
+    dialog.format_combo.setCurrentIndex(FORMAT_KEYS.index("colmap"))
+    qtbot.waitUntil(lambda: dialog.estimate_error is not None, timeout=30000)
+    text = dialog.estimate_error
+    assert "sheared by an amount nobody stated" in text and "Zero disparity set to a depth" in text, text
+    assert "PNG and HEVC exports need no plane" in text and not CLI_WORDS.search(text), text
+
+
+def test_the_import_dialog_names_a_file_whose_name_is_not_utf8_by_its_bytes_and_its_own_field(qtbot, tmp_path):
+    """#42 item 10 in the window: the live count names the file escaped and the Files (pattern) field."""
+    import os
+
+    import cv2
+    import numpy as np
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for i in range(2):
+        assert cv2.imwrite(str(folder / f"v{i}.png"), np.full((32, 48, 3), 40 * i, np.uint8))
+    os.rename(folder / "v1.png", folder / os.fsdecode(b"v_\xe9.png"))
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    actions = {a.text().replace("&", ""): a for a in window.menu("File").actions()}
+    actions["Import images…"].trigger()
+    dialog = window.findChild(ImportImagesDialog, "importImagesDialog")
+    dialog.folder_edit.setText(str(folder))
+    assert dialog.recount() is None
+    shown = dialog.count_label.toolTip() or dialog.count_label.text()
+    assert "v_\\xe9.png" in shown and "not valid UTF-8" in shown and "Files (pattern) field" in shown, shown
+    assert not CLI_WORDS.search(shown), shown

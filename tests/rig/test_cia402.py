@@ -400,3 +400,50 @@ def test_a_scan_on_a_drive_in_fault_is_refused_naming_the_code_and_the_reset(dri
         with pytest.raises(cia402.DeviceError) as exc:
             prepare_rig(c, c.config, c.port, how_to_home="home it in the Rig panel (Rig → Home), then start again")
         assert "Reset fault in the Rig panel" in str(exc.value) and "lfstudio" not in str(exc.value)
+
+
+@pytest.mark.parametrize("command", ["move", "jog", "home"])
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_stop_while_a_command_sets_up_its_motion_keeps_the_drives_stopped(drives, transport, command):
+    """STOP lands while move/jog/home is still writing its parameters (before its set-point): the
+    command must not go on to enable the quick-stopped drives and start its motion after the STOP.
+    (It did: the rest of the set-up re-enabled both drives, raised the set-point, and a jog then ran
+    to its end.) Time scale 0: a motion that starts ends at once at its target."""
+    emulator, c = drives(transport)
+    c.home()
+    c.move_to(100, 100)
+    before = emulator.true_position_mm()
+    gate, reached = threading.Event(), threading.Event()
+    link = c.links[1]
+    real_write = link.write
+    held = {"move": cia402.TARGET, "jog": cia402.TARGET, "home": cia402.HOMING_METHOD}[command]
+
+    def write(index, sub, value, size, signed):          # drive y's set-up holds here until STOP is out
+        if index == held and not gate.is_set():
+            reached.set()
+            assert gate.wait(30)
+        return real_write(index, sub, value, size, signed)
+
+    link.write = write
+    failure: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            {"move": lambda: c.move_to(1000, 400), "jog": lambda: c.jog(900, 300), "home": c.home}[command]()
+        except BaseException as exc:  # noqa: BLE001
+            failure.append(exc)
+
+    t = threading.Thread(target=run)
+    t.start()
+    assert reached.wait(30)
+    c.stop()                                              # the operator's STOP, from this thread
+    gate.set()
+    t.join(30)
+    assert not t.is_alive()
+    assert len(failure) == 1 and isinstance(failure[0], MotionStopped), failure
+    assert emulator.true_position_mm() == pytest.approx(before, abs=0.011)   # nothing moved after the STOP
+    st = c.status()
+    assert st.state is not RigState.JOGGING and st.state is not RigState.MOVING
+    assert st.position_mm == pytest.approx(before, abs=0.011)
+    if command == "home":
+        assert not st.homed                               # an interrupted homing leaves no reference

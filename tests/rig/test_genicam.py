@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from lfstudio.dataset import images
 from lfstudio.errors import DeviceError, DeviceTimeout, InputError
 from lfstudio.rig.camera import ArrayCamera, DescribesSettings, HasIdentity, stored
 from tests.fakegv import expected_mono8, fake_gv_camera
@@ -86,9 +87,10 @@ def test_software_triggered_frames_are_the_cameras_pixels_with_timestamps(camera
     assert result.record["camera_frame"]["frame_id"] == result.frame.frame_id
     assert result.record["camera"]["serial"] == "GV01"
     written = stored(result)
-    assert written.path == tmp_path / "r00_c000.tif"
+    assert written.path == tmp_path / "r00_c000.png"
     data = cv2.imread(str(written.path), cv2.IMREAD_UNCHANGED)
     assert data.dtype == np.uint16                                   # mono as 16-bit: 8-bit values x 257
+    assert images.kind(written.path) == "image"                     # not taken for a camera RAW
     assert np.array_equal(data, expected_mono8(result.frame.frame_id).astype(np.uint16) * 257)
 
 
@@ -105,7 +107,7 @@ def test_bayer_is_kept_raw_as_dng_and_rgb_as_16_bit(camera, tmp_path):
     camera.set_setting("width", 256)
     result = stored(camera.capture(tmp_path / "rgb"))
     data = cv2.imread(str(result.path), cv2.IMREAD_UNCHANGED)
-    assert result.path.suffix == ".tif" and data.dtype == np.uint16 and data.shape == (512, 256, 3)
+    assert result.path.suffix == ".png" and data.dtype == np.uint16 and data.shape == (512, 256, 3)
     camera.set_setting("pixel_format", "Mono8")
     camera.set_setting("width", 512)
 
@@ -158,3 +160,22 @@ def test_a_camera_that_does_not_answer_is_named_with_those_found():
     need_aravis()
     with pytest.raises(DeviceError, match=r"genicam:No-Such-Camera: no camera answers .*cameras aravis finds now"):
         GenicamCamera("No-Such-Camera").connect()
+
+
+def test_triggered_frames_for_fly_scanning_arrive_in_trigger_order(camera, tmp_path):
+    from lfstudio.rig.camera import TriggeredCamera
+
+    assert isinstance(camera, TriggeredCamera)
+    camera.arm(3)
+    sent = [camera.trigger()]
+    first = camera.fetch(tmp_path / "f0", timeout_s=2)
+    sent += [camera.trigger()]
+    second = camera.fetch(tmp_path / "f1", timeout_s=2)
+    assert first.frame is not None and second.frame is not None
+    assert second.frame.frame_id == first.frame.frame_id + 1
+    assert np.array_equal(first.frame.pixels, expected_mono8(first.frame.frame_id))
+    assert first.metadata["exposure_start_s"] == sent[0] and first.metadata["exposure_end_s"] > sent[0]
+    with pytest.raises(DeviceError, match="triggered frame 3 did not arrive within 0.3 s"):
+        camera.fetch(tmp_path / "f2", timeout_s=0.3)          # no trigger: missed, never a stale frame
+    camera.disarm()
+    assert not list(tmp_path.glob("f2*"))

@@ -225,3 +225,19 @@ def test_the_lingering_page_closes_by_itself_when_its_time_is_over(tmp_path):
     assert json.loads(fetch(server.url + "status.json")[1])["outcome"] == "failed"
     server.linger(0.05)
     assert server.wait_closed(30)
+
+
+def test_an_address_urllib_cannot_split_is_400_without_a_log_line(tmp_path, caplog):
+    """'//[' (an unclosed IPv6 bracket) made urlsplit raise: any client, without the token, got a 500
+    and put a warning line in the scan's log for each such request."""
+    server = StatusServer("0.0.0.0:0", "t" * 20)
+    server.start(StatusBoard(tmp_path / "day1", total=3))
+    try:
+        with caplog.at_level("WARNING", logger="lfstudio.scan.status_http"):
+            for target in (b"//[", b"http://[::1/", b"//[/status.json?token=" + b"t" * 20):
+                answer = raw_request(server.port, b"GET " + target + b" HTTP/1.1\r\nHost: x\r\n\r\n")
+                assert status_of(answer) in (400, 401), (target, answer[:60])
+        assert not [r for r in caplog.records if r.levelno >= 30], [r.getMessage() for r in caplog.records]
+        assert status_of(raw_request(server.port, b"GET //[ HTTP/1.1\r\n\r\n")) == 400
+    finally:
+        server.close()

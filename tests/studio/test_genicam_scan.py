@@ -14,7 +14,7 @@ import pytest
 from tests.fakegv import expected_mono8, fake_gv_camera
 
 
-def test_a_scan_stores_the_frames_as_16_bit_files_with_their_timestamps(tmp_path, run_cli):
+def test_a_scan_stores_the_frames_as_16_bit_files_with_their_timestamps_and_they_process(tmp_path, run_cli):
     out = tmp_path / "ds"
     with fake_gv_camera() as fake:
         r = run_cli("scan", "--port", "instant", "--camera", f"genicam:{fake.device_id}", "--camera-option",
@@ -26,7 +26,7 @@ def test_a_scan_stores_the_frames_as_16_bit_files_with_their_timestamps(tmp_path
     stamps = []
     for v in views:
         path = out / v["file"]
-        assert path.suffix == ".tif"
+        assert path.suffix == ".png"
         assert hashlib.sha256(path.read_bytes()).hexdigest() == v["sha256"]
         frame = v["camera_frame"]
         assert frame["pixel_format"] == "Mono8" and frame["size_px"] == [512, 512]
@@ -40,6 +40,12 @@ def test_a_scan_stores_the_frames_as_16_bit_files_with_their_timestamps(tmp_path
     camera = manifest["devices"]["camera"]
     assert camera["kind"] == "genicam" and camera["spec"] == f"genicam:{fake.device_id}"
     assert camera["model"] == "Fake" and camera["serial"] == "GV01"
+    # the rest of the day on its frames (the fake camera's ramp has nothing to calibrate on)
+    r = run_cli("process", out, "--no-rectify", "--workers", "1", timeout=300)
+    assert r.returncode == 0 and "6 processed" in r.stdout + r.stderr, r.stderr
+    r = run_cli("export", out, "--format", "png", "--out", tmp_path / "png", timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert len(list((tmp_path / "png").glob("r*_c*.png"))) == 6
 
 
 def test_a_genicam_id_that_does_not_answer_is_one_line_and_writes_nothing(tmp_path, run_cli):
@@ -75,3 +81,28 @@ def test_a_camera_option_the_kind_has_not_is_named_with_those_it_has(tmp_path, r
     r = run_cli("camera", tmp_path / "shot", "--camera", "genicam:X", "--camera-option", "timeout_s=-1")
     assert r.returncode != 0 and "--camera-option timeout_s" in r.stderr
     assert not list(tmp_path.iterdir())
+
+
+def test_a_pixel_format_lfstudio_cannot_store_is_one_line_and_no_shot(tmp_path, run_cli):
+    with fake_gv_camera() as fake:
+        r = run_cli("camera", tmp_path / "shot", "--camera", f"genicam:{fake.device_id}",
+                    "--set", "pixel_format=Mono12Packed", timeout=120)
+    assert r.returncode != 0 and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "pixel format 'Mono12Packed' cannot be stored by lfstudio" in r.stderr and "Mono8" in r.stderr
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_camera_opened_by_its_word_is_linked_by_it_again():
+    from lfstudio.studio.devices import link_for_camera
+    from lfstudio.studio.kinds import CameraKind, register_camera, unregister
+    from lfstudio.studio.devices import open_camera
+    from lfstudio.studio.simulated import InstantCamera
+
+    register_camera(CameraKind("wordcam", lambda a, c: InstantCamera(), argument="X", origin="plugin t 1 (m:f)"))
+    try:
+        link = open_camera("wordcam:left", connect=False)
+        assert link_for_camera(link.camera).spec.text == "wordcam:left"     # not taken for an instant camera
+        link.close()
+    finally:
+        unregister("wordcam")

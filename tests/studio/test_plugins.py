@@ -53,7 +53,7 @@ def test_the_example_plugin_installs_is_listed_and_scans(example_site, tmp_path,
     manifest = json.loads((out / "dataset.json").read_text())
     assert [v["status"] for v in manifest["views"]] == ["done"] * 6
     for v in manifest["views"]:
-        assert v["file"].endswith(".tif") and (out / v["file"]).is_file()
+        assert v["file"].endswith(".png") and (out / v["file"]).is_file()
         assert v["camera_frame"]["pixel_format"] == "Mono12" and v["camera_frame"]["size_px"] == [64, 48]
     camera = manifest["devices"]["camera"]
     assert camera["kind"] == "ramp" and camera["spec"] == "ramp:64x48" and camera["model"] == "Ramp"
@@ -112,3 +112,55 @@ def test_a_factory_that_returns_no_camera_is_named(tmp_path):
             open_camera("notacamera:1")
     finally:
         unregister("notacamera")
+
+
+def test_a_rig_plugin_is_reached_by_port_and_recorded(tmp_path, run_cli):
+    site = tmp_path / "site"
+    write_dist(site, "toy-rig", "[lfstudio.rigs]\ntoyrig = toy_rig_plugin:open_rig\n")
+    (site / "toy_rig_plugin.py").write_text(
+        "from lfstudio.rig.profile import load_rig\n"
+        "from lfstudio.studio.simulated import InstantRig\n\n\n"
+        "def open_rig(arguments):\n"
+        "    \"\"\"A rig that takes no time (the example of a rig plugin).\"\"\"\n"
+        "    return InstantRig(load_rig())\n")
+    env = {"PYTHONPATH": str(site)}
+    r = run_cli("doctor", "--quick", env=env)
+    assert "rig toyrig:ARGUMENTS" in r.stdout and "[plugin toy-rig 0.1 (toy_rig_plugin:open_rig)]" in r.stdout
+    out = tmp_path / "ds"
+    r = run_cli("scan", "--port", "toyrig:bench-1", "--camera", "instant", "--grid", "3x2", "--out", out, env=env)
+    assert r.returncode == 0, r.stderr
+    manifest = json.loads((out / "dataset.json").read_text())
+    assert [v["status"] for v in manifest["views"]] == ["done"] * 6
+    rig = manifest["devices"]["rig"]
+    assert rig["kind"] == "toyrig" and rig["port"] == "toyrig:bench-1" and rig["origin"].startswith("plugin toy-rig")
+    r = run_cli("scan", "--resume", "--out", out, env=env)          # the record opens the same rig again
+    assert "resuming with the dataset's own devices: the rig on toyrig:bench-1" in r.stderr, r.stderr
+    assert "lfstudio rig --port toyrig:bench-1 home" in r.stderr    # a new instant rig stands at 0, 0: said
+    r = run_cli("scan", "--port", "toyrig:", "--camera", "instant", "--grid", "2x1", "--out", tmp_path / "c",
+                env={"PYTHONPATH": str(tmp_path / "nothing-installed")})
+    assert r.returncode != 0 and "Traceback" not in r.stderr     # no such plugin: a serial port that is not there
+
+
+def test_doctor_says_when_genicam_cameras_cannot_work(tmp_path, run_cli):
+    shadow = tmp_path / "site" / "gi"
+    shadow.mkdir(parents=True)
+    (shadow / "__init__.py").write_text("raise ImportError('No module named gi (hidden by the test)')\n")
+    r = run_cli("doctor", "--quick", env={"PYTHONPATH": str(tmp_path / "site")})
+    line = next((ln for ln in r.stdout.splitlines() if "camera genicam:ID" in ln), "")
+    assert line.startswith("warn") and "aravis is not available" in line and "apt-get install" in line, r.stdout
+    r = run_cli("camera", tmp_path / "shot", "--camera", "genicam:X", env={"PYTHONPATH": str(tmp_path / "site")})
+    assert r.returncode != 0 and "Traceback" not in r.stderr and "aravis is not available" in r.stderr
+    assert not list(tmp_path.glob("shot*"))
+
+
+def test_the_example_plugin_keeps_the_camera_contract(example_site):
+    """The same suite as every built-in camera (tests/contract/test_cameras.py), on the installed plugin."""
+    import os
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO_ROOT), str(example_site)]),
+               LFSTUDIO_CONTRACT_CAMERAS="ramp:64x48|gain=2")
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "0",
+                        "tests/contract/test_cameras.py", "-k", "plugin"], capture_output=True, text=True,
+                       env=env, cwd=REPO_ROOT, timeout=300)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
+    assert "3 passed" in r.stdout, r.stdout[-2000:]                 # connect…disconnect, errors, second process

@@ -36,3 +36,20 @@ def test_the_log_filter_scrubs_known_secrets():
     Secret("pw-SCRUBBED-987")
     record = logging.LogRecord("x", logging.INFO, __file__, 1, "login with %s failed", ("pw-SCRUBBED-987",), None)
     assert ScrubFilter().filter(record) and record.getMessage() == "login with … failed"
+
+
+def test_an_abbreviated_secret_option_is_masked_too(tmp_path, monkeypatch):
+    """argparse takes --status-tok for --status-token: its value is the token all the same, and it
+    reached the lock files (the recorded command line was not scrubbed)."""
+    from lfstudio.cli import build_parser, loggable
+
+    argv = ["scan", "--port", "sim", "--status-tok", "tok-ABBREV-424242", "--status-t=tok-ABBREV-434343"]
+    args = build_parser().parse_args([*argv, "--out", str(tmp_path / "d")])
+    assert isinstance(args.status_token, Secret) and args.status_token.reveal() == "tok-ABBREV-434343"
+    shown = loggable(argv)
+    assert shown == ["scan", "--port", "sim", "--status-tok", "…", "--status-t=…"]
+    monkeypatch.setattr(secrets, "_command_line", None)
+    secrets.set_command_line(["lfstudio", *argv])        # recorded as given: the lock file scrubs known secrets
+    with dataset_lock(tmp_path, "scanning"):
+        text = (tmp_path / "dataset.lock").read_text()
+    assert "tok-ABBREV-424242" not in text and "tok-ABBREV-434343" not in text and "--status-tok" in text

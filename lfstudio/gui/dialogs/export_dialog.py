@@ -19,7 +19,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QFileDialog, QForm
                                QStackedWidget, QVBoxLayout, QWidget)
 
 from lfstudio.dataset.paths import expand_path
-from lfstudio.errors import LfError
+from lfstudio.errors import LfError, window_message
 from lfstudio.export import ExportOptions, estimate_export, export_dataset
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.path_field import expand_on_edit
@@ -527,7 +527,7 @@ class ExportDialog(QDialog):
             out = self.out_path()
         except LfError as exc:
             self.path_label.setText(f"<span style='color:#b00020'>{exc}</span>")
-            self.path_label.setToolTip(str(exc))
+            self.path_label.setToolTip(window_message(exc))
             self._update_export_button()
             return
         exists = " <span style='color:#b35900'>(exists: you will be asked before it is replaced)</span>" \
@@ -564,7 +564,7 @@ class ExportDialog(QDialog):
         try:
             options = self.options()
         except LfError as exc:
-            self._estimate_failed(str(exc))
+            self._estimate_failed(window_message(exc))
             return
         self.estimate_runner.start(_estimate_job, self.dataset, options)
 

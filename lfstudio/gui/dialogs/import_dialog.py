@@ -141,7 +141,7 @@ class _ImportDialogBase(QDialog):
         try:
             out = field_path(self.out_edit, "Destination")
         except InputError as exc:
-            self.show_message(str(exc), ok=False)
+            self.show_message(window_message(exc), ok=False)
             return
         kind = dataset_folder_kind(out)
         if kind not in (FOLDER_FILE, FOLDER_OTHERS):
@@ -190,7 +190,7 @@ class _ImportDialogBase(QDialog):
         try:
             fn, args = self.job(overwrite)
         except InputError as exc:
-            self.show_message(str(exc), ok=False)
+            self.show_message(window_message(exc), ok=False)
             return
         self.save_settings()
         self.result_root = None
@@ -232,7 +232,7 @@ class _ImportDialogBase(QDialog):
         try:
             ds = Dataset.open(self.result_root)
         except LfError as exc:
-            self.show_message(str(exc), ok=False)
+            self.show_message(window_message(exc), ok=False)
             return
         self.state.set_dataset(ds)
         self.state.show_status(f"Opened {self.result_root}")

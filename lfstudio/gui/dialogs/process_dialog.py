@@ -21,7 +21,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QDialogButtonBox, 
                                QFormLayout, QGroupBox, QHBoxLayout, QLabel, QLineEdit, QMessageBox, QPushButton,
                                QScrollArea, QSizePolicy, QSpinBox, QSplitter, QVBoxLayout, QWidget)
 
-from lfstudio.errors import InputError
+from lfstudio.errors import InputError, window_message
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.imageutil import rgb_to_qimage
 from lfstudio.gui.settings import read_int, read_text, settings
@@ -398,6 +398,9 @@ class ProcessDialog(QDialog):
         r_lay.addLayout(pv_bar)
         r_lay.addWidget(self.split_view, 1)
         r_lay.addWidget(self.preview_info)
+        self.hdr_box = self._hdr_section(ds)       # a bracketed scan: what Process will merge, and a look at it
+        if self.hdr_box is not None:
+            r_lay.addWidget(self.hdr_box)
 
         splitter = QSplitter()
         splitter.addWidget(left)
@@ -584,6 +587,81 @@ class ProcessDialog(QDialog):
         self.result_label.setText("Processing…")
         self.runner.start(_process_job, self.root, profile, workers, cluster, self.force_check.isChecked())
 
+    def _hdr_section(self, ds) -> QGroupBox | None:
+        """"HDR merge" for a dataset scanned with an exposure bracket (None without one): the frames a
+        view has, what Process writes from them, how many views are merged, and View radiance…"""
+        from lfstudio.dataset.bracket import Bracket
+        from lfstudio.processing.hdr import MergeOptions
+
+        recorded = ds.manifest.get("bracket")
+        if not recorded:
+            return None
+        try:
+            bracket = Bracket.from_manifest(recorded)
+        except InputError:
+            return None
+        box = QGroupBox("HDR merge (this scan is bracketed)")
+        box.setObjectName("hdrSection")
+        options = MergeOptions()
+        self.hdr_label = QLabel("")
+        self.hdr_label.setObjectName("hdrHint")
+        self.hdr_label.setWordWrap(True)
+        self.hdr_label.setText(
+            f"Each view has {bracket.frames} frames ({html.escape(bracket.describe())}). After the views, Process "
+            f"merges each view's frames into one linear radiance image: <code>{options.folder}/rRR_cCCC"
+            f"{options.suffix}</code> (32-bit float {'OpenEXR' if options.format == 'exr' else 'TIFF'}, the steps "
+            "above applied to its geometry) with a tone-mapped 16-bit PNG in "
+            f"<code>{options.folder}/preview/</code>. {self._hdr_count_text()}")
+        self.radiance_button = QPushButton("View radiance…")
+        self.radiance_button.setObjectName("viewRadianceButton")
+        self.radiance_button.setToolTip("The merged radiance of the preview's view under an exposure slider "
+                                        "(also Dataset → HDR radiance of a view…)")
+        self.radiance_button.clicked.connect(self.view_radiance)
+        lay = QVBoxLayout(box)
+        lay.addWidget(self.hdr_label)
+        row = QHBoxLayout()
+        row.addStretch(1)
+        row.addWidget(self.radiance_button)
+        lay.addLayout(row)
+        self._refresh_hdr()
+        return box
+
+    def _hdr_count_text(self) -> str:
+        from lfstudio.dataset import Dataset
+        from lfstudio.gui.views.radiance import merged_views
+
+        try:
+            ds = Dataset.open(self.root)
+        except Exception:  # noqa: BLE001 - the section only informs
+            return ""
+        merged, total = len(merged_views(ds)), len(ds.done_views())
+        return f"Merged so far: {merged} of {total} views." if merged else "No view merged yet."
+
+    def _refresh_hdr(self) -> None:
+        if getattr(self, "radiance_button", None) is None:
+            return
+        from lfstudio.dataset import Dataset
+        from lfstudio.gui.views.radiance import merged_views
+
+        try:
+            merged = merged_views(Dataset.open(self.root))
+        except Exception:  # noqa: BLE001
+            merged = []
+        self.radiance_button.setEnabled(bool(merged))
+        text = self.hdr_label.text()
+        head = text.rsplit(" Merged so far:", 1)[0].rsplit(" No view merged yet.", 1)[0]
+        self.hdr_label.setText(f"{head} {self._hdr_count_text()}")
+
+    def view_radiance(self) -> None:
+        from lfstudio.gui.views.radiance import RadianceDialog, merged_views
+
+        view = (self.row_spin.value(), self.col_spin.value())
+        merged = merged_views(self.state.dataset) if self.state.dataset is not None else []
+        if merged and view not in merged:
+            view = merged[len(merged) // 2]
+        self.radiance_dialog = RadianceDialog(self.state, self, view)
+        self.radiance_dialog.show()
+
     def _reload_dataset(self) -> None:
         from lfstudio.dataset import Dataset
         from lfstudio.errors import LfError
@@ -591,12 +669,13 @@ class ProcessDialog(QDialog):
         try:
             self.state.set_dataset(Dataset.open(self.root))
         except LfError as exc:
-            self.state.report_error("Process", str(exc))
+            self.state.report_error("Process", window_message(exc))
 
     def _process_done(self, outcome: tuple[ProcessReport, MergeReport | None]) -> None:
         report, merged = outcome
         self.process_button.setEnabled(True)
         self._reload_dataset()
+        self._refresh_hdr()
         text = report.summary().replace("\n", "<br>")
         if merged is not None:
             text += "<br>" + html.escape(merged.summary()).replace("\n", "<br>")

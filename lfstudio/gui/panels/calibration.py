@@ -7,7 +7,7 @@ from __future__ import annotations
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import QLabel, QPushButton, QVBoxLayout, QWidget
 
-from lfstudio.errors import LfError
+from lfstudio.errors import LfError, window_message
 from lfstudio.gui.widgets import calibration_warnings, readable_time
 from lfstudio.jobs import count
 
@@ -103,7 +103,7 @@ class CalibrationPanel(QWidget):
         try:
             self.wizard = CalibrationWizard(self.state, self.window())
         except LfError as exc:
-            self.state.report_error("Calibrate", str(exc))
+            self.state.report_error("Calibrate", window_message(exc))
             return
         self.wizard.show()
 

@@ -100,6 +100,7 @@ class CameraPanel(QWidget):
         for kind in form_kinds():
             self.kind.addItem(kind.label or kind.name, kind.name)
             self.forms[kind.name] = KindForm(kind)
+            self.forms[kind.name].settingRequested.connect(self.set_on_camera)
         self.kind.setToolTip("Which camera to use: the simulated studio (renders the virtual scene from the "
                              "simulated rig's position), a USB camera through libgphoto2, a folder that "
                              "the camera's own software saves into, a machine-vision camera (GenICam), or an "
@@ -451,6 +452,8 @@ class CameraPanel(QWidget):
             link.close(disconnect=False)  # the camera's lock (the worker disconnected the driver)
         self.state.set_device("camera", None)
         self.state.set_device("camera_link", None)
+        for form in self.forms.values():
+            form.clear_settings()
         self.connect_button.setText("Connect")
         self.connect_action.setText("Connect &camera")
         self._show("Not connected", "")
@@ -484,8 +487,11 @@ class CameraPanel(QWidget):
         connected = self.device is not None
         busy = self.device is not None and self.device.busy
         free = not self.state.scan_owns_camera
-        for w in (self.kind, self.pages):
-            w.setEnabled(not connected)
+        self.kind.setEnabled(not connected)
+        form = self.forms.get(self.current_kind())
+        self.pages.setEnabled(not connected or form is not None)   # a form keeps its settings row usable
+        for each in self.forms.values():
+            each.set_editable(not connected, free and connected and not busy)
         self.shot_button.setEnabled(free and connected and not busy)
         self.shot_action.setEnabled(free and connected and not busy)
         self.apply_button.setEnabled(free and connected and not busy and self.current_kind() in ("sim", "gphoto2"))
@@ -523,6 +529,17 @@ class CameraPanel(QWidget):
         self.device.run("settings", on_result=lambda v: (self._show_settings(v), None if refused else
                                                          self._show("Settings applied", "ok")),
                         on_error=lambda m: None)
+
+    def set_on_camera(self, name: str, value: Any) -> None:
+        """One setting of a camera with a form (GenICam, plugins) sent to it; its settings shown again."""
+        form = self.forms.get(self.current_kind())
+        if self.device is None or form is None or self._refuse_while_scanning("Set"):
+            return
+        self.device.run("set_setting", name, value, timeout_s=20,
+                        on_result=lambda _r: (self._show(f"{name} set", "ok"),
+                                              self.device.run("describe_settings", on_result=form.show_settings,
+                                                              on_error=lambda _m: None) if self.device else None),
+                        on_error=lambda m: self._show(m, "error"))
 
     def take_test_shot(self) -> None:
         if self.device is None:

@@ -386,6 +386,11 @@ class PlannerPanel(QWidget):
             ("proposed_grid", "Grid for target", "Grid that gives the wanted parallax at this spacing"),
             ("images", "Images", "Number of views, and whether the grid fits the travel"),
             ("time", "Capture time", "Estimated scan time in meander order (transfers overlap moves)"),
+            ("fly", "Fly scan", "Continuous motion: the row speed that keeps motion blur within the blur limit "
+                                "(0.5 px) at the near distance, within the camera's frame rate (one frame per "
+                                "transfer time unless the plan says), the controller's position reports and the "
+                                "axis; its scan time and which limit binds, or why no speed does (Scan panel: "
+                                "Continuous motion)"),
             ("disk", "Disk space", "Raw files of the whole grid"),
         ]
         for i, (key, label, tip) in enumerate(items, start=1):
@@ -610,6 +615,13 @@ class PlannerPanel(QWidget):
         put("images", f"{plan.grid_columns} × {plan.grid_rows} = {r.images}{frames}"
             + ("" if r.fits_travel else "  — beyond travel"), "" if r.fits_travel else "bad")
         put("time", f"{format_duration(r.capture_time_s)} ({r.capture_time_s / max(r.images, 1):.2f} s/view)")
+        fly = r.fly
+        if fly is not None and fly.possible:
+            put("fly", f"{format_duration(fly.time_s)} at {fly.speed_mm_s:.3g} mm/s ({fly.binding} binds)")
+            self.outputs["fly"].setToolTip(self.outputs["fly"].toolTip().split("\n\n")[0])
+        elif fly is not None:
+            put("fly", f"not possible: {fly.binding} allows {fly.speed_mm_s:.3g} mm/s", "warn")
+            self.outputs["fly"].setToolTip(self.outputs["fly"].toolTip().split("\n\n")[0] + "\n\n" + fly.refusal)
         self._fill_disk(r)
 
     def _fill_disk(self, r: PlanResult) -> None:
@@ -776,6 +788,7 @@ _COLORS = {"scene": (70, 130, 200, 45), "sharp": (60, 160, 90, 50), "blur": "#1f
 
 
 PLOT_MIN_HEIGHT_PX = 220     # a plan plot below this showed a 40 px strip of curves under its title and legend
+SIDE_BY_SIDE_PLOT_PX = 380   # the plots sit side by side only when each gets this width (their titles and legends)
 
 
 class PlanPlotsPanel(QWidget):
@@ -926,8 +939,7 @@ class PlanPlotsPanel(QWidget):
 
     def resizeEvent(self, event) -> None:
         room = self._room()
-        side_by_side_px = sum(p.minimumWidth() for p in (self.dof_plot, self.disparity_plot)) \
-            + self.plots_layout.spacing() + 8
+        side_by_side_px = 2 * SIDE_BY_SIDE_PLOT_PX + self.plots_layout.spacing() + 8
         wide = room.width() > 1.4 * room.height() and room.width() >= side_by_side_px   # never scrolled sideways
         self.plots_layout.setDirection(QBoxLayout.Direction.LeftToRight if wide else QBoxLayout.Direction.TopToBottom)
         super().resizeEvent(event)

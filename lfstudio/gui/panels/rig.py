@@ -475,6 +475,13 @@ class RigPanel(QWidget):
         for port in ports:
             self.port_combo.addItem(port.device, port.device)
             self.port_combo.setItemData(self.port_combo.count() - 1, port.description, Qt.ItemDataRole.ToolTipRole)
+        from lfstudio.studio.kinds import rig_kinds
+
+        for kind in rig_kinds().values():           # plugins' rigs (entry points lfstudio.rigs): NAME:ARGS
+            self.port_combo.addItem(f"{kind.name}:", f"{kind.name}:")
+            self.port_combo.setItemData(self.port_combo.count() - 1, f"{kind.label or kind.name}: type its "
+                                        f"{kind.argument or 'arguments'} after the colon ({kind.origin})",
+                                        Qt.ItemDataRole.ToolTipRole)
         remembered = _port_word(read_text("rig/port", ""))
         if self.state.simulated and not current:      # the simulated studio: a simulated rig, the one used last
             wanted = remembered if remembered in SIMULATED_WORDS else "sim"

@@ -28,13 +28,13 @@ from typing import Any
 
 from PySide6.QtCore import QSize, QTimer
 from PySide6.QtGui import QAction, QKeySequence, QTextCursor
-from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
+from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
                                QLabel, QLineEdit, QMessageBox, QPlainTextEdit, QProgressBar, QPushButton,
                                QSpinBox, QToolButton, QVBoxLayout, QWidget)
 
 from lfstudio.dataset.bracket import Bracket, parse_bracket
 from lfstudio.dataset.paths import new_dataset_folder_problem
-from lfstudio.errors import InputError, LfError
+from lfstudio.errors import InputError, LfError, window_message
 from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
 from lfstudio.gui.settings import read_float, read_text, settings
@@ -42,6 +42,7 @@ from lfstudio.gui.unattended import StatusPageLabel
 from lfstudio.gui.views.path_preview import PathPreview
 from lfstudio.gui.widgets import QuietLabel, bounds_of, number_of, readable_time, set_progress_async
 from lfstudio.jobs import count, format_duration
+from lfstudio.rig.camera import SimulatedScene
 from lfstudio.scan.events import EventKind, ScanRequestRefused, ScanState
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.studio.scan_options import PARAMS as SCAN_PARAMS
@@ -57,6 +58,11 @@ STEP_TIMES_MS = 500       # the step times (new with every view) are shown at mo
 STATE_LINES = 3           # the state line ("Paused: the camera failed …"): longer texts end in "…", whole in its tooltip
 LOG_LINES = 8             # the scan log box shows at least this many lines
 LOG_MS = 200              # a running scan's log lines are appended at most this often (each append repaints)
+
+
+#: the Bracket field's tooltip while a scan runs or is paused (the field is greyed then)
+BRACKET_FIXED_TIP = ("Fixed while this scan runs or is paused: every view of a dataset has the same frames. "
+                     "To scan with another bracket: Abort, change it here, then Start into a new folder.")
 
 
 def _tip(name: str) -> str:
@@ -110,7 +116,7 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     restore: list = []          # calls that give the shared simulated devices their time scales back
     if job["shared"] is not None:
         rig, camera, rig_link, camera_link = job["shared"]
-        if hasattr(camera.driver, "set_view_region"):   # simulated camera: centre its scene on this grid
+        if isinstance(camera.driver, SimulatedScene):   # simulated camera: centre its scene on this grid
             camera.call("set_view_region", plan.extent_mm(), timeout_s=30)
             camera_scale = getattr(camera.driver, "time_scale", None)
             camera.call("set_setting", "time_scale", job["time_scale"], timeout_s=30)
@@ -139,7 +145,8 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
                           allow_device_change=job.get("allow_device_change", False), recapture=job["recapture"],
                           time_scale=job["time_scale"], home=job.get("home", False),
                           engine_options=dict(job.get("engine_options") or {}),
-                          trust_rig_position=job.get("trust_rig_position", False))
+                          trust_rig_position=job.get("trust_rig_position", False), fly=job.get("fly", False),
+                          blur_limit_px=job.get("blur_limit_px", 0.5))
     session = ScanSession(request, doing="scanning", devices=devices)
     scene = job["scene"]
     try:
@@ -279,6 +286,14 @@ class ScanPanel(QWidget):
         self.bracket.setPlaceholderText("none — e.g. -2,0,+2 or 1/500,1/125,1/30s")
         self.bracket.setToolTip(_tip("bracket"))
         form.addRow(SCAN_PARAMS["bracket"].label, self.bracket)
+        self.fly = QCheckBox("Continuous motion (fly scan)")
+        self.fly.setObjectName("scanFly")
+        self.fly.setToolTip("Cross each row at one constant speed and trigger the camera as the carriage passes "
+                            "each view, instead of stopping at every view. The speed keeps motion blur within the "
+                            "Planner's Blur limit; it needs a camera with triggers and a controller that reports "
+                            "its position (the Start button says why not). Views whose frame came late are taken "
+                            "again standing still")
+        form.addRow(self.fly)
         self.from_plan = QPushButton("Take grid from the plan")
         self.from_plan.setObjectName("fromPlanButton")
         self.from_plan.setToolTip("Copy grid, spacing and settle time from the Planner's current plan")
@@ -572,7 +587,7 @@ class ScanPanel(QWidget):
         try:
             folder = field_path(self.folder, "Dataset folder")
         except InputError as exc:
-            self.state.report_error("Scan", str(exc))
+            self.state.report_error("Scan", window_message(exc))
             return
         problem = None if (folder / "dataset.json").is_file() else new_dataset_folder_problem(folder)
         if problem:
@@ -598,7 +613,8 @@ class ScanPanel(QWidget):
                    rig_cfg=self.rig_config(), scene=scene, shared=rig_devices, simulator=simulator,
                    studio=self.studio, time_scale=self.time_scale.value() if self.state.simulated else 1.0,
                    exposure_s=getattr(scene, "exposure_s", 0.5), transfer_s=getattr(scene, "transfer_s", 2.5),
-                   allow_device_change=allow_device_change, home=home, trust_rig_position=trust_rig_position)
+                   allow_device_change=allow_device_change, home=home, trust_rig_position=trust_rig_position,
+                   fly=self.fly.isChecked(), blur_limit_px=float(getattr(scene, "blur_limit_px", 0.5)))
         if not shared and self.studio is None:
             self._log("starting the simulated studio (GRBL simulator on a pseudo-terminal, simulated camera)…")
             self.state_label.setText("Connecting the simulated rig and camera…")
@@ -738,7 +754,7 @@ class ScanPanel(QWidget):
         try:
             getattr(self.engine, name)(*args)
         except ScanRequestRefused as exc:
-            self._log(str(exc))
+            self._log(window_message(exc))
             return False
         return True
 
@@ -1120,8 +1136,9 @@ class ScanPanel(QWidget):
         self.abort_button.setEnabled(st in (ScanState.RUNNING, ScanState.PAUSING, ScanState.PAUSED))
         self.skip_button.setEnabled(st is ScanState.PAUSED and self.engine is not None and self.engine.fault is not None)
         for w in (self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v,
-                  self.order, self.settle, self.bracket, self.folder, self.from_plan, self.time_scale):
+                  self.order, self.settle, self.bracket, self.fly, self.folder, self.from_plan, self.time_scale):
             w.setEnabled(not running)
+        self.bracket.setToolTip(BRACKET_FIXED_TIP if running else _tip("bracket"))
         for name, button in (("start", self.start_button), ("pause", self.pause_button),   # Rig → … scan
                              ("resume", self.resume_button), ("abort", self.abort_button)):
             action = getattr(self, f"action_{name}", None)

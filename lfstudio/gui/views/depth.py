@@ -12,14 +12,12 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from PySide6.QtCore import Qt
 from PySide6.QtGui import QAction, QPixmap
-from PySide6.QtWidgets import (QCheckBox, QDialog, QHBoxLayout, QLabel, QLineEdit, QPushButton, QScrollArea,
-                               QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (QCheckBox, QDialog, QHBoxLayout, QLabel, QLineEdit, QPushButton, QVBoxLayout, QWidget)
 
-from lfstudio.errors import LfError
+from lfstudio.errors import LfError, window_message
 from lfstudio.gui.bridge import JobRunner, run_off_gui
-from lfstudio.gui.widgets import JobProgressWidget, screen_fitted
+from lfstudio.gui.widgets import ColourBar, FitImageView, JobProgressWidget, screen_fitted
 
 #: pixels below this confidence are greyed out with "Hide unsure pixels"
 UNSURE_BELOW = 0.1
@@ -33,7 +31,7 @@ def depth_picture(dataset, view: tuple[int, int], hide_unsure: bool = False) -> 
     from lfstudio.calibration.model import homography_for, load_calibration
     from lfstudio.dataset import images
     from lfstudio.depth.run import _processed_path, depth_from_disparity, read_disparity, zero_shear_px_per_mm
-    from lfstudio.quality.pictures import disparity_picture
+    from lfstudio.quality.pictures import colour_range, disparity_picture
 
     disp, conf, record = read_disparity(dataset, view)
     w, h = record["size_px"]
@@ -58,12 +56,16 @@ def depth_picture(dataset, view: tuple[int, int], hide_unsure: bool = False) -> 
     sx = float(dataset.grid.step_mm[0])
     shear = zero_shear_px_per_mm(dataset, w)
     scale = f_px * sx / 1000.0 if shear == 0.0 else None        # depth = scale / disparity (parallel views)
-    picture = disparity_picture(shown, grey, depth_scale_m_px=scale)
+    picture = disparity_picture(shown, grey, depth_scale_m_px=scale, colour_bar=False)   # the window draws the bar
     fin = np.isfinite(disp)
     figures: dict[str, Any] = {"valid": float(fin.mean()), "confident": float((conf >= UNSURE_BELOW).mean()),
-                               "source": record["source"], "size": (w, h)}
+                               "source": record["source"], "size": (w, h), "colours_px": colour_range(shown),
+                               "depth_scale_m_px": scale}
+    from lfstudio.dataset.zero_plane import zero_plane
+
+    figures["reference"] = zero_plane(dataset).disparity_reference()    # the maps are as the views are
     if fin.any():
-        lo, hi = (float(v) for v in np.percentile(disp[fin], [2, 98]))
+        lo, hi = (float(v) for v in np.percentile(disp[fin], [1, 99]))   # as the check's map and the colours
         figures["disparity_px"] = (lo, hi)
         if shear is not None:
             z = depth_from_disparity(np.array([hi, lo]), f_px, sx, shear)
@@ -136,12 +138,11 @@ class DepthDialog(QDialog):
         top.addWidget(self.compute_all_button)
         self.runner = JobRunner(self)
         self.progress = JobProgressWidget(self.runner)
-        self.image = QLabel()
-        self.image.setObjectName("depthImage")
-        self.image.setAlignment(Qt.AlignmentFlag.AlignCenter)
-        area = QScrollArea()
-        area.setWidget(self.image)
-        area.setWidgetResizable(True)
+        self.image = FitImageView("depthImage")     # whole by default, its colour bar in sight; Fit off: 1:1
+        area = self.image
+        self.fit_button = self.image.fit_button()
+        top.insertWidget(top.indexOf(self.hide_check) + 1, self.fit_button)
+        self.colour_bar = ColourBar("depthColourBar")     # at screen resolution, whatever the picture's scale
         self.caption = QLabel("")
         self.caption.setObjectName("depthCaption")
         self.caption.setWordWrap(True)
@@ -149,6 +150,7 @@ class DepthDialog(QDialog):
         lay.addLayout(top)
         lay.addWidget(self.progress)
         lay.addWidget(area, 1)
+        lay.addWidget(self.colour_bar)
         lay.addWidget(self.caption)
         self.show_button.clicked.connect(self.show_view)
         self.view_edit.returnPressed.connect(self.show_view)
@@ -197,11 +199,16 @@ class DepthDialog(QDialog):
         from lfstudio.gui.imageutil import rgb_to_qimage
 
         picture, fig = result
-        self.image.setPixmap(QPixmap.fromImage(rgb_to_qimage(picture[..., ::-1].copy())))
-        parts = [f"{self.view_edit.text().strip()}: disparity between horizontal neighbours (near = red)"]
+        self.image.set_pixmap(QPixmap.fromImage(rgb_to_qimage(picture[..., ::-1].copy())))
+        lo, hi = fig["colours_px"]
+        reference = fig.get("reference", "from infinity")
+        self.colour_bar.set_range(lo, hi, fig.get("depth_scale_m_px"),
+                                  f"Disparity in px between horizontal neighbours, {reference} (near = red)")
+        parts = [f"{self.view_edit.text().strip()}: disparity between horizontal neighbours, {reference} "
+                 "(near = red)"]
         if "disparity_px" in fig:
             lo, hi = fig["disparity_px"]
-            parts.append(f"{lo:.2f} … {hi:.2f} px")
+            parts.append(f"{lo:+.2f} … {hi:+.2f} px (1st–99th percentile of the map)")
         if "depth_m" in fig:
             parts.append(f"depth {fig['depth_m'][0]:.2f} … {fig['depth_m'][1]:.2f} m")
         parts.append(f"{fig['confident']:.0%} of pixels sure (confidence ≥ {UNSURE_BELOW:g})")
@@ -224,7 +231,7 @@ class DepthDialog(QDialog):
             try:
                 stated = parse_disparity_range("Disparity range", self.range_edit.text())
             except LfError as exc:
-                self.caption.setText(str(exc))
+                self.caption.setText(window_message(exc))
                 return
         self.caption.setText("Computing…")
         self.runner.start(_compute_job, self.dataset, None if all_views else [view], all_views, stated)
@@ -257,7 +264,7 @@ def install_menus(window) -> None:
         try:
             window.depth_dialog = DepthDialog(state, window)
         except LfError as exc:
-            state.report_error("Depth map", str(exc))
+            state.report_error("Depth map", window_message(exc))
             return
         window.depth_dialog.show()
 

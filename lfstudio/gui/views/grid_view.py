@@ -28,6 +28,7 @@ from PySide6.QtWidgets import (QDialog, QFileDialog, QHBoxLayout, QLabel, QMenu,
                                QPushButton, QScrollArea, QSizePolicy, QStackedWidget, QToolButton,
                                QVBoxLayout, QWidget)
 
+from lfstudio.errors import window_message
 from lfstudio.dataset import images
 from lfstudio.dataset.manifest import is_done
 from lfstudio.dataset.paths import view_label
@@ -336,7 +337,7 @@ class GridView(QWidget):
         try:
             path = ds.path_of(view)
         except Exception as exc:
-            self.state.report_error("Open view", str(exc))
+            self.state.report_error("Open view", window_message(exc))
             return
         dlg = ImageDialog(path, f"View row {row}, column {column} — {view['file']}", self)
         dlg.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
@@ -387,7 +388,7 @@ class GridView(QWidget):
         try:
             ds = Dataset.open(folder)
         except LfError as exc:
-            self.state.report_error("Open dataset", str(exc))
+            self.state.report_error("Open dataset", window_message(exc))
             return False
         self.state.set_dataset(ds)
         self.state.show_status(f"Opened {folder}")
@@ -411,7 +412,7 @@ class GridView(QWidget):
         try:
             doc = load_quality(dataset)
         except LfError as exc:
-            self.state.show_status(str(exc), 10000)
+            self.state.show_status(window_message(exc), 10000)
             doc = None
         self.canvas.set_quality(doc)
         self.quality_bar.legend.set_map(doc, self.canvas.overlay_key)
@@ -467,7 +468,7 @@ class GridView(QWidget):
         if ds is None or not rel:
             self.state.show_status("No disparity map yet: run Check dataset")
             return
-        dlg = DisparityDialog(Path(ds.root) / rel, doc.get("disparity_map"), self)
+        dlg = DisparityDialog(Path(ds.root) / rel, doc.get("disparity_map"), self, doc.get("depth_range"))
         dlg.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
         dlg.show()
         self._disparity_dialog = dlg

@@ -21,7 +21,7 @@ from typing import Any
 from PySide6.QtCore import QObject, QRect, QSize, Qt, Signal
 from PySide6.QtGui import QColor, QImage, QLinearGradient, QPainter, QPixmap
 from PySide6.QtWidgets import (QCheckBox, QComboBox, QDialog, QGridLayout, QHBoxLayout, QLabel, QPushButton,
-                               QScrollArea, QSizePolicy, QStackedWidget, QVBoxLayout, QWidget)
+                               QSizePolicy, QStackedWidget, QVBoxLayout, QWidget)
 
 from lfstudio.dataset.manifest import is_done
 from lfstudio.dataset.paths import view_label
@@ -363,13 +363,14 @@ class NeighboursDialog(QDialog):
 class DisparityDialog(QDialog):
     """The disparity map of the centre view from the last check (``quality/disparity.png``)."""
 
-    def __init__(self, path: Path, info: dict | None, parent: QWidget | None = None):
+    def __init__(self, path: Path, info: dict | None, parent: QWidget | None = None, depth: dict | None = None):
         super().__init__(parent)
         self.setObjectName("disparityDialog")
         self.setWindowTitle("Disparity map of the centre view")
         self.resize(screen_fitted(self, 1040, 800))
-        self.image = QLabel()
-        self.image.setAlignment(Qt.AlignmentFlag.AlignCenter)
+        from lfstudio.gui.widgets import FitImageView
+
+        self.image = FitImageView("disparityImage")     # whole, with its colour bar; Fit off: 1:1
         from lfstudio.dataset.images import read_picture
         from lfstudio.gui.imageutil import rgb_to_qimage
 
@@ -377,22 +378,25 @@ class DisparityDialog(QDialog):
         if bgr is None:
             self.image.setText(f"{path}: cannot be read; run Check dataset again")
         else:
-            self.image.setPixmap(QPixmap.fromImage(rgb_to_qimage(bgr[..., ::-1].copy())))
-        area = QScrollArea()
-        area.setWidget(self.image)
-        area.setWidgetResizable(True)
-        text = QLabel(self._caption(info))
+            self.image.set_pixmap(QPixmap.fromImage(rgb_to_qimage(bgr[..., ::-1].copy())))
+        text = QLabel(self._caption(info, depth))
+        text.setObjectName("disparityCaption")
+        self.caption = text
         text.setWordWrap(True)
+        bar = QHBoxLayout()
+        bar.addWidget(self.image.fit_button())
+        bar.addStretch(1)
         lay = QVBoxLayout(self)
-        lay.addWidget(area, 1)
+        lay.addLayout(bar)
+        lay.addWidget(self.image, 1)
         lay.addWidget(text)
 
     @staticmethod
-    def _caption(info: dict | None) -> str:
+    def _caption(info: dict | None, depth: dict | None = None) -> str:
+        """The map's figures in the check's one wording (lfstudio.quality.check.disparity_map_summary)."""
         if not info:
             return ""
-        parts = [f"view {info['view']}", f"median {info['median_px']:.2f} px" if info.get("median_px") else "",
-                 f"{info['valid_fraction']:.0%} of pixels matched",
-                 "rectified" if info.get("rectified") else "not rectified (no calibration)"]
-        return ("Disparity between horizontal neighbours at full resolution (near = red): "
-                + ", ".join(p for p in parts if p))
+        from lfstudio.quality.check import disparity_map_summary
+
+        return (f"Disparity map (near = red), full-resolution px: {disparity_map_summary(info, depth)}; "
+                + ("rectified" if info.get("rectified") else "not rectified (no calibration)"))

@@ -3,7 +3,7 @@
 lfstudio finds it through the entry point in pyproject.toml (group ``lfstudio.cameras``, name
 ``ramp``): ``lfstudio scan --camera ramp:WIDTHxHEIGHT`` calls :func:`open_camera` with the text after
 ``ramp:``. It is an *array camera*: ``grab()`` returns a :class:`lfstudio.dataset.frames.Frame` and
-the scan writes it (here as a 16-bit TIFF), checksums and journals it. A camera that writes its own
+the scan writes it (here as a 16-bit PNG), checksums and journals it. A camera that writes its own
 files implements ``capture(stem_path, on_exposed=None) -> CaptureResult`` instead (see
 lfstudio/rig/camera.py); optional capabilities (``identity()``, ``describe_settings()``, ``stop()``,
 ...) are found by what the object has.

@@ -1,0 +1,193 @@
+"""Dataset → HDR radiance of a view…: a bracketed view's merged linear radiance (``hdr/rRR_cCCC.exr`` or
+``.tif``, written by Process: :mod:`lfstudio.processing.hdr`) under an exposure slider.
+
+The float image is read and reduced to the screen's size off the GUI thread; the slider scales it by
+2^EV around the dataset's key (0 EV: the merged view's log-average luminance shown as 18 % grey) and
+shows it through the sRGB curve, so highlights the middle frame clipped come back as the slider goes
+down and shadows as it goes up. The figures under it are the radiance's own (the merge's units: the
+reference frame's developed 0…1 scale at its exposure time)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from PySide6.QtCore import Qt
+from PySide6.QtGui import QAction, QPixmap
+from PySide6.QtWidgets import QDialog, QHBoxLayout, QLabel, QLineEdit, QPushButton, QSlider, QVBoxLayout, QWidget
+
+from lfstudio.errors import LfError
+from lfstudio.gui.bridge import Pacer, run_off_gui
+from lfstudio.gui.widgets import FitImageView, screen_fitted
+
+EV_RANGE = (-8.0, 8.0)          # the slider's exposure, in stops around the key
+EV_STEP = 0.1
+SHOWN_MAX_PX = 2000             # the radiance is reduced to at most this width for the screen
+
+
+def merged_views(dataset) -> list[tuple[int, int]]:
+    """The views of ``dataset`` whose bracket was merged (their radiance file recorded)."""
+    from lfstudio.dataset.manifest import hdr_merged
+
+    return [(int(v["row"]), int(v["column"])) for v in dataset.done_views() if hdr_merged(v) is not None]
+
+
+def load_radiance(dataset, view: tuple[int, int]) -> dict[str, Any]:
+    """A merged view's radiance reduced for the screen, its key and figures (Qt-free; worker thread)."""
+    import cv2
+
+    from lfstudio.dataset.manifest import hdr_merged
+    from lfstudio.dataset.paths import view_stem
+    from lfstudio.processing.hdr import log_average, read_radiance
+
+    record = hdr_merged(dataset.view(*view))
+    if record is None:
+        raise LfError(f"{view_stem(*view)} has no merged radiance yet: Process the dataset (a bracketed scan's "
+                      "frames are merged after its views)")
+    path = dataset.root / record["file"]
+    if not path.is_file():
+        raise LfError(f"{record['file']}: not found in the dataset; Process again with Redo finished views")
+    radiance = read_radiance(path)
+    h, w = radiance.shape[:2]
+    if w > SHOWN_MAX_PX:
+        radiance = cv2.resize(radiance, (SHOWN_MAX_PX, round(h * SHOWN_MAX_PX / w)), interpolation=cv2.INTER_AREA)
+    lum = radiance.mean(axis=2)
+    fin = lum[np.isfinite(lum)]
+    figures = {"file": record["file"], "size": (w, h), "min": float(fin.min()) if fin.size else 0.0,
+               "median": float(np.median(fin)) if fin.size else 0.0, "max": float(fin.max()) if fin.size else 0.0,
+               "clipped_merged": (record.get("clipped_fraction") or {}).get("merged")}
+    return {"radiance": np.ascontiguousarray(radiance, dtype=np.float32), "key": max(log_average(radiance), 1e-9),
+            "figures": figures}
+
+
+def exposed(radiance: np.ndarray, key: float, ev: float) -> np.ndarray:
+    """8-bit sRGB of ``radiance`` at ``ev`` stops around ``key`` (0 EV: ``key`` shown as 18 % grey)."""
+    x = radiance * np.float32(0.18 / key * 2.0 ** ev)
+    np.clip(x, 0.0, 1.0, out=x)
+    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4, dtype=np.float32) - 0.055)
+    return (srgb * 255.0 + 0.5).astype(np.uint8)
+
+
+class RadianceDialog(QDialog):
+    """A merged view's radiance with an exposure slider (module docstring)."""
+
+    def __init__(self, state, parent: QWidget | None = None, view: tuple[int, int] | None = None):
+        super().__init__(parent)
+        self.state = state
+        self.dataset = state.dataset
+        self.setObjectName("radianceDialog")
+        self.setWindowTitle("HDR radiance of a view")
+        self.resize(screen_fitted(self, 1040, 820))
+        from lfstudio.dataset.paths import view_stem
+
+        merged = merged_views(self.dataset)
+        self.view = view or (merged[len(merged) // 2] if merged else (0, 0))
+        self.view_edit = QLineEdit(view_stem(*self.view))
+        self.view_edit.setObjectName("radianceViewEdit")
+        self.view_edit.setToolTip("The view, by its name: r07_c042 is row 7, column 42")
+        self.view_edit.setMaximumWidth(120)
+        self.show_button = QPushButton("Show")
+        self.slider = QSlider(Qt.Orientation.Horizontal)
+        self.slider.setObjectName("exposureSlider")
+        self.slider.setRange(round(EV_RANGE[0] / EV_STEP), round(EV_RANGE[1] / EV_STEP))
+        self.slider.setValue(0)
+        self.slider.setToolTip("Exposure of the picture, in stops (EV) around the view's average brightness: "
+                               "left brings back the highlights, right the shadows. The radiance itself is "
+                               "not changed.")
+        self.ev_label = QLabel("")
+        self.ev_label.setObjectName("exposureLabel")
+        self.ev_label.setMinimumWidth(self.ev_label.fontMetrics().horizontalAdvance("Exposure −8.0 EV") + 8)
+        reset = QPushButton("0 EV")
+        reset.setToolTip("Back to the view's average brightness")
+        reset.clicked.connect(lambda: self.slider.setValue(0))
+        self.image = FitImageView("radianceImage")
+        top = QHBoxLayout()
+        top.addWidget(QLabel("View"))
+        top.addWidget(self.view_edit)
+        top.addWidget(self.show_button)
+        top.addWidget(self.image.fit_button())
+        top.addSpacing(12)
+        top.addWidget(self.ev_label)
+        top.addWidget(self.slider, 1)
+        top.addWidget(reset)
+        self.caption = QLabel("")
+        self.caption.setObjectName("radianceCaption")
+        self.caption.setWordWrap(True)
+        lay = QVBoxLayout(self)
+        lay.addLayout(top)
+        lay.addWidget(self.image, 1)
+        lay.addWidget(self.caption)
+        self._data: dict[str, Any] | None = None
+        self._loader = None
+        self.pictures_shown = 0
+        self._pacer = Pacer(self._expose, 40, self)        # the slider dragged: at most 25 pictures a second
+        self.slider.valueChanged.connect(lambda _v: self._pacer.request())
+        self.show_button.clicked.connect(self.show_view)
+        self.view_edit.returnPressed.connect(self.show_view)
+        self._show_ev()
+        self.show_view()
+
+    @property
+    def ev(self) -> float:
+        return self.slider.value() * EV_STEP
+
+    def _show_ev(self) -> None:
+        self.ev_label.setText(f"Exposure {self.ev:+.1f} EV".replace("-", "−"))
+
+    def show_view(self) -> None:
+        from lfstudio.dataset.paths import parse_view_stem
+
+        try:
+            view = parse_view_stem(self.view_edit.text().strip())
+        except (ValueError, LfError):
+            self.caption.setText(f"{self.view_edit.text().strip()!r} is not a view name; write it like r01_c004")
+            return
+        self.view = view
+        self.caption.setText("Reading the radiance…")
+        self._loader = run_off_gui(self, lambda: load_radiance(self.dataset, view), self._loaded,
+                                   lambda message: self.caption.setText(message))
+
+    def _loaded(self, data: dict[str, Any]) -> None:
+        self._data = data
+        self._expose()
+
+    def _expose(self) -> None:
+        from lfstudio.gui.imageutil import rgb_to_qimage
+
+        self._show_ev()
+        data = self._data
+        if data is None:
+            return
+        rgb = exposed(data["radiance"], data["key"], self.ev)
+        self.image.set_pixmap(QPixmap.fromImage(rgb_to_qimage(rgb)))
+        fig = data["figures"]
+        clipped = fig.get("clipped_merged")
+        self.caption.setText(
+            f"{fig['file']} ({fig['size'][0]} × {fig['size'][1]} px, linear float): radiance {fig['min']:.3g} … "
+            f"{fig['max']:.3g}, median {fig['median']:.3g} (the reference frame's 0…1 scale); "
+            + (f"{clipped:.2%} of pixels clipped in every frame; " if isinstance(clipped, (int, float)) else "")
+            + f"shown at {self.ev:+.1f} EV through the sRGB curve")
+        self.pictures_shown += 1
+
+
+def install_menus(window) -> None:
+    """Dataset → HDR radiance of a view… (enabled when the open dataset has merged views)."""
+    state = window.state
+    action = QAction("HDR radiance of a view…", window)
+    action.setObjectName("actionRadiance")
+    action.setToolTip("A bracketed view's merged radiance (after Process) under an exposure slider")
+
+    def refresh(*_args) -> None:
+        ds = state.dataset
+        action.setEnabled(ds is not None and bool(ds.manifest.get("bracket")) and bool(merged_views(ds)))
+
+    def open_dialog() -> None:
+        if state.dataset is None:
+            return
+        window.radiance_dialog = RadianceDialog(state, window)
+        window.radiance_dialog.show()
+
+    action.triggered.connect(open_dialog)
+    state.datasetChanged.connect(refresh)
+    refresh()
+    window.menu("Dataset").addAction(action)

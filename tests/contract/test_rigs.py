@@ -1,0 +1,144 @@
+"""One contract every rig kind keeps: connect, its record, a reference (home or origin), a move that arrives,
+STOP mid-move (the carriage stops short of the target, the controller answers after it), a target outside
+the soft limits refused in one line before anything moves, disconnect, and a second lfstudio process
+refused while one holds the rig.
+
+Each kind on its real stack: the GRBL simulator on a pseudo-terminal, the GRBL 1.1h firmware (the
+official simulator built from ../shared/vendor/grbl; skips without it), the CiA 402 driver against the
+emulated igus dryve D1 pair over Modbus TCP on 127.0.0.1 and over CANopen on python-can's virtual bus."""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import pytest
+
+from lfstudio.errors import InputError, LfError
+from lfstudio.rig.motion import MotionController, RigConfig, RigState
+from lfstudio.rig.profile import load_rig
+from lfstudio.studio.devices import RigLink, open_rig
+
+GANTRY = load_rig()
+DRIVES = load_rig("dryve D1 gantry 4 m x 0.5 m")
+
+
+@dataclass
+class Case:
+    word: str
+    config: RigConfig
+    home: bool                      # home (limit switches) or take the current position as the origin
+    options: dict[str, Any]
+    shared_word: Callable[[RigLink], str] | None = None   # the word another process would open it by
+
+
+def _sim(request) -> Case:
+    return Case("sim", GANTRY, True, {"time_scale": 0.05, "timeout_s": 3.0})
+
+
+def _firmware(request) -> Case:
+    start = request.getfixturevalue("grbl_firmware")
+    fw = start()
+    return Case(fw.port, GANTRY, False, {"timeout_s": 3.0}, shared_word=lambda link: link.spec.text)
+
+
+def _dryve(request) -> Case:
+    return Case("sim-dryve", DRIVES, True, {"time_scale": 0.05, "timeout_s": 0.5},
+                shared_word=lambda link: link.simulator.word)
+
+
+def _canopen(request) -> Case:
+    return Case("sim-canopen", DRIVES, True, {"time_scale": 0.05, "timeout_s": 0.5})
+
+
+CASES = {"grbl-sim": _sim, "grbl-firmware": _firmware, "cia402-modbus": _dryve, "cia402-canopen": _canopen}
+
+
+@pytest.fixture(params=sorted(CASES))
+def rig(request):
+    case = CASES[request.param](request)
+    link = open_rig(case.word, case.config, doing="the rig contract", **case.options)
+    try:
+        yield case, link
+    finally:
+        link.close()
+
+
+def _referenced(case: Case, controller: Any) -> None:
+    if case.home:
+        controller.home()
+    else:
+        controller.set_origin()
+
+
+def test_connect_reference_move_and_record(rig):
+    case, link = rig
+    controller = link.controller
+    assert isinstance(controller, MotionController)
+    assert controller.status().state is not RigState.DISCONNECTED
+    record = link.record()
+    assert record["kind"] and record["profile"] == case.config.name
+    _referenced(case, controller)
+    status = controller.move_to(40.0, 20.0)
+    assert status.position_mm == pytest.approx((40.0, 20.0), abs=0.05)
+    assert controller.status().state is RigState.IDLE
+
+
+def test_stop_mid_move_stops_short_of_the_target(rig):
+    case, link = rig
+    controller = link.controller
+    _referenced(case, controller)
+    target = (min(case.config.horizontal.soft_max_mm, 3000.0), 20.0)
+    outcome: dict[str, Any] = {}
+
+    def move() -> None:
+        try:
+            outcome["status"] = controller.move_to(*target)
+        except LfError as exc:
+            outcome["error"] = exc
+
+    mover = threading.Thread(target=move, daemon=True)
+    mover.start()
+    deadline = time.monotonic() + 30
+    while controller.status().position_mm[0] < 60.0:        # it is on its way (polls the real status)
+        assert time.monotonic() < deadline and mover.is_alive(), outcome
+    controller.stop()
+    mover.join(30)
+    assert not mover.is_alive()
+    deadline = time.monotonic() + 30
+    while controller.status().state is RigState.MOVING:
+        assert time.monotonic() < deadline
+    x, _ = controller.status().position_mm
+    assert x < target[0] - 100.0                               # stopped well short of the target
+
+
+def test_a_target_outside_the_soft_limits_is_refused_before_anything_moves(rig):
+    case, link = rig
+    controller = link.controller
+    _referenced(case, controller)
+    before = controller.status().position_mm
+    with pytest.raises(InputError) as err:
+        controller.move_to(case.config.horizontal.soft_max_mm + 50.0, 10.0)
+    assert "\n" not in str(err.value)
+    assert controller.status().position_mm == pytest.approx(before, abs=0.01)
+
+
+def test_disconnect_then_commands_are_refused(rig):
+    case, link = rig
+    controller = link.controller
+    controller.disconnect()
+    with pytest.raises(LfError) as err:
+        controller.move_to(10.0, 10.0)
+    assert "\n" not in str(err.value)
+
+
+def test_a_second_process_is_refused_while_one_holds_the_rig(rig, run_cli):
+    case, link = rig
+    if case.shared_word is None:
+        pytest.skip(f"{case.word}: each process starts its own simulated controller")
+    word = case.shared_word(link)
+    r = run_cli("rig", "--port", word, "--rig-profile", case.config.name, "status", timeout=60)
+    assert r.returncode != 0 and "Traceback" not in r.stderr
+    assert "is in use by" in r.stderr and "the rig contract" in r.stderr, r.stderr
