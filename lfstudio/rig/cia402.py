@@ -349,7 +349,9 @@ class Cia402Controller:
             where = (f"the rig's position is unknown until it answers (last read at ({last.position_mm[0]:.3f}, "
                      f"{last.position_mm[1]:.3f}) mm, {max(time.monotonic() - self._last_t, 0.0):.1f} s before)")
         if in_motion:                    # the other drive must not go on alone: STOP on every path
-            threading.Thread(target=self._quick_stop_all, name="quick-stop-on-loss", daemon=True).start()
+            # its threads started here and now, known to disconnect() (which waits for them before the links
+            # close and the process may end); not waited for here: this drive's may take its deadline
+            self._quick_stop_all(wait_s=0.0)
             where += "; quick stop sent to both drives"
         self._lost = (f"{self._name(i)} does not answer ({exc}); {where}. Check its network or bus cable and its "
                       "power, then connect again")

@@ -316,3 +316,58 @@ def test_a_canopen_node_trickling_a_segmented_answer_ends_within_the_links_deadl
     assert isinstance(failure, DriveNotAnswering), failure
     assert f"virtual-{channel} node {node}" in str(failure) and "no whole answer within 0.5 s" in str(failure)
     assert 0 < len(segments) < 10                    # it was answering, segment by segment
+
+
+@pytest.mark.parametrize("transport", ["modbus", "canopen"])
+def test_closing_after_a_lost_drive_waits_for_the_other_drives_quick_stop(drives, transport):
+    """Drive x's link is lost mid-move: the quick stop for drive y goes out on its own thread. The
+    command then fails and the CLI closes the rig and exits: disconnect() must not close the links
+    (nor the process end) before that quick stop is out. It was sent from a thread that started the
+    quick stop threads later, unknown to disconnect(): here that thread is held until the links are
+    closed, as a busy machine may hold it, and drive y went on alone."""
+    emulator, c = drives(transport, time_scale=1.0, timeout_s=0.5)   # real time: y needs 4 s for 400 mm
+    emulator.time_scale = 0.0
+    c.home()
+    emulator.time_scale = 1.0
+    seen = _QuickStopSeen([])
+    emulator.pair.axes[1].journal = seen
+    released = threading.Event()
+    real_quick_stop_all = c._quick_stop_all
+
+    def quick_stop_all(*args, **kwargs):
+        if threading.current_thread().name == "quick-stop-on-loss":
+            released.wait(HANG_GUARD_S)               # the old on-loss thread, held until the links are closed
+        return real_quick_stop_all(*args, **kwargs)
+
+    c._quick_stop_all = quick_stop_all
+    y_link = c.links[1]
+    real_close = y_link.close
+    out_at_close: list[bool] = []
+
+    def close() -> None:
+        out_at_close.append(seen.event.is_set())
+        released.set()
+        real_close()
+
+    y_link.close = close
+    outcome: list[BaseException] = []
+
+    def move() -> None:
+        try:
+            c.move_to(4000, 400)
+        except BaseException as exc:  # noqa: BLE001
+            outcome.append(exc)
+
+    mover = threading.Thread(target=move)
+    mover.start()
+    while emulator.true_position_mm()[0] < 50 and mover.is_alive():
+        emulator.pair.axes[0].true_position()         # polling the emulator until the axes are under way
+    emulator.pair.axes[0].inject("lost_connection")   # drive x stops answering mid-move
+    mover.join(HANG_GUARD_S * 4)
+    assert not mover.is_alive() and len(outcome) == 1 and isinstance(outcome[0], DriveNotAnswering), outcome
+    try:
+        c.disconnect()                                # what the CLI does next, before it exits
+    finally:
+        released.set()
+        emulator.pair.axes[0].clear_faults()
+    assert out_at_close == [True]                     # drive y had its quick stop before its link closed
