@@ -41,7 +41,7 @@ def format_report(doc: dict) -> str:
     def num(x, spec: str) -> str:
         return "–" if x is None else format(x, spec)
 
-    from lfstudio.quality.check import disparity_map_summary, disparity_summary, repeatability_summary
+    from lfstudio.quality.summaries import disparity_map_summary, disparity_summary, repeatability_summary
 
     lines = [f"verdict       {doc['verdict'].upper()}   {s['views']} views: {s['pass']} pass, {s['warn']} warn, "
              f"{s['fail']} fail",

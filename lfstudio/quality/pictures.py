@@ -358,7 +358,7 @@ def write_pictures(folder: Path, report, dataset) -> dict[str, Path]:
 def write_html(path: Path, doc: dict[str, Any], pictures: dict[str, Path]) -> Path:
     """One self-contained page: the summary, the dataset checks, the pictures and the flagged views."""
     from lfstudio.dataset.zero_plane import DISPARITY_DEFINITION
-    from lfstudio.quality.check import disparity_map_summary, disparity_summary, repeatability_summary
+    from lfstudio.quality.summaries import disparity_map_summary, disparity_summary, repeatability_summary
 
     def img(key: str, alt: str) -> str:
         p = pictures.get(key)

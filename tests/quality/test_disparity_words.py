@@ -39,7 +39,7 @@ def test_the_reference_of_a_disparity_in_words():
 
 def test_a_parallel_scan_s_disparities_are_from_infinity_in_the_check_and_its_report(tiny_dataset, qtbot):
     from lfstudio.gui.views.quality import DisparityDialog
-    from lfstudio.quality.check import disparity_map_summary, disparity_summary
+    from lfstudio.quality.summaries import disparity_map_summary, disparity_summary
 
     report = check_dataset(tiny_dataset)
     doc = report.document
@@ -59,7 +59,7 @@ def test_a_parallel_scan_s_disparities_are_from_infinity_in_the_check_and_its_re
 
 
 def test_the_repeatability_s_source_is_told_alike_and_truly(tiny_dataset):
-    from lfstudio.quality.check import REPEATABILITY_SOURCES, repeatability_summary
+    from lfstudio.quality.summaries import REPEATABILITY_SOURCES, repeatability_summary
 
     doc = check_dataset(tiny_dataset).document
     rep = doc["repeatability"]

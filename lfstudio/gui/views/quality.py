@@ -393,10 +393,10 @@ class DisparityDialog(QDialog):
 
     @staticmethod
     def _caption(info: dict | None, depth: dict | None = None) -> str:
-        """The map's figures in the check's one wording (lfstudio.quality.check.disparity_map_summary)."""
+        """The map's figures in the check's one wording (lfstudio.quality.summaries.disparity_map_summary)."""
         if not info:
             return ""
-        from lfstudio.quality.check import disparity_map_summary
+        from lfstudio.quality.summaries import disparity_map_summary
 
         return (f"Disparity map (near = red), full-resolution px: {disparity_map_summary(info, depth)}; "
                 + ("rectified" if info.get("rectified") else "not rectified (no calibration)"))
