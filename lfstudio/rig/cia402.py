@@ -565,17 +565,20 @@ class Cia402Controller:
             for i in range(2):
                 if not self._drive_at_rest(i) and not self._drive_at_rest(i):
                     raise DeviceError(f"writing units refused: {self._name(i)} is moving; stop it first")
+            for i in range(2):                  # both checked before either drive is written to
+                exponent = math.log10(self._k[i])
+                if self.has(i, SI_POSITION) and abs(exponent - round(exponent)) >= 1e-9:
+                    raise UnitsMismatch(f"{self._name(i)}: increments_per_mm = {self._k[i]:g} is not a power of ten, "
+                                        "so no SI unit (60A8h) expresses it; nothing was written to either drive. "
+                                        "Fix: set the drive's unit on its own interface")
             done = []
             for i in range(2):
                 k, axis = self._k[i], self._axes[i]
                 exponent = math.log10(k)
-                if self.has(i, SI_POSITION) and abs(exponent - round(exponent)) < 1e-9:
+                if self.has(i, SI_POSITION):
                     value = (((-3 - round(exponent)) & 0xFF) << 24) | (0x01 << 16)
                     self._write(i, SI_POSITION, value)
                     done.append(f"{self._name(i)}: 60A8h = {value:08X}h ({1 / k:g} mm)")
-                elif self.has(i, SI_POSITION):
-                    raise UnitsMismatch(f"{self._name(i)}: increments_per_mm = {k:g} is not a power of ten, so no SI "
-                                        "unit (60A8h) expresses it; set the drive's unit on its own interface")
                 if self.has(i, FEED_CONSTANT, 1) and axis.feed_mm_per_rev > 0:
                     feed = round(k * axis.feed_mm_per_rev)
                     self._write(i, FEED_CONSTANT, feed, 1)

@@ -401,3 +401,33 @@ def test_speeds_and_accelerations_in_the_units_the_drive_reports(rig, velocity, 
     c.connect()
     assert c._kv == [kv, kv] and c._ka == [ka, ka]
     assert not any(c.units_problem)
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_units_refused_for_one_drive_are_written_to_neither(transport):
+    """'units' with a profile whose vertical feed constant (125 per mm) no SI unit 60A8h expresses: it
+    is refused, naming the drive, and nothing is written to either drive. The horizontal drive's 60A8h
+    and 6092h used to be written before the vertical one was refused: a pair left half converted."""
+    from lfstudio.resources import load_presets
+    from lfstudio.rig.profile import rig_from_dict
+
+    data = {k: (dict(v) if isinstance(v, dict) else v) for k, v in load_presets("rigs")[RIG_NAME].items()}
+    data["vertical"]["increments_per_mm"] = 125.0
+    rig = rig_from_dict("odd vertical units", data)
+    emulator = start_drive_emulator(rig, transport, time_scale=0.0, seed=2, setup=({"feed": 70}, {}))
+    link = None
+    try:
+        link = open_rig(emulator.word, rig, doing="test", lock=False, connect=False, timeout_s=0.5)
+        c = link.controller
+        c.connect()
+        assert c.units_problem[0] and c.units_problem[1]        # x counts mm; y's 60A8h says 0.01 mm
+        del emulator.pair.journal[:]
+        with pytest.raises(UnitsMismatch) as exc:
+            c.write_units()
+        assert emulator.pair.journal == []                       # not one write, to either drive
+        assert "drive y (vertical)" in str(exc.value) and "125" in str(exc.value)
+        assert "nothing was written" in str(exc.value)
+    finally:
+        if link is not None:
+            link.close()
+        emulator.close()
