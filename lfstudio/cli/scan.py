@@ -109,6 +109,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--blur-limit-px", metavar="PX", type=number_option(Number("px", 0, 100, low_open=True),
                                                                         "--blur-limit-px"), default=0.5,
                    help="the most motion blur a --fly frame may have at the near distance (default 0.5)")
+    p.add_argument("--keep-on-card", action="store_true",
+                   help="keep each picture on the camera's card and download it at the row changes and at the end "
+                        "instead of after every shot (gphoto2 cameras); a view is done once its file is on disk "
+                        "and verified; files a run left on the card are fetched when it resumes")
     p.add_argument("--check", action="store_true",
                    help="check each view as it arrives (lfstudio check's measurements, on a background thread the "
                         "scan never waits for) and name failing views at once; the full report: lfstudio check")
@@ -280,6 +284,7 @@ def run(args: argparse.Namespace) -> int:
                           retries=args.retries, time_scale=args.time_scale, exposure_s=args.exposure_s,
                           transfer_s=args.transfer_s, seed=args.seed, sim_width_px=args.sim_width_px,
                           camera_options=_camera_options(args), fly=args.fly, fly_speed_mm_s=args.fly_speed_mm_s,
+                          keep_on_card=args.keep_on_card,
                           blur_limit_px=args.blur_limit_px)
     request.engine_options["auto_resume"] = args.auto_resume
     unattended = _unattended(args)

@@ -192,6 +192,7 @@ class ViewFields(TypedDict, total=False):
     camera: dict[str, Any]                # the driver's record of the camera and its settings
     camera_settings: dict[str, Any]
     camera_frame: dict[str, Any]          # an array camera's frame: pixel format, bits, timestamps, frame id
+    on_card: list[str]                    # --keep-on-card: the shot's files still on the camera's card
     fly: dict[str, Any]                   # a fly scan's frame: recorded_mm, uncertainty_mm, offset_mm, speed
                                           # (or retaken: why the view was taken again standing still)
     devices: dict[str, Any] | None        # the devices that took it, when not the dataset's own

@@ -5,7 +5,7 @@ Beyond :class:`Camera`, a driver may offer capabilities, each a named interface 
 builds its controls from data), :class:`HasIdentity` (model, serial, lens as the camera reports
 them; the dataset records it), :class:`HasStatus`, :class:`Stoppable` (a capture under way cut
 short), :class:`HasCardSpace` (pictures kept on the camera's card), :class:`SimulatedScene`,
-:class:`TriggeredCamera` (takes a frame on a trigger, in order, without waiting for the previous
+:class:`CardBuffered` (keeps pictures on its card, downloaded later), :class:`TriggeredCamera` (takes a frame on a trigger, in order, without waiting for the previous
 frame's transfer: fly scanning).
 
 An **array camera** (:class:`ArrayCamera`: machine-vision cameras) hands each picture back as pixels
@@ -166,6 +166,18 @@ class TriggeredCamera(Protocol):
     def trigger(self) -> float: ...
     def fetch(self, stem_path: Path, timeout_s: float) -> CaptureResult: ...
     def disarm(self) -> None: ...
+
+
+@runtime_checkable
+class CardBuffered(Protocol):
+    """A camera that can keep its pictures on its card and download them later (``--keep-on-card``):
+    ``keep_on_card()`` makes captures stay there (returns where: the capture target); ``capture_to_card``
+    takes a picture and returns the paths of its files on the camera at once; ``download_from_card``
+    fetches them to ``stem_path`` + suffix (sizes checked) and deletes them there, as ``capture`` would."""
+
+    def keep_on_card(self) -> str: ...
+    def capture_to_card(self, stem_path: Path, on_exposed: Callable[[], None] | None = None) -> list[str]: ...
+    def download_from_card(self, camera_files: list[str], stem_path: Path) -> CaptureResult: ...
 
 
 @runtime_checkable

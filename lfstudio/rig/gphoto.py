@@ -32,6 +32,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+from types import SimpleNamespace
 import re
 import threading
 import time
@@ -591,69 +592,121 @@ class GPhotoCamera:
     def capture(self, stem_path: Path, on_exposed: Callable[[], None] | None = None) -> CaptureResult:
         """Take a picture; download its file(s) to ``stem_path`` + each file's suffix (see the module
         docstring); the main file (RAW when there is one) comes first in ``files``."""
-        gp = self.gp
-        camera = self._require()
-        stem_path = Path(stem_path)
         with self._lock:
             self._busy = True
             try:
                 t0 = self._clock()
-                log.debug("gphoto2: capture for %s", stem_path.name)
-                self._camera_said.clear()
-                try:
-                    first = camera.capture(gp.GP_CAPTURE_IMAGE, *self._ctx)
-                except gp.GPhoto2Error as exc:
-                    code = getattr(exc, "code", None)
-                    if code == -1 and self._store_full and not self._camera_said:
-                        # a full store answers the next captures with a bare PTP "Store Full" (-1 here)
-                        exc = _Code(-3)
-                    self._store_full = code == -3 or (code == -1 and self._store_full)
-                    raise self._failed(exc, "capture", t0) from None
-                self._store_full = False
-                t_exposed = self._clock()
-                if on_exposed is not None:
-                    on_exposed()
-                shot = [first, *self._files_added(camera, first)]
-                files: list[Path] = []
-                sizes: list[int] = []
-                for where in shot:
-                    suffix = os.path.splitext(where.name)[1].lower() or ".raw"
-                    dest = stem_path.with_name(stem_path.name + suffix)
-                    if dest in files:       # two files of one type: keep both
-                        dest = stem_path.with_name(f"{stem_path.name}_{len(files)}{suffix}")
-                    sizes.append(self._download(camera, where, dest))
-                    files.append(dest)
-                # the capture's main file first (a RAW: LibRaw reads it), its sidecars (JPEG ...) after
-                order = sorted(range(len(files)), key=lambda i: not images.is_raw(files[i]))
-                shot, files, sizes = [shot[i] for i in order], [files[i] for i in order], [sizes[i] for i in order]
-                if self.delete_from_camera:
-                    for where in shot:
-                        try:
-                            camera.file_delete(where.folder, where.name, *self._ctx)
-                        except gp.GPhoto2Error as exc:
-                            log.debug("gphoto2: deleting %s/%s: %s", where.folder, where.name, str(exc))  # RAM: gone
-                reported = self._reported_settings()
-                t_done = self._clock()
-                shutter_s = reported.get("shutter_s")
-                shutter_s = float(shutter_s) if isinstance(shutter_s, (int, float)) else None
-                call_s = t_exposed - t0
-                log.debug("gphoto2: %s -> %s (%s bytes, capture call %.2f s, transfer %.2f s)",
-                          ", ".join(f"{w.folder}/{w.name}" for w in shot), ", ".join(f.name for f in files),
-                          "+".join(map(str, sizes)), call_s, t_done - t_exposed)
-                self.shots += 1
-                self._message = ""
-                ident = {k: self._identity[k] for k in ("model", "serial", "lens") if self._identity.get(k)}
-                metadata = {"camera_files": [f"{w.folder}/{w.name}" for w in shot], "bytes": sizes,
-                            "model": self._identity.get("model", ""), "capture_call_s": call_s,
-                            "format": files[0].suffix[1:].upper(), "settings": reported}
-                if shutter_s is not None:
-                    metadata["shutter_s"] = shutter_s        # the scan records it as the view's exposure_s
-                return CaptureResult(files=tuple(files), trigger_s=max(0.0, call_s - (shutter_s or 0.0)),
-                                     exposure_s=shutter_s or 0.0, transfer_s=t_done - t_exposed,
-                                     metadata=metadata,
-                                     record={"camera": ident, "camera_settings": reported})
+                shot, t_exposed = self._shoot(stem_path, on_exposed, t0)
+                return self._fetch(shot, Path(stem_path), t0, t_exposed)
             finally:
                 self._busy = False
+
+    # -- the card as the buffer (lfstudio.rig.camera.CardBuffered) ------------------------------------
+    def keep_on_card(self) -> str:
+        """Pictures stay on the camera's card until :meth:`download_from_card` fetches them: the capture
+        target is set to the card where the body has one; returns where they go. Raises DeviceError
+        when the body can only keep them in its RAM."""
+        if "capturetarget" in self._widgets:
+            config = self._config("reading the capture target")
+            widget = config.get_child_by_name(self._widgets["capturetarget"])
+            card = [c for c in self._choices(widget) if "card" in _norm(c)]
+            if not card:
+                raise DeviceError(f"camera: {self._identity.get('model') or 'the camera'} cannot keep its pictures "
+                                  f"on a card (capture targets: {', '.join(self._choices(widget))})")
+            self.set_setting("capturetarget", card[0])
+            self.capture_target = card[0]
+            return card[0]
+        return "its storage"       # a body without the setting (libgphoto2's virtual camera): its store
+
+    def capture_to_card(self, stem_path: Path, on_exposed: Callable[[], None] | None = None) -> list[str]:
+        """Take a picture and leave its file(s) on the card; their paths on the camera."""
+        with self._lock:
+            self._busy = True
+            try:
+                shot, _ = self._shoot(stem_path, on_exposed, self._clock())
+                self.shots += 1
+                return [f"{w.folder}/{w.name}" for w in shot]
+            finally:
+                self._busy = False
+
+    def download_from_card(self, camera_files: list[str], stem_path: Path) -> CaptureResult:
+        """Download the files :meth:`capture_to_card` left on the card (size checked), then delete them there."""
+        with self._lock:
+            self._busy = True
+            try:
+                shot: list[Any] = []
+                for text in camera_files:
+                    folder, _, name = str(text).rpartition("/")
+                    shot.append(SimpleNamespace(folder=folder or "/", name=name))   # as a CameraFilePath
+                t0 = self._clock()
+                self.shots -= 1                       # _fetch counts the shot; capture_to_card did
+                return self._fetch(shot, Path(stem_path), t0, t0)
+            finally:
+                self._busy = False
+
+    def _shoot(self, stem_path: Path, on_exposed: Callable[[], None] | None, t0: float) -> tuple[list[Any], float]:
+        """The capture: the files it added on the camera, and when it was exposed."""
+        gp = self.gp
+        camera = self._require()
+        log.debug("gphoto2: capture for %s", Path(stem_path).name)
+        self._camera_said.clear()
+        try:
+            first = camera.capture(gp.GP_CAPTURE_IMAGE, *self._ctx)
+        except gp.GPhoto2Error as exc:
+            code = getattr(exc, "code", None)
+            if code == -1 and self._store_full and not self._camera_said:
+                # a full store answers the next captures with a bare PTP "Store Full" (-1 here)
+                exc = _Code(-3)
+            self._store_full = code == -3 or (code == -1 and self._store_full)
+            raise self._failed(exc, "capture", t0) from None
+        self._store_full = False
+        t_exposed = self._clock()
+        if on_exposed is not None:
+            on_exposed()
+        return [first, *self._files_added(camera, first)], t_exposed
+
+    def _fetch(self, shot: list[Any], stem_path: Path, t0: float, t_exposed: float) -> CaptureResult:
+        """Download ``shot``'s files to ``stem_path`` + suffix, delete them on the camera (when asked)."""
+        gp = self.gp
+        camera = self._require()
+        files: list[Path] = []
+        sizes: list[int] = []
+        for where in shot:
+            suffix = os.path.splitext(where.name)[1].lower() or ".raw"
+            dest = stem_path.with_name(stem_path.name + suffix)
+            if dest in files:       # two files of one type: keep both
+                dest = stem_path.with_name(f"{stem_path.name}_{len(files)}{suffix}")
+            sizes.append(self._download(camera, where, dest))
+            files.append(dest)
+        # the capture's main file first (a RAW: LibRaw reads it), its sidecars (JPEG ...) after
+        order = sorted(range(len(files)), key=lambda i: not images.is_raw(files[i]))
+        shot, files, sizes = [shot[i] for i in order], [files[i] for i in order], [sizes[i] for i in order]
+        if self.delete_from_camera:
+            for where in shot:
+                try:
+                    camera.file_delete(where.folder, where.name, *self._ctx)
+                except gp.GPhoto2Error as exc:
+                    log.debug("gphoto2: deleting %s/%s: %s", where.folder, where.name, str(exc))  # RAM: gone
+        reported = self._reported_settings()
+        t_done = self._clock()
+        shutter_s = reported.get("shutter_s")
+        shutter_s = float(shutter_s) if isinstance(shutter_s, (int, float)) else None
+        call_s = t_exposed - t0
+        log.debug("gphoto2: %s -> %s (%s bytes, capture call %.2f s, transfer %.2f s)",
+                  ", ".join(f"{w.folder}/{w.name}" for w in shot), ", ".join(f.name for f in files),
+                  "+".join(map(str, sizes)), call_s, t_done - t_exposed)
+        self.shots += 1
+        self._message = ""
+        ident = {k: self._identity[k] for k in ("model", "serial", "lens") if self._identity.get(k)}
+        metadata = {"camera_files": [f"{w.folder}/{w.name}" for w in shot], "bytes": sizes,
+                    "model": self._identity.get("model", ""), "capture_call_s": call_s,
+                    "format": files[0].suffix[1:].upper(), "settings": reported}
+        if shutter_s is not None:
+            metadata["shutter_s"] = shutter_s        # the scan records it as the view's exposure_s
+        return CaptureResult(files=tuple(files), trigger_s=max(0.0, call_s - (shutter_s or 0.0)),
+                             exposure_s=shutter_s or 0.0, transfer_s=t_done - t_exposed,
+                             metadata=metadata,
+                             record={"camera": ident, "camera_settings": reported})
 
     def preview(self) -> np.ndarray | None:
         """A live-view frame (RGB uint8) or None if the body has no live view over USB."""

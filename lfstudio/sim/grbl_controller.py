@@ -697,7 +697,7 @@ class GrblSimulator:
         try:
             self._advance_motion(instant)
         finally:
-            w = self._wpos()
+            w = self._phys - self._offset - self._g54 - self._g92     # the carriage itself, not its step count
             self._history.append((self._last_tick, float(w[self._ix[0]] + self._error_mm[0]),
                                   float(w[self._ix[1]] + self._error_mm[1])))
 

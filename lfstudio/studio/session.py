@@ -474,6 +474,8 @@ class ScanRequest:
     keep_drive_reference: bool = False
     #: fly scanning (lfstudio.scan.fly): rows at constant speed, a triggered frame per view
     fly: bool = False
+    #: --keep-on-card (lfstudio.scan.card): pictures stay on the camera's card, downloaded at row changes
+    keep_on_card: bool = False
     fly_speed_mm_s: float | None = None
     blur_limit_px: float = 0.5
 
@@ -649,6 +651,17 @@ class ScanSession:
             self.note("the simulated rig was homed when it started")
         check_plan_on_controller(rig, plan)
         fly = self._decide_fly(rig, camera, plan, scene, config) if req.fly else None
+        if req.keep_on_card:
+            from lfstudio.errors import words
+            from lfstudio.scan.card import card_problem
+
+            problem = card_problem(camera)
+            card_words = words("--keep-on-card", "Keep pictures on the camera's card")
+            if problem is not None:
+                raise InputError(card_words, problem, "a gphoto2 camera, or leave it out")
+            if req.fly:
+                raise InputError(card_words, "a fly scan takes its frames from a camera with triggers, not from "
+                                 "a card", "one of the two")
         if existing is None and plan.bracket is not None:       # refused before the dataset is made
             self._check_bracket(plan.bracket, camera)
         self._check_space(plan.with_subset(req.recapture) if req.recapture else plan, camera, scene, existing)
@@ -682,8 +695,13 @@ class ScanSession:
                                         recapture=bool(req.recapture), speed_mm_s=fly["speed_mm_s"],
                                         **req.engine_options)
             return self.engine
-        self.engine = ScanEngine(dataset, plan, rig, camera, retries=req.retries,
-                                 time_scale=req.time_scale, recapture=bool(req.recapture), **req.engine_options)
+        engine_class: Any = ScanEngine
+        if req.keep_on_card:
+            from lfstudio.scan.card import CardBufferEngine
+
+            engine_class = CardBufferEngine
+        self.engine = engine_class(dataset, plan, rig, camera, retries=req.retries,
+                                   time_scale=req.time_scale, recapture=bool(req.recapture), **req.engine_options)
         return self.engine
 
     def _decide_fly(self, rig: Any, camera: Any, plan: ScanPlan, scene: Any, config: RigConfig) -> dict[str, Any]:

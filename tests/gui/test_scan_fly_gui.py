@@ -34,3 +34,16 @@ def test_continuous_motion_is_locked_while_a_scan_runs(qtbot, tmp_path, instant_
     assert not panel.fly.isEnabled()
     qtbot.waitUntil(lambda: "Finished" in panel.state_label.text(), timeout=30000)
     qtbot.waitUntil(panel.fly.isEnabled, timeout=10000)      # the choice is the operator's again
+
+
+def test_keep_on_card_reaches_the_session_and_its_refusal_names_the_control(qtbot, tmp_path, instant_devices):
+    devices, rig, cam = instant_devices
+    state, panel = scan_panel(qtbot, devices, 4, 2, tmp_path / "card")
+    panel.time_scale.setValue(0.0)
+    panel.keep_on_card.setChecked(True)
+    errors = []
+    state.errorOccurred.connect(lambda title, message: errors.append(message))
+    qtbot.mouseClick(panel.start_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: bool(errors), timeout=20000)
+    assert "Keep pictures on the camera's card" in errors[-1] and "--keep-on-card" not in errors[-1]
+    assert not (tmp_path / "card" / "dataset.json").exists()

@@ -146,7 +146,7 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
                           time_scale=job["time_scale"], home=job.get("home", False),
                           engine_options=dict(job.get("engine_options") or {}),
                           trust_rig_position=job.get("trust_rig_position", False), fly=job.get("fly", False),
-                          blur_limit_px=job.get("blur_limit_px", 0.5))
+                          keep_on_card=job.get("keep_on_card", False), blur_limit_px=job.get("blur_limit_px", 0.5))
     session = ScanSession(request, doing="scanning", devices=devices)
     scene = job["scene"]
     try:
@@ -294,6 +294,13 @@ class ScanPanel(QWidget):
                             "its position (the Start button says why not). Views whose frame came late are taken "
                             "again standing still")
         form.addRow(self.fly)
+        self.keep_on_card = QCheckBox("Keep pictures on the camera's card")
+        self.keep_on_card.setObjectName("scanKeepOnCard")
+        self.keep_on_card.setToolTip("USB cameras (gphoto2): each picture stays on the camera's card and is "
+                                     "downloaded while the rig changes rows and at the end, instead of after every "
+                                     "shot; a view counts as done once its file is on this computer and verified. "
+                                     "Pictures a stopped scan left on the card are fetched when it resumes")
+        form.addRow(self.keep_on_card)
         self.from_plan = QPushButton("Take grid from the plan")
         self.from_plan.setObjectName("fromPlanButton")
         self.from_plan.setToolTip("Copy grid, spacing and settle time from the Planner's current plan")
@@ -614,7 +621,7 @@ class ScanPanel(QWidget):
                    studio=self.studio, time_scale=self.time_scale.value() if self.state.simulated else 1.0,
                    exposure_s=getattr(scene, "exposure_s", 0.5), transfer_s=getattr(scene, "transfer_s", 2.5),
                    allow_device_change=allow_device_change, home=home, trust_rig_position=trust_rig_position,
-                   fly=self.fly.isChecked(), blur_limit_px=float(getattr(scene, "blur_limit_px", 0.5)))
+                   fly=self.fly.isChecked(), keep_on_card=self.keep_on_card.isChecked(), blur_limit_px=float(getattr(scene, "blur_limit_px", 0.5)))
         if not shared and self.studio is None:
             self._log("starting the simulated studio (GRBL simulator on a pseudo-terminal, simulated camera)…")
             self.state_label.setText("Connecting the simulated rig and camera…")
@@ -1136,7 +1143,7 @@ class ScanPanel(QWidget):
         self.abort_button.setEnabled(st in (ScanState.RUNNING, ScanState.PAUSING, ScanState.PAUSED))
         self.skip_button.setEnabled(st is ScanState.PAUSED and self.engine is not None and self.engine.fault is not None)
         for w in (self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v,
-                  self.order, self.settle, self.bracket, self.fly, self.folder, self.from_plan, self.time_scale):
+                  self.order, self.settle, self.bracket, self.fly, self.keep_on_card, self.folder, self.from_plan, self.time_scale):
             w.setEnabled(not running)
         self.bracket.setToolTip(BRACKET_FIXED_TIP if running else _tip("bracket"))
         for name, button in (("start", self.start_button), ("pause", self.pause_button),   # Rig → … scan

@@ -1,0 +1,147 @@
+"""The camera's card as the buffer (``lfstudio scan --keep-on-card``): capture without waiting for the
+download; fetch the files during the row changes and at the end.
+
+:class:`CardBufferEngine` is the scan engine (:class:`lfstudio.scan.engine.ScanEngine`) with a camera
+that keeps its pictures on its card (:class:`lfstudio.rig.camera.CardBuffered`, e.g. gphoto2 bodies
+whose capture target can be the card). Per view: move, settle, ``capture_to_card`` (returns once the
+picture is on the card), and the paths of its files on the camera are journaled at once (the view's
+``on_card``; it is not done yet). When the next view is on another row (the rig moves to it meanwhile),
+at a pause, an abort and at the end, the files of every view taken since are downloaded on the camera's
+worker (``download_from_card``: size checked, deleted on the card) and the store stage checksums and
+journals each view as usual: a view is done only when its file is on disk and verified. A download
+that fails makes the store take the view again. A run that ended before its downloads (kill -9, a
+pulled cable) leaves ``on_card`` in the journal: the next run with ``--keep-on-card`` fetches those
+files first, and takes again the views whose files are no longer there.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from concurrent.futures import Future
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from lfstudio.dataset.manifest import is_finished
+from lfstudio.dataset.paths import view_label, view_stem
+from lfstudio.rig.camera import CardBuffered
+from lfstudio.scan.engine import ScanEngine
+from lfstudio.scan.events import EventKind
+from lfstudio.scan.faults import error_text
+from lfstudio.scan.scan_plan import PlannedView
+from lfstudio.scan.store import StoreJob
+
+log = logging.getLogger(__name__)
+
+
+def card_problem(camera: Any) -> str | None:
+    """Why ``camera`` (a driver or its worker) cannot keep its pictures on its card, or None."""
+    driver = getattr(camera, "driver", camera)
+    if isinstance(driver, CardBuffered):
+        return None
+    return (f"the camera ({getattr(driver, 'name', type(driver).__name__)}) cannot keep its pictures on its card "
+            "and download them later (gphoto2 cameras can)")
+
+
+class _OnCard(Future):
+    """A view's capture: ``done()`` as soon as its files are on the card (the camera may take the next
+    picture), its result (the downloaded files) once they are downloaded."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.on_card = True
+
+    def done(self) -> bool:
+        return self.on_card or super().done()
+
+
+class CardBufferEngine(ScanEngine):
+    """See the module docstring."""
+
+    def __init__(self, *args: Any, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        self._on_card: list[tuple[PlannedView, _OnCard, list[str], Path]] = []
+        self._card_ready = False
+        self.fetched_on_resume = 0
+        self.downloads = 0
+
+    def _loop(self) -> None:
+        if not self._card_ready:
+            self._card_ready = True
+            where = self._camera_call("keep_on_card", timeout_s=30)
+            self._emit(EventKind.LOG, f"pictures stay on the camera's card ({where}); downloaded at the row "
+                                      "changes and at the end")
+            self._fetch_left_on_card()
+        super()._loop()
+
+    def _fetch_left_on_card(self) -> None:
+        """Views an earlier run left on the card (journaled, never downloaded): fetched first."""
+        for record in list(self.dataset.views):
+            files = record.get("on_card")
+            if not files or is_finished(record):
+                continue
+            cell = (record["row"], record["column"])
+            view = next((v for v in self._queue if v.cell == cell), None)
+            if view is None:
+                continue
+            stem = self.dataset.root / "raw" / view_stem(*cell)
+            try:
+                result = self._camera_call("download_from_card", list(files), stem,
+                                           timeout_s=self.capture_call_timeout_s() + 60)
+            except Exception as exc:
+                self._emit(EventKind.LOG, f"view {view_label(*cell)}: its files on the card could not be fetched "
+                                          f"({error_text(exc)}); taken again")
+                continue
+            self._queue.remove(view)
+            done: Future = Future()
+            done.set_result(replace(result, record={**(result.record or {}), "on_card": []}))
+            self.store.submit(StoreJob(view, 1, done, time.monotonic(), None, {"fetched_on_resume": 1.0}))
+            self.fetched_on_resume += 1
+            self._emit(EventKind.LOG, f"view {view_label(*cell)}: fetched from the card, where the last run left it")
+
+    def _expose(self, view: PlannedView, attempt: int, stem: Path) -> Future:
+        exposed = threading.Event()
+
+        def on_exposed(*_: Any) -> None:
+            exposed.set()
+            self._wake()
+
+        fut = self._camera_submit("capture_to_card", stem, on_exposed=on_exposed,
+                                  timeout_s=self.capture_call_timeout_s())
+        self._await(fut)
+        files = fut.result()                   # a failed capture raises here: retried as any capture
+        self.dataset.record_view(view.row, view.column, on_card=list(files))   # durable before anything else
+        pending = _OnCard()
+        self._on_card.append((view, pending, list(files), Path(stem)))
+        return pending
+
+    def _next_view(self) -> PlannedView | None:
+        view = super()._next_view()
+        if self._on_card and (view is None or view.row != self._on_card[-1][0].row):
+            self._download_all()               # the rig moves to the next row meanwhile
+        return view
+
+    def _drain_store(self) -> None:
+        self._download_all()                   # a pause, an abort, the end: nothing stays behind on the card
+        super()._drain_store()
+
+    def _download_all(self) -> None:
+        pending, self._on_card = self._on_card, []
+        for view, out, files, stem in pending:
+            real = self._camera_submit("download_from_card", files, stem,
+                                       timeout_s=self.capture_call_timeout_s() + 60)
+            self.downloads += 1
+
+            def chain(f: Future, out: _OnCard = out) -> None:
+                try:
+                    result = f.result()
+                except BaseException as exc:  # noqa: BLE001 - the store takes the view again
+                    out.on_card = False
+                    out.set_exception(exc)
+                    return
+                out.on_card = False
+                out.set_result(replace(result, record={**(result.record or {}), "on_card": []}))
+
+            real.add_done_callback(chain)
