@@ -142,6 +142,13 @@ class HasCardSpace(Protocol):
 
 
 @runtime_checkable
+class Paced(Protocol):
+    """A simulated camera whose delays are scaled (``time_scale``: 1 real time, 0 none)."""
+
+    time_scale: float
+
+
+@runtime_checkable
 class SimulatedScene(Protocol):
     def set_view_region(self, view_region_mm: tuple[float, ...]) -> None: ...
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import MISSING, dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Callable, Protocol, runtime_checkable
 
 from lfstudio.errors import InputError
 from lfstudio.numbers import Number, described
@@ -170,6 +170,16 @@ class SoftLimitError(InputError):
     """A target outside the rig's soft limits; nothing was sent to the controller."""
 
     kind = "soft-limit"
+
+
+@runtime_checkable
+class ReportsProgress(Protocol):
+    """A controller that says what each axis is doing while it homes (the CiA 402 drive pair):
+    ``progress`` is called with one line at a time (None: nobody listens)."""
+
+    progress: Callable[[str], None] | None
+
+    def home(self) -> None: ...
 
 
 @runtime_checkable

@@ -66,7 +66,7 @@ from lfstudio.dataset.storage import storage_error
 from lfstudio.dataset.store import clean_temporary_files, free_bytes
 from lfstudio.errors import DeviceError, DeviceRefused, DeviceTimeout, InputError, LfError, words
 from lfstudio.numbers import RETRIES, TIME_SCALE, TIMEOUT_S, Number, non_finite_fields
-from lfstudio.rig.camera import DescribesSettings, HasStatus, supports_on_exposed
+from lfstudio.rig.camera import DescribesSettings, HasStatus, Paced, supports_on_exposed
 from lfstudio.rig.motion import RigState
 from lfstudio.rig.worker import CallTimedOut, DeviceWorker, Lease
 from lfstudio.scan.events import (OWNS_RIG, TERMINAL, TRANSITIONS, EventKind, ScanEvent, ScanRequestRefused,
@@ -989,7 +989,8 @@ class ScanEngine:
             exposure = max([1.0 if exposure is None else exposure, *(self.frame_shutter_s or ())])   # a bracket's longest
             transfer = _valid(Number(), transfer)
             transfer = TRANSFER_ALLOWANCE_S if transfer is None else transfer
-            scale = _valid(Number(low=0), getattr(self.camera.driver, "time_scale", 1.0))   # a simulated camera's pace
+            driver = self.camera.driver
+            scale = _valid(Number(low=0), driver.time_scale if isinstance(driver, Paced) else 1.0)   # a simulation's pace
             scale = 1.0 if scale is None else min(1.0, scale)
             timeout = self._capture_timeout = min(self.capture_timeout_s, 2 * (exposure + transfer) * scale + 10.0)
             log.info("capture timeout %.1f s (exposure %g s, transfer %g s)", timeout, exposure, transfer)

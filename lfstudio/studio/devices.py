@@ -651,16 +651,17 @@ def _home_telling(controller: Any, say: Callable[[str], None] | None) -> None:
     if say is None:
         controller.home()
         return
+    from lfstudio.rig.motion import ReportsProgress
+
     started = time.monotonic()
-    if not hasattr(controller, "progress"):          # a GRBL controller homes its axes in one command
+    if not isinstance(controller, ReportsProgress):   # a GRBL controller homes its axes in one command
         say("homing the simulated rig (it drives to its limit switches) …")
-    previous = getattr(controller, "progress", None)
-    if hasattr(controller, "progress"):
-        controller.progress = say
-    try:
         controller.home()
-    finally:
-        if hasattr(controller, "progress"):
+    else:
+        previous, controller.progress = controller.progress, say
+        try:
+            controller.home()
+        finally:
             controller.progress = previous
     say(f"rig homed ({time.monotonic() - started:.0f} s)")
 
