@@ -143,6 +143,10 @@ def main() -> int:
         import shutil
 
         shutil.rmtree(root, ignore_errors=True)
+    if not flown:
+        print(f"FAILED: no view was taken on the fly ({engine.rows_flown} rows flown, {engine.retaken} views taken "
+              "again standing still): no blur or position figure of a fly scan", file=sys.stderr)
+        return 1
     return 0
 
 
