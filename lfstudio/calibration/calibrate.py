@@ -83,7 +83,7 @@ def shear_remover(dataset, views: Sequence[tuple[int, int]], image_size: Sequenc
                 f"({words('--zero-disparity-depth-m', 'Zero disparity: at a depth')}). Without it: "
                 f"{WORKS_WITHOUT_PLANE}")
         shear = assumed * float(image_size[0]) / float(zp.width_px or image_size[0])
-    recorded = bool((dataset.manifest.get("import") or {}).get("positions"))
+    recorded = dataset.positions_recorded
 
     def where(v):
         rec = dataset.view(*v)
@@ -125,16 +125,17 @@ def assumed_shear(dataset) -> float | None:
 def recorded_positions(dataset, views: Sequence[tuple[int, int]]) -> dict[tuple[int, int], np.ndarray] | None:
     """Each view's position as the rig recorded it (``import-images --positions``: the views'
     ``reported_mm`` in the dataset's frame, x along the columns, y along the rows), or None when the
-    dataset has no recorded positions (a scan, an import on a regular grid). A view of a dataset with
+    dataset has no recorded positions (a step scan, an import on a regular grid; a fly scan has them). A view of a dataset with
     recorded positions that lacks one is refused by name."""
-    if not (dataset.manifest.get("import") or {}).get("positions"):
+    if not dataset.positions_recorded:
         return None
     out = {}
     for v in views:
         rec = dataset.view(*v).get("reported_mm")
         if not (isinstance(rec, (list, tuple)) and len(rec) == 2):
             raise CalibrationError(f"{view_stem(*v)} has no recorded position although {dataset.root.name} was "
-                                   "imported with --positions; import it again with a position for every view")
+                                   "imported with --positions or fly-scanned; import it again with a position for "
+                                   "every view, or scan that view again")
         out[tuple(v)] = np.asarray(rec, float)
     return out
 

@@ -769,6 +769,14 @@ class Dataset:
         return cached[1]
 
     @property
+    def positions_recorded(self) -> bool:
+        """True when each view's ``reported_mm`` is where it was really taken and the stages use it
+        instead of the grid: an import with recorded positions, or a fly scan (``acquisition``)."""
+        if (self.manifest.get("import") or {}).get("positions"):
+            return True
+        return (self.manifest.get("acquisition") or {}).get("positions") == "recorded"
+
+    @property
     def camera(self) -> dict[str, Any]:
         return self.manifest["camera"]
 

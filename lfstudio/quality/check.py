@@ -86,7 +86,7 @@ class Geometry:
         spacing = grid.step_mm
         origin = (ds.manifest.get("rig") or {}).get("origin_mm") or (0.0, 0.0)
         commanded: dict[Cell, tuple[float, float]] = {}
-        recorded = bool((ds.manifest.get("import") or {}).get("positions"))
+        recorded = ds.positions_recorded        # an import's recorded positions, a fly scan's
         for v in ds.views:
             cell = (int(v["row"]), int(v["column"]))
             cmd = (v.get("reported_mm") if recorded else None) or v.get("commanded_mm")

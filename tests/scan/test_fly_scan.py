@@ -153,6 +153,14 @@ def test_cli_fly_scan(tmp_path):
     assert "fly scan: rows at" in out.stderr and "binds" in out.stderr
     ds = Dataset.open(tmp_path / "ds")
     assert ds.manifest["acquisition"]["mode"] == "fly" and ds.status_counts()["done"] == 8
+    # calibration and check take each view where it was really taken, as for an import with positions
+    from lfstudio.calibration.calibrate import recorded_positions
+
+    assert ds.positions_recorded
+    cells = [(v["row"], v["column"]) for v in ds.views]
+    where = recorded_positions(ds, cells)
+    assert where is not None
+    assert all(list(where[c]) == ds.view(*c)["reported_mm"] for c in cells)
 
 
 def test_cli_refuses_a_camera_without_triggers(tmp_path):
