@@ -54,7 +54,8 @@ _HEAVY_FILES = ("tests/calibration/test_simulate.py", "tests/calibration/test_un
                 "tests/export/test_hci_import.py", "tests/depth/test_dense.py", "tests/quality/test_check.py",
                 "tests/quality/test_bracket_check.py", "tests/quality/test_live.py",
                 "tests/processing/test_output_size_path.py", "tests/processing/test_virtual_studio.py",
-                "tests/processing/test_pipeline.py", "tests/sim/test_virtual_dataset.py")
+                "tests/processing/test_pipeline.py", "tests/sim/test_virtual_dataset.py", "tests/depth/test_points.py",
+                "tests/depth/test_depth_range.py", "tests/export/test_posed_exports.py")
 _FULL_FILES = _TOOL_TESTS + _HEAVY_FILES
 #: fixtures that start another process, a Qt loop, a firmware or an emulator
 _FULL_FIXTURES = frozenset({"qtbot", "qapp", "run_cli", "start_cli", "sim_rig_port", "vcamera", "grbl_firmware",
@@ -109,6 +110,7 @@ def _isolated_config(tmp_path_factory, monkeypatch):
     """Every test gets its own user config folder (QSettings, presets) and log folder."""
     monkeypatch.setenv("LFSTUDIO_CONFIG_DIR", str(tmp_path_factory.mktemp("config")))
     monkeypatch.setenv("LFSTUDIO_LOG_DIR", str(tmp_path_factory.mktemp("logs")))
+    monkeypatch.setenv("LFSTUDIO_DOCS_SITE", "")      # F1 shows the in-app guide, even where docs/_build exists
 
 
 @pytest.fixture

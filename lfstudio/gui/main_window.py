@@ -18,9 +18,10 @@ import importlib
 import logging
 from typing import Any
 
-from PySide6.QtCore import QEvent, QSize, Qt, QTimer
-from PySide6.QtGui import QAction, QGuiApplication, QKeySequence
-from PySide6.QtWidgets import (QDockWidget, QFrame, QLabel, QMainWindow, QMenu, QMessageBox, QScrollArea, QTabBar, QToolBar,
+from PySide6.QtCore import QEvent, QSize, Qt, QTimer, QUrl
+from PySide6.QtGui import QAction, QDesktopServices, QGuiApplication, QKeySequence
+from PySide6.QtWidgets import (QApplication, QDockWidget, QFrame, QLabel, QMainWindow, QMenu, QMessageBox, QScrollArea,
+                               QTabBar, QToolBar,
                                QWidget)
 
 from lfstudio.errors import LfError, window_message
@@ -379,7 +380,7 @@ class MainWindow(QMainWindow):
         guide.setObjectName("actionUserGuide")
         guide.setShortcut(QKeySequence.StandardKey.HelpContents)
         guide.setToolTip("Read the user guide (planning, rig, cameras, scanning, calibration, processing)")
-        guide.triggered.connect(self.show_user_guide)
+        guide.triggered.connect(lambda: self.show_user_guide(self.help_topic()))
         logs = QAction("Show &log folder", self)
         logs.setObjectName("actionShowLogFolder")
         logs.setToolTip("Open the folder with lfstudio's log files (send them with a problem report)")
@@ -512,9 +513,26 @@ class MainWindow(QMainWindow):
         dialog.open()
         return dialog
 
-    def show_user_guide(self):
-        from lfstudio.gui.dialogs.help_dialogs import UserGuideDialog
+    def help_topic(self) -> str | None:
+        """The panel the keyboard focus is in (its dock's object name), or None."""
+        widget = QApplication.focusWidget()
+        while widget is not None:
+            if isinstance(widget, QDockWidget) and widget.objectName() in self.docks:
+                return widget.objectName()
+            widget = widget.parentWidget()
+        return None
 
+    def show_user_guide(self, topic: str | None = None):
+        """The documentation site's page for ``topic`` (a panel) in the browser when the site is built and
+        shipped (:func:`lfstudio.support.userguide.site_page`; returns None), else the in-app user guide
+        (returns the dialog)."""
+        from lfstudio.gui.dialogs.help_dialogs import UserGuideDialog
+        from lfstudio.support.userguide import site_page
+
+        page = site_page(topic)
+        if page is not None and QDesktopServices.openUrl(QUrl.fromLocalFile(str(page))):
+            self.statusBar().showMessage(f"User guide: {page} opened in the browser", 10000)
+            return None
         dialog = UserGuideDialog(self)
         dialog.show()
         return dialog

@@ -7,6 +7,7 @@ package's long description read back from the installed metadata.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 PROJECT_URL = "https://github.com/lfstudio/lfstudio#user-guide"
@@ -62,3 +63,34 @@ def user_guide_markdown() -> str:
                                         "When something goes wrong")]
     parts = [p for p in parts if p]
     return "\n\n".join(parts) if parts else text
+
+
+#: the documentation site's page for each panel (its dock's object name): Help → User guide (F1) opens it
+SITE_PAGES = {"plannerDock": "how-to/plan.html", "planPlotsDock": "how-to/plan.html", "rigDock": "how-to/rig.html",
+              "cameraDock": "how-to/cameras.html", "liveViewDock": "how-to/cameras.html", "scanPanel": "how-to/scan.html",
+              "calibrationPanel": "how-to/calibrate.html", "processingPanel": "how-to/process.html"}
+
+
+def site_dir() -> Path | None:
+    """The built documentation site (the folder of its ``index.html``), or None: ``docs/_build/html``
+    beside the resources folder (a checkout after ``tools/docs.sh``, a bundle built after it), or the
+    folder ``LFSTUDIO_DOCS_SITE`` names (set and empty: no site)."""
+    named = os.environ.get("LFSTUDIO_DOCS_SITE")
+    if named is not None:
+        folder = Path(named) if named else None
+    else:
+        from lfstudio.resources import RESOURCES_DIR
+
+        folder = RESOURCES_DIR.parent / "docs" / "_build" / "html"
+    return folder if folder is not None and (folder / "index.html").is_file() else None
+
+
+def site_page(topic: str | None = None) -> Path | None:
+    """The built site's page for ``topic`` (a panel's dock name, :data:`SITE_PAGES`; its start page for
+    any other), or None when the site is not built and shipped (the in-app guide then shows
+    :func:`user_guide_markdown`)."""
+    site = site_dir()
+    if site is None:
+        return None
+    page = site / SITE_PAGES.get(topic or "", "index.html")
+    return page if page.is_file() else site / "index.html"
