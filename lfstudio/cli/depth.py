@@ -7,7 +7,7 @@ import sys
 from lfstudio.cli.args import number_option, path_option
 from lfstudio.numbers import WORKERS, Number
 
-HELP = "estimate each view's disparity, depth and confidence from its neighbours (multi-baseline; resumable)"
+HELP = "estimate each view's disparity, depth and confidence from its 2-D neighbourhood (resumable)"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -22,7 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "--disparity-range=-3.5,3 when MIN is negative); default: the HCI folder's disp_min/disp_max, "
                         "the scene plan, else the tracks of the check or the import (printed with its origin)")
     p.add_argument("--steps", metavar="H,V", default=None,
-                   help="neighbours on each side along the row and the column (default 4,2)")
+                   help="the neighbourhood: views up to H columns and V rows away, along the view's row, column and "
+                        "diagonals (default 4,4)")
     p.add_argument("--cluster", metavar="ADDR",
                    help="Dask scheduler address, e.g. tcp://10.0.0.5:8786 (workers must see the dataset folder at "
                         "the same path); default: a local process pool")
@@ -44,9 +45,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--workers", "cannot be combined with --cluster (the cluster has its own workers)")
     settings = DepthSettings()
     if args.steps:
-        h, v = parse_numbers("--steps", args.steps, Number("", 0, 50, integer=True), 2, "4,2")
+        h, v = parse_numbers("--steps", args.steps, Number("", 0, 50, integer=True), 2, "4,4")
         if h + v < 1:
-            raise InputError("--steps", "needs at least one neighbour", "e.g. 4,2")
+            raise InputError("--steps", "needs at least one neighbour", "e.g. 4,4")
         settings = DepthSettings(steps_h=int(h), steps_v=int(v))
     stated = parse_disparity_range("--disparity-range", args.disparity_range) if args.disparity_range else None
     from lfstudio.dataset import Dataset

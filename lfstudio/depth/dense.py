@@ -1,26 +1,43 @@
-"""Dense per-view disparity from the light field: a multi-baseline plane sweep over the neighbours
-in the view's row and column, with a confidence map; and OpenCV's single-pair semi-global matcher,
-the baseline it is measured against (``benchmarks/depth_points.py``).
+"""Dense per-view disparity from the light field: a plane sweep over the view's 2-D neighbourhood
+(near and far baselines, every direction), occlusion-aware half-plane costs, semi-global
+aggregation, sub-pixel refinement, depth edges snapped to the surface each pixel matches, and a
+confidence map; and OpenCV's single-pair semi-global matcher, the baseline it is measured against
+(``benchmarks/depth_points.py``, ``benchmarks/hci_depth.py``).
 
 **Unit**: disparity in **pixels between horizontal neighbours** of the (rectified) views at the
 reference image's size — the HCI convention: a point at depth Z has ``d = f · spacing_x / (1000 · Z)``
 (zero at infinity; a sheared archive's views add their zero-disparity plane, see
 :func:`lfstudio.depth.run.depth_from_disparity`).
 
-**Multi-baseline cost** (Okutomi & Kanade's sum of SSDs over inverse depth, with Kang, Szeliski and
-Chai's occlusion handling): for each candidate ``d`` every neighbour at grid offset ``(dx, dy)``
-(in horizontal spacings: a neighbour 6 mm below with 4 mm columns is dy = 1.5) is sampled where a
-point of disparity ``d`` lies, ``(u − d·dx, v − d·dy)`` (the camera moving right moves the image
-left); absolute differences of the grey images (gamma-encoded, with the x and y gradients) are
-summed per side — left, right, up, down — and averaged over a square window. A point hidden from
-one side is seen from the other, so the cost is ``min(left, right) + min(up, down)`` (a missing side
-leaves its pair to the other one). Candidates are spaced so that the farthest neighbour moves by at
-most :data:`SWEEP_STEP_PX` between them; the best is refined to sub-pixel by a parabola through its
-neighbours' costs (equiangular fit). The whole sweep streams: no cost volume is kept (memory: a few images).
+**Cost** (the multi-baseline sum of Okutomi & Kanade over inverse depth, with the occlusion handling
+of Kang, Szeliski & Chai): the grey images are contrast-normalised (:func:`_normalised`: dark and
+faint texture weighs like bright texture). For each candidate ``d`` every neighbour at grid offset
+``(dx, dy)`` (in horizontal spacings: a neighbour 6 mm below with 4 mm columns is dy = 1.5) is
+sampled where a point of disparity ``d`` lies, ``(u − d·dx, v − d·dy)`` (the camera moving right
+moves the image left); the absolute differences, truncated at :data:`TRUNCATE`, are averaged over a
+small window per **half-plane** of views (left, right, up, down: a diagonal view counts in two),
+counting only samples inside the neighbour. A point hidden from one side is seen from the others,
+so the cost is the mean of the best :data:`BEST_OF` half-planes' (two of four: one occluded side
+is left out, and the noise of a single side is halved). An edge or corner view simply has fewer
+half-planes; a pixel no view of a half-plane sees leaves it out.
 
-**Confidence** in [0, 1]: ``1 − c_best / c_second``, the second best cost taken at least two
-candidates away from the best (a unique, sharp minimum → near 1; a flat or repeated texture → near
-0), times 0 where no side saw the pixel.
+**Semi-global aggregation** (Hirschmüller 2008) along the four horizontal and vertical paths: a change
+by one candidate costs :data:`P1`, a larger jump :data:`P2`, lowered across an image edge. The best
+candidate is refined to sub-pixel: the equiangular fit through the matching costs around it where
+they have a sharp minimum there that agrees with the aggregated costs, else a parabola fitted to
+the aggregated costs of five candidates around it.
+Candidates are spaced so that the farthest neighbour moves by at most :data:`SWEEP_STEP_PX` between
+them. **Depth edges**: where a pixel's surroundings span more than :data:`EDGE_JUMP_PX`, it takes the
+nearer or the farther surface's disparity when its own grey value matches that clearly better in the
+views (a window straddling the edge fattens the nearer surface otherwise).
+
+**Memory**: the cost volume is built and aggregated in strips of rows (at most
+:data:`VOLUME_CELLS` cells at once, each strip reading :data:`STRIP_OVERLAP` rows beyond its own), so a
+4000 px view needs no more than a 512 px one.
+
+**Confidence** in [0, 1]: ``1 − c_best / c_far``, the matching cost at the answer against the best
+cost at least two candidates away (a unique, sharp minimum → near 1; a flat or repeated texture →
+near 0); 0 at the end of the searched range.
 """
 
 from __future__ import annotations
@@ -32,16 +49,49 @@ import cv2
 import numpy as np
 
 #: the farthest neighbour moves by at most this many pixels between two candidate disparities
-SWEEP_STEP_PX = 0.5
-WINDOW_PX = 7
-#: weight of the gradient differences beside the grey-value differences
-GRADIENT_WEIGHT = 1.0
-#: sub-pixel refinement of the best candidate: "equiangular" (V-shaped fit, less pixel-locking for
-#: absolute differences; measured: median depth error 0.26 % vs 0.33 % with "parabola") or "parabola"
-SUBPIXEL = "equiangular"
-#: neighbours used on each side: up to this many grid steps along the row and along the column
-STEPS_H = 4
-STEPS_V = 2
+SWEEP_STEP_PX = 0.25
+#: ... and candidates lie at most this far apart (px between horizontal neighbours)
+MAX_CANDIDATE_STEP_PX = 0.0625
+#: absolute grey differences are truncated here (a pixel hidden from one view costs at most this)
+TRUNCATE = 0.3
+#: the cost window (box, px) over which each half-plane's differences are averaged
+WINDOW_PX = 3
+#: semi-global smoothness: a change by one candidate costs P1, a larger jump P2 (lowered across an
+#: image edge: P2 / (1 + EDGE_GAIN · |grey step|)); in units of the truncated mean difference
+P1 = 0.002
+P2 = 0.03
+EDGE_GAIN = 30.0
+#: cost-volume cells (rows x columns x candidates) held at once: the view is done in strips of rows
+VOLUME_CELLS = 24_000_000
+#: rows a strip reads below its own (the upward paths settle; the downward ones carry on from the
+#: strip above)
+STRIP_OVERLAP = 16
+#: local contrast normalisation before matching (window, px, and the variance floor): dark and
+#: low-contrast texture weighs like bright texture
+LCN_WINDOW_PX = 5
+LCN_EPS = 0.0004
+LCN_SCALE = 0.05
+#: depth edges: a pixel whose neighbourhood (this window) spans more than EDGE_JUMP_PX takes the
+#: nearer or the farther surface's disparity, whichever its own pixel matches better across the views
+SNAP_WINDOW_PX = 5
+SNAP_PASSES = 2
+EDGE_JUMP_PX = 1.0
+#: ... and only when that surface matches clearly better than the disparity found
+SNAP_BETTER = 0.5
+FAR_BIAS = 0.5
+#: sub-pixel: where the matching cost (averaged over REFINE_WINDOW_PX) has its minimum at the
+#: answer, its neighbours exceeding it by more than REFINE_SHARP of it, and the equiangular fit
+#: through it lies within REFINE_AGREE candidates of the parabola fitted to the aggregated costs of
+#: five candidates around the answer, that fit; else the parabola
+REFINE_SHARP = 0.0
+REFINE_AGREE = 0.25
+REFINE_WINDOW_PX = 7
+#: the cost: the mean of the lowest this many half-plane costs, each weighted by (the farthest
+#: reach of any half-plane / its own) ^ PLANE_WEIGHT_POWER
+BEST_OF = 2
+PLANE_WEIGHT_POWER = 0.5
+#: half-planes of the 2-D neighbourhood; a view belongs to each side its offset points to
+HALF_PLANES = ("left", "right", "up", "down")
 
 
 @dataclass(frozen=True)
@@ -49,12 +99,6 @@ class Neighbour:
     image: np.ndarray                 # grey float32 (as :func:`prepare`), the reference's size
     dx: float                         # its offset from the reference, in horizontal spacings (right +)
     dy: float                         # ... (down +)
-
-    @property
-    def side(self) -> str:
-        if abs(self.dx) >= abs(self.dy):
-            return "right" if self.dx > 0 else "left"
-        return "down" if self.dy > 0 else "up"
 
 
 @dataclass
@@ -77,22 +121,7 @@ def prepare(rgb: np.ndarray) -> np.ndarray:
     return grey.astype(np.float32) * np.float32(1.0 / 255.0)
 
 
-def _features(grey: np.ndarray) -> list[np.ndarray]:
-    gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3) * np.float32(GRADIENT_WEIGHT / 4.0)
-    gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3) * np.float32(GRADIENT_WEIGHT / 4.0)
-    return [grey, gx, gy]
-
-
-def _shift(img: np.ndarray, sx: float, sy: float) -> np.ndarray:
-    """``img`` sampled at (u + sx, v + sy), NaN outside."""
-    M = np.array([[1.0, 0.0, sx], [0.0, 1.0, sy]], np.float64)
-    h, w = img.shape
-    return cv2.warpAffine(img, M, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                          borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
-
-
-def disparity_candidates(d_min_px: float, d_max_px: float, max_offset: float,
-                         step_px: float = SWEEP_STEP_PX) -> np.ndarray:
+def disparity_candidates(d_min_px: float, d_max_px: float, max_offset: float, step_px: float) -> np.ndarray:
     """Evenly spaced disparities covering [d_min, d_max] so that a neighbour ``max_offset``
     spacings away moves by at most ``step_px`` between two of them."""
     span = max(float(d_max_px) - float(d_min_px), 1e-6)
@@ -100,118 +129,355 @@ def disparity_candidates(d_min_px: float, d_max_px: float, max_offset: float,
     return np.linspace(float(d_min_px), float(d_max_px), max(n, 3))
 
 
-def multi_baseline_disparity(reference: np.ndarray, neighbours: Sequence[Neighbour], d_min_px: float,
-                             d_max_px: float, *, window_px: int = WINDOW_PX, step_px: float = SWEEP_STEP_PX,
-                             check=None) -> DenseResult:
-    """Disparity and confidence of ``reference`` (grey float32 from :func:`prepare`) from its
-    ``neighbours`` (module docstring); the search covers [d_min_px, d_max_px] with a margin of
-    one candidate. ``check()`` is called between candidates (cancel)."""
-    if not neighbours:
-        raise ValueError("no neighbour view to compare the reference with")
-    h, w = reference.shape
-    max_offset = max(max(abs(n.dx), abs(n.dy)) for n in neighbours)
-    ds = disparity_candidates(d_min_px, d_max_px, max_offset, step_px)
-    pad = ds[1] - ds[0]
-    ds = np.concatenate([[ds[0] - pad], ds, [ds[-1] + pad]])
-    ref_f = _features(reference)
-    nb_f = [(n, _features(n.image)) for n in neighbours]
-    sides = ("left", "right", "up", "down")
-    count = {s: sum(1 for n in neighbours if n.side == s) for s in sides}
-    inf = np.float32(np.inf)
-    best_c = np.full((h, w), inf, np.float32)
-    best_i = np.full((h, w), -10, np.int32)
-    left_c = np.full((h, w), inf, np.float32)
-    right_c = np.full((h, w), inf, np.float32)
-    second_c = np.full((h, w), inf, np.float32)
-    prev = np.full((h, w), inf, np.float32)
-    seen = np.zeros((h, w), bool)
-    ksize = (int(window_px), int(window_px))
-    for i, d in enumerate(ds):
-        if check is not None:
-            check()
-        acc: dict[str, np.ndarray | None] = {s: None for s in sides}
-        for n, feats in nb_f:
-            ad = None
-            for rf, nf in zip(ref_f, feats):
-                diff = cv2.absdiff(rf, _shift(nf, -d * n.dx, -d * n.dy))
-                ad = diff if ad is None else cv2.add(ad, diff)
-            if ad is None:          # no feature channels
-                continue
-            before = acc[n.side]
-            acc[n.side] = ad if before is None else cv2.add(before, ad)
-        side_cost = {}
-        for s in sides:
-            side_acc = acc[s]
-            if side_acc is None:
-                side_cost[s] = None
-                continue
-            c = cv2.boxFilter(side_acc, -1, ksize, normalize=True, borderType=cv2.BORDER_REFLECT) / np.float32(count[s])
-            side_cost[s] = np.where(np.isnan(c), inf, c).astype(np.float32)
-        parts = []
-        for a, b in (("left", "right"), ("up", "down")):
-            ca, cb = side_cost[a], side_cost[b]
-            if ca is None and cb is None:
-                continue
-            parts.append(cb if ca is None else ca if cb is None else np.minimum(ca, cb))
-        cost = parts[0] if len(parts) == 1 else (parts[0] + parts[1]) * np.float32(0.5)
-        # the streaming minimum, its neighbours' costs, and the second best away from it
-        right_c = np.where(best_i == i - 1, cost, right_c)
-        new = cost < best_c
-        far_old = new & (i - best_i > 2)
-        second_c = np.where(far_old, np.minimum(second_c, best_c), second_c)
-        second_c = np.where(~new & (i - best_i > 2), np.minimum(second_c, cost), second_c)
-        best_c = np.where(new, cost, best_c)
-        left_c = np.where(new, prev, left_c)
-        right_c = np.where(new, inf, right_c)
-        best_i = np.where(new, i, best_i)
-        seen |= np.isfinite(cost)
-        prev = cost
-    # sub-pixel: a parabola through the best and its two neighbours
-    with np.errstate(invalid="ignore"):
-        den = left_c - 2.0 * best_c + right_c
-    ok = np.isfinite(den) & (den > 1e-12)
-    off = np.zeros((h, w), np.float32)
-    if SUBPIXEL == "parabola":
-        off[ok] = np.clip(0.5 * (left_c[ok] - right_c[ok]) / den[ok], -0.5, 0.5)
-    else:       # equiangular (V-shaped) fit: less pixel-locking for absolute-difference costs
-        lc, rc, bc = left_c[ok], right_c[ok], best_c[ok]
-        off[ok] = np.clip(0.5 * (lc - rc) / np.maximum(np.maximum(lc, rc) - bc, 1e-12), -0.5, 0.5)
-    step = np.float32(ds[1] - ds[0])
-    disp = (ds[0] + (best_i.astype(np.float32) + off) * step).astype(np.float32)
-    disp[~seen] = np.nan
-    with np.errstate(divide="ignore", invalid="ignore"):
-        conf = np.where(np.isfinite(second_c) & (second_c > 0), 1.0 - best_c / second_c, 0.0)
-    conf = np.clip(np.nan_to_num(conf, nan=0.0), 0.0, 1.0).astype(np.float32)
-    conf[~seen] = 0.0
-    disp = _median3(disp)
-    return DenseResult(disp, conf, len(ds), len(neighbours))
-
-
-def _median3(disp: np.ndarray) -> np.ndarray:
-    """3 x 3 median of a disparity map (NaN stays NaN): removes single-pixel outliers."""
-    finite = np.isfinite(disp)
-    if not finite.any():
-        return disp
-    filled = np.where(finite, disp, np.nanmedian(disp)).astype(np.float32)
-    out = cv2.medianBlur(filled, 3)
-    out[~finite] = np.nan
-    return out
-
-
-def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity_px: float, block: int = 5) -> np.ndarray:
+def sgbm_disparity(left: np.ndarray, right: np.ndarray, max_disparity_px: float, block: int = 5,
+                   min_disparity_px: float = 0.0) -> np.ndarray:
     """OpenCV's semi-global matcher (3-way) on one rectified pair, ``right`` the view to the right
     of ``left`` (uint8 grey): the disparity of ``left`` in pixels of this pair (float32, NaN where
-    it found none or no partner pixel lies that far left)."""
-    n = int(np.ceil(max(16.0, max_disparity_px * 1.25 + 4) / 16.0) * 16)
-    matcher = cv2.StereoSGBM.create(minDisparity=0, numDisparities=n, blockSize=block, P1=8 * block * block,
+    it found none or no partner pixel lies that far left); ``min_disparity_px`` < 0 for sheared views."""
+    lo = int(np.floor(min(0.0, min_disparity_px * 1.25 - 2)))
+    n = int(np.ceil(max(16.0, max_disparity_px * 1.25 + 4 - lo) / 16.0) * 16)
+    matcher = cv2.StereoSGBM.create(minDisparity=lo, numDisparities=n, blockSize=block, P1=8 * block * block,
                                     P2=32 * block * block, disp12MaxDiff=1, uniquenessRatio=10,
                                     speckleWindowSize=100, speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
     raw = matcher.compute(np.ascontiguousarray(left), np.ascontiguousarray(right)).astype(np.float32) / 16.0
-    raw[raw < 0] = np.nan
-    raw[:, :n] = np.nan
+    raw[raw < lo] = np.nan
+    raw[:, :max(0, n + lo)] = np.nan
     return raw
 
 
 def to_uint8(grey: np.ndarray) -> np.ndarray:
     """A :func:`prepare` image as uint8 (what the semi-global matcher takes)."""
     return np.clip(np.rint(grey * 255.0), 0, 255).astype(np.uint8)
+
+
+def _half_planes(dx: float, dy: float) -> tuple[int, ...]:
+    out = []
+    if dx < -1e-9:
+        out.append(0)
+    if dx > 1e-9:
+        out.append(1)
+    if dy < -1e-9:
+        out.append(2)
+    if dy > 1e-9:
+        out.append(3)
+    return tuple(out)
+
+
+def _plane_weights(neighbours: Sequence[Neighbour], planes: Sequence[tuple[int, ...]]) -> dict[int, float]:
+    """Each half-plane's cost weight: (the farthest reach of any half-plane / its own) ^
+    :data:`PLANE_WEIGHT_POWER`. A half-plane of few, near views (beside an edge of the grid) has a
+    flat, noisy cost: it counts when the far-reaching ones are clearly worse (occluded)."""
+    reach: dict[int, float] = {}
+    for n, ps in zip(neighbours, planes):
+        for p in ps:
+            reach[p] = max(reach.get(p, 0.0), float(np.hypot(n.dx, n.dy)))
+    top = max(reach.values(), default=1.0)
+    return {p: float((top / max(r, 1e-9)) ** PLANE_WEIGHT_POWER) for p, r in reach.items()}
+
+
+def _valid_span(n: int, shift: float) -> tuple[int, int]:
+    """Output indices i (0 ≤ i < n) whose sample i + shift lies inside [0, n − 1]."""
+    lo = max(0, int(np.ceil(-shift - 1e-6)))
+    hi = min(n, int(np.floor(n - 1 - shift + 1e-6)) + 1)
+    return lo, max(lo, hi)
+
+
+def sgm_aggregate(cost: np.ndarray, grey: np.ndarray, p1: float | None = None, p2: float | None = None,
+                  edge_gain: float | None = None, carry: np.ndarray | None = None,
+                  keep_row: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Semi-global aggregation (Hirschmüller 2008) of a cost volume ``(h, w, D)`` along the four
+    horizontal and vertical paths; the large-jump penalty is lowered across image edges of ``grey``.
+    Returns the summed path costs (same shape) and the downward path's costs at row ``keep_row``
+    (``carry`` continues that path from the row above the volume: strips of one image)."""
+    p1 = P1 if p1 is None else p1
+    p2 = P2 if p2 is None else p2
+    edge_gain = EDGE_GAIN if edge_gain is None else edge_gain
+    h, w, D = cost.shape
+    total = np.zeros_like(cost)
+    p1f = np.float32(p1)
+
+    kept: list[np.ndarray] = []
+
+    def run(get, put, steps: int, edges: np.ndarray, start: np.ndarray | None = None) -> None:
+        if start is None:
+            prev = get(0).copy()
+            put(0, prev)
+            first = 1
+        else:
+            prev, first = start, 0
+        for k in range(first, steps):
+            c = get(k)
+            m = prev.min(axis=1, keepdims=True)
+            jump = m + edges[k][:, None]
+            nxt = np.minimum(prev, jump)
+            np.minimum(nxt[:, 1:], prev[:, :-1] + p1f, out=nxt[:, 1:])
+            np.minimum(nxt[:, :-1], prev[:, 1:] + p1f, out=nxt[:, :-1])
+            nxt -= m
+            nxt += c
+            put(k, nxt)
+            prev = nxt
+
+    gx = np.abs(np.diff(grey, axis=1, prepend=grey[:, :1]))            # (h, w): step into column x
+    gy = np.abs(np.diff(grey, axis=0, prepend=grey[:1, :]))            # step into row y
+    pen_x = np.maximum(np.float32(p2) / (1.0 + np.float32(edge_gain) * gx), p1f * 1.5).astype(np.float32)
+    pen_y = np.maximum(np.float32(p2) / (1.0 + np.float32(edge_gain) * gy), p1f * 1.5).astype(np.float32)
+    px_t = np.ascontiguousarray(pen_x.T)                                 # (w, h): per column
+    px_rev = np.ascontiguousarray(np.roll(pen_x, -1, axis=1)[:, ::-1].T)  # right to left: step from x+1 to x
+    py_rev = np.ascontiguousarray(np.roll(pen_y, -1, axis=0)[::-1])
+
+    def add_col(k, v):
+        total[:, k, :] += v
+
+    def add_col_rev(k, v):
+        total[:, w - 1 - k, :] += v
+
+    def add_row(k, v):
+        total[k] += v
+        if k == keep_row:
+            kept.append(v.copy())
+
+    def add_row_rev(k, v):
+        total[h - 1 - k] += v
+
+    run(lambda k: cost[:, k, :], add_col, w, px_t)
+    run(lambda k: cost[:, w - 1 - k, :], add_col_rev, w, px_rev)
+    run(lambda k: cost[k], add_row, h, pen_y, carry)
+    run(lambda k: cost[h - 1 - k], add_row_rev, h, py_rev)
+    return total, (kept[0] if kept else None)
+
+
+def _strip_cost(reference: np.ndarray, neighbours: Sequence[Neighbour], ds: np.ndarray, a: int, b: int,
+                window_px: int, check=None) -> np.ndarray:
+    """The occlusion-aware matching cost of rows [a, b) of ``reference`` at every candidate:
+    ``(b − a, w, D)`` float32 (module docstring)."""
+    h, w = reference.shape
+    rows = b - a
+    ref = np.ascontiguousarray(reference[a:b])
+    out = np.empty((rows, w, len(ds)), np.float32)
+    planes = [_half_planes(n.dx, n.dy) for n in neighbours]
+    used = sorted({p for ps in planes for p in ps})
+    weight = _plane_weights(neighbours, planes)
+    ksize = (int(window_px), int(window_px))
+    area = float(ksize[0] * ksize[1])
+    tau = float(TRUNCATE)
+    for i, d in enumerate(ds):
+        if check is not None:
+            check()
+        sums: dict[int, np.ndarray] = {}
+        # each neighbour counts where its sample lies inside it: a rectangle, summed through corners
+        corners = {p: np.zeros((rows + 1, w + 1), np.float32) for p in used}
+        for n, ps in zip(neighbours, planes):
+            sx, sy = -float(d) * n.dx, -float(d) * n.dy
+            M = np.array([[1.0, 0.0, sx], [0.0, 1.0, sy + a]], np.float64)
+            warped = cv2.warpAffine(n.image, M, (w, rows), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                    borderMode=cv2.BORDER_REPLICATE)
+            ad = np.minimum(cv2.absdiff(ref, warped), np.float32(tau))
+            x0, x1 = _valid_span(w, sx)
+            y0, y1 = _valid_span(h, sy)
+            y0, y1 = min(rows, max(0, y0 - a)), max(0, min(rows, y1 - a))
+            if x0 > 0 or x1 < w or y0 > 0 or y1 < rows:     # outside the neighbour: no sample
+                ad[:y0] = 0.0
+                ad[y1:] = 0.0
+                ad[:, :x0] = 0.0
+                ad[:, x1:] = 0.0
+            for p in ps:
+                sums[p] = ad if p not in sums else cv2.add(sums[p], ad)
+                if y1 > y0 and x1 > x0:
+                    c = corners[p]
+                    c[y0, x0] += 1.0
+                    c[y0, x1] -= 1.0
+                    c[y1, x0] -= 1.0
+                    c[y1, x1] += 1.0
+        # the mean of the best BEST_OF half-planes' costs (a point hidden from one side is seen from
+        # the others)
+        costs = []
+        for p in used:
+            count = np.cumsum(np.cumsum(corners[p], axis=0), axis=1)[:rows, :w]
+            num = cv2.boxFilter(sums[p], -1, ksize, normalize=False, borderType=cv2.BORDER_REFLECT)
+            den = cv2.boxFilter(count, -1, ksize, normalize=False, borderType=cv2.BORDER_REFLECT)
+            # where a half-plane saw the pixel through too few samples its cost is the truncation
+            cost = cv2.divide(num, np.maximum(den, np.float32(1e-6)))
+            cost[den <= 0.5 * area] = tau
+            costs.append(cost if weight[p] == 1.0 else cost * np.float32(weight[p]))
+        out[:, :, i] = _best_of(costs, BEST_OF) if costs else tau
+    return out
+
+
+def _best_of(costs: list[np.ndarray], k: int) -> np.ndarray:
+    """Per pixel, the mean of the ``k`` lowest of ``costs`` (all when there are no more)."""
+    if len(costs) <= k:
+        return sum(costs[1:], costs[0]) * np.float32(1.0 / len(costs))
+    if k == 1:
+        out = costs[0]
+        for c in costs[1:]:
+            out = cv2.min(out, c)
+        return out
+    if k == 2:                      # the lowest two, kept as they come (no sort)
+        first, second = cv2.min(costs[0], costs[1]), cv2.max(costs[0], costs[1])
+        for c in costs[2:]:
+            second = cv2.min(second, cv2.max(first, c))
+            first = cv2.min(first, c)
+        return (first + second) * np.float32(0.5)
+    stack = np.sort(np.stack(costs), axis=0)
+    return stack[:k].mean(axis=0)
+
+
+def light_field_disparity(reference: np.ndarray, neighbours: Sequence[Neighbour], d_min_px: float,
+                          d_max_px: float, *, window_px: int | None = None, step_px: float | None = None,
+                          volume_cells: int | None = None, check=None) -> DenseResult:
+    """Disparity and confidence of ``reference`` (grey float32 from :func:`prepare`) from its
+    ``neighbours`` anywhere in the grid (module docstring); the search covers [d_min_px, d_max_px]
+    with a margin of one candidate. Memory: at most ``volume_cells`` cost cells (strips of rows).
+    ``check()`` is called between candidates (cancel)."""
+    if not neighbours:
+        raise ValueError("no neighbour view to compare the reference with")
+    window_px = int(window_px or WINDOW_PX)
+    step_px = float(step_px or SWEEP_STEP_PX)
+    volume_cells = int(volume_cells or VOLUME_CELLS)
+    h, w = reference.shape
+    max_offset = max(float(np.hypot(n.dx, n.dy)) for n in neighbours)
+    # the farthest neighbour moves by at most step_px between candidates, and no two candidates lie
+    # more than MAX_CANDIDATE_STEP_PX apart (sub-pixel precision for a small neighbourhood)
+    ds = disparity_candidates(d_min_px, d_max_px, max(max_offset, step_px / MAX_CANDIDATE_STEP_PX), step_px)
+    pad = ds[1] - ds[0]
+    ds = np.concatenate([[ds[0] - pad], ds, [ds[-1] + pad]]).astype(np.float64)
+    D = len(ds)
+    raw_ref, raw_nbs = reference, neighbours
+    reference = _normalised(reference)
+    neighbours = [Neighbour(_normalised(n.image), n.dx, n.dy) for n in neighbours]
+    top = window_px // 2 + 1            # rows above a strip: its cost window; the downward path carries on
+    core = max(8, int(volume_cells // max(1, w * D)) - top - STRIP_OVERLAP)
+    disp = np.full((h, w), np.nan, np.float32)
+    conf = np.zeros((h, w), np.float32)
+    step = np.float32(ds[1] - ds[0])
+    carry = None
+    y = 0
+    while y < h:
+        y1 = min(h, y + core)
+        a, b = max(0, y - top), min(h, y1 + STRIP_OVERLAP)
+        cost = _strip_cost(reference, neighbours, ds, a, b, window_px, check)
+        next_a = max(0, y1 - top)
+        total, carry = sgm_aggregate(cost, reference[a:b], carry=carry, keep_row=next_a - 1 - a if y1 < h else None)
+        best = np.argmin(total, axis=2)
+        r_, c_ = np.indices(best.shape)
+        ii = np.clip(best, 1, D - 2)
+        off = _subpixel(total, cost, ii)
+        d_map = (ds[0] + (ii.astype(np.float32) + off) * step).astype(np.float32)
+        # confidence: the matching cost at the answer against the best one at least 2 candidates away
+        # (the lowest cost below and above that gap: running minima from either end)
+        c_best = cost[r_, c_, ii]
+        below = np.minimum.accumulate(cost, axis=2, out=total)          # total is not needed any more
+        lo_i = ii - 3
+        c_far = np.where(lo_i >= 0, below[r_, c_, np.maximum(lo_i, 0)], np.inf)
+        above = np.minimum.accumulate(cost[:, :, ::-1], axis=2)[:, :, ::-1]
+        hi_i = ii + 3
+        c_far = np.minimum(c_far, np.where(hi_i < D, above[r_, c_, np.minimum(hi_i, D - 1)], np.inf))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = np.where(c_far > 0, 1.0 - c_best / c_far, 0.0)
+        q = np.clip(np.nan_to_num(q, nan=0.0, posinf=0.0, neginf=0.0), 0.0, 1.0).astype(np.float32)
+        q[(best == 0) | (best == D - 1)] = 0.0       # at the end of the range: not a minimum
+        disp[y:y1] = d_map[y - a:y1 - a]
+        conf[y:y1] = q[y - a:y1 - a]
+        y = y1
+    for _ in range(SNAP_PASSES):
+        disp = snap_edges(raw_ref, raw_nbs, disp)
+    return DenseResult(disp, conf, D, len(neighbours))
+
+
+def _subpixel(total: np.ndarray, cost: np.ndarray, ii: np.ndarray) -> np.ndarray:
+    """Sub-pixel offset (in candidates) of the answer ``ii`` (see :data:`REFINE_SHARP`)."""
+    D = total.shape[2]
+    r_, c_ = np.indices(ii.shape)
+    jj = np.clip(ii, 2, D - 3)
+    y0, y1, y2, y3, y4 = (total[r_, c_, jj + k] for k in (-2, -1, 0, 1, 2))
+    slope = (-2 * y0 - y1 + y3 + 2 * y4) / 10.0                  # least squares over the five
+    curve = (2 * y0 - y1 - 2 * y2 - y3 + 2 * y4) / 14.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vertex = np.where(curve > 1e-12, -slope / (2 * np.maximum(curve, 1e-12)), 0.0)
+    off = np.clip(np.nan_to_num(vertex), -1.0, 1.0) + (jj - ii)
+    c0, c1, c2 = (cost[r_, c_, ii + k] for k in (-1, 0, 1))
+    if REFINE_WINDOW_PX > 1:
+        kw = (REFINE_WINDOW_PX, REFINE_WINDOW_PX)
+        c0, c1, c2 = (cv2.boxFilter(np.ascontiguousarray(c, dtype=np.float32), -1, kw, borderType=cv2.BORDER_REFLECT)
+                      for c in (c0, c1, c2))
+    sharp = (c1 <= c0) & (c1 <= c2) & (np.minimum(c0, c2) - c1 > REFINE_SHARP * c1)
+    fine = _equiangular(c0, c1, c2)
+    off = np.where(sharp & (np.abs(fine - off) < REFINE_AGREE), fine, off)
+    return off.astype(np.float32)
+
+
+def _equiangular(c0: np.ndarray, c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
+    """Offset of the minimum from the middle of three equally spaced costs, V-shaped fit (suits
+    absolute differences better than a parabola: less pixel-locking)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        off = 0.5 * (c0 - c2) / np.maximum(np.maximum(c0, c2) - c1, 1e-12)
+    return np.clip(np.nan_to_num(off, nan=0.0), -0.5, 0.5).astype(np.float32)
+
+
+def _normalised(grey: np.ndarray) -> np.ndarray:
+    """Local contrast normalisation: (g − local mean) / local standard deviation (scaled)."""
+    k = (LCN_WINDOW_PX, LCN_WINDOW_PX)
+    mu = cv2.blur(grey, k, borderType=cv2.BORDER_REFLECT)
+    var = cv2.blur(grey * grey, k, borderType=cv2.BORDER_REFLECT) - mu * mu
+    return ((grey - mu) / np.sqrt(np.maximum(var, 0.0) + np.float32(LCN_EPS)) * np.float32(LCN_SCALE)).astype(np.float32)
+
+
+def _sample(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``image`` at the points (u, v), bilinear (remap takes maps under 32767 columns: rows of 4096)."""
+    n = len(u)
+    rows = max(1, -(-n // 4096))
+    mu = np.zeros(rows * 4096, np.float32)
+    mv = np.zeros(rows * 4096, np.float32)
+    mu[:n], mv[:n] = u, v
+    out = cv2.remap(image, mu.reshape(rows, 4096), mv.reshape(rows, 4096), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1)[:n]
+
+
+def snap_edges(reference: np.ndarray, neighbours: Sequence[Neighbour], disp: np.ndarray) -> np.ndarray:
+    """At depth edges, the nearer or the farther surface: where the disparities within
+    :data:`SNAP_WINDOW_PX` span more than :data:`EDGE_JUMP_PX`, each pixel takes the local minimum
+    or maximum, whichever its own grey value matches better in the better half-plane of views
+    (a window would straddle the edge: the cost here is the pixel's own)."""
+    h, w = reference.shape
+    k = np.ones((SNAP_WINDOW_PX, SNAP_WINDOW_PX), np.uint8)
+    finite = np.isfinite(disp)
+    lo = cv2.erode(np.where(finite, disp, np.float32(1e6)).astype(np.float32), k)
+    hi = cv2.dilate(np.where(finite, disp, np.float32(-1e6)).astype(np.float32), k)
+    edge = finite & (hi - lo > EDGE_JUMP_PX) & (lo < 1e5) & (hi > -1e5)
+    if not edge.any():
+        return disp
+    ys, xs = np.nonzero(edge)
+    planes = [_half_planes(n.dx, n.dy) for n in neighbours]
+    used = sorted({p for ps in planes for p in ps})
+    weight = _plane_weights(neighbours, planes)
+    ref = reference[ys, xs]
+    tau = np.float32(TRUNCATE)
+    best_cost = []
+    for cand in (disp[ys, xs], lo[ys, xs], hi[ys, xs]):
+        sums = {p: np.zeros(len(ys), np.float32) for p in used}
+        counts = {p: np.zeros(len(ys), np.float32) for p in used}
+        for n, ps in zip(neighbours, planes):
+            u = xs - cand * np.float32(n.dx)
+            v = ys - cand * np.float32(n.dy)
+            inside = (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+            val = _sample(n.image, u, v)
+            ad = np.minimum(np.abs(val - ref), tau) * inside
+            for p in ps:
+                sums[p] += ad
+                counts[p] += inside
+        cost = np.full(len(ys), np.inf, np.float32)
+        for p in used:
+            c = np.where(counts[p] >= 1, sums[p] / np.maximum(counts[p], 1), np.inf)
+            cost = np.minimum(cost, c * np.float32(weight[p]))
+        best_cost.append(cost)
+    out = disp.copy()
+    c0, c_lo, c_hi = best_cost
+    d0 = disp[ys, xs]
+    on_near = (hi[ys, xs] - d0) < (d0 - lo[ys, xs])
+    # a pixel on the nearer surface goes to the farther one unless the nearer matches clearly better
+    # (a window fattens the nearer surface); one on the farther goes nearer only when clearly better
+    take_lo = on_near & (c_lo * FAR_BIAS <= c_hi)
+    take_hi = ~on_near & (c_hi < c_lo * SNAP_BETTER) & (c_hi < c0 * SNAP_BETTER)
+    out[ys, xs] = np.where(take_lo, lo[ys, xs], np.where(take_hi, hi[ys, xs], disp[ys, xs]))
+    return out

@@ -1,7 +1,7 @@
 """Dense disparity and depth of a dataset's views, stored in the dataset: a long job, resumable.
 
 ``estimate_depth(dataset, views, ...)`` computes every chosen view's disparity and confidence with
-the multi-baseline sweep (:mod:`lfstudio.depth.dense`) over its neighbours in its row and column,
+the light-field sweep (:mod:`lfstudio.depth.dense`) over its 2-D neighbourhood (:func:`neighbours_of`),
 one task per view on the executor it is given (the processing pool or a Dask cluster:
 :func:`lfstudio.processing.executors.open_executor`; none: in this process), and writes
 
@@ -55,15 +55,19 @@ from lfstudio.jobs import Cancelled, CancelToken, Progress, no_progress
 log = logging.getLogger(__name__)
 
 DEPTH_DIR = "depth"
-METHOD = "multi-baseline-sweep-1"
+METHOD = "light-field-sgm-1"
 #: search margin around the plan's near/far disparities
 RANGE_MARGIN = 0.08
+#: the neighbourhood: views up to this many columns and rows away, on the lines through the view
+#: (its row, its column and the two diagonals), every direction there is
+STEPS_H = 4
+STEPS_V = 4
 
 
 @dataclass(frozen=True)
 class DepthSettings:
-    steps_h: int = dense.STEPS_H          # neighbours on each side along the row
-    steps_v: int = dense.STEPS_V          # ... along the column
+    steps_h: int = STEPS_H                # neighbours up to this many columns away
+    steps_v: int = STEPS_V                # ... and rows away
     window_px: int = dense.WINDOW_PX
     step_px: float = dense.SWEEP_STEP_PX
 
@@ -368,6 +372,7 @@ def measured_range(ds: Dataset, views: Sequence[View], source: str, H, width_px:
     if len(found) < 2 or len(d) < 20:
         raise InputError("views", "too few feature matches to measure the disparity range and no scene plan",
                          "state it (lfstudio depth --disparity-range MIN,MAX) or give the dataset a scene plan")
+    assert centre is not None            # pairs were found around it
     scale = float(width_px) / float(full_w) if full_w else 1.0
     lo, hi = (float(v) * scale for v in np.percentile(d, [1, 99]))
     assert centre is not None                   # pairs come only from around it
@@ -375,20 +380,41 @@ def measured_range(ds: Dataset, views: Sequence[View], source: str, H, width_px:
 
 
 def neighbours_of(ds: Dataset, view: View, settings: DepthSettings, captured: set) -> list[tuple[View, float, float]]:
-    """(view, dx, dy) of the neighbours used: up to ``steps_h`` along the row and ``steps_v`` along
-    the column on each side, offsets in horizontal spacings from the views' positions."""
+    """(view, dx, dy) of the neighbours used: the captured views up to ``steps_h`` columns and
+    ``steps_v`` rows away on the lines through the view (its row, its column, the diagonals), near
+    and far, in every direction the grid has; offsets in horizontal spacings, from the positions
+    the rig recorded when the import has them, else from the grid. An edge or corner view has the
+    directions that stay inside the grid."""
     r, c = view
-    sx, sy = ds.grid.step_mm
+    sx, sy = (float(v) for v in ds.grid.step_mm)
+    ratio = sy / sx if sx else 1.0
+    recorded = _recorded_positions(ds)
     out = []
-    for k in range(1, settings.steps_h + 1):
-        for s in (-1, 1):
-            if (r, c + s * k) in captured:
-                out.append((View(r, c + s * k), float(s * k), 0.0))
-    for k in range(1, settings.steps_v + 1):
-        for s in (-1, 1):
-            if (r + s * k, c) in captured:
-                out.append((View(r + s * k, c), 0.0, float(s * k) * float(sy) / float(sx)))
+    for dr in range(-settings.steps_v, settings.steps_v + 1):
+        for dc in range(-settings.steps_h, settings.steps_h + 1):
+            if (dr, dc) == (0, 0) or not (dr == 0 or dc == 0 or abs(dr) == abs(dc)):
+                continue
+            if (r + dr, c + dc) not in captured:
+                continue
+            if recorded and (r, c) in recorded and (r + dr, c + dc) in recorded and sx:
+                (x0, y0), (x1, y1) = recorded[(r, c)], recorded[(r + dr, c + dc)]
+                out.append((View(r + dr, c + dc), (x1 - x0) / sx, (y1 - y0) / sx))
+            else:
+                out.append((View(r + dr, c + dc), float(dc), float(dr) * ratio))
     return out
+
+
+def _recorded_positions(ds: Dataset) -> dict[tuple[int, int], tuple[float, float]] | None:
+    """The views' positions as the rig recorded them (an import with ``--positions``: the views'
+    ``reported_mm``), else None (a scan or an import on a regular grid: the grid's positions)."""
+    if not (ds.manifest.get("import") or {}).get("positions"):
+        return None
+    out = {}
+    for v in ds.views:
+        pos = v.get("reported_mm")
+        if isinstance(pos, (list, tuple)) and len(pos) == 2:
+            out[(int(v["row"]), int(v["column"]))] = (float(pos[0]), float(pos[1]))
+    return out or None
 
 
 # -- one view (runs in a worker) ----------------------------------------------------------------------
@@ -419,8 +445,8 @@ def depth_view_task(task: dict[str, Any]) -> dict[str, Any]:
     t_cpu = time.process_time()
     ref = _read(task["reference"], task["homography"], task["size"])
     nbs = [dense.Neighbour(_read(p, task["homography"], task["size"]), dx, dy) for p, dx, dy in task["neighbours"]]
-    res = dense.multi_baseline_disparity(ref, nbs, *task["d_range"], window_px=task["settings"]["window_px"],
-                                         step_px=task["settings"]["step_px"])
+    res = dense.light_field_disparity(ref, nbs, *task["d_range"], window_px=task["settings"]["window_px"],
+                                      step_px=task["settings"]["step_px"])
     out = {k: Path(v) for k, v in task["out"].items()}
     for kind, data in (("disparity", res.disparity_px), ("confidence", res.confidence)):
         out[kind].parent.mkdir(parents=True, exist_ok=True)

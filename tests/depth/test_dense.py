@@ -115,7 +115,8 @@ def test_nerfstudio_and_hci_exports_carry_the_maps(calibrated, tmp_path):
     truth = read_truth_map(ds.root, "depth", 1, 2)
     rel = _inner(np.abs(metres * tilt - truth) / truth)
     known = np.isfinite(rel)                # the rectified map does not reach the captured view's every corner
-    assert known.mean() > 0.9 and np.median(rel[known]) < 0.01 and (rel[known] < 0.02).mean() > 0.8, \
+    # (the light-field method of issue 37: 75 % within 2 % here, the row-and-column sweep before it 80 %)
+    assert known.mean() > 0.9 and np.median(rel[known]) < 0.01 and (rel[known] < 0.02).mean() > 0.7, \
         (known.mean(), np.median(rel[known]), (rel[known] < 0.02).mean())
     export_dataset(ds, ExportOptions("hci", tmp_path / "h", views="r1,c1-3", depth=True))
     names = sorted(p.name for p in (tmp_path / "h").glob("estimated_disp_*.pfm"))
@@ -135,7 +136,7 @@ def test_cli_depth_command(calibrated, run_cli):
     assert proc.returncode == 0, proc.stderr
     assert "1 view computed" in proc.stdout
     rec = json.loads(map_path(calibrated.root, "records", (1, 2)).read_text())
-    assert rec["settings"]["steps_h"] == 2 and len(rec["neighbours"]) == 6
+    assert rec["settings"]["steps_h"] == 2 and len(rec["neighbours"]) == 10       # row, column, diagonals
     proc = run_cli("depth", calibrated.root, "--views", "r01_c002", "--workers", "0", "--steps", "2,1")
     assert "0 views computed, 1 up to date" in proc.stdout
 

@@ -113,7 +113,7 @@ class DepthDialog(QDialog):
                                    "texture, or seen from one side only)")
         self.compute_button = QPushButton("Compute this view")
         self.compute_button.setObjectName("depthComputeButton")
-        self.compute_button.setToolTip("Estimate this view's disparity from its row and column neighbours "
+        self.compute_button.setToolTip("Estimate this view's disparity from the views around it "
                                        "(kept in the dataset's depth/ folder)")
         self.range_edit = QLineEdit("")
         self.range_edit.setObjectName("depthRangeEdit")
