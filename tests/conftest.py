@@ -45,7 +45,8 @@ _TOOL_TESTS = ("tests/test_types.py", "tests/test_import_rules.py", "tests/test_
 # A test is full when it is marked `full` or `slow`, lives in one of _FULL_FOLDERS or _FULL_FILES, uses
 # one of _FULL_FIXTURES (directly or through another fixture), or its own code or that of a fixture it
 # uses names one of _FULL_WORDS (a process, a firmware, an emulator in another process, a real camera stack).
-_FULL_FOLDERS = ("tests/gui/", "tests/faults/", "tests/studio/", "tests/benchmarks/", "tests/docs/")
+_FULL_FOLDERS = ("tests/gui/", "tests/faults/", "tests/studio/", "tests/benchmarks/", "tests/docs/",
+                 "tests/contract/")       # every camera and rig kind on its real stack (fake GigE camera, PTP, ...)
 #: in-process modules measured too heavy for the fast tier (virtual-studio renders, calibration fits and
 #: statistics, whole-pipeline runs: seconds a test; `./test.sh -m fast --durations=25` shows the next ones)
 _HEAVY_FILES = ("tests/calibration/test_simulate.py", "tests/calibration/test_uncertainty.py",
@@ -55,7 +56,7 @@ _HEAVY_FILES = ("tests/calibration/test_simulate.py", "tests/calibration/test_un
                 "tests/quality/test_bracket_check.py", "tests/quality/test_live.py",
                 "tests/processing/test_output_size_path.py", "tests/processing/test_virtual_studio.py",
                 "tests/processing/test_pipeline.py", "tests/sim/test_virtual_dataset.py", "tests/depth/test_points.py",
-                "tests/depth/test_depth_range.py", "tests/export/test_posed_exports.py")
+                "tests/depth/test_depth_range.py", "tests/export/test_posed_exports.py", "tests/scan/test_fly_scan.py")
 _FULL_FILES = _TOOL_TESTS + _HEAVY_FILES
 #: fixtures that start another process, a Qt loop, a firmware or an emulator
 _FULL_FIXTURES = frozenset({"qtbot", "qapp", "run_cli", "start_cli", "sim_rig_port", "vcamera", "grbl_firmware",
