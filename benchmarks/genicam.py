@@ -74,6 +74,8 @@ def fps(frames: int, width: int, height: int) -> tuple[float, float]:
                 cam.grab()
         return frames / span.wall_s, span.cpu_s / frames
     finally:
+        cam.set_setting("width", 512)                # the fake camera keeps its settings: the scan's 512 px
+        cam.set_setting("height", 512)
         cam.disconnect()
 
 
