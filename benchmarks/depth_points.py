@@ -4,6 +4,13 @@ CPU time per view at 2000 px, and dense depth on a Dask cluster of one and two l
 
     ./.venv/bin/python benchmarks/depth_points.py [--grids 9x3,21x5] [--width 1000] [--keep DIR]
         [--dense-views 3] [--cluster-views 16] [--skip-cluster] [--skip-2000] [--cluster-grid CxR]
+        [--skip-small] [--hci DIR]
+
+First (issue 37, ``--skip-small`` leaves it out): the 5 × 3 capture at 800 px as a user makes it (DNG,
+calibrated, processed to 400 px views, exported as COLMAP) and every HCI scene found (``--hci DIR``,
+default ../shared/data/lightfield: imported, calibrated, exported from the raw views; depth against the
+benchmark's centre-view disparity): points, reprojection error, share within 2 % of the true depth,
+and the tracks dropped, by reason.
 
 Each grid is rendered (16-bit PNG, orientation error (1, -1.5, 0.7) deg, principal point offset
 (8, -5) px, the reference rig's position noise 80 x 50 µm), **self-calibrated** (``calibrate_dataset``,
@@ -57,19 +64,32 @@ def calibrate(ds):
     return load_calibration(ds)
 
 
-def points_figures(ds, out: Path) -> dict:
+def points_figures(ds, out: Path, truth: bool = True) -> dict:
+    import json
+
     import pycolmap
 
+    from lfstudio.calibration.model import load_calibration
     from lfstudio.export import ExportOptions, export_dataset
     from lfstudio.sim.virtual_dataset import read_truth_map
 
     with Timer() as span:
         export_dataset(ds, ExportOptions("colmap", out, overwrite=True))
     rec = pycolmap.Reconstruction(out / "sparse" / "0")
+    manifest = json.loads((out / "lfstudio_manifest.json").read_text())
+    cal = load_calibration(ds)
+    H_inv = np.linalg.inv(np.asarray(cal["homography"], float)) \
+        if cal and manifest.get("pinhole", {}).get("rectified") else None
     by_id = {im.image_id: im for im in rec.images.values()}
     truth_cache: dict = {}
     errors, rel = [], []
     for p in rec.points3D.values():
+        if not truth:
+            for el in p.track.elements:
+                im = by_id[el.image_id]
+                proj = np.asarray(im.camera.img_from_cam(im.cam_from_world() * p.xyz))
+                errors.append(float(np.hypot(*(proj - np.asarray(im.points2D[el.point2D_idx].xy)))))
+            continue
         rels = []
         for el in p.track.elements:
             im = by_id[el.image_id]
@@ -80,15 +100,31 @@ def points_figures(ds, out: Path) -> dict:
             if (r, c) not in truth_cache:
                 truth_cache[(r, c)] = read_truth_map(ds.root, "depth", r, c)
             t = truth_cache[(r, c)]
-            u, v = np.clip(np.rint(xy - 0.5).astype(int), 0, [t.shape[1] - 1, t.shape[0] - 1])
+            # the truth is the captured view's, at its size: exported pixel -> captured pixel
+            xy_t = captured_pixel(xy, (im.camera.width, im.camera.height), (t.shape[1], t.shape[0]), H_inv)
+            u, v = np.clip(np.rint(xy_t).astype(int), 0, [t.shape[1] - 1, t.shape[0] - 1])
             rels.append(abs(p.xyz[2] - t[v, u]) / t[v, u])
         rel.append(float(np.median(rels)))        # the true depth where most of its observations lie
     errors, rel = np.array(errors), np.array(rel)
     return {"points": rec.num_points3D(), "err_mean": errors.mean() if len(errors) else float("nan"),
             "err_p95": np.percentile(errors, 95) if len(errors) else float("nan"),
             "within_2pct": (rel < 0.02).mean() if len(rel) else float("nan"),
-            "track": np.mean([p.track.length() for p in rec.points3D.values()]) if len(rel) else 0,
+            "track": np.mean([p.track.length() for p in rec.points3D.values()]) if rec.num_points3D() else 0,
+            "tracks": (manifest.get("point_cloud") or {}).get("tracks"),
+            "dropped": (manifest.get("point_cloud") or {}).get("dropped"),
             "export_wall_s": span.wall_s, "export_cpu_s": span.cpu_s}
+
+
+def captured_pixel(xy, size, truth_size, H_inv):
+    """An exported image's pixel ``xy`` (image ``size``) as a pixel of the captured view at
+    ``truth_size`` (the truth maps' frame): scaled to full resolution, then through the inverse of the
+    rectifying homography when the export is rectified (pixel centres at integers)."""
+    s = truth_size[0] / float(size[0])
+    full = (np.asarray(xy, float) + 0.5) * s - 0.5
+    if H_inv is None:
+        return full
+    q = H_inv @ np.array([full[0], full[1], 1.0])
+    return q[:2] / q[2]
 
 
 def dense_figures(ds, views) -> dict:
@@ -203,6 +239,91 @@ def whole_grid_on_the_cluster(tmp: Path, grid: str, width: int) -> int:
     return 0
 
 
+def small_capture(tmp: Path) -> None:
+    """Issue 37: the 5 × 3 capture at 800 px as a user makes it (``lfstudio virtual-dataset`` defaults: DNG,
+    orientation error (1, -1.5, 0.7)°, exact positions), calibrated, processed (half-size views: 400 px) and
+    exported as COLMAP: the sparse cloud's figures and the tracks it dropped, by reason."""
+    from lfstudio.calibration.model import load_calibration
+    from lfstudio.processing.pipeline import process_dataset
+    from lfstudio.sim.virtual_dataset import make_virtual_dataset
+    from lfstudio.dataset import Dataset
+    from lfstudio.dataset.profile import Profile
+
+    root = tmp / "small_5x3_800_dng"
+    if not (root / "dataset.json").is_file():
+        make_virtual_dataset(root, 5, 3, width_px=800, fmt="dng", rotation_deg=(1.0, -1.5, 0.7))
+    ds = Dataset.open(root)
+    calibrate(ds)
+    if not (root / "processed").is_dir():
+        process_dataset(root, Profile.for_dataset(root), workers=0)
+    ds = Dataset.open(root)
+    decision = (load_calibration(ds) or {}).get("rectification", {}).get("decision", "")
+    p = points_figures(ds, tmp / "colmap_small_5x3_800")
+    print(f"5 x 3 at 800 px (DNG, calibrated, processed, exported at 400 px; {decision}):")
+    print_points(p)
+
+
+def print_points(p: dict) -> None:
+    print(f"  points: {p['points']}, reprojection error mean {p['err_mean']:.3f} px, p95 {p['err_p95']:.3f} px "
+          f"(targets <= 0.5 / 1.0), within 2 % of the true depth {p['within_2pct']:.1%} (target >= 90 %), "
+          f"mean track {p['track']:.1f} views; export {p['export_wall_s']:.0f} s wall, {p['export_cpu_s']:.0f} s CPU")
+    if p.get("dropped") is not None:
+        print(f"  {p['tracks']} feature tracks; dropped: "
+              + (", ".join(f"{n} {reason}" for reason, n in sorted(p["dropped"].items(), key=lambda kv: -kv[1]) if n)
+                 or "none"))
+
+
+def hci_scenes(folders: list[Path]) -> list[Path]:
+    """Every HCI scene (a folder with parameters.cfg, input_Cam*.png and gt_disp_lowres.pfm) under ``folders``."""
+    found = []
+    for folder in folders:
+        if folder.is_dir():
+            found += [cfg.parent for cfg in sorted(folder.rglob("parameters.cfg"))
+                      if (cfg.parent / "gt_disp_lowres.pfm").is_file() and any(cfg.parent.glob("input_Cam*.png"))]
+    return found
+
+
+def hci_points(scene: Path, tmp: Path) -> dict:
+    """An HCI scene imported as a user does, calibrated and exported as COLMAP: the sparse cloud's
+    figures; depth against the benchmark's centre-view disparity (each point projected into the centre
+    view, ``Z = f·B / (d + f·B/Z_focus)``, the relation ``parameters.cfg`` states: offset = f·B/Z_focus)."""
+    import re
+    import subprocess
+
+    import pycolmap
+
+    from lfstudio.dataset import Dataset
+    from lfstudio.depth.files import read_pfm
+
+    root = tmp / f"hci_{scene.name}"
+    if not (root / "dataset.json").is_file():
+        subprocess.run([sys.executable, "-m", "lfstudio", "import-images", str(scene), "--out", str(root)], check=True,
+                       capture_output=True)
+    ds = Dataset.open(root)
+    calibrate(ds)
+    out = tmp / f"colmap_hci_{scene.name}"
+    p = points_figures(ds, out, truth=False)
+    cfg = dict(re.findall(r"^(\w+)\s*=\s*(\S+)", (scene / "parameters.cfg").read_text(), re.M))
+    w = int(cfg["image_resolution_x_px"])
+    h = int(cfg["image_resolution_y_px"])
+    f = float(cfg["focal_length_mm"]) / float(cfg["sensor_size_mm"]) * max(w, h)
+    fb = f * float(cfg["baseline_mm"]) / 1000.0
+    offset = fb / float(cfg["focus_distance_m"])
+    gt = read_pfm(scene / "gt_disp_lowres.pfm")
+    rec = pycolmap.Reconstruction(out / "sparse" / "0")
+    n = int(cfg["num_cams_x"])
+    centre = next(im for im in rec.images.values() if im.name.startswith(f"r{n // 2:02d}_c{n // 2:03d}"))
+    rel = []
+    for point in rec.points3D.values():
+        uv = np.asarray(centre.camera.img_from_cam(centre.cam_from_world() * point.xyz), float)
+        u, v = np.rint(uv - 0.5).astype(int)
+        if 0 <= u < w and 0 <= v < h:
+            z_true = fb / (float(gt[v, u]) + offset)
+            rel.append(abs(point.xyz[2] - z_true) / z_true)
+    p["within_2pct"] = float((np.array(rel) < 0.02).mean()) if rel else float("nan")
+    return p
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--grids", default="9x3,21x5")
@@ -212,6 +333,10 @@ def main() -> int:
     ap.add_argument("--cluster-views", type=int, default=16)
     ap.add_argument("--skip-cluster", action="store_true")
     ap.add_argument("--skip-2000", action="store_true")
+    ap.add_argument("--skip-small", action="store_true",
+                    help="leave out the 5 x 3 capture at 800 px as a user makes it and the HCI scenes")
+    ap.add_argument("--hci", type=Path, action="append", default=[],
+                    help="a folder to search for HCI scenes (repeatable; default ../shared/data/lightfield)")
     ap.add_argument("--cluster-grid", metavar="CxR",
                     help="only the cluster figure, measured on every view of this grid (e.g. 101x21: all 2121 "
                          "views at --width, true calibration) instead of extrapolated from a subset")
@@ -221,6 +346,12 @@ def main() -> int:
     print(load_text())
     if args.cluster_grid:
         return whole_grid_on_the_cluster(tmp, args.cluster_grid, args.width)
+    if not args.skip_small:
+        small_capture(tmp)
+        default_hci = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "lightfield"
+        for scene in hci_scenes(args.hci or [default_hci]):
+            print(f"HCI {scene.name} (imported, calibrated, exported as COLMAP from the raw views):")
+            print_points(hci_points(scene, tmp))
     rows_out = []
     last = None
     for text in args.grids.split(","):
@@ -231,9 +362,7 @@ def main() -> int:
         cal = calibrate(ds)
         print(f"  self-calibration: rotation {np.round(cal['rotation_deg'], 3).tolist()} deg (true [1, -1.5, 0.7])")
         p = points_figures(ds, tmp / f"colmap_{cols}x{rows}")
-        print(f"  points: {p['points']}, reprojection error mean {p['err_mean']:.3f} px, p95 {p['err_p95']:.3f} px "
-              f"(targets <= 0.5 / 1.0), within 2 % of the true depth {p['within_2pct']:.1%} (target >= 90 %), "
-              f"mean track {p['track']:.1f} views; export {p['export_wall_s']:.0f} s wall, {p['export_cpu_s']:.0f} s CPU")
+        print_points(p)
         if not p["points"]:
             print(f"FAILED: the COLMAP export of {cols} x {rows} views at {args.width} px has no sparse point "
                   "(no figure to give)", file=sys.stderr)

@@ -142,6 +142,9 @@ class DescriptorIndex:
             return idx, dist
         if len(self.descriptors) >= 2 and n * len(self.descriptors) > _FLANN_ABOVE:
             if self._flann is None:
+                # the kd-trees are randomised from OpenCV's RNG, which is per thread: seeded here, in the
+                # thread that builds them, the same views give the same matches on every run
+                cv2.setRNGSeed(0)
                 self._flann = cv2.flann.Index(self.descriptors, {"algorithm": 1, "trees": 4})
             i, d = self._flann.knnSearch(q, 2, params={"checks": FLANN_CHECKS})
             return i.astype(np.int64), d.astype(np.float32)

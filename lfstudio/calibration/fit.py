@@ -69,11 +69,17 @@ MIN_EVIDENCE_MATCHES = 24
 BOOTSTRAP_SAMPLES = 200
 #: the robust first fit (which finds the outliers) uses at most this many matches
 ROBUST_SAMPLE = 20000
-#: systematic feature error (px at full resolution) behind the per-angle floor of the covariance
-SYSTEMATIC_PX = 0.01
-#: no pair's residuals are weighted as if its matches were better than the systematic error: with
-#: near-perfect features the weights would otherwise grow without bound and the refinement diverge
-_MIN_SIGMA_PX = SYSTEMATIC_PX
+#: systematic feature error (px RMS at full resolution) behind the per-angle floor of the covariance
+#: and of the radial term: the pattern no resampling can see because every match carries it. Measured
+#: (issue 37): on distortion-free virtual-studio captures (5 × 3 views at 800 px, no rotation) the
+#: matches carry a radial-shaped pattern of 0.022 px RMS against the true geometry, and the rendered
+#: HCI views patterns of the same size shaped like a tilt; 0.01 px called them 10-25 σ significant.
+SYSTEMATIC_PX = 0.02
+#: no pair's residuals are weighted as if its matches were better than this: with near-perfect
+#: features the weights would otherwise grow without bound and the refinement diverge
+_MIN_SIGMA_PX = 0.01
+#: image regions per side of the scene-region block bootstrap (:func:`_bootstrap_angles`)
+SCENE_CELLS = 6
 
 
 class CalibrationError(LfError):
@@ -755,8 +761,22 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
         C6 = _inverse(N6)
         delta = C6 @ rhs6
         kk = len(cols6) - 1
-        k_hat, k_std = float(delta[kk]), float(np.sqrt(C6[kk, kk]))
-        radial = {"corner_px": k_hat, "std_px": k_std, "applied": False}
+        k_hat, k_formal = float(delta[kk]), float(np.sqrt(C6[kk, kk]))
+        # how well the views determine it, measured as for the angles: the formal error assumes
+        # independent residuals, but a term that moves the matches by ~0.002 px per px at the corners
+        # (short baselines) is faked by feature errors shared across pairs (the scene-region bootstrap)
+        # and by a systematic pattern of SYSTEMATIC_PX (the floor). On distortion-free virtual captures
+        # (5 × 3 views at 800 px) the formal error called 3–11 px of pincushion 7–25 σ (issue 37)
+        k_var = k_formal ** 2
+        boot6 = _bootstrap_angles(data.subset(inlier), p6, cols6, f, (w, h), prior_sigma, offsets,
+                                  1.0 / sig_pair[data.pair[inlier]] ** 2)
+        if boot6 is not None:
+            k_var = max(k_var, float(boot6[kk, kk]))
+        J6 = prob.jacobian(p6)
+        k_floor = SYSTEMATIC_PX / max(float(np.percentile(np.abs(J6[:, kk]), 99)), 1e-12) if len(J6) else 0.0
+        k_std = float(np.sqrt(k_var + k_floor ** 2))
+        radial = {"corner_px": k_hat, "std_px": k_std, "formal_std_px": k_formal, "floor_px": k_floor,
+                  "applied": False}
         if abs(k_hat) >= RADIAL_DETECT_PX and abs(k_hat) > RADIAL_SIGNIFICANCE * k_std:
             keep = np.r_[np.arange(kk), np.arange(len(cols6), len(N6))]
             C5 = _inverse(N6[np.ix_(keep, keep)])
@@ -852,12 +872,21 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
 def _bootstrap_angles(data: _Data, params: np.ndarray, fidx: np.ndarray, f: float, size: tuple[int, int],
                       pp_prior_sigma: float, offsets: np.ndarray, weights: np.ndarray,
                       samples: int = BOOTSTRAP_SAMPLES, cells: int = 4, seed: int = 0) -> np.ndarray | None:
-    """Covariance of the free angles from a block bootstrap: blocks are the matches of one pair in one
-    of ``cells`` × ``cells`` image regions; each sample redraws the blocks with replacement and takes
-    the linearised weighted least-squares step from the solution. The residuals keep the views'
-    position errors (the offsets the fit estimated are not taken out: on few pairs they absorb the
-    scatter they should show; a 2 × 2 grid with 15 matches per pair covered its true error at 2σ in
-    12 of 16 trials with them taken out, 14 of 16 with them in). None with fewer than 4 blocks."""
+    """Covariance of the free parameters ``fidx`` from two block bootstraps, each sample redrawing the
+    blocks with replacement and taking the linearised weighted least-squares step from the solution;
+    per parameter the larger variance of the two (the diagonal is what the callers use):
+
+    - pair regions: the matches of one pair in one of ``cells`` × ``cells`` image regions (sparse or
+      bunched matches, heavy-tailed errors);
+    - scene regions: the matches of *every* pair in one of :data:`SCENE_CELLS` × :data:`SCENE_CELLS`
+      regions (by the match's mean position). One scene feature is matched in many pairs with the same
+      localisation error, so its pairs are not independent evidence; resampling pairs' regions alone
+      called a 0.15° tilt of the rendered HCI views 3 σ (issue 37).
+
+    The residuals keep the views' position errors (the offsets the fit estimated are not taken out: on
+    few pairs they absorb the scatter they should show; a 2 × 2 grid with 15 matches per pair covered
+    its true error at 2σ in 12 of 16 trials with them taken out, 14 of 16 with them in). None with
+    fewer than 4 blocks."""
     if not len(fidx):
         return None
     problem = _Problem(data, f, size, pp_prior_sigma)
@@ -866,13 +895,26 @@ def _bootstrap_angles(data: _Data, params: np.ndarray, fidx: np.ndarray, f: floa
     r = problem.residuals(p)      # the views' position errors left in: they scatter the angles too
     J = problem.jacobian(p, r)
     w, h = size
-    cx = np.clip((data.xy_a[:, 0] / w * cells).astype(int), 0, cells - 1)
-    cy = np.clip((data.xy_a[:, 1] / h * cells).astype(int), 0, cells - 1)
-    block = np.unique(data.pair * cells * cells + cy * cells + cx, return_inverse=True)[1]
+    out = None
+    mid = 0.5 * (data.xy_a + data.xy_b)
+    for key_cells, xy, per_pair in ((cells, data.xy_a, True), (SCENE_CELLS, mid, False)):
+        cx = np.clip((xy[:, 0] / w * key_cells).astype(int), 0, key_cells - 1)
+        cy = np.clip((xy[:, 1] / h * key_cells).astype(int), 0, key_cells - 1)
+        key = cy * key_cells + cx + (data.pair * key_cells * key_cells if per_pair else 0)
+        cov = _block_bootstrap(J, r, weights, np.unique(key, return_inverse=True)[1], samples, seed)
+        if cov is not None:
+            out = cov if out is None else np.where(np.diag(cov)[:, None] > np.diag(out)[:, None], cov, out)
+    return out
+
+
+def _block_bootstrap(J: np.ndarray, r: np.ndarray, weights: np.ndarray, block: np.ndarray, samples: int,
+                     seed: int) -> np.ndarray | None:
+    """Covariance of the linearised weighted step ``(Jᵀ W J)⁻¹ Jᵀ W r`` over bootstrap samples of the
+    blocks ``block`` (label per residual); None with fewer than 4 blocks."""
     nb = int(block.max()) + 1 if len(block) else 0
     if nb < 4:
         return None
-    k = len(fidx)
+    k = J.shape[1]
     wJ = J * weights[:, None]
     G = np.zeros((nb, k))
     Nb = np.zeros((nb, k, k))

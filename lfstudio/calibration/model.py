@@ -232,6 +232,52 @@ def held_angles(doc: dict[str, Any]) -> dict[str, dict]:
     return {str(h.get("angle")): h for h in obs.get("held") or () if isinstance(h, dict)}
 
 
+#: a fitted rotation is applied (the views warped by it) only when an angle the views determine lies
+#: at least this many of its stated σ from zero; a smaller one cannot be told from no rotation, and
+#: warping perfect views by it makes them worse (issue 37: rendered HCI views warped by 2–3 σ "rotations")
+ROTATION_SIGNIFICANCE_SIGMAS = 2.0
+RECTIFICATION_KEY = "rectification"
+
+
+def rotation_decision(rotation_deg: ArrayLike, rotation_std_deg: ArrayLike,
+                      determined: Sequence[bool] = (True, True, True),
+                      sigmas: float = ROTATION_SIGNIFICANCE_SIGMAS) -> dict[str, Any]:
+    """Whether a fitted rotation is significant, so worth warping the views by: ``rotation_applied``
+    when some determined angle lies ≥ ``sigmas`` of its σ from zero; ``z`` (angle / σ per angle, None
+    for a held one) and ``decision`` (one line that says what was decided, for the report, the CLI and
+    the window)."""
+    angles = np.asarray(rotation_deg, float)
+    std = np.asarray(rotation_std_deg, float)
+    z: list[float | None] = [float(a / s) if d and s > 0 else None
+                             for a, s, d in zip(angles, std, determined)]
+    significant = [name for name, value in zip(("rx", "ry", "rz"), z)
+                   if value is not None and abs(value) >= sigmas]
+    shown = ", ".join(f"{name} {value:+.1f}σ" for name, value in zip(("rx", "ry", "rz"), z) if value is not None)
+    if significant:
+        decision = (f"rotation significant (|{'|, |'.join(significant)}| ≥ {sigmas:g}σ; {shown}): "
+                    "views rectified by it")
+    else:
+        names = [name for name, value in zip(("rx", "ry", "rz"), z) if value is not None]
+        decision = (f"rotation not significant (|{'|, |'.join(names) or 'no angle'}| < {sigmas:g}σ; {shown or 'none determined'}): "
+                    "views left unrotated")
+    return {"rotation_applied": bool(significant), "significance_sigmas": float(sigmas), "z": z,
+            "decision": decision}
+
+
+def rotation_applied(document: dict[str, Any]) -> bool:
+    """Whether the document's homography rotates the views (documents written before the decision
+    was recorded always did)."""
+    rect = document.get(RECTIFICATION_KEY)
+    return not isinstance(rect, dict) or bool(rect.get("rotation_applied", True))
+
+
+def rectification_decision(document: dict[str, Any]) -> str | None:
+    """The document's one-line decision about rotating the views, or None (older documents)."""
+    rect = document.get(RECTIFICATION_KEY)
+    text = rect.get("decision") if isinstance(rect, dict) else None
+    return str(text) if text else None
+
+
 UNCERTAINTY_KEY = "uncertainty"
 #: the order of :attr:`CalibrationUncertainty.covariance`
 PARAMETERS = ("rx_deg", "ry_deg", "rz_deg", "cx_offset_px", "cy_offset_px")

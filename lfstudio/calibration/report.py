@@ -18,8 +18,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from lfstudio.calibration.fit import FitResult, PairMatches
-from lfstudio.calibration.model import ROTATION_CONVENTION, UNCERTAINTY_KEY, CalibrationUncertainty, \
-    held_angles, rotation_angle_deg, rotation_matrix
+from lfstudio.calibration.model import RECTIFICATION_KEY, ROTATION_CONVENTION, UNCERTAINTY_KEY, \
+    CalibrationUncertainty, held_angles, rectification_decision, rotation_angle_deg, \
+    rotation_decision, rotation_matrix
 from lfstudio.calibration.uncertainty import describe_fit, nearest_disparity_per_mm, rig_floor_px
 from lfstudio.dataset.paths import view_stem
 
@@ -119,6 +120,11 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
 
     w, h = fit.image_size_px
     nominal = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    decision = rotation_decision(fit.rotation_deg, uncertainty.rotation_std_deg,
+                                 obs.free if obs is not None else (True, True, True))
+    # a rotation the views cannot tell from none is not applied: the homography leaves the views as
+    # they are (a principal point alone only translates every view alike, which rectification ignores)
+    homography = fit.homography if decision["rotation_applied"] else np.eye(3)
     doc = {
         "format": FORMAT, "version": VERSION,
         "created": created,
@@ -134,7 +140,8 @@ def build_report(fit: FitResult, matches: Sequence[PairMatches], *, views: Seque
         "radial_distortion": fit.extra.get("radial_distortion"),
         "focal_length_px": float(fit.focal_length_px),
         "image_size_px": [int(w), int(h)],
-        "homography": [[float(x) for x in row] for row in fit.homography],
+        "homography": [[float(x) for x in row] for row in homography],
+        RECTIFICATION_KEY: decision,
         "homography_maps": "captured full-resolution pixel -> rectified pixel (pixel centres at integers)",
         "residual_px": {"kind": "mean/median/p99 of |residual|, rms = root mean square; full-resolution px",
                         **overall},
@@ -164,8 +171,12 @@ def _uncertainty_warnings(fit: FitResult, matches: Sequence[PairMatches], u: Cal
                    "(--views default)")
     else:
         free = fit.observability.free if fit.observability is not None else (True, True, True)
-        weak = [f"{name} ±{sd:.3f}°" for name, sd, f in zip(ANGLE_NAMES, u.rotation_std_deg, free)
-                if f and not sd <= WEAK_ANGLE_STD_DEG]
+        # what the views determine: the stated σ without the systematic floor (which is in it, and
+        # which no choice of views at this size removes)
+        floor = np.asarray(fit.extra.get("systematic_floor_deg") or np.zeros(3), float)
+        evidence = np.sqrt(np.maximum(np.asarray(u.rotation_std_deg, float) ** 2 - floor ** 2, 0.0))
+        weak = [f"{name} ±{sd:.3f}°" for name, sd, ev, f in zip(ANGLE_NAMES, u.rotation_std_deg, evidence, free)
+                if f and not ev <= WEAK_ANGLE_STD_DEG]
         if weak:
             lines_up = {"rows only": "rows", "columns only": "columns"}.get(
                 fit.observability.directions if fit.observability is not None else "", "rows and columns")
@@ -222,6 +233,9 @@ def format_report(doc: dict[str, Any]) -> str:
                      f"{obs.get('pairs')}: {obs.get('matches_in_rows', 0)} matches in rows, "
                      f"{obs.get('matches_in_columns', 0)} in columns)")
     lines += uncertainty_lines(doc)
+    decided = rectification_decision(doc)
+    if decided:
+        lines.append(f"  decision    {decided}")
     pp_text = doc.get("principal_point_reason") or ("estimated" if doc["principal_point_estimated"]
                                                     else "nominal centre")
     lines += [

@@ -157,7 +157,14 @@ def describe_fit(fit: FitResult, matches: Sequence[PairMatches], row_baseline_mm
     bounds = error_bounds(probe_jacobian(corners, fit.params, fit.focal_length_px, fit.image_size_px),
                           fit.covariance, "max")
     floor = rig_floor_px(fit, k)
-    degenerate = bool(floor and bounds[0] > floor)
+    # degenerate is a statement about the evidence (too short baselines), so it leaves out the
+    # systematic floor (fit.SYSTEMATIC_PX), which no choice of views removes from a grid this size
+    systematic = np.zeros(5)
+    systematic[:3] = np.asarray(fit.extra.get("systematic_floor_deg") or np.zeros(3), float) ** 2
+    evidence = np.asarray(fit.covariance, float) - np.diag(systematic)
+    evidence_bound = error_bounds(probe_jacobian(corners, fit.params, fit.focal_length_px, fit.image_size_px),
+                                  evidence, "max")[0]
+    degenerate = bool(floor and evidence_bound > floor)
     pair_sigma = fit.extra.get("pair_sigma_px") or []
     linear = fit.extra.get("linear_deg")
     linear_rms = None
@@ -181,8 +188,10 @@ def describe_fit(fit: FitResult, matches: Sequence[PairMatches], row_baseline_mm
         linear_residual_px=linear_rms, degenerate=degenerate,
         method="covariance of the fit with every view's position error in the model (prior: the rig's "
                "repeatability, raised to what the data show) and each pair's residuals scaled by their "
-               "observed spread; the principal point's prior included when it is held; at least the spread of a "
-               "block bootstrap over pair regions and of a delete-one-view jackknife")
+               "observed spread; the principal point's prior included when it is held; at least the spread of "
+               "block bootstraps over pair regions and over scene regions (one feature's error is shared by "
+               "all its pairs) and of a delete-one-view jackknife; plus the angle a systematic feature "
+               "error would fake")
 
 
 def rig_floor_px(fit, nearest_px_per_mm: float | None) -> float | None:

@@ -97,7 +97,22 @@ class ExportReport:
                 f"; {1 / ratio:.1f}x larger than 16-bit PNG (tiny frames)"
         if self.psnr_db is not None:
             text += f"; PSNR {self.psnr_db:.1f} dB (16-bit scale)"
+        cloud = self.details.get("point_cloud")
+        if isinstance(cloud, dict):
+            text += "\n" + describe_points(cloud)
         return text
+
+
+def describe_points(cloud: dict) -> str:
+    """One line on an export's sparse point cloud: how many points, from how many tracks, and why
+    the others were dropped (each track counted under the first test it failed)."""
+    dropped = {k: int(v) for k, v in (cloud.get("dropped") or {}).items() if v}
+    text = f"sparse points: {cloud.get('points', 0)}"
+    if cloud.get("tracks") is not None:
+        text += f" from {cloud['tracks']} feature tracks"
+    if dropped:
+        text += "; dropped: " + ", ".join(f"{n} {reason}" for reason, n in sorted(dropped.items(), key=lambda kv: -kv[1]))
+    return text
 
 
 def _fmt_bytes(n: float) -> str:
@@ -293,6 +308,16 @@ def export_dataset(dataset, options: ExportOptions, *, progress: Progress | None
         report.files = nerfstudio.export_nerfstudio(ds, views, source, size, out, options, progress, cancel)
     report.bytes_written = sum(common.folder_bytes(p) for p in report.files if p.exists())
     report.seconds = time.monotonic() - t0
+    if options.format == "colmap":
+        import json
+
+        from lfstudio.export.colmap import MANIFEST_NAME
+        try:
+            cloud = json.loads((out / MANIFEST_NAME).read_text(encoding="utf-8")).get("point_cloud")
+        except (OSError, ValueError):
+            cloud = None
+        if isinstance(cloud, dict):
+            report.details["point_cloud"] = cloud
     log.info("export to %s finished: %d files, %d bytes in %.1f s", out, len(report.files), report.bytes_written,
              report.seconds)
     return report

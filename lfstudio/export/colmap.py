@@ -152,6 +152,7 @@ def describe_cloud(cloud: "SparseCloud | None") -> dict[str, Any] | None:
             "reprojection_error_px": {"mean": float(errors.mean()) if len(errors) else None,
                                       "p95": float(np.percentile(errors, 95)) if len(errors) else None},
             "mean_track_length": float(lengths.mean()) if len(lengths) else None,
+            "tracks": cloud.stats.get("tracks"), "dropped": cloud.stats.get("dropped"),
             "filters": cloud.stats.get("filters"), "method": "lfstudio.depth.points (known poses, SIFT tracks)"}
 
 

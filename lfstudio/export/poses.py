@@ -85,7 +85,7 @@ def camera_for(ds: Dataset, size: Sequence[int], rectified: bool, calibration: d
     (K_true, R), or the ideal rectified one (K0, identity) when ``rectified``. Without a calibration,
     the camera and lens of the manifest with the principal point at the centre and no rotation
     (a warning says so)."""
-    from lfstudio.calibration.model import load_calibration
+    from lfstudio.calibration.model import load_calibration, rotation_applied
     from lfstudio.calibration.model import rotation_matrix
 
     w, h = int(size[0]), int(size[1])
@@ -122,10 +122,12 @@ def camera_for(ds: Dataset, size: Sequence[int], rectified: bool, calibration: d
         R = np.eye(3)
         pp, pp_from, rot_from = nominal, "rectified (image centre)", "rectified (identity)"
     elif cal:
+        if not rotation_applied(cal):       # not significant: the views are left unrotated, so is the camera
+            rot = (0.0, 0.0, 0.0)
         R = rotation_matrix(rot)
         pp = pp_full or nominal
         pp_from = "calibration (estimated)" if cal.get("principal_point_estimated") else "calibration (nominal centre)"
-        rot_from = "calibration"
+        rot_from = "calibration" if rotation_applied(cal) else "calibration (rotation not significant: none)"
     else:
         R = np.eye(3)
         pp, pp_from, rot_from = nominal, "image centre (no calibration)", "none (no calibration)"

@@ -52,6 +52,7 @@ class ProcessReport:
     executor: str = ""
     output_folder: str = ""
     profile_sha256: str = ""
+    notes: list[str] = field(default_factory=list)      # what the run decided (e.g. not to rotate the views)
 
     @property
     def ok(self) -> bool:
@@ -60,6 +61,8 @@ class ProcessReport:
     def summary(self) -> str:
         text = (f"{self.processed} processed, {self.skipped} already done (skipped), {len(self.failed)} failed "
                 f"in {self.elapsed_s:.1f} s on {self.executor}; output in {self.output_folder}")
+        for note in self.notes:
+            text += f"\n{note}"
         if self.gains:
             g = np.array(list(self.gains.values()))
             text += f"\nde-flicker gains: {g.min():.4f} .. {g.max():.4f} (median {np.median(g):.4f})"
@@ -247,6 +250,12 @@ def _process(ds: Dataset, profile: Profile, info: executors.ExecutorInfo, force:
     todo = [v for v in views if force or not _skip(v, sha, ds)]
     report = ProcessReport(skipped=len(views) - len(todo), profile_sha256=sha,
                            output_folder=str(ds.root / profile.output.folder))
+    if plan.homography is not None:
+        from lfstudio.calibration.model import rectification_decision
+
+        decided = rectification_decision(load_calibration(ds) or {})
+        if decided:
+            report.notes.append(f"rectification: {decided}")
     ref = reference_view(ds, profile)
     ds.manifest["processing"] = {
         "profile_file": PROFILE_NAME, "profile_sha256": sha, "profile": profile.to_dict(),

@@ -70,3 +70,26 @@ def test_calibration_panel_notes_are_not_warnings(qtbot, tiny_dataset):
     assert (count(len(others), "warning") in text) == bool(others)
     assert doc["created"] not in text and readable_time(doc["created"]) in text
     window.close()
+
+
+def test_calibration_panel_says_whether_the_views_are_rotated(qtbot, tiny_dataset):
+    """Issue 37: the window says what processing will do with the fitted rotation (applied, or not
+    significant and the views left unrotated), as the CLI report does."""
+    from lfstudio.calibration.calibrate import calibrate_dataset
+    from lfstudio.calibration.model import rectification_decision, save_calibration
+
+    doc = calibrate_dataset(tiny_dataset, "array:3x2").document
+    save_calibration(tiny_dataset, doc)
+    decided = rectification_decision(doc)
+    assert decided and ("views left unrotated" in decided or "views rectified by it" in decided)
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    window.state.set_dataset(tiny_dataset)
+    summary = window.panels["calibrationPanel"].summary
+    text = summary.text()
+    if "views left unrotated" in decided:
+        assert "Views left unrotated: the rotation is not significant" in text
+    else:
+        assert "Views rectified: the rotation is significant" in text
+    assert f"Rectification: {decided}" in summary.toolTip()
+    window.close()

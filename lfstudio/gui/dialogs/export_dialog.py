@@ -9,6 +9,8 @@ options persist in QSettings.
 
 from __future__ import annotations
 
+import html
+
 from pathlib import Path
 from typing import Any
 
@@ -671,6 +673,10 @@ class ExportDialog(QDialog):
         psnr = getattr(report, "psnr_db", None)
         if psnr is not None:
             parts.append(f"PSNR {psnr:.1f} dB against the source views.")
+        cloud = (getattr(report, "details", None) or {}).get("point_cloud")
+        if isinstance(cloud, dict):      # how many sparse points, and why the other tracks were dropped
+            from lfstudio.export import describe_points
+            parts.append("<br>" + html.escape(describe_points(cloud)[:1].upper() + describe_points(cloud)[1:]) + ".")
         return " ".join(parts)
 
     def _export_failed(self, message: str) -> None:

@@ -80,6 +80,11 @@ class CalibrationPanel(QWidget):
         if u is not None and u.corner_error_px:
             corners = (f"<br>at the image corners ≤ {u.corner_error_px[0]:.2f} px (1σ), "
                        f"≤ {u.corner_error_px[1]:.2f} px (2σ)")
+        from lfstudio.calibration.model import rectification_decision, rotation_applied
+        decided = rectification_decision(doc)
+        if decided:          # short here (a narrow panel); the whole decision in the tooltip and the report
+            corners += ("<br>Views rectified: the rotation is significant" if rotation_applied(doc) else
+                        "<br>Views left unrotated: the rotation is not significant (every angle within 2σ of 0)")
         # an angle held because these views do not determine it is a note about the fit, not a problem
         warnings, notes = calibration_warnings(doc)
         warn = ""
@@ -87,7 +92,8 @@ class CalibrationPanel(QWidget):
             warn += f"<br><span style='color:#b00020'>{count(len(warnings), 'warning')}</span>"
         if notes:
             warn += f"<br><span style='color:#5b6470'>{count(len(notes), 'note')}</span>"
-        self.summary.setToolTip("\n".join([*(f"Warning: {w}" for w in warnings), *(f"Note: {n}" for n in notes)]))
+        self.summary.setToolTip("\n".join([*(f"Warning: {w}" for w in warnings), *(f"Note: {n}" for n in notes),
+                                           *([f"Rectification: {decided}"] if decided else [])]))
         self.summary.setText(f"<b>Calibrated</b> {readable_time(doc.get('created'))}<br>{angles}{corners}<br>"
                              f"residual RMS {before['rms']:.2f} → {after['rms']:.2f} px "
                              f"({count(len(doc.get('views_used', [])), 'view')}){warn}")

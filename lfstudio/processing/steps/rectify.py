@@ -54,8 +54,16 @@ def build_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | None
         return [[cv2.convertMaps(mx - np.float32(dx), my - np.float32(dy), cv2.CV_16SC2)]
                 for (mx, my), (dx, dy) in zip(maps if len(maps) == 3 else maps * 3, offsets_px)]
     if lens is None:
-        return None if H_full is None else HomographyWarp(homography_at_scale(H_full, scale), (size_wh[0], size_wh[1]))
+        if H_full is None or is_identity(H_full):       # e.g. a rotation too small to apply: no warp
+            return None
+        return HomographyWarp(homography_at_scale(H_full, scale), (size_wh[0], size_wh[1]))
     return [cv2.convertMaps(mx, my, cv2.CV_16SC2) for mx, my in _source_maps(size_wh, scale, H_full, lens)]
+
+
+def is_identity(H: np.ndarray) -> bool:
+    """Whether ``H`` leaves every pixel where it is (a calibration whose rotation was not applied)."""
+    H = np.asarray(H, float)
+    return bool(H.shape == (3, 3) and np.allclose(H / H[2, 2], np.eye(3), rtol=0.0, atol=1e-12))
 
 
 def _source_maps(size_wh: tuple[int, int], scale: float, H_full: np.ndarray | None, lens) -> list:
