@@ -16,6 +16,8 @@ from lfstudio.calibration.report import format_report
 from lfstudio.sim.virtual_dataset import make_virtual_dataset
 
 LEFT_ALONE = "views left unrotated"
+#: a virtual-studio render and a calibration fit: seconds a test (full tier, tests/conftest.py)
+heavy = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
@@ -26,6 +28,7 @@ def perfect(tmp_path_factory):
     return ds, calibrate_dataset(ds)
 
 
+@heavy
 def test_a_distortion_free_capture_gives_no_distortion_warning(perfect):
     _, run = perfect
     doc = run.document
@@ -37,6 +40,7 @@ def test_a_distortion_free_capture_gives_no_distortion_warning(perfect):
     assert not any("lens distortion" in w for w in doc["warnings"]), doc["warnings"]
 
 
+@heavy
 def test_perfect_views_are_not_rotated_and_the_report_says_so(perfect):
     _, run = perfect
     doc = run.document
