@@ -405,9 +405,9 @@ def neighbours_of(ds: Dataset, view: View, settings: DepthSettings, captured: se
 
 
 def _recorded_positions(ds: Dataset) -> dict[tuple[int, int], tuple[float, float]] | None:
-    """The views' positions as the rig recorded them (an import with ``--positions``: the views'
-    ``reported_mm``), else None (a scan or an import on a regular grid: the grid's positions)."""
-    if not (ds.manifest.get("import") or {}).get("positions"):
+    """The views' positions as the rig recorded them (``reported_mm`` of an import with
+    ``--positions`` or of a fly scan: :attr:`Dataset.positions_recorded`), else None (the grid's)."""
+    if not ds.positions_recorded:
         return None
     out = {}
     for v in ds.views:

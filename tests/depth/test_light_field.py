@@ -98,3 +98,23 @@ def test_the_cost_of_a_pixel_hidden_from_one_side_comes_from_the_other():
     strip = (slice(y0 + 6, y1 - 6), slice(x0 - 7, x0 - 2))        # a band of background beside the square
     assert np.all(truth[strip] == D_BACK)
     assert (np.abs(res.disparity_px[strip] - D_BACK) < 0.1).mean() > 0.9
+
+
+def test_the_neighbourhood_is_two_dimensional_and_uses_recorded_positions(tiny_dataset):
+    """A view's neighbours: its row, its column and the diagonals, one-sided at the grid's edge; the
+    offsets come from the positions the rig recorded when the dataset has them."""
+    from lfstudio.dataset import Dataset
+    from lfstudio.depth.run import DepthSettings, neighbours_of
+
+    ds = tiny_dataset                                   # 5 x 3, spacing 4 x 6 mm
+    captured = set(ds.captured_views())
+    corner = {(int(v[0]), int(v[1])): (dx, dy) for v, dx, dy in neighbours_of(ds, (0, 0), DepthSettings(), captured)}
+    assert set(corner) == {(0, 1), (0, 2), (0, 3), (0, 4), (1, 0), (2, 0), (1, 1), (2, 2)}
+    assert corner[(1, 1)] == pytest.approx((1.0, 1.5)) and corner[(0, 4)] == pytest.approx((4.0, 0.0))
+    ds.manifest.setdefault("import", {})["positions"] = {"source": "test"}
+    for v in ds.manifest["views"]:
+        v["reported_mm"] = [v["column"] * 4.0 + (0.2 if (v["row"], v["column"]) == (1, 1) else 0.0), v["row"] * 6.0]
+    ds.save()
+    ds = Dataset.open(ds.root)
+    moved = {(int(v[0]), int(v[1])): (dx, dy) for v, dx, dy in neighbours_of(ds, (0, 0), DepthSettings(), captured)}
+    assert moved[(1, 1)] == pytest.approx((1.05, 1.5)) and moved[(0, 4)] == pytest.approx((4.0, 0.0))
