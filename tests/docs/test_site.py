@@ -18,6 +18,7 @@ import pytest
 from tests.conftest import REPO_ROOT
 
 DOCS = REPO_ROOT / "docs"
+pytestmark = pytest.mark.xdist_group("docs-site")      # one build, on one worker
 
 
 @pytest.fixture(scope="module")
