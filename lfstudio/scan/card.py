@@ -7,7 +7,9 @@ whose capture target can be the card). Per view: move, settle, ``capture_to_card
 picture is on the card), and the paths of its files on the camera are journaled at once (the view's
 ``on_card``; it is not done yet). When the next view is on another row (the rig moves to it meanwhile),
 at a pause, an abort and at the end, the files of every view taken since are downloaded on the camera's
-worker (``download_from_card``: size checked, deleted on the card) and the store stage checksums and
+worker (``download_from_card``: size checked, deleted on the card; at a row change only as many as
+fit into the vertical move and the settle at the transfer time measured, the others at the end, so the
+downloads never hold up the captures) and the store stage checksums and
 journals each view as usual: a view is done only when its file is on disk and verified. A download
 that fails makes the store take the view again. A run that ended before its downloads (kill -9, a
 pulled cable) leaves ``on_card`` in the journal: the next run with ``--keep-on-card`` fetches those
@@ -66,6 +68,20 @@ class CardBufferEngine(ScanEngine):
         self._card_ready = False
         self.fetched_on_resume = 0
         self.downloads = 0
+        self._transfer_s: list[float] = []     # measured download times (simulated seconds on a simulator)
+        # the store stage takes a view once its download has begun (it holds at most two pictures: one
+        # waiting on a file still on the card would hold up the scan)
+        self._held: dict[int, StoreJob] = {}
+        submit = self.store.submit
+
+        def hold_on_card(job: StoreJob) -> None:
+            if isinstance(job.future, _OnCard) and job.future.on_card:
+                self._held[id(job.future)] = job
+            else:
+                submit(job)
+
+        self._submit_to_store = submit
+        self.store.submit = hold_on_card      # type: ignore[method-assign]
 
     def _loop(self) -> None:
         if not self._card_ready:
@@ -119,16 +135,34 @@ class CardBufferEngine(ScanEngine):
 
     def _next_view(self) -> PlannedView | None:
         view = super()._next_view()
-        if self._on_card and (view is None or view.row != self._on_card[-1][0].row):
-            self._download_all()               # the rig moves to the next row meanwhile
+        if view is None:
+            self._download_all()
+        elif self._on_card and view.row != self._on_card[-1][0].row:
+            self._download_all(self._fit_in_row_change())     # the rig moves to the next row meanwhile
         return view
+
+    def _fit_in_row_change(self) -> int:
+        """How many downloads fit into a row change (the vertical move and the settle) at the transfer
+        time measured so far (one while none is known): the rest waits for the end, so that the
+        downloads never hold up the captures (the camera takes one call at a time)."""
+        if not self._transfer_s:
+            return 1
+        from lfstudio.optics import move_time_s
+
+        v = self.rig.driver.config.vertical
+        change_s = move_time_s(self.plan.spacing_mm[1], v.max_speed_mm_s, v.acceleration_mm_s2) + self.plan.settle_s
+        mean = sum(self._transfer_s) / len(self._transfer_s)
+        return len(self._on_card) if mean <= 0 else int(change_s / mean)
 
     def _drain_store(self) -> None:
         self._download_all()                   # a pause, an abort, the end: nothing stays behind on the card
         super()._drain_store()
 
-    def _download_all(self) -> None:
-        pending, self._on_card = self._on_card, []
+    def _download_all(self, at_most: int | None = None) -> None:
+        if at_most is None:
+            pending, self._on_card = self._on_card, []
+        else:
+            pending, self._on_card = self._on_card[:at_most], self._on_card[at_most:]
         for view, out, files, stem in pending:
             real = self._camera_submit("download_from_card", files, stem,
                                        timeout_s=self.capture_call_timeout_s() + 60)
@@ -142,6 +176,11 @@ class CardBufferEngine(ScanEngine):
                     out.set_exception(exc)
                     return
                 out.on_card = False
+                self._transfer_s.append(float(result.transfer_s) / max(self.time_scale, 1e-9)
+                                        if self.time_scale > 0 else float(result.transfer_s))
                 out.set_result(replace(result, record={**(result.record or {}), "on_card": []}))
 
             real.add_done_callback(chain)
+            job = self._held.pop(id(out), None)
+            if job is not None:
+                self._submit_to_store(job)

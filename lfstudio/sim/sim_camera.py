@@ -300,6 +300,58 @@ class SimulatedCamera:
         finally:
             self._busy = False
 
+    # -- the card as the buffer (lfstudio.rig.camera.CardBuffered) -----------------------------------
+    def keep_on_card(self) -> str:
+        """Pictures stay on the simulated card (this process's memory: a killed process loses it, a
+        real card would not) until :meth:`download_from_card`."""
+        self._card: dict[str, tuple[np.ndarray, dict[str, Any]]] = getattr(self, "_card", {})
+        return "the simulated card"
+
+    def capture_to_card(self, stem_path: Path, on_exposed: Callable[[], None] | None = None) -> list[str]:
+        """Trigger, expose and keep the picture on the card (no transfer); its path on the card."""
+        card = getattr(self, "_card", None)
+        if card is None:
+            card = self._card = {}
+        t_call = time.monotonic()
+        if self._connected:
+            self._abort.clear()
+        studio = self._check_ready()
+        if self._take_fault("capture_fails"):
+            raise DeviceError(f"{self.name}: capture failed (the camera reported an error); retry the shot")
+        self._wait_until(t_call, self.trigger_s)
+        t_open = time.monotonic()
+        x_mm, y_mm = (float(v) for v in self.position_mm())
+        shot = self.shots
+        self.shots += 1
+        rgb = studio.render(x_mm, y_mm)
+        rgb *= np.float32(self.exposure_factor())
+        recorded, gain = self.sensor.apply(rgb, shot)
+        self._wait_until(t_open, self.exposure_s)
+        if on_exposed is not None:
+            on_exposed()
+        name = f"/card/DCIM/100SIM/SIM_{shot:05d}.DNG"
+        card[name] = (recorded, self._truth(studio, shot, x_mm, y_mm, gain))
+        return [name]
+
+    def download_from_card(self, camera_files: list[str], stem_path: Path) -> CaptureResult:
+        """Write the picture kept on the card as :meth:`capture` would, taking ``transfer_s``; gone from the card."""
+        card = getattr(self, "_card", {})
+        t0 = time.monotonic()
+        self._check_ready()
+        name = str(camera_files[0]) if camera_files else ""
+        if name not in card:
+            raise DeviceError(f"{self.name}: {name or 'the picture'} is not on the card (the camera restarted?)")
+        recorded, truth = card[name]
+        raw_path, jpg_path, truth_path, mosaic = self._write_files(Path(stem_path), recorded, truth)
+        self._wait_until(t0, self.transfer_s)
+        del card[name]
+        size = raw_path.stat().st_size
+        return CaptureResult(files=(raw_path, jpg_path, truth_path), exposure_s=self.exposure_s,
+                             transfer_s=time.monotonic() - t0,
+                             metadata={"iso": self.iso, "shutter_s": self.exposure_s, "aperture": self.aperture,
+                                       "format": "DNG", "bytes": size, "model": "lfstudio Virtual Studio",
+                                       "ground_truth": truth, "camera_files": [name]})
+
     # -- triggered frames (lfstudio.rig.camera.TriggeredCamera: fly scanning) ------------------------
     def arm(self, frames: int) -> None:
         """Ready for ``frames`` triggered frames: each trigger opens the shutter after

@@ -69,3 +69,26 @@ def test_keep_on_card_refused_for_a_camera_without_a_card(run_cli, tmp_path):
     line = proc.stderr.strip().splitlines()[-1]
     assert "--keep-on-card" in line and "cannot keep its pictures on its card" in line
     assert not (tmp_path / "ds" / "dataset.json").exists()
+
+
+def test_a_row_of_pictures_on_the_card_does_not_hold_up_the_scan(tmp_path):
+    """The store stage holds two pictures at most: views whose files wait on the card are handed to it
+    only once their download begins (it waited for a file that the scan would fetch only at the end)."""
+    from lfstudio.rig.camera import CardBuffered
+
+    rig_cfg = load_rig()
+    plan = ScanPlan.centered(6, 2, (4.0, 6.0), rig_cfg, settle_s=0.0)
+    studio = open_studio("sim", "sim", rig_cfg, time_scale=0.0, exposure_s=0.5, transfer_s=2.5,
+                         view_region_mm=plan.extent_mm(), sim_width_px=48)
+    try:
+        assert isinstance(studio.camera, CardBuffered)
+        ds = create_scan_dataset(tmp_path / "ds", plan, rig={"name": rig_cfg.name}, camera={"name": "sim"},
+                                 lens={"name": "t"})
+        engine = CardBufferEngine(ds, plan, studio.rig, studio.camera, time_scale=0.0)
+        engine.start()
+        assert engine.wait(60) is ScanState.FINISHED, engine.message
+    finally:
+        studio.close()
+    done = Dataset.open(tmp_path / "ds")
+    assert done.status_counts()["done"] == 12 and done.verify_files() == []
+    assert engine.downloads == 12 and all(v["on_card"] == [] for v in done.views)
