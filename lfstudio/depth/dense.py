@@ -265,13 +265,15 @@ def _strip_cost(reference: np.ndarray, neighbours: Sequence[Neighbour], ds: np.n
             check()
         sums: dict[int, np.ndarray] = {}
         # each neighbour counts where its sample lies inside it: a rectangle, summed through corners
-        corners = {p: np.zeros((rows + 1, w + 1), np.float32) for p in used}
+        # (by columns alone while every neighbour covers the strip's rows: the usual case)
+        spans: dict[int, list[tuple[int, int, int, int]]] = {p: [] for p in used}
         for n, ps in zip(neighbours, planes):
             sx, sy = -float(d) * n.dx, -float(d) * n.dy
             M = np.array([[1.0, 0.0, sx], [0.0, 1.0, sy + a]], np.float64)
             warped = cv2.warpAffine(n.image, M, (w, rows), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                     borderMode=cv2.BORDER_REPLICATE)
-            ad = np.minimum(cv2.absdiff(ref, warped), np.float32(tau))
+            ad = cv2.absdiff(ref, warped)
+            np.minimum(ad, np.float32(tau), out=ad)
             x0, x1 = _valid_span(w, sx)
             y0, y1 = _valid_span(h, sy)
             y0, y1 = min(rows, max(0, y0 - a)), max(0, min(rows, y1 - a))
@@ -283,24 +285,40 @@ def _strip_cost(reference: np.ndarray, neighbours: Sequence[Neighbour], ds: np.n
             for p in ps:
                 sums[p] = ad if p not in sums else cv2.add(sums[p], ad)
                 if y1 > y0 and x1 > x0:
-                    c = corners[p]
-                    c[y0, x0] += 1.0
-                    c[y0, x1] -= 1.0
-                    c[y1, x0] -= 1.0
-                    c[y1, x1] += 1.0
+                    spans[p].append((y0, y1, x0, x1))
         # the mean of the best BEST_OF half-planes' costs (a point hidden from one side is seen from
         # the others)
         costs = []
         for p in used:
-            count = np.cumsum(np.cumsum(corners[p], axis=0), axis=1)[:rows, :w]
+            den = _window_count(spans[p], rows, w, ksize)
             num = cv2.boxFilter(sums[p], -1, ksize, normalize=False, borderType=cv2.BORDER_REFLECT)
-            den = cv2.boxFilter(count, -1, ksize, normalize=False, borderType=cv2.BORDER_REFLECT)
             # where a half-plane saw the pixel through too few samples its cost is the truncation
-            cost = cv2.divide(num, np.maximum(den, np.float32(1e-6)))
-            cost[den <= 0.5 * area] = tau
+            cost = num / np.maximum(den, np.float32(1e-6))
+            np.copyto(cost, np.float32(tau), where=den <= 0.5 * area)
             costs.append(cost if weight[p] == 1.0 else cost * np.float32(weight[p]))
         out[:, :, i] = _best_of(costs, BEST_OF) if costs else tau
     return out
+
+
+def _window_count(spans: list[tuple[int, int, int, int]], rows: int, w: int, ksize: tuple[int, int]) -> np.ndarray:
+    """How many samples of the rectangles ``spans`` (y0, y1, x0, x1) fall in each pixel's window:
+    ``(rows, w)``, or ``(1, w)`` (broadcasts) when every rectangle covers all rows."""
+    if all(y0 == 0 and y1 == rows for y0, y1, _, _ in spans):
+        line = np.zeros(w + 1, np.float32)
+        for _, _, x0, x1 in spans:
+            line[x0] += 1.0
+            line[x1] -= 1.0
+        count = np.cumsum(line)[:w].astype(np.float32)[None, :]
+        return cv2.boxFilter(np.repeat(count, ksize[1], axis=0), -1, ksize, normalize=False,
+                             borderType=cv2.BORDER_REFLECT)[:1]
+    corners = np.zeros((rows + 1, w + 1), np.float32)
+    for y0, y1, x0, x1 in spans:
+        corners[y0, x0] += 1.0
+        corners[y0, x1] -= 1.0
+        corners[y1, x0] -= 1.0
+        corners[y1, x1] += 1.0
+    count = np.cumsum(np.cumsum(corners, axis=0), axis=1)[:rows, :w].astype(np.float32)
+    return cv2.boxFilter(count, -1, ksize, normalize=False, borderType=cv2.BORDER_REFLECT)
 
 
 def _best_of(costs: list[np.ndarray], k: int) -> np.ndarray:
