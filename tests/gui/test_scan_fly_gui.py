@@ -12,8 +12,9 @@ def test_continuous_motion_reaches_the_session_and_its_refusal_names_the_control
     devices, rig, cam = instant_devices
     state, panel = scan_panel(qtbot, devices, 4, 2, tmp_path / "fly")
     panel.time_scale.setValue(0.5)
-    assert not panel.fly.isChecked()
+    assert not panel.fly.isChecked() and "continuous motion" not in panel.summary.text()
     panel.fly.setChecked(True)
+    assert "continuous motion: the row speed is chosen at Start" in panel.summary.text()
     errors = []
     state.errorOccurred.connect(lambda title, message: errors.append(message))
     qtbot.mouseClick(panel.start_button, Qt.LeftButton)

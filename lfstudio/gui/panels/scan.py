@@ -294,6 +294,7 @@ class ScanPanel(QWidget):
                             "its position (the Start button says why not). Views whose frame came late are taken "
                             "again standing still")
         form.addRow(self.fly)
+        self.fly.toggled.connect(lambda _on: self._update_preview())
         self.keep_on_card = QCheckBox("Keep pictures on the camera's card")
         self.keep_on_card.setObjectName("scanKeepOnCard")
         self.keep_on_card.setToolTip("USB cameras (gphoto2): each picture stays on the camera's card and is "
@@ -574,8 +575,10 @@ class ScanPanel(QWidget):
         transfer = getattr(self.state.plan, "transfer_s", 2.5)
         est = plan.estimate_duration_s(rig, exposure, transfer)
         frames = f" × {plan.bracket.frames} frames ({plan.bracket.describe()})" if plan.bracket else ""
-        self.summary.setText(f"{count(len(plan), 'view')}{frames} · about {format_duration(est)} at {exposure:g} s "
-                             f"exposure and {transfer:g} s transfer{problem}")
+        how = ("continuous motion: the row speed is chosen at Start (the Planner's Fly scan line estimates "
+               "the time)") if self.fly.isChecked() else \
+            f"about {format_duration(est)} at {exposure:g} s exposure and {transfer:g} s transfer"
+        self.summary.setText(f"{count(len(plan), 'view')}{frames} · {how}{problem}")
 
     # -- running -----------------------------------------------------------------------------------
     @property
