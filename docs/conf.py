@@ -25,9 +25,6 @@ root_doc = "index"
 exclude_patterns = ["_build", "Thumbs.db", ".DS_Store", "plugins/example-camera/lfstudio_example_camera"]
 myst_enable_extensions = ["colon_fence", "deflist"]
 myst_heading_anchors = 4             # links like conventions.md#calibrationjson-... reach their heading
-# The tutorial and how-to pages include the README's sections until they move here (issue 43): its
-# headings start at level 3 and its links point at its own anchors. Goes when the README shrinks.
-suppress_warnings: list[str] = ["myst.header", "myst.xref_missing"]
 
 autodoc_member_order = "bysource"
 autodoc_typehints = "description"

@@ -74,7 +74,7 @@ def _check_resources(tmp: Path) -> str:
         raise RuntimeError(f"{RESOURCES_DIR}: missing {', '.join(missing)}")
     guide = user_guide_markdown()
     if "User guide" not in guide:
-        raise RuntimeError("the user guide (README.md) is not shipped")
+        raise RuntimeError("the user guide (docs/tutorial, docs/how-to or README.md) is not shipped")
     n = sum(len(load_presets(k)) for k in ("cameras", "lenses", "rigs"))
     return f"{RESOURCES_DIR} ({n} presets, icons, user guide)"
 

@@ -27,7 +27,7 @@ Contract:
 - Stale frames (sent before the capture was asked for) are dropped before each capture.
 
 aravis is LGPL; Debian ships it (``gir1.2-aravis-0.8`` and ``python3-gi``; ``aravis-tools`` has the
-fake GigE Vision camera the tests use). See the README, "GenICam cameras".
+fake GigE Vision camera the tests use). See the user guide, "Machine-vision cameras (GenICam)".
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ from lfstudio.rig.camera import CameraSetting, CameraStatus, CaptureResult, fram
 log = logging.getLogger(__name__)
 
 INSTALL_HINT = ("install aravis: apt-get install gir1.2-aravis-0.8 python3-gi (then run tools/setup-env.sh "
-                "again so the venv sees them), or pip install aravis-python pygobject; README 'GenICam cameras'")
+                "again so the venv sees them), or pip install aravis-python pygobject; the user guide's 'Machine-vision cameras (GenICam)'")
 
 
 def load_aravis() -> Any:

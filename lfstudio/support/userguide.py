@@ -1,16 +1,28 @@
-"""The user guide: the README's "User guide" section, wherever lfstudio runs from.
+"""The in-app user guide (Help → User guide, F1): the documentation site's tutorial and how-to pages
+(``docs/tutorial``, ``docs/how-to``) as one Markdown text, wherever lfstudio runs from.
 
-Source checkout: ``README.md`` next to the package. PyInstaller bundle: ``README.md`` is shipped in
-the bundle folder. Installed (``pip install .``, pipx): ``PREFIX/share/lfstudio/README.md``, else the
-package's long description read back from the installed metadata.
+Source checkout: ``docs/`` next to the package. PyInstaller bundle: ``docs/`` is shipped in the bundle
+folder. Installed (``pip install .``, pipx): ``PREFIX/share/lfstudio/docs``. Without the pages: the
+README (``PREFIX/share/lfstudio/README.md``, else the package's long description from the installed
+metadata), whose sections held the guide before the site existed.
 """
 
 from __future__ import annotations
 
 import os
+import posixpath
+import re
 from pathlib import Path
 
-PROJECT_URL = "https://github.com/lfstudio/lfstudio#user-guide"
+PROJECT_URL = "https://github.com/lfstudio/lfstudio#readme"
+
+#: the guide's pages (under docs/), in the order of a day
+GUIDE_PAGES = ("tutorial/the-window.md", "tutorial/day-in-the-studio.md", "how-to/plan.md", "how-to/rig.md",
+               "how-to/cameras.md", "how-to/plugins.md", "how-to/scan.md", "how-to/calibrate.md",
+               "how-to/check.md", "how-to/process.md", "how-to/depth.md", "how-to/export.md", "how-to/import.md",
+               "how-to/new-dataset-folder.md")
+#: pages that follow the guide as chapters of their own
+CHAPTER_PAGES = ("how-to/install.md", "how-to/troubleshoot.md")
 
 
 def readme_path() -> Path | None:
@@ -20,6 +32,14 @@ def readme_path() -> Path | None:
 
     path = RESOURCES_DIR.parent / "README.md"
     return path if path.is_file() else None
+
+
+def docs_dir() -> Path | None:
+    """The ``docs`` folder holding the guide's pages (beside the resources folder), or None."""
+    from lfstudio.resources import RESOURCES_DIR
+
+    path = RESOURCES_DIR.parent / "docs"
+    return path if all((path / page).is_file() for page in GUIDE_PAGES + CHAPTER_PAGES) else None
 
 
 def readme_markdown() -> str:
@@ -56,8 +76,37 @@ def section(markdown: str, title: str, level: int = 2) -> str:
     return "\n".join(lines[start:]).strip() + "\n" if start is not None else ""
 
 
+def page_markdown(docs: Path, page: str, levels: int) -> str:
+    """A page of the site as a part of the guide: headings ``levels`` deeper, its links and pictures
+    relative to the folder above ``docs`` (where the guide's browser looks them up: ``docs/x.png``)."""
+    folder = posixpath.dirname(f"docs/{page}")
+    out, fenced = [], False
+    for line in (docs / page).read_text(encoding="utf-8").splitlines():
+        if line.lstrip().startswith("```"):
+            fenced = not fenced
+        if not fenced and line.startswith("#"):
+            hashes = len(line) - len(line.lstrip("#"))
+            if line[hashes:hashes + 1] == " ":
+                line = "#" * min(6, hashes + levels) + line[hashes:]
+        out.append(line)
+
+    def relink(m: re.Match) -> str:
+        target = m.group(2)
+        if re.match(r"^[a-z][a-z0-9+.-]*:", target) or target.startswith(("#", "/")):
+            return m.group(0)
+        return f"{m.group(1)}({posixpath.normpath(posixpath.join(folder, target))})"
+
+    return re.sub(r"(!?\[[^\]]*\])\(([^)\s]+)\)", relink, "\n".join(out)).strip() + "\n"
+
+
 def user_guide_markdown() -> str:
-    """The "User guide" section (with the install and troubleshooting sections when present)."""
+    """The user guide: the tutorial and how-to pages (a "User guide" chapter), then installing and
+    troubleshooting as chapters of their own; without the pages, the README's sections of those names."""
+    docs = docs_dir()
+    if docs is not None:
+        parts = ["## User guide\n"] + [page_markdown(docs, page, 2) for page in GUIDE_PAGES]
+        parts += [page_markdown(docs, page, 1) for page in CHAPTER_PAGES]
+        return "\n\n".join(parts)
     text = readme_markdown()
     parts = [section(text, t) for t in ("User guide", "Installing on a studio workstation",
                                         "When something goes wrong")]

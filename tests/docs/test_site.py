@@ -56,11 +56,6 @@ def _parsed(path: Path) -> _Links:
     return p
 
 
-def _includes_the_readme(site: Path, page: Path) -> bool:
-    source = DOCS / page.relative_to(site).with_suffix(".md")
-    return source.is_file() and "{include} ../../README.md" in source.read_text(encoding="utf-8")
-
-
 def test_the_site_builds_and_every_internal_link_and_anchor_leads_somewhere(site):
     pages = sorted(p for p in site.rglob("*.html") if "_static" not in p.relative_to(site).parts)
     assert len(pages) >= 30, [p.name for p in pages]
@@ -71,8 +66,6 @@ def test_the_site_builds_and_every_internal_link_and_anchor_leads_somewhere(site
             url = urlsplit(link)
             if url.scheme or link.startswith("//") or link.startswith("mailto:"):
                 continue                                     # outside links: not checked (no network)
-            if not url.path and _includes_the_readme(site, page):
-                continue        # the README's own anchors, until its sections move into the pages
             target = (page.parent / unquote(url.path)).resolve() if url.path else page
             if not target.exists():
                 broken.append(f"{page.relative_to(site)}: {link} (no such file)")

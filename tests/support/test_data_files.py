@@ -23,4 +23,8 @@ def test_every_resource_file_is_installed_as_data():
                  if p.is_file() and "__pycache__" not in p.parts}
     missing = sorted(str(p.relative_to(ROOT)) for p in resources - installed)
     assert resources and not missing, f"add these to [tool.setuptools.data-files] in pyproject.toml: {missing}"
-    assert (ROOT / "README.md").resolve() in installed   # the in-app user guide
+    assert (ROOT / "README.md").resolve() in installed
+    from lfstudio.support.userguide import CHAPTER_PAGES, GUIDE_PAGES
+
+    pages = {(ROOT / "docs" / page).resolve() for page in GUIDE_PAGES + CHAPTER_PAGES}
+    assert pages <= installed, sorted(str(p) for p in pages - installed)     # the in-app user guide

@@ -1,4 +1,5 @@
-"""The README says what the software does: its library lists and the numbers of its walk-through."""
+"""The README says what the software does in a few minutes' reading: its library lists, its links into
+the documentation; the tutorial's walk-through numbers follow from the image width it sets."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ ROOT = Path(__file__).resolve().parents[2]
 #: Qt's xcb platform plugin needs these on a real X11 screen (checked under Xvfb, see FACTS)
 XCB_LIBS = ("libxcb-cursor0", "libxcb-icccm4", "libxcb-image0", "libxcb-keysyms1", "libxcb-render-util0",
             "libxcb-shape0", "libxkbcommon-x11-0")
+#: the tutorial's walk-through (it was the README's "A day in the studio")
+DAY = ROOT / "docs" / "tutorial" / "day-in-the-studio.md"
 
 
 def _readme() -> str:
@@ -33,12 +36,22 @@ def test_quick_start_lists_the_libraries_the_rest_of_the_readme_refers_to():
         assert not missing, f"the README refers to X11 libraries listed in the Quick start: {missing}"
 
 
+def test_the_readme_is_short_keeps_the_two_commands_and_its_links_lead_to_files():
+    text = _readme()
+    assert len(text.splitlines()) <= 150
+    assert "./run.sh " in text and "./test.sh " in text and "./test.sh -m fast" in text
+    targets = [t for t in re.findall(r"\]\(([^)\s]+)\)", text) if "://" not in t]
+    assert len(targets) >= 20
+    missing = [t for t in targets if not (ROOT / t.split("#")[0]).exists()]
+    assert not missing, missing
+
+
 def test_walk_through_image_sizes_follow_from_the_image_width_it_sets():
     from lfstudio.dataset.profile import Profile
     from lfstudio.processing.steps.resample import output_size
     from lfstudio.sim.studio import VirtualStudio
 
-    day = " ".join(_section(_readme(), "### A day in the studio").split())
+    day = " ".join(DAY.read_text(encoding="utf-8").split())
     width = int(re.search(r"\*Image width\* (\d+) px", day).group(1))
     estimate = re.search(r"estimate line \(27 views · (\d+) × (\d+) px", day)
     assert estimate, "the export step quotes the estimate line"

@@ -1,4 +1,5 @@
-"""Help menu dialogs: About (component versions) and the user guide (README rendered in the app)."""
+"""Help menu dialogs: About (component versions) and the user guide (the documentation's tutorial and
+how-to pages rendered in the app)."""
 
 from __future__ import annotations
 
@@ -78,11 +79,12 @@ class AboutDialog(QDialog):
 
 
 class UserGuideDialog(QDialog):
-    """The README's user guide, rendered from Markdown (also in a bundle or an installed copy)."""
+    """The user guide (:func:`lfstudio.support.userguide.user_guide_markdown`), rendered from Markdown (also in
+    a bundle or an installed copy)."""
 
     def __init__(self, parent: QWidget | None = None):
         super().__init__(parent)
-        from lfstudio.support.userguide import readme_path, user_guide_markdown
+        from lfstudio.support.userguide import docs_dir, readme_path, user_guide_markdown
 
         self.setObjectName("userGuideDialog")
         self.setWindowTitle("lfstudio user guide")
@@ -93,9 +95,10 @@ class UserGuideDialog(QDialog):
         self.browser.setWordWrapMode(QTextOption.WrapMode.WrapAtWordBoundaryOrAnywhere)   # a long path breaks too
         self._image_sizes: dict[str, tuple[int, int]] = {}     # a picture's (width, height) by name
         self.browser.viewport().installEventFilter(self)
-        readme = readme_path()
-        if readme is not None:          # the guide's pictures and linked docs/*.md sit next to README.md
-            self.browser.setSearchPaths([str(readme.parent)])
+        docs, readme = docs_dir(), readme_path()
+        base = docs.parent if docs is not None else readme.parent if readme is not None else None
+        if base is not None:            # the guide's pictures (docs/*.png) and README.md sit there
+            self.browser.setSearchPaths([str(base)])
         self.browser.setMarkdown(user_guide_markdown())
         self._wrap_code_blocks()
         self.fit_images(760)
