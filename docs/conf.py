@@ -24,6 +24,8 @@ source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 root_doc = "index"
 exclude_patterns = ["_build", "Thumbs.db", ".DS_Store", "plugins/example-camera/lfstudio_example_camera"]
 myst_enable_extensions = ["colon_fence", "deflist"]
+# no "smart" dashes or quotes: the pages quote options (--port) and commands that must stay typeable
+smartquotes = False
 myst_heading_anchors = 4             # links like conventions.md#calibrationjson-... reach their heading
 
 autodoc_member_order = "bysource"

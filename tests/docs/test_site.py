@@ -96,6 +96,7 @@ def test_the_command_reference_has_every_command_and_option(site):
 
     walk(build_parser(), "lfstudio")
     assert not missing, missing[:40]
+    assert "\u2013port" not in text and "--port" in text      # options stay typeable (no smart dashes)
 
 
 def test_the_device_reference_documents_the_plugin_interfaces(site):
