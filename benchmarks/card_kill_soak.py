@@ -55,7 +55,9 @@ def trial(camera: str, k: int, rng: random.Random, grid: str, base: Path) -> str
     before = 0
     if (out / "dataset.json").exists():
         before = Dataset.open(out).status_counts()["done"]
-    res = subprocess.run(args + ["--resume"], env=env, capture_output=True, text=True, timeout=600)
+    # killed before the dataset was made (while the simulated rig homed): the scan is started afresh
+    again = args + ["--resume"] if (out / "dataset.json").exists() else args
+    res = subprocess.run(again, env=env, capture_output=True, text=True, timeout=600)
     ds = Dataset.open(out)
     counts = ds.status_counts()
     bad = ds.verify_files()
