@@ -108,7 +108,6 @@ if ! "$venv/bin/python" -c 'import gi' >/dev/null 2>&1 && [ -d "$system_gi" ] \
 import sys, sysconfig, pathlib
 pathlib.Path(sysconfig.get_paths()["purelib"], "lfstudio-system-gi.pth").write_text(sys.argv[1] + "\n")
 PY
-  echo "The venv sees Debian's python3-gi (for aravis): $venv/system-gi"
 fi
 
 export LFSTUDIO_PY="$venv/bin/python"
