@@ -258,6 +258,20 @@ class SimulatedCamera:
                               "then reconnect")
         return self.studio
 
+    def _expose(self, studio: VirtualStudio, t_call: float) -> tuple[float, int, float, float, np.ndarray, float]:
+        """Trigger (``trigger_s`` after ``t_call``), render the view at the current position and
+        expose it (``exposure_s``): the shutter-open time, shot number, position, recorded frame, gain."""
+        self._wait_until(t_call, self.trigger_s)
+        t_open = time.monotonic()
+        x_mm, y_mm = (float(v) for v in self.position_mm())
+        shot = self.shots
+        self.shots += 1
+        rgb = studio.render(x_mm, y_mm)
+        rgb *= np.float32(self.exposure_factor())
+        recorded, gain = self.sensor.apply(rgb, shot)
+        self._wait_until(t_open, self.exposure_s)
+        return t_open, shot, x_mm, y_mm, recorded, gain
+
     def capture(self, stem_path: Path, on_exposed: Callable[[], None] | None = None) -> CaptureResult:
         """Render the view at the current position and write STEM.dng, STEM.jpg, STEM.truth.json."""
         stem_path = Path(stem_path)
@@ -271,15 +285,7 @@ class SimulatedCamera:
                 self._message = "capture failed"
                 raise DeviceError(f"{self.name}: capture failed (the camera reported an error); "
                                   "retry the shot; if it persists, reconnect the camera")
-            self._wait_until(t_call, self.trigger_s)
-            t_open = time.monotonic()
-            x_mm, y_mm = (float(v) for v in self.position_mm())
-            shot = self.shots
-            self.shots += 1
-            rgb = studio.render(x_mm, y_mm)
-            rgb *= np.float32(self.exposure_factor())
-            recorded, gain = self.sensor.apply(rgb, shot)
-            self._wait_until(t_open, self.exposure_s)
+            t_open, shot, x_mm, y_mm, recorded, gain = self._expose(studio, t_call)
             t_closed = time.monotonic()
             if on_exposed is not None:
                 on_exposed()
@@ -318,15 +324,7 @@ class SimulatedCamera:
         studio = self._check_ready()
         if self._take_fault("capture_fails"):
             raise DeviceError(f"{self.name}: capture failed (the camera reported an error); retry the shot")
-        self._wait_until(t_call, self.trigger_s)
-        t_open = time.monotonic()
-        x_mm, y_mm = (float(v) for v in self.position_mm())
-        shot = self.shots
-        self.shots += 1
-        rgb = studio.render(x_mm, y_mm)
-        rgb *= np.float32(self.exposure_factor())
-        recorded, gain = self.sensor.apply(rgb, shot)
-        self._wait_until(t_open, self.exposure_s)
+        t_open, shot, x_mm, y_mm, recorded, gain = self._expose(studio, t_call)
         if on_exposed is not None:
             on_exposed()
         name = f"/card/DCIM/100SIM/SIM_{shot:05d}.DNG"
