@@ -119,23 +119,21 @@ _REG = _Registry()
 def register_camera(kind: CameraKind) -> None:
     """Add a camera kind; InputError when its name is taken (by a built-in kind or another plugin)."""
     _ensure_builtins()
-    with _REG.lock:
-        _check_name(kind.name, "camera")
-        have = _REG.cameras.get(kind.name.lower())
-        if have is not None:
-            raise InputError("camera kind", f"{kind.name!r} of {kind.origin} is already the kind of {have.origin}",
-                             "a plugin must use a name of its own")
-        _REG.cameras[kind.name.lower()] = kind
+    _register(_REG.cameras, kind, "camera")
 
 
 def register_rig(kind: RigKind) -> None:
+    _register(_REG.rigs, kind, "rig")
+
+
+def _register(table: dict[str, Any], kind: CameraKind | RigKind, what: str) -> None:
     with _REG.lock:
-        _check_name(kind.name, "rig")
-        have = _REG.rigs.get(kind.name.lower())
+        _check_name(kind.name, what)
+        have = table.get(kind.name.lower())
         if have is not None:
-            raise InputError("rig kind", f"{kind.name!r} of {kind.origin} is already the kind of {have.origin}",
+            raise InputError(f"{what} kind", f"{kind.name!r} of {kind.origin} is already the kind of {have.origin}",
                              "a plugin must use a name of its own")
-        _REG.rigs[kind.name.lower()] = kind
+        table[kind.name.lower()] = kind
 
 
 def _check_name(name: str, what: str) -> None:
