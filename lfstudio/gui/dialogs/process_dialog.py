@@ -611,7 +611,7 @@ class ProcessDialog(QDialog):
             f"merges each view's frames into one linear radiance image: <code>{options.folder}/rRR_cCCC"
             f"{options.suffix}</code> (32-bit float {'OpenEXR' if options.format == 'exr' else 'TIFF'}, the steps "
             "above applied to its geometry) with a tone-mapped 16-bit PNG in "
-            f"<code>{options.folder}/preview/</code>. {self._hdr_count_text()}")
+            f"<code>{options.folder}/preview/</code>. {self._hdr_count_text(ds)}")
         self.radiance_button = QPushButton("View radiance…")
         self.radiance_button.setObjectName("viewRadianceButton")
         self.radiance_button.setToolTip("The merged radiance of the preview's view under an exposure slider "
@@ -626,13 +626,11 @@ class ProcessDialog(QDialog):
         self._refresh_hdr()
         return box
 
-    def _hdr_count_text(self) -> str:
-        from lfstudio.dataset import Dataset
+    @staticmethod
+    def _hdr_count_text(ds) -> str:
         from lfstudio.gui.views.radiance import merged_views
 
-        try:
-            ds = Dataset.open(self.root)
-        except Exception:  # noqa: BLE001 - the section only informs
+        if ds is None:              # the dataset could not be read: the section only informs
             return ""
         merged, total = len(merged_views(ds)), len(ds.done_views())
         return f"Merged so far: {merged} of {total} views." if merged else "No view merged yet."
@@ -643,14 +641,14 @@ class ProcessDialog(QDialog):
         from lfstudio.dataset import Dataset
         from lfstudio.gui.views.radiance import merged_views
 
-        try:
-            merged = merged_views(Dataset.open(self.root))
-        except Exception:  # noqa: BLE001
-            merged = []
-        self.radiance_button.setEnabled(bool(merged))
+        try:                        # read once: the button and the count from the same manifest
+            ds = Dataset.open(self.root)
+        except Exception:  # noqa: BLE001 - the section only informs
+            ds = None
+        self.radiance_button.setEnabled(ds is not None and bool(merged_views(ds)))
         text = self.hdr_label.text()
         head = text.rsplit(" Merged so far:", 1)[0].rsplit(" No view merged yet.", 1)[0]
-        self.hdr_label.setText(f"{head} {self._hdr_count_text()}")
+        self.hdr_label.setText(f"{head} {self._hdr_count_text(ds)}")
 
     def view_radiance(self) -> None:
         from lfstudio.gui.views.radiance import RadianceDialog, merged_views
