@@ -752,12 +752,15 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
     #    the term's uncertainty, and a warning names it.
     radial = None
     warnings: list[str] = []
+    # the matches the fit kept and their weights (inlier and sig_pair are final from here on)
+    kept_data = data.subset(inlier)
+    kept_w = 1.0 / sig_pair[data.pair[inlier]] ** 2
     if radial_term == "auto":
         p6 = np.concatenate([params[:5] if len(params) >= 5 else np.concatenate([params, [0.0, 0.0]]), [0.0]])
         cols6 = np.array(list(fidx) + ([3, 4] if estimated else []) + [5])
-        prob = _Problem(data.subset(inlier), f, (w, h), prior_sigma)
+        prob = _Problem(kept_data, f, (w, h), prior_sigma)
         prob.free_idx = cols6
-        N6, rhs6, _, _ = prob.normal(p6, 1.0 / sig_pair[data.pair[inlier]] ** 2, pos_used)
+        N6, rhs6, _, _ = prob.normal(p6, kept_w, pos_used)
         C6 = _inverse(N6)
         delta = C6 @ rhs6
         kk = len(cols6) - 1
@@ -768,8 +771,7 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
         # and by a systematic pattern of SYSTEMATIC_PX (the floor). On distortion-free virtual captures
         # (5 × 3 views at 800 px) the formal error called 3–11 px of pincushion 7–25 σ (issue 37)
         k_var = k_formal ** 2
-        boot6 = _bootstrap_angles(data.subset(inlier), p6, cols6, f, (w, h), prior_sigma, offsets,
-                                  1.0 / sig_pair[data.pair[inlier]] ** 2)
+        boot6 = _bootstrap_angles(kept_data, p6, cols6, f, (w, h), prior_sigma, offsets, kept_w)
         if boot6 is not None:
             k_var = max(k_var, float(boot6[kk, kk]))
         J6 = prob.jacobian(p6)
@@ -807,15 +809,14 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
             f"too little evidence to calibrate: only {' and '.join(short)} of the matches agree with one "
             f"orientation (at least {MIN_EVIDENCE_MATCHES} per direction used); the angles would be guesses. Use "
             "views with more texture (light, focus, a textured target in the scene) or more views (--views)")
-    boot = _bootstrap_angles(data.subset(inlier), params, fidx, f, (w, h), prior_sigma, offsets,
-                             1.0 / sig_pair[data.pair[inlier]] ** 2)
+    boot = _bootstrap_angles(kept_data, params, fidx, f, (w, h), prior_sigma, offsets, kept_w)
     if boot is not None:
         analytic = np.diag(covariance)[fidx]
         covariance[fidx, fidx] += np.maximum(np.diag(boot) - analytic, 0.0)
     # errors a view shares across all its pairs that the model does not have (a real archive's views
     # each rectified by its own homography, a view's own tilt): a delete-one-view jackknife
-    jack = _jackknife_views(data.subset(inlier), [(m.view_a, m.view_b) for m in used], params, fidx, f, (w, h),
-                            prior_sigma, 1.0 / sig_pair[data.pair[inlier]] ** 2, obs)
+    jack = _jackknife_views(kept_data, [(m.view_a, m.view_b) for m in used], params, fidx, f, (w, h),
+                            prior_sigma, kept_w, obs)
     if jack is not None:
         analytic = np.diag(covariance)[fidx]
         covariance[fidx, fidx] += np.maximum(np.diag(jack) - analytic, 0.0)
@@ -828,7 +829,7 @@ def fit_rectification(matches: Sequence[PairMatches], focal_length_px: float, im
     residual_after = signed_residuals(H, xy_a, xy_b, horizontal)
     sigma = max(1.4826 * float(np.median(np.abs(residual_after[inlier]))), 0.0)
     # the formal error of independent residuals (the old statement), kept to show what it misses
-    p_inl = _Problem(data.subset(inlier), f, (w, h), prior_sigma)
+    p_inl = _Problem(kept_data, f, (w, h), prior_sigma)
     p_inl.free_idx = fidx
     J3 = p_inl.jacobian(params[:3])
     formal = np.full(3, held_std)

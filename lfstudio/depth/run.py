@@ -372,23 +372,26 @@ def measured_range(ds: Dataset, views: Sequence[View], source: str, H, width_px:
     if len(found) < 2 or len(d) < 20:
         raise InputError("views", "too few feature matches to measure the disparity range and no scene plan",
                          "state it (lfstudio depth --disparity-range MIN,MAX) or give the dataset a scene plan")
-    assert centre is not None            # pairs were found around it
     scale = float(width_px) / float(full_w) if full_w else 1.0
     lo, hi = (float(v) * scale for v in np.percentile(d, [1, 99]))
     assert centre is not None                   # pairs come only from around it
     return lo, hi, f"feature matches of {len(found)} pairs around {view_stem(*centre)} ({len(d)} matches)"
 
 
-def neighbours_of(ds: Dataset, view: View, settings: DepthSettings, captured: set) -> list[tuple[View, float, float]]:
+def neighbours_of(ds: Dataset, view: View, settings: DepthSettings, captured: set,
+                  recorded: dict[tuple[int, int], tuple[float, float]] | None = None
+                  ) -> list[tuple[View, float, float]]:
     """(view, dx, dy) of the neighbours used: the captured views up to ``steps_h`` columns and
     ``steps_v`` rows away on the lines through the view (its row, its column, the diagonals), near
     and far, in every direction the grid has; offsets in horizontal spacings, from the positions
     the rig recorded when the import has them, else from the grid. An edge or corner view has the
-    directions that stay inside the grid."""
+    directions that stay inside the grid. ``recorded``: :func:`_recorded_positions` of ``ds`` when the
+    caller has it (``{}``: none; one pass over the views for all of them), None: read here."""
     r, c = view
     sx, sy = (float(v) for v in ds.grid.step_mm)
     ratio = sy / sx if sx else 1.0
-    recorded = _recorded_positions(ds)
+    if recorded is None:
+        recorded = _recorded_positions(ds)
     out = []
     for dr in range(-settings.steps_v, settings.steps_v + 1):
         for dc in range(-settings.steps_h, settings.steps_h + 1):
@@ -479,7 +482,8 @@ def plan_tasks(ds: Dataset, views: Sequence[View], settings: DepthSettings, sour
                disparity_range_px: tuple[float, float] | None = None) -> tuple[Geometry, list[dict[str, Any]]]:
     """The geometry and one task per view (nothing computed)."""
     captured = set(ds.captured_views())
-    nb = {v: neighbours_of(ds, v, settings, captured) for v in views}
+    recorded = _recorded_positions(ds)
+    nb = {v: neighbours_of(ds, v, settings, captured, recorded or {}) for v in views}
     lonely = [v for v in views if not nb[v]]
     if lonely:
         raise InputError("views", f"{view_stem(*lonely[0])} has no captured neighbour in its row or column",
