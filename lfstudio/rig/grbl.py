@@ -121,7 +121,6 @@ class GrblController:
         self._last_t = 0.0
         self._wco: tuple[float, ...] | None = None
         self._jog_target: tuple[float, float] | None = None
-        self._fly_target: tuple[float, float] | None = None
         self.settings: dict[int, float] = {}
         self.firmware = FirmwareLimits.from_settings({})
         self.options = ""
@@ -770,7 +769,6 @@ class GrblController:
             if st.state not in ("Idle",):
                 raise DeviceError(f"fly move refused: the rig is {st.state.lower()}, not idle")
             h, v = self.config.horizontal, self.config.vertical
-            self._fly_target = (x_mm, y_mm)
             self._command(f"G90 G54 G1 {h.letter}{x_mm:.3f} {v.letter}{y_mm:.3f} F{speed_mm_s * 60.0:.3f}")
 
     def report(self) -> PositionReport:
