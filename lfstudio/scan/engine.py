@@ -705,27 +705,37 @@ class ScanEngine:
         while True:
             if self._checkpoint():
                 return
-            view = self._next_view()
-            if view is None:
+            if not self._take_next():
                 # nothing queued: wait for the store stage (it may hand views back for a retry)
                 self._drain_store()
                 if self._retry or self._queue:
                     continue
                 break
-            self._current = view
-            try:
-                self._capture_view(view)
-            except ScanFault as fault:
-                self._queue.appendleft(view)
-                self._raise_fault(fault)
-            except _Interrupted:
-                self._queue.appendleft(view)
-            finally:
-                self._current = None
         self._drain_store()
         self.store.save()
         self._restore_shutter()
         self._finish()
+
+    def _take_next(self) -> bool:
+        """Take what comes next in the queue (one view here); False when nothing is queued."""
+        view = self._next_view()
+        if view is None:
+            return False
+        self._take_view(view)
+        return True
+
+    def _take_view(self, view: PlannedView) -> None:
+        """Capture one view; queued again when a fault or an interruption stops it."""
+        self._current = view
+        try:
+            self._capture_view(view)
+        except ScanFault as fault:
+            self._queue.appendleft(view)
+            self._raise_fault(fault)
+        except _Interrupted:
+            self._queue.appendleft(view)
+        finally:
+            self._current = None
 
     def _restore_shutter(self) -> None:
         """After a bracketed scan, the camera's shutter time as it was when the scan began (it was left

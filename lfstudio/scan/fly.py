@@ -120,32 +120,24 @@ class FlyScanEngine(ScanEngine):
         self.camera_wait_s = 0.0   # rows' frames still being delivered when the row was flown
 
     # -- the loop: rows --------------------------------------------------------------------------
-    def _loop(self) -> None:
-        while True:
-            if self._checkpoint():
-                return
-            row = self._next_row()
-            if row is None:
-                self._drain_store()
-                if self._retry or self._queue:
-                    continue
-                break
-            if len(row) == 1 or row[0].cell in self._step_cells:
-                self._step_cells.setdefault(row[0].cell, ("standing_still", "the only view of its row left"))
-                self._step(row[0])
-                for view in reversed(row[1:]):
-                    self._queue.appendleft(view)
-                continue
-            try:
-                self._fly_row(row)
-            except ScanFault as fault:
-                self._raise_fault(fault)
-            except _Interrupted:
-                pass
-        self._drain_store()
-        self.store.save()
-        self._restore_shutter()
-        self._finish()
+    def _take_next(self) -> bool:
+        """Fly the next row (or take its only view standing still); False when nothing is queued."""
+        row = self._next_row()
+        if row is None:
+            return False
+        if len(row) == 1 or row[0].cell in self._step_cells:
+            self._step_cells.setdefault(row[0].cell, ("standing_still", "the only view of its row left"))
+            self._step(row[0])
+            for view in reversed(row[1:]):
+                self._queue.appendleft(view)
+            return True
+        try:
+            self._fly_row(row)
+        except ScanFault as fault:
+            self._raise_fault(fault)
+        except _Interrupted:
+            pass
+        return True
 
     def _next_row(self) -> list[PlannedView] | None:
         """The next views of one row in queue order (a retried view alone)."""
@@ -169,16 +161,9 @@ class FlyScanEngine(ScanEngine):
     def _step(self, view: PlannedView) -> None:
         """One view taken standing still (a single view, or a fly frame taken again)."""
         t0 = time.monotonic()
-        self._current = view
         try:
-            self._capture_view(view)
-        except ScanFault as fault:
-            self._queue.appendleft(view)
-            self._raise_fault(fault)
-        except _Interrupted:
-            self._queue.appendleft(view)
+            self._take_view(view)
         finally:
-            self._current = None
             self.rig_s += time.monotonic() - t0
 
     def _expose(self, view: PlannedView, attempt: int, stem: Any) -> Future:
