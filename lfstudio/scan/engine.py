@@ -934,15 +934,13 @@ class ScanEngine:
                 if disk is not None:            # the disk's fault, never the camera's: no retry
                     raise disk from None
                 message = error_text(exc)
-                if isinstance(exc, DeviceTimeout):     # a device that does not answer: waiting again won't help
+                if isinstance(exc, (DeviceTimeout, DeviceRefused, InputError)):   # no retry
                     self._last_error[cell] = message
                     self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
                                will_retry=False, extra={"attempt": attempt, "device": device})
-                    raise self._silent(device, view, exc) from None
-                if isinstance(exc, (DeviceRefused, InputError)):   # a value or a file: no retry, no cable advice
-                    self._last_error[cell] = message
-                    self._emit(EventKind.VIEW_FAILED, message, index=view.index, row=view.row, column=view.column,
-                               will_retry=False, extra={"attempt": attempt, "device": device})
+                    if isinstance(exc, DeviceTimeout):     # a device that does not answer: waiting again won't help
+                        raise self._silent(device, view, exc) from None
+                    # a value or a file: no cable advice
                     raise ScanFault(refused_text(device, f"view {view_label(view.row, view.column)}", message), device) from None
                 self._handle_inbox()
                 if self._state is not ScanState.RUNNING:
