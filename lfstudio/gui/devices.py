@@ -6,7 +6,7 @@ Every signal is delivered on the GUI thread (queued), so slots may touch widgets
     device.statusChanged.connect(panel.show_status)
     device.errorOccurred.connect(panel.show_error)
     device.run("move_to", 10.0, 5.0, on_result=lambda status: ..., on_error=lambda text: ...)
-    device.stop_now()          # bypasses the queue, runs on the calling (GUI) thread
+    device.stop_now()          # bypasses the queue; the driver's stop runs on a thread of its own
 """
 
 from __future__ import annotations
@@ -143,11 +143,21 @@ class QtDevice(QObject):
         return self._pending > 0
 
     def stop_now(self) -> None:
-        """STOP: the driver's stop() right now on this thread; queued calls fail."""
+        """STOP: queued calls fail and the holder is told here, at once; the driver's stop() is
+        dispatched on a thread of its own (:meth:`DeviceWorker.stop_soon`), so the GUI thread never
+        waits on it, a stalled link included. A failure arrives as ``errorOccurred``."""
         try:
-            self.worker.stop_now()
+            future = self.worker.stop_soon()
         except Exception as exc:  # noqa: BLE001 - show it, the operator must know STOP failed
             self.errorOccurred.emit(f"STOP failed: {error_text(exc)}")
+            return
+
+        def done(fut: Future) -> None:
+            exc = fut.exception()
+            if exc is not None:
+                message = f"STOP failed: {error_text(exc)}"
+                self._post(lambda: self.errorOccurred.emit(message))
+        future.add_done_callback(done)
 
     def close(self, disconnect: bool = True, timeout_s: float = 2.0) -> None:
         """Fail queued calls, disconnect last, end the thread (waits at most ``timeout_s``: a driver

@@ -46,6 +46,9 @@ DEFAULT_PORT = 502
 HEADER = 19                       # bytes before the data
 MIN_ANSWER_LENGTH = 3             # the MBAP length of an exception answer (unit, function, code)
 MAX_ANSWER_LENGTH = HEADER - 6 + 4  # ... and of the longest answer (a read of 4 bytes): 17
+#: how often :meth:`DryveLink.write_now` looks whether its second connection delivered the write while
+#: it waits for the link's own connection
+WRITE_NOW_POLL_S = 0.005
 EXCEPTIONS = {1: "illegal function", 2: "illegal data address (no such object)", 3: "illegal data value",
               4: "device failure", 5: "acknowledge (busy)", 6: "server busy"}
 
@@ -238,8 +241,11 @@ class DryveLink:
     def write_now(self, index: int, sub: int, value: int, size: int, signed: bool) -> None:
         """A write that never waits behind another exchange (STOP's quick stop): on the open
         connection when the link is idle, else on a new connection of its own (the exchange in
-        flight, perhaps stalled, goes on to its own deadline). A gateway that refuses a second
-        connection gets it on the link's connection once that is free (within its deadline)."""
+        flight, perhaps stalled, goes on to its own deadline). A gateway may serve one client only:
+        it may refuse the second connection, close it, or take it and never answer. So while the
+        second connection is tried, the link's own connection is waited for too, and whichever
+        delivers the write first ends it (the same write twice is harmless: a control word); both
+        within the link's deadline."""
         data = int(value).to_bytes(size, "little", signed=signed)
         if self._lock.acquire(blocking=False):
             try:
@@ -248,20 +254,39 @@ class DryveLink:
             finally:
                 self._lock.release()
         deadline = time.monotonic() + self.timeout_s
-        try:
-            sock = self._connect(self.timeout_s)
-        except DriveNotAnswering as refused:
-            if not self._lock.acquire(timeout=max(deadline - time.monotonic(), 0.0)):
-                raise DriveNotAnswering(f"{refused}; the link's own connection stayed busy") from None
+        delivered = threading.Event()
+        second_failed: list[BaseException] = []
+
+        def second() -> None:
             try:
-                self._exchange_locked(True, index, sub, size, data)
-                return
-            finally:
-                self._lock.release()
-        try:
-            self._transact(sock, 0xFFFF, True, index, sub, size, data, deadline)
-        finally:
-            sock.close()
+                sock = self._connect(max(deadline - time.monotonic(), 1e-3))
+                try:
+                    self._transact(sock, 0xFFFF, True, index, sub, size, data, deadline)
+                finally:
+                    sock.close()
+            except BaseException as exc:  # noqa: BLE001 - the own connection may still deliver it
+                second_failed.append(exc)
+            else:
+                delivered.set()
+
+        threading.Thread(target=second, name=f"write-now-{self.address}", daemon=True).start()
+        while not delivered.is_set():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            if self._lock.acquire(timeout=min(left, WRITE_NOW_POLL_S)):
+                try:
+                    if delivered.is_set():
+                        return
+                    self._exchange_locked(True, index, sub, size, data)
+                    return
+                finally:
+                    self._lock.release()
+        if delivered.is_set():
+            return
+        reason = f"; a second connection: {second_failed[0]}" if second_failed else ""
+        raise DriveNotAnswering(f"{self.address}: the write did not go out within {self.timeout_s:g} s: the "
+                                f"link's own connection stayed busy{reason}")
 
     def read(self, index: int, sub: int, size: int, signed: bool) -> int:
         data = self._exchange(False, index, sub, size)

@@ -8,6 +8,7 @@ thread and hands back :class:`concurrent.futures.Future` objects::
     status = worker.call("status")                               # submit + wait for the result
     worker.subscribe(lambda snapshot: ...)                       # status snapshots, rate-bounded
     worker.stop_now()                                            # driver.stop() on *this* thread
+    worker.stop_soon()                                           # ... on a thread of its own (GUI)
     worker.close()
 
     lease = worker.claim("the scan of studio_day (started 14:02)")   # one owner at a time
@@ -20,7 +21,9 @@ Contract:
 - ``timeout_s``: when a call runs longer, its future fails with :class:`CallTimedOut` (a DeviceError) naming the
   command. The driver call itself cannot be interrupted; the queue moves on when it returns.
 - ``stop_now()`` calls ``driver.stop()`` on the caller's thread (never queued) and fails every call
-  still waiting in the queue ("cancelled by STOP").
+  still waiting in the queue ("cancelled by STOP"). ``stop_soon()`` does the same but runs
+  ``driver.stop()`` on a thread of its own and returns at once (the window's STOP: the GUI thread
+  never waits on a driver, a stalled link included).
 - Snapshots: the result of ``driver.<status_method>()``, or ``error_snapshot(message)`` when that
   raises, are passed to subscribers at most ``publish_hz`` times per second. The worker polls
   while idle. While a long call runs, a driver may report fresher snapshots itself by calling the
@@ -121,6 +124,8 @@ class _Call:
 
 
 _CLOSE = object()
+#: how long the disconnect at :meth:`DeviceWorker.close` waits for each stop still under way
+STOPPER_WAIT_S = 10.0
 
 
 def describe_call(name: str, args: tuple, kwargs: dict) -> str:
@@ -171,6 +176,7 @@ class DeviceWorker:
         self._closed = False
         self._lease: Lease | None = None
         self._lease_lock = threading.Lock()
+        self._stoppers: list[threading.Thread] = []     # stop_soon()'s threads
         self._thread = threading.Thread(target=self._run, name=f"device-{self.name}", daemon=True)
         if hasattr(driver, "status_listener"):
             try:
@@ -225,6 +231,37 @@ class DeviceWorker:
 
         Never refused, whoever holds the device. The holder's ``on_stop`` is told first, so that it
         knows why its running command is about to fail."""
+        stop = self._stop_prologue()
+        if stop is not None:
+            stop()
+
+    def stop_soon(self) -> Future:
+        """STOP for a caller that must never wait (the window's GUI thread): the holder's ``on_stop``
+        and the queue are dealt with here, at once, as in :meth:`stop_now`; ``driver.stop()`` runs on
+        a thread of its own (it may wait on a stalled link, e.g. a drive's quick stop). Returns a
+        Future with stop()'s outcome. :meth:`close` lets it end before the driver is disconnected."""
+        future: Future = Future()
+        stop = self._stop_prologue()
+        if stop is None:
+            future.set_result(None)
+            return future
+
+        def run() -> None:
+            try:
+                stop()
+            except BaseException as exc:  # noqa: BLE001 - handed to the caller through the future
+                future.set_exception(exc)
+            else:
+                future.set_result(None)
+
+        thread = threading.Thread(target=run, name=f"stop-{self.name}", daemon=True)
+        with self._lease_lock:
+            self._stoppers = [t for t in self._stoppers if t.is_alive()] + [thread]
+        thread.start()
+        return future
+
+    def _stop_prologue(self) -> Callable[[], Any] | None:
+        """Tell the holder, fail the queued calls; the driver's stop method (None: it has none)."""
         lease = self._lease
         if lease is not None and lease.on_stop is not None:
             try:
@@ -232,9 +269,16 @@ class DeviceWorker:
             except Exception:  # the holder's bookkeeping must never keep STOP from running
                 log.exception("%s: on_stop of %s failed", self.name, lease.holder)
         self._drop_queued("cancelled by STOP")
-        stop = getattr(self.driver, self._stop_method, None)
-        if stop is not None:
-            stop()
+        return getattr(self.driver, self._stop_method, None)
+
+    def _disconnect_after_stops(self) -> None:
+        """The driver's disconnect, once the stops under way (:meth:`stop_soon`) have ended (each
+        waited for at most :data:`STOPPER_WAIT_S`: a stop is bounded by its driver)."""
+        with self._lease_lock:
+            stoppers = list(self._stoppers)
+        for t in stoppers:
+            t.join(STOPPER_WAIT_S)
+        self.driver.disconnect()
 
     # -- ownership ---------------------------------------------------------------------------------
     def claim(self, holder: str, on_stop: Callable[[], None] | None = None) -> Lease:
@@ -395,7 +439,7 @@ class DeviceWorker:
         self._drop_queued("cancelled: the device connection is closing")
         if disconnect and hasattr(self.driver, "disconnect"):
             fut: Future = Future()
-            self._queue.put(_Call("disconnect", self.driver.disconnect, (), {}, fut, None))
+            self._queue.put(_Call("disconnect", self._disconnect_after_stops, (), {}, fut, None))
         self._queue.put(_CLOSE)
         if threading.current_thread() is not self._thread:
             self._thread.join(timeout_s)

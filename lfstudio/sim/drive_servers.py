@@ -85,11 +85,20 @@ class ModbusDriveServer:
     after :meth:`start`), an asyncio stream server on a thread with its own event loop. It frames
     telegrams by their MBAP length field, so two requests in one TCP segment get two answers (pymodbus'
     server, used before, answered only the first: its send() drops the rest of its receive buffer).
-    A drive that lost its connection holds every request unanswered."""
+    A drive that lost its connection holds every request unanswered.
 
-    def __init__(self, axis: DriveAxis, port: int = 0):
+    ``extra_clients``: what a connection does while another is open, for gateways that serve one
+    client only (whether a dryve D1 serves several is not documented where we could read it):
+    "serve" (default) answers it too, "refuse" closes it at once, "ignore" reads its requests and
+    never answers. :attr:`clients_seen` counts the connections accepted."""
+
+    def __init__(self, axis: DriveAxis, port: int = 0, extra_clients: str = "serve"):
+        if extra_clients not in ("serve", "refuse", "ignore"):
+            raise ValueError(f"extra_clients {extra_clients!r}: serve, refuse or ignore")
         self.axis = axis
         self.port = int(port)
+        self.extra_clients = extra_clients
+        self.clients_seen = 0
         self._loop: asyncio.AbstractEventLoop | None = None
         self._server: asyncio.AbstractServer | None = None
         self._thread: threading.Thread | None = None
@@ -102,9 +111,17 @@ class ModbusDriveServer:
 
     async def _serve_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         task = asyncio.current_task()
+        extra = bool(self._clients)
+        self.clients_seen += 1
         if task is not None:
             self._clients.add(task)
         try:
+            if extra and self.extra_clients == "refuse":
+                return
+            if extra and self.extra_clients == "ignore":
+                while await reader.read(4096):
+                    pass
+                return
             while True:
                 head = await reader.readexactly(6)
                 length = int.from_bytes(head[4:6], "big")

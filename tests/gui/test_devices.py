@@ -52,8 +52,8 @@ def test_signals_on_gui_thread(qtbot):
     assert "hard limit" in blocker.args[0] and errors == [blocker.args[0]]
     assert not device.busy
 
-    device.stop_now()
-    assert device.driver.stopped
+    device.stop_now()                 # dispatched on a thread of its own: the GUI thread never waits
+    qtbot.waitUntil(lambda: device.driver.stopped, timeout=5000)
     device.close()
 
 

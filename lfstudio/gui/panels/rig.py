@@ -1,8 +1,9 @@
 """The Rig panel: connect, home / set origin, live position, jog (buttons, hold, keys), go-to, STOP.
 
 All driver calls go through a :class:`lfstudio.rig.worker.DeviceWorker` wrapped in a
-:class:`lfstudio.gui.devices.QtDevice`; the GUI thread never waits for the controller. STOP calls
-``driver.stop()`` directly (it only writes realtime bytes), bypassing the queue; its action
+:class:`lfstudio.gui.devices.QtDevice`; the GUI thread never waits for the controller. STOP bypasses
+the queue: the driver's ``stop()`` is dispatched on a thread of its own (``QtDevice.stop_now``), so a
+stalled drive link never holds the GUI thread; its action
 (``stop_action``, Esc) is also the main window's always-visible STOP button.
 
 Where the connected controller's own settings and the rig profile disagree (the driver's
@@ -646,7 +647,8 @@ class RigPanel(QWidget):
         self.state.show_status(f"Rig: {message.splitlines()[0]}", 10000)
 
     def stop(self) -> None:
-        """STOP: the driver's stop on this thread (never queued), queued commands dropped."""
+        """STOP: the driver's stop dispatched at once on its own thread (never queued), queued commands
+        dropped."""
         self._hold_timer.stop()
         self._pressed = None
         self._continuous = False
