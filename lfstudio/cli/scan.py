@@ -288,6 +288,7 @@ def run(args: argparse.Namespace) -> int:
                           blur_limit_px=args.blur_limit_px)
     request.engine_options["auto_resume"] = args.auto_resume
     unattended = _unattended(args)
+    interrupts: list[int] = []          # Ctrl+C typed: the operator is here, the page does not linger
     session = ScanSession(request, doing="scanning",
                           log_line=lambda text: print(f"lfstudio scan: {text}", file=sys.stderr))
     try:
@@ -323,8 +324,6 @@ def run(args: argparse.Namespace) -> int:
         checker = _start_check(dataset, engine) if args.check else None
         if checker is not None:
             unattended.attach_checker(checker)
-        interrupts = []
-
         def on_sigint(*_) -> None:
             interrupts.append(1)
             if len(interrupts) == 1:
@@ -373,7 +372,7 @@ def run(args: argparse.Namespace) -> int:
         return 130 if engine.aborted else 1
     finally:
         session.close()
-        _linger(unattended.close())
+        _linger(unattended.close(linger=not interrupts))
 
 
 def _linger(status) -> None:

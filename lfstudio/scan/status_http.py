@@ -213,7 +213,11 @@ class StatusServer:
     - a request's head must arrive within ``read_timeout_s`` with no pause longer than
       ``idle_timeout_s``, and be at most :data:`MAX_HEAD_BYTES`; the answer must be taken within
       ``read_timeout_s`` too; one request per connection (``Connection: close``);
-    - a client that resets or drops its connection is closed without a word (no traceback).
+    - a client that resets or drops its connection is closed without a word (no traceback);
+    - when a new connection needs room, a connection still sending its request head (a slow or
+      hostile client) is closed first, the oldest of them; one being answered only when there is
+      no other;
+    - :meth:`close` never waits on the loop: the port is free when it returns.
 
     After the scan, :meth:`linger` keeps it serving the final state for a while."""
 
@@ -248,6 +252,7 @@ class StatusServer:
         self.host, self.port = host, sock.getsockname()[1]
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self._sock_lock = threading.Lock()       # the listening socket: accepted from (loop) or closed (close())
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
@@ -274,7 +279,7 @@ class StatusServer:
     @property
     def serving(self) -> bool:
         """True while the page answers (started and neither closed nor past its linger time)."""
-        return self._thread is not None and not self._closed.is_set()
+        return self._thread is not None and not self._closed.is_set() and not self._stop.is_set()
 
     def start(self, board: StatusBoard) -> None:
         self.board = board
@@ -301,15 +306,25 @@ class StatusServer:
             return True
         return self._closed.wait(timeout_s)
 
-    def close(self) -> None:
-        """Stop serving now and free the port (any thread; more than once is harmless)."""
+    def close(self, wait_s: float = 0.0) -> None:
+        """Stop serving now and free the port (any thread, the GUI's too; more than once is harmless).
+
+        Never waits on the loop nor on a client: the listening socket is closed here (the port is
+        free on return; the lock only ever covers a few non-blocking ``accept`` calls), and the loop
+        closes its connections on its own thread as soon as its current step ends. ``wait_s``: wait
+        at most that long for that too (:meth:`wait_closed`)."""
         self._stop.set()
+        with self._sock_lock:
+            try:
+                self._sock.close()
+            except OSError:
+                pass
         self._wake()
         thread = self._thread
-        if thread is not None and thread is not threading.current_thread():
-            thread.join(10)
-        if thread is None or not thread.is_alive():
+        if thread is None:
             self._release()
+        elif wait_s > 0 and thread is not threading.current_thread():
+            thread.join(wait_s)
 
     def _wake(self) -> None:
         try:
@@ -318,20 +333,24 @@ class StatusServer:
             pass
 
     def _release(self) -> None:
-        for s in (self._sock, self._wake_r, self._wake_w):
-            try:
-                s.close()
-            except OSError:
-                pass
+        with self._sock_lock:
+            for s in (self._sock, self._wake_r, self._wake_w):
+                try:
+                    s.close()
+                except OSError:
+                    pass
         self._closed.set()
 
     # -- the event loop ---------------------------------------------------------------------------
     def _serve(self) -> None:
         sel = selectors.DefaultSelector()
         conns: dict[socket.socket, _Conn] = {}
-        sel.register(self._sock, selectors.EVENT_READ, None)
-        sel.register(self._wake_r, selectors.EVENT_READ, None)
         try:
+            with self._sock_lock:
+                if self._stop.is_set():             # closed before it started
+                    return
+                sel.register(self._sock, selectors.EVENT_READ, None)
+            sel.register(self._wake_r, selectors.EVENT_READ, None)
             while not self._stop.is_set():
                 now = time.monotonic()
                 if self._until is not None and now >= self._until:
@@ -365,18 +384,27 @@ class StatusServer:
 
     def _accept(self, sel: selectors.BaseSelector, conns: dict[socket.socket, "_Conn"]) -> None:
         for _ in range(64):         # a burst at a time: the others wait in the listen queue
-            try:
-                sock, _addr = self._sock.accept()
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError as exc:  # EMFILE/ENFILE (descriptors short elsewhere), ECONNABORTED: not ours to fix
-                log.debug("status page: accept: %s", exc)
-                time.sleep(0.05)    # do not spin while the process is short of descriptors
+            with self._sock_lock:   # close() may have closed it (from another thread) meanwhile
+                if self._stop.is_set() or self._sock.fileno() < 0:
+                    return
+                try:
+                    sock, _addr = self._sock.accept()
+                except (BlockingIOError, InterruptedError):
+                    return
+                except OSError as exc:  # EMFILE/ENFILE (descriptors short elsewhere), ECONNABORTED: not ours to fix
+                    log.debug("status page: accept: %s", exc)
+                    short = True
+                else:
+                    short = False
+            if short:
+                self._stop.wait(0.05)   # do not spin while the process is short of descriptors
                 return
             if len(conns) >= self.max_connections:
-                oldest = min(conns.values(), key=lambda c: c.opened)
+                # room for it: a connection still sending its head goes first (a slow or hostile
+                # client; a browser's arrives at once), one being answered only when none is left
+                victim = min(conns.values(), key=lambda c: (c.phase != "read", c.opened))
                 self.evicted += 1
-                self._drop(sel, conns, oldest)
+                self._drop(sel, conns, victim)
             sock.setblocking(False)
             conn = _Conn(sock)
             conns[sock] = conn
@@ -407,7 +435,7 @@ class StatusServer:
                     return
                 conn.buf += data
                 conn.last = time.monotonic()
-                answer = self._parse(conn)
+                answer = self._parse(conn, len(data))
                 if answer is not None:
                     conn.out = memoryview(answer)
                     conn.phase = "write"
@@ -429,11 +457,14 @@ class StatusServer:
         except OSError:             # reset, broken pipe, ...: the client went away; nothing to say
             self._drop(sel, conns, conn)
 
-    def _parse(self, conn: "_Conn") -> bytes | None:
-        """The answer to ``conn``'s request once its head is complete (None: not yet)."""
-        end = conn.buf.find(b"\r\n\r\n")
+    def _parse(self, conn: "_Conn", new: int | None = None) -> bytes | None:
+        """The answer to ``conn``'s request once its head is complete (None: not yet). ``new``: how many
+        bytes just arrived (only they and the 3 before are searched for the head's end: a head
+        trickled byte by byte costs no more than one sent at once)."""
+        start = 0 if new is None else max(0, len(conn.buf) - new - 3)
+        end = conn.buf.find(b"\r\n\r\n", start)
         if end < 0:
-            end = conn.buf.find(b"\n\n")
+            end = conn.buf.find(b"\n\n", start)
         if end < 0 and len(conn.buf) <= MAX_HEAD_BYTES:
             return None
         line_end = conn.buf.find(b"\n")
