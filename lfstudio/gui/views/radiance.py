@@ -5,24 +5,31 @@ The float image is read and reduced to the screen's size off the GUI thread; the
 2^EV around the dataset's key (0 EV: the merged view's log-average luminance shown as 18 % grey) and
 shows it through the sRGB curve, so highlights the middle frame clipped come back as the slider goes
 down and shadows as it goes up. The figures under it are the radiance's own (the merge's units: the
-reference frame's developed 0…1 scale at its exposure time)."""
+reference frame's developed 0…1 scale at its exposure time).
+
+The picture at a slider position is made off the GUI thread too (:class:`Exposer`, one thread per
+dialog): first from a preview-sized copy (:data:`PREVIEW_PX`, at once), then at the shown size; the
+latest position wins (positions passed meanwhile are never made, a newer one stops the refinement).
+The GUI thread only puts the finished picture on the screen."""
 
 from __future__ import annotations
 
-from typing import Any
+import threading
+from typing import Any, Callable
 
 import numpy as np
 from PySide6.QtCore import Qt
-from PySide6.QtGui import QAction, QPixmap
+from PySide6.QtGui import QAction, QImage, QPixmap
 from PySide6.QtWidgets import QDialog, QHBoxLayout, QLabel, QLineEdit, QPushButton, QSlider, QVBoxLayout, QWidget
 
 from lfstudio.errors import LfError
-from lfstudio.gui.bridge import Pacer, run_off_gui
+from lfstudio.gui.bridge import GuiInbox, Pacer, run_off_gui
 from lfstudio.gui.widgets import FitImageView, screen_fitted
 
 EV_RANGE = (-8.0, 8.0)          # the slider's exposure, in stops around the key
 EV_STEP = 0.1
 SHOWN_MAX_PX = 2000             # the radiance is reduced to at most this width for the screen
+PREVIEW_PX = 400                # ... and a copy to this width, made first at each slider position
 
 
 def merged_views(dataset) -> list[tuple[int, int]]:
@@ -56,8 +63,12 @@ def load_radiance(dataset, view: tuple[int, int]) -> dict[str, Any]:
     figures = {"file": record["file"], "size": (w, h), "min": float(fin.min()) if fin.size else 0.0,
                "median": float(np.median(fin)) if fin.size else 0.0, "max": float(fin.max()) if fin.size else 0.0,
                "clipped_merged": (record.get("clipped_fraction") or {}).get("merged")}
-    return {"radiance": np.ascontiguousarray(radiance, dtype=np.float32), "key": max(log_average(radiance), 1e-9),
-            "figures": figures}
+    radiance = np.ascontiguousarray(radiance, dtype=np.float32)
+    sh, sw = radiance.shape[:2]
+    preview = radiance if sw <= PREVIEW_PX else cv2.resize(
+        radiance, (PREVIEW_PX, max(1, round(sh * PREVIEW_PX / sw))), interpolation=cv2.INTER_AREA)
+    return {"radiance": radiance, "preview": np.ascontiguousarray(preview, dtype=np.float32),
+            "key": max(log_average(radiance), 1e-9), "figures": figures}
 
 
 def exposed(radiance: np.ndarray, key: float, ev: float) -> np.ndarray:
@@ -66,6 +77,73 @@ def exposed(radiance: np.ndarray, key: float, ev: float) -> np.ndarray:
     np.clip(x, 0.0, 1.0, out=x)
     srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4, dtype=np.float32) - 0.055)
     return (srgb * 255.0 + 0.5).astype(np.uint8)
+
+
+class Exposer:
+    """:func:`exposed` on a thread of its own, the latest request winning. :meth:`request` (any
+    thread, returns at once) replaces a request not yet started; each request gives ``deliver(seq,
+    ev, image, final)`` (on the worker thread) a preview first (``data["preview"]`` exposed and
+    enlarged to the shown size, ``final`` False) unless it is as large as the picture, then the
+    picture (``final`` True), skipped when a newer request is waiting by then. ``image`` is a QImage
+    (made here, not on the GUI thread)."""
+
+    def __init__(self, deliver: Callable[[int, float, QImage, bool], None], name: str = "radiance-exposer"):
+        self._deliver = deliver
+        self._cond = threading.Condition()
+        self._want: tuple[int, dict[str, Any], float] | None = None
+        self._seq = 0
+        self._closed = False
+        self.made: list[tuple[float, bool]] = []        # (ev, final) of each picture made, in order
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def request(self, data: dict[str, Any], ev: float) -> int:
+        with self._cond:
+            self._seq += 1
+            self._want = (self._seq, data, float(ev))
+            self._cond.notify()
+            return self._seq
+
+    def _newer_waiting(self) -> bool:
+        with self._cond:
+            return self._want is not None or self._closed
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._want = None
+            self._cond.notify()
+
+    def _run(self) -> None:
+        import cv2
+
+        from lfstudio.gui.imageutil import rgb_to_qimage
+
+        while True:
+            with self._cond:
+                while self._want is None and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return
+                assert self._want is not None
+                seq, data, ev = self._want
+                self._want = None
+            radiance, preview = data["radiance"], data.get("preview")
+            h, w = radiance.shape[:2]
+            try:
+                if preview is not None and preview.shape[1] < w:
+                    small = cv2.resize(exposed(preview, data["key"], ev), (w, h), interpolation=cv2.INTER_LINEAR)
+                    self.made.append((ev, False))
+                    self._deliver(seq, ev, rgb_to_qimage(small), False)
+                    if self._newer_waiting():
+                        continue
+                rgb = exposed(radiance, data["key"], ev)
+                self.made.append((ev, True))
+                self._deliver(seq, ev, rgb_to_qimage(rgb), True)
+            except Exception:  # noqa: BLE001 - a broken picture must not end the dialog's worker
+                import logging
+
+                logging.getLogger(__name__).exception("exposing the radiance at %+.1f EV failed", ev)
 
 
 class RadianceDialog(QDialog):
@@ -120,6 +198,11 @@ class RadianceDialog(QDialog):
         self._data: dict[str, Any] | None = None
         self._loader = None
         self.pictures_shown = 0
+        self._shown_seq = 0
+        self._pictures = GuiInbox(self._show_pictures, self)
+        self.exposer = Exposer(lambda seq, ev, image, final: self._pictures.post((seq, ev, image, final)))
+        self.finished.connect(lambda _r: self.exposer.close())
+        self.destroyed.connect(self.exposer.close)
         self._pacer = Pacer(self._expose, 40, self)        # the slider dragged: at most 25 pictures a second
         self.slider.valueChanged.connect(lambda _v: self._pacer.request())
         self.show_button.clicked.connect(self.show_view)
@@ -152,22 +235,32 @@ class RadianceDialog(QDialog):
         self._expose()
 
     def _expose(self) -> None:
-        from lfstudio.gui.imageutil import rgb_to_qimage
-
+        """The slider moved (paced): the picture at its position is asked of the exposer (off the GUI
+        thread); :meth:`_show_pictures` puts it on the screen."""
         self._show_ev()
-        data = self._data
-        if data is None:
+        if self._data is not None:
+            self.exposer.request(self._data, self.ev)
+
+    def _show_pictures(self, items: list[tuple[int, float, QImage, bool]]) -> None:
+        seq, ev, image, final = items[-1]           # the latest made; older ones are never shown
+        if seq < self._shown_seq or self._data is None:
             return
-        rgb = exposed(data["radiance"], data["key"], self.ev)
-        self.image.set_pixmap(QPixmap.fromImage(rgb_to_qimage(rgb)))
-        fig = data["figures"]
+        self._shown_seq = seq
+        self.image.set_pixmap(QPixmap.fromImage(image))
+        if not final:
+            return
+        fig = self._data["figures"]
         clipped = fig.get("clipped_merged")
         self.caption.setText(
             f"{fig['file']} ({fig['size'][0]} × {fig['size'][1]} px, linear float): radiance {fig['min']:.3g} … "
             f"{fig['max']:.3g}, median {fig['median']:.3g} (the reference frame's 0…1 scale); "
             + (f"{clipped:.2%} of pixels clipped in every frame; " if isinstance(clipped, (int, float)) else "")
-            + f"shown at {self.ev:+.1f} EV through the sRGB curve")
+            + f"shown at {ev:+.1f} EV through the sRGB curve")
         self.pictures_shown += 1
+
+    def closeEvent(self, event) -> None:  # noqa: N802 (Qt name)
+        self.exposer.close()
+        super().closeEvent(event)
 
 
 def install_menus(window) -> None:
