@@ -9,7 +9,9 @@ one task per view on the executor it is given (the processing pool or a Dask clu
     DATASET/depth/confidence/rRR_cCCC.pfm   0 … 1
     DATASET/depth/records/rRR_cCCC.json     what it was computed from (settings, source files), figures
 
-each atomically, the record last. A view whose record matches the settings and its source files
+each atomically, the record last. A worker keeps the views it prepared (decoded, rectified, grey) for
+the next views it computes, whose neighbourhoods overlap (:data:`IMAGE_CACHE_MB`; the record counts
+``images_read`` and ``images_cached``). A view whose record matches the settings and its source files
 is skipped, so a cancelled or crashed run resumes where it stopped (``force``: compute again).
 Workers must see the dataset at the same path (as processing's).
 
@@ -35,7 +37,9 @@ import hashlib
 import json
 import logging
 import os
+import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -440,14 +444,50 @@ def _read(path: str, H, size) -> np.ndarray:
     return dense.prepare(_read_rgb(path, H, size))
 
 
+#: prepared (decoded, rectified, grey) views a worker process keeps for its next views (MB): the
+#: neighbourhoods of views computed one after the other share most of their views (an HCI view has
+#: 32 neighbours; without this each view's run decoded and warped them again)
+IMAGE_CACHE_MB = 1024
+_image_cache: OrderedDict[tuple, np.ndarray] = OrderedDict()
+_image_cache_lock = threading.Lock()
+
+
+def _read_cached(path: str, H, size, counts: dict[str, int] | None = None) -> np.ndarray:
+    """:func:`_read` through this process's cache of prepared views (least recently used dropped
+    beyond :data:`IMAGE_CACHE_MB`); a file changed since (size, modification time) is read again.
+    The array is read-only (shared by the views that use it). ``counts``: "read" / "cached" tallied."""
+    st = os.stat(path)
+    key = (os.path.abspath(path), st.st_mtime_ns, st.st_size, json.dumps(H), tuple(int(v) for v in size))
+    with _image_cache_lock:
+        hit = _image_cache.get(key)
+        if hit is not None:
+            _image_cache.move_to_end(key)
+    if counts is not None:
+        counts["cached" if hit is not None else "read"] = counts.get("cached" if hit is not None else "read", 0) + 1
+    if hit is not None:
+        return hit
+    image = _read(path, H, size)
+    image.setflags(write=False)
+    budget = IMAGE_CACHE_MB * 1024 * 1024
+    with _image_cache_lock:
+        _image_cache[key] = image
+        total = sum(a.nbytes for a in _image_cache.values())
+        while total > budget and len(_image_cache) > 1:
+            _, dropped = _image_cache.popitem(last=False)
+            total -= dropped.nbytes
+    return image
+
+
 def depth_view_task(task: dict[str, Any]) -> dict[str, Any]:
     """Compute and store one view's maps (``task``: see :func:`estimate_depth`); returns its record."""
     import cv2
 
     cv2.setNumThreads(1)
     t_cpu = time.process_time()
-    ref = _read(task["reference"], task["homography"], task["size"])
-    nbs = [dense.Neighbour(_read(p, task["homography"], task["size"]), dx, dy) for p, dx, dy in task["neighbours"]]
+    counts: dict[str, int] = {}
+    ref = _read_cached(task["reference"], task["homography"], task["size"], counts)
+    nbs = [dense.Neighbour(_read_cached(p, task["homography"], task["size"], counts), dx, dy)
+           for p, dx, dy in task["neighbours"]]
     res = dense.light_field_disparity(ref, nbs, *task["d_range"], window_px=task["settings"]["window_px"],
                                       step_px=task["settings"]["step_px"])
     out = {k: Path(v) for k, v in task["out"].items()}
@@ -459,6 +499,7 @@ def depth_view_task(task: dict[str, Any]) -> dict[str, Any]:
               "size_px": list(task["size"]), "d_range_px": list(task["d_range"]), "candidates": res.candidates,
               "d_range_source": task.get("range_source"), "d_range_found_px": task.get("range_found"),
               "neighbours": task["neighbour_views"],
+              "images_read": counts.get("read", 0), "images_cached": counts.get("cached", 0),
               "valid_fraction": float(finite.mean()),
               "confident_fraction": float((res.confidence > 0.1).mean()),
               "disparity_px": {"p2": float(np.percentile(res.disparity_px[finite], 2)) if finite.any() else None,

@@ -95,6 +95,33 @@ def test_the_job_resumes_after_cancel_and_recomputes_what_changed(calibrated):
     assert estimate_depth(ds, "r1,c1-3").computed == 3
 
 
+def test_views_computed_one_after_another_decode_each_image_once(calibrated, monkeypatch):
+    from lfstudio.depth import run
+
+    ds = calibrated
+    run._image_cache.clear()
+    estimate_depth(ds, "r1,c1-3", force=True)
+    records = [read_disparity(ds, (1, c))[2] for c in (1, 2, 3)]
+    used = {(1, c) for c in (1, 2, 3)} | {(n[0], n[1]) for r in records for n in r["neighbours"]}
+    # each image decoded and rectified once for the three views (was once per view that uses it)
+    assert sum(r["images_read"] for r in records) == len(used)
+    assert records[0]["images_cached"] == 0 and records[1]["images_cached"] > 0
+    assert all(r["images_read"] + r["images_cached"] == 1 + len(r["neighbours"]) for r in records)
+    # a file changed since is read again; the cache keeps to its budget
+    import os
+
+    path = ds.path_of(ds.view(1, 4))
+    st = os.stat(path)
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 5_000_000_000))
+    estimate_depth(ds, "r1,c2", force=True)
+    assert read_disparity(ds, (1, 2))[2]["images_read"] == 1
+    monkeypatch.setattr(run, "IMAGE_CACHE_MB", 2)
+    run._image_cache.clear()
+    estimate_depth(ds, "r1,c1-3", force=True)
+    sizes = [a.nbytes for a in run._image_cache.values()]
+    assert 1 <= len(sizes) and sum(sizes) <= 2 * 1024 * 1024
+
+
 def test_nerfstudio_and_hci_exports_carry_the_maps(calibrated, tmp_path):
     ds = calibrated
     est = estimate_export(ds, ExportOptions("nerfstudio", tmp_path / "n", views="r1,c1-3", depth=True))
