@@ -2,7 +2,9 @@
 
 What a file is, is decided by trying it, never by its name: a file LibRaw opens is a camera RAW
 (every format LibRaw reads, whatever its suffix: a Canon ``.CRW``, a Minolta ``.MRW``, a DNG named
-``.nef``); otherwise a file OpenCV has a decoder for (PNG, TIFF, JPEG, ...) is an ordinary image;
+``.nef``), unless its own structure says it is an ordinary TIFF picture (:func:`plain_tiff`: LibRaw
+opens an uncompressed 16-bit grey TIFF as a mosaic); otherwise a file OpenCV has a decoder for (PNG,
+TIFF, JPEG, ...) is an ordinary image;
 anything else is not a capture (:class:`NotACapture`, naming the file). The answer is remembered
 per file, size and modification time.
 
@@ -81,10 +83,48 @@ def _kind(path: str, size: int, mtime_ns: int) -> str | None:
 
     try:
         with rawpy.imread(path):
-            return "raw"
+            opened = True
     except Exception:   # LibRaw raises several error types for a file it does not read
-        pass
+        opened = False
+    if opened and not plain_tiff(path):
+        return "raw"
     return "image" if cv2.haveImageReader(path) else None
+
+
+#: TIFF tags and values that only a camera RAW has (DNG, or a maker's TIFF-based RAW)
+_DNG_VERSION, _SUB_IFDS, _MAKER_NOTE = 50706, 330, 37500
+#: photometric interpretations of an ordinary picture (not 32803 CFA, 34892 LinearRaw, ...)
+_PICTURE_PHOTOMETRIC = {0, 1, 2, 3, 5, 6, 8}
+#: compressions an ordinary TIFF writer uses (not a maker's own, e.g. 34713 NEF, 32767 Sony ARW)
+_PICTURE_COMPRESSION = {1, 2, 3, 4, 5, 7, 8, 32773, 32946, 34925, 50000, 50001}
+
+
+def plain_tiff(path: str | os.PathLike) -> bool:
+    """True for an ordinary TIFF picture (what an image program or OpenCV writes): every directory an
+    ordinary picture (grey, RGB, palette, CMYK, YCbCr or Lab, a standard compression), no DNG version,
+    no sub-directories, no maker note, not a Canon CR2. LibRaw opens an uncompressed 16-bit grey TIFF
+    as if it were a RAW mosaic; such a file is an image, whatever LibRaw says. Any doubt (another
+    format, a header tifffile cannot read, anything a RAW has): False, and LibRaw decides."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(10)
+        if head[:4] not in (b"II*\x00", b"MM\x00*") or head[8:10] == b"CR":
+            return False
+        import tifffile
+
+        with tifffile.TiffFile(path) as tif:
+            for page in tif.pages:
+                if not isinstance(page, tifffile.TiffPage):
+                    return False
+                tags = page.tags
+                if any(t in tags for t in (_DNG_VERSION, _SUB_IFDS, _MAKER_NOTE)):
+                    return False
+                if int(page.photometric) not in _PICTURE_PHOTOMETRIC or \
+                        int(page.compression) not in _PICTURE_COMPRESSION:
+                    return False
+        return True
+    except Exception:  # noqa: BLE001 - a header tifffile does not read: not known to be a plain picture
+        return False
 
 
 def kind(path: str | os.PathLike) -> str:
