@@ -56,7 +56,8 @@ _HEAVY_FILES = ("tests/calibration/test_simulate.py", "tests/calibration/test_un
                 "tests/quality/test_bracket_check.py", "tests/quality/test_live.py",
                 "tests/processing/test_output_size_path.py", "tests/processing/test_virtual_studio.py",
                 "tests/processing/test_pipeline.py", "tests/sim/test_virtual_dataset.py", "tests/depth/test_points.py",
-                "tests/depth/test_depth_range.py", "tests/export/test_posed_exports.py", "tests/scan/test_fly_scan.py")
+                "tests/depth/test_depth_range.py", "tests/export/test_posed_exports.py", "tests/scan/test_fly_scan.py",
+                "tests/scan/test_fly_scan_drives.py", "tests/rig/test_cia402_fly.py")
 _FULL_FILES = _TOOL_TESTS + _HEAVY_FILES
 #: fixtures that start another process, a Qt loop, a firmware or an emulator
 _FULL_FIXTURES = frozenset({"qtbot", "qapp", "run_cli", "start_cli", "sim_rig_port", "vcamera", "grbl_firmware",

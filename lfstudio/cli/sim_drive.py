@@ -53,6 +53,16 @@ def _feed(text: str) -> int:
     return value
 
 
+def _delay(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0.0 <= value <= 10_000.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: the answer delay is 0 … 10000 ms")
+    return value
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from lfstudio.studio.scan_options import PARAMS as SCAN
 
@@ -71,6 +81,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--enabled-unhomed", action="store_true",
                    help="power up in operation enabled, profile position mode, never homed (as another program "
                         "would leave them)")
+    p.add_argument("--touch-probe", action="store_true",
+                   help="give both drives CiA 402 touch probe 1 (60B8h-60BBh) wired to the simulated camera's exposure "
+                        "output, as a generic CiA 402 drive has it (the dryve D1 has none): fly scans then record the "
+                        "positions the drives latch")
+    p.add_argument("--answer-delay-ms", type=_delay, default=0.0, metavar="MS",
+                   help="every answer of the drives comes this much later (a slow gateway or a busy bus; x the time "
+                        "scale); default 0")
     p.add_argument("--canopen", metavar="CHANNEL", default=None,
                    help="serve the drives as CANopen nodes 1 and 2 on python-can's bus CHANNEL instead of Modbus TCP: "
                         "udp_multicast (between processes; its datagrams also reach the other computers of the local network, "
@@ -89,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--rig-profile", f"rig profile {rig.name!r} is for a GRBL controller, not CiA 402 drives",
                          f"a profile with driver = \"cia402\", e.g. {DEFAULT_DRIVE_RIG!r}")
     try:
-        setup = {"leave_out": args.leave_out, "feed": args.feed_constant, "enabled_unhomed": args.enabled_unhomed}
+        setup = {"leave_out": args.leave_out, "feed": args.feed_constant, "enabled_unhomed": args.enabled_unhomed,
+                 "touch_probe": args.touch_probe, "answer_delay_s": args.answer_delay_ms / 1000.0}
         emulator, truth = serve_sim_drive(rig, time_scale=args.time_scale, seed=args.seed, ports=args.ports,
                                           setup=setup, canopen=args.canopen)
     except OSError as exc:

@@ -58,7 +58,8 @@ from typing import Callable, Protocol
 
 from lfstudio.errors import DeviceError, DeviceTimeout
 from lfstudio.optics import move_time_s
-from lfstudio.rig.motion import RigConfig, RigState, RigStatus, SoftLimitError, check_target, clamp_target
+from lfstudio.rig.motion import (Latch, PositionReport, RigConfig, RigState, RigStatus, SoftLimitError, check_target,
+                                 clamp_target)
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +72,7 @@ PROFILE_DECELERATION, QUICK_STOP_DECELERATION = 0x6084, 0x6085
 HOMING_METHOD, HOMING_SPEEDS, HOMING_ACCELERATION, FOLLOWING_ERROR = 0x6098, 0x6099, 0x609A, 0x60F4
 FEED_CONSTANT, SI_POSITION, SI_VELOCITY, SI_ACCELERATION = 0x6092, 0x60A8, 0x60A9, 0x60AA
 SUPPORTED_MODES, SUPPORTED_HOMING = 0x6502, 0x60E3
+PROBE_FUNCTION, PROBE_STATUS, PROBE_POSITIVE, PROBE_NEGATIVE = 0x60B8, 0x60B9, 0x60BA, 0x60BB
 SIZES: dict[int, tuple[int, bool]] = {
     ERROR_CODE: (2, False), CONTROL: (2, False), STATUS: (2, False), QUICK_STOP_OPTION: (2, True),
     MODE: (1, True), MODE_DISPLAY: (1, True), POSITION: (4, True), FOLLOWING_WINDOW: (4, False),
@@ -80,6 +82,7 @@ SIZES: dict[int, tuple[int, bool]] = {
     FOLLOWING_ERROR: (4, True), POSITION_WINDOW: (4, False), POSITION_WINDOW_TIME: (2, False),
     FEED_CONSTANT: (4, False), SI_POSITION: (4, False), SI_VELOCITY: (4, False), SI_ACCELERATION: (4, False),
     SUPPORTED_MODES: (4, False), SUPPORTED_HOMING: (1, True),
+    PROBE_FUNCTION: (2, False), PROBE_STATUS: (2, False), PROBE_POSITIVE: (4, True), PROBE_NEGATIVE: (4, True),
 }
 #: what each object is, for messages
 OBJECT_NAMES: dict[int, str] = {
@@ -93,6 +96,8 @@ OBJECT_NAMES: dict[int, str] = {
     FEED_CONSTANT: "feed constant", SI_POSITION: "SI unit position", SI_VELOCITY: "SI unit velocity",
     SI_ACCELERATION: "SI unit acceleration", SUPPORTED_MODES: "supported drive modes",
     SUPPORTED_HOMING: "supported homing methods", FOLLOWING_WINDOW: "following error window",
+    PROBE_FUNCTION: "touch probe function", PROBE_STATUS: "touch probe status",
+    PROBE_POSITIVE: "touch probe 1 positive edge", PROBE_NEGATIVE: "touch probe 1 negative edge",
 }
 #: (index, subindex) every motion needs (CiA 402 device control and profile position): refused by name when absent
 MANDATORY: tuple[tuple[int, int], ...] = ((CONTROL, 0), (STATUS, 0), (MODE, 0), (MODE_DISPLAY, 0), (POSITION, 0),
@@ -115,7 +120,13 @@ OPTIONAL: dict[tuple[int, int], str] = {
     (FEED_CONSTANT, 1): "", (FEED_CONSTANT, 2): "",
     (SI_POSITION, 0): "", (SI_VELOCITY, 0): "", (SI_ACCELERATION, 0): "",
     (SUPPORTED_MODES, 0): "", (SUPPORTED_HOMING, 0): "",
+    # touch probe 1 (fly scans; said once at the first fly move where absent: the dryve D1 has none)
+    (PROBE_FUNCTION, 0): "", (PROBE_STATUS, 0): "", (PROBE_POSITIVE, 0): "", (PROBE_NEGATIVE, 0): "",
 }
+#: 60B8h bits (CiA 402 / IEC 61800-7-201 touch probe function): enable probe 1, latch on its positive /
+#: negative edge (bit 1 low: the first event only, re-armed by bit 0 low then high); 60B9h: stored bits
+PROBE_ENABLE, PROBE_ON_RISING, PROBE_ON_FALLING = 0x01, 0x10, 0x20
+PROBE_RISING_STORED, PROBE_FALLING_STORED = 0x02, 0x04
 PROFILE_POSITION, HOMING = 1, 6
 #: how long :meth:`Cia402Controller.stop` waits for the quick stops before it returns (a stalled
 #: link's goes on to its deadline on its own thread; the drives that answer have theirs in ms)
@@ -320,6 +331,10 @@ class Cia402Controller:
         self._homing = False
         self._halt_flags = (False, False)
         self.version = "CiA 402"
+        #: the fly move under way (fly_to … wait_arrival): axes moving, standing axes' positions, touch probes
+        self._fly: dict | None = None
+        #: how often report() looks at the touch probe status 60B9h during a fly move (real time)
+        self.probe_poll_s = 0.004
 
     # -- naming ------------------------------------------------------------------------------------
     def _name(self, i: int) -> str:
@@ -784,6 +799,7 @@ class Cia402Controller:
     def _prepare(self, doing: str) -> None:
         if not self._connected or self._lost:
             raise DriveNotAnswering(self._lost or f"the rig {self.port} is not connected: connect first")
+        self._fly = None                         # a new command: the last fly move's latches are gone
         if self._stop_pending:
             self._finish_stop()
         self._stop_event.clear()
@@ -1081,6 +1097,143 @@ class Cia402Controller:
         if st.state is RigState.ALARM:
             return f"a drive is in fault ({st.message})"
         return f"the rig stands at ({st.position_mm[0]:.3f}, {st.position_mm[1]:.3f}) mm"
+
+    # -- fly scanning (lfstudio.rig.motion.FlyingController, LatchesPositions) ------------------------
+    def fly_to(self, x_mm: float, y_mm: float, speed_mm_s: float) -> None:
+        """A profile position move (``6060h`` = 1) to the target at ``speed_mm_s`` along the line: each
+        moving axis' profile velocity ``6081h`` is its share of the speed (igus, dryve D1 manual V2.4
+        §6.5.5 drives the pendulum motion with these objects), its ramps ``6083h``/``6084h`` the rig
+        profile's acceleration. Returns once both drives acknowledged the set-point (status bit 12),
+        while the carriage moves: :meth:`wait_arrival` waits for it. The target is checked against the
+        soft limits and ``607Dh``, the speed against each axis' speed, before anything is sent. Where the
+        moving drives have touch probe 1 (``60B8h``–``60BAh``) it is armed to latch the position on both
+        edges of its input (the camera's exposure output); where not, that is said once and the fly
+        scan interpolates ``6064h`` reads."""
+        x_mm, y_mm = check_target(self.config, x_mm, y_mm)
+        if not (isinstance(speed_mm_s, (int, float)) and math.isfinite(speed_mm_s) and speed_mm_s > 0):
+            raise DeviceError(f"fly move refused: speed {speed_mm_s!r} mm/s is not a positive number; nothing was sent")
+        with self._io:
+            self._prepare("fly move")
+            self._require_reference("fly move")
+            x_mm, y_mm = self.check_target(x_mm, y_mm)
+            if self._jog_target is not None:
+                self._cancel_motion()
+            st = self._query()
+            if st.state is not RigState.IDLE:
+                raise DeviceError(f"fly move refused: the rig is {st.state.value}, not idle")
+            start = _position_of(st)
+            deltas = (x_mm - start[0], y_mm - start[1])
+            distance = math.hypot(*deltas)
+            moving = [i for i in range(2) if abs(deltas[i]) > self.tolerance(i)]
+            speeds = []
+            for i in range(2):
+                axis = self._axes[i]
+                v = float(speed_mm_s) * abs(deltas[i]) / distance if i in moving else axis.max_speed_mm_s
+                if v > axis.max_speed_mm_s * (1 + 1e-9):
+                    raise DeviceError(f"fly move refused: {v:g} mm/s on the {axis.name} axis is faster than its "
+                                      f"{axis.max_speed_mm_s:g} mm/s (rig profile {self.config.name!r}); nothing was sent")
+                speeds.append(v)
+            probes = self._arm_probes(moving)
+            self._fly = {"moving": moving, "standing": {i: start[i] for i in range(2) if i not in moving},
+                         "probes": probes, "latches": [], "probe_after": time.monotonic(), "probe_poll": 0.0}
+            self._moving = True
+            try:
+                self._start((x_mm, y_mm), (speeds[0], speeds[1]),
+                            f"fly move to ({x_mm:g}, {y_mm:g}) mm at {speed_mm_s:g} mm/s")
+            except BaseException:
+                self._moving = False
+                self._fly = None
+                raise
+
+    def _arm_probes(self, moving: list[int]) -> list[int]:
+        """Touch probe 1 of each moving drive armed (first event, both edges where the drive has
+        ``60BBh``): the drives whose probes the fly move reads, or [] (then 6064h reads, said once)."""
+        needed = (PROBE_FUNCTION, PROBE_STATUS, PROBE_POSITIVE)
+        lacking = [i for i in moving if not all(self.has(i, index) for index in needed)]
+        for i in lacking:
+            self._say(f"{self._name(i)} has no touch probe (60B8h, 60B9h, 60BAh): fly scan positions are "
+                      "interpolated from its position reads (6064h), not latched")
+        if lacking or not moving:
+            return []
+        for i in moving:
+            function = PROBE_ENABLE | PROBE_ON_RISING | (PROBE_ON_FALLING if self.has(i, PROBE_NEGATIVE) else 0)
+            self._write(i, PROBE_FUNCTION, 0)                 # bit 0 low, then high: armed afresh
+            self._write(i, PROBE_FUNCTION, function)
+        return list(moving)
+
+    def report(self) -> PositionReport:
+        """The position ``6064h`` now, time-stamped: ``t_s`` the middle of the question and the answer
+        on ``time.monotonic()``, ``uncertainty_s`` half their time apart (the drive took the value
+        somewhere in between). During a fly move only the moving drives are read (a standing one holds
+        its position); otherwise both. During a fly move with touch probes it also looks at their status
+        (every :attr:`probe_poll_s`) and collects what they latched (:meth:`latches`)."""
+        with self._io:
+            if not self._connected or self._lost:
+                raise DriveNotAnswering(self._lost or f"the rig {self.port} is not connected: connect first")
+            fly = self._fly if self._fly is not None and not self._fly.get("done") else None
+            read = (fly["moving"] or [0]) if fly is not None else [0, 1]
+            values: dict[int, float] = dict(fly["standing"]) if fly is not None else {}
+            t0 = time.monotonic()
+            for i in read:
+                values[i] = self._read(i, POSITION) / self._k[i]
+            t1 = time.monotonic()
+            if fly is not None and fly["probes"] and t1 - fly["probe_poll"] >= self.probe_poll_s:
+                self._poll_probes(fly)
+        return PositionReport((t0 + t1) / 2.0, values[0], values[1], (t1 - t0) / 2.0)
+
+    def _poll_probes(self, fly: dict) -> None:
+        """Touch probe status ``60B9h``: once every armed edge is stored, read ``60BAh``/``60BBh`` of the
+        moving drives, keep the latch, arm again (``60B8h`` bit 0 low, then high)."""
+        first = fly["probes"][0]
+        t_question = time.monotonic()
+        status = self._read(first, PROBE_STATUS)
+        fly["probe_poll"] = time.monotonic()
+        both = self.has(first, PROBE_NEGATIVE)
+        wanted = PROBE_RISING_STORED | (PROBE_FALLING_STORED if both else 0)
+        if status & wanted != wanted:
+            fly["probe_after"] = t_question                   # nothing latched before this question
+            return
+        t_seen = fly["probe_poll"]
+        values = dict(fly["standing"])
+        for i in fly["probes"]:
+            rising = self._read(i, PROBE_POSITIVE)
+            falling = self._read(i, PROBE_NEGATIVE) if self.has(i, PROBE_NEGATIVE) else rising
+            values[i] = (rising + falling) / 2.0 / self._k[i]
+        t_rearm = time.monotonic()
+        for i in fly["probes"]:
+            function = PROBE_ENABLE | PROBE_ON_RISING | (PROBE_ON_FALLING if self.has(i, PROBE_NEGATIVE) else 0)
+            self._write(i, PROBE_FUNCTION, 0)
+            self._write(i, PROBE_FUNCTION, function)
+        unc = max(1.0 / self._k[i] for i in fly["probes"])   # one position unit
+        fly["latches"].append(Latch(fly["probe_after"], t_seen, values[0], values[1], unc,
+                                    "both" if both else "rising"))
+        fly["probe_after"] = t_rearm                          # edges before the probe was armed again are lost
+
+    def latches(self) -> list[Latch]:
+        """The positions the drives' touch probes latched since :meth:`fly_to` (oldest first; after a
+        last look at the probes), forgotten here; [] without touch probes."""
+        with self._io:
+            fly = self._fly
+            if fly is None:
+                return []
+            if fly["probes"] and self._connected and not self._lost:
+                self._poll_probes(fly)
+            out, fly["latches"] = list(fly["latches"]), []
+            if fly.get("done"):
+                self._fly = None
+            return out
+
+    def wait_arrival(self, x_mm: float, y_mm: float, timeout_s: float) -> RigStatus:
+        """Wait until both drives report target reached at the target of :meth:`fly_to` (STOP, a fault
+        or a following error end it as they end :meth:`move_to`)."""
+        try:
+            return self._wait_arrival((float(x_mm), float(y_mm)), timeout_s)
+        finally:
+            self._moving = False
+            fly = self._fly
+            if fly is not None:                  # its latches stay for latches(); report() reads both drives again
+                fly["done"] = True
+                self._fly = fly if fly["probes"] else None
 
     def jog(self, dx_mm: float, dy_mm: float, speed_mm_s: float | None = None) -> None:
         """Start a jog by (dx, dy) mm, clamped to the soft limits and ``607Dh``; returns at once."""

@@ -166,6 +166,30 @@ class FlyingController(Protocol):
     def wait_arrival(self, x_mm: float, y_mm: float, timeout_s: float) -> RigStatus: ...
 
 
+@dataclass(frozen=True)
+class Latch:
+    """A position the controller latched in hardware on an input edge (CiA 402 touch probe: the
+    camera's exposure output wired to the drive's probe input). The edges came after ``t_after_s`` and
+    before ``t_seen_s`` (``time.monotonic()``: when the driver looked and did not see them yet, and when
+    it saw them); ``x_mm``/``y_mm`` where the carriage was (the exposure's centre when ``edges`` is
+    "both": the mean of the rising and falling edge; its start when "rising")."""
+
+    t_after_s: float
+    t_seen_s: float
+    x_mm: float
+    y_mm: float
+    uncertainty_mm: float
+    edges: str = "both"
+
+
+@runtime_checkable
+class LatchesPositions(Protocol):
+    """A :class:`FlyingController` whose drives latch positions in hardware: ``latches`` returns (and
+    forgets) those latched since the last ``fly_to``, oldest first; empty when it latched none."""
+
+    def latches(self) -> list[Latch]: ...
+
+
 class SoftLimitError(InputError):
     """A target outside the rig's soft limits; nothing was sent to the controller."""
 

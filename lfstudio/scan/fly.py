@@ -42,7 +42,7 @@ from typing import Any
 from lfstudio.dataset.paths import view_label, view_stem
 from lfstudio.errors import DeviceError
 from lfstudio.rig.camera import CaptureResult, TriggeredCamera
-from lfstudio.rig.motion import FlyingController, PositionReport
+from lfstudio.rig.motion import FlyingController, Latch, LatchesPositions, PositionReport
 from lfstudio.scan.engine import ScanEngine, _Interrupted
 from lfstudio.scan.events import EventKind, ScanState
 from lfstudio.scan.faults import ScanFault, clears_by_itself, error_text, fault_text
@@ -329,6 +329,7 @@ class FlyScanEngine(ScanEngine):
         the views never triggered go back to the queue."""
         taken = {view.cell for view, _ in triggered}
         rest = [view for view in row if view.cell not in taken]
+        latches = self._row_latches()
         for (view, t_sent), fut in zip(triggered, fetches):
             self._wait(fut.done, self.capture_call_timeout_s() + 10)
             attempt = self._attempts.get(view.cell, 0) + 1
@@ -347,12 +348,16 @@ class FlyScanEngine(ScanEngine):
                 t_mid = t_sent + (float(getattr(cam, "trigger_latency_s", 0.0)) +
                                   0.5 * float(meta.get("shutter_s") or 0.0)) * self.time_scale
                 t_unc = float(getattr(cam, "trigger_jitter_s", 0.0)) * self.time_scale
-            where = interpolate(reports, t_mid)
-            if where is None:
-                self._retake(view, "no position reports around the frame's time")
-                continue
-            x, y, unc = where
-            unc = math.hypot(unc, speed / self.time_scale * t_unc)
+            latch = _latch_of(latches, start, end)
+            if latch is not None:               # latched by the drive on the camera's exposure output
+                x, y, unc, source = latch.x_mm, latch.y_mm, latch.uncertainty_mm, "touch probe"
+            else:
+                where = interpolate(reports, t_mid)
+                if where is None:
+                    self._retake(view, "no position reports around the frame's time")
+                    continue
+                x, y, unc = where
+                unc, source = math.hypot(unc, speed / self.time_scale * t_unc), "reports"
             off = math.hypot(x - view.x_mm, y - view.y_mm)
             if off > self.tolerance_mm:
                 self._retake(view, f"late or early trigger: the frame is {off:.3f} mm from its position "
@@ -362,7 +367,7 @@ class FlyScanEngine(ScanEngine):
             fly = {"recorded_mm": [round(x, 4), round(y, 4)], "uncertainty_mm": round(unc, 4),
                    "trigger_late_ms": round(1000 * self._late.get(view.cell, 0.0), 3),
                    "offset_mm": round(off, 4), "speed_mm_s": round(speed, 4),
-                   "t_s": round(t_mid, 6), "pass": self.rows_flown}
+                   "t_s": round(t_mid, 6), "pass": self.rows_flown, "source": source}
             done_fut: Future = Future()
             done_fut.set_result(replace(result, record={**(result.record or {}), "fly": fly}))
             job = StoreJob(view, attempt, done_fut, t_sent, [round(x, 4), round(y, 4)],
@@ -378,6 +383,17 @@ class FlyScanEngine(ScanEngine):
         if interrupted and rest:
             self._emit(EventKind.LOG, f"row {row[0].row}: {len(rest)} views not taken; flown again from the "
                                       "run-up when the scan goes on")
+
+    def _row_latches(self) -> list[Latch]:
+        """The positions the rig's drives latched during the row (CiA 402 touch probe), [] without."""
+        rig = self.rig.driver
+        if not isinstance(rig, LatchesPositions):
+            return []
+        try:
+            return rig.latches()
+        except Exception as exc:  # noqa: BLE001 - the row's positions then come from the reports
+            log.info("fly row: the drives' latched positions: %s", exc)
+            return []
 
     def _retake(self, view: PlannedView, reason: str) -> None:
         self._step_cells[view.cell] = ("retaken", reason)
@@ -414,6 +430,17 @@ def _predict(reports: list[PositionReport], x: float, direction: float, v_real: 
     if ahead <= d_c:
         return b.t_s + (-u + math.sqrt(u * u + 2 * a_real * ahead)) / a_real
     return b.t_s + t_c + (ahead - d_c) / v_real
+
+
+def _latch_of(latches: list[Latch], start: Any, end: Any, slack_s: float = 0.002) -> Latch | None:
+    """The latch of the frame exposed from ``start`` to ``end`` (monotonic): the one whose window (after
+    the driver last saw nothing, until it saw the edges) holds the exposure; None when no latch or more
+    than one fits (the frame's position then comes from the reports)."""
+    if not latches or not isinstance(start, (int, float)) or not isinstance(end, (int, float)):
+        return None
+    fits = [latch for latch in latches if latch.t_after_s - slack_s <= float(start)
+            and float(end if latch.edges == "both" else start) <= latch.t_seen_s + slack_s]
+    return fits[0] if len(fits) == 1 else None
 
 
 def _with_record(fut: Future, extra: dict[str, Any]) -> Future:

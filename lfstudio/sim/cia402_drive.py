@@ -32,6 +32,23 @@ Model:
   decelerates and holds, clearing it goes on to the target. Trapezoidal profile: ``6081h`` speed,
   ``6083h``/``6084h`` acceleration/deceleration, ``6085h`` for a quick stop. A target outside the
   software limits ``607Dh`` is clamped to them and sets bit 11.
+  The profile runs in real time (× the time scale): ``6064h`` read during a move is where the
+  axis is at that instant, at constant ``6081h`` between the ramps (igus, dryve D1 operating manual
+  V2.4 p. 93: ``6064h`` "indication of the current position of the position encoder", read-only,
+  readable at any time; §6.5.5: a pendulum motion in profile position driven by the same objects).
+  The axis keeps a history of where it was (:meth:`DriveAxis.true_position_at`,
+  :meth:`DriveAxis.counter_at`) so that a camera's timestamps get their own truth.
+- **Touch probe** (CiA 402 / IEC 61800-7-201 objects ``60B8h`` function, ``60B9h`` status,
+  ``60BAh``/``60BBh`` position at the positive/negative edge of touch probe 1): only on a drive set
+  up with it (``AxisSetup.touch_probe``, ``lfstudio sim-drive --touch-probe``). The dryve D1 lists no
+  touch probe object (its manual's objects, as DryveD1API's AddressConst.cs transcribes them: 60FDh
+  digital inputs and 60FEh digital outputs, no 60B8h–60BBh), so the emulator as the D1 comes has none.
+  ``60B8h`` bit 0 enables probe 1, bit 1 continuous (else the first event only: re-armed by writing
+  bit 0 low, then high), bit 4/5 latch on the positive/negative edge; ``60B9h`` bit 0 enabled, bit
+  1/2 positive/negative edge value stored. :meth:`DriveAxis.probe_edge` is the wire from a camera's
+  exposure output to the input: the position ``6064h`` counted at the edge's instant is latched.
+- **Answer delay** (``AxisSetup.answer_delay_s``, ``lfstudio sim-drive --answer-delay-ms``): every
+  answer of the transports comes this much later (× the time scale): a slow gateway or a busy bus.
 - **Following error** (``60F4h``): the actual position lags the demand by ``LAG_S`` of its speed;
   beyond the window ``6065h`` the drive faults (``8611h``), bit 13 set.
 - **Homing** (``6060h`` = 6, bit 4 starts it): method 17 (negative limit switch) or 18 (positive)
@@ -52,9 +69,11 @@ Model:
 
 from __future__ import annotations
 
+import bisect
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Callable
 
@@ -94,6 +113,16 @@ OBJECTS: dict[tuple[int, int], tuple[int, bool, bool]] = {
     (0x60FD, 0): (4, False, False),      # digital inputs
     (0x6502, 0): (4, False, False),      # supported drive modes
 }
+#: CiA 402 touch probe 1 (IEC 61800-7-201): only on a drive set up with it (the dryve D1 has none)
+TOUCH_PROBE_OBJECTS: dict[tuple[int, int], tuple[int, bool, bool]] = {
+    (0x60B8, 0): (2, False, True),       # touch probe function
+    (0x60B9, 0): (2, False, False),      # touch probe status
+    (0x60BA, 0): (4, True, False),       # touch probe 1 position value at the positive edge
+    (0x60BB, 0): (4, True, False),       # touch probe 1 position value at the negative edge
+}
+TP_ENABLE, TP_CONTINUOUS, TP_POSITIVE, TP_NEGATIVE = 0x01, 0x02, 0x10, 0x20
+TP_ENABLED, TP_POSITIVE_STORED, TP_NEGATIVE_STORED = 0x01, 0x02, 0x04
+HISTORY_STEPS = 40_000         # the axis' history of where it was (a row of ~200 s at STEP_S)
 #: supported homing methods (60E3h, an array): only on an emulator told to list them (AxisSetup.supported_homing)
 SUPPORTED_HOMING = 0x60E3
 #: objects a drive can be told to lack (``lfstudio sim-drive --leave-out``): every one CiA 402 leaves optional
@@ -141,6 +170,8 @@ class AxisSetup:
     enabled_unhomed: bool = False            # powered up in operation enabled, profile position, never homed
     supported_homing: tuple[int, ...] | None = None   # 60E3h's list, when the drive has that object
     settle_error_mm: float = 0.0             # where a move comes to rest, beyond its target (inside 6067h)
+    touch_probe: bool = False                # CiA 402 touch probe 1 (60B8h-60BBh), which the dryve D1 lacks
+    answer_delay_s: float = 0.0              # every answer comes this much later (x the time scale)
 
     def feed_constant(self) -> int:
         return int(round(self.increments_per_mm * self.mm_per_rev)) if self.feed is None else int(self.feed)
@@ -165,6 +196,8 @@ class DriveAxis:
         k = feed / setup.mm_per_rev             # position units per mm: what 6092h makes of the mechanics
         self._k = k
         self.objects = {key: spec for key, spec in OBJECTS.items() if key[0] not in setup.leave_out}
+        if setup.touch_probe:
+            self.objects.update({key: spec for key, spec in TOUCH_PROBE_OBJECTS.items() if key[0] not in setup.leave_out})
         if setup.supported_homing is not None and SUPPORTED_HOMING not in setup.leave_out:
             self.objects[(SUPPORTED_HOMING, 0)] = (1, False, False)
             for n in range(1, len(setup.supported_homing) + 1):
@@ -192,6 +225,9 @@ class DriveAxis:
             (0x6099, 1): int(setup.max_speed_mm_s * k / 4), (0x6099, 2): int(setup.max_speed_mm_s * k / 20),
             (0x609A, 0): int(setup.acceleration_mm_s2 * k), (0x6502, 0): (1 << 0) | (1 << 5),
         }
+        for key in TOUCH_PROBE_OBJECTS:
+            self.od[key] = 0
+        self.probe_latches = 0                  # edges latched (tests)
         if setup.supported_homing is not None:
             self.od[(SUPPORTED_HOMING, 0)] = len(setup.supported_homing)
             for n, method in enumerate(setup.supported_homing, 1):
@@ -216,6 +252,8 @@ class DriveAxis:
         self._quick_stop_at_rest = False
         self._pending_mode: int | None = None   # 6060h written during homing: taken when the homing ends
         self.homed = False                      # this power cycle has a reference (not visible on the bus)
+        # (monotonic time, position counter 6064h, physical mm) after each motion step
+        self._history: deque[tuple[float, float, float]] = deque(maxlen=HISTORY_STEPS)
         if setup.enabled_unhomed:               # another program enabled it in profile position, never homed
             self.state = ENABLED
             self.mode = PROFILE_POSITION
@@ -239,6 +277,11 @@ class DriveAxis:
         if self._scale <= 0:
             return self._last
         return (time.monotonic() - self._t0) / self._scale
+
+    @property
+    def answer_delay_s(self) -> float:
+        """How long (real time) each answer of the transports waits: the set-up's delay x the time scale."""
+        return max(0.0, self.setup.answer_delay_s) * max(self._scale, 0.0)
 
     # -- bus access ------------------------------------------------------------------------------
     def read(self, index: int, sub: int) -> int:
@@ -299,6 +342,13 @@ class DriveAxis:
                 raise ObjectRefused(0x06090032, f"{index:04X}h must be positive")
             elif index == 0x6092 and value <= 0:
                 raise ObjectRefused(0x06090032, "the feed constant must be positive")
+            elif index == 0x60B8:
+                # enabling probe 1 (bit 0 rising) starts afresh: no value stored; bit 0 low switches it off
+                old = self.od[(0x60B8, 0)]
+                if not value & TP_ENABLE:
+                    self.od[(0x60B9, 0)] = 0
+                elif not old & TP_ENABLE:
+                    self.od[(0x60B9, 0)] = TP_ENABLED
             elif index == 0x607D and sub == 1 and value > self.od[(0x607D, 2)] or \
                     index == 0x607D and sub == 2 and value < self.od[(0x607D, 1)]:
                 raise ObjectRefused(0x06090036, "software limit minimum above maximum")
@@ -506,14 +556,68 @@ class DriveAxis:
             self._finish_instantly()
         else:
             steps = 0
+            t = self._last
             while dt_total > 1e-12 and steps < 2_000_000:
                 dt = min(STEP_S, dt_total)
                 self._step(dt)
                 dt_total -= dt
+                t += dt
                 steps += 1
+                self._remember(t)
             self._last = now
         if self._pending_mode is not None and not self._moving():
             self._change_mode(self._pending_mode)
+
+    def _remember(self, t_emulator: float) -> None:
+        t = self._t0 + t_emulator * self._scale
+        if self._history and self._history[-1][0] >= t:
+            return
+        self._history.append((t, self._actual, self._phys_mm(self._actual)))
+
+    def _at(self, t: float, column: int) -> float | None:
+        """Column 1 (counter) or 2 (mm) of the history at monotonic time ``t`` (linear between
+        steps); None outside it."""
+        with self._lock:
+            if self._scale > 0:
+                self._advance()
+            hist = self._history
+            if not hist or t < hist[0][0] or t > hist[-1][0] + 1e-9:
+                return None
+            i = bisect.bisect_left(hist, (t,))
+            if i <= 0:
+                return hist[0][column]
+            if i >= len(hist):
+                return hist[-1][column]
+            a, b = hist[i - 1], hist[i]
+            w = 0.0 if b[0] <= a[0] else (t - a[0]) / (b[0] - a[0])
+            return a[column] + w * (b[column] - a[column])
+
+    def true_position_at(self, t: float) -> float | None:
+        """Where the carriage physically was at monotonic time ``t`` (mm), None outside the history."""
+        return self._at(t, 2)
+
+    def counter_at(self, t: float) -> float | None:
+        """The position counter (``6064h``, unrounded) at monotonic time ``t``, None outside the history."""
+        return self._at(t, 1)
+
+    def probe_edge(self, rising: bool, t: float) -> bool:
+        """The touch probe 1 input went high (``rising``) or low at monotonic time ``t`` (a camera's
+        exposure output): an edge the probe function ``60B8h`` enables latches ``6064h`` at its instant
+        into ``60BAh`` (rising) / ``60BBh`` (falling), the first event only unless continuous. True if latched."""
+        with self._lock:
+            if (0x60B8, 0) not in self.objects:
+                return False
+            self._advance()
+            fn, status = self.od[(0x60B8, 0)], self.od[(0x60B9, 0)]
+            enable, stored, value = ((TP_POSITIVE, TP_POSITIVE_STORED, (0x60BA, 0)) if rising else
+                                     (TP_NEGATIVE, TP_NEGATIVE_STORED, (0x60BB, 0)))
+            if not fn & TP_ENABLE or not fn & enable or (status & stored and not fn & TP_CONTINUOUS):
+                return False
+            counter = self.counter_at(t)
+            self.od[value] = int(round(self._actual if counter is None else counter))
+            self.od[(0x60B9, 0)] = status | stored | TP_ENABLED
+            self.probe_latches += 1 if rising else 0
+            return True
 
     def _finish_instantly(self) -> None:
         for _ in range(4):
@@ -687,6 +791,15 @@ class DrivePair:
 
     def true_position_mm(self) -> tuple[float, float]:
         return self.axes[0].true_position(), self.axes[1].true_position()
+
+    def true_position_at(self, t: float) -> tuple[float, float] | None:
+        """Where the carriage was at monotonic time ``t`` (mm), None outside the axes' history."""
+        x, y = self.axes[0].true_position_at(t), self.axes[1].true_position_at(t)
+        return None if x is None or y is None else (x, y)
+
+    def probe_edge(self, rising: bool, t: float) -> bool:
+        """A camera's exposure output wired to both drives' touch probe 1 input (see DriveAxis.probe_edge)."""
+        return any([axis.probe_edge(rising, t) for axis in self.axes])
 
     @property
     def time_scale(self) -> float:

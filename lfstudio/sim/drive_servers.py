@@ -15,6 +15,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import threading
+import time
 from typing import Any
 
 from lfstudio.rig.canopen_link import bus_args
@@ -130,7 +131,13 @@ class ModbusDriveServer:
                 body = await reader.readexactly(length)
                 while not self.axis.answering:             # lost connection: nothing comes back
                     await asyncio.sleep(0.02)
-                writer.write(gateway_answer(self.axis, head + body))
+                delay = self.axis.answer_delay_s          # a slow gateway: the value taken half way
+                if delay > 0:
+                    await asyncio.sleep(delay / 2)
+                answer = gateway_answer(self.axis, head + body)
+                if delay > 0:
+                    await asyncio.sleep(delay / 2)
+                writer.write(answer)
                 await writer.drain()
         except (asyncio.IncompleteReadError, ConnectionError, asyncio.CancelledError):
             pass
@@ -203,6 +210,15 @@ class _PairOnTheWire:
 
     def true_position_mm(self) -> tuple[float, float]:
         return self.pair.true_position_mm()
+
+    def true_position_at(self, t: float) -> tuple[float, float] | None:
+        """Where the carriage was at monotonic time ``t`` (the simulated camera's exposure timestamps)."""
+        return self.pair.true_position_at(t)
+
+    def exposure_output(self, level: bool, t: float) -> bool:
+        """The simulated camera's exposure output (high while it exposes; ``level`` from monotonic time
+        ``t``), wired to both drives' touch probe 1 input."""
+        return self.pair.probe_edge(bool(level), t)
 
 
 class DriveServers(_PairOnTheWire):
@@ -293,10 +309,16 @@ class CanopenDriveNode:
         def on_read(index: int, subindex: int, od: Any) -> int | None:
             if (index, subindex) not in axis.objects:
                 return None
+            delay = axis.answer_delay_s                    # a busy bus: the value taken half way
+            if delay > 0:
+                time.sleep(delay / 2)
             try:
                 return axis.read(index, subindex)
             except ObjectRefused as exc:
                 raise SdoAbortedError(exc.abort) from None
+            finally:
+                if delay > 0:
+                    time.sleep(delay / 2)
 
         def on_write(index: int, subindex: int, od: Any, data: bytes) -> None:
             spec = axis.objects.get((index, subindex))

@@ -106,6 +106,9 @@ class SimulatedCamera:
         self._exposed_cond = threading.Condition()
         self._shutter: threading.Thread | None = None
         self._armed = False
+        #: the exposure output (a GenICam camera's ExposureActive line): called with True at each triggered
+        #: frame's exposure start and False at its end (monotonic time); wired to the emulated drives' touch probe
+        self.exposure_output: Callable[[bool, float], Any] | None = None
         if faults:
             items = faults.items() if isinstance(faults, dict) else ((name, 1) for name in faults)
             for fault, count in items:
@@ -395,14 +398,17 @@ class SimulatedCamera:
                 while time.monotonic() < t_open:     # spun: a sleep may wake up ms late
                     pass
             t0 = time.monotonic()
+            wire = self.exposure_output if not missed and scale > 0 else None
+            self._output(wire, True, t0)
             p0 = self.position_mm()
             if scale > 0:
                 time.sleep(self.exposure_s * scale)
             t1 = time.monotonic()
+            self._output(wire, False, t0 + self.exposure_s * scale)
             p1 = self.position_mm()
             # the truth at the exposure's own start and end, where the controller keeps its history
             # (this thread may have run late between the clock and the question)
-            at: Any = getattr(getattr(self.position_mm, "__self__", None), "true_position_at", None)
+            at: Any = getattr(getattr(self.position_mm, "__self__", self.position_mm), "true_position_at", None)
             if callable(at) and scale > 0:
                 t1 = t0 + self.exposure_s * scale
                 q0: Any = at(t0)
@@ -414,6 +420,16 @@ class SimulatedCamera:
             with self._exposed_cond:
                 self._exposed.append(frame)
                 self._exposed_cond.notify_all()
+
+    @staticmethod
+    def _output(wire: Callable[[bool, float], Any] | None, level: bool, t: float) -> None:
+        """The exposure output goes to ``level`` at ``t``: what it is wired to sees the edge."""
+        if wire is None:
+            return
+        try:
+            wire(level, t)
+        except Exception as exc:  # noqa: BLE001 - a cable to nothing does not stop the camera
+            log.debug("exposure output: %s", exc)
 
     def fetch(self, stem_path: Path, timeout_s: float) -> CaptureResult:
         """The next triggered frame, rendered with its motion blur (renders along the exposure's

@@ -710,6 +710,10 @@ def open_studio(rig: RigSpec | str, camera: CameraSpec | str, rig_config: RigCon
         options.update(camera_options or {})
         cam_link = open_camera(cam_spec, position_mm=position, doing=doing, trigger_command=trigger_command,
                                options=options)
+        # the simulated camera's exposure output wired to the emulated drives' touch probe input (#40)
+        wire = getattr(link.simulator if link.simulator is not None else position, "exposure_output", None)
+        if cam_spec.kind == SIM and callable(wire) and hasattr(cam_link.camera, "exposure_output"):
+            cam_link.camera.exposure_output = wire
     except BaseException:
         link.close()
         raise

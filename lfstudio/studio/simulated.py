@@ -132,7 +132,10 @@ def truth_socket_path(port: str) -> Path:
 
 
 class TruthServer:
-    """Answers ``?`` with ``{"x_mm": .., "y_mm": ..}`` (the simulator's true position) on a Unix socket."""
+    """Answers ``?`` with ``{"x_mm": .., "y_mm": ..}`` (the simulator's true position) on a Unix socket;
+    ``? T`` with where it was at monotonic time T (both processes share the machine's monotonic clock;
+    null outside the simulator's history); ``E 1 T`` / ``E 0 T`` is the simulated camera's exposure
+    output going high / low at T, wired to the emulated drives' touch probe input (``{"latched": ..}``)."""
 
     def __init__(self, simulator: GrblSimulator):
         self.simulator = simulator
@@ -146,10 +149,25 @@ class TruthServer:
         class Handler(socketserver.StreamRequestHandler):
             def handle(self) -> None:
                 for line in self.rfile:
-                    if line.strip() != b"?":
+                    words = line.split()
+                    try:
+                        if words == [b"?"]:
+                            x, y = sim.true_position_mm()
+                            answer: dict[str, Any] = {"x_mm": x, "y_mm": y}
+                        elif len(words) == 2 and words[0] == b"?":
+                            at: Any = getattr(sim, "true_position_at", None)
+                            where: Any = at(float(words[1])) if callable(at) else None
+                            answer = {"x_mm": None, "y_mm": None} if where is None else \
+                                {"x_mm": where[0], "y_mm": where[1]}
+                        elif len(words) == 3 and words[0] == b"E" and words[1] in (b"0", b"1"):
+                            wire = getattr(sim, "exposure_output", None)
+                            answer = {"latched": bool(wire(words[1] == b"1", float(words[2]))) if callable(wire)
+                                      else False}
+                        else:
+                            return
+                    except ValueError:
                         return
-                    x, y = sim.true_position_mm()
-                    self.wfile.write(json.dumps({"x_mm": x, "y_mm": y}).encode() + b"\n")
+                    self.wfile.write(json.dumps(answer).encode() + b"\n")
                     self.wfile.flush()
 
         self.path.unlink(missing_ok=True)
@@ -174,12 +192,12 @@ class _TruthClient:
         self.path = path
         self.port = port
 
-    def __call__(self) -> tuple[float, float]:
+    def _ask(self, question: bytes) -> dict[str, Any]:
         try:
             with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
                 s.settimeout(5.0)
                 s.connect(str(self.path))
-                s.sendall(b"?\n")
+                s.sendall(question + b"\n")
                 data = b""
                 while not data.endswith(b"\n"):
                     chunk = s.recv(256)
@@ -187,10 +205,30 @@ class _TruthClient:
                         break
                     data += chunk
             answer = json.loads(data)
-            return float(answer["x_mm"]), float(answer["y_mm"])
-        except (OSError, ValueError, KeyError) as exc:
+            if not isinstance(answer, dict):
+                raise ValueError("not an answer")
+            return answer
+        except (OSError, ValueError) as exc:
             raise DeviceError(f"simulated camera: the simulated controller on {self.port} does not tell its "
                               f"position any more ({exc}); is 'lfstudio sim-rig' still running?") from None
+
+    def __call__(self) -> tuple[float, float]:
+        answer = self._ask(b"?")
+        try:
+            return float(answer["x_mm"]), float(answer["y_mm"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DeviceError(f"simulated camera: the simulated controller on {self.port} answered no position "
+                              f"({exc})") from None
+
+    def true_position_at(self, t: float) -> tuple[float, float] | None:
+        """Where the carriage was at monotonic time ``t`` (the other process keeps the history)."""
+        answer = self._ask(f"? {t!r}".encode())
+        x, y = answer.get("x_mm"), answer.get("y_mm")
+        return None if x is None or y is None else (float(x), float(y))
+
+    def exposure_output(self, level: bool, t: float) -> bool:
+        """The simulated camera's exposure output, wired to the emulated drives' touch probe input."""
+        return bool(self._ask(f"E {int(bool(level))} {t!r}".encode()).get("latched"))
 
 
 def truth_source(port: str) -> PositionSource | None:
