@@ -142,3 +142,50 @@ def test_a_second_process_is_refused_while_one_holds_the_rig(rig, run_cli):
     r = run_cli("rig", "--port", word, "--rig-profile", case.config.name, "status", timeout=60)
     assert r.returncode != 0 and "Traceback" not in r.stderr
     assert "is in use by" in r.stderr and "the rig contract" in r.stderr, r.stderr
+
+
+def test_a_flying_controller_flies_reports_arrives_and_stops(rig):
+    """Fly scanning's contract (lfstudio.rig.motion.FlyingController, #40), on every kind that offers it:
+    fly_to returns while the carriage moves, report() gives time-stamped positions that advance along
+    the move, wait_arrival ends at the target; a fly target outside the soft limits is refused before
+    anything moves; STOP ends wait_arrival short of the target."""
+    from lfstudio.rig.motion import FlyingController
+
+    case, link = rig
+    controller = link.controller
+    if not isinstance(controller, FlyingController):
+        pytest.skip(f"{case.word}: not a FlyingController")
+    _referenced(case, controller)
+    controller.move_to(20.0, 20.0)
+    controller.fly_to(300.0, 20.0, 50.0)
+    reports = [controller.report()]
+    while reports[-1].x_mm < 150.0:                          # under way: reports advance with their time
+        reports.append(controller.report())
+        assert reports[-1].t_s > reports[-2].t_s and reports[-1].x_mm >= reports[-2].x_mm - 0.011
+        assert reports[-1].uncertainty_s >= 0 and len(reports) < 1_000_000
+    status = controller.wait_arrival(300.0, 20.0, 60.0)
+    assert status.position_mm == pytest.approx((300.0, 20.0), abs=0.05)
+    with pytest.raises(InputError) as err:
+        controller.fly_to(case.config.horizontal.soft_max_mm + 50.0, 20.0, 50.0)
+    assert "\n" not in str(err.value)
+    assert controller.status().position_mm == pytest.approx((300.0, 20.0), abs=0.05)
+    controller.fly_to(20.0, 20.0, 10.0)                        # slowly: STOP comes long before the end
+    while controller.report().x_mm > 290.0:
+        pass
+    outcome: dict[str, Any] = {}
+
+    def wait() -> None:
+        try:
+            outcome["status"] = controller.wait_arrival(20.0, 20.0, 60.0)
+        except LfError as exc:
+            outcome["error"] = exc
+
+    waiter = threading.Thread(target=wait, daemon=True)
+    waiter.start()
+    controller.stop()
+    waiter.join(30)
+    assert not waiter.is_alive() and "error" in outcome, outcome
+    deadline = time.monotonic() + 30
+    while controller.status().state is RigState.MOVING:
+        assert time.monotonic() < deadline
+    assert controller.status().position_mm[0] > 40.0           # stopped well short of the target
