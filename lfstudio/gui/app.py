@@ -88,4 +88,7 @@ def run_app(simulated: bool = True, dataset: str | None = None, screenshot: str 
     try:
         return app.exec()
     finally:
+        from lfstudio.gui.devices import wait_for_closing
+
+        wait_for_closing(10.0)          # the window is gone: the devices' disconnects may end now
         restore_exception_hooks(reporter)

@@ -12,6 +12,7 @@ Every signal is delivered on the GUI thread (queued), so slots may touch widgets
 from __future__ import annotations
 
 import logging
+import threading
 import traceback
 from concurrent.futures import CancelledError, Future
 from typing import Any, Callable
@@ -159,11 +160,47 @@ class QtDevice(QObject):
                 self._post(lambda: self.errorOccurred.emit(message))
         future.add_done_callback(done)
 
-    def close(self, disconnect: bool = True, timeout_s: float = 2.0) -> None:
-        """Fail queued calls, disconnect last, end the thread (waits at most ``timeout_s``: a driver
-        call still running finishes on its own thread)."""
+    def close(self, disconnect: bool = True, timeout_s: float = 2.0, then: Callable[[], None] | None = None) -> None:
+        """Fail queued calls, disconnect last, end the thread: never waiting on the calling (GUI)
+        thread. A thread of its own waits for the worker (at most ``timeout_s``: a driver call still
+        running, e.g. on a stalled link, finishes on the worker's thread), then runs ``then()`` (e.g.
+        the port's lock released once the driver is disconnected). :func:`wait_for_closing` waits for
+        these (the application, once its window is gone)."""
         if self._closed:
             return
         self._closed = True          # nothing more is posted to the GUI thread from now on
         self._unsubscribe()
-        self.worker.close(disconnect=disconnect, timeout_s=timeout_s)
+        worker = self.worker
+
+        def finish() -> None:
+            try:
+                worker.close(disconnect=disconnect, timeout_s=timeout_s)
+            finally:
+                if then is not None:
+                    try:
+                        then()
+                    except Exception:  # noqa: BLE001 - logged: nobody waits for this thread
+                        log.exception("%s: closing", worker.name)
+
+        thread = threading.Thread(target=finish, name=f"close-{worker.name}", daemon=True)
+        with _closing_lock:
+            _closing[:] = [t for t in _closing if t.is_alive()] + [thread]
+        thread.start()
+
+
+_closing: list[threading.Thread] = []          # QtDevice.close()'s threads
+_closing_lock = threading.Lock()
+
+
+def wait_for_closing(timeout_s: float = 10.0) -> bool:
+    """Wait (at most ``timeout_s`` in all) until every device closed by :meth:`QtDevice.close` has
+    ended its worker and run its ``then``; True when all have. For the application's exit, after its
+    window is gone (never from a slot)."""
+    import time
+
+    end = time.monotonic() + timeout_s
+    with _closing_lock:
+        threads = list(_closing)
+    for t in threads:
+        t.join(max(0.0, end - time.monotonic()))
+    return not any(t.is_alive() for t in threads)

@@ -70,3 +70,36 @@ def test_an_unexpected_device_error_goes_to_the_log_not_to_stderr(capfd, caplog)
     assert text == "Unexpected error: ZeroDivisionError: division by zero in a driver"
     assert "Traceback" not in capfd.readouterr().err                # printed to the terminal before
     assert any("Traceback" in r.getMessage() and "ZeroDivisionError" in r.getMessage() for r in caplog.records)
+
+
+def test_close_never_waits_on_a_driver_call_and_then_runs_after_the_disconnect(qtbot):
+    """Disconnect in the Rig/Camera panel: the GUI thread waited (up to 2 s) for a driver call still
+    running, e.g. on a stalled link. Now a thread of its own waits, then releases the port (``then``)."""
+    gate = threading.Event()
+    order: list[str] = []
+
+    class Stuck:
+        def hold(self):
+            gate.wait(30)                      # a call on a stalled link
+            order.append("call ended")
+
+        def disconnect(self):
+            order.append("disconnect")
+
+        def stop(self):
+            pass
+
+    device = QtDevice(DeviceWorker(Stuck(), name="stuck", status_method=None))
+    device.run("hold")
+    qtbot.waitUntil(lambda: device.worker.current_command == "hold", timeout=5000)
+    guard = threading.Timer(15.0, gate.set)    # only against a hang (old code)
+    guard.start()
+    try:
+        device.close(disconnect=True, timeout_s=60.0, then=lambda: order.append("port released"))
+        returned_while_stuck = not gate.is_set()
+    finally:
+        gate.set()
+        guard.cancel()
+    qtbot.waitUntil(lambda: "port released" in order, timeout=10000)
+    assert returned_while_stuck
+    assert order == ["call ended", "disconnect", "port released"]

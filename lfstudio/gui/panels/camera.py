@@ -443,13 +443,15 @@ class CameraPanel(QWidget):
 
     def disconnect_camera(self) -> None:
         device, self.device = self.device, None
+        link, self.link = self.link, None
+        # the camera's lock, once the worker has disconnected the driver (never waited for here)
+        close_link = None if link is None else (lambda: link.close(disconnect=False))
         if device is not None:
             device.stop_now()
-            device.close(disconnect=True)
+            device.close(disconnect=True, then=close_link)
             device.deleteLater()
-        link, self.link = self.link, None
-        if link is not None:
-            link.close(disconnect=False)  # the camera's lock (the worker disconnected the driver)
+        elif close_link is not None:
+            close_link()
         self.state.set_device("camera", None)
         self.state.set_device("camera_link", None)
         for form in self.forms.values():

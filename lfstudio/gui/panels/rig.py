@@ -607,13 +607,15 @@ class RigPanel(QWidget):
 
     def disconnect_rig(self) -> None:
         device, self.device = self.device, None
+        link, self.link = self.link, None
+        # the simulator and the port's lock, once the worker has disconnected (never waited for here)
+        close_link = None if link is None else (lambda: link.close(disconnect=False))
         if device is not None:
             device.stop_now()
-            device.close(disconnect=True)
+            device.close(disconnect=True, then=close_link)
             self._retired.append(device)   # released with the panel, on the GUI thread
-        link, self.link = self.link, None
-        if link is not None:
-            link.close(disconnect=False)  # the simulator and the port's lock (the worker disconnected)
+        elif close_link is not None:
+            close_link()
         self.simulator = None
         self.state.set_device("rig", None)
         self.state.set_device("rig_simulator", None)
