@@ -154,6 +154,19 @@ def build_firmware_simulator(source: Path | None = None, cache_root: Path | None
     return exe
 
 
+def read_spindle_log(path: Path) -> list[tuple[float, bool, tuple[int, int, int], int]]:
+    """The spindle output's changes the shim logged: (simulated time s, on, X Y Z step counts, OCR2A)."""
+    out = []
+    if not Path(path).is_file():
+        return out
+    for line in Path(path).read_text().splitlines():
+        parts = line.split()
+        if len(parts) == 6:
+            out.append((float(parts[0]), parts[1] == "1", (int(parts[2]), int(parts[3]), int(parts[4])),
+                        int(parts[5])))
+    return out
+
+
 def _split_lines(buf: bytearray) -> list[str]:
     lines = []
     while True:
@@ -172,7 +185,8 @@ class FirmwareSimulator:
     ``workdir`` holds the firmware's EEPROM (``EEPROM.DAT``: settings, work offsets), so settings
     persist across :meth:`power_cycle` like on a real board. ``switches``: per axis
     ``(min_mm, max_mm)`` limit-switch positions relative to the power-up position (None: no switch);
-    without switches ``$H`` fails with ALARM 9 as on a rig that has none.
+    without switches ``$H`` fails with ALARM 9 as on a rig that has none. ``spindle_log``: a file the
+    firmware process writes each change of its spindle PWM output to (:func:`read_spindle_log`).
 
     What passed: :attr:`lines_received` (lines the host sent), :attr:`realtime_received`
     (realtime bytes: ``?`` is left out), :attr:`lines_sent` (lines the firmware sent).
@@ -180,8 +194,9 @@ class FirmwareSimulator:
 
     def __init__(self, exe: Path, workdir: Path, *, speedup: float = 10.0,
                  switches: tuple[tuple[float | None, float | None], ...] | None = None,
-                 reset_on_open: bool = False):
+                 reset_on_open: bool = False, spindle_log: Path | None = None):
         self.exe = Path(exe)
+        self.spindle_log = spindle_log
         self.workdir = Path(workdir)
         self.speedup = float(speedup)
         self.switches = switches
@@ -233,6 +248,9 @@ class FirmwareSimulator:
         tty.setraw(slave)
         env = dict(os.environ)
         env.pop("LFSTUDIO_GRBL_SIM_SWITCHES", None)
+        env.pop("LFSTUDIO_GRBL_SIM_SPINDLE_LOG", None)
+        if self.spindle_log is not None:
+            env["LFSTUDIO_GRBL_SIM_SPINDLE_LOG"] = str(self.spindle_log)
         if self.switches:
             env["LFSTUDIO_GRBL_SIM_SWITCHES"] = ",".join(
                 f"{'' if lo is None else lo}:{'' if hi is None else hi}" for lo, hi in self.switches)

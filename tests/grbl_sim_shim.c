@@ -36,6 +36,11 @@
      (serial_write against the UDRE handler: stuck or repeated output bytes) are made atomic with
      one lock, as interrupts make them on the real chip. serial_write waits for room in the ring
      outside the lock (on the AVR the handler drains it while main waits).
+  7. Spindle output log (read-only): with LFSTUDIO_GRBL_SIM_SPINDLE_LOG=path, every change of the
+     spindle PWM output (on: the PWM enabled, SPINDLE_COMB_BIT in TCCR2A, with OCR2A > 0; what a
+     camera's trigger input wired to it sees) is written as one line: simulated time in s, level,
+     the step counts of X Y Z, OCR2A. The firmware sets it in its stepper interrupt as each step
+     segment loads (laser mode, $32=1), so this shows where along the motion the output changes.
 */
 
 #include <stdint.h>
@@ -186,9 +191,32 @@ static double wall_s(void) {
   return ts.tv_sec + ts.tv_nsec * 1e-9;
 }
 
+/* -- 7. spindle output log ------------------------------------------------------------------ */
+static int spindle_log_read = 0;
+static FILE *spindle_log = NULL;
+static int spindle_level = 0;
+
+static void log_spindle(void) {
+  int on;
+  if (!spindle_log_read) {
+    const char *path = getenv("LFSTUDIO_GRBL_SIM_SPINDLE_LOG");
+    spindle_log_read = 1;
+    if (path && *path) { spindle_log = fopen(path, "w"); }
+  }
+  if (!spindle_log) { return; }
+  on = (SPINDLE_TCCRA_REGISTER & (1 << SPINDLE_COMB_BIT)) && SPINDLE_OCR_REGISTER > 0;
+  if (on != spindle_level) {
+    spindle_level = on;
+    fprintf(spindle_log, "%.7f %d %ld %ld %ld %d\n", (double)sim.masterclock / F_CPU, on, (long)sys_position[0],
+            (long)sys_position[1], (long)sys_position[2], (int)SPINDLE_OCR_REGISTER);
+    fflush(spindle_log);
+  }
+}
+
 void __wrap_grbl_per_tick(void) {
   int i;
   __real_grbl_per_tick();
+  log_spindle();
   if (!switches_read) {
     read_switches();
     memcpy(last_pos, (const void *)sys_position, sizeof last_pos);

@@ -109,6 +109,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--blur-limit-px", metavar="PX", type=number_option(Number("px", 0, 100, low_open=True),
                                                                         "--blur-limit-px"), default=0.5,
                    help="the most motion blur a --fly frame may have at the near distance (default 0.5)")
+    g.add_argument("--trigger", choices=("auto", "hardware", "software"), default="auto",
+                   help="who fires the camera in a --fly scan: 'hardware' (the controller's output wired to the "
+                        "camera's trigger input, switched as the carriage passes each view: GRBL's spindle output "
+                        "with laser mode $32=1; refused with the numbers when it cannot), 'software' (this computer, "
+                        "timed from the position reports), 'auto' (default: hardware where both devices can)")
     p.add_argument("--keep-on-card", action="store_true",
                    help="keep each picture on the camera's card and download it at the row changes and at the end "
                         "instead of after every shot (gphoto2 cameras); a view is done once its file is on disk "
@@ -285,7 +290,7 @@ def run(args: argparse.Namespace) -> int:
                           transfer_s=args.transfer_s, seed=args.seed, sim_width_px=args.sim_width_px,
                           camera_options=_camera_options(args), fly=args.fly, fly_speed_mm_s=args.fly_speed_mm_s,
                           keep_on_card=args.keep_on_card,
-                          blur_limit_px=args.blur_limit_px)
+                          blur_limit_px=args.blur_limit_px, fly_trigger=args.trigger)
     request.engine_options["auto_resume"] = args.auto_resume
     unattended = _unattended(args)
     interrupts: list[int] = []          # Ctrl+C typed: the operator is here, the page does not linger

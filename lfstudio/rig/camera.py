@@ -176,6 +176,21 @@ class TriggeredCamera(Protocol):
 
 
 @runtime_checkable
+class LineTriggered(Protocol):
+    """A :class:`TriggeredCamera` that can take its triggers from a hardware line instead (GenICam
+    ``TriggerSource=Line1``, rising edge), driven by the axis controller at the views' positions.
+    ``line_trigger_problem()``: why it cannot (nothing wired, ...), None when it can;
+    ``arm_line(frames)``: ready for that many frames, each on a rising edge of the line (``fetch`` and
+    ``disarm`` as for software triggers; a frame's ``metadata`` has ``trigger_edge_s``, the edge's
+    time, when the camera knows it); ``line_trigger_latency_s``: edge to exposure start."""
+
+    line_trigger_latency_s: float
+
+    def line_trigger_problem(self) -> str | None: ...
+    def arm_line(self, frames: int) -> None: ...
+
+
+@runtime_checkable
 class CardBuffered(Protocol):
     """A camera that can keep its pictures on its card and download them later (``--keep-on-card``):
     ``keep_on_card()`` makes captures stay there (returns where: the capture target); ``capture_to_card``

@@ -124,6 +124,7 @@ class GrblController:
         self.settings: dict[int, float] = {}
         self.firmware = FirmwareLimits.from_settings({})
         self.options = ""
+        self.planner_blocks = 15                 # blocks GRBL plans ahead ($I's [OPT:...,15,128])
         self.warnings: list[str] = []
         self.version = ""
         self.messages: list[str] = []            # [MSG:...] push messages, newest last
@@ -212,6 +213,8 @@ class GrblController:
         self.version = ver[5:-1] if ver else ""
         opt = next((i for i in info if i.startswith("[OPT:")), "")
         self.options = opt[5:-1].split(",")[0] if opt else ""
+        fields = opt[5:-1].split(",") if opt else []
+        self.planner_blocks = int(fields[1]) if len(fields) > 1 and fields[1].strip().isdigit() else 15
         if not self.version.startswith("1.1"):
             raise DeviceError(f"the controller on {self.port} is not GRBL 1.1 (it reports "
                               f"{self.version or 'no version'}); lfstudio speaks GRBL 1.1")
@@ -770,6 +773,89 @@ class GrblController:
                 raise DeviceError(f"fly move refused: the rig is {st.state.lower()}, not idle")
             h, v = self.config.horizontal, self.config.vertical
             self._command(f"G90 G54 G1 {h.letter}{x_mm:.3f} {v.letter}{y_mm:.3f} F{speed_mm_s * 60.0:.3f}")
+
+    # -- the camera's trigger line on the spindle output (lfstudio.rig.motion.PulsesAtPositions) ----
+    #: how far along the row the output stays high after each view (mm; at most half the spacing)
+    pulse_mm = 1.0
+
+    def pulse_problem(self, spacing_mm: float, speed_mm_s: float) -> str | None:
+        """Why GRBL cannot switch its spindle output (the camera's trigger line) at each view of a row
+        flown at ``speed_mm_s``, views ``spacing_mm`` apart, without slowing down; None when it can.
+
+        GRBL 1.1 changes the spindle PWM inline with G1 motion only in laser mode (``$32=1``; else it
+        stops the carriage at every change), with a variable spindle (``V`` in ``$I``'s options), and
+        it plans only the blocks it holds (``planner_blocks``, two a view): those must cover the
+        distance it needs to stop, or it slows down between views."""
+        if not self.settings:
+            return "the controller's settings are not known (connect first)"
+        if "V" not in self.options.upper():
+            return ("this GRBL build has no variable spindle (no V in the options $I reports), so it has no "
+                    "laser mode to switch its spindle output during a move")
+        if int(self.settings.get(32, 0)) != 1:
+            return ("GRBL's laser mode is off ($32 = 0): it would stop the carriage at every change of its spindle "
+                    "output (the camera's trigger line); send $32=1 to the controller once (it keeps it)")
+        if float(self.settings.get(30, 0) or 0) <= 0:
+            return "GRBL's maximum spindle speed is 0 ($30 = 0): its spindle output cannot be switched on"
+        letter = self.config.horizontal.letter
+        accel = self.firmware.acceleration_mm_s2.get(letter) or self.config.horizontal.acceleration_mm_s2
+        ahead_mm = (self.planner_blocks - 1) // 2 * spacing_mm
+        stop_mm = speed_mm_s * speed_mm_s / (2.0 * accel)
+        if ahead_mm < stop_mm:
+            top = math.sqrt(2.0 * accel * ahead_mm)
+            return (f"GRBL plans {self.planner_blocks} moves ahead, {(self.planner_blocks - 1) // 2} views "
+                    f"({ahead_mm:.3g} mm), less than the {stop_mm:.3g} mm it needs to stop from {speed_mm_s:.3g} mm/s "
+                    f"at {accel:g} mm/s² (${120 + AXIS_LETTERS.index(letter)}): it would slow down between the "
+                    f"views; at most {top:.3g} mm/s with these views")
+        lines_s = 2.0 * speed_mm_s / spacing_mm
+        chars_s = lines_s * 26 * 10                  # ~26 characters a line, 10 bits a character
+        if chars_s > 0.5 * self.baudrate:
+            return (f"{lines_s:.0f} lines/s of G-code ({chars_s:.0f} bit/s) are more than half the serial link's "
+                    f"{self.baudrate} baud; at most {0.5 * self.baudrate / 260 * spacing_mm / 2:.3g} mm/s")
+        return None
+
+    def fly_pulsing(self, xs_mm: list[float], end_x_mm: float, y_mm: float, speed_mm_s: float) -> None:
+        """Fly from where the carriage stands to ``end_x_mm`` at ``speed_mm_s``, the spindle output
+        (the camera's trigger line) rising exactly as the carriage passes each of ``xs_mm`` and falling
+        :attr:`pulse_mm` later (laser mode: GRBL switches it as that block's first step segment loads,
+        without stopping). Streams the G-code and returns once GRBL holds its last line, while the
+        carriage still moves: :meth:`wait_arrival` waits for it. STOP ends it like any move."""
+        if not xs_mm:
+            raise DeviceError("fly move refused: no positions to trigger at")
+        if not (math.isfinite(speed_mm_s) and speed_mm_s > 0):
+            raise DeviceError(f"fly move refused: speed {speed_mm_s!r} mm/s is not a positive number")
+        spacing = min((abs(b - a) for a, b in zip(xs_mm, xs_mm[1:])), default=2.0 * self.pulse_mm)
+        problem = self.pulse_problem(spacing if spacing > 0 else 2.0 * self.pulse_mm, speed_mm_s)
+        if problem is not None:
+            raise DeviceError(f"hardware trigger refused: {problem}")
+        end_x_mm, y_mm = check_target(self.config, end_x_mm, y_mm)
+        for x in xs_mm:
+            check_target(self.config, x, y_mm)
+        direction = 1.0 if end_x_mm >= xs_mm[0] else -1.0
+        pulse = min(self.pulse_mm, 0.5 * spacing) if spacing > 0 else self.pulse_mm
+        h = self.config.horizontal
+        s_on = f"S{float(self.settings.get(30, 1000)):g}"
+        lines = []
+        for x in xs_mm:
+            lines.append(f"G1 {h.letter}{x:.3f} S0")
+            lines.append(f"G1 {h.letter}{x + direction * pulse:.3f} {s_on}")
+        lines.append(f"G1 {h.letter}{end_x_mm:.3f} S0")
+        with self._io:
+            st = self._require_motion_allowed()
+            self.check_target(end_x_mm, y_mm)
+            if st.state not in ("Idle",):
+                raise DeviceError(f"fly move refused: the rig is {st.state.lower()}, not idle")
+            # M3 synchronises (GRBL waits for the motion to end): sent standing still, output low
+            self._command(f"G90 G54 G1 F{speed_mm_s * 60.0:.3f} M3 S0")
+        for line in lines:                    # one at a time: GRBL's ok waits for room in its planner
+            if self._stop_event.is_set():
+                raise MotionStopped("the fly move was stopped by STOP")
+            with self._io:
+                self._command(line, timeout_s=max(self.timeout_s, 10.0))
+
+    def pulse_off(self) -> None:
+        """Spindle output off (``M5``; GRBL waits until the carriage stands)."""
+        with self._io:
+            self._command("M5", timeout_s=max(self.timeout_s, 30.0))
 
     def report(self) -> PositionReport:
         """The position GRBL reports now, time-stamped at the middle of the question and the answer

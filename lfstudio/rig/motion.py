@@ -190,6 +190,19 @@ class LatchesPositions(Protocol):
     def latches(self) -> list[Latch]: ...
 
 
+@runtime_checkable
+class PulsesAtPositions(Protocol):
+    """A controller that drives the camera's trigger line itself as the carriage passes positions
+    during a fly (a hardware trigger: GRBL 1.1's spindle output in laser mode). ``pulse_problem``
+    says with the numbers why it cannot at that spacing and speed (None: it can); ``fly_pulsing``
+    flies to ``end_x_mm`` at the speed, the line rising at each of ``xs_mm``, and returns once the
+    controller holds the whole row (``wait_arrival`` then waits); ``pulse_off`` ends the output."""
+
+    def pulse_problem(self, spacing_mm: float, speed_mm_s: float) -> str | None: ...
+    def fly_pulsing(self, xs_mm: list[float], end_x_mm: float, y_mm: float, speed_mm_s: float) -> None: ...
+    def pulse_off(self) -> None: ...
+
+
 class SoftLimitError(InputError):
     """A target outside the rig's soft limits; nothing was sent to the controller."""
 

@@ -22,6 +22,14 @@ the unit of motion:
    :attr:`FlyScanEngine.tolerance_mm` from its view, is not stored as that view: the view is taken
    again standing still (a step capture), its record flagged ``fly.retaken`` with the reason.
 
+With ``trigger="hardware"`` the controller drives the camera's trigger line itself
+(:class:`lfstudio.rig.motion.PulsesAtPositions`: GRBL's spindle output in laser mode, rising as the
+carriage passes each view; the camera armed with ``arm_line``, :class:`lfstudio.rig.camera.LineTriggered`).
+Nothing is timed by this computer then: the row's G-code is streamed, the frames are fetched as they
+come, and each frame's position is the view's (where the line rose) plus the travel during the
+camera's line latency and half its exposure, checked against the position reports as before. A
+pause or an abort takes effect at the row's end (the controller holds the row); STOP at once.
+
 A pause, an abort or STOP during a row: no further trigger; the frames already triggered are stored
 (their positions are recorded), the row's other views go back to the queue and are flown on
 resume from a new run-up.
@@ -102,8 +110,11 @@ class FlyScanEngine(ScanEngine):
     before the view is taken again (default: a quarter of the horizontal spacing)."""
 
     def __init__(self, *args: Any, speed_mm_s: float, tolerance_mm: float | None = None,
-                 run_up_margin_s: float = 0.1, **kwargs: Any):
+                 run_up_margin_s: float = 0.1, trigger: str = "software", **kwargs: Any):
         super().__init__(*args, **kwargs)
+        if trigger not in ("software", "hardware"):
+            raise ValueError(f"trigger must be 'software' or 'hardware', got {trigger!r}")
+        self.trigger = trigger
         if not (math.isfinite(speed_mm_s) and speed_mm_s > 0):
             raise ValueError(f"speed_mm_s must be positive, got {speed_mm_s!r}")
         if self.time_scale <= 0:
@@ -231,8 +242,9 @@ class FlyScanEngine(ScanEngine):
         settle = self.plan.settle_s * scale
         if settle > 0:
             self._wait(lambda: self._state is not ScanState.RUNNING, settle)
+        hardware = self.trigger == "hardware"
         try:
-            self._camera_call("arm", len(row), timeout_s=30)
+            self._camera_call("arm_line" if hardware else "arm", len(row), timeout_s=30)
         except Exception as exc:
             self._requeue(row)
             raise ScanFault(f"Camera: arming it for row {row[0].row} failed: {error_text(exc)}. Check the "
@@ -261,8 +273,16 @@ class FlyScanEngine(ScanEngine):
         try:
             t_cmd = time.monotonic()
             self._moving = True
-            self._rig_call("fly_to", end_x, y, v, timeout_s=30)
-            for view in row:
+            if hardware:                      # the controller fires the camera: nothing to time here
+                self._rig_call("fly_pulsing", [view.x_mm for view in row], end_x, y, v,
+                               timeout_s=max(30.0, 3 * expected_s + 30))
+                wait_s = self.capture_call_timeout_s() + 2 * expected_s
+                for view in row:
+                    triggered.append((view, t_cmd))
+                    fetches.append(self._camera_submit("fetch", self._stem(view), wait_s, timeout_s=wait_s + 10))
+            else:
+                self._rig_call("fly_to", end_x, y, v, timeout_s=30)
+            for view in (row if not hardware else []):
                 t_fire = self._fire_time(reports, view.x_mm, direction, v / scale, a / scale ** 2,
                                          latency + half_exposure, t_cmd, expected_s)
                 if t_fire is None:            # STOP, a pause, an abort, a fault, or the rig stopped moving
@@ -275,13 +295,15 @@ class FlyScanEngine(ScanEngine):
                                                    timeout_s=self.capture_call_timeout_s() + 10))
             status = self._rig_call("wait_arrival", end_x, y, max(10.0, 3 * expected_s + 10),
                                     timeout_s=max(10.0, 3 * expected_s + 20))
+            if hardware:
+                self._rig_call("pulse_off", timeout_s=60)
         except (ScanFault, _Interrupted):
             done.set()
-            self._settle_row(row, triggered, fetches, reports, v, interrupted=True)
+            self._settle_row(row, triggered, fetches, reports, v, interrupted=True, direction=direction)
             raise
         except Exception as exc:
             done.set()
-            self._settle_row(row, triggered, fetches, reports, v, interrupted=True)
+            self._settle_row(row, triggered, fetches, reports, v, interrupted=True, direction=direction)
             raise self._rig_fault(exc, f"flying row {row[0].row}") from None
         finally:
             self._moving = False
@@ -290,7 +312,7 @@ class FlyScanEngine(ScanEngine):
         del status
         t_flown = time.monotonic()
         self.rows_flown += 1
-        self._settle_row(row, triggered, fetches, reports, v, interrupted=interrupted)
+        self._settle_row(row, triggered, fetches, reports, v, interrupted=interrupted, direction=direction)
         self.camera_wait_s += time.monotonic() - t_flown
         self.rig_s += t_flown - t_row0
         if poll_error and not interrupted:
@@ -324,7 +346,8 @@ class FlyScanEngine(ScanEngine):
             return t_fire
 
     def _settle_row(self, row: list[PlannedView], triggered: list[tuple[PlannedView, float]],
-                    fetches: list[Future], reports: list[PositionReport], speed: float, interrupted: bool) -> None:
+                    fetches: list[Future], reports: list[PositionReport], speed: float, interrupted: bool,
+                    direction: float = 1.0) -> None:
         """Store each triggered frame at its recorded position, or mark its view to be taken again;
         the views never triggered go back to the queue."""
         taken = {view.cell for view, _ in triggered}
@@ -349,10 +372,22 @@ class FlyScanEngine(ScanEngine):
                                   0.5 * float(meta.get("shutter_s") or 0.0)) * self.time_scale
                 t_unc = float(getattr(cam, "trigger_jitter_s", 0.0)) * self.time_scale
             latch = _latch_of(latches, start, end)
+            where = interpolate(reports, t_mid) if latch is None else None
             if latch is not None:               # latched by the drive on the camera's exposure output
                 x, y, unc, source = latch.x_mm, latch.y_mm, latch.uncertainty_mm, "touch probe"
+            elif self.trigger == "hardware":
+                # the line rose where the controller passed the view (to the step); the frame's centre is
+                # the line latency and half the exposure further along, at the row's speed
+                cam = self.camera.driver
+                lead_s = float(getattr(cam, "line_trigger_latency_s", 0.0)) + 0.5 * float(
+                    meta.get("shutter_s") or getattr(cam, "exposure_s", 0.0) or 0.0)
+                x, y, unc, source = view.x_mm + direction * speed * lead_s, view.y_mm, 0.01, "trigger line"
+                if where is not None and math.hypot(where[0] - x, where[1] - y) > self.tolerance_mm:
+                    self._retake(view, f"the position reports put the frame {math.hypot(where[0] - x, where[1] - y):.3f} "
+                                       f"mm from where the trigger line says (tolerance {self.tolerance_mm:.3g} mm): "
+                                       "the carriage was not at speed, or a frame was missed")
+                    continue
             else:
-                where = interpolate(reports, t_mid)
                 if where is None:
                     self._retake(view, "no position reports around the frame's time")
                     continue
@@ -365,7 +400,9 @@ class FlyScanEngine(ScanEngine):
                                    f"{1000 * self._late.get(view.cell, 0.0):.2f} ms after its time)")
                 continue
             fly = {"recorded_mm": [round(x, 4), round(y, 4)], "uncertainty_mm": round(unc, 4),
-                   "trigger_late_ms": round(1000 * self._late.get(view.cell, 0.0), 3),
+                   "trigger": self.trigger,
+                   "trigger_late_ms": (None if self.trigger == "hardware" else
+                                       round(1000 * self._late.get(view.cell, 0.0), 3)),
                    "offset_mm": round(off, 4), "speed_mm_s": round(speed, 4),
                    "t_s": round(t_mid, 6), "pass": self.rows_flown, "source": source}
             done_fut: Future = Future()

@@ -29,6 +29,14 @@ coordinates are lowest):
 - Output sent while no client has the port open is lost, as on a real serial port;
   ``reset_on_open=True`` reboots the controller each time a client opens the port (an Arduino's
   DTR reset); :meth:`power_cycle` does it by hand.
+- Spindle output and laser mode (``$32``): ``M3``/``M4`` with ``S`` switch the spindle output
+  (:attr:`GrblSimulator.spindle_output`, a :class:`~lfstudio.sim.trigger_line.TriggerLine`: high while
+  the PWM is on). As in GRBL 1.1h, with ``$32=1`` an ``S`` word on a ``G1`` line changes the output
+  inline with the motion, at the point where that block begins, without stopping (``G0`` turns it
+  off); with ``$32=0``, and for every ``M3``/``M4``/``M5`` or a line without motion, GRBL
+  synchronises first: the line waits until the carriage has stopped. Consecutive collinear ``G1``
+  blocks of one feed are planned through without stopping (GRBL's look-ahead over the blocks it
+  holds: it slows down only where the blocks it has end).
 - Fault injection: :meth:`inject` with "drop", "silent", "garbage", "alarm_mid_move",
   "position_error"; :meth:`clear_faults` ends "silent"/"garbage".
 """
@@ -49,6 +57,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lfstudio.rig.motion import RigConfig
+from lfstudio.sim.trigger_line import TriggerLine
 
 BANNER = b"\r\nGrbl 1.1h ['$' for help]\r\n"
 UNLOCK_MSG = b"[MSG:'$H'|'$X' to unlock]\r\n"
@@ -60,6 +69,7 @@ PULLOFF_MM = 1.0
 STEPS_PER_MM = 100.0
 _FLOAT_SETTINGS = {11, 12, 24, 25, 27}
 FAULTS = ("drop", "silent", "garbage", "alarm_mid_move", "position_error")
+_SPINDLE_WORD = re.compile(r"(M0*[345](?![0-9.])|S[-+]?(?:\d+\.?\d*|\.\d+))")
 _WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
 
 
@@ -69,6 +79,8 @@ class _Segment:
     feed_mm_s: float
     kind: str                   # "G0" | "G1" | "jog" | "home"
     sent_work_mm: tuple[float, float] | None = None
+    output: bool = False        # the spindle output while this block runs
+    synced: bool = False        # GRBL synchronised before it (the carriage stopped first)
 
 
 @dataclass
@@ -148,6 +160,13 @@ class GrblSimulator:
         self._running = threading.Event()
         self._last_tick = time.monotonic()
         self._history: deque[tuple[float, float, float]] = deque(maxlen=10000)   # (t, true x, true y)
+        self._carry_mm_s = 0.0                      # the speed the next block starts with (look-ahead)
+        self._spindle = 5                           # M3 / M4 / M5
+        self._spindle_s = 0.0
+        self._clock = time.monotonic()              # the instant the motion has been advanced to
+        #: the spindle output (PWM on): with laser mode, a fly scan's hardware trigger line
+        self.spindle_output = TriggerLine("GRBL spindle output")
+        self.spindle_output.poke = self._poke
 
     # -- lifecycle ---------------------------------------------------------------------------------
     def start(self) -> str:
@@ -204,6 +223,8 @@ class GrblSimulator:
             self._offset = self._phys.copy()
             self._g92[:] = 0
             self._modal_g, self._absolute, self._feed_mm_min, self._tool = "G0", True, 0.0, 0
+            self._spindle, self._spindle_s = 5, 0.0
+            self.spindle_output.set(False, time.monotonic())
             self._homed = self._critical = False
             self._alarm = self._settings[22] == 1
             self._state = "Alarm" if self._alarm else "Idle"
@@ -261,6 +282,12 @@ class GrblSimulator:
         (t0, x0, y0), (t1, x1, y1) = hist[i - 1], hist[i]
         w = 0.0 if t1 <= t0 else (t - t0) / (t1 - t0)
         return x0 + w * (x1 - x0), y0 + w * (y1 - y0)
+
+    def _poke(self) -> None:
+        """Advance the motion to now (the edges of :attr:`spindle_output` that are due are set)."""
+        with self._lock:
+            if self._running.is_set():
+                self._advance()
 
     def reported_position_mm(self) -> tuple[float, float]:
         with self._lock:
@@ -426,11 +453,34 @@ class GrblSimulator:
             line = self._lines[0]
             if self._is_motion_line(line) and len(self._planner) >= PLANNER_BLOCKS:
                 return                            # planner full: the ok comes later
+            if (self._planner or self._motion is not None) and self._spindle_syncs(line):
+                return                            # GRBL's spindle_sync: the ok once the carriage stopped
             self._lines.popleft()
             self.lines_received.append(line)
             reply = self._execute(line)
             if reply is not None:
                 self._emit(reply)
+
+    def _spindle_syncs(self, line: str) -> bool:
+        """Whether GRBL 1.1h waits for the motion to end before this line (gcode.c: every M3/M4/M5,
+        an S change on a line without motion, and without laser mode any S change)."""
+        s = "".join(line.split()).upper()
+        if s.startswith("$"):
+            return False
+        words = _SPINDLE_WORD.findall(s)
+        if any(w.startswith("M") for w in words):
+            return True
+        new_s = [float(w[1:]) for w in words if w.startswith("S")]
+        if not new_s or new_s[-1] == self._spindle_s:
+            return False
+        return not (self._settings[32] == 1 and self._is_motion_line(line))
+
+    def _output_level(self, kind: str | None) -> bool:
+        """The spindle output for a block of ``kind`` (None: standing still), as GRBL sets its PWM."""
+        on = self._spindle in (3, 4) and self._spindle_s > 0
+        if self._settings[32] == 1:           # laser mode: only G1/G2/G3 motion carries the power
+            return on and (kind if kind is not None else self._modal_g) == "G1"
+        return on
 
     @staticmethod
     def _is_motion_line(line: str) -> bool:
@@ -541,6 +591,8 @@ class GrblSimulator:
         g10 = g92 = g53 = False
         l_word = p_word = None
         feed = None
+        m_spindle: int | None = None
+        s_word: float | None = None
         axes: dict[int, float] = {}
         seen: set[str] = set()
         for letter, value in words:
@@ -573,6 +625,8 @@ class GrblSimulator:
             elif letter == "M":
                 if int(value) not in (0, 1, 2, 3, 4, 5, 7, 8, 9, 30):
                     return b"error:20\r\n"
+                if int(value) in (3, 4, 5):
+                    m_spindle = int(value)
             elif letter in AXES:
                 axes[AXES.index(letter)] = value
             elif letter == "F":
@@ -586,7 +640,11 @@ class GrblSimulator:
             elif letter == "T":
                 if not jog:
                     self._tool = int(value)       # modal; cleared by a reset, as in GRBL
-            elif letter in "NS":
+            elif letter == "S":
+                if value < 0:
+                    return b"error:4\r\n"
+                s_word = value
+            elif letter == "N":
                 pass
             else:
                 return b"error:20\r\n"
@@ -612,13 +670,23 @@ class GrblSimulator:
                 self._g92[i] = self._mpos()[i] - self._g54[i] - v
             self._wco_counter = 0
             return b"ok\r\n"
+        synced = False
         if not jog:
             self._absolute = absolute
             if feed is not None:
                 self._feed_mm_min = feed
             if motion is not None:
                 self._modal_g = motion
+            before = (self._spindle, self._spindle_s)
+            if s_word is not None:
+                self._spindle_s = s_word
+            if m_spindle is not None:
+                self._spindle = m_spindle
+            synced = (self._spindle, self._spindle_s) != before and not (
+                self._settings[32] == 1 and m_spindle is None and axes)
         if not axes:
+            if not jog:                       # standing still (GRBL synchronised first): at once
+                self.spindle_output.set(self._output_level(None), time.monotonic())
             return b"ok\r\n"
         # target in machine coordinates
         base = self._planned_end()
@@ -644,7 +712,8 @@ class GrblSimulator:
             return None
         feed_mm_s = (jog_feed_mm_min if jog else (self._feed_mm_min if kind == "G1" else 1e9)) / 60.0
         target = np.round(target * STEPS_PER_MM) / STEPS_PER_MM
-        self._planner.append(_Segment(target, feed_mm_s, kind))
+        self._planner.append(_Segment(target, feed_mm_s, kind, output=(self.spindle_output.level if jog else self._output_level(kind)),
+                                      synced=synced))
         if self._state == "Idle":
             self._state = "Jog" if jog else "Run"
         if self.time_scale == 0:
@@ -690,8 +759,55 @@ class GrblSimulator:
                 target[ix] += float(self._settings[27]) * (1 if towards_low else -1)
             return _Motion(_Segment(target, speed, "home"))
         if self._planner:
-            return _Motion(self._planner[0])
+            seg = self._planner[0]
+            carry, self._carry_mm_s = self._carry_mm_s, 0.0
+            if seg.kind != "home":              # the block's spindle output, where it begins
+                self.spindle_output.set(seg.output, self._clock)
+            return _Motion(seg, speed_mm_s=carry)
         return None
+
+    def _chain(self, seg: _Segment) -> list[_Segment]:
+        """The blocks after ``seg`` (the running one) that GRBL plans through without stopping: the
+        same straight line, direction and feed, no synchronisation between."""
+        out: list[_Segment] = []
+        if seg.kind != "G1":
+            return out
+        prev_end = seg.target
+        unit = None
+        for nxt in list(self._planner)[1:] if self._planner and self._planner[0] is seg else []:
+            if nxt.kind != "G1" or nxt.synced or abs(nxt.feed_mm_s - seg.feed_mm_s) > 1e-9:
+                break
+            d = nxt.target - prev_end
+            n = float(np.linalg.norm(d))
+            if n < 1e-9:
+                break
+            u = d / n
+            if unit is None:
+                start = seg.target - self._mpos()
+                ns = float(np.linalg.norm(start))
+                unit = start / ns if ns > 1e-9 else u
+            if float(np.dot(u, unit)) < 1 - 1e-9:
+                break
+            out.append(nxt)
+            prev_end = nxt.target
+        return out
+
+    def _exit_speed(self, seg: _Segment, unit: np.ndarray) -> float:
+        """The speed the running block may end with: what the blocks GRBL holds after it allow,
+        braking to a stop at the end of the last one (its look-ahead)."""
+        chain = self._chain(seg)
+        if not chain:
+            return 0.0
+        vmax, accel = self._limits_for(unit, seg.feed_mm_s)
+        v_end = 0.0
+        prev = seg.target
+        lengths = []
+        for nxt in chain:
+            lengths.append(float(np.linalg.norm(nxt.target - prev)))
+            prev = nxt.target
+        for length in reversed(lengths):
+            v_end = min(vmax, math.sqrt(v_end * v_end + 2.0 * accel * length))
+        return v_end
 
     def _advance(self, instant: bool = False) -> None:
         try:
@@ -708,6 +824,7 @@ class GrblSimulator:
         if self.time_scale == 0:
             instant = True
         dt = math.inf if instant else real_dt / self.time_scale
+        self._clock = now if instant else now - real_dt
         for _ in range(10000):
             if dt <= 0:
                 return
@@ -725,7 +842,10 @@ class GrblSimulator:
                     if self._state in ("Run", "Jog"):
                         self._state = "Idle"
                     return
-            dt = self._step(self._motion, dt)
+            left = self._step(self._motion, dt)
+            if math.isfinite(dt) and math.isfinite(left):
+                self._clock += (dt - left) * self.time_scale
+            dt = left
 
     def _step(self, m: _Motion, dt: float) -> float:
         """Advance the current segment by up to dt seconds (sim time); return the unused time."""
@@ -763,8 +883,10 @@ class GrblSimulator:
             self._finish_segment()
             return dt
         t = min(dt, self.tick_s / max(self.time_scale, 1e-9))
-        v_new = min(m.speed_mm_s + accel * t, vmax, math.sqrt(2.0 * accel * dist))
-        travel = min(dist, max(0.5 * (m.speed_mm_s + v_new) * t, 1e-6))
+        v_exit = self._exit_speed(seg, unit) if seg.kind == "G1" else 0.0
+        v_new = min(m.speed_mm_s + accel * t, vmax, math.sqrt(v_exit * v_exit + 2.0 * accel * dist))
+        reach = max(0.5 * (m.speed_mm_s + v_new) * t, 1e-6)
+        travel = min(dist, reach)
         m.speed_mm_s = v_new
         if mid_alarm and m.start_dist is not None and dist - travel <= 0.5 * m.start_dist:
             self._phys += unit * (dist - 0.5 * m.start_dist)
@@ -774,10 +896,21 @@ class GrblSimulator:
         if seg.kind != "home" and self._check_hard_limits():
             return 0.0
         if travel >= dist - 1e-9:
+            t_used = t * min(1.0, dist / reach)        # the block ends within this tick
             self._phys = self._offset + seg.target     # land exactly on the step grid
+            carry = min(v_new, v_exit) if v_exit > 0 else 0.0
             m.speed_mm_s = 0.0
             self._finish_segment()
+            if carry > 0 and self._planner and self._motion is None:
+                self._carry_mm_s = carry               # planned through: the next block starts at speed
+                self._note_history(self._clock + t_used * self.time_scale)
+                return dt - t_used
+            return dt - t
         return dt - t
+
+    def _note_history(self, t: float) -> None:
+        w = self._phys - self._offset - self._g54 - self._g92
+        self._history.append((t, float(w[self._ix[0]] + self._error_mm[0]), float(w[self._ix[1]] + self._error_mm[1])))
 
     def _check_hard_limits(self) -> bool:
         if self._settings[21] != 1:
@@ -868,6 +1001,8 @@ class GrblSimulator:
         self._lines.clear()
         self._in.clear()
         self._modal_g, self._absolute, self._feed_mm_min, self._tool = "G0", True, 0.0, 0
+        self._spindle, self._spindle_s = 5, 0.0
+        self.spindle_output.set(False, time.monotonic())
         self._g92[:] = 0
         self._critical = False
         self._wco_counter = self._ovr_counter = 0
@@ -884,6 +1019,7 @@ class GrblSimulator:
             self._state = "Idle"
 
     def _raise_alarm(self, code: int, critical: bool) -> None:
+        self.spindle_output.set(False, time.monotonic())     # GRBL's mc_reset stops the spindle
         self._planner.clear()
         self._homing_phases.clear()
         self._motion = None

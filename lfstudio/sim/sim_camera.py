@@ -109,6 +109,14 @@ class SimulatedCamera:
         #: the exposure output (a GenICam camera's ExposureActive line): called with True at each triggered
         #: frame's exposure start and False at its end (monotonic time); wired to the emulated drives' touch probe
         self.exposure_output: Callable[[bool, float], Any] | None = None
+        #: hardware trigger (LineTriggered): the line wired to the trigger input (None: the GRBL
+        #: simulator's spindle output when the position comes from it), edge to exposure start
+        self.trigger_line: Any = None
+        self.line_trigger_latency_s = 2e-5
+        self._line_mode = False
+        self._line_after = 0.0
+        self._line_index = 0
+        self._line_last_open = -math.inf
         if faults:
             items = faults.items() if isinstance(faults, dict) else ((name, 1) for name in faults)
             for fault, count in items:
@@ -367,8 +375,63 @@ class SimulatedCamera:
 
     def disarm(self) -> None:
         self._armed = False
+        self._line_mode = False
         with self._exposed_cond:
             self._exposed.clear()
+
+    # -- hardware trigger (lfstudio.rig.camera.LineTriggered) ---------------------------------------
+    def _line(self) -> Any:
+        if self.trigger_line is not None:
+            return self.trigger_line
+        return getattr(getattr(self.position_mm, "__self__", None), "spindle_output", None)
+
+    def line_trigger_problem(self) -> str | None:
+        if self._line() is None:
+            return "no trigger line is wired to the simulated camera's input (its rig is not the GRBL simulator)"
+        if self.time_scale <= 0:
+            return "the simulated camera's trigger line needs simulated time to pass (time scale > 0)"
+        return None
+
+    def arm_line(self, frames: int) -> None:
+        """Ready for ``frames`` frames, each on a rising edge of the trigger line (GenICam
+        ``TriggerSource=Line1``): the shutter opens :attr:`line_trigger_latency_s` after the edge. An
+        edge that comes sooner than the frame rate allows after the last frame takes none (missed)."""
+        self._check_ready()
+        problem = self.line_trigger_problem()
+        if problem is not None:
+            raise DeviceError(f"{self.name}: {problem}")
+        with self._exposed_cond:
+            self._exposed.clear()
+        self._line_after = time.monotonic()
+        self._line_index = 0
+        self._line_last_open = -math.inf
+        self._line_mode = True
+        self._armed = True
+
+    def _line_frame(self, timeout_s: float) -> dict[str, Any]:
+        line = self._line()
+        edge = line.wait_rising(self._line_after, self._line_index, timeout_s, cancelled=self._abort.is_set)
+        if edge is None:
+            raise DeviceError(f"{self.name}: no edge on the trigger line within {timeout_s:g} s")
+        self._line_index += 1
+        scale = self.time_scale
+        t0 = edge + self.line_trigger_latency_s * scale
+        t1 = t0 + self.exposure_s * scale
+        gap = t0 - self._line_last_open
+        missed = self.frame_rate_fps > 0 and gap < 0.999 * scale / self.frame_rate_fps
+        if not missed:
+            self._line_last_open = t0
+        while (left := t1 - time.monotonic()) > 0:
+            time.sleep(left)
+        at: Any = getattr(getattr(self.position_mm, "__self__", None), "true_position_at", None)
+        q0: Any = at(t0) if callable(at) else None
+        q1: Any = at(t1) if callable(at) else None
+        if q0 is None or q1 is None:
+            q0 = q1 = self.position_mm()
+        return {"t_trigger": edge, "t_open": t0, "t_close": t1, "p0": (float(q0[0]), float(q0[1])),
+                "p1": (float(q1[0]), float(q1[1])), "latency_s": self.line_trigger_latency_s, "missed": missed,
+                "edge_s": edge, "why_missed": (f"the line's edge came {1000 * gap / scale:.1f} ms after the last "
+                                               f"frame, sooner than {self.frame_rate_fps:g} frames/s allow")}
 
     def trigger(self) -> float:
         """A software trigger: returns at once with the time it was sent; the shutter opens after the
@@ -439,13 +502,18 @@ class SimulatedCamera:
         studio = self._check_ready()
         stem_path = Path(stem_path)
         deadline = time.monotonic() + timeout_s
-        with self._exposed_cond:
-            while not self._exposed:
-                left = deadline - time.monotonic()
-                if left <= 0 or self._abort.is_set():
-                    raise DeviceError(f"{self.name}: no triggered frame arrived within {timeout_s:g} s")
-                self._exposed_cond.wait(min(left, 0.1))
-            f = self._exposed.popleft()
+        if self._line_mode:
+            f = self._line_frame(timeout_s)
+            if f["missed"]:
+                raise DeviceError(f"{self.name}: {f['why_missed']} (missed trigger)")
+        else:
+            with self._exposed_cond:
+                while not self._exposed:
+                    left = deadline - time.monotonic()
+                    if left <= 0 or self._abort.is_set():
+                        raise DeviceError(f"{self.name}: no triggered frame arrived within {timeout_s:g} s")
+                    self._exposed_cond.wait(min(left, 0.1))
+                f = self._exposed.popleft()
         if f["missed"]:
             raise DeviceError(f"{self.name}: the trigger sent at {f['t_trigger']:.6f} took no frame (missed trigger)")
         scale = self.time_scale
@@ -479,7 +547,8 @@ class SimulatedCamera:
                              metadata={"iso": self.iso, "shutter_s": self.exposure_s, "aperture": self.aperture,
                                        "format": "DNG", "bytes": size, "model": "lfstudio Virtual Studio",
                                        "ground_truth": truth, "exposure_start_s": f["t_open"],
-                                       "exposure_end_s": exposure_end})
+                                       "exposure_end_s": exposure_end,
+                                       **({"trigger_edge_s": f["edge_s"]} if "edge_s" in f else {})})
 
     def _truth(self, studio: VirtualStudio, shot: int, x_mm: float, y_mm: float, gain: Any) -> dict[str, Any]:
         return {"shot": shot, "true_position_mm": [x_mm, y_mm], "gain": gain,

@@ -478,6 +478,9 @@ class ScanRequest:
     keep_on_card: bool = False
     fly_speed_mm_s: float | None = None
     blur_limit_px: float = 0.5
+    #: who fires the camera in a fly scan: "hardware" (the controller's output at the positions),
+    #: "software" (this computer, timed from the position reports), "auto" (hardware where both can)
+    fly_trigger: str = "auto"
 
 
 class ScanSession:
@@ -693,7 +696,7 @@ class ScanSession:
                       f"{fly['time_s']:.0f} s")
             self.engine = FlyScanEngine(dataset, plan, rig, camera, retries=req.retries, time_scale=req.time_scale,
                                         recapture=bool(req.recapture), speed_mm_s=fly["speed_mm_s"],
-                                        **req.engine_options)
+                                        trigger=fly["trigger"], **req.engine_options)
             return self.engine
         engine_class: Any = ScanEngine
         if req.keep_on_card:
@@ -756,10 +759,39 @@ class ScanSession:
         result = plan_fly(inputs)
         if not result.possible:
             raise InputError(fly_words, result.refusal)
-        return {"speed_mm_s": result.speed_mm_s, "binding": result.binding, "blur_px": result.blur_px,
+        trigger, why_not = self._fly_trigger(rig_driver, driver, plan, result.speed_mm_s)
+        trigger_words = words("--trigger", "Continuous motion")
+        if req.fly_trigger == "hardware" and trigger != "hardware":
+            raise InputError(trigger_words, f"no hardware trigger: {why_not}", "--trigger software, or fix that")
+        if req.fly_trigger == "software":
+            trigger = "software"
+        elif trigger != "hardware":
+            self.note(f"fly scan: software trigger ({why_not})")
+        return {"speed_mm_s": result.speed_mm_s, "trigger": trigger, "binding": result.binding, "blur_px": result.blur_px,
                 "blur_limit_px": req.blur_limit_px, "time_s": result.time_s,
                 "limits_mm_s": {k: round(val, 4) for k, val in result.limits_mm_s.items()},
                 "report_rate_hz": round(1.0 / max(per_report_s, 1e-6), 1)}
+
+    @staticmethod
+    def _fly_trigger(rig: Any, camera: Any, plan: ScanPlan, speed_mm_s: float) -> tuple[str, str]:
+        """("hardware", "") when the controller can drive the camera's trigger line at each view of
+        this plan at this speed, else ("software", why not, with the numbers)."""
+        from lfstudio.rig.camera import LineTriggered
+        from lfstudio.rig.motion import PulsesAtPositions
+
+        if not isinstance(camera, LineTriggered):
+            return "software", (f"the camera ({getattr(camera, 'name', type(camera).__name__)}) takes no triggers "
+                                "from a hardware line lfstudio drives")
+        problem = camera.line_trigger_problem()
+        if problem is not None:
+            return "software", problem
+        if not isinstance(rig, PulsesAtPositions):
+            return "software", (f"the axis controller ({type(rig).__name__}) has no output lfstudio can switch "
+                                "at positions during a move")
+        problem = rig.pulse_problem(float(plan.spacing_mm[0]), float(speed_mm_s))
+        if problem is not None:
+            return "software", problem
+        return "hardware", ""
 
     def _check_bracket(self, bracket: Bracket, camera: Any) -> None:
         """The bracket's shutter times among the camera's choices: else InputError naming --bracket

@@ -51,6 +51,9 @@ PositionSource = Callable[[], tuple[float, float]]
 def start_simulator(rig: RigConfig, *, time_scale: float = 1.0, seed: int = 0) -> GrblSimulator:
     """A running GRBL simulator for ``rig``; ``.port`` is its pty. The caller closes it."""
     sim = GrblSimulator(rig, time_scale=time_scale, seed=seed)
+    # set up for fly scanning as an operator would once: laser mode ($32=1) puts the camera's trigger
+    # line on the spindle output, switched inline with the motion (the simulated camera is wired to it)
+    sim.set_settings({32: 1})
     sim.start()
     return sim
 

@@ -7,6 +7,7 @@ busy test machine fired late is taken again standing still, and either way the v
 from __future__ import annotations
 
 import json
+import statistics
 import subprocess
 import sys
 
@@ -177,3 +178,72 @@ def test_cli_refuses_a_blur_limit_no_speed_meets(tmp_path):
     line = out.stderr.strip().splitlines()[-1]
     assert "--fly" in line and "no fly speed keeps within blur ≤ 0.01 px" in line and "mm/s" in line
     assert not (tmp_path / "ds" / "dataset.json").exists()
+
+
+# -- hardware trigger: the controller's output on the camera's trigger line -----------------------------
+def test_hardware_trigger_fly_scan_records_where_the_line_rose(studio):
+    session, plan, ds = studio
+    assert session.rig.pulse_problem(plan.spacing_mm[0], 40.0) is None          # laser mode ($32=1)
+    assert session.camera.line_trigger_problem() is None                          # wired to its output
+    engine, events = engine_of(session, plan, ds, trigger="hardware")
+    engine.start()
+    assert engine.wait(120) is ScanState.FINISHED, engine.message
+    flown, retaken = check_views(ds.root, engine)
+    assert flown + retaken == 12 and flown >= 1
+    lead_mm = 40.0 * (session.camera.line_trigger_latency_s + 0.5 * session.camera.exposure_s)
+    offsets: dict[int, list[float]] = {}
+    d = Dataset.open(ds.root)
+    for v in d.views:
+        fly = v.get("fly") or {}
+        if "recorded_mm" not in fly:
+            continue
+        assert fly["trigger"] == "hardware" and fly["trigger_late_ms"] is None
+        direction = 1 if v["row"] % 2 == 0 else -1                               # meander
+        assert fly["recorded_mm"][0] == pytest.approx(v["commanded_mm"][0] + direction * lead_mm, abs=1e-3)
+        truth = json.loads((d.root / v["sidecars"][1]).read_text())
+        offsets.setdefault(v["row"], []).append(truth["true_position_mm"][0] - fly["recorded_mm"][0])
+    # what is left is the rig's own repeatability, one draw for the row, which no report sees
+    for row, errs in offsets.items():
+        assert max(errs) - min(errs) < 0.03, (row, errs)
+        assert abs(statistics.mean(errs)) < 5 * RIG.horizontal.repeatability_um / 1000
+
+
+def test_hardware_trigger_edges_faster_than_the_camera_are_taken_again(studio):
+    session, plan, ds = studio
+    session.camera.frame_rate_fps = 0.5          # one frame per 2 s: the line rises every 0.1 s
+    engine, _ = engine_of(session, plan, ds, trigger="hardware")
+    engine.start()
+    assert engine.wait(180) is ScanState.FINISHED, engine.message
+    check_views(ds.root, engine)
+    views = Dataset.open(ds.root).views
+    missed = [v for v in views if "frames/s allow" in (v.get("fly") or {}).get("retaken", "")]
+    assert missed and all(v["status"] == "done" for v in views)
+
+
+def test_cli_fly_scan_with_the_hardware_trigger(tmp_path):
+    out = _scan(tmp_path, "--exposure-s", "0.001", "--transfer-s", "0.05", "--trigger", "hardware")
+    assert out.returncode == 0, out.stderr
+    ds = Dataset.open(tmp_path / "ds")
+    assert ds.manifest["acquisition"]["trigger"] == "hardware" and ds.status_counts()["done"] == 8
+    assert any((v.get("fly") or {}).get("trigger") == "hardware" for v in ds.views)
+
+
+def test_cli_refuses_the_hardware_trigger_without_laser_mode(tmp_path, monkeypatch, capsys):
+    import lfstudio.studio.simulated as simulated
+    from lfstudio.cli import main
+
+    real = simulated.start_simulator
+
+    def without_laser_mode(*args, **kwargs):
+        sim = real(*args, **kwargs)
+        sim.set_settings({32: 0})
+        return sim
+
+    monkeypatch.setattr(simulated, "start_simulator", without_laser_mode)
+    code = main(["scan", "--out", str(tmp_path / "ds"), "--grid", "4x2", "--sim-width-px", "64", "--time-scale",
+                 str(SCALE), "--fly", "--exposure-s", "0.001", "--transfer-s", "0.05", "--trigger", "hardware"])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    line = err.strip().splitlines()[-1]
+    assert "--trigger" in line and "laser mode is off ($32 = 0)" in line and "$32=1" in line
+    assert "Traceback" not in err and not (tmp_path / "ds" / "dataset.json").exists()

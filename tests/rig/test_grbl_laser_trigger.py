@@ -1,0 +1,166 @@
+"""The camera's hardware trigger on GRBL's spindle output (#40): in laser mode ($32=1) GRBL 1.1 switches
+its spindle PWM inline with G1 motion, as each block's first step segment loads, without stopping.
+``GrblController.fly_pulsing`` streams a row whose output rises exactly where the carriage passes each
+view. Checked on the real GRBL 1.1h firmware (its official simulator, built from ../shared/vendor/grbl;
+the test shim logs every change of the PWM output with the step counts and the simulated time) and on
+our GRBL simulator, whose spindle output is the simulated camera's trigger line.
+
+Times here are the simulators' own clocks between edges (simulated seconds), not this machine's:
+without laser mode the firmware stops the carriage at every change, which makes the edges several
+times further apart than the spacing at the speed; with it they are one spacing at the speed apart."""
+
+from __future__ import annotations
+
+import dataclasses
+import statistics
+from typing import cast
+
+import pytest
+
+from lfstudio.errors import DeviceError
+from lfstudio.rig.grbl import GrblController
+from lfstudio.rig.motion import PulsesAtPositions
+from lfstudio.rig.profile import load_rig
+from lfstudio.sim.grbl_controller import GrblSimulator
+from tests.grbl_firmware import read_spindle_log
+
+GANTRY = load_rig()
+#: no homing, no repeatability error: the edges' positions are the step counts' own
+BENCH = dataclasses.replace(GANTRY, homing=False,
+                            horizontal=dataclasses.replace(GANTRY.horizontal, repeatability_um=0.0),
+                            vertical=dataclasses.replace(GANTRY.vertical, repeatability_um=0.0))
+XS = [40.0, 45.0, 50.0, 55.0, 60.0, 65.0]           # views 5 mm apart, after a 40 mm run-up
+SPEED = 50.0                                       # mm/s: 0.1 s between views
+
+
+def _fly_row(controller: GrblController) -> None:
+    controller.fly_pulsing(XS, 80.0, 0.0, SPEED)
+    controller.wait_arrival(80.0, 0.0, 60.0)
+    controller.pulse_off()
+
+
+# -- the real firmware ---------------------------------------------------------------------------------
+@pytest.fixture
+def laser_firmware(grbl_firmware, tmp_path):
+    def start(laser: int):
+        log = tmp_path / f"spindle-{laser}.log"
+        # 2x real time: the driver streams one line at a time and must stay ahead of the firmware's
+        # planner even on a busy machine (else GRBL starves and stops, as a real board would)
+        fw = grbl_firmware(spindle_log=log, speedup=2.0)
+        # the gantry's rates ($110 mm/min, $120 mm/s²) and laser mode as the operator sets them once
+        fw.configure({32: laser, 110: 12000.0, 120: 500.0, 130: 4000.0})
+        c = GrblController(fw.port, BENCH, timeout_s=5.0)
+        c.connect()
+        c.set_origin()
+        return fw, c, log
+    return start
+
+
+def test_firmware_laser_mode_raises_the_output_at_each_view_without_stopping(laser_firmware):
+    fw, c, log = laser_firmware(1)
+    try:
+        assert isinstance(cast(object, c), PulsesAtPositions) and c.pulse_problem(5.0, SPEED) is None
+        assert c.planner_blocks == 15 and "V" in c.options           # [OPT:V,15,128]
+        _fly_row(c)
+    finally:
+        c.disconnect()
+    edges = read_spindle_log(log)
+    rising = [e for e in edges if e[1]]
+    steps = c.settings[100]
+    # at each view, to the step: GRBL sets the PWM as the block's first segment loads, just before its
+    # first step (the shim sees it after that interrupt, one step on)
+    assert [e[2][0] - round(x * steps) for e, x in zip(rising, XS)] == [1] * len(XS)
+    assert all(e[3] == 255 for e in rising)                         # S = $30: full PWM
+    assert not any(e[1] for e in edges[-1:])                        # off again at the end (S0, M5)
+    gaps = [b[0] - a[0] for a, b in zip(rising, rising[1:])]
+    nominal = 5.0 / SPEED
+    # one spacing at the speed apart: never stopped (the 1 MHz simulated AVR times steps ~1 % coarsely)
+    assert max(gaps) < 1.05 * nominal and min(gaps) > 0.95 * nominal, gaps
+
+
+def test_firmware_without_laser_mode_stops_at_every_change_and_the_driver_refuses(laser_firmware):
+    fw, c, log = laser_firmware(0)
+    try:
+        problem = c.pulse_problem(5.0, SPEED)
+        assert problem is not None and "$32 = 0" in problem and "$32=1" in problem
+        with pytest.raises(DeviceError, match=r"hardware trigger refused: GRBL's laser mode is off"):
+            c.fly_pulsing(XS, 80.0, 0.0, SPEED)
+        # what it refuses to do: the same G-code without laser mode makes GRBL stop for each change
+        c._command(f"G90 G1 F{SPEED * 60:g} M3 S0")
+        for x in XS:
+            c._command(f"G1 X{x:.3f} S0", timeout_s=30)
+            c._command(f"G1 X{x + 1:.3f} S1000", timeout_s=30)
+        c._command("G1 X80 S0", timeout_s=30)
+        c.wait_arrival(80.0, 0.0, 60.0)
+        c.pulse_off()
+    finally:
+        c.disconnect()
+    rising = [e for e in read_spindle_log(log) if e[1]]
+    # switched standing still at each view (spindle_sync waited for the carriage to stop there)
+    assert [e[2][0] - round(x * c.settings[100]) for e, x in zip(rising, XS)] == [0] * len(XS)
+    gaps = [b[0] - a[0] for a, b in zip(rising, rising[1:])]
+    assert statistics.median(gaps) > 2 * (5.0 / SPEED), gaps
+
+
+def test_firmware_refuses_a_row_its_planner_cannot_see_far_enough_ahead(laser_firmware):
+    fw, c, log = laser_firmware(1)
+    try:
+        # 15 blocks, two a view: 7 views of 1 mm ahead, but 200 mm/s at 500 mm/s² needs 40 mm to stop
+        problem = c.pulse_problem(1.0, 200.0)
+        assert problem is not None
+        assert "GRBL plans 15 moves ahead, 7 views (7 mm)" in problem and "40 mm it needs to stop" in problem
+        assert "at most 83.7 mm/s" in problem
+        with pytest.raises(DeviceError, match="hardware trigger refused"):
+            c.fly_pulsing([40.0 + k for k in range(10)], 80.0, 0.0, 200.0)
+    finally:
+        c.disconnect()
+    assert not any(e[1] for e in read_spindle_log(log))              # nothing was sent: the output never rose
+
+
+# -- our simulator -------------------------------------------------------------------------------------
+@pytest.fixture
+def sim_controller():
+    made = []
+
+    def start(laser: int):
+        sim = GrblSimulator(BENCH, time_scale=1.0)       # real time: the stream stays ahead of it
+        sim.set_settings({32: laser})
+        port = sim.start()
+        c = GrblController(port, BENCH, timeout_s=5.0)
+        c.connect()
+        c.set_origin()
+        made.append((sim, c))
+        return sim, c
+    yield start
+    for sim, c in made:
+        c.disconnect()
+        sim.close()
+
+
+def test_simulator_switches_its_output_where_the_firmware_does(sim_controller):
+    sim, c = sim_controller(1)
+    assert c.pulse_problem(5.0, SPEED) is None
+    _fly_row(c)
+    edges = sim.spindle_output.edges()
+    rising = [t for t, level in edges if level]
+    assert len(rising) == len(XS) and not edges[-1][1]
+    # where the carriage was at each rising edge: at the view (the history keeps block ends exactly)
+    where = [sim.true_position_at(t) for t in rising]
+    assert [round(p[0], 3) for p in where] == XS
+    gaps = [(b - a) / sim.time_scale for a, b in zip(rising, rising[1:])]     # simulated seconds
+    assert max(gaps) < 1.02 * 5.0 / SPEED and min(gaps) > 0.98 * 5.0 / SPEED, gaps
+
+
+def test_simulator_without_laser_mode_stops_at_every_change(sim_controller):
+    sim, c = sim_controller(0)
+    assert "$32 = 0" in (c.pulse_problem(5.0, SPEED) or "")
+    c._command(f"G90 G1 F{SPEED * 60:g} M3 S0")
+    for x in XS[:3]:
+        c._command(f"G1 X{x:.3f} S0", timeout_s=30)
+        c._command(f"G1 X{x + 1:.3f} S1000", timeout_s=30)
+    c._command("G1 X60 S0", timeout_s=30)
+    c.wait_arrival(60.0, 0.0, 60.0)
+    rising = [t for t, level in sim.spindle_output.edges() if level]
+    assert [round(sim.true_position_at(t)[0], 3) for t in rising] == XS[:3]
+    gaps = [(b - a) / sim.time_scale for a, b in zip(rising, rising[1:])]
+    assert min(gaps) > 1.5 * 5.0 / SPEED, gaps                            # stopped for each change
