@@ -73,7 +73,6 @@ import bisect
 import math
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass
 from typing import Callable
 
@@ -122,7 +121,8 @@ TOUCH_PROBE_OBJECTS: dict[tuple[int, int], tuple[int, bool, bool]] = {
 }
 TP_ENABLE, TP_CONTINUOUS, TP_POSITIVE, TP_NEGATIVE = 0x01, 0x02, 0x10, 0x20
 TP_ENABLED, TP_POSITIVE_STORED, TP_NEGATIVE_STORED = 0x01, 0x02, 0x04
-HISTORY_STEPS = 40_000         # the axis' history of where it was (a row of ~200 s at STEP_S)
+HISTORY_DT = 0.001             # the axis' history of where it was: an entry at most every ms (emulator time)
+HISTORY_STEPS = 100_000        # ... and at least the last 100 s (emulator time) of it
 #: supported homing methods (60E3h, an array): only on an emulator told to list them (AxisSetup.supported_homing)
 SUPPORTED_HOMING = 0x60E3
 #: objects a drive can be told to lack (``lfstudio sim-drive --leave-out``): every one CiA 402 leaves optional
@@ -253,7 +253,7 @@ class DriveAxis:
         self._pending_mode: int | None = None   # 6060h written during homing: taken when the homing ends
         self.homed = False                      # this power cycle has a reference (not visible on the bus)
         # (monotonic time, position counter 6064h, physical mm) after each motion step
-        self._history: deque[tuple[float, float, float]] = deque(maxlen=HISTORY_STEPS)
+        self._history: list[tuple[float, float, float]] = []
         if setup.enabled_unhomed:               # another program enabled it in profile position, never homed
             self.state = ENABLED
             self.mode = PROFILE_POSITION
@@ -570,9 +570,12 @@ class DriveAxis:
 
     def _remember(self, t_emulator: float) -> None:
         t = self._t0 + t_emulator * self._scale
-        if self._history and self._history[-1][0] >= t:
+        hist = self._history
+        if hist and t - hist[-1][0] < HISTORY_DT * self._scale:
             return
-        self._history.append((t, self._actual, self._phys_mm(self._actual)))
+        hist.append((t, self._actual, self._phys_mm(self._actual)))
+        if len(hist) > 2 * HISTORY_STEPS:
+            del hist[:HISTORY_STEPS]
 
     def _at(self, t: float, column: int) -> float | None:
         """Column 1 (counter) or 2 (mm) of the history at monotonic time ``t`` (linear between
@@ -581,6 +584,10 @@ class DriveAxis:
             if self._scale > 0:
                 self._advance()
             hist = self._history
+            if self._scale > 0 and (not hist or t > hist[-1][0]):
+                # after the last entry (they come at most every HISTORY_DT): between it and where it is now
+                now = (self._t0 + self._last * self._scale, self._actual, self._phys_mm(self._actual))
+                hist = [*hist[-1:], now]
             if not hist or t < hist[0][0] or t > hist[-1][0] + 1e-9:
                 return None
             i = bisect.bisect_left(hist, (t,))

@@ -74,3 +74,23 @@ def test_the_variety_over_canopen_in_another_process(own_network, canopen_drives
                   "status")
     assert r.returncode == 0, r.stderr
     assert "x=30.000 y=4.000" in r.stdout.strip().splitlines()[-1]
+
+
+def test_a_fly_scan_in_another_process_over_the_udp_multicast_bus(own_network, canopen_drives, tmp_path):
+    """#40: ``lfstudio scan --fly`` on CiA 402 drives served by ``sim-drive --canopen udp_multicast
+    --touch-probe`` in another process: each row a profile position move at the row speed, the drives'
+    touch probes latching the camera's exposure output (wired across the processes)."""
+    word = canopen_drives("--time-scale", "0.5", "--touch-probe", "--seed", "5")
+    out = tmp_path / "ds"
+    r = _lfstudio(own_network, "scan", "--port", word, "--rig-profile", RIG, "--camera", "sim",
+                  "--keep-drive-reference", "--fly", "--grid", "4x2", "--offset-mm", "-1950x-200", "--sim-width-px",
+                  "64", "--time-scale", "0.5", "--exposure-s", "0.001", "--transfer-s", "0.05", "--out", out)
+    assert r.returncode == 0, r.stderr
+    assert "fly scan: rows at" in r.stderr
+    ds = Dataset.open(out)
+    try:
+        assert ds.manifest["acquisition"]["mode"] == "fly" and ds.status_counts()["done"] == 8
+        sources = [(v.get("fly") or {}).get("source") for v in ds.views]
+        assert "touch probe" in sources, sources
+    finally:
+        ds.close()
