@@ -513,18 +513,27 @@ class FitImageView(QScrollArea):
         self.setAlignment(Qt.AlignmentFlag.AlignCenter)
         self.setWidget(self.label)
         self._pixmap = QPixmap()
+        self._fitted: QPixmap | None = None
         self.fit = True
         self._set_mode()
 
     def pixmap(self) -> QPixmap:
         return self._pixmap
 
-    def set_pixmap(self, pixmap: QPixmap) -> None:
+    def set_pixmap(self, pixmap: QPixmap, fitted: QPixmap | None = None) -> None:
+        """Show ``pixmap``. ``fitted``: the same picture already scaled to :meth:`fitted_size` (made
+        off the GUI thread), used while it fits the room; else the view scales it itself."""
         self._pixmap = pixmap
+        self._fitted = fitted
         self._show()
+
+    def fitted_size(self, size: QSize) -> QSize:
+        """The size a picture of ``size`` is shown at when fitted to the room now."""
+        return size.scaled(self.viewport().size(), Qt.AspectRatioMode.KeepAspectRatio)
 
     def clear(self) -> None:
         self._pixmap = QPixmap()
+        self._fitted = None
         self.label.clear()
 
     def setText(self, text: str) -> None:   # noqa: N802 (QLabel's name)
@@ -557,6 +566,10 @@ class FitImageView(QScrollArea):
         if self.fit:
             room = self.viewport().size()
             if room.width() < 2 or room.height() < 2:
+                return
+            fitted = self._fitted
+            if fitted is not None and fitted.size() == self.fitted_size(self._pixmap.size()):
+                self.label.setPixmap(fitted)
                 return
             self.label.setPixmap(self._pixmap.scaled(room, Qt.AspectRatioMode.KeepAspectRatio,
                                                      Qt.TransformationMode.SmoothTransformation))

@@ -53,7 +53,8 @@ def test_the_exposure_is_made_off_the_gui_thread_and_the_latest_position_wins(qt
             dialog._expose()
     finally:
         gate.set()
-    qtbot.waitUntil(lambda: "+3.0 EV" in dialog.caption.text(), timeout=30000)
+    qtbot.waitUntil(lambda: "+3.0 EV" in dialog.caption.text() and dialog.image.pixmap().width() == 2000,
+                    timeout=30000)
     assert not [ev for on_gui, ev in calls if on_gui]                  # never on the GUI thread
     evs = {round(ev, 1) for _, ev in calls}
     assert evs <= {0.0, 3.0} and 3.0 in evs                            # +1 and +2 EV were never made

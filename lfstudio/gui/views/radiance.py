@@ -18,7 +18,7 @@ import threading
 from typing import Any, Callable
 
 import numpy as np
-from PySide6.QtCore import Qt
+from PySide6.QtCore import QSize, Qt
 from PySide6.QtGui import QAction, QImage, QPixmap
 from PySide6.QtWidgets import QDialog, QHBoxLayout, QLabel, QLineEdit, QPushButton, QSlider, QVBoxLayout, QWidget
 
@@ -82,25 +82,32 @@ def exposed(radiance: np.ndarray, key: float, ev: float) -> np.ndarray:
 class Exposer:
     """:func:`exposed` on a thread of its own, the latest request winning. :meth:`request` (any
     thread, returns at once) replaces a request not yet started; each request gives ``deliver(seq,
-    ev, image, final)`` (on the worker thread) a preview first (``data["preview"]`` exposed and
-    enlarged to the shown size, ``final`` False) unless it is as large as the picture, then the
-    picture (``final`` True), skipped when a newer request is waiting by then. ``image`` is a QImage
-    (made here, not on the GUI thread)."""
+    ev, image, final)`` (on the worker thread) a preview first (``data["preview"]`` exposed, and
+    enlarged to the picture's size when ``enlarge``: a picture shown 1:1 keeps its size; fitted to
+    the room, the view scales the small one for less; ``final`` False) unless it is as large as the
+    picture, then the picture (``final`` True), skipped when a newer request is waiting by then.
+    ``image`` is a QImage (made here, not on the GUI thread); with ``fit`` (width, height) in the
+    request, ``fitted`` is the picture scaled to it too (None without), so that the view need not
+    scale a 2000 px picture on the GUI thread.
 
-    def __init__(self, deliver: Callable[[int, float, QImage, bool], None], name: str = "radiance-exposer"):
+    ``deliver(seq, ev, image, fitted, final)``."""
+
+    def __init__(self, deliver: Callable[[int, float, QImage, QImage | None, bool], None],
+                 name: str = "radiance-exposer"):
         self._deliver = deliver
         self._cond = threading.Condition()
-        self._want: tuple[int, dict[str, Any], float] | None = None
+        self._want: tuple[int, dict[str, Any], float, bool, tuple[int, int] | None] | None = None
         self._seq = 0
         self._closed = False
         self.made: list[tuple[float, bool]] = []        # (ev, final) of each picture made, in order
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
-    def request(self, data: dict[str, Any], ev: float) -> int:
+    def request(self, data: dict[str, Any], ev: float, enlarge: bool = True,
+                fit: tuple[int, int] | None = None) -> int:
         with self._cond:
             self._seq += 1
-            self._want = (self._seq, data, float(ev))
+            self._want = (self._seq, data, float(ev), bool(enlarge), fit)
             self._cond.notify()
             return self._seq
 
@@ -114,6 +121,20 @@ class Exposer:
             self._want = None
             self._cond.notify()
 
+    @staticmethod
+    def _fitted(rgb: np.ndarray, fit: tuple[int, int] | None, full_width: int) -> QImage | None:
+        """``rgb`` scaled to ``fit`` (the size a picture ``full_width`` wide is shown at), or None."""
+        import cv2
+
+        from lfstudio.gui.imageutil import rgb_to_qimage
+
+        if fit is None or fit[0] < 2 or fit[1] < 2:
+            return None
+        if rgb.shape[1] != full_width:       # a preview shown in place of the picture: the view scales it
+            return None
+        smaller = fit[0] < rgb.shape[1]
+        return rgb_to_qimage(cv2.resize(rgb, fit, interpolation=cv2.INTER_AREA if smaller else cv2.INTER_LINEAR))
+
     def _run(self) -> None:
         import cv2
 
@@ -126,20 +147,22 @@ class Exposer:
                 if self._closed:
                     return
                 assert self._want is not None
-                seq, data, ev = self._want
+                seq, data, ev, enlarge, fit = self._want
                 self._want = None
             radiance, preview = data["radiance"], data.get("preview")
             h, w = radiance.shape[:2]
             try:
                 if preview is not None and preview.shape[1] < w:
-                    small = cv2.resize(exposed(preview, data["key"], ev), (w, h), interpolation=cv2.INTER_LINEAR)
+                    small = exposed(preview, data["key"], ev)
+                    if enlarge:
+                        small = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
                     self.made.append((ev, False))
-                    self._deliver(seq, ev, rgb_to_qimage(small), False)
+                    self._deliver(seq, ev, rgb_to_qimage(small), self._fitted(small, fit, w), False)
                     if self._newer_waiting():
                         continue
                 rgb = exposed(radiance, data["key"], ev)
                 self.made.append((ev, True))
-                self._deliver(seq, ev, rgb_to_qimage(rgb), True)
+                self._deliver(seq, ev, rgb_to_qimage(rgb), self._fitted(rgb, fit, w), True)
             except Exception:  # noqa: BLE001 - a broken picture must not end the dialog's worker
                 import logging
 
@@ -199,8 +222,9 @@ class RadianceDialog(QDialog):
         self._loader = None
         self.pictures_shown = 0
         self._shown_seq = 0
+        self._asked: tuple | None = None            # what the exposer was asked for last
         self._pictures = GuiInbox(self._show_pictures, self)
-        self.exposer = Exposer(lambda seq, ev, image, final: self._pictures.post((seq, ev, image, final)))
+        self.exposer = Exposer(lambda *picture: self._pictures.post(picture))
         self.finished.connect(lambda _r: self.exposer.close())
         self.destroyed.connect(self.exposer.close)
         self._pacer = Pacer(self._expose, 40, self)        # the slider dragged: at most 25 pictures a second
@@ -238,15 +262,24 @@ class RadianceDialog(QDialog):
         """The slider moved (paced): the picture at its position is asked of the exposer (off the GUI
         thread); :meth:`_show_pictures` puts it on the screen."""
         self._show_ev()
-        if self._data is not None:
-            self.exposer.request(self._data, self.ev)
+        data = self._data
+        if data is not None:
+            fit = None
+            if self.image.fit:
+                h, w = data["radiance"].shape[:2]
+                size = self.image.fitted_size(QSize(w, h))
+                fit = (size.width(), size.height())
+            asked = (id(data), self.ev, self.image.fit, fit)
+            if asked != self._asked:                # the same picture again (a late paced call): nothing to do
+                self._asked = asked
+                self.exposer.request(data, self.ev, enlarge=not self.image.fit, fit=fit)
 
-    def _show_pictures(self, items: list[tuple[int, float, QImage, bool]]) -> None:
-        seq, ev, image, final = items[-1]           # the latest made; older ones are never shown
+    def _show_pictures(self, items: list[tuple[int, float, QImage, QImage | None, bool]]) -> None:
+        seq, ev, image, fitted, final = items[-1]   # the latest made; older ones are never shown
         if seq < self._shown_seq or self._data is None:
             return
         self._shown_seq = seq
-        self.image.set_pixmap(QPixmap.fromImage(image))
+        self.image.set_pixmap(QPixmap.fromImage(image), None if fitted is None else QPixmap.fromImage(fitted))
         if not final:
             return
         fig = self._data["figures"]
