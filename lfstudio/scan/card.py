@@ -13,7 +13,9 @@ downloads never hold up the captures) and the store stage checksums and
 journals each view as usual: a view is done only when its file is on disk and verified. A download
 that fails makes the store take the view again. A run that ended before its downloads (kill -9, a
 pulled cable) leaves ``on_card`` in the journal: the next run with ``--keep-on-card`` fetches those
-files first, and takes again the views whose files are no longer there.
+files first, and takes again the views whose files are no longer there. A capture refused because the
+card is full (the camera says so) downloads every picture waiting on the card first, then takes that
+view again: a full card costs time, never a view.
 """
 
 from __future__ import annotations
@@ -45,6 +47,12 @@ def card_problem(camera: Any) -> str | None:
         return None
     return (f"the camera ({getattr(driver, 'name', type(driver).__name__)}) cannot keep its pictures on its card "
             "and download them later (gphoto2 cameras can)")
+
+
+def _card_full(exc: BaseException) -> bool:
+    """Whether a failed capture says the camera's card (or its buffer) is full (gphoto2's -115 / -3, the
+    simulated card)."""
+    return "is full" in str(exc) or "card is full" in error_text(exc)
 
 
 class _OnCard(Future):
@@ -127,7 +135,18 @@ class CardBufferEngine(ScanEngine):
         fut = self._camera_submit("capture_to_card", stem, on_exposed=on_exposed,
                                   timeout_s=self.capture_call_timeout_s())
         self._await(fut)
-        files = fut.result()                   # a failed capture raises here: retried as any capture
+        try:
+            files = fut.result()               # a failed capture raises here: retried as any capture
+        except Exception as exc:
+            if not self._on_card or not _card_full(exc):
+                raise
+            self._emit(EventKind.LOG, f"the camera's card is full: downloading the {len(self._on_card)} pictures "
+                                      f"waiting on it now, then view {view_label(view.row, view.column)} again")
+            self._download_all()               # on the camera's worker, before the capture queued next
+            fut = self._camera_submit("capture_to_card", stem, on_exposed=on_exposed,
+                                      timeout_s=self.capture_call_timeout_s())
+            self._await(fut)
+            files = fut.result()
         self.dataset.record_view(view.row, view.column, on_card=list(files))   # durable before anything else
         pending = _OnCard()
         self._on_card.append((view, pending, list(files), Path(stem)))

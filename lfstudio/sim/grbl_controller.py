@@ -161,6 +161,7 @@ class GrblSimulator:
         self._last_tick = time.monotonic()
         self._history: deque[tuple[float, float, float]] = deque(maxlen=10000)   # (t, true x, true y)
         self._carry_mm_s = 0.0                      # the speed the next block starts with (look-ahead)
+        self._error_log: deque[tuple[float, float, float]] = deque(maxlen=10000)   # (since t, error x, y)
         self._spindle = 5                           # M3 / M4 / M5
         self._spindle_s = 0.0
         self._clock = time.monotonic()              # the instant the motion has been advanced to
@@ -282,6 +283,17 @@ class GrblSimulator:
         (t0, x0, y0), (t1, x1, y1) = hist[i - 1], hist[i]
         w = 0.0 if t1 <= t0 else (t - t0) / (t1 - t0)
         return x0 + w * (x1 - x0), y0 + w * (y1 - y0)
+
+    def repeatability_error_at(self, t: float) -> tuple[float, float]:
+        """The repeatability error (mm, rig frame) the carriage had at monotonic time ``t``: part of
+        :meth:`true_position_at`, seen by no report (a step scan records it as wrongly as a fly scan)."""
+        with self._lock:
+            log = list(self._error_log)
+            current = (float(self._error_mm[0]), float(self._error_mm[1]))
+        for since, ex, ey in reversed(log):
+            if since <= t:
+                return ex, ey
+        return (0.0, 0.0) if log else current
 
     def _poke(self) -> None:
         """Advance the motion to now (the edges of :attr:`spindle_output` that are due are set)."""
@@ -949,6 +961,7 @@ class GrblSimulator:
 
     def _draw_repeatability(self) -> None:
         self._error_mm = np.array([self._rng.normal(0.0, a.repeatability_um / 1000.0) for a in self._axes])
+        self._error_log.append((self._clock, float(self._error_mm[0]), float(self._error_mm[1])))
 
     def _end_jog_cancel(self) -> None:
         self._jog_cancel = False

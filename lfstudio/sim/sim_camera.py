@@ -44,7 +44,7 @@ REFERENCE_EXPOSURE = {"shutter_s": 0.5, "iso": 100, "aperture": 16.0}
 ISO_VALUES = (50, 100, 200, 400, 800, 1600, 3200, 6400)
 #: the shutter times the simulated camera takes (s), as a real body's range
 SHUTTER_RANGE_S = (1e-4, 60.0)
-FAULTS = ("capture_fails", "silent", "miss_trigger", "late_trigger")
+FAULTS = ("capture_fails", "silent", "miss_trigger", "late_trigger", "unplugged")
 
 
 def srgb8(linear_rgb: np.ndarray) -> np.ndarray:
@@ -117,6 +117,8 @@ class SimulatedCamera:
         self._line_after = 0.0
         self._line_index = 0
         self._line_last_open = -math.inf
+        #: pictures the simulated card holds (None: no limit); a full card refuses the next capture
+        self.card_capacity: int | None = None
         if faults:
             items = faults.items() if isinstance(faults, dict) else ((name, 1) for name in faults)
             for fault, count in items:
@@ -124,6 +126,8 @@ class SimulatedCamera:
 
     # -- connection ---------------------------------------------------------------------------------
     def connect(self) -> None:
+        if "unplugged" in self._faults:
+            raise DeviceError(f"{self.name}: no camera answers on USB (is its cable plugged in?)")
         if self.studio is None:
             self.studio = VirtualStudio(**self.studio_kwargs)   # ~2 s at 2000 px: on the device thread
         self._abort.clear()
@@ -258,6 +262,8 @@ class SimulatedCamera:
             listener(self.status())
 
     def _check_ready(self) -> VirtualStudio:
+        if "unplugged" in self._faults:          # a pulled cable: nothing answers until it is back
+            raise DeviceError(f"{self.name}: the camera stopped answering (its USB cable was pulled?)")
         if not self._connected or self.studio is None:
             raise DeviceError(f"{self.name}: not connected; connect the camera first (Camera panel: Connect)")
         if self._take_fault("silent"):
@@ -335,6 +341,9 @@ class SimulatedCamera:
         studio = self._check_ready()
         if self._take_fault("capture_fails"):
             raise DeviceError(f"{self.name}: capture failed (the camera reported an error); retry the shot")
+        if self.card_capacity is not None and len(card) >= self.card_capacity:
+            raise DeviceError(f"{self.name}: the camera's card is full ({len(card)} pictures): free space on the "
+                              "card (download or delete pictures), then retry")
         t_open, shot, x_mm, y_mm, recorded, gain = self._expose(studio, t_call)
         if on_exposed is not None:
             on_exposed()
@@ -539,6 +548,10 @@ class SimulatedCamera:
         truth = self._truth(studio, shot, float(centre[0]), float(centre[1]), gain)
         truth.update({"blur_mm": [float(v) for v in blur_mm], "blur_px_near": blur_px, "subframes": k,
                       "trigger_latency_s": f["latency_s"]})
+        unseen: Any = getattr(getattr(self.position_mm, "__self__", None), "repeatability_error_at", None)
+        if callable(unseen) and scale > 0:     # the controller's repeatability error, in the truth above
+            err: Any = unseen(0.5 * (f["t_open"] + f["t_close"]))
+            truth["repeatability_error_mm"] = [float(err[0]), float(err[1])]
         raw_path, jpg_path, truth_path, mosaic = self._write_files(stem_path, recorded, truth)
         size = raw_path.stat().st_size
         exposure_end = f["t_open"] + self.exposure_s * scale
