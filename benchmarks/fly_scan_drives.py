@@ -12,7 +12,8 @@ touch probe 1 wired to the camera's exposure output (the drives latch the positi
   camera writes from the emulator's own history of where the carriage was): RMS and max, by source
   (touch probe / 6064h reads). The emulated drives have no repeatability error (unlike the GRBL
   simulator's draw): the figure is what the recording itself adds;
-- the drives' measured report rate (reports/s in simulated time) and the row speed the planner chose.
+- the drives' measured report rate (reports/s in simulated time) and the row speed the planner chose;
+- STOP during a fly move: real milliseconds from ``stop()`` until the quick stop reached both drives.
 
 The drives are homed at time scale 0 (their search run would take most of a small benchmark), then
 everything runs at ``--time-scale``. The grid starts at (40, 20) mm, near where the drives home.
@@ -96,6 +97,59 @@ def run_one(transport: str, touch_probe: bool, args: argparse.Namespace, root: P
             "cpu": m.cpu_s, "wall": m.wall_s}
 
 
+def stop_latency(transport: str, trials: int) -> list[float]:
+    """STOP during a fly move: ms from ``stop()`` until the quick stop (6040h = 0Bh) reached both drives
+    (the emulator notes when each took it), ``trials`` times."""
+    import threading
+    import time
+
+    from lfstudio.rig.profile import load_rig
+    from lfstudio.studio.devices import open_rig
+    from lfstudio.studio.simulated import start_drive_emulator
+
+    rig = load_rig(RIG_NAME)
+    emulator = start_drive_emulator(rig, transport, time_scale=0.0)
+    link = open_rig(emulator.word, rig, doing="benchmark", lock=False, timeout_s=2.0)
+    out = []
+    try:
+        link.controller.home()
+        emulator.time_scale = 0.2
+        for axis in emulator.pair.axes:
+            original = axis._control
+
+            def noting(cw: int, axis=axis, original=original) -> None:
+                if cw == 0x0B and getattr(axis, "stopped_at", None) is None:
+                    axis.stopped_at = time.monotonic()
+                original(cw)
+
+            axis._control = noting
+        c = link.controller
+        for k in range(trials):
+            x = 200.0 + 400.0 * (k % 2)
+            for axis in emulator.pair.axes:
+                axis.stopped_at = None
+            c.fly_to(x, 0.0, 150.0)
+            waiter = threading.Thread(target=lambda: _quietly(c.wait_arrival, x, 0.0, 60))
+            waiter.start()
+            time.sleep(0.05)
+            t0 = time.monotonic()
+            c.stop()
+            waiter.join(60)
+            out.append(1000 * (max(axis.stopped_at for axis in emulator.pair.axes) - t0))
+            c.move_to(x, 0.0)
+    finally:
+        link.close()
+        emulator.close()
+    return out
+
+
+def _quietly(fn, *args) -> None:
+    try:
+        fn(*args)
+    except Exception:  # noqa: BLE001 - STOP ends it: that is the point
+        pass
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--grid", default="21x5")
@@ -105,6 +159,7 @@ def main() -> int:
     ap.add_argument("--width", type=int, default=64, help="rendered width in px")
     ap.add_argument("--fps", type=float, default=20.0)
     ap.add_argument("--exposure-s", type=float, default=0.001)
+    ap.add_argument("--stop-trials", type=int, default=5, help="STOP during a fly move, per transport (0: none)")
     args = ap.parse_args()
     transports = ("modbus", "canopen") if args.transport == "both" else (args.transport,)
     probes = (False, True) if args.touch_probe else (False,)
@@ -136,6 +191,10 @@ def main() -> int:
     if every:
         print(f"recorded position vs truth, all: RMS {1000 * math.sqrt(statistics.fmean(e * e for e in every)):.1f} µm "
               f"(target ≤ 80 µm) over {len(every)} views")
+    for transport in transports if args.stop_trials > 0 else ():
+        ms = sorted(stop_latency(transport, args.stop_trials))
+        print(f"STOP during a fly move ({transport}): the quick stop reached both drives after median "
+              f"{statistics.median(ms):.1f} ms, max {ms[-1]:.1f} ms ({len(ms)} trials)")
     print(f"CPU {sum(r['cpu'] for r in results):.0f} s over wall {sum(r['wall'] for r in results):.0f} s; {load_text()}")
     if failed:
         print("FAILED: a run took no view on the fly: no position figure of a fly scan", file=sys.stderr)
