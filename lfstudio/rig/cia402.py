@@ -41,6 +41,14 @@ What it does with the drives (object numbers of the CiA 402 profile):
   waits for a running command nor behind an exchange, and a stalled link delays no other drive; the drives brake on their quick-stop ramp (``605Ah`` = 6: stay in quick
   stop active once at rest, position kept). The waiting command ends with where the rig stopped;
   the next command re-enables operation.
+- **Fly scanning** (:class:`lfstudio.rig.motion.FlyingController`, :meth:`Cia402Controller.fly_to`):
+  a row is one profile position move at the row speed (``6081h``); during it the moving drive's
+  ``6064h`` is read, each read time-stamped with the middle of its question and answer (half the
+  round trip: its uncertainty). Where the drives have touch probe 1 (``60B8h``–``60BBh``, CiA 402 /
+  IEC 61800-7-201) it latches the position on both edges of the camera's exposure output
+  (:class:`lfstudio.rig.motion.LatchesPositions`). The igus dryve D1 has no touch probe and no
+  position compare (its manual's objects; its digital outputs ``60FEh`` are set by a bus write, timed
+  by this computer like a software trigger): its fly scans interpolate ``6064h`` reads, said once.
 - **Reference** established, never inferred: the rig is homed only when lfstudio homed it (or set
   its origin) on this connection, or when the operator accepts the drives' own reference
   (:meth:`Cia402Controller.accept_reference`: ``--keep-drive-reference``, the Rig panel's **Keep
