@@ -176,3 +176,48 @@ def test_cli_refuses_a_speed_slow_drives_cannot_report_with_the_numbers(tmp_path
     line = r.stderr.strip().splitlines()[-1]
     assert "--fly" in line and "60 mm/s is faster than the controller's" in line and "position reports/s" in line
     assert "Traceback" not in r.stderr and not (tmp_path / "ds" / "dataset.json").exists()
+
+
+def test_stop_during_a_row_quick_stops_the_drives_and_resume_flies_the_rest(tmp_path):
+    """STOP pressed while a row is flown on the drives (at its second trigger, from another thread as the
+    window's button would): both drives get their quick stop, the scan pauses with the STOP line, no
+    further trigger; Resume flies the row's other views again from a new run-up and the scan completes."""
+    import threading
+
+    from lfstudio.scan.events import EventKind
+
+    session, plan, ds = fly_on_drives(tmp_path / "ds", "sim-dryve")
+    try:
+        engine = FlyScanEngine(ds, plan, session.rig, session.camera, time_scale=SCALE, backoff_s=0.01,
+                               speed_mm_s=40.0)
+        cam = session.camera
+        real_trigger = cam.trigger
+        triggers: list[float] = []
+        stopper: list[threading.Thread] = []
+        mark = len(session.simulator.pair.journal)
+
+        def trigger():
+            t = real_trigger()
+            triggers.append(t)
+            if len(triggers) == 2:
+                stopper.append(threading.Thread(target=engine.rig.stop_now))
+                stopper[0].start()
+            return t
+
+        cam.trigger = trigger
+        engine.start()
+        assert engine.wait_for_state(ScanState.PAUSED, timeout_s=120), engine.message
+        stopper[0].join(30)
+        assert engine.message.startswith("STOP pressed")
+        quick = {name for name, index, _s, value in session.simulator.pair.journal[mark:]
+                 if index == 0x6040 and value == 0x0B}
+        assert quick == {"horizontal", "vertical"}
+        assert Dataset.open(ds.root).status_counts()["done"] < 12
+        logs: list[str] = []
+        engine.subscribe(lambda e: e.kind is EventKind.LOG and logs.append(e.message))
+        engine.resume()
+        assert engine.wait(300) is ScanState.FINISHED, engine.message
+        assert any(m.startswith("row 0: flying") for m in logs)     # the row's rest flown again
+    finally:
+        session.close()
+    assert recorded_views(ds.root)
