@@ -50,28 +50,17 @@ def _open(args: argparse.Namespace):
                        options=options)
 
 
-def _value(text: str):
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
-
-
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from lfstudio.rig.camera import stored
+    from lfstudio.studio.kinds import parse_settings
 
     link = _open(args)
     camera = link.camera
     try:
-        for item in args.set:
-            name, sep, value = item.partition("=")
-            if not sep:
-                raise InputError("--set", f"cannot read {item!r}", "NAME=VALUE")
-            camera.set_setting(name.strip(), _value(value.strip()))
+        for name, value in parse_settings(args.set).items():
+            camera.set_setting(name, value)
         result = stored(camera.capture(Path(args.stem)))     # an array camera's frame written to the stem
         out = {"files": [str(f) for f in result.files], "trigger_s": round(result.trigger_s, 3),
                "exposure_s": round(result.exposure_s, 3), "transfer_s": round(result.transfer_s, 3),

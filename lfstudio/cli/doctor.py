@@ -117,8 +117,7 @@ def _print_kinds() -> int:
     print("device kinds (--camera WORD, --port WORD; plugins: entry points lfstudio.cameras / lfstudio.rigs):")
     for what, kinds in (("camera", camera_kinds()), ("rig", rig_kinds())):
         for kind in kinds.values():
-            check = getattr(kind, "check", None)
-            ok, runs_on = check() if check is not None else (True, "")
+            ok, runs_on = kind.check() if kind.check is not None else (True, "")
             print(f"{'  ' if ok else 'warn'}{what} {kind.word:<20} {kind.label or kind.name}  [{kind.origin}]"
                   + (f"  {runs_on}" if runs_on else ""))
             for line in options_text(kind):

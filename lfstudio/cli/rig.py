@@ -38,6 +38,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="CiA 402 drives: accept the position the drives report as their reference without homing "
                         "(logged; the status says 'reference kept from the drive'). Without it a drive is homed "
                         "only when lfstudio homed it on this connection")
+    p.add_argument("--rig-option", action="append", default=[], metavar="NAME=VALUE",
+                   help="a connection option of the rig's kind, e.g. --rig-option poll_hz=100 (lfstudio doctor lists "
+                        "each kind's options; --baud and --timeout-s are baudrate and timeout_s)")
     p.add_argument("commands", nargs=argparse.REMAINDER, metavar="COMMAND [ARGS]",
                    help="status | home | unlock | origin | reset | units | move X Y | jog DX DY  (mm; several in a "
                         "row). units (CiA 402 drives, stopped): write the rig profile's position units (60A8h) and "
@@ -97,9 +100,9 @@ def _wait_idle(controller, timeout_s: float = 600.0):
 
 def run(args: argparse.Namespace) -> int:
     from lfstudio.rig.profile import load_rig
-    from lfstudio.studio.devices import implied_rig_profile, open_rig
-
-    from lfstudio.rig.motion import check_target
+    from lfstudio.rig.motion import ReportsProgress, check_target
+    from lfstudio.studio.devices import RigSpec, implied_rig_profile, open_rig
+    from lfstudio.studio.kinds import parse_options
 
     commands = parse_commands(args.commands)
     rig = load_rig(args.rig_profile or implied_rig_profile(args.port))     # a drive pair: named or refused
@@ -111,9 +114,12 @@ def run(args: argparse.Namespace) -> int:
     if drives_only and rig.driver != "cia402":
         raise InputError(drives_only[0], f"rig profile {rig.name!r} is a GRBL controller, not CiA 402 drives",
                          "leave it out")
-    options = {"accept_reference": True} if args.keep_drive_reference else {}
+    options: dict = {"baudrate": args.baud, "timeout_s": args.timeout_s}
+    if args.keep_drive_reference:
+        options["accept_reference"] = True
+    options.update(parse_options(RigSpec.parse(args.port).info, args.rig_option, option="--rig-option"))
     link = open_rig(args.port, rig, doing="rig commands: " + " ".join(args.commands), time_scale=args.time_scale,
-                    baudrate=args.baud, timeout_s=args.timeout_s, **options)
+                    **options)
     controller = link.controller
     try:
         if link.simulator is not None:
@@ -123,8 +129,9 @@ def run(args: argparse.Namespace) -> int:
             if word == "status":
                 status = controller.status()
             elif word == "home":
-                if hasattr(controller, "progress"):          # a drive pair: a line as each drive is homed
-                    controller.progress = lambda line: print(line, flush=True)
+                reports = link.controller
+                if isinstance(reports, ReportsProgress):     # a drive pair: a line as each drive is homed
+                    reports.progress = lambda line: print(line, flush=True)
                 controller.home()
                 status = controller.status()
             elif word == "unlock":

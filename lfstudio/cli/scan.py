@@ -80,6 +80,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera-option", action="append", default=[], metavar="NAME=VALUE",
                    help="a connection option of the camera's kind, e.g. --camera-option timeout_s=3 for genicam:ID "
                         "(lfstudio doctor lists each kind's options)")
+    p.add_argument("--rig-option", action="append", default=[], metavar="NAME=VALUE",
+                   help="a connection option of the rig's kind, e.g. --rig-option poll_hz=100 for dryve:HOST,HOST "
+                        "(lfstudio doctor lists each kind's options)")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="a camera setting before the first view, e.g. --set pixel_format=Mono16 --set exposure_s=0.01 "
+                        "(the names 'lfstudio camera' prints under settings)")
     p.add_argument("--home", action="store_true",
                    help="home the rig ($H) before the first view (with --resume: before continuing)")
     p.add_argument("--origin-here", action="store_true",
@@ -274,8 +280,23 @@ def _camera_options(args: argparse.Namespace) -> dict:
     return parse_options(camera_kind(CameraSpec.parse(args.camera).kind), args.camera_option)
 
 
+def _rig_options(args: argparse.Namespace) -> dict:
+    """``--rig-option NAME=VALUE`` checked against the options of ``--port``'s kind."""
+    if not args.rig_option:
+        return {}
+    from lfstudio.errors import InputError
+    from lfstudio.studio.devices import RigSpec
+    from lfstudio.studio.kinds import parse_options
+
+    if args.port is None:
+        raise InputError("--rig-option", "names options of no rig", "give --port with it")
+    return parse_options(RigSpec.parse(args.port).info, args.rig_option, option="--rig-option")
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
+
+    from lfstudio.studio.kinds import parse_settings
 
     from lfstudio.jobs import TerminalProgress, format_duration
     from lfstudio.rig.profile import load_rig
@@ -288,7 +309,8 @@ def run(args: argparse.Namespace) -> int:
                           keep_drive_reference=args.keep_drive_reference,
                           retries=args.retries, time_scale=args.time_scale, exposure_s=args.exposure_s,
                           transfer_s=args.transfer_s, seed=args.seed, sim_width_px=args.sim_width_px,
-                          camera_options=_camera_options(args), fly=args.fly, fly_speed_mm_s=args.fly_speed_mm_s,
+                          camera_options=_camera_options(args), rig_options=_rig_options(args),
+                          camera_settings=parse_settings(args.set), fly=args.fly, fly_speed_mm_s=args.fly_speed_mm_s,
                           keep_on_card=args.keep_on_card,
                           blur_limit_px=args.blur_limit_px, fly_trigger=args.trigger)
     request.engine_options["auto_resume"] = args.auto_resume

@@ -1,6 +1,7 @@
 """The form of a device kind (:mod:`lfstudio.studio.kinds`): its argument (what follows ``NAME:`` in the
 device word) and one field per described connection option, built from the kind's own description, so
-a kind added by a plugin gets its page in the Camera panel without any code here.
+a kind added by a plugin gets its page in the Camera panel (and its options in the Rig panel) without
+any code here.
 
 Every field is text checked by the same rules as ``--camera-option NAME=VALUE``
 (:func:`lfstudio.studio.kinds.parse_options`); an empty field keeps the option's default. Values are kept
@@ -25,7 +26,9 @@ class KindForm(QWidget):
 
     settingRequested = Signal(str, object)
 
-    def __init__(self, kind: CameraKind | RigKind, parent: QWidget | None = None):
+    def __init__(self, kind: CameraKind | RigKind, parent: QWidget | None = None, *, argument: bool = True):
+        """``argument``: a field for what follows ``NAME:`` (False: the panel has its own, the Rig panel's
+        Port field)."""
         super().__init__(parent)
         self.kind = kind
         s = settings()
@@ -38,7 +41,7 @@ class KindForm(QWidget):
         self.argument: QLineEdit | None = None
         #: the argument's field label: "ID", "Path", "Arguments"
         self.argument_label = kind.argument if len(kind.argument) <= 3 else kind.argument.capitalize()
-        if kind.argument:
+        if kind.argument and argument:
             self.argument = QLineEdit(read_text(self._key("argument"), "", s))
             self.argument.setObjectName(f"{kind.name}-argument")
             self.argument.setPlaceholderText(f"{kind.name}:{kind.argument}")

@@ -132,6 +132,18 @@ class HasStatus(Protocol):
 
 
 @runtime_checkable
+class HasName(Protocol):
+    """A driver that tells what it is called ("Simulated camera", "Ramp camera (example plugin)")."""
+
+    name: str
+
+
+def name_of(camera: Any, default: str) -> str:
+    """The camera's own name (:class:`HasName`), else ``default``."""
+    return str(camera.name) if isinstance(camera, HasName) else default
+
+
+@runtime_checkable
 class Stoppable(Protocol):
     def stop(self) -> None: ...
 

@@ -226,6 +226,28 @@ class ChecksTargets(Protocol):
     def check_target(self, x_mm: float, y_mm: float) -> tuple[float, float]: ...
 
 
+@runtime_checkable
+class HasPort(Protocol):
+    """A controller that tells what it opened (a serial port, the drives' word)."""
+
+    port: str
+
+
+@runtime_checkable
+class KnowsTruePosition(Protocol):
+    """A simulated controller that knows where its carriage really is (the simulated camera renders
+    from it)."""
+
+    def true_position_mm(self) -> tuple[float, float]: ...
+
+
+@runtime_checkable
+class HasFirmware(Protocol):
+    """A controller that tells its firmware's version (GRBL's banner: "1.1h")."""
+
+    version: str
+
+
 def check_target(config: RigConfig, x_mm: float, y_mm: float) -> tuple[float, float]:
     """Return (x, y) as floats if both are finite and inside the soft limits, else raise
     :class:`SoftLimitError` naming the axis and the valid range. Call before sending any target."""

@@ -47,7 +47,7 @@ import threading
 import time
 from concurrent.futures import Future, InvalidStateError
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Protocol, runtime_checkable
 
 from lfstudio.errors import DeviceError, DeviceTimeout, LfError
 from lfstudio.support.listeners import Listeners
@@ -55,6 +55,31 @@ from lfstudio.support.listeners import Listeners
 log = logging.getLogger(__name__)
 
 Subscriber = Callable[[Any], None]
+
+
+@runtime_checkable
+class RunsOnWorker(Protocol):
+    """A device whose driver runs on a thread of its own (:class:`DeviceWorker`): ``driver`` is the
+    driver, ``call(name, *args, timeout_s=…)`` runs one of its methods there and waits for the result."""
+
+    @property
+    def driver(self) -> Any: ...
+
+    def call(self, fn_or_name: str | Callable[..., Any], *args: Any, timeout_s: float | None = None,
+             **kwargs: Any) -> Any: ...
+
+
+def driver_of(device: Any) -> Any:
+    """The driver of ``device`` (a :class:`RunsOnWorker`'s), or the device itself when it is a driver."""
+    return device.driver if isinstance(device, RunsOnWorker) else device
+
+
+def caller_of(device: Any, timeout_s: float = 30) -> Callable[[str], Any]:
+    """``call(name)``: the driver's method ``name`` run without arguments, through the device's worker
+    when it has one (waiting at most ``timeout_s``)."""
+    if isinstance(device, RunsOnWorker):
+        return lambda name: device.call(name, timeout_s=timeout_s)
+    return lambda name: getattr(device, name)()
 
 
 class CallTimedOut(DeviceTimeout):

@@ -10,7 +10,12 @@ The words an operator uses (CLI options, the GUI's choices)::
              sim-dryve | sim-canopen            emulated drives in this process, over Modbus TCP on
                                                 127.0.0.1 / over a virtual CAN bus (the simulated studio)
     camera:  sim | instant | gphoto2 | folder:PATH | genicam:ID | NAME:ARGUMENTS (a plugin's kind)
-             (the camera kinds of :mod:`lfstudio.studio.kinds`)
+
+Both are the kinds of :mod:`lfstudio.studio.kinds`, built-in and plugins' alike (the rigs'
+words are read, opened and recorded by :mod:`lfstudio.studio.grbl_rigs` and
+:mod:`lfstudio.studio.drive_rigs`; a word no kind claims is a serial port). :class:`RigSpec` and
+:class:`CameraSpec` hold a kind's name and what its word says; :func:`open_rig`, :class:`RigLink` and
+:func:`open_camera` open, describe and record it through its kind, without a branch on its name.
 
 ``sim`` starts the GRBL simulator on a pseudo-terminal in this process and drives it with the real
 GRBL driver; ``instant`` is a rig/camera that takes no time (tests, benchmarks). A serial port is
@@ -36,25 +41,32 @@ from typing import Any, Callable, Sequence
 
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.optics import REFERENCE
-from lfstudio.rig.motion import RigConfig
-from lfstudio.support.locks import Lock, camera_lock, drive_lock, port_lock
+from lfstudio.rig.motion import HasPort, KnowsTruePosition, RigConfig
+from lfstudio.studio.kind_types import OpenedRig, close_quietly
+from lfstudio.support.locks import Lock, camera_lock, port_lock
 
 log = logging.getLogger(__name__)
 
 SIM = "sim"
 INSTANT = "instant"
-RIG_CHOICES = ("sim, instant, a serial port such as /dev/ttyUSB0, dryve:HOST[:PORT],HOST[:PORT], "
-               "canopen:CHANNEL:NODE,NODE, sim-dryve, sim-canopen or an installed plugin's NAME:ARGS")
-DRIVE_KINDS = ("dryve", "canopen", "sim-dryve", "sim-canopen")
 PLUGIN = "plugin"
+#: what each rig profile driver is called in messages: (the kind of rig, what a word of it is)
+DRIVERS = {"grbl": ("a GRBL controller", "a GRBL controller"), "cia402": ("CiA 402 drives", "a drive pair")}
+
+
+def rig_choices() -> str:
+    """The words of every rig kind (:mod:`lfstudio.studio.kinds`), for messages."""
+    from lfstudio.studio.kinds import rig_choices as choices
+
+    return choices()
 
 
 @dataclass(frozen=True)
 class RigSpec:
-    """``kind``: "sim" (simulator in this process), "instant", "serial" (``port``), "plugin" (``port``: the
-    kind's name, ``addresses``: its arguments; a rig kind from the entry points group lfstudio.rigs), or a CiA 402
-    drive pair: "dryve" (``addresses``: two ``HOST:PORT``), "canopen" (``port``: the channel,
-    ``addresses``: the two node ids), "sim-dryve" / "sim-canopen" (emulated here)."""
+    """A rig device word: ``kind``, the name of a registered rig kind (:mod:`lfstudio.studio.kinds`: "grbl"
+    for a serial port, "sim", "instant", "dryve", "canopen", "sim-dryve", "sim-canopen", a plugin's
+    name), and what its kind reads from the rest of the word: ``port`` (the serial port, the CANopen
+    channel, a plugin's arguments) and ``addresses`` (the drives' HOST:PORT, the node ids)."""
 
     kind: str
     port: str = ""
@@ -62,62 +74,39 @@ class RigSpec:
 
     @classmethod
     def parse(cls, text: str, option: str = "--port") -> "RigSpec":
-        word = (text or "").strip()
-        if not word:
-            raise InputError(option, "no rig given", RIG_CHOICES)
-        if word.lower() in (SIM, INSTANT, "sim-dryve", "sim-canopen"):
-            return cls(word.lower())
-        head, _, rest = word.partition(":")
-        if head.lower() == "dryve":
-            from lfstudio.rig.dryve import parse_address
+        from lfstudio.studio.kinds import rig_word
 
-            parts = [p for p in rest.split(",")]
-            if len(parts) != 2 or not all(p.strip() for p in parts):
-                raise InputError(option, f"{word!r}: a dryve rig names two drives, the horizontal one first",
-                                 "dryve:HOST[:PORT],HOST[:PORT], e.g. dryve:192.168.1.10,192.168.1.11")
-            addresses = tuple("%s:%d" % parse_address(p, option) for p in parts)
-            if addresses[0] == addresses[1]:
-                raise InputError(option, f"{word!r}: both axes name the same drive {addresses[0]}",
-                                 "one drive per axis, each its own address")
-            return cls("dryve", "", addresses)
-        if head.lower() == "canopen":
-            channel, _, nodes = rest.rpartition(":")
-            parts = nodes.split(",")
-            if not channel or len(parts) != 2:
-                raise InputError(option, f"{word!r}: a CANopen rig names its bus and two node ids",
-                                 "canopen:CHANNEL:NODE,NODE, e.g. canopen:can0:1,2")
-            ids = []
-            for p in parts:
-                try:
-                    n = int(p)
-                except ValueError:
-                    n = 0
-                if not 1 <= n <= 127:
-                    raise InputError(option, f"{word!r}: node id {p!r} is not 1 … 127", "canopen:can0:1,2")
-                ids.append(n)
-            if ids[0] == ids[1]:
-                raise InputError(option, f"{word!r}: both axes name node {ids[0]}", "one node per axis")
-            return cls("canopen", channel, tuple(ids))
+        kind, argument = rig_word(text, option)
+        port, addresses = kind.parse(argument, option) if kind.parse is not None else (argument, ())
+        return cls(kind.name, port, tuple(addresses))
+
+    @property
+    def info(self) -> Any:
+        """Its :class:`lfstudio.studio.kinds.RigKind` (InputError when no installed kind has its name)."""
         from lfstudio.studio.kinds import rig_kind
 
-        plugin = rig_kind(head, option) if ":" in word else None     # a plugin's NAME:ARGS (studio/kinds.py)
-        if plugin is not None:
-            return cls(PLUGIN, plugin.name, (rest.strip(),))
-        return cls("serial", word)
+        kind = rig_kind(self.kind)
+        if kind is None:
+            raise InputError("--port", f"no rig kind {self.kind!r} is installed", rig_choices())
+        return kind
 
     @property
     def drives(self) -> bool:
-        return self.kind in DRIVE_KINDS
+        """A pair of CiA 402 drives (its rig profile must be a drive pair's)."""
+        return self.info.driver == "cia402"
+
+    @property
+    def simulated(self) -> bool:
+        return self.info.simulated
 
     @property
     def text(self) -> str:
-        if self.kind == "dryve":
-            return "dryve:" + ",".join(self.addresses)
-        if self.kind == "canopen":
-            return f"canopen:{self.port}:{self.addresses[0]},{self.addresses[1]}"
-        if self.kind == PLUGIN:
-            return f"{self.port}:{self.addresses[0]}"
-        return self.port if self.kind == "serial" else self.kind
+        kind = self.info
+        if kind.text is not None:
+            return kind.text(self.port, self.addresses)
+        if kind.catch_all:
+            return self.port
+        return f"{kind.name}:{self.port}" if (kind.argument or self.port) else kind.name
 
 
 @dataclass(frozen=True)
@@ -154,19 +143,24 @@ class CameraSpec:
         return f"{self.kind}:{self.argument}" if self.argument else self.kind
 
 
-def drive_profile_names() -> list[str]:
-    """The installed rig profiles for CiA 402 drives (driver = "cia402")."""
+def profile_names(driver: str) -> list[str]:
+    """The installed rig profiles for ``driver`` ("cia402", "grbl")."""
     from lfstudio.resources import load_presets
     from lfstudio.rig.profile import rig_from_dict
 
     names = []
     for name, preset in load_presets("rigs").items():
         try:
-            if rig_from_dict(name, preset).driver == "cia402":
+            if rig_from_dict(name, preset).driver == driver:
                 names.append(name)
         except InputError:              # a broken user preset is reported where it is chosen
             continue
     return names
+
+
+def drive_profile_names() -> list[str]:
+    """The installed rig profiles for CiA 402 drives (driver = "cia402")."""
+    return profile_names("cia402")
 
 
 def rig_profile_flag(name: str) -> str:
@@ -177,16 +171,17 @@ def rig_profile_flag(name: str) -> str:
 
 
 def implied_rig_profile(spec: RigSpec | str, option: str = "--rig-profile") -> str:
-    """The rig profile a device word implies when none is given: the reference gantry for a GRBL
-    controller (a serial port, sim, instant), the preset drive pair for the drive emulators (sim-dryve,
-    sim-canopen, which are started from it). A pair of real drives has no default: their feed constants,
-    homing method and limits must be the rig's own, so the InputError names exactly what to add."""
+    """The rig profile a device word implies when none is given: its kind's (the preset drive pair for
+    the drive emulators sim-dryve and sim-canopen, which are started from it), else the reference gantry
+    (a GRBL controller, sim, instant, a plugin's rig). A pair of real drives has no default: their feed
+    constants, homing method and limits must be the rig's own, so the InputError names exactly what to add."""
     from lfstudio.rig.profile import DEFAULT_DRIVE_RIG, DEFAULT_RIG
 
     spec = RigSpec.parse(spec) if isinstance(spec, str) else spec
-    if spec.kind in ("sim-dryve", "sim-canopen"):
-        return DEFAULT_DRIVE_RIG
-    if not spec.drives:
+    kind = spec.info
+    if kind.profile:
+        return kind.profile
+    if kind.driver != "cia402":
         return DEFAULT_RIG
     names = drive_profile_names()
     example = names[0] if names else DEFAULT_DRIVE_RIG
@@ -196,19 +191,9 @@ def implied_rig_profile(spec: RigSpec | str, option: str = "--rig-profile") -> s
                      f"a profile with driver = \"cia402\" in rigs.toml, e.g. {rig_profile_flag(example)}")
 
 
-def close_quietly(obj: Any, what: str) -> None:
-    """Disconnect/close a device without hiding the problem that made us close it."""
-    if obj is None:
-        return
-    try:
-        (obj.disconnect if hasattr(obj, "disconnect") else obj.close)()
-    except Exception as exc:  # noqa: BLE001
-        log.debug("closing %s: %s", what, exc)
-
-
 class RigLink:
-    """An opened rig: ``controller`` (the driver), ``simulator`` (the in-process GRBL simulator or
-    None), ``port`` (what the driver opened) and the port's lock. :meth:`close` ends all of them."""
+    """An opened rig: ``controller`` (the driver), ``simulator`` (the simulator or emulator started in this
+    process, or None), ``port`` (what the driver opened) and its locks. :meth:`close` ends all of them."""
 
     def __init__(self, spec: RigSpec, config: RigConfig, controller: Any, simulator: Any = None,
                  lock: Any = None):
@@ -217,44 +202,30 @@ class RigLink:
         self.controller = controller
         self.simulator = simulator
         self.lock = lock
-        self.port = getattr(controller, "port", "") or spec.text
+        port = controller.port if isinstance(controller, HasPort) else ""
+        self.port = port or spec.text
 
     @property
     def simulated(self) -> bool:
-        return self.spec.kind in (SIM, "sim-dryve", "sim-canopen")
+        return self.spec.simulated
 
     def describe(self) -> str:
-        if self.spec.kind == SIM:
-            return f"simulated rig on {self.port}"
-        if self.spec.kind == INSTANT:
-            return "instant rig"
-        if self.spec.kind in ("sim-dryve", "sim-canopen"):
-            return f"emulated CiA 402 drives ({self.port})"
-        if self.spec.drives:
-            return f"CiA 402 drives {self.port}"
-        if self.spec.kind == PLUGIN:
-            return f"rig {self.spec.text}"
-        return f"rig on {self.port}"
+        kind = self.spec.info
+        return kind.describe(self) if kind.describe is not None else f"rig {self.spec.text}"
 
     def record(self) -> dict[str, Any]:
-        """What a dataset records about this rig (see docs/dataset-format.md, ``devices.rig``)."""
-        kind = {SIM: "sim", INSTANT: "instant"}.get(self.spec.kind, "grbl")
-        if self.spec.drives:
-            kind = self.spec.kind
-        if self.spec.kind == PLUGIN:
-            from lfstudio.studio.kinds import rig_kinds
+        """What a dataset records about this rig (see docs/dataset-format.md, ``devices.rig``): what its
+        kind records (``kind``, ``port``, ``firmware``), the profile, where a plugin kind came from."""
+        from lfstudio.studio.kinds import BUILT_IN
 
-            plugin = rig_kinds().get(self.spec.port)
-            return {"kind": self.spec.port, "profile": self.config.name, "port": self.spec.text,
-                    "origin": plugin.origin if plugin is not None else "plugin"}
-        rec: dict[str, Any] = {"kind": kind, "profile": self.config.name}
-        if self.spec.kind == "serial":
-            rec["port"] = self.spec.port
-        elif self.spec.kind in ("dryve", "canopen"):
+        kind = self.spec.info
+        rec: dict[str, Any] = {"kind": kind.name, "profile": self.config.name}
+        if kind.record is not None:
+            rec.update(kind.record(self))
+        else:
             rec["port"] = self.spec.text
-        version = str(getattr(self.controller, "version", "") or "").rstrip(":")
-        if version and not self.spec.drives:
-            rec["firmware"] = f"GRBL {version}"
+        if kind.origin != BUILT_IN:
+            rec["origin"] = kind.origin
         return rec
 
     def close(self, disconnect: bool = True) -> None:
@@ -269,173 +240,101 @@ class RigLink:
             self.lock.release()
 
 
+def _profile_fits(spec: RigSpec, config: RigConfig) -> None:
+    """InputError (with the window's words) when the rig profile is for another driver than the kind's."""
+    kind = spec.info
+    if not kind.driver or kind.driver == config.driver:      # a plugin's rig takes any profile
+        return
+    if config.driver == "cia402":                            # a drive pair's profile, and no drive pair
+        words = ", ".join(k.word for k in _rig_kinds().values() if k.driver == config.driver)
+        what, word = DRIVERS.get(config.driver, (f"driver {config.driver!r}", f"a {config.driver} rig"))
+        error = InputError("--rig-profile", f"rig profile {config.name!r} is for {what}, and {spec.text!r} "
+                           f"is not {word}", f"--port {words}")
+        error.window_text = (f"The rig profile {config.name!r} is for {what}, and the port {spec.text!r} is "
+                             f"not {word}: choose another profile in the Rig list, or the port of {what} "
+                             f"({words}) in the Port list")
+        raise error
+    names = profile_names(kind.driver)
+    what = DRIVERS.get(kind.driver, (kind.label,))[0]
+    have = DRIVERS.get(config.driver, (f"driver {config.driver!r}",))[0]
+    error = InputError("--rig-profile", f"{spec.text!r} is {'a pair of ' if kind.driver == 'cia402' else ''}"
+                       f"{what}, and rig profile {config.name!r} is for {have}"
+                       + (" (no feed constants or homing methods)" if kind.driver == "cia402" else ""),
+                       " or ".join(rig_profile_flag(n) for n in names) if names else
+                       f"a profile with driver = \"{kind.driver}\" in rigs.toml")
+    error.window_text = (f"The port {spec.text!r} is {what}, and the rig profile {config.name!r} is for {have}: "
+                         f"choose its profile in the Rig list"
+                         + (f" ({' or '.join(repr(n) for n in names)})" if names else
+                            f" (add one with driver = \"{kind.driver}\" to rigs.toml)"))
+    raise error
+
+
+def _rig_kinds() -> dict[str, Any]:
+    from lfstudio.studio.kinds import rig_kinds
+
+    return rig_kinds()
+
+
+#: the device word of each rig driver open_rig made (by id, with a weak reference to tell a reused id)
+_OPENED_RIGS: dict[int, tuple[Any, RigSpec]] = {}
+
+
 def open_rig(spec: RigSpec | str, config: RigConfig, *, doing: str = "", time_scale: float = 1.0, seed: int = 0,
              connect: bool = True, lock: bool = True, **controller_options: Any) -> RigLink:
-    """Open the rig ``spec`` names: start the simulator for ``sim``, take the port's lock (raises
-    :class:`lfstudio.support.locks.LockBusy` naming the holder), build the driver and, with
-    ``connect``, connect it (in this thread; the GUI connects on the device's worker instead)."""
-    spec = RigSpec.parse(spec) if isinstance(spec, str) else spec
-    if spec.kind == PLUGIN:
-        return _open_plugin_rig(spec, config, doing=doing, connect=connect, lock=lock)
-    if spec.drives or config.driver == "cia402":
-        return _open_drives(spec, config, doing=doing, time_scale=time_scale, seed=seed, connect=connect,
-                            lock=lock, **controller_options)
-    if spec.kind == INSTANT:
-        from lfstudio.studio.simulated import InstantRig
-
-        rig = InstantRig(config)
-        if connect:
-            rig.connect()
-        return RigLink(spec, config, rig)
-    from lfstudio.rig.grbl import GrblController
-
-    simulator = None
-    port_lk: Lock | None = None
-    try:
-        if spec.kind == SIM:
-            from lfstudio.studio.simulated import start_simulator
-
-            simulator = start_simulator(config, time_scale=time_scale, seed=seed)
-            if simulator.port is None:                    # start() opens it, or raises
-                raise DeviceError("the simulated rig did not open its serial port")
-            port = simulator.port
-        else:
-            port = spec.port
-        if lock:
-            port_lk = port_lock(port, doing).acquire()
-        controller = GrblController(port, config, **controller_options)
-        link = RigLink(spec, config, controller, simulator, port_lk)
-        if connect:
-            controller.connect()
-    except BaseException:
-        if port_lk is not None:
-            port_lk.release()
-        if simulator is not None:
-            close_quietly(simulator, "the GRBL simulator")
-        raise
-    return link
-
-
-def _open_plugin_rig(spec: RigSpec, config: RigConfig, *, doing: str, connect: bool, lock: bool) -> RigLink:
-    """A rig kind from a plugin (entry points group lfstudio.rigs): its factory's controller, locked by
-    the kind's lock key, connected with ``connect``."""
+    """Open the rig ``spec`` names through its kind (:mod:`lfstudio.studio.kinds`): a simulator started when
+    the kind runs one, its OS locks taken (raises :class:`lfstudio.support.locks.LockBusy` naming the
+    holder), the driver built and, with ``connect``, connected (in this thread; the GUI connects on the
+    device's worker instead). ``controller_options``: keyword options of the driver; the kind gets those
+    its described options name (``--rig-option``, the Rig panel's form; others are for other kinds)."""
     from lfstudio.rig.motion import MotionController
-    from lfstudio.studio.kinds import OpenContext, rig_kind
+    from lfstudio.studio.kinds import OpenContext
 
-    kind = rig_kind(spec.port)
-    assert kind is not None, "RigSpec.parse found it"
-    argument = spec.addresses[0] if spec.addresses else ""
+    spec = RigSpec.parse(spec) if isinstance(spec, str) else spec
+    kind = spec.info
+    _profile_fits(spec, config)
+    argument = spec.port if kind.catch_all else spec.text.partition(":")[2]     # what follows NAME:
     key = kind.lock_key(argument) if (lock and kind.lock_key is not None) else None
     lk = port_lock(key, doing).acquire() if key else None
     try:
-        controller = kind.open(argument, OpenContext(doing, config=config))
-        if not isinstance(controller, MotionController):
-            missing = [m for m in ("connect", "home", "move_to", "stop", "status") if not callable(getattr(controller, m, None))]
-            raise DeviceError(f"rig kind {kind.name!r} ({kind.origin}) gave a {type(controller).__name__}, which is "
-                              f"not a motion controller (it lacks {', '.join(missing) or 'part of lfstudio/rig/motion.py'})")
-        link = RigLink(spec, config, controller, lock=lk)
-        if connect:
-            controller.connect()
+        options = {k: v for k, v in controller_options.items() if k in kind.option_params()}   # its own only
+        opened = kind.open(argument, OpenContext(doing, config=config, time_scale=time_scale, seed=seed,
+                                                 connect=connect, lock=lock, options=options))
+        if isinstance(opened, OpenedRig):       # a simulator, locks of its own, an emulator's address
+            shown = RigSpec(spec.kind, spec.port if opened.port is None else opened.port,
+                            spec.addresses if opened.addresses is None else tuple(opened.addresses))
+            link = RigLink(shown, config, opened.controller, opened.simulator, _Both(opened.lock, lk))
+            lk = None
+        else:
+            if not isinstance(opened, MotionController):
+                missing = [m for m in ("connect", "home", "move_to", "stop", "status")
+                           if not callable(getattr(opened, m, None))]
+                raise DeviceError(f"rig kind {kind.name!r} ({kind.origin}) gave a {type(opened).__name__}, which is "
+                                  f"not a motion controller (it lacks {', '.join(missing) or 'part of lfstudio/rig/motion.py'})")
+            link = RigLink(spec, config, opened, lock=lk)
+            lk = None
+            if connect:
+                try:
+                    opened.connect()
+                except BaseException:
+                    link.close(disconnect=False)
+                    raise
     except BaseException:
         if lk is not None:
             lk.release()
         raise
+    _remember(link.controller, link.spec, _OPENED_RIGS)
     return link
 
 
-class _Locks:
-    """The locks of a rig's drives (one per address), released together."""
+class _Both:
+    """Two locks released together (a kind's own and the one of its lock key)."""
 
-    def __init__(self, locks: list[Lock]):
-        self.locks = locks
+    def __init__(self, first: Any, second: Any):
+        self.locks = [lk for lk in (first, second) if lk is not None]
 
     def release(self) -> None:
         for lk in self.locks:
             lk.release()
-
-
-#: the drive options of ``lfstudio rig`` etc. that the CiA 402 driver takes
-_DRIVE_OPTIONS = ("timeout_s", "poll_hz", "tolerance_mm", "stall_s", "accept_reference", "known_objects")
-
-
-def _open_drives(spec: RigSpec, config: RigConfig, *, doing: str, time_scale: float, seed: int, connect: bool,
-                 lock: bool, **controller_options: Any) -> RigLink:
-    """A CiA 402 drive pair: the emulators for ``sim-dryve``/``sim-canopen``, one lock per drive
-    address, the links and the driver (connected with ``connect``)."""
-    if not spec.drives:
-        error = InputError("--rig-profile", f"rig profile {config.name!r} is for CiA 402 drives, and {spec.text!r} "
-                           "is not a drive pair", "--port dryve:HOST,HOST, canopen:CHANNEL:NODE,NODE or sim-dryve")
-        error.window_text = (f"The rig profile {config.name!r} is for CiA 402 drives, and the port {spec.text!r} is "
-                             "not a drive pair: choose a GRBL profile in the Rig list, or the drives' port "
-                             "(Simulated drives, dryve:HOST,HOST or canopen:CHANNEL:NODE,NODE) in the Port list")
-        raise error
-    if config.driver != "cia402":
-        names = drive_profile_names()
-        error = InputError("--rig-profile", f"{spec.text!r} is a pair of CiA 402 drives, and rig profile "
-                           f"{config.name!r} is for a GRBL controller (no feed constants or homing methods)",
-                           " or ".join(rig_profile_flag(n) for n in names) if names else
-                           "a profile with driver = \"cia402\" in rigs.toml")
-        error.window_text = (f"The port {spec.text!r} is a pair of CiA 402 drives, and the rig profile {config.name!r} "
-                             "is for a GRBL controller: choose the drives' profile in the Rig list"
-                             + (f" ({' or '.join(repr(n) for n in names)})" if names else
-                                " (add one with driver = \"cia402\" to rigs.toml)"))
-        raise error
-    from lfstudio.rig.cia402 import Cia402Controller
-
-    simulator: Any = None
-    locks: list[Lock] = []
-    options = {k: v for k, v in controller_options.items() if k in _DRIVE_OPTIONS}
-    try:
-        if spec.kind == "sim-dryve":
-            from lfstudio.studio.simulated import start_drive_emulator
-
-            simulator = start_drive_emulator(config, "modbus", time_scale=time_scale, seed=seed)
-            spec = RigSpec.parse(simulator.word)
-        elif spec.kind == "sim-canopen":
-            from lfstudio.studio.simulated import start_drive_emulator
-
-            simulator = start_drive_emulator(config, "canopen", time_scale=time_scale, seed=seed)
-            spec = RigSpec.parse(simulator.word)
-        # an EDS/DCF named by the profile: the drive's objects are the file's (python-canopen parses it)
-        dictionaries: list[Any] = [None, None]
-        known: list[set | None] = [None, None]
-        for i, axis in enumerate((config.horizontal, config.vertical)):
-            if axis.eds_file:
-                from lfstudio.rig.cia402 import load_object_dictionary
-
-                node = int(spec.addresses[i]) if spec.kind == "canopen" else 1
-                dictionaries[i], known[i] = load_object_dictionary(
-                    axis.eds_file, node, f"rig {config.name!r} {axis.name}.eds_file (drive {'xy'[i]})")
-        if known != [None, None]:
-            options["known_objects"] = (known[0], known[1])
-        if spec.kind == "dryve":
-            from lfstudio.rig.dryve import DryveLink, parse_address
-
-            x, y = spec.addresses
-            links = (DryveLink(*parse_address(x), timeout_s=options.get("timeout_s", 1.0)),
-                     DryveLink(*parse_address(y), timeout_s=options.get("timeout_s", 1.0)))
-        else:
-            from lfstudio.rig.canopen_link import CanopenLink
-
-            x, y = spec.addresses
-            links = (CanopenLink(spec.port, x, timeout_s=options.get("timeout_s", 1.0), object_dictionary=dictionaries[0]),
-                     CanopenLink(spec.port, y, timeout_s=options.get("timeout_s", 1.0), object_dictionary=dictionaries[1]))
-        if lock:
-            for link in links:
-                locks.append(drive_lock(link.address, doing).acquire())
-        controller = Cia402Controller(links, config, port=spec.text, **options)
-        kind_spec = RigSpec(spec.kind if simulator is None else ("sim-dryve" if spec.kind == "dryve" else "sim-canopen"),
-                            spec.port, spec.addresses)
-        rig_link = RigLink(kind_spec, config, controller, simulator, _Locks(locks))
-        if connect:
-            controller.connect()
-    except BaseException:
-        for lk in locks:
-            lk.release()
-        if simulator is not None:
-            close_quietly(simulator, "the emulated drives")
-        raise
-    return rig_link
 
 
 @dataclass
@@ -450,7 +349,7 @@ class CameraLink:
         """What a dataset records about this camera (``devices.camera``): kind, model and serial when
         the driver tells them (``identity()`` or ``status().model``), what the kind records (the hot
         folder), where a plugin kind came from."""
-        from lfstudio.rig.camera import HasIdentity, HasStatus
+        from lfstudio.rig.camera import HasIdentity, HasStatus, name_of
         from lfstudio.studio.kinds import BUILT_IN, camera_kind
 
         rec: dict[str, Any] = {"kind": self.spec.kind, "spec": self.spec.text}
@@ -459,7 +358,7 @@ class CameraLink:
         except InputError:
             kind = None
         if kind is not None and kind.simulated:      # its settings (image size, ...) are not its identity
-            rec["model"] = getattr(self.camera, "name", self.spec.kind)
+            rec["model"] = name_of(self.camera, self.spec.kind)
             return rec
         if kind is not None and kind.record is not None:
             rec.update(kind.record(self.spec.argument))
@@ -482,7 +381,7 @@ class CameraLink:
         for key in ("model", "serial", "lens"):
             if info.get(key):
                 rec[key] = str(info[key])
-        rec.setdefault("model", getattr(self.camera, "name", self.spec.kind))
+        rec.setdefault("model", name_of(self.camera, self.spec.kind))
         return rec
 
     def close(self, disconnect: bool = True) -> None:
@@ -544,29 +443,34 @@ def open_camera(spec: CameraSpec | str, *, position_mm: Callable[[], tuple[float
 
 
 def link_for_rig(controller: Any, config: RigConfig, simulated: bool = False) -> RigLink:
-    """A :class:`RigLink` (without lock) for a driver opened elsewhere, its kind told by its type."""
+    """A :class:`RigLink` (without lock) for a driver opened elsewhere: the word :func:`open_rig` opened it
+    by, else its kind told by its port (``simulated``: the kind that simulates that one)."""
     from lfstudio.studio.simulated import InstantRig
 
+    ref, opened = _OPENED_RIGS.get(id(controller), (None, None))
+    if ref is not None and ref() is controller and opened is not None:
+        return RigLink(opened, config, controller)
     if isinstance(controller, InstantRig):
         return RigLink(RigSpec(INSTANT), config, controller)
-    port = getattr(controller, "port", "") or "?"
-    if config.driver == "cia402":
-        spec = RigSpec.parse(port)
-        if simulated:
-            spec = RigSpec("sim-dryve" if spec.kind == "dryve" else "sim-canopen", spec.port, spec.addresses)
-        return RigLink(spec, config, controller)
-    return RigLink(RigSpec(SIM) if simulated else RigSpec("serial", port), config, controller)
+    port = (controller.port if isinstance(controller, HasPort) else "") or "?"
+    spec = RigSpec.parse(port)
+    if simulated:
+        twin = next((k for k in _rig_kinds().values() if k.simulates == spec.kind), None)
+        if twin is not None:
+            spec = RigSpec(twin.name, spec.port, spec.addresses)
+    return RigLink(spec, config, controller)
 
 
 #: the device word of each camera driver open_camera made (by id, with a weak reference to tell a reused id)
 _OPENED: dict[int, tuple[Any, CameraSpec]] = {}
 
 
-def _remember(camera: Any, spec: CameraSpec) -> None:
-    for key in [k for k, (ref, _) in _OPENED.items() if ref() is None]:
-        del _OPENED[key]
+def _remember(device: Any, spec: Any, table: dict[int, tuple[Any, Any]] | None = None) -> None:
+    table = _OPENED if table is None else table
+    for key in [k for k, (ref, _) in table.items() if ref() is None]:
+        del table[key]
     try:
-        _OPENED[id(camera)] = (weakref.ref(camera), spec)
+        table[id(device)] = (weakref.ref(device), spec)
     except TypeError:          # a driver that cannot be weakly referenced: told by its type instead
         pass
 
@@ -688,7 +592,7 @@ def open_studio(rig: RigSpec | str, camera: CameraSpec | str, rig_config: RigCon
             else:
                 link.controller.set_origin()
             position = link.simulator.true_position_mm
-        elif rig_spec.kind == INSTANT:
+        elif isinstance(link.controller, KnowsTruePosition):        # the instant rig
             position = link.controller.true_position_mm
         elif cam_spec.kind in (SIM, INSTANT):
             from lfstudio.studio.simulated import truth_source

@@ -28,78 +28,19 @@ from __future__ import annotations
 import dataclasses
 import logging
 import threading
-from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Sequence
 
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.numbers import Number, Param, described, params_of
+from lfstudio.studio.kind_types import BUILT_IN, CameraKind, OpenContext, OpenedRig, RigKind
+
+__all__ = ["BUILT_IN", "CameraKind", "OpenContext", "OpenedRig", "RigKind"]   # the declarations, for plugins
 
 log = logging.getLogger(__name__)
 
 CAMERA_GROUP = "lfstudio.cameras"
 RIG_GROUP = "lfstudio.rigs"
-BUILT_IN = "built-in"
-
-
-@dataclass(frozen=True)
-class OpenContext:
-    """What opening a camera may need besides its argument: ``doing`` (for lock messages),
-    ``position_mm`` (where the simulated camera is), the hot folder's ``trigger_command`` and the
-    driver's keyword ``options`` (its checked connection options and the studio's extras)."""
-
-    doing: str = ""
-    position_mm: Callable[[], tuple[float, float]] | None = None
-    trigger_command: Sequence[str] | None = None
-    options: dict[str, Any] = field(default_factory=dict)
-    config: Any = None            # a rig's RigConfig (its profile), for a rig kind
-
-
-@dataclass(frozen=True)
-class CameraKind:
-    """One kind of camera (see the module docstring)."""
-
-    name: str
-    open: Callable[[str, OpenContext], Any]
-    label: str = ""
-    argument: str = ""                       # metavar of the text after NAME: ("" = takes none)
-    options: Any = None                      # a described dataclass of connection options, or None
-    lock_key: Callable[[str], str | None] | None = None
-    record: Callable[[str], dict[str, Any]] | None = None
-    normalise: Callable[[str, str], str] | None = None   # (argument, option) -> the argument as stored
-    simulated: bool = False                  # renders a virtual scene (its settings are not its identity)
-    help: str = ""
-    origin: str = BUILT_IN
-    #: () -> (usable, what it runs on or why not), for lfstudio doctor (None: nothing to check)
-    check: Callable[[], tuple[bool, str]] | None = None
-
-    @property
-    def word(self) -> str:
-        """How the word is written: ``gphoto2``, ``folder:PATH``."""
-        return f"{self.name}:{self.argument}" if self.argument else self.name
-
-    def option_params(self) -> dict[str, Param]:
-        return params_of(self.options) if self.options is not None else {}
-
-
-@dataclass(frozen=True)
-class RigKind:
-    """A third-party kind of rig (entry point group ``lfstudio.rigs``): ``open(argument, context)``
-    returns a :class:`lfstudio.rig.motion.MotionController` (``context.config``: the rig profile). The
-    built-in rigs (GRBL, CiA 402 drives) are the words of :class:`lfstudio.studio.devices.RigSpec`;
-    ``--port NAME:ARGS`` reaches a plugin's."""
-
-    name: str
-    open: Callable[[str, OpenContext], Any]
-    label: str = ""
-    argument: str = ""
-    options: Any = None
-    lock_key: Callable[[str], str | None] | None = None
-    help: str = ""
-    origin: str = BUILT_IN
-
-    @property
-    def word(self) -> str:
-        return f"{self.name}:{self.argument}" if self.argument else self.name
 
 
 class _Registry:
@@ -123,6 +64,8 @@ def register_camera(kind: CameraKind) -> None:
 
 
 def register_rig(kind: RigKind) -> None:
+    """Add a rig kind; InputError when its name is taken (by a built-in kind or another plugin)."""
+    _ensure_builtins()
     _register(_REG.rigs, kind, "rig")
 
 
@@ -269,9 +212,13 @@ def camera_kind(name: str, option: str = "--camera") -> CameraKind:
     raise InputError(option, f"unknown camera kind {name!r}", "one of " + camera_choices())
 
 
+def rig_choices() -> str:
+    """The words of every rig kind, for messages: ``sim, instant, PORT, dryve:HOST[:PORT],HOST[:PORT], ...``."""
+    return ", ".join(kind.word for kind in rig_kinds().values())
+
+
 def rig_kind(name: str, option: str = "--port") -> RigKind | None:
-    """The plugin rig kind called ``name`` (None: not a plugin's; the built-in words are RigSpec's);
-    InputError when two plugins claim it."""
+    """The rig kind called ``name`` (None: no kind has that name); InputError when two plugins claim it."""
     kind = rig_kinds().get(name.strip().lower())
     if kind is not None:
         return kind
@@ -280,6 +227,28 @@ def rig_kind(name: str, option: str = "--port") -> RigKind | None:
         raise InputError(option, f"rig kind {name!r} is claimed by {' and '.join(contested)}",
                          "uninstall one of them (lfstudio doctor lists the kinds)")
     return None
+
+
+def rig_word(text: str, option: str = "--port") -> tuple[RigKind, str]:
+    """The kind a rig's device word names and its argument: ``NAME`` or ``NAME:ARGUMENT`` of a registered
+    kind, else the whole word is the argument of the catch-all kind (a serial port). InputError when the
+    word is empty, or names no kind and none catches all."""
+    word = (text or "").strip()
+    if not word:
+        raise InputError(option, "no rig given", "one of " + rig_choices())
+    head, sep, rest = word.partition(":")
+    kind = rig_kind(head, option)
+    if kind is not None and not kind.catch_all and (sep or not kind.argument or kind.parse is not None
+                                                    or kind.origin == BUILT_IN):
+        if not kind.argument and rest.strip():
+            raise InputError(option, f"{word!r}: the {kind.name} rig takes nothing after '{kind.name}:'", kind.name)
+        return kind, rest.strip()
+    if kind is not None and kind.catch_all and sep:      # grbl:/dev/ttyUSB0, as well as /dev/ttyUSB0
+        return kind, rest.strip()
+    for candidate in rig_kinds().values():
+        if candidate.catch_all:
+            return candidate, word
+    raise InputError(option, f"unknown rig kind {head!r}", "one of " + rig_choices())
 
 
 def split_word(text: str) -> tuple[str, str]:
@@ -329,6 +298,25 @@ def parse_options(kind: CameraKind | RigKind, items: Sequence[str] | dict[str, A
             known = ", ".join(params) if params else "none"
             raise InputError(option, f"{kind.name} has no option {key!r}", f"its options: {known}")
         out[key] = param.check(f"{option} {key}", _value_of(param, value) if isinstance(value, str) else value)
+    return out
+
+
+def parse_settings(items: Sequence[str], option: str = "--set") -> dict[str, Any]:
+    """``NAME=VALUE`` camera settings (``lfstudio camera --set``, ``lfstudio scan --set``): a number where
+    the value reads as one, else the text; the camera checks each against its own description."""
+    out: dict[str, Any] = {}
+    for item in items:
+        name, sep, text = str(item).partition("=")
+        if not sep or not name.strip():
+            raise InputError(option, f"cannot read {item!r}", "NAME=VALUE, e.g. --set pixel_format=Mono16")
+        value: Any = text.strip()
+        for kind in (int, float):
+            try:
+                value = kind(text.strip())
+                break
+            except ValueError:
+                pass
+        out[name.strip()] = value
     return out
 
 
@@ -448,3 +436,13 @@ def _ensure_builtins() -> None:
         _builtins_done = True
         for kind in _builtin_cameras():
             register_camera(kind)
+        for rig in _builtin_rigs():
+            register_rig(rig)
+
+
+def _builtin_rigs() -> list[RigKind]:
+    """The built-in rig kinds, each declared in its own module beside its driver's set-up."""
+    from lfstudio.studio.drive_rigs import DRIVE_KINDS
+    from lfstudio.studio.grbl_rigs import GRBL_KINDS
+
+    return [*GRBL_KINDS, *DRIVE_KINDS]

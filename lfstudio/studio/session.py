@@ -46,8 +46,10 @@ from lfstudio.dataset.paths import check_new_dataset_folder, view_label
 from lfstudio.errors import DeviceError, InputError, LfError
 from lfstudio.numbers import EXPOSURE_S, RETRIES, TIME_SCALE, TRANSFER_S
 from lfstudio.optics import REFERENCE
-from lfstudio.rig.camera import HasCardSpace, HasIdentity
+from lfstudio.planning.scene_plan import ScenePlan
+from lfstudio.rig.camera import Camera, HasCardSpace, HasIdentity, name_of
 from lfstudio.rig.motion import ChecksTargets, RigConfig, RigState, SoftLimitError
+from lfstudio.rig.worker import RunsOnWorker, caller_of, driver_of
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.studio.devices import (SIM, CameraSpec, RigSpec, Studio, implied_rig_profile, open_studio,
                                      rig_profile_flag)
@@ -104,14 +106,14 @@ def describe_camera(camera: Any, scene: Any = None) -> tuple[dict, dict]:
     """The manifest's camera and lens entries: from the scene plan, else from the simulated studio,
     else the driver's name; with what a real camera reports of itself (model, serial, lens)."""
     identity = camera.identity() if isinstance(camera, HasIdentity) else {}
-    if scene is not None and hasattr(scene, "camera_dict"):
+    if isinstance(scene, ScenePlan):
         return {**identity, **scene.camera_dict()}, scene.lens_dict()
     from lfstudio.studio.simulated import describe_simulated_camera
 
     described = describe_simulated_camera(camera)
     if described is not None:
         return described
-    return ({"name": identity.get("model") or getattr(camera, "name", "camera"), **identity},
+    return ({"name": identity.get("model") or name_of(camera, "camera"), **identity},
             {"name": identity.get("lens") or "unknown"})
 
 
@@ -307,7 +309,7 @@ def prepare_rig(rig: Any, config: RigConfig, port: str, *, home: bool = False, o
     the rig kept this dataset's reference although another scan used it since (:class:`RigUsedSince`).
     ``keep_reference``: the operator accepts the CiA 402 drives' own reference without homing (logged;
     the drives are never taken as homed otherwise). Raises InputError/DeviceError with one line."""
-    if hasattr(rig, "call") and hasattr(rig, "driver"):          # a DeviceWorker: call through its queue
+    if isinstance(rig, RunsOnWorker):                            # a DeviceWorker: call through its queue
         rig = _WorkerCalls(rig)
     fix = how_to_home or cli_homing_hint(port, config)
     notes: list[str] = []
@@ -395,7 +397,7 @@ def check_plan_on_controller(rig: Any, plan: ScanPlan) -> None:
     ``$130``/``$131`` with its soft limits on), once it is connected and before the first move: each view
     would otherwise be refused, retried and the scan stopped with advice about the cable. The corners
     of the grid are checked by the driver's own ``check_target`` (nothing is sent)."""
-    driver = getattr(rig, "driver", rig)
+    driver = driver_of(rig)
     if not isinstance(driver, ChecksTargets):
         return
     check = driver.check_target
@@ -469,6 +471,10 @@ class ScanRequest:
     sim_width_px: int | None = None
     trigger_command: Sequence[str] | None = None
     camera_options: dict[str, Any] = field(default_factory=dict)
+    #: the rig kind's connection options (lfstudio scan --rig-option; the window: the Rig panel's form)
+    rig_options: dict[str, Any] = field(default_factory=dict)
+    #: camera settings made before the first view (lfstudio scan --set; the window: the Camera panel)
+    camera_settings: dict[str, Any] = field(default_factory=dict)
     engine_options: dict[str, Any] = field(default_factory=dict)
     trust_rig_position: bool = False
     keep_drive_reference: bool = False
@@ -613,20 +619,27 @@ class ScanSession:
                                  "leave --bracket out with --resume, or scan into a new --out folder")
         if self.shared is None:
             rig_spec, cam_spec = RigSpec.parse(rig_words), CameraSpec.parse(cam_words)
-            if record is not None and req.rig is None and rig_spec.kind == "serial" and \
+            if record is not None and req.rig is None and rig_spec.kind == "grbl" and \
                     rig_spec.port.startswith("/") and not os.path.exists(rig_spec.port):
                 raise DeviceError(f"the dataset was captured with the rig on {rig_spec.port}, which is not there now: "
                                   "connect the rig, or give the port it has now with --port PORT")
             self.note(f"connecting the rig ({rig_spec.text}) and the camera ({cam_spec.text})"   # homing takes a while: say so
-                      + (" (the simulated rig homes first)" if rig_spec.kind in ("sim", "sim-dryve", "sim-canopen")
+                      + (" (the simulated rig homes first)" if rig_spec.simulated
                          and config.homing else ""))
             studio = self.studio = open_studio(
                 rig_spec, cam_spec, config, doing=f"{self.doing} {self.folder}", time_scale=req.time_scale,
                 exposure_s=req.exposure_s, transfer_s=req.transfer_s, seed=req.seed,
                 view_region_mm=plan.extent_mm(), sim_width_px=req.sim_width_px,
-                trigger_command=req.trigger_command, camera_options=req.camera_options, say=self.note)
+                trigger_command=req.trigger_command, camera_options=req.camera_options, say=self.note,
+                **req.rig_options)
             for line in studio.notes:
                 self.note(line)
+            for name, value in req.camera_settings.items():      # --set: before the first view
+                try:
+                    studio.camera.set_setting(name, value)
+                except InputError as exc:                        # the camera's own check, named by the option
+                    raise InputError(f"--set {name}", str(exc).split(": ", 1)[-1]) from None
+                self.note(f"camera setting {name} = {value}")
             rig, camera, current, port = studio.rig, studio.camera, studio.record(), studio.port
             fresh = studio.simulator is not None or rig_spec.kind == "instant"   # set up just now, homed
             how_to_home = None
@@ -669,11 +682,11 @@ class ScanSession:
             self._check_bracket(plan.bracket, camera)
         self._check_space(plan.with_subset(req.recapture) if req.recapture else plan, camera, scene, existing)
         if existing is None:
-            camera_info, lens = describe_camera(getattr(camera, "driver", camera), scene)
+            camera_info, lens = describe_camera(driver_of(camera), scene)
             camera_info.setdefault("driver", cam_text)
             rig_info = {"name": config.name, "label": config.label, "port": rig_text}
             dataset = create_scan_dataset(self.folder, plan, rig=rig_info, camera=camera_info, lens=lens,
-                                          scene_plan=scene.to_dict() if hasattr(scene, "to_dict") else None,
+                                          scene_plan=scene.to_dict() if isinstance(scene, ScenePlan) else None,
                                           devices=current)
         else:
             dataset = existing
@@ -727,9 +740,8 @@ class ScanSession:
             raise InputError(fly_words, "an exposure bracket needs the carriage to stand still", "one picture per view")
         if req.time_scale <= 0:
             raise InputError(words("--time-scale", "Simulation time scale"), "a fly scan needs simulated time to pass", "> 0 for a fly scan")
-        driver = getattr(camera, "driver", camera)
-        rig_driver = getattr(rig, "driver", rig)
-        settings = driver.settings() if callable(getattr(driver, "settings", None)) else {}
+        driver, rig_driver = driver_of(camera), driver_of(rig)
+        settings = driver.settings() if isinstance(driver, Camera) else {}
         exposure = settings.get("shutter_s", settings.get("exposure_s"))
         if not isinstance(exposure, (int, float)) or exposure <= 0:
             raise InputError(fly_words, "the camera does not tell its exposure time", "a camera reporting shutter_s")
@@ -798,10 +810,7 @@ class ScanSession:
         before the dataset is made (the disk is checked for every scan: :meth:`_check_space`)."""
         from lfstudio.scan.engine import bracket_on_camera
 
-        driver = getattr(camera, "driver", camera)
-        call = (lambda name: camera.call(name, timeout_s=30)) if hasattr(camera, "driver") else \
-            (lambda name: getattr(camera, name)())
-        times, _ = bracket_on_camera(bracket, driver, call)
+        times, _ = bracket_on_camera(bracket, driver_of(camera), caller_of(camera))
         self.note(f"exposure bracket {bracket.describe()}: " + ", ".join(f"{t:.6g} s" for t in times)
                   + " at every view")
 
@@ -817,10 +826,10 @@ class ScanSession:
         finished = {(v["row"], v["column"]) for v in existing.views if is_finished(v)} if existing is not None else set()
         views = sum(1 for v in plan.views() if self.request.recapture or v.cell not in finished)
         frames = plan.bracket.frames if plan.bracket is not None else 1
-        driver = getattr(camera, "driver", camera)
+        driver = driver_of(camera)
         info, _ = describe_camera(driver)
         per_image = None
-        if scene is not None and hasattr(scene, "derive") and info.get("sensor_px") is None:
+        if isinstance(scene, ScenePlan) and info.get("sensor_px") is None:
             try:
                 per_image = scene.derive(check_travel=False).bytes_per_image
             except (LfError, ValueError, ArithmeticError) as exc:     # the plan was checked before: a note only
@@ -839,10 +848,8 @@ class ScanSession:
             if short is not None:
                 raise short
         if isinstance(driver, HasCardSpace):
-            call = (lambda name: camera.call(name, timeout_s=30)) if hasattr(camera, "driver") else \
-                (lambda name: getattr(camera, name)())
             try:
-                card = call("card_space")
+                card = caller_of(camera)("card_space")
             except (DeviceError, OSError) as exc:        # where the driver cannot read it: a note
                 self.note(f"the camera's card space could not be read ({exc})")
                 card = None

@@ -5,10 +5,14 @@ refused while one holds the rig.
 
 Each kind on its real stack: the GRBL simulator on a pseudo-terminal, the GRBL 1.1h firmware (the
 official simulator built from ../shared/vendor/grbl; skips without it), the CiA 402 driver against the
-emulated igus dryve D1 pair over Modbus TCP on 127.0.0.1 and over CANopen on python-can's virtual bus."""
+emulated igus dryve D1 pair over Modbus TCP on 127.0.0.1 and over CANopen on python-can's virtual bus.
+A built-in rig kind without a case here (or a case of the kind that simulates it) fails
+:func:`test_every_registered_rig_kind_has_a_contract_case`. Installed plugins' kinds run it too when
+named in ``LFSTUDIO_CONTRACT_RIGS`` (tests/studio/test_plugins.py does so for the documented example)."""
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -54,6 +58,32 @@ def _canopen(request) -> Case:
 
 
 CASES = {"grbl-sim": _sim, "grbl-firmware": _firmware, "cia402-modbus": _dryve, "cia402-canopen": _canopen}
+#: the rig kind each case opens (a case of "sim-dryve" also covers "dryve": the same driver and links)
+KIND_OF = {"grbl-sim": "sim", "grbl-firmware": "grbl", "cia402-modbus": "sim-dryve", "cia402-canopen": "sim-canopen"}
+#: built-in kinds without a case: the instant rig takes no time (nothing to stop mid-move; tests only)
+NO_CASE = {"instant"}
+
+
+def _installed(spec: str) -> Callable[[Any], Case]:
+    """A plugin's kind from ``LFSTUDIO_CONTRACT_RIGS``: ``WORD|NAME=VALUE,...`` (its word, its options)."""
+    word, _, items = spec.partition("|")
+    return lambda request: Case(word.strip(), GANTRY, True, {
+        k.strip(): float(v) for k, _, v in (item.partition("=") for item in items.split(",") if item)},
+        shared_word=lambda link: link.spec.text)
+
+
+#: installed plugins' kinds run the same contract: LFSTUDIO_CONTRACT_RIGS="sled:bench|speed_mm_s=1000;..."
+for _spec in filter(None, os.environ.get("LFSTUDIO_CONTRACT_RIGS", "").split(";")):
+    CASES[f"plugin:{_spec.partition('|')[0]}"] = _installed(_spec)
+
+
+def test_every_registered_rig_kind_has_a_contract_case():
+    from lfstudio.studio.kinds import BUILT_IN, rig_kinds
+
+    kinds = rig_kinds()
+    covered = set(KIND_OF.values()) | {kinds[k].simulates for k in KIND_OF.values()} | NO_CASE
+    missing = [name for name, kind in kinds.items() if kind.origin == BUILT_IN and name not in covered]
+    assert not missing, f"built-in rig kinds without a contract case: {missing}"
 
 
 @pytest.fixture(params=sorted(CASES))

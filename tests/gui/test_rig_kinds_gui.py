@@ -35,3 +35,36 @@ def test_a_plugin_rig_is_listed_and_connects_by_its_word(qtbot):
         panel.shutdown()
     finally:
         unregister("benchrig")
+
+
+def test_the_rig_panel_builds_the_ports_kind_options_form_and_connects_with_them(qtbot):
+    """The Options form follows the port's kind (its described options); a bad field is named by its label
+    and nothing connects; good values reach the driver."""
+    state = AppState(simulated=True)
+    panel = RigPanel(state)
+    qtbot.addWidget(panel)
+    panel.sim_time_scale = 0.0
+    try:
+        assert panel.chosen_port() == "sim" and panel.options_button.isEnabled()
+        assert panel.options_button.text() == "Options: Simulated GRBL"
+        panel.options_button.setChecked(True)
+        form = panel.options_stack.currentWidget()
+        assert set(form.fields) >= {"baudrate", "timeout_s", "poll_hz", "stall_s"} and form.argument is None
+        form.fields["poll_hz"].setText("0")
+        panel.connect_rig()
+        assert panel.device is None and "Status polls" in panel.message_label.text(), panel.message_label.text()
+        form.fields["poll_hz"].setText("40")
+        panel.connect_rig()
+        qtbot.waitUntil(lambda: panel.last_status is not None and panel.last_status.state is not RigState.DISCONNECTED,
+                        timeout=20000)
+        assert panel.link.controller.poll_period_s == 1 / 40
+        assert not panel.options_stack.isEnabled()               # fixed while connected
+        panel.disconnect_rig()
+        panel.port_combo.setEditText("dryve:10.0.0.1,10.0.0.2")
+        assert panel.options_button.text() == "Options: CiA 402 drives over Modbus TCP (igus dryve D1)"
+        assert "accept_reference" in panel.options_stack.currentWidget().fields
+        panel.port_combo.setEditText("instant")
+        assert not panel.options_button.isEnabled() and not panel.options_stack.isVisible()
+        assert panel.port_combo.findData("dryve:") >= 0 and panel.port_combo.findData("canopen:") >= 0
+    finally:
+        panel.shutdown()

@@ -1,5 +1,6 @@
-"""Device kinds from plugins (entry points ``lfstudio.cameras``): the documented example plugin pip-installed
-from a temporary folder and scanned with; broken and clashing plugins named while the rest load."""
+"""Device kinds from plugins (entry points ``lfstudio.cameras``, ``lfstudio.rigs``): the documented example
+plugins (a camera, a rig) pip-installed from a temporary folder and scanned with; broken and clashing plugins
+named while the rest load."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from lfstudio.errors import InputError
 from tests.conftest import REPO_ROOT
 
 EXAMPLE = REPO_ROOT / "docs" / "plugins" / "example-camera"
+EXAMPLE_RIG = REPO_ROOT / "docs" / "plugins" / "example-rig"
 
 
 def write_dist(site: Path, name: str, entry_points: str) -> None:
@@ -25,20 +27,28 @@ def write_dist(site: Path, name: str, entry_points: str) -> None:
     (info / "entry_points.txt").write_text(entry_points)
 
 
-@pytest.fixture(scope="module")
-def example_site(tmp_path_factory):
-    """The example plugin pip-installed (no dependencies, no index) into a folder of its own, copied from
+def pip_install(example: Path, root: Path) -> Path:
+    """An example plugin pip-installed (no dependencies, no index) into a folder of its own, copied from
     docs/ to a temporary folder first (a build writes beside its sources)."""
-    root = tmp_path_factory.mktemp("plugin")
-    source = root / "example-camera"
-    shutil.copytree(EXAMPLE, source)
+    source = root / example.name
+    shutil.copytree(example, source)
     site = root / "site"
     r = subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
                         "--no-index", "--disable-pip-version-check", "--target", str(site), str(source)],
                        capture_output=True, text=True, timeout=300)
     if r.returncode != 0:
-        pytest.fail(f"pip install of the example plugin failed:\n{r.stderr[-2000:]}")
+        pytest.fail(f"pip install of {example.name} failed:\n{r.stderr[-2000:]}")
     return site
+
+
+@pytest.fixture(scope="module")
+def example_site(tmp_path_factory):
+    return pip_install(EXAMPLE, tmp_path_factory.mktemp("plugin"))
+
+
+@pytest.fixture(scope="module")
+def example_rig_site(tmp_path_factory):
+    return pip_install(EXAMPLE_RIG, tmp_path_factory.mktemp("rig-plugin"))
 
 
 def test_the_example_plugin_installs_is_listed_and_scans(example_site, tmp_path, run_cli):
@@ -164,3 +174,41 @@ def test_the_example_plugin_keeps_the_camera_contract(example_site):
                        env=env, cwd=REPO_ROOT, timeout=300)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
     assert "3 passed" in r.stdout, r.stdout[-2000:]                 # connect…disconnect, errors, second process
+
+
+def test_the_example_rig_plugin_installs_moves_and_scans(example_rig_site, tmp_path, run_cli):
+    env = {"PYTHONPATH": str(example_rig_site)}
+    r = run_cli("doctor", "--quick", env=env)
+    line = next((ln for ln in r.stdout.splitlines() if "rig sled:BENCH" in ln), "")
+    assert "[plugin lfstudio-example-rig 0.1.0 (lfstudio_example_rig:KIND)]" in line, r.stdout
+    assert "option speed_mm_s (Speed): 1 … 10000 mm/s, default 500" in r.stdout
+    assert "rig dryve:HOST[:PORT],HOST[:PORT]" in r.stdout             # the built-in rigs are kinds beside it
+    r = run_cli("rig", "--port", "sled:bench-1", "--rig-option", "speed_mm_s=4000", "home", "move", "100", "50",
+                "status", env=env)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().splitlines()[-1].split()[:3] == ["status", "idle", "x=100.000"], r.stdout
+    r = run_cli("rig", "--port", "sled:bench-1", "--rig-option", "speed_mm_s=0", "status", env=env)
+    assert r.returncode != 0 and "--rig-option speed_mm_s: 0 mm/s is out of range" in r.stderr, r.stderr
+    out = tmp_path / "ds"
+    r = run_cli("scan", "--port", "sled:bench-1", "--rig-option", "speed_mm_s=5000", "--camera", "instant",
+                "--grid", "3x2", "--home", "--out", out, env=env)
+    assert r.returncode == 0, r.stderr
+    manifest = json.loads((out / "dataset.json").read_text())
+    assert [v["status"] for v in manifest["views"]] == ["done"] * 6
+    assert manifest["views"][-1]["reported_mm"] == pytest.approx(manifest["views"][-1]["commanded_mm"], abs=0.01)
+    rig = manifest["devices"]["rig"]
+    assert rig["kind"] == "sled" and rig["port"] == "sled:bench-1"
+    assert rig["origin"].startswith("plugin lfstudio-example-rig 0.1.0")
+
+
+def test_the_example_rig_plugin_keeps_the_rig_contract(example_rig_site):
+    """The same suite as every built-in rig (tests/contract/test_rigs.py), on the installed plugin."""
+    import os
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO_ROOT), str(example_rig_site)]),
+               LFSTUDIO_CONTRACT_RIGS="sled:contract|speed_mm_s=1000")
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "0",
+                        "tests/contract/test_rigs.py", "-k", "plugin"], capture_output=True, text=True,
+                       env=env, cwd=REPO_ROOT, timeout=300)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
+    assert "5 passed" in r.stdout, r.stdout[-2000:]        # move, STOP, soft limits, disconnect, second process

@@ -24,12 +24,13 @@ from typing import Any
 
 from PySide6.QtCore import QPointF, QRectF, Qt, QTimer, Signal
 from PySide6.QtGui import QAction, QBrush, QColor, QFont, QKeySequence, QPainter, QPen
-from PySide6.QtWidgets import (QButtonGroup, QComboBox, QDoubleSpinBox, QGridLayout,
-                               QGroupBox, QHBoxLayout, QLabel, QPushButton, QRadioButton, QSizePolicy,
-                               QToolButton, QVBoxLayout, QWidget)
+from PySide6.QtWidgets import (QButtonGroup, QComboBox, QDoubleSpinBox, QGridLayout, QGroupBox, QHBoxLayout,
+                               QLabel, QPushButton, QRadioButton, QSizePolicy, QStackedWidget, QToolButton,
+                               QVBoxLayout, QWidget)
 
 from lfstudio.errors import LfError, window_message
 from lfstudio.gui.devices import QtDevice
+from lfstudio.gui.kind_form import KindForm
 from lfstudio.gui.settings import read_float, read_text, settings
 from lfstudio.gui.state import AppState
 from lfstudio.gui.widgets import number_of, show_lock_note
@@ -178,6 +179,8 @@ class RigPanel(QWidget):
         state.scanStateChanged.connect(self._on_scan_state)
         self.refresh_ports()
         self.port_combo.activated.connect(self._port_chosen)
+        self.port_combo.currentTextChanged.connect(self._show_options)
+        self._show_options()
         self._on_status(RigStatus(RigState.DISCONNECTED))
         self._fit_profile_to_port(self.chosen_port(), remembered=True)   # a remembered pair that no longer fits
 
@@ -247,6 +250,18 @@ class RigPanel(QWidget):
         self.warning_label.setToolTip(WARNINGS_TIP)
         self.warning_label.setVisible(False)
         cl.addWidget(self.warning_label, 3, 0, 1, 4)
+        # the connection options of the port's kind, built from its described options (lfstudio.studio.kinds)
+        self.options_button = QToolButton()
+        self.options_button.setObjectName("rigOptionsButton")
+        self.options_button.setCheckable(True)
+        self.options_button.setToolButtonStyle(Qt.ToolButtonStyle.ToolButtonTextBesideIcon)
+        self.options_button.setArrowType(Qt.ArrowType.RightArrow)
+        self.options_button.toggled.connect(self._toggle_options)
+        self.options_stack = QStackedWidget()
+        self.options_stack.setVisible(False)
+        self.option_forms: dict[str, KindForm] = {}
+        cl.addWidget(self.options_button, 5, 0, 1, 4)
+        cl.addWidget(self.options_stack, 6, 0, 1, 4)
         cl.setColumnStretch(1, 1)
         root.addWidget(conn)
 
@@ -478,10 +493,12 @@ class RigPanel(QWidget):
             self.port_combo.setItemData(self.port_combo.count() - 1, port.description, Qt.ItemDataRole.ToolTipRole)
         from lfstudio.studio.kinds import rig_kinds
 
-        for kind in rig_kinds().values():           # plugins' rigs (entry points lfstudio.rigs): NAME:ARGS
+        for kind in rig_kinds().values():      # the kinds whose word names its device (dryve:, canopen:, plugins')
+            if kind.catch_all or not kind.argument or kind.name in SIMULATED_WORDS:
+                continue
             self.port_combo.addItem(f"{kind.name}:", f"{kind.name}:")
             self.port_combo.setItemData(self.port_combo.count() - 1, f"{kind.label or kind.name}: type its "
-                                        f"{kind.argument or 'arguments'} after the colon ({kind.origin})",
+                                        f"{kind.argument} after the colon ({kind.origin})",
                                         Qt.ItemDataRole.ToolTipRole)
         remembered = _port_word(read_text("rig/port", ""))
         if self.state.simulated and not current:      # the simulated studio: a simulated rig, the one used last
@@ -525,7 +542,7 @@ class RigPanel(QWidget):
             return True
         where = self.port_combo.currentText().strip() or port
         old = self.rig_config.name
-        if spec.drives and spec.kind not in ("sim-dryve", "sim-canopen"):
+        if spec.drives and not spec.info.profile:          # real drives: their profile is never guessed
             names = drive_profile_names()
             self._show_message(f"Port {where} is a pair of CiA 402 drives and the rig profile {old!r} is for a "
                                "GRBL controller: choose the drives' own profile in the Rig list"
@@ -547,6 +564,41 @@ class RigPanel(QWidget):
                                    else f"{old!r} is for {kind}."))
         return True
 
+    def _options_form(self, port: str) -> KindForm | None:
+        """The Options form of the kind ``port`` names (None: not a device word yet, or a kind without
+        options), made the first time it is needed."""
+        from lfstudio.studio.devices import RigSpec
+
+        try:
+            kind = RigSpec.parse(port).info
+        except LfError:
+            return None
+        if kind.options is None:
+            return None
+        form = self.option_forms.get(kind.name)
+        if form is None:
+            form = self.option_forms[kind.name] = KindForm(kind, argument=False)
+            self.options_stack.addWidget(form)
+        return form
+
+    def _show_options(self, _text: str = "") -> None:
+        """The Options button and form follow the port's kind."""
+        form = self._options_form(self.chosen_port())
+        if form is not None:
+            self.options_stack.setCurrentWidget(form)
+            self.options_button.setText(f"Options: {form.kind.label or form.kind.name}")
+            self.options_button.setToolTip("Connection options of this kind of rig (empty: its default); used at "
+                                           "the next Connect")
+        else:
+            self.options_button.setText("Options: none for this port")
+            self.options_button.setToolTip("This kind of rig has no connection options")
+        self.options_button.setEnabled(form is not None)
+        self.options_stack.setVisible(form is not None and self.options_button.isChecked())
+
+    def _toggle_options(self, shown: bool) -> None:
+        self.options_button.setArrowType(Qt.ArrowType.DownArrow if shown else Qt.ArrowType.RightArrow)
+        self.options_stack.setVisible(shown and self.options_button.isEnabled())
+
     def _show_profile_note(self, text: str) -> None:
         self.profile_note.setText(text)
         self.profile_note.setVisible(bool(text))
@@ -567,10 +619,18 @@ class RigPanel(QWidget):
         if not self._fit_profile_to_port(port):
             self.state.show_status("Rig: choose the rig profile of these drives in the Rig panel", 10000)
             return
+        try:
+            form = self._options_form(port)
+            options = form.options() if form is not None else {}
+        except LfError as exc:              # a field of the Options form, named by its label
+            self._show_message(f"{window_message(exc)} (Options of the port)", "error")
+            return
         settings().setValue("rig/port", port)
+        if form is not None:
+            form.save()
         try:   # the simulator for "sim"; the port locked for this window (refused while another process has it)
             self.link = open_rig(port, self.rig_config, doing="the lfstudio window", time_scale=self.sim_time_scale,
-                                 connect=False)
+                                 connect=False, **options)
         except LfError as exc:
             self._show_message(window_message(exc), "error")
             self.state.report_error("Rig", window_message(exc))
@@ -847,6 +907,7 @@ class RigPanel(QWidget):
         can_move = free and live and st is not None and st.homed and rig_state in (RigState.IDLE, RigState.JOGGING)
         self.port_combo.setEnabled(self.device is None)
         self.rig_combo.setEnabled(self.device is None)
+        self.options_stack.setEnabled(self.device is None)        # used at Connect: fixed while connected
         self.refresh_button.setEnabled(self.device is None)
         self.connect_button.setEnabled(free)
         self.connect_action.setEnabled(free)

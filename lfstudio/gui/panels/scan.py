@@ -36,13 +36,16 @@ from lfstudio.dataset.bracket import Bracket, parse_bracket
 from lfstudio.dataset.paths import new_dataset_folder_problem
 from lfstudio.errors import InputError, LfError, window_message
 from lfstudio.gui.bridge import GuiInbox, JobRunner
+from lfstudio.gui.devices import QtDevice
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
 from lfstudio.gui.settings import read_float, read_text, settings
 from lfstudio.gui.unattended import StatusPageLabel
 from lfstudio.gui.views.path_preview import PathPreview
 from lfstudio.gui.widgets import QuietLabel, bounds_of, number_of, readable_time, set_progress_async
 from lfstudio.jobs import count, format_duration
-from lfstudio.rig.camera import SimulatedScene
+from lfstudio.planning.scene_plan import ScenePlan
+from lfstudio.rig.camera import Paced, SimulatedScene
+from lfstudio.rig.motion import MotionController
 from lfstudio.scan.events import EventKind, ScanRequestRefused, ScanState
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.studio.scan_options import PARAMS as SCAN_PARAMS
@@ -118,7 +121,7 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
         rig, camera, rig_link, camera_link = job["shared"]
         if isinstance(camera.driver, SimulatedScene):   # simulated camera: centre its scene on this grid
             camera.call("set_view_region", plan.extent_mm(), timeout_s=30)
-            camera_scale = getattr(camera.driver, "time_scale", None)
+            camera_scale = camera.driver.time_scale if isinstance(camera.driver, Paced) else None
             camera.call("set_setting", "time_scale", job["time_scale"], timeout_s=30)
             if camera_scale is not None:
                 restore.append(partial(camera.submit, "set_setting", "time_scale", camera_scale))
@@ -150,7 +153,7 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     session = ScanSession(request, doing="scanning", devices=devices)
     scene = job["scene"]
     try:
-        engine = session.open(lambda existing, cfg: (plan, scene if hasattr(scene, "camera_dict") else None))
+        engine = session.open(lambda existing, cfg: (plan, scene if isinstance(scene, ScenePlan) else None))
     except DeviceChangeRefused as exc:        # the operator decides (ScanPanel._devices_ready)
         restore_time_scales(restore)
         return {"studio": studio, "refused": exc}
@@ -490,8 +493,8 @@ class ScanPanel(QWidget):
         from lfstudio.rig.profile import load_rig
 
         dev = self.state.devices.get("rig")
-        cfg = getattr(getattr(dev, "driver", None), "config", None)
-        return cfg if cfg is not None else load_rig()
+        driver = dev.driver if isinstance(dev, QtDevice) else None
+        return driver.config if isinstance(driver, MotionController) else load_rig()
 
     def current_plan(self, check: bool = True) -> ScanPlan:
         """The scan the fields describe; InputError naming the field (``Bracket``: its text)."""
@@ -504,16 +507,18 @@ class ScanPanel(QWidget):
     def _on_plan(self, plan: Any) -> None:
         if plan is None or self.running:
             return
-        grid = getattr(plan, "grid", None)
-        if grid is None or grid.spacing_mm is None:
+        if not isinstance(plan, ScenePlan):
+            return
+        grid = plan.grid
+        if grid.spacing_mm is None:
             return
         self.columns.setValue(grid.columns)
         self.rows.setValue(grid.rows)
         self.spacing_h.setValue(grid.spacing_mm[0])
         self.spacing_v.setValue(grid.spacing_mm[1])
-        if getattr(plan, "settle_s", None) is not None:
+        if plan.settle_s is not None:
             self.settle.setValue(float(plan.settle_s))
-        if isinstance(getattr(plan, "bracket", None), str):
+        if isinstance(plan.bracket, str):
             self.bracket.setText(plan.bracket)
         self._log(f"grid taken from the plan: {grid.columns} × {grid.rows}, "
                   f"{grid.spacing_mm[0]:g} × {grid.spacing_mm[1]:g} mm")
@@ -571,8 +576,9 @@ class ScanPanel(QWidget):
             problem = ""
         except InputError as exc:
             problem = f"<br><span style='color:#e06060'>{exc}</span>"
-        exposure = getattr(self.state.plan, "exposure_s", 0.5)
-        transfer = getattr(self.state.plan, "transfer_s", 2.5)
+        scene = self.state.plan if isinstance(self.state.plan, ScenePlan) else None
+        exposure = scene.exposure_s if scene is not None else 0.5
+        transfer = scene.transfer_s if scene is not None else 2.5
         est = plan.estimate_duration_s(rig, exposure, transfer)
         frames = f" × {plan.bracket.frames} frames ({plan.bracket.describe()})" if plan.bracket else ""
         how = ("continuous motion: the row speed is chosen at Start (the Planner's Fly scan line estimates "
@@ -618,13 +624,14 @@ class ScanPanel(QWidget):
         rig_devices = (devices["rig"].worker, devices["camera"].worker, devices.get("rig_link"),
                        devices.get("camera_link")) if shared else None
         simulator = devices.get("rig_simulator") if shared and self.state.simulated else None
-        scene = self.state.plan
+        scene = self.state.plan if isinstance(self.state.plan, ScenePlan) else None
         job = dict(plan=plan, folder=folder, recapture=list(recapture) if recapture else None,
                    rig_cfg=self.rig_config(), scene=scene, shared=rig_devices, simulator=simulator,
                    studio=self.studio, time_scale=self.time_scale.value() if self.state.simulated else 1.0,
-                   exposure_s=getattr(scene, "exposure_s", 0.5), transfer_s=getattr(scene, "transfer_s", 2.5),
+                   exposure_s=scene.exposure_s if scene is not None else 0.5,
+                   transfer_s=scene.transfer_s if scene is not None else 2.5,
                    allow_device_change=allow_device_change, home=home, trust_rig_position=trust_rig_position,
-                   fly=self.fly.isChecked(), keep_on_card=self.keep_on_card.isChecked(), blur_limit_px=float(getattr(scene, "blur_limit_px", 0.5)))
+                   fly=self.fly.isChecked(), keep_on_card=self.keep_on_card.isChecked(), blur_limit_px=float(scene.blur_limit_px) if scene is not None else 0.5)
         if not shared and self.studio is None:
             self._log("starting the simulated studio (GRBL simulator on a pseudo-terminal, simulated camera)…")
             self.state_label.setText("Connecting the simulated rig and camera…")
@@ -1106,7 +1113,7 @@ class ScanPanel(QWidget):
             except (RuntimeError, TypeError):
                 pass
         self._rig_device = device
-        if device is not None and hasattr(device, "statusChanged"):
+        if isinstance(device, QtDevice):
             device.statusChanged.connect(self._rig_status)
 
     def _rig_status(self, snapshot: Any) -> None:

@@ -1,0 +1,62 @@
+"""A scan's device options: the rig kind's described connection options (``--rig-option``) reach its
+driver and are checked by its description; camera settings (``--set``) are made before the first view,
+and a refused one stops the scan before any folder is made, named by the option."""
+
+from __future__ import annotations
+
+import pytest
+
+from lfstudio.errors import InputError
+from lfstudio.rig.profile import load_rig
+from lfstudio.scan.scan_plan import ScanPlan
+from lfstudio.studio.devices import RigSpec, open_rig
+from lfstudio.studio.kinds import parse_options, parse_settings, rig_kinds
+from lfstudio.studio.session import ScanRequest, ScanSession
+
+
+def test_every_built_in_rig_kind_is_registered_and_reads_its_own_words():
+    kinds = rig_kinds()
+    for name in ("grbl", "sim", "instant", "dryve", "canopen", "sim-dryve", "sim-canopen"):
+        assert kinds[name].origin == "built-in", name
+    assert RigSpec.parse("/dev/ttyUSB0").kind == "grbl" and RigSpec.parse("grbl:/dev/ttyS1").text == "/dev/ttyS1"
+    assert RigSpec.parse("dryve:10.0.0.1,10.0.0.2").text == "dryve:10.0.0.1:502,10.0.0.2:502"
+    with pytest.raises(InputError, match="the sim rig takes nothing after 'sim:'"):
+        RigSpec.parse("sim:x")
+
+
+def test_rig_options_are_checked_by_the_kinds_description_and_reach_the_driver():
+    sim = rig_kinds()["sim"]
+    assert parse_options(sim, ["poll_hz=40"], option="--rig-option") == {"poll_hz": 40.0}
+    with pytest.raises(InputError, match=r"--rig-option poll_hz: 0 Hz is out of range"):
+        parse_options(sim, ["poll_hz=0"], option="--rig-option")
+    with pytest.raises(InputError, match=r"sim has no option 'baud'.*baudrate"):
+        parse_options(sim, ["baud=9600"], option="--rig-option")
+    drives = parse_options(rig_kinds()["sim-dryve"], ["tolerance_mm=drive", "accept_reference=yes"])
+    assert drives == {"tolerance_mm": None, "accept_reference": True}
+    link = open_rig("sim", load_rig(), lock=False, connect=False, time_scale=0, poll_hz=40.0, stall_s=7.0)
+    try:
+        assert link.controller.poll_period_s == pytest.approx(1 / 40) and link.controller.stall_s == 7.0
+    finally:
+        link.close()
+
+
+def test_scan_settings_are_made_before_the_first_view(tmp_path):
+    plan = ScanPlan(2, 1, (4.0, 6.0))
+    session = ScanSession(ScanRequest(tmp_path / "ds", rig="instant", camera="instant",
+                                      camera_settings=parse_settings(["shutter_s=0.002"])))
+    try:
+        session.open(lambda existing, cfg: (plan, None))
+        assert session.studio is not None and session.studio.camera.settings()["shutter_s"] == 0.002
+    finally:
+        session.close()
+
+
+def test_a_refused_scan_setting_is_named_and_makes_no_folder(tmp_path):
+    plan = ScanPlan(2, 1, (4.0, 6.0))
+    session = ScanSession(ScanRequest(tmp_path / "ds", rig="instant", camera="instant",
+                                      camera_settings=parse_settings(["pixel_format=Mono16"])))
+    with pytest.raises(InputError, match=r"^--set pixel_format: unknown setting of the instant camera"):
+        session.open(lambda existing, cfg: (plan, None))
+    assert not (tmp_path / "ds").exists() and session.lock is None
+    with pytest.raises(InputError, match=r"--set: cannot read 'Mono16'"):
+        parse_settings(["Mono16"])
