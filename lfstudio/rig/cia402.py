@@ -1199,7 +1199,8 @@ class Cia402Controller:
         both = self.has(first, PROBE_NEGATIVE)
         wanted = PROBE_RISING_STORED | (PROBE_FALLING_STORED if both else 0)
         if status & wanted != wanted:
-            fly["probe_after"] = t_question                   # nothing latched before this question
+            if not status & (PROBE_RISING_STORED | PROBE_FALLING_STORED):
+                fly["probe_after"] = t_question               # no edge before this question
             return
         t_seen = fly["probe_poll"]
         values = dict(fly["standing"])

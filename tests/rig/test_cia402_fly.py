@@ -42,10 +42,10 @@ def drives():
         thing.close()
 
 
-def _fly_and_collect(emulator, c, x_to: float, speed: float, edges_every_mm: float = 0.0):
+def _fly_and_collect(emulator, c, x_to: float, speed: float, edges_every_mm: float = 0.0, pulse_s: float = 0.001):
     """Fly to ``x_to`` at ``speed`` while reading reports (and, with ``edges_every_mm``, pulsing the touch
-    probe input as a camera's exposure output would, 1 ms of simulated time long); returns the reports and the
-    (rise, fall) times of the pulses."""
+    probe input as a camera's exposure output would, ``pulse_s`` of simulated time long, on a thread of its
+    own: the reports go on meanwhile); returns the reports and the (rise, fall) times of the pulses."""
     reports, pulses = [], []
     c.fly_to(x_to, 0.0, speed)
     done = threading.Event()
@@ -58,21 +58,28 @@ def _fly_and_collect(emulator, c, x_to: float, speed: float, edges_every_mm: flo
             failure.append(exc)
         done.set()
 
+    def pulse() -> None:
+        t0 = time.monotonic()
+        emulator.exposure_output(True, t0)
+        t1 = t0 + pulse_s * emulator.time_scale
+        while time.monotonic() < t1:
+            pass
+        emulator.exposure_output(False, t1)
+        pulses.append((t0, t1))
+
     waiter = threading.Thread(target=wait)
     waiter.start()
     next_edge = edges_every_mm
+    pulser: threading.Thread | None = None
     while not done.is_set():
         r = c.report()
         reports.append(r)
-        if edges_every_mm and r.x_mm >= next_edge and r.x_mm < x_to - 5:
-            t0 = time.monotonic()
-            emulator.exposure_output(True, t0)
-            t1 = t0 + 0.001 * emulator.time_scale
-            while time.monotonic() < t1:
-                pass
-            emulator.exposure_output(False, t1)
-            pulses.append((t0, t1))
+        if edges_every_mm and r.x_mm >= next_edge and r.x_mm < x_to - 5 and (pulser is None or not pulser.is_alive()):
+            pulser = threading.Thread(target=pulse)
+            pulser.start()
             next_edge = r.x_mm + edges_every_mm
+    if pulser is not None:
+        pulser.join()
     waiter.join()
     assert not failure, failure
     return reports, pulses
@@ -169,11 +176,13 @@ def test_stop_during_a_fly_move_quick_stops_both_drives(drives, transport):
     assert 100 <= x < 3000 and x == pytest.approx(emulator.true_position_mm()[0], abs=0.011)
 
 
-@pytest.mark.parametrize("transport", TRANSPORTS)
-def test_touch_probes_latch_the_exposure_centre(drives, transport):
+@pytest.mark.parametrize("transport, pulse_s", [("modbus", 0.001), ("canopen", 0.001), ("modbus", 0.03)])
+def test_touch_probes_latch_the_exposure_centre(drives, transport, pulse_s):
+    """A 1 ms exposure, and a 30 ms one during which the driver looks at the probe and sees only its
+    rising edge stored (it waits for the falling one; the latch's window still holds the whole pulse)."""
     emulator, c = drives(transport, touch_probe=True)
     assert isinstance(c, LatchesPositions)
-    reports, pulses = _fly_and_collect(emulator, c, 300.0, 80.0, edges_every_mm=40.0)
+    reports, pulses = _fly_and_collect(emulator, c, 300.0, 80.0, edges_every_mm=40.0, pulse_s=pulse_s)
     latches = c.latches()
     assert len(pulses) >= 4
     assert len(latches) == emulator.pair.axes[0].probe_latches
