@@ -9,11 +9,13 @@ subprocess and stops it at the end; a file lock makes test processes (pytest-xdi
 checkouts) take turns. Its pictures: Mono8 512 x 512 by default (sensor 2048 x 2048), pixel (x, y) of
 frame ``id`` is ``(x + id + y) % 255`` at the default exposure and gain; software trigger works, a
 ``Line0`` trigger never fires (it has no line), and it does not answer packet-resend requests, so a
-dropped packet loses its frame.
+dropped packet loses its frame. :func:`scene_gv_camera` serves the same fake camera from this process
+with pictures of the caller's making (the virtual studio at the rig's true position).
 """
 
 from __future__ import annotations
 
+import ctypes
 import fcntl
 import os
 import shutil
@@ -21,9 +23,9 @@ import subprocess
 import tempfile
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -88,3 +90,108 @@ def fake_gv_camera(lost_per_thousand: int = 0, timeout_s: float = 20.0) -> Itera
                 proc.wait()
             if proc.stderr is not None:
                 proc.stderr.close()
+
+
+# -- a fake camera that photographs something ----------------------------------------------------
+SCENE_SERIAL = "LFScene01"
+
+
+class _GObject(ctypes.Structure):
+    _fields_ = [("g_class", ctypes.c_void_p), ("ref_count", ctypes.c_uint), ("qdata", ctypes.c_void_p)]
+
+
+class _BufferPrivate(ctypes.Structure):
+    """The head of aravis 0.8's ``ArvBufferPrivate`` (src/arvbufferprivate.h of 0.8.26), up to
+    ``received_size``, which has no public setter and a fill callback must set."""
+
+    _fields_ = [("allocated_size", ctypes.c_size_t), ("is_preallocated", ctypes.c_int), ("data", ctypes.c_void_p),
+                ("user_data", ctypes.c_void_p), ("user_data_destroy_func", ctypes.c_void_p), ("status", ctypes.c_int),
+                ("received_size", ctypes.c_size_t)]
+
+
+class _Buffer(ctypes.Structure):
+    _fields_ = [("object", _GObject), ("priv", ctypes.POINTER(_BufferPrivate))]
+
+
+FILL_PATTERN = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_uint32, ctypes.c_uint32,
+                                ctypes.c_uint32)
+MONO8 = 0x01080001
+
+
+@dataclass
+class SceneGV:
+    """An in-process fake GigE Vision camera (``device_id``: its IP address) whose frames ``render`` makes;
+    ``frames``: how many it filled, ``problems``: what went wrong inside the callback (raised at the end)."""
+
+    device_id: str
+    frames: int = 0
+    problems: list = field(default_factory=list)
+
+
+@contextmanager
+def scene_gv_camera(render: Callable[[int, int], np.ndarray]) -> Iterator[SceneGV]:
+    """aravis's fake GigE Vision camera (``Aravis.GvFakeCamera``: the GVCP/GVSP server of
+    ``arv-fake-gv-camera-0.8``) served from this process on 127.0.0.1, each Mono8 frame's pixels from
+    ``render(width, height)`` (uint8, height x width) instead of its diagonal ramp, so the frames carry a
+    picture (the virtual studio at the rig's true position) that calibration can use.
+
+    aravis's own hook for it, ``ArvFakeCamera.set_fill_pattern``, cannot take a Python function through
+    GObject introspection: its annotation is ``(scope call)``, so PyGObject frees the closure when the call
+    returns and the camera's first frame crashes the process (checked: exit 139 on 0.8.26). The callback is
+    set through ctypes instead (kept alive here), and it sets the buffer's received size, which aravis's
+    public API cannot, through the layout of 0.8.26's ``ArvBufferPrivate``: checked on the first frame
+    against ``arv_buffer_get_data``'s pointer (a mismatch is a test failure naming the layout)."""
+    need_aravis()
+    import importlib
+
+    import gi
+
+    gi.require_version("Aravis", "0.8")
+    Aravis = importlib.import_module("gi.repository.Aravis")     # made by gi's importer at run time
+
+    try:
+        lib = ctypes.CDLL("libaravis-0.8.so.0")
+    except OSError as exc:
+        pytest.skip(f"libaravis-0.8.so.0 cannot be loaded through ctypes ({exc})")
+    lib.arv_fake_camera_set_fill_pattern.argtypes = [ctypes.c_void_p, FILL_PATTERN, ctypes.c_void_p]
+    lib.arv_buffer_get_data.restype = ctypes.c_void_p
+    lib.arv_buffer_get_data.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_size_t)]
+    for name in ("arv_buffer_get_image_width", "arv_buffer_get_image_height"):
+        getattr(lib, name).argtypes = [ctypes.c_void_p]
+    served = SceneGV(ADDRESS)
+
+    def fill(buffer: int, _data: int, _exposure_us: int, _gain: int, pixel_format: int) -> None:
+        try:
+            size = ctypes.c_size_t()
+            data = lib.arv_buffer_get_data(buffer, ctypes.byref(size))
+            priv = ctypes.cast(buffer, ctypes.POINTER(_Buffer)).contents.priv.contents
+            if priv.data != data:
+                raise RuntimeError("ArvBufferPrivate's layout is not that of aravis 0.8.26")
+            width, height = lib.arv_buffer_get_image_width(buffer), lib.arv_buffer_get_image_height(buffer)
+            if pixel_format != MONO8:
+                raise RuntimeError(f"the scene camera serves Mono8 only (pixel format {pixel_format:#x})")
+            image = np.ascontiguousarray(render(width, height), dtype=np.uint8)
+            if image.shape != (height, width) or image.nbytes > priv.allocated_size:
+                raise RuntimeError(f"render gave {image.shape} for {width} x {height}")
+            ctypes.memmove(data, image.ctypes.data, image.nbytes)
+            priv.received_size = image.nbytes
+            served.frames += 1
+        except Exception as exc:  # noqa: BLE001 - raised in the test's thread at the end
+            served.problems.append(exc)
+
+    callback = FILL_PATTERN(fill)
+    with open(LOCK, "a+") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)        # one fake camera at a time (fixed GVCP port)
+        camera = Aravis.GvFakeCamera.new(ADDRESS, SCENE_SERIAL)
+        try:
+            if not camera.is_running():
+                pytest.fail("aravis's fake GigE Vision camera did not start on 127.0.0.1")
+            lib.arv_fake_camera_set_fill_pattern(hash(camera.get_fake_camera()), callback, None)
+            yield served
+        finally:
+            del camera                      # stops its threads (GObject unref)
+            import gc
+
+            gc.collect()
+    if served.problems:
+        raise served.problems[0]
