@@ -34,7 +34,7 @@ class KindForm(QWidget):
         s = settings()
         form = QFormLayout(self)
         form.setContentsMargins(0, 0, 0, 0)
-        info = QLabel((kind.help or kind.label or kind.name) + ("" if kind.origin == "built-in" else
+        info = self.info = QLabel((kind.help or kind.label or kind.name) + ("" if kind.origin == "built-in" else
                                                                f" <i>({kind.origin})</i>"))
         info.setWordWrap(True)
         form.addRow(info)

@@ -412,7 +412,9 @@ def _builtin_cameras() -> list[CameraKind]:
         CameraKind("sim", _open_sim, "Simulated studio camera", simulated=True,
                    help="renders the virtual studio from the simulated rig's true position"),
         CameraKind("gphoto2", _open_gphoto2, "USB camera (gphoto2)", lock_key=lambda _a: "gphoto2",
-                   help="a tethered camera over USB through libgphoto2"),
+                   help="A camera tethered over USB through libgphoto2. Connect it by USB, switch it on and set its "
+                        "USB mode to <b>PC Remote</b>; pictures go to the camera's memory and are downloaded after "
+                        "each shot."),
         CameraKind("folder", _open_folder, "Hot folder (vendor software)", argument="PATH", options=HotFolderOptions,
                    lock_key=_folder_key, record=lambda a: {"folder": a}, normalise=_folder_path,
                    help="the folder the camera's own software saves each picture into"),

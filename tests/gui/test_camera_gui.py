@@ -95,3 +95,24 @@ def test_simulated_position_follows_the_rig_simulator():
             return (12.5, 3.0)
     state.set_device("rig_simulator", FakeSim())
     assert pos() == (12.5, 3.0)
+
+
+def test_the_hot_folder_options_come_from_its_kinds_description(qtbot, panels, tmp_path):
+    """The folder page's option rows are the kind's described options (HotFolderOptions): a bad value is
+    named by its label and nothing connects; a good one reaches the driver."""
+    state, panel, _ = panels
+    panel.kind.setCurrentIndex(panel.kind.findData("folder"))
+    assert set(panel.folder_options.fields) == {"timeout_s", "stable_s"}
+    errors = []
+    state.errorOccurred.connect(lambda title, message: errors.append(message))
+    panel.folder_edit.setText(str(tmp_path))
+    panel.folder_options.fields["stable_s"].setText("-1")
+    panel.connect_camera()
+    assert errors and "Unchanged for" in errors[-1] and not panel.connected
+    panel.folder_options.fields["stable_s"].setText("2.5")
+    panel.folder_options.fields["timeout_s"].setText("12")
+    link = panel.build_link()
+    try:
+        assert (link.camera.stable_s, link.camera.timeout_s) == (2.5, 12.0)
+    finally:
+        link.close()

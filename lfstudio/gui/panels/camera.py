@@ -153,15 +153,10 @@ class CameraPanel(QWidget):
         f.addRow("Time scale", self.sim_time_scale)
         f.addRow(self.sim_truth)
 
-        # gphoto2
-        gp_page = QWidget()
-        gl = QVBoxLayout(gp_page)
-        gl.setContentsMargins(0, 0, 0, 0)
-        gp_info = QLabel("Connect the camera by USB, switch it on and set its USB mode to <b>PC Remote</b>. "
-                         "Pictures go to the camera's memory and are downloaded after each shot.")
-        gp_info.setWordWrap(True)
-        gl.addWidget(gp_info)
-        gl.addStretch(1)
+        # gphoto2: the page its kind's description makes (no argument, no options: what to do first)
+        from lfstudio.studio.kinds import camera_kind
+
+        gp_page = KindForm(camera_kind("gphoto2"))
 
         # hot folder
         self.folder_edit = QLineEdit(read_text("camera/hot_folder", "", s))
@@ -179,17 +174,15 @@ class CameraPanel(QWidget):
         self.trigger_edit.setPlaceholderText('optional, e.g. vendorcli --capture')
         self.trigger_edit.setToolTip("Command run for each shot, split into arguments like a shell would but "
                                      "never run through a shell; leave empty to trigger by hand")
-        self.folder_timeout = QDoubleSpinBox()
-        self.folder_timeout.setRange(1, 600)
-        self.folder_timeout.setValue(read_float("camera/hot_timeout_s", 30, s))
-        self.folder_timeout.setSuffix(" s")
-        self.folder_timeout.setToolTip("How long to wait for the new file")
+        # the hot folder's connection options (wait for the file, unchanged for) from its kind's description
+        self.folder_options = KindForm(camera_kind("folder"), argument=False)
+        self.folder_options.info.setVisible(False)
         folder_page = QWidget()
         ff = QFormLayout(folder_page)
         ff.setContentsMargins(0, 0, 0, 0)
         ff.addRow("Folder", row)
         ff.addRow("Trigger command", self.trigger_edit)
-        ff.addRow("Timeout", self.folder_timeout)
+        ff.addRow(self.folder_options)
 
         self.pages = QStackedWidget()
         for page in (sim_page, gp_page, folder_page, *self.forms.values()):
@@ -350,7 +343,7 @@ class CameraPanel(QWidget):
         s.setValue("camera/sim_time_scale", self.sim_time_scale.value())
         s.setValue("camera/hot_folder", self.folder_edit.text())
         s.setValue("camera/trigger_command", self.trigger_edit.text())
-        s.setValue("camera/hot_timeout_s", self.folder_timeout.value())
+        self.folder_options.save()
         s.setValue("camera/iso", self.iso.currentText())
         s.setValue("camera/shutter_s", self.shutter.value())
         s.setValue("camera/aperture", self.aperture.value())
@@ -384,7 +377,7 @@ class CameraPanel(QWidget):
         except ValueError as exc:
             raise InputError("Trigger command", f"cannot be split into arguments ({exc})") from None
         return open_camera(CameraSpec("folder", folder), doing=doing, trigger_command=argv or None,
-                           options={"timeout_s": self.folder_timeout.value()}, connect=False)
+                           options=self.folder_options.options(), connect=False)
 
     # -- connection ----------------------------------------------------------------------------------
     @property
