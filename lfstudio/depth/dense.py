@@ -15,11 +15,13 @@ faint texture weighs like bright texture). For each candidate ``d`` every neighb
 ``(dx, dy)`` (in horizontal spacings: a neighbour 6 mm below with 4 mm columns is dy = 1.5) is
 sampled where a point of disparity ``d`` lies, ``(u − d·dx, v − d·dy)`` (the camera moving right
 moves the image left); the absolute differences, truncated at :data:`TRUNCATE`, are averaged over a
-small window per **half-plane** of views (left, right, up, down: a diagonal view counts in two),
-counting only samples inside the neighbour. A point hidden from one side is seen from the others,
-so the cost is the mean of the best :data:`BEST_OF` half-planes' (two of four: one occluded side
-is left out, and the noise of a single side is halved). An edge or corner view simply has fewer
-half-planes; a pixel no view of a half-plane sees leaves it out.
+small window per **half-plane** of views (left, right, up, down: a diagonal view counts in two)
+and per **line** (the views of its row, of its column), counting only samples inside the neighbour.
+A point hidden from one side is seen from the others, so the cost is the mean of the best
+:data:`BEST_OF` half-planes' (two of four: one occluded side is left out, and the noise of a single
+side is halved), or a line's where that is lower (:data:`LINE_WEIGHT`): a gap or strip a few pixels
+wide along a row is hidden from every half-plane's diagonal and vertical views but seen by the row.
+An edge or corner view simply has fewer half-planes; a pixel no view of a half-plane sees leaves it out.
 
 **Semi-global aggregation** (Hirschmüller 2008) along the four horizontal and vertical paths: a change
 by one candidate costs :data:`P1`, a larger jump :data:`P2`, lowered across an image edge. The best
@@ -27,9 +29,9 @@ candidate is refined to sub-pixel: the equiangular fit through the matching cost
 they have a sharp minimum there that agrees with the aggregated costs, else a parabola fitted to
 the aggregated costs of five candidates around it.
 Candidates are spaced so that the farthest neighbour moves by at most :data:`SWEEP_STEP_PX` between
-them. **Depth edges**: where a pixel's surroundings span more than :data:`EDGE_JUMP_PX`, it takes the
-nearer or the farther surface's disparity when its own grey value matches that clearly better in the
-views (a window straddling the edge fattens the nearer surface otherwise).
+them. **Depth edges**: where a pixel's surroundings span more than :data:`EDGE_JUMP_PX`, a pixel given
+the nearer surface takes the farther one unless its own grey value matches the nearer clearly better
+in the views (a window straddling the edge fattens the nearer surface otherwise).
 
 **Memory**: the cost volume is built and aggregated in strips of rows (at most
 :data:`VOLUME_CELLS` cells at once, each strip reading :data:`STRIP_OVERLAP` rows beyond its own), so a
@@ -71,13 +73,13 @@ STRIP_OVERLAP = 16
 LCN_WINDOW_PX = 5
 LCN_EPS = 0.0004
 LCN_SCALE = 0.05
-#: depth edges: a pixel whose neighbourhood (this window) spans more than EDGE_JUMP_PX takes the
-#: nearer or the farther surface's disparity, whichever its own pixel matches better across the views
+#: depth edges: a pixel whose neighbourhood (this window) spans more than EDGE_JUMP_PX and that was
+#: given the nearer surface takes the farther one (the window's minimum) unless its own pixel matches
+#: the nearer better by FAR_BIAS across the views (the farther never goes nearer: that only made
+#: thin near strips wider, HCI backgammon)
 SNAP_WINDOW_PX = 5
 SNAP_PASSES = 2
 EDGE_JUMP_PX = 1.0
-#: ... and only when that surface matches clearly better than the disparity found
-SNAP_BETTER = 0.5
 FAR_BIAS = 0.5
 #: sub-pixel: where the matching cost (averaged over REFINE_WINDOW_PX) has its minimum at the
 #: answer, its neighbours exceeding it by more than REFINE_SHARP of it, and the equiangular fit
@@ -92,6 +94,11 @@ BEST_OF = 2
 PLANE_WEIGHT_POWER = 0.5
 #: half-planes of the 2-D neighbourhood; a view belongs to each side its offset points to
 HALF_PLANES = ("left", "right", "up", "down")
+#: ... and the lines of views through it (both sides): a thin gap or strip along a row is seen whole
+#: by the views of that row and hidden from most others (HCI backgammon)
+LINES = ("row", "column")
+#: a line's cost counts where it is below the half-planes' times this (fewer views: noisier)
+LINE_WEIGHT = 1.15
 
 
 @dataclass(frozen=True)
@@ -151,6 +158,9 @@ def to_uint8(grey: np.ndarray) -> np.ndarray:
 
 
 def _half_planes(dx: float, dy: float) -> tuple[int, ...]:
+    """The subsets of views a neighbour at offset (dx, dy) belongs to: the half-planes
+    (:data:`HALF_PLANES`: 0 left, 1 right, 2 up, 3 down) its offset points to, and the line through
+    the reference it lies on (:data:`LINES`: 4 the row, 5 the column)."""
     out = []
     if dx < -1e-9:
         out.append(0)
@@ -160,6 +170,10 @@ def _half_planes(dx: float, dy: float) -> tuple[int, ...]:
         out.append(2)
     if dy > 1e-9:
         out.append(3)
+    if abs(dy) <= 1e-9:
+        out.append(4)
+    if abs(dx) <= 1e-9:
+        out.append(5)
     return tuple(out)
 
 
@@ -296,7 +310,12 @@ def _strip_cost(reference: np.ndarray, neighbours: Sequence[Neighbour], ds: np.n
             cost = num / np.maximum(den, np.float32(1e-6))
             np.copyto(cost, np.float32(tau), where=den <= 0.5 * area)
             costs.append(cost if weight[p] == 1.0 else cost * np.float32(weight[p]))
-        out[:, :, i] = _best_of(costs, BEST_OF) if costs else tau
+        half = [c for p, c in zip(used, costs) if p < len(HALF_PLANES)]
+        best = _best_of(half, BEST_OF) if half else np.full((rows, w), tau, np.float32)
+        for p, c in zip(used, costs):
+            if p >= len(HALF_PLANES):           # a line where it matches better
+                best = cv2.min(best, c * np.float32(LINE_WEIGHT))
+        out[:, :, i] = best
     return out
 
 
@@ -453,10 +472,11 @@ def _sample(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def snap_edges(reference: np.ndarray, neighbours: Sequence[Neighbour], disp: np.ndarray) -> np.ndarray:
-    """At depth edges, the nearer or the farther surface: where the disparities within
-    :data:`SNAP_WINDOW_PX` span more than :data:`EDGE_JUMP_PX`, each pixel takes the local minimum
-    or maximum, whichever its own grey value matches better in the better half-plane of views
-    (a window would straddle the edge: the cost here is the pixel's own)."""
+    """At depth edges, the farther surface unless the nearer matches clearly better: where the
+    disparities within :data:`SNAP_WINDOW_PX` span more than :data:`EDGE_JUMP_PX`, a pixel nearer to
+    the local maximum than to the minimum takes the minimum unless its own grey value matches the
+    maximum better by :data:`FAR_BIAS` in the best half-plane or line of views (a window would
+    straddle the edge: the cost here is the pixel's own)."""
     h, w = reference.shape
     k = np.ones((SNAP_WINDOW_PX, SNAP_WINDOW_PX), np.uint8)
     finite = np.isfinite(disp)
@@ -472,7 +492,7 @@ def snap_edges(reference: np.ndarray, neighbours: Sequence[Neighbour], disp: np.
     ref = reference[ys, xs]
     tau = np.float32(TRUNCATE)
     best_cost = []
-    for cand in (disp[ys, xs], lo[ys, xs], hi[ys, xs]):
+    for cand in (lo[ys, xs], hi[ys, xs]):
         sums = {p: np.zeros(len(ys), np.float32) for p in used}
         counts = {p: np.zeros(len(ys), np.float32) for p in used}
         for n, ps in zip(neighbours, planes):
@@ -490,12 +510,11 @@ def snap_edges(reference: np.ndarray, neighbours: Sequence[Neighbour], disp: np.
             cost = np.minimum(cost, c * np.float32(weight[p]))
         best_cost.append(cost)
     out = disp.copy()
-    c0, c_lo, c_hi = best_cost
+    c_lo, c_hi = best_cost
     d0 = disp[ys, xs]
     on_near = (hi[ys, xs] - d0) < (d0 - lo[ys, xs])
     # a pixel on the nearer surface goes to the farther one unless the nearer matches clearly better
-    # (a window fattens the nearer surface); one on the farther goes nearer only when clearly better
+    # (a window fattens the nearer surface)
     take_lo = on_near & (c_lo * FAR_BIAS <= c_hi)
-    take_hi = ~on_near & (c_hi < c_lo * SNAP_BETTER) & (c_hi < c0 * SNAP_BETTER)
-    out[ys, xs] = np.where(take_lo, lo[ys, xs], np.where(take_hi, hi[ys, xs], disp[ys, xs]))
+    out[ys, xs] = np.where(take_lo, lo[ys, xs], d0)
     return out

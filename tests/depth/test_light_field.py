@@ -118,3 +118,39 @@ def test_the_neighbourhood_is_two_dimensional_and_uses_recorded_positions(tiny_d
     ds = Dataset.open(ds.root)
     moved = {(int(v[0]), int(v[1])): (dx, dy) for v, dx, dy in neighbours_of(ds, (0, 0), DepthSettings(), captured)}
     assert moved[(1, 1)] == pytest.approx((1.05, 1.5)) and moved[(0, 4)] == pytest.approx((4.0, 0.0))
+
+
+def _slot_view(r: int, c: int, slot: tuple[int, int] = (46, 49), d_near: float = 0.6,
+               d_far: float = -1.4) -> tuple[np.ndarray, np.ndarray]:
+    """A near plane with a horizontal slot (rows ``slot`` of the reference, 3 px) through which a far
+    plane is seen (HCI backgammon's thin gaps): (grey image, true disparity) of view (r, c)."""
+    w, h = SIZE
+    back = _texture(3, w + 40, h + 40)
+    front = _texture(4, w + 40, h + 40)
+    mask = np.ones((h + 40, w + 40), np.float32)
+    mask[slot[0] + 20:slot[1] + 20] = 0.0
+
+    def sample(img, d):
+        M = np.array([[1.0, 0.0, 20 + d * (c - 2)], [0.0, 1.0, 20 + d * (r - 2)]])
+        return cv2.warpAffine(img, M, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                              borderMode=cv2.BORDER_REFLECT)
+
+    alpha = sample(mask, d_near)
+    img = alpha * sample(front, d_near) + (1 - alpha) * sample(back, d_far)
+    return img.astype(np.float32), np.where(alpha > 0.5, d_near, d_far).astype(np.float32)
+
+
+def test_a_thin_gap_along_a_row_keeps_the_far_disparity():
+    """A 3 px slot in a near plane: the views above and below (and the diagonals) see the near plane
+    there at the far disparity, only the reference's row sees through it; the row's line of views
+    gives the far surface (a half-plane mixes in the diagonals and filled the slot with the near)."""
+    ref, truth = _slot_view(2, 2)
+    nbs = [dense.Neighbour(_slot_view(2 + dr, 2 + dc)[0], float(dc), float(dr))
+           for dr in range(-2, 3) for dc in range(-2, 3)
+           if (dr, dc) != (0, 0) and (dr == 0 or dc == 0 or abs(dr) == abs(dc))]
+    res = dense.light_field_disparity(ref, nbs, -1.8, 1.0)
+    slot = (slice(46, 49), slice(10, -10))
+    assert np.all(truth[slot] == -1.4)
+    near_far = np.abs(res.disparity_px[slot] + 1.4) < 0.3
+    assert near_far.mean() > 0.95, near_far.mean()
+    assert _bad(res.disparity_px, truth) < 0.06, _bad(res.disparity_px, truth)
