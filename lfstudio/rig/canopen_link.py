@@ -14,7 +14,10 @@ Deadlines: a whole SDO transfer (every segment of it) must end within the link's
 (python-canopen's own timeout is per response: a node answering a segmented upload one segment at a
 time would hold it for ever). STOP's quick stop (:meth:`CanopenLink.write_now`) waits at most
 :data:`STALLED_AFTER_S` for an exchange in flight on the node's SDO channel (a healthy one ends well
-within it), then interrupts it (it fails as interrupted by STOP) and takes the channel.
+within it), then interrupts it and takes the channel. An interrupted *read* is asked again once the
+quick stop is out (a slow drive is not a lost one; a write is not repeated: it may be the very set
+point STOP stopped); an interrupted write fails as interrupted by STOP. The quick stop is sent again
+once if the first answer it gets is the interrupted exchange's late one.
 """
 
 from __future__ import annotations
@@ -83,6 +86,10 @@ def _deadline_client() -> Any:
     return _client_class
 
 
+class _InterruptedByStop(DriveNotAnswering):
+    """An SDO exchange interrupted by STOP's quick stop (:meth:`CanopenLink.write_now`)."""
+
+
 def bus_args(channel: str) -> dict[str, Any]:
     """python-can's ``Bus`` arguments for a channel word (see the module docstring)."""
     if channel.startswith(VIRTUAL_PREFIX):
@@ -134,6 +141,8 @@ class CanopenLink:
         self.timeout_s = timeout_s
         self.node: Any = None
         self._lock = threading.Lock()
+        self._stop_out = threading.Event()        # cleared while STOP's quick stop takes the channel
+        self._stop_out.set()
 
     def open(self) -> None:
         from canopen import BaseNode402, ObjectDictionary
@@ -163,9 +172,17 @@ class CanopenLink:
                     log.debug("closing %s: %s", self.address, exc)
                 _release(self.channel)
 
-    def _sdo(self, fn, *args) -> Any:
+    def _sdo(self, fn, *args, again_after_stop: bool = False) -> Any:
         if self.node is None:
             self.open()
+        with self._lock:
+            try:
+                return self._sdo_locked(fn, *args)
+            except _InterruptedByStop:
+                if not again_after_stop:
+                    raise
+        # STOP took the channel for its quick stop: once that is out, the read is asked again
+        self._stop_out.wait(self.timeout_s)
         with self._lock:
             return self._sdo_locked(fn, *args)
 
@@ -182,6 +199,8 @@ class CanopenLink:
         except SdoAbortedError as exc:
             raise ObjectAccessRefused(f"{self.address}: {exc}") from None
         except (SdoCommunicationError, OSError) as exc:
+            if sdo.interrupted:
+                raise _InterruptedByStop(f"{self.address}: {exc}") from None
             raise DriveNotAnswering(f"{self.address}: {exc}") from None
         finally:
             sdo.deadline, sdo.interrupted = math.inf, False
@@ -194,19 +213,32 @@ class CanopenLink:
         data = int(value).to_bytes(size, "little", signed=signed)
         if self.node is None:
             self.open()
+        interrupted = False
         if not self._lock.acquire(timeout=STALLED_AFTER_S):
+            self._stop_out.clear()
             node = self.node
             if node is not None:
                 node.sdo.interrupt()
+                interrupted = True
             if not self._lock.acquire(timeout=self.timeout_s):
+                self._stop_out.set()
                 raise DriveNotAnswering(f"{self.address}: the SDO channel stayed busy")
         try:
-            self._sdo_locked(lambda sdo: sdo.download(index, sub, data))
+            answer_by = time.monotonic() + self.timeout_s
+            try:
+                self._sdo_locked(lambda sdo: sdo.download(index, sub, data))
+            except DriveNotAnswering as exc:
+                # an answer came, but not to this write (not silence, not interrupted): the interrupted
+                # exchange's late answer was taken for this one's; once more
+                if not interrupted or isinstance(exc, _InterruptedByStop) or time.monotonic() >= answer_by:
+                    raise
+                self._sdo_locked(lambda sdo: sdo.download(index, sub, data))
         finally:
             self._lock.release()
+            self._stop_out.set()
 
     def read(self, index: int, sub: int, size: int, signed: bool) -> int:
-        data = self._sdo(lambda sdo: sdo.upload(index, sub))
+        data = self._sdo(lambda sdo: sdo.upload(index, sub), again_after_stop=True)
         if len(data) < size:
             raise ObjectAccessRefused(f"{self.address}: object {index:04X}h:{sub} has {len(data)} bytes, "
                                       f"expected {size}")
