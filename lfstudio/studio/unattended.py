@@ -233,6 +233,8 @@ class Unattended:
             remove()
         self._removers.clear()
         if self.notifier is not None:
+            if not self.notifier.wait_idle(0):      # a notice still on its way: say why this takes a moment
+                self.say(f"{self.options.names['notify']}: delivering the last notifications (at most {timeout_s:g} s)")
             self.notifier.close(timeout_s)
         status, self.status = self.status, None
         if status is None:

@@ -115,3 +115,22 @@ def test_on_finish_output_is_capped_in_memory_and_in_the_log(tmp_path, caplog):
     output_lines = [r for r in caplog.records if "--on-finish: |" in r.getMessage()]
     assert len(output_lines) == HEAD_LINES + 1 + TAIL_LINES
     assert max(len(r.getMessage()) for r in caplog.records) < 3000
+
+
+def test_closing_says_when_it_waits_for_a_notification_still_on_its_way(tmp_path):
+    """After a Ctrl+C the CLI waits (at most its bound) for the last notices: it says so, instead of
+    sitting silent while an endpoint does not answer."""
+    from lfstudio.scan.notify import Notifier
+    from tests.scan.receivers import DeadEndpoint
+
+    dead = DeadEndpoint()
+    said: list[str] = []
+    try:
+        notifier = Notifier([dead.url()], dataset="day1", timeout_s=600)
+        unattended = Unattended(UnattendedOptions(notify=[dead.url()]), notifier, say=said.append)
+        notifier.notify("aborted", "stopped by Ctrl+C")
+        assert dead.accepted.wait(30)                    # the notice is on its way, unanswered
+        unattended.close(timeout_s=0.2)
+    finally:
+        dead.close()
+    assert said == ["--notify: delivering the last notifications (at most 0.2 s)"]
