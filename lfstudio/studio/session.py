@@ -750,8 +750,10 @@ class ScanSession:
         if scene is not None:
             near_mm, focal, pitch = scene.near_m * 1000.0, float(scene.focal_length_mm), scene.pixel_pitch_used_um
         else:
-            studio = getattr(driver, "studio", None)
-            near_mm = float(getattr(studio, "near_m", REFERENCE.near_m)) * 1000.0
+            from lfstudio.studio.simulated import SimulatedCamera
+
+            studio = driver.studio if isinstance(driver, SimulatedCamera) else None      # the virtual studio's
+            near_mm = float(studio.near_m if studio is not None else REFERENCE.near_m) * 1000.0
             focal = float(lens.get("focal_length_mm") or REFERENCE.focal_length_mm)
             pitch = float(camera_info.get("pixel_pitch_um") or REFERENCE.pixel_pitch_um)
         t0 = _time.monotonic()
@@ -792,7 +794,7 @@ class ScanSession:
         from lfstudio.rig.motion import PulsesAtPositions
 
         if not isinstance(camera, LineTriggered):
-            return "software", (f"the camera ({getattr(camera, 'name', type(camera).__name__)}) takes no triggers "
+            return "software", (f"the camera ({name_of(camera, type(camera).__name__)}) takes no triggers "
                                 "from a hardware line lfstudio drives")
         problem = camera.line_trigger_problem()
         if problem is not None:

@@ -200,6 +200,7 @@ class ScanPanel(QWidget):
         self._rig_own_scale = 1.0
         self._pending_recapture: list[tuple[int, int]] = []
         self._last_start: list[tuple[int, int]] | None = None
+        self._last_allow_change = False
         self._drain_timer = QTimer(self)
         self._drain_timer.setSingleShot(True)
         self._drain_timer.timeout.connect(self._drain)
@@ -815,7 +816,7 @@ class ScanPanel(QWidget):
         now as the scan's first step, or leave it to the operator."""
         self.state_label.setText("The rig is not homed")
         self._log(str(problem))
-        recapture, allow = self._last_start, getattr(self, "_last_allow_change", False)
+        recapture, allow = self._last_start, self._last_allow_change
 
         def answered(answer) -> None:
             if answer == QMessageBox.StandardButton.Yes:
@@ -835,7 +836,7 @@ class ScanPanel(QWidget):
         px, py = problem.position_mm
         self.state_label.setText(f"The rig is not where the last view ({problem.last_view}) was taken")
         self._log(str(problem))
-        recapture, allow = self._last_start, getattr(self, "_last_allow_change", False)
+        recapture, allow = self._last_start, self._last_allow_change
 
         def answered(answer) -> None:
             if answer != QMessageBox.StandardButton.Yes:
@@ -875,7 +876,7 @@ class ScanPanel(QWidget):
         other = problem.other
         self.state_label.setText("Another scan used the rig since this dataset's last view")
         self._log(str(problem))
-        recapture, allow = self._last_start, getattr(self, "_last_allow_change", False)
+        recapture, allow = self._last_start, self._last_allow_change
 
         def answered(answer) -> None:
             if answer == QMessageBox.StandardButton.Yes:
@@ -1065,7 +1066,7 @@ class ScanPanel(QWidget):
                   ScanState.STOPPING: "#f0b030", ScanState.FAILED: "#e06060", ScanState.FINISHED: "#80a0ff"}
         engine_fault = None if self.engine is None else self.engine.fault
         fault = engine_fault is not None and st is ScanState.PAUSED
-        stopped = fault and getattr(engine_fault, "stop_pressed", False)    # the operator's own STOP
+        stopped = fault and engine_fault is not None and engine_fault.stop_pressed    # the operator's own STOP
         fault = fault and not stopped
         if st is ScanState.PAUSED:
             self._rig_unready = False          # see _rig_status: "ready again" only after it was not
@@ -1120,13 +1121,14 @@ class ScanPanel(QWidget):
         """A scan paused by a rig fault (alarm, not homed) says so only while it is true: once the
         rig is homed and idle again the line says that Resume continues."""
         engine = self.engine
-        fault = getattr(engine, "fault", None) if engine is not None else None
-        if engine is None or engine.state is not ScanState.PAUSED or getattr(fault, "device", "") != "rig":
+        fault = engine.fault if engine is not None else None
+        if engine is None or engine.state is not ScanState.PAUSED or fault is None or fault.device != "rig":
             return
-        from lfstudio.rig.motion import RigState
+        from lfstudio.rig.motion import RigState, RigStatus
 
-        state = getattr(snapshot, "state", None)
-        homed = getattr(snapshot, "homed", False)
+        status = snapshot if isinstance(snapshot, RigStatus) else None        # else a DeviceFault
+        state = status.state if status is not None else None
+        homed = status.homed if status is not None else False
         if not homed or state in (RigState.ALARM, RigState.DISCONNECTED):
             self._rig_unready = True           # lost its reference or in alarm: say so when it is back
         elif self._rig_unready and state is RigState.IDLE:
