@@ -36,9 +36,10 @@ def pick_port(panel, word):
 
 def test_the_simulated_ports_are_spelt_alike():
     """The list mixed "Simulated" and "sim-dryve"."""
-    from lfstudio.gui.panels.rig import SIMULATED_PORTS
+    from lfstudio.gui.panels.rig import simulated_ports
 
-    texts = [text for text, _, _ in SIMULATED_PORTS]
+    texts = [text for text, _, _ in simulated_ports()]
+    assert texts[:2] == ["Simulated GRBL", "Simulated drives"]         # the registered simulated rig kinds
     assert all(t.startswith("Simulated ") for t in texts) and len(set(texts)) == len(texts)
     assert not any("-" in t for t in texts)
 

@@ -40,22 +40,32 @@ from lfstudio.rig.worker import DeviceFault, DeviceWorker
 log = logging.getLogger(__name__)
 
 SIMULATED = "Simulated GRBL"
-#: the Port list's simulated devices: (text in the list, device word, tooltip); one spelling for both
-SIMULATED_PORTS = ((SIMULATED, "sim", "The GRBL controller simulator on a pseudo-terminal (the simulated studio)"),
-                   ("Simulated drives", "sim-dryve",
-                    "Two emulated CiA 402 drives (dryve D1, Modbus TCP on 127.0.0.1) with their preset rig profile. "
-                    "Real drives: type dryve:HOST,HOST or canopen:can0:NODE,NODE"))
-SIMULATED_WORDS = tuple(word for _, word, _ in SIMULATED_PORTS)
+
+
+def simulated_ports() -> tuple[tuple[str, str, str], ...]:
+    """The Port list's simulated devices: every registered rig kind that runs in this process and takes no
+    argument (:mod:`lfstudio.studio.kinds`: Simulated GRBL, Simulated drives, ...), as (text in the
+    list, device word, tooltip); one spelling for both."""
+    from lfstudio.studio.kinds import rig_kinds
+
+    return tuple((kind.label or kind.name, kind.name, kind.help or kind.label) for kind in rig_kinds().values()
+                 if kind.simulated and not kind.argument)
+
+
+def simulated_words() -> tuple[str, ...]:
+    return tuple(word for _, word, _ in simulated_ports())
 
 
 def _port_word(text: str) -> str:
     """A port as typed or remembered → its device word (the list's texts, and "Simulated" of older
     versions, name the simulated devices)."""
     text = (text or "").strip()
-    for shown, word, _ in SIMULATED_PORTS:
+    for shown, word, _ in simulated_ports():
         if text.lower() in (shown.lower(), word):
             return word
     return "sim" if text in ("", "Simulated") else text
+
+
 STEP_SIZES_MM = (0.1, 1.0, 10.0, 100.0)
 FINE_STEP_MM = 0.1
 WARNINGS_SHOWN = 2              # controller-vs-profile warnings in the panel's line (all in its tooltip)
@@ -481,7 +491,7 @@ class RigPanel(QWidget):
 
         current = self.chosen_port() if self.port_combo.count() or self.port_combo.currentText() else ""
         self.port_combo.clear()
-        for text, word, tip in SIMULATED_PORTS:
+        for text, word, tip in simulated_ports():
             self.port_combo.addItem(text, word)
             self.port_combo.setItemData(self.port_combo.count() - 1, tip, Qt.ItemDataRole.ToolTipRole)
         try:
@@ -494,7 +504,7 @@ class RigPanel(QWidget):
         from lfstudio.studio.kinds import rig_kinds
 
         for kind in rig_kinds().values():      # the kinds whose word names its device (dryve:, canopen:, plugins')
-            if kind.catch_all or not kind.argument or kind.name in SIMULATED_WORDS:
+            if kind.catch_all or not kind.argument or kind.simulated:
                 continue
             self.port_combo.addItem(f"{kind.name}:", f"{kind.name}:")
             self.port_combo.setItemData(self.port_combo.count() - 1, f"{kind.label or kind.name}: type its "
@@ -502,7 +512,7 @@ class RigPanel(QWidget):
                                         Qt.ItemDataRole.ToolTipRole)
         remembered = _port_word(read_text("rig/port", ""))
         if self.state.simulated and not current:      # the simulated studio: a simulated rig, the one used last
-            wanted = remembered if remembered in SIMULATED_WORDS else "sim"
+            wanted = remembered if remembered in simulated_words() else "sim"
         else:
             wanted = current or remembered
         index = self.port_combo.findData(wanted) if wanted else -1
@@ -644,7 +654,7 @@ class RigPanel(QWidget):
         self.device = QtDevice(worker)
         self.device.statusChanged.connect(self._on_status)
         self.device.busyChanged.connect(lambda _busy: self._update_enabled())
-        self._show_message(f"Connecting to {port if port not in SIMULATED_WORDS else self.port_combo.currentText()} …",
+        self._show_message(f"Connecting to {port if port not in simulated_words() else self.port_combo.currentText()} …",
                            "warning")
         self.connect_button.setText("Disconnect")
         self.connect_action.setText("Dis&connect rig")
