@@ -379,6 +379,7 @@ class MainWindow(QMainWindow):
         guide = QAction("&User guide", self)
         guide.setObjectName("actionUserGuide")
         guide.setShortcut(QKeySequence.StandardKey.HelpContents)
+        guide.setShortcutContext(Qt.ShortcutContext.ApplicationShortcut)     # F1 in a dialog too: its page
         guide.setToolTip("Read the user guide (planning, rig, cameras, scanning, calibration, processing)")
         guide.triggered.connect(lambda: self.show_user_guide(self.help_topic()))
         logs = QAction("Show &log folder", self)
@@ -514,7 +515,13 @@ class MainWindow(QMainWindow):
         return dialog
 
     def help_topic(self) -> str | None:
-        """The panel the keyboard focus is in (its dock's object name), or None."""
+        """The dialog in front (its object name, when the site has a page for it), else the panel the
+        keyboard focus is in (its dock's object name), or None."""
+        from lfstudio.support.userguide import SITE_PAGES
+
+        window = QApplication.activeWindow()
+        if window is not None and window is not self and window.objectName() in SITE_PAGES:
+            return window.objectName()
         widget = QApplication.focusWidget()
         while widget is not None:
             if isinstance(widget, QDockWidget) and widget.objectName() in self.docks:

@@ -114,30 +114,47 @@ def user_guide_markdown() -> str:
     return "\n\n".join(parts) if parts else text
 
 
-#: the documentation site's page for each panel (its dock's object name): Help → User guide (F1) opens it
+#: the documentation site's page for each panel (its dock's object name) and dialog (its object name):
+#: Help → User guide (F1) opens it
 SITE_PAGES = {"plannerDock": "how-to/plan.html", "planPlotsDock": "how-to/plan.html", "rigDock": "how-to/rig.html",
               "cameraDock": "how-to/cameras.html", "liveViewDock": "how-to/cameras.html", "scanPanel": "how-to/scan.html",
-              "calibrationPanel": "how-to/calibrate.html", "processingPanel": "how-to/process.html"}
+              "calibrationPanel": "how-to/calibrate.html", "processingPanel": "how-to/process.html",
+              # dialogs
+              "calibrationWizard": "how-to/calibrate.html", "processDialog": "how-to/process.html",
+              "exportDialog": "how-to/export.html", "importImagesDialog": "how-to/import.html",
+              "importHevcDialog": "how-to/import.html", "depthDialog": "how-to/depth.html",
+              "neighboursDialog": "how-to/check.html", "disparityDialog": "how-to/check.html",
+              "settingsDialog": "tutorial/the-window.html"}
 
 
 def site_dir() -> Path | None:
-    """The built documentation site (the folder of its ``index.html``), or None: ``docs/_build/html``
-    beside the resources folder (a checkout after ``tools/docs.sh``, a bundle built after it), or the
-    folder ``LFSTUDIO_DOCS_SITE`` names (set and empty: no site)."""
+    """The built documentation site (the folder of its ``index.html``), or None: the folder
+    ``LFSTUDIO_DOCS_SITE`` names (set and empty: no site), else ``docs/_build/html`` beside the resources
+    folder (a checkout after ``tools/docs.sh``, a bundle built after it), else the package's ``site``
+    folder (a wheel's build builds it: ``pip install .``, pipx)."""
     named = os.environ.get("LFSTUDIO_DOCS_SITE")
     if named is not None:
-        folder = Path(named) if named else None
+        folders = [Path(named)] if named else []
     else:
         from lfstudio.resources import RESOURCES_DIR
 
-        folder = RESOURCES_DIR.parent / "docs" / "_build" / "html"
-    return folder if folder is not None and (folder / "index.html").is_file() else None
+        folders = [RESOURCES_DIR.parent / "docs" / "_build" / "html", PACKAGE_SITE]
+    return next((f for f in folders if (f / "index.html").is_file()), None)
+
+
+#: where a wheel's build puts the site (setup.py's build_py)
+PACKAGE_SITE = Path(__file__).resolve().parents[1] / "site"
+
+#: the in-app guide's first lines when the site is not built (it has no search and no contents)
+NO_SITE_NOTE = ("*This is the guide without its search and table of contents: the documentation site is not "
+                "built here. In a checkout, `tools/docs.sh` builds it (then F1 opens it in the browser); "
+                "`pip install .` builds it into the installed package.*")
 
 
 def site_page(topic: str | None = None) -> Path | None:
-    """The built site's page for ``topic`` (a panel's dock name, :data:`SITE_PAGES`; its start page for
-    any other), or None when the site is not built and shipped (the in-app guide then shows
-    :func:`user_guide_markdown`)."""
+    """The built site's page for ``topic`` (a panel's dock name or a dialog's object name,
+    :data:`SITE_PAGES`; its start page for any other), or None when the site is not built and shipped
+    (the in-app guide then shows :func:`user_guide_markdown`)."""
     site = site_dir()
     if site is None:
         return None

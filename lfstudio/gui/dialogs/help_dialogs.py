@@ -84,7 +84,7 @@ class UserGuideDialog(QDialog):
 
     def __init__(self, parent: QWidget | None = None):
         super().__init__(parent)
-        from lfstudio.support.userguide import docs_dir, readme_path, user_guide_markdown
+        from lfstudio.support.userguide import NO_SITE_NOTE, docs_dir, readme_path, site_dir, user_guide_markdown
 
         self.setObjectName("userGuideDialog")
         self.setWindowTitle("lfstudio user guide")
@@ -99,7 +99,8 @@ class UserGuideDialog(QDialog):
         base = docs.parent if docs is not None else readme.parent if readme is not None else None
         if base is not None:            # the guide's pictures (docs/*.png) and README.md sit there
             self.browser.setSearchPaths([str(base)])
-        self.browser.setMarkdown(user_guide_markdown())
+        note = NO_SITE_NOTE + "\n\n" if site_dir() is None else ""     # how to get search and contents
+        self.browser.setMarkdown(note + user_guide_markdown())
         self._wrap_code_blocks()
         self.fit_images(760)
         buttons = QDialogButtonBox(QDialogButtonBox.StandardButton.Close)
