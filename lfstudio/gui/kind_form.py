@@ -13,7 +13,7 @@ import dataclasses
 from typing import Any
 
 from PySide6.QtCore import Signal
-from PySide6.QtWidgets import QComboBox, QFormLayout, QHBoxLayout, QLabel, QLineEdit, QPushButton, QWidget
+from PySide6.QtWidgets import QCheckBox, QComboBox, QFormLayout, QHBoxLayout, QLabel, QLineEdit, QPushButton, QWidget
 
 from lfstudio.errors import InputError
 from lfstudio.gui.settings import read_text, settings
@@ -48,10 +48,20 @@ class KindForm(QWidget):
             self.argument.setToolTip(f"What follows '{kind.name}:' in the device word ({kind.argument})")
             form.addRow(self.argument_label, self.argument)
         self.fields: dict[str, QLineEdit] = {}
+        self.flags: dict[str, QCheckBox] = {}          # true/false options: a check box (ticked: true)
         if kind.options is not None:
             for f in dataclasses.fields(kind.options):
                 param = f.metadata.get("lfstudio.param")
                 if param is None:
+                    continue
+                if param.flag:
+                    box = QCheckBox(param.label or f.name)
+                    box.setObjectName(f"{kind.name}-{f.name}")
+                    box.setChecked(read_text(self._key(f.name), "", s) == "true" or
+                                   (read_text(self._key(f.name), "", s) == "" and f.default is True))
+                    box.setToolTip(param.tip)
+                    form.addRow("", box)
+                    self.flags[f.name] = box
                     continue
                 edit = QLineEdit(read_text(self._key(f.name), "", s))
                 edit.setObjectName(f"{kind.name}-{f.name}")
@@ -107,8 +117,9 @@ class KindForm(QWidget):
         return f"{self.kind.name}:{text}"
 
     def options(self) -> dict[str, Any]:
-        """The options typed (empty fields left out), checked; InputError naming the field's label."""
-        out: dict[str, Any] = {}
+        """The options typed (empty fields left out) and the ticked check boxes, checked; InputError naming
+        the field's label."""
+        out: dict[str, Any] = {name: True for name, box in self.flags.items() if box.isChecked()}
         for name, edit in self.fields.items():
             text = edit.text().strip()
             if not text:
@@ -125,6 +136,8 @@ class KindForm(QWidget):
             s.setValue(self._key("argument"), self.argument.text())
         for name, edit in self.fields.items():
             s.setValue(self._key(name), edit.text())
+        for name, box in self.flags.items():
+            s.setValue(self._key(name), "true" if box.isChecked() else "false")
 
     def show_settings(self, described: Any) -> None:
         """The connected camera's settings as data: name, value, its choices or range."""
@@ -152,6 +165,8 @@ class KindForm(QWidget):
         free) enabled or not."""
         for edit in ([self.argument] if self.argument is not None else []) + list(self.fields.values()):
             edit.setEnabled(connection)
+        for box in self.flags.values():
+            box.setEnabled(connection)
         self.setting_row.setEnabled(settings)
 
     def clear_settings(self) -> None:

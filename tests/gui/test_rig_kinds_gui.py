@@ -62,7 +62,10 @@ def test_the_rig_panel_builds_the_ports_kind_options_form_and_connects_with_them
         panel.disconnect_rig()
         panel.port_combo.setEditText("dryve:10.0.0.1,10.0.0.2")
         assert panel.options_button.text() == "Options: CiA 402 drives over Modbus TCP (igus dryve D1)"
-        assert "accept_reference" in panel.options_stack.currentWidget().fields
+        drives = panel.options_stack.currentWidget()
+        assert "accept_reference" in drives.flags and drives.options() == {}       # a check box, unticked
+        drives.flags["accept_reference"].setChecked(True)
+        assert drives.options() == {"accept_reference": True}
         panel.port_combo.setEditText("instant")
         assert not panel.options_button.isEnabled() and not panel.options_stack.isVisible()
         assert panel.port_combo.findData("dryve:") >= 0 and panel.port_combo.findData("canopen:") >= 0
