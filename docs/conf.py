@@ -22,7 +22,8 @@ version = release = __version__
 extensions = ["myst_parser", "sphinx.ext.autodoc", "lfstudio_cli"]
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 root_doc = "index"
-exclude_patterns = ["_build", "Thumbs.db", ".DS_Store", "plugins/example-camera/lfstudio_example_camera"]
+exclude_patterns = ["_build", "Thumbs.db", ".DS_Store", "plugins/example-camera/lfstudio_example_camera",
+                    "plugins/example-rig/lfstudio_example_rig"]
 myst_enable_extensions = ["colon_fence", "deflist"]
 # no "smart" dashes or quotes: the pages quote options (--port) and commands that must stay typeable
 smartquotes = False
