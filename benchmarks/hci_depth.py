@@ -4,10 +4,11 @@ defaults; then the real Stanford "Chess" gantry light field, where neighbouring 
 agree.
 
     ./.venv/bin/python benchmarks/hci_depth.py [FOLDER ...] [--keep DIR] [--workers N] [--skip-chess]
-        [--centre-only | --other-views sample] [--published DIR]
+        [--centre-only | --other-views sample] [--published DIR] [--only-given]
 
-Scenes: ``../shared/data/lightfield/hci_*`` and every folder given (an HCI scene: ``parameters.cfg``,
-``input_Cam000.png`` …, ``gt_disp_lowres.pfm``; a folder of such scenes is searched one level down).
+Scenes: ``../shared/data/lightfield/hci_*`` (unless ``--only-given``) and every folder given (an HCI
+scene: ``parameters.cfg``, ``input_Cam000.png`` …, ``gt_disp_lowres.pfm``; a folder of such scenes is
+searched one level down).
 Never copy a scene into the repository (CC BY-NC-SA).
 
 Per scene, on the centre view (the benchmark's scores: 15 px border left out, the truth from
@@ -73,8 +74,8 @@ def cli(*args: str) -> str:
     return done.stdout
 
 
-def scenes(extra: list[Path]) -> list[Path]:
-    found = sorted(SHARED.glob("hci_*")) if SHARED.is_dir() else []
+def scenes(extra: list[Path], shared: bool = True) -> list[Path]:
+    found = sorted(SHARED.glob("hci_*")) if shared and SHARED.is_dir() else []
     for folder in extra:
         if (folder / "parameters.cfg").is_file():
             found.append(folder)
@@ -352,13 +353,15 @@ def main() -> int:
     ap.add_argument("--other-views", choices=("all", "sample"), default="all",
                     help="the views scored against the centre's warped truth: all (default) or the corners and edge "
                          "middles")
+    ap.add_argument("--only-given", action="store_true",
+                    help="only the folders given, not ../shared/data/lightfield/hci_*")
     ap.add_argument("--published", type=Path, metavar="DIR",
                     help="published maps to score beside ours: DIR/METHOD/SCENE.pfm (outside the repository)")
     args = ap.parse_args()
     work = args.keep or Path(tempfile.mkdtemp(prefix="hci_depth_"))
     work.mkdir(parents=True, exist_ok=True)
     print(load_text())
-    found = scenes(args.folders)
+    found = scenes(args.folders, shared=not args.only_given)
     if not found:
         print("no HCI scene found (../shared/data/lightfield/hci_* or a folder given)")
     results = []
