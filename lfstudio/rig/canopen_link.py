@@ -16,8 +16,10 @@ time would hold it for ever). STOP's quick stop (:meth:`CanopenLink.write_now`) 
 :data:`STALLED_AFTER_S` for an exchange in flight on the node's SDO channel (a healthy one ends well
 within it), then interrupts it and takes the channel. An interrupted *read* is asked again once the
 quick stop is out (a slow drive is not a lost one; a write is not repeated: it may be the very set
-point STOP stopped); an interrupted write fails as interrupted by STOP. The quick stop is sent again
-once if the first answer it gets is the interrupted exchange's late one.
+point STOP stopped); an interrupted write fails as :class:`ExchangeInterrupted` (the controller
+takes it as the command stopped, not the drive lost). The interrupted exchange's late answer is
+told apart by its command and object (an SDO answer has no transaction number) and dropped, so that
+it is never taken for the quick stop's (or the next exchange's).
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ import threading
 import time
 from typing import Any
 
-from lfstudio.rig.cia402 import DriveNotAnswering, ObjectAccessRefused
+from lfstudio.rig.cia402 import DriveNotAnswering, ExchangeInterrupted, ObjectAccessRefused
 
 log = logging.getLogger(__name__)
 
@@ -58,10 +60,30 @@ def _deadline_client() -> Any:
         deadline = math.inf
         whole_s = 0.0
         interrupted = False
+        #: (response command, index, subindex) an initiate request in flight expects; None for segments
+        expect: tuple[int, int, int] | None = None
 
         def interrupt(self) -> None:
             self.interrupted = True
             self.responses.put(_INTERRUPT)
+
+        def send_request(self, request) -> None:
+            command = request[0] & 0xE0
+            if command in (0x20, 0x40):         # initiate download / upload: its answer names the object
+                index, sub = struct.unpack_from("<HB", request, 1)
+                self.expect = (0x60 if command == 0x20 else 0x40, index, sub)
+            else:
+                self.expect = None
+            super().send_request(request)
+
+        def _not_ours(self, response: bytes) -> bool:
+            """A late answer to an exchange STOP cut short (SDO answers carry no transaction number:
+            only an initiate answer's command and object tell whose it is)."""
+            expect = self.expect
+            if expect is None or len(response) < 4:
+                return False
+            index, sub = struct.unpack_from("<HB", response, 1)
+            return (index, sub) != expect[1:] or (response[0] != 0x80 and response[0] & 0xE0 != expect[0])
 
         def read_response(self) -> bytes:
             while True:
@@ -78,16 +100,16 @@ def _deadline_client() -> Any:
                     raise SdoCommunicationError(f"no answer within {self.RESPONSE_TIMEOUT:g} s") from None
                 if response is _INTERRUPT:
                     continue                    # the flag says so (or a stale one: wait on)
+                if self._not_ours(response):
+                    log.debug("SDO: a late answer %s to an earlier exchange, not this one's: dropped",
+                              bytes(response[:4]).hex())
+                    continue
                 if response[0] == 0x80:         # abort from the node
                     raise SdoAbortedError(struct.unpack_from("<L", response, 4)[0])
                 return response
 
     _client_class = DeadlineSdoClient
     return _client_class
-
-
-class _InterruptedByStop(DriveNotAnswering):
-    """An SDO exchange interrupted by STOP's quick stop (:meth:`CanopenLink.write_now`)."""
 
 
 def bus_args(channel: str) -> dict[str, Any]:
@@ -178,7 +200,7 @@ class CanopenLink:
         with self._lock:
             try:
                 return self._sdo_locked(fn, *args)
-            except _InterruptedByStop:
+            except ExchangeInterrupted:
                 if not again_after_stop:
                     raise
         # STOP took the channel for its quick stop: once that is out, the read is asked again
@@ -200,7 +222,7 @@ class CanopenLink:
             raise ObjectAccessRefused(f"{self.address}: {exc}") from None
         except (SdoCommunicationError, OSError) as exc:
             if sdo.interrupted:
-                raise _InterruptedByStop(f"{self.address}: {exc}") from None
+                raise ExchangeInterrupted(f"{self.address}: {exc}") from None
             raise DriveNotAnswering(f"{self.address}: {exc}") from None
         finally:
             sdo.deadline, sdo.interrupted = math.inf, False
@@ -213,26 +235,16 @@ class CanopenLink:
         data = int(value).to_bytes(size, "little", signed=signed)
         if self.node is None:
             self.open()
-        interrupted = False
         if not self._lock.acquire(timeout=STALLED_AFTER_S):
             self._stop_out.clear()
             node = self.node
             if node is not None:
                 node.sdo.interrupt()
-                interrupted = True
             if not self._lock.acquire(timeout=self.timeout_s):
                 self._stop_out.set()
                 raise DriveNotAnswering(f"{self.address}: the SDO channel stayed busy")
         try:
-            answer_by = time.monotonic() + self.timeout_s
-            try:
-                self._sdo_locked(lambda sdo: sdo.download(index, sub, data))
-            except DriveNotAnswering as exc:
-                # an answer came, but not to this write (not silence, not interrupted): the interrupted
-                # exchange's late answer was taken for this one's; once more
-                if not interrupted or isinstance(exc, _InterruptedByStop) or time.monotonic() >= answer_by:
-                    raise
-                self._sdo_locked(lambda sdo: sdo.download(index, sub, data))
+            self._sdo_locked(lambda sdo: sdo.download(index, sub, data))
         finally:
             self._lock.release()
             self._stop_out.set()

@@ -222,6 +222,13 @@ class DriveNotAnswering(DeviceTimeout):
     kind = "drive-not-answering"
 
 
+class ExchangeInterrupted(DriveNotAnswering):
+    """An exchange cut short by STOP, whose quick stop took the link's one channel (CANopen: a drive
+    slower than STALLED_AFTER_S): the drive is slow, not lost."""
+
+    kind = "exchange-interrupted"
+
+
 class ObjectAccessRefused(DeviceError):
     """The drive refused a read or write (Modbus exception, SDO abort)."""
 
@@ -360,6 +367,11 @@ class Cia402Controller:
         size, signed = SIZES[index]
         try:
             self.links[i].write(index, sub, int(value), size, signed)
+        except ExchangeInterrupted as exc:
+            if self._stop_pending:           # STOP took the channel: the command is stopped, the drive not lost
+                raise MotionStopped(f"stopped by STOP (the write to {self._name(i)} was cut short for its quick "
+                                    "stop)") from None
+            raise self._mark_lost(i, exc) from None
         except DriveNotAnswering as exc:
             raise self._mark_lost(i, exc) from None
 

@@ -324,10 +324,16 @@ class CanopenDriveNode:
             spec = axis.objects.get((index, subindex))
             if spec is None:
                 return
+            delay = axis.answer_delay_s                    # every answer late, a write's too
+            if delay > 0:
+                time.sleep(delay / 2)
             try:
                 axis.write(index, subindex, int.from_bytes(data, "little", signed=spec[1]))
             except ObjectRefused as exc:
                 raise SdoAbortedError(exc.abort) from None
+            finally:
+                if delay > 0:
+                    time.sleep(delay / 2)
 
         self.node.add_read_callback(on_read)
         self.node.add_write_callback(on_write)

@@ -58,3 +58,47 @@ def test_a_read_interrupted_by_stop_is_asked_again_and_the_drive_stays_connected
         pool.shutdown(wait=False)
         link.close()
         emulator.close()
+
+
+def test_a_command_whose_write_stop_cuts_short_is_stopped_and_the_drive_not_lost():
+    """The same slow drive (every answer, a write's too, 0.5 s late), STOP while a move's write to it
+    is in flight: the write is cut short for the quick stop; the move ends as stopped by STOP (it
+    ended with the drive marked lost: "does not answer … interrupted by STOP")."""
+    from lfstudio.rig.cia402 import MotionStopped
+
+    rig = load_rig(RIG_NAME)
+    emulator = start_drive_emulator(rig, "canopen", time_scale=0)
+    link = open_rig(emulator.word, rig, doing="test", lock=False, connect=False, timeout_s=5.0)
+    pool = ThreadPoolExecutor(1)
+    try:
+        c = link.controller
+        c.connect()
+        c.home()
+        x_link, x = c.links[0], emulator.pair.axes[0]
+        sdo = x_link.node.sdo
+        writing = threading.Event()
+        real_download = sdo.download
+
+        def download(*args, **kw):
+            writing.set()                               # a write to drive x is on its way
+            return real_download(*args, **kw)
+
+        sdo.download = download
+        x.setup.answer_delay_s = 0.5
+        emulator.time_scale = 1.0
+        move = pool.submit(c.move_to, 100.0, 0.0)
+        assert writing.wait(HANG_GUARD_S)
+        c.stop()
+        failure = move.exception(timeout=HANG_GUARD_S)
+        assert isinstance(failure, MotionStopped), failure
+        assert "stopped by STOP" in str(failure) and "\n" not in str(failure)
+        assert c.connected
+        x.setup.answer_delay_s = 0.0
+        c._last_t = 0.0
+        st = c.status()
+        assert st.state is not RigState.DISCONNECTED, st.message
+        assert [v for n, i, _, v in emulator.pair.journal if n == x.name and i == CONTROL].count(QUICK_STOP) >= 1
+    finally:
+        pool.shutdown(wait=False)
+        link.close()
+        emulator.close()
