@@ -15,7 +15,7 @@ import threading
 import pytest
 
 from lfstudio.gui.app import create_window
-from lfstudio.gui.devices import QtDevice
+from lfstudio.gui.devices import QtDevice, wait_for_closing
 from lfstudio.rig import cia402
 from lfstudio.rig.cia402 import QUICK_STOP
 from lfstudio.rig.profile import load_rig
@@ -83,7 +83,8 @@ def test_the_windows_stop_returns_while_a_drive_link_is_stalled(qtbot, monkeypat
         logging.getLogger("lfstudio.rig.cia402").removeHandler(failures)
         window.state.devices.pop("rig", None)
         device.close(disconnect=True, timeout_s=30.0)
-        link.close()
+        wait_for_closing(30.0)                          # the worker disconnected the driver
+        link.close(disconnect=False)
         emulator.close()
     # STOP came back to the GUI thread before x's quick stop ended (delivered or failed)
     assert stalled_at_return and not x_done_at_return
