@@ -125,6 +125,8 @@ class GrblController:
         self.firmware = FirmwareLimits.from_settings({})
         self.options = ""
         self.planner_blocks = 15                 # blocks GRBL plans ahead ($I's [OPT:...,15,128])
+        self.rx_buffer = 128                     # bytes of its serial receive buffer (the same)
+        self._stream_errors: list[int] = []      # error:N answered to streamed lines (fly_pulsing)
         self.warnings: list[str] = []
         self.version = ""
         self.messages: list[str] = []            # [MSG:...] push messages, newest last
@@ -215,6 +217,7 @@ class GrblController:
         self.options = opt[5:-1].split(",")[0] if opt else ""
         fields = opt[5:-1].split(",") if opt else []
         self.planner_blocks = int(fields[1]) if len(fields) > 1 and fields[1].strip().isdigit() else 15
+        self.rx_buffer = int(fields[2]) if len(fields) > 2 and fields[2].strip().isdigit() else 128
         if not self.version.startswith("1.1"):
             raise DeviceError(f"the controller on {self.port} is not GRBL 1.1 (it reports "
                               f"{self.version or 'no version'}); lfstudio speaks GRBL 1.1")
@@ -338,7 +341,9 @@ class GrblController:
         parsed = parse_line(line)
         kind = parsed.kind
         if kind in ("ok", "error") and self._unanswered > 0:
-            self._unanswered -= 1                # the late answer to a line we gave up on
+            self._unanswered -= 1                # the late answer to a line we gave up on (or streamed)
+            if kind == "error":
+                self._stream_errors.append(parsed.code or 0)
             return GrblLine("stale", parsed.text, code=parsed.code)
         if kind == "alarm":
             self._last_t = 0.0
@@ -846,16 +851,56 @@ class GrblController:
                 raise DeviceError(f"fly move refused: the rig is {st.state.lower()}, not idle")
             # M3 synchronises (GRBL waits for the motion to end): sent standing still, output low
             self._command(f"G90 G54 G1 F{speed_mm_s * 60.0:.3f} M3 S0")
-        for line in lines:                    # one at a time: GRBL's ok waits for room in its planner
-            if self._stop_event.is_set():
-                raise MotionStopped("the fly move was stopped by STOP")
-            with self._io:
-                self._command(line, timeout_s=max(self.timeout_s, 10.0))
+        self._stream(lines)
+
+    def _stream(self, lines: list[str]) -> None:
+        """Send ``lines`` with GRBL's character-counting protocol: as many as its serial buffer holds
+        (``rx_buffer`` bytes) are in flight, so no round trip lies between two blocks and the planner
+        stays ahead of the carriage even when this computer is slow to answer. Their ``ok``s are
+        counted as answers owed (``_unanswered``: whoever reads next consumes them, in order); an
+        ``error`` among them is raised here, or by :meth:`pulse_off` once the stream has left."""
+        in_flight: list[int] = []
+        with self._io:
+            if self._unanswered:
+                self._drain()
+            self._stream_errors = []
+        sent = 0
+        last_progress = time.monotonic()
+        for line in lines:
+            data = line.encode("ascii") + b"\n"
+            while True:
+                if self._stop_event.is_set():
+                    raise MotionStopped("the fly move was stopped by STOP")
+                with self._io:
+                    # GRBL answers in order: the answers owed from before come first, then ours
+                    waiting = min(sent, self._unanswered)
+                    if waiting < len(in_flight):
+                        del in_flight[:len(in_flight) - waiting]
+                        last_progress = time.monotonic()
+                    if self._stream_errors:
+                        code = self._stream_errors[0]
+                        raise GrblError(code, "a line of the fly move")
+                    if sum(in_flight) + len(data) <= self.rx_buffer - 1:
+                        self._write(data)
+                        self._unanswered += 1
+                        in_flight.append(len(data))
+                        sent += 1
+                        break
+                    got = self._readline(time.monotonic() + 0.005)
+                    if got is not None:
+                        self._dispatch(got)
+                if time.monotonic() - last_progress > max(self.timeout_s, 10.0):
+                    raise self._mark_lost("the controller stopped taking the fly move's lines; check its power "
+                                          "and cable, then connect again")
 
     def pulse_off(self) -> None:
-        """Spindle output off (``M5``; GRBL waits until the carriage stands)."""
+        """Spindle output off (``M5``; GRBL waits until the carriage stands). Raises an ``error:N``
+        GRBL answered to a line streamed by :meth:`fly_pulsing`."""
         with self._io:
             self._command("M5", timeout_s=max(self.timeout_s, 30.0))
+            errors, self._stream_errors = self._stream_errors, []
+        if errors:
+            raise GrblError(errors[0], "a line of the fly move")
 
     def report(self) -> PositionReport:
         """The position GRBL reports now, time-stamped at the middle of the question and the answer

@@ -795,7 +795,7 @@ class GrblSimulator:
                 break
             u = d / n
             if unit is None:
-                start = seg.target - self._mpos()
+                start = seg.target - (self._phys - self._offset)
                 ns = float(np.linalg.norm(start))
                 unit = start / ns if ns > 1e-9 else u
             if float(np.dot(u, unit)) < 1 - 1e-9:
@@ -862,7 +862,9 @@ class GrblSimulator:
     def _step(self, m: _Motion, dt: float) -> float:
         """Advance the current segment by up to dt seconds (sim time); return the unused time."""
         seg = m.segment
-        delta = seg.target - self._mpos()
+        # from where the carriage is, not from its step count (rounded to a step): the time a block
+        # ends (an edge of the spindle output) is then exact
+        delta = seg.target - (self._phys - self._offset)
         dist = float(np.linalg.norm(delta))
         if dist < 1e-9:
             m.speed_mm_s = 0.0
