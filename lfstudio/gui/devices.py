@@ -183,9 +183,9 @@ class QtDevice(QObject):
                         log.exception("%s: closing", worker.name)
 
         thread = threading.Thread(target=finish, name=f"close-{worker.name}", daemon=True)
-        with _closing_lock:
+        with _closing_lock:                 # started before it is listed: wait_for_closing may join it at once
+            thread.start()
             _closing[:] = [t for t in _closing if t.is_alive()] + [thread]
-        thread.start()
 
 
 _closing: list[threading.Thread] = []          # QtDevice.close()'s threads

@@ -280,9 +280,9 @@ class DeviceWorker:
                 future.set_result(None)
 
         thread = threading.Thread(target=run, name=f"stop-{self.name}", daemon=True)
-        with self._lease_lock:
+        with self._lease_lock:              # started before it is listed: close() may join it at once
+            thread.start()
             self._stoppers = [t for t in self._stoppers if t.is_alive()] + [thread]
-        thread.start()
         return future
 
     def _stop_prologue(self) -> Callable[[], Any] | None:
