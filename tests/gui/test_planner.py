@@ -269,3 +269,37 @@ def test_the_disk_row_checks_the_disk_of_the_scan_panels_dataset_folder(window, 
     scan.folder.setText("")
     qtbot.waitUntil(lambda: p.destination is None)
     assert "free at" not in out.text() and "Scan panel" in out.toolTip()
+
+
+def test_the_fly_fields_and_continuous_motion(window, qtbot):
+    """#40: the fly scan's inputs (blur limit, frame rate, bandwidth, report rate, fly speed) are editors of
+    the plan, and "Continuous motion" makes the capture time the fly scan's."""
+    p = planner(window)
+    box = p.fly_box
+    assert box.isCheckable() and box.title() == "Continuous motion (fly scan)"
+    for key in ("blur_limit_px", "frame_rate_fps", "bandwidth_mb_s", "report_rate_hz", "fly_speed_mm_s"):
+        assert key in p.rows and p.rows[key].spins[0].parent() is box
+    box.setChecked(False)
+    qtbot.waitUntil(lambda: "fly scan" not in p.outputs["time"].text())
+    # the reference camera's 0.5 s exposure allows no fly speed at 0.5 px of blur
+    assert p.outputs["fly"].text().startswith("not possible")
+    box.setChecked(True)
+    assert all(s.isEnabled() for s in p.rows["blur_limit_px"].spins)
+    qtbot.waitUntil(lambda: "no fly speed" in p.outputs["time"].text())
+    assert style_prop(p.outputs["time"], "flag") == "warn"
+    # a machine-vision camera: 1 ms, 20 frames/s
+    type_into(qtbot, p.rows["exposure_s"].spins[0], "0.001")
+    type_into(qtbot, p.rows["frame_rate_fps"].spins[0], "20")
+    qtbot.waitUntil(lambda: p.plan is not None and p.plan.frame_rate_fps == 20 and p.plan.exposure_s == 0.001)
+    qtbot.waitUntil(lambda: "fly scan" in p.outputs["time"].text())
+    assert "80 mm/s (camera frame rate binds)" in p.outputs["fly"].text()
+    type_into(qtbot, p.rows["fly_speed_mm_s"].spins[0], "40")
+    qtbot.waitUntil(lambda: p.plan.fly_speed_mm_s == 40)
+    qtbot.waitUntil(lambda: "at 40 mm/s" in p.outputs["fly"].text())
+    assert window.state.plan.fly_speed_mm_s == 40 and window.state.plan.frame_rate_fps == 20   # published
+    type_into(qtbot, p.rows["blur_limit_px"].spins[0], "0.1")
+    qtbot.waitUntil(lambda: p.plan.blur_limit_px == pytest.approx(0.1))
+    qtbot.waitUntil(lambda: p.outputs["fly"].text().startswith("not possible"))
+    assert "blur" in p.outputs["fly"].toolTip()
+    box.setChecked(False)
+    assert not p.rows["fly_speed_mm_s"].spins[0].isEnabled()       # the box's fields follow it

@@ -100,6 +100,10 @@ _SCENE_INPUTS = [_input("near_m", 2, 0.05), _input("far_m", 2, 0.1), _input("coc
 _GRID_INPUTS = [_input("grid"), _input("spacing_mm", 3, 0.5), _input("repeatability_um", 0, 5),
                 _input("travel_mm", 0, 10), _input("max_speed_mm_s", 0, 5), _input("acceleration_mm_s2", 0, 10),
                 _input("settle_s", 2, 0.05), _input("exposure_s", 3, 0.1), _input("transfer_s", 2, 0.1)]
+#: fly scanning (continuous motion): what bounds the row speed, and the speed asked for
+_FLY_INPUTS = [_input("blur_limit_px", 2, 0.05), _input("frame_rate_fps", 1, 1), _input("bandwidth_mb_s", 0, 10),
+               _input("report_rate_hz", 0, 5), _input("fly_speed_mm_s", 1, 5)]
+FLY_SETTINGS_KEY = "planner/continuous_motion"
 _TARGET_INPUTS = [_input("max_error_px", 2, 0.1), _input("max_disparity_px", 2, 0.25),
                   _input("target_parallax_fraction", 1, 1, percent=True)]
 
@@ -224,6 +228,16 @@ class PlannerPanel(QWidget):
         assert isinstance(grid, QGridLayout)       # _group lays its box out on a grid
         self._add_bracket_row(grid)
         lay.addWidget(timing)
+        self.fly_box = self._group("Continuous motion (fly scan)", _FLY_INPUTS)
+        self.fly_box.setObjectName("plannerFly")
+        self.fly_box.setCheckable(True)
+        self.fly_box.setChecked(self._restore_fly())
+        self.fly_box.setToolTip("Plan a fly scan: each row crossed at one constant speed, a frame as the carriage "
+                                "passes each view. The capture time is then the fly scan's; the row speed is the "
+                                "fastest these limits allow (the Fly scan line says which binds). Scan panel: "
+                                "Continuous motion")
+        self.fly_box.toggled.connect(self._fly_toggled)
+        lay.addWidget(self.fly_box)
         lay.addWidget(self._group("Targets", _TARGET_INPUTS))
         buttons = QHBoxLayout()
         self.reference_button = QPushButton("Reference setup")
@@ -402,6 +416,8 @@ class PlannerPanel(QWidget):
             value.setProperty("role", "value")
             value.setToolTip(tip)
             value.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
+            if key in ("time", "fly"):       # long lines: wrapped in a narrow dock (1366 × 768)
+                value.setWordWrap(True)
             grid.addWidget(name, i, 0)
             grid.addWidget(value, i, 1)
             self.outputs[key] = value
@@ -437,7 +453,10 @@ class PlannerPanel(QWidget):
             exposure_s=self._value("exposure_s"), transfer_s=self._value("transfer_s"),
             max_error_px=self._value("max_error_px"), max_disparity_px=self._value("max_disparity_px"),
             target_parallax_fraction=None if parallax is None else parallax / 100.0,
-            raw_bits=int(self._value("raw_bits")), bracket=self.bracket_edit.text().strip(), **self._extra)
+            raw_bits=int(self._value("raw_bits")), bracket=self.bracket_edit.text().strip(),
+            blur_limit_px=self._value("blur_limit_px"), frame_rate_fps=self._optional("frame_rate_fps"),
+            bandwidth_mb_s=self._optional("bandwidth_mb_s"), report_rate_hz=self._optional("report_rate_hz"),
+            fly_speed_mm_s=self._optional("fly_speed_mm_s"), **self._extra)
 
     def set_plan(self, plan: ScenePlan) -> None:
         """Show ``plan`` in the fields (values beyond a field's range are clamped to it)."""
@@ -453,7 +472,10 @@ class PlannerPanel(QWidget):
                 "settle_s": plan.settle_s, "exposure_s": plan.exposure_s, "transfer_s": plan.transfer_s,
                 "max_error_px": plan.max_error_px, "max_disparity_px": plan.max_disparity_px,
                 "target_parallax_fraction": None if plan.target_parallax_fraction is None
-                else plan.target_parallax_fraction * 100.0}
+                else plan.target_parallax_fraction * 100.0,
+                "blur_limit_px": plan.blur_limit_px, "frame_rate_fps": plan.frame_rate_fps,
+                "bandwidth_mb_s": plan.bandwidth_mb_s, "report_rate_hz": plan.report_rate_hz,
+                "fly_speed_mm_s": plan.fly_speed_mm_s}
             for key, value in values.items():
                 spins = self.rows[key].spins
                 vals = value if isinstance(value, (tuple, list)) else (value,)
@@ -614,8 +636,14 @@ class PlannerPanel(QWidget):
         frames = f", {r.frames} frames" if r.frames_per_view > 1 else ""
         put("images", f"{plan.grid_columns} × {plan.grid_rows} = {r.images}{frames}"
             + ("" if r.fits_travel else "  — beyond travel"), "" if r.fits_travel else "bad")
-        put("time", f"{format_duration(r.capture_time_s)} ({r.capture_time_s / max(r.images, 1):.2f} s/view)")
         fly = r.fly
+        step = f"{format_duration(r.capture_time_s)} ({r.capture_time_s / max(r.images, 1):.2f} s/view)"
+        if not self.fly_box.isChecked():
+            put("time", step)
+        elif fly is not None and fly.possible:
+            put("time", f"{format_duration(fly.time_s)} fly scan (step by step {format_duration(r.capture_time_s)})")
+        else:
+            put("time", f"{step}: no fly speed (see Fly scan)", "warn")
         if fly is not None and fly.possible:
             put("fly", f"{format_duration(fly.time_s)} at {fly.speed_mm_s:.3g} mm/s ({fly.binding} binds)")
             self.outputs["fly"].setToolTip(self.outputs["fly"].toolTip().split("\n\n")[0])
@@ -700,6 +728,23 @@ class PlannerPanel(QWidget):
         from lfstudio.gui.settings import settings
 
         settings().setValue(SETTINGS_KEY, json.dumps(plan.to_dict()))
+
+    @staticmethod
+    def _restore_fly() -> bool:
+        from lfstudio.gui.settings import settings
+
+        return str(settings().value(FLY_SETTINGS_KEY, "false")).lower() == "true"
+
+    def _fly_toggled(self, on: bool) -> None:
+        from lfstudio.gui.settings import settings
+
+        settings().setValue(FLY_SETTINGS_KEY, "true" if on else "false")
+        self._changed()
+
+    @property
+    def continuous_motion(self) -> bool:
+        """Whether the plan is for a fly scan (the "Continuous motion" box is ticked)."""
+        return self.fly_box.isChecked()
 
     def save_plan_file(self, path: str | Path) -> bool:
         try:
