@@ -40,6 +40,8 @@ SMOKE: dict[str, tuple[list[str], list[str]]] = {
     "export_hevc.py": (["--width", "320", "--columns", "2", "--rows", "1", "--no-psy-compare"],
                        ["16-bit PNG export: 2 views", "encode speed", "PSNR"]),
     "fault_soak.py": (["--trials", "1", "--kinds", "kill"], ["trial   1 kill", "1 trials, 0 lost, 0 duplicated, 0 outside"]),
+    "fly_kill_soak.py": (["--trials", "1", "--grid", "3x2", "--kill-min-s", "4", "--kill-max-s", "6"],
+                         ["fly trial 0:", "1 trials (", "0 failed"]),
     "fly_scan.py": (["--grid", "4x10", "--time-scale", "0.2", "--width", "64", "--calibrate", "--calibrate-width", "160"],
                     ["trigger: hardware", "grid 4 x 10 = 40 views", "fly scan:", "blur at the nearest depth",
                      "recorded position vs truth", "added by the fly recording", "calibration views (array:4ex10"]),
