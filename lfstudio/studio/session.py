@@ -641,6 +641,8 @@ class ScanSession:
                     raise InputError(f"--set {name}", str(exc).split(": ", 1)[-1]) from None
                 self.note(f"camera setting {name} = {value}")
             rig, camera, current, port = studio.rig, studio.camera, studio.record(), studio.port
+            if req.camera_settings:                  # --set: recorded with the camera (not part of its identity)
+                current["camera"]["set"] = dict(req.camera_settings)
             fresh = studio.simulator is not None or rig_spec.kind == "instant"   # set up just now, homed
             how_to_home = None
             rig_text, cam_text = rig_spec.text, cam_spec.text

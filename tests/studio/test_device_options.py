@@ -47,6 +47,10 @@ def test_scan_settings_are_made_before_the_first_view(tmp_path):
     try:
         session.open(lambda existing, cfg: (plan, None))
         assert session.studio is not None and session.studio.camera.settings()["shutter_s"] == 0.002
+        from lfstudio.dataset import Dataset
+
+        recorded = Dataset.open(tmp_path / "ds").manifest["devices"]["camera"]
+        assert recorded["set"] == {"shutter_s": 0.002}                       # what was set, with the camera
     finally:
         session.close()
 
