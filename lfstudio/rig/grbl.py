@@ -841,8 +841,12 @@ class GrblController:
         s_on = f"S{float(self.settings.get(30, 1000)):g}"
         lines = []
         for x in xs_mm:
+            # the output falls pulse_mm on, never past the row's end (checked against the soft limits
+            # above): a view near the end of travel, whose run-down the soft limit cut short, gets a
+            # shorter pulse instead of a target beyond the limit
+            off = min(x + pulse, end_x_mm) if direction > 0 else max(x - pulse, end_x_mm)
             lines.append(f"G1 {h.letter}{x:.3f} S0")
-            lines.append(f"G1 {h.letter}{x + direction * pulse:.3f} {s_on}")
+            lines.append(f"G1 {h.letter}{off:.3f} {s_on}")
         lines.append(f"G1 {h.letter}{end_x_mm:.3f} S0")
         with self._io:
             st = self._require_motion_allowed()

@@ -164,3 +164,21 @@ def test_simulator_without_laser_mode_stops_at_every_change(sim_controller):
     assert [round(sim.true_position_at(t)[0], 3) for t in rising] == XS[:3]
     gaps = [(b - a) / sim.time_scale for a, b in zip(rising, rising[1:])]
     assert min(gaps) > 1.5 * 5.0 / SPEED, gaps                            # stopped for each change
+
+
+def test_a_pulse_near_the_end_of_travel_never_leaves_the_soft_limits(sim_controller):
+    """The output stays high ``pulse_mm`` past each view: for a view closer than that to the row's end
+    (the run-down cut short by the soft limit, as FlyScanEngine clamps it) the old driver streamed
+    ``G1 X80.5 S1000`` on a rig whose travel ends at 80 mm, then came back to 80. Now the pulse ends
+    at the row's end: no target beyond it, the carriage never past it, every view still triggered."""
+    sim, c = sim_controller(1)
+    near = dataclasses.replace(BENCH, horizontal=dataclasses.replace(BENCH.horizontal, soft_max_mm=80.0))
+    c.config = near
+    xs = [59.5, 64.5, 69.5, 74.5, 79.5]                       # the last view 0.5 mm from the end of travel
+    c.fly_pulsing(xs, 80.0, 0.0, SPEED)
+    c.wait_arrival(80.0, 0.0, 60.0)
+    c.pulse_off()
+    targets = [float(word[1:]) for line in sim.lines_received for word in line.split() if word.startswith("X")]
+    assert targets and max(targets) <= 80.0, targets
+    rising = [t for t, level in sim.spindle_output.edges() if level]
+    assert [round(sim.true_position_at(t)[0], 3) for t in rising] == xs
