@@ -83,6 +83,7 @@ def run_one(transport: str, touch_probe: bool, args: argparse.Namespace, root: P
     assert state is ScanState.FINISHED, engine.message
     done = Dataset.open(ds.root)
     errors: dict[str, list[float]] = {}
+    worst: list[tuple[float, str]] = []
     for v in done.views:
         fly = v.get("fly") or {}
         if "recorded_mm" not in fly:
@@ -90,11 +91,13 @@ def run_one(transport: str, touch_probe: bool, args: argparse.Namespace, root: P
         truth = json.loads((done.root / v["sidecars"][1]).read_text())["true_position_mm"]
         e = math.hypot(fly["recorded_mm"][0] - truth[0], fly["recorded_mm"][1] - truth[1])
         errors.setdefault(fly.get("source", "reports"), []).append(e)
+        worst.append((e, f"r{v['row']:02d} c{v['column']:03d} {fly.get('source')}: recorded {fly['recorded_mm']}, "
+                         f"truth [{truth[0]:.4f}, {truth[1]:.4f}], t {fly['t_s']}"))
     step = plan.estimate_duration_s(rig, args.exposure_s, 1.0 / args.fps)
     return {"name": name, "views": cols * rows, "speed": decided["speed_mm_s"], "binding": decided["binding"],
             "report_hz": decided["report_rate_hz"], "wall_min": m.wall_s / ts / 60, "step_min": step / 60,
             "flown": sum(len(e) for e in errors.values()), "retaken": engine.retaken, "errors": errors,
-            "cpu": m.cpu_s, "wall": m.wall_s}
+            "cpu": m.cpu_s, "wall": m.wall_s, "worst": sorted(worst, reverse=True)[:2]}
 
 
 def stop_latency(transport: str, trials: int) -> list[float]:
@@ -187,6 +190,9 @@ def main() -> int:
         print(f"| {r['name']} | {r['speed']:.1f} ({r['binding']}) | {r['report_hz']:.0f} | {r['wall_min']:.2f} | "
               f"{r['step_min']:.2f} | {r['flown']} / {r['retaken']} | {'; '.join(parts) or '–'} |")
         failed |= r["flown"] == 0
+    for r in results:
+        for e, what in r["worst"]:
+            print(f"  worst of {r['name']}: {1000 * e:.1f} µm at {what}")
     every = [e for r in results for es in r["errors"].values() for e in es]
     if every:
         print(f"recorded position vs truth, all: RMS {1000 * math.sqrt(statistics.fmean(e * e for e in every)):.1f} µm "

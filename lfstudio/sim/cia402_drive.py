@@ -122,7 +122,7 @@ TOUCH_PROBE_OBJECTS: dict[tuple[int, int], tuple[int, bool, bool]] = {
 TP_ENABLE, TP_CONTINUOUS, TP_POSITIVE, TP_NEGATIVE = 0x01, 0x02, 0x10, 0x20
 TP_ENABLED, TP_POSITIVE_STORED, TP_NEGATIVE_STORED = 0x01, 0x02, 0x04
 HISTORY_DT = 0.001             # the axis' history of where it was: an entry at most every ms (emulator time)
-HISTORY_STEPS = 100_000        # ... and at least the last 100 s (emulator time) of it
+HISTORY_STEPS = 50_000         # ... and at least the last 50 000 entries (50 s of emulator time or more)
 #: supported homing methods (60E3h, an array): only on an emulator told to list them (AxisSetup.supported_homing)
 SUPPORTED_HOMING = 0x60E3
 #: objects a drive can be told to lack (``lfstudio sim-drive --leave-out``): every one CiA 402 leaves optional

@@ -204,3 +204,23 @@ def test_a_drive_without_touch_probe_says_so_once_and_latches_nothing(drives):
     assert c.latches() == [] and emulator.pair.axes[0].probe_latches == 0
     said = [w for w in c.status().extra["warnings"] if "touch probe" in w]
     assert len(said) == 1 and "interpolated from its position reads (6064h)" in said[0]
+
+
+def test_a_fly_move_on_drives_whose_units_disagree_is_refused_before_anything_is_sent():
+    """#38's unit check holds for fly moves: drives counting micrometres (6092h:01 = 70000) under a profile
+    of 100 per mm would fly ten times too far and fast."""
+    from lfstudio.rig.cia402 import UnitsMismatch
+
+    rig = load_rig(RIG_NAME)
+    emulator = start_drive_emulator(rig, "modbus", time_scale=0.0, setup={"feed": 70000})
+    link = open_rig(emulator.word, rig, doing="test", lock=False, timeout_s=2.0)
+    try:
+        c = link.controller
+        c.accept_reference()
+        mark = len(emulator.pair.journal)
+        with pytest.raises(UnitsMismatch, match="fly move refused.*60A8h"):
+            c.fly_to(100.0, 0.0, 50.0)
+        assert emulator.pair.journal[mark:] == []
+    finally:
+        link.close()
+        emulator.close()
