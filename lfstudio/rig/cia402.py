@@ -1216,10 +1216,12 @@ class Cia402Controller:
             return
         t_seen = fly["probe_poll"]
         values = dict(fly["standing"])
+        spans = []
         for i in fly["probes"]:
             rising = self._read(i, PROBE_POSITIVE)
             falling = self._read(i, PROBE_NEGATIVE) if self.has(i, PROBE_NEGATIVE) else rising
             values[i] = (rising + falling) / 2.0 / self._k[i]
+            spans.append((falling - rising) / self._k[i])
         t_rearm = time.monotonic()
         for i in fly["probes"]:
             function = PROBE_ENABLE | PROBE_ON_RISING | (PROBE_ON_FALLING if self.has(i, PROBE_NEGATIVE) else 0)
@@ -1227,7 +1229,7 @@ class Cia402Controller:
             self._write(i, PROBE_FUNCTION, function)
         unc = max(1.0 / self._k[i] for i in fly["probes"])   # one position unit
         fly["latches"].append(Latch(fly["probe_after"], t_seen, values[0], values[1], unc,
-                                    "both" if both else "rising"))
+                                    "both" if both else "rising", math.hypot(*spans)))
         fly["probe_after"] = t_rearm                          # edges before the probe was armed again are lost
 
     def latches(self) -> list[Latch]:

@@ -172,7 +172,8 @@ class Latch:
     camera's exposure output wired to the drive's probe input). The edges came after ``t_after_s`` and
     before ``t_seen_s`` (``time.monotonic()``: when the driver looked and did not see them yet, and when
     it saw them); ``x_mm``/``y_mm`` where the carriage was (the exposure's centre when ``edges`` is
-    "both": the mean of the rising and falling edge; its start when "rising")."""
+    "both": the mean of the rising and falling edge; its start when "rising"). ``span_mm``: how far
+    apart the two edges were latched (the travel during the exposure, when both belong to one frame)."""
 
     t_after_s: float
     t_seen_s: float
@@ -180,6 +181,7 @@ class Latch:
     y_mm: float
     uncertainty_mm: float
     edges: str = "both"
+    span_mm: float = 0.0
 
 
 @runtime_checkable

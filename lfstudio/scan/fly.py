@@ -371,10 +371,12 @@ class FlyScanEngine(ScanEngine):
                 t_mid = t_sent + (float(getattr(cam, "trigger_latency_s", 0.0)) +
                                   0.5 * float(meta.get("shutter_s") or 0.0)) * self.time_scale
                 t_unc = float(getattr(cam, "trigger_jitter_s", 0.0)) * self.time_scale
-            latch = _latch_of(latches, start, end)
+            latch = _latch_of(latches, start, end, speed * float(meta.get("shutter_s") or 0.0))
             where = interpolate(reports, t_mid) if latch is None else None
             if latch is not None:               # latched by the drive on the camera's exposure output
                 x, y, unc, source = latch.x_mm, latch.y_mm, latch.uncertainty_mm, "touch probe"
+                if latch.edges == "rising":     # the exposure's start: its centre half the exposure on
+                    x += direction * 0.5 * speed * float(meta.get("shutter_s") or 0.0)
             elif self.trigger == "hardware":
                 # the line rose where the controller passed the view (to the step); the frame's centre is
                 # the line latency and half the exposure further along, at the row's speed
@@ -469,14 +471,19 @@ def _predict(reports: list[PositionReport], x: float, direction: float, v_real: 
     return b.t_s + t_c + (ahead - d_c) / v_real
 
 
-def _latch_of(latches: list[Latch], start: Any, end: Any, slack_s: float = 0.002) -> Latch | None:
+def _latch_of(latches: list[Latch], start: Any, end: Any, travel_mm: float = 0.0,
+              slack_s: float = 0.002) -> Latch | None:
     """The latch of the frame exposed from ``start`` to ``end`` (monotonic): the one whose window (after
-    the driver last saw nothing, until it saw the edges) holds the exposure; None when no latch or more
-    than one fits (the frame's position then comes from the reports)."""
+    the driver last saw nothing, until it saw the edges) holds the exposure, and whose two edges lie
+    the exposure's ``travel_mm`` apart (edges of two frames, as when one came while the probe was being
+    armed again, lie a spacing apart); None when no latch or more than one fits (the frame's position
+    then comes from the reports)."""
     if not latches or not isinstance(start, (int, float)) or not isinstance(end, (int, float)):
         return None
     fits = [latch for latch in latches if latch.t_after_s - slack_s <= float(start)
-            and float(end if latch.edges == "both" else start) <= latch.t_seen_s + slack_s]
+            and float(end if latch.edges == "both" else start) <= latch.t_seen_s + slack_s
+            and (latch.edges != "both" or
+                 abs(latch.span_mm - travel_mm) <= 0.5 * travel_mm + 2.0 * latch.uncertainty_mm)]
     return fits[0] if len(fits) == 1 else None
 
 

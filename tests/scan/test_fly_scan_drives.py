@@ -30,7 +30,8 @@ RIG = load_rig(RIG_NAME)
 SCALE = 0.5
 
 
-def fly_on_drives(root, port: str, setup: dict | None = None, columns: int = 6, rows: int = 2):
+def fly_on_drives(root, port: str, setup: dict | None = None, columns: int = 6, rows: int = 2,
+                  exposure_s: float = 0.001):
     """Homed at once (time scale 0), then flown at SCALE: the drives' long homing run is not the test."""
     plan = ScanPlan(columns, rows, (4.0, 6.0), (40.0, 20.0), settle_s=0.05)
     from lfstudio.studio import simulated
@@ -43,7 +44,7 @@ def fly_on_drives(root, port: str, setup: dict | None = None, columns: int = 6, 
 
     simulated.start_drive_emulator = with_setup
     try:
-        session = open_studio(port, "sim", RIG, time_scale=0.0, exposure_s=0.001, transfer_s=0.05,
+        session = open_studio(port, "sim", RIG, time_scale=0.0, exposure_s=exposure_s, transfer_s=0.05,
                               view_region_mm=plan.extent_mm(), sim_width_px=64, timeout_s=2.0)
     finally:
         simulated.start_drive_emulator = real
@@ -149,6 +150,38 @@ def _scan(word: str, out, *args: str):
                            "-1950x-200", "--sim-width-px", "64", "--time-scale", str(SCALE), "--exposure-s", "0.001",
                            "--transfer-s", "0.05", "--out", str(out), *args],
                           capture_output=True, text=True, timeout=300, env=lfstudio_env(), cwd=REPO_ROOT)
+
+
+def test_a_drive_latching_only_the_rising_edge_gives_the_exposure_centre(tmp_path):
+    """Touch probe without 60BBh (no negative edge): the latch is the exposure's start, and the recorded
+    position its centre, half the exposure's travel on (5 ms at 40 mm/s: 0.1 mm)."""
+    session, plan, ds = fly_on_drives(tmp_path / "ds", "sim-dryve", setup={"touch_probe": True, "leave_out": {0x60BB}},
+                                      exposure_s=0.005)
+    try:
+        run_fly(session, plan, ds)
+    finally:
+        session.close()
+    by_probe = [(fly, truth) for _v, fly, truth in recorded_views(ds.root) if fly["source"] == "touch probe"]
+    assert by_probe
+    for fly, truth in by_probe:
+        assert fly["recorded_mm"][0] == pytest.approx(truth[0], abs=0.011)
+
+
+def test_a_latch_pairs_with_its_frame_only_when_its_edges_are_one_exposure_apart():
+    """A frame's latch: its window holds the exposure and its edges lie the exposure's travel apart; two
+    frames' edges mixed (one came while the probe was being armed again) lie a spacing apart: not taken."""
+    from lfstudio.rig.motion import Latch
+    from lfstudio.scan.fly import _latch_of
+
+    good = Latch(10.0, 10.02, 44.0, 20.0, 0.01, "both", 0.04)
+    mixed = Latch(10.03, 10.08, 46.0, 20.0, 0.01, "both", 3.96)
+    rising = Latch(10.03, 10.08, 48.0, 20.0, 0.01, "rising", 0.0)
+    assert _latch_of([good, mixed], 10.005, 10.006, 0.04) is good
+    assert _latch_of([good, mixed], 10.05, 10.051, 0.04) is None          # its window's latch mixes two frames
+    assert _latch_of([good, rising], 10.05, 10.051, 0.04) is rising
+    assert _latch_of([good], 10.5, 10.501, 0.04) is None                  # no window holds it: the reports
+    twin = Latch(10.0, 10.02, 44.1, 20.0, 0.01, "both", 0.04)
+    assert _latch_of([good, twin], 10.005, 10.006, 0.04) is None          # two fit: neither is taken
 
 
 def test_cli_fly_scan_on_drives_in_another_process(tmp_path, sim_drive):
