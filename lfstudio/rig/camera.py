@@ -143,6 +143,22 @@ def name_of(camera: Any, default: str) -> str:
     return str(camera.name) if isinstance(camera, HasName) else default
 
 
+def setting_number(name: str, value: Any, valid: str) -> float:
+    """The value of the camera setting ``name`` as a finite number (``--set shutter_s=abc``, a text field):
+    :class:`~lfstudio.errors.InputError` naming the setting and ``valid`` otherwise, never a ValueError."""
+    import math
+
+    from lfstudio.errors import InputError
+
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = math.nan
+    if not math.isfinite(number):
+        raise InputError(name, f"{value!r} is not a number", valid)
+    return number
+
+
 @runtime_checkable
 class Stoppable(Protocol):
     def stop(self) -> None: ...

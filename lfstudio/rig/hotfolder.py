@@ -27,7 +27,7 @@ from lfstudio.dataset import images
 from lfstudio.dataset.atomic import atomic_write_with
 from lfstudio.dataset.paths import is_utf8_name, shown_name
 from lfstudio.errors import DeviceError, DeviceRefused, DeviceTimeout, InputError
-from lfstudio.rig.camera import CaptureResult
+from lfstudio.rig.camera import CaptureResult, setting_number
 
 log = logging.getLogger(__name__)
 
@@ -114,6 +114,8 @@ class HotFolderCamera:
                 "timeout_s": self.timeout_s, "stable_s": self.stable_s, "format": "as saved by the camera"}
 
     def set_setting(self, name: str, value: Any) -> None:
+        if name in ("timeout_s", "stable_s"):
+            setting_number(name, value, "timeout_s > 0, stable_s >= 0")
         if name == "timeout_s" and float(value) > 0:
             self.timeout_s = float(value)
         elif name == "stable_s" and float(value) >= 0:

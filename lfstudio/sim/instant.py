@@ -17,7 +17,7 @@ import numpy as np
 
 from lfstudio.dataset.atomic import atomic_write_with
 from lfstudio.errors import DeviceError, InputError
-from lfstudio.rig.camera import CaptureResult
+from lfstudio.rig.camera import CaptureResult, setting_number
 from lfstudio.rig.motion import RigConfig, RigState, RigStatus
 
 
@@ -123,7 +123,7 @@ class InstantCamera:
         """``shutter_s`` is kept (it takes no time); ``format`` is PNG; ``time_scale`` changes nothing;
         any other name is refused (the camera contract: a setting is never dropped unsaid)."""
         if name == "shutter_s":
-            seconds = float(value)
+            seconds = setting_number(name, value, "0 … 3600 s")
             if not 0 <= seconds <= 3600:
                 raise InputError("shutter_s", f"{value} s is out of range", "0 … 3600 s")
             self.shutter_s = seconds

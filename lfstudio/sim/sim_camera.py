@@ -31,7 +31,7 @@ import numpy as np
 from lfstudio.dataset.atomic import atomic_write_json, atomic_write_with
 from lfstudio.errors import DeviceError, InputError
 from lfstudio.numbers import EXPOSURE_S, TIME_SCALE, TRANSFER_S
-from lfstudio.rig.camera import CameraSetting, CameraStatus, CaptureResult
+from lfstudio.rig.camera import CameraSetting, CameraStatus, CaptureResult, setting_number
 from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
 from lfstudio.sim.sensor import SensorModel
 from lfstudio.sim.studio import VirtualStudio, demo_studio_kwargs
@@ -178,35 +178,37 @@ class SimulatedCamera:
 
     def set_setting(self, name: str, value: Any) -> None:
         if name == "iso":
-            if int(value) not in ISO_VALUES:
+            iso = setting_number(name, value, ", ".join(map(str, ISO_VALUES)))
+            if iso not in ISO_VALUES:
                 raise InputError("iso", f"{value} is not available", ", ".join(map(str, ISO_VALUES)))
-            self.iso = int(value)
+            self.iso = int(iso)
         elif name == "shutter_s":
-            if not SHUTTER_RANGE_S[0] <= float(value) <= SHUTTER_RANGE_S[1]:
+            seconds = setting_number(name, value, f"{SHUTTER_RANGE_S[0]:g} .. {SHUTTER_RANGE_S[1]:g} s")
+            if not SHUTTER_RANGE_S[0] <= seconds <= SHUTTER_RANGE_S[1]:
                 raise InputError("shutter_s", f"{value} s is out of range",
                                  f"{SHUTTER_RANGE_S[0]:g} .. {SHUTTER_RANGE_S[1]:g} s")
-            self.exposure_s = float(value)
+            self.exposure_s = seconds
         elif name == "aperture":
-            if not 1.0 <= float(value) <= 32:
+            if not 1.0 <= setting_number(name, value, "f/1 .. f/32") <= 32:
                 raise InputError("aperture", f"f/{value} is out of range", "f/1 .. f/32")
             self.aperture = float(value)
         elif name == "format":
             if str(value).upper() != "DNG":
                 raise InputError("format", f"{value!r} is not available on the simulated camera", "DNG")
         elif name == "transfer_s":
-            if not 0 <= float(value) <= 60:
+            if not 0 <= setting_number(name, value, "0 .. 60 s") <= 60:
                 raise InputError("transfer_s", f"{value} s is out of range", "0 .. 60 s")
             self.transfer_s = float(value)
         elif name == "time_scale":
-            if float(value) < 0:
+            if setting_number(name, value, ">= 0 (0: no simulated delays)") < 0:
                 raise InputError("time_scale", "must not be negative", ">= 0 (0: no simulated delays)")
             self.time_scale = float(value)
         elif name == "frame_rate_fps":
-            if not 0 < float(value) <= 10_000:
+            if not 0 < setting_number(name, value, "> 0 … 10000 frames/s") <= 10_000:
                 raise InputError("frame_rate_fps", f"{value} frames/s is out of range", "> 0 … 10000 frames/s")
             self.frame_rate_fps = float(value)
         elif name in ("noise", "flicker", "vignetting"):
-            if not 0 <= float(value) <= 1:
+            if not 0 <= setting_number(name, value, "0 .. 1") <= 1:
                 raise InputError(name, f"{value} is out of range", "0 .. 1")
             s = self.sensor
             self.sensor = SensorModel(**{**{"flicker": s.flicker, "vignetting": s.vignetting, "noise": s.noise,
