@@ -299,7 +299,8 @@ class Cia402Controller:
     After :meth:`connect`: :attr:`objects` (what each drive has), :attr:`drive_limits_mm` (``607Dh``
     in mm), :attr:`window_mm` (``6067h``), :attr:`units_problem`, :attr:`warnings` and
     :attr:`reference` ("homed", "origin", "kept" or ""). ``known_objects``: each drive's (index, sub)
-    from its EDS/DCF (None: read them). ``accept_reference``: :meth:`accept_reference` at connect."""
+    from its EDS/DCF (None: read them). ``accept_reference``: :meth:`accept_reference` at the first connect
+    (not at a reconnect)."""
 
     def __init__(self, links: tuple[ObjectLink, ObjectLink], rig: RigConfig, *, port: str = "",
                  timeout_s: float = 3.0, poll_hz: float = 50.0, tolerance_mm: float | None = None,
@@ -456,6 +457,9 @@ class Cia402Controller:
             self._last_t = 0.0
             if self.accept_reference_at_connect:
                 self.accept_reference()
+                # the first connection's only: a reconnect (a scan's recovery, the Rig panel's Recover after
+                # a lost link, perhaps a power cut that restarted the counters) never keeps a reference unasked
+                self.accept_reference_at_connect = False
             self._query()
 
     def _missing_line(self, i: int, missing: list[tuple[int, int]], doing: str) -> str:

@@ -380,6 +380,22 @@ class DriveAxis:
             self._limit_trip_at *= ratio
         self._k = k
 
+    def power_cycle(self) -> None:
+        """The drive switched off and on where it stands (a power cut, its gateway restarted): its
+        counter ``6064h`` reads 0 there, the reference is gone, it is switch on disabled, no mode."""
+        with self._lock:
+            self._advance()
+            self._offset += self._actual
+            self._demand = self._actual = self._v = 0.0
+            self._target, self._homing, self._pending_mode = None, None, None
+            self._homed_flag = self._halt = self._ack = self._quick_stop_at_rest = False
+            self._reached = True
+            self.homed = False
+            self.state = SWITCH_ON_DISABLED
+            self.mode = 0
+            self.od[(0x6060, 0)] = 0
+            self.od[(0x6040, 0)] = 0
+
     # -- faults ----------------------------------------------------------------------------------
     def inject(self, fault: str) -> None:
         with self._lock:

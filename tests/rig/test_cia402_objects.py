@@ -128,10 +128,30 @@ def test_the_reference_option_at_connect(drives, transport):
     _, c = drives(transport, setup={"enabled_unhomed": True}, accept_reference=True)
     assert c.status().homed and c.reference == "kept"
     c.connect()                                          # a new connection: not kept unless asked again
-    assert c.status().homed                              # (the option stays with this controller)
-    c.accept_reference_at_connect = False
-    c.connect()
-    assert not c.status().homed
+    assert not c.status().homed                          # (the option is the first connection's only)
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_a_reconnect_after_a_power_cut_never_keeps_the_reference(drives, transport):
+    """The reference option (lfstudio rig --keep-drive-reference; since the rig kinds, also scan
+    --rig-option accept_reference=true and the Rig panel's Options box) is for the drives as the
+    operator found them. A scan's recovery and the Rig panel's Recover reconnect the same driver after
+    a lost link: the old driver took the drives' reference again at that connect, after a power cut
+    too, where each counter restarts at 0 wherever the carriage stood, and 'move 100 20' went 100 mm
+    past where it should. Now the reconnected rig is not homed and the move is refused."""
+    emulator, c = drives(transport, accept_reference=True)
+    c.home()
+    c.move_to(100, 20)
+    assert emulator.true_position_mm() == pytest.approx((100, 20), abs=0.011)
+    for axis in emulator.pair.axes:
+        axis.power_cycle()
+    c.connect()                                          # what ScanEngine._recover / Recover do
+    st = c.status()
+    assert not st.homed and st.extra["reference"] == ""
+    del emulator.pair.journal[:]
+    with pytest.raises(DeviceError, match="home the rig first"):
+        c.move_to(100, 20)
+    assert _control_writes(emulator) == [] and emulator.true_position_mm() == pytest.approx((100, 20), abs=0.011)
 
 
 # -- objects ------------------------------------------------------------------------------------------
