@@ -247,3 +247,30 @@ def test_cli_refuses_the_hardware_trigger_without_laser_mode(tmp_path, monkeypat
     line = err.strip().splitlines()[-1]
     assert "--trigger" in line and "laser mode is off ($32 = 0)" in line and "$32=1" in line
     assert "Traceback" not in err and not (tmp_path / "ds" / "dataset.json").exists()
+
+
+def test_hardware_trigger_abort_takes_effect_at_the_row_end_and_resume_flies_the_rest(studio):
+    """The controller holds the whole row's G-code: an abort during the row lets its frames all come
+    (never a frame at a wrong position), the next row is flown on resume."""
+    session, plan, ds = studio
+    engine, events = engine_of(session, plan, ds, trigger="hardware")
+
+    def abort_on_first_frame(ev):
+        if ev.kind is EventKind.VIEW_EXPOSED and ev.row == 0:
+            try:
+                engine.abort()
+            except Exception:
+                pass
+
+    engine.subscribe(abort_on_first_frame)
+    engine.start()
+    assert engine.wait(120) is ScanState.FINISHED, engine.message
+    cut = Dataset.open(ds.root)
+    done = {(v["row"], v["column"]) for v in cut.done_views()}
+    assert done and all(row == 0 for row, _ in done)               # row 1 never started
+    assert all(cut.path_of(v).is_file() for v in cut.done_views())
+    again = FlyScanEngine(Dataset.open(ds.root), plan, session.rig, session.camera, time_scale=SCALE,
+                          backoff_s=0.01, speed_mm_s=40.0, trigger="hardware")
+    again.start()
+    assert again.wait(120) is ScanState.FINISHED, again.message
+    check_views(ds.root, again)
