@@ -17,7 +17,7 @@ from lfstudio.dataset import Dataset
 from lfstudio.rig.camera import TriggeredCamera
 from lfstudio.rig.motion import FlyingController, PositionReport
 from lfstudio.scan.events import EventKind, ScanState
-from lfstudio.scan.fly import FlyScanEngine, _predict, interpolate
+from lfstudio.scan.fly import FlyScanEngine, _gap_around, _predict, interpolate
 from lfstudio.scan.scan_plan import ScanPlan
 from lfstudio.studio.devices import open_studio
 from lfstudio.studio.session import create_scan_dataset
@@ -131,6 +131,7 @@ def test_interpolation_and_prediction():
     x, y, unc = interpolate(reports, 10.15)
     assert (x, y) == pytest.approx((6.0, 5.0)) and unc == pytest.approx(40 * 0.001)
     assert interpolate(reports, 10.3) is None
+    assert _gap_around(reports, 10.15) == pytest.approx(0.1) and _gap_around(reports, 10.3) == 0.0
     assert _predict(reports, 12.0, 1.0, 40.0, 500.0) == pytest.approx(10.3)     # at speed: its own speed
     assert _predict(reports, 6.0, 1.0, 40.0, 500.0) == pytest.approx(10.15)     # passed: when it did (late)
     assert _predict(reports[:1], 12.0, 1.0, 40.0, 500.0) is None
