@@ -8,9 +8,11 @@ In place of the names the pages use:
   /dev/pts/N     the port the block's ``lfstudio sim-rig`` printed
   [--option]     (optional) given
   ``lfstudio scan ...``   the block's first whole ``lfstudio scan`` command (with an ``--out`` of its own)
+  pip install docs/plugins/X   into a folder of the test's own (the block's later commands find it)
   files the examples take as given (``some_photo.jpg``, another rig's images in ``~/other_rig/``, ...):
-                 made by the test (PLACEHOLDERS)
-and sizes made tiny (``tiny``: a scan of 101 x 21 views scans 3 x 2, simulated devices run at time scale 0,
+                 made by the test (_some_photo, _import_images_source)
+and sizes made tiny (``tiny``: a scan of 101 x 21 views scans 3 x 2, simulated devices run at time scale 0
+and render 400 px wide, depth maps are computed for 15 of DATASET's views,
 a statistic of 200 trials takes one of 20 points a pair, a focal length in the reference camera's pixels is scaled to
 DATASET's): the test checks that the command works as shown, not its figures.
 
@@ -46,6 +48,9 @@ MAX_NOT_RUN = 24
 #: lfstudio commands that serve until Ctrl-C (they call serving.serve_until_stopped): started as
 #: programs, their first line (a port, an address) kept for the block's later commands
 SERVING = {"sim-rig", "sim-drive"}
+#: programs that install software: never run (``pip install FOLDER`` of the checkout goes to a folder of
+#: the test's own)
+INSTALLERS = {"pip", "pip3", "pipx", "apt", "apt-get", "sudo", "dpkg"}
 #: the simulated scan DATASET stands for
 DATASET_GRID = ("11", "9")
 DATASET_WIDTH_PX = 400
@@ -82,12 +87,19 @@ def tiny(argv: list[str]) -> list[str]:
                 set_value("--grid", "3x2")
     if command in ("scan", "sim-rig", "sim-drive", "rig") and (value("--time-scale") or "0") != "0":
         set_value("--time-scale", "0")
+    if command == "scan" and "--resume" not in argv:
+        if "--time-scale" not in argv:
+            argv += ["--time-scale", "0"]
+        if (value("--camera") or "sim") == "sim" and "--sim-width-px" not in argv:
+            argv += ["--sim-width-px", "400"]
+    if command == "depth" and "--views" not in argv:
+        argv += ["--views", "r3-5,c3-7"]                  # 15 of DATASET's views
     if command == "rig" and _option(argv, "--port") is not None and value("--port") == "sim" \
             and "--time-scale" not in argv:
         argv[1:1] = ["--time-scale", "0"]
     if command == "virtual-dataset":
         width = value("--width")
-        if width is None or int(width) > 1000:
+        if width is None or int(width) > 400:
             argv += ["--width", "400"] if width is None else []
             set_value("--width", "400")
     if command == "simulate-calibration":
@@ -167,6 +179,7 @@ class _Block:
         self.servers: list[subprocess.Popen] = []
         self.background: list[subprocess.Popen] = []
         self.dask = None
+        self.site: Path | None = None                 # where the block's `pip install` put a package
         self.base: dict[str, list[str]] = {}          # a command's first whole form in the block (for "...")
 
     # words -----------------------------------------------------------------------------------------
@@ -228,13 +241,19 @@ class _Block:
         if background:
             words = words[:-1]
         program = words[0]
+        if program in ("pip", "pip3") and words[1:2] == ["install"]:
+            self.pip_install(c, words[2:])
+            return
+        if program in INSTALLERS:
+            pytest.fail(f"{c.where}: `{c.text}` installs software on this machine: the test does not run it "
+                        "(mark it <!-- not-run: why -->)")
         if program == "lfstudio" or program.endswith("/lfstudio"):
             argv = self.lfstudio_argv(words[1:], c)
             if argv and argv[0] == "import-images":
                 _import_images_source(argv, self.home)
             if argv and argv[0] in SERVING:
                 self.serve(c, argv)
-            elif env or background:
+            elif env or background or self.site is not None:
                 self.program(c, [sys.executable, "-m", "lfstudio", *argv], env, background)
             else:
                 self.in_process(c, argv)
@@ -247,6 +266,18 @@ class _Block:
         if exe is None:
             pytest.skip(f"{c.where}: {program} is not installed here")
         self.program(c, [exe, *args], env, background)
+
+    def pip_install(self, c: Command, args: list[str]) -> None:
+        """``pip install FOLDER`` (a page's example package): into a folder of the test's own, which the
+        block's later commands find on their path (they run as programs: the plugins a process loaded stay)."""
+        folders = [a for a in args if not a.startswith("-")]
+        assert len(folders) == 1 and (REPO_ROOT / folders[0]).is_dir(), \
+            f"{c.where}: `{c.text}`: the test installs only a folder of the checkout"
+        source = self.tmp / "pip-source" / Path(folders[0]).name
+        shutil.copytree(REPO_ROOT / folders[0], source)          # a build writes beside its sources
+        self.site = self.tmp / "pip-site"
+        self.program(c, [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
+                         "--no-index", "--disable-pip-version-check", "--target", str(self.site), str(source)], {}, False)
 
     def in_process(self, c: Command, argv: list[str]) -> None:
         from lfstudio.cli import main
@@ -270,7 +301,8 @@ class _Block:
 
     def program(self, c: Command, args: list[str], env: dict[str, str], background: bool) -> None:
         full = dict(os.environ, **env)
-        full["PYTHONPATH"] = str(REPO_ROOT) + os.pathsep + full.get("PYTHONPATH", "")
+        full["PYTHONPATH"] = os.pathsep.join([str(REPO_ROOT), *([str(self.site)] if self.site else []),
+                                              full.get("PYTHONPATH", "")])
         if background:
             proc = subprocess.Popen(args, env=full, cwd=self.work, stdin=subprocess.DEVNULL,
                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -458,5 +490,7 @@ def test_the_collector_finds_commands_markers_and_prompts(tmp_path):
     assert [(c.line, c.text, c.not_run) for b in blocks for c in b.commands] == [
         (4, "lfstudio plan", ""), (5, "lfstudio info x --json", ""), (11, "lfstudio rig --port sim status", ""),
         (12, "lfstudio rig --port /dev/ttyUSB0 status", "a GRBL board"), (16, "lfstudio plan", "")]
-    assert tiny(["scan", "--grid", "101x21", "--time-scale", "0.1"]) == ["scan", "--grid", "3x2", "--time-scale", "0"]
-    assert tiny(["scan", "--grid", "9x3", "--time-scale", "0"]) == ["scan", "--grid", "9x3", "--time-scale", "0"]
+    assert tiny(["scan", "--grid", "101x21", "--time-scale", "0.1"]) == [
+        "scan", "--grid", "3x2", "--time-scale", "0", "--sim-width-px", "400"]
+    assert tiny(["scan", "--camera", "gphoto2", "--grid", "9x3"]) == [
+        "scan", "--camera", "gphoto2", "--grid", "9x3", "--time-scale", "0"]
