@@ -108,7 +108,9 @@ class Param:
     show this text for it ("auto"); ``option``: the command line's name (shared by the fields one option
     sets, e.g. ``--grid``); ``metavar``: its placeholder; ``label``/``tip``: the editor's name and
     explanation (also the option's help); ``group``: where editors and ``--help`` list it; ``repeat``:
-    a list of such values, the option given once for each (``--notify A --notify B``)."""
+    a list of such values, the option given once for each (``--notify A --notify B``); ``remember``:
+    False for an act on one connection rather than a setting (a form never saves it, and shows it
+    unticked each time, e.g. keeping the drives' reference)."""
 
     number: Number | None = None
     label: str = ""
@@ -122,6 +124,7 @@ class Param:
     flag: bool = False
     lengths: tuple[int, ...] = ()
     repeat: bool = False
+    remember: bool = True
 
     def check(self, field: str, value: Any) -> Any:
         """``value`` checked (each of a pair's or list's values; None when optional), or InputError

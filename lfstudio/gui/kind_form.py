@@ -57,8 +57,8 @@ class KindForm(QWidget):
                 if param.flag:
                     box = QCheckBox(param.label or f.name)
                     box.setObjectName(f"{kind.name}-{f.name}")
-                    box.setChecked(read_text(self._key(f.name), "", s) == "true" or
-                                   (read_text(self._key(f.name), "", s) == "" and f.default is True))
+                    saved = read_text(self._key(f.name), "", s) if param.remember else ""
+                    box.setChecked(saved == "true" or (saved == "" and f.default is True))
                     box.setToolTip(param.tip)
                     form.addRow("", box)
                     self.flags[f.name] = box
@@ -99,6 +99,10 @@ class KindForm(QWidget):
     def _key(self, name: str) -> str:
         return f"devices/{self.kind.name}/{name}"
 
+    def _param(self, name: str) -> Any:
+        return next(f.metadata["lfstudio.param"] for f in dataclasses.fields(self.kind.options)
+                    if f.name == name)
+
     def label_of(self, name: str) -> str:
         for f in dataclasses.fields(self.kind.options) if self.kind.options is not None else ():
             if f.name == name:
@@ -131,13 +135,18 @@ class KindForm(QWidget):
         return out
 
     def save(self) -> None:
+        """Remember the fields for the next time; a flag that is an act on one connection (``remember``
+        False: Keep drive reference) is never saved and is unticked here, once used."""
         s = settings()
         if self.argument is not None:
             s.setValue(self._key("argument"), self.argument.text())
         for name, edit in self.fields.items():
             s.setValue(self._key(name), edit.text())
         for name, box in self.flags.items():
-            s.setValue(self._key(name), "true" if box.isChecked() else "false")
+            if self._param(name).remember:
+                s.setValue(self._key(name), "true" if box.isChecked() else "false")
+            else:
+                box.setChecked(False)
 
     def show_settings(self, described: Any) -> None:
         """The connected camera's settings as data: name, value, its choices or range."""

@@ -40,9 +40,10 @@ class DriveOptions:
                                                "position window (6067h)")
     stall_s: float = described(3.0, number=Number("s", 0.1, 600), label="Stall after",
                                tip="a move whose position has not changed for this long has stalled")
-    accept_reference: bool = described(False, flag=True, label="Keep drive reference",
+    accept_reference: bool = described(False, flag=True, remember=False, label="Keep drive reference",
                                        tip="take the position the drives report as the rig's reference without "
-                                           "homing (drives homed earlier that kept it); logged")
+                                           "homing (drives homed earlier that kept it); logged; for this "
+                                           "connection only, never remembered")
 
 
 def _parse_dryve(argument: str, option: str) -> tuple[str, tuple]:

@@ -71,3 +71,25 @@ def test_the_rig_panel_builds_the_ports_kind_options_form_and_connects_with_them
         assert panel.port_combo.findData("dryve:") >= 0 and panel.port_combo.findData("canopen:") >= 0
     finally:
         panel.shutdown()
+
+
+def test_keep_drive_reference_holds_for_one_connect_and_is_never_remembered(qtbot):
+    """Keeping the drives' reference is an act on one connection (#38): the Options box is unticked once
+    a Connect used it, and a form made later (the next day's window) shows it unticked; the other fields
+    are remembered."""
+    from lfstudio.gui.kind_form import KindForm
+    from lfstudio.studio.kinds import rig_kind
+
+    kind = rig_kind("dryve")
+    assert kind is not None
+    form = KindForm(kind, argument=False)
+    qtbot.addWidget(form)
+    form.flags["accept_reference"].setChecked(True)
+    form.fields["poll_hz"].setText("40")
+    assert form.options() == {"accept_reference": True, "poll_hz": 40.0}
+    form.save()
+    assert not form.flags["accept_reference"].isChecked() and form.options() == {"poll_hz": 40.0}
+    later = KindForm(kind, argument=False)
+    qtbot.addWidget(later)
+    assert not later.flags["accept_reference"].isChecked()
+    assert later.options() == {"poll_hz": 40.0}
