@@ -9,7 +9,7 @@ from PySide6.QtCore import QEvent, QObject, QPointF, QRectF, QSize, Qt, QTimer, 
 from PySide6.QtGui import (QAction, QColor, QFont, QGuiApplication, QPainter, QPen, QPixmap, QTextDocumentFragment,
                            QWheelEvent, QWindow)
 from PySide6.QtWidgets import (QAbstractSpinBox, QApplication, QComboBox, QHBoxLayout, QLabel, QMessageBox,
-                               QProgressBar, QPushButton, QScrollArea, QSizePolicy, QWidget)
+                               QProgressBar, QPushButton, QScrollArea, QSizePolicy, QVBoxLayout, QWidget)
 
 from lfstudio.dataset.paths import view_stem
 from lfstudio.gui.bridge import Pacer
@@ -178,6 +178,59 @@ def show_lock_note(note: QLabel, tips: list[tuple[QWidget | QAction, str]], reas
     note.setVisible(bool(reason))
     for widget, tip in tips:
         widget.setToolTip(f"{tip}\n\n{reason}" if reason else tip)
+
+
+class PageStack(QWidget):
+    """A stack of pages, one shown, that takes the room of the shown page only. QStackedWidget's
+    layout answers the height for a width with the largest of all its pages (QStackedLayout::
+    heightForWidth asks every page, shown or not): a short page (the Camera panel's gphoto2 text)
+    stood above a gap as tall as the tallest word-wrapped page in the stack. Here the pages sit in
+    a box layout and all but the current one are hidden, so the layout sees the current one only."""
+
+    currentChanged = Signal(int)
+
+    def __init__(self, parent: QWidget | None = None):
+        super().__init__(parent)
+        self._pages: list[QWidget] = []
+        self._current = -1
+        self._box = QVBoxLayout(self)
+        self._box.setContentsMargins(0, 0, 0, 0)
+
+    def addWidget(self, page: QWidget) -> int:
+        self._pages.append(page)
+        self._box.addWidget(page)
+        if self._current < 0:
+            self.setCurrentIndex(0)
+        else:
+            page.setVisible(False)
+        return len(self._pages) - 1
+
+    def count(self) -> int:
+        return len(self._pages)
+
+    def widget(self, index: int) -> QWidget | None:
+        return self._pages[index] if 0 <= index < len(self._pages) else None
+
+    def indexOf(self, page: QWidget) -> int:
+        return self._pages.index(page) if page in self._pages else -1
+
+    def currentIndex(self) -> int:
+        return self._current
+
+    def currentWidget(self) -> QWidget | None:
+        return self.widget(self._current)
+
+    def setCurrentWidget(self, page: QWidget) -> None:
+        self.setCurrentIndex(self.indexOf(page))
+
+    def setCurrentIndex(self, index: int) -> None:
+        if not 0 <= index < len(self._pages) or index == self._current:
+            return
+        self._current = index
+        for i, page in enumerate(self._pages):
+            page.setVisible(i == index)
+        self.updateGeometry()
+        self.currentChanged.emit(index)
 
 
 class WheelGuard(QObject):

@@ -116,3 +116,22 @@ def test_the_hot_folder_options_come_from_its_kinds_description(qtbot, panels, t
         assert (link.camera.stable_s, link.camera.timeout_s) == (2.5, 12.0)
     finally:
         link.close()
+
+
+@pytest.mark.parametrize("width", [440, 600])
+def test_a_short_page_has_no_gap_under_it_after_a_taller_one(qtbot, panels, width):
+    """The kind's page takes its own height: the gphoto2 page (three lines of text) stood above an
+    empty gap ~150 px tall at 1366 x 768, the height of the simulated camera's or GenICam's page,
+    because QStackedWidget answers the height for a width with the tallest page's."""
+    _, panel, _ = panels
+    panel.resize(width, 700)
+    panel.show()
+    qtbot.waitExposed(panel)
+    for kind in ("sim", "genicam", "gphoto2"):
+        panel.kind.setCurrentIndex(panel.kind.findData(kind))
+        panel.layout().activate()
+        page = panel.pages.currentWidget()
+        need = page.heightForWidth(panel.pages.width()) if page.hasHeightForWidth() else page.sizeHint().height()
+        assert panel.pages.height() <= need + 2, kind
+        gap = panel.connect_button.geometry().top() - panel.pages.geometry().bottom()
+        assert gap < 30, (kind, gap)

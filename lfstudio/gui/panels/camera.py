@@ -19,7 +19,7 @@ from typing import Any
 from PySide6.QtCore import Qt
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import (QComboBox, QDoubleSpinBox, QFileDialog, QFormLayout, QGroupBox, QHBoxLayout,
-                               QLabel, QLineEdit, QPushButton, QSizePolicy, QSpinBox, QStackedWidget, QVBoxLayout, QWidget)
+                               QLabel, QLineEdit, QPushButton, QSpinBox, QVBoxLayout, QWidget)
 
 from lfstudio.dataset.paths import expand_path
 from lfstudio.errors import InputError
@@ -28,7 +28,7 @@ from lfstudio.gui.kind_form import KindForm
 from lfstudio.gui.path_field import expand_on_edit
 from lfstudio.gui.settings import read_float, read_int, read_text, settings
 from lfstudio.gui.state import AppState
-from lfstudio.gui.widgets import show_lock_note
+from lfstudio.gui.widgets import PageStack, show_lock_note
 from lfstudio.resources import user_config_dir
 from lfstudio.rig.camera import DescribesSettings
 from lfstudio.rig.worker import DeviceWorker
@@ -184,7 +184,7 @@ class CameraPanel(QWidget):
         ff.addRow("Trigger command", self.trigger_edit)
         ff.addRow(self.folder_options)
 
-        self.pages = QStackedWidget()
+        self.pages = PageStack()          # the room of the shown page only (QStackedWidget: the tallest's)
         for page in (sim_page, gp_page, folder_page, *self.forms.values()):
             self.pages.addWidget(page)
         self.kind.currentIndexChanged.connect(self._kind_changed)
@@ -287,12 +287,6 @@ class CameraPanel(QWidget):
     def _kind_changed(self) -> None:
         current = self.kind.currentIndex()
         self.pages.setCurrentIndex(current)
-        for i in range(self.pages.count()):       # the stack takes the height of the shown page only
-            policy = QSizePolicy.Policy.Preferred if i == current else QSizePolicy.Policy.Ignored
-            page = self.pages.widget(i)
-            if page is not None:
-                page.setSizePolicy(policy, policy)
-        self.pages.adjustSize()
         settings().setValue(self.kind_key, self.current_kind())
         # a DSLR's exposure; a kind with a form shows its own settings
         self.exposure_group.setVisible(self.current_kind() not in self.forms)
