@@ -274,12 +274,20 @@ class FlyScanEngine(ScanEngine):
             t_cmd = time.monotonic()
             self._moving = True
             if hardware:                      # the controller fires the camera: nothing to time here
-                self._rig_call("fly_pulsing", [view.x_mm for view in row], end_x, y, v,
-                               timeout_s=max(30.0, 3 * expected_s + 30))
+                # the fetches wait on the camera's worker for their edges, so each frame is delivered
+                # (rendered, on the simulated camera) while the row is still flown
                 wait_s = self.capture_call_timeout_s() + 2 * expected_s
                 for view in row:
                     triggered.append((view, t_cmd))
                     fetches.append(self._camera_submit("fetch", self._stem(view), wait_s, timeout_s=wait_s + 10))
+                try:
+                    self._rig_call("fly_pulsing", [view.x_mm for view in row], end_x, y, v,
+                                   timeout_s=max(30.0, 3 * expected_s + 30))
+                except BaseException:
+                    stop = getattr(cam, "stop", None)     # edges may never come: the waiting fetches end now
+                    if callable(stop):
+                        stop()
+                    raise
             else:
                 self._rig_call("fly_to", end_x, y, v, timeout_s=30)
             for view in (row if not hardware else []):

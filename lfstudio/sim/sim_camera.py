@@ -413,6 +413,7 @@ class SimulatedCamera:
             raise DeviceError(f"{self.name}: {problem}")
         with self._exposed_cond:
             self._exposed.clear()
+        self._abort.clear()                      # a STOP before this row ended its waits, not this row's
         self._line_after = time.monotonic()
         self._line_index = 0
         self._line_last_open = -math.inf
