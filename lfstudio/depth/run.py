@@ -331,6 +331,11 @@ def geometry_of(ds: Dataset, views: Sequence[View], needed: Sequence[View], sour
                     found, phrase)
 
 
+#: what to do when the range cannot be found: in the command line's words and the Depth dialog's
+STATE_THE_RANGE = (f"state it ({words('lfstudio depth --disparity-range MIN,MAX', 'Disparity range field: MIN, MAX')}) "
+                   "or give the dataset a scene plan")
+
+
 def measured_range(ds: Dataset, views: Sequence[View], source: str, H, width_px: float) -> tuple[float, float, str]:
     """Disparity range (px per horizontal step at ``width_px``, 1st-99th percentile) from SIFT
     matches pooled over the pairs of a star of views around the chosen views' centre: its nearest and
@@ -356,8 +361,7 @@ def measured_range(ds: Dataset, views: Sequence[View], source: str, H, width_px:
                 pairs.append((a, b, "h" if dc else "v", k * (1.0 if dc else sy / sx)))
     if len(pairs) < 2:
         raise InputError("views", "too few views around the chosen ones and no scene plan: the disparity range is "
-                         "unknown", "state it (lfstudio depth --disparity-range MIN,MAX) or give the dataset a "
-                         "scene plan")
+                         "unknown", STATE_THE_RANGE)
     needed = sorted({v for p in pairs for v in p[:2]})
     features = {v: detect(_image_path(ds, v, source)) for v in needed}
     results = match_pairs(features, [(a, b, d) for a, b, d, _ in pairs], threads=1)
@@ -375,7 +379,7 @@ def measured_range(ds: Dataset, views: Sequence[View], source: str, H, width_px:
     d = np.concatenate(found) if found else np.zeros(0)
     if len(found) < 2 or len(d) < 20:
         raise InputError("views", "too few feature matches to measure the disparity range and no scene plan",
-                         "state it (lfstudio depth --disparity-range MIN,MAX) or give the dataset a scene plan")
+                         STATE_THE_RANGE)
     scale = float(width_px) / float(full_w) if full_w else 1.0
     lo, hi = (float(v) * scale for v in np.percentile(d, [1, 99]))
     assert centre is not None                   # pairs come only from around it

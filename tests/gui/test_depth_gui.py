@@ -120,3 +120,26 @@ def test_a_map_whose_processed_image_is_gone_says_so_by_name(tiny_dataset):
     ds.processed_path(ds.view(1, 2)).unlink()
     with pytest.raises(LfError, match="r01_c002: .*compute the depth map again"):
         depth_picture(Dataset.open(ds.root), (1, 2))
+
+
+def test_an_unknown_disparity_range_names_the_dialogs_field_not_the_cli_option(qtbot, tiny_dataset):
+    """No scene plan and featureless views: the range cannot be measured. The Depth dialog's message
+    names its own Disparity range field; it said 'state it (lfstudio depth --disparity-range MIN,MAX)'."""
+    import cv2
+    import numpy as np
+
+    tiny_dataset.manifest["plan"] = {k: v for k, v in (tiny_dataset.manifest.get("plan") or {}).items()
+                                     if k not in ("near_m", "far_m")}
+    tiny_dataset.save()
+    for v in tiny_dataset.views:                      # featureless: too few matches to measure the range
+        cv2.imwrite(str(tiny_dataset.path_of(v)), np.full((20, 30), 100, np.uint8))
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    window.state.set_dataset(tiny_dataset)
+    _action(window, "actionDepthMap").trigger()
+    dialog = window.findChild(DepthDialog, "depthDialog")
+    with qtbot.waitSignal(dialog.runner.failed, timeout=120000):
+        dialog.compute_button.click()
+    text = dialog.caption.text()
+    assert "Disparity range" in text and "scene plan" in text, text
+    assert "--" not in text and "lfstudio depth" not in text, text
