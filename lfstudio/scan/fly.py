@@ -361,7 +361,13 @@ class FlyScanEngine(ScanEngine):
         taken = {view.cell for view, _ in triggered}
         rest = [view for view in row if view.cell not in taken]
         latches = self._row_latches()
-        for (view, t_sent), fut in zip(triggered, fetches):
+        if latches:                              # each frame's latch, one to one (all frames first)
+            for fut in fetches:
+                self._wait(fut.done, self.capture_call_timeout_s() + 10)
+            paired = _pair_latches(latches, [_exposure_of(fut, speed) for fut in fetches])
+        else:
+            paired = [None] * len(fetches)
+        for k, ((view, t_sent), fut) in enumerate(zip(triggered, fetches)):
             self._wait(fut.done, self.capture_call_timeout_s() + 10)
             attempt = self._attempts.get(view.cell, 0) + 1
             self._attempts[view.cell] = attempt
@@ -379,7 +385,7 @@ class FlyScanEngine(ScanEngine):
                 t_mid = t_sent + (float(getattr(cam, "trigger_latency_s", 0.0)) +
                                   0.5 * float(meta.get("shutter_s") or 0.0)) * self.time_scale
                 t_unc = float(getattr(cam, "trigger_jitter_s", 0.0)) * self.time_scale
-            latch = _latch_of(latches, start, end, speed * float(meta.get("shutter_s") or 0.0))
+            latch = paired[k]
             where = interpolate(reports, t_mid) if latch is None else None
             if latch is not None:               # latched by the drive on the camera's exposure output
                 x, y, unc, source = latch.x_mm, latch.y_mm, latch.uncertainty_mm, "touch probe"
@@ -492,20 +498,38 @@ def _predict(reports: list[PositionReport], x: float, direction: float, v_real: 
     return b.t_s + t_c + (ahead - d_c) / v_real
 
 
-def _latch_of(latches: list[Latch], start: Any, end: Any, travel_mm: float = 0.0,
-              slack_s: float = 0.002) -> Latch | None:
-    """The latch of the frame exposed from ``start`` to ``end`` (monotonic): the one whose window (after
-    the driver last saw nothing, until it saw the edges) holds the exposure, and whose two edges lie
-    the exposure's ``travel_mm`` apart (edges of two frames, as when one came while the probe was being
-    armed again, lie a spacing apart); None when no latch or more than one fits (the frame's position
-    then comes from the reports)."""
-    if not latches or not isinstance(start, (int, float)) or not isinstance(end, (int, float)):
+def _exposure_of(fut: Future, speed: float) -> tuple[float, float, float] | None:
+    """A fetched frame's exposure (start, end on the monotonic clock) and the travel during it (mm); None
+    when the frame did not come or does not say when it was exposed."""
+    if not fut.done() or fut.cancelled() or fut.exception() is not None:
         return None
-    fits = [latch for latch in latches if latch.t_after_s - slack_s <= float(start)
-            and float(end if latch.edges == "both" else start) <= latch.t_seen_s + slack_s
-            and (latch.edges != "both" or
-                 abs(latch.span_mm - travel_mm) <= 0.5 * travel_mm + 2.0 * latch.uncertainty_mm)]
-    return fits[0] if len(fits) == 1 else None
+    meta = getattr(fut.result(), "metadata", None)
+    meta = meta if isinstance(meta, dict) else {}
+    start, end = meta.get("exposure_start_s"), meta.get("exposure_end_s")
+    if not isinstance(start, (int, float)) or not isinstance(end, (int, float)):
+        return None
+    return float(start), float(end), speed * float(meta.get("shutter_s") or 0.0)
+
+
+def _latch_fits(latch: Latch, start: float, end: float, travel_mm: float, slack_s: float = 0.002) -> bool:
+    """The latch can be the frame's exposed from ``start`` to ``end``: its window (after the driver last
+    saw nothing, until it saw the edges) holds the exposure, and its two edges lie the exposure's
+    ``travel_mm`` apart (edges of two frames, as when one came while the probe was being armed again,
+    lie a spacing apart)."""
+    return (latch.t_after_s - slack_s <= start and (end if latch.edges == "both" else start) <= latch.t_seen_s + slack_s
+            and (latch.edges != "both" or abs(latch.span_mm - travel_mm) <= 0.5 * travel_mm + 2.0 * latch.uncertainty_mm))
+
+
+def _pair_latches(latches: list[Latch], exposures: list[tuple[float, float, float] | None]) -> list[Latch | None]:
+    """Each frame's latch, one to one: a frame gets the latch that alone fits it (:func:`_latch_fits`) and
+    fits no other frame; else None (its position then comes from the reports). Two frames close together
+    (a late trigger, then one on time) can both fall in one latch's window: neither takes it."""
+    fits = [[i for i, latch in enumerate(latches) if e is not None and _latch_fits(latch, *e)] for e in exposures]
+    claims: dict[int, int] = {}
+    for found in fits:
+        for i in found:
+            claims[i] = claims.get(i, 0) + 1
+    return [latches[found[0]] if len(found) == 1 and claims[found[0]] == 1 else None for found in fits]
 
 
 def _with_record(fut: Future, extra: dict[str, Any]) -> Future:
