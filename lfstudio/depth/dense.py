@@ -31,7 +31,9 @@ the aggregated costs of five candidates around it.
 Candidates are spaced so that the farthest neighbour moves by at most :data:`SWEEP_STEP_PX` between
 them. **Depth edges**: where a pixel's surroundings span more than :data:`EDGE_JUMP_PX`, a pixel given
 the nearer surface takes the farther one unless its own grey value matches the nearer clearly better
-in the views (a window straddling the edge fattens the nearer surface otherwise).
+in the views (a window straddling the edge fattens the nearer surface otherwise); then, given the
+view in colour, each such pixel takes the surface of the pixels around it whose colour is nearest
+its own (:func:`colour_edges`: an anti-aliased silhouette pixel mostly showing the background).
 
 **Memory**: the cost volume is built and aggregated in strips of rows (at most
 :data:`VOLUME_CELLS` cells at once, each strip reading :data:`STRIP_OVERLAP` rows beyond its own), so a
@@ -80,7 +82,12 @@ LCN_SCALE = 0.05
 SNAP_WINDOW_PX = 5
 SNAP_PASSES = 2
 EDGE_JUMP_PX = 1.0
-FAR_BIAS = 0.5
+FAR_BIAS = 0.7
+#: ... then each pixel of such an edge takes the surface (the window's minimum or maximum) of the
+#: pixels within COLOUR_RADIUS_PX whose colour is nearest its own (an anti-aliased pixel of a
+#: silhouette belongs to the surface it mostly shows; matching alone gives it the nearer one)
+COLOUR_RADIUS_PX = 2
+COLOUR_PASSES = 2
 #: sub-pixel: where the matching cost (averaged over REFINE_WINDOW_PX) has its minimum at the
 #: answer, its neighbours exceeding it by more than REFINE_SHARP of it, and the equiangular fit
 #: through it lies within REFINE_AGREE candidates of the parabola fitted to the aggregated costs of
@@ -126,6 +133,15 @@ def prepare(rgb: np.ndarray) -> np.ndarray:
     if grey.dtype == np.uint16:
         return np.sqrt(grey.astype(np.float32) * np.float32(1.0 / 65535.0))
     return grey.astype(np.float32) * np.float32(1.0 / 255.0)
+
+
+def prepare_colour(rgb: np.ndarray) -> np.ndarray:
+    """RGB float32 in [0, 1] (h, w, 3) of a linear 16-bit (or 8-bit sRGB) view, gamma-encoded as
+    :func:`prepare` (grey views: one channel)."""
+    img = rgb if rgb.ndim == 3 else rgb[:, :, None]
+    if img.dtype == np.uint16:
+        return np.sqrt(img.astype(np.float32) * np.float32(1.0 / 65535.0))
+    return img.astype(np.float32) * np.float32(1.0 / 255.0)
 
 
 def disparity_candidates(d_min_px: float, d_max_px: float, max_offset: float, step_px: float) -> np.ndarray:
@@ -361,11 +377,13 @@ def _best_of(costs: list[np.ndarray], k: int) -> np.ndarray:
 
 def light_field_disparity(reference: np.ndarray, neighbours: Sequence[Neighbour], d_min_px: float,
                           d_max_px: float, *, window_px: int | None = None, step_px: float | None = None,
-                          volume_cells: int | None = None, check=None) -> DenseResult:
+                          volume_cells: int | None = None, check=None,
+                          colour: np.ndarray | None = None) -> DenseResult:
     """Disparity and confidence of ``reference`` (grey float32 from :func:`prepare`) from its
     ``neighbours`` anywhere in the grid (module docstring); the search covers [d_min_px, d_max_px]
     with a margin of one candidate. Memory: at most ``volume_cells`` cost cells (strips of rows).
-    ``check()`` is called between candidates (cancel)."""
+    ``check()`` is called between candidates (cancel). ``colour``: the reference in colour
+    (:func:`prepare_colour`), for the pixels of depth edges (:func:`colour_edges`)."""
     if not neighbours:
         raise ValueError("no neighbour view to compare the reference with")
     window_px = int(window_px or WINDOW_PX)
@@ -418,6 +436,9 @@ def light_field_disparity(reference: np.ndarray, neighbours: Sequence[Neighbour]
         y = y1
     for _ in range(SNAP_PASSES):
         disp = snap_edges(raw_ref, raw_nbs, disp)
+    if colour is not None and COLOUR_RADIUS_PX > 0:
+        for _ in range(COLOUR_PASSES):
+            disp = colour_edges(disp, colour)
     return DenseResult(disp, conf, D, len(neighbours))
 
 
@@ -477,7 +498,6 @@ def snap_edges(reference: np.ndarray, neighbours: Sequence[Neighbour], disp: np.
     the local maximum than to the minimum takes the minimum unless its own grey value matches the
     maximum better by :data:`FAR_BIAS` in the best half-plane or line of views (a window would
     straddle the edge: the cost here is the pixel's own)."""
-    h, w = reference.shape
     k = np.ones((SNAP_WINDOW_PX, SNAP_WINDOW_PX), np.uint8)
     finite = np.isfinite(disp)
     lo = cv2.erode(np.where(finite, disp, np.float32(1e6)).astype(np.float32), k)
@@ -486,13 +506,81 @@ def snap_edges(reference: np.ndarray, neighbours: Sequence[Neighbour], disp: np.
     if not edge.any():
         return disp
     ys, xs = np.nonzero(edge)
+    c_lo, c_hi = _pixel_costs(reference, neighbours, ys, xs, (lo[ys, xs], hi[ys, xs]))
+    out = disp.copy()
+    d0 = disp[ys, xs]
+    on_near = (hi[ys, xs] - d0) < (d0 - lo[ys, xs])
+    # a pixel on the nearer surface goes to the farther one unless the nearer matches clearly better
+    # (a window fattens the nearer surface)
+    take_lo = on_near & (c_lo * FAR_BIAS <= c_hi)
+    out[ys, xs] = np.where(take_lo, lo[ys, xs], d0)
+    return out
+
+
+def colour_edges(disp: np.ndarray, colour: np.ndarray, radius: int | None = None) -> np.ndarray:
+    """At depth edges (the disparities within :data:`SNAP_WINDOW_PX` span more than
+    :data:`EDGE_JUMP_PX`), each pixel takes the surface of the pixel within ``radius``
+    (:data:`COLOUR_RADIUS_PX`) whose colour is nearest its own (the two nearest of each side): the local maximum where that pixel is
+    on the nearer surface (nearer to the maximum than to the minimum), else the local minimum. An
+    anti-aliased pixel of a silhouette mostly showing the background matches the nearer surface's
+    edge in the views (it moves with it) but looks like the background. A tie goes to the farther, as
+    does a pixel of the nearer surface with none of it around."""
+    radius = COLOUR_RADIUS_PX if radius is None else int(radius)
+    img = colour if colour.ndim == 3 else colour[:, :, None]
+    if img.shape[:2] != disp.shape:
+        raise ValueError(f"colour {img.shape[1]} x {img.shape[0]} px is not the map's {disp.shape[1]} x {disp.shape[0]}")
+    k = np.ones((SNAP_WINDOW_PX, SNAP_WINDOW_PX), np.uint8)
+    finite = np.isfinite(disp)
+    lo = cv2.erode(np.where(finite, disp, np.float32(1e6)).astype(np.float32), k)
+    hi = cv2.dilate(np.where(finite, disp, np.float32(-1e6)).astype(np.float32), k)
+    edge = finite & (hi - lo > EDGE_JUMP_PX) & (lo < 1e5) & (hi > -1e5)
+    if not edge.any():
+        return disp
+    ys, xs = np.nonzero(edge)
+    pad_d = np.pad(np.where(finite, disp, np.nan), radius, mode="edge")
+    pad_c = np.pad(img, ((radius, radius), (radius, radius), (0, 0)), mode="edge")
+    own = img[ys, xs]
+    d_lo, d_hi = lo[ys, xs], hi[ys, xs]
+    inf = np.float32(np.inf)
+    first = {side: np.full(len(ys), inf, np.float32) for side in ("near", "far")}
+    second = {side: np.full(len(ys), inf, np.float32) for side in ("near", "far")}
+    for oy in range(-radius, radius + 1):
+        for ox in range(-radius, radius + 1):
+            if oy == 0 and ox == 0:
+                continue
+            dv = pad_d[ys + radius + oy, xs + radius + ox]
+            dist = np.sqrt(((pad_c[ys + radius + oy, xs + radius + ox] - own) ** 2).sum(axis=1))
+            near = (d_hi - dv) < (dv - d_lo)                      # NaN compares False: neither side
+            far = (dv - d_lo) <= (d_hi - dv)
+            for side, m in (("near", near), ("far", far)):
+                d_ = np.where(m, dist, inf)
+                second[side] = np.minimum(second[side], np.maximum(first[side], d_))
+                first[side] = np.minimum(first[side], d_)
+    # the mean distance of the two nearest of each side (one pixel given the wrong side does not
+    # pull its neighbours over)
+    best_near = 0.5 * (first["near"] + second["near"])
+    best_far = 0.5 * (first["far"] + second["far"])
+    d0 = disp[ys, xs]
+    on_near = (d_hi - d0) < (d0 - d_lo)
+    out = disp.copy()
+    # a tie goes to the farther (a window fattens the nearer; 8-bit colours tie often), as does a
+    # pixel with no pixel of the nearer surface around (a lone one)
+    out[ys, xs] = np.where(best_near < best_far, np.where(on_near, d0, d_hi), np.where(on_near, d_lo, d0))
+    return out
+
+
+def _pixel_costs(reference: np.ndarray, neighbours: Sequence[Neighbour], ys: np.ndarray, xs: np.ndarray,
+                 candidates: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """The matching cost of the pixels (ys, xs) alone at each of ``candidates`` (a disparity per
+    pixel): the lowest over the half-planes and lines of views (each weighted as in the sweep)."""
+    h, w = reference.shape
     planes = [_half_planes(n.dx, n.dy) for n in neighbours]
     used = sorted({p for ps in planes for p in ps})
     weight = _plane_weights(neighbours, planes)
     ref = reference[ys, xs]
     tau = np.float32(TRUNCATE)
     best_cost = []
-    for cand in (lo[ys, xs], hi[ys, xs]):
+    for cand in candidates:
         sums = {p: np.zeros(len(ys), np.float32) for p in used}
         counts = {p: np.zeros(len(ys), np.float32) for p in used}
         for n, ps in zip(neighbours, planes):
@@ -509,12 +597,5 @@ def snap_edges(reference: np.ndarray, neighbours: Sequence[Neighbour], disp: np.
             c = np.where(counts[p] >= 1, sums[p] / np.maximum(counts[p], 1), np.inf)
             cost = np.minimum(cost, c * np.float32(weight[p]))
         best_cost.append(cost)
-    out = disp.copy()
-    c_lo, c_hi = best_cost
-    d0 = disp[ys, xs]
-    on_near = (hi[ys, xs] - d0) < (d0 - lo[ys, xs])
-    # a pixel on the nearer surface goes to the farther one unless the nearer matches clearly better
-    # (a window fattens the nearer surface)
-    take_lo = on_near & (c_lo * FAR_BIAS <= c_hi)
-    out[ys, xs] = np.where(take_lo, lo[ys, xs], d0)
-    return out
+    return best_cost
+

@@ -456,12 +456,38 @@ _image_cache: OrderedDict[tuple, np.ndarray] = OrderedDict()
 _image_cache_lock = threading.Lock()
 
 
+def _read_reference(path: str, H, size, counts: dict[str, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The view whose map is made: (grey as :func:`_read_cached`, colour (:func:`dense.prepare_colour`));
+    its grey joins the cache (the next views have it as a neighbour)."""
+    rgb = _read_rgb(path, H, size)
+    grey = dense.prepare(rgb)
+    grey.setflags(write=False)
+    _remember(_cache_key(path, H, size), grey)
+    counts["read"] = counts.get("read", 0) + 1
+    return grey, dense.prepare_colour(rgb)
+
+
+def _cache_key(path: str, H, size) -> tuple:
+    st = os.stat(path)
+    return (os.path.abspath(path), st.st_mtime_ns, st.st_size, json.dumps(H), tuple(int(v) for v in size))
+
+
+def _remember(key: tuple, image: np.ndarray) -> None:
+    budget = IMAGE_CACHE_MB * 1024 * 1024
+    with _image_cache_lock:
+        _image_cache[key] = image
+        _image_cache.move_to_end(key)
+        total = sum(a.nbytes for a in _image_cache.values())
+        while total > budget and len(_image_cache) > 1:
+            _, dropped = _image_cache.popitem(last=False)
+            total -= dropped.nbytes
+
+
 def _read_cached(path: str, H, size, counts: dict[str, int] | None = None) -> np.ndarray:
     """:func:`_read` through this process's cache of prepared views (least recently used dropped
     beyond :data:`IMAGE_CACHE_MB`); a file changed since (size, modification time) is read again.
     The array is read-only (shared by the views that use it). ``counts``: "read" / "cached" tallied."""
-    st = os.stat(path)
-    key = (os.path.abspath(path), st.st_mtime_ns, st.st_size, json.dumps(H), tuple(int(v) for v in size))
+    key = _cache_key(path, H, size)
     with _image_cache_lock:
         hit = _image_cache.get(key)
         if hit is not None:
@@ -472,13 +498,7 @@ def _read_cached(path: str, H, size, counts: dict[str, int] | None = None) -> np
         return hit
     image = _read(path, H, size)
     image.setflags(write=False)
-    budget = IMAGE_CACHE_MB * 1024 * 1024
-    with _image_cache_lock:
-        _image_cache[key] = image
-        total = sum(a.nbytes for a in _image_cache.values())
-        while total > budget and len(_image_cache) > 1:
-            _, dropped = _image_cache.popitem(last=False)
-            total -= dropped.nbytes
+    _remember(key, image)
     return image
 
 
@@ -489,11 +509,11 @@ def depth_view_task(task: dict[str, Any]) -> dict[str, Any]:
     cv2.setNumThreads(1)
     t_cpu = time.process_time()
     counts: dict[str, int] = {}
-    ref = _read_cached(task["reference"], task["homography"], task["size"], counts)
+    ref, colour = _read_reference(task["reference"], task["homography"], task["size"], counts)
     nbs = [dense.Neighbour(_read_cached(p, task["homography"], task["size"], counts), dx, dy)
            for p, dx, dy in task["neighbours"]]
     res = dense.light_field_disparity(ref, nbs, *task["d_range"], window_px=task["settings"]["window_px"],
-                                      step_px=task["settings"]["step_px"])
+                                      step_px=task["settings"]["step_px"], colour=colour)
     out = {k: Path(v) for k, v in task["out"].items()}
     for kind, data in (("disparity", res.disparity_px), ("confidence", res.confidence)):
         out[kind].parent.mkdir(parents=True, exist_ok=True)

@@ -154,3 +154,25 @@ def test_a_thin_gap_along_a_row_keeps_the_far_disparity():
     near_far = np.abs(res.disparity_px[slot] + 1.4) < 0.3
     assert near_far.mean() > 0.95, near_far.mean()
     assert _bad(res.disparity_px, truth) < 0.06, _bad(res.disparity_px, truth)
+
+
+def test_a_pixel_at_a_depth_edge_takes_the_surface_whose_colour_it_has():
+    """A silhouette's anti-aliased pixels mostly showing the background match the nearer surface (they
+    move with its edge) but look like the background: at depth edges each pixel takes the surface of
+    the nearest-coloured pixel around it."""
+    h, w = 20, 30
+    rng = np.random.default_rng(5)
+    colour = rng.uniform(-0.05, 0.05, (h, w, 3)).astype(np.float32)          # texture
+    colour[:, :15] += (0.9, 0.9, 0.85)                  # a white statue left, a dark wall right
+    colour[:, 15:] += (0.1, 0.15, 0.1)
+    rim = [4, 12]
+    colour[rim, 15] = 0.3 * colour[rim, 14] + 0.7 * colour[rim, 16]          # anti-aliased: mostly wall
+    disp = np.where(np.arange(w)[None, :] < 15, 2.0, -1.0).astype(np.float32) * np.ones((h, 1), np.float32)
+    wrong = disp.copy()
+    wrong[rim, 15] = 2.0                                 # those given the statue's disparity
+    wrong[8, 14] = -1.0                                  # and a statue pixel given the wall's
+    assert np.array_equal(dense.colour_edges(wrong, colour), disp)
+    # grey views work too (one channel); a map of another size is refused
+    assert np.array_equal(dense.colour_edges(wrong, colour.mean(axis=2)), disp)
+    with pytest.raises(ValueError):
+        dense.colour_edges(wrong, colour[:10])
