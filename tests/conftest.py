@@ -42,23 +42,20 @@ _TOOL_TESTS = ("tests/test_types.py", "tests/test_import_rules.py", "tests/test_
 #   full: everything else: the GUI (real Qt loop), subprocesses (the CLI run as a program, emulator and
 #         firmware processes), real cameras' stacks, the fault and concurrency tests, the benchmarks'
 #         smoke runs and the whole-package tool runs. `./test.sh` (and CI) run both tiers.
-# A test is full when it is marked `full` or `slow`, lives in one of _FULL_FOLDERS or _FULL_FILES, uses
-# one of _FULL_FIXTURES (directly or through another fixture), or its own code or that of a fixture it
-# uses names one of _FULL_WORDS (a process, a firmware, an emulator in another process, a real camera stack).
+# A test is full when it is marked `full` or `slow`, lives in one of _FULL_FOLDERS or _FULL_FILES, skips
+# without ../shared/data, uses one of _FULL_FIXTURES (directly or through another fixture), or its own code,
+# that of a fixture it uses or of its module's functions these call names one of _FULL_WORDS (a process, a
+# firmware, an emulator in another process, a real camera stack) or _HEAVY_WORDS (a whole stage).
 _FULL_FOLDERS = ("tests/gui/", "tests/faults/", "tests/studio/", "tests/benchmarks/", "tests/docs/",
                  "tests/contract/")       # every camera and rig kind on its real stack (fake GigE camera, PTP, ...)
-#: in-process modules measured too heavy for the fast tier (virtual-studio renders, calibration fits and
-#: statistics, whole-pipeline runs: seconds a test; `./test.sh -m fast --durations=25` shows the next ones)
-_HEAVY_FILES = ("tests/calibration/test_simulate.py", "tests/calibration/test_uncertainty.py",
-                "tests/calibration/test_distortion_and_evidence.py", "tests/calibration/test_observability.py",
-                "tests/calibration/test_virtual_studio.py", "tests/export/test_sheared_import.py",
-                "tests/export/test_hci_import.py", "tests/depth/test_dense.py", "tests/quality/test_check.py",
-                "tests/quality/test_bracket_check.py", "tests/quality/test_live.py",
-                "tests/processing/test_output_size_path.py", "tests/processing/test_virtual_studio.py",
-                "tests/processing/test_pipeline.py", "tests/sim/test_virtual_dataset.py", "tests/depth/test_points.py",
-                "tests/depth/test_depth_range.py", "tests/export/test_posed_exports.py", "tests/scan/test_fly_scan.py",
-                "tests/scan/test_fly_scan_drives.py", "tests/rig/test_cia402_fly.py")
-_FULL_FILES = _TOOL_TESTS + _HEAVY_FILES
+#: whole stages on a dataset, each seconds a test in-process: rendering the virtual studio, calibration (a
+#: dataset's, or its statistics over simulated trials), processing, export, the quality check, depth, a scan
+#: run by its engine (threads: a concurrency test) (`./test.sh -m fast --durations=25` shows what the rules missed)
+_HEAVY_WORDS = re.compile(r"\b(make_virtual_dataset|calibrate_dataset|simulate|make_trial|process_dataset|"
+                          r"export_dataset|check_dataset|estimate_depth|depth_view_task|ScanEngine|FlyScanEngine|"
+                          # the CiA 402 drive emulator (in scaled real time) and a checker in a process of its own
+                          r"start_drive_emulator|LiveCheckerProcess)\b")
+_FULL_FILES = _TOOL_TESTS
 #: fixtures that start another process, a Qt loop, a firmware or an emulator
 _FULL_FIXTURES = frozenset({"qtbot", "qapp", "run_cli", "start_cli", "sim_rig_port", "vcamera", "grbl_firmware",
                             "grbl_firmware_exe", "small_disk", "scanned", "fake_gv", "fakegv",
@@ -79,20 +76,34 @@ def _source(fn) -> str:
 
 
 def _own_code(item) -> str:
-    """The test function's source and that of every fixture it uses (directly or through others)."""
+    """The test function's source and that of every fixture it uses (directly or through others), with
+    the test module's own functions these call (and those they call)."""
     fns = [getattr(item, "function", None)]
     defs = getattr(getattr(item, "_fixtureinfo", None), "name2fixturedefs", {})
     for name in item.fixturenames:
         fns += [getattr(d, "func", None) for d in defs.get(name, ())]
-    return "\n".join(_source(fn) for fn in fns if fn is not None)
+    module = getattr(item, "module", None)
+    seen: set = set()
+    todo = [fn for fn in fns if fn is not None]
+    while todo:
+        fn = todo.pop()
+        if fn in seen:
+            continue
+        seen.add(fn)
+        for name in re.findall(r"\b([A-Za-z_]\w*)\(", _source(fn)):
+            helper = getattr(module, name, None)
+            if inspect.isfunction(helper) and helper.__module__ == getattr(module, "__name__", None):
+                todo.append(helper)
+    return "\n".join(_source(fn) for fn in seen)
 
 
 def tier_of(item) -> str:
     """``"fast"`` or ``"full"`` (the rules above)."""
     path = item.nodeid.split("::")[0]
-    if (item.get_closest_marker("full") or item.get_closest_marker("slow") or path in _FULL_FILES
+    shared = any("shared/data" in str(m.kwargs.get("reason", "")) for m in item.iter_markers("skipif"))
+    if (item.get_closest_marker("full") or item.get_closest_marker("slow") or path in _FULL_FILES or shared
             or path.startswith(_FULL_FOLDERS) or _FULL_FIXTURES.intersection(item.fixturenames)
-            or _FULL_WORDS.search(_own_code(item))):
+            or _FULL_WORDS.search(_own_code(item)) or _HEAVY_WORDS.search(_own_code(item))):
         return "full"
     return "fast"
 

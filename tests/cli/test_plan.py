@@ -1,4 +1,4 @@
-"""``lfstudio plan``: table, JSON keys and values, inverse options, bad input."""
+"""``lfstudio plan``: table, JSON keys and values, inverse options, bad input (in-process: parsing, figures and messages)."""
 
 import json
 import re
@@ -10,8 +10,8 @@ KEYS = {"min_distance_m", "f_number_required", "focus_distance_m", "hyperfocal_m
         "fits_travel", "capture_time_s", "storage_bytes", "warnings"}
 
 
-def test_json_has_the_keys_and_the_worked_check(run_cli):
-    proc = run_cli("plan", "--json")
+def test_json_has_the_keys_and_the_worked_check(cli_main):
+    proc = cli_main("plan", "--json")
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)
     assert KEYS <= set(out)
@@ -23,9 +23,9 @@ def test_json_has_the_keys_and_the_worked_check(run_cli):
     assert all({"field", "message", "severity"} <= set(w) for w in out["warnings"])
 
 
-def test_options_change_the_figures(run_cli, tmp_path):
+def test_options_change_the_figures(cli_main, tmp_path):
     plan_file = tmp_path / "p.toml"
-    proc = run_cli("plan", "--json", "--camera-preset", "Nikon Z7 II", "--focal-length-mm", "35", "--near-m", "1",
+    proc = cli_main("plan", "--json", "--camera-preset", "Nikon Z7 II", "--focal-length-mm", "35", "--near-m", "1",
                    "--far-m", "3", "--f-number", "8", "--grid", "11x3", "--spacing-mm", "2x3",
                    "--repeatability-um", "40x40", "--max-disparity-px", "0.5", "--exposure-s", "1",
                    "--transfer-s", "0.5", "--settle-s", "0.1", "--save", plan_file)
@@ -40,12 +40,12 @@ def test_options_change_the_figures(run_cli, tmp_path):
     # spacing for 0.5 px: 0.5 · s_p / (f · (1/near − 1/far))
     assert out["proposed_spacing_mm"]["horizontal"] == pytest.approx(0.5 * 0.00435 / (35 * (1 / 1000 - 1 / 3000)))
     assert plan_file.is_file() and 'camera_name = "Nikon Z7 II"' in plan_file.read_text()
-    again = run_cli("plan", "--json", "--plan", plan_file)
+    again = cli_main("plan", "--json", "--plan", plan_file)
     assert json.loads(again.stdout)["images"] == 33
 
 
-def test_table_is_readable(run_cli):
-    proc = run_cli("plan", "--grid", "51x11")
+def test_table_is_readable(cli_main):
+    proc = cli_main("plan", "--grid", "51x11")
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
     assert any(line.strip().startswith("images") and "51 × 11 = 561" in line for line in lines)
@@ -66,15 +66,15 @@ def test_table_is_readable(run_cli):
     (["--camera", "Nope"], "--camera"),
     (["--near-m", "abc"], "--near-m"),
 ])
-def test_bad_input_exits_2_naming_the_option(run_cli, args, option):
-    proc = run_cli("plan", *args)
+def test_bad_input_exits_2_naming_the_option(cli_main, args, option):
+    proc = cli_main("plan", *args)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and option in lines[0]
     assert "Traceback" not in proc.stderr
 
 
-def test_pairs_are_read_like_every_other_option_and_one_number_sets_both(run_cli):
+def test_pairs_are_read_like_every_other_option_and_one_number_sets_both(cli_main):
     """Every AxB option of the plan is read by numbers.parse_numbers: 11x3, 11×3 and 11,3 are the
     same grid; one number sets both values; a value that is not two numbers names the option."""
     from lfstudio.cli import build_parser
@@ -90,7 +90,7 @@ def test_pairs_are_read_like_every_other_option_and_one_number_sets_both(run_cli
     assert plan.sensor_px == (4000, 3000) and plan.camera_name == "custom camera"
     for option, value, example in (("--grid", "ten", "101x21"), ("--sensor-px", "100x", "7952x5304"),
                                    ("--travel-mm", "1x2x3", "4x6"), ("--grid", "11.5x3", "")):
-        proc = run_cli("plan", option, value)
+        proc = cli_main("plan", option, value)
         lines = proc.stderr.strip().splitlines()
         assert proc.returncode == 2 and len(lines) == 1 and option in lines[0], proc.stderr
         assert example in lines[0]

@@ -10,15 +10,16 @@ import io
 from lfstudio.jobs import TerminalProgress
 
 
-def test_a_mistyped_option_gets_did_you_mean(run_cli, tmp_path):
-    out = run_cli("scan", "--gird", "3x2", "--out", tmp_path / "ds")
+def test_a_mistyped_option_gets_did_you_mean(cli_main, tmp_path):
+    out = cli_main("scan", "--gird", "3x2", "--out", tmp_path / "ds")
     assert out.returncode == 2
     assert "--gird: did you mean --grid?" in out.stderr and "'lfstudio scan --help'" in out.stderr
     assert not (tmp_path / "ds").exists()
 
 
-def test_scan_help_lists_exit_code_3(run_cli):
-    out = run_cli("scan", "--help", env={"COLUMNS": "200"})
+def test_scan_help_lists_exit_code_3(cli_main, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "200")
+    out = cli_main("scan", "--help")
     assert out.returncode == 0 and "Exit code 3: a device fault stopped the scan" in " ".join(out.stdout.split())
 
 
