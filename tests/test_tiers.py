@@ -22,7 +22,7 @@ PROBES = {
         "full",                                                                     # the firmware
     "tests/test_types.py::test_pyright_basic_finds_nothing_in_the_package": "full",           # a tool run
     "tests/processing/test_pipeline.py::test_chain_writes_16bit_views_and_records_them": "full",   # a whole stage
-    "tests/rig/test_cia402_objects.py::test_si_unit_position_as_the_d1_writes_it": "full",   # the drive emulator
+    "tests/rig/test_cia402_objects.py::test_units_are_not_written_to_a_moving_drive[modbus]": "full",  # drive emulator
     "tests/quality/test_disparity_words.py::test_stanford_chess_every_view_names_the_zero_plane": "full",  # ../shared
     "tests/cli/test_plan.py::test_json_has_the_keys_and_the_worked_check": "fast",  # parsing and messages in-process
 }
