@@ -180,6 +180,20 @@ def show_lock_note(note: QLabel, tips: list[tuple[QWidget | QAction, str]], reas
         widget.setToolTip(f"{tip}\n\n{reason}" if reason else tip)
 
 
+def tab_after(anchor: QWidget, widget: QWidget) -> None:
+    """Put the fields of ``widget`` (made after the rest of its window, e.g. a form built when first
+    needed: Qt appends a widget's fields to the end of the tab order when it is added) right after
+    ``anchor`` in the tab order, in the order they were made, the widgets that followed ``anchor``
+    after them."""
+    fields = [w for w in widget.findChildren(QWidget)
+              if w.focusPolicy() & Qt.FocusPolicy.TabFocus and w.focusProxy() is None
+              and w.window() is anchor.window()]             # not a combo box's popup list
+    before = anchor
+    for field in fields:
+        QWidget.setTabOrder(before, field)
+        before = field
+
+
 class PageStack(QWidget):
     """A stack of pages, one shown, that takes the room of the shown page only. QStackedWidget's
     layout answers the height for a width with the largest of all its pages (QStackedLayout::

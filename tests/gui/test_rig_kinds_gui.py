@@ -93,3 +93,43 @@ def test_keep_drive_reference_holds_for_one_connect_and_is_never_remembered(qtbo
     qtbot.addWidget(later)
     assert not later.flags["accept_reference"].isChecked()
     assert later.options() == {"poll_hz": 40.0}
+
+
+def _next_tab(widget):
+    """Where Tab goes from ``widget``: the next shown, enabled widget in the focus chain that takes Tab."""
+    from PySide6.QtCore import Qt
+
+    w = widget.nextInFocusChain()
+    while w is not widget:
+        if w.isVisible() and w.isEnabled() and w.focusPolicy() & Qt.FocusPolicy.TabFocus:
+            return w
+        w = w.nextInFocusChain()
+    return None
+
+
+def test_tab_goes_from_options_into_its_form_and_the_form_takes_its_own_height(qtbot):
+    """A kind's Options form is made when its port is first chosen, after the rest of the panel: its
+    fields were last in the tab order (Options -> Go to x, y, Go -> the fields). Tab now goes from
+    Options through the form, then on to Position. The Options box takes the shown form's height."""
+    state = AppState(simulated=True)
+    panel = RigPanel(state)
+    qtbot.addWidget(panel)
+    panel.resize(440, 700)
+    panel.show()
+    qtbot.waitExposed(panel)
+    try:
+        panel.options_button.setChecked(True)
+        for port in ("sim", "dryve:10.0.0.1,10.0.0.2", "sim"):
+            panel.port_combo.setEditText(port)
+            form = panel.options_stack.currentWidget()
+            order, w = [], panel.options_button
+            for _ in range(len(form.fields) + len(form.flags)):
+                w = _next_tab(w)
+                order.append(w)
+            assert order == [*form.fields.values(), *form.flags.values()], port
+            after = _next_tab(order[-1])
+            assert after is not None and not form.isAncestorOf(after), port
+            width = panel.options_stack.width()
+            assert panel.options_stack.heightForWidth(width) == form.heightForWidth(width), port
+    finally:
+        panel.shutdown()

@@ -25,7 +25,7 @@ from typing import Any
 from PySide6.QtCore import QPointF, QRectF, Qt, QTimer, Signal
 from PySide6.QtGui import QAction, QBrush, QColor, QFont, QKeySequence, QPainter, QPen
 from PySide6.QtWidgets import (QButtonGroup, QComboBox, QDoubleSpinBox, QGridLayout, QGroupBox, QHBoxLayout,
-                               QLabel, QPushButton, QRadioButton, QSizePolicy, QStackedWidget, QToolButton,
+                               QLabel, QPushButton, QRadioButton, QSizePolicy, QToolButton,
                                QVBoxLayout, QWidget)
 
 from lfstudio.errors import LfError, window_message
@@ -33,7 +33,7 @@ from lfstudio.gui.devices import QtDevice
 from lfstudio.gui.kind_form import KindForm
 from lfstudio.gui.settings import read_float, read_text, settings
 from lfstudio.gui.state import AppState
-from lfstudio.gui.widgets import number_of, show_lock_note
+from lfstudio.gui.widgets import PageStack, number_of, show_lock_note, tab_after
 from lfstudio.rig.motion import RigConfig, RigState, RigStatus
 from lfstudio.rig.worker import DeviceFault, DeviceWorker
 
@@ -267,7 +267,7 @@ class RigPanel(QWidget):
         self.options_button.setToolButtonStyle(Qt.ToolButtonStyle.ToolButtonTextBesideIcon)
         self.options_button.setArrowType(Qt.ArrowType.RightArrow)
         self.options_button.toggled.connect(self._toggle_options)
-        self.options_stack = QStackedWidget()
+        self.options_stack = PageStack()          # the room of the shown form only
         self.options_stack.setVisible(False)
         self.option_forms: dict[str, KindForm] = {}
         cl.addWidget(self.options_button, 5, 0, 1, 4)
@@ -589,6 +589,7 @@ class RigPanel(QWidget):
         if form is None:
             form = self.option_forms[kind.name] = KindForm(kind, argument=False)
             self.options_stack.addWidget(form)
+            tab_after(self.options_button, form)      # made late, its fields were last in the panel's tab order
         return form
 
     def _show_options(self, _text: str = "") -> None:
