@@ -44,8 +44,8 @@ class KindForm(QWidget):
         if kind.argument and argument:
             self.argument = QLineEdit(read_text(self._key("argument"), "", s))
             self.argument.setObjectName(f"{kind.name}-argument")
-            self.argument.setPlaceholderText(f"{kind.name}:{kind.argument}")
-            self.argument.setToolTip(f"What follows '{kind.name}:' in the device word ({kind.argument})")
+            self.argument.setPlaceholderText(f"required: the {kind.argument}")    # no "genicam:" (typed, it was doubled)
+            self.argument.setToolTip(f"The {kind.argument} alone: what follows '{kind.name}:' in the device word")
             form.addRow(self.argument_label, self.argument)
         self.fields: dict[str, QLineEdit] = {}
         self.flags: dict[str, QCheckBox] = {}          # true/false options: a check box (ticked: true)
@@ -73,6 +73,7 @@ class KindForm(QWidget):
                 self.fields[f.name] = edit
         self.settings_label = QLabel("")
         self.settings_label.setWordWrap(True)
+        self.settings_label.setVisible(False)          # an empty row left a gap above the panel's Connect
         form.addRow(self.settings_label)
         self.setting_name = QComboBox()
         self.setting_name.setObjectName(f"{kind.name}-setting")
@@ -115,9 +116,11 @@ class KindForm(QWidget):
         if self.argument is None:
             return self.kind.name
         text = self.argument.text().strip()
+        if text.lower().startswith(f"{self.kind.name}:"):     # the whole device word typed: its argument
+            text = text[len(self.kind.name) + 1:].strip()
         if not text:
             raise InputError(self.argument_label, f"the {self.kind.label or self.kind.name} needs its "
-                             f"{self.kind.argument}", f"{self.kind.name}:{self.kind.argument}")
+                             f"{self.kind.argument}: type it in the {self.argument_label} field")
         return f"{self.kind.name}:{text}"
 
     def options(self) -> dict[str, Any]:
@@ -157,6 +160,7 @@ class KindForm(QWidget):
             unit = f" {d.unit}" if getattr(d, "unit", "") else ""
             lines.append(f"{d.label}: {d.value}{unit}{extra}")
         self.settings_label.setText("\n".join(lines))
+        self.settings_label.setVisible(bool(lines))
         chosen = self.setting_name.currentData()
         self._described = {d.name: d for d in described or () if not getattr(d, "read_only", False)}
         self.setting_name.blockSignals(True)
@@ -181,6 +185,7 @@ class KindForm(QWidget):
     def clear_settings(self) -> None:
         """The camera is gone: no settings to show or change."""
         self.settings_label.setText("")
+        self.settings_label.setVisible(False)
         self._described = {}
         self.setting_row.setVisible(False)
 

@@ -82,3 +82,29 @@ def test_the_fake_genicam_camera_connects_shows_its_nodes_and_takes_a_test_shot(
         panel.disconnect_camera()
         assert form.setting_row.isHidden() and form.settings_label.text() == ""
     assert settings().value("devices/genicam/argument") == fake.device_id
+
+
+def test_the_id_field_takes_the_id_and_shows_no_empty_row(qtbot, panel):
+    """The ID field showed 'genicam:ID' as its example and its error said '(valid: genicam:ID)': an
+    operator typing that got the device word 'genicam:genicam:…'. The field takes the ID; the whole word
+    typed is read as its ID. The settings row, empty until a camera is connected, is hidden (it left a
+    gap above Connect)."""
+    state, panel = panel
+    form = panel.forms["genicam"]
+    assert form.argument is not None
+    assert "genicam:" not in form.argument.placeholderText()
+    form.argument.setText("genicam:Aravis-Fake-GV01")
+    assert form.word() == "genicam:Aravis-Fake-GV01"
+    form.argument.setText(" Aravis-Fake-GV01 ")
+    assert form.word() == "genicam:Aravis-Fake-GV01"
+    errors: list[str] = []
+    state.errorOccurred.connect(lambda _title, message: errors.append(message))
+    form.argument.setText("genicam:")
+    panel.connect_camera()
+    assert errors and "ID field" in errors[-1] and "genicam:" not in errors[-1] and not panel.connected
+    panel.resize(440, 700)
+    panel.show()
+    qtbot.waitExposed(panel)
+    assert form.settings_label.isHidden()
+    form.show_settings([])
+    assert form.settings_label.isHidden()
