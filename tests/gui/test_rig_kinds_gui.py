@@ -133,3 +133,23 @@ def test_tab_goes_from_options_into_its_form_and_the_form_takes_its_own_height(q
             assert panel.options_stack.heightForWidth(width) == form.heightForWidth(width), port
     finally:
         panel.shutdown()
+
+
+def test_a_kind_picked_from_the_port_list_shows_its_options_before_its_addresses(qtbot):
+    """'dryve:' and 'canopen:' as the Port list offers them (the addresses not typed yet) said 'Options:
+    none for this port', greyed out, until an address was typed."""
+    state = AppState(simulated=True)
+    panel = RigPanel(state)
+    qtbot.addWidget(panel)
+    try:
+        for word, label in (("dryve:", "CiA 402 drives over Modbus TCP (igus dryve D1)"), ("canopen:", None)):
+            panel.port_combo.setCurrentIndex(panel.port_combo.findData(word))
+            assert panel.chosen_port() == word
+            assert panel.options_button.isEnabled(), word
+            assert "none for this port" not in panel.options_button.text(), word
+            if label:
+                assert panel.options_button.text() == f"Options: {label}"
+        panel.port_combo.setEditText("instant")
+        assert not panel.options_button.isEnabled()
+    finally:
+        panel.shutdown()

@@ -576,11 +576,12 @@ class RigPanel(QWidget):
 
     def _options_form(self, port: str) -> KindForm | None:
         """The Options form of the kind ``port`` names (None: not a device word yet, or a kind without
-        options), made the first time it is needed."""
-        from lfstudio.studio.devices import RigSpec
+        options), made the first time it is needed. Its kind's name is enough: 'dryve:' as the Port
+        list offers it, before its addresses are typed, has the drives' options."""
+        from lfstudio.studio.kinds import rig_word
 
         try:
-            kind = RigSpec.parse(port).info
+            kind, _argument = rig_word(port)
         except LfError:
             return None
         if kind.options is None:
