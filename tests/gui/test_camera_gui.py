@@ -135,3 +135,15 @@ def test_a_short_page_has_no_gap_under_it_after_a_taller_one(qtbot, panels, widt
         assert panel.pages.height() <= need + 2, kind
         gap = panel.connect_button.geometry().top() - panel.pages.geometry().bottom()
         assert gap < 30, (kind, gap)
+
+
+def test_the_exposure_box_is_only_for_the_cameras_it_sets(qtbot, panels):
+    """ISO, Shutter and Aperture with Apply to camera are for the simulated and the USB (gphoto2) camera; a
+    hot folder's camera is set in its own software (its Apply stayed greyed out, the three fields did
+    nothing) and a GenICam camera shows its own settings."""
+    _, panel, _ = panels
+    shown = {}
+    for kind in ("sim", "gphoto2", "folder", "genicam"):
+        panel.kind.setCurrentIndex(panel.kind.findData(kind))
+        shown[kind] = not panel.exposure_group.isHidden()
+    assert shown == {"sim": True, "gphoto2": True, "folder": False, "genicam": False}

@@ -288,8 +288,9 @@ class CameraPanel(QWidget):
         current = self.kind.currentIndex()
         self.pages.setCurrentIndex(current)
         settings().setValue(self.kind_key, self.current_kind())
-        # a DSLR's exposure; a kind with a form shows its own settings
-        self.exposure_group.setVisible(self.current_kind() not in self.forms)
+        # a DSLR's exposure (the simulated camera's too); a kind with a form shows its own settings; the
+        # hot folder's camera is set in its own software (Apply to camera stayed greyed out there)
+        self.exposure_group.setVisible(self.current_kind() in ("sim", "gphoto2"))
         self._show_truth()
         self._update_enabled()
 
