@@ -27,7 +27,8 @@ An edge or corner view simply has fewer half-planes; a pixel no view of a half-p
 by one candidate costs :data:`P1`, a larger jump :data:`P2`, lowered across an image edge. The best
 candidate is refined to sub-pixel: the equiangular fit through the matching costs around it where
 they have a sharp minimum there that agrees with the aggregated costs, else a parabola fitted to
-the aggregated costs of five candidates around it.
+the aggregated costs of five candidates around it; last, a plane fitted to the disparities around
+each pixel that lie within :data:`PLANE_INLIER_PX` of its own gives its value (:func:`fit_planes`).
 Candidates are spaced so that the farthest neighbour moves by at most :data:`SWEEP_STEP_PX` between
 them. **Depth edges**: where a pixel's surroundings span more than :data:`EDGE_JUMP_PX`, a pixel given
 the nearer surface takes the farther one unless its own grey value matches the nearer clearly better
@@ -95,6 +96,12 @@ COLOUR_PASSES = 2
 REFINE_SHARP = 0.0
 REFINE_AGREE = 0.25
 REFINE_WINDOW_PX = 7
+#: last, each pixel's disparity is the value at its centre of the plane fitted (least squares) to
+#: the disparities within PLANE_WINDOW_PX that lie within PLANE_INLIER_PX of its own: the sub-pixel
+#: fits' noise averaged along the surface, slopes kept (no fronto-parallel bias), edges and steps
+#: larger than that left alone
+PLANE_WINDOW_PX = 5
+PLANE_INLIER_PX = 0.05
 #: the cost: the mean of the lowest this many half-plane costs, each weighted by (the farthest
 #: reach of any half-plane / its own) ^ PLANE_WEIGHT_POWER
 BEST_OF = 2
@@ -439,6 +446,8 @@ def light_field_disparity(reference: np.ndarray, neighbours: Sequence[Neighbour]
     if colour is not None and COLOUR_RADIUS_PX > 0:
         for _ in range(COLOUR_PASSES):
             disp = colour_edges(disp, colour)
+    if PLANE_WINDOW_PX > 1:
+        disp = fit_planes(disp)
     return DenseResult(disp, conf, D, len(neighbours))
 
 
@@ -599,3 +608,38 @@ def _pixel_costs(reference: np.ndarray, neighbours: Sequence[Neighbour], ys: np.
         best_cost.append(cost)
     return best_cost
 
+
+
+def fit_planes(disp: np.ndarray, window_px: int | None = None, inlier_px: float | None = None) -> np.ndarray:
+    """Each pixel: the value at its centre of the plane fitted (least squares) to the disparities of
+    its ``window_px`` neighbourhood (:data:`PLANE_WINDOW_PX`) that lie within ``inlier_px``
+    (:data:`PLANE_INLIER_PX`) of its own; kept as it is where fewer than 6 do, or where the fit is
+    degenerate (inliers on a line). NaN stays NaN and is no inlier."""
+    r = int(window_px or PLANE_WINDOW_PX) // 2
+    t = np.float32(PLANE_INLIER_PX if inlier_px is None else inlier_px)
+    d = np.asarray(disp, np.float32)
+    h, w = d.shape
+    pad = np.pad(d, r, mode="reflect")
+    n, sx, sy, sxx, syy, sxy, sq, sxq, syq = (np.zeros((h, w), np.float32) for _ in range(9))
+    with np.errstate(invalid="ignore"):
+        for oy in range(-r, r + 1):
+            for ox in range(-r, r + 1):
+                q = pad[r + oy:r + oy + h, r + ox:r + ox + w] - d          # relative to the pixel's own
+                m = (np.abs(q) < t).astype(np.float32)
+                qm = np.where(m > 0, q, np.float32(0.0))
+                n += m
+                sx += m * ox
+                sy += m * oy
+                sxx += m * (ox * ox)
+                syy += m * (oy * oy)
+                sxy += m * (ox * oy)
+                sq += qm
+                sxq += qm * ox
+                syq += qm * oy
+    # Cramer's rule for the plane's value at the centre (the first unknown of [n x y; x xx xy; y xy yy])
+    det = n * (sxx * syy - sxy * sxy) - sx * (sx * syy - sxy * sy) + sy * (sx * sxy - sxx * sy)
+    num = sq * (sxx * syy - sxy * sxy) - sx * (sxq * syy - sxy * syq) + sy * (sxq * sxy - sxx * syq)
+    ok = np.isfinite(d) & (n >= 6) & (np.abs(det) > 1e-3 * np.maximum(n, 1) ** 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(ok, d + num / np.where(ok, det, 1.0), d)
+    return out.astype(np.float32)
