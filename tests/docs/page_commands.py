@@ -31,6 +31,7 @@ class Command:
     line: int               # the page's line where the command begins (1-based)
     text: str               # as the page shows it (continuations joined, comment removed)
     not_run: str = ""       # the page's reason for not running it ("" runs it)
+    output: list[str] = field(default_factory=list)     # what a ``$ `` example shows it print (its lines)
 
     @property
     def where(self) -> str:
@@ -113,7 +114,12 @@ def _collect(block: Block, lines: list[str], start: int, end: int, markers: list
         for quoted, why in markers:
             if not quoted or quoted in text:
                 reason = why or "(no reason given)"
-        block.commands.append(Command(block.page, first + 1, shown, reason))
+        output: list[str] = []
+        if not shell:                                 # an example: the lines up to the next prompt are its output
+            while k < end and not lines[k].strip().startswith("$ "):
+                output.append(lines[k])
+                k += 1
+        block.commands.append(Command(block.page, first + 1, shown, reason, [ln for ln in output if ln.strip()]))
 
 
 def all_blocks(root: Path) -> list[Block]:

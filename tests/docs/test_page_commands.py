@@ -11,7 +11,8 @@ In place of the names the pages use:
   pip install docs/plugins/X   into a folder of the test's own (the block's later commands find it)
   files the examples take as given (``some_photo.jpg``, another rig's images in ``~/other_rig/``, ...):
                  made by the test (_some_photo, _import_images_source)
-and sizes made tiny (``tiny``: a scan of 101 x 21 views scans 3 x 2, simulated devices run at time scale 0
+An example with its output (``$ `` lines) that runs as shown prints each line the page shows (the
+page may leave lines out). And sizes made tiny (``tiny``: a scan of 101 x 21 views scans 3 x 2, simulated devices run at time scale 0
 and render 400 px wide, depth maps are computed for 15 of DATASET's views,
 a statistic of 200 trials takes one of 20 points a pair, a focal length in the reference camera's pixels is scaled to
 DATASET's): the test checks that the command works as shown, not its figures.
@@ -298,6 +299,11 @@ class _Block:
                 handler.close()
         out, err = self.capsys.readouterr()
         assert code == 0, _failed(c, ["lfstudio", *argv], code, out, err)
+        if c.output and argv == [self.word(w) for w in c.words()[1:]]:     # an example, run as shown
+            printed = {" ".join(line.split()) for line in (out + err).splitlines()}
+            missing = [line for line in c.output if " ".join(line.split()) not in printed and "..." not in line]
+            assert not missing, (f"{c.where}: `{c.text}` no longer prints what the page shows:\n"
+                                 + "\n".join(missing) + "\n-- it printed:\n" + out[-3000:])
 
     def program(self, c: Command, args: list[str], env: dict[str, str], background: bool) -> None:
         full = dict(os.environ, **env)
@@ -490,6 +496,7 @@ def test_the_collector_finds_commands_markers_and_prompts(tmp_path):
     assert [(c.line, c.text, c.not_run) for b in blocks for c in b.commands] == [
         (4, "lfstudio plan", ""), (5, "lfstudio info x --json", ""), (11, "lfstudio rig --port sim status", ""),
         (12, "lfstudio rig --port /dev/ttyUSB0 status", "a GRBL board"), (16, "lfstudio plan", "")]
+    assert blocks[2].commands[0].output == ["Depth of field"]
     assert tiny(["scan", "--grid", "101x21", "--time-scale", "0.1"]) == [
         "scan", "--grid", "3x2", "--time-scale", "0", "--sim-width-px", "400"]
     assert tiny(["scan", "--camera", "gphoto2", "--grid", "9x3"]) == [
