@@ -123,6 +123,7 @@ def _as_worker(device: Any, name: str) -> tuple[DeviceWorker, bool]:
 
 #: the bracket's field as each front end names it
 BRACKET_FIELD = words("--bracket", "Bracket")
+WITHOUT_BRACKET = words("without --bracket", "with the Bracket field empty")
 
 
 def bracket_on_camera(bracket: Bracket, driver: Any, call: Callable[[str], Any],
@@ -642,18 +643,18 @@ class ScanEngine:
                 raise LfError(f"{where}: frame_shutter_s must list a shutter time in s for each of the "
                               f"{have.frames} frames; correct the file or scan into a new folder")
             if wanted is not None and wanted != have:
-                raise LfError(f"--bracket: {wanted.describe()} ({wanted.frames} frames) differs from the "
+                raise LfError(f"{BRACKET_FIELD}: {wanted.describe()} ({wanted.frames} frames) differs from the "
                               f"{have.describe()} ({have.frames} frames) this dataset's views were captured "
-                              "with; resume with that bracket (or without --bracket), or scan into a new folder")
+                              f"with; resume with that bracket ({WITHOUT_BRACKET}), or scan into a new folder")
             self.bracket, self.frame_shutter_s = have, tuple(float(t) for t in times)
             return
         if wanted is None:
             return
         single = [v for v in self.dataset.done_views() if not v.get("frames")]
         if single:
-            raise LfError(f"--bracket: this dataset has {len(single)} view(s) captured with one picture each "
+            raise LfError(f"{BRACKET_FIELD}: this dataset has {len(single)} view(s) captured with one picture each "
                           f"(first: {view_label(single[0]['row'], single[0]['column'])}); every view of a "
-                          "dataset has the same frames: resume without --bracket, or scan into a new folder")
+                          f"dataset has the same frames: resume {WITHOUT_BRACKET}, or scan into a new folder")
         times, base = bracket_on_camera(wanted, self.camera.driver,
                                         lambda name: self._camera_call(name, timeout_s=30))
         self.bracket, self.frame_shutter_s = wanted, times

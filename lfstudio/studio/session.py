@@ -43,7 +43,7 @@ from lfstudio.dataset.bracket import Bracket
 from lfstudio.dataset.store import free_bytes
 from lfstudio.dataset.manifest import MANIFEST_NAME, ViewRecord, is_finished, now_iso
 from lfstudio.dataset.paths import check_new_dataset_folder, view_label
-from lfstudio.errors import DeviceError, InputError, LfError
+from lfstudio.errors import DeviceError, InputError, LfError, words
 from lfstudio.numbers import EXPOSURE_S, RETRIES, TIME_SCALE, TRANSFER_S
 from lfstudio.optics import REFERENCE
 from lfstudio.planning.scene_plan import ScenePlan
@@ -56,6 +56,10 @@ from lfstudio.studio.devices import (SIM, CameraSpec, RigSpec, Studio, implied_r
 from lfstudio.support.locks import MANIFEST_LOCK_NAME, Lock, dataset_lock
 
 log = logging.getLogger(__name__)
+
+#: the scan's dataset folder and bracket, as the command line and the Scan panel name them
+OUT_FIELD = words("--out", "Folder")
+BRACKET_OPTION = words("--bracket", "Bracket")
 
 #: how far (mm) a resumed rig may stand from the path where the last run stopped
 RESUME_TOLERANCE_MM = 0.5
@@ -521,9 +525,9 @@ class ScanSession:
         req = self.request
         manifest = self.folder / MANIFEST_NAME
         if req.resume and not manifest.is_file():
-            raise InputError("--out", f"{self.folder} holds no dataset to resume", "the folder of an interrupted scan")
+            raise InputError(OUT_FIELD, f"{self.folder} holds no dataset to resume", "the folder of an interrupted scan")
         lock = dataset_lock(self.folder, f"{self.doing} {self.folder}")
-        check_new_dataset_folder(self.folder, "--out", add_to_dataset=req.resume, stem="lfstudio-scan",
+        check_new_dataset_folder(self.folder, OUT_FIELD, add_to_dataset=req.resume, stem="lfstudio-scan",
                                  dataset_fix="add --resume to continue it, or choose a new folder",
                                  in_use_fix=lock.hint)
         if not self.folder.exists():
@@ -534,7 +538,7 @@ class ScanSession:
             self.note(f"took over the lock of {self.folder} left by {self.lock.taken_over.describe()}, "
                       "which is no longer running")
         if not req.resume and manifest.exists():      # created by another process in the meantime
-            raise InputError("--out", f"{self.folder} already holds a dataset",
+            raise InputError(OUT_FIELD, f"{self.folder} already holds a dataset",
                              "add --resume to continue it, or choose a new folder")
         return self.lock
 
@@ -583,9 +587,9 @@ class ScanSession:
                                       ("--exposure-s", EXPOSURE_S, req.exposure_s),
                                       ("--transfer-s", TRANSFER_S, req.transfer_s)):
             number.check(option, value)        # before any folder, lock or device
-        for words, parse in ((req.rig, RigSpec.parse), (req.camera, CameraSpec.parse)):
-            if words is not None:
-                parse(words)              # a typo is reported before any folder is made
+        for given, parse in ((req.rig, RigSpec.parse), (req.camera, CameraSpec.parse)):
+            if given is not None:
+                parse(given)              # a typo is reported before any folder is made
         self.lock_dataset()
         existing = Dataset.open(self.folder) if req.resume else None
         if existing is not None:
@@ -608,15 +612,22 @@ class ScanSession:
         if existing is not None:
             problems = check_resume_matches(existing, plan)
             if problems:
-                raise InputError("--out", f"{self.folder} holds another scan: " + "; ".join(problems),
+                raise InputError(OUT_FIELD, f"{self.folder} holds another scan: " + "; ".join(problems),
                                  "choose a new folder, or set the grid to the dataset's")
             plan = replace(resume_plan(existing, order=plan.order, settle_s=plan.settle_s), bracket=plan.bracket)
             recorded = existing.manifest.get("bracket")
             if plan.bracket is not None and recorded and Bracket.from_manifest(recorded) != plan.bracket:
                 have = Bracket.from_manifest(recorded)
-                raise InputError("--bracket", f"{plan.bracket.describe()} ({plan.bracket.frames} frames) differs from "
+                raise InputError(BRACKET_OPTION, f"{plan.bracket.describe()} ({plan.bracket.frames} frames) differs from "
                                  f"the {have.describe()} ({have.frames} frames) the dataset's views were captured with",
-                                 "leave --bracket out with --resume, or scan into a new --out folder")
+                                 words("leave --bracket out with --resume, or scan into a new --out folder",
+                                       "empty the Bracket field, or choose a new Folder"))
+            single = [v for v in existing.done_views() if not v.get("frames")]
+            if plan.bracket is not None and not recorded and single:     # said before the devices connect
+                raise InputError(BRACKET_OPTION, f"this dataset has {len(single)} view(s) captured with one picture "
+                                 "each; every view of a dataset has the same frames",
+                                 words("leave --bracket out with --resume, or scan into a new --out folder",
+                                       "empty the Bracket field, or choose a new Folder"))
         if self.shared is None:
             rig_spec, cam_spec = RigSpec.parse(rig_words), CameraSpec.parse(cam_words)
             if record is not None and req.rig is None and rig_spec.kind == "grbl" and \
@@ -670,7 +681,6 @@ class ScanSession:
         check_plan_on_controller(rig, plan)
         fly = self._decide_fly(rig, camera, plan, scene, config) if req.fly else None
         if req.keep_on_card:
-            from lfstudio.errors import words
             from lfstudio.scan.card import card_problem
 
             problem = card_problem(camera)

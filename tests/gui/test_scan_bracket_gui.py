@@ -119,3 +119,47 @@ def test_process_dialog_merges_a_bracketed_dataset(qtbot, tmp_path):
     assert "2 processed" in text and "HDR: 2 views merged" in text and "after the merge" in text
     again = Dataset.open(ds.root)
     assert all(v["hdr"]["status"] == "done" and (again.root / v["hdr"]["file"]).is_file() for v in again.views)
+
+
+def test_a_dataset_that_refuses_a_resume_is_named_in_the_windows_words(qtbot, instant_devices, tmp_path):
+    """Starting again into a folder whose dataset does not match is refused in the window's words: it
+    said '--out: … holds another scan' (another grid) and '--bracket: … resume without --bracket' (a
+    bracket typed for a dataset of single pictures)."""
+    devices, _, cam = instant_devices
+    state = AppState()
+    state.devices.update(devices)
+    panel = ScanPanel(state)
+    qtbot.addWidget(panel)
+    panel.columns.setValue(30)
+    panel.rows.setValue(1)
+    panel.settle.setValue(0.0)
+    panel.folder.setText(str(tmp_path / "ds"))
+    messages: list[str] = []
+    state.errorOccurred.connect(lambda _title, message: messages.append(message))
+    panel.start()                                     # some views captured, one picture each, then Abort
+    qtbot.waitUntil(lambda: panel.engine is not None and panel.engine.dataset.status_counts()["done"] >= 2,
+                    timeout=20000)
+    panel.abort()
+    qtbot.waitUntil(lambda: "Aborted" in panel.state_label.text() and not panel.running, timeout=20000)
+    captured = cam.captures
+
+    def refused() -> str:
+        messages.clear()
+        before = len(panel.log_view.toPlainText())
+
+        def told() -> str:      # a refusal before the scan (a message box) or the engine's (its log, its state)
+            return " ".join(messages) + " " + panel.state_label.text() + " " + panel.log_view.toPlainText()[before:]
+
+        panel.start()
+        qtbot.waitUntil(lambda: bool(messages) or "one picture each" in told(), timeout=20000)
+        return told()
+
+    panel.columns.setValue(31)
+    shown = refused()
+    assert "holds another scan" in shown and "Folder:" in shown and "--out" not in shown, shown
+    panel.columns.setValue(30)
+    panel.bracket.setText("-2,0,+2")
+    shown = refused()
+    assert "one picture each" in shown and "Bracket:" in shown and "empty the Bracket field" in shown, shown
+    assert "--bracket" not in shown, shown
+    assert cam.captures == captured
