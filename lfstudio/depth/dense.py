@@ -92,9 +92,10 @@ COLOUR_PASSES = 2
 #: sub-pixel: where the matching cost (averaged over REFINE_WINDOW_PX) has its minimum at the
 #: answer, its neighbours exceeding it by more than REFINE_SHARP of it, and the equiangular fit
 #: through it lies within REFINE_AGREE candidates of the parabola fitted to the aggregated costs of
-#: five candidates around the answer, that fit; else the parabola
+#: five candidates around the answer, that fit; else the parabola (1/4 candidate: the virtual studio's
+#: median relative depth error 0.50 %, 1/2: 0.43 %, the HCI scenes alike)
 REFINE_SHARP = 0.0
-REFINE_AGREE = 0.25
+REFINE_AGREE = 0.5
 REFINE_WINDOW_PX = 7
 #: last, each pixel's disparity is the value at its centre of the plane fitted (least squares) to
 #: the disparities within PLANE_WINDOW_PX that lie within PLANE_INLIER_PX of its own: the sub-pixel

@@ -60,7 +60,9 @@ def test_multi_baseline_beats_single_pair_sgbm_against_the_truth(calibrated):
     sgbm_bad = (_inner(np.abs(np.nan_to_num(sgbm, nan=1e9) - truth)) > 0.07).mean()
     with np.errstate(divide="ignore"):
         sgbm_rel = np.nanmedian(_inner(np.abs(truth / sgbm - 1)))
-    assert ours_rel < 0.01 and ours_bad < 0.25, (ours_rel, ours_bad)
+    # median relative depth error 0.44 % (0.55 % while the sub-pixel fit took the aggregated costs'
+    # parabola wherever the equiangular fit was more than 1/4 candidate away)
+    assert ours_rel < 0.005 and ours_bad < 0.25, (ours_rel, ours_bad)
     assert ours_bad < sgbm_bad and ours_rel < sgbm_rel, (ours_bad, sgbm_bad, ours_rel, sgbm_rel)
     # confidence ranks the pixels: the confident ones are right more often
     err = np.abs(np.nan_to_num(disp, nan=1e9) - truth)
