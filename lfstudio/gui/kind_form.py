@@ -34,8 +34,9 @@ class KindForm(QWidget):
         s = settings()
         form = QFormLayout(self)
         form.setContentsMargins(0, 0, 0, 0)
-        info = self.info = QLabel((kind.help or kind.label or kind.name) + ("" if kind.origin == "built-in" else
-                                                               f" <i>({kind.origin})</i>"))
+        about = kind.help or kind.label or kind.name          # a sentence of its own here: a capital first
+        info = self.info = QLabel(about[:1].upper() + about[1:] + ("" if kind.origin == "built-in" else
+                                                                   f" <i>({kind.origin})</i>"))
         info.setWordWrap(True)
         form.addRow(info)
         self.argument: QLineEdit | None = None

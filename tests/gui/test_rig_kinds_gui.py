@@ -153,3 +153,18 @@ def test_a_kind_picked_from_the_port_list_shows_its_options_before_its_addresses
         assert not panel.options_button.isEnabled()
     finally:
         panel.shutdown()
+
+
+def test_every_kinds_description_starts_as_a_sentence(qtbot):
+    """A kind's help is written for the command line's lists ('the GRBL controller simulator on a
+    pseudo-terminal …'); at the top of its Options form or Camera page it is a sentence of its own."""
+    from lfstudio.gui.kind_form import KindForm
+    from lfstudio.studio.kinds import camera_kinds, rig_kinds
+
+    kinds = [k for k in (*rig_kinds().values(), *camera_kinds().values()) if k.help]
+    assert any(k.help[0].islower() for k in kinds)            # there are such helps
+    for kind in kinds:
+        form = KindForm(kind, argument=False)
+        qtbot.addWidget(form)
+        first = form.info.text()[:1]
+        assert not first.isalpha() or first.isupper(), (kind.name, form.info.text())
