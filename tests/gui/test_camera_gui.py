@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from PySide6.QtCore import Qt
 
 from lfstudio.gui.panels.camera import CameraPanel, simulated_position
 from lfstudio.gui.settings import settings
@@ -147,3 +148,25 @@ def test_the_exposure_box_is_only_for_the_cameras_it_sets(qtbot, panels):
         panel.kind.setCurrentIndex(panel.kind.findData(kind))
         shown[kind] = not panel.exposure_group.isHidden()
     assert shown == {"sim": True, "gphoto2": True, "folder": False, "genicam": False}
+
+
+def test_the_hot_folder_rows_line_up(qtbot, panels):
+    """Folder, Trigger command and the kind's option rows share one label column: the option rows'
+    fields stood 7 px to the right of Folder's (a form nested in a form)."""
+    _, panel, _ = panels
+    panel.kind.setCurrentIndex(panel.kind.findData("folder"))
+    panel.resize(440, 700)
+    panel.show()
+    qtbot.waitExposed(panel)
+    panel.layout().activate()
+    lefts = {panel.folder_edit.mapTo(panel, panel.folder_edit.rect().topLeft()).x(),
+             panel.trigger_edit.mapTo(panel, panel.trigger_edit.rect().topLeft()).x(),
+             *(edit.mapTo(panel, edit.rect().topLeft()).x() for edit in panel.folder_options.fields.values())}
+    assert len(lefts) == 1, lefts
+    order, w = [], panel.kind                          # and Tab goes down the rows
+    while len(order) < 5:
+        w = w.nextInFocusChain()
+        if w.isVisible() and w.isEnabled() and w.focusPolicy() & Qt.FocusPolicy.TabFocus:
+            order.append(w)
+    assert order == [panel.folder_edit, order[1], panel.trigger_edit, *panel.folder_options.fields.values()]
+    assert order[1].text() == "Browse…"

@@ -177,17 +177,22 @@ class CameraPanel(QWidget):
         # the hot folder's connection options (wait for the file, unchanged for) from its kind's description
         self.folder_options = KindForm(camera_kind("folder"), argument=False)
         self.folder_options.info.setVisible(False)
-        folder_page = QWidget()
-        ff = QFormLayout(folder_page)
-        ff.setContentsMargins(0, 0, 0, 0)
-        ff.addRow("Folder", row)
-        ff.addRow("Trigger command", self.trigger_edit)
-        ff.addRow(self.folder_options)
+        # Folder and Trigger command in the form's own layout: one label column, the fields aligned
+        # (in a form of their own around it, the option rows' fields stood 7 px to the right)
+        folder_page = self.folder_options
+        ff = folder_page.layout()
+        assert isinstance(ff, QFormLayout)
+        ff.insertRow(1, "Folder", row)
+        ff.insertRow(2, "Trigger command", self.trigger_edit)
 
         self.pages = PageStack()          # the room of the shown page only (QStackedWidget: the tallest's)
         for page in (sim_page, gp_page, folder_page, *self.forms.values()):
             self.pages.addWidget(page)
         self.kind.currentIndexChanged.connect(self._kind_changed)
+        before: QWidget = self.trigger_edit           # added after the option rows: Tab from it on to them
+        for field in self.folder_options.fields.values():
+            QWidget.setTabOrder(before, field)
+            before = field
 
         self.connect_button = QPushButton("Connect")
         self.connect_button.setToolTip("Connect or disconnect the camera (Ctrl+Shift+K)")
