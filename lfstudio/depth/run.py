@@ -59,7 +59,9 @@ from lfstudio.jobs import Cancelled, CancelToken, Progress, no_progress
 log = logging.getLogger(__name__)
 
 DEPTH_DIR = "depth"
-METHOD = "light-field-sgm-1"
+#: the method's version, part of every view's key: raised when its maps change, so that maps of an
+#: earlier version are computed again (2: row/column lines, colour at silhouettes, plane fit)
+METHOD = "light-field-sgm-2"
 #: search margin around the plan's near/far disparities
 RANGE_MARGIN = 0.08
 #: the neighbourhood: views up to this many columns and rows away, on the lines through the view

@@ -97,6 +97,17 @@ def test_the_job_resumes_after_cancel_and_recomputes_what_changed(calibrated):
     assert estimate_depth(ds, "r1,c1-3").computed == 3
 
 
+def test_maps_of_an_earlier_method_are_computed_again(calibrated, monkeypatch):
+    from lfstudio.depth import run
+
+    ds = calibrated
+    estimate_depth(ds, "r1,c2")
+    assert estimate_depth(ds, "r1,c2").computed == 0
+    assert read_disparity(ds, (1, 2))[2]["settings"]["method"] == run.METHOD
+    monkeypatch.setattr(run, "METHOD", run.METHOD + "-next")
+    assert estimate_depth(ds, "r1,c2").computed == 1
+
+
 def test_views_computed_one_after_another_decode_each_image_once(calibrated, monkeypatch):
     from lfstudio.depth import run
 
