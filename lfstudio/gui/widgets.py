@@ -9,7 +9,8 @@ from PySide6.QtCore import QEvent, QObject, QPointF, QRectF, QSize, Qt, QTimer, 
 from PySide6.QtGui import (QAction, QColor, QFont, QGuiApplication, QPainter, QPen, QPixmap, QTextDocumentFragment,
                            QWheelEvent, QWindow)
 from PySide6.QtWidgets import (QAbstractSpinBox, QApplication, QComboBox, QHBoxLayout, QLabel, QMessageBox,
-                               QProgressBar, QPushButton, QScrollArea, QSizePolicy, QVBoxLayout, QWidget)
+                               QProgressBar, QPushButton, QScrollArea, QSizePolicy, QToolButton, QVBoxLayout,
+                               QWidget)
 
 from lfstudio.dataset.paths import view_stem
 from lfstudio.gui.bridge import Pacer
@@ -192,6 +193,35 @@ def tab_after(anchor: QWidget, widget: QWidget) -> None:
     for field in fields:
         QWidget.setTabOrder(before, field)
         before = field
+
+
+def add_stop_button(dialog: QWidget, layout) -> QPushButton | None:
+    """The main window's STOP (the action of its ``stopToolButton``) as a button at the top of a dialog big
+    enough to cover the window's STOP toolbar (at 1366 x 768 the Process, Depth, Radiance, Export and
+    calibration dialogs do): STOP stays in sight whatever window is in front. (Esc in a dialog closes the
+    dialog, hence no "(Esc)" here.) None when the dialog has no such window above it."""
+    top = dialog.parentWidget()
+    while top is not None and top.parentWidget() is not None:
+        top = top.parentWidget()
+    window_stop = top.findChild(QToolButton, "stopToolButton") if top is not None else None
+    if window_stop is None or window_stop.defaultAction() is None:
+        return None
+    action = window_stop.defaultAction()
+    button = QPushButton("STOP all motion", dialog)
+    button.setObjectName("dialogStopButton")
+    button.setAutoDefault(False)
+    button.setToolTip(window_stop.toolTip())
+    button.setStyleSheet("QPushButton { color: white; background: #c62828; font-weight: bold; padding: 3px 12px; "
+                         "border-radius: 3px; } QPushButton:disabled { background: #999; }")
+    button.clicked.connect(action.trigger)
+    button.setEnabled(action.isEnabled())
+    action.changed.connect(lambda: button.setEnabled(action.isEnabled()))
+    row = QHBoxLayout()
+    row.setContentsMargins(0, 0, 0, 0)
+    row.addStretch(1)
+    row.addWidget(button)
+    layout.insertLayout(0, row)
+    return button
 
 
 class PageStack(QWidget):

@@ -36,7 +36,7 @@ from lfstudio.dataset.paths import view_stem
 from lfstudio.errors import LfError
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.settings import read_int, settings
-from lfstudio.gui.widgets import GridPicker, JobProgressWidget, calibration_warnings, screen_fitted
+from lfstudio.gui.widgets import GridPicker, JobProgressWidget, calibration_warnings, add_stop_button, screen_fitted
 from lfstudio.jobs import count
 
 PAGE_VIEWS, PAGE_RUN, PAGE_RESULTS = range(3)
@@ -198,6 +198,7 @@ class CalibrationWizard(QDialog):
         lay = QVBoxLayout(self)
         lay.addWidget(self.stack, 1)
         lay.addLayout(buttons)
+        add_stop_button(self, lay)      # STOP in sight while this dialog covers the window's
 
         self.back_button.clicked.connect(self.go_back)
         self.next_button.clicked.connect(self.start_calibration)

@@ -27,7 +27,7 @@ from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.path_field import expand_on_edit
 from lfstudio.gui.preferences import EXPORT_KEY
 from lfstudio.gui.settings import read_int, read_text, settings
-from lfstudio.gui.widgets import GridPicker, JobProgressWidget, confirm_cancel_running, screen_fitted
+from lfstudio.gui.widgets import GridPicker, JobProgressWidget, confirm_cancel_running, add_stop_button, screen_fitted
 from lfstudio.jobs import format_duration
 
 #: format key, menu text, what it is
@@ -128,6 +128,7 @@ class ExportDialog(QDialog):
         lay.addWidget(self._build_views_box(), 1)
         lay.addWidget(self._build_destination_box())
         lay.addWidget(self._build_run_area())
+        add_stop_button(self, lay)      # STOP in sight while this dialog covers the window's
 
         self.runner.finished.connect(self._export_done)
         self.runner.failed.connect(self._export_failed)

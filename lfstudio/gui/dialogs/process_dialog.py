@@ -25,7 +25,7 @@ from lfstudio.errors import InputError, window_message
 from lfstudio.gui.bridge import JobRunner
 from lfstudio.gui.imageutil import rgb_to_qimage
 from lfstudio.gui.settings import read_int, read_text, settings
-from lfstudio.gui.widgets import JobProgressWidget, confirm_cancel_running, screen_fitted
+from lfstudio.gui.widgets import JobProgressWidget, confirm_cancel_running, add_stop_button, screen_fitted
 from lfstudio.dataset.manifest import processed_status
 from lfstudio.dataset.profile import PARAMS, PROFILE_NAME, Profile
 
@@ -448,6 +448,7 @@ class ProcessDialog(QDialog):
         lay.addLayout(run_bar)
         lay.addWidget(self.progress)
         lay.addWidget(self.result_label)
+        add_stop_button(self, lay)      # STOP in sight while this dialog covers the window's
 
         self.preview_runner = JobRunner(self)
         self.preview_runner.finished.connect(self._preview_done)

@@ -17,7 +17,7 @@ from PySide6.QtWidgets import (QCheckBox, QDialog, QHBoxLayout, QLabel, QLineEdi
 
 from lfstudio.errors import LfError, window_message
 from lfstudio.gui.bridge import JobRunner, run_off_gui
-from lfstudio.gui.widgets import ColourBar, FitImageView, JobProgressWidget, screen_fitted
+from lfstudio.gui.widgets import ColourBar, FitImageView, JobProgressWidget, add_stop_button, screen_fitted
 
 #: pixels below this confidence are greyed out with "Hide unsure pixels"
 UNSURE_BELOW = 0.1
@@ -152,6 +152,7 @@ class DepthDialog(QDialog):
         lay.addWidget(area, 1)
         lay.addWidget(self.colour_bar)
         lay.addWidget(self.caption)
+        add_stop_button(self, lay)      # STOP in sight while this dialog covers the window's
         self.show_button.clicked.connect(self.show_view)
         self.view_edit.returnPressed.connect(self.show_view)
         self.hide_check.toggled.connect(self.show_view)

@@ -24,7 +24,7 @@ from PySide6.QtWidgets import QDialog, QHBoxLayout, QLabel, QLineEdit, QPushButt
 
 from lfstudio.errors import LfError
 from lfstudio.gui.bridge import GuiInbox, Pacer, run_off_gui
-from lfstudio.gui.widgets import FitImageView, screen_fitted
+from lfstudio.gui.widgets import FitImageView, add_stop_button, screen_fitted
 
 EV_RANGE = (-8.0, 8.0)          # the slider's exposure, in stops around the key
 EV_STEP = 0.1
@@ -218,6 +218,7 @@ class RadianceDialog(QDialog):
         lay.addLayout(top)
         lay.addWidget(self.image, 1)
         lay.addWidget(self.caption)
+        add_stop_button(self, lay)      # STOP in sight while this dialog covers the window's
         self._data: dict[str, Any] | None = None
         self._loader = None
         self.pictures_shown = 0
