@@ -149,7 +149,8 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
                           time_scale=job["time_scale"], home=job.get("home", False),
                           engine_options=dict(job.get("engine_options") or {}),
                           trust_rig_position=job.get("trust_rig_position", False), fly=job.get("fly", False),
-                          keep_on_card=job.get("keep_on_card", False), blur_limit_px=job.get("blur_limit_px", 0.5))
+                          keep_on_card=job.get("keep_on_card", False), blur_limit_px=job.get("blur_limit_px", 0.5),
+                          fly_speed_mm_s=job.get("fly_speed_mm_s"))
     session = ScanSession(request, doing="scanning", devices=devices)
     scene = job["scene"]
     try:
@@ -632,7 +633,9 @@ class ScanPanel(QWidget):
                    exposure_s=scene.exposure_s if scene is not None else 0.5,
                    transfer_s=scene.transfer_s if scene is not None else 2.5,
                    allow_device_change=allow_device_change, home=home, trust_rig_position=trust_rig_position,
-                   fly=self.fly.isChecked(), keep_on_card=self.keep_on_card.isChecked(), blur_limit_px=float(scene.blur_limit_px) if scene is not None else 0.5)
+                   fly=self.fly.isChecked(), keep_on_card=self.keep_on_card.isChecked(),
+                   blur_limit_px=float(scene.blur_limit_px) if scene is not None else 0.5,
+                   fly_speed_mm_s=scene.fly_speed_mm_s if scene is not None else None)   # None: the fastest
         if not shared and self.studio is None:
             self._log("starting the simulated studio (GRBL simulator on a pseudo-terminal, simulated camera)…")
             self.state_label.setText("Connecting the simulated rig and camera…")
