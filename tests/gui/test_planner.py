@@ -303,3 +303,23 @@ def test_the_fly_fields_and_continuous_motion(window, qtbot):
     assert "blur" in p.outputs["fly"].toolTip()
     box.setChecked(False)
     assert not p.rows["fly_speed_mm_s"].spins[0].isEnabled()       # the box's fields follow it
+
+
+def test_take_grid_from_the_plan_takes_the_fly_choice(window, qtbot):
+    """The Planner's and the Scan panel's "Continuous motion (fly scan)" ticks: Take grid from the plan
+    (and a new plan) copies the Planner's to the Scan panel (they were independent)."""
+    p, scan = planner(window), window.panels["scanPanel"]
+    p.fly_box.setChecked(False)
+    qtbot.waitUntil(lambda: "fly scan" not in p.outputs["time"].text())
+    scan.fly.setChecked(False)
+    p.fly_box.setChecked(True)
+    type_into(qtbot, p.rows["fly_speed_mm_s"].spins[0], "40")
+    qtbot.waitUntil(lambda: window.state.plan is not None and window.state.plan.fly_speed_mm_s == 40)
+    qtbot.mouseClick(scan.from_plan, Qt.MouseButton.LeftButton)
+    assert scan.fly.isChecked()
+    qtbot.waitUntil(lambda: "continuous motion at 40 mm/s" in scan.log_view.toPlainText())
+    assert "continuous motion" in scan.summary.text()
+    p.fly_box.setChecked(False)
+    qtbot.waitUntil(lambda: "no fly speed" not in p.outputs["time"].text() and "fly scan" not in p.outputs["time"].text())
+    qtbot.mouseClick(scan.from_plan, Qt.MouseButton.LeftButton)
+    assert not scan.fly.isChecked()

@@ -176,6 +176,13 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
             "restore": restore}
 
 
+def planner_continuous_motion() -> bool:
+    """Whether the Planner's "Continuous motion (fly scan)" box is ticked (remembered by the Planner)."""
+    from lfstudio.gui.panels.planner import FLY_SETTINGS_KEY
+
+    return str(settings().value(FLY_SETTINGS_KEY, "false")).lower() == "true"
+
+
 def restore_time_scales(restore: list | None) -> None:
     """Give the panels' simulated devices back the time scales they had before the scan (the Scan
     panel's time scale applies to the scan only): run the calls ``prepare_scan`` recorded."""
@@ -522,8 +529,14 @@ class ScanPanel(QWidget):
             self.settle.setValue(float(plan.settle_s))
         if isinstance(plan.bracket, str):
             self.bracket.setText(plan.bracket)
+        fly = planner_continuous_motion()        # the Planner's "Continuous motion (fly scan)" tick
+        self.fly.setChecked(fly)
+        how = ""
+        if fly:
+            how = ", continuous motion at " + (f"{plan.fly_speed_mm_s:g} mm/s" if plan.fly_speed_mm_s
+                                                  else "the fastest speed the limits allow")
         self._log(f"grid taken from the plan: {grid.columns} × {grid.rows}, "
-                  f"{grid.spacing_mm[0]:g} × {grid.spacing_mm[1]:g} mm")
+                  f"{grid.spacing_mm[0]:g} × {grid.spacing_mm[1]:g} mm{how}")
 
     def _on_dataset(self, dataset: Any) -> None:
         if dataset is None or self.running:
