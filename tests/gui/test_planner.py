@@ -283,7 +283,9 @@ def test_the_fly_fields_and_continuous_motion(window, qtbot):
     qtbot.waitUntil(lambda: "fly scan" not in p.outputs["time"].text())
     # the reference camera's 0.5 s exposure allows no fly speed at 0.5 px of blur
     assert p.outputs["fly"].text().startswith("not possible")
+    assert style_prop(p.outputs["fly"], "flag") == ""        # plain: nobody asked for a fly scan
     box.setChecked(True)
+    qtbot.waitUntil(lambda: style_prop(p.outputs["fly"], "flag") == "warn")     # asked for: the warning colour
     assert all(s.isEnabled() for s in p.rows["blur_limit_px"].spins)
     qtbot.waitUntil(lambda: "no fly speed" in p.outputs["time"].text())
     assert style_prop(p.outputs["time"], "flag") == "warn"

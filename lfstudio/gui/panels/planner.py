@@ -648,7 +648,8 @@ class PlannerPanel(QWidget):
             put("fly", f"{format_duration(fly.time_s)} at {fly.speed_mm_s:.3g} mm/s ({fly.binding} binds)")
             self.outputs["fly"].setToolTip(self.outputs["fly"].toolTip().split("\n\n")[0])
         elif fly is not None:
-            put("fly", f"not possible: {fly.binding} allows {fly.speed_mm_s:.3g} mm/s", "warn")
+            put("fly", f"not possible: {fly.binding} allows {fly.speed_mm_s:.3g} mm/s",
+                "warn" if self.fly_box.isChecked() else "")      # plain when nobody asked for a fly scan
             self.outputs["fly"].setToolTip(self.outputs["fly"].toolTip().split("\n\n")[0] + "\n\n" + fly.refusal)
         self._fill_disk(r)
 
