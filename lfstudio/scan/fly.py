@@ -402,8 +402,13 @@ class FlyScanEngine(ScanEngine):
                 # speeding up at the axis' acceleration strays a·gap²/8 from the line between two reports
                 gap = _gap_around(reports, t_mid)
                 accel = float(self.rig.driver.config.horizontal.acceleration_mm_s2) / self.time_scale ** 2
-                allowed = self.tolerance_mm + accel * gap * gap / 8.0
-                if where is not None and math.hypot(where[0] - x, where[1] - y) > allowed:
+                # ... but never by half a spacing or more: frames pair with views in order, so a missed edge
+                # puts every later frame of the row a whole spacing from where the line says
+                allowed = min(self.tolerance_mm + accel * gap * gap / 8.0, 0.5 * self.plan.spacing_mm[0])
+                if where is None:       # nothing to check the pairing with: never stored unchecked
+                    self._retake(view, "no position reports around the frame's time to check the trigger line by")
+                    continue
+                if math.hypot(where[0] - x, where[1] - y) > allowed:
                     self._retake(view, f"the position reports put the frame {math.hypot(where[0] - x, where[1] - y):.3f} "
                                        f"mm from where the trigger line says (tolerance {allowed:.3g} mm): "
                                        "the carriage was not at speed, or a frame was missed")

@@ -275,3 +275,22 @@ def test_hardware_trigger_abort_takes_effect_at_the_row_end_and_resume_flies_the
     again.start()
     assert again.wait(120) is ScanState.FINISHED, again.message
     check_views(ds.root, again)
+
+
+def test_hardware_trigger_an_edge_the_camera_never_saw_stores_no_view_a_spacing_off(studio):
+    """Frames pair with views in order; one edge the camera silently misses puts every later frame of the
+    row a spacing further than its view. Each such frame is taken again; no view is stored where it was
+    not (the simulator's truth beside each stored view lies within half a spacing of its position)."""
+    session, plan, ds = studio
+    session.camera.inject("miss_trigger", 1)          # in line mode: an edge never seen, nothing said
+    engine, _ = engine_of(session, plan, ds, trigger="hardware")
+    engine.start()
+    assert engine.wait(180) is ScanState.FINISHED, engine.message
+    check_views(ds.root, engine)
+    d = Dataset.open(ds.root)
+    spacing = plan.spacing_mm[0]
+    retaken = [v for v in d.views if (v.get("fly") or {}).get("retaken")]
+    assert retaken, "the missed edge went unnoticed"
+    for v in d.views:
+        truth = json.loads((d.root / v["sidecars"][1]).read_text())
+        assert abs(truth["true_position_mm"][0] - v["commanded_mm"][0]) < 0.5 * spacing, (v["row"], v["column"])
