@@ -320,8 +320,12 @@ def test_take_grid_from_the_plan_takes_the_fly_choice(window, qtbot):
     qtbot.mouseClick(scan.from_plan, Qt.MouseButton.LeftButton)
     assert scan.fly.isChecked()
     qtbot.waitUntil(lambda: "continuous motion at 40 mm/s" in scan.log_view.toPlainText())
-    assert "continuous motion" in scan.summary.text()
+    assert "continuous motion" in scan.summary.text() and "Planner plans" not in scan.summary.text()
+    scan.fly.setChecked(False)       # the operator unticks the Scan panel's: the summary says they differ
+    assert "the Planner plans a fly scan: Take grid from the plan" in scan.summary.text()
     p.fly_box.setChecked(False)
     qtbot.waitUntil(lambda: "no fly speed" not in p.outputs["time"].text() and "fly scan" not in p.outputs["time"].text())
     qtbot.mouseClick(scan.from_plan, Qt.MouseButton.LeftButton)
     assert not scan.fly.isChecked()
+    p.fly_box.setChecked(True)       # the Planner's tick alone (the plan unchanged): the Scan panel follows
+    qtbot.waitUntil(scan.fly.isChecked)

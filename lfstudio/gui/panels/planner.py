@@ -228,6 +228,7 @@ class PlannerPanel(QWidget):
         assert isinstance(grid, QGridLayout)       # _group lays its box out on a grid
         self._add_bracket_row(grid)
         lay.addWidget(timing)
+        self._fly_toggled_since = False     # Continuous motion changed since the plan was last published
         self.fly_box = self._group("Continuous motion (fly scan)", _FLY_INPUTS)
         self.fly_box.setObjectName("plannerFly")
         self.fly_box.setCheckable(True)
@@ -550,8 +551,9 @@ class PlannerPanel(QWidget):
         self.plan, self.result, self.error = plan, result, error
         self._show(plan, result, error)
         self._save_timer.start()
-        if result is not None and result.fits_travel and plan != self.state.plan:
-            self.state.set_plan(plan)
+        fly_toggled, self._fly_toggled_since = self._fly_toggled_since, False
+        if result is not None and result.fits_travel and (plan != self.state.plan or fly_toggled):
+            self.state.set_plan(plan)       # also when only Continuous motion changed: the Scan panel follows it
         self.planEvaluated.emit(plan, result)
 
     def _show(self, plan: ScenePlan, result: PlanResult | None, error: InputError | None) -> None:
@@ -740,6 +742,7 @@ class PlannerPanel(QWidget):
         from lfstudio.gui.settings import settings
 
         settings().setValue(FLY_SETTINGS_KEY, "true" if on else "false")
+        self._fly_toggled_since = True
         self._changed()
 
     @property

@@ -599,6 +599,9 @@ class ScanPanel(QWidget):
         how = ("continuous motion: the row speed is chosen at Start (the Planner's Fly scan line estimates "
                "the time)") if self.fly.isChecked() else \
             f"about {format_duration(est)} at {exposure:g} s exposure and {transfer:g} s transfer"
+        if scene is not None and planner_continuous_motion() != self.fly.isChecked():
+            how += (" (the Planner plans a fly scan: " if not self.fly.isChecked() else
+                    " (the Planner plans a step-by-step scan: ") + "Take grid from the plan to follow it)"
         self.summary.setText(f"{count(len(plan), 'view')}{frames} · {how}{problem}")
 
     # -- running -----------------------------------------------------------------------------------
