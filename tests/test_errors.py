@@ -31,6 +31,7 @@ KINDS = {
     "lfstudio.rig.grbl_protocol.MotionStopped": "motion-stopped",
     "lfstudio.rig.grbl_protocol.PositionError": "position",
     "lfstudio.rig.cia402.DriveNotAnswering": "drive-not-answering",
+    "lfstudio.rig.cia402.ExchangeInterrupted": "exchange-interrupted",   # a slow drive's exchange cut by STOP
     "lfstudio.rig.cia402.ObjectAccessRefused": "object-access-refused",
     "lfstudio.rig.cia402.DriveFault": "drive-fault",
     "lfstudio.rig.cia402.MotionStopped": "motion-stopped",
