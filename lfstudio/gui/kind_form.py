@@ -10,6 +10,7 @@ per kind in the window's settings (``devices/KIND/FIELD``)."""
 from __future__ import annotations
 
 import dataclasses
+import logging
 from typing import Any
 
 from PySide6.QtCore import Signal
@@ -18,6 +19,8 @@ from PySide6.QtWidgets import QCheckBox, QComboBox, QFormLayout, QHBoxLayout, QL
 from lfstudio.errors import InputError
 from lfstudio.gui.settings import read_text, settings
 from lfstudio.studio.kinds import CameraKind, RigKind, parse_options
+
+log = logging.getLogger(__name__)
 
 
 class KindForm(QWidget):
@@ -64,7 +67,7 @@ class KindForm(QWidget):
                     form.addRow("", box)
                     self.flags[f.name] = box
                     continue
-                edit = QLineEdit(read_text(self._key(f.name), "", s))
+                edit = QLineEdit(self._saved(f.name, s))
                 edit.setObjectName(f"{kind.name}-{f.name}")
                 default = param.to_text(f.default) if f.default is not dataclasses.MISSING else ""
                 edit.setPlaceholderText(default)
@@ -100,6 +103,18 @@ class KindForm(QWidget):
 
     def _key(self, name: str) -> str:
         return f"devices/{self.kind.name}/{name}"
+
+    def _saved(self, name: str, s: Any) -> str:
+        """The text saved for field ``name``; a saved text its option refuses (a garbled settings file)
+        is dropped with a warning naming the key, so the field shows its default."""
+        text = read_text(self._key(name), "", s).strip()
+        if text:
+            try:
+                parse_options(self.kind, {name: text}, option=name)
+            except InputError as exc:
+                log.warning("settings: %s = %r is not valid (%s); using the default", self._key(name), text, exc)
+                return ""
+        return text
 
     def _param(self, name: str) -> Any:
         return next(f.metadata["lfstudio.param"] for f in dataclasses.fields(self.kind.options)

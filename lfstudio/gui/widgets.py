@@ -199,7 +199,9 @@ def add_stop_button(dialog: QWidget, layout) -> QPushButton | None:
     """The main window's STOP (the action of its ``stopToolButton``) as a button at the top of a dialog big
     enough to cover the window's STOP toolbar (at 1366 x 768 the Process, Depth, Radiance, Export and
     calibration dialogs do): STOP stays in sight whatever window is in front. (Esc in a dialog closes the
-    dialog, hence no "(Esc)" here.) None when the dialog has no such window above it."""
+    dialog, hence no "(Esc)" here.) ``layout``: the dialog's column (the button gets a row of its own on
+    top) or one of its rows (the button first in it, for a dialog with no height to spare). None when the
+    dialog has no such window above it."""
     top = dialog.parentWidget()
     while top is not None and top.parentWidget() is not None:
         top = top.parentWidget()
@@ -216,6 +218,9 @@ def add_stop_button(dialog: QWidget, layout) -> QPushButton | None:
     button.clicked.connect(action.trigger)
     button.setEnabled(action.isEnabled())
     action.changed.connect(lambda: button.setEnabled(action.isEnabled()))
+    if isinstance(layout, QHBoxLayout):       # a row of the dialog's own (no height added): first in it
+        layout.insertWidget(0, button)
+        return button
     row = QHBoxLayout()
     row.setContentsMargins(0, 0, 0, 0)
     row.addStretch(1)

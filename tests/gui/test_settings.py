@@ -44,7 +44,7 @@ def test_a_value_not_of_the_type_gives_the_default_and_a_warning_naming_the_key(
 
 
 GARBLED = {"camera/sim_width_px": "wide", "camera/sim_noise_pct": "x", "camera/shutter_s": "half",
-           "camera/aperture": "nan", "camera/hot_timeout_s": "", "rig/step_mm": "ten", "rig/goto_x": "left",
+           "camera/aperture": "nan", "devices/folder/timeout_s": "soon", "devices/folder/stable_s": "-1", "rig/step_mm": "ten", "rig/goto_x": "left",
            "liveview/fps": "fast", "liveview/clipping": "perhaps", "scan/time_scale": "slow"}
 
 
@@ -70,7 +70,8 @@ def test_the_camera_panel_and_live_view_open_on_garbled_settings_with_the_defaul
     assert panel.sim_noise.value() == pytest.approx(0.2)
     assert panel.shutter.value() == pytest.approx(0.5)
     assert panel.aperture.value() == pytest.approx(16.0)
-    assert panel.folder_timeout.value() == pytest.approx(30)
+    assert panel.folder_options.fields["timeout_s"].text() == ""            # the default shown (30 s)
+    assert panel.folder_options.options() == {}                               # connects with the defaults
     assert live.fps_spin.value() == 4
     assert live.clip_check.isChecked()
     live.shutdown()

@@ -128,7 +128,6 @@ class ExportDialog(QDialog):
         lay.addWidget(self._build_views_box(), 1)
         lay.addWidget(self._build_destination_box())
         lay.addWidget(self._build_run_area())
-        add_stop_button(self, lay)      # STOP in sight while this dialog covers the window's
 
         self.runner.finished.connect(self._export_done)
         self.runner.failed.connect(self._export_failed)
@@ -397,6 +396,8 @@ class ExportDialog(QDialog):
         buttons.addWidget(self.result_label, 1)
         for b in (self.open_folder_button, self.export_button, self.close_button):
             buttons.addWidget(b)
+        add_stop_button(self, buttons)     # STOP in sight while this dialog covers the window's (no row of its own:
+        #                                    the dialog fits a 768 px screen)
         # every line keeps its room whether it has text or not, so the dialog never jumps between states
         lines = self.fontMetrics().lineSpacing()
         for label in (self.estimate_label, self.warnings_label, self.result_label):

@@ -1089,6 +1089,13 @@ class ScanPanel(QWidget):
         fault = fault and not stopped
         if st is ScanState.PAUSED:
             self._rig_unready = False          # see _rig_status: "ready again" only after it was not
+            from lfstudio.rig.motion import RigState, RigStatus
+
+            # the rig's alarm may have been published before the scan said it paused: its latest status counts
+            latest = self._rig_device.latest if isinstance(self._rig_device, QtDevice) else None
+            if isinstance(latest, RigStatus) and (not latest.homed or
+                                                  latest.state in (RigState.ALARM, RigState.DISCONNECTED)):
+                self._rig_unready = True
         color = "#e06060" if fault else colors.get(st, "#c0c0c0")
         word = st.value.capitalize()
         said = re.match(r"([A-Z][a-z]+): (.*)", message, re.S)    # "Aborted: 4 of 27 …" names the state itself
