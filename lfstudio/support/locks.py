@@ -246,6 +246,9 @@ class Lock:
                     exc.filename = str(self.path)
                 raise
         except BaseException:
+            dfd, self._device_fd = self._device_fd, None
+            if dfd is not None:            # the device node's lock goes with the failure (else this process
+                os.close(dfd)              # would be refused by its own leftover: "in use by another program")
             os.close(fd)
             raise
         return fd

@@ -97,3 +97,39 @@ def test_a_camera_in_use_is_refused_naming_its_holder(run_cli, tmp_path):
         child.wait(10)
         child.stdin.close()
         child.stdout.close()
+
+
+FAILED_WRITE = """
+import fcntl, os, resource, signal, sys, tty
+from lfstudio.support.locks import LockBusy, port_lock
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)      # the write fails with EFBIG instead of killing us
+master, slave = os.openpty()
+tty.setraw(slave)
+port = os.ttyname(slave)
+soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+resource.setrlimit(resource.RLIMIT_FSIZE, (0, hard))  # the holder line cannot be written (as on a full disk)
+try:
+    port_lock(port, "first try").acquire()
+    print("acquired with no holder line written")
+except OSError as exc:
+    print("first try failed:", exc.errno)
+resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+try:
+    lock = port_lock(port, "second try").acquire()
+except LockBusy as exc:
+    print("second try refused:", exc)
+else:
+    print("second try held")
+    lock.release()
+"""
+
+
+def test_a_lock_whose_holder_line_cannot_be_written_leaves_the_port_free(tmp_path):
+    """Taking a port's lock flocks its device node too; when writing the holder line then fails (a full
+    disk), the device node's lock must go with the failure: the process that failed must be able to
+    try again (it was refused by its own leftover lock, "in use by another program", until it ended)."""
+    env = {**cli_env(), "LFSTUDIO_RUNTIME_DIR": str(tmp_path)}
+    r = subprocess.run([sys.executable, "-c", FAILED_WRITE], capture_output=True, text=True, env=env, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "first try failed: 27" in r.stdout                  # EFBIG: the holder line was refused
+    assert "second try held" in r.stdout, r.stdout
