@@ -306,17 +306,17 @@ def open_rig(spec: RigSpec | str, config: RigConfig, *, doing: str = "", time_sc
             lk = None
         else:
             if not isinstance(opened, MotionController):
-                missing = [m for m in ("connect", "home", "move_to", "stop", "status")
-                           if not callable(getattr(opened, m, None))]
+                missing = [m for m in _members(MotionController) if not hasattr(opened, m)]
                 raise DeviceError(f"rig kind {kind.name!r} ({kind.origin}) gave a {type(opened).__name__}, which is "
-                                  f"not a motion controller (it lacks {', '.join(missing) or 'part of lfstudio/rig/motion.py'})")
+                                  f"not a motion controller (it lacks {', '.join(missing)}; see "
+                                  "lfstudio/rig/motion.py)")
             link = RigLink(spec, config, opened, lock=lk)
             lk = None
             if connect:
                 try:
                     opened.connect()
                 except BaseException:
-                    link.close(disconnect=False)
+                    link.close()            # what a half-done connect opened (its port), then the lock
                     raise
     except BaseException:
         if lk is not None:
@@ -324,6 +324,12 @@ def open_rig(spec: RigSpec | str, config: RigConfig, *, doing: str = "", time_sc
         raise
     _remember(link.controller, link.spec, _OPENED_RIGS)
     return link
+
+
+def _members(protocol: type) -> list[str]:
+    """The attributes and methods a ``typing.Protocol`` asks for (what ``isinstance`` checks), in order."""
+    names = list(getattr(protocol, "__annotations__", {}))
+    return names + [n for n, v in vars(protocol).items() if callable(v) and not n.startswith("_") and n not in names]
 
 
 class _Both:

@@ -212,3 +212,97 @@ def test_the_example_rig_plugin_keeps_the_rig_contract(example_rig_site):
                        env=env, cwd=REPO_ROOT, timeout=300)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
     assert "5 passed" in r.stdout, r.stdout[-2000:]        # move, STOP, soft limits, disconnect, second process
+
+
+def test_a_rig_plugin_whose_connect_fails_is_disconnected_and_its_lock_released(tmp_path, monkeypatch):
+    """A plugin rig whose connect opened its serial port and then failed (no answer to its handshake):
+    open_rig must disconnect it (close the port), not only release the lock, else the port stays open
+    in this process (the window's, for good) while another process may take the lock."""
+    import os
+    import tty
+    from typing import Any
+
+    import serial
+
+    from lfstudio.errors import DeviceError
+    from lfstudio.rig.profile import load_rig
+    from lfstudio.studio.devices import open_rig
+    from lfstudio.studio.kinds import RigKind, register_rig, unregister
+    from lfstudio.support.locks import port_lock
+
+    monkeypatch.setenv("LFSTUDIO_RUNTIME_DIR", str(tmp_path))
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    port = os.ttyname(slave)
+    opened: list[serial.Serial] = []
+
+    class SilentRig:
+        port = ""
+
+        def __init__(self, argument: str):
+            self.port = argument
+            self.serial: serial.Serial | None = None
+
+        def connect(self) -> None:
+            self.serial = serial.Serial(self.port, timeout=0)
+            opened.append(self.serial)
+            raise DeviceError(f"no answer on {self.port}")
+
+        def disconnect(self) -> None:
+            if self.serial is not None:
+                self.serial.close()
+                self.serial = None
+
+        config = load_rig()
+
+        def home(self) -> None: ...
+        def set_origin(self) -> None: ...
+        def move_to(self, x_mm: float, y_mm: float, timeout_s: float | None = None) -> Any: ...
+        def jog(self, dx_mm: float, dy_mm: float, speed_mm_s: float | None = None) -> None: ...
+        def jog_cancel(self) -> None: ...
+        def feed_hold(self) -> None: ...
+        def resume(self) -> None: ...
+        def stop(self) -> None: ...
+        def reset(self) -> None: ...
+        def status(self) -> Any: ...
+
+    register_rig(RigKind("silentrig", lambda argument, _ctx: SilentRig(argument), argument="PORT",
+                         lock_key=lambda argument: argument, origin="plugin t 1 (m:f)"))
+    try:
+        with pytest.raises(DeviceError, match="no answer"):
+            open_rig(f"silentrig:{port}", load_rig())
+        assert len(opened) == 1 and not opened[0].is_open       # the port it opened is closed again
+        with port_lock(port, "next"):                             # and the lock is free
+            pass
+    finally:
+        unregister("silentrig")
+        for s in opened:
+            s.close()
+        os.close(master)
+        os.close(slave)
+
+
+def test_a_rig_plugin_lacking_part_of_the_controller_is_told_what(tmp_path):
+    """A plugin rig with connect, home, move_to, stop and status but not the rest of MotionController: the
+    line names what it lacks (it said 'it lacks part of lfstudio/rig/motion.py')."""
+    from lfstudio.errors import DeviceError
+    from lfstudio.rig.profile import load_rig
+    from lfstudio.studio.devices import open_rig
+    from lfstudio.studio.kinds import RigKind, register_rig, unregister
+
+    class HalfRig:
+        def connect(self) -> None: ...
+        def home(self) -> None: ...
+        def move_to(self, x_mm: float, y_mm: float) -> None: ...
+        def stop(self) -> None: ...
+        def status(self) -> None: ...
+
+    register_rig(RigKind("halfrig", lambda argument, _ctx: HalfRig(), argument="X", origin="plugin t 1 (m:f)"))
+    try:
+        with pytest.raises(DeviceError) as refused:
+            open_rig("halfrig:1", load_rig(), lock=False)
+        text = str(refused.value)
+        assert "gave a HalfRig, which is not a motion controller" in text
+        assert "it lacks config, disconnect, set_origin, jog, jog_cancel, feed_hold, resume, reset;" in text, text
+    finally:
+        unregister("halfrig")
