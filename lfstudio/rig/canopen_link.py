@@ -121,6 +121,18 @@ def bus_args(channel: str) -> dict[str, Any]:
     return {"interface": "socketcan", "channel": channel.removeprefix("socketcan:")}
 
 
+def canonical_channel(channel: str) -> str:
+    """The one spelling of a channel word (what names its drives' locks): ``can0`` for
+    ``socketcan:can0``, ``udp_multicast:GROUP`` for ``udp_multicast`` (the default group); two spellings
+    of one bus are one bus."""
+    args = bus_args(channel.strip())
+    if args["interface"] == "virtual":
+        return VIRTUAL_PREFIX + args["channel"]
+    if args["interface"] == "udp_multicast":
+        return f"{UDP_MULTICAST}:{args['channel']}"
+    return args["channel"]
+
+
 def _network(channel: str) -> Any:
     import canopen
 
@@ -160,6 +172,8 @@ class CanopenLink:
         self.object_dictionary = object_dictionary
         self.node_id = int(node_id)
         self.address = f"{channel} node {self.node_id}"
+        #: the drive's one name (its lock's): the channel in one spelling (:func:`canonical_channel`)
+        self.lock_name = f"{canonical_channel(channel)} node {self.node_id}"
         self.timeout_s = timeout_s
         self.node: Any = None
         self._lock = threading.Lock()

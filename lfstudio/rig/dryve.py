@@ -29,6 +29,7 @@ protocol; :class:`DryveLink` adds the socket, the transaction numbers and the de
 
 from __future__ import annotations
 
+import ipaddress
 import logging
 import socket
 import struct
@@ -110,11 +111,17 @@ def decode_response(frame: bytes, transaction: int, write: bool, index: int, sub
 
 
 def parse_address(text: str, option: str = "--port") -> tuple[str, int]:
-    """``HOST[:PORT]`` -> (host, port); the port defaults to 502."""
+    """``HOST[:PORT]`` -> (host, port); the port defaults to 502. The host in one spelling (a name in
+    lower case without a final dot, an IP address as :mod:`ipaddress` writes it): the address names
+    the drive's lock, so two spellings of one drive must be one address."""
     host, _, port = text.strip().rpartition(":") if ":" in text else (text.strip(), "", "")
     host = host or text.strip()
     if not host:
         raise InputError(option, f"{text!r}: no host", "dryve:HOST[:PORT],HOST[:PORT]")
+    try:
+        host = str(ipaddress.ip_address(host))
+    except ValueError:
+        host = host.lower().rstrip(".") or host
     if not port:
         return host, DEFAULT_PORT
     try:
@@ -138,6 +145,7 @@ class DryveLink:
     def __init__(self, host: str, port: int = DEFAULT_PORT, *, timeout_s: float = 1.0):
         self.host, self.port = host, int(port)
         self.address = f"{host}:{self.port}"
+        self.lock_name = self.address      # the drive's one name (its lock's): parse_address spells hosts one way
         self.timeout_s = timeout_s
         self._sock: socket.socket | None = None
         self._lock = threading.Lock()

@@ -116,9 +116,9 @@ def _open_pair(kind: str, port: str, addresses: tuple, ctx: OpenContext, simulat
 
             links = (CanopenLink(port, x, timeout_s=options.get("timeout_s", 1.0), object_dictionary=dictionaries[0]),
                      CanopenLink(port, y, timeout_s=options.get("timeout_s", 1.0), object_dictionary=dictionaries[1]))
-        if ctx.lock:
+        if ctx.lock:                 # by the drive's one name (lock_name), however the word spells it
             for link in links:
-                locks.append(drive_lock(link.address, ctx.doing).acquire())
+                locks.append(drive_lock(link.lock_name, ctx.doing).acquire())
         controller = Cia402Controller(links, config, port=_text(kind, port, addresses), **options)
         opened = OpenedRig(controller, simulator, _Locks(locks), port, addresses)
         if ctx.connect:

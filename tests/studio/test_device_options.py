@@ -64,3 +64,30 @@ def test_a_refused_scan_setting_is_named_and_makes_no_folder(tmp_path):
     assert not (tmp_path / "ds").exists() and session.lock is None
     with pytest.raises(InputError, match=r"--set: cannot read 'Mono16'"):
         parse_settings(["Mono16"])
+
+
+@pytest.mark.parametrize("first, second", [
+    ("canopen:can0:1,2", "canopen:socketcan:can0:2,3"),                      # node 2 of can0, spelled two ways
+    ("canopen:udp_multicast:1,2", "canopen:udp_multicast:239.74.163.2:2,5"),  # python-can's default group
+    ("dryve:Drive-X.studio.lan,drive-y.studio.lan", "dryve:drive-x.studio.lan.:502,drive-z.studio.lan"),
+])
+def test_one_drive_spelled_two_ways_is_one_drive_to_lock(first, second, tmp_path, monkeypatch):
+    """The drives' locks are named by their addresses as the word gives them: a drive named two ways (a
+    CAN channel with or without 'socketcan:', a host name's case or final dot) must still be refused to a
+    second opener naming the holder (nothing connects here: each drive word locks its drives first)."""
+    from lfstudio.rig.profile import DEFAULT_DRIVE_RIG
+    from lfstudio.support.locks import LockBusy
+
+    monkeypatch.setenv("LFSTUDIO_RUNTIME_DIR", str(tmp_path))
+    config = load_rig(DEFAULT_DRIVE_RIG)
+    held = open_rig(first, config, connect=False, doing="the first opener")
+    try:
+        with pytest.raises(LockBusy, match=r"axis drive .* is in use by .*the first opener"):
+            open_rig(second, config, connect=False, doing="the second opener").close()
+    finally:
+        held.close(disconnect=False)
+
+
+def test_a_dryve_word_naming_one_drive_twice_is_refused_however_spelled():
+    with pytest.raises(InputError, match="both axes name the same drive drive-x:502"):
+        RigSpec.parse("dryve:Drive-X,drive-x.:502")
