@@ -16,7 +16,8 @@ faint texture weighs like bright texture). For each candidate ``d`` every neighb
 sampled where a point of disparity ``d`` lies, ``(u − d·dx, v − d·dy)`` (the camera moving right
 moves the image left); the absolute differences, truncated at :data:`TRUNCATE`, are averaged over a
 small window per **half-plane** of views (left, right, up, down: a diagonal view counts in two)
-and per **line** (the views of its row, of its column), counting only samples inside the neighbour.
+and per **line** (the views of its row, of its column; a view whose recorded or measured position
+misses the line by up to :data:`LINE_TOLERANCE` spacings is on it), counting only samples inside the neighbour.
 A point hidden from one side is seen from the others, so the cost is the mean of the best
 :data:`BEST_OF` half-planes' (two of four: one occluded side is left out, and the noise of a single
 side is halved), or a line's where that is lower (:data:`LINE_WEIGHT`): a gap or strip a few pixels
@@ -114,6 +115,10 @@ HALF_PLANES = ("left", "right", "up", "down")
 LINES = ("row", "column")
 #: a line's cost counts where it is below the half-planes' times this (fewer views: noisier)
 LINE_WEIGHT = 1.15
+#: a neighbour lies on the reference's row (column) when its vertical (horizontal) offset is within
+#: this many spacings of it: measured or recorded positions miss the grid by a little (the rig's
+#: repeatability), which moves no view off its line or into another half-plane
+LINE_TOLERANCE = 0.25
 
 
 @dataclass(frozen=True)
@@ -185,18 +190,19 @@ def _half_planes(dx: float, dy: float) -> tuple[int, ...]:
     """The subsets of views a neighbour at offset (dx, dy) belongs to: the half-planes
     (:data:`HALF_PLANES`: 0 left, 1 right, 2 up, 3 down) its offset points to, and the line through
     the reference it lies on (:data:`LINES`: 4 the row, 5 the column)."""
+    t = LINE_TOLERANCE
     out = []
-    if dx < -1e-9:
+    if dx < -t:
         out.append(0)
-    if dx > 1e-9:
+    if dx > t:
         out.append(1)
-    if dy < -1e-9:
+    if dy < -t:
         out.append(2)
-    if dy > 1e-9:
+    if dy > t:
         out.append(3)
-    if abs(dy) <= 1e-9:
+    if abs(dy) <= t:
         out.append(4)
-    if abs(dx) <= 1e-9:
+    if abs(dx) <= t:
         out.append(5)
     return tuple(out)
 

@@ -61,7 +61,7 @@ log = logging.getLogger(__name__)
 DEPTH_DIR = "depth"
 #: the method's version, part of every view's key: raised when its maps change, so that maps of an
 #: earlier version are computed again (2: row/column lines, colour at silhouettes, plane fit)
-METHOD = "light-field-sgm-2"
+METHOD = "light-field-sgm-3"
 #: search margin around the plan's near/far disparities
 RANGE_MARGIN = 0.08
 #: the neighbourhood: views up to this many columns and rows away, on the lines through the view
