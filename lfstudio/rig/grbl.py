@@ -882,8 +882,7 @@ class GrblController:
                         del in_flight[:len(in_flight) - waiting]
                         last_progress = time.monotonic()
                     if self._stream_errors:
-                        code = self._stream_errors[0]
-                        raise GrblError(code, "a line of the fly move")
+                        raise self._halt_refused_row()
                     if sum(in_flight) + len(data) <= self.rx_buffer - 1:
                         self._write(data)
                         self._unanswered += 1
@@ -897,6 +896,43 @@ class GrblController:
                     raise self._mark_lost("the controller stopped taking the fly move's lines; check its power "
                                           "and cable, then connect again")
 
+    def _halt_refused_row(self) -> GrblError:
+        """GRBL refused a streamed line of the fly row (``error:N``): stop the carriage and drop the rest
+        of the row; the error to raise, saying where the rig stands (call with ``_io`` held).
+
+        GRBL 1.1h drops a line it refuses and goes on with the next ones (protocol.c reports the
+        error and reads the next line; the blocks already planned run on): the carriage would fly on
+        along the row, past a view whose switch of the trigger line is missing, while the scan pauses.
+        So: feed hold (``!``), wait until the hold is complete (``Hold:0``), then soft reset (0x18),
+        which empties the planner and the lines waiting in GRBL's serial buffer. After a complete hold
+        the reset keeps the position (mc_reset alarms only while the steppers may run: a cycle, a jog,
+        homing or a hold still decelerating). A hold that does not complete in time is reset anyway:
+        GRBL then raises ALARM 3 and its position is lost; the message says so (home the rig)."""
+        codes, self._stream_errors = self._stream_errors, []
+        self._write(b"!")
+        self._stop_pending = True            # a reset is owed until it is done (status() would finish it)
+        deadline = time.monotonic() + self.timeout_s + 3 * self._stop_time_s()
+        while True:
+            st = self._query_status()
+            if st.state == "Alarm" or (st.state == "Hold" and st.substate == HOLD_COMPLETE):
+                break
+            if st.state == "Idle":           # between blocks, or the row's end: lines may still wait
+                self._write(b"!")            # GRBL holds from Idle at once (Hold:0)
+            if time.monotonic() > deadline:
+                log.warning("the rig did not hold within %.1f s after a refused fly line (state %s); resetting",
+                            self.timeout_s + 3 * self._stop_time_s(), st.state)
+                break
+            time.sleep(self.poll_period_s / 4)
+        if st.state != "Alarm" or not self._critical:
+            self._soft_reset_locked()
+        self._stop_pending = False
+        self._stop_event.clear()
+        st = self._query_status()
+        where = self._where(st)
+        after = ("GRBL goes on with the lines after a refused one, so the carriage was held and the rest of the "
+                 f"row dropped (feed hold, then reset); {where}")
+        return GrblError(codes[0], "a line of the fly row", after=after)
+
     def pulse_off(self) -> None:
         """Spindle output off (``M5``; GRBL waits until the carriage stands). Raises an ``error:N``
         GRBL answered to a line streamed by :meth:`fly_pulsing`."""
@@ -904,7 +940,8 @@ class GrblController:
             self._command("M5", timeout_s=max(self.timeout_s, 30.0))
             errors, self._stream_errors = self._stream_errors, []
         if errors:
-            raise GrblError(errors[0], "a line of the fly move")
+            raise GrblError(errors[0], "a line of the fly row",
+                            after="its answer came once the row was flown (the carriage stands at its end)")
 
     def report(self) -> PositionReport:
         """The position GRBL reports now, time-stamped at the middle of the question and the answer
@@ -918,9 +955,9 @@ class GrblController:
 
     def wait_arrival(self, x_mm: float, y_mm: float, timeout_s: float) -> RigStatus:
         """Wait until Idle at the target of :meth:`fly_to` (STOP ends it as it ends :meth:`move_to`)."""
-        return self._wait_arrival((float(x_mm), float(y_mm)), timeout_s, "G1 (fly)")
+        return self._wait_arrival((float(x_mm), float(y_mm)), timeout_s, "G1 (fly)", fly=True)
 
-    def _wait_arrival(self, target: tuple[float, float], timeout_s: float, line: str) -> RigStatus:
+    def _wait_arrival(self, target: tuple[float, float], timeout_s: float, line: str, fly: bool = False) -> RigStatus:
         start = time.monotonic()
         deadline = start + timeout_s
         idle_off_since: float | None = None
@@ -936,6 +973,8 @@ class GrblController:
                                     + self._where(st))
             with self._io:
                 st = self._query_status()
+                if fly and self._stream_errors:     # a streamed line refused: GRBL runs the rest (see there)
+                    raise self._halt_refused_row()
             if st.state == "Alarm":
                 raise GrblAlarm(self._alarm_code or 0, f"move to ({target[0]:g}, {target[1]:g}) mm")
             now = time.monotonic()

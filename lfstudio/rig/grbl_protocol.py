@@ -95,11 +95,12 @@ class GrblError(DeviceError):
 
     kind = "controller-error"
 
-    def __init__(self, code: int, line: str):
+    def __init__(self, code: int, line: str, after: str = ""):
         self.code = code
         self.line = line
-        super().__init__(f"controller refused {line!r}: error {code}, "
-                         f"{GRBL_ERRORS.get(code, 'unknown error code; see the GRBL 1.1 error list')}")
+        text = (f"controller refused {line!r}: error {code}, "
+                f"{GRBL_ERRORS.get(code, 'unknown error code; see the GRBL 1.1 error list')}")
+        super().__init__(f"{text}; {after}" if after else text)
 
 
 class GrblAlarm(DeviceError):

@@ -280,14 +280,8 @@ class FlyScanEngine(ScanEngine):
                 for view in row:
                     triggered.append((view, t_cmd))
                     fetches.append(self._camera_submit("fetch", self._stem(view), wait_s, timeout_s=wait_s + 10))
-                try:
-                    self._rig_call("fly_pulsing", [view.x_mm for view in row], end_x, y, v,
-                                   timeout_s=max(30.0, 3 * expected_s + 30))
-                except BaseException:
-                    stop = getattr(cam, "stop", None)     # edges may never come: the waiting fetches end now
-                    if callable(stop):
-                        stop()
-                    raise
+                self._rig_call("fly_pulsing", [view.x_mm for view in row], end_x, y, v,
+                               timeout_s=max(30.0, 3 * expected_s + 30))
             else:
                 self._rig_call("fly_to", end_x, y, v, timeout_s=30)
             for view in (row if not hardware else []):
@@ -307,12 +301,18 @@ class FlyScanEngine(ScanEngine):
                 self._rig_call("pulse_off", timeout_s=60)
         except (ScanFault, _Interrupted):
             done.set()
+            self._end_line_waits(hardware)
             self._settle_row(row, triggered, fetches, reports, v, interrupted=True, direction=direction)
             raise
         except Exception as exc:
             done.set()
+            self._end_line_waits(hardware)
             self._settle_row(row, triggered, fetches, reports, v, interrupted=True, direction=direction)
-            raise self._rig_fault(exc, f"flying row {row[0].row}") from None
+            fault = self._rig_fault(exc, f"flying row {row[0].row}")
+            if hardware:
+                fault = ScanFault(f"{str(fault).rstrip('.')}. The row's views not taken are flown again from "
+                                  "its run-up when the scan goes on.", fault.device, fault.clears)
+            raise fault from None
         finally:
             self._moving = False
             done.set()
@@ -325,6 +325,15 @@ class FlyScanEngine(ScanEngine):
         self.rig_s += t_flown - t_row0
         if poll_error and not interrupted:
             log.info("fly row %d: position reports ended: %s", row[0].row, poll_error[0])
+
+    def _end_line_waits(self, hardware: bool) -> None:
+        """A hardware-triggered row ended early (a refused line, STOP, a lost link): the line's remaining
+        edges never come, so the camera's waiting fetches end now instead of at their timeouts."""
+        if not hardware:
+            return
+        stop = getattr(self.camera.driver, "stop", None)
+        if callable(stop):
+            stop()
 
     def _stem(self, view: PlannedView) -> Any:
         return self.dataset.root / "raw" / view_stem(view.row, view.column)
@@ -374,6 +383,10 @@ class FlyScanEngine(ScanEngine):
             try:
                 result: CaptureResult = fut.result(timeout=0)
             except Exception as exc:
+                if interrupted and self.trigger == "hardware":
+                    rest.append(view)           # the row ended before its edge: flown again from the run-up
+                    self._attempts[view.cell] = attempt - 1
+                    continue
                 self._retake(view, f"missed trigger ({error_text(exc)})")
                 continue
             meta = result.metadata if isinstance(result.metadata, dict) else {}
@@ -442,6 +455,8 @@ class FlyScanEngine(ScanEngine):
             self._camera_call("disarm", timeout_s=30)
         except Exception as exc:
             log.info("disarming the camera: %s", exc)
+        order = {view.cell: k for k, view in enumerate(row)}
+        rest.sort(key=lambda view: order[view.cell])
         self._requeue(rest)
         if interrupted and rest:
             self._emit(EventKind.LOG, f"row {row[0].row}: {len(rest)} views not taken; flown again from the "

@@ -19,6 +19,7 @@ import pytest
 
 from lfstudio.errors import DeviceError
 from lfstudio.rig.grbl import GrblController
+from lfstudio.rig.grbl_protocol import GrblError
 from lfstudio.rig.motion import PulsesAtPositions
 from lfstudio.rig.profile import load_rig
 from lfstudio.sim.grbl_controller import GrblSimulator
@@ -182,3 +183,105 @@ def test_a_pulse_near_the_end_of_travel_never_leaves_the_soft_limits(sim_control
     assert targets and max(targets) <= 80.0, targets
     rising = [t for t, level in sim.spindle_output.edges() if level]
     assert [round(sim.true_position_at(t)[0], 3) for t in rising] == xs
+
+
+# -- a line GRBL refuses in the middle of a streamed row ----------------------------------------------
+#: 20 views 2 mm apart: 41 streamed lines, more than GRBL's 128-byte buffer and 15-block planner hold
+LONG_XS = [40.0 + 2.0 * k for k in range(20)]
+REFUSED_X = 60.0                                   # the view whose 'G1 X60.000 S0' arrives garbled
+
+
+def _garble_one_line(controller: GrblController, x: float) -> list[str]:
+    """Make the driver's stream send the line that brings the output low before view ``x`` garbled (a
+    character lost on the wire: ``G1 X6#.000 S0``, which GRBL refuses with error:1). Returns the lines
+    the stream was given."""
+    real = controller._stream
+    given: list[str] = []
+
+    def garbled(lines: list[str]) -> None:
+        target = f"G1 X{x:.3f} S0"
+        assert target in lines, lines
+        given.extend(lines)
+        bad = target.replace(f"X{x:.3f}"[:3], f"X{x:.3f}"[:2] + "#")
+        real([bad if line == target else line for line in lines])
+
+    controller._stream = garbled                   # type: ignore[method-assign]
+    return given
+
+
+def _fly_with_a_refused_line(c: GrblController, xs: list[float], end_x: float) -> str:
+    """Fly the row with one line garbled; the error's text (raised by fly_pulsing while it streams, or
+    by wait_arrival when its answer came after the last line left)."""
+    _garble_one_line(c, REFUSED_X)
+    with pytest.raises(GrblError) as caught:
+        c.fly_pulsing(xs, end_x, 0.0, SPEED)
+        c.wait_arrival(end_x, 0.0, 60.0)
+    return str(caught.value)
+
+
+def _assert_held_before(c: GrblController, text: str, x_limit: float) -> tuple[float, float]:
+    # GRBL's own reports: idle (reset after a complete hold: no ALARM 3, the position kept), standing
+    # short of the refused line's view, and no longer moving
+    first = c.status()
+    assert first.state.name == "IDLE" and first.homed and not c.alarms, (first, c.alarms)
+    assert first.position_mm is not None and first.position_mm[0] < x_limit, first
+    assert "error 1" in text and "carriage was held and the rest of the row dropped" in text, text
+    assert f"the rig is idle at ({first.position_mm[0]:.3f}, " in text, text
+    for _ in range(3):
+        c._last_t = 0.0                                  # ask the controller each time, not the cache
+        again = c.status()
+        assert again.state.name == "IDLE" and again.position_mm == first.position_mm
+    return first.position_mm
+
+
+def test_firmware_a_line_refused_mid_row_holds_the_carriage_and_drops_the_rest(laser_firmware):
+    """GRBL 1.1h drops a refused line and executes the lines after it (protocol.c): the driver holds the
+    carriage, waits for Hold:0 and resets, so nothing after the refused line runs; the position is kept
+    (a reset after a complete hold raises no alarm) and the row can be flown again."""
+    fw, c, log = laser_firmware(1)
+    try:
+        text = _fly_with_a_refused_line(c, LONG_XS, 110.0)
+        x, _ = _assert_held_before(c, text, REFUSED_X)
+        edges = read_spindle_log(log)
+        rising = [e for e in edges if e[1]]
+        steps = c.settings[100]
+        # every edge that came was at its view (to the step, one on as the shim sees it; the hold's
+        # deceleration can make it the step itself); none at or after the refused line's view; the
+        # output is low (the reset stops the spindle)
+        assert all(0 <= e[2][0] - round(v * steps) <= 1 for e, v in zip(rising, LONG_XS)), (rising, x)
+        assert all(e[2][0] < round(REFUSED_X * steps) for e in rising) and not edges[-1][1]
+        assert edges[-1][2][0] <= round(x * steps) + 1
+        # flown again from a run-up: every view's edge, the rig still referenced
+        c._stream = GrblController._stream.__get__(c)    # type: ignore[method-assign]
+        c.move_to(0.0, 0.0)
+        start = len(read_spindle_log(log))
+        c.fly_pulsing(LONG_XS, 110.0, 0.0, SPEED)
+        c.wait_arrival(110.0, 0.0, 60.0)
+        c.pulse_off()
+    finally:
+        c.disconnect()
+    again = [e for e in read_spindle_log(log)[start:] if e[1]]
+    assert [e[2][0] - round(v * steps) for e, v in zip(again, LONG_XS)] == [1] * len(LONG_XS)
+
+
+def test_firmware_a_refused_line_answered_after_the_stream_left_also_holds(laser_firmware):
+    """A short row: GRBL's buffer takes every line at once, so the error's answer may come while the
+    driver already waits for the arrival; the carriage is held all the same."""
+    fw, c, log = laser_firmware(1)
+    try:
+        text = _fly_with_a_refused_line(c, XS, 80.0)
+        _assert_held_before(c, text, REFUSED_X)
+    finally:
+        c.disconnect()
+    edges = read_spindle_log(log)
+    assert not edges or not edges[-1][1]
+
+
+def test_simulator_a_line_refused_mid_row_holds_the_carriage_and_drops_the_rest(sim_controller):
+    sim, c = sim_controller(1)
+    text = _fly_with_a_refused_line(c, LONG_XS, 110.0)
+    x, _ = _assert_held_before(c, text, REFUSED_X)
+    assert sim.state == "Idle" and abs(sim.reported_position_mm()[0] - x) < 1e-3
+    rising = [t for t, level in sim.spindle_output.edges() if level]
+    assert all(sim.true_position_at(t)[0] < REFUSED_X for t in rising) and not sim.spindle_output.level
+    assert b"!" in sim.realtime_received and b"\x18" in sim.realtime_received

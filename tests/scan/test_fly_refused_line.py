@@ -1,0 +1,78 @@
+"""A line GRBL refuses in the middle of a hardware-triggered fly row (#40). GRBL 1.1h drops the refused
+line and executes the ones after it; the driver holds the carriage, waits for the hold to complete and
+resets (the rest of the row dropped, the position kept), and the scan pauses saying so, with the
+carriage standing. On resume the row's views not taken are flown again from a run-up (never taken
+standing still for this), and every view ends done at its position.
+
+On the simulated studio (the GRBL simulator on a pty through the real driver); the same reaction on the
+real GRBL 1.1h firmware is tests/rig/test_grbl_laser_trigger.py::test_firmware_a_line_refused_mid_row_*."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from lfstudio.dataset import Dataset
+from lfstudio.rig.grbl import GrblController
+from lfstudio.scan.events import EventKind, ScanState
+from lfstudio.scan.fly import FlyScanEngine
+from tests.scan.test_fly_scan import SCALE, check_views, fly_studio
+
+
+def test_a_line_refused_mid_row_pauses_with_the_carriage_stopped_and_resume_flies_the_row_again(tmp_path):
+    session, plan, ds = fly_studio(tmp_path / "ds", columns=12, rows=2)
+    try:
+        driver = session.rig
+        sim = session.simulator
+        assert isinstance(driver, GrblController)
+        # row 0 goes left to right: garble the line that brings the output low before its 9th view
+        refused_x = plan.views()[8].x_mm
+        target = f"G1 X{refused_x:.3f} S0"
+        real = driver._stream
+        streams: list[list[str]] = []
+
+        def garbled_once(lines: list[str]) -> None:
+            streams.append(lines)
+            if len(streams) == 1:
+                assert target in lines
+                lines = [line.replace("G1 X", "G1 X#", 1) if line == target else line for line in lines]
+            real(lines)
+
+        driver._stream = garbled_once                     # type: ignore[method-assign]
+        engine = FlyScanEngine(ds, plan, session.rig, session.camera, time_scale=SCALE, backoff_s=0.01,
+                               speed_mm_s=40.0, trigger="hardware")
+        events = []
+        engine.subscribe(events.append)
+        engine.start()
+        assert engine.wait_for_state(ScanState.PAUSED, timeout_s=120), engine.message
+        # the scan says paused: the carriage stands (idle, not held nor moving), short of the refused
+        # line's view, and the message says what happened and where the rig is
+        status = engine.rig.call("status", timeout_s=10)
+        assert status.state.name == "IDLE" and status.homed, status
+        assert sim.state == "Idle" and sim.reported_position_mm()[0] < refused_x
+        x = status.position_mm[0]
+        assert f"the rig is idle at ({x:.3f}, " in engine.message, engine.message
+        assert "carriage was held and the rest of the row dropped" in engine.message
+        assert "flown again from its run-up" in engine.message
+        assert not sim.spindle_output.level                     # the trigger line is low
+        late = [t for t in sim.spindle_output.rising() if sim.true_position_at(t)[0] >= refused_x]
+        assert late == [], "the row went on after the refused line"
+        kept = {(v["row"], v["column"]) for v in Dataset.open(ds.root).done_views()}
+        assert all(row == 0 and column < 8 for row, column in kept), kept
+
+        engine.resume()
+        assert engine.wait(180) is ScanState.FINISHED, engine.message
+        flown, retaken = check_views(ds.root, engine)
+        assert flown + retaken == 24
+        logs = [e.message for e in events if e.kind is EventKind.LOG]
+        assert sum(m.startswith("row 0: flying") for m in logs) == 2, logs
+        d = Dataset.open(ds.root)
+        for v in d.views:
+            record: dict[str, Any] = dict(v)
+            fly = record.get("fly") or {}
+            # a view the refused line cut off was flown again, not taken standing still for it
+            assert "missed trigger" not in fly.get("retaken", ""), record
+            truth = json.loads((d.root / record["sidecars"][1]).read_text())
+            assert abs(truth["true_position_mm"][0] - record["commanded_mm"][0]) < 0.5 * plan.spacing_mm[0]
+    finally:
+        session.close()
