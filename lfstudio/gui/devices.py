@@ -162,10 +162,11 @@ class QtDevice(QObject):
 
     def close(self, disconnect: bool = True, timeout_s: float = 2.0, then: Callable[[], None] | None = None) -> None:
         """Fail queued calls, disconnect last, end the thread: never waiting on the calling (GUI)
-        thread. A thread of its own waits for the worker (at most ``timeout_s``: a driver call still
-        running, e.g. on a stalled link, finishes on the worker's thread), then runs ``then()`` (e.g.
-        the port's lock released once the driver is disconnected). :func:`wait_for_closing` waits for
-        these (the application, once its window is gone)."""
+        thread. A thread of its own closes the worker, then runs ``then()`` (e.g. the port's lock
+        released) once the driver is disconnected: after a driver call still under way (a long move, a
+        stalled link, bounded by the driver's own deadlines), however long past ``timeout_s`` that is,
+        so the port is never released while this process may still talk on it.
+        :func:`wait_for_closing` waits for these (the application, once its window is gone)."""
         if self._closed:
             return
         self._closed = True          # nothing more is posted to the GUI thread from now on
@@ -175,6 +176,9 @@ class QtDevice(QObject):
         def finish() -> None:
             try:
                 worker.close(disconnect=disconnect, timeout_s=timeout_s)
+                if not worker.wait_ended(0):
+                    log.info("%s: closing after %s ends", worker.name, worker.current_command or "its call")
+                    worker.wait_ended()     # the call, then the disconnect: only then is the port free
             finally:
                 if then is not None:
                     try:

@@ -478,6 +478,13 @@ class DeviceWorker:
             except AttributeError:
                 pass
 
+    def wait_ended(self, timeout_s: float | None = None) -> bool:
+        """Wait until the worker's thread has ended (after :meth:`close`: the call under way, then the
+        disconnect); False after ``timeout_s``."""
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout_s)
+        return not self._thread.is_alive()
+
     def __enter__(self) -> "DeviceWorker":
         return self
 

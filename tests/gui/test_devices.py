@@ -103,3 +103,35 @@ def test_close_never_waits_on_a_driver_call_and_then_runs_after_the_disconnect(q
     qtbot.waitUntil(lambda: "port released" in order, timeout=10000)
     assert returned_while_stuck
     assert order == ["call ended", "disconnect", "port released"]
+
+
+def test_the_port_is_released_only_after_the_disconnect_even_past_the_close_timeout(qtbot):
+    """Disconnect in the Rig/Camera panel closes with a 2 s timeout. A driver call still under way past it
+    (a long move, a stalled link: bounded by the driver's own deadline) ran on while ``then`` released the
+    port's lock and stopped the simulator: another process could take the port this process still had
+    open and was still talking on. ``then`` must come after the driver's disconnect, however long the call
+    takes. Here the call ends at its own deadline, or as soon as ``then`` runs (the old order)."""
+    gate = threading.Event()
+    order: list[str] = []
+
+    class Slow:
+        def hold(self):
+            gate.wait(3.0)                     # the driver's own deadline
+            order.append("call ended")
+
+        def disconnect(self):
+            order.append("disconnect")
+
+        def stop(self):
+            pass
+
+    def released() -> None:
+        order.append("port released")
+        gate.set()
+
+    device = QtDevice(DeviceWorker(Slow(), name="slow", status_method=None))
+    device.run("hold")
+    qtbot.waitUntil(lambda: device.worker.current_command == "hold", timeout=5000)
+    device.close(disconnect=True, timeout_s=0.01, then=released)
+    qtbot.waitUntil(lambda: "port released" in order and "disconnect" in order, timeout=15000)
+    assert order == ["call ended", "disconnect", "port released"]
