@@ -170,3 +170,24 @@ def test_the_hot_folder_rows_line_up(qtbot, panels):
             order.append(w)
     assert order == [panel.folder_edit, order[1], panel.trigger_edit, *panel.folder_options.fields.values()]
     assert order[1].text() == "Browse…"
+
+
+def test_a_hot_folder_wait_saved_by_an_earlier_version_is_kept(qtbot):
+    """The hot folder's 'Wait for the file' was saved as camera/hot_timeout_s until its page was made from
+    the kind's description (devices/folder/timeout_s): an operator's 120 s for slow vendor software fell
+    back to the 30 s default after the update, and captures timed out. The old value is taken over once."""
+    s = settings()
+    s.setValue("camera/kind", "folder")
+    s.setValue("camera/hot_timeout_s", 120.0)
+    s.remove("devices/folder/timeout_s")
+    s.sync()
+    panel = CameraPanel(AppState())
+    qtbot.addWidget(panel)
+    try:
+        assert panel.folder_options.options() == {"timeout_s": 120.0}
+        assert panel.folder_options.fields["timeout_s"].text() == "120"
+    finally:
+        panel.shutdown()
+    again = settings()
+    assert not again.contains("camera/hot_timeout_s")           # taken over once: the form's key holds it now
+    assert again.value("devices/folder/timeout_s") == "120"

@@ -38,6 +38,8 @@ from lfstudio.rig.worker import DeviceWorker
 KINDS = (("sim", "Simulated studio camera"), ("gphoto2", "USB camera (gphoto2)"),
          ("folder", "Hot folder (vendor software)"))
 HIDDEN_KINDS = ("instant",)
+#: where versions before the generated hot-folder page saved its Timeout (now devices/folder/timeout_s)
+OLD_HOT_TIMEOUT_KEY = "camera/hot_timeout_s"
 
 
 def form_kinds() -> list[Any]:
@@ -174,7 +176,12 @@ class CameraPanel(QWidget):
         self.trigger_edit.setPlaceholderText('optional, e.g. vendorcli --capture')
         self.trigger_edit.setToolTip("Command run for each shot, split into arguments like a shell would but "
                                      "never run through a shell; leave empty to trigger by hand")
-        # the hot folder's connection options (wait for the file, unchanged for) from its kind's description
+        # the hot folder's connection options (wait for the file, unchanged for) from its kind's description;
+        # the wait an earlier version saved (camera/hot_timeout_s) is taken over once
+        if s.contains(OLD_HOT_TIMEOUT_KEY):
+            if not s.contains("devices/folder/timeout_s"):
+                s.setValue("devices/folder/timeout_s", f"{read_float(OLD_HOT_TIMEOUT_KEY, 30.0, s):g}")
+            s.remove(OLD_HOT_TIMEOUT_KEY)
         self.folder_options = KindForm(camera_kind("folder"), argument=False)
         self.folder_options.info.setVisible(False)
         # Folder and Trigger command in the form's own layout: one label column, the fields aligned
