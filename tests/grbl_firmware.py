@@ -167,6 +167,83 @@ def read_spindle_log(path: Path) -> list[tuple[float, bool, tuple[int, int, int]
     return out
 
 
+class SpindleLineFollower:
+    """The firmware's spindle output as a trigger line on this machine's clock, for the simulated camera
+    (``SimulatedCamera.trigger_line``): a thread follows the shim's spindle log as the firmware writes it
+    (flushed at each change) and sets :attr:`line` (a :class:`lfstudio.sim.trigger_line.TriggerLine`)
+    at the ``time.monotonic()`` it reads each change.
+
+    The clocks: the firmware's simulated time runs at ``speedup`` x real time only while the CPU allows,
+    so it is not mapped by a formula; a change is dated when it is read. The firmware's status reports
+    are dated the same way (when the driver reads them), so both are the firmware's present as this
+    machine sees it; the edge is late by the follower's reading (its poll, ``poll_s``, and the thread's
+    wake-up: about a millisecond, 0.05 mm at 50 mm/s), not by a drift between clocks.
+
+    :attr:`edges`: ``(t_monotonic, t_simulated, on, (x_mm, y_mm))`` with the carriage's work position
+    from the logged step counts (``steps_per_mm``, less the work offset ``wco_mm``). For the camera's
+    renders, :meth:`true_position_at` is the position at the last change at or before ``t`` (the
+    firmware says nothing between changes; an exposure of 1 ms after a rising edge is 0.05 mm on)."""
+
+    def __init__(self, log: Path, steps_per_mm: tuple[float, float], wco_mm: tuple[float, float] = (0.0, 0.0),
+                 poll_s: float = 0.0005):
+        from lfstudio.sim.trigger_line import TriggerLine
+
+        self.log = Path(log)
+        self.steps_per_mm = steps_per_mm
+        self.wco_mm = wco_mm
+        self.poll_s = poll_s
+        self.line = TriggerLine("GRBL 1.1h spindle output (firmware simulator)")
+        self.edges: list[tuple[float, float, bool, tuple[float, float]]] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._follow, name="grbl-spindle-follower", daemon=True)
+
+    def start(self) -> "SpindleLineFollower":
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+    def _follow(self) -> None:
+        handle = None
+        pending = b""
+        try:
+            while not self._stop.is_set():
+                if handle is None and self.log.is_file():
+                    handle = open(self.log, "rb")
+                chunk = handle.read() if handle is not None else b""
+                if chunk:
+                    now = time.monotonic()
+                    pending += chunk
+                    *lines, pending = pending.split(b"\n")
+                    for raw in lines:
+                        parts = raw.split()
+                        if len(parts) != 6:
+                            continue
+                        on = parts[1] == b"1"
+                        x = int(parts[2]) / self.steps_per_mm[0] - self.wco_mm[0]
+                        y = int(parts[3]) / self.steps_per_mm[1] - self.wco_mm[1]
+                        with self._lock:
+                            self.edges.append((now, float(parts[0]), on, (x, y)))
+                        self.line.set(on, now)
+                    continue
+                self._stop.wait(self.poll_s)
+        finally:
+            if handle is not None:
+                handle.close()
+
+    def true_position_at(self, t: float) -> tuple[float, float] | None:
+        with self._lock:
+            before = [e for e in self.edges if e[0] <= t]
+        return before[-1][3] if before else None
+
+    def position_mm(self) -> tuple[float, float]:
+        with self._lock:
+            return self.edges[-1][3] if self.edges else (0.0, 0.0)
+
+
 def _split_lines(buf: bytearray) -> list[str]:
     lines = []
     while True:
