@@ -255,6 +255,8 @@ EXPOSURE_S = Number("s", 0, 3600)
 TRANSFER_S = Number("s", 0, 3600)
 TIMEOUT_S = Number("s", 0, 86400, low_open=True)
 RETRIES = Number("", 0, 100, integer=True)
+FILE_WAIT_S = Number("s", 0.1, 86400)                # a hot folder's wait for the camera software's new file
+FILE_STABLE_S = Number("s", 0, 60)                   # ... and for its size to stay unchanged
 SPACING_MM = Number("mm", 0.001, 100_000)          # below a micrometre no rig repeats
 OFFSET_MM = Number("mm", -100_000, 100_000)
 WIDTH_PX = Number("px", 16, 100_000, integer=True)

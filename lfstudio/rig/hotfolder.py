@@ -27,7 +27,8 @@ from lfstudio.dataset import images
 from lfstudio.dataset.atomic import atomic_write_with
 from lfstudio.dataset.paths import is_utf8_name, shown_name
 from lfstudio.errors import DeviceError, DeviceRefused, DeviceTimeout, InputError
-from lfstudio.rig.camera import CaptureResult, setting_number
+from lfstudio.numbers import FILE_STABLE_S, FILE_WAIT_S
+from lfstudio.rig.camera import CaptureResult
 
 log = logging.getLogger(__name__)
 
@@ -114,19 +115,18 @@ class HotFolderCamera:
                 "timeout_s": self.timeout_s, "stable_s": self.stable_s, "format": "as saved by the camera"}
 
     def set_setting(self, name: str, value: Any) -> None:
-        if name in ("timeout_s", "stable_s"):
-            setting_number(name, value, "timeout_s > 0, stable_s >= 0")
-        if name == "timeout_s" and float(value) > 0:
-            self.timeout_s = float(value)
-        elif name == "stable_s" and float(value) >= 0:
-            self.stable_s = float(value)
+        if name == "timeout_s":
+            self.timeout_s = FILE_WAIT_S.parse(name, value)
+        elif name == "stable_s":
+            self.stable_s = FILE_STABLE_S.parse(name, value)
         elif name == "trigger_command":
             if isinstance(value, (str, bytes)):
                 raise InputError("trigger command", "must be a list of arguments, not a shell string")
             self.trigger_command = list(value) if value else None
         else:
-            raise InputError(name, f"cannot set {value!r} on a hot-folder camera",
-                             "timeout_s > 0, stable_s >= 0, trigger_command (argument list)")
+            raise InputError(name, "no such setting of the hot-folder camera",
+                             f"timeout_s {FILE_WAIT_S.valid()}, stable_s {FILE_STABLE_S.valid()}, "
+                             "trigger_command (argument list)")
 
     def preview(self) -> None:
         return None

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 from lfstudio.errors import DeviceError, InputError
-from lfstudio.numbers import Number, Param, described, params_of
+from lfstudio.numbers import FILE_STABLE_S, FILE_WAIT_S, Param, described, params_of
 from lfstudio.studio.kind_types import BUILT_IN, CameraKind, OpenContext, OpenedRig, RigKind
 
 __all__ = ["BUILT_IN", "CameraKind", "OpenContext", "OpenedRig", "RigKind"]   # the declarations, for plugins
@@ -399,9 +399,9 @@ def _genicam_check() -> tuple[bool, str]:
 
 @dataclass(frozen=True)
 class HotFolderOptions:
-    timeout_s: float = described(30.0, number=Number("s", 0.1, 86400), label="Wait for the file",
+    timeout_s: float = described(30.0, number=FILE_WAIT_S, label="Wait for the file",
                                  tip="how long a capture waits for the camera software's new file")
-    stable_s: float = described(0.5, number=Number("s", 0, 60), label="Unchanged for",
+    stable_s: float = described(0.5, number=FILE_STABLE_S, label="Unchanged for",
                                 tip="how long the new file's size must stay the same before it counts as complete")
 
 

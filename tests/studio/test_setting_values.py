@@ -38,3 +38,21 @@ def test_a_scan_setting_that_is_no_number_is_named_and_makes_no_folder(tmp_path)
     with pytest.raises(InputError, match=r"^--set shutter_s: 'abc' is not a number"):
         session.open(lambda existing, cfg: (plan, None))
     assert not (tmp_path / "ds").exists() and session.lock is None
+
+
+@pytest.mark.parametrize("name, value, said", [
+    ("timeout_s", 0, r"^timeout_s: 0 s is out of range \(valid: 0.1 … 86400 s\)"),
+    ("stable_s", -1, r"^stable_s: -1 s is out of range \(valid: 0 … 60 s\)"),
+    ("timeout_s", "1e9", r"^timeout_s: 1e\+09 s is out of range"),
+    ("exposure", 1, r"^exposure: no such setting of the hot-folder camera"),
+])
+def test_the_hot_folder_camera_names_a_wait_out_of_range_as_its_page_does(tmp_path, name, value, said):
+    """A hot folder's waits follow the rules its page and --camera-option describe (0.1 … 86400 s for the
+    file, 0 … 60 s unchanged). set_setting had rules of its own (> 0, ≥ 0, no upper end) and said 'cannot
+    set 0 on a hot-folder camera' for a wait out of range, as for a setting it does not have."""
+    camera = HotFolderCamera(tmp_path)
+    with pytest.raises(InputError, match=said):
+        camera.set_setting(name, value)
+    assert (camera.timeout_s, camera.stable_s) == (30.0, 0.5)
+    camera.set_setting("timeout_s", "120")
+    assert camera.timeout_s == 120.0
