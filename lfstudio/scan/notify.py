@@ -15,7 +15,8 @@ Where they go (``lfstudio scan --notify URL``, repeatable; the window's Settings
 A user name and password in a URL become HTTP basic authentication. Delivery never runs on the
 scan's threads: :meth:`Notifier.on_scan_event` (an engine listener) only looks at the event's kind and,
 for the few that matter, puts a :class:`Notice` on each target's bounded queue. Each target has a
-thread of its own that sends with a time limit and retries with backoff, so a slow or dead endpoint
+thread of its own that sends with a time limit (for the whole delivery, not each read: an endpoint
+that trickles its answer is cut off there) and retries with backoff, so a slow or dead endpoint
 delays nothing but its own later notices; when its queue is full the oldest notice waiting is
 dropped (and counted). What reaches a log names a target by :attr:`Target.shown` (scheme and host:
 no path, query, user or password) and error texts are scrubbed of the URL's secrets.
@@ -27,7 +28,9 @@ import ipaddress
 import json
 import logging
 import re
+import http.client
 import smtplib
+import socket
 import ssl
 import threading
 import time
@@ -288,7 +291,100 @@ class _NoRedirect(urllib.request.HTTPRedirectHandler):
                            "it redirects to")
 
 
-_OPENER = urllib.request.build_opener(_NoRedirect())
+class _Deadline:
+    """One delivery's time limit over everything it reads (a socket's timeout is per read: an endpoint
+    answering a byte at a time within it would hold the delivery thread and its connection for as long as
+    it liked). At ``timeout_s`` the connections the delivery opened on this thread are shut down, so
+    whatever read is blocked ends there (the delivery fails and is retried or given up)."""
+
+    _current = threading.local()
+
+    def __init__(self, timeout_s: float):
+        self._socks: list[socket.socket] = []
+        self._lock = threading.Lock()
+        self._expired = False
+        self._timer = threading.Timer(timeout_s, self._expire)
+        self._timer.daemon = True
+
+    def __enter__(self) -> "_Deadline":
+        _Deadline._current.value = self
+        self._timer.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._timer.cancel()
+        _Deadline._current.value = None
+
+    @classmethod
+    def watch(cls, sock: socket.socket) -> None:
+        """``sock`` ends at the time limit of the delivery under way on this thread (if any)."""
+        deadline = getattr(cls._current, "value", None)
+        if deadline is not None:
+            with deadline._lock:
+                deadline._socks.append(sock)
+                if not deadline._expired:
+                    return
+            _shut(sock)
+
+    def _expire(self) -> None:
+        with self._lock:
+            self._expired = True
+            socks = list(self._socks)
+        for sock in socks:
+            _shut(sock)
+
+
+def _shut(sock: socket.socket) -> None:
+    try:
+        sock.shutdown(socket.SHUT_RDWR)
+    except OSError:                 # closed meanwhile
+        pass
+
+
+class _Watched:
+    """An ``http.client`` connection whose socket ends at the delivery's time limit (:class:`_Deadline`)."""
+
+    def __init__(self, *args: Any, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        create = self._create_connection
+
+        def watched(*a: Any, **kw: Any) -> socket.socket:
+            sock = create(*a, **kw)
+            _Deadline.watch(sock)
+            return sock
+        self._create_connection = watched
+
+
+class _HTTPConnection(_Watched, http.client.HTTPConnection):
+    pass
+
+
+class _HTTPSConnection(_Watched, http.client.HTTPSConnection):
+    pass
+
+
+class _HTTPHandler(urllib.request.HTTPHandler):
+    def http_open(self, req: urllib.request.Request) -> Any:
+        return self.do_open(_HTTPConnection, req)
+
+
+class _HTTPSHandler(urllib.request.HTTPSHandler):
+    def https_open(self, req: urllib.request.Request) -> Any:
+        return self.do_open(_HTTPSConnection, req, context=getattr(self, "_context", None))
+
+
+class _SMTP(smtplib.SMTP):
+    def _get_socket(self, host: str, port: int, timeout: float) -> socket.socket:
+        sock = getattr(super(), "_get_socket")(host, port, timeout)
+        _Deadline.watch(sock)
+        return sock
+
+
+class _SMTP_SSL(smtplib.SMTP_SSL, _SMTP):    # its raw socket is _SMTP's: watched before the TLS handshake
+    pass
+
+
+_OPENER = urllib.request.build_opener(_NoRedirect(), _HTTPHandler(), _HTTPSHandler())
 
 def _request(target: Target, body: bytes, headers: dict[str, str]) -> urllib.request.Request:
     url = target.url.split("+", 1)[1] if "+" in target.url.split(":", 1)[0] else target.url
@@ -303,7 +399,13 @@ def _request(target: Target, body: bytes, headers: dict[str, str]) -> urllib.req
 
 
 def send(target: Target, notice: Notice, *, timeout_s: float = 10.0, smtp: SmtpServer | None = None) -> None:
-    """Deliver ``notice`` to ``target`` once (raises on failure: an HTTP status >= 300 too)."""
+    """Deliver ``notice`` to ``target`` once (raises on failure: an HTTP status >= 300 too), all of it
+    within ``timeout_s`` (:class:`_Deadline`)."""
+    with _Deadline(timeout_s):
+        _send(target, notice, timeout_s, smtp)
+
+
+def _send(target: Target, notice: Notice, timeout_s: float, smtp: SmtpServer | None) -> None:
     if target.shape == "mail":
         _send_mail(target, notice, smtp, timeout_s)
         return
@@ -335,10 +437,10 @@ def _send_mail(target: Target, notice: Notice, smtp: SmtpServer | None, timeout_
         lines += [f"view: {notice.view} ({notice.verdict})", *notice.reasons]
     mail.set_content("\n".join(lines) + "\n")
     if smtp.security == "ssl":
-        client: smtplib.SMTP = smtplib.SMTP_SSL(smtp.host, smtp.port, timeout=timeout_s,
-                                                context=ssl.create_default_context())
+        client: smtplib.SMTP = _SMTP_SSL(smtp.host, smtp.port, timeout=timeout_s,
+                                         context=ssl.create_default_context())
     else:
-        client = smtplib.SMTP(smtp.host, smtp.port, timeout=timeout_s)
+        client = _SMTP(smtp.host, smtp.port, timeout=timeout_s)
     with client:
         if smtp.security == "starttls":
             client.ehlo()

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import socket
 import threading
@@ -87,4 +88,56 @@ class DeadEndpoint:
         self._closed = True
         for c in self.conns:
             c.close()
+        self.sock.close()
+
+
+class TricklingEndpoint:
+    """A local HTTP endpoint that sends its answer one byte every ``every_s`` (each byte well within a
+    per-read timeout), until the client goes away or :meth:`close`: ``what`` "body", a 200 head at once
+    and a long body trickled; "head", the head itself trickled (no status for ever)."""
+
+    def __init__(self, every_s: float = 0.2, what: str = "body"):
+        self.every_s = every_s
+        self.what = what
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(16)
+        self.port = self.sock.getsockname()[1]
+        self.connections = 0
+        self.gone = threading.Event()            # a client closed its connection while being trickled
+        self._closed = threading.Event()
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self):
+        while not self._closed.is_set():
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:
+                return
+            self.connections += 1
+            threading.Thread(target=self._trickle, args=(conn,), daemon=True).start()
+
+    def _trickle(self, conn: socket.socket):
+        with conn:
+            try:
+                conn.recv(65536)                 # the request (small: one segment)
+                head = b"HTTP/1.1 200 OK\r\nContent-Length: 1000000\r\n"
+                if self.what == "body":
+                    conn.sendall(head + b"\r\n")
+                    trickled = itertools.repeat(b"x")
+                else:                           # the head, then header lines that never end it
+                    trickled = itertools.chain((head[i:i + 1] for i in range(len(head))),
+                                               (bytes([c]) for c in itertools.cycle(b"X-Slow: x\r\n")))
+                for byte in trickled:
+                    if self._closed.wait(self.every_s):      # bounded: ends with close()
+                        return
+                    conn.sendall(byte)
+            except OSError:
+                self.gone.set()
+
+    def url(self, path: str = "/hook") -> str:
+        return f"http://127.0.0.1:{self.port}{path}"
+
+    def close(self):
+        self._closed.set()
         self.sock.close()

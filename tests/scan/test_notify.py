@@ -202,3 +202,27 @@ def test_a_mailto_target_needs_an_smtp_server():
     with pytest.raises(InputError, match="--smtp: a password does not go into the address"):
         SmtpServer.parse("smtp://alice:secret@mail.example")
     assert "secret" not in repr(SmtpServer.parse("smtp://alice@mail.example", password="secret"))
+
+
+@pytest.mark.parametrize("what, outcome, connections", [("body", [(True, 1)], 1), ("head", [(False, 2)], 2)])
+def test_an_endpoint_that_trickles_its_answer_is_given_up_at_the_time_limit(what, outcome, connections):
+    """The time limit was per read: an endpoint answering a byte every 0.2 s (a slowloris in reverse)
+    held its delivery thread and socket for as long as it liked (a 64 KiB body: hours; a head: for ever),
+    and each scan's notifier left one more behind. The limit is for the whole delivery now, then the
+    connection is closed: a trickled body after a 200 is a delivered notice; a trickled head is not
+    (retried, then given up)."""
+    from tests.scan.receivers import TricklingEndpoint
+
+    slow = TricklingEndpoint(every_s=0.2, what=what)
+    try:
+        results = []
+        notifier = Notifier([slow.url()], dataset="day1", timeout_s=1.0, retries=1, backoff_s=0.01)
+        notifier.subscribe(results.append)
+        notifier.notify("failed", "Unexpected error")
+        assert notifier.wait_idle(60), "still delivering to the trickling endpoint"     # only against a hang
+        assert [(r.ok, r.attempts) for r in results] == outcome
+        assert slow.connections == connections
+        assert slow.gone.wait(30)                     # the trickled connection was closed by the notifier
+        notifier.close(0)
+    finally:
+        slow.close()
