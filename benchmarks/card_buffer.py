@@ -15,6 +15,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._measure import Timer, load_text  # noqa: E402
@@ -26,6 +28,10 @@ def main() -> int:
     ap.add_argument("--time-scale", type=float, default=0.02)
     ap.add_argument("--width", type=int, default=64)
     ap.add_argument("--timeout-s", type=float, default=24 * 3600)
+    ap.add_argument("--poll-in-wall-time", action="store_true",
+                    help="keep the GRBL driver's status polls at 20/s of wall time (default: 20/s of simulated "
+                         "time, as on the real rig; at a small time scale wall-time polls make every move "
+                         "wait up to 1 / (20 x time scale) simulated seconds for its arrival to be seen)")
     args = ap.parse_args()
     cols, rows = (int(v) for v in args.grid.lower().split("x"))
 
@@ -44,9 +50,24 @@ def main() -> int:
     studio = open_studio("sim", "sim", rig, time_scale=ts, exposure_s=0.5, transfer_s=2.5,
                          view_region_mm=plan.extent_mm(), sim_width_px=args.width)
     ds = create_scan_dataset(root / "ds", plan, rig={"name": rig.name}, camera={"name": "sim"}, lens={"name": "v"})
+    driver = getattr(studio.rig, "driver", studio.rig)
+    if not args.poll_in_wall_time and ts > 0:       # the rig's polls in the rig's (simulated) time
+        driver.poll_period_s *= ts
+        driver.min_status_interval_s *= ts
     engine = CardBufferEngine(ds, plan, studio.rig, studio.camera, time_scale=ts)
     last_exposed = [0.0]
-    engine.subscribe(lambda e: e.kind is EventKind.VIEW_EXPOSED and last_exposed.__setitem__(0, time.perf_counter()))
+    exposed_at: list[tuple[int, float]] = []
+    parts: dict[str, list[float]] = {}
+
+    def on_event(e) -> None:
+        if e.kind is EventKind.VIEW_EXPOSED:
+            now = time.perf_counter()
+            last_exposed[0] = now
+            exposed_at.append((e.row, now))
+            for k, v in (e.timings_s or {}).items():
+                parts.setdefault(k, []).append(v / ts)
+
+    engine.subscribe(on_event)
     with Timer() as m:
         t0 = time.perf_counter()
         engine.start()
@@ -59,6 +80,25 @@ def main() -> int:
     print(f"grid {cols} x {rows} = {cols * rows} views, time scale {ts:g}; {done} done and verified")
     print(f"card buffering: last picture taken after {captures / 60:.1f} min simulated (issue: ≈ 35 min), "
           f"last file downloaded after {m.wall_s / ts / 60:.1f} min; step scan estimate {step / 60:.1f} min")
+    # where a view's time goes (simulated s, median; the gap is from one shutter closing to the next)
+    gaps_in = [b - a for (ra, a), (rb, b) in zip(exposed_at, exposed_at[1:]) if ra == rb]
+    gaps_change = [b - a for (ra, a), (rb, b) in zip(exposed_at, exposed_at[1:]) if ra != rb]
+    from lfstudio.optics import move_time_s
+
+    h = rig.horizontal
+    model = (move_time_s(plan.spacing_mm[0], h.max_speed_mm_s, h.acceleration_mm_s2) + plan.settle_s + 0.05 + 0.5)
+    med = {k: float(np.median(vals)) for k, vals in parts.items()}
+    print("per view within a row, simulated s (median): " + ", ".join(f"{k} {med[k]:.3f}" for k in
+          ("move", "settle", "camera_wait", "expose") if k in med) +
+          f"; shutter to shutter {np.median(gaps_in) / ts if gaps_in else float('nan'):.3f} "
+          f"(p90 {np.percentile(gaps_in, 90) / ts if gaps_in else float('nan'):.3f}) against move + settle + "
+          f"trigger 0.05 + exposure 0.5 = {model:.3f}")
+    if gaps_change:
+        print(f"row changes: {len(gaps_change)}, shutter to shutter median {np.median(gaps_change) / ts:.2f} s, "
+              f"total {sum(gaps_change) / ts / 60:.2f} min")
+    print(f"captures' critical path (issue: exposure + move + settle): "
+          f"{(model - 0.05) * cols * rows / 60:.1f} min; with the trigger's 0.05 s: {model * cols * rows / 60:.1f} min; "
+          f"downloads {cols * rows} x 2.5 s = {cols * rows * 2.5 / 60:.1f} min")
     print(f"CPU {m.cpu_s:.0f} s over wall {m.wall_s:.0f} s ({m.cores_used:.2f} cores); {load_text()}")
     import shutil
 

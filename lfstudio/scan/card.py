@@ -3,9 +3,10 @@ download; fetch the files during the row changes and at the end.
 
 :class:`CardBufferEngine` is the scan engine (:class:`lfstudio.scan.engine.ScanEngine`) with a camera
 that keeps its pictures on its card (:class:`lfstudio.rig.camera.CardBuffered`, e.g. gphoto2 bodies
-whose capture target can be the card). Per view: move, settle, ``capture_to_card`` (returns once the
-picture is on the card), and the paths of its files on the camera are journaled at once (the view's
-``on_card``; it is not done yet). When the next view is on another row (the rig moves to it meanwhile),
+whose capture target can be the card). Per view: move, settle, ``capture_to_card``; the rig moves on as
+soon as the camera reports the shutter closed (its ``on_exposed``), not when the call returns (a body is
+still writing the picture to its card), and the paths of its files on the camera are journaled as soon
+as the call returns, on the camera's worker (the view's ``on_card``; it is not done yet). When the next view is on another row (the rig moves to it meanwhile),
 at a pause, an abort and at the end, the files of every view taken since are downloaded on the camera's
 worker (``download_from_card``: size checked, deleted on the card; at a row change only as many as
 fit into the vertical move and the settle at the transfer time measured, the others at the end, so the
@@ -67,12 +68,24 @@ class _OnCard(Future):
         return self.on_card or super().done()
 
 
+class _Captured:
+    """A picture taken to the card: its view, its store future, and its files once the call returned."""
+
+    def __init__(self, view: PlannedView, stem: Path) -> None:
+        self.view = view
+        self.stem = stem
+        self.pending = _OnCard()
+        self.files: list[str] = []
+        self.exposed = threading.Event()       # the shutter has closed: the rig may move
+        self.returned = threading.Event()      # the capture call has ended (files journaled, or failed)
+
+
 class CardBufferEngine(ScanEngine):
     """See the module docstring."""
 
     def __init__(self, *args: Any, **kwargs: Any):
         super().__init__(*args, **kwargs)
-        self._on_card: list[tuple[PlannedView, _OnCard, list[str], Path]] = []
+        self._on_card: list[_Captured] = []
         self._card_ready = False
         self.fetched_on_resume = 0
         self.downloads = 0
@@ -126,37 +139,63 @@ class CardBufferEngine(ScanEngine):
             self._emit(EventKind.LOG, f"view {view_label(*cell)}: fetched from the card, where the last run left it")
 
     def _expose(self, view: PlannedView, attempt: int, stem: Path) -> Future:
-        exposed = threading.Event()
+        """Trigger the picture and return as soon as the shutter has closed (the camera's ``on_exposed``),
+        so the rig moves on while the camera finishes the capture call (a body writes the picture to its
+        card; gphoto2 lists the files it added). The files' paths are journaled (``on_card``) when the call
+        returns, on the camera's worker; the view is done only once its file is downloaded and verified."""
+        fut, captured = self._capture_to_card(view, stem)
+        if not captured.exposed.is_set():      # the call ended before the shutter closed: it failed
+            try:
+                fut.result()
+            except Exception as exc:           # a failed capture raises here: retried as any capture
+                if not self._on_card or not _card_full(exc):
+                    raise
+                self._emit(EventKind.LOG, f"the camera's card is full: downloading the {len(self._on_card)} "
+                                          f"pictures waiting on it now, then view {view_label(view.row, view.column)} "
+                                          "again")
+                self._download_all()           # on the camera's worker, before the capture queued next
+                fut, captured = self._capture_to_card(view, stem)
+                if not captured.exposed.is_set():
+                    fut.result()               # raises its error
+        self._on_card.append(captured)
+        return captured.pending
+
+    def _capture_to_card(self, view: PlannedView, stem: Path) -> tuple[Future, "_Captured"]:
+        """Submit ``capture_to_card`` and wait until the shutter has closed or the call ended."""
+        captured = _Captured(view, Path(stem))
 
         def on_exposed(*_: Any) -> None:
-            exposed.set()
+            captured.exposed.set()
             self._wake()
+
+        def on_returned(f: Future) -> None:    # the camera's worker: the picture is on the card
+            try:
+                files = list(f.result())
+            except BaseException as exc:  # noqa: BLE001 - the store takes the view again
+                captured.pending.on_card = False
+                captured.pending.set_exception(exc)
+            else:
+                try:
+                    self.dataset.record_view(view.row, view.column, on_card=files)   # durable before the download
+                except Exception as exc:       # the download still makes the view done; a kill would retake it
+                    log.warning("view %s: its files on the card not journaled: %s",
+                                view_label(view.row, view.column), error_text(exc))
+                captured.files = files
+            finally:
+                captured.returned.set()
+                self._wake()
 
         fut = self._camera_submit("capture_to_card", stem, on_exposed=on_exposed,
                                   timeout_s=self.capture_call_timeout_s())
-        self._await(fut)
-        try:
-            files = fut.result()               # a failed capture raises here: retried as any capture
-        except Exception as exc:
-            if not self._on_card or not _card_full(exc):
-                raise
-            self._emit(EventKind.LOG, f"the camera's card is full: downloading the {len(self._on_card)} pictures "
-                                      f"waiting on it now, then view {view_label(view.row, view.column)} again")
-            self._download_all()               # on the camera's worker, before the capture queued next
-            fut = self._camera_submit("capture_to_card", stem, on_exposed=on_exposed,
-                                      timeout_s=self.capture_call_timeout_s())
-            self._await(fut)
-            files = fut.result()
-        self.dataset.record_view(view.row, view.column, on_card=list(files))   # durable before anything else
-        pending = _OnCard()
-        self._on_card.append((view, pending, list(files), Path(stem)))
-        return pending
+        fut.add_done_callback(on_returned)
+        self._wait(lambda: captured.exposed.is_set() or captured.returned.is_set())
+        return fut, captured
 
     def _next_view(self) -> PlannedView | None:
         view = super()._next_view()
         if view is None:
             self._download_all()
-        elif self._on_card and view.row != self._on_card[-1][0].row:
+        elif self._on_card and view.row != self._on_card[-1].view.row:
             self._download_all(self._fit_in_row_change())     # the rig moves to the next row meanwhile
         return view
 
@@ -182,8 +221,15 @@ class CardBufferEngine(ScanEngine):
             pending, self._on_card = self._on_card, []
         else:
             pending, self._on_card = self._on_card[:at_most], self._on_card[at_most:]
-        for view, out, files, stem in pending:
-            real = self._camera_submit("download_from_card", files, stem,
+        for captured in pending:
+            self._wait(captured.returned.is_set)     # the capture call has returned (its files are known)
+            out = captured.pending
+            if not out.on_card:                      # the capture failed after the shutter closed
+                job = self._held.pop(id(out), None)
+                if job is not None:
+                    self._submit_to_store(job)       # the store takes the view again
+                continue
+            real = self._camera_submit("download_from_card", captured.files, captured.stem,
                                        timeout_s=self.capture_call_timeout_s() + 60)
             self.downloads += 1
 
