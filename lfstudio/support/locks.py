@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import errno
+import hashlib
 import json
 import os
 import re
@@ -145,8 +146,16 @@ def runtime_dir() -> Path:
     return folder
 
 
+#: the longest key in a lock file's name (a file name has at most 255 bytes; a hot folder's path may not)
+MAX_KEY_CHARS = 120
+
+
 def _key(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-.") or "unnamed"
+    key = re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-.") or "unnamed"
+    if len(key) > MAX_KEY_CHARS:        # its start to read, a digest of the whole to tell long names apart
+        digest = hashlib.sha256(text.encode("utf-8", "surrogateescape")).hexdigest()[:16]
+        key = f"{key[:MAX_KEY_CHARS - len(digest) - 1]}-{digest}"
+    return key
 
 
 class NotALockFile(LfError):

@@ -133,3 +133,22 @@ def test_a_lock_whose_holder_line_cannot_be_written_leaves_the_port_free(tmp_pat
     assert r.returncode == 0, r.stderr
     assert "first try failed: 27" in r.stdout                  # EFBIG: the holder line was refused
     assert "second try held" in r.stdout, r.stdout
+
+
+def test_a_hot_folder_with_a_long_path_gets_a_lock_of_its_own(tmp_path, monkeypatch):
+    """A lock file is named after what it locks: a hot folder 300 characters deep made a name longer than a
+    file name may be, and the camera could not be used at all ('File name too long', blaming the lock
+    file). Long names are shortened with a digest, so two long folders that differ only at their end
+    are still two locks, and one folder is still one."""
+    from lfstudio.support.locks import camera_lock
+
+    monkeypatch.setenv("LFSTUDIO_RUNTIME_DIR", str(tmp_path))
+    deep = "/studio/" + "/".join(["capture-session-2026-11-29"] * 12)
+    first = camera_lock(f"folder-{deep}/left", "the first").acquire()
+    try:
+        other = camera_lock(f"folder-{deep}/right", "another folder").acquire()
+        other.release()
+        with pytest.raises(LockBusy, match="is in use by .*the first"):
+            camera_lock(f"folder-{deep}/left", "the second").acquire()
+    finally:
+        first.release()
