@@ -786,9 +786,10 @@ class ScanSession:
         if not result.possible:
             raise InputError(fly_words, result.refusal)
         trigger, why_not = self._fly_trigger(rig_driver, driver, plan, result.speed_mm_s)
-        trigger_words = words("--trigger", "Continuous motion")
         if req.fly_trigger == "hardware" and trigger != "hardware":
-            raise InputError(trigger_words, f"no hardware trigger: {why_not}", "--trigger software, or fix that")
+            raise InputError(words("--trigger", "Trigger"), f"no hardware trigger: {why_not}",
+                             words("--trigger software", "Software or Automatic in the Scan panel's Trigger list")
+                             + ", or fix that")
         if req.fly_trigger == "software":
             trigger = "software"
         elif trigger != "hardware":

@@ -14,7 +14,8 @@ def test_continuous_motion_reaches_the_session_and_its_refusal_names_the_control
     panel.time_scale.setValue(0.5)
     assert not panel.fly.isChecked() and "continuous motion" not in panel.summary.text()
     panel.fly.setChecked(True)
-    assert "continuous motion: the row speed is chosen at Start" in panel.summary.text()
+    assert "continuous motion, hardware trigger where" in panel.summary.text()
+    assert "the row speed is chosen at Start" in panel.summary.text()
     errors = []
     state.errorOccurred.connect(lambda title, message: errors.append(message))
     qtbot.mouseClick(panel.start_button, Qt.LeftButton)

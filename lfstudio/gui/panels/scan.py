@@ -54,6 +54,13 @@ from lfstudio.studio.scan_options import ScanOptions
 log = logging.getLogger(__name__)
 
 ACTIVE_KEY = "scan/active_dataset"
+TRIGGER_KEY = "scan/trigger"   # the Trigger choice of a continuous-motion scan (auto, hardware, software)
+#: the Trigger list: lfstudio scan --trigger's values and the window's words for them
+TRIGGER_CHOICES = (("auto", "Automatic (hardware where it can)"), ("hardware", "Hardware (the controller's output)"),
+                   ("software", "Software (timed by this computer)"))
+TRIGGER_SUMMARY = {"auto": "hardware trigger where the rig and the camera can, else software",
+                   "hardware": "hardware trigger (the controller's output)",
+                   "software": "software trigger (timed by this computer)"}
 GRID_KEY = "scan/grid"    # the panel's grid as last set (JSON): restored with the Planner's plan after a restart
 FRAME_MS = 40             # engine events are shown at most 25 times a second (each drain repaints)
 DRAIN_BUDGET_S = 0.010    # GUI time one drain may take before it yields to painting and input
@@ -150,7 +157,7 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
                           engine_options=dict(job.get("engine_options") or {}),
                           trust_rig_position=job.get("trust_rig_position", False), fly=job.get("fly", False),
                           keep_on_card=job.get("keep_on_card", False), blur_limit_px=job.get("blur_limit_px", 0.5),
-                          fly_speed_mm_s=job.get("fly_speed_mm_s"))
+                          fly_speed_mm_s=job.get("fly_speed_mm_s"), fly_trigger=job.get("fly_trigger", "auto"))
     session = ScanSession(request, doing="scanning", devices=devices)
     scene = job["scene"]
     try:
@@ -307,6 +314,20 @@ class ScanPanel(QWidget):
                             "again standing still")
         form.addRow(self.fly)
         self.fly.toggled.connect(lambda _on: self._update_preview())
+        self.trigger = QComboBox()             # lfstudio scan --trigger auto|hardware|software
+        self.trigger.setObjectName("scanTrigger")
+        for key, text in TRIGGER_CHOICES:
+            self.trigger.addItem(text, key)
+        self.trigger.setToolTip("Who fires the camera in a continuous-motion scan. Hardware: the axis controller "
+                                "switches the camera's trigger line as the carriage passes each view (GRBL's spindle "
+                                "output in laser mode, $32=1, wired to the camera's trigger input); nothing is timed "
+                                "by this computer. Software: this computer fires the camera, timed from the "
+                                "controller's position reports (a busy computer fires late; those views are taken "
+                                "again standing still). Automatic: hardware where the rig and the camera can, "
+                                "else software (the log says why)")
+        form.addRow("Trigger", self.trigger)
+        self.trigger.activated.connect(lambda _i: self._trigger_chosen())
+        self.fly.toggled.connect(lambda on: self.trigger.setEnabled(on and not self.running))
         self.keep_on_card = QCheckBox("Keep pictures on the camera's card")
         self.keep_on_card.setObjectName("scanKeepOnCard")
         self.keep_on_card.setToolTip("USB cameras (gphoto2): each picture stays on the camera's card and is "
@@ -451,12 +472,19 @@ class ScanPanel(QWidget):
         self.time_scale.setValue(read_float("scan/time_scale", 1.0, s))
         self.order.setCurrentText(read_text("scan/order", "row-meander", s))
         self._own_order = self.order.currentText()
+        index = self.trigger.findData(read_text(TRIGGER_KEY, "auto", s))
+        self.trigger.setCurrentIndex(max(index, 0))        # a garbled setting: automatic
 
     def _save_settings(self) -> None:
         s = settings()
         s.setValue("scan/folder", self.folder.text())
         s.setValue("scan/time_scale", self.time_scale.value())
         s.setValue("scan/order", self._own_order)      # the order the operator chose, not an opened dataset's
+        s.setValue(TRIGGER_KEY, self.trigger.currentData())
+
+    def _trigger_chosen(self) -> None:
+        settings().setValue(TRIGGER_KEY, self.trigger.currentData())
+        self._update_preview()
 
     def _grid_fields(self) -> dict[str, Any]:
         return {"columns": self.columns.value(), "rows": self.rows.value(),
@@ -596,8 +624,8 @@ class ScanPanel(QWidget):
         transfer = scene.transfer_s if scene is not None else 2.5
         est = plan.estimate_duration_s(rig, exposure, transfer)
         frames = f" × {plan.bracket.frames} frames ({plan.bracket.describe()})" if plan.bracket else ""
-        how = ("continuous motion: the row speed is chosen at Start (the Planner's Fly scan line estimates "
-               "the time)") if self.fly.isChecked() else \
+        how = (f"continuous motion, {TRIGGER_SUMMARY[str(self.trigger.currentData())]}: the row speed is chosen at "
+               "Start (the Planner's Fly scan line estimates the time)") if self.fly.isChecked() else \
             f"about {format_duration(est)} at {exposure:g} s exposure and {transfer:g} s transfer"
         if scene is not None and planner_continuous_motion() != self.fly.isChecked():
             how += (" (the Planner plans a fly scan: " if not self.fly.isChecked() else
@@ -649,7 +677,8 @@ class ScanPanel(QWidget):
                    exposure_s=scene.exposure_s if scene is not None else 0.5,
                    transfer_s=scene.transfer_s if scene is not None else 2.5,
                    allow_device_change=allow_device_change, home=home, trust_rig_position=trust_rig_position,
-                   fly=self.fly.isChecked(), keep_on_card=self.keep_on_card.isChecked(),
+                   fly=self.fly.isChecked(), fly_trigger=str(self.trigger.currentData()),
+                   keep_on_card=self.keep_on_card.isChecked(),
                    blur_limit_px=float(scene.blur_limit_px) if scene is not None else 0.5,
                    fly_speed_mm_s=scene.fly_speed_mm_s if scene is not None else None)   # None: the fastest
         if not shared and self.studio is None:
@@ -1183,6 +1212,7 @@ class ScanPanel(QWidget):
         for w in (self.columns, self.rows, self.spacing_h, self.spacing_v, self.offset_h, self.offset_v,
                   self.order, self.settle, self.bracket, self.fly, self.keep_on_card, self.folder, self.from_plan, self.time_scale):
             w.setEnabled(not running)
+        self.trigger.setEnabled(not running and self.fly.isChecked())     # only a fly scan has triggers
         self.bracket.setToolTip(BRACKET_FIXED_TIP if running else _tip("bracket"))
         for name, button in (("start", self.start_button), ("pause", self.pause_button),   # Rig → … scan
                              ("resume", self.resume_button), ("abort", self.abort_button)):

@@ -1,0 +1,104 @@
+"""The Scan panel's Trigger choice for a continuous-motion scan (#40; `lfstudio scan --trigger
+auto|hardware|software`): offered with Continuous motion, remembered, shown in the summary, reaching the
+scan session, and a hardware trigger the devices cannot give refused naming the panel's own control."""
+
+from __future__ import annotations
+
+from PySide6.QtCore import Qt
+
+from lfstudio.gui.panels.scan import ScanPanel
+from tests.gui.conftest import close_devices, window_devices
+from tests.gui.test_scan_gui import scan_panel
+
+
+def _choose(qtbot, panel, key: str) -> None:
+    """Pick ``key`` in the Trigger list with the keyboard, as an operator would."""
+    combo = panel.trigger
+    assert combo.isEnabled()
+    for _ in range(combo.count()):
+        if combo.currentData() == key:
+            return
+        qtbot.keyClick(combo, Qt.Key.Key_Down if combo.findData(key) > combo.currentIndex() else Qt.Key.Key_Up)
+    assert combo.currentData() == key
+
+
+def test_the_trigger_is_offered_with_continuous_motion_remembered_and_summarised(qtbot, tmp_path, instant_devices):
+    devices, rig, cam = instant_devices
+    state, panel = scan_panel(qtbot, devices, 4, 2, tmp_path / "ds")
+    assert [panel.trigger.itemData(i) for i in range(panel.trigger.count())] == ["auto", "hardware", "software"]
+    assert panel.trigger.currentData() == "auto" and not panel.trigger.isEnabled()   # a step scan has no trigger
+    panel.fly.setChecked(True)
+    assert panel.trigger.isEnabled()
+    assert "continuous motion, hardware trigger where the rig and the camera can, else software" in panel.summary.text()
+    _choose(qtbot, panel, "hardware")
+    assert "continuous motion, hardware trigger (the controller's output)" in panel.summary.text()
+    again = ScanPanel(state)                         # the window opened again: the choice is remembered
+    qtbot.addWidget(again)
+    assert again.trigger.currentData() == "hardware"
+    again.fly.setChecked(True)
+    _choose(qtbot, again, "software")
+    third = ScanPanel(state)
+    qtbot.addWidget(third)
+    assert third.trigger.currentData() == "software"
+
+
+def test_the_trigger_choice_reaches_the_scan_request(qtbot, tmp_path, instant_devices, monkeypatch):
+    import lfstudio.studio.session as session_module
+
+    requests = []
+    real = session_module.ScanRequest
+
+    def recording(*args, **kwargs):
+        requests.append(real(*args, **kwargs))
+        return requests[-1]
+
+    monkeypatch.setattr(session_module, "ScanRequest", recording)
+    devices, rig, cam = instant_devices
+    state, panel = scan_panel(qtbot, devices, 4, 2, tmp_path / "ds")
+    panel.time_scale.setValue(0.5)
+    panel.fly.setChecked(True)
+    _choose(qtbot, panel, "software")
+    errors = []
+    state.errorOccurred.connect(lambda title, message: errors.append(message))
+    qtbot.mouseClick(panel.start_button, Qt.MouseButton.LeftButton)
+    qtbot.waitUntil(lambda: bool(errors), timeout=20000)     # the instant camera has no triggers at all
+    assert requests and requests[-1].fly and requests[-1].fly_trigger == "software"
+
+
+def test_hardware_chosen_but_the_devices_cannot_is_refused_naming_the_trigger_list(qtbot, tmp_path, monkeypatch):
+    """The simulated studio with GRBL's laser mode off ($32 = 0): its spindle output cannot fire the camera
+    during a move. Hardware chosen: Start is refused before the dataset is made, in the window's words."""
+    import lfstudio.studio.simulated as simulated
+    from lfstudio.rig.profile import load_rig
+    from lfstudio.scan.scan_plan import ScanPlan
+    from lfstudio.studio.devices import open_studio
+
+    real = simulated.start_simulator
+
+    def without_laser_mode(*args, **kwargs):
+        sim = real(*args, **kwargs)
+        sim.set_settings({32: 0})
+        return sim
+
+    monkeypatch.setattr(simulated, "start_simulator", without_laser_mode)
+    rig_config = load_rig()
+    plan = ScanPlan.centered(4, 2, (4.0, 6.0), rig_config)
+    studio = open_studio("sim", "sim", rig_config, time_scale=0.5, exposure_s=0.001, transfer_s=0.05,
+                         view_region_mm=plan.extent_mm(), sim_width_px=64)
+    devices = window_devices(studio.rig, studio.camera)
+    try:
+        state, panel = scan_panel(qtbot, devices, 4, 2, tmp_path / "ds")
+        panel.fly.setChecked(True)
+        _choose(qtbot, panel, "hardware")
+        errors = []
+        state.errorOccurred.connect(lambda title, message: errors.append(message))
+        qtbot.mouseClick(panel.start_button, Qt.MouseButton.LeftButton)
+        qtbot.waitUntil(lambda: bool(errors), timeout=60000)
+        message = errors[-1]
+        assert message.startswith("Trigger: no hardware trigger: GRBL's laser mode is off ($32 = 0)"), message
+        assert "Software or Automatic in the Scan panel's Trigger list" in message
+        assert "--trigger" not in message and "--" not in message
+        assert not (tmp_path / "ds" / "dataset.json").exists()
+    finally:
+        close_devices(devices)
+        studio.close()
