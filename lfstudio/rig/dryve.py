@@ -111,16 +111,27 @@ def decode_response(frame: bytes, transaction: int, write: bool, index: int, sub
 
 
 def parse_address(text: str, option: str = "--port") -> tuple[str, int]:
-    """``HOST[:PORT]`` -> (host, port); the port defaults to 502. The host in one spelling (a name in
-    lower case without a final dot, an IP address as :mod:`ipaddress` writes it): the address names
-    the drive's lock, so two spellings of one drive must be one address."""
-    host, _, port = text.strip().rpartition(":") if ":" in text else (text.strip(), "", "")
-    host = host or text.strip()
+    """``HOST[:PORT]`` -> (host, port); the port defaults to 502; an IPv6 address in brackets
+    (``[fd00::10]:502``) or bare (``fd00::10``, no port). The host in one spelling (a name in lower case
+    without a final dot, an IP address as :mod:`ipaddress` writes it): the address names the drive's
+    lock, so two spellings of one drive must be one address."""
+    word = text.strip()
+    if word.startswith("["):                      # [IPv6]:PORT
+        host, sep, rest = word[1:].partition("]")
+        if not sep or (rest and not rest.startswith(":")):
+            raise InputError(option, f"{text!r}: an IPv6 address is written [ADDRESS]:PORT", "e.g. [fd00::10]:502")
+        port = rest[1:]
+    elif word.count(":") > 1:                     # a bare IPv6 address: no port
+        host, port = word, ""
+    else:
+        host, _, port = word.rpartition(":") if ":" in word else (word, "", "")
     if not host:
         raise InputError(option, f"{text!r}: no host", "dryve:HOST[:PORT],HOST[:PORT]")
     try:
         host = str(ipaddress.ip_address(host))
     except ValueError:
+        if ":" in host:
+            raise InputError(option, f"{text!r}: {host!r} is not an IPv6 address", "e.g. [fd00::10]:502") from None
         host = host.lower().rstrip(".") or host
     if not port:
         return host, DEFAULT_PORT
@@ -131,6 +142,11 @@ def parse_address(text: str, option: str = "--port") -> tuple[str, int]:
     if not 1 <= number <= 65535:
         raise InputError(option, f"{text!r}: port {number} is out of range", "1 … 65535")
     return host, number
+
+
+def address_text(host: str, port: int) -> str:
+    """``HOST:PORT`` as :func:`parse_address` reads it back (an IPv6 address in brackets)."""
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
 
 
 class DryveLink:
@@ -144,7 +160,7 @@ class DryveLink:
 
     def __init__(self, host: str, port: int = DEFAULT_PORT, *, timeout_s: float = 1.0):
         self.host, self.port = host, int(port)
-        self.address = f"{host}:{self.port}"
+        self.address = address_text(host, self.port)
         self.lock_name = self.address      # the drive's one name (its lock's): parse_address spells hosts one way
         self.timeout_s = timeout_s
         self._sock: socket.socket | None = None

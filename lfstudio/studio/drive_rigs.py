@@ -47,14 +47,14 @@ class DriveOptions:
 
 
 def _parse_dryve(argument: str, option: str) -> tuple[str, tuple]:
-    from lfstudio.rig.dryve import parse_address
+    from lfstudio.rig.dryve import address_text, parse_address
 
     word = f"dryve:{argument}"
     parts = argument.split(",")
     if len(parts) != 2 or not all(p.strip() for p in parts):
         raise InputError(option, f"{word!r}: a dryve rig names two drives, the horizontal one first",
                          "dryve:HOST[:PORT],HOST[:PORT], e.g. dryve:192.168.1.10,192.168.1.11")
-    addresses = tuple("%s:%d" % parse_address(p, option) for p in parts)
+    addresses = tuple(address_text(*parse_address(p, option)) for p in parts)
     if addresses[0] == addresses[1]:
         raise InputError(option, f"{word!r}: both axes name the same drive {addresses[0]}",
                          "one drive per axis, each its own address")

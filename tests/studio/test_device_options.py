@@ -91,3 +91,17 @@ def test_one_drive_spelled_two_ways_is_one_drive_to_lock(first, second, tmp_path
 def test_a_dryve_word_naming_one_drive_twice_is_refused_however_spelled():
     with pytest.raises(InputError, match="both axes name the same drive drive-x:502"):
         RigSpec.parse("dryve:Drive-X,drive-x.:502")
+
+
+def test_ipv6_drive_addresses_are_read_or_refused_by_name():
+    """'dryve:[fd00::10],[fd00::11]' said "port '10]' is not a number", and 'dryve:fd00::10,fd00::11' took
+    'fd00:' for the host and 10 for the port (then 'Name or service not known')."""
+    assert RigSpec.parse("dryve:[fd00::10],[FD00::11]:5020").text == "dryve:[fd00::10]:502,[fd00::11]:5020"
+    assert RigSpec.parse("dryve:fd00::10,fd00::11").addresses == ("[fd00::10]:502", "[fd00::11]:502")
+    assert RigSpec.parse(RigSpec.parse("dryve:[fd00::10],h").text).addresses == ("[fd00::10]:502", "h:502")
+    with pytest.raises(InputError, match=r"'\[fd00::10\]x': an IPv6 address is written \[ADDRESS\]:PORT"):
+        RigSpec.parse("dryve:[fd00::10]x,h")
+    with pytest.raises(InputError, match=r"'fd00:::1': 'fd00:::1' is not an IPv6 address"):
+        RigSpec.parse("dryve:fd00:::1,h")
+    with pytest.raises(InputError, match="both axes name the same drive"):
+        RigSpec.parse("dryve:[fd00::10]:502,fd00:0::10")
