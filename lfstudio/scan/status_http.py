@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import hmac
 import html
+import ipaddress
 import json
 import logging
 import os
@@ -69,8 +70,10 @@ _LOGGED = (EventKind.STATE, EventKind.FAULT, EventKind.VIEW_FAILED, EventKind.VI
 
 
 def parse_address(text: str, option: str = "--status-http") -> tuple[str, int]:
-    """``[HOST:]PORT`` → (host, port); the host is 127.0.0.1 when not given; port 0: any free port
-    (the address said to the operator has the one taken)."""
+    """``[HOST:]PORT`` → (host, port); the host is 127.0.0.1 when not given, else an IP address of this
+    computer or ``localhost`` (a name is refused: looking it up may wait on DNS, and the window opens
+    the page on its own thread when a scan starts); port 0: any free port (the address said to the
+    operator has the one taken)."""
     text = str(text).strip()
     host, sep, port_text = text.rpartition(":")
     if not sep:
@@ -82,6 +85,13 @@ def parse_address(text: str, option: str = "--status-http") -> tuple[str, int]:
         raise InputError(option, f"{text!r} is not [HOST:]PORT", "e.g. 8765 or 0.0.0.0:8765") from None
     if not 0 <= port <= 65535:
         raise InputError(option, f"port {port} is out of range", "1 … 65535, or 0 for any free port")
+    if host.lower() != "localhost":
+        try:
+            ipaddress.ip_address(host)
+        except ValueError:          # a name would be looked up (DNS) where the window starts a scan
+            raise InputError(option, f"{host!r} is a name: the page listens on an address of this computer",
+                             "127.0.0.1 (this computer only), 0.0.0.0 (every network) or one of its IP "
+                             "addresses") from None
     return host, port
 
 

@@ -172,3 +172,28 @@ def test_a_view_judged_again_is_listed_once_with_its_latest_verdict(tmp_path):
     doc = board.snapshot()
     assert doc["flagged"] == [{"view": "r00 c004", "verdict": "fail", "reasons": ["position", "blurred"]}]
     assert doc["verdicts"] == {"pass": 1, "warn": 0, "fail": 1}
+
+
+def test_a_host_name_is_refused_without_being_looked_up(monkeypatch):
+    """The window binds the page when Start is pressed, on its own thread: a name (studio-pc.lab) was looked
+    up there (getaddrinfo), and with DNS not answering the window froze for the resolver's timeout. The
+    page listens on an address of this computer: a name is refused naming the option, never looked up."""
+    looked_up: list[str] = []
+    real = socket.getaddrinfo
+
+    def spy(host, *args, **kwargs):
+        looked_up.append(str(host))
+        return real(host, *args, **kwargs)
+
+    monkeypatch.setattr(socket, "getaddrinfo", spy)
+    with pytest.raises(InputError, match=r"^--status-http: 'studio-pc.lab' is a name: the page listens on an "
+                                         r"address of this computer \(valid: 127.0.0.1"):
+        StatusServer("studio-pc.lab:0", "a-token-of-enough-length")
+    assert "studio-pc.lab" not in looked_up
+    for address in ("localhost:0", "127.0.0.1:0", "[::1]:0"):
+        try:
+            server = StatusServer(address)
+        except InputError as exc:                  # a machine without IPv6 loopback: not this test's concern
+            assert "[::1]" in address and "cannot listen" in str(exc)
+            continue
+        server.close()
