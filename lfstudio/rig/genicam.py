@@ -204,6 +204,9 @@ class GenicamCamera:
         self._triggers: list[float] = []
         self._fetched = 0
         self._armed = 0
+        self._line: str | None = None           # the input line a hardware trigger uses (see _line_source)
+        self._line_mode = False
+        self._clock: tuple[float, float] | None = None    # (offset s, uncertainty s): monotonic = camera + offset
         self.shots = 0
         self.lost = 0
         self._busy = False
@@ -256,6 +259,9 @@ class GenicamCamera:
                     cam.gv_set_packet_size(self.packet_size)
                 else:
                     _call(cam.gv_auto_packet_size, None)
+            prior = _call(lambda c=cam: str(c.get_string("TriggerSource")), "")
+            if prior.startswith("Line"):
+                self._line = prior              # the line the camera was set to trigger on: its hardware trigger
             if _call(cam.is_software_trigger_supported, False):
                 cam.set_trigger("Software")
             self._check_format(self._read("pixel_format"))
@@ -427,6 +433,8 @@ class GenicamCamera:
                 raise InputError(name, f"{value!r} is not a whole number", "a whole number of pixels")
             value = number
         self._snapshot = None
+        if name == "trigger_source" and str(value).startswith("Line"):
+            self._line = str(value)             # the operator's line: the fly scan's hardware trigger uses it
         restart = name in _PAYLOAD and self._acquiring
         if restart:
             self._stop_acquisition()
@@ -567,6 +575,7 @@ class GenicamCamera:
 
     def arm(self, frames: int) -> None:
         """Software trigger on, the acquisition running, stale frames dropped; ``frames`` expected."""
+        self._line_mode = False
         if self._trigger() != "software":
             self.set_setting("trigger_mode", "On")
             self.set_setting("trigger_source", "Software")
@@ -603,6 +612,9 @@ class GenicamCamera:
         buf = self._pop(time.monotonic() + float(timeout_s))
         if buf is None:
             self.lost += 1
+            if self._line_mode:
+                raise DeviceError(f"genicam:{self.device_id}: no frame {index + 1} within {timeout_s:g} s: no rising "
+                                  f"edge on {settings.get('trigger_source')} took one (missed)")
             raise DeviceError(f"genicam:{self.device_id}: triggered frame {index + 1} did not arrive within "
                               f"{timeout_s:g} s (missed)")
         try:
@@ -616,7 +628,13 @@ class GenicamCamera:
                 self._stream.push_buffer(buf)
         self.shots += 1
         result = frame_result(frame, stem_path)
-        if sent is not None:
+        if self._line_mode and self._clock is not None and frame.timestamp_ns:
+            # the camera's timestamp of the frame (SFNC: the exposure's start on most cameras) on this
+            # computer's clock, through the offset latched at arm_line
+            start = frame.timestamp_ns * 1e-9 + self._clock[0]
+            result.metadata.update(exposure_start_s=start, exposure_end_s=start + float(frame.exposure_s or 0.0),
+                                   clock_uncertainty_s=self._clock[1])
+        elif sent is not None:
             start = sent + self.trigger_latency_s
             result.metadata.update(exposure_start_s=start, exposure_end_s=start + float(frame.exposure_s or 0.0))
         return result
@@ -626,6 +644,98 @@ class GenicamCamera:
         self._triggers = []
         self._fetched = 0
         self._armed = 0
+        self._line_mode = False
+
+    # -- hardware trigger (fly scanning: lfstudio.rig.camera.LineTriggered) ---------------------------
+    #: from the line's edge to the exposure's start: the camera's TriggerDelay where it has one (read by
+    #: arm_line); the camera's own input latency (opto-coupler, a few µs) is not known to lfstudio
+    line_trigger_latency_s = 0.0
+    #: how the camera's clock is read now: (latch command, latched value, its tick frequency or None for ns)
+    CLOCK_LATCHES = (("TimestampLatch", "TimestampLatchValue", None),
+                     ("GevTimestampControlLatch", "GevTimestampValue", "GevTimestampTickFrequency"))
+
+    def _available(self, feature: str) -> bool:
+        cam = self._cam
+        return cam is not None and cam.get_device().get_feature(feature) is not None and \
+            bool(_call(lambda: cam.is_feature_available(feature), False))
+
+    def _line_source(self) -> tuple[str | None, str]:
+        """(the TriggerSource line a hardware trigger uses, "") or (None, why the camera has none). The line is
+        the one the operator set as Trigger source (or the camera had when connected), else its first."""
+        if self._cam is None:
+            return None, "the camera is not connected"
+        if "trigger_mode" not in self._features or "trigger_source" not in self._features:
+            return None, "it has no TriggerMode and TriggerSource nodes"
+        choices = self._choices(self._features["trigger_source"])
+        lines = [c for c in choices if c.startswith("Line")]
+        if not lines:
+            return None, f"its TriggerSource offers no input line ({', '.join(choices) or 'no choices'})"
+        activation = self._features.get("trigger_activation")
+        edges = self._choices(activation) if activation is not None else ()
+        if edges and "RisingEdge" not in edges:
+            return None, f"its TriggerActivation has no RisingEdge ({', '.join(edges)})"
+        return (self._line if self._line in lines else lines[0]), ""
+
+    def _clock_latch(self) -> tuple[str, str, str | None] | None:
+        return next((latch for latch in self.CLOCK_LATCHES if self._available(latch[0]) and self._available(latch[1])),
+                    None)
+
+    def line_trigger_problem(self) -> str | None:
+        """Why this camera cannot take a fly scan's frames on its trigger line, None when it can: it needs a
+        line among its trigger sources (rising edge) and a clock lfstudio can read (a timestamp latch), so
+        that each frame's exposure is dated on this computer's clock and checked against the rig's reports."""
+        line, why = self._line_source()
+        if line is None:
+            return f"genicam:{self.device_id}: {why}"
+        if self._clock_latch() is None:
+            return (f"genicam:{self.device_id}: its frames cannot be dated on this computer's clock (it has no "
+                    "timestamp latch: TimestampLatch/TimestampLatchValue or GevTimestampControlLatch/"
+                    "GevTimestampValue), so a frame its line took could not be checked against the rig's "
+                    "position reports")
+        return None
+
+    def _read_clock(self) -> tuple[float, float] | None:
+        """(offset, uncertainty) in s with monotonic = camera timestamp + offset: the camera's clock latched
+        between two readings of this computer's (uncertainty: half their distance); None without a latch."""
+        latch = self._clock_latch()
+        cam = self._need()
+        if latch is None:
+            return None
+        command, value, frequency = latch
+        try:
+            ticks_per_s = float(cam.get_integer(frequency)) if frequency is not None else 1e9
+            t0 = time.monotonic()
+            cam.execute_command(command)
+            t1 = time.monotonic()
+            ticks = float(cam.get_integer(value))
+        except Exception as exc:
+            raise DeviceError(f"genicam:{self.device_id}: reading its clock ({command}) failed: {_gerror(exc)}") from None
+        if ticks_per_s <= 0:
+            return None
+        return 0.5 * (t0 + t1) - ticks / ticks_per_s, 0.5 * (t1 - t0)
+
+    def arm_line(self, frames: int) -> None:
+        """Ready for ``frames`` frames, each on a rising edge of the trigger line: TriggerMode On,
+        TriggerSource the line (see :meth:`_line_source`), TriggerActivation RisingEdge, the acquisition
+        running, stale frames dropped, the camera's clock read (each frame's exposure then comes dated on
+        this computer's clock). :meth:`fetch` waits for each frame; :meth:`disarm` ends it."""
+        line, why = self._line_source()
+        if line is None:
+            raise DeviceError(f"genicam:{self.device_id}: no hardware trigger: {why}")
+        self.set_setting("trigger_mode", "On")
+        self.set_setting("trigger_source", line)
+        if "trigger_activation" in self._features:
+            self.set_setting("trigger_activation", "RisingEdge")
+        delay = _call(lambda: float(self._need().get_float("TriggerDelay")), 0.0) if self._available("TriggerDelay") else 0.0
+        self.line_trigger_latency_s = max(0.0, delay) * 1e-6          # SFNC: µs
+        self._start_acquisition()
+        self._drain()
+        self._abort.clear()
+        self._clock = self._read_clock()
+        self._triggers = []
+        self._fetched = 0
+        self._armed = int(frames)
+        self._line_mode = True
 
     def preview(self) -> np.ndarray | None:
         """A frame as 8-bit RGB for the live view (None while a hardware trigger decides when frames come)."""
