@@ -294,7 +294,7 @@ def open_rig(spec: RigSpec | str, config: RigConfig, *, doing: str = "", time_sc
     _profile_fits(spec, config)
     argument = spec.port if kind.catch_all else spec.text.partition(":")[2]     # what follows NAME:
     key = kind.lock_key(argument) if (lock and kind.lock_key is not None) else None
-    lk = port_lock(key, doing).acquire() if key else None
+    lk = port_lock(key, doing, shown=f"rig {spec.text}").acquire() if key else None
     try:
         options = {k: v for k, v in controller_options.items() if k in kind.option_params()}   # its own only
         opened = kind.open(argument, OpenContext(doing, config=config, time_scale=time_scale, seed=seed,
@@ -429,7 +429,7 @@ def open_camera(spec: CameraSpec | str, *, position_mm: Callable[[], tuple[float
     lk: Lock | None = None
     key = kind.lock_key(spec.argument) if (lock and kind.lock_key is not None) else None
     if key:
-        lk = camera_lock(key, doing).acquire()
+        lk = camera_lock(key, doing, shown=spec.text).acquire()
     try:
         driver = kind.open(spec.argument, OpenContext(doing, position_mm, trigger_command, dict(options or {})))
         cam = as_camera(driver, f"camera kind {kind.name!r} ({kind.origin})")

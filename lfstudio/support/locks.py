@@ -332,11 +332,12 @@ def port_device(port: str) -> str | None:
     return os.path.realpath(port) if os.path.isabs(port) or os.path.exists(port) else port
 
 
-def port_lock(port: str, doing: str = "") -> Lock:
-    """The (not yet acquired) lock of a serial port: ``/dev/ttyUSB0``, ``/dev/pts/5``, ``COM3``."""
+def port_lock(port: str, doing: str = "", shown: str = "") -> Lock:
+    """The (not yet acquired) lock of a serial port: ``/dev/ttyUSB0``, ``/dev/pts/5``, ``COM3``
+    (``shown``: how a message names the rig, default ``rig port PORT``)."""
     device = port_device(port)
     key = _key(device or port)
-    return Lock(runtime_dir() / f"port-{key}.lock", f"rig port {port}", doing,
+    return Lock(runtime_dir() / f"port-{key}.lock", shown or f"rig port {port}", doing,
                 hint="wait for it to finish, or stop it there (its STOP, or Ctrl-C in its terminal)",
                 device=device if device and os.path.exists(device) else None)
 
@@ -353,9 +354,10 @@ def drive_lock(address: str, doing: str = "") -> Lock:
                 hint="wait for it to finish, or stop it there (its STOP, or Ctrl-C in its terminal)")
 
 
-def camera_lock(name: str, doing: str = "") -> Lock:
-    """The (not yet acquired) lock of a camera: ``gphoto2``, or a hot folder's path."""
-    return Lock(runtime_dir() / f"camera-{_key(name)}.lock", f"camera {name}", doing,
+def camera_lock(name: str, doing: str = "", shown: str = "") -> Lock:
+    """The (not yet acquired) lock of a camera: ``gphoto2``, or a hot folder's path; ``shown``: how a
+    message names the camera (its device word, ``folder:PATH``; default ``name``)."""
+    return Lock(runtime_dir() / f"camera-{_key(name)}.lock", f"camera {shown or name}", doing,
                 hint="disconnect it there first")
 
 

@@ -105,3 +105,40 @@ def test_ipv6_drive_addresses_are_read_or_refused_by_name():
         RigSpec.parse("dryve:fd00:::1,h")
     with pytest.raises(InputError, match="both axes name the same drive"):
         RigSpec.parse("dryve:[fd00::10]:502,fd00:0::10")
+
+
+def test_a_camera_in_use_is_named_by_its_device_word(tmp_path, monkeypatch):
+    """A hot folder held by another opener was named by its lock's key: 'camera folder-/path is in use
+    by …'; it is the word the operator typed, 'camera folder:/path'."""
+    from lfstudio.studio.devices import open_camera
+    from lfstudio.support.locks import LockBusy
+
+    monkeypatch.setenv("LFSTUDIO_RUNTIME_DIR", str(tmp_path / "run"))
+    hot = tmp_path / "hot"
+    hot.mkdir()
+    held = open_camera(f"folder:{hot}", connect=False, doing="the first opener")
+    try:
+        with pytest.raises(LockBusy, match=rf"^camera folder:{hot} is in use by .*the first opener"):
+            open_camera(f"folder:{hot}", connect=False, doing="the second")
+    finally:
+        held.close(disconnect=False)
+
+
+def test_a_plugin_rig_in_use_is_named_by_its_device_word(tmp_path, monkeypatch):
+    """A plugin rig held by another opener was named by its lock's key ('rig port myrig-left is in use')."""
+    from lfstudio.studio.kinds import RigKind, register_rig, unregister
+    from lfstudio.studio.simulated import InstantRig
+    from lfstudio.support.locks import LockBusy
+
+    monkeypatch.setenv("LFSTUDIO_RUNTIME_DIR", str(tmp_path))
+    register_rig(RigKind("myrig", lambda argument, ctx: InstantRig(ctx.config), argument="X",
+                         lock_key=lambda argument: f"myrig-{argument}", origin="plugin t 1 (m:f)"))
+    try:
+        held = open_rig("myrig:left", load_rig(), connect=False, doing="the first opener")
+        try:
+            with pytest.raises(LockBusy, match=r"^rig myrig:left is in use by .*the first opener"):
+                open_rig("myrig:left", load_rig(), connect=False, doing="the second")
+        finally:
+            held.close(disconnect=False)
+    finally:
+        unregister("myrig")
