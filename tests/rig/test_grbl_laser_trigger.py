@@ -285,3 +285,30 @@ def test_simulator_a_line_refused_mid_row_holds_the_carriage_and_drops_the_rest(
     rising = [t for t, level in sim.spindle_output.edges() if level]
     assert all(sim.true_position_at(t)[0] < REFUSED_X for t in rising) and not sim.spindle_output.level
     assert b"!" in sim.realtime_received and b"\x18" in sim.realtime_received
+
+
+def _hold_never_completes(c: GrblController) -> None:
+    """The driver waits for Hold:0 only so long (its timeout and three stops from full speed); past that it
+    resets all the same: GRBL then raises ALARM 3 (a reset while the steppers may run), the position is
+    lost, and the error says so (the scan's resume then asks for homing). Forced here by a wait of 0."""
+    c._stop_time_s = lambda: -10.0                     # type: ignore[method-assign]  (no time to hold)
+    text = _fly_with_a_refused_line(c, LONG_XS, 110.0)
+    st = c.status()
+    assert st.state.name == "ALARM" and not st.homed and 3 in c.alarms, (st, c.alarms)
+    assert "ALARM 3" in text and "its position is lost; home the rig again" in text, text
+
+
+def test_firmware_a_hold_that_does_not_complete_in_time_is_reset_anyway_and_says_the_position_is_lost(
+        laser_firmware):
+    fw, c, log = laser_firmware(1)
+    try:
+        _hold_never_completes(c)
+    finally:
+        c.disconnect()
+
+
+def test_simulator_a_hold_that_does_not_complete_in_time_is_reset_anyway_and_says_the_position_is_lost(
+        sim_controller):
+    sim, c = sim_controller(1)
+    _hold_never_completes(c)
+    assert sim.state == "Alarm"

@@ -76,3 +76,49 @@ def test_a_line_refused_mid_row_pauses_with_the_carriage_stopped_and_resume_flie
             assert abs(truth["true_position_mm"][0] - record["commanded_mm"][0]) < 0.5 * plan.spacing_mm[0]
     finally:
         session.close()
+
+
+def test_a_refused_line_whose_hold_does_not_complete_pauses_saying_the_position_is_lost_and_resume_asks_for_homing(
+        tmp_path):
+    """When the hold does not complete in time the driver resets all the same: GRBL raises ALARM 3 and
+    its position is lost. The pause says so, Resume refuses to go on until the rig is homed, and after
+    homing the scan finishes with every view at its position."""
+    session, plan, ds = fly_studio(tmp_path / "ds", columns=12, rows=2)
+    try:
+        driver = session.rig
+        refused_x = plan.views()[8].x_mm
+        target = f"G1 X{refused_x:.3f} S0"
+        real = driver._stream
+        streams: list[list[str]] = []
+
+        def garbled_once(lines: list[str]) -> None:
+            streams.append(lines)
+            if len(streams) == 1:
+                lines = [line.replace("G1 X", "G1 X#", 1) if line == target else line for line in lines]
+            real(lines)
+
+        driver._stream = garbled_once                     # type: ignore[method-assign]
+        real_stop_time = driver._stop_time_s
+        driver._stop_time_s = lambda: -10.0               # type: ignore[method-assign]  (no time to hold)
+        engine = FlyScanEngine(ds, plan, session.rig, session.camera, time_scale=SCALE, backoff_s=0.01,
+                               speed_mm_s=40.0, trigger="hardware")
+        engine.start()
+        assert engine.wait_for_state(ScanState.PAUSED, timeout_s=120), engine.message
+        assert "ALARM 3" in engine.message and "its position is lost; home the rig again" in engine.message
+        assert session.simulator.state == "Alarm"
+        driver._stop_time_s = real_stop_time              # type: ignore[method-assign]
+        engine.resume().result(timeout=60)               # resumed: the rig is checked first
+        assert engine.wait_for_state(ScanState.PAUSED, timeout_s=60) and "Home the rig" in engine.message, \
+            engine.message
+        engine.rig.call("home", timeout_s=120)
+        engine.resume()
+        assert engine.wait(180) is ScanState.FINISHED, engine.message
+        flown, retaken = check_views(ds.root, engine)
+        assert flown + retaken == 24
+        d = Dataset.open(ds.root)
+        for view in d.views:
+            record: dict[str, Any] = dict(view)
+            truth = json.loads((d.root / record["sidecars"][1]).read_text())
+            assert abs(truth["true_position_mm"][0] - record["commanded_mm"][0]) < 0.5 * plan.spacing_mm[0]
+    finally:
+        session.close()
