@@ -133,6 +133,15 @@ def canonical_channel(channel: str) -> str:
     return args["channel"]
 
 
+def canonical_word(word: str) -> str:
+    """A rig's device word with a CANopen channel in its one spelling (``canopen:socketcan:can0:1,2`` →
+    ``canopen:can0:1,2``); any other word as it is."""
+    if not word.startswith("canopen:"):
+        return word
+    channel, sep, nodes = word[len("canopen:"):].rpartition(":")
+    return f"canopen:{canonical_channel(channel)}:{nodes}" if sep and channel else word
+
+
 def _network(channel: str) -> Any:
     import canopen
 

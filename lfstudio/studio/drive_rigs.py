@@ -86,6 +86,7 @@ def _open_pair(kind: str, port: str, addresses: tuple, ctx: OpenContext, simulat
     """The links to the drives a ``kind`` ("dryve", "canopen") word names (``port``: the CANopen channel,
     ``addresses``: the drives' HOST:PORT or node ids), one lock per drive address, the driver (connected
     with ``ctx.connect``)."""
+    from lfstudio.rig.canopen_link import canonical_word
     from lfstudio.rig.cia402 import Cia402Controller
     from lfstudio.support.locks import drive_lock
 
@@ -119,7 +120,8 @@ def _open_pair(kind: str, port: str, addresses: tuple, ctx: OpenContext, simulat
         if ctx.lock:                 # by the drive's one name (lock_name), however the word spells it
             for link in links:
                 locks.append(drive_lock(link.lock_name, ctx.doing).acquire())
-        controller = Cia402Controller(links, config, port=_text(kind, port, addresses), **options)
+        # the pair's word in one spelling: it names the rig's record of its last scan (session.note_scan_on_rig)
+        controller = Cia402Controller(links, config, port=canonical_word(_text(kind, port, addresses)), **options)
         opened = OpenedRig(controller, simulator, _Locks(locks), port, addresses)
         if ctx.connect:
             controller.connect()

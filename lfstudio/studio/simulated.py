@@ -128,9 +128,12 @@ def describe_simulated_camera(camera: Any) -> tuple[dict, dict] | None:
 
 # -- the true position across processes ----------------------------------------------------------
 def truth_socket_path(port: str) -> Path:
-    """Where ``lfstudio sim-rig`` on ``port`` answers the carriage's true position."""
+    """Where ``lfstudio sim-rig`` on ``port`` answers the carriage's true position (a drive pair's word in
+    its one spelling, as the controller names its port: :func:`lfstudio.rig.canopen_link.canonical_word`)."""
+    from lfstudio.rig.canopen_link import canonical_word
     from lfstudio.support.locks import _key
 
+    port = canonical_word(port)
     return runtime_dir() / f"sim-{_key(port_device(port) or port)}.sock"
 
 

@@ -142,3 +142,21 @@ def test_a_plugin_rig_in_use_is_named_by_its_device_word(tmp_path, monkeypatch):
             held.close(disconnect=False)
     finally:
         unregister("myrig")
+
+
+def test_a_drive_pair_spelled_two_ways_keeps_one_record_of_the_last_scan(tmp_path, monkeypatch):
+    """Which dataset's scan last used a rig is kept per rig (session.note_scan_on_rig, by the controller's
+    port): a resume that finds its rig where it left it continues only if no other dataset was scanned on
+    it since. The same CAN drives spelled 'can0' in one scan and 'socketcan:can0' in the next were two
+    rigs there, so the other dataset's scan went unnoticed."""
+    from lfstudio.rig.profile import DEFAULT_DRIVE_RIG
+    from lfstudio.support.locks import rig_record_path
+
+    monkeypatch.setenv("LFSTUDIO_RUNTIME_DIR", str(tmp_path))
+    config = load_rig(DEFAULT_DRIVE_RIG)
+    ports = []
+    for word in ("canopen:can0:1,2", "canopen:socketcan:can0:1,2"):
+        link = open_rig(word, config, connect=False, lock=False)
+        ports.append(link.port)
+        link.close(disconnect=False)
+    assert rig_record_path(ports[0]) == rig_record_path(ports[1]), ports
