@@ -303,6 +303,13 @@ def calibrated(make_tiny_dataset):
 
 
 @pytest.fixture
+def calibrated_noisy(make_tiny_dataset):
+    """The tiny 5 x 3 dataset (640 px, exact calibration.json) shot where the reference rig stands:
+    each view off its grid position by its repeatability (σ 80 × 50 µm)."""
+    return calibrated_tiny(make_tiny_dataset, position_noise_um=(80.0, 50.0))
+
+
+@pytest.fixture
 def calibrated_1000(make_tiny_dataset):
     """A 5 x 3 virtual dataset at 1000 px with an exact calibration.json."""
     return calibrated_tiny(make_tiny_dataset, width_px=1000)

@@ -30,6 +30,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", metavar="N", type=number_option(WORKERS, "--workers"),
                    help="local worker processes (default: one per core; 0: run in this process)")
     p.add_argument("--force", action="store_true", help="compute every view again, even those up to date")
+    p.epilog = CONFIDENCE_MEANING
+
+
+#: what the confidence map is, in the words of the help (and docs/how-to/depth.md)
+CONFIDENCE_MEANING = (
+    "The confidence map (DATASET/depth/confidence/rRR_cCCC.pfm, 0 ... 1) is 1 - (the matching cost at the "
+    "answer) / (the lowest cost 3 or more candidate disparities away): 0 where another disparity matches as well "
+    "(flat or repeated texture, the end of the searched range), near 1 where nothing else does. It ranks the pixels "
+    "of one map (higher: fewer wrong) but is no probability and means different things on different scenes: of "
+    "the pixels with confidence 0.3-0.5, 0.4-1.6 % are more than 0.07 px off on the HCI benchmark's scenes, "
+    "5 % on the virtual studio.")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -42,8 +42,11 @@ its own (:func:`colour_edges`: an anti-aliased silhouette pixel mostly showing t
 4000 px view needs no more than a 512 px one.
 
 **Confidence** in [0, 1]: ``1 − c_best / c_far``, the matching cost at the answer against the best
-cost at least two candidates away (a unique, sharp minimum → near 1; a flat or repeated texture →
-near 0); 0 at the end of the searched range.
+cost three or more candidates away (a unique, sharp minimum → near 1; a flat or repeated texture →
+near 0); 0 at the end of the searched range. A ranking within one map, not a probability: the same
+value means a different share of wrong pixels on different scenes (measured: pixels of 0.3–0.5 are
+0.4–1.6 % more than 0.07 px off on three HCI scenes, 5 % on the virtual studio; an expected error
+from the cost curve's curvature, ``step · c / rise`` of the aggregated cost, agrees no better).
 """
 
 from __future__ import annotations

@@ -19,6 +19,12 @@ Workers must see the dataset at the same path (as processing's).
 rectified them), else the captures rectified with the calibration's homography, else the captures
 as they are (a warning: disparities of unrectified views are only approximately along the rows).
 
+**Neighbour offsets**: from the positions the rig recorded when the import has them, else from the
+grid; where the rig's repeatability is not negligible against a spacing (the reference gantry's
+80 × 50 µm of 4 mm), each neighbour's offset is also measured from the images (SIFT matches with
+the reference, the dataset's feature cache) and combined with the rig's by their uncertainties
+(:mod:`lfstudio.depth.positions`; the record's ``offsets_measured``). An HCI folder's are exact.
+
 **Disparity range** searched, from the best source there is (printed with its origin): a range
 stated by the user (``--disparity-range``, the Depth dialog), the format's own (an imported HCI
 folder's ``disp_min``/``disp_max``), the scene plan's near/far, the quality check's tracks over the
@@ -51,7 +57,7 @@ from lfstudio.dataset.atomic import atomic_write_text, atomic_write_with
 from lfstudio.dataset.grid import View
 from lfstudio.dataset.manifest import now_iso
 from lfstudio.dataset.paths import view_stem
-from lfstudio.depth import dense
+from lfstudio.depth import dense, positions
 from lfstudio.depth.files import read_pfm, write_pfm
 from lfstudio.errors import DatasetError, InputError, words
 from lfstudio.jobs import Cancelled, CancelToken, Progress, no_progress
@@ -61,7 +67,7 @@ log = logging.getLogger(__name__)
 DEPTH_DIR = "depth"
 #: the method's version, part of every view's key: raised when its maps change, so that maps of an
 #: earlier version are computed again (2: row/column lines, colour at silhouettes, plane fit)
-METHOD = "light-field-sgm-3"
+METHOD = "light-field-sgm-4"
 #: search margin around the plan's near/far disparities
 RANGE_MARGIN = 0.08
 #: the neighbourhood: views up to this many columns and rows away, on the lines through the view
@@ -512,8 +518,9 @@ def depth_view_task(task: dict[str, Any]) -> dict[str, Any]:
     t_cpu = time.process_time()
     counts: dict[str, int] = {}
     ref, colour = _read_reference(task["reference"], task["homography"], task["size"], counts)
+    measured, offsets_record = _measured_neighbours(task)
     nbs = [dense.Neighbour(_read_cached(p, task["homography"], task["size"], counts), dx, dy)
-           for p, dx, dy in task["neighbours"]]
+           for p, dx, dy in measured]
     res = dense.light_field_disparity(ref, nbs, *task["d_range"], window_px=task["settings"]["window_px"],
                                       step_px=task["settings"]["step_px"], colour=colour)
     out = {k: Path(v) for k, v in task["out"].items()}
@@ -525,6 +532,7 @@ def depth_view_task(task: dict[str, Any]) -> dict[str, Any]:
               "size_px": list(task["size"]), "d_range_px": list(task["d_range"]), "candidates": res.candidates,
               "d_range_source": task.get("range_source"), "d_range_found_px": task.get("range_found"),
               "neighbours": task["neighbour_views"],
+              "offsets_measured": offsets_record,
               "images_read": counts.get("read", 0), "images_cached": counts.get("cached", 0),
               "valid_fraction": float(finite.mean()),
               "confident_fraction": float((res.confidence > 0.1).mean()),
@@ -536,9 +544,10 @@ def depth_view_task(task: dict[str, Any]) -> dict[str, Any]:
     return record
 
 
-def _key(settings: DepthSettings, geometry: Geometry, paths: Sequence[str]) -> str:
+def _key(settings: DepthSettings, geometry: Geometry, paths: Sequence[str], offsets: dict | None = None) -> str:
     h = hashlib.sha256(json.dumps([settings.describe(), geometry.source, geometry.homography,
-                                   list(geometry.d_range_px)], sort_keys=True).encode())
+                                   list(geometry.d_range_px)] + ([offsets] if offsets else []),
+                                  sort_keys=True).encode())
     for p in paths:
         st = os.stat(p)
         h.update(f"{Path(p).name}:{st.st_size}:{st.st_mtime_ns};".encode())
@@ -557,6 +566,7 @@ def plan_tasks(ds: Dataset, views: Sequence[View], settings: DepthSettings, sour
                          "views of a grid with at least two captured views in a row or a column")
     needed = sorted(set(views) | {n for v in views for n, _, _ in nb[v]})
     geo = geometry_of(ds, views, needed, source, disparity_range_px)
+    offsets = offset_measurement(ds, geo)
     path = (lambda v: str(_processed_path(ds, v))) if geo.source == "processed" else \
         (lambda v: str(ds.path_of(ds.view(*v))))
     tasks = []
@@ -567,10 +577,73 @@ def plan_tasks(ds: Dataset, views: Sequence[View], settings: DepthSettings, sour
                       "neighbour_views": [[int(n[0]), int(n[1]), dx, dy] for n, dx, dy in nb[v]],
                       "homography": geo.homography, "size": list(geo.size_px), "d_range": list(geo.d_range_px),
                       "range_source": geo.range_source, "range_found": list(geo.range_found_px),
-                      "settings": settings.describe(), "source": geo.source,
-                      "key": _key(settings, geo, [ref] + [p for p, _, _ in nbp]),
+                      "settings": settings.describe(), "source": geo.source, "offsets": offsets,
+                      "key": _key(settings, geo, [ref] + [p for p, _, _ in nbp], offsets),
                       "out": {k: str(map_path(ds.root, k, v)) for k in ("disparity", "confidence", "records")}})
     return geo, tasks
+
+
+def offset_measurement(ds: Dataset, geo: Geometry) -> dict[str, Any] | None:
+    """How the workers measure the neighbours' offsets from the images (:mod:`lfstudio.depth.positions`):
+    the prior's standard deviation (the rig's repeatability, in spacings) and where the features are
+    cached; None where the rig's offsets are good enough (:func:`positions.worth_measuring`) or exact
+    (an HCI folder: rendered where its format states)."""
+    from lfstudio.calibration.calibrate import position_sigma_um
+
+    sx = float(ds.grid.step_mm[0])
+    if sx <= 0 or (ds.manifest.get("import") or {}).get("hci"):
+        return None
+    sigma = positions.prior_sigma_spacings(position_sigma_um(ds), sx)
+    if not positions.worth_measuring(sigma):
+        return None
+    return {"prior_sigma": list(sigma), "feature_cache": str(ds.root) if geo.source == "raw" else None}
+
+
+#: SIFT features (rectified keypoints, descriptors) a worker keeps for its next views: path -> ...
+FEATURE_CACHE_VIEWS = 256
+_feature_cache: OrderedDict[tuple, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+
+
+def _features(path: str, H, cache_root: str | None) -> tuple[np.ndarray, np.ndarray]:
+    """(rectified keypoints, descriptors) of a view: the dataset's feature cache for captured views
+    (``cache/features``, shared with calibration), this process's memory for the next views."""
+    from lfstudio.calibration.features import FeatureCache, detect
+    from lfstudio.calibration.model import apply_homography
+
+    key = _cache_key(path, H, (0, 0))
+    with _image_cache_lock:
+        hit = _feature_cache.get(key)
+        if hit is not None:
+            _feature_cache.move_to_end(key)
+            return hit
+    if cache_root is not None:
+        feats, _ = FeatureCache(cache_root).get(Path(path).stem, path)
+    else:
+        feats = detect(path)
+    xy = feats.xy.astype(np.float64)
+    if H is not None and len(xy):
+        xy = apply_homography(np.asarray(H, float), xy)
+    out = (xy, feats.descriptors)
+    with _image_cache_lock:
+        _feature_cache[key] = out
+        while len(_feature_cache) > FEATURE_CACHE_VIEWS:
+            _feature_cache.popitem(last=False)
+    return out
+
+
+def _measured_neighbours(task: dict[str, Any]) -> tuple[list[tuple[str, float, float]], dict[str, Any] | None]:
+    """The task's neighbours with their offsets measured from the images (:func:`offset_measurement`),
+    and what was measured for the record; as they are when the task measures nothing."""
+    spec = task.get("offsets")
+    nbs = [(p, float(dx), float(dy)) for p, dx, dy in task["neighbours"]]
+    if not spec:
+        return nbs, None
+    H, root = task["homography"], spec.get("feature_cache")
+    ref_xy, ref_desc = _features(task["reference"], H, root)
+    feats = [_features(p, H, root) for p, _, _ in nbs]
+    prior = np.array([(dx, dy) for _, dx, dy in nbs], float)
+    m = positions.measure_offsets(ref_xy, ref_desc, feats, prior, spec["prior_sigma"])
+    return [(p, float(o[0]), float(o[1])) for (p, _, _), o in zip(nbs, m.offsets)], m.describe(prior)
 
 
 def _up_to_date(task: dict[str, Any]) -> bool:
