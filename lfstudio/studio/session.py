@@ -60,6 +60,7 @@ log = logging.getLogger(__name__)
 #: the scan's dataset folder and bracket, as the command line and the Scan panel name them
 OUT_FIELD = words("--out", "Folder")
 BRACKET_OPTION = words("--bracket", "Bracket")
+RIG_PROFILE_FIELD = words("--rig-profile", "Rig")
 
 #: how far (mm) a resumed rig may stand from the path where the last run stopped
 RESUME_TOLERANCE_MM = 0.5
@@ -604,9 +605,16 @@ class ScanSession:
                 profile = implied_rig_profile(rig_words)     # real drives without --rig-profile: refused by name
             try:
                 config = load_rig(profile or DEFAULT_RIG)
-            except InputError:
-                config = load_rig(DEFAULT_RIG)
-                self.note(f"the dataset's rig profile {profile!r} is not installed; using {DEFAULT_RIG!r}")
+            except InputError as exc:       # never another rig's limits, speeds and homing in its place
+                if not profile:
+                    raise
+                from lfstudio.resources import load_presets
+
+                installed = load_presets("rigs")
+                why = "is not installed" if profile not in installed else f"cannot be read: {exc}"
+                raise InputError(RIG_PROFILE_FIELD, f"the dataset's rig profile {profile!r} {why}; its limits, "
+                                 "speeds and homing are not guessed", f"install it again (rigs.toml), or name this "
+                                 f"rig's profile: {' or '.join(rig_profile_flag(n) for n in installed)}") from None
         self.rig_config = config
         plan, scene = plan_for(existing, config)
         if existing is not None:

@@ -120,3 +120,23 @@ def test_resume_on_a_recorded_port_that_is_gone_says_so(tmp_path):
     with pytest.raises(DeviceError, match=r"captured with the rig on .*ttyUSB9, which is not there now.*--port PORT"):
         session.open(lambda existing, cfg: (plan, None))
     assert session.lock is None                     # released again
+
+
+def test_a_resume_whose_rig_profile_is_gone_is_refused_not_run_on_another_profile(tmp_path):
+    """The dataset's rig profile (its soft limits, speeds, homing) no longer installed: the resume went on
+    with the reference gantry's limits (a note said so), i.e. the rig's limits assumed. It is refused,
+    naming the profile and --rig-profile, before any device is opened."""
+    from dataclasses import replace
+
+    from lfstudio.studio.session import ScanRequest, ScanSession
+
+    workshop = replace(load_rig(), name="workshop rig 1 m")          # a profile of this day, gone tomorrow
+    plan = ScanPlan(2, 1, (4.0, 6.0))
+    first = ScanSession(ScanRequest(tmp_path / "ds", rig="instant", camera="instant", rig_config=workshop))
+    first.open(lambda existing, cfg: (plan, None))
+    first.close()
+    assert Dataset.open(tmp_path / "ds").manifest["rig"]["name"] == "workshop rig 1 m"
+    again = ScanSession(ScanRequest(tmp_path / "ds", resume=True))
+    with pytest.raises(InputError, match=r"^--rig-profile: the dataset's rig profile 'workshop rig 1 m' "):
+        again.open(lambda existing, cfg: (plan, None))
+    assert again.studio is None and again.lock is None
