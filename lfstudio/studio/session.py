@@ -19,7 +19,8 @@ What :meth:`ScanSession.open` guarantees, in this order:
 2. **A resume uses the dataset's own devices** (``dataset.json`` → ``devices``): without device
    options they are opened again; other devices (the simulator included) are refused unless the
    request says ``allow_device_change``, and then the change is recorded (``device_changes`` and
-   each view's ``devices``). A dataset without a device record resumes with a warning.
+   each view's ``devices``). A dataset without a device record resumes with a warning on the devices
+   the request names (the command line must name them: never the simulated studio by default).
 3. **Homing policy** (:func:`prepare_rig`): ``home`` homes before the first view (``$H``; a rig
    without limit switches is refused: park it and use ``origin_here``); without it a rig in ALARM or
    not homed is refused with one line naming ``--home`` and ``lfstudio rig --port P home``. A resume
@@ -555,7 +556,11 @@ class ScanSession:
                           "an older lfstudio); resuming with the connected devices, recorded from now on")
             return "", "", record
         if record is None:
-            rig, cam = req.rig or SIM, req.camera or SIM
+            if req.rig is None or req.camera is None:     # never the simulated studio in a real scan's place
+                raise InputError("--port/--camera", f"{existing.manifest_path} does not record which devices "
+                                 "captured it (made by an older lfstudio)",
+                                 "name them: --port PORT --camera CAMERA (sim for the simulated studio)")
+            rig, cam = req.rig, req.camera
             self.note(f"warning: {existing.manifest_path} does not record which devices captured it (made by an "
                       f"older lfstudio); resuming with --port {rig} --camera {cam}, recorded from now on")
             return rig, cam, None

@@ -140,3 +140,22 @@ def test_a_resume_whose_rig_profile_is_gone_is_refused_not_run_on_another_profil
     with pytest.raises(InputError, match=r"^--rig-profile: the dataset's rig profile 'workshop rig 1 m' "):
         again.open(lambda existing, cfg: (plan, None))
     assert again.studio is None and again.lock is None
+
+
+def test_a_resume_of_a_dataset_without_its_devices_needs_them_named(tmp_path):
+    """A dataset that does not record its devices (made by an older lfstudio's window) resumed without
+    --port/--camera went on with the simulated rig and camera: the rest of a real scan filled with
+    rendered pictures, a warning in the log. They must be named; nothing is opened or written."""
+    import json
+
+    from lfstudio.studio.session import ScanRequest, ScanSession
+
+    plan = ScanPlan(2, 1, (4.0, 6.0))
+    create_scan_dataset(tmp_path / "ds", plan, rig={"name": "Reference gantry"}, camera={"name": "ILCE-7RM2"},
+                        lens={}).close()
+    before = json.loads((tmp_path / "ds" / "dataset.json").read_text())
+    session = ScanSession(ScanRequest(tmp_path / "ds", resume=True))
+    with pytest.raises(InputError, match=r"^--port/--camera: .*does not record which devices captured it"):
+        session.open(lambda existing, cfg: (plan, None))
+    assert session.studio is None and session.lock is None
+    assert json.loads((tmp_path / "ds" / "dataset.json").read_text()) == before
