@@ -37,8 +37,10 @@ MEASURE_ABOVE_SPACINGS = 0.002
 #: matches: Lowe's ratio; the displacement must run along the expected offset within this (px)
 RATIO = 0.8
 ACROSS_PX = 2.0
-#: a neighbour with fewer matches than this (after outliers) keeps the rig's offset
+#: a neighbour with fewer matches than this (after outliers) keeps the rig's offset, as does one
+#: whose measured offset lies more than OUTLIER_SIGMAS of the rig's repeatability from the rig's
 MIN_MATCHES = 8
+OUTLIER_SIGMAS = 5.0
 ITERATIONS = 12
 
 
@@ -129,9 +131,22 @@ def measure_offsets(ref_xy: np.ndarray, ref_desc: np.ndarray, neighbours: Sequen
     # the scale is free: pinned to the rig's offsets (least squares over the measured neighbours,
     # with a shift: the reference's own position error moves every offset alike, which on a
     # one-sided neighbourhood would otherwise pass for a scale)
-    om, pm = o[measured], prior[measured]
-    oc, pc = om - om.mean(axis=0), pm - pm.mean(axis=0)
-    scale = float((pc * oc).sum() / max(float((oc ** 2).sum()), 1e-12))
+    # a neighbour whose measurement disagrees with the rig's offset beyond OUTLIER_SIGMAS of the
+    # rig's repeatability (after the scale and the common shift) was matched wrongly (a repeated
+    # texture, few features): it keeps the rig's offset and pins nothing
+    scale = 1.0
+    for _ in range(3):
+        if measured.sum() < 2:
+            return unmeasured
+        om, pm = o[measured], prior[measured]
+        oc, pc = om - om.mean(axis=0), pm - pm.mean(axis=0)
+        scale = float((pc * oc).sum() / max(float((oc ** 2).sum()), 1e-12))
+        shift = (pm - scale * om).mean(axis=0)
+        off = np.abs(scale * o + shift - prior) / sig_p[None, :]
+        agree = measured & (off.max(axis=1) <= OUTLIER_SIGMAS)
+        if np.array_equal(agree, measured):
+            break
+        measured = agree
     o = o * scale
     sigma_res = 1.4826 * float(np.median(res[use])) / np.sqrt(2.0)      # per component, px
     sigma = np.full((n_nb, 2), np.inf)

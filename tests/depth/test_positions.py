@@ -66,3 +66,22 @@ def test_a_dataset_measures_its_offsets_only_where_its_positions_are_uncertain(c
     ds.manifest["rig"].pop("repeatability_um")
     ds.manifest["import"] = {"hci": {"grid": [9, 9]}}
     assert offset_measurement(ds, geo) is None
+
+
+def test_a_neighbour_whose_matches_contradict_the_rig_keeps_the_rigs_offset():
+    """Matches that put a neighbour 0.65 spacings from where a rig repeatable to 80 µm can stand (a
+    repeated texture matched one period off, seen at 320 px) are not believed: that neighbour keeps
+    the rig's offset and does not pin the others' scale (it made the scale 0.1 spacings wrong)."""
+    grid = np.array([(dc, dr * 1.5) for dr in (-1, 0, 1) for dc in (-2, -1, 1, 2, 3)], float)
+    rng = np.random.default_rng(4)
+    truth = grid + rng.normal(0, 0.02, grid.shape)
+    seen = truth.copy()
+    seen[8] = (2.35, 0.0)                                        # the grid says 3: what its matches say
+    xy, desc, nbs = _scene(seen)
+    got = positions.measure_offsets(xy, desc, nbs, grid, positions.prior_sigma_spacings((80, 50), 4.0))
+    assert not got.measured[8] and np.array_equal(got.offsets[8], grid[8])
+    others = np.arange(len(grid)) != 8
+    assert got.measured[others].all()
+    before = np.sqrt(((grid[others] - truth[others]) ** 2).mean())
+    after = np.sqrt(((got.offsets[others] - truth[others]) ** 2).mean())
+    assert after < 0.5 * before, (before, after)
