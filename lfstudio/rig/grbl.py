@@ -126,7 +126,12 @@ class GrblController:
         self.options = ""
         self.planner_blocks = 15                 # blocks GRBL plans ahead ($I's [OPT:...,15,128])
         self.rx_buffer = 128                     # bytes of its serial receive buffer (the same)
-        self._stream_errors: list[int] = []      # error:N answered to streamed lines (fly_pulsing)
+        #: (code, line number in the stream, the line as sent) of each error:N answered to a streamed line
+        #: (fly_pulsing; number 0, line "": the late answer to a line sent before the stream)
+        self._stream_errors: list[tuple[int, int, str]] = []
+        self._stream_lines: list[str] = []       # the lines of the last stream, in order
+        self._stream_answers = 0                 # answers to them read so far
+        self._stream_owed = 0                    # answers owed from before the stream, still to come
         self.warnings: list[str] = []
         self.version = ""
         self.messages: list[str] = []            # [MSG:...] push messages, newest last
@@ -176,6 +181,7 @@ class GrblController:
             self._stop_pending = False
             self._banner_expected = False
             self._unanswered = 0
+            self._stream_owed = 0
             self.board_resets = 0
             self.alarms = []
             self.messages = []
@@ -342,8 +348,15 @@ class GrblController:
         kind = parsed.kind
         if kind in ("ok", "error") and self._unanswered > 0:
             self._unanswered -= 1                # the late answer to a line we gave up on (or streamed)
+            number, text = 0, ""
+            if self._stream_owed > 0:            # GRBL answers in order: those from before the stream first
+                self._stream_owed -= 1
+            else:
+                self._stream_answers += 1
+                if self._stream_answers <= len(self._stream_lines):
+                    number, text = self._stream_answers, self._stream_lines[self._stream_answers - 1]
             if kind == "error":
-                self._stream_errors.append(parsed.code or 0)
+                self._stream_errors.append((parsed.code or 0, number, text))
             return GrblLine("stale", parsed.text, code=parsed.code)
         if kind == "alarm":
             self._last_t = 0.0
@@ -361,6 +374,7 @@ class GrblController:
             self._critical = False
             self._stop_pending = False
             self._unanswered = 0                 # a restarted GRBL owes no answers
+            self._stream_owed = 0
             self._banners += 1
             if self._banner_expected:
                 self._banner_expected = False
@@ -868,6 +882,7 @@ class GrblController:
             if self._unanswered:
                 self._drain()
             self._stream_errors = []
+            self._stream_lines, self._stream_answers, self._stream_owed = list(lines), 0, self._unanswered
         sent = 0
         last_progress = time.monotonic()
         for line in lines:
@@ -928,10 +943,28 @@ class GrblController:
         self._stop_pending = False
         self._stop_event.clear()
         st = self._query_status()
-        where = self._where(st)
-        after = ("GRBL goes on with the lines after a refused one, so the carriage was held and the rest of the "
-                 f"row dropped (feed hold, then reset); {where}")
-        return GrblError(codes[0], "a line of the fly row", after=after)
+        if st.state == "Alarm":
+            where = (f"the hold did not complete in time, so the reset put GRBL in ALARM {self._alarm_code or 3} "
+                     "(reset while moving): its position is lost; home the rig again")
+        else:
+            try:
+                x, y = self._position(st)
+                where = f"the carriage stopped at x = {x:.3f} mm, y = {y:.3f} mm, position kept"
+            except DeviceError:
+                where = self._where(st)
+        # where the carriage stands first: a panel's few lines show that before the why
+        after = (f"{where} (GRBL goes on with the lines after a refused one, so the carriage was held and the rest "
+                 "of the row dropped: feed hold, then reset)")
+        return self._refused_line(codes[0], after)
+
+    def _refused_line(self, error: tuple[int, int, str], after: str) -> GrblError:
+        """The :class:`GrblError` of a streamed line GRBL refused, naming the line: which of the row's
+        lines, as sent, and GRBL's own error number and meaning."""
+        code, number, line = error
+        if not number:                   # the late answer to a line sent before the stream
+            return GrblError(code, "a line sent before the fly row", after=after)
+        return GrblError(code, line, after=after,
+                         what=f'line {number} of {len(self._stream_lines)} of the fly row, "{line}",')
 
     def pulse_off(self) -> None:
         """Spindle output off (``M5``; GRBL waits until the carriage stands). Raises an ``error:N``
@@ -940,8 +973,8 @@ class GrblController:
             self._command("M5", timeout_s=max(self.timeout_s, 30.0))
             errors, self._stream_errors = self._stream_errors, []
         if errors:
-            raise GrblError(errors[0], "a line of the fly row",
-                            after="its answer came once the row was flown (the carriage stands at its end)")
+            raise self._refused_line(errors[0], "its answer came once the row was flown (the carriage stands at "
+                                                "its end)")
 
     def report(self) -> PositionReport:
         """The position GRBL reports now, time-stamped at the middle of the question and the answer

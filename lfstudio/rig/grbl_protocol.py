@@ -91,15 +91,20 @@ HOMED_MARK = "T1"
 
 
 class GrblError(DeviceError):
-    """The controller refused a line with ``error:N``."""
+    """The controller refused a line with ``error:N``. ``what``: the line as the operator should read
+    of it (e.g. 'line 17 of 25 of the fly row, "G1 X60.000 S0",'), said as "GRBL refused WHAT with
+    error:N (meaning)"; without it the old form, "controller refused 'LINE': error N, meaning"."""
 
     kind = "controller-error"
 
-    def __init__(self, code: int, line: str, after: str = ""):
+    def __init__(self, code: int, line: str, after: str = "", what: str = ""):
         self.code = code
         self.line = line
-        text = (f"controller refused {line!r}: error {code}, "
-                f"{GRBL_ERRORS.get(code, 'unknown error code; see the GRBL 1.1 error list')}")
+        meaning = GRBL_ERRORS.get(code, "unknown error code; see the GRBL 1.1 error list")
+        if what:
+            text = f"GRBL refused {what} with error:{code} ({meaning})"
+        else:
+            text = f"controller refused {line!r}: error {code}, {meaning}"
         super().__init__(f"{text}; {after}" if after else text)
 
 

@@ -50,6 +50,7 @@ from typing import Any
 from lfstudio.dataset.paths import view_label, view_stem
 from lfstudio.errors import DeviceError
 from lfstudio.rig.camera import CaptureResult, TriggeredCamera
+from lfstudio.rig.grbl_protocol import GrblError
 from lfstudio.rig.motion import FlyingController, Latch, LatchesPositions, PositionReport
 from lfstudio.scan.engine import ScanEngine, _Interrupted
 from lfstudio.scan.events import EventKind, ScanState
@@ -309,6 +310,10 @@ class FlyScanEngine(ScanEngine):
             self._end_line_waits(hardware)
             self._settle_row(row, triggered, fetches, reports, v, interrupted=True, direction=direction)
             fault = self._rig_fault(exc, f"flying row {row[0].row}")
+            if isinstance(exc, GrblError):
+                # a line refused: what GRBL said and where the carriage stands, not advice about cables
+                fault = ScanFault(f"Flying row {row[0].row}: {error_text(exc).rstrip('.')}.",
+                                  fault.device, fault.clears)
             if hardware:
                 fault = ScanFault(f"{str(fault).rstrip('.')}. The row's views not taken are flown again from "
                                   "its run-up when the scan goes on.", fault.device, fault.clears)

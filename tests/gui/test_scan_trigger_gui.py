@@ -102,3 +102,55 @@ def test_hardware_chosen_but_the_devices_cannot_is_refused_naming_the_trigger_li
     finally:
         close_devices(devices)
         studio.close()
+
+
+def test_a_line_grbl_refuses_mid_row_pauses_naming_the_line_and_where_the_carriage_stopped(qtbot, tmp_path,
+                                                                                          monkeypatch):
+    """A hardware-triggered fly row on the simulated studio, one of its lines garbled on the way to GRBL:
+    the Scan panel's message (and the box the window raises) says which line GRBL refused, as sent, its
+    error and GRBL's meaning, and where the carriage stopped, position kept; not the "Check the axis
+    controller's cable, power and alarms" of a rig that stopped answering."""
+    from lfstudio.rig.grbl import GrblController
+    from lfstudio.rig.profile import load_rig
+    from lfstudio.scan.scan_plan import ScanPlan
+    from lfstudio.studio.devices import open_studio
+
+    real = GrblController._stream
+    sent: list[list[str]] = []
+
+    def garbled_once(self: GrblController, lines: list[str]) -> None:
+        sent.append(lines)
+        if len(sent) == 1:                      # row 0's 3rd view: its line bringing the output low
+            target = [line for line in lines if line.endswith(" S0")][2]
+            lines = [line.replace("G1 X", "G1 X#", 1) if line == target else line for line in lines]
+        real(self, lines)
+
+    monkeypatch.setattr(GrblController, "_stream", garbled_once)
+    rig_config = load_rig()
+    plan = ScanPlan.centered(6, 2, (4.0, 6.0), rig_config)
+    studio = open_studio("sim", "sim", rig_config, time_scale=0.5, exposure_s=0.001, transfer_s=0.05,
+                         view_region_mm=plan.extent_mm(), sim_width_px=64)
+    devices = window_devices(studio.rig, studio.camera)
+    try:
+        state, panel = scan_panel(qtbot, devices, 6, 2, tmp_path / "ds")
+        panel.fly.setChecked(True)
+        _choose(qtbot, panel, "hardware")
+        errors = []
+        state.errorOccurred.connect(lambda title, message: errors.append((title, message)))
+        qtbot.mouseClick(panel.start_button, Qt.MouseButton.LeftButton)
+        qtbot.waitUntil(lambda: bool(errors), timeout=120000)
+        title, message = errors[-1]
+        bad = [line for line in sent[0] if line.endswith(" S0")][2].replace("G1 X", "G1 X#", 1)
+        number = [line.replace("G1 X", "G1 X#", 1) for line in sent[0]].index(bad) + 1
+        said = (f'Flying row 0: GRBL refused line {number} of {len(sent[0])} of the fly row, "{bad}", with '
+                "error:2 (bad number format or missing value); the carriage stopped at x = ")
+        assert title == "Scan paused" and message.startswith(said), message
+        assert " mm, position kept (GRBL goes on with the lines after a refused one" in message, message
+        assert "cable" not in message and "--" not in message
+        qtbot.waitUntil(lambda: said in panel.state_label.text(), timeout=10000)
+        assert "Paused" in panel.state_label.text()
+        panel.abort_button.click()
+        qtbot.waitUntil(lambda: not panel.running, timeout=60000)
+    finally:
+        close_devices(devices)
+        studio.close()

@@ -211,12 +211,18 @@ def _garble_one_line(controller: GrblController, x: float) -> list[str]:
 
 def _fly_with_a_refused_line(c: GrblController, xs: list[float], end_x: float) -> str:
     """Fly the row with one line garbled; the error's text (raised by fly_pulsing while it streams, or
-    by wait_arrival when its answer came after the last line left)."""
-    _garble_one_line(c, REFUSED_X)
+    by wait_arrival when its answer came after the last line left). It names the line GRBL refused (its
+    number among the row's lines, as sent) and GRBL's error with its meaning (the old text said only
+    "controller refused 'a line of the fly row': error 1, ...")."""
+    given = _garble_one_line(c, REFUSED_X)
     with pytest.raises(GrblError) as caught:
         c.fly_pulsing(xs, end_x, 0.0, SPEED)
         c.wait_arrival(end_x, 0.0, 60.0)
-    return str(caught.value)
+    text = str(caught.value)
+    number = given.index(f"G1 X{REFUSED_X:.3f} S0") + 1
+    assert text.startswith(f'GRBL refused line {number} of {len(given)} of the fly row, "G1 X6#.000 S0", with '
+                           "error:1 (G-code words consist of a letter and a value; the letter was not found)"), text
+    return text
 
 
 def _assert_held_before(c: GrblController, text: str, x_limit: float) -> tuple[float, float]:
@@ -225,8 +231,9 @@ def _assert_held_before(c: GrblController, text: str, x_limit: float) -> tuple[f
     first = c.status()
     assert first.state.name == "IDLE" and first.homed and not c.alarms, (first, c.alarms)
     assert first.position_mm is not None and first.position_mm[0] < x_limit, first
-    assert "error 1" in text and "carriage was held and the rest of the row dropped" in text, text
-    assert f"the rig is idle at ({first.position_mm[0]:.3f}, " in text, text
+    assert "carriage was held and the rest of the row dropped" in text, text
+    x, y = first.position_mm
+    assert f"not found); the carriage stopped at x = {x:.3f} mm, y = {y:.3f} mm, position kept (GRBL goes on" in text
     for _ in range(3):
         c._last_t = 0.0                                  # ask the controller each time, not the cache
         again = c.status()
@@ -295,7 +302,7 @@ def _hold_never_completes(c: GrblController) -> None:
     text = _fly_with_a_refused_line(c, LONG_XS, 110.0)
     st = c.status()
     assert st.state.name == "ALARM" and not st.homed and 3 in c.alarms, (st, c.alarms)
-    assert "ALARM 3" in text and "its position is lost; home the rig again" in text, text
+    assert "ALARM 3 (reset while moving): its position is lost; home the rig again" in text, text
 
 
 def test_firmware_a_hold_that_does_not_complete_in_time_is_reset_anyway_and_says_the_position_is_lost(

@@ -50,10 +50,17 @@ def test_a_line_refused_mid_row_pauses_with_the_carriage_stopped_and_resume_flie
         status = engine.rig.call("status", timeout_s=10)
         assert status.state.name == "IDLE" and status.homed, status
         assert sim.state == "Idle" and sim.reported_position_mm()[0] < refused_x
-        x = status.position_mm[0]
-        assert f"the rig is idle at ({x:.3f}, " in engine.message, engine.message
-        assert "carriage was held and the rest of the row dropped" in engine.message
-        assert "flown again from its run-up" in engine.message
+        x, y = status.position_mm
+        # in the operator's words (the Scan panel shows this message, the CLI prints it): the line GRBL
+        # refused, its error and meaning, where the carriage stopped and that its position is kept; not
+        # the generic "Check the axis controller's cable, power and alarms" of a failing rig
+        number = streams[0].index(target) + 1
+        assert engine.message == (
+            f'Flying row 0: GRBL refused line {number} of {len(streams[0])} of the fly row, '
+            f'"{target.replace("G1 X", "G1 X#")}", with error:2 (bad number format or missing value); the carriage '
+            f"stopped at x = {x:.3f} mm, y = {y:.3f} mm, position kept (GRBL goes on with the lines after a "
+            "refused one, so the carriage was held and the rest of the row dropped: feed hold, then reset). The "
+            "row's views not taken are flown again from its run-up when the scan goes on."), engine.message
         assert not sim.spindle_output.level                     # the trigger line is low
         late = [t for t in sim.spindle_output.rising() if sim.true_position_at(t)[0] >= refused_x]
         assert late == [], "the row went on after the refused line"
@@ -104,7 +111,9 @@ def test_a_refused_line_whose_hold_does_not_complete_pauses_saying_the_position_
                                speed_mm_s=40.0, trigger="hardware")
         engine.start()
         assert engine.wait_for_state(ScanState.PAUSED, timeout_s=120), engine.message
-        assert "ALARM 3" in engine.message and "its position is lost; home the rig again" in engine.message
+        assert "ALARM 3 (reset while moving): its position is lost; home the rig again" in engine.message, \
+            engine.message
+        assert "with error:2 (bad number format or missing value)" in engine.message and "cable" not in engine.message
         assert session.simulator.state == "Alarm"
         driver._stop_time_s = real_stop_time              # type: ignore[method-assign]
         engine.resume().result(timeout=60)               # resumed: the rig is checked first
@@ -122,3 +131,36 @@ def test_a_refused_line_whose_hold_does_not_complete_pauses_saying_the_position_
             assert abs(truth["true_position_mm"][0] - record["commanded_mm"][0]) < 0.5 * plan.spacing_mm[0]
     finally:
         session.close()
+
+
+def test_the_cli_says_which_line_grbl_refused_and_where_the_carriage_stopped(tmp_path, monkeypatch, capsys):
+    """``lfstudio scan --fly --trigger hardware`` (in this process, the driver's stream garbling one line):
+    the run stops saying which line GRBL refused, with its error and meaning, and where the carriage
+    stands, then how to resume; never the cable advice of a rig that stopped answering."""
+    from lfstudio.cli import main
+
+    real = GrblController._stream
+    sent: list[list[str]] = []
+
+    def garbled_once(self: GrblController, lines: list[str]) -> None:
+        sent.append(lines)
+        if len(sent) == 1:                      # row 0's 4th view: its line bringing the output low
+            target = [line for line in lines if line.endswith(" S0")][3]
+            lines = [line.replace("G1 X", "G1 X#", 1) if line == target else line for line in lines]
+        real(self, lines)
+
+    monkeypatch.setattr(GrblController, "_stream", garbled_once)
+    code = main(["scan", "--out", str(tmp_path / "ds"), "--grid", "8x2", "--sim-width-px", "64", "--time-scale",
+                 str(SCALE), "--fly", "--exposure-s", "0.001", "--transfer-s", "0.05", "--trigger", "hardware"])
+    err = capsys.readouterr().err
+    assert code != 0, err
+    stopped = [line for line in err.splitlines() if line.startswith("lfstudio scan: stopped: ")]
+    assert len(stopped) == 1, err
+    bad = [line for line in sent[0] if line.startswith("G1 X") and line.endswith(" S0")][3].replace("G1 X", "G1 X#")
+    number = [line.replace("G1 X", "G1 X#", 1) for line in sent[0]].index(bad) + 1
+    text = stopped[0]
+    assert (f'stopped: Flying row 0: GRBL refused line {number} of {len(sent[0])} of the fly row, "{bad}", with '
+            "error:2 (bad number format or missing value); the carriage stopped at x = ") in text, text
+    assert " mm, position kept (GRBL goes on with the lines after a refused one" in text, text
+    assert "cable" not in text and "Traceback" not in err
+    assert "--resume" in err.split(text, 1)[1]
