@@ -136,10 +136,18 @@ def _grid_then_refine(residual: Callable[[float], float], travels: np.ndarray) -
 
 def estimate_travel_mm(observed: np.ndarray, offsets: np.ndarray, stack: np.ndarray,
                        white_level: float | None = None) -> float:
+    """The box travel (mm) that best maps the standing renders onto ``observed``: :func:`fit_travel`'s."""
+    return fit_travel(observed, offsets, stack, white_level)[0]
+
+
+def fit_travel(observed: np.ndarray, offsets: np.ndarray, stack: np.ndarray,
+               white_level: float | None = None) -> tuple[float, float]:
     """The box travel (mm) that best maps the standing renders (:func:`path_renders`) onto ``observed``
-    (a RAW's mosaic): a first unweighted fit over the renders' grid gives the noise model
-    (:func:`_noise_weights`), then the weighted fit over the grid, refined between its neighbours;
-    sites near the white level (clipped) are left out. At most the renders' span."""
+    (a RAW's mosaic), and its standard uncertainty (mm; inf where the picture cannot tell, e.g. a view
+    without texture across the motion). A first unweighted fit over the renders' grid gives the noise
+    model (:func:`_noise_weights`), then the weighted fit over the grid, refined between its neighbours;
+    sites near the white level (clipped) are left out. At most the renders' span. The uncertainty is
+    the step over which the weighted residual rises by one reduced χ² (its curvature at the minimum)."""
     usable = np.ones(observed.shape, bool) if white_level is None else observed < 0.98 * white_level
     step = float(offsets[1] - offsets[0])
     travels = np.arange(0, len(offsets)) * step
@@ -149,4 +157,14 @@ def estimate_travel_mm(observed: np.ndarray, offsets: np.ndarray, stack: np.ndar
 
     first = _grid_then_refine(lambda t: _fit(observed, model(t), usable, None)[0], travels)
     weights = _noise_weights(observed, _fit(observed, model(first), usable, None)[1], usable)
-    return _grid_then_refine(lambda t: _fit(observed, model(t), usable, weights)[0], travels)
+
+    def chi2(t: float) -> float:
+        return _fit(observed, model(t), usable, weights)[0]
+
+    best = _grid_then_refine(chi2, travels)
+    at_best = chi2(best)
+    reduced = at_best / max(1, int(usable.sum()) - 8)         # 2 parameters per Bayer site
+    rises = [chi2(t) - at_best for t in (best + step, best - step) if 0 <= t <= travels[-1]]
+    rise = max(float(np.mean(rises)) if rises else 0.0, 0.0)
+    sigma = step * float(np.sqrt(reduced / rise)) if rise > 0 and reduced > 0 else float("inf")
+    return best, sigma

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lfstudio.sim.dng import DEFAULT_NEUTRAL, mosaic_from_rgb, write_dng
-from lfstudio.sim.motion_blur import box_weights, estimate_travel_mm, mosaic_of, path_renders, read_mosaic
+from lfstudio.sim.motion_blur import box_weights, estimate_travel_mm, fit_travel, mosaic_of, path_renders, read_mosaic
 from lfstudio.sim.sensor import SensorModel
 from lfstudio.sim.studio import demo_studio
 
@@ -46,8 +46,21 @@ def test_the_estimator_finds_a_known_blur(studio, standing, tmp_path, blur_px):
     path = _blurred_dng(studio, tmp_path / "v.dng", blur_px / px_per_mm, shot=3)
     observed, pattern, white = read_mosaic(path)
     assert pattern == "RGGB" and observed.shape == (HEIGHT, WIDTH)
-    measured = estimate_travel_mm(observed, offsets, stack, white) * px_per_mm
+    travel, sigma = fit_travel(observed, offsets, stack, white)
+    measured = travel * px_per_mm
     assert measured == pytest.approx(blur_px, abs=0.12), measured
+    assert measured == estimate_travel_mm(observed, offsets, stack, white) * px_per_mm
+    if blur_px >= 0.5:                       # a textured picture tells its blur (near 0 it is quartic)
+        assert sigma * px_per_mm < 0.1 and abs(measured - blur_px) < 4 * sigma * px_per_mm + 0.01
+
+
+def test_a_picture_without_texture_across_the_motion_cannot_tell_its_blur(standing):
+    """A plain picture fits every travel alike: its uncertainty is large (never a confident wrong figure)."""
+    px_per_mm, offsets, stack = standing
+    rng = np.random.default_rng(1)
+    plain = 3000.0 + rng.normal(0.0, 20.0, stack.shape[1:])
+    travel, sigma = fit_travel(plain, offsets, stack, 16383)
+    assert sigma * px_per_mm > 0.3, (travel * px_per_mm, sigma * px_per_mm)
 
 
 def test_box_weights_are_a_centred_box(standing):
