@@ -66,8 +66,10 @@ log = logging.getLogger(__name__)
 
 DEPTH_DIR = "depth"
 #: the method's version, part of every view's key: raised when its maps change, so that maps of an
-#: earlier version are computed again (2: row/column lines, colour at silhouettes, plane fit)
-METHOD = "light-field-sgm-4"
+#: earlier version are computed again (2: row/column lines, colour at silhouettes, plane fit; 3: a
+#: view recorded a little off its row stays on it; 4: the neighbours' offsets measured from the
+#: images; 5: ... a measurement that contradicts the rig not believed)
+METHOD = "light-field-sgm-5"
 #: search margin around the plan's near/far disparities
 RANGE_MARGIN = 0.08
 #: the neighbourhood: views up to this many columns and rows away, on the lines through the view
