@@ -15,9 +15,11 @@ before the dataset exists), then resumes it and checks the dataset:
 A flown view off the truth by more than ``--max-error-mm`` is counted apart ("off"), with how far and
 against the uncertainty the manifest states for it: the software trigger's positions are interpolated
 from position reports, off by up to ~0.1 mm on this loaded machine whether or not the scan was
-killed, so they are an accuracy figure, not a view lost. A trial fails ("FAIL") on a view lost, a
-file failing its checksum, a view done without its file, or a flown view not where its reports and its
-commanded position say (or neither flown nor flagged). The exit code is 1 on a FAIL or an off view.
+killed, so they are an accuracy figure, not a view lost; such a view off by more than its own stated
+uncertainty too is a wrong position. A trial fails ("FAIL") on a view lost, a file failing its
+checksum, a view done without its file, or a wrong position: a flown view not where its reports and
+its commanded position say, off the truth beyond both ``--max-error-mm`` and its stated uncertainty,
+or neither flown nor flagged. The exit code is 1 on a FAIL or an off view.
 
 ``--port``: the simulated studio's GRBL controller (``sim``, by default) or the emulated CiA 402 drive
 pair (``sim-dryve``: Modbus TCP, ``sim-canopen``: a virtual CAN bus), both in the scan's process (so
@@ -92,7 +94,9 @@ def trial(k: int, rng: random.Random, args: argparse.Namespace, base: Path) -> s
             worst = max(worst, err)
             if err > args.max_error_mm:
                 off += 1
-                ratio = max(ratio, err / max(float(fly.get("uncertainty_mm") or 0.0), 1e-6))
+                stated = float(fly.get("uncertainty_mm") or 0.0)
+                ratio = max(ratio, err / max(stated, 1e-6))
+                wrong += err > stated       # beyond what the manifest says of it: a wrong position
         elif "retaken" in fly or "standing_still" in fly:
             standing += 1
         else:

@@ -83,11 +83,17 @@ def fly_problem(rig: Any, camera: Any) -> str | None:
     return None
 
 
-def interpolate(reports: list[PositionReport], t: float) -> tuple[float, float, float] | None:
+def interpolate(reports: list[PositionReport], t: float,
+                speed_mm_s: float = 0.0) -> tuple[float, float, float] | None:
     """(x, y, uncertainty in mm) at ``t`` from the two reports around it (linear: constant speed
     between reports); None when ``t`` is not between two reports. Reports whose question and answer
     lay far apart (more than twice the median, and over 1 ms: the controller or this computer was
-    busy, so when the position was taken is vague) are left out when better ones are near."""
+    busy, so when the position was taken is vague) are left out when better ones are near.
+
+    The uncertainty bounds what the reports' timing can do: each was taken up to its ``uncertainty_s``
+    before or after its timestamp, so the point is off by up to v ((1 - w) ua + w ub) at weight w. v is
+    the carriage's speed: ``speed_mm_s`` (the row's, on this clock) when given, or the two reports' own
+    if faster (theirs alone is off with their timing: up to 1 / (1 - (ua + ub) / gap))."""
     if len(reports) > 4:
         limit = max(0.001, 2.0 * statistics.median(r.uncertainty_s for r in reports))
         sharp = [r for r in reports if r.uncertainty_s <= limit]
@@ -99,8 +105,11 @@ def interpolate(reports: list[PositionReport], t: float) -> tuple[float, float, 
             x = a.x_mm + w * (b.x_mm - a.x_mm)
             y = a.y_mm + w * (b.y_mm - a.y_mm)
             speed = math.hypot(b.x_mm - a.x_mm, b.y_mm - a.y_mm) / (b.t_s - a.t_s)
-            # a timestamp off by its uncertainty moves the point by speed × that time
-            unc = speed * math.hypot(a.uncertainty_s, b.uncertainty_s) / math.sqrt(2.0)
+            # a report taken up to its uncertainty before or after its timestamp is that far along at the
+            # speed; each report weighs in the interpolation as it does in the position, so the point can
+            # be off by up to v × ((1 - w) ua + w ub) (their RMS, as before, understated it near the
+            # vaguer report: by up to 1/√2)
+            unc = max(speed, speed_mm_s) * ((1.0 - w) * a.uncertainty_s + w * b.uncertainty_s)
             return x, y, unc
     return None
 
@@ -185,6 +194,19 @@ class FlyScanEngine(ScanEngine):
             return fut
         self.retaken += why[0] == "retaken"
         return _with_record(fut, {"fly": {why[0]: why[1]}})
+
+    def _report_rounding_mm(self) -> float:
+        """How far a position report can be from the carriage by rounding alone: half the horizontal axis'
+        position unit (a CiA 402 drive's increments_per_mm; GRBL's steps/mm, $100 for X), else half of
+        the 0.001 mm GRBL reports in."""
+        driver = self.rig.driver
+        axis = driver.config.horizontal
+        per_mm = float(getattr(axis, "increments_per_mm", 0.0) or 0.0)
+        settings = getattr(driver, "settings", None)
+        letter = str(getattr(axis, "letter", "")).upper()
+        if per_mm <= 0 and isinstance(settings, dict) and letter in ("X", "Y", "Z"):
+            per_mm = float(settings.get(100 + "XYZ".index(letter), 0.0) or 0.0)
+        return 0.5 / per_mm if per_mm > 0 else 0.0005
 
     # -- one row ---------------------------------------------------------------------------------
     def _requeue(self, views: list[PlannedView]) -> None:
@@ -404,7 +426,7 @@ class FlyScanEngine(ScanEngine):
                                   0.5 * float(meta.get("shutter_s") or 0.0)) * self.time_scale
                 t_unc = float(getattr(cam, "trigger_jitter_s", 0.0)) * self.time_scale
             latch = paired[k]
-            where = interpolate(reports, t_mid) if latch is None else None
+            where = interpolate(reports, t_mid, speed / self.time_scale) if latch is None else None
             if latch is not None:               # latched by the drive on the camera's exposure output
                 x, y, unc, source = latch.x_mm, latch.y_mm, latch.uncertainty_mm, "touch probe"
                 if latch.edges == "rising":     # the exposure's start: its centre half the exposure on
@@ -436,7 +458,8 @@ class FlyScanEngine(ScanEngine):
                     self._retake(view, "no position reports around the frame's time")
                     continue
                 x, y, unc = where
-                unc, source = math.hypot(unc, speed / self.time_scale * t_unc), "reports"
+                # the reports count whole steps (GRBL) or position units (CiA 402): rounded by up to half of one
+                unc, source = math.hypot(unc, speed / self.time_scale * t_unc) + self._report_rounding_mm(), "reports"
             off = math.hypot(x - view.x_mm, y - view.y_mm)
             if off > self.tolerance_mm:
                 self._retake(view, f"late or early trigger: the frame is {off:.3f} mm from its position "

@@ -143,6 +143,25 @@ def test_interpolation_and_prediction():
     assert _predict(back, -12.0, -1.0, 40.0, 500.0) == pytest.approx(10.3)
 
 
+def test_the_stated_uncertainty_covers_the_reports_timing_at_its_worst():
+    """Carriage at 40 mm/s, x = 40 (t - 10). Report a is stamped 10.0 with 4 ms uncertainty but was taken at
+    10.004 (x = 0.16); report b at 10.1 is exact. Interpolated at 10.01 (next to the vague report) the point is
+    0.144 mm off. The old uncertainty, the reports' RMS timing times their own speed (38.4 mm/s, off with a's
+    timing), said 0.109 mm; a bound is v ((1 - w) ua + w ub) with the row's speed: 0.144 mm."""
+    a = PositionReport(10.0, 40.0 * 0.004, 5.0, 0.004)
+    b = PositionReport(10.1, 4.0, 5.0, 0.0)
+    t = 10.01
+    where = interpolate([a, b], t, 40.0)
+    assert where is not None
+    x, _, unc = where
+    error = abs(x - 40.0 * (t - 10.0))
+    assert error == pytest.approx(0.144)
+    assert unc >= error - 1e-9 and unc == pytest.approx(0.144)
+    # the reports' own speed is the floor: a row speed given too low does not shrink it
+    slow = interpolate([a, b], t, 1.0)
+    assert slow is not None and slow[2] == pytest.approx(38.4 * 0.9 * 0.004)
+
+
 def _scan(tmp_path, *args):
     return subprocess.run([sys.executable, "-m", "lfstudio", "scan", "--out", str(tmp_path / "ds"), "--grid", "4x2",
                            "--sim-width-px", "64", "--time-scale", str(SCALE), "--fly", *args],
