@@ -40,6 +40,9 @@ from lfstudio.rig.worker import DeviceFault, DeviceWorker
 log = logging.getLogger(__name__)
 
 SIMULATED = "Simulated GRBL"
+#: the Rig panel's line while the window's rig is the Scan panel's own simulated one (see RigPanel._follow_published)
+BORROWED_TEXT = ("The Scan panel's simulated rig, used by its scan: STOP (Esc) stops it. Connect a rig here "
+                 "once that scan has ended (finished or aborted).")
 
 
 def simulated_ports() -> tuple[tuple[str, str, str], ...]:
@@ -163,6 +166,7 @@ class RigPanel(QWidget):
         super().__init__(parent)
         self.state = state
         self.device: QtDevice | None = None
+        self.borrowed: QtDevice | None = None      # the window's rig when this panel did not connect it
         self._retired: list[QtDevice] = []
         self.simulator: Any = None
         self.link: Any = None          # lfstudio.studio.devices.RigLink while connected (driver, simulator, lock)
@@ -187,6 +191,7 @@ class RigPanel(QWidget):
         self._problem_shown = ""           # the message of a status problem (alarm, no connection) shown now
         self._base_tips = [(w, w.toolTip()) for w in self._motion_controls()]
         state.scanStateChanged.connect(self._on_scan_state)
+        state.devicesChanged.connect(self._follow_published)
         self.refresh_ports()
         self.port_combo.activated.connect(self._port_chosen)
         self.port_combo.currentTextChanged.connect(self._show_options)
@@ -315,6 +320,11 @@ class RigPanel(QWidget):
         self.drive_label.setWordWrap(True)
         self.drive_label.setToolTip("Power state (from the status word 6041h) and error code (603Fh) of each drive")
         self.drive_label.setVisible(False)
+        self.borrowed_label = QLabel(BORROWED_TEXT)     # a rig published by the Scan panel (see _follow_published)
+        self.borrowed_label.setObjectName("rigBorrowedLabel")
+        self.borrowed_label.setWordWrap(True)
+        self.borrowed_label.setProperty("role", "warning")
+        self.borrowed_label.setVisible(False)
         pl.addWidget(QLabel("x"), 0, 0)
         pl.addWidget(self.x_label, 0, 1)
         pl.addWidget(QLabel("mm"), 0, 2)
@@ -330,6 +340,7 @@ class RigPanel(QWidget):
         pl.addLayout(buttons, 2, 0, 1, 4)
         pl.addWidget(self.message_label, 3, 0, 1, 4)
         pl.addWidget(self.drive_label, 4, 0, 1, 4)
+        pl.addWidget(self.borrowed_label, 5, 0, 1, 4)
         pl.setColumnStretch(1, 1)
         root.addWidget(pos)
 
@@ -727,8 +738,9 @@ class RigPanel(QWidget):
         self._pressed = None
         self._continuous = False
         self.diagram.set_target(None)
-        if self.device is not None:
-            self.device.stop_now()
+        device = self.device if self.device is not None else self.borrowed
+        if device is not None:
+            device.stop_now()
             self.state.show_status("Rig: STOP", 5000)
 
     def home(self) -> None:
@@ -813,6 +825,36 @@ class RigPanel(QWidget):
             return                                # don't pile up steps while the rig is busy
         fine = bool(event.modifiers() & Qt.KeyboardModifier.ShiftModifier)
         self.jog_step(*direction, step_mm=FINE_STEP_MM if fine else None)
+
+    def _follow_published(self, name: str) -> None:
+        """A rig this panel did not connect, published as the window's rig (``state.devices["rig"]``: the
+        Scan panel's own simulated studio while its scan lasts): its status and position show here and
+        STOP reaches it; the motion controls stay off (it is the scan's) and Connect waits until it is
+        gone, so no other rig takes its place while its scan is paused. Once it is gone the panel shows
+        no device again."""
+        if name != "rig":
+            return
+        device = self.state.devices.get("rig")
+        if (device is not None and device is self.device) or device is self.borrowed:
+            return
+        old, self.borrowed = self.borrowed, None
+        if old is not None:
+            try:
+                old.statusChanged.disconnect(self._on_status)
+            except (RuntimeError, TypeError):
+                pass
+        self.borrowed_label.setVisible(False)
+        if isinstance(device, QtDevice) and self.device is None:
+            self.borrowed = device
+            device.statusChanged.connect(self._on_status)
+            self.borrowed_label.setVisible(True)
+            if isinstance(device.latest, RigStatus):
+                self._on_status(device.latest)
+            else:
+                self._update_enabled()
+        elif old is not None and self.device is None:
+            self.last_status = None
+            self._on_status(RigStatus(RigState.DISCONNECTED))
 
     # -- status ------------------------------------------------------------------------------------
     def _on_status(self, snapshot: Any) -> None:
@@ -921,8 +963,8 @@ class RigPanel(QWidget):
         self.rig_combo.setEnabled(self.device is None)
         self.options_stack.setEnabled(self.device is None)        # used at Connect: fixed while connected
         self.refresh_button.setEnabled(self.device is None)
-        self.connect_button.setEnabled(free)
-        self.connect_action.setEnabled(free)
+        self.connect_button.setEnabled(free and self.borrowed is None)
+        self.connect_action.setEnabled(free and self.borrowed is None)
         self.home_button.setEnabled(free and live and self.rig_config.homing)
         self.home_action.setEnabled(free and live and self.rig_config.homing)
         self.origin_button.setEnabled(free and live and rig_state is RigState.IDLE)

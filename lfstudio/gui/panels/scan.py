@@ -9,7 +9,9 @@ changes with every view repaints as little as it can: its labels are QuietLabels
 window), the step times show at most every STEP_TIMES_MS and the log takes new lines at most every
 LOG_MS (a state change's at once).
 Devices: the rig and camera connected in the Rig/Camera panels (``state.devices``), or, in the
-simulated studio, a built-in simulated rig and camera started off the GUI thread. The scan itself
+simulated studio, a built-in simulated rig and camera started off the GUI thread (while a scan runs on
+them, that rig is the window's ``state.devices["rig"]``: STOP, the rig badge and the Rig panel reach it,
+see ``_publish_scan_rig``). The scan itself
 runs as a :class:`lfstudio.studio.session.ScanSession` (dataset lock for the whole run, resume with
 the dataset's own devices: other devices only when the operator agrees, rig checks).
 """
@@ -235,6 +237,7 @@ class ScanPanel(QWidget):
         self._log_follow = True         # the log shows its newest line (see _append_log)
         self._resumable = False         # the last scan ended with views still to capture (Resume continues it)
         self._rig_device = None         # the rig whose status may end a paused scan's rig fault
+        self._scan_rig: QtDevice | None = None   # the own studio's rig as the window's rig, while its scan lasts
         self._rig_unready = False       # the paused scan's rig was seen not homed or in alarm
         self.unattended = None          # notifications, status page, auto-resume, on-finish (gui/unattended.py)
         self._said = GuiInbox(lambda lines: [self._log(line) for line in lines], self)   # its lines, any thread
@@ -801,6 +804,7 @@ class ScanPanel(QWidget):
             return
         self.engine = engine
         self._resumable = False
+        self._publish_scan_rig(engine)
         engine.subscribe(self.bridge.post)
         if self.unattended is not None:
             self.unattended.attach(engine, dataset)
@@ -814,6 +818,27 @@ class ScanPanel(QWidget):
                   + ("" if engine.pipelined else " (camera without exposure signal: transfer not overlapped)"))
         engine.start()
         self._update_buttons()
+
+    def _publish_scan_rig(self, engine) -> None:
+        """A scan on this panel's own simulated studio: its rig (the engine's rig worker) is the window's
+        rig (``state.devices["rig"]``) until the scan ends, so the window's STOP (toolbar, Esc, the Rig
+        panel's), the rig badge and the Rig panel's position reach it as they reach a rig connected in
+        the Rig panel. The scan's lease keeps every other motion command off it."""
+        self._unpublish_scan_rig()
+        if self.studio is None or engine.rig.driver is not self.studio.rig or self.state.devices.get("rig") is not None:
+            return
+        self._scan_rig = QtDevice(engine.rig, self)
+        self.state.set_device("rig", self._scan_rig)
+
+    def _unpublish_scan_rig(self) -> None:
+        """The scan on the own studio has ended: its rig is no longer the window's (the engine closes
+        its worker; the studio stays open for the next scan)."""
+        device, self._scan_rig = self._scan_rig, None
+        if device is None:
+            return
+        if self.state.devices.get("rig") is device:
+            self.state.set_device("rig", None)
+        device.close(disconnect=False)
 
     def _request(self, name: str, *args) -> bool:
         """Ask the engine (pause, resume, ...); a request its state no longer allows goes to the log."""
@@ -1137,6 +1162,7 @@ class ScanPanel(QWidget):
             self.preview.current = None
             self.preview.update()
         if st in (ScanState.FINISHED, ScanState.FAILED):
+            self._unpublish_scan_rig()
             self._restore_time_scales()
             self._end_session()
             self._close_unattended()
@@ -1254,6 +1280,7 @@ class ScanPanel(QWidget):
         if self.engine is not None and self.running:
             self._request("abort")
             self.engine.wait(30)
+        self._unpublish_scan_rig()
         self._end_session()
         self._close_unattended()
         self._close_status_page()

@@ -1,0 +1,83 @@
+"""STOP reaches a scan on the Scan panel's own simulated studio (nothing connected in the Rig and
+Camera panels): the studio's rig is the window's rig for the scan's duration, so the toolbar's STOP
+(and Esc) pause the scan, the rig badge and the Rig panel show it, and once the scan has ended the Rig
+panel shows no device any more (simulated studio on a real pty, real Qt loop)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import cast
+
+import pytest
+from PySide6.QtCore import Qt
+
+from lfstudio.gui.app import create_window
+from lfstudio.gui.panels.rig import RigPanel
+from lfstudio.gui.panels.scan import ScanPanel
+from tests.gui.test_messages_day import set_up_scan
+
+T = 60000
+
+
+def own_studio_window(qtbot):
+    window = create_window(simulated=True)
+    qtbot.addWidget(window)
+    window.show()
+    scan, rig = cast(ScanPanel, window.panels["scanPanel"]), cast(RigPanel, window.panels["rigDock"])
+    assert window.state.devices.get("rig") is None and rig.device is None     # nothing connected
+    return window, scan, rig
+
+
+@pytest.mark.parametrize("fly", [False, True], ids=["step", "fly"])
+def test_stop_pauses_a_scan_on_the_scan_panels_own_studio(qtbot, tmp_path, fly):
+    window, scan, rig = own_studio_window(qtbot)
+    if fly:       # a short exposure: a fly speed within the blur limit exists
+        window.state.set_plan(replace(window.state.plan, exposure_s=0.001))
+    set_up_scan(scan, 8, 3, tmp_path / "own")
+    scan.time_scale.setValue(0.05)
+    scan.fly.setChecked(fly)
+    qtbot.mouseClick(scan.start_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: scan.engine is not None and scan.engine.dataset.status_counts()["done"] >= 2,
+                    timeout=T)
+    device = window.state.devices.get("rig")
+    assert device is not None and device.worker is scan.engine.rig            # the scan's rig is the window's
+    qtbot.waitUntil(lambda: window.rig_badge.word not in ("", "disconnected"), timeout=T)
+    qtbot.waitUntil(lambda: rig.x_label.text() != "—", timeout=T)             # the Rig panel shows where it is
+    assert not rig.jog_buttons[(1, 0)].isEnabled() and not rig.connect_button.isEnabled()
+    qtbot.mouseClick(window.stop_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: scan.engine.state.value == "paused", timeout=T)
+    assert scan.engine.fault is not None and scan.engine.fault.stop_pressed
+    assert scan.engine.dataset.status_counts()["done"] < 24
+    assert not rig.connect_button.isEnabled()      # the paused scan keeps its rig: no other rig replaces it
+    scan.abort()
+    qtbot.waitUntil(lambda: "Aborted" in scan.state_label.text(), timeout=T)
+    assert scan.engine.state.value == "finished"
+    assert window.state.devices.get("rig") is None and rig.device is None      # no stale device
+    assert window.rig_badge.word == "disconnected"
+    assert rig.x_label.text() == "—" and rig.state_label.text() == "disconnected"
+    assert rig.connect_button.isEnabled()
+    rig.stop()                                      # STOP with nothing connected: nothing to do, no error
+    window.close()
+
+
+def test_the_rig_panels_stop_reaches_the_own_studios_rig(qtbot, tmp_path):
+    """Esc's action (the Rig panel's STOP) and the Rig panel's own STOP button stop the scan's rig."""
+    window, scan, rig = own_studio_window(qtbot)
+    set_up_scan(scan, 8, 3, tmp_path / "own")
+    scan.time_scale.setValue(0.05)
+    qtbot.mouseClick(scan.start_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: scan.engine is not None and scan.engine.dataset.status_counts()["done"] >= 1,
+                    timeout=T)
+    qtbot.mouseClick(rig.stop_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: scan.engine.state.value == "paused", timeout=T)
+    assert scan.engine.fault is not None and scan.engine.fault.stop_pressed
+    qtbot.waitUntil(lambda: "Paused" in scan.state_label.text(), timeout=T)     # the GUI has the event too
+    qtbot.mouseClick(scan.resume_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: scan.engine.dataset.status_counts()["done"] >= 3, timeout=T)    # under way again
+    window.stop_action.trigger()                    # what Esc triggers
+    qtbot.waitUntil(lambda: scan.engine.state.value == "paused", timeout=T)
+    assert scan.engine.fault is not None and scan.engine.fault.stop_pressed
+    scan.abort()
+    qtbot.waitUntil(lambda: "Aborted" in scan.state_label.text(), timeout=T)
+    assert window.state.devices.get("rig") is None
+    window.close()
