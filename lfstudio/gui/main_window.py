@@ -442,6 +442,7 @@ class MainWindow(QMainWindow):
         if device is not None:
             device.stop_now()
             self.statusBar().showMessage("Rig: STOP", 5000)
+        self.state.stopRequested.emit()        # a rig no panel holds yet (a scan being prepared) stops too
 
     def _on_scan_state(self, scan_state: ScanState) -> None:
         label = self.state.scan_label or "the scan"

@@ -39,6 +39,7 @@ class AppState(QObject):
     cameraFrame = Signal(object, str)   # an RGB uint8 image from the camera (test shot) and its caption
     liveVerdicts = Signal(object)       # list of the scan-time check's verdict entries (grid view → notifications)
     scanFolderChanged = Signal(str)     # the dataset folder the Scan panel will write to (the Planner's disk row)
+    stopRequested = Signal()            # the window's STOP was pressed (after the rig's own stop was sent)
 
     def __init__(self, simulated: bool = True, parent: QObject | None = None):
         super().__init__(parent)

@@ -581,16 +581,21 @@ def open_studio(rig: RigSpec | str, camera: CameraSpec | str, rig_config: RigCon
                 transfer_s: float = REFERENCE.transfer_s, seed: int = 0,
                 view_region_mm: tuple[float, float, float, float] | None = None, sim_width_px: int | None = None,
                 trigger_command: Sequence[str] | None = None, camera_options: dict[str, Any] | None = None,
-                say: Callable[[str], None] | None = None, **controller_options: Any) -> Studio:
+                say: Callable[[str], None] | None = None, opened: Callable[[Any], None] | None = None,
+                **controller_options: Any) -> Studio:
     """Connect the rig and the camera. A rig simulated in this process is homed (or given its
     origin) at once: the simulated studio starts ready (``say``: told when homing starts, as each
-    drive of a drive pair reaches its reference, and when it ends). Everything opened is closed again
-    when a step fails. Raises InputError / DeviceError / LockBusy with one operator line."""
+    drive of a drive pair reaches its reference, and when it ends). ``opened``: called with the rig's
+    controller as soon as it is connected, before it homes (so that the window's STOP can stop it;
+    raising there closes it again). Everything opened is closed again when a step fails. Raises
+    InputError / DeviceError / LockBusy with one operator line."""
     rig_spec = RigSpec.parse(rig) if isinstance(rig, str) else rig
     cam_spec = CameraSpec.parse(camera) if isinstance(camera, str) else camera
     link = open_rig(rig_spec, rig_config, doing=doing, time_scale=time_scale, seed=seed, **controller_options)
     notes: list[str] = []
     try:
+        if opened is not None:
+            opened(link.controller)
         position = None
         if link.simulator is not None:
             if rig_config.homing:

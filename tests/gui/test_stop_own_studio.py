@@ -81,3 +81,39 @@ def test_the_rig_panels_stop_reaches_the_own_studios_rig(qtbot, tmp_path):
     qtbot.waitUntil(lambda: "Aborted" in scan.state_label.text(), timeout=T)
     assert window.state.devices.get("rig") is None
     window.close()
+
+
+def test_stop_while_the_own_studio_homes_stops_it_and_the_scan_does_not_start(qtbot, tmp_path):
+    """The own studio's simulated rig homes when it starts (about 11 s in real time): STOP then stops
+    it (it was out of STOP's reach: no panel held it yet) and the scan does not start."""
+    window, scan, rig = own_studio_window(qtbot)
+    set_up_scan(scan, 8, 3, tmp_path / "own")
+    scan.time_scale.setValue(1.0)
+    errors = []
+    window.state.errorOccurred.connect(lambda title, message: errors.append(message))
+    qtbot.mouseClick(scan.start_button, Qt.LeftButton)
+    preparing = lambda: getattr(scan, "_preparing", None)     # noqa: E731 - the rig being prepared
+    qtbot.waitUntil(lambda: preparing() is not None and preparing().rig is not None, timeout=T)
+    homing = preparing().rig
+    qtbot.mouseClick(window.stop_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: "Not started: STOP was pressed" in scan.state_label.text(), timeout=T)
+    assert scan.engine is None and not (tmp_path / "own" / "dataset.json").exists()
+    assert not errors, errors                     # the operator's own STOP: no alarm box
+    assert scan.studio is None                    # the studio that was stopped while homing is closed again
+    assert homing.status().state.value == "disconnected"
+    assert window.state.devices.get("rig") is None and scan.start_button.isEnabled()
+    window.close()
+
+
+def test_stop_right_after_start_keeps_the_scan_from_starting(qtbot, tmp_path):
+    """STOP pressed while the scan is being prepared (devices opening, dataset being made): nothing
+    moves afterwards, the scan does not start."""
+    window, scan, rig = own_studio_window(qtbot)
+    set_up_scan(scan, 8, 3, tmp_path / "own")
+    scan.time_scale.setValue(0.05)
+    qtbot.mouseClick(scan.start_button, Qt.LeftButton)
+    assert scan.opener.running
+    window.stop_action.trigger()
+    qtbot.waitUntil(lambda: "Not started: STOP was pressed" in scan.state_label.text(), timeout=T)
+    assert scan.engine is None
+    window.close()

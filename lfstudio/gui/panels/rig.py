@@ -742,6 +742,7 @@ class RigPanel(QWidget):
         if device is not None:
             device.stop_now()
             self.state.show_status("Rig: STOP", 5000)
+        self.state.stopRequested.emit()        # a rig no panel holds yet (a scan being prepared) stops too
 
     def home(self) -> None:
         self._run("home", done_message="Rig homed")

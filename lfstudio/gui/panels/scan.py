@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import logging
 import re
+import threading
 import time
 from collections import deque
 from dataclasses import replace
@@ -36,7 +37,7 @@ from PySide6.QtWidgets import (QCheckBox, QComboBox, QDoubleSpinBox, QFileDialog
 
 from lfstudio.dataset.bracket import Bracket, parse_bracket
 from lfstudio.dataset.paths import new_dataset_folder_problem
-from lfstudio.errors import InputError, LfError, window_message
+from lfstudio.errors import DeviceError, InputError, LfError, window_message
 from lfstudio.gui.bridge import GuiInbox, JobRunner
 from lfstudio.gui.devices import QtDevice
 from lfstudio.gui.path_field import expand_on_edit, field_path, offer_sub_folder
@@ -112,6 +113,45 @@ class _CompactSpin(QDoubleSpinBox):
         return self._width(super().minimumSizeHint())
 
 
+#: the Scan panel's line when STOP was pressed while a scan was being prepared
+STOPPED_BEFORE_START = ("Not started: STOP was pressed while the scan was being prepared (the rig stopped). "
+                        "Press Start when ready.")
+
+
+class PreparingRig:
+    """The rig a scan being prepared uses before it is the window's rig (the Scan panel's own
+    simulated studio connecting and homing, a resume homing it): the window's STOP stops it without
+    waiting, and a STOP pressed during the preparation keeps the scan from starting."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.rig: Any = None
+        self.stopped = False
+
+    def set(self, rig: Any) -> None:
+        """The rig is known (any thread); raises when STOP was pressed already (nothing more moves it)."""
+        with self._lock:
+            self.rig = rig
+            stopped = self.stopped
+        if stopped:
+            raise DeviceError(STOPPED_BEFORE_START)
+
+    def stop(self) -> None:
+        """STOP (GUI thread): the rig's stop() on a thread of its own; the scan will not start."""
+        with self._lock:
+            self.stopped = True
+            rig = self.rig
+        if rig is not None and callable(getattr(rig, "stop", None)):
+            threading.Thread(target=_stop_logged, args=(rig,), name="stop-preparing-rig", daemon=True).start()
+
+
+def _stop_logged(rig: Any) -> None:
+    try:
+        rig.stop()
+    except Exception:  # noqa: BLE001 - nobody waits for this thread: the log has it
+        log.exception("STOP of the rig being prepared failed")
+
+
 def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
     """Off the GUI thread: the simulated studio if needed, then a :class:`ScanSession` on the panel's
     devices (dataset lock, dataset created or resumed with its own devices, rig checks) and its engine.
@@ -147,9 +187,11 @@ def prepare_scan(job: dict, progress=None, cancel=None) -> dict:
                                    "(Keep drive reference) if they were homed before and kept it, then start again")
     else:
         if studio is None:
+            preparing = job.get("preparing")
             studio = started_studio = open_studio(
                 "sim", "sim", job["rig_cfg"], doing="the lfstudio window", time_scale=job["time_scale"],
-                exposure_s=job["exposure_s"], transfer_s=job["transfer_s"], view_region_mm=plan.extent_mm())
+                exposure_s=job["exposure_s"], transfer_s=job["transfer_s"], view_region_mm=plan.extent_mm(),
+                opened=preparing.set if preparing is not None else None)      # STOP stops it while it homes
         else:
             studio.set_view_region(plan.extent_mm())
         devices = SharedDevices(studio.rig, studio.camera, studio.record(), port=studio.port)
@@ -238,6 +280,7 @@ class ScanPanel(QWidget):
         self._resumable = False         # the last scan ended with views still to capture (Resume continues it)
         self._rig_device = None         # the rig whose status may end a paused scan's rig fault
         self._scan_rig: QtDevice | None = None   # the own studio's rig as the window's rig, while its scan lasts
+        self._preparing: PreparingRig | None = None   # the rig of the scan being prepared (STOP reaches it)
         self._rig_unready = False       # the paused scan's rig was seen not homed or in alarm
         self.unattended = None          # notifications, status page, auto-resume, on-finish (gui/unattended.py)
         self._said = GuiInbox(lambda lines: [self._log(line) for line in lines], self)   # its lines, any thread
@@ -259,6 +302,7 @@ class ScanPanel(QWidget):
         state.recaptureRequested.connect(self.recapture)
         state.datasetChanged.connect(self._on_dataset)
         state.devicesChanged.connect(self._follow_rig)
+        state.stopRequested.connect(self._stop_preparing)
         state.liveVerdicts.connect(lambda entries: self.unattended is not None and self.unattended.on_verdicts(entries))
         self._follow_rig("rig")
         self._update_preview()
@@ -674,6 +718,7 @@ class ScanPanel(QWidget):
                        devices.get("camera_link")) if shared else None
         simulator = devices.get("rig_simulator") if shared and self.state.simulated else None
         scene = self.state.plan if isinstance(self.state.plan, ScenePlan) else None
+        preparing = PreparingRig()            # the rig the preparation uses, for STOP (see _stop_preparing)
         job = dict(plan=plan, folder=folder, recapture=list(recapture) if recapture else None,
                    rig_cfg=self.rig_config(), scene=scene, shared=rig_devices, simulator=simulator,
                    studio=self.studio, time_scale=self.time_scale.value() if self.state.simulated else 1.0,
@@ -682,7 +727,7 @@ class ScanPanel(QWidget):
                    allow_device_change=allow_device_change, home=home, trust_rig_position=trust_rig_position,
                    fly=self.fly.isChecked(), fly_trigger=str(self.trigger.currentData()),
                    keep_on_card=self.keep_on_card.isChecked(),
-                   blur_limit_px=float(scene.blur_limit_px) if scene is not None else 0.5,
+                   blur_limit_px=float(scene.blur_limit_px) if scene is not None else 0.5, preparing=preparing,
                    fly_speed_mm_s=scene.fly_speed_mm_s if scene is not None else None)   # None: the fastest
         if not shared and self.studio is None:
             self._log("starting the simulated studio (GRBL simulator on a pseudo-terminal, simulated camera)…")
@@ -692,7 +737,21 @@ class ScanPanel(QWidget):
         self.start_button.setEnabled(False)
         self._last_start = (list(recapture) if recapture else None)
         self._last_allow_change = allow_device_change
+        self._preparing = preparing
+        if not shared and self.studio is not None:
+            preparing.set(self.studio.rig)        # a resume may home it while being prepared
         self.opener.start(prepare_scan, job)
+
+    def _stop_preparing(self) -> None:
+        """The window's STOP while a scan is being prepared: its rig stops (the own studio's, which no
+        panel holds yet; a rig connected in the Rig panel was stopped by that panel) and the scan does
+        not start."""
+        preparing = self._preparing
+        if preparing is None or not self.opener.running:
+            return
+        preparing.stop()
+        self._log("STOP: the scan being prepared does not start")
+        self.state_label.setText("Stopping: STOP was pressed while the scan was being prepared …")
 
     def _ask_other_folder(self, folder: Path, problem: str, recapture) -> None:
         """A new scan into a folder holding other files: offer a new sub-folder of it, or let the
@@ -761,13 +820,36 @@ class ScanPanel(QWidget):
 
     def _devices_failed(self, message: str) -> None:
         self._close_unattended()
+        preparing, self._preparing = self._preparing, None
+        if preparing is not None and preparing.stopped:        # the operator's own STOP: no alarm box
+            self._stopped_before_start()
+            return
         self.state_label.setText("Could not start the scan")
         self.state.report_error("Scan", message)
+        self._update_buttons()
+
+    def _stopped_before_start(self) -> None:
+        self.state_label.setText(STOPPED_BEFORE_START)
+        self._log(STOPPED_BEFORE_START)
+        self.state.show_status("STOP: the scan did not start (Start in the Scan panel starts it)", 10000)
         self._update_buttons()
 
     def _devices_ready(self, prepared: dict) -> None:
         if prepared.get("studio") is not None:
             self.studio = prepared["studio"]
+        preparing, self._preparing = self._preparing, None
+        if preparing is not None and preparing.stopped:       # STOP pressed while it was prepared: not started
+            self.scan_session = prepared.get("session")
+            self._end_session()
+            restore_time_scales(prepared.get("restore"))
+            engine = prepared.get("engine")
+            if engine is not None and self.studio is not None and engine.rig.driver is self.studio.rig:
+                # the unstarted engine's own worker (it polls the rig): closed off the GUI thread
+                threading.Thread(target=engine.rig.close, kwargs={"disconnect": False}, name="close-unstarted",
+                                 daemon=True).start()
+            self._close_unattended()
+            self._stopped_before_start()
+            return
         refused = prepared.get("refused")
         engine = prepared.get("engine")
         if refused is not None or prepared.get("not_homed") is not None or prepared.get("not_there") is not None \
