@@ -10,6 +10,7 @@ from typing import cast
 
 import pytest
 from PySide6.QtCore import Qt
+from PySide6.QtWidgets import QMessageBox
 
 from lfstudio.gui.app import create_window
 from lfstudio.gui.panels.rig import RigPanel
@@ -116,4 +117,38 @@ def test_stop_right_after_start_keeps_the_scan_from_starting(qtbot, tmp_path):
     window.stop_action.trigger()
     qtbot.waitUntil(lambda: "Not started: STOP was pressed" in scan.state_label.text(), timeout=T)
     assert scan.engine is None
+    window.close()
+
+
+def test_the_move_back_before_a_resume_on_the_own_studio_is_the_windows_rig(qtbot, tmp_path):
+    """A resume whose own-studio rig stands elsewhere offers to move it back: the move runs as the
+    window's rig (the badge shows it, STOP reaches it); before, it was refused with "The rig is not
+    connected: connect it (Rig → Connect rig)" although the Scan panel's own rig was there."""
+    window, scan, rig = own_studio_window(qtbot)
+    folder = tmp_path / "moved"
+    set_up_scan(scan, 6, 2, folder)
+    scan.time_scale.setValue(0.05)
+    qtbot.mouseClick(scan.start_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: scan.engine is not None and scan.engine.dataset.status_counts()["done"] >= 2,
+                    timeout=T)
+    qtbot.mouseClick(scan.abort_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: not scan.running and "Aborted" in scan.state_label.text(), timeout=T)
+    assert window.state.devices.get("rig") is None
+    scan.studio.rig.move_to(100.0, 50.0)                 # moved away since (the studio's rig, directly)
+    errors = []
+    window.state.errorOccurred.connect(lambda title, message: errors.append(message))
+    qtbot.mouseClick(scan.resume_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: getattr(scan, "move_back_box", None) is not None and scan.move_back_box.isVisible(),
+                    timeout=T)
+    qtbot.mouseClick(scan.move_back_box.button(QMessageBox.StandardButton.Yes), Qt.LeftButton)
+    assert not errors, errors
+    device = window.state.devices.get("rig")
+    assert device is not None and device.driver is scan.studio.rig      # STOP and the badge reach the move
+    qtbot.waitUntil(lambda: scan.engine is not None and scan.engine.state.value == "running", timeout=T)
+    qtbot.waitUntil(lambda: window.state.devices.get("rig") is not None
+                    and window.state.devices["rig"].worker is scan.engine.rig, timeout=T)   # now the scan's
+    scan.abort()
+    qtbot.waitUntil(lambda: "Aborted" in scan.state_label.text() and not scan.running, timeout=T)
+    assert not errors, errors
+    assert window.state.devices.get("rig") is None
     window.close()

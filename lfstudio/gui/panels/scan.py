@@ -913,8 +913,8 @@ class ScanPanel(QWidget):
         self.state.set_device("rig", self._scan_rig)
 
     def _unpublish_scan_rig(self) -> None:
-        """The scan on the own studio has ended: its rig is no longer the window's (the engine closes
-        its worker; the studio stays open for the next scan)."""
+        """The scan on the own studio has ended (or the move back before a resume, ``_ask_move_back``):
+        its rig is no longer the window's; its worker is closed (the studio stays open)."""
         device, self._scan_rig = self._scan_rig, None
         if device is None:
             return
@@ -998,6 +998,11 @@ class ScanPanel(QWidget):
                 self.state_label.setText(f"Not started: the rig is not where {problem.last_view} was taken")
                 return
             rig = self.state.devices.get("rig")
+            if rig is None and self.studio is not None:      # the own studio's rig: the window's for the move
+                from lfstudio.rig.worker import DeviceWorker
+
+                self._scan_rig = rig = QtDevice(DeviceWorker(self.studio.rig, name="rig"), self)
+                self.state.set_device("rig", rig)
             if rig is None:
                 self.state.report_error("Scan", "The rig is not connected: connect it (Rig → Connect rig), "
                                         "then press Resume again.")
@@ -1008,10 +1013,12 @@ class ScanPanel(QWidget):
                                    "(STOP: Esc)", 0)
 
             def arrived(_status) -> None:
+                self._unpublish_scan_rig()
                 self.state.show_status(f"Rig at {problem.last_view}: continuing the scan", 5000)
                 self.start(recapture=recapture, allow_device_change=allow)
 
             def failed(message: str) -> None:
+                self._unpublish_scan_rig()
                 self.state_label.setText(f"Not started: the move to {problem.last_view} failed")
                 self.state.report_error("Scan", f"The rig did not reach {problem.last_view}: {message}")
             rig.run("move_to", x, y, on_result=arrived, on_error=failed)
