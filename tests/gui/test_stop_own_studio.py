@@ -50,6 +50,8 @@ def test_stop_pauses_a_scan_on_the_scan_panels_own_studio(qtbot, tmp_path, fly):
     assert scan.engine.fault is not None and scan.engine.fault.stop_pressed
     assert scan.engine.dataset.status_counts()["done"] < 24
     assert not rig.connect_button.isEnabled()      # the paused scan keeps its rig: no other rig replaces it
+    rig.connect_rig()                               # (a caller that skips the button: refused too)
+    assert rig.device is None and window.state.devices["rig"] is device
     scan.abort()
     qtbot.waitUntil(lambda: "Aborted" in scan.state_label.text(), timeout=T)
     assert scan.engine.state.value == "finished"

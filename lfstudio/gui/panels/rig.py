@@ -636,7 +636,7 @@ class RigPanel(QWidget):
         """Start the simulator if chosen, then connect on the device thread."""
         from lfstudio.studio.devices import open_rig
 
-        if self.connected:
+        if self.connected or self.borrowed is not None:     # the Scan panel's own rig is the window's now
             return
         port = self.chosen_port()
         if not self._fit_profile_to_port(port):
