@@ -114,6 +114,14 @@ def _valid(number: Number, value: Any) -> float | None:
     return float(value) if isinstance(value, (int, float)) and number.problem(value) is None else None
 
 
+def stop_fault() -> ScanFault:
+    """The fault a scan pauses on when the rig's STOP is pressed."""
+    fault = ScanFault("STOP pressed: the rig stopped. Check the rig and the scene, then Resume to go on "
+                      "(or Abort).", "rig")
+    fault.stop_pressed = True
+    return fault
+
+
 def _as_worker(device: Any, name: str) -> tuple[DeviceWorker, bool]:
     if isinstance(device, DeviceWorker):
         return device, False
@@ -215,6 +223,7 @@ class ScanEngine:
         self._drop_by: float | None = None   # abort(grace_s): monotonic time after which captures are dropped
         self._moving = False             # the engine thread waits for a move (engine thread only)
         self._lease: Lease | None = None           # the rig's, while the scan owns it
+        self._stops = 0                            # STOPs pressed (see _stop_pressed, the recovery after a pause)
         self._camera_lease: Lease | None = None    # the camera's, at the same times
         self._listeners: Listeners[ScanEvent] = Listeners("scan listener", log)
 
@@ -372,10 +381,8 @@ class ScanEngine:
         """The rig's STOP was pressed (any thread): pause instead of moving on."""
         if self._drop_by is not None:       # the engine's own stop for abort(grace_s): already ending
             return
-        fault = ScanFault("STOP pressed: the rig stopped. Check the rig and the scene, then Resume to go on "
-                          "(or Abort).", "rig")
-        fault.stop_pressed = True
-        self._post(_Message(Trigger.FAULT, (fault, None)))
+        self._stops += 1
+        self._post(_Message(Trigger.FAULT, (stop_fault(), None)))
 
     # -- requests (any thread) ---------------------------------------------------------------------
     def _post(self, message: _Message) -> None:
@@ -814,10 +821,13 @@ class ScanEngine:
             if self._state is ScanState.RUNNING:
                 fault, self.fault = self.fault, None
                 if fault is not None:
+                    stops = self._stops
                     try:
                         self._recover(fault)
                     except ScanFault as again:
-                        self._raise_fault(again)
+                        # a STOP while recovering cancels its rig calls: that is the operator's STOP, not a
+                        # lost connection (a reconnect after it is refused while the controller holds)
+                        self._raise_fault(stop_fault() if self._stops != stops else again)
 
     def _resumes_by_itself(self, fault: ScanFault | None) -> TypeGuard[ScanFault]:
         return fault is not None and bool(fault.clears) and self.auto_resumed < self.auto_resume

@@ -468,3 +468,34 @@ def test_waiting_for_a_state_returns_after_the_listeners_had_its_event(make):
     engine.abort()
     cam.release(10)
     engine.wait(T)
+
+
+def test_stop_while_resuming_pauses_as_the_operators_stop_not_as_a_lost_connection(make):
+    """STOP pressed just after Resume, while the engine checks the rig after the pause: STOP cancels that
+    check's status call, and the reconnect that followed was refused by the holding controller (GRBL's
+    error 8): the scan paused on "Rig: reconnecting failed ... Check the cable and power" with an alarm.
+    It pauses on the operator's STOP."""
+    from lfstudio.errors import DeviceError
+
+    engine, ds, rig, cam, events, rig_worker = make(camera_cls=HeldCamera, shared_rig=True)
+    engine.start()
+    assert cam.entered.acquire(timeout=T)
+    rig_worker.stop_now()
+    cam.release()
+    assert engine.wait_for_state(ScanState.PAUSED, timeout_s=T) and engine.fault.stop_pressed
+    real_status = rig.status
+
+    def status_while_stop_is_pressed():           # the recovery's status call, and STOP meanwhile
+        rig.status = real_status
+        rig_worker.stop_soon()
+        raise DeviceError("cancelled by STOP")
+
+    def refused_connect():
+        raise DeviceError("controller refused '$I': error 8, '$' command only valid when the controller is Idle")
+    rig.status, rig.connect = status_while_stop_is_pressed, refused_connect
+    assert engine.resume().result(timeout=T) is ScanState.RUNNING
+    assert engine.wait_for_state(ScanState.PAUSED, timeout_s=T)
+    assert engine.fault is not None and engine.fault.stop_pressed, engine.fault
+    assert "reconnecting failed" not in engine.message
+    assert cam.captures == 1                       # nothing more was taken
+    engine.abort()
