@@ -154,3 +154,21 @@ def test_the_move_back_before_a_resume_on_the_own_studio_is_the_windows_rig(qtbo
     assert not errors, errors
     assert window.state.devices.get("rig") is None
     window.close()
+
+
+def test_a_start_with_nothing_to_capture_leaves_no_worker_polling_the_own_studios_rig(qtbot, tmp_path):
+    """Start again on a finished dataset (nothing to capture): the engine made for it never starts,
+    and its own rig worker kept polling the own studio's rig for as long as the window lived."""
+    import threading
+
+    window, scan, rig = own_studio_window(qtbot)
+    set_up_scan(scan, 2, 1, tmp_path / "done")
+    before = set(threading.enumerate())                        # other tests' threads are not this test's
+    qtbot.mouseClick(scan.start_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: "Finished" in scan.state_label.text() and not scan.running, timeout=T)
+    workers = lambda: [t for t in threading.enumerate() if t.name == "device-rig" and t not in before]  # noqa: E731
+    qtbot.waitUntil(lambda: not workers(), timeout=T)          # the finished scan's worker has ended
+    qtbot.mouseClick(scan.start_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: "Every view of this dataset is captured" in scan.state_label.text(), timeout=T)
+    qtbot.waitUntil(lambda: not workers(), timeout=T)
+    window.close()

@@ -828,6 +828,17 @@ class ScanPanel(QWidget):
         self.state.report_error("Scan", message)
         self._update_buttons()
 
+    def _discard_unstarted(self, engine) -> None:
+        """An engine that will not start, on the own studio: its own device workers (the rig's polls the
+        rig) closed off the GUI thread. Workers of the panels' devices stay with their panels."""
+        studio = self.studio
+        if engine is None or studio is None:
+            return
+        for worker, driver in ((engine.rig, studio.rig), (engine.camera, studio.camera)):
+            if worker.driver is driver:
+                threading.Thread(target=worker.close, kwargs={"disconnect": False}, name="close-unstarted",
+                                 daemon=True).start()
+
     def _stopped_before_start(self) -> None:
         self.state_label.setText(STOPPED_BEFORE_START)
         self._log(STOPPED_BEFORE_START)
@@ -842,11 +853,7 @@ class ScanPanel(QWidget):
             self.scan_session = prepared.get("session")
             self._end_session()
             restore_time_scales(prepared.get("restore"))
-            engine = prepared.get("engine")
-            if engine is not None and self.studio is not None and engine.rig.driver is self.studio.rig:
-                # the unstarted engine's own worker (it polls the rig): closed off the GUI thread
-                threading.Thread(target=engine.rig.close, kwargs={"disconnect": False}, name="close-unstarted",
-                                 daemon=True).start()
+            self._discard_unstarted(prepared.get("engine"))
             self._close_unattended()
             self._stopped_before_start()
             return
@@ -877,6 +884,7 @@ class ScanPanel(QWidget):
         for note in self.scan_session.notes:
             self._log(note)
         if engine.remaining == 0:
+            self._discard_unstarted(engine)
             self._end_session()
             self._restore_time_scales()
             self.state.set_dataset(dataset)
