@@ -172,3 +172,26 @@ def test_a_start_with_nothing_to_capture_leaves_no_worker_polling_the_own_studio
     qtbot.waitUntil(lambda: "Every view of this dataset is captured" in scan.state_label.text(), timeout=T)
     qtbot.waitUntil(lambda: not workers(), timeout=T)
     window.close()
+
+
+def test_stop_reaches_the_own_studios_rig_when_only_the_rig_panel_is_connected(qtbot, tmp_path):
+    """A rig connected in the Rig panel but no camera: the scan runs on the Scan panel's own studio (its
+    own rig); the window's rig stays the Rig panel's, and STOP stops the scan's rig as well."""
+    window, scan, rig = own_studio_window(qtbot)
+    rig.connect_rig()
+    qtbot.waitUntil(lambda: rig.last_status is not None and rig.last_status.state.value != "disconnected",
+                    timeout=T)
+    panel_rig = window.state.devices["rig"]
+    set_up_scan(scan, 8, 3, tmp_path / "own")
+    scan.time_scale.setValue(0.05)
+    qtbot.mouseClick(scan.start_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: scan.engine is not None and scan.engine.dataset.status_counts()["done"] >= 2,
+                    timeout=T)
+    assert scan.engine.rig.driver is scan.studio.rig and window.state.devices["rig"] is panel_rig
+    qtbot.mouseClick(window.stop_button, Qt.LeftButton)
+    qtbot.waitUntil(lambda: scan.engine.state.value == "paused", timeout=T)
+    assert scan.engine.fault is not None and scan.engine.fault.stop_pressed
+    scan.abort()
+    qtbot.waitUntil(lambda: "Aborted" in scan.state_label.text(), timeout=T)
+    assert window.state.devices["rig"] is panel_rig and rig.device is panel_rig     # the panel's rig stays
+    window.close()

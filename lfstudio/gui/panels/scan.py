@@ -302,7 +302,7 @@ class ScanPanel(QWidget):
         state.recaptureRequested.connect(self.recapture)
         state.datasetChanged.connect(self._on_dataset)
         state.devicesChanged.connect(self._follow_rig)
-        state.stopRequested.connect(self._stop_preparing)
+        state.stopRequested.connect(self._stop_requested)
         state.liveVerdicts.connect(lambda entries: self.unattended is not None and self.unattended.on_verdicts(entries))
         self._follow_rig("rig")
         self._update_preview()
@@ -742,6 +742,14 @@ class ScanPanel(QWidget):
             preparing.set(self.studio.rig)        # a resume may home it while being prepared
         self.opener.start(prepare_scan, job)
 
+    def _stop_requested(self) -> None:
+        """The window's STOP (after the window's rig was stopped): the rig of a scan on the own studio
+        when it is not the window's rig, and the rig of a scan being prepared."""
+        device = self._scan_rig
+        if device is not None and self.state.devices.get("rig") is not device:
+            device.stop_now()
+        self._stop_preparing()
+
     def _stop_preparing(self) -> None:
         """The window's STOP while a scan is being prepared: its rig stops (the own studio's, which no
         panel holds yet; a rig connected in the Rig panel was stopped by that panel) and the scan does
@@ -915,10 +923,13 @@ class ScanPanel(QWidget):
         panel's), the rig badge and the Rig panel's position reach it as they reach a rig connected in
         the Rig panel. The scan's lease keeps every other motion command off it."""
         self._unpublish_scan_rig()
-        if self.studio is None or engine.rig.driver is not self.studio.rig or self.state.devices.get("rig") is not None:
+        if self.studio is None or engine.rig.driver is not self.studio.rig:
             return
         self._scan_rig = QtDevice(engine.rig, self)
-        self.state.set_device("rig", self._scan_rig)
+        if self.state.devices.get("rig") is None:
+            self.state.set_device("rig", self._scan_rig)
+        # else a rig is connected in the Rig panel but no camera: the scan runs on the own studio all the
+        # same, and the window's STOP stops both (_stop_requested)
 
     def _unpublish_scan_rig(self) -> None:
         """The scan on the own studio has ended (or the move back before a resume, ``_ask_move_back``):
@@ -1005,12 +1016,14 @@ class ScanPanel(QWidget):
             if answer != QMessageBox.StandardButton.Yes:
                 self.state_label.setText(f"Not started: the rig is not where {problem.last_view} was taken")
                 return
-            rig = self.state.devices.get("rig")
+            devices = self.state.devices
+            rig = devices.get("rig") if devices.get("camera") is not None else None    # the scan's, as start()
             if rig is None and self.studio is not None:      # the own studio's rig: the window's for the move
                 from lfstudio.rig.worker import DeviceWorker
 
                 self._scan_rig = rig = QtDevice(DeviceWorker(self.studio.rig, name="rig"), self)
-                self.state.set_device("rig", rig)
+                if devices.get("rig") is None:
+                    self.state.set_device("rig", rig)        # else STOP reaches it through _stop_requested
             if rig is None:
                 self.state.report_error("Scan", "The rig is not connected: connect it (Rig → Connect rig), "
                                         "then press Resume again.")
