@@ -106,7 +106,7 @@ def _noise_weights(observed: np.ndarray, fitted: np.ndarray, usable: np.ndarray)
     f = fitted[usable]
     a = np.vstack([np.ones_like(f), f]).T
     coef, *_ = np.linalg.lstsq(a, r2, rcond=None)
-    floor = max(float(np.median(r2)) * 1e-3, 1e-12)
+    floor = max(0.1 * float(np.median(r2)), 1e-12)      # no few sites may outweigh the rest
     var = np.maximum(coef[0] + coef[1] * fitted, floor)
     return 1.0 / var
 

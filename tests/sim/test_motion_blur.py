@@ -129,3 +129,28 @@ def test_frames_taken_while_moving_have_the_blur_their_truth_states(studio, tmp_
     assert stated == pytest.approx([blur_px] * 6, rel=0.02)
     assert 0.465 <= float(np.mean(measured)) <= 0.53, measured
     assert all(abs(m - blur_px) < 0.08 for m in measured), measured
+
+
+def test_a_plain_flown_view_is_not_reported_as_a_confident_wrong_blur():
+    """View r02 c093 of a 101 x 21 fly scan (regenerated exactly: the renderer's 10 sub-frames, the sensor's
+    noise of its shot): the picture is plain across the motion, so its blur cannot be told. The noise
+    weights once let a few dark sites (whose fitted variance fell to a floor 1000x below the median)
+    decide it: 0.70 ± 0.01 px for a stated 0.499. Now a site weighs at most 10x the median."""
+    from lfstudio.sim.studio import VirtualStudio
+
+    studio = VirtualStudio(width_px=96, height_px=64, focal_length_mm=50.0, sensor_width_mm=96 * 4.53e-3,
+                           near_m=1.77, far_m=4.77, rotation_deg=(1.0, -1.5, 0.7), pp_offset_px=(8.0, -5.0),
+                           view_region_mm=(1800.0, 2200.0, 190.0, 310.0), seed=0, n_layers=4, n_objects=4,
+                           texture_density=1.0, max_texture_px=40000000.0, highlight_gain=0.0)
+    centre = np.array([2171.9419271242095, 201.96338663226481])
+    blur_mm = np.array([0.08000000005820766, 0.0])
+    p0, k = centre - blur_mm / 2, 10
+    rgb = np.mean([studio.render(*(p0 + blur_mm * ((i + 0.5) / k))) for i in range(k)], axis=0).astype(np.float32)
+    exposure = 0.001 * 1600 / 100 / (2.8 / 16) ** 2 / 0.5          # 1 ms at ISO 1600, f/2.8
+    recorded, _ = SensorModel(noise=0.002, seed=0).apply(rgb * np.float32(exposure), 296)
+    observed = mosaic_from_rgb(recorded, 512, 16383, DEFAULT_NEUTRAL).astype(np.float64)
+    px_per_mm = float(studio.disparity_px(studio.near_m, 1.0))
+    offsets, stack = path_renders(studio.render, centre.tolist(), blur_mm.tolist(), 3.0 / px_per_mm, 64)
+    travel, sigma = fit_travel(observed, offsets, stack, 16383)
+    stated = float(studio.disparity_px(studio.near_m, 0.08))
+    assert abs(travel - 0.08) * px_per_mm <= 3 * sigma * px_per_mm, (travel * px_per_mm, sigma * px_per_mm, stated)
