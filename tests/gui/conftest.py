@@ -35,3 +35,19 @@ def instant_devices():
     devices = window_devices(rig, cam)
     yield devices, rig, cam
     close_devices(devices)
+
+
+@pytest.fixture
+def scan_requests(monkeypatch):
+    """The list of every ``ScanRequest`` the session makes while the test runs (the real class, recorded)."""
+    import lfstudio.studio.session as session_module
+
+    requests = []
+    real = session_module.ScanRequest
+
+    def recording(*args, **kwargs):
+        requests.append(real(*args, **kwargs))
+        return requests[-1]
+
+    monkeypatch.setattr(session_module, "ScanRequest", recording)
+    return requests

@@ -51,21 +51,12 @@ def test_keep_on_card_reaches_the_session_and_its_refusal_names_the_control(qtbo
     assert not (tmp_path / "card" / "dataset.json").exists()
 
 
-def test_the_planners_fly_speed_reaches_the_scan_request(qtbot, tmp_path, instant_devices, monkeypatch):
+def test_the_planners_fly_speed_reaches_the_scan_request(qtbot, tmp_path, instant_devices, scan_requests):
     """The Planner's Fly speed is the scan's row speed (it was dropped: the scan flew at the fastest)."""
     from dataclasses import replace
 
-    import lfstudio.studio.session as session_module
     from lfstudio.planning.presets import reference_plan
 
-    requests = []
-    real = session_module.ScanRequest
-
-    def recording(*args, **kwargs):
-        requests.append(real(*args, **kwargs))
-        return requests[-1]
-
-    monkeypatch.setattr(session_module, "ScanRequest", recording)
     devices, rig, cam = instant_devices
     state, panel = scan_panel(qtbot, devices, 4, 2, tmp_path / "speed")
     panel.time_scale.setValue(0.5)
@@ -75,5 +66,5 @@ def test_the_planners_fly_speed_reaches_the_scan_request(qtbot, tmp_path, instan
     state.errorOccurred.connect(lambda title, message: errors.append(message))
     qtbot.mouseClick(panel.start_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: bool(errors), timeout=20000)
-    assert requests and requests[-1].fly and requests[-1].fly_speed_mm_s == 7.5
+    assert scan_requests and scan_requests[-1].fly and scan_requests[-1].fly_speed_mm_s == 7.5
     assert "Continuous motion" in errors[-1]        # the instant camera has no triggers

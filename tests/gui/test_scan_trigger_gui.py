@@ -42,17 +42,8 @@ def test_the_trigger_is_offered_with_continuous_motion_remembered_and_summarised
     assert third.trigger.currentData() == "software"
 
 
-def test_the_trigger_choice_reaches_the_scan_request(qtbot, tmp_path, instant_devices, monkeypatch):
-    import lfstudio.studio.session as session_module
+def test_the_trigger_choice_reaches_the_scan_request(qtbot, tmp_path, instant_devices, scan_requests):
 
-    requests = []
-    real = session_module.ScanRequest
-
-    def recording(*args, **kwargs):
-        requests.append(real(*args, **kwargs))
-        return requests[-1]
-
-    monkeypatch.setattr(session_module, "ScanRequest", recording)
     devices, rig, cam = instant_devices
     state, panel = scan_panel(qtbot, devices, 4, 2, tmp_path / "ds")
     panel.time_scale.setValue(0.5)
@@ -62,7 +53,7 @@ def test_the_trigger_choice_reaches_the_scan_request(qtbot, tmp_path, instant_de
     state.errorOccurred.connect(lambda title, message: errors.append(message))
     qtbot.mouseClick(panel.start_button, Qt.MouseButton.LeftButton)
     qtbot.waitUntil(lambda: bool(errors), timeout=20000)     # the instant camera has no triggers at all
-    assert requests and requests[-1].fly and requests[-1].fly_trigger == "software"
+    assert scan_requests and scan_requests[-1].fly and scan_requests[-1].fly_trigger == "software"
 
 
 def test_hardware_chosen_but_the_devices_cannot_is_refused_naming_the_trigger_list(qtbot, tmp_path, monkeypatch):

@@ -9,31 +9,9 @@ from __future__ import annotations
 import threading
 
 from lfstudio.dataset import Dataset
-from lfstudio.rig.profile import load_rig
 from lfstudio.scan.card import CardBufferEngine
 from lfstudio.scan.events import EventKind, ScanState
-from lfstudio.scan.scan_plan import ScanPlan
-from lfstudio.studio.devices import open_studio
-from lfstudio.studio.session import create_scan_dataset
-
-RIG = load_rig()
-
-
-def _studio(tmp_path, columns, rows):
-    plan = ScanPlan.centered(columns, rows, (4.0, 6.0), RIG, settle_s=0.0)
-    studio = open_studio("sim", "sim", RIG, time_scale=0.0, exposure_s=0.5, transfer_s=2.5,
-                         view_region_mm=plan.extent_mm(), sim_width_px=48)
-    ds = create_scan_dataset(tmp_path / "ds", plan, rig={"name": RIG.name}, camera={"name": "sim"},
-                             lens={"name": "t"})
-    return studio, plan, ds
-
-
-def _check_all_done(root, n):
-    done = Dataset.open(root)
-    assert done.status_counts()["done"] == n and done.verify_files() == []
-    assert all(done.path_of(v).is_file() for v in done.done_views())
-    assert all(v["on_card"] == [] for v in done.views)
-    return done
+from tests.scan.test_card_buffer import _check_all_done, _studio
 
 
 def test_a_full_card_downloads_what_waits_on_it_and_loses_nothing(tmp_path):
