@@ -174,24 +174,22 @@ def test_a_start_with_nothing_to_capture_leaves_no_worker_polling_the_own_studio
     window.close()
 
 
-def test_stop_reaches_the_own_studios_rig_when_only_the_rig_panel_is_connected(qtbot, tmp_path):
-    """A rig connected in the Rig panel but no camera: the scan runs on the Scan panel's own studio (its
-    own rig); the window's rig stays the Rig panel's, and STOP stops the scan's rig as well."""
+def test_a_scan_with_only_the_rig_connected_is_refused_naming_the_camera_panel(qtbot, tmp_path):
+    """A rig connected in the Rig panel but no camera: Start is refused (it used to scan on the Scan
+    panel's own simulated studio beside the connected rig, which might be a real one) and says what to
+    connect; no dataset is made and no simulated studio opened."""
     window, scan, rig = own_studio_window(qtbot)
+    errors: list[tuple[str, str]] = []
+    window.state.errorOccurred.connect(lambda title, text: errors.append((title, text)))
     rig.connect_rig()
     qtbot.waitUntil(lambda: rig.last_status is not None and rig.last_status.state.value != "disconnected",
                     timeout=T)
-    panel_rig = window.state.devices["rig"]
     set_up_scan(scan, 8, 3, tmp_path / "own")
-    scan.time_scale.setValue(0.05)
     qtbot.mouseClick(scan.start_button, Qt.LeftButton)
-    qtbot.waitUntil(lambda: scan.engine is not None and scan.engine.dataset.status_counts()["done"] >= 2,
-                    timeout=T)
-    assert scan.engine.rig.driver is scan.studio.rig and window.state.devices["rig"] is panel_rig
-    qtbot.mouseClick(window.stop_button, Qt.LeftButton)
-    qtbot.waitUntil(lambda: scan.engine.state.value == "paused", timeout=T)
-    assert scan.engine.fault is not None and scan.engine.fault.stop_pressed
-    scan.abort()
-    qtbot.waitUntil(lambda: "Aborted" in scan.state_label.text(), timeout=T)
-    assert window.state.devices["rig"] is panel_rig and rig.device is panel_rig     # the panel's rig stays
+    assert errors and errors[-1][0] == "Scan"
+    text = errors[-1][1]
+    assert "rig is connected but the camera is not" in text and "Camera panel" in text
+    assert "disconnect the rig in the Rig panel" in text
+    assert scan.engine is None and scan.studio is None and not scan.opener.running
+    assert not (tmp_path / "own" / "dataset.json").exists()
     window.close()

@@ -709,7 +709,15 @@ class ScanPanel(QWidget):
             return
         self._save_settings()
         devices = self.state.devices
-        shared = devices.get("rig") is not None and devices.get("camera") is not None
+        rig_on, camera_on = devices.get("rig") is not None, devices.get("camera") is not None
+        shared = rig_on and camera_on
+        if rig_on != camera_on:     # never a scan on the own simulated studio beside a connected device
+            have, lack = ("rig", "camera") if rig_on else ("camera", "rig")
+            self.state.report_error(
+                "Scan", f"The {have} is connected but the {lack} is not: connect the {lack} in the "
+                        f"{lack.capitalize()} panel (Connect), then start the scan. To scan the simulated "
+                        f"studio instead, disconnect the {have} in the {have.capitalize()} panel.")
+            return
         if not shared and self.studio is None and not self.state.simulated:
             self.state.report_error("Scan", "No rig or camera connected: connect them in the Rig and Camera "
                                             "panels, then start the scan.")
@@ -928,8 +936,8 @@ class ScanPanel(QWidget):
         self._scan_rig = QtDevice(engine.rig, self)
         if self.state.devices.get("rig") is None:
             self.state.set_device("rig", self._scan_rig)
-        # else a rig is connected in the Rig panel but no camera: the scan runs on the own studio all the
-        # same, and the window's STOP stops both (_stop_requested)
+        # else a rig was connected in the Rig panel meanwhile (Start refuses a rig without a camera): the
+        # window's STOP stops both (_stop_requested)
 
     def _unpublish_scan_rig(self) -> None:
         """The scan on the own studio has ended (or the move back before a resume, ``_ask_move_back``):
