@@ -51,6 +51,7 @@ import math
 import os
 import threading
 import time
+from collections import deque
 from typing import Callable
 
 import serial
@@ -119,6 +120,18 @@ class GrblController:
         self._lost = ""                          # why the connection is unusable ("" when fine)
         self._last: GrblStatus | None = None
         self._last_t = 0.0
+        #: when each '?' not yet matched to a report was sent, oldest first. GRBL answers a '?' once
+        #: its main loop sees the realtime flag, and several '?' before that share one report
+        #: (protocol.c EXEC_STATUS_REPORT), so the n-th report answers the n-th '?' or a later one:
+        #: the oldest unmatched '?' is the earliest the report can have been made.
+        self._asked: deque[float] = deque()
+        self._asks = 0                           # '?' sent in this connection
+        #: '?' no longer counted whose reports may still come (see _query_status): the oldest one's
+        #: time and how many; that many next reports (within timeout_s) are dated from it at the latest
+        self._floor: tuple[float, int] | None = None
+        self._last_asked_t = 0.0                 # that earliest time, for the last report read
+        self._last_read_t = 0.0                  # when the last report was read (the latest it was made)
+        self._reports = 0                        # reports read in this connection
         self._wco: tuple[float, ...] | None = None
         self._jog_target: tuple[float, float] | None = None
         self.settings: dict[int, float] = {}
@@ -210,7 +223,7 @@ class GrblController:
                 self._banner_expected = True
                 self._write(b"\x18")
                 reset_sent = True
-            self._write(b"?")
+            self._ask_status()
             end = time.monotonic() + 0.25
             while status is None and time.monotonic() < end:
                 line = self._readline(end)
@@ -303,6 +316,12 @@ class GrblController:
         return ConnectionLost(reason)
 
     # -- bytes -------------------------------------------------------------------------------------
+    def _ask_status(self) -> None:
+        """Send ``?``, noting when (before the bytes leave: GRBL cannot answer earlier)."""
+        self._asked.append(time.monotonic())
+        self._asks += 1
+        self._write(b"?")
+
     def _write(self, data: bytes) -> None:
         ser = self._serial
         if ser is None or self._lost:
@@ -368,12 +387,29 @@ class GrblController:
                 self._critical = True
         elif kind == "status":
             assert parsed.status is not None
+            self._last_read_t = now = time.monotonic()
+            horizon = now - self.timeout_s       # a '?' unanswered that long was lost (else the link is)
+            while self._asked and self._asked[0] < horizon:
+                self._asked.popleft()
+            if self._asked:
+                asked = self._asked.popleft()
+            else:                                # unasked (a restart ate the count): keep the older bound
+                asked = max(self._last_asked_t, horizon)
+            if self._floor is not None and self._floor[0] >= horizon:
+                asked = min(asked, self._floor[0])
+                self._floor = (self._floor[0], self._floor[1] - 1) if self._floor[1] > 1 else None
+            else:
+                self._floor = None
+            self._last_asked_t = asked
+            self._reports += 1
             self._store_status(parsed.status)
         elif kind == "banner":
             self._last_t = 0.0
             self._critical = False
             self._stop_pending = False
             self._unanswered = 0                 # a restarted GRBL owes no answers
+            self._asked.clear()                  # nor reports: its reset dropped the '?' flag
+            self._floor = None
             self._stream_owed = 0
             self._banners += 1
             if self._banner_expected:
@@ -449,7 +485,8 @@ class GrblController:
                 if poll and now >= next_poll:
                     if self._stop_event.is_set():
                         raise MotionStopped(f"{line!r} interrupted by STOP")
-                    self._write(b"?")
+                    if not self._asked:     # GRBL reports once homing ends, for all '?' at once
+                        self._ask_status()
                     next_poll = now + self.poll_period_s
                 got = self._readline(min(deadline, next_poll))
                 if got is None:
@@ -507,26 +544,41 @@ class GrblController:
             self._dispatch(line)
 
     def _query_status(self) -> GrblStatus:
-        """Ask ``?`` and wait for the report. After a critical alarm (ALARM 1/2, "Reset to
+        """Ask ``?`` and wait for the report to it. After a critical alarm (ALARM 1/2, "Reset to
         continue") GRBL answers nothing, not even ``?``, until a reset: the last known state is
-        returned as Alarm without asking."""
+        returned as Alarm without asking.
+
+        Reports come in the order of the questions, each ``?`` counted (:attr:`_asked`): a report
+        to an earlier ``?`` (asked again after 0.5 s without an answer, then answered late) is read
+        and dated by that question, and the wait goes on for the report to ours. GRBL answers all
+        the ``?`` it holds with one report, so after a report and 0.5 s of silence ours shared an
+        earlier one: the questions still counted are dropped, and as many next reports (those that
+        may still come late, within ``timeout_s``) are dated from their oldest at the latest."""
         with self._io:
             self._drain()
             if self._critical:
                 return self._critical_status()
-            self._write(b"?")
+            self._ask_status()
+            ours = self._asks                            # ours is answered once this many are
+            reports = self._reports
             deadline = time.monotonic() + self.timeout_s
             ask_again = time.monotonic() + 0.5
             while True:
                 got = self._readline(min(deadline, ask_again))
                 if got is None:
+                    if time.monotonic() < deadline and self._reports > reports and self._last is not None:
+                        if self._asked:          # those '?' were answered with an earlier report, or lost
+                            floor, count = self._floor or (math.inf, 0)
+                            self._floor = (min(floor, self._asked[0]), count + len(self._asked))
+                            self._asked.clear()
+                        return self._last
                     if time.monotonic() < deadline:  # a '?' sent while GRBL resets is lost: ask again
-                        self._write(b"?")
+                        self._ask_status()           # (if not, its late report is dated from the first)
                         ask_again = time.monotonic() + 0.5
                         continue
                     raise self._mark_lost(f"the controller did not send a status report within "
                                           f"{self.timeout_s:g} s; check its power and cable, then connect again")
-                if self._dispatch(got).kind == "status":
+                if self._dispatch(got).kind == "status" and self._asks - len(self._asked) >= ours:
                     assert self._last is not None
                     return self._last
                 if self._critical:
@@ -981,9 +1033,14 @@ class GrblController:
         (``uncertainty_s``: half their time apart)."""
         with self._io:
             t0 = time.monotonic()
+            reports = self._reports
             st = self._query_status()
             t1 = time.monotonic()
             x, y = self._position(st)
+            if self._reports != reports:
+                # dated by the question it answers, not by ours: a report to an earlier '?' (asked
+                # again after 0.5 s without an answer, and answered late) can come after our '?'
+                t0, t1 = min(self._last_asked_t, t0), self._last_read_t
         return PositionReport((t0 + t1) / 2.0, x, y, (t1 - t0) / 2.0)
 
     def wait_arrival(self, x_mm: float, y_mm: float, timeout_s: float) -> RigStatus:
