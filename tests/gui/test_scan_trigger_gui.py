@@ -9,6 +9,7 @@ from PySide6.QtCore import Qt
 from lfstudio.gui.panels.scan import ScanPanel
 from tests.gui.conftest import close_devices, window_devices
 from tests.gui.test_scan_gui import scan_panel
+from tests.scan.test_fly_refused_line import garble_the_first_row
 
 
 def _choose(qtbot, panel, key: str) -> None:
@@ -101,22 +102,12 @@ def test_a_line_grbl_refuses_mid_row_pauses_naming_the_line_and_where_the_carria
     the Scan panel's message (and the box the window raises) says which line GRBL refused, as sent, its
     error and GRBL's meaning, and where the carriage stopped, position kept; not the "Check the axis
     controller's cable, power and alarms" of a rig that stopped answering."""
-    from lfstudio.rig.grbl import GrblController
     from lfstudio.rig.profile import load_rig
     from lfstudio.scan.scan_plan import ScanPlan
     from lfstudio.studio.devices import open_studio
 
-    real = GrblController._stream
-    sent: list[list[str]] = []
-
-    def garbled_once(self: GrblController, lines: list[str]) -> None:
-        sent.append(lines)
-        if len(sent) == 1:                      # row 0's 3rd view: its line bringing the output low
-            target = [line for line in lines if line.endswith(" S0")][2]
-            lines = [line.replace("G1 X", "G1 X#", 1) if line == target else line for line in lines]
-        real(self, lines)
-
-    monkeypatch.setattr(GrblController, "_stream", garbled_once)
+    sent = garble_the_first_row(monkeypatch,        # row 0's 3rd view: its line bringing the output low
+                                lambda lines: [line for line in lines if line.endswith(" S0")][2])
     rig_config = load_rig()
     plan = ScanPlan.centered(6, 2, (4.0, 6.0), rig_config)
     studio = open_studio("sim", "sim", rig_config, time_scale=0.5, exposure_s=0.001, transfer_s=0.05,

@@ -19,7 +19,24 @@ from lfstudio.scan.fly import FlyScanEngine
 from tests.scan.test_fly_scan import SCALE, check_views, fly_studio
 
 
-def test_a_line_refused_mid_row_pauses_with_the_carriage_stopped_and_resume_flies_the_row_again(tmp_path):
+def garble_the_first_row(monkeypatch, pick) -> list[list[str]]:
+    """Every fly row's lines as the driver streams them (before garbling); in the first, the line ``pick(lines)``
+    is sent as one GRBL refuses ("G1 X#…": error:1 on the firmware, error:2 on our simulator)."""
+    real = GrblController._stream
+    sent: list[list[str]] = []
+
+    def garbled_once(self: GrblController, lines: list[str]) -> None:
+        sent.append(lines)
+        if len(sent) == 1:
+            target = pick(lines)
+            lines = [line.replace("G1 X", "G1 X#", 1) if line == target else line for line in lines]
+        real(self, lines)
+
+    monkeypatch.setattr(GrblController, "_stream", garbled_once)
+    return sent
+
+
+def test_a_line_refused_mid_row_pauses_with_the_carriage_stopped_and_resume_flies_the_row_again(tmp_path, monkeypatch):
     session, plan, ds = fly_studio(tmp_path / "ds", columns=12, rows=2)
     try:
         driver = session.rig
@@ -28,17 +45,7 @@ def test_a_line_refused_mid_row_pauses_with_the_carriage_stopped_and_resume_flie
         # row 0 goes left to right: garble the line that brings the output low before its 9th view
         refused_x = plan.views()[8].x_mm
         target = f"G1 X{refused_x:.3f} S0"
-        real = driver._stream
-        streams: list[list[str]] = []
-
-        def garbled_once(lines: list[str]) -> None:
-            streams.append(lines)
-            if len(streams) == 1:
-                assert target in lines
-                lines = [line.replace("G1 X", "G1 X#", 1) if line == target else line for line in lines]
-            real(lines)
-
-        driver._stream = garbled_once                     # type: ignore[method-assign]
+        streams = garble_the_first_row(monkeypatch, lambda lines: target)
         engine = FlyScanEngine(ds, plan, session.rig, session.camera, time_scale=SCALE, backoff_s=0.01,
                                speed_mm_s=40.0, trigger="hardware")
         events = []
@@ -54,6 +61,7 @@ def test_a_line_refused_mid_row_pauses_with_the_carriage_stopped_and_resume_flie
         # in the operator's words (the Scan panel shows this message, the CLI prints it): the line GRBL
         # refused, its error and meaning, where the carriage stopped and that its position is kept; not
         # the generic "Check the axis controller's cable, power and alarms" of a failing rig
+        assert target in streams[0]
         number = streams[0].index(target) + 1
         assert engine.message == (
             f'Flying row 0: GRBL refused line {number} of {len(streams[0])} of the fly row, '
@@ -86,7 +94,7 @@ def test_a_line_refused_mid_row_pauses_with_the_carriage_stopped_and_resume_flie
 
 
 def test_a_refused_line_whose_hold_does_not_complete_pauses_saying_the_position_is_lost_and_resume_asks_for_homing(
-        tmp_path):
+        tmp_path, monkeypatch):
     """When the hold does not complete in time the driver resets all the same: GRBL raises ALARM 3 and
     its position is lost. The pause says so, Resume refuses to go on until the rig is homed, and after
     homing the scan finishes with every view at its position."""
@@ -95,16 +103,7 @@ def test_a_refused_line_whose_hold_does_not_complete_pauses_saying_the_position_
         driver = session.rig
         refused_x = plan.views()[8].x_mm
         target = f"G1 X{refused_x:.3f} S0"
-        real = driver._stream
-        streams: list[list[str]] = []
-
-        def garbled_once(lines: list[str]) -> None:
-            streams.append(lines)
-            if len(streams) == 1:
-                lines = [line.replace("G1 X", "G1 X#", 1) if line == target else line for line in lines]
-            real(lines)
-
-        driver._stream = garbled_once                     # type: ignore[method-assign]
+        garble_the_first_row(monkeypatch, lambda lines: target)
         real_stop_time = driver._stop_time_s
         driver._stop_time_s = lambda: -10.0               # type: ignore[method-assign]  (no time to hold)
         engine = FlyScanEngine(ds, plan, session.rig, session.camera, time_scale=SCALE, backoff_s=0.01,
@@ -141,17 +140,8 @@ def test_the_cli_says_which_line_grbl_refused_and_where_the_carriage_stopped(tmp
     stands, then how to resume; never the cable advice of a rig that stopped answering."""
     from lfstudio.cli import main
 
-    real = GrblController._stream
-    sent: list[list[str]] = []
-
-    def garbled_once(self: GrblController, lines: list[str]) -> None:
-        sent.append(lines)
-        if len(sent) == 1:                      # row 0's 4th view: its line bringing the output low
-            target = [line for line in lines if line.endswith(" S0")][3]
-            lines = [line.replace("G1 X", "G1 X#", 1) if line == target else line for line in lines]
-        real(self, lines)
-
-    monkeypatch.setattr(GrblController, "_stream", garbled_once)
+    sent = garble_the_first_row(monkeypatch,        # row 0's 4th view: its line bringing the output low
+                                lambda lines: [line for line in lines if line.endswith(" S0")][3])
     code = main(["scan", "--out", str(tmp_path / "ds"), "--grid", "8x2", "--sim-width-px", "64", "--time-scale",
                  str(SCALE), "--fly", "--exposure-s", "0.001", "--transfer-s", "0.05", "--trigger", "hardware"])
     err = capsys.readouterr().err
