@@ -78,10 +78,9 @@ class LateAnswers:
                 return
             for byte in data:
                 if byte == 0x3F:
-                    n = len(self.questions) + 1
-                    if n in (2, 3) and self.held:     # the driver asked again: the held report comes now
+                    self.questions.append(time.monotonic())   # recorded before the driver can read a reply
+                    if len(self.questions) in (2, 3) and self.held:   # asked again: the held report comes now
                         os.write(self.master, self.held.pop(0))
-                    self.questions.append(time.monotonic())
                 os.write(self.sim, bytes([byte]))
 
     def _from_simulator(self, data: bytes) -> None:
