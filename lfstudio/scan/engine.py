@@ -1130,7 +1130,7 @@ class ScanEngine:
         if not exposed.is_set() and drop_by is not None and \
                 not self._wait(exposed.is_set, max(0.0, drop_by - time.monotonic())):
             self._stop_camera()                       # abort(grace_s) and the exposure goes on: drop it
-            self._wait(fut.done, 10.0)
+            self._await(fut, 10.0)
             self._attempts[view.cell] = attempt - 1
             raise _Interrupted()
         failed = fut.exception() if fut.done() else None

@@ -399,12 +399,12 @@ class FlyScanEngine(ScanEngine):
         latches = self._row_latches()
         if latches:                              # each frame's latch, one to one (all frames first)
             for fut in fetches:
-                self._wait(fut.done, self.capture_call_timeout_s() + 10)
+                self._await(fut, self.capture_call_timeout_s() + 10)
             paired = _pair_latches(latches, [_exposure_of(fut, speed) for fut in fetches])
         else:
             paired = [None] * len(fetches)
         for k, ((view, t_sent), fut) in enumerate(zip(triggered, fetches)):
-            self._wait(fut.done, self.capture_call_timeout_s() + 10)
+            self._await(fut, self.capture_call_timeout_s() + 10)
             attempt = self._attempts.get(view.cell, 0) + 1
             self._attempts[view.cell] = attempt
             try:

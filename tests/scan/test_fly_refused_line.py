@@ -16,6 +16,8 @@ from lfstudio.dataset import Dataset
 from lfstudio.rig.grbl import GrblController
 from lfstudio.scan.events import EventKind, ScanState
 from lfstudio.scan.fly import FlyScanEngine
+from lfstudio.scan.scan_plan import ScanPlan
+from tests.scan.conftest import RIG
 from tests.scan.test_fly_scan import SCALE, check_views, fly_studio
 
 
@@ -93,6 +95,28 @@ def test_a_line_refused_mid_row_pauses_with_the_carriage_stopped_and_resume_flie
         session.close()
 
 
+def test_a_row_refused_before_the_carriage_moves_pauses_without_waiting_out_the_cameras_time_limit(tmp_path,
+                                                                                                monkeypatch):
+    """The row's first line bringing the output low refused (streamed before the carriage moves): the
+    frames the row never triggers end at once, and the scan pauses then, not when the camera's time
+    limit (an hour here) runs out: the engine waited on its own condition for futures that never woke
+    it (the CLI took ~20 s to say a line was refused)."""
+    session, plan, ds = fly_studio(tmp_path / "ds", columns=6, rows=1)
+    try:
+        garble_the_first_row(monkeypatch, lambda lines: [line for line in lines if line.endswith(" S0")][1])
+        engine = FlyScanEngine(ds, plan, session.rig, session.camera, time_scale=SCALE, backoff_s=0.01,
+                               speed_mm_s=40.0, trigger="hardware")
+        engine._capture_timeout = 3600.0               # a frame may take an hour: only its end settles it
+        engine.start()
+        assert engine.wait_for_state(ScanState.PAUSED, timeout_s=120), engine.message
+        assert "GRBL refused line" in engine.message
+        assert Dataset.open(ds.root).status_counts()["done"] <= 1
+        engine.abort()
+        assert engine.wait(60) is ScanState.FINISHED
+    finally:
+        session.close()
+
+
 def test_a_refused_line_whose_hold_does_not_complete_pauses_saying_the_position_is_lost_and_resume_asks_for_homing(
         tmp_path, monkeypatch):
     """When the hold does not complete in time the driver resets all the same: GRBL raises ALARM 3 and
@@ -142,7 +166,9 @@ def test_the_cli_says_which_line_grbl_refused_and_where_the_carriage_stopped(tmp
 
     sent = garble_the_first_row(monkeypatch,        # row 0's 4th view: its line bringing the output low
                                 lambda lines: [line for line in lines if line.endswith(" S0")][3])
-    code = main(["scan", "--out", str(tmp_path / "ds"), "--grid", "8x2", "--sim-width-px", "64", "--time-scale",
+    centred = ScanPlan.centered(8, 2, (4.0, 6.0), RIG).origin_mm     # the grid 30 mm from home, as fly_studio's
+    code = main(["scan", "--out", str(tmp_path / "ds"), "--grid", "8x2", "--spacing-mm", "4x6",
+                 f"--offset-mm={30 - centred[0]:g}x{30 - centred[1]:g}", "--sim-width-px", "64", "--time-scale",
                  str(SCALE), "--fly", "--exposure-s", "0.001", "--transfer-s", "0.05", "--trigger", "hardware"])
     err = capsys.readouterr().err
     assert code != 0, err
