@@ -320,6 +320,13 @@ def run(args: argparse.Namespace) -> int:
                           log_line=lambda text: print(f"lfstudio scan: {text}", file=sys.stderr))
     try:
         engine = session.open(lambda existing, rig_config: _build_plan(args, rig_config, existing))
+        if engine is None:                      # every view finished: no device was connected
+            assert session.dataset is not None and session.plan is not None, "open() sets them"
+            counts = session.dataset.status_counts()
+            print(f"lfstudio scan: {session.dataset.root}: {session.plan.columns}x{session.plan.rows} grid, "
+                  f"{counts['done']} done, {counts['skipped']} skipped; nothing to do, every view is captured "
+                  "(no device connected)", file=sys.stderr)
+            return 0
         dataset, plan, studio = session.dataset, session.plan, session.studio
         assert dataset is not None and plan is not None and studio is not None, "open() sets them or raises"
         unattended.attach(engine, dataset)

@@ -27,7 +27,9 @@ What :meth:`ScanSession.open` guarantees, in this order:
    on the dataset's own rig that did not home checks that the rig stands where the last run left it,
    and that no other dataset's scan used the rig since (:func:`note_scan_on_rig` records each scan
    per port beside the port's lock; else :class:`RigUsedSince`: the GUI asks, the CLI names ``--home``).
-4. The engine gets a plan of the views still to capture (``recapture`` cells again).
+4. The engine gets a plan of the views still to capture (``recapture`` cells again). A resume on its
+   own devices of a dataset whose every view is finished connects nothing (no homing for nothing):
+   :meth:`ScanSession.open` returns None, with :attr:`ScanSession.dataset` and ``plan`` set.
 """
 
 from __future__ import annotations
@@ -174,8 +176,9 @@ def device_differences(recorded: dict[str, Any], current: dict[str, Any]) -> lis
 
 def describe_devices(record: dict[str, Any]) -> str:
     rig, cam = record.get("rig", {}), record.get("camera", {})
-    rig_text = {"sim": "the simulated rig", "instant": "the instant rig"}.get(
-        rig.get("kind"), f"the rig on {rig.get('port', '?')}" + (f" ({rig['firmware']})" if rig.get("firmware") else ""))
+    rig_text = {"sim": "the simulated rig", "instant": "the instant rig",
+                "sim-dryve": "the emulated dryve D1 drives", "sim-canopen": "the emulated CANopen drives"}.get(
+        rig.get("kind"), f"the rig on {rig.get('port', rig.get('kind', '?'))}" + (f" ({rig['firmware']})" if rig.get("firmware") else ""))
     cam_text = {"sim": "the simulated camera", "instant": "the instant camera"}.get(
         cam.get("kind"), f"camera {cam.get('spec', cam.get('kind', '?'))}" +
         (f" ({cam['model']})" if cam.get("model") else ""))
@@ -641,6 +644,10 @@ class ScanSession:
                                  "each; every view of a dataset has the same frames",
                                  words("leave --bracket out with --resume, or scan into a new --out folder",
                                        "empty the Bracket field, or choose a new Folder"))
+        if existing is not None and self.shared is None and not req.recapture and \
+                all(is_finished(v) for v in existing.views):      # files still on a card are not finished
+            self.dataset, self.plan = existing, plan
+            return None
         if self.shared is None:
             rig_spec, cam_spec = RigSpec.parse(rig_words), CameraSpec.parse(cam_words)
             if record is not None and req.rig is None and rig_spec.kind == "grbl" and \

@@ -19,6 +19,7 @@ def test_scan_instant_then_info_and_resume_is_a_no_op(run_cli, tmp_path):
     assert "6 done, 0 missing, 0 failed" in text.stdout
     again = run_cli("scan", "--port", "instant", "--camera", "instant", "--out", out, "--resume")
     assert again.returncode == 0 and "nothing to do" in again.stderr
+    assert "no device connected" in again.stderr and "homed" not in again.stderr     # no homing for nothing
 
 
 def test_scan_errors_name_the_option(run_cli, tmp_path):

@@ -40,6 +40,7 @@ def test_scan_on_emulated_drives_then_resume_is_a_no_op(run_cli, tmp_path, word)
     ds.close()
     again = run_cli("scan", "--out", out, "--resume")
     assert again.returncode == 0 and "nothing to do" in again.stderr
+    assert "no device connected" in again.stderr and "homed" not in again.stderr     # no homing for nothing
 
 
 def test_a_grbl_profile_on_drives_is_refused_naming_the_profile(run_cli, tmp_path):

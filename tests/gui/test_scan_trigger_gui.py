@@ -109,12 +109,16 @@ def test_a_line_grbl_refuses_mid_row_pauses_naming_the_line_and_where_the_carria
     sent = garble_the_first_row(monkeypatch,        # row 0's 3rd view: its line bringing the output low
                                 lambda lines: [line for line in lines if line.endswith(" S0")][2])
     rig_config = load_rig()
-    plan = ScanPlan.centered(6, 2, (4.0, 6.0), rig_config)
+    centred = ScanPlan.centered(6, 2, (4.0, 6.0), rig_config).origin_mm
+    near_home = (30.0 - centred[0], 30.0 - centred[1])          # the grid 30 mm from home: no 2 m to cross
+    plan = ScanPlan.centered(6, 2, (4.0, 6.0), rig_config, offset_mm=near_home)
     studio = open_studio("sim", "sim", rig_config, time_scale=0.5, exposure_s=0.001, transfer_s=0.05,
                          view_region_mm=plan.extent_mm(), sim_width_px=64)
     devices = window_devices(studio.rig, studio.camera)
     try:
         state, panel = scan_panel(qtbot, devices, 6, 2, tmp_path / "ds")
+        panel.offset_h.setValue(near_home[0])
+        panel.offset_v.setValue(near_home[1])
         panel.fly.setChecked(True)
         _choose(qtbot, panel, "hardware")
         errors = []

@@ -27,7 +27,10 @@ SCALE = 0.5
 
 
 def fly_studio(root, columns=6, rows=2):
-    plan = ScanPlan.centered(columns, rows, (4.0, 6.0), RIG, settle_s=0.05)
+    """A ``columns`` x ``rows`` grid 30 mm from home (the carriage does not cross 2 m of travel to it)."""
+    centred = ScanPlan.centered(columns, rows, (4.0, 6.0), RIG).origin_mm
+    plan = ScanPlan.centered(columns, rows, (4.0, 6.0), RIG, settle_s=0.05,
+                             offset_mm=(30.0 - centred[0], 30.0 - centred[1]))
     session = open_studio("sim", "sim", RIG, time_scale=SCALE, exposure_s=0.001, transfer_s=0.05,
                           view_region_mm=plan.extent_mm(), sim_width_px=64)
     ds = create_scan_dataset(root, plan, rig={"name": RIG.name}, camera={"name": "sim"}, lens={"name": "virtual"})

@@ -143,6 +143,8 @@ def test_a_rig_plugin_is_reached_by_port_and_recorded(tmp_path, run_cli):
     assert [v["status"] for v in manifest["views"]] == ["done"] * 6
     rig = manifest["devices"]["rig"]
     assert rig["kind"] == "toyrig" and rig["port"] == "toyrig:bench-1" and rig["origin"].startswith("plugin toy-rig")
+    manifest["views"][-1]["status"] = "failed"                      # one view to take again: the resume connects
+    (out / "dataset.json").write_text(json.dumps(manifest))
     r = run_cli("scan", "--resume", "--out", out, env=env)          # the record opens the same rig again
     assert "resuming with the dataset's own devices: the rig on toyrig:bench-1" in r.stderr, r.stderr
     assert "lfstudio rig --port toyrig:bench-1 home" in r.stderr    # a new instant rig stands at 0, 0: said
