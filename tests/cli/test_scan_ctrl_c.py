@@ -19,8 +19,10 @@ from tests.conftest import REPO_ROOT
 from tests.scankill import journal_lines, lfstudio_env
 
 COLUMNS, ROWS = 6, 3
+#: the grid 30 mm from home (not across 2 m of travel), views of 0.2 + 0.6 s at time scale 0.3
 ARGS = ["--port", "sim", "--camera", "sim", "--grid", f"{COLUMNS}x{ROWS}", "--spacing-mm", "4x6",
-        "--time-scale", "0.3", "--sim-width-px", "96"]
+        "--offset-mm=-1960x-214", "--time-scale", "0.3", "--sim-width-px", "96", "--exposure-s", "0.2",
+        "--transfer-s", "0.6"]
 
 
 def _plan_order() -> list[tuple[int, int]]:
@@ -47,7 +49,8 @@ def test_ctrl_c_stops_saves_the_journal_and_prints_the_exact_resume_command(run_
     lines = stderr.strip().splitlines()
     resume = shlex.split(lines[-1])
     assert resume == ["lfstudio", "scan", "--resume", "--out", str(out), "--port", "sim", "--camera", "sim",
-                      "--time-scale", "0.3", "--sim-width-px", "96"], lines[-1]
+                      "--time-scale", "0.3", "--exposure-s", "0.2", "--transfer-s", "0.6", "--sim-width-px", "96"], \
+        lines[-1]
 
     ds = Dataset.open(out)                       # the journal, replayed: what the scan had captured
     done = {(v["row"], v["column"]): v["sha256"] for v in ds.done_views()}
