@@ -111,6 +111,8 @@ def test_a_dead_endpoint_never_slows_the_scan_and_its_queue_is_bounded(tmp_path,
         notifier.notify("flagged", f"test {i}")
     assert notifier.dropped[f"http://127.0.0.1:{dead.port}/…"] == 11      # 1 + 20 waiting, 10 kept
     assert notifier.close(0.2) is False    # gives up at once on the dead endpoint
+    dead.close()                            # its held notice fails now, and its warning is logged in this test
+    assert notifier.wait_idle(30)
 
 
 def test_a_failing_endpoint_is_retried_and_no_secret_reaches_the_log(caplog):
