@@ -126,6 +126,24 @@ def _isolated_config(tmp_path_factory, monkeypatch):
     monkeypatch.setenv("LFSTUDIO_DOCS_SITE", "")      # F1 shows the in-app guide, even where docs/_build exists
 
 
+@pytest.fixture(autouse=True)
+def _log_handlers_end_with_the_test():
+    """The log handlers a test's code installed (``setup_logging``: lfstudio.cli.main, the window) are
+    removed when it ends: they write to that test's captured stderr, closed afterwards, so a later
+    warning in this worker printed "--- Logging error --- ... I/O operation on closed file" into
+    another test's output (and failed a test that checks its stderr holds no traceback)."""
+    import logging
+
+    from lfstudio.support.logs import _HANDLER_TAG
+
+    root = logging.getLogger()
+    before = set(root.handlers)
+    yield
+    for handler in [h for h in root.handlers if h not in before and getattr(h, _HANDLER_TAG, False)]:
+        root.removeHandler(handler)
+        handler.close()
+
+
 @pytest.fixture
 def shared_data() -> Path:
     """``../shared/data`` (real files from outside the project); skips when absent."""
