@@ -1,7 +1,8 @@
 """COLMAP and nerfstudio exports with the rig's known poses, checked against the virtual studio's
 ground truth: pycolmap reads the model; the exported camera projects the scene's 3-D points onto
 the features measured in the exported images; transforms.json read as nerfstudio's dataparser
-reads it gives the same projections."""
+reads it gives the same projections. The sparse point cloud is left out (``points=False``: tests/depth/
+test_points.py tests it), so each export here costs its images, not the feature tracking."""
 
 from __future__ import annotations
 
@@ -134,9 +135,9 @@ def check_colmap_model(ds: Dataset, out: Path, R_expected: np.ndarray, size: tup
 def test_colmap_raw_views_pycolmap_poses_and_projections(calibrated, tmp_path):
     ds = calibrated
     out = tmp_path / "colmap"
-    est = estimate_export(ds, ExportOptions("colmap", out, image_bit_depth=16))
+    est = estimate_export(ds, ExportOptions("colmap", out, points=False, image_bit_depth=16))
     assert est.source == "raw" and est.image_size_px == (640, 426) and not any("calibration" in w for w in est.warnings)
-    export_dataset(ds, ExportOptions("colmap", out, image_bit_depth=16))
+    export_dataset(ds, ExportOptions("colmap", out, points=False, image_bit_depth=16))
     cal = json.loads((ds.root / "calibration.json").read_text())
     rec = check_colmap_model(ds, out, rotation_matrix(cal["rotation_deg"]), (640, 426))
     fx, fy, cx, cy = rec.cameras[1].params
@@ -168,7 +169,7 @@ def test_colmap_rectified_views_use_the_rectified_camera(calibrated, tmp_path):
     assert process_dataset(calibrated.root, profile, workers=0).ok
     ds = Dataset.open(calibrated.root)
     out = tmp_path / "colmap"
-    report = export_dataset(ds, ExportOptions("colmap", out, image_bit_depth=16))
+    report = export_dataset(ds, ExportOptions("colmap", out, points=False, image_bit_depth=16))
     assert report.source == "processed"
     rec = check_colmap_model(ds, out, np.eye(3), (320, 213))
     fx, fy, cx, cy = rec.cameras[1].params
@@ -187,9 +188,9 @@ def test_colmap_rectified_views_use_the_rectified_camera(calibrated, tmp_path):
 
 def test_colmap_without_calibration_says_so(make_tiny_dataset, tmp_path):
     ds = make_tiny_dataset("png")
-    est = estimate_export(ds, ExportOptions("colmap", tmp_path / "c", views="r1"))
+    est = estimate_export(ds, ExportOptions("colmap", tmp_path / "c", points=False, views="r1"))
     assert any("no calibration" in w and "lfstudio calibrate" in w for w in est.warnings)
-    export_dataset(ds, ExportOptions("colmap", tmp_path / "c", views="r1"))
+    export_dataset(ds, ExportOptions("colmap", tmp_path / "c", points=False, views="r1"))
     rec = pycolmap.Reconstruction(tmp_path / "c" / "sparse" / "0")
     assert rec.num_images() == 5
     for im in rec.images.values():
@@ -230,8 +231,9 @@ def nerfstudio_projector(cameras, K, applied):
 
 def test_nerfstudio_transforms_reproduce_the_colmap_projections(calibrated, tmp_path):
     ds = calibrated
-    export_dataset(ds, ExportOptions("colmap", tmp_path / "colmap", image_bit_depth=16))
-    export_dataset(ds, ExportOptions("nerfstudio", tmp_path / "ns", image_bit_depth=16, holdout="centre"))
+    export_dataset(ds, ExportOptions("colmap", tmp_path / "colmap", points=False, image_bit_depth=16))
+    export_dataset(ds, ExportOptions("nerfstudio", tmp_path / "ns", points=False, image_bit_depth=16,
+                                     holdout="centre"))
     meta, train, K, applied = nerfstudio_cameras(tmp_path / "ns", "train")
     _, test, _, _ = nerfstudio_cameras(tmp_path / "ns", "test")
     assert (meta["w"], meta["h"]) == (640, 426) and list(test) == ["images/r01_c002.png"]
@@ -262,10 +264,10 @@ def test_nerfstudio_transforms_reproduce_the_colmap_projections(calibrated, tmp_
 
 def test_nerfstudio_holdout_every_k(make_tiny_dataset, tmp_path):
     ds = make_tiny_dataset("png")
-    export_dataset(ds, ExportOptions("nerfstudio", tmp_path / "ns", holdout="every-2"))
+    export_dataset(ds, ExportOptions("nerfstudio", tmp_path / "ns", points=False, holdout="every-2"))
     meta = json.loads((tmp_path / "ns" / "transforms.json").read_text())
     assert meta["test_filenames"] == ["images/r01_c001.png", "images/r01_c003.png"]
     assert len(meta["train_filenames"]) == 13 and len(meta["frames"]) == 15
-    export_dataset(ds, ExportOptions("nerfstudio", tmp_path / "all", views="r0"))
+    export_dataset(ds, ExportOptions("nerfstudio", tmp_path / "all", points=False, views="r0"))
     meta = json.loads((tmp_path / "all" / "transforms.json").read_text())
     assert not any(k.endswith("_filenames") for k in meta) and len(meta["frames"]) == 5
