@@ -644,10 +644,11 @@ class ScanSession:
                                  "each; every view of a dataset has the same frames",
                                  words("leave --bracket out with --resume, or scan into a new --out folder",
                                        "empty the Bracket field, or choose a new Folder"))
-        if existing is not None and self.shared is None and not req.recapture and \
-                all(is_finished(v) for v in existing.views):      # files still on a card are not finished
-            self.dataset, self.plan = existing, plan
-            return None
+        if existing is not None and self.shared is None and not req.recapture:
+            finished = {(v["row"], v["column"]) for v in existing.views if is_finished(v)}
+            if all(v.cell in finished for v in plan.views()):      # files still on a card are not finished
+                self.dataset, self.plan = existing, plan
+                return None
         if self.shared is None:
             rig_spec, cam_spec = RigSpec.parse(rig_words), CameraSpec.parse(cam_words)
             if record is not None and req.rig is None and rig_spec.kind == "grbl" and \
