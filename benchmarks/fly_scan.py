@@ -313,10 +313,7 @@ def remake_view(camera, raw_path: Path, truth: dict, draws: int = 8) -> tuple[in
     studio = camera.studio
     observed, pattern, white = read_mosaic(raw_path)
     centre, blur, k = np.asarray(truth["true_position_mm"]), np.asarray(truth["blur_mm"]), int(truth["subframes"])
-    p0 = centre - blur / 2
-    rgb = np.mean([studio.render(*(p0 + blur * ((i + 0.5) / k if k > 1 else 0.5))) for i in range(k)], axis=0,
-                  dtype=np.float32) if k > 1 else studio.render(*(p0 + blur * 0.5))
-    rgb = np.asarray(rgb * np.float32(camera.exposure_factor()), dtype=np.float32)
+    rgb = camera.render_exposure(centre - blur / 2, blur, k)          # as fetch() made it
     recorded, _ = camera.sensor.apply(rgb, int(truth["shot"]))
     again = mosaic_from_rgb(recorded, BLACK_LEVEL, WHITE_LEVEL, DEFAULT_NEUTRAL).astype(np.float64)
     diff = int(np.max(np.abs(again - observed))) if again.shape == observed.shape else -1

@@ -511,6 +511,25 @@ class SimulatedCamera:
         except Exception as exc:  # noqa: BLE001 - a cable to nothing does not stop the camera
             log.debug("exposure output: %s", exc)
 
+    def render_exposure(self, p0: Any, blur_mm: Any, k: int) -> np.ndarray:
+        """The light of one exposure before the sensor: ``k`` sub-frames at the centres of ``k`` equal
+        parts of the path from ``p0`` along ``blur_mm`` (mm; one at its middle when ``k`` is 1),
+        averaged, times the exposure factor. What :meth:`fetch` records (and a check makes again from
+        a view's truth sidecar: benchmarks/fly_scan.py)."""
+        studio = self.studio                    # no fault taken here: fetch() checked the camera
+        if studio is None:
+            raise DeviceError(f"{self.name}: not connected; connect the camera first (Camera panel: Connect)")
+        p0, blur_mm = np.asarray(p0, dtype=float), np.asarray(blur_mm, dtype=float)
+        rgb = None
+        for i in range(k):
+            pos = p0 + blur_mm * ((i + 0.5) / k if k > 1 else 0.5)
+            one = studio.render(float(pos[0]), float(pos[1]))
+            rgb = one if rgb is None else rgb + one
+        assert rgb is not None
+        rgb /= np.float32(k)
+        rgb *= np.float32(self.exposure_factor())
+        return rgb
+
     def fetch(self, stem_path: Path, timeout_s: float) -> CaptureResult:
         """The next triggered frame, rendered with its motion blur (renders along the exposure's
         path averaged) and written like :meth:`capture`'s; ``metadata`` has ``exposure_start_s``/
@@ -544,14 +563,7 @@ class SimulatedCamera:
         # and less again where the texture's pixels fall between them (2 made 0.5 px look like a 0.43 px box
         # on the picture, 5 like 0.47, 16 like 0.49: lfstudio.sim.motion_blur), so blur / (2k²) ≤ 0.0025 px
         k = 1 if blur_px < 1e-3 else min(16, max(2, int(math.ceil(math.sqrt(blur_px / 0.005)))))
-        rgb = None
-        for i in range(k):
-            pos = p0 + blur_mm * ((i + 0.5) / k if k > 1 else 0.5)
-            one = studio.render(float(pos[0]), float(pos[1]))
-            rgb = one if rgb is None else rgb + one
-        assert rgb is not None
-        rgb /= np.float32(k)
-        rgb *= np.float32(self.exposure_factor())
+        rgb = self.render_exposure(p0, blur_mm, k)
         shot = self.shots
         self.shots += 1
         recorded, gain = self.sensor.apply(rgb, shot)
